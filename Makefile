@@ -1,0 +1,36 @@
+# jerklab: the two commands of the README.
+#   make lab    set up .venv and open JupyterLab on notebooks/ (virtual rig by default)
+#   make test   set up .venv and run every test (unit, property, notebooks, firmware, browser)
+PYTHON ?= python3
+VENV   ?= .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.jerklab-installed
+PYTEST_ARGS ?=
+
+.PHONY: setup lab test bench firmware clean
+
+$(STAMP): environment.txt pyproject.toml
+	@$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 10), "jerklab needs Python 3.10 or newer, this is " + sys.version' 
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -r environment.txt
+	$(BIN)/python -m pip install --quiet --no-deps -e .
+	$(BIN)/python -m ipykernel install --sys-prefix --name python3 --display-name "Python 3 (jerklab)" > /dev/null
+	touch $(STAMP)
+
+setup: $(STAMP)
+
+lab: setup
+	$(BIN)/jupyter lab notebooks/
+
+test: setup
+	$(BIN)/python -m pytest $(PYTEST_ARGS)
+
+bench: setup
+	$(BIN)/python -m benchmarks
+
+firmware:
+	$(MAKE) -C firmware
+
+clean:
+	rm -rf $(VENV) build *.egg-info artifacts

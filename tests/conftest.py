@@ -1,0 +1,45 @@
+"""Shared test set-up: headless plotting, hypothesis profiles, system-tool checks."""
+from __future__ import annotations
+
+import os
+import shutil
+
+import matplotlib
+import pytest
+
+matplotlib.use("Agg")
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+from hypothesis import HealthCheck, settings  # noqa: E402
+
+# "dev" keeps a local run quick; "ci" (set by .ci/run) runs the full case counts.
+settings.register_profile("dev", max_examples=300, deadline=None)
+settings.register_profile(
+    "ci", max_examples=2000, deadline=None, suppress_health_check=[HealthCheck.too_slow]
+)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "dev"))
+
+REQUIRE_TOOLS = os.environ.get("JERKLAB_REQUIRE_TOOLS", "") not in ("", "0")
+
+
+def require_tool(*names: str) -> None:
+    """Skip the calling test, with a message, when a system tool is missing.
+
+    In CI (``JERKLAB_REQUIRE_TOOLS=1``, set by ``.ci/run``) a missing tool fails the
+    test instead, so a green CI can never hide a skipped firmware or browser test.
+    """
+    missing = [n for n in names if shutil.which(n) is None and not os.path.exists(n)]
+    if missing:
+        msg = (f"needs {', '.join(missing)} (Debian packages; `.ci/run` installs them: "
+               f"sudo apt-get install gcc-avr avr-libc arduino-core-avr simavr libsimavr-dev iverilog chromium)")
+        if REQUIRE_TOOLS:
+            pytest.fail(msg)
+        pytest.skip(msg)
+
+
+@pytest.fixture
+def artifacts_dir(tmp_path_factory):
+    """A folder whose files are kept after the run (``artifacts/`` at the repo root)."""
+    root = os.path.join(os.path.dirname(os.path.dirname(__file__)), "artifacts")
+    os.makedirs(root, exist_ok=True)
+    return root

@@ -1,0 +1,36 @@
+"""Execute every notebook in notebooks/ headless, as a student's kernel would.
+
+Each must run top to bottom without error in under a minute, with the virtual rig.
+"""
+from __future__ import annotations
+
+import os
+import pathlib
+import time
+
+import nbformat
+import pytest
+from nbclient import NotebookClient
+
+NOTEBOOKS = sorted((pathlib.Path(__file__).parent.parent / "notebooks").glob("*.ipynb"))
+TIME_LIMIT_S = 60.0
+
+
+def test_notebooks_exist():
+    assert NOTEBOOKS, "notebooks/ has no notebook"
+
+
+@pytest.mark.notebook
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
+def test_notebook_runs(path, tmp_path, monkeypatch):
+    nb = nbformat.read(path, as_version=4)
+    assert not any(c.get("outputs") for c in nb.cells if c.cell_type == "code"), (
+        f"{path.name} is committed with outputs; clear them")
+    monkeypatch.setenv("MPLBACKEND", "Agg")
+    monkeypatch.setenv("JERKLAB_RECORDINGS", str(tmp_path))
+    client = NotebookClient(nb, timeout=TIME_LIMIT_S, kernel_name="python3",
+                            resources={"metadata": {"path": str(path.parent)}})
+    t0 = time.perf_counter()
+    client.execute()
+    elapsed = time.perf_counter() - t0
+    assert elapsed < TIME_LIMIT_S, f"{path.name} took {elapsed:.1f} s (limit {TIME_LIMIT_S} s)"
