@@ -1,0 +1,1 @@
+"""Speed and accuracy benchmarks, printed as tables (``python -m benchmarks``)."""

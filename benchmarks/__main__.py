@@ -1,0 +1,20 @@
+"""Run every ``benchmarks/bench_*.py`` (or those named on the command line) and print its table."""
+from __future__ import annotations
+
+import importlib
+import pathlib
+import sys
+
+
+def main(argv: list[str]) -> int:
+    here = pathlib.Path(__file__).parent
+    names = argv or sorted(p.stem for p in here.glob("bench_*.py"))
+    for name in names:
+        mod = importlib.import_module(f"benchmarks.{name if name.startswith('bench_') else 'bench_' + name}")
+        print(f"\n=== {mod.__name__} ===")
+        mod.main()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))
