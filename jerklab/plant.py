@@ -1,0 +1,519 @@
+"""DC-motor plant of Stojčić (2015) §2A, with the real rig's imperfections.
+
+The linear model is Stojčić eq. 1,
+
+    P(s) = Θ(s)/U(s) = K / (s (τ s + 1)),      P_v(s) = Ω(s)/U(s) = K / (τ s + 1),
+
+with the paper's identified motor K = 32.4 rad/(V·s), τ = 0.025 s as defaults.
+In state form (states ``[theta, omega]``)::
+
+    theta' = omega
+    omega' = (K (u + w - f_c sign(omega)) - omega) / τ
+
+Disturbances are *input referred* (volts), as in Stojčić eq. 9 where W(s) = P(s):
+a step load disturbance ``w`` and the Coulomb friction ``f_c`` are voltages added to
+(subtracted from) the terminal voltage. A load torque T_L corresponds to
+``w = -T_L R_a / k_t``.
+
+Every imperfection is optional and named: supply saturation (``supply_voltage``),
+PWM quantization (``pwm_bits``), encoder quantization (``encoder_ppr``, ``decoding``),
+Coulomb friction with sticking (``coulomb_friction``), a step load disturbance
+(``load_disturbance``) and measurement noise (``noise_std``).
+
+Between samples the plant is integrated exactly: the linear part has a closed-form
+ZOH solution and a sign change of the velocity under Coulomb friction is located
+analytically (an event), after which the motor either sticks (|u + w| <= f_c) or
+moves on in the other direction. No numerical ODE solver is involved.
+
+:class:`FlexibleDCMotor` adds a lightly damped mode (motor + shaft + load inertia);
+it shows why jerk matters: a jerk step excites the mode, a smooth jerk does not.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import control as ct
+import numpy as np
+import scipy.linalg
+
+from jerklab._validate import (as_finite_array, as_int, as_nonnegative, as_positive,
+                               as_real)
+
+__all__ = ["DCMotor", "FlexibleDCMotor", "StepDisturbance", "advance", "advance_scalar",
+           "quantize_voltage", "measure_angle"]
+
+
+# ---------------------------------------------------------------------------
+# exact inter-sample solution (shared by the plant, the simulator and the rig)
+# ---------------------------------------------------------------------------
+def _lin(theta, omega, w_inf, tau, t):
+    """Exact solution of theta' = omega, tau omega' = w_inf - omega after time t."""
+    em = -math.expm1(-t / tau)                     # 1 - exp(-t/tau), accurate for small t
+    return theta + w_inf * t + (omega - w_inf) * tau * em, w_inf + (omega - w_inf) * (1.0 - em)
+
+
+def advance_scalar(theta, omega, v, fc, K, tau, dt):
+    """Advance the rigid motor by ``dt`` under a held net voltage ``v`` (scalar floats).
+
+    Exact solution of ``tau omega' = K (v - fc sign(omega)) - omega``: the linear
+    part in closed form, the zero crossing of ``omega`` found analytically, and
+    sticking at ``omega = 0`` while ``|v| <= fc`` (static = kinetic friction).
+    Written in plain arithmetic so :mod:`jerklab.sim` can compile it with numba.
+
+    Returns
+    -------
+    (theta, omega) after ``dt``.
+    """
+    if fc <= 0.0:
+        return _lin(theta, omega, K * v, tau, dt)
+    if omega == 0.0:
+        if abs(v) <= fc:
+            return theta, 0.0
+        s = 1.0 if v > 0.0 else -1.0
+    else:
+        s = 1.0 if omega > 0.0 else -1.0
+    w_inf = K * (v - s * fc)
+    if w_inf * s >= 0.0 or omega == 0.0:
+        # heading towards a steady speed of the same sign (or starting from rest): no crossing
+        return _lin(theta, omega, w_inf, tau, dt)
+    # omega decays towards w_inf of the opposite sign: it reaches 0 at t_star
+    t_star = tau * math.log1p(-omega / w_inf)
+    if t_star >= dt:
+        return _lin(theta, omega, w_inf, tau, dt)
+    theta, _ = _lin(theta, omega, w_inf, tau, t_star)
+    rest = dt - t_star
+    if abs(v) <= fc:
+        return theta, 0.0
+    s = 1.0 if v > 0.0 else -1.0
+    return _lin(theta, 0.0, K * (v - s * fc), tau, rest)
+
+
+def advance(theta, omega, v, fc, K, tau, dt):
+    """Vectorized :func:`advance_scalar`: every argument broadcasts (numpy arrays).
+
+    Used by the batch simulation over many perturbed plants.
+    """
+    theta, omega, v, fc, K, tau, dt = np.broadcast_arrays(
+        *(np.asarray(a, dtype=float) for a in (theta, omega, v, fc, K, tau, dt)))
+
+    def lin(th, om, winf, t):
+        em = -np.expm1(-t / tau)
+        return th + winf * t + (om - winf) * tau * em, winf + (om - winf) * (1.0 - em)
+
+    at_rest = omega == 0.0
+    s = np.where(at_rest, np.sign(v), np.sign(omega))
+    w_inf = K * (v - s * fc)
+    stuck0 = at_rest & (np.abs(v) <= fc)
+    crossing = (~at_rest) & (w_inf * s < 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_star = np.where(crossing, tau * np.log1p(np.where(crossing, -omega / w_inf, 0.0)), np.inf)
+    crossing &= t_star < dt
+    t1 = np.where(crossing, t_star, dt)
+    th1, om1 = lin(theta, omega, w_inf, t1)
+    # second segment after the zero crossing
+    s2 = np.sign(v)
+    stuck2 = np.abs(v) <= fc
+    rest = np.where(crossing, dt - t1, 0.0)
+    th2, om2 = lin(th1, np.zeros_like(om1), K * (v - s2 * fc), rest)
+    th_out = np.where(crossing & ~stuck2, th2, th1)
+    om_out = np.where(crossing, np.where(stuck2, 0.0, om2), om1)
+    th_out = np.where(stuck0, theta, th_out)
+    om_out = np.where(stuck0, 0.0, om_out)
+    return th_out, om_out
+
+
+def quantize_voltage(u, supply_voltage=None, pwm_bits=None):
+    """Supply saturation then PWM quantization of a commanded voltage.
+
+    The H-bridge applies ``±supply_voltage`` with a duty cycle ``d/(2**bits - 1)``,
+    ``d`` an integer (10-bit phase-correct PWM on Timer 1: TOP = 1023), the sign set
+    by the direction pins. ``None`` switches the effect off.
+    """
+    u = np.asarray(u, dtype=float)
+    if supply_voltage is not None:
+        u = np.clip(u, -supply_voltage, supply_voltage)
+        if pwm_bits is not None:
+            levels = float(2 ** pwm_bits - 1)
+            u = np.round(u / supply_voltage * levels) / levels * supply_voltage
+    return u
+
+
+def measure_angle(theta, counts_per_rad=None):
+    """Encoder quantization: the counter holds ``floor(theta * counts_per_rad)``."""
+    theta = np.asarray(theta, dtype=float)
+    if counts_per_rad is None:
+        return theta
+    return np.floor(theta * counts_per_rad + 1e-9) / counts_per_rad
+
+
+@dataclass(frozen=True)
+class StepDisturbance:
+    """Step load disturbance ``w(t) = amplitude · 1(t - time)`` in volts (Stojčić eq. 9).
+
+    Input referred (W(s) = P(s)): a negative amplitude acts like a braking load torque.
+    """
+
+    amplitude: float
+    time: float = 0.0
+
+    def __post_init__(self):
+        object.__setattr__(self, "amplitude", as_real("load_disturbance amplitude", self.amplitude))
+        object.__setattr__(self, "time", as_real("load_disturbance time", self.time))
+
+    def __call__(self, t):
+        t = np.asarray(t, dtype=float)
+        out = np.where(t >= self.time, self.amplitude, 0.0)
+        return float(out) if out.ndim == 0 else out
+
+
+def _as_disturbance(value):
+    if value is None:
+        return None
+    if isinstance(value, StepDisturbance):
+        return value
+    if isinstance(value, (tuple, list)) and len(value) == 2:
+        return StepDisturbance(amplitude=value[1], time=value[0])
+    if isinstance(value, dict):
+        return StepDisturbance(**value)
+    try:
+        return StepDisturbance(amplitude=value)
+    except ValueError:
+        raise ValueError("load_disturbance must be None, an amplitude in V, a (time, amplitude) "
+                         f"pair or a StepDisturbance, got {value!r}") from None
+
+
+class _MotorBase:
+    """Imperfections shared by the rigid and the flexible motor."""
+
+    def _init_common(self, supply_voltage, pwm_bits, encoder_ppr, decoding, load_disturbance,
+                     noise_std, seed):
+        self.supply_voltage = None if supply_voltage is None else as_positive("supply_voltage", supply_voltage)
+        self.pwm_bits = None if pwm_bits is None else as_int("pwm_bits", pwm_bits, minimum=1)
+        if self.pwm_bits is not None and self.supply_voltage is None:
+            raise ValueError("pwm_bits needs a supply_voltage (the PWM quantizes a fraction of it)")
+        self.encoder_ppr = None if encoder_ppr is None else as_int("encoder_ppr", encoder_ppr, minimum=1)
+        self.decoding = as_int("decoding", decoding)
+        if self.decoding not in (1, 2, 4):
+            raise ValueError(f"decoding must be 1, 2 or 4, got {self.decoding}")
+        self.load_disturbance = _as_disturbance(load_disturbance)
+        self.noise_std = as_nonnegative("noise_std", noise_std)
+        self.seed = seed
+        self.rng = np.random.default_rng(seed)
+
+    @property
+    def counts_per_rad(self):
+        """Encoder counts per radian, ``encoder_ppr * decoding / (2π)`` (None: ideal sensor)."""
+        if self.encoder_ppr is None:
+            return None
+        return self.encoder_ppr * self.decoding / (2.0 * math.pi)
+
+    def quantize_voltage(self, u):
+        """Supply saturation + PWM quantization → the voltage the motor actually sees."""
+        return quantize_voltage(u, self.supply_voltage, self.pwm_bits)
+
+    def measure(self, theta):
+        """Encoder quantization (floor of the count) plus Gaussian noise ``noise_std`` (rad)."""
+        y = measure_angle(theta, self.counts_per_rad)
+        if self.noise_std > 0.0:
+            y = y + self.rng.normal(0.0, self.noise_std, size=np.shape(y))
+        return y
+
+    def disturbance(self, t):
+        """Input-referred load disturbance w(t) in volts (0 without one)."""
+        if self.load_disturbance is None:
+            return np.zeros_like(np.asarray(t, dtype=float)) if np.ndim(t) else 0.0
+        return self.load_disturbance(t)
+
+    def ideal(self):
+        """A copy with every imperfection off (the linear model of eq. 1)."""
+        raise NotImplementedError
+
+    def open_loop(self, u, Ts, x0=None):
+        """Open-loop response to an input sequence held for ``Ts`` each (ZOH).
+
+        Each ``u[k]`` passes through :meth:`quantize_voltage` and is held on
+        ``[k Ts, (k+1) Ts)``. Returns ``(theta_true, theta_measured)`` sampled at
+        ``k Ts`` for ``k = 0 … len(u)``: the first sample is the initial state, so both
+        arrays have ``len(u) + 1`` entries (the measurement at ``k Ts`` is what a
+        controller would read before choosing ``u[k]``).
+        """
+        u = as_finite_array("u", u, ndim=1)
+        Ts = as_positive("Ts", Ts)
+        v = self.quantize_voltage(u)
+        x = self._x0(x0)
+        theta = np.empty(len(u) + 1)
+        theta[0] = x[0]
+        for k in range(len(u)):
+            x = self.step_state(x, v[k], Ts, t=k * Ts)
+            theta[k + 1] = x[0]
+        return theta, self.measure(theta)
+
+
+class DCMotor(_MotorBase):
+    """Permanent-magnet DC motor with load, Stojčić eq. 1, plus the rig's imperfections.
+
+    Parameters
+    ----------
+    K : float
+        Static gain, rad/(V·s) (paper: 32.4).
+    tau : float
+        Mechanical time constant, s (paper: 0.025).
+    supply_voltage : float or None
+        H-bridge supply: the applied voltage saturates at ±supply_voltage (V).
+    pwm_bits : int or None
+        PWM resolution (10 in the paper); None for an ideal amplifier.
+    encoder_ppr : int or None
+        Encoder pulses per revolution (448); None for a perfect angle sensor.
+    decoding : {1, 2, 4}
+        Edges counted per pulse (1: channel A only, as the paper; 4: quadrature).
+    coulomb_friction : float
+        Coulomb friction as an equivalent voltage f_c ≥ 0 (V); the motor sticks while
+        ``|u + w| <= f_c``. The paper neglects it (models it as disturbance, §2A).
+    load_disturbance : None, float, (time, amplitude) or StepDisturbance
+        Step load disturbance, input referred in volts (eq. 9 with W = P).
+    noise_std : float
+        Standard deviation of Gaussian measurement noise added to the angle (rad).
+    seed : int or None
+        Seed of the noise generator.
+    """
+
+    def __init__(self, K=32.4, tau=0.025, supply_voltage=12.0, pwm_bits=10, encoder_ppr=448,
+                 decoding=1, coulomb_friction=0.0, load_disturbance=None, noise_std=0.0, seed=None):
+        self.K = as_positive("K", K)
+        self.tau = as_positive("tau", tau)
+        self.coulomb_friction = as_nonnegative("coulomb_friction", coulomb_friction)
+        self._init_common(supply_voltage, pwm_bits, encoder_ppr, decoding, load_disturbance,
+                          noise_std, seed)
+
+    def __repr__(self):
+        return (f"DCMotor(K={self.K!r}, tau={self.tau!r}, supply_voltage={self.supply_voltage!r}, "
+                f"pwm_bits={self.pwm_bits!r}, encoder_ppr={self.encoder_ppr!r}, "
+                f"decoding={self.decoding!r}, coulomb_friction={self.coulomb_friction!r}, "
+                f"load_disturbance={self.load_disturbance!r}, noise_std={self.noise_std!r})")
+
+    n_states = 2
+
+    def ideal(self):
+        """The same K, τ with every imperfection switched off."""
+        return DCMotor(self.K, self.tau, supply_voltage=None, pwm_bits=None, encoder_ppr=None)
+
+    def replace(self, **changes):
+        """A copy with some constructor arguments changed (e.g. ``m.replace(K=30)``)."""
+        kw = dict(K=self.K, tau=self.tau, supply_voltage=self.supply_voltage, pwm_bits=self.pwm_bits,
+                  encoder_ppr=self.encoder_ppr, decoding=self.decoding,
+                  coulomb_friction=self.coulomb_friction, load_disturbance=self.load_disturbance,
+                  noise_std=self.noise_std, seed=self.seed)
+        kw.update(changes)
+        return DCMotor(**kw)
+
+    # --- linear models (python-control) ---------------------------------
+    def tf(self):
+        """``K / (s (τ s + 1))`` from volts to rad (Stojčić eq. 1, P(s))."""
+        return ct.tf([self.K], [self.tau, 1.0, 0.0])
+
+    def velocity_tf(self):
+        """``K / (τ s + 1)`` from volts to rad/s (Stojčić eq. 1, P_v(s))."""
+        return ct.tf([self.K], [self.tau, 1.0])
+
+    def ss(self, outputs="theta"):
+        """State space with states ``[theta, omega]``.
+
+        ``outputs="theta"`` (default) gives the angle, ``"omega"`` the velocity,
+        ``"both"`` both.
+        """
+        A = np.array([[0.0, 1.0], [0.0, -1.0 / self.tau]])
+        B = np.array([[0.0], [self.K / self.tau]])
+        C = {"theta": np.array([[1.0, 0.0]]), "omega": np.array([[0.0, 1.0]]),
+             "both": np.eye(2)}.get(outputs)
+        if C is None:
+            raise ValueError(f"outputs must be 'theta', 'omega' or 'both', got {outputs!r}")
+        return ct.ss(A, B, C, np.zeros((C.shape[0], 1)))
+
+    def zoh(self, Ts):
+        """Exact ZOH discretization ``x[k+1] = Phi x[k] + Gamma u[k]`` in closed form."""
+        Ts = as_positive("Ts", Ts)
+        a = math.exp(-Ts / self.tau)
+        em = -math.expm1(-Ts / self.tau)
+        Phi = np.array([[1.0, self.tau * em], [0.0, a]])
+        Gamma = np.array([[self.K * (Ts - self.tau * em)], [self.K * em]])
+        return Phi, Gamma
+
+    def discrete_tf(self, Ts):
+        """ZOH-discretized P(z) as a python-control transfer function (dt = Ts)."""
+        return ct.c2d(self.tf(), as_positive("Ts", Ts), "zoh")
+
+    # --- exact simulation --------------------------------------------------
+    def _x0(self, x0):
+        if x0 is None:
+            return np.zeros(2)
+        x = as_finite_array("x0", x0, ndim=1)
+        if x.shape != (2,):
+            raise ValueError(f"x0 must be [theta, omega], got shape {x.shape}")
+        return x.copy()
+
+    def step_state(self, x, u, dt, t=0.0):
+        """Next state ``[theta, omega]`` after ``dt`` with the terminal voltage ``u`` held.
+
+        ``u`` is the voltage the motor sees (apply :meth:`quantize_voltage` first to
+        model the amplifier). The load disturbance is evaluated on ``[t, t + dt)``;
+        a step inside the interval splits it. Exact: closed-form ZOH for the linear
+        part, analytic zero-crossing event and sticking for Coulomb friction.
+        """
+        x = as_finite_array("x", x, ndim=1)
+        u = as_real("u", u)
+        dt = as_nonnegative("dt", dt)
+        t = as_real("t", t)
+        th, om = float(x[0]), float(x[1])
+        d = self.load_disturbance
+        if d is not None and t < d.time < t + dt:
+            first = d.time - t
+            th, om = advance_scalar(th, om, u + float(d(t)), self.coulomb_friction, self.K, self.tau, first)
+            th, om = advance_scalar(th, om, u + d.amplitude, self.coulomb_friction, self.K, self.tau,
+                                    dt - first)
+        else:
+            w = 0.0 if d is None else float(d(t))
+            th, om = advance_scalar(th, om, u + w, self.coulomb_friction, self.K, self.tau, dt)
+        return np.array([th, om])
+
+
+class FlexibleDCMotor(_MotorBase):
+    """DC motor driving a load through a compliant shaft: a lightly damped mode.
+
+    Two inertias share the rigid motor's total inertia, so that the rigid-body
+    behaviour is exactly Stojčić eq. 1 (same K, τ); the shaft adds a resonance::
+
+        J_m θ_m'' = K u − θ_m' − k (θ_m − θ_l) − c (θ_m' − θ_l')
+        J_l θ_l'' =              k (θ_m − θ_l) + c (θ_m' − θ_l')
+
+    in units where the viscous/back-EMF damping is 1 (then J_m + J_l = τ).
+    ``J_l/J_m = load_ratio``. The shaft is set by the load's own mode with the motor
+    held still: ``mode_frequency`` ω_r = √(k/J_l) (rad/s) and ``mode_damping``
+    ζ_r = c/(2 ω_r J_l). For a light load (small ``load_ratio``) the coupled mode sits at
+    ω_r with damping ζ_r; a heavier load reacts on the electrically damped motor and
+    the coupled mode gets stiffer and better damped (ζ ≈ 0.03 at the default
+    ``load_ratio = 0.05``, 0.24 at 1). States ``[theta_m, omega_m, theta_l, omega_l]``;
+    the encoder sits on the motor.
+
+    Parameters
+    ----------
+    K, tau : float
+        Rigid-body gain and time constant (eq. 1).
+    load_ratio : float
+        Load to motor inertia ratio J_l/J_m (> 0).
+    mode_frequency : float
+        Resonance of the load on the shaft with the motor held still, rad/s.
+    mode_damping : float
+        Damping ratio of the shaft mode (lightly damped: ~0.01–0.05).
+    supply_voltage, pwm_bits, encoder_ppr, decoding, load_disturbance, noise_std, seed
+        As for :class:`DCMotor`. Coulomb friction is not modelled here.
+    """
+
+    n_states = 4
+    coulomb_friction = 0.0
+
+    def __init__(self, K=32.4, tau=0.025, load_ratio=0.05, mode_frequency=2 * math.pi * 8.0,
+                 mode_damping=0.02, supply_voltage=12.0, pwm_bits=10, encoder_ppr=448, decoding=1,
+                 load_disturbance=None, noise_std=0.0, seed=None):
+        self.K = as_positive("K", K)
+        self.tau = as_positive("tau", tau)
+        self.load_ratio = as_positive("load_ratio", load_ratio)
+        self.mode_frequency = as_positive("mode_frequency", mode_frequency)
+        self.mode_damping = as_nonnegative("mode_damping", mode_damping)
+        self._init_common(supply_voltage, pwm_bits, encoder_ppr, decoding, load_disturbance,
+                          noise_std, seed)
+        self._zoh_cache = {}
+
+    def ideal(self):
+        return FlexibleDCMotor(self.K, self.tau, self.load_ratio, self.mode_frequency,
+                               self.mode_damping, supply_voltage=None, pwm_bits=None, encoder_ppr=None)
+
+    def rigid(self):
+        """The rigid motor with the same K, τ and imperfections (eq. 1)."""
+        return DCMotor(self.K, self.tau, self.supply_voltage, self.pwm_bits, self.encoder_ppr,
+                       self.decoding, 0.0, self.load_disturbance, self.noise_std, self.seed)
+
+    def _matrices(self):
+        Jm = self.tau / (1.0 + self.load_ratio)
+        Jl = self.tau - Jm
+        k = self.mode_frequency ** 2 * Jl
+        c = 2.0 * self.mode_damping * self.mode_frequency * Jl
+        A = np.array([[0.0, 1.0, 0.0, 0.0],
+                      [-k / Jm, -(1.0 + c) / Jm, k / Jm, c / Jm],
+                      [0.0, 0.0, 0.0, 1.0],
+                      [k / Jl, c / Jl, -k / Jl, -c / Jl]])
+        B = np.array([[0.0], [self.K / Jm], [0.0], [0.0]])
+        return A, B
+
+    def ss(self, outputs="motor"):
+        """State space; ``outputs`` is ``"motor"`` (θ_m), ``"load"`` (θ_l) or ``"both"``."""
+        A, B = self._matrices()
+        C = {"motor": np.array([[1.0, 0, 0, 0]]), "load": np.array([[0, 0, 1.0, 0]]),
+             "both": np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]])}.get(outputs)
+        if C is None:
+            raise ValueError(f"outputs must be 'motor', 'load' or 'both', got {outputs!r}")
+        return ct.ss(A, B, C, np.zeros((C.shape[0], 1)))
+
+    def tf(self):
+        """Volts → motor angle θ_m (what the encoder measures)."""
+        return ct.ss2tf(self.ss("motor"))
+
+    def load_tf(self):
+        """Volts → load angle θ_l."""
+        return ct.ss2tf(self.ss("load"))
+
+    def velocity_tf(self):
+        """Volts → motor velocity."""
+        return ct.minreal(self.tf() * ct.tf([1.0, 0.0], [1.0]), verbose=False)
+
+    def zoh(self, Ts):
+        """Exact ZOH discretization (Phi, Gamma) via the matrix exponential."""
+        Ts = as_positive("Ts", Ts)
+        if Ts not in self._zoh_cache:
+            A, B = self._matrices()
+            M = np.zeros((5, 5))
+            M[:4, :4] = A * Ts
+            M[:4, 4:] = B * Ts
+            E = scipy.linalg.expm(M)
+            self._zoh_cache[Ts] = (E[:4, :4], E[:4, 4:])
+        return self._zoh_cache[Ts]
+
+    def _x0(self, x0):
+        if x0 is None:
+            return np.zeros(4)
+        x = as_finite_array("x0", x0, ndim=1)
+        if x.shape != (4,):
+            raise ValueError(f"x0 must be [theta_m, omega_m, theta_l, omega_l], got shape {x.shape}")
+        return x.copy()
+
+    def step_state(self, x, u, dt, t=0.0):
+        """Next state after ``dt`` with the voltage ``u`` held (exact ZOH)."""
+        x = self._x0(x)
+        u = as_real("u", u)
+        dt = as_nonnegative("dt", dt)
+        t = as_real("t", t)
+        d = self.load_disturbance
+        if dt == 0.0:
+            return x
+        if d is not None and t < d.time < t + dt:
+            x = self.step_state(x, u, d.time - t, t)
+            return self.step_state(x, u, t + dt - d.time, d.time)
+        w = 0.0 if d is None else float(d(t))
+        Phi, Gamma = self.zoh(dt)
+        return Phi @ x + Gamma[:, 0] * (u + w)
+
+    def open_loop(self, u, Ts, x0=None, output="motor"):
+        """As :meth:`DCMotor.open_loop`; ``output="load"`` returns the load angle instead."""
+        u = as_finite_array("u", u, ndim=1)
+        Ts = as_positive("Ts", Ts)
+        v = self.quantize_voltage(u)
+        x = self._x0(x0)
+        X = np.empty((len(u) + 1, 4))
+        X[0] = x
+        for k in range(len(u)):
+            x = self.step_state(x, v[k], Ts, t=k * Ts)
+            X[k + 1] = x
+        theta = X[:, 2] if output == "load" else X[:, 0]
+        if output not in ("motor", "load"):
+            raise ValueError(f"output must be 'motor' or 'load', got {output!r}")
+        return theta, self.measure(X[:, 0])
