@@ -1,0 +1,557 @@
+"""The jerklab rig serial protocol: frames, CRC, message types, a streaming decoder.
+
+This module is the one definition of the wire format; ``firmware/PROTOCOL.md``
+documents it byte by byte and the Arduino firmware mirrors it.  Counts, PWM
+ticks and microseconds appear only here and in the firmware: everything else
+in jerklab speaks SI units.
+
+Frame (Stojčić §4 asks for a "remote interface"; this binary framing replaces
+the paper's HTML page so that a 5 ms telemetry stream fits a 115200 baud link)::
+
+    0xA5 0x5A | len | type | seq | payload (0..64 bytes) | crc16 (little-endian)
+
+``len`` counts the bytes of ``type + seq + payload`` (2..66).  The CRC is
+CRC-16/CCITT-FALSE (polynomial 0x1021, initial value 0xFFFF, no reflection, no
+final XOR) over ``len .. payload``.  Multi-byte fields are little-endian,
+floats are IEEE-754 float32.
+
+Examples
+--------
+>>> frame = encode(SetPlant(K=32.4, tau=0.025, supply_voltage=12.0, counts_per_rev=448), seq=7)
+>>> dec = Decoder()
+>>> [parse(f) for f in dec.feed(b"junk" + frame)]  # doctest: +ELLIPSIS
+[SetPlant(K=32.4..., tau=0.025..., supply_voltage=12.0, counts_per_rev=448)]
+>>> dec.stats.skipped_bytes
+4
+"""
+from __future__ import annotations
+
+import binascii
+import dataclasses
+import enum
+import math
+import struct
+from dataclasses import dataclass
+from typing import ClassVar
+
+__all__ = [
+    "PROTOCOL_VERSION", "SYNC", "MAX_PAYLOAD", "MAX_FRAME", "MIN_FRAME",
+    "MsgType", "ErrorCode", "EndReason", "Planner", "LoopType", "Capability",
+    "GAINS_FEEDFORWARD", "TELEMETRY_SATURATED", "TELEMETRY_SETTLING",
+    "crc16_ccitt_false", "encode_frame", "encode", "parse", "Frame", "Decoder", "DecoderStats",
+    "ProtocolError", "MESSAGES", "payload_field_name",
+    "Hello", "SetPlant", "SetGains", "SetLimits", "Plan", "Run", "Stop", "Step", "Heartbeat",
+    "Ack", "Nack", "HelloReply", "PlanInfo", "Telemetry", "EndOfRun", "DeviceError",
+]
+
+PROTOCOL_VERSION = 1
+SYNC = b"\xa5\x5a"
+MAX_PAYLOAD = 64
+#: smallest frame: sync(2) + len + type + seq + crc(2)
+MIN_FRAME = 7
+MAX_FRAME = MIN_FRAME + MAX_PAYLOAD
+
+
+class ProtocolError(ValueError):
+    """A frame or payload that does not follow the protocol."""
+
+
+# --------------------------------------------------------------------------- CRC
+
+def _make_table() -> tuple[int, ...]:
+    table = []
+    for byte in range(256):
+        crc = byte << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x1021) if crc & 0x8000 else (crc << 1)
+        table.append(crc & 0xFFFF)
+    return tuple(table)
+
+
+_CRC_TABLE = _make_table()
+
+
+def crc16_ccitt_false(data: bytes, crc: int = 0xFFFF) -> int:
+    """CRC-16/CCITT-FALSE of ``data`` (poly 0x1021, init 0xFFFF, no reflection, no xorout).
+
+    Table-driven, one byte at a time, exactly as the firmware computes it.
+    ``crc16_ccitt_false(b"123456789") == 0x29B1`` (the catalogue check value).
+    The streaming decoder uses the equivalent C routine ``binascii.crc_hqx``.
+    """
+    for b in bytes(data):
+        crc = ((crc << 8) & 0xFFFF) ^ _CRC_TABLE[((crc >> 8) ^ b) & 0xFF]
+    return crc
+
+
+def _crc(data: bytes) -> int:
+    return binascii.crc_hqx(data, 0xFFFF)
+
+
+# --------------------------------------------------------------------------- enums
+
+class MsgType(enum.IntEnum):
+    """Message type byte.  Host -> device below 0x80, device -> host from 0x80."""
+
+    HELLO = 0x01
+    SET_PLANT = 0x02
+    SET_GAINS = 0x03
+    SET_LIMITS = 0x04
+    PLAN = 0x05
+    RUN = 0x06
+    STOP = 0x07
+    STEP = 0x08
+    HEARTBEAT = 0x09
+    ACK = 0x80
+    NACK = 0x81
+    HELLO_REPLY = 0x82
+    PLAN_INFO = 0x83
+    TELEMETRY = 0x90
+    END_OF_RUN = 0x91
+    ERROR = 0x92
+
+
+class ErrorCode(enum.IntEnum):
+    """NACK error codes (``Nack.error``)."""
+
+    OK = 0
+    UNKNOWN_TYPE = 1      #: type byte not a command
+    BAD_LENGTH = 2        #: payload length wrong for the type
+    BAD_VALUE = 3         #: a field is out of range / not finite; ``Nack.param`` = field index
+    BUSY = 4              #: a run or step is active (only STOP, HEARTBEAT, HELLO accepted)
+    NOT_READY = 5         #: RUN without gains, or without a PLAN since the last SET_*
+    UNSUPPORTED = 6       #: planner / loop type / feature not built into this firmware
+    BAD_VERSION = 7       #: protocol version not supported
+
+
+class EndReason(enum.IntEnum):
+    """Why a run or step ended (``EndOfRun.reason``)."""
+
+    DONE = 0
+    STOPPED = 1           #: STOP from the host
+    HOST_TIMEOUT = 2      #: no valid frame from the host for longer than host_timeout_ms
+    FAULT = 3             #: internal fault (control tick overrun, numeric error)
+
+
+class Planner(enum.IntEnum):
+    """``Plan.planner`` values; which ones a device supports is in its capabilities."""
+
+    SINE_JERK = 0          #: Stojčić eq. 2-4, as published
+    SINE_JERK_OPTIMAL = 1
+    SCURVE = 2
+    TRAPEZOID = 3
+
+
+class LoopType(enum.IntEnum):
+    """``SetGains.loop``: which quantity the PID closes on."""
+
+    POSITION = 0           #: Stojčić eq. 11 design, error in rad
+    VELOCITY = 1           #: Stojčić §4B implementation, error in rad/s
+
+
+class Capability(enum.IntFlag):
+    """Bits of ``HelloReply.capabilities``."""
+
+    PLANNER_SINE_JERK = 1 << 0
+    PLANNER_SINE_JERK_OPTIMAL = 1 << 1
+    PLANNER_SCURVE = 1 << 2
+    PLANNER_TRAPEZOID = 1 << 3
+    LOOP_POSITION = 1 << 4
+    LOOP_VELOCITY = 1 << 5
+    OPEN_LOOP_STEP = 1 << 6
+    FEEDFORWARD = 1 << 7
+    SIMULATED_PLANT = 1 << 8   #: the motor is a model (virtual rig, simavr harness)
+
+
+#: ``SetGains.flags`` bit: add the feedforward u_F = (tau*accel + vel)/K (Stojčić eq. 8, 16)
+GAINS_FEEDFORWARD = 0x01
+#: ``Telemetry.flags`` bit: the control output hit the voltage clamp this sample
+TELEMETRY_SATURATED = 0x01
+#: ``Telemetry.flags`` bit: the profile has ended, the loop holds the final position
+TELEMETRY_SETTLING = 0x02
+
+
+# --------------------------------------------------------------------------- messages
+
+@dataclass(frozen=True)
+class _Message:
+    TYPE: ClassVar[MsgType]
+    FORMAT: ClassVar[str]
+
+    def pack(self) -> bytes:
+        """The payload bytes of this message."""
+        values = []
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, str):
+                v = v.encode("ascii", "replace")
+            values.append(v)
+        try:
+            return struct.pack(self.FORMAT, *values)
+        except struct.error as exc:
+            raise ProtocolError(f"{type(self).__name__}: cannot pack {values!r}: {exc}") from None
+
+    @classmethod
+    def unpack(cls, payload: bytes):
+        """Build the message from its payload bytes (ProtocolError if the length is wrong)."""
+        size = struct.calcsize(cls.FORMAT)
+        if len(payload) != size:
+            raise ProtocolError(
+                f"{cls.__name__} payload must be {size} bytes, got {len(payload)}")
+        values = list(struct.unpack(cls.FORMAT, payload))
+        for i, f in enumerate(dataclasses.fields(cls)):
+            if isinstance(values[i], bytes):
+                values[i] = values[i].rstrip(b"\x00").decode("ascii", "replace")
+        return cls(*values)
+
+
+# host -> device -------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Hello(_Message):
+    """Open a session; the device answers HELLO_REPLY (whatever the version)."""
+
+    TYPE: ClassVar[MsgType] = MsgType.HELLO
+    FORMAT: ClassVar[str] = "<B"
+    protocol_version: int = PROTOCOL_VERSION
+
+
+@dataclass(frozen=True)
+class SetPlant(_Message):
+    """Motor model used by the feedforward (Stojčić eq. 1, 8) and the I/O scaling.
+
+    ``K`` rad/(V s), ``tau`` s, ``supply_voltage`` V (PWM full scale),
+    ``counts_per_rev`` encoder counts per revolution after quadrature decoding.
+    """
+
+    TYPE: ClassVar[MsgType] = MsgType.SET_PLANT
+    FORMAT: ClassVar[str] = "<fffH"
+    K: float
+    tau: float
+    supply_voltage: float
+    counts_per_rev: int
+
+
+@dataclass(frozen=True)
+class SetGains(_Message):
+    """Discrete PID gains (Stojčić eq. 12-13) in SI units: V/rad (position loop) or V/(rad/s).
+
+    ``Ts_us`` is the control period in µs (a multiple of ``HelloReply.tick_us``),
+    ``loop`` a :class:`LoopType`, ``flags`` bit 0 = feedforward on.
+    """
+
+    TYPE: ClassVar[MsgType] = MsgType.SET_GAINS
+    FORMAT: ClassVar[str] = "<fffHBB"
+    kpd: float
+    kid: float
+    kdd: float
+    Ts_us: int
+    loop: int = LoopType.POSITION
+    flags: int = GAINS_FEEDFORWARD
+
+
+@dataclass(frozen=True)
+class SetLimits(_Message):
+    """Planner limits (rad/s^3, rad/s^2, rad/s), the voltage clamp (V) and the host watchdog (ms, 0 = off)."""
+
+    TYPE: ClassVar[MsgType] = MsgType.SET_LIMITS
+    FORMAT: ClassVar[str] = "<ffffH"
+    max_jerk: float
+    max_accel: float
+    max_velocity: float
+    max_voltage: float
+    host_timeout_ms: int = 1000
+
+
+@dataclass(frozen=True)
+class Plan(_Message):
+    """Plan a rest-to-rest move of ``distance`` rad (signed) with the current limits."""
+
+    TYPE: ClassVar[MsgType] = MsgType.PLAN
+    FORMAT: ClassVar[str] = "<fB"
+    distance: float
+    planner: int = Planner.SINE_JERK
+
+
+@dataclass(frozen=True)
+class Run(_Message):
+    """Run the planned move from the current position (encoder zeroed at sample 0).
+
+    ``settle_samples`` extra samples hold the final position after the profile;
+    ``decimation`` sends one TELEMETRY frame every that many samples (>= 1).
+    """
+
+    TYPE: ClassVar[MsgType] = MsgType.RUN
+    FORMAT: ClassVar[str] = "<HB"
+    settle_samples: int = 0
+    decimation: int = 1
+
+
+@dataclass(frozen=True)
+class Stop(_Message):
+    """Stop the motor now; an active run ends with END_OF_RUN(STOPPED)."""
+
+    TYPE: ClassVar[MsgType] = MsgType.STOP
+    FORMAT: ClassVar[str] = "<"
+
+
+@dataclass(frozen=True)
+class Step(_Message):
+    """Open-loop step for identification: ``voltage`` V for ``n_samples`` periods of ``Ts_us`` µs.
+
+    Encoder zeroed at sample 0; TELEMETRY every sample with reference 0.
+    """
+
+    TYPE: ClassVar[MsgType] = MsgType.STEP
+    FORMAT: ClassVar[str] = "<fHH"
+    voltage: float
+    Ts_us: int
+    n_samples: int
+
+
+@dataclass(frozen=True)
+class Heartbeat(_Message):
+    """Keeps the host watchdog fed; answered by ACK."""
+
+    TYPE: ClassVar[MsgType] = MsgType.HEARTBEAT
+    FORMAT: ClassVar[str] = "<"
+
+
+# device -> host -------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Ack(_Message):
+    """Command accepted; the frame's seq echoes the command's seq."""
+
+    TYPE: ClassVar[MsgType] = MsgType.ACK
+    FORMAT: ClassVar[str] = "<B"
+    command: int
+
+
+@dataclass(frozen=True)
+class Nack(_Message):
+    """Command refused: ``error`` an :class:`ErrorCode`, ``param`` the payload field index or 0xFF."""
+
+    TYPE: ClassVar[MsgType] = MsgType.NACK
+    FORMAT: ClassVar[str] = "<BBB"
+    command: int
+    error: int
+    param: int = 0xFF
+
+
+@dataclass(frozen=True)
+class HelloReply(_Message):
+    """Device identity: protocol and firmware versions, :class:`Capability` bits, timer tick,
+    PWM full scale (ticks) and a name of up to 16 ASCII characters."""
+
+    TYPE: ClassVar[MsgType] = MsgType.HELLO_REPLY
+    FORMAT: ClassVar[str] = "<BBBBHHH16s"
+    protocol_version: int
+    fw_major: int
+    fw_minor: int
+    fw_patch: int
+    capabilities: int
+    tick_us: int
+    pwm_max: int
+    name: str
+
+    @property
+    def firmware_version(self) -> str:
+        return f"{self.fw_major}.{self.fw_minor}.{self.fw_patch}"
+
+
+@dataclass(frozen=True)
+class PlanInfo(_Message):
+    """Reply to PLAN: accel time T and cruise time t_v (Stojčić eq. 4), duration (s),
+    and ``n_samples`` = ceil(duration/Ts - 1e-4) + 1 samples of the profile at the current Ts."""
+
+    TYPE: ClassVar[MsgType] = MsgType.PLAN_INFO
+    FORMAT: ClassVar[str] = "<fffI"
+    accel_time: float
+    cruise_time: float
+    duration: float
+    n_samples: int
+
+
+@dataclass(frozen=True)
+class Telemetry(_Message):
+    """One control sample: index k (t = k Ts), position reference (rad), encoder count,
+    signed PWM output (ticks, -pwm_max..pwm_max; volts = pwm/pwm_max * supply) and flags."""
+
+    TYPE: ClassVar[MsgType] = MsgType.TELEMETRY
+    FORMAT: ClassVar[str] = "<IfihB"
+    index: int
+    reference: float
+    counts: int
+    pwm: int
+    flags: int = 0
+
+
+@dataclass(frozen=True)
+class EndOfRun(_Message):
+    """A run or step ended: :class:`EndReason`, samples executed, corrupt frames the device
+    dropped since boot (saturating u16), control ticks that overran."""
+
+    TYPE: ClassVar[MsgType] = MsgType.END_OF_RUN
+    FORMAT: ClassVar[str] = "<BIHH"
+    reason: int
+    samples: int
+    rx_errors: int = 0
+    overruns: int = 0
+
+
+@dataclass(frozen=True)
+class DeviceError(_Message):
+    """Asynchronous error report (``code`` an :class:`ErrorCode` or EndReason-like fault, ``detail``)."""
+
+    TYPE: ClassVar[MsgType] = MsgType.ERROR
+    FORMAT: ClassVar[str] = "<BH"
+    code: int
+    detail: int = 0
+
+
+MESSAGES: dict[int, type] = {cls.TYPE: cls for cls in (
+    Hello, SetPlant, SetGains, SetLimits, Plan, Run, Stop, Step, Heartbeat,
+    Ack, Nack, HelloReply, PlanInfo, Telemetry, EndOfRun, DeviceError)}
+
+
+def payload_field_name(command: int, index: int) -> str:
+    """Name of field ``index`` of command type ``command`` (for NACK messages)."""
+    cls = MESSAGES.get(command)
+    if cls is None:
+        return f"field {index} of unknown type 0x{command:02X}"
+    fields = dataclasses.fields(cls)
+    if 0 <= index < len(fields):
+        return fields[index].name
+    return f"field {index}"
+
+
+# --------------------------------------------------------------------------- frames
+
+@dataclass(frozen=True)
+class Frame:
+    """A frame that passed the CRC: ``type`` byte, ``seq`` byte, raw ``payload``."""
+
+    type: int
+    seq: int
+    payload: bytes
+
+
+def encode_frame(msg_type: int, seq: int, payload: bytes = b"") -> bytes:
+    """Bytes on the wire for one frame (sync, len, type, seq, payload, CRC-16 LE)."""
+    if not (0 <= int(msg_type) <= 0xFF):
+        raise ProtocolError(f"msg_type must be a byte, got {msg_type!r}")
+    if not (0 <= int(seq) <= 0xFF):
+        raise ProtocolError(f"seq must be a byte (0..255), got {seq!r}")
+    payload = bytes(payload)
+    if len(payload) > MAX_PAYLOAD:
+        raise ProtocolError(f"payload must be <= {MAX_PAYLOAD} bytes, got {len(payload)}")
+    body = bytes((len(payload) + 2, int(msg_type), int(seq))) + payload
+    return SYNC + body + struct.pack("<H", _crc(body))
+
+
+def encode(msg, seq: int = 0) -> bytes:
+    """Bytes on the wire for a message object (``Hello(...)``, ``Telemetry(...)``, ...)."""
+    return encode_frame(msg.TYPE, seq, msg.pack())
+
+
+def parse(frame: Frame):
+    """The message object carried by a good frame (ProtocolError for unknown type / bad length)."""
+    cls = MESSAGES.get(frame.type)
+    if cls is None:
+        raise ProtocolError(f"unknown message type 0x{frame.type:02X}")
+    return cls.unpack(frame.payload)
+
+
+@dataclass
+class DecoderStats:
+    """What a :class:`Decoder` has seen.  ``dropped`` = frames lost to corruption."""
+
+    frames: int = 0           #: good frames returned
+    bad_crc: int = 0          #: candidate frames whose CRC failed (corrupt or truncated)
+    bad_length: int = 0       #: candidate frames with len outside 2..66
+    truncated: int = 0        #: incomplete frames discarded by ``flush`` (end of stream / timeout)
+    skipped_bytes: int = 0    #: bytes outside any good frame (noise, garbage, lost frames)
+
+    @property
+    def dropped(self) -> int:
+        return self.bad_crc + self.bad_length + self.truncated
+
+
+class Decoder:
+    """Streaming frame decoder: feed it bytes in any chunking, get good frames back.
+
+    A candidate frame starts at every ``A5 5A``.  When its length byte is invalid
+    or its CRC fails, the decoder counts it, drops only the first sync byte and
+    searches again from the next byte, so a good frame that starts inside a
+    corrupted or truncated one is still found (resynchronisation).  Memory is
+    bounded by one maximal frame.
+    """
+
+    def __init__(self) -> None:
+        self._buf = bytearray()
+        self.stats = DecoderStats()
+
+    @property
+    def pending(self) -> int:
+        """Bytes held while waiting for the rest of a frame."""
+        return len(self._buf)
+
+    def feed(self, data: bytes) -> list[Frame]:
+        """Append ``data``; return the complete good frames, in order."""
+        buf = self._buf
+        buf += data
+        out: list[Frame] = []
+        stats = self.stats
+        pos = 0
+        n = len(buf)
+        while True:
+            i = buf.find(SYNC, pos)
+            if i < 0:
+                # keep a trailing 0xA5: it may be the first half of a sync
+                keep = n - 1 if (n > pos and buf[n - 1] == 0xA5) else n
+                stats.skipped_bytes += keep - pos
+                pos = keep
+                break
+            stats.skipped_bytes += i - pos
+            pos = i
+            if n - i < 3:
+                break                                   # need the length byte
+            length = buf[i + 2]
+            if length < 2 or length > MAX_PAYLOAD + 2:
+                stats.bad_length += 1
+                stats.skipped_bytes += 1
+                pos = i + 1
+                continue
+            end = i + 3 + length + 2
+            if end > n:
+                break                                   # wait for more bytes
+            body = bytes(buf[i + 2:i + 3 + length])
+            crc = buf[end - 2] | (buf[end - 1] << 8)
+            if _crc(body) != crc:
+                stats.bad_crc += 1
+                stats.skipped_bytes += 1
+                pos = i + 1
+                continue
+            out.append(Frame(body[1], body[2], body[3:]))
+            stats.frames += 1
+            pos = end
+        del buf[:pos]
+        return out
+
+    def flush(self) -> list[Frame]:
+        """End of stream or receive timeout: give up on a partial frame at the head.
+
+        The held bytes are re-scanned without the head candidate (a good frame
+        may start inside it); returns any frames found, and counts the
+        abandoned candidate as ``truncated``.
+        """
+        out: list[Frame] = []
+        while self._buf:
+            if self._buf[:2] == SYNC:
+                self.stats.truncated += 1
+            self.stats.skipped_bytes += 1
+            rest = bytes(self._buf[1:])
+            self._buf.clear()
+            out += self.feed(rest)
+        return out
+

@@ -1,0 +1,171 @@
+"""Protocol round-trips, CRC check values, the golden frames of firmware/PROTOCOL.md."""
+from __future__ import annotations
+
+import binascii
+import dataclasses
+import math
+import os
+import re
+import struct
+
+import pytest
+
+from jerklab import protocol as P
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _crc_bitwise(data: bytes) -> int:
+    """CRC-16/CCITT-FALSE the textbook way (bit by bit), independent of the table."""
+    crc = 0xFFFF
+    for b in data:
+        crc ^= b << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x1021) & 0xFFFF if crc & 0x8000 else (crc << 1) & 0xFFFF
+    return crc
+
+
+def test_crc_check_value():
+    # the catalogue check value of CRC-16/CCITT-FALSE
+    assert P.crc16_ccitt_false(b"123456789") == 0x29B1
+    assert _crc_bitwise(b"123456789") == 0x29B1
+    assert binascii.crc_hqx(b"123456789", 0xFFFF) == 0x29B1
+
+
+def test_crc_table_matches_bitwise():
+    import random
+    rng = random.Random(1)
+    for _ in range(200):
+        data = bytes(rng.randrange(256) for _ in range(rng.randrange(70)))
+        assert P.crc16_ccitt_false(data) == _crc_bitwise(data)
+
+
+EXAMPLES = [
+    P.Hello(),
+    P.SetPlant(K=32.4, tau=0.025, supply_voltage=12.0, counts_per_rev=448),
+    P.SetGains(kpd=1.0, kid=0.1, kdd=2.0, Ts_us=5000, loop=P.LoopType.VELOCITY, flags=0),
+    P.SetLimits(max_jerk=2e4, max_accel=300.0, max_velocity=100.0, max_voltage=12.0, host_timeout_ms=500),
+    P.Plan(distance=-31.4159, planner=P.Planner.SINE_JERK),
+    P.Run(settle_samples=40, decimation=2),
+    P.Stop(),
+    P.Step(voltage=-6.0, Ts_us=5000, n_samples=200),
+    P.Heartbeat(),
+    P.Ack(command=P.MsgType.SET_GAINS),
+    P.Nack(command=P.MsgType.SET_LIMITS, error=P.ErrorCode.BAD_VALUE, param=3),
+    P.HelloReply(1, 0, 1, 2, 0x1F1, 1000, 1023, "jerklab-uno"),
+    P.PlanInfo(0.1, 0.2, 0.4, 81),
+    P.Telemetry(index=2**32 - 1, reference=-1.5, counts=-2**31, pwm=-1023, flags=3),
+    P.EndOfRun(reason=P.EndReason.HOST_TIMEOUT, samples=81, rx_errors=3, overruns=1),
+    P.DeviceError(code=3, detail=65535),
+]
+
+
+def _f32(x):
+    return struct.unpack("<f", struct.pack("<f", x))[0]
+
+
+@pytest.mark.parametrize("msg", EXAMPLES, ids=lambda m: type(m).__name__)
+def test_round_trip(msg):
+    for seq in (0, 1, 255):
+        wire = P.encode(msg, seq)
+        assert wire[:2] == P.SYNC
+        assert wire[2] == len(wire) - 5
+        frames = P.Decoder().feed(wire)
+        assert len(frames) == 1
+        assert frames[0].seq == seq and frames[0].type == msg.TYPE
+        back = P.parse(frames[0])
+        for f in dataclasses.fields(msg):
+            a, b = getattr(msg, f.name), getattr(back, f.name)
+            if isinstance(a, float):
+                assert b == _f32(a)          # float32 on the wire
+            else:
+                assert a == b
+
+
+def test_every_type_has_an_example_and_fits():
+    assert {type(m) for m in EXAMPLES} == set(P.MESSAGES.values())
+    for cls in P.MESSAGES.values():
+        assert struct.calcsize(cls.FORMAT) <= P.MAX_PAYLOAD
+    # the Uno needs a receive buffer of one maximal frame of the types it can receive
+    assert max(struct.calcsize(c.FORMAT) for c in P.MESSAGES.values()) + P.MIN_FRAME <= 34
+
+
+def test_golden_frames_match_protocol_md():
+    """Every golden frame in firmware/PROTOCOL.md is what protocol.py sends."""
+    text = open(os.path.join(ROOT, "firmware", "PROTOCOL.md"), encoding="utf-8").read()
+    golden = text.split("## Golden frames", 1)[1]
+    hexes = [bytes.fromhex(h) for h in re.findall(r"((?:[0-9a-f]{2} ){4,}[0-9a-f]{2})", golden)]
+    expected = [
+        P.Hello(1), P.SetPlant(32.4, 0.025, 12.0, 448), P.SetGains(1.0, 0.1, 2.0, 5000, 0, 1),
+        P.SetLimits(2e4, 300, 100, 12, 1000), P.Plan(31.4159, 0), P.Run(40, 1), P.Stop(),
+        P.Step(6.0, 5000, 200), P.Heartbeat(), P.Ack(2), P.Nack(3, 3, 1),
+        P.HelloReply(1, 0, 1, 0, 0x1F1, 1000, 1023, "jerklab-uno"), P.PlanInfo(0.1, 0.2, 0.4, 81),
+        P.Telemetry(12, 1.5, -300, -1023, 1), P.EndOfRun(0, 81, 0, 0), P.DeviceError(3, 1),
+    ]
+    assert len(hexes) == len(expected)
+    for h, m in zip(hexes, expected):
+        assert P.encode(m, 5) == h, type(m).__name__
+        assert _crc_bitwise(h[2:-2]) == h[-2] | (h[-1] << 8)
+
+
+def test_documented_payload_sizes():
+    text = open(os.path.join(ROOT, "firmware", "PROTOCOL.md"), encoding="utf-8").read()
+    sizes = dict(re.findall(r"([A-Z_]+) (\d+)[,.]", text.split("Payload sizes:", 1)[1].split("largest")[0]))
+    for cls in P.MESSAGES.values():
+        assert int(sizes[cls.TYPE.name]) == struct.calcsize(cls.FORMAT), cls.TYPE.name
+
+
+def test_bad_payload_lengths_and_types():
+    with pytest.raises(P.ProtocolError, match="Telemetry payload must be 15 bytes"):
+        P.Telemetry.unpack(b"\x00" * 14)
+    with pytest.raises(P.ProtocolError, match="unknown message type 0x42"):
+        P.parse(P.Frame(0x42, 0, b""))
+    with pytest.raises(P.ProtocolError, match="payload must be <= 64"):
+        P.encode_frame(0x01, 0, bytes(65))
+    with pytest.raises(P.ProtocolError, match="seq"):
+        P.encode_frame(0x01, 256, b"")
+    with pytest.raises(P.ProtocolError, match="cannot pack"):
+        P.encode(P.Step(voltage=1.0, Ts_us=70000, n_samples=1))
+
+
+def test_field_names_for_nack():
+    assert P.payload_field_name(P.MsgType.SET_LIMITS, 3) == "max_voltage"
+    assert P.payload_field_name(P.MsgType.SET_GAINS, 3) == "Ts_us"
+    assert "unknown type" in P.payload_field_name(0x42, 0)
+
+
+def test_decoder_any_chunking():
+    wire = b"".join(P.encode(m, i) for i, m in enumerate(EXAMPLES))
+    for chunk in (1, 2, 3, 7, 64, len(wire)):
+        d = P.Decoder()
+        got = []
+        for i in range(0, len(wire), chunk):
+            got += d.feed(wire[i:i + chunk])
+        assert [f.seq for f in got] == list(range(len(EXAMPLES)))
+        assert d.stats.dropped == 0 and d.stats.skipped_bytes == 0 and d.pending == 0
+
+
+def test_decoder_resyncs_inside_a_truncated_frame():
+    good = P.encode(P.Telemetry(1, 0.5, 10, 20, 0), 1)
+    nxt = P.encode(P.Telemetry(2, 0.5, 11, 21, 0), 2)
+    d = P.Decoder()
+    frames = d.feed(good[:-6] + nxt)      # first frame cut short, the next starts inside it
+    assert [f.seq for f in frames] == [2]
+    assert d.stats.bad_crc == 1 and d.stats.frames == 1
+
+
+def test_decoder_bad_length_and_flush():
+    d = P.Decoder()
+    assert d.feed(b"\xa5\x5a\x00\xa5\x5a\xff") == []
+    assert d.stats.bad_length == 2
+    frame = P.encode(P.Ack(1), 9)
+    assert d.feed(frame[:5]) == [] and d.pending == 5
+    assert d.flush() == []
+    assert d.stats.truncated == 1 and d.pending == 0
+    assert [f.seq for f in d.feed(frame)] == [9]
+
+
+def test_float_nan_travels_but_is_visible():
+    # the wire can carry NaN (the device then NACKs BAD_VALUE); the host never sends one
+    m = P.parse(P.Decoder().feed(P.encode(P.Plan(math.nan, 0)))[0])
+    assert math.isnan(m.distance)
