@@ -1,0 +1,1067 @@
+"""System identification of the DC motor: data container, ARX, output-error (PEM) fit, validation.
+
+Stojčić §4A identified the plant of eq. 1,
+
+    P(s) = K / (s (tau s + 1))        (volts -> rad)
+
+from a voltage step recorded every 5 ms, with MATLAB's ``pem(data, 'P2')``, and got
+K = 32.4 rad/(V s), tau = 0.025 s. A ``'P2'`` process model has two poles and *no* integrator;
+the structure of eq. 1 is a pole plus an integrator (MATLAB's ``'P1I'``), and that is what this
+module fits (see ``docs`` / ``READING.md`` §1). Two estimators are offered:
+
+* ``method="arx"``: linear least squares on the differenced angle. The ZOH discretization of eq. 1
+  gives, for v(k) = (theta(k) - theta(k-1)) / Ts, the *exact* difference equation
+
+      v(k) = a v(k-1) + b1 u(k-1) + b2 u(k-2),    a = exp(-Ts/tau),
+
+  with K = (b1 + b2) / (1 - a) and tau = -Ts / ln a. It is exact on noise-free data, but the
+  regressor v(k-1) carries the measurement noise, so under output noise or encoder quantization the
+  estimate is biased (``arx_asymptotic_bias`` predicts by how much).
+* ``method="pem"``: the output-error (simulation-error) fit: K, tau (and the initial angle) minimise
+  sum (theta_measured - theta_simulated)^2, where theta_simulated is the exact ZOH simulation of eq. 1.
+  With white measurement noise this is the maximum-likelihood estimate and is unbiased; its
+  covariance comes from the Jacobian at the optimum.
+
+Everything is SI: volts in, radians out, seconds.
+"""
+from __future__ import annotations
+
+import json
+import math
+import pathlib
+import time as _time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import optimize, signal, stats
+
+import control
+
+from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
+
+__all__ = [
+    "IdentData",
+    "ARXResult",
+    "arx",
+    "MotorFit",
+    "fit_dc_motor",
+    "simulate_dc_motor",
+    "dc_motor_zoh_coefficients",
+    "arx_asymptotic_bias",
+    "fit_percent",
+    "ResidualAnalysis",
+    "residual_analysis",
+    "Validation",
+    "validate",
+    "plot_compare",
+    "plot_residuals",
+    "step_input",
+    "prbs",
+    "sample_time_range",
+]
+
+#: fewest samples a record must hold to be fitted (a handful per parameter, plus transients)
+MIN_SAMPLES = 10
+
+
+# ----------------------------------------------------------------------------------------------
+# input checks
+# ----------------------------------------------------------------------------------------------
+def _signal(name: str, value, min_len: int = MIN_SAMPLES) -> np.ndarray:
+    a = as_finite_array(name, value)
+    if a.ndim != 1:
+        a = np.squeeze(a)
+        if a.ndim != 1:
+            raise ValueError(f"{name} must be a 1-D sequence of samples, got shape {np.shape(value)}")
+    if a.size < min_len:
+        raise ValueError(f"{name} is too short: {a.size} samples, need at least {min_len}")
+    return a
+
+
+def _pair(u, y, u_name: str = "u", y_name: str = "y", min_len: int = MIN_SAMPLES):
+    u = _signal(u_name, u, min_len)
+    y = _signal(y_name, y, min_len)
+    if u.size != y.size:
+        raise ValueError(f"{u_name} and {y_name} must have the same length, got {u.size} and {y.size}")
+    return u, y
+
+
+def _check_excitation(u: np.ndarray, y: np.ndarray, u_name: str, y_name: str) -> None:
+    scale = max(1.0, float(np.max(np.abs(u))))
+    if np.ptp(u) <= 1e-12 * scale:
+        raise ValueError(
+            f"{u_name} is constant ({u[0]:g}): it does not excite the motor; record a step from rest "
+            f"(u = 0 first) or a PRBS (see step_input, prbs)")
+    yscale = max(1.0, float(np.max(np.abs(y))))
+    if np.ptp(y) <= 1e-12 * yscale:
+        raise ValueError(f"{y_name} is constant ({y[0]:g}): the motor did not move (check the supply, "
+                         f"the encoder, or a voltage below the friction threshold)")
+
+
+# ----------------------------------------------------------------------------------------------
+# data container
+# ----------------------------------------------------------------------------------------------
+class IdentData:
+    """An identification record: input u(k), output y(k) sampled every ``Ts`` seconds.
+
+    The Python counterpart of MATLAB's ``iddata(y, u, Ts)`` used in Stojčić §4A.
+
+    Parameters
+    ----------
+    u : array_like
+        Input samples (the motor voltage, V), held constant over each sample period (ZOH).
+    y : array_like
+        Output samples (the measured angle, rad), same length as ``u``.
+    Ts : float
+        Sample period (s), > 0.
+    input_unit, output_unit : str
+        Units, kept in the JSON sidecar ("V" and "rad" by default: SI inside).
+    metadata : dict, optional
+        Anything JSON-able describing how the record was made (plant parameters, seed, command).
+
+    Examples
+    --------
+    >>> d = IdentData(step_input(1.0, 0.005, 6.0), theta, 0.005)        # doctest: +SKIP
+    >>> d.save("data/ident/step")                                       # doctest: +SKIP
+    >>> fit = IdentData.load("data/ident/step").fit("pem")              # doctest: +SKIP
+    """
+
+    FORMAT = "jerklab.ident.IdentData/1"
+
+    def __init__(self, u, y, Ts, input_unit: str = "V", output_unit: str = "rad", metadata=None):
+        self.u, self.y = _pair(u, y, "u", "y", min_len=2)
+        self.Ts = as_positive("Ts", Ts)
+        if not isinstance(input_unit, str) or not input_unit:
+            raise ValueError(f"input_unit must be a non-empty string, got {input_unit!r}")
+        if not isinstance(output_unit, str) or not output_unit:
+            raise ValueError(f"output_unit must be a non-empty string, got {output_unit!r}")
+        self.input_unit = input_unit
+        self.output_unit = output_unit
+        if metadata is None:
+            metadata = {}
+        if not isinstance(metadata, dict):
+            raise ValueError(f"metadata must be a dict, got {type(metadata).__name__}")
+        try:
+            json.dumps(metadata)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"metadata must be JSON-serialisable: {exc}") from None
+        self.metadata = dict(metadata)
+
+    # -- shape ---------------------------------------------------------------------------------
+    @property
+    def n(self) -> int:
+        """Number of samples."""
+        return int(self.u.size)
+
+    def __len__(self) -> int:
+        return self.n
+
+    @property
+    def t(self) -> np.ndarray:
+        """Sample times k*Ts (s)."""
+        return np.arange(self.n) * self.Ts
+
+    @property
+    def duration(self) -> float:
+        """Record length n*Ts (s)."""
+        return self.n * self.Ts
+
+    def __getitem__(self, index) -> "IdentData":
+        """A contiguous slice of samples (e.g. ``d[:200]`` for estimation, ``d[200:]`` to validate)."""
+        if not isinstance(index, slice) or index.step not in (None, 1):
+            raise ValueError("index must be a contiguous slice of samples, e.g. data[100:400]")
+        md = dict(self.metadata)
+        start = index.indices(self.n)[0]
+        md["slice_start_sample"] = md.get("slice_start_sample", 0) + start
+        return IdentData(self.u[index], self.y[index], self.Ts, self.input_unit, self.output_unit, md)
+
+    def __repr__(self) -> str:
+        return (f"IdentData(n={self.n}, Ts={self.Ts:g} s, duration={self.duration:g} s, "
+                f"u in [{self.u.min():g}, {self.u.max():g}] {self.input_unit}, "
+                f"y in [{self.y.min():g}, {self.y.max():g}] {self.output_unit})")
+
+    # -- conversions ---------------------------------------------------------------------------
+    @classmethod
+    def from_recording(cls, rec, Ts=None) -> "IdentData":
+        """Build from a rig ``Recording`` (fields ``time``, ``position``, ``control``, ``metadata``).
+
+        Parameters
+        ----------
+        rec : jerklab.rig.Recording
+            An open-loop record (``rig.step(...)``) or a closed-loop move; ``control`` (V) becomes
+            the input and ``position`` (rad) the output.
+        Ts : float, optional
+            Sample period; by default ``rec.metadata["Ts"]`` if present, else the median spacing
+            of ``rec.time``. The time stamps must be uniform to 1 % of Ts.
+        """
+        for attr in ("time", "position", "control"):
+            if not hasattr(rec, attr):
+                raise ValueError(f"rec must be a Recording with a '{attr}' field "
+                                 f"(got {type(rec).__name__})")
+        t = _signal("rec.time", rec.time, min_len=2)
+        u = _signal("rec.control", rec.control, min_len=2)
+        y = _signal("rec.position", rec.position, min_len=2)
+        if not (t.size == u.size == y.size):
+            raise ValueError(f"rec.time, rec.control and rec.position must have the same length, "
+                             f"got {t.size}, {u.size}, {y.size}")
+        md = getattr(rec, "metadata", None) or {}
+        if not isinstance(md, dict):
+            md = {}
+        dt = np.diff(t)
+        if Ts is None:
+            Ts = md.get("Ts", md.get("ts", None))
+            Ts = float(np.median(dt)) if Ts is None else Ts
+        Ts = as_positive("Ts", Ts)
+        if np.max(np.abs(dt - Ts)) > 0.01 * Ts:
+            raise ValueError(f"rec.time is not uniformly sampled at Ts = {Ts:g} s "
+                             f"(spacing from {dt.min():g} to {dt.max():g} s)")
+        meta = {}
+        for k, v in md.items():
+            try:
+                json.dumps(v)
+                meta[str(k)] = v
+            except (TypeError, ValueError):
+                meta[str(k)] = repr(v)
+        meta["source"] = "jerklab.rig.Recording"
+        meta["t0"] = float(t[0])
+        return cls(u, y, Ts, "V", "rad", meta)
+
+    def fit(self, method: str = "pem", **kwargs) -> "MotorFit":
+        """``fit_dc_motor(self.u, self.y, self.Ts, method, **kwargs)``."""
+        return fit_dc_motor(self.u, self.y, self.Ts, method=method, **kwargs)
+
+    # -- files ---------------------------------------------------------------------------------
+    @staticmethod
+    def _paths(path):
+        p = pathlib.Path(path)
+        if p.suffix in (".csv", ".json"):
+            p = p.with_suffix("")
+        return p.with_name(p.name + ".csv"), p.with_name(p.name + ".json")
+
+    def save(self, path):
+        """Write ``<path>.csv`` (columns time_s, u, y) and its JSON sidecar ``<path>.json``.
+
+        Returns the two paths. Values are written with 17 significant digits, so a round trip is
+        exact.
+        """
+        csv_path, json_path = self._paths(path)
+        csv_path.parent.mkdir(parents=True, exist_ok=True)
+        cols = [f"time_s", f"u_{self.input_unit}", f"y_{self.output_unit}"]
+        table = np.column_stack([self.t, self.u, self.y])
+        np.savetxt(csv_path, table, delimiter=",", header=",".join(cols), comments="", fmt="%.17g")
+        side = {
+            "format": self.FORMAT,
+            "csv": csv_path.name,
+            "columns": cols,
+            "Ts": self.Ts,
+            "n_samples": self.n,
+            "input_unit": self.input_unit,
+            "output_unit": self.output_unit,
+            "metadata": self.metadata,
+        }
+        json_path.write_text(json.dumps(side, indent=2, sort_keys=False) + "\n")
+        return csv_path, json_path
+
+    @classmethod
+    def load(cls, path) -> "IdentData":
+        """Read a record written by :meth:`save` (``path`` with or without ``.csv``/``.json``)."""
+        csv_path, json_path = cls._paths(path)
+        if not json_path.exists():
+            raise ValueError(f"path: no JSON sidecar {json_path}")
+        if not csv_path.exists():
+            raise ValueError(f"path: no CSV file {csv_path}")
+        try:
+            side = json.loads(json_path.read_text())
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"path: corrupt JSON sidecar {json_path}: {exc}") from None
+        if side.get("format") != cls.FORMAT:
+            raise ValueError(f"path: {json_path} is not an IdentData sidecar "
+                             f"(format {side.get('format')!r})")
+        try:
+            table = np.loadtxt(csv_path, delimiter=",", skiprows=1, ndmin=2)
+        except ValueError as exc:
+            raise ValueError(f"path: corrupt CSV {csv_path}: {exc}") from None
+        if table.shape[1] != 3:
+            raise ValueError(f"path: {csv_path} must have 3 columns, has {table.shape[1]}")
+        n = side.get("n_samples")
+        if n is not None and n != table.shape[0]:
+            raise ValueError(f"path: {csv_path} has {table.shape[0]} rows, sidecar says {n}")
+        Ts = as_positive("Ts", side["Ts"])
+        t = table[:, 0]
+        if t.size > 1 and np.max(np.abs(np.diff(t) - Ts)) > 0.01 * Ts:
+            raise ValueError(f"path: time column of {csv_path} is not sampled at Ts = {Ts:g} s")
+        return cls(table[:, 1], table[:, 2], Ts, side.get("input_unit", "V"),
+                   side.get("output_unit", "rad"), side.get("metadata", {}))
+
+    def plot(self, axes=None):
+        """Two stacked panels: input (V) and output (rad) against time (s)."""
+        import matplotlib.pyplot as plt
+
+        if axes is None:
+            _, axes = plt.subplots(2, 1, sharex=True, figsize=(8, 4.5))
+        axes[0].step(self.t, self.u, where="post")
+        axes[0].set_ylabel(f"input u ({self.input_unit})")
+        axes[1].plot(self.t, self.y, ".", ms=2)
+        axes[1].set_ylabel(f"output y ({self.output_unit})")
+        axes[1].set_xlabel("time (s)")
+        return axes
+
+
+# ----------------------------------------------------------------------------------------------
+# ARX
+# ----------------------------------------------------------------------------------------------
+@dataclass
+class ARXResult:
+    """Least-squares ARX estimate ``A(q) y(t) = B(q) u(t - nk) + e(t)`` (MATLAB's ``arx``).
+
+    ``A = [1, a1, ..., a_na]`` and ``B = [b0, ..., b_{nb-1}]`` are polynomials in the delay q^-1:
+    y(t) + a1 y(t-1) + ... = b0 u(t-nk) + b1 u(t-nk-1) + ...
+    """
+
+    A: np.ndarray
+    B: np.ndarray
+    na: int
+    nb: int
+    nk: int
+    params: np.ndarray           #: [a1..a_na, b0..b_{nb-1}]
+    cov: np.ndarray              #: parameter covariance lambda (Phi^T Phi)^-1
+    noise_variance: float        #: lambda = SSR / (N - n_params)
+    residuals: np.ndarray        #: equation errors e(t) for t = n0 .. N-1
+    n_used: int                  #: number of equations (rows of Phi)
+
+    @property
+    def std(self) -> np.ndarray:
+        """Standard deviations of ``params`` (valid when e(t) is white)."""
+        return np.sqrt(np.diag(self.cov))
+
+    def tf(self, Ts) -> control.TransferFunction:
+        """The model B(z^-1) z^-nk / A(z^-1) as a discrete python-control transfer function."""
+        Ts = as_positive("Ts", Ts)
+        n = max(self.na, self.nk + self.nb - 1)
+        num = np.zeros(n + 1)
+        num[self.nk:self.nk + self.nb] = self.B
+        den = np.zeros(n + 1)
+        den[: self.na + 1] = self.A
+        return control.tf(num, den, Ts)
+
+    def predict(self, y, u) -> np.ndarray:
+        """One-step-ahead prediction yhat(t) for t = n0 .. N-1."""
+        u, y = _pair(u, y, "u", "y", min_len=2)
+        Phi, _, _ = _arx_regressors(y, u, self.na, self.nb, self.nk)
+        return Phi @ self.params
+
+
+def _arx_regressors(y, u, na, nb, nk):
+    n0 = max(na, nk + nb - 1)
+    N = y.size
+    rows = N - n0
+    Phi = np.empty((rows, na + nb))
+    for i in range(1, na + 1):
+        Phi[:, i - 1] = -y[n0 - i:N - i]
+    for j in range(nb):
+        d = nk + j
+        Phi[:, na + j] = u[n0 - d:N - d]
+    return Phi, y[n0:], n0
+
+
+def arx(y, u, na, nb, nk=1) -> ARXResult:
+    """Least-squares ARX fit of any order, with the parameter covariance.
+
+    Model (MATLAB's ``arx(data, [na nb nk])``)::
+
+        y(t) + a1 y(t-1) + ... + a_na y(t-na) = b0 u(t-nk) + ... + b_{nb-1} u(t-nk-nb+1) + e(t)
+
+    Parameters
+    ----------
+    y, u : array_like
+        Output and input, same length.
+    na : int
+        Number of poles (>= 0).
+    nb : int
+        Number of B coefficients (>= 0; na + nb >= 1).
+    nk : int
+        Input delay in samples (>= 0).
+
+    Returns
+    -------
+    ARXResult
+        ``cov = lambda (Phi^T Phi)^-1`` with ``lambda = SSR/(N_eq - n_params)``: the textbook
+        covariance, correct when e(t) is white (Ljung, *System Identification*, §7.3, eq. 9.19).
+
+    Raises
+    ------
+    ValueError
+        On non-finite or mismatched data, too few samples for the orders, or a rank-deficient
+        regression (the input does not excite the model: e.g. a constant input with nb >= 2).
+    """
+    na = as_int("na", na, minimum=0)
+    nb = as_int("nb", nb, minimum=0)
+    nk = as_int("nk", nk, minimum=0)
+    if na + nb == 0:
+        raise ValueError("na + nb must be >= 1 (nothing to estimate)")
+    npar = na + nb
+    u, y = _pair(u, y, "u", "y", min_len=2)
+    n0 = max(na, nk + nb - 1)
+    if y.size - n0 < npar + 1:
+        raise ValueError(f"y is too short: {y.size} samples for na={na}, nb={nb}, nk={nk} "
+                         f"(need at least {n0 + npar + 1})")
+    Phi, target, n0 = _arx_regressors(y, u, na, nb, nk)
+    # column scaling keeps the QR well conditioned when u and y differ by orders of magnitude
+    scale = np.sqrt(np.sum(Phi ** 2, axis=0))
+    if np.any(scale == 0.0):
+        bad = int(np.flatnonzero(scale == 0.0)[0])
+        which = "y" if bad < na else "u"
+        raise ValueError(f"{which} is zero over the fitted window: the regression is singular")
+    Q, R = np.linalg.qr(Phi / scale)
+    sv = np.linalg.svd(R, compute_uv=False)
+    if sv[-1] <= 1e-10 * sv[0]:
+        raise ValueError(
+            f"u does not excite an ARX({na},{nb},{nk}) model: the regression is rank deficient "
+            f"(condition {sv[0] / max(sv[-1], 1e-300):.3g}); use a richer input (step from rest, PRBS) "
+            f"or lower orders")
+    theta_s = np.linalg.solve(R, Q.T @ target)
+    params = theta_s / scale
+    res = target - Phi @ params
+    dof = max(target.size - npar, 1)
+    lam = float(res @ res) / dof
+    Rinv = np.linalg.solve(R, np.eye(npar))
+    cov = lam * (Rinv @ Rinv.T) / np.outer(scale, scale)
+    A = np.concatenate([[1.0], params[:na]])
+    B = params[na:].copy()
+    return ARXResult(A, B, na, nb, nk, params, cov, lam, res, int(target.size))
+
+
+# ----------------------------------------------------------------------------------------------
+# the motor model and its exact ZOH simulation
+# ----------------------------------------------------------------------------------------------
+def dc_motor_zoh_coefficients(K, tau, Ts):
+    """Exact ZOH discretization of Stojčić eq. 1, P(s) = K/(s(tau s + 1)).
+
+    Returns ``(a, b1, b2)`` with a = exp(-Ts/tau) and
+
+        theta(z)/u(z) = (b1 z^-1 + b2 z^-2) / ((1 - z^-1)(1 - a z^-1)),
+        b1 = K (Ts - tau (1 - a)),     b2 = K (tau (1 - a) - a Ts),
+
+    so the differenced angle obeys v(k) = a v(k-1) + (b1 u(k-1) + b2 u(k-2)) / Ts with
+    v(k) = (theta(k) - theta(k-1)) / Ts, and b1 + b2 = K Ts (1 - a).
+    """
+    K = as_real("K", K)
+    tau = as_positive("tau", tau)
+    Ts = as_positive("Ts", Ts)
+    one_minus_a = -math.expm1(-Ts / tau)
+    a = 1.0 - one_minus_a
+    c = tau * one_minus_a
+    return a, K * (Ts - c), K * (c - a * Ts)
+
+
+def _unit_response(tau, Ts, u, omega0=0.0):
+    """theta(k) of K=1, theta0=0 under ZOH input u (plus the free response to omega0 scaled by K=1)."""
+    one_minus_a = -math.expm1(-Ts / tau)
+    a = 1.0 - one_minus_a
+    c = tau * one_minus_a
+    # omega(k+1) = a omega(k) + (1-a) u(k)
+    omega = signal.lfilter([0.0, one_minus_a], [1.0, -a], u)
+    if omega0:
+        omega = omega + omega0 * a ** np.arange(u.size)
+    inc = c * omega + (Ts - c) * u
+    theta = np.empty(u.size)
+    theta[0] = 0.0
+    np.cumsum(inc[:-1], out=theta[1:])
+    return theta
+
+
+def simulate_dc_motor(K, tau, Ts, u, theta0=0.0, omega0=0.0) -> np.ndarray:
+    """Exact ZOH simulation of Stojčić eq. 1 (volts in, angle out), sample by sample.
+
+    States [theta, omega] advance over one sample with u held (the exact solution)::
+
+        omega(k+1) = a omega(k) + K (1 - a) u(k),                    a = exp(-Ts/tau)
+        theta(k+1) = theta(k) + tau (1 - a) omega(k) + K (Ts - tau (1 - a)) u(k)
+
+    This is the model the output-error fit simulates; it is ideal (no quantization, friction or
+    noise: those belong to ``jerklab.plant.DCMotor``).
+
+    Parameters
+    ----------
+    K : float
+        Gain, rad/(V s).
+    tau : float
+        Mechanical time constant, s (> 0).
+    Ts : float
+        Sample period, s (> 0).
+    u : array_like
+        Input voltage samples (V), held over each period.
+    theta0, omega0 : float
+        Initial angle (rad) and angular velocity (rad/s).
+
+    Returns
+    -------
+    ndarray
+        theta(k), k = 0 .. len(u) - 1 (rad).
+    """
+    K = as_real("K", K)
+    tau = as_positive("tau", tau)
+    Ts = as_positive("Ts", Ts)
+    u = _signal("u", u, min_len=1)
+    theta0 = as_real("theta0", theta0)
+    omega0 = as_real("omega0", omega0)
+    w0 = omega0 / K if K != 0.0 else 0.0
+    th = K * _unit_response(tau, Ts, u, w0) + theta0
+    if K == 0.0 and omega0:
+        th = th + _unit_response(tau, Ts, np.zeros_like(u), omega0)
+    return th
+
+
+def fit_percent(y, y_hat) -> float:
+    """Normalised-RMSE fit in percent, as MATLAB's ``compare``: 100 (1 - |y - yhat| / |y - mean y|).
+
+    100 is a perfect fit, 0 is no better than the mean, it can be negative.
+    """
+    y, y_hat = _pair(y, y_hat, "y", "y_hat", min_len=2)
+    den = np.linalg.norm(y - y.mean())
+    if den == 0.0:
+        raise ValueError("y is constant: fit percent is undefined")
+    return float(100.0 * (1.0 - np.linalg.norm(y - y_hat) / den))
+
+
+def _best_theta0(y, y_model_zero_ic):
+    """Initial angle that best aligns a simulation started at 0 with y (least squares)."""
+    return float(np.mean(y - y_model_zero_ic))
+
+
+# ----------------------------------------------------------------------------------------------
+# the motor fit
+# ----------------------------------------------------------------------------------------------
+@dataclass
+class MotorFit:
+    """K and tau of P(s) = K/(s(tau s + 1)) (Stojčić eq. 1) with their uncertainty.
+
+    Attributes
+    ----------
+    K, tau : float
+        Gain rad/(V s) and time constant s.
+    K_std, tau_std : float
+        One-sigma standard errors (from the Jacobian for PEM, from the ARX covariance for ARX).
+    fit_percent : float
+        Simulation fit (NRMSE %, as MATLAB ``compare``) of the angle on the estimation data.
+    model : control.TransferFunction
+        K / (tau s^2 + s), volts -> rad.
+    method : str
+        "pem" or "arx".
+    Ts : float
+        Sample period of the data (s).
+    theta0 : float
+        Initial angle of the simulation (estimated).
+    cov : ndarray
+        2x2 covariance of (K, tau).
+    y_sim, residuals : ndarray
+        Simulated angle on the estimation data and measured - simulated.
+    noise_std : float
+        Residual standard deviation (rad for PEM; the equation-error scale for ARX).
+    """
+
+    K: float
+    tau: float
+    K_std: float
+    tau_std: float
+    fit_percent: float
+    model: control.TransferFunction
+    method: str
+    Ts: float
+    theta0: float
+    cov: np.ndarray
+    y_sim: np.ndarray = field(repr=False)
+    residuals: np.ndarray = field(repr=False)
+    noise_std: float = float("nan")
+    arx_result: ARXResult | None = field(default=None, repr=False)
+    nfev: int = 0
+
+    def simulate(self, u, theta0=0.0, omega0=0.0) -> np.ndarray:
+        """The fitted model's ZOH response to ``u`` (see :func:`simulate_dc_motor`)."""
+        return simulate_dc_motor(self.K, self.tau, self.Ts, u, theta0, omega0)
+
+    def confidence_interval(self, level: float = 0.95):
+        """Normal-approximation intervals ``{"K": (lo, hi), "tau": (lo, hi)}``."""
+        level = as_real("level", level)
+        if not 0.0 < level < 1.0:
+            raise ValueError(f"level must be in (0, 1), got {level}")
+        z = stats.norm.ppf(0.5 + level / 2)
+        return {"K": (self.K - z * self.K_std, self.K + z * self.K_std),
+                "tau": (self.tau - z * self.tau_std, self.tau + z * self.tau_std)}
+
+    def to_motor(self, **kwargs):
+        """A ``jerklab.plant.DCMotor`` with the fitted K and tau (other arguments passed on)."""
+        from jerklab.plant import DCMotor
+
+        return DCMotor(K=self.K, tau=self.tau, **kwargs)
+
+    def summary(self) -> str:
+        """One line: K ± std, tau ± std, fit %."""
+        return (f"{self.method.upper():>3}: K = {self.K:.4g} ± {self.K_std:.2g} rad/(V s), "
+                f"tau = {self.tau * 1e3:.4g} ± {self.tau_std * 1e3:.2g} ms, fit = {self.fit_percent:.2f} %")
+
+
+def _motor_tf(K, tau):
+    return control.tf([K], [tau, 1.0, 0.0])
+
+
+def _fit_arx(u, theta, Ts):
+    v = np.diff(theta) / Ts
+    res = arx(v, u[:-1], na=1, nb=2, nk=0)
+    a = -res.A[1]
+    b1, b2 = res.B
+    if not 0.0 < a < 1.0:
+        raise ValueError(
+            f"theta: the ARX velocity fit found a pole a = {a:.4g} outside (0, 1), which no motor "
+            f"K/(s(tau s+1)) gives; the data are too noisy or too coarse for ARX (try method='pem')")
+    bs = b1 + b2
+    K = bs / (1.0 - a)
+    tau = -Ts / math.log(a)
+    # delta method on (a, b1, b2) -> (K, tau)
+    J = np.array([[bs / (1.0 - a) ** 2, 1.0 / (1.0 - a), 1.0 / (1.0 - a)],
+                  [Ts / (a * math.log(a) ** 2), 0.0, 0.0]])
+    cov = J @ res.cov @ J.T
+    return K, tau, cov, res
+
+
+def _pem_residual_fn(u, theta, Ts, fit_theta0):
+    def sim(p):
+        K, logtau = p[0], p[1]
+        g = _unit_response(math.exp(logtau), Ts, u)
+        th0 = p[2] if fit_theta0 else theta[0]
+        return K * g + th0
+
+    return sim
+
+
+def _initial_guess(u, theta, Ts, fit_theta0):
+    """Variable projection over tau on a log grid: for fixed tau, K and theta0 are linear."""
+    N = u.size
+    taus = np.geomspace(Ts / 20.0, max(N * Ts, 2 * Ts), 40)
+    best = None
+    for tau in taus:
+        g = _unit_response(tau, Ts, u)
+        if fit_theta0:
+            M = np.column_stack([g, np.ones(N)])
+            coef, *_ = np.linalg.lstsq(M, theta, rcond=None)
+            r = theta - M @ coef
+            K, th0 = coef
+        else:
+            gg = float(g @ g)
+            K = float(g @ (theta - theta[0])) / gg if gg > 0 else 0.0
+            th0 = theta[0]
+            r = theta - th0 - K * g
+        sse = float(r @ r)
+        if best is None or sse < best[0]:
+            best = (sse, K, tau, th0)
+    return best[1], best[2], best[3]
+
+
+def _fit_pem(u, theta, Ts, fit_theta0, x0=None):
+    sim = _pem_residual_fn(u, theta, Ts, fit_theta0)
+    if x0 is None:
+        K0, tau0, th00 = _initial_guess(u, theta, Ts, fit_theta0)
+    else:
+        K0, tau0, th00 = x0
+    p0 = np.array([K0, math.log(tau0), th00] if fit_theta0 else [K0, math.log(tau0)])
+
+    def resid(p):
+        return sim(p) - theta
+
+    sol = optimize.least_squares(resid, p0, method="lm", x_scale="jac", xtol=1e-12, ftol=1e-12,
+                                 gtol=1e-12, max_nfev=2000)
+    p = sol.x
+    # Jacobian at the optimum by central differences (more accurate than the solver's own)
+    J = np.empty((theta.size, p.size))
+    for i in range(p.size):
+        h = 1e-6 * max(abs(p[i]), 1e-3)
+        dp = np.zeros_like(p)
+        dp[i] = h
+        J[:, i] = (sim(p + dp) - sim(p - dp)) / (2 * h)
+    r = sim(p) - theta
+    dof = max(theta.size - p.size, 1)
+    s2 = float(r @ r) / dof
+    try:
+        cov_p = s2 * np.linalg.inv(J.T @ J)
+    except np.linalg.LinAlgError:
+        cov_p = np.full((p.size, p.size), np.nan)
+    K, tau = p[0], math.exp(p[1])
+    # (K, log tau) -> (K, tau)
+    T = np.diag([1.0, tau])
+    cov = T @ cov_p[:2, :2] @ T
+    th0 = p[2] if fit_theta0 else theta[0]
+    return K, tau, cov, th0, sol.nfev, math.sqrt(s2)
+
+
+def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True) -> MotorFit:
+    """Identify K and tau of P(s) = K/(s(tau s + 1)) (Stojčić eq. 1, §4A) from a voltage/angle record.
+
+    The paper ran MATLAB's ``pem(iddata(y, u, Ts), 'P2')``; 'P2' has no integrator, so this fits
+    the structure eq. 1 actually has, a pole plus an integrator ('P1I').
+
+    Parameters
+    ----------
+    u : array_like
+        Motor voltage samples (V), held over each sample period. Not constant: the motor must
+        start from rest (the fit assumes omega(0) = 0) and be excited by a step or a PRBS.
+    theta : array_like
+        Measured angle (rad), same length as ``u``.
+    Ts : float
+        Sample period (s).
+    method : {"pem", "arx"}
+        "pem": output-error fit, minimises sum (theta - theta_sim(K, tau, theta0))^2 over the exact
+        ZOH simulation with ``scipy.optimize.least_squares`` (Levenberg-Marquardt), started from a
+        variable-projection grid over tau; the covariance is s^2 (J^T J)^-1 from the Jacobian.
+        Unbiased under white output noise and encoder quantization.
+        "arx": least squares on the differenced angle v(k) = a v(k-1) + b1 u(k-1) + b2 u(k-2)
+        (exact for the ZOH model), K = (b1 + b2)/(1 - a), tau = -Ts/ln a; the standard errors come
+        from the ARX covariance by the delta method. Exact on noise-free data, biased (tau too
+        short) under output noise, because differencing the noisy angle puts noise into the
+        regressor (see :func:`arx_asymptotic_bias`); its standard errors assume white equation
+        errors, which a differenced noisy angle does not give, so they are optimistic.
+    fit_theta0 : bool
+        Estimate the initial angle (default) instead of trusting the first, noisy, sample.
+
+    Returns
+    -------
+    MotorFit
+
+    Raises
+    ------
+    ValueError
+        NaN/inf in ``u`` or ``theta``, mismatched lengths, fewer than 10 samples, constant ``u``
+        or ``theta``, a non-positive ``Ts``, an unknown ``method``, or data from which the ARX
+        pole falls outside (0, 1).
+
+    References
+    ----------
+    Stojčić (2015) §4A and eq. 1; L. Ljung, *System Identification* (2nd ed.), §4.2 (output
+    error), §7.3 and §9.3 (least squares, asymptotic covariance).
+    """
+    if method not in ("pem", "arx"):
+        raise ValueError(f"method must be 'pem' or 'arx', got {method!r}")
+    Ts = as_positive("Ts", Ts)
+    u, theta = _pair(u, theta, "u", "theta")
+    _check_excitation(u, theta, "u", "theta")
+    arx_res = None
+    nfev = 0
+    if method == "arx":
+        K, tau, cov, arx_res = _fit_arx(u, theta, Ts)
+        g = K * _unit_response(tau, Ts, u)
+        th0 = _best_theta0(theta, g) if fit_theta0 else theta[0]
+        noise_std = math.sqrt(arx_res.noise_variance) * Ts
+    else:
+        K, tau, cov, th0, nfev, noise_std = _fit_pem(u, theta, Ts, fit_theta0)
+        if not (math.isfinite(K) and math.isfinite(tau)):
+            raise ValueError("theta: the output-error fit did not converge")
+        g = K * _unit_response(tau, Ts, u)
+    y_sim = g + th0
+    std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    return MotorFit(K=float(K), tau=float(tau), K_std=float(std[0]), tau_std=float(std[1]),
+                    fit_percent=fit_percent(theta, y_sim), model=_motor_tf(K, tau), method=method,
+                    Ts=Ts, theta0=float(th0), cov=cov, y_sim=y_sim, residuals=theta - y_sim,
+                    noise_std=float(noise_std), arx_result=arx_res, nfev=int(nfev))
+
+
+def arx_asymptotic_bias(u, K, tau, Ts, noise_std):
+    """Predicted large-sample (K, tau) of the ARX velocity fit under white output noise.
+
+    With theta_m = theta + e, e white with variance s^2, the differenced angle carries noise
+    n(k) = (e(k) - e(k-1))/Ts with r_n(0) = 2 s^2/Ts^2, r_n(1) = -s^2/Ts^2, and the equation error
+    n(k) - a n(k-1) is correlated with the regressor v(k-1). Least squares converges to
+
+        p_hat = p + (Phi0^T Phi0 + N Sigma)^-1 N c,   c = [a r_n(0) - r_n(1), 0, 0],
+        Sigma = diag(r_n(0), 0, 0),
+
+    (Ljung §8.3, the "errors-in-variables" bias of equation-error methods). Here Phi0 is the
+    noise-free regression built from the exact ZOH simulation of ``u``. Encoder quantization with
+    step q acts, for a moving motor, like uniform noise of standard deviation q/sqrt(12).
+
+    Returns
+    -------
+    (K_arx, tau_arx) : tuple of float
+        What ``fit_dc_motor(..., method="arx")`` converges to on long records of this input.
+    """
+    K = as_real("K", K)
+    tau = as_positive("tau", tau)
+    Ts = as_positive("Ts", Ts)
+    s = as_nonnegative("noise_std", noise_std)
+    u = _signal("u", u)
+    a, b1, b2 = dc_motor_zoh_coefficients(K, tau, Ts)
+    theta = simulate_dc_motor(K, tau, Ts, u)
+    v = np.diff(theta) / Ts
+    # regression v(k) = -A1 v(k-1) + B0 u(k) + B1 u(k-1) in the indexing used by _fit_arx
+    Phi, target, _ = _arx_regressors(v, u[:-1], 1, 2, 0)
+    N = target.size
+    r0 = 2.0 * s ** 2 / Ts ** 2
+    r1 = -(s ** 2) / Ts ** 2
+    Sigma = np.zeros((3, 3))
+    Sigma[0, 0] = r0                       # noise variance in the regressor -v(k-1)
+    # E[phi_1 * eq_err] with phi_1 = -(v0(k-1) + n(k-1)), eq_err = n(k) - a n(k-1)
+    c = np.array([-(r1 - a * r0), 0.0, 0.0])
+    p_true = np.array([-a, b1 / Ts, b2 / Ts])
+    p_lim = p_true + np.linalg.solve(Phi.T @ Phi + N * Sigma, N * c)
+    a_l = -p_lim[0]
+    if not 0.0 < a_l < 1.0:
+        return float("nan"), float("nan")
+    return float((p_lim[1] + p_lim[2]) / (1.0 - a_l)), float(-Ts / math.log(a_l))
+
+
+# ----------------------------------------------------------------------------------------------
+# validation
+# ----------------------------------------------------------------------------------------------
+@dataclass
+class ResidualAnalysis:
+    """Whiteness and independence tests of residuals (MATLAB's ``resid``).
+
+    ``autocorr[k]`` is the normalised autocorrelation of e at lag k = 0..max_lag;
+    ``crosscorr[i]`` the normalised cross-correlation of u(t - lag) and e(t) at
+    ``cross_lags[i]`` = -max_lag..max_lag. ``auto_bound`` and ``cross_bound`` are the
+    two-sided confidence bounds at ``confidence`` under the hypothesis "e white and independent
+    of u"; ``white`` / ``independent`` say whether every lag >= 1 (resp. every lag) stays inside.
+    """
+
+    lags: np.ndarray
+    autocorr: np.ndarray
+    cross_lags: np.ndarray
+    crosscorr: np.ndarray | None
+    auto_bound: float
+    cross_bound: float
+    confidence: float
+    white: bool
+    independent: bool | None
+
+
+def _xcorr_norm(x, y, lags):
+    """Normalised sample cross-correlation r(l) = sum x(t-l) y(t) / (N sx sy)."""
+    x = x - x.mean()
+    y = y - y.mean()
+    N = x.size
+    den = N * x.std() * y.std()
+    out = np.empty(len(lags))
+    for i, l in enumerate(lags):
+        if l >= 0:
+            out[i] = np.dot(x[: N - l], y[l:])
+        else:
+            out[i] = np.dot(x[-l:], y[: N + l])
+    return out / den
+
+
+def residual_analysis(residuals, u=None, max_lag: int = 25, confidence: float = 0.99) -> ResidualAnalysis:
+    """Residual autocorrelation and input-residual cross-correlation with confidence bounds.
+
+    Under "e is white", each normalised autocorrelation at lag >= 1 is approximately N(0, 1/N); the
+    cross-correlation of e with a coloured input u has variance sum_k r_e(k) r_u(k) / N (Ljung
+    §16.6), which this uses over the computed lags. Defaults as MATLAB's ``resid`` (25 lags, 99 %).
+
+    Parameters
+    ----------
+    residuals : array_like
+        Model residuals e(t) = y(t) - yhat(t).
+    u : array_like, optional
+        The input, same length, for the independence test.
+    max_lag : int
+        Largest lag (>= 1, < len(residuals)).
+    confidence : float
+        Level of the two-sided bounds, in (0, 1).
+    """
+    e = _signal("residuals", residuals)
+    max_lag = as_int("max_lag", max_lag, minimum=1)
+    if max_lag >= e.size:
+        raise ValueError(f"max_lag must be < len(residuals) = {e.size}, got {max_lag}")
+    confidence = as_real("confidence", confidence)
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence must be in (0, 1), got {confidence}")
+    if np.std(e) == 0.0:
+        raise ValueError("residuals are constant: nothing to test")
+    N = e.size
+    z = stats.norm.ppf(0.5 + confidence / 2)
+    lags = np.arange(max_lag + 1)
+    ac = _xcorr_norm(e, e, lags)
+    auto_bound = z / math.sqrt(N)
+    white = bool(np.all(np.abs(ac[1:]) <= auto_bound))
+    cl = np.arange(-max_lag, max_lag + 1)
+    if u is None:
+        return ResidualAnalysis(lags, ac, cl, None, auto_bound, float("nan"), confidence, white, None)
+    u = _signal("u", u)
+    if u.size != N:
+        raise ValueError(f"u and residuals must have the same length, got {u.size} and {N}")
+    if np.std(u) == 0.0:
+        raise ValueError("u is constant: the independence test is undefined")
+    cc = _xcorr_norm(u, e, cl)
+    ru = _xcorr_norm(u, u, cl)
+    re = _xcorr_norm(e, e, cl)
+    P = max(float(np.sum(ru * re)), 1.0 / N)
+    cross_bound = z * math.sqrt(P / N)
+    independent = bool(np.all(np.abs(cc) <= cross_bound))
+    return ResidualAnalysis(lags, ac, cl, cc, auto_bound, cross_bound, confidence, white, independent)
+
+
+@dataclass
+class Validation:
+    """A fitted model run on a (validation) record: simulated angle, fit %, residual tests."""
+
+    y_sim: np.ndarray
+    fit_percent: float
+    residuals: np.ndarray
+    analysis: ResidualAnalysis
+    theta0: float
+
+
+def validate(fit: MotorFit, u, theta, Ts=None, max_lag: int = 25, confidence: float = 0.99) -> Validation:
+    """Simulate ``fit`` on a record (ideally not the one it was estimated on) and test the residuals.
+
+    The initial angle is estimated by least squares (as ``compare`` does with
+    ``InitialCondition='e'``), the initial velocity is taken as zero (the record starts at rest).
+    """
+    if not isinstance(fit, MotorFit):
+        raise ValueError(f"fit must be a MotorFit, got {type(fit).__name__}")
+    u, theta = _pair(u, theta, "u", "theta")
+    if Ts is not None and abs(as_positive("Ts", Ts) - fit.Ts) > 1e-9 * fit.Ts:
+        raise ValueError(f"Ts = {Ts:g} s differs from the fit's Ts = {fit.Ts:g} s")
+    g = fit.simulate(u)
+    th0 = _best_theta0(theta, g)
+    y_sim = g + th0
+    r = theta - y_sim
+    an = residual_analysis(r, u if np.std(u) > 0 else None, max_lag, confidence)
+    return Validation(y_sim, fit_percent(theta, y_sim), r, an, th0)
+
+
+def plot_compare(data, *fits, ax=None, labels=None):
+    """Measured angle against each fitted model's simulation, with fit % in the legend.
+
+    Parameters
+    ----------
+    data : IdentData
+        The record to compare on.
+    *fits : MotorFit
+        Models to simulate.
+    ax : matplotlib Axes, optional
+    labels : list of str, optional
+    """
+    import matplotlib.pyplot as plt
+
+    if not isinstance(data, IdentData):
+        raise ValueError(f"data must be an IdentData, got {type(data).__name__}")
+    if ax is None:
+        _, ax = plt.subplots(figsize=(8, 3.5))
+    ax.plot(data.t, data.y, ".", color="0.3", ms=3, label="measured")
+    for i, f in enumerate(fits):
+        v = validate(f, data.u, data.y, data.Ts)
+        name = labels[i] if labels else f.method.upper()
+        ax.plot(data.t, v.y_sim, "-", lw=1.5,
+                label=f"{name}: K={f.K:.3g}, τ={f.tau * 1e3:.3g} ms, fit {v.fit_percent:.2f} %")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel(f"angle ({data.output_unit})")
+    ax.legend(loc="best", fontsize=8)
+    return ax
+
+
+def plot_residuals(analysis: ResidualAnalysis, axes=None, title: str | None = None):
+    """Two panels as MATLAB's ``resid``: autocorrelation of e, cross-correlation of u and e."""
+    import matplotlib.pyplot as plt
+
+    if not isinstance(analysis, ResidualAnalysis):
+        raise ValueError(f"analysis must be a ResidualAnalysis, got {type(analysis).__name__}")
+    n = 1 if analysis.crosscorr is None else 2
+    if axes is None:
+        _, axes = plt.subplots(n, 1, figsize=(8, 2.4 * n))
+    axes = np.atleast_1d(axes)
+    ax = axes[0]
+    ax.stem(analysis.lags, analysis.autocorr)
+    ax.axhspan(-analysis.auto_bound, analysis.auto_bound, color="C1", alpha=0.2,
+               label=f"{analysis.confidence:.0%} bound")
+    ax.set_xlabel("lag (samples)")
+    ax.set_ylabel("autocorr. of e (–)")
+    ax.legend(loc="upper right", fontsize=8)
+    if title:
+        ax.set_title(title)
+    if n == 2:
+        ax = axes[1]
+        ax.stem(analysis.cross_lags, analysis.crosscorr)
+        ax.axhspan(-analysis.cross_bound, analysis.cross_bound, color="C1", alpha=0.2)
+        ax.set_xlabel("lag (samples)")
+        ax.set_ylabel("cross-corr. u, e (–)")
+    return axes
+
+
+# ----------------------------------------------------------------------------------------------
+# input design
+# ----------------------------------------------------------------------------------------------
+def sample_time_range(tau):
+    """Stojčić §4A rule Ts = tau/(2...5): returns (tau/5, tau/2), in s. tau = 25 ms -> 5...12.5 ms."""
+    tau = as_positive("tau", tau)
+    return tau / 5.0, tau / 2.0
+
+
+def step_input(duration, Ts, amplitude, t_step=0.05, offset=0.0) -> np.ndarray:
+    """A voltage step: ``offset`` until ``t_step``, then ``offset + amplitude`` (V per sample).
+
+    Starting at rest before the step keeps the ARX regression well posed and shows the start of the
+    transient. ``round(duration / Ts)`` samples.
+    """
+    duration = as_positive("duration", duration)
+    Ts = as_positive("Ts", Ts)
+    amplitude = as_real("amplitude", amplitude)
+    t_step = as_nonnegative("t_step", t_step)
+    offset = as_real("offset", offset)
+    n = int(round(duration / Ts))
+    if n < 2:
+        raise ValueError(f"duration must be at least 2 samples ({2 * Ts:g} s), got {duration:g} s")
+    if t_step >= duration:
+        raise ValueError(f"t_step must be < duration ({duration:g} s), got {t_step:g} s")
+    u = np.full(n, offset)
+    u[np.arange(n) * Ts >= t_step - 1e-12 * Ts] += amplitude
+    return u
+
+
+def prbs(duration, Ts, amplitude, offset=0.0, clock_period=None, nbits=None, seed=0) -> np.ndarray:
+    """Pseudo-random binary sequence ``offset ± amplitude`` (V per sample) from a maximum-length LFSR.
+
+    Parameters
+    ----------
+    duration, Ts : float
+        Record length and sample period (s).
+    amplitude : float
+        Half the distance between the two levels (V, > 0).
+    offset : float
+        Centre level (V). An offset larger than the friction voltage keeps the motor turning one
+        way, which keeps Coulomb friction a constant (and small) bias.
+    clock_period : float, optional
+        How long each bit is held (s), a whole number of samples; default Ts. A rule of thumb is
+        clock_period ≈ tau/2 … tau, so the sequence's power sits under the motor's bandwidth.
+    nbits : int, optional
+        LFSR length (period 2^nbits - 1 bits); by default the smallest that covers the record.
+    seed : int
+        Selects the (non-zero) initial LFSR state, so different seeds shift the sequence.
+    """
+    duration = as_positive("duration", duration)
+    Ts = as_positive("Ts", Ts)
+    amplitude = as_positive("amplitude", amplitude)
+    offset = as_real("offset", offset)
+    seed = as_int("seed", seed, minimum=0)
+    n = int(round(duration / Ts))
+    if n < 2:
+        raise ValueError(f"duration must be at least 2 samples ({2 * Ts:g} s), got {duration:g} s")
+    if clock_period is None:
+        hold = 1
+    else:
+        clock_period = as_positive("clock_period", clock_period)
+        hold = int(round(clock_period / Ts))
+        if hold < 1 or abs(hold * Ts - clock_period) > 1e-6 * clock_period:
+            raise ValueError(f"clock_period must be a whole multiple of Ts = {Ts:g} s, got {clock_period:g} s")
+    nb = -(-n // hold)
+    if nbits is None:
+        nbits = max(3, int(math.ceil(math.log2(nb + 1))))
+        nbits = min(nbits, 32)
+    else:
+        nbits = as_int("nbits", nbits, minimum=2)
+        if nbits > 32:
+            raise ValueError(f"nbits must be <= 32, got {nbits}")
+    rng = np.random.default_rng(seed)
+    state = rng.integers(0, 2, size=nbits)
+    if not state.any():
+        state[0] = 1
+    bits = signal.max_len_seq(nbits, state=state, length=nb)[0]
+    levels = offset + amplitude * (2.0 * bits.astype(float) - 1.0)
+    return np.repeat(levels, hold)[:n]
