@@ -1,0 +1,845 @@
+"""Rest-to-rest trajectory planners: Stojčić's sine-jerk profile and its peers.
+
+Four planners share one :class:`Profile` interface (see ``docs/INTERFACES.md``):
+
+* :func:`plan_sine_jerk` -- Stojčić (2015) exactly as published (eq. 2-4, Fig. 2): the jerk is one
+  full sine period of peak ``max_jerk`` while accelerating, a cruise, and the mirrored period while
+  decelerating.  The peak jerk is *always* ``max_jerk``; when the acceleration limit binds, the
+  published algorithm shortens the pulse instead of adding an acceleration plateau, which makes it
+  slow (up to hundreds of times slower than a time-optimal planner on the same limits).
+* :func:`plan_sine_jerk_optimal` -- the time-optimal profile made of half-sine jerk pulses of peak
+  ``max_jerk``, with an acceleration plateau and a cruise where they help.  A half-sine jerk pulse of
+  peak J and length Tj changes the acceleration by 2 J Tj / pi, exactly like a constant jerk 2J/pi
+  over the same Tj, and the acceleration phase is symmetric about its middle, so this profile has
+  exactly the duration of the linear-jerk S-curve planned with jerk 2J/pi.
+* :func:`plan_scurve` -- the time-optimal linear-jerk 7-segment S-curve (Yang et al. 2013 is the
+  special case without an acceleration plateau).
+* :func:`plan_trapezoid` -- constant acceleration, cruise, constant deceleration (infinite jerk).
+
+All take SI values, accept a negative ``distance`` (a move backwards) and zero, and return a
+:class:`Profile` whose :meth:`Profile.sample` evaluates the closed form (polynomials and sine
+terms, vectorized with numpy), never an integration.
+
+Every profile is symmetric: the velocity satisfies ``v(t) = v(duration - t)``, so the closed form is
+evaluated on the first half and mirrored (``x(t) = distance - x(duration - t)``); the end state is
+therefore exactly ``distance`` at rest.  Inside the acceleration phase the acceleration is symmetric
+about the phase's middle, which is also used: the falling pulse is the rising one mirrored.
+
+:func:`plan_batch` plans millions of moves at once (numpy, processed in cache-sized chunks) and
+returns a :class:`BatchPlan` with the same closed-form sampler.
+
+References
+----------
+M. J. Stojčić, "Design and implementation of a digital positioning system with controlled jerk",
+Facta Universitatis, 2015 (eq. 2, 3, 4, 15 and Fig. 2).
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from jerklab._validate import as_finite_array, as_positive, as_real
+
+__all__ = [
+    "Profile",
+    "ProfileSample",
+    "BatchPlan",
+    "plan_sine_jerk",
+    "plan_sine_jerk_optimal",
+    "plan_scurve",
+    "plan_trapezoid",
+    "plan_batch",
+    "KINDS",
+]
+
+_PI = math.pi
+_INF = math.inf
+_TWO_OVER_PI = 2.0 / math.pi
+#: kinds of profile, as in ``Profile.kind``
+KINDS = ("sine_jerk", "sine_jerk_optimal", "scurve", "trapezoid")
+
+# shape of the jerk pulses of a kind
+_SINE, _LINEAR, _STEP = 0, 1, 2
+_SHAPE = {"sine_jerk": _SINE, "sine_jerk_optimal": _SINE, "scurve": _LINEAR, "trapezoid": _STEP}
+
+# a phase time within this relative distance of a whole number of samples is taken as that number
+_SYNC_RTOL = 1e-12
+
+
+class ProfileSample(NamedTuple):
+    """Values of a profile at the times ``t`` (arrays of the shape of ``t``)."""
+
+    t: np.ndarray
+    jerk: np.ndarray
+    accel: np.ndarray
+    velocity: np.ndarray
+    position: np.ndarray
+
+
+# ---------------------------------------------------------------------------------------------
+# closed form, shared by Profile.sample and BatchPlan.sample
+# ---------------------------------------------------------------------------------------------
+def _evaluate(t, distance, tj, ta, tv, jpar, shape):
+    """Closed-form jerk, acceleration, velocity and position of symmetric rest-to-rest profiles.
+
+    All arguments broadcast against each other.  ``jpar`` is the constant jerk (``_LINEAR``), the
+    peak of the half-sine jerk pulses (``_SINE``) or the acceleration (``_STEP``, with ``tj = 0``).
+    ``distance`` is signed; every other parameter is >= 0.
+
+    The acceleration phase (length ``2 tj + ta``) is a rising pulse of length ``tj``, a plateau of
+    length ``ta`` and a falling pulse; the rising pulse, with ``w = pi / tj``, ``c = jpar / w``, is::
+
+        linear: j = J,           a = J r,          v = J r^2/2,             x = J r^3/6
+        sine:   j = J sin(w r),  a = c (1-cos wr), v = c (r - sin(wr)/w),   x = c (r^2/2 - (1-cos wr)/w^2)
+
+    (Stojčić eq. 2 integrated three times).  The falling pulse at ``u = Tacc - r`` follows from the
+    symmetry ``a(Tacc - r) = a(r)``: ``v = V - v(r)``, ``x = V Tacc/2 - V r + x(r)``; the cruise is
+    ``x = V Tacc/2 + V (u - Tacc)``; the deceleration mirrors the acceleration:
+    ``x(t) = D - x(T - t)``, ``v(t) = v(T - t)``, ``a(t) = -a(T - t)``, ``j(t) = j(T - t)``.
+    """
+    t = np.asarray(t, dtype=float)
+    dist = np.asarray(distance, dtype=float)
+    sgn = np.sign(dist)
+    d = np.abs(dist)
+    tj = np.asarray(tj, dtype=float)
+    ta = np.asarray(ta, dtype=float)
+    tv = np.asarray(tv, dtype=float)
+    jpar = np.asarray(jpar, dtype=float)
+    tacc = 2.0 * tj + ta
+    T = 2.0 * tacc + tv
+    half = 0.5 * T
+    mirror = t > half
+    s = np.where(mirror, T - t, t)
+    s = np.maximum(s, 0.0)                      # before 0 and after T: at rest
+    # peak acceleration and velocity of the acceleration phase
+    if shape == _SINE:
+        apk = _TWO_OVER_PI * jpar * tj
+    elif shape == _LINEAR:
+        apk = jpar * tj
+    else:
+        apk = jpar
+    vpk = apk * (tj + ta)
+    xacc = 0.5 * vpk * tacc                     # position at the end of the acceleration phase
+    in_rise = s < tj
+    in_plat = ~in_rise & (s <= tj + ta)
+    in_fall = (s > tj + ta) & (s < tacc)
+    # r: time into the rising pulse (rising part directly, falling part by symmetry)
+    r = np.where(in_fall, tacc - s, s)
+    r = np.clip(r, 0.0, tj)
+    if shape == _SINE:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            w = np.where(tj > 0.0, _PI / np.where(tj > 0.0, tj, 1.0), 0.0)
+            c = np.where(tj > 0.0, jpar / np.where(w > 0.0, w, 1.0), 0.0)
+            wr = w * r
+            sn = np.sin(wr)
+            omc = 2.0 * np.sin(0.5 * wr) ** 2       # 1 - cos(wr), without cancellation
+            jr = jpar * sn
+            ar = c * omc
+            vr = c * (r - np.where(w > 0.0, sn / np.where(w > 0.0, w, 1.0), 0.0))
+            xr = c * (0.5 * r * r - np.where(w > 0.0, omc / np.where(w > 0.0, w * w, 1.0), 0.0))
+    elif shape == _LINEAR:
+        jr = jpar * np.ones_like(r)
+        ar = jpar * r
+        vr = 0.5 * ar * r
+        xr = vr * r / 3.0
+    else:
+        jr = ar = vr = xr = np.zeros(r.shape)
+    # plateau
+    p = s - tj
+    if shape == _SINE:
+        v1 = 0.5 * apk * tj                     # velocity at the end of the rising pulse
+        x1 = apk * tj * tj * (0.25 - 1.0 / (_PI * _PI))
+    elif shape == _LINEAR:
+        v1 = 0.5 * apk * tj
+        x1 = apk * tj * tj / 6.0
+    else:
+        v1 = x1 = 0.0
+    jerk = np.where(in_rise, jr, np.where(in_fall, -jr, 0.0))
+    accel = np.where(in_rise | in_fall, ar, np.where(in_plat, apk, 0.0))
+    vel = np.where(in_rise, vr,
+                   np.where(in_plat, v1 + apk * p,
+                            np.where(in_fall, vpk - vr, vpk)))
+    pos = np.where(in_rise, xr,
+                   np.where(in_plat, x1 + p * (v1 + 0.5 * apk * p),
+                            np.where(in_fall, xacc - vpk * r + xr,
+                                     xacc + vpk * (s - tacc))))
+    outside = (t <= 0.0) | (t >= T)
+    jerk = np.where(outside, 0.0, jerk)
+    accel = np.where(outside, 0.0, np.where(mirror, -accel, accel))
+    vel = np.where(outside, 0.0, vel)
+    pos = np.where(mirror, d - pos, pos)
+    pos = np.where(t <= 0.0, 0.0, np.where(t >= T, d, pos))
+    if shape == _STEP:
+        # a trapezoid's acceleration jumps at t = 0: keep the right-continuous value there
+        accel = np.where((t == 0.0) & (T > 0.0), apk, accel)
+    bshape = np.broadcast_shapes(t.shape, sgn.shape, T.shape)
+    return ProfileSample(np.broadcast_to(t, bshape).copy(),
+                         np.broadcast_to(sgn * jerk, bshape).copy(),
+                         np.broadcast_to(sgn * accel, bshape).copy(),
+                         np.broadcast_to(sgn * vel, bshape).copy(),
+                         np.broadcast_to(sgn * pos, bshape).copy())
+
+
+def _ceil_multiple(x: float, Ts: float) -> float:
+    """Smallest whole multiple of ``Ts`` that is >= ``x`` (up to a relative 1e-12)."""
+    if x <= 0.0:
+        return 0.0
+    n = math.ceil(x / Ts * (1.0 - _SYNC_RTOL))
+    return max(n, 1) * Ts
+
+
+# ---------------------------------------------------------------------------------------------
+# profiles
+# ---------------------------------------------------------------------------------------------
+class Profile:
+    """A planned symmetric rest-to-rest move (base class of every planner's result).
+
+    Attributes
+    ----------
+    kind : str
+        ``"sine_jerk"``, ``"sine_jerk_optimal"``, ``"scurve"`` or ``"trapezoid"``.
+    distance : float
+        Signed length of the move (any unit; rad for a motor).
+    duration : float
+        Length of the move (s).
+    phase_times : tuple of float
+        Segment durations (s), summing to ``duration``: 7 segments (rising jerk pulse, acceleration
+        plateau, falling pulse, cruise, and the mirror) for the S-curve and the optimal sine profile;
+        eq. 2's three intervals ``(T, t_v, T)`` for the published sine profile; ``(t_a, t_v, t_a)``
+        for the trapezoid.
+    peak_jerk, peak_accel, peak_velocity : float
+        Magnitudes actually reached (``inf`` jerk for the trapezoid's acceleration steps).
+    max_jerk, max_accel, max_velocity : float
+        The limits the profile was planned for (``None`` jerk for the trapezoid).
+    """
+
+    __slots__ = ("distance", "_tj", "_ta", "_tv", "_jpar", "_limits")
+    kind = "profile"
+
+    def __init__(self, distance, tj, ta, tv, jpar, limits):
+        self.distance = distance
+        self._tj = tj
+        self._ta = ta
+        self._tv = tv
+        self._jpar = jpar
+        self._limits = limits
+
+    @property
+    def max_jerk(self):
+        """Jerk limit the move was planned for (``None`` for a trapezoid)."""
+        return self._limits[0]
+
+    @property
+    def max_accel(self):
+        """Acceleration limit the move was planned for."""
+        return self._limits[1]
+
+    @property
+    def max_velocity(self):
+        """Velocity limit the move was planned for."""
+        return self._limits[2]
+
+    # --- derived quantities -------------------------------------------------------------------
+    @property
+    def duration(self) -> float:
+        """Total time of the move (s): ``2 (2 tj + ta) + tv``."""
+        return 2.0 * (2.0 * self._tj + self._ta) + self._tv
+
+    @property
+    def phase_times(self) -> tuple:
+        tj, ta, tv = self._tj, self._ta, self._tv
+        return (tj, ta, tj, tv, tj, ta, tj)
+
+    @property
+    def peak_jerk(self) -> float:
+        if self.distance == 0.0:
+            return 0.0
+        return self._jpar
+
+    @property
+    def peak_accel(self) -> float:
+        shape = _SHAPE[self.kind]
+        if shape == _SINE:
+            return _TWO_OVER_PI * self._jpar * self._tj
+        if shape == _LINEAR:
+            return self._jpar * self._tj
+        return self._jpar if self.distance != 0.0 else 0.0
+
+    @property
+    def peak_velocity(self) -> float:
+        return self.peak_accel * (self._tj + self._ta)
+
+    # --- evaluation ---------------------------------------------------------------------------
+    def sample(self, t) -> ProfileSample:
+        """Jerk, acceleration, velocity and position at the times ``t`` (closed form).
+
+        Parameters
+        ----------
+        t : float or array_like
+            Times (s).  Before 0 the move is at rest at 0, after ``duration`` at rest at
+            ``distance``.
+
+        Returns
+        -------
+        ProfileSample
+            Arrays of the shape of ``t``.
+        """
+        t = as_finite_array("t", t)
+        return _evaluate(t, self.distance, self._tj, self._ta, self._tv, self._jpar,
+                         _SHAPE[self.kind])
+
+    def synchronized(self, Ts) -> "Profile":
+        """The same move with every phase time a whole multiple of ``Ts``.
+
+        Each phase time is rounded up to the next multiple of the sample time; the peak jerk
+        (the acceleration for a trapezoid) is then lowered so that the move still ends exactly at
+        ``distance``.  As no phase got shorter, the peak acceleration and velocity do not grow
+        either, so every limit still holds.  A controller sampling at ``Ts`` then sees every
+        phase boundary on a sample (Stojčić's rig samples at Ts = 5 ms).
+
+        Parameters
+        ----------
+        Ts : float
+            Sample time (s), > 0.
+        """
+        Ts = as_positive("Ts", Ts)
+        d = abs(self.distance)
+        kind = self.kind
+        if d == 0.0:
+            return self._replace(0.0, 0.0, 0.0, self._jpar)
+        shape = _SHAPE[kind]
+        if kind == "sine_jerk":
+            T = _ceil_multiple(2.0 * self._tj, Ts)
+            tj, ta, tv = 0.5 * T, 0.0, _ceil_multiple(self._tv, Ts)
+        else:
+            tj = _ceil_multiple(self._tj, Ts)
+            ta = _ceil_multiple(self._ta, Ts)
+            tv = _ceil_multiple(self._tv, Ts)
+        # distance = apk (tj + ta) (2 tj + ta + tv), apk = k * jpar * tj
+        if shape == _STEP:
+            jpar = d / ((tj + ta) * (2.0 * tj + ta + tv))
+        else:
+            k = _TWO_OVER_PI if shape == _SINE else 1.0
+            jpar = d / (k * tj * (tj + ta) * (2.0 * tj + ta + tv))
+        return self._replace(tj, ta, tv, jpar)
+
+    def _replace(self, tj, ta, tv, jpar) -> "Profile":
+        return type(self)(self.distance, tj, ta, tv, jpar, self._limits)
+
+    def discretize(self, Ts, t_end=None) -> ProfileSample:
+        """Stojčić eq. 15: backward-Euler integration of the sampled jerk (kept to show its drift).
+
+        ``eps(k) = eps(k-1) + j(k) Ts``, ``omega(k) = omega(k-1) + eps(k) Ts``,
+        ``theta(k) = theta(k-1) + omega(k) Ts`` with ``j(k)`` the jerk of eq. 2 at ``t_k = k Ts``
+        and zero initial state.  The result does *not* end at ``distance``: with Ts = 5 ms,
+        distance 100, J = 1000, E = 100, Omega = 60 the published profile ends about 0.8 % short.
+        Sample the closed form (:meth:`sample`) of a :meth:`synchronized` profile instead.
+
+        A trapezoid has no finite jerk: its sampled acceleration is integrated (the last two
+        lines of eq. 15).
+
+        Parameters
+        ----------
+        Ts : float
+            Sample time (s), > 0.
+        t_end : float, optional
+            Last time to cover (s); default: the duration plus one sample.
+
+        Returns
+        -------
+        ProfileSample
+            ``t_k = k Ts`` for ``k = 0 .. ceil(t_end / Ts)`` and the recursion's values.
+        """
+        Ts = as_positive("Ts", Ts)
+        if t_end is None:
+            t_end = self.duration + Ts
+        t_end = as_real("t_end", t_end)
+        n = max(int(math.ceil(t_end / Ts - 1e-9)), 0) + 1
+        tk = np.arange(n) * Ts
+        exact = self.sample(tk)
+        if _SHAPE[self.kind] == _STEP:
+            jerk = np.zeros(n)
+            accel = exact.accel
+        else:
+            jerk = exact.jerk
+            accel = np.cumsum(jerk) * Ts
+        vel = np.cumsum(accel) * Ts
+        pos = np.cumsum(vel) * Ts
+        return ProfileSample(tk, jerk, accel, vel, pos)
+
+    def to_dict(self) -> dict:
+        """JSON-able description: kind, distance, limits, phase times, duration and peaks."""
+        pj = self.peak_jerk
+        return {
+            "kind": self.kind,
+            "distance": self.distance,
+            "limits": {"max_jerk": self.max_jerk, "max_accel": self.max_accel,
+                       "max_velocity": self.max_velocity},
+            "phase_times": list(self.phase_times),
+            "duration": self.duration,
+            "peak_jerk": pj if math.isfinite(pj) else None,
+            "peak_accel": self.peak_accel,
+            "peak_velocity": self.peak_velocity,
+            "jerk_shape": ("sine", "linear", "step")[_SHAPE[self.kind]],
+        }
+
+    def __repr__(self) -> str:
+        return (f"{type(self).__name__}(distance={self.distance!r}, duration={self.duration!r}, "
+                f"phase_times={tuple(round(x, 12) for x in self.phase_times)!r})")
+
+
+class SineJerkProfile(Profile):
+    """Stojčić's published sine-jerk profile (eq. 2): ``j = J sin(2 pi t / T)`` on ``[0, T]``,
+    0 on ``[T, t1]``, ``-J sin(2 pi (t - t1) / T)`` on ``[t1, tu]``.
+
+    ``accel_time`` is T, ``cruise_time`` is t_v; ``phase_times = (T, t_v, T)``.
+    """
+
+    __slots__ = ()
+    kind = "sine_jerk"
+
+    @property
+    def accel_time(self) -> float:
+        """T = t_a, the length of the acceleration (and deceleration) phase (s)."""
+        return 2.0 * self._tj
+
+    @property
+    def cruise_time(self) -> float:
+        """t_v, the time at constant velocity (s)."""
+        return self._tv
+
+    @property
+    def phase_times(self) -> tuple:
+        T = 2.0 * self._tj
+        return (T, self._tv, T)
+
+    def to_dict(self) -> dict:
+        d = Profile.to_dict(self)
+        d["accel_time"] = self.accel_time
+        d["cruise_time"] = self.cruise_time
+        return d
+
+
+class SineJerkOptimalProfile(Profile):
+    """Half-sine jerk pulses with an acceleration plateau and a cruise (7 segments)."""
+
+    __slots__ = ()
+    kind = "sine_jerk_optimal"
+
+
+class SCurveProfile(Profile):
+    """Linear-jerk (constant-jerk segments) 7-segment S-curve."""
+
+    __slots__ = ()
+    kind = "scurve"
+
+
+class TrapezoidProfile(Profile):
+    """Constant acceleration, cruise, constant deceleration; ``phase_times = (t_a, t_v, t_a)``."""
+
+    __slots__ = ()
+    kind = "trapezoid"
+
+    @property
+    def phase_times(self) -> tuple:
+        return (self._ta, self._tv, self._ta)
+
+    @property
+    def peak_jerk(self) -> float:
+        return _INF if self.distance != 0.0 else 0.0
+
+
+# ---------------------------------------------------------------------------------------------
+# planners (scalar)
+# ---------------------------------------------------------------------------------------------
+def _check_limits(distance, max_jerk, max_accel, max_velocity):
+    """Validated floats (``jerklab._validate`` raises the ``ValueError`` naming the parameter)."""
+    return (as_real("distance", distance), as_positive("max_jerk", max_jerk),
+            as_positive("max_accel", max_accel), as_positive("max_velocity", max_velocity))
+
+
+_new = object.__new__
+_sqrt = math.sqrt
+_THIRD = 1.0 / 3.0
+_TWO_PI = 2.0 * math.pi
+
+# The planners below are on the hot path (one call per move; benchmarks/bench_planner.py compares
+# them with Ruckig): plain floats are checked inline, anything else goes through _check_limits.
+# ``(a + b + c + d) * 0.0 == 0.0`` is False as soon as one of them is NaN or inf.
+
+
+def plan_sine_jerk(distance, max_jerk, max_accel, max_velocity) -> "SineJerkProfile":
+    """Stojčić's sine-jerk planner exactly as published (eq. 3, 4 and the flowchart of Fig. 2).
+
+    ``T = (2 pi Theta / J)^(1/3)`` (eq. 4); if ``J T / pi > E`` then ``T = E pi / J``; if
+    ``J T^2 / (2 pi) > Omega`` then ``T = sqrt(2 pi Omega / J)``; ``omega = min(J T^2/(2 pi), Omega)``,
+    ``t_v = (Theta - omega T) / omega``, ``t_u = 2 T + t_v``.  This is ``T = min(T_Theta, T_E,
+    T_Omega)``, so every limit holds.  The round-off ``t_v ~ -1e-16`` is clamped to 0.
+
+    The peak jerk is always ``max_jerk`` (the paper never lowers it): when the acceleration limit
+    binds, the cruise speed collapses to ``E T / 2``, far below ``max_velocity``.  See
+    :func:`plan_sine_jerk_optimal` for the time-optimal sine-jerk profile.
+
+    Parameters
+    ----------
+    distance : float
+        Signed move length Theta (rad or any unit); negative moves backwards, 0 gives an empty move.
+    max_jerk, max_accel, max_velocity : float
+        J, E, Omega (> 0).
+
+    Returns
+    -------
+    SineJerkProfile
+        With ``accel_time`` (T) and ``cruise_time`` (t_v).
+    """
+    J, E, W = max_jerk, max_accel, max_velocity
+    if not (type(distance) is float is type(J) is type(E) is type(W)
+            and J > 0.0 and E > 0.0 and W > 0.0 and (distance + J + E + W) * 0.0 == 0.0):
+        distance, J, E, W = _check_limits(distance, J, E, W)
+    p = _new(SineJerkProfile)
+    p.distance = distance
+    p._ta = 0.0
+    p._jpar = J
+    p._limits = (J, E, W)
+    theta = distance if distance >= 0.0 else -distance
+    if theta == 0.0:
+        p._tj = p._tv = 0.0
+        return p
+    T = (_TWO_PI * theta / J) ** _THIRD                     # eq. 4
+    if J * T / _PI > E:                                     # eq. 3: eps_max = J T / pi
+        T = E * _PI / J
+    wmax = J * T * T / _TWO_PI                              # eq. 3: omega_max = J T^2 / (2 pi)
+    if wmax > W:
+        T = _sqrt(_TWO_PI * W / J)
+        wmax = W                                            # omega = min(omega_max, Omega)
+    tv = (theta - wmax * T) / wmax
+    p._tj = 0.5 * T
+    p._tv = tv if tv > 0.0 else 0.0                         # round-off only (T <= T_Theta)
+    return p
+
+
+def _scurve_times(d, J, A, V):
+    """Phase times ``(tj, ta, tv)`` of the time-optimal linear-jerk S-curve over ``d >= 0``.
+
+    Cases: the velocity limit reached (with or without an acceleration plateau), or not (with the
+    acceleration limit reached, ``d = A (tj + ta)(2 tj + ta)``, or not, ``d = 2 J tj^3``).
+    """
+    if d == 0.0:
+        return 0.0, 0.0, 0.0
+    tj = A / J
+    if V * J >= A * A:                      # V reachable with a plateau at A
+        ta = V / A - tj
+        dv = V * (tj + tj + ta)             # distance to reach V and stop again
+    else:                                   # V reached before A
+        tj = _sqrt(V / J)
+        ta = 0.0
+        dv = 2.0 * V * tj
+    if d >= dv:
+        return tj, ta, (d - dv) / V
+    tj = A / J                              # V not reached
+    tj2 = tj * tj
+    if d >= 2.0 * A * tj2:                  # A still reached: solve d = A (tj + ta)(2 tj + ta)
+        q = d / A
+        return tj, 2.0 * (q - 2.0 * tj2) / (3.0 * tj + _sqrt(tj2 + 4.0 * q)), 0.0
+    return (0.5 * d / J) ** _THIRD, 0.0, 0.0
+
+
+def plan_sine_jerk_optimal(distance, max_jerk, max_accel, max_velocity) -> "SineJerkOptimalProfile":
+    """Time-optimal rest-to-rest profile made of half-sine jerk pulses of peak <= ``max_jerk``.
+
+    Seven segments: a rising half-sine jerk pulse (length ``tj``), an acceleration plateau
+    (``ta``), a falling pulse, a cruise (``tv``) and the mirror image.  A half-sine pulse of peak J
+    changes the acceleration by ``2 J tj / pi`` -- exactly what a constant jerk ``2 J / pi`` does in
+    the same time -- and the acceleration phase is symmetric, so the velocity peak and the distance
+    equal those of the linear-jerk S-curve with jerk ``2 J / pi``: the phase times are that
+    S-curve's (:func:`plan_scurve`).  Here the limits are upper bounds; the published algorithm
+    (:func:`plan_sine_jerk`) is the special case ``ta = 0`` with a pulse shortened instead.
+
+    Parameters
+    ----------
+    distance : float
+        Signed move length.
+    max_jerk, max_accel, max_velocity : float
+        Peak of the sine jerk, acceleration and velocity limits (> 0).
+    """
+    J, E, W = max_jerk, max_accel, max_velocity
+    if not (type(distance) is float is type(J) is type(E) is type(W)
+            and J > 0.0 and E > 0.0 and W > 0.0 and (distance + J + E + W) * 0.0 == 0.0):
+        distance, J, E, W = _check_limits(distance, J, E, W)
+    p = _new(SineJerkOptimalProfile)
+    p.distance = distance
+    p._jpar = J
+    p._limits = (J, E, W)
+    p._tj, p._ta, p._tv = _scurve_times(distance if distance >= 0.0 else -distance,
+                                        _TWO_OVER_PI * J, E, W)
+    return p
+
+
+def plan_scurve(distance, max_jerk, max_accel, max_velocity) -> "SCurveProfile":
+    """Time-optimal linear-jerk 7-segment S-curve, rest to rest.
+
+    Jerk ``+J, 0, -J, 0, -J, 0, +J`` over ``(tj, ta, tj, tv, tj, ta, tj)``.  All four cases are
+    handled: acceleration limit reached (``ta > 0``) or not, velocity limit reached (``tv > 0``) or
+    not.  Yang et al. (2013) use the special case ``ta = 0`` with the velocity reached.
+
+    Parameters
+    ----------
+    distance : float
+        Signed move length.
+    max_jerk, max_accel, max_velocity : float
+        Limits (> 0).
+    """
+    J, A, V = max_jerk, max_accel, max_velocity
+    if not (type(distance) is float is type(J) is type(A) is type(V)
+            and J > 0.0 and A > 0.0 and V > 0.0 and (distance + J + A + V) * 0.0 == 0.0):
+        distance, J, A, V = _check_limits(distance, J, A, V)
+    p = _new(SCurveProfile)
+    p.distance = distance
+    p._jpar = J
+    p._limits = (J, A, V)
+    p._tj, p._ta, p._tv = _scurve_times(distance if distance >= 0.0 else -distance, J, A, V)
+    return p
+
+
+def plan_trapezoid(distance, max_accel, max_velocity) -> "TrapezoidProfile":
+    """Classic trapezoidal (triangular when short) velocity profile, the one the papers improve on.
+
+    ``t_a = V / A`` and ``t_v = d / V - V / A`` when the velocity limit is reached, else
+    ``t_a = sqrt(d / A)``, ``t_v = 0`` (Stojčić §1: ``t_u = 2 t_a + t_v``).
+
+    Parameters
+    ----------
+    distance : float
+        Signed move length.
+    max_accel, max_velocity : float
+        Limits (> 0).
+    """
+    A, V = max_accel, max_velocity
+    if not (type(distance) is float is type(A) is type(V)
+            and A > 0.0 and V > 0.0 and (distance + A + V) * 0.0 == 0.0):
+        distance = as_real("distance", distance)
+        A = as_positive("max_accel", A)
+        V = as_positive("max_velocity", V)
+    p = _new(TrapezoidProfile)
+    p.distance = distance
+    p._tj = 0.0
+    p._jpar = A
+    p._limits = (None, A, V)
+    d = distance if distance >= 0.0 else -distance
+    if d == 0.0:
+        p._ta = p._tv = 0.0
+    elif d * A >= V * V:
+        ta = V / A
+        p._ta = ta
+        p._tv = (d - V * ta) / V
+    else:
+        p._ta = _sqrt(d / A)
+        p._tv = 0.0
+    return p
+
+
+# ---------------------------------------------------------------------------------------------
+# batch form
+# ---------------------------------------------------------------------------------------------
+class BatchPlan:
+    """Many moves of one kind planned at once (:func:`plan_batch`); arrays of shape ``(n,)``.
+
+    Attributes
+    ----------
+    kind : str
+    distance, duration : ndarray
+    tj, ta, tv : ndarray
+        Rising-pulse, acceleration-plateau and cruise times (s).  For ``"sine_jerk"`` the
+        published T is ``2 tj``; for ``"trapezoid"`` ``tj`` is 0.
+    jpar : ndarray
+        Jerk actually used (peak of the sine pulses for the sine kinds), the acceleration for the
+        trapezoid.
+    """
+
+    __slots__ = ("kind", "distance", "tj", "ta", "tv", "jpar", "max_jerk", "max_accel",
+                 "max_velocity")
+
+    def __init__(self, kind, distance, tj, ta, tv, jpar, max_jerk, max_accel, max_velocity):
+        self.kind = kind
+        self.distance = distance
+        self.tj, self.ta, self.tv, self.jpar = tj, ta, tv, jpar
+        self.max_jerk, self.max_accel, self.max_velocity = max_jerk, max_accel, max_velocity
+
+    def __len__(self) -> int:
+        return self.distance.shape[0]
+
+    @property
+    def duration(self) -> np.ndarray:
+        return 2.0 * (2.0 * self.tj + self.ta) + self.tv
+
+    @property
+    def phase_times(self) -> np.ndarray:
+        """``(n, k)`` array of the segment durations, as ``Profile.phase_times``."""
+        tj, ta, tv = self.tj, self.ta, self.tv
+        if self.kind == "sine_jerk":
+            return np.stack([2 * tj, tv, 2 * tj], axis=-1)
+        if self.kind == "trapezoid":
+            return np.stack([ta, tv, ta], axis=-1)
+        return np.stack([tj, ta, tj, tv, tj, ta, tj], axis=-1)
+
+    @property
+    def peak_accel(self) -> np.ndarray:
+        shape = _SHAPE[self.kind]
+        if shape == _SINE:
+            return _TWO_OVER_PI * self.jpar * self.tj
+        if shape == _LINEAR:
+            return self.jpar * self.tj
+        return np.where(self.distance != 0.0, self.jpar, 0.0)
+
+    @property
+    def peak_velocity(self) -> np.ndarray:
+        return self.peak_accel * (self.tj + self.ta)
+
+    @property
+    def peak_jerk(self) -> np.ndarray:
+        if self.kind == "trapezoid":
+            return np.where(self.distance != 0.0, _INF, 0.0)
+        return np.where(self.distance != 0.0, self.jpar, 0.0)
+
+    def profile(self, i: int) -> Profile:
+        """The ``i``-th move as a :class:`Profile`."""
+        cls = _CLASSES[self.kind]
+        mj = None if self.max_jerk is None else float(self.max_jerk[i])
+        return cls(float(self.distance[i]), float(self.tj[i]), float(self.ta[i]),
+                   float(self.tv[i]), float(self.jpar[i]),
+                   (mj, float(self.max_accel[i]), float(self.max_velocity[i])))
+
+    def sample(self, t) -> ProfileSample:
+        """Closed form of every move at ``t`` (broadcast against shape ``(n, 1)``, e.g. ``t`` of
+        shape ``(n, m)`` or ``(m,)`` gives ``(n, m)`` arrays)."""
+        t = as_finite_array("t", t)
+        col = (slice(None), None)
+        return _evaluate(t, self.distance[col], self.tj[col], self.ta[col], self.tv[col],
+                         self.jpar[col], _SHAPE[self.kind])
+
+
+_CLASSES = {"sine_jerk": SineJerkProfile, "sine_jerk_optimal": SineJerkOptimalProfile,
+            "scurve": SCurveProfile, "trapezoid": TrapezoidProfile}
+
+_CHUNK = 8192
+
+
+def _batch_scurve(d, J, A, V, tj_o, ta_o, tv_o):
+    """Vectorized S-curve phase times on one chunk (``d >= 0``), written with min/max.
+
+    ``tj = min(A/J, sqrt(V/J), (d/2J)^(1/3))`` (the acceleration, velocity or distance limit
+    ends the jerk pulse first); with ``a = J tj`` the plateau is the longest that keeps both the
+    velocity ``a (tj + ta) <= V`` and the distance ``a (tj + ta)(2 tj + ta) <= d``:
+    ``ta = max(0, min(V/a - tj, ta_d))``; the cruise fills the rest: ``tv = max(0, d/v - 2tj - ta)``.
+    The scalar :func:`_scurve_times` spells out the same cases with branches.
+    """
+    invj = 1.0 / J
+    tj = np.minimum(A * invj, np.sqrt(V * invj))
+    np.minimum(tj, np.cbrt(0.5 * d * invj), out=tj)
+    a = J * tj
+    with np.errstate(divide="ignore", invalid="ignore"):     # d = 0 gives a = 0: fixed below
+        inva = 1.0 / a
+        tav = V * inva - tj
+        q = d * inva
+        tj2 = tj * tj
+        tad = 2.0 * (q - 2.0 * tj2) / (3.0 * tj + np.sqrt(tj2 + 4.0 * q))
+        ta = np.minimum(tav, tad)
+        np.maximum(ta, 0.0, out=ta)
+        tacc = 2.0 * tj + ta
+        tv = d / (a * (tj + ta)) - tacc
+    np.maximum(tv, 0.0, out=tv)
+    # round-off residues (~1e-17 s) of a plateau or cruise that should be absent
+    ta[ta <= 1e-12 * tj] = 0.0
+    tv[tv <= 1e-12 * tacc] = 0.0
+    np.copyto(tj_o, tj)
+    np.copyto(ta_o, ta)
+    np.copyto(tv_o, tv)
+
+
+def _batch_sine_jerk(d, J, E, W, tj_o, ta_o, tv_o):
+    """Vectorized :func:`plan_sine_jerk` (Stojčić eq. 4, Fig. 2) on one chunk."""
+    T = np.cbrt((2.0 * _PI) * d / J)
+    T = np.minimum(T, E * _PI / J)
+    T = np.minimum(T, np.sqrt((2.0 * _PI) * W / J))
+    w = np.minimum(J * T * T / (2.0 * _PI), W)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tv = (d - w * T) / w
+    tv = np.where(tv > 0.0, tv, 0.0)            # clamps round-off and the 0/0 of d = 0
+    np.multiply(T, 0.5, out=tj_o)
+    ta_o[...] = 0.0
+    np.copyto(tv_o, tv)
+
+
+def _batch_trapezoid(d, A, V, tj_o, ta_o, tv_o):
+    reach = d * A >= V * V
+    tj_o[...] = 0.0
+    np.copyto(ta_o, np.where(reach, V / A, np.sqrt(d / A)))
+    np.copyto(tv_o, np.where(reach, d / V - V / A, 0.0))
+
+
+def plan_batch(kind, distance, max_jerk=None, max_accel=None, max_velocity=None) -> BatchPlan:
+    """Plan many moves of one ``kind`` at once, vectorized (arrays broadcast to one shape ``(n,)``).
+
+    The same algebra as the scalar planners, evaluated with numpy in cache-sized chunks
+    (millions of plans per second; ``benchmarks/bench_planner.py`` measures it).
+
+    Parameters
+    ----------
+    kind : {"sine_jerk", "sine_jerk_optimal", "scurve", "trapezoid"}
+    distance : array_like
+        Signed move lengths.
+    max_jerk : array_like or None
+        Jerk limits (> 0); not used (may be None) for ``"trapezoid"``.
+    max_accel, max_velocity : array_like
+        Limits (> 0).
+
+    Returns
+    -------
+    BatchPlan
+    """
+    if kind not in _SHAPE:
+        raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
+    dist = as_finite_array("distance", distance)
+    A = as_finite_array("max_accel", max_accel)
+    V = as_finite_array("max_velocity", max_velocity)
+    if kind == "trapezoid":
+        J = None
+        arrays = np.broadcast_arrays(dist, A, V)
+    else:
+        if max_jerk is None:
+            raise ValueError(f"max_jerk is required for kind {kind!r}")
+        J = as_finite_array("max_jerk", max_jerk)
+        arrays = np.broadcast_arrays(dist, A, V, J)
+    arrays = [np.ascontiguousarray(np.ravel(a)) for a in arrays]
+    dist, A, V = arrays[:3]
+    for name, a in (("max_accel", A), ("max_velocity", V)) + ((("max_jerk", arrays[3]),)
+                                                              if J is not None else ()):
+        if a.size and not a.min() > 0.0:
+            raise ValueError(f"{name} must be > 0 everywhere, got min {a.min()!r}")
+    if J is not None:
+        J = arrays[3]
+    n = dist.shape[0]
+    tj = np.empty(n)
+    ta = np.empty(n)
+    tv = np.empty(n)
+    d_all = np.abs(dist)
+    if kind == "sine_jerk_optimal":
+        jeq = _TWO_OVER_PI * J
+    for lo in range(0, n, _CHUNK):
+        sl = slice(lo, min(lo + _CHUNK, n))
+        d = d_all[sl]
+        if kind == "scurve":
+            _batch_scurve(d, J[sl], A[sl], V[sl], tj[sl], ta[sl], tv[sl])
+        elif kind == "sine_jerk_optimal":
+            _batch_scurve(d, jeq[sl], A[sl], V[sl], tj[sl], ta[sl], tv[sl])
+        elif kind == "sine_jerk":
+            _batch_sine_jerk(d, J[sl], A[sl], V[sl], tj[sl], ta[sl], tv[sl])
+        else:
+            _batch_trapezoid(d, A[sl], V[sl], tj[sl], ta[sl], tv[sl])
+    zero = d_all == 0.0
+    if zero.any():
+        tj[zero] = ta[zero] = tv[zero] = 0.0
+    jpar = A if kind == "trapezoid" else J
+    return BatchPlan(kind, dist, tj, ta, tv, jpar, J, A, V)
