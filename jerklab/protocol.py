@@ -429,11 +429,21 @@ def payload_field_name(command: int, index: int) -> str:
 
 @dataclass(frozen=True)
 class Frame:
-    """A frame that passed the CRC: ``type`` byte, ``seq`` byte, raw ``payload``."""
+    """A frame that passed the CRC: ``type`` byte, ``seq`` byte, raw ``payload``.
+
+    ``offset`` is the position of its first sync byte in the decoder's input
+    stream (for diagnostics; not compared).
+    """
 
     type: int
     seq: int
     payload: bytes
+    offset: int = dataclasses.field(default=-1, compare=False)
+
+    @property
+    def size(self) -> int:
+        """Bytes of the whole frame on the wire."""
+        return len(self.payload) + MIN_FRAME
 
 
 def encode_frame(msg_type: int, seq: int, payload: bytes = b"") -> bytes:
@@ -489,6 +499,7 @@ class Decoder:
 
     def __init__(self) -> None:
         self._buf = bytearray()
+        self._base = 0                 # stream offset of self._buf[0]
         self.stats = DecoderStats()
 
     @property
@@ -532,10 +543,11 @@ class Decoder:
                 stats.skipped_bytes += 1
                 pos = i + 1
                 continue
-            out.append(Frame(body[1], body[2], body[3:]))
+            out.append(Frame(body[1], body[2], body[3:], self._base + i))
             stats.frames += 1
             pos = end
         del buf[:pos]
+        self._base += pos
         return out
 
     def flush(self) -> list[Frame]:
@@ -552,6 +564,7 @@ class Decoder:
             self.stats.skipped_bytes += 1
             rest = bytes(self._buf[1:])
             self._buf.clear()
+            self._base += 1                  # rest[0] is the next stream byte
             out += self.feed(rest)
         return out
 
