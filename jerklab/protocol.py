@@ -236,17 +236,20 @@ class SetGains(_Message):
     """Discrete PID gains (Stojčić eq. 12-13) in SI units: V/rad (position loop) or V/(rad/s).
 
     ``Ts_us`` is the control period in µs (a multiple of ``HelloReply.tick_us``),
-    ``loop`` a :class:`LoopType`, ``flags`` bit 0 = feedforward on.
+    ``loop`` a :class:`LoopType`, ``flags`` bit 0 = feedforward on, ``gamma`` the
+    derivative filter pole ``d(k) = gamma d(k-1) + kdd (e(k) - e(k-1))`` (0 = the
+    paper's backward difference, eq. 17; |gamma| < 1).
     """
 
     TYPE: ClassVar[MsgType] = MsgType.SET_GAINS
-    FORMAT: ClassVar[str] = "<fffHBB"
+    FORMAT: ClassVar[str] = "<fffHBBf"
     kpd: float
     kid: float
     kdd: float
     Ts_us: int
     loop: int = LoopType.POSITION
     flags: int = GAINS_FEEDFORWARD
+    gamma: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -43,7 +43,7 @@ def test_crc_table_matches_bitwise():
 EXAMPLES = [
     P.Hello(),
     P.SetPlant(K=32.4, tau=0.025, supply_voltage=12.0, counts_per_rev=448),
-    P.SetGains(kpd=1.0, kid=0.1, kdd=2.0, Ts_us=5000, loop=P.LoopType.VELOCITY, flags=0),
+    P.SetGains(kpd=1.0, kid=0.1, kdd=2.0, Ts_us=5000, loop=P.LoopType.VELOCITY, flags=0, gamma=0.25),
     P.SetLimits(max_jerk=2e4, max_accel=300.0, max_velocity=100.0, max_voltage=12.0, host_timeout_ms=500),
     P.Plan(distance=-31.4159, planner=P.Planner.SINE_JERK),
     P.Run(settle_samples=40, decimation=2),
@@ -96,7 +96,7 @@ def test_golden_frames_match_protocol_md():
     golden = text.split("## Golden frames", 1)[1]
     hexes = [bytes.fromhex(h) for h in re.findall(r"((?:[0-9a-f]{2} ){4,}[0-9a-f]{2})", golden)]
     expected = [
-        P.Hello(1), P.SetPlant(32.4, 0.025, 12.0, 448), P.SetGains(1.0, 0.1, 2.0, 5000, 0, 1),
+        P.Hello(1), P.SetPlant(32.4, 0.025, 12.0, 448), P.SetGains(1.0, 0.1, 2.0, 5000, 0, 1, 0.0),
         P.SetLimits(2e4, 300, 100, 12, 1000), P.Plan(31.4159, 0), P.Run(40, 1), P.Stop(),
         P.Step(6.0, 5000, 200), P.Heartbeat(), P.Ack(2), P.Nack(3, 3, 1),
         P.HelloReply(1, 0, 1, 0, 0x1F1, 1000, 1023, "jerklab-uno"), P.PlanInfo(0.1, 0.2, 0.4, 81),
