@@ -33,7 +33,7 @@ import time as _time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import optimize, signal, stats
+from scipy import linalg, optimize, signal, stats
 
 import control
 
@@ -558,6 +558,8 @@ class MotorFit:
         Simulated angle on the estimation data and measured - simulated.
     noise_std : float
         Residual standard deviation (rad for PEM; the equation-error scale for ARX).
+    friction, friction_std : float or None
+        Estimated Coulomb friction voltage (V) and its standard error (``friction=True`` only).
     """
 
     K: float
@@ -575,9 +577,17 @@ class MotorFit:
     noise_std: float = float("nan")
     arx_result: ARXResult | None = field(default=None, repr=False)
     nfev: int = 0
+    friction: float | None = None        #: Coulomb friction voltage f_c (V), if estimated
+    friction_std: float | None = None
 
     def simulate(self, u, theta0=0.0, omega0=0.0) -> np.ndarray:
-        """The fitted model's ZOH response to ``u`` (see :func:`simulate_dc_motor`)."""
+        """The fitted model's ZOH response to ``u`` (see :func:`simulate_dc_motor`).
+
+        With an estimated friction the motor sees u - f_c sign(u), as in the fit.
+        """
+        u = _signal("u", u, min_len=1)
+        if self.friction:
+            u = u - self.friction * np.sign(u)
         return simulate_dc_motor(self.K, self.tau, self.Ts, u, theta0, omega0)
 
     def confidence_interval(self, level: float = 0.95):
@@ -624,46 +634,57 @@ def _fit_arx(u, theta, Ts):
     return K, tau, cov, res
 
 
-def _pem_residual_fn(u, theta, Ts, fit_theta0):
+def _pem_model(u, theta, Ts, fit_theta0, friction):
+    """Simulated angle as a function of p = [K, ln tau, (theta0), (f_c)]."""
+    su = np.sign(u)
+
     def sim(p):
-        K, logtau = p[0], p[1]
-        g = _unit_response(math.exp(logtau), Ts, u)
-        th0 = p[2] if fit_theta0 else theta[0]
-        return K * g + th0
+        K, tau = p[0], math.exp(p[1])
+        i = 2
+        th0 = theta[0]
+        if fit_theta0:
+            th0 = p[i]
+            i += 1
+        ue = u - p[i] * su if friction else u
+        return K * _unit_response(tau, Ts, ue) + th0
 
     return sim
 
 
-def _initial_guess(u, theta, Ts, fit_theta0):
-    """Variable projection over tau on a log grid: for fixed tau, K and theta0 are linear."""
+def _initial_guess(u, theta, Ts, fit_theta0, friction):
+    """Variable projection over tau on a log grid: for fixed tau the angle is linear in
+    K, theta0 and K f_c, so each grid point is one small least-squares problem."""
     N = u.size
     taus = np.geomspace(Ts / 20.0, max(N * Ts, 2 * Ts), 40)
     best = None
+    target = theta if fit_theta0 else theta - theta[0]
     for tau in taus:
-        g = _unit_response(tau, Ts, u)
+        cols = [_unit_response(tau, Ts, u)]
         if fit_theta0:
-            M = np.column_stack([g, np.ones(N)])
-            coef, *_ = np.linalg.lstsq(M, theta, rcond=None)
-            r = theta - M @ coef
-            K, th0 = coef
-        else:
-            gg = float(g @ g)
-            K = float(g @ (theta - theta[0])) / gg if gg > 0 else 0.0
-            th0 = theta[0]
-            r = theta - th0 - K * g
+            cols.append(np.ones(N))
+        if friction:
+            cols.append(-_unit_response(tau, Ts, np.sign(u)))
+        M = np.column_stack(cols)
+        coef, *_ = np.linalg.lstsq(M, target, rcond=None)
+        r = target - M @ coef
         sse = float(r @ r)
         if best is None or sse < best[0]:
-            best = (sse, K, tau, th0)
-    return best[1], best[2], best[3]
+            K = coef[0]
+            th0 = coef[1] if fit_theta0 else theta[0]
+            fc = coef[-1] / K if (friction and K != 0) else 0.0
+            best = (sse, K, tau, th0, fc)
+    return best[1:]
 
 
-def _fit_pem(u, theta, Ts, fit_theta0, x0=None):
-    sim = _pem_residual_fn(u, theta, Ts, fit_theta0)
-    if x0 is None:
-        K0, tau0, th00 = _initial_guess(u, theta, Ts, fit_theta0)
-    else:
-        K0, tau0, th00 = x0
-    p0 = np.array([K0, math.log(tau0), th00] if fit_theta0 else [K0, math.log(tau0)])
+def _fit_pem(u, theta, Ts, fit_theta0, friction=False):
+    sim = _pem_model(u, theta, Ts, fit_theta0, friction)
+    K0, tau0, th00, fc0 = _initial_guess(u, theta, Ts, fit_theta0, friction)
+    p0 = [K0, math.log(tau0)]
+    if fit_theta0:
+        p0.append(th00)
+    if friction:
+        p0.append(fc0)
+    p0 = np.array(p0)
 
     def resid(p):
         return sim(p) - theta
@@ -690,10 +711,14 @@ def _fit_pem(u, theta, Ts, fit_theta0, x0=None):
     T = np.diag([1.0, tau])
     cov = T @ cov_p[:2, :2] @ T
     th0 = p[2] if fit_theta0 else theta[0]
-    return K, tau, cov, th0, sol.nfev, math.sqrt(s2)
+    fc = fc_std = None
+    if friction:
+        fc, fc_std = float(p[-1]), float(math.sqrt(max(cov_p[-1, -1], 0.0)))
+    return K, tau, cov, th0, sol.nfev, math.sqrt(s2), fc, fc_std, sim(p)
 
 
-def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True) -> MotorFit:
+def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
+                 friction: bool = False) -> MotorFit:
     """Identify K and tau of P(s) = K/(s(tau s + 1)) (Stojčić eq. 1, §4A) from a voltage/angle record.
 
     The paper ran MATLAB's ``pem(iddata(y, u, Ts), 'P2')``; 'P2' has no integrator, so this fits
@@ -721,6 +746,13 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True) -> 
         errors, which a differenced noisy angle does not give, so they are optimistic.
     fit_theta0 : bool
         Estimate the initial angle (default) instead of trusting the first, noisy, sample.
+    friction : bool
+        PEM only: also estimate a Coulomb friction voltage f_c, with the motor seeing
+        u - f_c sign(u). This holds while the motor turns the way it is driven and stands still
+        when u = 0 (a step from rest; a PRBS whose offset exceeds its amplitude). f_c and K are
+        separable only if u takes at least two non-zero levels (a PRBS with offset, a staircase);
+        from a single step the fit finds the *effective* gain K (1 - f_c/|u|). Without it, a
+        friction f_c biases K by about -f_c/|u|.
 
     Returns
     -------
@@ -740,27 +772,33 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True) -> 
     """
     if method not in ("pem", "arx"):
         raise ValueError(f"method must be 'pem' or 'arx', got {method!r}")
+    if not isinstance(friction, (bool, np.bool_)):
+        raise ValueError(f"friction must be True or False, got {friction!r}")
+    if friction and method != "pem":
+        raise ValueError("friction=True needs method='pem' (ARX has no friction term)")
     Ts = as_positive("Ts", Ts)
     u, theta = _pair(u, theta, "u", "theta")
     _check_excitation(u, theta, "u", "theta")
     arx_res = None
     nfev = 0
+    fc = fc_std = None
     if method == "arx":
         K, tau, cov, arx_res = _fit_arx(u, theta, Ts)
         g = K * _unit_response(tau, Ts, u)
         th0 = _best_theta0(theta, g) if fit_theta0 else theta[0]
         noise_std = math.sqrt(arx_res.noise_variance) * Ts
+        y_sim = g + th0
     else:
-        K, tau, cov, th0, nfev, noise_std = _fit_pem(u, theta, Ts, fit_theta0)
+        K, tau, cov, th0, nfev, noise_std, fc, fc_std, y_sim = _fit_pem(u, theta, Ts, fit_theta0,
+                                                                       friction)
         if not (math.isfinite(K) and math.isfinite(tau)):
             raise ValueError("theta: the output-error fit did not converge")
-        g = K * _unit_response(tau, Ts, u)
-    y_sim = g + th0
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     return MotorFit(K=float(K), tau=float(tau), K_std=float(std[0]), tau_std=float(std[1]),
                     fit_percent=fit_percent(theta, y_sim), model=_motor_tf(K, tau), method=method,
                     Ts=Ts, theta0=float(th0), cov=cov, y_sim=y_sim, residuals=theta - y_sim,
-                    noise_std=float(noise_std), arx_result=arx_res, nfev=int(nfev))
+                    noise_std=float(noise_std), arx_result=arx_res, nfev=int(nfev),
+                    friction=fc, friction_std=fc_std)
 
 
 def arx_asymptotic_bias(u, K, tau, Ts, noise_std):
@@ -817,8 +855,12 @@ class ResidualAnalysis:
     ``autocorr[k]`` is the normalised autocorrelation of e at lag k = 0..max_lag;
     ``crosscorr[i]`` the normalised cross-correlation of u(t - lag) and e(t) at
     ``cross_lags[i]`` = -max_lag..max_lag. ``auto_bound`` and ``cross_bound`` are the
-    two-sided confidence bounds at ``confidence`` under the hypothesis "e white and independent
-    of u"; ``white`` / ``independent`` say whether every lag >= 1 (resp. every lag) stays inside.
+    two-sided per-lag confidence bounds at ``confidence`` under the hypothesis "e white and
+    independent of u" (what ``resid`` draws). With 25 lags a few excursions are expected by chance,
+    so the verdicts are joint tests over all lags: ``white`` is the Ljung-Box portmanteau test
+    (Q = N(N+2) sum r_k^2/(N-k) ~ chi2(max_lag)), ``independent`` the test
+    zeta = N r^T R_u^+ r ~ chi2(rank R_u) (Ljung §16.6), each passed when its p-value exceeds
+    1 - ``confidence``.
     """
 
     lags: np.ndarray
@@ -830,6 +872,8 @@ class ResidualAnalysis:
     confidence: float
     white: bool
     independent: bool | None
+    auto_pvalue: float = float("nan")
+    cross_pvalue: float | None = None
 
 
 def _xcorr_norm(x, y, lags):
@@ -879,10 +923,14 @@ def residual_analysis(residuals, u=None, max_lag: int = 25, confidence: float = 
     lags = np.arange(max_lag + 1)
     ac = _xcorr_norm(e, e, lags)
     auto_bound = z / math.sqrt(N)
-    white = bool(np.all(np.abs(ac[1:]) <= auto_bound))
+    k = lags[1:]
+    Q = N * (N + 2) * float(np.sum(ac[1:] ** 2 / (N - k)))
+    p_auto = float(stats.chi2.sf(Q, max_lag))
+    white = p_auto > 1.0 - confidence
     cl = np.arange(-max_lag, max_lag + 1)
     if u is None:
-        return ResidualAnalysis(lags, ac, cl, None, auto_bound, float("nan"), confidence, white, None)
+        return ResidualAnalysis(lags, ac, cl, None, auto_bound, float("nan"), confidence, white, None,
+                                p_auto, None)
     u = _signal("u", u)
     if u.size != N:
         raise ValueError(f"u and residuals must have the same length, got {u.size} and {N}")
@@ -893,8 +941,17 @@ def residual_analysis(residuals, u=None, max_lag: int = 25, confidence: float = 
     re = _xcorr_norm(e, e, cl)
     P = max(float(np.sum(ru * re)), 1.0 / N)
     cross_bound = z * math.sqrt(P / N)
-    independent = bool(np.all(np.abs(cc) <= cross_bound))
-    return ResidualAnalysis(lags, ac, cl, cc, auto_bound, cross_bound, confidence, white, independent)
+    # joint test: under independence r ~ N(0, R_u / N), R_u the Toeplitz matrix of u's correlation
+    ru_pos = _xcorr_norm(u, u, np.arange(cl.size))
+    Ru = linalg.toeplitz(ru_pos)
+    w, V = np.linalg.eigh(Ru)
+    keep = w > 1e-8 * w.max()
+    proj = V[:, keep].T @ cc
+    zeta = N * float(np.sum(proj ** 2 / w[keep]))
+    p_cross = float(stats.chi2.sf(zeta, int(np.count_nonzero(keep))))
+    independent = p_cross > 1.0 - confidence
+    return ResidualAnalysis(lags, ac, cl, cc, auto_bound, cross_bound, confidence, white, independent,
+                            p_auto, p_cross)
 
 
 @dataclass
