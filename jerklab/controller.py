@@ -1,0 +1,603 @@
+"""Feedforward + pole-placement PID of Stojčić (2015) §3 and §4B, and its analysis.
+
+* :func:`pole_placement_pid` — Stojčić eq. 11: PID on the **position** plant
+  P(s) = K/(s(τs+1)); the closed loop ``τs³ + (1+K kd)s² + K kp s + K ki`` is matched to
+  ``τ (s+σ)(s² + 2ζωn s + ωn²)``.
+* :func:`velocity_pole_placement_pid` — the same idea done correctly for the
+  **velocity** plant P_v(s) = K/(τs+1) that §4B actually controls: there a PID gives the
+  second-order loop ``(τ + K kd)s² + (1 + K kp)s + K ki``, so eq. 11's gains do not put
+  the poles where eq. 11 says (the paper does not notice).
+* :meth:`Gains.discretize` — eqs. 12–13 (trapezoidal integral, backward derivative).
+  At Ts = 5 ms this "continuous design, then discretize" route leaves the designed
+  poles and goes unstable near ωn = 50 rad/s (|z| = 1.16).
+* :func:`discrete_pole_placement_pid` — design directly in z: the desired s-poles are
+  mapped by z = e^{s Ts} and the gains solved on the exact ZOH plant, so the closed-loop
+  poles land where asked at any Ts.
+* :class:`Feedforward` (eqs. 8, 16) and :class:`DigitalController` (eqs. 16–18) with the
+  output limit, anti-windup and bumpless start the paper leaves out.
+* :class:`PositionLoop`, :class:`VelocityLoop` — open/closed loop as python-control
+  systems, poles in s and z, margins and fast responses (used by the tuning widgets).
+
+SI units inside. The paper's velocity loop measures the error in encoder pulses per Ts;
+that is the ``error_scale`` of the controller (:func:`paper_error_scale`).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import control as ct
+import numpy as np
+from scipy.signal import lfilter
+
+from jerklab._validate import as_finite_array, as_nonnegative, as_positive, as_real
+
+__all__ = ["Gains", "DiscreteGains", "pole_placement_pid", "velocity_pole_placement_pid",
+           "discrete_pole_placement_pid", "paper_error_scale", "Feedforward", "DigitalController",
+           "PositionLoop", "VelocityLoop", "desired_poles"]
+
+
+# ---------------------------------------------------------------------------
+# gains
+# ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class DiscreteGains:
+    """Discrete PID gains of Stojčić eq. 12–14 at sampling time ``Ts``.
+
+    ``B(z) = kpd + kid/(1 − z⁻¹) + kdd (1 − z⁻¹)/(1 − γ z⁻¹)``; ``gamma`` = 0 is the paper's
+    backward derivative, a non-zero ``gamma`` (|γ| < 1) is a first-order derivative filter
+    ``d(k) = γ d(k−1) + kdd (e(k) − e(k−1))`` used by the full z-domain placement.
+    """
+
+    kpd: float
+    kid: float
+    kdd: float
+    Ts: float
+    gamma: float = 0.0
+    loop: str = "position"
+    design: dict = field(default_factory=dict, compare=False)
+
+    def __post_init__(self):
+        for name in ("kpd", "kid", "kdd", "gamma"):
+            object.__setattr__(self, name, as_real(name, getattr(self, name)))
+        object.__setattr__(self, "Ts", as_positive("Ts", self.Ts))
+        if not abs(self.gamma) < 1.0:
+            raise ValueError(f"gamma (derivative filter pole) must satisfy |gamma| < 1, got {self.gamma}")
+        if self.loop not in ("position", "velocity"):
+            raise ValueError(f"loop must be 'position' or 'velocity', got {self.loop!r}")
+
+    def tf(self):
+        """``B(z)`` as a python-control transfer function with ``dt = Ts``."""
+        num, den = self._polys()
+        return ct.tf(num, den, self.Ts)
+
+    def _polys(self):
+        # B(z) = [kpd (z-1)(z-g) + kid z (z-g) + kdd (z-1)^2] / ((z-1)(z-g))
+        g = self.gamma
+        num = (self.kpd * np.array([1.0, -1.0 - g, g]) + self.kid * np.array([1.0, -g, 0.0])
+               + self.kdd * np.array([1.0, -2.0, 1.0]))
+        den = np.array([1.0, -1.0 - g, g])
+        return num, den
+
+
+@dataclass(frozen=True)
+class Gains:
+    """Continuous PID gains, Stojčić eq. 10: ``B(s) = kp + ki/s + kd s``.
+
+    ``Ti = kp/ki`` and ``Td = kd/kp`` (eq. 10); ``design`` records how they were obtained.
+    """
+
+    kp: float
+    ki: float
+    kd: float
+    loop: str = "position"
+    design: dict = field(default_factory=dict, compare=False)
+
+    def __post_init__(self):
+        for name in ("kp", "ki", "kd"):
+            object.__setattr__(self, name, as_real(name, getattr(self, name)))
+        if self.loop not in ("position", "velocity"):
+            raise ValueError(f"loop must be 'position' or 'velocity', got {self.loop!r}")
+
+    @property
+    def Ti(self) -> float:
+        """Integral time kp/ki (s); inf without integral action."""
+        return math.inf if self.ki == 0.0 else self.kp / self.ki
+
+    @property
+    def Td(self) -> float:
+        """Derivative time kd/kp (s)."""
+        if self.kp == 0.0:
+            raise ValueError("Td = kd/kp is undefined for kp = 0")
+        return self.kd / self.kp
+
+    def discretize(self, Ts) -> DiscreteGains:
+        """Stojčić eq. 13: ``kpd = kp(1 − Ts/(2Ti))``, ``kid = kp Ts/Ti``, ``kdd = kp Td/Ts``.
+
+        Trapezoidal integral, backward derivative (eq. 12). Written as
+        ``kp − ki Ts/2``, ``ki Ts``, ``kd/Ts`` (the same algebra, safe for ki = 0 or kp = 0).
+        """
+        Ts = as_positive("Ts", Ts)
+        return DiscreteGains(self.kp - self.ki * Ts / 2.0, self.ki * Ts, self.kd / Ts, Ts,
+                             loop=self.loop, design=dict(self.design, method="eq13", Ts=Ts))
+
+    def tf_polys(self):
+        """Numerator and denominator of ``B(s) = (kd s² + kp s + ki)/s``."""
+        return np.array([self.kd, self.kp, self.ki]), np.array([1.0, 0.0])
+
+
+def _check_design(K, tau, wn, zeta):
+    return (as_positive("K", K), as_positive("tau", tau), as_positive("wn", wn),
+            as_positive("zeta", zeta))
+
+
+def desired_poles(wn, zeta=1.0, sigma=None):
+    """The s-poles of ``(s + σ)(s² + 2ζωn s + ωn²)`` (σ omitted: the pair only)."""
+    wn = as_positive("wn", wn)
+    zeta = as_positive("zeta", zeta)
+    pair = np.roots([1.0, 2.0 * zeta * wn, wn * wn]).astype(complex)
+    if sigma is None:
+        return pair
+    return np.r_[-as_positive("sigma", sigma) + 0j, pair]
+
+
+def pole_placement_pid(K, tau, wn, zeta=1.0, sigma=None) -> Gains:
+    """PID gains for the position loop P(s) = K/(s(τs+1)), Stojčić eq. 11.
+
+    ``kp = ωn τ(2ζσ + ωn)/K``, ``ki = τσωn²/K``, ``kd = (τ(2ζωn + σ) − 1)/K`` place the
+    closed-loop poles at ``−σ`` and the roots of ``s² + 2ζωn s + ωn²``.
+
+    Parameters
+    ----------
+    K, tau : float
+        Plant gain (rad/(V·s)) and time constant (s).
+    wn : float
+        Natural frequency of the dominant pair (rad/s). The paper never states it.
+    zeta : float
+        Damping of the pair (the paper uses 1).
+    sigma : float, optional
+        Real pole (rad/s), default ``7 wn`` (the paper asks σ ≥ 7ωn).
+    """
+    K, tau, wn, zeta = _check_design(K, tau, wn, zeta)
+    sigma = 7.0 * wn if sigma is None else as_positive("sigma", sigma)
+    kp = wn * tau * (2.0 * zeta * sigma + wn) / K
+    ki = tau * sigma * wn * wn / K
+    kd = (tau * (2.0 * zeta * wn + sigma) - 1.0) / K
+    return Gains(kp, ki, kd, loop="position",
+                 design=dict(method="eq11", K=K, tau=tau, wn=wn, zeta=zeta, sigma=sigma))
+
+
+def velocity_pole_placement_pid(K, tau, wn, zeta=1.0, kd=0.0) -> Gains:
+    """PID gains placing the poles of the velocity loop on P_v(s) = K/(τs+1) (§4B done right).
+
+    With ``B = kp + ki/s + kd s`` the characteristic polynomial is
+    ``(τ + K kd)s² + (1 + K kp)s + K ki`` — second order, so only the pair
+    ``s² + 2ζωn s + ωn²`` can be placed and ``kd`` is a free choice (default 0, a PI):
+    ``kp = (2ζωn(τ + K kd) − 1)/K``, ``ki = (τ + K kd)ωn²/K``. Applying eq. 11's gains to
+    this loop, as the paper does, puts its poles elsewhere.
+    """
+    K, tau, wn, zeta = _check_design(K, tau, wn, zeta)
+    kd = as_real("kd", kd)
+    lead = tau + K * kd
+    if lead <= 0.0:
+        raise ValueError(f"kd must satisfy tau + K*kd > 0, got kd={kd}")
+    kp = (2.0 * zeta * wn * lead - 1.0) / K
+    ki = lead * wn * wn / K
+    return Gains(kp, ki, kd, loop="velocity",
+                 design=dict(method="velocity", K=K, tau=tau, wn=wn, zeta=zeta))
+
+
+def _zoh_position(K, tau, Ts):
+    """ZOH P(z) = (b1 z + b0)/((z − 1)(z − a))."""
+    a = math.exp(-Ts / tau)
+    em = -math.expm1(-Ts / tau)
+    b1 = K * (Ts - tau * em)
+    b0 = K * (tau * em - Ts * a)
+    return np.array([b1, b0]), np.array([1.0, -1.0 - a, a])
+
+
+def _plant_polys(K, tau, Ts, loop):
+    """Discrete plant from u(k) to the measured loop variable.
+
+    Position: the ZOH P(z). Velocity: the velocity the firmware measures, encoder
+    pulses counted over the last sample, ``(θ(k) − θ(k−1))/Ts = (1 − z⁻¹)/Ts · P(z)
+    = (b1 z + b0)/(Ts z (z − a))``.
+    """
+    num, den = _zoh_position(K, tau, Ts)
+    if loop == "position":
+        return num, den
+    a = den[2]
+    return num / Ts, np.array([1.0, -a, 0.0])
+
+
+def discrete_pole_placement_pid(K, tau, wn, zeta=1.0, sigma=None, Ts=0.005, loop="position",
+                                extra_pole=None) -> DiscreteGains:
+    """Pole placement directly in z on the exact ZOH plant.
+
+    The desired s-poles ``−σ`` and the roots of ``s² + 2ζωn s + ωn²`` are mapped by
+    ``z = e^{s Ts}``; the gains of eq. 12 are then solved from the closed-loop
+    characteristic polynomial ``den_P(z)·den_B(z) + num_P(z)·num_B(z)`` (linear in the
+    gains), so those poles land exactly where asked at any Ts.
+
+    The sampled loop has four poles (plant 2 + integrator + derivative) and eq. 12 has
+    three gains: with ``extra_pole=None`` (default, the paper's controller structure,
+    runs unchanged on the firmware) three poles are placed and the fourth lands where
+    the algebra puts it (``design["fourth_pole"]``). With ``extra_pole=z4`` a derivative
+    filter pole ``gamma`` is added and all four poles are placed (the fourth at ``z4``).
+
+    For ``loop="velocity"`` the plant is the velocity measured as pulses per sample
+    (see :func:`_plant_polys`); σ then sets the third pole.
+    """
+    K, tau, wn, zeta = _check_design(K, tau, wn, zeta)
+    sigma = 7.0 * wn if sigma is None else as_positive("sigma", sigma)
+    Ts = as_positive("Ts", Ts)
+    if loop not in ("position", "velocity"):
+        raise ValueError(f"loop must be 'position' or 'velocity', got {loop!r}")
+    zp = np.exp(desired_poles(wn, zeta, sigma) * Ts)
+    d3 = np.real(np.poly(zp))                       # monic cubic
+    B, A = _plant_polys(K, tau, Ts, loop)           # plant num (deg 1), den (deg 2)
+    Q = np.polymul(A, [1.0, -1.0])                  # plant den × integrator (deg 3)
+    # unknowns x = (n0, n1, n2, c): controller numerator n(z) and either
+    #   (gamma fixed 0)  A(z)(z-1) z + B(z) n(z) = d3(z) (z - c)       [c = fourth pole]
+    #   (extra pole z4)  A(z)(z-1)(z - c) + B(z) n(z) = d3(z) (z - z4)  [c = gamma]
+    M = np.zeros((5, 4))
+    for j in range(3):
+        e = np.zeros(3)
+        e[j] = 1.0
+        M[:, j] = np.r_[np.zeros(5), np.polymul(B, e)][-5:]
+    if extra_pole is None:
+        M[:, 3] = np.r_[0.0, d3]
+        rhs = np.r_[d3, 0.0] - np.r_[Q, 0.0]
+    else:
+        z4 = as_real("extra_pole", extra_pole)
+        if not abs(z4) < 1.0:
+            raise ValueError(f"extra_pole must lie inside the unit circle, got {z4}")
+        M[:, 3] = -np.r_[0.0, Q]
+        rhs = np.polymul(d3, [1.0, -z4]) - np.r_[Q, 0.0]
+    x = np.linalg.solve(M[1:], rhs[1:])
+    n = x[:3]
+    if extra_pole is None:
+        gamma, fourth = 0.0, float(x[3])
+    else:
+        gamma, fourth = float(x[3]), float(extra_pole)
+    # decompose n(z) = kpd (z-1)(z-g) + kid z (z-g) + kdd (z-1)^2
+    T = np.array([[1.0, 1.0, 1.0], [-(1.0 + gamma), -gamma, -2.0], [gamma, 0.0, 1.0]])
+    kpd, kid, kdd = np.linalg.solve(T, n)
+    return DiscreteGains(float(kpd), float(kid), float(kdd), Ts, gamma=gamma, loop=loop,
+                         design=dict(method="z-domain", K=K, tau=tau, wn=wn, zeta=zeta, sigma=sigma,
+                                     Ts=Ts, poles_z=zp, fourth_pole=fourth))
+
+
+def paper_error_scale(Ts=0.005, encoder_ppr=448, decoding=1):
+    """Pulses per sample per rad/s: ``encoder_ppr·decoding·Ts/(2π)`` (≈ 0.357 = 1/2.80).
+
+    Stojčić §4B feeds the PID the velocity error as encoder pulses counted per Ts; with
+    SI gains that equals a controller ``error_scale`` of this value.
+    """
+    Ts = as_positive("Ts", Ts)
+    return encoder_ppr * decoding * Ts / (2.0 * math.pi)
+
+
+# ---------------------------------------------------------------------------
+# feedforward and the digital controller
+# ---------------------------------------------------------------------------
+class Feedforward:
+    """Plant-inverse feedforward, Stojčić eqs. 7, 8, 16: ``u_F = (τ ε + ω)/K``.
+
+    The inverse of P_v(s), so the same for the position and the velocity loop.
+    """
+
+    def __init__(self, K, tau):
+        self.K = as_positive("K", K)
+        self.tau = as_nonnegative("tau", tau)
+
+    def __call__(self, velocity, accel):
+        """Feedforward voltage for the reference velocity (rad/s) and acceleration (rad/s²)."""
+        return (self.tau * np.asarray(accel, dtype=float) + np.asarray(velocity, dtype=float)) / self.K
+
+    def __repr__(self):
+        return f"Feedforward(K={self.K!r}, tau={self.tau!r})"
+
+
+class DigitalController:
+    """Feedforward + discrete PID run sample by sample, Stojčić eqs. 16–18.
+
+    ``p(k) = kpd e(k)``, ``i(k) = i(k−1) + kid e(k)``, ``d(k) = γ d(k−1) + kdd (e(k) − e(k−1))``
+    (γ = 0: eq. 17), ``u = u_F + p + i + d`` (eq. 18 + eq. 16), then clamped to
+    ``±output_limit``. The paper has no limit and no anti-windup; here, when the output
+    is clamped and the error drives it further into the limit, the integrator keeps its
+    previous value (conditional integration, as the firmware).
+
+    Parameters
+    ----------
+    gains : DiscreteGains
+    feedforward : Feedforward or None
+    output_limit : float or None
+        Output clamp (V), the supply voltage; None for none.
+    anti_windup : bool
+        Conditional integration while clamped (False: the paper's plain integrator).
+    loop : {"position", "velocity"} or None
+        Position loop: ``e = r_θ − θ_m``. Velocity loop (§4B): ``e = ω_r − (θ_m(k) −
+        θ_m(k−1))/Ts``, the measured velocity being pulses counted over the last sample.
+        Default: ``gains.loop``.
+    error_scale : float
+        Multiplies the error before the PID (1 for SI; :func:`paper_error_scale` for the
+        paper's pulses-per-Ts error).
+    bumpless : bool
+        On the first sample after :meth:`reset`, take ``e(k−1) = e(k)`` (no derivative
+        kick) and, if ``reset(last_output=u0)`` was given, preload the integrator so
+        that ``u(0) = u0``. False: the paper's zero initial conditions.
+    """
+
+    def __init__(self, gains, feedforward=None, output_limit=12.0, anti_windup=True, loop=None,
+                 error_scale=1.0, bumpless=False):
+        if not isinstance(gains, DiscreteGains):
+            raise ValueError(f"gains must be DiscreteGains (use Gains.discretize(Ts)), got {type(gains).__name__}")
+        if feedforward is not None and not isinstance(feedforward, Feedforward):
+            raise ValueError(f"feedforward must be a Feedforward or None, got {type(feedforward).__name__}")
+        self.gains = gains
+        self.feedforward = feedforward
+        self.output_limit = None if output_limit is None else as_positive("output_limit", output_limit)
+        self.anti_windup = bool(anti_windup)
+        self.loop = gains.loop if loop is None else loop
+        if self.loop not in ("position", "velocity"):
+            raise ValueError(f"loop must be 'position' or 'velocity', got {self.loop!r}")
+        self.error_scale = as_positive("error_scale", error_scale)
+        self.bumpless = bool(bumpless)
+        self.reset()
+
+    @property
+    def Ts(self):
+        return self.gains.Ts
+
+    def reset(self, last_output=None):
+        """Clear the state (``i = 0``, ``e(−1) = 0``, ``d(−1) = 0``) before a run.
+
+        ``last_output`` (V) asks for a bumpless start from that output (implies
+        ``bumpless`` for the next sample).
+        """
+        self._i = 0.0
+        self._e = 0.0
+        self._d = 0.0
+        self._y_prev = None
+        self._first = True
+        self._u0 = None if last_output is None else as_real("last_output", last_output)
+        self.last_parts = {"p": 0.0, "i": 0.0, "d": 0.0, "ff": 0.0, "u": 0.0, "e": 0.0,
+                           "saturated": False}
+
+    def params(self):
+        """Numbers the compiled simulation kernel needs (see :mod:`jerklab.sim`)."""
+        g = self.gains
+        ff = self.feedforward
+        return dict(kpd=g.kpd, kid=g.kid, kdd=g.kdd, gamma=g.gamma, Ts=g.Ts,
+                    ff_on=ff is not None, ff_K=1.0 if ff is None else ff.K,
+                    ff_tau=0.0 if ff is None else ff.tau,
+                    limit=math.inf if self.output_limit is None else self.output_limit,
+                    anti_windup=self.anti_windup, velocity=self.loop == "velocity",
+                    error_scale=self.error_scale, bumpless=self.bumpless)
+
+    def step(self, ref_position, ref_velocity=0.0, ref_accel=0.0, measured_position=0.0):
+        """One sample: references (rad, rad/s, rad/s²) and the measured angle → u (V)."""
+        r = float(ref_position)
+        v = float(ref_velocity)
+        a = float(ref_accel)
+        y = float(measured_position)
+        g = self.gains
+        if self.loop == "position":
+            e = self.error_scale * (r - y)
+        else:
+            y_prev = y if self._y_prev is None else self._y_prev
+            e = self.error_scale * (v - (y - y_prev) / g.Ts)
+        self._y_prev = y
+        ff = 0.0 if self.feedforward is None else float(self.feedforward(v, a))
+        if self._first and (self.bumpless or self._u0 is not None):
+            self._e = e
+            if self._u0 is not None:
+                self._i = self._u0 - ff - g.kpd * e - g.kid * e
+        self._first = False
+        p = g.kpd * e
+        i_new = self._i + g.kid * e
+        d = g.gamma * self._d + g.kdd * (e - self._e)
+        u = ff + p + i_new + d
+        sat = False
+        lim = self.output_limit
+        if lim is not None and (u > lim or u < -lim):
+            sat = True
+            if self.anti_windup and (e > 0.0 if u > lim else e < 0.0):
+                u -= i_new - self._i
+                i_new = self._i
+            u = min(max(u, -lim), lim)
+        self._i = i_new
+        self._e = e
+        self._d = d
+        self.last_parts = {"p": p, "i": i_new, "d": d, "ff": ff, "u": u, "e": e, "saturated": sat}
+        return u
+
+
+# ---------------------------------------------------------------------------
+# loop analysis
+# ---------------------------------------------------------------------------
+def _lf(num, den, x):
+    """Filter ``x`` by ``num(z)/den(z)`` (polynomials in z, highest power first)."""
+    num = np.r_[np.zeros(len(den) - len(num)), num]
+    return lfilter(num, den, x)
+
+
+class _Loop:
+    """Shared machinery of :class:`PositionLoop` and :class:`VelocityLoop`."""
+
+    loop = "position"
+
+    def __init__(self, K, tau, gains, Ts=None, error_scale=1.0):
+        self.K = as_positive("K", K)
+        self.tau = as_positive("tau", tau)
+        self.error_scale = as_positive("error_scale", error_scale)
+        if isinstance(gains, DiscreteGains):
+            if Ts is not None and not math.isclose(as_positive("Ts", Ts), gains.Ts):
+                raise ValueError(f"Ts={Ts} differs from gains.Ts={gains.Ts}")
+            self.gains, self.Ts = gains, gains.Ts
+        elif isinstance(gains, Gains):
+            if Ts is None:
+                self.gains, self.Ts = gains, None
+            else:
+                self.gains = gains.discretize(Ts)
+                self.Ts = self.gains.Ts
+        else:
+            raise ValueError(f"gains must be Gains or DiscreteGains, got {type(gains).__name__}")
+        self._build()
+
+    @property
+    def discrete(self) -> bool:
+        return self.Ts is not None
+
+    def _build(self):
+        k = self.error_scale
+        if self.discrete:
+            self._Pn, self._Pd = _plant_polys(self.K, self.tau, self.Ts, self.loop)
+            self._Cn, self._Cd = self.gains._polys()
+        else:
+            if self.loop == "position":
+                self._Pn, self._Pd = np.array([self.K]), np.array([self.tau, 1.0, 0.0])
+            else:
+                self._Pn, self._Pd = np.array([self.K]), np.array([self.tau, 1.0])
+            self._Cn, self._Cd = self.gains.tf_polys()
+        self._Cn = self._Cn * k
+        self._Ln = np.polymul(self._Pn, self._Cn)
+        self._Ld = np.polymul(self._Pd, self._Cd)
+        self._char = np.polyadd(self._Ld, self._Ln)
+
+    def _tf(self, num, den):
+        return ct.tf(num, den) if not self.discrete else ct.tf(num, den, self.Ts)
+
+    # --- python-control systems --------------------------------------------
+    def plant(self):
+        """Plant seen by the controller (continuous, or exact ZOH / pulse-count model)."""
+        return self._tf(self._Pn, self._Pd)
+
+    def controller(self):
+        """B(s) (improper, kd s) or B(z) as a transfer function."""
+        return self._tf(self._Cn, self._Cd)
+
+    def open_loop(self):
+        """L = B P."""
+        return self._tf(self._Ln, self._Ld)
+
+    def closed_loop(self):
+        """Reference → output without feedforward, ``T = L/(1 + L)``."""
+        return self._tf(self._Ln, self._char)
+
+    def disturbance_tf(self):
+        """Input-referred disturbance w (V) → output: ``P/(1 + L)`` (Stojčić eqs. 6, 9)."""
+        return self._tf(np.polymul(self._Pn, self._Cd), self._char)
+
+    def sensitivity(self):
+        """``S = 1/(1 + L)``: reference → error."""
+        return self._tf(self._Ld, self._char)
+
+    # --- poles and margins ---------------------------------------------------
+    def characteristic(self):
+        """Closed-loop characteristic polynomial (highest power first)."""
+        return self._char.copy()
+
+    def poles(self):
+        """Closed-loop poles (s for a continuous loop, z for a sampled one)."""
+        return np.roots(self._char)
+
+    def poles_z(self):
+        """Closed-loop poles in z (a continuous loop needs Ts: not available)."""
+        if not self.discrete:
+            raise ValueError("poles_z needs a sampled loop (give Ts or DiscreteGains)")
+        return self.poles()
+
+    def poles_s(self):
+        """Closed-loop poles in s; for a sampled loop the equivalent ``ln(z)/Ts``."""
+        p = self.poles()
+        if not self.discrete:
+            return p
+        with np.errstate(divide="ignore"):
+            return np.log(p.astype(complex)) / self.Ts
+
+    def max_pole_radius(self) -> float:
+        """Largest |z| (sampled loop) — stable iff < 1."""
+        return float(np.max(np.abs(self.poles_z())))
+
+    def max_pole_real(self) -> float:
+        """Largest real part of the s-poles (continuous loop) — stable iff < 0."""
+        return float(np.max(np.real(self.poles_s())))
+
+    def is_stable(self) -> bool:
+        if self.discrete:
+            return self.max_pole_radius() < 1.0
+        return self.max_pole_real() < 0.0
+
+    def margins(self):
+        """Gain margin (abs), phase margin (deg) and their crossover frequencies (rad/s)."""
+        gm, pm, wcg, wcp = ct.margin(self.open_loop())
+        return dict(gain_margin=gm, phase_margin=pm, gain_crossover=wcp, phase_crossover=wcg)
+
+    # --- fast responses (sampled loop) -----------------------------------------
+    def _need_discrete(self):
+        if not self.discrete:
+            raise ValueError("time responses here are for a sampled loop; give Ts")
+
+    def _t(self, t_end):
+        n = int(round(as_positive("t_end", t_end) / self.Ts)) + 1
+        return np.arange(n) * self.Ts
+
+    def step_response(self, t_end=0.5):
+        """Unit reference step, no feedforward: ``(t, y)`` at the samples."""
+        self._need_discrete()
+        t = self._t(t_end)
+        y = _lf(self._Ln, self._char, np.ones_like(t))
+        return t, y
+
+    def disturbance_response(self, t_end=0.5, amplitude=1.0):
+        """Output after an input-referred step disturbance of ``amplitude`` V (eq. 9)."""
+        self._need_discrete()
+        t = self._t(t_end)
+        y = _lf(np.polymul(self._Pn, self._Cd), self._char, np.full_like(t, as_real("amplitude", amplitude)))
+        return t, y
+
+
+class PositionLoop(_Loop):
+    """Position loop of Stojčić Fig. 3: PID ``gains`` on P(s) = K/(s(τs+1)).
+
+    ``gains``: :class:`Gains` (continuous loop, or discretized by eq. 13 when ``Ts`` is
+    given) or :class:`DiscreteGains` (sampled loop on the exact ZOH plant).
+
+    Examples
+    --------
+    >>> g = pole_placement_pid(32.4, 0.025, wn=50.0)
+    >>> round(PositionLoop(32.4, 0.025, g, Ts=0.005).max_pole_radius(), 2)
+    1.16
+    """
+
+    loop = "position"
+
+    def tracking_error(self, profile, t_end=None, feedforward=True):
+        """Tracking error ``r(kTs) − θ(kTs)`` of a move with eq. 16 feedforward (linear loop).
+
+        ``profile`` has ``duration`` and ``sample(t)`` (jerklab.planner). Returns
+        ``(t, e)``.
+        """
+        self._need_discrete()
+        t_end = profile.duration * 1.2 + 0.1 if t_end is None else t_end
+        t = self._t(t_end)
+        s = profile.sample(t)
+        r = np.asarray(s.position, dtype=float)
+        y = _lf(self._Ln, self._char, r)
+        if feedforward:
+            uff = (self.tau * np.asarray(s.accel, dtype=float) + np.asarray(s.velocity, dtype=float)) / self.K
+            y = y + _lf(np.polymul(self._Pn, self._Cd), self._char, uff)
+        return t, r - y
+
+
+class VelocityLoop(_Loop):
+    """Velocity loop of Stojčić §4B: PID ``gains`` on P_v(s) = K/(τs+1).
+
+    Sampled, the measured velocity is pulses counted per sample (the averaged velocity
+    ``(θ(k) − θ(k−1))/Ts``). ``error_scale`` = :func:`paper_error_scale` reproduces the
+    paper's error in pulses per Ts.
+    """
+
+    loop = "velocity"
