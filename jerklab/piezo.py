@@ -29,6 +29,7 @@ from dataclasses import dataclass, field, replace
 
 import control
 import numpy as np
+from scipy.linalg import matrix_balance
 from scipy.optimize import linprog, minimize
 
 from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
@@ -97,8 +98,21 @@ class PZTModel:
         return control.tf(num, den)
 
     def ss(self) -> control.StateSpace:
-        """Return G(s) as a continuous state-space system (python-control)."""
-        return control.tf2ss(self.tf())
+        """Return G(s) as a continuous state-space system (python-control), balanced.
+
+        The controllable canonical form of eq. 1 spans 13 orders of magnitude (its output row
+        holds K ωz² ~ 1e13), which makes pole placement and observer design inaccurate; a
+        diagonal similarity (``scipy.linalg.matrix_balance`` of ``[[A, B], [C, 0]]``) brings the
+        condition number of A from ~1e14 to ~10 without changing the transfer function.
+        """
+        sys = control.tf2ss(self.tf())
+        A, B, C, D = (np.asarray(x, dtype=float) for x in (sys.A, sys.B, sys.C, sys.D))
+        n = A.shape[0]
+        M = np.zeros((n + 1, n + 1))
+        M[:n, :n], M[:n, n:], M[n:, :n] = A, B, C
+        _, (scale, _) = matrix_balance(M, permute=False, separate=True)
+        d = scale[:n]
+        return control.ss(A * (d[None, :] / d[:, None]), B / d[:, None], C * d[None, :], D)
 
     def zoh(self, Ts: float = TS) -> control.StateSpace:
         """Return the exact zero-order-hold model at ``Ts`` (Xu & Meckl eq. 3)."""
@@ -718,28 +732,50 @@ def format_table_ii(rows: dict) -> str:
 # ----------------------------------------------------------------------------------------------
 # Time-energy-optimal return (eq. 19, Fig. 7)
 # ----------------------------------------------------------------------------------------------
-def _min_norm_qp(E, f, lo, hi, x0=None):
-    """min ½|u|² s.t. E u = f, lo <= u <= hi (a small strictly convex QP) with SLSQP."""
+def _least_squares_qp(E, f, lo, hi, M=None, m=None, x0=None):
+    """min ½|M u − m|² s.t. E u = f, lo <= u <= hi (small strictly convex QP) with SLSQP.
+
+    ``M = I``, ``m = 0`` (the default) is the minimum-norm problem of Xu & Meckl eq. 19.
+    """
     n = E.shape[1]
+    M = np.eye(n) if M is None else M
+    m = np.zeros(M.shape[0]) if m is None else m
     if x0 is None:
         x0 = np.clip(E.T @ np.linalg.lstsq(E @ E.T, f, rcond=None)[0], lo, hi)
-    res = minimize(lambda u: 0.5 * u @ u, x0, jac=lambda u: u, method="SLSQP",
+    H, g = M.T @ M, M.T @ m
+    res = minimize(lambda u: 0.5 * u @ H @ u - g @ u, x0, jac=lambda u: H @ u - g, method="SLSQP",
                    bounds=list(zip(lo, hi)),
                    constraints=[{"type": "eq", "fun": lambda u: E @ u - f, "jac": lambda u: E}],
-                   options={"maxiter": 500, "ftol": 1e-12})
-    if not res.success or np.abs(E @ res.x - f).max() > 1e-7:
+                   options={"maxiter": 1000, "ftol": 1e-14})
+    # status 8 ("positive directional derivative in line search") is SLSQP stalling at round-off
+    # when the feasible set is a thin sliver (k_r at the time-optimal minimum); accept the point
+    # if it satisfies the constraints.
+    x = np.clip(res.x, lo, hi)
+    if res.status not in (0, 8) or np.abs(E @ x - f).max() > 1e-7 * max(1.0, np.abs(f).max()):
         return None
-    return res.x
+    return x
 
 
 def energy_optimal_return(b: float, k_r: int, model: PZTModel | None = None,
-                          spec: ScanSpec | None = None, orders=1) -> Return:
+                          spec: ScanSpec | None = None, orders=1, objective: str = "input") -> Return:
     """Time-energy-optimal return of ``k_r`` steps (Xu & Meckl eq. 19, Fig. 7).
 
-    Minimises ``½ UᵀU`` over the return samples subject to (a) the terminal/robustness
+    Minimises a quadratic cost over the return samples subject to (a) the terminal/robustness
     conditions (rest at 0, m-th order robust: ``robustness_rows_return``, the discrete form of
-    ``Φ U = x_d − A^k x_0``) and (b) ``|u| <= F_max``. ``k_r`` at the time-optimal minimum gives
-    the bang-bang time-optimal return; larger ``k_r`` trades time for a smoother transition.
+    ``Φ U = x_d − A^k x_0``) and (b) ``|u| <= F_max``. Larger ``k_r`` (than the time-optimal
+    return) trades time for a smoother transition.
+
+    Parameters
+    ----------
+    objective : {"input", "increment"}
+        ``"input"``: ``½ UᵀU`` exactly as eq. 19. The return starts from the top of the scan ramp
+        (~38 V), so this cost pulls the input to 0 at once: a step that swings the output far
+        below the start (several µm) before the robustness conditions cancel it — the opposite of
+        the smooth transitions of Fig. 7 (the paper is silent on this). ``"increment"``:
+        ``½ Σ (u_k − u_{k−1})²`` with ``u_{−1} = b`` (continuous with the scan) and
+        ``u_{k_r} = 0``: the energy of the input *changes*, which gives the smooth, monotone-ish
+        returns that Fig. 7 shows.
+
     Raises ``RuntimeError`` if ``k_r`` is shorter than the time-optimal return.
     """
     model = model or PZTModel()
@@ -747,6 +783,8 @@ def energy_optimal_return(b: float, k_r: int, model: PZTModel | None = None,
     b = as_real("b", b)
     k_r = as_int("k_r", k_r, minimum=1)
     orders = _normalize_orders(orders)
+    if objective not in ("input", "increment"):
+        raise ValueError(f"objective must be 'input' or 'increment', got {objective!r}")
     w, _, _ = _ramp_constants(model, spec)
     E, f = robustness_rows_return(k_r, model.mode_poles(spec.Ts), orders, w)
     E_u, f_u = E[:, :-1], f - E[:, -1] * b
@@ -754,9 +792,14 @@ def energy_optimal_return(b: float, k_r: int, model: PZTModel | None = None,
     x0 = _solve_lp(E_u, f_u, None, None, [(-F, F)] * k_r, k_r)
     if x0 is None:
         raise RuntimeError(f"k_r = {k_r} is shorter than the time-optimal return")
-    u = _min_norm_qp(E_u, f_u, np.full(k_r, -F), np.full(k_r, F))
+    M = m = None
+    if objective == "increment":
+        M = (np.eye(k_r + 1, k_r) - np.eye(k_r + 1, k_r, -1))
+        m = np.zeros(k_r + 1)
+        m[0] = b
+    u = _least_squares_qp(E_u, f_u, np.full(k_r, -F), np.full(k_r, F), M, m, x0=x0)
     if u is None:
-        u = x0
+        raise RuntimeError("the QP of eq. 19 did not converge")
     return Return(u=u, b=b, orders=orders)
 
 
