@@ -1,0 +1,133 @@
+"""The jerk-control rig: a real Uno, the firmware on simavr, or a virtual rig — one API.
+
+>>> from jerklab.rig import connect
+>>> rig = connect()                      # virtual rig (a simulated motor), no hardware needed
+>>> rig.name, rig.is_virtual
+('jerklab-virtual', True)
+>>> rig.close()
+
+``connect("/dev/ttyACM0")`` opens a board, ``connect("socket://192.168.1.50:5000")`` one on
+the network (the paper's Ethernet set-up), ``connect("simavr")`` the real firmware on a
+simulated ATmega328P.  Then ``rig.step(voltage, seconds)`` and ``rig.run_move(profile,
+gains, Ts=0.005)`` return a :class:`Recording` that is written to disk while it arrives.
+
+``python -m jerklab.rig serve`` puts the virtual rig on a pseudo-terminal so any serial
+client can talk to it as to a board.
+"""
+from __future__ import annotations
+
+import os
+
+from jerklab.rig.client import (Rig, RigCommandError, RigConnectionError, RigError, RigRunError,
+                                RigTimeoutError, UnknownPortError)
+from jerklab.rig.recording import Recording, recordings_dir
+from jerklab.rig.virtual import VirtualDevice, VirtualSerial
+
+__all__ = ["connect", "Rig", "Recording", "recordings_dir", "VirtualDevice", "VirtualSerial",
+           "RigError", "RigConnectionError", "RigTimeoutError", "RigCommandError", "RigRunError",
+           "UnknownPortError", "BAUDRATE"]
+
+BAUDRATE = 115200
+_VIRTUAL_NAMES = (None, "virtual", "")
+
+
+def connect(port=None, *, motor=None, speed=None, timeout=2.0, hello_timeout=None, progress=True,
+            recordings=None, supply_voltage=None, counts_per_rev=None, model=(32.4, 0.025),
+            baudrate=BAUDRATE, **link_options) -> Rig:
+    """Connect to a rig and return a :class:`Rig`.
+
+    Parameters
+    ----------
+    port : None, str or path
+        ``None`` (or ``"virtual"``): the in-process virtual rig (``VirtualDevice`` driving a
+        ``jerklab.plant.DCMotor``). ``"simavr"``: the firmware ELF on a simulated Uno
+        (``jerklab.rig.simavr.launch()``). Anything else: a device path (``/dev/ttyACM0``,
+        ``COM3``, a ``/dev/pts/N`` from ``python -m jerklab.rig serve``) or a pyserial URL
+        (``socket://host:port``, ``loop://``, ``rfc2217://...``).
+    motor : jerklab.plant.DCMotor, optional
+        Virtual rig only: the simulated motor (default: the paper's, K = 32.4, tau = 25 ms).
+    speed : float or None
+        Virtual rig only: ``None`` as fast as possible, else that many times real time.
+    timeout : float
+        Seconds to wait for a reply or the next telemetry frame.
+    hello_timeout : float
+        Seconds to keep saying HELLO after opening (default 3 s for a port — an Uno reboots
+        when the port opens — 1 s for the virtual rig).
+    progress : bool
+        Text progress bar during runs.
+    recordings : path
+        Folder for recordings (default ``$JERKLAB_RECORDINGS`` or ``./recordings``).
+    supply_voltage, counts_per_rev : float, int
+        The rig's H-bridge supply (V) and encoder counts per revolution (default: the virtual
+        motor's, else 12 V and 448).
+    model : (K, tau)
+        Motor model for the feedforward until you call ``rig.set_model`` (paper's values).
+    baudrate : int
+        Serial speed (115200, as the firmware).
+
+    Raises
+    ------
+    UnknownPortError
+        The port cannot be opened; the message names it.
+    RigTimeoutError
+        The port opened but no jerklab rig answered HELLO.
+    """
+    if port in _VIRTUAL_NAMES:
+        from jerklab.plant import DCMotor
+
+        motor = DCMotor() if motor is None else motor
+        link = VirtualSerial(VirtualDevice(motor), speed=speed, timeout=0.05)
+        return Rig(link, "virtual",
+                   supply_voltage=motor.supply_voltage if supply_voltage is None else supply_voltage,
+                   counts_per_rev=(motor.encoder_ppr * motor.decoding if counts_per_rev is None
+                                   else counts_per_rev),
+                   model=model, timeout=timeout, hello_timeout=hello_timeout or 1.0,
+                   progress=progress, recordings=recordings)
+    if motor is not None or speed is not None:
+        raise ValueError("motor and speed apply to the virtual rig only (port=None)")
+    if not isinstance(port, (str, os.PathLike)):
+        raise UnknownPortError(f"port must be None, 'simavr', a device path or a pyserial URL, got {port!r}")
+    port = os.fspath(port)
+    on_close = None
+    if port == "simavr":
+        launcher = _launch_simavr()
+        port, on_close = launcher.port, launcher.close
+    try:
+        link = _open_serial(port, baudrate, link_options)
+    except BaseException:
+        if on_close is not None:
+            on_close()
+        raise
+    return Rig(link, port, supply_voltage=12.0 if supply_voltage is None else supply_voltage,
+               counts_per_rev=448 if counts_per_rev is None else counts_per_rev, model=model,
+               timeout=timeout, hello_timeout=hello_timeout or 3.0, progress=progress,
+               recordings=recordings, on_close=on_close)
+
+
+def _open_serial(port, baudrate, options):
+    import serial
+
+    try:
+        link = serial.serial_for_url(port, baudrate=baudrate, timeout=0.05, write_timeout=2.0, **options)
+    except (serial.SerialException, OSError, ValueError) as exc:
+        raise UnknownPortError(f"cannot open rig port {port!r}: {exc}") from exc
+    try:
+        link.reset_input_buffer()
+    except Exception:
+        pass
+    return link
+
+
+def _launch_simavr():
+    try:
+        from jerklab.rig import simavr
+    except ImportError as exc:
+        raise UnknownPortError(
+            "port 'simavr' needs jerklab.rig.simavr (the firmware-on-simavr harness) which is not "
+            f"available: {exc}") from exc
+    try:
+        return simavr.launch()
+    except FileNotFoundError as exc:
+        raise UnknownPortError(
+            f"port 'simavr': a tool or the firmware build is missing ({exc}); install simavr, "
+            "libsimavr-dev, gcc-avr, avr-libc, arduino-core-avr and run `make -C firmware`") from exc

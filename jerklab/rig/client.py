@@ -1,0 +1,559 @@
+"""The rig client: one API for the virtual rig, the firmware on simavr and a real Uno.
+
+It speaks ``jerklab.protocol`` over anything with pyserial's ``read``/``write``
+(a ``serial.Serial``, a ``socket://`` URL, a pseudo-terminal, the in-process
+:class:`~jerklab.rig.virtual.VirtualSerial`), like TCLab's hardware/model swap.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import math
+import sys
+import time
+from pathlib import Path
+
+from jerklab import protocol as P
+from jerklab._validate import as_nonnegative, as_positive, as_real
+from jerklab.rig.recording import Recording, recordings_dir
+
+__all__ = ["Rig", "RigError", "RigConnectionError", "RigTimeoutError", "RigCommandError",
+           "RigRunError", "UnknownPortError"]
+
+
+class RigError(RuntimeError):
+    """Anything that went wrong talking to a rig."""
+
+
+class UnknownPortError(RigError, ValueError):
+    """The port could not be opened (no such device, bad URL, nothing listening)."""
+
+
+class RigConnectionError(RigError, ConnectionError):
+    """The link broke (cable pulled, pty or socket closed)."""
+
+
+class RigTimeoutError(RigError, TimeoutError):
+    """The device did not answer in time."""
+
+
+class RigCommandError(RigError, ValueError):
+    """The device refused a command (NACK); the message names the parameter."""
+
+    def __init__(self, message, command=None, error=None, param=None):
+        super().__init__(message)
+        self.command, self.error, self.param = command, error, param
+
+
+class RigRunError(RigError):
+    """A run ended early on the device (STOP, host watchdog, fault)."""
+
+
+_KIND_TO_PLANNER = {
+    "sine_jerk": P.Planner.SINE_JERK,
+    "sine_jerk_optimal": P.Planner.SINE_JERK_OPTIMAL,
+    "scurve": P.Planner.SCURVE,
+    "trapezoid": P.Planner.TRAPEZOID,
+}
+_F32_MAX = 3.4028234663852886e38
+
+
+class _Progress:
+    """A one-line text progress bar (works in a terminal and in a notebook cell)."""
+
+    def __init__(self, total, label, enabled, stream=None):
+        self.total = max(1, int(total))
+        self.label = label
+        self.enabled = bool(enabled)
+        self.stream = stream or sys.stdout
+        self._shown = -1
+
+    def update(self, n):
+        if not self.enabled:
+            return
+        pct = min(100, int(100 * n / self.total))
+        if pct // 2 == self._shown // 2 and n < self.total:
+            return
+        self._shown = pct
+        bar = "#" * (pct // 4) + "." * (25 - pct // 4)
+        self.stream.write(f"\r{self.label} [{bar}] {n}/{self.total} samples")
+        self.stream.flush()
+
+    def close(self, note=""):
+        if self.enabled and self._shown >= 0:
+            self.stream.write(f" {note}\n" if note else "\n")
+            self.stream.flush()
+
+
+class Rig:
+    """A connected rig (use :func:`jerklab.rig.connect` to make one).
+
+    Parameters
+    ----------
+    link : pyserial-like
+        Open link with ``read``, ``write``, ``in_waiting``, ``close``.
+    port : str
+        Name shown in messages and stored in recordings.
+    supply_voltage : float
+        H-bridge supply (V): PWM full scale. 12 V on the paper's rig.
+    counts_per_rev : int
+        Encoder counts per revolution after decoding (448: channel A edges of the paper's encoder).
+    model : (K, tau)
+        Motor model used for the feedforward (Stojčić eq. 8); update it after identification
+        with :meth:`set_model`.
+    timeout : float
+        Seconds to wait for a reply or the next telemetry frame.
+    hello_timeout : float
+        Seconds to keep repeating HELLO after opening (an Uno reboots when the port opens).
+    progress : bool
+        Show a progress bar during runs.
+    recordings : path or None
+        Directory for recordings (default ``$JERKLAB_RECORDINGS`` or ``./recordings``).
+    """
+
+    def __init__(self, link, port="?", *, supply_voltage=12.0, counts_per_rev=448, model=(32.4, 0.025),
+                 timeout=2.0, hello_timeout=3.0, progress=True, recordings=None, on_close=None):
+        self.link = link
+        self.port = str(port)
+        self.supply_voltage = as_positive("supply_voltage", supply_voltage)
+        if int(counts_per_rev) != counts_per_rev or counts_per_rev < 1:
+            raise ValueError(f"counts_per_rev must be a positive integer, got {counts_per_rev!r}")
+        self.counts_per_rev = int(counts_per_rev)
+        self.set_model(*model)
+        self.timeout = as_positive("timeout", timeout)
+        self.progress = bool(progress)
+        self.recordings = Path(recordings) if recordings is not None else None
+        self._on_close = on_close
+        self._decoder = P.Decoder()
+        self._seq = 0
+        self._frames: list[P.Frame] = []
+        self.ignored_frames = 0
+        self.closed = False
+        try:
+            self.info = self._hello(as_positive("hello_timeout", hello_timeout))
+        except BaseException:
+            self.close()
+            raise
+        if self.info.protocol_version != P.PROTOCOL_VERSION:
+            self.close()
+            raise RigError(f"{self.port}: device speaks protocol version {self.info.protocol_version}, "
+                           f"jerklab speaks {P.PROTOCOL_VERSION}: update the firmware or jerklab")
+
+    # ---------------------------------------------------------------- basics
+    @property
+    def counts_per_rad(self) -> float:
+        return self.counts_per_rev / (2.0 * math.pi)
+
+    @property
+    def firmware_version(self) -> str:
+        return self.info.firmware_version
+
+    @property
+    def name(self) -> str:
+        return self.info.name
+
+    @property
+    def capabilities(self) -> P.Capability:
+        return P.Capability(self.info.capabilities)
+
+    @property
+    def is_virtual(self) -> bool:
+        return bool(self.capabilities & P.Capability.SIMULATED_PLANT)
+
+    def set_model(self, K, tau):
+        """Motor model for the feedforward: K rad/(V s), tau s (Stojčić eq. 1, 8)."""
+        self.model = (as_positive("K", K), as_positive("tau", tau))
+
+    def device_info(self) -> dict:
+        i = self.info
+        return {"name": i.name, "firmware_version": i.firmware_version, "protocol_version": i.protocol_version,
+                "capabilities": [c.name for c in P.Capability if c & i.capabilities],
+                "tick_us": i.tick_us, "pwm_max": i.pwm_max, "port": self.port}
+
+    def __repr__(self):
+        state = "closed" if self.closed else "open"
+        return (f"Rig(port={self.port!r}, device={self.info.name!r}, firmware={self.firmware_version}, "
+                f"{state})")
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self):
+        """Close the link (and stop a server or simulator the rig started)."""
+        if self.closed:
+            return
+        self.closed = True
+        try:
+            self.link.close()
+        except Exception:
+            pass
+        if self._on_close is not None:
+            self._on_close()
+
+    # ---------------------------------------------------------------- I/O
+    def _io_error(self, exc, what):
+        return RigConnectionError(f"{self.port}: connection lost while {what}: {exc}")
+
+    def _write(self, msg) -> int:
+        import serial
+
+        if self.closed:
+            raise RigError(f"{self.port}: rig is closed")
+        seq = self._seq
+        self._seq = (self._seq + 1) & 0xFF
+        try:
+            self.link.write(P.encode(msg, seq))
+        except (serial.SerialException, OSError) as exc:
+            raise self._io_error(exc, f"sending {type(msg).__name__}") from exc
+        return seq
+
+    def _read_frames(self, wait: float) -> list[P.Frame]:
+        """Frames that arrive within ``wait`` seconds (returns as soon as there are some)."""
+        import serial
+
+        if self._frames:
+            out, self._frames = self._frames, []
+            return out
+        deadline = time.monotonic() + wait
+        while True:
+            try:
+                n = self.link.in_waiting
+                data = self.link.read(n if n > 0 else 1)
+            except (serial.SerialException, OSError) as exc:
+                raise self._io_error(exc, "reading") from exc
+            if data:
+                frames = self._decoder.feed(data)
+                if frames:
+                    return frames
+            if time.monotonic() >= deadline:
+                return []
+
+    def _request(self, msg, replies=(P.MsgType.ACK,), timeout=None):
+        """Send a command and wait for its reply (same seq); NACK raises RigCommandError."""
+        seq = self._write(msg)
+        timeout = self.timeout if timeout is None else timeout
+        deadline = time.monotonic() + timeout
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise RigTimeoutError(f"{self.port}: no reply to {type(msg).__name__} within {timeout:g} s")
+            frames = self._read_frames(min(left, 0.05))
+            for i, f in enumerate(frames):
+                if f.seq == seq and f.type in (P.MsgType.NACK, *replies):
+                    self._frames = frames[i + 1:] + self._frames
+                    reply = P.parse(f)
+                    if isinstance(reply, P.Nack):
+                        raise self._nack_error(msg, reply)
+                    return reply
+                self.ignored_frames += 1
+
+    def _nack_error(self, msg, nack):
+        try:
+            err = P.ErrorCode(nack.error).name
+        except ValueError:
+            err = f"error {nack.error}"
+        name = type(msg).__name__
+        if nack.param != 0xFF:
+            field = P.payload_field_name(msg.TYPE, nack.param)
+            value = getattr(msg, field, None)
+            text = f"{self.port}: device refused {name}: {err} for parameter {field!r} (sent {value!r})"
+        else:
+            text = f"{self.port}: device refused {name}: {err}"
+        return RigCommandError(text, command=msg.TYPE, error=nack.error, param=nack.param)
+
+    def _hello(self, hello_timeout):
+        deadline = time.monotonic() + hello_timeout
+        last = None
+        while True:
+            try:
+                return self._request(P.Hello(), replies=(P.MsgType.HELLO_REPLY,),
+                                     timeout=min(0.25, max(0.01, deadline - time.monotonic())))
+            except RigTimeoutError as exc:
+                last = exc
+            if time.monotonic() >= deadline:
+                raise RigTimeoutError(f"{self.port}: no jerklab rig answered HELLO within {hello_timeout:g} s "
+                                      f"(is the firmware flashed, the baud rate 115200?)") from last
+
+    def stop(self):
+        """Stop the motor now (STOP)."""
+        self._request(P.Stop())
+
+    def hello(self) -> P.HelloReply:
+        """Ask the device for its identity again."""
+        self.info = self._request(P.Hello(), replies=(P.MsgType.HELLO_REPLY,))
+        return self.info
+
+    # ---------------------------------------------------------------- configuration
+    def _ts_us(self, Ts):
+        Ts = as_positive("Ts", Ts)
+        us = int(round(Ts * 1e6))
+        tick = self.info.tick_us or 1
+        if abs(us - Ts * 1e6) > 1e-3 or us % tick or us > 65000:
+            raise ValueError(f"Ts must be a multiple of the device tick {tick} µs and at most 65 ms, "
+                             f"got {Ts!r} s")
+        return us
+
+    def configure(self, gains, Ts=0.005, *, feedforward=True, max_voltage=None, limits=None,
+                  host_timeout=1.0):
+        """Send plant, gains and limits (SET_PLANT, SET_GAINS, SET_LIMITS); return them as a dict."""
+        from jerklab.controller import DiscreteGains, Gains
+
+        us = self._ts_us(Ts)
+        Ts = us * 1e-6
+        if isinstance(gains, Gains):
+            gains = gains.discretize(Ts)
+        if not isinstance(gains, DiscreteGains):
+            raise ValueError(f"gains must be jerklab.controller Gains or DiscreteGains, got {type(gains).__name__}")
+        if abs(gains.Ts - Ts) > 1e-9:
+            raise ValueError(f"gains were discretized for Ts = {gains.Ts!r} s, the run uses Ts = {Ts!r} s")
+        K, tau = self.model
+        if feedforward is not True and feedforward not in (False, None):
+            K, tau = as_positive("feedforward.K", feedforward.K), as_positive("feedforward.tau", feedforward.tau)
+        ff_on = feedforward is not False and feedforward is not None
+        vmax = self.supply_voltage if max_voltage is None else as_positive("max_voltage", max_voltage)
+        if vmax > self.supply_voltage:
+            raise ValueError(f"max_voltage must be <= supply_voltage {self.supply_voltage} V, got {vmax}")
+        tmo = as_nonnegative("host_timeout", host_timeout)
+        if tmo > 65.535:
+            raise ValueError(f"host_timeout must be <= 65.535 s, got {tmo}")
+        J, E, W = limits if limits is not None else (2e4, 300.0, 100.0)
+        J = min(as_positive("max_jerk", J), _F32_MAX)
+        E, W = as_positive("max_accel", E), as_positive("max_velocity", W)
+        loop = P.LoopType.VELOCITY if gains.loop == "velocity" else P.LoopType.POSITION
+        msgs = [
+            P.SetPlant(K, tau, self.supply_voltage, self.counts_per_rev),
+            P.SetGains(gains.kpd, gains.kid, gains.kdd, us, int(loop),
+                       P.GAINS_FEEDFORWARD if ff_on else 0, gains.gamma),
+            P.SetLimits(J, E, W, vmax, int(round(tmo * 1000))),
+        ]
+        for m in msgs:
+            self._request(m)
+        return {"Ts": Ts, "gains": {"kpd": gains.kpd, "kid": gains.kid, "kdd": gains.kdd,
+                                    "gamma": gains.gamma, "loop": gains.loop,
+                                    "design": _jsonable(gains.design)},
+                "feedforward": {"on": ff_on, "K": K, "tau": tau},
+                "limits": {"max_jerk": J, "max_accel": E, "max_velocity": W, "max_voltage": vmax,
+                           "host_timeout": tmo},
+                "plant": {"supply_voltage": self.supply_voltage, "counts_per_rev": self.counts_per_rev}}
+
+    def _new_recording(self, kind, meta, path):
+        meta = dict(meta)
+        meta.update(kind=kind, device=self.device_info(), counts_per_rad=self.counts_per_rad,
+                    volts_per_pwm=self.supply_voltage / self.info.pwm_max)
+        if path is None:
+            folder = self.recordings if self.recordings is not None else recordings_dir()
+            stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+            base = folder / f"{stamp}_{kind}"
+            k = 1
+            while base.with_name(base.name + ".csv").exists():
+                k += 1
+                base = folder / f"{stamp}_{kind}_{k}"
+            path = base
+        elif path is False:
+            path = None
+        return Recording(meta, path)
+
+    # ---------------------------------------------------------------- runs
+    def run_move(self, profile, gains, Ts=0.005, *, feedforward=True, max_voltage=None, settle=0.25,
+                 decimation=1, host_timeout=1.0, path=None, progress=None) -> Recording:
+        """Run a planned move on the rig; return the :class:`Recording` (saved as it arrives).
+
+        The device re-plans the move from ``profile``'s distance and limits with the same
+        planner (``PLAN``) and checks that the duration agrees; it then runs the
+        feedforward + discrete PID of Stojčić eq. 16–18 at ``Ts`` on encoder counts.
+
+        Parameters
+        ----------
+        profile : jerklab.planner.Profile
+            A move from ``plan_sine_jerk`` (or another planner the device supports).
+        gains : jerklab.controller.Gains or DiscreteGains
+            Continuous gains are discretized at ``Ts`` (eq. 13).
+        Ts : float
+            Control period (s), a multiple of the device's tick (1 ms on the Uno).
+        feedforward : bool or Feedforward
+            True: u_F from the rig's model (:meth:`set_model`); a ``Feedforward``: its K, tau;
+            False: PID only.
+        max_voltage : float
+            Output clamp (V), default the supply voltage.
+        settle : float
+            Seconds recorded after the profile ends (holding the final position).
+        decimation : int
+            Telemetry every ``decimation`` samples.
+        host_timeout : float
+            The device stops the motor if the host is silent longer than this (s); 0 = off.
+        path : path, None or False
+            Where to write the recording (None: a new file in the recordings folder;
+            False: keep it in memory only).
+        progress : bool
+            Progress bar (default: the rig's setting).
+
+        Raises
+        ------
+        RigConnectionError, RigTimeoutError
+            The link broke or the device fell silent; every sample received is on disk.
+        RigCommandError
+            The device refused a parameter (the message names it).
+        RigRunError
+            The run ended early on the device.
+        """
+        kind = getattr(profile, "kind", None)
+        if kind not in _KIND_TO_PLANNER:
+            raise ValueError(f"profile must be a jerklab.planner Profile, got {type(profile).__name__}")
+        planner = _KIND_TO_PLANNER[kind]
+        if not self.capabilities & (1 << planner):
+            raise RigError(f"{self.port}: firmware {self.firmware_version} has no {kind!r} planner "
+                           f"(capabilities: {self.device_info()['capabilities']})")
+        distance = as_real("profile.distance", profile.distance)
+        if distance == 0.0:
+            raise ValueError("profile.distance must be nonzero for a rig move")
+        settle = as_nonnegative("settle", settle)
+        if int(decimation) != decimation or not 1 <= decimation <= 255:
+            raise ValueError(f"decimation must be an integer in 1..255, got {decimation!r}")
+        limits = (profile.max_jerk if profile.max_jerk is not None else _F32_MAX,
+                  profile.max_accel, profile.max_velocity)
+        cfg = self.configure(gains, Ts, feedforward=feedforward, max_voltage=max_voltage,
+                             limits=limits, host_timeout=host_timeout)
+        Ts = cfg["Ts"]
+        info = self._request(P.Plan(distance, int(planner)), replies=(P.MsgType.PLAN_INFO,))
+        if abs(info.duration - profile.duration) > 1e-4 * profile.duration + 2e-5:
+            raise RigError(
+                f"{self.port}: the device planned a {info.duration:.6f} s move but the profile lasts "
+                f"{profile.duration:.6f} s. The device re-plans from the distance and the limits, "
+                f"so only an unmodified planner result can be run (not .synchronized() or edited).")
+        settle_n = int(math.ceil(settle / Ts - 1e-9))
+        if settle_n > 0xFFFF:
+            raise ValueError(f"settle must be <= {0xFFFF * Ts:g} s at Ts = {Ts} s, got {settle}")
+        meta = dict(cfg, profile=_jsonable(profile.to_dict()),
+                    plan={"accel_time": info.accel_time, "cruise_time": info.cruise_time,
+                          "duration": info.duration, "n_samples": info.n_samples},
+                    settle_samples=settle_n, decimation=int(decimation))
+        rec = self._new_recording("move", meta, path)
+        total = info.n_samples + settle_n
+        return self._stream(P.Run(settle_n, int(decimation)), rec, total, "move", host_timeout, progress)
+
+    def step(self, voltage, seconds, Ts=0.005, *, max_voltage=None, host_timeout=1.0, path=None,
+             progress=None) -> Recording:
+        """Open-loop step of ``voltage`` V for ``seconds`` (identification); returns the Recording.
+
+        Samples are taken every ``Ts``; ``rec.control`` is the PWM-quantized voltage applied,
+        ``rec.position`` the encoder angle (zeroed at the start).
+        """
+        voltage = as_real("voltage", voltage)
+        seconds = as_positive("seconds", seconds)
+        us = self._ts_us(Ts)
+        Ts = us * 1e-6
+        if not self.capabilities & P.Capability.OPEN_LOOP_STEP:
+            raise RigError(f"{self.port}: firmware {self.firmware_version} has no open-loop STEP")
+        vmax = self.supply_voltage if max_voltage is None else as_positive("max_voltage", max_voltage)
+        if abs(voltage) > vmax:
+            raise ValueError(f"voltage must be within ±max_voltage = ±{vmax} V, got {voltage}")
+        n = int(math.ceil(seconds / Ts - 1e-9))
+        if n > 0xFFFF:
+            raise ValueError(f"seconds must be <= {0xFFFF * Ts:g} s at Ts = {Ts} s, got {seconds}")
+        tmo = as_nonnegative("host_timeout", host_timeout)
+        # limits: keep the planner limits at their defaults, set the clamp and the watchdog
+        self._request(P.SetPlant(*self.model, self.supply_voltage, self.counts_per_rev))
+        self._request(P.SetLimits(2e4, 300.0, 100.0, vmax, int(round(tmo * 1000))))
+        meta = {"Ts": Ts, "voltage": voltage, "seconds": n * Ts,
+                "limits": {"max_voltage": vmax, "host_timeout": tmo},
+                "plant": {"supply_voltage": self.supply_voltage, "counts_per_rev": self.counts_per_rev}}
+        rec = self._new_recording("step", meta, path)
+        return self._stream(P.Step(voltage, us, n), rec, n, "step", host_timeout, progress)
+
+    def _stream(self, command, rec, total, label, host_timeout, progress):
+        """Start a run/step and record telemetry until END_OF_RUN (or an error)."""
+        bar = _Progress(total, f"{self.port} {label}", self.progress if progress is None else progress)
+        lost = 0
+        next_index = 0
+        hb_every = max(0.05, host_timeout / 4.0) if host_timeout > 0 else 0.5
+        dropped0 = self._decoder.stats.dropped
+        status, error, end = "recording", None, None
+        try:
+            self._request(command)
+            last_rx = last_hb = time.monotonic()
+            while end is None:
+                now = time.monotonic()
+                if now - last_hb >= hb_every:
+                    self._write(P.Heartbeat())
+                    last_hb = now
+                frames = self._read_frames(min(0.05, hb_every))
+                now = time.monotonic()
+                if frames:
+                    last_rx = now
+                elif now - last_rx > self.timeout:
+                    raise RigTimeoutError(
+                        f"{self.port}: no data from the rig for {self.timeout:g} s after {len(rec)} "
+                        f"samples of {total}")
+                for f in frames:
+                    if f.type == P.MsgType.TELEMETRY:
+                        try:
+                            t = P.Telemetry.unpack(f.payload)
+                        except P.ProtocolError:
+                            self.ignored_frames += 1
+                            continue
+                        if t.index > next_index:
+                            lost += (t.index - next_index) // max(1, getattr(command, "decimation", 1))
+                        next_index = t.index + getattr(command, "decimation", 1)
+                        rec.append(t.index, t.reference, t.counts, t.pwm, t.flags)
+                    elif f.type == P.MsgType.END_OF_RUN:
+                        end = P.EndOfRun.unpack(f.payload)
+                    elif f.type == P.MsgType.ERROR:
+                        e = P.DeviceError.unpack(f.payload)
+                        rec.metadata.setdefault("device_errors", []).append([e.code, e.detail])
+                    else:
+                        self.ignored_frames += 1       # ACKs of heartbeats, stray replies
+                rec.flush()
+                bar.update(len(rec))
+        except RigConnectionError as exc:
+            status, error = "disconnected", exc
+        except RigTimeoutError as exc:
+            status, error = "timeout", exc
+        except RigCommandError as exc:
+            status, error = "refused", exc
+        except KeyboardInterrupt as exc:
+            status, error = "interrupted", exc
+            try:
+                self._write(P.Stop())
+            except RigError:
+                pass
+        except BaseException as exc:
+            status, error = "failed", exc
+        stats = {"lost_samples": lost,
+                 "host_dropped_frames": self._decoder.stats.dropped - dropped0}
+        if end is not None:
+            reason = P.EndReason(end.reason).name if end.reason in iter(P.EndReason) else str(end.reason)
+            stats.update(end_reason=reason, device_samples=end.samples,
+                         device_rx_errors=end.rx_errors, device_overruns=end.overruns)
+            status = "complete" if end.reason == P.EndReason.DONE else reason.lower()
+        rec.finish(status, **stats, **({"error": str(error)} if error is not None else {}))
+        bar.close(status)
+        where = f"; the {len(rec)} samples received are saved in {rec.csv_path}" if rec.csv_path else ""
+        if error is not None:
+            if isinstance(error, KeyboardInterrupt):
+                raise error
+            if isinstance(error, RigError):
+                raise type(error)(f"{error}{where}") from error
+            raise error
+        if end.reason != P.EndReason.DONE:
+            raise RigRunError(f"{self.port}: run ended early on the device ({stats['end_reason']}) after "
+                              f"{end.samples} samples{where}")
+        return rec
+
+
+def _jsonable(d):
+    """A copy of a dict with numpy / odd values made JSON-friendly."""
+    import numpy as np
+
+    if isinstance(d, dict):
+        return {str(k): _jsonable(v) for k, v in d.items()}
+    if isinstance(d, (list, tuple)):
+        return [_jsonable(v) for v in d]
+    if isinstance(d, (np.floating, np.integer)):
+        return d.item()
+    if isinstance(d, np.ndarray):
+        return d.tolist()
+    if isinstance(d, (str, int, float, bool)) or d is None:
+        return d
+    return repr(d)

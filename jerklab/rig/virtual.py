@@ -1,0 +1,458 @@
+"""The virtual rig: a Python model of the Uno firmware driving a simulated DC motor.
+
+:class:`VirtualDevice` is the firmware's behaviour written in Python — the same
+protocol state machine (``firmware/PROTOCOL.md``), the same control law at Ts on
+encoder counts (``jerklab.controller.DigitalController``: Stojčić eq. 16–18 with
+the output clamp and conditional-integration anti-windup), the same PWM rounding
+and clamp, and the host-silence watchdog — in front of a ``jerklab.plant.DCMotor``
+with its PWM and encoder quantization.  It is a byte-in / byte-out object with a
+``tick()``; the transports move bytes and decide the pace:
+
+* :class:`VirtualSerial` — in process, a pyserial-like object (``read``, ``write``,
+  ``in_waiting``) that runs the device as fast as the host reads (or ``speed`` times
+  real time).  ``jerklab.rig.connect()`` uses it.
+* :mod:`jerklab.rig.server` — the same device behind a pseudo-terminal or a TCP port.
+
+Differences from the real board, on purpose: the control step takes no time (the
+Uno's ~0.75 ms computation delay is not modelled), the motor coasts to rest
+instantly between runs (the encoder is zeroed at each RUN anyway), and the
+watchdog counts wall-clock time, as a host's silence is a wall-clock fact.
+"""
+from __future__ import annotations
+
+import math
+import struct
+import time
+
+import numpy as np
+
+from jerklab import protocol as P
+
+__all__ = ["VirtualDevice", "VirtualSerial"]
+
+_F32_MAX = 3.4028234663852886e38
+
+#: planner id -> jerklab.planner function name
+_PLANNERS = {
+    P.Planner.SINE_JERK: "plan_sine_jerk",
+    P.Planner.SINE_JERK_OPTIMAL: "plan_sine_jerk_optimal",
+    P.Planner.SCURVE: "plan_scurve",
+    P.Planner.TRAPEZOID: "plan_trapezoid",
+}
+
+
+def _f32(x: float) -> float:
+    return struct.unpack("<f", struct.pack("<f", x))[0]
+
+
+def _finite(x) -> bool:
+    return isinstance(x, float) and math.isfinite(x)
+
+
+class VirtualDevice:
+    """The firmware of ``firmware/PROTOCOL.md`` as a Python object, driving a simulated motor.
+
+    Parameters
+    ----------
+    motor : jerklab.plant.DCMotor, optional
+        The "hardware": its ``supply_voltage``, ``pwm_bits`` and encoder set the
+        H-bridge and counter the firmware sees. Default: the paper's motor
+        (K = 32.4 rad/(V s), tau = 25 ms, 12 V, 10-bit PWM, 448 counts/rev).
+    clock : callable
+        Wall clock in seconds for the host watchdog (``time.monotonic``).
+    name : str
+        Reported in HELLO_REPLY.
+    tick_us : int
+        Timer tick; Ts must be a multiple of it (1000 µs, as on the Uno).
+    """
+
+    STATE_IDLE, STATE_RUNNING, STATE_STEPPING = 0, 1, 2
+
+    def __init__(self, motor=None, clock=time.monotonic, name="jerklab-virtual", tick_us=1000):
+        from jerklab import __version__
+        from jerklab.plant import DCMotor
+
+        self.motor = DCMotor() if motor is None else motor
+        if self.motor.supply_voltage is None or self.motor.counts_per_rad is None:
+            raise ValueError("motor must have a supply_voltage and an encoder (encoder_ppr) to be a rig")
+        self.clock = clock
+        self.name = str(name)[:16]
+        self.tick_us = int(tick_us)
+        bits = self.motor.pwm_bits or 10
+        self.pwm_max = 2 ** bits - 1
+        major, minor, patch = (int(x) for x in (__version__.split(".") + ["0", "0"])[:3])
+        self.version = (major, minor, patch)
+        self.capabilities = (P.Capability.PLANNER_SINE_JERK | P.Capability.PLANNER_SINE_JERK_OPTIMAL
+                             | P.Capability.PLANNER_SCURVE | P.Capability.PLANNER_TRAPEZOID
+                             | P.Capability.LOOP_POSITION | P.Capability.LOOP_VELOCITY
+                             | P.Capability.OPEN_LOOP_STEP | P.Capability.FEEDFORWARD
+                             | P.Capability.SIMULATED_PLANT)
+        self._decoder = P.Decoder()
+        self._out = bytearray()
+        self._seq = 0
+        self.x = np.zeros(2)                 # motor state [theta, omega]
+        self.t = 0.0                         # simulated time (s)
+        self.pwm = 0
+        self.overruns = 0
+        self.rejected = 0                    # good frames answered by NACK
+        self.boot()
+
+    # ------------------------------------------------------------------ state
+    def boot(self):
+        """Power-on defaults of PROTOCOL.md ("Device state machine")."""
+        self.plant = P.SetPlant(K=_f32(32.4), tau=_f32(0.025), supply_voltage=12.0, counts_per_rev=448)
+        self.limits = P.SetLimits(max_jerk=2e4, max_accel=300.0, max_velocity=100.0,
+                                  max_voltage=12.0, host_timeout_ms=1000)
+        self.gains = None
+        self.plan = None
+        self.state = self.STATE_IDLE
+        self.pwm = 0
+        self.last_rx = self.clock()
+
+    @property
+    def active(self) -> bool:
+        return self.state != self.STATE_IDLE
+
+    @property
+    def period(self) -> float:
+        """Length of the next tick (s): the running Ts, or the configured one."""
+        if self.state == self.STATE_STEPPING:
+            return self._step_Ts
+        if self.gains is not None:
+            return self.gains.Ts_us * 1e-6
+        return 0.005
+
+    @property
+    def rx_errors(self) -> int:
+        return min(self._decoder.stats.dropped, 0xFFFF)
+
+    def _raw_counts(self) -> int:
+        return int(math.floor(float(self.x[0]) * self.motor.counts_per_rad + 1e-9))
+
+    # ------------------------------------------------------------------ bytes in / out
+    def receive(self, data: bytes) -> None:
+        """Bytes from the host (any chunking)."""
+        for frame in self._decoder.feed(data):
+            self.last_rx = self.clock()
+            self._handle(frame)
+
+    def read_output(self, n: int | None = None) -> bytes:
+        """Take up to ``n`` bytes the device has sent (all if None)."""
+        if n is None or n >= len(self._out):
+            out = bytes(self._out)
+            self._out.clear()
+            return out
+        out = bytes(self._out[:n])
+        del self._out[:n]
+        return out
+
+    @property
+    def output_pending(self) -> int:
+        return len(self._out)
+
+    def _send(self, msg, seq=None):
+        if seq is None:
+            seq = self._seq
+            self._seq = (self._seq + 1) & 0xFF
+        self._out += P.encode(msg, seq)
+
+    def _nack(self, frame, error, param=0xFF):
+        self.rejected += 1
+        self._send(P.Nack(frame.type, int(error), param), frame.seq)
+
+    # ------------------------------------------------------------------ commands
+    def _handle(self, frame: P.Frame) -> None:
+        self._current_seq = frame.seq           # for handlers that reply themselves (PLAN)
+        cls = P.MESSAGES.get(frame.type)
+        if cls is None or frame.type >= 0x80:
+            return self._nack(frame, P.ErrorCode.UNKNOWN_TYPE)
+        try:
+            msg = cls.unpack(frame.payload)
+        except P.ProtocolError:
+            return self._nack(frame, P.ErrorCode.BAD_LENGTH)
+        if isinstance(msg, P.Hello):
+            maj, mnr, pat = self.version
+            return self._send(P.HelloReply(P.PROTOCOL_VERSION, maj, mnr, pat, int(self.capabilities),
+                                           self.tick_us, self.pwm_max, self.name), frame.seq)
+        if isinstance(msg, P.Heartbeat):
+            return self._send(P.Ack(frame.type), frame.seq)
+        if isinstance(msg, P.Stop):
+            was_active = self.active
+            self.pwm = 0
+            self._send(P.Ack(frame.type), frame.seq)
+            if was_active:
+                self._end(P.EndReason.STOPPED)
+            return None
+        if self.active:
+            return self._nack(frame, P.ErrorCode.BUSY)
+        handler = getattr(self, "_cmd_" + type(msg).__name__)
+        error, param = handler(msg)
+        if error is None:
+            return None                     # the handler replied itself
+        if error != P.ErrorCode.OK:
+            return self._nack(frame, error, param)
+        return self._send(P.Ack(frame.type), frame.seq)
+
+    def _ts_ok(self, ts_us):
+        return 0 < ts_us <= 65000 and ts_us % self.tick_us == 0
+
+    def _cmd_SetPlant(self, m):
+        checks = [_finite(m.K) and 0 < m.K <= 1e4, _finite(m.tau) and 0 < m.tau <= 10,
+                  _finite(m.supply_voltage) and 0 < m.supply_voltage <= 48, m.counts_per_rev >= 1]
+        bad = _first_false(checks)
+        if bad is not None:
+            return P.ErrorCode.BAD_VALUE, bad
+        self.plant = m
+        return P.ErrorCode.OK, 0xFF
+
+    def _cmd_SetGains(self, m):
+        checks = [_finite(m.kpd), _finite(m.kid), _finite(m.kdd), self._ts_ok(m.Ts_us),
+                  m.loop in (P.LoopType.POSITION, P.LoopType.VELOCITY),
+                  (m.flags & ~P.GAINS_FEEDFORWARD) == 0, _finite(m.gamma) and abs(m.gamma) < 1.0]
+        bad = _first_false(checks)
+        if bad is not None:
+            return P.ErrorCode.BAD_VALUE, bad
+        self.gains = m
+        self.plan = None
+        return P.ErrorCode.OK, 0xFF
+
+    def _cmd_SetLimits(self, m):
+        checks = [_finite(m.max_jerk) and m.max_jerk > 0, _finite(m.max_accel) and m.max_accel > 0,
+                  _finite(m.max_velocity) and m.max_velocity > 0,
+                  _finite(m.max_voltage) and 0 < m.max_voltage <= self.plant.supply_voltage, True]
+        bad = _first_false(checks)
+        if bad is not None:
+            return P.ErrorCode.BAD_VALUE, bad
+        self.limits = m
+        self.plan = None
+        return P.ErrorCode.OK, 0xFF
+
+    def _cmd_Plan(self, m):
+        from jerklab import planner
+
+        if not (_finite(m.distance) and 0 < abs(m.distance) <= 1e6):
+            return P.ErrorCode.BAD_VALUE, 0
+        if m.planner not in _PLANNERS:
+            return P.ErrorCode.BAD_VALUE, 1
+        if not self.capabilities & (1 << m.planner):
+            return P.ErrorCode.UNSUPPORTED, 1
+        L = self.limits
+        fn = getattr(planner, _PLANNERS[m.planner])
+        if m.planner == P.Planner.TRAPEZOID:
+            prof = fn(m.distance, L.max_accel, L.max_velocity)
+        else:
+            prof = fn(m.distance, L.max_jerk, L.max_accel, L.max_velocity)
+        Ts = self.period
+        n = math.ceil(prof.duration / Ts - 1e-4) + 1
+        if n >= 2 ** 31:
+            return P.ErrorCode.BAD_VALUE, 0
+        pt = prof.phase_times
+        if len(pt) == 3:
+            accel_time, cruise = pt[0], pt[1]
+        else:
+            accel_time, cruise = sum(pt[:3]), pt[3]
+        self.plan = (prof, n, m)
+        self._send(P.PlanInfo(accel_time, cruise, prof.duration, n), self._current_seq)
+        return None, None
+
+    def _cmd_Run(self, m):
+        from jerklab.controller import DigitalController, DiscreteGains, Feedforward
+
+        if m.decimation < 1:
+            return P.ErrorCode.BAD_VALUE, 1
+        if self.gains is None or self.plan is None:
+            return P.ErrorCode.NOT_READY, 0xFF
+        g = self.gains
+        Ts = g.Ts_us * 1e-6
+        loop = "velocity" if g.loop == P.LoopType.VELOCITY else "position"
+        dg = DiscreteGains(g.kpd, g.kid, g.kdd, Ts, gamma=g.gamma, loop=loop)
+        ff = Feedforward(self.plant.K, self.plant.tau) if g.flags & P.GAINS_FEEDFORWARD else None
+        self._ctrl = DigitalController(dg, feedforward=ff, output_limit=self.limits.max_voltage,
+                                       anti_windup=True)
+        prof, n, _ = self.plan
+        self._n_profile = n
+        self._n_total = n + m.settle_samples
+        s = prof.sample(np.arange(self._n_total) * Ts)
+        self._ref = (np.asarray(s.position, float), np.asarray(s.velocity, float),
+                     np.asarray(s.accel, float))
+        self._decimation = m.decimation
+        self._start(Ts)
+        self.state = self.STATE_RUNNING
+        return P.ErrorCode.OK, 0xFF
+
+    def _cmd_Step(self, m):
+        checks = [_finite(m.voltage) and abs(m.voltage) <= self.limits.max_voltage,
+                  self._ts_ok(m.Ts_us), m.n_samples >= 1]
+        bad = _first_false(checks)
+        if bad is not None:
+            return P.ErrorCode.BAD_VALUE, bad
+        self._step_Ts = m.Ts_us * 1e-6
+        self._step_pwm = self._to_pwm(m.voltage)
+        self._n_total = m.n_samples
+        self._decimation = 1
+        self._start(self._step_Ts)
+        self.state = self.STATE_STEPPING
+        return P.ErrorCode.OK, 0xFF
+
+    def _start(self, Ts):
+        self._Ts = Ts
+        self._k = 0
+        self._count0 = self._raw_counts()
+        self._prev_y = None
+
+    # ------------------------------------------------------------------ control
+    def _to_pwm(self, u: float) -> int:
+        p = self.plant
+        lim = int(round(self.limits.max_voltage * self.pwm_max / p.supply_voltage))
+        lim = min(lim, self.pwm_max)
+        pwm = int(math.floor(abs(u) * self.pwm_max / p.supply_voltage + 0.5))   # lround
+        pwm = min(pwm, lim)
+        return pwm if u >= 0 else -pwm
+
+    def tick(self) -> None:
+        """One control period: watchdog, sample, control, telemetry, then the motor moves."""
+        if not self.active:
+            return
+        tmo = self.limits.host_timeout_ms
+        if tmo and (self.clock() - self.last_rx) * 1000.0 > tmo:
+            self.pwm = 0
+            self._end(P.EndReason.HOST_TIMEOUT)
+            return
+        k = self._k
+        counts = self._raw_counts() - self._count0
+        flags = 0
+        if self.state == self.STATE_RUNNING:
+            cpr = self.plant.counts_per_rev / (2.0 * math.pi)
+            y = counts / cpr
+            rp, rv, ra = self._ref
+            u = self._ctrl.step(rp[k], rv[k], ra[k], y)
+            if self._ctrl.last_parts["saturated"]:
+                flags |= P.TELEMETRY_SATURATED
+            if k >= self._n_profile:
+                flags |= P.TELEMETRY_SETTLING
+            self.pwm = self._to_pwm(u)
+            ref = float(rp[k])
+        else:
+            self.pwm = self._step_pwm
+            ref = 0.0
+        if k % self._decimation == 0:
+            self._send(P.Telemetry(k, ref, counts, self.pwm, flags))
+        volts = self.pwm / self.pwm_max * self.motor.supply_voltage     # the H-bridge
+        self.x = self.motor.step_state(self.x, volts, self._Ts, t=self.t)
+        self.t += self._Ts
+        self._k = k + 1
+        if self._k >= self._n_total:
+            self.pwm = 0
+            self._end(P.EndReason.DONE)
+
+    def _end(self, reason):
+        samples = self._k
+        self.state = self.STATE_IDLE
+        self._send(P.EndOfRun(int(reason), samples, self.rx_errors, self.overruns))
+        # between runs the motor coasts to rest (PWM 0 for 1 s of model time)
+        self.x = self.motor.step_state(self.x, 0.0, 1.0, t=self.t)
+        self.t += 1.0
+
+
+def _first_false(checks):
+    for i, ok in enumerate(checks):
+        if not ok:
+            return i
+    return None
+
+
+class VirtualSerial:
+    """A pyserial-like link to an in-process :class:`VirtualDevice`.
+
+    ``read`` runs the device's control ticks when the host waits for bytes, so a run
+    goes as fast as the host reads (``speed=None``) or at ``speed`` times real time.
+
+    Fault injection (for tests and teaching): ``pull_cable_after`` bytes received by
+    the host, then every call raises ``serial.SerialException`` like a USB cable
+    pulled out; ``freeze_after`` bytes, then the device goes silent (a hung board).
+    """
+
+    def __init__(self, device: VirtualDevice | None = None, speed: float | None = None, timeout=1.0,
+                 pull_cable_after: int | None = None, freeze_after: int | None = None,
+                 port="virtual"):
+        self.device = VirtualDevice() if device is None else device
+        if speed is not None and not (isinstance(speed, (int, float)) and speed > 0):
+            raise ValueError(f"speed must be > 0 or None (as fast as possible), got {speed!r}")
+        self.speed = None if speed is None or math.isinf(speed) else float(speed)
+        self.timeout = timeout
+        self.port = port
+        self.is_open = True
+        self._delivered = 0
+        self._pull_after = pull_cable_after
+        self._freeze_after = freeze_after
+        self._t0_wall = time.monotonic()
+        self._t0_model = self.device.t
+
+    # pyserial API -------------------------------------------------------------
+    def _check(self):
+        import serial
+
+        if not self.is_open:
+            raise serial.SerialException("port is closed")
+        if self._pull_after is not None and self._delivered >= self._pull_after:
+            raise serial.SerialException("device disconnected (cable pulled)")
+
+    def write(self, data) -> int:
+        self._check()
+        self.device.receive(bytes(data))
+        return len(data)
+
+    def flush(self):
+        self._check()
+
+    @property
+    def in_waiting(self) -> int:
+        self._check()
+        return self._limit(self.device.output_pending)
+
+    def _limit(self, n):
+        for cap in (self._pull_after, self._freeze_after):
+            if cap is not None:
+                n = min(n, max(0, cap - self._delivered))
+        return n
+
+    def _produce(self, deadline):
+        """Run ticks until the device has output or the deadline passes."""
+        dev = self.device
+        while dev.output_pending == 0 and dev.active:
+            if self.speed is not None:
+                due = self._t0_wall + (dev.t - self._t0_model) / self.speed
+                wait = due - time.monotonic()
+                if wait > 0:
+                    if time.monotonic() + wait > deadline:
+                        time.sleep(max(0.0, deadline - time.monotonic()))
+                        return
+                    time.sleep(wait)
+            else:
+                self._t0_wall, self._t0_model = time.monotonic(), dev.t
+            dev.tick()
+
+    def read(self, size: int = 1) -> bytes:
+        self._check()
+        timeout = 1e9 if self.timeout is None else self.timeout
+        deadline = time.monotonic() + timeout
+        frozen = self._freeze_after is not None and self._delivered >= self._freeze_after
+        if not frozen:
+            self._produce(deadline)
+        n = self._limit(min(size, self.device.output_pending))
+        if n == 0:
+            time.sleep(max(0.0, deadline - time.monotonic()))      # a blocking read that times out
+            self._check()
+            return b""
+        self._delivered += n
+        return self.device.read_output(n)
+
+    def reset_input_buffer(self):
+        self._check()
+        self.device.read_output()
+
+    def close(self):
+        self.is_open = False
+
+    def __repr__(self):
+        return f"VirtualSerial(speed={self.speed!r}, device={self.device.name!r})"
