@@ -6,4 +6,25 @@ Planners are re-exported here; the other modules are imported by name
 """
 from __future__ import annotations
 
+from .planner import (
+    Profile,
+    ProfileSample,
+    plan_batch,
+    plan_scurve,
+    plan_sine_jerk,
+    plan_sine_jerk_optimal,
+    plan_trapezoid,
+)
+
 __version__ = "0.1.0"
+
+__all__ = [
+    "Profile",
+    "ProfileSample",
+    "plan_batch",
+    "plan_scurve",
+    "plan_sine_jerk",
+    "plan_sine_jerk_optimal",
+    "plan_trapezoid",
+    "__version__",
+]
