@@ -1,0 +1,520 @@
+"""Bit-exact integer model of the FPGA S-curve generator of Yang, Ye, Pan & Ma (2013).
+
+The paper's system (its Fig. 1): a *speed generator* that, every refresh period
+``tc``, advances a counter ``n`` and computes the speed from integer formulas
+(Yang eqs. 5-8), converts it to a pulse frequency ``f = v / k`` and a divider
+count ``cycle = f_clk / f``; a *pulse divider* (the Verilog printed in the paper)
+counts the 50 MHz clock and emits one pulse of 50 % duty every ``cycle`` clocks.
+A stepper/servo drive in position mode moves ``k`` (µm) per pulse.
+
+Units: this module works in integer µm/s, Hz, clock counts (the hardware's units,
+as the paper states them); :meth:`YangSCurve.exact_profile` converts to the
+unit-agnostic planner (``jerklab.planner.plan_scurve``) in µm and s.
+
+The reconstruction of the paper's formulas (READING.md §3), for acceleration time
+``T``, peak speed ``V``, ``N = T / (2 tc)`` counts per half:
+
+* eq. 5 (``n <= N``): ``v = 2 V tc^2 n^2 / T^2 = V n^2 / (2 N^2)``;
+* eq. 6 (``N < n <= 2N``): ``v = V (4 T n tc - 2 tc^2 n^2 - T^2) / T^2 = V - V (2N - n)^2 / (2 N^2)``;
+* eqs. 7, 8 (paper set-up, V = 20000 µm/s, N = 2500): ``v = 16 n^2 / 10000`` and
+  ``v = 20000 - (10000 - 2n)^2 / 2500``, Verilog integer division (floor for these
+  non-negative operands).
+
+The general integer form used here reduces ``V / (2 N^2)`` to lowest terms ``a / b``
+and computes ``floor(a n^2 / b)``; for the paper set-up this is bit-identical to
+eqs. 7, 8 (same rational number), which :func:`paper_speed` keeps verbatim.
+
+Things the paper leaves open or gets wrong, and what is done here:
+
+* Deceleration runs the counter back down from ``2N`` (the paper: "1 is
+  subtracted"); below the start count ``PWM_INITAL_COUNT`` the speed is 0, so the
+  move ends there, symmetric with its start (no published branch covers it).
+* The printed divider compares with ``==`` against a ``compare_reg`` that the
+  speed generator changes every 200 µs, while a pulse period lasts 1 to 143 ms.
+  When the new (shorter) cycle is below the running count, ``count == compare_reg``
+  never holds again and the counter runs through 2^32 clocks (86 s at 50 MHz)
+  before the next pulse: :func:`published_divider_lockup` finds where that
+  happens.  The commented-out ``compare_reg_refresh_flag`` in the paper's listing
+  points at the fix used here (and in ``firmware/fpga/pulse_divider.v``): the
+  cycle is latched only at the end of a period (``count >= cycle``).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from fractions import Fraction
+
+import numpy as np
+
+from jerklab._validate import as_finite_array, as_int, as_positive
+
+__all__ = ["YangSCurve", "PulseTrain", "SpeedTable", "paper_speed", "published_divider_lockup",
+           "simulate_verilog", "simulate_divider_verilog", "read_vcd", "VerilogRun",
+           "divider_edges", "HardwareLimitError", "PAPER"]
+
+
+class HardwareLimitError(ValueError):
+    """A value the FPGA cannot hold or produce (counter width, minimum/maximum frequency)."""
+
+
+def paper_speed(n):
+    """Yang eqs. 7 and 8 verbatim (µm/s): the paper's set-up, Verilog integer division.
+
+    ``v = 16 n^2 / 10000`` for ``n <= 2500`` (eq. 7, ``div_3_result``),
+    ``v = 20000 - (10000 - 2n)^2 / 2500`` for ``2500 < n <= 5000`` (eq. 8, ``div_1_quo``).
+    """
+    n_arr = np.asarray(n)
+    if n_arr.dtype.kind not in "iu":
+        raise ValueError(f"n must be integer counts, got dtype {n_arr.dtype}")
+    if np.any(n_arr < 0) or np.any(n_arr > 5000):
+        raise ValueError("n must be in [0, 5000] (the paper's TOTAL_SPEEDUP_TIMES)")
+    n64 = n_arr.astype(np.int64)
+    v = np.where(n64 <= 2500, (16 * n64 * n64) // 10000, 20000 - ((10000 - 2 * n64) ** 2) // 2500)
+    return int(v) if v.ndim == 0 else v
+
+
+@dataclass(frozen=True)
+class SpeedTable:
+    """One row per refresh tick ``m``: counter ``n``, speed (µm/s), frequency (Hz), cycle (clocks)."""
+
+    m: np.ndarray
+    n: np.ndarray
+    speed: np.ndarray
+    frequency: np.ndarray
+    cycle: np.ndarray
+
+
+@dataclass(frozen=True)
+class PulseTrain:
+    """Divider output: clock indices (posedge numbers, 1 = first after reset) of the edges."""
+
+    rise: np.ndarray
+    fall: np.ndarray
+    clock_hz: int
+    step_um: int
+
+    @property
+    def rise_times(self) -> np.ndarray:
+        """Rising-edge times (s): posedge ``p`` at ``p / f_clk``."""
+        return self.rise / self.clock_hz
+
+    def position(self, t):
+        """Commanded position (µm) at time(s) ``t``: ``k`` µm per rising edge so far."""
+        t = as_finite_array("t", t)
+        return self.step_um * np.searchsorted(self.rise, t * self.clock_hz, side="right")
+
+
+def divider_edges(starts, values, p_end, bits=32):
+    """Latched 50 %-duty divider (``firmware/fpga/pulse_divider.v``), clock-exact.
+
+    The ``cycle`` input is a step function of the posedge index: ``values[i]`` from
+    posedge ``starts[i]`` on (``starts[0] == 1``).  Register semantics per posedge:
+
+    * idle (``creg == 0``): ``creg <= cycle``, ``count <= 0``, ``clkout <= 0``;
+    * ``count == creg >> 1``: ``clkout <= 1``, ``count <= count + 1`` (rising edge);
+    * ``count >= creg``: ``clkout <= 0``, ``count <= 1``, ``creg <= cycle`` (falling edge);
+    * else ``count <= count + 1``.
+
+    So a period latched at posedge ``q`` rises at ``q + creg//2`` and falls at
+    ``q + creg`` (after an idle latch at ``q0``: ``q0 + 1 + creg//2``, ``q0 + 1 + creg``).
+
+    Parameters
+    ----------
+    starts, values : sequence of int
+        The cycle input as a step function (``starts`` increasing, from 1).
+    p_end : int
+        Last posedge simulated; edges after it are not reported.
+    bits : int
+        Register width; cycles ``>= 2**bits`` raise :class:`HardwareLimitError`.
+
+    Returns
+    -------
+    rise, fall : ndarray of int
+    """
+    starts = np.asarray(starts, dtype=np.int64)
+    values = np.asarray(values, dtype=np.int64)
+    if starts.ndim != 1 or starts.shape != values.shape or starts.size == 0 or starts[0] != 1:
+        raise ValueError("starts must be a 1-D increasing sequence from 1, same length as values")
+    if np.any(np.diff(starts) <= 0):
+        raise ValueError("starts must be strictly increasing")
+    if np.any(values < 0) or np.any(values >= 2 ** bits):
+        raise HardwareLimitError(f"cycle values must fit an unsigned {bits}-bit register")
+    if np.any(values == 1):
+        raise HardwareLimitError("cycle = 1 cannot give a 50 % duty pulse (f > f_clk/2)")
+    p_end = as_int("p_end", p_end, minimum=1)
+
+    def w(p):
+        return int(values[np.searchsorted(starts, p, side="right") - 1])
+
+    rise, fall = [], []
+    p = 1
+    creg = 0
+    while p <= p_end:
+        if creg == 0:
+            # idle: latch at each posedge until a non-zero value appears
+            i = np.searchsorted(starts, p, side="right") - 1
+            nz = np.nonzero(values[i:])[0]
+            if nz.size == 0:
+                break
+            j = i + int(nz[0])
+            q0 = max(p, int(starts[j]))
+            creg = int(values[j])
+            r, f = q0 + 1 + creg // 2, q0 + 1 + creg
+        else:
+            r, f = q + creg // 2, q + creg
+        if r > p_end:
+            break
+        rise.append(r)
+        if f > p_end:
+            break
+        fall.append(f)
+        q = f
+        creg = w(f)
+        p = f + 1
+    return np.array(rise, dtype=np.int64), np.array(fall, dtype=np.int64)
+
+
+class YangSCurve:
+    """Yang et al.'s S-curve speed generator + divider as integers (bit-exact).
+
+    Parameters
+    ----------
+    max_velocity : int
+        ``V`` in µm/s (paper: 20000).
+    accel_time : float
+        ``T`` in s, duration of the acceleration (and of the deceleration) (paper: 1).
+    cruise_time : float
+        Constant-speed time in s (paper: 1).
+    refresh_period : float
+        ``tc`` in s (paper: 200e-6).  ``T / (2 tc)`` must be a whole number of counts.
+    clock_hz : int
+        Divider clock (paper: 50 MHz).  ``tc * clock_hz`` must be whole.
+    step_um : int
+        ``k``: µm per pulse, ``v = k f`` (paper: 20, READING.md §3 reading).
+    start_count : int
+        ``PWM_INITAL_COUNT``: below this count the speed is 0 (paper: 300).
+    bits : int
+        Width of the hardware registers and multipliers (32).
+
+    Raises
+    ------
+    HardwareLimitError
+        If a product or count exceeds ``bits``, if the start speed gives 0 Hz
+        (below the minimum frequency ``k`` µm/s -> 1 Hz), or if a cycle would be < 2.
+    """
+
+    def __init__(self, max_velocity=20000, accel_time=1.0, cruise_time=1.0, refresh_period=200e-6,
+                 clock_hz=50_000_000, step_um=20, start_count=300, bits=32):
+        self.max_velocity = as_int("max_velocity", max_velocity, minimum=1)
+        self.accel_time = as_positive("accel_time", accel_time)
+        self.cruise_time = float(as_positive("cruise_time", cruise_time)) if cruise_time != 0 else 0.0
+        self.refresh_period = as_positive("refresh_period", refresh_period)
+        self.clock_hz = as_int("clock_hz", clock_hz, minimum=2)
+        self.step_um = as_int("step_um", step_um, minimum=1)
+        self.start_count = as_int("start_count", start_count, minimum=0)
+        self.bits = as_int("bits", bits, minimum=8)
+        top = 2 ** self.bits
+
+        def whole(name, x):
+            r = round(x)
+            if r < 1 or abs(x - r) > 1e-9 * max(1.0, abs(x)):
+                raise ValueError(f"{name} must be a whole number >= 1, got {x!r}")
+            return int(r)
+
+        self.half_counts = whole("accel_time / (2 refresh_period)", self.accel_time / (2 * self.refresh_period))
+        self.cruise_counts = (whole("cruise_time / refresh_period", self.cruise_time / self.refresh_period)
+                              if self.cruise_time > 0 else 0)
+        self.refresh_clocks = whole("refresh_period * clock_hz", self.refresh_period * self.clock_hz)
+        N = self.half_counts
+        frac = Fraction(self.max_velocity, 2 * N * N)
+        self.coef_num, self.coef_den = frac.numerator, frac.denominator
+        self.end_tick = 4 * N + self.cruise_counts           # n = 0 from here on
+        for name, val in (("V (2N)^2 / (2N^2) product a*N^2", self.coef_num * N * N),
+                          ("coefficient denominator", self.coef_den),
+                          ("clock_hz", self.clock_hz), ("refresh clocks", self.refresh_clocks),
+                          ("tick count", self.end_tick),
+                          ("total clocks", (self.end_tick + 1) * self.refresh_clocks)):
+            if val >= top:
+                raise HardwareLimitError(f"{name} = {val} does not fit {self.bits} bits")
+        if self.start_count > 2 * N:
+            raise ValueError(f"start_count must be <= 2 T/(2 tc) = {2 * N}, got {self.start_count}")
+        v0 = self.speed(max(self.start_count, 1))
+        if v0 // self.step_um == 0:
+            nmin = next(n for n in range(1, 2 * N + 1) if self.speed(n) >= self.step_um)
+            raise HardwareLimitError(
+                f"start_count = {self.start_count} gives {v0} µm/s, below the minimum frequency "
+                f"(1 Hz = {self.step_um} µm/s): use start_count >= {nmin}")
+        if self.clock_hz // (self.max_velocity // self.step_um or 1) < 2:
+            raise HardwareLimitError("max_velocity / step_um exceeds f_clk / 2: cycle < 2")
+
+    # ------------------------------------------------------------------ speed generator
+    def speed(self, n):
+        """Speed (µm/s) at counter ``n``: Yang eqs. 5, 6 in integer form (floor division).
+
+        ``v = floor(a n^2 / b)`` for ``n <= N``, ``v = V - floor(a (2N - n)^2 / b)`` for
+        ``N < n <= 2N``, ``a/b = V/(2N^2)`` in lowest terms; 0 below ``start_count``.
+        """
+        n_arr = np.asarray(n)
+        if n_arr.dtype.kind not in "iu":
+            raise ValueError(f"n must be integer counts, got dtype {n_arr.dtype}")
+        N = self.half_counts
+        if np.any(n_arr < 0) or np.any(n_arr > 2 * N):
+            raise ValueError(f"n must be in [0, {2 * N}]")
+        n64 = n_arr.astype(np.int64)
+        a, b, V = self.coef_num, self.coef_den, self.max_velocity
+        d = np.where(n64 <= N, n64, 2 * N - n64)
+        q = (a * d * d) // b
+        v = np.where(n64 <= N, q, V - q)
+        v = np.where(n64 < self.start_count, 0, v)
+        return int(v) if v.ndim == 0 else v
+
+    def counter(self, m):
+        """Counter ``n`` at refresh tick ``m``: up to 2N, held for the cruise, back down to 0."""
+        m = np.asarray(m, dtype=np.int64)
+        N, C = self.half_counts, self.cruise_counts
+        n = np.where(m <= 2 * N, m, np.where(m <= 2 * N + C, 2 * N, np.maximum(4 * N + C - m, 0)))
+        return n
+
+    def speed_table(self) -> SpeedTable:
+        """Speed, frequency ``f = v // k`` and divider count ``f_clk // f`` for every tick."""
+        m = np.arange(self.end_tick + 1, dtype=np.int64)
+        n = self.counter(m)
+        v = self.speed(n)
+        f = v // self.step_um
+        cyc = np.where(f > 0, self.clock_hz // np.maximum(f, 1), 0)
+        if np.any(cyc >= 2 ** self.bits):
+            raise HardwareLimitError("a divider count does not fit the register")
+        return SpeedTable(m, n, v, f, cyc)
+
+    # ------------------------------------------------------------------ divider
+    def cycle_input(self):
+        """The divider's cycle input as a step function of the posedge index.
+
+        The tick register ``m`` advances at posedges ``j R`` (``R`` clocks per
+        refresh); the combinational speed/cycle path then shows the new value to the
+        divider from posedge ``j R + 1`` on.
+        """
+        tab = self.speed_table()
+        starts = tab.m * self.refresh_clocks + 1
+        return starts, tab.cycle
+
+    def pulses(self, p_end=None) -> PulseTrain:
+        """Pulse train of the whole move (clock-exact, latched divider)."""
+        starts, values = self.cycle_input()
+        if p_end is None:
+            p_end = int(starts[-1] + 2 * int(values.max()) + 2)
+        rise, fall = divider_edges(starts, values, p_end, bits=self.bits)
+        return PulseTrain(rise, fall, self.clock_hz, self.step_um)
+
+    # ------------------------------------------------------------------ comparison
+    @property
+    def distance_um(self) -> float:
+        """Distance of the ideal (continuous) profile: ``V (T + cruise_time)`` µm."""
+        return self.max_velocity * (self.accel_time + self.cruise_time)
+
+    def exact_profile(self):
+        """The same move from ``jerklab.planner.plan_scurve`` (µm, s).
+
+        Yang's profile is the 7-segment linear-jerk S-curve with no constant-
+        acceleration segment: ``J = 4V/T^2``, ``A = 2V/T``, distance ``V (T + t_cruise)``.
+        """
+        from jerklab.planner import plan_scurve
+
+        V, T = float(self.max_velocity), self.accel_time
+        return plan_scurve(self.distance_um, 4 * V / T ** 2, 2 * V / T, V)
+
+    def tick_times(self) -> np.ndarray:
+        """Time (s) at which each tick's speed takes effect (``m tc``)."""
+        return np.arange(self.end_tick + 1) * self.refresh_period
+
+    def verilog_defines(self) -> dict:
+        """Parameters for ``firmware/fpga/scurve_gen.v`` / its testbench (``-P`` / ``-D``)."""
+        return {"V": self.max_velocity, "N": self.half_counts, "CRUISE": self.cruise_counts,
+                "A_NUM": self.coef_num, "B_DEN": self.coef_den, "K": self.step_um,
+                "F_CLK": self.clock_hz, "R": self.refresh_clocks, "N_MIN": self.start_count}
+
+
+PAPER = dict(max_velocity=20000, accel_time=1.0, cruise_time=1.0, refresh_period=200e-6,
+             clock_hz=50_000_000, step_um=20, start_count=300)
+"""Yang et al.'s test set-up (§3)."""
+
+
+def published_divider_lockup(model: YangSCurve):
+    """Run the divider *as printed in the paper* (``==`` compares, live ``compare_reg``).
+
+    Returns ``None`` if it survives the move, else a dict with the posedge ``p``,
+    time ``t`` (s), tick ``m`` at which the new ``compare_reg`` fell below the
+    running count (the counter then runs through ``2**bits`` clocks before the next
+    edge: a lock-up of ``2**bits / f_clk`` s), and the values involved.
+
+    Semantics of the listing: ``duty = compare_reg / 2``; if ``compare_reg != 0``:
+    ``count == duty`` -> high, count+1; ``count == compare_reg`` -> low, count = 1;
+    else count+1.  ``compare_reg`` is the cycle value of the current tick.
+    """
+    starts, values = model.cycle_input()
+    count = 0
+    for i in range(len(starts)):
+        c = int(values[i])
+        p0 = int(starts[i])
+        p1 = int(starts[i + 1]) if i + 1 < len(starts) else p0 + 4 * max(int(values.max()), 1)
+        if c == 0:
+            count = 0
+            continue
+        if count > c:
+            return {"p": p0, "t": p0 / model.clock_hz, "m": i, "count": count, "compare_reg": c,
+                    "lockup_s": 2 ** model.bits / model.clock_hz}
+        # advance count over posedges p0 .. p1-1 (count before posedge p is `count`)
+        steps = p1 - p0
+        while steps > 0:
+            if count < c // 2:
+                adv = min(steps, c // 2 - count)
+                count += adv
+                steps -= adv
+            elif count == c // 2 or count < c:
+                adv = min(steps, c - count) if count > c // 2 else 1
+                count += adv
+                steps -= adv
+            else:                         # count == c: falls, count = 1
+                count = 1
+                steps -= 1
+    return None
+
+
+# ---------------------------------------------------------------------- Verilog (Icarus)
+def firmware_dir():
+    """``firmware/fpga`` of the source tree (the Verilog sources and testbenches)."""
+    from pathlib import Path
+
+    return Path(__file__).resolve().parents[1] / "firmware" / "fpga"
+
+
+def _run(cmd, cwd):
+    import subprocess
+
+    res = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True)
+    if res.returncode != 0:
+        raise RuntimeError(f"{' '.join(map(str, cmd))} failed:\n{res.stdout}\n{res.stderr}")
+    return res.stdout
+
+
+def _need_iverilog():
+    import shutil
+
+    for tool in ("iverilog", "vvp"):
+        if shutil.which(tool) is None:
+            raise RuntimeError(f"{tool} not found: install the Debian package 'iverilog'")
+
+
+@dataclass(frozen=True)
+class VerilogRun:
+    """Output of a testbench: per-tick speed log (``tb_scurve`` only) and edges."""
+
+    table: SpeedTable | None
+    rise: np.ndarray
+    fall: np.ndarray
+    log: str
+
+
+def _parse(log):
+    S, E = [], []
+    for line in log.splitlines():
+        parts = line.split()
+        if parts and parts[0] == "S":
+            S.append([int(x) for x in parts[1:6]])
+        elif parts and parts[0] == "E":
+            E.append((int(parts[1]), int(parts[2])))
+    E = np.array(E, dtype=np.int64).reshape(-1, 2)
+    rise = E[E[:, 1] == 1, 0]
+    fall = E[E[:, 1] == 0, 0]
+    table = None
+    if S:
+        a = np.array(S, dtype=np.int64)
+        table = SpeedTable(a[:, 0], a[:, 1], a[:, 2], a[:, 3], a[:, 4])
+    return table, rise, fall
+
+
+def simulate_verilog(model: YangSCurve, p_end=None, workdir=None, vcd=None) -> VerilogRun:
+    """Compile and run ``tb_scurve.v`` (speed generator + divider) with Icarus Verilog.
+
+    ``p_end`` defaults to the end of the move plus two of the longest periods.  Icarus
+    runs ~0.4 M clocks/s here: the paper's 3 s at 50 MHz (1.5e8 clocks) takes minutes,
+    so notebooks and tests use a scaled clock (e.g. 500 kHz: same speeds and
+    frequencies, cycle counts 100x smaller).
+    """
+    import tempfile
+
+    _need_iverilog()
+    starts, values = model.cycle_input()
+    if p_end is None:
+        p_end = int(starts[-1] + 2 * int(values.max()) + 2)
+    p_end = as_int("p_end", p_end, minimum=1)
+    d = firmware_dir()
+    with tempfile.TemporaryDirectory() as tmp:
+        wd = workdir or tmp
+        exe = f"{wd}/tb_scurve.vvp"
+        params = [f"-Ptb_scurve.{k}={v}" for k, v in model.verilog_defines().items()]
+        params.append(f"-Ptb_scurve.P_END={p_end}")
+        _run(["iverilog", "-g2012", "-o", exe, *params, str(d / "tb_scurve.v"),
+              str(d / "scurve_gen.v"), str(d / "pulse_divider.v")], wd)
+        args = ["vvp", "-n", exe] + ([f"+vcd={vcd}"] if vcd else [])
+        log = _run(args, wd)
+    table, rise, fall = _parse(log)
+    return VerilogRun(table, rise, fall, log)
+
+
+def simulate_divider_verilog(starts, values, p_end, workdir=None, vcd=None) -> VerilogRun:
+    """Run ``tb_pulse_divider.v`` with the cycle input ``values`` from posedges ``starts``."""
+    import os
+    import tempfile
+
+    _need_iverilog()
+    starts = np.asarray(starts, dtype=np.int64)
+    values = np.asarray(values, dtype=np.int64)
+    p_end = as_int("p_end", p_end, minimum=1)
+    d = firmware_dir()
+    with tempfile.TemporaryDirectory() as tmp:
+        wd = workdir or tmp
+        exe = os.path.join(wd, "tb_pulse_divider.vvp")
+        stim = os.path.join(wd, "stim.txt")
+        with open(stim, "w") as fh:
+            for p, v in zip(starts, values):
+                fh.write(f"{int(p)} {int(v)}\n")
+        _run(["iverilog", "-g2012", "-o", exe, str(d / "tb_pulse_divider.v"),
+              str(d / "pulse_divider.v")], wd)
+        args = ["vvp", "-n", exe, f"+stim={stim}", f"+p_end={p_end}"]
+        if vcd:
+            args.append(f"+vcd={vcd}")
+        log = _run(args, wd)
+    _, rise, fall = _parse(log)
+    return VerilogRun(None, rise, fall, log)
+
+
+def read_vcd(path, signals):
+    """Minimal VCD reader: ``{name: (times, values)}`` for the named scalar/vector signals
+    (first match of each name; values as int, ``x``/``z`` as -1)."""
+    ids, out = {}, {}
+    with open(path) as fh:
+        text = fh.read()
+    head, _, body = text.partition("$enddefinitions")
+    for line in head.splitlines():
+        p = line.split()
+        if len(p) >= 5 and p[0] == "$var" and p[4] in signals and p[4] not in ids.values():
+            ids.setdefault(p[3], p[4])
+    data = {name: ([], []) for name in signals}
+    t = 0
+    for tok in body.split():
+        if tok.startswith("#"):
+            t = int(tok[1:])
+        elif tok[0] in "01xz" and tok[1:] in ids:
+            name = ids[tok[1:]]
+            data[name][0].append(t)
+            data[name][1].append(int(tok[0]) if tok[0] in "01" else -1)
+        elif tok[0] == "b":
+            pending = tok[1:]
+        elif tok in ids and "pending" in locals():
+            name = ids[tok]
+            data[name][0].append(t)
+            data[name][1].append(int(pending, 2) if set(pending) <= {"0", "1"} else -1)
+    for name, (ts, vs) in data.items():
+        out[name] = (np.array(ts, dtype=np.int64), np.array(vs, dtype=np.int64))
+    return out
