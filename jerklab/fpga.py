@@ -490,31 +490,36 @@ def simulate_divider_verilog(starts, values, p_end, workdir=None, vcd=None) -> V
 
 
 def read_vcd(path, signals):
-    """Minimal VCD reader: ``{name: (times, values)}`` for the named scalar/vector signals
-    (first match of each name; values as int, ``x``/``z`` as -1)."""
-    ids, out = {}, {}
+    """Minimal VCD reader: ``{name: (times, values)}`` for the named signals.
+
+    The first declaration of each name is used; values are ints (``x``/``z`` -> -1);
+    times are in the file's timescale units.
+    """
+    ids = {}
     with open(path) as fh:
         text = fh.read()
     head, _, body = text.partition("$enddefinitions")
-    for line in head.splitlines():
+    for line in head.split("$end"):
         p = line.split()
         if len(p) >= 5 and p[0] == "$var" and p[4] in signals and p[4] not in ids.values():
-            ids.setdefault(p[3], p[4])
+            ids[p[3]] = p[4]
     data = {name: ([], []) for name in signals}
     t = 0
+    vector = None
     for tok in body.split():
-        if tok.startswith("#"):
+        if tok[0] == "#":
             t = int(tok[1:])
-        elif tok[0] in "01xz" and tok[1:] in ids:
-            name = ids[tok[1:]]
-            data[name][0].append(t)
-            data[name][1].append(int(tok[0]) if tok[0] in "01" else -1)
-        elif tok[0] == "b":
-            pending = tok[1:]
-        elif tok in ids and "pending" in locals():
-            name = ids[tok]
-            data[name][0].append(t)
-            data[name][1].append(int(pending, 2) if set(pending) <= {"0", "1"} else -1)
-    for name, (ts, vs) in data.items():
-        out[name] = (np.array(ts, dtype=np.int64), np.array(vs, dtype=np.int64))
-    return out
+        elif tok[0] in "bB":
+            vector = tok[1:]
+        elif vector is not None:
+            if tok in ids:
+                ts, vs = data[ids[tok]]
+                ts.append(t)
+                vs.append(int(vector, 2) if set(vector) <= {"0", "1"} else -1)
+            vector = None
+        elif tok[0] in "01xzXZ" and tok[1:] in ids:
+            ts, vs = data[ids[tok[1:]]]
+            ts.append(t)
+            vs.append(int(tok[0]) if tok[0] in "01" else -1)
+    return {name: (np.array(ts, dtype=np.int64), np.array(vs, dtype=np.int64))
+            for name, (ts, vs) in data.items()}
