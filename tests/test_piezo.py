@@ -217,6 +217,16 @@ def test_table_ii_values_by_independent_simulation(table):
         assert np.abs(u).max() <= 38.0 + 1e-7
 
 
+def test_lsq_solver_finds_the_same_horizons():
+    """Eq. 6 literally (bounded least squares) and the feasibility LP agree on every horizon."""
+    for t_o, r_o in [(0, 0), (1, 2)]:
+        a = shape_cycle(t_o, r_o, solver="lp")
+        b = shape_cycle(t_o, r_o, solver="lsq")
+        assert (a.N, a.N_r) == (b.N, b.N_r)
+    with pytest.raises(ValueError, match="solver"):
+        shape_cycle(0, 0, solver="cvx")
+
+
 def test_format_table_ii(table):
     s = pz.format_table_ii(table[0])
     assert "non-robust" in s and "10.4" in s and len(s.splitlines()) == 5
