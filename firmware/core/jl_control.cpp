@@ -1,0 +1,54 @@
+#include "jl_control.h"
+#include "jl_port.h"
+
+namespace jl {
+
+bool Feedforward::set(float K, float tau) {
+    if (!finite_f(K) || !(K > 0.0f) || !finite_f(tau) || tau < 0.0f) return false;
+    inv_k_ = 1.0f / K;
+    tau_over_k_ = tau / K;
+    return true;
+}
+
+bool Pid::set(float kpd, float kid, float kdd, float gamma, float limit) {
+    if (!finite_f(kpd) || !finite_f(kid) || !finite_f(kdd) || !finite_f(limit) || !(limit > 0.0f))
+        return false;
+    if (!finite_f(gamma) || !(jl_fabsf(gamma) < 1.0f)) return false;
+    gamma_ = gamma;
+    kpd_ = kpd;
+    kid_ = kid;
+    kdd_ = kdd;
+    limit_ = limit;
+    return true;
+}
+
+float Pid::step(float e, float ff, ControlParts* parts) {
+    const float p = kpd_ * e;                       // eq. 17
+    float i = i_ + kid_ * e;
+    const float d = gamma_ * d_prev_ + kdd_ * (e - e_prev_);
+    e_prev_ = e;
+    d_prev_ = d;
+    float u = ff + p + i + d;                       // eq. 18 + feedforward (eq. 16)
+    bool sat = false;
+    if (u > limit_) {
+        sat = true;
+        if (e > 0.0f) { u -= i - i_; i = i_; }        // freeze the integrator
+        if (u > limit_) u = limit_;
+    } else if (u < -limit_) {
+        sat = true;
+        if (e < 0.0f) { u -= i - i_; i = i_; }
+        if (u < -limit_) u = -limit_;
+    }
+    i_ = i;
+    if (parts) {
+        parts->p = p;
+        parts->i = i;
+        parts->d = d;
+        parts->ff = ff;
+        parts->u = u;
+        parts->saturated = sat;
+    }
+    return u;
+}
+
+}  // namespace jl

@@ -1,0 +1,48 @@
+// Feedforward and discrete PID of Stojčić (2015) eqs. 16-18, in float32, with the output
+// clamp and integrator anti-windup the paper leaves out. Mirrors jerklab.controller
+// (Feedforward, DigitalController).
+#ifndef JL_CONTROL_H
+#define JL_CONTROL_H
+#include <stdint.h>
+
+namespace jl {
+
+struct ControlParts {
+    float p, i, d, ff, u;
+    bool saturated;
+};
+
+/// u_F = (tau * accel + velocity) / K, Stojčić eq. 8 / 16 (the inverse of K/(tau s + 1)).
+class Feedforward {
+public:
+    /// Returns false (and keeps the previous values) unless K > 0 and tau >= 0 are finite.
+    bool set(float K, float tau);
+    float operator()(float velocity, float accel) const { return tau_over_k_ * accel + inv_k_ * velocity; }
+    bool enabled = true;
+
+private:
+    float inv_k_ = 0.0f, tau_over_k_ = 0.0f;
+};
+
+/// Discrete PID, Stojčić eqs. 17-18 (the law of jerklab.controller.DigitalController):
+/// p = kpd e, i' = i + kid e, d = gamma d(k-1) + kdd (e - e(k-1)) (gamma = 0: the paper's
+/// backward derivative; |gamma| < 1 a derivative filter), u = u_F + p + i' + d. If |u| > limit
+/// the sample is saturated, and when e has the sign of u (it pushes further into the clamp)
+/// u -= i' - i and i' = i (conditional integration, the anti-windup the paper lacks); then u
+/// is clamped to +-limit. Zero initial state: i = 0, e(-1) = 0, d(-1) = 0.
+class Pid {
+public:
+    /// Returns false unless all gains are finite, |gamma| < 1 and limit > 0.
+    bool set(float kpd, float kid, float kdd, float gamma, float limit);
+    void reset() { i_ = 0.0f; e_prev_ = 0.0f; d_prev_ = 0.0f; }
+    /// One sample: error e = reference - measurement, feedforward ff. Returns u.
+    float step(float e, float ff, ControlParts* parts = nullptr);
+    float limit() const { return limit_; }
+
+private:
+    float kpd_ = 0.0f, kid_ = 0.0f, kdd_ = 0.0f, gamma_ = 0.0f, limit_ = 12.0f;
+    float i_ = 0.0f, e_prev_ = 0.0f, d_prev_ = 0.0f;
+};
+
+}  // namespace jl
+#endif

@@ -1,0 +1,288 @@
+#include "jl_device.h"
+#include "jl_port.h"
+
+namespace jl {
+
+static const char kName[16] = {'j', 'e', 'r', 'k', 'l', 'a', 'b', '-', 'u', 'n', 'o', 0, 0, 0, 0, 0};
+
+void Device::begin() {
+    apply_plant();
+    hal_.set_pwm(0);
+    hal_.set_period(static_cast<uint16_t>(Ts_us_ / cfg_.tick_us));
+}
+
+void Device::apply_plant() {
+    rad_per_count_ = kTwoPi / static_cast<float>(counts_per_rev_);
+    pwm_per_volt_ = static_cast<float>(cfg_.pwm_max) / supply_;
+    ff_.set(K_, tau_);
+    // counts_per_rev = ppr x decoding picks the decoding; any other value means a different
+    // encoder, read with x1 decoding (its ppr is then counts_per_rev).
+    uint8_t dec = 1;
+    if (counts_per_rev_ == 2u * cfg_.encoder_ppr) dec = 2;
+    else if (counts_per_rev_ == 4u * cfg_.encoder_ppr) dec = 4;
+    hal_.set_decoding(dec);
+}
+
+int16_t Device::volts_to_pwm(float u) const {
+    float lim = max_voltage_ * pwm_per_volt_;
+    long top = jl_lroundf(lim);
+    if (top > cfg_.pwm_max) top = cfg_.pwm_max;
+    long pwm = jl_lroundf(u * pwm_per_volt_);
+    if (pwm > top) pwm = top;
+    if (pwm < -top) pwm = -top;
+    return static_cast<int16_t>(pwm);
+}
+
+void Device::send(uint8_t type, uint8_t seq, const uint8_t* payload, uint8_t n) {
+    uint8_t buf[kMaxFrame];
+    uint8_t len = encode_frame(buf, type, seq, payload, n);
+    hal_.write(buf, len);
+}
+
+void Device::ack(const Frame& f) { send(kAck, f.seq, &f.type, 1); }
+
+void Device::nack(const Frame& f, uint8_t err, uint8_t param) {
+    uint8_t p[3] = {f.type, err, param};
+    send(kNack, f.seq, p, 3);
+}
+
+void Device::on_byte(uint8_t b) {
+    if (!parser_.feed(b)) return;
+    do {
+        last_rx_ms_ = hal_.millis();
+        handle(parser_.frame());
+    } while (parser_.process());
+}
+
+void Device::end_run(uint8_t reason) {
+    hal_.set_pwm(0);
+    uint8_t p[kLenEndOfRun];
+    p[0] = reason;
+    put_u32(p + 1, k_);
+    put_u16(p + 5, parser_.dropped());
+    put_u16(p + 7, overruns_);
+    state_ = kIdle;
+    have_sample_ = false;
+    finished_ = false;
+    send(kEndOfRun, tx_seq_++, p, kLenEndOfRun);
+}
+
+static bool valid_period(uint16_t ts_us, uint16_t tick_us) {
+    return ts_us != 0 && ts_us <= 65000u && ts_us % tick_us == 0;
+}
+
+void Device::handle(const Frame& f) {
+    const uint8_t* p = f.payload;
+    static const uint8_t kLen[10] = {0, kLenHello, kLenSetPlant, kLenSetGains, kLenSetLimits,
+                                     kLenPlan, kLenRun, kLenStop, kLenStep, kLenHeartbeat};
+    if (f.type == 0 || f.type > kHeartbeat) { nack(f, kErrUnknownType); return; }
+    if (f.len != kLen[f.type]) { nack(f, kErrBadLength); return; }
+    const bool active = state_ != kIdle;
+    if (active && f.type != kHello && f.type != kStop && f.type != kHeartbeat) {
+        nack(f, kErrBusy);
+        return;
+    }
+    switch (f.type) {
+    case kHello: {
+        uint8_t r[kLenHelloReply];
+        uint16_t caps = kCapSineJerk | kCapLoopPosition | kCapLoopVelocity | kCapOpenLoopStep |
+                        kCapFeedforward;
+        if (hal_.simulated_plant()) caps |= kCapSimulatedPlant;
+        r[0] = kProtocolVersion;
+        r[1] = cfg_.fw_major;
+        r[2] = cfg_.fw_minor;
+        r[3] = cfg_.fw_patch;
+        put_u16(r + 4, caps);
+        put_u16(r + 6, cfg_.tick_us);
+        put_u16(r + 8, cfg_.pwm_max);
+        memcpy(r + 10, kName, 16);
+        send(kHelloReply, f.seq, r, kLenHelloReply);
+        return;
+    }
+    case kSetPlant: {
+        float K = get_f32(p), tau = get_f32(p + 4), vs = get_f32(p + 8);
+        uint16_t cpr = get_u16(p + 12);
+        if (!finite_f(K) || !(K > 0.0f) || K > 1e4f) { nack(f, kErrBadValue, 0); return; }
+        if (!finite_f(tau) || !(tau > 0.0f) || tau > 10.0f) { nack(f, kErrBadValue, 1); return; }
+        if (!finite_f(vs) || !(vs > 0.0f) || vs > 48.0f) { nack(f, kErrBadValue, 2); return; }
+        if (cpr < 1) { nack(f, kErrBadValue, 3); return; }
+        K_ = K; tau_ = tau; supply_ = vs; counts_per_rev_ = cpr;
+        apply_plant();
+        ack(f);
+        return;
+    }
+    case kSetGains: {
+        float kpd = get_f32(p), kid = get_f32(p + 4), kdd = get_f32(p + 8);
+        uint16_t ts = get_u16(p + 12);
+        uint8_t loop = p[14], flags = p[15];
+        float gamma = get_f32(p + 16);
+        if (!finite_f(kpd)) { nack(f, kErrBadValue, 0); return; }
+        if (!finite_f(kid)) { nack(f, kErrBadValue, 1); return; }
+        if (!finite_f(kdd)) { nack(f, kErrBadValue, 2); return; }
+        if (!valid_period(ts, cfg_.tick_us)) { nack(f, kErrBadValue, 3); return; }
+        if (loop > kLoopVelocity) { nack(f, kErrBadValue, 4); return; }
+        if (flags & ~kGainsFeedforward) { nack(f, kErrBadValue, 5); return; }
+        if (!finite_f(gamma) || !(jl_fabsf(gamma) < 1.0f)) { nack(f, kErrBadValue, 6); return; }
+        gamma_ = gamma;
+        kpd_ = kpd; kid_ = kid; kdd_ = kdd; Ts_us_ = ts;
+        Ts_ = static_cast<float>(ts) * 1e-6f;
+        loop_ = loop;
+        use_ff_ = (flags & kGainsFeedforward) != 0;
+        gains_ok_ = true;
+        plan_ok_ = false;
+        ack(f);
+        return;
+    }
+    case kSetLimits: {
+        float J = get_f32(p), E = get_f32(p + 4), W = get_f32(p + 8), vmax = get_f32(p + 12);
+        uint16_t tmo = get_u16(p + 16);
+        if (!finite_f(J) || !(J > 0.0f)) { nack(f, kErrBadValue, 0); return; }
+        if (!finite_f(E) || !(E > 0.0f)) { nack(f, kErrBadValue, 1); return; }
+        if (!finite_f(W) || !(W > 0.0f)) { nack(f, kErrBadValue, 2); return; }
+        if (!finite_f(vmax) || !(vmax > 0.0f) || vmax > supply_) { nack(f, kErrBadValue, 3); return; }
+        max_jerk_ = J; max_accel_ = E; max_velocity_ = W; max_voltage_ = vmax;
+        host_timeout_ms_ = tmo;
+        plan_ok_ = false;
+        ack(f);
+        return;
+    }
+    case kPlan: {
+        float d = get_f32(p);
+        uint8_t kind = p[4];
+        if (!finite_f(d) || d == 0.0f || jl_fabsf(d) > 1e6f) { nack(f, kErrBadValue, 0); return; }
+        if (kind > kPlannerTrapezoid) { nack(f, kErrBadValue, 1); return; }
+        if (kind != kPlannerSineJerk) { nack(f, kErrUnsupported, 1); return; }
+        SineJerkPlan plan;
+        if (plan_sine_jerk(d, max_jerk_, max_accel_, max_velocity_, &plan) != kPlanOk) {
+            nack(f, kErrBadValue, 0);
+            return;
+        }
+        float x = plan.duration / Ts_ - 1e-4f;
+        if (!finite_f(x) || x > 2.0e9f) { nack(f, kErrBadValue, 0); return; }
+        uint32_t n = static_cast<uint32_t>(x < 0.0f ? 0.0f : x);
+        if (static_cast<float>(n) < x) ++n;           // ceil
+        plan_ = plan;
+        plan_samples_ = n + 1;
+        plan_ok_ = true;
+        uint8_t r[kLenPlanInfo];
+        put_f32(r, plan.accel_time);
+        put_f32(r + 4, plan.cruise_time);
+        put_f32(r + 8, plan.duration);
+        put_u32(r + 12, plan_samples_);
+        send(kPlanInfo, f.seq, r, kLenPlanInfo);
+        return;
+    }
+    case kRun: {
+        uint16_t settle = get_u16(p);
+        uint8_t dec = p[2];
+        if (dec < 1) { nack(f, kErrBadValue, 1); return; }
+        if (!gains_ok_ || !plan_ok_) { nack(f, kErrNotReady); return; }
+        if (!pid_.set(kpd_, kid_, kdd_, gamma_, max_voltage_)) { nack(f, kErrBadValue); return; }
+        ack(f);
+        hal_.zero_counts();
+        pid_.reset();
+        stepper_.start(plan_, Ts_);
+        k_ = 0;
+        n_total_ = plan_samples_ + settle;
+        decimation_ = dec;
+        prev_counts_ = 0;
+        have_sample_ = finished_ = false;
+        state_ = kRunning;
+        hal_.set_period(static_cast<uint16_t>(Ts_us_ / cfg_.tick_us));
+        return;
+    }
+    case kStop:
+        hal_.set_pwm(0);
+        ack(f);
+        if (active) end_run(kEndStopped);
+        return;
+    case kStep: {
+        float v = get_f32(p);
+        uint16_t ts = get_u16(p + 4), n = get_u16(p + 6);
+        if (!finite_f(v) || jl_fabsf(v) > max_voltage_) { nack(f, kErrBadValue, 0); return; }
+        if (!valid_period(ts, cfg_.tick_us)) { nack(f, kErrBadValue, 1); return; }
+        if (n < 1) { nack(f, kErrBadValue, 2); return; }
+        ack(f);
+        hal_.zero_counts();
+        step_pwm_ = volts_to_pwm(v);
+        k_ = 0;
+        n_total_ = n;
+        decimation_ = 1;
+        have_sample_ = finished_ = false;
+        state_ = kStepping;
+        hal_.set_period(static_cast<uint16_t>(ts / cfg_.tick_us));
+        return;
+    }
+    case kHeartbeat:
+        ack(f);
+        return;
+    default:
+        nack(f, kErrUnknownType);
+        return;
+    }
+}
+
+bool Device::control() {
+    if (state_ == kIdle) return false;
+    if (k_ >= n_total_) {               // the tick after the last sample
+        hal_.set_pwm(0);
+        finished_ = true;
+        have_sample_ = false;
+        return true;
+    }
+    const int32_t c = hal_.counts();
+    int16_t pwm;
+    uint8_t flags = 0;
+    float ref = 0.0f;
+    if (state_ == kRunning) {
+        Sample s;
+        stepper_.next(&s);
+        if (k_ >= plan_samples_) flags |= kTelemetrySettling;
+        ref = s.position;
+        float e;
+        if (loop_ == kLoopPosition) {
+            e = s.position - static_cast<float>(c) * rad_per_count_;
+        } else {
+            // Velocity loop (Stojčić §4B): counts over the last sample; y(-1) = y(0).
+            if (k_ == 0) prev_counts_ = c;
+            e = s.velocity - static_cast<float>(c - prev_counts_) * rad_per_count_ / Ts_;
+        }
+        prev_counts_ = c;
+        const float uf = use_ff_ ? ff_(s.velocity, s.accel) : 0.0f;
+        ControlParts parts;
+        const float u = pid_.step(e, uf, &parts);
+        if (parts.saturated) flags |= kTelemetrySaturated;
+        pwm = volts_to_pwm(u);
+    } else {
+        pwm = step_pwm_;
+    }
+    hal_.set_pwm(pwm);
+    have_sample_ = (k_ % decimation_) == 0;
+    rep_index_ = k_;
+    rep_ref_ = ref;
+    rep_counts_ = c;
+    rep_pwm_ = pwm;
+    rep_flags_ = flags;
+    ++k_;
+    return true;
+}
+
+void Device::report() {
+    if (finished_) { end_run(kEndDone); return; }
+    if (!have_sample_) return;
+    have_sample_ = false;
+    uint8_t p[kLenTelemetry];
+    put_u32(p, rep_index_);
+    put_f32(p + 4, rep_ref_);
+    put_i32(p + 8, rep_counts_);
+    put_u16(p + 12, static_cast<uint16_t>(rep_pwm_));
+    p[14] = rep_flags_;
+    send(kTelemetry, tx_seq_++, p, kLenTelemetry);
+}
+
+void Device::poll() {
+    if (state_ == kIdle || host_timeout_ms_ == 0) return;
+    if (static_cast<uint32_t>(hal_.millis() - last_rx_ms_) > host_timeout_ms_) end_run(kEndHostTimeout);
+}
+
+}  // namespace jl

@@ -1,0 +1,120 @@
+// The rig's run state machine (firmware/PROTOCOL.md "Device state machine"): command
+// handling with parameter checks, closed-loop runs, open-loop steps, telemetry and the host
+// watchdog. Portable: the hardware is reached only through the Hal interface, so the same
+// code runs on the Uno and in the host test driver.
+#ifndef JL_DEVICE_H
+#define JL_DEVICE_H
+#include <stdint.h>
+#include "jl_control.h"
+#include "jl_frame.h"
+#include "jl_planner.h"
+#include "jl_protocol.h"
+
+namespace jl {
+
+/// What the state machine needs from the board.
+class Hal {
+public:
+    /// Send bytes to the host (may block until the UART buffer has room).
+    virtual void write(const uint8_t* data, uint8_t n) = 0;
+    /// Encoder count (atomic read).
+    virtual int32_t counts() = 0;
+    virtual void zero_counts() = 0;
+    /// Quadrature decoding: 1 (A rising), 2 (A both edges) or 4 (A and B both edges).
+    virtual void set_decoding(uint8_t decoding) = 0;
+    /// Signed PWM output in ticks (-pwm_max..pwm_max); 0 stops the motor.
+    virtual void set_pwm(int16_t pwm) = 0;
+    /// Control period in timer ticks; restarts the tick phase so sample 0 comes one period later.
+    virtual void set_period(uint16_t ticks) = 0;
+    /// Milliseconds since boot (wraps).
+    virtual uint32_t millis() = 0;
+    /// True when the motor is a model (simavr harness, host test driver).
+    virtual bool simulated_plant() = 0;
+};
+
+struct DeviceConfig {
+    uint16_t tick_us;        // hardware tick (1000 on the Uno)
+    uint16_t pwm_max;        // PWM full scale in ticks (1023 for Timer1 10-bit)
+    uint16_t encoder_ppr;    // pulses per revolution of one channel (448 on the paper's motor)
+    uint8_t fw_major, fw_minor, fw_patch;
+};
+
+class Device {
+public:
+    /// Stores the references only (safe for a global object built before main()).
+    Device(Hal& hal, const DeviceConfig& cfg) : hal_(hal), cfg_(cfg) {}
+    /// Boot state (PROTOCOL.md): PWM 0, default plant, period Ts = 5 ms. Call from setup().
+    void begin();
+    /// Feed one received byte (from loop()).
+    void on_byte(uint8_t b);
+    /// No byte for a while (the firmware calls this after 20 ms of silence).
+    void on_rx_idle() { parser_.abandon(); }
+    /// The control computation of one tick (planner, controller, PWM write); returns true
+    /// when a sample was produced and report() should be called.
+    bool control();
+    /// Telemetry / end-of-run frames of the last control() (kept out of the timed step).
+    void report();
+    /// Host watchdog check (call often from loop()).
+    void poll();
+    /// A tick started before the previous one was handled.
+    void count_overrun() { if (overruns_ < 0xFFFF) ++overruns_; }
+
+    enum State : uint8_t { kIdle = 0, kRunning = 1, kStepping = 2 };
+    State state() const { return state_; }
+    uint16_t rx_errors() const { return parser_.dropped(); }
+
+private:
+    void handle(const Frame& f);
+    void send(uint8_t type, uint8_t seq, const uint8_t* payload, uint8_t n);
+    void ack(const Frame& f);
+    void nack(const Frame& f, uint8_t err, uint8_t param = 0xFF);
+    void end_run(uint8_t reason);
+    void apply_plant();
+    int16_t volts_to_pwm(float u) const;
+
+    Hal& hal_;
+    DeviceConfig cfg_;
+    FrameParser parser_;
+    State state_ = kIdle;
+    uint8_t tx_seq_ = 0;
+
+    // Plant, limits, gains (PROTOCOL.md defaults at boot: no gains, no plan).
+    float K_ = 32.4f, tau_ = 0.025f, supply_ = 12.0f;
+    uint16_t counts_per_rev_ = 448;
+    float rad_per_count_ = 0.0f, pwm_per_volt_ = 0.0f;
+    float max_jerk_ = 2e4f, max_accel_ = 300.0f, max_velocity_ = 100.0f, max_voltage_ = 12.0f;
+    uint16_t host_timeout_ms_ = 1000;
+    bool gains_ok_ = false;
+    float kpd_ = 0, kid_ = 0, kdd_ = 0, gamma_ = 0;
+    uint16_t Ts_us_ = 5000;
+    float Ts_ = 0.005f;
+    uint8_t loop_ = kLoopPosition;
+    bool use_ff_ = true;
+
+    bool plan_ok_ = false;
+    SineJerkPlan plan_;
+    uint32_t plan_samples_ = 0;
+
+    // Active run / step.
+    PlanStepper stepper_;
+    Pid pid_;
+    Feedforward ff_;
+    uint32_t k_ = 0, n_total_ = 0;
+    uint8_t decimation_ = 1;
+    int16_t step_pwm_ = 0;
+    int32_t prev_counts_ = 0;
+    uint32_t last_rx_ms_ = 0;
+    uint16_t overruns_ = 0;
+
+    // Results of the last control() for report().
+    bool have_sample_ = false;
+    bool finished_ = false;
+    uint32_t rep_index_ = 0;
+    float rep_ref_ = 0;
+    int32_t rep_counts_ = 0;
+    int16_t rep_pwm_ = 0;
+    uint8_t rep_flags_ = 0;
+};
+
+}  // namespace jl
+#endif

@@ -1,0 +1,68 @@
+// Frame codec of the jerklab serial protocol (firmware/PROTOCOL.md, jerklab/protocol.py):
+//   0xA5 0x5A | len | type | seq | payload (len-2 bytes, <= 64) | CRC16 lo | CRC16 hi
+// len counts type+seq+payload; the CRC (CRC-16/CCITT-FALSE) covers len..payload.
+#ifndef JL_FRAME_H
+#define JL_FRAME_H
+#include <stdint.h>
+#include <stddef.h>
+#include <string.h>
+
+namespace jl {
+
+static const uint8_t kSync0 = 0xA5;
+static const uint8_t kSync1 = 0x5A;
+static const uint8_t kMaxPayload = 64;
+static const uint8_t kMaxFrame = kMaxPayload + 7;  // sync(2) len type seq payload crc(2)
+
+struct Frame {
+    uint8_t type;
+    uint8_t seq;
+    uint8_t len;                 // payload bytes
+    uint8_t payload[kMaxPayload];
+};
+
+/// Encode a frame into out (at least payload_len + 7 bytes). Returns the frame length,
+/// or 0 if payload_len exceeds kMaxPayload.
+uint8_t encode_frame(uint8_t* out, uint8_t type, uint8_t seq, const uint8_t* payload,
+                     uint8_t payload_len);
+
+/// Byte-at-a-time decoder. A corrupt frame (bad CRC, bad length) is dropped and counted;
+/// the decoder then resynchronises by rescanning the bytes after the false sync, so a good
+/// frame that follows garbage (or starts inside a truncated one) is still found.
+class FrameParser {
+public:
+    FrameParser() { reset(); }
+    void reset() { n_ = 0; }
+    /// Feed one byte; returns true when `frame()` holds a new good frame. After a true,
+    /// call `process()` until it returns false: resynchronisation after a corrupt frame can
+    /// leave a further complete frame in the buffer.
+    bool feed(uint8_t byte);
+    /// Look for a complete frame in the bytes already buffered (see `feed`).
+    bool process();
+    const Frame& frame() const { return frame_; }
+    uint16_t dropped() const { return dropped_; }   // corrupt frames seen
+    /// Drop a partial frame (e.g. after an inter-byte timeout); counted if bytes were pending.
+    void abandon() { if (n_ > 0) { ++dropped_; } n_ = 0; }
+    bool pending() const { return n_ > 0; }
+
+private:
+    void shift(uint8_t k);
+    uint8_t buf_[kMaxFrame];
+    uint8_t n_;
+    uint16_t dropped_ = 0;
+    Frame frame_;
+};
+
+// Little-endian field access (both the AVR and x86 hosts are little-endian; memcpy keeps
+// the accesses alignment-safe).
+static inline void put_f32(uint8_t* p, float v) { memcpy(p, &v, 4); }
+static inline float get_f32(const uint8_t* p) { float v; memcpy(&v, p, 4); return v; }
+static inline void put_u16(uint8_t* p, uint16_t v) { p[0] = v & 0xFF; p[1] = v >> 8; }
+static inline uint16_t get_u16(const uint8_t* p) { return (uint16_t)(p[0] | (p[1] << 8)); }
+static inline void put_u32(uint8_t* p, uint32_t v) { memcpy(p, &v, 4); }
+static inline uint32_t get_u32(const uint8_t* p) { uint32_t v; memcpy(&v, p, 4); return v; }
+static inline void put_i32(uint8_t* p, int32_t v) { memcpy(p, &v, 4); }
+static inline int32_t get_i32(const uint8_t* p) { int32_t v; memcpy(&v, p, 4); return v; }
+
+}  // namespace jl
+#endif

@@ -1,0 +1,47 @@
+// Message types, codes and payload sizes of the jerklab rig protocol, version 1.
+// Mirrors jerklab/protocol.py and firmware/PROTOCOL.md (the reference definitions).
+#ifndef JL_PROTOCOL_H
+#define JL_PROTOCOL_H
+#include <stdint.h>
+
+namespace jl {
+
+static const uint8_t kProtocolVersion = 1;
+
+enum MsgType : uint8_t {
+    kHello = 0x01, kSetPlant = 0x02, kSetGains = 0x03, kSetLimits = 0x04, kPlan = 0x05,
+    kRun = 0x06, kStop = 0x07, kStep = 0x08, kHeartbeat = 0x09,
+    kAck = 0x80, kNack = 0x81, kHelloReply = 0x82, kPlanInfo = 0x83,
+    kTelemetry = 0x90, kEndOfRun = 0x91, kError = 0x92,
+};
+
+enum ErrorCode : uint8_t {
+    kErrOk = 0, kErrUnknownType = 1, kErrBadLength = 2, kErrBadValue = 3, kErrBusy = 4,
+    kErrNotReady = 5, kErrUnsupported = 6, kErrBadVersion = 7,
+};
+
+enum EndReason : uint8_t { kEndDone = 0, kEndStopped = 1, kEndHostTimeout = 2, kEndFault = 3 };
+
+enum PlannerKind : uint8_t { kPlannerSineJerk = 0, kPlannerSineJerkOptimal = 1,
+                             kPlannerScurve = 2, kPlannerTrapezoid = 3 };
+
+enum LoopType : uint8_t { kLoopPosition = 0, kLoopVelocity = 1 };
+
+enum Capability : uint16_t {
+    kCapSineJerk = 1u << 0, kCapSineJerkOptimal = 1u << 1, kCapScurve = 1u << 2,
+    kCapTrapezoid = 1u << 3, kCapLoopPosition = 1u << 4, kCapLoopVelocity = 1u << 5,
+    kCapOpenLoopStep = 1u << 6, kCapFeedforward = 1u << 7, kCapSimulatedPlant = 1u << 8,
+};
+
+static const uint8_t kGainsFeedforward = 0x01;
+static const uint8_t kTelemetrySaturated = 0x01;
+static const uint8_t kTelemetrySettling = 0x02;
+
+// Payload sizes (bytes).
+static const uint8_t kLenHello = 1, kLenSetPlant = 14, kLenSetGains = 20, kLenSetLimits = 18,
+    kLenPlan = 5, kLenRun = 3, kLenStop = 0, kLenStep = 8, kLenHeartbeat = 0, kLenAck = 1,
+    kLenNack = 3, kLenHelloReply = 26, kLenPlanInfo = 16, kLenTelemetry = 15, kLenEndOfRun = 9,
+    kLenError = 3;
+
+}  // namespace jl
+#endif

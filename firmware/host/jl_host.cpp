@@ -1,0 +1,330 @@
+// Host driver for the firmware's portable core (compiled with g++, float32 arithmetic as on
+// the AVR). Two modes, both used by tests/test_firmware.py:
+//
+//   jl_host vectors FILE   check golden vectors written by jerklab (planner phase times,
+//                          closed-form samples, the control-loop stepper, controller steps,
+//                          frame encoding/decoding); prints one summary line per kind with the
+//                          worst error and exits 1 if any record is outside its tolerance.
+//   jl_host device [K tau supply]
+//                          run the device state machine (core/jl_device) against a simulated
+//                          motor (exact ZOH DC motor, Stojčić eq. 1) driven by a script on stdin:
+//                            rx HEX    bytes arriving from the host now
+//                            ms N      let N milliseconds (1 ms timer ticks) pass
+//                            quit
+//                          and print what the device does: "tx MS HEX" (a frame sent),
+//                          "pwm MS VALUE" (output changed).
+//
+// Vector records (one per line, whitespace separated; '#' starts a comment):
+//   P d J E W  T tv tu               published plan: phase times
+//   S d J E W t  j a v x             closed-form sample at t
+//   K d J E W Ts n                   control-loop stepper; n lines "s j a v x" for k = 0..n-1
+//   C kpd kid kdd gamma limit K tau ff loop Ts
+//                                    controller reset; ff = 1 adds the feedforward,
+//                                    loop 0 position / 1 velocity
+//   c r v a y  u p i d uf sat        one controller step
+//   F type seq PAYLOADHEX FRAMEHEX   encode check (PAYLOADHEX '-' = empty)
+//   D STREAMHEX nframes dropped      decode a byte stream; then nframes lines
+//                                    "f type seq PAYLOADHEX" with the frames expected in order
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+#include <iostream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "jl_control.h"
+#include "jl_crc.h"
+#include "jl_device.h"
+#include "jl_frame.h"
+#include "jl_planner.h"
+
+namespace {
+
+std::vector<uint8_t> from_hex(const std::string& s) {
+    std::vector<uint8_t> out;
+    if (s == "-") return out;
+    for (size_t i = 0; i + 1 < s.size(); i += 2) out.push_back(static_cast<uint8_t>(std::stoul(s.substr(i, 2), nullptr, 16)));
+    return out;
+}
+
+std::string to_hex(const uint8_t* p, size_t n) {
+    static const char* d = "0123456789abcdef";
+    std::string s;
+    for (size_t i = 0; i < n; ++i) { s += d[p[i] >> 4]; s += d[p[i] & 15]; }
+    return s.empty() ? "-" : s;
+}
+
+struct Stat {
+    explicit Stat(const char* n) : name(n) {}
+    const char* name;
+    long records = 0, failures = 0;
+    double worst = 0.0;   // worst error / tolerance
+    std::string worst_what;
+    void check(double err, double tol, const std::string& what) {
+        ++records;
+        double r = tol > 0 ? err / tol : (err > 0 ? 1e300 : 0.0);
+        if (!(r <= 1.0)) {
+            if (failures < 10) std::fprintf(stderr, "%s mismatch: %s (error %.3g > tol %.3g)\n", name, what.c_str(), err, tol);
+            ++failures;
+        }
+        if (r > worst || std::isnan(r)) { worst = r; worst_what = what; }
+    }
+};
+
+// Tolerances (float32 arithmetic against float64 jerklab), relative to each quantity's scale.
+const double kRtolPlan = 2e-6 * 8;      // phase times: a few float32 ulps through cbrt/sqrt
+const double kRtolSample = 1e-5;        // closed form: ~ 100 float32 eps of the scale
+const double kRtolStepper = 5e-5;       // rotation recurrence drifts ~ eps per step
+const double kRtolControl = 2e-5;       // of the output limit / gains x signal scale
+
+int run_vectors(const char* path) {
+    std::ifstream in(path);
+    if (!in) { std::fprintf(stderr, "cannot open %s\n", path); return 2; }
+    Stat plan("plan"), smp("sample"), stp("stepper"), ctl("controller"), enc("encode"), dec("decode");
+    jl::Pid pid;
+    jl::Feedforward ff;
+    bool use_ff = false, velocity_loop = false, first = true;
+    float ctl_Ts = 0.005f, y_prev = 0.0f;
+    double ctl_scale = 1.0;
+    std::string line;
+    long lineno = 0;
+    while (std::getline(in, line)) {
+        ++lineno;
+        if (line.empty() || line[0] == '#') continue;
+        std::istringstream ss(line);
+        std::string kind;
+        ss >> kind;
+        std::ostringstream where;
+        where << path << ":" << lineno;
+        if (kind == "P" || kind == "S" || kind == "K") {
+            double d, J, E, W;
+            ss >> d >> J >> E >> W;
+            jl::SineJerkPlan p;
+            int st = jl::plan_sine_jerk((float)d, (float)J, (float)E, (float)W, &p);
+            if (st != jl::kPlanOk) { plan.check(1, 0, where.str() + " plan refused"); continue; }
+            const double sj = J, sa = J * p.accel_time / M_PI, sv = p.cruise_velocity, sx = std::fabs(d);
+            // float32 time: t (and t1 = T + t_v) carry ~eps * t of rounding, which shifts a
+            // short jerk pulse late in a long move; the tolerance allows for that shift
+            // (derivative of each quantity times the time error) on top of the relative one.
+            const double w = p.accel_time > 0 ? 2 * M_PI / p.accel_time : 0.0;
+            auto tol = [&](double rtol, double scale, double deriv, double t, double teps) {
+                return rtol * scale + deriv * teps * 6e-8 * std::max(std::fabs(t), (double)p.duration);
+            };
+            if (kind == "P") {
+                double T, tv, tu;
+                ss >> T >> tv >> tu;
+                plan.check(std::fabs(p.accel_time - T), kRtolPlan * tu, where.str() + " T");
+                plan.check(std::fabs(p.cruise_time - tv), kRtolPlan * tu, where.str() + " t_v");
+                plan.check(std::fabs(p.duration - tu), kRtolPlan * tu, where.str() + " duration");
+            } else if (kind == "S") {
+                double t, j, a, v, x;
+                ss >> t >> j >> a >> v >> x;
+                jl::Sample s;
+                jl::sample(p, (float)t, &s);
+                smp.check(std::fabs(s.jerk - j), tol(kRtolSample, sj, sj * w, t, 4), where.str() + " jerk");
+                smp.check(std::fabs(s.accel - a), tol(kRtolSample, sa, sj, t, 4), where.str() + " accel");
+                smp.check(std::fabs(s.velocity - v), tol(kRtolSample, sv, sa, t, 4), where.str() + " velocity");
+                smp.check(std::fabs(s.position - x), tol(kRtolSample, sx, sv, t, 4), where.str() + " position");
+            } else {
+                double Ts;
+                long n;
+                ss >> Ts >> n;
+                jl::PlanStepper stepper;
+                stepper.start(p, (float)Ts);
+                for (long k = 0; k < n; ++k) {
+                    if (!std::getline(in, line)) { stp.check(1, 0, "truncated stepper block"); break; }
+                    ++lineno;
+                    std::istringstream ls(line);
+                    std::string tag;
+                    double j, a, v, x;
+                    ls >> tag >> j >> a >> v >> x;
+                    jl::Sample s;
+                    stepper.next(&s);
+                    std::ostringstream wh;
+                    wh << path << ":" << lineno << " k=" << k;
+                    const double t = k * Ts;
+                    stp.check(std::fabs(s.jerk - j), tol(kRtolStepper, sj, sj * w, t, 16), wh.str() + " jerk");
+                    stp.check(std::fabs(s.accel - a), tol(kRtolStepper, sa, sj, t, 16), wh.str() + " accel");
+                    stp.check(std::fabs(s.velocity - v), tol(kRtolStepper, sv, sa, t, 16), wh.str() + " velocity");
+                    stp.check(std::fabs(s.position - x), tol(kRtolStepper, sx, sv, t, 16), wh.str() + " position");
+                }
+            }
+        } else if (kind == "C") {
+            double kpd, kid, kdd, gamma, limit, K, tau, Ts;
+            int f, loop;
+            ss >> kpd >> kid >> kdd >> gamma >> limit >> K >> tau >> f >> loop >> Ts;
+            velocity_loop = loop == 1;
+            ctl_Ts = (float)Ts;
+            first = true;
+            if (!pid.set((float)kpd, (float)kid, (float)kdd, (float)gamma, (float)limit) || !ff.set((float)K, (float)tau)) {
+                ctl.check(1, 0, where.str() + " gains refused");
+                continue;
+            }
+            pid.reset();
+            use_ff = f != 0;
+            ctl_scale = limit;
+        } else if (kind == "c") {
+            double r, v, a, y, u, p, i, d, uf;
+            int sat;
+            ss >> r >> v >> a >> y >> u >> p >> i >> d >> uf >> sat;
+            float e;
+            if (!velocity_loop) {
+                e = (float)r - (float)y;
+            } else {
+                if (first) y_prev = (float)y;
+                e = (float)v - ((float)y - y_prev) / ctl_Ts;
+                y_prev = (float)y;
+            }
+            first = false;
+            float uff = use_ff ? ff((float)v, (float)a) : 0.0f;
+            jl::ControlParts parts;
+            pid.step(e, uff, &parts);
+            const double tol = kRtolControl * ctl_scale;
+            ctl.check(std::fabs(parts.u - u), tol, where.str() + " u");
+            ctl.check(std::fabs(parts.p - p), tol, where.str() + " p");
+            ctl.check(std::fabs(parts.i - i), tol, where.str() + " i");
+            ctl.check(std::fabs(parts.d - d), tol, where.str() + " d");
+            ctl.check(std::fabs(parts.ff - uf), tol, where.str() + " ff");
+            ctl.check(parts.saturated != (sat != 0), 0.5, where.str() + " saturated");
+        } else if (kind == "F") {
+            unsigned type, seq;
+            std::string ph, fh;
+            ss >> type >> seq >> ph >> fh;
+            std::vector<uint8_t> pl = from_hex(ph);
+            uint8_t buf[jl::kMaxFrame];
+            uint8_t n = jl::encode_frame(buf, (uint8_t)type, (uint8_t)seq, pl.data(), (uint8_t)pl.size());
+            std::string got = to_hex(buf, n);
+            enc.check(got != fh, 0.5, where.str() + " frame " + got + " != " + fh);
+        } else if (kind == "D") {
+            std::string sh;
+            long nframes, dropped;
+            ss >> sh >> nframes >> dropped;
+            std::vector<uint8_t> stream = from_hex(sh);
+            jl::FrameParser parser;
+            std::vector<std::string> got;
+            for (uint8_t b : stream) {
+                if (!parser.feed(b)) continue;
+                do {
+                    const jl::Frame& f = parser.frame();
+                    std::ostringstream o;
+                    o << (unsigned)f.type << " " << (unsigned)f.seq << " " << to_hex(f.payload, f.len);
+                    got.push_back(o.str());
+                } while (parser.process());
+            }
+            std::vector<std::string> want;
+            for (long k = 0; k < nframes; ++k) {
+                std::getline(in, line);
+                ++lineno;
+                want.push_back(line.substr(2));
+            }
+            dec.check(got != want, 0.5, where.str() + " frames differ (" + std::to_string(got.size()) + " decoded, " + std::to_string(want.size()) + " expected)");
+            dec.check(std::fabs((double)parser.dropped() - (double)dropped), 0.5,
+                      where.str() + " dropped " + std::to_string(parser.dropped()) + " != " + std::to_string(dropped));
+        } else {
+            std::fprintf(stderr, "%s: unknown record %s\n", where.str().c_str(), kind.c_str());
+            return 2;
+        }
+    }
+    int fail = 0;
+    for (Stat* s : {&plan, &smp, &stp, &ctl, &enc, &dec}) {
+        std::printf("%s records=%ld failures=%ld worst_error_over_tol=%.3g at %s\n", s->name, s->records,
+                    s->failures, s->worst, s->worst_what.empty() ? "-" : s->worst_what.c_str());
+        if (s->failures) fail = 1;
+    }
+    return fail;
+}
+
+// ------------------------------------------------------------------------- device mode
+
+class HostHal : public jl::Hal {
+public:
+    HostHal(double K, double tau, double supply) : K_(K), tau_(tau), supply_(supply) {}
+    void write(const uint8_t* data, uint8_t n) override {
+        std::printf("tx %u %s\n", ms_, to_hex(data, n).c_str());
+    }
+    int32_t counts() override {
+        return static_cast<int32_t>(std::floor(theta_ * cpr_ / (2 * M_PI))) - zero_;
+    }
+    void zero_counts() override { zero_ += counts(); }
+    void set_decoding(uint8_t decoding) override { cpr_ = 448.0 * decoding; }
+    void set_pwm(int16_t pwm) override {
+        if (pwm != pwm_) std::printf("pwm %u %d\n", ms_, pwm);
+        pwm_ = pwm;
+    }
+    void set_period(uint16_t ticks) override { period_ = ticks; phase_ = 0; }
+    uint32_t millis() override { return ms_; }
+    bool simulated_plant() override { return true; }
+
+    // One 1 ms tick: the motor moves for 1 ms under the current voltage (exact ZOH of
+    // K/(s(tau s + 1))), then the timer ISR raises the control flag every `period_` ticks.
+    bool tick() {
+        const double h = 1e-3, a = std::exp(-h / tau_);
+        const double u = pwm_ / 1023.0 * supply_;
+        const double w0 = omega_;
+        omega_ = a * w0 + (1 - a) * K_ * u;
+        theta_ += tau_ * (1 - a) * w0 + K_ * u * (h - tau_ * (1 - a));
+        ++ms_;
+        if (++phase_ >= period_) { phase_ = 0; return true; }
+        return false;
+    }
+
+private:
+    double K_, tau_, supply_;
+    double theta_ = 0.0, omega_ = 0.0, cpr_ = 448.0;
+    int32_t zero_ = 0;
+    int16_t pwm_ = 0;
+    uint16_t period_ = 5, phase_ = 0;
+    uint32_t ms_ = 0;
+};
+
+int run_device(double K, double tau, double supply) {
+    HostHal hal(K, tau, supply);
+    jl::DeviceConfig cfg = {1000, 1023, 448, 1, 0, 0};
+    jl::Device dev(hal, cfg);
+    dev.begin();
+    std::string line;
+    while (std::getline(std::cin, line)) {
+        std::istringstream ss(line);
+        std::string cmd;
+        ss >> cmd;
+        if (cmd == "rx") {
+            std::string h;
+            ss >> h;
+            for (uint8_t b : from_hex(h)) dev.on_byte(b);
+        } else if (cmd == "ms") {
+            long n;
+            ss >> n;
+            for (long i = 0; i < n; ++i) {
+                if (hal.tick() && dev.control()) dev.report();
+                dev.poll();
+            }
+        } else if (cmd == "idle") {
+            dev.on_rx_idle();
+        } else if (cmd == "quit") {
+            break;
+        } else if (!cmd.empty()) {
+            std::fprintf(stderr, "unknown command %s\n", cmd.c_str());
+            return 2;
+        }
+        std::fflush(stdout);
+    }
+    return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    if (argc >= 3 && std::strcmp(argv[1], "vectors") == 0) return run_vectors(argv[2]);
+    if (argc >= 2 && std::strcmp(argv[1], "device") == 0) {
+        double K = argc > 2 ? std::atof(argv[2]) : 32.4;
+        double tau = argc > 3 ? std::atof(argv[3]) : 0.025;
+        double vs = argc > 4 ? std::atof(argv[4]) : 12.0;
+        return run_device(K, tau, vs);
+    }
+    std::fprintf(stderr, "usage: jl_host vectors FILE | jl_host device [K tau supply]\n");
+    return 2;
+}

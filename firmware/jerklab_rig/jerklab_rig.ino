@@ -1,0 +1,181 @@
+// jerklab rig firmware for an Arduino Uno (ATmega328P, 16 MHz): the Stojčić (2015) positioning
+// rig -- sine-jerk planner, feedforward + discrete PID at Ts = 5 ms, 10-bit PWM on Timer1 to an
+// L298, quadrature encoder on INT0/INT1, binary serial protocol (firmware/PROTOCOL.md).
+//
+// Pin map (docs/INTERFACES.md): encoder A D2 (PD2/INT0), B D3 (PD3/INT1); PWM D9 (OC1A);
+// L298 IN1 D7 (PD7), IN2 D8 (PB0). Extra: D13 (PB5) is high during each control step (cycle
+// budget probe, also visible on a scope); D12 (PB4, pull-up) held low by a simulator
+// announces a simulated plant in HELLO_REPLY.
+//
+// Timing: Timer2 CTC gives an exact 1 ms tick (16 MHz / 64 / 250); every Ts/1 ms ticks it
+// raises a flag, and loop() runs the control step (never inside the ISR, so encoder edges
+// are served during the float math). Timer0 (millis) is switched off: Timer2 keeps the time.
+// PWM: Timer1 phase-correct 10-bit, no prescaler: 16 MHz / 2046 = 7.8 kHz (the paper's
+// "8 kHz"); build with -DJL_FAST_PWM for fast PWM 10-bit (15.6 kHz).
+//
+// Build: make -C firmware (avr-g++ over the Debian Arduino core).
+#include <Arduino.h>
+#include <avr/interrupt.h>
+#include <util/atomic.h>
+
+#include "jl_device.h"
+
+#ifndef JL_ENCODER_PPR
+#define JL_ENCODER_PPR 448
+#endif
+#ifndef JL_FW_MAJOR
+#define JL_FW_MAJOR 1
+#define JL_FW_MINOR 0
+#define JL_FW_PATCH 0
+#endif
+
+static const uint8_t kIn1 = _BV(PD7);    // D7
+static const uint8_t kIn2 = _BV(PB0);    // D8
+static const uint8_t kPwm = _BV(PB1);    // D9 / OC1A
+static const uint8_t kProbe = _BV(PB5);  // D13
+static const uint8_t kSimPin = _BV(PB4); // D12
+
+static volatile int32_t g_counts = 0;
+static volatile uint32_t g_ms = 0;
+static volatile uint8_t g_tick_div = 5;
+static volatile uint8_t g_tick_n = 0;
+static volatile uint8_t g_tick_flag = 0;
+static volatile uint8_t g_overrun = 0;
+
+// Channel A edge. Forward (A leads B): at an A edge A != B -> +1. With x1 decoding only the
+// rising edge interrupts; B is stable for a quarter period around it.
+ISR(INT0_vect) {
+    const uint8_t pd = PIND;
+    if (((pd >> 2) ^ (pd >> 3)) & 1) ++g_counts; else --g_counts;
+}
+
+// Channel B edge (x4 decoding only). Forward: at a B edge A == B -> +1.
+ISR(INT1_vect) {
+    const uint8_t pd = PIND;
+    if (((pd >> 2) ^ (pd >> 3)) & 1) --g_counts; else ++g_counts;
+}
+
+ISR(TIMER2_COMPA_vect) {
+    ++g_ms;
+    if (++g_tick_n >= g_tick_div) {
+        g_tick_n = 0;
+        if (g_tick_flag) g_overrun = 1;
+        g_tick_flag = 1;
+    }
+}
+
+class UnoHal : public jl::Hal {
+public:
+    void write(const uint8_t* data, uint8_t n) override { Serial.write(data, n); }
+    int32_t counts() override {
+        int32_t c;
+        ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { c = g_counts; }
+        return c;
+    }
+    void zero_counts() override {
+        ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { g_counts = 0; }
+    }
+    void set_decoding(uint8_t decoding) override {
+        ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+            EIMSK &= ~(_BV(INT0) | _BV(INT1));
+            if (decoding == 1) {
+                EICRA = _BV(ISC01) | _BV(ISC00);            // INT0 rising
+            } else {
+                EICRA = _BV(ISC00) | _BV(ISC10);            // INT0, INT1 any change
+            }
+            EIFR = _BV(INTF0) | _BV(INTF1);
+            EIMSK |= (decoding == 4) ? (_BV(INT0) | _BV(INT1)) : _BV(INT0);
+        }
+    }
+    void set_pwm(int16_t pwm) override {
+        if (pwm > 0) {
+            PORTB &= ~kIn2;
+            PORTD |= kIn1;
+            OCR1A = static_cast<uint16_t>(pwm);
+        } else if (pwm < 0) {
+            PORTD &= ~kIn1;
+            PORTB |= kIn2;
+            OCR1A = static_cast<uint16_t>(-pwm);
+        } else {
+            OCR1A = 0;
+            PORTD &= ~kIn1;
+            PORTB &= ~kIn2;
+        }
+    }
+    void set_period(uint16_t ticks) override {
+        ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+            g_tick_div = static_cast<uint8_t>(ticks);
+            g_tick_n = 0;
+            g_tick_flag = 0;
+            g_overrun = 0;
+        }
+    }
+    uint32_t millis() override {
+        uint32_t m;
+        ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { m = g_ms; }
+        return m;
+    }
+    bool simulated_plant() override { return (PINB & kSimPin) == 0; }
+};
+
+static UnoHal hal;
+static const jl::DeviceConfig kConfig = {1000, 1023, JL_ENCODER_PPR, JL_FW_MAJOR, JL_FW_MINOR,
+                                         JL_FW_PATCH};
+static jl::Device device(hal, kConfig);
+static uint32_t last_rx_ms = 0;
+
+void setup() {
+    // Outputs low first: the motor must not move while the timers are set up.
+    PORTD &= ~kIn1;
+    PORTB &= ~(kIn2 | kProbe);
+    DDRD |= kIn1;
+    DDRB |= kIn2 | kPwm | kProbe;
+    DDRB &= ~kSimPin;
+    PORTB |= kSimPin;                                  // pull-up: high unless a simulator drives it
+    DDRD &= ~(_BV(PD2) | _BV(PD3));
+    PORTD |= _BV(PD2) | _BV(PD3);                      // encoder pull-ups (open-collector outputs)
+
+    // Timer1: 10-bit PWM on OC1A, no prescaler.
+    TCCR1A = _BV(COM1A1) | _BV(WGM11) | _BV(WGM10);
+#ifdef JL_FAST_PWM
+    TCCR1B = _BV(WGM12) | _BV(CS10);                   // mode 7, 15.6 kHz
+#else
+    TCCR1B = _BV(CS10);                                // mode 3, phase correct, 7.8 kHz
+#endif
+    OCR1A = 0;
+
+    // Timer2: CTC, /64, 250 counts -> 1 kHz.
+    TIMSK0 = 0;                                        // Timer0 (millis) off
+    TCCR2A = _BV(WGM21);
+    TCCR2B = _BV(CS22);
+    OCR2A = 249;
+    TCNT2 = 0;
+    TIFR2 = _BV(OCF2A);
+    TIMSK2 = _BV(OCIE2A);
+
+    Serial.begin(115200);
+    device.begin();                                     // PWM 0, decoding, Ts = 5 ms
+}
+
+void loop() {
+    if (g_tick_flag) {
+        g_tick_flag = 0;
+        if (device.state() != jl::Device::kIdle) {
+            PORTB |= kProbe;
+            const bool produced = device.control();
+            PORTB &= ~kProbe;
+            if (produced) device.report();
+        }
+    }
+    if (g_overrun) {
+        g_overrun = 0;
+        if (device.state() != jl::Device::kIdle) device.count_overrun();
+    }
+    // At most one frame's worth of bytes per pass keeps the tick latency bounded.
+    for (uint8_t i = 0; i < 16 && Serial.available() > 0; ++i) {
+        device.on_byte(static_cast<uint8_t>(Serial.read()));
+        last_rx_ms = hal.millis();
+    }
+    if (static_cast<uint32_t>(hal.millis() - last_rx_ms) > 20) device.on_rx_idle();
+    device.poll();
+}

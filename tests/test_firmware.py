@@ -1,0 +1,359 @@
+"""Firmware (issue 5): the Uno sketch builds and fits; its portable C++ core, compiled on the
+host, agrees with jerklab on golden vectors (planner, controller, frames); the device state
+machine speaks jerklab.protocol (replies, parameter checks with NACK codes, runs, the host
+watchdog)."""
+from __future__ import annotations
+
+import math
+import re
+import subprocess
+
+import numpy as np
+import pytest
+
+from conftest import require_tool
+from jerklab import protocol as pr
+from jerklab.controller import (DigitalController, Feedforward, discrete_pole_placement_pid,
+                                pole_placement_pid)
+from jerklab.planner import plan_sine_jerk
+from jerklab.rig.simavr import build_firmware
+
+f32 = lambda x: float(np.float32(x))  # noqa: E731  (inputs both sides see identically)
+
+
+@pytest.fixture(scope="module")
+def host_driver():
+    require_tool("g++", "make")
+    return build_firmware("host")["host"]
+
+
+def test_sketch_builds_and_fits_half_the_uno():
+    require_tool("avr-g++", "avr-size", "make", "/usr/share/arduino/hardware/arduino/avr/cores/arduino")
+    out = build_firmware("avr", "size")
+    assert out["elf"].is_file() and out["hex"].is_file()
+    m = re.search(r"flash (\d+) / (\d+) bytes \(([\d.]+) %\), RAM (\d+) / (\d+) bytes \(([\d.]+) %\)",
+                  out["output"])
+    assert m, out["output"]
+    flash, flash_total, ram, ram_total = (int(m.group(i)) for i in (1, 2, 4, 5))
+    assert flash_total == 32256 and ram_total == 2048
+    assert 4000 < flash <= 0.5 * flash_total
+    assert 100 < ram <= 0.5 * ram_total
+    # The hex holds the same bytes as the ELF's flash image (record checksums verified).
+    data = 0
+    for line in out["hex"].read_text().split():
+        rec = bytes.fromhex(line[1:])
+        assert sum(rec) % 256 == 0
+        if rec[3] == 0:
+            data += rec[0]
+    assert data == flash
+
+
+# ----------------------------------------------------------------------------- golden vectors
+
+def _limit_cases(rng, n):
+    """Distances and limits over the regimes of Stojčić Fig. 2 (jerk, accel or velocity bound)."""
+    cases = []
+    for i in range(n):
+        regime = i % 3
+        d = f32(rng.choice([-1, 1]) * 10 ** rng.uniform(-2, 3))
+        J = f32(10 ** rng.uniform(2, 6))
+        if regime == 0:          # jerk bound: generous E and Omega
+            E, W = f32(1e9), f32(1e9)
+        elif regime == 1:        # acceleration bound
+            E = f32(10 ** rng.uniform(0, 3)); W = f32(1e9)
+        else:                    # velocity bound
+            E = f32(1e9); W = f32(10 ** rng.uniform(-1, 2))
+        cases.append((d, J, E, W))
+    cases += [(f32(10 * math.pi), 2e4, 300.0, 100.0), (f32(-31.4159), 2e4, 300.0, 100.0),
+              (100.0, 1000.0, 100.0, 60.0), (f32(1e-3), 2e4, 300.0, 100.0)]
+    return cases
+
+
+def _write_vectors(path, rng):
+    lines = []
+    for d, J, E, W in _limit_cases(rng, 60):
+        p = plan_sine_jerk(d, J, E, W)
+        hdr = f"{float(d)!r} {float(J)!r} {float(E)!r} {float(W)!r}"
+        lines.append(f"P {hdr} {float(p.accel_time)!r} {float(p.cruise_time)!r} {float(p.duration)!r}")
+        # closed form at random times, at the phase boundaries and outside the move
+        t = np.concatenate([rng.uniform(0, p.duration, 40),
+                            [0.0, p.accel_time, p.accel_time + p.cruise_time, p.duration,
+                             -1.0, p.duration + 1.0]])
+        s = p.sample(t)
+        for k in range(len(t)):
+            lines.append(f"S {hdr} {float(t[k])!r} {float(s.jerk[k])!r} {float(s.accel[k])!r} {float(s.velocity[k])!r} {float(s.position[k])!r}")
+        # the control loop's stepper at t = k Ts (capped for very long moves)
+        Ts = 0.005
+        n = min(int(math.ceil(p.duration / Ts)) + 3, 4000)
+        s = p.sample(np.arange(n) * Ts)
+        lines.append(f"K {hdr} {float(Ts)!r} {n}")
+        lines += [f"s {float(s.jerk[k])!r} {float(s.accel[k])!r} {float(s.velocity[k])!r} {float(s.position[k])!r}" for k in range(n)]
+    # controllers: Stojčić eq. 13 gains and z-domain gains (with a derivative filter), position
+    # and velocity loops, feedforward on/off, output limits low enough to saturate
+    K, tau, Ts = 32.4, 0.025, 0.005
+    designs = [(pole_placement_pid(K, tau, 20).discretize(Ts), "position"),
+               (discrete_pole_placement_pid(K, tau, 20, Ts=Ts), "position"),
+               (discrete_pole_placement_pid(K, tau, 25, Ts=Ts, extra_pole=0.3), "position"),
+               (discrete_pole_placement_pid(K, tau, 20, Ts=Ts, loop="velocity"), "velocity")]
+    counts_per_rad = 448 / (2 * math.pi)
+    for (gains, loop), limit, ff_on in [(designs[0], 12.0, True), (designs[1], 2.0, True),
+                                        (designs[2], 12.0, False), (designs[3], 6.0, True),
+                                        (designs[0], 1.0, False)]:
+        g = type(gains)(f32(gains.kpd), f32(gains.kid), f32(gains.kdd), Ts, gamma=f32(gains.gamma),
+                        loop=loop)
+        ff = Feedforward(K, tau) if ff_on else None
+        c = DigitalController(g, feedforward=ff, output_limit=limit)
+        lines.append(f"C {float(g.kpd)!r} {float(g.kid)!r} {float(g.kdd)!r} {float(g.gamma)!r} {float(limit)!r} {float(K)!r} {float(tau)!r} "
+                     f"{int(ff_on)} {int(loop == 'velocity')} {float(Ts)!r}")
+        prof = plan_sine_jerk(f32(15.0), 2e4, 300.0, 100.0)
+        n = int(prof.duration / Ts) + 60
+        ref = prof.sample(np.arange(n) * Ts)
+        theta = omega = 0.0
+        a = math.exp(-Ts / tau)
+        for k in range(n):
+            y = f32(math.floor(theta * counts_per_rad) / counts_per_rad)     # encoder, x1
+            r, v, acc = f32(ref.position[k]), f32(ref.velocity[k]), f32(ref.accel[k])
+            u = c.step(r, v, acc, y)
+            pt = c.last_parts
+            lines.append(f"c {float(r)!r} {float(v)!r} {float(acc)!r} {float(y)!r} {float(u)!r} {float(pt['p'])!r} {float(pt['i'])!r} {float(pt['d'])!r} "
+                         f"{float(pt['ff'])!r} {int(pt['saturated'])}")
+            u_m = 0.8 * u + 0.3 * math.sin(0.05 * k)      # a plant that does not quite obey
+            theta, omega = (theta + tau * (1 - a) * omega + K * u_m * (Ts - tau * (1 - a)),
+                            a * omega + (1 - a) * K * u_m)
+    # frames: every message type encoded by jerklab.protocol, C++ must produce the same bytes
+    msgs = [pr.Hello(1), pr.SetPlant(32.4, 0.025, 12.0, 448),
+            pr.SetGains(1.0, 0.1, 2.0, 5000, 0, 1, 0.25), pr.SetLimits(2e4, 300, 100, 12, 1000),
+            pr.Plan(31.4159, 0), pr.Run(40, 1), pr.Stop(), pr.Step(6.0, 5000, 200), pr.Heartbeat(),
+            pr.Ack(2), pr.Nack(3, 3, 1),
+            pr.HelloReply(1, 1, 0, 0, 0x1F1, 1000, 1023, "jerklab-uno"),
+            pr.PlanInfo(0.1, 0.2, 0.4, 81), pr.Telemetry(12, 1.5, -300, -1023, 1),
+            pr.EndOfRun(0, 81, 0, 0), pr.DeviceError(3, 1)]
+    for i, m in enumerate(msgs):
+        seq = (i * 37) % 256
+        lines.append(f"F {int(m.TYPE)} {seq} {m.pack().hex() or '-'} {pr.encode(m, seq).hex()}")
+    for i in range(40):
+        payload = bytes(rng.integers(0, 256, rng.integers(0, 65), dtype=np.uint8))
+        mtype = int(rng.integers(0, 256))
+        lines.append(f"F {mtype} {i} {payload.hex() or '-'} {pr.encode_frame(mtype, i, payload).hex()}")
+    # decoder streams: good frames, noise, corrupted and truncated frames, false syncs
+    for i in range(200):
+        stream = bytearray()
+        for _ in range(int(rng.integers(1, 6))):
+            payload = bytes(rng.integers(0, 256, rng.integers(0, 65), dtype=np.uint8))
+            fr = bytearray(pr.encode_frame(int(rng.integers(0, 256)), int(rng.integers(0, 256)), payload))
+            kind = rng.integers(0, 6)
+            if kind == 1:
+                fr[rng.integers(2, len(fr))] ^= 1 << int(rng.integers(0, 8))     # bit flip
+            elif kind == 2:
+                fr = fr[: rng.integers(1, len(fr))]                              # truncated
+            elif kind == 3:
+                stream += bytes(rng.integers(0, 256, rng.integers(0, 20), dtype=np.uint8))
+            elif kind == 4:
+                stream += b"\xa5\x5a" + bytes([int(rng.integers(0, 256))])        # false sync
+            stream += fr
+        dec = pr.Decoder()
+        frames = dec.feed(bytes(stream))
+        lines.append(f"D {bytes(stream).hex() or '-'} {len(frames)} {dec.stats.bad_crc + dec.stats.bad_length}")
+        lines += [f"f {f.type} {f.seq} {f.payload.hex() or '-'}" for f in frames]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_host_core_agrees_with_jerklab_on_golden_vectors(host_driver, tmp_path):
+    vec = tmp_path / "golden.txt"
+    _write_vectors(vec, np.random.default_rng(20151))
+    proc = subprocess.run([str(host_driver), "vectors", str(vec)], capture_output=True, text=True,
+                          timeout=120)
+    summary = {m.group(1): (int(m.group(2)), int(m.group(3)), float(m.group(4)))
+               for m in re.finditer(r"(\w+) records=(\d+) failures=(\d+) worst_error_over_tol=(\S+)",
+                                    proc.stdout)}
+    assert proc.returncode == 0, proc.stdout + proc.stderr[-3000:]
+    for kind, minimum in [("plan", 150), ("sample", 10000), ("stepper", 20000), ("controller", 2000),
+                          ("encode", 56), ("decode", 400)]:
+        records, failures, worst = summary[kind]
+        assert records >= minimum and failures == 0 and worst <= 1.0, (kind, summary[kind])
+
+
+def test_host_driver_detects_a_wrong_vector(host_driver, tmp_path):
+    """The comparison can fail: a sample 0.1 % off and a frame with a bad CRC are caught."""
+    p = plan_sine_jerk(10.0, 1000.0, 100.0, 60.0)
+    s = p.sample(0.3)
+    bad = tmp_path / "bad.txt"
+    frame = bytearray(pr.encode(pr.Stop(), 1))
+    frame[-1] ^= 0xFF
+    bad.write_text(f"S 10.0 1000.0 100.0 60.0 0.3 {float(s.jerk)} {float(s.accel)} "
+                   f"{float(s.velocity)} {float(s.position) * 1.001}\n"
+                   f"F {int(pr.MsgType.STOP)} 1 - {frame.hex()}\n")
+    proc = subprocess.run([str(host_driver), "vectors", str(bad)], capture_output=True, text=True)
+    assert proc.returncode == 1
+    assert "sample records=4 failures=1" in proc.stdout
+    assert "encode records=1 failures=1" in proc.stdout
+
+
+# ----------------------------------------------------------------------------- device state machine
+
+class HostDevice:
+    """Scripts the firmware's state machine (core/jl_device, host build) with jerklab.protocol
+    frames; the driver integrates an exact ZOH DC motor (K = 32.4, tau = 0.025, 12 V)."""
+
+    def __init__(self, driver):
+        self.driver = driver
+        self.script = []
+        self.seq = 0
+
+    def send(self, msg_or_bytes):
+        if isinstance(msg_or_bytes, (bytes, bytearray)):
+            data = bytes(msg_or_bytes)
+        else:
+            self.seq = (self.seq + 1) % 256
+            data = pr.encode(msg_or_bytes, self.seq)
+        self.script.append(f"rx {data.hex()}")
+        return self
+
+    def wait(self, ms, heartbeat_every=None):
+        if heartbeat_every is None:
+            self.script.append(f"ms {int(ms)}")
+        else:
+            for _ in range(int(ms) // heartbeat_every):
+                self.script.append(f"ms {heartbeat_every}")
+                self.send(pr.Heartbeat())
+        return self
+
+    def run(self):
+        proc = subprocess.run([str(self.driver), "device"], input="\n".join(self.script) + "\nquit\n",
+                              capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 0, proc.stderr
+        msgs, pwm = [], []
+        dec = pr.Decoder()
+        for line in proc.stdout.splitlines():
+            kind, ms, val = line.split()
+            if kind == "tx":
+                frames = dec.feed(bytes.fromhex(val))
+                assert len(frames) == 1
+                msgs.append((int(ms), frames[0].seq, pr.parse(frames[0])))
+            else:
+                pwm.append((int(ms), int(val)))
+        assert dec.stats.dropped == 0 and dec.pending == 0
+        return msgs, pwm
+
+
+def _gains(Ts=0.005):
+    g = pole_placement_pid(32.4, 0.025, 20).discretize(Ts)
+    return pr.SetGains(f32(g.kpd), f32(g.kid), f32(g.kdd), int(round(Ts * 1e6)), 0, 1, 0.0)
+
+
+def test_device_hello_and_parameter_checks(host_driver):
+    nan, inf = float("nan"), float("inf")
+    dev = HostDevice(host_driver)
+    dev.send(pr.Hello(1)).send(pr.Hello(9))
+    bad = [pr.SetPlant(nan, 0.025, 12.0, 448), pr.SetPlant(32.4, -1.0, 12.0, 448),
+           pr.SetPlant(32.4, 0.025, 60.0, 448), pr.SetPlant(32.4, 0.025, 12.0, 0),
+           pr.SetGains(inf, 0, 0, 5000, 0, 1, 0.0), pr.SetGains(1, 0, 0, 5500, 0, 1, 0.0),
+           pr.SetGains(1, 0, 0, 5000, 2, 1, 0.0), pr.SetGains(1, 0, 0, 5000, 0, 4, 0.0),
+           pr.SetGains(1, 0, 0, 5000, 0, 1, 1.0), pr.SetLimits(-1, 300, 100, 12, 1000),
+           pr.SetLimits(2e4, 300, 100, 13.0, 1000), pr.Plan(0.0, 0), pr.Plan(nan, 0),
+           pr.Plan(1.0, 7), pr.Plan(1.0, 2), pr.Step(20.0, 5000, 10), pr.Step(1.0, 0, 10),
+           pr.Step(1.0, 5000, 0)]
+    for m in bad:
+        dev.send(m)
+    dev.send(pr.Run(0, 1))                                       # no gains, no plan
+    dev.send(pr.encode_frame(0x33, 1, b""))                      # unknown type
+    dev.send(pr.encode_frame(int(pr.MsgType.PLAN), 2, b"\x00\x00"))  # wrong payload length
+    dev.send(pr.encode_frame(int(pr.MsgType.ACK), 3, b"\x01"))   # device->host type
+    msgs, pwm = dev.run()
+    replies = [m for _, _, m in msgs]
+    hello = replies[0]
+    assert isinstance(hello, pr.HelloReply) and isinstance(replies[1], pr.HelloReply)
+    assert hello.protocol_version == pr.PROTOCOL_VERSION and hello.name == "jerklab-uno"
+    assert hello.tick_us == 1000 and hello.pwm_max == 1023
+    caps = pr.Capability(hello.capabilities)
+    for c in (pr.Capability.PLANNER_SINE_JERK, pr.Capability.LOOP_POSITION, pr.Capability.LOOP_VELOCITY,
+              pr.Capability.OPEN_LOOP_STEP, pr.Capability.FEEDFORWARD, pr.Capability.SIMULATED_PLANT):
+        assert c in caps
+    want = [(0, 3), (1, 3), (2, 3), (3, 3), (0, 3), (3, 3), (4, 3), (5, 3), (6, 3), (0, 3), (3, 3),
+            (0, 3), (0, 3), (1, 3), (1, 6), (0, 3), (1, 3), (2, 3)]
+    nacks = replies[2:2 + len(bad)]
+    for m, got, (param, err) in zip(bad, nacks, want):
+        assert isinstance(got, pr.Nack), (m, got)
+        assert (got.command, got.error, got.param) == (int(m.TYPE), err, param), (m, got)
+        # the NACK names the offending field
+        assert pr.payload_field_name(got.command, got.param)
+    tail = replies[2 + len(bad):]
+    assert [(n.command, n.error) for n in tail] == [
+        (int(pr.MsgType.RUN), int(pr.ErrorCode.NOT_READY)), (0x33, int(pr.ErrorCode.UNKNOWN_TYPE)),
+        (int(pr.MsgType.PLAN), int(pr.ErrorCode.BAD_LENGTH)), (int(pr.MsgType.ACK), int(pr.ErrorCode.UNKNOWN_TYPE))]
+    seqs = [seq for _, seq, _ in msgs]                                # replies echo the seq
+    assert seqs == list(range(1, len(bad) + 4)) + [1, 2, 3]
+    assert pwm == []                                                  # nothing ever moved
+
+
+def test_device_run_matches_jerklab_plan_and_reaches_target(host_driver):
+    distance = f32(4 * math.pi)
+    J, E, W = 2e4, 300.0, 100.0
+    dev = HostDevice(host_driver)
+    dev.send(pr.SetPlant(32.4, 0.025, 12.0, 448)).send(_gains())
+    dev.send(pr.SetLimits(J, E, W, 12.0, 200)).send(pr.Plan(distance, 0))
+    dev.send(pr.encode_frame(int(pr.MsgType.HEARTBEAT), 77, b"\x01\x02"))  # bad length: NACK
+    dev.send(b"\xa5\x5a\x02\x09\x10\x00\x00")                               # bad CRC: dropped
+    dev.send(pr.Run(40, 2))
+    dev.send(pr.SetGains(1, 0, 0, 5000, 0, 1, 0.0))                         # BUSY during the run
+    dev.wait(2200, heartbeat_every=40)
+    msgs, pwm = dev.run()
+    replies = [m for _, _, m in msgs]
+    info = next(m for m in replies if isinstance(m, pr.PlanInfo))
+    p = plan_sine_jerk(distance, J, E, W)
+    assert info.accel_time == pytest.approx(p.accel_time, rel=1e-5)
+    assert info.cruise_time == pytest.approx(p.cruise_time, rel=1e-5, abs=1e-6)
+    assert info.duration == pytest.approx(p.duration, rel=1e-5)
+    n = math.ceil(p.duration / 0.005 - 1e-4) + 1
+    assert info.n_samples == n
+    assert any(isinstance(m, pr.Nack) and m.error == pr.ErrorCode.BUSY for m in replies)
+    tel = [m for m in replies if isinstance(m, pr.Telemetry)]
+    end = [m for m in replies if isinstance(m, pr.EndOfRun)]
+    assert len(end) == 1 and end[0].reason == pr.EndReason.DONE and end[0].samples == n + 40
+    assert end[0].rx_errors == 1
+    assert [t.index for t in tel] == list(range(0, n + 40, 2))              # decimation 2
+    k = np.array([t.index for t in tel])
+    ref = p.sample(k * 0.005).position
+    assert np.max(np.abs(np.array([t.reference for t in tel]) - ref)) <= 1e-5 * distance
+    counts_per_rad = 448 / (2 * math.pi)
+    target = distance * counts_per_rad
+    assert abs(tel[-1].counts - target) <= 2                              # within 2 counts
+    track = np.array([t.counts for t in tel]) / counts_per_rad - ref
+    assert np.max(np.abs(track)) < 0.05 * distance                         # it tracked the move
+    assert all((t.flags & pr.TELEMETRY_SETTLING) == (pr.TELEMETRY_SETTLING if t.index >= n else 0)
+               for t in tel)
+    assert max(abs(t.pwm) for t in tel) <= 1023 and pwm[-1][1] == 0       # stopped at the end
+
+
+def test_device_host_watchdog_stops_the_motor(host_driver):
+    dev = HostDevice(host_driver)
+    dev.send(_gains()).send(pr.SetLimits(2e4, 300, 100, 12.0, 100)).send(pr.Plan(f32(20.0), 0))
+    dev.send(pr.Run(0, 1)).wait(60, heartbeat_every=20).wait(400)          # then the host falls silent
+    msgs, pwm = dev.run()
+    end = [(ms, m) for ms, _, m in msgs if isinstance(m, pr.EndOfRun)]
+    assert len(end) == 1 and end[0][1].reason == pr.EndReason.HOST_TIMEOUT
+    last_rx = 60                                                          # the last heartbeat
+    assert last_rx + 100 < end[0][0] <= last_rx + 102                     # after host_timeout_ms
+    assert pwm[-1] == (end[0][0], 0)                                      # motor stopped then
+    assert any(v != 0 for _, v in pwm[:-1])                               # it had been driven
+    later = [ms for ms, _, m in msgs if isinstance(m, pr.Telemetry) and ms > end[0][0]]
+    assert later == []
+
+
+def test_device_stop_and_open_loop_step(host_driver):
+    dev = HostDevice(host_driver)
+    dev.send(pr.Step(6.0, 5000, 60)).wait(100, heartbeat_every=20)
+    dev.send(pr.Stop())
+    msgs, pwm = dev.run()
+    replies = [m for _, _, m in msgs]
+    tel = [m for m in replies if isinstance(m, pr.Telemetry)]
+    assert len(tel) == 20 and all(t.pwm == round(6.0 * 1023 / 12.0) == 512 and t.reference == 0 for t in tel)
+    # open loop from rest: the counts follow the step response of K/(s(tau s+1))
+    K, tau, u = 32.4, 0.025, 512 / 1023 * 12.0
+    t = np.array([m.index for m in tel]) * 0.005       # the step starts at sample 0
+    theta = K * u * (t - tau * (1 - np.exp(-t / tau)))
+    counts = np.array([m.counts for m in tel])
+    assert np.all(np.abs(counts - np.floor(theta * 448 / (2 * math.pi))) <= 2)
+    end = [m for m in replies if isinstance(m, pr.EndOfRun)]
+    assert len(end) == 1 and end[0].reason == pr.EndReason.STOPPED and end[0].samples == 20
+    assert pwm == [(5, 512), (100, 0)]
