@@ -649,8 +649,8 @@ class PolePlacementPanel(_panel_base()):
                                             max=15.0, step=0.5, description="σ / ωn",
                                             readout_format=".1f", continuous_update=False,
                                             style=style, layout=layout),
-            Ts_ms=widgets.FloatSlider(value=1e3 * as_positive("Ts", Ts), min=0.5, max=20.0,
-                                      step=0.5, description="Ts [ms]", readout_format=".1f",
+            Ts_ms=widgets.FloatSlider(value=1e3 * as_positive("Ts", Ts), min=1.0, max=20.0,
+                                      step=1.0, description="Ts [ms]", readout_format=".1f",
                                       continuous_update=False, style=style, layout=layout),
             design=widgets.ToggleButtons(options=list(DESIGNS.items()),
                                          value=design if design in DESIGNS.values() else None,
@@ -742,7 +742,7 @@ class PolePlacementPanel(_panel_base()):
             self.rig_status.value = "running…"
             res = self.result
             profile = _move_profile(self.move)
-            rec = self.rig.run_move(profile, res.gains, Ts=res.params["Ts"])
+            rec = self.rig.run_move(profile, res.gains, Ts=res.params["Ts"], path=False)
             t = np.asarray(rec.time, dtype=float)
             err = np.asarray(rec.reference, dtype=float) - np.asarray(rec.position, dtype=float)
             self._rig_error = (t, err)
