@@ -95,6 +95,7 @@ class VirtualDevice:
         self.pwm = 0
         self.overruns = 0
         self.rejected = 0                    # good frames answered by NACK
+        self.motor.step_state(self.x, 0.0, 1e-3)   # warm up (a compiled kernel) before the first run
         self.boot()
 
     # ------------------------------------------------------------------ state

@@ -1,0 +1,60 @@
+"""``python -m jerklab.rig serve``: the virtual rig on a pseudo-terminal (or TCP port).
+
+Prints the path to open (``/dev/pts/N`` or ``socket://host:port``) on the first line
+of stdout, then serves until Ctrl-C or SIGTERM.
+
+    python -m jerklab.rig serve                  # real-time pace, on a pty
+    python -m jerklab.rig serve --speed 10       # ten times faster than real time
+    python -m jerklab.rig serve --tcp 5000       # socket://127.0.0.1:5000 (the paper's Ethernet set-up)
+"""
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m jerklab.rig", description=__doc__.split("\n")[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    s = sub.add_parser("serve", help="serve the virtual rig on a pseudo-terminal or a TCP port")
+    s.add_argument("--speed", type=float, default=1.0,
+                   help="times real time (default 1.0, like a board; 0 = as fast as the host reads)")
+    s.add_argument("--tcp", type=int, metavar="PORT", default=None,
+                   help="listen on this TCP port instead of a pty (0 = any free port)")
+    s.add_argument("--host", default="127.0.0.1", help="address to listen on with --tcp")
+    s.add_argument("--K", type=float, default=32.4, help="motor gain K, rad/(V s) (default 32.4)")
+    s.add_argument("--tau", type=float, default=0.025, help="motor time constant tau, s (default 0.025)")
+    s.add_argument("--friction", type=float, default=0.0, help="Coulomb friction, V (default 0)")
+    s.add_argument("--noise", type=float, default=0.0, help="encoder noise std, rad (default 0)")
+    args = ap.parse_args(argv)
+
+    from jerklab.plant import DCMotor
+    from jerklab.rig.server import DeviceServer
+    from jerklab.rig.virtual import VirtualDevice
+
+    if args.speed < 0:
+        ap.error(f"--speed must be >= 0, got {args.speed}")
+    motor = DCMotor(K=args.K, tau=args.tau, coulomb_friction=args.friction, noise_std=args.noise)
+    server = DeviceServer(VirtualDevice(motor), speed=args.speed or None)
+    port = server.start_tcp(args.host, args.tcp) if args.tcp is not None else server.start_pty()
+    print(port, flush=True)
+    print(f"jerklab virtual rig (K={args.K}, tau={args.tau}, speed={args.speed or 'max'}) on {port}; "
+          "Ctrl-C to stop", file=sys.stderr, flush=True)
+    done = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *a: done.set())
+    try:
+        while not done.wait(0.2):
+            if server.error is not None:
+                print(f"server stopped: {server.error!r}", file=sys.stderr)
+                return 1
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
