@@ -287,6 +287,26 @@ class Preisach:
             self._c.append(self._c[-1] + self._term(s, i))
         return self
 
+    def interface(self):
+        """The staircase boundary of ``S+`` in the Preisach plane, as ``(beta, alpha)`` arrays.
+
+        Runs from ``(u_min, M1)`` through the corners ``(m1, M1), (m1, M2), ...`` to the
+        diagonal at the current input; ``S+`` (relays on) lies between this line, the
+        edge ``beta = u_min`` and the diagonal.  Negative saturation: the single point
+        ``(u_min, u_min)``.
+        """
+        s = self._s
+        if len(s) == 1:
+            return np.array([s[0]]), np.array([s[0]])
+        b, a = [s[0]], [s[1]]
+        for i in range(1, len(s) - 1):
+            if i % 2 == 1:           # after a maximum: horizontal move in beta
+                b.append(s[i + 1]); a.append(s[i])
+            else:                    # after a minimum: vertical move in alpha
+                b.append(s[i]); a.append(s[i + 1])
+        b.append(s[-1]); a.append(s[-1])
+        return np.array(b), np.array(a)
+
     def _term(self, s, i):
         return self._E(s[i], s[i - 1]) if i % 2 == 1 else -self._E(s[i - 1], s[i])
 

@@ -121,6 +121,20 @@ def test_state_roundtrip_and_validation():
         piezo().set_state([5.0, 50.0])
 
 
+def test_interface_area_gives_output_for_uniform_density():
+    """Uniform weight mu: output = offset + mu * area(S+) (shoelace on the staircase)."""
+    P = Preisach.uniform(0.0, 10.0, n=5)
+    mu = P.density[0, 0]
+    for seq in ([7.0], [7.0, 2.0], [9.0, 1.0, 6.0], [9.0, 1.0, 6.0, 3.5], [10.0, 0.0, 8.0, 4.0, 7.0]):
+        P.reset()
+        P.apply(seq)
+        b, a = P.interface()
+        xs = np.r_[P.u_min, b]
+        ys = np.r_[P.u_min, a]
+        area = 0.5 * abs(np.dot(xs, np.roll(ys, -1)) - np.dot(ys, np.roll(xs, -1)))
+        assert P.output == pytest.approx(P.offset + mu * area, abs=1e-12)
+
+
 def test_positive_saturation_reset():
     P = piezo()
     P.reset("positive")
