@@ -905,14 +905,14 @@ def residual_analysis(residuals, u=None, max_lag: int = 25, confidence: float = 
     u : array_like, optional
         The input, same length, for the independence test.
     max_lag : int
-        Largest lag (>= 1, < len(residuals)).
+        Largest lag (>= 1, < len(residuals)/2).
     confidence : float
         Level of the two-sided bounds, in (0, 1).
     """
     e = _signal("residuals", residuals)
     max_lag = as_int("max_lag", max_lag, minimum=1)
-    if max_lag >= e.size:
-        raise ValueError(f"max_lag must be < len(residuals) = {e.size}, got {max_lag}")
+    if 2 * max_lag >= e.size:
+        raise ValueError(f"max_lag must be < len(residuals)/2 = {e.size / 2:g}, got {max_lag}")
     confidence = as_real("confidence", confidence)
     if not 0.0 < confidence < 1.0:
         raise ValueError(f"confidence must be in (0, 1), got {confidence}")
@@ -963,25 +963,50 @@ class Validation:
     residuals: np.ndarray
     analysis: ResidualAnalysis
     theta0: float
+    omega0: float = 0.0
 
 
-def validate(fit: MotorFit, u, theta, Ts=None, max_lag: int = 25, confidence: float = 0.99) -> Validation:
+def validate(fit: MotorFit, u, theta, Ts=None, max_lag: int = 25, confidence: float = 0.99,
+             initial: str = "estimate") -> Validation:
     """Simulate ``fit`` on a record (ideally not the one it was estimated on) and test the residuals.
 
-    The initial angle is estimated by least squares (as ``compare`` does with
-    ``InitialCondition='e'``), the initial velocity is taken as zero (the record starts at rest).
+    Parameters
+    ----------
+    fit : MotorFit
+    u, theta : array_like
+        The validation record (V, rad).
+    Ts : float, optional
+        Checked against ``fit.Ts`` if given.
+    max_lag, confidence
+        Passed to :func:`residual_analysis`; on a record shorter than 2 ``max_lag`` + 1 samples the
+        tests use (n - 1) // 2 lags.
+    initial : {"estimate", "rest"}
+        "estimate" (default, as ``compare`` with ``InitialCondition='e'``): the initial angle and
+        velocity are fitted by linear least squares — the response is linear in both, the free
+        response to omega0 being omega0 tau (1 - a^k) — so a record may start while the motor turns
+        (e.g. the second half of a PRBS). "rest": omega0 = 0, only the angle is fitted.
     """
     if not isinstance(fit, MotorFit):
         raise ValueError(f"fit must be a MotorFit, got {type(fit).__name__}")
+    if initial not in ("estimate", "rest"):
+        raise ValueError(f"initial must be 'estimate' or 'rest', got {initial!r}")
     u, theta = _pair(u, theta, "u", "theta")
     if Ts is not None and abs(as_positive("Ts", Ts) - fit.Ts) > 1e-9 * fit.Ts:
         raise ValueError(f"Ts = {Ts:g} s differs from the fit's Ts = {fit.Ts:g} s")
     g = fit.simulate(u)
-    th0 = _best_theta0(theta, g)
-    y_sim = g + th0
+    if initial == "rest":
+        M = np.ones((u.size, 1))
+    else:
+        k = np.arange(u.size)
+        M = np.column_stack([np.ones(u.size), -fit.tau * np.expm1(-k * fit.Ts / fit.tau)])
+    coef, *_ = np.linalg.lstsq(M, theta - g, rcond=None)
+    th0 = float(coef[0])
+    w0 = float(coef[1]) if initial == "estimate" else 0.0
+    y_sim = g + M @ coef
     r = theta - y_sim
+    max_lag = min(as_int("max_lag", max_lag, minimum=1), (u.size - 1) // 2)
     an = residual_analysis(r, u if np.std(u) > 0 else None, max_lag, confidence)
-    return Validation(y_sim, fit_percent(theta, y_sim), r, an, th0)
+    return Validation(y_sim, fit_percent(theta, y_sim), r, an, th0, w0)
 
 
 def plot_compare(data, *fits, ax=None, labels=None):

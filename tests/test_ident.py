@@ -342,6 +342,20 @@ def test_validate_on_fresh_record_and_plots():
     assert len(axes) == 2
     with pytest.raises(ValueError, match="Ts"):
         ident.validate(fit, u_val, y_val, 0.01)
+    with pytest.raises(ValueError, match="initial"):
+        ident.validate(fit, u_val, y_val, initial="zero")
+
+
+def test_validate_estimates_initial_velocity():
+    """A record cut while the motor turns: the initial state is recovered (vs python-control)."""
+    u = ident.prbs(1.0, TS, 3.0, offset=6.0, clock_period=0.02, seed=6)
+    th = ct_response(K0, TAU0, TS, u, theta0=1.5, omega0=150.0)
+    u_fit = ident.step_input(1.0, TS, 6.0)
+    fit = ident.fit_dc_motor(u_fit, ident.simulate_dc_motor(K0, TAU0, TS, u_fit), TS)
+    v = ident.validate(fit, u, th)
+    assert v.theta0 == pytest.approx(1.5, abs=1e-6) and v.omega0 == pytest.approx(150.0, rel=1e-6)
+    assert v.fit_percent > 100 - 1e-6
+    assert ident.validate(fit, u, th, initial="rest").fit_percent < 99.9
     import matplotlib.pyplot as plt
     plt.close("all")
 
