@@ -44,16 +44,28 @@ def test_connect_virtual_identity(rig):
 
 def test_step_matches_closed_form(rig):
     """Open-loop step vs the analytic ramp of eq. 1: theta = K V (t - tau (1 - e^{-t/tau}))."""
-    rec = rig.step(6.0, 0.5)
-    assert len(rec) == 100 and rec.metadata["status"] == "complete"
+    rec = rig.step(6.0, 0.5, rest=0.05)
+    assert len(rec) == 110 and rec.metadata["status"] == "complete"
+    assert np.array_equal(rec.index, np.arange(110))
     v = round(6.0 / 12.0 * 1023) / 1023 * 12.0                    # the PWM-quantized voltage
-    assert np.all(rec.control == pytest.approx(v))
-    t = rec.time
-    theta = K * v * (t - TAU * (1 - np.exp(-t / TAU)))
+    assert np.all(rec.control[:10] == 0) and np.all(rec.counts[:10] == 0)
+    assert np.all(rec.control[10:] == pytest.approx(v))
+    t = rec.time - 0.05
+    theta = np.where(t > 0, K * v * (t - TAU * (1 - np.exp(-t / TAU))), 0.0)
     # the encoder holds floor(theta * cpr): reading within one count below the truth
     assert np.all(rec.position <= theta + 1e-9)
     assert np.all(rec.position > theta - 1.0 / CPR - 1e-9)
-    assert rec.counts[0] == 0 and rec.reference.max() == 0.0
+    assert rec.reference.max() == 0.0
+
+
+def test_step_identifies_the_hidden_motor(tmp_path):
+    """A step from rest on a virtual motor that is not the paper's: the fit finds it."""
+    from jerklab.ident import fit_dc_motor
+
+    with connect(motor=DCMotor(K=27.5, tau=0.034), recordings=tmp_path, progress=False) as r:
+        rec = r.step(6.0, 0.6)
+    fit = fit_dc_motor(rec.control, rec.position, rec.Ts, method="pem")
+    assert fit.K == pytest.approx(27.5, rel=0.01) and fit.tau == pytest.approx(0.034, rel=0.03)
 
 
 def _spec_run(profile, kpd, kid, kdd, Ts, n, vmax=12.0):
@@ -164,7 +176,7 @@ def test_recording_dir_from_env(tmp_path, monkeypatch):
 def test_progress_bar(rig, capsys):
     rig.step(2.0, 0.1, progress=True)
     out = capsys.readouterr().out
-    assert "step [" in out and "20/20 samples" in out and "complete" in out
+    assert "step [" in out and "30/30 samples" in out and "complete" in out
 
 
 def test_host_side_validation(rig):
@@ -178,6 +190,8 @@ def test_host_side_validation(rig):
         rig.step(13.0, 0.1)
     with pytest.raises(ValueError, match="seconds"):
         rig.step(1.0, -1)
+    with pytest.raises(ValueError, match="rest"):
+        rig.step(1.0, 0.1, rest=-0.1)
     with pytest.raises(ValueError, match="discretized for Ts"):
         rig.run_move(prof, g.discretize(0.01), Ts=0.005)
     with pytest.raises(ValueError, match="profile"):
@@ -240,7 +254,7 @@ def test_simavr_dispatch(monkeypatch, tmp_path):
     monkeypatch.setitem(sys.modules, "jerklab.rig.simavr", fake)
     with connect("simavr", recordings=tmp_path, progress=False) as r:
         assert r.name == "jerklab-virtual" and r.port.startswith("/dev/pts/")
-        assert len(r.step(1.0, 0.05)) == 10
+        assert len(r.step(1.0, 0.05, rest=0)) == 10
     assert closed == [True]
 
 

@@ -77,11 +77,11 @@ def test_tcp_socket_url(tmp_path):
         url = srv.start_tcp()
         assert url.startswith("socket://127.0.0.1:")
         with connect(url, recordings=tmp_path, progress=False) as rig:
-            rec = rig.step(3.0, 0.2)
+            rec = rig.step(3.0, 0.2, rest=0.0)
         assert len(rec) == 40 and rec.metadata["device"]["port"] == url
         # the server accepts the next client after the first hung up
         with connect(url, recordings=tmp_path, progress=False) as rig:
-            assert len(rig.step(3.0, 0.05)) == 10
+            assert len(rig.step(3.0, 0.05)) == 20
 
 
 def _pull_when(srv, n_bytes, done):

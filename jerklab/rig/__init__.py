@@ -20,10 +20,10 @@ import os
 
 from jerklab.rig.client import (Rig, RigCommandError, RigConnectionError, RigError, RigRunError,
                                 RigTimeoutError, UnknownPortError)
-from jerklab.rig.recording import Recording, recordings_dir
+from jerklab.rig.recording import Recording, compare, plot_comparison, recordings_dir
 from jerklab.rig.virtual import VirtualDevice, VirtualSerial
 
-__all__ = ["connect", "Rig", "Recording", "recordings_dir", "VirtualDevice", "VirtualSerial",
+__all__ = ["connect", "Rig", "Recording", "recordings_dir", "compare", "plot_comparison", "VirtualDevice", "VirtualSerial",
            "RigError", "RigConnectionError", "RigTimeoutError", "RigCommandError", "RigRunError",
            "UnknownPortError", "BAUDRATE"]
 

@@ -71,7 +71,7 @@ class _Progress:
         if not self.enabled:
             return
         pct = min(100, int(100 * n / self.total))
-        if pct // 2 == self._shown // 2 and n < self.total:
+        if pct // 4 == self._shown // 4 and n < self.total:
             return
         self._shown = pct
         bar = "#" * (pct // 4) + "." * (25 - pct // 4)
@@ -431,14 +431,18 @@ class Rig:
                     settle_samples=settle_n, decimation=int(decimation))
         rec = self._new_recording("move", meta, path)
         total = info.n_samples + settle_n
-        return self._stream(P.Run(settle_n, int(decimation)), rec, total, "move", host_timeout, progress)
+        bar = _Progress(total, f"{self.port} move", self.progress if progress is None else progress)
+        return self._stream(P.Run(settle_n, int(decimation)), rec, total, host_timeout, bar)
 
-    def step(self, voltage, seconds, Ts=0.005, *, max_voltage=None, host_timeout=1.0, path=None,
-             progress=None) -> Recording:
+    def step(self, voltage, seconds, Ts=0.005, *, rest=0.05, max_voltage=None, host_timeout=1.0,
+             path=None, progress=None) -> Recording:
         """Open-loop step of ``voltage`` V for ``seconds`` (identification); returns the Recording.
 
-        Samples are taken every ``Ts``; ``rec.control`` is the PWM-quantized voltage applied,
-        ``rec.position`` the encoder angle (zeroed at the start).
+        Samples are taken every ``Ts``; ``rec.control`` is the PWM-quantized voltage applied
+        (held from each sample to the next), ``rec.position`` the encoder angle (zeroed at the
+        start). With ``rest`` > 0 the record starts with that many seconds at 0 V (a STEP of
+        0 V, then the STEP of ``voltage``, joined into one record): a step *from rest*, as an
+        identification needs (``jerklab.ident.fit_dc_motor``).
         """
         voltage = as_real("voltage", voltage)
         seconds = as_positive("seconds", seconds)
@@ -452,19 +456,31 @@ class Rig:
         n = int(math.ceil(seconds / Ts - 1e-9))
         if n > 0xFFFF:
             raise ValueError(f"seconds must be <= {0xFFFF * Ts:g} s at Ts = {Ts} s, got {seconds}")
+        n_rest = int(math.ceil(as_nonnegative("rest", rest) / Ts - 1e-9))
+        if n_rest > 0xFFFF:
+            raise ValueError(f"rest must be <= {0xFFFF * Ts:g} s at Ts = {Ts} s, got {rest}")
         tmo = as_nonnegative("host_timeout", host_timeout)
         # limits: keep the planner limits at their defaults, set the clamp and the watchdog
         self._request(P.SetPlant(*self.model, self.supply_voltage, self.counts_per_rev))
         self._request(P.SetLimits(2e4, 300.0, 100.0, vmax, int(round(tmo * 1000))))
-        meta = {"Ts": Ts, "voltage": voltage, "seconds": n * Ts,
+        meta = {"Ts": Ts, "voltage": voltage, "seconds": n * Ts, "rest": n_rest * Ts,
                 "limits": {"max_voltage": vmax, "host_timeout": tmo},
                 "plant": {"supply_voltage": self.supply_voltage, "counts_per_rev": self.counts_per_rev}}
         rec = self._new_recording("step", meta, path)
-        return self._stream(P.Step(voltage, us, n), rec, n, "step", host_timeout, progress)
+        bar = _Progress(n_rest + n, f"{self.port} step",
+                        self.progress if progress is None else progress)
+        if n_rest:
+            self._stream(P.Step(0.0, us, n_rest), rec, n_rest, host_timeout, bar, final=False)
+        offset = (len(rec) and int(rec.counts[-1]), n_rest)
+        return self._stream(P.Step(voltage, us, n), rec, n, host_timeout, bar, offset=offset)
 
-    def _stream(self, command, rec, total, label, host_timeout, progress):
-        """Start a run/step and record telemetry until END_OF_RUN (or an error)."""
-        bar = _Progress(total, f"{self.port} {label}", self.progress if progress is None else progress)
+    def _stream(self, command, rec, total, host_timeout, bar, final=True, offset=(0, 0)):
+        """Start a run/step and record telemetry until END_OF_RUN (or an error).
+
+        ``offset = (counts, index)`` is added to the telemetry (a record made of two steps);
+        ``final=False`` leaves the recording open after a successful end.
+        """
+        count_off, index_off = offset
         lost = 0
         next_index = 0
         hb_every = max(0.05, host_timeout / 4.0) if host_timeout > 0 else 0.5
@@ -496,7 +512,7 @@ class Rig:
                         if t.index > next_index:
                             lost += (t.index - next_index) // max(1, getattr(command, "decimation", 1))
                         next_index = t.index + getattr(command, "decimation", 1)
-                        rec.append(t.index, t.reference, t.counts, t.pwm, t.flags)
+                        rec.append(t.index + index_off, t.reference, t.counts + count_off, t.pwm, t.flags)
                     elif f.type == P.MsgType.END_OF_RUN:
                         end = P.EndOfRun.unpack(f.payload)
                     elif f.type == P.MsgType.ERROR:
@@ -506,6 +522,8 @@ class Rig:
                         self.ignored_frames += 1       # ACKs of heartbeats, stray replies
                 rec.flush()
                 bar.update(len(rec))
+            if final is False and end.reason == P.EndReason.DONE:
+                return rec
         except RigConnectionError as exc:
             status, error = "disconnected", exc
         except RigTimeoutError as exc:

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Recording", "recordings_dir"]
+__all__ = ["Recording", "recordings_dir", "compare", "plot_comparison"]
 
 COLUMNS = ("index", "time", "reference", "position", "counts", "control", "pwm", "flags")
 
@@ -260,3 +260,57 @@ class Recording:
         where = f", path={str(self.csv_path)!r}" if self.csv_path else ""
         return (f"Recording(kind={self.metadata.get('kind')!r}, samples={len(self)}, "
                 f"status={self.metadata.get('status')!r}{where})")
+
+
+def compare(rec: Recording, sim) -> dict:
+    """Measured vs simulated run on the recording's samples (rad, V).
+
+    ``sim`` is a :class:`jerklab.sim.SimResult` sampled at the same ``Ts`` from t = 0.
+    Returns the number of common samples, the largest and RMS difference of the measured
+    angles, the largest tracking error of each, and the largest control difference.
+    """
+    n = min(len(rec), len(sim.t))
+    idx = rec.index[rec.index < len(sim.t)][:n]
+    meas = rec.position[:len(idx)]
+    sim_meas = np.asarray(sim.measured)[idx]
+    d = meas - sim_meas
+    return {
+        "samples": int(len(idx)),
+        "max_abs_position_diff": float(np.max(np.abs(d))) if len(d) else float("nan"),
+        "rms_position_diff": float(np.sqrt(np.mean(d ** 2))) if len(d) else float("nan"),
+        "max_abs_error_measured": float(np.max(np.abs(rec.reference[:len(idx)] - meas))),
+        "max_abs_error_simulated": float(np.max(np.abs(np.asarray(sim.reference)[idx] - sim_meas))),
+        "max_abs_control_diff": float(np.max(np.abs(rec.control[:len(idx)]
+                                                    - np.asarray(sim.u_applied)[idx]))),
+    }
+
+
+def plot_comparison(rec: Recording, sim, title="Measured vs simulated sine-jerk move"):
+    """Overlay a rig recording and a simulation: position, tracking error, control voltage.
+
+    Both tracking errors are ``reference − encoder reading`` (what the controller sees).
+    """
+    import matplotlib.pyplot as plt
+
+    n = min(len(rec), len(sim.t))
+    idx = rec.index[rec.index < len(sim.t)][:n]
+    t = rec.time[:len(idx)]
+    fig, ax = plt.subplots(3, 1, sharex=True, figsize=(8, 7.5))
+    ax[0].plot(t, rec.reference[:len(idx)], "k--", lw=1, label="reference")
+    ax[0].plot(t, rec.position[:len(idx)], label="measured (rig)")
+    ax[0].plot(t, np.asarray(sim.measured)[idx], ":", label="simulated")
+    ax[0].set_ylabel("position (rad)")
+    ax[0].legend(loc="lower right")
+    ax[1].plot(t, 1e3 * (rec.reference[:len(idx)] - rec.position[:len(idx)]), label="measured (rig)")
+    ax[1].plot(t, 1e3 * (np.asarray(sim.reference)[idx] - np.asarray(sim.measured)[idx]), ":",
+               label="simulated")
+    ax[1].set_ylabel("tracking error (mrad)")
+    ax[1].legend(loc="upper right")
+    ax[2].step(t, rec.control[:len(idx)], where="post", label="measured (rig)")
+    ax[2].step(t, np.asarray(sim.u_applied)[idx], ":", where="post", label="simulated")
+    ax[2].set_ylabel("control (V)")
+    ax[2].set_xlabel("time (s)")
+    ax[2].legend(loc="upper right")
+    ax[0].set_title(title)
+    fig.tight_layout()
+    return fig

@@ -76,3 +76,232 @@ def build_firmware(*targets: str, build_dir=None) -> dict:
         raise FirmwareBuildError(f"make -C {fw} {' '.join(targets)} failed:\n{proc.stdout}\n{proc.stderr}")
     return {"elf": build / "jerklab_rig.elf", "hex": build / "jerklab_rig.hex",
             "host": build / "jl_host", "harness": build / "jl_simavr", "output": proc.stdout}
+
+
+# --------------------------------------------------------------------------- the harness
+
+import json  # noqa: E402
+import selectors  # noqa: E402
+import signal  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+
+from jerklab._validate import as_int, as_nonnegative, as_positive, as_real  # noqa: E402
+
+__all__ += ["launch", "SimulatedUno", "HarnessError", "tools_missing"]
+
+_ARDUINO_CORE = "/usr/share/arduino/hardware/arduino/avr/cores/arduino"
+_SIMAVR_HEADER = "/usr/include/simavr/sim_avr.h"
+
+
+class HarnessError(RuntimeError):
+    """The simavr harness did not start or died."""
+
+
+def tools_missing() -> list:
+    """Names of the Debian tools the simulated Uno needs and this machine lacks (empty: all there)."""
+    missing = [t for t in ("make", "cc", "avr-g++", "avr-size") if shutil.which(t) is None]
+    if not os.path.isdir(_ARDUINO_CORE):
+        missing.append("arduino-core-avr")
+    if not os.path.isfile(_SIMAVR_HEADER):
+        missing.append("libsimavr-dev")
+    return missing
+
+
+class SimulatedUno:
+    """A running harness: the firmware on a simulated ATmega328P with a motor on its pins.
+
+    Attributes
+    ----------
+    port : str
+        The pseudo-terminal (``/dev/pts/N``) bridged to the Uno's UART0 (115200 baud).
+    pid : int
+        The harness process.
+    params : dict
+        Motor and harness parameters it was started with.
+    """
+
+    def __init__(self, proc, port, workdir, params):
+        self._proc = proc
+        self.port = port
+        self.pid = proc.pid
+        self.params = params
+        self._workdir = workdir
+        self._stats_path = os.path.join(workdir.name, "stats.json")
+        self.final_stats = None
+
+    def __repr__(self):
+        state = "running" if self.running else "closed"
+        return f"SimulatedUno(port={self.port!r}, pid={self.pid}, {state})"
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    @property
+    def running(self) -> bool:
+        return self._proc.poll() is None
+
+    def _read_stats(self):
+        try:
+            with open(self._stats_path) as fh:
+                return json.load(fh)
+        except (OSError, ValueError):
+            return None
+
+    def stats(self, timeout=5.0) -> dict:
+        """A fresh snapshot of the harness: simulated time, motor state, what a perfect encoder
+        decoder counted (``ideal_counts_x1``/``_x4``), the control-step cycle budget
+        (``control_step_cycles_moving``: min/mean/max cycles with PB5 high while the motor
+        moves or is driven), the real-time factor."""
+        timeout = as_positive("timeout", timeout)
+        if not self.running:
+            if self.final_stats is not None:
+                return self.final_stats
+            raise HarnessError(f"the simavr harness (pid {self.pid}) is not running{self._log_tail()}")
+        old = self._read_stats()
+        seq0 = old["seq"] if old else 0
+        self._proc.send_signal(signal.SIGUSR1)
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            s = self._read_stats()
+            if s and s["seq"] > seq0:
+                return s
+            time.sleep(0.01)
+        raise HarnessError(f"the simavr harness (pid {self.pid}) wrote no stats in {timeout} s")
+
+    def _log_tail(self, n=2000):
+        try:
+            with open(os.path.join(self._workdir.name, "harness.log")) as fh:
+                text = fh.read()[-n:]
+        except OSError:
+            return ""
+        return f"; its log ends:\n{text}" if text else ""
+
+    def close(self):
+        """End the harness (SIGTERM; it writes its final stats and exits) and clean up."""
+        if self._workdir is None:
+            return
+        if self._proc.poll() is None:
+            self._proc.send_signal(signal.SIGTERM)
+            try:
+                self._proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self._proc.kill()
+                self._proc.wait(timeout=5)
+        self.final_stats = self._read_stats()
+        self._workdir.cleanup()
+        self._workdir = None
+
+
+def launch(elf=None, *, K=32.4, tau=0.025, supply_voltage=12.0, coulomb_friction=0.0,
+           load_disturbance=0.0, encoder_ppr=448, step_us=20, realtime=True, build=True,
+           startup_timeout=20.0) -> SimulatedUno:
+    """Start the firmware on a simulated Uno with a DC motor; return a :class:`SimulatedUno`.
+
+    Parameters
+    ----------
+    elf : path, optional
+        Firmware ELF (default: ``firmware/build/jerklab_rig.elf``, built with
+        ``make -C firmware`` when ``build`` is true).
+    K, tau : float
+        Motor gain rad/(V s) and time constant s (Stojčić eq. 1; paper: 32.4, 0.025).
+    supply_voltage : float
+        H-bridge supply (V): full PWM duty.
+    coulomb_friction, load_disturbance : float
+        Equivalent voltages (V), as in :class:`jerklab.plant.DCMotor`.
+    encoder_ppr : int
+        Pulses per revolution of one encoder channel (448).
+    step_us : int
+        Motor integration step (µs of simulated time); encoder edges inside a step are placed
+        at their interpolated times.
+    realtime : bool
+        Pace the simulation to the wall clock like a real board (default). False runs as fast
+        as the host allows — the firmware's host watchdog then sees the host's heartbeats
+        sped down, so use a generous ``host_timeout``.
+    build : bool
+        Run ``make -C firmware avr simavr`` first (incremental).
+    startup_timeout : float
+        Seconds to wait for the harness to print its pty.
+
+    Raises
+    ------
+    FileNotFoundError
+        simavr, the AVR toolchain or the Arduino core is missing (the message lists the
+        Debian packages), or the ELF does not exist.
+    HarnessError
+        The harness did not start.
+    """
+    K = as_positive("K", K)
+    tau = as_positive("tau", tau)
+    supply_voltage = as_positive("supply_voltage", supply_voltage)
+    coulomb_friction = as_nonnegative("coulomb_friction", coulomb_friction)
+    load_disturbance = as_real("load_disturbance", load_disturbance)
+    encoder_ppr = as_int("encoder_ppr", encoder_ppr, minimum=1)
+    step_us = as_int("step_us", step_us, minimum=1)
+    if step_us > 1000:
+        raise ValueError(f"step_us must be <= 1000, got {step_us}")
+    startup_timeout = as_positive("startup_timeout", startup_timeout)
+    missing = tools_missing()
+    if missing:
+        raise FileNotFoundError(
+            f"the simulated Uno needs {', '.join(missing)} (Debian: apt-get install gcc-avr avr-libc "
+            "arduino-core-avr simavr libsimavr-dev)")
+    if build:
+        paths = build_firmware("avr", "simavr")
+        harness = paths["harness"]
+        elf = paths["elf"] if elf is None else Path(elf)
+    else:
+        build_dir = firmware_dir() / "build"
+        harness = build_dir / "jl_simavr"
+        elf = build_dir / "jerklab_rig.elf" if elf is None else Path(elf)
+    for what, path in (("firmware ELF", elf), ("simavr harness", harness)):
+        if not Path(path).is_file():
+            raise FileNotFoundError(f"{what} not found at {path} (run `make -C firmware`)")
+    params = dict(K=K, tau=tau, supply_voltage=supply_voltage, coulomb_friction=coulomb_friction,
+                  load_disturbance=load_disturbance, encoder_ppr=encoder_ppr, step_us=step_us,
+                  realtime=bool(realtime), elf=str(elf))
+    workdir = tempfile.TemporaryDirectory(prefix="jerklab-simavr-")
+    cmd = [str(harness), "--K", repr(K), "--tau", repr(tau), "--supply", repr(supply_voltage),
+           "--friction", repr(coulomb_friction), "--load", repr(load_disturbance),
+           "--ppr", str(encoder_ppr), "--step-us", str(step_us),
+           "--stats", os.path.join(workdir.name, "stats.json")]
+    if not realtime:
+        cmd.append("--fast")
+    cmd.append(str(elf))
+    log = open(os.path.join(workdir.name, "harness.log"), "w")
+    try:
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=log, stdin=subprocess.DEVNULL,
+                                cwd=workdir.name)
+    finally:
+        log.close()
+    port = None
+    sel = selectors.DefaultSelector()
+    sel.register(proc.stdout, selectors.EVENT_READ)
+    buf = b""
+    end = time.monotonic() + startup_timeout
+    try:
+        while port is None and time.monotonic() < end:
+            if not sel.select(timeout=0.1):
+                if proc.poll() is not None:
+                    break
+                continue
+            chunk = os.read(proc.stdout.fileno(), 4096)
+            if not chunk:
+                break
+            buf += chunk
+            for line in buf.decode(errors="replace").splitlines():
+                if line.startswith("PTY /"):
+                    port = line[4:].strip()
+    finally:
+        sel.close()
+        proc.stdout.close()
+    uno = SimulatedUno(proc, port, workdir, params)
+    if port is None:
+        tail = uno._log_tail()
+        uno.close()
+        raise HarnessError(f"the simavr harness printed no pty within {startup_timeout} s "
+                           f"(output: {buf.decode(errors='replace')!r}){tail}")
+    return uno
