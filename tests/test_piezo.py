@@ -227,6 +227,25 @@ def test_lsq_solver_finds_the_same_horizons():
         shape_cycle(0, 0, solver="cvx")
 
 
+def test_scan_tolerance_e_allow():
+    """Eq. 4 as inequalities on the scan: held on simulation, and a looser bound never costs time."""
+    exact = shape_cycle(1, 2)
+    spec = ScanSpec(e_allow=1e-3)
+    c = shape_cycle(1, 2, spec=spec)
+    assert c.cycle_time == pytest.approx(exact.cycle_time)      # 0.1 µm/s leaves nothing to gain
+    y = ct_sim(PZTModel(), c.command())
+    line = c.scan_start + 0.2 * np.arange(c.S + 1)
+    assert np.abs(y[c.scan_slice] - line).max() <= 1e-3 + 1e-9
+    assert np.abs(np.diff(y[c.scan_slice]) / 2e-4 - 1e3).max() <= 0.1 + 1e-6
+    assert np.abs(y[c.N + c.S + c.N_r:]).max() < 1e-8           # whole-cycle rest condition
+    loose = shape_cycle(0, 0, spec=ScanSpec(e_allow=0.3, velocity_tolerance=300.0))
+    assert loose.cycle_time <= shape_cycle(0, 0).cycle_time
+    with pytest.raises(ValueError, match="solver"):
+        shape_cycle(0, 0, spec=spec, solver="lsq")
+    with pytest.raises(ValueError, match="e_allow"):
+        ScanSpec(e_allow=-1.0)
+
+
 def test_format_table_ii(table):
     s = pz.format_table_ii(table[0])
     assert "non-robust" in s and "10.4" in s and len(s.splitlines()) == 5
