@@ -293,6 +293,23 @@ def test_identdata_from_recording_object():
         ident.IdentData.from_recording(types.SimpleNamespace(time=t, control=u))
 
 
+def test_identdata_from_virtual_rig_recording(tmp_path):
+    """A real Recording from the virtual rig: sampling convention matches, PEM recovers K, tau."""
+    from jerklab.rig import Recording, connect
+
+    rig = connect(motor=DCMotor(seed=4), progress=False, recordings=tmp_path)
+    try:
+        rec = rig.step(6.0, 0.5, Ts=TS, rest=0.05)
+    finally:
+        rig.close()
+    for r in (rec, Recording.load(rec.csv_path)):
+        d = ident.IdentData.from_recording(r)
+        assert d.Ts == pytest.approx(TS) and d.n == 110
+        assert np.all(d.u[:10] == 0.0) and d.y[10] == 0.0 and d.y[11] > 0.0
+        f = d.fit("pem")
+        assert f.K == pytest.approx(K0, rel=0.01) and f.tau == pytest.approx(TAU0, rel=0.01)
+
+
 # ---------------------------------------------------------------- validation helpers
 def test_fit_percent_definition():
     y = np.array([0.0, 1.0, 2.0, 3.0])

@@ -21,11 +21,18 @@ def _script():
 
 def test_dataset_regenerates_identically():
     mod = _script()
-    assert mod.main(["--check"]) == 0
+    assert mod.main(["--check", "--only", "plant"]) == 0
+
+
+def test_rig_record_regenerates_identically():
+    """If this fails after a change to jerklab.rig or jerklab.plant, remake the record:
+    `.venv/bin/python data/ident/make_dataset.py --only rig`."""
+    mod = _script()
+    assert mod.main(["--check", "--only", "rig"]) == 0
 
 
 def test_dataset_files_and_metadata():
-    for name in ("step_6V", "prbs_6V_3V"):
+    for name in ("step_6V", "prbs_6V_3V", "rig_step_6V"):
         d = ident.IdentData.load(DATA / name)
         assert d.Ts == 0.005 and d.input_unit == "V" and d.output_unit == "rad"
         assert d.metadata["plant"]["encoder_ppr"] == 448
@@ -40,6 +47,8 @@ def test_dataset_files_and_metadata():
     ("prbs_6V_3V", "pem", True, 32.4, 0.025, 0.005),
     ("step_6V", "arx", False, 31.35, 0.02455, 0.005),                          # README table
     ("prbs_6V_3V", "arx", False, 31.39, 0.02417, 0.005),
+    ("rig_step_6V", "pem", False, 32.4 * (1 - 0.2 / 6.0058651), 0.025, 0.003),
+    ("rig_step_6V", "arx", False, 31.32, 0.02459, 0.005),
 ])
 def test_dataset_fits_as_documented(name, method, friction, K, tau, tol):
     f = ident.IdentData.load(DATA / name).fit(method, friction=friction)

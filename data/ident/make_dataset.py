@@ -4,6 +4,7 @@ Run from the repository root:
 
     .venv/bin/python data/ident/make_dataset.py            # (re)write data/ident/*.csv + *.json
     .venv/bin/python data/ident/make_dataset.py --check    # regenerate in memory, compare, exit 1 if different
+    .venv/bin/python data/ident/make_dataset.py --only rig # just the virtual-rig record
 
 Every number that defines a record is in ``RUNS`` and ``PLANT`` below and is copied into the
 record's JSON sidecar, so a file says how it was made.
@@ -69,15 +70,58 @@ def make_run(name: str) -> ident.IdentData:
     return ident.IdentData(u, theta_meas[:-1], TS, "V", "rad", meta)
 
 
+#: a record from the virtual rig (jerklab.rig.connect()), the same open-loop step a student runs on the
+#: board: ``rig.step(6.0, 2.0, Ts=0.005, rest=0.05)``; the rig logs the PWM-quantized voltage it applied
+RIG_RUNS = {
+    "rig_step_6V": dict(voltage=6.0, seconds=2.0, rest=0.05, plant_seed=5),
+}
+#: the rig's encoder counts are exact integers: its motor has friction but no added angle noise
+RIG_PLANT = dict(PLANT, noise_std=0.0)
+
+
+def make_rig_run(name: str) -> ident.IdentData:
+    import tempfile
+
+    from jerklab.rig import connect
+
+    spec = dict(RIG_RUNS[name])
+    seed = spec.pop("plant_seed")
+    with tempfile.TemporaryDirectory() as tmp:
+        rig = connect(motor=DCMotor(seed=seed, **RIG_PLANT), progress=False, recordings=tmp)
+        try:
+            rec = rig.step(spec["voltage"], spec["seconds"], Ts=TS, rest=spec["rest"])
+        finally:
+            rig.close()
+        d = ident.IdentData.from_recording(rec)
+    meta = {k: v for k, v in d.metadata.items() if k not in ("created", "csv")}
+    meta.update({
+        "description": "open-loop step recorded from the virtual rig (jerklab.rig.connect())",
+        "made_by": "data/ident/make_dataset.py: connect(motor=DCMotor(seed=plant_seed, **plant))"
+                   ".step(voltage, seconds, Ts=0.005, rest=rest)",
+        "plant": RIG_PLANT, "plant_seed": seed, "input": RIG_RUNS[name],
+        "u_is": "voltage the rig applied (PWM-quantized), as logged by the rig",
+        "y_is": "encoder counts / counts_per_rad (rad), zeroed at the start",
+        "true_K": PLANT["K"], "true_tau": PLANT["tau"],
+    })
+    return ident.IdentData(d.u, d.y, d.Ts, d.input_unit, d.output_unit, meta)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--check", action="store_true",
                     help="regenerate in memory and compare with the files on disk")
     ap.add_argument("--out", type=pathlib.Path, default=HERE, help="output folder (default: here)")
+    ap.add_argument("--only", choices=["plant", "rig"], default=None,
+                    help="only the plant-model records or only the virtual-rig record")
     args = ap.parse_args(argv)
     bad = 0
-    for name in RUNS:
-        d = make_run(name)
+    makers = {}
+    if args.only in (None, "plant"):
+        makers.update({name: make_run for name in RUNS})
+    if args.only in (None, "rig"):
+        makers.update({name: make_rig_run for name in RIG_RUNS})
+    for name, maker in makers.items():
+        d = maker(name)
         if args.check:
             old = ident.IdentData.load(args.out / name)
             same = (old.n == d.n and np.array_equal(old.u, d.u) and np.array_equal(old.y, d.y)
