@@ -1,13 +1,15 @@
 # jerklab: the two commands of the README.
 #   make lab    set up .venv and open JupyterLab on notebooks/ (virtual rig by default)
 #   make test   set up .venv and run every test (unit, property, notebooks, firmware, browser)
+#   make app    the standalone tuning page for a class (Voila, virtual rig) on http://127.0.0.1:8866/
+#   make bench  print the benchmark tables
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.jerklab-installed
 PYTEST_ARGS ?=
 
-.PHONY: setup lab test bench firmware clean
+.PHONY: setup lab test app bench firmware clean
 
 $(STAMP): environment.txt pyproject.toml
 	@$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 10), "jerklab needs Python 3.10 or newer, this is " + sys.version' 
@@ -25,6 +27,9 @@ lab: setup
 
 test: setup
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
+
+app: setup
+	$(BIN)/python -m jerklab.app $(APP_ARGS)
 
 bench: setup
 	$(BIN)/python -m benchmarks
