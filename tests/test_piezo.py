@@ -85,7 +85,7 @@ def test_rampup_rows_equal_direct_series(N, j, r, ang, a, seed):
     for i in range(j):
         dj = dj * (k + i)
     direct = np.sum(cmd * (-1) ** j * dj * z ** (-k - j))
-    row_re, row_im = E[2 * j] , E[2 * j + 1]
+    row_re, row_im = E[2 * j], E[2 * j + 1]
     # undo the row scaling: E x - f is the condition scaled by 1/|row|; compare via ratios
     x = np.concatenate([u, [a]])
     val_re = row_re @ x - f[2 * j]
