@@ -40,33 +40,38 @@ import scipy.linalg
 from jerklab._validate import (as_finite_array, as_int, as_nonnegative, as_positive,
                                as_real)
 
-__all__ = ["DCMotor", "FlexibleDCMotor", "StepDisturbance", "advance", "advance_scalar",
+__all__ = ["DCMotor", "FlexibleDCMotor", "StepDisturbance", "advance", "advance_scalar", "advance_em",
            "quantize_voltage", "measure_angle"]
+
+
+try:  # numba compiles the scalar kernels (jerklab.sim calls them from compiled code)
+    from numba import njit as _njit
+
+    def _jit(f):
+        return _njit(cache=True, nogil=True)(f)
+except ImportError:  # pragma: no cover - pure-Python fallback
+    def _jit(f):
+        return f
 
 
 # ---------------------------------------------------------------------------
 # exact inter-sample solution (shared by the plant, the simulator and the rig)
 # ---------------------------------------------------------------------------
-def _lin(theta, omega, w_inf, tau, t):
-    """Exact solution of theta' = omega, tau omega' = w_inf - omega after time t."""
-    em = -math.expm1(-t / tau)                     # 1 - exp(-t/tau), accurate for small t
+@_jit
+def _lin(theta, omega, w_inf, tau, t, em):
+    """Exact solution of theta' = omega, tau omega' = w_inf - omega after time t.
+
+    ``em`` = 1 - exp(-t/tau) (``-expm1(-t/tau)``), passed in so a simulator can
+    compute it once per sampling period.
+    """
     return theta + w_inf * t + (omega - w_inf) * tau * em, w_inf + (omega - w_inf) * (1.0 - em)
 
 
-def advance_scalar(theta, omega, v, fc, K, tau, dt):
-    """Advance the rigid motor by ``dt`` under a held net voltage ``v`` (scalar floats).
-
-    Exact solution of ``tau omega' = K (v - fc sign(omega)) - omega``: the linear
-    part in closed form, the zero crossing of ``omega`` found analytically, and
-    sticking at ``omega = 0`` while ``|v| <= fc`` (static = kinetic friction).
-    Written in plain arithmetic so :mod:`jerklab.sim` can compile it with numba.
-
-    Returns
-    -------
-    (theta, omega) after ``dt``.
-    """
+@_jit
+def advance_em(theta, omega, v, fc, K, tau, dt, em_dt):
+    """:func:`advance_scalar` with ``em_dt = -expm1(-dt/tau)`` precomputed (the hot path)."""
     if fc <= 0.0:
-        return _lin(theta, omega, K * v, tau, dt)
+        return _lin(theta, omega, K * v, tau, dt, em_dt)
     if omega == 0.0:
         if abs(v) <= fc:
             return theta, 0.0
@@ -74,19 +79,37 @@ def advance_scalar(theta, omega, v, fc, K, tau, dt):
     else:
         s = 1.0 if omega > 0.0 else -1.0
     w_inf = K * (v - s * fc)
-    if w_inf * s >= 0.0 or omega == 0.0:
-        # heading towards a steady speed of the same sign (or starting from rest): no crossing
-        return _lin(theta, omega, w_inf, tau, dt)
-    # omega decays towards w_inf of the opposite sign: it reaches 0 at t_star
+    th1, om1 = _lin(theta, omega, w_inf, tau, dt, em_dt)
+    if s * om1 > 0.0 or w_inf * s >= 0.0 or omega == 0.0:
+        # no sign change of omega within dt (it heads to a speed of its own sign, or
+        # decays but does not reach zero)
+        return th1, om1
+    # omega reaches 0 at t_star <= dt (event), then sticks or moves the other way
     t_star = tau * math.log1p(-omega / w_inf)
-    if t_star >= dt:
-        return _lin(theta, omega, w_inf, tau, dt)
-    theta, _ = _lin(theta, omega, w_inf, tau, t_star)
+    if t_star > dt:
+        t_star = dt
+    theta, _ = _lin(theta, omega, w_inf, tau, t_star, -math.expm1(-t_star / tau))
     rest = dt - t_star
-    if abs(v) <= fc:
+    if abs(v) <= fc or rest <= 0.0:
         return theta, 0.0
     s = 1.0 if v > 0.0 else -1.0
-    return _lin(theta, 0.0, K * (v - s * fc), tau, rest)
+    return _lin(theta, 0.0, K * (v - s * fc), tau, rest, -math.expm1(-rest / tau))
+
+
+@_jit
+def advance_scalar(theta, omega, v, fc, K, tau, dt):
+    """Advance the rigid motor by ``dt`` under a held net voltage ``v`` (scalar floats).
+
+    Exact solution of ``tau omega' = K (v - fc sign(omega)) - omega``: the linear
+    part in closed form, the zero crossing of ``omega`` found analytically (an event),
+    and sticking at ``omega = 0`` while ``|v| <= fc`` (static = kinetic friction).
+    Written in plain arithmetic so :mod:`jerklab.sim` compiles it with numba.
+
+    Returns
+    -------
+    (theta, omega) after ``dt``.
+    """
+    return advance_em(theta, omega, v, fc, K, tau, dt, -math.expm1(-dt / tau))
 
 
 def advance(theta, omega, v, fc, K, tau, dt):
@@ -106,7 +129,7 @@ def advance(theta, omega, v, fc, K, tau, dt):
     w_inf = K * (v - s * fc)
     stuck0 = at_rest & (np.abs(v) <= fc)
     crossing = (~at_rest) & (w_inf * s < 0.0)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         t_star = np.where(crossing, tau * np.log1p(np.where(crossing, -omega / w_inf, 0.0)), np.inf)
     crossing &= t_star < dt
     t1 = np.where(crossing, t_star, dt)
@@ -128,14 +151,16 @@ def quantize_voltage(u, supply_voltage=None, pwm_bits=None):
 
     The H-bridge applies ``±supply_voltage`` with a duty cycle ``d/(2**bits - 1)``,
     ``d`` an integer (10-bit phase-correct PWM on Timer 1: TOP = 1023), the sign set
-    by the direction pins. ``None`` switches the effect off.
+    by the direction pins; the duty is rounded half away from zero (C ``lround``, as the
+    firmware). ``None`` switches the effect off.
     """
     u = np.asarray(u, dtype=float)
     if supply_voltage is not None:
         u = np.clip(u, -supply_voltage, supply_voltage)
         if pwm_bits is not None:
             levels = float(2 ** pwm_bits - 1)
-            u = np.round(u / supply_voltage * levels) / levels * supply_voltage
+            x = u / supply_voltage * levels          # lround: half away from zero, as the firmware
+            u = np.sign(x) * np.floor(np.abs(x) + 0.5) / levels * supply_voltage
     return u
 
 
