@@ -45,7 +45,8 @@ def connect(port=None, *, motor=None, speed=None, timeout=2.0, hello_timeout=Non
         ``COM3``, a ``/dev/pts/N`` from ``python -m jerklab.rig serve``) or a pyserial URL
         (``socket://host:port``, ``loop://``, ``rfc2217://...``).
     motor : jerklab.plant.DCMotor, optional
-        Virtual rig only: the simulated motor (default: the paper's, K = 32.4, tau = 25 ms).
+        The simulated motor of the virtual rig or of ``"simavr"`` (default: the paper's,
+        K = 32.4 rad/(V s), tau = 25 ms); not allowed for a real port.
     speed : float or None
         Virtual rig only: ``None`` as fast as possible, else that many times real time.
     timeout : float
@@ -83,15 +84,20 @@ def connect(port=None, *, motor=None, speed=None, timeout=2.0, hello_timeout=Non
                                    else counts_per_rev),
                    model=model, timeout=timeout, hello_timeout=hello_timeout or 1.0,
                    progress=progress, recordings=recordings)
-    if motor is not None or speed is not None:
-        raise ValueError("motor and speed apply to the virtual rig only (port=None)")
     if not isinstance(port, (str, os.PathLike)):
         raise UnknownPortError(f"port must be None, 'simavr', a device path or a pyserial URL, got {port!r}")
     port = os.fspath(port)
+    if speed is not None:
+        raise ValueError("speed applies to the virtual rig only (port=None)")
+    if motor is not None and port != "simavr":
+        raise ValueError("motor applies to the virtual rig (port=None) and 'simavr' only")
     on_close = None
     if port == "simavr":
-        launcher = _launch_simavr()
+        launcher = _launch_simavr(motor)
         port, on_close = launcher.port, launcher.close
+        if motor is not None:
+            supply_voltage = motor.supply_voltage if supply_voltage is None else supply_voltage
+            counts_per_rev = motor.encoder_ppr * motor.decoding if counts_per_rev is None else counts_per_rev
     try:
         link = _open_serial(port, baudrate, link_options)
     except BaseException:
@@ -118,16 +124,24 @@ def _open_serial(port, baudrate, options):
     return link
 
 
-def _launch_simavr():
+def _launch_simavr(motor=None):
     try:
         from jerklab.rig import simavr
     except ImportError as exc:
         raise UnknownPortError(
             "port 'simavr' needs jerklab.rig.simavr (the firmware-on-simavr harness) which is not "
             f"available: {exc}") from exc
+    kwargs = {}
+    if motor is not None:
+        if motor.supply_voltage is None or motor.encoder_ppr is None or motor.decoding != 1:
+            raise ValueError("motor for 'simavr' needs a supply_voltage, an encoder_ppr and decoding=1")
+        kwargs = dict(K=motor.K, tau=motor.tau, supply_voltage=motor.supply_voltage,
+                      coulomb_friction=motor.coulomb_friction, encoder_ppr=motor.encoder_ppr)
     try:
-        return simavr.launch()
+        return simavr.launch(**kwargs)
     except FileNotFoundError as exc:
         raise UnknownPortError(
             f"port 'simavr': a tool or the firmware build is missing ({exc}); install simavr, "
             "libsimavr-dev, gcc-avr, avr-libc, arduino-core-avr and run `make -C firmware`") from exc
+    except (RuntimeError, OSError) as exc:
+        raise UnknownPortError(f"port 'simavr': the simulated Uno did not start: {exc}") from exc

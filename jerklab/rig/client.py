@@ -434,15 +434,18 @@ class Rig:
         bar = _Progress(total, f"{self.port} move", self.progress if progress is None else progress)
         return self._stream(P.Run(settle_n, int(decimation)), rec, total, host_timeout, bar)
 
-    def step(self, voltage, seconds, Ts=0.005, *, rest=0.05, max_voltage=None, host_timeout=1.0,
-             path=None, progress=None) -> Recording:
+    def step(self, voltage, seconds, Ts=0.005, *, rest=0.05, coast=None, max_voltage=None,
+             host_timeout=1.0, path=None, progress=None) -> Recording:
         """Open-loop step of ``voltage`` V for ``seconds`` (identification); returns the Recording.
 
         Samples are taken every ``Ts``; ``rec.control`` is the PWM-quantized voltage applied
         (held from each sample to the next), ``rec.position`` the encoder angle (zeroed at the
         start). With ``rest`` > 0 the record starts with that many seconds at 0 V (a STEP of
         0 V, then the STEP of ``voltage``, joined into one record): a step *from rest*, as an
-        identification needs (``jerklab.ident.fit_dc_motor``).
+        identification needs (``jerklab.ident.fit_dc_motor``). After the step the motor is
+        switched off and coasts; ``coast`` seconds (default 8·tau of the rig's model) are
+        waited before returning so that the next run starts from rest (not with the
+        in-process virtual rig, whose motor stops at once between runs).
         """
         voltage = as_real("voltage", voltage)
         seconds = as_positive("seconds", seconds)
@@ -472,7 +475,12 @@ class Rig:
         if n_rest:
             self._stream(P.Step(0.0, us, n_rest), rec, n_rest, host_timeout, bar, final=False)
         offset = (len(rec) and int(rec.counts[-1]), n_rest)
-        return self._stream(P.Step(voltage, us, n), rec, n, host_timeout, bar, offset=offset)
+        coast = 8.0 * self.model[1] if coast is None else as_nonnegative("coast", coast)
+        try:
+            return self._stream(P.Step(voltage, us, n), rec, n, host_timeout, bar, offset=offset)
+        finally:
+            if not getattr(self.link, "instant_coast", False):
+                time.sleep(coast)                   # let the motor coast to rest
 
     def _stream(self, command, rec, total, host_timeout, bar, final=True, offset=(0, 0)):
         """Start a run/step and record telemetry until END_OF_RUN (or an error).

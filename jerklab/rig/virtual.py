@@ -373,6 +373,9 @@ class VirtualSerial:
     pulled out; ``freeze_after`` bytes, then the device goes silent (a hung board).
     """
 
+    #: the device's motor coasts to rest at once between runs (the client need not wait)
+    instant_coast = True
+
     def __init__(self, device: VirtualDevice | None = None, speed: float | None = None, timeout=1.0,
                  pull_cable_after: int | None = None, freeze_after: int | None = None,
                  port="virtual"):
