@@ -215,11 +215,12 @@ def _batch_chunk(j0, j1, rpos, rvel, racc, Ks, taus, fcs, noise, noise_on,
     for q in range(m):
         j = j0 + q
         em[q] = -math.expm1(-Ts / taus[j])
-        MET[j, 0] = 0.0
-        MET[j, 1] = 0.0
-        MET[j, 3] = -1.0
-        MET[j, 4] = 0.0
     nmove = 0.0
+    emax = np.zeros(m)
+    esq = np.zeros(m)
+    last = np.full(m, -1.0)
+    umax = np.zeros(m)
+    fin = np.zeros(m)
     for k in range(n):
         in_move = k * Ts <= duration + 1e-12
         if in_move:
@@ -227,18 +228,21 @@ def _batch_chunk(j0, j1, rpos, rvel, racc, Ks, taus, fcs, noise, noise_on,
         rp = rpos[k]
         rv = rvel[k]
         ff = (fftau * racc[k] + rv) / ffK if ff_on else 0.0
+        t0 = k * Ts
+        split = dist_on and t0 < dist_time and dist_time < t0 + Ts
+        w = dist_amp if (dist_on and t0 >= dist_time) else 0.0
         for q in range(m):
             j = j0 + q
             x = th[q]
             err = rp - x
             a = abs(err)
-            if a > MET[j, 0]:
-                MET[j, 0] = a
+            if a > emax[q]:
+                emax[q] = a
             if in_move:
-                MET[j, 1] += err * err
-            MET[j, 2] = err
+                esq[q] += err * err
             if abs(distance - x) > band:
-                MET[j, 3] = k
+                last[q] = k
+            fin[q] = err
             y = _encoder(x, cpr)
             if noise_on:
                 y += noise[j, k]
@@ -256,40 +260,29 @@ def _batch_chunk(j0, j1, rpos, rvel, racc, Ks, taus, fcs, noise, noise_on,
             dp[q] = d
             ep[q] = e
             v, s2 = _amplifier(u, supply, levels)
-            if abs(v) > MET[j, 4]:
-                MET[j, 4] = abs(v)
+            if abs(v) > umax[q]:
+                umax[q] = abs(v)
             if keep:
                 POS[j, k] = x
                 U[j, k] = v
-            th[q], om[q] = _rigid_step(x, om[q], v, k, Ts, fcs[j], Ks[j], taus[j], em[q],
-                                       dist_on, dist_amp, dist_time)
+            if split:
+                th[q], om[q] = _rigid_step(x, om[q], v, k, Ts, fcs[j], Ks[j], taus[j], em[q],
+                                           dist_on, dist_amp, dist_time)
+            else:
+                th[q], om[q] = advance_em(x, om[q], v + w, fcs[j], Ks[j], taus[j], Ts, em[q])
     for q in range(m):
-        MET[j0 + q, 5] = nmove
+        j = j0 + q
+        MET[j, 0] = emax[q]
+        MET[j, 1] = esq[q]
+        MET[j, 2] = fin[q]
+        MET[j, 3] = last[q]
+        MET[j, 4] = umax[q]
+        MET[j, 5] = nmove
 
 
-_CHUNK = 512
-
-if HAVE_NUMBA:
-    from numba import prange as _prange
-
-    @_njit(cache=True, nogil=True, parallel=True)
-    def _batch_kernel(rpos, rvel, racc, Ks, taus, fcs, noise, noise_on,
-                      dist_on, dist_amp, dist_time, supply, levels, cpr,
-                      kpd, kid, kdd, gamma, ff_on, ffK, fftau, limit, aw, velocity, scale, bumpless, Ts,
-                      duration, distance, band, keep, POS, U, MET):
-        """Chunks of plants in parallel threads (numba prange)."""
-        m = Ks.shape[0]
-        nchunks = (m + _CHUNK - 1) // _CHUNK
-        for c in _prange(nchunks):
-            j0 = c * _CHUNK
-            j1 = min(m, j0 + _CHUNK)
-            _batch_chunk(j0, j1, rpos, rvel, racc, Ks, taus, fcs, noise, noise_on,
-                         dist_on, dist_amp, dist_time, supply, levels, cpr,
-                         kpd, kid, kdd, gamma, ff_on, ffK, fftau, limit, aw, velocity, scale, bumpless,
-                         Ts, duration, distance, band, keep, POS, U, MET)
-else:  # pragma: no cover
-    def _batch_kernel(rpos, rvel, racc, Ks, taus, fcs, noise, noise_on, *args):
-        _batch_chunk(0, Ks.shape[0], rpos, rvel, racc, Ks, taus, fcs, noise, noise_on, *args)
+def _batch_kernel(rpos, rvel, racc, Ks, taus, fcs, noise, noise_on, *args):
+    """All plants in one compiled call (see :func:`_batch_chunk`)."""
+    _batch_chunk(0, Ks.shape[0], rpos, rvel, racc, Ks, taus, fcs, noise, noise_on, *args)
 
 
 # ---------------------------------------------------------------------------
