@@ -40,17 +40,16 @@ Things the paper leaves open or gets wrong, and what is done here:
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from fractions import Fraction
 
 import numpy as np
 
-from jerklab._validate import as_finite_array, as_int, as_positive
+from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive
 
 __all__ = ["YangSCurve", "PulseTrain", "SpeedTable", "paper_speed", "published_divider_lockup",
            "simulate_verilog", "simulate_divider_verilog", "read_vcd", "VerilogRun",
-           "divider_edges", "HardwareLimitError", "PAPER"]
+           "divider_edges", "published_divider", "HardwareLimitError", "PAPER"]
 
 
 class HardwareLimitError(ValueError):
@@ -207,7 +206,7 @@ class YangSCurve:
                  clock_hz=50_000_000, step_um=20, start_count=300, bits=32):
         self.max_velocity = as_int("max_velocity", max_velocity, minimum=1)
         self.accel_time = as_positive("accel_time", accel_time)
-        self.cruise_time = float(as_positive("cruise_time", cruise_time)) if cruise_time != 0 else 0.0
+        self.cruise_time = as_nonnegative("cruise_time", cruise_time)
         self.refresh_period = as_positive("refresh_period", refresh_period)
         self.clock_hz = as_int("clock_hz", clock_hz, minimum=2)
         self.step_um = as_int("step_um", step_um, minimum=1)
@@ -229,7 +228,7 @@ class YangSCurve:
         frac = Fraction(self.max_velocity, 2 * N * N)
         self.coef_num, self.coef_den = frac.numerator, frac.denominator
         self.end_tick = 4 * N + self.cruise_counts           # n = 0 from here on
-        for name, val in (("V (2N)^2 / (2N^2) product a*N^2", self.coef_num * N * N),
+        for name, val in (("multiplier product A_NUM * N^2", self.coef_num * N * N),
                           ("coefficient denominator", self.coef_den),
                           ("clock_hz", self.clock_hz), ("refresh clocks", self.refresh_clocks),
                           ("tick count", self.end_tick),
@@ -339,45 +338,81 @@ PAPER = dict(max_velocity=20000, accel_time=1.0, cruise_time=1.0, refresh_period
 """Yang et al.'s test set-up (§3)."""
 
 
-def published_divider_lockup(model: YangSCurve):
-    """Run the divider *as printed in the paper* (``==`` compares, live ``compare_reg``).
+def published_divider(starts, values, p_end, bits=32):
+    """The divider *as printed in the paper* (``==`` compares, live ``compare_reg``), clock-exact.
 
-    Returns ``None`` if it survives the move, else a dict with the posedge ``p``,
-    time ``t`` (s), tick ``m`` at which the new ``compare_reg`` fell below the
-    running count (the counter then runs through ``2**bits`` clocks before the next
-    edge: a lock-up of ``2**bits / f_clk`` s), and the values involved.
+    Semantics of the listing, per posedge, with ``compare_reg`` the cycle input:
+    ``compare_reg == 0`` -> ``clkout <= 0, count <= 0``; else ``count == compare_reg/2``
+    -> ``clkout <= 1, count <= count + 1``; else ``count == compare_reg`` ->
+    ``clkout <= 0, count <= 1``; else ``count <= count + 1``.
 
-    Semantics of the listing: ``duty = compare_reg / 2``; if ``compare_reg != 0``:
-    ``count == duty`` -> high, count+1; ``count == compare_reg`` -> low, count = 1;
-    else count+1.  ``compare_reg`` is the cycle value of the current tick.
+    Returns
+    -------
+    rise, fall : ndarray of int
+        Edge posedges up to ``p_end`` (as :func:`divider_edges`).
+    lockup : dict or None
+        The first posedge at which ``compare_reg`` changed to a value below the running
+        count: from there ``count == compare_reg`` never holds again, and the counter
+        runs through ``2**bits`` clocks before the next edge (86 s at 50 MHz);
+        ``lockup_clocks`` is the number of clocks until that edge.
     """
-    starts, values = model.cycle_input()
-    count = 0
+    starts = np.asarray(starts, dtype=np.int64)
+    values = np.asarray(values, dtype=np.int64)
+    if starts.ndim != 1 or starts.shape != values.shape or starts.size == 0 or starts[0] != 1:
+        raise ValueError("starts must be a 1-D increasing sequence from 1, same length as values")
+    p_end = as_int("p_end", p_end, minimum=1)
+    rise, fall = [], []
+    count, out, lockup = 0, 0, None
     for i in range(len(starts)):
         c = int(values[i])
-        p0 = int(starts[i])
-        p1 = int(starts[i + 1]) if i + 1 < len(starts) else p0 + 4 * max(int(values.max()), 1)
+        p = int(starts[i])
+        if p > p_end:
+            break
+        p1 = min(int(starts[i + 1]) if i + 1 < len(starts) else p_end + 1, p_end + 1)
         if c == 0:
-            count = 0
+            if out:
+                fall.append(p)
+            count, out = 0, 0
             continue
-        if count > c:
-            return {"p": p0, "t": p0 / model.clock_hz, "m": i, "count": count, "compare_reg": c,
-                    "lockup_s": 2 ** model.bits / model.clock_hz}
-        # advance count over posedges p0 .. p1-1 (count before posedge p is `count`)
-        steps = p1 - p0
-        while steps > 0:
-            if count < c // 2:
-                adv = min(steps, c // 2 - count)
+        if count > c and lockup is None:
+            lockup = {"p": p, "m": i, "count": count, "compare_reg": c,
+                      "lockup_clocks": 2 ** bits - count + (c >> 1)}
+        while p < p1:                  # `count` is the value before posedge p
+            duty = c >> 1
+            if count == duty:
+                if not out:
+                    rise.append(p)
+                out, count, p = 1, count + 1, p + 1
+            elif count == c:
+                if out:
+                    fall.append(p)
+                out, count, p = 0, 1, p + 1
+            else:
+                target = duty if count < duty else c if count < c else 2 ** bits + duty
+                adv = min(p1 - p, target - count)
                 count += adv
-                steps -= adv
-            elif count == c // 2 or count < c:
-                adv = min(steps, c - count) if count > c // 2 else 1
-                count += adv
-                steps -= adv
-            else:                         # count == c: falls, count = 1
-                count = 1
-                steps -= 1
-    return None
+                p += adv
+                if count >= 2 ** bits:     # wrap-around of the 32-bit counter
+                    count -= 2 ** bits
+    return np.array(rise, dtype=np.int64), np.array(fall, dtype=np.int64), lockup
+
+
+def published_divider_lockup(model: YangSCurve):
+    """Where the paper's printed divider locks up on ``model``'s move (``None`` if never).
+
+    Returns a dict: posedge ``p``, time ``t`` (s), tick ``m``, the running ``count``,
+    the new ``compare_reg`` below it, and ``lockup_s`` = ``2**bits / f_clk``, the time
+    the counter needs to wrap round to the compare value again.
+    """
+    starts, values = model.cycle_input()
+    p_end = int(starts[-1] + 2 * int(values.max()) + 2)
+    _, _, hit = published_divider(starts, values, p_end, bits=model.bits)
+    if hit is None:
+        return None
+    hit = dict(hit)
+    hit["t"] = hit["p"] / model.clock_hz
+    hit["lockup_s"] = 2 ** model.bits / model.clock_hz
+    return hit
 
 
 # ---------------------------------------------------------------------- Verilog (Icarus)
@@ -433,8 +468,12 @@ def _parse(log):
     return table, rise, fall
 
 
-def simulate_verilog(model: YangSCurve, p_end=None, workdir=None, vcd=None) -> VerilogRun:
+def simulate_verilog(model: YangSCurve, p_end=None, workdir=None, vcd=None,
+                     published=False) -> VerilogRun:
     """Compile and run ``tb_scurve.v`` (speed generator + divider) with Icarus Verilog.
+
+    ``published=True`` uses the paper's divider as printed (``pulse_divider_published.v``,
+    modelled by :func:`published_divider`) instead of the latched one.
 
     ``p_end`` defaults to the end of the move plus two of the longest periods.  Icarus
     runs ~0.4 M clocks/s here: the paper's 3 s at 50 MHz (1.5e8 clocks) takes minutes,
@@ -454,8 +493,10 @@ def simulate_verilog(model: YangSCurve, p_end=None, workdir=None, vcd=None) -> V
         exe = f"{wd}/tb_scurve.vvp"
         params = [f"-Ptb_scurve.{k}={v}" for k, v in model.verilog_defines().items()]
         params.append(f"-Ptb_scurve.P_END={p_end}")
+        div = ["-DPUBLISHED", str(d / "pulse_divider_published.v")] if published else \
+            [str(d / "pulse_divider.v")]
         _run(["iverilog", "-g2012", "-o", exe, *params, str(d / "tb_scurve.v"),
-              str(d / "scurve_gen.v"), str(d / "pulse_divider.v")], wd)
+              str(d / "scurve_gen.v"), *div], wd)
         args = ["vvp", "-n", exe] + ([f"+vcd={vcd}"] if vcd else [])
         log = _run(args, wd)
     table, rise, fall = _parse(log)

@@ -9,7 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from jerklab.fpga import (PAPER, HardwareLimitError, YangSCurve, divider_edges, paper_speed,
-                          published_divider_lockup, simulate_divider_verilog, simulate_verilog)
+                          published_divider, published_divider_lockup, simulate_divider_verilog,
+                          simulate_verilog)
 
 
 # ---------------------------------------------------------------- eqs. 7, 8
@@ -115,6 +116,43 @@ def test_divider_model_matches_clock_by_clock_semantics(stim):
     assert np.array_equal(r1, r2) and np.array_equal(f1, f2)
 
 
+def brute_published(starts, values, p_end, bits):
+    """Clock-by-clock simulation of the paper's listing with a ``bits``-wide counter."""
+    mask = (1 << bits) - 1
+    count = out = 0
+    rise, fall = [], []
+    vi = 0
+    for p in range(1, p_end + 1):
+        while vi + 1 < len(starts) and starts[vi + 1] <= p:
+            vi += 1
+        c = values[vi]
+        if c != 0:
+            if count == c // 2:
+                new_out, count = 1, (count + 1) & mask
+            elif count == c:
+                new_out, count = 0, 1
+            else:
+                new_out, count = out, (count + 1) & mask
+        else:
+            new_out, count = 0, 0
+        if new_out != out:
+            (rise if new_out else fall).append(p)
+        out = new_out
+    return np.array(rise), np.array(fall)
+
+
+@settings(max_examples=300)
+@given(stimulus)
+def test_published_divider_model_matches_clock_by_clock_semantics(stim):
+    """Including the lock-up and the wrap-around of the counter (6 bits here, so it shows)."""
+    starts = np.cumsum([1] + [d for d, _ in stim[1:]])
+    values = [v for _, v in stim]
+    p_end = int(starts[-1]) + 200
+    r1, f1, _ = published_divider(starts, values, p_end, bits=6)
+    r2, f2 = brute_published(starts, values, p_end, bits=6)
+    assert np.array_equal(r1, r2) and np.array_equal(f1, f2)
+
+
 def test_published_divider_locks_up_in_paper_move():
     hit = published_divider_lockup(YangSCurve(**PAPER))
     assert hit is not None
@@ -178,6 +216,21 @@ def test_verilog_whole_paper_move_bit_for_bit(tmp_path):
     pt = Y.pulses()
     assert len(pt.rise) > 1900
     assert np.array_equal(run.rise, pt.rise) and np.array_equal(run.fall, pt.fall)
+
+
+def test_verilog_published_divider_locks_up_like_the_model(tmp_path):
+    """The paper's divider as printed, driven by the paper's speed generator (200 kHz clock):
+    Verilog and model give the same two pulses, then silence from the lock-up on."""
+    from conftest import require_tool
+    require_tool("iverilog", "vvp")
+    Y = YangSCurve(**{**PAPER, "clock_hz": 200_000})
+    p_end = 120_000
+    run = simulate_verilog(Y, p_end=p_end, workdir=str(tmp_path), published=True)
+    starts, values = Y.cycle_input()
+    rise, fall, hit = published_divider(starts, values, p_end)
+    assert np.array_equal(run.rise, rise) and np.array_equal(run.fall, fall)
+    assert hit is not None and run.rise.max() < hit["p"] < p_end
+    assert len(Y.pulses(p_end=p_end).rise) > 100          # the latched divider keeps going
 
 
 def test_verilog_general_parameters_bit_for_bit(tmp_path):

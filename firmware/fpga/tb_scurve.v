@@ -4,6 +4,7 @@
 // Posedges are numbered from 1 (the first after reset).  Runs P_END posedges.
 // Parameters as in scurve_gen, plus HALF (half clock period in ns, cosmetic) and P_END;
 // jerklab.fpga.YangSCurve.verilog_defines() gives them.  +vcd=<file> dumps a VCD.
+// Compiled with -DPUBLISHED it uses the paper's divider as printed (pulse_divider_published.v).
 `timescale 1ns/1ps
 module tb_scurve;
     parameter [31:0] V = 32'd20000, N = 32'd2500, CRUISE = 32'd5000, A_NUM = 32'd1,
@@ -23,7 +24,11 @@ module tb_scurve;
     scurve_gen #(.V(V), .N(N), .CRUISE(CRUISE), .A_NUM(A_NUM), .B_DEN(B_DEN), .K(K),
                  .F_CLK(F_CLK), .R(R), .N_MIN(N_MIN))
         gen (.clk(clk), .reset_n(reset_n), .m(m), .n(n), .speed(speed), .freq(freq), .cycle(cycle));
+`ifdef PUBLISHED
+    pulse_divider_published div (.clk(clk), .reset_n(reset_n), .cycle(cycle), .clkout(clkout), .count(count));
+`else
     pulse_divider div (.clk(clk), .reset_n(reset_n), .cycle(cycle), .clkout(clkout), .count(count));
+`endif
 
     always #HALF clk = ~clk;
 
