@@ -177,8 +177,14 @@ class Preisach:
             mass[i, i] = E[i + 1, i]
         area = np.full((n, n), h * h)
         np.fill_diagonal(area, h * h / 2)
-        mu = mass / area
-        mu = np.where(mu < 0, np.where(mu > -1e-12 * np.abs(mu).max(initial=1.0), 0.0, mu), mu)
+        mu = np.tril(mass / area)
+        # round-off of the mixed differences may leave tiny negative weights: clear those;
+        # a genuinely negative mixed difference is not a Preisach Everett function (rejected)
+        tiny = 1e-9 * max(np.abs(mu).max(), 1e-300)
+        mu[(mu < 0) & (mu > -tiny)] = 0.0
+        if np.any(mu < 0):
+            raise ValueError("everett must have a non-negative mixed difference "
+                             "(E(a2,b1) - E(a1,b1) - E(a2,b2) + E(a1,b2) >= 0)")
         return cls(u_min, u_max, np.tril(mu), offset=offset, initial=initial)
 
     @classmethod

@@ -232,6 +232,7 @@ def test_fit_on_coarser_grid_predicts_unseen_input():
     (lambda: piezo().invert(1.0, eps=0.0), "eps"),
     (lambda: piezo().invert([1.0, 2.0], commit=False), "commit"),
     (lambda: piezo().reset("sideways"), "state"),
+    (lambda: Preisach.from_everett(0.0, 1.0, lambda a, b: -(a - b) ** 2, n=4), "everett"),
     (lambda: fit_preisach({"alpha": [1]}), "forc_data"),
     (lambda: fit_preisach(ForcData(np.ones(2), np.ones(3), np.ones(2), 0.0, 1.0)), "same"),
 ])
