@@ -260,6 +260,10 @@ def discrete_pole_placement_pid(K, tau, wn, zeta=1.0, sigma=None, Ts=0.005, loop
         gamma, fourth = 0.0, float(x[3])
     else:
         gamma, fourth = float(x[3]), float(extra_pole)
+        if not abs(gamma) < 1.0:
+            raise ValueError(f"extra_pole={extra_pole}: placing all four poles needs a derivative filter "
+                             f"pole gamma = {gamma:.4g} outside the unit circle (an unstable controller); "
+                             "choose another extra_pole or extra_pole=None")
     # decompose n(z) = kpd (z-1)(z-g) + kid z (z-g) + kdd (z-1)^2
     T = np.array([[1.0, 1.0, 1.0], [-(1.0 + gamma), -gamma, -2.0], [gamma, 0.0, 1.0]])
     kpd, kid, kdd = np.linalg.solve(T, n)
