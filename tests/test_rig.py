@@ -66,6 +66,10 @@ def test_step_identifies_the_hidden_motor(tmp_path):
         rec = r.step(6.0, 0.6)
     fit = fit_dc_motor(rec.control, rec.position, rec.Ts, method="pem")
     assert fit.K == pytest.approx(27.5, rel=0.01) and fit.tau == pytest.approx(0.034, rel=0.03)
+    from jerklab.ident import IdentData
+
+    data = IdentData.from_recording(Recording.load(rec.csv_path))       # from the files on disk
+    assert data.Ts == 0.005 and len(data.u) == len(rec)
 
 
 def _spec_run(profile, kpd, kid, kdd, Ts, n, vmax=12.0):

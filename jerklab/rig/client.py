@@ -443,9 +443,10 @@ class Rig:
         start). With ``rest`` > 0 the record starts with that many seconds at 0 V (a STEP of
         0 V, then the STEP of ``voltage``, joined into one record): a step *from rest*, as an
         identification needs (``jerklab.ident.fit_dc_motor``). After the step the motor is
-        switched off and coasts; ``coast`` seconds (default 8·tau of the rig's model) are
-        waited before returning so that the next run starts from rest (not with the
-        in-process virtual rig, whose motor stops at once between runs).
+        switched off and coasts; :meth:`wait_still` then checks (up to ``max(2 s, 4·coast)``,
+        ``coast`` default 8·tau of the rig's model) that the encoder has stopped, so that the
+        next run starts from rest (not needed with the in-process virtual rig, whose motor
+        stops at once between runs).
         """
         voltage = as_real("voltage", voltage)
         seconds = as_positive("seconds", seconds)
@@ -476,11 +477,31 @@ class Rig:
             self._stream(P.Step(0.0, us, n_rest), rec, n_rest, host_timeout, bar, final=False)
         offset = (len(rec) and int(rec.counts[-1]), n_rest)
         coast = 8.0 * self.model[1] if coast is None else as_nonnegative("coast", coast)
-        try:
-            return self._stream(P.Step(voltage, us, n), rec, n, host_timeout, bar, offset=offset)
-        finally:
-            if not getattr(self.link, "instant_coast", False):
-                time.sleep(coast)                   # let the motor coast to rest
+        rec = self._stream(P.Step(voltage, us, n), rec, n, host_timeout, bar, offset=offset)
+        if not getattr(self.link, "instant_coast", False):
+            self.wait_still(timeout=max(2.0, 4 * coast), Ts=Ts)
+        return rec
+
+    def wait_still(self, timeout=2.0, Ts=0.005, window=10, tolerance=0) -> bool:
+        """Wait until the motor is at rest: repeat a 0 V STEP of ``window`` samples until the
+        encoder moves by at most ``tolerance`` counts during it, or ``timeout`` s pass.
+
+        Measured, not guessed: a simulated Uno may run slower than the wall clock, a real
+        motor may coast longer than its time constant says. Returns True once still.
+        """
+        timeout = as_positive("timeout", timeout)
+        us = self._ts_us(Ts)
+        deadline = time.monotonic() + timeout
+        while True:
+            rec = Recording({"Ts": us * 1e-6, "counts_per_rad": self.counts_per_rad,
+                             "volts_per_pwm": self.supply_voltage / self.info.pwm_max})
+            bar = _Progress(window, "", False)
+            self._stream(P.Step(0.0, us, int(window)), rec, int(window), 1.0, bar)
+            c = rec.counts
+            if len(c) and int(c.max() - c.min()) <= tolerance:
+                return True
+            if time.monotonic() >= deadline:
+                return False
 
     def _stream(self, command, rec, total, host_timeout, bar, final=True, offset=(0, 0)):
         """Start a run/step and record telemetry until END_OF_RUN (or an error).
