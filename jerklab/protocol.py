@@ -29,7 +29,6 @@ from __future__ import annotations
 import binascii
 import dataclasses
 import enum
-import math
 import struct
 from dataclasses import dataclass
 from typing import ClassVar

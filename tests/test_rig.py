@@ -362,3 +362,40 @@ def test_device_stop_mid_run():
     out = _talk(dev, P.Stop(), seq=9)
     assert out[0] == P.Ack(P.MsgType.STOP)
     assert any(isinstance(m, P.EndOfRun) and m.reason == P.EndReason.STOPPED and m.samples == 2 for m in out)
+
+
+def test_load_keeps_whole_rows_of_a_cut_file(tmp_path):
+    """A crash mid-write leaves a partial last row: loading keeps every whole row."""
+    rec = Recording({"kind": "move", "Ts": 0.005, "counts_per_rad": CPR, "volts_per_pwm": 12 / 1023},
+                    tmp_path / "cut")
+    for k in range(50):
+        rec.append(k, 0.01 * k, k, 10 * k, 0)
+    rec.flush()                          # no finish(): the sidecar still says "recording"
+    text = rec.csv_path.read_text()
+    rec.csv_path.write_text(text[:-7])   # cut inside the last row
+    back = Recording.load(tmp_path / "cut.json")
+    assert back.metadata["status"] == "recording" and len(back) == 49
+    np.testing.assert_array_equal(back.counts, np.arange(49))
+    assert back.control[10] == pytest.approx(100 * 12 / 1023)
+
+
+def test_docstring_examples():
+    import doctest
+
+    import jerklab.rig
+    import jerklab.rig.recording
+
+    for mod in (P, jerklab.rig, jerklab.rig.recording):
+        result = doctest.testmod(mod)
+        assert result.failed == 0 and result.attempted > 0, mod.__name__
+
+
+def test_connect_stops_a_leftover_run(tmp_path):
+    dev = VirtualDevice()
+    dev.receive(P.encode(P.SetGains(10.0, 0.1, 50.0, 5000)) + P.encode(P.Plan(50.0, 0))
+                + P.encode(P.Run(0, 1)))
+    dev.tick()
+    assert dev.active
+    r = Rig(VirtualSerial(dev, timeout=0.05), "virtual", progress=False, recordings=tmp_path)
+    assert not dev.active and dev.pwm == 0
+    assert len(r.step(1.0, 0.02, rest=0)) == 4

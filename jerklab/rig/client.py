@@ -137,6 +137,11 @@ class Rig:
             self.close()
             raise RigError(f"{self.port}: device speaks protocol version {self.info.protocol_version}, "
                            f"jerklab speaks {P.PROTOCOL_VERSION}: update the firmware or jerklab")
+        try:
+            self.stop()          # a run left over from a host that went away ends here
+        except BaseException:
+            self.close()
+            raise
 
     # ---------------------------------------------------------------- basics
     @property

@@ -30,7 +30,6 @@ from jerklab import protocol as P
 
 __all__ = ["VirtualDevice", "VirtualSerial"]
 
-_F32_MAX = 3.4028234663852886e38
 
 #: planner id -> jerklab.planner function name
 _PLANNERS = {
