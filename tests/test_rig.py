@@ -399,3 +399,17 @@ def test_connect_stops_a_leftover_run(tmp_path):
     r = Rig(VirtualSerial(dev, timeout=0.05), "virtual", progress=False, recordings=tmp_path)
     assert not dev.active and dev.pwm == 0
     assert len(r.step(1.0, 0.02, rest=0)) == 4
+
+
+@pytest.mark.parametrize("kind", ["sine_jerk_optimal", "scurve", "trapezoid"])
+def test_other_planners_on_the_virtual_rig(rig, kind):
+    from jerklab import planner
+
+    if kind == "trapezoid":
+        prof = planner.plan_trapezoid(6.0, 200.0, 40.0)
+    else:
+        prof = getattr(planner, "plan_" + kind)(6.0, 5e3, 200.0, 40.0)
+    rec = rig.run_move(prof, pole_placement_pid(K, TAU, wn=20.0), Ts=0.005, settle=0.2)
+    assert rec.metadata["plan"]["duration"] == pytest.approx(prof.duration, rel=1e-5)
+    assert rec.reference == pytest.approx(prof.sample(rec.time).position, abs=1e-5)
+    assert abs(rec.position[-1] - 6.0) < 3 / CPR
