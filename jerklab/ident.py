@@ -7,7 +7,8 @@ Stojčić §4A identified the plant of eq. 1,
 from a voltage step recorded every 5 ms, with MATLAB's ``pem(data, 'P2')``, and got
 K = 32.4 rad/(V s), tau = 0.025 s. A ``'P2'`` process model has two poles and *no* integrator;
 the structure of eq. 1 is a pole plus an integrator (MATLAB's ``'P1I'``), and that is what this
-module fits (see ``docs`` / ``READING.md`` §1). Two estimators are offered:
+module fits; :func:`fit_p2` reproduces the paper's literal call to show where it goes
+(notebooks/02_identification.ipynb). Two estimators are offered:
 
 * ``method="arx"``: linear least squares on the differenced angle. The ZOH discretization of eq. 1
   gives, for v(k) = (theta(k) - theta(k-1)) / Ts, the *exact* difference equation
@@ -22,7 +23,10 @@ module fits (see ``docs`` / ``READING.md`` §1). Two estimators are offered:
   With white measurement noise this is the maximum-likelihood estimate and is unbiased; its
   covariance comes from the Jacobian at the optimum.
 
-Everything is SI: volts in, radians out, seconds.
+Also here: :class:`IdentData` (CSV + JSON records, built from a rig ``Recording``), :func:`arx` for any
+orders, validation (:func:`validate`, :func:`residual_analysis`, :func:`plot_compare`,
+:func:`plot_residuals`), input design (:func:`step_input`, :func:`prbs`, :func:`sample_time_range`)
+and :func:`arx_asymptotic_bias`. Everything is SI: volts in, radians out, seconds.
 """
 from __future__ import annotations
 
