@@ -36,20 +36,14 @@ ROOT = pathlib.Path(__file__).resolve().parent.parent
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                  "--disable-background-networking", "--disable-component-update", "--disable-sync"]
-PANEL_CELL = "from jerklab.widgets import pole_placement_panel\n\npole_placement_panel()"
-BROKEN_CELL = '''\
-import ipywidgets as widgets
-from jerklab.widgets import pole_placement_panel
-
-panel = pole_placement_panel()
-
-
-def broken_update():  # test only: the slider callback raises
+# notebook 03 ends with this cell (``pole_placement_panel()``); here the panel is also named
+PANEL_CELL = "from jerklab.widgets import pole_placement_panel\n\npanel = pole_placement_panel()\npanel"
+BREAK_CELL = '''\
+def broken_update():  # test only: the slider callback now raises
     raise RuntimeError("deliberately broken callback (test_browser)")
 
 
-panel.update = broken_update
-panel'''
+panel.update = broken_update'''
 SERVER_TIMEOUT = 90.0
 PANEL_TIMEOUT_MS = 90_000
 
@@ -63,9 +57,9 @@ def _free_port():
         return s.getsockname()[1]
 
 
-def _notebook(path, source):
+def _notebook(path, *sources):
     nb = nbformat.v4.new_notebook()
-    nb.cells = [nbformat.v4.new_code_cell(source)]
+    nb.cells = [nbformat.v4.new_code_cell(src) for src in sources]
     nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
     nbformat.write(nb, str(path))
     return path
@@ -308,26 +302,62 @@ def test_class_page_voila_with_rig(browser, artifacts_dir, tmp_path):
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory):
-    """One JupyterLab server for the notebook tests (the widget front end can be disabled)."""
-    require_tool(CHROMIUM)
+def lab(browser, tmp_path_factory):
+    """JupyterLab on a notebook [panel cell, break cell], one page and one warm kernel.
+
+    The three JupyterLab tests share them (a kernel start costs more than all the checks).
+    """
     tmp = tmp_path_factory.mktemp("lab")
     nbdir = tmp / "notebooks"
     nbdir.mkdir()
-    _notebook(nbdir / "panel.ipynb", PANEL_CELL)
-    _notebook(nbdir / "broken.ipynb", BROKEN_CELL)
+    _notebook(nbdir / "panel.ipynb", PANEL_CELL, BREAK_CELL)
     server, url = jupyterlab(tmp, nbdir / "panel.ipynb")
     with server:
-        yield Lab(tmp, url)
+        artifacts = ROOT / "artifacts"        # as conftest's artifacts_dir (function scoped)
+        artifacts.mkdir(exist_ok=True)
+        w = Watched(browser, "jupyterlab", artifacts)
+        try:
+            yield Lab(tmp, url, w)
+        finally:
+            w.close()
 
 
 class Lab:
-    def __init__(self, tmp, url):
-        self.tmp, self.url = pathlib.Path(tmp), url
-        self.page_config = self.tmp / "config" / "labconfig" / "page_config.json"
+    """The shared JupyterLab page: open, run a cell, reload without the widget front end."""
 
-    def url_for(self, name):
-        return self.url.replace("/panel.ipynb", f"/{name}")
+    def __init__(self, tmp, url, watched):
+        self.tmp, self.url, self.w = pathlib.Path(tmp), url, watched
+        self.page_config = self.tmp / "config" / "labconfig" / "page_config.json"
+        self.opened = False
+
+    def open(self):
+        page = self.w.page
+        page.goto(self.url, wait_until="commit", timeout=PANEL_TIMEOUT_MS)
+        page.wait_for_selector(".jp-Notebook .jp-CodeCell .cm-content", timeout=PANEL_TIMEOUT_MS)
+        self.opened = True
+
+    def run_cell(self, index):
+        """Execute code cell ``index`` once the kernel is idle; wait for its new prompt number."""
+        if not self.opened:
+            self.open()
+        page = self.w.page
+        cell = page.locator(".jp-Notebook .jp-CodeCell").nth(index)
+        prompt = cell.locator(".jp-InputPrompt")
+        before = prompt.inner_text()
+        deadline = time.monotonic() + PANEL_TIMEOUT_MS / 1e3
+        while time.monotonic() < deadline:
+            # the status bar says "Idle" once the kernel is connected and ready
+            page.wait_for_selector(".jp-StatusBar-Widget:has-text('Idle')", timeout=PANEL_TIMEOUT_MS)
+            cell.locator(".cm-content").click()
+            page.keyboard.press("Control+Enter")
+            try:
+                page.wait_for_function(
+                    "([el, old]) => el.textContent !== old && /\\[\\d+\\]/.test(el.textContent)",
+                    arg=[prompt.element_handle(), before], timeout=PANEL_TIMEOUT_MS / 3)
+                return
+            except Exception:
+                continue      # the key press came before the kernel took requests: again
+        raise AssertionError(f"JupyterLab never executed cell {index}")
 
     @contextlib.contextmanager
     def without_widget_frontend(self):
@@ -340,67 +370,36 @@ class Lab:
             self.page_config.unlink()
 
 
-def _run_notebook_in_lab(w, url):
-    """Open the notebook in JupyterLab and execute its (single) cell once the kernel is idle."""
-    page = w.page
-    page.goto(url, wait_until="commit", timeout=PANEL_TIMEOUT_MS)
-    page.wait_for_selector(".jp-Notebook .jp-Cell .cm-content", timeout=PANEL_TIMEOUT_MS)
-    prompt = page.locator(".jp-Notebook .jp-CodeCell .jp-InputPrompt").first
-    deadline = time.monotonic() + PANEL_TIMEOUT_MS / 1e3
-    while time.monotonic() < deadline:
-        # the status bar says "Idle" once the kernel is connected and ready
-        page.wait_for_selector(".jp-StatusBar-Widget:has-text('Idle')", timeout=PANEL_TIMEOUT_MS)
-        page.locator(".jp-Notebook .jp-CodeCell .cm-content").first.click()
-        page.keyboard.press("Control+Enter")
-        try:
-            page.wait_for_function(
-                "el => /\\[(\\*|\\d+)\\]/.test(el.textContent)", arg=prompt.element_handle(),
-                timeout=5_000)
-            return
-        except Exception:
-            continue      # the key press arrived before the kernel took requests: again
-    raise AssertionError("JupyterLab never executed the cell")
-
-
-def test_jupyterlab_notebook_panel(browser, lab, artifacts_dir):
+def test_jupyterlab_notebook_panel(lab):
     """The panel as notebook 03 ends (``pole_placement_panel()``), run in JupyterLab."""
-    w = Watched(browser, "jupyterlab", artifacts_dir)
-    try:
-        _run_notebook_in_lab(w, lab.url_for("panel.ipynb"))
-        _wait_panel(w)
-        w.shot("loaded")
-        times = check_live_panel(w, "ωn [rad/s]", presses=3)
-        _record_times("jupyterlab", times)
-        w.shot("tuned")
-    finally:
-        w.close()
+    lab.run_cell(0)
+    _wait_panel(lab.w)
+    lab.w.shot("loaded")
+    times = check_live_panel(lab.w, "ωn [rad/s]", presses=3)
+    _record_times("jupyterlab", times)
+    lab.w.shot("tuned")
     assert sorted(times)[len(times) // 2] < 1.5, times
 
 
-def test_check_fails_when_a_callback_raises(browser, lab, artifacts_dir):
+def test_check_fails_when_a_callback_raises(lab):
     """A panel whose slider callback raises must not pass the check."""
-    w = Watched(browser, "jupyterlab_broken_callback", artifacts_dir)
-    try:
-        _run_notebook_in_lab(w, lab.url_for("broken.ipynb"))
-        _wait_panel(w)
-        with pytest.raises(AssertionError) as err:
-            check_live_panel(w, "ωn [rad/s]", presses=1, timeout_ms=8_000)
-        w.shot("rejected")
-    finally:
-        w.close()
+    lab.run_cell(0)                      # a fresh panel (the kernel is warm)
+    _wait_panel(lab.w)
+    lab.run_cell(1)                      # break its callback
+    with pytest.raises(AssertionError) as err:
+        check_live_panel(lab.w, "ωn [rad/s]", presses=1, timeout_ms=8_000)
+    lab.w.shot("broken_callback_rejected")
     msg = str(err.value)
     assert "deliberately broken callback" in msg or "did not change" in msg, msg
+    lab.w.kernel_errors.clear()
 
 
-def test_check_fails_without_widget_frontend(browser, lab, artifacts_dir):
+def test_check_fails_without_widget_frontend(lab):
     """JupyterLab with the ipywidgets front end disabled: the check must fail."""
-    w = Watched(browser, "jupyterlab_no_widgets", artifacts_dir)
-    try:
-        with lab.without_widget_frontend():
-            _run_notebook_in_lab(w, lab.url_for("panel.ipynb"))
-            _wait_panel(w)
-        w.shot("rejected")
-        with pytest.raises(AssertionError, match="no live panel"):
-            check_live_panel(w, "ωn [rad/s]", presses=1, timeout_ms=5_000)
-    finally:
-        w.close()
+    with lab.without_widget_frontend():
+        lab.open()                       # reload: the page now has no widget manager
+        lab.run_cell(0)
+        _wait_panel(lab.w)
+    lab.w.shot("no_widgets_rejected")
+    with pytest.raises(AssertionError, match="no live panel"):
+        check_live_panel(lab.w, "ωn [rad/s]", presses=1, timeout_ms=5_000)
