@@ -413,3 +413,34 @@ def test_other_planners_on_the_virtual_rig(rig, kind):
     assert rec.metadata["plan"]["duration"] == pytest.approx(prof.duration, rel=1e-5)
     assert rec.reference == pytest.approx(prof.sample(rec.time).position, abs=1e-5)
     assert abs(rec.position[-1] - 6.0) < 3 / CPR
+
+
+def test_partial_frame_expires_on_both_sides(tmp_path):
+    """A truncated frame with a large length must not hold back the next short one."""
+    clock = _Clock()
+    dev = VirtualDevice(clock=clock)
+    long_frame = P.encode(P.SetLimits(2e4, 300.0, 100.0, 12.0, 1000), 1)
+    dev.receive(long_frame[:6])                      # cut: the device waits for 20 more bytes
+    dev.receive(P.encode(P.Hello(), 2))              # arrives at once: still inside the cut frame
+    assert dev.read_output() == b""
+    clock.t = 0.03                                   # 30 ms of silence: the partial frame expires
+    dev.tick()
+    out = [(f.seq, P.parse(f)) for f in P.Decoder().feed(dev.read_output())]
+    assert [seq for seq, _ in out] == [2] and isinstance(out[0][1], P.HelloReply)
+    assert dev._decoder.stats.truncated == 1
+
+    # host side: garbage that looks like the start of a long frame, then the reply to HELLO
+    class Prefixed(VirtualSerial):
+        first = True
+
+        def read(self, size=1):
+            if self.first:
+                self.first = False
+                return b"\xa5\x5a\x40\x90"               # a frame of len 64 that never comes
+            return super().read(size)
+
+    r = Rig(Prefixed(VirtualDevice(), timeout=0.05), "virtual", progress=False, recordings=tmp_path,
+            hello_timeout=1.0)
+    assert r.name == "jerklab-virtual"
+    assert r._decoder.stats.truncated == 1
+    assert r._seq == 2                 # one HELLO and the STOP: the first reply was not held back

@@ -124,6 +124,7 @@ class Rig:
         self.recordings = Path(recordings) if recordings is not None else None
         self._on_close = on_close
         self._decoder = P.Decoder()
+        self._last_byte = time.monotonic()
         self._seq = 0
         self._frames: list[P.Frame] = []
         self.ignored_frames = 0
@@ -228,11 +229,18 @@ class Rig:
                 data = self.link.read(n if n > 0 else 1)
             except (serial.SerialException, OSError) as exc:
                 raise self._io_error(exc, "reading") from exc
+            now = time.monotonic()
             if data:
+                self._last_byte = now
                 frames = self._decoder.feed(data)
                 if frames:
                     return frames
-            if time.monotonic() >= deadline:
+            elif self._decoder.pending and now - self._last_byte > 0.02:
+                # a truncated frame must not hold back the next one: abandon it after 20 ms
+                frames = self._decoder.flush()
+                if frames:
+                    return frames
+            if now >= deadline:
                 return []
 
     def _request(self, msg, replies=(P.MsgType.ACK,), timeout=None):

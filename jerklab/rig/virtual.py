@@ -87,6 +87,7 @@ class VirtualDevice:
                              | P.Capability.OPEN_LOOP_STEP | P.Capability.FEEDFORWARD
                              | P.Capability.SIMULATED_PLANT)
         self._decoder = P.Decoder()
+        self._last_byte = self.clock()
         self._out = bytearray()
         self._seq = 0
         self.x = np.zeros(2)                 # motor state [theta, omega]
@@ -130,11 +131,26 @@ class VirtualDevice:
         return int(math.floor(float(self.x[0]) * self.motor.counts_per_rad + 1e-9))
 
     # ------------------------------------------------------------------ bytes in / out
+    #: a partial frame is abandoned after this much silence (s), as on the firmware
+    RX_FRAME_TIMEOUT = 0.020
+
     def receive(self, data: bytes) -> None:
         """Bytes from the host (any chunking)."""
+        now = self.clock()
+        self._expire_partial(now)
+        if data:
+            self._last_byte = now
         for frame in self._decoder.feed(data):
-            self.last_rx = self.clock()
+            self.last_rx = now
             self._handle(frame)
+
+    def _expire_partial(self, now):
+        """Drop a partial frame after RX_FRAME_TIMEOUT of silence (counted as truncated);
+        a frame that starts inside it is still found."""
+        if self._decoder.pending and now - self._last_byte > self.RX_FRAME_TIMEOUT:
+            for frame in self._decoder.flush():
+                self.last_rx = now
+                self._handle(frame)
 
     def read_output(self, n: int | None = None) -> bytes:
         """Take up to ``n`` bytes the device has sent (all if None)."""
@@ -311,6 +327,7 @@ class VirtualDevice:
 
     def tick(self) -> None:
         """One control period: watchdog, sample, control, telemetry, then the motor moves."""
+        self._expire_partial(self.clock())
         if not self.active:
             return
         tmo = self.limits.host_timeout_ms
