@@ -14,6 +14,7 @@ void Device::begin() {
 void Device::apply_plant() {
     rad_per_count_ = kTwoPi / static_cast<float>(counts_per_rev_);
     pwm_per_volt_ = static_cast<float>(cfg_.pwm_max) / supply_;
+    update_pwm_top();
     ff_.set(K_, tau_);
     // counts_per_rev = ppr x decoding picks the decoding; any other value means a different
     // encoder, read with x1 decoding (its ppr is then counts_per_rev).
@@ -23,13 +24,16 @@ void Device::apply_plant() {
     hal_.set_decoding(dec);
 }
 
-int16_t Device::volts_to_pwm(float u) const {
-    float lim = max_voltage_ * pwm_per_volt_;
-    long top = jl_lroundf(lim);
+void Device::update_pwm_top() {
+    long top = jl_lroundf(max_voltage_ * pwm_per_volt_);
     if (top > cfg_.pwm_max) top = cfg_.pwm_max;
+    pwm_top_ = static_cast<int16_t>(top);
+}
+
+int16_t Device::volts_to_pwm(float u) const {
     long pwm = jl_lroundf(u * pwm_per_volt_);
-    if (pwm > top) pwm = top;
-    if (pwm < -top) pwm = -top;
+    if (pwm > pwm_top_) pwm = pwm_top_;
+    if (pwm < -pwm_top_) pwm = -pwm_top_;
     return static_cast<int16_t>(pwm);
 }
 
@@ -142,6 +146,7 @@ void Device::handle(const Frame& f) {
         if (!finite_f(vmax) || !(vmax > 0.0f) || vmax > supply_) { nack(f, kErrBadValue, 3); return; }
         max_jerk_ = J; max_accel_ = E; max_velocity_ = W; max_voltage_ = vmax;
         host_timeout_ms_ = tmo;
+        update_pwm_top();
         plan_ok_ = false;
         ack(f);
         return;

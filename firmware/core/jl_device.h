@@ -71,6 +71,7 @@ private:
     void end_run(uint8_t reason);
     void apply_plant();
     int16_t volts_to_pwm(float u) const;
+    void update_pwm_top();
 
     Hal& hal_;
     DeviceConfig cfg_;
@@ -82,6 +83,7 @@ private:
     float K_ = 32.4f, tau_ = 0.025f, supply_ = 12.0f;
     uint16_t counts_per_rev_ = 448;
     float rad_per_count_ = 0.0f, pwm_per_volt_ = 0.0f;
+    int16_t pwm_top_ = 1023;   // lround(max_voltage * pwm_max / supply), at most pwm_max
     float max_jerk_ = 2e4f, max_accel_ = 300.0f, max_velocity_ = 100.0f, max_voltage_ = 12.0f;
     uint16_t host_timeout_ms_ = 1000;
     bool gains_ok_ = false;

@@ -23,6 +23,10 @@ static void finish(float distance, float J, float T, float tv, SineJerkPlan* p) 
         p->cruise_velocity = 0.0f;
         p->x_t1 = 0.0f;
     }
+    p->s_jerk = p->sign * J;
+    p->s_j_over_w = p->sign * p->j_over_w;
+    p->s_cruise_velocity = p->sign * p->cruise_velocity;
+    p->s_x_t1 = p->sign * p->x_t1;
 }
 
 PlanStatus plan_sine_jerk(float distance, float J, float E, float W, SineJerkPlan* p) {
@@ -59,31 +63,28 @@ PlanStatus plan_sine_jerk_phases(float distance, float T, float tv, SineJerkPlan
 // current jerk pulse (acceleration: u = t; deceleration: u = t - t1).
 static void eval(const SineJerkPlan& p, float t, float u, float c, float s, uint8_t phase,
                  Sample* out) {
-    float j, a, v, x;
+    // Every term is proportional to J, so the signed constants give the signed move.
     if (phase == 0) {                      // before the start
-        j = a = v = x = 0.0f;
+        out->jerk = out->accel = out->velocity = out->position = 0.0f;
     } else if (phase == 1) {               // acceleration, eq. 3
-        j = p.jerk * s;
-        a = p.j_over_w * (1.0f - c);
-        v = p.j_over_w * (u - s * p.inv_w);
-        x = p.j_over_w * (0.5f * u * u + (c - 1.0f) * p.inv_w2);
+        out->jerk = p.s_jerk * s;
+        out->accel = p.s_j_over_w * (1.0f - c);
+        out->velocity = p.s_j_over_w * (u - s * p.inv_w);
+        out->position = p.s_j_over_w * (0.5f * u * u + (c - 1.0f) * p.inv_w2);
     } else if (phase == 2) {               // cruise
-        j = a = 0.0f;
-        v = p.cruise_velocity;
-        x = p.x_t1 - p.cruise_velocity * (p.t1 - t);
+        out->jerk = out->accel = 0.0f;
+        out->velocity = p.s_cruise_velocity;
+        out->position = p.s_x_t1 - p.s_cruise_velocity * (p.t1 - t);
     } else if (phase == 3) {               // deceleration: the acceleration pulse negated
-        j = -p.jerk * s;
-        a = -p.j_over_w * (1.0f - c);
-        v = p.cruise_velocity - p.j_over_w * (u - s * p.inv_w);
-        x = p.x_t1 + p.cruise_velocity * u - p.j_over_w * (0.5f * u * u + (c - 1.0f) * p.inv_w2);
+        out->jerk = -p.s_jerk * s;
+        out->accel = p.s_j_over_w * (c - 1.0f);
+        out->velocity = p.s_cruise_velocity - p.s_j_over_w * (u - s * p.inv_w);
+        out->position = p.s_x_t1 + p.s_cruise_velocity * u
+                        - p.s_j_over_w * (0.5f * u * u + (c - 1.0f) * p.inv_w2);
     } else {                               // at rest at the target
-        j = a = v = 0.0f;
-        x = jl_fabsf(p.distance);
+        out->jerk = out->accel = out->velocity = 0.0f;
+        out->position = p.distance;
     }
-    out->jerk = p.sign * j;
-    out->accel = p.sign * a;
-    out->velocity = p.sign * v;
-    out->position = p.sign * x;
 }
 
 void sample(const SineJerkPlan& p, float t, Sample* s) {

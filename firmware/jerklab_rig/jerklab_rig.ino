@@ -7,6 +7,11 @@
 // budget probe, also visible on a scope); D12 (PB4, pull-up) held low by a simulator
 // announces a simulated plant in HELLO_REPLY.
 //
+// Serial: a small interrupt-driven UART0 driver (115200 baud 8N1, U2X) instead of the
+// Arduino HardwareSerial, whose ~110-cycle transmit ISR could hold off the encoder interrupt
+// past a quarter encoder period at top speed (channel B then read after it changed, a count
+// in the wrong direction). Every ISR here is short, so INT0 is served within ~70 cycles.
+//
 // Timing: Timer2 CTC gives an exact 1 ms tick (16 MHz / 64 / 250); every Ts/1 ms ticks it
 // raises a flag, and loop() runs the control step (never inside the ISR, so encoder edges
 // are served during the float math). Timer0 (millis) is switched off: Timer2 keeps the time.
@@ -16,6 +21,7 @@
 // Build: make -C firmware (avr-g++ over the Debian Arduino core).
 #include <Arduino.h>
 #include <avr/interrupt.h>
+#include <avr/sleep.h>
 #include <util/atomic.h>
 
 #include "jl_device.h"
@@ -42,6 +48,58 @@ static volatile uint8_t g_tick_n = 0;
 static volatile uint8_t g_tick_flag = 0;
 static volatile uint8_t g_overrun = 0;
 
+// ---------------------------------------------------------------- UART0
+static const uint8_t kRxSize = 64, kTxSize = 64;   // powers of two
+static volatile uint8_t rx_buf[kRxSize], tx_buf[kTxSize];
+static volatile uint8_t rx_head = 0, rx_tail = 0, tx_head = 0, tx_tail = 0;
+static volatile uint8_t rx_overflow = 0;
+
+ISR(USART_RX_vect) {
+    const uint8_t status = UCSR0A;
+    const uint8_t c = UDR0;
+    if (status & _BV(FE0)) return;                     // framing error: drop the byte
+    const uint8_t h = (rx_head + 1) & (kRxSize - 1);
+    if (h != rx_tail) {
+        rx_buf[rx_head] = c;
+        rx_head = h;
+    } else {
+        rx_overflow = 1;                               // the parser will see a bad frame
+    }
+}
+
+ISR(USART_UDRE_vect) {
+    uint8_t t = tx_tail;
+    UDR0 = tx_buf[t];
+    t = (t + 1) & (kTxSize - 1);
+    tx_tail = t;
+    if (t == tx_head) UCSR0B &= ~_BV(UDRIE0);
+}
+
+static void uart_begin() {
+    UCSR0A = _BV(U2X0);
+    UBRR0 = 16;                                         // 16 MHz / (8 * 17) = 117647 baud (+2.1 %)
+    UCSR0C = _BV(UCSZ01) | _BV(UCSZ00);                 // 8N1
+    UCSR0B = _BV(RXEN0) | _BV(TXEN0) | _BV(RXCIE0);
+}
+
+static void uart_write(const uint8_t* data, uint8_t n) {
+    for (uint8_t i = 0; i < n; ++i) {
+        const uint8_t h = (tx_head + 1) & (kTxSize - 1);
+        while (h == tx_tail) {}                         // full: the UDRE ISR makes room
+        tx_buf[tx_head] = data[i];
+        tx_head = h;
+        UCSR0B |= _BV(UDRIE0);
+    }
+}
+
+static inline bool uart_available() { return rx_head != rx_tail; }
+
+static uint8_t uart_read() {
+    const uint8_t c = rx_buf[rx_tail];
+    rx_tail = (rx_tail + 1) & (kRxSize - 1);
+    return c;
+}
+
 // Channel A edge. Forward (A leads B): at an A edge A != B -> +1. With x1 decoding only the
 // rising edge interrupts; B is stable for a quarter period around it.
 ISR(INT0_vect) {
@@ -55,7 +113,8 @@ ISR(INT1_vect) {
     if (((pd >> 2) ^ (pd >> 3)) & 1) --g_counts; else ++g_counts;
 }
 
-ISR(TIMER2_COMPA_vect) {
+// Interruptible (the compare flag is cleared on entry): an encoder edge never waits for it.
+ISR(TIMER2_COMPA_vect, ISR_NOBLOCK) {
     ++g_ms;
     if (++g_tick_n >= g_tick_div) {
         g_tick_n = 0;
@@ -66,7 +125,7 @@ ISR(TIMER2_COMPA_vect) {
 
 class UnoHal : public jl::Hal {
 public:
-    void write(const uint8_t* data, uint8_t n) override { Serial.write(data, n); }
+    void write(const uint8_t* data, uint8_t n) override { uart_write(data, n); }
     int32_t counts() override {
         int32_t c;
         ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { c = g_counts; }
@@ -153,7 +212,8 @@ void setup() {
     TIFR2 = _BV(OCF2A);
     TIMSK2 = _BV(OCIE2A);
 
-    Serial.begin(115200);
+    set_sleep_mode(SLEEP_MODE_IDLE);
+    uart_begin();
     device.begin();                                     // PWM 0, decoding, Ts = 5 ms
 }
 
@@ -172,10 +232,21 @@ void loop() {
         if (device.state() != jl::Device::kIdle) device.count_overrun();
     }
     // At most one frame's worth of bytes per pass keeps the tick latency bounded.
-    for (uint8_t i = 0; i < 16 && Serial.available() > 0; ++i) {
-        device.on_byte(static_cast<uint8_t>(Serial.read()));
+    for (uint8_t i = 0; i < 16 && uart_available(); ++i) {
+        device.on_byte(uart_read());
         last_rx_ms = hal.millis();
     }
     if (static_cast<uint32_t>(hal.millis() - last_rx_ms) > 20) device.on_rx_idle();
     device.poll();
+    // Nothing to do until the next interrupt (1 ms tick, a received byte, an encoder edge):
+    // idle sleep. sei; sleep is atomic, so a wake-up cannot slip in between the test and
+    // the sleep. (It also lets simavr skip the idle cycles.)
+    cli();
+    if (!g_tick_flag && !uart_available()) {
+        sleep_enable();
+        sei();
+        sleep_cpu();
+        sleep_disable();
+    }
+    sei();
 }

@@ -160,7 +160,8 @@ class SimulatedUno:
         if not self.running:
             if self.final_stats is not None:
                 return self.final_stats
-            raise HarnessError(f"the simavr harness (pid {self.pid}) is not running{self._log_tail()}")
+            raise HarnessError(f"the simavr harness (pid {self.pid}) is not running (exit status "
+                               f"{self._proc.returncode}){self._log_tail()}")
         old = self._read_stats()
         seq0 = old["seq"] if old else 0
         self._proc.send_signal(signal.SIGUSR1)
@@ -170,7 +171,13 @@ class SimulatedUno:
             if s and s["seq"] > seq0:
                 return s
             time.sleep(0.01)
-        raise HarnessError(f"the simavr harness (pid {self.pid}) wrote no stats in {timeout} s")
+        try:
+            with open(f"/proc/{self.pid}/stat") as fh:
+                state = fh.read().split(")")[-1].split()[0]
+        except OSError:
+            state = "?"
+        raise HarnessError(f"the simavr harness (pid {self.pid}, state {state}, exit status "
+                           f"{self._proc.poll()}) wrote no stats in {timeout} s{self._log_tail()}")
 
     def _log_tail(self, n=2000):
         try:
@@ -194,6 +201,19 @@ class SimulatedUno:
         self.final_stats = self._read_stats()
         self._workdir.cleanup()
         self._workdir = None
+
+
+def _symbol_address(elf, name):
+    """Data-space address of a variable of the ELF (avr-nm), or None."""
+    nm = shutil.which("avr-nm")
+    if nm is None:
+        return None
+    out = subprocess.run([nm, "-C", str(elf)], capture_output=True, text=True).stdout
+    for line in out.splitlines():
+        parts = line.split()
+        if len(parts) == 3 and parts[2] == name and parts[1] in "bBdD":
+            return int(parts[0], 16) - 0x800000
+    return None
 
 
 def launch(elf=None, *, K=32.4, tau=0.025, supply_voltage=12.0, coulomb_friction=0.0,
@@ -268,6 +288,9 @@ def launch(elf=None, *, K=32.4, tau=0.025, supply_voltage=12.0, coulomb_friction
            "--friction", repr(coulomb_friction), "--load", repr(load_disturbance),
            "--ppr", str(encoder_ppr), "--step-us", str(step_us),
            "--stats", os.path.join(workdir.name, "stats.json")]
+    addr = _symbol_address(elf, "g_counts")
+    if addr is not None:
+        cmd += ["--counts-addr", hex(addr)]
     if not realtime:
         cmd.append("--fast")
     cmd.append(str(elf))
