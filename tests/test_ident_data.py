@@ -20,6 +20,8 @@ def _script():
 
 
 def test_dataset_regenerates_identically():
+    """If this fails after a change to jerklab.plant or jerklab.ident's input helpers, remake the
+    records (`.venv/bin/python data/ident/make_dataset.py --only plant`) and update the README table."""
     mod = _script()
     assert mod.main(["--check", "--only", "plant"]) == 0
 
