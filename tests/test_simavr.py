@@ -67,7 +67,8 @@ def test_sine_jerk_move_on_simulated_uno_matches_virtual_rig(uno, tmp_path):
         ref = vrig.run_move(profile, gains, settle=0.25)
     s1 = _wait_at_rest(uno)
     target = profile.distance * COUNTS_PER_RAD
-    assert rec.metadata["status"] == "complete" if "status" in rec.metadata else True
+    assert rec.metadata["status"] == "complete"
+    assert rec.metadata["device_overruns"] == 0 and rec.metadata["device_rx_errors"] == 0
     assert abs(rec.counts[-1] - target) <= 2
     assert len(rec.counts) == len(ref.counts)
     assert np.max(np.abs(rec.counts - ref.counts)) <= 2
@@ -122,6 +123,22 @@ def test_no_encoder_count_lost_at_top_speed(uno):
     lat = s1["int0_latency_cycles"]
     assert lat["n"] >= moved and lat["max"] < quarter_period
     assert s1["edge_queue_overflow"] == 0
+
+
+def test_firmware_stops_the_motor_when_the_host_falls_silent(uno):
+    """Host watchdog on the real firmware: a run with host_timeout 100 ms and no heartbeat ends
+    with END_OF_RUN(HOST_TIMEOUT) and the bridge switched off."""
+    g = pole_placement_pid(K, TAU, 20).discretize(0.005)
+    msgs = _raw_session(uno.port, [pr.SetGains(g.kpd, g.kid, g.kdd, 5000, 0, 1, 0.0),
+                                   pr.SetLimits(2e4, 300.0, 100.0, VS, 100), pr.Plan(200.0, 0),
+                                   pr.Run(0, 1)], heartbeat=1e9)
+    end = [m for m in msgs if isinstance(m, pr.EndOfRun)][0]
+    tel = [m for m in msgs if isinstance(m, pr.Telemetry)]
+    assert end.reason == pr.EndReason.HOST_TIMEOUT
+    assert 19 <= end.samples <= 23                  # ~100 ms of 5 ms samples, then it stopped
+    assert any(t.pwm != 0 for t in tel)             # the motor had been driven
+    s = uno.stats()
+    assert s["volts"] == 0.0                         # IN1 = IN2 = 0 and OCR1A = 0
 
 
 def test_connect_simavr_and_close_ends_the_harness(tools, tmp_path):
