@@ -30,7 +30,7 @@ import control as ct
 import numpy as np
 from scipy.signal import lfilter
 
-from jerklab._validate import as_finite_array, as_nonnegative, as_positive, as_real
+from jerklab._validate import as_nonnegative, as_positive, as_real
 
 __all__ = ["Gains", "DiscreteGains", "pole_placement_pid", "velocity_pole_placement_pid",
            "discrete_pole_placement_pid", "paper_error_scale", "Feedforward", "DigitalController",

@@ -1,8 +1,6 @@
 """Tests of jerklab.controller: gains against python-control, the difference equations."""
 from __future__ import annotations
 
-import math
-
 import control as ct
 import numpy as np
 import pytest
