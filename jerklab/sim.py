@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from jerklab._validate import as_finite_array, as_nonnegative, as_positive
+from jerklab._validate import as_finite_array, as_nonnegative, as_positive, as_real
 from jerklab.controller import DigitalController, DiscreteGains, Feedforward, Gains
 from jerklab.plant import DCMotor, FlexibleDCMotor, advance, advance_em
 
@@ -439,7 +439,7 @@ class StepProfile:
     """
 
     def __init__(self, distance=1.0):
-        self.distance = float(distance)
+        self.distance = as_real("distance", distance)
         self.duration = 0.0
 
     def sample(self, t):
