@@ -25,7 +25,8 @@ bool Pid::set(float kpd, float kid, float kdd, float gamma, float limit) {
 float Pid::step(float e, float ff, ControlParts* parts) {
     const float p = kpd_ * e;                       // eq. 17
     float i = i_ + kid_ * e;
-    const float d = gamma_ * d_prev_ + kdd_ * (e - e_prev_);
+    float d = kdd_ * (e - e_prev_);
+    if (gamma_ != 0.0f) d += gamma_ * d_prev_;      // derivative filter (skipped for eq. 17)
     e_prev_ = e;
     d_prev_ = d;
     float u = ff + p + i + d;                       // eq. 18 + feedforward (eq. 16)

@@ -75,12 +75,15 @@ static void eval(const SineJerkPlan& p, float t, float u, float c, float s, uint
         out->jerk = out->accel = 0.0f;
         out->velocity = p.s_cruise_velocity;
         out->position = p.s_x_t1 - p.s_cruise_velocity * (p.t1 - t);
-    } else if (phase == 3) {               // deceleration: the acceleration pulse negated
+    } else if (phase == 3) {
+        // Deceleration, the acceleration pulse mirrored about the end: with r = tu - t = T - u,
+        // cos(w r) = cos(w u) and sin(w r) = -sin(w u) (w T = 2 pi), so
+        // x = d - x_acc(r), v = v_acc(r), a = -a_acc(r), j = j_acc(r) -- exact at the target.
+        const float r = p.duration - t;
         out->jerk = -p.s_jerk * s;
         out->accel = p.s_j_over_w * (c - 1.0f);
-        out->velocity = p.s_cruise_velocity - p.s_j_over_w * (u - s * p.inv_w);
-        out->position = p.s_x_t1 + p.s_cruise_velocity * u
-                        - p.s_j_over_w * (0.5f * u * u + (c - 1.0f) * p.inv_w2);
+        out->velocity = p.s_j_over_w * (r + s * p.inv_w);
+        out->position = p.distance - p.s_j_over_w * (0.5f * r * r + (c - 1.0f) * p.inv_w2);
     } else {                               // at rest at the target
         out->jerk = out->accel = out->velocity = 0.0f;
         out->position = p.distance;
@@ -117,6 +120,11 @@ void PlanStepper::start(const SineJerkPlan& p, float Ts) {
     while (k1 > 0 && static_cast<float>(k1 - 1) * Ts >= p.t1) --k1;
     while (static_cast<float>(k1) * Ts < p.t1) ++k1;
     k1_ = k1;
+    // First sample of the cruise (k Ts >= T), in the same float arithmetic as next().
+    uint32_t ka = static_cast<uint32_t>(p.accel_time / Ts);
+    while (ka > 0 && static_cast<float>(ka - 1) * Ts >= p.accel_time) --ka;
+    while (static_cast<float>(ka) * Ts < p.accel_time) ++ka;
+    k_accel_end_ = ka;
     const float u0 = static_cast<float>(k1) * Ts - p.t1;
     c1_ = jl_cosf(p.w * u0);
     s1_ = jl_sinf(p.w * u0);
@@ -140,10 +148,13 @@ bool PlanStepper::next(Sample* out) {
         if (k_ == k1_) { c_ = c1_; s_ = s1_; }
         eval(p, t, t - p.t1, c_, s_, 3, out);
     }
-    // Advance the rotator by w Ts.
-    const float c = c_ * cd_ - s_ * sd_;
-    s_ = s_ * cd_ + c_ * sd_;
-    c_ = c;
+    // Advance the rotator by w Ts (only inside a jerk pulse: the deceleration pulse starts
+    // from the values precomputed for k1, so cruise and rest skip the 4 fmul).
+    if (k_ + 1 < k_accel_end_ || (k_ + 1 > k1_ && k_ + 1 < k_end_)) {
+        const float c = c_ * cd_ - s_ * sd_;
+        s_ = s_ * cd_ + c_ * sd_;
+        c_ = c;
+    }
     if (k_ <= k_end_) ++k_;
     return moving;
 }

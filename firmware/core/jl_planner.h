@@ -65,7 +65,7 @@ public:
 private:
     const SineJerkPlan* p_ = nullptr;
     float Ts_ = 0.005f;
-    uint32_t k_ = 0, k1_ = 0, k_end_ = 0;
+    uint32_t k_ = 0, k1_ = 0, k_end_ = 0, k_accel_end_ = 0;
     float c_ = 1.0f, s_ = 0.0f;        // cos, sin of w u at the current step
     float cd_ = 1.0f, sd_ = 0.0f;      // rotation by w Ts
     float c1_ = 1.0f, s1_ = 0.0f;      // cos, sin of w (k1 Ts - t1)

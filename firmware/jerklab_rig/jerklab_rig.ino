@@ -101,16 +101,17 @@ static uint8_t uart_read() {
 }
 
 // Channel A edge. Forward (A leads B): at an A edge A != B -> +1. With x1 decoding only the
-// rising edge interrupts; B is stable for a quarter period around it.
+// rising edge interrupts; B is stable for a quarter period around it. PIND is sampled first;
+// (pd >> 1) moves B (bit 3) onto A's bit 2.
 ISR(INT0_vect) {
     const uint8_t pd = PIND;
-    if (((pd >> 2) ^ (pd >> 3)) & 1) ++g_counts; else --g_counts;
+    if ((pd ^ (pd >> 1)) & _BV(PD2)) ++g_counts; else --g_counts;
 }
 
 // Channel B edge (x4 decoding only). Forward: at a B edge A == B -> +1.
 ISR(INT1_vect) {
     const uint8_t pd = PIND;
-    if (((pd >> 2) ^ (pd >> 3)) & 1) --g_counts; else ++g_counts;
+    if ((pd ^ (pd >> 1)) & _BV(PD2)) --g_counts; else ++g_counts;
 }
 
 // Interruptible (the compare flag is cleared on entry): an encoder edge never waits for it.
