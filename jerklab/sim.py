@@ -370,29 +370,30 @@ class BatchResult:
     metrics: dict
 
 
-def _metrics(t, reference, position, u_app, sat, duration, distance, band, load=None):
-    err = reference - position
-    move = t <= duration + 1e-12
+def _metrics(t, err, position, u_app, sat, duration, distance, band, load=None):
+    """Metrics of one run (t is the regular grid k·Ts, so the move is a leading slice)."""
+    n = len(t)
+    Ts = t[1] - t[0] if n > 1 else 1.0
+    n_move = min(n, int(math.floor(duration / Ts + 1e-9)) + 1)
+    e_move = err[:n_move]
     m = {
-        "max_abs_error": float(np.max(np.abs(err))),
-        "rms_error": float(np.sqrt(np.mean(err[move] ** 2))) if np.any(move) else float("nan"),
+        "max_abs_error": float(np.abs(err).max()),
+        "rms_error": math.sqrt(float(np.dot(e_move, e_move)) / n_move),
         "final_error": float(err[-1]),
-        "max_abs_voltage": float(np.max(np.abs(u_app))),
-        "saturated_fraction": float(np.mean(sat)),
+        "max_abs_voltage": float(np.abs(u_app).max()),
+        "saturated_fraction": np.count_nonzero(sat) / n,
     }
-    outside = np.abs(distance - position) > band
-    outside &= t >= 0
-    if not np.any(outside):
+    out = np.flatnonzero(np.abs(distance - position) > band)
+    if len(out) == 0:
         m["settling_time"] = 0.0
-    elif outside[-1]:
-        m["settling_time"] = float("inf")
+    elif out[-1] == n - 1:
+        m["settling_time"] = math.inf
     else:
-        last = np.nonzero(outside)[0][-1]
-        m["settling_time"] = max(0.0, float(t[last + 1] - duration))
+        m["settling_time"] = max(0.0, float(t[out[-1] + 1] - duration))
     m["settling_band"] = band
     if load is not None:
         after = t >= duration
-        m["residual_vibration"] = float(np.max(np.abs(load[after] - distance))) if np.any(after) else float("nan")
+        m["residual_vibration"] = float(np.max(np.abs(load[after] - distance))) if np.any(after) else math.nan
     return m
 
 
@@ -623,9 +624,11 @@ def simulate(profile, motor, controller, Ts=None, t_end=None, loop=None, x0=None
     cpr = motor.counts_per_rad
     band = settle_band if settle_band is not None else (2.0 / cpr if cpr else 1e-3)
     distance = float(rpos[-1]) if t[-1] >= duration else float(profile.sample(duration).position)
-    metrics = _metrics(t, rpos, X[:, 0], out["uapp"], sat, duration, distance, band, load)
+    position = X[:, 0].copy()
+    err = rpos - position
+    metrics = _metrics(t, err, position, out["uapp"], sat, duration, distance, band, load)
     return SimResult(t=t, reference=rpos, ref_velocity=rvel, ref_accel=racc, measured=out["meas"],
-                     position=X[:, 0].copy(), velocity=X[:, 1].copy(), error=rpos - X[:, 0],
+                     position=position, velocity=X[:, 1].copy(), error=err,
                      loop_error=out["E"], u=out["ucmd"], u_applied=out["uapp"],
                      parts={"p": out["P"], "i": out["I"], "d": out["D"], "ff": out["FF"]},
                      saturated=sat, metrics=metrics, loop=c.loop, load_position=load,
