@@ -33,7 +33,8 @@ from scipy.signal import lfilter
 from jerklab._validate import as_nonnegative, as_positive, as_real
 
 __all__ = ["Gains", "DiscreteGains", "pole_placement_pid", "velocity_pole_placement_pid",
-           "discrete_pole_placement_pid", "paper_error_scale", "Feedforward", "DigitalController",
+           "discrete_pole_placement_pid", "paper_error_scale", "paper_velocity_controller", "Feedforward",
+           "DigitalController",
            "PositionLoop", "VelocityLoop", "desired_poles"]
 
 
@@ -416,6 +417,23 @@ class DigitalController:
         self._d = d
         self.last_parts = {"p": p, "i": i_new, "d": d, "ff": ff, "u": u, "e": e, "saturated": sat}
         return u
+
+
+def paper_velocity_controller(K=32.4, tau=0.025, wn=10.0, zeta=1.0, sigma=None, Ts=0.005, encoder_ppr=448,
+                              decoding=1, output_limit=12.0):
+    """Stojčić §4B exactly as published, to reproduce it (not to use it).
+
+    Eq. 11 gains designed for the *position* loop, discretized by eq. 13, run on the
+    *velocity* loop with the error in encoder pulses per ``Ts`` (``error_scale`` =
+    :func:`paper_error_scale`), eq. 16 feedforward, no anti-windup (the paper has
+    none). :class:`VelocityLoop` shows that this sampled loop is unstable for all but
+    small ``wn``; :func:`velocity_pole_placement_pid` or
+    ``discrete_pole_placement_pid(..., loop="velocity")`` place it correctly.
+    """
+    g = pole_placement_pid(K, tau, wn, zeta, sigma).discretize(Ts)
+    d = DiscreteGains(g.kpd, g.kid, g.kdd, g.Ts, loop="velocity", design=dict(g.design, paper="§4B"))
+    return DigitalController(d, Feedforward(K, tau), output_limit=output_limit, anti_windup=False,
+                             loop="velocity", error_scale=paper_error_scale(Ts, encoder_ppr, decoding))
 
 
 # ---------------------------------------------------------------------------

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from jerklab.controller import (DigitalController, DiscreteGains, Feedforward, Gains, PositionLoop,
                                 VelocityLoop, discrete_pole_placement_pid, paper_error_scale,
-                                pole_placement_pid, velocity_pole_placement_pid)
+                                paper_velocity_controller, pole_placement_pid, velocity_pole_placement_pid)
 from jerklab.plant import DCMotor
 
 K, TAU, TS = 32.4, 0.025, 0.005
@@ -120,6 +120,19 @@ def test_velocity_z_design_on_pulse_count_model():
     cl = ct.feedback(Pm * _z_pid_tf(d), 1)
     _match(cl.poles(), np.r_[np.exp(np.r_[-140.0, -20.0, -20.0] * TS), 0.0], 1e-5)
     assert paper_error_scale() == pytest.approx(1 / 2.80, rel=2e-3)
+
+
+def test_paper_velocity_controller_is_4b_as_published():
+    c = paper_velocity_controller(K, TAU, wn=10.0, Ts=TS)
+    d = pole_placement_pid(K, TAU, 10.0).discretize(TS)
+    assert (c.gains.kpd, c.gains.kid, c.gains.kdd) == (d.kpd, d.kid, d.kdd)
+    assert c.loop == "velocity" and not c.anti_windup
+    assert c.error_scale == pytest.approx(448 * TS / (2 * np.pi))
+    # 4 counts in one sample against a 10 rad/s reference: error in pulses = 10*0.3565 - 4
+    c.step(0.0, 10.0, 0.0, 0.0)
+    c.step(0.0, 10.0, 0.0, 4 * 2 * np.pi / 448)
+    assert c.last_parts["e"] == pytest.approx(10.0 * 448 * TS / (2 * np.pi) - 4.0)
+    assert VelocityLoop(K, TAU, c.gains, error_scale=c.error_scale).max_pole_radius() > 1.0
 
 
 def test_loop_objects_against_python_control():
