@@ -57,13 +57,23 @@ def test_firmware_and_virtual_rig_agree(uno, tmp_path):
     assert fw.metadata["device_overruns"] == 0 and fw.metadata["lost_samples"] == 0
     # float32 planner on the AVR vs float64 in Python: the references agree to float32 precision
     assert np.max(np.abs(fw.reference - py.reference)) < 1e-5 * max(1.0, prof.distance)
-    # the simulated encoder edges and float32 control differ by at most a count or two; with an
-    # integrator on a quantized angle both may hunt by a count at rest (a limit cycle whose phase
-    # depends on round-off), so the control is compared during the move
+    # The encoder counts differ by at most a count, when an edge falls next to the sampling
+    # instant (interrupt latency on the AVR vs the exact edge time in Python). The control law
+    # is the same: the PWM differs only at a sample whose count differs or the one after it
+    # (the derivative term) — elsewhere by at most 2 ticks (integrator memory of such a count,
+    # float32 round-off). With an integrator on a quantized angle both may hunt by a count at
+    # rest (a limit cycle whose phase depends on round-off), so this is checked during the move.
     n = fw.metadata["plan"]["n_samples"]
-    assert np.max(np.abs(fw.counts - py.counts)) <= 2
-    assert np.median(np.abs(fw.pwm[:n] - py.pwm[:n])) <= 2
-    assert np.max(np.abs(fw.control[:n] - py.control[:n])) < 2.0
+    dc = fw.counts[:n] != py.counts[:n]
+    assert np.max(np.abs(fw.counts - py.counts)) <= 1
+    assert dc.mean() < 0.25
+    explained = dc | np.r_[False, dc[:-1]]
+    dp = np.abs(fw.pwm[:n] - py.pwm[:n])
+    assert np.all(dp[~explained] <= 2), np.flatnonzero(dp > 2)
+    # a count through kpd + kdd + kid, in PWM ticks; flips at two consecutive samples enter
+    # the derivative twice, so two counts bound the explained differences
+    one_count = (g.kpd + g.kdd + g.kid) / uno.counts_per_rad * uno.info.pwm_max / uno.supply_voltage
+    assert np.max(dp) <= 2 * one_count + 2
     assert abs(fw.position[-1] - prof.distance) < 2 / uno.counts_per_rad
     assert np.max(np.abs(fw.error)) < 0.05
 
