@@ -29,7 +29,8 @@
  *   --counts-addr ADDR (data address of the firmware's encoder count, from avr-nm: reported
  *                       as "firmware_counts" so a test can compare it with the ideal count)
  *
- * SIGTERM/SIGINT: write the stats and _exit() (uart_pty_stop() can hang).
+ * SIGTERM/SIGINT: write the stats and exit.
+ * JL_TRACE_COUNTS=1 in the environment: trace encoder disagreements, late or missed INT0.
  */
 #define _GNU_SOURCE
 #include <errno.h>
@@ -52,7 +53,10 @@
 #include "sim_interrupts.h"
 #include "avr_ioport.h"
 #include "avr_extint.h"
-#include "uart_pty.h"
+#include "avr_uart.h"
+#include <fcntl.h>
+#include <pty.h>
+#include <termios.h>
 
 #define OCR1AL 0x88
 #define OCR1AH 0x89
@@ -72,7 +76,20 @@ static struct {
 } opt = {32.4, 0.025, 12.0, 0.0, 0.0, 448, 20, 0, 0.0, NULL, NULL, -1};
 
 static avr_t *avr;
-static uart_pty_t uart;
+/* UART0 <-> pty bridge, run inside the simulation thread (no thread, no lock: simavr's
+ * uart_pty part ignores short writes to the pty and races on its FIFOs, which lost telemetry
+ * frames on a loaded host; it also always relinks /tmp/simavr-uart0 and can hang at exit). */
+static int pty_master = -1, pty_slave = -1;
+static char pty_name[128];
+static avr_irq_t *uart_in_irq;
+static volatile int uart_xon = 1;
+#define TXQ 65536
+static uint8_t txq[TXQ];              /* AVR -> host bytes not yet taken by the pty */
+static size_t txq_head, txq_tail;
+#define RXQ 4096
+static uint8_t rxq[RXQ];              /* host -> AVR bytes not yet taken by the UART */
+static size_t rxq_head, rxq_tail;
+static uint64_t uart_tx_bytes, uart_rx_bytes, uart_tx_dropped;
 static avr_irq_t *irq_a, *irq_b;
 
 /* motor */
@@ -275,6 +292,70 @@ static void run_hook(avr_t *a) {
         avr_service_interrupts(a);
 }
 
+static void uart_out_cb(struct avr_irq_t *irq, uint32_t value, void *param) {
+    (void)irq; (void)param;
+    if (txq_tail - txq_head >= TXQ) { uart_tx_dropped++; return; }
+    txq[txq_tail++ % TXQ] = (uint8_t)value;
+    uart_tx_bytes++;
+}
+
+static void uart_xon_cb(struct avr_irq_t *irq, uint32_t value, void *param) {
+    (void)irq; (void)value; (void)param;
+    uart_xon = 1;
+}
+
+static void uart_xoff_cb(struct avr_irq_t *irq, uint32_t value, void *param) {
+    (void)irq; (void)value; (void)param;
+    uart_xon = 0;
+}
+
+/* Every 50 us of simulated time: hand the AVR's bytes to the pty (keeping what it does not
+ * take), read the host's bytes, and feed them to the UART while it signals XON. */
+static avr_cycle_count_t uart_cb(avr_t *a, avr_cycle_count_t when, void *param) {
+    (void)a; (void)param;
+    while (txq_head != txq_tail) {
+        size_t start = txq_head % TXQ, n = txq_tail - txq_head;
+        if (start + n > TXQ) n = TXQ - start;
+        ssize_t w = write(pty_master, txq + start, n);
+        if (w <= 0) break;                     /* pty full (EAGAIN): try again later */
+        txq_head += (size_t)w;
+    }
+    if (rxq_tail - rxq_head < RXQ / 2) {
+        uint8_t buf[256];
+        ssize_t r = read(pty_master, buf, sizeof buf);
+        for (ssize_t i = 0; i < r; ++i) rxq[rxq_tail++ % RXQ] = buf[i];
+    }
+    while (uart_xon && rxq_head != rxq_tail) {
+        avr_raise_irq(uart_in_irq, rxq[rxq_head++ % RXQ]);
+        uart_rx_bytes++;
+    }
+    return when + avr_usec_to_cycles(a, 50);
+}
+
+static int uart_bridge_init(void) {
+    if (openpty(&pty_master, &pty_slave, pty_name, NULL, NULL) != 0) {
+        fprintf(stderr, "jl_simavr: cannot create a pty: %s\n", strerror(errno));
+        return -1;
+    }
+    struct termios t;
+    if (tcgetattr(pty_slave, &t) == 0) {     /* raw bytes, no echo, no line discipline */
+        cfmakeraw(&t);
+        tcsetattr(pty_slave, TCSANOW, &t);
+    }
+    /* we keep the slave open: the master then never sees EIO while no host is connected */
+    fcntl(pty_master, F_SETFL, fcntl(pty_master, F_GETFL) | O_NONBLOCK);
+    uint32_t f = 0;
+    avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS('0'), &f);
+    f &= ~AVR_UART_FLAG_STDIO;                 /* binary protocol: no console dump */
+    avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &f);
+    uart_in_irq = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT), uart_out_cb, NULL);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON), uart_xon_cb, NULL);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF), uart_xoff_cb, NULL);
+    avr_cycle_timer_register_usec(avr, 50, uart_cb, NULL);
+    return 0;
+}
+
 static avr_cycle_count_t motor_cb(avr_t *a, avr_cycle_count_t when, void *param) {
     (void)param;
     volts = bridge_volts();
@@ -371,11 +452,14 @@ static void write_stats(void) {
                "\"lag_forgiven_seconds\": %.3f, \"missed_interrupts\": %llu, \"firmware_resets\": %llu, "
                "\"cycles\": %llu, \"theta\": %.9g, \"omega\": %.9g, \"volts\": %.6g, "
                "\"ideal_counts_x1\": %lld, \"ideal_counts_x4\": %lld, \"edges\": %llu, "
-               "\"edge_queue_overflow\": %llu, \"pty\": \"%s\", ",
+               "\"edge_queue_overflow\": %llu, \"pty\": \"%s\", \"uart_tx_bytes\": %llu, "
+               "\"uart_rx_bytes\": %llu, \"uart_tx_dropped\": %llu, ",
             ++stats_seq, sim, wall, wall > 0 ? sim / wall : 0.0, wall_offset,
             (unsigned long long)missed_interrupts, (unsigned long long)resets, (unsigned long long)avr->cycle,
             theta, omega, volts, (long long)ideal_x1, (long long)ideal_x4,
-            (unsigned long long)edges, (unsigned long long)queue_overflow, uart.pty.slavename);
+            (unsigned long long)edges, (unsigned long long)queue_overflow, pty_name,
+            (unsigned long long)uart_tx_bytes, (unsigned long long)uart_rx_bytes,
+            (unsigned long long)uart_tx_dropped);
     if (opt.counts_addr >= 0 && opt.counts_addr + 3 <= (long)avr->ramend) {
         const uint8_t *c = avr->data + opt.counts_addr;
         int32_t v = (int32_t)((uint32_t)c[0] | ((uint32_t)c[1] << 8) | ((uint32_t)c[2] << 16) | ((uint32_t)c[3] << 24));
@@ -491,9 +575,8 @@ int main(int argc, char **argv) {
     avr_irq_register_notify(avr_get_interrupt_irq(avr, 1) + AVR_INT_IRQ_RUNNING, isr_cb, NULL);
     avr_irq_register_notify(avr_get_interrupt_irq(avr, AVR_INT_ANY) + AVR_INT_IRQ_RUNNING, any_isr_cb, NULL);
 
-    uart_pty_init(avr, &uart);
-    uart_pty_connect(&uart, '0');                /* also (re)links /tmp/simavr-uart0: ignored */
-    printf("PTY %s\n", uart.pty.slavename);
+    if (uart_bridge_init() != 0) _exit(1);
+    printf("PTY %s\n", pty_name);
     fflush(stdout);
     dup2(2, 1);                                  /* later chatter goes to stderr */
 
@@ -514,5 +597,5 @@ int main(int argc, char **argv) {
     fprintf(stderr, "jl_simavr: stopped after %.3f s simulated (%s)\n", sim_seconds(),
             state == cpu_Crashed ? "firmware crashed" : state == cpu_Done ? "firmware stopped" : "signal/limit");
     fflush(stderr);
-    _exit(state == cpu_Crashed ? 3 : 0);         /* not uart_pty_stop(): it can hang */
+    _exit(state == cpu_Crashed ? 3 : 0);
 }
