@@ -137,8 +137,17 @@ def _evaluate(t, distance, tj, ta, tv, jpar, shape):
             omc = 2.0 * np.sin(0.5 * wr) ** 2       # 1 - cos(wr), without cancellation
             jr = jpar * sn
             ar = c * omc
-            vr = c * (r - np.where(w > 0.0, sn / np.where(w > 0.0, w, 1.0), 0.0))
-            xr = c * (0.5 * r * r - np.where(w > 0.0, omc / np.where(w > 0.0, w * w, 1.0), 0.0))
+            winv = np.where(w > 0.0, 1.0 / np.where(w > 0.0, w, 1.0), 0.0)
+            # v = c (wr - sin wr)/w and x = c (wr^2/2 - (1 - cos wr))/w^2, by their Taylor series
+            # where the differences would cancel (relative error < 1e-16 below wr = 0.1)
+            x2 = wr * wr
+            small = wr < 0.1
+            wms = np.where(small, wr * x2 * (1 / 6 - x2 * (1 / 120 - x2 * (1 / 5040 - x2 * (
+                1 / 362880 - x2 / 39916800)))), wr - sn)
+            hmo = np.where(small, x2 * x2 * (1 / 24 - x2 * (1 / 720 - x2 * (1 / 40320 - x2 * (
+                1 / 3628800 - x2 / 479001600)))), 0.5 * x2 - omc)
+            vr = c * wms * winv
+            xr = c * hmo * winv * winv
     elif shape == _LINEAR:
         jr = jpar * np.ones_like(r)
         ar = jpar * r
@@ -543,7 +552,7 @@ def _scurve_times(d, J, A, V):
     if d >= 2.0 * A * tj2:                  # A still reached: solve d = A (tj + ta)(2 tj + ta)
         q = d / A
         return tj, 2.0 * (q - 2.0 * tj2) / (3.0 * tj + _sqrt(tj2 + 4.0 * q)), 0.0
-    return (0.5 * d / J) ** _THIRD, 0.0, 0.0
+    return d ** _THIRD * (0.5 / J) ** _THIRD, 0.0, 0.0     # d = 2 J tj^3 (no underflow of d/2J)
 
 
 def plan_sine_jerk_optimal(distance, max_jerk, max_accel, max_velocity) -> "SineJerkOptimalProfile":
@@ -737,7 +746,7 @@ def _batch_scurve(d, J, A, V, tj_o, ta_o, tv_o):
     """
     invj = 1.0 / J
     tj = np.minimum(A * invj, np.sqrt(V * invj))
-    np.minimum(tj, np.cbrt(0.5 * d * invj), out=tj)
+    np.minimum(tj, np.cbrt(d) * np.cbrt(0.5 * invj), out=tj)
     a = J * tj
     with np.errstate(divide="ignore", invalid="ignore"):     # d = 0 gives a = 0: fixed below
         inva = 1.0 / a

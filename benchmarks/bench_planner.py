@@ -1,0 +1,138 @@
+"""Planner speed and move time, against Ruckig in the same process.
+
+``python -m benchmarks planner`` prints three tables:
+
+1. microseconds per plan of each jerklab planner next to Ruckig's Python API (setting the inputs and
+   ``calculate``), interleaved and repeated, the median of the repeats; the ratio column is
+   jerklab / Ruckig (target <= 1.0);
+2. the batch planner (``plan_batch``) in plans per second on 1e6 moves (target >= 2e7);
+3. the move time of the published sine-jerk planner and of the optimal sine planner divided by
+   Ruckig's time-optimal duration, over a grid of limits (median, max).
+"""
+from __future__ import annotations
+
+import itertools
+import math
+import statistics
+import time
+
+import numpy as np
+
+from jerklab.planner import (KINDS, plan_batch, plan_scurve, plan_sine_jerk,
+                             plan_sine_jerk_optimal, plan_trapezoid)
+
+try:
+    import ruckig
+except ImportError:  # pragma: no cover - ruckig is in environment.txt
+    ruckig = None
+
+
+def _ruckig_planner():
+    otg, inp, traj = ruckig.Ruckig(1), ruckig.InputParameter(1), ruckig.Trajectory(1)
+    inp.current_position = [0.0]
+
+    def plan(distance, max_jerk, max_accel, max_velocity):
+        inp.target_position = [distance]
+        inp.max_velocity = [max_velocity]
+        inp.max_acceleration = [max_accel]
+        inp.max_jerk = [max_jerk]
+        otg.calculate(inp, traj)
+        return traj.duration
+
+    return plan
+
+
+def _cases(n, seed=0):
+    rng = np.random.default_rng(seed)
+    d = rng.choice([-1.0, 1.0], n) * 10.0 ** rng.uniform(-3, 3, n)
+    J = 10.0 ** rng.uniform(1, 5, n)
+    A = 10.0 ** rng.uniform(0, 3, n)
+    V = 10.0 ** rng.uniform(-1, 2, n)
+    return [tuple(float(x) for x in c) for c in zip(d, J, A, V)]
+
+
+def time_per_plan(repeats=7, n=2000):
+    """Median over ``repeats`` of the mean time per plan (µs), each planner on the same cases."""
+    cases = _cases(n)
+    planners = {
+        "plan_sine_jerk": plan_sine_jerk,
+        "plan_sine_jerk_optimal": plan_sine_jerk_optimal,
+        "plan_scurve": plan_scurve,
+        "plan_trapezoid": lambda d, j, a, v: plan_trapezoid(d, a, v),
+    }
+    if ruckig is not None:
+        planners["ruckig"] = _ruckig_planner()
+    runs = {k: [] for k in planners}
+    clock = time.perf_counter
+    for _ in range(repeats):
+        for name, f in planners.items():         # interleaved: load changes hit every planner
+            t0 = clock()
+            for c in cases:
+                f(*c)
+            runs[name].append((clock() - t0) / n * 1e6)
+    return {k: statistics.median(v) for k, v in runs.items()}
+
+
+def batch_rate(n=1_000_000, repeats=3):
+    rng = np.random.default_rng(1)
+    d = rng.choice([-1.0, 1.0], n) * 10.0 ** rng.uniform(-3, 3, n)
+    J = 10.0 ** rng.uniform(1, 5, n)
+    A = 10.0 ** rng.uniform(0, 3, n)
+    V = 10.0 ** rng.uniform(-1, 2, n)
+    out = {}
+    for kind in KINDS:
+        best = math.inf
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            plan_batch(kind, d, J, A, V)
+            best = min(best, time.perf_counter() - t0)
+        out[kind] = n / best
+    return out
+
+
+#: 48 limit sets: distance x jerk x acceleration x velocity (rad, rad/s^3, rad/s^2, rad/s)
+GRID = list(itertools.product([0.01, 0.1, 1.0, 10 * math.pi, 100.0, 1000.0],
+                              [1e3, 2e4], [10.0, 300.0], [10.0, 100.0]))
+
+
+def move_time_ratios(grid=GRID):
+    """Duration / Ruckig's duration on the same limits, for the two sine planners."""
+    rk = _ruckig_planner()
+    pub, opt, opt_eq = [], [], []
+    for d, J, E, W in grid:
+        r = rk(d, J, E, W)
+        pub.append(plan_sine_jerk(d, J, E, W).duration / r)
+        o = plan_sine_jerk_optimal(d, J, E, W).duration
+        opt.append(o / r)
+        opt_eq.append(o / rk(d, 2 * J / math.pi, E, W))
+    return {"published sine (plan_sine_jerk)": pub,
+            "optimal sine (plan_sine_jerk_optimal)": opt,
+            "optimal sine vs Ruckig at jerk 2J/pi": opt_eq}
+
+
+def main():
+    us = time_per_plan()
+    ref = us.get("ruckig")
+    print("Time per plan (µs, median of 7 interleaved runs of 2000 random moves)")
+    print(f"{'planner':<26}{'µs/plan':>10}{'x Ruckig':>10}")
+    for name, v in us.items():
+        ratio = f"{v / ref:10.2f}" if ref else f"{'-':>10}"
+        print(f"{name:<26}{v:10.3f}{ratio}")
+
+    print("\nBatch planner (plan_batch, 1e6 random moves, best of 3)")
+    print(f"{'kind':<26}{'plans/s':>14}{'target':>10}")
+    for kind, rate in batch_rate().items():
+        print(f"{kind:<26}{rate:14.3e}{'2e7':>10}")
+
+    if ruckig is None:
+        print("\n(ruckig not installed: no move-time comparison)")
+        return
+    print(f"\nMove time / Ruckig's time-optimal duration over {len(GRID)} limit sets "
+          "(distance 0.01..1000, J 1e3|2e4, E 10|300, Omega 10|100)")
+    print(f"{'planner':<40}{'median':>9}{'max':>10}")
+    for name, r in move_time_ratios().items():
+        print(f"{name:<40}{statistics.median(r):9.3f}{max(r):10.3f}")
+
+
+if __name__ == "__main__":
+    main()
