@@ -432,8 +432,33 @@ class PolePlacementFigure:
         self.fig.add_artist(self._eraser)
         self._limits = {}
         self._drawn_limits = {}
-        self._tight = {}
+        self._slots = self._axes_slots()
         self.axes_redraws = 0
+
+    def _axes_slots(self):
+        """Disjoint pixel rectangles (x0, y0, x1, y1), one per axes, each holding all it draws.
+
+        Columns split just right of an axes' right spine (room for the last x tick label);
+        rows split below the upper axes' x label. Repainting one slot never touches another
+        axes' ticks, labels or title.
+        """
+        grid = [[self.ax_s, self.ax_z, self.ax_step], [self.ax_dist, self.ax_err, self.ax_u]]
+        W, H = self.fig.bbox.width, self.fig.bbox.height
+        pt = self.dpi / 72.0                                   # pixels per point
+        box = {ax: ax.get_position(original=True).transformed(self.fig.transFigure)
+               for row in grid for ax in row}
+        cols = [max(box[grid[i][j]].x1 for i in range(2)) + 12 * pt for j in range(2)]
+        upper = min(box[ax].y0 for ax in grid[0])
+        h = min(box[ax].height for ax in grid[0])
+        row = upper - 0.13 * h - 16 * pt                       # below the x label (10 pt)
+        slots = {}
+        for i in range(2):
+            y0, y1 = (row, H) if i == 0 else (0.0, row)
+            for j in range(3):
+                x0 = 0.0 if j == 0 else cols[j - 1]
+                x1 = W if j == 2 else cols[j]
+                slots[grid[i][j]] = (x0, y0, x1, y1)
+        return slots
 
     def _keep(self, ax, i, proposed, lo, hi, fill=0.3):
         """Keep axis ``i`` (0: x, 1: y) of ``ax`` if [lo, hi] still fits and fills ``fill`` of it.
@@ -471,15 +496,18 @@ class PolePlacementFigure:
         t_lim = self._keep(self.ax_step, 0, (0.0, nice_ceil(t_need)), 0.0, t_need, 0.35)
         y = _clip_for_plot(res.y_step, 5.0)
         self.step_line.set_data(res.t_step, y)
+        # past instability the responses only say "it diverges": fixed ranges (the clip
+        # levels) instead of ranges chasing a growing oscillation
+        diverges = res.level == "unstable"
         yv = np.concatenate([y[res.t_step <= t_lim[1]], [0.0, 1.0]])
-        lim[self.ax_step] = (t_lim, self._keep(self.ax_step, 1, _nice_range(yv), yv.min(),
-                                               yv.max()))
+        lim[self.ax_step] = (t_lim, (-5.3, 5.3) if diverges else self._keep(
+            self.ax_step, 1, _nice_range(yv), yv.min(), yv.max()))
 
         yd = _clip_for_plot(1e3 * np.asarray(res.y_dist), CLIP_MRAD)
         self.dist_line.set_data(res.t_dist, yd)
         yv = np.concatenate([yd[res.t_dist <= t_lim[1]], [0.0]])
-        lim[self.ax_dist] = (t_lim, self._keep(self.ax_dist, 1, _nice_range(yv), yv.min(),
-                                               yv.max()))
+        lim[self.ax_dist] = (t_lim, (-1.06 * CLIP_MRAD, 1.06 * CLIP_MRAD) if diverges else
+                             self._keep(self.ax_dist, 1, _nice_range(yv), yv.min(), yv.max()))
 
         t_mv = float(res.t_move[-1]) if res.t_move.size else 1.0
         e = _clip_for_plot(1e3 * res.err_move, CLIP_MRAD)
@@ -502,14 +530,16 @@ class PolePlacementFigure:
                 self.ax_err.get_legend().remove()
         ev = np.concatenate(ys)
         t_mlim = (0.0, nice_ceil(t_mv))
-        lim[self.ax_err] = (t_mlim, self._keep(self.ax_err, 1, _nice_range(ev), ev.min(),
-                                               ev.max()), rig_error is not None)
+        lim[self.ax_err] = (t_mlim, (-1.06 * CLIP_MRAD, 1.06 * CLIP_MRAD) if diverges else
+                            self._keep(self.ax_err, 1, _nice_range(ev), ev.min(), ev.max()),
+                            rig_error is not None)
 
         u = _clip_for_plot(res.u_move, 1e3)
         self.u_line.set_data(res.t_move, u)
         um = max(float(np.max(np.abs(u))) if u.size else 1.0, 0.5)
         nu = nice_ceil(um)
-        lim[self.ax_u] = (t_mlim, self._keep(self.ax_u, 1, (-1.06 * nu, 1.06 * nu), -um, um))
+        lim[self.ax_u] = (t_mlim, (-15.0, 15.0) if diverges else
+                          self._keep(self.ax_u, 1, (-1.06 * nu, 1.06 * nu), -um, um))
 
         name = "eq. 11 + eq. 13" if p["design"] == "continuous" else "direct z-domain"
         self.suptitle.set_text(
@@ -542,36 +572,21 @@ class PolePlacementFigure:
             for ax, key in self._limits.items():
                 self._apply_limits(ax, key)
             self.canvas.draw()                      # animated artists are skipped
-            self._tight = {ax: ax.get_tightbbox(r) for ax in self._limits}
             self._drawn_limits = dict(self._limits)
             self._background = self.canvas.copy_from_bbox(self.fig.bbox)
             self.full_redraws += 1
         else:
             self.canvas.restore_region(self._background)
             todo = [ax for ax in self._limits if self._limits[ax] != self._drawn_limits.get(ax)]
+            for ax in todo:
+                self._apply_limits(ax, self._limits[ax])
+                x0, y0, x1, y1 = self._slots[ax]
+                self._eraser.set_bounds(x0, y0, x1 - x0, y1 - y0)
+                self.fig.draw_artist(self._eraser)
+                ax.draw(r)
+                self._drawn_limits[ax] = self._limits[ax]
+                self.axes_redraws += 1
             if todo:
-                from matplotlib.transforms import Bbox
-
-                done = set()
-                while todo:
-                    ax = todo.pop(0)
-                    if ax in done:
-                        continue
-                    old = self._tight[ax]
-                    self._apply_limits(ax, self._limits[ax])
-                    new = ax.get_tightbbox(r)
-                    box = Bbox.union([old, new]).padded(2)
-                    self._eraser.set_bounds(box.x0, box.y0, box.width, box.height)
-                    self.fig.draw_artist(self._eraser)
-                    ax.draw(r)
-                    self._tight[ax] = ax.get_tightbbox(r)
-                    self._drawn_limits[ax] = self._limits[ax]
-                    self.axes_redraws += 1
-                    done.add(ax)
-                    # a neighbour the eraser touched must be redrawn too
-                    for other in self._limits:
-                        if other not in done and other not in todo and box.overlaps(self._tight[other]):
-                            todo.append(other)
                 self._background = self.canvas.copy_from_bbox(self.fig.bbox)
         self._draw_dynamic(title)
 
@@ -666,9 +681,12 @@ class PolePlacementPanel(_panel_base()):
         self.status.add_class("jerklab-status")
         self.timing = widgets.HTML()
         self.timing.add_class("jerklab-timing")
-        self.image = widgets.Image(format="png", layout=widgets.Layout(max_width="100%"))
-        self.image.add_class("jerklab-figure")
         self.figure = PolePlacementFigure(dpi=dpi)
+        width_px = self.figure.canvas.get_width_height()[0]
+        # shown at its own pixel size (no blurry upscaling), narrower on a small screen
+        self.image = widgets.Image(format="png", layout=widgets.Layout(width=f"{width_px}px",
+                                                                       max_width="100%"))
+        self.image.add_class("jerklab-figure")
 
         rows = [widgets.HBox([widgets.VBox([c["zeta"], c["wn"]]),
                               widgets.VBox([c["sigma_ratio"], c["Ts_ms"]])]),
