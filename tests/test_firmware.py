@@ -16,9 +16,28 @@ from jerklab import protocol as pr
 from jerklab.controller import (DigitalController, Feedforward, discrete_pole_placement_pid,
                                 pole_placement_pid)
 from jerklab.planner import plan_sine_jerk
-from jerklab.rig.simavr import build_firmware
 
 f32 = lambda x: float(np.float32(x))  # noqa: E731  (inputs both sides see identically)
+
+
+def build_firmware(*targets):
+    from jerklab.rig.simavr import build_firmware as build
+
+    return build(*targets)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _forget_simavr_module():
+    """Leave ``jerklab.rig.simavr`` un-imported afterwards, as other modules' tests expect
+    (tests/test_rig.py checks connect("simavr") with the module absent)."""
+    import sys
+
+    yield
+    sys.modules.pop("jerklab.rig.simavr", None)
+    import jerklab.rig
+
+    if hasattr(jerklab.rig, "simavr"):
+        delattr(jerklab.rig, "simavr")
 
 
 @pytest.fixture(scope="module")
