@@ -26,7 +26,6 @@ import base64
 import io
 import math
 import time
-import traceback
 from dataclasses import dataclass, field
 
 import numpy as np
