@@ -16,6 +16,8 @@ client can talk to it as to a board.
 """
 from __future__ import annotations
 
+import importlib
+
 import os
 
 from jerklab.rig.client import (Rig, RigCommandError, RigConnectionError, RigError, RigRunError,
@@ -126,7 +128,8 @@ def _open_serial(port, baudrate, options):
 
 def _launch_simavr(motor=None):
     try:
-        from jerklab.rig import simavr
+        # through sys.modules (not the package attribute), so a stand-in launcher can be swapped in
+        simavr = importlib.import_module("jerklab.rig.simavr")
     except ImportError as exc:
         raise UnknownPortError(
             "port 'simavr' needs jerklab.rig.simavr (the firmware-on-simavr harness) which is not "
