@@ -31,7 +31,7 @@ def require_tool(*names: str) -> None:
     missing = [n for n in names if shutil.which(n) is None and not os.path.exists(n)]
     if missing:
         msg = (f"needs {', '.join(missing)} (Debian packages; `.ci/run` installs them: "
-               f"sudo apt-get install gcc-avr avr-libc arduino-core-avr simavr libsimavr-dev iverilog chromium)")
+               f"sudo apt-get install make g++ gcc-avr avr-libc arduino-core-avr simavr libsimavr-dev iverilog chromium)")
         if REQUIRE_TOOLS:
             pytest.fail(msg)
         pytest.skip(msg)
