@@ -788,7 +788,108 @@ def _batch_trapezoid(d, A, V, tj_o, ta_o, tv_o):
     np.copyto(tv_o, np.where(reach, d / V - V / A, 0.0))
 
 
-def plan_batch(kind, distance, max_jerk=None, max_accel=None, max_velocity=None) -> BatchPlan:
+def _batch_kernel_py(code, d, J, A, V, tj_o, ta_o, tv_o):  # pragma: no cover - compiled
+    """One loop over the moves, the scalar planners' algebra (compiled by numba when present).
+
+    ``code``: 0 published sine (eq. 4, Fig. 2), 1 optimal sine, 2 S-curve, 3 trapezoid.
+    """
+    two_pi = 2.0 * math.pi
+    for i in range(d.shape[0]):
+        x = abs(d[i])
+        a = A[i]
+        v = V[i]
+        if x == 0.0:
+            tj_o[i] = 0.0
+            ta_o[i] = 0.0
+            tv_o[i] = 0.0
+            continue
+        if code == 3:
+            tj_o[i] = 0.0
+            if x * a >= v * v:
+                ta_o[i] = v / a
+                tv_o[i] = (x - v * (v / a)) / v
+            else:
+                ta_o[i] = math.sqrt(x / a)
+                tv_o[i] = 0.0
+            continue
+        j = J[i]
+        if code == 0:
+            # T = min(T_Theta, T_E, T_Omega) (Fig. 2); the cube root only when T_Theta is smallest
+            T = a * math.pi / j
+            tw = math.sqrt(two_pi * v / j)
+            if tw < T:
+                T = tw
+            if T * T * T > two_pi * x / j:
+                T = (two_pi * x / j) ** (1.0 / 3.0)
+            w = j * T * T / two_pi
+            if w > v:
+                w = v
+            tv = (x - w * T) / w
+            tj_o[i] = 0.5 * T
+            ta_o[i] = 0.0
+            tv_o[i] = tv if tv > 0.0 else 0.0
+            continue
+        if code == 1:
+            j = j * (2.0 / math.pi)
+        tj = a / j
+        if v * j >= a * a:
+            ta = v / a - tj
+            dv = v * (tj + tj + ta)
+        else:
+            tj = math.sqrt(v / j)
+            ta = 0.0
+            dv = 2.0 * v * tj
+        if x >= dv:
+            tj_o[i] = tj
+            ta_o[i] = ta
+            tv_o[i] = (x - dv) / v
+            continue
+        tj = a / j
+        tj2 = tj * tj
+        tv_o[i] = 0.0
+        if x >= 2.0 * a * tj2:
+            q = x / a
+            tj_o[i] = tj
+            ta_o[i] = 2.0 * (q - 2.0 * tj2) / (3.0 * tj + math.sqrt(tj2 + 4.0 * q))
+        else:
+            tj_o[i] = x ** (1.0 / 3.0) * (0.5 / j) ** (1.0 / 3.0)
+            ta_o[i] = 0.0
+
+
+def _batch_array(name, value, positive=True):
+    """``value`` as a contiguous float array, finite (and > 0): ``ValueError`` naming ``name``."""
+    try:
+        a = np.ascontiguousarray(value, dtype=float)
+    except (TypeError, ValueError):
+        a = as_finite_array(name, value)         # raises with the parameter's name
+    if a.size:
+        lo, hi = a.min(), a.max()
+        if not (-_INF < lo and hi < _INF):
+            as_finite_array(name, a)
+        if positive and not lo > 0.0:
+            raise ValueError(f"{name} must be > 0 everywhere, got min {lo!r}")
+    return a
+
+
+_KERNEL = None          # the compiled kernel, or False when numba is not available
+_KIND_CODE = {"sine_jerk": 0, "sine_jerk_optimal": 1, "scurve": 2, "trapezoid": 3}
+#: below this many moves plan_batch uses numpy (no compilation); above, the numba kernel
+NUMBA_MIN_MOVES = 50_000
+
+
+def _compiled_kernel():
+    global _KERNEL
+    if _KERNEL is None:
+        try:
+            import numba
+            _KERNEL = numba.njit(cache=True, nogil=True)(_batch_kernel_py)
+        except Exception:  # pragma: no cover - numba missing or unusable
+            _KERNEL = False
+    return _KERNEL
+
+
+def plan_batch(kind, distance, max_jerk=None, max_accel=None, max_velocity=None,
+               engine="auto") -> BatchPlan:
     """Plan many moves of one ``kind`` at once, vectorized (arrays broadcast to one shape ``(n,)``).
 
     The same algebra as the scalar planners, evaluated with numpy in cache-sized chunks
@@ -803,36 +904,50 @@ def plan_batch(kind, distance, max_jerk=None, max_accel=None, max_velocity=None)
         Jerk limits (> 0); not used (may be None) for ``"trapezoid"``.
     max_accel, max_velocity : array_like
         Limits (> 0).
+    engine : {"auto", "numpy", "numba"}
+        ``"numpy"``: vectorized numpy in cache-sized chunks; ``"numba"``: one compiled loop over
+        the moves with the scalar planners' branches (numba, compiled once and cached on disk);
+        ``"auto"``: numba for ``NUMBA_MIN_MOVES`` moves or more when numba is installed.
 
     Returns
     -------
     BatchPlan
     """
+    if engine not in ("auto", "numpy", "numba"):
+        raise ValueError(f"engine must be 'auto', 'numpy' or 'numba', got {engine!r}")
     if kind not in _SHAPE:
         raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
-    dist = as_finite_array("distance", distance)
-    A = as_finite_array("max_accel", max_accel)
-    V = as_finite_array("max_velocity", max_velocity)
+    # cheap checks first (min/max propagate NaN); the _validate helpers name what is wrong
+    dist = _batch_array("distance", distance, positive=False)
+    A = _batch_array("max_accel", max_accel)
+    V = _batch_array("max_velocity", max_velocity)
     if kind == "trapezoid":
         J = None
-        arrays = np.broadcast_arrays(dist, A, V)
+        arrays = (dist, A, V)
     else:
         if max_jerk is None:
             raise ValueError(f"max_jerk is required for kind {kind!r}")
-        J = as_finite_array("max_jerk", max_jerk)
-        arrays = np.broadcast_arrays(dist, A, V, J)
-    arrays = [np.ascontiguousarray(np.ravel(a)) for a in arrays]
+        J = _batch_array("max_jerk", max_jerk)
+        arrays = (dist, A, V, J)
+    if len({a.shape for a in arrays}) > 1 or arrays[0].ndim != 1:
+        arrays = [np.ascontiguousarray(np.ravel(a)) for a in np.broadcast_arrays(*arrays)]
     dist, A, V = arrays[:3]
-    for name, a in (("max_accel", A), ("max_velocity", V)) + ((("max_jerk", arrays[3]),)
-                                                              if J is not None else ()):
-        if a.size and not a.min() > 0.0:
-            raise ValueError(f"{name} must be > 0 everywhere, got min {a.min()!r}")
     if J is not None:
         J = arrays[3]
     n = dist.shape[0]
     tj = np.empty(n)
     ta = np.empty(n)
     tv = np.empty(n)
+    kernel = _compiled_kernel() if (n >= NUMBA_MIN_MOVES and engine != "numpy") else False
+    if engine == "numba" and not kernel:
+        kernel = _compiled_kernel()
+        if not kernel:
+            raise ValueError("engine='numba' needs the numba package")
+    if kernel:
+        Jk = J if J is not None else A          # not read for a trapezoid
+        kernel(_KIND_CODE[kind], dist, Jk, A, V, tj, ta, tv)
+        jpar = A if kind == "trapezoid" else J
+        return BatchPlan(kind, dist, tj, ta, tv, jpar, J, A, V)
     d_all = np.abs(dist)
     if kind == "sine_jerk_optimal":
         jeq = _TWO_OVER_PI * J

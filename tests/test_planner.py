@@ -344,6 +344,22 @@ def test_batch_invariants(kind, seed):
         assert q.kind == kind and abs(q.duration - p.duration) <= 1e-9 * p.duration
 
 
+@pytest.mark.parametrize("kind", KINDS)
+def test_batch_engines_agree(kind):
+    """The compiled loop (numba) and the numpy form give the same phase times on 2e4 moves."""
+    pytest.importorskip("numba")
+    rng = np.random.default_rng(7)
+    d, J, A, V = random_moves(rng, 20000)
+    a = plan_batch(kind, d, J, A, V, engine="numba")
+    b = plan_batch(kind, d, J, A, V, engine="numpy")
+    T = b.duration
+    for x, y in ((a.tj, b.tj), (a.ta, b.ta), (a.tv, b.tv)):
+        assert np.all(np.abs(x - y) <= 1e-9 * T)
+    assert np.all(np.abs(a.duration - T) <= 1e-12 * T)
+    with pytest.raises(ValueError, match="engine"):
+        plan_batch(kind, d, J, A, V, engine="fortran")
+
+
 # ------------------------------------------------------------------------------------------------
 # the paper: eq. 2-4, Fig. 2, eq. 15
 # ------------------------------------------------------------------------------------------------
