@@ -248,6 +248,10 @@ def test_app_argv_and_validation():
 
     argv = app.voila_argv(port=9000)
     assert argv[0].endswith("app/tuning.ipynb") and "--port=9000" in argv and "--no-browser" in argv
+    assert "--preheat_kernel=True" in argv and "--pool_size=1" in argv
+    assert not any("preheat" in a for a in app.voila_argv(pool=0))
+    with pytest.raises(ValueError, match="pool"):
+        app.voila_argv(pool=-1)
     with pytest.raises(ValueError, match="port"):
         app.voila_argv(port=0)
     with pytest.raises(ValueError, match="notebook"):
