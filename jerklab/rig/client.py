@@ -57,31 +57,125 @@ _KIND_TO_PLANNER = {
 _F32_MAX = 3.4028234663852886e38
 
 
-class _Progress:
-    """A one-line text progress bar (works in a terminal and in a notebook cell)."""
+def _in_jupyter_kernel() -> bool:
+    """True inside a Jupyter kernel (JupyterLab, Notebook, Voilà, nbclient), not in a terminal.
 
-    def __init__(self, total, label, enabled, stream=None):
-        self.total = max(1, int(total))
-        self.label = label
-        self.enabled = bool(enabled)
-        self.stream = stream or sys.stdout
-        self._shown = -1
+    Looks only at an IPython that is already imported (a kernel always has one), so a plain
+    ``python`` script does not pay for importing IPython.
+    """
+    ipython = sys.modules.get("IPython")
+    if ipython is None:
+        return False
+    try:
+        shell = ipython.get_ipython()
+    except Exception:
+        return False
+    return shell is not None and getattr(shell, "kernel", None) is not None
+
+
+def _display(widget) -> None:
+    from IPython.display import display
+
+    display(widget)
+
+
+class _NoProgress:
+    """``progress=False``: no output at all."""
+
+    kind = "none"
 
     def update(self, n):
-        if not self.enabled:
+        pass
+
+    def close(self, note=""):
+        pass
+
+
+class _TextProgress:
+    """A one-line text progress bar (a terminal, or a kernel without ipywidgets).
+
+    Redrawn at most ``1 / min_interval`` times a second (the last sample always), so a
+    fast run is not slowed by its own progress bar.
+    """
+
+    kind = "text"
+    min_interval = 0.1
+
+    def __init__(self, total, label, stream=None):
+        self.total = max(1, int(total))
+        self.label = label
+        self.stream = stream or sys.stdout
+        self.value = 0
+        self.draws = 0
+        self.t0 = time.monotonic()
+        self._drawn = None
+        self._last_draw = -math.inf
+
+    def update(self, n):
+        self.value = int(n)
+        now = time.monotonic()
+        if self.value < self.total and now - self._last_draw < self.min_interval:
             return
-        pct = min(100, int(100 * n / self.total))
-        if pct // 4 == self._shown // 4 and n < self.total:
-            return
-        self._shown = pct
+        if self.value != self._drawn:
+            self._draw(now)
+
+    def _draw(self, now):
+        self._last_draw = now
+        self._drawn = self.value
+        self.draws += 1
+        self._render(min(100, 100 * self.value // self.total), now - self.t0)
+
+    def _render(self, pct, elapsed):
         bar = "#" * (pct // 4) + "." * (25 - pct // 4)
-        self.stream.write(f"\r{self.label} [{bar}] {n}/{self.total} samples")
+        self.stream.write(f"\r{self.label} [{bar}] {self.value}/{self.total} samples {elapsed:5.1f} s")
         self.stream.flush()
 
     def close(self, note=""):
-        if self.enabled and self._shown >= 0:
-            self.stream.write(f" {note}\n" if note else "\n")
-            self.stream.flush()
+        if self.value != self._drawn:
+            self._draw(time.monotonic())
+        self.stream.write(f" {note}\n" if note else "\n")
+        self.stream.flush()
+
+
+class _WidgetProgress(_TextProgress):
+    """An ipywidgets bar for JupyterLab / Notebook / Voilà: ``IntProgress`` and a label
+    (samples received / expected, elapsed seconds), updated at most ~10 times a second."""
+
+    kind = "widget"
+
+    def __init__(self, total, label, display=None):
+        import ipywidgets as W
+
+        super().__init__(total, label)
+        self.bar = W.IntProgress(value=0, min=0, max=self.total, description=label, bar_style="info",
+                                 style={"description_width": "initial"})
+        self.text = W.Label(value=f"0/{self.total} samples")
+        self.widget = W.HBox([self.bar, self.text])
+        (display or _display)(self.widget)
+
+    def _render(self, pct, elapsed):
+        self.bar.value = min(self.value, self.total)
+        self.text.value = f"{self.value}/{self.total} samples, {elapsed:.1f} s"
+
+    def close(self, note=""):
+        if self.value != self._drawn:
+            self._draw(time.monotonic())
+        if note:
+            self.bar.bar_style = "success" if note == "complete" else "danger"
+            self.text.value += f" ({note})"
+
+
+def _progress(total, label, enabled):
+    """The progress bar for a run: none (``enabled`` False), the ipywidgets bar inside a
+    Jupyter kernel that has ipywidgets, the text bar otherwise."""
+    if not enabled:
+        return _NoProgress()
+    if _in_jupyter_kernel():
+        try:
+            return _WidgetProgress(total, label)
+        except ImportError:
+            pass
+    return _TextProgress(total, label)
 
 
 class Rig:
@@ -105,7 +199,8 @@ class Rig:
     hello_timeout : float
         Seconds to keep repeating HELLO after opening (an Uno reboots when the port opens).
     progress : bool
-        Show a progress bar during runs.
+        Show a progress bar during runs: an ipywidgets bar inside a Jupyter kernel (JupyterLab,
+        Notebook, Voilà), a one-line text bar in a terminal; False shows nothing.
     recordings : path or None
         Directory for recordings (default ``$JERKLAB_RECORDINGS`` or ``./recordings``).
     """
@@ -400,7 +495,8 @@ class Rig:
             Where to write the recording (None: a new file in the recordings folder;
             False: keep it in memory only).
         progress : bool
-            Progress bar (default: the rig's setting).
+            Progress bar (default: the rig's setting): ipywidgets in a Jupyter kernel, text in a
+            terminal, nothing if False.
 
         Raises
         ------
@@ -444,7 +540,7 @@ class Rig:
                     settle_samples=settle_n, decimation=int(decimation))
         rec = self._new_recording("move", meta, path)
         total = info.n_samples + settle_n
-        bar = _Progress(total, f"{self.port} move", self.progress if progress is None else progress)
+        bar = _progress(total, f"{self.port} move", self.progress if progress is None else progress)
         return self._stream(P.Run(settle_n, int(decimation)), rec, total, host_timeout, bar)
 
     def step(self, voltage, seconds, Ts=0.005, *, rest=0.05, coast=None, max_voltage=None,
@@ -484,7 +580,7 @@ class Rig:
                 "limits": {"max_voltage": vmax, "host_timeout": tmo},
                 "plant": {"supply_voltage": self.supply_voltage, "counts_per_rev": self.counts_per_rev}}
         rec = self._new_recording("step", meta, path)
-        bar = _Progress(n_rest + n, f"{self.port} step",
+        bar = _progress(n_rest + n, f"{self.port} step",
                         self.progress if progress is None else progress)
         if n_rest:
             self._stream(P.Step(0.0, us, n_rest), rec, n_rest, host_timeout, bar, final=False)
@@ -508,7 +604,7 @@ class Rig:
         while True:
             rec = Recording({"Ts": us * 1e-6, "counts_per_rad": self.counts_per_rad,
                              "volts_per_pwm": self.supply_voltage / self.info.pwm_max})
-            bar = _Progress(window, "", False)
+            bar = _NoProgress()
             self._stream(P.Step(0.0, us, int(window)), rec, int(window), 1.0, bar)
             c = rec.counts
             if len(c) and int(c.max() - c.min()) <= tolerance:
