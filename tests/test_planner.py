@@ -485,6 +485,13 @@ def test_eq15_short_move_goes_backwards():
     drift = (disc.position[-1] - theta) / theta
     assert -0.05 < drift < -0.03
     assert disc.velocity[-1] < -0.05 * p.peak_velocity
+    # T not a whole number of samples: the sampled pulse leaves an acceleration that the
+    # recursion integrates over the cruise (9.5 samples: ends thousands of percent off)
+    half = plan_sine_jerk(theta, J, J * 9.5 * Ts / math.pi, 1e9)
+    assert (half.discretize(Ts).position[-1] - theta) / theta < -5.0
+    sync = half.synchronized(Ts)
+    assert sync.accel_time / Ts == pytest.approx(10.0)
+    assert float(sync.sample(sync.duration * (1 - 1e-12)).position) == pytest.approx(theta, rel=1e-9)
     # the shorter the pulse in samples, the larger the drift
     long = plan_sine_jerk(theta, J, J * 63 * Ts / math.pi, 1e9).discretize(Ts)
     assert abs(long.position[-1] - theta) < abs(disc.position[-1] - theta) / 3
