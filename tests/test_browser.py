@@ -37,14 +37,30 @@ ROOT = pathlib.Path(__file__).resolve().parent.parent
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                  "--disable-background-networking", "--disable-component-update", "--disable-sync"]
-# notebook 03 ends with this cell (``pole_placement_panel()``); here the panel is also named
-PANEL_CELL = "from jerklab.widgets import pole_placement_panel\n\npanel = pole_placement_panel()\npanel"
+NOTEBOOK_03 = ROOT / "notebooks" / "03_pole_placement.ipynb"
+# notebook 03 ends with this cell; the test runs the notebook's own copy when it is there
+PANEL_CELL = "from jerklab.widgets import pole_placement_panel\n\npole_placement_panel()"
 BREAK_CELL = '''\
+panel = _  # the panel the cell above displayed
+
+
 def broken_update():  # test only: the slider callback now raises
     raise RuntimeError("deliberately broken callback (test_browser)")
 
 
 panel.update = broken_update'''
+
+
+def notebook03_panel_cell():
+    """The source of notebook 03's panel cell (its last code cell calling the panel)."""
+    if NOTEBOOK_03.exists():
+        nb = nbformat.read(str(NOTEBOOK_03), as_version=4)
+        cells = [c.source for c in nb.cells
+                 if c.cell_type == "code" and "pole_placement_panel(" in c.source]
+        if cells:
+            return cells[-1]
+    return PANEL_CELL
+
 SERVER_TIMEOUT = 90.0
 PANEL_TIMEOUT_MS = 90_000
 
@@ -308,14 +324,14 @@ def class_page(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def lab(browser, tmp_path_factory):
-    """JupyterLab on a notebook [panel cell, break cell], one page and one warm kernel.
+    """JupyterLab on a notebook [notebook 03's panel cell, break cell], one page, one kernel.
 
     The three JupyterLab tests share them (a kernel start costs more than all the checks).
     """
     tmp = tmp_path_factory.mktemp("lab")
     nbdir = tmp / "notebooks"
     nbdir.mkdir()
-    _notebook(nbdir / "panel.ipynb", PANEL_CELL, BREAK_CELL)
+    _notebook(nbdir / "panel.ipynb", notebook03_panel_cell(), BREAK_CELL)
     server, url = jupyterlab(tmp, nbdir / "panel.ipynb")
     with server:
         artifacts = ROOT / "artifacts"        # as conftest's artifacts_dir (function scoped)
@@ -377,7 +393,7 @@ class Lab:
 
 
 def test_jupyterlab_notebook_panel(lab):
-    """The panel as notebook 03 ends (``pole_placement_panel()``), run in JupyterLab."""
+    """Notebook 03's panel cell (``pole_placement_panel()``) run in JupyterLab."""
     lab.run_cell(0)
     _wait_panel(lab.w)
     lab.w.shot("loaded")
