@@ -794,10 +794,14 @@ def _batch_kernel_py(code, d, J, A, V, tj_o, ta_o, tv_o):  # pragma: no cover - 
     ``code``: 0 published sine (eq. 4, Fig. 2), 1 optimal sine, 2 S-curve, 3 trapezoid.
     """
     two_pi = 2.0 * math.pi
+    inf = math.inf
     for i in range(d.shape[0]):
         x = abs(d[i])
         a = A[i]
         v = V[i]
+        # NaN fails every comparison: this rejects NaN, inf and limits <= 0
+        if not (x < inf and 0.0 < a < inf and 0.0 < v < inf and 0.0 < J[i] < inf):
+            return i
         if x == 0.0:
             tj_o[i] = 0.0
             ta_o[i] = 0.0
@@ -819,8 +823,9 @@ def _batch_kernel_py(code, d, J, A, V, tj_o, ta_o, tv_o):  # pragma: no cover - 
             tw = math.sqrt(two_pi * v / j)
             if tw < T:
                 T = tw
-            if T * T * T > two_pi * x / j:
-                T = (two_pi * x / j) ** (1.0 / 3.0)
+            y = two_pi * x / j
+            if T * T * T > y:
+                T = y ** (1.0 / 3.0) if y > 1e-300 else (two_pi * x) ** (1.0 / 3.0) / j ** (1.0 / 3.0)
             w = j * T * T / two_pi
             if w > v:
                 w = v
@@ -831,12 +836,15 @@ def _batch_kernel_py(code, d, J, A, V, tj_o, ta_o, tv_o):  # pragma: no cover - 
             continue
         if code == 1:
             j = j * (2.0 / math.pi)
-        tj = a / j
+        invj = 1.0 / j
+        inva = 1.0 / a
+        tja = a * invj
         if v * j >= a * a:
-            ta = v / a - tj
+            tj = tja
+            ta = v * inva - tj
             dv = v * (tj + tj + ta)
         else:
-            tj = math.sqrt(v / j)
+            tj = math.sqrt(v * invj)
             ta = 0.0
             dv = 2.0 * v * tj
         if x >= dv:
@@ -844,16 +852,20 @@ def _batch_kernel_py(code, d, J, A, V, tj_o, ta_o, tv_o):  # pragma: no cover - 
             ta_o[i] = ta
             tv_o[i] = (x - dv) / v
             continue
-        tj = a / j
-        tj2 = tj * tj
+        tj2 = tja * tja
         tv_o[i] = 0.0
         if x >= 2.0 * a * tj2:
-            q = x / a
-            tj_o[i] = tj
-            ta_o[i] = 2.0 * (q - 2.0 * tj2) / (3.0 * tj + math.sqrt(tj2 + 4.0 * q))
+            q = x * inva
+            tj_o[i] = tja
+            ta_o[i] = 2.0 * (q - 2.0 * tj2) / (3.0 * tja + math.sqrt(tj2 + 4.0 * q))
         else:
-            tj_o[i] = x ** (1.0 / 3.0) * (0.5 / j) ** (1.0 / 3.0)
+            y = 0.5 * x * invj
+            if y > 1e-300:
+                tj_o[i] = y ** (1.0 / 3.0)
+            else:                                  # d / 2J would underflow
+                tj_o[i] = x ** (1.0 / 3.0) * (0.5 * invj) ** (1.0 / 3.0)
             ta_o[i] = 0.0
+    return -1
 
 
 def _batch_array(name, value, positive=True):
@@ -917,18 +929,28 @@ def plan_batch(kind, distance, max_jerk=None, max_accel=None, max_velocity=None,
         raise ValueError(f"engine must be 'auto', 'numpy' or 'numba', got {engine!r}")
     if kind not in _SHAPE:
         raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
-    # cheap checks first (min/max propagate NaN); the _validate helpers name what is wrong
-    dist = _batch_array("distance", distance, positive=False)
-    A = _batch_array("max_accel", max_accel)
-    V = _batch_array("max_velocity", max_velocity)
-    if kind == "trapezoid":
-        J = None
-        arrays = (dist, A, V)
-    else:
-        if max_jerk is None:
-            raise ValueError(f"max_jerk is required for kind {kind!r}")
-        J = _batch_array("max_jerk", max_jerk)
-        arrays = (dist, A, V, J)
+    if kind != "trapezoid" and max_jerk is None:
+        raise ValueError(f"max_jerk is required for kind {kind!r}")
+    # The compiled loop checks every value itself (and, on a bad one, the checks below run to
+    # name it); the numpy form checks first (min/max propagate NaN).
+    names = ("distance", "max_accel", "max_velocity") + (("max_jerk",) if kind != "trapezoid" else ())
+    values = (distance, max_accel, max_velocity) + ((max_jerk,) if kind != "trapezoid" else ())
+    arrays = []
+    for name, value in zip(names, values):
+        try:
+            arrays.append(np.ascontiguousarray(value, dtype=float))
+        except (TypeError, ValueError):
+            as_finite_array(name, value)             # raises with the parameter's name
+            raise ValueError(f"{name} must be numeric, got {value!r}") from None
+    n_max = max(a.size for a in arrays)
+    use_kernel = engine == "numba" or (engine == "auto" and n_max >= NUMBA_MIN_MOVES)
+    kernel = _compiled_kernel() if use_kernel else False
+    if engine == "numba" and not kernel:
+        raise ValueError("engine='numba' needs the numba package")
+    if not kernel:
+        arrays = [_batch_array(name, a, positive=name != "distance")
+                  for name, a in zip(names, arrays)]
+    J = arrays[3] if kind != "trapezoid" else None
     if len({a.shape for a in arrays}) > 1 or arrays[0].ndim != 1:
         arrays = [np.ascontiguousarray(np.ravel(a)) for a in np.broadcast_arrays(*arrays)]
     dist, A, V = arrays[:3]
@@ -938,14 +960,13 @@ def plan_batch(kind, distance, max_jerk=None, max_accel=None, max_velocity=None,
     tj = np.empty(n)
     ta = np.empty(n)
     tv = np.empty(n)
-    kernel = _compiled_kernel() if (n >= NUMBA_MIN_MOVES and engine != "numpy") else False
-    if engine == "numba" and not kernel:
-        kernel = _compiled_kernel()
-        if not kernel:
-            raise ValueError("engine='numba' needs the numba package")
     if kernel:
-        Jk = J if J is not None else A          # not read for a trapezoid
-        kernel(_KIND_CODE[kind], dist, Jk, A, V, tj, ta, tv)
+        Jk = J if J is not None else A          # a trapezoid has no jerk: A passes the check
+        bad = kernel(_KIND_CODE[kind], dist, Jk, A, V, tj, ta, tv)
+        if bad >= 0:
+            for name, a in zip(names, arrays):
+                _batch_array(name, a, positive=name != "distance")
+            raise AssertionError("unreachable: a bad value passed the checks")  # pragma: no cover
         jpar = A if kind == "trapezoid" else J
         return BatchPlan(kind, dist, tj, ta, tv, jpar, J, A, V)
     d_all = np.abs(dist)

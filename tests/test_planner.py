@@ -358,6 +358,16 @@ def test_batch_engines_agree(kind):
     assert np.all(np.abs(a.duration - T) <= 1e-12 * T)
     with pytest.raises(ValueError, match="engine"):
         plan_batch(kind, d, J, A, V, engine="fortran")
+    # the compiled loop checks every value and the error names the parameter
+    for name, arr, bad in (("distance", d, math.inf), ("max_accel", A, -1.0),
+                           ("max_velocity", V, math.nan), ("max_jerk", J, 0.0)):
+        if kind == "trapezoid" and name == "max_jerk":
+            continue
+        saved = arr[12345]
+        arr[12345] = bad
+        with pytest.raises(ValueError, match=name):
+            plan_batch(kind, d, J, A, V, engine="numba")
+        arr[12345] = saved
 
 
 # ------------------------------------------------------------------------------------------------
