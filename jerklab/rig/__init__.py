@@ -57,7 +57,8 @@ def connect(port=None, *, motor=None, speed=None, timeout=2.0, hello_timeout=Non
         Seconds to keep saying HELLO after opening (default 3 s for a port — an Uno reboots
         when the port opens — 1 s for the virtual rig).
     progress : bool
-        Text progress bar during runs.
+        Progress bar during runs: an ipywidgets bar inside a Jupyter kernel, text in a terminal,
+        nothing when False.
     recordings : path
         Folder for recordings (default ``$JERKLAB_RECORDINGS`` or ``./recordings``).
     supply_voltage, counts_per_rev : float, int
