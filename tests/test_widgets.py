@@ -166,6 +166,22 @@ def test_mimebundle_has_png_for_headless_frontends(panel):
     assert w > 600 and h > 400
 
 
+def test_savefig_is_the_live_picture(panel, tmp_path):
+    """savefig gives the picture the panel shows (data lines and title included)."""
+    from PIL import Image, ImageChops
+
+    path = tmp_path / "panel.png"
+    panel.figure.savefig(path)
+    saved = Image.open(path).convert("RGB")
+    live = Image.open(io.BytesIO(panel.figure.png(title=True))).convert("RGB")
+    assert saved.size == live.size
+    diff = np.asarray(ImageChops.difference(saved, live)).max(axis=2)
+    assert np.mean(diff > 40) < 2e-3
+    # and a picture without the data lines would differ: the lines are really there
+    blank = Image.open(io.BytesIO(panel.figure.png())).convert("RGB")    # no title
+    assert np.mean(np.asarray(ImageChops.difference(blank, live)).max(axis=2) > 40) > 1e-3
+
+
 def test_bad_input_names_parameter():
     with pytest.raises(ValueError, match="K"):
         W.pole_placement_panel(K=-1.0)
