@@ -192,10 +192,11 @@ def _evaluate(t, distance, tj, ta, tv, jpar, shape):
 
 
 def _ceil_multiple(x: float, Ts: float) -> float:
-    """Smallest whole multiple of ``Ts`` that is >= ``x`` (up to a relative 1e-12)."""
+    """Smallest whole multiple of ``Ts`` that is >= ``x`` (up to a relative 1e-12, at most 1e-6 Ts)."""
     if x <= 0.0:
         return 0.0
-    n = math.ceil(x / Ts * (1.0 - _SYNC_RTOL))
+    r = x / Ts
+    n = math.ceil(r - min(_SYNC_RTOL * r, 1e-6))    # never more than 1e-6 sample below x
     return max(n, 1) * Ts
 
 

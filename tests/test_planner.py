@@ -192,6 +192,15 @@ def test_synchronized(kind, sign, ed, ej, ea, ev, ts_exp):
         assert abs(s.position - distance) <= 1e-9 * abs(distance)
 
 
+@pytest.mark.parametrize("kind", KINDS)
+def test_synchronized_more_samples_than_float_integers(kind):
+    """A cruise of ~2e17 samples: rounding up must not drop thousands of seconds (regression)."""
+    p = PLANNERS[kind](1e6, 10.0 ** 6.75, 10.0 ** -1.375, 1.0)
+    q = p.synchronized(0.01)
+    assert q.duration >= p.duration * (1 - 1e-12)
+    assert q.peak_velocity <= 1.0 * (1 + 1e-9)
+
+
 def _ruckig_duration(distance, J, A, V):
     otg, inp, traj = ruckig.Ruckig(1), ruckig.InputParameter(1), ruckig.Trajectory(1)
     inp.current_position, inp.target_position = [0.0], [distance]
