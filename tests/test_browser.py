@@ -29,7 +29,7 @@ import urllib.request
 
 import nbformat
 import pytest
-from conftest import require_tool
+from conftest import REQUIRE_TOOLS, require_tool
 
 pytestmark = pytest.mark.slow
 
@@ -169,7 +169,13 @@ def jupyterlab(tmp, notebook):
 @pytest.fixture(scope="module")
 def browser():
     require_tool(CHROMIUM)
-    from playwright.sync_api import sync_playwright
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError as exc:                  # environment.txt installs it
+        msg = f"needs the playwright package (pip install -r environment.txt): {exc}"
+        if REQUIRE_TOOLS:
+            pytest.fail(msg)
+        pytest.skip(msg)
 
     profile = tempfile.mkdtemp(prefix="jerklab-chromium-")
     with sync_playwright() as pw:
