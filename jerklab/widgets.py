@@ -768,7 +768,8 @@ class PolePlacementPanel(_panel_base()):
             self.rig_status.value = "running…"
             res = self.result
             profile = _move_profile(self.move)
-            rec = self.rig.run_move(profile, res.gains, Ts=res.params["Ts"], path=False)
+            rec = self.rig.run_move(profile, res.gains, Ts=res.params["Ts"], path=False,
+                                    progress=False)   # the panel shows its own status
             t = np.asarray(rec.time, dtype=float)
             err = np.asarray(rec.reference, dtype=float) - np.asarray(rec.position, dtype=float)
             self._rig_error = (t, err)
