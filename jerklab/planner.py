@@ -25,8 +25,11 @@ evaluated on the first half and mirrored (``x(t) = distance - x(duration - t)``)
 therefore exactly ``distance`` at rest.  Inside the acceleration phase the acceleration is symmetric
 about the phase's middle, which is also used: the falling pulse is the rising one mirrored.
 
-:func:`plan_batch` plans millions of moves at once (numpy, processed in cache-sized chunks) and
-returns a :class:`BatchPlan` with the same closed-form sampler.
+:func:`plan_batch` plans millions of moves at once (a numba-compiled loop when numba is installed,
+else numpy in cache-sized chunks) and returns a :class:`BatchPlan` with the same closed-form sampler.
+
+:meth:`Profile.synchronized` stretches every phase to whole sample times (the fix for the drift of
+Stojčić's eq. 15 recursion, which :meth:`Profile.discretize` keeps to show it).
 
 References
 ----------
