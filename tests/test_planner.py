@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from scipy.integrate import fixed_quad
 
@@ -170,6 +170,8 @@ def test_invariants(kind, sign, ed, ej, ea, ev):
 @pytest.mark.parametrize("kind", ["sine_jerk", "sine_jerk_optimal", "scurve", "trapezoid"])
 @settings(max_examples=N_SYNC, deadline=None, suppress_health_check=list(HealthCheck))
 @given(sign=SIGN, ed=EXP_D, ej=EXP_J, ea=EXP_A, ev=EXP_V, ts_exp=st.floats(-5, 0))
+# a cruise of 6e13 s: the sum of the phase times rounds by more than Ts (found by CI)
+@example(sign=False, ed=5.5625, ej=2.0, ea=-3.21875, ev=0.0, ts_exp=-4.0)
 def test_synchronized(kind, sign, ed, ej, ea, ev, ts_exp):
     distance, J, A, V = move(sign, ed, ej, ea, ev)
     Ts = 10.0 ** ts_exp
@@ -179,7 +181,8 @@ def test_synchronized(kind, sign, ed, ej, ea, ev, ts_exp):
     n = np.asarray(q.phase_times) / Ts
     assert np.all(np.abs(n - np.round(n)) <= 1e-6 * np.maximum(1.0, n))
     assert q.duration >= p.duration * (1 - 1e-12)
-    assert q.duration <= p.duration + len(q.phase_times) * Ts * (1 + 1e-9)
+    # at most one sample more per phase, up to the rounding of a sum of huge phase times
+    assert q.duration <= p.duration * (1 + 1e-12) + len(q.phase_times) * Ts * (1 + 1e-9)
     # lowered peaks, never raised
     assert q.peak_accel <= p.peak_accel * (1 + RTOL) + 1e-300
     assert q.peak_velocity <= p.peak_velocity * (1 + RTOL) + 1e-300
