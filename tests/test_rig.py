@@ -444,3 +444,15 @@ def test_partial_frame_expires_on_both_sides(tmp_path):
     assert r.name == "jerklab-virtual"
     assert r._decoder.stats.truncated == 1
     assert r._seq == 2                 # one HELLO and the STOP: the first reply was not held back
+
+
+def test_load_names_a_corrupt_sidecar(tmp_path):
+    """A sidecar that is not JSON raises a clear error naming it and pointing at the samples."""
+    rec = Recording({"kind": "move", "Ts": 0.005, "counts_per_rad": CPR, "volts_per_pwm": 12 / 1023},
+                    tmp_path / "bad")
+    for k in range(5):
+        rec.append(k, 0.0, k, 0, 0)
+    rec.finish("complete")
+    rec.json_path.write_bytes(b"\xa5Z\x11" + rec.json_path.read_bytes())
+    with pytest.raises(ValueError, match=r"bad\.json is not a valid JSON sidecar.*bad\.csv"):
+        Recording.load(tmp_path / "bad.csv")

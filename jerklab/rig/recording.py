@@ -216,8 +216,12 @@ class Recording:
             raise FileNotFoundError(f"no recording at {csv_path}")
         meta = {}
         if json_path.exists():
-            with open(json_path, encoding="utf-8") as f:
-                meta = json.load(f)
+            try:
+                with open(json_path, encoding="utf-8") as f:
+                    meta = json.load(f)
+            except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+                raise ValueError(f"{json_path} is not a valid JSON sidecar ({exc}); the samples are "
+                                 f"still in {csv_path}") from None
         rows = []
         with open(csv_path, newline="", encoding="ascii") as f:
             reader = csv.reader(f)

@@ -53,6 +53,7 @@ class DeviceServer:
         self._conn = None
         self._thread = None
         self._stop = threading.Event()
+        self._pull = threading.Event()     # pull_cable() asks the serving thread to drop the link
         self._lock = threading.Lock()
         self._frozen = False
         self.dropped_bytes = 0
@@ -120,8 +121,20 @@ class DeviceServer:
 
     # ------------------------------------------------------------------ fault injection
     def pull_cable(self):
-        """Close the link abruptly, like a USB cable pulled out mid-run (the client sees an I/O error)."""
-        self._close_link()
+        """Close the link abruptly, like a USB cable pulled out mid-run (the client sees an I/O error).
+
+        The serving thread owns the file descriptor and closes it itself: closing it from here
+        could let the number be reused (by the client's recording file, say) while that thread
+        still writes frames to it.
+        """
+        thread = self._thread
+        if thread is None or not thread.is_alive() or thread is threading.current_thread():
+            self._close_link()
+            return
+        self._pull.set()
+        deadline = time.monotonic() + 1.0
+        while self._pull.is_set() and thread.is_alive() and time.monotonic() < deadline:
+            time.sleep(0.001)
 
     def freeze(self):
         """The board hangs: it stops ticking and sending (the client times out)."""
@@ -148,6 +161,10 @@ class DeviceServer:
         out = bytearray()
         next_tick = time.monotonic()
         while not self._stop.is_set():
+            if self._pull.is_set():
+                self._close_link()
+                out.clear()
+                self._pull.clear()
             fd = self._fd
             if fd is None:
                 if self._listener is None:
