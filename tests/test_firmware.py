@@ -345,6 +345,21 @@ def test_device_run_matches_jerklab_plan_and_reaches_target(host_driver):
     assert max(abs(t.pwm) for t in tel) <= 1023 and pwm[-1][1] == 0       # stopped at the end
 
 
+def test_device_rescans_a_truncated_frame_after_silence(host_driver):
+    """PROTOCOL.md: after 20 ms of silence a partial frame is abandoned and its bytes re-scanned
+    from the byte after its sync, so a short frame held back behind a truncated long one is found."""
+    long_frame = pr.encode(_gains(), 200)
+    dev = HostDevice(host_driver)
+    dev.send(long_frame[:6])                 # a cut SET_GAINS: its length holds back what follows
+    dev.send(pr.Hello(1))                    # complete, but inside the cut frame's window
+    dev.script.append("idle")                # the firmware's 20 ms silence
+    dev.send(pr.Hello(1))                    # the link works normally afterwards
+    msgs, _ = dev.run()
+    replies = [m for _, _, m in msgs]
+    assert [type(m) for m in replies] == [pr.HelloReply, pr.HelloReply], replies
+    assert [seq for _, seq, _ in msgs] == [1, 2]
+
+
 def test_device_host_watchdog_stops_the_motor(host_driver):
     dev = HostDevice(host_driver)
     dev.send(_gains()).send(pr.SetLimits(2e4, 300, 100, 12.0, 100)).send(pr.Plan(f32(20.0), 0))

@@ -58,6 +58,16 @@ void Device::on_byte(uint8_t b) {
     } while (parser_.process());
 }
 
+void Device::on_rx_idle() {
+    while (parser_.pending()) {
+        parser_.abandon();
+        while (parser_.process()) {
+            last_rx_ms_ = hal_.millis();
+            handle(parser_.frame());
+        }
+    }
+}
+
 void Device::end_run(uint8_t reason) {
     hal_.set_pwm(0);
     uint8_t p[kLenEndOfRun];

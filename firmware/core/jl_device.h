@@ -47,8 +47,9 @@ public:
     void begin();
     /// Feed one received byte (from loop()).
     void on_byte(uint8_t b);
-    /// No byte for a while (the firmware calls this after 20 ms of silence).
-    void on_rx_idle() { parser_.abandon(); }
+    /// No byte for a while (the firmware calls this after 20 ms of silence): abandon the
+    /// partial frame and re-scan its bytes after the first sync byte.
+    void on_rx_idle();
     /// The control computation of one tick (planner, controller, PWM write); returns true
     /// when a sample was produced and report() should be called.
     bool control();

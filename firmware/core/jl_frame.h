@@ -42,7 +42,10 @@ public:
     const Frame& frame() const { return frame_; }
     uint16_t dropped() const { return dropped_; }   // corrupt frames seen
     /// Drop a partial frame (e.g. after an inter-byte timeout); counted if bytes were pending.
-    void abandon() { if (n_ > 0) { ++dropped_; } n_ = 0; }
+    /// After a silence: give up the partial frame at the front (count it truncated) and drop
+    /// only its first sync byte; the caller then calls process() to re-scan the rest, so a
+    /// short frame held back behind a truncated long one is still found (PROTOCOL.md).
+    void abandon() { if (n_ > 0) { ++dropped_; shift(1); } }
     bool pending() const { return n_ > 0; }
 
 private:
