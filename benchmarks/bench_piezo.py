@@ -15,6 +15,7 @@ import control
 import numpy as np
 from scipy.optimize import lsq_linear
 
+from benchmarks._record import table as record_table
 from jerklab import piezo as pz
 
 
@@ -46,7 +47,7 @@ def main():
 
     t_lp = _best_time(lambda: pz._rampup_lp(N, model, spec, orders, poles, w, G1, beta, ru.scan_start))
     t_ls = _best_time(lambda: _lsq_feasible(N, a, model, spec, orders, w))
-    rows.append(("one horizon, 1st-order ramp-up (N=%d)" % N, "HiGHS LP", t_lp, "lsq_linear BVLS (eq. 6)", t_ls))
+    rows.append(("one horizon, 1st-order ramp-up", f"N={N}", "HiGHS LP", t_lp, "lsq_linear BVLS (eq. 6)", t_ls))
 
     def bisect_lp():
         return pz._bisect(lambda n: pz._rampup_lp(n, model, spec, orders, poles, w, G1, beta, ru.scan_start), 0, 200)
@@ -55,7 +56,7 @@ def main():
         return pz._bisect(lambda n: _lsq_feasible(n, a, model, spec, orders, w), 0, 200)
 
     n_lp, n_ls = bisect_lp()[0], bisect_ls()[0]
-    rows.append((f"min horizon by bisection (LP N={n_lp}, LSQ N={n_ls})", "HiGHS LP", _best_time(bisect_lp, 3),
+    rows.append(("min horizon by bisection", f"LP N={n_lp}, LSQ N={n_ls}", "HiGHS LP", _best_time(bisect_lp, 3),
                  "lsq_linear BVLS", _best_time(bisect_ls, 3)))
 
     cyc = pz.shape_cycle(1, 2, model, spec)
@@ -65,7 +66,7 @@ def main():
     y_own = pz.simulate(model, u, spec.Ts)
     y_ct = np.asarray(control.forced_response(sysd, T=t, U=u).outputs).ravel()
     diff = np.abs(y_own - y_ct).max()
-    rows.append((f"simulate {u.size} samples (max diff {diff:.1e} µm)", "pz.simulate (lfilter)",
+    rows.append(("simulate a cycle command", f"{u.size} samples, max diff {diff:.1e} µm", "pz.simulate (lfilter)",
                  _best_time(lambda: pz.simulate(model, u, spec.Ts)), "control.forced_response",
                  _best_time(lambda: control.forced_response(sysd, T=t, U=u))))
 
@@ -76,14 +77,14 @@ def main():
     table_lsq = pz.table_ii(solver="lsq")
     t_table_lsq = time.perf_counter() - t0
     same = all(table[k]["cycle_time"] == table_lsq[k]["cycle_time"] for k in table)
-    rows.append((f"whole Table II (same cycle times: {same})", "HiGHS LP", t_table, "lsq_linear BVLS", t_table_lsq))
+    rows.append(("whole Table II", f"same cycle times: {same}", "HiGHS LP", t_table, "lsq_linear BVLS", t_table_lsq))
     n_lps = sum(r["cycle"].lp_count for r in table.values())
 
-    print(f"{'case':<48} {'ours':<22} {'ms':>8}   {'peer':<24} {'ms':>8}  {'peer/ours':>9}")
-    for case, a_name, ta, b_name, tb in rows:
-        print(f"{case:<48} {a_name:<22} {ta * 1e3:8.2f}   {b_name:<24} {tb * 1e3:8.2f}  {tb / ta:9.2f}")
-    print(f"\nwhole Table II: {t_table:.2f} s for {n_lps} LPs ({t_table / n_lps * 1e3:.1f} ms per LP, "
-          f"shaping + evaluation; acceptance < 10 s)")
+    record_table("Xu & Meckl shaping: jerklab against peers in the same process",
+                 ["case", "detail", "ours", "ours ms", "peer", "peer ms", "peer/ours"],
+                 [(case, det, a_name, ta * 1e3, b_name, tb * 1e3, tb / ta) for case, det, a_name, ta, b_name, tb in rows],
+                 note=f"whole Table II: {t_table:.2f} s for {n_lps} LPs ({t_table / n_lps * 1e3:.1f} ms per LP, "
+                      f"shaping + evaluation; acceptance < 10 s)")
     print(pz.format_table_ii(table))
 
 
