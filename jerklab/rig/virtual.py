@@ -27,6 +27,9 @@ import time
 import numpy as np
 
 from jerklab import protocol as P
+from jerklab.law import SCALAR as _LAW
+
+_pwm_duty, _encoder_counts = _LAW["pwm_duty"], _LAW["encoder_counts"]
 
 __all__ = ["VirtualDevice", "VirtualSerial"]
 
@@ -128,7 +131,7 @@ class VirtualDevice:
         return min(self._decoder.stats.dropped, 0xFFFF)
 
     def _raw_counts(self) -> int:
-        return int(math.floor(float(self.x[0]) * self.motor.counts_per_rad + 1e-9))
+        return int(_encoder_counts(float(self.x[0]), self.motor.counts_per_rad))
 
     # ------------------------------------------------------------------ bytes in / out
     #: a partial frame is abandoned after this much silence (s), as on the firmware
@@ -321,9 +324,7 @@ class VirtualDevice:
         p = self.plant
         lim = int(round(self.limits.max_voltage * self.pwm_max / p.supply_voltage))
         lim = min(lim, self.pwm_max)
-        pwm = int(math.floor(abs(u) * self.pwm_max / p.supply_voltage + 0.5))   # lround
-        pwm = min(pwm, lim)
-        return pwm if u >= 0 else -pwm
+        return int(_pwm_duty(u, p.supply_voltage, self.pwm_max, lim))          # lround, clamp (jerklab.law)
 
     def tick(self) -> None:
         """One control period: watchdog, sample, control, telemetry, then the motor moves."""
