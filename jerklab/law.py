@@ -50,7 +50,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["HAVE_NUMBA", "pid_step", "pid_step_vec", "amplifier", "amplifier_vec", "pwm_duty",
+from jerklab._validate import as_positive, as_real
+
+__all__ = ["HAVE_NUMBA", "pid_step", "pid_step_vec", "amplifier", "amplifier_vec", "voltage_vec", "pwm_duty",
            "encoder", "encoder_counts", "encoder_vec", "zoh_coefficients", "ZOH", "SCALAR",
            "ENCODER_EPS", "CTL_FIELDS", "pack"]
 
@@ -196,10 +198,12 @@ SCALAR = {"pid_step": _py(pid_step), "pwm_duty": _py(pwm_duty), "amplifier": _py
 # ---------------------------------------------------------------------------
 # vector forms (numpy, element-wise)
 # ---------------------------------------------------------------------------
-def pid_step_vec(e, e_prev, i_prev, d_prev, ff, kpd, kid, kdd, gamma, limit, anti_windup):
+def pid_step_vec(e, e_prev, i_prev, d_prev, ff, kpd, kid, kdd, gamma, limit, anti_windup,
+                 want_saturated=True):
     """:func:`pid_step` over arrays (many plants at once); the same rule, element-wise.
 
-    Returns ``(u, p, i, d, saturated)`` as arrays (``anti_windup`` is one bool for all).
+    Returns ``(u, p, i, d, saturated)`` as arrays (``anti_windup`` is one bool for all;
+    ``saturated`` is None when ``want_saturated`` is False, which saves a pass).
     """
     p = kpd * e
     i_new = i_prev + kid * e
@@ -212,7 +216,7 @@ def pid_step_vec(e, e_prev, i_prev, d_prev, ff, kpd, kid, kdd, gamma, limit, ant
         u = np.where(freeze, u - (i_new - i_prev), u)
         i_new = np.where(freeze, i_prev, i_new)
     u = np.clip(u, -limit, limit)
-    return u, p, i_new, d, hi | lo
+    return u, p, i_new, d, (hi | lo) if want_saturated else None
 
 
 def amplifier_vec(u, supply, levels):
@@ -220,12 +224,19 @@ def amplifier_vec(u, supply, levels):
     u = np.asarray(u, dtype=float)
     if supply <= 0.0:
         return u.copy(), np.zeros(u.shape, dtype=bool)
-    clamped = (u > supply) | (u < -supply)
+    return voltage_vec(u, supply, levels), (u > supply) | (u < -supply)
+
+
+def voltage_vec(u, supply, levels):
+    """The voltage part of :func:`amplifier_vec` alone (no clamp flags): what the motor sees."""
+    u = np.asarray(u, dtype=float)
+    if supply <= 0.0:
+        return u.copy()
     v = np.clip(u, -supply, supply)
     if levels > 0.0:
         q = v / supply * levels
         v = np.sign(q) * np.floor(np.abs(q) + 0.5) / levels * supply
-    return v, clamped
+    return v
 
 
 def encoder_vec(theta, counts_per_rad):
@@ -284,8 +295,6 @@ def zoh_coefficients(K, tau, Ts) -> ZOH:
     tau, Ts : float
         Time constant and sampling time (s), > 0.
     """
-    from jerklab._validate import as_positive, as_real
-
     K = as_real("K", K)
     tau = as_positive("tau", tau)
     Ts = as_positive("Ts", Ts)

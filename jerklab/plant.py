@@ -39,7 +39,7 @@ import scipy.linalg
 
 from jerklab._validate import (as_finite_array, as_int, as_nonnegative, as_positive,
                                as_real)
-from jerklab.law import amplifier_vec, encoder_vec, zoh_coefficients
+from jerklab.law import encoder_vec, voltage_vec, zoh_coefficients
 
 __all__ = ["DCMotor", "FlexibleDCMotor", "StepDisturbance", "advance", "advance_scalar", "advance_em",
            "quantize_voltage", "measure_angle"]
@@ -158,7 +158,7 @@ def quantize_voltage(u, supply_voltage=None, pwm_bits=None):
     u = np.asarray(u, dtype=float)
     if supply_voltage is None:
         return u
-    return amplifier_vec(u, supply_voltage, 0.0 if pwm_bits is None else float(2 ** pwm_bits - 1))[0]
+    return voltage_vec(u, supply_voltage, 0.0 if pwm_bits is None else float(2 ** pwm_bits - 1))
 
 
 def measure_angle(theta, counts_per_rad=None):

@@ -912,9 +912,10 @@ def _batch_numpy(rpos, rvel, racc, Kv, tv, fv, noise, common, ctl):
         ff = (fftau * racc[k] + rvel[k]) / ffK if ff_on else 0.0
         if k == 0 and bumpless:
             e_prev = e
-        u, _, i_prev, d_prev, _ = law.pid_step_vec(e, e_prev, i_prev, d_prev, ff, kpd, kid, kdd, gamma, lim, aw)
+        u, _, i_prev, d_prev, _ = law.pid_step_vec(e, e_prev, i_prev, d_prev, ff, kpd, kid, kdd, gamma, lim, aw,
+                                                   want_saturated=False)
         e_prev = e
-        v = law.amplifier_vec(u, supply, levels)[0]
+        v = law.voltage_vec(u, supply, levels)
         U[:, k] = v
         t0 = k * Ts
         if common["dist_on"] and t0 < common["dist_time"] < t0 + Ts:
