@@ -32,7 +32,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from jerklab import law
-from jerklab._validate import as_nonnegative, as_positive, as_real
+from jerklab._validate import as_int, as_nonnegative, as_positive, as_real
 
 __all__ = ["Gains", "DiscreteGains", "pole_placement_pid", "velocity_pole_placement_pid",
            "discrete_pole_placement_pid", "paper_error_scale", "paper_velocity_controller", "Feedforward",
@@ -138,6 +138,8 @@ def desired_poles(wn, zeta=1.0, sigma=None):
     """The s-poles of ``(s + σ)(s² + 2ζωn s + ωn²)`` (σ omitted: the pair only)."""
     wn = as_positive("wn", wn)
     zeta = as_positive("zeta", zeta)
+    if not math.isfinite(wn * wn * zeta):
+        raise ValueError(f"wn={wn} (with zeta={zeta}) is too large: wn² overflows")
     pair = np.roots([1.0, 2.0 * zeta * wn, wn * wn]).astype(complex)
     if sigma is None:
         return pair
@@ -166,6 +168,9 @@ def pole_placement_pid(K, tau, wn, zeta=1.0, sigma=None) -> Gains:
     kp = wn * tau * (2.0 * zeta * sigma + wn) / K
     ki = tau * sigma * wn * wn / K
     kd = (tau * (2.0 * zeta * wn + sigma) - 1.0) / K
+    if not (math.isfinite(kp) and math.isfinite(ki) and math.isfinite(kd)):
+        raise ValueError(f"wn={wn}, sigma={sigma} (K={K}, tau={tau}) give gains that overflow "
+                         f"(kp={kp}, ki={ki}, kd={kd}); choose a smaller wn")
     return Gains(kp, ki, kd, loop="position",
                  design=dict(method="eq11", K=K, tau=tau, wn=wn, zeta=zeta, sigma=sigma))
 
@@ -254,7 +259,14 @@ def discrete_pole_placement_pid(K, tau, wn, zeta=1.0, sigma=None, Ts=0.005, loop
             raise ValueError(f"extra_pole must lie inside the unit circle, got {z4}")
         M[:, 3] = -np.r_[0.0, Q]
         rhs = np.polymul(d3, [1.0, -z4]) - np.r_[Q, 0.0]
-    x = np.linalg.solve(M[1:], rhs[1:])
+    if not (np.all(np.isfinite(M)) and np.all(np.isfinite(rhs))):
+        raise ValueError(f"wn={wn}, sigma={sigma}, Ts={Ts}: the sampled design overflows (poles e^(s Ts) "
+                         "not representable); choose a smaller wn or Ts")
+    try:
+        x = np.linalg.solve(M[1:], rhs[1:])
+    except np.linalg.LinAlgError:
+        raise ValueError(f"wn={wn}, sigma={sigma}, Ts={Ts}: the pole-placement equations are singular "
+                         "(poles e^(s Ts) coincide with the plant's); choose another wn or Ts") from None
     n = x[:3]
     if extra_pole is None:
         gamma, fourth = 0.0, float(x[3])
@@ -279,6 +291,10 @@ def paper_error_scale(Ts=0.005, encoder_ppr=448, decoding=1):
     SI gains that equals a controller ``error_scale`` of this value.
     """
     Ts = as_positive("Ts", Ts)
+    encoder_ppr = as_int("encoder_ppr", encoder_ppr, minimum=1)
+    decoding = as_int("decoding", decoding)
+    if decoding not in (1, 2, 4):
+        raise ValueError(f"decoding must be 1, 2 or 4, got {decoding}")
     return encoder_ppr * decoding * Ts / (2.0 * math.pi)
 
 
@@ -610,8 +626,13 @@ class _Loop:
         if not self.discrete:
             raise ValueError("time responses here are for a sampled loop; give Ts")
 
+    #: the longest time response computed (samples); beyond it the request is refused
+    MAX_SAMPLES = 20_000_000
+
     def _t(self, t_end):
         n = int(round(as_positive("t_end", t_end) / self.Ts)) + 1
+        if n > self.MAX_SAMPLES:
+            raise ValueError(f"t_end={t_end} at Ts={self.Ts} is {n} samples, more than {self.MAX_SAMPLES}")
         return np.arange(n) * self.Ts
 
     def step_response(self, t_end=0.5):
@@ -651,7 +672,10 @@ class PositionLoop(_Loop):
         ``(t, e)``.
         """
         self._need_discrete()
-        t_end = profile.duration * 1.2 + 0.1 if t_end is None else t_end
+        if not (hasattr(profile, "duration") and callable(getattr(profile, "sample", None))):
+            raise ValueError("profile must have .duration and .sample(t) (a jerklab.planner Profile), "
+                             f"got {type(profile).__name__}")
+        t_end = as_real("profile.duration", profile.duration) * 1.2 + 0.1 if t_end is None else t_end
         t = self._t(t_end)
         s = profile.sample(t)
         r = np.asarray(s.position, dtype=float)

@@ -475,6 +475,8 @@ class SampledProfile:
         self.Ts = as_positive("Ts", Ts)
         self.position = as_finite_array("position", position, ndim=1)
         n = len(self.position)
+        if n == 0:
+            raise ValueError("position must have at least one sample")
         self.velocity = np.zeros(n) if velocity is None else as_finite_array("velocity", velocity, ndim=1)
         self.accel = np.zeros(n) if accel is None else as_finite_array("accel", accel, ndim=1)
         if not len(self.velocity) == len(self.accel) == n:
@@ -484,6 +486,7 @@ class SampledProfile:
     @classmethod
     def from_profile(cls, profile, Ts, t_end=None):
         """Sample ``profile`` once on the grid (to re-run many simulations cheaply)."""
+        _check_profile(profile)
         Ts = as_positive("Ts", Ts)
         t = np.arange(_n_samples(_duration(profile), Ts, t_end)) * Ts
         s = profile.sample(t)
@@ -498,10 +501,14 @@ class SampledProfile:
 # ---------------------------------------------------------------------------
 # public API
 # ---------------------------------------------------------------------------
-def _check_inputs(profile, motor):
+def _check_profile(profile):
     if not (hasattr(profile, "duration") and callable(getattr(profile, "sample", None))):
         raise ValueError("profile must have .duration and .sample(t) (a jerklab.planner Profile), "
                          f"got {type(profile).__name__}")
+
+
+def _check_inputs(profile, motor):
+    _check_profile(profile)
     if not isinstance(motor, (DCMotor, FlexibleDCMotor)):
         raise ValueError(f"motor must be a DCMotor or FlexibleDCMotor, got {type(motor).__name__}")
 
@@ -780,18 +787,31 @@ def _run_metrics(met, t, n, n_move, duration, band, ns, OUT, ref):
     return m, diverged
 
 
+def _rng(seed):
+    try:
+        return np.random.default_rng(seed)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"seed must be None, an int or a numpy Generator/SeedSequence, got {seed!r}: {exc}") from None
+
+
 def perturbed_plants(n, K=32.4, tau=0.025, K_spread=0.2, tau_spread=0.2, friction=(0.0, 0.0), seed=None):
     """Random plants for robustness studies: K and τ uniform within ±spread (relative),
     Coulomb friction uniform in ``friction = (low, high)`` V. Returns a dict of arrays."""
-    rng = np.random.default_rng(seed)
-    n = int(n)
+    n = as_int("n", n, minimum=1)
+    if n > MAX_SAMPLES:
+        raise ValueError(f"n must be <= {MAX_SAMPLES} plants, got {n}")
     K = as_positive("K", K)
     tau = as_positive("tau", tau)
     ks = as_nonnegative("K_spread", K_spread)
     ts = as_nonnegative("tau_spread", tau_spread)
     if ks >= 1 or ts >= 1:
         raise ValueError("K_spread and tau_spread must be < 1 (relative spreads)")
+    if isinstance(friction, (str, bytes)) or not hasattr(friction, "__len__") or len(friction) != 2:
+        raise ValueError(f"friction must be a (low, high) pair in V, got {friction!r}")
     lo, hi = (as_nonnegative("friction low", friction[0]), as_nonnegative("friction high", friction[1]))
+    if hi < lo:
+        raise ValueError(f"friction must be (low, high) with low <= high, got {friction!r}")
+    rng = _rng(seed)
     return dict(K=K * (1 + rng.uniform(-ks, ks, n)), tau=tau * (1 + rng.uniform(-ts, ts, n)),
                 coulomb_friction=rng.uniform(lo, hi, n))
 
@@ -847,7 +867,7 @@ def simulate_batch(profile, motor, controller, K=None, tau=None, coulomb_frictio
     ref = _reference(profile, Ts, n, duration)
     rpos, rvel, racc = ref[0], ref[1], ref[2]
     common = _common(motor)
-    rng = np.random.default_rng(seed)
+    rng = _rng(seed)
     noise_on = motor.noise_std > 0
     noise = rng.normal(0.0, motor.noise_std, (m, n)) if noise_on else np.zeros((1, 1))
     band = _band(motor, settle_band)
