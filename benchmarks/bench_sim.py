@@ -62,10 +62,17 @@ def main():
         t_sim = _best(lambda: simulate(prof, motor, ctrl, t_end=t_end), repeat=3 if t_end > 20 else 30)
         sp = SampledProfile.from_profile(prof, TS, t_end)
         t_pre = _best(lambda: simulate(sp, motor, ctrl, t_end=t_end), repeat=3 if t_end > 20 else 30)
-        rows.append((len(r.t), t_fr * 1e3, t_sim * 1e3, t_fr / t_sim, t_pre * 1e3, t_fr / t_pre))
+        # a new move on every call: the profile is sampled each time (no reuse of its samples)
+        fresh = iter([plan_sine_jerk(10.0 + 1e-3 * i, 2e4, 300.0, 100.0) for i in range(40)])
+        t_new = _best(lambda: simulate(next(fresh), motor, ctrl, t_end=t_end), repeat=3 if t_end > 20 else 30)
+        rows.append((len(r.t), t_fr * 1e3, t_sim * 1e3, t_fr / t_sim, t_pre * 1e3, t_fr / t_pre,
+                     t_new * 1e3, t_fr / t_new))
     table("single run: simulate (all nonlinearities on) vs control.forced_response (linear loop)",
           ["samples", "forced_response ms", "simulate ms", "x forced_response",
-           "simulate pre-sampled ms", "x forced_response (pre-sampled)"], rows)
+           "simulate pre-sampled ms", "x forced_response (pre-sampled)",
+           "simulate new move ms", "x forced_response (new move)"], rows,
+          note="simulate: the same move again (its samples are reused); new move: a different planner "
+               "profile on every call, sampled in closed form each time")
 
     pp = perturbed_plants(4000, friction=(0.0, 0.5), seed=1)
     simulate_batch(prof, motor, ctrl, keep_traces=False, **perturbed_plants(8, seed=0))
