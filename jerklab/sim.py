@@ -7,17 +7,25 @@ saturation, PWM and encoder quantization, noise.
 
 At sample ``k`` (``t = k Ts``):
 
-1. the encoder gives ``y(k)`` = floor(θ(kTs)·counts/rad)/(counts/rad) (+ noise);
+1. the encoder gives ``y(k)`` = floor(θ(kTs)·counts/rad)/(counts/rad) (+ noise)
+   (:func:`jerklab.law.encoder`);
 2. the profile is sampled in closed form at ``kTs`` (position, velocity, acceleration);
-3. the :class:`~jerklab.controller.DigitalController` law (eqs. 16–18, output clamp,
-   anti-windup) gives ``u(k)``; position loop ``e = r − y``, or the paper's velocity loop
-   ``e = ω_r − (y(k) − y(k−1))/Ts`` (pulses per sample, §4B);
-4. the amplifier applies ``quantize_voltage(u(k))`` during ``[kTs, (k+1)Ts)``.
+3. the control law of :mod:`jerklab.law` (Stojčić eq. 16, eq. 17, eq. 18, output clamp,
+   anti-windup; the law :class:`~jerklab.controller.DigitalController` runs) gives ``u(k)``;
+   position loop ``e = r − y``, or the paper's velocity loop ``e = ω_r − (y(k) − y(k−1))/Ts``
+   (pulses per sample, §4B);
+4. the amplifier applies the supply clamp and PWM rounding (:func:`jerklab.law.amplifier`)
+   during ``[kTs, (k+1)Ts)``.
 
-The loop is one compiled kernel (numba, if installed; else the same code in Python),
-cross-checked in the tests against stepping ``DigitalController`` and
-``DCMotor.step_state`` in Python and against python-control on the linear loop.
-:func:`simulate_batch` runs many perturbed plants (K, τ, friction) at once.
+The loop is one compiled kernel (numba, if installed; else the same code in Python) that
+also accumulates the metrics; all per-call work outside it is a few small arrays (the
+reference of a planner profile is sampled once per grid and reused). It is cross-checked
+in the tests against stepping ``DigitalController`` and ``DCMotor.step_state`` in Python and
+against python-control on the linear loop. A run that diverges (NaN/inf, or an error beyond
+``DIVERGENCE_FACTOR`` × the move) says so. :func:`simulate_batch` runs many perturbed
+plants (K, τ, friction) at once, compiled or with the law's numpy form.
+
+ASCII spelling of the paper's author: Stojcic.
 """
 from __future__ import annotations
 
@@ -29,15 +37,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from jerklab import law
+from jerklab.law import HAVE_NUMBA, _jit  # one switch for every compiled kernel
 from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
-from jerklab.controller import DigitalController, DiscreteGains, Feedforward, Gains
+from jerklab.controller import DigitalController, DiscreteGains, Gains
 from jerklab.planner import Profile
 from jerklab.plant import DCMotor, FlexibleDCMotor, advance, advance_em
 
 __all__ = ["simulate", "simulate_batch", "SimResult", "BatchResult", "perturbed_plants",
            "SampledProfile", "StepProfile", "HAVE_NUMBA"]
-
-from jerklab.law import HAVE_NUMBA, _jit  # noqa: E402  (one switch for every compiled kernel)
 
 # packed plant and run parameters of :func:`_kernel` (see :func:`_plant_pack`)
 (P_RIGID, P_K, P_TAU, P_FC, P_DIST_ON, P_DIST_AMP, P_DIST_TIME, P_SUPPLY, P_LEVELS, P_CPR,
