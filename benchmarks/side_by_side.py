@@ -115,7 +115,7 @@ def main(argv):
         t0 = time.perf_counter()
         fn()
         one = time.perf_counter() - t0
-        n = max(1, int(0.02 / max(one, 1e-7)))       # ~20 ms per timing
+        n = max(1, int(0.1 / max(one, 1e-7)))        # ~0.1 s per timing
         best = {"old": np.inf, "new": np.inf}
         for _ in range(repeat):
             for tag, f in (("old", fo), ("new", fn)):

@@ -800,14 +800,22 @@ def shape_cycle(tracking_orders=0, return_orders=None, model: PZTModel | None = 
             count[0] += 1
             return _joint_lp(N, N_r, model, spec, t_orders, r_orders, poles, w, G1, beta, how)
         try:
-            N_r, x = _bisect_solver(feasible, 0, max_samples, solver)
+            if solver == "lp":               # screen only; the LP runs once, for the winner below
+                N_r, x = _bisect(lambda n, f=feasible: f(n, "nnls"), 0, max_samples)
+            else:
+                N_r, x = _bisect_solver(feasible, 0, max_samples, solver)
         except RuntimeError:
             continue
         if best is None or N + N_r < best[0] + best[1]:
-            best = (N, N_r, x)
+            best = (N, N_r, x, feasible)
     if best is None:
         raise RuntimeError("no feasible return (raise F_max or max_samples)")
-    N, N_r, x = best
+    N, N_r, x, feasible = best
+    if solver == "lp":
+        x = feasible(N_r, "lp")
+        if x is None:                        # the screen and the LP disagree here: an LP everywhere
+            return shape_cycle(tracking_orders, return_orders, model, spec, max_samples=max_samples,
+                               joint_extra=joint_extra, solver="highs")
     S = spec.scan_samples
     a = float(x[N])
     u = np.concatenate([x[:N], a + w * np.arange(S), x[N + 1:]])
