@@ -45,6 +45,7 @@ from fractions import Fraction
 
 import numpy as np
 
+from jerklab import paper as _paper
 from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive
 
 __all__ = ["YangSCurve", "PulseTrain", "SpeedTable", "paper_speed", "published_divider_lockup",
@@ -333,9 +334,8 @@ class YangSCurve:
                 "F_CLK": self.clock_hz, "R": self.refresh_clocks, "N_MIN": self.start_count}
 
 
-PAPER = dict(max_velocity=20000, accel_time=1.0, cruise_time=1.0, refresh_period=200e-6,
-             clock_hz=50_000_000, step_um=20, start_count=300)
-"""Yang et al.'s test set-up (§3)."""
+PAPER = dict(_paper.YANG_SETUP)
+"""Yang et al.'s test set-up (§3), a copy of :data:`jerklab.paper.YANG_SETUP`."""
 
 
 def published_divider(starts, values, p_end, bits=32):

@@ -41,6 +41,7 @@ from typing import Callable
 import numpy as np
 from scipy.optimize import nnls
 
+from jerklab import paper as _paper
 from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
 
 __all__ = ["Preisach", "ForcData", "forc_experiment", "fit_preisach"]
@@ -375,7 +376,7 @@ class Preisach:
     @property
     def default_eps(self) -> float:
         """0.2 % of the input range: the CNIA tolerance of Xu & Meckl (Fig. 2)."""
-        return 0.002 * (self.u_max - self.u_min)
+        return _paper.CNIA_EPS_FRACTION * (self.u_max - self.u_min)
 
     # ------------------------------------------------------------------ operator
     def peek(self, u):
