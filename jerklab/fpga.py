@@ -50,7 +50,8 @@ from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positi
 
 __all__ = ["YangSCurve", "PulseTrain", "SpeedTable", "paper_speed", "published_divider_lockup",
            "simulate_verilog", "simulate_divider_verilog", "read_vcd", "VerilogRun",
-           "divider_edges", "published_divider", "HardwareLimitError", "PAPER"]
+           "divider_edges", "published_divider", "HardwareLimitError", "PAPER", "pulse_speed",
+           "vcd_timescale", "vcd_to_posedge"]
 
 
 class HardwareLimitError(ValueError):
@@ -102,6 +103,87 @@ class PulseTrain:
         """Commanded position (µm) at time(s) ``t``: ``k`` µm per rising edge so far."""
         t = as_finite_array("t", t)
         return self.step_um * np.searchsorted(self.rise, t * self.clock_hz, side="right")
+
+    def speed(self):
+        """Speed the pulses command, ``k / Δt`` between rising edges: ``(t, v)`` in s, µm/s.
+
+        See :func:`pulse_speed`.
+        """
+        return pulse_speed(self.rise, self.clock_hz, self.step_um)
+
+
+def pulse_speed(rise, clock_hz, step_um=20):
+    """Speed commanded by a pulse train: ``k`` µm per period between consecutive rising edges.
+
+    A drive in position mode moves ``step_um`` per pulse, so over the period that ends at
+    rising edge ``i`` the mean speed is ``step_um · f_clk / (rise[i] − rise[i−1])`` (the
+    inverse of Yang's ``cycle = f_clk / f`` with ``v = k f``).
+
+    Parameters
+    ----------
+    rise : array_like of int
+        Rising-edge clock indices (posedges), increasing (at least two for one value).
+    clock_hz : float
+        Divider clock, Hz (> 0).
+    step_um : float
+        ``k``, µm per pulse (> 0).
+
+    Returns
+    -------
+    t, v : ndarray
+        Time of the later edge of each period (s) and the speed over that period (µm/s);
+        one value fewer than ``rise``.
+    """
+    r = as_finite_array("rise", rise, ndim=1)
+    clock_hz = as_positive("clock_hz", clock_hz)
+    step_um = as_positive("step_um", step_um)
+    dr = np.diff(r)
+    if np.any(dr <= 0):
+        raise ValueError("rise must be strictly increasing clock indices")
+    return r[1:] / clock_hz, step_um * clock_hz / dr
+
+
+def vcd_timescale(path) -> float:
+    """The time unit of a VCD file in seconds (its ``$timescale``, e.g. ``1ps`` -> 1e-12)."""
+    import re
+
+    with open(path) as fh:
+        head = fh.read().partition("$enddefinitions")[0]
+    m = re.search(r"\$timescale\s+(\d+)\s*(s|ms|us|ns|ps|fs)\s+\$end", head)
+    if m is None:
+        raise ValueError(f"{path}: no $timescale declaration in the VCD header")
+    unit = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9, "ps": 1e-12, "fs": 1e-15}[m.group(2)]
+    return int(m.group(1)) * unit
+
+
+def vcd_to_posedge(times, clock_period, timescale=1e-12):
+    """Convert VCD times to clock-edge numbers of the testbenches in ``firmware/fpga``.
+
+    The testbench clock starts low at time 0 and toggles every half period, so posedge ``p``
+    (1 = the first) falls at ``(p − ½) · clock_period``; a register that changes on posedge
+    ``p`` shows in the VCD at that time and converts to exactly ``p``.  Negedges give
+    half-integers.
+
+    Parameters
+    ----------
+    times : array_like
+        VCD times in units of ``timescale`` (as :func:`read_vcd` returns them).
+    clock_period : float
+        Testbench clock period, s (20 ns for the 50 MHz of ``tb_pulse_divider.v``).
+    timescale : float
+        VCD time unit, s (:func:`vcd_timescale`; ``1ps`` for ```timescale 1ns/1ps``).
+
+    Returns
+    -------
+    ndarray of float
+    """
+    t = as_finite_array("times", times)
+    clock_period = as_positive("clock_period", clock_period)
+    timescale = as_positive("timescale", timescale)
+    per = clock_period / timescale                 # VCD units per clock period
+    if abs(per - round(per)) <= 1e-9 * per:
+        per = float(round(per))                    # exact for whole units (20 ns in ps: 20000)
+    return t / per + 0.5
 
 
 def divider_edges(starts, values, p_end, bits=32):

@@ -250,6 +250,16 @@ class Preisach:
         out = np.array([self._E(float(x), float(y)) for x, y in zip(a.ravel(), b.ravel())])
         return float(out[0]) if a.ndim == 0 else out.reshape(a.shape)
 
+    def masked_density(self) -> np.ndarray:
+        """The weight ``mu`` on the Preisach half plane, NaN off it (for an image of it).
+
+        ``out[i, j]`` is the weight of the cell with ``alpha`` in cell ``i`` and ``beta`` in
+        cell ``j`` where ``i >= j``, NaN where ``i < j`` (``alpha < beta``, no relay there), so
+        ``imshow(P.masked_density(), origin="lower", extent=[u_min, u_max, u_min, u_max])``
+        shows the triangle only, with ``beta`` on the horizontal and ``alpha`` on the vertical axis.
+        """
+        return np.where(np.tri(self.n, dtype=bool), self.density, np.nan)
+
     # ------------------------------------------------------------------ memory
     def reset(self, state=None) -> "Preisach":
         """Reset the memory to negative or positive saturation (default: ``initial``)."""
