@@ -11,7 +11,7 @@ Units: this module works in integer µm/s, Hz, clock counts (the hardware's unit
 as the paper states them); :meth:`YangSCurve.exact_profile` converts to the
 unit-agnostic planner (``jerklab.planner.plan_scurve``) in µm and s.
 
-The reconstruction of the paper's formulas (READING.md §3), for acceleration time
+The reconstruction of the paper's formulas (docs/THEORY.md, Yang), for acceleration time
 ``T``, peak speed ``V``, ``N = T / (2 tc)`` counts per half:
 
 * eq. 5 (``n <= N``): ``v = 2 V tc^2 n^2 / T^2 = V n^2 / (2 N^2)``;
@@ -272,7 +272,7 @@ class YangSCurve:
     clock_hz : int
         Divider clock (paper: 50 MHz).  ``tc * clock_hz`` must be whole.
     step_um : int
-        ``k``: µm per pulse, ``v = k f`` (paper: 20, READING.md §3 reading).
+        ``k``: µm per pulse, ``v = k f`` (paper: 20, the reading of docs/THEORY.md).
     start_count : int
         ``PWM_INITAL_COUNT``: below this count the speed is 0 (paper: 300).
     bits : int

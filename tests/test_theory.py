@@ -62,3 +62,25 @@ def test_the_ascii_spelling_and_no_outside_pointer():
     assert "Stojcic" in THEORY
     for outside in ("../shared", "/work/shared", "READING.md"):
         assert outside not in THEORY
+
+
+def test_the_repository_points_inside_itself():
+    """No file of the repository sends a reader to ../shared or the reading notes (issue 19)."""
+    here = Path(__file__).resolve()
+    roots = [ROOT / d for d in ("jerklab", "notebooks", "tests", "firmware", "docs", "data", "app",
+                                "benchmarks", "tools")] + [ROOT / "README.md", ROOT / "CONTRIBUTING.md"]
+    pattern = re.compile(r"\.\./shared|/work/shared|READING\.md|READING §")
+    bad = []
+    for root in roots:
+        files = [root] if root.is_file() else [f for f in root.rglob("*") if f.is_file()] if root.exists() else []
+        for f in files:
+            if f.resolve() == here or f.suffix not in {".py", ".ipynb", ".md", ".h", ".cpp", ".c", ".ino", ".v",
+                                                        ".txt", ".json", ""}:
+                continue
+            try:
+                text = f.read_text(encoding="utf-8")
+            except (UnicodeDecodeError, OSError):
+                continue
+            bad += [f"{f.relative_to(ROOT)}:{i}" for i, line in enumerate(text.splitlines(), 1)
+                    if pattern.search(line)]
+    assert bad == []
