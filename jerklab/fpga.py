@@ -285,8 +285,10 @@ class YangSCurve:
         (below the minimum frequency ``k`` µm/s -> 1 Hz), or if a cycle would be < 2.
     """
 
-    def __init__(self, max_velocity=20000, accel_time=1.0, cruise_time=1.0, refresh_period=200e-6,
-                 clock_hz=50_000_000, step_um=20, start_count=300, bits=32):
+    def __init__(self, max_velocity=_paper.YANG_SETUP["max_velocity"],
+                 accel_time=_paper.YANG_SETUP["accel_time"], cruise_time=_paper.YANG_SETUP["cruise_time"],
+                 refresh_period=_paper.YANG_SETUP["refresh_period"], clock_hz=_paper.YANG_SETUP["clock_hz"],
+                 step_um=_paper.YANG_SETUP["step_um"], start_count=_paper.YANG_SETUP["start_count"], bits=32):
         self.max_velocity = as_int("max_velocity", max_velocity, minimum=1)
         self.accel_time = as_positive("accel_time", accel_time)
         self.cruise_time = as_nonnegative("cruise_time", cruise_time)

@@ -136,3 +136,10 @@ def test_piezo_fpga_hysteresis_use_paper():
     assert fpga.YangSCurve(**fpga.PAPER).half_counts == 2500
     H = hysteresis.Preisach.uniform(-10.0, 30.0, n=4)
     assert H.default_eps == pytest.approx(paper.CNIA_EPS_FRACTION * 40.0)
+
+
+def test_yang_scurve_defaults_are_the_setup():
+    from jerklab.fpga import YangSCurve
+
+    sig = inspect.signature(YangSCurve)
+    assert {k: sig.parameters[k].default for k in paper.YANG_SETUP} == dict(paper.YANG_SETUP)
