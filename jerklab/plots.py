@@ -98,7 +98,7 @@ def zplane(poles=None, zeros=None, ax=None, *, label=None, color=None, marker="x
     if z.size:
         ax.plot(z.real, z.imag, ls="none", marker="o", ms=8, mew=1.5, color=color, mfc="none",
                 label=None if label is None else f"{label} zeros")
-    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_aspect("equal", adjustable="box")
     ax.grid(True, alpha=0.3)
     ax.set_xlabel("Re z")
     ax.set_ylabel("Im z")
