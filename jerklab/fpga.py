@@ -2,7 +2,7 @@
 
 The paper's system (its Fig. 1): a *speed generator* that, every refresh period
 ``tc``, advances a counter ``n`` and computes the speed from integer formulas
-(Yang eqs. 5-8), converts it to a pulse frequency ``f = v / k`` and a divider
+(Yang eq. 5 to Yang eq. 8), converts it to a pulse frequency ``f = v / k`` and a divider
 count ``cycle = f_clk / f``; a *pulse divider* (the Verilog printed in the paper)
 counts the 50 MHz clock and emits one pulse of 50 % duty every ``cycle`` clocks.
 A stepper/servo drive in position mode moves ``k`` (µm) per pulse.
@@ -14,15 +14,15 @@ unit-agnostic planner (``jerklab.planner.plan_scurve``) in µm and s.
 The reconstruction of the paper's formulas (docs/THEORY.md, Yang), for acceleration time
 ``T``, peak speed ``V``, ``N = T / (2 tc)`` counts per half:
 
-* eq. 5 (``n <= N``): ``v = 2 V tc^2 n^2 / T^2 = V n^2 / (2 N^2)``;
-* eq. 6 (``N < n <= 2N``): ``v = V (4 T n tc - 2 tc^2 n^2 - T^2) / T^2 = V - V (2N - n)^2 / (2 N^2)``;
-* eqs. 7, 8 (paper set-up, V = 20000 µm/s, N = 2500): ``v = 16 n^2 / 10000`` and
+* Yang eq. 5 (``n <= N``): ``v = 2 V tc^2 n^2 / T^2 = V n^2 / (2 N^2)``;
+* Yang eq. 6 (``N < n <= 2N``): ``v = V (4 T n tc - 2 tc^2 n^2 - T^2) / T^2 = V - V (2N - n)^2 / (2 N^2)``;
+* Yang eq. 7 and Yang eq. 8 (paper set-up, V = 20000 µm/s, N = 2500): ``v = 16 n^2 / 10000`` and
   ``v = 20000 - (10000 - 2n)^2 / 2500``, Verilog integer division (floor for these
   non-negative operands).
 
 The general integer form used here reduces ``V / (2 N^2)`` to lowest terms ``a / b``
 and computes ``floor(a n^2 / b)``; for the paper set-up this is bit-identical to
-eqs. 7, 8 (same rational number), which :func:`paper_speed` keeps verbatim.
+Yang eq. 7 and Yang eq. 8 (same rational number), which :func:`paper_speed` keeps verbatim.
 
 Things the paper leaves open or gets wrong, and what is done here:
 
@@ -59,10 +59,10 @@ class HardwareLimitError(ValueError):
 
 
 def paper_speed(n):
-    """Yang eqs. 7 and 8 verbatim (µm/s): the paper's set-up, Verilog integer division.
+    """Yang eq. 7 and Yang eq. 8 verbatim (µm/s): the paper's set-up, Verilog integer division.
 
-    ``v = 16 n^2 / 10000`` for ``n <= 2500`` (eq. 7, ``div_3_result``),
-    ``v = 20000 - (10000 - 2n)^2 / 2500`` for ``2500 < n <= 5000`` (eq. 8, ``div_1_quo``).
+    ``v = 16 n^2 / 10000`` for ``n <= 2500`` (Yang eq. 7, ``div_3_result``),
+    ``v = 20000 - (10000 - 2n)^2 / 2500`` for ``2500 < n <= 5000`` (Yang eq. 8, ``div_1_quo``).
     """
     n_arr = np.asarray(n)
     if n_arr.dtype.kind not in "iu":
@@ -333,7 +333,7 @@ class YangSCurve:
 
     # ------------------------------------------------------------------ speed generator
     def speed(self, n):
-        """Speed (µm/s) at counter ``n``: Yang eqs. 5, 6 in integer form (floor division).
+        """Speed (µm/s) at counter ``n``: Yang eq. 5 and Yang eq. 6 in integer form (floor division).
 
         ``v = floor(a n^2 / b)`` for ``n <= N``, ``v = V - floor(a (2N - n)^2 / b)`` for
         ``N < n <= 2N``, ``a/b = V/(2N^2)`` in lowest terms; 0 below ``start_count``.

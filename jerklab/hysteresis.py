@@ -18,7 +18,7 @@ operator, discretized on a uniform grid of the Preisach half plane
   piecewise-constant density is exact and piecewise quadratic, so every ascending
   or descending branch is continuous and monotone (Mayergoyz 1991, ch. 1).
 
-The inversion is the CNIA of Xu & Meckl (their eq. 2): from the current memory,
+The inversion is the CNIA of Xu & Meckl eq. 2: from the current memory,
 find ``u*`` in ``[u_min, u_max]`` with ``|Gamma(u*; psi) - f_d| <= eps`` by bisection
 on the monotone branch that leaves the current input (ascending if ``f_d`` is above
 the current output, descending otherwise), ``eps`` = 0.2 % of the input range by

@@ -54,11 +54,21 @@ def test_rejected(text):
 
 def test_reports_file_and_line(tmp_path):
     f = tmp_path / "m.py"
-    f.write_text('"""Stojčić eq. 1.\n\nSee eq. 4.\n"""\n', encoding="utf-8")
+    f.write_text('"""Stojčić eq. 1 (Stojcic).\n\nSee eq. 4.\n"""\n', encoding="utf-8")
     assert check_citations.check_files([f]) == [(str(f), 3, "See eq. 4.")]
     assert check_citations.main([str(f)]) == 1
-    f.write_text('"""Stojčić eq. 1."""\n', encoding="utf-8")
+    f.write_text('"""Stojčić eq. 1 (ASCII: Stojcic)."""\n', encoding="utf-8")
     assert check_citations.main([str(f)]) == 0
+
+
+def test_ascii_spelling_in_the_module_docstring(tmp_path):
+    f = tmp_path / "m.py"
+    f.write_text('"""A module."""\nX = 1  # Stojčić eq. 1\n', encoding="utf-8")
+    assert check_citations.check_files([f]) == [(str(f), 1, "module docstring lacks the ASCII spelling 'Stojcic'")]
+    f.write_text('"""A module (Stojcic)."""\nX = 1  # Stojčić eq. 1\n', encoding="utf-8")
+    assert check_citations.check_files([f]) == []
+    f.write_text('"""Xu & Meckl eq. 1 only."""\n', encoding="utf-8")
+    assert check_citations.check_files([f]) == []
 
 
 @pytest.mark.xfail(strict=True, reason="issue 19: the citations of jerklab/*.py and jerklab/rig/*.py are "
