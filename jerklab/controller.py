@@ -325,7 +325,7 @@ _LOOPS = ("position", "velocity")
 
 
 class DigitalController:
-    """Feedforward + discrete PID run sample by sample (Stojčić eq. 16, eq. 17, eq. 18).
+    """Feedforward + discrete PID run sample by sample (Stojčić eq. 16, Stojčić eq. 17, Stojčić eq. 18).
 
     ``p(k) = kpd e(k)``, ``i(k) = i(k−1) + kid e(k)``, ``d(k) = γ d(k−1) + kdd (e(k) − e(k−1))``
     (γ = 0: Stojčić eq. 17), ``u = u_F + p + i + d`` (Stojčić eq. 18 plus the feedforward of

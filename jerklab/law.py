@@ -1,6 +1,6 @@
 """The control law in one place: PID with clamp and anti-windup, PWM quantizer, encoder, ZOH.
 
-Stojčić (ASCII: Stojcic) 2015, §3–§4: the discrete PID of Stojčić eq. 17 and eq. 18 with
+Stojčić (ASCII: Stojcic) 2015, §3–§4: the discrete PID of Stojčić eq. 17 and Stojčić eq. 18 with
 the feedforward of Stojčić eq. 16, run at ``Ts`` on encoder readings and applied through a
 PWM H-bridge; the motor of Stojčić eq. 1 sampled with a zero-order hold.
 
@@ -22,7 +22,7 @@ Forms
 
 The rules
 ---------
-PID (Stojčić eq. 17, eq. 18, feedforward Stojčić eq. 16)::
+PID (Stojčić eq. 17, Stojčić eq. 18, feedforward Stojčić eq. 16)::
 
     p(k) = kpd e(k)
     i(k) = i(k-1) + kid e(k)

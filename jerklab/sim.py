@@ -10,7 +10,7 @@ At sample ``k`` (``t = k Ts``):
 1. the encoder gives ``y(k)`` = floor(θ(kTs)·counts/rad)/(counts/rad) (+ noise)
    (:func:`jerklab.law.encoder`);
 2. the profile is sampled in closed form at ``kTs`` (position, velocity, acceleration);
-3. the control law of :mod:`jerklab.law` (Stojčić eq. 16, eq. 17, eq. 18, output clamp,
+3. the control law of :mod:`jerklab.law` (Stojčić eq. 16, Stojčić eq. 17, Stojčić eq. 18, output clamp,
    anti-windup; the law :class:`~jerklab.controller.DigitalController` runs) gives ``u(k)``;
    position loop ``e = r − y``, or the paper's velocity loop ``e = ω_r − (y(k) − y(k−1))/Ts``
    (pulses per sample, §4B);
@@ -523,7 +523,7 @@ def _check_inputs(profile, motor):
 def _law_for(controller, motor, loop, Ts):
     """The packed law parameters (:func:`jerklab.law.pack`), the loop and Ts of a run.
 
-    DiscreteGains get eq. 16 feedforward from the motor's K, τ and an output limit at the
+    DiscreteGains get Stojčić eq. 16 feedforward from the motor's K, τ and an output limit at the
     supply voltage; the controller object is only read, never stepped.
     """
     if isinstance(controller, DigitalController):
