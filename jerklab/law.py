@@ -135,9 +135,9 @@ def pwm_duty(u, supply, levels, top):
     """
     q = u / supply * levels
     if q >= 0.0:
-        q = math.floor(q + 0.5)
+        q = np.floor(q + 0.5)
     else:
-        q = -math.floor(-q + 0.5)
+        q = -np.floor(-q + 0.5)
     if q > top:
         q = top
     elif q < -top:
@@ -165,9 +165,9 @@ def amplifier(u, supply, levels):
     if levels > 0.0:
         q = v / supply * levels
         if q >= 0.0:
-            q = math.floor(q + 0.5)
+            q = np.floor(q + 0.5)
         else:
-            q = -math.floor(-q + 0.5)
+            q = -np.floor(-q + 0.5)
         v = q / levels * supply
     return v, clamped
 
@@ -175,14 +175,14 @@ def amplifier(u, supply, levels):
 @_jit
 def encoder_counts(theta, counts_per_rad):
     """Counter reading ``floor(θ · counts_per_rad)`` (a float holding an integer)."""
-    return math.floor(theta * counts_per_rad + ENCODER_EPS)
+    return np.floor(theta * counts_per_rad + ENCODER_EPS)
 
 
 @_jit
 def encoder(theta, counts_per_rad):
     """The angle the controller reads: ``floor(θ · cpr) / cpr`` (``cpr`` ≤ 0: ideal sensor)."""
     if counts_per_rad > 0.0:
-        return math.floor(theta * counts_per_rad + ENCODER_EPS) / counts_per_rad
+        return np.floor(theta * counts_per_rad + ENCODER_EPS) / counts_per_rad
     return theta
 
 

@@ -350,3 +350,14 @@ def test_pack_layout():
     assert len(p) == len(law.CTL_FIELDS)
     assert p[law.C_KID] == 2.0 and p[law.C_AW] == 1.0 and p[law.C_VELOCITY] == 1.0 and p[law.C_TS] == 0.005
     assert math.isinf(p[law.C_LIMIT]) and p[law.C_FF_ON] == 0.0 and p[law.C_SCALE] == 2.0
+
+
+def test_encoder_and_pwm_beyond_int64_and_nan():
+    """A diverging run can reach angles beyond 2**63 counts: the floor stays a float (no int wrap)."""
+    forms = [law.SCALAR["encoder"]] + ([law.encoder] if law.HAVE_NUMBA else [])
+    for f in forms:
+        assert f(1e25, CPR) == pytest.approx(1e25, rel=1e-12)
+        assert f(-1e25, CPR) == pytest.approx(-1e25, rel=1e-12)
+        assert math.isnan(f(math.nan, CPR))
+    for f in [law.SCALAR["amplifier"]] + ([law.amplifier] if law.HAVE_NUMBA else []):
+        assert f(1e300, 12.0, 1023.0) == (12.0, True)
