@@ -60,6 +60,13 @@ __all__ = [
     "ResidualAnalysis",
     "residual_analysis",
     "Validation",
+    "MergedData",
+    "merge",
+    "CompareResult",
+    "compare",
+    "resid",
+    "load_micromouse",
+    "micromouse_battery_voltage",
     "validate",
     "plot_compare",
     "plot_residuals",
@@ -948,7 +955,8 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
         theta_c = np.concatenate(th_all)
         resid = theta_c - y_sim
         msgs = _diagnose(par, cov, names, u_abs_max)
-        nfev, s, nseg, th0 = 0, float(np.sqrt(np.nanmean(resid ** 2))), 1, float(theta_c[0])
+        s = float(np.sqrt(np.mean(resid ** 2))) if np.all(np.isfinite(resid)) else float("nan")
+        nfev, nseg, th0 = 0, 1, float(theta_c[0])
         om0 = 0.0
         at_bound = []
     else:
@@ -1346,8 +1354,9 @@ def _fit_oe_ms(exps, Ts, delay, opts, init, segment_n, cutoff):
     T[1, 1] = g["tau"]
     cov = T @ cov_x[:ng, :ng] @ T
     Jg = J[:, :ng] @ np.linalg.inv(T) if ng else J
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     at_bound = [nm for i, nm in enumerate(names) if nm in ("friction", "dead_zone")
-                and x[i] <= 1e-9 * max(1.0, float(np.max(np.abs(ucat))))]
+                and (x[i] <= 1e-4 * float(np.max(np.abs(ucat))) or x[i] < 2.0 * sd[i])]
     if not (tau_lo + 1e-3 < x[1] < tau_hi - 1e-3):
         at_bound.append("tau")
     y_sim = theta + r            # r = model - theta
@@ -1378,8 +1387,10 @@ def _diagnose(par, cov, names, u_abs_max, at_bound=(), Jg=None):
                     f"not modelled?)")
     for nm in at_bound:
         what = {"tau": "tau ran to the edge of its search range",
-                "friction": "friction f_c is stuck at its bound 0",
-                "dead_zone": "dead_zone is stuck at its bound 0"}[nm]
+                "friction": f"friction f_c = {par['friction']:.3g} V is at (or within two standard "
+                            f"errors of) its bound 0",
+                "dead_zone": f"dead_zone = {par['dead_zone']:.3g} V is at (or within two standard "
+                             f"errors of) its bound 0"}[nm]
         msgs.append(f"{what}: the data do not support this term (or another term absorbed it); "
                     f"fit without it or record an input that shows it")
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
@@ -1579,6 +1590,10 @@ class ResidualAnalysis:
     auto_pvalue: float = float("nan")
     cross_pvalue: float | None = None
 
+    def plot(self, axes=None, title: str | None = None):
+        """The two panels of MATLAB's ``resid`` (see :func:`plot_residuals`)."""
+        return plot_residuals(self, axes, title)
+
 
 def _xcorr_norm(x, y, lags):
     """Normalised sample cross-correlation r(l) = sum x(t-l) y(t) / (N sx sy)."""
@@ -1697,23 +1712,27 @@ def validate(fit: MotorFit, u, theta, Ts=None, max_lag: int = 25, confidence: fl
     u, theta = _pair(u, theta, "u", "theta")
     if Ts is not None and abs(as_positive("Ts", Ts) - fit.Ts) > 1e-9 * fit.Ts:
         raise ValueError(f"Ts = {Ts:g} s differs from the fit's Ts = {fit.Ts:g} s")
-    g = fit.simulate(u)
-    if initial == "rest":
-        M = np.ones((u.size, 1))
+    if fit.is_linear:
+        g = fit.simulate(u)
+        if initial == "rest":
+            M = np.ones((u.size, 1))
+        else:
+            k = np.arange(u.size)
+            M = np.column_stack([np.ones(u.size), -fit.tau * np.expm1(-k * fit.Ts / fit.tau)])
+        coef, *_ = np.linalg.lstsq(M, theta - g, rcond=None)
+        th0 = float(coef[0])
+        w0 = float(coef[1]) if initial == "estimate" else 0.0
+        y_sim = g + M @ coef
     else:
-        k = np.arange(u.size)
-        M = np.column_stack([np.ones(u.size), -fit.tau * np.expm1(-k * fit.Ts / fit.tau)])
-    coef, *_ = np.linalg.lstsq(M, theta - g, rcond=None)
-    th0 = float(coef[0])
-    w0 = float(coef[1]) if initial == "estimate" else 0.0
-    y_sim = g + M @ coef
+        th0, w0 = _initial_state(fit, u, theta, initial)
+        y_sim = fit.simulate(u, th0, w0)
     r = theta - y_sim
     max_lag = min(as_int("max_lag", max_lag, minimum=1), (u.size - 1) // 2)
     an = residual_analysis(r, u if np.std(u) > 0 else None, max_lag, confidence)
     return Validation(y_sim, fit_percent(theta, y_sim), r, an, th0, w0)
 
 
-def plot_compare(data, *fits, ax=None, labels=None):
+def plot_compare(data, *fits, ax=None, labels=None, horizon=None):
     """Measured angle against each fitted model's simulation, with fit % in the legend.
 
     Parameters
@@ -1724,6 +1743,8 @@ def plot_compare(data, *fits, ax=None, labels=None):
         Models to simulate.
     ax : matplotlib Axes, optional
     labels : list of str, optional
+    horizon : None or int
+        None: simulation; k: k-step-ahead prediction (see :func:`compare`).
     """
     import matplotlib.pyplot as plt
 
@@ -1733,10 +1754,11 @@ def plot_compare(data, *fits, ax=None, labels=None):
         _, ax = plt.subplots(figsize=(8, 3.5))
     ax.plot(data.t, data.y, ".", color="0.3", ms=3, label="measured")
     for i, f in enumerate(fits):
-        v = validate(f, data.u, data.y, data.Ts)
+        c = compare(data, f, horizon)
         name = labels[i] if labels else f.method.upper()
-        ax.plot(data.t, v.y_sim, "-", lw=1.5,
-                label=f"{name}: K={f.K:.3g}, τ={f.tau * 1e3:.3g} ms, fit {v.fit_percent:.2f} %")
+        what = "" if horizon is None else f", {horizon}-step"
+        ax.plot(data.t, c.y_hat, "-", lw=1.5,
+                label=f"{name}: K={f.K:.3g}, τ={f.tau * 1e3:.3g} ms{what}, fit {c.fit_percent:.2f} %")
     ax.set_xlabel("time (s)")
     ax.set_ylabel(f"angle ({data.output_unit})")
     ax.legend(loc="best", fontsize=8)
@@ -1769,6 +1791,330 @@ def plot_residuals(analysis: ResidualAnalysis, axes=None, title: str | None = No
         ax.set_xlabel("lag (samples)")
         ax.set_ylabel("cross-corr. u, e (–)")
     return axes
+
+
+# ----------------------------------------------------------------------------------------------
+# several experiments; compare and resid with MATLAB's semantics
+# ----------------------------------------------------------------------------------------------
+class MergedData:
+    """Several experiments of the same motor, for one estimate (MATLAB's ``merge``).
+
+    Each record keeps its own time axis and initial state; :meth:`fit` passes the lists of
+    inputs and outputs to :func:`fit_dc_motor`. Keep validation records out of it.
+    """
+
+    def __init__(self, experiments):
+        exps = list(experiments)
+        if not exps:
+            raise ValueError("experiments must hold at least one IdentData")
+        for i, d in enumerate(exps):
+            if not isinstance(d, IdentData):
+                raise ValueError(f"experiments[{i}] must be an IdentData, got {type(d).__name__}")
+        Ts = exps[0].Ts
+        for i, d in enumerate(exps):
+            if abs(d.Ts - Ts) > 1e-9 * Ts:
+                raise ValueError(f"experiments[{i}] has Ts = {d.Ts:g} s, experiments[0] has {Ts:g} s: "
+                                 f"resample one of them first")
+        self.experiments = exps
+        self.Ts = Ts
+
+    def __len__(self):
+        return len(self.experiments)
+
+    def __getitem__(self, i) -> IdentData:
+        return self.experiments[i]
+
+    @property
+    def u(self):
+        return [d.u for d in self.experiments]
+
+    @property
+    def y(self):
+        return [d.y for d in self.experiments]
+
+    def fit(self, method: str = "pem", **kwargs) -> "MotorFit":
+        """One fit over every experiment: ``fit_dc_motor([u...], [y...], Ts, method, **kwargs)``."""
+        return fit_dc_motor(self.u, self.y, self.Ts, method=method, **kwargs)
+
+    def __repr__(self):
+        return f"MergedData({len(self)} experiments, Ts={self.Ts:g} s, n={[d.n for d in self.experiments]})"
+
+
+def merge(*data) -> MergedData:
+    """Merge several :class:`IdentData` records into one estimation set (MATLAB's ``merge``)."""
+    if len(data) == 1 and isinstance(data[0], (list, tuple)):
+        data = tuple(data[0])
+    return MergedData(data)
+
+
+def _initial_state(fit, u, y, initial):
+    """Initial (theta0, omega0) of ``fit`` that best matches ``y`` (least squares, as compare's 'e')."""
+    if initial == "rest":
+        g = fit.simulate(u)
+        return float(np.mean(y - g)), 0.0
+    if fit.is_linear:
+        g = fit.simulate(u)
+        k = np.arange(u.size)
+        M = np.column_stack([np.ones(u.size), -fit.tau * np.expm1(-k * fit.Ts / fit.tau)])
+        coef, *_ = np.linalg.lstsq(M, y - g, rcond=None)
+        return float(coef[0]), float(coef[1])
+    w0 = (y[min(2, y.size - 1)] - y[0]) / (min(2, y.size - 1) * fit.Ts)
+
+    def r(x):
+        return fit.simulate(u, x[0], x[1]) - y
+
+    best = None
+    for start in (w0, 0.0):
+        sol = optimize.least_squares(r, [y[0], start], method="lm", x_scale=[1.0, max(abs(w0), 1.0)])
+        if best is None or sol.cost < best.cost:
+            best = sol
+    return float(best.x[0]), float(best.x[1])
+
+
+@_jit
+def _predict_kernel(v, y, fc, K, tau, Ts, k, out):
+    """k-step-ahead prediction: at t - k restart from the state the two measured angles
+    y(t-k-1), y(t-k) imply (the angle from y, the velocity from the exact one-sample relation),
+    then simulate k samples."""
+    em = -math.expm1(-Ts / tau)
+    a = 1.0 - em
+    c = tau * em
+    for t in range(k + 1, y.size):
+        s = t - k
+        d = y[s] - y[s - 1]
+        vv = v[s - 1]
+        if fc > 0.0:
+            if d > 0.0:
+                vv = vv - fc
+            elif d < 0.0:
+                vv = vv + fc
+            else:
+                vv = 0.0
+        om_prev = (d - K * (Ts - c) * vv) / c
+        om = a * om_prev + K * em * vv
+        if fc > 0.0 and d == 0.0:
+            om = 0.0
+        th = y[s]
+        for j in range(s, t):
+            th, om = advance_em(th, om, v[j], fc, K, tau, Ts, em)
+        out[t] = th
+    return out
+
+
+@dataclass
+class CompareResult:
+    """Output of :func:`compare`: the model's output on a record and its fit %.
+
+    ``horizon`` is None for simulation (MATLAB ``compare(data, sys)``, an infinite horizon) or
+    k for the k-step-ahead prediction (``compare(data, sys, k)``).
+    """
+
+    t: np.ndarray
+    y: np.ndarray
+    y_hat: np.ndarray
+    fit_percent: float
+    horizon: int | None
+    theta0: float
+    omega0: float
+    label: str = ""
+
+    def plot(self, ax=None, unit: str = "rad"):
+        """Measured and model output against time, fit % in the legend."""
+        import matplotlib.pyplot as plt
+
+        if ax is None:
+            _, ax = plt.subplots(figsize=(8, 3.5))
+        ax.plot(self.t, self.y, ".", color="0.3", ms=3, label="measured")
+        what = "simulation" if self.horizon is None else f"{self.horizon}-step prediction"
+        ax.plot(self.t, self.y_hat, "-", lw=1.5,
+                label=f"{self.label + ': ' if self.label else ''}{what}, fit {self.fit_percent:.2f} %")
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel(f"angle ({unit})")
+        ax.legend(loc="best", fontsize=8)
+        return ax
+
+
+def compare(data, fit, horizon=None, initial: str = "estimate", label: str = "") -> CompareResult:
+    """Model output against a record and the fit %, as MATLAB's ``compare``.
+
+    fit % = 100 (1 - ||y - yhat|| / ||y - mean(y)||) over every sample of the record.
+
+    Parameters
+    ----------
+    data : IdentData or (u, y) pair
+        The record (ideally not the one ``fit`` was estimated on).
+    fit : MotorFit
+    horizon : None or int
+        None (or ``math.inf``): simulation from the estimated initial state, MATLAB's default
+        infinite horizon. k >= 1: the k-step-ahead prediction yhat(t | t - k): at t - k the model is
+        restarted from the state the measured angles y(t-k-1), y(t-k) imply and run k samples;
+        for the linear model this is exactly the k-step predictor of the ARX form of eq. 1,
+        (1 - q^-1)(1 - a q^-1) theta = (b1 q^-1 + b2 q^-2) u + e (Ljung §3.2), i.e. MATLAB's
+        ``compare(data, arx_model, k)``. The first k + 1 samples take the simulation.
+    initial : {"estimate", "rest"}
+        Initial state of the simulation: fitted (MATLAB's ``InitialCondition='e'``) or at rest.
+
+    Returns
+    -------
+    CompareResult
+    """
+    if not isinstance(fit, MotorFit):
+        raise ValueError(f"fit must be a MotorFit, got {type(fit).__name__}")
+    if initial not in ("estimate", "rest"):
+        raise ValueError(f"initial must be 'estimate' or 'rest', got {initial!r}")
+    if not (fit.tau > 0 and math.isfinite(fit.K)):
+        raise ValueError(f"fit has tau = {fit.tau:.4g} s, K = {fit.K:.4g}: no motor to simulate "
+                         f"(see fit.warnings: {'; '.join(fit.warnings) or 'none'})")
+    if isinstance(data, IdentData):
+        u, y, Ts = data.u, data.y, data.Ts
+    elif isinstance(data, (tuple, list)) and len(data) == 2:
+        u, y = _pair(data[0], data[1], "u", "y", min_len=3)
+        Ts = fit.Ts
+    else:
+        raise ValueError(f"data must be an IdentData or a (u, y) pair, got {type(data).__name__}")
+    if abs(Ts - fit.Ts) > 1e-9 * fit.Ts:
+        raise ValueError(f"data.Ts = {Ts:g} s differs from the fit's Ts = {fit.Ts:g} s")
+    if horizon is not None and horizon != math.inf:
+        horizon = as_int("horizon", horizon, minimum=1)
+    else:
+        horizon = None
+    th0, om0 = _initial_state(fit, u, y, initial)
+    y_hat = fit.simulate(u, th0, om0)
+    if horizon is not None and y.size > horizon + 1:
+        v = _drive(u, fit.offset, fit.dead_zone, fit.delay)
+        pred = _predict_kernel(np.ascontiguousarray(v), np.ascontiguousarray(y), float(fit.friction),
+                               float(fit.K), float(fit.tau), float(fit.Ts), int(horizon), y_hat.copy())
+        y_hat = pred
+    t = np.arange(y.size) * Ts
+    return CompareResult(t, y, y_hat, fit_percent(y, y_hat), horizon, th0, om0, label)
+
+
+def resid(data, fit, max_lag: int = 25, confidence: float = 0.99, initial: str = "estimate") -> "ResidualAnalysis":
+    """Residual tests of a model on a record, as MATLAB's ``resid``.
+
+    The residuals are the output errors y - yhat of the simulation (the prediction errors of an
+    output-error model, which is what the fits of this module are), from the estimated initial
+    state. Returns :func:`residual_analysis` of them with the input: autocorrelation over lags
+    0..``max_lag``, cross-correlation with u over -``max_lag``..``max_lag``, ``confidence`` bands
+    (99 % by default), the whiteness and independence tests. ``result.plot()`` draws the two panels.
+    """
+    c = compare(data, fit, None, initial)
+    u = data.u if isinstance(data, IdentData) else _signal("u", data[0])
+    e = c.y - c.y_hat
+    max_lag = min(as_int("max_lag", max_lag, minimum=1), (e.size - 1) // 2)
+    return residual_analysis(e, u if np.std(u) > 0 else None, max_lag, confidence)
+
+
+# ----------------------------------------------------------------------------------------------
+# real records
+# ----------------------------------------------------------------------------------------------
+#: PWM amplitude (of 255) of the micromouse records whose command the log lets us rebuild
+#: (README_original_data.md: "max speed"); the trapezoid records (2, 4, 6) ramp the PWM at a rate
+#: the log does not hold, so they cannot be used as input/output records.
+MICROMOUSE_RECORDS = {"encoders1": (100, "rectangle, 1 s"), "encoders3": (100, "step"),
+                      "encoders5": (255, "step")}
+
+
+def _default_real_root():
+    return pathlib.Path(__file__).resolve().parents[1] / "data" / "real"
+
+
+def _read_table(path):
+    try:
+        with open(path) as fh:
+            header = [h.strip() for h in fh.readline().split(",")]
+        table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"path: cannot read {path}: {exc}") from None
+    return header, table
+
+
+def micromouse_battery_voltage(root=None) -> float:
+    """Median battery voltage (V) logged with the PWM sweep ``wheelSpeedCalibration3.csv``
+    (LiPo 2S, the battery of the speed records; see data/real/micromouse/README.md)."""
+    root = pathlib.Path(root) if root is not None else _default_real_root() / "micromouse"
+    header, table = _read_table(root / "wheelSpeedCalibration3.csv")
+    return float(np.median(table[:, header.index("batteryVoltage")])) / 1000.0
+
+
+def load_micromouse(name: str, root=None, battery_voltage=None, counts_per_motor_rev: int = 12,
+                    gear_ratio: float = 29.861, sign: int = -1, pre_samples: int = 20) -> IdentData:
+    """A measured record of the Pololu 30:1 micro gearmotor of the micromouse "Algernon" as SI data.
+
+    The files (``data/real/micromouse``, CERN-OHL-P v2, from github.com/opatiny/micromouse) log the
+    cumulative encoder count of the left motor and its mode every 5 ms; the PWM command is a known
+    constant while the mode is non-zero (see ``MICROMOUSE_RECORDS``). Conversions:
+
+    * angle (rad, gearbox output) = ``sign`` * count * 2 pi / (counts_per_motor_rev * gear_ratio):
+      the magnetic encoder gives 12 counts per motor revolution when both edges of both channels
+      are counted (X4), so 12 * 29.861 counts per output revolution. The left encoder counts down
+      for a positive command as wired, hence ``sign=-1``; ``sign=+1`` gives the raw direction (and
+      a negative K, which the fit diagnoses as a reversed encoder).
+    * voltage (V) = PWM / 255 * ``battery_voltage``, the nominal mean voltage of the DRV8833's
+      PWM. Default: :func:`micromouse_battery_voltage`. It is nominal: at light load the bridge's
+      coasting PWM makes the speed a nonlinear function of the duty (the PWM sweep shows a dead
+      band below about 50/255), so K is a gain per *nominal* volt.
+
+    Parameters
+    ----------
+    name : {"encoders1", "encoders3", "encoders5"}
+        Record: a 1 s rectangle at PWM 100, a step at PWM 100, a step at PWM 255.
+    root : path, optional
+        Folder holding the CSV files (default: the repository's data/real/micromouse).
+    battery_voltage : float, optional
+        Supply voltage (V).
+    counts_per_motor_rev : int
+        Encoder counts per motor revolution (12: Pololu magnetic encoder, X4).
+    gear_ratio : float
+        Gearbox ratio (29.861 for the "30:1" gearbox).
+    sign : {+1, -1}
+        Direction of the encoder count relative to a positive command.
+    pre_samples : int
+        Samples kept before the command starts (the motor at rest); the rest of the idle lead-in
+        is dropped.
+
+    Returns
+    -------
+    IdentData
+        u in V, y in rad (output shaft), Ts = 0.005 s; metadata names the source and conversions.
+    """
+    if name not in MICROMOUSE_RECORDS:
+        raise ValueError(f"name must be one of {sorted(MICROMOUSE_RECORDS)} (the trapezoid records "
+                         f"encoders2/4/6 do not log their PWM ramp), got {name!r}")
+    root = pathlib.Path(root) if root is not None else _default_real_root() / "micromouse"
+    if battery_voltage is None:
+        battery_voltage = micromouse_battery_voltage(root)
+    battery_voltage = as_positive("battery_voltage", battery_voltage)
+    counts_per_motor_rev = as_int("counts_per_motor_rev", counts_per_motor_rev, minimum=1)
+    gear_ratio = as_positive("gear_ratio", gear_ratio)
+    sign = as_int("sign", sign)
+    if sign not in (-1, 1):
+        raise ValueError(f"sign must be +1 or -1, got {sign}")
+    pre_samples = as_int("pre_samples", pre_samples, minimum=0)
+    header, table = _read_table(root / f"{name}.csv")
+    for col in ("time", "leftEncoder", "leftMode"):
+        if col not in header:
+            raise ValueError(f"path: {name}.csv has no '{col}' column (columns {header})")
+    t_ms = table[:, header.index("time")]
+    counts = table[:, header.index("leftEncoder")]
+    mode = table[:, header.index("leftMode")]
+    dt = np.diff(t_ms)
+    if dt.size == 0 or np.any(dt != dt[0]):
+        raise ValueError(f"path: {name}.csv is not uniformly sampled")
+    Ts = float(dt[0]) / 1000.0
+    on = np.flatnonzero(mode != 0)
+    if on.size == 0:
+        raise ValueError(f"path: {name}.csv never switches the motor on")
+    start = max(int(on[0]) - pre_samples, 0)
+    pwm = MICROMOUSE_RECORDS[name][0]
+    u = np.where(mode != 0, pwm / 255.0 * battery_voltage, 0.0)[start:]
+    rad_per_count = 2.0 * math.pi / (counts_per_motor_rev * gear_ratio)
+    y = sign * (counts[start:] - counts[start]) * rad_per_count
+    meta = {"source": "github.com/opatiny/micromouse matlab/data (CERN-OHL-P v2)", "record": name,
+            "profile": MICROMOUSE_RECORDS[name][1], "pwm": pwm, "battery_voltage_V": battery_voltage,
+            "counts_per_motor_rev": counts_per_motor_rev, "gear_ratio": gear_ratio, "sign": sign,
+            "rad_per_count": rad_per_count, "t0_ms": float(t_ms[start])}
+    return IdentData(u, y, Ts, "V", "rad", meta)
 
 
 # ----------------------------------------------------------------------------------------------
