@@ -968,11 +968,13 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
         for nm in ("friction", "dead_zone"):
             if opts[nm]:
                 par[nm] = min(max(par[nm], 0.01 * u_abs_max), 0.9 * u_abs_max)
-        cands = [delay] if not estimate_delay else sorted({max(delay - 1, 0), delay,
-                                                           min(delay + 1, max_delay)})
+        # the inverse-dynamics delay first; then its neighbours, started from that optimum
+        cands = [delay] if not estimate_delay else [delay] + sorted(
+            {max(delay - 1, 0), min(delay + 1, max_delay)} - {delay})
         res = None
         for d in cands:
-            r_ = _fit_oe_ms(exps, Ts, d, opts, par, segment_n, cutoff)
+            start = par if res is None else res["par"]
+            r_ = _fit_oe_ms(exps, Ts, d, opts, start, segment_n, cutoff)
             if res is None or r_["cost"] < res["cost"]:
                 res, delay = r_, d
         par, cov = res["par"], res["cov"]
