@@ -23,8 +23,18 @@ module fits; :func:`fit_p2` reproduces the paper's literal call to show where it
   With white measurement noise this is the maximum-likelihood estimate and is unbiased; its
   covariance comes from the Jacobian at the optimum.
 
-Also here: :class:`IdentData` (CSV + JSON records, built from a rig ``Recording``), :func:`arx` for any
-orders, validation (:func:`validate`, :func:`residual_analysis`, :func:`plot_compare`,
+Real records (measured, closed loop, several experiments) need more than eq. 1: ``fit_dc_motor``
+also estimates Coulomb friction against the velocity (with sticking), an input offset, a dead zone
+and a pure delay (:func:`simulate_motor`), by output error with **multiple shooting** (each segment
+of the record starts from its own estimated state, so an integrating plant cannot drift), started
+by the inverse-dynamics least squares of motion control (``method="idim"``, Gautier & Janot; and
+``"idim-iv"`` with instrumental variables). Implausible results raise an
+:class:`IdentificationWarning` naming the likely cause.
+
+Also here: :class:`IdentData` (CSV + JSON records, built from a rig ``Recording``), :func:`merge`
+of several experiments, :func:`load_micromouse` (measured gearmotor records, data/real), :func:`arx`
+for any orders, validation with MATLAB's semantics (:func:`compare` for simulation and k-step
+prediction, :func:`resid`, :func:`validate`, :func:`residual_analysis`, :func:`plot_compare`,
 :func:`plot_residuals`), input design (:func:`step_input`, :func:`prbs`, :func:`sample_time_range`)
 and :func:`arx_asymptotic_bias`. Everything is SI: volts in, radians out, seconds.
 """
@@ -645,13 +655,18 @@ class MotorFit:
                 "offset": self.offset_std, "dead_zone": self.dead_zone_std}
 
     def confidence_interval(self, level: float = 0.95):
-        """Normal-approximation intervals ``{"K": (lo, hi), "tau": (lo, hi)}``."""
+        """Normal-approximation intervals ``{"K": (lo, hi), "tau": (lo, hi), ...}`` for every
+        estimated parameter (friction, offset, dead_zone when estimated)."""
         level = as_real("level", level)
         if not 0.0 < level < 1.0:
             raise ValueError(f"level must be in (0, 1), got {level}")
         z = stats.norm.ppf(0.5 + level / 2)
-        return {"K": (self.K - z * self.K_std, self.K + z * self.K_std),
-                "tau": (self.tau - z * self.tau_std, self.tau + z * self.tau_std)}
+        out = {}
+        for name in ("K", "tau", "friction", "offset", "dead_zone"):
+            if name in ("K", "tau") or name in self.estimated:
+                v, sd = getattr(self, name), self.std[name]
+                out[name] = (v - z * sd, v + z * sd)
+        return out
 
     def to_motor(self, **kwargs):
         """A ``jerklab.plant.DCMotor`` with the fitted K and tau (other arguments passed on)."""
