@@ -986,12 +986,15 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
         # the inverse-dynamics delay first; then its neighbours, started from that optimum
         cands = [delay] if not estimate_delay else [delay] + sorted(
             {max(delay - 1, 0), min(delay + 1, max_delay)} - {delay})
+        # (a neighbour only has to show a higher cost: a few iterations, a full fit if it wins)
         res = None
         for d in cands:
-            start = par if res is None else res["par"]
-            r_ = _fit_oe_ms(exps, Ts, d, opts, start, segment_n, cutoff)
-            if res is None or r_["cost"] < res["cost"]:
-                res, delay = r_, d
+            if res is None:
+                res = _fit_oe_ms(exps, Ts, d, opts, par, segment_n, cutoff)
+                continue
+            r_ = _fit_oe_ms(exps, Ts, d, opts, res["par"], segment_n, cutoff, max_nfev=15)
+            if r_["cost"] < res["cost"]:
+                res, delay = _fit_oe_ms(exps, Ts, d, opts, r_["par"], segment_n, cutoff), d
         par, cov = res["par"], res["cov"]
         y_sim, theta_c = res["y_sim"], res["theta"]
         resid = theta_c - y_sim
@@ -1272,7 +1275,7 @@ def _segment_starts(n, segment_n):
     return starts
 
 
-def _fit_oe_ms(exps, Ts, delay, opts, init, segment_n, cutoff):
+def _fit_oe_ms(exps, Ts, delay, opts, init, segment_n, cutoff, max_nfev=200):
     """Output error with multiple shooting: global (K, ln tau, [f_c], [offset], [dead_zone]) and an
     initial state (theta0, omega0) per segment, minimising sum (theta - theta_sim)^2 over all
     segments of all experiments (Ljung §4.2 output error; Bock's multiple shooting without
@@ -1303,21 +1306,21 @@ def _fit_oe_ms(exps, Ts, delay, opts, init, segment_n, cutoff):
             om0.append(w[min(max(s_ - 1, 0), w.size - 1)])
     gl = [init["K"], math.log(init["tau"])] + [init[nm] for nm in names[2:]]
     x0 = np.concatenate([gl, np.ravel(np.column_stack([th0, om0]))])
-    lo = np.full(x0.size, -np.inf)
-    hi = np.full(x0.size, np.inf)
+    # friction and dead zone enter as |p| (>= 0 without bounds, so MINPACK's Levenberg-Marquardt
+    # can be used: it is much faster than a bounded trust region on hundreds of segment states);
+    # ln tau is clamped to a range no motor leaves, so a hopeless record cannot overflow
     tau_lo, tau_hi = math.log(Ts * 1e-3), math.log(Ts * theta.size * 1e3)
-    lo[1], hi[1] = tau_lo, tau_hi
+    x0[1] = min(max(x0[1], tau_lo + 1e-6), tau_hi - 1e-6)
     for i, nm in enumerate(names[2:], start=2):
         if nm in ("friction", "dead_zone"):
-            lo[i] = 0.0
-            x0[i] = max(x0[i], 1e-6)
-    x0[1] = min(max(x0[1], tau_lo + 1e-6), tau_hi - 1e-6)
+            x0[i] = max(abs(x0[i]), 1e-6)
 
     def unpack(x):
         g = dict(zip(names, x[:ng]))
-        g["tau"] = math.exp(g["tau"])
-        for nm in ("friction", "offset", "dead_zone"):
-            g.setdefault(nm, 0.0)
+        g["tau"] = math.exp(min(max(g["tau"], tau_lo), tau_hi))
+        for nm in ("friction", "dead_zone"):
+            g[nm] = abs(g.get(nm, 0.0))
+        g.setdefault("offset", 0.0)
         return g, x[ng::2], x[ng + 1::2]
 
     def model(x):
@@ -1325,7 +1328,7 @@ def _fit_oe_ms(exps, Ts, delay, opts, init, segment_n, cutoff):
         v = ucat + g["offset"]
         if g["dead_zone"]:
             v = np.sign(v) * np.maximum(np.abs(v) - g["dead_zone"], 0.0)
-        return _simulate_segments(v, max(g["friction"], 0.0), g["K"], g["tau"], Ts, starts, t0, w0)
+        return _simulate_segments(v, g["friction"], g["K"], g["tau"], Ts, starts, t0, w0)
 
     def resid(x):
         return model(x) - theta
@@ -1342,11 +1345,7 @@ def _fit_oe_ms(exps, Ts, delay, opts, init, segment_n, cutoff):
             xp, xm = x.copy(), x.copy()
             xp[i] += h
             xm[i] -= h
-            if lo[i] > -np.inf and xm[i] < lo[i]:
-                xm[i] = x[i]
-                J[:, i] = (model(xp) - model(xm)) / h
-            else:
-                J[:, i] = (model(xp) - model(xm)) / (2 * h)
+            J[:, i] = (model(xp) - model(xm)) / (2 * h)
         J[np.arange(theta.size), ng + 2 * seg_of] = 1.0
         w0 = x[ng + 1::2]
         h = 1e-6 * max(float(np.max(np.abs(w0))), 1e-2)
@@ -1356,9 +1355,8 @@ def _fit_oe_ms(exps, Ts, delay, opts, init, segment_n, cutoff):
         J[np.arange(theta.size), ng + 2 * seg_of + 1] = (model(xp) - model(xm)) / (2 * h)
         return J
 
-    sol = optimize.least_squares(resid, x0, jac=jac, bounds=(lo, hi), method="trf", x_scale="jac",
-                                 tr_solver="lsmr",
-                                 xtol=1e-10, ftol=1e-10, gtol=1e-10, max_nfev=200)
+    sol = optimize.least_squares(resid, x0, jac=jac, method="lm", x_scale="jac",
+                                 xtol=1e-8, ftol=1e-9, gtol=1e-9, max_nfev=max_nfev)
     x = sol.x
     J = jac(x)
     r = resid(x)
@@ -1373,7 +1371,7 @@ def _fit_oe_ms(exps, Ts, delay, opts, init, segment_n, cutoff):
     Jg = J[:, :ng] @ np.linalg.inv(T) if ng else J
     sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     at_bound = [nm for i, nm in enumerate(names) if nm in ("friction", "dead_zone")
-                and (x[i] <= 1e-4 * float(np.max(np.abs(ucat))) or x[i] < 2.0 * sd[i])]
+                and (g[nm] <= 1e-4 * float(np.max(np.abs(ucat))) or g[nm] < 2.0 * sd[i])]
     if not (tau_lo + 1e-3 < x[1] < tau_hi - 1e-3):
         at_bound.append("tau")
     y_sim = theta + r            # r = model - theta
