@@ -23,7 +23,7 @@ module fits; :func:`fit_p2` reproduces the paper's literal call to show where it
   With white measurement noise this is the maximum-likelihood estimate and is unbiased; its
   covariance comes from the Jacobian at the optimum.
 
-Real records (measured, closed loop, several experiments) need more than eq. 1: ``fit_dc_motor``
+Real records (measured, closed loop, several experiments) need more than Stojčić eq. 1: ``fit_dc_motor``
 also estimates Coulomb friction against the velocity (with sticking), an input offset, a dead zone
 and a pure delay (:func:`simulate_motor`), by output error with **multiple shooting** (each segment
 of the record starts from its own estimated state, so an integrating plant cannot drift), started
@@ -645,7 +645,7 @@ class MotorFit:
 
     @property
     def is_linear(self) -> bool:
-        """True when the model is eq. 1 alone (no friction, offset, dead zone or delay)."""
+        """True when the model is Stojčić eq. 1 alone (no friction, offset, dead zone or delay)."""
         return not (self.friction or self.offset or self.dead_zone or self.delay)
 
     @property
@@ -811,7 +811,7 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
     """Identify K and tau of P(s) = K/(s(tau s + 1)) (Stojčić eq. 1, §4A) from a voltage/angle record.
 
     The paper ran MATLAB's ``pem(iddata(y, u, Ts), 'P2')``; 'P2' has no integrator, so this fits
-    the structure eq. 1 actually has, a pole plus an integrator ('P1I'). Options add what real
+    the structure Stojčić eq. 1 actually has, a pole plus an integrator ('P1I'). Options add what real
     records carry: Coulomb friction by the sign of the velocity (with sticking), an input offset,
     an input dead zone and a pure delay (see :func:`simulate_motor` for the model).
 
@@ -1963,7 +1963,7 @@ def compare(data, fit, horizon=None, initial: str = "estimate", label: str = "")
         None (or ``math.inf``): simulation from the estimated initial state, MATLAB's default
         infinite horizon. k >= 1: the k-step-ahead prediction yhat(t | t - k): at t - k the model is
         restarted from the state the measured angles y(t-k-1), y(t-k) imply and run k samples;
-        for the linear model this is exactly the k-step predictor of the ARX form of eq. 1,
+        for the linear model this is exactly the k-step predictor of the ARX form of Stojčić eq. 1,
         (1 - q^-1)(1 - a q^-1) theta = (b1 q^-1 + b2 q^-2) u + e (Ljung §3.2), i.e. MATLAB's
         ``compare(data, arx_model, k)``. The first k + 1 samples take the simulation.
     initial : {"estimate", "rest"}
