@@ -48,8 +48,8 @@ __all__ = ["simulate", "simulate_batch", "SimResult", "BatchResult", "perturbed_
 
 # packed plant and run parameters of :func:`_kernel` (see :func:`_plant_pack`)
 (P_RIGID, P_K, P_TAU, P_FC, P_DIST_ON, P_DIST_AMP, P_DIST_TIME, P_SUPPLY, P_LEVELS, P_CPR,
- P_DISTANCE, P_BAND, P_DURATION, P_NMOVE, P_BOUND) = range(15)
-_NP = 15
+ P_DISTANCE, P_BAND, P_DURATION, P_NMOVE, P_BOUND, P_OFFSET, P_DEAD_ZONE) = range(17)
+_NP = 17
 # rows of the kernel's output array after the ns state rows
 (O_MEAS, O_UCMD, O_UAPP, O_P, O_I, O_D, O_FF, O_E) = range(8)
 _NO = 8
@@ -74,6 +74,18 @@ def _rigid_step(th, om, v, k, Ts, fc, K, tau, em_full, dist_on, dist_amp, dist_t
         return advance_em(th, om, v + dist_amp, fc, K, tau, b, -math.expm1(-b / tau))
     w = dist_amp if (dist_on and t0 >= dist_time) else 0.0
     return advance_em(th, om, v + w, fc, K, tau, Ts, em_full)
+
+
+@_jit
+def _driver(v, offset, dead_zone):
+    """The voltage the motor sees after the driver: ``dz(v + offset)`` (``DCMotor.drive_voltage``)."""
+    x = v + offset
+    if dead_zone > 0.0:
+        a = abs(x) - dead_zone
+        if a <= 0.0:
+            return 0.0
+        return a if x > 0.0 else -a
+    return x
 
 
 @_jit
@@ -105,6 +117,9 @@ def _kernel(ref, noise, x0, pp, M, ctl, OUT, sat, met):
     duration = pp[P_DURATION]
     n_move = pp[P_NMOVE]
     bound = pp[P_BOUND]
+    offset = pp[P_OFFSET]
+    dead_zone = pp[P_DEAD_ZONE]
+    drive = offset != 0.0 or dead_zone > 0.0
     kpd = ctl[law.C_KPD]
     kid = ctl[law.C_KID]
     kdd = ctl[law.C_KDD]
@@ -186,7 +201,8 @@ def _kernel(ref, noise, x0, pp, M, ctl, OUT, sat, met):
         if abs(v) > umax:
             umax = abs(v)
         if rigid:
-            th1, om1 = _rigid_step(x[0], x[1], v, k, Ts, fc, K, tau, em_full, dist_on, dist_amp, dist_time)
+            vm = _driver(v, offset, dead_zone) if drive else v
+            th1, om1 = _rigid_step(x[0], x[1], vm, k, Ts, fc, K, tau, em_full, dist_on, dist_amp, dist_time)
             x[0] = th1
             x[1] = om1
         else:
@@ -656,6 +672,8 @@ def _plant_pack(motor, Ts):
     if isinstance(motor, DCMotor):
         pp[P_RIGID] = 1.0
         pp[P_FC] = motor.coulomb_friction
+        pp[P_OFFSET] = getattr(motor, "offset", 0.0)
+        pp[P_DEAD_ZONE] = getattr(motor, "dead_zone", 0.0)
         return pp, _RIGID_M, 2
     Phi, Gam = motor.zoh(Ts)
     parts = [(Phi, Gam), (Phi, Gam), (Phi, Gam)]
@@ -848,6 +866,9 @@ def simulate_batch(profile, motor, controller, K=None, tau=None, coulomb_frictio
     _check_inputs(profile, motor)
     if not isinstance(motor, DCMotor):
         raise ValueError("simulate_batch needs a rigid DCMotor template")
+    if getattr(motor, "offset", 0.0) or getattr(motor, "dead_zone", 0.0):
+        raise ValueError("simulate_batch does not model the motor's offset and dead_zone yet; "
+                         "use simulate() per plant, or a motor with offset=0 and dead_zone=0")
     if engine not in ("auto", "numpy", "compiled"):
         raise ValueError(f"engine must be 'auto', 'numpy' or 'compiled', got {engine!r}")
     ctl, cloop, Ts = _law_for(controller, motor, loop, Ts)

@@ -172,6 +172,7 @@ BAD = [
     ("K", lambda: S.simulate_batch(PROF, MOTOR, CTRL, K=[math.nan])),
     ("broadcast", lambda: S.simulate_batch(PROF, MOTOR, CTRL, K=[1.0, 2.0], tau=[0.1, 0.2, 0.3])),
     ("engine", lambda: S.simulate_batch(PROF, MOTOR, CTRL, engine="gpu")),
+    ("offset", lambda: S.simulate_batch(PROF, DCMotor(offset=0.1), CTRL)),
     ("seed", lambda: S.simulate_batch(PROF, MOTOR, CTRL, seed="x")),
     ("keep_traces", lambda: S.simulate_batch(PROF, MOTOR, CTRL, K=np.full(100000, 30.0), t_end=1000.0)),
     ("n", lambda: S.perturbed_plants(-1)),

@@ -54,6 +54,7 @@ def _python_loop(profile, motor, controller, n):
     dict(),
     dict(coulomb_friction=0.4, load_disturbance=(0.4123, -1.5), supply_voltage=6.0),
     dict(decoding=4, pwm_bits=8, coulomb_friction=1.0),
+    dict(offset=0.4, dead_zone=0.7, coulomb_friction=0.2),
 ])
 def test_kernel_equals_python_stepping(loop, motor_kw):
     motor = DCMotor(**motor_kw)
