@@ -199,6 +199,8 @@ class DeviceServer:
                     continue
                 if data:
                     dev.receive(data)
+            if not self._frozen:
+                dev.poll()                  # a partial frame expires after 20 ms, as on the board
             now = time.monotonic()
             if running:
                 if self.speed is None:
