@@ -37,7 +37,7 @@ __all__ = [
     "PROTOCOL_VERSION", "SYNC", "MAX_PAYLOAD", "MAX_FRAME", "MIN_FRAME",
     "MsgType", "ErrorCode", "EndReason", "Planner", "LoopType", "Capability",
     "GAINS_FEEDFORWARD", "TELEMETRY_SATURATED", "TELEMETRY_SETTLING", "TELEMETRY_FAULT",
-    "MAX_PLAN_SAMPLES", "DEFAULT_MAX_ERROR", "DEFAULT_RUNAWAY_MS",
+    "MAX_PLAN_SAMPLES", "DEFAULT_MAX_ERROR", "DEFAULT_RUNAWAY_MS", "DEFAULT_SATURATION_MS",
     "crc16_ccitt_false", "encode_frame", "encode", "parse", "Frame", "Decoder", "DecoderStats",
     "ProtocolError", "MESSAGES", "payload_field_name",
     "Hello", "SetPlant", "SetGains", "SetLimits", "Plan", "Run", "Stop", "Step", "Heartbeat",
@@ -47,9 +47,10 @@ __all__ = [
 PROTOCOL_VERSION = 2
 #: the longest plan a device accepts (PLAN_INFO.n_samples); longer: NACK TOO_LONG
 MAX_PLAN_SAMPLES = 2_000_000_000
-#: boot defaults of the safety stops (SetLimits.max_error rad, SetLimits.runaway_ms ms)
+#: boot defaults of the safety stops (SetLimits.max_error rad, .runaway_ms ms, .saturation_ms ms)
 DEFAULT_MAX_ERROR = 0.5
 DEFAULT_RUNAWAY_MS = 200
+DEFAULT_SATURATION_MS = 500
 SYNC = b"\xa5\x5a"
 MAX_PAYLOAD = 64
 #: smallest frame: sync(2) + len + type + seq + crc(2)
@@ -139,6 +140,7 @@ class EndReason(enum.IntEnum):
     TRACKING_ERROR = 4    #: |reference - position| > SetLimits.max_error; detail = the error (rad)
     RUNAWAY = 5           #: large drive, encoder moved against it (reversed?); detail = counts moved
     NO_MOTION = 6         #: large drive, encoder did not move (disconnected? stalled?); detail = 0
+    SATURATION = 7        #: output at the clamp in most samples for saturation_ms (unstable loop?)
 
 
 class Planner(enum.IntEnum):
@@ -267,10 +269,11 @@ class SetGains(_Message):
 class SetLimits(_Message):
     """Planner limits (rad/s^3, rad/s^2, rad/s), the voltage clamp (V), the host watchdog
     (ms, 0 = off) and the safety stops: the tracking-error limit ``max_error`` (rad, 0 = off)
-    and the runaway / no-motion window ``runaway_ms`` (ms, 0 = off); PROTOCOL.md "Safety stops"."""
+    the runaway / no-motion window ``runaway_ms`` (ms, 0 = off) and the saturation window
+    ``saturation_ms`` (ms, 0 = off); PROTOCOL.md "Safety stops"."""
 
     TYPE: ClassVar[MsgType] = MsgType.SET_LIMITS
-    FORMAT: ClassVar[str] = "<ffffHfH"
+    FORMAT: ClassVar[str] = "<ffffHfHH"
     max_jerk: float
     max_accel: float
     max_velocity: float
@@ -278,6 +281,7 @@ class SetLimits(_Message):
     host_timeout_ms: int = 1000
     max_error: float = DEFAULT_MAX_ERROR
     runaway_ms: int = DEFAULT_RUNAWAY_MS
+    saturation_ms: int = DEFAULT_SATURATION_MS
 
 
 @dataclass(frozen=True)

@@ -45,7 +45,7 @@ EXAMPLES = [
     P.SetPlant(K=32.4, tau=0.025, supply_voltage=12.0, counts_per_rev=448),
     P.SetGains(kpd=1.0, kid=0.1, kdd=2.0, Ts_us=5000, loop=P.LoopType.VELOCITY, flags=0, gamma=0.25),
     P.SetLimits(max_jerk=2e4, max_accel=300.0, max_velocity=100.0, max_voltage=12.0, host_timeout_ms=500,
-                max_error=0.25, runaway_ms=150),
+                max_error=0.25, runaway_ms=150, saturation_ms=300),
     P.Plan(distance=-31.4159, planner=P.Planner.SINE_JERK),
     P.Run(settle_samples=40, decimation=2),
     P.Stop(),
@@ -108,7 +108,7 @@ def test_golden_frames_match_protocol_md():
     hexes = [bytes.fromhex(h) for h in re.findall(r"((?:[0-9a-f]{2} ){4,}[0-9a-f]{2})", golden)]
     expected = [
         P.Hello(2), P.SetPlant(32.4, 0.025, 12.0, 448), P.SetGains(1.0, 0.1, 2.0, 5000, 0, 1, 0.0),
-        P.SetLimits(2e4, 300, 100, 12, 1000, 0.5, 200), P.Plan(31.4159, 0), P.Run(40, 1), P.Stop(),
+        P.SetLimits(2e4, 300, 100, 12, 1000, 0.5, 200, 500), P.Plan(31.4159, 0), P.Run(40, 1), P.Stop(),
         P.Step(6.0, 5000, 200), P.Heartbeat(), P.Ack(2), P.Nack(3, 3, 1), P.Nack(5, 8, 0),
         P.HelloReply(2, 0, 1, 0, 0x1F1, 1000, 1023, "jerklab-uno"), P.PlanInfo(0.1, 0.2, 0.4, 81),
         P.Telemetry(12, 1.5, -300, -1023, 1), P.EndOfRun(0, 81, 0, 0, 0.0),

@@ -153,6 +153,7 @@ void Device::handle(const Frame& f) {
         uint16_t tmo = get_u16(p + 16);
         float emax = get_f32(p + 18);
         uint16_t rms = get_u16(p + 22);
+        uint16_t sms = get_u16(p + 24);
         if (!finite_f(J) || !(J > 0.0f)) { nack(f, kErrBadValue, 0); return; }
         if (!finite_f(E) || !(E > 0.0f)) { nack(f, kErrBadValue, 1); return; }
         if (!finite_f(W) || !(W > 0.0f)) { nack(f, kErrBadValue, 2); return; }
@@ -162,6 +163,7 @@ void Device::handle(const Frame& f) {
         host_timeout_ms_ = tmo;
         max_error_ = emax;
         runaway_ms_ = rms;
+        saturation_ms_ = sms;
         update_pwm_top();
         plan_ok_ = false;
         ack(f);
@@ -211,6 +213,8 @@ void Device::handle(const Frame& f) {
         last_pwm_ = 0;
         runaway_pwm_ = static_cast<int16_t>((pwm_top_ + 1) / 2);
         runaway_n_ = static_cast<uint16_t>((static_cast<uint32_t>(runaway_ms_) * 1000u + Ts_us_ - 1u) / Ts_us_);
+        sat_n_ = static_cast<uint16_t>((static_cast<uint32_t>(saturation_ms_) * 1000u + Ts_us_ - 1u) / Ts_us_);
+        sat_level_ = 0;
         run_sign_ = 0;
         run_len_ = 0;
         moved_ = 0;
@@ -293,8 +297,22 @@ bool Device::control() {
             const float uf = use_ff_ ? ff_(s.velocity, s.accel) : 0.0f;
             ControlParts parts;
             const float u = pid_.step(e, uf, &parts);
-            if (parts.saturated) flags |= kTelemetrySaturated;
-            pwm = volts_to_pwm(u);
+            if (parts.saturated) {
+                flags |= kTelemetrySaturated;
+                ++sat_level_;
+            } else if (sat_level_) {
+                --sat_level_;
+            }
+            if (sat_n_ && sat_level_ >= sat_n_) {
+                // Saturation stop (PROTOCOL.md): at the clamp in most samples for the window.
+                finished_ = true;
+                end_reason_ = kEndSaturation;
+                end_detail_ = 0.0f;
+                flags |= kTelemetryFault;
+                pwm = 0;
+            } else {
+                pwm = volts_to_pwm(u);
+            }
         }
         last_pwm_ = pwm;
     } else {

@@ -92,6 +92,7 @@ private:
     // runaway / no-motion window (ms, 0 = off).
     float max_error_ = 0.5f;
     uint16_t runaway_ms_ = 200;
+    uint16_t saturation_ms_ = 500;   // saturation stop window (ms, 0 = off)
     bool gains_ok_ = false;
     float kpd_ = 0, kid_ = 0, kdd_ = 0, gamma_ = 0;
     uint16_t Ts_us_ = 5000;
@@ -121,6 +122,9 @@ private:
     int8_t run_sign_ = 0;
     uint16_t run_len_ = 0;
     int32_t moved_ = 0;
+    // Saturation stop: a level that counts up at a clamped sample and down at another.
+    uint16_t sat_n_ = 0;
+    uint16_t sat_level_ = 0;
 
     // Results of the last control() for report().
     bool have_sample_ = false;

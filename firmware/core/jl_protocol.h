@@ -21,7 +21,8 @@ enum ErrorCode : uint8_t {
 };
 
 enum EndReason : uint8_t { kEndDone = 0, kEndStopped = 1, kEndHostTimeout = 2, kEndFault = 3,
-                           kEndTrackingError = 4, kEndRunaway = 5, kEndNoMotion = 6 };
+                           kEndTrackingError = 4, kEndRunaway = 5, kEndNoMotion = 6,
+                           kEndSaturation = 7 };
 
 // A plan longer than this many samples is refused with NACK TOO_LONG (PROTOCOL.md).
 static const uint32_t kMaxPlanSamples = 2000000000UL;
@@ -43,7 +44,7 @@ static const uint8_t kTelemetrySettling = 0x02;
 static const uint8_t kTelemetryFault = 0x04;
 
 // Payload sizes (bytes).
-static const uint8_t kLenHello = 1, kLenSetPlant = 14, kLenSetGains = 20, kLenSetLimits = 24,
+static const uint8_t kLenHello = 1, kLenSetPlant = 14, kLenSetGains = 20, kLenSetLimits = 26,
     kLenPlan = 5, kLenRun = 3, kLenStop = 0, kLenStep = 8, kLenHeartbeat = 0, kLenAck = 1,
     kLenNack = 3, kLenHelloReply = 26, kLenPlanInfo = 16, kLenTelemetry = 15, kLenEndOfRun = 13,
     kLenError = 3;

@@ -73,7 +73,8 @@ _KIND_TO_PLANNER = {
 }
 _F32_MAX = 3.4028234663852886e38
 #: END_OF_RUN reasons that are faults (the run's status then reads "fault: ...")
-_FAULTS = (P.EndReason.FAULT, P.EndReason.TRACKING_ERROR, P.EndReason.RUNAWAY, P.EndReason.NO_MOTION)
+_FAULTS = (P.EndReason.FAULT, P.EndReason.TRACKING_ERROR, P.EndReason.RUNAWAY, P.EndReason.NO_MOTION,
+           P.EndReason.SATURATION)
 
 
 def _in_jupyter_kernel() -> bool:
@@ -440,11 +441,12 @@ class Rig:
 
     def configure(self, gains, Ts=0.005, *, feedforward=True, max_voltage=None, limits=None,
                   host_timeout=1.0, max_error=P.DEFAULT_MAX_ERROR,
-                  runaway_time=P.DEFAULT_RUNAWAY_MS / 1000.0):
+                  runaway_time=P.DEFAULT_RUNAWAY_MS / 1000.0,
+                  saturation_time=P.DEFAULT_SATURATION_MS / 1000.0):
         """Send plant, gains and limits (SET_PLANT, SET_GAINS, SET_LIMITS); return them as a dict.
 
-        ``max_error`` (rad, 0 = off) and ``runaway_time`` (s, 0 = off) set the device's safety
-        stops (firmware/PROTOCOL.md "Safety stops").
+        ``max_error`` (rad, 0 = off), ``runaway_time`` and ``saturation_time`` (s, 0 = off) set
+        the device's safety stops (firmware/PROTOCOL.md "Safety stops").
         """
         from jerklab.controller import DiscreteGains, Gains
 
@@ -472,6 +474,9 @@ class Rig:
         runaway = as_nonnegative("runaway_time", runaway_time)
         if runaway > 65.535:
             raise ValueError(f"runaway_time must be <= 65.535 s, got {runaway}")
+        sat = as_nonnegative("saturation_time", saturation_time)
+        if sat > 65.535:
+            raise ValueError(f"saturation_time must be <= 65.535 s, got {sat}")
         J, E, W = limits if limits is not None else (2e4, 300.0, 100.0)
         J = min(as_positive("max_jerk", J), _F32_MAX)
         E, W = as_positive("max_accel", E), as_positive("max_velocity", W)
@@ -480,7 +485,8 @@ class Rig:
             P.SetPlant(K, tau, self.supply_voltage, self.counts_per_rev),
             P.SetGains(gains.kpd, gains.kid, gains.kdd, us, int(loop),
                        P.GAINS_FEEDFORWARD if ff_on else 0, gains.gamma),
-            P.SetLimits(J, E, W, vmax, int(round(tmo * 1000)), emax, int(round(runaway * 1000))),
+            P.SetLimits(J, E, W, vmax, int(round(tmo * 1000)), emax, int(round(runaway * 1000)),
+                        int(round(sat * 1000))),
         ]
         for m in msgs:
             self._request(m)
@@ -490,7 +496,8 @@ class Rig:
                 "feedforward": {"on": ff_on, "K": K, "tau": tau},
                 "limits": {"max_jerk": J, "max_accel": E, "max_velocity": W, "max_voltage": vmax,
                            "host_timeout": tmo, "max_error": emax,
-                           "runaway_time": int(round(runaway * 1000)) / 1000.0},
+                           "runaway_time": int(round(runaway * 1000)) / 1000.0,
+                           "saturation_time": int(round(sat * 1000)) / 1000.0},
                 "plant": {"supply_voltage": self.supply_voltage, "counts_per_rev": self.counts_per_rev}}
 
     def _new_recording(self, kind, meta, path):
@@ -514,7 +521,7 @@ class Rig:
     def run_move(self, profile, gains, Ts=0.005, *, feedforward=True, max_voltage=None, settle=0.25,
                  decimation=1, host_timeout=1.0, path=None, progress=None,
                  max_error=P.DEFAULT_MAX_ERROR, runaway_time=P.DEFAULT_RUNAWAY_MS / 1000.0,
-                 force=False) -> Recording:
+                 saturation_time=P.DEFAULT_SATURATION_MS / 1000.0, force=False) -> Recording:
         """Run a planned move on the rig; return the :class:`Recording` (saved as it arrives).
 
         The device re-plans the move from ``profile``'s distance and limits with the same
@@ -525,8 +532,9 @@ class Rig:
         a sampled closed loop (ZOH plant and discrete PID,
         :func:`jerklab.controller.closed_loop_poles`) with a pole at ``|z| >= 1`` is refused
         unless ``force=True``. On the device, the safety stops end a run whose tracking error
-        exceeds ``max_error`` or whose encoder does not follow a large drive for
-        ``runaway_time`` (firmware/PROTOCOL.md "Safety stops").
+        exceeds ``max_error``, whose encoder does not follow a large drive for
+        ``runaway_time``, or whose output sits at the clamp most of the time for
+        ``saturation_time`` (firmware/PROTOCOL.md "Safety stops").
 
         Parameters
         ----------
@@ -560,6 +568,10 @@ class Rig:
             Runaway / no-motion window (s): a drive of at least half the clamp for this long
             that moves the encoder against it (reversed?) or not at all (disconnected?) ends
             the run with a fault; 0 = off.
+        saturation_time : float
+            Saturation window (s): an output at the voltage clamp in clearly more than half the
+            samples for this long (the ±supply chatter of an unstable loop) ends the run with a
+            fault; 0 = off.
         force : bool
             Run a design even if its sampled closed loop is unstable (the safety stops still apply).
 
@@ -595,7 +607,7 @@ class Rig:
             self._check_stable(gains, Ts)
         cfg = self.configure(gains, Ts, feedforward=feedforward, max_voltage=max_voltage,
                              limits=limits, host_timeout=host_timeout, max_error=max_error,
-                             runaway_time=runaway_time)
+                             runaway_time=runaway_time, saturation_time=saturation_time)
         Ts = cfg["Ts"]
         info = self._request(P.Plan(distance, int(planner)), replies=(P.MsgType.PLAN_INFO,))
         if abs(info.duration - profile.duration) > 1e-4 * profile.duration + 2e-5:
@@ -840,6 +852,11 @@ def _fault_status(end, meta) -> str:
     if end.reason == P.EndReason.NO_MOTION:
         return (f"fault: no motion — encoder disconnected or motor stalled? (no counts under a drive of at "
                 f"least half the clamp for {window}) at t={t:.3f} s")
+    if end.reason == P.EndReason.SATURATION:
+        sw = limits.get("saturation_time")
+        sw = f"{sw:g} s" if isinstance(sw, (int, float)) else "the saturation window"
+        return (f"fault: output saturated — unstable loop? (the output sat at the ±{limits.get('max_voltage', '?')} V "
+                f"clamp in most samples for {sw}) at t={t:.3f} s")
     return f"fault: device fault at t={t:.3f} s"
 
 

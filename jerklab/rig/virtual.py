@@ -110,7 +110,8 @@ class VirtualDevice:
         self.plant = P.SetPlant(K=_f32(32.4), tau=_f32(0.025), supply_voltage=12.0, counts_per_rev=448)
         self.limits = P.SetLimits(max_jerk=2e4, max_accel=300.0, max_velocity=100.0,
                                   max_voltage=12.0, host_timeout_ms=1000,
-                                  max_error=P.DEFAULT_MAX_ERROR, runaway_ms=P.DEFAULT_RUNAWAY_MS)
+                                  max_error=P.DEFAULT_MAX_ERROR, runaway_ms=P.DEFAULT_RUNAWAY_MS,
+                                  saturation_ms=P.DEFAULT_SATURATION_MS)
         self.gains = None
         self.plan = None
         self.state = self.STATE_IDLE
@@ -256,7 +257,7 @@ class VirtualDevice:
         checks = [_finite(m.max_jerk) and m.max_jerk > 0, _finite(m.max_accel) and m.max_accel > 0,
                   _finite(m.max_velocity) and m.max_velocity > 0,
                   _finite(m.max_voltage) and 0 < m.max_voltage <= self.plant.supply_voltage, True,
-                  _finite(m.max_error) and m.max_error >= 0, True]
+                  _finite(m.max_error) and m.max_error >= 0, True, True]
         bad = _first_false(checks)
         if bad is not None:
             return P.ErrorCode.BAD_VALUE, bad
@@ -319,6 +320,8 @@ class VirtualDevice:
         self._runaway_pwm = (self._pwm_top() + 1) // 2
         self._runaway_n = (int(L.runaway_ms) * 1000 + g.Ts_us - 1) // g.Ts_us
         self._run_sign = self._run_len = self._moved = 0
+        self._sat_n = (int(L.saturation_ms) * 1000 + g.Ts_us - 1) // g.Ts_us
+        self._sat_level = 0
         self._last_pwm = 0
         self._prev_counts = 0
         self._start(Ts)
@@ -424,7 +427,15 @@ class VirtualDevice:
                 u = self._ctrl.step(rp, rv, ra, y)
                 if self._ctrl.last_parts["saturated"]:
                     flags |= P.TELEMETRY_SATURATED
-                self.pwm = self._to_pwm(u)
+                    self._sat_level += 1
+                elif self._sat_level:
+                    self._sat_level -= 1
+                if self._sat_n and self._sat_level >= self._sat_n:
+                    fault, detail = P.EndReason.SATURATION, 0.0      # PROTOCOL.md stop 3
+                    self.pwm = 0
+                    flags |= P.TELEMETRY_FAULT
+                else:
+                    self.pwm = self._to_pwm(u)
             self._last_pwm = self.pwm
             self._prev_counts = counts
             ref = float(rp)
@@ -444,6 +455,16 @@ class VirtualDevice:
         if self._k >= self._n_total:
             self.pwm = 0
             self._end(P.EndReason.DONE)
+
+    def host_gone(self) -> None:
+        """The host went away (a TCP client closed its socket): stop the motor, end an
+        active run, and forget the output and any partial frame of that host, so that
+        nothing of its run reaches the next client."""
+        if self.active:
+            self.pwm = 0
+            self._end(P.EndReason.STOPPED)
+        self._decoder.flush()
+        self._out.clear()
 
     def _end(self, reason, detail=0.0):
         samples = self._k
