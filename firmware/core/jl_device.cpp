@@ -161,7 +161,8 @@ void Device::handle(const Frame& f) {
         if (!finite_f(emax) || emax < 0.0f) { nack(f, kErrBadValue, 5); return; }
         max_jerk_ = J; max_accel_ = E; max_velocity_ = W; max_voltage_ = vmax;
         host_timeout_ms_ = tmo;
-        max_error_ = emax;
+        memcpy(&max_error_bits_, &emax, 4);    // emax >= 0: 0 (off) or the positive pattern
+        if (emax == 0.0f) max_error_bits_ = 0;   // -0.0
         runaway_ms_ = rms;
         saturation_ms_ = sms;
         update_pwm_top();
@@ -347,7 +348,12 @@ void Device::report() {
 // controller): the tracking-error limit, then the runaway / no-motion window over the PWM
 // applied during the last period (last_pwm_) and the counts it produced (c_k - c_{k-1}).
 uint8_t Device::check_safety(int32_t c, float pos_error, float* detail) {
-    if (max_error_ > 0.0f && !(jl_fabsf(pos_error) <= max_error_)) {
+    // |e| > max_error (or e NaN) as an integer compare of the IEEE bits: for floats >= 0 the
+    // bit patterns order like the values, and a NaN's pattern lies above +inf's. Saves the
+    // ~50-cycle float compare of the AVR's soft float in the timed step.
+    uint32_t bits;
+    memcpy(&bits, &pos_error, 4);
+    if (max_error_bits_ != 0 && (bits & 0x7FFFFFFFUL) > max_error_bits_) {
         *detail = pos_error;
         return kEndTrackingError;
     }

@@ -90,7 +90,7 @@ private:
     uint16_t host_timeout_ms_ = 1000;
     // Safety stops (PROTOCOL.md "Safety stops"): tracking-error limit (rad, 0 = off) and the
     // runaway / no-motion window (ms, 0 = off).
-    float max_error_ = 0.5f;
+    uint32_t max_error_bits_ = 0x3F000000UL;   // IEEE bits of max_error (0.5 rad at boot)
     uint16_t runaway_ms_ = 200;
     uint16_t saturation_ms_ = 500;   // saturation stop window (ms, 0 = off)
     bool gains_ok_ = false;
