@@ -15,6 +15,8 @@ import tracemalloc
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from conftest import require_tool
 from jerklab import protocol as P
@@ -52,12 +54,12 @@ def _forget_simavr_module():
 
 def _gains(wn=20.0, Ts=0.005):
     g = pole_placement_pid(K, TAU, wn).discretize(Ts)
-    return type(g)(f32(g.kpd), f32(g.kid), f32(g.kdd), Ts)
+    return f32(g.kpd), f32(g.kid), f32(g.kdd)
 
 
-def _config(g, max_error=0.5, runaway_ms=200, max_voltage=VS, Ts_us=5000):
-    return [P.SetPlant(K, TAU, VS, 448), P.SetGains(g.kpd, g.kid, g.kdd, Ts_us, 0, 1, 0.0),
-            P.SetLimits(2e4, 300.0, 100.0, max_voltage, 0, max_error, runaway_ms)]
+def _config(g, max_error=0.5, runaway_ms=200, saturation_ms=500, max_voltage=VS, Ts_us=5000):
+    return [P.SetPlant(K, TAU, VS, 448), P.SetGains(*g, Ts_us, 0, 1, 0.0),
+            P.SetLimits(2e4, 300.0, 100.0, max_voltage, 0, max_error, runaway_ms, saturation_ms)]
 
 
 def run_host(driver, commands, ms, encoder=1):
@@ -463,3 +465,77 @@ def test_session_longer_than_256_commands_virtual_device_and_client():
     for _ in range(300):
         assert rig.hello().name == "jerklab-virtual"
     assert rig._seq == 302 % 256 and rig.ignored_frames == 0
+
+
+# ----------------------------------------------------------------------------- the rule, restated
+
+def _expected_stop(tel, limits, Ts_us=5000, max_voltage=VS):
+    """PROTOCOL.md "Safety stops" restated from a run's telemetry (decimation 1): the sample and
+    reason of the first stop, or (None, None)."""
+    pwm_top = min(1023, math.floor(max_voltage * 1023 / VS + 0.5))
+    thr = (pwm_top + 1) // 2
+    n_run = -(-limits["runaway_ms"] * 1000 // Ts_us)
+    n_sat = -(-limits["saturation_ms"] * 1000 // Ts_us)
+    lim = f32(limits["max_error"])
+    sign_run = length = moved = level = 0
+    for k, t in enumerate(tel):
+        e = t.reference - t.counts / CPR
+        if lim > 0 and abs(e) > lim:
+            return k, P.EndReason.TRACKING_ERROR
+        last = tel[k - 1].pwm if k else 0
+        s = 1 if last >= thr else (-1 if last <= -thr else 0)
+        if n_run and s == 0:
+            sign_run = length = moved = 0
+        elif n_run:
+            if s != sign_run:
+                sign_run, length, moved = s, 0, 0
+            moved += s * (t.counts - (tel[k - 1].counts if k else 0))
+            length += 1
+            if length >= n_run:
+                if moved <= 0:
+                    return k, P.EndReason.RUNAWAY if moved < 0 else P.EndReason.NO_MOTION
+                length = moved = 0
+        level = level + 1 if t.flags & P.TELEMETRY_SATURATED else max(0, level - 1)
+        if n_sat and level >= n_sat:
+            return k, P.EndReason.SATURATION
+    return None, None
+
+
+@settings(max_examples=40, deadline=None)
+@given(distance=st.floats(0.2, 12.0), sign=st.sampled_from([1.0, -1.0]), encoder=st.sampled_from([1, -1, 0]),
+       wn=st.sampled_from([10.0, 20.0, 60.0]), max_error=st.sampled_from([0.0, 0.01, 0.1, 0.5, 2.0]),
+       runaway_ms=st.sampled_from([0, 20, 100, 300]), saturation_ms=st.sampled_from([0, 50, 500]),
+       max_voltage=st.sampled_from([3.0, 12.0]))
+def test_virtual_device_stops_where_the_rule_says(distance, sign, encoder, wn, max_error, runaway_ms,
+                                                 saturation_ms, max_voltage):
+    limits = dict(max_error=max_error, runaway_ms=runaway_ms, saturation_ms=saturation_ms)
+    cmds = [P.SetPlant(K, TAU, VS, 448), P.SetGains(*_gains(wn)[:3], 5000, 0, 1, 0.0),
+            P.SetLimits(2e4, 300.0, 100.0, max_voltage, 0, **limits),
+            P.Plan(f32(sign * distance), 0), P.Run(100, 1)]
+    msgs, dev = run_virtual(cmds, 6.0, encoder=encoder)
+    tel, end = _split([m for _, m in msgs])
+    assert len(end) == 1 and not dev.active and dev.pwm == 0
+    k, reason = _expected_stop(tel, limits, max_voltage=max_voltage)
+    if reason is None:
+        assert end[0].reason == P.EndReason.DONE
+        assert not any(t.flags & P.TELEMETRY_FAULT for t in tel)
+    else:
+        assert (end[0].reason, end[0].samples) == (reason, k + 1)
+        _check_stop(tel, end, reason)
+
+
+def test_a_version_1_device_is_refused_by_name():
+    """Protocol 2 changed SET_LIMITS and END_OF_RUN: a host must not drive a version-1 firmware
+    (its SET_LIMITS would be NACKed BAD_LENGTH, its END_OF_RUN unreadable)."""
+    import dataclasses
+
+    from jerklab.rig import RigError
+
+    class Version1(VirtualDevice):
+        def _send(self, msg, seq=None):
+            if isinstance(msg, P.HelloReply):
+                msg = dataclasses.replace(msg, protocol_version=1)
+            super()._send(msg, seq)
+
+    with pytest.raises(RigError, match="device speaks protocol version 1, jerklab speaks 2"):
+        Rig(VirtualSerial(Version1()), "old-uno", progress=False)
