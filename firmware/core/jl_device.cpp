@@ -82,6 +82,18 @@ void Device::end_run(uint8_t reason, float detail) {
     send(kEndOfRun, tx_seq_++, p, kLenEndOfRun);
 }
 
+// ceil(ms * 1000 / Ts_us): a safety window in samples (0 = off); at most 65535 as Ts >= 1 ms.
+static uint16_t __attribute__((noinline)) window_samples(uint16_t ms, uint16_t ts_us) {
+    return static_cast<uint16_t>((static_cast<uint32_t>(ms) * 1000u + ts_us - 1u) / ts_us);
+}
+
+// lo < x <= hi for a finite x (one out-of-line copy of the soft-float checks saves flash).
+static bool __attribute__((noinline)) in_range(float x, float lo, float hi) {
+    return finite_f(x) && x > lo && x <= hi;
+}
+
+static const float kFloatMax = 3.40282347e38f;
+
 static bool valid_period(uint16_t ts_us, uint16_t tick_us) {
     return ts_us != 0 && ts_us <= 65000u && ts_us % tick_us == 0;
 }
@@ -117,9 +129,9 @@ void Device::handle(const Frame& f) {
     case kSetPlant: {
         float K = get_f32(p), tau = get_f32(p + 4), vs = get_f32(p + 8);
         uint16_t cpr = get_u16(p + 12);
-        if (!finite_f(K) || !(K > 0.0f) || K > 1e4f) { nack(f, kErrBadValue, 0); return; }
-        if (!finite_f(tau) || !(tau > 0.0f) || tau > 10.0f) { nack(f, kErrBadValue, 1); return; }
-        if (!finite_f(vs) || !(vs > 0.0f) || vs > 48.0f) { nack(f, kErrBadValue, 2); return; }
+        if (!in_range(K, 0.0f, 1e4f)) { nack(f, kErrBadValue, 0); return; }
+        if (!in_range(tau, 0.0f, 10.0f)) { nack(f, kErrBadValue, 1); return; }
+        if (!in_range(vs, 0.0f, 48.0f)) { nack(f, kErrBadValue, 2); return; }
         if (cpr < 1) { nack(f, kErrBadValue, 3); return; }
         K_ = K; tau_ = tau; supply_ = vs; counts_per_rev_ = cpr;
         apply_plant();
@@ -154,11 +166,11 @@ void Device::handle(const Frame& f) {
         float emax = get_f32(p + 18);
         uint16_t rms = get_u16(p + 22);
         uint16_t sms = get_u16(p + 24);
-        if (!finite_f(J) || !(J > 0.0f)) { nack(f, kErrBadValue, 0); return; }
-        if (!finite_f(E) || !(E > 0.0f)) { nack(f, kErrBadValue, 1); return; }
-        if (!finite_f(W) || !(W > 0.0f)) { nack(f, kErrBadValue, 2); return; }
-        if (!finite_f(vmax) || !(vmax > 0.0f) || vmax > supply_) { nack(f, kErrBadValue, 3); return; }
-        if (!finite_f(emax) || emax < 0.0f) { nack(f, kErrBadValue, 5); return; }
+        if (!in_range(J, 0.0f, kFloatMax)) { nack(f, kErrBadValue, 0); return; }
+        if (!in_range(E, 0.0f, kFloatMax)) { nack(f, kErrBadValue, 1); return; }
+        if (!in_range(W, 0.0f, kFloatMax)) { nack(f, kErrBadValue, 2); return; }
+        if (!in_range(vmax, 0.0f, supply_)) { nack(f, kErrBadValue, 3); return; }
+        if (emax != 0.0f && !in_range(emax, 0.0f, kFloatMax)) { nack(f, kErrBadValue, 5); return; }
         max_jerk_ = J; max_accel_ = E; max_velocity_ = W; max_voltage_ = vmax;
         host_timeout_ms_ = tmo;
         memcpy(&max_error_bits_, &emax, 4);    // emax >= 0: 0 (off) or the positive pattern
@@ -173,7 +185,7 @@ void Device::handle(const Frame& f) {
     case kPlan: {
         float d = get_f32(p);
         uint8_t kind = p[4];
-        if (!finite_f(d) || d == 0.0f || jl_fabsf(d) > 1e6f) { nack(f, kErrBadValue, 0); return; }
+        if (!in_range(jl_fabsf(d), 0.0f, 1e6f)) { nack(f, kErrBadValue, 0); return; }
         if (kind > kPlannerTrapezoid) { nack(f, kErrBadValue, 1); return; }
         if (kind != kPlannerSineJerk) { nack(f, kErrUnsupported, 1); return; }
         SineJerkPlan plan;
@@ -213,8 +225,8 @@ void Device::handle(const Frame& f) {
         prev_counts_ = 0;
         last_pwm_ = 0;
         runaway_pwm_ = static_cast<int16_t>((pwm_top_ + 1) / 2);
-        runaway_n_ = static_cast<uint16_t>((static_cast<uint32_t>(runaway_ms_) * 1000u + Ts_us_ - 1u) / Ts_us_);
-        sat_n_ = static_cast<uint16_t>((static_cast<uint32_t>(saturation_ms_) * 1000u + Ts_us_ - 1u) / Ts_us_);
+        runaway_n_ = window_samples(runaway_ms_, Ts_us_);
+        sat_n_ = window_samples(saturation_ms_, Ts_us_);
         sat_level_ = 0;
         run_sign_ = 0;
         run_len_ = 0;
@@ -275,17 +287,10 @@ bool Device::control() {
         if (k_ >= plan_samples_) flags |= kTelemetrySettling;
         ref = s.position;
         const float pos_error = s.position - static_cast<float>(c) * rad_per_count_;
-        float detail;
-        const uint8_t fault = check_safety(c, pos_error, &detail);
-        if (fault != kEndDone) {
-            // Safety stop: PWM 0 in this very sample; its telemetry goes out whatever the
-            // decimation, then END_OF_RUN(reason, samples = k + 1, ..., detail).
-            finished_ = true;
-            end_reason_ = fault;
-            end_detail_ = detail;
-            flags |= kTelemetryFault;
-            pwm = 0;
-        } else {
+        float detail = 0.0f;
+        uint8_t fault = check_safety(c, pos_error, &detail);
+        pwm = 0;
+        if (fault == kEndDone) {
             float e;
             if (loop_ == kLoopPosition) {
                 e = pos_error;
@@ -304,16 +309,17 @@ bool Device::control() {
             } else if (sat_level_) {
                 --sat_level_;
             }
-            if (sat_n_ && sat_level_ >= sat_n_) {
-                // Saturation stop (PROTOCOL.md): at the clamp in most samples for the window.
-                finished_ = true;
-                end_reason_ = kEndSaturation;
-                end_detail_ = 0.0f;
-                flags |= kTelemetryFault;
-                pwm = 0;
-            } else {
-                pwm = volts_to_pwm(u);
-            }
+            // Saturation stop (PROTOCOL.md): at the clamp in most samples for the window.
+            if (sat_n_ && sat_level_ >= sat_n_) fault = kEndSaturation;
+            else pwm = volts_to_pwm(u);
+        }
+        if (fault != kEndDone) {
+            // Safety stop: PWM 0 in this very sample; its telemetry goes out whatever the
+            // decimation, then END_OF_RUN(reason, samples = k + 1, ..., detail).
+            finished_ = true;
+            end_reason_ = fault;
+            end_detail_ = detail;
+            flags |= kTelemetryFault;
         }
         last_pwm_ = pwm;
     } else {
