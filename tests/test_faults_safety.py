@@ -421,14 +421,19 @@ def test_a_host_that_stalls_loses_whole_frames_counted(tmp_path, monkeypatch):
                 if any(f.type == P.MsgType.TELEMETRY for f in frames) and state["t0"] is None:
                     state["t0"] = time.monotonic()
                 if state["t0"] is not None and not state["stalled"] and time.monotonic() - state["t0"] > 0.2:
+                    # the host stalls until the server had to drop frames (the kernel's pty buffer
+                    # and the server's 2 kB are full: ~1 s of telemetry), however slow the machine
                     state["stalled"] = True
-                    time.sleep(1.5)         # the host stalls: 1.3 s of telemetry (29 kB) > the buffers
+                    deadline = time.monotonic() + 20.0
+                    while srv.dropped_frames == 0 and srv.device.active and time.monotonic() < deadline:
+                        time.sleep(0.01)
+                    time.sleep(0.2)
                 return frames
 
             rig._read_frames = stalling
             with pytest.warns(RuntimeWarning, match=r"\d+ telemetry samples were lost"):
-                rec = rig.run_move(plan_sine_jerk(10.0, 2e4, 300.0, 100.0), pole_placement_pid(K, TAU, 20.0),
-                                   Ts=0.001, settle=0.05, host_timeout=0)
+                rec = rig.run_move(plan_sine_jerk(20.0, 2e4, 300.0, 100.0), pole_placement_pid(K, TAU, 20.0),
+                                   Ts=0.001, settle=0.05, host_timeout=0)    # 2.9 s, 64 kB of telemetry
         finally:
             rig.close()
     md = rec.metadata
