@@ -123,15 +123,16 @@ def _check_stop(tel, end, reason):
     return last
 
 
-@pytest.mark.parametrize("encoder, limits, reason", [
-    (-1, dict(max_error=0.5, runaway_ms=200), P.EndReason.TRACKING_ERROR),   # reversed: error grows
-    (-1, dict(max_error=0.0, runaway_ms=50), P.EndReason.RUNAWAY),          # reversed, no error limit
-    (0, dict(max_error=0.5, runaway_ms=100), P.EndReason.NO_MOTION),        # disconnected, short move
-    (1, dict(max_error=2e-3, runaway_ms=200), P.EndReason.TRACKING_ERROR),  # a limit tighter than the loop
+@pytest.mark.parametrize("encoder, wn, limits, reason", [
+    (-1, 20.0, dict(max_error=0.5, runaway_ms=200), P.EndReason.TRACKING_ERROR),   # reversed: error grows
+    (-1, 20.0, dict(max_error=0.0, runaway_ms=50), P.EndReason.RUNAWAY),          # reversed, no error limit
+    (0, 20.0, dict(max_error=0.5, runaway_ms=100), P.EndReason.NO_MOTION),        # disconnected, short move
+    (1, 20.0, dict(max_error=2e-3, runaway_ms=200), P.EndReason.TRACKING_ERROR),  # a limit tighter than the loop
+    (1, 60.0, dict(max_error=0.0, runaway_ms=0, saturation_ms=500), P.EndReason.SATURATION),  # |z| = 1.33
 ])
-def test_safety_stops_agree_between_firmware_core_and_virtual_device(host_driver, encoder, limits, reason):
+def test_safety_stops_agree_between_firmware_core_and_virtual_device(host_driver, encoder, wn, limits, reason):
     distance = f32(6.0) if encoder != 0 else f32(0.3)
-    cmds = _config(_gains(), **limits) + [P.Plan(distance, 0), P.Run(400, 1)]
+    cmds = _config(_gains(wn), **limits) + [P.Plan(distance, 0), P.Run(400, 1)]
     fw, pwm = run_host(host_driver, cmds, 4000, encoder=encoder)
     py, dev = run_virtual(cmds, 4.0, encoder=encoder)
     fw_tel, fw_end = _split([m for _, _, m in fw])
@@ -153,6 +154,13 @@ def test_safety_stops_agree_between_firmware_core_and_virtual_device(host_driver
             lim = f32(limits["max_error"])
             assert abs(e[-1]) > lim * (1 - 1e-5) and np.all(np.abs(e[:-1]) <= lim * (1 + 1e-5))
             assert end.detail == pytest.approx(e[-1], rel=1e-4, abs=1e-5)
+        elif reason == P.EndReason.SATURATION:
+            # independent: the level of clamped samples (up 1, down 1, not below 0) reaches the window
+            lv = 0
+            for t in tel:
+                lv = lv + 1 if t.flags & P.TELEMETRY_SATURATED else max(0, lv - 1)
+            assert lv == math.ceil(limits["saturation_ms"] / 5.0) and end.detail == 0
+            assert tel[-1].flags & P.TELEMETRY_SATURATED
         else:
             # the window before the stop: large drive of one sign, counts against it or none
             w = math.ceil(limits["runaway_ms"] / 5.0)
