@@ -1,19 +1,22 @@
 """Feedforward + pole-placement PID of Stojčić (2015) §3 and §4B, and its analysis.
 
+ASCII spelling for grep: Stojcic (Stojcic eq. 11, Stojcic eq. 13, Stojcic eq. 16).
+
 * :func:`pole_placement_pid` — Stojčić eq. 11: PID on the **position** plant
   P(s) = K/(s(τs+1)); the closed loop ``τs³ + (1+K kd)s² + K kp s + K ki`` is matched to
   ``τ (s+σ)(s² + 2ζωn s + ωn²)``.
 * :func:`velocity_pole_placement_pid` — the same idea done correctly for the
   **velocity** plant P_v(s) = K/(τs+1) that §4B actually controls: there a PID gives the
-  second-order loop ``(τ + K kd)s² + (1 + K kp)s + K ki``, so eq. 11's gains do not put
-  the poles where eq. 11 says (the paper does not notice).
-* :meth:`Gains.discretize` — eqs. 12–13 (trapezoidal integral, backward derivative).
+  second-order loop ``(τ + K kd)s² + (1 + K kp)s + K ki``, so Stojčić eq. 11's gains do not put
+  the poles where Stojčić eq. 11 says (the paper does not notice).
+* :meth:`Gains.discretize` — Stojčić eq. 12, Stojčić eq. 13 (trapezoidal integral, backward derivative).
   At Ts = 5 ms this "continuous design, then discretize" route leaves the designed
   poles and goes unstable near ωn = 50 rad/s (|z| = 1.16).
 * :func:`discrete_pole_placement_pid` — design directly in z: the desired s-poles are
   mapped by z = e^{s Ts} and the gains solved on the exact ZOH plant, so the closed-loop
   poles land where asked at any Ts.
-* :class:`Feedforward` (eqs. 8, 16) and :class:`DigitalController` (eqs. 16–18) with the
+* :class:`Feedforward` (Stojčić eq. 8, Stojčić eq. 16) and :class:`DigitalController`
+  (Stojčić eq. 16, Stojčić eq. 17, Stojčić eq. 18) with the
   output limit, anti-windup and bumpless start the paper leaves out.
 * :class:`PositionLoop`, :class:`VelocityLoop` — open/closed loop as python-control
   systems, poles in s and z, margins and fast responses (used by the tuning widgets).
@@ -46,7 +49,7 @@ __all__ = ["Gains", "DiscreteGains", "pole_placement_pid", "velocity_pole_placem
 # ---------------------------------------------------------------------------
 @dataclass(frozen=True)
 class DiscreteGains:
-    """Discrete PID gains of Stojčić eq. 12–14 at sampling time ``Ts``.
+    """Discrete PID gains of Stojčić eq. 12, Stojčić eq. 13, Stojčić eq. 14 at sampling time ``Ts``.
 
     ``B(z) = kpd + kid/(1 − z⁻¹) + kdd (1 − z⁻¹)/(1 − γ z⁻¹)``; ``gamma`` = 0 is the paper's
     backward derivative, a non-zero ``gamma`` (|γ| < 1) is a first-order derivative filter
@@ -88,7 +91,7 @@ class DiscreteGains:
 class Gains:
     """Continuous PID gains, Stojčić eq. 10: ``B(s) = kp + ki/s + kd s``.
 
-    ``Ti = kp/ki`` and ``Td = kd/kp`` (eq. 10); ``design`` records how they were obtained.
+    ``Ti = kp/ki`` and ``Td = kd/kp`` (Stojčić eq. 10); ``design`` records how they were obtained.
     """
 
     kp: float
@@ -118,7 +121,7 @@ class Gains:
     def discretize(self, Ts) -> DiscreteGains:
         """Stojčić eq. 13: ``kpd = kp(1 − Ts/(2Ti))``, ``kid = kp Ts/Ti``, ``kdd = kp Td/Ts``.
 
-        Trapezoidal integral, backward derivative (eq. 12). Written as
+        Trapezoidal integral, backward derivative (Stojčić eq. 12). Written as
         ``kp − ki Ts/2``, ``ki Ts``, ``kd/Ts`` (the same algebra, safe for ki = 0 or kp = 0).
         """
         Ts = as_positive("Ts", Ts)
@@ -182,7 +185,7 @@ def velocity_pole_placement_pid(K, tau, wn, zeta=1.0, kd=0.0) -> Gains:
     With ``B = kp + ki/s + kd s`` the characteristic polynomial is
     ``(τ + K kd)s² + (1 + K kp)s + K ki`` — second order, so only the pair
     ``s² + 2ζωn s + ωn²`` can be placed and ``kd`` is a free choice (default 0, a PI):
-    ``kp = (2ζωn(τ + K kd) − 1)/K``, ``ki = (τ + K kd)ωn²/K``. Applying eq. 11's gains to
+    ``kp = (2ζωn(τ + K kd) − 1)/K``, ``ki = (τ + K kd)ωn²/K``. Applying Stojčić eq. 11's gains to
     this loop, as the paper does, puts its poles elsewhere.
     """
     K, tau, wn, zeta = _check_design(K, tau, wn, zeta)
@@ -221,11 +224,11 @@ def discrete_pole_placement_pid(K, tau, wn, zeta=1.0, sigma=None, Ts=0.005, loop
     """Pole placement directly in z on the exact ZOH plant.
 
     The desired s-poles ``−σ`` and the roots of ``s² + 2ζωn s + ωn²`` are mapped by
-    ``z = e^{s Ts}``; the gains of eq. 12 are then solved from the closed-loop
+    ``z = e^{s Ts}``; the gains of Stojčić eq. 12 are then solved from the closed-loop
     characteristic polynomial ``den_P(z)·den_B(z) + num_P(z)·num_B(z)`` (linear in the
     gains), so those poles land exactly where asked at any Ts.
 
-    The sampled loop has four poles (plant 2 + integrator + derivative) and eq. 12 has
+    The sampled loop has four poles (plant 2 + integrator + derivative) and Stojčić eq. 12 has
     three gains: with ``extra_pole=None`` (default, the paper's controller structure,
     runs unchanged on the firmware) three poles are placed and the fourth lands where
     the algebra puts it (``design["fourth_pole"]``). With ``extra_pole=z4`` a derivative
@@ -303,7 +306,7 @@ def paper_error_scale(Ts=0.005, encoder_ppr=448, decoding=1):
 # feedforward and the digital controller
 # ---------------------------------------------------------------------------
 class Feedforward:
-    """Plant-inverse feedforward, Stojčić eqs. 7, 8, 16: ``u_F = (τ ε + ω)/K``.
+    """Plant-inverse feedforward, Stojčić eq. 7, Stojčić eq. 8, Stojčić eq. 16: ``u_F = (τ ε + ω)/K``.
 
     The inverse of P_v(s), so the same for the position and the velocity loop.
     """
@@ -488,9 +491,9 @@ def paper_velocity_controller(K=32.4, tau=0.025, wn=10.0, zeta=1.0, sigma=None, 
                               decoding=1, output_limit=12.0):
     """Stojčić §4B exactly as published, to reproduce it (not to use it).
 
-    Eq. 11 gains designed for the *position* loop, discretized by eq. 13, run on the
+    Stojčić eq. 11 gains designed for the *position* loop, discretized by Stojčić eq. 13, run on the
     *velocity* loop with the error in encoder pulses per ``Ts`` (``error_scale`` =
-    :func:`paper_error_scale`), eq. 16 feedforward, no anti-windup (the paper has
+    :func:`paper_error_scale`), Stojčić eq. 16 feedforward, no anti-windup (the paper has
     none). :class:`VelocityLoop` shows that this sampled loop is unstable for all but
     small ``wn``; :func:`velocity_pole_placement_pid` or
     ``discrete_pole_placement_pid(..., loop="velocity")`` place it correctly.
@@ -574,7 +577,7 @@ class _Loop:
         return self._tf(self._Ln, self._char)
 
     def disturbance_tf(self):
-        """Input-referred disturbance w (V) → output: ``P/(1 + L)`` (Stojčić eqs. 6, 9)."""
+        """Input-referred disturbance w (V) → output: ``P/(1 + L)`` (Stojčić eq. 6, Stojčić eq. 9)."""
         return self._tf(np.polymul(self._Pn, self._Cd), self._char)
 
     def sensitivity(self):
@@ -644,7 +647,7 @@ class _Loop:
         return t, y
 
     def disturbance_response(self, t_end=0.5, amplitude=1.0):
-        """Output after an input-referred step disturbance of ``amplitude`` V (eq. 9)."""
+        """Output after an input-referred step disturbance of ``amplitude`` V (Stojčić eq. 9)."""
         self._need_discrete()
         t = self._t(t_end)
         y = _lf(np.polymul(self._Pn, self._Cd), self._char, np.full_like(t, as_real("amplitude", amplitude)))
@@ -654,7 +657,7 @@ class _Loop:
 class PositionLoop(_Loop):
     """Position loop of Stojčić Fig. 3: PID ``gains`` on P(s) = K/(s(τs+1)).
 
-    ``gains``: :class:`Gains` (continuous loop, or discretized by eq. 13 when ``Ts`` is
+    ``gains``: :class:`Gains` (continuous loop, or discretized by Stojčić eq. 13 when ``Ts`` is
     given) or :class:`DiscreteGains` (sampled loop on the exact ZOH plant).
 
     Examples
@@ -667,7 +670,7 @@ class PositionLoop(_Loop):
     loop = "position"
 
     def tracking_error(self, profile, t_end=None, feedforward=True):
-        """Tracking error ``r(kTs) − θ(kTs)`` of a move with eq. 16 feedforward (linear loop).
+        """Tracking error ``r(kTs) − θ(kTs)`` of a move with Stojčić eq. 16 feedforward (linear loop).
 
         ``profile`` has ``duration`` and ``sample(t)`` (jerklab.planner). Returns
         ``(t, e)``.

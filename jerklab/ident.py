@@ -1,17 +1,17 @@
 """System identification of the DC motor: data container, ARX, output-error (PEM) fit, validation.
 
-Stojčić §4A identified the plant of eq. 1,
+Stojčić §4A (ASCII: Stojcic) identified the plant of Stojčić eq. 1,
 
     P(s) = K / (s (tau s + 1))        (volts -> rad)
 
 from a voltage step recorded every 5 ms, with MATLAB's ``pem(data, 'P2')``, and got
 K = 32.4 rad/(V s), tau = 0.025 s. A ``'P2'`` process model has two poles and *no* integrator;
-the structure of eq. 1 is a pole plus an integrator (MATLAB's ``'P1I'``), and that is what this
+the structure of Stojčić eq. 1 is a pole plus an integrator (MATLAB's ``'P1I'``), and that is what this
 module fits; :func:`fit_p2` reproduces the paper's literal call to show where it goes
 (notebooks/02_identification.ipynb). Two estimators are offered:
 
-* ``method="arx"``: linear least squares on the differenced angle. The ZOH discretization of eq. 1
-  gives, for v(k) = (theta(k) - theta(k-1)) / Ts, the *exact* difference equation
+* ``method="arx"``: linear least squares on the differenced angle. The ZOH discretization of
+  Stojčić eq. 1 gives, for v(k) = (theta(k) - theta(k-1)) / Ts, the *exact* difference equation
 
       v(k) = a v(k-1) + b1 u(k-1) + b2 u(k-2),    a = exp(-Ts/tau),
 
@@ -19,7 +19,8 @@ module fits; :func:`fit_p2` reproduces the paper's literal call to show where it
   regressor v(k-1) carries the measurement noise, so under output noise or encoder quantization the
   estimate is biased (``arx_asymptotic_bias`` predicts by how much).
 * ``method="pem"``: the output-error (simulation-error) fit: K, tau (and the initial angle) minimise
-  sum (theta_measured - theta_simulated)^2, where theta_simulated is the exact ZOH simulation of eq. 1.
+  sum (theta_measured - theta_simulated)^2, where theta_simulated is the exact ZOH simulation of
+  Stojčić eq. 1.
   With white measurement noise this is the maximum-likelihood estimate and is unbiased; its
   covariance comes from the Jacobian at the optimum.
 
@@ -882,7 +883,7 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
 
     References
     ----------
-    Stojčić (2015) §4A and eq. 1; L. Ljung, *System Identification* (2nd ed.), §4.2 (output
+    Stojčić (2015) §4A and Stojčić eq. 1; L. Ljung, *System Identification* (2nd ed.), §4.2 (output
     error), §7.3 and §9.3 (least squares, asymptotic covariance), §7.6 (instrumental variables),
     §16 (model validation); M. Gautier, "Dynamic identification of robots with power model",
     ICRA 1997, and A. Janot, P.-O. Vandanjon, M. Gautier, "A generic instrumental variable
@@ -1487,7 +1488,7 @@ class P2Fit:
     theta0: float
     y_sim: np.ndarray = field(repr=False)
     at_bound: bool = False
-    integrator_gain: float = float("nan")   #: K/T1 (rad/(V s)), comparable to the K of eq. 1
+    integrator_gain: float = float("nan")   #: K/T1 (rad/(V s)), comparable to the K of Stojčić eq. 1
 
 
 def _p2_response(g, lam, T2, Ts, u):
@@ -1523,8 +1524,9 @@ def fit_p2(u, theta, Ts) -> P2Fit:
     parametrised as g / ((s + lambda)(T2 s + 1)) with g = K/T1, lambda = 1/T1 >= 0, so that the
     integrator (lambda = 0, T1 = inf) is inside the search space instead of at infinity.
     This is kept to reproduce the paper's call, not to be used: the motor has an integrator, so on
-    a step the fit drives lambda to (or next to) 0 — T1 and K run away together with K/T1 -> the K of
-    eq. 1 — and ``at_bound`` is set. Over the record the two models are indistinguishable; beyond it
+    a step the fit drives lambda to (or next to) 0 — T1 and K run away together with K/T1 -> the K
+    of Stojčić eq. 1 — and ``at_bound`` is set. Over the record the two models are
+    indistinguishable; beyond it
     the P2 model settles at K u while the motor keeps turning. Use :func:`fit_dc_motor`
     (a pole plus an integrator, MATLAB's 'P1I').
 

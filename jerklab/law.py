@@ -2,7 +2,8 @@
 
 Stojčić (ASCII: Stojcic) 2015, §3–§4: the discrete PID of Stojčić eq. 17 and Stojčić eq. 18 with
 the feedforward of Stojčić eq. 16, run at ``Ts`` on encoder readings and applied through a
-PWM H-bridge; the motor of Stojčić eq. 1 sampled with a zero-order hold.
+PWM H-bridge; the motor of Stojčić eq. 1 sampled with a zero-order hold. In ASCII, for grep:
+Stojcic eq. 1, Stojcic eq. 16, Stojcic eq. 17, Stojcic eq. 18.
 
 Every Python user of the law calls these functions: :class:`jerklab.controller.DigitalController`
 (one sample at a time), the compiled kernels of :mod:`jerklab.sim` (one run, and many plants

@@ -1,9 +1,11 @@
 """PZT actuator model and robust time-optimal command shaping (Xu & Meckl).
 
 Implements the linear part of the piezo model (Xu & Meckl eq. 1, Table I), its ZOH model at
-Ts = 0.2 ms, time-optimal command shaping (eqs. 3-6) as a linear program per horizon with the
-minimum horizon found by bisection, robust shaping for velocity tracking (eqs. 7-17) with the
-outer search over the scan start y(T) (Fig. 4), the time-energy-optimal return (eq. 19, Fig. 7),
+Ts = 0.2 ms, time-optimal command shaping (Xu & Meckl eq. 3, Xu & Meckl eq. 4, Xu & Meckl eq. 5,
+Xu & Meckl eq. 6) as a linear program per horizon with the minimum horizon found by bisection,
+robust shaping for velocity tracking (Xu & Meckl eq. 7, Xu & Meckl eq. 8, Xu & Meckl eq. 13,
+Xu & Meckl eq. 16, Xu & Meckl eq. 17) with the outer search over the scan start y(T)
+(Xu & Meckl eq. 18, Fig. 4), the time-energy-optimal return (Xu & Meckl eq. 19, Fig. 7),
 the evaluation under a natural-frequency perturbation (Table II) and a closed loop with
 hysteresis compensation (Figs. 8, 9).
 
@@ -11,12 +13,14 @@ Units follow the paper: input in V, output in µm, time in s.
 
 How the discrete formulation relates to the paper
 -------------------------------------------------
-The paper sets terminal states of a Jordan-augmented *continuous* model (eqs. 14-17). Used on a
+The paper sets terminal states of a Jordan-augmented *continuous* model (Xu & Meckl eq. 14.1,
+Xu & Meckl eq. 15.1, Xu & Meckl eq. 16, Xu & Meckl eq. 17). Used on a
 ZOH model those leave mode-1 ringing and a velocity error (a staircase input acts like the ramp
 delayed by Ts/2), and the augmented system is badly conditioned. The equivalent discrete condition
 is used instead: a command is *m-th order robust* for a mode with discrete pole ``z_i`` when the
-z-transform of the whole command (including its unbounded ramp tail, eq. 11-12 in z) and its first
-``m`` derivatives vanish at ``z_i`` (Bhat & Miu's condition, eq. 8/13, mapped by ``z = e^{sTs}``).
+z-transform of the whole command (including its unbounded ramp tail, Xu & Meckl eq. 11 and Xu & Meckl eq. 12
+in z) and its first
+``m`` derivatives vanish at ``z_i`` (Bhat & Miu's condition, Xu & Meckl eq. 8 and Xu & Meckl eq. 13, mapped by ``z = e^{sTs}``).
 Order 0 is the nominal zero-vibration condition. Because the model has no rigid-body mode, these
 conditions fix the terminal state completely: after the ramp-up the output is exactly the steady
 ramp, after the return the state is exactly zero.
@@ -45,7 +49,7 @@ __all__ = [
     "energy_optimal_return", "with_return", "pole_placement_gains", "closed_loop",
 ]
 
-#: Xu & Meckl Table I: the linear PZT dynamics of eq. 1 (frequencies in Hz); from jerklab.paper.
+#: Xu & Meckl Table I: the linear PZT dynamics of Xu & Meckl eq. 1 (frequencies in Hz); from jerklab.paper.
 TABLE_I = dict(_paper.PIEZO_TABLE_I)
 
 #: Xu & Meckl: sampling time of the simulation study (0.2 ms); jerklab.paper.PIEZO_TS.
@@ -102,7 +106,7 @@ class PZTModel:
     def ss(self) -> control.StateSpace:
         """Return G(s) as a continuous state-space system (python-control), balanced.
 
-        The controllable canonical form of eq. 1 spans 13 orders of magnitude (its output row
+        The controllable canonical form of Xu & Meckl eq. 1 spans 13 orders of magnitude (its output row
         holds K ωz² ~ 1e13), which makes pole placement and observer design inaccurate; a
         diagonal similarity (``scipy.linalg.matrix_balance`` of ``[[A, B], [C, 0]]``) brings the
         condition number of A from ~1e14 to ~10 without changing the transfer function.
@@ -173,7 +177,7 @@ def _discrete(model: PZTModel, Ts: float):
 
 
 def simulate(model: PZTModel, u, Ts: float = TS) -> np.ndarray:
-    """Simulate the ZOH model from rest: ``y[k]`` for the input samples ``u[k]`` (eq. 3).
+    """Simulate the ZOH model from rest: ``y[k]`` for the input samples ``u[k]`` (Xu & Meckl eq. 3).
 
     The exact ZOH pulse transfer function of ``model.zoh(Ts)`` run by ``scipy.signal.lfilter``
     (tests compare it with ``control.forced_response``).
@@ -234,8 +238,9 @@ def robustness_rows_rampup(N: int, poles: dict, orders: dict, w: float, min_orde
 
     The command is ``u_k`` for ``k < N`` and the ramp ``a + w (k − N)`` for ``k ≥ N`` (Xu & Meckl
     eq. 11, Fig. 3). Its z-transform ``U(z) = Σ u_k z^-k + z^-N (a z/(z−1) + w z/(z−1)²)``
-    (eq. 12 in z) and its first ``orders[i]`` derivatives must vanish at each mode pole ``z_i``
-    (eq. 13 with eqs. 15-17 in discrete form). Returns ``(E, f)`` with real rows ``E x = f``,
+    (Xu & Meckl eq. 12 in z) and its first ``orders[i]`` derivatives must vanish at each mode pole ``z_i``
+    (Xu & Meckl eq. 13 with Xu & Meckl eq. 15.1, Xu & Meckl eq. 16 and Xu & Meckl eq. 17 in
+    discrete form). Returns ``(E, f)`` with real rows ``E x = f``,
     each row scaled to unit norm. ``min_order = 1`` leaves out the order-0 (zero-vibration)
     rows, for a scan tracked within a tolerance instead (``ScanSpec.e_allow > 0``).
     """
@@ -279,7 +284,7 @@ def _cycle_rows(N: int, S: int, N_r: int, poles: dict, orders: dict, w: float):
 
 
 def _scan_tracking_rows(N: int, model: "PZTModel", spec: "ScanSpec", w: float, G1: float, beta: float):
-    """Eq. 4 on the scan: ``|y(k) − y_line(k)| <= e_allow`` and ``|Δy(k)/Ts − v_d| <= tol`` for
+    """Xu & Meckl eq. 4 on the scan: ``|y(k) − y_line(k)| <= e_allow`` and ``|Δy(k)/Ts − v_d| <= tol`` for
     the scan samples, as ``A_ub x <= b_ub`` on ``x = [u_0 .. u_{N-1}, a]`` (command continued by
     the scan ramp), with ``y_line(k) = y(T) + v_d Ts (k − N)`` and ``y(T) = G(1) a + β``."""
     A, B, C, D = _discrete(model, spec.Ts)
@@ -317,7 +322,7 @@ def robustness_rows_return(N_r: int, poles: dict, orders: dict, w: float):
     ``k < N_r`` and 0 afterwards. The difference ``d = u − ramp`` has
     ``D(z) = Σ (u_k − b − w k) z^-k − z^-N_r ((b + w N_r) z/(z−1) + w z/(z−1)²)``; ``D`` and its
     first ``orders[i]`` derivatives vanish at each mode pole. Order 0 for both modes puts the
-    state exactly at rest (no rigid-body mode), higher orders make it robust (eq. 8).
+    state exactly at rest (no rigid-body mode), higher orders make it robust (Xu & Meckl eq. 8).
     """
     rows, rhs = [], []
     k = np.arange(N_r)
@@ -352,14 +357,14 @@ class ScanSpec:
     Ts : float
         Sampling time, s (paper: 0.2 ms).
     F_max : float
-        Actuator limit |u| <= F_max of eq. 5, V. Not given by the paper; 38 V (``DEFAULT_F_MAX``)
+        Actuator limit |u| <= F_max of Xu & Meckl eq. 5, V. Not given by the paper; 38 V (``DEFAULT_F_MAX``)
         reproduces Table II's cycle times with mode 1 robustified.
     velocity_tolerance : float
         Velocity tracking tolerance in the scan, µm/s (paper: 0.1 µm/s). With ``e_allow = 0`` the
         shaping imposes the zero-vibration conditions exactly and this is the acceptance bound
         checked on the result; with ``e_allow > 0`` it is a constraint of the LP.
     e_allow : float
-        Position tracking tolerance of eq. 4 on the scan line, µm. The paper does not give it.
+        Position tracking tolerance of Xu & Meckl eq. 4 on the scan line, µm. The paper does not give it.
         Default 0: the scan lies exactly on the line (order-0 conditions as equalities, the
         return conditions relative to the exact scan ramp). ``e_allow > 0`` replaces the order-0
         conditions of the ramp-up by the inequalities ``|y − y_line| <= e_allow`` and
@@ -455,7 +460,7 @@ def _solve_lp(A_eq, b_eq, A_ub, b_ub, bounds, n, solver="lp"):
     """Find x with ``A_eq x = b_eq`` (``A_ub x <= b_ub``) within ``bounds``, or ``None``.
 
     ``solver="lp"``: a feasibility LP (zero objective) with HiGHS (``scipy.optimize.linprog``).
-    ``solver="lsq"``: the paper's eq. 6 literally, ``min |A_eq x − b_eq|`` within the bounds
+    ``solver="lsq"``: the paper's Xu & Meckl eq. 6 literally, ``min |A_eq x − b_eq|`` within the bounds
     (bounded-variable least squares, ``scipy.optimize.lsq_linear``), feasible when the residual
     of the unit-norm rows is below ``LSQ_TOL``; only equality rows.
     """
@@ -607,10 +612,12 @@ def _bisect(feasible, n_lo, n_max):
 
 def shape_rampup(model: PZTModel | None = None, spec: ScanSpec | None = None, orders=None,
                  scan_start: float | None = None, max_samples: int = 400, solver: str = "lp") -> RampUp:
-    """Time-optimal (robust) ramp-up from rest to the scan velocity (Xu & Meckl eqs. 3-6, 13-17).
+    """Time-optimal (robust) ramp-up from rest to the scan velocity (Xu & Meckl eq. 3,
+    Xu & Meckl eq. 4, Xu & Meckl eq. 5, Xu & Meckl eq. 6, Xu & Meckl eq. 13, Xu & Meckl eq. 16,
+    Xu & Meckl eq. 17).
 
     Minimises the horizon N by bisection over LP feasibility problems (HiGHS): find input samples
-    with ``|u| <= F_max`` (eq. 5) whose command, continued by the scan ramp, meets the m-th order
+    with ``|u| <= F_max`` (Xu & Meckl eq. 5) whose command, continued by the scan ramp, meets the m-th order
     robustness conditions (``robustness_rows_rampup``). With ``scan_start=None`` the ramp level
     ``a = u_T(T)`` is a free LP variable, which solves the paper's outer search over y(T)
     exactly (the feasible set over (U, a) is convex); with a value, y(T) is fixed as in one point
@@ -628,7 +635,7 @@ def shape_rampup(model: PZTModel | None = None, spec: ScanSpec | None = None, or
         ``"lp"`` (default): the horizons screened by one NNLS each, then the feasibility LP
         (HiGHS) at the minimum horizon: the LP's horizon and command, at about one LP per search.
         ``"highs"``: a feasibility LP at every horizon (the former default, same result, slower).
-        ``"lsq"``: eq. 6 literally, bounded least squares of the conditions (BVLS), feasible at
+        ``"lsq"``: Xu & Meckl eq. 6 literally, bounded least squares of the conditions (BVLS), feasible at
         zero residual; same horizons, another feasible command (``python -m benchmarks piezo``).
     """
     model = model or PZTModel()
@@ -657,7 +664,7 @@ def shape_return(b: float, model: PZTModel | None = None, spec: ScanSpec | None 
     """Time-optimal (robust) return from the scan ramp at input level ``b`` to rest at 0.
 
     Bisection on the return horizon over LP feasibility problems: ``|u| <= F_max`` and the
-    robustness conditions of ``robustness_rows_return`` (eq. 8 for the difference between the
+    robustness conditions of ``robustness_rows_return`` (Xu & Meckl eq. 8 for the difference between the
     command and the continued scan ramp). Zero-order conditions for both modes put the actuator
     exactly at rest at 0.
     """
@@ -831,7 +838,7 @@ def rampup_time_vs_scan_start(scan_starts, orders=1, model: PZTModel | None = No
                               spec: ScanSpec | None = None, max_samples: int = 200) -> np.ndarray:
     """Minimum ramp-up time for each fixed scan start y(T) (Xu & Meckl Fig. 4).
 
-    For each y(T) the ramp level ``a = u_T(T)`` follows from eq. 18 in its discrete form
+    For each y(T) the ramp level ``a = u_T(T)`` follows from Xu & Meckl eq. 18 in its discrete form
     (``y(T) = G(1) a + β``), so the terminal conditions are fixed and the minimum horizon is found
     by bisection on LP feasibility, as in the paper's iterative search. Returns the times in s
     (``nan`` where no horizon up to ``max_samples`` is feasible, e.g. y(T) beyond what F_max
@@ -952,7 +959,7 @@ def format_table_ii(rows: dict) -> str:
 
 
 # ----------------------------------------------------------------------------------------------
-# Time-energy-optimal return (eq. 19, Fig. 7)
+# Time-energy-optimal return (Xu & Meckl eq. 19, Fig. 7)
 # ----------------------------------------------------------------------------------------------
 def _least_squares_qp(E, f, lo, hi, M=None, m=None, x0=None):
     """min ½|M u − m|² s.t. E u = f, lo <= u <= hi (small strictly convex QP) with SLSQP.
@@ -990,7 +997,7 @@ def energy_optimal_return(b: float, k_r: int, model: PZTModel | None = None,
     Parameters
     ----------
     objective : {"input", "increment"}
-        ``"input"``: ``½ UᵀU`` exactly as eq. 19. The return starts from the top of the scan ramp
+        ``"input"``: ``½ UᵀU`` exactly as Xu & Meckl eq. 19. The return starts from the top of the scan ramp
         (~38 V), so this cost pulls the input to 0 at once: a step that swings the output far
         below the start (several µm) before the robustness conditions cancel it — the opposite of
         the smooth transitions of Fig. 7 (the paper is silent on this). ``"increment"``:
@@ -1021,7 +1028,7 @@ def energy_optimal_return(b: float, k_r: int, model: PZTModel | None = None,
         m[0] = b
     u = _least_squares_qp(E_u, f_u, np.full(k_r, -F), np.full(k_r, F), M, m, x0=x0)
     if u is None:
-        raise RuntimeError("the QP of eq. 19 did not converge")
+        raise RuntimeError("the QP of Xu & Meckl eq. 19 did not converge")
     return Return(u=u, b=b, orders=orders)
 
 

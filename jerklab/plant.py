@@ -1,5 +1,7 @@
 """DC-motor plant of Stojčić (2015) §2A, with the real rig's imperfections.
 
+ASCII spelling for grep: Stojcic eq. 1, Stojcic eq. 9.
+
 The linear model is Stojčić eq. 1,
 
     P(s) = Θ(s)/U(s) = K / (s (τ s + 1)),      P_v(s) = Ω(s)/U(s) = K / (τ s + 1),
@@ -248,7 +250,7 @@ class _MotorBase:
         return self.load_disturbance(t)
 
     def ideal(self):
-        """A copy with every imperfection off (the linear model of eq. 1)."""
+        """A copy with every imperfection off (the linear model of Stojčić eq. 1)."""
         raise NotImplementedError
 
     def open_loop(self, u, Ts, x0=None):
@@ -293,7 +295,7 @@ class DCMotor(_MotorBase):
         Coulomb friction as an equivalent voltage f_c ≥ 0 (V); the motor sticks while
         ``|u + w| <= f_c``. The paper neglects it (models it as disturbance, §2A).
     load_disturbance : None, float, (time, amplitude) or StepDisturbance
-        Step load disturbance, input referred in volts (eq. 9 with W = P).
+        Step load disturbance, input referred in volts (Stojčić eq. 9 with W = P).
     noise_std : float
         Standard deviation of Gaussian measurement noise added to the angle (rad).
     seed : int or None
@@ -451,7 +453,7 @@ class FlexibleDCMotor(_MotorBase):
     Parameters
     ----------
     K, tau : float
-        Rigid-body gain and time constant (eq. 1).
+        Rigid-body gain and time constant (Stojčić eq. 1).
     load_ratio : float
         Load to motor inertia ratio J_l/J_m (> 0).
     mode_frequency : float
@@ -482,7 +484,7 @@ class FlexibleDCMotor(_MotorBase):
                                self.mode_damping, supply_voltage=None, pwm_bits=None, encoder_ppr=None)
 
     def rigid(self):
-        """The rigid motor with the same K, τ and imperfections (eq. 1)."""
+        """The rigid motor with the same K, τ and imperfections (Stojčić eq. 1)."""
         return DCMotor(self.K, self.tau, self.supply_voltage, self.pwm_bits, self.encoder_ppr,
                        self.decoding, 0.0, self.load_disturbance, self.noise_std, self.seed)
 

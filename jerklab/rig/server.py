@@ -6,7 +6,7 @@ paced at ``speed`` times real time, behind
 * a pseudo-terminal (:meth:`DeviceServer.start_pty` returns ``/dev/pts/N``): any serial
   client opens it like ``/dev/ttyACM0`` — ``jerklab.rig.connect("/dev/pts/N")``;
 * a TCP port (:meth:`DeviceServer.start_tcp`): ``connect("socket://localhost:PORT")``,
-  the paper's Ethernet set-up (Stojčić §4: the rig as a network server).
+  the paper's Ethernet set-up (Stojčić §4, ASCII Stojcic: the rig as a network server).
 
 ``python -m jerklab.rig serve`` is the command-line front end.  :meth:`pull_cable`
 and :meth:`freeze` inject the failures a lab sees (a USB cable pulled out, a hung
