@@ -34,7 +34,7 @@ import control as ct
 import numpy as np
 from scipy.signal import lfilter
 
-from jerklab import law
+from jerklab import law, paper
 from jerklab._validate import as_int, as_nonnegative, as_positive, as_real
 
 __all__ = ["Gains", "DiscreteGains", "pole_placement_pid", "velocity_pole_placement_pid",
@@ -168,7 +168,7 @@ def pole_placement_pid(K, tau, wn, zeta=1.0, sigma=None) -> Gains:
         Real pole (rad/s), default ``7 wn`` (the paper asks σ ≥ 7ωn).
     """
     K, tau, wn, zeta = _check_design(K, tau, wn, zeta)
-    sigma = 7.0 * wn if sigma is None else as_positive("sigma", sigma)
+    sigma = paper.SIGMA_RATIO * wn if sigma is None else as_positive("sigma", sigma)
     kp = wn * tau * (2.0 * zeta * sigma + wn) / K
     ki = tau * sigma * wn * wn / K
     kd = (tau * (2.0 * zeta * wn + sigma) - 1.0) / K
@@ -219,7 +219,7 @@ def _plant_polys(K, tau, Ts, loop):
     return num / Ts, np.array([1.0, -a, 0.0])
 
 
-def discrete_pole_placement_pid(K, tau, wn, zeta=1.0, sigma=None, Ts=0.005, loop="position",
+def discrete_pole_placement_pid(K, tau, wn, zeta=paper.ZETA, sigma=None, Ts=paper.TS, loop="position",
                                 extra_pole=None) -> DiscreteGains:
     """Pole placement directly in z on the exact ZOH plant.
 
@@ -238,7 +238,7 @@ def discrete_pole_placement_pid(K, tau, wn, zeta=1.0, sigma=None, Ts=0.005, loop
     (see :func:`_plant_polys`); σ then sets the third pole.
     """
     K, tau, wn, zeta = _check_design(K, tau, wn, zeta)
-    sigma = 7.0 * wn if sigma is None else as_positive("sigma", sigma)
+    sigma = paper.SIGMA_RATIO * wn if sigma is None else as_positive("sigma", sigma)
     Ts = as_positive("Ts", Ts)
     if loop not in ("position", "velocity"):
         raise ValueError(f"loop must be 'position' or 'velocity', got {loop!r}")
@@ -288,7 +288,7 @@ def discrete_pole_placement_pid(K, tau, wn, zeta=1.0, sigma=None, Ts=0.005, loop
                                      Ts=Ts, poles_z=zp, fourth_pole=fourth))
 
 
-def paper_error_scale(Ts=0.005, encoder_ppr=448, decoding=1):
+def paper_error_scale(Ts=paper.TS, encoder_ppr=paper.ENCODER_PPR, decoding=paper.ENCODER_DECODING):
     """Pulses per sample per rad/s: ``encoder_ppr·decoding·Ts/(2π)`` (≈ 0.357 = 1/2.80).
 
     Stojčić §4B feeds the PID the velocity error as encoder pulses counted per Ts; with
@@ -373,7 +373,7 @@ class DigitalController:
         Samples held because of a non-finite measurement since :meth:`reset`.
     """
 
-    def __init__(self, gains, feedforward=None, output_limit=12.0, anti_windup=True, loop=None,
+    def __init__(self, gains, feedforward=None, output_limit=paper.SUPPLY_VOLTAGE, anti_windup=True, loop=None,
                  error_scale=1.0, bumpless=False):
         if not isinstance(gains, DiscreteGains):
             raise ValueError(f"gains must be DiscreteGains (use Gains.discretize(Ts)), got {type(gains).__name__}")
@@ -487,8 +487,9 @@ class DigitalController:
         return u
 
 
-def paper_velocity_controller(K=32.4, tau=0.025, wn=10.0, zeta=1.0, sigma=None, Ts=0.005, encoder_ppr=448,
-                              decoding=1, output_limit=12.0):
+def paper_velocity_controller(K=paper.MOTOR_K, tau=paper.MOTOR_TAU, wn=10.0, zeta=paper.ZETA, sigma=None,
+                              Ts=paper.TS, encoder_ppr=paper.ENCODER_PPR, decoding=paper.ENCODER_DECODING,
+                              output_limit=paper.SUPPLY_VOLTAGE):
     """Stojčić §4B exactly as published, to reproduce it (not to use it).
 
     Stojčić eq. 11 gains designed for the *position* loop, discretized by Stojčić eq. 13, run on the

@@ -41,6 +41,7 @@ import scipy.linalg
 
 from jerklab._validate import (as_finite_array, as_int, as_nonnegative, as_positive,
                                as_real)
+from jerklab import paper
 from jerklab.law import encoder_vec, voltage_vec, zoh_coefficients
 
 __all__ = ["DCMotor", "FlexibleDCMotor", "StepDisturbance", "advance", "advance_scalar", "advance_em",
@@ -311,8 +312,9 @@ class DCMotor(_MotorBase):
         ``jerklab.sim`` does not model them.
     """
 
-    def __init__(self, K=32.4, tau=0.025, supply_voltage=12.0, pwm_bits=10, encoder_ppr=448,
-                 decoding=1, coulomb_friction=0.0, load_disturbance=None, noise_std=0.0, seed=None,
+    def __init__(self, K=paper.MOTOR_K, tau=paper.MOTOR_TAU, supply_voltage=paper.SUPPLY_VOLTAGE,
+                 pwm_bits=paper.PWM_BITS, encoder_ppr=paper.ENCODER_PPR, decoding=paper.ENCODER_DECODING,
+                 coulomb_friction=0.0, load_disturbance=None, noise_std=0.0, seed=None,
                  offset=0.0, dead_zone=0.0):
         self.K = as_positive("K", K)
         self.tau = as_positive("tau", tau)
@@ -467,8 +469,9 @@ class FlexibleDCMotor(_MotorBase):
     n_states = 4
     coulomb_friction = 0.0
 
-    def __init__(self, K=32.4, tau=0.025, load_ratio=0.05, mode_frequency=2 * math.pi * 8.0,
-                 mode_damping=0.02, supply_voltage=12.0, pwm_bits=10, encoder_ppr=448, decoding=1,
+    def __init__(self, K=paper.MOTOR_K, tau=paper.MOTOR_TAU, load_ratio=0.05, mode_frequency=2 * math.pi * 8.0,
+                 mode_damping=0.02, supply_voltage=paper.SUPPLY_VOLTAGE, pwm_bits=paper.PWM_BITS,
+                 encoder_ppr=paper.ENCODER_PPR, decoding=paper.ENCODER_DECODING,
                  load_disturbance=None, noise_std=0.0, seed=None):
         self.K = as_positive("K", K)
         self.tau = as_positive("tau", tau)

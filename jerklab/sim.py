@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from jerklab import law
+from jerklab import law, paper
 from jerklab.law import HAVE_NUMBA, _jit  # one switch for every compiled kernel
 from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
 from jerklab.controller import DigitalController, DiscreteGains, Gains
@@ -819,7 +819,8 @@ def _rng(seed):
         raise TypeError(f"seed must be None, an int or a numpy Generator/SeedSequence, got {seed!r}: {exc}") from None
 
 
-def perturbed_plants(n, K=32.4, tau=0.025, K_spread=0.2, tau_spread=0.2, friction=(0.0, 0.0), seed=None):
+def perturbed_plants(n, K=paper.MOTOR_K, tau=paper.MOTOR_TAU, K_spread=0.2, tau_spread=0.2, friction=(0.0, 0.0),
+                     seed=None):
     """Random plants for robustness studies: K and τ uniform within ±spread (relative),
     Coulomb friction uniform in ``friction = (low, high)`` V. Returns a dict of arrays."""
     n = as_int("n", n, minimum=1)

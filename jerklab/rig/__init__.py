@@ -20,6 +20,7 @@ import importlib
 
 import os
 
+from jerklab import paper
 from jerklab.rig.client import (Rig, RigBusyError, RigCommandError, RigConnectionError, RigError, RigRunError,
                                 RigTimeoutError, UnknownPortError, UnstableDesignError)
 from jerklab.rig.recording import Recording, compare, plot_comparison, recordings_dir
@@ -34,7 +35,7 @@ _VIRTUAL_NAMES = (None, "virtual", "")
 
 
 def connect(port=None, *, motor=None, speed=None, timeout=2.0, hello_timeout=None, progress=True,
-            recordings=None, supply_voltage=None, counts_per_rev=None, model=(32.4, 0.025),
+            recordings=None, supply_voltage=None, counts_per_rev=None, model=(paper.MOTOR_K, paper.MOTOR_TAU),
             baudrate=BAUDRATE, **link_options) -> Rig:
     """Connect to a rig and return a :class:`Rig`.
 
@@ -107,8 +108,9 @@ def connect(port=None, *, motor=None, speed=None, timeout=2.0, hello_timeout=Non
         if on_close is not None:
             on_close()
         raise
-    return Rig(link, port, supply_voltage=12.0 if supply_voltage is None else supply_voltage,
-               counts_per_rev=448 if counts_per_rev is None else counts_per_rev, model=model,
+    return Rig(link, port, supply_voltage=paper.SUPPLY_VOLTAGE if supply_voltage is None else supply_voltage,
+               counts_per_rev=(paper.ENCODER_PPR * paper.ENCODER_DECODING if counts_per_rev is None
+                               else counts_per_rev), model=model,
                timeout=timeout, hello_timeout=hello_timeout or 3.0, progress=progress,
                recordings=recordings, on_close=on_close)
 

@@ -14,6 +14,8 @@ import signal
 import sys
 import threading
 
+from jerklab import paper
+
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m jerklab.rig", description=__doc__.split("\n")[0])
@@ -24,8 +26,10 @@ def main(argv=None) -> int:
     s.add_argument("--tcp", type=int, metavar="PORT", default=None,
                    help="listen on this TCP port instead of a pty (0 = any free port)")
     s.add_argument("--host", default="127.0.0.1", help="address to listen on with --tcp")
-    s.add_argument("--K", type=float, default=32.4, help="motor gain K, rad/(V s) (default 32.4)")
-    s.add_argument("--tau", type=float, default=0.025, help="motor time constant tau, s (default 0.025)")
+    s.add_argument("--K", type=float, default=paper.MOTOR_K,
+                   help=f"motor gain K, rad/(V s) (default {paper.MOTOR_K:g})")
+    s.add_argument("--tau", type=float, default=paper.MOTOR_TAU,
+                   help=f"motor time constant tau, s (default {paper.MOTOR_TAU:g})")
     s.add_argument("--friction", type=float, default=0.0, help="Coulomb friction, V (default 0)")
     s.add_argument("--noise", type=float, default=0.0, help="encoder noise std, rad (default 0)")
     args = ap.parse_args(argv)

@@ -32,6 +32,7 @@ import time
 
 import numpy as np
 
+from jerklab import paper
 from jerklab import protocol as P
 from jerklab.law import SCALAR as _LAW
 
@@ -86,7 +87,7 @@ class VirtualDevice:
         self.clock = clock
         self.name = str(name)[:16]
         self.tick_us = int(tick_us)
-        bits = self.motor.pwm_bits or 10
+        bits = self.motor.pwm_bits or paper.PWM_BITS
         self.pwm_max = 2 ** bits - 1
         major, minor, patch = (int(x) for x in (__version__.split(".") + ["0", "0"])[:3])
         self.version = (major, minor, patch)
@@ -110,9 +111,11 @@ class VirtualDevice:
     # ------------------------------------------------------------------ state
     def boot(self):
         """Power-on defaults of PROTOCOL.md ("Device state machine")."""
-        self.plant = P.SetPlant(K=_f32(32.4), tau=_f32(0.025), supply_voltage=12.0, counts_per_rev=448)
-        self.limits = P.SetLimits(max_jerk=2e4, max_accel=300.0, max_velocity=100.0,
-                                  max_voltage=12.0, host_timeout_ms=1000,
+        self.plant = P.SetPlant(K=_f32(paper.MOTOR_K), tau=_f32(paper.MOTOR_TAU), supply_voltage=paper.SUPPLY_VOLTAGE,
+                                counts_per_rev=paper.ENCODER_PPR * paper.ENCODER_DECODING)
+        self.limits = P.SetLimits(max_jerk=paper.MAX_JERK, max_accel=paper.MAX_ACCEL,
+                                  max_velocity=paper.MAX_VELOCITY, max_voltage=paper.SUPPLY_VOLTAGE,
+                                  host_timeout_ms=1000,
                                   max_error=P.DEFAULT_MAX_ERROR, runaway_ms=P.DEFAULT_RUNAWAY_MS,
                                   saturation_ms=P.DEFAULT_SATURATION_MS)
         self.gains = None
