@@ -30,12 +30,14 @@ import math
 import warnings
 from dataclasses import dataclass, field
 
-import control as ct
 import numpy as np
 from scipy.signal import lfilter
 
 from jerklab import law, paper
+from jerklab._lazy import lazy_module
 from jerklab._validate import as_int, as_nonnegative, as_positive, as_real
+
+ct = lazy_module("control")   # python-control imports matplotlib: import it on first use
 
 __all__ = ["Gains", "DiscreteGains", "pole_placement_pid", "velocity_pole_placement_pid",
            "discrete_pole_placement_pid", "paper_error_scale", "paper_velocity_controller", "Feedforward",

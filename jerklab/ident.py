@@ -49,11 +49,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import linalg, optimize, signal, stats
 
-import control
-
+from jerklab._lazy import lazy_module
 from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
 from jerklab.law import zoh_coefficients
 from jerklab.plant import _jit, advance_em
+from jerklab.plots import plot_compare, plot_compare_result, plot_ident_data, plot_residuals
+
+control = lazy_module("control")   # python-control imports matplotlib: import it on first use
 
 __all__ = [
     "IdentData",
@@ -321,17 +323,8 @@ class IdentData:
                    side.get("output_unit", "rad"), side.get("metadata", {}))
 
     def plot(self, axes=None):
-        """Two stacked panels: input (V) and output (rad) against time (s)."""
-        import matplotlib.pyplot as plt
-
-        if axes is None:
-            _, axes = plt.subplots(2, 1, sharex=True, figsize=(8, 4.5))
-        axes[0].step(self.t, self.u, where="post")
-        axes[0].set_ylabel(f"input u ({self.input_unit})")
-        axes[1].plot(self.t, self.y, ".", ms=2)
-        axes[1].set_ylabel(f"output y ({self.output_unit})")
-        axes[1].set_xlabel("time (s)")
-        return axes
+        """Input (V) and output (rad) against time (s): :func:`jerklab.plots.plot_ident_data`."""
+        return plot_ident_data(self, axes)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1745,65 +1738,8 @@ def validate(fit: MotorFit, u, theta, Ts=None, max_lag: int = 25, confidence: fl
     return Validation(y_sim, fit_percent(theta, y_sim), r, an, th0, w0)
 
 
-def plot_compare(data, *fits, ax=None, labels=None, horizon=None):
-    """Measured angle against each fitted model's simulation, with fit % in the legend.
-
-    Parameters
-    ----------
-    data : IdentData
-        The record to compare on.
-    *fits : MotorFit
-        Models to simulate.
-    ax : matplotlib Axes, optional
-    labels : list of str, optional
-    horizon : None or int
-        None: simulation; k: k-step-ahead prediction (see :func:`compare`).
-    """
-    import matplotlib.pyplot as plt
-
-    if not isinstance(data, IdentData):
-        raise ValueError(f"data must be an IdentData, got {type(data).__name__}")
-    if ax is None:
-        _, ax = plt.subplots(figsize=(8, 3.5))
-    ax.plot(data.t, data.y, ".", color="0.3", ms=3, label="measured")
-    for i, f in enumerate(fits):
-        c = compare(data, f, horizon)
-        name = labels[i] if labels else f.method.upper()
-        what = "" if horizon is None else f", {horizon}-step"
-        ax.plot(data.t, c.y_hat, "-", lw=1.5,
-                label=f"{name}: K={f.K:.3g}, τ={f.tau * 1e3:.3g} ms{what}, fit {c.fit_percent:.2f} %")
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel(f"angle ({data.output_unit})")
-    ax.legend(loc="best", fontsize=8)
-    return ax
-
-
-def plot_residuals(analysis: ResidualAnalysis, axes=None, title: str | None = None):
-    """Two panels as MATLAB's ``resid``: autocorrelation of e, cross-correlation of u and e."""
-    import matplotlib.pyplot as plt
-
-    if not isinstance(analysis, ResidualAnalysis):
-        raise ValueError(f"analysis must be a ResidualAnalysis, got {type(analysis).__name__}")
-    n = 1 if analysis.crosscorr is None else 2
-    if axes is None:
-        _, axes = plt.subplots(n, 1, figsize=(8, 2.4 * n))
-    axes = np.atleast_1d(axes)
-    ax = axes[0]
-    ax.stem(analysis.lags, analysis.autocorr)
-    ax.axhspan(-analysis.auto_bound, analysis.auto_bound, color="C1", alpha=0.2,
-               label=f"{analysis.confidence:.0%} bound")
-    ax.set_xlabel("lag (samples)")
-    ax.set_ylabel("autocorr. of e (–)")
-    ax.legend(loc="upper right", fontsize=8)
-    if title:
-        ax.set_title(title)
-    if n == 2:
-        ax = axes[1]
-        ax.stem(analysis.cross_lags, analysis.crosscorr)
-        ax.axhspan(-analysis.cross_bound, analysis.cross_bound, color="C1", alpha=0.2)
-        ax.set_xlabel("lag (samples)")
-        ax.set_ylabel("cross-corr. u, e (–)")
-    return axes
+# plot_compare and plot_residuals live in jerklab.plots; the names here stay as aliases
+# (imported at the top of this module).
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1932,19 +1868,8 @@ class CompareResult:
     label: str = ""
 
     def plot(self, ax=None, unit: str = "rad"):
-        """Measured and model output against time, fit % in the legend."""
-        import matplotlib.pyplot as plt
-
-        if ax is None:
-            _, ax = plt.subplots(figsize=(8, 3.5))
-        ax.plot(self.t, self.y, ".", color="0.3", ms=3, label="measured")
-        what = "simulation" if self.horizon is None else f"{self.horizon}-step prediction"
-        ax.plot(self.t, self.y_hat, "-", lw=1.5,
-                label=f"{self.label + ': ' if self.label else ''}{what}, fit {self.fit_percent:.2f} %")
-        ax.set_xlabel("time (s)")
-        ax.set_ylabel(f"angle ({unit})")
-        ax.legend(loc="best", fontsize=8)
-        return ax
+        """Measured and model output, fit % in the legend: :func:`jerklab.plots.plot_compare_result`."""
+        return plot_compare_result(self, ax, unit)
 
 
 def compare(data, fit, horizon=None, initial: str = "estimate", label: str = "") -> CompareResult:

@@ -32,14 +32,16 @@ import math
 import time
 from dataclasses import dataclass, replace
 
-import control
 import numpy as np
 from scipy.linalg import matrix_balance
 from scipy.signal import lfilter
 from scipy.optimize import linprog, lsq_linear, minimize, nnls
 
 from jerklab import paper as _paper
+from jerklab._lazy import lazy_module
 from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
+
+control = lazy_module("control")   # python-control imports matplotlib: import it on first use
 
 __all__ = [
     "TABLE_I", "TABLE_II_PAPER", "TABLE_II_INPUTS", "TS", "DEFAULT_F_MAX", "PZTModel", "ScanSpec",

@@ -35,14 +35,16 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import control as ct
 import numpy as np
 import scipy.linalg
 
+from jerklab import paper
+from jerklab._lazy import lazy_module
 from jerklab._validate import (as_finite_array, as_int, as_nonnegative, as_positive,
                                as_real)
-from jerklab import paper
 from jerklab.law import encoder_vec, voltage_vec, zoh_coefficients
+
+ct = lazy_module("control")   # python-control imports matplotlib: import it on first use
 
 __all__ = ["DCMotor", "FlexibleDCMotor", "StepDisturbance", "advance", "advance_scalar", "advance_em",
            "quantize_voltage", "measure_angle"]

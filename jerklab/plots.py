@@ -6,6 +6,16 @@ an ``Axes`` and returns it, so a notebook or a widget can compose several on one
 
 * :func:`zplane` — poles and zeros in the z-plane with the unit circle (the stability
   boundary of a sampled loop; notebook 03, the tuning panel).
+* :func:`plot_simulation` — a closed-loop run (``jerklab.sim.SimResult.plot``).
+* :func:`plot_ident_data`, :func:`plot_compare`, :func:`plot_compare_result`,
+  :func:`plot_residuals` — identification records, model against record (MATLAB's
+  ``compare``) and the residual tests (MATLAB's ``resid``); ``jerklab.ident``'s ``.plot()``.
+* :func:`plot_recording`, :func:`plot_comparison` — a rig recording, and a recording against
+  a simulation (``jerklab.rig.Recording.plot``, ``jerklab.rig.plot_comparison``).
+
+The result objects keep their ``.plot()`` methods as one-line calls of these. Importing this
+module does not import matplotlib (nor does any module below the face: planner, plant,
+controller, sim, ident, protocol, rig, law); the functions import it when called.
 """
 from __future__ import annotations
 
@@ -13,7 +23,8 @@ import numpy as np
 
 from jerklab._validate import as_finite_array
 
-__all__ = ["zplane"]
+__all__ = ["zplane", "plot_simulation", "plot_ident_data", "plot_compare", "plot_compare_result",
+           "plot_residuals", "plot_recording", "plot_comparison"]
 
 _CIRCLE_GID = "jerklab-unit-circle"
 
@@ -109,3 +120,213 @@ def zplane(poles=None, zeros=None, ax=None, *, label=None, color=None, marker="x
     if title is not None:
         ax.set_title(title, fontsize=10)
     return ax
+
+
+# ----------------------------------------------------------------------------------------------
+# simulation
+# ----------------------------------------------------------------------------------------------
+def plot_simulation(result, fig=None, title=None):
+    """Reference and output, tracking error, and the control parts (3 stacked axes).
+
+    Parameters
+    ----------
+    result : jerklab.sim.SimResult
+    fig : matplotlib.figure.Figure, optional
+        Figure to draw in (three axes are added); default: a new one.
+    title : str, optional
+        Default: the loop and the error metrics.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    import matplotlib.pyplot as plt
+
+    res = result
+    if fig is None:
+        fig = plt.figure(figsize=(9, 7))
+    ax = fig.subplots(3, 1, sharex=True)
+    ax[0].plot(res.t, res.reference, "k--", lw=1, label="reference")
+    ax[0].plot(res.t, res.position, label="motor (true)")
+    ax[0].plot(res.t, res.measured, ".", ms=2, label="encoder")
+    if res.load_position is not None:
+        ax[0].plot(res.t, res.load_position, label="load")
+    ax[0].set_ylabel("angle (rad)")
+    ax[0].legend(loc="best", fontsize=8)
+    ax[1].plot(res.t, res.error * 1e3)
+    ax[1].set_ylabel("tracking error (mrad)")
+    for name in ("ff", "p", "i", "d"):
+        ax[2].plot(res.t, res.parts[name], lw=1, label=name)
+    ax[2].plot(res.t, res.u_applied, "k", lw=1.2, label="u applied")
+    if np.any(res.saturated):
+        ax[2].fill_between(res.t, 0, 1, where=res.saturated, color="r", alpha=0.1,
+                           transform=ax[2].get_xaxis_transform(), label="saturated")
+    ax[2].set_ylabel("voltage (V)")
+    ax[2].set_xlabel("time (s)")
+    ax[2].legend(loc="best", fontsize=8, ncol=3)
+    m = res.metrics
+    ax[0].set_title(title or (f"{res.loop} loop: max |e| = {m['max_abs_error'] * 1e3:.3g} mrad, "
+                              f"RMS {m['rms_error'] * 1e3:.3g} mrad, final {m['final_error'] * 1e3:.3g} mrad"))
+    fig.tight_layout()
+    return fig
+
+
+# ----------------------------------------------------------------------------------------------
+# identification
+# ----------------------------------------------------------------------------------------------
+def plot_ident_data(data, axes=None):
+    """Two stacked panels of an ``IdentData``: input and output against time (s)."""
+    import matplotlib.pyplot as plt
+
+    if axes is None:
+        _, axes = plt.subplots(2, 1, sharex=True, figsize=(8, 4.5))
+    axes[0].step(data.t, data.u, where="post")
+    axes[0].set_ylabel(f"input u ({data.input_unit})")
+    axes[1].plot(data.t, data.y, ".", ms=2)
+    axes[1].set_ylabel(f"output y ({data.output_unit})")
+    axes[1].set_xlabel("time (s)")
+    return axes
+
+
+def plot_compare(data, *fits, ax=None, labels=None, horizon=None):
+    """Measured angle against each fitted model's simulation, with fit % in the legend.
+
+    Parameters
+    ----------
+    data : jerklab.ident.IdentData
+        The record to compare on.
+    *fits : jerklab.ident.MotorFit
+        Models to simulate.
+    ax : matplotlib Axes, optional
+    labels : list of str, optional
+    horizon : None or int
+        None: simulation; k: k-step-ahead prediction (see :func:`jerklab.ident.compare`).
+    """
+    import matplotlib.pyplot as plt
+
+    from jerklab.ident import IdentData, compare
+
+    if not isinstance(data, IdentData):
+        raise ValueError(f"data must be an IdentData, got {type(data).__name__}")
+    if ax is None:
+        _, ax = plt.subplots(figsize=(8, 3.5))
+    ax.plot(data.t, data.y, ".", color="0.3", ms=3, label="measured")
+    for i, f in enumerate(fits):
+        c = compare(data, f, horizon)
+        name = labels[i] if labels else f.method.upper()
+        what = "" if horizon is None else f", {horizon}-step"
+        ax.plot(data.t, c.y_hat, "-", lw=1.5,
+                label=f"{name}: K={f.K:.3g}, τ={f.tau * 1e3:.3g} ms{what}, fit {c.fit_percent:.2f} %")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel(f"angle ({data.output_unit})")
+    ax.legend(loc="best", fontsize=8)
+    return ax
+
+
+def plot_compare_result(result, ax=None, unit: str = "rad"):
+    """A ``jerklab.ident.CompareResult``: measured and model output against time, fit % in the legend."""
+    import matplotlib.pyplot as plt
+
+    if ax is None:
+        _, ax = plt.subplots(figsize=(8, 3.5))
+    ax.plot(result.t, result.y, ".", color="0.3", ms=3, label="measured")
+    what = "simulation" if result.horizon is None else f"{result.horizon}-step prediction"
+    ax.plot(result.t, result.y_hat, "-", lw=1.5,
+            label=f"{result.label + ': ' if result.label else ''}{what}, fit {result.fit_percent:.2f} %")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel(f"angle ({unit})")
+    ax.legend(loc="best", fontsize=8)
+    return ax
+
+
+def plot_residuals(analysis, axes=None, title: str | None = None):
+    """Two panels as MATLAB's ``resid``: autocorrelation of e, cross-correlation of u and e.
+
+    ``analysis`` is a ``jerklab.ident.ResidualAnalysis``; one panel when it has no input.
+    """
+    import matplotlib.pyplot as plt
+
+    from jerklab.ident import ResidualAnalysis
+
+    if not isinstance(analysis, ResidualAnalysis):
+        raise ValueError(f"analysis must be a ResidualAnalysis, got {type(analysis).__name__}")
+    n = 1 if analysis.crosscorr is None else 2
+    if axes is None:
+        _, axes = plt.subplots(n, 1, figsize=(8, 2.4 * n))
+    axes = np.atleast_1d(axes)
+    ax = axes[0]
+    ax.stem(analysis.lags, analysis.autocorr)
+    ax.axhspan(-analysis.auto_bound, analysis.auto_bound, color="C1", alpha=0.2,
+               label=f"{analysis.confidence:.0%} bound")
+    ax.set_xlabel("lag (samples)")
+    ax.set_ylabel("autocorr. of e (–)")
+    ax.legend(loc="upper right", fontsize=8)
+    if title:
+        ax.set_title(title)
+    if n == 2:
+        ax = axes[1]
+        ax.stem(analysis.cross_lags, analysis.crosscorr)
+        ax.axhspan(-analysis.cross_bound, analysis.cross_bound, color="C1", alpha=0.2)
+        ax.set_xlabel("lag (samples)")
+        ax.set_ylabel("cross-corr. u, e (–)")
+    return axes
+
+
+# ----------------------------------------------------------------------------------------------
+# rig recordings
+# ----------------------------------------------------------------------------------------------
+def plot_recording(rec, ax=None):
+    """Reference and measured position (rad) and control (V) of a rig ``Recording`` against time (s).
+
+    ``ax`` is a pair of axes (default: a new figure); returns the figure.
+    """
+    import matplotlib.pyplot as plt
+
+    if ax is None:
+        fig, ax = plt.subplots(2, 1, sharex=True, figsize=(7, 5))
+    else:
+        fig = ax[0].figure
+    t = rec.time
+    if rec.metadata.get("kind") == "move":
+        ax[0].plot(t, rec.reference, label="reference")
+    ax[0].plot(t, rec.position, label="measured")
+    ax[0].set_ylabel("position (rad)")
+    ax[0].legend()
+    ax[1].step(t, rec.control, where="post")
+    ax[1].set_ylabel("control (V)")
+    ax[1].set_xlabel("time (s)")
+    ax[0].set_title(f"rig recording: {rec.metadata.get('kind', '')} "
+                    f"({rec.metadata.get('status', '')})")
+    return fig
+
+
+def plot_comparison(rec, sim, title="Measured vs simulated sine-jerk move"):
+    """Overlay a rig recording and a simulation: position, tracking error, control voltage.
+
+    Both tracking errors are ``reference − encoder reading`` (what the controller sees).
+    ``sim`` is a ``jerklab.sim.SimResult`` sampled at the recording's ``Ts`` from t = 0.
+    """
+    import matplotlib.pyplot as plt
+
+    n = min(len(rec), len(sim.t))
+    idx = rec.index[rec.index < len(sim.t)][:n]
+    t = rec.time[:len(idx)]
+    fig, ax = plt.subplots(3, 1, sharex=True, figsize=(8, 7.5))
+    ax[0].plot(t, rec.reference[:len(idx)], "k--", lw=1, label="reference")
+    ax[0].plot(t, rec.position[:len(idx)], label="measured (rig)")
+    ax[0].plot(t, np.asarray(sim.measured)[idx], ":", label="simulated")
+    ax[0].set_ylabel("position (rad)")
+    ax[0].legend(loc="lower right")
+    ax[1].plot(t, 1e3 * (rec.reference[:len(idx)] - rec.position[:len(idx)]), label="measured (rig)")
+    ax[1].plot(t, 1e3 * (np.asarray(sim.reference)[idx] - np.asarray(sim.measured)[idx]), ":",
+               label="simulated")
+    ax[1].set_ylabel("tracking error (mrad)")
+    ax[1].legend(loc="upper right")
+    ax[2].step(t, rec.control[:len(idx)], where="post", label="measured (rig)")
+    ax[2].step(t, np.asarray(sim.u_applied)[idx], ":", where="post", label="simulated")
+    ax[2].set_ylabel("control (V)")
+    ax[2].set_xlabel("time (s)")
+    ax[2].legend(loc="upper right")
+    ax[0].set_title(title)
+    fig.tight_layout()
+    return fig

@@ -42,6 +42,7 @@ from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positi
 from jerklab.controller import DigitalController, DiscreteGains, Gains
 from jerklab.planner import Profile
 from jerklab.plant import DCMotor, FlexibleDCMotor, advance, advance_em
+from jerklab.plots import plot_simulation
 
 __all__ = ["simulate", "simulate_batch", "SimResult", "BatchResult", "perturbed_plants",
            "SampledProfile", "StepProfile", "HAVE_NUMBA"]
@@ -391,34 +392,8 @@ class SimResult:
     diverged: bool = False
 
     def plot(self, fig=None, title=None):
-        """Reference and output, tracking error, and the control parts (3 stacked axes)."""
-        import matplotlib.pyplot as plt
-        if fig is None:
-            fig = plt.figure(figsize=(9, 7))
-        ax = fig.subplots(3, 1, sharex=True)
-        ax[0].plot(self.t, self.reference, "k--", lw=1, label="reference")
-        ax[0].plot(self.t, self.position, label="motor (true)")
-        ax[0].plot(self.t, self.measured, ".", ms=2, label="encoder")
-        if self.load_position is not None:
-            ax[0].plot(self.t, self.load_position, label="load")
-        ax[0].set_ylabel("angle (rad)")
-        ax[0].legend(loc="best", fontsize=8)
-        ax[1].plot(self.t, self.error * 1e3)
-        ax[1].set_ylabel("tracking error (mrad)")
-        for name in ("ff", "p", "i", "d"):
-            ax[2].plot(self.t, self.parts[name], lw=1, label=name)
-        ax[2].plot(self.t, self.u_applied, "k", lw=1.2, label="u applied")
-        if np.any(self.saturated):
-            ax[2].fill_between(self.t, 0, 1, where=self.saturated, color="r", alpha=0.1,
-                               transform=ax[2].get_xaxis_transform(), label="saturated")
-        ax[2].set_ylabel("voltage (V)")
-        ax[2].set_xlabel("time (s)")
-        ax[2].legend(loc="best", fontsize=8, ncol=3)
-        m = self.metrics
-        ax[0].set_title(title or (f"{self.loop} loop: max |e| = {m['max_abs_error'] * 1e3:.3g} mrad, "
-                                  f"RMS {m['rms_error'] * 1e3:.3g} mrad, final {m['final_error'] * 1e3:.3g} mrad"))
-        fig.tight_layout()
-        return fig
+        """Reference and output, tracking error, control parts: :func:`jerklab.plots.plot_simulation`."""
+        return plot_simulation(self, fig, title)
 
 
 @dataclass

@@ -76,3 +76,58 @@ def test_bad_input(bad, exc):
 def test_continuous_system_is_refused():
     with pytest.raises(ValueError, match="continuous"):
         zplane(control.tf([1.0], [1.0, 1.0]))
+
+
+# ----------------------------------------------------------------------------------------------
+# the result figures: one home (jerklab.plots), the objects' .plot() call it, old names alias it
+# ----------------------------------------------------------------------------------------------
+def _data_of(ax, label):
+    (ln,) = [ln for ln in ax.get_lines() if ln.get_label() == label]
+    return ln.get_xdata(), ln.get_ydata()
+
+
+def test_simulation_figure_draws_the_result():
+    from jerklab import plots
+    from jerklab.controller import discrete_pole_placement_pid
+    from jerklab.plant import DCMotor
+    from jerklab.planner import plan_sine_jerk
+    from jerklab.sim import simulate
+
+    r = simulate(plan_sine_jerk(3.0, 2000.0, 100.0, 20.0), DCMotor(0.9 * 32.4, 0.03),
+                 discrete_pole_placement_pid(32.4, 0.025, 30.0, Ts=0.005))
+    fig = r.plot(title="run")
+    assert [a.get_ylabel() for a in fig.axes] == ["angle (rad)", "tracking error (mrad)", "voltage (V)"]
+    assert fig.axes[2].get_xlabel() == "time (s)" and fig.axes[0].get_title() == "run"
+    t, y = _data_of(fig.axes[0], "motor (true)")
+    np.testing.assert_array_equal(t, r.t)
+    np.testing.assert_array_equal(y, r.position)
+    np.testing.assert_array_equal(fig.axes[1].get_lines()[0].get_ydata(), 1e3 * (r.reference - r.position))
+    np.testing.assert_array_equal(_data_of(fig.axes[2], "u applied")[1], r.u_applied)
+    fig2 = plots.plot_simulation(r)                     # the same figure from the function
+    assert "mrad" in fig2.axes[0].get_title()
+    assert [len(a.get_lines()) for a in fig2.axes] == [len(a.get_lines()) for a in fig.axes]
+
+
+def test_ident_figures_and_aliases():
+    from jerklab import ident, plots
+
+    assert ident.plot_compare is plots.plot_compare
+    assert ident.plot_residuals is plots.plot_residuals
+    Ts = 0.005
+    u = ident.step_input(0.6, Ts, 4.0)
+    theta = ident.simulate_dc_motor(32.4, 0.025, Ts, u)
+    d = ident.IdentData(u, theta, Ts)
+    axes = d.plot()
+    assert axes[0].get_ylabel() == "input u (V)" and axes[1].get_ylabel() == "output y (rad)"
+    np.testing.assert_array_equal(axes[1].get_lines()[0].get_ydata(), theta)
+    fit = ident.fit_dc_motor(u, theta, Ts, method="arx")
+    c = ident.compare(d, fit)
+    ax = c.plot()
+    np.testing.assert_allclose(ax.get_lines()[1].get_ydata(), c.y_hat)
+    assert f"{c.fit_percent:.2f} %" in ax.get_lines()[1].get_label()
+    assert ax.get_xlabel() == "time (s)" and ax.get_ylabel() == "angle (rad)"
+    with pytest.raises(ValueError, match="data"):
+        plots.plot_compare((u, theta), fit)
+    with pytest.raises(ValueError, match="analysis"):
+        plots.plot_residuals(np.zeros(3))
+
