@@ -14,7 +14,7 @@ from pathlib import Path
 
 from jerklab import protocol as P
 from jerklab._validate import as_nonnegative, as_positive, as_real
-from jerklab.rig.recording import Recording, recordings_dir
+from jerklab.rig.recording import Recording, RecordingIOError, recordings_dir
 
 __all__ = ["Rig", "RigError", "RigConnectionError", "RigTimeoutError", "RigCommandError",
            "RigRunError", "UnknownPortError"]
@@ -670,32 +670,63 @@ class Rig:
             status, error = "refused", exc
         except KeyboardInterrupt as exc:
             status, error = "interrupted", exc
-            try:
-                self._write(P.Stop())
-            except RigError:
-                pass
+        except RecordingIOError as exc:
+            status, error = f"error: {exc}", exc
         except BaseException as exc:
-            status, error = "failed", exc
+            status, error = f"error: {type(exc).__name__}: {exc}", exc
+        stopped = None
+        if error is not None and not isinstance(error, (RigConnectionError, RigTimeoutError)):
+            stopped = self._stop_after_error(isinstance(error, KeyboardInterrupt))
         stats = {"lost_samples": lost,
                  "host_dropped_frames": self._decoder.stats.dropped - dropped0}
         if end is not None:
             reason = P.EndReason(end.reason).name if end.reason in iter(P.EndReason) else str(end.reason)
             stats.update(end_reason=reason, device_samples=end.samples,
                          device_rx_errors=end.rx_errors, device_overruns=end.overruns)
-            status = "complete" if end.reason == P.EndReason.DONE else reason.lower()
-        rec.finish(status, **stats, **({"error": str(error)} if error is not None else {}))
-        bar.close(status)
+            if error is None:
+                status = "complete" if end.reason == P.EndReason.DONE else reason.lower()
+        if stopped is not None:
+            stats["rig_stopped"] = stopped
+        try:
+            rec.finish(status, **stats, **({"error": str(error)} if error is not None else {}))
+        except RecordingIOError as exc:
+            if error is None:
+                error = exc
+                if stopped is None and end is None:
+                    stopped = self._stop_after_error(False)
+        bar.close(status if not status.startswith("error") else "error")
         where = f"; the {len(rec)} samples received are saved in {rec.csv_path}" if rec.csv_path else ""
         if error is not None:
             if isinstance(error, KeyboardInterrupt):
                 raise error
             if isinstance(error, RigError):
                 raise type(error)(f"{error}{where}") from error
+            if isinstance(error, RecordingIOError):
+                note = ("the rig was stopped" if stopped else
+                        "the rig did not confirm the STOP: call rig.stop()" if stopped is False else
+                        "the run had ended on the rig")
+                err = RecordingIOError(error.errno, f"{error}; all {len(rec)} samples received are in "
+                                                    f"memory (the exception's .recording); {note}",
+                                       error.filename, error.samples_saved)
+                err.recording = rec
+                raise err from error
             raise error
         if end.reason != P.EndReason.DONE:
             raise RigRunError(f"{self.port}: run ended early on the device ({stats['end_reason']}) after "
                               f"{end.samples} samples{where}")
         return rec
+
+    def _stop_after_error(self, interrupted: bool):
+        """Send STOP after a run was abandoned on the host (write error, Ctrl-C, a bug), so that
+        the device does not stay BUSY; True if the device acknowledged it."""
+        try:
+            if interrupted:
+                self._write(P.Stop())                 # Ctrl-C: do not wait
+                return None
+            self._request(P.Stop(), timeout=min(self.timeout, 1.0))
+            return True
+        except (RigError, OSError):
+            return False
 
 
 def _jsonable(d):
