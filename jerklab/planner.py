@@ -383,8 +383,9 @@ class Profile:
         else:
             jerk = exact.jerk
             accel = np.cumsum(jerk) * Ts
-        vel = np.cumsum(accel) * Ts
-        pos = np.cumsum(vel) * Ts
+        with np.errstate(over="ignore", invalid="ignore"):
+            vel = np.cumsum(accel) * Ts
+            pos = np.cumsum(vel) * Ts
         if not np.isfinite(pos[-1]):
             raise ValueError(f"Ts = {Ts!r} s is too large for this move (duration {self.duration!r} s): "
                              f"the recursion overflows")
@@ -1029,17 +1030,18 @@ def plan_batch(kind, distance, max_jerk=None, max_accel=None, max_velocity=None,
     d_all = np.abs(dist)
     if kind == "sine_jerk_optimal":
         jeq = _TWO_OVER_PI * J
-    for lo in range(0, n, _CHUNK):
-        sl = slice(lo, min(lo + _CHUNK, n))
-        d = d_all[sl]
-        if kind == "scurve":
-            _batch_scurve(d, J[sl], A[sl], V[sl], tj[sl], ta[sl], tv[sl])
-        elif kind == "sine_jerk_optimal":
-            _batch_scurve(d, jeq[sl], A[sl], V[sl], tj[sl], ta[sl], tv[sl])
-        elif kind == "sine_jerk":
-            _batch_sine_jerk(d, J[sl], A[sl], V[sl], tj[sl], ta[sl], tv[sl])
-        else:
-            _batch_trapezoid(d, A[sl], V[sl], tj[sl], ta[sl], tv[sl])
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
+        for lo in range(0, n, _CHUNK):      # (a non-finite plan is refused by _check_batch)
+            sl = slice(lo, min(lo + _CHUNK, n))
+            d = d_all[sl]
+            if kind == "scurve":
+                _batch_scurve(d, J[sl], A[sl], V[sl], tj[sl], ta[sl], tv[sl])
+            elif kind == "sine_jerk_optimal":
+                _batch_scurve(d, jeq[sl], A[sl], V[sl], tj[sl], ta[sl], tv[sl])
+            elif kind == "sine_jerk":
+                _batch_sine_jerk(d, J[sl], A[sl], V[sl], tj[sl], ta[sl], tv[sl])
+            else:
+                _batch_trapezoid(d, A[sl], V[sl], tj[sl], ta[sl], tv[sl])
     zero = d_all == 0.0
     if zero.any():
         tj[zero] = ta[zero] = tv[zero] = 0.0

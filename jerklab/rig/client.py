@@ -396,9 +396,11 @@ class Rig:
     # ---------------------------------------------------------------- configuration
     def _ts_us(self, Ts):
         Ts = as_positive("Ts", Ts)
-        us = int(round(Ts * 1e6))
         tick = self.info.tick_us or 1
-        if abs(us - Ts * 1e6) > 1e-3 or us % tick or us > 65000:
+        if Ts > 0.065:
+            raise ValueError(f"Ts must be at most 65 ms (a multiple of the device tick {tick} µs), got {Ts!r} s")
+        us = int(round(Ts * 1e6))
+        if abs(us - Ts * 1e6) > 1e-3 or us % tick or us < tick:
             raise ValueError(f"Ts must be a multiple of the device tick {tick} µs and at most 65 ms, "
                              f"got {Ts!r} s")
         return us
@@ -518,7 +520,8 @@ class Rig:
         if distance == 0.0:
             raise ValueError("profile.distance must be nonzero for a rig move")
         settle = as_nonnegative("settle", settle)
-        if int(decimation) != decimation or not 1 <= decimation <= 255:
+        if (isinstance(decimation, bool) or not isinstance(decimation, (int, float)) or not math.isfinite(decimation)
+                or int(decimation) != decimation or not 1 <= decimation <= 255):
             raise ValueError(f"decimation must be an integer in 1..255, got {decimation!r}")
         limits = (profile.max_jerk if profile.max_jerk is not None else _F32_MAX,
                   profile.max_accel, profile.max_velocity)
@@ -566,7 +569,7 @@ class Rig:
         vmax = self.supply_voltage if max_voltage is None else as_positive("max_voltage", max_voltage)
         if abs(voltage) > vmax:
             raise ValueError(f"voltage must be within ±max_voltage = ±{vmax} V, got {voltage}")
-        n = int(math.ceil(seconds / Ts - 1e-9))
+        n = max(1, int(math.ceil(seconds / Ts - 1e-9)))
         if n > 0xFFFF:
             raise ValueError(f"seconds must be <= {0xFFFF * Ts:g} s at Ts = {Ts} s, got {seconds}")
         n_rest = int(math.ceil(as_nonnegative("rest", rest) / Ts - 1e-9))
