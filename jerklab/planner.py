@@ -985,8 +985,10 @@ def plan_batch(kind, distance, max_jerk=None, max_accel=None, max_velocity=None,
     values = (distance, max_accel, max_velocity) + ((max_jerk,) if kind != "trapezoid" else ())
     arrays = []
     for name, value in zip(names, values):
+        if isinstance(value, (str, bytes)):
+            as_finite_array(name, value)             # raises with the parameter's name
         try:
-            arrays.append(np.ascontiguousarray(value, dtype=float))
+            arrays.append(np.asarray(value, dtype=float))       # no copy yet (a broadcast view stays one)
         except (TypeError, ValueError):
             as_finite_array(name, value)             # raises with the parameter's name
             raise ValueError(f"{name} must be numeric, got {value!r}") from None
@@ -999,6 +1001,7 @@ def plan_batch(kind, distance, max_jerk=None, max_accel=None, max_velocity=None,
     if n_moves > MAX_BATCH_MOVES:
         raise ValueError(f"distance and the limits ask for {n_moves} moves, more than MAX_BATCH_MOVES = "
                          f"{MAX_BATCH_MOVES}: plan them in several calls")
+    arrays = [np.ascontiguousarray(a) for a in arrays]
     n_max = max(a.size for a in arrays)
     use_kernel = engine == "numba" or (engine == "auto" and n_max >= NUMBA_MIN_MOVES)
     kernel = _compiled_kernel() if use_kernel else False

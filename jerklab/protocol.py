@@ -216,6 +216,8 @@ def _wire_value(msg: str, name: str, code: str, v):
             x = math.copysign(math.inf, v)
         if math.isfinite(x) and abs(x) > _F32_MAX:
             raise ProtocolError(f"{what}: beyond the float32 range |x| <= {_F32_MAX:.6g} of the wire")
+        if 0.0 < abs(x) < 1.1754943508222875e-38 and struct.unpack("<f", struct.pack("<f", x))[0] == 0.0:
+            raise ProtocolError(f"{what}: nonzero but below the float32 range (it would arrive as 0)")
         return x
     lo, hi = _INT_RANGES[code]
     if isinstance(v, bool) or not isinstance(v, numbers.Integral):

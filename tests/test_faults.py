@@ -279,7 +279,8 @@ def test_protocol_field_out_of_range_is_named_or_round_trips(field, value):
     except P.ProtocolError as exc:
         assert name in str(exc)
         if code == "f":
-            assert isinstance(value, int) or math.isfinite(value) and abs(value) > 3.4028234663852886e38
+            assert isinstance(value, int) or math.isfinite(value) and (
+                abs(value) > 3.4028234663852886e38 or 0 < abs(value) < 1e-44)
         else:
             lo, hi = P._INT_RANGES[code]
             assert not isinstance(value, int) or not lo <= value <= hi
@@ -303,6 +304,8 @@ def test_protocol_wrong_types_are_named():
         P.encode_frame(math.nan, 0)
     with pytest.raises(TypeError, match="data"):
         P.Decoder().feed(None)
+    with pytest.raises(ValueError, match="distance.*arrive as 0"):
+        P.encode(P.Plan(1e-300, 0))                  # would reach the device as a zero move
 
 
 # ---------------------------------------------------------------------------- numbers: planners
