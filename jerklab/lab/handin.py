@@ -20,7 +20,7 @@ import json
 import zipfile
 from pathlib import Path
 
-__all__ = ["write_handin", "read_handin", "HandinError", "MANIFEST"]
+__all__ = ["write_handin", "read_handin", "pack", "HandinError", "MANIFEST"]
 
 MANIFEST = "manifest.json"
 
@@ -64,16 +64,22 @@ def write_handin(session, notebook=None, out=None) -> Path:
             "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
             "jerklab_version": __version__, "rig": session.rig.port, "key_source": source}
     files["student.json"] = json.dumps(meta, indent=1).encode()
-    manifest = {"format": 1, "student": session.student, "lab": session.lab,
-                "files": {name: _sha(data) for name, data in files.items()}}
     folder = Path(out) if out is not None else (Path(notebook).parent if notebook else Path(".")) / "handin"
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"lab{session.lab}_{session.student}.zip"
+    path = pack(files, session.student, session.lab, folder / f"lab{session.lab}_{session.student}.zip")
+    print(f"hand-in written: {path} ({len(files)} files, manifest with SHA-256 checksums)")
+    return path
+
+
+def pack(files: dict, student: str, lab: int, path) -> Path:
+    """Write ``files`` ({name in the zip: bytes}) and their manifest into the zip ``path``."""
+    manifest = {"format": 1, "student": student, "lab": int(lab),
+                "files": {name: _sha(data) for name, data in files.items()}}
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
         for name, data in files.items():
             z.writestr(name, data)
         z.writestr(MANIFEST, json.dumps(manifest, indent=1))
-    print(f"hand-in written: {path} ({len(files)} files, manifest with SHA-256 checksums)")
     return path
 
 
