@@ -343,8 +343,9 @@ def test_worksheet_with_solutions_passes_every_check(n, tmp_path):
 
 WRONG = {
     1: ("K = coef[0]", "K = coef[0] * 2 * np.pi", 'S.check("K"', "factor 6.28"),
-    2: ('panel.controls["wn"].value = 30.0', 'panel.controls["wn"].value = 8.0', 'S.check("design"',
-        "tracking error reaches"),
+    2: ('panel.controls["wn"].value = 30.0',
+        'panel.controls["design"].value = "continuous"; panel.controls["wn"].value = 80.0',
+        'S.check("design"', "your sampled loop has |z| = "),
     3: ("lost_time = plan_sine_jerk(**M).duration - plan_sine_jerk_optimal(**M).duration",
         "lost_time = plan_sine_jerk_optimal(**M).duration - plan_sine_jerk(**M).duration",
         'S.check("lost_time"', "the sign"),
