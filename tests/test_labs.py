@@ -434,3 +434,29 @@ def test_grade_command_on_three_submissions(tmp_path):
     assert len(fb) == 4
     bob = next(t for n, t in fb.items() if n.startswith("bob"))
     assert "pre_speed: 0/1" in bob and "revolutions" in bob
+
+
+def test_session_on_simavr_uses_the_students_motor(tmp_path, capsys):
+    """The same session code on the firmware in a simulated Uno: the hidden motor's τ is found by
+    PEM and passes the check; the planners the firmware lacks are reported, not raised."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from conftest import require_tool
+    from jerklab import ident
+    from jerklab.planner import plan_scurve
+
+    require_tool("make", "cc", "avr-g++", "avr-size", "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
+                 "/usr/include/simavr/sim_avr.h")
+    S = lab.start(3, student="simavr-student", port="simavr", folder=tmp_path)
+    try:
+        assert S.simulated and S.rig.name != "jerklab-virtual"      # the firmware answers
+        r6 = S.step(6.0, lab.STEP_SECONDS)
+        fit = ident.fit_dc_motor(r6.control, r6.position, r6.metadata["Ts"])
+        assert S.verify("tau", fit.tau).ok
+        assert S.verify("tau", fit.tau * 1000).ok is False
+        g = discrete_pole_placement_pid(fit.K, fit.tau, 30.0, Ts=0.005)
+        assert S.run_move(plan_scurve(**lab.MOVE), g) is None
+        assert "no 'scurve' planner" in capsys.readouterr().out
+    finally:
+        S.close()

@@ -218,7 +218,12 @@ def start(lab, student, port=None, **options):
     """Start lab ``lab`` (1, 2 or 3) for ``student`` on ``port`` (None: the virtual rig with
     the student's hidden motor; ``"simavr"``; a serial port of a real Uno)."""
     s = LabSession(lab, student, port, **options)
-    where = "virtual rig (your hidden motor)" if s.port in (None, "virtual", "") else s.rig.port
+    if s.port in (None, "virtual", ""):
+        where = "virtual rig (your hidden motor)"
+    elif s.port == "simavr":
+        where = f"firmware on a simulated Uno (your hidden motor; {s.rig.port})"
+    else:
+        where = f"rig at {s.rig.port}"
     print(f"Lab {lab} ({LABS[lab]}) for student {s.student} on the {where}; "
           f"encoder {s.rig.counts_per_rev} counts/rev, supply {s.rig.supply_voltage:g} V; "
           f"recordings in {s.folder}")
