@@ -4,7 +4,8 @@ Each check compares a student's answer with the truth of *this* student's motor 
 motor of the virtual rig or of simavr) or, on a real Uno, with the checker's own analysis of
 the student's recordings; tolerances follow what the measurement allows (quantization,
 noise). A failing check names the most likely mistake; a passing one says why the answer
-is right. No message ever prints a true parameter value.
+is right. No message ever prints a true parameter value. The physics is Stojčić's (Stojcic
+2015): the motor of Stojčić eq. 1, the load of Stojčić eq. 9, the PID of Stojčić eq. 11.
 """
 from __future__ import annotations
 
@@ -119,7 +120,7 @@ def _pre_speed(s, ans):
     ref = 30.0 * 6.0
     if _rel(v, ref) < 0.01:
         return CheckResult("pre_speed", True, "ω_ss = K·V = 30 × 6 = 180 rad/s: at steady state "
-                           "τ·ω' = 0, so eq. 1's velocity part K/(τs+1) gives K·V; τ only sets how fast.")
+                           "τ·ω' = 0, so the velocity part K/(τs+1) of Stojčić eq. 1 gives K·V; τ only sets how fast.")
     if _rel(v, ref / (2 * math.pi)) < 0.02:
         return CheckResult("pre_speed", False, "that is in revolutions per second: K is in rad/(V·s).")
     if _rel(v, ref * 60 / (2 * math.pi)) < 0.02:
@@ -319,8 +320,8 @@ def _pre_integral(s, ans):
     if ans is False or ans == False:  # noqa: E712
         return CheckResult("pre_integral", True, "the load enters at the voltage, before the plant's "
                            "integrator; at steady state a PD needs e·kp = −w to cancel it, so an error "
-                           "remains: only the controller's own integrator drives it to zero (eq. 9).")
-    return CheckResult("pre_integral", False, "the plant's integrator is after the disturbance (W = P, eq. 9): "
+                           "remains: only the controller's own integrator drives it to zero (Stojčić eq. 9).")
+    return CheckResult("pre_integral", False, "the plant's integrator is after the disturbance (W = P, Stojčić eq. 9): "
                        "write the steady state of K(u + w) = 0 with u = kp·e.")
 
 
@@ -457,13 +458,13 @@ def _gap(s, ans):
     ref_c = PositionLoop(K, tau, pole_placement_pid(K, tau, wn, 1.0).discretize(Ts)).max_pole_radius()
     ref_z = PositionLoop(K, tau, discrete_pole_placement_pid(K, tau, wn, 1.0, Ts=Ts, extra_pole=0.0)).max_pole_radius()
     if abs(rc - ref_c) <= 0.01 and abs(rz - ref_z) <= 0.01:
-        return CheckResult("gap", True, f"|z| = {ref_c:.2f} for eq. 11 discretized by eq. 13 against "
+        return CheckResult("gap", True, f"|z| = {ref_c:.2f} for Stojčić eq. 11 discretized by Stojčić eq. 13 against "
                            f"{ref_z:.2f} for the z-domain design: at σ·Ts = {7 * wn * Ts:.1f} the "
-                           "approximation behind eq. 13 breaks down and the loop leaves the unit circle, while the "
+                           "approximation behind Stojčić eq. 13 breaks down and the loop leaves the unit circle, while the "
                            "z-domain design solves for the poles on the exact ZOH plant: they sit at e^(sTs) "
                            "(the dominant pair at e^(−ζωnTs)) and the fourth at z = 0.")
     if abs(rc - ref_z) <= 0.01 and abs(rz - ref_c) <= 0.01:
-        return CheckResult("gap", False, "the two are swapped: the first is the continuous design (eq. 11 + 13).")
+        return CheckResult("gap", False, "the two are swapped: the first is the continuous design (Stojčić eq. 11, discretized by Stojčić eq. 13).")
     which = "the continuous design's" if abs(rc - ref_c) > 0.01 else "the z-domain design's"
     return CheckResult("gap", False, f"{which} radius is off: use PositionLoop(K, τ, gains).max_pole_radius() "
                        "with YOUR K and τ, ωn = 30 rad/s, ζ = 1, σ = 7ωn, Ts = 20 ms, extra_pole=0.0 for the z design.")
