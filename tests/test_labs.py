@@ -460,3 +460,19 @@ def test_session_on_simavr_uses_the_students_motor(tmp_path, capsys):
         assert "no 'scurve' planner" in capsys.readouterr().out
     finally:
         S.close()
+
+
+def test_grade_timeout_gets_a_row(tmp_path):
+    """A submission that never ends is stopped after the timeout and gets its row."""
+    from jerklab.lab.grade import autograder_zip, grade_folder
+
+    autograder_zip(1)                       # made (or reused) before the clock matters
+    subs = tmp_path / "subs"
+    subs.mkdir()
+    nb = nbformat.v4.new_notebook()
+    nb.metadata["jerklab"] = {"lab": 1}
+    nb.cells = [nbformat.v4.new_code_cell('STUDENT = "eve"\nwhile True:\n    pass')]
+    nbformat.write(nb, subs / "eve.ipynb")
+    rows = grade_folder(subs, tmp_path / "g.csv", timeout=5)
+    assert rows[0]["student"] == "eve" and "timed out after 5 s" in rows[0]["status"]
+    assert rows[0]["total"] == 0.0

@@ -148,14 +148,31 @@ def _run_otter(lab, nb_bytes, student, timeout):
         env = dict(os.environ, JERKLAB_LAB_GRADING="1", JERKLAB_LAB_WORK=str(tmp / "work"),
                    JERKLAB_RECORDINGS=str(tmp / "rec"), MPLBACKEND="Agg")
         cmd = [sys.executable, "-m", "otter", "run", "-a", str(autograder_zip(lab)), "-o", str(out), str(nb)]
+        # a session of its own, so that a timeout ends otter *and* the kernel it started
+        proc = subprocess.Popen(cmd, cwd=tmp, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True, start_new_session=True)
         try:
-            r = subprocess.run(cmd, cwd=tmp, env=env, capture_output=True, text=True, timeout=timeout)
+            stdout, stderr = proc.communicate(timeout=timeout)
         except subprocess.TimeoutExpired:
+            _kill_group(proc)
             return None, f"timed out after {timeout:g} s (an endless loop or a very slow cell?)"
         res = out / "results.json"
         if not res.is_file():
-            return None, f"the autograder did not finish: {(r.stderr or r.stdout)[-400:].strip()}"
+            return None, f"the autograder did not finish: {(stderr or stdout)[-400:].strip()}"
         return json.loads(res.read_text()), None
+
+
+def _kill_group(proc):
+    import signal
+
+    try:
+        if hasattr(os, "killpg"):
+            os.killpg(proc.pid, signal.SIGKILL)
+        else:                                   # Windows: the process only
+            proc.kill()
+    except (ProcessLookupError, PermissionError):
+        pass
+    proc.communicate()
 
 
 def _scores(results):
