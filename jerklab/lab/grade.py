@@ -66,13 +66,15 @@ def _assigned(lab: int) -> Path:
     d = _cache_dir(lab)
     out = d / "dist"
     if not (out / "student" / student_version_name(lab)).is_file():
-        tmp = Path(tempfile.mkdtemp(prefix=f"assign{lab}-", dir=d.parent if d.parent.exists() else None))
+        d.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix="assign-", dir=d))
         try:
             _assign_into(lab, tmp)
-            d.mkdir(parents=True, exist_ok=True)
-            if out.exists():
-                shutil.rmtree(out)
-            shutil.move(str(tmp / "dist"), str(out))
+            try:       # atomic: a complete folder appears or, if another process won, stays theirs
+                os.rename(tmp / "dist", out)
+            except OSError:
+                if not (out / "student" / student_version_name(lab)).is_file():
+                    raise
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
     return out
