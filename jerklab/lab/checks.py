@@ -261,9 +261,9 @@ def _fit_valid(s, ans):
     v = _num("fit_valid", ans)
     val = _validation(s)
     if abs(v - val.fit_percent) <= 1.5:
-        return CheckResult("fit_valid", True, f"{val.fit_percent:.1f} % agrees with the checker's: the 6 V "
-                           "model misses the 3 V record mostly because friction takes a bigger share of 3 V "
-                           "than of 6 V — a gain error a single step cannot see.")
+        return CheckResult("fit_valid", True, f"{val.fit_percent:.1f} % agrees with the checker's. Where the 6 V "
+                           "model misses the 3 V record, it is mostly because friction takes a bigger share of "
+                           "3 V than of 6 V — a gain error that a single step cannot see.")
     if 0 < v <= 1 and abs(100 * v - val.fit_percent) <= 1.5:
         return CheckResult("fit_valid", False, "fit is in percent (0–100), not a fraction.")
     return CheckResult("fit_valid", False, f"the checker finds {val.fit_percent:.1f} %: simulate the PEM "
