@@ -177,6 +177,15 @@ def _kill_group(proc):
     proc.communicate()
 
 
+def _hint(output: str) -> str:
+    """The check's own message out of otter's doctest report (the AssertionError), else its tail."""
+    found = re.findall(r"AssertionError: (.+)", output or "")
+    if found:
+        return found[-1].strip()
+    errs = re.findall(r"^\s*(\w+Error: .+)$", output or "", re.M)
+    return errs[-1].strip() if errs else (output or "").strip()[-300:]
+
+
 def _scores(results):
     qs = {}
     for t in results.get("tests", []):
@@ -231,8 +240,7 @@ def grade_folder(folder, out_csv, feedback_dir=None, timeout=300.0, labs=None) -
                 row["total"] += sc
                 row["max"] += mx
                 verdict = "right" if sc >= mx else "not yet"
-                msg = out.strip().replace("\n", "\n    ")
-                notes.append(f"{q}: {sc:g}/{mx:g} ({verdict})" + (f"\n    {msg}" if sc < mx and msg else ""))
+                notes.append(f"{q}: {sc:g}/{mx:g} ({verdict})" + (f"\n    {_hint(out)}" if sc < mx else ""))
             row["status"] = "graded"
         except (HandinError, ValueError, RuntimeError, OSError, UnicodeDecodeError) as exc:
             row["status"] = f"error: {exc}"
