@@ -116,29 +116,27 @@ def _draw(seed: int) -> _Parameters:
 
 
 class StudentMotor(DCMotor):
-    """A :class:`jerklab.plant.DCMotor` with an input offset and hidden parameters.
+    """A :class:`jerklab.plant.DCMotor` with hidden parameters.
 
-    The motor sees ``u + offset`` (an H-bridge / driver asymmetry, input referred, V) on top
-    of DCMotor's Coulomb friction, PWM and encoder quantization. ``repr`` never shows a value.
+    DCMotor's input offset (the motor sees ``u + offset``, a driver asymmetry, input referred,
+    V), Coulomb friction, PWM and encoder quantization; the rig adds encoder count noise
+    (:class:`StudentDevice`). No dead zone: at steady state it is indistinguishable from the
+    Coulomb friction, so lab 1 could not separate the two. ``repr`` never shows a value.
     Make one with :func:`student_motor`.
     """
 
     def __init__(self, student, params: _Parameters, seed: int):
         super().__init__(K=params.K, tau=params.tau, supply_voltage=SUPPLY_VOLTAGE, pwm_bits=10,
                          encoder_ppr=params.encoder_ppr, decoding=1,
-                         coulomb_friction=params.coulomb_friction, noise_std=0.0, seed=seed % 2**32)
+                         coulomb_friction=params.coulomb_friction, noise_std=0.0, seed=seed % 2**32,
+                         offset=params.offset)
         self.student = student
-        self.offset = params.offset
         self.noise_counts = params.noise_counts
 
     def __repr__(self):
         return f"StudentMotor(student={self.student!r}, parameters hidden)"
 
     __str__ = __repr__
-
-    def step_state(self, x, u, dt, t=0.0):
-        """As :meth:`DCMotor.step_state`, the motor seeing ``u + offset``."""
-        return super().step_state(x, float(u) + self.offset, dt, t)
 
 
 def student_motor(student, key: bytes | None = None) -> StudentMotor:
