@@ -172,7 +172,8 @@ def _corners():
                          ids=[f"corner{i}" for i in range(8)] + [f"random{i}" for i in range(6)])
 def test_every_spec_feasible_over_the_distribution(params, request):
     """At the corners of RANGES and for random IDs, the worksheets' own methods pass their checks:
-    the sweep gives K within 4 % and f_c within 0.06 V, PEM τ within 8 %, and the lab 2 design
+    the sweep gives K within 4 % and f_c within 0.06 V, PEM τ within 8 %, PEM with friction and
+    offset on the six steps K, τ, f_c within the same bounds, and the lab 2 design
     (z-domain, ωn = 30 rad/s, ζ = 1, Ts = 5 ms) on a model 5 % / 8 % off meets every spec item."""
     from jerklab import ident
 
@@ -189,6 +190,10 @@ def test_every_spec_feasible_over_the_distribution(params, request):
         tau = ident.fit_dc_motor(r6.control, r6.position, 0.005).tau
         assert abs(K / t["K"] - 1) <= 0.04 and abs(fc - t["coulomb_friction"]) <= 0.06
         assert abs(tau / t["tau"] - 1) <= 0.08
+        fit = ident.fit_dc_motor([r.control for r in recs.values()], [r.position for r in recs.values()],
+                                 0.005, friction=True, offset=True)
+        assert abs(fit.K / t["K"] - 1) <= 0.04 and abs(fit.tau / t["tau"] - 1) <= 0.08
+        assert abs(fit.friction - t["coulomb_friction"]) <= 0.06
         for eK, et in ((1.05, 0.92), (0.95, 1.08)):
             Kh, th = t["K"] * eK, t["tau"] * et
             rig.set_model(Kh, th)
@@ -423,8 +428,8 @@ def test_grade_command_on_three_submissions(tmp_path):
     assert set(rows) == {"lab1_alice.zip", "bob_lab1.ipynb", "lab1_carol.zip", "dave_lab1.ipynb"}
     a, b = rows["lab1_alice.zip"], rows["bob_lab1.ipynb"]
     assert a["status"] == "graded" and b["status"] == "graded", (a, b)
-    assert float(a["total"]) == float(a["max"]) == 15.0
-    assert float(b["max"]) == 15.0 and float(b["total"]) == 13.0
+    assert float(a["total"]) == float(a["max"]) == 17.0
+    assert float(b["max"]) == 17.0 and float(b["total"]) == 15.0
     assert float(b["pre_speed"]) == 0.0 and float(b["trust"]) == 0.0 and float(b["K"]) == 3.0
     assert a["student"] == "alice" and b["student"] == "bob"
     c, d = rows["lab1_carol.zip"], rows["dave_lab1.ipynb"]

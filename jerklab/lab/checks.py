@@ -618,3 +618,29 @@ def _model3(s, ans):
         return CheckResult("model3", False, "f_c is not your motor's: take the friction voltage you found in "
                            "lab 1's sweep (V, not rad/s).")
     return CheckResult("model3", True, "K, τ and f_c from lab 1 describe this motor: the predictions below use them.")
+
+
+@_check("pem_friction")
+def _pem_friction(s, ans):
+    if not isinstance(ans, (tuple, list)) or len(ans) != 3:
+        raise _Missing("pem_friction: a tuple (K, tau, f_c) from the PEM fit with friction and offset.")
+    if ans[2] is None:
+        return CheckResult("pem_friction", False, "f_c is None: pass friction=True (and offset=True) to "
+                           "ident.fit_dc_motor.")
+    Kp, tp, fp = (_num(f"pem_friction[{i}]", a) for i, a in enumerate(ans))
+    K, tau, fc, off, src = _lab1_reference(s)
+    bad = []
+    if _rel(Kp, K) > 0.04:
+        bad.append(f"K is {_pct(Kp, K):+.0f} % off")
+    if _rel(tp, tau) > 0.08:
+        bad.append(f"τ is {_pct(tp, tau):+.0f} % off")
+    if abs(fp - fc) > 0.06:
+        bad.append(f"f_c is {fp - fc:+.2f} V off")
+    if bad:
+        return CheckResult("pem_friction", False, ", ".join(bad) + ": fit all six steps at once (lists of "
+                           "u and θ, one per record) with friction=True and offset=True — from one step "
+                           "friction and gain cannot be told apart.")
+    return CheckResult("pem_friction", True, f"all three agree with {src}: with six records at different "
+                       "voltages and both directions, the output-error fit separates the gain, the friction "
+                       "(which flips with the direction) and the offset (which does not), and it agrees "
+                       "with the sweep — two methods, one motor.")
