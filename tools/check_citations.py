@@ -15,7 +15,7 @@ equation and is left alone. A module that cites Stojčić must also give the ASC
 
 Usage::
 
-    python tools/check_citations.py [paths...]     # default: jerklab/*.py jerklab/rig/*.py
+    python tools/check_citations.py [paths...]     # default: every jerklab/**/*.py
 
 prints ``file:line: text`` for each offender and exits 1 if there is any, 0 otherwise.
 """
@@ -26,7 +26,7 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_GLOBS = ("jerklab/*.py", "jerklab/rig/*.py")
+DEFAULT_GLOBS = ("jerklab/**/*.py",)
 
 PAPERS = r"(?:Stojčić|Stojcic|Xu\s*&\s*Meckl|Yang)"
 #: a citation of another source: this many characters before the "eq." may name it

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from jerklab import paper
 from jerklab.plant import DCMotor
 from jerklab.rig.virtual import VirtualDevice
 
@@ -196,7 +197,7 @@ def connect_student(student, port=None, *, key=None, **options):
         link = VirtualSerial(StudentDevice(motor), speed=speed, timeout=0.05)
         rig = Rig(link, "virtual", supply_voltage=motor.supply_voltage,
                   counts_per_rev=motor.encoder_ppr * motor.decoding,
-                  model=options.pop("model", (32.4, 0.025)), timeout=options.pop("timeout", 2.0),
+                  model=options.pop("model", (paper.MOTOR_K, paper.MOTOR_TAU)), timeout=options.pop("timeout", 2.0),
                   hello_timeout=options.pop("hello_timeout", None) or 1.0,
                   progress=options.pop("progress", True), recordings=options.pop("recordings", None))
         if options:
