@@ -1,9 +1,11 @@
 """Rest-to-rest trajectory planners: Stojčić's sine-jerk profile and its peers.
 
+ASCII spelling for grep: Stojcic eq. 2, Stojcic eq. 3, Stojcic eq. 4, Stojcic eq. 15.
+
 Four planners share one :class:`Profile` interface (see ``docs/INTERFACES.md``):
 
-* :func:`plan_sine_jerk` -- Stojčić (2015) exactly as published (eq. 2-4, Fig. 2): the jerk is one
-  full sine period of peak ``max_jerk`` while accelerating, a cruise, and the mirrored period while
+* :func:`plan_sine_jerk` -- Stojčić (2015) exactly as published (Stojčić eq. 2, Stojčić eq. 3,
+  Stojčić eq. 4, Fig. 2): the jerk is one full sine period of peak ``max_jerk`` while accelerating, a cruise, and the mirrored period while
   decelerating.  The peak jerk is *always* ``max_jerk``; when the acceleration limit binds, the
   published algorithm shortens the pulse instead of adding an acceleration plateau, which makes it
   slow (up to hundreds of times slower than a time-optimal planner on the same limits).
@@ -34,7 +36,7 @@ Stojčić's eq. 15 recursion, which :meth:`Profile.discretize` keeps to show it)
 References
 ----------
 M. J. Stojčić, "Design and implementation of a digital positioning system with controlled jerk",
-Facta Universitatis, 2015 (eq. 2, 3, 4, 15 and Fig. 2).
+Facta Universitatis, 2015 (Stojčić eq. 2, Stojčić eq. 3, Stojčić eq. 4, Stojčić eq. 15 and Fig. 2).
 """
 from __future__ import annotations
 
@@ -220,7 +222,7 @@ class Profile:
     phase_times : tuple of float
         Segment durations (s), summing to ``duration``: 7 segments (rising jerk pulse, acceleration
         plateau, falling pulse, cruise, and the mirror) for the S-curve and the optimal sine profile;
-        eq. 2's three intervals ``(T, t_v, T)`` for the published sine profile; ``(t_a, t_v, t_a)``
+        Stojčić eq. 2's three intervals ``(T, t_v, T)`` for the published sine profile; ``(t_a, t_v, t_a)``
         for the trapezoid.
     peak_jerk, peak_accel, peak_velocity : float
         Magnitudes actually reached (``inf`` jerk for the trapezoid's acceleration steps).
@@ -345,13 +347,14 @@ class Profile:
         """Stojčić eq. 15: backward-Euler integration of the sampled jerk (kept to show its drift).
 
         ``eps(k) = eps(k-1) + j(k) Ts``, ``omega(k) = omega(k-1) + eps(k) Ts``,
-        ``theta(k) = theta(k-1) + omega(k) Ts`` with ``j(k)`` the jerk of eq. 2 at ``t_k = k Ts``
+        ``theta(k) = theta(k-1) + omega(k) Ts`` with ``j(k)`` the jerk of Stojčić eq. 2 at
+        ``t_k = k Ts``
         and zero initial state.  The result does *not* end at ``distance``: with Ts = 5 ms,
         distance 100, J = 1000, E = 100, Omega = 60 the published profile ends about 0.8 % short.
         Sample the closed form (:meth:`sample`) of a :meth:`synchronized` profile instead.
 
         A trapezoid has no finite jerk: its sampled acceleration is integrated (the last two
-        lines of eq. 15).
+        lines of Stojčić eq. 15).
 
         Parameters
         ----------
@@ -413,7 +416,7 @@ class Profile:
 
 
 class SineJerkProfile(Profile):
-    """Stojčić's published sine-jerk profile (eq. 2): ``j = J sin(2 pi t / T)`` on ``[0, T]``,
+    """Stojčić's published sine-jerk profile (Stojčić eq. 2): ``j = J sin(2 pi t / T)`` on ``[0, T]``,
     0 on ``[T, t1]``, ``-J sin(2 pi (t - t1) / T)`` on ``[t1, tu]``.
 
     ``accel_time`` is T, ``cruise_time`` is t_v; ``phase_times = (T, t_v, T)``.
@@ -516,9 +519,10 @@ _TWO_PI = 2.0 * math.pi
 
 
 def plan_sine_jerk(distance, max_jerk, max_accel, max_velocity) -> "SineJerkProfile":
-    """Stojčić's sine-jerk planner exactly as published (eq. 3, 4 and the flowchart of Fig. 2).
+    """Stojčić's sine-jerk planner exactly as published (Stojčić eq. 3, Stojčić eq. 4
+    and the flowchart of Fig. 2).
 
-    ``T = (2 pi Theta / J)^(1/3)`` (eq. 4); if ``J T / pi > E`` then ``T = E pi / J``; if
+    ``T = (2 pi Theta / J)^(1/3)`` (Stojčić eq. 4); if ``J T / pi > E`` then ``T = E pi / J``; if
     ``J T^2 / (2 pi) > Omega`` then ``T = sqrt(2 pi Omega / J)``; ``omega = min(J T^2/(2 pi), Omega)``,
     ``t_v = (Theta - omega T) / omega``, ``t_u = 2 T + t_v``.  This is ``T = min(T_Theta, T_E,
     T_Omega)``, so every limit holds.  The round-off ``t_v ~ -1e-16`` is clamped to 0.
@@ -552,10 +556,10 @@ def plan_sine_jerk(distance, max_jerk, max_accel, max_velocity) -> "SineJerkProf
     if theta == 0.0:
         p._tj = p._tv = 0.0
         return p
-    T = (_TWO_PI * theta / J) ** _THIRD                     # eq. 4
-    if J * T / _PI > E:                                     # eq. 3: eps_max = J T / pi
+    T = (_TWO_PI * theta / J) ** _THIRD                     # Stojčić eq. 4
+    if J * T / _PI > E:                                     # Stojčić eq. 3: eps_max = J T / pi
         T = E * _PI / J
-    wmax = J * T * T / _TWO_PI                              # eq. 3: omega_max = J T^2 / (2 pi)
+    wmax = J * T * T / _TWO_PI                              # Stojčić eq. 3: omega_max = J T^2 / (2 pi)
     if wmax > W:
         T = _sqrt(_TWO_PI * W / J)
         wmax = W                                            # omega = min(omega_max, Omega)
@@ -839,7 +843,7 @@ def _batch_trapezoid(d, A, V, tj_o, ta_o, tv_o):
 def _batch_kernel_py(code, d, J, A, V, tj_o, ta_o, tv_o):  # pragma: no cover - compiled
     """One loop over the moves, the scalar planners' algebra (compiled by numba when present).
 
-    ``code``: 0 published sine (eq. 4, Fig. 2), 1 optimal sine, 2 S-curve, 3 trapezoid.
+    ``code``: 0 published sine (Stojčić eq. 4, Fig. 2), 1 optimal sine, 2 S-curve, 3 trapezoid.
     """
     two_pi = 2.0 * math.pi
     inf = math.inf

@@ -5,7 +5,7 @@ documents it byte by byte and the Arduino firmware mirrors it.  Counts, PWM
 ticks and microseconds appear only here and in the firmware: everything else
 in jerklab speaks SI units.
 
-Frame (Stojčić §4 asks for a "remote interface"; this binary framing replaces
+Frame (Stojčić §4 — ASCII Stojcic — asks for a "remote interface"; this binary framing replaces
 the paper's HTML page so that a 5 ms telemetry stream fits a 115200 baud link)::
 
     0xA5 0x5A | len | type | seq | payload (0..64 bytes) | crc16 (little-endian)
@@ -150,7 +150,7 @@ class EndReason(enum.IntEnum):
 class Planner(enum.IntEnum):
     """``Plan.planner`` values; which ones a device supports is in its capabilities."""
 
-    SINE_JERK = 0          #: Stojčić eq. 2-4, as published
+    SINE_JERK = 0          #: Stojčić eq. 2, Stojčić eq. 3, Stojčić eq. 4, as published
     SINE_JERK_OPTIMAL = 1
     SCURVE = 2
     TRAPEZOID = 3
@@ -177,7 +177,7 @@ class Capability(enum.IntFlag):
     SIMULATED_PLANT = 1 << 8   #: the motor is a model (virtual rig, simavr harness)
 
 
-#: ``SetGains.flags`` bit: add the feedforward u_F = (tau*accel + vel)/K (Stojčić eq. 8, 16)
+#: ``SetGains.flags`` bit: add the feedforward u_F = (tau*accel + vel)/K (Stojčić eq. 8, Stojčić eq. 16)
 GAINS_FEEDFORWARD = 0x01
 #: ``Telemetry.flags`` bit: the control output hit the voltage clamp this sample
 TELEMETRY_SATURATED = 0x01
@@ -292,7 +292,7 @@ class Hello(_Message):
 
 @dataclass(frozen=True)
 class SetPlant(_Message):
-    """Motor model used by the feedforward (Stojčić eq. 1, 8) and the I/O scaling.
+    """Motor model used by the feedforward (Stojčić eq. 1, Stojčić eq. 8) and the I/O scaling.
 
     ``K`` rad/(V s), ``tau`` s, ``supply_voltage`` V (PWM full scale),
     ``counts_per_rev`` encoder counts per revolution after quadrature decoding.
@@ -308,12 +308,12 @@ class SetPlant(_Message):
 
 @dataclass(frozen=True)
 class SetGains(_Message):
-    """Discrete PID gains (Stojčić eq. 12-13) in SI units: V/rad (position loop) or V/(rad/s).
+    """Discrete PID gains (Stojčić eq. 12, Stojčić eq. 13) in SI units: V/rad (position loop) or V/(rad/s).
 
     ``Ts_us`` is the control period in µs (a multiple of ``HelloReply.tick_us``),
     ``loop`` a :class:`LoopType`, ``flags`` bit 0 = feedforward on, ``gamma`` the
     derivative filter pole ``d(k) = gamma d(k-1) + kdd (e(k) - e(k-1))`` (0 = the
-    paper's backward difference, eq. 17; |gamma| < 1).
+    paper's backward difference, Stojčić eq. 17; |gamma| < 1).
     """
 
     TYPE: ClassVar[MsgType] = MsgType.SET_GAINS

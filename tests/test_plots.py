@@ -131,3 +131,18 @@ def test_ident_figures_and_aliases():
     with pytest.raises(ValueError, match="analysis"):
         plots.plot_residuals(np.zeros(3))
 
+
+
+def test_recording_figures_and_alias():
+    from jerklab import plots, rig
+
+    assert rig.plot_comparison is plots.plot_comparison
+    rec = rig.Recording({"kind": "step", "Ts": 0.005, "counts_per_rad": 448 / (2 * np.pi),
+                         "volts_per_pwm": 12 / 1023, "status": "ok"})
+    for k in range(5):
+        rec.append(k, 0.0, 3 * k, 100 * k)
+    fig = rec.plot()
+    ax0, ax1 = fig.axes
+    assert ax0.get_ylabel() == "position (rad)" and ax1.get_ylabel() == "control (V)"
+    np.testing.assert_array_equal(ax0.get_lines()[0].get_ydata(), rec.position)
+    assert ax0.get_title() == "rig recording: step (ok)"

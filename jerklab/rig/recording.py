@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from jerklab._validate import as_int, as_positive, as_real
+from jerklab.plots import plot_comparison, plot_recording
 
 __all__ = ["Recording", "RecordingIOError", "recordings_dir", "compare", "plot_comparison"]
 
@@ -394,25 +395,8 @@ class Recording:
         return rec
 
     def plot(self, ax=None):
-        """Reference and measured position (rad) and control (V) against time (s)."""
-        import matplotlib.pyplot as plt
-
-        if ax is None:
-            fig, ax = plt.subplots(2, 1, sharex=True, figsize=(7, 5))
-        else:
-            fig = ax[0].figure
-        t = self.time
-        if self.metadata.get("kind") == "move":
-            ax[0].plot(t, self.reference, label="reference")
-        ax[0].plot(t, self.position, label="measured")
-        ax[0].set_ylabel("position (rad)")
-        ax[0].legend()
-        ax[1].step(t, self.control, where="post")
-        ax[1].set_ylabel("control (V)")
-        ax[1].set_xlabel("time (s)")
-        ax[0].set_title(f"rig recording: {self.metadata.get('kind', '')} "
-                        f"({self.metadata.get('status', '')})")
-        return fig
+        """Reference and measured position (rad) and control (V): :func:`jerklab.plots.plot_recording`."""
+        return plot_recording(self, ax)
 
     def __repr__(self):
         where = f", path={str(self.csv_path)!r}" if self.csv_path else ""
@@ -443,32 +427,5 @@ def compare(rec: Recording, sim) -> dict:
     }
 
 
-def plot_comparison(rec: Recording, sim, title="Measured vs simulated sine-jerk move"):
-    """Overlay a rig recording and a simulation: position, tracking error, control voltage.
-
-    Both tracking errors are ``reference − encoder reading`` (what the controller sees).
-    """
-    import matplotlib.pyplot as plt
-
-    n = min(len(rec), len(sim.t))
-    idx = rec.index[rec.index < len(sim.t)][:n]
-    t = rec.time[:len(idx)]
-    fig, ax = plt.subplots(3, 1, sharex=True, figsize=(8, 7.5))
-    ax[0].plot(t, rec.reference[:len(idx)], "k--", lw=1, label="reference")
-    ax[0].plot(t, rec.position[:len(idx)], label="measured (rig)")
-    ax[0].plot(t, np.asarray(sim.measured)[idx], ":", label="simulated")
-    ax[0].set_ylabel("position (rad)")
-    ax[0].legend(loc="lower right")
-    ax[1].plot(t, 1e3 * (rec.reference[:len(idx)] - rec.position[:len(idx)]), label="measured (rig)")
-    ax[1].plot(t, 1e3 * (np.asarray(sim.reference)[idx] - np.asarray(sim.measured)[idx]), ":",
-               label="simulated")
-    ax[1].set_ylabel("tracking error (mrad)")
-    ax[1].legend(loc="upper right")
-    ax[2].step(t, rec.control[:len(idx)], where="post", label="measured (rig)")
-    ax[2].step(t, np.asarray(sim.u_applied)[idx], ":", where="post", label="simulated")
-    ax[2].set_ylabel("control (V)")
-    ax[2].set_xlabel("time (s)")
-    ax[2].legend(loc="upper right")
-    ax[0].set_title(title)
-    fig.tight_layout()
-    return fig
+# plot_comparison lives in jerklab.plots; the name here (and jerklab.rig.plot_comparison) is an alias,
+# imported at the top of this module.
