@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import math
 import os
+import re
+import subprocess
 import threading
 import time
 
@@ -277,3 +279,57 @@ def test_launch_returns_once_the_firmware_can_receive(uno):
         info = _handshake(ser, pr.Decoder(), timeout=5.0)
     assert info.name == "jerklab-uno"
 
+
+
+@pytest.fixture
+def avrdude(tools):
+    require_tool("avrdude", "avr-gcc", "/usr/share/arduino/hardware/arduino/avr/bootloaders/optiboot/optiboot.c")
+
+
+def test_make_upload_flashes_the_sketch_through_optiboot(avrdude, tmp_path):
+    """First contact with a board that has only its bootloader: the simulated Uno runs
+    Optiboot (built from arduino-core-avr's source) in its boot section with an empty
+    application flash; `make -C firmware upload PORT=<pty>` (avrdude -c arduino) writes and
+    verifies the sketch through it; after Optiboot's watchdog reset the sketch answers
+    HELLO."""
+    fw = simavr.firmware_dir()
+    with simavr.launch(elf=False, bootloader=True) as uno:
+        out = subprocess.run(["make", "-C", str(fw), "upload", f"PORT={uno.port}"], capture_output=True,
+                             text=True, timeout=180)
+        log = out.stdout + out.stderr
+        assert out.returncode == 0, log
+        with open(fw / "build" / "jerklab_rig.hex") as fh:     # data bytes of the Intel hex
+            size = sum(int(ln[1:3], 16) for ln in fh if ln.startswith(":") and ln[7:9] == "00")
+        m = re.search(r"(\d+) bytes of flash verified", log)
+        assert m and int(m.group(1)) == size, log
+        with rig_mod.connect(uno.port, progress=False, recordings=tmp_path) as rig:
+            assert rig.name == "jerklab-uno" and rig.info.protocol_version == pr.PROTOCOL_VERSION
+        assert uno.stats()["board_resets"] >= 1
+
+
+def test_connect_gets_the_sketch_after_the_bootloader(tools, tmp_path):
+    """Optiboot with the sketch in flash, as on an Uno right after the port opened: the first
+    HELLO goes to the bootloader (which then starts the sketch), connect()'s retry reaches the
+    sketch well within its 3 s."""
+    with simavr.launch(bootloader=True) as uno:
+        t0 = time.monotonic()
+        with rig_mod.connect(uno.port, progress=False, recordings=tmp_path) as rig:
+            took = time.monotonic() - t0
+            assert rig.name == "jerklab-uno"
+            assert rig.hello_answered >= 2            # the first HELLO went to Optiboot
+            assert rig.step(3.0, 0.05, rest=0.0).metadata["status"] == "complete"
+        assert took < 3.0
+
+
+def test_a_bootloader_that_does_not_fit_is_refused(tools, tmp_path):
+    """Debian's prebuilt optiboot_atmega328.hex is 532 bytes: it runs past the end of the
+    32 KB flash. The harness refuses it with a message instead of running a broken boot."""
+    hexfile = "/usr/share/arduino/hardware/arduino/avr/bootloaders/optiboot/optiboot_atmega328.hex"
+    if not os.path.exists(hexfile):
+        pytest.skip("needs arduino-core-avr's optiboot_atmega328.hex")
+    with open(hexfile) as fh:
+        beyond = [ln for ln in fh if ln.startswith(":") and ln[7:9] == "00" and int(ln[3:7], 16) >= 0x8000]
+    if not beyond:
+        pytest.skip("this arduino-core-avr's Optiboot fits the boot section")
+    with pytest.raises(simavr.HarnessError, match="does not fit the flash"):
+        simavr.launch(bootloader=hexfile, build=False, startup_timeout=5.0)
