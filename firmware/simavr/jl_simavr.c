@@ -28,6 +28,9 @@
  *   --ppr 448 (pulses per revolution of one channel) --step-us 20
  *   --fast (as fast as possible; default: paced to the wall clock, as a real board)
  *   --stats FILE (JSON, written on SIGUSR1 and at exit) --max-seconds S (simulated time)
+ *   --bootloader HEX (Intel hex loaded at its address, e.g. Optiboot at 0x7E00, and made the
+ *                     reset vector; started with MCUSR = EXTRF as after the reset that opening
+ *                     the port causes on an Uno; --no-app instead of the ELF: empty application)
  *   --counts-addr ADDR (data address of the firmware's encoder count, from avr-nm: reported
  *                       as "firmware_counts" so a test can compare it with the ideal count)
  *
@@ -566,7 +569,8 @@ static void on_signal(int sig) {
 
 static void usage(void) {
     fprintf(stderr, "usage: jl_simavr [--K v] [--tau v] [--supply v] [--friction v] [--load v] [--ppr n] "
-                    "[--step-us n] [--fast] [--stats FILE] [--max-seconds s] firmware.elf\n");
+                    "[--step-us n] [--fast] [--stats FILE] [--max-seconds s] [--counts-addr a] "
+                    "[--bootloader optiboot.hex] firmware.elf | --no-app\n");
     _exit(2);
 }
 
