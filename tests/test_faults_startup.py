@@ -7,6 +7,7 @@ injects and checks the answer a user gets.
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 import time
@@ -111,7 +112,7 @@ def test_connect_retries_hello_while_the_bootloader_runs(tmp_path):
     took = time.monotonic() - t0
     assert r.name == "jerklab-virtual"
     assert r.hello_answered >= 4 and r.hello_attempts == r.hello_answered
-    assert 1.0 <= took < 2.0
+    assert 1.0 <= took < 3.0
 
 
 @pytest.mark.parametrize("reply, heard", [(b"", "nothing came back"),
@@ -122,8 +123,9 @@ def test_no_hello_is_bounded_and_says_what_to_check(tmp_path, reply, heard):
         Rig(_Mute(reply, timeout=0.05), "/dev/ttyACM0", hello_timeout=1.0, progress=False, recordings=tmp_path)
     took = time.monotonic() - t0
     msg = str(info.value)
-    assert 1.0 <= took < 1.6                                   # bounded by hello_timeout
-    for w in ("/dev/ttyACM0", "sent 4 HELLO(s) over 1 s", heard, "python -m jerklab.rig ports",
+    assert 1.0 <= took < 2.5                                   # bounded by hello_timeout
+    assert re.search(r"sent [34] HELLO\(s\) over 1 s", msg), msg    # every 0.25 s
+    for w in ("/dev/ttyACM0", heard, "python -m jerklab.rig ports",
               "make -C firmware upload", "115200", f"protocol version {P.PROTOCOL_VERSION}"):
         assert w in msg, (w, msg)
 
