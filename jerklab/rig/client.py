@@ -6,6 +6,7 @@ It speaks ``jerklab.protocol`` over anything with pyserial's ``read``/``write``
 """
 from __future__ import annotations
 
+import copy
 import datetime as _dt
 import math
 import sys
@@ -339,9 +340,14 @@ class Rig:
                 if frames:
                     return frames
             elif self._decoder.pending and now - self._last_byte > 0.02:
-                # a truncated frame must not hold back the next one: abandon it after 20 ms
-                frames = self._decoder.flush()
+                # A truncated frame must not hold back a good one behind it: after 20 ms of
+                # silence look for a frame inside the held bytes, and give up the head only if
+                # one is there. A frame whose sender merely stalled (a loaded simulator, a TCP
+                # segment held back) is kept and completes when its bytes come.
+                probe = copy.deepcopy(self._decoder)
+                frames = probe.flush()
                 if frames:
+                    self._decoder = probe
                     return frames
             if now >= deadline:
                 return []
