@@ -426,7 +426,8 @@ class Rig:
                  "baud rate?)" if junk else "; nothing came back")
         checks = ["the port is the rig's (list candidates: python -m jerklab.rig ports)",
                   "the jerklab firmware is flashed (make -C firmware upload PORT=...)",
-                  f"the firmware's baud rate is {baud or 115200} (jerklab firmware: 115200)",
+                  "the baud rate (the jerklab firmware runs at 115200" +
+                  (f", this link at {baud})" if baud else ")"),
                   f"the firmware speaks protocol version {P.PROTOCOL_VERSION} (a newer or older "
                   "jerklab needs the matching firmware)"]
         if isinstance(self.link, serial.Serial) and sys.platform.startswith("linux"):
