@@ -35,7 +35,8 @@ from jerklab._validate import as_nonnegative, as_positive, as_real
 __all__ = ["Gains", "DiscreteGains", "pole_placement_pid", "velocity_pole_placement_pid",
            "discrete_pole_placement_pid", "paper_error_scale", "paper_velocity_controller", "Feedforward",
            "DigitalController",
-           "PositionLoop", "VelocityLoop", "desired_poles"]
+           "PositionLoop", "VelocityLoop", "desired_poles", "closed_loop_poles", "max_pole_radius",
+           "is_stable"]
 
 
 # ---------------------------------------------------------------------------
@@ -623,3 +624,64 @@ class VelocityLoop(_Loop):
     """
 
     loop = "velocity"
+
+
+# ---------------------------------------------------------------------------
+# stability of a design on the rig
+# ---------------------------------------------------------------------------
+def _sampled_gains(gains, Ts):
+    if isinstance(gains, DiscreteGains):
+        if Ts is not None and not math.isclose(as_positive("Ts", Ts), gains.Ts):
+            raise ValueError(f"Ts={Ts} differs from gains.Ts={gains.Ts}")
+        return gains
+    if isinstance(gains, Gains):
+        if Ts is None:
+            raise ValueError("Ts is required for continuous Gains (they are discretized by Stojčić eq. 13)")
+        return gains.discretize(Ts)
+    raise TypeError(f"gains must be Gains or DiscreteGains, got {type(gains).__name__}")
+
+
+def closed_loop_poles(K, tau, gains, Ts=None) -> np.ndarray:
+    """Closed-loop poles in z of the loop the rig runs: the ZOH plant and the discrete PID.
+
+    The plant is the exact zero-order-hold sampling of the motor of Stojčić eq. 1,
+    ``K/(s(τs+1))`` (position loop) or the velocity measured as counts per sample
+    (velocity loop, ``gains.loop``); the controller is the PID of Stojčić eq. 17 with the
+    derivative filter ``gamma``. Feedforward, clamp and quantization do not move the poles.
+
+    Parameters
+    ----------
+    K : float
+        Motor gain (rad/(V·s)), > 0.
+    tau : float
+        Motor time constant (s), > 0.
+    gains : Gains or DiscreteGains
+        Continuous gains are discretized at ``Ts`` by Stojčić eq. 13.
+    Ts : float, optional
+        Sampling time (s); required for ``Gains``, checked against ``DiscreteGains.Ts``.
+
+    Returns
+    -------
+    numpy.ndarray
+        The complex poles in z; the loop is stable iff all ``|z| < 1``.
+
+    Examples
+    --------
+    >>> g = pole_placement_pid(32.4, 0.025, wn=60.0)
+    >>> round(float(max(abs(closed_loop_poles(32.4, 0.025, g, Ts=0.005)))), 2)
+    1.33
+    """
+    d = _sampled_gains(gains, Ts)
+    cls = PositionLoop if d.loop == "position" else VelocityLoop
+    return cls(K, tau, d).poles_z()
+
+
+def max_pole_radius(K, tau, gains, Ts=None) -> float:
+    """Largest ``|z|`` of :func:`closed_loop_poles` (stable iff < 1); parameters as there."""
+    return float(np.max(np.abs(closed_loop_poles(K, tau, gains, Ts))))
+
+
+def is_stable(K, tau, gains, Ts=None) -> bool:
+    """True when every closed-loop pole of the sampled loop (:func:`closed_loop_poles`) lies
+    strictly inside the unit circle; parameters as there."""
+    return max_pole_radius(K, tau, gains, Ts) < 1.0
