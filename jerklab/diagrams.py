@@ -1,6 +1,6 @@
 """Block diagrams and the planner flowchart of the three papers, drawn by code (schemdraw).
 
-The papers' figures that are drawings, not data, are redrawn here so that a notebook or the book
+The figures of Stojčić (Stojcic), Xu & Meckl and Yang that are drawings, not data, are redrawn here so that a notebook or the book
 shows them next to the code they describe:
 
 * :func:`stojcic_fig2` — the planner's flowchart (Stojčić Fig. 2). Its boxes and branches come
@@ -85,7 +85,7 @@ def _cruise(s):
     s["tu"] = 2.0 * s["T"] + s["tv"]
 
 
-#: Stojčić's planner (Fig. 2, eq. 3 and 4) step by step. ``run_flowchart`` executes it and
+#: Stojčić's planner (Stojčić Fig. 2, Stojčić eq. 4) step by step. ``run_flowchart`` executes it and
 #: ``stojcic_fig2`` draws it; the same lambdas do both.
 PLANNER_FLOWCHART: tuple[FlowStep, ...] = (
     FlowStep("T_theta", "process", r"$T = \sqrt[3]{2\pi\Theta/J}$", "Stojčić eq. 4", action=_t_theta),
@@ -122,7 +122,7 @@ class FlowchartRun:
 
 
 def run_flowchart(distance, max_jerk, max_accel, max_velocity) -> FlowchartRun:
-    """Walk the flowchart of Stojčić Fig. 2 (eq. 4) for one move.
+    """Walk the flowchart of Stojčić Fig. 2 (Stojčić eq. 4) for one move.
 
     Parameters
     ----------
@@ -238,9 +238,9 @@ class _Anchor:
 
 
 def stojcic_fig3():
-    """Stojčić Fig. 3: overall system, feedback B(s) and feedforward F(s) around P(s) (eq. 5, 6)."""
+    """Stojčić Fig. 3: overall system, feedback B(s) and feedforward F(s) around P(s) (Stojčić eq. 5)."""
     _, dsp, _ = _schemdraw()
-    d = _new("Stojčić Fig. 3 — overall system: y = PF/(1+PB)·r + W/(1+PB)·w (eq. 5)")
+    d = _new("Stojčić Fig. 3 — overall system: y = PF/(1+PB)·r + W/(1+PB)·w (Stojčić eq. 5)")
     d.add(dsp.Line().right(0.8).label("r(s)", "left"))
     d.add(split := dsp.Dot())
     d.add(dsp.Arrow().right(1.0))
@@ -276,9 +276,9 @@ def stojcic_fig3():
 
 
 def stojcic_fig5():
-    """Stojčić Fig. 5: feedforward realisation, eq. 15 recursion and u_F(k) (Stojčić eq. 16)."""
+    """Stojčić Fig. 5: feedforward realisation, the Stojčić eq. 15 recursion and u_F(k) (Stojčić eq. 16)."""
     _, dsp, _ = _schemdraw()
-    d = _new("Stojčić Fig. 5 — feedforward: eq. 15 accumulators, u_F(k) = (τ/K)ε(k) + (1/K)ω(k) (eq. 16)")
+    d = _new("Stojčić Fig. 5 — feedforward: accumulators of Stojčić eq. 15, u_F(k) = (τ/K)ε(k) + (1/K)ω(k) (Stojčić eq. 16)")
     d.add(dsp.Arrow().right(1.2).label("j(k)", "left"))
     d.add(a1 := dsp.Box(w=2.2, h=1.2).anchor("W").label(r"$\frac{T_s}{1-z^{-1}}$"))
     d.add(dsp.Line().right(1.0).at(a1.E).label(r"$\varepsilon(k)$"))
@@ -305,7 +305,7 @@ def stojcic_fig5():
 def stojcic_fig6():
     """Stojčić Fig. 6: feedback realisation, p(k), i(k), d(k) and u_B(k) (Stojčić eq. 17)."""
     _, dsp, _ = _schemdraw()
-    d = _new("Stojčić Fig. 6 — feedback: p(k) + i(k) + d(k) = u_B(k) (eq. 17, 18)")
+    d = _new("Stojčić Fig. 6 — feedback: p(k) + i(k) + d(k) = u_B(k) (Stojčić eq. 18)")
     d.add(dsp.Arrow().right(1.4).label(r"$\omega_{Td}(k)$", "left"))
     d.add(se := dsp.Sum().anchor("W").label("+", "left", ofst=(0.15, 0.05), fontsize=9))
     d.add(dsp.Arrow().up(1.0).at((se.S[0], se.S[1] - 1.0)).label(r"$\omega_T(k)$ (encoder)", "left")
@@ -334,9 +334,9 @@ def stojcic_fig6():
 # Xu & Meckl
 # ----------------------------------------------------------------------------------------------
 def xu_fig1():
-    """Xu & Meckl Fig. 1: PZT model, hysteresis H then linear G (eq. 1), with the CNIA inverse."""
+    """Xu & Meckl Fig. 1: PZT model, hysteresis H then linear G (Xu & Meckl eq. 1), with the CNIA inverse."""
     _, dsp, _ = _schemdraw()
-    d = _new("Xu and Meckl Fig. 1 — PZT actuator model: H⁻¹ (CNIA) · H (hysteresis) · G(s) (eq. 1)")
+    d = _new("Xu and Meckl Fig. 1 — PZT actuator model: H⁻¹ (CNIA) · H (hysteresis) · G(s) of Table I")
     d.add(dsp.Arrow().right(1.4).label(r"$u_r$", "left"))
     d.add(hi := dsp.Box(w=2.2, h=1.2).anchor("W").label(r"$H^{-1}$" + "\n(CNIA)", fontsize=10))
     d.add(dsp.Arrow().right(1.6).at(hi.E).label(r"$u_c$"))
@@ -370,7 +370,7 @@ def xu_fig3(cycle=None, ax=None):
         ax.step(t, u, where="post", lw=1.2, label=r"shaped $u_T(t)$, $t < T$, then the scan ramp")
         tt = np.linspace(T, t[-1], 50)
         ax.plot(tt, u[cycle.N] + cycle.w / (cycle.spec.Ts * 1e3) * (tt - T), "k--", lw=0.9,
-                label=r"$u_\infty(t) = u_T(T) + w_{ss}(t-T)$ (eq. 11)")
+                label=r"$u_\infty(t) = u_T(T) + w_{ss}(t-T)$ (Xu & Meckl eq. 11)")
         ax.set_ylabel("input u (V)")
         ax.set_xlabel("time t (ms)")
     else:
@@ -384,7 +384,7 @@ def xu_fig3(cycle=None, ax=None):
         ax.set_xlabel("time t / T (–)")
     ax.axvline(T, color="gray", lw=0.8)
     ax.annotate("T", (T, ax.get_ylim()[0]), xytext=(3, 3), textcoords="offset points")
-    ax.set_title("Xu & Meckl Fig. 3 — input feature of velocity tracking (eq. 9–12)", fontsize=9)
+    ax.set_title("Xu & Meckl Fig. 3 — input feature of velocity tracking (Xu & Meckl eq. 12)", fontsize=9)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper left")
     return ax
@@ -425,7 +425,7 @@ def yang_fig1():
     _, dsp, _ = _schemdraw()
     d = _new("Yang Fig. 1 — S-curve system structure (FPGA modules, drive, motor)")
     d.add(dsp.Arrow().right(1.0).label("V, T", "left"))
-    d.add(a := dsp.Box(w=3.0, h=1.4).anchor("W").label("S-curve speed\ndissociation\n(eq. 5, 6)", fontsize=9))
+    d.add(a := dsp.Box(w=3.0, h=1.4).anchor("W").label("S-curve speed\ndissociation", fontsize=9))
     d.add(dsp.Arrow().right(1.6).at(a.E).label("f = v/k"))
     d.add(b := dsp.Box(w=3.0, h=1.4).anchor("W").label("PWM speed\nregulation\n(divider)", fontsize=9))
     d.add(dsp.Arrow().right(1.6).at(b.E).label("pulses"))
@@ -452,7 +452,7 @@ def yang_fig3():
 
 
 def yang_fig4():
-    """Yang Fig. 4: the basic pulse (PWM) model, reset, clk, cycle in and clkout (Yang eq. 7, 8)."""
+    """Yang Fig. 4: the basic pulse (PWM) model, reset, clk, cycle in and clkout (Yang eq. 8)."""
     return _finish(_module("Yang Fig. 4 — basic pulse-frequency model: cycle = f_clk / f, 50 % duty",
                            ["reset", "clk", "cycle"], ["clkout"], "PWM model"))
 

@@ -1143,7 +1143,7 @@ def table_ii_sensitivity(F_max_values=(20.0, 30.0, 38.0, 50.0, 70.0, 100.0), rea
                          freq_scale: float = 1.1, solver: str = "lp") -> list:
     """Xu & Meckl Table II under each reading of the choices the paper leaves open.
 
-    The paper gives neither the actuator limit ``F_max`` (eq. 5) nor whether "m-th order robust"
+    The paper gives neither the actuator limit ``F_max`` (Xu & Meckl eq. 5) nor whether "m-th order robust"
     applies to mode 1 only or to both modes. For each ``F_max`` and each reading this shapes the
     four inputs (as :func:`table_ii`) and evaluates them under the +10 % perturbation of ω1.
     A cycle too short for the limit (no feasible horizon) gives NaN.
