@@ -88,15 +88,15 @@ def _cruise(s):
 #: Stojčić's planner (Stojčić Fig. 2, Stojčić eq. 4) step by step. ``run_flowchart`` executes it and
 #: ``stojcic_fig2`` draws it; the same lambdas do both.
 PLANNER_FLOWCHART: tuple[FlowStep, ...] = (
-    FlowStep("T_theta", "process", r"$T = \sqrt[3]{2\pi\Theta/J}$", "Stojčić eq. 4", action=_t_theta),
-    FlowStep("accel_test", "decision", r"$JT/\pi > E$ ?", "Stojčić eq. 3",
+    FlowStep("T_theta", "process", "T = ∛(2πΘ/J)", "Stojčić eq. 4", action=_t_theta),
+    FlowStep("accel_test", "decision", "JT/π > E ?", "Stojčić eq. 3",
              test=lambda s: s["J"] * s["T"] / math.pi > s["E"], action=_t_accel,
-             yes_label=r"$T = E\pi/J$"),
-    FlowStep("w_peak", "process", r"$\bar\omega = JT^2/(2\pi)$", "Stojčić eq. 3", action=_w_peak),
-    FlowStep("velocity_test", "decision", r"$\bar\omega > \Omega$ ?", "Stojčić eq. 3",
+             yes_label="T = Eπ/J"),
+    FlowStep("w_peak", "process", "ω̄ = JT²/(2π)", "Stojčić eq. 3", action=_w_peak),
+    FlowStep("velocity_test", "decision", "ω̄ > Ω ?", "Stojčić eq. 3",
              test=lambda s: s["w"] > s["W"], action=_t_velocity,
-             yes_label=r"$T = \sqrt{2\pi\Omega/J}$, $\bar\omega = \Omega$"),
-    FlowStep("cruise", "process", r"$t_v = (\Theta - \bar\omega T)/\bar\omega$, $t_u = 2T + t_v$",
+             yes_label="T = √(2πΩ/J), ω̄ = Ω"),
+    FlowStep("cruise", "process", "tᵥ = (Θ − ω̄T)/ω̄,  tᵤ = 2T + tᵥ",
              "Stojčić eq. 2", action=_cruise),
 )
 
@@ -169,24 +169,29 @@ def _schemdraw():
         import schemdraw.flow as flow
     except ImportError as exc:                                 # pragma: no cover - dependency
         raise ImportError("jerklab.diagrams needs schemdraw (pip install schemdraw)") from exc
-    schemdraw.use("matplotlib")
     return schemdraw, dsp, flow
 
 
 def _new(title, unit=1.6, fontsize=11):
+    # schemdraw's own SVG backend: no matplotlib, fast, and the text stays text (searchable in the book)
     schemdraw, _, _ = _schemdraw()
-    d = schemdraw.Drawing(show=False)
+    d = schemdraw.Drawing(canvas="svg", show=False)
     d.config(unit=unit, fontsize=fontsize)
     d.jerklab_title = title
     return d
 
 
 def _finish(d):
-    # the title as a label of an invisible element above the drawing, so it shows in SVG and PNG
+    """Put the title above the drawing, left-aligned, and widen the box to hold it."""
     import schemdraw.elements as elm
     bbox = d.get_bbox()
-    d.add(elm.Label().at(((bbox.xmin + bbox.xmax) / 2, bbox.ymax + 0.7)).label(d.jerklab_title,
-                                                                              fontsize=11))
+    y = bbox.ymax + 0.7
+    d.add(elm.Label().at((bbox.xmin, y)).label(d.jerklab_title, fontsize=11, halign="left"))
+    # the SVG backend sizes the page from the elements, not from label text: an invisible line as
+    # wide as the title (≈ 0.16 drawing units per character at 11 pt) keeps it on the page
+    width = 0.16 * len(d.jerklab_title)
+    if bbox.xmin + width > bbox.xmax:
+        d.add(elm.Line().at((bbox.xmin, y + 0.3)).to((bbox.xmin + width, y + 0.3)).color("white"))
     return d
 
 
@@ -207,7 +212,7 @@ def stojcic_fig2():
     _, dsp, flow = _schemdraw()
     d = _new("Stojčić Fig. 2 — flowchart of the planner (drawn from jerklab's executable steps)",
              unit=0.8, fontsize=10)
-    d.add(start := flow.Start(w=3.2, h=1.1).label(r"$\Theta, J, E, \Omega$"))
+    d.add(start := flow.Start(w=3.2, h=1.1).label("Θ, J, E, Ω"))
     prev = start
     for step in PLANNER_FLOWCHART:
         d.add(flow.Arrow().down(0.8).at(prev.S))
@@ -228,7 +233,7 @@ def stojcic_fig2():
             d.add(flow.Line().at(dec.S).toy(join[1]))
             prev = _Anchor(S=(dec.S[0], join[1]))
     d.add(flow.Arrow().down(0.8).at(prev.S))
-    d.add(flow.Start(w=3.2, h=1.1).anchor("N").label(r"$T,\ t_v,\ t_u$"))
+    d.add(flow.Start(w=3.2, h=1.1).anchor("N").label("T, tᵥ, tᵤ"))
     return _finish(d)
 
 
@@ -280,15 +285,15 @@ def stojcic_fig5():
     _, dsp, _ = _schemdraw()
     d = _new("Stojčić Fig. 5 — feedforward: accumulators of Stojčić eq. 15, u_F(k) = (τ/K)ε(k) + (1/K)ω(k) (Stojčić eq. 16)")
     d.add(dsp.Arrow().right(1.2).label("j(k)", "left"))
-    d.add(a1 := dsp.Box(w=2.2, h=1.2).anchor("W").label(r"$\frac{T_s}{1-z^{-1}}$"))
+    d.add(a1 := dsp.Box(w=2.2, h=1.2).anchor("W").label(r"$T_s/(1-z^{-1})$"))
     d.add(dsp.Line().right(1.0).at(a1.E).label(r"$\varepsilon(k)$"))
     d.add(s1 := dsp.Dot())
     d.add(dsp.Arrow().right(1.0))
-    d.add(a2 := dsp.Box(w=2.2, h=1.2).anchor("W").label(r"$\frac{T_s}{1-z^{-1}}$"))
+    d.add(a2 := dsp.Box(w=2.2, h=1.2).anchor("W").label(r"$T_s/(1-z^{-1})$"))
     d.add(dsp.Line().right(1.0).at(a2.E).label(r"$\omega(k)$"))
     d.add(s2 := dsp.Dot())
     d.add(dsp.Arrow().right(1.0))
-    d.add(a3 := dsp.Box(w=2.2, h=1.2).anchor("W").label(r"$\frac{T_s}{1-z^{-1}}$"))
+    d.add(a3 := dsp.Box(w=2.2, h=1.2).anchor("W").label(r"$T_s/(1-z^{-1})$"))
     d.add(dsp.Arrow().right(1.0).at(a3.E).label(r"$\theta(k)$", "right"))
     d.add(dsp.Line().down(1.0).at(s1.center))
     d.add(g1 := dsp.Box(w=1.3, h=0.9).anchor("N").label(r"$\tau/K$"))
@@ -313,7 +318,7 @@ def stojcic_fig6():
     d.add(dsp.Line().right(1.0).at(se.E).label("e(k)"))
     d.add(br := dsp.Dot())
     d.add(dsp.Arrow().right(1.4))
-    d.add(bi := dsp.Box(w=2.6, h=1.1).anchor("W").label(r"$\frac{k_{id}}{1-z^{-1}}$"))
+    d.add(bi := dsp.Box(w=2.6, h=1.1).anchor("W").label(r"$k_{id}/(1-z^{-1})$"))
     d.add(dsp.Line().up(1.8).at(br.center))
     d.add(dsp.Arrow().right(1.4))
     d.add(bp := dsp.Box(w=2.6, h=1.1).anchor("W").label(r"$k_{pd}$"))
