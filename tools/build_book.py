@@ -18,13 +18,26 @@ import sys
 import time
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
+# every page under notebooks/labs/ (notebooks and Markdown), at any depth
+LABS_TOCTREE = """
+```{toctree}
+:caption: Labs
+:maxdepth: 1
+:glob:
+
+notebooks/labs/**
+```
+"""
 
 
 def stage(src: pathlib.Path, executed: pathlib.Path) -> dict:
     if src.exists():
         shutil.rmtree(src)
     (src / "docs").mkdir(parents=True)
-    shutil.copy2(ROOT / "docs/book/index.md", src / "index.md")
+    index = (ROOT / "docs/book/index.md").read_text(encoding="utf-8")
+    if any((ROOT / "notebooks/labs").glob("**/*.ipynb")):
+        index += LABS_TOCTREE
+    (src / "index.md").write_text(index, encoding="utf-8")
     shutil.copy2(ROOT / "README.md", src / "README.md")
     for name in ("FIGURES.md", "THEORY.md"):
         shutil.copy2(ROOT / "docs" / name, src / "docs" / name)
