@@ -27,7 +27,9 @@ def test_notebook_runs(path, tmp_path, monkeypatch):
     nb = nbformat.read(path, as_version=4)
     assert not any(c.get("outputs") for c in nb.cells if c.cell_type == "code"), (
         f"{path.name} is committed with outputs; clear them")
-    monkeypatch.setenv("MPLBACKEND", "Agg")
+    # the kernel's inline backend, as in JupyterLab: headless, and every figure becomes a PNG output,
+    # which the book (tests/test_book.py, make book) shows from the executed copy kept below
+    monkeypatch.setenv("MPLBACKEND", "module://matplotlib_inline.backend_inline")
     monkeypatch.setenv("JERKLAB_RECORDINGS", str(tmp_path))
     client = NotebookClient(nb, timeout=TIME_LIMIT_S, kernel_name="python3",
                             resources={"metadata": {"path": str(path.parent)}})

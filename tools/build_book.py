@@ -3,7 +3,8 @@
 Sources are staged in ``build/book-src``: ``docs/book/index.md``, README.md, docs/FIGURES.md,
 docs/THEORY.md, ``notebooks/*.ipynb`` and ``notebooks/labs/**``. A notebook that
 tests/test_notebooks.py already executed (``build/executed/NAME``, newer than the source) is staged
-with its outputs; MyST-NB (``nb_execution_mode = "auto"``) executes only the others. Sphinx runs
+with its outputs and marked not to execute; MyST-NB executes the others (``nb_execution_mode =
+"force"``), in their staged folder, with ``data/`` linked beside ``notebooks/``. Sphinx runs
 with warnings as errors. Prints the build time.
 
     python tools/build_book.py [--out build/book] [--executed build/executed]
@@ -16,6 +17,8 @@ import shutil
 import subprocess
 import sys
 import time
+
+import nbformat
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 # every page under notebooks/labs/ (notebooks and Markdown), at any depth
@@ -51,11 +54,14 @@ def stage(src: pathlib.Path, executed: pathlib.Path) -> dict:
         dest.parent.mkdir(parents=True, exist_ok=True)
         done = executed / nb.name
         if nb.parent == nbdir and done.exists() and done.stat().st_mtime >= nb.stat().st_mtime:
-            shutil.copy2(done, dest)
+            book = nbformat.read(done, as_version=4)
+            book.metadata["mystnb"] = {"execution_mode": "off"}     # executed by the tests already
+            nbformat.write(book, dest)
             reused.append(nb.name)
         else:
             shutil.copy2(nb, dest)
             fresh.append(str(rel))
+    (src / "data").symlink_to(ROOT / "data", target_is_directory=True)   # notebooks read ../data
     labs = nbdir / "labs"
     if labs.is_dir():                      # the labs' data files and Markdown pages
         for f in labs.rglob("*"):
