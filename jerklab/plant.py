@@ -39,6 +39,7 @@ import scipy.linalg
 
 from jerklab._validate import (as_finite_array, as_int, as_nonnegative, as_positive,
                                as_real)
+from jerklab.law import encoder_vec, voltage_vec, zoh_coefficients
 
 __all__ = ["DCMotor", "FlexibleDCMotor", "StepDisturbance", "advance", "advance_scalar", "advance_em",
            "quantize_voltage", "measure_angle"]
@@ -155,13 +156,9 @@ def quantize_voltage(u, supply_voltage=None, pwm_bits=None):
     firmware). ``None`` switches the effect off.
     """
     u = np.asarray(u, dtype=float)
-    if supply_voltage is not None:
-        u = np.clip(u, -supply_voltage, supply_voltage)
-        if pwm_bits is not None:
-            levels = float(2 ** pwm_bits - 1)
-            x = u / supply_voltage * levels          # lround: half away from zero, as the firmware
-            u = np.sign(x) * np.floor(np.abs(x) + 0.5) / levels * supply_voltage
-    return u
+    if supply_voltage is None:
+        return u
+    return voltage_vec(u, supply_voltage, 0.0 if pwm_bits is None else float(2 ** pwm_bits - 1))
 
 
 def measure_angle(theta, counts_per_rad=None):
@@ -169,7 +166,7 @@ def measure_angle(theta, counts_per_rad=None):
     theta = np.asarray(theta, dtype=float)
     if counts_per_rad is None:
         return theta
-    return np.floor(theta * counts_per_rad + 1e-9) / counts_per_rad
+    return encoder_vec(theta, counts_per_rad)
 
 
 @dataclass(frozen=True)
@@ -301,13 +298,25 @@ class DCMotor(_MotorBase):
         Standard deviation of Gaussian measurement noise added to the angle (rad).
     seed : int or None
         Seed of the noise generator.
+    offset : float
+        Input offset (V): the driver adds it to every command, so the motor sees ``u + offset``
+        (a bias of the amplifier or of the PWM zero). Default 0.
+    dead_zone : float
+        Input dead zone (V) ≥ 0 after the offset: the motor sees
+        ``dz(x) = sign(x) max(|x| - dead_zone, 0)`` of ``x = u + offset`` (a driver that needs a
+        minimum duty before it switches). Default 0. Offset and dead zone act in
+        :meth:`step_state` (and so in :meth:`open_loop` and the virtual rig); the compiled loop of
+        ``jerklab.sim`` does not model them.
     """
 
     def __init__(self, K=32.4, tau=0.025, supply_voltage=12.0, pwm_bits=10, encoder_ppr=448,
-                 decoding=1, coulomb_friction=0.0, load_disturbance=None, noise_std=0.0, seed=None):
+                 decoding=1, coulomb_friction=0.0, load_disturbance=None, noise_std=0.0, seed=None,
+                 offset=0.0, dead_zone=0.0):
         self.K = as_positive("K", K)
         self.tau = as_positive("tau", tau)
         self.coulomb_friction = as_nonnegative("coulomb_friction", coulomb_friction)
+        self.offset = as_real("offset", offset)
+        self.dead_zone = as_nonnegative("dead_zone", dead_zone)
         self._init_common(supply_voltage, pwm_bits, encoder_ppr, decoding, load_disturbance,
                           noise_std, seed)
 
@@ -315,7 +324,9 @@ class DCMotor(_MotorBase):
         return (f"DCMotor(K={self.K!r}, tau={self.tau!r}, supply_voltage={self.supply_voltage!r}, "
                 f"pwm_bits={self.pwm_bits!r}, encoder_ppr={self.encoder_ppr!r}, "
                 f"decoding={self.decoding!r}, coulomb_friction={self.coulomb_friction!r}, "
-                f"load_disturbance={self.load_disturbance!r}, noise_std={self.noise_std!r})")
+                f"load_disturbance={self.load_disturbance!r}, noise_std={self.noise_std!r}"
+                + (f", offset={self.offset!r}" if self.offset else "")
+                + (f", dead_zone={self.dead_zone!r}" if self.dead_zone else "") + ")")
 
     n_states = 2
 
@@ -328,9 +339,21 @@ class DCMotor(_MotorBase):
         kw = dict(K=self.K, tau=self.tau, supply_voltage=self.supply_voltage, pwm_bits=self.pwm_bits,
                   encoder_ppr=self.encoder_ppr, decoding=self.decoding,
                   coulomb_friction=self.coulomb_friction, load_disturbance=self.load_disturbance,
-                  noise_std=self.noise_std, seed=self.seed)
+                  noise_std=self.noise_std, seed=self.seed, offset=self.offset,
+                  dead_zone=self.dead_zone)
         kw.update(changes)
         return DCMotor(**kw)
+
+    def drive_voltage(self, u):
+        """The voltage the motor sees for an applied ``u``: ``dz(u + offset)``.
+
+        ``dz(x) = sign(x) max(|x| - dead_zone, 0)``; the identity with the default offset 0 and
+        dead zone 0.
+        """
+        x = np.asarray(u, dtype=float) + self.offset
+        if self.dead_zone:
+            x = np.sign(x) * np.maximum(np.abs(x) - self.dead_zone, 0.0)
+        return float(x) if x.ndim == 0 else x
 
     # --- linear models (python-control) ---------------------------------
     def tf(self):
@@ -356,12 +379,11 @@ class DCMotor(_MotorBase):
         return ct.ss(A, B, C, np.zeros((C.shape[0], 1)))
 
     def zoh(self, Ts):
-        """Exact ZOH discretization ``x[k+1] = Phi x[k] + Gamma u[k]`` in closed form."""
-        Ts = as_positive("Ts", Ts)
-        a = math.exp(-Ts / self.tau)
-        em = -math.expm1(-Ts / self.tau)
-        Phi = np.array([[1.0, self.tau * em], [0.0, a]])
-        Gamma = np.array([[self.K * (Ts - self.tau * em)], [self.K * em]])
+        """Exact ZOH discretization ``x[k+1] = Phi x[k] + Gamma u[k]`` in closed form (Stojčić eq. 1,
+        coefficients from :func:`jerklab.law.zoh_coefficients`)."""
+        z = zoh_coefficients(self.K, self.tau, Ts)
+        Phi = np.array([[1.0, self.tau * z.one_minus_a], [0.0, z.a]])
+        Gamma = np.array([[z.b1], [self.K * z.one_minus_a]])
         return Phi, Gamma
 
     def discrete_tf(self, Ts):
@@ -369,7 +391,8 @@ class DCMotor(_MotorBase):
         return ct.c2d(self.tf(), as_positive("Ts", Ts), "zoh")
 
     # --- exact simulation --------------------------------------------------
-    def _x0(self, x0):
+    def initial_state(self, x0=None):
+        """``x0`` checked and copied as the state ``[theta, omega]`` (None: rest at 0)."""
         if x0 is None:
             return np.zeros(2)
         x = as_finite_array("x0", x0, ndim=1)
@@ -377,11 +400,14 @@ class DCMotor(_MotorBase):
             raise ValueError(f"x0 must be [theta, omega], got shape {x.shape}")
         return x.copy()
 
+    _x0 = initial_state
+
     def step_state(self, x, u, dt, t=0.0):
         """Next state ``[theta, omega]`` after ``dt`` with the terminal voltage ``u`` held.
 
-        ``u`` is the voltage the motor sees (apply :meth:`quantize_voltage` first to
-        model the amplifier). The load disturbance is evaluated on ``[t, t + dt)``;
+        ``u`` is the voltage the amplifier applies (apply :meth:`quantize_voltage` first to
+        model the PWM); the motor sees ``dz(u + offset)`` (:meth:`drive_voltage`). The load
+        disturbance is evaluated on ``[t, t + dt)``;
         a step inside the interval splits it. Exact: closed-form ZOH for the linear
         part, analytic zero-crossing event and sticking for Coulomb friction.
         """
@@ -390,6 +416,8 @@ class DCMotor(_MotorBase):
         dt = as_nonnegative("dt", dt)
         t = as_real("t", t)
         th, om = float(x[0]), float(x[1])
+        if self.offset or self.dead_zone:
+            u = float(self.drive_voltage(u))
         d = self.load_disturbance
         if d is not None and t < d.time < t + dt:
             first = d.time - t
@@ -503,13 +531,16 @@ class FlexibleDCMotor(_MotorBase):
             self._zoh_cache[Ts] = (E[:4, :4], E[:4, 4:])
         return self._zoh_cache[Ts]
 
-    def _x0(self, x0):
+    def initial_state(self, x0=None):
+        """``x0`` checked and copied as the state ``[theta_m, omega_m, theta_l, omega_l]`` (None: rest)."""
         if x0 is None:
             return np.zeros(4)
         x = as_finite_array("x0", x0, ndim=1)
         if x.shape != (4,):
             raise ValueError(f"x0 must be [theta_m, omega_m, theta_l, omega_l], got shape {x.shape}")
         return x.copy()
+
+    _x0 = initial_state
 
     def step_state(self, x, u, dt, t=0.0):
         """Next state after ``dt`` with the voltage ``u`` held (exact ZOH)."""
