@@ -33,7 +33,7 @@ BAUDRATE = 115200
 _VIRTUAL_NAMES = (None, "virtual", "")
 
 
-def connect(port=None, *, motor=None, speed=None, timeout=2.0, hello_timeout=None, progress=True,
+def connect(port=None, *, student=None, motor=None, speed=None, timeout=2.0, hello_timeout=None, progress=True,
             recordings=None, supply_voltage=None, counts_per_rev=None, model=(32.4, 0.025),
             baudrate=BAUDRATE, **link_options) -> Rig:
     """Connect to a rig and return a :class:`Rig`.
@@ -46,6 +46,10 @@ def connect(port=None, *, motor=None, speed=None, timeout=2.0, hello_timeout=Non
         (``jerklab.rig.simavr.launch()``). Anything else: a device path (``/dev/ttyACM0``,
         ``COM3``, a ``/dev/pts/N`` from ``python -m jerklab.rig serve``) or a pyserial URL
         (``socket://host:port``, ``loop://``, ``rfc2217://...``).
+    student : str, optional
+        A student ID: the virtual rig (or ``"simavr"``) gets that student's hidden motor,
+        drawn by ``jerklab.lab.student_motor`` (seeded with the instructor key); with a real
+        port the ID is only remembered (``rig.student``). Not together with ``motor``.
     motor : jerklab.plant.DCMotor, optional
         The simulated motor of the virtual rig or of ``"simavr"`` (default: the paper's,
         K = 32.4 rad/(V s), tau = 25 ms); not allowed for a real port.
@@ -76,6 +80,19 @@ def connect(port=None, *, motor=None, speed=None, timeout=2.0, hello_timeout=Non
     RigTimeoutError
         The port opened but no jerklab rig answered HELLO.
     """
+    if student is not None:
+        if motor is not None:
+            raise ValueError("give either student (a hidden motor) or motor, not both")
+        from jerklab.lab.motors import connect_student
+
+        opts = dict(link_options, speed=speed, timeout=timeout, hello_timeout=hello_timeout,
+                    progress=progress, recordings=recordings, model=model)
+        if port not in _VIRTUAL_NAMES:
+            if speed is not None:
+                raise ValueError("speed applies to the virtual rig only (port=None)")
+            opts.pop("speed")
+            opts.update(supply_voltage=supply_voltage, counts_per_rev=counts_per_rev, baudrate=baudrate)
+        return connect_student(student, port, **opts)
     if port in _VIRTUAL_NAMES:
         from jerklab.plant import DCMotor
 
