@@ -19,7 +19,8 @@ import time
 
 import numpy as np
 
-from jerklab.widgets import PolePlacementFigure, compute_pole_placement, pole_placement_panel
+from jerklab.tuning import clear_cache, compute_pole_placement
+from jerklab.widgets import PolePlacementFigure, pole_placement_panel
 
 SWEEP = ([("wn", w) for w in np.arange(21.0, 45.0, 1.0)]
          + [("zeta", z) for z in np.arange(0.95, 0.6, -0.05)]
@@ -27,8 +28,9 @@ SWEEP = ([("wn", w) for w in np.arange(21.0, 45.0, 1.0)]
          + [("Ts_ms", t) for t in np.arange(6.0, 9.0, 1.0)])
 
 
-def _panel_times():
-    p = pole_placement_panel()
+def _panel_times(narrow=False):
+    clear_cache()
+    p = pole_placement_panel(narrow_figure=narrow)
     out = []
     for name, value in SWEEP:
         t0 = time.perf_counter()
@@ -87,7 +89,9 @@ def main():
         key = {"Ts_ms": "Ts"}.get(name, name)
         prm[key] = float(value) * (1e-3 if name == "Ts_ms" else 1.0)
         params.append(dict(prm))
+    clear_cache()                       # the peers compute every design again, as the panel did
     full_t = _full_redraw_times(params)
+    clear_cache()
     new_t = _new_figure_times(params)
     print(f"{len(SWEEP)} slider moves (wn 21..44, zeta 0.95..0.65, sigma/wn 6.5..4, Ts 6..8 ms), "
           "each: design + responses + move simulation + figure + PNG")
