@@ -157,6 +157,9 @@ def main(argv=None):
                          "device / pyserial URL")
     ap.add_argument("--pool", type=int, default=1,
                     help="kernels kept pre-executed for the next visitors (default 1, 0: off)")
+    ap.add_argument("--rig-speed", type=float, default=1.0,
+                    help="--rig virtual only: the shared virtual rig's pace, times real time "
+                         "(default 1.0, like a board)")
     ap.add_argument("--no-queue", action="store_true",
                     help="with --rig: let every kernel open the rig itself (one student at a time!)")
     ap.add_argument("--cull-idle", type=int, default=CULL_IDLE_S,
@@ -174,7 +177,7 @@ def main(argv=None):
                        cull_connected=args.cull_connected)
     broker = None
     if args.rig is not None and not args.no_queue:
-        broker, address = start_broker(args.rig)
+        broker, address = start_broker(args.rig, speed=args.rig_speed)
         os.environ[RIG_ENV] = address
     elif args.rig is not None:
         os.environ[RIG_ENV] = args.rig
