@@ -2,7 +2,7 @@
 
 The paper's system (its Fig. 1): a *speed generator* that, every refresh period
 ``tc``, advances a counter ``n`` and computes the speed from integer formulas
-(Yang eqs. 5-8), converts it to a pulse frequency ``f = v / k`` and a divider
+(Yang eq. 5 to Yang eq. 8), converts it to a pulse frequency ``f = v / k`` and a divider
 count ``cycle = f_clk / f``; a *pulse divider* (the Verilog printed in the paper)
 counts the 50 MHz clock and emits one pulse of 50 % duty every ``cycle`` clocks.
 A stepper/servo drive in position mode moves ``k`` (µm) per pulse.
@@ -11,18 +11,18 @@ Units: this module works in integer µm/s, Hz, clock counts (the hardware's unit
 as the paper states them); :meth:`YangSCurve.exact_profile` converts to the
 unit-agnostic planner (``jerklab.planner.plan_scurve``) in µm and s.
 
-The reconstruction of the paper's formulas (READING.md §3), for acceleration time
+The reconstruction of the paper's formulas (docs/THEORY.md, Yang), for acceleration time
 ``T``, peak speed ``V``, ``N = T / (2 tc)`` counts per half:
 
-* eq. 5 (``n <= N``): ``v = 2 V tc^2 n^2 / T^2 = V n^2 / (2 N^2)``;
-* eq. 6 (``N < n <= 2N``): ``v = V (4 T n tc - 2 tc^2 n^2 - T^2) / T^2 = V - V (2N - n)^2 / (2 N^2)``;
-* eqs. 7, 8 (paper set-up, V = 20000 µm/s, N = 2500): ``v = 16 n^2 / 10000`` and
+* Yang eq. 5 (``n <= N``): ``v = 2 V tc^2 n^2 / T^2 = V n^2 / (2 N^2)``;
+* Yang eq. 6 (``N < n <= 2N``): ``v = V (4 T n tc - 2 tc^2 n^2 - T^2) / T^2 = V - V (2N - n)^2 / (2 N^2)``;
+* Yang eq. 7 and Yang eq. 8 (paper set-up, V = 20000 µm/s, N = 2500): ``v = 16 n^2 / 10000`` and
   ``v = 20000 - (10000 - 2n)^2 / 2500``, Verilog integer division (floor for these
   non-negative operands).
 
 The general integer form used here reduces ``V / (2 N^2)`` to lowest terms ``a / b``
 and computes ``floor(a n^2 / b)``; for the paper set-up this is bit-identical to
-eqs. 7, 8 (same rational number), which :func:`paper_speed` keeps verbatim.
+Yang eq. 7 and Yang eq. 8 (same rational number), which :func:`paper_speed` keeps verbatim.
 
 Things the paper leaves open or gets wrong, and what is done here:
 
@@ -45,11 +45,13 @@ from fractions import Fraction
 
 import numpy as np
 
+from jerklab import paper as _paper
 from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive
 
 __all__ = ["YangSCurve", "PulseTrain", "SpeedTable", "paper_speed", "published_divider_lockup",
            "simulate_verilog", "simulate_divider_verilog", "read_vcd", "VerilogRun",
-           "divider_edges", "published_divider", "HardwareLimitError", "PAPER"]
+           "divider_edges", "published_divider", "HardwareLimitError", "PAPER", "pulse_speed",
+           "vcd_timescale", "vcd_to_posedge"]
 
 
 class HardwareLimitError(ValueError):
@@ -57,10 +59,10 @@ class HardwareLimitError(ValueError):
 
 
 def paper_speed(n):
-    """Yang eqs. 7 and 8 verbatim (µm/s): the paper's set-up, Verilog integer division.
+    """Yang eq. 7 and Yang eq. 8 verbatim (µm/s): the paper's set-up, Verilog integer division.
 
-    ``v = 16 n^2 / 10000`` for ``n <= 2500`` (eq. 7, ``div_3_result``),
-    ``v = 20000 - (10000 - 2n)^2 / 2500`` for ``2500 < n <= 5000`` (eq. 8, ``div_1_quo``).
+    ``v = 16 n^2 / 10000`` for ``n <= 2500`` (Yang eq. 7, ``div_3_result``),
+    ``v = 20000 - (10000 - 2n)^2 / 2500`` for ``2500 < n <= 5000`` (Yang eq. 8, ``div_1_quo``).
     """
     n_arr = np.asarray(n)
     if n_arr.dtype.kind not in "iu":
@@ -101,6 +103,87 @@ class PulseTrain:
         """Commanded position (µm) at time(s) ``t``: ``k`` µm per rising edge so far."""
         t = as_finite_array("t", t)
         return self.step_um * np.searchsorted(self.rise, t * self.clock_hz, side="right")
+
+    def speed(self):
+        """Speed the pulses command, ``k / Δt`` between rising edges: ``(t, v)`` in s, µm/s.
+
+        See :func:`pulse_speed`.
+        """
+        return pulse_speed(self.rise, self.clock_hz, self.step_um)
+
+
+def pulse_speed(rise, clock_hz, step_um=20):
+    """Speed commanded by a pulse train: ``k`` µm per period between consecutive rising edges.
+
+    A drive in position mode moves ``step_um`` per pulse, so over the period that ends at
+    rising edge ``i`` the mean speed is ``step_um · f_clk / (rise[i] − rise[i−1])`` (the
+    inverse of Yang's ``cycle = f_clk / f`` with ``v = k f``).
+
+    Parameters
+    ----------
+    rise : array_like of int
+        Rising-edge clock indices (posedges), increasing (at least two for one value).
+    clock_hz : float
+        Divider clock, Hz (> 0).
+    step_um : float
+        ``k``, µm per pulse (> 0).
+
+    Returns
+    -------
+    t, v : ndarray
+        Time of the later edge of each period (s) and the speed over that period (µm/s);
+        one value fewer than ``rise``.
+    """
+    r = as_finite_array("rise", rise, ndim=1)
+    clock_hz = as_positive("clock_hz", clock_hz)
+    step_um = as_positive("step_um", step_um)
+    dr = np.diff(r)
+    if np.any(dr <= 0):
+        raise ValueError("rise must be strictly increasing clock indices")
+    return r[1:] / clock_hz, step_um * clock_hz / dr
+
+
+def vcd_timescale(path) -> float:
+    """The time unit of a VCD file in seconds (its ``$timescale``, e.g. ``1ps`` -> 1e-12)."""
+    import re
+
+    with open(path) as fh:
+        head = fh.read().partition("$enddefinitions")[0]
+    m = re.search(r"\$timescale\s+(\d+)\s*(s|ms|us|ns|ps|fs)\s+\$end", head)
+    if m is None:
+        raise ValueError(f"{path}: no $timescale declaration in the VCD header")
+    unit = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9, "ps": 1e-12, "fs": 1e-15}[m.group(2)]
+    return int(m.group(1)) * unit
+
+
+def vcd_to_posedge(times, clock_period, timescale=1e-12):
+    """Convert VCD times to clock-edge numbers of the testbenches in ``firmware/fpga``.
+
+    The testbench clock starts low at time 0 and toggles every half period, so posedge ``p``
+    (1 = the first) falls at ``(p − ½) · clock_period``; a register that changes on posedge
+    ``p`` shows in the VCD at that time and converts to exactly ``p``.  Negedges give
+    half-integers.
+
+    Parameters
+    ----------
+    times : array_like
+        VCD times in units of ``timescale`` (as :func:`read_vcd` returns them).
+    clock_period : float
+        Testbench clock period, s (20 ns for the 50 MHz of ``tb_pulse_divider.v``).
+    timescale : float
+        VCD time unit, s (:func:`vcd_timescale`; ``1ps`` for ```timescale 1ns/1ps``).
+
+    Returns
+    -------
+    ndarray of float
+    """
+    t = as_finite_array("times", times)
+    clock_period = as_positive("clock_period", clock_period)
+    timescale = as_positive("timescale", timescale)
+    per = clock_period / timescale                 # VCD units per clock period
+    if abs(per - round(per)) <= 1e-9 * per:
+        per = float(round(per))                    # exact for whole units (20 ns in ps: 20000)
+    return t / per + 0.5
 
 
 def divider_edges(starts, values, p_end, bits=32):
@@ -189,7 +272,7 @@ class YangSCurve:
     clock_hz : int
         Divider clock (paper: 50 MHz).  ``tc * clock_hz`` must be whole.
     step_um : int
-        ``k``: µm per pulse, ``v = k f`` (paper: 20, READING.md §3 reading).
+        ``k``: µm per pulse, ``v = k f`` (paper: 20, the reading of docs/THEORY.md).
     start_count : int
         ``PWM_INITAL_COUNT``: below this count the speed is 0 (paper: 300).
     bits : int
@@ -202,8 +285,10 @@ class YangSCurve:
         (below the minimum frequency ``k`` µm/s -> 1 Hz), or if a cycle would be < 2.
     """
 
-    def __init__(self, max_velocity=20000, accel_time=1.0, cruise_time=1.0, refresh_period=200e-6,
-                 clock_hz=50_000_000, step_um=20, start_count=300, bits=32):
+    def __init__(self, max_velocity=_paper.YANG_SETUP["max_velocity"],
+                 accel_time=_paper.YANG_SETUP["accel_time"], cruise_time=_paper.YANG_SETUP["cruise_time"],
+                 refresh_period=_paper.YANG_SETUP["refresh_period"], clock_hz=_paper.YANG_SETUP["clock_hz"],
+                 step_um=_paper.YANG_SETUP["step_um"], start_count=_paper.YANG_SETUP["start_count"], bits=32):
         self.max_velocity = as_int("max_velocity", max_velocity, minimum=1)
         self.accel_time = as_positive("accel_time", accel_time)
         self.cruise_time = as_nonnegative("cruise_time", cruise_time)
@@ -248,7 +333,7 @@ class YangSCurve:
 
     # ------------------------------------------------------------------ speed generator
     def speed(self, n):
-        """Speed (µm/s) at counter ``n``: Yang eqs. 5, 6 in integer form (floor division).
+        """Speed (µm/s) at counter ``n``: Yang eq. 5 and Yang eq. 6 in integer form (floor division).
 
         ``v = floor(a n^2 / b)`` for ``n <= N``, ``v = V - floor(a (2N - n)^2 / b)`` for
         ``N < n <= 2N``, ``a/b = V/(2N^2)`` in lowest terms; 0 below ``start_count``.
@@ -333,9 +418,8 @@ class YangSCurve:
                 "F_CLK": self.clock_hz, "R": self.refresh_clocks, "N_MIN": self.start_count}
 
 
-PAPER = dict(max_velocity=20000, accel_time=1.0, cruise_time=1.0, refresh_period=200e-6,
-             clock_hz=50_000_000, step_um=20, start_count=300)
-"""Yang et al.'s test set-up (§3)."""
+PAPER = dict(_paper.YANG_SETUP)
+"""Yang et al.'s test set-up (§3), a copy of :data:`jerklab.paper.YANG_SETUP`."""
 
 
 def published_divider(starts, values, p_end, bits=32):

@@ -18,7 +18,7 @@ operator, discretized on a uniform grid of the Preisach half plane
   piecewise-constant density is exact and piecewise quadratic, so every ascending
   or descending branch is continuous and monotone (Mayergoyz 1991, ch. 1).
 
-The inversion is the CNIA of Xu & Meckl (their eq. 2): from the current memory,
+The inversion is the CNIA of Xu & Meckl eq. 2: from the current memory,
 find ``u*`` in ``[u_min, u_max]`` with ``|Gamma(u*; psi) - f_d| <= eps`` by bisection
 on the monotone branch that leaves the current input (ascending if ``f_d`` is above
 the current output, descending otherwise), ``eps`` = 0.2 % of the input range by
@@ -41,6 +41,7 @@ from typing import Callable
 import numpy as np
 from scipy.optimize import nnls
 
+from jerklab import paper as _paper
 from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
 
 __all__ = ["Preisach", "ForcData", "forc_experiment", "fit_preisach"]
@@ -249,6 +250,16 @@ class Preisach:
         out = np.array([self._E(float(x), float(y)) for x, y in zip(a.ravel(), b.ravel())])
         return float(out[0]) if a.ndim == 0 else out.reshape(a.shape)
 
+    def masked_density(self) -> np.ndarray:
+        """The weight ``mu`` on the Preisach half plane, NaN off it (for an image of it).
+
+        ``out[i, j]`` is the weight of the cell with ``alpha`` in cell ``i`` and ``beta`` in
+        cell ``j`` where ``i >= j``, NaN where ``i < j`` (``alpha < beta``, no relay there), so
+        ``imshow(P.masked_density(), origin="lower", extent=[u_min, u_max, u_min, u_max])``
+        shows the triangle only, with ``beta`` on the horizontal and ``alpha`` on the vertical axis.
+        """
+        return np.where(np.tri(self.n, dtype=bool), self.density, np.nan)
+
     # ------------------------------------------------------------------ memory
     def reset(self, state=None) -> "Preisach":
         """Reset the memory to negative or positive saturation (default: ``initial``)."""
@@ -375,7 +386,7 @@ class Preisach:
     @property
     def default_eps(self) -> float:
         """0.2 % of the input range: the CNIA tolerance of Xu & Meckl (Fig. 2)."""
-        return 0.002 * (self.u_max - self.u_min)
+        return _paper.CNIA_EPS_FRACTION * (self.u_max - self.u_min)
 
     # ------------------------------------------------------------------ operator
     def peek(self, u):

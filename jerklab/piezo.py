@@ -34,6 +34,7 @@ from scipy.linalg import matrix_balance
 from scipy.signal import lfilter
 from scipy.optimize import linprog, lsq_linear, minimize
 
+from jerklab import paper as _paper
 from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
 
 __all__ = [
@@ -44,12 +45,11 @@ __all__ = [
     "energy_optimal_return", "with_return", "pole_placement_gains", "closed_loop",
 ]
 
-#: Xu & Meckl Table I: the linear PZT dynamics of eq. 1 (frequencies in Hz).
-TABLE_I = {"K": 97000.0, "zeta_z": 0.70, "f_z": 1643.0, "zeta_1": 0.008, "f_1": 242.0,
-           "zeta_2": 0.39, "f_2": 777.0}
+#: Xu & Meckl Table I: the linear PZT dynamics of eq. 1 (frequencies in Hz); from jerklab.paper.
+TABLE_I = dict(_paper.PIEZO_TABLE_I)
 
-#: Xu & Meckl: sampling time of the simulation study (0.2 ms).
-TS = 2e-4
+#: Xu & Meckl: sampling time of the simulation study (0.2 ms); jerklab.paper.PIEZO_TS.
+TS = _paper.PIEZO_TS
 
 #: Xu & Meckl Table II: cycle time (s), e_m (µm), e_r (µm) for each input.
 TABLE_II_PAPER = {

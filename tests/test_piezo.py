@@ -36,7 +36,7 @@ def ct_sim(model, u, Ts=pz.TS):
 # ---------------------------------------------------------------------------- model
 def test_model_dc_gain_poles_and_nmp_zeros():
     m = PZTModel()
-    assert m.dc_gain() == pytest.approx(0.18759, abs=1e-5)                    # READING §2
+    assert m.dc_gain() == pytest.approx(0.18759, abs=1e-5)                    # docs/THEORY.md, Xu & Meckl eq. 1
     assert float(np.real(control.dcgain(m.tf()))) == pytest.approx(m.dc_gain(), rel=1e-9)
     sysd = m.zoh()
     assert sysd.dt == pytest.approx(2e-4)

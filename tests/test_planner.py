@@ -418,7 +418,7 @@ def test_fig2_distance_binds():
 
 
 def test_fig2_accel_binds():
-    # READING.md: Theta = 10 pi, J = 2e4, E = 300, Omega = 100 -> T = 47 ms, cruise 7.07, 4.49 s
+    # docs/THEORY.md (Stojčić eq. 4): Theta = 10 pi, J = 2e4, E = 300, Omega = 100 -> T = 47 ms, cruise 7.07, 4.49 s
     p = plan_sine_jerk(10 * math.pi, 2e4, 300.0, 100.0)
     assert p.accel_time == pytest.approx(300.0 * math.pi / 2e4, rel=1e-14)
     assert p.peak_accel == pytest.approx(300.0, rel=1e-14)
@@ -474,7 +474,7 @@ def test_sine_jerk_clamps_negative_round_off():
 
 
 def test_eq15_drifts_and_closed_form_does_not():
-    # READING.md: -0.8 % for Theta = 100, J = 1000, E = 100, Omega = 60 at Ts = 5 ms
+    # docs/THEORY.md (Stojčić eq. 15): -0.8 % for Theta = 100, J = 1000, E = 100, Omega = 60 at Ts = 5 ms
     p = plan_sine_jerk(100.0, 1000.0, 100.0, 60.0)
     disc = p.discretize(0.005)
     assert disc.t[0] == 0.0 and disc.t[1] == pytest.approx(0.005)

@@ -32,7 +32,7 @@ def rig(tmp_path):
 
 
 def _move():
-    return plan_sine_jerk(10 * math.pi, 2e4, 300.0, 100.0)      # READING.md §1 example: T = 47 ms
+    return plan_sine_jerk(10 * math.pi, 2e4, 300.0, 100.0)      # docs/THEORY.md example (Stojčić eq. 4): T = 47 ms
 
 
 def test_connect_virtual_identity(rig):

@@ -101,7 +101,7 @@ def test_slider_move_recomputes_and_flags_instability():
     # same figure, same artists: only their data changed
     assert len(p.figure.fig.axes) == n_axes and list(p.figure.fig.axes[2].lines) == lines0
 
-    # near instability (READING §1: |z| = 0.992 at wn = 40) is flagged as such
+    # near instability (docs/THEORY.md, Stojčić eq. 13: |z| = 0.992 at wn = 40) is flagged as such
     p.controls["wn"].value = 40.0
     assert p.result.level == "near" and "Near instability" in p.status.value
     # the direct z-domain design at the same setting is stable, poles where designed

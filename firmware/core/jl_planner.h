@@ -1,6 +1,6 @@
 // Sine-jerk rest-to-rest planner, Stojčić (2015) eqs. 2-4 and Fig. 2, in float32.
 // Mirrors jerklab.planner.plan_sine_jerk (the published algorithm) and the closed-form
-// sampling of its Profile; see papers/READING.md §1.
+// sampling of its Profile; see docs/THEORY.md (Stojčić eq. 15).
 #ifndef JL_PLANNER_H
 #define JL_PLANNER_H
 #include <stdint.h>
