@@ -53,14 +53,14 @@ __all__ = [
 
 #: The designs the panel offers: label -> key.
 DESIGNS = {
-    "continuous (eq. 11) discretized by eq. 13": "continuous",
+    "continuous (Stojčić eq. 11) discretized by Stojčić eq. 13": "continuous",
     "direct z-domain (poles at z = exp(s Ts))": "z-domain",
     "z-domain, all 4 poles placed (derivative filter γ)": "z-domain-filter",
 }
 
 #: Short names of the designs for messages and titles.
 DESIGN_NAMES = {
-    "continuous": "eq. 11 + eq. 13 design",
+    "continuous": "Stojčić eq. 11 + Stojčić eq. 13 design",
     "z-domain": "direct z-domain design",
     "z-domain-filter": "z-domain design with derivative filter",
 }
@@ -159,7 +159,7 @@ def closed_loop_max_radius(K, tau, gains, Ts=None):
     tau = as_positive("tau", tau)
     if isinstance(gains, ctl.Gains):
         if Ts is None:
-            raise ValueError("Ts is needed to check continuous gains (they run discretized by eq. 13)")
+            raise ValueError("Ts is needed to check continuous gains (they run discretized by Stojčić eq. 13)")
         gains = gains.discretize(Ts)
     elif not isinstance(gains, ctl.DiscreteGains):
         raise TypeError(f"gains must be DiscreteGains or Gains, got {type(gains).__name__}")
@@ -560,7 +560,7 @@ def clear_cache():
 def continuous_equivalent(gains):
     """Continuous gains (kp, ki, kd) whose Stojčić eq. 13 discretization gives ``gains``.
 
-    Inverts eq. 13 (``kpd = kp − ki Ts/2``, ``kid = ki Ts``, ``kdd = kd/Ts``):
+    Inverts Stojčić eq. 13 (``kpd = kp − ki Ts/2``, ``kid = ki Ts``, ``kdd = kd/Ts``):
     ``ki = kid/Ts``, ``kp = kpd + kid/2``, ``kd = kdd Ts``. For a derivative filter γ ≠ 0 the
     derivative is ``kdd (1 − z⁻¹)/(1 − γ z⁻¹)``, whose low-frequency gain gives
     ``kd = kdd Ts / (1 − γ)``.
@@ -574,7 +574,7 @@ def gain_table(gains, continuous=None):
 
     The discrete gains of Stojčić eq. 12 act on the error in rad each sample (all V/rad);
     the continuous gains (Stojčić eq. 10: Kp V/rad, Ki V/(rad·s), Kd V·s/rad) are the
-    design's own (eq. 11) or, for a z-domain design, the eq.-13 equivalent
+    design's own (Stojčić eq. 11) or, for a z-domain design, the Stojčić eq. 13 equivalent
     (:func:`continuous_equivalent`).
     """
     rows = [("kpd", gains.kpd, "V/rad"), ("kid", gains.kid, "V/rad"), ("kdd", gains.kdd, "V/rad")]

@@ -1,5 +1,7 @@
 """Interactive tuning panels for the notebooks and the standalone class page (issue 9).
 
+Stojčić (ASCII: Stojcic) position loop, plant of Stojčić eq. 1.
+
 :func:`pole_placement_panel` builds the pole-placement tuning panel of
 ``notebooks/03_pole_placement.ipynb`` and of the standalone page served by
 ``python -m jerklab.app``: sliders for ζ, ωn, σ (as a multiple of ωn) and Ts, a choice
@@ -134,7 +136,7 @@ _LAYOUTS = {
 _TITLES = {
     "wide": dict(s="Closed-loop poles in s", z="Closed-loop poles in z",
                  step="Unit step response (no feedforward)",
-                 dist=f"Step load disturbance {DISTURBANCE_VOLTS:g} V (eq. 9)",
+                 dist=f"Step load disturbance {DISTURBANCE_VOLTS:g} V (Stojčić eq. 9)",
                  err="Sine-jerk move: tracking error", u="Sine-jerk move: control voltage"),
     "narrow": dict(s="Poles in s", z="Poles in z", step="Unit step",
                    dist=f"{DISTURBANCE_VOLTS:g} V load step", err="Move: tracking error",
@@ -397,11 +399,11 @@ class PolePlacementFigure:
         lim[self.ax_u] = (t_mlim, (-15.0, 15.0) if diverges else
                           self._keep(self.ax_u, 1, (-1.06 * nu, 1.06 * nu), -um, um), None)
 
-        name = {"continuous": "eq. 11 + eq. 13", "z-domain": "direct z-domain",
+        name = {"continuous": "Stojčić eq. 11 + Stojčić eq. 13", "z-domain": "direct z-domain",
                 "z-domain-filter": "z-domain + γ filter"}[p["design"]]
         if self.layout == "wide":
             self.suptitle.set_text(
-                f"Stojčić position loop, {name}: ζ = {p['zeta']:.2f}, ωn = {p['wn']:.1f} rad/s, "
+                f"{name}: ζ = {p['zeta']:.2f}, ωn = {p['wn']:.1f} rad/s, "
                 f"σ = {p['sigma_ratio']:.1f}·ωn, Ts = {1e3 * p['Ts']:.2f} ms — max |z| = "
                 f"{res.max_radius:.3f} ({res.level})")
         else:
@@ -876,7 +878,8 @@ def _status_html(res):
     rows = tuning.gain_table(res.gains, res.continuous_gains)
     disc = ", ".join(f"{n} = {_fmt_gain(v)} {u}".rstrip() for n, v, u in rows[:-3])
     cont = ", ".join(f"{n} = {_fmt_gain(v)} {u}" for n, v, u in rows[-3:])
-    how = "eq. 11" if res.continuous_gains is not None else "eq.-13 equivalent"
+    how = ("Stojčić eq. 11" if res.continuous_gains is not None
+           else "Stojčić eq. 13 equivalent")
     advice = (f'<br><span class="jerklab-advice">{html.escape(res.advice_text)}</span>'
               if res.advice_text else "")
     return (f'<div class="jerklab-verdict jerklab-{res.level}" style="background:{bg};'
@@ -884,7 +887,7 @@ def _status_html(res):
             f'<b><span style="border:1px solid {color};border-radius:3px;padding:0 4px;'
             f'margin-right:6px">{tag}</span>{html.escape(res.design_name)}: '
             f"{html.escape(message)}</b>{advice}<br>"
-            f'<span style="color:#333">discrete (eq. 12): {html.escape(disc)}<br>'
+            f'<span style="color:#333">discrete (Stojčić eq. 12): {html.escape(disc)}<br>'
             f"continuous ({how}): {html.escape(cont)}</span></div>")
 
 
