@@ -10,6 +10,10 @@ Peers on the same six-plot figure and the same slider sweep:
 * ``new figure``: a fresh ``Figure`` with six axes drawn and saved on every move (what
   re-running a plotting cell costs).
 
+The class page also draws the phone-width figure on every move (``narrow_figure=True``);
+its row shows what that costs. Every row starts from empty caches
+(:func:`jerklab.tuning.clear_cache`), so each computes every design.
+
 Run: ``python -m benchmarks widgets``.
 """
 from __future__ import annotations
@@ -82,6 +86,7 @@ def _new_figure_times(params):
 
 def main():
     panel_t, p = _panel_times()
+    phone_t, _ = _panel_times(narrow=True)
     # the same parameter sequence for the peers
     params, prm = [], dict(p.params())
     prm.update(zeta=1.0, wn=20.0, sigma_ratio=7.0, Ts=0.005, design="continuous")
@@ -97,7 +102,9 @@ def main():
           "each: design + responses + move simulation + figure + PNG")
     print(f"{'method':<34}{'median ms':>10}{'p90 ms':>9}{'max ms':>9}{'median ratio':>14}")
     ref = np.median(panel_t)
-    for name, t in (("panel (blit + partial axes)", panel_t), ("full redraw, same artists", full_t),
+    for name, t in (("panel (blit + partial axes)", panel_t),
+                    ("class page: + phone figure", phone_t),
+                    ("full redraw, same artists", full_t),
                     ("new figure every move", new_t)):
         print(f"{name:<34}{1e3 * np.median(t):>10.1f}{1e3 * np.percentile(t, 90):>9.1f}"
               f"{1e3 * np.max(t):>9.1f}{np.median(t) / ref:>13.1f}x")

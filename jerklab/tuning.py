@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from jerklab import paper
 from jerklab._validate import as_positive, as_real
 
 __all__ = [
@@ -452,7 +453,8 @@ def _frozen(a):
     return a
 
 
-def compute_pole_placement(K=32.4, tau=0.025, zeta=1.0, wn=20.0, sigma_ratio=7.0, Ts=0.005,
+def compute_pole_placement(K=paper.MOTOR_K, tau=paper.MOTOR_TAU, zeta=paper.ZETA, wn=20.0,
+                           sigma_ratio=paper.SIGMA_RATIO, Ts=paper.TS,
                            design="continuous", move=None, simulate_move=True):
     """Design the position-loop PID for one setting and compute every curve of the panel.
 

@@ -48,7 +48,7 @@ import warnings
 
 import numpy as np
 
-from jerklab import tuning
+from jerklab import paper, tuning
 from jerklab._validate import as_positive
 from jerklab.tuning import (CLIP_MRAD, DEFAULT_MOVE, DESIGN_NAMES, DESIGNS, DISTURBANCE_VOLTS,
                             NEAR_UNSTABLE_RADIUS, TuningResult, angle_unit, format_angle,
@@ -240,8 +240,8 @@ class PolePlacementFigure:
 
         a = self.ax_u
         (self.u_line,) = a.plot([], [], color="C5", drawstyle="steps-post")
-        a.axhline(12.0, color="0.6", lw=0.8, ls=":")
-        a.axhline(-12.0, color="0.6", lw=0.8, ls=":")
+        a.axhline(paper.SUPPLY_VOLTAGE, color="0.6", lw=0.8, ls=":")
+        a.axhline(-paper.SUPPLY_VOLTAGE, color="0.6", lw=0.8, ls=":")
         a.set_xlabel("time [s]")
         a.set_ylabel("voltage [V]")
         a.set_title(T["u"], y=1.0)
@@ -571,7 +571,8 @@ class PolePlacementPanel(_panel_base()):
     student ID field or None), ``last_recording`` (the last rig run's Recording).
     """
 
-    def __init__(self, K=32.4, tau=0.025, zeta=1.0, wn=20.0, sigma_ratio=7.0, Ts=0.005,
+    def __init__(self, K=paper.MOTOR_K, tau=paper.MOTOR_TAU, zeta=paper.ZETA, wn=20.0,
+                 sigma_ratio=paper.SIGMA_RATIO, Ts=paper.TS,
                  design="continuous", move=None, rig=None, dpi=80, student=False,
                  narrow_figure=False, recordings=None):
         import ipywidgets as widgets
@@ -891,7 +892,8 @@ def _status_html(res):
             f"continuous ({how}): {html.escape(cont)}</span></div>")
 
 
-def pole_placement_panel(K=32.4, tau=0.025, *, zeta=1.0, wn=20.0, sigma_ratio=7.0, Ts=0.005,
+def pole_placement_panel(K=paper.MOTOR_K, tau=paper.MOTOR_TAU, *, zeta=paper.ZETA, wn=20.0,
+                         sigma_ratio=paper.SIGMA_RATIO, Ts=paper.TS,
                          design="continuous", move=None, rig=None, dpi=80, student=False,
                          narrow_figure=False, recordings=None):
     """The interactive pole-placement tuning panel of notebook 03, the labs and the class page.
