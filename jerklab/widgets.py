@@ -801,6 +801,8 @@ class PolePlacementPanel(_panel_base()):
                           path=self._recording_path(), progress=False)
             if getattr(self.rig, "queues_runs", False):
                 kwargs["on_status"] = lambda msg: self._show_rig_status(html.escape(msg))
+                if self.student_id is not None:
+                    self.rig.client = self.student_id      # names the run in the broker's queue
             if force and _accepts(self.rig.run_move, "force"):
                 kwargs["force"] = True
             rec = self.rig.run_move(tuning.move_profile(self.move), res.gains, **kwargs)

@@ -130,3 +130,22 @@ def test_unreachable_broker_and_bad_address():
     for bad in ("127.0.0.1:5000", "broker://host", "broker://:99", "broker://h:0", None):
         with pytest.raises(ValueError, match="address"):
             parse_address(bad)
+
+
+def test_class_page_panel_runs_through_the_broker(broker, tmp_path, monkeypatch):
+    """The page's panel on a broker:// address: queued run, saved under the student's ID."""
+    from jerklab.app import panel_for_page
+
+    monkeypatch.setenv("JERKLAB_RECORDINGS", str(tmp_path))
+    p = panel_for_page(rig_port=broker.address)
+    assert isinstance(p.rig, BrokerRig)
+    p.student.value = "s123"
+    seen = []
+    p.rig_status.observe(lambda c: seen.append(c["new"]), names="value")
+    t, err = p.run_on_rig()
+    assert any(v.startswith("queued") for v in seen) and any("running" in v for v in seen), seen
+    assert broker.order == ["s123"]
+    files = list((tmp_path / "s123").glob("*_move.csv"))
+    assert len(files) == 1 and Recording.load(files[0]).metadata["broker"] == broker.address
+    assert "saved as" in p.rig_status.value and str(files[0]) in p.rig_status.value
+    assert abs(float(np.max(np.abs(err))) - float(np.max(np.abs(p.result.err_move_measured)))) < 0.05
