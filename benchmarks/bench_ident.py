@@ -1,12 +1,19 @@
 """Identification benchmark: accuracy of K and tau against noise and record length, and fit time.
 
-``python -m benchmarks ident`` prints three tables:
+``python -m benchmarks ident`` prints six tables:
 
 1. accuracy against the measurement noise (2 s PRBS, 448-pulse encoder + Gaussian noise),
 2. accuracy against the record length (encoder + 2 mrad noise),
 3. fit time, against peers run in the same process: for PEM, ``scipy.optimize.curve_fit`` driving
    python-control (``c2d`` + ``forced_response``) on the same output-error problem; for ARX,
-   ``numpy.linalg.lstsq`` on the same regression.
+   ``numpy.linalg.lstsq`` on the same regression,
+4. accuracy of K, tau, f_c and offset (and the delay) from 2 s of quantized, noisy, *closed-loop* data
+   (a PD loop at 1 kHz, friction 0.4 V, offset 0.25 V, one sample of delay) for the three estimators:
+   the evidence for multiple-shooting output error over inverse-dynamics LS and IV,
+5. fit % on the measured micromouse gearmotor records, estimation and validation kept apart,
+6. time of the friction + offset + delay fit against a peer: ``scipy.optimize.least_squares`` over
+   a plain Python simulation with ``jerklab.plant.DCMotor.step_state`` (the same exact friction
+   solver, single shooting, no compiled loop, no inverse-dynamics start).
 
 Accuracy is the root-mean-square relative error over seeded runs, in percent. Friction is off
 (it is a model-structure error, shown in the notebook), PWM quantization is on.
@@ -75,6 +82,95 @@ def _time(fn, repeat=5):
     return best, out
 
 
+def _closed_loop_cases(n_seeds=6, noise=0.0005):
+    import sys
+    import pathlib
+    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "tests"))
+    from test_ident_models import closed_loop   # the same record the tests use
+
+    return [closed_loop(seed=s, noise=noise) for s in range(n_seeds)]
+
+
+def _table_closed_loop():
+    truth = {"K": K0, "tau": TAU0, "friction": 0.4, "offset": 0.25}
+    cases = _closed_loop_cases()
+    print(f"\n4) closed loop, 2 s at 1 kHz, x4 448-pulse encoder, 0.5 mrad noise, {len(cases)} seeds: "
+          f"max |relative error| (%) and delay found")
+    print(f"{'estimator':>9} | {'K':>7} {'tau':>7} {'f_c':>7} {'offset':>7} | delay | mean time (ms)")
+    import warnings
+    for meth in ("idim", "idim-iv", "pem"):
+        errs, delays, times = {k: [] for k in truth}, set(), []
+        for u, y in cases:
+            t0 = time.perf_counter()
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                f = ident.fit_dc_motor(u, y, 0.001, method=meth, friction=True, offset=True, delay=True)
+            times.append(time.perf_counter() - t0)
+            for k, v in truth.items():
+                errs[k].append(abs(getattr(f, k) / v - 1))
+            delays.add(f.delay)
+        e = {k: 100 * max(v) for k, v in errs.items()}
+        print(f"{meth:>9} | {e['K']:7.3f} {e['tau']:7.3f} {e['friction']:7.3f} {e['offset']:7.3f} | "
+              f"{','.join(map(str, sorted(delays))):>5} | {1e3 * np.mean(times):8.1f}")
+    print("   truth: delay 1 sample. Goal: every PEM error < 1 %.")
+    return cases
+
+
+def _table_real():
+    import warnings
+    d = {n: ident.load_micromouse(n) for n in ("encoders1", "encoders3")}
+    print("\n5) measured Pololu 30:1 gearmotor (data/real/micromouse): fit % (simulation) on the "
+          "estimation and the validation record")
+    print(f"{'estimated on':>12} {'model':>26} | {'est. fit %':>10} {'val. fit %':>10} {'val. 10-step %':>14} | parameters")
+    for est, val in (("encoders1", "encoders3"), ("encoders3", "encoders1")):
+        for name, kw in (("eq. 1 + delay", dict(delay=True)),
+                         ("+ friction", dict(delay=True, friction=True)),
+                         ("+ friction + offset", dict(delay=True, friction=True, offset=True))):
+            with warnings.catch_warnings(record=True) as w:
+                warnings.simplefilter("always")
+                f = d[est].fit("pem", **kw)
+            flag = " (warned: ill-conditioned)" if any("ill-conditioned" in str(x.message) for x in w) else ""
+            print(f"{est:>12} {name:>26} | {f.fit_percent:10.2f} {ident.compare(d[val], f).fit_percent:10.2f} "
+                  f"{ident.compare(d[val], f, horizon=10).fit_percent:14.2f} | {f.summary()[5:]}{flag}")
+
+
+def _peer_friction_fit(u, y, Ts, delay):
+    """What one writes without this module: single shooting over the plant's own step, in Python."""
+    from jerklab.plant import DCMotor
+
+    ud = np.concatenate([np.full(delay, u[0]), u[:-delay]]) if delay else u
+
+    def sim(p):
+        K, tau, fc, off, th0 = p
+        m = DCMotor(K=abs(K), tau=abs(tau), coulomb_friction=abs(fc), offset=off, supply_voltage=None,
+                    pwm_bits=None, encoder_ppr=None)
+        x = np.array([th0, 0.0])
+        out = np.empty(u.size)
+        for k in range(u.size):
+            out[k] = x[0]
+            x = m.step_state(x, float(ud[k]), Ts)
+        return out
+
+    sol = optimize.least_squares(lambda p: sim(p) - y, [20.0, 0.05, 0.1, 0.0, y[0]], x_scale="jac")
+    return sol.x, sol.nfev
+
+
+def _table_peer_nonlinear(cases):
+    u, y = cases[0]
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        tj, f = _time(lambda: ident.fit_dc_motor(u, y, 0.001, friction=True, offset=True, delay=True), 3)
+    tp, (p, nfev) = _time(lambda: _peer_friction_fit(u, y, 0.001, f.delay), 1)
+    print("\n6) friction + offset fit on one closed-loop record (2000 samples), against a peer in this process")
+    print(f"{'':>10} | {'time (s)':>9} | {'K':>8} {'tau (ms)':>9} {'f_c':>7} {'offset':>7}")
+    print(f"{'jerklab':>10} | {tj:9.3f} | {f.K:8.3f} {f.tau * 1e3:9.3f} {f.friction:7.4f} {f.offset:7.4f}  "
+          f"(delay estimated too)")
+    print(f"{'peer':>10} | {tp:9.3f} | {abs(p[0]):8.3f} {abs(p[1]) * 1e3:9.3f} {abs(p[2]):7.4f} {p[3]:7.4f}  "
+          f"(delay given, {nfev} evaluations)")
+    print(f"ratio peer/jerklab time: {tp / tj:.1f}x; truth K = 32.4, tau = 25 ms, f_c = 0.4 V, offset = 0.25 V")
+
+
 def main():
     print("1) RMS relative error (%) against noise, 2 s PRBS 6±3 V, 448-pulse encoder, 12 seeds")
     print(f"{'noise (mrad)':>12} | {'ARX K':>8} {'ARX tau':>8} | {'PEM K':>8} {'PEM tau':>8} | ARX/PEM tau err")
@@ -110,6 +206,10 @@ def main():
               f"{ta * 1e3:8.2f} {tl * 1e3:8.2f} {ta / tl:6.1f}x")
     print(f"(ratio = peer time / jerklab time for PEM, jerklab / bare lstsq for ARX; slowest jerklab "
           f"fit {worst * 1e3:.1f} ms, budget 1000 ms: {'OK' if worst < 1.0 else 'OVER'})")
+
+    cases = _table_closed_loop()
+    _table_real()
+    _table_peer_nonlinear(cases)
 
 
 if __name__ == "__main__":

@@ -23,8 +23,18 @@ module fits; :func:`fit_p2` reproduces the paper's literal call to show where it
   With white measurement noise this is the maximum-likelihood estimate and is unbiased; its
   covariance comes from the Jacobian at the optimum.
 
-Also here: :class:`IdentData` (CSV + JSON records, built from a rig ``Recording``), :func:`arx` for any
-orders, validation (:func:`validate`, :func:`residual_analysis`, :func:`plot_compare`,
+Real records (measured, closed loop, several experiments) need more than Stojčić eq. 1: ``fit_dc_motor``
+also estimates Coulomb friction against the velocity (with sticking), an input offset, a dead zone
+and a pure delay (:func:`simulate_motor`), by output error with **multiple shooting** (each segment
+of the record starts from its own estimated state, so an integrating plant cannot drift), started
+by the inverse-dynamics least squares of motion control (``method="idim"``, Gautier & Janot; and
+``"idim-iv"`` with instrumental variables). Implausible results raise an
+:class:`IdentificationWarning` naming the likely cause.
+
+Also here: :class:`IdentData` (CSV + JSON records, built from a rig ``Recording``), :func:`merge`
+of several experiments, :func:`load_micromouse` (measured gearmotor records, data/real), :func:`arx`
+for any orders, validation with MATLAB's semantics (:func:`compare` for simulation and k-step
+prediction, :func:`resid`, :func:`validate`, :func:`residual_analysis`, :func:`plot_compare`,
 :func:`plot_residuals`), input design (:func:`step_input`, :func:`prbs`, :func:`sample_time_range`)
 and :func:`arx_asymptotic_bias`. Everything is SI: volts in, radians out, seconds.
 """
@@ -41,6 +51,7 @@ from scipy import linalg, optimize, signal, stats
 import control
 
 from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
+from jerklab.plant import _jit, advance_em
 
 __all__ = [
     "IdentData",
@@ -48,6 +59,8 @@ __all__ = [
     "arx",
     "MotorFit",
     "fit_dc_motor",
+    "IdentificationWarning",
+    "simulate_motor",
     "simulate_dc_motor",
     "dc_motor_zoh_coefficients",
     "arx_asymptotic_bias",
@@ -57,6 +70,13 @@ __all__ = [
     "ResidualAnalysis",
     "residual_analysis",
     "Validation",
+    "MergedData",
+    "merge",
+    "CompareResult",
+    "compare",
+    "resid",
+    "load_micromouse",
+    "micromouse_battery_voltage",
     "validate",
     "plot_compare",
     "plot_residuals",
@@ -563,8 +583,23 @@ class MotorFit:
         Simulated angle on the estimation data and measured - simulated.
     noise_std : float
         Residual standard deviation (rad for PEM; the equation-error scale for ARX).
-    friction, friction_std : float or None
-        Estimated Coulomb friction voltage (V) and its standard error (``friction=True`` only).
+    friction, friction_std : float
+        Coulomb friction voltage f_c (V) by the sign of the velocity, with sticking, and its standard
+        error (``friction=True``; 0.0 and 0.0 when not estimated).
+    offset, offset_std : float
+        Input offset (V): the motor sees ``u + offset`` (``offset=True``; else 0.0, 0.0).
+    dead_zone, dead_zone_std : float
+        Input dead zone (V) after the offset (``dead_zone=True``; else 0.0, 0.0).
+    delay : int
+        Pure input delay in whole samples (given or estimated with ``delay=True``).
+    estimated : tuple of str
+        The estimated parameters, in the order of ``covariance``.
+    warnings : list of str
+        The diagnostics the fit raised (also issued as :class:`IdentificationWarning`).
+
+    The full model (:func:`simulate_motor`) is
+    ``tau omega' = K (dz(u(t - delay Ts) + offset) - friction sign(omega)) - omega``, sticking at
+    omega = 0 while ``|dz(u + offset)| <= friction``; ``dz(x) = sign(x) max(|x| - dead_zone, 0)``.
     """
 
     K: float
@@ -582,39 +617,77 @@ class MotorFit:
     noise_std: float = float("nan")
     arx_result: ARXResult | None = field(default=None, repr=False)
     nfev: int = 0
-    friction: float | None = None        #: Coulomb friction voltage f_c (V), if estimated
-    friction_std: float | None = None
+    friction: float = 0.0                #: Coulomb friction voltage f_c (V); 0.0 when not estimated
+    friction_std: float = 0.0            #: its standard error (V); 0.0 when fixed
+    offset: float = 0.0                  #: input offset (V): the motor sees u + offset
+    offset_std: float = 0.0
+    dead_zone: float = 0.0               #: input dead zone (V), after the offset
+    dead_zone_std: float = 0.0
+    delay: int = 0                       #: pure input delay (whole samples)
+    estimated: tuple = ("K", "tau")      #: names of the estimated parameters, in ``covariance`` order
+    covariance: np.ndarray | None = field(default=None, repr=False)   #: covariance of ``estimated``
+    warnings: list = field(default_factory=list, repr=False)   #: diagnostics raised by the fit
+    n_segments: int = 1                  #: shooting segments of the output-error fit
+    n_experiments: int = 1               #: experiments merged in the estimation data
+    omega0: float = 0.0                  #: initial velocity of the first segment (rad/s)
 
     def simulate(self, u, theta0=0.0, omega0=0.0) -> np.ndarray:
         """The fitted model's ZOH response to ``u`` (see :func:`simulate_dc_motor`).
 
-        With an estimated friction the motor sees u - f_c sign(u), as in the fit.
+        With friction, offset, dead zone or delay, the full model of :func:`simulate_motor`
+        (friction by the sign of the velocity, with sticking).
         """
         u = _signal("u", u, min_len=1)
-        if self.friction:
-            u = u - self.friction * np.sign(u)
+        if not self.is_linear:
+            return simulate_motor(self.K, self.tau, self.Ts, u, theta0, omega0, self.friction,
+                                  self.offset, self.dead_zone, self.delay)
         return simulate_dc_motor(self.K, self.tau, self.Ts, u, theta0, omega0)
 
+    @property
+    def is_linear(self) -> bool:
+        """True when the model is Stojčić eq. 1 alone (no friction, offset, dead zone or delay)."""
+        return not (self.friction or self.offset or self.dead_zone or self.delay)
+
+    @property
+    def std(self) -> dict:
+        """Standard errors by name: K, tau, friction, offset, dead_zone (0.0 when fixed)."""
+        return {"K": self.K_std, "tau": self.tau_std, "friction": self.friction_std,
+                "offset": self.offset_std, "dead_zone": self.dead_zone_std}
+
     def confidence_interval(self, level: float = 0.95):
-        """Normal-approximation intervals ``{"K": (lo, hi), "tau": (lo, hi)}``."""
+        """Normal-approximation intervals ``{"K": (lo, hi), "tau": (lo, hi), ...}`` for every
+        estimated parameter (friction, offset, dead_zone when estimated)."""
         level = as_real("level", level)
         if not 0.0 < level < 1.0:
             raise ValueError(f"level must be in (0, 1), got {level}")
         z = stats.norm.ppf(0.5 + level / 2)
-        return {"K": (self.K - z * self.K_std, self.K + z * self.K_std),
-                "tau": (self.tau - z * self.tau_std, self.tau + z * self.tau_std)}
+        out = {}
+        for name in ("K", "tau", "friction", "offset", "dead_zone"):
+            if name in ("K", "tau") or name in self.estimated:
+                v, sd = getattr(self, name), self.std[name]
+                out[name] = (v - z * sd, v + z * sd)
+        return out
 
     def to_motor(self, **kwargs):
         """A ``jerklab.plant.DCMotor`` with the fitted K and tau (other arguments passed on)."""
         from jerklab.plant import DCMotor
 
-        return DCMotor(K=self.K, tau=self.tau, **kwargs)
+        kw = dict(coulomb_friction=max(self.friction, 0.0), offset=self.offset,
+                  dead_zone=max(self.dead_zone, 0.0))
+        kw.update(kwargs)
+        return DCMotor(K=self.K, tau=self.tau, **kw)
 
     def summary(self) -> str:
         """One line: K ± std, tau ± std, (friction ± std), fit %."""
         fr = ""
-        if self.friction is not None:
-            fr = f", f_c = {self.friction:.3g} ± {self.friction_std:.2g} V"
+        if "friction" in self.estimated:
+            fr += f", f_c = {self.friction:.3g} ± {self.friction_std:.2g} V"
+        if "offset" in self.estimated:
+            fr += f", offset = {self.offset:.3g} ± {self.offset_std:.2g} V"
+        if "dead_zone" in self.estimated:
+            fr += f", dead zone = {self.dead_zone:.3g} ± {self.dead_zone_std:.2g} V"
+        if self.delay:
+            fr += f", delay = {self.delay} sample{'s' if self.delay > 1 else ''}"
         return (f"{self.method.upper():>3}: K = {self.K:.4g} ± {self.K_std:.2g} rad/(V s), "
                 f"tau = {self.tau * 1e3:.4g} ± {self.tau_std * 1e3:.2g} ms{fr}, "
                 f"fit = {self.fit_percent:.2f} %")
@@ -733,70 +806,226 @@ def _fit_pem(u, theta, Ts, fit_theta0, friction=False):
 
 
 def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
-                 friction: bool = False) -> MotorFit:
+                 friction: bool = False, offset: bool = False, delay=0, dead_zone: bool = False,
+                 segment=None, max_delay: int = 10, cutoff=None) -> MotorFit:
     """Identify K and tau of P(s) = K/(s(tau s + 1)) (Stojčić eq. 1, §4A) from a voltage/angle record.
 
     The paper ran MATLAB's ``pem(iddata(y, u, Ts), 'P2')``; 'P2' has no integrator, so this fits
-    the structure eq. 1 actually has, a pole plus an integrator ('P1I').
+    the structure Stojčić eq. 1 actually has, a pole plus an integrator ('P1I'). Options add what real
+    records carry: Coulomb friction by the sign of the velocity (with sticking), an input offset,
+    an input dead zone and a pure delay (see :func:`simulate_motor` for the model).
 
     Parameters
     ----------
-    u : array_like
-        Motor voltage samples (V), held over each sample period. Not constant: the motor must
-        start from rest (the fit assumes omega(0) = 0) and be excited by a step or a PRBS.
-    theta : array_like
-        Measured angle (rad), same length as ``u``.
+    u : array_like, or list of array_like
+        Motor voltage samples (V), held over each sample period: the *logged* input, open loop or
+        closed loop. A list of records (with ``theta`` a list of the same length) merges several
+        experiments for one estimate (MATLAB's ``merge``); see also :func:`merge`.
+    theta : array_like, or list of array_like
+        Measured angle (rad), same length as ``u``; sample k read at k Ts, before ``u[k]`` acts.
     Ts : float
         Sample period (s).
-    method : {"pem", "arx"}
-        "pem": output-error fit, minimises sum (theta - theta_sim(K, tau, theta0))^2 over the exact
-        ZOH simulation with ``scipy.optimize.least_squares`` (Levenberg-Marquardt), started from a
-        variable-projection grid over tau; the covariance is s^2 (J^T J)^-1 from the Jacobian.
-        Unbiased under white output noise and encoder quantization.
+    method : {"pem", "arx", "idim", "idim-iv"}
+        "pem": output error. Without options, on one record of at most 1000 samples, the fit of
+        earlier versions: minimise sum (theta - theta_sim(K, tau, theta0))^2 over the exact ZOH
+        simulation from rest. Otherwise (friction, offset, dead zone, delay, several experiments,
+        a long record or ``segment``) **multiple shooting**: the record is cut into segments,
+        each with its own estimated initial angle and velocity, and K, tau (and the options) are
+        shared; so neither a closed-loop record nor an integrating plant can drift over a long
+        record (Ljung §4.2 output error; the segments are started by the inverse-dynamics estimate
+        below). The standard errors come from s^2 (J^T J)^-1 at the optimum.
         "arx": least squares on the differenced angle v(k) = a v(k-1) + b1 u(k-1) + b2 u(k-2)
-        (exact for the ZOH model), K = (b1 + b2)/(1 - a), tau = -Ts/ln a; the standard errors come
-        from the ARX covariance by the delta method. Exact on noise-free data, biased (tau too
-        short) under output noise, because differencing the noisy angle puts noise into the
-        regressor (see :func:`arx_asymptotic_bias`); its standard errors assume white equation
-        errors, which a differenced noisy angle does not give, so they are optimistic.
+        (exact for the ZOH model), K = (b1 + b2)/(1 - a), tau = -Ts/ln a; biased (tau short)
+        under noise (:func:`arx_asymptotic_bias`). No options.
+        "idim": the inverse-dynamics least squares of motion-control practice (Gautier & Janot):
+        u = (tau/K) omega' + omega/K + f_c sign(omega) - offset + dead_zone sign(u) on the
+        low-passed angle's derivatives, every column and u filtered by the same zero-phase
+        Butterworth filter (parallel filtering). Fast, linear, any record; errors-in-variables
+        bias under noise. "idim-iv": the same with instrumental variables built from the model's
+        own simulated angle (re-started on each segment), iterated (Janot, Vandanjon & Gautier
+        2014; Ljung §7.6), which removes most of that bias.
     fit_theta0 : bool
-        Estimate the initial angle (default) instead of trusting the first, noisy, sample.
+        Estimate the initial angle (default) instead of trusting the first, noisy, sample
+        (legacy PEM path; the multiple-shooting fit always estimates every segment's state).
     friction : bool
-        PEM only: also estimate a Coulomb friction voltage f_c, with the motor seeing
-        u - f_c sign(u). This holds while the motor turns the way it is driven and stands still
-        when u = 0 (a step from rest; a PRBS whose offset exceeds its amplitude). f_c and K are
-        separable only if u takes at least two non-zero levels (a PRBS with offset, a staircase);
-        from a single step the fit finds the *effective* gain K (1 - f_c/|u|). Without it, a
-        friction f_c biases K by about -f_c/|u|.
+        Also estimate a Coulomb friction voltage f_c >= 0 acting against the *velocity*, with
+        sticking at rest (:func:`simulate_motor`). K and f_c are separable only if the record has
+        at least two speed levels; friction and offset only if the motor turns both ways.
+    offset : bool
+        Also estimate an input offset (V): the motor sees u + offset.
+    delay : int or True
+        Pure input delay in whole samples: an int is taken as known; ``True`` estimates it over
+        0 .. ``max_delay`` (inverse-dynamics residual, then the output-error cost around it).
+    dead_zone : bool
+        Also estimate an input dead zone (V) >= 0: the motor sees sign(x) max(|x| - dz, 0) of
+        x = u + offset. Separable from friction only where the motor brakes or reverses.
+    segment : float, optional
+        Multiple-shooting segment length (s). Default: one segment per record of at most
+        1000 samples, else segments of 500 samples.
+    max_delay : int
+        Largest delay tried with ``delay=True``.
+    cutoff : float, optional
+        Cut-off (Hz) of the low-pass filter of the inverse-dynamics regression; default
+        1/(10 Ts) (a fifth of the Nyquist frequency).
 
     Returns
     -------
     MotorFit
+        K, tau, friction, offset, dead_zone (V) and their standard errors, delay, fit %, ...
+        Physically impossible or poorly determined results issue an
+        :class:`IdentificationWarning` naming the likely cause (also kept in ``fit.warnings``):
+        K or tau <= 0 (encoder or motor leads reversed), friction above the input range, a
+        parameter stuck at its bound, an ill-conditioned fit (input not exciting enough).
 
     Raises
     ------
     ValueError
         NaN/inf in ``u`` or ``theta``, mismatched lengths, fewer than 10 samples, constant ``u``
-        or ``theta``, a non-positive ``Ts``, an unknown ``method``, or data from which the ARX
-        pole falls outside (0, 1).
+        or ``theta``, a non-positive ``Ts``, an unknown ``method`` or option, or data from which
+        the ARX pole falls outside (0, 1).
 
     References
     ----------
     Stojčić (2015) §4A and eq. 1; L. Ljung, *System Identification* (2nd ed.), §4.2 (output
-    error), §7.3 and §9.3 (least squares, asymptotic covariance).
+    error), §7.3 and §9.3 (least squares, asymptotic covariance), §7.6 (instrumental variables),
+    §16 (model validation); M. Gautier, "Dynamic identification of robots with power model",
+    ICRA 1997, and A. Janot, P.-O. Vandanjon, M. Gautier, "A generic instrumental variable
+    approach for industrial robot identification", IEEE TCST 22(1), 2014 (IDIM-LS, IDIM-IV).
     """
-    if method not in ("pem", "arx"):
-        raise ValueError(f"method must be 'pem' or 'arx', got {method!r}")
-    if not isinstance(friction, (bool, np.bool_)):
-        raise ValueError(f"friction must be True or False, got {friction!r}")
-    if friction and method != "pem":
-        raise ValueError("friction=True needs method='pem' (ARX has no friction term)")
+    if method not in ("pem", "arx", "idim", "idim-iv"):
+        raise ValueError(f"method must be 'pem', 'arx', 'idim' or 'idim-iv', got {method!r}")
+    for nm, val in (("friction", friction), ("offset", offset), ("dead_zone", dead_zone),
+                    ("fit_theta0", fit_theta0)):
+        if not isinstance(val, (bool, np.bool_)):
+            raise ValueError(f"{nm} must be True or False, got {val!r}")
+    estimate_delay = delay is True
+    if not estimate_delay:
+        if delay is False:
+            delay = 0
+        delay = as_int("delay", delay, minimum=0)
+    max_delay = as_int("max_delay", max_delay, minimum=0)
     Ts = as_positive("Ts", Ts)
-    u, theta = _pair(u, theta, "u", "theta")
-    _check_excitation(u, theta, "u", "theta")
+    exps = _as_experiments(u, theta)
+    for i, (uu, tt) in enumerate(exps):
+        suffix = "" if len(exps) == 1 else f"[{i}]"
+        _check_excitation(uu, tt, "u" + suffix, "theta" + suffix)
+    n_total = sum(uu.size for uu, _ in exps)
+    if cutoff is None:
+        cutoff = 0.1 / Ts
+    else:
+        cutoff = as_positive("cutoff", cutoff)
+    if segment is None:
+        segment_n = None if max(uu.size for uu, _ in exps) <= 1000 else 500
+    else:
+        segment_n = int(round(as_positive("segment", segment) / Ts))
+        if segment_n < 10:
+            raise ValueError(f"segment must be at least 10 samples ({10 * Ts:g} s), got {segment:g} s")
+    opts = {"friction": bool(friction), "offset": bool(offset), "dead_zone": bool(dead_zone)}
+    extended = any(opts.values()) or estimate_delay or delay or len(exps) > 1 or segment_n is not None
+    if method == "arx" and (extended and (any(opts.values()) or estimate_delay or delay or len(exps) > 1)):
+        raise ValueError("friction, offset, dead_zone, delay and merged experiments need method='pem' "
+                         "or 'idim' (ARX has no such terms)")
+    u_abs_max = max(float(np.max(np.abs(uu))) for uu, _ in exps)
+    if method in ("arx",) or (method == "pem" and not extended):
+        fit = _fit_legacy(exps[0][0], exps[0][1], Ts, method, fit_theta0)
+        names = ["K", "tau"]
+        par = {"K": fit.K, "tau": fit.tau, "friction": 0.0, "offset": 0.0, "dead_zone": 0.0}
+        fit.warnings = _diagnose(par, fit.cov, names, u_abs_max)
+        _issue(fit.warnings)
+        return fit
+
+    # -- inverse dynamics: the estimate (idim) or the start (pem) ----------------------------
+    delays = range(0, max_delay + 1) if estimate_delay else [delay]
+    idim_iv = 4 if method == "idim-iv" else 0
+    best = None
+    for d in delays:
+        try:
+            p, cov_p, sse, _ = _idim(exps, Ts, d, opts, cutoff)
+        except (ValueError, np.linalg.LinAlgError):
+            continue
+        if best is None or sse < best[2]:
+            best = (d, p, sse)
+    if best is None:
+        raise ValueError("theta: the inverse-dynamics regression failed (too few moving samples)")
+    delay = best[0]
+    p, cov_p, _, _ = _idim(exps, Ts, delay, opts, cutoff, iv_iterations=idim_iv, segment_n=segment_n)
+    par = _params_from_idim(p, opts)
+    names = ["K", "tau"] + [nm for nm in ("friction", "offset", "dead_zone") if opts[nm]]
+    if method in ("idim", "idim-iv"):
+        Jt = np.zeros((len(names), p.size))
+        a_, b_ = p[0], p[1]
+        Jt[0, 1] = -1.0 / b_ ** 2
+        Jt[1, 0], Jt[1, 1] = 1.0 / b_, -a_ / b_ ** 2
+        for i in range(2, len(names)):
+            Jt[i, i] = 1.0
+        cov = Jt @ cov_p @ Jt.T
+        ys, th_all = [], []
+        for uu, tt in exps:
+            if par["K"] > 0 and par["tau"] > 0:
+                ys.append(_shooting_sim(uu, tt, Ts, par, delay, cutoff, segment_n))
+            else:
+                ys.append(np.full(tt.size, np.nan))
+            th_all.append(tt)
+        y_sim = np.concatenate(ys)
+        theta_c = np.concatenate(th_all)
+        resid = theta_c - y_sim
+        msgs = _diagnose(par, cov, names, u_abs_max)
+        s = float(np.sqrt(np.mean(resid ** 2))) if np.all(np.isfinite(resid)) else float("nan")
+        nfev, nseg, th0 = 0, 1, float(theta_c[0])
+        om0 = 0.0
+        at_bound = []
+    else:
+        if not (par["K"] > 0 and par["tau"] > 0 and math.isfinite(par["K"])):
+            # a reversed encoder (K < 0) or an unusable regression: start from the linear grid
+            g_exp = max(exps, key=lambda e: e[0].size)
+            K0, tau0, _, _ = _initial_guess(g_exp[0], g_exp[1], Ts, True, False)
+            par = {"K": K0, "tau": tau0, "friction": 0.0, "offset": 0.0, "dead_zone": 0.0}
+        for nm in ("friction", "dead_zone"):
+            if opts[nm]:
+                par[nm] = min(max(par[nm], 0.01 * u_abs_max), 0.9 * u_abs_max)
+        # the inverse-dynamics delay first; then its neighbours, started from that optimum
+        cands = [delay] if not estimate_delay else [delay] + sorted(
+            {max(delay - 1, 0), min(delay + 1, max_delay)} - {delay})
+        # (a neighbour only has to show a higher cost: a few iterations, a full fit if it wins)
+        res = None
+        for d in cands:
+            if res is None:
+                res = _fit_oe_ms(exps, Ts, d, opts, par, segment_n, cutoff)
+                continue
+            r_ = _fit_oe_ms(exps, Ts, d, opts, res["par"], segment_n, cutoff, max_nfev=15)
+            if r_["cost"] < res["cost"]:
+                res, delay = _fit_oe_ms(exps, Ts, d, opts, r_["par"], segment_n, cutoff), d
+        par, cov = res["par"], res["cov"]
+        y_sim, theta_c = res["y_sim"], res["theta"]
+        resid = theta_c - y_sim
+        nfev, s, nseg, th0 = res["nfev"], res["s"], res["nseg"], float(res["seg_theta0"][0])
+        om0 = float(res["seg_omega0"][0])
+        msgs = _diagnose(par, cov, names, u_abs_max, res["at_bound"])
+    _issue(msgs)
+    std = dict(zip(names, np.sqrt(np.clip(np.diag(cov), 0.0, None))))
+    K, tau = float(par["K"]), float(par["tau"])
+    fp = fit_percent(theta_c, y_sim) if np.all(np.isfinite(y_sim)) else float("nan")
+    return MotorFit(K=K, tau=tau, K_std=float(std["K"]), tau_std=float(std["tau"]),
+                    fit_percent=fp, model=_motor_tf(K, tau) if tau > 0 else control.tf([K], [1.0, 0.0]),
+                    method=method, Ts=Ts, theta0=th0, cov=cov[:2, :2].copy(), y_sim=y_sim,
+                    residuals=resid, noise_std=float(s), nfev=int(nfev),
+                    friction=float(par["friction"]), friction_std=float(std.get("friction", 0.0)),
+                    offset=float(par["offset"]), offset_std=float(std.get("offset", 0.0)),
+                    dead_zone=float(par["dead_zone"]), dead_zone_std=float(std.get("dead_zone", 0.0)),
+                    delay=int(delay), estimated=tuple(names), covariance=cov, warnings=msgs,
+                    n_segments=int(nseg), n_experiments=len(exps), omega0=om0)
+
+
+def _issue(msgs):
+    import warnings
+    for m in msgs:
+        warnings.warn(m, IdentificationWarning, stacklevel=3)
+
+
+def _fit_legacy(u, theta, Ts, method, fit_theta0) -> MotorFit:
+    """The linear single-record fits (ARX, and output error from rest) of earlier versions."""
     arx_res = None
     nfev = 0
-    fc = fc_std = None
     if method == "arx":
         K, tau, cov, arx_res = _fit_arx(u, theta, Ts)
         g = K * _unit_response(tau, Ts, u)
@@ -804,8 +1033,7 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
         noise_std = math.sqrt(arx_res.noise_variance) * Ts
         y_sim = g + th0
     else:
-        K, tau, cov, th0, nfev, noise_std, fc, fc_std, y_sim = _fit_pem(u, theta, Ts, fit_theta0,
-                                                                       friction)
+        K, tau, cov, th0, nfev, noise_std, _, _, y_sim = _fit_pem(u, theta, Ts, fit_theta0, False)
         if not (math.isfinite(K) and math.isfinite(tau)):
             raise ValueError("theta: the output-error fit did not converge")
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
@@ -813,7 +1041,392 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
                     fit_percent=fit_percent(theta, y_sim), model=_motor_tf(K, tau), method=method,
                     Ts=Ts, theta0=float(th0), cov=cov, y_sim=y_sim, residuals=theta - y_sim,
                     noise_std=float(noise_std), arx_result=arx_res, nfev=int(nfev),
-                    friction=fc, friction_std=fc_std)
+                    covariance=cov.copy())
+
+
+# ----------------------------------------------------------------------------------------------
+# the full motor model: Coulomb friction by the velocity, input offset, dead zone, delay
+# ----------------------------------------------------------------------------------------------
+class IdentificationWarning(UserWarning):
+    """A fit finished, but its result is physically implausible or poorly determined.
+
+    The message names the likely cause (reversed encoder or motor leads, friction larger than the
+    input, a parameter at its bound, an input that does not excite the model).
+    """
+
+
+def _drive(u, offset=0.0, dead_zone=0.0, delay=0):
+    """The voltage the motor sees: ``dz(u(k - delay) + offset)``; before the record, u(0) is held."""
+    if delay:
+        u = np.concatenate([np.full(delay, u[0]), u[:-delay]]) if delay < u.size else np.full(u.size, u[0])
+    x = u + offset
+    if dead_zone:
+        x = np.sign(x) * np.maximum(np.abs(x) - dead_zone, 0.0)
+    return x
+
+
+@_jit
+def _sim_kernel(v, fc, K, tau, Ts, starts, th0, om0, out):
+    """Exact ZOH simulation with Coulomb friction (plant.advance_em), restarted at each segment start."""
+    em = -math.expm1(-Ts / tau)
+    j = 0
+    nseg = starts.size
+    th = 0.0
+    om = 0.0
+    for k in range(v.size):
+        if j < nseg and k == starts[j]:
+            th = th0[j]
+            om = om0[j]
+            j += 1
+        out[k] = th
+        th, om = advance_em(th, om, v[k], fc, K, tau, Ts, em)
+    return out
+
+
+def _simulate_segments(v, fc, K, tau, Ts, starts, th0, om0):
+    out = np.empty(v.size)
+    return _sim_kernel(np.ascontiguousarray(v, dtype=float), float(fc), float(K), float(tau), float(Ts),
+                       np.asarray(starts, dtype=np.int64), np.asarray(th0, dtype=float),
+                       np.asarray(om0, dtype=float), out)
+
+
+def simulate_motor(K, tau, Ts, u, theta0=0.0, omega0=0.0, friction=0.0, offset=0.0, dead_zone=0.0,
+                   delay=0) -> np.ndarray:
+    """Exact ZOH simulation of Stojčić eq. 1 with friction by velocity, offset, dead zone and delay.
+
+    The motor obeys
+
+        tau omega' = K (v(t) - friction sign(omega)) - omega,     theta' = omega,
+        v(t) = dz(u(k - delay) + offset) on [k Ts, (k+1) Ts),  dz(x) = sign(x) max(|x| - dead_zone, 0),
+
+    and sticks at omega = 0 while |v| <= friction (static = kinetic Coulomb friction). Between
+    samples it is solved exactly (``jerklab.plant.advance_em``: the linear ZOH solution, the zero
+    crossing of omega found analytically). With every extra term 0 it equals
+    :func:`simulate_dc_motor`. Before the record, ``u[0]`` is held (for the delay).
+
+    Parameters
+    ----------
+    K, tau, Ts : float
+        Gain rad/(V s), time constant s, sample period s.
+    u : array_like
+        Commanded voltage samples (V).
+    theta0, omega0 : float
+        Initial angle (rad) and velocity (rad/s).
+    friction, offset, dead_zone : float
+        Coulomb friction voltage (V, >= 0), input offset (V), dead zone (V, >= 0).
+    delay : int
+        Input delay in whole samples (>= 0).
+
+    Returns
+    -------
+    ndarray
+        theta(k), k = 0 .. len(u) - 1 (rad), sampled before u[k] acts.
+    """
+    K = as_real("K", K)
+    tau = as_positive("tau", tau)
+    Ts = as_positive("Ts", Ts)
+    u = _signal("u", u, min_len=1)
+    theta0 = as_real("theta0", theta0)
+    omega0 = as_real("omega0", omega0)
+    friction = as_nonnegative("friction", friction)
+    offset = as_real("offset", offset)
+    dead_zone = as_nonnegative("dead_zone", dead_zone)
+    delay = as_int("delay", delay, minimum=0)
+    v = _drive(u, offset, dead_zone, delay)
+    return _simulate_segments(v, friction, K, tau, Ts, [0], [theta0], [omega0])
+
+
+def _as_experiments(u, theta):
+    """One record (two 1-D arrays) or several (two sequences of 1-D arrays) -> list of (u, theta)."""
+    def is_multi(x):
+        return isinstance(x, (list, tuple)) and len(x) > 0 and np.ndim(x[0]) == 1 and not np.isscalar(x[0])
+    if is_multi(u) or is_multi(theta):
+        if not (is_multi(u) and is_multi(theta)) or len(u) != len(theta):
+            raise ValueError("u and theta must both be one record (1-D arrays) or both lists of "
+                             "records of the same length")
+        return [_pair(uu, tt, f"u[{i}]", f"theta[{i}]") for i, (uu, tt) in enumerate(zip(u, theta))]
+    return [_pair(u, theta, "u", "theta")]
+
+
+def _lowpass(Ts, cutoff):
+    nyq = 0.5 / Ts
+    wn = min(cutoff / nyq, 0.95)
+    return signal.butter(4, wn)
+
+
+def _filtered_states(theta, Ts, cutoff):
+    """Zero-phase low-passed angle, velocity and acceleration at the midpoints (k + 1/2) Ts.
+
+    The derivatives of the filtered angle (central differences about the midpoint); the input held
+    on [k Ts, (k+1) Ts) belongs to the same instant. Returns (theta_mid, omega, alpha) for
+    k = 1 .. N - 3 (N - 3 values).
+    """
+    b, a = _lowpass(Ts, cutoff)
+    thf = signal.filtfilt(b, a, theta, padtype="odd", padlen=min(3 * max(len(a), len(b)), theta.size - 1))
+    w = (thf[2:-1] - thf[1:-2]) / Ts
+    al = (thf[3:] - thf[2:-1] - thf[1:-2] + thf[:-3]) / (2.0 * Ts * Ts)
+    return 0.5 * (thf[2:-1] + thf[1:-2]), w, al
+
+
+def _idim_rows(u, theta, Ts, cutoff, delay, opts, theta_inst=None, offset_guess=0.0):
+    """Rows of the inverse-dynamics regression u = (tau/K) alpha + (1/K) omega + f_c sgn(omega)
+    - offset + dead_zone sgn(u + offset), all sides low-passed by the same filter (parallel
+    filtering, Gautier & Janot). ``theta_inst`` (a simulated angle) builds the instruments."""
+    b, a = _lowpass(Ts, cutoff)
+    pad = min(3 * max(len(a), len(b)), u.size - 1)
+    ud = _drive(u, 0.0, 0.0, delay)
+    uf = signal.filtfilt(b, a, ud, padtype="odd", padlen=pad)[1:-2]
+
+    def columns(th):
+        _, w, al = _filtered_states(th, Ts, cutoff)
+        cols = [al, w]
+        if opts["friction"]:
+            cols.append(signal.filtfilt(b, a, np.sign(np.concatenate([[w[0]], w, [w[-1]] * 2])),
+                                        padtype="odd", padlen=pad)[1:-2])
+        if opts["offset"]:
+            cols.append(-np.ones(w.size))
+        if opts["dead_zone"]:
+            cols.append(signal.filtfilt(b, a, np.sign(ud + offset_guess), padtype="odd", padlen=pad)[1:-2])
+        return np.column_stack(cols), w
+
+    X, w = columns(theta)
+    keep = np.ones(w.size, bool)
+    if opts["friction"]:
+        # friction is set-valued at rest: drop the samples where the motor (nearly) stands still
+        wmax = float(np.max(np.abs(w)))
+        keep = np.abs(w) > 0.05 * wmax
+    Z = None
+    if theta_inst is not None:
+        Z, _ = columns(theta_inst)
+        Z = Z[keep]
+    return X[keep], uf[keep], Z
+
+
+def _params_from_idim(p, opts):
+    """(tau/K, 1/K, [f_c], [offset], [dead_zone]) -> dict of physical parameters."""
+    out = {"K": 1.0 / p[1] if p[1] != 0 else math.inf, "tau": p[0] / p[1] if p[1] != 0 else math.nan}
+    i = 2
+    for name in ("friction", "offset", "dead_zone"):
+        if opts[name]:
+            out[name] = float(p[i])
+            i += 1
+        else:
+            out[name] = 0.0
+    return out
+
+
+def _idim(exps, Ts, delay, opts, cutoff, iv_iterations=0, segment_n=None):
+    """Inverse-dynamics identification (IDIM-LS, optionally IDIM-IV) over merged experiments."""
+    Xs, ys = [], []
+    for u, th in exps:
+        X, y, _ = _idim_rows(u, th, Ts, cutoff, delay, opts)
+        Xs.append(X)
+        ys.append(y)
+    X = np.vstack(Xs)
+    y = np.concatenate(ys)
+    if X.shape[0] < X.shape[1] + 2:
+        raise ValueError("theta: too few moving samples for the inverse-dynamics regression")
+    p, *_ = np.linalg.lstsq(X, y, rcond=None)
+    Z = None
+    for _ in range(iv_iterations):
+        par = _params_from_idim(p, opts)
+        if not (par["K"] > 0 and par["tau"] > 0):
+            break
+        Xs, Zs, ys = [], [], []
+        for u, th in exps:
+            th_sim = _shooting_sim(u, th, Ts, par, delay, cutoff, segment_n)
+            X_, y_, Z_ = _idim_rows(u, th, Ts, cutoff, delay, opts, th_sim, -par["offset"])
+            Xs.append(X_); Zs.append(Z_); ys.append(y_)
+        X, Z, y = np.vstack(Xs), np.vstack(Zs), np.concatenate(ys)
+        try:
+            p = np.linalg.solve(Z.T @ X, Z.T @ y)
+        except np.linalg.LinAlgError:
+            break
+    r = y - X @ p
+    dof = max(y.size - p.size, 1)
+    s2 = float(r @ r) / dof
+    if Z is None:
+        cov = s2 * np.linalg.pinv(X.T @ X)
+    else:
+        A = np.linalg.pinv(Z.T @ X)
+        cov = s2 * A @ (Z.T @ Z) @ A.T
+    return p, cov, float(r @ r), X
+
+
+def _shooting_sim(u, th, Ts, par, delay, cutoff, segment_n):
+    """Simulate the model re-started every ``segment_n`` samples from the filtered measured state
+    (the auxiliary model whose output builds the instruments of IDIM-IV)."""
+    n = u.size
+    L = n if segment_n is None else max(int(segment_n), 20)
+    starts = np.arange(0, n, L)
+    thm, w, _ = _filtered_states(th, Ts, cutoff)
+    idx = np.clip(starts, 0, w.size - 1)
+    v = _drive(u, par["offset"], max(par["dead_zone"], 0.0), delay)
+    return _simulate_segments(v, max(par["friction"], 0.0), par["K"], par["tau"], Ts, starts,
+                              th[starts], w[idx])
+
+
+def _segment_starts(n, segment_n):
+    if segment_n is None or segment_n >= n:
+        return np.array([0])
+    starts = np.arange(0, n, segment_n)
+    if n - starts[-1] < max(segment_n // 2, 10) and starts.size > 1:
+        starts = starts[:-1]                     # fold a short tail into the previous segment
+    return starts
+
+
+def _fit_oe_ms(exps, Ts, delay, opts, init, segment_n, cutoff, max_nfev=200):
+    """Output error with multiple shooting: global (K, ln tau, [f_c], [offset], [dead_zone]) and an
+    initial state (theta0, omega0) per segment, minimising sum (theta - theta_sim)^2 over all
+    segments of all experiments (Ljung §4.2 output error; Bock's multiple shooting without
+    continuity constraints, i.e. each segment a short output-error problem with its own initial
+    state, so an integrating plant cannot drift over a long record)."""
+    names = ["K", "tau"] + [nm for nm in ("friction", "offset", "dead_zone") if opts[nm]]
+    ng = len(names)
+    vs_u, ths, starts_all, offsets = [], [], [], []
+    pos = 0
+    for u, th in exps:
+        st = _segment_starts(u.size, segment_n)
+        starts_all.append(st + pos)
+        vs_u.append(_shift(u, delay))
+        ths.append(th)
+        offsets.append(pos)
+        pos += u.size
+    starts = np.concatenate(starts_all)
+    ucat = np.concatenate(vs_u)
+    theta = np.concatenate(ths)
+    nseg = starts.size
+    # initial segment states from the filtered record
+    th0, om0 = [], []
+    for (u, th), st in zip(exps, starts_all):
+        _, w, _ = _filtered_states(th, Ts, cutoff)
+        base = st[0]
+        for s_ in st - base:
+            th0.append(th[s_])
+            om0.append(w[min(max(s_ - 1, 0), w.size - 1)])
+    gl = [init["K"], math.log(init["tau"])] + [init[nm] for nm in names[2:]]
+    x0 = np.concatenate([gl, np.ravel(np.column_stack([th0, om0]))])
+    # friction and dead zone enter as |p| (>= 0 without bounds, so MINPACK's Levenberg-Marquardt
+    # can be used: it is much faster than a bounded trust region on hundreds of segment states);
+    # ln tau is clamped to a range no motor leaves, so a hopeless record cannot overflow
+    tau_lo, tau_hi = math.log(Ts * 1e-3), math.log(Ts * theta.size * 1e3)
+    x0[1] = min(max(x0[1], tau_lo + 1e-6), tau_hi - 1e-6)
+    for i, nm in enumerate(names[2:], start=2):
+        if nm in ("friction", "dead_zone"):
+            x0[i] = max(abs(x0[i]), 1e-6)
+
+    def unpack(x):
+        g = dict(zip(names, x[:ng]))
+        g["tau"] = math.exp(min(max(g["tau"], tau_lo), tau_hi))
+        for nm in ("friction", "dead_zone"):
+            g[nm] = abs(g.get(nm, 0.0))
+        g.setdefault("offset", 0.0)
+        return g, x[ng::2], x[ng + 1::2]
+
+    def model(x):
+        g, t0, w0 = unpack(x)
+        v = ucat + g["offset"]
+        if g["dead_zone"]:
+            v = np.sign(v) * np.maximum(np.abs(v) - g["dead_zone"], 0.0)
+        return _simulate_segments(v, g["friction"], g["K"], g["tau"], Ts, starts, t0, w0)
+
+    def resid(x):
+        return model(x) - theta
+
+    seg_of = np.repeat(np.arange(nseg), np.diff(np.append(starts, theta.size)))
+
+    def jac(x):
+        # globals by central differences; the segment angles exactly (the model is invariant to a
+        # shift of the angle); the segment velocities by one grouped difference (segments are
+        # independent, so one perturbed simulation gives every segment's column)
+        J = np.zeros((theta.size, x.size))
+        for i in range(ng):
+            h = 1e-6 * max(abs(x[i]), 1e-2)
+            xp, xm = x.copy(), x.copy()
+            xp[i] += h
+            xm[i] -= h
+            J[:, i] = (model(xp) - model(xm)) / (2 * h)
+        J[np.arange(theta.size), ng + 2 * seg_of] = 1.0
+        w0 = x[ng + 1::2]
+        h = 1e-6 * max(float(np.max(np.abs(w0))), 1e-2)
+        xp, xm = x.copy(), x.copy()
+        xp[ng + 1::2] += h
+        xm[ng + 1::2] -= h
+        J[np.arange(theta.size), ng + 2 * seg_of + 1] = (model(xp) - model(xm)) / (2 * h)
+        return J
+
+    sol = optimize.least_squares(resid, x0, jac=jac, method="lm", x_scale="jac",
+                                 xtol=1e-8, ftol=1e-9, gtol=1e-9, max_nfev=max_nfev)
+    x = sol.x
+    J = jac(x)
+    r = resid(x)
+    dof = max(theta.size - x.size, 1)
+    s2 = float(r @ r) / dof
+    cov_x = s2 * np.linalg.pinv(J.T @ J)
+    g, t0, w0 = unpack(x)
+    # (K, ln tau, ...) -> (K, tau, ...)
+    T = np.eye(ng)
+    T[1, 1] = g["tau"]
+    cov = T @ cov_x[:ng, :ng] @ T
+    Jg = J[:, :ng] @ np.linalg.inv(T) if ng else J
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    at_bound = [nm for i, nm in enumerate(names) if nm in ("friction", "dead_zone")
+                and (g[nm] <= 1e-4 * float(np.max(np.abs(ucat))) or g[nm] < 2.0 * sd[i])]
+    if not (tau_lo + 1e-3 < x[1] < tau_hi - 1e-3):
+        at_bound.append("tau")
+    y_sim = theta + r            # r = model - theta
+    return dict(par=g, names=names, cov=cov, y_sim=y_sim, theta=theta, nfev=sol.nfev,
+                s=math.sqrt(s2), nseg=nseg, starts=starts, seg_theta0=t0, seg_omega0=w0,
+                at_bound=at_bound, cost=float(r @ r), Jg=Jg, exp_offsets=offsets)
+
+
+def _shift(u, delay):
+    return _drive(u, 0.0, 0.0, delay)
+
+
+def _diagnose(par, cov, names, u_abs_max, at_bound=(), Jg=None):
+    """Physically impossible or poorly determined results -> list of messages (Ljung §16)."""
+    msgs = []
+    if not par["K"] > 0:
+        msgs.append(f"K = {par['K']:.4g} rad/(V s) <= 0: the angle falls when the voltage rises. The "
+                    f"encoder channels (A/B) or the motor leads are probably reversed, or u was logged "
+                    f"with the wrong sign: flip the sign of theta (or of u) and fit again")
+    if not par["tau"] > 0:
+        msgs.append(f"tau = {par['tau']:.4g} s <= 0: no motor has a negative time constant; check "
+                    f"that theta is the angle (not the velocity) and that the encoder and motor "
+                    f"leads are not reversed")
+    if "friction" in names and par["friction"] > u_abs_max:
+        msgs.append(f"friction f_c = {par['friction']:.4g} V is larger than the largest input "
+                    f"|u| = {u_abs_max:.4g} V: the motor could never have moved. The model does not "
+                    f"fit these data (u not in volts? a reversed encoder? an offset or dead zone "
+                    f"not modelled?)")
+    for nm in at_bound:
+        what = {"tau": "tau ran to the edge of its search range",
+                "friction": f"friction f_c = {par['friction']:.3g} V is at (or within two standard "
+                            f"errors of) its bound 0",
+                "dead_zone": f"dead_zone = {par['dead_zone']:.3g} V is at (or within two standard "
+                             f"errors of) its bound 0"}[nm]
+        msgs.append(f"{what}: the data do not support this term (or another term absorbed it); "
+                    f"fit without it or record an input that shows it")
+    std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    if np.all(np.isfinite(cov)) and np.all(std > 0):
+        C = cov / np.outer(std, std)
+        w, V = np.linalg.eigh(C)
+        if w[0] < 1e-4:
+            v = V[:, 0]
+            idx = np.argsort(-np.abs(v))[:2]
+            pair = " and ".join(names[i] for i in idx)
+            msgs.append(f"ill-conditioned fit (parameter correlation matrix eigenvalue {w[0]:.1e}): "
+                        f"the input is not exciting enough to separate {pair}. A single step level "
+                        f"cannot separate K from friction or offset, a motor turning one way cannot "
+                        f"separate friction from offset: use two or more levels, both directions "
+                        f"(a PRBS about zero), or fewer parameters")
+    for i, nm in enumerate(names):
+        val = par[nm]
+        if nm in ("K", "tau") and np.isfinite(std[i]) and val != 0 and std[i] > 0.5 * abs(val):
+            msgs.append(f"{nm} is poorly determined ({val:.4g} ± {std[i]:.2g}): the input is not "
+                        f"exciting enough (too short, too small, or too slow for tau)")
+    return msgs
 
 
 def arx_asymptotic_bias(u, K, tau, Ts, noise_std):
@@ -992,6 +1605,10 @@ class ResidualAnalysis:
     auto_pvalue: float = float("nan")
     cross_pvalue: float | None = None
 
+    def plot(self, axes=None, title: str | None = None):
+        """The two panels of MATLAB's ``resid`` (see :func:`plot_residuals`)."""
+        return plot_residuals(self, axes, title)
+
 
 def _xcorr_norm(x, y, lags):
     """Normalised sample cross-correlation r(l) = sum x(t-l) y(t) / (N sx sy)."""
@@ -1110,23 +1727,27 @@ def validate(fit: MotorFit, u, theta, Ts=None, max_lag: int = 25, confidence: fl
     u, theta = _pair(u, theta, "u", "theta")
     if Ts is not None and abs(as_positive("Ts", Ts) - fit.Ts) > 1e-9 * fit.Ts:
         raise ValueError(f"Ts = {Ts:g} s differs from the fit's Ts = {fit.Ts:g} s")
-    g = fit.simulate(u)
-    if initial == "rest":
-        M = np.ones((u.size, 1))
+    if fit.is_linear:
+        g = fit.simulate(u)
+        if initial == "rest":
+            M = np.ones((u.size, 1))
+        else:
+            k = np.arange(u.size)
+            M = np.column_stack([np.ones(u.size), -fit.tau * np.expm1(-k * fit.Ts / fit.tau)])
+        coef, *_ = np.linalg.lstsq(M, theta - g, rcond=None)
+        th0 = float(coef[0])
+        w0 = float(coef[1]) if initial == "estimate" else 0.0
+        y_sim = g + M @ coef
     else:
-        k = np.arange(u.size)
-        M = np.column_stack([np.ones(u.size), -fit.tau * np.expm1(-k * fit.Ts / fit.tau)])
-    coef, *_ = np.linalg.lstsq(M, theta - g, rcond=None)
-    th0 = float(coef[0])
-    w0 = float(coef[1]) if initial == "estimate" else 0.0
-    y_sim = g + M @ coef
+        th0, w0 = _initial_state(fit, u, theta, initial)
+        y_sim = fit.simulate(u, th0, w0)
     r = theta - y_sim
     max_lag = min(as_int("max_lag", max_lag, minimum=1), (u.size - 1) // 2)
     an = residual_analysis(r, u if np.std(u) > 0 else None, max_lag, confidence)
     return Validation(y_sim, fit_percent(theta, y_sim), r, an, th0, w0)
 
 
-def plot_compare(data, *fits, ax=None, labels=None):
+def plot_compare(data, *fits, ax=None, labels=None, horizon=None):
     """Measured angle against each fitted model's simulation, with fit % in the legend.
 
     Parameters
@@ -1137,6 +1758,8 @@ def plot_compare(data, *fits, ax=None, labels=None):
         Models to simulate.
     ax : matplotlib Axes, optional
     labels : list of str, optional
+    horizon : None or int
+        None: simulation; k: k-step-ahead prediction (see :func:`compare`).
     """
     import matplotlib.pyplot as plt
 
@@ -1146,10 +1769,11 @@ def plot_compare(data, *fits, ax=None, labels=None):
         _, ax = plt.subplots(figsize=(8, 3.5))
     ax.plot(data.t, data.y, ".", color="0.3", ms=3, label="measured")
     for i, f in enumerate(fits):
-        v = validate(f, data.u, data.y, data.Ts)
+        c = compare(data, f, horizon)
         name = labels[i] if labels else f.method.upper()
-        ax.plot(data.t, v.y_sim, "-", lw=1.5,
-                label=f"{name}: K={f.K:.3g}, τ={f.tau * 1e3:.3g} ms, fit {v.fit_percent:.2f} %")
+        what = "" if horizon is None else f", {horizon}-step"
+        ax.plot(data.t, c.y_hat, "-", lw=1.5,
+                label=f"{name}: K={f.K:.3g}, τ={f.tau * 1e3:.3g} ms{what}, fit {c.fit_percent:.2f} %")
     ax.set_xlabel("time (s)")
     ax.set_ylabel(f"angle ({data.output_unit})")
     ax.legend(loc="best", fontsize=8)
@@ -1182,6 +1806,330 @@ def plot_residuals(analysis: ResidualAnalysis, axes=None, title: str | None = No
         ax.set_xlabel("lag (samples)")
         ax.set_ylabel("cross-corr. u, e (–)")
     return axes
+
+
+# ----------------------------------------------------------------------------------------------
+# several experiments; compare and resid with MATLAB's semantics
+# ----------------------------------------------------------------------------------------------
+class MergedData:
+    """Several experiments of the same motor, for one estimate (MATLAB's ``merge``).
+
+    Each record keeps its own time axis and initial state; :meth:`fit` passes the lists of
+    inputs and outputs to :func:`fit_dc_motor`. Keep validation records out of it.
+    """
+
+    def __init__(self, experiments):
+        exps = list(experiments)
+        if not exps:
+            raise ValueError("experiments must hold at least one IdentData")
+        for i, d in enumerate(exps):
+            if not isinstance(d, IdentData):
+                raise ValueError(f"experiments[{i}] must be an IdentData, got {type(d).__name__}")
+        Ts = exps[0].Ts
+        for i, d in enumerate(exps):
+            if abs(d.Ts - Ts) > 1e-9 * Ts:
+                raise ValueError(f"experiments[{i}] has Ts = {d.Ts:g} s, experiments[0] has {Ts:g} s: "
+                                 f"resample one of them first")
+        self.experiments = exps
+        self.Ts = Ts
+
+    def __len__(self):
+        return len(self.experiments)
+
+    def __getitem__(self, i) -> IdentData:
+        return self.experiments[i]
+
+    @property
+    def u(self):
+        return [d.u for d in self.experiments]
+
+    @property
+    def y(self):
+        return [d.y for d in self.experiments]
+
+    def fit(self, method: str = "pem", **kwargs) -> "MotorFit":
+        """One fit over every experiment: ``fit_dc_motor([u...], [y...], Ts, method, **kwargs)``."""
+        return fit_dc_motor(self.u, self.y, self.Ts, method=method, **kwargs)
+
+    def __repr__(self):
+        return f"MergedData({len(self)} experiments, Ts={self.Ts:g} s, n={[d.n for d in self.experiments]})"
+
+
+def merge(*data) -> MergedData:
+    """Merge several :class:`IdentData` records into one estimation set (MATLAB's ``merge``)."""
+    if len(data) == 1 and isinstance(data[0], (list, tuple)):
+        data = tuple(data[0])
+    return MergedData(data)
+
+
+def _initial_state(fit, u, y, initial):
+    """Initial (theta0, omega0) of ``fit`` that best matches ``y`` (least squares, as compare's 'e')."""
+    if initial == "rest":
+        g = fit.simulate(u)
+        return float(np.mean(y - g)), 0.0
+    if fit.is_linear:
+        g = fit.simulate(u)
+        k = np.arange(u.size)
+        M = np.column_stack([np.ones(u.size), -fit.tau * np.expm1(-k * fit.Ts / fit.tau)])
+        coef, *_ = np.linalg.lstsq(M, y - g, rcond=None)
+        return float(coef[0]), float(coef[1])
+    w0 = (y[min(2, y.size - 1)] - y[0]) / (min(2, y.size - 1) * fit.Ts)
+
+    def r(x):
+        return fit.simulate(u, x[0], x[1]) - y
+
+    best = None
+    for start in (w0, 0.0):
+        sol = optimize.least_squares(r, [y[0], start], method="lm", x_scale=[1.0, max(abs(w0), 1.0)])
+        if best is None or sol.cost < best.cost:
+            best = sol
+    return float(best.x[0]), float(best.x[1])
+
+
+@_jit
+def _predict_kernel(v, y, fc, K, tau, Ts, k, out):
+    """k-step-ahead prediction: at t - k restart from the state the two measured angles
+    y(t-k-1), y(t-k) imply (the angle from y, the velocity from the exact one-sample relation),
+    then simulate k samples."""
+    em = -math.expm1(-Ts / tau)
+    a = 1.0 - em
+    c = tau * em
+    for t in range(k + 1, y.size):
+        s = t - k
+        d = y[s] - y[s - 1]
+        vv = v[s - 1]
+        if fc > 0.0:
+            if d > 0.0:
+                vv = vv - fc
+            elif d < 0.0:
+                vv = vv + fc
+            else:
+                vv = 0.0
+        om_prev = (d - K * (Ts - c) * vv) / c
+        om = a * om_prev + K * em * vv
+        if fc > 0.0 and d == 0.0:
+            om = 0.0
+        th = y[s]
+        for j in range(s, t):
+            th, om = advance_em(th, om, v[j], fc, K, tau, Ts, em)
+        out[t] = th
+    return out
+
+
+@dataclass
+class CompareResult:
+    """Output of :func:`compare`: the model's output on a record and its fit %.
+
+    ``horizon`` is None for simulation (MATLAB ``compare(data, sys)``, an infinite horizon) or
+    k for the k-step-ahead prediction (``compare(data, sys, k)``).
+    """
+
+    t: np.ndarray
+    y: np.ndarray
+    y_hat: np.ndarray
+    fit_percent: float
+    horizon: int | None
+    theta0: float
+    omega0: float
+    label: str = ""
+
+    def plot(self, ax=None, unit: str = "rad"):
+        """Measured and model output against time, fit % in the legend."""
+        import matplotlib.pyplot as plt
+
+        if ax is None:
+            _, ax = plt.subplots(figsize=(8, 3.5))
+        ax.plot(self.t, self.y, ".", color="0.3", ms=3, label="measured")
+        what = "simulation" if self.horizon is None else f"{self.horizon}-step prediction"
+        ax.plot(self.t, self.y_hat, "-", lw=1.5,
+                label=f"{self.label + ': ' if self.label else ''}{what}, fit {self.fit_percent:.2f} %")
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel(f"angle ({unit})")
+        ax.legend(loc="best", fontsize=8)
+        return ax
+
+
+def compare(data, fit, horizon=None, initial: str = "estimate", label: str = "") -> CompareResult:
+    """Model output against a record and the fit %, as MATLAB's ``compare``.
+
+    fit % = 100 (1 - ||y - yhat|| / ||y - mean(y)||) over every sample of the record.
+
+    Parameters
+    ----------
+    data : IdentData or (u, y) pair
+        The record (ideally not the one ``fit`` was estimated on).
+    fit : MotorFit
+    horizon : None or int
+        None (or ``math.inf``): simulation from the estimated initial state, MATLAB's default
+        infinite horizon. k >= 1: the k-step-ahead prediction yhat(t | t - k): at t - k the model is
+        restarted from the state the measured angles y(t-k-1), y(t-k) imply and run k samples;
+        for the linear model this is exactly the k-step predictor of the ARX form of Stojčić eq. 1,
+        (1 - q^-1)(1 - a q^-1) theta = (b1 q^-1 + b2 q^-2) u + e (Ljung §3.2), i.e. MATLAB's
+        ``compare(data, arx_model, k)``. The first k + 1 samples take the simulation.
+    initial : {"estimate", "rest"}
+        Initial state of the simulation: fitted (MATLAB's ``InitialCondition='e'``) or at rest.
+
+    Returns
+    -------
+    CompareResult
+    """
+    if not isinstance(fit, MotorFit):
+        raise ValueError(f"fit must be a MotorFit, got {type(fit).__name__}")
+    if initial not in ("estimate", "rest"):
+        raise ValueError(f"initial must be 'estimate' or 'rest', got {initial!r}")
+    if not (fit.tau > 0 and math.isfinite(fit.K)):
+        raise ValueError(f"fit has tau = {fit.tau:.4g} s, K = {fit.K:.4g}: no motor to simulate "
+                         f"(see fit.warnings: {'; '.join(fit.warnings) or 'none'})")
+    if isinstance(data, IdentData):
+        u, y, Ts = data.u, data.y, data.Ts
+    elif isinstance(data, (tuple, list)) and len(data) == 2:
+        u, y = _pair(data[0], data[1], "u", "y", min_len=3)
+        Ts = fit.Ts
+    else:
+        raise ValueError(f"data must be an IdentData or a (u, y) pair, got {type(data).__name__}")
+    if abs(Ts - fit.Ts) > 1e-9 * fit.Ts:
+        raise ValueError(f"data.Ts = {Ts:g} s differs from the fit's Ts = {fit.Ts:g} s")
+    if horizon is not None and horizon != math.inf:
+        horizon = as_int("horizon", horizon, minimum=1)
+    else:
+        horizon = None
+    th0, om0 = _initial_state(fit, u, y, initial)
+    y_hat = fit.simulate(u, th0, om0)
+    if horizon is not None and y.size > horizon + 1:
+        v = _drive(u, fit.offset, fit.dead_zone, fit.delay)
+        pred = _predict_kernel(np.ascontiguousarray(v), np.ascontiguousarray(y), float(fit.friction),
+                               float(fit.K), float(fit.tau), float(fit.Ts), int(horizon), y_hat.copy())
+        y_hat = pred
+    t = np.arange(y.size) * Ts
+    return CompareResult(t, y, y_hat, fit_percent(y, y_hat), horizon, th0, om0, label)
+
+
+def resid(data, fit, max_lag: int = 25, confidence: float = 0.99, initial: str = "estimate") -> "ResidualAnalysis":
+    """Residual tests of a model on a record, as MATLAB's ``resid``.
+
+    The residuals are the output errors y - yhat of the simulation (the prediction errors of an
+    output-error model, which is what the fits of this module are), from the estimated initial
+    state. Returns :func:`residual_analysis` of them with the input: autocorrelation over lags
+    0..``max_lag``, cross-correlation with u over -``max_lag``..``max_lag``, ``confidence`` bands
+    (99 % by default), the whiteness and independence tests. ``result.plot()`` draws the two panels.
+    """
+    c = compare(data, fit, None, initial)
+    u = data.u if isinstance(data, IdentData) else _signal("u", data[0])
+    e = c.y - c.y_hat
+    max_lag = min(as_int("max_lag", max_lag, minimum=1), (e.size - 1) // 2)
+    return residual_analysis(e, u if np.std(u) > 0 else None, max_lag, confidence)
+
+
+# ----------------------------------------------------------------------------------------------
+# real records
+# ----------------------------------------------------------------------------------------------
+#: PWM amplitude (of 255) of the micromouse records whose command the log lets us rebuild
+#: (README_original_data.md: "max speed"); the trapezoid records (2, 4, 6) ramp the PWM at a rate
+#: the log does not hold, so they cannot be used as input/output records.
+MICROMOUSE_RECORDS = {"encoders1": (100, "rectangle, 1 s"), "encoders3": (100, "step"),
+                      "encoders5": (255, "step")}
+
+
+def _default_real_root():
+    return pathlib.Path(__file__).resolve().parents[1] / "data" / "real"
+
+
+def _read_table(path):
+    try:
+        with open(path) as fh:
+            header = [h.strip() for h in fh.readline().split(",")]
+        table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"path: cannot read {path}: {exc}") from None
+    return header, table
+
+
+def micromouse_battery_voltage(root=None) -> float:
+    """Median battery voltage (V) logged with the PWM sweep ``wheelSpeedCalibration3.csv``
+    (LiPo 2S, the battery of the speed records; see data/real/micromouse/README.md)."""
+    root = pathlib.Path(root) if root is not None else _default_real_root() / "micromouse"
+    header, table = _read_table(root / "wheelSpeedCalibration3.csv")
+    return float(np.median(table[:, header.index("batteryVoltage")])) / 1000.0
+
+
+def load_micromouse(name: str, root=None, battery_voltage=None, counts_per_motor_rev: int = 12,
+                    gear_ratio: float = 29.861, sign: int = -1, pre_samples: int = 20) -> IdentData:
+    """A measured record of the Pololu 30:1 micro gearmotor of the micromouse "Algernon" as SI data.
+
+    The files (``data/real/micromouse``, CERN-OHL-P v2, from github.com/opatiny/micromouse) log the
+    cumulative encoder count of the left motor and its mode every 5 ms; the PWM command is a known
+    constant while the mode is non-zero (see ``MICROMOUSE_RECORDS``). Conversions:
+
+    * angle (rad, gearbox output) = ``sign`` * count * 2 pi / (counts_per_motor_rev * gear_ratio):
+      the magnetic encoder gives 12 counts per motor revolution when both edges of both channels
+      are counted (X4), so 12 * 29.861 counts per output revolution. The left encoder counts down
+      for a positive command as wired, hence ``sign=-1``; ``sign=+1`` gives the raw direction (and
+      a negative K, which the fit diagnoses as a reversed encoder).
+    * voltage (V) = PWM / 255 * ``battery_voltage``, the nominal mean voltage of the DRV8833's
+      PWM. Default: :func:`micromouse_battery_voltage`. It is nominal: at light load the bridge's
+      coasting PWM makes the speed a nonlinear function of the duty (the PWM sweep shows a dead
+      band below about 50/255), so K is a gain per *nominal* volt.
+
+    Parameters
+    ----------
+    name : {"encoders1", "encoders3", "encoders5"}
+        Record: a 1 s rectangle at PWM 100, a step at PWM 100, a step at PWM 255.
+    root : path, optional
+        Folder holding the CSV files (default: the repository's data/real/micromouse).
+    battery_voltage : float, optional
+        Supply voltage (V).
+    counts_per_motor_rev : int
+        Encoder counts per motor revolution (12: Pololu magnetic encoder, X4).
+    gear_ratio : float
+        Gearbox ratio (29.861 for the "30:1" gearbox).
+    sign : {+1, -1}
+        Direction of the encoder count relative to a positive command.
+    pre_samples : int
+        Samples kept before the command starts (the motor at rest); the rest of the idle lead-in
+        is dropped.
+
+    Returns
+    -------
+    IdentData
+        u in V, y in rad (output shaft), Ts = 0.005 s; metadata names the source and conversions.
+    """
+    if name not in MICROMOUSE_RECORDS:
+        raise ValueError(f"name must be one of {sorted(MICROMOUSE_RECORDS)} (the trapezoid records "
+                         f"encoders2/4/6 do not log their PWM ramp), got {name!r}")
+    root = pathlib.Path(root) if root is not None else _default_real_root() / "micromouse"
+    if battery_voltage is None:
+        battery_voltage = micromouse_battery_voltage(root)
+    battery_voltage = as_positive("battery_voltage", battery_voltage)
+    counts_per_motor_rev = as_int("counts_per_motor_rev", counts_per_motor_rev, minimum=1)
+    gear_ratio = as_positive("gear_ratio", gear_ratio)
+    sign = as_int("sign", sign)
+    if sign not in (-1, 1):
+        raise ValueError(f"sign must be +1 or -1, got {sign}")
+    pre_samples = as_int("pre_samples", pre_samples, minimum=0)
+    header, table = _read_table(root / f"{name}.csv")
+    for col in ("time", "leftEncoder", "leftMode"):
+        if col not in header:
+            raise ValueError(f"path: {name}.csv has no '{col}' column (columns {header})")
+    t_ms = table[:, header.index("time")]
+    counts = table[:, header.index("leftEncoder")]
+    mode = table[:, header.index("leftMode")]
+    dt = np.diff(t_ms)
+    if dt.size == 0 or np.any(dt != dt[0]):
+        raise ValueError(f"path: {name}.csv is not uniformly sampled")
+    Ts = float(dt[0]) / 1000.0
+    on = np.flatnonzero(mode != 0)
+    if on.size == 0:
+        raise ValueError(f"path: {name}.csv never switches the motor on")
+    start = max(int(on[0]) - pre_samples, 0)
+    pwm = MICROMOUSE_RECORDS[name][0]
+    u = np.where(mode != 0, pwm / 255.0 * battery_voltage, 0.0)[start:]
+    rad_per_count = 2.0 * math.pi / (counts_per_motor_rev * gear_ratio)
+    y = sign * (counts[start:] - counts[start]) * rad_per_count
+    meta = {"source": "github.com/opatiny/micromouse matlab/data (CERN-OHL-P v2)", "record": name,
+            "profile": MICROMOUSE_RECORDS[name][1], "pwm": pwm, "battery_voltage_V": battery_voltage,
+            "counts_per_motor_rev": counts_per_motor_rev, "gear_ratio": gear_ratio, "sign": sign,
+            "rad_per_count": rad_per_count, "t0_ms": float(t_ms[start])}
+    return IdentData(u, y, Ts, "V", "rad", meta)
 
 
 # ----------------------------------------------------------------------------------------------

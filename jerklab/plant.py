@@ -301,13 +301,25 @@ class DCMotor(_MotorBase):
         Standard deviation of Gaussian measurement noise added to the angle (rad).
     seed : int or None
         Seed of the noise generator.
+    offset : float
+        Input offset (V): the driver adds it to every command, so the motor sees ``u + offset``
+        (a bias of the amplifier or of the PWM zero). Default 0.
+    dead_zone : float
+        Input dead zone (V) ≥ 0 after the offset: the motor sees
+        ``dz(x) = sign(x) max(|x| - dead_zone, 0)`` of ``x = u + offset`` (a driver that needs a
+        minimum duty before it switches). Default 0. Offset and dead zone act in
+        :meth:`step_state` (and so in :meth:`open_loop` and the virtual rig); the compiled loop of
+        ``jerklab.sim`` does not model them.
     """
 
     def __init__(self, K=32.4, tau=0.025, supply_voltage=12.0, pwm_bits=10, encoder_ppr=448,
-                 decoding=1, coulomb_friction=0.0, load_disturbance=None, noise_std=0.0, seed=None):
+                 decoding=1, coulomb_friction=0.0, load_disturbance=None, noise_std=0.0, seed=None,
+                 offset=0.0, dead_zone=0.0):
         self.K = as_positive("K", K)
         self.tau = as_positive("tau", tau)
         self.coulomb_friction = as_nonnegative("coulomb_friction", coulomb_friction)
+        self.offset = as_real("offset", offset)
+        self.dead_zone = as_nonnegative("dead_zone", dead_zone)
         self._init_common(supply_voltage, pwm_bits, encoder_ppr, decoding, load_disturbance,
                           noise_std, seed)
 
@@ -315,7 +327,9 @@ class DCMotor(_MotorBase):
         return (f"DCMotor(K={self.K!r}, tau={self.tau!r}, supply_voltage={self.supply_voltage!r}, "
                 f"pwm_bits={self.pwm_bits!r}, encoder_ppr={self.encoder_ppr!r}, "
                 f"decoding={self.decoding!r}, coulomb_friction={self.coulomb_friction!r}, "
-                f"load_disturbance={self.load_disturbance!r}, noise_std={self.noise_std!r})")
+                f"load_disturbance={self.load_disturbance!r}, noise_std={self.noise_std!r}"
+                + (f", offset={self.offset!r}" if self.offset else "")
+                + (f", dead_zone={self.dead_zone!r}" if self.dead_zone else "") + ")")
 
     n_states = 2
 
@@ -328,9 +342,21 @@ class DCMotor(_MotorBase):
         kw = dict(K=self.K, tau=self.tau, supply_voltage=self.supply_voltage, pwm_bits=self.pwm_bits,
                   encoder_ppr=self.encoder_ppr, decoding=self.decoding,
                   coulomb_friction=self.coulomb_friction, load_disturbance=self.load_disturbance,
-                  noise_std=self.noise_std, seed=self.seed)
+                  noise_std=self.noise_std, seed=self.seed, offset=self.offset,
+                  dead_zone=self.dead_zone)
         kw.update(changes)
         return DCMotor(**kw)
+
+    def drive_voltage(self, u):
+        """The voltage the motor sees for an applied ``u``: ``dz(u + offset)``.
+
+        ``dz(x) = sign(x) max(|x| - dead_zone, 0)``; the identity with the default offset 0 and
+        dead zone 0.
+        """
+        x = np.asarray(u, dtype=float) + self.offset
+        if self.dead_zone:
+            x = np.sign(x) * np.maximum(np.abs(x) - self.dead_zone, 0.0)
+        return float(x) if x.ndim == 0 else x
 
     # --- linear models (python-control) ---------------------------------
     def tf(self):
@@ -380,8 +406,9 @@ class DCMotor(_MotorBase):
     def step_state(self, x, u, dt, t=0.0):
         """Next state ``[theta, omega]`` after ``dt`` with the terminal voltage ``u`` held.
 
-        ``u`` is the voltage the motor sees (apply :meth:`quantize_voltage` first to
-        model the amplifier). The load disturbance is evaluated on ``[t, t + dt)``;
+        ``u`` is the voltage the amplifier applies (apply :meth:`quantize_voltage` first to
+        model the PWM); the motor sees ``dz(u + offset)`` (:meth:`drive_voltage`). The load
+        disturbance is evaluated on ``[t, t + dt)``;
         a step inside the interval splits it. Exact: closed-form ZOH for the linear
         part, analytic zero-crossing event and sticking for Coulomb friction.
         """
@@ -390,6 +417,8 @@ class DCMotor(_MotorBase):
         dt = as_nonnegative("dt", dt)
         t = as_real("t", t)
         th, om = float(x[0]), float(x[1])
+        if self.offset or self.dead_zone:
+            u = float(self.drive_voltage(u))
         d = self.load_disturbance
         if d is not None and t < d.time < t + dt:
             first = d.time - t

@@ -174,7 +174,7 @@ def test_pem_with_friction_on_prbs():
     assert fr.friction == pytest.approx(0.3, abs=0.03)
     assert plain.K < 0.97 * K0          # friction unmodelled: K biased by ~ -f_c/|u|
     # the fitted model, simulated on the record, includes the friction
-    np.testing.assert_allclose(fr.simulate(u, fr.theta0), fr.y_sim, atol=1e-9)
+    np.testing.assert_allclose(fr.simulate(u, fr.theta0, fr.omega0), fr.y_sim, atol=1e-9)
 
 
 def test_pem_coverage_monte_carlo():
