@@ -568,13 +568,22 @@ def test_class_page_at_phone_width(browser, class_page, artifacts_dir):
 
 
 def _kernels_of(pid):
+    """Live kernel processes under the server ``pid`` (a zombie or vanished child is skipped,
+    one by one: a zombie's ``cmdline()`` raises, which must not hide the other kernels)."""
     import psutil
 
     try:
-        return [p for p in psutil.Process(pid).children(recursive=True)
-                if "ipykernel" in " ".join(p.cmdline())]
+        children = psutil.Process(pid).children(recursive=True)
     except psutil.NoSuchProcess:
         return []
+    out = []
+    for p in children:
+        try:
+            if p.status() != psutil.STATUS_ZOMBIE and "ipykernel" in " ".join(p.cmdline()):
+                out.append(p)
+        except (psutil.NoSuchProcess, psutil.AccessDenied):
+            continue
+    return out
 
 
 def test_abandoned_class_page_kernel_is_culled(browser, tmp_path, artifacts_dir):
