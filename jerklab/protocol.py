@@ -29,6 +29,8 @@ from __future__ import annotations
 import binascii
 import dataclasses
 import enum
+import math
+import numbers
 import struct
 from dataclasses import dataclass
 from typing import ClassVar
@@ -36,14 +38,21 @@ from typing import ClassVar
 __all__ = [
     "PROTOCOL_VERSION", "SYNC", "MAX_PAYLOAD", "MAX_FRAME", "MIN_FRAME",
     "MsgType", "ErrorCode", "EndReason", "Planner", "LoopType", "Capability",
-    "GAINS_FEEDFORWARD", "TELEMETRY_SATURATED", "TELEMETRY_SETTLING",
+    "GAINS_FEEDFORWARD", "TELEMETRY_SATURATED", "TELEMETRY_SETTLING", "TELEMETRY_FAULT",
+    "MAX_PLAN_SAMPLES", "DEFAULT_MAX_ERROR", "DEFAULT_RUNAWAY_MS", "DEFAULT_SATURATION_MS",
     "crc16_ccitt_false", "encode_frame", "encode", "parse", "Frame", "Decoder", "DecoderStats",
     "ProtocolError", "MESSAGES", "payload_field_name",
     "Hello", "SetPlant", "SetGains", "SetLimits", "Plan", "Run", "Stop", "Step", "Heartbeat",
     "Ack", "Nack", "HelloReply", "PlanInfo", "Telemetry", "EndOfRun", "DeviceError",
 ]
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
+#: the longest plan a device accepts (PLAN_INFO.n_samples); longer: NACK TOO_LONG
+MAX_PLAN_SAMPLES = 2_000_000_000
+#: boot defaults of the safety stops (SetLimits.max_error rad, .runaway_ms ms, .saturation_ms ms)
+DEFAULT_MAX_ERROR = 0.5
+DEFAULT_RUNAWAY_MS = 200
+DEFAULT_SATURATION_MS = 500
 SYNC = b"\xa5\x5a"
 MAX_PAYLOAD = 64
 #: smallest frame: sync(2) + len + type + seq + crc(2)
@@ -77,6 +86,8 @@ def crc16_ccitt_false(data: bytes, crc: int = 0xFFFF) -> int:
     ``crc16_ccitt_false(b"123456789") == 0x29B1`` (the catalogue check value).
     The streaming decoder uses the equivalent C routine ``binascii.crc_hqx``.
     """
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        raise TypeError(f"data must be bytes, got {type(data).__name__}")
     for b in bytes(data):
         crc = ((crc << 8) & 0xFFFF) ^ _CRC_TABLE[((crc >> 8) ^ b) & 0xFF]
     return crc
@@ -120,6 +131,7 @@ class ErrorCode(enum.IntEnum):
     NOT_READY = 5         #: RUN without gains, or without a PLAN since the last SET_*
     UNSUPPORTED = 6       #: planner / loop type / feature not built into this firmware
     BAD_VERSION = 7       #: protocol version not supported
+    TOO_LONG = 8          #: the plan needs more than MAX_PLAN_SAMPLES samples
 
 
 class EndReason(enum.IntEnum):
@@ -129,6 +141,10 @@ class EndReason(enum.IntEnum):
     STOPPED = 1           #: STOP from the host
     HOST_TIMEOUT = 2      #: no valid frame from the host for longer than host_timeout_ms
     FAULT = 3             #: internal fault (control tick overrun, numeric error)
+    TRACKING_ERROR = 4    #: |reference - position| > SetLimits.max_error; detail = the error (rad)
+    RUNAWAY = 5           #: large drive, encoder moved against it (reversed?); detail = counts moved
+    NO_MOTION = 6         #: large drive, encoder did not move (disconnected? stalled?); detail = 0
+    SATURATION = 7        #: output at the clamp in most samples for saturation_ms (unstable loop?)
 
 
 class Planner(enum.IntEnum):
@@ -167,9 +183,63 @@ GAINS_FEEDFORWARD = 0x01
 TELEMETRY_SATURATED = 0x01
 #: ``Telemetry.flags`` bit: the profile has ended, the loop holds the final position
 TELEMETRY_SETTLING = 0x02
+#: ``Telemetry.flags`` bit: a safety stop tripped at this sample (PWM 0; END_OF_RUN follows)
+TELEMETRY_FAULT = 0x04
 
 
 # --------------------------------------------------------------------------- messages
+
+_INT_RANGES = {"B": (0, 0xFF), "H": (0, 0xFFFF), "I": (0, 0xFFFFFFFF), "h": (-0x8000, 0x7FFF),
+               "i": (-0x80000000, 0x7FFFFFFF)}
+_F32_MAX = 3.4028234663852886e38
+
+
+def _field_codes(fmt: str) -> list[str]:
+    """One struct code per field of a ``FORMAT`` (``"16s"`` is one field)."""
+    codes, digits = [], ""
+    for ch in fmt.lstrip("<>=!@"):
+        if ch.isdigit():
+            digits += ch
+            continue
+        codes.append(ch if ch != "s" else digits + ch)
+        digits = ""
+    return codes
+
+
+def _wire_value(msg: str, name: str, code: str, v):
+    """``v`` checked against its wire type ``code`` (ProtocolError naming the field ``name``)."""
+    what = f"{msg}: cannot pack {name} = {v!r}"
+    if code.endswith("s"):
+        size = int(code[:-1] or 1)
+        if isinstance(v, str):
+            try:
+                v = v.encode("ascii")
+            except UnicodeEncodeError:
+                raise ProtocolError(f"{what}: must be ASCII text") from None
+        if not isinstance(v, (bytes, bytearray)):
+            raise ProtocolError(f"{what}: must be a str ({type(v).__name__} given)")
+        if len(v) > size:
+            raise ProtocolError(f"{what}: at most {size} characters")
+        return bytes(v)
+    if code == "f":
+        if isinstance(v, bool) or not isinstance(v, numbers.Real):
+            raise ProtocolError(f"{what}: must be a number ({type(v).__name__} given)")
+        try:
+            x = float(v)
+        except OverflowError:
+            x = math.copysign(math.inf, v)
+        if math.isfinite(x) and abs(x) > _F32_MAX:
+            raise ProtocolError(f"{what}: beyond the float32 range |x| <= {_F32_MAX:.6g} of the wire")
+        if 0.0 < abs(x) < 1.1754943508222875e-38 and struct.unpack("<f", struct.pack("<f", x))[0] == 0.0:
+            raise ProtocolError(f"{what}: nonzero but below the float32 range (it would arrive as 0)")
+        return x
+    lo, hi = _INT_RANGES[code]
+    if isinstance(v, bool) or not isinstance(v, numbers.Integral):
+        raise ProtocolError(f"{what}: must be an integer in {lo}..{hi} ({type(v).__name__} given)")
+    if not lo <= int(v) <= hi:
+        raise ProtocolError(f"{what}: must be in {lo}..{hi}")
+    return int(v)
+
 
 @dataclass(frozen=True)
 class _Message:
@@ -177,16 +247,22 @@ class _Message:
     FORMAT: ClassVar[str]
 
     def pack(self) -> bytes:
-        """The payload bytes of this message."""
+        """The payload bytes of this message.
+
+        Raises
+        ------
+        ProtocolError
+            (a ``ValueError``) naming the field whose value does not fit its wire type: an
+            integer outside its range or not an integer, a finite number beyond the float32
+            range, a name longer than its field (NaN and inf travel: the device refuses them
+            with a NACK naming the field).
+        """
         values = []
-        for f in dataclasses.fields(self):
-            v = getattr(self, f.name)
-            if isinstance(v, str):
-                v = v.encode("ascii", "replace")
-            values.append(v)
+        for f, code in zip(dataclasses.fields(self), _field_codes(self.FORMAT)):
+            values.append(_wire_value(type(self).__name__, f.name, code, getattr(self, f.name)))
         try:
             return struct.pack(self.FORMAT, *values)
-        except struct.error as exc:
+        except (struct.error, OverflowError, TypeError) as exc:    # pragma: no cover - checked above
             raise ProtocolError(f"{type(self).__name__}: cannot pack {values!r}: {exc}") from None
 
     @classmethod
@@ -253,15 +329,21 @@ class SetGains(_Message):
 
 @dataclass(frozen=True)
 class SetLimits(_Message):
-    """Planner limits (rad/s^3, rad/s^2, rad/s), the voltage clamp (V) and the host watchdog (ms, 0 = off)."""
+    """Planner limits (rad/s^3, rad/s^2, rad/s), the voltage clamp (V), the host watchdog
+    (ms, 0 = off) and the safety stops: the tracking-error limit ``max_error`` (rad, 0 = off)
+    the runaway / no-motion window ``runaway_ms`` (ms, 0 = off) and the saturation window
+    ``saturation_ms`` (ms, 0 = off); PROTOCOL.md "Safety stops"."""
 
     TYPE: ClassVar[MsgType] = MsgType.SET_LIMITS
-    FORMAT: ClassVar[str] = "<ffffH"
+    FORMAT: ClassVar[str] = "<ffffHfHH"
     max_jerk: float
     max_accel: float
     max_velocity: float
     max_voltage: float
     host_timeout_ms: int = 1000
+    max_error: float = DEFAULT_MAX_ERROR
+    runaway_ms: int = DEFAULT_RUNAWAY_MS
+    saturation_ms: int = DEFAULT_SATURATION_MS
 
 
 @dataclass(frozen=True)
@@ -391,14 +473,17 @@ class Telemetry(_Message):
 @dataclass(frozen=True)
 class EndOfRun(_Message):
     """A run or step ended: :class:`EndReason`, samples executed, corrupt frames the device
-    dropped since boot (saturating u16), control ticks that overran."""
+    dropped since boot (saturating u16), control ticks that overran, and ``detail`` for a
+    safety stop (TRACKING_ERROR: the position error in rad; RUNAWAY / NO_MOTION: the counts
+    moved along the drive during the window; 0 otherwise)."""
 
     TYPE: ClassVar[MsgType] = MsgType.END_OF_RUN
-    FORMAT: ClassVar[str] = "<BIHH"
+    FORMAT: ClassVar[str] = "<BIHHf"
     reason: int
     samples: int
     rx_errors: int = 0
     overruns: int = 0
+    detail: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -418,6 +503,9 @@ MESSAGES: dict[int, type] = {cls.TYPE: cls for cls in (
 
 def payload_field_name(command: int, index: int) -> str:
     """Name of field ``index`` of command type ``command`` (for NACK messages)."""
+    for name, v in (("command", command), ("index", index)):
+        if isinstance(v, bool) or not isinstance(v, numbers.Integral) or not 0 <= v <= 0xFF:
+            raise ValueError(f"{name} must be a byte (0..255), got {v!r}")
     cls = MESSAGES.get(command)
     if cls is None:
         return f"field {index} of unknown type 0x{command:02X}"
@@ -450,10 +538,12 @@ class Frame:
 
 def encode_frame(msg_type: int, seq: int, payload: bytes = b"") -> bytes:
     """Bytes on the wire for one frame (sync, len, type, seq, payload, CRC-16 LE)."""
-    if not (0 <= int(msg_type) <= 0xFF):
-        raise ProtocolError(f"msg_type must be a byte, got {msg_type!r}")
-    if not (0 <= int(seq) <= 0xFF):
+    if isinstance(msg_type, bool) or not isinstance(msg_type, numbers.Integral) or not 0 <= msg_type <= 0xFF:
+        raise ProtocolError(f"msg_type must be a byte (0..255), got {msg_type!r}")
+    if isinstance(seq, bool) or not isinstance(seq, numbers.Integral) or not 0 <= seq <= 0xFF:
         raise ProtocolError(f"seq must be a byte (0..255), got {seq!r}")
+    if not isinstance(payload, (bytes, bytearray, memoryview)):
+        raise ProtocolError(f"payload must be bytes, got {type(payload).__name__}")
     payload = bytes(payload)
     if len(payload) > MAX_PAYLOAD:
         raise ProtocolError(f"payload must be <= {MAX_PAYLOAD} bytes, got {len(payload)}")
@@ -511,6 +601,8 @@ class Decoder:
 
     def feed(self, data: bytes) -> list[Frame]:
         """Append ``data``; return the complete good frames, in order."""
+        if not isinstance(data, (bytes, bytearray, memoryview)):
+            raise TypeError(f"data must be bytes, got {type(data).__name__}")
         buf = self._buf
         buf += data
         out: list[Frame] = []
