@@ -167,7 +167,10 @@ def closed_loop_max_radius(K, tau, gains, Ts=None):
     if gains.loop != "position":
         raise ValueError(f"gains.loop must be 'position' for this check, got {gains.loop!r}")
     with np.errstate(all="ignore"):
-        r = ctl.PositionLoop(K, tau, gains).max_pole_radius()
+        if hasattr(ctl, "max_pole_radius"):            # the controller's own check (rig.run_move's)
+            r = ctl.max_pole_radius(K, tau, gains)
+        else:
+            r = ctl.PositionLoop(K, tau, gains).max_pole_radius()
     return float(r) if math.isfinite(r) else math.inf
 
 
