@@ -1,9 +1,8 @@
-"""jerklab.rig.progress: the tqdm bars that replace the rig client's hand-written ones.
+"""jerklab.rig.progress: the rig client's tqdm progress bars.
 
-The same external behaviour as tests/test_rig_progress.py pins for the current bars: an
-ipywidgets bar inside a Jupyter kernel, text in a terminal, nothing when disabled, at most
-~10 redraws a second with the last count always shown; plus clean logs (no redraws when the
-text goes to a file), and a drop-in check with the rig client.
+An ipywidgets bar inside a Jupyter kernel (also a real headless one), text in a terminal,
+nothing when disabled, at most ~10 redraws a second with the last count always shown; clean
+logs (no redraws when the text goes to a file); and the rig client driving them.
 """
 from __future__ import annotations
 
@@ -194,4 +193,46 @@ def test_widget_bar_in_a_headless_kernel():
     views = [o for o in outs if o.output_type == "display_data"
              and "application/vnd.jupyter.widget-view+json" in o.data]
     assert "kernel True widget success" in text and "samples" not in text
+    assert len(views) == 1
+
+
+def test_rig_client_uses_these_bars(tmp_path, monkeypatch):
+    """The client's bars are this module's: a widget for a step inside a kernel, none when disabled."""
+    from jerklab.rig import client, connect
+
+    assert client._progress is P.progress and client._NoProgress is P.NoProgress
+    shown = []
+    monkeypatch.setattr(P, "in_jupyter_kernel", lambda: True)
+    monkeypatch.setattr(P, "_display", shown.append)
+    with connect(recordings=tmp_path) as rig:
+        rec = rig.step(2.0, 0.5, rest=0.05)                  # 10 + 100 samples
+        assert len(rec) == 110 and len(shown) == 1
+        label, pbar, text = shown[0].children
+        assert _plain(label.value) == "virtual step"
+        assert pbar.max == 110 and pbar.value == 110 and pbar.bar_style == "success"
+        rig.step(1.0, 0.1, progress=False)                   # disabled: nothing shown
+    assert len(shown) == 1
+
+
+def test_rig_client_in_a_headless_kernel(tmp_path):
+    """The rig client in a real kernel (nbclient, as tests/test_notebooks.py): the kernel is
+    detected, one widget is shown (no text bar) and the run completes."""
+    import nbformat
+    from nbclient import NotebookClient
+
+    nb = nbformat.v4.new_notebook()
+    nb.cells = [nbformat.v4.new_code_cell(
+        "from jerklab.rig import connect\n"
+        "from jerklab.rig import progress as P\n"
+        f"rig = connect(recordings={str(tmp_path)!r})\n"
+        "print('kernel', P.in_jupyter_kernel())\n"
+        "rec = rig.step(2.0, 0.2)\n"
+        "print(len(rec), rec.metadata['status'])\n"
+        "rig.close()")]
+    NotebookClient(nb, timeout=60, kernel_name="python3").execute()
+    outs = nb.cells[0].outputs
+    text = "".join(o.get("text", "") for o in outs if o.output_type == "stream")
+    views = [o for o in outs if o.output_type == "display_data"
+             and "application/vnd.jupyter.widget-view+json" in o.data]
+    assert "kernel True" in text and "50 complete" in text and "samples" not in text
     assert len(views) == 1

@@ -2,7 +2,9 @@
 
 It speaks ``jerklab.protocol`` over anything with pyserial's ``read``/``write``
 (a ``serial.Serial``, a ``socket://`` URL, a pseudo-terminal, the in-process
-:class:`~jerklab.rig.virtual.VirtualSerial`), like TCLab's hardware/model swap.
+:class:`~jerklab.rig.virtual.VirtualSerial`), like TCLab's hardware/model swap. The control law
+it configures is Stojčić's (ASCII: Stojcic eq. 16, Stojcic eq. 17, Stojcic eq. 18). Progress
+bars: :mod:`jerklab.rig.progress` (tqdm).
 """
 from __future__ import annotations
 
@@ -14,8 +16,11 @@ import time
 import warnings
 from pathlib import Path
 
+from jerklab import paper
 from jerklab import protocol as P
 from jerklab._validate import as_nonnegative, as_positive, as_real
+from jerklab.rig.progress import NoProgress as _NoProgress
+from jerklab.rig.progress import progress as _progress
 from jerklab.rig.recording import Recording, RecordingIOError, recordings_dir
 
 __all__ = ["Rig", "RigError", "RigConnectionError", "RigTimeoutError", "RigCommandError",
@@ -88,127 +93,6 @@ _FAULTS = (P.EndReason.FAULT, P.EndReason.TRACKING_ERROR, P.EndReason.RUNAWAY, P
            P.EndReason.SATURATION)
 
 
-def _in_jupyter_kernel() -> bool:
-    """True inside a Jupyter kernel (JupyterLab, Notebook, Voilà, nbclient), not in a terminal.
-
-    Looks only at an IPython that is already imported (a kernel always has one), so a plain
-    ``python`` script does not pay for importing IPython.
-    """
-    ipython = sys.modules.get("IPython")
-    if ipython is None:
-        return False
-    try:
-        shell = ipython.get_ipython()
-    except Exception:
-        return False
-    return shell is not None and getattr(shell, "kernel", None) is not None
-
-
-def _display(widget) -> None:
-    from IPython.display import display
-
-    display(widget)
-
-
-class _NoProgress:
-    """``progress=False``: no output at all."""
-
-    kind = "none"
-
-    def update(self, n):
-        pass
-
-    def close(self, note=""):
-        pass
-
-
-class _TextProgress:
-    """A one-line text progress bar (a terminal, or a kernel without ipywidgets).
-
-    Redrawn at most ``1 / min_interval`` times a second (the last sample always), so a
-    fast run is not slowed by its own progress bar.
-    """
-
-    kind = "text"
-    min_interval = 0.1
-
-    def __init__(self, total, label, stream=None):
-        self.total = max(1, int(total))
-        self.label = label
-        self.stream = stream or sys.stdout
-        self.value = 0
-        self.draws = 0
-        self.t0 = time.monotonic()
-        self._drawn = None
-        self._last_draw = -math.inf
-
-    def update(self, n):
-        self.value = int(n)
-        now = time.monotonic()
-        if self.value < self.total and now - self._last_draw < self.min_interval:
-            return
-        if self.value != self._drawn:
-            self._draw(now)
-
-    def _draw(self, now):
-        self._last_draw = now
-        self._drawn = self.value
-        self.draws += 1
-        self._render(min(100, 100 * self.value // self.total), now - self.t0)
-
-    def _render(self, pct, elapsed):
-        bar = "#" * (pct // 4) + "." * (25 - pct // 4)
-        self.stream.write(f"\r{self.label} [{bar}] {self.value}/{self.total} samples {elapsed:5.1f} s")
-        self.stream.flush()
-
-    def close(self, note=""):
-        if self.value != self._drawn:
-            self._draw(time.monotonic())
-        self.stream.write(f" {note}\n" if note else "\n")
-        self.stream.flush()
-
-
-class _WidgetProgress(_TextProgress):
-    """An ipywidgets bar for JupyterLab / Notebook / Voilà: ``IntProgress`` and a label
-    (samples received / expected, elapsed seconds), updated at most ~10 times a second."""
-
-    kind = "widget"
-
-    def __init__(self, total, label, display=None):
-        import ipywidgets as W
-
-        super().__init__(total, label)
-        self.bar = W.IntProgress(value=0, min=0, max=self.total, description=label, bar_style="info",
-                                 style={"description_width": "initial"})
-        self.text = W.Label(value=f"0/{self.total} samples")
-        self.widget = W.HBox([self.bar, self.text])
-        (display or _display)(self.widget)
-
-    def _render(self, pct, elapsed):
-        self.bar.value = min(self.value, self.total)
-        self.text.value = f"{self.value}/{self.total} samples, {elapsed:.1f} s"
-
-    def close(self, note=""):
-        if self.value != self._drawn:
-            self._draw(time.monotonic())
-        if note:
-            self.bar.bar_style = "success" if note == "complete" else "danger"
-            self.text.value += f" ({note})"
-
-
-def _progress(total, label, enabled):
-    """The progress bar for a run: none (``enabled`` False), the ipywidgets bar inside a
-    Jupyter kernel that has ipywidgets, the text bar otherwise."""
-    if not enabled:
-        return _NoProgress()
-    if _in_jupyter_kernel():
-        try:
-            return _WidgetProgress(total, label)
-        except ImportError:
-            pass
-    return _TextProgress(total, label)
-
-
 class Rig:
     """A connected rig (use :func:`jerklab.rig.connect` to make one).
 
@@ -236,7 +120,8 @@ class Rig:
         Directory for recordings (default ``$JERKLAB_RECORDINGS`` or ``./recordings``).
     """
 
-    def __init__(self, link, port="?", *, supply_voltage=12.0, counts_per_rev=448, model=(32.4, 0.025),
+    def __init__(self, link, port="?", *, supply_voltage=paper.SUPPLY_VOLTAGE,
+                 counts_per_rev=paper.ENCODER_PPR * paper.ENCODER_DECODING, model=(paper.MOTOR_K, paper.MOTOR_TAU),
                  timeout=2.0, hello_timeout=3.0, progress=True, recordings=None, on_close=None):
         self.link = link
         self.port = str(port)
@@ -292,7 +177,7 @@ class Rig:
         return bool(self.capabilities & P.Capability.SIMULATED_PLANT)
 
     def set_model(self, K, tau):
-        """Motor model for the feedforward: K rad/(V s), tau s (Stojčić eq. 1, 8)."""
+        """Motor model for the feedforward: K rad/(V s), tau s (Stojčić eq. 1, Stojčić eq. 8)."""
         self.model = (as_positive("K", K), as_positive("tau", tau))
 
     def device_info(self) -> dict:
@@ -497,7 +382,7 @@ class Rig:
                              f"got {Ts!r} s")
         return us
 
-    def configure(self, gains, Ts=0.005, *, feedforward=True, max_voltage=None, limits=None,
+    def configure(self, gains, Ts=paper.TS, *, feedforward=True, max_voltage=None, limits=None,
                   host_timeout=1.0, max_error=P.DEFAULT_MAX_ERROR,
                   runaway_time=P.DEFAULT_RUNAWAY_MS / 1000.0,
                   saturation_time=P.DEFAULT_SATURATION_MS / 1000.0):
@@ -535,7 +420,7 @@ class Rig:
         sat = as_nonnegative("saturation_time", saturation_time)
         if sat > 65.535:
             raise ValueError(f"saturation_time must be <= 65.535 s, got {sat}")
-        J, E, W = limits if limits is not None else (2e4, 300.0, 100.0)
+        J, E, W = limits if limits is not None else paper.LIMITS
         J = min(as_positive("max_jerk", J), _F32_MAX)
         E, W = as_positive("max_accel", E), as_positive("max_velocity", W)
         loop = P.LoopType.VELOCITY if gains.loop == "velocity" else P.LoopType.POSITION
@@ -576,7 +461,7 @@ class Rig:
         return Recording(meta, path)
 
     # ---------------------------------------------------------------- runs
-    def run_move(self, profile, gains, Ts=0.005, *, feedforward=True, max_voltage=None, settle=0.25,
+    def run_move(self, profile, gains, Ts=paper.TS, *, feedforward=True, max_voltage=None, settle=0.25,
                  decimation=1, host_timeout=1.0, path=None, progress=None,
                  max_error=P.DEFAULT_MAX_ERROR, runaway_time=P.DEFAULT_RUNAWAY_MS / 1000.0,
                  saturation_time=P.DEFAULT_SATURATION_MS / 1000.0, force=False) -> Recording:
@@ -584,7 +469,8 @@ class Rig:
 
         The device re-plans the move from ``profile``'s distance and limits with the same
         planner (``PLAN``) and checks that the duration agrees; it then runs the
-        feedforward + discrete PID of Stojčić eq. 16–18 at ``Ts`` on encoder counts.
+        feedforward + discrete PID of Stojčić eq. 16, Stojčić eq. 17,
+        Stojčić eq. 18 at ``Ts`` on encoder counts.
 
         Before anything is sent, the design is checked on the rig's model (:meth:`set_model`):
         a sampled closed loop (ZOH plant and discrete PID,
@@ -599,7 +485,7 @@ class Rig:
         profile : jerklab.planner.Profile
             A move from ``plan_sine_jerk`` (or another planner the device supports).
         gains : jerklab.controller.Gains or DiscreteGains
-            Continuous gains are discretized at ``Ts`` (eq. 13).
+            Continuous gains are discretized at ``Ts`` (Stojčić eq. 13).
         Ts : float
             Control period (s), a multiple of the device's tick (1 ms on the Uno).
         feedforward : bool or Feedforward
@@ -704,7 +590,7 @@ class Rig:
                 f"tau = {tau:g} s, Ts = {gains.Ts:g} s). Choose a smaller wn, a shorter Ts or another "
                 f"design, or pass force=True to run it anyway (the safety stops will end it).")
 
-    def step(self, voltage, seconds, Ts=0.005, *, rest=0.05, coast=None, max_voltage=None,
+    def step(self, voltage, seconds, Ts=paper.TS, *, rest=0.05, coast=None, max_voltage=None,
              host_timeout=1.0, path=None, progress=None) -> Recording:
         """Open-loop step of ``voltage`` V for ``seconds`` (identification); returns the Recording.
 
@@ -736,7 +622,7 @@ class Rig:
         tmo = as_nonnegative("host_timeout", host_timeout)
         # limits: keep the planner limits at their defaults, set the clamp and the watchdog
         self._request(P.SetPlant(*self.model, self.supply_voltage, self.counts_per_rev))
-        self._request(P.SetLimits(2e4, 300.0, 100.0, vmax, int(round(tmo * 1000))))
+        self._request(P.SetLimits(*paper.LIMITS, vmax, int(round(tmo * 1000))))
         meta = {"Ts": Ts, "voltage": voltage, "seconds": n * Ts, "rest": n_rest * Ts,
                 "limits": {"max_voltage": vmax, "host_timeout": tmo},
                 "plant": {"supply_voltage": self.supply_voltage, "counts_per_rev": self.counts_per_rev}}
@@ -752,7 +638,7 @@ class Rig:
             self.wait_still(timeout=max(2.0, 4 * coast), Ts=Ts)
         return rec
 
-    def wait_still(self, timeout=2.0, Ts=0.005, window=10, tolerance=0) -> bool:
+    def wait_still(self, timeout=2.0, Ts=paper.TS, window=10, tolerance=0) -> bool:
         """Wait until the motor is at rest: repeat a 0 V STEP of ``window`` samples until the
         encoder moves by at most ``tolerance`` counts during it, or ``timeout`` s pass.
 

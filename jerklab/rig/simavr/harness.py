@@ -21,6 +21,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from jerklab import paper
 from jerklab._validate import as_int, as_nonnegative, as_positive, as_real
 from jerklab.rig.simavr.build import build_firmware, firmware_dir
 
@@ -156,8 +157,8 @@ def _symbol_address(elf, name):
     return None
 
 
-def launch(elf=None, *, K=32.4, tau=0.025, supply_voltage=12.0, coulomb_friction=0.0,
-           load_disturbance=0.0, encoder_ppr=448, step_us=20, realtime=True, build=True,
+def launch(elf=None, *, K=paper.MOTOR_K, tau=paper.MOTOR_TAU, supply_voltage=paper.SUPPLY_VOLTAGE,
+           coulomb_friction=0.0, load_disturbance=0.0, encoder_ppr=paper.ENCODER_PPR, step_us=20, realtime=True, build=True,
            startup_timeout=20.0, bootloader=None, wait_ready=True) -> SimulatedUno:
     """Start the firmware on a simulated Uno with a DC motor; return a :class:`SimulatedUno`.
 
