@@ -1,8 +1,8 @@
 """Issue 12, first contact and ports: malformed targets, a port held by someone else, a board
 that does not answer HELLO at once (bootloader) or at all, and the port listing.
 
-Fault-injection tests (to be gathered with the other fault tests): each names the fault it
-injects and checks the answer a user gets.
+Fault-injection tests (gathered in ``tests/faults/``): each names the fault it injects and
+checks the answer a user gets.
 """
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from jerklab import protocol as P
 from jerklab.rig import (PortBusyError, Rig, RigTimeoutError, UnknownPortError, VirtualDevice,
                          VirtualSerial, connect)
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 linux_only = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="pseudo-terminals: Linux")
 
 
