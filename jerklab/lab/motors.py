@@ -45,7 +45,7 @@ RANGES = {
     "noise_counts": (0.0, 0.5),        # standard deviation of the encoder count noise
     "encoder_ppr": (448, 896),         # counts per output revolution (x1 decoding)
 }
-SUPPLY_VOLTAGE = 12.0
+SUPPLY_VOLTAGE = paper.SUPPLY_VOLTAGE
 
 _ID_RE = re.compile(r"^[A-Za-z0-9._@+-]{1,64}$")
 
@@ -207,10 +207,11 @@ def connect_student(student, port=None, *, key=None, **options):
     elif port == "simavr":
         # the simulated Uno's plant: K, tau, friction and a 448-count encoder (the harness
         # decodes x1 at 448); no offset or count noise there
-        sim_motor = DCMotor(K=motor.K, tau=motor.tau, supply_voltage=SUPPLY_VOLTAGE, encoder_ppr=448,
+        sim_motor = DCMotor(K=motor.K, tau=motor.tau, supply_voltage=SUPPLY_VOLTAGE, encoder_ppr=paper.ENCODER_PPR,
                             coulomb_friction=motor.coulomb_friction)
         rig = connect("simavr", motor=sim_motor, **options)
-        hidden = StudentMotor(sid, _Parameters(motor.K, motor.tau, motor.coulomb_friction, 0.0, 0.0, 448),
+        hidden = StudentMotor(sid, _Parameters(motor.K, motor.tau, motor.coulomb_friction, 0.0, 0.0,
+                                               paper.ENCODER_PPR),
                               motor.seed)
     else:
         rig = connect(port, **options)

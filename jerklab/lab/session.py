@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from jerklab import paper
 from jerklab.lab.motors import _truth, normalize_student
 
 __all__ = ["LabSession", "start", "panel_gains", "CheckResult", "LABS", "SPEC", "MOVE"]
@@ -108,7 +109,7 @@ class LabSession:
             raise ValueError(f"name must be 1-60 letters, digits or _.+-, got {name!r}")
         return self.folder / name
 
-    def step(self, voltage, seconds, name=None, Ts=0.005, **kwargs):
+    def step(self, voltage, seconds, name=None, Ts=paper.TS, **kwargs):
         """``rig.step(voltage, seconds, Ts)`` saved as ``name`` (default ``step_<V>V``)."""
         name = name or f"step_{voltage:+g}V".replace("+", "p").replace("-", "m").replace(".", "_")
         rec = self.rig.step(voltage, seconds, Ts=Ts, path=self._path(name), **kwargs)
