@@ -20,7 +20,6 @@ import select
 import socket
 import threading
 import time
-import tty
 
 from jerklab.rig.virtual import VirtualDevice
 
@@ -63,6 +62,11 @@ class DeviceServer:
     # ------------------------------------------------------------------ start / stop
     def start_pty(self) -> str:
         """Open a pseudo-terminal, start serving, return the path a client opens."""
+        if not hasattr(os, "openpty"):
+            raise OSError("a pseudo-terminal needs Linux or macOS; on Windows use start_tcp() "
+                          "(`serve --tcp PORT`) or the in-process virtual rig, jerklab.rig.connect()")
+        import tty                          # POSIX only (termios): imported here, not at module load
+
         master, slave = os.openpty()
         tty.setraw(slave)                   # no echo, no line editing: a binary link
         os.set_blocking(master, False)

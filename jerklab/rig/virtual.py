@@ -95,6 +95,10 @@ class VirtualDevice:
         self.pwm = 0
         self.overruns = 0
         self.rejected = 0                    # good frames answered by NACK
+        # fault injection (tests of `jerklab rig check`): encoder_gain -1 = A and B swapped,
+        # 0 = encoder unplugged; supply_fraction < 1 = a weak supply giving that share of its volts
+        self.encoder_gain = 1
+        self.supply_fraction = 1.0
         self.motor.step_state(self.x, 0.0, 1e-3)   # warm up (a compiled kernel) before the first run
         self.boot()
 
@@ -128,7 +132,7 @@ class VirtualDevice:
         return min(self._decoder.stats.dropped, 0xFFFF)
 
     def _raw_counts(self) -> int:
-        return int(math.floor(float(self.x[0]) * self.motor.counts_per_rad + 1e-9))
+        return int(math.floor(self.encoder_gain * float(self.x[0]) * self.motor.counts_per_rad + 1e-9))
 
     # ------------------------------------------------------------------ bytes in / out
     #: a partial frame is abandoned after this much silence (s), as on the firmware
@@ -354,7 +358,7 @@ class VirtualDevice:
             ref = 0.0
         if k % self._decimation == 0:
             self._send(P.Telemetry(k, ref, counts, self.pwm, flags))
-        volts = self.pwm / self.pwm_max * self.motor.supply_voltage     # the H-bridge
+        volts = self.pwm / self.pwm_max * self.motor.supply_voltage * self.supply_fraction  # H-bridge
         self.x = self.motor.step_state(self.x, volts, self._Ts, t=self.t)
         self.t += self._Ts
         self._k = k + 1
