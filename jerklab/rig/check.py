@@ -2,7 +2,7 @@
 
 Open-loop only (no gains are sent): a short pulse each way, then two slow steady turns.
 
-1. **firmware**: version and protocol (HELLO), and that it has the open-loop STEP;
+1. **firmware**: its version, the protocol version of this jerklab, and the open-loop STEP;
 2. **encoder**: counts while driving (none: encoder unplugged or the motor did not turn);
 3. **direction**: a positive voltage must count up (else "swap A and B" or "motor leads
    reversed"), and the two directions must differ (else the L298 IN1/IN2 wiring);
@@ -93,19 +93,19 @@ def check_rig(rig, *, K=None, tolerance=1.5, voltage=None, seconds=0.6, min_coun
         raise ValueError(f"voltage must be in (0, supply/2 = {rig.supply_voltage / 2} V], got {voltage!r}")
     found = []
 
-    # 1. firmware
+    # 1. firmware: the protocol is the contract (connect() refuses another version), STEP is needed
     fw = rig.firmware_version
-    same = fw.split(".")[:2] == __version__.split(".")[:2]
+    proto_ok = rig.info.protocol_version == P.PROTOCOL_VERSION
     has_step = bool(rig.capabilities & P.Capability.OPEN_LOOP_STEP)
     fix = ""
-    if not has_step:
+    if not proto_ok:
+        fix = (f"the firmware speaks protocol {rig.info.protocol_version}, jerklab {__version__} speaks "
+               f"{P.PROTOCOL_VERSION}: flash this jerklab's firmware (make -C firmware upload PORT=...)")
+    elif not has_step:
         fix = "this firmware has no open-loop STEP: flash the rig's firmware (make -C firmware upload PORT=...)"
-    elif not same:
-        fix = (f"firmware {fw} and jerklab {__version__} differ: flash the firmware of this jerklab "
-               "(make -C firmware upload PORT=...) or install the matching jerklab")
-    found.append(Finding("firmware", has_step and same,
+    found.append(Finding("firmware", proto_ok and has_step,
                          f"{rig.name} firmware {fw}, protocol {rig.info.protocol_version}", fix))
-    if not has_step:
+    if not (proto_ok and has_step):
         return found
 
     def step(v, secs):
