@@ -3,7 +3,7 @@
 #   make lab    set up .venv and open JupyterLab on the repository's notebooks/ (virtual rig by default)
 #   make test   set up .venv and run every test (unit, property, notebooks, firmware, browser)
 #   make app    the standalone tuning page for a class (Voila, virtual rig) on http://127.0.0.1:8866/
-#   make bench  print the benchmark tables
+#   make bench  print the benchmark tables and record them as JSON in benchmarks/results/
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin

@@ -19,6 +19,7 @@ import time
 
 import numpy as np
 
+from benchmarks._record import table
 from jerklab.widgets import PolePlacementFigure, compute_pole_placement, pole_placement_panel
 
 SWEEP = ([("wn", w) for w in np.arange(21.0, 45.0, 1.0)]
@@ -89,16 +90,15 @@ def main():
         params.append(dict(prm))
     full_t = _full_redraw_times(params)
     new_t = _new_figure_times(params)
-    print(f"{len(SWEEP)} slider moves (wn 21..44, zeta 0.95..0.65, sigma/wn 6.5..4, Ts 6..8 ms), "
-          "each: design + responses + move simulation + figure + PNG")
-    print(f"{'method':<34}{'median ms':>10}{'p90 ms':>9}{'max ms':>9}{'median ratio':>14}")
     ref = np.median(panel_t)
-    for name, t in (("panel (blit + partial axes)", panel_t), ("full redraw, same artists", full_t),
-                    ("new figure every move", new_t)):
-        print(f"{name:<34}{1e3 * np.median(t):>10.1f}{1e3 * np.percentile(t, 90):>9.1f}"
-              f"{1e3 * np.max(t):>9.1f}{np.median(t) / ref:>13.1f}x")
-    print(f"panel moves within 0.3 s: {np.mean(panel_t < 0.3) * 100:.0f} %; "
-          f"axes repainted per move: {p.figure.axes_redraws / len(SWEEP):.2f} of 6")
+    rows = [(name, 1e3 * np.median(t), 1e3 * np.percentile(t, 90), 1e3 * np.max(t), np.median(t) / ref)
+            for name, t in (("panel (blit + partial axes)", panel_t), ("full redraw, same artists", full_t),
+                            ("new figure every move", new_t))]
+    table(f"{len(SWEEP)} slider moves (wn 21..44, zeta 0.95..0.65, sigma/wn 6.5..4, Ts 6..8 ms), "
+          "each: design + responses + move simulation + figure + PNG",
+          ["method", "median ms", "p90 ms", "max ms", "median ratio"], rows,
+          note=f"panel moves within 0.3 s: {np.mean(panel_t < 0.3) * 100:.0f} %; "
+               f"axes repainted per move: {p.figure.axes_redraws / len(SWEEP):.2f} of 6")
 
 
 if __name__ == "__main__":

@@ -39,6 +39,7 @@ import scipy.linalg
 
 from jerklab._validate import (as_finite_array, as_int, as_nonnegative, as_positive,
                                as_real)
+from jerklab.law import encoder_vec, voltage_vec, zoh_coefficients
 
 __all__ = ["DCMotor", "FlexibleDCMotor", "StepDisturbance", "advance", "advance_scalar", "advance_em",
            "quantize_voltage", "measure_angle"]
@@ -155,13 +156,9 @@ def quantize_voltage(u, supply_voltage=None, pwm_bits=None):
     firmware). ``None`` switches the effect off.
     """
     u = np.asarray(u, dtype=float)
-    if supply_voltage is not None:
-        u = np.clip(u, -supply_voltage, supply_voltage)
-        if pwm_bits is not None:
-            levels = float(2 ** pwm_bits - 1)
-            x = u / supply_voltage * levels          # lround: half away from zero, as the firmware
-            u = np.sign(x) * np.floor(np.abs(x) + 0.5) / levels * supply_voltage
-    return u
+    if supply_voltage is None:
+        return u
+    return voltage_vec(u, supply_voltage, 0.0 if pwm_bits is None else float(2 ** pwm_bits - 1))
 
 
 def measure_angle(theta, counts_per_rad=None):
@@ -169,7 +166,7 @@ def measure_angle(theta, counts_per_rad=None):
     theta = np.asarray(theta, dtype=float)
     if counts_per_rad is None:
         return theta
-    return np.floor(theta * counts_per_rad + 1e-9) / counts_per_rad
+    return encoder_vec(theta, counts_per_rad)
 
 
 @dataclass(frozen=True)
@@ -382,12 +379,11 @@ class DCMotor(_MotorBase):
         return ct.ss(A, B, C, np.zeros((C.shape[0], 1)))
 
     def zoh(self, Ts):
-        """Exact ZOH discretization ``x[k+1] = Phi x[k] + Gamma u[k]`` in closed form."""
-        Ts = as_positive("Ts", Ts)
-        a = math.exp(-Ts / self.tau)
-        em = -math.expm1(-Ts / self.tau)
-        Phi = np.array([[1.0, self.tau * em], [0.0, a]])
-        Gamma = np.array([[self.K * (Ts - self.tau * em)], [self.K * em]])
+        """Exact ZOH discretization ``x[k+1] = Phi x[k] + Gamma u[k]`` in closed form (Stojčić eq. 1,
+        coefficients from :func:`jerklab.law.zoh_coefficients`)."""
+        z = zoh_coefficients(self.K, self.tau, Ts)
+        Phi = np.array([[1.0, self.tau * z.one_minus_a], [0.0, z.a]])
+        Gamma = np.array([[z.b1], [self.K * z.one_minus_a]])
         return Phi, Gamma
 
     def discrete_tf(self, Ts):
@@ -395,13 +391,16 @@ class DCMotor(_MotorBase):
         return ct.c2d(self.tf(), as_positive("Ts", Ts), "zoh")
 
     # --- exact simulation --------------------------------------------------
-    def _x0(self, x0):
+    def initial_state(self, x0=None):
+        """``x0`` checked and copied as the state ``[theta, omega]`` (None: rest at 0)."""
         if x0 is None:
             return np.zeros(2)
         x = as_finite_array("x0", x0, ndim=1)
         if x.shape != (2,):
             raise ValueError(f"x0 must be [theta, omega], got shape {x.shape}")
         return x.copy()
+
+    _x0 = initial_state
 
     def step_state(self, x, u, dt, t=0.0):
         """Next state ``[theta, omega]`` after ``dt`` with the terminal voltage ``u`` held.
@@ -532,13 +531,16 @@ class FlexibleDCMotor(_MotorBase):
             self._zoh_cache[Ts] = (E[:4, :4], E[:4, 4:])
         return self._zoh_cache[Ts]
 
-    def _x0(self, x0):
+    def initial_state(self, x0=None):
+        """``x0`` checked and copied as the state ``[theta_m, omega_m, theta_l, omega_l]`` (None: rest)."""
         if x0 is None:
             return np.zeros(4)
         x = as_finite_array("x0", x0, ndim=1)
         if x.shape != (4,):
             raise ValueError(f"x0 must be [theta_m, omega_m, theta_l, omega_l], got shape {x.shape}")
         return x.copy()
+
+    _x0 = initial_state
 
     def step_state(self, x, u, dt, t=0.0):
         """Next state after ``dt`` with the voltage ``u`` held (exact ZOH)."""

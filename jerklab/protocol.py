@@ -36,14 +36,21 @@ from typing import ClassVar
 __all__ = [
     "PROTOCOL_VERSION", "SYNC", "MAX_PAYLOAD", "MAX_FRAME", "MIN_FRAME",
     "MsgType", "ErrorCode", "EndReason", "Planner", "LoopType", "Capability",
-    "GAINS_FEEDFORWARD", "TELEMETRY_SATURATED", "TELEMETRY_SETTLING",
+    "GAINS_FEEDFORWARD", "TELEMETRY_SATURATED", "TELEMETRY_SETTLING", "TELEMETRY_FAULT",
+    "MAX_PLAN_SAMPLES", "DEFAULT_MAX_ERROR", "DEFAULT_RUNAWAY_MS", "DEFAULT_SATURATION_MS",
     "crc16_ccitt_false", "encode_frame", "encode", "parse", "Frame", "Decoder", "DecoderStats",
     "ProtocolError", "MESSAGES", "payload_field_name",
     "Hello", "SetPlant", "SetGains", "SetLimits", "Plan", "Run", "Stop", "Step", "Heartbeat",
     "Ack", "Nack", "HelloReply", "PlanInfo", "Telemetry", "EndOfRun", "DeviceError",
 ]
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
+#: the longest plan a device accepts (PLAN_INFO.n_samples); longer: NACK TOO_LONG
+MAX_PLAN_SAMPLES = 2_000_000_000
+#: boot defaults of the safety stops (SetLimits.max_error rad, .runaway_ms ms, .saturation_ms ms)
+DEFAULT_MAX_ERROR = 0.5
+DEFAULT_RUNAWAY_MS = 200
+DEFAULT_SATURATION_MS = 500
 SYNC = b"\xa5\x5a"
 MAX_PAYLOAD = 64
 #: smallest frame: sync(2) + len + type + seq + crc(2)
@@ -120,6 +127,7 @@ class ErrorCode(enum.IntEnum):
     NOT_READY = 5         #: RUN without gains, or without a PLAN since the last SET_*
     UNSUPPORTED = 6       #: planner / loop type / feature not built into this firmware
     BAD_VERSION = 7       #: protocol version not supported
+    TOO_LONG = 8          #: the plan needs more than MAX_PLAN_SAMPLES samples
 
 
 class EndReason(enum.IntEnum):
@@ -129,6 +137,10 @@ class EndReason(enum.IntEnum):
     STOPPED = 1           #: STOP from the host
     HOST_TIMEOUT = 2      #: no valid frame from the host for longer than host_timeout_ms
     FAULT = 3             #: internal fault (control tick overrun, numeric error)
+    TRACKING_ERROR = 4    #: |reference - position| > SetLimits.max_error; detail = the error (rad)
+    RUNAWAY = 5           #: large drive, encoder moved against it (reversed?); detail = counts moved
+    NO_MOTION = 6         #: large drive, encoder did not move (disconnected? stalled?); detail = 0
+    SATURATION = 7        #: output at the clamp in most samples for saturation_ms (unstable loop?)
 
 
 class Planner(enum.IntEnum):
@@ -167,6 +179,8 @@ GAINS_FEEDFORWARD = 0x01
 TELEMETRY_SATURATED = 0x01
 #: ``Telemetry.flags`` bit: the profile has ended, the loop holds the final position
 TELEMETRY_SETTLING = 0x02
+#: ``Telemetry.flags`` bit: a safety stop tripped at this sample (PWM 0; END_OF_RUN follows)
+TELEMETRY_FAULT = 0x04
 
 
 # --------------------------------------------------------------------------- messages
@@ -253,15 +267,21 @@ class SetGains(_Message):
 
 @dataclass(frozen=True)
 class SetLimits(_Message):
-    """Planner limits (rad/s^3, rad/s^2, rad/s), the voltage clamp (V) and the host watchdog (ms, 0 = off)."""
+    """Planner limits (rad/s^3, rad/s^2, rad/s), the voltage clamp (V), the host watchdog
+    (ms, 0 = off) and the safety stops: the tracking-error limit ``max_error`` (rad, 0 = off)
+    the runaway / no-motion window ``runaway_ms`` (ms, 0 = off) and the saturation window
+    ``saturation_ms`` (ms, 0 = off); PROTOCOL.md "Safety stops"."""
 
     TYPE: ClassVar[MsgType] = MsgType.SET_LIMITS
-    FORMAT: ClassVar[str] = "<ffffH"
+    FORMAT: ClassVar[str] = "<ffffHfHH"
     max_jerk: float
     max_accel: float
     max_velocity: float
     max_voltage: float
     host_timeout_ms: int = 1000
+    max_error: float = DEFAULT_MAX_ERROR
+    runaway_ms: int = DEFAULT_RUNAWAY_MS
+    saturation_ms: int = DEFAULT_SATURATION_MS
 
 
 @dataclass(frozen=True)
@@ -391,14 +411,17 @@ class Telemetry(_Message):
 @dataclass(frozen=True)
 class EndOfRun(_Message):
     """A run or step ended: :class:`EndReason`, samples executed, corrupt frames the device
-    dropped since boot (saturating u16), control ticks that overran."""
+    dropped since boot (saturating u16), control ticks that overran, and ``detail`` for a
+    safety stop (TRACKING_ERROR: the position error in rad; RUNAWAY / NO_MOTION: the counts
+    moved along the drive during the window; 0 otherwise)."""
 
     TYPE: ClassVar[MsgType] = MsgType.END_OF_RUN
-    FORMAT: ClassVar[str] = "<BIHH"
+    FORMAT: ClassVar[str] = "<BIHHf"
     reason: int
     samples: int
     rx_errors: int = 0
     overruns: int = 0
+    detail: float = 0.0
 
 
 @dataclass(frozen=True)

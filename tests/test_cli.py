@@ -117,14 +117,14 @@ def test_check_passes_a_healthy_virtual_rig_with_friction(capsys):
 
 
 def test_check_finds_a_reversed_encoder():
-    found, report = _check(_virtual(encoder_gain=-1))
+    found, report = _check(_virtual(encoder_sign=-1))
     assert not found["direction"].ok
     assert "swap the encoder's A and B" in found["direction"].fix and "motor leads" in found["direction"].fix
     assert found["cpr"].ok and found["supply"].ok, report          # the rest is measured all the same
 
 
 def test_check_finds_a_disconnected_encoder():
-    found, report = _check(_virtual(encoder_gain=0))
+    found, report = _check(_virtual(encoder_sign=0))
     assert not found["encoder"].ok and "encoder disconnected" in found["encoder"].fix
     assert "D2" in found["encoder"].fix and "12 V supply" in found["encoder"].fix
     assert "direction" not in found and "1 check(s) failed" in report

@@ -90,7 +90,11 @@ def _limit_cases(rng, n):
 
 
 def _write_vectors(path, rng):
+    """Write the golden vectors; return, per controller case, how it exercised the clamp:
+    samples at +limit / -limit, and samples where the integrator was frozen (anti-windup) or
+    kept integrating while clamped, on each side."""
     lines = []
+    clamp_stats = []
     for d, J, E, W in _limit_cases(rng, 60):
         p = plan_sine_jerk(d, J, E, W)
         hdr = f"{float(d)!r} {float(J)!r} {float(E)!r} {float(W)!r}"
@@ -109,45 +113,63 @@ def _write_vectors(path, rng):
         lines.append(f"K {hdr} {float(Ts)!r} {n}")
         lines += [f"s {float(s.jerk[k])!r} {float(s.accel[k])!r} {float(s.velocity[k])!r} {float(s.position[k])!r}" for k in range(n)]
     # controllers: Stojčić eq. 13 gains and z-domain gains (with a derivative filter), position
-    # and velocity loops, feedforward on/off, output limits low enough to saturate
+    # and velocity loops, feedforward on/off, output limits low enough to saturate. The move goes
+    # out and back (15 rad, then -15 rad), so the clamp is hit in both directions.
     K, tau, Ts = 32.4, 0.025, 0.005
     designs = [(pole_placement_pid(K, tau, 20).discretize(Ts), "position"),
                (discrete_pole_placement_pid(K, tau, 20, Ts=Ts), "position"),
                (discrete_pole_placement_pid(K, tau, 25, Ts=Ts, extra_pole=0.3), "position"),
                (discrete_pole_placement_pid(K, tau, 20, Ts=Ts, loop="velocity"), "velocity")]
     counts_per_rad = 448 / (2 * math.pi)
-    for (gains, loop), limit, ff_on in [(designs[0], 12.0, True), (designs[1], 2.0, True),
-                                        (designs[2], 12.0, False), (designs[3], 6.0, True),
-                                        (designs[0], 1.0, False)]:
+    # (the plant obeys `obey` x u: < 1 lags, so the error pushes into the clamp and the
+    # integrator freezes; > 1 leads, so the feedforward holds the clamp against the error and
+    # the integrator keeps integrating back)
+    for (gains, loop), limit, ff_on, obey in [(designs[0], 12.0, True, 0.8), (designs[1], 2.0, True, 0.8),
+                                              (designs[2], 12.0, False, 0.8), (designs[3], 6.0, True, 0.8),
+                                              (designs[0], 1.0, False, 0.8), (designs[0], 1.5, True, 1.6)]:
         g = type(gains)(f32(gains.kpd), f32(gains.kid), f32(gains.kdd), Ts, gamma=f32(gains.gamma),
                         loop=loop)
         ff = Feedforward(K, tau) if ff_on else None
         c = DigitalController(g, feedforward=ff, output_limit=limit)
         lines.append(f"C {float(g.kpd)!r} {float(g.kid)!r} {float(g.kdd)!r} {float(g.gamma)!r} {float(limit)!r} {float(K)!r} {float(tau)!r} "
                      f"{int(ff_on)} {int(loop == 'velocity')} {float(Ts)!r}")
-        prof = plan_sine_jerk(f32(15.0), 2e4, 300.0, 100.0)
-        n = int(prof.duration / Ts) + 60
-        ref = prof.sample(np.arange(n) * Ts)
+        prof = plan_sine_jerk(f32(15.0), 2e4, 3000.0, 100.0)     # 88 rad/s, 1060 rad/s^2: u_F 3.5 V
+        back = prof.duration + 0.1                       # the return move starts here
+        n = int((back + prof.duration) / Ts) + 60
+        t = np.arange(n) * Ts
+        out_, ret = prof.sample(t), prof.sample(t - back)
+        ref = [np.asarray(out_.position) - np.asarray(ret.position),
+               np.asarray(out_.velocity) - np.asarray(ret.velocity),
+               np.asarray(out_.accel) - np.asarray(ret.accel)]
         theta = omega = 0.0
         a = math.exp(-Ts / tau)
+        st = dict(case=(gains.design.get("method"), loop, limit, ff_on), pos=0, neg=0, frozen_pos=0,
+                  frozen_neg=0, integrating_pos=0, integrating_neg=0)
+        i_prev = 0.0
         for k in range(n):
             y = f32(math.floor(theta * counts_per_rad) / counts_per_rad)     # encoder, x1
-            r, v, acc = f32(ref.position[k]), f32(ref.velocity[k]), f32(ref.accel[k])
+            r, v, acc = f32(ref[0][k]), f32(ref[1][k]), f32(ref[2][k])
             u = c.step(r, v, acc, y)
             pt = c.last_parts
+            if pt["saturated"]:
+                side = "pos" if u > 0 else "neg"
+                st[side] += u == (limit if u > 0 else -limit)
+                st[("frozen_" if pt["i"] == i_prev else "integrating_") + side] += 1
+            i_prev = pt["i"]
             lines.append(f"c {float(r)!r} {float(v)!r} {float(acc)!r} {float(y)!r} {float(u)!r} {float(pt['p'])!r} {float(pt['i'])!r} {float(pt['d'])!r} "
                          f"{float(pt['ff'])!r} {int(pt['saturated'])}")
-            u_m = 0.8 * u + 0.3 * math.sin(0.05 * k)      # a plant that does not quite obey
+            u_m = obey * u + 0.3 * math.sin(0.05 * k)     # a plant that does not quite obey
             theta, omega = (theta + tau * (1 - a) * omega + K * u_m * (Ts - tau * (1 - a)),
                             a * omega + (1 - a) * K * u_m)
+        clamp_stats.append(st)
     # frames: every message type encoded by jerklab.protocol, C++ must produce the same bytes
-    msgs = [pr.Hello(1), pr.SetPlant(32.4, 0.025, 12.0, 448),
-            pr.SetGains(1.0, 0.1, 2.0, 5000, 0, 1, 0.25), pr.SetLimits(2e4, 300, 100, 12, 1000),
+    msgs = [pr.Hello(2), pr.SetPlant(32.4, 0.025, 12.0, 448),
+            pr.SetGains(1.0, 0.1, 2.0, 5000, 0, 1, 0.25), pr.SetLimits(2e4, 300, 100, 12, 1000, 0.5, 200, 500),
             pr.Plan(31.4159, 0), pr.Run(40, 1), pr.Stop(), pr.Step(6.0, 5000, 200), pr.Heartbeat(),
-            pr.Ack(2), pr.Nack(3, 3, 1),
-            pr.HelloReply(1, 1, 0, 0, 0x1F1, 1000, 1023, "jerklab-uno"),
-            pr.PlanInfo(0.1, 0.2, 0.4, 81), pr.Telemetry(12, 1.5, -300, -1023, 1),
-            pr.EndOfRun(0, 81, 0, 0), pr.DeviceError(3, 1)]
+            pr.Ack(2), pr.Nack(3, 3, 1), pr.Nack(5, 8, 0),
+            pr.HelloReply(2, 1, 0, 0, 0x1F1, 1000, 1023, "jerklab-uno"),
+            pr.PlanInfo(0.1, 0.2, 0.4, 81), pr.Telemetry(12, 1.5, -300, -1023, 5),
+            pr.EndOfRun(0, 81, 0, 0, 0.0), pr.EndOfRun(4, 169, 2, 1, -0.52), pr.DeviceError(3, 1)]
     for i, m in enumerate(msgs):
         seq = (i * 37) % 256
         lines.append(f"F {int(m.TYPE)} {seq} {m.pack().hex() or '-'} {pr.encode(m, seq).hex()}")
@@ -176,11 +198,18 @@ def _write_vectors(path, rng):
         lines.append(f"D {bytes(stream).hex() or '-'} {len(frames)} {dec.stats.bad_crc + dec.stats.bad_length}")
         lines += [f"f {f.type} {f.seq} {f.payload.hex() or '-'}" for f in frames]
     path.write_text("\n".join(lines) + "\n")
+    return clamp_stats
 
 
 def test_host_core_agrees_with_jerklab_on_golden_vectors(host_driver, tmp_path):
     vec = tmp_path / "golden.txt"
-    _write_vectors(vec, np.random.default_rng(20151))
+    clamp = _write_vectors(vec, np.random.default_rng(20151))
+    # issue 19: the controller vectors saturate in both directions, and on each side of the clamp
+    # the integrator is seen both frozen (anti-windup) and integrating (error pulling back)
+    both = [st for st in clamp if st["pos"] and st["neg"]]
+    assert len(both) >= 3, clamp
+    for key in ("frozen_pos", "frozen_neg", "integrating_pos", "integrating_neg"):
+        assert sum(st[key] for st in clamp) > 0, (key, clamp)
     proc = subprocess.run([str(host_driver), "vectors", str(vec)], capture_output=True, text=True,
                           timeout=120)
     summary = {m.group(1): (int(m.group(2)), int(m.group(3)), float(m.group(4)))

@@ -44,7 +44,8 @@ EXAMPLES = [
     P.Hello(),
     P.SetPlant(K=32.4, tau=0.025, supply_voltage=12.0, counts_per_rev=448),
     P.SetGains(kpd=1.0, kid=0.1, kdd=2.0, Ts_us=5000, loop=P.LoopType.VELOCITY, flags=0, gamma=0.25),
-    P.SetLimits(max_jerk=2e4, max_accel=300.0, max_velocity=100.0, max_voltage=12.0, host_timeout_ms=500),
+    P.SetLimits(max_jerk=2e4, max_accel=300.0, max_velocity=100.0, max_voltage=12.0, host_timeout_ms=500,
+                max_error=0.25, runaway_ms=150, saturation_ms=300),
     P.Plan(distance=-31.4159, planner=P.Planner.SINE_JERK),
     P.Run(settle_samples=40, decimation=2),
     P.Stop(),
@@ -56,6 +57,7 @@ EXAMPLES = [
     P.PlanInfo(0.1, 0.2, 0.4, 81),
     P.Telemetry(index=2**32 - 1, reference=-1.5, counts=-2**31, pwm=-1023, flags=3),
     P.EndOfRun(reason=P.EndReason.HOST_TIMEOUT, samples=81, rx_errors=3, overruns=1),
+    P.EndOfRun(reason=P.EndReason.RUNAWAY, samples=12, rx_errors=0, overruns=0, detail=-35.0),
     P.DeviceError(code=3, detail=65535),
 ]
 
@@ -90,17 +92,27 @@ def test_every_type_has_an_example_and_fits():
     assert max(struct.calcsize(c.FORMAT) for c in P.MESSAGES.values()) + P.MIN_FRAME <= 34
 
 
+def test_protocol_version_is_stated_once():
+    """PROTOCOL.md's title, protocol.py and the firmware core name the same version."""
+    text = open(os.path.join(ROOT, "firmware", "PROTOCOL.md"), encoding="utf-8").read()
+    assert re.search(r"^# jerklab rig protocol, version (\d+)$", text, re.M).group(1) == str(P.PROTOCOL_VERSION)
+    hdr = open(os.path.join(ROOT, "firmware", "core", "jl_protocol.h"), encoding="utf-8").read()
+    assert re.search(r"kProtocolVersion = (\d+);", hdr).group(1) == str(P.PROTOCOL_VERSION)
+    assert re.search(r"kMaxPlanSamples = (\d+)UL;", hdr).group(1) == str(P.MAX_PLAN_SAMPLES)
+
+
 def test_golden_frames_match_protocol_md():
     """Every golden frame in firmware/PROTOCOL.md is what protocol.py sends."""
     text = open(os.path.join(ROOT, "firmware", "PROTOCOL.md"), encoding="utf-8").read()
     golden = text.split("## Golden frames", 1)[1]
     hexes = [bytes.fromhex(h) for h in re.findall(r"((?:[0-9a-f]{2} ){4,}[0-9a-f]{2})", golden)]
     expected = [
-        P.Hello(1), P.SetPlant(32.4, 0.025, 12.0, 448), P.SetGains(1.0, 0.1, 2.0, 5000, 0, 1, 0.0),
-        P.SetLimits(2e4, 300, 100, 12, 1000), P.Plan(31.4159, 0), P.Run(40, 1), P.Stop(),
-        P.Step(6.0, 5000, 200), P.Heartbeat(), P.Ack(2), P.Nack(3, 3, 1),
-        P.HelloReply(1, 0, 1, 0, 0x1F1, 1000, 1023, "jerklab-uno"), P.PlanInfo(0.1, 0.2, 0.4, 81),
-        P.Telemetry(12, 1.5, -300, -1023, 1), P.EndOfRun(0, 81, 0, 0), P.DeviceError(3, 1),
+        P.Hello(2), P.SetPlant(32.4, 0.025, 12.0, 448), P.SetGains(1.0, 0.1, 2.0, 5000, 0, 1, 0.0),
+        P.SetLimits(2e4, 300, 100, 12, 1000, 0.5, 200, 500), P.Plan(31.4159, 0), P.Run(40, 1), P.Stop(),
+        P.Step(6.0, 5000, 200), P.Heartbeat(), P.Ack(2), P.Nack(3, 3, 1), P.Nack(5, 8, 0),
+        P.HelloReply(2, 0, 1, 0, 0x1F1, 1000, 1023, "jerklab-uno"), P.PlanInfo(0.1, 0.2, 0.4, 81),
+        P.Telemetry(12, 1.5, -300, -1023, 1), P.EndOfRun(0, 81, 0, 0, 0.0),
+        P.EndOfRun(4, 169, 0, 0, 0.52), P.DeviceError(3, 1),
     ]
     assert len(hexes) == len(expected)
     for h, m in zip(hexes, expected):

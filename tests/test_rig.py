@@ -298,7 +298,8 @@ def test_corrupted_link_resyncs(tmp_path):
 
     r = Rig(Noisy(VirtualDevice(), timeout=0.05), "noisy", progress=False, recordings=tmp_path,
             hello_timeout=2.0)
-    rec = r.run_move(_move(), pole_placement_pid(K, TAU, wn=20.0), Ts=0.005, settle=0.1)
+    with pytest.warns(RuntimeWarning, match=r"noisy: \d+ telemetry samples were lost"):
+        rec = r.run_move(_move(), pole_placement_pid(K, TAU, wn=20.0), Ts=0.005, settle=0.1)
     md = rec.metadata
     assert md["status"] == "complete"
     assert md["host_dropped_frames"] > 0 and md["lost_samples"] > 0

@@ -68,18 +68,31 @@ void Device::on_rx_idle() {
     }
 }
 
-void Device::end_run(uint8_t reason) {
+void Device::end_run(uint8_t reason, float detail) {
     hal_.set_pwm(0);
     uint8_t p[kLenEndOfRun];
     p[0] = reason;
     put_u32(p + 1, k_);
     put_u16(p + 5, parser_.dropped());
     put_u16(p + 7, overruns_);
+    put_f32(p + 9, detail);
     state_ = kIdle;
     have_sample_ = false;
     finished_ = false;
     send(kEndOfRun, tx_seq_++, p, kLenEndOfRun);
 }
+
+// ceil(ms * 1000 / Ts_us): a safety window in samples (0 = off); at most 65535 as Ts >= 1 ms.
+static uint16_t __attribute__((noinline)) window_samples(uint16_t ms, uint16_t ts_us) {
+    return static_cast<uint16_t>((static_cast<uint32_t>(ms) * 1000u + ts_us - 1u) / ts_us);
+}
+
+// lo < x <= hi for a finite x (one out-of-line copy of the soft-float checks saves flash).
+static bool __attribute__((noinline)) in_range(float x, float lo, float hi) {
+    return finite_f(x) && x > lo && x <= hi;
+}
+
+static const float kFloatMax = 3.40282347e38f;
 
 static bool valid_period(uint16_t ts_us, uint16_t tick_us) {
     return ts_us != 0 && ts_us <= 65000u && ts_us % tick_us == 0;
@@ -116,9 +129,9 @@ void Device::handle(const Frame& f) {
     case kSetPlant: {
         float K = get_f32(p), tau = get_f32(p + 4), vs = get_f32(p + 8);
         uint16_t cpr = get_u16(p + 12);
-        if (!finite_f(K) || !(K > 0.0f) || K > 1e4f) { nack(f, kErrBadValue, 0); return; }
-        if (!finite_f(tau) || !(tau > 0.0f) || tau > 10.0f) { nack(f, kErrBadValue, 1); return; }
-        if (!finite_f(vs) || !(vs > 0.0f) || vs > 48.0f) { nack(f, kErrBadValue, 2); return; }
+        if (!in_range(K, 0.0f, 1e4f)) { nack(f, kErrBadValue, 0); return; }
+        if (!in_range(tau, 0.0f, 10.0f)) { nack(f, kErrBadValue, 1); return; }
+        if (!in_range(vs, 0.0f, 48.0f)) { nack(f, kErrBadValue, 2); return; }
         if (cpr < 1) { nack(f, kErrBadValue, 3); return; }
         K_ = K; tau_ = tau; supply_ = vs; counts_per_rev_ = cpr;
         apply_plant();
@@ -150,12 +163,20 @@ void Device::handle(const Frame& f) {
     case kSetLimits: {
         float J = get_f32(p), E = get_f32(p + 4), W = get_f32(p + 8), vmax = get_f32(p + 12);
         uint16_t tmo = get_u16(p + 16);
-        if (!finite_f(J) || !(J > 0.0f)) { nack(f, kErrBadValue, 0); return; }
-        if (!finite_f(E) || !(E > 0.0f)) { nack(f, kErrBadValue, 1); return; }
-        if (!finite_f(W) || !(W > 0.0f)) { nack(f, kErrBadValue, 2); return; }
-        if (!finite_f(vmax) || !(vmax > 0.0f) || vmax > supply_) { nack(f, kErrBadValue, 3); return; }
+        float emax = get_f32(p + 18);
+        uint16_t rms = get_u16(p + 22);
+        uint16_t sms = get_u16(p + 24);
+        if (!in_range(J, 0.0f, kFloatMax)) { nack(f, kErrBadValue, 0); return; }
+        if (!in_range(E, 0.0f, kFloatMax)) { nack(f, kErrBadValue, 1); return; }
+        if (!in_range(W, 0.0f, kFloatMax)) { nack(f, kErrBadValue, 2); return; }
+        if (!in_range(vmax, 0.0f, supply_)) { nack(f, kErrBadValue, 3); return; }
+        if (emax != 0.0f && !in_range(emax, 0.0f, kFloatMax)) { nack(f, kErrBadValue, 5); return; }
         max_jerk_ = J; max_accel_ = E; max_velocity_ = W; max_voltage_ = vmax;
         host_timeout_ms_ = tmo;
+        memcpy(&max_error_bits_, &emax, 4);    // emax >= 0: 0 (off) or the positive pattern
+        if (emax == 0.0f) max_error_bits_ = 0;   // -0.0
+        runaway_ms_ = rms;
+        saturation_ms_ = sms;
         update_pwm_top();
         plan_ok_ = false;
         ack(f);
@@ -164,7 +185,7 @@ void Device::handle(const Frame& f) {
     case kPlan: {
         float d = get_f32(p);
         uint8_t kind = p[4];
-        if (!finite_f(d) || d == 0.0f || jl_fabsf(d) > 1e6f) { nack(f, kErrBadValue, 0); return; }
+        if (!in_range(jl_fabsf(d), 0.0f, 1e6f)) { nack(f, kErrBadValue, 0); return; }
         if (kind > kPlannerTrapezoid) { nack(f, kErrBadValue, 1); return; }
         if (kind != kPlannerSineJerk) { nack(f, kErrUnsupported, 1); return; }
         SineJerkPlan plan;
@@ -173,7 +194,8 @@ void Device::handle(const Frame& f) {
             return;
         }
         float x = plan.duration / Ts_ - 1e-4f;
-        if (!finite_f(x) || x > 2.0e9f) { nack(f, kErrBadValue, 0); return; }
+        // n = ceil(x) + 1 must stay <= kMaxPlanSamples (float32 holds 2e9 - 1 as 2e9).
+        if (!finite_f(x) || x >= static_cast<float>(kMaxPlanSamples)) { nack(f, kErrTooLong, 0); return; }
         uint32_t n = static_cast<uint32_t>(x < 0.0f ? 0.0f : x);
         if (static_cast<float>(n) < x) ++n;           // ceil
         plan_ = plan;
@@ -201,6 +223,14 @@ void Device::handle(const Frame& f) {
         n_total_ = plan_samples_ + settle;
         decimation_ = dec;
         prev_counts_ = 0;
+        last_pwm_ = 0;
+        runaway_pwm_ = static_cast<int16_t>((pwm_top_ + 1) / 2);
+        runaway_n_ = window_samples(runaway_ms_, Ts_us_);
+        sat_n_ = window_samples(saturation_ms_, Ts_us_);
+        sat_level_ = 0;
+        run_sign_ = 0;
+        run_len_ = 0;
+        moved_ = 0;
         have_sample_ = finished_ = false;
         state_ = kRunning;
         hal_.set_period(static_cast<uint16_t>(Ts_us_ / cfg_.tick_us));
@@ -242,6 +272,8 @@ bool Device::control() {
     if (k_ >= n_total_) {               // the tick after the last sample
         hal_.set_pwm(0);
         finished_ = true;
+        end_reason_ = kEndDone;
+        end_detail_ = 0.0f;
         have_sample_ = false;
         return true;
     }
@@ -254,25 +286,47 @@ bool Device::control() {
         stepper_.next(&s);
         if (k_ >= plan_samples_) flags |= kTelemetrySettling;
         ref = s.position;
-        float e;
-        if (loop_ == kLoopPosition) {
-            e = s.position - static_cast<float>(c) * rad_per_count_;
-        } else {
-            // Velocity loop (Stojčić §4B): counts over the last sample; y(-1) = y(0).
-            if (k_ == 0) prev_counts_ = c;
-            e = s.velocity - static_cast<float>(c - prev_counts_) * rad_per_count_ / Ts_;
+        const float pos_error = s.position - static_cast<float>(c) * rad_per_count_;
+        float detail = 0.0f;
+        uint8_t fault = check_safety(c, pos_error, &detail);
+        pwm = 0;
+        if (fault == kEndDone) {
+            float e;
+            if (loop_ == kLoopPosition) {
+                e = pos_error;
+            } else {
+                // Velocity loop (Stojčić §4B): counts over the last sample; y(-1) = y(0).
+                if (k_ == 0) prev_counts_ = c;
+                e = s.velocity - static_cast<float>(c - prev_counts_) * rad_per_count_ / Ts_;
+            }
+            prev_counts_ = c;
+            const float uf = use_ff_ ? ff_(s.velocity, s.accel) : 0.0f;
+            ControlParts parts;
+            const float u = pid_.step(e, uf, &parts);
+            if (parts.saturated) {
+                flags |= kTelemetrySaturated;
+                ++sat_level_;
+            } else if (sat_level_) {
+                --sat_level_;
+            }
+            // Saturation stop (PROTOCOL.md): at the clamp in most samples for the window.
+            if (sat_n_ && sat_level_ >= sat_n_) fault = kEndSaturation;
+            else pwm = volts_to_pwm(u);
         }
-        prev_counts_ = c;
-        const float uf = use_ff_ ? ff_(s.velocity, s.accel) : 0.0f;
-        ControlParts parts;
-        const float u = pid_.step(e, uf, &parts);
-        if (parts.saturated) flags |= kTelemetrySaturated;
-        pwm = volts_to_pwm(u);
+        if (fault != kEndDone) {
+            // Safety stop: PWM 0 in this very sample; its telemetry goes out whatever the
+            // decimation, then END_OF_RUN(reason, samples = k + 1, ..., detail).
+            finished_ = true;
+            end_reason_ = fault;
+            end_detail_ = detail;
+            flags |= kTelemetryFault;
+        }
+        last_pwm_ = pwm;
     } else {
         pwm = step_pwm_;
     }
     hal_.set_pwm(pwm);
-    have_sample_ = (k_ % decimation_) == 0;
+    have_sample_ = finished_ || (k_ % decimation_) == 0;
     rep_index_ = k_;
     rep_ref_ = ref;
     rep_counts_ = c;
@@ -283,16 +337,53 @@ bool Device::control() {
 }
 
 void Device::report() {
-    if (finished_) { end_run(kEndDone); return; }
-    if (!have_sample_) return;
-    have_sample_ = false;
-    uint8_t p[kLenTelemetry];
-    put_u32(p, rep_index_);
-    put_f32(p + 4, rep_ref_);
-    put_i32(p + 8, rep_counts_);
-    put_u16(p + 12, static_cast<uint16_t>(rep_pwm_));
-    p[14] = rep_flags_;
-    send(kTelemetry, tx_seq_++, p, kLenTelemetry);
+    if (have_sample_) {
+        have_sample_ = false;
+        uint8_t p[kLenTelemetry];
+        put_u32(p, rep_index_);
+        put_f32(p + 4, rep_ref_);
+        put_i32(p + 8, rep_counts_);
+        put_u16(p + 12, static_cast<uint16_t>(rep_pwm_));
+        p[14] = rep_flags_;
+        send(kTelemetry, tx_seq_++, p, kLenTelemetry);
+    }
+    if (finished_) end_run(end_reason_, end_detail_);
+}
+
+// PROTOCOL.md "Safety stops". Called at each run sample k with the count c_k (before the
+// controller): the tracking-error limit, then the runaway / no-motion window over the PWM
+// applied during the last period (last_pwm_) and the counts it produced (c_k - c_{k-1}).
+uint8_t Device::check_safety(int32_t c, float pos_error, float* detail) {
+    // |e| > max_error (or e NaN) as an integer compare of the IEEE bits: for floats >= 0 the
+    // bit patterns order like the values, and a NaN's pattern lies above +inf's. Saves the
+    // ~50-cycle float compare of the AVR's soft float in the timed step.
+    uint32_t bits;
+    memcpy(&bits, &pos_error, 4);
+    if (max_error_bits_ != 0 && (bits & 0x7FFFFFFFUL) > max_error_bits_) {
+        *detail = pos_error;
+        return kEndTrackingError;
+    }
+    if (runaway_n_ == 0) return kEndDone;
+    const int8_t sign = last_pwm_ >= runaway_pwm_ ? 1 : (last_pwm_ <= -runaway_pwm_ ? -1 : 0);
+    if (sign == 0) {
+        run_sign_ = 0;
+        run_len_ = 0;
+        moved_ = 0;
+        return kEndDone;
+    }
+    if (sign != run_sign_) {
+        run_sign_ = sign;
+        run_len_ = 0;
+        moved_ = 0;
+    }
+    moved_ += sign > 0 ? c - prev_counts_ : prev_counts_ - c;
+    if (++run_len_ < runaway_n_) return kEndDone;
+    const int32_t moved = moved_;
+    run_len_ = 0;
+    moved_ = 0;
+    if (moved > 0) return kEndDone;
+    *detail = static_cast<float>(moved);
+    return moved < 0 ? kEndRunaway : kEndNoMotion;
 }
 
 void Device::poll() {

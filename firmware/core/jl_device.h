@@ -69,7 +69,8 @@ private:
     void send(uint8_t type, uint8_t seq, const uint8_t* payload, uint8_t n);
     void ack(const Frame& f);
     void nack(const Frame& f, uint8_t err, uint8_t param = 0xFF);
-    void end_run(uint8_t reason);
+    void end_run(uint8_t reason, float detail = 0.0f);
+    uint8_t check_safety(int32_t c, float pos_error, float* detail);
     void apply_plant();
     int16_t volts_to_pwm(float u) const;
     void update_pwm_top();
@@ -87,6 +88,11 @@ private:
     int16_t pwm_top_ = 1023;   // lround(max_voltage * pwm_max / supply), at most pwm_max
     float max_jerk_ = 2e4f, max_accel_ = 300.0f, max_velocity_ = 100.0f, max_voltage_ = 12.0f;
     uint16_t host_timeout_ms_ = 1000;
+    // Safety stops (PROTOCOL.md "Safety stops"): tracking-error limit (rad, 0 = off) and the
+    // runaway / no-motion window (ms, 0 = off).
+    uint32_t max_error_bits_ = 0x3F000000UL;   // IEEE bits of max_error (0.5 rad at boot)
+    uint16_t runaway_ms_ = 200;
+    uint16_t saturation_ms_ = 500;   // saturation stop window (ms, 0 = off)
     bool gains_ok_ = false;
     float kpd_ = 0, kid_ = 0, kdd_ = 0, gamma_ = 0;
     uint16_t Ts_us_ = 5000;
@@ -108,6 +114,17 @@ private:
     int32_t prev_counts_ = 0;
     uint32_t last_rx_ms_ = 0;
     uint16_t overruns_ = 0;
+    // Runaway detector state: the last PWM applied, the drive threshold, the window length in
+    // samples, and the current window (drive sign, samples in it, counts moved along the drive).
+    int16_t last_pwm_ = 0;
+    int16_t runaway_pwm_ = 512;
+    uint16_t runaway_n_ = 0;
+    int8_t run_sign_ = 0;
+    uint16_t run_len_ = 0;
+    int32_t moved_ = 0;
+    // Saturation stop: a level that counts up at a clamped sample and down at another.
+    uint16_t sat_n_ = 0;
+    uint16_t sat_level_ = 0;
 
     // Results of the last control() for report().
     bool have_sample_ = false;
@@ -117,6 +134,8 @@ private:
     int32_t rep_counts_ = 0;
     int16_t rep_pwm_ = 0;
     uint8_t rep_flags_ = 0;
+    uint8_t end_reason_ = kEndDone;
+    float end_detail_ = 0.0f;
 };
 
 }  // namespace jl

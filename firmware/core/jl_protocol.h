@@ -1,4 +1,4 @@
-// Message types, codes and payload sizes of the jerklab rig protocol, version 1.
+// Message types, codes and payload sizes of the jerklab rig protocol, version 2.
 // Mirrors jerklab/protocol.py and firmware/PROTOCOL.md (the reference definitions).
 #ifndef JL_PROTOCOL_H
 #define JL_PROTOCOL_H
@@ -6,7 +6,7 @@
 
 namespace jl {
 
-static const uint8_t kProtocolVersion = 1;
+static const uint8_t kProtocolVersion = 2;
 
 enum MsgType : uint8_t {
     kHello = 0x01, kSetPlant = 0x02, kSetGains = 0x03, kSetLimits = 0x04, kPlan = 0x05,
@@ -17,10 +17,15 @@ enum MsgType : uint8_t {
 
 enum ErrorCode : uint8_t {
     kErrOk = 0, kErrUnknownType = 1, kErrBadLength = 2, kErrBadValue = 3, kErrBusy = 4,
-    kErrNotReady = 5, kErrUnsupported = 6, kErrBadVersion = 7,
+    kErrNotReady = 5, kErrUnsupported = 6, kErrBadVersion = 7, kErrTooLong = 8,
 };
 
-enum EndReason : uint8_t { kEndDone = 0, kEndStopped = 1, kEndHostTimeout = 2, kEndFault = 3 };
+enum EndReason : uint8_t { kEndDone = 0, kEndStopped = 1, kEndHostTimeout = 2, kEndFault = 3,
+                           kEndTrackingError = 4, kEndRunaway = 5, kEndNoMotion = 6,
+                           kEndSaturation = 7 };
+
+// A plan longer than this many samples is refused with NACK TOO_LONG (PROTOCOL.md).
+static const uint32_t kMaxPlanSamples = 2000000000UL;
 
 enum PlannerKind : uint8_t { kPlannerSineJerk = 0, kPlannerSineJerkOptimal = 1,
                              kPlannerScurve = 2, kPlannerTrapezoid = 3 };
@@ -36,11 +41,12 @@ enum Capability : uint16_t {
 static const uint8_t kGainsFeedforward = 0x01;
 static const uint8_t kTelemetrySaturated = 0x01;
 static const uint8_t kTelemetrySettling = 0x02;
+static const uint8_t kTelemetryFault = 0x04;
 
 // Payload sizes (bytes).
-static const uint8_t kLenHello = 1, kLenSetPlant = 14, kLenSetGains = 20, kLenSetLimits = 18,
+static const uint8_t kLenHello = 1, kLenSetPlant = 14, kLenSetGains = 20, kLenSetLimits = 26,
     kLenPlan = 5, kLenRun = 3, kLenStop = 0, kLenStep = 8, kLenHeartbeat = 0, kLenAck = 1,
-    kLenNack = 3, kLenHelloReply = 26, kLenPlanInfo = 16, kLenTelemetry = 15, kLenEndOfRun = 9,
+    kLenNack = 3, kLenHelloReply = 26, kLenPlanInfo = 16, kLenTelemetry = 15, kLenEndOfRun = 13,
     kLenError = 3;
 
 }  // namespace jl

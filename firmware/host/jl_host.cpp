@@ -5,14 +5,15 @@
 //                          closed-form samples, the control-loop stepper, controller steps,
 //                          frame encoding/decoding); prints one summary line per kind with the
 //                          worst error and exits 1 if any record is outside its tolerance.
-//   jl_host device [K tau supply]
+//   jl_host device [K tau supply [encoder]]
 //                          run the device state machine (core/jl_device) against a simulated
 //                          motor (exact ZOH DC motor, Stojčić eq. 1) driven by a script on stdin:
 //                            rx HEX    bytes arriving from the host now
 //                            ms N      let N milliseconds (1 ms timer ticks) pass
 //                            quit
 //                          and print what the device does: "tx MS HEX" (a frame sent),
-//                          "pwm MS VALUE" (output changed).
+//                          "pwm MS VALUE" (output changed). encoder: 1 wired as
+//                          specified (default), -1 reversed (A and B swapped), 0 disconnected.
 //
 // Vector records (one per line, whitespace separated; '#' starts a comment):
 //   P d J E W  T tv tu               published plan: phase times
@@ -242,12 +243,13 @@ int run_vectors(const char* path) {
 
 class HostHal : public jl::Hal {
 public:
-    HostHal(double K, double tau, double supply) : K_(K), tau_(tau), supply_(supply) {}
+    HostHal(double K, double tau, double supply, int encoder = 1)
+        : K_(K), tau_(tau), supply_(supply), encoder_(encoder) {}
     void write(const uint8_t* data, uint8_t n) override {
         std::printf("tx %u %s\n", ms_, to_hex(data, n).c_str());
     }
     int32_t counts() override {
-        return static_cast<int32_t>(std::floor(theta_ * cpr_ / (2 * M_PI))) - zero_;
+        return encoder_ * static_cast<int32_t>(std::floor(theta_ * cpr_ / (2 * M_PI))) - zero_;
     }
     void zero_counts() override { zero_ += counts(); }
     void set_decoding(uint8_t decoding) override { cpr_ = 448.0 * decoding; }
@@ -274,6 +276,7 @@ public:
 
 private:
     double K_, tau_, supply_;
+    int encoder_;
     double theta_ = 0.0, omega_ = 0.0, cpr_ = 448.0;
     int32_t zero_ = 0;
     int16_t pwm_ = 0;
@@ -281,8 +284,8 @@ private:
     uint32_t ms_ = 0;
 };
 
-int run_device(double K, double tau, double supply) {
-    HostHal hal(K, tau, supply);
+int run_device(double K, double tau, double supply, int encoder) {
+    HostHal hal(K, tau, supply, encoder);
     jl::DeviceConfig cfg = {1000, 1023, 448, 1, 0, 0};
     jl::Device dev(hal, cfg);
     dev.begin();
@@ -323,8 +326,10 @@ int main(int argc, char** argv) {
         double K = argc > 2 ? std::atof(argv[2]) : 32.4;
         double tau = argc > 3 ? std::atof(argv[3]) : 0.025;
         double vs = argc > 4 ? std::atof(argv[4]) : 12.0;
-        return run_device(K, tau, vs);
+        int encoder = argc > 5 ? std::atoi(argv[5]) : 1;
+        if (encoder < -1 || encoder > 1) { std::fprintf(stderr, "encoder must be 1, -1 or 0\n"); return 2; }
+        return run_device(K, tau, vs, encoder);
     }
-    std::fprintf(stderr, "usage: jl_host vectors FILE | jl_host device [K tau supply]\n");
+    std::fprintf(stderr, "usage: jl_host vectors FILE | jl_host device [K tau supply [encoder]]\n");
     return 2;
 }

@@ -21,14 +21,14 @@ import importlib
 import os
 import sys
 
-from jerklab.rig.client import (Rig, RigCommandError, RigConnectionError, RigError, RigRunError,
-                                RigTimeoutError, UnknownPortError)
+from jerklab.rig.client import (Rig, RigBusyError, RigCommandError, RigConnectionError, RigError, RigRunError,
+                                RigTimeoutError, UnknownPortError, UnstableDesignError)
 from jerklab.rig.recording import Recording, compare, plot_comparison, recordings_dir
 from jerklab.rig.virtual import VirtualDevice, VirtualSerial
 
 __all__ = ["connect", "Rig", "Recording", "recordings_dir", "compare", "plot_comparison", "VirtualDevice", "VirtualSerial",
            "RigError", "RigConnectionError", "RigTimeoutError", "RigCommandError", "RigRunError",
-           "UnknownPortError", "BAUDRATE"]
+           "UnknownPortError", "RigBusyError", "UnstableDesignError", "BAUDRATE"]
 
 BAUDRATE = 115200
 _VIRTUAL_NAMES = (None, "virtual", "")

@@ -10,6 +10,7 @@ import datetime as _dt
 import math
 import sys
 import time
+import warnings
 from pathlib import Path
 
 from jerklab import protocol as P
@@ -17,7 +18,7 @@ from jerklab._validate import as_nonnegative, as_positive, as_real
 from jerklab.rig.recording import Recording, recordings_dir
 
 __all__ = ["Rig", "RigError", "RigConnectionError", "RigTimeoutError", "RigCommandError",
-           "RigRunError", "UnknownPortError"]
+           "RigRunError", "RigBusyError", "UnstableDesignError", "UnknownPortError"]
 
 
 class RigError(RuntimeError):
@@ -45,7 +46,23 @@ class RigCommandError(RigError, ValueError):
 
 
 class RigRunError(RigError):
-    """A run ended early on the device (STOP, host watchdog, fault)."""
+    """A run ended early on the device (STOP, host watchdog, fault).
+
+    ``status`` is the recording's final status, e.g. ``"fault: tracking error 0.52 rad >
+    limit 0.5 rad at t=0.84 s"``; ``recording`` the samples received.
+    """
+
+    def __init__(self, message, status=None, recording=None):
+        super().__init__(message)
+        self.status, self.recording = status, recording
+
+
+class RigBusyError(RigConnectionError):
+    """The rig is already in use by another client (a served rig answers a second client so)."""
+
+
+class UnstableDesignError(RigError, ValueError):
+    """``run_move`` refused a design whose sampled closed loop has a pole with ``|z| >= 1``."""
 
 
 _KIND_TO_PLANNER = {
@@ -55,6 +72,9 @@ _KIND_TO_PLANNER = {
     "trapezoid": P.Planner.TRAPEZOID,
 }
 _F32_MAX = 3.4028234663852886e38
+#: END_OF_RUN reasons that are faults (the run's status then reads "fault: ...")
+_FAULTS = (P.EndReason.FAULT, P.EndReason.TRACKING_ERROR, P.EndReason.RUNAWAY, P.EndReason.NO_MOTION,
+           P.EndReason.SATURATION)
 
 
 def _in_jupyter_kernel() -> bool:
@@ -349,6 +369,7 @@ class Rig:
                 raise RigTimeoutError(f"{self.port}: no reply to {type(msg).__name__} within {timeout:g} s")
             frames = self._read_frames(min(left, 0.05))
             for i, f in enumerate(frames):
+                self._check_busy(f)
                 if f.seq == seq and f.type in (P.MsgType.NACK, *replies):
                     self._frames = frames[i + 1:] + self._frames
                     reply = P.parse(f)
@@ -357,12 +378,27 @@ class Rig:
                     return reply
                 self.ignored_frames += 1
 
+    def _check_busy(self, frame):
+        """A served rig that already has a client answers ERROR(BUSY) and closes."""
+        if frame.type == P.MsgType.ERROR:
+            try:
+                e = P.DeviceError.unpack(frame.payload)
+            except P.ProtocolError:
+                return
+            if e.code == P.ErrorCode.BUSY:
+                raise RigBusyError(f"{self.port}: rig busy: already in use by another client")
+
     def _nack_error(self, msg, nack):
         try:
             err = P.ErrorCode(nack.error).name
         except ValueError:
             err = f"error {nack.error}"
         name = type(msg).__name__
+        if nack.error == P.ErrorCode.TOO_LONG:
+            text = (f"{self.port}: device refused {name}: the move needs more than "
+                    f"{P.MAX_PLAN_SAMPLES:,} samples (the device's limit) at this Ts; "
+                    f"use a shorter move, higher limits or a longer Ts")
+            return RigCommandError(text, command=msg.TYPE, error=nack.error, param=nack.param)
         if nack.param != 0xFF:
             field = P.payload_field_name(msg.TYPE, nack.param)
             value = getattr(msg, field, None)
@@ -404,8 +440,14 @@ class Rig:
         return us
 
     def configure(self, gains, Ts=0.005, *, feedforward=True, max_voltage=None, limits=None,
-                  host_timeout=1.0):
-        """Send plant, gains and limits (SET_PLANT, SET_GAINS, SET_LIMITS); return them as a dict."""
+                  host_timeout=1.0, max_error=P.DEFAULT_MAX_ERROR,
+                  runaway_time=P.DEFAULT_RUNAWAY_MS / 1000.0,
+                  saturation_time=P.DEFAULT_SATURATION_MS / 1000.0):
+        """Send plant, gains and limits (SET_PLANT, SET_GAINS, SET_LIMITS); return them as a dict.
+
+        ``max_error`` (rad, 0 = off), ``runaway_time`` and ``saturation_time`` (s, 0 = off) set
+        the device's safety stops (firmware/PROTOCOL.md "Safety stops").
+        """
         from jerklab.controller import DiscreteGains, Gains
 
         us = self._ts_us(Ts)
@@ -426,6 +468,15 @@ class Rig:
         tmo = as_nonnegative("host_timeout", host_timeout)
         if tmo > 65.535:
             raise ValueError(f"host_timeout must be <= 65.535 s, got {tmo}")
+        emax = as_nonnegative("max_error", max_error)
+        if emax > _F32_MAX:
+            raise ValueError(f"max_error must be a float32 (<= {_F32_MAX:g} rad), got {max_error!r}")
+        runaway = as_nonnegative("runaway_time", runaway_time)
+        if runaway > 65.535:
+            raise ValueError(f"runaway_time must be <= 65.535 s, got {runaway}")
+        sat = as_nonnegative("saturation_time", saturation_time)
+        if sat > 65.535:
+            raise ValueError(f"saturation_time must be <= 65.535 s, got {sat}")
         J, E, W = limits if limits is not None else (2e4, 300.0, 100.0)
         J = min(as_positive("max_jerk", J), _F32_MAX)
         E, W = as_positive("max_accel", E), as_positive("max_velocity", W)
@@ -434,7 +485,8 @@ class Rig:
             P.SetPlant(K, tau, self.supply_voltage, self.counts_per_rev),
             P.SetGains(gains.kpd, gains.kid, gains.kdd, us, int(loop),
                        P.GAINS_FEEDFORWARD if ff_on else 0, gains.gamma),
-            P.SetLimits(J, E, W, vmax, int(round(tmo * 1000))),
+            P.SetLimits(J, E, W, vmax, int(round(tmo * 1000)), emax, int(round(runaway * 1000)),
+                        int(round(sat * 1000))),
         ]
         for m in msgs:
             self._request(m)
@@ -443,7 +495,9 @@ class Rig:
                                     "design": _jsonable(gains.design)},
                 "feedforward": {"on": ff_on, "K": K, "tau": tau},
                 "limits": {"max_jerk": J, "max_accel": E, "max_velocity": W, "max_voltage": vmax,
-                           "host_timeout": tmo},
+                           "host_timeout": tmo, "max_error": emax,
+                           "runaway_time": int(round(runaway * 1000)) / 1000.0,
+                           "saturation_time": int(round(sat * 1000)) / 1000.0},
                 "plant": {"supply_voltage": self.supply_voltage, "counts_per_rev": self.counts_per_rev}}
 
     def _new_recording(self, kind, meta, path):
@@ -465,12 +519,22 @@ class Rig:
 
     # ---------------------------------------------------------------- runs
     def run_move(self, profile, gains, Ts=0.005, *, feedforward=True, max_voltage=None, settle=0.25,
-                 decimation=1, host_timeout=1.0, path=None, progress=None) -> Recording:
+                 decimation=1, host_timeout=1.0, path=None, progress=None,
+                 max_error=P.DEFAULT_MAX_ERROR, runaway_time=P.DEFAULT_RUNAWAY_MS / 1000.0,
+                 saturation_time=P.DEFAULT_SATURATION_MS / 1000.0, force=False) -> Recording:
         """Run a planned move on the rig; return the :class:`Recording` (saved as it arrives).
 
         The device re-plans the move from ``profile``'s distance and limits with the same
         planner (``PLAN``) and checks that the duration agrees; it then runs the
         feedforward + discrete PID of Stojčić eq. 16–18 at ``Ts`` on encoder counts.
+
+        Before anything is sent, the design is checked on the rig's model (:meth:`set_model`):
+        a sampled closed loop (ZOH plant and discrete PID,
+        :func:`jerklab.controller.closed_loop_poles`) with a pole at ``|z| >= 1`` is refused
+        unless ``force=True``. On the device, the safety stops end a run whose tracking error
+        exceeds ``max_error``, whose encoder does not follow a large drive for
+        ``runaway_time``, or whose output sits at the clamp most of the time for
+        ``saturation_time`` (firmware/PROTOCOL.md "Safety stops").
 
         Parameters
         ----------
@@ -497,15 +561,32 @@ class Rig:
         progress : bool
             Progress bar (default: the rig's setting): ipywidgets in a Jupyter kernel, text in a
             terminal, nothing if False.
+        max_error : float
+            Tracking-error limit (rad): the device stops the motor and ends the run with a fault
+            when ``|reference − position|`` exceeds it; 0 = off.
+        runaway_time : float
+            Runaway / no-motion window (s): a drive of at least half the clamp for this long
+            that moves the encoder against it (reversed?) or not at all (disconnected?) ends
+            the run with a fault; 0 = off.
+        saturation_time : float
+            Saturation window (s): an output at the voltage clamp in clearly more than half the
+            samples for this long (the ±supply chatter of an unstable loop) ends the run with a
+            fault; 0 = off.
+        force : bool
+            Run a design even if its sampled closed loop is unstable (the safety stops still apply).
 
         Raises
         ------
+        UnstableDesignError
+            The design's sampled loop has a pole with ``|z| >= 1`` (the message names the
+            largest ``|z|`` and the design); nothing was sent.
         RigConnectionError, RigTimeoutError
             The link broke or the device fell silent; every sample received is on disk.
         RigCommandError
             The device refused a parameter (the message names it).
         RigRunError
-            The run ended early on the device.
+            The run ended early on the device; ``exc.status`` says why, e.g. ``"fault: tracking
+            error 0.52 rad > limit 0.5 rad at t=0.84 s"``.
         """
         kind = getattr(profile, "kind", None)
         if kind not in _KIND_TO_PLANNER:
@@ -522,8 +603,11 @@ class Rig:
             raise ValueError(f"decimation must be an integer in 1..255, got {decimation!r}")
         limits = (profile.max_jerk if profile.max_jerk is not None else _F32_MAX,
                   profile.max_accel, profile.max_velocity)
+        if not force:
+            self._check_stable(gains, Ts)
         cfg = self.configure(gains, Ts, feedforward=feedforward, max_voltage=max_voltage,
-                             limits=limits, host_timeout=host_timeout)
+                             limits=limits, host_timeout=host_timeout, max_error=max_error,
+                             runaway_time=runaway_time, saturation_time=saturation_time)
         Ts = cfg["Ts"]
         info = self._request(P.Plan(distance, int(planner)), replies=(P.MsgType.PLAN_INFO,))
         if abs(info.duration - profile.duration) > 1e-4 * profile.duration + 2e-5:
@@ -542,6 +626,24 @@ class Rig:
         total = info.n_samples + settle_n
         bar = _progress(total, f"{self.port} move", self.progress if progress is None else progress)
         return self._stream(P.Run(settle_n, int(decimation)), rec, total, host_timeout, bar)
+
+    def _check_stable(self, gains, Ts):
+        """UnstableDesignError unless the sampled loop of ``gains`` on the rig's model is stable."""
+        from jerklab.controller import DiscreteGains, Gains, max_pole_radius
+
+        Ts = self._ts_us(Ts) * 1e-6
+        if isinstance(gains, Gains):
+            gains = gains.discretize(Ts)
+        if not isinstance(gains, DiscreteGains):
+            return                          # configure() names the bad type
+        K, tau = self.model
+        r = max_pole_radius(K, tau, gains)
+        if not r < 1.0:
+            raise UnstableDesignError(
+                f"{self.port}: refusing an unstable design: its sampled closed loop has a pole at "
+                f"|z| = {r:.4g} >= 1 ({_describe_design(gains)}; on the model K = {K:g} rad/(V s), "
+                f"tau = {tau:g} s, Ts = {gains.Ts:g} s). Choose a smaller wn, a shorter Ts or another "
+                f"design, or pass force=True to run it anyway (the safety stops will end it).")
 
     def step(self, voltage, seconds, Ts=0.005, *, rest=0.05, coast=None, max_voltage=None,
              host_timeout=1.0, path=None, progress=None) -> Recording:
@@ -620,6 +722,7 @@ class Rig:
         """
         count_off, index_off = offset
         lost = 0
+        received = 0
         next_index = 0
         hb_every = max(0.05, host_timeout / 4.0) if host_timeout > 0 else 0.5
         dropped0 = self._decoder.stats.dropped
@@ -650,10 +753,12 @@ class Rig:
                         if t.index > next_index:
                             lost += (t.index - next_index) // max(1, getattr(command, "decimation", 1))
                         next_index = t.index + getattr(command, "decimation", 1)
+                        received += 1
                         rec.append(t.index + index_off, t.reference, t.counts + count_off, t.pwm, t.flags)
                     elif f.type == P.MsgType.END_OF_RUN:
                         end = P.EndOfRun.unpack(f.payload)
                     elif f.type == P.MsgType.ERROR:
+                        self._check_busy(f)
                         e = P.DeviceError.unpack(f.payload)
                         rec.metadata.setdefault("device_errors", []).append([e.code, e.detail])
                     else:
@@ -676,13 +781,30 @@ class Rig:
                 pass
         except BaseException as exc:
             status, error = "failed", exc
+        if end is not None:
+            # every sample the device sent: k % decimation == 0, and the sample of a safety stop
+            dec = max(1, getattr(command, "decimation", 1))
+            expected = -(-end.samples // dec)
+            if end.reason in _FAULTS and end.samples and (end.samples - 1) % dec:
+                expected += 1
+            lost = max(lost, expected - received)
         stats = {"lost_samples": lost,
                  "host_dropped_frames": self._decoder.stats.dropped - dropped0}
         if end is not None:
             reason = P.EndReason(end.reason).name if end.reason in iter(P.EndReason) else str(end.reason)
             stats.update(end_reason=reason, device_samples=end.samples,
                          device_rx_errors=end.rx_errors, device_overruns=end.overruns)
-            status = "complete" if end.reason == P.EndReason.DONE else reason.lower()
+            if end.reason == P.EndReason.DONE:
+                status = "complete"
+            elif end.reason in _FAULTS:
+                status = _fault_status(end, rec.metadata)
+                stats["fault_detail"] = end.detail
+            else:
+                status = reason.lower()
+        if lost:
+            warnings.warn(f"{self.port}: {lost} telemetry samples were lost on the link (the host did not "
+                          f"read fast enough, or a noisy line); the recording's metadata says "
+                          f"lost_samples={lost}", RuntimeWarning, stacklevel=3)
         rec.finish(status, **stats, **({"error": str(error)} if error is not None else {}))
         bar.close(status)
         where = f"; the {len(rec)} samples received are saved in {rec.csv_path}" if rec.csv_path else ""
@@ -693,9 +815,49 @@ class Rig:
                 raise type(error)(f"{error}{where}") from error
             raise error
         if end.reason != P.EndReason.DONE:
-            raise RigRunError(f"{self.port}: run ended early on the device ({stats['end_reason']}) after "
-                              f"{end.samples} samples{where}")
+            what = status if status.startswith("fault") else stats["end_reason"]
+            raise RigRunError(f"{self.port}: run ended early on the device ({what}) after "
+                              f"{end.samples} samples{where}", status=status, recording=rec)
         return rec
+
+
+def _describe_design(gains) -> str:
+    """``"eq13 design, wn = 60, zeta = 1, loop position, kpd = ..."`` for messages."""
+    d = dict(getattr(gains, "design", None) or {})
+    parts = [f"{d.pop('method')} design" if "method" in d else "design"]
+    for key in ("wn", "zeta", "sigma"):
+        if key in d and isinstance(d[key], (int, float)):
+            parts.append(f"{key} = {d[key]:g}")
+    parts.append(f"{gains.loop} loop")
+    parts.append(f"kpd = {gains.kpd:.4g}, kid = {gains.kid:.4g}, kdd = {gains.kdd:.4g}")
+    if gains.gamma:
+        parts.append(f"gamma = {gains.gamma:.4g}")
+    return ", ".join(parts)
+
+
+def _fault_status(end, meta) -> str:
+    """The readable status of a run that ended on a safety stop (PROTOCOL.md "Safety stops")."""
+    Ts = meta.get("Ts") or 0.0
+    t = max(0, end.samples - 1) * Ts
+    limits = meta.get("limits") or {}
+    if end.reason == P.EndReason.TRACKING_ERROR:
+        lim = limits.get("max_error")
+        lim = f"{lim:.4g} rad" if isinstance(lim, (int, float)) else "the limit"
+        return f"fault: tracking error {abs(end.detail):.4g} rad > limit {lim} at t={t:.3f} s"
+    window = limits.get("runaway_time")
+    window = f"{window:g} s" if isinstance(window, (int, float)) else "the runaway window"
+    if end.reason == P.EndReason.RUNAWAY:
+        return (f"fault: runaway — encoder reversed? (the encoder counted {-end.detail:.0f} counts against "
+                f"a drive of at least half the clamp for {window}) at t={t:.3f} s")
+    if end.reason == P.EndReason.NO_MOTION:
+        return (f"fault: no motion — encoder disconnected or motor stalled? (no counts under a drive of at "
+                f"least half the clamp for {window}) at t={t:.3f} s")
+    if end.reason == P.EndReason.SATURATION:
+        sw = limits.get("saturation_time")
+        sw = f"{sw:g} s" if isinstance(sw, (int, float)) else "the saturation window"
+        return (f"fault: output saturated — unstable loop? (the output sat at the ±{limits.get('max_voltage', '?')} V "
+                f"clamp in most samples for {sw}) at t={t:.3f} s")
+    return f"fault: device fault at t={t:.3f} s"
 
 
 def _jsonable(d):

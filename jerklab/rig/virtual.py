@@ -13,6 +13,12 @@ with its PWM and encoder quantization.  It is a byte-in / byte-out object with a
   real time).  ``jerklab.rig.connect()`` uses it.
 * :mod:`jerklab.rig.server` — the same device behind a pseudo-terminal or a TCP port.
 
+The safety stops of PROTOCOL.md (tracking-error limit, runaway / no-motion window) follow
+the firmware's rules sample for sample; the reference is sampled in blocks of
+:attr:`VirtualDevice.REF_BLOCK` samples as the run goes, so memory does not grow with the
+plan (a plan of more than ``protocol.MAX_PLAN_SAMPLES`` samples is refused with NACK
+TOO_LONG, as on the firmware).
+
 Differences from the real board, on purpose: the control step takes no time (the
 Uno's ~0.75 ms computation delay is not modelled), the motor coasts to rest
 instantly between runs (the encoder is zeroed at each RUN anyway), and the
@@ -27,6 +33,9 @@ import time
 import numpy as np
 
 from jerklab import protocol as P
+from jerklab.law import SCALAR as _LAW
+
+_pwm_duty, _encoder_counts = _LAW["pwm_duty"], _LAW["encoder_counts"]
 
 __all__ = ["VirtualDevice", "VirtualSerial"]
 
@@ -95,9 +104,8 @@ class VirtualDevice:
         self.pwm = 0
         self.overruns = 0
         self.rejected = 0                    # good frames answered by NACK
-        # fault injection (tests of `jerklab rig check`): encoder_gain -1 = A and B swapped,
-        # 0 = encoder unplugged; supply_fraction < 1 = a weak supply giving that share of its volts
-        self.encoder_gain = 1
+        # fault injection (tests of `jerklab rig check`; the encoder's is encoder_sign):
+        # supply_fraction < 1 = a weak supply giving only that share of its volts
         self.supply_fraction = 1.0
         self.motor.step_state(self.x, 0.0, 1e-3)   # warm up (a compiled kernel) before the first run
         self.boot()
@@ -107,7 +115,9 @@ class VirtualDevice:
         """Power-on defaults of PROTOCOL.md ("Device state machine")."""
         self.plant = P.SetPlant(K=_f32(32.4), tau=_f32(0.025), supply_voltage=12.0, counts_per_rev=448)
         self.limits = P.SetLimits(max_jerk=2e4, max_accel=300.0, max_velocity=100.0,
-                                  max_voltage=12.0, host_timeout_ms=1000)
+                                  max_voltage=12.0, host_timeout_ms=1000,
+                                  max_error=P.DEFAULT_MAX_ERROR, runaway_ms=P.DEFAULT_RUNAWAY_MS,
+                                  saturation_ms=P.DEFAULT_SATURATION_MS)
         self.gains = None
         self.plan = None
         self.state = self.STATE_IDLE
@@ -131,12 +141,25 @@ class VirtualDevice:
     def rx_errors(self) -> int:
         return min(self._decoder.stats.dropped, 0xFFFF)
 
+    #: the encoder as wired: 1 as specified, -1 reversed (A and B swapped), 0 disconnected
+    #: (fault injection for the safety stops)
+    encoder_sign = 1
+
     def _raw_counts(self) -> int:
-        return int(math.floor(self.encoder_gain * float(self.x[0]) * self.motor.counts_per_rad + 1e-9))
+        return int(_encoder_counts(float(self.x[0]), self.motor.counts_per_rad))
+
+    def _counts(self) -> int:
+        return self.encoder_sign * self._raw_counts()
 
     # ------------------------------------------------------------------ bytes in / out
     #: a partial frame is abandoned after this much silence (s), as on the firmware
     RX_FRAME_TIMEOUT = 0.020
+
+    def poll(self) -> None:
+        """Call often while idle (the transports do): drops a partial frame after
+        :attr:`RX_FRAME_TIMEOUT` of silence and handles a frame found inside it, as the
+        firmware's main loop does."""
+        self._expire_partial(self.clock())
 
     def receive(self, data: bytes) -> None:
         """Bytes from the host (any chunking)."""
@@ -239,7 +262,8 @@ class VirtualDevice:
     def _cmd_SetLimits(self, m):
         checks = [_finite(m.max_jerk) and m.max_jerk > 0, _finite(m.max_accel) and m.max_accel > 0,
                   _finite(m.max_velocity) and m.max_velocity > 0,
-                  _finite(m.max_voltage) and 0 < m.max_voltage <= self.plant.supply_voltage, True]
+                  _finite(m.max_voltage) and 0 < m.max_voltage <= self.plant.supply_voltage, True,
+                  _finite(m.max_error) and m.max_error >= 0, True, True]
         bad = _first_false(checks)
         if bad is not None:
             return P.ErrorCode.BAD_VALUE, bad
@@ -263,9 +287,10 @@ class VirtualDevice:
         else:
             prof = fn(m.distance, L.max_jerk, L.max_accel, L.max_velocity)
         Ts = self.period
-        n = math.ceil(prof.duration / Ts - 1e-4) + 1
-        if n >= 2 ** 31:
-            return P.ErrorCode.BAD_VALUE, 0
+        x = prof.duration / Ts - 1e-4
+        if not math.isfinite(x) or x >= P.MAX_PLAN_SAMPLES:
+            return P.ErrorCode.TOO_LONG, 0
+        n = math.ceil(x) + 1
         pt = prof.phase_times
         if len(pt) == 3:
             accel_time, cruise = pt[0], pt[1]
@@ -290,12 +315,21 @@ class VirtualDevice:
         self._ctrl = DigitalController(dg, feedforward=ff, output_limit=self.limits.max_voltage,
                                        anti_windup=True)
         prof, n, _ = self.plan
+        self._profile = prof
         self._n_profile = n
         self._n_total = n + m.settle_samples
-        s = prof.sample(np.arange(self._n_total) * Ts)
-        self._ref = (np.asarray(s.position, float), np.asarray(s.velocity, float),
-                     np.asarray(s.accel, float))
+        self._ref_k0 = 0
+        self._ref = None                     # block of samples from _ref_k0 (see _reference)
         self._decimation = m.decimation
+        L = self.limits
+        self._max_error = float(L.max_error)
+        self._runaway_pwm = (self._pwm_top() + 1) // 2
+        self._runaway_n = (int(L.runaway_ms) * 1000 + g.Ts_us - 1) // g.Ts_us
+        self._run_sign = self._run_len = self._moved = 0
+        self._sat_n = (int(L.saturation_ms) * 1000 + g.Ts_us - 1) // g.Ts_us
+        self._sat_level = 0
+        self._last_pwm = 0
+        self._prev_counts = 0
         self._start(Ts)
         self.state = self.STATE_RUNNING
         return P.ErrorCode.OK, 0xFF
@@ -317,17 +351,56 @@ class VirtualDevice:
     def _start(self, Ts):
         self._Ts = Ts
         self._k = 0
-        self._count0 = self._raw_counts()
+        self._count0 = self._counts()
         self._prev_y = None
 
     # ------------------------------------------------------------------ control
+    #: reference samples computed at a time (memory per run is bounded by this, not the plan)
+    REF_BLOCK = 512
+
+    def _reference(self, k):
+        """Position, velocity, acceleration of the profile at t = k Ts (k counts up)."""
+        i = k - self._ref_k0
+        if self._ref is None or i >= len(self._ref[0]):
+            self._ref_k0 = k
+            n = min(self.REF_BLOCK, self._n_total - k)
+            s = self._profile.sample((k + np.arange(n)) * self._Ts)
+            self._ref = tuple(np.atleast_1d(np.asarray(v, float))
+                              for v in (s.position, s.velocity, s.accel))
+            i = 0
+        return self._ref[0][i], self._ref[1][i], self._ref[2][i]
+
+    def _pwm_top(self) -> int:
+        """lround(max_voltage * pwm_max / supply), at most pwm_max (PROTOCOL.md step 4)."""
+        top = int(math.floor(self.limits.max_voltage * self.pwm_max / self.plant.supply_voltage + 0.5))
+        return min(top, self.pwm_max)
+
     def _to_pwm(self, u: float) -> int:
-        p = self.plant
-        lim = int(round(self.limits.max_voltage * self.pwm_max / p.supply_voltage))
-        lim = min(lim, self.pwm_max)
-        pwm = int(math.floor(abs(u) * self.pwm_max / p.supply_voltage + 0.5))   # lround
-        pwm = min(pwm, lim)
-        return pwm if u >= 0 else -pwm
+        return int(_pwm_duty(u, self.plant.supply_voltage, self.pwm_max, self._pwm_top()))  # lround, clamp (jerklab.law)
+
+    def _check_safety(self, counts: int, pos_error: float):
+        """The safety stops of PROTOCOL.md at one run sample: ``(reason, detail)``, or
+        ``(None, 0.0)`` when the run goes on."""
+        if self._max_error > 0 and not abs(pos_error) <= self._max_error:
+            return P.EndReason.TRACKING_ERROR, pos_error
+        if self._runaway_n == 0:
+            return None, 0.0
+        lp = self._last_pwm
+        sign = 1 if lp >= self._runaway_pwm else (-1 if lp <= -self._runaway_pwm else 0)
+        if sign == 0:
+            self._run_sign = self._run_len = self._moved = 0
+            return None, 0.0
+        if sign != self._run_sign:
+            self._run_sign, self._run_len, self._moved = sign, 0, 0
+        self._moved += sign * (counts - self._prev_counts)
+        self._run_len += 1
+        if self._run_len < self._runaway_n:
+            return None, 0.0
+        moved = self._moved
+        self._run_len = self._moved = 0
+        if moved > 0:
+            return None, 0.0
+        return (P.EndReason.RUNAWAY if moved < 0 else P.EndReason.NO_MOTION), float(moved)
 
     def tick(self) -> None:
         """One control period: watchdog, sample, control, telemetry, then the motor moves."""
@@ -340,24 +413,44 @@ class VirtualDevice:
             self._end(P.EndReason.HOST_TIMEOUT)
             return
         k = self._k
-        counts = self._raw_counts() - self._count0
+        counts = self._counts() - self._count0
         flags = 0
+        fault = None
         if self.state == self.STATE_RUNNING:
             cpr = self.plant.counts_per_rev / (2.0 * math.pi)
             y = counts / cpr
-            rp, rv, ra = self._ref
-            u = self._ctrl.step(rp[k], rv[k], ra[k], y)
-            if self._ctrl.last_parts["saturated"]:
-                flags |= P.TELEMETRY_SATURATED
+            rp, rv, ra = self._reference(k)
             if k >= self._n_profile:
                 flags |= P.TELEMETRY_SETTLING
-            self.pwm = self._to_pwm(u)
-            ref = float(rp[k])
+            fault, detail = self._check_safety(counts, rp - y)
+            if fault is not None:
+                self.pwm = 0                 # stopped in this very sample
+                flags |= P.TELEMETRY_FAULT
+            else:
+                u = self._ctrl.step(rp, rv, ra, y)
+                if self._ctrl.last_parts["saturated"]:
+                    flags |= P.TELEMETRY_SATURATED
+                    self._sat_level += 1
+                elif self._sat_level:
+                    self._sat_level -= 1
+                if self._sat_n and self._sat_level >= self._sat_n:
+                    fault, detail = P.EndReason.SATURATION, 0.0      # PROTOCOL.md stop 3
+                    self.pwm = 0
+                    flags |= P.TELEMETRY_FAULT
+                else:
+                    self.pwm = self._to_pwm(u)
+            self._last_pwm = self.pwm
+            self._prev_counts = counts
+            ref = float(rp)
         else:
             self.pwm = self._step_pwm
             ref = 0.0
-        if k % self._decimation == 0:
+        if k % self._decimation == 0 or fault is not None:
             self._send(P.Telemetry(k, ref, counts, self.pwm, flags))
+        if fault is not None:
+            self._k = k + 1
+            self._end(fault, detail)
+            return
         volts = self.pwm / self.pwm_max * self.motor.supply_voltage * self.supply_fraction  # H-bridge
         self.x = self.motor.step_state(self.x, volts, self._Ts, t=self.t)
         self.t += self._Ts
@@ -366,10 +459,21 @@ class VirtualDevice:
             self.pwm = 0
             self._end(P.EndReason.DONE)
 
-    def _end(self, reason):
+    def host_gone(self) -> None:
+        """The host went away (a TCP client closed its socket): stop the motor, end an
+        active run, and forget the output and any partial frame of that host, so that
+        nothing of its run reaches the next client."""
+        if self.active:
+            self.pwm = 0
+            self._end(P.EndReason.STOPPED)
+        self._decoder.flush()
+        self._out.clear()
+
+    def _end(self, reason, detail=0.0):
         samples = self._k
         self.state = self.STATE_IDLE
-        self._send(P.EndOfRun(int(reason), samples, self.rx_errors, self.overruns))
+        self._ref = None
+        self._send(P.EndOfRun(int(reason), samples, self.rx_errors, self.overruns, float(detail)))
         # between runs the motor coasts to rest (PWM 0 for 1 s of model time)
         self.x = self.motor.step_state(self.x, 0.0, 1.0, t=self.t)
         self.t += 1.0
@@ -432,6 +536,7 @@ class VirtualSerial:
     @property
     def in_waiting(self) -> int:
         self._check()
+        self.device.poll()
         return self._limit(self.device.output_pending)
 
     def _limit(self, n):
@@ -464,10 +569,18 @@ class VirtualSerial:
         if not frozen:
             self._produce(deadline)
         n = self._limit(min(size, self.device.output_pending))
-        if n == 0:
-            time.sleep(max(0.0, deadline - time.monotonic()))      # a blocking read that times out
+        while n == 0:
+            # a blocking read: wait for output (a frame the device finds once a partial one
+            # expires) or the timeout
+            left = deadline - time.monotonic()
+            if left <= 0:
+                self._check()
+                return b""
+            time.sleep(min(left, 0.005))
             self._check()
-            return b""
+            if not frozen:
+                self.device.poll()
+            n = self._limit(min(size, self.device.output_pending))
         self._delivered += n
         return self.device.read_output(n)
 
