@@ -70,7 +70,7 @@ def test_wheel_has_every_module_and_the_student_files(dists):
     _, wheel, _ = dists
     names = set(zipfile.ZipFile(wheel).namelist())
     modules = {p.relative_to(ROOT).as_posix() for p in (ROOT / "jerklab").rglob("*.py")}
-    assert modules - names == set(), "pyproject.toml [tool.setuptools] packages misses these"
+    assert modules - names == set(), "the wheel misses these modules (setup.py packages)"
     for folder in ("notebooks", "data", "app"):
         shipped = {f"jerklab/_share/{p.relative_to(ROOT / folder).as_posix()}".replace(
             "jerklab/_share/", f"jerklab/_share/{folder}/", 1)
