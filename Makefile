@@ -12,7 +12,7 @@ PYTEST_ARGS ?=
 
 .PHONY: setup lab test app bench firmware clean
 
-$(STAMP): environment.txt pyproject.toml
+$(STAMP): environment.txt pyproject.toml setup.py
 	@$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 10), "jerklab needs Python 3.10 or newer, this is " + sys.version' 
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
