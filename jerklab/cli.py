@@ -67,10 +67,12 @@ def lab(argv=None) -> int:
     except ImportError:
         print(f"jerklab lab: {_LAB_HINT}", file=sys.stderr)
         return 1
-    try:
-        return subprocess.call(cmd)
-    except KeyboardInterrupt:
-        return 0
+    proc = subprocess.Popen(cmd)
+    while True:
+        try:
+            return proc.wait()
+        except KeyboardInterrupt:     # JupyterLab has the same Ctrl-C and asks before it stops
+            continue
 
 
 def app(argv=None) -> int:

@@ -69,7 +69,15 @@ def test_lab_default_folder_is_jerklab_home(tmp_path, monkeypatch):
 
 def test_lab_starts_jupyterlab_in_the_working_folder(tmp_path, monkeypatch):
     calls = []
-    monkeypatch.setattr(cli.subprocess, "call", lambda cmd: calls.append(cmd) or 0)
+
+    class FakePopen:
+        def __init__(self, cmd):
+            calls.append(cmd)
+
+        def wait(self):
+            return 0
+
+    monkeypatch.setattr(cli.subprocess, "Popen", FakePopen)
     assert cli.main(["lab", str(tmp_path), "--no-browser"]) == 0
     cmd = calls[0]
     assert cmd[:4] == [sys.executable, "-m", "jupyterlab", str(tmp_path)] and "--no-browser" in cmd
