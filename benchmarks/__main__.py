@@ -1,7 +1,8 @@
 """Run the benchmarks and keep a record; compare two records.
 
 ``python -m benchmarks [NAME ...]``
-    Run every ``benchmarks/bench_*.py`` (or those named), print their tables and write the
+    Run every ``benchmarks/bench_*.py`` (or those named; ``faults``, the fault probe, only
+    when named), print their tables and write the
     run as JSON to ``benchmarks/results/<UTC date>_<host>_<commit>.json``: the machine,
     Python and package versions, the date, the git commit of the jerklab that was
     imported, and every table (modules that print by hand are kept as text).
@@ -27,6 +28,8 @@ import sys
 from benchmarks import _record
 
 HERE = pathlib.Path(__file__).parent
+#: benchmarks run only when named (``python -m benchmarks faults``: the fault probe takes minutes)
+ON_REQUEST = {"bench_faults"}
 RESULTS = HERE / "results"
 
 
@@ -82,7 +85,7 @@ def _machine():
 
 
 def run(names, out=None, save=True):
-    names = names or sorted(p.stem for p in HERE.glob("bench_*.py"))
+    names = names or sorted(p.stem for p in HERE.glob("bench_*.py") if p.stem not in ON_REQUEST)
     import jerklab
 
     jl_root = pathlib.Path(jerklab.__file__).resolve().parent.parent

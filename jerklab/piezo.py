@@ -45,6 +45,9 @@ __all__ = [
     "energy_optimal_return", "with_return", "pole_placement_gains", "closed_loop",
 ]
 
+#: longest horizon (samples) a shaping problem is built for: a dense k x k problem beyond it
+MAX_HORIZON = 20_000
+
 #: Xu & Meckl Table I: the linear PZT dynamics of eq. 1 (frequencies in Hz); from jerklab.paper.
 TABLE_I = dict(_paper.PIEZO_TABLE_I)
 
@@ -119,7 +122,13 @@ class PZTModel:
     def zoh(self, Ts: float = TS) -> control.StateSpace:
         """Return the exact zero-order-hold model at ``Ts`` (Xu & Meckl eq. 3)."""
         Ts = as_positive("Ts", Ts)
-        return control.c2d(self.ss(), Ts, method="zoh")
+        try:
+            sysd = control.c2d(self.ss(), Ts, method="zoh")
+        except (np.linalg.LinAlgError, ValueError, OverflowError) as exc:
+            raise ValueError(f"Ts = {Ts!r} s cannot be discretized: {exc}") from None
+        if not np.all(np.isfinite(np.asarray(sysd.A))) or not np.all(np.isfinite(np.asarray(sysd.B))):
+            raise ValueError(f"Ts = {Ts!r} s is too long for this model: the ZOH matrices overflow")
+        return sysd
 
     def dc_gain(self) -> float:
         """Return G(0) = K ωz² / (ω1² ω2²) in µm/V (0.18759 for Table I)."""
@@ -150,10 +159,13 @@ class PZTModel:
         for m in modes:
             if m not in (1, 2):
                 raise ValueError(f"modes must contain only 1 or 2, got {m!r}")
-        new = replace(self, f_1=self.f_1 * (freq_scale if 1 in modes else 1.0),
-                      f_2=self.f_2 * (freq_scale if 2 in modes else 1.0))
-        if hold_dc_gain:
-            new = replace(new, K=new.K * self.dc_gain() / new.dc_gain())
+        try:
+            new = replace(self, f_1=self.f_1 * (freq_scale if 1 in modes else 1.0),
+                          f_2=self.f_2 * (freq_scale if 2 in modes else 1.0))
+            if hold_dc_gain:
+                new = replace(new, K=new.K * self.dc_gain() / new.dc_gain())
+        except (ZeroDivisionError, OverflowError, ValueError) as exc:
+            raise ValueError(f"freq_scale = {freq_scale!r} gives no usable model ({exc})") from None
         return new
 
 
@@ -178,8 +190,10 @@ def simulate(model: PZTModel, u, Ts: float = TS) -> np.ndarray:
     The exact ZOH pulse transfer function of ``model.zoh(Ts)`` run by ``scipy.signal.lfilter``
     (tests compare it with ``control.forced_response``).
     """
+    if not isinstance(model, PZTModel):
+        raise TypeError(f"model must be a PZTModel, got {type(model).__name__}")
     u = as_finite_array("u", u, ndim=1)
-    A, B, C, D = _discrete(model, Ts)
+    A, B, C, D = _discrete(model, as_positive("Ts", Ts))
     den = np.real(np.poly(A))
     num = np.real(np.poly(A - np.outer(B, C))) - den + D * den    # C (zI − A)^-1 B + D
     return lfilter(num, den, u)
@@ -635,6 +649,8 @@ def shape_rampup(model: PZTModel | None = None, spec: ScanSpec | None = None, or
     spec = spec or ScanSpec()
     orders = _normalize_orders(orders or 0)
     max_samples = as_int("max_samples", max_samples, minimum=1)
+    if max_samples > MAX_HORIZON:
+        raise ValueError(f"max_samples must be <= MAX_HORIZON = {MAX_HORIZON}, got {max_samples}")
     _check_solver(solver)
     if scan_start is not None:
         scan_start = as_real("scan_start", scan_start)
@@ -666,6 +682,8 @@ def shape_return(b: float, model: PZTModel | None = None, spec: ScanSpec | None 
     b = as_real("b", b)
     orders = _normalize_orders(orders or 0)
     max_samples = as_int("max_samples", max_samples, minimum=1)
+    if max_samples > MAX_HORIZON:
+        raise ValueError(f"max_samples must be <= MAX_HORIZON = {MAX_HORIZON}, got {max_samples}")
     _check_solver(solver)
     poles = model.mode_poles(spec.Ts)
     w, _, _ = _ramp_constants(model, spec)
@@ -1004,6 +1022,8 @@ def energy_optimal_return(b: float, k_r: int, model: PZTModel | None = None,
     spec = spec or ScanSpec()
     b = as_real("b", b)
     k_r = as_int("k_r", k_r, minimum=1)
+    if k_r > MAX_HORIZON:
+        raise ValueError(f"k_r must be <= MAX_HORIZON = {MAX_HORIZON} samples, got {k_r}")
     orders = _normalize_orders(orders)
     if objective not in ("input", "increment"):
         raise ValueError(f"objective must be 'input' or 'increment', got {objective!r}")
@@ -1087,11 +1107,16 @@ def pole_placement_gains(model: PZTModel | None = None, Ts: float = TS, mode1_da
     s = (_s_poles(mode1_damping, model.f_1) + _s_poles(model.zeta_2, model.f_2)
          + [-2 * math.pi * integral_frequency])
     zp = np.exp(np.array(s) * Ts)
-    Ka = np.asarray(control.place(Aa, Ba, zp)).ravel()
     so = (_s_poles(observer_damping, observer_speedup * model.f_1)
           + _s_poles(observer_damping, observer_speedup * model.f_2))
     zo = np.exp(np.array(so) * Ts)
-    L = np.asarray(control.place(A.T, C[:, None], zo)).ravel()
+    try:
+        Ka = np.asarray(control.place(Aa, Ba, zp)).ravel()
+        L = np.asarray(control.place(A.T, C[:, None], zo)).ravel()
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        raise ValueError(f"no pole placement for Ts = {Ts!r} s, integral_frequency = {integral_frequency!r} Hz, "
+                         f"observer_speedup = {observer_speedup!r}: the requested discrete poles "
+                         f"coincide or underflow ({exc})") from None
     return FeedbackGains(K=Ka[:n], k_i=float(Ka[n]), L=L, poles=zp, observer_poles=zo, Ts=Ts)
 
 

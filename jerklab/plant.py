@@ -155,17 +155,23 @@ def quantize_voltage(u, supply_voltage=None, pwm_bits=None):
     by the direction pins; the duty is rounded half away from zero (C ``lround``, as the
     firmware). ``None`` switches the effect off.
     """
-    u = np.asarray(u, dtype=float)
+    u = as_finite_array("u", u)
     if supply_voltage is None:
         return u
+    supply_voltage = as_positive("supply_voltage", supply_voltage)
+    if pwm_bits is not None:
+        pwm_bits = as_int("pwm_bits", pwm_bits, minimum=1)
+        if pwm_bits > 32:
+            raise ValueError(f"pwm_bits must be <= 32, got {pwm_bits}")
     return voltage_vec(u, supply_voltage, 0.0 if pwm_bits is None else float(2 ** pwm_bits - 1))
 
 
 def measure_angle(theta, counts_per_rad=None):
     """Encoder quantization: the counter holds ``floor(theta * counts_per_rad)``."""
-    theta = np.asarray(theta, dtype=float)
+    theta = as_finite_array("theta", theta)
     if counts_per_rad is None:
         return theta
+    counts_per_rad = as_positive("counts_per_rad", counts_per_rad)
     return encoder_vec(theta, counts_per_rad)
 
 
@@ -388,7 +394,11 @@ class DCMotor(_MotorBase):
 
     def discrete_tf(self, Ts):
         """ZOH-discretized P(z) as a python-control transfer function (dt = Ts)."""
-        return ct.c2d(self.tf(), as_positive("Ts", Ts), "zoh")
+        Ts = as_positive("Ts", Ts)
+        try:
+            return ct.c2d(self.tf(), Ts, "zoh")
+        except (np.linalg.LinAlgError, ValueError, OverflowError) as exc:
+            raise ValueError(f"Ts = {Ts!r} s cannot be discretized for tau = {self.tau!r} s: {exc}") from None
 
     # --- exact simulation --------------------------------------------------
     def initial_state(self, x0=None):
@@ -412,6 +422,8 @@ class DCMotor(_MotorBase):
         part, analytic zero-crossing event and sticking for Coulomb friction.
         """
         x = as_finite_array("x", x, ndim=1)
+        if x.shape != (2,):
+            raise ValueError(f"x must be [theta, omega], got shape {x.shape}")
         u = as_real("u", u)
         dt = as_nonnegative("dt", dt)
         t = as_real("t", t)
@@ -528,6 +540,9 @@ class FlexibleDCMotor(_MotorBase):
             M[:4, :4] = A * Ts
             M[:4, 4:] = B * Ts
             E = scipy.linalg.expm(M)
+            if not np.all(np.isfinite(E)):
+                raise ValueError(f"Ts = {Ts!r} s is too long for this model: the matrix exponential "
+                                 f"overflows")
             self._zoh_cache[Ts] = (E[:4, :4], E[:4, 4:])
         return self._zoh_cache[Ts]
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from jerklab import protocol as P
 from jerklab._validate import as_nonnegative, as_positive, as_real
-from jerklab.rig.recording import Recording, recordings_dir
+from jerklab.rig.recording import Recording, RecordingIOError, recordings_dir
 
 __all__ = ["Rig", "RigError", "RigConnectionError", "RigTimeoutError", "RigCommandError",
            "RigRunError", "RigBusyError", "UnstableDesignError", "UnknownPortError"]
@@ -432,9 +432,11 @@ class Rig:
     # ---------------------------------------------------------------- configuration
     def _ts_us(self, Ts):
         Ts = as_positive("Ts", Ts)
-        us = int(round(Ts * 1e6))
         tick = self.info.tick_us or 1
-        if abs(us - Ts * 1e6) > 1e-3 or us % tick or us > 65000:
+        if Ts > 0.065:
+            raise ValueError(f"Ts must be at most 65 ms (a multiple of the device tick {tick} µs), got {Ts!r} s")
+        us = int(round(Ts * 1e6))
+        if abs(us - Ts * 1e6) > 1e-3 or us % tick or us < tick:
             raise ValueError(f"Ts must be a multiple of the device tick {tick} µs and at most 65 ms, "
                              f"got {Ts!r} s")
         return us
@@ -599,7 +601,8 @@ class Rig:
         if distance == 0.0:
             raise ValueError("profile.distance must be nonzero for a rig move")
         settle = as_nonnegative("settle", settle)
-        if int(decimation) != decimation or not 1 <= decimation <= 255:
+        if (isinstance(decimation, bool) or not isinstance(decimation, (int, float)) or not math.isfinite(decimation)
+                or int(decimation) != decimation or not 1 <= decimation <= 255):
             raise ValueError(f"decimation must be an integer in 1..255, got {decimation!r}")
         limits = (profile.max_jerk if profile.max_jerk is not None else _F32_MAX,
                   profile.max_accel, profile.max_velocity)
@@ -668,7 +671,7 @@ class Rig:
         vmax = self.supply_voltage if max_voltage is None else as_positive("max_voltage", max_voltage)
         if abs(voltage) > vmax:
             raise ValueError(f"voltage must be within ±max_voltage = ±{vmax} V, got {voltage}")
-        n = int(math.ceil(seconds / Ts - 1e-9))
+        n = max(1, int(math.ceil(seconds / Ts - 1e-9)))
         if n > 0xFFFF:
             raise ValueError(f"seconds must be <= {0xFFFF * Ts:g} s at Ts = {Ts} s, got {seconds}")
         n_rest = int(math.ceil(as_nonnegative("rest", rest) / Ts - 1e-9))
@@ -775,12 +778,13 @@ class Rig:
             status, error = "refused", exc
         except KeyboardInterrupt as exc:
             status, error = "interrupted", exc
-            try:
-                self._write(P.Stop())
-            except RigError:
-                pass
+        except RecordingIOError as exc:
+            status, error = f"error: {exc}", exc
         except BaseException as exc:
-            status, error = "failed", exc
+            status, error = f"error: {type(exc).__name__}: {exc}", exc
+        stopped = None
+        if error is not None and not isinstance(error, (RigConnectionError, RigTimeoutError)):
+            stopped = self._stop_after_error(isinstance(error, KeyboardInterrupt))
         if end is not None:
             # every sample the device sent: k % decimation == 0, and the sample of a safety stop
             dec = max(1, getattr(command, "decimation", 1))
@@ -794,31 +798,62 @@ class Rig:
             reason = P.EndReason(end.reason).name if end.reason in iter(P.EndReason) else str(end.reason)
             stats.update(end_reason=reason, device_samples=end.samples,
                          device_rx_errors=end.rx_errors, device_overruns=end.overruns)
-            if end.reason == P.EndReason.DONE:
+            if error is not None:
+                pass                                    # the host-side error is the status
+            elif end.reason == P.EndReason.DONE:
                 status = "complete"
             elif end.reason in _FAULTS:
                 status = _fault_status(end, rec.metadata)
                 stats["fault_detail"] = end.detail
             else:
                 status = reason.lower()
+        if stopped is not None:
+            stats["rig_stopped"] = stopped
         if lost:
             warnings.warn(f"{self.port}: {lost} telemetry samples were lost on the link (the host did not "
                           f"read fast enough, or a noisy line); the recording's metadata says "
                           f"lost_samples={lost}", RuntimeWarning, stacklevel=3)
-        rec.finish(status, **stats, **({"error": str(error)} if error is not None else {}))
-        bar.close(status)
+        try:
+            rec.finish(status, **stats, **({"error": str(error)} if error is not None else {}))
+        except RecordingIOError as exc:
+            if error is None:
+                error = exc
+                if stopped is None and end is None:
+                    stopped = self._stop_after_error(False)
+        bar.close(status if not status.startswith("error") else "error")
         where = f"; the {len(rec)} samples received are saved in {rec.csv_path}" if rec.csv_path else ""
         if error is not None:
             if isinstance(error, KeyboardInterrupt):
                 raise error
             if isinstance(error, RigError):
                 raise type(error)(f"{error}{where}") from error
+            if isinstance(error, RecordingIOError):
+                note = ("the rig was stopped" if stopped else
+                        "the rig did not confirm the STOP: call rig.stop()" if stopped is False else
+                        "the run had ended on the rig")
+                err = RecordingIOError(error.errno, f"{error}; all {len(rec)} samples received are in "
+                                                    f"memory (the exception's .recording); {note}",
+                                       error.filename, error.samples_saved)
+                err.recording = rec
+                raise err from error
             raise error
         if end.reason != P.EndReason.DONE:
             what = status if status.startswith("fault") else stats["end_reason"]
             raise RigRunError(f"{self.port}: run ended early on the device ({what}) after "
                               f"{end.samples} samples{where}", status=status, recording=rec)
         return rec
+
+    def _stop_after_error(self, interrupted: bool):
+        """Send STOP after a run was abandoned on the host (write error, Ctrl-C, a bug), so that
+        the device does not stay BUSY; True if the device acknowledged it."""
+        try:
+            if interrupted:
+                self._write(P.Stop())                 # Ctrl-C: do not wait
+                return None
+            self._request(P.Stop(), timeout=min(self.timeout, 1.0))
+            return True
+        except (RigError, OSError):
+            return False
 
 
 def _describe_design(gains) -> str:
