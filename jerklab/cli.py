@@ -38,7 +38,11 @@ def lab(argv=None) -> int:
                     help="open FOLDER as it is, copy nothing (developers: make lab opens notebooks/)")
     ap.add_argument("--copy-only", action="store_true", help="copy the files, do not start JupyterLab")
     ap.add_argument("--no-browser", action="store_true", help="do not open a web browser")
-    args, extra = ap.parse_known_args(argv)
+    ap.add_argument("--port", type=int, default=None, help="JupyterLab's port (default 8888 or the next free)")
+    ap.epilog = "Other JupyterLab options after --, e.g. jerklab lab -- --ServerApp.ip=0.0.0.0"
+    argv = list(sys.argv[1:] if argv is None else argv)
+    cut = argv.index("--") if "--" in argv else len(argv)
+    args, extra = ap.parse_args(argv[:cut]), argv[cut + 1:]
     work = Path(args.folder).expanduser() if args.folder else default_work_dir()
     if not args.no_copy:
         copied, kept = copy_missing(work)
@@ -56,6 +60,8 @@ def lab(argv=None) -> int:
     cmd = [sys.executable, "-m", "jupyterlab", str(work)]
     if args.no_browser:
         cmd.append("--no-browser")
+    if args.port is not None:
+        cmd.append(f"--port={args.port}")
     if getattr(os, "geteuid", lambda: 1)() == 0:       # root in a container (POSIX only)
         cmd.append("--allow-root")
     cmd += extra

@@ -78,9 +78,12 @@ def test_lab_starts_jupyterlab_in_the_working_folder(tmp_path, monkeypatch):
             return 0
 
     monkeypatch.setattr(cli.subprocess, "Popen", FakePopen)
-    assert cli.main(["lab", str(tmp_path), "--no-browser"]) == 0
+    assert cli.main(["lab", str(tmp_path), "--no-browser", "--port", "8999", "--", "--ServerApp.ip=::1"]) == 0
     cmd = calls[0]
-    assert cmd[:4] == [sys.executable, "-m", "jupyterlab", str(tmp_path)] and "--no-browser" in cmd
+    assert cmd[:4] == [sys.executable, "-m", "jupyterlab", str(tmp_path)]
+    assert "--no-browser" in cmd and "--port=8999" in cmd and cmd[-1] == "--ServerApp.ip=::1"
+    with pytest.raises(SystemExit):
+        cli.main(["lab", str(tmp_path), "--prot", "8999"])              # a typo is an error, not a folder
     # developers: make lab opens the repository's notebooks/ as they are, nothing copied
     before = sorted((ROOT / "notebooks").rglob("*"))
     assert cli.main(["lab", "--no-copy", str(ROOT / "notebooks")]) == 0

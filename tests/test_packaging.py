@@ -93,6 +93,42 @@ def test_lab_extra_has_no_test_tools(dists):
     assert meta["Name"] == "jerklab" and "jerklab" in meta.get_payload()[:2000]   # README as description
 
 
+def test_lab_extra_pulls_no_test_tools_transitively(dists):
+    """The whole dependency tree of jerklab[lab], resolved on this environment's installed
+    distributions, has no test tool and no browser driver (otter-grader would bring Playwright)."""
+    from importlib import metadata
+
+    from packaging.requirements import Requirement
+
+    _, wheel, _ = dists
+    with zipfile.ZipFile(wheel) as z:
+        meta_name, = [n for n in z.namelist() if n.endswith(".dist-info/METADATA")]
+        reqs = Parser().parsestr(z.read(meta_name).decode()).get_all("Requires-Dist")
+    todo = [(Requirement(r), "lab") for r in reqs]
+    seen, missing = {}, []
+    while todo:
+        req, extra = todo.pop()
+        if req.marker is not None and not req.marker.evaluate({"extra": extra}):
+            continue
+        name = req.name.lower().replace("_", "-")
+        key = (name, tuple(sorted(req.extras)))
+        if key in seen:
+            continue
+        seen[key] = True
+        try:
+            dist = metadata.distribution(name)
+        except metadata.PackageNotFoundError:
+            missing.append(name)
+            continue
+        for r in dist.requires or []:
+            sub = Requirement(r)
+            for e in (req.extras or {""}):
+                todo.append((sub, e))
+    names = {n for n, _ in seen}
+    assert names & DEV_ONLY == set(), sorted(names & DEV_ONLY)
+    assert {"jupyterlab", "voila", "numpy"} <= names and not missing, missing
+
+
 def test_student_path_in_a_fresh_environment(dists):
     tmp, wheel, _ = dists
     venv = tmp / "venv"
