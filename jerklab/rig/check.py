@@ -8,7 +8,7 @@ Open-loop only (no gains are sent): a short pulse each way, then two slow steady
    reversed"), and the two directions must differ (else the L298 IN1/IN2 wiring);
 4. **counts per revolution**: the steady speed per volt (the slope between two voltages, so
    friction drops out) with the configured counts per revolution, against the motor's K
-   (Stojčić eq. 1, ω = K·u at rest of the transient); a factor of 2 or 4 is the encoder's
+   (Stojčić eq. 1, ASCII Stojcic eq. 1: ω = K·u at rest of the transient); a factor of 2 or 4 is the encoder's
    decoding (X1/X2/X4) or a wrong ``counts_per_rev``;
 5. **supply**: any other speed-per-volt outside the expected K range (a weak or wrong supply).
 
@@ -26,6 +26,8 @@ import sys
 from dataclasses import dataclass
 
 import numpy as np
+
+from jerklab import paper
 
 __all__ = ["Finding", "check_rig", "format_report", "main"]
 
@@ -109,7 +111,7 @@ def check_rig(rig, *, K=None, tolerance=1.5, voltage=None, seconds=0.6, min_coun
         return found
 
     def step(v, secs):
-        return _speed(rig.step(v, secs, Ts=0.005, rest=0.0, path=False, progress=False))
+        return _speed(rig.step(v, secs, Ts=paper.TS, rest=0.0, path=False, progress=False))
 
     # 2./3. a short pulse each way
     _, up = step(+V1, 0.2)
@@ -186,10 +188,14 @@ def main(argv=None, prog="python -m jerklab.rig check") -> int:
                                  epilog="\n".join(__doc__.split("\n")[2:]),
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("port", help="COM3, /dev/ttyACM0, socket://host:port, 'simavr' or 'virtual'")
-    ap.add_argument("--cpr", type=int, default=448, help="encoder counts per revolution (default 448)")
-    ap.add_argument("--supply", type=float, default=12.0, help="H-bridge supply, V (default 12)")
-    ap.add_argument("--K", type=float, default=32.4, help="expected motor gain, rad/(V s) (default 32.4)")
-    ap.add_argument("--tau", type=float, default=0.025, help="motor time constant, s (default 0.025)")
+    cpr = paper.ENCODER_PPR * paper.ENCODER_DECODING
+    ap.add_argument("--cpr", type=int, default=cpr, help=f"encoder counts per revolution (default {cpr})")
+    ap.add_argument("--supply", type=float, default=paper.SUPPLY_VOLTAGE,
+                    help=f"H-bridge supply, V (default {paper.SUPPLY_VOLTAGE:g})")
+    ap.add_argument("--K", type=float, default=paper.MOTOR_K,
+                    help=f"expected motor gain, rad/(V s) (default {paper.MOTOR_K:g})")
+    ap.add_argument("--tau", type=float, default=paper.MOTOR_TAU,
+                    help=f"motor time constant, s (default {paper.MOTOR_TAU:g})")
     ap.add_argument("--tolerance", type=float, default=1.5, help="K may be off by this factor (1.5)")
     ap.add_argument("--voltage", type=float, default=None, help="test voltage, V (default supply/4)")
     args = ap.parse_args(argv)
