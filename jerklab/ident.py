@@ -2137,6 +2137,24 @@ def sample_time_range(tau):
     return tau / 5.0, tau / 2.0
 
 
+#: the longest input record :func:`step_input` and :func:`prbs` build (samples): 10⁷ samples are
+#: 14 h at Ts = 5 ms and 80 MB of float64; a longer request is refused up front
+MAX_INPUT_SAMPLES = 10_000_000
+
+
+def _input_samples(duration, Ts):
+    """``round(duration / Ts)``, refused (naming duration and Ts) outside 2 … MAX_INPUT_SAMPLES."""
+    ratio = duration / Ts
+    if not ratio < MAX_INPUT_SAMPLES + 0.5:
+        raise ValueError(f"duration / Ts = {duration:g} s / {Ts:g} s is more than MAX_INPUT_SAMPLES = "
+                         f"{MAX_INPUT_SAMPLES} samples; choose a shorter duration or a longer Ts")
+    n = int(round(ratio))
+    if n < 2:
+        raise ValueError(f"duration must be at least 2 samples of Ts ({2 * Ts:g} s), got duration={duration:g} s "
+                         f"with Ts={Ts:g} s")
+    return n
+
+
 def step_input(duration, Ts, amplitude, t_step=0.05, offset=0.0) -> np.ndarray:
     """A voltage step: ``offset`` until ``t_step``, then ``offset + amplitude`` (V per sample).
 
@@ -2148,9 +2166,7 @@ def step_input(duration, Ts, amplitude, t_step=0.05, offset=0.0) -> np.ndarray:
     amplitude = as_real("amplitude", amplitude)
     t_step = as_nonnegative("t_step", t_step)
     offset = as_real("offset", offset)
-    n = int(round(duration / Ts))
-    if n < 2:
-        raise ValueError(f"duration must be at least 2 samples ({2 * Ts:g} s), got {duration:g} s")
+    n = _input_samples(duration, Ts)
     if t_step >= duration:
         raise ValueError(f"t_step must be < duration ({duration:g} s), got {t_step:g} s")
     u = np.full(n, offset)
@@ -2183,13 +2199,13 @@ def prbs(duration, Ts, amplitude, offset=0.0, clock_period=None, nbits=None, see
     amplitude = as_positive("amplitude", amplitude)
     offset = as_real("offset", offset)
     seed = as_int("seed", seed, minimum=0)
-    n = int(round(duration / Ts))
-    if n < 2:
-        raise ValueError(f"duration must be at least 2 samples ({2 * Ts:g} s), got {duration:g} s")
+    n = _input_samples(duration, Ts)
     if clock_period is None:
         hold = 1
     else:
         clock_period = as_positive("clock_period", clock_period)
+        if clock_period > duration:
+            raise ValueError(f"clock_period must be <= duration ({duration:g} s), got {clock_period:g} s")
         hold = int(round(clock_period / Ts))
         if hold < 1 or abs(hold * Ts - clock_period) > 1e-6 * clock_period:
             raise ValueError(f"clock_period must be a whole multiple of Ts = {Ts:g} s, got {clock_period:g} s")
