@@ -576,9 +576,18 @@ def _targets() -> list[Target]:
                      Param("clock_period", P, ok=("None",))]))
     T.append(Target("ident", "fit_percent", ID.fit_percent, dict(y=[1.0, 2.0, 3.0], y_hat=[1.0, 2.1, 2.9]),
                     [Param("y", A), Param("y_hat", A)]))
+    def _resid_check(r, kw):
+        # documented: without u, cross_bound is NaN (no independence test, crosscorr None)
+        fields = {f.name: getattr(r, f.name) for f in dataclasses.fields(r)}
+        if r.crosscorr is None:
+            fields.pop("cross_bound")
+        bad = _nonfinite(fields)
+        return f"result has {bad}" if bad else None
+
     T.append(Target("ident", "residual_analysis", ID.residual_analysis,
                     dict(residuals=np.sin(np.arange(100.0))),
-                    [Param("residuals", A), Param("max_lag", I1), Param("confidence", P)]))
+                    [Param("residuals", A), Param("max_lag", I1), Param("confidence", P)],
+                    check=_resid_check, allow_nonfinite=True))
     T.append(Target("ident", "sample_time_range", ID.sample_time_range, dict(tau=0.025), [Param("tau", P)]))
 
     # -- widgets

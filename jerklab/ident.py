@@ -801,6 +801,11 @@ def _fit_pem(u, theta, Ts, fit_theta0, friction=False):
     return K, tau, cov, th0, sol.nfev, math.sqrt(s2), fc, fc_std, sim(p)
 
 
+#: the sample periods :func:`fit_dc_motor` accepts (s): 1 ns … 1000 s. The fit scales with Ts, and far
+#: outside this range its covariance under/overflows to NaN/inf (Ts = 1e-300 gives K_std = NaN)
+FIT_TS_RANGE = (1e-9, 1e3)
+
+
 def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
                  friction: bool = False, offset: bool = False, delay=0, dead_zone: bool = False,
                  segment=None, max_delay: int = 10, cutoff=None) -> MotorFit:
@@ -877,7 +882,7 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
     ------
     ValueError
         NaN/inf in ``u`` or ``theta``, mismatched lengths, fewer than 10 samples, constant ``u``
-        or ``theta``, a non-positive ``Ts``, an unknown ``method`` or option, or data from which
+        or ``theta``, a ``Ts`` outside ``FIT_TS_RANGE``, an unknown ``method`` or option, or data from which
         the ARX pole falls outside (0, 1).
 
     References
@@ -901,6 +906,10 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
         delay = as_int("delay", delay, minimum=0)
     max_delay = as_int("max_delay", max_delay, minimum=0)
     Ts = as_positive("Ts", Ts)
+    if not FIT_TS_RANGE[0] <= Ts <= FIT_TS_RANGE[1]:
+        # the fit scales with Ts (tau ~ Ts); far outside this range its covariance under/overflows
+        raise ValueError(f"Ts must lie within {FIT_TS_RANGE[0]:g} … {FIT_TS_RANGE[1]:g} s (FIT_TS_RANGE: the "
+                         f"sample period of a motor record), got {Ts:g}")
     exps = _as_experiments(u, theta)
     for i, (uu, tt) in enumerate(exps):
         suffix = "" if len(exps) == 1 else f"[{i}]"
@@ -1587,6 +1596,8 @@ class ResidualAnalysis:
     zeta = N r^T R_u^+ r ~ chi2(rank R_u) (Ljung §16.6), each passed when its p-value exceeds
     1 - ``confidence``. Checked by simulation on white residuals: the whiteness test holds its level,
     the cross-correlation test is slightly conservative (about 3 % rejections at a nominal 5 %).
+    Without an input (``residual_analysis(e)``) there is no independence test: ``crosscorr`` and
+    ``independent`` are None and ``cross_bound`` is NaN.
     """
 
     lags: np.ndarray

@@ -528,3 +528,15 @@ def test_probe2_ident_inputs_refuse_huge_records_up_front():
     with pytest.raises(ValueError, match="clock_period"):           # was OverflowError / MemoryError
         _within(10, lambda: I.prbs(1.0, 0.005, 6.0, clock_period=1e300))
     assert I.step_input(1.0, 0.005, 6.0).size == 200
+
+
+def test_probe2_fit_dc_motor_refuses_a_sample_period_it_cannot_represent():
+    from jerklab import ident as I
+
+    u = np.r_[np.zeros(10), 6.0 * np.ones(200)]
+    th = I.simulate_dc_motor(32.4, 0.025, 0.005, u)[:u.size]
+    for Ts in (1e-300, 1e300):                      # were K_std = NaN / tau_std = inf, no warning
+        with pytest.raises(ValueError, match="Ts"):
+            I.fit_dc_motor(u, th, Ts)
+    f = I.fit_dc_motor(u, th, 0.005)                # the exact simulation is fitted back
+    assert f.K == pytest.approx(32.4, rel=1e-6) and f.tau == pytest.approx(0.025, rel=1e-6)
