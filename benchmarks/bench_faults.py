@@ -593,9 +593,20 @@ def _targets() -> list[Target]:
     # -- widgets
     from jerklab import widgets as W
 
+    def _tuning_check(r, kw):
+        # documented: the responses of a loop reported UNSTABLE grow without bound and may overflow
+        # (level and message say so, the plots clip them); anything else must be finite
+        fields = {f.name: getattr(r, f.name) for f in dataclasses.fields(r)}
+        if r.level == "unstable" and not r.stable:
+            for k in ("y_step", "y_dist", "err_move", "u_move"):
+                fields.pop(k)
+        bad = _nonfinite(fields)
+        return f"result has {bad}" if bad else None
+
     T.append(Target("widgets", "compute_pole_placement", lambda **kw: W.compute_pole_placement(
         simulate_move=False, **kw), dict(), [Param("K", P), Param("tau", P), Param("zeta", P), Param("wn", P),
-                                             Param("sigma_ratio", P), Param("Ts", P), Param("design", S)]))
+                                             Param("sigma_ratio", P), Param("Ts", P), Param("design", S)],
+        check=_tuning_check, allow_nonfinite=True))
     T.append(Target("widgets", "stability_verdict", W.stability_verdict, dict(max_radius=0.9, desired_radius=0.9),
                     [Param("max_radius", N), Param("desired_radius", N)]))
 

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from jerklab._validate import as_positive, as_real
+from jerklab._validate import as_nonnegative, as_positive
 
 __all__ = [
     "DESIGNS",
@@ -99,7 +99,8 @@ class TuningResult:
         Unit step response reference -> position of the sampled loop (no feedforward).
     t_dist, y_dist : ndarray
         Position (rad) after a step load disturbance of ``DISTURBANCE_VOLTS`` at the plant input.
-        Both responses run to 3 × ``t_view``.
+        Both responses run to 3 × ``t_view``. For a loop with ``level == "unstable"`` they grow
+        without bound and may overflow to inf/NaN (the plots clip them).
     t_move, err_move, u_move : ndarray
         Tracking error (rad) and voltage (V) of the sine-jerk move simulated by
         :func:`jerklab.sim.simulate` (feedforward + PID, 10-bit PWM, 12 V, 448-line encoder).
@@ -152,8 +153,8 @@ def stability_verdict(max_radius, desired_radius, Ts=None, sigma=None):
         asked for (a slow design is not flagged just because its poles are slow).
     message : str
     """
-    r = as_real("max_radius", max_radius)
-    rd = as_real("desired_radius", desired_radius)
+    r = as_nonnegative("max_radius", max_radius)          # |z| of a pole: never negative
+    rd = as_nonnegative("desired_radius", desired_radius)
     extra = ""
     if Ts is not None and sigma is not None:
         extra = f" (σ·Ts = {sigma * Ts:.2f})"

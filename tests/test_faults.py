@@ -540,3 +540,21 @@ def test_probe2_fit_dc_motor_refuses_a_sample_period_it_cannot_represent():
             I.fit_dc_motor(u, th, Ts)
     f = I.fit_dc_motor(u, th, 0.005)                # the exact simulation is fitted back
     assert f.K == pytest.approx(32.4, rel=1e-6) and f.tau == pytest.approx(0.025, rel=1e-6)
+
+
+def test_probe2_widgets_and_connect_refuse_impossible_values():
+    from jerklab import rig as RG
+    from jerklab import widgets as W
+
+    for name in ("max_radius", "desired_radius"):       # |z| < 0 was classified as a verdict
+        kw = dict(max_radius=0.9, desired_radius=0.9)
+        kw[name] = -1.0
+        with pytest.raises(ValueError, match=name):
+            W.stability_verdict(**kw)
+    with pytest.raises(ValueError, match="Ts"):         # was numpy LinAlgError
+        W.compute_pole_placement(Ts=1e300, simulate_move=False)
+    with pytest.raises(ValueError, match="hello_timeout"):   # 0 silently meant the default
+        RG.connect(None, hello_timeout=0, progress=False)
+    with pytest.raises(ValueError, match="timeout"):    # was RigTimeoutError "no reply within 1e-300 s"
+        RG.connect(None, timeout=1e-300, progress=False)
+    RG.connect(None, timeout=RG.MIN_TIMEOUT * 100, hello_timeout=1.0, progress=False).close()

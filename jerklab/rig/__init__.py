@@ -20,6 +20,7 @@ import importlib
 
 import os
 
+from jerklab._validate import as_positive
 from jerklab.rig.client import (Rig, RigBusyError, RigCommandError, RigConnectionError, RigError, RigRunError,
                                 RigTimeoutError, UnknownPortError, UnstableDesignError)
 from jerklab.rig.recording import Recording, compare, plot_comparison, recordings_dir
@@ -30,6 +31,9 @@ __all__ = ["connect", "Rig", "Recording", "recordings_dir", "compare", "plot_com
            "UnknownPortError", "RigBusyError", "UnstableDesignError", "BAUDRATE"]
 
 BAUDRATE = 115200
+#: the shortest reply ``timeout`` / ``hello_timeout`` accepted (s): an ACK frame takes about 1 ms at
+#: 115 200 baud, so a shorter wait cannot be met by any rig
+MIN_TIMEOUT = 1e-3
 _VIRTUAL_NAMES = (None, "virtual", "")
 
 
@@ -79,7 +83,13 @@ def connect(port=None, *, student=None, motor=None, speed=None, timeout=2.0, hel
         The port cannot be opened; the message names it.
     RigTimeoutError
         The port opened but no jerklab rig answered HELLO.
+    ValueError
+        ``timeout`` or ``hello_timeout`` not a number >= ``MIN_TIMEOUT`` (1 ms).
     """
+    for name, value in (("timeout", timeout), ("hello_timeout", hello_timeout)):
+        if value is not None and as_positive(name, value) < MIN_TIMEOUT:
+            raise ValueError(f"{name} must be >= MIN_TIMEOUT = {MIN_TIMEOUT:g} s (one frame at {BAUDRATE} baud), "
+                             f"got {value!r}")
     if student is not None:
         if motor is not None:
             raise ValueError("give either student (a hidden motor) or motor, not both")
