@@ -1147,8 +1147,8 @@ class ClosedLoopResult:
     y_desired: np.ndarray      # nominal output of the shaped command, µm
     y: np.ndarray              # closed-loop output of the perturbed plant, µm
     u_ff: np.ndarray           # shaped command (desired hysteresis output), V
-    u_c: np.ndarray            # feedforward + feedback (desired hysteresis output), V
-    u_r: np.ndarray            # actuator voltage after hysteresis inversion, V
+    u_r: np.ndarray            # reference of the hysteresis: feedforward + feedback (Xu & Meckl Fig. 1), V
+    u_c: np.ndarray            # compensated command on the actuator, H⁻¹(u_r) by the CNIA (Fig. 1), V
     f: np.ndarray              # hysteresis output reaching G (with cancellation error), V
     scan_slice: slice
     scan_error: float          # max |y − y_desired| over the scan, µm
@@ -1162,8 +1162,10 @@ def closed_loop(cycle: ScanCycle, perturbed: PZTModel | None = None, gains: Feed
     """Closed-loop simulation of a shaped scan cycle (Xu & Meckl Figs. 8, 9).
 
     Per sample: the shaped command ``u_ff`` plus pole-placement feedback on the error to the
-    nominal trajectory gives ``u_c``, the desired output of the hysteresis; the CNIA of the
-    identified model ``hysteresis`` (``Preisach.invert``) gives the actuator voltage ``u_r``; the
+    nominal trajectory gives ``u_r``, the reference (desired output) of the hysteresis; the CNIA of
+    the identified model ``hysteresis`` (``Preisach.invert``) gives the actuator voltage ``u_c``
+    (names as in Xu & Meckl Fig. 1 and notebook 08; before 2026-11 ``u_c`` and ``u_r`` were
+    swapped here); the
     actuator's own hysteresis ``actuator`` (``Preisach.apply``) turns it into ``f``, plus a
     cancellation error; ``f`` drives the perturbed linear plant.
 
@@ -1179,7 +1181,7 @@ def closed_loop(cycle: ScanCycle, perturbed: PZTModel | None = None, gains: Feed
     cancellation_error : float
         Amplitude of the hysteresis cancellation error, V (paper: 0.15 V).
     cancellation_model : {"branch", "constant"}
-        The paper gives only the amplitude. "branch" (default): ``+e`` while ``u_c`` rises,
+        The paper gives only the amplitude. "branch" (default): ``+e`` while ``u_r`` rises,
         ``−e`` while it falls (held when it does not move), the sign pattern of a mismatch
         between identified and true hysteresis loops; "constant": ``+e`` throughout.
     extra_time : float
@@ -1241,6 +1243,140 @@ def closed_loop(cycle: ScanCycle, perturbed: PZTModel | None = None, gains: Feed
     y, uc, ur, f = run(feedback)
     sl = cycle.scan_slice
     y_ol = run(False)[0] if feedback else y
-    return ClosedLoopResult(t=cycle.time(n_s), y_desired=yd, y=y, u_ff=u_ff, u_c=uc, u_r=ur, f=f,
+    return ClosedLoopResult(t=cycle.time(n_s), y_desired=yd, y=y, u_ff=u_ff, u_r=uc, u_c=ur, f=f,
                             scan_slice=sl, scan_error=float(np.abs(y - yd)[sl].max()),
                             open_loop_scan_error=float(np.abs(y_ol - yd)[sl].max()))
+
+
+# ----------------------------------------------------------------------------------------------
+# Table II's open choices (F_max, which modes are robustified) and the actuator limit in Fig. 9
+# ----------------------------------------------------------------------------------------------
+#: The readings of "robustified" compared by :func:`table_ii_sensitivity`: the order of each input
+#: of Table II applies to mode 1 only (mode 2 cancelled nominally) or to both modes.
+TABLE_II_MODE_READINGS = {"mode 1": (1,), "both modes": (1, 2)}
+
+
+def _orders_for(m: int, modes) -> dict:
+    return {1: m if 1 in modes else 0, 2: m if 2 in modes else 0}
+
+
+def table_ii_sensitivity(F_max_values=(20.0, 30.0, 38.0, 50.0, 70.0, 100.0), readings=None,
+                         model: PZTModel | None = None, spec: ScanSpec | None = None,
+                         freq_scale: float = 1.1, solver: str = "lp") -> list:
+    """Xu & Meckl Table II under each reading of the choices the paper leaves open.
+
+    The paper gives neither the actuator limit ``F_max`` (Xu & Meckl eq. 5) nor whether "m-th order robust"
+    applies to mode 1 only or to both modes. For each ``F_max`` and each reading this shapes the
+    four inputs (as :func:`table_ii`) and evaluates them under the +10 % perturbation of ω1.
+    A cycle too short for the limit (no feasible horizon) gives NaN.
+
+    Parameters
+    ----------
+    F_max_values : sequence of float
+        Actuator limits to try, V (> 0).
+    readings : dict, optional
+        ``{name: modes}`` (default :data:`TABLE_II_MODE_READINGS`).
+
+    Returns
+    -------
+    list of dict
+        One row per (reading, F_max): ``reading``, ``F_max``, ``rows`` (``{input: (cycle s, e_m
+        µm, e_r µm)}``) and ``distance`` (:func:`table_ii_distance`).
+    """
+    readings = TABLE_II_MODE_READINGS if readings is None else dict(readings)
+    F_list = [as_positive("F_max_values", F) for F in F_max_values]
+    if not F_list:
+        raise ValueError("F_max_values must not be empty")
+    model = model or PZTModel()
+    out, memo = [], {}
+    for name, modes in readings.items():
+        if not modes or any(m not in (1, 2) for m in modes):
+            raise ValueError(f"readings[{name!r}]: modes are 1 and/or 2, got {modes!r}")
+        inputs = {k: (_orders_for(t, modes), _orders_for(r, modes)) for k, (t, r) in TABLE_II_INPUTS.items()}
+        for F in F_list:
+            rows = {}
+            for k, (t_o, r_o) in inputs.items():
+                key = (F, tuple(t_o.items()), tuple(r_o.items()))   # the non-robust row is shared
+                if key not in memo:
+                    try:
+                        c = shape_cycle(t_o, r_o, model, replace(spec or ScanSpec(), F_max=F), solver=solver)
+                    except RuntimeError:
+                        memo[key] = (math.nan, math.nan, math.nan)
+                    else:
+                        ev = evaluate_cycle(c, freq_scale=freq_scale, modes=(1,))
+                        memo[key] = (ev.cycle_time, ev.e_m, ev.e_r)
+                rows[k] = memo[key]
+            out.append({"reading": name, "F_max": F, "rows": rows, "distance": table_ii_distance(rows)})
+    return out
+
+
+def table_ii_distance(rows: dict) -> dict:
+    """Distance of a reproduction of Table II from the published table.
+
+    ``cycle_rms_ms``: root mean square of (ours − paper) cycle time over the four inputs, ms;
+    ``cycle_max_ms``: the largest absolute difference, ms; ``error_factor``: the largest ratio
+    max(ours/paper, paper/ours) over all e_m and e_r. NaN if any input is infeasible.
+
+    Parameters
+    ----------
+    rows : dict
+        ``{input name: (cycle time s, e_m µm, e_r µm)}`` for the inputs of ``TABLE_II_PAPER``.
+    """
+    d_t, fac = [], []
+    for name, (tp, emp, erp) in TABLE_II_PAPER.items():
+        if name not in rows:
+            raise ValueError(f"rows: missing input {name!r}")
+        t, em, er = rows[name]
+        d_t.append((t - tp) * 1e3)
+        fac += [max(em / emp, emp / em), max(er / erp, erp / er)]
+    d_t = np.asarray(d_t)
+    return {"cycle_rms_ms": float(np.sqrt(np.mean(d_t ** 2))), "cycle_max_ms": float(np.abs(d_t).max()),
+            "error_factor": float(max(fac))}
+
+
+def best_table_ii_reading(sensitivity: list) -> dict:
+    """The row of :func:`table_ii_sensitivity` closest to the paper (smallest ``cycle_rms_ms``,
+    ties broken by ``error_factor``); infeasible rows are skipped."""
+    ok = [r for r in sensitivity if np.isfinite(r["distance"]["cycle_rms_ms"])]
+    if not ok:
+        raise ValueError("sensitivity: no feasible reading")
+    return min(ok, key=lambda r: (round(r["distance"]["cycle_rms_ms"], 9), r["distance"]["error_factor"]))
+
+
+@dataclass(frozen=True)
+class LimitExcursion:
+    """Where a signal exceeds ``|u| <= F_max``: peak value (V) and its time (s), time above (s),
+    and the intervals ``[(t_start, t_end), ...]`` (s) in which it is above."""
+
+    F_max: float
+    peak: float
+    t_peak: float
+    time_above: float
+    intervals: tuple
+
+
+def limit_excursions(t, u, F_max: float = DEFAULT_F_MAX) -> LimitExcursion:
+    """Find where ``u`` leaves the actuator range ``|u| <= F_max`` (Xu & Meckl eq. 5).
+
+    Parameters
+    ----------
+    t, u : array_like
+        Sample times (s, equally spaced) and values (V) of one signal, same length.
+    F_max : float
+        The limit, V (> 0).
+    """
+    t = as_finite_array("t", t)
+    u = as_finite_array("u", u)
+    if t.shape != u.shape or t.ndim != 1 or t.size < 2:
+        raise ValueError("t and u must be 1-D arrays of the same length (>= 2)")
+    F_max = as_positive("F_max", F_max)
+    dt = float(t[1] - t[0])
+    above = np.abs(u) > F_max
+    k = int(np.argmax(np.abs(u)))
+    edges = np.flatnonzero(np.diff(np.r_[0, above.astype(int), 0]))
+    intervals = tuple((float(t[a]), float(t[b - 1] + dt)) for a, b in zip(edges[::2], edges[1::2]))
+    return LimitExcursion(F_max, float(u[k]), float(t[k]), float(above.sum() * dt), intervals)
+
+
+__all__ += ["TABLE_II_MODE_READINGS", "table_ii_sensitivity", "table_ii_distance", "best_table_ii_reading",
+            "LimitExcursion", "limit_excursions"]

@@ -974,3 +974,46 @@ def _batch_numpy(rpos, rvel, racc, Kv, tv, fv, noise, common, ctl):
             w = common["dist_amp"] if (common["dist_on"] and t0 >= common["dist_time"]) else 0.0
             th, om = _advance(th, om, v + w, fv, Kv, tv, Ts)
     return POS, U
+
+
+def pd_rest_band(kpd, load, coulomb_friction, counts_per_rad=None, supply_voltage=None, pwm_bits=None):
+    """Where a PD loop (no integrator) can come to rest under a constant load and Coulomb friction.
+
+    At rest the derivative and the feedforward are zero, so the motor sees ``u = k_pd e_m`` (PWM
+    rounded) plus the load ``w`` (input referred, W = P as in Stojčić eq. 9) and sticks while
+    ``|u + w| <= f_c``. Without friction and quantization this is the rest error of Stojčić eq. 9, ``e = -w / k_pd``.
+    The controller sees the *measured* error ``e_m = r - floor(θ c)/c`` (encoder count ``c`` per
+    rad), which exceeds the true error ``e = r - θ`` by less than one count ``q = 1/c``; the PWM
+    rounds ``u`` to half a duty step ``Δ/2``. The true error at rest therefore lies in
+
+        ``((-w - f_c - Δ/2)/k_pd - q,  (-w + f_c + Δ/2)/k_pd]``   (for ``k_pd > 0``).
+
+    Parameters
+    ----------
+    kpd : float
+        Proportional gain k_pd (V/rad, > 0).
+    load : float
+        Constant input-referred load w (V).
+    coulomb_friction : float
+        Friction f_c (V, >= 0).
+    counts_per_rad : float, optional
+        Encoder counts per rad (None: ideal sensor, q = 0).
+    supply_voltage, pwm_bits : optional
+        PWM full scale (V) and resolution; both None: no PWM rounding.
+
+    Returns
+    -------
+    tuple of float
+        ``(lo, hi)`` bounds of the true error ``r - θ`` at rest, rad.
+    """
+    kpd = as_positive("kpd", kpd)
+    w = as_real("load", load)
+    fc = as_nonnegative("coulomb_friction", coulomb_friction)
+    q = 0.0 if counts_per_rad is None else 1.0 / as_positive("counts_per_rad", counts_per_rad)
+    half_step = 0.0
+    if supply_voltage is not None and pwm_bits is not None:
+        half_step = 0.5 * as_positive("supply_voltage", supply_voltage) / (2 ** int(pwm_bits) - 1)
+    return ((-w - fc - half_step) / kpd - q, (-w + fc + half_step) / kpd)
+
+
+__all__ += ["pd_rest_band"]

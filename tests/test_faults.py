@@ -544,7 +544,7 @@ def test_probe2_fit_dc_motor_refuses_a_sample_period_it_cannot_represent():
 
 def test_probe2_widgets_and_connect_refuse_impossible_values():
     from jerklab import rig as RG
-    from jerklab import widgets as W
+    from jerklab import tuning as W
 
     for name in ("max_radius", "desired_radius"):       # |z| < 0 was classified as a verdict
         kw = dict(max_radius=0.9, desired_radius=0.9)

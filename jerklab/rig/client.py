@@ -6,6 +6,7 @@ It speaks ``jerklab.protocol`` over anything with pyserial's ``read``/``write``
 """
 from __future__ import annotations
 
+import copy
 import datetime as _dt
 import math
 import sys
@@ -18,7 +19,7 @@ from jerklab._validate import as_nonnegative, as_positive, as_real
 from jerklab.rig.recording import Recording, RecordingIOError, recordings_dir
 
 __all__ = ["Rig", "RigError", "RigConnectionError", "RigTimeoutError", "RigCommandError",
-           "RigRunError", "RigBusyError", "UnstableDesignError", "UnknownPortError"]
+           "RigRunError", "RigBusyError", "UnstableDesignError", "UnknownPortError", "PortBusyError"]
 
 
 class RigError(RuntimeError):
@@ -59,6 +60,16 @@ class RigRunError(RigError):
 
 class RigBusyError(RigConnectionError):
     """The rig is already in use by another client (a served rig answers a second client so)."""
+
+
+class PortBusyError(UnknownPortError, RigBusyError):
+    """The port is held by another program (opened exclusively, or locked by another jerklab
+    process); ``holder`` says who (pid, host, program), if known. Both an
+    :class:`UnknownPortError` (the port could not be opened) and a :class:`RigBusyError`."""
+
+    def __init__(self, message, port=None, holder=None):
+        super().__init__(message)
+        self.port, self.holder = port, holder
 
 
 class UnstableDesignError(RigError, ValueError):
@@ -351,9 +362,14 @@ class Rig:
                 if frames:
                     return frames
             elif self._decoder.pending and now - self._last_byte > 0.02:
-                # a truncated frame must not hold back the next one: abandon it after 20 ms
-                frames = self._decoder.flush()
+                # A truncated frame must not hold back a good one behind it: after 20 ms of
+                # silence look for a frame inside the held bytes, and give up the head only if
+                # one is there. A frame whose sender merely stalled (a loaded simulator, a TCP
+                # segment held back) is kept and completes when its bytes come.
+                probe = copy.deepcopy(self._decoder)
+                frames = probe.flush()
                 if frames:
+                    self._decoder = probe
                     return frames
             if now >= deadline:
                 return []
@@ -407,18 +423,58 @@ class Rig:
             text = f"{self.port}: device refused {name}: {err}"
         return RigCommandError(text, command=msg.TYPE, error=nack.error, param=nack.param)
 
+    _HELLO_EVERY = 0.25
+
     def _hello(self, hello_timeout):
+        """Say HELLO every 0.25 s until a HELLO_REPLY answers any of them, or ``hello_timeout``.
+
+        An Uno resets when its port opens and its bootloader listens for about a second before
+        the sketch starts (bytes sent meanwhile go to the bootloader), so one HELLO is not
+        enough. Sets ``hello_attempts`` (HELLOs sent) and ``hello_answered`` (which one was
+        answered, 1 = the first).
+        """
+        import serial
+
         deadline = time.monotonic() + hello_timeout
-        last = None
+        sent = {}                                     # seq -> attempt number
+        self.hello_attempts = self.hello_answered = 0
+        other = 0
+        skipped0 = self._decoder.stats.skipped_bytes
+        next_hello = time.monotonic()
         while True:
-            try:
-                return self._request(P.Hello(), replies=(P.MsgType.HELLO_REPLY,),
-                                     timeout=min(0.25, max(0.01, deadline - time.monotonic())))
-            except RigTimeoutError as exc:
-                last = exc
+            now = time.monotonic()
+            if now >= next_hello and now < deadline:
+                self.hello_attempts += 1
+                sent[self._write(P.Hello())] = self.hello_attempts
+                next_hello = now + self._HELLO_EVERY
+            frames = self._read_frames(max(0.0, min(0.05, deadline - now)))
+            for i, f in enumerate(frames):
+                if f.type == P.MsgType.HELLO_REPLY and f.seq in sent:
+                    self._frames = frames[i + 1:] + self._frames
+                    self.hello_answered = sent[f.seq]
+                    return P.parse(f)
+                self._check_busy(f)                   # a served rig that has a client: BUSY
+                other += 1
+                self.ignored_frames += 1
             if time.monotonic() >= deadline:
-                raise RigTimeoutError(f"{self.port}: no jerklab rig answered HELLO within {hello_timeout:g} s "
-                                      f"(is the firmware flashed, the baud rate 115200?)") from last
+                break
+        baud = getattr(self.link, "baudrate", None)
+        junk = self._decoder.stats.skipped_bytes - skipped0
+        heard = (f"; it sent {other} frame(s) that were not a HELLO_REPLY" if other else
+                 f"; it sent {junk} byte(s) that were no jerklab frame (another sketch, or a wrong "
+                 "baud rate?)" if junk else "; nothing came back")
+        checks = ["the port is the rig's (list candidates: python -m jerklab.rig ports)",
+                  "the jerklab firmware is flashed (make -C firmware upload PORT=...)",
+                  "the baud rate (the jerklab firmware runs at 115200" +
+                  (f", this link at {baud})" if baud else ")"),
+                  f"the firmware speaks protocol version {P.PROTOCOL_VERSION} (a newer or older "
+                  "jerklab needs the matching firmware)"]
+        if isinstance(self.link, serial.Serial) and sys.platform.startswith("linux"):
+            checks.append("no other program (serial monitor, another kernel) talks to it")
+        raise RigTimeoutError(
+            f"{self.port}: no jerklab rig answered HELLO: sent {self.hello_attempts} HELLO(s) over "
+            f"{hello_timeout:g} s" + (f" at {baud} baud" if baud else "") + heard +
+            ". Check: " + "; ".join(checks) + ".")
 
     def stop(self):
         """Stop the motor now (STOP)."""
