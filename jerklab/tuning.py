@@ -260,8 +260,9 @@ class Suggestion:
     text: str
 
 
-def _grid_below(value, lo, step):
-    """Slider values below ``value`` down to ``lo``, nearest first."""
+def _grid_below(value, lo, step, hi):
+    """Slider values below ``value`` down to ``lo``, nearest first (none above the slider's ``hi``)."""
+    value = min(value, hi + step)        # a value far above the slider (wn = 1e9) must not build 1e9 values
     n = int(math.floor((value - lo) / step + 1e-9))
     vals = [round(lo + k * step, 10) for k in range(n, -1, -1)]
     return [v for v in vals if v < value - 1e-9]
@@ -293,18 +294,18 @@ def _advise(K, tau, zeta, wn, sigma_ratio, Ts, design):
         p.update(change)
         return _level(K, tau, p["zeta"], p["wn"], p["sigma_ratio"], p["Ts"], p["design"])
 
-    lo, _, step = SLIDER_RANGES["wn"]
-    w = _first_ok(_grid_below(wn, lo, step), lambda v: ok(wn=v)[0] == "ok")
+    lo, hi, step = SLIDER_RANGES["wn"]
+    w = _first_ok(_grid_below(wn, lo, step, hi), lambda v: ok(wn=v)[0] == "ok")
     if w is not None:
         r = ok(wn=w)[1]
         out.append(Suggestion("wn", w, r, f"ωn ≤ {w:g} rad/s (|z| = {r:.3f})"))
-    lo, _, step = SLIDER_RANGES["Ts_ms"]
-    t = _first_ok(_grid_below(1e3 * Ts, lo, step), lambda v: ok(Ts=1e-3 * v)[0] == "ok")
+    lo, hi, step = SLIDER_RANGES["Ts_ms"]
+    t = _first_ok(_grid_below(1e3 * Ts, lo, step, hi), lambda v: ok(Ts=1e-3 * v)[0] == "ok")
     if t is not None:
         r = ok(Ts=1e-3 * t)[1]
         out.append(Suggestion("Ts", 1e-3 * t, r, f"Ts ≤ {t:g} ms (|z| = {r:.3f})"))
-    lo, _, step = SLIDER_RANGES["sigma_ratio"]
-    s = _first_ok(_grid_below(sigma_ratio, lo, step), lambda v: ok(sigma_ratio=v)[0] == "ok")
+    lo, hi, step = SLIDER_RANGES["sigma_ratio"]
+    s = _first_ok(_grid_below(sigma_ratio, lo, step, hi), lambda v: ok(sigma_ratio=v)[0] == "ok")
     if s is not None:
         r = ok(sigma_ratio=s)[1]
         out.append(Suggestion("sigma_ratio", s, r, f"σ/ωn ≤ {s:g} (|z| = {r:.3f})"))

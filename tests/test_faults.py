@@ -558,3 +558,20 @@ def test_probe2_widgets_and_connect_refuse_impossible_values():
     with pytest.raises(ValueError, match="timeout"):    # was RigTimeoutError "no reply within 1e-300 s"
         RG.connect(None, timeout=1e-300, progress=False)
     RG.connect(None, timeout=RG.MIN_TIMEOUT * 100, hello_timeout=1.0, progress=False).close()
+
+
+@pytest.mark.parametrize("kw", [dict(wn=1e9), dict(sigma_ratio=1e9), dict(sigma_ratio=1e300), dict(Ts=1e9)])
+def test_probe2_tuning_advice_far_above_the_sliders_answers_at_once(kw):
+    from jerklab import tuning as T
+
+    # was a hang: the advice listed every slider step below wn = 1e9 (1e9 values)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        r = _within(20, lambda: T.compute_pole_placement(simulate_move=False, **kw))
+    assert r.level == "unstable"
+    for s in T.advise(T.paper.MOTOR_K, T.paper.MOTOR_TAU, r.params["zeta"], r.params["wn"],
+                      r.params["sigma_ratio"], r.params["Ts"], r.params["design"]):
+        lo, hi, _ = T.SLIDER_RANGES.get(s.change, (-math.inf, math.inf, 0)) if s.change != "Ts" else \
+            (T.SLIDER_RANGES["Ts_ms"][0] * 1e-3, T.SLIDER_RANGES["Ts_ms"][1] * 1e-3, 0)
+        if s.change != "design":
+            assert lo - 1e-12 <= s.value <= hi + 1e-12 and s.max_radius < 1.0
