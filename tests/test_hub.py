@@ -35,6 +35,49 @@ print("LAB", os.environ.get("JUPYTERHUB_USER"), type(rig).__name__,
 """
 
 
+# Keys of the Zero to JupyterHub chart's values schema (jupyterhub/values.schema.yaml, chart 3.x
+# and 4.x) that deploy/z2jh/values.yaml may use; a typo in a key is silently ignored by Helm.
+Z2JH_KEYS = {
+    "hub": {"config": None, "extraConfig": None, "extraEnv": None, "db": None, "resources": None},
+    "singleuser": {"image": {"name": None, "tag": None, "pullPolicy": None}, "defaultUrl": None,
+                   "memory": {"guarantee": None, "limit": None},
+                   "cpu": {"guarantee": None, "limit": None},
+                   "storage": {"capacity": None, "type": None, "homeMountPath": None},
+                   "extraEnv": None, "lifecycleHooks": None, "cmd": None, "profileList": None,
+                   "startTimeout": None},
+    "cull": {"enabled": None, "timeout": None, "every": None, "users": None, "maxAge": None,
+             "concurrency": None, "removeNamedServers": None, "adminUsers": None},
+    "prePuller": {"hook": {"enabled": None}, "continuous": {"enabled": None}},
+    "scheduling": {"userScheduler": {"enabled": None}, "podPriority": {"enabled": None},
+                   "userPlaceholder": {"enabled": None, "replicas": None}},
+    "proxy": None, "ingress": None,
+}
+
+
+def _check_keys(values, schema, path=""):
+    for key, val in values.items():
+        assert key in schema, f"{path}{key} is not a key of the z2jh chart"
+        if isinstance(schema[key], dict):
+            assert isinstance(val, dict), f"{path}{key} must be a mapping"
+            _check_keys(val, schema[key], f"{path}{key}.")
+
+
+def test_z2jh_values_file():
+    yaml = pytest.importorskip("yaml")
+    values = yaml.safe_load((ROOT / "deploy" / "z2jh" / "values.yaml").read_text())
+    _check_keys(values, Z2JH_KEYS)
+    cfg = values["hub"]["config"]
+    assert cfg["JupyterHub"]["authenticator_class"] == "dummy"
+    # the same culling intent as the one-server hub
+    assert values["cull"]["enabled"] is True and values["cull"]["timeout"] > 0
+    hook = " ".join(values["singleuser"]["lifecycleHooks"]["postStart"]["exec"]["command"])
+    assert "gitpuller" in hook and "environment.txt" in hook
+    assert values["singleuser"]["extraEnv"]["PYTHONPATH"] == "/home/jovyan/jerklab"
+    # a student's memory limit holds two kernels of ~0.3 GB (benchmarks/bench_class.py)
+    lim = values["singleuser"]["memory"]["limit"]
+    assert lim.endswith("G") and float(lim[:-1]) >= 0.6
+
+
 def _free_port():
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
