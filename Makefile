@@ -2,14 +2,16 @@
 #   make lab    set up .venv and open JupyterLab on notebooks/ (virtual rig by default)
 #   make test   set up .venv and run every test (unit, property, notebooks, firmware, browser)
 #   make app    the standalone tuning page for a class (Voila, virtual rig) on http://127.0.0.1:8866/
-#   make bench  print the benchmark tables
+#   make bench  print the benchmark tables and record them as JSON in benchmarks/results/
+#   make book   static HTML of the executed notebooks (build/book/html/index.html); reuses the notebooks
+#               make test executed (build/executed/), Sphinx warnings are errors
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.jerklab-installed
 PYTEST_ARGS ?=
 
-.PHONY: setup lab test app bench firmware clean
+.PHONY: setup lab test app bench book firmware clean
 
 $(STAMP): environment.txt pyproject.toml
 	@$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 10), "jerklab needs Python 3.10 or newer, this is " + sys.version' 
@@ -33,6 +35,9 @@ app: setup
 
 bench: setup
 	$(BIN)/python -m benchmarks
+
+book: setup
+	$(BIN)/python tools/build_book.py
 
 firmware:
 	$(MAKE) -C firmware

@@ -20,7 +20,7 @@ kernels, sampled every 2 s. After the last tab closes the kernels still alive ar
 Run::
 
     python -m benchmarks class                       # N = 1, 10, 30, 3 minutes each
-    python -m benchmarks class --minutes 0.5 --n 1,10
+    python -m benchmarks class --minutes=0.5 --n=1,10
     python -m benchmarks.bench_class --n 30 --pool 30
 
 Targets (issue 14): every panel within 5 s, slider → image p90 ≤ 1 s at N = 30.
@@ -349,7 +349,7 @@ def main(argv=None):
     ap.add_argument("--after", type=float, default=60.0,
                     help="seconds after the last tab closed before counting live kernels (default 60)")
     ap.add_argument("--period", type=float, default=2.0, help="seconds between slider moves (default 2)")
-    args = ap.parse_args(sys.argv[1:] if argv is None else argv)
+    args = ap.parse_args([] if argv is None else argv)
     rows = []
     for n in [int(x) for x in args.n.split(",") if x.strip()]:
         pool = n if args.pool == "n" else int(args.pool)
@@ -368,4 +368,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:])

@@ -24,6 +24,13 @@ def _session(port, commands, timeout=60.0):
 
     msgs, dec = [], pr.Decoder()
     with serial.Serial(port, 115200, timeout=0.02) as ser:
+        # handshake first: the session starts once the firmware has answered HELLO
+        ser.write(pr.encode(pr.Hello(1), 0xA5))
+        t0, info = time.monotonic(), None
+        while info is None:
+            if time.monotonic() - t0 > 10.0:
+                raise RuntimeError(f"the simulated Uno on {port} did not answer HELLO within 10 s")
+            info = next((f for f in dec.feed(ser.read(256)) if f.type == pr.MsgType.HELLO_REPLY), None)
         for i, m in enumerate(commands):
             ser.write(pr.encode(m, i + 1))
         t0 = time.monotonic()
@@ -31,7 +38,8 @@ def _session(port, commands, timeout=60.0):
             msgs += [pr.parse(f) for f in dec.feed(ser.read(4096))]
             if any(isinstance(m, pr.EndOfRun) for m in msgs):
                 return msgs
-    raise RuntimeError("no END_OF_RUN from the simulated Uno")
+    raise RuntimeError(f"no END_OF_RUN from the simulated Uno within {timeout} s "
+                       f"(last messages: {msgs[-3:]})")
 
 
 def main():

@@ -18,6 +18,7 @@ import time
 
 import numpy as np
 
+from benchmarks._record import table
 from jerklab.planner import (KINDS, plan_batch, plan_scurve, plan_sine_jerk,
                              plan_sine_jerk_optimal, plan_trapezoid)
 
@@ -113,25 +114,16 @@ def move_time_ratios(grid=GRID):
 def main():
     us = time_per_plan()
     ref = us.get("ruckig")
-    print("Time per plan (µs, median of 7 interleaved runs of 2000 random moves)")
-    print(f"{'planner':<26}{'µs/plan':>10}{'x Ruckig':>10}")
-    for name, v in us.items():
-        ratio = f"{v / ref:10.2f}" if ref else f"{'-':>10}"
-        print(f"{name:<26}{v:10.3f}{ratio}")
-
-    print("\nBatch planner (plan_batch, 1e6 random moves, best of 3)")
-    print(f"{'kind':<26}{'plans/s':>14}{'target':>10}")
-    for kind, rate in batch_rate().items():
-        print(f"{kind:<26}{rate:14.3e}{'2e7':>10}")
-
+    table("Time per plan (µs, median of 7 interleaved runs of 2000 random moves)",
+          ["planner", "µs/plan", "x Ruckig"], [(name, v, v / ref if ref else "-") for name, v in us.items()])
+    table("Batch planner (plan_batch, 1e6 random moves, best of 3)", ["kind", "plans/s", "target"],
+          [(kind, rate, 2e7) for kind, rate in batch_rate().items()])
     if ruckig is None:
         print("\n(ruckig not installed: no move-time comparison)")
         return
-    print(f"\nMove time / Ruckig's time-optimal duration over {len(GRID)} limit sets "
-          "(distance 0.01..1000, J 1e3|2e4, E 10|300, Omega 10|100)")
-    print(f"{'planner':<40}{'median':>9}{'max':>10}")
-    for name, r in move_time_ratios().items():
-        print(f"{name:<40}{statistics.median(r):9.3f}{max(r):10.3f}")
+    table(f"Move time / Ruckig's time-optimal duration over {len(GRID)} limit sets "
+          "(distance 0.01..1000, J 1e3|2e4, E 10|300, Omega 10|100)", ["planner", "median", "max"],
+          [(name, statistics.median(r), max(r)) for name, r in move_time_ratios().items()])
 
 
 if __name__ == "__main__":

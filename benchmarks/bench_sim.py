@@ -16,6 +16,7 @@ import time
 import control as ct
 import numpy as np
 
+from benchmarks._record import table
 from jerklab.controller import (DigitalController, Feedforward, PositionLoop, discrete_pole_placement_pid,
                                 pole_placement_pid)
 from jerklab.planner import plan_sine_jerk
@@ -53,31 +54,37 @@ def main():
     loop = _linear_loop(d)
     simulate(prof, motor, ctrl)                                   # compile (or load the cache)
     print(f"numba kernel: {HAVE_NUMBA}")
-    print("\nsingle run: simulate (all nonlinearities on) vs control.forced_response (linear loop)")
-    print(f"{'samples':>8} {'forced_response ms':>19} {'simulate ms':>12} {'ratio':>7} "
-          f"{'simulate, pre-sampled ref ms':>29} {'ratio':>7}")
+    rows = []
     for t_end in (2.0, 20.0, 200.0):
         r = simulate(prof, motor, ctrl, t_end=t_end)
         U = np.vstack([r.reference, (TAU * r.ref_accel + r.ref_velocity) / K])
-        t_fr = _best(lambda: ct.forced_response(loop, T=r.t, U=U), repeat=2 if t_end > 20 else 3)
-        t_sim = _best(lambda: simulate(prof, motor, ctrl, t_end=t_end))
+        t_fr = _best(lambda: ct.forced_response(loop, T=r.t, U=U), repeat=2 if t_end > 20 else 10)
+        t_sim = _best(lambda: simulate(prof, motor, ctrl, t_end=t_end), repeat=3 if t_end > 20 else 30)
         sp = SampledProfile.from_profile(prof, TS, t_end)
-        t_pre = _best(lambda: simulate(sp, motor, ctrl, t_end=t_end))
-        print(f"{len(r.t):>8} {t_fr * 1e3:>19.2f} {t_sim * 1e3:>12.3f} {t_fr / t_sim:>7.1f} "
-              f"{t_pre * 1e3:>29.3f} {t_fr / t_pre:>7.1f}")
+        t_pre = _best(lambda: simulate(sp, motor, ctrl, t_end=t_end), repeat=3 if t_end > 20 else 30)
+        # a new move on every call: the profile is sampled each time (no reuse of its samples)
+        fresh = iter([plan_sine_jerk(10.0 + 1e-3 * i, 2e4, 300.0, 100.0) for i in range(40)])
+        t_new = _best(lambda: simulate(next(fresh), motor, ctrl, t_end=t_end), repeat=3 if t_end > 20 else 30)
+        rows.append((len(r.t), t_fr * 1e3, t_sim * 1e3, t_fr / t_sim, t_pre * 1e3, t_fr / t_pre,
+                     t_new * 1e3, t_fr / t_new))
+    table("single run: simulate (all nonlinearities on) vs control.forced_response (linear loop)",
+          ["samples", "forced_response ms", "simulate ms", "x forced_response",
+           "simulate pre-sampled ms", "x forced_response (pre-sampled)",
+           "simulate new move ms", "x forced_response (new move)"], rows,
+          note="simulate: the same move again (its samples are reused); new move: a different planner "
+               "profile on every call, sampled in closed form each time")
 
-    print("\nbatch over perturbed plants (K, tau ±20 %, friction 0-0.5 V), all nonlinearities on")
-    print(f"{'plants':>7} {'samples':>8} {'engine':>9} {'s':>8} {'controller steps/s':>19}")
     pp = perturbed_plants(4000, friction=(0.0, 0.5), seed=1)
     simulate_batch(prof, motor, ctrl, keep_traces=False, **perturbed_plants(8, seed=0))
+    rows = []
     for engine, m in (("compiled", 4000), ("compiled", 20000), ("numpy", 4000)):
         p = pp if m == 4000 else perturbed_plants(m, friction=(0.0, 0.5), seed=2)
         b = simulate_batch(prof, motor, ctrl, engine=engine, keep_traces=False, **p)
         t = _best(lambda: simulate_batch(prof, motor, ctrl, engine=engine, keep_traces=False, **p),
                   repeat=2)
-        print(f"{m:>7} {len(b.t):>8} {engine:>9} {t:>8.3f} {m * len(b.t) / t:>19.3e}")
-
-    print("\ntuning-widget redraw (eq.-13 and z-domain loops: poles, step, disturbance, sine-jerk error)")
+        rows.append((f"{engine} {m}", m, len(b.t), t, m * len(b.t) / t))
+    table("batch over perturbed plants (K, tau +-20 %, friction 0-0.5 V), all nonlinearities on",
+          ["engine plants", "plants", "samples", "s", "controller steps/s"], rows)
 
     def redraw(wn=30.0):
         out = []
@@ -89,7 +96,8 @@ def main():
         return out
 
     redraw()
-    print(f"one redraw: {_best(redraw, repeat=10) * 1e3:.2f} ms (target < 20 ms)")
+    table("tuning-widget redraw computation (eq.-13 and z-domain loops: poles, step, disturbance, "
+          "sine-jerk error)", ["case", "ms", "target ms"], [("one redraw", _best(redraw, repeat=10) * 1e3, 20.0)])
 
 
 if __name__ == "__main__":

@@ -10,6 +10,10 @@ Peers on the same six-plot figure and the same slider sweep:
 * ``new figure``: a fresh ``Figure`` with six axes drawn and saved on every move (what
   re-running a plotting cell costs).
 
+The class page also draws the phone-width figure on every move (``narrow_figure=True``);
+its row shows what that costs. Every row starts from empty caches
+(:func:`jerklab.tuning.clear_cache`), so each computes every design.
+
 Run: ``python -m benchmarks widgets``.
 """
 from __future__ import annotations
@@ -19,7 +23,9 @@ import time
 
 import numpy as np
 
-from jerklab.widgets import PolePlacementFigure, compute_pole_placement, pole_placement_panel
+from benchmarks._record import table
+from jerklab.tuning import clear_cache, compute_pole_placement
+from jerklab.widgets import PolePlacementFigure, pole_placement_panel
 
 SWEEP = ([("wn", w) for w in np.arange(21.0, 45.0, 1.0)]
          + [("zeta", z) for z in np.arange(0.95, 0.6, -0.05)]
@@ -27,8 +33,9 @@ SWEEP = ([("wn", w) for w in np.arange(21.0, 45.0, 1.0)]
          + [("Ts_ms", t) for t in np.arange(6.0, 9.0, 1.0)])
 
 
-def _panel_times():
-    p = pole_placement_panel()
+def _panel_times(narrow=False):
+    clear_cache()
+    p = pole_placement_panel(narrow_figure=narrow)
     out = []
     for name, value in SWEEP:
         t0 = time.perf_counter()
@@ -80,6 +87,7 @@ def _new_figure_times(params):
 
 def main():
     panel_t, p = _panel_times()
+    phone_t, _ = _panel_times(narrow=True)
     # the same parameter sequence for the peers
     params, prm = [], dict(p.params())
     prm.update(zeta=1.0, wn=20.0, sigma_ratio=7.0, Ts=0.005, design="continuous")
@@ -87,18 +95,21 @@ def main():
         key = {"Ts_ms": "Ts"}.get(name, name)
         prm[key] = float(value) * (1e-3 if name == "Ts_ms" else 1.0)
         params.append(dict(prm))
+    clear_cache()                       # the peers compute every design again, as the panel did
     full_t = _full_redraw_times(params)
+    clear_cache()
     new_t = _new_figure_times(params)
-    print(f"{len(SWEEP)} slider moves (wn 21..44, zeta 0.95..0.65, sigma/wn 6.5..4, Ts 6..8 ms), "
-          "each: design + responses + move simulation + figure + PNG")
-    print(f"{'method':<34}{'median ms':>10}{'p90 ms':>9}{'max ms':>9}{'median ratio':>14}")
     ref = np.median(panel_t)
-    for name, t in (("panel (blit + partial axes)", panel_t), ("full redraw, same artists", full_t),
-                    ("new figure every move", new_t)):
-        print(f"{name:<34}{1e3 * np.median(t):>10.1f}{1e3 * np.percentile(t, 90):>9.1f}"
-              f"{1e3 * np.max(t):>9.1f}{np.median(t) / ref:>13.1f}x")
-    print(f"panel moves within 0.3 s: {np.mean(panel_t < 0.3) * 100:.0f} %; "
-          f"axes repainted per move: {p.figure.axes_redraws / len(SWEEP):.2f} of 6")
+    rows = [(name, 1e3 * np.median(t), 1e3 * np.percentile(t, 90), 1e3 * np.max(t), np.median(t) / ref)
+            for name, t in (("panel (blit + partial axes)", panel_t),
+                            ("class page: + phone figure", phone_t),
+                            ("full redraw, same artists", full_t),
+                            ("new figure every move", new_t))]
+    table(f"{len(SWEEP)} slider moves (wn 21..44, zeta 0.95..0.65, sigma/wn 6.5..4, Ts 6..8 ms), "
+          "each: design + responses + move simulation + figure + PNG",
+          ["method", "median ms", "p90 ms", "max ms", "median ratio"], rows,
+          note=f"panel moves within 0.3 s: {np.mean(panel_t < 0.3) * 100:.0f} %; "
+               f"axes repainted per move: {p.figure.axes_redraws / len(SWEEP):.2f} of 6")
 
 
 if __name__ == "__main__":

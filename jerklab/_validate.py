@@ -54,11 +54,21 @@ def as_int(name: str, value, minimum: int | None = None) -> int:
 
 
 def as_finite_array(name: str, value, ndim: int | None = None) -> np.ndarray:
-    """Return ``value`` as a float ndarray with only finite entries, else ``ValueError``."""
+    """Return ``value`` as a float ndarray with only finite entries, else ``ValueError``.
+
+    Text (``"1.0"``, an array of strings) is refused, not parsed: a number read from a file
+    must be converted by the caller, where a typo can be reported with its line.
+    """
+    if isinstance(value, (str, bytes)):
+        raise ValueError(f"{name} must be numeric, got the text {value!r}")
     try:
         a = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:
         raise ValueError(f"{name} must be numeric: {exc}") from None
+    if isinstance(value, (list, tuple)) and a.size and any(isinstance(v, (str, bytes)) for v in value):
+        raise ValueError(f"{name} must be numeric, got text in {value!r:.60}")
+    if isinstance(value, np.ndarray) and value.dtype.kind in "USO" and value.dtype.kind != "O":
+        raise ValueError(f"{name} must be numeric, got an array of {value.dtype}")
     if ndim is not None and a.ndim != ndim:
         raise ValueError(f"{name} must be {ndim}-dimensional, got shape {a.shape}")
     if not np.all(np.isfinite(a)):

@@ -24,13 +24,15 @@ that is the ``error_scale`` of the controller (:func:`paper_error_scale`).
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 
 import control as ct
 import numpy as np
 from scipy.signal import lfilter
 
-from jerklab._validate import as_nonnegative, as_positive, as_real
+from jerklab import law
+from jerklab._validate import as_int, as_nonnegative, as_positive, as_real
 
 __all__ = ["Gains", "DiscreteGains", "pole_placement_pid", "velocity_pole_placement_pid",
            "discrete_pole_placement_pid", "paper_error_scale", "paper_velocity_controller", "Feedforward",
@@ -137,6 +139,8 @@ def desired_poles(wn, zeta=1.0, sigma=None):
     """The s-poles of ``(s + σ)(s² + 2ζωn s + ωn²)`` (σ omitted: the pair only)."""
     wn = as_positive("wn", wn)
     zeta = as_positive("zeta", zeta)
+    if not math.isfinite(wn * wn * zeta):
+        raise ValueError(f"wn={wn} (with zeta={zeta}) is too large: wn² overflows")
     pair = np.roots([1.0, 2.0 * zeta * wn, wn * wn]).astype(complex)
     if sigma is None:
         return pair
@@ -165,6 +169,9 @@ def pole_placement_pid(K, tau, wn, zeta=1.0, sigma=None) -> Gains:
     kp = wn * tau * (2.0 * zeta * sigma + wn) / K
     ki = tau * sigma * wn * wn / K
     kd = (tau * (2.0 * zeta * wn + sigma) - 1.0) / K
+    if not (math.isfinite(kp) and math.isfinite(ki) and math.isfinite(kd)):
+        raise ValueError(f"wn={wn}, sigma={sigma} (K={K}, tau={tau}) give gains that overflow "
+                         f"(kp={kp}, ki={ki}, kd={kd}); choose a smaller wn")
     return Gains(kp, ki, kd, loop="position",
                  design=dict(method="eq11", K=K, tau=tau, wn=wn, zeta=zeta, sigma=sigma))
 
@@ -190,12 +197,9 @@ def velocity_pole_placement_pid(K, tau, wn, zeta=1.0, kd=0.0) -> Gains:
 
 
 def _zoh_position(K, tau, Ts):
-    """ZOH P(z) = (b1 z + b0)/((z − 1)(z − a))."""
-    a = math.exp(-Ts / tau)
-    em = -math.expm1(-Ts / tau)
-    b1 = K * (Ts - tau * em)
-    b0 = K * (tau * em - Ts * a)
-    return np.array([b1, b0]), np.array([1.0, -1.0 - a, a])
+    """ZOH P(z) = (b1 z + b0)/((z − 1)(z − a)) of Stojčić eq. 1 (:func:`jerklab.law.zoh_coefficients`)."""
+    z = law.zoh_coefficients(K, tau, Ts)
+    return np.array([z.b1, z.b0]), np.array([1.0, -1.0 - z.a, z.a])
 
 
 def _plant_polys(K, tau, Ts, loop):
@@ -256,7 +260,14 @@ def discrete_pole_placement_pid(K, tau, wn, zeta=1.0, sigma=None, Ts=0.005, loop
             raise ValueError(f"extra_pole must lie inside the unit circle, got {z4}")
         M[:, 3] = -np.r_[0.0, Q]
         rhs = np.polymul(d3, [1.0, -z4]) - np.r_[Q, 0.0]
-    x = np.linalg.solve(M[1:], rhs[1:])
+    if not (np.all(np.isfinite(M)) and np.all(np.isfinite(rhs))):
+        raise ValueError(f"wn={wn}, sigma={sigma}, Ts={Ts}: the sampled design overflows (poles e^(s Ts) "
+                         "not representable); choose a smaller wn or Ts")
+    try:
+        x = np.linalg.solve(M[1:], rhs[1:])
+    except np.linalg.LinAlgError:
+        raise ValueError(f"wn={wn}, sigma={sigma}, Ts={Ts}: the pole-placement equations are singular "
+                         "(poles e^(s Ts) coincide with the plant's); choose another wn or Ts") from None
     n = x[:3]
     if extra_pole is None:
         gamma, fourth = 0.0, float(x[3])
@@ -281,6 +292,10 @@ def paper_error_scale(Ts=0.005, encoder_ppr=448, decoding=1):
     SI gains that equals a controller ``error_scale`` of this value.
     """
     Ts = as_positive("Ts", Ts)
+    encoder_ppr = as_int("encoder_ppr", encoder_ppr, minimum=1)
+    decoding = as_int("decoding", decoding)
+    if decoding not in (1, 2, 4):
+        raise ValueError(f"decoding must be 1, 2 or 4, got {decoding}")
     return encoder_ppr * decoding * Ts / (2.0 * math.pi)
 
 
@@ -305,14 +320,27 @@ class Feedforward:
         return f"Feedforward(K={self.K!r}, tau={self.tau!r})"
 
 
+_pid_step = law.SCALAR["pid_step"]       # the law's Python form: faster than a compiled call from Python
+
+_LOOPS = ("position", "velocity")
+
+
 class DigitalController:
-    """Feedforward + discrete PID run sample by sample, Stojčić eqs. 16–18.
+    """Feedforward + discrete PID run sample by sample (Stojčić eq. 16, Stojčić eq. 17, Stojčić eq. 18).
 
     ``p(k) = kpd e(k)``, ``i(k) = i(k−1) + kid e(k)``, ``d(k) = γ d(k−1) + kdd (e(k) − e(k−1))``
-    (γ = 0: eq. 17), ``u = u_F + p + i + d`` (eq. 18 + eq. 16), then clamped to
-    ``±output_limit``. The paper has no limit and no anti-windup; here, when the output
-    is clamped and the error drives it further into the limit, the integrator keeps its
-    previous value (conditional integration, as the firmware).
+    (γ = 0: Stojčić eq. 17), ``u = u_F + p + i + d`` (Stojčić eq. 18 plus the feedforward of
+    Stojčić eq. 16), then clamped to ``±output_limit``. The paper has no limit and no
+    anti-windup; here, when the output is clamped and the error drives it further into the
+    limit, the integrator keeps its previous value (conditional integration, as the
+    firmware). The law itself is :func:`jerklab.law.pid_step`, shared with the simulation
+    kernels and the virtual rig.
+
+    A non-finite measurement (NaN or inf from a broken sensor or a diverged model) is not
+    fed to the law: the controller **holds its last output**, leaves its state untouched,
+    counts the sample in :attr:`nonfinite_count`, sets :attr:`fault` and warns once per run
+    (``RuntimeWarning``); ``last_parts["held"]`` is True for such a sample. The next finite
+    measurement resumes the law. :meth:`reset` clears the fault.
 
     Parameters
     ----------
@@ -333,6 +361,13 @@ class DigitalController:
         On the first sample after :meth:`reset`, take ``e(k−1) = e(k)`` (no derivative
         kick) and, if ``reset(last_output=u0)`` was given, preload the integrator so
         that ``u(0) = u0``. False: the paper's zero initial conditions.
+
+    Attributes
+    ----------
+    fault : str or None
+        ``"non-finite measurement"`` once a NaN/inf measurement was held in this run.
+    nonfinite_count : int
+        Samples held because of a non-finite measurement since :meth:`reset`.
     """
 
     def __init__(self, gains, feedforward=None, output_limit=12.0, anti_windup=True, loop=None,
@@ -346,7 +381,7 @@ class DigitalController:
         self.output_limit = None if output_limit is None else as_positive("output_limit", output_limit)
         self.anti_windup = bool(anti_windup)
         self.loop = gains.loop if loop is None else loop
-        if self.loop not in ("position", "velocity"):
+        if self.loop not in _LOOPS:
             raise ValueError(f"loop must be 'position' or 'velocity', got {self.loop!r}")
         self.error_scale = as_positive("error_scale", error_scale)
         self.bumpless = bool(bumpless)
@@ -357,7 +392,7 @@ class DigitalController:
         return self.gains.Ts
 
     def reset(self, last_output=None):
-        """Clear the state (``i = 0``, ``e(−1) = 0``, ``d(−1) = 0``) before a run.
+        """Clear the state (``i = 0``, ``e(−1) = 0``, ``d(−1) = 0``) and the fault before a run.
 
         ``last_output`` (V) asks for a bumpless start from that output (implies
         ``bumpless`` for the next sample).
@@ -368,11 +403,13 @@ class DigitalController:
         self._y_prev = None
         self._first = True
         self._u0 = None if last_output is None else as_real("last_output", last_output)
+        self.fault = None
+        self.nonfinite_count = 0
         self.last_parts = {"p": 0.0, "i": 0.0, "d": 0.0, "ff": 0.0, "u": 0.0, "e": 0.0,
-                           "saturated": False}
+                           "saturated": False, "held": False}
 
     def params(self):
-        """Numbers the compiled simulation kernel needs (see :mod:`jerklab.sim`)."""
+        """The law's parameters as a dict (the names of :data:`jerklab.law.CTL_FIELDS`)."""
         g = self.gains
         ff = self.feedforward
         return dict(kpd=g.kpd, kid=g.kid, kdd=g.kdd, gamma=g.gamma, Ts=g.Ts,
@@ -382,12 +419,47 @@ class DigitalController:
                     anti_windup=self.anti_windup, velocity=self.loop == "velocity",
                     error_scale=self.error_scale, bumpless=self.bumpless)
 
+    def law_params(self):
+        """:meth:`params` packed as the float array the compiled kernels take (:func:`jerklab.law.pack`)."""
+        return law.pack(**self.params())
+
+    def _hold(self, y):
+        self.nonfinite_count += 1
+        if self.fault is None:
+            self.fault = "non-finite measurement"
+            warnings.warn(f"DigitalController: non-finite measurement {y!r}; holding the last output "
+                          f"{self.last_parts['u']!r} V (counted in nonfinite_count, fault set)",
+                          RuntimeWarning, stacklevel=3)
+        parts = dict(self.last_parts)
+        parts["held"] = True
+        self.last_parts = parts
+        return parts["u"]
+
     def step(self, ref_position, ref_velocity=0.0, ref_accel=0.0, measured_position=0.0):
-        """One sample: references (rad, rad/s, rad/s²) and the measured angle → u (V)."""
-        r = float(ref_position)
-        v = float(ref_velocity)
-        a = float(ref_accel)
-        y = float(measured_position)
+        """One sample: references (rad, rad/s, rad/s²) and the measured angle → u (V).
+
+        Non-finite references raise ``ValueError``; a non-finite measurement holds the last
+        output (see the class notes).
+        """
+        try:
+            r = float(ref_position)
+            v = float(ref_velocity)
+            a = float(ref_accel)
+            y = float(measured_position)
+        except (TypeError, ValueError):
+            for name, val in (("ref_position", ref_position), ("ref_velocity", ref_velocity),
+                              ("ref_accel", ref_accel), ("measured_position", measured_position)):
+                try:
+                    float(val)
+                except (TypeError, ValueError):
+                    raise TypeError(f"{name} must be a real number, got {val!r} ({type(val).__name__})") from None
+            raise
+        if not (math.isfinite(r) and math.isfinite(v) and math.isfinite(a)):
+            name, val = next((n, x) for n, x in (("ref_position", r), ("ref_velocity", v), ("ref_accel", a))
+                             if not math.isfinite(x))
+            raise ValueError(f"{name} must be finite, got {val!r}")
+        if not math.isfinite(y):
+            return self._hold(y)
         g = self.gains
         if self.loop == "position":
             e = self.error_scale * (r - y)
@@ -395,28 +467,20 @@ class DigitalController:
             y_prev = y if self._y_prev is None else self._y_prev
             e = self.error_scale * (v - (y - y_prev) / g.Ts)
         self._y_prev = y
-        ff = 0.0 if self.feedforward is None else float(self.feedforward(v, a))
+        ff = 0.0 if self.feedforward is None else (self.feedforward.tau * a + v) / self.feedforward.K
         if self._first and (self.bumpless or self._u0 is not None):
             self._e = e
             if self._u0 is not None:
                 self._i = self._u0 - ff - g.kpd * e - g.kid * e
         self._first = False
-        p = g.kpd * e
-        i_new = self._i + g.kid * e
-        d = g.gamma * self._d + g.kdd * (e - self._e)
-        u = ff + p + i_new + d
-        sat = False
-        lim = self.output_limit
-        if lim is not None and (u > lim or u < -lim):
-            sat = True
-            if self.anti_windup and (e > 0.0 if u > lim else e < 0.0):
-                u -= i_new - self._i
-                i_new = self._i
-            u = min(max(u, -lim), lim)
+        lim = math.inf if self.output_limit is None else self.output_limit
+        u, p, i_new, d, sat = _pid_step(e, self._e, self._i, self._d, ff, g.kpd, g.kid, g.kdd, g.gamma,
+                                        lim, self.anti_windup)
         self._i = i_new
         self._e = e
         self._d = d
-        self.last_parts = {"p": p, "i": i_new, "d": d, "ff": ff, "u": u, "e": e, "saturated": sat}
+        self.last_parts = {"p": p, "i": i_new, "d": d, "ff": ff, "u": u, "e": e, "saturated": sat,
+                           "held": False}
         return u
 
 
@@ -563,8 +627,13 @@ class _Loop:
         if not self.discrete:
             raise ValueError("time responses here are for a sampled loop; give Ts")
 
+    #: the longest time response computed (samples); beyond it the request is refused
+    MAX_SAMPLES = 20_000_000
+
     def _t(self, t_end):
         n = int(round(as_positive("t_end", t_end) / self.Ts)) + 1
+        if n > self.MAX_SAMPLES:
+            raise ValueError(f"t_end={t_end} at Ts={self.Ts} is {n} samples, more than {self.MAX_SAMPLES}")
         return np.arange(n) * self.Ts
 
     def step_response(self, t_end=0.5):
@@ -604,7 +673,10 @@ class PositionLoop(_Loop):
         ``(t, e)``.
         """
         self._need_discrete()
-        t_end = profile.duration * 1.2 + 0.1 if t_end is None else t_end
+        if not (hasattr(profile, "duration") and callable(getattr(profile, "sample", None))):
+            raise ValueError("profile must have .duration and .sample(t) (a jerklab.planner Profile), "
+                             f"got {type(profile).__name__}")
+        t_end = as_real("profile.duration", profile.duration) * 1.2 + 0.1 if t_end is None else t_end
         t = self._t(t_end)
         s = profile.sample(t)
         r = np.asarray(s.position, dtype=float)

@@ -186,6 +186,41 @@ def vcd_to_posedge(times, clock_period, timescale=1e-12):
     return t / per + 0.5
 
 
+
+#: most edges :func:`divider_edges` / :func:`published_divider` simulate in one call (a Python
+#: loop over edges, ~1 s per 200 000): a larger ``p_end`` raises ValueError
+MAX_EDGES = 1_000_000
+#: widest register modelled (bits)
+MAX_BITS = 64
+
+
+def _int_array(name, value):
+    """``value`` as a 1-D int64 array of whole numbers (ValueError naming ``name``)."""
+    a = as_finite_array(name, value, ndim=1)
+    if np.any(a != np.round(a)) or np.any(np.abs(a) >= 2.0 ** 62):
+        raise ValueError(f"{name} must hold whole numbers below 2**62")
+    return a.astype(np.int64)
+
+
+def _divider_args(starts, values, p_end, bits):
+    starts = _int_array("starts", starts)
+    values = _int_array("values", values)
+    if starts.shape != values.shape or starts.size == 0 or starts[0] != 1:
+        raise ValueError("starts must be a 1-D increasing sequence from 1, same length as values")
+    if np.any(np.diff(starts) <= 0):
+        raise ValueError("starts must be strictly increasing")
+    bits = as_int("bits", bits, minimum=1)
+    if bits > MAX_BITS:
+        raise ValueError(f"bits must be <= {MAX_BITS}, got {bits}")
+    p_end = as_int("p_end", p_end, minimum=1)
+    nz = values[values > 0]
+    cmin = int(nz.min()) if nz.size else 0
+    if cmin and 2 * p_end // cmin > 2 * MAX_EDGES:
+        raise ValueError(f"p_end = {p_end} asks for about {2 * p_end // cmin} edges (cycle {cmin}), more "
+                         f"than 2 * MAX_EDGES = {2 * MAX_EDGES}: simulate a shorter span")
+    return starts, values, p_end, bits
+
+
 def divider_edges(starts, values, p_end, bits=32):
     """Latched 50 %-duty divider (``firmware/fpga/pulse_divider.v``), clock-exact.
 
@@ -213,17 +248,11 @@ def divider_edges(starts, values, p_end, bits=32):
     -------
     rise, fall : ndarray of int
     """
-    starts = np.asarray(starts, dtype=np.int64)
-    values = np.asarray(values, dtype=np.int64)
-    if starts.ndim != 1 or starts.shape != values.shape or starts.size == 0 or starts[0] != 1:
-        raise ValueError("starts must be a 1-D increasing sequence from 1, same length as values")
-    if np.any(np.diff(starts) <= 0):
-        raise ValueError("starts must be strictly increasing")
+    starts, values, p_end, bits = _divider_args(starts, values, p_end, bits)
     if np.any(values < 0) or np.any(values >= 2 ** bits):
-        raise HardwareLimitError(f"cycle values must fit an unsigned {bits}-bit register")
+        raise HardwareLimitError(f"values (cycles) must fit an unsigned bits = {bits}-bit register")
     if np.any(values == 1):
-        raise HardwareLimitError("cycle = 1 cannot give a 50 % duty pulse (f > f_clk/2)")
-    p_end = as_int("p_end", p_end, minimum=1)
+        raise HardwareLimitError("values: cycle = 1 cannot give a 50 % duty pulse (f > f_clk/2)")
 
     def w(p):
         return int(values[np.searchsorted(starts, p, side="right") - 1])
@@ -297,6 +326,8 @@ class YangSCurve:
         self.step_um = as_int("step_um", step_um, minimum=1)
         self.start_count = as_int("start_count", start_count, minimum=0)
         self.bits = as_int("bits", bits, minimum=8)
+        if self.bits > MAX_BITS:
+            raise ValueError(f"bits must be <= {MAX_BITS}, got {self.bits}")
         top = 2 ** self.bits
 
         def whole(name, x):
@@ -313,16 +344,21 @@ class YangSCurve:
         frac = Fraction(self.max_velocity, 2 * N * N)
         self.coef_num, self.coef_den = frac.numerator, frac.denominator
         self.end_tick = 4 * N + self.cruise_counts           # n = 0 from here on
-        for name, val in (("multiplier product A_NUM * N^2", self.coef_num * N * N),
-                          ("coefficient denominator", self.coef_den),
-                          ("clock_hz", self.clock_hz), ("refresh clocks", self.refresh_clocks),
-                          ("tick count", self.end_tick),
-                          ("total clocks", (self.end_tick + 1) * self.refresh_clocks)):
+        for name, val in (("multiplier product A_NUM * N^2 (max_velocity, accel_time)", self.coef_num * N * N),
+                          ("coefficient denominator (max_velocity, accel_time)", self.coef_den),
+                          ("clock_hz", self.clock_hz),
+                          ("refresh clocks (refresh_period * clock_hz)", self.refresh_clocks),
+                          ("tick count (accel_time, cruise_time, refresh_period)", self.end_tick),
+                          ("total clocks (accel_time, cruise_time, clock_hz)",
+                           (self.end_tick + 1) * self.refresh_clocks)):
             if val >= top:
                 raise HardwareLimitError(f"{name} = {val} does not fit {self.bits} bits")
         if self.start_count > 2 * N:
             raise ValueError(f"start_count must be <= 2 T/(2 tc) = {2 * N}, got {self.start_count}")
         v0 = self.speed(max(self.start_count, 1))
+        if self.step_um > self.max_velocity:
+            raise HardwareLimitError(f"step_um = {self.step_um} µm exceeds max_velocity = "
+                                     f"{self.max_velocity} µm/s: the top speed is below 1 pulse/s")
         if v0 // self.step_um == 0:
             nmin = next(n for n in range(1, 2 * N + 1) if self.speed(n) >= self.step_um)
             raise HardwareLimitError(
@@ -440,11 +476,9 @@ def published_divider(starts, values, p_end, bits=32):
         runs through ``2**bits`` clocks before the next edge (86 s at 50 MHz);
         ``lockup_clocks`` is the number of clocks until that edge.
     """
-    starts = np.asarray(starts, dtype=np.int64)
-    values = np.asarray(values, dtype=np.int64)
-    if starts.ndim != 1 or starts.shape != values.shape or starts.size == 0 or starts[0] != 1:
-        raise ValueError("starts must be a 1-D increasing sequence from 1, same length as values")
-    p_end = as_int("p_end", p_end, minimum=1)
+    starts, values, p_end, bits = _divider_args(starts, values, p_end, bits)
+    if np.any(values < 0) or np.any(values >= 2 ** bits):
+        raise HardwareLimitError(f"values (cycles) must fit an unsigned bits = {bits}-bit register")
     rise, fall = [], []
     count, out, lockup = 0, 0, None
     for i in range(len(starts)):

@@ -44,7 +44,20 @@ from scipy.optimize import nnls
 from jerklab import paper as _paper
 from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
 
-__all__ = ["Preisach", "ForcData", "forc_experiment", "fit_preisach"]
+__all__ = ["Preisach", "ForcData", "forc_experiment", "fit_preisach", "MAX_GRID", "MAX_FIT_GRID", "MAX_FORC_POINTS"]
+
+#: largest Preisach grid (n x n cells; the operator keeps three n x n tables as Python lists)
+MAX_GRID = 1000
+#: largest grid :func:`fit_preisach` fits (n (n + 1) / 2 weights by bounded least squares)
+MAX_FIT_GRID = 100
+#: most FORC points :func:`forc_experiment` measures (n_curves * points_per_curve)
+MAX_FORC_POINTS = 1_000_000
+
+
+def _check_grid(name, n):
+    if n > MAX_GRID:
+        raise ValueError(f"{name} = {n} exceeds MAX_GRID = {MAX_GRID} cells per side")
+    return n
 
 
 class Preisach:
@@ -77,7 +90,11 @@ class Preisach:
         self.u_max = as_real("u_max", u_max)
         if not self.u_max > self.u_min:
             raise ValueError(f"u_max must be > u_min, got u_min={self.u_min!r}, u_max={self.u_max!r}")
+        shape = np.shape(density) if isinstance(density, np.ndarray) else None
+        if shape is not None and len(shape) == 2:
+            _check_grid("density size", max(shape))
         mu = as_finite_array("density", density, ndim=2)
+        _check_grid("density size", max(mu.shape))
         if mu.shape[0] != mu.shape[1] or mu.shape[0] < 1:
             raise ValueError(f"density must be a square (n, n) array, got shape {mu.shape}")
         mu = np.tril(mu)
@@ -113,7 +130,7 @@ class Preisach:
         """
         u_min = as_real("u_min", u_min)
         u_max = as_real("u_max", u_max)
-        n = as_int("n", n, minimum=1)
+        n = _check_grid("n", as_int("n", n, minimum=1))
         gain = as_positive("gain", gain)
         span = u_max - u_min
         if span <= 0:
@@ -131,8 +148,10 @@ class Preisach:
         """
         u_min = as_real("u_min", u_min)
         u_max = as_real("u_max", u_max)
-        n = as_int("n", n, minimum=1)
+        n = _check_grid("n", as_int("n", n, minimum=1))
         quad = as_int("quad", quad, minimum=1)
+        if quad > 64:
+            raise ValueError(f"quad must be <= 64, got {quad}")
         if not callable(density):
             raise ValueError("density must be a callable mu(alpha, beta)")
         h = (u_max - u_min) / n
@@ -515,6 +534,9 @@ def forc_experiment(system, u_min, u_max, n_curves=20, points_per_curve=20) -> F
         raise ValueError("u_max must be > u_min")
     n_curves = as_int("n_curves", n_curves, minimum=1)
     points_per_curve = as_int("points_per_curve", points_per_curve, minimum=1)
+    if n_curves * points_per_curve > MAX_FORC_POINTS:
+        raise ValueError(f"n_curves * points_per_curve = {n_curves * points_per_curve} exceeds "
+                         f"MAX_FORC_POINTS = {MAX_FORC_POINTS}")
     if not (hasattr(system, "reset") and hasattr(system, "apply")):
         raise ValueError("system must have reset() and apply(u)")
     A, B, F = [], [], []
@@ -550,6 +572,8 @@ def fit_preisach(forc_data: ForcData, n=20, regularization=0.0) -> Preisach:
     if not isinstance(forc_data, ForcData):
         raise ValueError("forc_data must be a ForcData (see forc_experiment)")
     n = as_int("n", n, minimum=1)
+    if n > MAX_FIT_GRID:
+        raise ValueError(f"n = {n} exceeds MAX_FIT_GRID = {MAX_FIT_GRID} (n (n + 1) / 2 unknowns)")
     lam = as_nonnegative("regularization", regularization)
     a = as_finite_array("forc_data.alpha", forc_data.alpha, ndim=1)
     b = as_finite_array("forc_data.beta", forc_data.beta, ndim=1)

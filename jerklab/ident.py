@@ -51,6 +51,7 @@ from scipy import linalg, optimize, signal, stats
 import control
 
 from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
+from jerklab.law import zoh_coefficients
 from jerklab.plant import _jit, advance_em
 
 __all__ = [
@@ -470,13 +471,8 @@ def dc_motor_zoh_coefficients(K, tau, Ts):
     so the differenced angle obeys v(k) = a v(k-1) + (b1 u(k-1) + b2 u(k-2)) / Ts with
     v(k) = (theta(k) - theta(k-1)) / Ts, and b1 + b2 = K Ts (1 - a).
     """
-    K = as_real("K", K)
-    tau = as_positive("tau", tau)
-    Ts = as_positive("Ts", Ts)
-    one_minus_a = -math.expm1(-Ts / tau)
-    a = 1.0 - one_minus_a
-    c = tau * one_minus_a
-    return a, K * (Ts - c), K * (c - a * Ts)
+    z = zoh_coefficients(K, tau, Ts)          # the one home: jerklab.law
+    return z.a, z.b1, z.b0
 
 
 def _unit_response(tau, Ts, u, omega0=0.0):

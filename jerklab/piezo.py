@@ -32,7 +32,7 @@ import control
 import numpy as np
 from scipy.linalg import matrix_balance
 from scipy.signal import lfilter
-from scipy.optimize import linprog, lsq_linear, minimize
+from scipy.optimize import linprog, lsq_linear, minimize, nnls
 
 from jerklab import paper as _paper
 from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
@@ -44,6 +44,9 @@ __all__ = [
     "shape_cycle", "rampup_time_vs_scan_start", "evaluate_cycle", "table_ii", "format_table_ii",
     "energy_optimal_return", "with_return", "pole_placement_gains", "closed_loop",
 ]
+
+#: longest horizon (samples) a shaping problem is built for: a dense k x k problem beyond it
+MAX_HORIZON = 20_000
 
 #: Xu & Meckl Table I: the linear PZT dynamics of eq. 1 (frequencies in Hz); from jerklab.paper.
 TABLE_I = dict(_paper.PIEZO_TABLE_I)
@@ -119,7 +122,13 @@ class PZTModel:
     def zoh(self, Ts: float = TS) -> control.StateSpace:
         """Return the exact zero-order-hold model at ``Ts`` (Xu & Meckl eq. 3)."""
         Ts = as_positive("Ts", Ts)
-        return control.c2d(self.ss(), Ts, method="zoh")
+        try:
+            sysd = control.c2d(self.ss(), Ts, method="zoh")
+        except (np.linalg.LinAlgError, ValueError, OverflowError) as exc:
+            raise ValueError(f"Ts = {Ts!r} s cannot be discretized: {exc}") from None
+        if not np.all(np.isfinite(np.asarray(sysd.A))) or not np.all(np.isfinite(np.asarray(sysd.B))):
+            raise ValueError(f"Ts = {Ts!r} s is too long for this model: the ZOH matrices overflow")
+        return sysd
 
     def dc_gain(self) -> float:
         """Return G(0) = K ωz² / (ω1² ω2²) in µm/V (0.18759 for Table I)."""
@@ -150,10 +159,13 @@ class PZTModel:
         for m in modes:
             if m not in (1, 2):
                 raise ValueError(f"modes must contain only 1 or 2, got {m!r}")
-        new = replace(self, f_1=self.f_1 * (freq_scale if 1 in modes else 1.0),
-                      f_2=self.f_2 * (freq_scale if 2 in modes else 1.0))
-        if hold_dc_gain:
-            new = replace(new, K=new.K * self.dc_gain() / new.dc_gain())
+        try:
+            new = replace(self, f_1=self.f_1 * (freq_scale if 1 in modes else 1.0),
+                          f_2=self.f_2 * (freq_scale if 2 in modes else 1.0))
+            if hold_dc_gain:
+                new = replace(new, K=new.K * self.dc_gain() / new.dc_gain())
+        except (ZeroDivisionError, OverflowError, ValueError) as exc:
+            raise ValueError(f"freq_scale = {freq_scale!r} gives no usable model ({exc})") from None
         return new
 
 
@@ -178,8 +190,10 @@ def simulate(model: PZTModel, u, Ts: float = TS) -> np.ndarray:
     The exact ZOH pulse transfer function of ``model.zoh(Ts)`` run by ``scipy.signal.lfilter``
     (tests compare it with ``control.forced_response``).
     """
+    if not isinstance(model, PZTModel):
+        raise TypeError(f"model must be a PZTModel, got {type(model).__name__}")
     u = as_finite_array("u", u, ndim=1)
-    A, B, C, D = _discrete(model, Ts)
+    A, B, C, D = _discrete(model, as_positive("Ts", Ts))
     den = np.real(np.poly(A))
     num = np.real(np.poly(A - np.outer(B, C))) - den + D * den    # C (zI − A)^-1 B + D
     return lfilter(num, den, u)
@@ -465,6 +479,10 @@ def _solve_lp(A_eq, b_eq, A_ub, b_ub, bounds, n, solver="lp"):
         res = linprog(np.zeros(n), A_ub=A_ub, b_ub=b_ub, A_eq=A_eq, b_eq=b_eq, bounds=bounds,
                       method="highs")
         return res.x if res.status == 0 else None
+    if solver == "nnls":
+        if A_ub is not None or A_eq is None:
+            return _solve_lp(A_eq, b_eq, A_ub, b_ub, bounds, n, "lp")
+        return _screen_nnls(A_eq, b_eq, bounds)
     if A_ub is not None:
         raise ValueError("solver='lsq' handles equality rows and bounds only (use solver='lp' "
                          "with e_allow > 0)")
@@ -479,9 +497,73 @@ def _solve_lp(A_eq, b_eq, A_ub, b_ub, bounds, n, solver="lp"):
     return x if np.abs(A_eq @ x - b_eq).max() <= LSQ_TOL else None
 
 
+#: an NNLS residual (unit-norm rows) above this is clearly infeasible, also for the LP's tolerance
+SCREEN_CLEAR = 1e-6
+
+
+def _screen_nnls(A_eq, b_eq, bounds):
+    """Feasibility of ``A_eq x = b_eq``, ``lo <= x <= hi`` by one non-negative least squares.
+
+    With ``x = lo + y`` and a slack ``s`` for the upper bounds the problem is
+    ``[A 0; I I] [y; s] = [b − A lo; hi − lo]``, ``y, s >= 0``: feasible iff the NNLS residual
+    is zero (Lawson–Hanson active set, ``scipy.optimize.nnls``, compiled). A residual below
+    ``LSQ_TOL`` is feasible, above ``SCREEN_CLEAR`` infeasible; in between the LP decides, so
+    the verdicts are the LP's. Used to screen the horizons of a bisection; the command itself
+    is the LP's (see :func:`_bisect_solver`).
+    """
+    lo = np.array([b[0] for b in bounds], dtype=float)
+    hi = np.array([b[1] for b in bounds], dtype=float)
+    free = lo != hi
+    A = A_eq[:, free]
+    m, n = A.shape
+    rhs = b_eq - A_eq @ lo
+    if n == 0:
+        return lo if np.abs(rhs).max(initial=0.0) <= LSQ_TOL else None
+    C = np.zeros((m + n, 2 * n))
+    C[:m, :n] = A
+    C[m:, :n] = np.eye(n)
+    C[m:, n:] = np.eye(n)
+    try:
+        y, _ = nnls(C, np.r_[rhs, hi[free] - lo[free]], maxiter=50 * (2 * n + 1))
+    except RuntimeError:                     # no convergence: let the LP decide
+        return _solve_lp(A_eq, b_eq, None, None, bounds, len(lo), "lp")
+    x = lo.copy()
+    x[free] += y[:n]
+    x = np.minimum(x, hi)
+    res = np.abs(A_eq @ x - b_eq).max(initial=0.0)
+    if res <= LSQ_TOL:
+        return x
+    if res < SCREEN_CLEAR:                   # marginal: the LP's tolerance decides
+        return _solve_lp(A_eq, b_eq, None, None, bounds, len(lo), "lp")
+    return None
+
+
+def _bisect_solver(make, n_lo, n_max, solver):
+    """Smallest horizon with ``make(n, solver)`` feasible, and its solution (see :func:`_bisect`).
+
+    ``solver="lp"`` (the default): the horizons are screened by :func:`_screen_nnls` (about ten
+    times faster than an LP through ``linprog``, with the LP's verdict where the screen is
+    marginal) and the LP runs once, at the minimum horizon ``N`` (walking up should it find
+    ``N`` infeasible). The horizon and the command are the LP's, as if every horizon had been
+    an LP (the same Table II, command for command), at about one LP per search.
+    """
+    if solver == "lsq":
+        return _bisect(lambda n: make(n, "lsq"), n_lo, n_max)
+    if solver == "highs":                    # an LP at every horizon (the former default)
+        return _bisect(lambda n: make(n, "lp"), n_lo, n_max)
+    hi, _ = _bisect(lambda n: make(n, "nnls"), n_lo, n_max)
+    sol = make(hi, "lp")
+    while sol is None and hi < n_max:
+        hi += 1
+        sol = make(hi, "lp")
+    if sol is None:
+        raise RuntimeError(f"no feasible horizon up to {n_max} samples (raise F_max?)")
+    return hi, sol
+
+
 def _check_solver(solver):
-    if solver not in ("lp", "lsq"):
-        raise ValueError(f"solver must be 'lp' or 'lsq', got {solver!r}")
+    if solver not in ("lp", "lsq", "highs"):
+        raise ValueError(f"solver must be 'lp', 'lsq' or 'highs', got {solver!r}")
     return solver
 
 
@@ -556,15 +638,19 @@ def shape_rampup(model: PZTModel | None = None, spec: ScanSpec | None = None, or
         Fixed y(T) in µm.
     max_samples : int
         Largest horizon tried.
-    solver : {"lp", "lsq"}
-        ``"lp"`` (default): feasibility LP per horizon with HiGHS. ``"lsq"``: eq. 6 literally,
-        bounded least squares of the conditions (BVLS), feasible at zero residual; same horizons,
-        several times faster for these small problems (``python -m benchmarks piezo``).
+    solver : {"lp", "highs", "lsq"}
+        ``"lp"`` (default): the horizons screened by one NNLS each, then the feasibility LP
+        (HiGHS) at the minimum horizon: the LP's horizon and command, at about one LP per search.
+        ``"highs"``: a feasibility LP at every horizon (the former default, same result, slower).
+        ``"lsq"``: eq. 6 literally, bounded least squares of the conditions (BVLS), feasible at
+        zero residual; same horizons, another feasible command (``python -m benchmarks piezo``).
     """
     model = model or PZTModel()
     spec = spec or ScanSpec()
     orders = _normalize_orders(orders or 0)
     max_samples = as_int("max_samples", max_samples, minimum=1)
+    if max_samples > MAX_HORIZON:
+        raise ValueError(f"max_samples must be <= MAX_HORIZON = {MAX_HORIZON}, got {max_samples}")
     _check_solver(solver)
     if scan_start is not None:
         scan_start = as_real("scan_start", scan_start)
@@ -572,11 +658,11 @@ def shape_rampup(model: PZTModel | None = None, spec: ScanSpec | None = None, or
     w, G1, beta = _ramp_constants(model, spec)
     count = [0]
 
-    def feasible(N):
+    def feasible(N, how):
         count[0] += 1
-        return _rampup_lp(N, model, spec, orders, poles, w, G1, beta, scan_start, solver)
+        return _rampup_lp(N, model, spec, orders, poles, w, G1, beta, scan_start, how)
 
-    N, x = _bisect(feasible, 0, max_samples)
+    N, x = _bisect_solver(feasible, 0, max_samples, solver)
     a = float(x[-1])
     return RampUp(u=x[:-1].copy(), a=a, w=w, scan_start=G1 * a + beta, orders=orders,
                   lp_count=count[0])
@@ -596,19 +682,21 @@ def shape_return(b: float, model: PZTModel | None = None, spec: ScanSpec | None 
     b = as_real("b", b)
     orders = _normalize_orders(orders or 0)
     max_samples = as_int("max_samples", max_samples, minimum=1)
+    if max_samples > MAX_HORIZON:
+        raise ValueError(f"max_samples must be <= MAX_HORIZON = {MAX_HORIZON}, got {max_samples}")
     _check_solver(solver)
     poles = model.mode_poles(spec.Ts)
     w, _, _ = _ramp_constants(model, spec)
     F = spec.F_max
     count = [0]
 
-    def feasible(N_r):
+    def feasible(N_r, how):
         count[0] += 1
         E, f = robustness_rows_return(N_r, poles, orders, w)
         bounds = [(-F, F)] * N_r + [(b, b)]
-        return _solve_lp(E, f, None, None, bounds, N_r + 1, solver)
+        return _solve_lp(E, f, None, None, bounds, N_r + 1, how)
 
-    N_r, x = _bisect(feasible, 0, max_samples)
+    N_r, x = _bisect_solver(feasible, 0, max_samples, solver)
     return Return(u=x[:-1].copy(), b=b, orders=orders, lp_count=count[0])
 
 
@@ -710,7 +798,7 @@ def shape_cycle(tracking_orders=0, return_orders=None, model: PZTModel | None = 
         Robustness order per mode for the ramp-up ("tracking") and for the return. An int ``m``
         means ``{1: m, 2: 0}``: mode 1 robustified, mode 2 only cancelled nominally.
         ``return_orders`` defaults to ``tracking_orders``.
-    solver : {"lp", "lsq"}
+    solver : {"lp", "highs", "lsq"}
         Feasibility solver per horizon (see ``shape_rampup``).
     """
     t0 = time.perf_counter()
@@ -726,18 +814,26 @@ def shape_cycle(tracking_orders=0, return_orders=None, model: PZTModel | None = 
     count = [up.lp_count]
     best = None
     for N in range(up.N, up.N + joint_extra + 1):
-        def feasible(N_r, N=N):
+        def feasible(N_r, how, N=N):
             count[0] += 1
-            return _joint_lp(N, N_r, model, spec, t_orders, r_orders, poles, w, G1, beta, solver)
+            return _joint_lp(N, N_r, model, spec, t_orders, r_orders, poles, w, G1, beta, how)
         try:
-            N_r, x = _bisect(feasible, 0, max_samples)
+            if solver == "lp":               # screen only; the LP runs once, for the winner below
+                N_r, x = _bisect(lambda n, f=feasible: f(n, "nnls"), 0, max_samples)
+            else:
+                N_r, x = _bisect_solver(feasible, 0, max_samples, solver)
         except RuntimeError:
             continue
         if best is None or N + N_r < best[0] + best[1]:
-            best = (N, N_r, x)
+            best = (N, N_r, x, feasible)
     if best is None:
         raise RuntimeError("no feasible return (raise F_max or max_samples)")
-    N, N_r, x = best
+    N, N_r, x, feasible = best
+    if solver == "lp":
+        x = feasible(N_r, "lp")
+        if x is None:                        # the screen and the LP disagree here: an LP everywhere
+            return shape_cycle(tracking_orders, return_orders, model, spec, max_samples=max_samples,
+                               joint_extra=joint_extra, solver="highs")
     S = spec.scan_samples
     a = float(x[N])
     u = np.concatenate([x[:N], a + w * np.arange(S), x[N + 1:]])
@@ -926,6 +1022,8 @@ def energy_optimal_return(b: float, k_r: int, model: PZTModel | None = None,
     spec = spec or ScanSpec()
     b = as_real("b", b)
     k_r = as_int("k_r", k_r, minimum=1)
+    if k_r > MAX_HORIZON:
+        raise ValueError(f"k_r must be <= MAX_HORIZON = {MAX_HORIZON} samples, got {k_r}")
     orders = _normalize_orders(orders)
     if objective not in ("input", "increment"):
         raise ValueError(f"objective must be 'input' or 'increment', got {objective!r}")
@@ -1009,11 +1107,16 @@ def pole_placement_gains(model: PZTModel | None = None, Ts: float = TS, mode1_da
     s = (_s_poles(mode1_damping, model.f_1) + _s_poles(model.zeta_2, model.f_2)
          + [-2 * math.pi * integral_frequency])
     zp = np.exp(np.array(s) * Ts)
-    Ka = np.asarray(control.place(Aa, Ba, zp)).ravel()
     so = (_s_poles(observer_damping, observer_speedup * model.f_1)
           + _s_poles(observer_damping, observer_speedup * model.f_2))
     zo = np.exp(np.array(so) * Ts)
-    L = np.asarray(control.place(A.T, C[:, None], zo)).ravel()
+    try:
+        Ka = np.asarray(control.place(Aa, Ba, zp)).ravel()
+        L = np.asarray(control.place(A.T, C[:, None], zo)).ravel()
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        raise ValueError(f"no pole placement for Ts = {Ts!r} s, integral_frequency = {integral_frequency!r} Hz, "
+                         f"observer_speedup = {observer_speedup!r}: the requested discrete poles "
+                         f"coincide or underflow ({exc})") from None
     return FeedbackGains(K=Ka[:n], k_i=float(Ka[n]), L=L, poles=zp, observer_poles=zo, Ts=Ts)
 
 
@@ -1025,8 +1128,8 @@ class ClosedLoopResult:
     y_desired: np.ndarray      # nominal output of the shaped command, µm
     y: np.ndarray              # closed-loop output of the perturbed plant, µm
     u_ff: np.ndarray           # shaped command (desired hysteresis output), V
-    u_c: np.ndarray            # feedforward + feedback (desired hysteresis output), V
-    u_r: np.ndarray            # actuator voltage after hysteresis inversion, V
+    u_r: np.ndarray            # reference of the hysteresis: feedforward + feedback (Xu & Meckl Fig. 1), V
+    u_c: np.ndarray            # compensated command on the actuator, H⁻¹(u_r) by the CNIA (Fig. 1), V
     f: np.ndarray              # hysteresis output reaching G (with cancellation error), V
     scan_slice: slice
     scan_error: float          # max |y − y_desired| over the scan, µm
@@ -1040,8 +1143,10 @@ def closed_loop(cycle: ScanCycle, perturbed: PZTModel | None = None, gains: Feed
     """Closed-loop simulation of a shaped scan cycle (Xu & Meckl Figs. 8, 9).
 
     Per sample: the shaped command ``u_ff`` plus pole-placement feedback on the error to the
-    nominal trajectory gives ``u_c``, the desired output of the hysteresis; the CNIA of the
-    identified model ``hysteresis`` (``Preisach.invert``) gives the actuator voltage ``u_r``; the
+    nominal trajectory gives ``u_r``, the reference (desired output) of the hysteresis; the CNIA of
+    the identified model ``hysteresis`` (``Preisach.invert``) gives the actuator voltage ``u_c``
+    (names as in Xu & Meckl Fig. 1 and notebook 08; before 2026-11 ``u_c`` and ``u_r`` were
+    swapped here); the
     actuator's own hysteresis ``actuator`` (``Preisach.apply``) turns it into ``f``, plus a
     cancellation error; ``f`` drives the perturbed linear plant.
 
@@ -1057,7 +1162,7 @@ def closed_loop(cycle: ScanCycle, perturbed: PZTModel | None = None, gains: Feed
     cancellation_error : float
         Amplitude of the hysteresis cancellation error, V (paper: 0.15 V).
     cancellation_model : {"branch", "constant"}
-        The paper gives only the amplitude. "branch" (default): ``+e`` while ``u_c`` rises,
+        The paper gives only the amplitude. "branch" (default): ``+e`` while ``u_r`` rises,
         ``−e`` while it falls (held when it does not move), the sign pattern of a mismatch
         between identified and true hysteresis loops; "constant": ``+e`` throughout.
     extra_time : float
@@ -1119,6 +1224,140 @@ def closed_loop(cycle: ScanCycle, perturbed: PZTModel | None = None, gains: Feed
     y, uc, ur, f = run(feedback)
     sl = cycle.scan_slice
     y_ol = run(False)[0] if feedback else y
-    return ClosedLoopResult(t=cycle.time(n_s), y_desired=yd, y=y, u_ff=u_ff, u_c=uc, u_r=ur, f=f,
+    return ClosedLoopResult(t=cycle.time(n_s), y_desired=yd, y=y, u_ff=u_ff, u_r=uc, u_c=ur, f=f,
                             scan_slice=sl, scan_error=float(np.abs(y - yd)[sl].max()),
                             open_loop_scan_error=float(np.abs(y_ol - yd)[sl].max()))
+
+
+# ----------------------------------------------------------------------------------------------
+# Table II's open choices (F_max, which modes are robustified) and the actuator limit in Fig. 9
+# ----------------------------------------------------------------------------------------------
+#: The readings of "robustified" compared by :func:`table_ii_sensitivity`: the order of each input
+#: of Table II applies to mode 1 only (mode 2 cancelled nominally) or to both modes.
+TABLE_II_MODE_READINGS = {"mode 1": (1,), "both modes": (1, 2)}
+
+
+def _orders_for(m: int, modes) -> dict:
+    return {1: m if 1 in modes else 0, 2: m if 2 in modes else 0}
+
+
+def table_ii_sensitivity(F_max_values=(20.0, 30.0, 38.0, 50.0, 70.0, 100.0), readings=None,
+                         model: PZTModel | None = None, spec: ScanSpec | None = None,
+                         freq_scale: float = 1.1, solver: str = "lp") -> list:
+    """Xu & Meckl Table II under each reading of the choices the paper leaves open.
+
+    The paper gives neither the actuator limit ``F_max`` (Xu & Meckl eq. 5) nor whether "m-th order robust"
+    applies to mode 1 only or to both modes. For each ``F_max`` and each reading this shapes the
+    four inputs (as :func:`table_ii`) and evaluates them under the +10 % perturbation of ω1.
+    A cycle too short for the limit (no feasible horizon) gives NaN.
+
+    Parameters
+    ----------
+    F_max_values : sequence of float
+        Actuator limits to try, V (> 0).
+    readings : dict, optional
+        ``{name: modes}`` (default :data:`TABLE_II_MODE_READINGS`).
+
+    Returns
+    -------
+    list of dict
+        One row per (reading, F_max): ``reading``, ``F_max``, ``rows`` (``{input: (cycle s, e_m
+        µm, e_r µm)}``) and ``distance`` (:func:`table_ii_distance`).
+    """
+    readings = TABLE_II_MODE_READINGS if readings is None else dict(readings)
+    F_list = [as_positive("F_max_values", F) for F in F_max_values]
+    if not F_list:
+        raise ValueError("F_max_values must not be empty")
+    model = model or PZTModel()
+    out, memo = [], {}
+    for name, modes in readings.items():
+        if not modes or any(m not in (1, 2) for m in modes):
+            raise ValueError(f"readings[{name!r}]: modes are 1 and/or 2, got {modes!r}")
+        inputs = {k: (_orders_for(t, modes), _orders_for(r, modes)) for k, (t, r) in TABLE_II_INPUTS.items()}
+        for F in F_list:
+            rows = {}
+            for k, (t_o, r_o) in inputs.items():
+                key = (F, tuple(t_o.items()), tuple(r_o.items()))   # the non-robust row is shared
+                if key not in memo:
+                    try:
+                        c = shape_cycle(t_o, r_o, model, replace(spec or ScanSpec(), F_max=F), solver=solver)
+                    except RuntimeError:
+                        memo[key] = (math.nan, math.nan, math.nan)
+                    else:
+                        ev = evaluate_cycle(c, freq_scale=freq_scale, modes=(1,))
+                        memo[key] = (ev.cycle_time, ev.e_m, ev.e_r)
+                rows[k] = memo[key]
+            out.append({"reading": name, "F_max": F, "rows": rows, "distance": table_ii_distance(rows)})
+    return out
+
+
+def table_ii_distance(rows: dict) -> dict:
+    """Distance of a reproduction of Table II from the published table.
+
+    ``cycle_rms_ms``: root mean square of (ours − paper) cycle time over the four inputs, ms;
+    ``cycle_max_ms``: the largest absolute difference, ms; ``error_factor``: the largest ratio
+    max(ours/paper, paper/ours) over all e_m and e_r. NaN if any input is infeasible.
+
+    Parameters
+    ----------
+    rows : dict
+        ``{input name: (cycle time s, e_m µm, e_r µm)}`` for the inputs of ``TABLE_II_PAPER``.
+    """
+    d_t, fac = [], []
+    for name, (tp, emp, erp) in TABLE_II_PAPER.items():
+        if name not in rows:
+            raise ValueError(f"rows: missing input {name!r}")
+        t, em, er = rows[name]
+        d_t.append((t - tp) * 1e3)
+        fac += [max(em / emp, emp / em), max(er / erp, erp / er)]
+    d_t = np.asarray(d_t)
+    return {"cycle_rms_ms": float(np.sqrt(np.mean(d_t ** 2))), "cycle_max_ms": float(np.abs(d_t).max()),
+            "error_factor": float(max(fac))}
+
+
+def best_table_ii_reading(sensitivity: list) -> dict:
+    """The row of :func:`table_ii_sensitivity` closest to the paper (smallest ``cycle_rms_ms``,
+    ties broken by ``error_factor``); infeasible rows are skipped."""
+    ok = [r for r in sensitivity if np.isfinite(r["distance"]["cycle_rms_ms"])]
+    if not ok:
+        raise ValueError("sensitivity: no feasible reading")
+    return min(ok, key=lambda r: (round(r["distance"]["cycle_rms_ms"], 9), r["distance"]["error_factor"]))
+
+
+@dataclass(frozen=True)
+class LimitExcursion:
+    """Where a signal exceeds ``|u| <= F_max``: peak value (V) and its time (s), time above (s),
+    and the intervals ``[(t_start, t_end), ...]`` (s) in which it is above."""
+
+    F_max: float
+    peak: float
+    t_peak: float
+    time_above: float
+    intervals: tuple
+
+
+def limit_excursions(t, u, F_max: float = DEFAULT_F_MAX) -> LimitExcursion:
+    """Find where ``u`` leaves the actuator range ``|u| <= F_max`` (Xu & Meckl eq. 5).
+
+    Parameters
+    ----------
+    t, u : array_like
+        Sample times (s, equally spaced) and values (V) of one signal, same length.
+    F_max : float
+        The limit, V (> 0).
+    """
+    t = as_finite_array("t", t)
+    u = as_finite_array("u", u)
+    if t.shape != u.shape or t.ndim != 1 or t.size < 2:
+        raise ValueError("t and u must be 1-D arrays of the same length (>= 2)")
+    F_max = as_positive("F_max", F_max)
+    dt = float(t[1] - t[0])
+    above = np.abs(u) > F_max
+    k = int(np.argmax(np.abs(u)))
+    edges = np.flatnonzero(np.diff(np.r_[0, above.astype(int), 0]))
+    intervals = tuple((float(t[a]), float(t[b - 1] + dt)) for a, b in zip(edges[::2], edges[1::2]))
+    return LimitExcursion(F_max, float(u[k]), float(t[k]), float(above.sum() * dt), intervals)
+
+
+__all__ += ["TABLE_II_MODE_READINGS", "table_ii_sensitivity", "table_ii_distance", "best_table_ii_reading",
+            "LimitExcursion", "limit_excursions"]

@@ -43,7 +43,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from jerklab._validate import as_finite_array, as_positive, as_real
+from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
 
 __all__ = [
     "Profile",
@@ -358,7 +358,8 @@ class Profile:
         Ts : float
             Sample time (s), > 0.
         t_end : float, optional
-            Last time to cover (s); default: the duration plus one sample.
+            Last time to cover (s, >= 0); default: the duration plus one sample.  At most
+            ``MAX_SAMPLES`` samples (``t_end / Ts``): a larger request raises ValueError.
 
         Returns
         -------
@@ -368,8 +369,12 @@ class Profile:
         Ts = as_positive("Ts", Ts)
         if t_end is None:
             t_end = self.duration + Ts
-        t_end = as_real("t_end", t_end)
-        n = max(int(math.ceil(t_end / Ts - 1e-9)), 0) + 1
+        t_end = as_nonnegative("t_end", t_end)
+        steps = t_end / Ts
+        if not steps < MAX_SAMPLES:
+            raise ValueError(f"t_end / Ts = {t_end!r} / {Ts!r} asks for more than MAX_SAMPLES = "
+                             f"{MAX_SAMPLES} samples: raise Ts or lower t_end")
+        n = max(int(math.ceil(steps - 1e-9)), 0) + 1
         tk = np.arange(n) * Ts
         exact = self.sample(tk)
         if _SHAPE[self.kind] == _STEP:
@@ -378,8 +383,12 @@ class Profile:
         else:
             jerk = exact.jerk
             accel = np.cumsum(jerk) * Ts
-        vel = np.cumsum(accel) * Ts
-        pos = np.cumsum(vel) * Ts
+        with np.errstate(over="ignore", invalid="ignore"):
+            vel = np.cumsum(accel) * Ts
+            pos = np.cumsum(vel) * Ts
+        if not np.isfinite(pos[-1]):
+            raise ValueError(f"Ts = {Ts!r} s is too large for this move (duration {self.duration!r} s): "
+                             f"the recursion overflows")
         return ProfileSample(tk, jerk, accel, vel, pos)
 
     def to_dict(self) -> dict:
@@ -467,6 +476,29 @@ class TrapezoidProfile(Profile):
 # ---------------------------------------------------------------------------------------------
 # planners (scalar)
 # ---------------------------------------------------------------------------------------------
+#: most samples :meth:`Profile.discretize` produces (5 arrays of 8-byte floats: 400 MB)
+MAX_SAMPLES = 10_000_000
+#: most moves :func:`plan_batch` plans in one call (about 80 bytes a move: 1.6 GB)
+MAX_BATCH_MOVES = 20_000_000
+
+
+def _no_plan(func, distance, J, A, V):
+    """The ValueError for limits that give no finite plan (a limit underflows, the move overflows)."""
+    lim = f"max_jerk={J!r}, " if J is not None else ""
+    return ValueError(f"{func}: no finite plan for distance={distance!r}, {lim}max_accel={A!r}, "
+                      f"max_velocity={V!r}: a limit is too small for the distance (the phase times "
+                      f"underflow to 0 or overflow to inf); scale the units")
+
+
+def _check_plan(p, func):
+    """Raise :func:`_no_plan` unless the phase times are finite and the move has some duration."""
+    tj, ta, tv = p._tj, p._ta, p._tv
+    if not ((tj + ta + tv) * 0.0 == 0.0 and (p.distance == 0.0 or tj + ta + tv > 0.0)
+            and (p.distance == 0.0 or p._jpar * 0.0 == 0.0 and p._jpar > 0.0)):
+        raise _no_plan(func, p.distance, *p._limits)
+    return p
+
+
 def _check_limits(distance, max_jerk, max_accel, max_velocity):
     """Validated floats (``jerklab._validate`` raises the ``ValueError`` naming the parameter)."""
     return (as_real("distance", distance), as_positive("max_jerk", max_jerk),
@@ -527,10 +559,12 @@ def plan_sine_jerk(distance, max_jerk, max_accel, max_velocity) -> "SineJerkProf
     if wmax > W:
         T = _sqrt(_TWO_PI * W / J)
         wmax = W                                            # omega = min(omega_max, Omega)
+    if not wmax > 0.0:                                      # 1e-300 limits: T^2 underflows
+        raise _no_plan("plan_sine_jerk", distance, J, E, W)
     tv = (theta - wmax * T) / wmax
     p._tj = 0.5 * T
     p._tv = tv if tv > 0.0 else 0.0                         # round-off only (T <= T_Theta)
-    return p
+    return _check_plan(p, "plan_sine_jerk")
 
 
 def _scurve_times(d, J, A, V):
@@ -585,9 +619,12 @@ def plan_sine_jerk_optimal(distance, max_jerk, max_accel, max_velocity) -> "Sine
     p.distance = distance
     p._jpar = J
     p._limits = (J, E, W)
-    p._tj, p._ta, p._tv = _scurve_times(distance if distance >= 0.0 else -distance,
-                                        _TWO_OVER_PI * J, E, W)
-    return p
+    try:
+        p._tj, p._ta, p._tv = _scurve_times(distance if distance >= 0.0 else -distance,
+                                            _TWO_OVER_PI * J, E, W)
+    except ZeroDivisionError:
+        raise _no_plan("plan_sine_jerk_optimal", distance, J, E, W) from None
+    return _check_plan(p, "plan_sine_jerk_optimal")
 
 
 def plan_scurve(distance, max_jerk, max_accel, max_velocity) -> "SCurveProfile":
@@ -612,8 +649,11 @@ def plan_scurve(distance, max_jerk, max_accel, max_velocity) -> "SCurveProfile":
     p.distance = distance
     p._jpar = J
     p._limits = (J, A, V)
-    p._tj, p._ta, p._tv = _scurve_times(distance if distance >= 0.0 else -distance, J, A, V)
-    return p
+    try:
+        p._tj, p._ta, p._tv = _scurve_times(distance if distance >= 0.0 else -distance, J, A, V)
+    except ZeroDivisionError:
+        raise _no_plan("plan_scurve", distance, J, A, V) from None
+    return _check_plan(p, "plan_scurve")
 
 
 def plan_trapezoid(distance, max_accel, max_velocity) -> "TrapezoidProfile":
@@ -650,7 +690,7 @@ def plan_trapezoid(distance, max_accel, max_velocity) -> "TrapezoidProfile":
     else:
         p._ta = _sqrt(d / A)
         p._tv = 0.0
-    return p
+    return _check_plan(p, "plan_trapezoid")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -717,7 +757,11 @@ class BatchPlan:
         return np.where(self.distance != 0.0, self.jpar, 0.0)
 
     def profile(self, i: int) -> Profile:
-        """The ``i``-th move as a :class:`Profile`."""
+        """The ``i``-th move as a :class:`Profile` (``-len(self) <= i < len(self)``)."""
+        n = len(self)
+        i = as_int("i", i)
+        if not -n <= i < n:
+            raise ValueError(f"i must be in [{-n}, {n}) for a batch of {n} moves, got {i}")
         cls = _CLASSES[self.kind]
         mj = None if self.max_jerk is None else float(self.max_jerk[i])
         return cls(float(self.distance[i]), float(self.tj[i]), float(self.ta[i]),
@@ -941,11 +985,23 @@ def plan_batch(kind, distance, max_jerk=None, max_accel=None, max_velocity=None,
     values = (distance, max_accel, max_velocity) + ((max_jerk,) if kind != "trapezoid" else ())
     arrays = []
     for name, value in zip(names, values):
+        if isinstance(value, (str, bytes)):
+            as_finite_array(name, value)             # raises with the parameter's name
         try:
-            arrays.append(np.ascontiguousarray(value, dtype=float))
+            arrays.append(np.asarray(value, dtype=float))       # no copy yet (a broadcast view stays one)
         except (TypeError, ValueError):
             as_finite_array(name, value)             # raises with the parameter's name
             raise ValueError(f"{name} must be numeric, got {value!r}") from None
+    try:
+        shape = np.broadcast_shapes(*(a.shape for a in arrays))
+    except ValueError:
+        raise ValueError("distance, max_jerk, max_accel, max_velocity must broadcast to one shape (n,); "
+                         f"got {', '.join(f'{nm} {a.shape}' for nm, a in zip(names, arrays))}") from None
+    n_moves = math.prod(shape)
+    if n_moves > MAX_BATCH_MOVES:
+        raise ValueError(f"distance and the limits ask for {n_moves} moves, more than MAX_BATCH_MOVES = "
+                         f"{MAX_BATCH_MOVES}: plan them in several calls")
+    arrays = [np.ascontiguousarray(a) for a in arrays]
     n_max = max(a.size for a in arrays)
     use_kernel = engine == "numba" or (engine == "auto" and n_max >= NUMBA_MIN_MOVES)
     kernel = _compiled_kernel() if use_kernel else False
@@ -972,23 +1028,37 @@ def plan_batch(kind, distance, max_jerk=None, max_accel=None, max_velocity=None,
                 _batch_array(name, a, positive=name != "distance")
             raise AssertionError("unreachable: a bad value passed the checks")  # pragma: no cover
         jpar = A if kind == "trapezoid" else J
+        _check_batch(kind, dist, tj, ta, tv, J, A, V)
         return BatchPlan(kind, dist, tj, ta, tv, jpar, J, A, V)
     d_all = np.abs(dist)
     if kind == "sine_jerk_optimal":
         jeq = _TWO_OVER_PI * J
-    for lo in range(0, n, _CHUNK):
-        sl = slice(lo, min(lo + _CHUNK, n))
-        d = d_all[sl]
-        if kind == "scurve":
-            _batch_scurve(d, J[sl], A[sl], V[sl], tj[sl], ta[sl], tv[sl])
-        elif kind == "sine_jerk_optimal":
-            _batch_scurve(d, jeq[sl], A[sl], V[sl], tj[sl], ta[sl], tv[sl])
-        elif kind == "sine_jerk":
-            _batch_sine_jerk(d, J[sl], A[sl], V[sl], tj[sl], ta[sl], tv[sl])
-        else:
-            _batch_trapezoid(d, A[sl], V[sl], tj[sl], ta[sl], tv[sl])
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
+        for lo in range(0, n, _CHUNK):      # (a non-finite plan is refused by _check_batch)
+            sl = slice(lo, min(lo + _CHUNK, n))
+            d = d_all[sl]
+            if kind == "scurve":
+                _batch_scurve(d, J[sl], A[sl], V[sl], tj[sl], ta[sl], tv[sl])
+            elif kind == "sine_jerk_optimal":
+                _batch_scurve(d, jeq[sl], A[sl], V[sl], tj[sl], ta[sl], tv[sl])
+            elif kind == "sine_jerk":
+                _batch_sine_jerk(d, J[sl], A[sl], V[sl], tj[sl], ta[sl], tv[sl])
+            else:
+                _batch_trapezoid(d, A[sl], V[sl], tj[sl], ta[sl], tv[sl])
     zero = d_all == 0.0
     if zero.any():
         tj[zero] = ta[zero] = tv[zero] = 0.0
     jpar = A if kind == "trapezoid" else J
+    _check_batch(kind, dist, tj, ta, tv, J, A, V)
     return BatchPlan(kind, dist, tj, ta, tv, jpar, J, A, V)
+
+
+def _check_batch(kind, dist, tj, ta, tv, J, A, V):
+    """ValueError naming the first move whose plan is not finite (limits too small for it)."""
+    with np.errstate(all="ignore"):
+        total = tj + ta + tv
+        ok = np.isfinite(total) & ((total > 0.0) | (dist == 0.0))
+    if not ok.all():
+        i = int(np.argmin(ok))
+        jj = None if J is None else float(J[i])
+        raise _no_plan(f"plan_batch (move {i})", float(dist[i]), jj, float(A[i]), float(V[i]))

@@ -39,6 +39,7 @@ import scipy.linalg
 
 from jerklab._validate import (as_finite_array, as_int, as_nonnegative, as_positive,
                                as_real)
+from jerklab.law import encoder_vec, voltage_vec, zoh_coefficients
 
 __all__ = ["DCMotor", "FlexibleDCMotor", "StepDisturbance", "advance", "advance_scalar", "advance_em",
            "quantize_voltage", "measure_angle"]
@@ -154,22 +155,24 @@ def quantize_voltage(u, supply_voltage=None, pwm_bits=None):
     by the direction pins; the duty is rounded half away from zero (C ``lround``, as the
     firmware). ``None`` switches the effect off.
     """
-    u = np.asarray(u, dtype=float)
-    if supply_voltage is not None:
-        u = np.clip(u, -supply_voltage, supply_voltage)
-        if pwm_bits is not None:
-            levels = float(2 ** pwm_bits - 1)
-            x = u / supply_voltage * levels          # lround: half away from zero, as the firmware
-            u = np.sign(x) * np.floor(np.abs(x) + 0.5) / levels * supply_voltage
-    return u
+    u = as_finite_array("u", u)
+    if supply_voltage is None:
+        return u
+    supply_voltage = as_positive("supply_voltage", supply_voltage)
+    if pwm_bits is not None:
+        pwm_bits = as_int("pwm_bits", pwm_bits, minimum=1)
+        if pwm_bits > 32:
+            raise ValueError(f"pwm_bits must be <= 32, got {pwm_bits}")
+    return voltage_vec(u, supply_voltage, 0.0 if pwm_bits is None else float(2 ** pwm_bits - 1))
 
 
 def measure_angle(theta, counts_per_rad=None):
     """Encoder quantization: the counter holds ``floor(theta * counts_per_rad)``."""
-    theta = np.asarray(theta, dtype=float)
+    theta = as_finite_array("theta", theta)
     if counts_per_rad is None:
         return theta
-    return np.floor(theta * counts_per_rad + 1e-9) / counts_per_rad
+    counts_per_rad = as_positive("counts_per_rad", counts_per_rad)
+    return encoder_vec(theta, counts_per_rad)
 
 
 @dataclass(frozen=True)
@@ -382,26 +385,32 @@ class DCMotor(_MotorBase):
         return ct.ss(A, B, C, np.zeros((C.shape[0], 1)))
 
     def zoh(self, Ts):
-        """Exact ZOH discretization ``x[k+1] = Phi x[k] + Gamma u[k]`` in closed form."""
-        Ts = as_positive("Ts", Ts)
-        a = math.exp(-Ts / self.tau)
-        em = -math.expm1(-Ts / self.tau)
-        Phi = np.array([[1.0, self.tau * em], [0.0, a]])
-        Gamma = np.array([[self.K * (Ts - self.tau * em)], [self.K * em]])
+        """Exact ZOH discretization ``x[k+1] = Phi x[k] + Gamma u[k]`` in closed form (Stojčić eq. 1,
+        coefficients from :func:`jerklab.law.zoh_coefficients`)."""
+        z = zoh_coefficients(self.K, self.tau, Ts)
+        Phi = np.array([[1.0, self.tau * z.one_minus_a], [0.0, z.a]])
+        Gamma = np.array([[z.b1], [self.K * z.one_minus_a]])
         return Phi, Gamma
 
     def discrete_tf(self, Ts):
         """ZOH-discretized P(z) as a python-control transfer function (dt = Ts)."""
-        return ct.c2d(self.tf(), as_positive("Ts", Ts), "zoh")
+        Ts = as_positive("Ts", Ts)
+        try:
+            return ct.c2d(self.tf(), Ts, "zoh")
+        except (np.linalg.LinAlgError, ValueError, OverflowError) as exc:
+            raise ValueError(f"Ts = {Ts!r} s cannot be discretized for tau = {self.tau!r} s: {exc}") from None
 
     # --- exact simulation --------------------------------------------------
-    def _x0(self, x0):
+    def initial_state(self, x0=None):
+        """``x0`` checked and copied as the state ``[theta, omega]`` (None: rest at 0)."""
         if x0 is None:
             return np.zeros(2)
         x = as_finite_array("x0", x0, ndim=1)
         if x.shape != (2,):
             raise ValueError(f"x0 must be [theta, omega], got shape {x.shape}")
         return x.copy()
+
+    _x0 = initial_state
 
     def step_state(self, x, u, dt, t=0.0):
         """Next state ``[theta, omega]`` after ``dt`` with the terminal voltage ``u`` held.
@@ -413,6 +422,8 @@ class DCMotor(_MotorBase):
         part, analytic zero-crossing event and sticking for Coulomb friction.
         """
         x = as_finite_array("x", x, ndim=1)
+        if x.shape != (2,):
+            raise ValueError(f"x must be [theta, omega], got shape {x.shape}")
         u = as_real("u", u)
         dt = as_nonnegative("dt", dt)
         t = as_real("t", t)
@@ -529,16 +540,22 @@ class FlexibleDCMotor(_MotorBase):
             M[:4, :4] = A * Ts
             M[:4, 4:] = B * Ts
             E = scipy.linalg.expm(M)
+            if not np.all(np.isfinite(E)):
+                raise ValueError(f"Ts = {Ts!r} s is too long for this model: the matrix exponential "
+                                 f"overflows")
             self._zoh_cache[Ts] = (E[:4, :4], E[:4, 4:])
         return self._zoh_cache[Ts]
 
-    def _x0(self, x0):
+    def initial_state(self, x0=None):
+        """``x0`` checked and copied as the state ``[theta_m, omega_m, theta_l, omega_l]`` (None: rest)."""
         if x0 is None:
             return np.zeros(4)
         x = as_finite_array("x0", x0, ndim=1)
         if x.shape != (4,):
             raise ValueError(f"x0 must be [theta_m, omega_m, theta_l, omega_l], got shape {x.shape}")
         return x.copy()
+
+    _x0 = initial_state
 
     def step_state(self, x, u, dt, t=0.0):
         """Next state after ``dt`` with the voltage ``u`` held (exact ZOH)."""

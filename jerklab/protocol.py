@@ -29,6 +29,8 @@ from __future__ import annotations
 import binascii
 import dataclasses
 import enum
+import math
+import numbers
 import struct
 from dataclasses import dataclass
 from typing import ClassVar
@@ -84,6 +86,8 @@ def crc16_ccitt_false(data: bytes, crc: int = 0xFFFF) -> int:
     ``crc16_ccitt_false(b"123456789") == 0x29B1`` (the catalogue check value).
     The streaming decoder uses the equivalent C routine ``binascii.crc_hqx``.
     """
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        raise TypeError(f"data must be bytes, got {type(data).__name__}")
     for b in bytes(data):
         crc = ((crc << 8) & 0xFFFF) ^ _CRC_TABLE[((crc >> 8) ^ b) & 0xFF]
     return crc
@@ -185,22 +189,80 @@ TELEMETRY_FAULT = 0x04
 
 # --------------------------------------------------------------------------- messages
 
+_INT_RANGES = {"B": (0, 0xFF), "H": (0, 0xFFFF), "I": (0, 0xFFFFFFFF), "h": (-0x8000, 0x7FFF),
+               "i": (-0x80000000, 0x7FFFFFFF)}
+_F32_MAX = 3.4028234663852886e38
+
+
+def _field_codes(fmt: str) -> list[str]:
+    """One struct code per field of a ``FORMAT`` (``"16s"`` is one field)."""
+    codes, digits = [], ""
+    for ch in fmt.lstrip("<>=!@"):
+        if ch.isdigit():
+            digits += ch
+            continue
+        codes.append(ch if ch != "s" else digits + ch)
+        digits = ""
+    return codes
+
+
+def _wire_value(msg: str, name: str, code: str, v):
+    """``v`` checked against its wire type ``code`` (ProtocolError naming the field ``name``)."""
+    what = f"{msg}: cannot pack {name} = {v!r}"
+    if code.endswith("s"):
+        size = int(code[:-1] or 1)
+        if isinstance(v, str):
+            try:
+                v = v.encode("ascii")
+            except UnicodeEncodeError:
+                raise ProtocolError(f"{what}: must be ASCII text") from None
+        if not isinstance(v, (bytes, bytearray)):
+            raise ProtocolError(f"{what}: must be a str ({type(v).__name__} given)")
+        if len(v) > size:
+            raise ProtocolError(f"{what}: at most {size} characters")
+        return bytes(v)
+    if code == "f":
+        if isinstance(v, bool) or not isinstance(v, numbers.Real):
+            raise ProtocolError(f"{what}: must be a number ({type(v).__name__} given)")
+        try:
+            x = float(v)
+        except OverflowError:
+            x = math.copysign(math.inf, v)
+        if math.isfinite(x) and abs(x) > _F32_MAX:
+            raise ProtocolError(f"{what}: beyond the float32 range |x| <= {_F32_MAX:.6g} of the wire")
+        if 0.0 < abs(x) < 1.1754943508222875e-38 and struct.unpack("<f", struct.pack("<f", x))[0] == 0.0:
+            raise ProtocolError(f"{what}: nonzero but below the float32 range (it would arrive as 0)")
+        return x
+    lo, hi = _INT_RANGES[code]
+    if isinstance(v, bool) or not isinstance(v, numbers.Integral):
+        raise ProtocolError(f"{what}: must be an integer in {lo}..{hi} ({type(v).__name__} given)")
+    if not lo <= int(v) <= hi:
+        raise ProtocolError(f"{what}: must be in {lo}..{hi}")
+    return int(v)
+
+
 @dataclass(frozen=True)
 class _Message:
     TYPE: ClassVar[MsgType]
     FORMAT: ClassVar[str]
 
     def pack(self) -> bytes:
-        """The payload bytes of this message."""
+        """The payload bytes of this message.
+
+        Raises
+        ------
+        ProtocolError
+            (a ``ValueError``) naming the field whose value does not fit its wire type: an
+            integer outside its range or not an integer, a finite number beyond the float32
+            range, a name longer than its field (NaN and inf travel: the device refuses them
+            with a NACK naming the field).
+        """
         values = []
-        for f in dataclasses.fields(self):
-            v = getattr(self, f.name)
-            if isinstance(v, str):
-                v = v.encode("ascii", "replace")
-            values.append(v)
+        for f, code in zip(dataclasses.fields(self), _field_codes(self.FORMAT)):
+            values.append(_wire_value(type(self).__name__, f.name, code, getattr(self, f.name)))
         try:
             return struct.pack(self.FORMAT, *values)
-        except struct.error as exc:
+        except (struct.error, OverflowError, TypeError) as exc:    # pragma: no cover - checked above
             raise ProtocolError(f"{type(self).__name__}: cannot pack {values!r}: {exc}") from None
 
     @classmethod
@@ -441,6 +503,9 @@ MESSAGES: dict[int, type] = {cls.TYPE: cls for cls in (
 
 def payload_field_name(command: int, index: int) -> str:
     """Name of field ``index`` of command type ``command`` (for NACK messages)."""
+    for name, v in (("command", command), ("index", index)):
+        if isinstance(v, bool) or not isinstance(v, numbers.Integral) or not 0 <= v <= 0xFF:
+            raise ValueError(f"{name} must be a byte (0..255), got {v!r}")
     cls = MESSAGES.get(command)
     if cls is None:
         return f"field {index} of unknown type 0x{command:02X}"
@@ -473,10 +538,12 @@ class Frame:
 
 def encode_frame(msg_type: int, seq: int, payload: bytes = b"") -> bytes:
     """Bytes on the wire for one frame (sync, len, type, seq, payload, CRC-16 LE)."""
-    if not (0 <= int(msg_type) <= 0xFF):
-        raise ProtocolError(f"msg_type must be a byte, got {msg_type!r}")
-    if not (0 <= int(seq) <= 0xFF):
+    if isinstance(msg_type, bool) or not isinstance(msg_type, numbers.Integral) or not 0 <= msg_type <= 0xFF:
+        raise ProtocolError(f"msg_type must be a byte (0..255), got {msg_type!r}")
+    if isinstance(seq, bool) or not isinstance(seq, numbers.Integral) or not 0 <= seq <= 0xFF:
         raise ProtocolError(f"seq must be a byte (0..255), got {seq!r}")
+    if not isinstance(payload, (bytes, bytearray, memoryview)):
+        raise ProtocolError(f"payload must be bytes, got {type(payload).__name__}")
     payload = bytes(payload)
     if len(payload) > MAX_PAYLOAD:
         raise ProtocolError(f"payload must be <= {MAX_PAYLOAD} bytes, got {len(payload)}")
@@ -534,6 +601,8 @@ class Decoder:
 
     def feed(self, data: bytes) -> list[Frame]:
         """Append ``data``; return the complete good frames, in order."""
+        if not isinstance(data, (bytes, bytearray, memoryview)):
+            raise TypeError(f"data must be bytes, got {type(data).__name__}")
         buf = self._buf
         buf += data
         out: list[Frame] = []

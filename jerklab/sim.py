@@ -7,105 +7,62 @@ saturation, PWM and encoder quantization, noise.
 
 At sample ``k`` (``t = k Ts``):
 
-1. the encoder gives ``y(k)`` = floor(θ(kTs)·counts/rad)/(counts/rad) (+ noise);
+1. the encoder gives ``y(k)`` = floor(θ(kTs)·counts/rad)/(counts/rad) (+ noise)
+   (:func:`jerklab.law.encoder`);
 2. the profile is sampled in closed form at ``kTs`` (position, velocity, acceleration);
-3. the :class:`~jerklab.controller.DigitalController` law (eqs. 16–18, output clamp,
-   anti-windup) gives ``u(k)``; position loop ``e = r − y``, or the paper's velocity loop
-   ``e = ω_r − (y(k) − y(k−1))/Ts`` (pulses per sample, §4B);
-4. the amplifier applies ``quantize_voltage(u(k))`` during ``[kTs, (k+1)Ts)``.
+3. the control law of :mod:`jerklab.law` (Stojčić eq. 16, Stojčić eq. 17, Stojčić eq. 18, output clamp,
+   anti-windup; the law :class:`~jerklab.controller.DigitalController` runs) gives ``u(k)``;
+   position loop ``e = r − y``, or the paper's velocity loop ``e = ω_r − (y(k) − y(k−1))/Ts``
+   (pulses per sample, §4B);
+4. the amplifier applies the supply clamp and PWM rounding (:func:`jerklab.law.amplifier`)
+   during ``[kTs, (k+1)Ts)``.
 
-The loop is one compiled kernel (numba, if installed; else the same code in Python),
-cross-checked in the tests against stepping ``DigitalController`` and
-``DCMotor.step_state`` in Python and against python-control on the linear loop.
-:func:`simulate_batch` runs many perturbed plants (K, τ, friction) at once.
+The loop is one compiled kernel (numba, if installed; else the same code in Python) that
+also accumulates the metrics; all per-call work outside it is a few small arrays (the
+reference of a planner profile is sampled once per grid and reused). It is cross-checked
+in the tests against stepping ``DigitalController`` and ``DCMotor.step_state`` in Python and
+against python-control on the linear loop. A run that diverges (NaN/inf, or an error beyond
+``DIVERGENCE_FACTOR`` × the move) says so. :func:`simulate_batch` runs many perturbed
+plants (K, τ, friction) at once, compiled or with the law's numpy form.
+
+ASCII spelling of the paper's author: Stojcic.
 """
 from __future__ import annotations
 
 import math
+import warnings
+from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from jerklab._validate import as_finite_array, as_nonnegative, as_positive, as_real
-from jerklab.controller import DigitalController, DiscreteGains, Feedforward, Gains
+from jerklab import law
+from jerklab.law import HAVE_NUMBA, _jit  # one switch for every compiled kernel
+from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
+from jerklab.controller import DigitalController, DiscreteGains, Gains
+from jerklab.planner import Profile
 from jerklab.plant import DCMotor, FlexibleDCMotor, advance, advance_em
 
 __all__ = ["simulate", "simulate_batch", "SimResult", "BatchResult", "perturbed_plants",
            "SampledProfile", "StepProfile", "HAVE_NUMBA"]
 
-try:
-    from numba import njit as _njit
-
-    HAVE_NUMBA = True
-
-    def _jit(f):
-        return _njit(cache=True, nogil=True)(f)
-except ImportError:  # pragma: no cover
-    HAVE_NUMBA = False
-
-    def _jit(f):
-        return f
+# packed plant and run parameters of :func:`_kernel` (see :func:`_plant_pack`)
+(P_RIGID, P_K, P_TAU, P_FC, P_DIST_ON, P_DIST_AMP, P_DIST_TIME, P_SUPPLY, P_LEVELS, P_CPR,
+ P_DISTANCE, P_BAND, P_DURATION, P_NMOVE, P_BOUND, P_OFFSET, P_DEAD_ZONE) = range(17)
+_NP = 17
+# rows of the kernel's output array after the ns state rows
+(O_MEAS, O_UCMD, O_UAPP, O_P, O_I, O_D, O_FF, O_E) = range(8)
+_NO = 8
+# metrics the kernel accumulates
+(M_EMAX, M_ESQ, M_LAST, M_UMAX, M_NSAT, M_NONFINITE, M_BEYOND, M_RESID, M_NAFTER) = range(9)
+_NM = 9
+#: a run whose |error| exceeds this many times max(|distance|, 1) has diverged
+DIVERGENCE_FACTOR = 1e3
 
 
 # ---------------------------------------------------------------------------
-# the compiled kernel
+# the compiled kernels (the law itself is jerklab.law)
 # ---------------------------------------------------------------------------
-@_jit
-def _encoder(th, cpr):
-    """Counter reading floor(θ·cpr) as an angle (cpr = 0: ideal sensor)."""
-    if cpr > 0.0:
-        return np.floor(th * cpr + 1e-9) / cpr
-    return th
-
-
-@_jit
-def _pid(e, e_prev, i_prev, d_prev, ff, kpd, kid, kdd, gamma, limit, aw):
-    """Eq. 16-18 with the output clamp and conditional integration → (u, p, i, d, sat)."""
-    p = kpd * e
-    i_new = i_prev + kid * e
-    d = gamma * d_prev + kdd * (e - e_prev)
-    u = ff + p + i_new + d
-    sat = False
-    if u > limit:
-        sat = True
-        if aw and e > 0.0:
-            u -= i_new - i_prev
-            i_new = i_prev
-        if u > limit:
-            u = limit
-    elif u < -limit:
-        sat = True
-        if aw and e < 0.0:
-            u -= i_new - i_prev
-            i_new = i_prev
-        if u < -limit:
-            u = -limit
-    return u, p, i_new, d, sat
-
-
-@_jit
-def _amplifier(u, supply, levels):
-    """Supply clamp and PWM rounding (lround) → (voltage, clamped)."""
-    if supply <= 0.0:
-        return u, False
-    clamped = False
-    v = u
-    if v > supply:
-        v = supply
-        clamped = True
-    elif v < -supply:
-        v = -supply
-        clamped = True
-    if levels > 0.0:
-        q = v / supply * levels
-        if q >= 0.0:
-            q = np.floor(q + 0.5)
-        else:
-            q = -np.floor(-q + 0.5)
-        v = q / levels * supply
-    return v, clamped
-
-
 @_jit
 def _rigid_step(th, om, v, k, Ts, fc, K, tau, em_full, dist_on, dist_amp, dist_time):
     """Exact rigid-plant step over [k Ts, (k+1) Ts) with the disturbance split."""
@@ -120,81 +77,171 @@ def _rigid_step(th, om, v, k, Ts, fc, K, tau, em_full, dist_on, dist_amp, dist_t
 
 
 @_jit
-def _kernel(rpos, rvel, racc, noise, x0,
-            rigid, K, tau, fc, Phi, Gam, Phi_a, Gam_a, Phi_b, Gam_b,
-            dist_on, dist_amp, dist_time,
-            supply, levels, cpr,
-            kpd, kid, kdd, gamma, ff_on, ffK, fftau, limit, aw, velocity, scale, bumpless, Ts,
-            X, meas, ucmd, uapp, P, I, D, FF, E, sat):
-    """One run, every signal stored (see :func:`simulate` for the order of events)."""
-    n = rpos.shape[0]
-    ns = x0.shape[0]
-    x = x0.copy()
-    xn = np.empty(ns)
-    em_full = -math.expm1(-Ts / tau)
-    i_prev = 0.0
-    e_prev = 0.0
-    d_prev = 0.0
-    y_prev = 0.0
-    for k in range(n):
-        for j in range(ns):
-            X[k, j] = x[j]
-        y = _encoder(x[0], cpr) + noise[k]
-        meas[k] = y
-        if velocity:
-            if k == 0:
-                y_prev = y
-            e = scale * (rvel[k] - (y - y_prev) / Ts)
-        else:
-            e = scale * (rpos[k] - y)
-        y_prev = y
-        ff = (fftau * racc[k] + rvel[k]) / ffK if ff_on else 0.0
-        if k == 0 and bumpless:
-            e_prev = e
-        u, p, i_prev, d_prev, s = _pid(e, e_prev, i_prev, d_prev, ff, kpd, kid, kdd, gamma, limit, aw)
-        e_prev = e
-        v, s2 = _amplifier(u, supply, levels)
-        ucmd[k] = u
-        P[k] = p
-        I[k] = i_prev
-        D[k] = d_prev
-        FF[k] = ff
-        E[k] = e
-        uapp[k] = v
-        sat[k] = s or s2
-        if rigid:
-            th1, om1 = _rigid_step(x[0], x[1], v, k, Ts, fc, K, tau, em_full, dist_on, dist_amp, dist_time)
-            x[0] = th1
-            x[1] = om1
-        else:
-            t0 = k * Ts
-            if dist_on and t0 < dist_time and dist_time < t0 + Ts:
-                for r in range(ns):
-                    acc = Gam_a[r] * v
-                    for c in range(ns):
-                        acc += Phi_a[r, c] * x[c]
-                    xn[r] = acc
-                for r in range(ns):
-                    acc = Gam_b[r] * (v + dist_amp)
-                    for c in range(ns):
-                        acc += Phi_b[r, c] * xn[c]
-                    x[r] = acc
-            else:
-                w = dist_amp if (dist_on and t0 >= dist_time) else 0.0
-                for r in range(ns):
-                    acc = Gam[r] * (v + w)
-                    for c in range(ns):
-                        acc += Phi[r, c] * x[c]
-                    xn[r] = acc
-                for r in range(ns):
-                    x[r] = xn[r]
+def _driver(v, offset, dead_zone):
+    """The voltage the motor sees after the driver: ``dz(v + offset)`` (``DCMotor.drive_voltage``)."""
+    x = v + offset
+    if dead_zone > 0.0:
+        a = abs(x) - dead_zone
+        if a <= 0.0:
+            return 0.0
+        return a if x > 0.0 else -a
     return x
 
 
 @_jit
+def _kernel(ref, noise, x0, pp, M, ctl, OUT, sat, met):
+    """One run, every signal stored, metrics accumulated (see :func:`simulate`).
+
+    ``ref`` (3, n): position, velocity, acceleration; ``noise`` (n,) or empty; ``pp`` the
+    packed plant (``P_*``); ``M`` (3, ns, ns + 1): ``[Φ | Γ]`` of the full period and of the
+    two parts a disturbance step splits it in (flexible plant); ``ctl`` the packed
+    controller (:data:`jerklab.law.CTL_FIELDS`). ``OUT`` (ns + 8, n): the states, then the
+    ``O_*`` rows. A non-finite state stops the run (the rest of ``OUT`` is NaN).
+    """
+    n = ref.shape[1]
+    ns = x0.shape[0]
+    x = x0.copy()
+    xn = np.empty(ns)
+    rigid = pp[P_RIGID] != 0.0
+    K = pp[P_K]
+    tau = pp[P_TAU]
+    fc = pp[P_FC]
+    dist_on = pp[P_DIST_ON] != 0.0
+    dist_amp = pp[P_DIST_AMP]
+    dist_time = pp[P_DIST_TIME]
+    supply = pp[P_SUPPLY]
+    levels = pp[P_LEVELS]
+    cpr = pp[P_CPR]
+    distance = pp[P_DISTANCE]
+    band = pp[P_BAND]
+    duration = pp[P_DURATION]
+    n_move = pp[P_NMOVE]
+    bound = pp[P_BOUND]
+    offset = pp[P_OFFSET]
+    dead_zone = pp[P_DEAD_ZONE]
+    drive = offset != 0.0 or dead_zone > 0.0
+    kpd = ctl[law.C_KPD]
+    kid = ctl[law.C_KID]
+    kdd = ctl[law.C_KDD]
+    gamma = ctl[law.C_GAMMA]
+    limit = ctl[law.C_LIMIT]
+    aw = ctl[law.C_AW] != 0.0
+    ff_on = ctl[law.C_FF_ON] != 0.0
+    ffK = ctl[law.C_FF_K]
+    fftau = ctl[law.C_FF_TAU]
+    velocity = ctl[law.C_VELOCITY] != 0.0
+    scale = ctl[law.C_SCALE]
+    bumpless = ctl[law.C_BUMPLESS] != 0.0
+    Ts = ctl[law.C_TS]
+    em_full = -math.expm1(-Ts / tau)
+    has_noise = noise.shape[0] > 0
+    i_prev = 0.0
+    e_prev = 0.0
+    d_prev = 0.0
+    y_prev = 0.0
+    emax = 0.0
+    esq = 0.0
+    last = -1.0
+    umax = 0.0
+    nsat = 0.0
+    beyond = -1.0
+    resid = 0.0
+    nafter = 0.0
+    k_end = n
+    for k in range(n):
+        th = x[0]
+        if not math.isfinite(th):
+            k_end = k
+            break
+        for j in range(ns):
+            OUT[j, k] = x[j]
+        err = ref[0, k] - th
+        a = abs(err)
+        if a > emax:
+            emax = a
+        if k < n_move:
+            esq += err * err
+        if abs(distance - th) > band:
+            last = k
+        if beyond < 0.0 and a > bound:
+            beyond = k
+        if ns == 4 and k * Ts >= duration:
+            nafter += 1.0
+            r = abs(x[2] - distance)
+            if r > resid:
+                resid = r
+        y = law.encoder(th, cpr)
+        if has_noise:
+            y += noise[k]
+        OUT[ns + O_MEAS, k] = y
+        if velocity:
+            if k == 0:
+                y_prev = y
+            e = scale * (ref[1, k] - (y - y_prev) / Ts)
+        else:
+            e = scale * (ref[0, k] - y)
+        y_prev = y
+        ff = (fftau * ref[2, k] + ref[1, k]) / ffK if ff_on else 0.0
+        if k == 0 and bumpless:
+            e_prev = e
+        u, p, i_prev, d_prev, s = law.pid_step(e, e_prev, i_prev, d_prev, ff, kpd, kid, kdd, gamma, limit, aw)
+        e_prev = e
+        v, s2 = law.amplifier(u, supply, levels)
+        OUT[ns + O_UCMD, k] = u
+        OUT[ns + O_UAPP, k] = v
+        OUT[ns + O_P, k] = p
+        OUT[ns + O_I, k] = i_prev
+        OUT[ns + O_D, k] = d_prev
+        OUT[ns + O_FF, k] = ff
+        OUT[ns + O_E, k] = e
+        sk = s or s2
+        sat[k] = sk
+        if sk:
+            nsat += 1.0
+        if abs(v) > umax:
+            umax = abs(v)
+        if rigid:
+            vm = _driver(v, offset, dead_zone) if drive else v
+            th1, om1 = _rigid_step(x[0], x[1], vm, k, Ts, fc, K, tau, em_full, dist_on, dist_amp, dist_time)
+            x[0] = th1
+            x[1] = om1
+        else:
+            t0 = k * Ts
+            split = dist_on and t0 < dist_time and dist_time < t0 + Ts
+            w = dist_amp if (dist_on and t0 >= dist_time) else 0.0
+            m0 = 1 if split else 0
+            for r_ in range(ns):
+                acc = M[m0, r_, ns] * (v + w)
+                for c in range(ns):
+                    acc += M[m0, r_, c] * x[c]
+                xn[r_] = acc
+            if split:
+                for r_ in range(ns):
+                    acc = M[2, r_, ns] * (v + dist_amp)
+                    for c in range(ns):
+                        acc += M[2, r_, c] * xn[c]
+                    x[r_] = acc
+            else:
+                for r_ in range(ns):
+                    x[r_] = xn[r_]
+    for k in range(k_end, n):
+        for j in range(OUT.shape[0]):
+            OUT[j, k] = np.nan
+        sat[k] = False
+    met[M_EMAX] = emax
+    met[M_ESQ] = esq
+    met[M_LAST] = last
+    met[M_UMAX] = umax
+    met[M_NSAT] = nsat
+    met[M_NONFINITE] = k_end if k_end < n else -1.0
+    met[M_BEYOND] = beyond
+    met[M_RESID] = resid
+    met[M_NAFTER] = nafter
+
+
+@_jit
 def _batch_chunk(j0, j1, rpos, rvel, racc, Ks, taus, fcs, noise, noise_on,
-                 dist_on, dist_amp, dist_time, supply, levels, cpr,
-                 kpd, kid, kdd, gamma, ff_on, ffK, fftau, limit, aw, velocity, scale, bumpless, Ts,
+                 dist_on, dist_amp, dist_time, supply, levels, cpr, ctl,
                  duration, distance, band, keep, POS, U, MET):
     """Plants ``j0 … j1-1``, same law as :func:`_kernel`; metrics accumulated on the fly.
 
@@ -203,6 +250,19 @@ def _batch_chunk(j0, j1, rpos, rvel, racc, Ks, taus, fcs, noise, noise_on,
     MET[j] = max|e|, sum e^2 during the move, final e, last index outside the band,
     max|u applied|, number of samples in the move.
     """
+    kpd = ctl[law.C_KPD]
+    kid = ctl[law.C_KID]
+    kdd = ctl[law.C_KDD]
+    gamma = ctl[law.C_GAMMA]
+    limit = ctl[law.C_LIMIT]
+    aw = ctl[law.C_AW] != 0.0
+    ff_on = ctl[law.C_FF_ON] != 0.0
+    ffK = ctl[law.C_FF_K]
+    fftau = ctl[law.C_FF_TAU]
+    velocity = ctl[law.C_VELOCITY] != 0.0
+    scale = ctl[law.C_SCALE]
+    bumpless = ctl[law.C_BUMPLESS] != 0.0
+    Ts = ctl[law.C_TS]
     m = j1 - j0
     n = rpos.shape[0]
     th = np.zeros(m)
@@ -243,7 +303,7 @@ def _batch_chunk(j0, j1, rpos, rvel, racc, Ks, taus, fcs, noise, noise_on,
             if abs(distance - x) > band:
                 last[q] = k
             fin[q] = err
-            y = _encoder(x, cpr)
+            y = law.encoder(x, cpr)
             if noise_on:
                 y += noise[j, k]
             if velocity:
@@ -255,11 +315,11 @@ def _batch_chunk(j0, j1, rpos, rvel, racc, Ks, taus, fcs, noise, noise_on,
             yp[q] = y
             if k == 0 and bumpless:
                 ep[q] = e
-            u, p, i_new, d, s = _pid(e, ep[q], ip[q], dp[q], ff, kpd, kid, kdd, gamma, limit, aw)
+            u, p, i_new, d, s = law.pid_step(e, ep[q], ip[q], dp[q], ff, kpd, kid, kdd, gamma, limit, aw)
             ip[q] = i_new
             dp[q] = d
             ep[q] = e
-            v, s2 = _amplifier(u, supply, levels)
+            v, s2 = law.amplifier(u, supply, levels)
             if abs(v) > umax[q]:
                 umax[q] = abs(v)
             if keep:
@@ -305,6 +365,10 @@ class SimResult:
     parts : dict of arrays ``p``, ``i``, ``d``, ``ff``
     saturated : bool array, controller clamp or supply limit active
     metrics : dict (see :func:`simulate`)
+    diverged : bool
+        The run left every sensible range: a state became NaN/inf (the run stops there and
+        the remaining samples are NaN) or |error| exceeded ``DIVERGENCE_FACTOR`` ×
+        max(|distance|, 1). Its ``settling_time`` is then NaN, never a number.
     """
 
     t: np.ndarray
@@ -324,6 +388,7 @@ class SimResult:
     loop: str = "position"
     load_position: np.ndarray | None = None
     info: dict = field(default_factory=dict)
+    diverged: bool = False
 
     def plot(self, fig=None, title=None):
         """Reference and output, tracking error, and the control parts (3 stacked axes)."""
@@ -370,33 +435,6 @@ class BatchResult:
     metrics: dict
 
 
-def _metrics(t, err, position, u_app, sat, duration, distance, band, load=None):
-    """Metrics of one run (t is the regular grid k·Ts, so the move is a leading slice)."""
-    n = len(t)
-    Ts = t[1] - t[0] if n > 1 else 1.0
-    n_move = min(n, int(math.floor(duration / Ts + 1e-9)) + 1)
-    e_move = err[:n_move]
-    m = {
-        "max_abs_error": float(np.abs(err).max()),
-        "rms_error": math.sqrt(float(np.dot(e_move, e_move)) / n_move),
-        "final_error": float(err[-1]),
-        "max_abs_voltage": float(np.abs(u_app).max()),
-        "saturated_fraction": np.count_nonzero(sat) / n,
-    }
-    out = np.flatnonzero(np.abs(distance - position) > band)
-    if len(out) == 0:
-        m["settling_time"] = 0.0
-    elif out[-1] == n - 1:
-        m["settling_time"] = math.inf
-    else:
-        m["settling_time"] = max(0.0, float(t[out[-1] + 1] - duration))
-    m["settling_band"] = band
-    if load is not None:
-        after = t >= duration
-        m["residual_vibration"] = float(np.max(np.abs(load[after] - distance))) if np.any(after) else math.nan
-    return m
-
-
 def _settling(last_out, n, t, duration):
     last_out = np.asarray(last_out)
     idx = np.clip(last_out + 1, 0, n - 1).astype(int)
@@ -418,9 +456,10 @@ def _batch_metrics(t, reference, POS, Uapp, duration, distance, band):
 
 
 def _metric_dict(emax, rms, final, settle, umax, distance):
-    return {"max_abs_error": emax, "rms_error": rms, "final_error": final, "settling_time": settle,
-            "max_abs_voltage": umax,
-            "diverged": ~np.isfinite(emax) | (emax > 1e3 * max(abs(distance), 1.0))}
+    diverged = ~np.isfinite(emax) | (emax > DIVERGENCE_FACTOR * max(abs(distance), 1.0))
+    return {"max_abs_error": emax, "rms_error": rms, "final_error": final,
+            "settling_time": np.where(diverged, np.nan, settle), "max_abs_voltage": umax,
+            "diverged": diverged}
 
 
 # ---------------------------------------------------------------------------
@@ -459,6 +498,8 @@ class SampledProfile:
         self.Ts = as_positive("Ts", Ts)
         self.position = as_finite_array("position", position, ndim=1)
         n = len(self.position)
+        if n == 0:
+            raise ValueError("position must have at least one sample")
         self.velocity = np.zeros(n) if velocity is None else as_finite_array("velocity", velocity, ndim=1)
         self.accel = np.zeros(n) if accel is None else as_finite_array("accel", accel, ndim=1)
         if not len(self.velocity) == len(self.accel) == n:
@@ -468,7 +509,9 @@ class SampledProfile:
     @classmethod
     def from_profile(cls, profile, Ts, t_end=None):
         """Sample ``profile`` once on the grid (to re-run many simulations cheaply)."""
-        t = _time_grid(profile, Ts, t_end)
+        _check_profile(profile)
+        Ts = as_positive("Ts", Ts)
+        t = np.arange(_n_samples(_duration(profile), Ts, t_end)) * Ts
         s = profile.sample(t)
         return cls(Ts, s.position, s.velocity, s.accel, duration=float(profile.duration))
 
@@ -481,89 +524,177 @@ class SampledProfile:
 # ---------------------------------------------------------------------------
 # public API
 # ---------------------------------------------------------------------------
-def _check_inputs(profile, motor):
+def _check_profile(profile):
     if not (hasattr(profile, "duration") and callable(getattr(profile, "sample", None))):
         raise ValueError("profile must have .duration and .sample(t) (a jerklab.planner Profile), "
                          f"got {type(profile).__name__}")
+
+
+def _check_inputs(profile, motor):
+    _check_profile(profile)
     if not isinstance(motor, (DCMotor, FlexibleDCMotor)):
         raise ValueError(f"motor must be a DCMotor or FlexibleDCMotor, got {type(motor).__name__}")
 
 
-def _controller_for(controller, motor, loop):
-    if isinstance(controller, Gains):
+def _law_for(controller, motor, loop, Ts):
+    """The packed law parameters (:func:`jerklab.law.pack`), the loop and Ts of a run.
+
+    DiscreteGains get Stojčić eq. 16 feedforward from the motor's K, τ and an output limit at the
+    supply voltage; the controller object is only read, never stepped.
+    """
+    if isinstance(controller, DigitalController):
+        p = controller.params()
+        cloop = controller.loop
+    elif isinstance(controller, DiscreteGains):
+        limit = math.inf if motor.supply_voltage is None else motor.supply_voltage
+        g = controller
+        p = dict(kpd=g.kpd, kid=g.kid, kdd=g.kdd, gamma=g.gamma, Ts=g.Ts, ff_on=True, ff_K=motor.K,
+                 ff_tau=motor.tau, limit=limit, anti_windup=True, error_scale=1.0, bumpless=False)
+        cloop = g.loop
+    elif isinstance(controller, Gains):
         raise ValueError("controller must be a DigitalController or DiscreteGains; "
-                         "discretize continuous Gains first (Gains.discretize(Ts), eq. 13)")
-    if isinstance(controller, DiscreteGains):
-        limit = motor.supply_voltage
-        controller = DigitalController(controller, feedforward=Feedforward(motor.K, motor.tau),
-                                       output_limit=limit, loop=loop)
-    if not isinstance(controller, DigitalController):
-        raise ValueError(f"controller must be a DigitalController or DiscreteGains, got "
-                         f"{type(controller).__name__}")
-    if loop is not None and loop != controller.loop:
+                         "discretize continuous Gains first (Gains.discretize(Ts), Stojčić eq. 13)")
+    else:
+        raise TypeError(f"controller must be a DigitalController or DiscreteGains, got "
+                        f"{type(controller).__name__}")
+    if loop is not None:
         if loop not in ("position", "velocity"):
             raise ValueError(f"loop must be 'position' or 'velocity', got {loop!r}")
-        controller = DigitalController(controller.gains, controller.feedforward, controller.output_limit,
-                                       controller.anti_windup, loop, controller.error_scale,
-                                       controller.bumpless)
-    return controller
-
-
-def _plant_args(motor, Ts, n):
-    if isinstance(motor, DCMotor):
-        z2, z1 = np.zeros((2, 2)), np.zeros(2)
-        rigid = dict(rigid=True, K=motor.K, tau=motor.tau, fc=motor.coulomb_friction,
-                     Phi=z2, Gam=z1, Phi_a=z2, Gam_a=z1, Phi_b=z2, Gam_b=z1)
-        ns = 2
-    elif isinstance(motor, FlexibleDCMotor):
-        Phi, Gam = motor.zoh(Ts)
-        Phi_a, Gam_a, Phi_b, Gam_b = Phi, Gam, Phi, Gam
-        d = motor.load_disturbance
-        if d is not None:
-            frac = d.time / Ts - math.floor(d.time / Ts)
-            if 0.0 < frac < 1.0:
-                Phi_a, Gam_a = motor.zoh(frac * Ts)
-                Phi_b, Gam_b = motor.zoh((1.0 - frac) * Ts)
-        rigid = dict(rigid=False, K=motor.K, tau=motor.tau, fc=0.0, Phi=np.ascontiguousarray(Phi), Gam=Gam[:, 0].copy(),
-                     Phi_a=np.ascontiguousarray(Phi_a), Gam_a=Gam_a[:, 0].copy(),
-                     Phi_b=np.ascontiguousarray(Phi_b), Gam_b=Gam_b[:, 0].copy())
-        ns = 4
+        cloop = loop
+    p["velocity"] = cloop == "velocity"
+    if Ts is None:
+        Ts = p["Ts"]
     else:
-        raise ValueError(f"motor must be a DCMotor or FlexibleDCMotor, got {type(motor).__name__}")
-    d = motor.load_disturbance
-    common = dict(dist_on=d is not None, dist_amp=0.0 if d is None else d.amplitude,
-                  dist_time=0.0 if d is None else d.time,
-                  supply=0.0 if motor.supply_voltage is None else motor.supply_voltage,
-                  levels=0.0 if motor.pwm_bits is None else float(2 ** motor.pwm_bits - 1),
-                  cpr=0.0 if motor.counts_per_rad is None else motor.counts_per_rad)
-    return rigid, common, ns
+        Ts = as_positive("Ts", Ts)
+        if not math.isclose(p["Ts"], Ts, rel_tol=1e-12):
+            raise ValueError(f"Ts={Ts} differs from the controller's gains.Ts={p['Ts']}")
+    p["Ts"] = Ts
+    return law.pack(**p), cloop, Ts
 
 
-def _sample_profile(profile, t):
+#: the largest run :func:`simulate` accepts (samples); beyond it the request is refused up front
+MAX_SAMPLES = 20_000_000
+_EMPTY = np.empty(0)
+_RIGID_M = np.zeros((3, 2, 3))
+# sampled references of planner profiles, by their defining parameters and the grid (LRU)
+_REF_CACHE: OrderedDict = OrderedDict()
+_REF_CACHE_SIZE = 16
+_REF_CACHE_MAX_N = 200_000
+
+
+def _duration(profile):
     try:
-        duration = float(profile.duration)
-        s = profile.sample(t)
-    except AttributeError:
-        raise ValueError("profile must have .duration and .sample(t) (a jerklab.planner Profile)") from None
-    return (duration, np.ascontiguousarray(s.position, dtype=float),
-            np.ascontiguousarray(s.velocity, dtype=float), np.ascontiguousarray(s.accel, dtype=float))
+        d = float(profile.duration)
+    except (TypeError, ValueError):
+        raise ValueError(f"profile.duration must be a real number, got {profile.duration!r}") from None
+    if not (math.isfinite(d) and d >= 0.0):
+        raise ValueError(f"profile.duration must be finite and >= 0, got {d!r}")
+    return d
 
 
-def _time_grid(profile, Ts, t_end):
-    if t_end is None:
-        t_end = float(profile.duration) + 0.5
-    t_end = as_nonnegative("t_end", t_end)
-    n = int(math.floor(t_end / Ts + 1e-9)) + 1
-    return np.arange(n) * Ts
+def _n_samples(duration, Ts, t_end):
+    t_end = duration + 0.5 if t_end is None else as_nonnegative("t_end", t_end)
+    n = math.floor(t_end / Ts + 1e-9) + 1
+    if n > MAX_SAMPLES:
+        raise ValueError(f"t_end={t_end} at Ts={Ts} is {n} samples, more than MAX_SAMPLES={MAX_SAMPLES}; "
+                         "simulate a shorter time or a longer Ts")
+    return int(n)
 
 
-def _ctrl_args(c, Ts):
-    p = c.params()
-    if not math.isclose(p["Ts"], Ts, rel_tol=1e-12):
-        raise ValueError(f"Ts={Ts} differs from the controller's gains.Ts={p['Ts']}")
-    return dict(kpd=p["kpd"], kid=p["kid"], kdd=p["kdd"], gamma=p["gamma"], ff_on=p["ff_on"],
-                ffK=p["ff_K"], fftau=p["ff_tau"], limit=p["limit"], aw=p["anti_windup"],
-                velocity=p["velocity"], scale=p["error_scale"], bumpless=p["bumpless"], Ts=Ts)
+def _profile_key(profile):
+    """A key of a jerklab.planner profile (closed form, fixed by its public parameters), else None."""
+    if not isinstance(profile, Profile) or type(profile).sample is not Profile.sample:
+        return None
+    return (type(profile), profile.kind, float(profile.distance), tuple(profile.phase_times),
+            float(profile.peak_jerk))
+
+
+def _reference(profile, Ts, n, duration):
+    """The profile sampled at ``k Ts``, k < n, as a (3, n) array (position, velocity, acceleration).
+
+    Planner profiles are sampled once per grid and kept (a small LRU cache): the tuning panel
+    and the labs simulate the same move many times with other gains.
+    """
+    key = _profile_key(profile)
+    if key is not None:
+        key = key + (Ts, n)
+        hit = _REF_CACHE.get(key)
+        if hit is not None:
+            _REF_CACHE.move_to_end(key)
+            return hit.copy()
+    ref = np.empty((3, n))
+    if isinstance(profile, SampledProfile) and profile.Ts == Ts:
+        m = min(n, len(profile.position))
+        for row, src in enumerate((profile.position, profile.velocity, profile.accel)):
+            ref[row, :m] = src[:m]
+            ref[row, m:] = src[-1]
+    else:
+        try:
+            s = profile.sample(np.arange(n) * Ts)
+            ref[0] = s.position
+            ref[1] = s.velocity
+            ref[2] = s.accel
+        except AttributeError:
+            raise ValueError("profile.sample(t) must return .position, .velocity and .accel "
+                             "(a jerklab.planner Profile does)") from None
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"profile.sample(t) must return arrays of the shape of t ({n},): {exc}") from None
+    if not np.isfinite(ref).all():
+        raise ValueError("profile.sample(t) returned non-finite values (NaN or inf)")
+    if key is not None and n <= _REF_CACHE_MAX_N:
+        _REF_CACHE[key] = ref.copy()
+        if len(_REF_CACHE) > _REF_CACHE_SIZE:
+            _REF_CACHE.popitem(last=False)
+    return ref
+
+
+def _common(motor):
+    d = motor.load_disturbance
+    return dict(dist_on=d is not None, dist_amp=0.0 if d is None else d.amplitude,
+                dist_time=0.0 if d is None else d.time,
+                supply=0.0 if motor.supply_voltage is None else motor.supply_voltage,
+                levels=0.0 if motor.pwm_bits is None else float(2 ** motor.pwm_bits - 1),
+                cpr=0.0 if motor.counts_per_rad is None else motor.counts_per_rad)
+
+
+def _plant_pack(motor, Ts):
+    """Packed plant parameters (``P_*``), the ZOH matrices ``M`` and the number of states."""
+    c = _common(motor)
+    pp = np.zeros(_NP)
+    pp[P_K] = motor.K
+    pp[P_TAU] = motor.tau
+    pp[P_DIST_ON] = c["dist_on"]
+    pp[P_DIST_AMP] = c["dist_amp"]
+    pp[P_DIST_TIME] = c["dist_time"]
+    pp[P_SUPPLY] = c["supply"]
+    pp[P_LEVELS] = c["levels"]
+    pp[P_CPR] = c["cpr"]
+    if isinstance(motor, DCMotor):
+        pp[P_RIGID] = 1.0
+        pp[P_FC] = motor.coulomb_friction
+        pp[P_OFFSET] = getattr(motor, "offset", 0.0)
+        pp[P_DEAD_ZONE] = getattr(motor, "dead_zone", 0.0)
+        return pp, _RIGID_M, 2
+    Phi, Gam = motor.zoh(Ts)
+    parts = [(Phi, Gam), (Phi, Gam), (Phi, Gam)]
+    d = motor.load_disturbance
+    if d is not None:
+        frac = d.time / Ts - math.floor(d.time / Ts)
+        if 0.0 < frac < 1.0:
+            parts[1] = motor.zoh(frac * Ts)
+            parts[2] = motor.zoh((1.0 - frac) * Ts)
+    M = np.empty((3, 4, 5))
+    for i, (F, G) in enumerate(parts):
+        M[i, :, :4] = F
+        M[i, :, 4] = G[:, 0]
+    return pp, M, 4
+
+
+def _band(motor, settle_band):
+    if settle_band is not None:
+        return as_positive("settle_band", settle_band)
+    cpr = motor.counts_per_rad
+    return 2.0 / cpr if cpr else 1e-3
 
 
 def simulate(profile, motor, controller, Ts=None, t_end=None, loop=None, x0=None, settle_band=None):
@@ -573,80 +704,139 @@ def simulate(profile, motor, controller, Ts=None, t_end=None, loop=None, x0=None
     ----------
     profile : Profile
         Anything with ``duration`` and ``sample(t)`` → ``.position .velocity .accel``
-        (:mod:`jerklab.planner`); sampled in closed form at ``k Ts``.
+        (:mod:`jerklab.planner`); sampled in closed form at ``k Ts`` (a planner profile
+        once per grid: repeated runs reuse the samples).
     motor : DCMotor or FlexibleDCMotor
         The plant with its imperfections (saturation, PWM, encoder, friction,
         disturbance, noise).
     controller : DigitalController or DiscreteGains
-        DiscreteGains are wrapped with eq. 16 feedforward from the motor's K, τ and an
+        DiscreteGains are wrapped with Stojčić eq. 16 feedforward from the motor's K, τ and an
         output limit at the supply voltage. The controller object itself is not stepped
-        (its state is untouched); the compiled kernel runs the same law.
+        (its state is untouched); the compiled kernel runs the same law
+        (:func:`jerklab.law.pid_step`).
     Ts : float, optional
         Sampling time; defaults to the gains' Ts (must agree with it).
     t_end : float, optional
-        Simulated time, default ``profile.duration + 0.5`` s.
+        Simulated time, default ``profile.duration + 0.5`` s (at most ``MAX_SAMPLES``
+        samples).
     loop : {"position", "velocity"}, optional
         Override the controller's loop (§4B velocity loop: reference in pulses per Ts
         when the controller's ``error_scale`` is :func:`~jerklab.controller.paper_error_scale`).
     x0 : array, optional
         Initial plant state (default rest at 0).
     settle_band : float, optional
-        Band for the settling time (rad); default 2 encoder counts (1 mrad without an
+        Band for the settling time (rad, > 0); default 2 encoder counts (1 mrad without an
         encoder).
 
     Returns
     -------
     SimResult
         Metrics: ``max_abs_error``, ``rms_error`` (during the move), ``final_error``,
-        ``settling_time`` (after the end of the profile, inf if never), ``max_abs_voltage``,
-        ``saturated_fraction`` and, for a flexible load, ``residual_vibration`` (max
+        ``settling_time`` (after the end of the profile, inf if never, NaN if the run
+        diverged), ``max_abs_voltage``, ``saturated_fraction``, ``diverged`` (and
+        ``diverged_at``, s) and, for a flexible load, ``residual_vibration`` (max
         |load − distance| after the move).
+
+    Warns
+    -----
+    RuntimeWarning
+        When the run diverged (``result.diverged``): a state went NaN/inf, or the error
+        grew beyond ``DIVERGENCE_FACTOR`` × max(|distance|, 1).
     """
     _check_inputs(profile, motor)
-    c = _controller_for(controller, motor, loop)
-    Ts = c.Ts if Ts is None else as_positive("Ts", Ts)
-    t = _time_grid(profile, Ts, t_end)
-    n = len(t)
-    duration, rpos, rvel, racc = _sample_profile(profile, t)
-    plant, common, ns = _plant_args(motor, Ts, n)
-    x = np.zeros(ns) if x0 is None else motor._x0(x0)
-    noise = motor.rng.normal(0.0, motor.noise_std, n) if motor.noise_std > 0 else np.zeros(n)
-    X = np.empty((n, ns))
-    out = {k: np.empty(n) for k in ("meas", "ucmd", "uapp", "P", "I", "D", "FF", "E")}
+    ctl, cloop, Ts = _law_for(controller, motor, loop, Ts)
+    duration = _duration(profile)
+    n = _n_samples(duration, Ts, t_end)
+    ref = _reference(profile, Ts, n, duration)
+    t = np.arange(n) * Ts
+    band = _band(motor, settle_band)
+    distance = float(ref[0, -1]) if t[-1] >= duration else float(profile.sample(duration).position)
+    x = motor.initial_state(x0)
+    noise = motor.rng.normal(0.0, motor.noise_std, n) if motor.noise_std > 0 else _EMPTY
+    pp, M, ns = _plant_pack(motor, Ts)
+    n_move = min(n, math.floor(duration / Ts + 1e-9) + 1)
+    pp[P_DISTANCE] = distance
+    pp[P_BAND] = band
+    pp[P_DURATION] = duration
+    pp[P_NMOVE] = n_move
+    pp[P_BOUND] = DIVERGENCE_FACTOR * max(abs(distance), 1.0)
+    OUT = np.empty((ns + _NO, n))
     sat = np.empty(n, dtype=np.bool_)
-    _kernel(rpos, rvel, racc, noise, x, plant["rigid"], plant["K"], plant["tau"], plant["fc"],
-            plant["Phi"], plant["Gam"], plant["Phi_a"], plant["Gam_a"], plant["Phi_b"], plant["Gam_b"],
-            common["dist_on"], common["dist_amp"], common["dist_time"], common["supply"],
-            common["levels"], common["cpr"], **_ctrl_args(c, Ts),
-            X=X, meas=out["meas"], ucmd=out["ucmd"], uapp=out["uapp"], P=out["P"], I=out["I"],
-            D=out["D"], FF=out["FF"], E=out["E"], sat=sat)
-    load = X[:, 2].copy() if ns == 4 else None
-    cpr = motor.counts_per_rad
-    band = settle_band if settle_band is not None else (2.0 / cpr if cpr else 1e-3)
-    distance = float(rpos[-1]) if t[-1] >= duration else float(profile.sample(duration).position)
-    position = X[:, 0].copy()
-    err = rpos - position
-    metrics = _metrics(t, err, position, out["uapp"], sat, duration, distance, band, load)
-    return SimResult(t=t, reference=rpos, ref_velocity=rvel, ref_accel=racc, measured=out["meas"],
-                     position=position, velocity=X[:, 1].copy(), error=err,
-                     loop_error=out["E"], u=out["ucmd"], u_applied=out["uapp"],
-                     parts={"p": out["P"], "i": out["I"], "d": out["D"], "ff": out["FF"]},
-                     saturated=sat, metrics=metrics, loop=c.loop, load_position=load,
-                     info=dict(Ts=Ts, duration=duration, distance=distance, compiled=HAVE_NUMBA))
+    met = np.empty(_NM)
+    _kernel(ref, noise, x, pp, M, ctl, OUT, sat, met)
+    metrics, diverged = _run_metrics(met, t, n, n_move, duration, band, ns, OUT, ref)
+    position = OUT[0]
+    return SimResult(t=t, reference=ref[0], ref_velocity=ref[1], ref_accel=ref[2], measured=OUT[ns + O_MEAS],
+                     position=position, velocity=OUT[1], error=ref[0] - position,
+                     loop_error=OUT[ns + O_E], u=OUT[ns + O_UCMD], u_applied=OUT[ns + O_UAPP],
+                     parts={"p": OUT[ns + O_P], "i": OUT[ns + O_I], "d": OUT[ns + O_D], "ff": OUT[ns + O_FF]},
+                     saturated=sat, metrics=metrics, loop=cloop, load_position=OUT[2] if ns == 4 else None,
+                     info=dict(Ts=Ts, duration=duration, distance=distance, compiled=HAVE_NUMBA),
+                     diverged=diverged)
+
+
+def _run_metrics(met, t, n, n_move, duration, band, ns, OUT, ref):
+    """Metrics of one run from the kernel's accumulators (see :func:`simulate`)."""
+    k_bad = int(met[M_NONFINITE])
+    k_far = int(met[M_BEYOND])
+    nonfinite = k_bad >= 0
+    diverged = nonfinite or k_far >= 0
+    last = int(met[M_LAST])
+    if diverged:
+        settle = math.nan
+    elif last < 0:
+        settle = 0.0
+    elif last == n - 1:
+        settle = math.inf
+    else:
+        settle = max(0.0, float(t[last + 1] - duration))
+    m = {
+        "max_abs_error": math.inf if nonfinite else float(met[M_EMAX]),
+        "rms_error": math.inf if nonfinite and k_bad < n_move else math.sqrt(float(met[M_ESQ]) / n_move),
+        "final_error": float(ref[0, -1] - OUT[0, -1]),
+        "max_abs_voltage": float(met[M_UMAX]),
+        "saturated_fraction": float(met[M_NSAT]) / n,
+        "settling_time": settle,
+        "settling_band": band,
+        "diverged": diverged,
+    }
+    if ns == 4:
+        m["residual_vibration"] = (float(met[M_RESID]) if met[M_NAFTER] > 0 and not nonfinite else math.nan)
+    if diverged:
+        k = min(k for k in (k_bad, k_far) if k >= 0)
+        m["diverged_at"] = float(t[k])
+        what = "a state became NaN/inf" if nonfinite and k == k_bad else \
+            f"|error| exceeded {DIVERGENCE_FACTOR:g} x max(|distance|, 1)"
+        warnings.warn(f"simulate: the loop diverged at t = {t[k]:.6g} s ({what}); settling_time is NaN"
+                      + ("; the samples after it are NaN" if nonfinite else ""), RuntimeWarning, stacklevel=3)
+    return m, diverged
+
+
+def _rng(seed):
+    try:
+        return np.random.default_rng(seed)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"seed must be None, an int or a numpy Generator/SeedSequence, got {seed!r}: {exc}") from None
 
 
 def perturbed_plants(n, K=32.4, tau=0.025, K_spread=0.2, tau_spread=0.2, friction=(0.0, 0.0), seed=None):
     """Random plants for robustness studies: K and τ uniform within ±spread (relative),
     Coulomb friction uniform in ``friction = (low, high)`` V. Returns a dict of arrays."""
-    rng = np.random.default_rng(seed)
-    n = int(n)
+    n = as_int("n", n, minimum=1)
+    if n > MAX_SAMPLES:
+        raise ValueError(f"n must be <= {MAX_SAMPLES} plants, got {n}")
     K = as_positive("K", K)
     tau = as_positive("tau", tau)
     ks = as_nonnegative("K_spread", K_spread)
     ts = as_nonnegative("tau_spread", tau_spread)
     if ks >= 1 or ts >= 1:
         raise ValueError("K_spread and tau_spread must be < 1 (relative spreads)")
+    if isinstance(friction, (str, bytes)) or not hasattr(friction, "__len__") or len(friction) != 2:
+        raise ValueError(f"friction must be a (low, high) pair in V, got {friction!r}")
     lo, hi = (as_nonnegative("friction low", friction[0]), as_nonnegative("friction high", friction[1]))
+    if hi < lo:
+        raise ValueError(f"friction must be (low, high) with low <= high, got {friction!r}")
+    rng = _rng(seed)
     return dict(K=K * (1 + rng.uniform(-ks, ks, n)), tau=tau * (1 + rng.uniform(-ts, ts, n)),
                 coulomb_friction=rng.uniform(lo, hi, n))
 
@@ -676,26 +866,39 @@ def simulate_batch(profile, motor, controller, K=None, tau=None, coulomb_frictio
     _check_inputs(profile, motor)
     if not isinstance(motor, DCMotor):
         raise ValueError("simulate_batch needs a rigid DCMotor template")
-    c = _controller_for(controller, motor, loop)
-    Ts = c.Ts if Ts is None else as_positive("Ts", Ts)
+    if getattr(motor, "offset", 0.0) or getattr(motor, "dead_zone", 0.0):
+        raise ValueError("simulate_batch does not model the motor's offset and dead_zone yet; "
+                         "use simulate() per plant, or a motor with offset=0 and dead_zone=0")
+    if engine not in ("auto", "numpy", "compiled"):
+        raise ValueError(f"engine must be 'auto', 'numpy' or 'compiled', got {engine!r}")
+    ctl, cloop, Ts = _law_for(controller, motor, loop, Ts)
     Kv = np.atleast_1d(as_finite_array("K", motor.K if K is None else K))
     tv = np.atleast_1d(as_finite_array("tau", motor.tau if tau is None else tau))
     fv = np.atleast_1d(as_finite_array("coulomb_friction", motor.coulomb_friction
                                        if coulomb_friction is None else coulomb_friction))
-    Kv, tv, fv = (np.ascontiguousarray(a, dtype=float) for a in np.broadcast_arrays(Kv, tv, fv))
+    try:
+        Kv, tv, fv = (np.ascontiguousarray(a, dtype=float).ravel() for a in np.broadcast_arrays(Kv, tv, fv))
+    except ValueError:
+        raise ValueError(f"K, tau and coulomb_friction must broadcast to one length, got shapes "
+                         f"{Kv.shape}, {tv.shape}, {fv.shape}") from None
+    if Kv.size == 0:
+        raise ValueError("K, tau and coulomb_friction give no plant (empty arrays)")
     if np.any(Kv <= 0) or np.any(tv <= 0) or np.any(fv < 0):
         raise ValueError("K and tau must be > 0 and coulomb_friction >= 0 for every plant")
     m = len(Kv)
-    t = _time_grid(profile, Ts, t_end)
-    n = len(t)
-    duration, rpos, rvel, racc = _sample_profile(profile, t)
-    _, common, _ = _plant_args(motor, Ts, n)
-    ca = _ctrl_args(c, Ts)
-    rng = np.random.default_rng(seed)
+    duration = _duration(profile)
+    n = _n_samples(duration, Ts, t_end)
+    if keep_traces and m * n > MAX_SAMPLES * 10:
+        raise ValueError(f"keep_traces with {m} plants x {n} samples is more than {MAX_SAMPLES * 10} values; "
+                         "use keep_traces=False (metrics only) or fewer plants")
+    t = np.arange(n) * Ts
+    ref = _reference(profile, Ts, n, duration)
+    rpos, rvel, racc = ref[0], ref[1], ref[2]
+    common = _common(motor)
+    rng = _rng(seed)
     noise_on = motor.noise_std > 0
     noise = rng.normal(0.0, motor.noise_std, (m, n)) if noise_on else np.zeros((1, 1))
-    cpr = motor.counts_per_rad
-    band = settle_band if settle_band is not None else (2.0 / cpr if cpr else 1e-3)
+    band = _band(motor, settle_band)
     distance = float(profile.sample(duration).position)
     if engine == "auto":
         engine = "compiled" if HAVE_NUMBA else "numpy"
@@ -706,9 +909,7 @@ def simulate_batch(profile, motor, controller, K=None, tau=None, coulomb_frictio
         MET = np.empty((m, 6))
         _batch_kernel(rpos, rvel, racc, Kv, tv, fv, noise, noise_on, common["dist_on"],
                       common["dist_amp"], common["dist_time"], common["supply"], common["levels"],
-                      common["cpr"], ca["kpd"], ca["kid"], ca["kdd"], ca["gamma"], ca["ff_on"],
-                      ca["ffK"], ca["fftau"], ca["limit"], ca["aw"], ca["velocity"], ca["scale"],
-                      ca["bumpless"], Ts, duration, distance, band, keep_traces, POS, U, MET)
+                      common["cpr"], ctl, duration, distance, band, keep_traces, POS, U, MET)
         with np.errstate(invalid="ignore", over="ignore"):
             metrics = _metric_dict(MET[:, 0], np.sqrt(MET[:, 1] / np.maximum(MET[:, 5], 1.0)), MET[:, 2],
                                    _settling(MET[:, 3].astype(int), n, t, duration), MET[:, 4], distance)
@@ -717,20 +918,25 @@ def simulate_batch(profile, motor, controller, K=None, tau=None, coulomb_frictio
     elif engine == "numpy":
         if not noise_on:
             noise = np.zeros((m, n))
-        POS, U = _batch_numpy(rpos, rvel, racc, Kv, tv, fv, noise, common, ca)
+        POS, U = _batch_numpy(rpos, rvel, racc, Kv, tv, fv, noise, common, ctl)
         metrics = _batch_metrics(t, rpos, POS, U, duration, distance, band)
         if not keep_traces:
             POS = U = None
-    else:
-        raise ValueError(f"engine must be 'auto', 'numpy' or 'compiled', got {engine!r}")
     return BatchResult(t=t, reference=rpos, K=Kv, tau=tv, coulomb_friction=fv, position=POS, u=U,
                        metrics=metrics)
 
 
-def _batch_numpy(rpos, rvel, racc, Kv, tv, fv, noise, common, ca):
-    """Time loop, numpy over plants: the same law as :func:`_kernel`. Returns (θ, u applied)."""
+def _batch_numpy(rpos, rvel, racc, Kv, tv, fv, noise, common, ctl):
+    """Time loop, numpy over plants: the law's vector form (:func:`jerklab.law.pid_step_vec`).
+
+    Returns (θ, u applied).
+    """
     m, n = noise.shape
-    Ts = ca["Ts"]
+    kpd, kid, kdd, gamma, lim = (ctl[law.C_KPD], ctl[law.C_KID], ctl[law.C_KDD], ctl[law.C_GAMMA],
+                                 ctl[law.C_LIMIT])
+    aw, ff_on, velocity, bumpless = (bool(ctl[law.C_AW]), bool(ctl[law.C_FF_ON]), bool(ctl[law.C_VELOCITY]),
+                                     bool(ctl[law.C_BUMPLESS]))
+    ffK, fftau, scale, Ts = ctl[law.C_FF_K], ctl[law.C_FF_TAU], ctl[law.C_SCALE], ctl[law.C_TS]
     th = np.zeros(m)
     om = np.zeros(m)
     i_prev = np.zeros(m)
@@ -740,38 +946,24 @@ def _batch_numpy(rpos, rvel, racc, Kv, tv, fv, noise, common, ca):
     POS = np.empty((m, n))
     U = np.empty((m, n))
     cpr, supply, levels = common["cpr"], common["supply"], common["levels"]
-    lim = ca["limit"]
     for k in range(n):
         POS[:, k] = th
-        y = np.floor(th * cpr + 1e-9) / cpr if cpr > 0 else th.copy()
+        y = law.encoder_vec(th, cpr)
         y += noise[:, k]
-        if ca["velocity"]:
+        if velocity:
             if k == 0:
                 y_prev = y
-            e = ca["scale"] * (rvel[k] - (y - y_prev) / Ts)
+            e = scale * (rvel[k] - (y - y_prev) / Ts)
         else:
-            e = ca["scale"] * (rpos[k] - y)
+            e = scale * (rpos[k] - y)
         y_prev = y
-        ff = (ca["fftau"] * racc[k] + rvel[k]) / ca["ffK"] if ca["ff_on"] else 0.0
-        if k == 0 and ca["bumpless"]:
+        ff = (fftau * racc[k] + rvel[k]) / ffK if ff_on else 0.0
+        if k == 0 and bumpless:
             e_prev = e
-        i_new = i_prev + ca["kid"] * e
-        d = ca["gamma"] * d_prev + ca["kdd"] * (e - e_prev)
-        u = ff + ca["kpd"] * e + i_new + d
-        hi = u > lim
-        lo = u < -lim
-        if ca["aw"]:
-            freeze = (hi & (e > 0)) | (lo & (e < 0))
-            u = np.where(freeze, u - (i_new - i_prev), u)
-            i_new = np.where(freeze, i_prev, i_new)
-        u = np.clip(u, -lim, lim)
-        i_prev, e_prev, d_prev = i_new, e, d
-        v = u
-        if supply > 0:
-            v = np.clip(v, -supply, supply)
-            if levels > 0:
-                q = v / supply * levels
-                v = np.sign(q) * np.floor(np.abs(q) + 0.5) / levels * supply
+        u, _, i_prev, d_prev, _ = law.pid_step_vec(e, e_prev, i_prev, d_prev, ff, kpd, kid, kdd, gamma, lim, aw,
+                                                   want_saturated=False)
+        e_prev = e
+        v = law.voltage_vec(u, supply, levels)
         U[:, k] = v
         t0 = k * Ts
         if common["dist_on"] and t0 < common["dist_time"] < t0 + Ts:
@@ -782,3 +974,46 @@ def _batch_numpy(rpos, rvel, racc, Kv, tv, fv, noise, common, ca):
             w = common["dist_amp"] if (common["dist_on"] and t0 >= common["dist_time"]) else 0.0
             th, om = advance(th, om, v + w, fv, Kv, tv, Ts)
     return POS, U
+
+
+def pd_rest_band(kpd, load, coulomb_friction, counts_per_rad=None, supply_voltage=None, pwm_bits=None):
+    """Where a PD loop (no integrator) can come to rest under a constant load and Coulomb friction.
+
+    At rest the derivative and the feedforward are zero, so the motor sees ``u = k_pd e_m`` (PWM
+    rounded) plus the load ``w`` (input referred, W = P as in Stojčić eq. 9) and sticks while
+    ``|u + w| <= f_c``. Without friction and quantization this is the rest error of Stojčić eq. 9, ``e = -w / k_pd``.
+    The controller sees the *measured* error ``e_m = r - floor(θ c)/c`` (encoder count ``c`` per
+    rad), which exceeds the true error ``e = r - θ`` by less than one count ``q = 1/c``; the PWM
+    rounds ``u`` to half a duty step ``Δ/2``. The true error at rest therefore lies in
+
+        ``((-w - f_c - Δ/2)/k_pd - q,  (-w + f_c + Δ/2)/k_pd]``   (for ``k_pd > 0``).
+
+    Parameters
+    ----------
+    kpd : float
+        Proportional gain k_pd (V/rad, > 0).
+    load : float
+        Constant input-referred load w (V).
+    coulomb_friction : float
+        Friction f_c (V, >= 0).
+    counts_per_rad : float, optional
+        Encoder counts per rad (None: ideal sensor, q = 0).
+    supply_voltage, pwm_bits : optional
+        PWM full scale (V) and resolution; both None: no PWM rounding.
+
+    Returns
+    -------
+    tuple of float
+        ``(lo, hi)`` bounds of the true error ``r - θ`` at rest, rad.
+    """
+    kpd = as_positive("kpd", kpd)
+    w = as_real("load", load)
+    fc = as_nonnegative("coulomb_friction", coulomb_friction)
+    q = 0.0 if counts_per_rad is None else 1.0 / as_positive("counts_per_rad", counts_per_rad)
+    half_step = 0.0
+    if supply_voltage is not None and pwm_bits is not None:
+        half_step = 0.5 * as_positive("supply_voltage", supply_voltage) / (2 ** int(pwm_bits) - 1)
+    return ((-w - fc - half_step) / kpd - q, (-w + fc + half_step) / kpd)
+
+
+__all__ += ["pd_rest_band"]

@@ -1,11 +1,18 @@
 """Interactive tuning panels for the notebooks and the standalone class page (issue 9).
 
+Stojčić (ASCII: Stojcic) position loop, plant of Stojčić eq. 1.
+
 :func:`pole_placement_panel` builds the pole-placement tuning panel of
 ``notebooks/03_pole_placement.ipynb`` and of the standalone page served by
 ``python -m jerklab.app``: sliders for ζ, ωn, σ (as a multiple of ωn) and Ts, a choice
-between the paper's continuous design (Stojčić eq. 11, discretized by eq. 12-13) and the
-direct z-domain design, and one figure with the poles in s and z, the step and
-disturbance responses, the tracking error and the voltage of a sine-jerk move.
+between the paper's continuous design (Stojčić eq. 11, discretized by Stojčić eq. 13), the
+direct z-domain design and the z-domain design with a derivative filter, and one figure
+with the poles in s and z, the step and disturbance responses, the tracking error and the
+voltage of a sine-jerk move.
+
+This module only builds widgets and draws; every number comes from :mod:`jerklab.tuning`
+(design, stability, advice, simulation, units), which needs neither ipywidgets nor
+matplotlib.
 
 Design choices
 --------------
@@ -19,274 +26,57 @@ Design choices
   1-2-5 values with hysteresis, so a range rarely changes; when one does, only that axes
   is repainted inside its own slot. ``python -m benchmarks widgets`` measures it against a
   full redraw and a new figure per move.
+* On a phone (``narrow_figure=True``, the class page) a second, narrow figure (3 rows of 2
+  plots, 384 px wide) is drawn beside the wide one and CSS shows the one that fits the
+  screen, so tick labels stay at their drawn size instead of being scaled down.
 * The panel's rich representation carries, beside the widget view, a ``image/png`` of the
   current figure, so headless execution (nbclient, nbconvert, a notebook viewer) keeps the
   default-value figure, while a widget front end shows the live panel.
-* Every number comes from the library (``jerklab.controller``, ``jerklab.plant``,
-  ``jerklab.sim``, ``jerklab.planner``); the panel only lays it out. Those modules are
-  imported when the panel computes, so importing this module never fails.
 """
 from __future__ import annotations
 
 import base64
+import datetime as _dt
+import hashlib
+import html
 import io
 import math
+import re
 import time
-from dataclasses import dataclass, field
+import unicodedata
+import warnings
 
 import numpy as np
 
-from jerklab._validate import as_positive, as_real
+from jerklab import paper, tuning
+from jerklab._validate import as_positive
+from jerklab.tuning import (CLIP_MRAD, DEFAULT_MOVE, DESIGN_NAMES, DESIGNS, DISTURBANCE_VOLTS,
+                            NEAR_UNSTABLE_RADIUS, TuningResult, angle_unit, format_angle,
+                            stability_verdict)
 
 __all__ = [
     "DESIGNS",
     "TuningResult",
     "compute_pole_placement",
     "stability_verdict",
+    "sanitize_student_id",
     "PolePlacementFigure",
     "PolePlacementPanel",
     "pole_placement_panel",
 ]
 
-#: The two designs the panel offers: label -> key.
-DESIGNS = {
-    "continuous (eq. 11) discretized by eq. 13": "continuous",
-    "direct z-domain (poles at z = exp(s Ts))": "z-domain",
-}
 
-#: Default move for the tracking plot: Stojčić's sine-jerk planner, rad and s.
-DEFAULT_MOVE = dict(distance=10.0, max_jerk=5000.0, max_accel=300.0, max_velocity=60.0)
-
-#: Input-referred step load disturbance of the disturbance plot (V), eq. 9 with W = P.
-DISTURBANCE_VOLTS = 1.0
-
-#: Diverging responses are clipped to this (mrad) in the plots (the verdict says why).
-CLIP_MRAD = 2000.0
-
-#: A loop whose largest |z| is above this is flagged as "near instability".
-NEAR_UNSTABLE_RADIUS = 0.98
-
-
-# --------------------------------------------------------------------------------------
-# computation (no widgets): one design -> every curve of the panel
-# --------------------------------------------------------------------------------------
-@dataclass
-class TuningResult:
-    """Everything the panel plots for one setting of the sliders.
-
-    Attributes
-    ----------
-    params : dict
-        ``K, tau, zeta, wn, sigma_ratio, sigma, Ts, design``.
-    gains : object
-        The discrete gains (``kpd, kid, kdd, Ts``) of the chosen design.
-    continuous_gains : object or None
-        The eq. 11 gains (``kp, ki, kd``) when the continuous design is chosen.
-    poles_s_desired : ndarray
-        Roots of (s + σ)(s² + 2ζωn s + ωn²), the designed closed-loop poles (footnote of eq. 13).
-    poles_z : ndarray
-        Closed-loop poles of the sampled loop (ZOH plant + discrete PID).
-    poles_z_desired : ndarray
-        ``exp(s Ts)`` of the designed poles.
-    poles_s_equivalent : ndarray
-        ``log(z) / Ts`` of the achieved poles (where the sampled loop really puts them).
-    max_radius, desired_radius : float
-        Largest |z| achieved and designed.
-    stable : bool
-    level, message : str
-        ``"ok" | "near" | "unstable"`` and the sentence shown to the student.
-    t_step, y_step : ndarray
-        Unit step response reference -> position of the sampled loop (no feedforward).
-    t_dist, y_dist : ndarray
-        Position (rad) after a step load disturbance of ``DISTURBANCE_VOLTS`` at the plant input.
-        Both responses run to 3 × ``t_view``.
-    t_move, err_move, u_move : ndarray
-        Tracking error (rad) and voltage (V) of the sine-jerk move simulated by
-        :func:`jerklab.sim.simulate` (feedforward + PID, 10-bit PWM, 12 V, 448-line encoder).
-    t_view : float
-        Time span (s) that shows the step and disturbance responses (12 / (min(ζ, 1) ωn)).
-    timings : dict
-        Seconds spent in the design, the linear responses and the move simulation.
-    """
-
-    params: dict
-    gains: object
-    continuous_gains: object
-    poles_s_desired: np.ndarray
-    poles_z: np.ndarray
-    poles_z_desired: np.ndarray
-    poles_s_equivalent: np.ndarray
-    max_radius: float
-    desired_radius: float
-    stable: bool
-    level: str
-    message: str
-    t_step: np.ndarray
-    y_step: np.ndarray
-    t_dist: np.ndarray
-    y_dist: np.ndarray
-    t_move: np.ndarray
-    err_move: np.ndarray
-    u_move: np.ndarray
-    t_view: float = 1.0
-    timings: dict = field(default_factory=dict)
-
-
-def stability_verdict(max_radius, desired_radius, Ts=None, sigma=None):
-    """Classify a sampled loop from its largest closed-loop pole radius.
-
-    Parameters
-    ----------
-    max_radius : float
-        Largest |z| of the closed-loop poles actually obtained.
-    desired_radius : float
-        Largest |z| of the designed poles mapped by z = exp(s Ts).
-    Ts, sigma : float, optional
-        Used only to add the σ·Ts figure to the message.
-
-    Returns
-    -------
-    level : {"ok", "near", "unstable"}
-        ``"unstable"`` when |z| >= 1; ``"near"`` when |z| > ``NEAR_UNSTABLE_RADIUS`` and the
-        sampled loop lost more than half of the stability margin (1 - |z|) that the design
-        asked for (a slow design is not flagged just because its poles are slow).
-    message : str
-    """
-    r = as_real("max_radius", max_radius)
-    rd = as_real("desired_radius", desired_radius)
-    extra = ""
-    if Ts is not None and sigma is not None:
-        extra = f" (σ·Ts = {sigma * Ts:.2f})"
-    if r >= 1.0:
-        return "unstable", (f"UNSTABLE: the sampled loop has a pole at |z| = {r:.3f} ≥ 1{extra}. "
-                            "The continuous design does not survive this Ts: lower ωn or σ, "
-                            "sample faster, or use the direct z-domain design.")
-    margin, margin_designed = 1.0 - r, 1.0 - rd
-    if r > NEAR_UNSTABLE_RADIUS and margin < 0.5 * margin_designed:
-        return "near", (f"Near instability: largest |z| = {r:.3f} (designed {rd:.3f}){extra}. "
-                        "A smooth reference with feedforward hides it; a step or a disturbance "
-                        "rings for a long time.")
-    return "ok", f"Stable: largest |z| = {r:.3f} (designed {rd:.3f}){extra}."
+def compute_pole_placement(*args, **kwargs):
+    """Deprecated alias of :func:`jerklab.tuning.compute_pole_placement` (moved there)."""
+    warnings.warn("jerklab.widgets.compute_pole_placement moved to "
+                  "jerklab.tuning.compute_pole_placement", DeprecationWarning, stacklevel=2)
+    return tuning.compute_pole_placement(*args, **kwargs)
 
 
 def _clip_for_plot(y, scale):
     """Keep a diverging response plottable: clip to ±``scale``, NaN/inf -> clipped."""
     y = np.nan_to_num(np.asarray(y, dtype=float), nan=0.0, posinf=scale, neginf=-scale)
     return np.clip(y, -scale, scale)
-
-
-_MOVE_CACHE: dict = {}
-
-
-def _move_profile(move):
-    from jerklab.planner import plan_sine_jerk
-
-    key = tuple(sorted(move.items()))
-    if key not in _MOVE_CACHE:
-        _MOVE_CACHE[key] = plan_sine_jerk(move["distance"], move["max_jerk"], move["max_accel"],
-                                          move["max_velocity"])
-    return _MOVE_CACHE[key]
-
-
-def compute_pole_placement(K=32.4, tau=0.025, zeta=1.0, wn=20.0, sigma_ratio=7.0, Ts=0.005,
-                           design="continuous", move=None, simulate_move=True):
-    """Design the position-loop PID for one setting and compute every curve of the panel.
-
-    Parameters
-    ----------
-    K, tau : float
-        Plant P(s) = K / (s (τ s + 1)) (Stojčić eq. 1), rad/(V·s) and s.
-    zeta, wn : float
-        Damping ratio and natural frequency (rad/s) of the dominant pair.
-    sigma_ratio : float
-        The real pole σ as a multiple of ωn (the paper: σ ≥ 7 ωn).
-    Ts : float
-        Sampling period (s).
-    design : {"continuous", "z-domain"}
-        ``"continuous"``: :func:`jerklab.controller.pole_placement_pid` (eq. 11) then
-        ``.discretize(Ts)`` (eq. 12-13), as the paper. ``"z-domain"``:
-        :func:`jerklab.controller.discrete_pole_placement_pid`, the gains solved on the ZOH
-        plant so the poles land at z = exp(s Ts).
-    move : dict, optional
-        ``distance, max_jerk, max_accel, max_velocity`` of the sine-jerk move (default
-        :data:`DEFAULT_MOVE`).
-    simulate_move : bool
-        Skip the move simulation (empty arrays) when False.
-
-    Returns
-    -------
-    TuningResult
-    """
-    from jerklab import controller as ctl
-
-    t0 = time.perf_counter()
-    K = as_positive("K", K)
-    tau = as_positive("tau", tau)
-    zeta = as_positive("zeta", zeta)
-    wn = as_positive("wn", wn)
-    sigma_ratio = as_positive("sigma_ratio", sigma_ratio)
-    Ts = as_positive("Ts", Ts)
-    if design not in ("continuous", "z-domain"):
-        raise ValueError(f"design must be 'continuous' or 'z-domain', got {design!r}")
-    sigma = sigma_ratio * wn
-
-    g = None
-    if design == "continuous":
-        g = ctl.pole_placement_pid(K, tau, wn, zeta=zeta, sigma=sigma)
-        d = g.discretize(Ts)
-    else:
-        d = ctl.discrete_pole_placement_pid(K, tau, wn, zeta=zeta, sigma=sigma, Ts=Ts)
-    loop = ctl.PositionLoop(K, tau, d)
-    poles_z = np.asarray(loop.poles_z(), dtype=complex)
-    max_radius = float(loop.max_pole_radius())
-    stable = bool(loop.is_stable())
-
-    poles_s_desired = np.roots(np.polymul([1.0, sigma], [1.0, 2.0 * zeta * wn, wn * wn]))
-    poles_z_desired = np.exp(poles_s_desired * Ts)
-    desired_radius = float(np.max(np.abs(poles_z_desired)))
-    poles_s_equivalent = np.asarray(loop.poles_s(), dtype=complex)
-    poles_s_equivalent = poles_s_equivalent[np.isfinite(poles_s_equivalent)]   # z = 0 has no s image
-    level, message = stability_verdict(max_radius, desired_radius, Ts, sigma)
-    t1 = time.perf_counter()
-
-    # step and disturbance responses of the linear sampled loop (controller's own recursions)
-    # t_view: the span worth looking at (~12 time constants of the dominant pair); the
-    # responses run 3x longer so a figure can keep a wider axis without a gap
-    t_view = float(np.clip(12.0 / (min(zeta, 1.0) * wn), 0.2, 4.0))
-    t_end = min(3.0 * t_view, 10.0)
-    with np.errstate(over="ignore", invalid="ignore"):
-        t_lin, y_step = loop.step_response(t_end)
-        _, y_dist = loop.disturbance_response(t_end, amplitude=DISTURBANCE_VOLTS)
-    t2 = time.perf_counter()
-
-    # sine-jerk move on the full nonlinear simulation (PWM, saturation, encoder)
-    if simulate_move:
-        from jerklab.plant import DCMotor
-        from jerklab.sim import simulate
-
-        profile = _move_profile(dict(move or DEFAULT_MOVE))
-        motor = DCMotor(K, tau)
-        c = ctl.DigitalController(d, feedforward=ctl.Feedforward(K, tau),
-                                  output_limit=motor.supply_voltage)
-        r = simulate(profile, motor, c, Ts=Ts, t_end=profile.duration + 0.3)
-        t_move = np.asarray(r.t, dtype=float)
-        err_move = np.asarray(r.error, dtype=float)
-        u_move = np.asarray(r.u, dtype=float)
-    else:
-        t_move = err_move = u_move = np.zeros(0)
-    t3 = time.perf_counter()
-
-    return TuningResult(
-        params=dict(K=K, tau=tau, zeta=zeta, wn=wn, sigma_ratio=sigma_ratio, sigma=sigma, Ts=Ts,
-                    design=design),
-        gains=d, continuous_gains=g, poles_s_desired=poles_s_desired, poles_z=poles_z,
-        poles_z_desired=poles_z_desired, poles_s_equivalent=poles_s_equivalent,
-        max_radius=max_radius, desired_radius=desired_radius, stable=stable, level=level,
-        message=message, t_step=t_lin, y_step=np.asarray(y_step), t_dist=t_lin,
-        y_dist=np.asarray(y_dist), t_move=t_move, err_move=err_move, u_move=u_move,
-        t_view=t_view,
-        timings=dict(design=t1 - t0, responses=t2 - t1, move=t3 - t2),
-    )
 
 
 # --------------------------------------------------------------------------------------
@@ -330,35 +120,75 @@ def _nice_range(y, include=(), pad=0.06):
     return (bot - pad * span, top + pad * span)
 
 
+#: Figure geometry of the two layouts: grid of the six plots, size (inches), ticks per axis,
+#: label offsets (axes fractions) and subplot margins.
+_LAYOUTS = {
+    "wide": dict(grid=(("s", "z", "step"), ("dist", "err", "u")), figsize=(11.0, 6.6), ticks=5,
+                 xlabel=-0.13, ylabel=-0.19, font=10.0, title=11.0,
+                 adjust=dict(left=0.07, right=0.985, bottom=0.08, top=0.88, wspace=0.38,
+                             hspace=0.45)),
+    "narrow": dict(grid=(("s", "z"), ("step", "dist"), ("err", "u")), figsize=(4.8, 8.0), ticks=4,
+                   xlabel=-0.17, ylabel=-0.34, font=8.5, title=8.5,
+                   adjust=dict(left=0.17, right=0.975, bottom=0.065, top=0.96, wspace=0.62,
+                               hspace=0.55)),
+}
+
+_TITLES = {
+    "wide": dict(s="Closed-loop poles in s", z="Closed-loop poles in z",
+                 step="Unit step response (no feedforward)",
+                 dist=f"Step load disturbance {DISTURBANCE_VOLTS:g} V (Stojčić eq. 9)",
+                 err="Sine-jerk move: tracking error", u="Sine-jerk move: control voltage"),
+    "narrow": dict(s="Poles in s", z="Poles in z", step="Unit step",
+                   dist=f"{DISTURBANCE_VOLTS:g} V load step", err="Move: tracking error",
+                   u="Move: voltage"),
+}
+
+
 class PolePlacementFigure:
     """One matplotlib figure with the six plots of the panel, redrawn by changing line data.
 
     The axes, ticks and labels are drawn once into a cached background; a redraw restores
     it and draws only the data lines and the title (blitting), unless a slider move changed
-    an axis range (limits are rounded by :func:`nice_ceil`, so that is rare), which
-    redraws everything once. The PNG is encoded from the Agg buffer.
+    an axis range or unit (limits are rounded by :func:`nice_ceil`, so that is rare), which
+    redraws that axes once. The PNG is encoded from the Agg buffer.
+
+    Angles are shown in mrad below 1 rad and in rad above (:func:`jerklab.tuning.angle_unit`).
+    The tracking-error plot shows reference − encoder reading for the simulation and for the
+    rig alike, the quantity a rig can measure.
 
     Parameters
     ----------
-    figsize : (float, float)
-        Inches.
+    figsize : (float, float), optional
+        Inches (default: the layout's).
     dpi : float
         Pixels per inch of the PNG.
+    layout : {"wide", "narrow"}
+        Two rows of three plots (a screen), or three rows of two (a phone, 384 px wide).
     """
 
-    def __init__(self, figsize=(11.0, 6.6), dpi=80):
+    def __init__(self, figsize=None, dpi=80, layout="wide"):
         from matplotlib.backends.backend_agg import FigureCanvasAgg
         from matplotlib.figure import Figure
         from matplotlib.ticker import MaxNLocator
 
-        self.fig = Figure(figsize=figsize, dpi=dpi)
+        if layout not in _LAYOUTS:
+            raise ValueError(f"layout must be one of {sorted(_LAYOUTS)}, got {layout!r}")
+        L = _LAYOUTS[layout]
+        self.layout = layout
+        self.fig = Figure(figsize=figsize or L["figsize"], dpi=dpi)
         self.canvas = FigureCanvasAgg(self.fig)
-        ax = self.fig.subplots(2, 3)
-        self.ax_s, self.ax_z, self.ax_step = ax[0]
-        self.ax_dist, self.ax_err, self.ax_u = ax[1]
+        rows, cols = len(L["grid"]), len(L["grid"][0])
+        ax = self.fig.subplots(rows, cols)
+        by_name = {name: ax[i][j] for i, row in enumerate(L["grid"]) for j, name in enumerate(row)}
+        self.ax_s, self.ax_z, self.ax_step = by_name["s"], by_name["z"], by_name["step"]
+        self.ax_dist, self.ax_err, self.ax_u = by_name["dist"], by_name["err"], by_name["u"]
+        self._grid = [[by_name[n] for n in row] for row in L["grid"]]
         self.dpi = dpi
         self._background = None
         self.full_redraws = 0
+        T = _TITLES[layout]
+        fs = L["font"]
+        small = max(fs - 3, 6.5)
 
         a = self.ax_s
         a.axhline(0, color="0.7", lw=0.8)
@@ -368,7 +198,7 @@ class PolePlacementFigure:
                               label="sampled loop, ln(z)/Ts")
         a.set_xlabel("Re s [1/s]")
         a.set_ylabel("Im s [rad/s]")
-        a.set_title("Closed-loop poles in s", y=1.0)
+        a.set_title(T["s"], y=1.0)
 
         a = self.ax_z
         th = np.linspace(0, 2 * np.pi, 361)
@@ -381,49 +211,54 @@ class PolePlacementFigure:
         a.set_aspect("equal", adjustable="box")
         a.set_xlabel("Re z [-]")
         a.set_ylabel("Im z [-]")
-        a.set_title("Closed-loop poles in z", y=1.0)
-        a.legend(loc="lower left", fontsize=7)
+        a.set_title(T["z"], y=1.0)
+        if layout == "wide":
+            a.legend(loc="lower left", fontsize=7)
 
         a = self.ax_step
         a.axhline(1.0, color="0.6", lw=1, ls="--")
         (self.step_line,) = a.plot([], [], color="C0", drawstyle="steps-post")
         a.set_xlabel("time [s]")
         a.set_ylabel("position [rad]")
-        a.set_title("Unit step response (no feedforward)", y=1.0)
+        a.set_title(T["step"], y=1.0)
 
         a = self.ax_dist
         a.axhline(0, color="0.7", lw=0.8)
         (self.dist_line,) = a.plot([], [], color="C1", drawstyle="steps-post")
         a.set_xlabel("time [s]")
         a.set_ylabel("position [mrad]")
-        a.set_title(f"Step load disturbance {DISTURBANCE_VOLTS:g} V (eq. 9)", y=1.0)
+        a.set_title(T["dist"], y=1.0)
 
         a = self.ax_err
         a.axhline(0, color="0.7", lw=0.8)
-        (self.err_line,) = a.plot([], [], color="C2", drawstyle="steps-post", label="simulation")
+        (self.err_line,) = a.plot([], [], color="C2", drawstyle="steps-post",
+                                  label="simulation")
         (self.rig_line,) = a.plot([], [], color="C4", drawstyle="steps-post", label="rig")
         a.set_xlabel("time [s]")
-        a.set_ylabel("tracking error [mrad]")
-        a.set_title("Sine-jerk move: tracking error", y=1.0)
+        a.set_ylabel("ref. − encoder [mrad]")
+        a.set_title(T["err"], y=1.0)
 
         a = self.ax_u
         (self.u_line,) = a.plot([], [], color="C5", drawstyle="steps-post")
-        a.axhline(12.0, color="0.6", lw=0.8, ls=":")
-        a.axhline(-12.0, color="0.6", lw=0.8, ls=":")
+        a.axhline(paper.SUPPLY_VOLTAGE, color="0.6", lw=0.8, ls=":")
+        a.axhline(-paper.SUPPLY_VOLTAGE, color="0.6", lw=0.8, ls=":")
         a.set_xlabel("time [s]")
         a.set_ylabel("voltage [V]")
-        a.set_title("Sine-jerk move: control voltage", y=1.0)
+        a.set_title(T["u"], y=1.0)
 
-        self.suptitle = self.fig.suptitle("", fontsize=11, fontweight="bold")
-        self.fig.subplots_adjust(left=0.07, right=0.985, bottom=0.08, top=0.88, wspace=0.38,
-                                 hspace=0.45)
+        self.suptitle = self.fig.suptitle("", fontsize=L["title"], fontweight="bold")
+        self.fig.subplots_adjust(**L["adjust"])
         for a in self.fig.axes:
-            a.xaxis.set_major_locator(MaxNLocator(5))
-            a.yaxis.set_major_locator(MaxNLocator(5))
+            a.xaxis.set_major_locator(MaxNLocator(L["ticks"]))
+            a.yaxis.set_major_locator(MaxNLocator(L["ticks"]))
+            a.tick_params(labelsize=fs)
+            a.xaxis.label.set_size(fs)
+            a.yaxis.label.set_size(fs)
+            a.title.set_size(fs + 1)
             # fixed label positions: matplotlib then skips measuring every tick label
-            a.xaxis.set_label_coords(0.5, -0.13)
-            a.yaxis.set_label_coords(-0.19, 0.5)
-        self.ax_s.legend(handles=[self.s_des, self.s_eq], loc="upper left", fontsize=7)
+            a.xaxis.set_label_coords(0.5, L["xlabel"])
+            a.yaxis.set_label_coords(L["ylabel"], 0.5)
+        self.ax_s.legend(handles=[self.s_des, self.s_eq], loc="upper left", fontsize=small)
         self._dynamic = [self.s_des, self.s_eq, self.z_des, self.z_ach, self.step_line,
                          self.dist_line, self.err_line, self.rig_line, self.u_line]
         for art in self._dynamic + [self.suptitle]:
@@ -447,21 +282,26 @@ class PolePlacementFigure:
         rows split below the upper axes' x label. Repainting one slot never touches another
         axes' ticks, labels or title.
         """
-        grid = [[self.ax_s, self.ax_z, self.ax_step], [self.ax_dist, self.ax_err, self.ax_u]]
+        grid = self._grid
+        R, C = len(grid), len(grid[0])
         W, H = self.fig.bbox.width, self.fig.bbox.height
         pt = self.dpi / 72.0                                   # pixels per point
         box = {ax: ax.get_position(original=True).transformed(self.fig.transFigure)
                for row in grid for ax in row}
-        cols = [max(box[grid[i][j]].x1 for i in range(2)) + 12 * pt for j in range(2)]
-        upper = min(box[ax].y0 for ax in grid[0])
-        h = min(box[ax].height for ax in grid[0])
-        row = upper - 0.13 * h - 16 * pt                       # below the x label (10 pt)
+        cols = [max(box[grid[i][j]].x1 for i in range(R)) + 12 * pt for j in range(C - 1)]
+        xl = -_LAYOUTS[self.layout]["xlabel"]
+        rows = []
+        for i in range(R - 1):
+            lower = min(box[ax].y0 for ax in grid[i])
+            h = min(box[ax].height for ax in grid[i])
+            rows.append(lower - xl * h - 16 * pt)              # below the x label
         slots = {}
-        for i in range(2):
-            y0, y1 = (row, H) if i == 0 else (0.0, row)
-            for j in range(3):
+        for i in range(R):
+            y1 = H if i == 0 else rows[i - 1]
+            y0 = 0.0 if i == R - 1 else rows[i]
+            for j in range(C):
                 x0 = 0.0 if j == 0 else cols[j - 1]
-                x1 = W if j == 2 else cols[j]
+                x1 = W if j == C - 1 else cols[j]
                 slots[grid[i][j]] = (x0, y0, x1, y1)
         return slots
 
@@ -469,19 +309,23 @@ class PolePlacementFigure:
         """Keep axis ``i`` (0: x, 1: y) of ``ax`` if [lo, hi] still fits and fills ``fill`` of it.
 
         This hysteresis makes most slider moves leave every axis range unchanged, so the
-        redraw is a blit of the data lines only.
+        redraw is a blit of the data lines only. A change of unit never keeps the range.
         """
         prev = self._limits.get(ax)
-        if prev is not None:
+        if prev is not None and prev[-1] == self._unit_now.get(ax):
             plo, phi = prev[i]
             if plo <= lo and hi <= phi and (hi - lo) >= fill * (phi - plo):
                 return prev[i]
         return proposed
 
     def update(self, res: TuningResult, rig_error=None):
-        """Put the curves of ``res`` into the existing artists and choose the axis ranges."""
+        """Put the curves of ``res`` into the existing artists and choose the axis ranges.
+
+        ``rig_error`` is ``(t, reference − encoder angle)`` of a rig run (s, rad), or None.
+        """
         p = res.params
         lim = {}
+        self._unit_now = {}
         self.s_des.set_data(res.poles_s_desired.real, res.poles_s_desired.imag)
         self.s_eq.set_data(res.poles_s_equivalent.real, res.poles_s_equivalent.imag)
         pts = np.concatenate([res.poles_s_desired, res.poles_s_equivalent])
@@ -489,13 +333,13 @@ class PolePlacementFigure:
         yr = max(float(np.max(np.abs(pts.imag))), 0.25 * xr)
         nx, ny = nice_ceil(xr), nice_ceil(yr)
         lim[self.ax_s] = (self._keep(self.ax_s, 0, (-1.08 * nx, 0.25 * nx), -xr, 0.25 * xr, 0.4),
-                          self._keep(self.ax_s, 1, (-1.1 * ny, 1.1 * ny), -yr, yr, 0.4))
+                          self._keep(self.ax_s, 1, (-1.1 * ny, 1.1 * ny), -yr, yr, 0.4), None)
 
         self.z_des.set_data(res.poles_z_desired.real, res.poles_z_desired.imag)
         self.z_ach.set_data(res.poles_z.real, res.poles_z.imag)
         rmax = float(np.max(np.abs(res.poles_z))) if res.poles_z.size else 1.0
         zr = 1.2 if rmax <= 1.1 else min(nice_ceil(1.1 * rmax), 5.0)
-        lim[self.ax_z] = ((-zr, zr), (-zr, zr))
+        lim[self.ax_z] = ((-zr, zr), (-zr, zr), None)
 
         t_need = float(res.t_view)
         t_lim = self._keep(self.ax_step, 0, (0.0, nice_ceil(t_need)), 0.0, t_need, 0.35)
@@ -506,24 +350,33 @@ class PolePlacementFigure:
         diverges = res.level == "unstable"
         yv = np.concatenate([y[res.t_step <= t_lim[1]], [0.0, 1.0]])
         lim[self.ax_step] = (t_lim, (-5.3, 5.3) if diverges else self._keep(
-            self.ax_step, 1, _nice_range(yv), yv.min(), yv.max()))
+            self.ax_step, 1, _nice_range(yv), yv.min(), yv.max()), None)
 
-        yd = _clip_for_plot(1e3 * np.asarray(res.y_dist), CLIP_MRAD)
+        clip = CLIP_MRAD * 1e-3                                 # rad
+        yd = _clip_for_plot(res.y_dist, clip)
+        f, unit = angle_unit(np.max(np.abs(yd[res.t_dist <= t_lim[1]]), initial=0.0))
+        self._unit_now[self.ax_dist] = unit
+        yd = f * yd
         self.dist_line.set_data(res.t_dist, yd)
         yv = np.concatenate([yd[res.t_dist <= t_lim[1]], [0.0]])
-        lim[self.ax_dist] = (t_lim, (-1.06 * CLIP_MRAD, 1.06 * CLIP_MRAD) if diverges else
-                             self._keep(self.ax_dist, 1, _nice_range(yv), yv.min(), yv.max()))
+        lim[self.ax_dist] = (t_lim, (-1.06 * clip * f, 1.06 * clip * f) if diverges else
+                             self._keep(self.ax_dist, 1, _nice_range(yv), yv.min(), yv.max()),
+                             unit)
 
         t_mv = float(res.t_move[-1]) if res.t_move.size else 1.0
-        e = _clip_for_plot(1e3 * res.err_move, CLIP_MRAD)
-        self.err_line.set_data(res.t_move, e)
+        e = _clip_for_plot(res.err_move_measured, clip)
         ys = [e, [0.0]]
+        er = None
         if rig_error is not None:
             tr, er = rig_error
-            er = _clip_for_plot(1e3 * np.asarray(er, dtype=float), CLIP_MRAD)
-            self.rig_line.set_data(tr, er)
+            er = _clip_for_plot(er, clip)
             ys.append(er)
             t_mv = max(t_mv, float(np.max(tr)) if np.size(tr) else t_mv)
+        f, unit = angle_unit(max(float(np.max(np.abs(v), initial=0.0)) for v in ys))
+        self._unit_now[self.ax_err] = unit
+        self.err_line.set_data(res.t_move, f * e)
+        if er is not None:
+            self.rig_line.set_data(tr, f * er)
         else:
             self.rig_line.set_data([], [])
         has_legend = self.ax_err.get_legend() is not None
@@ -533,24 +386,31 @@ class PolePlacementFigure:
                                    fontsize=7)
             else:
                 self.ax_err.get_legend().remove()
-        ev = np.concatenate(ys)
+        ev = f * np.concatenate([np.asarray(v, dtype=float) for v in ys])
         t_mlim = (0.0, nice_ceil(t_mv))
-        lim[self.ax_err] = (t_mlim, (-1.06 * CLIP_MRAD, 1.06 * CLIP_MRAD) if diverges else
+        lim[self.ax_err] = (t_mlim, (-1.06 * clip * f, 1.06 * clip * f) if diverges else
                             self._keep(self.ax_err, 1, _nice_range(ev), ev.min(), ev.max()),
-                            rig_error is not None)
+                            rig_error is not None, unit)
 
         u = _clip_for_plot(res.u_move, 1e3)
         self.u_line.set_data(res.t_move, u)
         um = max(float(np.max(np.abs(u))) if u.size else 1.0, 0.5)
         nu = nice_ceil(um)
         lim[self.ax_u] = (t_mlim, (-15.0, 15.0) if diverges else
-                          self._keep(self.ax_u, 1, (-1.06 * nu, 1.06 * nu), -um, um))
+                          self._keep(self.ax_u, 1, (-1.06 * nu, 1.06 * nu), -um, um), None)
 
-        name = "eq. 11 + eq. 13" if p["design"] == "continuous" else "direct z-domain"
-        self.suptitle.set_text(
-            f"Stojčić position loop, {name}: ζ = {p['zeta']:.2f}, ωn = {p['wn']:.1f} rad/s, "
-            f"σ = {p['sigma_ratio']:.1f}·ωn, Ts = {1e3 * p['Ts']:.2f} ms — max |z| = "
-            f"{res.max_radius:.3f} ({res.level})")
+        name = {"continuous": "Stojčić eq. 11 + Stojčić eq. 13", "z-domain": "direct z-domain",
+                "z-domain-filter": "z-domain + γ filter"}[p["design"]]
+        if self.layout == "wide":
+            self.suptitle.set_text(
+                f"{name}: ζ = {p['zeta']:.2f}, ωn = {p['wn']:.1f} rad/s, "
+                f"σ = {p['sigma_ratio']:.1f}·ωn, Ts = {1e3 * p['Ts']:.2f} ms — max |z| = "
+                f"{res.max_radius:.3f} ({res.level})")
+        else:
+            self.suptitle.set_text(
+                f"{name}: ζ = {p['zeta']:.2f}, ωn = {p['wn']:.0f} rad/s,\n"
+                f"σ = {p['sigma_ratio']:.1f}·ωn, Ts = {1e3 * p['Ts']:.0f} ms — max |z| = "
+                f"{res.max_radius:.3f} ({res.level})")
         self.suptitle.set_color(_LEVEL_COLORS[res.level])
         self._limits = lim
 
@@ -560,10 +420,16 @@ class PolePlacementFigure:
         if title:
             self.fig.draw_artist(self.suptitle)
 
-    @staticmethod
-    def _apply_limits(ax, key):
+    _ANGLE_LABELS = {"dist": "position [{}]", "err": "ref. − encoder [{}]"}
+
+    def _apply_limits(self, ax, key):
         ax.set_xlim(*key[0])
         ax.set_ylim(*key[1])
+        unit = key[-1]
+        if ax is self.ax_dist and unit:
+            ax.set_ylabel(self._ANGLE_LABELS["dist"].format(unit))
+        elif ax is self.ax_err and unit:
+            ax.set_ylabel(self._ANGLE_LABELS["err"].format(unit))
 
     def render(self, title=False):
         """Draw the current state into the Agg buffer.
@@ -629,6 +495,63 @@ class PolePlacementFigure:
 # --------------------------------------------------------------------------------------
 # the widget
 # --------------------------------------------------------------------------------------
+#: Windows refuses these as file names (with any extension).
+_WINDOWS_RESERVED = {"CON", "PRN", "AUX", "NUL", *(f"COM{i}" for i in range(1, 10)),
+                     *(f"LPT{i}" for i in range(1, 10))}
+
+
+def sanitize_student_id(student_id, max_length=48):
+    """A folder name for a student ID, valid on Windows, macOS and Linux.
+
+    Accents are dropped (``"Stojčić"`` -> ``"Stojcic"``), anything but ASCII letters, digits,
+    ``-``, ``_`` and ``.`` becomes ``_``, leading and trailing dots, spaces and underscores
+    go, Windows' reserved names (``CON``, ``NUL``, ``COM1``, ...) get a leading ``_`` and the
+    length is capped. If any of that changed the ID, a short hash of the original is
+    appended, so two different IDs never share a folder.
+
+    Raises
+    ------
+    ValueError
+        ``student_id`` is empty (or only spaces).
+    TypeError
+        ``student_id`` is not a string.
+    """
+    if not isinstance(student_id, str):
+        raise TypeError(f"student_id must be a string, got {type(student_id).__name__}")
+    raw = student_id.strip()
+    if not raw:
+        raise ValueError("student_id is empty: enter your student ID")
+    ascii_ = unicodedata.normalize("NFKD", raw).encode("ascii", "ignore").decode("ascii")
+    name = re.sub(r"[^A-Za-z0-9._-]+", "_", ascii_).strip(" ._")
+    if name.split(".")[0].upper() in _WINDOWS_RESERVED:
+        name = "_" + name
+    name = name[:max_length]
+    if name != raw:
+        digest = hashlib.sha1(raw.encode("utf-8")).hexdigest()[:6]
+        name = f"{name}-{digest}" if name else f"id-{digest}"
+    return name
+
+
+#: CSS of the panel: sliders wrap (one column on a phone, readouts visible), the design
+#: buttons wrap, and the wide or the narrow figure is shown, whichever fits the screen.
+_PANEL_CSS = """<style>
+.jerklab-sliders { display: flex; flex-flow: row wrap; gap: 0 12px; }
+.jerklab-panel .jerklab-control.widget-slider { max-width: 100%; }
+.jerklab-design { flex-wrap: wrap; max-width: 100%; }
+.jerklab-design .widget-toggle-button { max-width: 100%; white-space: normal; height: auto;
+  min-height: var(--jp-widgets-inline-height, 28px); }
+.jerklab-design > div { flex-wrap: wrap; }
+.jerklab-rig-row { flex-wrap: wrap; align-items: center; }
+.jerklab-figure-narrow { display: none !important; }
+@media (max-width: 640px) {
+  .jerklab-panel .jerklab-control.widget-slider { width: 100% !important; }
+  .jerklab-design .widget-toggle-button { width: 100% !important; }
+  .jerklab-panel.jerklab-has-narrow .jerklab-figure { display: none !important; }
+  .jerklab-panel.jerklab-has-narrow .jerklab-figure-narrow { display: block !important; }
+}
+</style>"""
+
+
 def _panel_base():
     import ipywidgets as widgets
 
@@ -640,76 +563,114 @@ class PolePlacementPanel(_panel_base()):
 
     Build it with :func:`pole_placement_panel`. Attributes for scripts and tests:
     ``controls`` (dict of the widgets by name: ``zeta, wn, sigma_ratio, Ts_ms, design``),
-    ``image`` (the :class:`ipywidgets.Image` holding the figure), ``status`` (the warning),
-    ``result`` (the last :class:`TuningResult`), ``last_redraw_s`` (seconds spent by the
-    last recompute + redraw), ``error`` (the last exception text or None).
+    ``gains`` (the discrete gains of the current design, what ``rig.run_move`` accepts),
+    ``image`` (the :class:`ipywidgets.Image` holding the figure; ``image_narrow`` the phone
+    figure or None), ``status`` (the verdict, advice and gains), ``result`` (the last
+    :class:`~jerklab.tuning.TuningResult`), ``last_redraw_s`` (seconds spent by the last
+    recompute + redraw), ``error`` (the last exception text or None), ``student`` (the
+    student ID field or None), ``last_recording`` (the last rig run's Recording).
     """
 
-    def __init__(self, K=32.4, tau=0.025, zeta=1.0, wn=20.0, sigma_ratio=7.0, Ts=0.005,
-                 design="continuous", move=None, rig=None, dpi=80):
+    def __init__(self, K=paper.MOTOR_K, tau=paper.MOTOR_TAU, zeta=paper.ZETA, wn=20.0,
+                 sigma_ratio=paper.SIGMA_RATIO, Ts=paper.TS,
+                 design="continuous", move=None, rig=None, dpi=80, student=False,
+                 narrow_figure=False, recordings=None):
         import ipywidgets as widgets
 
         self.K = as_positive("K", K)
         self.tau = as_positive("tau", tau)
         self.move = dict(move or DEFAULT_MOVE)
+        tuning.move_profile(self.move)                    # a bad move fails here, named
         self.rig = rig
+        self.recordings = recordings
         self.result = None
         self.error = None
         self.last_redraw_s = float("nan")
+        self.last_recording = None
         self._rig_error = None
         self._png = b""
 
         style = {"description_width": "70px"}
-        layout = widgets.Layout(width="330px")
+
+        def lay():
+            return widgets.Layout(width="330px", max_width="100%")
+
+        R = tuning.SLIDER_RANGES
         c = dict(
-            zeta=widgets.FloatSlider(value=as_positive("zeta", zeta), min=0.3, max=2.0, step=0.05,
-                                     description="ζ", readout_format=".2f",
-                                     continuous_update=False, style=style, layout=layout),
-            wn=widgets.FloatSlider(value=as_positive("wn", wn), min=2.0, max=100.0, step=1.0,
-                                   description="ωn [rad/s]", readout_format=".0f",
-                                   continuous_update=False, style=style, layout=layout),
-            sigma_ratio=widgets.FloatSlider(value=as_positive("sigma_ratio", sigma_ratio), min=1.0,
-                                            max=15.0, step=0.5, description="σ / ωn",
+            zeta=widgets.FloatSlider(value=as_positive("zeta", zeta), min=R["zeta"][0],
+                                     max=R["zeta"][1], step=R["zeta"][2], description="ζ",
+                                     readout_format=".2f", continuous_update=False,
+                                     style=style, layout=lay()),
+            wn=widgets.FloatSlider(value=as_positive("wn", wn), min=R["wn"][0], max=R["wn"][1],
+                                   step=R["wn"][2], description="ωn [rad/s]", readout_format=".0f",
+                                   continuous_update=False, style=style, layout=lay()),
+            sigma_ratio=widgets.FloatSlider(value=as_positive("sigma_ratio", sigma_ratio),
+                                            min=R["sigma_ratio"][0], max=R["sigma_ratio"][1],
+                                            step=R["sigma_ratio"][2], description="σ / ωn",
                                             readout_format=".1f", continuous_update=False,
-                                            style=style, layout=layout),
-            Ts_ms=widgets.FloatSlider(value=1e3 * as_positive("Ts", Ts), min=1.0, max=20.0,
-                                      step=1.0, description="Ts [ms]", readout_format=".1f",
-                                      continuous_update=False, style=style, layout=layout),
+                                            style=style, layout=lay()),
+            Ts_ms=widgets.FloatSlider(value=1e3 * as_positive("Ts", Ts), min=R["Ts_ms"][0],
+                                      max=R["Ts_ms"][1], step=R["Ts_ms"][2], description="Ts [ms]",
+                                      readout_format=".1f", continuous_update=False, style=style,
+                                      layout=lay()),
             design=widgets.ToggleButtons(options=list(DESIGNS.items()),
                                          value=design if design in DESIGNS.values() else None,
-                                         description="design", style={"button_width": "300px",
-                                                                      **style}),
+                                         description="design",
+                                         style={"button_width": "auto", **style},
+                                         layout=widgets.Layout(max_width="100%")),
         )
         if c["design"].value is None:
             raise ValueError(f"design must be one of {sorted(DESIGNS.values())}, got {design!r}")
         self.controls = c
         for w in c.values():
             w.add_class("jerklab-control")
+        c["design"].add_class("jerklab-design")
         self.status = widgets.HTML(layout=widgets.Layout(width="100%"))
         self.status.add_class("jerklab-status")
-        self.timing = widgets.HTML()
-        self.timing.add_class("jerklab-timing")
         self.figure = PolePlacementFigure(dpi=dpi)
         width_px = self.figure.canvas.get_width_height()[0]
         # shown at its own pixel size (no blurry upscaling), narrower on a small screen
         self.image = widgets.Image(format="png", layout=widgets.Layout(width=f"{width_px}px",
                                                                        max_width="100%"))
         self.image.add_class("jerklab-figure")
+        self.figure_narrow = self.image_narrow = None
+        if narrow_figure:
+            self.figure_narrow = PolePlacementFigure(dpi=dpi, layout="narrow")
+            w_n = self.figure_narrow.canvas.get_width_height()[0]
+            self.image_narrow = widgets.Image(format="png", layout=widgets.Layout(
+                width=f"{w_n}px", max_width="100%"))
+            self.image_narrow.add_class("jerklab-figure-narrow")
 
-        rows = [widgets.HBox([widgets.VBox([c["zeta"], c["wn"]]),
-                              widgets.VBox([c["sigma_ratio"], c["Ts_ms"]])]),
-                c["design"]]
+        sliders = widgets.Box([c["zeta"], c["wn"], c["sigma_ratio"], c["Ts_ms"]])
+        sliders.add_class("jerklab-sliders")
+        rows = [widgets.HTML(_PANEL_CSS), sliders, c["design"]]
+        self.student = None
         if rig is not None:
             self.rig_button = widgets.Button(description="Run this move on the rig",
-                                             button_style="primary", icon="play",
-                                             layout=widgets.Layout(width="260px"))
+                                             button_style="primary",
+                                             layout=widgets.Layout(width="260px",
+                                                                   max_width="100%"))
             self.rig_button.add_class("jerklab-rig-button")
             self.rig_status = widgets.HTML()
             self.rig_status.add_class("jerklab-rig-status")
             self.rig_button.on_click(self._run_on_rig)
-            rows.append(widgets.HBox([self.rig_button, self.rig_status]))
-        super().__init__(rows + [self.status, self.image, self.timing])
+            items = [self.rig_button, self.rig_status]
+            if student:
+                self.student = widgets.Text(description="student ID", placeholder="your ID",
+                                            continuous_update=True, style=style,
+                                            layout=widgets.Layout(width="260px",
+                                                                  max_width="100%"))
+                self.student.add_class("jerklab-student-id")
+                self.student.observe(lambda _c: self._update_rig_button(), names="value")
+                items.insert(0, self.student)
+            row = widgets.Box(items)
+            row.add_class("jerklab-rig-row")
+            rows.append(row)
+        images = [self.image] + ([self.image_narrow] if self.image_narrow is not None else [])
+        super().__init__(rows + [self.status] + images)
         self.add_class("jerklab-panel")
+        if self.image_narrow is not None:
+            self.add_class("jerklab-has-narrow")
 
         for w in c.values():
             w.observe(self._on_change, names="value")
@@ -717,11 +678,30 @@ class PolePlacementPanel(_panel_base()):
 
     # -- parameters ------------------------------------------------------------------
     def params(self):
-        """The current slider values as keyword arguments of :func:`compute_pole_placement`."""
+        """The current slider values as keyword arguments of :func:`jerklab.tuning.compute_pole_placement`."""
         c = self.controls
         return dict(K=self.K, tau=self.tau, zeta=c["zeta"].value, wn=c["wn"].value,
                     sigma_ratio=c["sigma_ratio"].value, Ts=c["Ts_ms"].value * 1e-3,
                     design=c["design"].value, move=self.move)
+
+    @property
+    def gains(self):
+        """The discrete gains (:class:`jerklab.controller.DiscreteGains`) of the current design.
+
+        Exactly what ``rig.run_move(profile, panel.gains, Ts=panel.gains.Ts)`` accepts, so a
+        worksheet can take the tuned gains to its rig cell.
+        """
+        return self.result.gains
+
+    @property
+    def student_id(self):
+        """The sanitized student ID (a folder name), or None when there is no valid ID."""
+        if self.student is None:
+            return None
+        try:
+            return sanitize_student_id(self.student.value)
+        except ValueError:
+            return None
 
     def _on_change(self, change):
         self._rig_error = None
@@ -734,16 +714,18 @@ class PolePlacementPanel(_panel_base()):
         """
         t0 = time.perf_counter()
         try:
-            res = compute_pole_placement(**self.params())
-            t1 = time.perf_counter()
+            res = tuning.compute_pole_placement(**self.params())
             self.figure.update(res, self._rig_error)
             png = self.figure.png()
+            if self.figure_narrow is not None:
+                self.figure_narrow.update(res, self._rig_error)
+                png_narrow = self.figure_narrow.png()
         except Exception as exc:
             self.error = f"{type(exc).__name__}: {exc}"
             self.status.value = (
                 '<div class="jerklab-error" style="background:#fdecea;color:#b71c1c;'
                 'border:2px solid #c62828;padding:6px;font-weight:bold">'
-                f"Panel error — {_html_escape(self.error)}</div>")
+                f"Panel error: {html.escape(self.error)}</div>")
             self.status.add_class("jerklab-error")
             raise
         self.error = None
@@ -751,47 +733,114 @@ class PolePlacementPanel(_panel_base()):
         self.result = res
         self._png = png
         self.image.value = png
+        if self.figure_narrow is not None:
+            self.image_narrow.value = png_narrow
         self.status.value = _status_html(res)
+        self._update_rig_button()
         self.last_redraw_s = time.perf_counter() - t0
-        self.timing.value = (
-            f'<span style="color:#666;font-size:90%">redraw {1e3 * self.last_redraw_s:.0f} ms '
-            f"(design {1e3 * res.timings['design']:.0f}, responses "
-            f"{1e3 * res.timings['responses']:.0f}, move {1e3 * res.timings['move']:.0f}, "
-            f"figure {1e3 * (self.last_redraw_s - (t1 - t0)):.0f})</span>")
         return res
 
     # -- the rig -----------------------------------------------------------------------
-    def _run_on_rig(self, _button=None):
+    def _refusal(self):
+        """Why the rig button is disabled now (None: it may run)."""
+        res = self.result
+        if res is None:
+            return "no design yet"
+        if not res.stable:
+            advice = f" {res.advice_text}" if res.advice_text else ""
+            return (f"Not run on the rig: the sampled loop of the {res.design_name} has a pole "
+                    f"at |z| = {res.max_radius:.3f} ≥ 1, it would run away.{advice}")
+        if self.student is not None and self.student_id is None:
+            return "Enter your student ID to run on the rig (your runs are saved under it)."
+        return None
+
+    def _update_rig_button(self):
+        if self.rig is None:
+            return
+        why = self._refusal()
+        self.rig_button.disabled = why is not None
+        if why is not None:
+            self.rig_status.value = (f'<span class="jerklab-rig-refused" style="color:#8a1c1c">'
+                                     f"{html.escape(why)}</span>")
+        elif "jerklab-rig-refused" in self.rig_status.value or self._rig_error is None:
+            self.rig_status.value = ""
+
+    def _recording_path(self):
+        """recordings/<student>/<stamp>_move for a class page, else False (memory only)."""
+        sid = self.student_id
+        if self.student is None or sid is None:
+            return False
+        from pathlib import Path
+
+        from jerklab.rig.recording import recordings_dir
+
+        folder = (Path(self.recordings) if self.recordings is not None else recordings_dir()) / sid
+        stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+        base, k = folder / f"{stamp}_move", 1
+        while base.with_name(base.name + ".csv").exists():
+            k += 1
+            base = folder / f"{stamp}_move_{k}"
+        return base
+
+    def _show_rig_status(self, text):
+        self.rig_status.value = text
+
+    def _run_on_rig(self, _button=None, force=False):
         """Run the current move with the current discrete gains on the rig, overlay the error."""
+        from jerklab.controller import Feedforward
+
+        res = self.result
         try:
             self.rig_button.disabled = True
+            tuning.check_runnable(self.K, self.tau, res.gains, force=force,
+                                  design=res.params["design"])
+            if self.student is not None and self.student_id is None:
+                raise ValueError("student_id: enter your student ID before running on the rig")
             self.rig_status.value = "running…"
-            res = self.result
-            profile = _move_profile(self.move)
-            rec = self.rig.run_move(profile, res.gains, Ts=res.params["Ts"], path=False,
-                                    progress=False)   # the panel shows its own status
+            kwargs = dict(Ts=res.params["Ts"], feedforward=Feedforward(self.K, self.tau),
+                          path=self._recording_path(), progress=False)
+            if getattr(self.rig, "queues_runs", False):
+                kwargs["on_status"] = lambda msg: self._show_rig_status(html.escape(msg))
+                if self.student_id is not None:
+                    self.rig.client = self.student_id      # names the run in the broker's queue
+            if force and _accepts(self.rig.run_move, "force"):
+                kwargs["force"] = True
+            rec = self.rig.run_move(tuning.move_profile(self.move), res.gains, **kwargs)
+            self.last_recording = rec
             t = np.asarray(rec.time, dtype=float)
+            # the same quantity as the simulated curve: reference − encoder reading
             err = np.asarray(rec.reference, dtype=float) - np.asarray(rec.position, dtype=float)
             self._rig_error = (t, err)
             self.figure.update(res, self._rig_error)
             self._png = self.figure.png()
             self.image.value = self._png
+            if self.figure_narrow is not None:
+                self.figure_narrow.update(res, self._rig_error)
+                self.image_narrow.value = self.figure_narrow.png()
+            sim = float(np.max(np.abs(res.err_move_measured))) if res.err_move_measured.size else 0.0
+            saved = ""
+            if getattr(rec, "csv_path", None) is not None:
+                saved = f"; saved as {html.escape(str(rec.csv_path))}"
             self.rig_status.value = (
-                f"rig: max |error| = {1e3 * float(np.max(np.abs(err))):.2f} mrad over "
-                f"{t.size} samples")
+                f"rig: max |ref. − encoder| = {format_angle(np.max(np.abs(err)))} over "
+                f"{t.size} samples (simulation: {format_angle(sim)}){saved}")
         except Exception as exc:
             self.rig_status.value = (
-                '<span class="jerklab-error" style="color:#b71c1c;font-weight:bold">rig error — '
-                f"{_html_escape(f'{type(exc).__name__}: {exc}')}</span>")
+                '<span class="jerklab-error" style="color:#b71c1c;font-weight:bold">rig error: '
+                f"{html.escape(f'{type(exc).__name__}: {exc}')}</span>")
             raise
         finally:
-            self.rig_button.disabled = False
+            self.rig_button.disabled = self._refusal() is not None
 
-    def run_on_rig(self):
-        """Script form of the "Run this move on the rig" button; returns the tracking error."""
+    def run_on_rig(self, force=False):
+        """Script form of the "Run this move on the rig" button; returns (t, ref. − encoder).
+
+        Refuses (:class:`jerklab.tuning.UnstableDesignError`) a design whose sampled loop has
+        |z| ≥ 1 unless ``force=True``.
+        """
         if self.rig is None:
             raise ValueError("rig: this panel was built without a rig (pole_placement_panel(rig=...))")
-        self._run_on_rig()
+        self._run_on_rig(force=force)
         return self._rig_error
 
     # -- static fallback ---------------------------------------------------------------
@@ -809,61 +858,95 @@ class PolePlacementPanel(_panel_base()):
         return data
 
 
-def _html_escape(s):
-    import html
+def _accepts(func, name):
+    import inspect
 
-    return html.escape(str(s))
+    try:
+        return name in inspect.signature(func).parameters
+    except (TypeError, ValueError):
+        return False
+
+
+def _fmt_gain(v):
+    return f"{v:.4g}"
 
 
 def _status_html(res):
     color = _LEVEL_COLORS[res.level]
     bg = {"ok": "#e8f5e9", "near": "#fff3e0", "unstable": "#fdecea"}[res.level]
-    icon = {"ok": "✔", "near": "⚠", "unstable": "⛔"}[res.level]
-    g = res.gains
-    gains = f"kpd = {g.kpd:.4g}, kid = {g.kid:.4g}, kdd = {g.kdd:.4g} (V/rad)"
+    tag = {"ok": "OK", "near": "WARNING", "unstable": "UNSTABLE"}[res.level]
+    message = res.message
+    if message.startswith(tag + ": "):
+        message = message[len(tag) + 2:]
+    rows = tuning.gain_table(res.gains, res.continuous_gains)
+    disc = ", ".join(f"{n} = {_fmt_gain(v)} {u}".rstrip() for n, v, u in rows[:-3])
+    cont = ", ".join(f"{n} = {_fmt_gain(v)} {u}" for n, v, u in rows[-3:])
+    how = ("Stojčić eq. 11" if res.continuous_gains is not None
+           else "Stojčić eq. 13 equivalent")
+    advice = (f'<br><span class="jerklab-advice">{html.escape(res.advice_text)}</span>'
+              if res.advice_text else "")
     return (f'<div class="jerklab-verdict jerklab-{res.level}" style="background:{bg};'
             f'color:{color};border-left:6px solid {color};padding:4px 8px">'
-            f"<b>{icon} {_html_escape(res.message)}</b><br>"
-            f'<span style="color:#333">{gains}</span></div>')
+            f'<b><span style="border:1px solid {color};border-radius:3px;padding:0 4px;'
+            f'margin-right:6px">{tag}</span>{html.escape(res.design_name)}: '
+            f"{html.escape(message)}</b>{advice}<br>"
+            f'<span style="color:#333">discrete (Stojčić eq. 12): {html.escape(disc)}<br>'
+            f"continuous ({how}): {html.escape(cont)}</span></div>")
 
 
-def pole_placement_panel(K=32.4, tau=0.025, *, zeta=1.0, wn=20.0, sigma_ratio=7.0, Ts=0.005,
-                         design="continuous", move=None, rig=None, dpi=80):
-    """The interactive pole-placement tuning panel of notebook 03 and the class page.
+def pole_placement_panel(K=paper.MOTOR_K, tau=paper.MOTOR_TAU, *, zeta=paper.ZETA, wn=20.0,
+                         sigma_ratio=paper.SIGMA_RATIO, Ts=paper.TS,
+                         design="continuous", move=None, rig=None, dpi=80, student=False,
+                         narrow_figure=False, recordings=None):
+    """The interactive pole-placement tuning panel of notebook 03, the labs and the class page.
 
     Sliders for ζ, ωn, σ/ωn and Ts and a choice of design (Stojčić eq. 11 discretized by
-    eq. 12-13, or the direct z-domain design); one figure with the closed-loop poles in s
-    and z, the unit-step and step-disturbance (eq. 9) responses of the sampled loop, and
-    the tracking error and voltage of a sine-jerk move simulated with the rig's
-    imperfections; a coloured verdict that turns orange near and red past instability.
+    Stojčić eq. 13, the direct z-domain design, or the z-domain design with a derivative
+    filter); one figure with the closed-loop poles in s and z, the unit-step and
+    step-disturbance (Stojčić eq. 9) responses of the sampled loop, and the tracking error and
+    voltage of a sine-jerk move simulated with the rig's imperfections; a verdict that turns
+    orange near and red past instability, with advice checked for the selected design, and
+    the gains with their units.
 
     Parameters
     ----------
     K, tau : float
-        Plant of eq. 1 (defaults: the paper's identified motor).
+        Plant of Stojčić eq. 1 in rad/(V·s) and s: your identified motor (defaults: the
+        paper's). The design, the simulation and the rig run's feedforward all use them.
     zeta, wn, sigma_ratio, Ts, design
-        Initial values (see :func:`compute_pole_placement`).
+        Initial values (see :func:`jerklab.tuning.compute_pole_placement`).
     move : dict, optional
-        The sine-jerk move (default :data:`DEFAULT_MOVE`).
+        The sine-jerk move (default :data:`jerklab.tuning.DEFAULT_MOVE`).
     rig : object, optional
-        A rig from :func:`jerklab.rig.connect`; adds a "Run this move on the rig" button that
-        calls ``rig.run_move(profile, gains, Ts)`` and overlays the measured tracking error.
+        A rig from :func:`jerklab.rig.connect` (or the class page's queue,
+        :class:`jerklab.broker.BrokerRig`); adds a "Run this move on the rig" button that
+        calls ``rig.run_move(profile, gains, Ts)`` and overlays the measured tracking
+        error. The button is disabled while the sampled loop is unstable (|z| ≥ 1).
     dpi : float
         Resolution of the figure.
+    student : bool
+        Add a student ID field; rig runs are then refused without an ID and saved to
+        ``recordings/<student ID>/`` (the class page).
+    narrow_figure : bool
+        Also draw a phone-width figure, shown instead of the wide one below 640 px.
+    recordings : path, optional
+        Folder of the per-student folders (default ``$JERKLAB_RECORDINGS`` or ``./recordings``).
 
     Returns
     -------
     PolePlacementPanel
-        An ``ipywidgets.VBox``. Displaying it shows the live panel where widgets render
-        and the default-value figure (PNG) where they do not (headless execution).
+        An ``ipywidgets.VBox``. ``panel.gains`` are the discrete gains of the current
+        design. Displaying it shows the live panel where widgets render and the
+        default-value figure (PNG) where they do not (headless execution).
 
     Examples
     --------
     >>> from jerklab.widgets import pole_placement_panel
-    >>> panel = pole_placement_panel()            # doctest: +SKIP
-    >>> panel.controls["wn"].value = 50           # doctest: +SKIP
-    >>> panel.result.level                        # doctest: +SKIP
-    'unstable'
+    >>> panel = pole_placement_panel(K=27.5, tau=0.034)     # doctest: +SKIP
+    >>> panel.controls["wn"].value = 50                     # doctest: +SKIP
+    >>> panel.result.level, panel.gains.Ts                  # doctest: +SKIP
+    ('unstable', 0.005)
     """
     return PolePlacementPanel(K=K, tau=tau, zeta=zeta, wn=wn, sigma_ratio=sigma_ratio, Ts=Ts,
-                              design=design, move=move, rig=rig, dpi=dpi)
+                              design=design, move=move, rig=rig, dpi=dpi, student=student,
+                              narrow_figure=narrow_figure, recordings=recordings)

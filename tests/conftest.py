@@ -46,3 +46,8 @@ def artifacts_dir(tmp_path_factory):
     root = os.path.join(os.path.dirname(os.path.dirname(__file__)), "artifacts")
     os.makedirs(root, exist_ok=True)
     return root
+
+
+def pytest_collection_modifyitems(session, config, items):
+    """Run tests/test_book.py last: it builds the book from the notebooks test_notebooks.py executed."""
+    items.sort(key=lambda it: it.nodeid.startswith("tests/test_book.py") or it.nodeid.startswith("test_book.py"))

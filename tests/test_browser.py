@@ -138,11 +138,11 @@ def _jupyter_env(tmp):
     return env
 
 
-def voila_page(tmp):
-    """The class page, started as documented: ``python -m jerklab.app``."""
+def voila_page(tmp, *args):
+    """The class page, started as documented: ``python -m jerklab.app [args]``."""
     port = _free_port()
     env = _jupyter_env(tmp)
-    cmd = [sys.executable, "-m", "jerklab.app", f"--port={port}"]
+    cmd = [sys.executable, "-m", "jerklab.app", f"--port={port}", *args]
     url = f"http://127.0.0.1:{port}/"
     server = Server(cmd, f"tcp://127.0.0.1:{port}", pathlib.Path(tmp) / "server.log", env=env,
                     cwd=str(ROOT))
@@ -318,14 +318,23 @@ def _wait_panel(w, timeout_ms=PANEL_TIMEOUT_MS):
 # ------------------------------------------------------------------------------------------
 # tests
 # ------------------------------------------------------------------------------------------
+class ClassPage(str):
+    """The class page's URL, with its temporary folder (``.tmp``) and server (``.server``)."""
+
+
 @pytest.fixture(scope="module", autouse=True)
 def class_page(tmp_path_factory):
-    """The class page server, started first: its kernel pre-executes the page (Voilà preheat)
-    while the JupyterLab tests run, as it would before a class arrives."""
+    """The class page server with one (virtual) rig behind its queue (``--rig virtual``),
+    started first: its kernel pre-executes the page (Voilà preheat) while the JupyterLab tests
+    run, as it would before a class arrives."""
     require_tool(CHROMIUM)
-    server, url = voila_page(tmp_path_factory.mktemp("voila"))
+    tmp = tmp_path_factory.mktemp("voila")
+    # the shared virtual rig at 0.3 x real time: a run lasts ~3 s, so two students overlap
+    server, url = voila_page(tmp, "--rig=virtual", "--rig-speed=0.3", "--pool=3")
     with server:
-        yield url
+        page = ClassPage(url)
+        page.tmp, page.server = pathlib.Path(tmp), server
+        yield page
 
 
 @pytest.fixture(scope="module")
@@ -451,15 +460,160 @@ def test_class_page_voila_with_rig(browser, class_page, artifacts_dir):
         w.page.wait_for_function(
             "old => document.querySelector('img.jerklab-figure').src !== old", arg=src,
             timeout=30_000)
-        # the rig behind the page
-        w.page.locator(".jerklab-rig-button").click()
+        # the rig behind the page: refused until a student ID is entered
+        button = w.page.locator(".jerklab-rig-button")
+        assert button.is_disabled()
+        assert "student ID" in w.page.locator(".jerklab-rig-status").inner_text()
+        w.page.locator(".jerklab-student-id input").fill("s-0042 Ana")
+        w.page.wait_for_function(
+            "() => !document.querySelector('.jerklab-rig-button').disabled", timeout=30_000)
+        button.click()
         w.page.wait_for_function(
             "() => (document.querySelector('.jerklab-rig-status') || {}).textContent"
-            "?.includes('max |error|')", timeout=30_000)
-        assert "rig: max |error|" in w.page.locator(".jerklab-rig-status").inner_text()
+            "?.includes('max |ref. − encoder|')", timeout=60_000)
+        status = w.page.locator(".jerklab-rig-status").inner_text()
+        assert "rig: max |ref. − encoder|" in status and "saved as" in status
+        saved = list((url.tmp / "recordings").glob("s-0042_Ana-*/*_move.csv"))
+        assert len(saved) == 1, list((url.tmp / "recordings").rglob("*"))
         w.shot("tuned")
         assert not w.kernel_errors and not w.page_errors and not w.widget_console_errors()
     finally:
         w.close()
     # generous for a loaded CI machine; the measured numbers are in artifacts/
     assert sorted(times)[len(times) // 2] < 1.5, times
+
+
+def _open_class_page(browser, url, name, artifacts_dir, viewport=None):
+    w = Watched(browser, name, artifacts_dir)
+    if viewport:
+        w.page.set_viewport_size(viewport)
+    w.page.goto(url, wait_until="commit", timeout=PANEL_TIMEOUT_MS)
+    if viewport and viewport["width"] <= 640:             # the phone figure instead
+        w.page.wait_for_selector("img.jerklab-figure-narrow", state="visible",
+                                 timeout=PANEL_TIMEOUT_MS)
+    else:
+        _wait_panel(w)
+    return w
+
+
+# every text the rig status shows, collected in the page as it changes
+_WATCH_STATUS = """() => { window.__statuses = [];
+  const el = document.querySelector('.jerklab-rig-status');
+  new MutationObserver(() => window.__statuses.push(el.textContent))
+    .observe(el, {childList: true, subtree: true, characterData: true}); }"""
+
+
+def test_class_page_queues_two_students_on_one_rig(browser, class_page, artifacts_dir):
+    """Two students click "run" at once: one rig, the second is told it is queued, both run."""
+    pages = [_open_class_page(browser, class_page, f"queue{i}", artifacts_dir) for i in (1, 2)]
+    try:
+        for i, w in enumerate(pages):
+            w.page.locator(".jerklab-student-id input").fill(f"queue-student-{i}")
+            w.page.wait_for_function(
+                "() => !document.querySelector('.jerklab-rig-button').disabled", timeout=30_000)
+            w.page.evaluate(_WATCH_STATUS)
+        for w in pages:
+            w.page.locator(".jerklab-rig-button").click()
+        for w in pages:
+            w.page.wait_for_function(
+                "() => document.querySelector('.jerklab-rig-status').textContent"
+                ".includes('max |ref. − encoder|')", timeout=90_000)
+        seen = [w.page.evaluate("window.__statuses") for w in pages]
+        assert any(any("queued: 1 ahead of you" in t for t in s) for s in seen), seen
+        for w in pages:
+            assert not w.kernel_errors and not w.page_errors
+    finally:
+        for w in pages:
+            w.close()
+    for i in (0, 1):
+        assert len(list((class_page.tmp / "recordings").glob(f"queue-student-{i}/*_move.csv"))) == 1
+
+
+def test_class_page_at_phone_width(browser, class_page, artifacts_dir):
+    """390 px wide: sliders stacked with their values on screen, the narrow figure legible."""
+    w = _open_class_page(browser, class_page, "phone", artifacts_dir,
+                         viewport={"width": 390, "height": 844})
+    try:
+        page = w.page
+        page.wait_for_selector("img.jerklab-figure-narrow", state="visible", timeout=30_000)
+        w.shot("phone")
+        boxes = []
+        for label in ("ζ", "ωn [rad/s]", "σ / ωn", "Ts [ms]"):
+            slider = page.locator(".jerklab-control.widget-slider", has_text=label)
+            box = slider.bounding_box()
+            readout = slider.locator(".widget-readout").bounding_box()
+            assert box["x"] >= 0 and box["x"] + box["width"] <= 390 + 0.5, (label, box)
+            assert readout and readout["width"] > 10 and readout["x"] + readout["width"] <= 390, \
+                (label, readout)
+            boxes.append(box)
+        # one column: each slider below the previous one
+        assert all(b["y"] >= a["y"] + a["height"] - 1 for a, b in zip(boxes, boxes[1:])), boxes
+        assert not page.locator("img.jerklab-figure").is_visible()
+        size = page.evaluate("() => { const i = document.querySelector('img.jerklab-figure-narrow');"
+                             " return [i.naturalWidth, i.getBoundingClientRect().width]; }")
+        # drawn for this width: tick labels (8.5 pt at 80 dpi = 9.4 px) shown at >= 85 % size
+        assert size[0] <= 400 and size[1] >= 0.85 * size[0], size
+        assert page.evaluate("document.documentElement.scrollWidth") <= 390
+        # a slider still redraws the phone figure
+        src = page.locator("img.jerklab-figure-narrow").get_attribute("src")
+        page.locator(".jerklab-control.widget-slider", has_text="ωn [rad/s]").locator(
+            ".noUi-handle").focus()
+        page.keyboard.press("ArrowRight")
+        page.wait_for_function(
+            "old => document.querySelector('img.jerklab-figure-narrow').src !== old", arg=src,
+            timeout=30_000)
+        assert not w.kernel_errors and not w.page_errors
+    finally:
+        w.close()
+
+
+def _kernels_of(pid):
+    """Live kernel processes under the server ``pid`` (a zombie or vanished child is skipped,
+    one by one: a zombie's ``cmdline()`` raises, which must not hide the other kernels)."""
+    import psutil
+
+    try:
+        children = psutil.Process(pid).children(recursive=True)
+    except psutil.NoSuchProcess:
+        return []
+    out = []
+    for p in children:
+        try:
+            if p.status() != psutil.STATUS_ZOMBIE and "ipykernel" in " ".join(p.cmdline()):
+                out.append(p)
+        except (psutil.NoSuchProcess, psutil.AccessDenied):
+            continue
+    return out
+
+
+def test_abandoned_class_page_kernel_is_culled(browser, tmp_path, artifacts_dir):
+    """A tab closed without saying goodbye: its kernel is shut down after the idle timeout,
+    while the kernel of a page still open stays (cull_connected is off)."""
+    server, url = voila_page(tmp_path, "--pool=0", "--cull-idle=6", "--cull-interval=1")
+    with server:
+        stay = _open_class_page(browser, url, "cull_stay", artifacts_dir)
+        gone = _open_class_page(browser, url, "cull_gone", artifacts_dir)
+        try:
+            deadline = time.monotonic() + 30
+            while len(_kernels_of(server.proc.pid)) < 2 and time.monotonic() < deadline:
+                time.sleep(0.2)
+            kernels = _kernels_of(server.proc.pid)
+            assert len(kernels) == 2, (kernels, server.log_tail())
+            gone.page.close(run_before_unload=False)     # no goodbye: an abandoned tab
+            t0 = time.monotonic()
+            while len(_kernels_of(server.proc.pid)) > 1 and time.monotonic() - t0 < 60:
+                time.sleep(0.25)
+            elapsed = time.monotonic() - t0
+            assert len(_kernels_of(server.proc.pid)) == 1, server.log_tail()
+            assert "Culling" in server.log_path.read_text(), server.log_tail()
+            # the open page's kernel outlived the idle timeout: still there, still answering
+            time.sleep(2.0)
+            assert len(_kernels_of(server.proc.pid)) == 1
+            check_live_panel(stay, "ωn [rad/s]", presses=1)
+            _record_times("cull_abandoned_tab_s", [elapsed])
+        finally:
+            stay.close()
+            try:
+                gone.page.close()
+            except Exception:
+                pass

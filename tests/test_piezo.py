@@ -319,7 +319,7 @@ def test_closed_loop_nominal_is_exact_and_perturbed_is_close_to_paper():
     c = shape_cycle(1, 2)
     ideal = closed_loop(c, perturbed=c.model, cancellation_error=0.0)
     assert np.abs(ideal.y - ideal.y_desired).max() < 1e-8
-    assert np.allclose(ideal.u_c, ideal.u_ff, atol=1e-8)
+    assert np.allclose(ideal.u_r, ideal.u_ff, atol=1e-8)
     r = closed_loop(c)
     assert 0.07 / 2 <= r.scan_error <= 0.07 * 2          # paper: 0.07 µm in the scan region
     assert r.scan_error < r.open_loop_scan_error         # feedback reduces the cancellation error
@@ -332,8 +332,8 @@ def test_closed_loop_with_preisach_compensation():
     P = hyst.Preisach.piezo_like(-45.0, 45.0, n=30)
     c = shape_cycle(1, 2)
     r = closed_loop(c, hysteresis=P, cancellation_error=0.0, perturbed=c.model)
-    # inversion within eps (0.2 % of the 90 V range) -> the linear input follows u_c to 0.18 V
-    assert np.abs(r.f - r.u_c).max() <= P.default_eps + 1e-9
+    # inversion within eps (0.2 % of the 90 V range) -> the linear input follows u_r to 0.18 V
+    assert np.abs(r.f - r.u_r).max() <= P.default_eps + 1e-9
     assert r.scan_error < 0.05
     r2 = closed_loop(c, hysteresis=P)
     assert r2.scan_error <= 0.15

@@ -29,6 +29,9 @@ def uno(tmp_path_factory):
 
 def test_hello_from_the_firmware(uno):
     assert uno.name == "jerklab-uno" and uno.info.protocol_version == P.PROTOCOL_VERSION
+    # issue 12: the first HELLO right after launch is answered (it used to be lost and only the
+    # retry 250 ms later got through); a retry may still be sent if the host is slow
+    assert uno.hello_answered == 1
     assert uno.capabilities & P.Capability.PLANNER_SINE_JERK
     assert uno.info.pwm_max == 1023 and uno.info.tick_us == 1000
 
@@ -66,7 +69,17 @@ def test_firmware_and_virtual_rig_agree(uno, tmp_path):
     n = fw.metadata["plan"]["n_samples"]
     dc = fw.counts[:n] != py.counts[:n]
     assert np.max(np.abs(fw.counts - py.counts)) <= 1
-    assert dc.mean() < 0.25
+    # How many samples may differ: the firmware writes each PWM value at the end of its control
+    # step, the model at the sampling instant (its computation delay is not modelled, see
+    # jerklab/rig/virtual.py), so the firmware's angle lags by about one control step, which the
+    # firmware keeps under 10 % of Ts (tests/test_simavr.py). A count differs where the model's
+    # angle is within that lag's travel of a count boundary, so the differing fraction is about
+    # lag * (counts travelled) / (n Ts): bound the lag it implies. (The fraction itself is 0.261
+    # from a fresh start and moves by a few samples with the sub-count angle the motor starts
+    # at, so the former fixed bound of 0.25 failed at random; the implied lag is ~0.2 ms.)
+    travelled = np.sum(np.abs(np.diff(py.counts[:n])))
+    implied_lag = dc.sum() * 0.005 / travelled
+    assert implied_lag < 0.1 * 0.005, (dc.mean(), implied_lag)
     explained = dc | np.r_[False, dc[:-1]]
     dp = np.abs(fw.pwm[:n] - py.pwm[:n])
     assert np.all(dp[~explained] <= 2), np.flatnonzero(dp > 2)

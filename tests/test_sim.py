@@ -54,6 +54,7 @@ def _python_loop(profile, motor, controller, n):
     dict(),
     dict(coulomb_friction=0.4, load_disturbance=(0.4123, -1.5), supply_voltage=6.0),
     dict(decoding=4, pwm_bits=8, coulomb_friction=1.0),
+    dict(offset=0.4, dead_zone=0.7, coulomb_friction=0.2),
 ])
 def test_kernel_equals_python_stepping(loop, motor_kw):
     motor = DCMotor(**motor_kw)
@@ -145,10 +146,12 @@ def test_z_domain_design_stable_where_eq13_is_not():
     motor = DCMotor(supply_voltage=None, pwm_bits=None, encoder_ppr=None, load_disturbance=(0.5, 0.5))
     prof = plan_sine_jerk(2.0, 5000.0, 200.0, 50.0)
     wn = 50.0
-    bad = simulate(prof, motor, pole_placement_pid(K, TAU, wn).discretize(TS), t_end=3.0)
+    with pytest.warns(RuntimeWarning, match="diverged"):
+        bad = simulate(prof, motor, pole_placement_pid(K, TAU, wn).discretize(TS), t_end=3.0)
     good = simulate(prof, motor, discrete_pole_placement_pid(K, TAU, wn, Ts=TS), t_end=3.0)
     assert not np.all(np.abs(bad.error[-50:]) < 1.0)          # diverging
-    assert abs(good.metrics["final_error"]) < 1e-6
+    assert bad.diverged and np.isnan(bad.metrics["settling_time"])
+    assert not good.diverged and abs(good.metrics["final_error"]) < 1e-6
 
 
 def test_velocity_loop_with_paper_gains_vs_placed():

@@ -17,6 +17,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from jerklab import tuning
 from jerklab import widgets as W
 
 K, TAU = 32.4, 0.025
@@ -190,7 +191,7 @@ def test_bad_input_names_parameter():
     with pytest.raises(ValueError, match="design"):
         W.pole_placement_panel(design="bode")
     with pytest.raises(ValueError, match="wn"):
-        W.compute_pole_placement(wn=0.0)
+        tuning.compute_pole_placement(wn=0.0)
     with pytest.raises(ValueError, match="max_radius"):
         W.stability_verdict(float("inf"), 0.9)
 
@@ -202,7 +203,7 @@ def test_callback_error_is_shown_in_panel_and_raised(monkeypatch):
     def broken(**kw):
         raise RuntimeError("boom in the design")
 
-    monkeypatch.setattr(W, "compute_pole_placement", broken)
+    monkeypatch.setattr(W.tuning, "compute_pole_placement", broken)
     with pytest.raises(RuntimeError, match="boom"):
         p.controls["zeta"].value = 0.8
     assert "jerklab-error" in p.status.value and "boom in the design" in p.status.value
@@ -233,18 +234,30 @@ def test_nice_ceil(x):
 def test_rig_button_overlays_virtual_rig_run(tmp_path, monkeypatch):
     monkeypatch.setenv("JERKLAB_RECORDINGS", str(tmp_path))
     from jerklab.app import panel_for_page
+    from jerklab.rig import Recording
 
     p = panel_for_page(rig_port="virtual")
     assert isinstance(p, W.PolePlacementPanel) and p.rig is not None
+    # the class page asks for a student ID before the rig runs
+    assert p.rig_button.disabled and "student ID" in p.rig_status.value
+    p.student.value = "Ana Stojčić/2"
+    assert not p.rig_button.disabled
     png0 = p.image.value
     p.rig_button.click()
     t, err = p._rig_error
-    assert "max |error|" in p.rig_status.value
+    assert "max |ref. − encoder|" in p.rig_status.value
     assert p.image.value != png0
-    # the rig's measured error agrees with the simulation of the same move to a few counts
+    # the rig's measured error agrees with the simulation of the same quantity to a few counts
     count = 2 * math.pi / 448
     assert np.max(np.abs(err)) < 5 * count
-    assert abs(np.max(np.abs(err)) - np.max(np.abs(p.result.err_move))) < 3 * count
+    assert abs(np.max(np.abs(err)) - np.max(np.abs(p.result.err_move_measured))) < 3 * count
+    # saved in the student's own folder, a name valid on Windows
+    folder = tmp_path / W.sanitize_student_id("Ana Stojčić/2")
+    files = sorted(folder.glob("*_move.csv"))
+    assert len(files) == 1 and folder.name.startswith("Ana_Stojcic_2-")
+    rec = Recording.load(files[0])
+    assert np.array_equal(rec.position, p.last_recording.position)
+    assert rec.metadata["gains"]["kpd"] == pytest.approx(p.gains.kpd)
     # a slider move drops the stale rig curve
     p.controls["wn"].value = 25.0
     assert p._rig_error is None

@@ -4,9 +4,11 @@
  *
  *   jl_simavr [options] build/jerklab_rig.elf
  *
- * Prints "PTY /dev/pts/N" on stdout once the UART is bridged (then stdout is redirected to
- * stderr); a serial client (pyserial, jerklab.rig.connect) opens that path as it would a
- * board on a USB port.
+ * Prints "PTY /dev/pts/N" on stdout once the UART is bridged, then "READY <sim seconds>" once
+ * the firmware has switched its receiver on (RXEN0), then closes stdout (later chatter goes to
+ * stderr); a serial client (pyserial, jerklab.rig.connect) opens that path as it would a board
+ * on a USB port. Bytes the host writes before RXEN0 is set wait in the bridge, as they would in
+ * the Uno's USB-serial chip, instead of being discarded by the simulated UART.
  *
  * Pins (docs/INTERFACES.md): OC1A (D9) duty = OCR1A / TOP read from the data space
  * (0x88..0x89; simavr does not drive OC1A in the phase-correct modes, the register is
@@ -26,6 +28,9 @@
  *   --ppr 448 (pulses per revolution of one channel) --step-us 20
  *   --fast (as fast as possible; default: paced to the wall clock, as a real board)
  *   --stats FILE (JSON, written on SIGUSR1 and at exit) --max-seconds S (simulated time)
+ *   --bootloader HEX (Intel hex loaded at its address, e.g. Optiboot at 0x7E00, and made the
+ *                     reset vector; started with MCUSR = EXTRF as after the reset that opening
+ *                     the port causes on an Uno; --no-app instead of the ELF: empty application)
  *   --counts-addr ADDR (data address of the firmware's encoder count, from avr-nm: reported
  *                       as "firmware_counts" so a test can compare it with the ideal count)
  *
@@ -54,6 +59,7 @@
 #include "avr_ioport.h"
 #include "avr_extint.h"
 #include "avr_uart.h"
+#include "sim_hex.h"
 #include <fcntl.h>
 #include <pty.h>
 #include <termios.h>
@@ -66,6 +72,10 @@
 #define TCCR1B 0x81
 #define PORTB 0x25
 #define PORTD 0x2B
+#define UCSR0B 0xC1
+#define MCUSR 0x54
+#define EXTRF_BIT 1
+#define RXEN0_BIT 4
 
 static struct {
     double K, tau, supply, friction, load;
@@ -73,7 +83,11 @@ static struct {
     double max_seconds;
     const char *stats_path, *elf;
     long counts_addr;                 /* data address of the firmware's int32 encoder count */
-} opt = {32.4, 0.025, 12.0, 0.0, 0.0, 448, 20, 0, 0.0, NULL, NULL, -1};
+    const char *bootloader;           /* Intel hex loaded at its address and started first */
+    int no_app;                       /* --no-app: empty application flash (bootloader only) */
+} opt = {32.4, 0.025, 12.0, 0.0, 0.0, 448, 20, 0, 0.0, NULL, NULL, -1, NULL, 0};
+static avr_flashaddr_t boot_start;    /* byte address of the bootloader (0: none) */
+static uint64_t board_resets;         /* resets into the bootloader (watchdog) after the start */
 
 static avr_t *avr;
 /* UART0 <-> pty bridge, run inside the simulation thread (no thread, no lock: simavr's
@@ -270,7 +284,7 @@ static uint64_t resets;               /* jumps to the reset vector after boot */
 static void run_hook(avr_t *a) {
     avr_flashaddr_t new_pc = a->pc;
     if (a->state == cpu_Running) new_pc = avr_run_one(a);
-    if (new_pc == 0 && a->cycle > 16) {
+    if (new_pc == 0 && a->cycle > 16 && !(boot_start && a->pc >= boot_start)) {
         resets++;
         if (getenv("JL_TRACE_COUNTS")) fprintf(stderr, "reset: jump to 0 from pc 0x%x at cycle %llu\n", a->pc, (unsigned long long)a->cycle);
     }
@@ -309,6 +323,21 @@ static void uart_xoff_cb(struct avr_irq_t *irq, uint32_t value, void *param) {
     uart_xon = 0;
 }
 
+/* The receiver was switched on for the first time: tell the launcher ("READY" on the fd that
+ * carried the "PTY" line), so that launch() returns once the firmware can receive. */
+static avr_cycle_count_t uart_ready_cycle;
+static int ready_fd = -1;
+static void uart_ready(avr_t *a) {
+    uart_ready_cycle = a->cycle ? a->cycle : 1;
+    if (ready_fd >= 0) {
+        char line[64];
+        int n = snprintf(line, sizeof line, "READY %.6f\n", sim_seconds());
+        if (write(ready_fd, line, (size_t)n) < 0) { /* launcher gone: nothing to tell */ }
+        close(ready_fd);
+        ready_fd = -1;
+    }
+}
+
 /* Every 50 us of simulated time: hand the AVR's bytes to the pty (keeping what it does not
  * take), read the host's bytes, and feed them to the UART while it signals XON. */
 static avr_cycle_count_t uart_cb(avr_t *a, avr_cycle_count_t when, void *param) {
@@ -325,7 +354,13 @@ static avr_cycle_count_t uart_cb(avr_t *a, avr_cycle_count_t when, void *param) 
         ssize_t r = read(pty_master, buf, sizeof buf);
         for (ssize_t i = 0; i < r; ++i) rxq[rxq_tail++ % RXQ] = buf[i];
     }
-    while (uart_xon && rxq_head != rxq_tail) {
+    /* simavr's UART discards a byte while RXEN0 is clear (as the ATmega328P does), and the
+     * Arduino core's init() clears UCSR0B: bytes the host wrote right after the pty appeared
+     * would be lost until setup() enables the receiver. A USB-serial chip holds them in its
+     * buffer; so does this bridge. */
+    int rx_on = (a->data[UCSR0B] >> RXEN0_BIT) & 1;
+    if (rx_on && !uart_ready_cycle) uart_ready(a);
+    while (rx_on && uart_xon && rxq_head != rxq_tail) {
         avr_raise_irq(uart_in_irq, rxq[rxq_head++ % RXQ]);
         uart_rx_bytes++;
     }
@@ -353,6 +388,50 @@ static int uart_bridge_init(void) {
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON), uart_xon_cb, NULL);
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF), uart_xoff_cb, NULL);
     avr_cycle_timer_register_usec(avr, 50, uart_cb, NULL);
+    return 0;
+}
+
+static avr_cycle_count_t motor_cb(avr_t *a, avr_cycle_count_t when, void *param);
+static avr_cycle_count_t edge_cb(avr_t *a, avr_cycle_count_t when, void *param);
+
+/* Optiboot ends a session (and its 1 s wait) with a watchdog reset. simavr's avr_reset() clears
+ * the cycle timers (the UART bridge, the motor, pending encoder edges): put them back. */
+static void after_reset(void) {
+    if (!avr_cycle_timer_status(avr, uart_cb, NULL)) {
+        board_resets++;
+        avr_cycle_timer_register_usec(avr, 50, uart_cb, NULL);
+        avr_cycle_timer_register(avr, step_cycles, motor_cb, NULL);
+        edge_timer_on = 0;
+        q_head = q_tail;                          /* edges already on the pins stay there */
+        uart_ready_cycle = 0;                     /* the receiver is off again until enabled */
+        if (getenv("JL_TRACE_COUNTS")) fprintf(stderr, "board reset at cycle %llu\n", (unsigned long long)avr->cycle);
+    }
+}
+
+/* Load an Intel-hex bootloader into flash at its own address and make it the reset vector
+ * (BOOTRST programmed, as on an Uno). */
+static int load_bootloader(const char *path) {
+    ihex_chunk_p chunks = NULL;
+    int n = read_ihex_chunks(path, &chunks);
+    if (n <= 0) {
+        fprintf(stderr, "jl_simavr: cannot read bootloader hex %s\n", path);
+        return -1;
+    }
+    uint32_t lo = UINT32_MAX;
+    for (int i = 0; i < n; ++i) {
+        if (chunks[i].baseaddr + chunks[i].size > avr->flashend + 1) {
+            fprintf(stderr, "jl_simavr: bootloader chunk at 0x%x does not fit the flash\n", chunks[i].baseaddr);
+            free_ihex_chunks(chunks);
+            return -1;
+        }
+        memcpy(avr->flash + chunks[i].baseaddr, chunks[i].data, chunks[i].size);
+        if (chunks[i].baseaddr < lo) lo = chunks[i].baseaddr;
+    }
+    free_ihex_chunks(chunks);
+    boot_start = lo;
+    avr->reset_pc = lo;
+    avr->pc = lo;
+    avr->codeend = avr->flashend;
     return 0;
 }
 
@@ -450,16 +529,21 @@ static void write_stats(void) {
     double sim = sim_seconds(), wall = wall_seconds();
     fprintf(f, "{\"seq\": %u, \"sim_seconds\": %.6f, \"wall_seconds\": %.3f, \"realtime_factor\": %.3f, "
                "\"lag_forgiven_seconds\": %.3f, \"missed_interrupts\": %llu, \"firmware_resets\": %llu, "
+               "\"board_resets\": %llu, "
                "\"cycles\": %llu, \"theta\": %.9g, \"omega\": %.9g, \"volts\": %.6g, "
                "\"ideal_counts_x1\": %lld, \"ideal_counts_x4\": %lld, \"edges\": %llu, "
                "\"edge_queue_overflow\": %llu, \"pty\": \"%s\", \"uart_tx_bytes\": %llu, "
-               "\"uart_rx_bytes\": %llu, \"uart_tx_dropped\": %llu, ",
+               "\"uart_rx_bytes\": %llu, \"uart_tx_dropped\": %llu, \"uart_ready_seconds\": %.6f, "
+               "\"uart_rx_pending\": %llu, ",
             ++stats_seq, sim, wall, wall > 0 ? sim / wall : 0.0, wall_offset,
-            (unsigned long long)missed_interrupts, (unsigned long long)resets, (unsigned long long)avr->cycle,
+            (unsigned long long)missed_interrupts, (unsigned long long)resets,
+            (unsigned long long)board_resets, (unsigned long long)avr->cycle,
             theta, omega, volts, (long long)ideal_x1, (long long)ideal_x4,
             (unsigned long long)edges, (unsigned long long)queue_overflow, pty_name,
             (unsigned long long)uart_tx_bytes, (unsigned long long)uart_rx_bytes,
-            (unsigned long long)uart_tx_dropped);
+            (unsigned long long)uart_tx_dropped,
+            uart_ready_cycle ? (double)uart_ready_cycle / avr->frequency : -1.0,
+            (unsigned long long)(rxq_tail - rxq_head));
     if (opt.counts_addr >= 0 && opt.counts_addr + 3 <= (long)avr->ramend) {
         const uint8_t *c = avr->data + opt.counts_addr;
         int32_t v = (int32_t)((uint32_t)c[0] | ((uint32_t)c[1] << 8) | ((uint32_t)c[2] << 16) | ((uint32_t)c[3] << 24));
@@ -485,7 +569,8 @@ static void on_signal(int sig) {
 
 static void usage(void) {
     fprintf(stderr, "usage: jl_simavr [--K v] [--tau v] [--supply v] [--friction v] [--load v] [--ppr n] "
-                    "[--step-us n] [--fast] [--stats FILE] [--max-seconds s] firmware.elf\n");
+                    "[--step-us n] [--fast] [--stats FILE] [--max-seconds s] [--counts-addr a] "
+                    "[--bootloader optiboot.hex] firmware.elf | --no-app\n");
     _exit(2);
 }
 
@@ -505,6 +590,7 @@ int main(int argc, char **argv) {
         const char *a = argv[i];
         const char *v = i + 1 < argc ? argv[i + 1] : NULL;
         if (!strcmp(a, "--fast")) { opt.fast = 1; continue; }
+        if (!strcmp(a, "--no-app")) { opt.no_app = 1; continue; }
         if (a[0] == '-' && a[1] == '-') {
             if (!v) usage();
             if (!strcmp(a, "--K")) opt.K = num("K", v, 1e-9, 1e6);
@@ -517,13 +603,14 @@ int main(int argc, char **argv) {
             else if (!strcmp(a, "--stats")) opt.stats_path = v;
             else if (!strcmp(a, "--max-seconds")) opt.max_seconds = num("max-seconds", v, 0, 1e9);
             else if (!strcmp(a, "--counts-addr")) opt.counts_addr = strtol(v, NULL, 0);
+            else if (!strcmp(a, "--bootloader")) opt.bootloader = v;
             else usage();
             ++i;
             continue;
         }
         opt.elf = a;
     }
-    if (!opt.elf) usage();
+    if (!opt.elf && !(opt.no_app && opt.bootloader)) usage();
     /* Handlers first: a stats request (SIGUSR1) may come as soon as the pty is printed. */
     struct sigaction sa;
     memset(&sa, 0, sizeof sa);
@@ -532,11 +619,15 @@ int main(int argc, char **argv) {
     sigaction(SIGINT, &sa, NULL);
     sigaction(SIGUSR1, &sa, NULL);
     sigaction(SIGHUP, &sa, NULL);
+    signal(SIGPIPE, SIG_IGN);                  /* a launcher that stopped reading must not kill us */
     prctl(PR_SET_PDEATHSIG, SIGTERM);          /* never outlive the process that started us */
 
     elf_firmware_t fw;
     memset(&fw, 0, sizeof fw);
-    if (elf_read_firmware(opt.elf, &fw) != 0) {
+    if (opt.no_app) {
+        strcpy(fw.mmcu, "atmega328p");
+        fw.frequency = 16000000;
+    } else if (elf_read_firmware(opt.elf, &fw) != 0) {
         fprintf(stderr, "jl_simavr: cannot read firmware %s\n", opt.elf);
         _exit(1);
     }
@@ -548,6 +639,7 @@ int main(int argc, char **argv) {
     avr->run = run_hook;
     avr_load_firmware(avr, &fw);
     avr->frequency = 16000000;
+    if (opt.bootloader && load_bootloader(opt.bootloader) != 0) _exit(1);
 
     /* pitfall: a low INT0/INT1 pin would start a level-trigger poll every cycle */
     avr_extint_set_strict_lvl_trig(avr, 0, 0);
@@ -578,10 +670,16 @@ int main(int argc, char **argv) {
     if (uart_bridge_init() != 0) _exit(1);
     printf("PTY %s\n", pty_name);
     fflush(stdout);
+    ready_fd = dup(1);                           /* "READY" once the firmware's UART receives */
     dup2(2, 1);                                  /* later chatter goes to stderr */
 
     step_cycles = avr_usec_to_cycles(avr, opt.step_us);
     avr_cycle_timer_register(avr, step_cycles, motor_cb, NULL);
+    if (boot_start) {
+        /* As after the reset that opening the port causes on an Uno (DTR pulses RESET): Optiboot
+         * sees EXTRF and waits for avrdude (about 1 s) before it starts the application. */
+        avr->data[MCUSR] = 1 << EXTRF_BIT;
+    }
 
     clock_gettime(CLOCK_MONOTONIC, &wall0);
 
@@ -589,6 +687,7 @@ int main(int argc, char **argv) {
     avr_cycle_count_t limit = opt.max_seconds > 0 ? (avr_cycle_count_t)(opt.max_seconds * avr->frequency) : 0;
     while (!want_exit) {
         state = avr_run(avr);
+        if (boot_start && avr->pc == boot_start) after_reset();
         if (state == cpu_Done || state == cpu_Crashed) break;
         if (want_stats) { want_stats = 0; write_stats(); }
         if (limit && avr->cycle >= limit) break;

@@ -20,20 +20,31 @@ import importlib
 
 import os
 
-from jerklab.rig.client import (Rig, RigBusyError, RigCommandError, RigConnectionError, RigError, RigRunError,
-                                RigTimeoutError, UnknownPortError, UnstableDesignError)
+from jerklab.rig.client import (PortBusyError, Rig, RigBusyError, RigCommandError, RigConnectionError,
+                                RigError, RigRunError, RigTimeoutError, UnknownPortError,
+                                UnstableDesignError)
 from jerklab.rig.recording import Recording, compare, plot_comparison, recordings_dir
 from jerklab.rig.virtual import VirtualDevice, VirtualSerial
 
 __all__ = ["connect", "Rig", "Recording", "recordings_dir", "compare", "plot_comparison", "VirtualDevice", "VirtualSerial",
            "RigError", "RigConnectionError", "RigTimeoutError", "RigCommandError", "RigRunError",
-           "UnknownPortError", "RigBusyError", "UnstableDesignError", "BAUDRATE"]
+           "UnknownPortError", "PortBusyError", "RigBusyError", "UnstableDesignError", "list_ports",
+           "BAUDRATE"]
 
 BAUDRATE = 115200
-_VIRTUAL_NAMES = (None, "virtual", "")
+_VIRTUAL_NAMES = (None, "virtual")
+_URL_SCHEMES = ("socket", "rfc2217", "loop", "spy", "alt", "hwgrep", "cp2110")
 
 
-def connect(port=None, *, motor=None, speed=None, timeout=2.0, hello_timeout=None, progress=True,
+def list_ports(include_all=False) -> list:
+    """Serial ports that may have a rig behind them, likely Arduinos first
+    (see :func:`jerklab.rig.ports.list_ports`; ``python -m jerklab.rig ports`` prints them)."""
+    from jerklab.rig.ports import list_ports as _list
+
+    return _list(include_all=include_all)
+
+
+def connect(port=None, *, student=None, motor=None, speed=None, timeout=2.0, hello_timeout=None, progress=True,
             recordings=None, supply_voltage=None, counts_per_rev=None, model=(32.4, 0.025),
             baudrate=BAUDRATE, **link_options) -> Rig:
     """Connect to a rig and return a :class:`Rig`.
@@ -46,6 +57,10 @@ def connect(port=None, *, motor=None, speed=None, timeout=2.0, hello_timeout=Non
         (``jerklab.rig.simavr.launch()``). Anything else: a device path (``/dev/ttyACM0``,
         ``COM3``, a ``/dev/pts/N`` from ``python -m jerklab.rig serve``) or a pyserial URL
         (``socket://host:port``, ``loop://``, ``rfc2217://...``).
+    student : str, optional
+        A student ID: the virtual rig (or ``"simavr"``) gets that student's hidden motor,
+        drawn by ``jerklab.lab.student_motor`` (seeded with the instructor key); with a real
+        port the ID is only remembered (``rig.student``). Not together with ``motor``.
     motor : jerklab.plant.DCMotor, optional
         The simulated motor of the virtual rig or of ``"simavr"`` (default: the paper's,
         K = 32.4 rad/(V s), tau = 25 ms); not allowed for a real port.
@@ -54,8 +69,9 @@ def connect(port=None, *, motor=None, speed=None, timeout=2.0, hello_timeout=Non
     timeout : float
         Seconds to wait for a reply or the next telemetry frame.
     hello_timeout : float
-        Seconds to keep saying HELLO after opening (default 3 s for a port — an Uno reboots
-        when the port opens — 1 s for the virtual rig).
+        Seconds to keep saying HELLO (every 0.25 s) after opening (default 3 s for a port — an
+        Uno reboots when the port opens and its bootloader listens for about 1 s — 1 s for the
+        virtual rig).
     progress : bool
         Progress bar during runs: an ipywidgets bar inside a Jupyter kernel, text in a terminal,
         nothing when False.
@@ -69,13 +85,35 @@ def connect(port=None, *, motor=None, speed=None, timeout=2.0, hello_timeout=Non
     baudrate : int
         Serial speed (115200, as the firmware).
 
+    A device path is opened exclusively (pyserial ``exclusive=True`` on POSIX) and locked
+    with a lock file naming this process (:class:`jerklab.rig.ports.PortLock`) until
+    ``rig.close()``.
+
     Raises
     ------
     UnknownPortError
-        The port cannot be opened; the message names it.
+        ``port`` is malformed (empty, blank, not a string), does not exist, is not a known
+        pyserial URL, or cannot be opened (permissions: the ``dialout`` group); the message
+        names it.
+    PortBusyError
+        Another program holds the port; the message names it (pid, host, program).
     RigTimeoutError
-        The port opened but no jerklab rig answered HELLO.
+        The port opened but no jerklab rig answered HELLO; the message says what was tried
+        and what to check.
     """
+    if student is not None:
+        if motor is not None:
+            raise ValueError("give either student (a hidden motor) or motor, not both")
+        from jerklab.lab.motors import connect_student
+
+        opts = dict(link_options, speed=speed, timeout=timeout, hello_timeout=hello_timeout,
+                    progress=progress, recordings=recordings, model=model)
+        if port not in _VIRTUAL_NAMES:
+            if speed is not None:
+                raise ValueError("speed applies to the virtual rig only (port=None)")
+            opts.pop("speed")
+            opts.update(supply_voltage=supply_voltage, counts_per_rev=counts_per_rev, baudrate=baudrate)
+        return connect_student(student, port, **opts)
     if port in _VIRTUAL_NAMES:
         from jerklab.plant import DCMotor
 
@@ -87,9 +125,7 @@ def connect(port=None, *, motor=None, speed=None, timeout=2.0, hello_timeout=Non
                                    else counts_per_rev),
                    model=model, timeout=timeout, hello_timeout=hello_timeout or 1.0,
                    progress=progress, recordings=recordings)
-    if not isinstance(port, (str, os.PathLike)):
-        raise UnknownPortError(f"port must be None, 'simavr', a device path or a pyserial URL, got {port!r}")
-    port = os.fspath(port)
+    port = _check_port(port)
     if speed is not None:
         raise ValueError("speed applies to the virtual rig only (port=None)")
     if motor is not None and port != "simavr":
@@ -101,30 +137,121 @@ def connect(port=None, *, motor=None, speed=None, timeout=2.0, hello_timeout=Non
         if motor is not None:
             supply_voltage = motor.supply_voltage if supply_voltage is None else supply_voltage
             counts_per_rev = motor.encoder_ppr * motor.decoding if counts_per_rev is None else counts_per_rev
+    lock = None
     try:
+        if "://" not in port:
+            from jerklab.rig.ports import PortLock
+
+            lock = PortLock(port).acquire()
         link = _open_serial(port, baudrate, link_options)
     except BaseException:
+        if lock is not None:
+            lock.release()
         if on_close is not None:
             on_close()
         raise
+    if lock is not None:
+        on_close = _chain(lock.release, on_close)
     return Rig(link, port, supply_voltage=12.0 if supply_voltage is None else supply_voltage,
                counts_per_rev=448 if counts_per_rev is None else counts_per_rev, model=model,
                timeout=timeout, hello_timeout=hello_timeout or 3.0, progress=progress,
                recordings=recordings, on_close=on_close)
 
 
+def _chain(first, then):
+    def close():
+        try:
+            first()
+        finally:
+            if then is not None:
+                then()
+    return close
+
+
+def _check_port(port) -> str:
+    """``port`` as a string, or an error naming the parameter and what was wrong with it."""
+    if isinstance(port, os.PathLike):
+        port = os.fspath(port)
+    if isinstance(port, bytes):
+        raise UnknownPortError(f"port must be a str (a device path or a pyserial URL), got bytes {port!r}: "
+                               "decode it first")
+    if not isinstance(port, str):
+        raise UnknownPortError(f"port must be None (the virtual rig), 'simavr', a device path or a pyserial "
+                               f"URL, got {port!r} ({type(port).__name__})")
+    if port == "":
+        raise UnknownPortError("port must not be empty: use None for the virtual rig, 'simavr', a device "
+                               "path such as '/dev/ttyACM0' or 'COM3' (python -m jerklab.rig ports lists "
+                               "candidates), or a pyserial URL such as 'socket://host:5000'")
+    if not port.strip():
+        raise UnknownPortError(f"port must not be blank, got {port!r}")
+    if port != port.strip():
+        raise UnknownPortError(f"port has leading or trailing whitespace: {port!r} (did you mean "
+                               f"{port.strip()!r}?)")
+    if "\0" in port:
+        raise UnknownPortError(f"port must not contain a NUL byte, got {port!r}")
+    if "://" in port:
+        scheme = port.split("://", 1)[0]
+        if scheme not in _URL_SCHEMES:
+            raise UnknownPortError(f"port {port!r} is not a known pyserial URL: the scheme {scheme!r} is not "
+                                   f"one of {', '.join(s + '://' for s in _URL_SCHEMES)}")
+    elif port != "simavr" and not _is_windows_com(port) and not os.path.exists(port):
+        hint = ""
+        dev = os.path.join("/dev", port)
+        if os.sep not in port and os.path.exists(dev):
+            hint = f" (did you mean {dev!r}?)"
+        else:
+            try:
+                found = [r["device"] for r in list_ports()]
+            except Exception:
+                found = []
+            hint = (f"; ports found: {', '.join(found)}" if found else
+                    "; no USB serial port found: is the board plugged in?")
+        raise UnknownPortError(f"port {port!r} does not exist{hint} (python -m jerklab.rig ports lists "
+                               "candidates)")
+    return port
+
+
+def _is_windows_com(port: str) -> bool:
+    import re
+    import sys
+
+    return sys.platform.startswith("win") and re.fullmatch(r"(\\\\\.\\)?COM\d+", port, re.I) is not None
+
+
 def _open_serial(port, baudrate, options):
     import serial
 
+    kwargs = dict(baudrate=baudrate, timeout=0.05, write_timeout=2.0)
+    if "://" not in port and os.name == "posix":
+        kwargs["exclusive"] = True           # TIOCEXCL + flock: a second open fails
+    kwargs.update(options)
     try:
-        link = serial.serial_for_url(port, baudrate=baudrate, timeout=0.05, write_timeout=2.0, **options)
+        link = serial.serial_for_url(port, **kwargs)
+    except PermissionError as exc:
+        raise UnknownPortError(_permission_message(port, exc)) from exc
     except (serial.SerialException, OSError, ValueError) as exc:
+        if isinstance(exc.__context__, PermissionError) or getattr(exc, "errno", None) == 13 or \
+                "Permission denied" in str(exc):
+            raise UnknownPortError(_permission_message(port, exc)) from exc
+        if "exclusively lock" in str(exc) or getattr(exc, "errno", None) in (11, 16):
+            from jerklab.rig.ports import port_holders
+
+            who = "; ".join(f"pid {pid} ({cmd})" for pid, cmd in port_holders(port)) or "another program"
+            raise PortBusyError(f"port {port!r} is in use by {who}: {exc}", port=port) from exc
         raise UnknownPortError(f"cannot open rig port {port!r}: {exc}") from exc
     try:
         link.reset_input_buffer()
     except Exception:
         pass
     return link
+
+
+def _permission_message(port, exc):
+    import getpass
+
+    return (f"cannot open rig port {port!r}: permission denied ({exc}). On Linux add yourself to the "
+            f"group that owns it (usually dialout): sudo usermod -aG dialout {getpass.getuser()}, then log "
+            "out and in again")
 
 
 def _launch_simavr(motor=None):

@@ -1,11 +1,14 @@
-"""``python -m jerklab.rig serve``: the virtual rig on a pseudo-terminal (or TCP port).
+"""``python -m jerklab.rig serve | ports``: serve the virtual rig, or list candidate ports.
 
-Prints the path to open (``/dev/pts/N`` or ``socket://host:port``) on the first line
-of stdout, then serves until Ctrl-C or SIGTERM.
+``serve`` puts the virtual rig on a pseudo-terminal (or TCP port); it prints the path to open
+(``/dev/pts/N`` or ``socket://host:port``) on the first line of stdout, then serves until
+Ctrl-C or SIGTERM. ``ports`` lists the serial ports that may have a rig behind them (pyserial's
+list_ports), likely Arduinos first, with description, USB VID:PID and who holds each.
 
     python -m jerklab.rig serve                  # real-time pace, on a pty
     python -m jerklab.rig serve --speed 10       # ten times faster than real time
     python -m jerklab.rig serve --tcp 5000       # socket://127.0.0.1:5000 (the paper's Ethernet set-up)
+    python -m jerklab.rig ports                  # which port is the Uno?
 """
 from __future__ import annotations
 
@@ -28,7 +31,11 @@ def main(argv=None) -> int:
     s.add_argument("--tau", type=float, default=0.025, help="motor time constant tau, s (default 0.025)")
     s.add_argument("--friction", type=float, default=0.0, help="Coulomb friction, V (default 0)")
     s.add_argument("--noise", type=float, default=0.0, help="encoder noise std, rad (default 0)")
+    pp = sub.add_parser("ports", help="list serial ports that may have a rig behind them")
+    pp.add_argument("--all", action="store_true", help="also ports without a USB id (/dev/ttyS*)")
     args = ap.parse_args(argv)
+    if args.cmd == "ports":
+        return _ports(args.all)
 
     from jerklab.plant import DCMotor
     from jerklab.rig.server import DeviceServer
@@ -53,6 +60,25 @@ def main(argv=None) -> int:
         pass
     finally:
         server.close()
+    return 0
+
+
+def _ports(include_all=False) -> int:
+    from jerklab.rig.ports import list_ports
+
+    rows = list_ports(include_all=include_all)
+    if not rows:
+        print("no USB serial port found: plug the Uno in (a charge-only cable shows nothing); "
+              "--all lists ports without a USB id")
+        return 1
+    print(f"{'port':24s} {'VID:PID':9s} {'likely':10s} description")
+    for r in rows:
+        mark = "*" if r["likely"] == "arduino" else " "
+        extra = "; ".join(x for x in (r["note"], f"in use by {r['holder']}" if r["holder"] else "") if x)
+        print(f"{mark}{r['device']:23s} {r['vid_pid'] or '-':9s} {r['likely'] or '-':10s} "
+              f"{r['description']}" + (f" [{extra}]" if extra else ""))
+    print("* likely an Arduino. Connect with jerklab.rig.connect(PORT); flash with "
+          "make -C firmware upload PORT=PORT")
     return 0
 
 

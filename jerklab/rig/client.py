@@ -6,6 +6,7 @@ It speaks ``jerklab.protocol`` over anything with pyserial's ``read``/``write``
 """
 from __future__ import annotations
 
+import copy
 import datetime as _dt
 import math
 import sys
@@ -15,10 +16,10 @@ from pathlib import Path
 
 from jerklab import protocol as P
 from jerklab._validate import as_nonnegative, as_positive, as_real
-from jerklab.rig.recording import Recording, recordings_dir
+from jerklab.rig.recording import Recording, RecordingIOError, recordings_dir
 
 __all__ = ["Rig", "RigError", "RigConnectionError", "RigTimeoutError", "RigCommandError",
-           "RigRunError", "RigBusyError", "UnstableDesignError", "UnknownPortError"]
+           "RigRunError", "RigBusyError", "UnstableDesignError", "UnknownPortError", "PortBusyError"]
 
 
 class RigError(RuntimeError):
@@ -59,6 +60,16 @@ class RigRunError(RigError):
 
 class RigBusyError(RigConnectionError):
     """The rig is already in use by another client (a served rig answers a second client so)."""
+
+
+class PortBusyError(UnknownPortError, RigBusyError):
+    """The port is held by another program (opened exclusively, or locked by another jerklab
+    process); ``holder`` says who (pid, host, program), if known. Both an
+    :class:`UnknownPortError` (the port could not be opened) and a :class:`RigBusyError`."""
+
+    def __init__(self, message, port=None, holder=None):
+        super().__init__(message)
+        self.port, self.holder = port, holder
 
 
 class UnstableDesignError(RigError, ValueError):
@@ -351,9 +362,14 @@ class Rig:
                 if frames:
                     return frames
             elif self._decoder.pending and now - self._last_byte > 0.02:
-                # a truncated frame must not hold back the next one: abandon it after 20 ms
-                frames = self._decoder.flush()
+                # A truncated frame must not hold back a good one behind it: after 20 ms of
+                # silence look for a frame inside the held bytes, and give up the head only if
+                # one is there. A frame whose sender merely stalled (a loaded simulator, a TCP
+                # segment held back) is kept and completes when its bytes come.
+                probe = copy.deepcopy(self._decoder)
+                frames = probe.flush()
                 if frames:
+                    self._decoder = probe
                     return frames
             if now >= deadline:
                 return []
@@ -407,18 +423,58 @@ class Rig:
             text = f"{self.port}: device refused {name}: {err}"
         return RigCommandError(text, command=msg.TYPE, error=nack.error, param=nack.param)
 
+    _HELLO_EVERY = 0.25
+
     def _hello(self, hello_timeout):
+        """Say HELLO every 0.25 s until a HELLO_REPLY answers any of them, or ``hello_timeout``.
+
+        An Uno resets when its port opens and its bootloader listens for about a second before
+        the sketch starts (bytes sent meanwhile go to the bootloader), so one HELLO is not
+        enough. Sets ``hello_attempts`` (HELLOs sent) and ``hello_answered`` (which one was
+        answered, 1 = the first).
+        """
+        import serial
+
         deadline = time.monotonic() + hello_timeout
-        last = None
+        sent = {}                                     # seq -> attempt number
+        self.hello_attempts = self.hello_answered = 0
+        other = 0
+        skipped0 = self._decoder.stats.skipped_bytes
+        next_hello = time.monotonic()
         while True:
-            try:
-                return self._request(P.Hello(), replies=(P.MsgType.HELLO_REPLY,),
-                                     timeout=min(0.25, max(0.01, deadline - time.monotonic())))
-            except RigTimeoutError as exc:
-                last = exc
+            now = time.monotonic()
+            if now >= next_hello and now < deadline:
+                self.hello_attempts += 1
+                sent[self._write(P.Hello())] = self.hello_attempts
+                next_hello = now + self._HELLO_EVERY
+            frames = self._read_frames(max(0.0, min(0.05, deadline - now)))
+            for i, f in enumerate(frames):
+                if f.type == P.MsgType.HELLO_REPLY and f.seq in sent:
+                    self._frames = frames[i + 1:] + self._frames
+                    self.hello_answered = sent[f.seq]
+                    return P.parse(f)
+                self._check_busy(f)                   # a served rig that has a client: BUSY
+                other += 1
+                self.ignored_frames += 1
             if time.monotonic() >= deadline:
-                raise RigTimeoutError(f"{self.port}: no jerklab rig answered HELLO within {hello_timeout:g} s "
-                                      f"(is the firmware flashed, the baud rate 115200?)") from last
+                break
+        baud = getattr(self.link, "baudrate", None)
+        junk = self._decoder.stats.skipped_bytes - skipped0
+        heard = (f"; it sent {other} frame(s) that were not a HELLO_REPLY" if other else
+                 f"; it sent {junk} byte(s) that were no jerklab frame (another sketch, or a wrong "
+                 "baud rate?)" if junk else "; nothing came back")
+        checks = ["the port is the rig's (list candidates: python -m jerklab.rig ports)",
+                  "the jerklab firmware is flashed (make -C firmware upload PORT=...)",
+                  "the baud rate (the jerklab firmware runs at 115200" +
+                  (f", this link at {baud})" if baud else ")"),
+                  f"the firmware speaks protocol version {P.PROTOCOL_VERSION} (a newer or older "
+                  "jerklab needs the matching firmware)"]
+        if isinstance(self.link, serial.Serial) and sys.platform.startswith("linux"):
+            checks.append("no other program (serial monitor, another kernel) talks to it")
+        raise RigTimeoutError(
+            f"{self.port}: no jerklab rig answered HELLO: sent {self.hello_attempts} HELLO(s) over "
+            f"{hello_timeout:g} s" + (f" at {baud} baud" if baud else "") + heard +
+            ". Check: " + "; ".join(checks) + ".")
 
     def stop(self):
         """Stop the motor now (STOP)."""
@@ -432,9 +488,11 @@ class Rig:
     # ---------------------------------------------------------------- configuration
     def _ts_us(self, Ts):
         Ts = as_positive("Ts", Ts)
-        us = int(round(Ts * 1e6))
         tick = self.info.tick_us or 1
-        if abs(us - Ts * 1e6) > 1e-3 or us % tick or us > 65000:
+        if Ts > 0.065:
+            raise ValueError(f"Ts must be at most 65 ms (a multiple of the device tick {tick} µs), got {Ts!r} s")
+        us = int(round(Ts * 1e6))
+        if abs(us - Ts * 1e6) > 1e-3 or us % tick or us < tick:
             raise ValueError(f"Ts must be a multiple of the device tick {tick} µs and at most 65 ms, "
                              f"got {Ts!r} s")
         return us
@@ -599,7 +657,8 @@ class Rig:
         if distance == 0.0:
             raise ValueError("profile.distance must be nonzero for a rig move")
         settle = as_nonnegative("settle", settle)
-        if int(decimation) != decimation or not 1 <= decimation <= 255:
+        if (isinstance(decimation, bool) or not isinstance(decimation, (int, float)) or not math.isfinite(decimation)
+                or int(decimation) != decimation or not 1 <= decimation <= 255):
             raise ValueError(f"decimation must be an integer in 1..255, got {decimation!r}")
         limits = (profile.max_jerk if profile.max_jerk is not None else _F32_MAX,
                   profile.max_accel, profile.max_velocity)
@@ -668,7 +727,7 @@ class Rig:
         vmax = self.supply_voltage if max_voltage is None else as_positive("max_voltage", max_voltage)
         if abs(voltage) > vmax:
             raise ValueError(f"voltage must be within ±max_voltage = ±{vmax} V, got {voltage}")
-        n = int(math.ceil(seconds / Ts - 1e-9))
+        n = max(1, int(math.ceil(seconds / Ts - 1e-9)))
         if n > 0xFFFF:
             raise ValueError(f"seconds must be <= {0xFFFF * Ts:g} s at Ts = {Ts} s, got {seconds}")
         n_rest = int(math.ceil(as_nonnegative("rest", rest) / Ts - 1e-9))
@@ -775,12 +834,13 @@ class Rig:
             status, error = "refused", exc
         except KeyboardInterrupt as exc:
             status, error = "interrupted", exc
-            try:
-                self._write(P.Stop())
-            except RigError:
-                pass
+        except RecordingIOError as exc:
+            status, error = f"error: {exc}", exc
         except BaseException as exc:
-            status, error = "failed", exc
+            status, error = f"error: {type(exc).__name__}: {exc}", exc
+        stopped = None
+        if error is not None and not isinstance(error, (RigConnectionError, RigTimeoutError)):
+            stopped = self._stop_after_error(isinstance(error, KeyboardInterrupt))
         if end is not None:
             # every sample the device sent: k % decimation == 0, and the sample of a safety stop
             dec = max(1, getattr(command, "decimation", 1))
@@ -794,31 +854,62 @@ class Rig:
             reason = P.EndReason(end.reason).name if end.reason in iter(P.EndReason) else str(end.reason)
             stats.update(end_reason=reason, device_samples=end.samples,
                          device_rx_errors=end.rx_errors, device_overruns=end.overruns)
-            if end.reason == P.EndReason.DONE:
+            if error is not None:
+                pass                                    # the host-side error is the status
+            elif end.reason == P.EndReason.DONE:
                 status = "complete"
             elif end.reason in _FAULTS:
                 status = _fault_status(end, rec.metadata)
                 stats["fault_detail"] = end.detail
             else:
                 status = reason.lower()
+        if stopped is not None:
+            stats["rig_stopped"] = stopped
         if lost:
             warnings.warn(f"{self.port}: {lost} telemetry samples were lost on the link (the host did not "
                           f"read fast enough, or a noisy line); the recording's metadata says "
                           f"lost_samples={lost}", RuntimeWarning, stacklevel=3)
-        rec.finish(status, **stats, **({"error": str(error)} if error is not None else {}))
-        bar.close(status)
+        try:
+            rec.finish(status, **stats, **({"error": str(error)} if error is not None else {}))
+        except RecordingIOError as exc:
+            if error is None:
+                error = exc
+                if stopped is None and end is None:
+                    stopped = self._stop_after_error(False)
+        bar.close(status if not status.startswith("error") else "error")
         where = f"; the {len(rec)} samples received are saved in {rec.csv_path}" if rec.csv_path else ""
         if error is not None:
             if isinstance(error, KeyboardInterrupt):
                 raise error
             if isinstance(error, RigError):
                 raise type(error)(f"{error}{where}") from error
+            if isinstance(error, RecordingIOError):
+                note = ("the rig was stopped" if stopped else
+                        "the rig did not confirm the STOP: call rig.stop()" if stopped is False else
+                        "the run had ended on the rig")
+                err = RecordingIOError(error.errno, f"{error}; all {len(rec)} samples received are in "
+                                                    f"memory (the exception's .recording); {note}",
+                                       error.filename, error.samples_saved)
+                err.recording = rec
+                raise err from error
             raise error
         if end.reason != P.EndReason.DONE:
             what = status if status.startswith("fault") else stats["end_reason"]
             raise RigRunError(f"{self.port}: run ended early on the device ({what}) after "
                               f"{end.samples} samples{where}", status=status, recording=rec)
         return rec
+
+    def _stop_after_error(self, interrupted: bool):
+        """Send STOP after a run was abandoned on the host (write error, Ctrl-C, a bug), so that
+        the device does not stay BUSY; True if the device acknowledged it."""
+        try:
+            if interrupted:
+                self._write(P.Stop())                 # Ctrl-C: do not wait
+                return None
+            self._request(P.Stop(), timeout=min(self.timeout, 1.0))
+            return True
+        except (RigError, OSError):
+            return False
 
 
 def _describe_design(gains) -> str:

@@ -11,16 +11,61 @@ SI units in the arrays: s, rad, V.  ``counts`` and ``pwm`` keep the raw integers
 """
 from __future__ import annotations
 
-import csv
 import datetime as _dt
+import errno as _errno
 import json
 import math
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Recording", "recordings_dir", "compare", "plot_comparison"]
+from jerklab._validate import as_int, as_positive, as_real
+
+__all__ = ["Recording", "RecordingIOError", "recordings_dir", "compare", "plot_comparison"]
+
+#: sidecar keys a recording cannot be read without (each must be a finite number > 0)
+REQUIRED_METADATA = ("Ts", "counts_per_rad", "volts_per_pwm")
+#: status of a recording whose writer has not finished it (yet, or ever: a killed client)
+RECORDING = "recording"
+#: what :meth:`Recording.load` reports for a sidecar left at "recording"
+INCOMPLETE = "incomplete"
+
+
+class RecordingIOError(OSError):
+    """Writing a recording failed (disk full, I/O error, no permission).
+
+    ``errno`` is the operating system's code; ``filename`` the file; ``samples_saved`` how
+    many samples are on disk (flushed before the failure); the message says all three.
+    """
+
+    def __init__(self, code, message, filename=None, samples_saved=0):
+        super().__init__(code, message)
+        self.filename = None if filename is None else str(filename)
+        self.samples_saved = int(samples_saved)
+
+    def __str__(self):
+        return self.strerror
+
+
+def _io_error(exc: OSError, path, saved: int, doing: str) -> RecordingIOError:
+    code = exc.errno if exc.errno is not None else _errno.EIO
+    reason = exc.strerror or os.strerror(code)
+    return RecordingIOError(code, f"{path}: {reason} [errno {code}, {_errno.errorcode.get(code, '?')}] while "
+                                  f"{doing}; {saved} samples saved in the file", path, saved)
+
+
+def _check_metadata(meta, where: str) -> tuple[float, float, float]:
+    """Ts, counts_per_rad, volts_per_pwm from ``meta`` (ValueError naming the field and ``where``)."""
+    if not isinstance(meta, dict):
+        raise TypeError(f"metadata must be a dict, got {type(meta).__name__}")
+    out = []
+    for key in REQUIRED_METADATA:
+        if key not in meta:
+            raise ValueError(f"{where}: metadata must contain {key!r}")
+        out.append(as_positive(f"{where}: metadata {key!r}", meta[key]))
+    return tuple(out)
 
 COLUMNS = ("index", "time", "reference", "position", "counts", "control", "pwm", "flags")
 
@@ -82,18 +127,15 @@ class Recording:
     """
 
     def __init__(self, metadata: dict, path=None):
+        self._Ts, self._cpr, self._vpp = _check_metadata(metadata, "metadata")
         self.metadata = dict(metadata)
-        for key in ("Ts", "counts_per_rad", "volts_per_pwm"):
-            if key not in self.metadata:
-                raise ValueError(f"metadata must contain {key!r}")
-        self._Ts = float(self.metadata["Ts"])
-        self._cpr = float(self.metadata["counts_per_rad"])
-        self._vpp = float(self.metadata["volts_per_pwm"])
         self._rows: list[tuple] = []
         self._file = None
-        self._writer = None
+        self._saved = 0              # rows known to be on disk (flushed)
+        self._written = 0            # rows handed to the file object
+        self.write_error: RecordingIOError | None = None
         self.csv_path = self.json_path = None
-        self.metadata.setdefault("status", "recording")
+        self.metadata.setdefault("status", RECORDING)
         self.metadata.setdefault("created", _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"))
         if path is not None:
             self._open(path)
@@ -101,48 +143,118 @@ class Recording:
     # -------------------------------------------------------------- streaming
     def _open(self, path):
         self.csv_path, self.json_path = _paths(path)
-        self.csv_path.parent.mkdir(parents=True, exist_ok=True)
         self.metadata["csv"] = self.csv_path.name
-        self._file = open(self.csv_path, "w", newline="", encoding="ascii")
-        self._writer = csv.writer(self._file)
-        self._writer.writerow(COLUMNS)
-        self._file.flush()
+        try:
+            self.csv_path.parent.mkdir(parents=True, exist_ok=True)
+            self._file = open(self.csv_path, "w", newline="", encoding="ascii")
+            self._file.write(",".join(COLUMNS) + "\r\n")
+            self._file.flush()
+        except OSError as exc:
+            self._drop_file()
+            raise _io_error(exc, self.csv_path, 0, "creating the recording") from exc
         self._write_json()
 
     def _write_json(self):
         if self.json_path is None:
             return
         tmp = self.json_path.with_name(self.json_path.name + ".tmp")
-        with open(tmp, "w", encoding="utf-8") as f:
-            json.dump(_clean(self.metadata), f, indent=2, default=_json_default)
-            f.write("\n")
-        os.replace(tmp, self.json_path)
+        try:
+            with open(tmp, "w", encoding="utf-8") as f:
+                json.dump(_clean(self.metadata), f, indent=2, default=_json_default)
+                f.write("\n")
+            os.replace(tmp, self.json_path)
+        except OSError as exc:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+            raise _io_error(exc, self.json_path, self._saved, "writing the sidecar") from exc
+
+    def _drop_file(self):
+        f, self._file = self._file, None
+        if f is not None:
+            try:
+                f.close()
+            except OSError:
+                pass              # the buffered rows that could not be written are lost to the file
+
+    def _fail(self, exc: OSError, doing: str):
+        """Stop writing after an I/O error: the samples stay in memory, the error is kept."""
+        self._drop_file()
+        self.write_error = _io_error(exc, self.csv_path, self._saved, doing)
+        raise self.write_error from exc
 
     def append(self, index: int, reference: float, counts: int, pwm: int, flags: int = 0) -> None:
-        """Add one telemetry sample (written to the CSV at once; call :meth:`flush` to push it)."""
-        row = (int(index), float(reference), int(counts), int(pwm), int(flags))
+        """Add one telemetry sample (written to the CSV at once; call :meth:`flush` to push it).
+
+        Raises
+        ------
+        RecordingIOError
+            The file could not be written (disk full, I/O error): the message names the file
+            and the number of samples saved in it; this and later samples are kept in memory
+            only.
+        """
+        if type(index) is not int or index < 0:
+            index = as_int("index", index, minimum=0)
+        if type(reference) is not float or not math.isfinite(reference):
+            reference = as_real("reference", reference)
+        row = (index, reference, as_int("counts", counts), as_int("pwm", pwm),
+               as_int("flags", flags, minimum=0))
         self._rows.append(row)
-        if self._writer is not None:
+        if self._file is not None:
             i, r, c, p, fl = row
-            self._writer.writerow((i, repr(i * self._Ts), repr(r), repr(c / self._cpr), c,
-                                   repr(p * self._vpp), p, fl))
+            try:
+                self._file.write(f"{i},{i * self._Ts!r},{r!r},{c / self._cpr!r},{c},{p * self._vpp!r},{p},{fl}\r\n")
+            except OSError as exc:
+                self._fail(exc, f"writing sample {len(self._rows) - 1}")
+            self._written = len(self._rows)
 
     def flush(self) -> None:
-        """Push written rows to the operating system (done after every received chunk)."""
+        """Push written rows to the operating system (done after every received chunk).
+
+        Raises :class:`RecordingIOError` (naming the file and the samples saved) if that fails.
+        """
         if self._file is not None:
-            self._file.flush()
+            try:
+                self._file.flush()
+            except OSError as exc:
+                self._fail(exc, "flushing samples to disk")
+            self._saved = self._written
 
     def finish(self, status: str = "complete", **info) -> None:
-        """Close the CSV and rewrite the sidecar with the final ``status`` and ``info``."""
+        """Close the CSV and rewrite the sidecar with the final ``status`` and ``info``.
+
+        ``status`` is ``"complete"`` or why the recording ended (``"interrupted"``,
+        ``"timeout"``, ``"disconnected"``, ``"error: ..."``). After a write error the sidecar
+        also gets ``"samples_saved"`` (rows in the CSV; ``n_samples`` counts those in memory).
+        Raises :class:`RecordingIOError` if the CSV or the sidecar cannot be written.
+        """
+        if not isinstance(status, str) or not status:
+            raise ValueError(f"status must be a non-empty string, got {status!r}")
         self.metadata["status"] = status
         self.metadata["n_samples"] = len(self._rows)
         self.metadata.update(info)
+        first = None
         if self._file is not None:
-            self._file.flush()
-            self._file.close()
+            try:
+                self._file.flush()
+                self._saved = self._written
+                self._file.close()
+            except OSError as exc:
+                first = _io_error(exc, self.csv_path, self._saved, "closing the recording")
+                self.write_error = self.write_error or first
             self._file = None
-            self._writer = None
-        self._write_json()
+        if self.write_error is not None:
+            self.metadata["samples_saved"] = self._saved
+            if not status.startswith("error"):
+                self.metadata["status"] = f"error: {self.write_error}"
+        try:
+            self._write_json()
+        except RecordingIOError:
+            if first is None:
+                raise
+        if first is not None:
+            raise first
 
     # -------------------------------------------------------------- arrays
     def __len__(self) -> int:
@@ -210,30 +322,72 @@ class Recording:
 
     @classmethod
     def load(cls, path) -> "Recording":
-        """Read a recording written by a run or by :meth:`save` (either file of the pair)."""
+        """Read a recording written by a run or by :meth:`save` (either file of the pair).
+
+        The sidecar's ``Ts``, ``counts_per_rad`` and ``volts_per_pwm`` must be finite numbers
+        > 0 (ValueError naming the field and the file). A sidecar still at ``"recording"``
+        (its writer was killed) loads with status ``"incomplete"`` and a warning; a torn last
+        row (a crash mid-write) is dropped with a warning; a blank or unreadable row inside
+        the file is skipped with a warning naming its line, so no data after it is lost.
+        """
         csv_path, json_path = _paths(path)
         if not csv_path.exists():
             raise FileNotFoundError(f"no recording at {csv_path}")
-        meta = {}
-        if json_path.exists():
-            try:
-                with open(json_path, encoding="utf-8") as f:
-                    meta = json.load(f)
-            except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-                raise ValueError(f"{json_path} is not a valid JSON sidecar ({exc}); the samples are "
-                                 f"still in {csv_path}") from None
+        if not json_path.exists():
+            raise ValueError(f"{json_path} missing: cannot recover Ts, counts_per_rad, volts_per_pwm "
+                             f"for the samples in {csv_path}")
+        try:
+            with open(json_path, encoding="utf-8") as f:
+                meta = json.load(f)
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise ValueError(f"{json_path} is not a valid JSON sidecar ({exc}); the samples are "
+                             f"still in {csv_path}") from None
+        if not isinstance(meta, dict):
+            raise ValueError(f"{json_path} is not a jerklab sidecar (a JSON {type(meta).__name__})")
+        _check_metadata(meta, str(json_path))
+        with open(csv_path, "rb") as f:
+            data = f.read()
+        try:
+            text = data.decode("ascii")
+        except UnicodeDecodeError as exc:
+            raise ValueError(f"{csv_path} is not a jerklab recording (not ASCII at byte {exc.start})") from None
+        lines = text.split("\n")
+        terminated = lines[-1] == ""           # the writer ends every row with a newline
+        if terminated:
+            lines.pop()
+        header = lines[0].rstrip("\r") if lines else None
+        if header is None or tuple(header.split(",")) != COLUMNS:
+            raise ValueError(f"{csv_path} is not a jerklab recording (header {header!r})")
         rows = []
-        with open(csv_path, newline="", encoding="ascii") as f:
-            reader = csv.reader(f)
-            header = next(reader, None)
-            if header is None or tuple(header) != COLUMNS:
-                raise ValueError(f"{csv_path} is not a jerklab recording (header {header!r})")
-            for line in reader:
-                if len(line) != len(COLUMNS):
-                    break                        # a row cut by a crash: keep what is whole
-                rows.append((int(line[0]), float(line[2]), int(line[4]), int(line[6]), int(line[7])))
-        if "Ts" not in meta and len(rows) > 1:
-            raise ValueError(f"{json_path} missing: cannot recover Ts")
+        for ln, line in enumerate(lines[1:], start=2):
+            line = line.rstrip("\r")
+            last = ln == len(lines)
+            if last and not terminated:
+                warnings.warn(f"{csv_path}: line {ln} (the last row) is torn (no end of line, the "
+                              f"writer stopped mid-row): dropped, {len(rows)} samples kept", stacklevel=2)
+                break
+            if line == "":
+                warnings.warn(f"{csv_path}: line {ln} is blank (skipped)", stacklevel=2)
+                continue
+            cells = line.split(",")
+            try:
+                if len(cells) != len(COLUMNS):
+                    raise ValueError(f"{len(cells)} fields instead of {len(COLUMNS)}")
+                row = (int(cells[0]), float(cells[2]), int(cells[4]), int(cells[6]), int(cells[7]))
+            except ValueError as exc:
+                warnings.warn(f"{csv_path}: line {ln} is not a whole row ({exc}): skipped", stacklevel=2)
+                continue
+            rows.append(row)
+        status = meta.get("status")
+        if status == RECORDING:
+            meta["status"] = INCOMPLETE
+            meta["status_on_disk"] = RECORDING
+            warnings.warn(f"{json_path} still says 'recording': its writer stopped without finishing "
+                          f"(process killed, power lost, or still running); loaded as 'incomplete' "
+                          f"with the {len(rows)} whole samples in {csv_path}", stacklevel=2)
+        elif isinstance(meta.get("n_samples"), int) and meta["n_samples"] != len(rows):
+            warnings.warn(f"{csv_path}: {len(rows)} samples, the sidecar says {meta['n_samples']} "
+                          f"(status {status!r})", stacklevel=2)
         rec = cls(meta)
         rec._rows = rows
         rec.csv_path, rec.json_path = csv_path, json_path

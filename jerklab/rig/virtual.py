@@ -33,6 +33,9 @@ import time
 import numpy as np
 
 from jerklab import protocol as P
+from jerklab.law import SCALAR as _LAW
+
+_pwm_duty, _encoder_counts = _LAW["pwm_duty"], _LAW["encoder_counts"]
 
 __all__ = ["VirtualDevice", "VirtualSerial"]
 
@@ -140,7 +143,7 @@ class VirtualDevice:
     encoder_sign = 1
 
     def _raw_counts(self) -> int:
-        return int(math.floor(float(self.x[0]) * self.motor.counts_per_rad + 1e-9))
+        return int(_encoder_counts(float(self.x[0]), self.motor.counts_per_rad))
 
     def _counts(self) -> int:
         return self.encoder_sign * self._raw_counts()
@@ -370,10 +373,7 @@ class VirtualDevice:
         return min(top, self.pwm_max)
 
     def _to_pwm(self, u: float) -> int:
-        lim = self._pwm_top()
-        pwm = int(math.floor(abs(u) * self.pwm_max / self.plant.supply_voltage + 0.5))   # lround
-        pwm = min(pwm, lim)
-        return pwm if u >= 0 else -pwm
+        return int(_pwm_duty(u, self.plant.supply_voltage, self.pwm_max, self._pwm_top()))  # lround, clamp (jerklab.law)
 
     def _check_safety(self, counts: int, pos_error: float):
         """The safety stops of PROTOCOL.md at one run sample: ``(reason, detail)``, or

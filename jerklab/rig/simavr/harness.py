@@ -1,94 +1,30 @@
-"""The real rig firmware on a simulated Uno: build helpers and the simavr harness launcher.
+"""The simavr harness launcher: the rig firmware on a simulated Uno with a DC motor on its pins.
 
-``make -C firmware`` builds the Uno firmware (``build/jerklab_rig.elf``), the host build of its
-portable core (``build/jl_host``) and the simavr harness (``build/jl_simavr``). The harness runs
-the ELF on a cycle-accurate ATmega328P, bridges UART0 to a pseudo-terminal, reads the PWM duty
-(OCR1A) and the L298 direction pins, integrates a DC motor (Stojčić eq. 1) and feeds quadrature
-edges back on INT0/INT1, so :func:`jerklab.rig.connect` talks to the actual firmware over
-pyserial exactly as to a board on a USB port.
+The harness (``firmware/simavr/jl_simavr.c``, built by ``make -C firmware simavr``) runs the
+ELF on a cycle-accurate ATmega328P, bridges UART0 to a pseudo-terminal, reads the PWM duty
+(OCR1A) and the L298 direction pins, integrates a DC motor (Stojčić eq. 1; ASCII: Stojcic) and
+feeds quadrature edges back on INT0/INT1, so :func:`jerklab.rig.connect` talks to the actual
+firmware over pyserial exactly as to a board on a USB port.
+
+:func:`launch` returns once the firmware has switched its UART receiver on; bytes a host writes
+earlier wait in the harness's bridge (as in the Uno's USB-serial chip) instead of being lost.
 """
 from __future__ import annotations
 
-import fcntl
+import json
 import os
+import selectors
 import shutil
+import signal
 import subprocess
-from contextlib import contextmanager
+import tempfile
+import time
 from pathlib import Path
 
-__all__ = ["firmware_dir", "build_firmware", "FirmwareBuildError"]
+from jerklab._validate import as_int, as_nonnegative, as_positive, as_real
+from jerklab.rig.simavr.build import build_firmware, firmware_dir
 
-
-class FirmwareBuildError(RuntimeError):
-    """``make -C firmware`` failed (the message carries its output)."""
-
-
-def firmware_dir() -> Path:
-    """The ``firmware/`` folder of the source tree (``JERKLAB_FIRMWARE_DIR`` overrides it)."""
-    env = os.environ.get("JERKLAB_FIRMWARE_DIR")
-    path = Path(env) if env else Path(__file__).resolve().parents[2] / "firmware"
-    if not (path / "Makefile").is_file():
-        raise FileNotFoundError(
-            f"firmware sources not found at {path} (set JERKLAB_FIRMWARE_DIR to the firmware/ folder "
-            "of a jerklab checkout)")
-    return path
-
-
-@contextmanager
-def _build_lock(build: Path):
-    build.mkdir(parents=True, exist_ok=True)
-    with open(build / ".lock", "w") as fh:
-        fcntl.flock(fh, fcntl.LOCK_EX)       # parallel test workers share one build folder
-        try:
-            yield
-        finally:
-            fcntl.flock(fh, fcntl.LOCK_UN)
-
-
-def build_firmware(*targets: str, build_dir=None) -> dict:
-    """Run ``make -C firmware <targets>`` (serialised by a file lock) and return the paths.
-
-    Parameters
-    ----------
-    targets : str
-        Make targets (``"avr"``, ``"size"``, ``"host"``, ``"simavr"``); none = the default
-        (everything the installed tools allow).
-    build_dir : path-like, optional
-        Output folder (default ``firmware/build``).
-
-    Returns
-    -------
-    dict
-        ``elf``, ``hex``, ``host``, ``harness`` paths and ``output`` (make's stdout, which
-        holds the flash/RAM line printed by the ``size`` target).
-    """
-    if shutil.which("make") is None:
-        raise FirmwareBuildError("make is not installed")
-    fw = firmware_dir()
-    build = Path(build_dir) if build_dir is not None else fw / "build"
-    for t in targets:
-        if not isinstance(t, str) or not t.replace("_", "").isalnum():
-            raise ValueError(f"targets must be make target names, got {t!r}")
-    with _build_lock(build):
-        proc = subprocess.run(["make", "-s", "-C", str(fw), f"BUILD={build}", *targets],
-                              capture_output=True, text=True)
-    if proc.returncode != 0:
-        raise FirmwareBuildError(f"make -C {fw} {' '.join(targets)} failed:\n{proc.stdout}\n{proc.stderr}")
-    return {"elf": build / "jerklab_rig.elf", "hex": build / "jerklab_rig.hex",
-            "host": build / "jl_host", "harness": build / "jl_simavr", "output": proc.stdout}
-
-
-# --------------------------------------------------------------------------- the harness
-
-import json  # noqa: E402
-import selectors  # noqa: E402
-import signal  # noqa: E402
-import tempfile  # noqa: E402
-import time  # noqa: E402
-
-from jerklab._validate import as_int, as_nonnegative, as_positive, as_real  # noqa: E402
-
-__all__ += ["launch", "SimulatedUno", "HarnessError", "tools_missing"]
+__all__ = ["launch", "SimulatedUno", "HarnessError", "tools_missing"]
 
 _ARDUINO_CORE = "/usr/share/arduino/hardware/arduino/avr/cores/arduino"
 _SIMAVR_HEADER = "/usr/include/simavr/sim_avr.h"
@@ -119,6 +55,9 @@ class SimulatedUno:
         The harness process.
     params : dict
         Motor and harness parameters it was started with.
+    ready_seconds : float or None
+        Simulated time (s) at which the firmware switched its UART receiver on (None if
+        :func:`launch` did not wait for it).
     """
 
     def __init__(self, proc, port, workdir, params):
@@ -129,6 +68,7 @@ class SimulatedUno:
         self._workdir = workdir
         self._stats_path = os.path.join(workdir.name, "stats.json")
         self.final_stats = None
+        self.ready_seconds = None
 
     def __repr__(self):
         state = "running" if self.running else "closed"
@@ -218,14 +158,19 @@ def _symbol_address(elf, name):
 
 def launch(elf=None, *, K=32.4, tau=0.025, supply_voltage=12.0, coulomb_friction=0.0,
            load_disturbance=0.0, encoder_ppr=448, step_us=20, realtime=True, build=True,
-           startup_timeout=20.0) -> SimulatedUno:
+           startup_timeout=20.0, bootloader=None, wait_ready=True) -> SimulatedUno:
     """Start the firmware on a simulated Uno with a DC motor; return a :class:`SimulatedUno`.
+
+    Returns once the firmware has switched its UART receiver on (``wait_ready``), so a host
+    may write at once; bytes written even earlier wait in the harness, as in the Uno's
+    USB-serial chip.
 
     Parameters
     ----------
-    elf : path, optional
+    elf : path or False, optional
         Firmware ELF (default: ``firmware/build/jerklab_rig.elf``, built with
-        ``make -C firmware`` when ``build`` is true).
+        ``make -C firmware`` when ``build`` is true). ``False`` (with ``bootloader``): an
+        empty application flash, as on a board that has only its bootloader.
     K, tau : float
         Motor gain rad/(V s) and time constant s (Stojčić eq. 1; paper: 32.4, 0.025).
     supply_voltage : float
@@ -244,15 +189,24 @@ def launch(elf=None, *, K=32.4, tau=0.025, supply_voltage=12.0, coulomb_friction
     build : bool
         Run ``make -C firmware avr simavr`` first (incremental).
     startup_timeout : float
-        Seconds to wait for the harness to print its pty.
+        Seconds to wait for the harness to print its pty and for the firmware's UART.
+    bootloader : path or True, optional
+        An Intel-hex bootloader loaded at its address (Optiboot: 0x7E00) and started first, as
+        after the reset that opening the port causes on an Uno (MCUSR = EXTRF: Optiboot waits
+        about 1 s for avrdude, then starts the application). ``True``: Optiboot built from
+        arduino-core-avr's source by ``make -C firmware optiboot`` (Debian's prebuilt hex is
+        532 bytes and does not fit the boot section: see firmware/README.md).
+    wait_ready : bool
+        Return only once the firmware's UART receiver is on (default). False returns as soon
+        as the pty exists.
 
     Raises
     ------
     FileNotFoundError
         simavr, the AVR toolchain or the Arduino core is missing (the message lists the
-        Debian packages), or the ELF does not exist.
+        Debian packages), or the ELF or bootloader does not exist.
     HarnessError
-        The harness did not start.
+        The harness did not start, or the firmware never switched its UART receiver on.
     """
     K = as_positive("K", K)
     tau = as_positive("tau", tau)
@@ -264,49 +218,66 @@ def launch(elf=None, *, K=32.4, tau=0.025, supply_voltage=12.0, coulomb_friction
     if step_us > 1000:
         raise ValueError(f"step_us must be <= 1000, got {step_us}")
     startup_timeout = as_positive("startup_timeout", startup_timeout)
+    if bootloader is not None and bootloader is not True and not isinstance(bootloader, (str, os.PathLike)):
+        raise TypeError(f"bootloader must be a path to an Intel-hex file or True, got {bootloader!r}")
+    if elf is False and bootloader is None:
+        raise ValueError("elf=False (no application) needs a bootloader")
     missing = tools_missing()
     if missing:
         raise FileNotFoundError(
             f"the simulated Uno needs {', '.join(missing)} (Debian: apt-get install gcc-avr avr-libc "
             "arduino-core-avr simavr libsimavr-dev)")
     if build:
-        paths = build_firmware("avr", "simavr")
-        harness = paths["harness"]
-        elf = paths["elf"] if elf is None else Path(elf)
+        paths = build_firmware("avr", "simavr", *(("optiboot",) if bootloader is True else ()))
     else:
         build_dir = firmware_dir() / "build"
-        harness = build_dir / "jl_simavr"
-        elf = build_dir / "jerklab_rig.elf" if elf is None else Path(elf)
-    for what, path in (("firmware ELF", elf), ("simavr harness", harness)):
+        paths = {"harness": build_dir / "jl_simavr", "elf": build_dir / "jerklab_rig.elf",
+                 "optiboot": build_dir / "optiboot_atmega328.hex"}
+    harness = paths["harness"]
+    elf = paths["elf"] if elf is None else elf
+    if bootloader is True:
+        bootloader = paths["optiboot"]
+    checks = [("simavr harness", harness)]
+    if elf is not False:
+        elf = Path(elf)
+        checks.append(("firmware ELF", elf))
+    if bootloader is not None:
+        bootloader = Path(bootloader)
+        checks.append(("bootloader hex", bootloader))
+    for what, path in checks:
         if not Path(path).is_file():
-            raise FileNotFoundError(f"{what} not found at {path} (run `make -C firmware`)")
+            hint = "apt-get install arduino-core-avr" if what == "bootloader hex" else "run `make -C firmware`"
+            raise FileNotFoundError(f"{what} not found at {path} ({hint})")
     params = dict(K=K, tau=tau, supply_voltage=supply_voltage, coulomb_friction=coulomb_friction,
                   load_disturbance=load_disturbance, encoder_ppr=encoder_ppr, step_us=step_us,
-                  realtime=bool(realtime), elf=str(elf))
+                  realtime=bool(realtime), elf=None if elf is False else str(elf),
+                  bootloader=None if bootloader is None else str(bootloader))
     workdir = tempfile.TemporaryDirectory(prefix="jerklab-simavr-")
     cmd = [str(harness), "--K", repr(K), "--tau", repr(tau), "--supply", repr(supply_voltage),
            "--friction", repr(coulomb_friction), "--load", repr(load_disturbance),
            "--ppr", str(encoder_ppr), "--step-us", str(step_us),
            "--stats", os.path.join(workdir.name, "stats.json")]
-    addr = _symbol_address(elf, "g_counts")
+    addr = _symbol_address(elf, "g_counts") if elf is not False else None
     if addr is not None:
         cmd += ["--counts-addr", hex(addr)]
+    if bootloader is not None:
+        cmd += ["--bootloader", str(bootloader)]
     if not realtime:
         cmd.append("--fast")
-    cmd.append(str(elf))
+    cmd.append("--no-app" if elf is False else str(elf))
     log = open(os.path.join(workdir.name, "harness.log"), "w")
     try:
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=log, stdin=subprocess.DEVNULL,
                                 cwd=workdir.name)
     finally:
         log.close()
-    port = None
+    port, ready = None, None
     sel = selectors.DefaultSelector()
     sel.register(proc.stdout, selectors.EVENT_READ)
     buf = b""
     end = time.monotonic() + startup_timeout
     try:
-        while port is None and time.monotonic() < end:
+        while (port is None or (wait_ready and ready is None)) and time.monotonic() < end:
             if not sel.select(timeout=0.1):
                 if proc.poll() is not None:
                     break
@@ -318,13 +289,20 @@ def launch(elf=None, *, K=32.4, tau=0.025, supply_voltage=12.0, coulomb_friction
             for line in buf.decode(errors="replace").splitlines():
                 if line.startswith("PTY /"):
                     port = line[4:].strip()
+                elif line.startswith("READY "):
+                    ready = float(line.split()[1])
     finally:
         sel.close()
         proc.stdout.close()
     uno = SimulatedUno(proc, port, workdir, params)
-    if port is None:
+    uno.ready_seconds = ready
+    if port is None or (wait_ready and ready is None):
         tail = uno._log_tail()
+        running = uno.running
         uno.close()
-        raise HarnessError(f"the simavr harness printed no pty within {startup_timeout} s "
+        what = ("printed no pty" if port is None else
+                "ran, but the firmware never switched its UART receiver on (RXEN0)" if running else
+                "exited before the firmware switched its UART receiver on")
+        raise HarnessError(f"the simavr harness {what} within {startup_timeout} s "
                            f"(output: {buf.decode(errors='replace')!r}){tail}")
     return uno

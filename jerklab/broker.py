@@ -1,0 +1,474 @@
+"""One rig for a whole class page: a broker that owns the rig and runs the students' moves in turn.
+
+``python -m jerklab.app --rig PORT --pool 4`` starts one Voilà kernel per visitor. Were each
+kernel to open the serial port itself, a second student would kill the first one's run (and
+on a real Uno, opening the port resets the board). Instead, the app starts this broker: the
+only process that opens the rig. Each kernel's panel sends its run to the broker, which
+queues the runs first come, first served and runs them one at a time; while a run waits,
+the broker tells its panel how many runs are ahead ("queued: 2 ahead of you").
+
+    python -m jerklab.broker --rig /dev/ttyACM0        # prints broker://127.0.0.1:PORT
+    python -m jerklab.broker --rig virtual             # a virtual rig at real-time pace
+
+The link between a kernel and the broker is one TCP connection per run, carrying one JSON
+object per line (localhost only by default):
+
+* client -> broker: ``{"op": "run_move", "profile": {"kind", "distance", "max_jerk",
+  "max_accel", "max_velocity"}, "gains": {"kpd", "kid", "kdd", "Ts", "gamma", "loop"},
+  "Ts": s, "feedforward": {"K", "tau"} | true | false, "settle": s, "force": false,
+  "client": "label"}``, or ``{"op": "info"}``;
+* broker -> client: ``{"queued": n_ahead}`` (on arrival, when the queue moves and every
+  ``HEARTBEAT`` s), ``{"running": true}``, then ``{"done": true, "csv": ..., "json": ...}``
+  (the :class:`jerklab.rig.Recording` files) or ``{"error": "...", "type": "..."}``.
+
+A client that disconnects while queued leaves the queue. A run whose client went away
+still finishes on the rig (a move cannot be abandoned half-way), and its result is dropped.
+The broker refuses a design whose sampled loop has |z| ≥ 1 unless ``force`` is set
+(:func:`jerklab.tuning.check_runnable`), so no kernel can run away a motor.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import select
+import socket
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+__all__ = ["RigBroker", "BrokerRig", "BrokerError", "SCHEME", "HEARTBEAT", "main"]
+
+#: Address prefix of a broker: ``broker://host:port``.
+SCHEME = "broker://"
+
+#: Seconds between "queued" messages to a waiting client (a client that hears nothing for
+#: ``4 × HEARTBEAT`` gives up).
+HEARTBEAT = 1.0
+
+_MAX_REQUEST = 1 << 16          # bytes of one request line
+
+
+class BrokerError(RuntimeError):
+    """The broker is unreachable, refused the run, or the run failed on the rig."""
+
+
+def parse_address(address):
+    """``"broker://host:port"`` -> ``(host, port)``; ValueError naming ``address`` otherwise."""
+    if not isinstance(address, str) or not address.startswith(SCHEME):
+        raise ValueError(f"address must look like 'broker://host:port', got {address!r}")
+    host, sep, port = address[len(SCHEME):].rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ValueError(f"address must look like 'broker://host:port', got {address!r}")
+    return host, int(port)
+
+
+def _send(conn, lock, obj):
+    data = (json.dumps(obj) + "\n").encode("utf-8")
+    with lock:
+        conn.sendall(data)
+
+
+class _Ticket:
+    def __init__(self, conn, request):
+        self.conn = conn
+        self.request = request
+        self.lock = threading.Lock()       # one writer at a time on conn
+        self.done = threading.Event()
+        self.gone = False                  # the client disconnected
+        self.reply = None
+
+    def tell(self, obj):
+        if self.gone:
+            return
+        try:
+            _send(self.conn, self.lock, obj)
+        except OSError:
+            self.gone = True
+
+
+class RigBroker:
+    """Owns one rig and runs the moves sent by many clients, one at a time, in arrival order.
+
+    Parameters
+    ----------
+    rig_port : str or None
+        What :func:`jerklab.rig.connect` opens (``None``/``"virtual"``: a virtual rig,
+        ``"simavr"``, a device path or pyserial URL).
+    host, port : str, int
+        Where to listen (port 0: any free port).
+    speed : float or None
+        Virtual rig only: times real time (default 1.0, the pace of a board).
+    connect_kwargs : dict, optional
+        More arguments for :func:`jerklab.rig.connect`.
+    """
+
+    def __init__(self, rig_port=None, host="127.0.0.1", port=0, speed=1.0, connect_kwargs=None):
+        from jerklab.rig import connect
+
+        kwargs = dict(connect_kwargs or {})
+        if rig_port in (None, "", "virtual"):
+            kwargs.setdefault("speed", speed)
+        self.rig = connect(rig_port, progress=False, **kwargs)
+        self._queue = []                   # tickets waiting, in arrival order
+        self._running = None
+        self._cond = threading.Condition()
+        self._stop = threading.Event()
+        self._listener = socket.create_server((host, port))
+        self._listener.settimeout(0.2)
+        h, p = self._listener.getsockname()[:2]
+        self.address = f"{SCHEME}{h}:{p}"
+        self.runs_done = 0
+        self.order = []                    # client labels in the order their runs started
+        self._threads = [threading.Thread(target=self._accept_loop, daemon=True,
+                                          name="jerklab-broker-accept"),
+                         threading.Thread(target=self._worker, daemon=True,
+                                          name="jerklab-broker-worker")]
+        for t in self._threads:
+            t.start()
+
+    # ------------------------------------------------------------------ lifecycle
+    def close(self):
+        """Stop serving and close the rig."""
+        self._stop.set()
+        with self._cond:
+            self._cond.notify_all()
+        for t in self._threads:
+            t.join(timeout=30.0)
+        self._listener.close()
+        self.rig.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def queue_length(self):
+        """Runs waiting (not counting the one running)."""
+        with self._cond:
+            return len(self._queue)
+
+    # ------------------------------------------------------------------ clients
+    def _accept_loop(self):
+        while not self._stop.is_set():
+            try:
+                conn, _ = self._listener.accept()
+            except socket.timeout:
+                continue
+            except OSError:
+                return
+            threading.Thread(target=self._serve, args=(conn,), daemon=True,
+                             name="jerklab-broker-client").start()
+
+    def _read_request(self, conn):
+        conn.settimeout(10.0)
+        buf = b""
+        while b"\n" not in buf:
+            chunk = conn.recv(4096)
+            if not chunk:
+                raise ConnectionError("client closed before sending a request")
+            buf += chunk
+            if len(buf) > _MAX_REQUEST:
+                raise ValueError(f"request longer than {_MAX_REQUEST} bytes")
+        return json.loads(buf.split(b"\n", 1)[0].decode("utf-8"))
+
+    def _serve(self, conn):
+        lock = threading.Lock()
+        try:
+            try:
+                req = self._read_request(conn)
+                if not isinstance(req, dict):
+                    raise ValueError("request must be a JSON object")
+            except (ValueError, ConnectionError, OSError) as exc:
+                _send(conn, lock, {"error": f"bad request: {exc}", "type": "ValueError"})
+                return
+            op = req.get("op")
+            if op == "info":
+                r = self.rig
+                _send(conn, lock, {"ok": True, "info": r.device_info(),
+                                   "supply_voltage": r.supply_voltage,
+                                   "counts_per_rev": r.counts_per_rev,
+                                   "queued": self.queue_length()})
+                return
+            if op != "run_move":
+                _send(conn, lock, {"error": f"op must be 'info' or 'run_move', got {op!r}",
+                                   "type": "ValueError"})
+                return
+            self._queue_and_wait(conn, req)
+        except OSError:
+            pass
+        finally:
+            conn.close()
+
+    def _ahead(self, ticket):
+        """Runs ahead of ``ticket`` (the running one included); call with the lock held."""
+        return self._queue.index(ticket) + (1 if self._running is not None else 0)
+
+    def _queue_and_wait(self, conn, req):
+        ticket = _Ticket(conn, req)
+        with self._cond:
+            self._queue.append(ticket)
+            ahead = self._ahead(ticket)
+            self._cond.notify_all()
+        ticket.tell({"queued": ahead})
+        conn.setblocking(False)
+        last = time.monotonic()
+        while not ticket.done.wait(0.1):
+            # a client that hangs up while waiting leaves the queue
+            try:
+                r, _, _ = select.select([conn], [], [], 0)
+                if r and conn.recv(1) == b"":
+                    ticket.gone = True
+            except (BlockingIOError, InterruptedError):
+                pass
+            except OSError:
+                ticket.gone = True
+            if ticket.gone:
+                with self._cond:
+                    if ticket in self._queue:
+                        self._queue.remove(ticket)
+                        self._cond.notify_all()
+                self._tell_positions()
+                return
+            if time.monotonic() - last > HEARTBEAT:
+                last = time.monotonic()
+                with self._cond:
+                    ahead = self._ahead(ticket) if ticket in self._queue else None
+                if ahead is not None:
+                    ticket.tell({"queued": ahead})
+        conn.setblocking(True)
+        ticket.tell(ticket.reply)
+
+    def _tell_positions(self):
+        with self._cond:
+            waiting = [(t, self._ahead(t)) for t in self._queue]
+        for t, ahead in waiting:
+            t.tell({"queued": ahead})
+
+    # ------------------------------------------------------------------ the rig
+    def _worker(self):
+        while True:
+            with self._cond:
+                while not self._queue and not self._stop.is_set():
+                    self._cond.wait(0.5)
+                if self._stop.is_set():
+                    for t in self._queue:
+                        t.reply = {"error": "the broker stopped", "type": "BrokerError"}
+                        t.done.set()
+                    self._queue.clear()
+                    return
+                ticket = self._queue.pop(0)
+                self._running = ticket
+            self._tell_positions()
+            ticket.tell({"running": True})
+            self.order.append(str(ticket.request.get("client", "?")))
+            try:
+                ticket.reply = self._run(ticket.request)
+            except Exception as exc:            # every failure goes back to its client
+                ticket.reply = {"error": f"{type(exc).__name__}: {exc}", "type": type(exc).__name__}
+            finally:
+                self.runs_done += 1
+                with self._cond:
+                    self._running = None
+                ticket.done.set()
+                self._tell_positions()
+
+    def _run(self, req):
+        from jerklab import planner, tuning
+        from jerklab.controller import DiscreteGains, Feedforward
+
+        p = req.get("profile") or {}
+        kind = p.get("kind")
+        plan = {"sine_jerk": planner.plan_sine_jerk, "sine_jerk_optimal": planner.plan_sine_jerk_optimal,
+                "scurve": planner.plan_scurve}.get(kind)
+        if kind == "trapezoid":
+            profile = planner.plan_trapezoid(p["distance"], p["max_accel"], p["max_velocity"])
+        elif plan is None:
+            raise ValueError(f"profile.kind must be a jerklab planner kind, got {kind!r}")
+        else:
+            profile = plan(p["distance"], p["max_jerk"], p["max_accel"], p["max_velocity"])
+        g = req.get("gains") or {}
+        gains = DiscreteGains(g["kpd"], g["kid"], g["kdd"], g["Ts"], gamma=g.get("gamma", 0.0),
+                              loop=g.get("loop", "position"))
+        ff = req.get("feedforward", True)
+        if isinstance(ff, dict):
+            ff = Feedforward(ff["K"], ff["tau"])
+            K, tau = ff.K, ff.tau
+        else:
+            K, tau = self.rig.model
+        tuning.check_runnable(K, tau, gains, force=bool(req.get("force", False)))
+        rec = self.rig.run_move(profile, gains, Ts=req.get("Ts", gains.Ts), feedforward=ff,
+                                settle=req.get("settle", 0.25), path=False, progress=False)
+        with tempfile.TemporaryDirectory(prefix="jerklab-broker-") as tmp:
+            csv_path = Path(rec.save(Path(tmp) / "run"))
+            return {"done": True, "csv": csv_path.read_text(encoding="ascii"),
+                    "json": csv_path.with_suffix(".json").read_text(encoding="utf-8")}
+
+
+class BrokerRig:
+    """A kernel's handle on the class page's shared rig (see :class:`RigBroker`).
+
+    It answers ``run_move`` like :class:`jerklab.rig.Rig`, but the run waits its turn in the
+    broker's queue; ``on_status`` hears ``"queued: 2 ahead of you"`` and then ``"running on
+    the rig"``. ``queues_runs`` is True so the tuning panel shows those messages.
+
+    Parameters
+    ----------
+    address : str
+        ``broker://host:port`` printed by ``python -m jerklab.broker``.
+    timeout : float
+        Seconds to wait for the broker's answer to ``info`` and for each message while
+        queued (the broker sends one every ``HEARTBEAT`` s) or running.
+    client : str
+        A label for the broker's log (e.g. the student ID).
+    """
+
+    queues_runs = True
+
+    def __init__(self, address, timeout=10.0, client="kernel"):
+        self.address = address
+        self.host, self.port = parse_address(address)
+        self.timeout = float(timeout)
+        self.client = str(client)
+        self.info = self._request({"op": "info"})
+        self.port_name = address
+        self.supply_voltage = self.info["supply_voltage"]
+        self.counts_per_rev = self.info["counts_per_rev"]
+        self.closed = False
+
+    def __repr__(self):
+        return f"BrokerRig({self.address!r}, device={self.info['info'].get('name')!r})"
+
+    def close(self):
+        self.closed = True
+
+    def _connect(self):
+        try:
+            return socket.create_connection((self.host, self.port), timeout=self.timeout)
+        except OSError as exc:
+            raise BrokerError(f"cannot reach the rig broker at {self.address}: {exc} "
+                              "(is `python -m jerklab.app --rig ...` still running?)") from exc
+
+    def _lines(self, sock):
+        buf = b""
+        while True:
+            while b"\n" not in buf:
+                try:
+                    chunk = sock.recv(1 << 16)
+                except socket.timeout:
+                    raise BrokerError(f"the rig broker at {self.address} fell silent for "
+                                      f"{self.timeout:g} s") from None
+                if not chunk:
+                    raise BrokerError(f"the rig broker at {self.address} closed the connection")
+                buf += chunk
+            line, buf = buf.split(b"\n", 1)
+            yield json.loads(line.decode("utf-8"))
+
+    def _request(self, req):
+        with self._connect() as s:
+            s.sendall((json.dumps(req) + "\n").encode("utf-8"))
+            msg = next(self._lines(s))
+        if "error" in msg:
+            raise BrokerError(f"rig broker: {msg['error']}")
+        return msg
+
+    def run_move(self, profile, gains, Ts=None, *, feedforward=True, settle=0.25, path=None,
+                 progress=None, on_status=None, force=False):
+        """Queue the move on the shared rig, wait for its turn, return the Recording.
+
+        ``path``: None writes to the recordings folder, False keeps it in memory, else that
+        path (``.csv`` + ``.json``). ``progress`` is accepted for compatibility (ignored).
+        """
+        from jerklab.controller import DiscreteGains, Feedforward
+        from jerklab.rig.recording import Recording, recordings_dir
+
+        if not isinstance(gains, DiscreteGains):
+            raise TypeError(f"gains must be DiscreteGains, got {type(gains).__name__}")
+        kind = getattr(profile, "kind", None)
+        if kind is None:
+            raise ValueError(f"profile must be a jerklab.planner Profile, got {type(profile).__name__}")
+        ff = ({"K": feedforward.K, "tau": feedforward.tau} if isinstance(feedforward, Feedforward)
+              else bool(feedforward))
+        req = {"op": "run_move", "client": self.client,
+               "profile": {"kind": kind, "distance": profile.distance,
+                           "max_jerk": profile.max_jerk, "max_accel": profile.max_accel,
+                           "max_velocity": profile.max_velocity},
+               "gains": {"kpd": gains.kpd, "kid": gains.kid, "kdd": gains.kdd, "Ts": gains.Ts,
+                         "gamma": gains.gamma, "loop": gains.loop},
+               "Ts": gains.Ts if Ts is None else float(Ts), "feedforward": ff,
+               "settle": float(settle), "force": bool(force)}
+        say = on_status or (lambda msg: None)
+        with self._connect() as s:
+            s.sendall((json.dumps(req) + "\n").encode("utf-8"))
+            s.settimeout(max(self.timeout, 4 * HEARTBEAT))
+            for msg in self._lines(s):
+                if "queued" in msg:
+                    n = int(msg["queued"])
+                    say(f"queued: {n} ahead of you" if n else "queued: next")
+                elif msg.get("running"):
+                    s.settimeout(None if self.timeout is None else max(self.timeout, 60.0))
+                    say("running on the rig…")
+                elif "error" in msg:
+                    raise BrokerError(f"rig broker: {msg['error']}")
+                elif msg.get("done"):
+                    break
+        keep = path is not False
+        if path is None:
+            import datetime as _dt
+
+            stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+            path = recordings_dir() / f"{stamp}_move"
+        with tempfile.TemporaryDirectory(prefix="jerklab-run-") as tmp:
+            base = Path(path) if keep else Path(tmp) / "run"
+            if base.suffix.lower() in (".csv", ".json"):
+                base = base.with_suffix("")
+            base.parent.mkdir(parents=True, exist_ok=True)
+            csv_path = base.with_name(base.name + ".csv")
+            json_path = base.with_name(base.name + ".json")
+            csv_path.write_text(msg["csv"], encoding="ascii")
+            meta = json.loads(msg["json"])
+            meta["csv"] = csv_path.name
+            meta["broker"] = self.address
+            json_path.write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
+            rec = Recording.load(csv_path)
+            if not keep:
+                rec.csv_path = rec.json_path = None
+        return rec
+
+
+def main(argv=None):
+    """``python -m jerklab.broker``: own a rig, print ``broker://host:port``, serve until stopped."""
+    import signal
+
+    ap = argparse.ArgumentParser(prog="python -m jerklab.broker", description=__doc__.split("\n")[0])
+    ap.add_argument("--rig", default="virtual", help="what jerklab.rig.connect opens (default: virtual)")
+    ap.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
+    ap.add_argument("--port", type=int, default=0, help="TCP port (default 0: any free port)")
+    ap.add_argument("--speed", type=float, default=1.0,
+                    help="virtual rig only: times real time (default 1.0)")
+    args = ap.parse_args(argv)
+    if args.speed <= 0:
+        ap.error(f"--speed must be > 0, got {args.speed}")
+    rig_port = None if args.rig in ("", "virtual") else args.rig
+    broker = RigBroker(rig_port, args.host, args.port, speed=args.speed)
+    print(broker.address, flush=True)
+    print(f"jerklab rig broker: {broker.rig!r} on {broker.address}; Ctrl-C to stop",
+          file=sys.stderr, flush=True)
+    done = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *a: done.set())
+    try:
+        while not done.wait(0.5):
+            if os.getppid() == 1:            # the app that started us is gone
+                break
+    except KeyboardInterrupt:
+        pass
+    finally:
+        broker.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,37 @@
+"""``python -m jerklab.lab grade SUBMISSIONS_DIR --out grades.csv`` and ``... assign``."""
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(prog="python -m jerklab.lab", description=__doc__)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    g = sub.add_parser("grade", help="grade a folder of hand-in zips and notebooks")
+    g.add_argument("submissions", metavar="SUBMISSIONS_DIR")
+    g.add_argument("--out", default="grades.csv", help="CSV to write (default grades.csv)")
+    g.add_argument("--feedback", default=None, help="folder for the feedback files (default: feedback/ beside the CSV)")
+    g.add_argument("--timeout", type=float, default=300.0, help="seconds per submission (default 300)")
+    a = sub.add_parser("assign", help="write the student worksheets (solutions stripped) from the masters")
+    a.add_argument("--out", default="notebooks/labs", help="folder (default notebooks/labs)")
+    args = ap.parse_args(argv)
+    if args.cmd == "grade":
+        from jerklab.lab.grade import grade_folder
+        from jerklab.lab.motors import instructor_key
+
+        _, source = instructor_key(warn=True)
+        rows = grade_folder(args.submissions, args.out, args.feedback, args.timeout)
+        for r in rows:
+            print(f"{r['student'] or '?':>16}  lab {r['lab'] or '?'}  {r['total']:5.1f} / {r['max']:4.1f}  {r['status']}")
+        print(f"{len(rows)} submissions -> {args.out} (instructor key from: {source})")
+        return 0
+    from jerklab.lab.grade import assign
+
+    for p in assign(args.out):
+        print(f"wrote {p}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

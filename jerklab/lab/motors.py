@@ -1,0 +1,219 @@
+"""Hidden per-student motors: a seeded, realistic DC gearmotor for every student ID.
+
+The parameters are drawn from the ranges of small 12 V DC gearmotors (K 15–45 rad/(V·s),
+τ 10–60 ms, Coulomb friction 0.1–0.6 V, a small input offset, encoder count noise, a 448 or
+896 counts-per-revolution encoder). The seed is ``HMAC-SHA256(key, student ID)``: the same ID
+gives the same motor, different IDs give different motors, and without the instructor's key
+nobody can regenerate another student's motor.
+
+The key comes from ``$JERKLAB_INSTRUCTOR_KEY``, else the file named by
+``$JERKLAB_INSTRUCTOR_KEY_FILE``, else ``~/.config/jerklab/instructor.key``. Without any, the
+documented :data:`CLASSROOM_DEFAULT_KEY` is used with a warning: it is *not* secret.
+
+The true values never appear in a ``repr``, in rig metadata or in a recording; they are read
+only by the checks of :mod:`jerklab.lab` (through :func:`_truth`).
+"""
+from __future__ import annotations
+
+import hashlib
+import hmac
+import math
+import os
+import re
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from jerklab.plant import DCMotor
+from jerklab.rig.virtual import VirtualDevice
+
+__all__ = ["CLASSROOM_DEFAULT_KEY", "RANGES", "StudentMotor", "StudentDevice", "student_motor",
+           "instructor_key", "normalize_student", "connect_student", "DefaultKeyWarning"]
+
+#: Used when no instructor key is set. Public (it is in the source): fine for practice, not for marks.
+CLASSROOM_DEFAULT_KEY = b"jerklab-classroom-default-key (not secret)"
+
+#: The distribution every hidden motor is drawn from (uniform in log for K and tau).
+RANGES = {
+    "K": (15.0, 45.0),                 # rad/(V s)
+    "tau": (0.010, 0.060),             # s
+    "coulomb_friction": (0.10, 0.60),  # V, input referred
+    "offset": (-0.08, 0.08),           # V, input referred; |offset| < min friction: no creep at 0 V
+    "noise_counts": (0.0, 0.5),        # standard deviation of the encoder count noise
+    "encoder_ppr": (448, 896),         # counts per output revolution (x1 decoding)
+}
+SUPPLY_VOLTAGE = 12.0
+
+_ID_RE = re.compile(r"^[A-Za-z0-9._@+-]{1,64}$")
+
+
+class DefaultKeyWarning(UserWarning):
+    """No instructor key is set: the classroom default key (public) seeds the motors."""
+
+
+def normalize_student(student) -> str:
+    """The canonical form of a student ID (stripped, lower case); ValueError naming ``student``."""
+    if not isinstance(student, str):
+        raise TypeError(f"student must be a string ID, got {type(student).__name__}")
+    s = student.strip().lower()
+    if not _ID_RE.match(s):
+        raise ValueError(f"student must be 1-64 characters of letters, digits and ._@+-, got {student!r}")
+    return s
+
+
+def instructor_key(warn: bool = True) -> tuple[bytes, str]:
+    """The key that enters every seed, and where it came from ("env", "file", "default")."""
+    env = os.environ.get("JERKLAB_INSTRUCTOR_KEY")
+    if env:
+        return env.encode(), "env"
+    path = os.environ.get("JERKLAB_INSTRUCTOR_KEY_FILE")
+    candidates = [Path(path)] if path else [Path.home() / ".config" / "jerklab" / "instructor.key"]
+    for p in candidates:
+        if p.is_file():
+            key = p.read_bytes().strip()
+            if key:
+                return key, "file"
+        elif path:
+            raise ValueError(f"JERKLAB_INSTRUCTOR_KEY_FILE names {path!r}, which is not a file")
+    if warn:
+        warnings.warn("no instructor key set (JERKLAB_INSTRUCTOR_KEY or a key file): using the "
+                      "classroom default key, which is public — anyone can regenerate any motor. "
+                      "Fine for practice, not for graded work.", DefaultKeyWarning, stacklevel=3)
+    return CLASSROOM_DEFAULT_KEY, "default"
+
+
+def _seed(student: str, key: bytes, purpose: str = "motor-v1") -> int:
+    digest = hmac.new(key, f"jerklab:{purpose}:{student}".encode(), hashlib.sha256).digest()
+    return int.from_bytes(digest[:16], "little")
+
+
+@dataclass(frozen=True, repr=False)
+class _Parameters:
+    K: float
+    tau: float
+    coulomb_friction: float
+    offset: float
+    noise_counts: float
+    encoder_ppr: int
+
+    def __repr__(self):
+        return "_Parameters(hidden)"
+
+
+def _draw(seed: int) -> _Parameters:
+    rng = np.random.default_rng(seed)
+    lo, hi = RANGES["K"]
+    K = float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
+    lo, hi = RANGES["tau"]
+    tau = float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
+    fc = float(rng.uniform(*RANGES["coulomb_friction"]))
+    off = float(rng.uniform(*RANGES["offset"]))
+    noise = float(rng.uniform(*RANGES["noise_counts"]))
+    ppr = int(rng.choice(RANGES["encoder_ppr"]))
+    return _Parameters(K, tau, fc, off, noise, ppr)
+
+
+class StudentMotor(DCMotor):
+    """A :class:`jerklab.plant.DCMotor` with hidden parameters.
+
+    DCMotor's input offset (the motor sees ``u + offset``, a driver asymmetry, input referred,
+    V), Coulomb friction, PWM and encoder quantization; the rig adds encoder count noise
+    (:class:`StudentDevice`). No dead zone: at steady state it is indistinguishable from the
+    Coulomb friction, so lab 1 could not separate the two. ``repr`` never shows a value.
+    Make one with :func:`student_motor`.
+    """
+
+    def __init__(self, student, params: _Parameters, seed: int):
+        super().__init__(K=params.K, tau=params.tau, supply_voltage=SUPPLY_VOLTAGE, pwm_bits=10,
+                         encoder_ppr=params.encoder_ppr, decoding=1,
+                         coulomb_friction=params.coulomb_friction, noise_std=0.0, seed=seed % 2**32,
+                         offset=params.offset)
+        self.student = student
+        self.noise_counts = params.noise_counts
+
+    def __repr__(self):
+        return f"StudentMotor(student={self.student!r}, parameters hidden)"
+
+    __str__ = __repr__
+
+
+def student_motor(student, key: bytes | None = None) -> StudentMotor:
+    """The hidden motor of ``student`` (same ID and key -> same motor).
+
+    Parameters
+    ----------
+    student : str
+        Student ID (case and surrounding spaces ignored).
+    key : bytes, optional
+        Instructor key; default :func:`instructor_key` (environment or key file).
+    """
+    sid = normalize_student(student)
+    if key is None:
+        key, _ = instructor_key()
+    seed = _seed(sid, bytes(key))
+    return StudentMotor(sid, _draw(seed), seed)
+
+
+def _truth(motor: StudentMotor) -> dict:
+    """The true values, for the checks only (never print them)."""
+    return {"K": motor.K, "tau": motor.tau, "coulomb_friction": motor.coulomb_friction,
+            "offset": motor.offset, "counts_per_rev": motor.encoder_ppr * motor.decoding}
+
+
+class StudentDevice(VirtualDevice):
+    """The virtual rig's firmware in front of a :class:`StudentMotor`, with encoder count noise."""
+
+    def __init__(self, motor: StudentMotor, **kwargs):
+        self._noise_rng = np.random.default_rng([motor.seed % 2**63, 1])
+        super().__init__(motor, **kwargs)
+
+    def _raw_counts(self) -> int:
+        jitter = self._noise_rng.normal(0.0, self.motor.noise_counts) if self.motor.noise_counts else 0.0
+        return int(math.floor(float(self.x[0]) * self.motor.counts_per_rad + 1e-9 + jitter))
+
+    def __repr__(self):
+        return f"StudentDevice({self.motor!r})"
+
+
+def connect_student(student, port=None, *, key=None, **options):
+    """A rig for ``student``: the virtual rig (``port`` None) or ``"simavr"`` with the student's
+    hidden motor; any other port is a real board (its motor is the real one).
+
+    ``options`` go to :func:`jerklab.rig.connect` (``speed``, ``timeout``, ``progress``,
+    ``recordings``, ``model`` ...). The returned rig has ``rig.student`` set and, on a
+    simulated plant, a private reference to the hidden motor for the checks.
+    """
+    from jerklab.rig import connect
+    from jerklab.rig.client import Rig
+    from jerklab.rig.virtual import VirtualSerial
+
+    sid = normalize_student(student)
+    motor = student_motor(sid, key)
+    if port in (None, "virtual", ""):
+        speed = options.pop("speed", None)
+        link = VirtualSerial(StudentDevice(motor), speed=speed, timeout=0.05)
+        rig = Rig(link, "virtual", supply_voltage=motor.supply_voltage,
+                  counts_per_rev=motor.encoder_ppr * motor.decoding,
+                  model=options.pop("model", (32.4, 0.025)), timeout=options.pop("timeout", 2.0),
+                  hello_timeout=options.pop("hello_timeout", None) or 1.0,
+                  progress=options.pop("progress", True), recordings=options.pop("recordings", None))
+        if options:
+            rig.close()
+            raise TypeError(f"unexpected options for the virtual rig: {sorted(options)}")
+        hidden = motor
+    elif port == "simavr":
+        # the simulated Uno's plant: K, tau, friction and a 448-count encoder (the harness
+        # decodes x1 at 448); no offset or count noise there
+        sim_motor = DCMotor(K=motor.K, tau=motor.tau, supply_voltage=SUPPLY_VOLTAGE, encoder_ppr=448,
+                            coulomb_friction=motor.coulomb_friction)
+        rig = connect("simavr", motor=sim_motor, **options)
+        hidden = StudentMotor(sid, _Parameters(motor.K, motor.tau, motor.coulomb_friction, 0.0, 0.0, 448),
+                              motor.seed)
+    else:
+        rig = connect(port, **options)
+        hidden = None
+    rig.student = sid
+    rig._hidden_motor = hidden
+    return rig

@@ -1,0 +1,91 @@
+"""Build helpers for the rig firmware: ``make -C firmware`` from Python, serialised by a lock.
+
+``make -C firmware`` builds the Uno firmware (``build/jerklab_rig.elf``/``.hex``), the host
+build of its portable core (``build/jl_host``) and the simavr harness (``build/jl_simavr``).
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+from contextlib import contextmanager
+from pathlib import Path
+
+try:                                   # POSIX; on Windows the build lock falls back to msvcrt
+    import fcntl
+except ImportError:                    # pragma: no cover - Windows
+    fcntl = None
+
+__all__ = ["firmware_dir", "build_firmware", "FirmwareBuildError"]
+
+
+class FirmwareBuildError(RuntimeError):
+    """``make -C firmware`` failed (the message carries its output)."""
+
+
+def firmware_dir() -> Path:
+    """The ``firmware/`` folder of the source tree (``JERKLAB_FIRMWARE_DIR`` overrides it)."""
+    env = os.environ.get("JERKLAB_FIRMWARE_DIR")
+    path = Path(env) if env else Path(__file__).resolve().parents[3] / "firmware"
+    if not (path / "Makefile").is_file():
+        raise FileNotFoundError(
+            f"firmware sources not found at {path} (set JERKLAB_FIRMWARE_DIR to the firmware/ folder "
+            "of a jerklab checkout)")
+    return path
+
+
+@contextmanager
+def _build_lock(build: Path):
+    """Exclusive lock on ``build/.lock``: parallel test workers share one build folder."""
+    build.mkdir(parents=True, exist_ok=True)
+    with open(build / ".lock", "a+") as fh:
+        if fcntl is not None:
+            fcntl.flock(fh, fcntl.LOCK_EX)
+        else:                          # pragma: no cover - Windows
+            import msvcrt
+
+            msvcrt.locking(fh.fileno(), msvcrt.LK_LOCK, 1)
+        try:
+            yield
+        finally:
+            if fcntl is not None:
+                fcntl.flock(fh, fcntl.LOCK_UN)
+            else:                      # pragma: no cover - Windows
+                import msvcrt
+
+                fh.seek(0)
+                msvcrt.locking(fh.fileno(), msvcrt.LK_UNLCK, 1)
+
+
+def build_firmware(*targets: str, build_dir=None) -> dict:
+    """Run ``make -C firmware <targets>`` (serialised by a file lock) and return the paths.
+
+    Parameters
+    ----------
+    targets : str
+        Make targets (``"avr"``, ``"size"``, ``"host"``, ``"simavr"``, ``"optiboot"``); none =
+        the default (everything the installed tools allow).
+    build_dir : path-like, optional
+        Output folder (default ``firmware/build``).
+
+    Returns
+    -------
+    dict
+        ``elf``, ``hex``, ``host``, ``harness``, ``optiboot`` paths and ``output`` (make's stdout, which
+        holds the flash/RAM line printed by the ``size`` target).
+    """
+    if shutil.which("make") is None:
+        raise FirmwareBuildError("make is not installed")
+    fw = firmware_dir()
+    build = Path(build_dir) if build_dir is not None else fw / "build"
+    for t in targets:
+        if not isinstance(t, str) or not t.replace("_", "").isalnum():
+            raise ValueError(f"targets must be make target names, got {t!r}")
+    with _build_lock(build):
+        proc = subprocess.run(["make", "-s", "-C", str(fw), f"BUILD={build}", *targets],
+                              capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise FirmwareBuildError(f"make -C {fw} {' '.join(targets)} failed:\n{proc.stdout}\n{proc.stderr}")
+    return {"elf": build / "jerklab_rig.elf", "hex": build / "jerklab_rig.hex",
+            "host": build / "jl_host", "harness": build / "jl_simavr",
+            "optiboot": build / "optiboot_atmega328.hex", "output": proc.stdout}

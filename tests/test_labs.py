@@ -1,0 +1,483 @@
+"""The labs: hidden per-student motors, the worksheets' checks, the hand-in and the grader.
+
+The worksheets are executed headless from their masters (solutions in): every check passes;
+with a wrong answer injected, the check fails with its hint. The grader runs otter on three
+synthetic submissions. Truth values are looked for, and must not be found, in every output.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import re
+import shutil
+import zipfile
+from pathlib import Path
+
+import nbformat
+import numpy as np
+import pytest
+
+from jerklab import lab
+from jerklab.lab import checks, motors
+from jerklab.lab.handin import HandinError, pack, read_handin
+from jerklab.lab.motors import (RANGES, StudentDevice, StudentMotor, _Parameters, _truth,
+                                student_motor)
+from jerklab.controller import discrete_pole_placement_pid
+from jerklab.planner import plan_sine_jerk
+from jerklab.rig import connect
+from jerklab.rig.client import Rig
+from jerklab.rig.virtual import VirtualSerial
+
+ROOT = Path(__file__).parent.parent
+KEY = "test-instructor-key"
+
+
+@pytest.fixture(autouse=True)
+def _key(monkeypatch, tmp_path):
+    monkeypatch.setenv("JERKLAB_INSTRUCTOR_KEY", KEY)
+    monkeypatch.setenv("JERKLAB_LAB_WORK", str(tmp_path / "work"))
+    monkeypatch.setenv("JERKLAB_RECORDINGS", str(tmp_path / "rec"))
+    monkeypatch.delenv("JERKLAB_LAB_GRADING", raising=False)
+
+
+def _rig_for(motor):
+    return Rig(VirtualSerial(StudentDevice(motor), timeout=0.05), "virtual", supply_voltage=12.0,
+               counts_per_rev=motor.encoder_ppr, progress=False, hello_timeout=1.0)
+
+
+def _leak_patterns(truth):
+    """Strings that would reveal a true value: its repr and 5-7 significant digits."""
+    pats = set()
+    for k in ("K", "tau", "coulomb_friction", "offset"):
+        v = truth[k]
+        pats.add(repr(v))
+        for d in (5, 6, 7):
+            pats.add(f"{v:.{d}g}")
+        if k == "tau":
+            pats.add(f"{v * 1e3:.5g}")
+    return pats
+
+
+# ------------------------------------------------------------------ hidden motors
+def test_same_id_same_motor_and_different_ids_differ():
+    a, b, c = student_motor("s123"), student_motor("  S123 "), student_motor("s124")
+    ta, tb, tc = _truth(a), _truth(b), _truth(c)
+    assert ta == tb
+    assert ta["K"] != tc["K"] and ta["tau"] != tc["tau"]
+    ks = {round(_truth(student_motor(f"id{i}"))["K"], 9) for i in range(50)}
+    assert len(ks) == 50
+
+
+def test_key_enters_the_seed(monkeypatch):
+    t1 = _truth(student_motor("s123"))
+    assert _truth(student_motor("s123", key=KEY.encode())) == t1
+    assert _truth(student_motor("s123", key=b"another key")) != t1
+    monkeypatch.delenv("JERKLAB_INSTRUCTOR_KEY")
+    monkeypatch.setenv("JERKLAB_INSTRUCTOR_KEY_FILE", "/nonexistent/key")
+    with pytest.raises(ValueError, match="JERKLAB_INSTRUCTOR_KEY_FILE"):
+        student_motor("s123")
+    monkeypatch.delenv("JERKLAB_INSTRUCTOR_KEY_FILE")
+    monkeypatch.setenv("HOME", "/nonexistent-home")
+    with pytest.warns(motors.DefaultKeyWarning, match="not secret|public"):
+        m = student_motor("s123")
+    assert _truth(m) == _truth(student_motor("s123", key=motors.CLASSROOM_DEFAULT_KEY))
+    assert _truth(m) != t1
+
+
+def test_key_file(monkeypatch, tmp_path):
+    f = tmp_path / "k"
+    f.write_text(KEY + "\n")
+    monkeypatch.delenv("JERKLAB_INSTRUCTOR_KEY")
+    monkeypatch.setenv("JERKLAB_INSTRUCTOR_KEY_FILE", str(f))
+    assert motors.instructor_key() == (KEY.encode(), "file")
+    monkeypatch.setenv("JERKLAB_INSTRUCTOR_KEY", KEY)
+    assert _truth(student_motor("x9")) == _truth(student_motor("x9", key=KEY.encode()))
+
+
+def test_parameters_within_ranges():
+    for i in range(300):
+        t = _truth(student_motor(f"r{i}"))
+        m = student_motor(f"r{i}")
+        assert RANGES["K"][0] <= t["K"] <= RANGES["K"][1]
+        assert RANGES["tau"][0] <= t["tau"] <= RANGES["tau"][1]
+        assert RANGES["coulomb_friction"][0] <= t["coulomb_friction"] <= RANGES["coulomb_friction"][1]
+        assert abs(t["offset"]) < RANGES["coulomb_friction"][0]        # no creep at 0 V
+        assert t["counts_per_rev"] in RANGES["encoder_ppr"]
+        assert 0 <= m.noise_counts <= RANGES["noise_counts"][1]
+
+
+@pytest.mark.parametrize("bad", ["", "a b", "x" * 65, "é"])
+def test_bad_student_id(bad):
+    with pytest.raises(ValueError, match="student"):
+        student_motor(bad)
+    with pytest.raises(TypeError, match="student"):
+        student_motor(123)
+
+
+def test_connect_student_keyword():
+    with pytest.raises(ValueError, match="student.*motor|motor.*student"):
+        connect(student="s1", motor=student_motor("s1"))
+    rig = connect(student="s1", progress=False)
+    try:
+        assert rig.student == "s1" and rig.is_virtual
+        assert rig.counts_per_rev == _truth(student_motor("s1"))["counts_per_rev"]
+    finally:
+        rig.close()
+
+
+def test_offset_acts_like_the_model():
+    """The hidden motor's offset: a step from rest reaches K (V + offset - f_c) (closed form)."""
+    p = _Parameters(K=30.0, tau=0.02, coulomb_friction=0.3, offset=0.07, noise_counts=0.0, encoder_ppr=896)
+    m = StudentMotor("t", p, 1)
+    x = np.zeros(2)
+    for _ in range(400):
+        x = m.step_state(x, 6.0, 0.001)
+    assert x[1] == pytest.approx(30.0 * (6.0 + 0.07 - 0.3), rel=1e-6)
+    x = np.zeros(2)
+    assert m.step_state(x, 0.0, 1.0)[1] == 0.0        # |offset| < f_c: it does not creep
+
+
+def test_no_leak_in_repr_metadata_recordings(tmp_path):
+    rig = connect(student="leaky", progress=False, recordings=tmp_path)
+    truth = _truth(rig._hidden_motor)
+    try:
+        rig.step(6.0, 0.3)
+        rig.run_move(plan_sine_jerk(**lab.MOVE), discrete_pole_placement_pid(30.0, 0.02, 30.0), 0.005)
+        texts = [repr(rig), repr(rig.link), repr(rig.link.device), repr(rig._hidden_motor),
+                 str(rig._hidden_motor), json.dumps(rig.device_info())]
+        texts += [p.read_text() for p in tmp_path.iterdir()]
+    finally:
+        rig.close()
+    blob = "\n".join(texts)
+    assert len(texts) > 6
+    for pat in _leak_patterns(truth):
+        assert pat not in blob, f"true value {pat} leaked"
+
+
+# ------------------------------------------------------------------ feasibility over the distribution
+def _corners():
+    out = []
+    for K in RANGES["K"]:
+        for tau in RANGES["tau"]:
+            for fc in RANGES["coulomb_friction"]:
+                off = RANGES["offset"][1] if fc > 0.3 else RANGES["offset"][0]
+                ppr = RANGES["encoder_ppr"][0]
+                out.append(_Parameters(K, tau, fc, off, RANGES["noise_counts"][1], ppr))
+    return out
+
+
+@pytest.mark.parametrize("params", _corners() + [None] * 6,
+                         ids=[f"corner{i}" for i in range(8)] + [f"random{i}" for i in range(6)])
+def test_every_spec_feasible_over_the_distribution(params, request):
+    """At the corners of RANGES and for random IDs, the worksheets' own methods pass their checks:
+    the sweep gives K within 4 % and f_c within 0.06 V, PEM τ within 8 %, PEM with friction and
+    offset on the six steps K, τ, f_c within the same bounds, and the lab 2 design
+    (z-domain, ωn = 30 rad/s, ζ = 1, Ts = 5 ms) on a model 5 % / 8 % off meets every spec item."""
+    from jerklab import ident
+
+    if params is None:
+        m = student_motor(f"feas-{request.node.callspec.id}")
+    else:
+        m = StudentMotor("corner", params, 7)
+    t = _truth(m)
+    rig = _rig_for(m)
+    try:
+        recs = {V: rig.step(V, lab.STEP_SECONDS, path=False) for V in lab.SWEEP_VOLTS}
+        (K, fc, off), _ = lab.sweep_fit({V: lab.steady_speed(r) for V, r in recs.items()})
+        r6 = recs[6.0]
+        tau = ident.fit_dc_motor(r6.control, r6.position, 0.005).tau
+        assert abs(K / t["K"] - 1) <= 0.04 and abs(fc - t["coulomb_friction"]) <= 0.06
+        assert abs(tau / t["tau"] - 1) <= 0.08
+        fit = ident.fit_dc_motor([r.control for r in recs.values()], [r.position for r in recs.values()],
+                                 0.005, friction=True, offset=True)
+        assert abs(fit.K / t["K"] - 1) <= 0.04 and abs(fit.tau / t["tau"] - 1) <= 0.08
+        assert abs(fit.friction - t["coulomb_friction"]) <= 0.06
+        for eK, et in ((1.05, 0.92), (0.95, 1.08)):
+            Kh, th = t["K"] * eK, t["tau"] * et
+            rig.set_model(Kh, th)
+            g = discrete_pole_placement_pid(Kh, th, 30.0, 1.0, Ts=0.005)
+            prof = plan_sine_jerk(**lab.MOVE)
+            rec = rig.run_move(prof, g, 0.005, settle=0.4, path=False)
+            met = lab.move_metrics(rec, prof.duration, prof.distance)
+            assert checks._spec_failures(met) == [], met
+    finally:
+        rig.close()
+
+
+def test_spec_can_be_missed():
+    """The spec is not trivial: a slow design (ωn = 8 rad/s) misses it on a typical motor."""
+    m = StudentMotor("slow", _Parameters(30.0, 0.03, 0.4, 0.0, 0.2, 448), 3)
+    rig = _rig_for(m)
+    try:
+        rig.set_model(30.0, 0.03)
+        prof = plan_sine_jerk(**lab.MOVE)
+        rec = rig.run_move(prof, discrete_pole_placement_pid(30.0, 0.03, 8.0, 1.0, Ts=0.005), 0.005,
+                           settle=0.4, path=False)
+        fails = checks._spec_failures(lab.move_metrics(rec, prof.duration, prof.distance))
+    finally:
+        rig.close()
+    assert any("tracking error" in f for f in fails)
+
+
+# ------------------------------------------------------------------ sessions, checks, hand-in
+def test_unsupported_planner_is_reported_not_raised(tmp_path, capsys):
+    from jerklab import protocol as P
+    from jerklab.planner import plan_scurve
+
+    S = lab.start(3, student="fw-like", folder=tmp_path)
+    dev = S.rig.link.device
+    dev.capabilities &= ~(P.Capability.PLANNER_SCURVE | P.Capability.PLANNER_TRAPEZOID
+                          | P.Capability.PLANNER_SINE_JERK_OPTIMAL)
+    S.rig.hello()
+    g = discrete_pole_placement_pid(30.0, 0.02, 30.0, Ts=0.005)
+    assert S.run_move(plan_scurve(**lab.MOVE), g) is None
+    assert "no 'scurve' planner" in capsys.readouterr().out
+    assert S.run_move(plan_sine_jerk(**lab.MOVE), g) is not None
+    S.close()
+
+
+def test_check_messages(tmp_path):
+    S = lab.start(1, student="msg", folder=tmp_path)
+    assert S.verify("pre_speed", 180.0).ok
+    r = S.verify("pre_speed", 180.0 / (2 * math.pi))
+    assert not r.ok and "revolutions" in r.message
+    r = S.verify("pre_tau63", 40.0)
+    assert not r.ok and "milliseconds" in r.message
+    r = S.verify("pre_speed", ...)
+    assert not r.ok and "replace the `...`" in r.message
+    t = S._truth()
+    assert S.verify("K", t["K"] * 1.01).ok
+    r = S.verify("K", -t["K"])
+    assert not r.ok and "negative" in r.message
+    r = S.verify("K", t["K"] * 1.2)
+    assert not r.ok and "20 % off" in r.message
+    r = S.verify("fit_valid", 90.0)
+    assert not r.ok and "recording" in r.message          # the task's recording is not there yet
+    S.close()
+
+
+def test_handin_zip_roundtrip_and_tamper(tmp_path):
+    S = lab.start(1, student="zipper", folder=tmp_path / "w")
+    S.step(6.0, 0.2)
+    S.verify("pre_speed", 180.0)
+    nb = tmp_path / "lab1_identify.ipynb"
+    nb.write_text(json.dumps({"cells": [], "metadata": {}, "nbformat": 4, "nbformat_minor": 4}))
+    path = S.submit(notebook=nb, out=tmp_path / "out")
+    S.close()
+    h = read_handin(path)
+    assert h["student"] == "zipper" and h["lab"] == 1 and h["notebook"] == nb.read_bytes()
+    names = set(h["files"])
+    assert {"answers.json", "gains.json", "student.json", "notebook/lab1_identify.ipynb"} <= names
+    assert any(n.startswith("recordings/") and n.endswith(".csv") for n in names)
+    assert json.loads(h["files"]["answers.json"])["pre_speed"] == {"answer": 180.0, "ok": True}
+    # tamper with one file: the checksum no longer matches
+    bad = tmp_path / "bad.zip"
+    with zipfile.ZipFile(path) as zin, zipfile.ZipFile(bad, "w") as zout:
+        for n in zin.namelist():
+            data = zin.read(n)
+            if n == "answers.json":
+                data = data.replace(b"180.0", b"181.0")
+            zout.writestr(n, data)
+    with pytest.raises(HandinError, match="checksum of answers.json"):
+        read_handin(bad)
+    (tmp_path / "junk.zip").write_bytes(b"not a zip at all")
+    with pytest.raises(HandinError, match="not a zip"):
+        read_handin(tmp_path / "junk.zip")
+    (tmp_path / "empty.zip").write_bytes(b"")
+    with pytest.raises(HandinError, match="empty"):
+        read_handin(tmp_path / "empty.zip")
+
+
+# ------------------------------------------------------------------ the worksheets, headless
+def _execute(nb, cwd, timeout=240):
+    from nbclient import NotebookClient
+
+    NotebookClient(nb, timeout=timeout, kernel_name="python3", allow_errors=True,
+                   resources={"metadata": {"path": str(cwd)}}).execute()
+    return nb
+
+
+def _outputs(nb):
+    out = []
+    for c in nb.cells:
+        if c.cell_type != "code":
+            continue
+        for o in c.get("outputs", []):
+            if o.output_type == "error":
+                out.append(f"ERROR {o.ename}: {o.evalue}")
+            out.append(o.get("text", ""))
+            for v in o.get("data", {}).values():
+                if isinstance(v, str):
+                    out.append(v)
+    return out
+
+
+def _read_master(n):
+    from jerklab.lab.grade import master_path
+
+    return nbformat.read(master_path(n), as_version=4)
+
+
+def _set_student(nb, sid):
+    for c in nb.cells:
+        if c.cell_type == "code" and 'STUDENT = "' in c.source:
+            c.source = re.sub(r'STUDENT = "[^"]*"', f'STUDENT = "{sid}"', c.source)
+            return
+    raise AssertionError("no STUDENT cell")
+
+
+@pytest.mark.parametrize("n", [1, 2, 3])
+def test_worksheet_with_solutions_passes_every_check(n, tmp_path):
+    nb = _read_master(n)
+    _set_student(nb, f"sol{n}")
+    _execute(nb, tmp_path)
+    outs = _outputs(nb)
+    errors = [o for o in outs if o.startswith("ERROR")]
+    assert not errors, errors
+    verdicts = [o for o in outs if "right —" in o or "not yet —" in o]
+    n_checks = sum(1 for c in nb.cells if c.cell_type == "code" and c.source.startswith("S.check("))
+    assert len(verdicts) == n_checks > 5
+    assert all("✔ right" in v for v in verdicts), [v for v in verdicts if "✔" not in v]
+    truth = _truth(student_motor(f"sol{n}"))
+    blob = "\n".join(outs)
+    for pat in _leak_patterns(truth):
+        assert pat not in blob, f"true value {pat} in the notebook's output"
+
+
+WRONG = {
+    1: ("K = coef[0]", "K = coef[0] * 2 * np.pi", 'S.check("K"', "factor 6.28"),
+    2: ('panel.controls["wn"].value = 30.0',
+        'panel.controls["design"].value = "continuous"; panel.controls["wn"].value = 80.0',
+        'S.check("design"', "your sampled loop has |z| = "),
+    3: ("lost_time = plan_sine_jerk(**M).duration - plan_sine_jerk_optimal(**M).duration",
+        "lost_time = plan_sine_jerk_optimal(**M).duration - plan_sine_jerk(**M).duration",
+        'S.check("lost_time"', "the sign"),
+}
+
+
+@pytest.mark.parametrize("n", [1, 2, 3])
+def test_worksheet_wrong_answer_gets_its_hint(n, tmp_path):
+    old, new, check, hint = WRONG[n]
+    nb = _read_master(n)
+    _set_student(nb, f"wrong{n}")
+    hits = [c for c in nb.cells if c.cell_type == "code" and old in c.source]
+    assert len(hits) == 1
+    hits[0].source = hits[0].source.replace(old, new)
+    last = next(i for i, c in enumerate(nb.cells) if c.cell_type == "code" and c.source.startswith(check))
+    nb.cells = nb.cells[:last + 1]           # stop at the check under test
+    _execute(nb, tmp_path)
+    verdict = "\n".join(_outputs(nb)[-3:])
+    assert "✘ not yet" in verdict and hint in verdict, verdict
+
+
+# ------------------------------------------------------------------ student versions and grading
+def test_student_versions_are_generated_and_current(tmp_path):
+    """`python -m jerklab.lab assign` (otter assign) gives the committed worksheets: no solution left."""
+    from jerklab.lab.grade import assign
+
+    for p in assign(tmp_path, labs=(1, 2, 3)):
+        committed = nbformat.read(ROOT / "notebooks" / "labs" / p.name, as_version=4)
+        fresh = nbformat.read(p, as_version=4)
+        assert [c.source for c in committed.cells] == [c.source for c in fresh.cells], p.name
+        text = "\n".join(c.source for c in fresh.cells)
+        assert "SOLUTION" not in text and "BEGIN TESTS" not in text
+        assert "grader.check(" in text and "S.check(" in text
+        assert committed.metadata["jerklab"]["lab"] == int(p.name[3])
+        assert all(not c.get("outputs") for c in committed.cells if c.cell_type == "code")
+
+
+def _autograder_notebook(n):
+    from jerklab.lab.grade import _assigned, student_version_name
+
+    return nbformat.read(_assigned(n) / "autograder" / student_version_name(n), as_version=4)
+
+
+def test_grade_command_on_three_submissions(tmp_path):
+    """All right (a hand-in zip), partly wrong (a bare notebook), corrupt (a tampered zip) and
+    an empty file: the expected scores, a row each, a feedback file each."""
+    from jerklab.lab.__main__ import main
+
+    subs = tmp_path / "subs"
+    subs.mkdir()
+    good = _autograder_notebook(1)
+    _set_student(good, "alice")
+    nbj = nbformat.writes(good).encode()
+    pack({"notebook/lab1_identify.ipynb": nbj, "answers.json": b"{}", "gains.json": b"null",
+          "student.json": b'{"student": "alice"}'}, "alice", 1, subs / "lab1_alice.zip")
+    part = _autograder_notebook(1)
+    _set_student(part, "bob")
+    edits = 0
+    for c in part.cells:
+        if c.cell_type == "code" and c.source.startswith("pre_speed = "):
+            c.source, edits = "pre_speed = 30 * 6 / (2 * np.pi)", edits + 1
+        if c.cell_type == "code" and c.source.startswith("trust = "):
+            c.source, edits = 'trust = "arx"', edits + 1
+    assert edits == 2
+    nbformat.write(part, subs / "bob_lab1.ipynb")
+    pack({"notebook/lab1_identify.ipynb": nbj}, "carol", 1, tmp_path / "c.zip")
+    with zipfile.ZipFile(tmp_path / "c.zip") as zin, zipfile.ZipFile(subs / "lab1_carol.zip", "w") as zout:
+        for n in zin.namelist():
+            d = zin.read(n)
+            zout.writestr(n, d.replace(b'"trust = ', b'"trust=') if n.endswith(".ipynb") else d)
+    (subs / "dave_lab1.ipynb").write_bytes(b"")
+    out = tmp_path / "grades.csv"
+    assert main(["grade", str(subs), "--out", str(out), "--timeout", "240"]) == 0
+    rows = {r["file"]: r for r in csv.DictReader(out.open())}
+    assert set(rows) == {"lab1_alice.zip", "bob_lab1.ipynb", "lab1_carol.zip", "dave_lab1.ipynb"}
+    a, b = rows["lab1_alice.zip"], rows["bob_lab1.ipynb"]
+    assert a["status"] == "graded" and b["status"] == "graded", (a, b)
+    assert float(a["total"]) == float(a["max"]) == 17.0
+    assert float(b["max"]) == 17.0 and float(b["total"]) == 15.0
+    assert float(b["pre_speed"]) == 0.0 and float(b["trust"]) == 0.0 and float(b["K"]) == 3.0
+    assert a["student"] == "alice" and b["student"] == "bob"
+    c, d = rows["lab1_carol.zip"], rows["dave_lab1.ipynb"]
+    assert "checksum" in c["status"] and float(c["total"]) == 0.0
+    assert "empty" in d["status"] and float(d["total"]) == 0.0
+    fb = {p.name: p.read_text() for p in (tmp_path / "feedback").iterdir()}
+    assert len(fb) == 4
+    bob = next(t for n, t in fb.items() if n.startswith("bob"))
+    assert "pre_speed: 0/1" in bob and "revolutions" in bob
+
+
+def test_session_on_simavr_uses_the_students_motor(tmp_path, capsys):
+    """The same session code on the firmware in a simulated Uno: the hidden motor's τ is found by
+    PEM and passes the check; the planners the firmware lacks are reported, not raised."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from conftest import require_tool
+    from jerklab import ident
+    from jerklab.planner import plan_scurve
+
+    require_tool("make", "cc", "avr-g++", "avr-size", "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
+                 "/usr/include/simavr/sim_avr.h")
+    S = lab.start(3, student="simavr-student", port="simavr", folder=tmp_path)
+    try:
+        assert S.simulated and S.rig.name != "jerklab-virtual"      # the firmware answers
+        r6 = S.step(6.0, lab.STEP_SECONDS)
+        fit = ident.fit_dc_motor(r6.control, r6.position, r6.metadata["Ts"])
+        assert S.verify("tau", fit.tau).ok
+        assert S.verify("tau", fit.tau * 1000).ok is False
+        g = discrete_pole_placement_pid(fit.K, fit.tau, 30.0, Ts=0.005)
+        assert S.run_move(plan_scurve(**lab.MOVE), g) is None
+        assert "no 'scurve' planner" in capsys.readouterr().out
+    finally:
+        S.close()
+
+
+def test_grade_timeout_gets_a_row(tmp_path):
+    """A submission that never ends is stopped after the timeout and gets its row."""
+    from jerklab.lab.grade import autograder_zip, grade_folder
+
+    autograder_zip(1)                       # made (or reused) before the clock matters
+    subs = tmp_path / "subs"
+    subs.mkdir()
+    nb = nbformat.v4.new_notebook()
+    nb.metadata["jerklab"] = {"lab": 1}
+    nb.cells = [nbformat.v4.new_code_cell('STUDENT = "eve"\nwhile True:\n    pass')]
+    nbformat.write(nb, subs / "eve.ipynb")
+    rows = grade_folder(subs, tmp_path / "g.csv", timeout=5)
+    assert rows[0]["student"] == "eve" and "timed out after 5 s" in rows[0]["status"]
+    assert rows[0]["total"] == 0.0
