@@ -1,5 +1,6 @@
-# jerklab: the two commands of the README.
-#   make lab    set up .venv and open JupyterLab on notebooks/ (virtual rig by default)
+# jerklab: the developer route (students: pip install "jerklab[lab]" and `jerklab lab`, see README).
+# The targets call the `jerklab` command that `pip install -e .` puts in .venv/bin.
+#   make lab    set up .venv and open JupyterLab on the repository's notebooks/ (virtual rig by default)
 #   make test   set up .venv and run every test (unit, property, notebooks, firmware, browser)
 #   make app    the standalone tuning page for a class (Voila, virtual rig) on http://127.0.0.1:8866/
 #   make bench  print the benchmark tables and record them as JSON in benchmarks/results/
@@ -13,7 +14,7 @@ PYTEST_ARGS ?=
 
 .PHONY: setup lab test app bench book firmware clean
 
-$(STAMP): environment.txt pyproject.toml
+$(STAMP): environment.txt pyproject.toml setup.py
 	@$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 10), "jerklab needs Python 3.10 or newer, this is " + sys.version' 
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
@@ -25,13 +26,13 @@ $(STAMP): environment.txt pyproject.toml
 setup: $(STAMP)
 
 lab: setup
-	$(BIN)/jupyter lab notebooks/ $$([ "$$(id -u)" = 0 ] && echo --allow-root) $(LAB_ARGS)
+	$(BIN)/jerklab lab --no-copy notebooks/ $(LAB_ARGS)
 
 test: setup
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
 
 app: setup
-	$(BIN)/python -m jerklab.app $(APP_ARGS)
+	$(BIN)/jerklab app $(APP_ARGS)
 
 bench: setup
 	$(BIN)/python -m benchmarks
@@ -43,4 +44,4 @@ firmware:
 	$(MAKE) -C firmware
 
 clean:
-	rm -rf $(VENV) build *.egg-info artifacts
+	rm -rf $(VENV) build dist *.egg-info artifacts

@@ -27,11 +27,13 @@ import os
 import pathlib
 import sys
 
+from jerklab.resources import share_path
+
 __all__ = ["APP_NOTEBOOK", "RIG_ENV", "CULL_IDLE_S", "CULL_INTERVAL_S", "panel_for_page",
            "voila_argv", "start_broker", "main"]
 
-#: The page Voilà renders (kept in the source tree, beside the package).
-APP_NOTEBOOK = pathlib.Path(__file__).resolve().parent.parent / "app" / "tuning.ipynb"
+#: The page Voilà renders (the clone's app/, or its copy in an installed wheel: jerklab.resources).
+APP_NOTEBOOK = share_path("app") / "tuning.ipynb"
 
 #: Environment variable carrying ``--rig`` to the page's kernels ("" or unset: virtual rig).
 RIG_ENV = "JERKLAB_RIG_PORT"

@@ -274,7 +274,9 @@ class IdentData:
         csv_path.parent.mkdir(parents=True, exist_ok=True)
         cols = ["time_s", f"u_{self.input_unit}", f"y_{self.output_unit}"]
         table = np.column_stack([self.t, self.u, self.y])
-        np.savetxt(csv_path, table, delimiter=",", header=",".join(cols), comments="", fmt="%.17g")
+        header = ",".join(cols)           # plain ASCII, or UTF-8 with a BOM so a spreadsheet reads "µm"
+        np.savetxt(csv_path, table, delimiter=",", header=header, comments="", fmt="%.17g",
+                   encoding="ascii" if header.isascii() else "utf-8-sig")
         side = {
             "format": self.FORMAT,
             "csv": csv_path.name,
@@ -2027,7 +2029,9 @@ MICROMOUSE_RECORDS = {"encoders1": (100, "rectangle, 1 s"), "encoders3": (100, "
 
 
 def _default_real_root():
-    return pathlib.Path(__file__).resolve().parents[1] / "data" / "real"
+    from jerklab.resources import share_path    # the clone's data/, or the installed wheel's copy
+
+    return share_path("data") / "real"
 
 
 def _read_table(path):

@@ -19,6 +19,7 @@ from __future__ import annotations
 import importlib
 
 import os
+import sys
 
 from jerklab.rig.client import (PortBusyError, Rig, RigBusyError, RigCommandError, RigConnectionError,
                                 RigError, RigRunError, RigTimeoutError, UnknownPortError,
@@ -255,6 +256,9 @@ def _permission_message(port, exc):
 
 
 def _launch_simavr(motor=None):
+    if sys.platform == "win32":
+        raise UnknownPortError("port 'simavr' (the firmware on a simulated Uno) needs Linux or macOS; on "
+                               "Windows use the virtual rig, connect(), or a real Uno on its COM port")
     try:
         # through sys.modules (not the package attribute), so a stand-in launcher can be swapped in
         simavr = importlib.import_module("jerklab.rig.simavr")

@@ -19,8 +19,14 @@ import threading
 
 
 def main(argv=None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["check"]:                # the bring-up check has its own options (jerklab.rig.check)
+        from jerklab.rig.check import main as check_main
+
+        return check_main(argv[1:])
     ap = argparse.ArgumentParser(prog="python -m jerklab.rig", description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
+    sub.add_parser("check", help="bring-up check of a rig before closing the loop (check PORT --help)")
     s = sub.add_parser("serve", help="serve the virtual rig on a pseudo-terminal or a TCP port")
     s.add_argument("--speed", type=float, default=1.0,
                    help="times real time (default 1.0, like a board; 0 = as fast as the host reads)")
@@ -41,6 +47,9 @@ def main(argv=None) -> int:
     from jerklab.rig.server import DeviceServer
     from jerklab.rig.virtual import VirtualDevice
 
+    if args.tcp is None and sys.platform == "win32":
+        ap.error("serve on a pseudo-terminal needs Linux or macOS; on Windows use `serve --tcp 5000` "
+                 "and connect('socket://127.0.0.1:5000'), or the in-process virtual rig: connect()")
     if args.speed < 0:
         ap.error(f"--speed must be >= 0, got {args.speed}")
     motor = DCMotor(K=args.K, tau=args.tau, coulomb_friction=args.friction, noise_std=args.noise)

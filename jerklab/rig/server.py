@@ -28,7 +28,6 @@ import select
 import socket
 import threading
 import time
-import tty
 
 from jerklab import protocol as P
 from jerklab.rig.virtual import VirtualDevice
@@ -76,6 +75,11 @@ class DeviceServer:
     # ------------------------------------------------------------------ start / stop
     def start_pty(self) -> str:
         """Open a pseudo-terminal, start serving, return the path a client opens."""
+        if not hasattr(os, "openpty"):
+            raise OSError("a pseudo-terminal needs Linux or macOS; on Windows use start_tcp() "
+                          "(`serve --tcp PORT`) or the in-process virtual rig, jerklab.rig.connect()")
+        import tty                          # POSIX only (termios): imported here, not at module load
+
         master, slave = os.openpty()
         tty.setraw(slave)                   # no echo, no line editing: a binary link
         os.set_blocking(master, False)

@@ -104,6 +104,9 @@ class VirtualDevice:
         self.pwm = 0
         self.overruns = 0
         self.rejected = 0                    # good frames answered by NACK
+        # fault injection (tests of `jerklab rig check`; the encoder's is encoder_sign):
+        # supply_fraction < 1 = a weak supply giving only that share of its volts
+        self.supply_fraction = 1.0
         self.motor.step_state(self.x, 0.0, 1e-3)   # warm up (a compiled kernel) before the first run
         self.boot()
 
@@ -448,7 +451,7 @@ class VirtualDevice:
             self._k = k + 1
             self._end(fault, detail)
             return
-        volts = self.pwm / self.pwm_max * self.motor.supply_voltage     # the H-bridge
+        volts = self.pwm / self.pwm_max * self.motor.supply_voltage * self.supply_fraction  # H-bridge
         self.x = self.motor.step_state(self.x, volts, self._Ts, t=self.t)
         self.t += self._Ts
         self._k = k + 1
