@@ -1,8 +1,9 @@
 """Run the benchmarks and keep a record; compare two records.
 
 ``python -m benchmarks [NAME ...]``
-    Run every ``benchmarks/bench_*.py`` (or those named; ``faults``, the fault probe, only
-    when named), print their tables and write the
+    Run every ``benchmarks/bench_*.py`` (or those named; ``faults``, the fault probe, and
+    ``class``, the class load test, only when named; ``--opt=value`` after a name goes to that
+    benchmark: ``class --minutes=0.5 --n=1,10``), print their tables and write the
     run as JSON to ``benchmarks/results/<UTC date>_<host>_<commit>.json``: the machine,
     Python and package versions, the date, the git commit of the jerklab that was
     imported, and every table (modules that print by hand are kept as text).
@@ -29,7 +30,7 @@ from benchmarks import _record
 
 HERE = pathlib.Path(__file__).parent
 #: benchmarks run only when named (``python -m benchmarks faults``: the fault probe takes minutes)
-ON_REQUEST = {"bench_faults"}
+ON_REQUEST = {"bench_faults", "bench_class"}
 RESULTS = HERE / "results"
 
 
@@ -84,7 +85,7 @@ def _machine():
             "load_average": list(load) if load else None}
 
 
-def run(names, out=None, save=True):
+def run(names, out=None, save=True, options=None):
     names = names or sorted(p.stem for p in HERE.glob("bench_*.py") if p.stem not in ON_REQUEST)
     import jerklab
 
@@ -100,8 +101,12 @@ def run(names, out=None, save=True):
         _record.CURRENT["module"] = mod.__name__
         n0 = len(_record.TABLES)
         buf = io.StringIO()
+        opts = (options or {}).get(name)
         with contextlib.redirect_stdout(_Tee(sys.stdout, buf)):
-            mod.main()
+            if opts:
+                mod.main(opts)
+            else:
+                mod.main()
         tables = _record.TABLES[n0:]
         entry = {"tables": tables}
         if not tables:
@@ -172,7 +177,7 @@ def main(argv: list[str]) -> int:
             return 2
         compare(argv[1], argv[2])
         return 0
-    save, out, names = True, None, []
+    save, out, names, options = True, None, [], {}
     it = iter(argv)
     for a in it:
         if a == "--no-save":
@@ -182,9 +187,12 @@ def main(argv: list[str]) -> int:
             if out is None:
                 print("--out needs a path", file=sys.stderr)
                 return 2
+        elif a.startswith("--") and names:
+            # an option of the benchmark named before it (``class --minutes=0.5 --n=1,10``)
+            options.setdefault(names[-1], []).append(a)
         else:
             names.append(a)
-    run(names, out=out, save=save)
+    run(names, out=out, save=save, options=options)
     return 0
 
 

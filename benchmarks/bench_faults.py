@@ -376,7 +376,9 @@ def _targets() -> list[Target]:
                      Param("tau", P), Param("dt", N)]))
     T.append(Target("plant", "advance", PLT.advance,
                     dict(theta=0.0, omega=0.0, v=1.0, fc=0.0, K=32.4, tau=0.025, dt=0.005),
-                    [Param("v", R), Param("K", P), Param("tau", P), Param("dt", N)]))
+                    # vectorized: a list broadcasts (documented), so it is a legal value here
+                    [Param("v", R, ok=("list",)), Param("K", P, ok=("list",)), Param("tau", P, ok=("list",)),
+                     Param("dt", N, ok=("list",))]))
     T.append(Target("plant", "quantize_voltage", PLT.quantize_voltage, dict(u=[1.0], supply_voltage=12.0,
                                                                              pwm_bits=10),
                     [Param("u", A, ok=("empty", "2-D")), Param("supply_voltage", P, ok=("None",)),
@@ -484,19 +486,32 @@ def _targets() -> list[Target]:
     T.append(Target("controller", "velocity_pole_placement_pid", C.velocity_pole_placement_pid,
                     dict(K=32.4, tau=0.025, wn=20.0), [Param("K", P), Param("tau", P), Param("wn", P),
                                                        Param("zeta", P), Param("kd", N)]))
+    # tau = 0 is the documented static inverse u = omega/K (domain tau >= 0), not a wrong value
     T.append(Target("controller", "Feedforward", C.Feedforward, dict(K=32.4, tau=0.025),
-                    [Param("K", P), Param("tau", P)]))
+                    [Param("K", P), Param("tau", P, ok=("0",))]))
     T.append(Target("controller", "DigitalController", lambda gains, output_limit, error_scale:
                     C.DigitalController(gains if gains is not None else _gains(0.005), output_limit=output_limit,
                                         error_scale=error_scale),
                     dict(gains=None, output_limit=12.0, error_scale=1.0),
-                    [Param("gains", O, values=OBJ[1:]), Param("output_limit", P), Param("error_scale", P)]))
-    T.append(Target("controller", "DigitalController.step", lambda ref_position, ref_velocity, ref_accel,
-                    measured_position: C.DigitalController(_gains(0.005), feedforward=C.Feedforward(32.4, 0.025))
-                    .step(ref_position, ref_velocity, ref_accel, measured_position),
+                    # output_limit=None is documented: no clamp
+                    [Param("gains", O, values=OBJ[1:]), Param("output_limit", P, ok=("None",)),
+                     Param("error_scale", P)]))
+    def _ctl_step(ref_position, ref_velocity, ref_accel, measured_position):
+        c = C.DigitalController(_gains(0.005), feedforward=C.Feedforward(32.4, 0.025))
+        return c.step(ref_position, ref_velocity, ref_accel, measured_position), c.fault
+
+    def _ctl_check(result, kw):
+        # a non-finite measurement is held (issue 12 item 8: "rejects or holds ... and says so"):
+        # legal only if the controller reports it in .fault
+        m = kw["measured_position"]
+        if isinstance(m, float) and not math.isfinite(m) and result[1] is None:
+            return f"measured_position={m!r} held without a fault"
+        return None
+
+    T.append(Target("controller", "DigitalController.step", _ctl_step,
                     dict(ref_position=0.1, ref_velocity=0.0, ref_accel=0.0, measured_position=0.0),
                     [Param("ref_position", R), Param("ref_velocity", R), Param("ref_accel", R),
-                     Param("measured_position", R)]))
+                     Param("measured_position", R, ok=("nan", "+inf", "-inf"))], check=_ctl_check))
     T.append(Target("controller", "PositionLoop", lambda K, tau, Ts: C.PositionLoop(K, tau, _gains(), Ts=Ts),
                     dict(K=32.4, tau=0.025, Ts=0.005), [Param("K", P), Param("tau", P), Param("Ts", P, ok=("None",))]))
     T.append(Target("controller", "desired_poles", C.desired_poles, dict(wn=20.0),
@@ -507,16 +522,29 @@ def _targets() -> list[Target]:
     # -- sim
     from jerklab import sim as SM
 
+    def _sim_check(r, kw):
+        # documented: settling_time is inf when the loop never settles within the run, which is
+        # the case of every run that ends before the move does (t_end < duration); any other
+        # non-finite number is wrong
+        m = dict(r.metrics)
+        if math.isinf(m.get("settling_time", 0.0)) and r.t[-1] < r.info["duration"]:
+            del m["settling_time"]
+        bad = _nonfinite(m) or _nonfinite(r.position) or _nonfinite(r.u)
+        return f"result has {bad}" if bad else None
+
+    # t_end >= 0 is the documented domain (t_end = 0: the one sample at t = 0)
     T.append(Target("sim", "simulate", lambda profile, motor, controller, Ts, t_end: SM.simulate(
         profile if profile is not None else _prof(), motor if motor is not None else _motor(),
         controller if controller is not None else _gains(0.005), Ts=Ts, t_end=t_end),
         dict(profile=None, motor=None, controller=None, Ts=None, t_end=None),
         [Param("profile", O, values=OBJ[1:]), Param("motor", O, values=OBJ[1:]),
-         Param("controller", O, values=OBJ[1:]), Param("Ts", P, ok=("None",)), Param("t_end", P, ok=("None",))]))
+         Param("controller", O, values=OBJ[1:]), Param("Ts", P, ok=("None",)), Param("t_end", N, ok=("None",))],
+        check=_sim_check, allow_nonfinite=True))
+    # K=None / tau=None are documented: the template motor's value
     T.append(Target("sim", "simulate_batch", lambda K, tau: SM.simulate_batch(_prof(), _motor(), _gains(0.005),
                                                                                 K=K, tau=tau, engine="numpy"),
                     dict(K=[30.0, 32.4], tau=[0.025, 0.03]),
-                    [Param("K", A, values=ARRAY + AP), Param("tau", A, values=ARRAY + AP)]))
+                    [Param("K", A, values=ARRAY + AP, ok=("None",)), Param("tau", A, values=ARRAY + AP, ok=("None",))]))
     T.append(Target("sim", "perturbed_plants", SM.perturbed_plants, dict(n=3),
                     [Param("n", I1), Param("K", P), Param("tau", P), Param("K_spread", N), Param("tau_spread", N)]))
     T.append(Target("sim", "SampledProfile", SM.SampledProfile, dict(Ts=0.005, position=[0.0, 0.1, 0.2]),
@@ -531,11 +559,14 @@ def _targets() -> list[Target]:
     T.append(Target("ident", "fit_dc_motor", ID.fit_dc_motor, dict(u=u_id, theta=th_id, Ts=0.005),
                     [Param("u", A), Param("theta", A), Param("Ts", P), Param("method", S)]))
     T.append(Target("ident", "arx", ID.arx, dict(y=th_id, u=u_id, na=2, nb=2, nk=1),
-                    [Param("y", A), Param("u", A), Param("na", I1), Param("nb", I1), Param("nk", I0)]))
+                    # documented: na >= 0, nb >= 0 (na + nb >= 1): na = 0 is an FIR model, nb = 0 an AR model
+                    [Param("y", A), Param("u", A), Param("na", I0), Param("nb", I0), Param("nk", I0)]))
+    # K <= 0 is what a fit on a reversed encoder returns (fit_dc_motor warns); simulating that
+    # fitted model (validate, compare) must work, so K is any finite real here
     T.append(Target("ident", "simulate_dc_motor", ID.simulate_dc_motor, dict(K=32.4, tau=0.025, Ts=0.005, u=u_id),
-                    [Param("K", P), Param("tau", P), Param("Ts", P), Param("u", A, ok=("empty",))]))
+                    [Param("K", R), Param("tau", P), Param("Ts", P), Param("u", A, ok=("empty",))]))
     T.append(Target("ident", "dc_motor_zoh_coefficients", ID.dc_motor_zoh_coefficients,
-                    dict(K=32.4, tau=0.025, Ts=0.005), [Param("K", P), Param("tau", P), Param("Ts", P)]))
+                    dict(K=32.4, tau=0.025, Ts=0.005), [Param("K", R), Param("tau", P), Param("Ts", P)]))
     T.append(Target("ident", "IdentData", ID.IdentData, dict(u=u_id, y=th_id, Ts=0.005),
                     [Param("u", A), Param("y", A), Param("Ts", P)]))
     T.append(Target("ident", "step_input", ID.step_input, dict(duration=1.0, Ts=0.005, amplitude=6.0),
@@ -545,17 +576,37 @@ def _targets() -> list[Target]:
                      Param("clock_period", P, ok=("None",))]))
     T.append(Target("ident", "fit_percent", ID.fit_percent, dict(y=[1.0, 2.0, 3.0], y_hat=[1.0, 2.1, 2.9]),
                     [Param("y", A), Param("y_hat", A)]))
+    def _resid_check(r, kw):
+        # documented: without u, cross_bound is NaN (no independence test, crosscorr None)
+        fields = {f.name: getattr(r, f.name) for f in dataclasses.fields(r)}
+        if r.crosscorr is None:
+            fields.pop("cross_bound")
+        bad = _nonfinite(fields)
+        return f"result has {bad}" if bad else None
+
     T.append(Target("ident", "residual_analysis", ID.residual_analysis,
                     dict(residuals=np.sin(np.arange(100.0))),
-                    [Param("residuals", A), Param("max_lag", I1), Param("confidence", P)]))
+                    [Param("residuals", A), Param("max_lag", I1), Param("confidence", P)],
+                    check=_resid_check, allow_nonfinite=True))
     T.append(Target("ident", "sample_time_range", ID.sample_time_range, dict(tau=0.025), [Param("tau", P)]))
 
     # -- widgets
     from jerklab import widgets as W
 
+    def _tuning_check(r, kw):
+        # documented: the responses of a loop reported UNSTABLE grow without bound and may overflow
+        # (level and message say so, the plots clip them); anything else must be finite
+        fields = {f.name: getattr(r, f.name) for f in dataclasses.fields(r)}
+        if r.level == "unstable" and not r.stable:
+            for k in ("y_step", "y_dist", "err_move", "u_move"):
+                fields.pop(k)
+        bad = _nonfinite(fields)
+        return f"result has {bad}" if bad else None
+
     T.append(Target("widgets", "compute_pole_placement", lambda **kw: W.compute_pole_placement(
         simulate_move=False, **kw), dict(), [Param("K", P), Param("tau", P), Param("zeta", P), Param("wn", P),
-                                             Param("sigma_ratio", P), Param("Ts", P), Param("design", S)]))
+                                             Param("sigma_ratio", P), Param("Ts", P), Param("design", S)],
+        check=_tuning_check, allow_nonfinite=True))
     T.append(Target("widgets", "stability_verdict", W.stability_verdict, dict(max_radius=0.9, desired_radius=0.9),
                     [Param("max_radius", N), Param("desired_radius", N)]))
 

@@ -197,6 +197,9 @@ def velocity_pole_placement_pid(K, tau, wn, zeta=1.0, kd=0.0) -> Gains:
         raise ValueError(f"kd must satisfy tau + K*kd > 0, got kd={kd}")
     kp = (2.0 * zeta * wn * lead - 1.0) / K
     ki = lead * wn * wn / K
+    if not (math.isfinite(kp) and math.isfinite(ki)):
+        raise ValueError(f"wn={wn} (K={K}, tau={tau}, kd={kd}) gives gains that overflow "
+                         f"(kp={kp}, ki={ki}); choose a smaller wn")
     return Gains(kp, ki, kd, loop="velocity",
                  design=dict(method="velocity", K=K, tau=tau, wn=wn, zeta=zeta))
 
@@ -271,7 +274,8 @@ def discrete_pole_placement_pid(K, tau, wn, zeta=paper.ZETA, sigma=None, Ts=pape
     try:
         x = np.linalg.solve(M[1:], rhs[1:])
     except np.linalg.LinAlgError:
-        raise ValueError(f"wn={wn}, sigma={sigma}, Ts={Ts}: the pole-placement equations are singular "
+        raise ValueError(f"wn={wn}, sigma={sigma}, Ts={Ts} (K={K}, tau={tau}): the pole-placement equations "
+                         "are singular "
                          "(poles e^(s Ts) coincide with the plant's); choose another wn or Ts") from None
     n = x[:3]
     if extra_pole is None:
@@ -446,6 +450,10 @@ class DigitalController:
         Non-finite references raise ``ValueError``; a non-finite measurement holds the last
         output (see the class notes).
         """
+        for name, val in (("ref_position", ref_position), ("ref_velocity", ref_velocity),
+                          ("ref_accel", ref_accel), ("measured_position", measured_position)):
+            if isinstance(val, (str, bytes)):
+                raise TypeError(f"{name} must be a real number, got the text {val!r}")
         try:
             r = float(ref_position)
             v = float(ref_velocity)
@@ -538,6 +546,9 @@ class _Loop:
         else:
             raise ValueError(f"gains must be Gains or DiscreteGains, got {type(gains).__name__}")
         self._build()
+        if not (np.all(np.isfinite(self._char)) and np.all(np.isfinite(self._Ln))):
+            raise ValueError(f"Ts={self.Ts} (K={self.K}, tau={self.tau}): the loop's polynomials overflow; "
+                             "choose a smaller Ts")
 
     @property
     def discrete(self) -> bool:

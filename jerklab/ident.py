@@ -797,6 +797,11 @@ def _fit_pem(u, theta, Ts, fit_theta0, friction=False):
     return K, tau, cov, th0, sol.nfev, math.sqrt(s2), fc, fc_std, sim(p)
 
 
+#: the sample periods :func:`fit_dc_motor` accepts (s): 1 ns … 1000 s. The fit scales with Ts, and far
+#: outside this range its covariance under/overflows to NaN/inf (Ts = 1e-300 gives K_std = NaN)
+FIT_TS_RANGE = (1e-9, 1e3)
+
+
 def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
                  friction: bool = False, offset: bool = False, delay=0, dead_zone: bool = False,
                  segment=None, max_delay: int = 10, cutoff=None) -> MotorFit:
@@ -873,7 +878,7 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
     ------
     ValueError
         NaN/inf in ``u`` or ``theta``, mismatched lengths, fewer than 10 samples, constant ``u``
-        or ``theta``, a non-positive ``Ts``, an unknown ``method`` or option, or data from which
+        or ``theta``, a ``Ts`` outside ``FIT_TS_RANGE``, an unknown ``method`` or option, or data from which
         the ARX pole falls outside (0, 1).
 
     References
@@ -897,6 +902,10 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
         delay = as_int("delay", delay, minimum=0)
     max_delay = as_int("max_delay", max_delay, minimum=0)
     Ts = as_positive("Ts", Ts)
+    if not FIT_TS_RANGE[0] <= Ts <= FIT_TS_RANGE[1]:
+        # the fit scales with Ts (tau ~ Ts); far outside this range its covariance under/overflows
+        raise ValueError(f"Ts must lie within {FIT_TS_RANGE[0]:g} … {FIT_TS_RANGE[1]:g} s (FIT_TS_RANGE: the "
+                         f"sample period of a motor record), got {Ts:g}")
     exps = _as_experiments(u, theta)
     for i, (uu, tt) in enumerate(exps):
         suffix = "" if len(exps) == 1 else f"[{i}]"
@@ -1584,6 +1593,8 @@ class ResidualAnalysis:
     zeta = N r^T R_u^+ r ~ chi2(rank R_u) (Ljung §16.6), each passed when its p-value exceeds
     1 - ``confidence``. Checked by simulation on white residuals: the whiteness test holds its level,
     the cross-correlation test is slightly conservative (about 3 % rejections at a nominal 5 %).
+    Without an input (``residual_analysis(e)``) there is no independence test: ``crosscorr`` and
+    ``independent`` are None and ``cross_bound`` is NaN.
     """
 
     lags: np.ndarray
@@ -2068,6 +2079,24 @@ def sample_time_range(tau):
     return tau / 5.0, tau / 2.0
 
 
+#: the longest input record :func:`step_input` and :func:`prbs` build (samples): 10⁷ samples are
+#: 14 h at Ts = 5 ms and 80 MB of float64; a longer request is refused up front
+MAX_INPUT_SAMPLES = 10_000_000
+
+
+def _input_samples(duration, Ts):
+    """``round(duration / Ts)``, refused (naming duration and Ts) outside 2 … MAX_INPUT_SAMPLES."""
+    ratio = duration / Ts
+    if not ratio < MAX_INPUT_SAMPLES + 0.5:
+        raise ValueError(f"duration / Ts = {duration:g} s / {Ts:g} s is more than MAX_INPUT_SAMPLES = "
+                         f"{MAX_INPUT_SAMPLES} samples; choose a shorter duration or a longer Ts")
+    n = int(round(ratio))
+    if n < 2:
+        raise ValueError(f"duration must be at least 2 samples of Ts ({2 * Ts:g} s), got duration={duration:g} s "
+                         f"with Ts={Ts:g} s")
+    return n
+
+
 def step_input(duration, Ts, amplitude, t_step=0.05, offset=0.0) -> np.ndarray:
     """A voltage step: ``offset`` until ``t_step``, then ``offset + amplitude`` (V per sample).
 
@@ -2079,9 +2108,7 @@ def step_input(duration, Ts, amplitude, t_step=0.05, offset=0.0) -> np.ndarray:
     amplitude = as_real("amplitude", amplitude)
     t_step = as_nonnegative("t_step", t_step)
     offset = as_real("offset", offset)
-    n = int(round(duration / Ts))
-    if n < 2:
-        raise ValueError(f"duration must be at least 2 samples ({2 * Ts:g} s), got {duration:g} s")
+    n = _input_samples(duration, Ts)
     if t_step >= duration:
         raise ValueError(f"t_step must be < duration ({duration:g} s), got {t_step:g} s")
     u = np.full(n, offset)
@@ -2114,13 +2141,13 @@ def prbs(duration, Ts, amplitude, offset=0.0, clock_period=None, nbits=None, see
     amplitude = as_positive("amplitude", amplitude)
     offset = as_real("offset", offset)
     seed = as_int("seed", seed, minimum=0)
-    n = int(round(duration / Ts))
-    if n < 2:
-        raise ValueError(f"duration must be at least 2 samples ({2 * Ts:g} s), got {duration:g} s")
+    n = _input_samples(duration, Ts)
     if clock_period is None:
         hold = 1
     else:
         clock_period = as_positive("clock_period", clock_period)
+        if clock_period > duration:
+            raise ValueError(f"clock_period must be <= duration ({duration:g} s), got {clock_period:g} s")
         hold = int(round(clock_period / Ts))
         if hold < 1 or abs(hold * Ts - clock_period) > 1e-6 * clock_period:
             raise ValueError(f"clock_period must be a whole multiple of Ts = {Ts:g} s, got {clock_period:g} s")

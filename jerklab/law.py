@@ -8,7 +8,7 @@ Stojcic eq. 1, Stojcic eq. 16, Stojcic eq. 17, Stojcic eq. 18.
 Every Python user of the law calls these functions: :class:`jerklab.controller.DigitalController`
 (one sample at a time), the compiled kernels of :mod:`jerklab.sim` (one run, and many plants
 at once), the numpy batch engine (:func:`pid_step_vec`) and the virtual rig
-(:mod:`jerklab.rig.virtual`). The C++ firmware (``firmware/core/jl_control.cpp``) is the
+(:mod:`jerklab.rig.virtual`). The C++ firmware (``firmware/jerklab_rig/src/jl_control.cpp``) is the
 intended second implementation; golden vectors pin the two together.
 
 Forms

@@ -665,6 +665,12 @@ def shape_rampup(model: PZTModel | None = None, spec: ScanSpec | None = None, or
         scan_start = as_real("scan_start", scan_start)
     poles = model.mode_poles(spec.Ts)
     w, G1, beta = _ramp_constants(model, spec)
+    if scan_start is not None:
+        # y(T) = G1 a + beta with the ramp level a within -F_max … F_max - (S-1) w (eq. 5 on the scan)
+        ends = sorted((G1 * -spec.F_max + beta, G1 * (spec.F_max - (spec.scan_samples - 1) * w) + beta))
+        if not ends[0] - 1e-9 <= scan_start <= ends[1] + 1e-9:
+            raise _Unreachable(f"scan_start must lie within {ends[0]:.6g} … {ends[1]:.6g} µm (the scan ramp within "
+                             f"|u| <= F_max = {spec.F_max:g} V), got {scan_start:g}")
     count = [0]
 
     def feasible(N, how):
@@ -675,6 +681,17 @@ def shape_rampup(model: PZTModel | None = None, spec: ScanSpec | None = None, or
     a = float(x[-1])
     return RampUp(u=x[:-1].copy(), a=a, w=w, scan_start=G1 * a + beta, orders=orders,
                   lp_count=count[0])
+
+
+class _Unreachable(ValueError):
+    """A ``scan_start`` outside the range the scan ramp reaches under ``|u| <= F_max``."""
+
+
+def _check_return_level(b, w, F_max):
+    """Refuse a ramp level ``b`` no scan under ``|u| <= F_max`` can end at (its last sample + one slope)."""
+    if abs(b) > F_max + abs(w) + 1e-9:
+        raise ValueError(f"b must lie within ±(F_max + w) = ±{F_max + abs(w):.6g} V (the scan ramp's level one "
+                         f"sample after its last sample, |u| <= F_max = {F_max:g} V), got {b:g}")
 
 
 def shape_return(b: float, model: PZTModel | None = None, spec: ScanSpec | None = None,
@@ -697,6 +714,7 @@ def shape_return(b: float, model: PZTModel | None = None, spec: ScanSpec | None 
     poles = model.mode_poles(spec.Ts)
     w, _, _ = _ramp_constants(model, spec)
     F = spec.F_max
+    _check_return_level(b, w, F)
     count = [0]
 
     def feasible(N_r, how):
@@ -873,7 +891,7 @@ def rampup_time_vs_scan_start(scan_starts, orders=1, model: PZTModel | None = No
     for i, y0 in enumerate(scan_starts):
         try:
             r = shape_rampup(model, spec, orders, scan_start=float(y0), max_samples=max_samples)
-        except RuntimeError:
+        except (RuntimeError, _Unreachable):
             continue
         out[i] = r.N * spec.Ts
     return out
@@ -1037,6 +1055,7 @@ def energy_optimal_return(b: float, k_r: int, model: PZTModel | None = None,
     if objective not in ("input", "increment"):
         raise ValueError(f"objective must be 'input' or 'increment', got {objective!r}")
     w, _, _ = _ramp_constants(model, spec)
+    _check_return_level(b, w, spec.F_max)
     E, f = robustness_rows_return(k_r, model.mode_poles(spec.Ts), orders, w)
     E_u, f_u = E[:, :-1], f - E[:, -1] * b
     F = spec.F_max

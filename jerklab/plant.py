@@ -103,6 +103,11 @@ def advance_em(theta, omega, v, fc, K, tau, dt, em_dt):
 
 
 @_jit
+def _advance_scalar(theta, omega, v, fc, K, tau, dt):
+    """The compiled kernel of :func:`advance_scalar`, without argument checks (the hot path)."""
+    return advance_em(theta, omega, v, fc, K, tau, dt, -math.expm1(-dt / tau))
+
+
 def advance_scalar(theta, omega, v, fc, K, tau, dt):
     """Advance the rigid motor by ``dt`` under a held net voltage ``v`` (scalar floats).
 
@@ -111,18 +116,48 @@ def advance_scalar(theta, omega, v, fc, K, tau, dt):
     and sticking at ``omega = 0`` while ``|v| <= fc`` (static = kinetic friction).
     Written in plain arithmetic so :mod:`jerklab.sim` compiles it with numba.
 
+    The arguments are checked (finite reals; ``fc``, ``dt`` >= 0; ``K``, ``tau`` > 0,
+    else a ``ValueError`` naming the argument); the simulators call the unchecked
+    compiled kernel.
+
     Returns
     -------
     (theta, omega) after ``dt``.
     """
-    return advance_em(theta, omega, v, fc, K, tau, dt, -math.expm1(-dt / tau))
+    theta, omega, v = as_real("theta", theta), as_real("omega", omega), as_real("v", v)
+    fc, dt = as_nonnegative("fc", fc), as_nonnegative("dt", dt)
+    K, tau = as_positive("K", K), as_positive("tau", tau)
+    return _advance_scalar(theta, omega, v, fc, K, tau, dt)
+
+
+def _checked_array(name, value, low=None, strict=False):
+    """``as_finite_array`` with every entry ``> low`` (``strict``) or ``>= low``."""
+    a = as_finite_array(name, value)
+    if low is not None and a.size:
+        bad = a <= low if strict else a < low
+        if np.any(bad):
+            raise ValueError(f"{name} must be {'>' if strict else '>='} {low:g}, got {a[bad].ravel()[0]!r}")
+    return a
 
 
 def advance(theta, omega, v, fc, K, tau, dt):
     """Vectorized :func:`advance_scalar`: every argument broadcasts (numpy arrays).
 
-    Used by the batch simulation over many perturbed plants.
+    Used by the batch simulation over many perturbed plants. The arguments are checked
+    as in :func:`advance_scalar`, entry by entry (a ``ValueError`` naming the argument).
     """
+    checked = (_checked_array("theta", theta), _checked_array("omega", omega), _checked_array("v", v),
+               _checked_array("fc", fc, 0.0), _checked_array("K", K, 0.0, strict=True),
+               _checked_array("tau", tau, 0.0, strict=True), _checked_array("dt", dt, 0.0))
+    try:
+        np.broadcast_shapes(*(a.shape for a in checked))
+    except ValueError as exc:
+        raise ValueError(f"theta, omega, v, fc, K, tau, dt must broadcast together: {exc}") from None
+    return _advance(*checked)
+
+
+def _advance(theta, omega, v, fc, K, tau, dt):
+    """The kernel of :func:`advance`, without argument checks (the batch simulator's hot path)."""
     theta, omega, v, fc, K, tau, dt = np.broadcast_arrays(
         *(np.asarray(a, dtype=float) for a in (theta, omega, v, fc, K, tau, dt)))
 
@@ -439,12 +474,12 @@ class DCMotor(_MotorBase):
         d = self.load_disturbance
         if d is not None and t < d.time < t + dt:
             first = d.time - t
-            th, om = advance_scalar(th, om, u + float(d(t)), self.coulomb_friction, self.K, self.tau, first)
-            th, om = advance_scalar(th, om, u + d.amplitude, self.coulomb_friction, self.K, self.tau,
+            th, om = _advance_scalar(th, om, u + float(d(t)), self.coulomb_friction, self.K, self.tau, first)
+            th, om = _advance_scalar(th, om, u + d.amplitude, self.coulomb_friction, self.K, self.tau,
                                     dt - first)
         else:
             w = 0.0 if d is None else float(d(t))
-            th, om = advance_scalar(th, om, u + w, self.coulomb_friction, self.K, self.tau, dt)
+            th, om = _advance_scalar(th, om, u + w, self.coulomb_friction, self.K, self.tau, dt)
         return np.array([th, om])
 
 

@@ -41,7 +41,7 @@ from jerklab.law import HAVE_NUMBA, _jit  # one switch for every compiled kernel
 from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
 from jerklab.controller import DigitalController, DiscreteGains, Gains
 from jerklab.planner import Profile
-from jerklab.plant import DCMotor, FlexibleDCMotor, advance, advance_em
+from jerklab.plant import DCMotor, FlexibleDCMotor, _advance, advance_em
 from jerklab.plots import plot_simulation
 
 __all__ = ["simulate", "simulate_batch", "SimResult", "BatchResult", "perturbed_plants",
@@ -944,11 +944,11 @@ def _batch_numpy(rpos, rvel, racc, Kv, tv, fv, noise, common, ctl):
         t0 = k * Ts
         if common["dist_on"] and t0 < common["dist_time"] < t0 + Ts:
             first = common["dist_time"] - t0
-            th, om = advance(th, om, v, fv, Kv, tv, first)
-            th, om = advance(th, om, v + common["dist_amp"], fv, Kv, tv, Ts - first)
+            th, om = _advance(th, om, v, fv, Kv, tv, first)
+            th, om = _advance(th, om, v + common["dist_amp"], fv, Kv, tv, Ts - first)
         else:
             w = common["dist_amp"] if (common["dist_on"] and t0 >= common["dist_time"]) else 0.0
-            th, om = advance(th, om, v + w, fv, Kv, tv, Ts)
+            th, om = _advance(th, om, v + w, fv, Kv, tv, Ts)
     return POS, U
 
 

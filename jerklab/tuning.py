@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from jerklab import paper
-from jerklab._validate import as_positive, as_real
+from jerklab._validate import as_nonnegative, as_positive
 
 __all__ = [
     "DESIGNS",
@@ -211,8 +211,8 @@ def stability_verdict(max_radius, desired_radius, Ts=None, sigma=None):
     message : str
         What the loop does; what would help is :func:`advise`'s job (it depends on the design).
     """
-    r = as_real("max_radius", max_radius)
-    rd = as_real("desired_radius", desired_radius)
+    r = as_nonnegative("max_radius", max_radius)          # |z| of a pole: never negative
+    rd = as_nonnegative("desired_radius", desired_radius)
     extra = ""
     if Ts is not None and sigma is not None:
         extra = f" (σ·Ts = {sigma * Ts:.2f})"
@@ -260,8 +260,9 @@ class Suggestion:
     text: str
 
 
-def _grid_below(value, lo, step):
-    """Slider values below ``value`` down to ``lo``, nearest first."""
+def _grid_below(value, lo, step, hi):
+    """Slider values below ``value`` down to ``lo``, nearest first (none above the slider's ``hi``)."""
+    value = min(value, hi + step)        # a value far above the slider (wn = 1e9) must not build 1e9 values
     n = int(math.floor((value - lo) / step + 1e-9))
     vals = [round(lo + k * step, 10) for k in range(n, -1, -1)]
     return [v for v in vals if v < value - 1e-9]
@@ -293,18 +294,18 @@ def _advise(K, tau, zeta, wn, sigma_ratio, Ts, design):
         p.update(change)
         return _level(K, tau, p["zeta"], p["wn"], p["sigma_ratio"], p["Ts"], p["design"])
 
-    lo, _, step = SLIDER_RANGES["wn"]
-    w = _first_ok(_grid_below(wn, lo, step), lambda v: ok(wn=v)[0] == "ok")
+    lo, hi, step = SLIDER_RANGES["wn"]
+    w = _first_ok(_grid_below(wn, lo, step, hi), lambda v: ok(wn=v)[0] == "ok")
     if w is not None:
         r = ok(wn=w)[1]
         out.append(Suggestion("wn", w, r, f"ωn ≤ {w:g} rad/s (|z| = {r:.3f})"))
-    lo, _, step = SLIDER_RANGES["Ts_ms"]
-    t = _first_ok(_grid_below(1e3 * Ts, lo, step), lambda v: ok(Ts=1e-3 * v)[0] == "ok")
+    lo, hi, step = SLIDER_RANGES["Ts_ms"]
+    t = _first_ok(_grid_below(1e3 * Ts, lo, step, hi), lambda v: ok(Ts=1e-3 * v)[0] == "ok")
     if t is not None:
         r = ok(Ts=1e-3 * t)[1]
         out.append(Suggestion("Ts", 1e-3 * t, r, f"Ts ≤ {t:g} ms (|z| = {r:.3f})"))
-    lo, _, step = SLIDER_RANGES["sigma_ratio"]
-    s = _first_ok(_grid_below(sigma_ratio, lo, step), lambda v: ok(sigma_ratio=v)[0] == "ok")
+    lo, hi, step = SLIDER_RANGES["sigma_ratio"]
+    s = _first_ok(_grid_below(sigma_ratio, lo, step, hi), lambda v: ok(sigma_ratio=v)[0] == "ok")
     if s is not None:
         r = ok(sigma_ratio=s)[1]
         out.append(Suggestion("sigma_ratio", s, r, f"σ/ωn ≤ {s:g} (|z| = {r:.3f})"))
@@ -381,7 +382,8 @@ class TuningResult:
         Unit step response reference -> position of the sampled loop (no feedforward).
     t_dist, y_dist : ndarray
         Position (rad) after a step load disturbance of ``DISTURBANCE_VOLTS`` at the plant input.
-        Both responses run to 3 × ``t_view``.
+        Both responses run to 3 × ``t_view``. For a loop with ``level == "unstable"`` they grow
+        without bound and may overflow to inf/NaN (the plots clip them).
     t_move, err_move, u_move : ndarray
         Tracking error reference − true angle (rad) and voltage (V) of the sine-jerk move
         simulated by :func:`jerklab.sim.simulate` (feedforward + PID, 10-bit PWM, 12 V,

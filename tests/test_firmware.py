@@ -241,7 +241,7 @@ def test_host_driver_detects_a_wrong_vector(host_driver, tmp_path):
 # ----------------------------------------------------------------------------- device state machine
 
 class HostDevice:
-    """Scripts the firmware's state machine (core/jl_device, host build) with jerklab.protocol
+    """Scripts the firmware's state machine (jerklab_rig/src/jl_device, host build) with jerklab.protocol
     frames; the driver integrates an exact ZOH DC motor (K = 32.4, tau = 0.025, 12 V)."""
 
     def __init__(self, driver):

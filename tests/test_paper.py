@@ -110,7 +110,7 @@ def test_sim_and_rig_defaults():
 
 def test_firmware_header_defaults():
     """The firmware's defaults (parsed from jl_device.h) are the paper's numbers."""
-    text = (ROOT / "firmware" / "core" / "jl_device.h").read_text()
+    text = (ROOT / "firmware" / "jerklab_rig" / "src" / "jl_device.h").read_text()
 
     def num(name):
         m = re.search(rf"\b{name}\s*=\s*([0-9.eE+-]+)f?\b", text)

@@ -96,7 +96,7 @@ def test_protocol_version_is_stated_once():
     """PROTOCOL.md's title, protocol.py and the firmware core name the same version."""
     text = open(os.path.join(ROOT, "firmware", "PROTOCOL.md"), encoding="utf-8").read()
     assert re.search(r"^# jerklab rig protocol, version (\d+)$", text, re.M).group(1) == str(P.PROTOCOL_VERSION)
-    hdr = open(os.path.join(ROOT, "firmware", "core", "jl_protocol.h"), encoding="utf-8").read()
+    hdr = open(os.path.join(ROOT, "firmware", "jerklab_rig", "src", "jl_protocol.h"), encoding="utf-8").read()
     assert re.search(r"kProtocolVersion = (\d+);", hdr).group(1) == str(P.PROTOCOL_VERSION)
     assert re.search(r"kMaxPlanSamples = (\d+)UL;", hdr).group(1) == str(P.MAX_PLAN_SAMPLES)
 

@@ -6,7 +6,7 @@
 //                          frame encoding/decoding); prints one summary line per kind with the
 //                          worst error and exits 1 if any record is outside its tolerance.
 //   jl_host device [K tau supply [encoder]]
-//                          run the device state machine (core/jl_device) against a simulated
+//                          run the device state machine (jerklab_rig/src/jl_device) against a simulated
 //                          motor (exact ZOH DC motor, Stojčić eq. 1) driven by a script on stdin:
 //                            rx HEX    bytes arriving from the host now
 //                            ms N      let N milliseconds (1 ms timer ticks) pass

@@ -24,7 +24,7 @@
 #include <avr/sleep.h>
 #include <util/atomic.h>
 
-#include "jl_device.h"
+#include "src/jl_device.h"
 
 #ifndef JL_ENCODER_PPR
 #define JL_ENCODER_PPR 448

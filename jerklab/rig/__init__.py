@@ -22,6 +22,7 @@ import os
 import sys
 
 from jerklab import paper
+from jerklab._validate import as_positive
 from jerklab.rig.client import (PortBusyError, Rig, RigBusyError, RigCommandError, RigConnectionError,
                                 RigError, RigRunError, RigTimeoutError, UnknownPortError,
                                 UnstableDesignError)
@@ -34,6 +35,9 @@ __all__ = ["connect", "Rig", "Recording", "recordings_dir", "compare", "plot_com
            "BAUDRATE"]
 
 BAUDRATE = 115200
+#: the shortest reply ``timeout`` / ``hello_timeout`` accepted (s): an ACK frame takes about 1 ms at
+#: 115 200 baud, so a shorter wait cannot be met by any rig
+MIN_TIMEOUT = 1e-3
 _VIRTUAL_NAMES = (None, "virtual")
 _URL_SCHEMES = ("socket", "rfc2217", "loop", "spy", "alt", "hwgrep", "cp2110")
 
@@ -102,7 +106,13 @@ def connect(port=None, *, student=None, motor=None, speed=None, timeout=2.0, hel
     RigTimeoutError
         The port opened but no jerklab rig answered HELLO; the message says what was tried
         and what to check.
+    ValueError
+        ``timeout`` or ``hello_timeout`` not a number >= ``MIN_TIMEOUT`` (1 ms).
     """
+    for name, value in (("timeout", timeout), ("hello_timeout", hello_timeout)):
+        if value is not None and as_positive(name, value) < MIN_TIMEOUT:
+            raise ValueError(f"{name} must be >= MIN_TIMEOUT = {MIN_TIMEOUT:g} s (one frame at {BAUDRATE} baud), "
+                             f"got {value!r}")
     if student is not None:
         if motor is not None:
             raise ValueError("give either student (a hidden motor) or motor, not both")

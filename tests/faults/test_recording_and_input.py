@@ -441,3 +441,137 @@ def test_piezo_and_hysteresis_arguments_are_named():
         H.Preisach.uniform(-1.0, 1.0, n=5).peek("0.5")
     with pytest.raises(ValueError, match="x"):
         as_finite_array("x", ["1", "2"])
+
+
+# ----------------------------------------------------------------------------------------------
+# h-probe2: the remaining probe cases (plant kernels, piezo, controller, ident); each failed before
+# ----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name, bad", [
+    ("theta", math.nan), ("omega", "1.0"), ("v", None), ("v", [1.0, 2.0]), ("fc", -1.0), ("K", 0.0),
+    ("K", -1.0), ("tau", 0.0), ("tau", math.inf), ("dt", -1.0), ("dt", math.nan)])
+def test_probe2_advance_scalar_names_the_bad_argument(name, bad):
+    from jerklab.plant import advance_scalar
+
+    kw = dict(theta=0.0, omega=0.0, v=1.0, fc=0.0, K=32.4, tau=0.025, dt=0.005)
+    kw[name] = bad
+    with pytest.raises(ValueError, match=name):      # was a numba TypingError, ZeroDivisionError or NaN
+        advance_scalar(**kw)
+
+
+@pytest.mark.parametrize("name, bad", [
+    ("v", "1.0"), ("v", [0.0, math.inf]), ("K", [32.4, 0.0]), ("K", "3"), ("tau", -0.025), ("dt", [-1.0]),
+    ("fc", [-0.1]), ("theta", None)])
+def test_probe2_advance_names_the_bad_argument(name, bad):
+    from jerklab.plant import advance
+
+    kw = dict(theta=0.0, omega=0.0, v=1.0, fc=0.0, K=32.4, tau=0.025, dt=0.005)
+    kw[name] = bad
+    with pytest.raises(ValueError, match=name):      # was accepted (text parsed, K <= 0) or NaN out
+        advance(**kw)
+
+
+def test_probe2_checked_kernels_still_agree_with_the_zoh_closed_form():
+    # independent: the friction-free step is the ZOH solution of K/(s(tau s + 1))
+    from jerklab.plant import advance, advance_scalar
+
+    K, tau, dt, v, om0 = 32.4, 0.025, 0.005, 2.5, 3.0
+    a = math.exp(-dt / tau)
+    om1 = a * om0 + K * (1 - a) * v
+    th1 = tau * (1 - a) * om0 + K * (dt - tau * (1 - a)) * v
+    assert np.allclose(advance_scalar(0.0, om0, v, 0.0, K, tau, dt), (th1, om1), rtol=1e-12)
+    th, om = advance(0.0, [om0, om0], [v, v], 0.0, [K, K], tau, dt)
+    assert np.allclose(th, th1, rtol=1e-12) and np.allclose(om, om1, rtol=1e-12)
+
+
+def test_probe2_piezo_refuses_unreachable_levels_up_front():
+    from jerklab import piezo as Z
+
+    # was RuntimeError("no feasible horizon") after a search over 400 horizons
+    with pytest.raises(ValueError, match="b must lie within"):
+        _within(10, lambda: Z.shape_return(1e300))
+    with pytest.raises(ValueError, match="b must lie within"):
+        _within(10, lambda: Z.energy_optimal_return(1e300, 40))
+    with pytest.raises(ValueError, match="scan_start"):
+        _within(10, lambda: Z.shape_rampup(scan_start=1e300))
+    # the sweep still reports an unreachable y(T) as NaN (its documented answer)
+    t = Z.rampup_time_vs_scan_start([1e300])
+    assert np.isnan(t[0])
+
+
+def test_probe2_controller_names_the_parameter():
+    from jerklab import controller as C
+
+    with pytest.raises(ValueError, match="wn"):        # was "ki must be finite, got inf"
+        C.velocity_pole_placement_pid(32.4, 0.025, 1e300)
+    with pytest.raises(ValueError, match="tau"):       # the singular-design message did not name tau
+        C.discrete_pole_placement_pid(32.4, 1e300, 20.0)
+    with pytest.raises(ValueError, match="Ts"):        # was a loop with inf polynomials
+        C.PositionLoop(32.4, 0.025, pole_placement_pid(32.4, 0.025, 20.0), Ts=1e300)
+    c = C.DigitalController(pole_placement_pid(32.4, 0.025, 20.0).discretize(0.005))
+    for name in ("ref_position", "ref_velocity", "ref_accel", "measured_position"):
+        kw = dict(ref_position=0.1, ref_velocity=0.0, ref_accel=0.0, measured_position=0.0)
+        kw[name] = "1.0"
+        with pytest.raises(TypeError, match=name):    # text was parsed by float()
+            c.step(**kw)
+
+
+def test_probe2_ident_inputs_refuse_huge_records_up_front():
+    from jerklab import ident as I
+
+    for f in (I.step_input, I.prbs):
+        with pytest.raises(ValueError, match="MAX_INPUT_SAMPLES"):   # was a raw MemoryError
+            _within(10, lambda: f(1e9, 0.005, 6.0))
+        with pytest.raises(ValueError, match="Ts"):                 # was "Maximum allowed dimension"
+            _within(10, lambda: f(1.0, 1e-300, 6.0))
+        with pytest.raises(ValueError, match="Ts"):                 # said only "duration"
+            f(1.0, 1e9, 6.0)
+    with pytest.raises(ValueError, match="clock_period"):           # was OverflowError / MemoryError
+        _within(10, lambda: I.prbs(1.0, 0.005, 6.0, clock_period=1e300))
+    assert I.step_input(1.0, 0.005, 6.0).size == 200
+
+
+def test_probe2_fit_dc_motor_refuses_a_sample_period_it_cannot_represent():
+    from jerklab import ident as I
+
+    u = np.r_[np.zeros(10), 6.0 * np.ones(200)]
+    th = I.simulate_dc_motor(32.4, 0.025, 0.005, u)[:u.size]
+    for Ts in (1e-300, 1e300):                      # were K_std = NaN / tau_std = inf, no warning
+        with pytest.raises(ValueError, match="Ts"):
+            I.fit_dc_motor(u, th, Ts)
+    f = I.fit_dc_motor(u, th, 0.005)                # the exact simulation is fitted back
+    assert f.K == pytest.approx(32.4, rel=1e-6) and f.tau == pytest.approx(0.025, rel=1e-6)
+
+
+def test_probe2_widgets_and_connect_refuse_impossible_values():
+    from jerklab import rig as RG
+    from jerklab import tuning as W
+
+    for name in ("max_radius", "desired_radius"):       # |z| < 0 was classified as a verdict
+        kw = dict(max_radius=0.9, desired_radius=0.9)
+        kw[name] = -1.0
+        with pytest.raises(ValueError, match=name):
+            W.stability_verdict(**kw)
+    with pytest.raises(ValueError, match="Ts"):         # was numpy LinAlgError
+        W.compute_pole_placement(Ts=1e300, simulate_move=False)
+    with pytest.raises(ValueError, match="hello_timeout"):   # 0 silently meant the default
+        RG.connect(None, hello_timeout=0, progress=False)
+    with pytest.raises(ValueError, match="timeout"):    # was RigTimeoutError "no reply within 1e-300 s"
+        RG.connect(None, timeout=1e-300, progress=False)
+    RG.connect(None, timeout=RG.MIN_TIMEOUT * 100, hello_timeout=1.0, progress=False).close()
+
+
+@pytest.mark.parametrize("kw", [dict(wn=1e9), dict(sigma_ratio=1e9), dict(sigma_ratio=1e300), dict(Ts=1e9)])
+def test_probe2_tuning_advice_far_above_the_sliders_answers_at_once(kw):
+    from jerklab import tuning as T
+
+    # was a hang: the advice listed every slider step below wn = 1e9 (1e9 values)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        r = _within(20, lambda: T.compute_pole_placement(simulate_move=False, **kw))
+    assert r.level == "unstable"
+    for s in T.advise(T.paper.MOTOR_K, T.paper.MOTOR_TAU, r.params["zeta"], r.params["wn"],
+                      r.params["sigma_ratio"], r.params["Ts"], r.params["design"]):
+        lo, hi, _ = T.SLIDER_RANGES.get(s.change, (-math.inf, math.inf, 0)) if s.change != "Ts" else \
+            (T.SLIDER_RANGES["Ts_ms"][0] * 1e-3, T.SLIDER_RANGES["Ts_ms"][1] * 1e-3, 0)
+        if s.change != "design":
+            assert lo - 1e-12 <= s.value <= hi + 1e-12 and s.max_radius < 1.0
