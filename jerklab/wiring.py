@@ -1,6 +1,6 @@
 """The rig's wiring, as data and as a drawing (docs/RIG.md).
 
-:data:`CONNECTIONS` lists every wire of the Stojčić (2015) positioning rig: an Arduino Uno,
+:data:`CONNECTIONS` lists every wire of the Stojčić (ASCII: Stojcic, 2015) positioning rig: an Arduino Uno,
 an L298N dual H-bridge module, a 12 V supply and a DC gearmotor with a quadrature encoder.
 :func:`wiring_diagram` draws exactly those wires with matplotlib (no extra dependency);
 ``tests/test_wiring.py`` reads the pins back from the drawing and checks them against the pin
