@@ -666,7 +666,7 @@ def shape_rampup(model: PZTModel | None = None, spec: ScanSpec | None = None, or
     poles = model.mode_poles(spec.Ts)
     w, G1, beta = _ramp_constants(model, spec)
     if scan_start is not None:
-        # y(T) = G1 a + beta with the ramp level a within -F_max … F_max - (S-1) w (eq. 5 on the scan)
+        # y(T) = G1 a + beta with the ramp level a within -F_max … F_max - (S-1) w (Xu & Meckl eq. 5 on the scan)
         ends = sorted((G1 * -spec.F_max + beta, G1 * (spec.F_max - (spec.scan_samples - 1) * w) + beta))
         if not ends[0] - 1e-9 <= scan_start <= ends[1] + 1e-9:
             raise _Unreachable(f"scan_start must lie within {ends[0]:.6g} … {ends[1]:.6g} µm (the scan ramp within "
