@@ -109,6 +109,10 @@ class VirtualDevice:
         # supply_fraction < 1 = a weak supply giving only that share of its volts
         self.supply_fraction = 1.0
         self.motor.step_state(self.x, 0.0, 1e-3)   # warm up (a compiled kernel) before the first run
+        # python-control (imported on first use since the layering change) is loaded now, at
+        # power-on: importing it in the middle of a run stalls the served device for ~1 s,
+        # long enough for its own host watchdog to end the run (HOST_TIMEOUT).
+        import control  # noqa: F401
         self.boot()
 
     # ------------------------------------------------------------------ state
