@@ -519,7 +519,14 @@ def test_class_page_queues_two_students_on_one_rig(browser, class_page, artifact
                 "() => document.querySelector('.jerklab-rig-status').textContent"
                 ".includes('max |ref. − encoder|')", timeout=90_000)
         seen = [w.page.evaluate("window.__statuses") for w in pages]
-        assert any(any("queued: 1 ahead of you" in t for t in s) for s in seen), seen
+        # Both runs went through the broker's queue and were run by it. How many were ahead
+        # ("queued: next" or "queued: 1 ahead of you") depends on whether the two kernels'
+        # requests reached the broker while the other run was still going, which a page cannot
+        # control (CI found one run over before the other was sent); the count itself is pinned
+        # with concurrent clients in tests/test_broker.py.
+        for s in seen:
+            assert any(t.startswith("queued: ") for t in s), seen
+            assert any(t.startswith("running on the rig") for t in s), seen
         for w in pages:
             assert not w.kernel_errors and not w.page_errors
     finally:
