@@ -16,6 +16,7 @@ import time
 import warnings
 from pathlib import Path
 
+from jerklab import paper
 from jerklab import protocol as P
 from jerklab._validate import as_nonnegative, as_positive, as_real
 from jerklab.rig.progress import NoProgress as _NoProgress
@@ -119,7 +120,9 @@ class Rig:
         Directory for recordings (default ``$JERKLAB_RECORDINGS`` or ``./recordings``).
     """
 
-    def __init__(self, link, port="?", *, supply_voltage=12.0, counts_per_rev=448, model=(32.4, 0.025),
+    def __init__(self, link, port="?", *, supply_voltage=paper.SUPPLY_VOLTAGE,
+                 counts_per_rev=paper.ENCODER_PPR * paper.ENCODER_DECODING,
+                 model=(paper.MOTOR_K, paper.MOTOR_TAU),
                  timeout=2.0, hello_timeout=3.0, progress=True, recordings=None, on_close=None):
         self.link = link
         self.port = str(port)
@@ -380,7 +383,7 @@ class Rig:
                              f"got {Ts!r} s")
         return us
 
-    def configure(self, gains, Ts=0.005, *, feedforward=True, max_voltage=None, limits=None,
+    def configure(self, gains, Ts=paper.TS, *, feedforward=True, max_voltage=None, limits=None,
                   host_timeout=1.0, max_error=P.DEFAULT_MAX_ERROR,
                   runaway_time=P.DEFAULT_RUNAWAY_MS / 1000.0,
                   saturation_time=P.DEFAULT_SATURATION_MS / 1000.0):
@@ -418,7 +421,7 @@ class Rig:
         sat = as_nonnegative("saturation_time", saturation_time)
         if sat > 65.535:
             raise ValueError(f"saturation_time must be <= 65.535 s, got {sat}")
-        J, E, W = limits if limits is not None else (2e4, 300.0, 100.0)
+        J, E, W = limits if limits is not None else paper.LIMITS
         J = min(as_positive("max_jerk", J), _F32_MAX)
         E, W = as_positive("max_accel", E), as_positive("max_velocity", W)
         loop = P.LoopType.VELOCITY if gains.loop == "velocity" else P.LoopType.POSITION
@@ -459,7 +462,7 @@ class Rig:
         return Recording(meta, path)
 
     # ---------------------------------------------------------------- runs
-    def run_move(self, profile, gains, Ts=0.005, *, feedforward=True, max_voltage=None, settle=0.25,
+    def run_move(self, profile, gains, Ts=paper.TS, *, feedforward=True, max_voltage=None, settle=0.25,
                  decimation=1, host_timeout=1.0, path=None, progress=None,
                  max_error=P.DEFAULT_MAX_ERROR, runaway_time=P.DEFAULT_RUNAWAY_MS / 1000.0,
                  saturation_time=P.DEFAULT_SATURATION_MS / 1000.0, force=False) -> Recording:
@@ -588,7 +591,7 @@ class Rig:
                 f"tau = {tau:g} s, Ts = {gains.Ts:g} s). Choose a smaller wn, a shorter Ts or another "
                 f"design, or pass force=True to run it anyway (the safety stops will end it).")
 
-    def step(self, voltage, seconds, Ts=0.005, *, rest=0.05, coast=None, max_voltage=None,
+    def step(self, voltage, seconds, Ts=paper.TS, *, rest=0.05, coast=None, max_voltage=None,
              host_timeout=1.0, path=None, progress=None) -> Recording:
         """Open-loop step of ``voltage`` V for ``seconds`` (identification); returns the Recording.
 
@@ -620,7 +623,7 @@ class Rig:
         tmo = as_nonnegative("host_timeout", host_timeout)
         # limits: keep the planner limits at their defaults, set the clamp and the watchdog
         self._request(P.SetPlant(*self.model, self.supply_voltage, self.counts_per_rev))
-        self._request(P.SetLimits(2e4, 300.0, 100.0, vmax, int(round(tmo * 1000))))
+        self._request(P.SetLimits(*paper.LIMITS, vmax, int(round(tmo * 1000))))
         meta = {"Ts": Ts, "voltage": voltage, "seconds": n * Ts, "rest": n_rest * Ts,
                 "limits": {"max_voltage": vmax, "host_timeout": tmo},
                 "plant": {"supply_voltage": self.supply_voltage, "counts_per_rev": self.counts_per_rev}}
@@ -636,7 +639,7 @@ class Rig:
             self.wait_still(timeout=max(2.0, 4 * coast), Ts=Ts)
         return rec
 
-    def wait_still(self, timeout=2.0, Ts=0.005, window=10, tolerance=0) -> bool:
+    def wait_still(self, timeout=2.0, Ts=paper.TS, window=10, tolerance=0) -> bool:
         """Wait until the motor is at rest: repeat a 0 V STEP of ``window`` samples until the
         encoder moves by at most ``tolerance`` counts during it, or ``timeout`` s pass.
 
