@@ -781,40 +781,37 @@ def fault_corrupt_frames(tmp):
     return "silent", "corruption not counted"
 
 
-def fault_pulled_cable(tmp):
-    from jerklab.rig import RigConnectionError
-
-    rig = _fault_rig(link_kw=dict(pull_cable_after=3000))
+def _broken_link_run(tmp, name, link_kw, expected_exc, expected_status, needs_count):
+    """A move over a link that fails mid-run: the expected error, naming the file (and the
+    samples saved when ``needs_count``), and the sidecar at the expected final status."""
+    rig = _fault_rig(link_kw=link_kw)
     prof, g = _move_args()
     try:
-        rig.run_move(prof, g, path=tmp / "pulled")
-    except RigConnectionError as exc:
-        meta = _sidecar(tmp / "pulled.csv")
-        ok = meta["status"] == "disconnected" and "samples" in str(exc) and "pulled.csv" in str(exc)
+        rig.run_move(prof, g, path=tmp / name)
+    except expected_exc as exc:
+        meta = _sidecar(tmp / f"{name}.csv")
+        ok = (meta["status"] == expected_status and f"{name}.csv" in str(exc)
+              and (not needs_count or "samples" in str(exc)))
         return ("clear" if ok else "obscure"), f"status {meta['status']}: {str(exc)[:90]}"
     except Exception as exc:  # noqa: BLE001
         return "obscure", f"{type(exc).__name__}: {exc}"
     finally:
         rig.close()
     return "silent", "no error"
+
+
+def fault_pulled_cable(tmp):
+    from jerklab.rig import RigConnectionError
+
+    return _broken_link_run(tmp, "pulled", dict(pull_cable_after=3000), RigConnectionError,
+                            "disconnected", needs_count=True)
 
 
 def fault_frozen_board(tmp):
     from jerklab.rig import RigTimeoutError
 
-    rig = _fault_rig(link_kw=dict(freeze_after=3000))
-    prof, g = _move_args()
-    try:
-        rig.run_move(prof, g, path=tmp / "frozen")
-    except RigTimeoutError as exc:
-        meta = _sidecar(tmp / "frozen.csv")
-        ok = meta["status"] == "timeout" and "frozen.csv" in str(exc)
-        return ("clear" if ok else "obscure"), f"status {meta['status']}: {str(exc)[:90]}"
-    except Exception as exc:  # noqa: BLE001
-        return "obscure", f"{type(exc).__name__}: {exc}"
-    finally:
-        rig.close()
-    return "silent", "no error"
+    return _broken_link_run(tmp, "frozen", dict(freeze_after=3000), RigTimeoutError, "timeout",
+                            needs_count=False)
 
 
 class FailingFile:
