@@ -25,6 +25,7 @@
 #include <util/atomic.h>
 
 #include "src/jl_device.h"
+#include "src/jl_port.h"
 
 #ifndef JL_ENCODER_PPR
 #define JL_ENCODER_PPR 448
@@ -222,10 +223,19 @@ void loop() {
     if (g_tick_flag) {
         g_tick_flag = 0;
         if (device.state() != jl::Device::kIdle) {
+#ifndef JL_PROBE_PART
             PORTB |= kProbe;
+#endif
             const bool produced = device.control();
+#ifndef JL_PROBE_PART
             PORTB &= ~kProbe;
+#endif
+            JL_PART_BEGIN(6);
             if (produced) device.report();
+            JL_PART_END(6);
+            JL_PART_BEGIN(7);
+            device.background();
+            JL_PART_END(7);
         }
     }
     if (g_overrun) {

@@ -30,6 +30,21 @@ void Device::update_pwm_top() {
     pwm_top_ = static_cast<int16_t>(top);
 }
 
+// lround(u) (halves away from zero) clamped to +-pwm_top, for |u| < 2^22 (u + 0.5 is then exact):
+// the sign bit and a truncation instead of the library's lround.
+int16_t Device::ticks_to_pwm(float u) const {
+    uint32_t b;
+    memcpy(&b, &u, 4);
+    const bool neg = (b & 0x80000000UL) != 0;
+    if ((b & 0x7FFFFFFFUL) >= 0x4A800000UL) return neg ? -pwm_top_ : pwm_top_;   // |u| >= 2^22, NaN
+    b &= 0x7FFFFFFFUL;
+    float m;
+    memcpy(&m, &b, 4);
+    long pwm = static_cast<long>(m + 0.5f);
+    if (pwm > pwm_top_) pwm = pwm_top_;
+    return static_cast<int16_t>(neg ? -pwm : pwm);
+}
+
 int16_t Device::volts_to_pwm(float u) const {
     long pwm = jl_lroundf(u * pwm_per_volt_);
     if (pwm > pwm_top_) pwm = pwm_top_;
@@ -112,7 +127,8 @@ void Device::handle(const Frame& f) {
     switch (f.type) {
     case kHello: {
         uint8_t r[kLenHelloReply];
-        uint16_t caps = kCapSineJerk | kCapLoopPosition | kCapLoopVelocity | kCapOpenLoopStep |
+        uint16_t caps = kCapSineJerk | kCapSineJerkOptimal | kCapScurve | kCapTrapezoid |
+                        kCapLoopPosition | kCapLoopVelocity | kCapOpenLoopStep |
                         kCapFeedforward;
         if (hal_.simulated_plant()) caps |= kCapSimulatedPlant;
         r[0] = kProtocolVersion;
@@ -187,24 +203,22 @@ void Device::handle(const Frame& f) {
         uint8_t kind = p[4];
         if (!in_range(jl_fabsf(d), 0.0f, 1e6f)) { nack(f, kErrBadValue, 0); return; }
         if (kind > kPlannerTrapezoid) { nack(f, kErrBadValue, 1); return; }
-        if (kind != kPlannerSineJerk) { nack(f, kErrUnsupported, 1); return; }
-        SineJerkPlan plan;
-        if (plan_sine_jerk(d, max_jerk_, max_accel_, max_velocity_, &plan) != kPlanOk) {
+        plan_ok_ = false;            // planned in place (a Plan is ~260 bytes of RAM)
+        if (plan_kind(kind, d, max_jerk_, max_accel_, max_velocity_, &plan_) != kPlanOk) {
             nack(f, kErrBadValue, 0);
             return;
         }
-        float x = plan.duration / Ts_ - 1e-4f;
+        float x = plan_.duration / Ts_ - 1e-4f;
         // n = ceil(x) + 1 must stay <= kMaxPlanSamples (float32 holds 2e9 - 1 as 2e9).
         if (!finite_f(x) || x >= static_cast<float>(kMaxPlanSamples)) { nack(f, kErrTooLong, 0); return; }
         uint32_t n = static_cast<uint32_t>(x < 0.0f ? 0.0f : x);
         if (static_cast<float>(n) < x) ++n;           // ceil
-        plan_ = plan;
         plan_samples_ = n + 1;
         plan_ok_ = true;
         uint8_t r[kLenPlanInfo];
-        put_f32(r, plan.accel_time);
-        put_f32(r + 4, plan.cruise_time);
-        put_f32(r + 8, plan.duration);
+        put_f32(r, plan_.accel_time);
+        put_f32(r + 4, plan_.cruise_time);
+        put_f32(r + 8, plan_.duration);
         put_u32(r + 12, plan_samples_);
         send(kPlanInfo, f.seq, r, kLenPlanInfo);
         return;
@@ -214,14 +228,32 @@ void Device::handle(const Frame& f) {
         uint8_t dec = p[2];
         if (dec < 1) { nack(f, kErrBadValue, 1); return; }
         if (!gains_ok_ || !plan_ok_) { nack(f, kErrNotReady); return; }
-        if (!pid_.set(kpd_, kid_, kdd_, gamma_, max_voltage_)) { nack(f, kErrBadValue); return; }
+        // The loop runs in encoder counts and PWM ticks (saves two float multiplies a sample):
+        // the gains take rad per count (and 1/Ts in the velocity loop) and PWM ticks per volt.
+        const float g = (loop_ == kLoopVelocity ? rad_per_count_ / Ts_ : rad_per_count_) * pwm_per_volt_;
+        if (!pid_.set(kpd_ * g, kid_ * g, kdd_ * g, gamma_, max_voltage_ * pwm_per_volt_)) {
+            nack(f, kErrBadValue);
+            return;
+        }
         ack(f);
         hal_.zero_counts();
         pid_.reset();
-        stepper_.start(plan_, Ts_);
+        {
+            const float cpr = 1.0f / rad_per_count_;
+            stepper_.start(plan_, Ts_, use_ff_ ? ff_.alpha() * pwm_per_volt_ : 0.0f,
+                           use_ff_ ? ff_.beta() * pwm_per_volt_ : 0.0f, cpr, cpr * Ts_);
+            // the tracking-error limit in counts, as IEEE bits (0 = off)
+            float emax_c;
+            memcpy(&emax_c, &max_error_bits_, 4);
+            emax_c *= cpr;
+            memcpy(&max_error_c_bits_, &emax_c, 4);
+            uf_ = ref_v_ = 0.0f;
+            sample_ahead();                     // the reference of sample 0
+        }
         k_ = 0;
         n_total_ = plan_samples_ + settle;
         decimation_ = dec;
+        dec_left_ = 0;
         prev_counts_ = 0;
         last_pwm_ = 0;
         runaway_pwm_ = static_cast<int16_t>((pwm_top_ + 1) / 2);
@@ -253,6 +285,7 @@ void Device::handle(const Frame& f) {
         k_ = 0;
         n_total_ = n;
         decimation_ = 1;
+        dec_left_ = 0;
         have_sample_ = finished_ = false;
         state_ = kStepping;
         hal_.set_period(static_cast<uint16_t>(ts / cfg_.tick_us));
@@ -280,15 +313,23 @@ bool Device::control() {
     const int32_t c = hal_.counts();
     int16_t pwm;
     uint8_t flags = 0;
-    float ref = 0.0f;
     if (state_ == kRunning) {
-        Sample s;
-        stepper_.next(&s);
+        // ref, e in encoder counts; ref_v in counts per sample; uf in PWM ticks
+        // (sampled one tick ahead by background(); inline only if that did not run)
+        if (!ahead_) {
+            JL_PART_BEGIN(1);
+            sample_ahead();
+            JL_PART_END(1);
+        }
+        ahead_ = false;
+        const float ref = ref_, ref_v = ref_v_, uf = uf_;
         if (k_ >= plan_samples_) flags |= kTelemetrySettling;
-        ref = s.position;
-        const float pos_error = s.position - static_cast<float>(c) * rad_per_count_;
+        rep_ref_ = ref;
+        const float pos_error = ref - static_cast<float>(c);
         float detail = 0.0f;
+        JL_PART_BEGIN(2);
         uint8_t fault = check_safety(c, pos_error, &detail);
+        JL_PART_END(2);
         pwm = 0;
         if (fault == kEndDone) {
             float e;
@@ -297,13 +338,14 @@ bool Device::control() {
             } else {
                 // Velocity loop (Stojčić §4B): counts over the last sample; y(-1) = y(0).
                 if (k_ == 0) prev_counts_ = c;
-                e = s.velocity - static_cast<float>(c - prev_counts_) * rad_per_count_ / Ts_;
+                e = ref_v - static_cast<float>(c - prev_counts_);
             }
             prev_counts_ = c;
-            const float uf = use_ff_ ? ff_(s.velocity, s.accel) : 0.0f;
-            ControlParts parts;
-            const float u = pid_.step(e, uf, &parts);
-            if (parts.saturated) {
+            bool saturated;
+            JL_PART_BEGIN(4);
+            const float u = pid_.step_fast(e, uf, &saturated);
+            JL_PART_END(4);
+            if (saturated) {
                 flags |= kTelemetrySaturated;
                 ++sat_level_;
             } else if (sat_level_) {
@@ -311,7 +353,11 @@ bool Device::control() {
             }
             // Saturation stop (PROTOCOL.md): at the clamp in most samples for the window.
             if (sat_n_ && sat_level_ >= sat_n_) fault = kEndSaturation;
-            else pwm = volts_to_pwm(u);
+            else {
+                JL_PART_BEGIN(5);
+                pwm = ticks_to_pwm(u);
+                JL_PART_END(5);
+            }
         }
         if (fault != kEndDone) {
             // Safety stop: PWM 0 in this very sample; its telemetry goes out whatever the
@@ -324,11 +370,14 @@ bool Device::control() {
         last_pwm_ = pwm;
     } else {
         pwm = step_pwm_;
+        rep_ref_ = 0.0f;
     }
     hal_.set_pwm(pwm);
-    have_sample_ = finished_ || (k_ % decimation_) == 0;
+    // k % decimation == 0, counted down (a 32-bit modulo costs ~600 cycles on the AVR)
+    if (dec_left_ == 0) dec_left_ = decimation_;
+    have_sample_ = finished_ || dec_left_ == decimation_;
+    --dec_left_;
     rep_index_ = k_;
-    rep_ref_ = ref;
     rep_counts_ = c;
     rep_pwm_ = pwm;
     rep_flags_ = flags;
@@ -336,12 +385,29 @@ bool Device::control() {
     return true;
 }
 
+void Device::sample_ahead() {
+    stepper_.next_fast(&ref_, loop_ == kLoopVelocity ? &ref_v_ : nullptr, use_ff_ ? &uf_ : nullptr);
+    ahead_ = true;
+}
+
+void Device::background() {
+    if (state_ != kRunning) return;
+    if (!ahead_) {
+        JL_PART_BEGIN(8);
+        sample_ahead();
+        JL_PART_END(8);
+    }
+    JL_PART_BEGIN(9);
+    stepper_.prepare();
+    JL_PART_END(9);
+}
+
 void Device::report() {
     if (have_sample_) {
         have_sample_ = false;
         uint8_t p[kLenTelemetry];
         put_u32(p, rep_index_);
-        put_f32(p + 4, rep_ref_);
+        put_f32(p + 4, rep_ref_ * rad_per_count_);     // counts -> rad
         put_i32(p + 8, rep_counts_);
         put_u16(p + 12, static_cast<uint16_t>(rep_pwm_));
         p[14] = rep_flags_;
@@ -359,8 +425,8 @@ uint8_t Device::check_safety(int32_t c, float pos_error, float* detail) {
     // ~50-cycle float compare of the AVR's soft float in the timed step.
     uint32_t bits;
     memcpy(&bits, &pos_error, 4);
-    if (max_error_bits_ != 0 && (bits & 0x7FFFFFFFUL) > max_error_bits_) {
-        *detail = pos_error;
+    if (max_error_c_bits_ != 0 && (bits & 0x7FFFFFFFUL) > max_error_c_bits_) {
+        *detail = pos_error * rad_per_count_;
         return kEndTrackingError;
     }
     if (runaway_n_ == 0) return kEndDone;

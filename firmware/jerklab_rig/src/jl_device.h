@@ -55,6 +55,8 @@ public:
     bool control();
     /// Telemetry / end-of-run frames of the last control() (kept out of the timed step).
     void report();
+    /// Work ahead of the control step (the planner's next segment); call after report().
+    void background();
     /// Host watchdog check (call often from loop()).
     void poll();
     /// A tick started before the previous one was handled.
@@ -73,6 +75,8 @@ private:
     uint8_t check_safety(int32_t c, float pos_error, float* detail);
     void apply_plant();
     int16_t volts_to_pwm(float u) const;
+    int16_t ticks_to_pwm(float u) const;
+    void sample_ahead();
     void update_pwm_top();
 
     Hal& hal_;
@@ -91,6 +95,7 @@ private:
     // Safety stops (PROTOCOL.md "Safety stops"): tracking-error limit (rad, 0 = off) and the
     // runaway / no-motion window (ms, 0 = off).
     uint32_t max_error_bits_ = 0x3F000000UL;   // IEEE bits of max_error (0.5 rad at boot)
+    uint32_t max_error_c_bits_ = 0;            // the same in encoder counts (set at RUN)
     uint16_t runaway_ms_ = 200;
     uint16_t saturation_ms_ = 500;   // saturation stop window (ms, 0 = off)
     bool gains_ok_ = false;
@@ -101,8 +106,13 @@ private:
     bool use_ff_ = true;
 
     bool plan_ok_ = false;
-    SineJerkPlan plan_;
+    Plan plan_;
     uint32_t plan_samples_ = 0;
+
+    // The reference of the next sample (counts), its velocity (counts per sample) and
+    // feedforward (PWM ticks), computed ahead by background() after the previous step.
+    float ref_ = 0.0f, ref_v_ = 0.0f, uf_ = 0.0f;
+    bool ahead_ = false;
 
     // Active run / step.
     PlanStepper stepper_;
@@ -110,6 +120,7 @@ private:
     Feedforward ff_;
     uint32_t k_ = 0, n_total_ = 0;
     uint8_t decimation_ = 1;
+    uint8_t dec_left_ = 0;
     int16_t step_pwm_ = 0;
     int32_t prev_counts_ = 0;
     uint32_t last_rx_ms_ = 0;
