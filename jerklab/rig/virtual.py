@@ -19,8 +19,12 @@ the firmware's rules sample for sample; the reference is sampled in blocks of
 plan (a plan of more than ``protocol.MAX_PLAN_SAMPLES`` samples is refused with NACK
 TOO_LONG, as on the firmware).
 
-Differences from the real board, on purpose: the control step takes no time (the
-Uno's ~0.75 ms computation delay is not modelled), the motor coasts to rest
+The board's computation delay is modelled: in a run, the PWM of sample k takes effect
+:attr:`VirtualDevice.compute_delay` after the encoder was read at t = k Ts (the firmware's
+control step, encoder read to PWM write; the reference of the sample is computed one tick
+ahead, after the previous step), the previous sample's PWM driving the motor until then.
+
+Differences from the real board, on purpose: the motor coasts to rest
 instantly between runs (the encoder is zeroed at each RUN anyway), and the
 watchdog counts wall-clock time, as a host's silence is a wall-clock fact.
 """
@@ -77,7 +81,13 @@ class VirtualDevice:
 
     STATE_IDLE, STATE_RUNNING, STATE_STEPPING = 0, 1, 2
 
-    def __init__(self, motor=None, clock=time.monotonic, name="jerklab-virtual", tick_us=1000):
+    #: Encoder read to PWM write in a closed-loop run on the Uno firmware (s): the mean of the
+    #: control step measured on the simulated ATmega328P (``python -m benchmarks firmware``,
+    #: ~2100 cycles at 16 MHz while moving, plus the wake-up from the 1 ms tick).
+    COMPUTE_DELAY = 132e-6
+
+    def __init__(self, motor=None, clock=time.monotonic, name="jerklab-virtual", tick_us=1000,
+                 compute_delay=None):
         from jerklab import __version__
         from jerklab.plant import DCMotor
 
@@ -85,6 +95,14 @@ class VirtualDevice:
         if self.motor.supply_voltage is None or self.motor.counts_per_rad is None:
             raise ValueError("motor must have a supply_voltage and an encoder (encoder_ppr) to be a rig")
         self.clock = clock
+        if compute_delay is None:
+            compute_delay = self.COMPUTE_DELAY
+        if (isinstance(compute_delay, bool) or not isinstance(compute_delay, (int, float))
+                or not math.isfinite(compute_delay) or not 0.0 <= compute_delay < 1e-3):
+            raise ValueError(f"compute_delay must be a time in seconds in [0, 1e-3) (below the shortest Ts), "
+                             f"got {compute_delay!r}")
+        self.compute_delay = float(compute_delay)
+        self._applied_volts = 0.0
         self.name = str(name)[:16]
         self.tick_us = int(tick_us)
         bits = self.motor.pwm_bits or paper.PWM_BITS
@@ -357,6 +375,7 @@ class VirtualDevice:
 
     def _start(self, Ts):
         self._Ts = Ts
+        self._applied_volts = 0.0            # PWM 0 until the first sample's is written
         self._k = 0
         self._count0 = self._counts()
         self._prev_y = None
@@ -459,7 +478,12 @@ class VirtualDevice:
             self._end(fault, detail)
             return
         volts = self.pwm / self.pwm_max * self.motor.supply_voltage * self.supply_fraction  # H-bridge
-        self.x = self.motor.step_state(self.x, volts, self._Ts, t=self.t)
+        d = self.compute_delay if self.state == self.STATE_RUNNING else 0.0
+        if d > 0.0:
+            # the previous sample's PWM until the board has written the new one
+            self.x = self.motor.step_state(self.x, self._applied_volts, d, t=self.t)
+        self.x = self.motor.step_state(self.x, volts, self._Ts - d, t=self.t + d)
+        self._applied_volts = volts
         self.t += self._Ts
         self._k = k + 1
         if self._k >= self._n_total:

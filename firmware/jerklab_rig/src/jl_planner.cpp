@@ -311,13 +311,33 @@ static uint32_t first_k(float t0, float Ts) {
 
 uint32_t PlanStepper::first_sample(uint8_t i) const { return first_k(p_->seg[i].t0, Ts_); }
 
-void PlanStepper::compute(uint8_t i, Coef* c) const {
+// The coefficients of segment i in three stages of at most ~5000 AVR cycles each (prepare()
+// runs one stage per control tick, so even a 1 ms tick never runs long): 0 the first sample
+// and, on a sine pulse, cos and sin of w delta; 1 cos and sin of theta/2; 2 the coefficients.
+bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
     const Segment& g = p_->seg[i];
     const float Ts = Ts_, sx = sx_, sv = sv_;
-    const uint32_t k0 = first_k(g.t0, Ts);
-    const float delta = static_cast<float>(k0) * Ts - g.t0;   // >= 0, < Ts
-    c->k0 = k0;
-    c->sine = g.sine;
+    if (stage == 0) {
+        const uint32_t k0 = first_k(g.t0, Ts);
+        c->seg = 0xFE;                              // in preparation
+        c->k0 = k0;
+        c->sine = g.sine;
+        c->delta = static_cast<float>(k0) * Ts - g.t0;   // >= 0, < Ts
+        if (g.sine) {
+            c->h = jl_cosf(g.w * c->delta);
+            c->q = jl_sinf(g.w * c->delta);
+        }
+        return false;
+    }
+    if (stage == 1) {
+        if (g.sine) {
+            const float th = g.w * Ts;
+            c->s2 = jl_sinf(0.5f * th);
+            c->ic2 = jl_cosf(0.5f * th);
+        }
+        return false;
+    }
+    const float delta = c->delta;
     if (g.sine) {
         const float w = g.w, jw = g.jp / w;
         const float B = jw / (w * w);
@@ -339,19 +359,19 @@ void PlanStepper::compute(uint8_t i, Coef* c) const {
         // Minsky's recurrence h -= e q; q += e h with e = 2 sin(theta/2), theta = w Ts, keeps
         // h_n = sx B cos(w u_n) and q_n = sx B sin(w u_n + theta/2) exactly (2 fmul a step):
         // sx B sin(w u_n) = (q_n - s2 h_n) / c2, s2 = sin(theta/2), c2 = cos(theta/2).
-        const float th = w * Ts, s2 = jl_sinf(0.5f * th), c2 = jl_cosf(0.5f * th);
+        const float s2 = c->s2, c2 = c->ic2;
+        const float cwd = c->h, swd = c->q;        // cos, sin of w delta (stage 0)
         const float isx = 1.0f / sx, ic2 = 1.0f / c2;
         c->eps = 2.0f * s2;
         c->w = w;
-        c->s2 = s2;
         c->ic2 = ic2;
         c->isx = isx;
         c->fh = isx * (-alpha_ * w * w + beta_ * w * s2 * ic2);
         c->fq = -isx * beta_ * w * ic2;
         c->vh = sv * isx * w * s2 * ic2;
         c->vq = -sv * isx * w * ic2;
-        c->h = sx * B * jl_cosf(w * delta);
-        c->q = sx * B * jl_sinf(w * delta + 0.5f * th);
+        c->h = sx * B * cwd;
+        c->q = sx * B * (swd * c2 + cwd * s2);     // sin(w delta + theta/2)
     } else {
         Sample s;
         eval_seg(g, delta, &s);
@@ -378,6 +398,11 @@ void PlanStepper::compute(uint8_t i, Coef* c) const {
         c->f0 = c->f1 = c->f2 = c->j = 0.0f;
     }
     c->seg = i;
+    return true;
+}
+
+void PlanStepper::compute(uint8_t i, Coef* c) const {
+    for (uint8_t st = 0; !compute_stage(i, c, st); ++st) {}
 }
 
 void PlanStepper::start(const Plan& p, float Ts, float alpha, float beta, float sx, float sv) {
@@ -411,15 +436,20 @@ void PlanStepper::prepare() {
     // The segment that the next change of segment enters: skip those without a sample.
     uint8_t j = seg_ + 1;
     if (next_.seg == j) return;
-    uint32_t kj = first_sample(j);
-    while (j + 1 < p_->nseg && first_sample(j + 1) <= kj) { ++j; kj = first_sample(j); }
-    if (next_.seg == j) return;
-    compute(j, &next_);
+    if (next_.seg != 0xFE || prep_seg_ < j) {       // start afresh
+        uint32_t kj = first_sample(j);
+        while (j + 1 < p_->nseg && first_sample(j + 1) <= kj) { ++j; kj = first_sample(j); }
+        if (next_.seg == j) return;
+        prep_seg_ = j;
+        prep_stage_ = 0;
+    }
+    if (compute_stage(prep_seg_, &next_, prep_stage_)) prep_stage_ = 0;
+    else ++prep_stage_;
 }
 
 void PlanStepper::advance_segment() {
     // Called when k_ reached next_.k0 (prepared) or, unprepared, found by search (slow path).
-    if (next_.seg != 0xFF && next_.seg > seg_ && k_ >= next_.k0) {
+    if (next_.seg < 0xFE && next_.seg > seg_ && k_ >= next_.k0) {
         cur_ = next_;
         seg_ = cur_.seg;
     } else {
@@ -432,7 +462,7 @@ void PlanStepper::advance_segment() {
 
 bool PlanStepper::next_fast(float* position, float* velocity, float* ff) {
     if (seg_ + 1 < p_->nseg) {
-        if (next_.seg != 0xFF ? k_ >= next_.k0 : first_sample(seg_ + 1) <= k_) advance_segment();
+        if (next_.seg < 0xFE ? k_ >= next_.k0 : first_sample(seg_ + 1) <= k_) advance_segment();
     }
     Coef& c = cur_;
     const float n = static_cast<float>(n_);
@@ -456,7 +486,7 @@ bool PlanStepper::next_fast(float* position, float* velocity, float* ff) {
 
 bool PlanStepper::next(Sample* s) {
     if (seg_ + 1 < p_->nseg) {
-        if (next_.seg != 0xFF ? k_ >= next_.k0 : first_sample(seg_ + 1) <= k_) advance_segment();
+        if (next_.seg < 0xFE ? k_ >= next_.k0 : first_sample(seg_ + 1) <= k_) advance_segment();
     }
     const Coef& c = cur_;
     const bool moving = c.seg + 1 < p_->nseg;

@@ -117,8 +117,8 @@ public:
     bool next_fast(float* position, float* velocity, float* ff);
     /// The full sample (jerk, acceleration, velocity, position) at t = k Ts, then k++.
     bool next(Sample* s);
-    /// Work ahead: compute the coefficients of the next segment if not done yet (call after
-    /// each step; ~5000 cycles on the AVR once per segment, nothing otherwise).
+    /// Work ahead: one stage (of three, each <= ~5000 AVR cycles) of the coefficients of the
+    /// next segment, if not ready yet (call after each step; nothing to do most of the time).
     void prepare();
     uint32_t index() const { return k_; }
     bool done() const { return seg_ + 1 >= p_->nseg; }
@@ -138,15 +138,17 @@ public:
         float j;                   // constant jerk
         // sine: (h, q) = sx B (cos w u, sin(w u + theta/2)) advanced by Minsky's recurrence
         float h, q, eps, w, s2, ic2, isx, fh, fq, vh, vq;
+        float delta;               // k0 Ts - t0
     };
 
 private:
     void compute(uint8_t i, Coef* c) const;
+    bool compute_stage(uint8_t i, Coef* c, uint8_t stage) const;
     void advance_segment();
     const Plan* p_ = nullptr;
     float Ts_ = 0.005f, alpha_ = 0.0f, beta_ = 0.0f, sx_ = 1.0f, sv_ = 1.0f;
     uint32_t k_ = 0, n_ = 0;
-    uint8_t seg_ = 0;
+    uint8_t seg_ = 0, prep_seg_ = 0, prep_stage_ = 0;
     Coef cur_, next_;
 };
 

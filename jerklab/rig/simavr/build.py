@@ -57,7 +57,7 @@ def _build_lock(build: Path):
                 msvcrt.locking(fh.fileno(), msvcrt.LK_UNLCK, 1)
 
 
-def build_firmware(*targets: str, build_dir=None) -> dict:
+def build_firmware(*targets: str, build_dir=None, baud=None) -> dict:
     """Run ``make -C firmware <targets>`` (serialised by a file lock) and return the paths.
 
     Parameters
@@ -67,6 +67,9 @@ def build_firmware(*targets: str, build_dir=None) -> dict:
         the default (everything the installed tools allow).
     build_dir : path-like, optional
         Output folder (default ``firmware/build``).
+    baud : int, optional
+        UART speed of the sketch (``-DJL_BAUD``): 115200 (default), 500000 or 1000000 (both
+        exact on a 16 MHz Uno with U2X). Use a separate ``build_dir`` for another speed.
 
     Returns
     -------
@@ -81,8 +84,13 @@ def build_firmware(*targets: str, build_dir=None) -> dict:
     for t in targets:
         if not isinstance(t, str) or not t.replace("_", "").isalnum():
             raise ValueError(f"targets must be make target names, got {t!r}")
+    extra = []
+    if baud is not None:
+        if baud not in (115200, 500000, 1000000):
+            raise ValueError(f"baud must be 115200, 500000 or 1000000, got {baud!r}")
+        extra = [f"EXTRA_DEFS=-DJL_BAUD={int(baud)}UL"]
     with _build_lock(build):
-        proc = subprocess.run(["make", "-s", "-C", str(fw), f"BUILD={build}", *targets],
+        proc = subprocess.run(["make", "-s", "-C", str(fw), f"BUILD={build}", *extra, *targets],
                               capture_output=True, text=True)
     if proc.returncode != 0:
         raise FirmwareBuildError(f"make -C {fw} {' '.join(targets)} failed:\n{proc.stdout}\n{proc.stderr}")
