@@ -311,9 +311,10 @@ static uint32_t first_k(float t0, float Ts) {
 
 uint32_t PlanStepper::first_sample(uint8_t i) const { return first_k(p_->seg[i].t0, Ts_); }
 
-// The coefficients of segment i in three stages of at most ~5000 AVR cycles each (prepare()
-// runs one stage per control tick, so even a 1 ms tick never runs long): 0 the first sample
-// and, on a sine pulse, cos and sin of w delta; 1 cos and sin of theta/2; 2 the coefficients.
+// The coefficients of segment i in stages of at most ~5000 AVR cycles each (prepare() runs one
+// stage per control tick, so even a 1 ms tick never runs long): 0 the first sample; on a sine
+// pulse 1 cos and sin of w delta, 2 cos and sin of theta/2, 3 the polynomial parts, 4 the
+// recurrence; on a polynomial segment 1 all coefficients.
 bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
     const Segment& g = p_->seg[i];
     const float Ts = Ts_, sx = sx_, sv = sv_;
@@ -323,25 +324,25 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
         c->k0 = k0;
         c->sine = g.sine;
         c->delta = static_cast<float>(k0) * Ts - g.t0;   // >= 0, < Ts
-        if (g.sine) {
-            c->h = jl_cosf(g.w * c->delta);
-            c->q = jl_sinf(g.w * c->delta);
-        }
         return false;
     }
-    if (stage == 1) {
-        if (g.sine) {
-            const float th = g.w * Ts;
-            c->s2 = jl_sinf(0.5f * th);
-            c->ic2 = jl_cosf(0.5f * th);
-        }
+    if (g.sine && stage == 1) {
+        c->h = jl_cosf(g.w * c->delta);
+        c->q = jl_sinf(g.w * c->delta);
         return false;
     }
-    const float delta = c->delta;
-    if (g.sine) {
+    if (g.sine && stage == 2) {
+        const float th = g.w * Ts;
+        c->s2 = jl_sinf(0.5f * th);
+        c->ic2 = jl_cosf(0.5f * th);
+        return false;
+    }
+    if (g.sine && stage == 3) {
+        // the polynomial parts: x = (x0 - B) + v0 u + q2 u^2 + B cos(w u) (kept in x0..x2)
         const float w = g.w, jw = g.jp / w;
         const float B = jw / (w * w);
-        const float q2 = 0.5f * (g.a0 + jw);      // x = (x0 - B) + v0 u + q2 u^2 + B cos(w u)
+        const float q2 = 0.5f * (g.a0 + jw);
+        const float delta = c->delta;
         const float vd = g.v0 + 2.0f * q2 * delta;
         c->x0 = sx * ((g.x0 - B) + delta * (g.v0 + delta * q2));
         c->x1 = sx * Ts * vd;
@@ -356,6 +357,12 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
         c->f1 = beta_ * 2.0f * q2 * Ts;
         c->f2 = 0.0f;
         c->j = 0.0f;
+        c->w = B;                                  // (B until stage 4)
+        return false;
+    }
+    const float delta = c->delta;
+    if (g.sine) {
+        const float w = g.w, B = c->w;
         // Minsky's recurrence h -= e q; q += e h with e = 2 sin(theta/2), theta = w Ts, keeps
         // h_n = sx B cos(w u_n) and q_n = sx B sin(w u_n + theta/2) exactly (2 fmul a step):
         // sx B sin(w u_n) = (q_n - s2 h_n) / c2, s2 = sin(theta/2), c2 = cos(theta/2).
@@ -419,6 +426,7 @@ void PlanStepper::start(const Plan& p, float Ts, float alpha, float beta, float 
     compute(seg_, &cur_);
     n_ = k_ - cur_.k0;
     next_.seg = 0xFF;
+    k_next_ = seg_ + 1 < p.nseg ? first_sample(seg_ + 1) : 0xFFFFFFFFUL;
     prepare();
 }
 
@@ -429,13 +437,14 @@ void PlanStepper::switch_plan(const Plan& p) {
     compute(seg_, &cur_);
     n_ = k_ - cur_.k0;
     next_.seg = 0xFF;
+    k_next_ = seg_ + 1 < p.nseg ? first_sample(seg_ + 1) : 0xFFFFFFFFUL;
 }
 
 void PlanStepper::prepare() {
     if (seg_ + 1 >= p_->nseg) return;
     // The segment that the next change of segment enters: skip those without a sample.
     uint8_t j = seg_ + 1;
-    if (next_.seg == j) return;
+    if (next_.seg < 0xFE && next_.seg >= j) return;     // ready
     if (next_.seg != 0xFE || prep_seg_ < j) {       // start afresh
         uint32_t kj = first_sample(j);
         while (j + 1 < p_->nseg && first_sample(j + 1) <= kj) { ++j; kj = first_sample(j); }
@@ -458,11 +467,12 @@ void PlanStepper::advance_segment() {
     }
     next_.seg = 0xFF;
     n_ = k_ - cur_.k0;
+    k_next_ = seg_ + 1 < p_->nseg ? first_sample(seg_ + 1) : 0xFFFFFFFFUL;
 }
 
 bool PlanStepper::next_fast(float* position, float* velocity, float* ff) {
     if (seg_ + 1 < p_->nseg) {
-        if (next_.seg < 0xFE ? k_ >= next_.k0 : first_sample(seg_ + 1) <= k_) advance_segment();
+        if (k_ >= k_next_) advance_segment();
     }
     Coef& c = cur_;
     const float n = static_cast<float>(n_);
@@ -486,7 +496,7 @@ bool PlanStepper::next_fast(float* position, float* velocity, float* ff) {
 
 bool PlanStepper::next(Sample* s) {
     if (seg_ + 1 < p_->nseg) {
-        if (next_.seg < 0xFE ? k_ >= next_.k0 : first_sample(seg_ + 1) <= k_) advance_segment();
+        if (k_ >= k_next_) advance_segment();
     }
     const Coef& c = cur_;
     const bool moving = c.seg + 1 < p_->nseg;

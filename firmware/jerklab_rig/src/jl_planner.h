@@ -117,7 +117,7 @@ public:
     bool next_fast(float* position, float* velocity, float* ff);
     /// The full sample (jerk, acceleration, velocity, position) at t = k Ts, then k++.
     bool next(Sample* s);
-    /// Work ahead: one stage (of three, each <= ~5000 AVR cycles) of the coefficients of the
+    /// Work ahead: one stage (of up to five, each <= ~5000 AVR cycles) of the coefficients of the
     /// next segment, if not ready yet (call after each step; nothing to do most of the time).
     void prepare();
     uint32_t index() const { return k_; }
@@ -147,7 +147,7 @@ private:
     void advance_segment();
     const Plan* p_ = nullptr;
     float Ts_ = 0.005f, alpha_ = 0.0f, beta_ = 0.0f, sx_ = 1.0f, sv_ = 1.0f;
-    uint32_t k_ = 0, n_ = 0;
+    uint32_t k_ = 0, n_ = 0, k_next_ = 0;   // k_next_: first sample of the next segment
     uint8_t seg_ = 0, prep_seg_ = 0, prep_stage_ = 0;
     Coef cur_, next_;
 };
