@@ -43,10 +43,10 @@ __all__ = [
     "crc16_ccitt_false", "encode_frame", "encode", "parse", "Frame", "Decoder", "DecoderStats",
     "ProtocolError", "MESSAGES", "payload_field_name",
     "Hello", "SetPlant", "SetGains", "SetLimits", "Plan", "Run", "Stop", "Step", "Heartbeat",
-    "Ack", "Nack", "HelloReply", "PlanInfo", "Telemetry", "EndOfRun", "DeviceError",
+    "Retarget", "Ack", "Nack", "HelloReply", "PlanInfo", "Telemetry", "EndOfRun", "DeviceError",
 ]
 
-PROTOCOL_VERSION = 2
+PROTOCOL_VERSION = 3
 #: the longest plan a device accepts (PLAN_INFO.n_samples); longer: NACK TOO_LONG
 MAX_PLAN_SAMPLES = 2_000_000_000
 #: boot defaults of the safety stops (SetLimits.max_error rad, .runaway_ms ms, .saturation_ms ms)
@@ -111,6 +111,7 @@ class MsgType(enum.IntEnum):
     STOP = 0x07
     STEP = 0x08
     HEARTBEAT = 0x09
+    RETARGET = 0x0C
     ACK = 0x80
     NACK = 0x81
     HELLO_REPLY = 0x82
@@ -175,6 +176,7 @@ class Capability(enum.IntFlag):
     OPEN_LOOP_STEP = 1 << 6
     FEEDFORWARD = 1 << 7
     SIMULATED_PLANT = 1 << 8   #: the motor is a model (virtual rig, simavr harness)
+    RETARGET = 1 << 9          #: RETARGET during a run (protocol version 3)
 
 
 #: ``SetGains.flags`` bit: add the feedforward u_F = (tau*accel + vel)/K (Stojčić eq. 8, Stojčić eq. 16)
@@ -400,6 +402,22 @@ class Heartbeat(_Message):
     FORMAT: ClassVar[str] = "<"
 
 
+@dataclass(frozen=True)
+class Retarget(_Message):
+    """Change the target of the running move to ``distance`` rad from the run's start point.
+
+    Accepted only while a move runs (else NACK NOT_READY). The device switches at the next
+    instant where the reference's jerk and acceleration are both zero (the end of the
+    acceleration phase; in the cruise at once; else at rest at the old target) and plans from
+    the reference's state there (position, velocity, acceleration 0) to rest at the new
+    target; see firmware/PROTOCOL.md "Re-targeting".
+    """
+
+    TYPE: ClassVar[MsgType] = MsgType.RETARGET
+    FORMAT: ClassVar[str] = "<f"
+    distance: float
+
+
 # device -> host -------------------------------------------------------------
 
 @dataclass(frozen=True)
@@ -497,7 +515,7 @@ class DeviceError(_Message):
 
 
 MESSAGES: dict[int, type] = {cls.TYPE: cls for cls in (
-    Hello, SetPlant, SetGains, SetLimits, Plan, Run, Stop, Step, Heartbeat,
+    Hello, SetPlant, SetGains, SetLimits, Plan, Run, Stop, Step, Heartbeat, Retarget,
     Ack, Nack, HelloReply, PlanInfo, Telemetry, EndOfRun, DeviceError)}
 
 

@@ -94,6 +94,9 @@ void Device::end_run(uint8_t reason, float detail) {
     state_ = kIdle;
     have_sample_ = false;
     finished_ = false;
+    if (rt_active_) plan_ok_ = false;      // a re-targeted run may have planned into plan_
+    rt_active_ = false;
+    rt_stage_ = 0;
     send(kEndOfRun, tx_seq_++, p, kLenEndOfRun);
 }
 
@@ -117,6 +120,7 @@ void Device::handle(const Frame& f) {
     const uint8_t* p = f.payload;
     static const uint8_t kLen[10] = {0, kLenHello, kLenSetPlant, kLenSetGains, kLenSetLimits,
                                      kLenPlan, kLenRun, kLenStop, kLenStep, kLenHeartbeat};
+    if (f.type == kRetarget) { handle_retarget(f); return; }
     if (f.type == 0 || f.type > kHeartbeat) { nack(f, kErrUnknownType); return; }
     if (f.len != kLen[f.type]) { nack(f, kErrBadLength); return; }
     const bool active = state_ != kIdle;
@@ -128,7 +132,7 @@ void Device::handle(const Frame& f) {
     case kHello: {
         uint8_t r[kLenHelloReply];
         uint16_t caps = kCapSineJerk | kCapSineJerkOptimal | kCapScurve | kCapTrapezoid |
-                        kCapLoopPosition | kCapLoopVelocity | kCapOpenLoopStep |
+                        kCapRetarget | kCapLoopPosition | kCapLoopVelocity | kCapOpenLoopStep |
                         kCapFeedforward;
         if (hal_.simulated_plant()) caps |= kCapSimulatedPlant;
         r[0] = kProtocolVersion;
@@ -238,6 +242,11 @@ void Device::handle(const Frame& f) {
         ack(f);
         hal_.zero_counts();
         pid_.reset();
+        cur_plan_ = &plan_;
+        run_kind_ = plan_.kind;
+        rt_stage_ = 0;
+        rt_active_ = false;
+        settle_ = settle;
         {
             const float cpr = 1.0f / rad_per_count_;
             stepper_.start(plan_, Ts_, use_ff_ ? ff_.alpha() * pwm_per_volt_ : 0.0f,
@@ -281,7 +290,7 @@ void Device::handle(const Frame& f) {
         if (n < 1) { nack(f, kErrBadValue, 2); return; }
         ack(f);
         hal_.zero_counts();
-        step_pwm_ = volts_to_pwm(v);
+        step_pwm_ = ticks_to_pwm(v * pwm_per_volt_);
         k_ = 0;
         n_total_ = n;
         decimation_ = 1;
@@ -385,9 +394,108 @@ bool Device::control() {
     return true;
 }
 
+// ceil(t / Ts - 1e-4) + 1 samples (PROTOCOL.md: PLAN's n_samples), t >= 0
+static uint32_t samples_of(float t, float Ts) {
+    const float x = t / Ts - 1e-4f;
+    uint32_t n = static_cast<uint32_t>(x < 0.0f ? 0.0f : x);
+    if (static_cast<float>(n) < x) ++n;
+    return n + 1;
+}
+
 void Device::sample_ahead() {
     stepper_.next_fast(&ref_, loop_ == kLoopVelocity ? &ref_v_ : nullptr, use_ff_ ? &uf_ : nullptr);
     ahead_ = true;
+    if (stepper_.plan() != cur_plan_) {
+        // a re-targeted plan took over at this sample (k_): the run now ends with it
+        cur_plan_ = stepper_.plan();
+        plan_samples_ = samples_of(cur_plan_->t_start + cur_plan_->duration, Ts_);
+        n_total_ = plan_samples_ + settle_;
+        rt_stage_ = 0;
+        // braked to rest first (the target was behind): the move to the target follows
+        if (rt_mode_ == 2) retarget_begin(k_);
+    }
+}
+
+void Device::handle_retarget(const Frame& f) {
+    if (f.len != kLenRetarget) { nack(f, kErrBadLength); return; }
+    if (state_ != kRunning) { nack(f, kErrNotReady); return; }
+    const float d = get_f32(f.payload);
+    if (!finite_f(d) || !(jl_fabsf(d) <= 1e6f)) { nack(f, kErrBadValue, 0); return; }
+    ack(f);
+    rt_target_ = d;
+    rt_active_ = true;
+    retarget_begin(k_);
+}
+
+// Samples from a RETARGET to the earliest switch: the stages below run one per tick, the
+// bisection max(2, Ts_us / 400) halvings at a time (jerklab.rig.retarget.lead_samples).
+static uint8_t halvings_per_tick(uint16_t ts_us) {
+    const uint16_t n = ts_us / 400u;
+    return n < 2 ? 2 : (n > 24 ? 24 : static_cast<uint8_t>(n));
+}
+
+void Device::retarget_begin(uint32_t k_now) {
+    const uint8_t per = halvings_per_tick(Ts_us_);
+    rt_k_ = k_now + 2u + (24u + per - 1u) / per;
+    rt_stage_ = 1;
+    rt_mode_ = 0;
+    stepper_.cancel_switch();              // a newer target replaces one not yet switched to
+    n_total_ = 0xFFFFFFFFUL;               // the run lasts until the new plan's end
+}
+
+// One stage of the re-targeting work; true when it did something.
+bool Device::retarget_work() {
+    if (rt_stage_ == 0 || rt_stage_ == 5) return false;
+    const Plan& cp = *cur_plan_;
+    Plan* np = cur_plan_ == &plan_ ? &plan_b_ : &plan_;
+    if (rt_stage_ == 1) {
+        // the switch point: jerk and acceleration 0 (jerklab.rig.retarget.switch_point)
+        const float te = static_cast<float>(rt_k_) * Ts_;
+        const float tc0 = cp.t_start + cp.accel_time, tc1 = tc0 + cp.tv;
+        if (te < tc1 || te <= tc0) {
+            rt_ts_ = te <= tc0 ? tc0 : te;
+            rt_xs_ = position_at_switch(cp, rt_ts_);
+            rt_vs_ = cp.sign * cp.v_peak;
+        } else {
+            const float tend = cp.t_start + cp.duration;
+            rt_ts_ = tend > te ? tend : te;
+            rt_xs_ = cp.x_start + cp.distance;
+            rt_vs_ = 0.0f;
+        }
+        const float d = rt_target_ - rt_xs_;
+        if (rt_vs_ == 0.0f) {
+            rt_mode_ = 0;
+            rt_stage_ = 3;
+        } else if ((d > 0.0f) == (rt_vs_ > 0.0f) && d != 0.0f &&
+                   solver_.begin(cp.kind, d, jl_fabsf(rt_vs_), max_jerk_, max_accel_, max_velocity_) == kPlanOk) {
+            rt_mode_ = 1;
+            rt_stage_ = 2;
+        } else {
+            rt_mode_ = 2;                  // brake to rest first
+            rt_stage_ = 3;
+        }
+        return true;
+    }
+    if (rt_stage_ == 2) {
+        if (solver_.step(halvings_per_tick(Ts_us_))) rt_stage_ = 3;
+        return true;
+    }
+    if (rt_stage_ == 3) {
+        const float d = rt_target_ - rt_xs_;
+        if (rt_mode_ == 1) {
+            solver_.finish(d, rt_ts_, rt_xs_, np);
+        } else if (rt_mode_ == 2) {
+            plan_stop(cp.kind, jl_fabsf(rt_vs_), rt_vs_, max_jerk_, max_accel_, rt_ts_, rt_xs_, np);
+        } else {
+            plan_kind(run_kind_, d, max_jerk_, max_accel_, max_velocity_, np);
+            place(np, rt_ts_, rt_xs_);
+        }
+        rt_stage_ = 4;
+        return true;
+    }
+    // stage 4: the new plan's first segment, then scheduled (the stepper switches)
+    if (stepper_.prepare_switch(*np)) rt_stage_ = 5;
+    return true;
 }
 
 void Device::background() {
@@ -397,6 +505,8 @@ void Device::background() {
         sample_ahead();
         JL_PART_END(8);
     }
+    // one more piece of work per tick: the re-targeting, else the next segment
+    if (retarget_work()) return;
     JL_PART_BEGIN(9);
     stepper_.prepare();
     JL_PART_END(9);

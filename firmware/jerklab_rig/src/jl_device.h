@@ -77,6 +77,9 @@ private:
     int16_t volts_to_pwm(float u) const;
     int16_t ticks_to_pwm(float u) const;
     void sample_ahead();
+    void handle_retarget(const Frame& f);
+    bool retarget_work();
+    void retarget_begin(uint32_t k_now);
     void update_pwm_top();
 
     Hal& hal_;
@@ -107,6 +110,17 @@ private:
 
     bool plan_ok_ = false;
     Plan plan_;
+    // Re-targeting (PROTOCOL.md "Re-targeting"): the plan that takes over is built in the buffer
+    // the stepper does not use, in stages run by background(); rt_stage_ 0 idle, 1 find the
+    // switch point, 2 bisection, 3 build, 4 prepare its first segment, 5 scheduled.
+    Plan plan_b_;
+    const Plan* cur_plan_ = &plan_;
+    MovingSolver solver_;
+    float rt_target_ = 0.0f, rt_ts_ = 0.0f, rt_xs_ = 0.0f, rt_vs_ = 0.0f;
+    uint32_t rt_k_ = 0;
+    uint8_t rt_stage_ = 0, rt_mode_ = 0, run_kind_ = 0;   // mode: 0 rest to rest, 1 moving start, 2 stop
+    bool rt_active_ = false;               // a RETARGET arrived in this run
+    uint16_t settle_ = 0;
     uint32_t plan_samples_ = 0;
 
     // The reference of the next sample (counts), its velocity (counts per sample) and

@@ -227,45 +227,113 @@ static float moving_dist(uint8_t shape, float v0, float vp, float Je, float A) {
     return 0.5f * (v0 + vp) * (2.0f * tj1 + ta1) + 0.5f * vp * (2.0f * tj2 + ta2);
 }
 
-PlanStatus plan_moving(uint8_t kind, float distance, float v0, float J, float A, float V,
-                       float t_start, float x_start, Plan* p, uint8_t iterations) {
-    PlanStatus st = check(distance, J, A, V);
+static uint8_t shape_of(uint8_t kind) {
+    return kind == kPlannerTrapezoid ? kShapeStep : (kind == kPlannerScurve ? kShapeLinear : kShapeSine);
+}
+
+PlanStatus MovingSolver::begin(uint8_t k, float distance, float v, float j, float a, float vmax,
+                               uint8_t iterations) {
+    PlanStatus st = check(distance, j, a, vmax);
     if (st != kPlanOk) return st;
-    if (!finite_f(v0) || v0 < 0.0f) return kPlanBadVelocity;
-    const uint8_t shape = kind == kPlannerTrapezoid ? kShapeStep
-                          : (kind == kPlannerScurve ? kShapeLinear : kShapeSine);
-    init(p, static_cast<uint8_t>(kind == kPlannerSineJerk ? kPlannerSineJerkOptimal : kind), shape, distance,
-         shape == kShapeStep ? A : J);
+    if (!finite_f(v) || v < 0.0f) return kPlanBadVelocity;
+    kind = k;
+    shape = shape_of(k);
+    d = jl_fabsf(distance);
+    v0 = v;
+    J = j;
+    A = a;
+    V = vmax < v ? v : vmax;               // never asked to exceed the cruise it is in
+    Je = shape == kShapeSine ? kTwoOverPi * J : J;
+    const float dmax = moving_dist(shape, v0, V, Je, A);
+    lo = hi = V;
+    dlo = dmax;
+    left = 0;
+    if (dmax <= d) return kPlanOk;
+    lo = v0;
+    dlo = moving_dist(shape, v0, v0, Je, A);
+    if (dlo > d * (1.0f + 1e-6f) + 1e-30f) return kPlanOvershoot;
+    left = iterations;
+    return kPlanOk;
+}
+
+bool MovingSolver::step(uint8_t n) {
+    for (; n > 0 && left > 0; --n, --left) {
+        const float mid = 0.5f * (lo + hi);
+        const float dm = moving_dist(shape, v0, mid, Je, A);
+        if (dm <= d) { lo = mid; dlo = dm; } else hi = mid;
+    }
+    return left == 0;
+}
+
+void MovingSolver::finish(float distance, float t_start, float x_start, Plan* p) {
+    init(p, static_cast<uint8_t>(kind == kPlannerSineJerk ? kPlannerSineJerkOptimal : kind), shape,
+         distance, shape == kShapeStep ? A : J);
     p->x_start = x_start;
     p->t_start = t_start;
     p->v_start = v0;
-    const float Je = shape == kShapeSine ? kTwoOverPi * J : J;
-    const float d = jl_fabsf(distance);
-    if (v0 > V) V = v0;                     // never asked to exceed the cruise it is in
-    float vp;
-    float dmax = moving_dist(shape, v0, V, Je, A);
-    float tv = 0.0f;
-    if (dmax <= d) {
-        vp = V;
-        tv = (d - dmax) / V;
-    } else {
-        float lo = v0, hi = V;
-        float dlo = moving_dist(shape, v0, v0, Je, A);
-        if (dlo > d * (1.0f + 1e-6f) + 1e-30f) return kPlanOvershoot;
-        for (uint8_t i = 0; i < iterations; ++i) {
-            const float mid = 0.5f * (lo + hi);
-            const float dm = moving_dist(shape, v0, mid, Je, A);
-            if (dm <= d) { lo = mid; dlo = dm; } else hi = mid;
-        }
-        vp = lo;
-        tv = vp > 0.0f && d > dlo ? (d - dlo) / vp : 0.0f;
-    }
+    const float vp = lo;
     p->v_peak = vp;
+    p->tv = vp > 0.0f && d > dlo ? (d - dlo) / vp : 0.0f;
     pair_times(shape, vp - v0, Je, A, &p->tj1, &p->ta1);
     pair_times(shape, vp, Je, A, &p->tj, &p->ta);
-    p->tv = tv;
+    build(p);
+}
+
+PlanStatus plan_moving(uint8_t kind, float distance, float v0, float J, float A, float V,
+                       float t_start, float x_start, Plan* p, uint8_t iterations) {
+    MovingSolver s;
+    PlanStatus st = s.begin(kind, distance, v0, J, A, V, iterations);
+    if (st != kPlanOk) return st;
+    s.step(iterations);
+    s.finish(distance, t_start, x_start, p);
+    return kPlanOk;
+}
+
+PlanStatus plan_stop(uint8_t kind, float v0, float sign, float J, float A, float t_start,
+                     float x_start, Plan* p) {
+    PlanStatus st = check(sign, J, A, 1.0f);
+    if (st != kPlanOk) return st;
+    const uint8_t shape = shape_of(kind);
+    const float Je = shape == kShapeSine ? kTwoOverPi * J : J;
+    float tj, ta;
+    pair_times(shape, v0, Je, A, &tj, &ta);
+    const float d = 0.5f * v0 * (2.0f * tj + ta);
+    init(p, static_cast<uint8_t>(kind == kPlannerSineJerk ? kPlannerSineJerkOptimal : kind), shape,
+         sign < 0.0f ? -d : d, shape == kShapeStep ? A : J);
+    p->sign = sign < 0.0f ? -1.0f : 1.0f;
+    p->x_start = x_start;
+    p->t_start = t_start;
+    p->v_start = v0;
+    p->v_peak = v0;
+    p->tj = tj;
+    p->ta = ta;
     build(p);
     return kPlanOk;
+}
+
+void place(Plan* p, float t_start, float x_start) {
+    p->t_start = t_start;
+    p->x_start = x_start;
+    for (uint8_t i = 0; i < p->nseg; ++i) {
+        p->seg[i].t0 += t_start;
+        p->seg[i].x0 += x_start;
+    }
+}
+
+// The closed form on a segment of constant jerk at local time u >= 0.
+static void eval_poly(const Segment& s, float u, Sample* o) {
+    o->jerk = s.jp;
+    o->accel = s.a0 + s.jp * u;
+    o->velocity = s.v0 + u * (s.a0 + 0.5f * s.jp * u);
+    o->position = s.x0 + u * (s.v0 + u * (0.5f * s.a0 + u * s.jp * (1.0f / 6.0f)));
+}
+
+float position_at_switch(const Plan& p, float t) {
+    uint8_t i = p.nseg - 1;
+    while (i > 0 && t < p.seg[i].t0) --i;
+    const Segment& s = p.seg[i];
+    if (i == p.nseg - 1) return s.x0;
+    return s.x0 + (t - s.t0) * s.v0;      // a cruise (a = j = 0) or the start of a segment
 }
 
 // The closed form on segment s at local time u >= 0.
@@ -381,7 +449,7 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
         c->q = sx * B * (swd * c2 + cwd * s2);     // sin(w delta + theta/2)
     } else {
         Sample s;
-        eval_seg(g, delta, &s);
+        eval_poly(g, delta, &s);
         const float j = g.jp;
         c->x0 = sx * s.position;
         c->x1 = sx * s.velocity * Ts;
@@ -414,6 +482,7 @@ void PlanStepper::compute(uint8_t i, Coef* c) const {
 
 void PlanStepper::start(const Plan& p, float Ts, float alpha, float beta, float sx, float sv) {
     p_ = &p;
+    pend_p_ = nullptr;
     Ts_ = Ts;
     alpha_ = alpha;
     beta_ = beta;
@@ -456,6 +525,24 @@ void PlanStepper::prepare() {
     else ++prep_stage_;
 }
 
+bool PlanStepper::prepare_switch(const Plan& p) {
+    if (pend_p_ != &p) {
+        pend_p_ = &p;
+        pend_stage_ = 0;
+        pend_.seg = 0xFF;
+    }
+    if (pend_.seg < 0xFE) return true;
+    // the first segment of p (its first sample at or after p.t_start); p_ swapped for the call
+    const Plan* keep = p_;
+    p_ = &p;
+    uint8_t j = 0;
+    while (j + 1 < p.nseg && first_sample(j + 1) <= first_sample(0)) ++j;
+    const bool done = compute_stage(j, &pend_, pend_stage_);
+    p_ = keep;
+    if (done) pend_stage_ = 0; else ++pend_stage_;
+    return done;
+}
+
 void PlanStepper::advance_segment() {
     // Called when k_ reached next_.k0 (prepared) or, unprepared, found by search (slow path).
     if (next_.seg < 0xFE && next_.seg > seg_ && k_ >= next_.k0) {
@@ -471,6 +558,16 @@ void PlanStepper::advance_segment() {
 }
 
 bool PlanStepper::next_fast(float* position, float* velocity, float* ff) {
+    if (pend_p_ != nullptr && pend_.seg < 0xFE && k_ >= pend_.k0) {
+        // re-targeting: the new plan takes over at its first sample
+        p_ = pend_p_;
+        pend_p_ = nullptr;
+        cur_ = pend_;
+        seg_ = cur_.seg;
+        n_ = k_ - cur_.k0;
+        next_.seg = 0xFF;
+        k_next_ = seg_ + 1 < p_->nseg ? first_sample(seg_ + 1) : 0xFFFFFFFFUL;
+    }
     if (seg_ + 1 < p_->nseg) {
         if (k_ >= k_next_) advance_segment();
     }

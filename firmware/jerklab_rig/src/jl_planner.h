@@ -93,6 +93,29 @@ PlanStatus plan_moving(uint8_t kind, float distance, float v0, float max_jerk, f
                        float max_velocity, float t_start, float x_start, Plan* out,
                        uint8_t iterations = 24);
 
+/// Brake from |v0| (a0 = 0) to rest in the direction `sign` (+-1): the deceleration half of
+/// kind's shape alone (re-targeting behind the stopping distance).
+PlanStatus plan_stop(uint8_t kind, float v0, float sign, float max_jerk, float max_accel,
+                     float t_start, float x_start, Plan* out);
+
+/// Move a plan made at (t = 0, x = 0) to start at (t_start, x_start).
+void place(Plan* p, float t_start, float x_start);
+
+/// Bisection state of plan_moving, run a few steps at a time (re-targeting in a 1 ms loop).
+struct MovingSolver {
+    uint8_t kind, shape, left;
+    float d, v0, J, A, V, Je, lo, hi, dlo;
+    /// kPlanOk: ready for finish() (maybe after step()s); kPlanOvershoot; or a bad limit.
+    PlanStatus begin(uint8_t kind, float distance, float v0, float J, float A, float V,
+                     uint8_t iterations = 24);
+    /// Up to n halvings; true when done.
+    bool step(uint8_t n);
+    void finish(float distance, float t_start, float x_start, Plan* out);
+};
+
+/// Position at a re-targeting switch time t: in a cruise (a = j = 0) or at a segment's start.
+float position_at_switch(const Plan& p, float t);
+
 /// Closed-form sample at absolute time t (rest at x_start before t_start, at the target after
 /// the end).
 void sample(const Plan& p, float t, Sample* s);
@@ -112,6 +135,12 @@ public:
     /// Continue with the plan `p` (same Ts, same k) from its first sample on: p.t_start must be
     /// after the last sample taken (re-targeting).
     void switch_plan(const Plan& p);
+    /// Re-targeting: prepare (one stage per call, like prepare()) the first segment of `p`,
+    /// which takes over at its first sample; true once scheduled. next_fast() then switches.
+    bool prepare_switch(const Plan& p);
+    void cancel_switch() { pend_p_ = nullptr; }
+    bool switch_scheduled() const { return pend_p_ != nullptr && pend_.seg < 0xFE; }
+    const Plan* plan() const { return p_; }
     /// The control loop's sample at t = k Ts: position (and velocity, feedforward), then k++.
     /// Returns false once the move is over (rest at the target).
     bool next_fast(float* position, float* velocity, float* ff);
@@ -148,8 +177,9 @@ private:
     const Plan* p_ = nullptr;
     float Ts_ = 0.005f, alpha_ = 0.0f, beta_ = 0.0f, sx_ = 1.0f, sv_ = 1.0f;
     uint32_t k_ = 0, n_ = 0, k_next_ = 0;   // k_next_: first sample of the next segment
-    uint8_t seg_ = 0, prep_seg_ = 0, prep_stage_ = 0;
-    Coef cur_, next_;
+    uint8_t seg_ = 0, prep_seg_ = 0, prep_stage_ = 0, pend_stage_ = 0;
+    Coef cur_, next_, pend_;
+    const Plan* pend_p_ = nullptr;
 };
 
 }  // namespace jl
