@@ -135,3 +135,33 @@ def test_1khz_loop_on_the_simulated_uno_matches_the_virtual_rig(tmp_path):
     assert st["control_step_cycles_moving"]["max"] <= 4000, st["control_step_cycles_moving"]
     assert st["firmware_counts"] == st["ideal_counts_x1"]
     assert st["int0_latency_cycles"]["over_120"] == 0
+
+
+@pytest.mark.parametrize("kind,at,new", [(1, 10, 25.0), (2, 15, -3.0)])
+def test_retarget_on_the_firmware_matches_the_virtual_rig(uno, tmp_path, kind, at, new):
+    """Issue 21: RETARGET on the firmware (simavr) during the acceleration phase: the reference
+    follows the virtual rig's (the same rule in float64) to float32 precision, stays
+    jerk-continuous (no jump in its third differences) and the run ends on the new target."""
+    from jerklab.planner import plan_sine_jerk_optimal
+
+    prof = [plan_sine_jerk, plan_sine_jerk_optimal, plan_scurve][kind](4 * math.pi, 2000.0, 300.0, 60.0)
+    g = pole_placement_pid(MOTOR["K"], MOTOR["tau"], wn=20.0).discretize(0.005)
+    recs = []
+    uno.set_model(**MOTOR)
+    with connect(motor=DCMotor(**MOTOR), model=(MOTOR["K"], MOTOR["tau"]), recordings=tmp_path,
+                 progress=False) as virt:
+        for rig in (uno, virt):
+            def cb(k, r, y, rig=rig):
+                if k == at:
+                    rig.retarget(new)
+            recs.append(rig.run_move(prof, g, Ts=0.005, settle=0.3, on_telemetry=cb))
+    fw, py = recs
+    assert fw.metadata["status"] == "complete" and fw.metadata["retargets"][0][1] == new
+    assert fw.metadata["device_overruns"] == 0 and fw.metadata["lost_samples"] == 0
+    assert len(fw) == len(py)
+    assert np.max(np.abs(fw.reference - py.reference)) < 1e-5 * 30.0
+    assert fw.reference[-1] == pytest.approx(new, abs=1e-5)
+    assert abs(fw.position[-1] - new) < 2 / uno.counts_per_rad
+    if kind == 1:
+        j = np.diff(fw.reference.astype(float), 3) / 0.005 ** 3
+        assert np.max(np.abs(np.diff(j))) <= 0.4 * 2000.0

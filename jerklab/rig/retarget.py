@@ -175,10 +175,35 @@ class SegmentPlan:
                 x0 + u * (v0 + u * (0.5 * a0 + u * jp / 6.0)))
 
     def sample(self, t):
-        """Arrays ``(position, velocity, accel, jerk)`` at the times ``t``."""
+        """Arrays ``(position, velocity, accel, jerk)`` at the times ``t`` (vectorized
+        :meth:`state`)."""
         t = np.atleast_1d(np.asarray(t, float))
-        out = np.array([self.state(float(x)) for x in t]).reshape(len(t), 4)
-        return out[:, 3], out[:, 2], out[:, 1], out[:, 0]
+        x = np.full(t.shape, self.x_start)
+        v, a, j = np.zeros(t.shape), np.zeros(t.shape), np.zeros(t.shape)
+        segs = self.segments
+        for i, (t0, x0, v0, a0, jp, sine, w) in enumerate(segs):
+            t_next = segs[i + 1][0] if i + 1 < len(segs) else np.inf
+            sel = (t >= t0) & (t < t_next)
+            if not sel.any():
+                continue
+            if i == len(segs) - 1:
+                x[sel] = x0
+                continue
+            u = t[sel] - t0
+            if sine:
+                wu = w * u
+                sn, omc = np.sin(wu), 2.0 * np.sin(0.5 * wu) ** 2
+                c = jp / w
+                j[sel] = jp * sn
+                a[sel] = a0 + c * omc
+                v[sel] = v0 + a0 * u + c * (u - sn / w)
+                x[sel] = x0 + u * (v0 + 0.5 * a0 * u) + c * (0.5 * u * u - omc / (w * w))
+            else:
+                j[sel] = jp
+                a[sel] = a0 + jp * u
+                v[sel] = v0 + u * (a0 + 0.5 * jp * u)
+                x[sel] = x0 + u * (v0 + u * (0.5 * a0 + u * jp / 6.0))
+        return x, v, a, j
 
 
 def rest_plan(kind, distance, max_jerk, max_accel, max_velocity, t_start=0.0, x_start=0.0):
