@@ -51,6 +51,7 @@ EXAMPLES = [
     P.Stop(),
     P.Step(voltage=-6.0, Ts_us=5000, n_samples=200),
     P.Heartbeat(),
+    P.Retarget(25.0),
     P.Ack(command=P.MsgType.SET_GAINS),
     P.Nack(command=P.MsgType.SET_LIMITS, error=P.ErrorCode.BAD_VALUE, param=3),
     P.HelloReply(1, 0, 1, 2, 0x1F1, 1000, 1023, "jerklab-uno"),
@@ -112,7 +113,7 @@ def test_golden_frames_match_protocol_md():
         P.Step(6.0, 5000, 200), P.Heartbeat(), P.Ack(2), P.Nack(3, 3, 1), P.Nack(5, 8, 0),
         P.HelloReply(2, 0, 1, 0, 0x1F1, 1000, 1023, "jerklab-uno"), P.PlanInfo(0.1, 0.2, 0.4, 81),
         P.Telemetry(12, 1.5, -300, -1023, 1), P.EndOfRun(0, 81, 0, 0, 0.0),
-        P.EndOfRun(4, 169, 0, 0, 0.52), P.DeviceError(3, 1),
+        P.EndOfRun(4, 169, 0, 0, 0.52), P.DeviceError(3, 1), P.Retarget(25.0),
     ]
     assert len(hexes) == len(expected)
     for h, m in zip(hexes, expected):
