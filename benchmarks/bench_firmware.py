@@ -156,7 +156,7 @@ def main():
     if m:
         f, ft, r_, rt = (int(x) for x in m.groups())
         print(f"flash {f} / {ft} B = {f / ft:.3f} of the Uno, RAM {r_} / {rt} B = {r_ / rt:.3f} "
-              f"(budget 0.85 / 0.75)")
+              f"(budget 0.92 / 0.75)")
 
 
 if __name__ == "__main__":
