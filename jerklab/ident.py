@@ -909,8 +909,9 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
         or ``theta``, a ``Ts`` outside ``FIT_TS_RANGE``, an unknown ``method`` or option, or data from which
         the ARX pole falls outside (0, 1). Also an input with too few distinct levels for the
         input map asked for: the motor sees K dz(u + offset) only at the levels u takes, so K,
-        ``offset`` and ``dead_zone`` need at least 1 + offset + dead_zone distinct (driven) levels;
-        a two-level input (a PRBS, a step) cannot separate all three.
+        ``offset`` and ``dead_zone`` need at least 1 + offset + dead_zone distinct (driven) levels
+        (without an offset, distinct non-zero magnitudes |u|); a two-level input (a PRBS, a step)
+        cannot separate all three, nor K and a dead zone alone.
 
     References
     ----------
@@ -971,11 +972,15 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
         raise ValueError("coast: u is never exactly 0, so the drive is never open; fit without coast")
     if offset or dead_zone:
         # the static map u -> K dz(u + offset) is only seen at the levels u takes
-        levels = np.unique(u_all[u_all != 0.0] if coast else u_all)
+        # (without an offset, dz(0) = 0 and dz is odd: u = 0 tells nothing, and -l says what l says)
+        levels = np.unique(u_all if offset else np.abs(u_all))
+        if coast or not offset:
+            levels = levels[levels != 0.0]
         need = 1 + int(bool(offset)) + int(bool(dead_zone))
         if levels.size < need:
             shown = ", ".join(f"{lv:.4g}" for lv in levels[:4]) + (" ..." if levels.size > 4 else "")
-            which = " and ".join(nm for nm, on in (("K", True), ("offset", offset), ("dead_zone", dead_zone)) if on)
+            which = [nm for nm, on in (("K", True), ("offset", offset), ("dead_zone", dead_zone)) if on]
+            which = ", ".join(which[:-1]) + " and " + which[-1]
             raise ValueError(
                 f"{'dead_zone' if dead_zone else 'offset'}: the {'driven ' if coast else ''}input takes only "
                 f"{levels.size} distinct level{'s' if levels.size > 1 else ''} ({shown} V), and the motor sees "
@@ -2336,7 +2341,7 @@ def load_dc_generator(root=None, decimate: int = 1, clock_period: float = 1.0) -
 
     * u (V): ``x_cc``, as recorded.
     * speed: ``y_cc`` minus its median at rest (the samples before the first switch-on,
-      -143.8), in the record's own unit (not stated by the authors).
+      -143.64), in the record's own unit (not stated by the authors).
     * y: the speed integrated by the trapezoidal rule from 0, so the angle-based estimators of
       this module apply: ``fit_dc_motor`` fits K (speed unit per V) and tau on it, and
       ``compare(data, fit, output="speed")`` compares the speed, ``diff(y)/Ts`` (the mean of
