@@ -822,7 +822,7 @@ FIT_TS_RANGE = (1e-9, 1e3)
 
 def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
                  friction: bool = False, offset: bool = False, delay=0, dead_zone: bool = False,
-                 segment=None, max_delay: int = 10, cutoff=None, coast: bool = False) -> MotorFit:
+                 segment=None, max_delay: int = 10, cutoff=None, coast=False) -> MotorFit:
     """Identify K and tau of P(s) = K/(s(tau s + 1)) (Stojčić eq. 1, §4A) from a voltage/angle record.
 
     The paper ran MATLAB's ``pem(iddata(y, u, Ts), 'P2')``; 'P2' has no integrator, so this fits
