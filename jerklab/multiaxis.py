@@ -109,6 +109,30 @@ def _standstill(kind, duration, limits) -> Profile:
     return _make(kind, 0.0, 0.0, 0.0, duration, 0.0, limits)
 
 
+def _fill(T, tj, ta):
+    """``(tj, ta, tv)`` with ``tv >= 0`` and ``2 (2 tj + ta) + tv == T`` in floating point.
+
+    ``Profile.duration`` sums the phase times that way; ``T - a`` may round, and when ``a`` has
+    a bit half an ulp of ``T`` below, every ``a + tv`` is a tie that rounds past ``T``: then ``tj``
+    (or ``ta``) is moved by one ulp and the cruise searched again.
+    """
+    for _ in range(6):
+        a = 2.0 * (2.0 * tj + ta)
+        tv = max(T - a, 0.0)
+        for k in range(8):                              # step tv by ulps until the sum is T
+            tot = a + tv
+            if tot == T:
+                return tj, ta, tv
+            if tv == 0.0 and tot > T:
+                break
+            tv = max(math.nextafter(tv, math.inf if tot < T else -math.inf), 0.0)
+        if ta > 0.0:
+            ta = math.nextafter(ta, 0.0)
+        else:
+            tj = math.nextafter(tj, 0.0)
+    return tj, ta, max(T - 2.0 * (2.0 * tj + ta), 0.0)      # pragma: no cover - not met
+
+
 def stretch_to_duration(profile: Profile, duration) -> Profile:
     """The same move and limits as ``profile`` (a time-optimal plan), lasting exactly ``duration``.
 
@@ -175,7 +199,8 @@ def stretch_to_duration(profile: Profile, duration) -> Profile:
         else:
             J = profile.max_jerk * (_TWO_OVER_PI if kind == "sine_jerk_optimal" else 1.0)
             tja = A / J                                 # pulse length up to the acceleration limit
-            if T <= d / (A * tja) + 2.0 * tja:          # v >= A^2/J: a plateau at A
+            # v >= A^2/J (a plateau at A) needs the optimum to reach A^2/J, and T up to T(A^2/J)
+            if v0 >= A * tja and T <= d / (A * tja) + 2.0 * tja:
                 B = T - tja
                 v = 2.0 * d / (B + math.sqrt(max(B * B - 4.0 * d / A, 0.0)))
                 tj, ta = tja, max(min(v, v0) / A - tja, 0.0)
@@ -185,8 +210,7 @@ def stretch_to_duration(profile: Profile, duration) -> Profile:
                 tj = T / 3.0 * math.sin(0.5 * th) ** 2 + T / (2.0 * _SQRT3) * math.sin(th)
                 tj = min(tj, math.sqrt(v0 / J))
                 ta = 0.0
-    tv = T - 2.0 * (2.0 * tj + ta)
-    tv = max(tv, 0.0)
+    tj, ta, tv = _fill(T, tj, ta)
     jpar = _jerk_for_distance(kind, d, tj, ta, tv)
     if not (math.isfinite(jpar) and jpar > 0.0):
         raise ValueError(f"no finite profile of distance {profile.distance!r} lasting {T!r} s "

@@ -1,0 +1,301 @@
+"""Several axes (issue 21): time and phase synchronization, and Yang's x–y stand in Verilog.
+
+Checks against something independent of ``jerklab.multiaxis``'s algebra:
+
+* the common end time and every limit, on dense closed-form samples of each axis;
+* the continuity of each stretched axis, by integrating its sampled jerk/acceleration/velocity
+  (trapezoid rule) and comparing with the closed form;
+* a time-synchronized axis is the *time-optimal* plan of the existing single-axis planner for its
+  own jerk and acceleration limits and its lowered peak velocity (``plan_scurve`` etc. recompute the
+  duration);
+* phase synchronization: every axis on the straight line ``x_i = d_i s(t)`` to 1e-9;
+* the x–y stand: two ``YangSCurve`` generators (Python model) and their Verilog (Icarus) from one
+  plan, pulse edge for pulse edge.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
+
+from jerklab.multiaxis import PLANNERS, plan_multi_axis, stretch_to_duration
+from jerklab.planner import plan_scurve, plan_sine_jerk_optimal, plan_trapezoid
+
+RTOL = 1e-9
+SINGLE = {"scurve": lambda d, J, A, V: plan_scurve(d, J, A, V),
+          "sine_jerk_optimal": lambda d, J, A, V: plan_sine_jerk_optimal(d, J, A, V),
+          "trapezoid": lambda d, J, A, V: plan_trapezoid(d, A, V)}
+
+
+def dense_times(plan, m=4001):
+    """Uniform samples plus both sides of every phase boundary of every axis."""
+    T = plan.duration
+    t = [np.linspace(0.0, T, m)]
+    for p in plan.axes:
+        b = np.cumsum((0.0,) + tuple(p.phase_times))
+        for eps in (-1e-12, 0.0, 1e-12):
+            t.append(np.clip(b + eps * max(T, 1e-300), 0.0, T))
+    return np.unique(np.concatenate(t))
+
+
+def check_limits(plan, t=None):
+    t = dense_times(plan) if t is None else t
+    s = plan.sample(t)
+    for i, (J, A, V) in enumerate(plan.limits):
+        p = plan.axes[i]
+        tol = 1.0 + RTOL
+        assert np.abs(s.velocity[i]).max() <= V * tol, (i, "velocity")
+        assert np.abs(s.accel[i]).max() <= A * tol, (i, "accel")
+        assert p.peak_velocity <= V * tol and p.peak_accel <= A * tol
+        if plan.planner != "trapezoid":
+            assert np.abs(s.jerk[i]).max() <= J * tol, (i, "jerk")
+            assert p.peak_jerk <= J * tol
+
+
+def check_ends(plan):
+    T = plan.duration
+    for i, p in enumerate(plan.axes):
+        assert p.duration == pytest.approx(T, rel=RTOL, abs=1e-300), i
+        assert math.fsum(p.phase_times) == pytest.approx(T, rel=RTOL, abs=1e-300)
+        end = p.sample(T)
+        d = plan.distances[i]
+        assert float(end.position) == d
+        assert float(end.velocity) == 0.0 and float(end.accel) == 0.0
+        start = p.sample(0.0)
+        assert float(start.position) == 0.0 and float(start.velocity) == 0.0
+    s = plan.sample(np.array([0.0, T, 2 * T + 1]))
+    assert np.array_equal(s.position[:, 1], plan.distances) and np.array_equal(s.position[:, 2], plan.distances)
+    assert np.all(s.position[:, 0] == 0.0)
+
+
+def check_integrates(plan, m=20001):
+    """Position and velocity of each axis equal the integrals of its velocity and acceleration."""
+    T = plan.duration
+    if T == 0.0:
+        return
+    t = np.linspace(0.0, T, m)
+    dt = t[1] - t[0]
+    for i, p in enumerate(plan.axes):
+        s = p.sample(t)
+        scale = max(abs(plan.distances[i]), 1e-300)
+        pos = np.concatenate([[0.0], np.cumsum(0.5 * (s.velocity[1:] + s.velocity[:-1]) * dt)])
+        vel = np.concatenate([[0.0], np.cumsum(0.5 * (s.accel[1:] + s.accel[:-1]) * dt)])
+        # trapezoid-rule error ~ dt^2 T max|x'''|/12, bounded by the jerk/accel limits
+        J, A, V = plan.limits[i]
+        jmax = A / (dt) if plan.planner == "trapezoid" else J
+        assert np.abs(pos - s.position).max() <= 1e-6 * scale + dt * dt * T * (jmax + A) / 6, i
+        assert np.abs(vel - s.velocity).max() <= 1e-6 * max(p.peak_velocity, 1e-300) + dt * (A + jmax * dt), i
+
+
+# --------------------------------------------------------------------------- examples
+LIMS = [(80000.0, 40000.0, 20000.0), (80000.0, 40000.0, 20000.0)]
+
+
+@pytest.mark.parametrize("planner", PLANNERS)
+@pytest.mark.parametrize("sync", ["time", "phase"])
+def test_two_axes_end_together_within_limits(planner, sync):
+    plan = plan_multi_axis([40000.0, -15000.0], LIMS, sync=sync, planner=planner)
+    check_ends(plan)
+    check_limits(plan)
+    check_integrates(plan)
+    assert len(plan) == 2 and plan.sync == sync and plan.planner == planner
+    if sync == "time":
+        assert plan.duration == max(plan.min_durations)
+    else:
+        assert plan.duration >= max(plan.min_durations) * (1 - 1e-12)
+
+
+def test_time_sync_slowest_axis_keeps_its_optimal_plan():
+    plan = plan_multi_axis([3.0, 1.0, 0.2], [(50.0, 10.0, 2.0), (5.0, 1.0, 0.5), (1.0, 1.0, 1.0)])
+    k = int(np.argmax(plan.min_durations))
+    opt = plan_scurve(*(plan.distances[k],), *plan.limits[k])
+    assert plan.axes[k].phase_times == opt.phase_times
+    others = [i for i in range(3) if i != k]
+    assert all(plan.axes[i].peak_velocity < plan.limits[i][2] for i in others)
+
+
+def test_phase_sync_is_the_fastest_straight_line():
+    """The normalized limits are min limit_i/|d_i|: scaling any of them up breaks some axis's limit."""
+    d = np.array([4.0, -1.0, 2.0])
+    lims = [(40.0, 8.0, 3.0), (30.0, 1.0, 2.0), (5.0, 6.0, 0.7)]
+    plan = plan_multi_axis(d, lims, sync="phase")
+    Jn, An, Vn = plan.normalized_limits
+    assert Jn == min(L[0] / abs(x) for L, x in zip(lims, d))
+    assert An == min(L[1] / abs(x) for L, x in zip(lims, d))
+    assert Vn == min(L[2] / abs(x) for L, x in zip(lims, d))
+    # the same straight line with every normalized limit 1 % larger: the path is faster, and one
+    # axis at least exceeds one of its limits
+    faster = plan_scurve(1.0, 1.01 * Jn, 1.01 * An, 1.01 * Vn)
+    assert faster.duration < plan.duration
+    over = [abs(x) * faster.peak_jerk > L[0] * (1 + 1e-12) or abs(x) * faster.peak_accel > L[1] * (1 + 1e-12)
+            or abs(x) * faster.peak_velocity > L[2] * (1 + 1e-12) for L, x in zip(lims, d)]
+    assert any(over)
+
+
+def test_standstill_axes():
+    plan = plan_multi_axis([0.0, 2.0, 0.0], [(1, 1, 1)] * 3, sync="time")
+    assert plan.axes[0].duration == plan.duration == plan.axes[1].duration
+    s = plan.sample(np.linspace(0, plan.duration, 101))
+    assert np.all(s.position[0] == 0.0) and np.all(s.velocity[2] == 0.0)
+    for sync in ("time", "phase"):
+        zero = plan_multi_axis([0.0, -0.0], [(1, 1, 1)] * 2, sync=sync)
+        assert zero.duration == 0.0 and all(p.duration == 0.0 for p in zero.axes)
+        assert np.all(zero.sample([0.0, 1.0]).position == 0.0)
+
+
+def test_dict_limits_and_array_limits():
+    a = plan_multi_axis([1.0, 2.0], [dict(max_jerk=5, max_accel=2, max_velocity=1)] * 2, sync="phase")
+    b = plan_multi_axis([1.0, 2.0], np.array([[5.0, 2.0, 1.0]] * 2), sync="phase")
+    assert a.duration == b.duration
+    c = plan_multi_axis([1.0, 2.0], [dict(max_accel=2, max_velocity=1), (None, 3, 1)], planner="trapezoid")
+    assert c.axes[0].kind == "trapezoid" and c.to_dict()["axes"][1]["kind"] == "trapezoid"
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(sync="space"), "sync"),
+    (dict(sync=None), "sync"),
+    (dict(planner="sine_jerk"), "planner.*sine_jerk_optimal"),
+    (dict(planner="bang"), "planner"),
+    (dict(distances=[1.0, math.nan]), "distances"),
+    (dict(distances=[1.0, math.inf]), "distances"),
+    (dict(distances=[]), "distances"),
+    (dict(distances=[[1.0, 2.0]]), "distances"),
+    (dict(distances="12"), "distances"),
+    (dict(limits_per_axis=[(1, 1, 1)]), "limits_per_axis"),
+    (dict(limits_per_axis=[(1, 1, 1), (1, -1, 1)]), r"limits_per_axis\[1\]\.max_accel"),
+    (dict(limits_per_axis=[(1, 1, 1), (math.nan, 1, 1)]), r"limits_per_axis\[1\]\.max_jerk"),
+    (dict(limits_per_axis=[(1, 1, 0.0), (1, 1, 1)]), r"limits_per_axis\[0\]\.max_velocity"),
+    (dict(limits_per_axis=[(1, 1), (1, 1, 1)]), r"limits_per_axis\[0\]"),
+    (dict(limits_per_axis=[{"max_jerk": 1, "max_accel": 1, "max_vel": 1}, (1, 1, 1)]), "unknown keys"),
+    (dict(limits_per_axis=[{"max_accel": 1, "max_velocity": 1}, (1, 1, 1)]), "max_jerk"),
+    (dict(limits_per_axis=[(None, 1, 1), (1, 1, 1)]), r"limits_per_axis\[0\]\.max_jerk"),
+    (dict(limits_per_axis=[("1", 1, 1), (1, 1, 1)]), r"limits_per_axis\[0\]\.max_jerk"),
+    (dict(limits_per_axis={"max_jerk": 1, "max_accel": 1, "max_velocity": 1}), "limits_per_axis"),
+    (dict(limits_per_axis=5.0), "limits_per_axis"),
+])
+def test_bad_input_names_the_parameter(kwargs, match):
+    args = dict(distances=[1.0, 2.0], limits_per_axis=[(1, 1, 1), (1, 1, 1)])
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=match):
+        plan_multi_axis(**args)
+
+
+def test_stretch_to_duration_rejects_a_shorter_duration():
+    p = plan_scurve(1.0, 1.0, 1.0, 1.0)
+    with pytest.raises(ValueError, match="shorter than the time-optimal"):
+        stretch_to_duration(p, 0.5 * p.duration)
+    with pytest.raises(ValueError, match="duration"):
+        stretch_to_duration(p, math.nan)
+    assert stretch_to_duration(p, p.duration) is p
+
+
+@pytest.mark.parametrize("planner", PLANNERS)
+@pytest.mark.parametrize("factor", [1.0 + 1e-15, 1.0 + 1e-9, 1.0001, 1.3, 3.0, 1e3, 1e6])
+@pytest.mark.parametrize("d, J, A, V", [(1.0, 1.0, 1.0, 1.0), (100.0, 10.0, 5.0, 1.0),
+                                        (0.01, 1e4, 1.0, 10.0), (2.0, 1.0, 10.0, 0.3),
+                                        (1.0, 1.0, 1.0, 0.5)])   # last: V = d A / ... edge of a cruise
+def test_stretch_is_time_optimal_for_a_lowered_velocity(planner, factor, d, J, A, V):
+    """Independent check: the existing planner, given the stretched axis's peak velocity as its
+    velocity limit, plans the same duration (1e-9) -- the axis is 'no faster than its own limits
+    allow' and uses them fully except the velocity."""
+    opt = SINGLE[planner](d, J, A, V)
+    T = opt.duration * factor
+    p = stretch_to_duration(opt, T)
+    assert p.duration == pytest.approx(T, rel=1e-15)
+    assert float(p.sample(T).position) == d
+    assert p.peak_velocity <= V * (1 + 1e-12) and p.peak_accel <= A * (1 + 1e-12)
+    if planner != "trapezoid":
+        assert p.peak_jerk <= J * (1 + 1e-12)
+    again = SINGLE[planner](d, J, A, p.peak_velocity)
+    assert again.duration == pytest.approx(T, rel=RTOL)
+
+
+# --------------------------------------------------------------------------- properties
+SIGN = st.sampled_from([1.0, -1.0])
+AXIS = st.tuples(st.one_of(st.just(0.0), st.floats(-4, 4)), SIGN,     # log10 |d| (0.0 flag below)
+                 st.floats(-2, 5), st.floats(-2, 4), st.floats(-2, 3),  # log10 J, A, V
+                 st.booleans())                                      # zero-distance axis
+
+
+def build(axes):
+    d, lims = [], []
+    for ed, sgn, ej, ea, ev, zero in axes:
+        d.append(0.0 if zero else sgn * 10.0 ** ed)
+        lims.append((10.0 ** ej, 10.0 ** ea, 10.0 ** ev))
+    return d, lims
+
+
+@settings(max_examples=150, deadline=None)
+@given(axes=st.lists(AXIS, min_size=1, max_size=5), planner=st.sampled_from(PLANNERS))
+@example(axes=[(0.0, 1.0, 0.0, 0.0, 0.0, False), (-4.0, -1.0, 5.0, 4.0, 3.0, False)], planner="scurve")
+@example(axes=[(4.0, 1.0, -2.0, -2.0, -2.0, False), (-4.0, 1.0, 5.0, 4.0, 3.0, False),
+               (0.0, 1.0, 0.0, 0.0, 0.0, True)], planner="sine_jerk_optimal")
+def test_time_sync_property(axes, planner):
+    """Random distances and limits, zero axes, one axis dominating, negative distances."""
+    d, lims = build(axes)
+    plan = plan_multi_axis(d, lims, sync="time", planner=planner)
+    assert plan.duration == max(plan.min_durations)
+    check_ends(plan)
+    check_limits(plan, np.linspace(0.0, plan.duration, 801))
+    for i, p in enumerate(plan.axes):
+        if d[i] != 0.0:          # the single-axis planner agrees that the axis is time-optimal for its v
+            J, A, _ = lims[i]
+            assert SINGLE[planner](d[i], J, A, p.peak_velocity).duration == pytest.approx(plan.duration, rel=RTOL)
+
+
+@settings(max_examples=150, deadline=None)
+@given(axes=st.lists(AXIS, min_size=1, max_size=5), planner=st.sampled_from(PLANNERS))
+@example(axes=[(0.0, 1.0, 0.0, 0.0, 0.0, False), (-4.0, -1.0, 5.0, 4.0, 3.0, False)], planner="trapezoid")
+def test_phase_sync_property(axes, planner):
+    """Every axis on the straight line x_i = d_i s(t) to 1e-9 at many sample times."""
+    d, lims = build(axes)
+    plan = plan_multi_axis(d, lims, sync="phase", planner=planner)
+    check_ends(plan)
+    check_limits(plan, np.linspace(0.0, plan.duration, 801))
+    assert plan.duration >= max(plan.min_durations) * (1 - 1e-12)
+    if plan.path is None:
+        assert all(x == 0.0 for x in d)
+        return
+    t = np.sort(np.random.default_rng(len(d)).uniform(0.0, plan.duration, 997))
+    s = plan.path.sample(t).position                    # the normalized profile, 0 -> 1
+    assert np.all(np.diff(s) >= -1e-15) and 0.0 <= s.min() and s.max() <= 1.0
+    dd = np.asarray(d)
+    for x in (plan.sample(t).position, np.stack([p.sample(t).position for p in plan.axes])):
+        assert np.all(np.abs(x - dd[:, None] * s) <= RTOL * np.abs(dd)[:, None]), "off the line"
+    # the cross product with the direction: the distance from the line, relative to the move
+    unit = dd / np.linalg.norm(dd)
+    x = np.stack([p.sample(t).position for p in plan.axes])
+    off = x - unit[:, None] * (unit @ x)
+    assert np.abs(off).max() <= RTOL * np.linalg.norm(dd)
+
+
+@settings(max_examples=60, deadline=None)
+@given(axes=st.lists(AXIS, min_size=2, max_size=3), planner=st.sampled_from(PLANNERS),
+       sync=st.sampled_from(["time", "phase"]))
+def test_continuity_property(axes, planner, sync):
+    d, lims = build(axes)
+    plan = plan_multi_axis(d, lims, sync=sync, planner=planner)
+    check_integrates(plan)
+
+
+def test_seeded_batch_time_and_phase():
+    """A seeded batch of 2000 random 3-axis moves (a cheap sweep next to the hypothesis tests)."""
+    rng = np.random.default_rng(21)
+    for k in range(2000):
+        n = 3
+        d = np.where(rng.random(n) < 0.15, 0.0, rng.choice([-1, 1], n) * 10 ** rng.uniform(-3, 3, n))
+        lims = [tuple(10 ** rng.uniform(-1, 3, 3)) for _ in range(n)]
+        planner = PLANNERS[k % 3]
+        for sync in ("time", "phase"):
+            plan = plan_multi_axis(d, lims, sync=sync, planner=planner)
+            T = plan.duration
+            for i, p in enumerate(plan.axes):
+                assert abs(p.duration - T) <= RTOL * T
+                assert float(p.sample(T).position) == d[i]
+                J, A, V = lims[i]
+                assert p.peak_velocity <= V * (1 + RTOL) and p.peak_accel <= A * (1 + RTOL)
+                if planner != "trapezoid":
+                    assert p.peak_jerk <= J * (1 + RTOL)
