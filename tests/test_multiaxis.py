@@ -299,3 +299,144 @@ def test_seeded_batch_time_and_phase():
                 assert p.peak_velocity <= V * (1 + RTOL) and p.peak_accel <= A * (1 + RTOL)
                 if planner != "trapezoid":
                     assert p.peak_jerk <= J * (1 + RTOL)
+
+
+# --------------------------------------------------------------------------- Yang's x–y stand
+from jerklab.fpga import (PAPER, YANG_TICK_SEARCH, HardwareLimitError, YangSCurve,  # noqa: E402
+                          simulate_verilog_xy, yang_axes)
+
+#: the paper's axis limits: V = 20 mm/s, T = 1 s -> A = 2V/T, J = 4V/T^2 (µm, s)
+YANG_LIMITS = (4 * 20000.0, 2 * 20000.0, 20000.0)
+XY = [40000.0, -15000.0]            # µm: x is the paper's move (Yang §3), y a shorter one backwards
+
+
+def move_error_bound(axes, i):
+    """Derived bound on |k * pulses - |d_i||: f = v // k drops < 1 pulse per second of the move,
+    the integer V is within half a pulse, the start counts drop their ramp (< 1 pulse here) and the
+    latched divider may leave one period unfinished: k (duration/1 s + 2)."""
+    g = axes.generators[i]
+    duration = (g.end_tick) * g.refresh_period
+    return g.step_um * (duration + 2.0)
+
+
+def end_window(axes):
+    """The longest pulse period of any axis (its cycle at the start speed), in clocks."""
+    return max(int(g.speed_table().cycle.max()) for g in axes.generators if g is not None)
+
+
+@pytest.mark.parametrize("sync", ["phase", "time"])
+def test_yang_axes_mapping(sync):
+    plan = plan_multi_axis(XY, [YANG_LIMITS] * 2, sync=sync)
+    axes = yang_axes(plan, clock_hz=100_000)
+    gx, gy = axes.generators
+    assert axes.directions == (1, -1)
+    # the x axis is the paper's generator (Yang eq. 7, Yang eq. 8), clock scaled
+    assert gx.verilog_defines() == YangSCurve(**{**PAPER, "clock_hz": 100_000}).verilog_defines()
+    for g, lim, d in zip(axes.generators, plan.limits, XY):
+        J, A, V = lim
+        T = g.accel_time
+        assert g.end_tick == axes.end_tick                         # every generator stops at tick M
+        assert g.max_velocity <= V and 2 * g.max_velocity / T <= A * (1 + 1e-12)
+        assert 4 * g.max_velocity / T ** 2 <= J * (1 + 1e-12)
+        assert abs(g.distance_um - abs(d)) <= g.step_um / 2 + 1e-9    # the ideal generator move
+        assert g.speed(g.start_count) >= g.step_um                   # >= 1 pulse/s at the start
+    if sync == "phase":
+        assert (gx.half_counts, gx.cruise_counts) == (gy.half_counts, gy.cruise_counts)
+        assert gy.max_velocity / gx.max_velocity == pytest.approx(15000 / 40000, rel=1e-4)
+
+
+@pytest.mark.parametrize("sync", ["phase", "time"])
+def test_xy_stand_model_reaches_target_together(sync):
+    plan = plan_multi_axis(XY, [YANG_LIMITS] * 2, sync=sync)
+    axes = yang_axes(plan, clock_hz=100_000)
+    trains = axes.pulses()
+    final = axes.positions(1e3)
+    W = end_window(axes)
+    for i, (tr, d) in enumerate(zip(trains, XY)):
+        assert abs(final[i] - d) <= move_error_bound(axes, i), (i, final[i], d)
+        assert len(tr.rise) == len(tr.fall)                          # every pulse completed
+        assert abs(int(tr.fall[-1]) - axes.end_posedge) <= W          # ends in the common window
+    t = np.linspace(0.0, 3.5, 3501)
+    pos = axes.positions(t)
+    assert np.all(np.diff(pos[0]) >= 0) and np.all(np.diff(pos[1]) <= 0)
+
+
+def test_xy_path_phase_sync_is_straight_time_sync_is_not():
+    """On the pulse counts: phase sync stays within the pulses' own lag of the line, time sync
+    (y arrives at the same time but on its own velocity profile) bends away by many pulses."""
+    t = np.linspace(0.0, 3.2, 6401)
+    d = np.asarray(XY)
+    u = d / np.linalg.norm(d)
+    off, lag = {}, {}
+    for sync in ("phase", "time"):
+        plan = plan_multi_axis(XY, [YANG_LIMITS] * 2, sync=sync)
+        axes = yang_axes(plan, clock_hz=100_000)
+        pos = axes.positions(t)
+        off[sync] = np.linalg.norm(pos - np.outer(u, u @ pos), axis=0).max()
+        lag[sync] = np.abs(pos - plan.sample(t).position).max()
+        # the planned path is exactly on the line (phase) or not (time)
+    assert off["phase"] <= lag["phase"]
+    assert off["time"] > 5 * off["phase"]
+
+
+@pytest.mark.parametrize("sync", ["phase", "time"])
+def test_xy_stand_verilog_matches_model_on_both_axes(sync, tmp_path):
+    """Two scurve_gen + pulse_divider pairs in one Icarus run (firmware/fpga/tb_xy.v), driven by
+    the parameters of one synchronized plan: every tick and every edge of both axes equal the
+    Python model; the pulse counts reach the target and both axes end in the same window."""
+    from conftest import require_tool
+    require_tool("iverilog", "vvp")
+    plan = plan_multi_axis(XY, [YANG_LIMITS] * 2, sync=sync)
+    axes = yang_axes(plan, clock_hz=100_000)
+    runs = simulate_verilog_xy(axes, workdir=str(tmp_path))
+    trains = axes.pulses()
+    for run, g, tr in zip(runs, axes.generators, trains):
+        tab = g.speed_table()
+        for f in ("m", "n", "speed", "frequency", "cycle"):
+            assert np.array_equal(getattr(run.table, f), getattr(tab, f)), f
+        assert len(run.rise) > 500
+        assert np.array_equal(run.rise, tr.rise) and np.array_equal(run.fall, tr.fall)
+    final = [s * g.step_um * len(r.rise) for s, g, r in zip(axes.directions, axes.generators, runs)]
+    for i in range(2):
+        assert abs(final[i] - XY[i]) <= move_error_bound(axes, i)
+        assert abs(int(runs[i].fall[-1]) - axes.end_posedge) <= end_window(axes)
+
+
+def test_yang_axes_refuses_what_the_generator_cannot_run():
+    with pytest.raises(ValueError, match="planner"):
+        yang_axes(plan_multi_axis(XY, [YANG_LIMITS] * 2, planner="trapezoid"))
+    plateau = plan_multi_axis(XY, [(80000.0, 10000.0, 20000.0)] * 2, sync="phase")
+    with pytest.raises(ValueError, match="plateau"):
+        yang_axes(plateau)
+    with pytest.raises(ValueError, match="plan"):
+        yang_axes("xy")
+    with pytest.raises(ValueError, match="no axis"):
+        yang_axes(plan_multi_axis([0.0, 0.0], [YANG_LIMITS] * 2))
+    with pytest.raises(HardwareLimitError):
+        yang_axes(plan_multi_axis([40000.0, 1.0], [YANG_LIMITS] * 2, sync="phase"))   # V < 1 µm/s
+    with pytest.raises(ValueError, match="two moving axes"):
+        simulate_verilog_xy(yang_axes(plan_multi_axis([1e4, 0.0], [YANG_LIMITS] * 2)))
+
+
+@settings(max_examples=100, deadline=None)
+@given(dx=st.floats(500.0, 80000.0), dy=st.floats(500.0, 80000.0), sx=SIGN, sy=SIGN,
+       sync=st.sampled_from(["phase", "time"]), vy=st.floats(0.3, 1.0))
+def test_yang_axes_property(dx, dy, sx, sy, sync, vy):
+    """Random x–y moves (y with its own, lower limits): the generators stop on the same tick,
+    keep each axis's limits and cover the distance within half a pulse (ideal integer move)."""
+    lims = [YANG_LIMITS, tuple(vy * x for x in YANG_LIMITS)]
+    plan = plan_multi_axis([sx * dx, sy * dy], lims, sync=sync)
+    try:
+        axes = yang_axes(plan, clock_hz=1_000_000)
+    except HardwareLimitError as exc:          # only a speed below the 1 µm/s resolution
+        assert "1 µm/s" in str(exc)
+        return
+    for g, (J, A, V), d in zip(axes.generators, lims, plan.distances):
+        assert g.end_tick == axes.end_tick
+        assert g.max_velocity <= V * (1 + 1e-12) and g.max_velocity / (g.half_counts * g.refresh_period) <= A * (1 + 1e-12)
+        assert abs(g.distance_um - abs(d)) <= g.step_um / 2 + 1e-9
+    assert axes.end_tick * PAPER["refresh_period"] >= plan.duration * (1 - 1e-12)
+    # rounded up to whole counts (4 N <= 4 (tj/tc + 1)), then at most YANG_TICK_SEARCH ticks later
+    assert axes.end_tick * PAPER["refresh_period"] <= plan.duration + (4 + YANG_TICK_SEARCH) * PAPER["refresh_period"]
+    if sync == "phase":
+        assert len({(g.half_counts, g.cruise_counts) for g in axes.generators}) == 1
