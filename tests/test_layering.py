@@ -16,7 +16,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
-BELOW_THE_FACE = ["jerklab", "jerklab.law", "jerklab.paper", "jerklab.planner", "jerklab.plant",
+BELOW_THE_FACE = ["jerklab", "jerklab.law", "jerklab.paper", "jerklab.planner", "jerklab.multiaxis", "jerklab.plant",
                   "jerklab.controller", "jerklab.sim", "jerklab.ident", "jerklab.protocol", "jerklab.piezo",
                   "jerklab.hysteresis", "jerklab.fpga", "jerklab.plots", "jerklab.rig", "jerklab.rig.virtual",
                   "jerklab.rig.server", "jerklab.rig.recording", "jerklab.rig.client", "jerklab.rig.simavr",
