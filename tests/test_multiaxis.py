@@ -433,10 +433,13 @@ def test_yang_axes_property(dx, dy, sx, sy, sync, vy):
         return
     for g, (J, A, V), d in zip(axes.generators, lims, plan.distances):
         assert g.end_tick == axes.end_tick
-        assert g.max_velocity <= V * (1 + 1e-12) and g.max_velocity / (g.half_counts * g.refresh_period) <= A * (1 + 1e-12)
+        th = g.half_counts * g.refresh_period                      # T / 2
+        assert g.max_velocity <= V * (1 + 1e-12) and g.max_velocity / th <= A * (1 + 1e-12)
+        assert g.max_velocity / th ** 2 <= J * (1 + 1e-12)
         assert abs(g.distance_um - abs(d)) <= g.step_um / 2 + 1e-9
     assert axes.end_tick * PAPER["refresh_period"] >= plan.duration * (1 - 1e-12)
     # rounded up to whole counts (4 N <= 4 (tj/tc + 1)), then at most YANG_TICK_SEARCH ticks later
-    assert axes.end_tick * PAPER["refresh_period"] <= plan.duration + (4 + YANG_TICK_SEARCH) * PAPER["refresh_period"]
+    tc = PAPER["refresh_period"]
+    assert axes.end_tick * tc <= plan.duration + (4 + YANG_TICK_SEARCH) * tc
     if sync == "phase":
         assert len({(g.half_counts, g.cruise_counts) for g in axes.generators}) == 1
