@@ -112,14 +112,15 @@ def _standstill(kind, duration, limits) -> Profile:
 def _fill(T, tj, ta):
     """``(tj, ta, tv)`` with ``tv >= 0`` and ``2 (2 tj + ta) + tv == T`` in floating point.
 
-    ``Profile.duration`` sums the phase times that way; ``T - a`` may round, and when ``a`` has
-    a bit half an ulp of ``T`` below, every ``a + tv`` is a tie that rounds past ``T``: then ``tj``
-    (or ``ta``) is moved by one ulp and the cruise searched again.
+    ``Profile.duration`` sums the phase times that way.  ``T - a`` may round, and when the bits of
+    ``a = 2 (2 tj + ta)`` below ``ulp(T)`` make every ``a + tv`` a tie, no cruise gives ``T``
+    exactly: then ``a`` is lowered by one of its ulps (through ``ta``, or ``tj`` without a plateau;
+    a change at the round-off level of the sum) and the cruise searched again.
     """
-    for _ in range(6):
+    for _ in range(8):
         a = 2.0 * (2.0 * tj + ta)
         tv = max(T - a, 0.0)
-        for k in range(8):                              # step tv by ulps until the sum is T
+        for _k in range(8):                             # step tv by ulps until the sum is T
             tot = a + tv
             if tot == T:
                 return tj, ta, tv
@@ -127,9 +128,9 @@ def _fill(T, tj, ta):
                 break
             tv = max(math.nextafter(tv, math.inf if tot < T else -math.inf), 0.0)
         if ta > 0.0:
-            ta = math.nextafter(ta, 0.0)
+            ta = max(ta - math.ulp(2.0 * tj + ta), 0.0)
         else:
-            tj = math.nextafter(tj, 0.0)
+            tj = max(tj - math.ulp(tj), 0.0)
     return tj, ta, max(T - 2.0 * (2.0 * tj + ta), 0.0)      # pragma: no cover - not met
 
 

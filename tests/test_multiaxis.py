@@ -443,3 +443,24 @@ def test_yang_axes_property(dx, dy, sx, sy, sync, vy):
     assert axes.end_tick * tc <= plan.duration + (4 + YANG_TICK_SEARCH) * tc
     if sync == "phase":
         assert len({(g.half_counts, g.cruise_counts) for g in axes.generators}) == 1
+
+
+@settings(max_examples=300, deadline=None)
+@given(ed=st.floats(-6, 6), ej=st.floats(-3, 6), ea=st.floats(-3, 6), ev=st.floats(-3, 6),
+       ef=st.one_of(st.floats(-16, 3), st.just(-math.inf)), planner=st.sampled_from(PLANNERS))
+@example(ed=math.log10(474.7185969920547), ej=math.log10(0.0012307999088097205),
+         ea=math.log10(0.015660035597204983), ev=math.log10(0.34173348751316734),
+         ef=math.log10(3.046619e-10), planner="sine_jerk_optimal")     # every a + tv a tie
+def test_stretch_property(ed, ej, ea, ev, ef, planner):
+    """The stretched axis lasts T to the last bit, ends exactly at d, keeps every limit to 1e-12
+    (a few ulp), and the single-axis planner, given its peak velocity, plans the same duration."""
+    d, J, A, V = 10.0 ** ed, 10.0 ** ej, 10.0 ** ea, 10.0 ** ev
+    opt = SINGLE[planner](d, J, A, V)
+    T = opt.duration * (1.0 + 10.0 ** ef)
+    p = stretch_to_duration(opt, T)
+    assert p.duration == T
+    assert float(p.sample(T).position) == d and float(p.sample(T).velocity) == 0.0
+    assert p.peak_velocity <= V * (1 + 1e-12) and p.peak_accel <= A * (1 + 1e-12)
+    if planner != "trapezoid":
+        assert p.peak_jerk <= J * (1 + 1e-12)
+    assert SINGLE[planner](d, J, A, p.peak_velocity).duration == pytest.approx(T, rel=1e-12)
