@@ -464,3 +464,61 @@ def test_stretch_property(ed, ej, ea, ev, ef, planner):
     if planner != "trapezoid":
         assert p.peak_jerk <= J * (1 + 1e-12)
     assert SINGLE[planner](d, J, A, p.peak_velocity).duration == pytest.approx(T, rel=1e-12)
+
+
+# --------------------------------------------------------------------------- against Ruckig
+def ruckig_multi(d, lims, sync):
+    ruckig = pytest.importorskip("ruckig")
+    n = len(d)
+    otg, inp, traj = ruckig.Ruckig(n), ruckig.InputParameter(n), ruckig.Trajectory(n)
+    inp.current_position, inp.target_position = [0.0] * n, [float(x) for x in d]
+    inp.max_jerk = [L[0] for L in lims]
+    inp.max_acceleration = [L[1] for L in lims]
+    inp.max_velocity = [L[2] for L in lims]
+    inp.synchronization = ruckig.Synchronization.Phase if sync == "phase" else ruckig.Synchronization.Time
+    assert otg.calculate(inp, traj) == ruckig.Result.Working
+    return traj
+
+
+def random_moves(seed, count):
+    rng = np.random.default_rng(seed)
+    for _ in range(count):
+        n = int(rng.integers(2, 5))
+        d = np.where(rng.random(n) < 0.15, 0.0, rng.choice([-1, 1], n) * 10 ** rng.uniform(-2, 2, n))
+        if not d.any():
+            continue
+        yield d, [tuple(10 ** rng.uniform(-1, 3, 3)) for _ in range(n)]
+
+
+def test_time_sync_equals_ruckig():
+    """Ruckig's time synchronization (same process, rest to rest): the same duration and, axis by
+    axis, the same positions -- Ruckig also gives each faster axis the time-optimal profile under a
+    lowered velocity."""
+    for d, lims in random_moves(11, 400):
+        plan = plan_multi_axis(d, lims, sync="time")
+        traj = ruckig_multi(d, lims, "time")
+        assert traj.duration == pytest.approx(plan.duration, rel=RTOL)
+        t = np.linspace(0.0, plan.duration, 9)
+        theirs = np.array([traj.at_time(x)[0] for x in t]).T
+        assert np.abs(plan.sample(t).position - theirs).max() <= RTOL * np.abs(d).max()
+
+
+def test_phase_sync_against_ruckig():
+    """Ruckig's phase synchronization scales the limiting axis's profile and, when that breaks
+    another axis's limit, falls back to time synchronization, off the line.  Where Ruckig's result
+    is a straight line its duration equals ours; where it is not, ours still is (and Ruckig, having
+    left the line, may be faster)."""
+    on_line = off_line = 0
+    for d, lims in random_moves(12, 400):
+        plan = plan_multi_axis(d, lims, sync="phase")
+        traj = ruckig_multi(d, lims, "phase")
+        t = np.linspace(0.0, traj.duration, 21)
+        x = np.array([traj.at_time(s)[0] for s in t]).T
+        u = d / np.linalg.norm(d)
+        if np.abs(x - np.outer(u, u @ x)).max() <= RTOL * np.linalg.norm(d):
+            on_line += 1
+            assert traj.duration == pytest.approx(plan.duration, rel=RTOL)
+        else:
+            off_line += 1
+            assert traj.duration <= plan.duration * (1 + RTOL)
+    assert on_line > 100 and off_line > 10          # both cases are exercised
