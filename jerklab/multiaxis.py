@@ -73,6 +73,7 @@ _CLASS = {"scurve": SCurveProfile, "sine_jerk_optimal": SineJerkOptimalProfile,
 _LIMIT_KEYS = ("max_jerk", "max_accel", "max_velocity")
 _TWO_OVER_PI = 2.0 / math.pi
 _SQRT3 = math.sqrt(3.0)
+_INF = math.inf
 
 
 # ---------------------------------------------------------------------------------------------
@@ -183,7 +184,11 @@ def stretch_to_duration(profile: Profile, duration) -> Profile:
     """
     if not isinstance(profile, Profile) or profile.kind not in _CLASS:
         raise ValueError(f"profile must be a Profile of kind {PLANNERS}, got {profile!r}")
-    T = as_nonnegative("duration", duration)
+    return _stretch(profile, as_nonnegative("duration", duration))
+
+
+def _stretch(profile, T):
+    """:func:`stretch_to_duration` without the argument checks."""
     kind = profile.kind
     limits = (profile.max_jerk, profile.max_accel, profile.max_velocity)
     if profile.distance == 0.0:
@@ -231,6 +236,18 @@ def stretch_to_duration(profile: Profile, duration) -> Profile:
 # ---------------------------------------------------------------------------------------------
 def _axis_limits(limits_per_axis, n, planner):
     """One ``(max_jerk, max_accel, max_velocity)`` float triple per axis (``None`` jerk: trapezoid)."""
+    if type(limits_per_axis) in (list, tuple) and len(limits_per_axis) == n:
+        out = []
+        for row in limits_per_axis:             # fast path: (J, A, V) tuples of finite floats > 0
+            if not (type(row) is tuple and len(row) == 3):
+                break
+            J, A, V = row
+            if not (type(A) is float and type(V) is float and 0.0 < A < _INF and 0.0 < V < _INF
+                    and (type(J) is float and 0.0 < J < _INF or J is None and planner == "trapezoid")):
+                break
+            out.append(row)
+        else:
+            return out
     if isinstance(limits_per_axis, (str, bytes, Mapping)) or not isinstance(
             limits_per_axis, (Sequence, np.ndarray)):
         raise ValueError("limits_per_axis must be a sequence with one (max_jerk, max_accel, max_velocity) "
@@ -395,8 +412,8 @@ def plan_multi_axis(distances, limits_per_axis, sync="time", planner="scurve") -
     -----
     Tolerances: the time-synchronized axes have durations equal to the common one exactly (their
     phase times sum to it in floating point) and reach their distances exactly (closed form, no
-    iteration); every limit holds to a few ulp.  The phase-synchronized axes are ``d_i s(t)``: the plan's samples
-    are on the line to round-off (tests check 1e-9 relative to the distance).
+    iteration); every limit holds to a few ulp.  The phase-synchronized axes are ``d_i s(t)``: the
+    plan's samples are on the line to round-off (tests check 1e-9 relative to the distance).
     """
     if sync not in SYNCS:
         raise ValueError(f"sync must be one of {SYNCS}, got {sync!r}")
@@ -404,28 +421,31 @@ def plan_multi_axis(distances, limits_per_axis, sync="time", planner="scurve") -
         hint = (" (the published sine-jerk planner cannot be stretched to a given duration: use "
                 "'sine_jerk_optimal')" if planner == "sine_jerk" else "")
         raise ValueError(f"planner must be one of {PLANNERS}, got {planner!r}{hint}")
-    d = as_finite_array("distances", distances)
-    if d.ndim != 1 or d.size == 0:
-        raise ValueError(f"distances must be a non-empty 1-D sequence (one per axis), got shape {d.shape}")
-    d = d.copy()
-    limits = tuple(_axis_limits(limits_per_axis, d.size, planner))
-    optimal = [_plan_one(planner, float(di), *lim) for di, lim in zip(d, limits)]
+    if type(distances) in (list, tuple) and distances and all(
+            type(x) is float and -_INF < x < _INF for x in distances):
+        dl = list(distances)                        # fast path: finite floats
+        d = np.array(dl)
+    else:
+        d = as_finite_array("distances", distances)
+        if d.ndim != 1 or d.size == 0:
+            raise ValueError(f"distances must be a non-empty 1-D sequence (one per axis), got shape {d.shape}")
+        d = d.copy()
+        dl = d.tolist()
+    limits = tuple(_axis_limits(limits_per_axis, len(dl), planner))
+    optimal = [_plan_one(planner, di, *lim) for di, lim in zip(dl, limits)]
     min_durations = tuple(p.duration for p in optimal)
-    moving = d != 0.0
-    if not moving.any():
+    if not any(dl):
         axes = tuple(_standstill(planner, 0.0, lim) for lim in limits)
         return MultiAxisPlan(d, sync, planner, limits, axes, 0.0, min_durations, None)
     if sync == "time":
         T = max(min_durations)
-        axes = tuple(stretch_to_duration(p, T) for p in optimal)
+        axes = tuple(_stretch(p, T) for p in optimal)
         return MultiAxisPlan(d, sync, planner, limits, axes, T, min_durations, None)
     # phase: one normalized profile on [0, 1]
-    ad = np.abs(d[moving])
-    lim = np.array([(np.nan if J is None else J, A, V) for (J, A, V) in limits])[moving]
-    with np.errstate(over="ignore"):
-        A_n = float(np.min(lim[:, 1] / ad))
-        V_n = float(np.min(lim[:, 2] / ad))
-        J_n = None if planner == "trapezoid" else float(np.min(lim[:, 0] / ad))
+    mv = [(abs(di), lim) for di, lim in zip(dl, limits) if di != 0.0]
+    A_n = min(L[1] / x for x, L in mv)              # may overflow to inf for a tiny distance:
+    V_n = min(L[2] / x for x, L in mv)              # the min over the axes is what counts
+    J_n = None if planner == "trapezoid" else min(L[0] / x for x, L in mv)
     try:
         path = _plan_one(planner, 1.0, J_n, A_n, V_n)
     except ValueError as exc:
@@ -434,9 +454,9 @@ def plan_multi_axis(distances, limits_per_axis, sync="time", planner="scurve") -
     tj, ta, tv = _times(path)
     jn = path.peak_accel if planner == "trapezoid" else path.peak_jerk
     axes = []
-    for di, lim_i in zip(d, limits):
+    for di, lim_i in zip(dl, limits):
         if di == 0.0:
             axes.append(_standstill(planner, path.duration, lim_i))
         else:
-            axes.append(_make(planner, float(di), tj, ta, tv, jn * abs(float(di)), lim_i))
+            axes.append(_make(planner, di, tj, ta, tv, jn * abs(di), lim_i))
     return MultiAxisPlan(d, sync, planner, limits, tuple(axes), path.duration, min_durations, path)

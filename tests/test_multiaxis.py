@@ -175,6 +175,12 @@ def test_dict_limits_and_array_limits():
     (dict(limits_per_axis=[("1", 1, 1), (1, 1, 1)]), r"limits_per_axis\[0\]\.max_jerk"),
     (dict(limits_per_axis={"max_jerk": 1, "max_accel": 1, "max_velocity": 1}), "limits_per_axis"),
     (dict(limits_per_axis=5.0), "limits_per_axis"),
+    # plain float tuples take a fast path: it must hand every bad value to the named checks
+    (dict(limits_per_axis=[(1.0, 1.0, 1.0), (1.0, math.nan, 1.0)]), r"limits_per_axis\[1\]\.max_accel"),
+    (dict(limits_per_axis=[(1.0, 1.0, math.inf), (1.0, 1.0, 1.0)]), r"limits_per_axis\[0\]\.max_velocity"),
+    (dict(limits_per_axis=[(-1.0, 1.0, 1.0), (1.0, 1.0, 1.0)]), r"limits_per_axis\[0\]\.max_jerk"),
+    (dict(limits_per_axis=[(None, 1.0, 1.0), (1.0, 1.0, 1.0)]), r"limits_per_axis\[0\]\.max_jerk"),
+    (dict(distances=[1.0, -math.inf]), "distances"),
 ])
 def test_bad_input_names_the_parameter(kwargs, match):
     args = dict(distances=[1.0, 2.0], limits_per_axis=[(1, 1, 1), (1, 1, 1)])
