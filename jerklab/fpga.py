@@ -699,22 +699,30 @@ def _whole_ticks(x, tc):
 
 
 def min_start_count(max_velocity, half_counts, min_speed):
-    """Smallest counter ``n`` whose speed ``floor(a n^2 / b)`` (Yang eq. 5) is ``>= min_speed`` µm/s.
+    """Smallest counter ``n`` whose integer speed (Yang eq. 5, Yang eq. 6) is ``>= min_speed`` µm/s.
 
-    ``a / b = V / (2 N^2)`` in lowest terms; ``floor(a n^2 / b) >= s`` holds from
-    ``n = ceil(sqrt(s b / a))`` on.  ``2 N`` (the top speed ``V``) if ``V < min_speed``.
+    ``a / b = V / (2 N^2)`` in lowest terms; on the first half ``floor(a n^2 / b) >= s`` holds
+    from ``n = ceil(sqrt(s b / a))`` on; above ``V / 2`` the second half
+    ``V - floor(a (2N - n)^2 / b)`` is searched.  ``ValueError`` if ``min_speed > max_velocity``.
     """
     import math
 
     V = as_int("max_velocity", max_velocity, minimum=1)
     N = as_int("half_counts", half_counts, minimum=1)
     s = as_int("min_speed", min_speed, minimum=0)
+    if s > V:
+        raise ValueError(f"min_speed = {s} µm/s is above max_velocity = {V} µm/s: no count reaches it")
     frac = Fraction(V, 2 * N * N)
     a, b = frac.numerator, frac.denominator
     n = math.isqrt((s * b + a - 1) // a)
     while n <= N and (a * n * n) // b < s:
         n += 1
-    return n if n <= N else 2 * N
+    if n <= N:
+        return n
+    n = N + 1
+    while V - (a * (2 * N - n) ** 2) // b < s:       # ends at n = 2N at the latest (speed V)
+        n += 1
+    return n
 
 
 #: how far :func:`yang_axes` may move the common end tick ``M`` and each axis's ``N`` to find integer
@@ -928,7 +936,7 @@ def yang_axes(plan, refresh_period=PAPER["refresh_period"], clock_hz=PAPER["cloc
     for i, (N, V) in zip(moving, chosen):
         C = M - 4 * N
         if start_count is None:
-            n0 = min_start_count(V, N, max(PAPER_START_SPEED, step_um))
+            n0 = min_start_count(V, N, min(max(PAPER_START_SPEED, step_um), V))
         else:
             n0 = min(start_count, 2 * N)
         gens[i] = YangSCurve(V, accel_time=2 * N * tc, cruise_time=C * tc, refresh_period=tc,

@@ -528,3 +528,23 @@ def test_phase_sync_against_ruckig():
             off_line += 1
             assert traj.duration <= plan.duration * (1 + RTOL)
     assert on_line > 100 and off_line > 10          # both cases are exercised
+
+
+@settings(max_examples=200, deadline=None)
+@given(V=st.integers(1, 40000), N=st.integers(1, 3000), s=st.integers(0, 40000))
+def test_min_start_count_is_the_first_count_reaching_the_speed(V, N, s):
+    """Against a brute force over every count of the integer speed (Yang eq. 5, Yang eq. 6),
+    evaluated with exact rationals: floor(V n^2 / (2 N^2)), V - floor(V (2N - n)^2 / (2 N^2))."""
+    from fractions import Fraction
+
+    from jerklab.fpga import min_start_count
+    if s > V:
+        with pytest.raises(ValueError, match="min_speed"):
+            min_start_count(V, N, s)
+        return
+    n0 = min_start_count(V, N, s)
+    c = Fraction(V, 2 * N * N)
+
+    def speed(n):
+        return math.floor(c * n * n) if n <= N else V - math.floor(c * (2 * N - n) ** 2)
+    assert speed(n0) >= s and all(speed(n) < s for n in range(n0))
