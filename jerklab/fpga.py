@@ -878,7 +878,10 @@ def yang_axes(plan, refresh_period=PAPER["refresh_period"], clock_hz=PAPER["cloc
        whose speed reaches the paper's start speed ``PAPER_START_SPEED`` (144 µm/s, Yang eq. 7 at
        n = 300; at least ``step_um``, 1 pulse/s): 300 for the paper's axis.  A slower axis then
        starts later in its ramp instead of with a longer first pulse period, during which the
-       latched divider emits nothing (``1 / f`` at the start speed).
+       latched divider emits nothing (``1 / f`` at the start speed).  Symmetrically, every
+       generator falls silent when its deceleration passes the start count, ``n0_i`` ticks before
+       ``M``: an axis whose peak speed is near the start speed (say below 300 µm/s) stops its
+       pulses that much earlier than the others (``tests/test_multiaxis.py``).
 
     Parameters
     ----------

@@ -548,3 +548,22 @@ def test_min_start_count_is_the_first_count_reaching_the_speed(V, N, s):
     def speed(n):
         return math.floor(c * n * n) if n <= N else V - math.floor(c * (2 * N - n) ** 2)
     assert speed(n0) >= s and all(speed(n) < s for n in range(n0))
+
+
+@pytest.mark.parametrize("dy", [300.0, 200.0, 45.0])
+def test_yang_axes_slow_axis(dy):
+    """y far slower than x: its start speed (the paper's 144 µm/s, or V when V is lower) lies on the
+    second half of its ramp or at its top.  Below the start count the generator is silent, so its
+    pulses stop when the deceleration passes that count, tick M - n0 (Yang's PWM_INITAL_COUNT,
+    symmetric with the start), up to one of its periods later; they still reach the target."""
+    plan = plan_multi_axis([40000.0, dy], [YANG_LIMITS] * 2, sync="phase")
+    axes = yang_axes(plan, clock_hz=100_000)
+    gy = axes.generators[1]
+    assert gy.speed(gy.start_count) >= min(144, gy.max_velocity)
+    assert gy.start_count > gy.half_counts                 # not reached on the first half
+    trains = axes.pulses()
+    assert abs(axes.positions(1e3)[1] - dy) <= move_error_bound(axes, 1)
+    R = gy.refresh_clocks
+    silent_from = (axes.end_tick - gy.start_count + 1) * R + 1    # n < n0: speed 0 from this posedge on
+    longest = int(gy.speed_table().cycle.max())
+    assert silent_from - longest <= int(trains[1].fall[-1]) <= silent_from + longest
