@@ -1,0 +1,424 @@
+"""Input shapers, jerk profiles as implicit shapers, and robust command shaping on a flexible load.
+
+One question across the three papers: a move must end without ringing. An *input shaper*
+convolves the reference with a few impulses whose vibrations cancel at a mode (Singer &
+Seering 1990; Singhose, Seering & Singer 1994/1997); Xu & Meckl place zeros of the whole
+command on the mode, robustly (Xu & Meckl eq. 8, Xu & Meckl eq. 13); a smooth jerk profile
+(Stojčić eq. 2, Yang's S-curve) is itself a convolution of boxes and pulses, so it has
+spectral zeros too (ASCII spelling for grep: Stojcic).
+
+Residual vibration (the measure used everywhere in this module)
+---------------------------------------------------------------
+A command is read as a *density* ``g(t)`` of total weight 1 on ``[0, T]``: the impulses of a
+shaper (amplitudes summing to 1), the velocity of a profile divided by the distance, or a
+voltage sequence divided by its sum (a voltage impulse moves the motor by a step). A
+lightly damped mode ``s = −ζω ± jω_d`` (``ω_d = ω√(1−ζ²)``) is left ringing after ``T`` with the
+amplitude, relative to the ringing a step of the same size would leave at ``T``::
+
+    V(ω, ζ) = | ∫ g(t) exp((ζω + jω_d)(t − T)) dt |        (× 100 for percent)
+
+which for impulses ``A_i`` at ``t_i`` is Singer & Seering's percentage residual vibration
+``e^{−ζω t_n} |Σ A_i e^{ζω t_i} e^{jω_d t_i}|``. The shaper's design damping and the plant's
+damping may differ: ``residual_vibration(f, ζ)`` evaluates the plant at ``(f, ζ)``.
+
+Which shaper definitions (stated exactly)
+-----------------------------------------
+``T_d = 1/(f √(1−ζ²))`` is the damped period, ``K = exp(−ζπ/√(1−ζ²))``.
+
+* ZV: ``A = [1, K]/(1+K)`` at ``[0, T_d/2]`` (Singer & Seering).
+* ZVD: ``A = [1, 2K, K²]/(1+K)²`` at ``[0, T_d/2, T_d]``; ZVDD: ``[1, 3K, 3K², K³]/(1+K)³``
+  at ``[0, T_d/2, T_d, 3T_d/2]`` (Singer & Seering: the derivatives of V vanish too).
+* MZV: three equally spaced impulses at ``[0, 3T_d/8, 3T_d/4]`` whose z-polynomial has its
+  zero on the mode: ``A ∝ [1, √2 K', K'²]``, ``K' = exp(−3ζπ/(4√(1−ζ²)))`` (the same impulse
+  times and zero placement as Klipper's ``mzv``; derived here, not copied).
+* EI, 2-hump EI, 3-hump EI (Singhose, Seering & Singer 1997, "extra-insensitive"): ``m + 2``
+  impulses whose vibration curve has ``m`` humps of height exactly ``vtol`` (default 5 %,
+  Klipper's choice) with zero slope, and ``m + 1`` zeros between and beside them; the middle
+  feature (the hump for odd m, the zero for even m) sits at the design frequency. For
+  ``ζ = 0`` these are Singhose's closed forms (checked in the tests); for ``ζ > 0`` the same
+  conditions are solved numerically (Newton from the undamped solution, continued in ζ) with
+  the plant damping equal to the design damping. Klipper instead uses Singhose's curve fits
+  in ζ and reports widths covering ζ ≈ 0.05–0.2 around its default 0.1, so its numbers are
+  approximate; :func:`insensitivity_table` reproduces its table within a few points.
+
+Digitization on a sample grid (``InputShaper.fir``)
+---------------------------------------------------
+An impulse at ``t = (k + α) Ts`` (``0 <= α < 1``) is split linearly between the samples ``k`` and
+``k + 1``: weights ``(1 − α) A`` and ``α A``. This is exactly delaying the reference by ``t`` with
+linear interpolation between its samples; the taps sum to 1 and the first moment (the mean
+delay) is preserved exactly; the residual this leaves is reported by
+``InputShaper.digitized(Ts).residual_vibration(...)`` (it is small while ``f Ts`` is small:
+the split acts as a short triangular low-pass). The firmware runs the same taps.
+
+References
+----------
+N. C. Singer, W. P. Seering, "Preshaping command inputs to reduce system vibration",
+J. Dyn. Sys. Meas. Control 112 (1990). W. Singhose, W. Seering, N. Singer, "Residual vibration
+reduction using vector diagrams to generate shaped inputs", J. Mech. Design 116 (1994).
+W. Singhose, S. Derezinski, N. Singer, "Extra-insensitive input shapers for controlling
+flexible spacecraft", J. Guidance Control Dyn. 19 (1996). Klipper, docs/Resonance_Compensation.md
+(the table of insensitivity widths) and klippy/extras/shaper_defs.py (its definitions).
+Xu & Meckl, robust time-optimal command shaping (Xu & Meckl eq. 3, Xu & Meckl eq. 5,
+Xu & Meckl eq. 13, Xu & Meckl eq. 19).
+"""
+from __future__ import annotations
+
+import functools
+import math
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import brentq, fsolve
+
+from jerklab._validate import as_finite_array, as_nonnegative, as_positive, as_real
+
+__all__ = [
+    "KINDS", "InputShaper", "input_shaper", "residual_vibration_of", "insensitivity_table",
+]
+
+#: the shaper kinds, in order of duration (aliases are accepted: "2-hump EI", "EI3", ...)
+KINDS = ("zv", "mzv", "zvd", "zvdd", "ei", "2hump_ei", "3hump_ei")
+
+_ALIASES = {
+    "zv": "zv", "mzv": "mzv", "zvd": "zvd", "zvdd": "zvdd", "ei": "ei",
+    "2hump_ei": "2hump_ei", "2humpei": "2hump_ei", "ei2": "2hump_ei", "2ei": "2hump_ei",
+    "twohumpei": "2hump_ei",
+    "3hump_ei": "3hump_ei", "3humpei": "3hump_ei", "ei3": "3hump_ei", "3ei": "3hump_ei",
+    "threehumpei": "3hump_ei",
+}
+
+#: Klipper's and Singhose's vibration tolerance of the EI family (5 %: "vibration reduction 20x")
+DEFAULT_VTOL = 0.05
+
+
+def _kind(kind) -> str:
+    if not isinstance(kind, str):
+        raise TypeError(f"kind must be a str such as 'zvd' or '2-hump EI', got {type(kind).__name__}")
+    key = re.sub(r"[\s\-]+", "", kind.strip().lower())
+    key2 = key.replace("_", "")
+    for k in (key, key2):
+        if k in _ALIASES:
+            return _ALIASES[k]
+    raise ValueError(f"kind must be one of {', '.join(KINDS)} (case-insensitive; '2-hump EI' style "
+                     f"aliases accepted), got {kind!r}")
+
+
+def _damping(name, zeta) -> float:
+    zeta = as_nonnegative(name, zeta)
+    if zeta >= 1.0:
+        raise ValueError(f"{name} must be < 1 (an underdamped mode), got {zeta!r}")
+    return zeta
+
+
+# ----------------------------------------------------------------------------------------------
+# residual vibration of impulses
+# ----------------------------------------------------------------------------------------------
+def _v_impulses(A, t, w, zeta):
+    """V(ω) for impulses (A, t) on modes of natural frequency ``w`` (rad/s, array), damping ζ."""
+    w = np.asarray(w, dtype=float)
+    sig = zeta * w[..., None] + 1j * w[..., None] * math.sqrt(1.0 - zeta * zeta)
+    return np.abs(np.exp(sig * (t - t[-1])) @ A)
+
+
+def residual_vibration_of(amplitudes, times, frequency_hz, damping=0.0):
+    """Percentage residual vibration of the impulses ``amplitudes`` at ``times`` (s).
+
+    Singer & Seering's ``100 e^{−ζω t_n} |Σ A_i e^{ζω t_i} e^{jω_d t_i}|`` on a mode of
+    ``frequency_hz`` (natural, Hz; scalar or array) and ``damping`` ζ. Amplitudes need not be
+    normalized (a command of any sign); the value is relative to their sum.
+    """
+    A = as_finite_array("amplitudes", amplitudes, ndim=1)
+    t = as_finite_array("times", times, ndim=1)
+    if A.shape != t.shape or A.size == 0:
+        raise ValueError(f"amplitudes and times must have the same non-zero length, got {A.size}, {t.size}")
+    s = A.sum()
+    if s == 0:
+        raise ValueError("amplitudes must not sum to 0 (the command would move nothing)")
+    f = np.asarray(frequency_hz, dtype=float)
+    if not np.all(np.isfinite(f)) or np.any(f <= 0):
+        raise ValueError(f"frequency_hz must be positive and finite, got {frequency_hz!r}")
+    zeta = _damping("damping", damping)
+    order = np.argsort(t, kind="stable")
+    v = 100.0 * _v_impulses(A[order] / s, t[order], 2 * math.pi * f, zeta)
+    return float(v) if np.ndim(frequency_hz) == 0 else v
+
+
+# ----------------------------------------------------------------------------------------------
+# EI family: numerical design from Singhose's conditions
+# ----------------------------------------------------------------------------------------------
+def _ei_undamped(m, V):
+    """Singhose's closed-form undamped EI (m = 1), 2-hump (m = 2), 3-hump (m = 3), times in periods."""
+    if m == 1:
+        A = [(1 + V) / 4, (1 - V) / 2, (1 + V) / 4]
+    elif m == 2:
+        X = (V * V * (math.sqrt(1 - V * V) + 1)) ** (1 / 3)
+        a1 = (3 * X * X + 2 * X + 3 * V * V) / (16 * X)
+        A = [a1, 0.5 - a1, 0.5 - a1, a1]
+    else:
+        a1 = (1 + 3 * V + 2 * math.sqrt(2 * V * (V + 1))) / 16
+        a2 = (1 - V) / 4
+        A = [a1, a2, 1 - 2 * (a1 + a2), a2, a1]
+    return np.array(A), 0.5 * np.arange(m + 2)
+
+
+def _features(A, t, zeta, m):
+    """Frequencies (ratio to 1 Hz) of the m + 1 zeros and m humps of V nearest the design."""
+    r = np.linspace(0.2, 1.8, 8001)
+    v = _v_impulses(A, t, 2 * math.pi * r, zeta)
+    mins = [i for i in range(1, r.size - 1) if v[i] <= v[i - 1] and v[i] < v[i + 1]]
+    maxs = [i for i in range(1, r.size - 1) if v[i] >= v[i - 1] and v[i] > v[i + 1]]
+    mins = sorted(sorted(mins, key=lambda i: abs(r[i] - 1))[:m + 1])
+    maxs = [i for i in maxs if r[mins[0]] < r[i] < r[mins[-1]]]
+    return r[mins], r[maxs]
+
+
+@functools.lru_cache(maxsize=256)
+def _ei_design(m: int, zeta: float, V: float):
+    """Amplitudes and times (in periods of the design frequency, 1 Hz) of the m-hump EI shaper."""
+    A0, t0 = _ei_undamped(m, V)
+    zr, hr = _features(A0, t0, 0.0, m)
+    if zeta == 0.0:
+        return A0, t0
+    n = m + 2
+    x = np.concatenate([A0, t0[1:], zr, hr])
+    steps = max(2, int(math.ceil(zeta / 0.02)))
+    h = 1e-6
+    for z in np.linspace(0.0, zeta, steps + 1)[1:]:
+        def eqs(x, z=z):
+            A, tt = x[:n], np.concatenate([[0.0], x[n:2 * n - 1]])
+            zr, hr = x[2 * n - 1:2 * n + m], x[2 * n + m:]
+            sig = lambda r: z * 2 * math.pi * r + 1j * 2 * math.pi * r * math.sqrt(1 - z * z)
+            out = [A.sum() - 1.0]
+            for r in zr:
+                c = np.exp(sig(r) * (tt - tt[-1])) @ A
+                out += [c.real, c.imag]
+            for r in hr:
+                vv = lambda rr: abs(np.exp(sig(rr) * (tt - tt[-1])) @ A)
+                out += [vv(r) - V, (vv(r + h) - vv(r - h)) / (2 * h)]
+            mid = hr[(m - 1) // 2] if m % 2 == 1 else zr[m // 2]
+            out.append(mid - 1.0)
+            return out
+        sol, info, ier, msg = fsolve(eqs, x, full_output=True, xtol=1e-12)
+        if ier != 1 or np.max(np.abs(eqs(sol))) > 1e-8:
+            raise ValueError(f"damping = {zeta!r}: the {m}-hump EI conditions have no solution near "
+                             f"the undamped one ({msg.strip()})")
+        x = sol
+    A, tt = x[:n], np.concatenate([[0.0], x[n:2 * n - 1]])
+    if np.any(A <= 0) or np.any(np.diff(tt) <= 0):
+        raise ValueError(f"damping = {zeta!r}: the {m}-hump EI design loses positive amplitudes")
+    return A, tt
+
+
+# ----------------------------------------------------------------------------------------------
+# the shaper object
+# ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class InputShaper:
+    """Impulses ``amplitudes`` (sum 1) at ``times`` (s, first 0) designed for a mode.
+
+    Attributes
+    ----------
+    kind : str
+        One of :data:`KINDS` (``"fir"`` for a digitized shaper, ``"custom"`` otherwise).
+    frequency_hz, damping : float
+        The design mode (natural frequency, Hz, and damping ratio).
+    amplitudes, times : ndarray
+        The impulses; ``times[0] == 0``, increasing.
+    """
+
+    kind: str
+    frequency_hz: float
+    damping: float
+    amplitudes: np.ndarray = field(repr=False)
+    times: np.ndarray = field(repr=False)
+
+    def __post_init__(self):
+        A = as_finite_array("amplitudes", self.amplitudes, ndim=1)
+        t = as_finite_array("times", self.times, ndim=1)
+        if A.size == 0 or A.shape != t.shape:
+            raise ValueError("amplitudes and times must have the same non-zero length")
+        if abs(A.sum() - 1.0) > 1e-9:
+            raise ValueError(f"amplitudes must sum to 1, got {A.sum()!r}")
+        if t[0] != 0.0 or np.any(np.diff(t) <= 0):
+            raise ValueError("times must start at 0 and increase")
+        A.setflags(write=False)
+        t.setflags(write=False)
+        object.__setattr__(self, "amplitudes", A)
+        object.__setattr__(self, "times", t)
+
+    @property
+    def duration(self) -> float:
+        """Time from the first to the last impulse (s): the delay the shaper adds to a move."""
+        return float(self.times[-1])
+
+    def residual_vibration(self, frequency_hz, damping=None):
+        """Percentage residual vibration on a mode ``(frequency_hz, damping)`` (Singer & Seering).
+
+        ``damping`` defaults to the design damping; ``frequency_hz`` may be an array.
+        """
+        zeta = self.damping if damping is None else damping
+        return residual_vibration_of(self.amplitudes, self.times, frequency_hz, zeta)
+
+    def sensitivity_curve(self, ratios, damping=None):
+        """Residual vibration (%) at ``ratios`` × the design frequency (the classic robustness plot)."""
+        r = as_finite_array("ratios", ratios, ndim=1)
+        if np.any(r <= 0):
+            raise ValueError("ratios must be positive")
+        zeta = self.damping if damping is None else _damping("damping", damping)
+        return 100.0 * _v_impulses(self.amplitudes, self.times, 2 * math.pi * self.frequency_hz * r, zeta)
+
+    def insensitivity(self, tolerance=5.0, damping=None, hz=False):
+        """The frequency band around the design in which the vibration stays <= ``tolerance`` %.
+
+        Starting from the zero of the vibration curve nearest the design frequency, the band
+        grows both ways until the curve exceeds ``tolerance`` (humps of exactly ``tolerance``,
+        as the EI shapers have by design, stay inside). Returns ``(low, high)`` as ratios to the
+        design frequency (``hz=False``, e.g. ``(0.85, 1.15)`` is "±15 %") or in Hz.
+
+        Parameters
+        ----------
+        tolerance : float
+            Vibration tolerance in percent (0 < tolerance < 100); 5 means 5 %.
+        damping : float, optional
+            Plant damping (default: the design damping).
+        """
+        tol = as_positive("tolerance", tolerance)
+        if tol >= 100:
+            raise ValueError(f"tolerance is in percent and must be < 100, got {tolerance!r}")
+        zeta = self.damping if damping is None else _damping("damping", damping)
+        f0 = self.frequency_hz
+        lim = tol * (1 + 1e-7)
+
+        def v(r):
+            return 100.0 * float(_v_impulses(self.amplitudes, self.times, 2 * math.pi * f0 * np.array(r), zeta))
+
+        r = np.linspace(0.05, 3.0, 5901)
+        vv = 100.0 * _v_impulses(self.amplitudes, self.times, 2 * math.pi * f0 * r, zeta)
+        # the local minimum of V nearest r = 1
+        mins = np.flatnonzero((vv[1:-1] <= vv[:-2]) & (vv[1:-1] <= vv[2:])) + 1
+        i0 = int(mins[np.argmin(np.abs(r[mins] - 1.0))]) if mins.size else int(np.argmin(np.abs(r - 1)))
+        if vv[i0] > lim:
+            return (math.nan, math.nan)
+        edges = []
+        for step in (-1, 1):
+            i = i0
+            while 0 < i < r.size - 1 and vv[i + step] <= lim:
+                i += step
+            if i in (0, r.size - 1):
+                edges.append(r[i])
+            else:
+                edges.append(brentq(lambda x: v(x) - tol, r[i], r[i + step], xtol=1e-10))
+        lo, hi = sorted(edges)
+        return (lo * f0, hi * f0) if hz else (lo, hi)
+
+    # --- sampled references -------------------------------------------------------------------
+    def fir(self, Ts):
+        """FIR taps on the grid ``Ts`` that :meth:`apply` uses (the firmware runs the same taps).
+
+        Each impulse at ``t = (k + α) Ts`` is split linearly: ``(1 − α) A`` on tap ``k`` and
+        ``α A`` on tap ``k + 1`` (delay by linear interpolation). The taps sum to 1; their mean
+        delay ``Σ k h_k Ts`` equals ``Σ A_i t_i`` exactly.
+        """
+        Ts = as_positive("Ts", Ts)
+        pos = self.times / Ts
+        k = np.floor(pos + 1e-9).astype(int)
+        a = np.clip(pos - k, 0.0, 1.0)
+        a[a < 1e-9] = 0.0
+        n = int(k[-1]) + (2 if a[-1] > 0 else 1)
+        if n > 1_000_000:
+            raise ValueError(f"Ts = {Ts!r} s gives {n} taps for a {self.duration:g} s shaper (too many)")
+        h = np.zeros(n)
+        np.add.at(h, k, self.amplitudes * (1 - a))
+        np.add.at(h, np.minimum(k + 1, n - 1), self.amplitudes * a)
+        return h
+
+    def digitized(self, Ts) -> "InputShaper":
+        """The shaper that :meth:`apply` really applies on the grid ``Ts``: the FIR taps as impulses
+        at ``k Ts`` (to check its residual vibration honestly)."""
+        h = self.fir(Ts)
+        nz = np.flatnonzero(h)
+        t = nz * as_positive("Ts", Ts)
+        return InputShaper("fir", self.frequency_hz, self.damping, h[nz] / h[nz].sum(), t - t[0])
+
+    def apply(self, reference, Ts, extend=True):
+        """Shape a sampled reference: convolve it with :meth:`fir` taps.
+
+        Before its first sample the reference is taken to rest at ``reference[0]``; with
+        ``extend=True`` (default) it is held at ``reference[-1]`` after its last sample and the
+        result is longer by ``len(fir(Ts)) − 1`` samples (the shaper's delay), so a move ends
+        exactly where the reference ends; ``extend=False`` returns ``len(reference)`` samples.
+        """
+        r = as_finite_array("reference", reference, ndim=1)
+        if r.size == 0:
+            raise ValueError("reference must not be empty")
+        h = self.fir(Ts)
+        n = h.size - 1
+        x = np.concatenate([np.full(n, r[0]), r, np.full(n if extend else 0, r[-1])])
+        y = np.convolve(x, h, mode="full")[n:n + r.size + (n if extend else 0)]
+        return y
+
+
+def _closed_form(kind, f, zeta):
+    df = math.sqrt(1.0 - zeta * zeta)
+    Td = 1.0 / (f * df)
+    K = math.exp(-zeta * math.pi / df)
+    if kind in ("zv", "zvd", "zvdd"):
+        n = {"zv": 1, "zvd": 2, "zvdd": 3}[kind]
+        A = np.array([math.comb(n, i) * K ** i for i in range(n + 1)])
+        return A / A.sum(), 0.5 * Td * np.arange(n + 1)
+    if kind == "mzv":
+        K3 = math.exp(-0.75 * zeta * math.pi / df)
+        A = np.array([1.0, math.sqrt(2.0) * K3, K3 * K3])
+        return A / A.sum(), 0.375 * Td * np.arange(3)
+    raise AssertionError(kind)
+
+
+def input_shaper(kind, frequency_hz, damping=0.0, vtol=DEFAULT_VTOL) -> InputShaper:
+    """Design an input shaper for the mode ``(frequency_hz, damping)``.
+
+    Parameters
+    ----------
+    kind : str
+        ``"zv"``, ``"mzv"``, ``"zvd"``, ``"zvdd"``, ``"ei"``, ``"2hump_ei"``, ``"3hump_ei"``
+        (case-insensitive; ``"2-hump EI"``, ``"EI2"`` and the like are accepted).
+    frequency_hz : float
+        Natural frequency of the mode, Hz (> 0).
+    damping : float
+        Damping ratio of the mode, 0 <= ζ < 1 (the EI family: up to about 0.3).
+    vtol : float
+        Hump height of the EI family as a fraction (default 0.05, Klipper's and Singhose's).
+
+    Returns
+    -------
+    InputShaper
+        See the module docstring for the definitions.
+
+    Examples
+    --------
+    >>> s = input_shaper("zvd", 8.0, 0.02)
+    >>> round(float(s.amplitudes.sum()), 12), s.times[0]
+    (1.0, 0.0)
+    """
+    kind = _kind(kind)
+    f = as_positive("frequency_hz", frequency_hz)
+    zeta = _damping("damping", damping)
+    vtol = as_real("vtol", vtol)
+    if not 0.0 < vtol < 0.5:
+        raise ValueError(f"vtol must lie in (0, 0.5) (a fraction: 0.05 is 5 %), got {vtol!r}")
+    if kind in ("ei", "2hump_ei", "3hump_ei"):
+        m = {"ei": 1, "2hump_ei": 2, "3hump_ei": 3}[kind]
+        A, tn = _ei_design(m, round(zeta, 12), round(vtol, 12))
+        return InputShaper(kind, f, zeta, A / A.sum(), tn / f)
+    A, t = _closed_form(kind, f, zeta)
+    return InputShaper(kind, f, zeta, A, t)
+
+
+def insensitivity_table(tolerances=(5.0, 10.0), damping=0.0, kinds=KINDS):
+    """``{kind: {tolerance: (low, high)}}``: the insensitivity band (ratios) of each shaper
+    designed and evaluated at ``damping`` (compare Klipper's table, docs/Resonance_Compensation.md)."""
+    out = {}
+    for k in kinds:
+        s = input_shaper(k, 1.0, damping)
+        out[_kind(k)] = {tol: s.insensitivity(tol) for tol in tolerances}
+    return out
