@@ -422,3 +422,260 @@ def insensitivity_table(tolerances=(5.0, 10.0), damping=0.0, kinds=KINDS):
         s = input_shaper(k, 1.0, damping)
         out[_kind(k)] = {tol: s.insensitivity(tol) for tol in tolerances}
     return out
+
+
+# ----------------------------------------------------------------------------------------------
+# finding the mode from the encoder alone
+# ----------------------------------------------------------------------------------------------
+def chirp_input(duration, Ts, amplitude, f0, f1, offset=0.0):
+    """Linear chirp ``offset + amplitude sin(2π (f0 t + (f1 − f0) t²/(2 duration)))`` (V per sample).
+
+    A swept sine through the rig's drive voltage, ``f0`` to ``f1`` Hz (both below the Nyquist
+    frequency ``1/(2 Ts)``), for :func:`identify_mode`; ``jerklab.ident.prbs`` is the other choice.
+    """
+    duration = as_positive("duration", duration)
+    Ts = as_positive("Ts", Ts)
+    amplitude = as_positive("amplitude", amplitude)
+    f0 = as_positive("f0", f0)
+    f1 = as_positive("f1", f1)
+    offset = as_real("offset", offset)
+    if max(f0, f1) >= 0.5 / Ts:
+        raise ValueError(f"f1 and f0 must lie below the Nyquist frequency {0.5 / Ts:g} Hz, got {f0:g}, {f1:g}")
+    n = int(round(duration / Ts))
+    if n < 2:
+        raise ValueError(f"duration must span at least 2 samples of Ts = {Ts:g} s, got {duration:g}")
+    t = np.arange(n) * Ts
+    return offset + amplitude * np.sin(2 * math.pi * (f0 * t + 0.5 * (f1 - f0) * t * t / duration))
+
+
+def _flex_matrices(K, tau, ratio, wr, zr):
+    Jm = tau / (1.0 + ratio)
+    Jl = tau * ratio / (1.0 + ratio)
+    k = wr * wr * Jl
+    c = 2.0 * zr * wr * Jl
+    A = np.array([[0.0, 1.0, 0.0, 0.0],
+                  [-k / Jm, -(1.0 + c) / Jm, k / Jm, c / Jm],
+                  [0.0, 0.0, 0.0, 1.0],
+                  [k / Jl, c / Jl, -k / Jl, -c / Jl]])
+    B = np.array([0.0, K / Jm, 0.0, 0.0])
+    return A, B
+
+
+def _coupled_mode(K, tau, ratio, wr, zr):
+    """(natural frequency Hz, damping) of the complex pole pair of the two-mass model."""
+    A, _ = _flex_matrices(K, tau, ratio, wr, zr)
+    ev = np.linalg.eigvals(A)
+    c = ev[np.abs(ev.imag) > 1e-9]
+    if c.size == 0:
+        return math.nan, math.nan
+    s = c[np.argmax(c.imag)]
+    wn = abs(s)
+    return wn / (2 * math.pi), -s.real / wn
+
+
+def _flex_simulate(p, u, Ts):
+    """Motor angle θ_m(k), k = 0 .. len(u), from rest for the log-parameters ``p`` (exact ZOH).
+
+    ``Φ = V e^{ΛTs} V⁻¹`` and ``Γ = V diag((e^{λTs} − 1)/λ) V⁻¹ B`` from the eigenvectors of the
+    continuous model (``(e^{λTs} − 1)/λ → Ts`` at the integrator), which is the exact ZOH model
+    (``scipy.linalg.expm`` of the augmented matrix gives the same, two orders slower).
+    """
+    from scipy.signal import lfilter
+    K, tau, ratio, wr, zr = np.exp(p[:5])
+    A, B = _flex_matrices(K, tau, ratio, wr, zr)
+    lam, V = np.linalg.eig(A)
+    e = np.exp(lam * Ts)
+    small = np.abs(lam) < 1e-9
+    phi = np.where(small, Ts, (e - 1) / np.where(small, 1.0, lam))
+    Vi = np.linalg.inv(V)
+    Phi = np.real((V * e) @ Vi)
+    Gam = np.real((V * phi) @ (Vi @ B))
+    den = np.real(np.poly(e))
+    num = np.real(np.poly(Phi - np.outer(Gam, [1.0, 0, 0, 0]))) - den     # C (zI − Φ)^-1 Γ, C = e1
+    return lfilter(num, den, np.concatenate([u, [0.0]]))
+
+
+@dataclass
+class ModeFit:
+    """The mode found by :func:`identify_mode`.
+
+    ``frequency_hz``, ``damping``: the lightly damped pole pair of the fitted two-mass model
+    (natural frequency, Hz; damping ratio), with standard errors ``frequency_se``,
+    ``damping_se`` (linearized: residual variance × (JᵀJ)⁻¹, carried to (f, ζ) by the delta
+    method). ``params`` holds K (rad/(V s)), tau (s), load_ratio, mode_frequency (rad/s) and
+    mode_damping of ``jerklab.plant.FlexibleDCMotor``; ``fit_percent`` is the NRMSE fit of the
+    simulated encoder angle (100 % = perfect); ``shaper`` is the recommended
+    :class:`InputShaper` (see :meth:`recommend`), ``jerk_time`` the S-curve jerk time
+    ``1/f_d`` that puts a spectral zero on the mode (s).
+    """
+
+    frequency_hz: float
+    damping: float
+    frequency_se: float
+    damping_se: float
+    params: dict
+    fit_percent: float
+    shaper: InputShaper
+    jerk_time: float
+    residual_std: float
+
+    def model(self):
+        """The fitted plant as an ideal :class:`jerklab.plant.FlexibleDCMotor`."""
+        from jerklab.plant import FlexibleDCMotor
+        return FlexibleDCMotor(**self.params).ideal()
+
+    @staticmethod
+    def recommend(frequency_hz, damping, frequency_se, coverage=2.0, tolerance=5.0):
+        """The shortest shaper whose ``tolerance`` % band covers ``f ± coverage·se``.
+
+        Shapers are tried by duration (ZV, MZV, ZVD, EI, 2-hump EI, 3-hump EI); if none covers
+        the uncertainty, the 3-hump EI is returned (its band is the widest).
+        """
+        lo = 1 - coverage * frequency_se / frequency_hz
+        hi = 1 + coverage * frequency_se / frequency_hz
+        zeta = min(max(damping, 0.0), 0.2)
+        for kind in ("zv", "mzv", "zvd", "ei", "2hump_ei", "3hump_ei"):
+            s = input_shaper(kind, frequency_hz, zeta)
+            blo, bhi = s.insensitivity(tolerance)
+            if blo <= lo and bhi >= hi:
+                return s
+        return s
+
+
+def identify_mode(u, y, Ts, f_range=None, max_nfev=400):
+    """Find the flexible mode from a drive-voltage record ``u`` and the encoder angle ``y``.
+
+    A two-mass model (:class:`jerklab.plant.FlexibleDCMotor`: K, τ, load ratio, shaft
+    frequency and damping) is fitted by output error (the prediction-error method with an
+    output-error noise model: the simulated encoder angle against the measured one,
+    ``scipy.optimize.least_squares`` on log-parameters, on the angle *increments* per sample so
+    that the encoder's constant floor-quantization offset and the integrator's drift drop out). Start values: a rigid fit of K, τ (the fit's first stage),
+    then the resonance (peak) and antiresonance (dip) of the ratio between the empirical
+    frequency response (Welch cross-spectra) and the rigid model, which give the coupled and
+    the shaft frequency and hence the load ratio. The reported mode is the complex pole pair
+    of the fitted model: what rings when the motor moves.
+
+    Parameters
+    ----------
+    u : array_like
+        Drive voltage per sample (V), held over each sample (a chirp: :func:`chirp_input`, or
+        ``jerklab.ident.prbs``).
+    y : array_like
+        Encoder angle (rad): ``len(u) + 1`` samples (``plant.open_loop``'s convention: ``y[k]``
+        read at ``k Ts`` before ``u[k]``) or ``len(u)`` (then the last input is not used).
+    Ts : float
+        Sample period, s.
+    f_range : (float, float), optional
+        Band (Hz) searched for the mode in the start values; default 0.5 Hz to 0.45/Ts.
+    max_nfev : int
+        Function evaluations of the final fit.
+
+    Returns
+    -------
+    ModeFit
+    """
+    from scipy.optimize import least_squares
+    from scipy.signal import csd, welch
+
+    u = as_finite_array("u", u, ndim=1)
+    y = as_finite_array("y", y, ndim=1)
+    Ts = as_positive("Ts", Ts)
+    if y.size == u.size:
+        u = u[:-1]
+    if y.size != u.size + 1:
+        raise ValueError(f"y must have len(u) + 1 (or len(u)) samples, got {y.size} for {u.size + 1}")
+    if u.size < 64:
+        raise ValueError(f"u must have at least 64 samples, got {u.size}")
+    if np.ptp(u) == 0:
+        raise ValueError("u must vary (a constant input excites no mode)")
+    if np.ptp(y) == 0:
+        raise ValueError("y must vary (the encoder did not move)")
+    fmax = 0.45 / Ts
+    if f_range is None:
+        f_range = (0.5, fmax)
+    f_lo, f_hi = (as_positive("f_range", v) for v in f_range)
+    if not f_lo < f_hi:
+        raise ValueError(f"f_range must be (low, high) with low < high, got {f_range!r}")
+    dy_meas = np.diff(y)
+    scale = np.std(dy_meas) or 1.0
+
+    def resid(q, nmode=True):
+        # output error on the angle increments: an integrating plant's angle error grows with
+        # any gain error, its increments do not (the same minimum, a better-shaped cost)
+        p = q[:5] if nmode else np.r_[q[:2], math.log(1e-6), math.log(2 * math.pi * fmax), math.log(0.5)]
+        with np.errstate(all="ignore"):
+            try:
+                r = (np.diff(_flex_simulate(p, u, Ts)) - dy_meas) / scale
+            except (np.linalg.LinAlgError, ValueError):
+                r = np.full(dy_meas.size, 1e6)
+        return np.where(np.isfinite(r), r, 1e6)
+
+    # stage 1: rigid K, τ (a negligible load far above the band)
+    q0 = np.array([math.log(max(np.ptp(y) / max(np.abs(u).sum() * Ts, 1e-12), 1e-6)), math.log(20 * Ts)])
+    best = None
+    for ltau in (math.log(5 * Ts), math.log(20 * Ts), math.log(100 * Ts)):
+        q0[1] = ltau
+        try:
+            r = least_squares(lambda q: resid(q, False), q0, method="lm", max_nfev=200)
+        except (ValueError, np.linalg.LinAlgError):
+            continue
+        if best is None or r.cost < best.cost:
+            best = r
+    K0, tau0 = np.exp(best.x[:2])
+    # stage 2: resonance and antiresonance of the measured response against the rigid model
+    dy = np.diff(y)
+    nper = min(u.size, 1 << max(6, int(math.log2(u.size / 4))))
+    f, Puy = csd(u, dy, fs=1 / Ts, nperseg=nper)
+    _, Puu = welch(u, fs=1 / Ts, nperseg=nper)
+    H = Puy / np.where(Puu > 0, Puu, np.inf)          # Δθ per sample / V
+    band = (f >= f_lo) & (f <= f_hi) & (f > 0)
+    s = 2j * math.pi * np.where(band, f, 1.0)
+    rigid = K0 / (s * (tau0 * s + 1)) * (1 - np.exp(-s * Ts))   # Δθ per sample per V (ZOH ignored)
+    ratio = np.abs(H[band] / np.where(np.abs(rigid[band]) > 0, rigid[band], np.nan))
+    fb = f[band]
+    starts = []
+    if fb.size >= 3 and np.all(np.isfinite(ratio)):
+        ip = int(np.argmax(ratio))
+        idip = int(np.argmin(ratio[:ip])) if ip > 0 else None
+        fc = fb[ip]
+        fr = fb[idip] if idip is not None and ratio[idip] < 0.9 else fc / math.sqrt(1.1)
+        starts.append((fc, fr))
+    starts += [(fc_, fc_ / math.sqrt(1.1)) for fc_ in np.geomspace(f_lo * 2, f_hi / 1.5, 5)]
+    best = None
+    for fc, fr in starts:
+        lr = min(max((fc / fr) ** 2 - 1.0, 0.01), 3.0)
+        for zr in (0.02, 0.1):
+            q = np.array([math.log(K0), math.log(tau0), math.log(lr), math.log(2 * math.pi * fr),
+                          math.log(zr)])
+            try:
+                r = least_squares(resid, q, method="trf", max_nfev=60, x_scale="jac")
+            except (ValueError, np.linalg.LinAlgError, OverflowError):
+                continue
+            if np.all(np.isfinite(r.fun)) and (best is None or r.cost < best.cost):
+                best = r
+    if best is None:
+        raise RuntimeError("identify_mode: no start value gave a finite fit")
+    r = least_squares(resid, best.x, method="trf", max_nfev=as_positive("max_nfev", max_nfev), x_scale="jac")
+    q = r.x
+    e = r.fun * scale
+    dof = max(e.size - q.size, 1)
+    s2 = float(e @ e) / dof
+    J = r.jac * scale
+    cov = s2 * np.linalg.pinv(J.T @ J)
+    fm, zm = _coupled_mode(*np.exp(q[:5]))
+    G = np.zeros((2, q.size))
+    for i in range(5):
+        h = 1e-6
+        qp, qm = q.copy(), q.copy()
+        qp[i] += h
+        qm[i] -= h
+        G[:, i] = (np.array(_coupled_mode(*np.exp(qp[:5]))) - np.array(_coupled_mode(*np.exp(qm[:5])))) / (2 * h)
+    cf = G @ cov @ G.T
+    f_se, z_se = (math.sqrt(max(v, 0.0)) for v in np.diag(cf))
+    fit = 100.0 * (1 - np.linalg.norm(e) / np.linalg.norm(dy_meas - dy_meas.mean()))
+    K, tau, lr, wr, zr = (float(v) for v in np.exp(q[:5]))
+    shaper = ModeFit.recommend(fm, zm, f_se)
+    jt = 1.0 / (fm * math.sqrt(max(1 - zm * zm, 1e-12)))
+    return ModeFit(frequency_hz=fm, damping=zm, frequency_se=f_se, damping_se=z_se,
+                   params=dict(K=K, tau=tau, load_ratio=lr, mode_frequency=wr, mode_damping=zr),
+                   fit_percent=float(fit), shaper=shaper, jerk_time=jt, residual_std=math.sqrt(s2))
