@@ -75,6 +75,8 @@ from jerklab._validate import as_finite_array, as_nonnegative, as_positive, as_r
 
 __all__ = [
     "KINDS", "InputShaper", "input_shaper", "residual_vibration_of", "insensitivity_table",
+    "chirp_input", "ModeFit", "identify_mode", "profile_residual_vibration", "tuned_profile",
+    "move_time_comparison",
 ]
 
 #: the shaper kinds, in order of duration (aliases are accepted: "2-hump EI", "EI3", ...)
@@ -142,6 +144,33 @@ def residual_vibration_of(amplitudes, times, frequency_hz, damping=0.0):
     order = np.argsort(t, kind="stable")
     v = 100.0 * _v_impulses(A[order] / s, t[order], 2 * math.pi * f, zeta)
     return float(v) if np.ndim(frequency_hz) == 0 else v
+
+
+def _band(curve, tolerance, r_max=3.0):
+    """``(low, high)`` ratios around the zero of ``curve(r)`` (percent) nearest r = 1 where the
+    curve stays <= ``tolerance`` (humps of exactly ``tolerance`` inside); ``(nan, nan)`` if the
+    curve exceeds the tolerance at that zero."""
+    tol = as_positive("tolerance", tolerance)
+    if tol >= 100:
+        raise ValueError(f"tolerance is in percent and must be < 100, got {tolerance!r}")
+    lim = tol * (1 + 1e-7)
+    r = np.linspace(0.05, r_max, int(round((r_max - 0.05) * 2000)) + 1)
+    vv = curve(r)
+    mins = np.flatnonzero((vv[1:-1] <= vv[:-2]) & (vv[1:-1] <= vv[2:])) + 1
+    i0 = int(mins[np.argmin(np.abs(r[mins] - 1.0))]) if mins.size else int(np.argmin(np.abs(r - 1)))
+    if vv[i0] > lim:
+        return (math.nan, math.nan)
+    edges = []
+    for step in (-1, 1):
+        i = i0
+        while 0 < i < r.size - 1 and vv[i + step] <= lim:
+            i += step
+        if i in (0, r.size - 1):
+            edges.append(float(r[i]))
+        else:
+            edges.append(brentq(lambda x: float(curve(np.array([x]))[0]) - tol, r[i], r[i + step], xtol=1e-10))
+    lo, hi = sorted(edges)
+    return (lo, hi)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -283,33 +312,9 @@ class InputShaper:
         damping : float, optional
             Plant damping (default: the design damping).
         """
-        tol = as_positive("tolerance", tolerance)
-        if tol >= 100:
-            raise ValueError(f"tolerance is in percent and must be < 100, got {tolerance!r}")
         zeta = self.damping if damping is None else _damping("damping", damping)
+        lo, hi = _band(lambda r: self.sensitivity_curve(r, zeta), tolerance)
         f0 = self.frequency_hz
-        lim = tol * (1 + 1e-7)
-
-        def v(r):
-            return 100.0 * float(_v_impulses(self.amplitudes, self.times, 2 * math.pi * f0 * np.array(r), zeta))
-
-        r = np.linspace(0.05, 3.0, 5901)
-        vv = 100.0 * _v_impulses(self.amplitudes, self.times, 2 * math.pi * f0 * r, zeta)
-        # the local minimum of V nearest r = 1
-        mins = np.flatnonzero((vv[1:-1] <= vv[:-2]) & (vv[1:-1] <= vv[2:])) + 1
-        i0 = int(mins[np.argmin(np.abs(r[mins] - 1.0))]) if mins.size else int(np.argmin(np.abs(r - 1)))
-        if vv[i0] > lim:
-            return (math.nan, math.nan)
-        edges = []
-        for step in (-1, 1):
-            i = i0
-            while 0 < i < r.size - 1 and vv[i + step] <= lim:
-                i += step
-            if i in (0, r.size - 1):
-                edges.append(r[i])
-            else:
-                edges.append(brentq(lambda x: v(x) - tol, r[i], r[i + step], xtol=1e-10))
-        lo, hi = sorted(edges)
         return (lo * f0, hi * f0) if hz else (lo, hi)
 
     # --- sampled references -------------------------------------------------------------------
@@ -679,3 +684,190 @@ def identify_mode(u, y, Ts, f_range=None, max_nfev=400):
     return ModeFit(frequency_hz=fm, damping=zm, frequency_se=f_se, damping_se=z_se,
                    params=dict(K=K, tau=tau, load_ratio=lr, mode_frequency=wr, mode_damping=zr),
                    fit_percent=float(fit), shaper=shaper, jerk_time=jt, residual_std=math.sqrt(s2))
+
+
+# ----------------------------------------------------------------------------------------------
+# jerk profiles as implicit shapers
+# ----------------------------------------------------------------------------------------------
+def _sigma(frequency_hz, damping):
+    w = 2 * math.pi * np.asarray(frequency_hz, dtype=float)
+    return damping * w + 1j * w * math.sqrt(1.0 - damping * damping)
+
+
+def _box(sig, L):
+    """End-referenced transform of the unit box of length L: (1 − e^{−σL})/(σL)."""
+    if L == 0.0:
+        return np.ones_like(sig)
+    x = sig * L
+    small = np.abs(x) < 1e-8
+    return np.where(small, 1.0 - x / 2, (1 - np.exp(-x)) / np.where(small, 1.0, x))
+
+
+def _half_sine(sig, L):
+    """End-referenced transform of the unit-area half-sine pulse of length L (the jerk pulse of
+    the sine-jerk profiles): (a²/2)(1 + e^{−σL})/(σ² + a²), a = π/L (|.| = π/4 at σ = ja)."""
+    if L == 0.0:
+        return np.ones_like(sig)
+    a = math.pi / L
+    d = sig * sig + a * a
+    sing = np.abs(d) < 1e-9 * a * a
+    return np.where(sing, math.pi / 4 * np.exp(-0.5j * math.pi),
+                    0.5 * a * a * (1 + np.exp(-sig * L)) / np.where(sing, 1.0, d))
+
+
+def _raised_cosine(sig, L):
+    """End-referenced transform of the unit-area pulse (1 − cos(2πt/L))/L (Stojčić eq. 2's
+    acceleration): (1 − e^{−σL}) b² / (L σ (σ² + b²)), b = 2π/L (−1/2 at σ = jb)."""
+    if L == 0.0:
+        return np.ones_like(sig)
+    b = 2 * math.pi / L
+    d = sig * sig + b * b
+    sing = (np.abs(d) < 1e-9 * b * b) | (np.abs(sig) < 1e-12)
+    safe = np.where(sing, 1.0, sig * d)
+    val = (1 - np.exp(-sig * L)) * b * b / (L * safe)
+    return np.where(np.abs(sig) < 1e-12, 1.0, np.where(np.abs(d) < 1e-9 * b * b, -0.5 + 0j, val))
+
+
+def _profile_factors(profile):
+    """The velocity/distance of a planner profile as a convolution of unit pulses:
+    ``[(shape, length), ...]`` (shape in "box", "half_sine", "raised_cosine")."""
+    from jerklab.planner import Profile
+    if not isinstance(profile, Profile):
+        raise TypeError(f"profile must be a jerklab.planner Profile, got {type(profile).__name__}")
+    if profile.distance == 0.0:
+        raise ValueError("profile must move (distance 0 leaves nothing to ring)")
+    pt = profile.phase_times
+    if profile.kind == "trapezoid":
+        ta, tv, _ = pt
+        return [("box", ta), ("box", ta + tv)]
+    if profile.kind == "sine_jerk":
+        T, tv, _ = pt
+        return [("raised_cosine", T), ("box", T + tv)]
+    tj, ta, _, tv = pt[:4]
+    pulse = "box" if profile.kind == "scurve" else "half_sine"
+    return [(pulse, tj), ("box", tj + ta), ("box", 2 * tj + ta + tv)]
+
+
+_PULSES = {"box": _box, "half_sine": _half_sine, "raised_cosine": _raised_cosine}
+
+
+def profile_residual_vibration(profile, frequency_hz, damping=0.0):
+    """Percentage residual vibration a planner profile leaves on a mode (closed form).
+
+    A symmetric rest-to-rest profile's velocity, divided by the distance, is a convolution of
+    unit-area pulses: the trapezoid ``box(t_a) ⊛ box(t_a + t_v)``; the S-curve and the
+    time-optimal sine-jerk profile ``p(t_j) ⊛ box(t_j + t_a) ⊛ box(2t_j + t_a + t_v)`` with ``p``
+    the jerk pulse (a box, or a half sine); Stojčić's profile (Stojčić eq. 2) the raised-cosine
+    acceleration pulse of length T ⊛ ``box(T + t_v)``. The residual vibration (module docstring)
+    is the product of the pulses' transforms at ``σ = ζω + jω_d``: each box of length L is a
+    "continuous ZV" with zeros at ``f = k/L`` (ζ = 0), the half sine at ``f = (k + ½)/L``
+    (k >= 1), the raised cosine at ``f = k/L`` (k >= 2). Checked against a numerically
+    integrated mass–spring response in the tests.
+
+    Parameters
+    ----------
+    profile : jerklab.planner.Profile
+        A planned move (any of the four kinds).
+    frequency_hz : float or array_like
+        Natural frequency of the mode, Hz.
+    damping : float
+        Damping ratio of the mode.
+    """
+    factors = _profile_factors(profile)
+    f = np.asarray(frequency_hz, dtype=float)
+    if not np.all(np.isfinite(f)) or np.any(f <= 0):
+        raise ValueError(f"frequency_hz must be positive and finite, got {frequency_hz!r}")
+    sig = _sigma(f, _damping("damping", damping))
+    F = np.ones_like(sig)
+    for shape, L in factors:
+        F = F * _PULSES[shape](sig, L)
+    v = 100.0 * np.abs(F)
+    return float(v) if np.ndim(frequency_hz) == 0 else v
+
+
+def tuned_profile(kind, distance, frequency_hz, max_accel, max_velocity, max_jerk=None, damping=0.0):
+    """The profile of ``kind`` with its jerk (or acceleration) time set on a spectral zero of the mode.
+
+    * ``"scurve"``: the jerk time ``t_j = T_d = 1/f_d`` (the box of the jerk pulse has its first zero
+      there); ``max_jerk`` is replaced by ``A'/T_d``.
+    * ``"sine_jerk_optimal"``: the half-sine jerk pulse of length ``1.5 T_d`` (its first zero).
+    * ``"sine_jerk"``: Stojčić's acceleration time ``T = 2 T_d`` (the raised cosine's first zero,
+      Stojčić eq. 4 with the jerk lowered until ``T = 2 T_d``).
+    * ``"trapezoid"``: its velocity is ``box(t_a) ⊛ box(t_a + t_v)``; either the acceleration time
+      or the time between the start of acceleration and of deceleration is rounded up to a whole
+      number of ``T_d`` (lowering the acceleration, or the cruise speed), whichever is shorter.
+
+    The acceleration (and velocity) limits are kept as upper bounds: where the move is too short
+    to reach ``max_accel`` within the tuned time, the acceleration is lowered. ``max_jerk`` is
+    not used (the jerk follows from the tuned time); it is accepted for a uniform call.
+    ``T_d = 1/(f √(1 − ζ²))``; a box has no exact zero once ζ > 0, the residual is then small but
+    not zero.
+
+    Returns
+    -------
+    jerklab.planner.Profile
+    """
+    from jerklab import planner
+    kind = str(kind)
+    d = as_real("distance", distance)
+    f = as_positive("frequency_hz", frequency_hz)
+    A = as_positive("max_accel", max_accel)
+    V = as_positive("max_velocity", max_velocity)
+    zeta = _damping("damping", damping)
+    if max_jerk is not None:
+        as_positive("max_jerk", max_jerk)
+    Td = 1.0 / (f * math.sqrt(1 - zeta * zeta))
+    ad = abs(d)
+    if ad == 0.0:
+        raise ValueError("distance must not be 0")
+    if kind == "trapezoid":
+        # two boxes, box(t_a) and box(t_a + t_v): round the cheaper one up to whole periods
+        base = planner.plan_trapezoid(ad, A, V)
+        ta0, tv0, _ = base.phase_times
+        ta = max(1, math.ceil(ta0 / Td - 1e-9)) * Td            # option 1: the acceleration time
+        p1 = planner.plan_trapezoid(d, min(V / ta, ad / ta ** 2), V)
+        L2 = max(1, math.ceil((ta0 + tv0) / Td - 1e-9)) * Td    # option 2: the time between ramps
+        v = ad / L2
+        p2 = planner.plan_trapezoid(d, v / ta0, v * (1 + 1e-12))
+        return p1 if p1.duration <= p2.duration else p2
+    if kind == "scurve":
+        tj = Td
+        A2 = min(A, ad / (2 * tj * tj), V / tj)
+        return planner.plan_scurve(d, A2 / tj, A2, V)
+    if kind == "sine_jerk_optimal":
+        tj = 1.5 * Td
+        A2 = min(A, ad / (2 * tj * tj), V / tj)
+        return planner.plan_sine_jerk_optimal(d, math.pi * A2 / (2 * tj), A2, V)
+    if kind == "sine_jerk":
+        T = 2 * Td
+        J = min(A * math.pi / T, 2 * math.pi * ad / T ** 3, 2 * math.pi * V / T ** 2)
+        return planner.plan_sine_jerk(d, J, A, V)
+    raise ValueError(f"kind must be 'trapezoid', 'scurve', 'sine_jerk' or 'sine_jerk_optimal', got {kind!r}")
+
+
+def move_time_comparison(distance, frequency_hz, max_accel, max_velocity, damping=0.0,
+                         shapers=("zv", "zvd", "ei")):
+    """Move time of a zero-ringing move: a tuned profile against a shaped time-optimal trapezoid.
+
+    The baseline is the time-optimal trapezoid under ``max_accel``, ``max_velocity`` (it rings).
+    A shaper adds its duration to it (positive impulses keep the acceleration limit); a tuned
+    profile (:func:`tuned_profile`) costs the difference of durations. Returns
+    ``{name: {"duration": s, "penalty": s, "residual": % at the mode}}``. The tuned profile wins
+    when the move's own acceleration time is long against the mode period (rounding it up to a
+    period costs less than half a period, ZV's price), and loses for short, fast moves, where
+    the jerk time ``1/f`` is added almost entirely.
+    """
+    from jerklab import planner
+    base = planner.plan_trapezoid(distance, max_accel, max_velocity)
+    out = {"trapezoid": {"duration": base.duration, "penalty": 0.0,
+                         "residual": profile_residual_vibration(base, frequency_hz, damping)}}
+    for kind in ("trapezoid", "scurve", "sine_jerk_optimal", "sine_jerk"):
+        p = tuned_profile(kind, distance, frequency_hz, max_accel, max_velocity, damping=damping)
+        out[f"tuned {kind}"] = {"duration": p.duration, "penalty": p.duration - base.duration,
+                                "residual": profile_residual_vibration(p, frequency_hz, damping)}
+    for k in shapers:
+        s = input_shaper(k, frequency_hz, damping)
+        r = s.residual_vibration(frequency_hz, damping) * profile_residual_vibration(base, frequency_hz, damping) / 100
+        out[f"trapezoid + {_kind(k).upper()}"] = {"duration": base.duration + s.duration,
+                                                  "penalty": s.duration, "residual": r}
+    return out
