@@ -76,7 +76,8 @@ from jerklab._validate import as_finite_array, as_nonnegative, as_positive, as_r
 __all__ = [
     "KINDS", "InputShaper", "input_shaper", "residual_vibration_of", "insensitivity_table",
     "chirp_input", "ModeFit", "identify_mode", "profile_residual_vibration", "tuned_profile",
-    "move_time_comparison",
+    "move_time_comparison", "RobustMove", "robust_move_rows", "robust_move", "energy_optimal_move",
+    "Tradeoff", "tradeoff",
 ]
 
 #: the shaper kinds, in order of duration (aliases are accepted: "2-hump EI", "EI3", ...)
@@ -146,10 +147,14 @@ def residual_vibration_of(amplitudes, times, frequency_hz, damping=0.0):
     return float(v) if np.ndim(frequency_hz) == 0 else v
 
 
-def _band(curve, tolerance, r_max=3.0):
+#: the largest frequency ratio searched for the edge of an insensitivity band
+_R_MAX = 3.0
+
+
+def _band(curve, tolerance, r_max=_R_MAX):
     """``(low, high)`` ratios around the zero of ``curve(r)`` (percent) nearest r = 1 where the
-    curve stays <= ``tolerance`` (humps of exactly ``tolerance`` inside); ``(nan, nan)`` if the
-    curve exceeds the tolerance at that zero."""
+    curve stays <= ``tolerance`` (humps of exactly ``tolerance`` inside); ``(nan, nan)`` if that
+    band does not hold r = 1."""
     tol = as_positive("tolerance", tolerance)
     if tol >= 100:
         raise ValueError(f"tolerance is in percent and must be < 100, got {tolerance!r}")
@@ -170,6 +175,8 @@ def _band(curve, tolerance, r_max=3.0):
         else:
             edges.append(brentq(lambda x: float(curve(np.array([x]))[0]) - tol, r[i], r[i + step], xtol=1e-10))
     lo, hi = sorted(edges)
+    if not lo <= 1.0 <= hi:                  # the band must hold the nominal mode
+        return (math.nan, math.nan)
     return (lo, hi)
 
 
@@ -871,3 +878,308 @@ def move_time_comparison(distance, frequency_hz, max_accel, max_velocity, dampin
         out[f"trapezoid + {_kind(k).upper()}"] = {"duration": base.duration + s.duration,
                                                   "penalty": s.duration, "residual": r}
     return out
+
+
+# ----------------------------------------------------------------------------------------------
+# Xu & Meckl's robust time-optimal shaping, generalized to a rest-to-rest move of the flexible motor
+# ----------------------------------------------------------------------------------------------
+def _zoh_poles(model, Ts):
+    """Discrete poles (z = e^{λTs}) of the flexible motor: the real (motor) pole and the mode pole
+    in the upper half plane; the integrator (λ = 0) is left out."""
+    A, _ = model._matrices()
+    lam = np.linalg.eigvals(A)
+    lam = lam[np.abs(lam) > 1e-9 * max(1.0, np.abs(lam).max())]
+    real = lam[np.abs(lam.imag) <= 1e-9 * np.abs(lam)].real
+    cplx = lam[lam.imag > 1e-9 * np.abs(lam)]
+    return [math.exp(r * Ts) for r in real], [complex(np.exp(c * Ts)) for c in cplx]
+
+
+def _poly_rows(N, z, j):
+    """Row of d^j/dz^j of P(z) = Σ_k u_k z^{N−1−k} (the command's z-transform times z^{N−1}: the
+    same zeros away from 0, and |z^m| <= 1 inside the unit circle, so the rows stay well scaled)."""
+    m = (N - 1 - np.arange(N)).astype(float)
+    coef = np.ones(N)
+    for i in range(j):
+        coef = coef * (m - i)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pw = np.where(m - j >= 0, np.power(complex(z), np.maximum(m - j, 0)), 0.0)
+    return coef * pw
+
+
+def robust_move_rows(N, model, Ts, distance, order=0):
+    """Equality rows ``E u = f`` on the N voltage samples of a rest-to-rest move of ``model``.
+
+    The move ends at rest at ``distance`` (motor and load, rad) once the input is 0 after N
+    samples. In modal form (Xu & Meckl eq. 3 with the terminal state of Xu & Meckl eq. 6) that is:
+    the integrator sums the input (``K Ts Σ u_k = distance``: the rigid motor's momentum
+    balance), and the command's z-transform vanishes at every other pole (the motor pole and the
+    mode pole). Order ``m`` robustness (Xu & Meckl eq. 8, Xu & Meckl eq. 13) makes the mode
+    pole a zero of multiplicity ``m + 1`` (the derivatives up to m vanish too), as in
+    :mod:`jerklab.piezo` — here on ``z^{N−1} U(z)``, a polynomial, so the rows are bounded.
+    Rows are scaled to unit norm.
+    """
+    real, cplx = _zoh_poles(model, Ts)
+    rows, rhs = [np.ones(N)], [distance / (model.K * Ts)]
+    for z in real:
+        rows.append(np.real(_poly_rows(N, z, 0)))
+        rhs.append(0.0)
+    for z in cplx:
+        for j in range(order + 1):
+            r = _poly_rows(N, z, j)
+            rows += [r.real, r.imag]
+            rhs += [0.0, 0.0]
+    E, f = np.array(rows), np.array(rhs)
+    s = np.linalg.norm(E, axis=1)
+    s[s == 0] = 1.0
+    return E / s[:, None], f / s
+
+
+@dataclass
+class RobustMove:
+    """A shaped voltage command for a rest-to-rest move of the flexible motor.
+
+    ``u``: volts per sample (held, ZOH), 0 after the last; ``order``: robustness order of the
+    mode (``None``: only rest of the rigid motor, the mode ignored); ``lp_count``: LPs/screens run.
+    """
+
+    u: np.ndarray
+    Ts: float
+    distance: float
+    order: int | None
+    u_max: float
+    mode_hz: float
+    mode_damping: float
+    lp_count: int = 0
+    objective: str = "time"
+
+    @property
+    def duration(self) -> float:
+        """Length of the command, s."""
+        return self.u.size * self.Ts
+
+    def sensitivity_curve(self, ratios, damping=None):
+        """Residual vibration (%) with the mode at ``ratios`` × its nominal frequency.
+
+        The command read as a density (module docstring): ZOH pulses ``u_k/Σu`` of length Ts, so
+        a voltage impulse of the same area (a position step) would leave 100 %.
+        """
+        r = as_finite_array("ratios", ratios, ndim=1)
+        zeta = self.mode_damping if damping is None else _damping("damping", damping)
+        sig = _sigma(self.mode_hz * r, zeta)[:, None]
+        k = np.arange(self.u.size)
+        T = self.u.size * self.Ts
+        F = np.exp(sig * (k * self.Ts - T)) @ self.u * _box(sig[:, 0], self.Ts) * np.exp(sig[:, 0] * self.Ts)
+        return 100.0 * np.abs(F) / abs(self.u.sum())
+
+    def residual_vibration(self, frequency_hz, damping=None):
+        """Residual vibration (%) on a mode at ``frequency_hz`` (scalar)."""
+        f = as_positive("frequency_hz", frequency_hz)
+        return float(self.sensitivity_curve(np.array([f / self.mode_hz]), damping)[0])
+
+
+def _flex_model(model):
+    from jerklab.plant import FlexibleDCMotor
+    if model is None:
+        return FlexibleDCMotor()
+    if not isinstance(model, FlexibleDCMotor):
+        raise TypeError(f"model must be a jerklab.plant.FlexibleDCMotor, got {type(model).__name__}")
+    return model
+
+
+def robust_move(distance, model=None, Ts=0.005, order=0, u_max=None, max_samples=2000, solver="lp"):
+    """Time-optimal (robust) voltage command moving the flexible motor by ``distance`` rad, rest to rest.
+
+    Xu & Meckl's formulation (Xu & Meckl eq. 3, Xu & Meckl eq. 5, Xu & Meckl eq. 6,
+    Xu & Meckl eq. 13) generalized from the piezo scan to a positioning move: the smallest
+    horizon N for which voltage samples with ``|u_k| <= u_max`` (Xu & Meckl eq. 5, the supply)
+    meet :func:`robust_move_rows` — rest at ``distance``, the mode robust to ``order`` (0, 1,
+    2: zero placement of multiplicity 1, 2, 3). Bisection on N over LP feasibility problems,
+    with the NNLS screen and the HiGHS LP of :mod:`jerklab.piezo` (``solver`` as there:
+    ``"lp"``, ``"highs"`` or ``"lsq"`` for Xu & Meckl eq. 6 literally). ``order=None`` ignores
+    the mode (rest of the rigid motor only): the baseline of the move-time penalty.
+
+    Parameters
+    ----------
+    distance : float
+        Move, rad (non-zero).
+    model : jerklab.plant.FlexibleDCMotor, optional
+        The plant (default ``FlexibleDCMotor()``: 8 Hz shaft, load ratio 0.05).
+    Ts : float
+        Sample period, s.
+    order : int or None
+        Robustness order of the mode.
+    u_max : float, optional
+        Voltage limit, V (default the model's supply voltage, else 12 V).
+    """
+    from jerklab import piezo
+    model = _flex_model(model)
+    d = as_real("distance", distance)
+    if d == 0.0:
+        raise ValueError("distance must not be 0")
+    Ts = as_positive("Ts", Ts)
+    if order is not None:
+        from jerklab._validate import as_int
+        order = as_int("order", order, minimum=0)
+        if order > 4:
+            raise ValueError(f"order must be <= 4, got {order}")
+    U = as_positive("u_max", u_max if u_max is not None else (model.supply_voltage or 12.0))
+    if solver not in ("lp", "highs", "lsq"):
+        raise ValueError(f"solver must be 'lp', 'highs' or 'lsq', got {solver!r}")
+    from jerklab._validate import as_int
+    max_samples = as_int("max_samples", max_samples, minimum=2)
+    count = [0]
+    real, cplx = _zoh_poles(model, Ts)
+
+    n_rows = 1 + len(real) + (0 if order is None else 2 * len(cplx) * (order + 1))
+
+    def make(N, how):
+        count[0] += 1
+        if N < n_rows:                       # fewer samples than conditions: a zero row at best
+            return None
+        if order is None:
+            E = np.vstack([np.ones(N)] + [np.real(_poly_rows(N, z, 0)) for z in real])
+            f = np.r_[d / (model.K * Ts), np.zeros(len(real))]
+            s = np.linalg.norm(E, axis=1)
+            E, f = E / s[:, None], f / s
+        else:
+            E, f = robust_move_rows(N, model, Ts, d, order)
+        return piezo._solve_lp(E, f, None, None, [(-U, U)] * N, N, how)
+
+    n_lo = max(1, math.ceil(abs(d) / (model.K * Ts * U)) - 1)   # Σ|u| Ts K >= |d|
+    N, x = piezo._bisect_solver(make, n_lo, max_samples, solver)
+    fm, zm = _coupled_mode(model.K, model.tau, model.load_ratio, model.mode_frequency, model.mode_damping)
+    return RobustMove(u=np.asarray(x, dtype=float), Ts=Ts, distance=d, order=order, u_max=U,
+                      mode_hz=fm, mode_damping=zm, lp_count=count[0])
+
+
+def energy_optimal_move(distance, N, model=None, Ts=0.005, order=1, u_max=None, objective="input"):
+    """Time-energy-optimal variant: a move of a fixed ``N`` samples of least energy (Xu & Meckl eq. 19).
+
+    Minimises ``½ Σ u_k²`` (``objective="input"``, Xu & Meckl eq. 19 as published) or
+    ``½ Σ (u_k − u_{k−1})²`` with ``u_{−1} = u_N = 0`` (``"increment"``: the smoother command)
+    subject to the same rest/robustness rows and ``|u| <= u_max``; ``N`` longer than the
+    time-optimal horizon of :func:`robust_move` trades time for a gentler command. Raises
+    ``RuntimeError`` when ``N`` is shorter than the time-optimal horizon.
+    """
+    from jerklab import piezo
+    from jerklab._validate import as_int
+    model = _flex_model(model)
+    d = as_real("distance", distance)
+    if d == 0.0:
+        raise ValueError("distance must not be 0")
+    Ts = as_positive("Ts", Ts)
+    N = as_int("N", N, minimum=2)
+    if N > 20_000:
+        raise ValueError(f"N must be <= 20000 samples, got {N}")
+    order = as_int("order", order, minimum=0)
+    if objective not in ("input", "increment"):
+        raise ValueError(f"objective must be 'input' or 'increment', got {objective!r}")
+    U = as_positive("u_max", u_max if u_max is not None else (model.supply_voltage or 12.0))
+    E, f = robust_move_rows(N, model, Ts, d, order)
+    x0 = piezo._solve_lp(E, f, None, None, [(-U, U)] * N, N)
+    if x0 is None:
+        raise RuntimeError(f"N = {N} is shorter than the time-optimal move")
+    M = m = None
+    if objective == "increment":
+        M = np.eye(N + 1, N) - np.eye(N + 1, N, -1)
+        m = np.zeros(N + 1)
+    u = piezo._least_squares_qp(E, f, np.full(N, -U), np.full(N, U), M, m, x0=x0)
+    if u is None:
+        raise RuntimeError("the QP of Xu & Meckl eq. 19 did not converge")
+    fm, zm = _coupled_mode(model.K, model.tau, model.load_ratio, model.mode_frequency, model.mode_damping)
+    return RobustMove(u=u, Ts=Ts, distance=d, order=order, u_max=U, mode_hz=fm, mode_damping=zm,
+                      objective=objective)
+
+
+# ----------------------------------------------------------------------------------------------
+# the trade-off: one figure and one table
+# ----------------------------------------------------------------------------------------------
+@dataclass
+class Tradeoff:
+    """Residual vibration against the frequency ratio and the move-time cost of each method.
+
+    ``ratios``: mode frequency / nominal (design) frequency; ``curves``: ``{name: V %}``;
+    ``rows``: one dict per method with ``name``, ``family`` ("profile", "shaper", "robust LP"),
+    (a band reaching ratio 3, the search limit, is open above: a profile is a low-pass filter)
+    ``duration`` (s, the whole move), ``penalty`` (s, against its family's baseline: the
+    time-optimal trapezoid for profiles and shapers, the time-optimal voltage command that
+    ignores the mode for the LP), ``band`` (the 5 % insensitivity band as ratios, nan if the
+    method leaves more than 5 % at the nominal mode) and ``width`` (high − low).
+    """
+
+    frequency_hz: float
+    damping: float
+    distance: float
+    ratios: np.ndarray
+    curves: dict
+    rows: list
+
+    def table(self) -> str:
+        """The table as text: method, move time, penalty, 5 % band and its width."""
+        lines = [f"{'method':<24} {'family':<10} {'move s':>7} {'penalty s':>9} {'5 % band':>16} {'width':>7}"]
+        for r in self.rows:
+            lo, hi = r["band"]
+            band = "—" if math.isnan(lo) else f"{100 * (lo - 1):+5.1f}…{100 * (hi - 1):+5.1f} %"
+            if not math.isnan(lo) and hi >= _R_MAX - 1e-9:
+                band = f"{100 * (lo - 1):+5.1f}…   ∞ %"
+            width = "—" if math.isnan(lo) else f"{100 * (hi - lo):5.1f} %"
+            if not math.isnan(lo) and hi >= _R_MAX - 1e-9:
+                width = "∞"
+            lines.append(f"{r['name']:<24} {r['family']:<10} {r['duration']:7.3f} {r['penalty']:9.3f} "
+                         f"{band:>16} {width:>7}")
+        return "\n".join(lines)
+
+    def plot(self, ax=None):
+        """Draw the curves (``jerklab.plots.plot_tradeoff``)."""
+        from jerklab.plots import plot_tradeoff
+        return plot_tradeoff(self, ax=ax)
+
+
+def tradeoff(model=None, distance=1.0, Ts=0.005, max_accel=None, max_velocity=None,
+             ratios=None, orders=(0, 1, 2), shapers=("zv", "mzv", "zvd", "ei", "2hump_ei", "3hump_ei")):
+    """Compute the trade-off figure and table for the flexible motor's mode.
+
+    The mode is the coupled pole pair of ``model`` (default ``FlexibleDCMotor()``: 8.1 Hz,
+    ζ = 0.033). The default move (1 rad under Stojčić's limits) accelerates in 58 ms, under half
+    the mode period, so the plain trapezoid rings; a move whose acceleration time exceeds the
+    period is already a good filter on its own (try ``distance=2 * math.pi``). Curves: the time-optimal trapezoid and the S-curve and sine-jerk profiles tuned
+    to the mode (:func:`tuned_profile`) over ``distance`` under ``max_accel``/``max_velocity``
+    (default Stojčić's limits, ``jerklab.paper``); the shapers designed for the mode; the robust
+    time-optimal voltage commands (:func:`robust_move`) of each order. Every curve uses the same
+    measure (module docstring): the residual with the mode at ``ratio ×`` its nominal frequency,
+    damping held, as a percentage of what a step of the same size leaves.
+    """
+    from jerklab import paper
+    model = _flex_model(model)
+    A = paper.MAX_ACCEL if max_accel is None else as_positive("max_accel", max_accel)
+    V = paper.MAX_VELOCITY if max_velocity is None else as_positive("max_velocity", max_velocity)
+    r = np.linspace(0.5, 1.5, 201) if ratios is None else as_finite_array("ratios", ratios, ndim=1)
+    if np.any(r <= 0):
+        raise ValueError("ratios must be positive")
+    f, z = _coupled_mode(model.K, model.tau, model.load_ratio, model.mode_frequency, model.mode_damping)
+    from jerklab import planner
+    base = planner.plan_trapezoid(distance, A, V)
+    curves, rows = {}, []
+
+    def add(name, family, dur, pen, curve_fn):
+        curves[name] = curve_fn(r)
+        band = _band(curve_fn, 5.0)
+        rows.append(dict(name=name, family=family, duration=float(dur), penalty=float(pen), band=band,
+                         width=band[1] - band[0]))
+
+    add("trapezoid", "profile", base.duration, 0.0, lambda x: profile_residual_vibration(base, f * x, z))
+    for kind, label in (("trapezoid", "tuned trapezoid"), ("scurve", "tuned S-curve"),
+                        ("sine_jerk", "tuned sine-jerk")):
+        p = tuned_profile(kind, distance, f, A, V, damping=z)
+        add(label, "profile", p.duration, p.duration - base.duration,
+            lambda x, p=p: profile_residual_vibration(p, f * x, z))
+    for k in shapers:
+        s = input_shaper(k, f, z)
+        add(f"{_kind(k).upper().replace('HUMP_', '-hump ')}", "shaper", base.duration + s.duration, s.duration,
+            lambda x, s=s: s.sensitivity_curve(x))
+    rigid = robust_move(distance, model, Ts, order=None)
+    for o in orders:
+        m = robust_move(distance, model, Ts, order=o)
+        add(f"robust LP order {o}", "robust LP", m.duration, m.duration - rigid.duration,
+            lambda x, m=m: m.sensitivity_curve(x))
+    return Tradeoff(frequency_hz=f, damping=z, distance=float(distance), ratios=r, curves=curves, rows=rows)
