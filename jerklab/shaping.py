@@ -367,7 +367,10 @@ class InputShaper:
         h = self.fir(Ts)
         n = h.size - 1
         x = np.concatenate([np.full(n, r[0]), r, np.full(n if extend else 0, r[-1])])
-        y = np.convolve(x, h, mode="full")[n:n + r.size + (n if extend else 0)]
+        m = r.size + (n if extend else 0)
+        y = np.zeros(m)
+        for j in np.flatnonzero(h):              # at most two taps per impulse: a sparse FIR
+            y += h[j] * x[n - j:n - j + m]
         return y
 
 
