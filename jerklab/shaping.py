@@ -540,14 +540,14 @@ class ModeFit:
         return FlexibleDCMotor(**self.params).ideal()
 
     @staticmethod
-    def recommend(frequency_hz, damping, frequency_se, coverage=2.0, tolerance=5.0):
-        """The shortest shaper whose ``tolerance`` % band covers ``f ± coverage·se``.
+    def recommend(frequency_hz, damping, frequency_se, coverage=2.0, tolerance=5.0, margin=0.0):
+        """The shortest shaper whose ``tolerance`` % band covers ``f (1 ± margin) ± coverage·se``.
 
         Shapers are tried by duration (ZV, MZV, ZVD, EI, 2-hump EI, 3-hump EI); if none covers
         the uncertainty, the 3-hump EI is returned (its band is the widest).
         """
-        lo = 1 - coverage * frequency_se / frequency_hz
-        hi = 1 + coverage * frequency_se / frequency_hz
+        lo = 1 - margin - coverage * frequency_se / frequency_hz
+        hi = 1 + margin + coverage * frequency_se / frequency_hz
         zeta = min(max(damping, 0.0), 0.2)
         for kind in ("zv", "mzv", "zvd", "ei", "2hump_ei", "3hump_ei"):
             s = input_shaper(kind, frequency_hz, zeta)
@@ -557,7 +557,7 @@ class ModeFit:
         return s
 
 
-def identify_mode(u, y, Ts, f_range=None, max_nfev=400):
+def identify_mode(u, y, Ts, f_range=None, max_nfev=400, margin=0.0):
     """Find the flexible mode from a drive-voltage record ``u`` and the encoder angle ``y``.
 
     A two-mass model (:class:`jerklab.plant.FlexibleDCMotor`: K, τ, load ratio, shaft
@@ -584,6 +584,10 @@ def identify_mode(u, y, Ts, f_range=None, max_nfev=400):
         Band (Hz) searched for the mode in the start values; default 0.5 Hz to 0.45/Ts.
     max_nfev : int
         Function evaluations of the final fit.
+    margin : float
+        Relative drift of the mode the recommended shaper must also cover (0.05: ±5 %, e.g.
+        belts or loads that change). The standard errors are statistical only: they say how
+        well this record pins the mode down, not how much the machine will move it.
 
     Returns
     -------
@@ -595,6 +599,7 @@ def identify_mode(u, y, Ts, f_range=None, max_nfev=400):
     u = as_finite_array("u", u, ndim=1)
     y = as_finite_array("y", y, ndim=1)
     Ts = as_positive("Ts", Ts)
+    margin = as_nonnegative("margin", margin)
     if y.size == u.size:
         u = u[:-1]
     if y.size != u.size + 1:
@@ -631,7 +636,8 @@ def identify_mode(u, y, Ts, f_range=None, max_nfev=400):
     for ltau in (math.log(5 * Ts), math.log(20 * Ts), math.log(100 * Ts)):
         q0[1] = ltau
         try:
-            r = least_squares(lambda q: resid(q, False), q0, method="lm", max_nfev=200)
+            with np.errstate(all="ignore"):
+                r = least_squares(lambda q: resid(q, False), q0, method="lm", max_nfev=200)
         except (ValueError, np.linalg.LinAlgError):
             continue
         if best is None or r.cost < best.cost:
@@ -663,14 +669,17 @@ def identify_mode(u, y, Ts, f_range=None, max_nfev=400):
             q = np.array([math.log(K0), math.log(tau0), math.log(lr), math.log(2 * math.pi * fr),
                           math.log(zr)])
             try:
-                r = least_squares(resid, q, method="trf", max_nfev=60, x_scale="jac")
+                with np.errstate(all="ignore"):
+                    r = least_squares(resid, q, method="trf", max_nfev=60, x_scale="jac")
             except (ValueError, np.linalg.LinAlgError, OverflowError):
                 continue
             if np.all(np.isfinite(r.fun)) and (best is None or r.cost < best.cost):
                 best = r
     if best is None:
         raise RuntimeError("identify_mode: no start value gave a finite fit")
-    r = least_squares(resid, best.x, method="trf", max_nfev=as_positive("max_nfev", max_nfev), x_scale="jac")
+    with np.errstate(all="ignore"):
+        r = least_squares(resid, best.x, method="trf", max_nfev=int(as_positive("max_nfev", max_nfev)),
+                          x_scale="jac")
     q = r.x
     e = r.fun * scale
     dof = max(e.size - q.size, 1)
@@ -689,7 +698,7 @@ def identify_mode(u, y, Ts, f_range=None, max_nfev=400):
     f_se, z_se = (math.sqrt(max(v, 0.0)) for v in np.diag(cf))
     fit = 100.0 * (1 - np.linalg.norm(e) / np.linalg.norm(dy_meas - dy_meas.mean()))
     K, tau, lr, wr, zr = (float(v) for v in np.exp(q[:5]))
-    shaper = ModeFit.recommend(fm, zm, f_se)
+    shaper = ModeFit.recommend(fm, zm, f_se, margin=margin)
     jt = 1.0 / (fm * math.sqrt(max(1 - zm * zm, 1e-12)))
     return ModeFit(frequency_hz=fm, damping=zm, frequency_se=f_se, damping_se=z_se,
                    params=dict(K=K, tau=tau, load_ratio=lr, mode_frequency=wr, mode_damping=zr),

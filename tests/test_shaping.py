@@ -437,6 +437,12 @@ def test_identify_mode_from_encoder(load_ratio, excitation):
     lo, hi = fit.shaper.insensitivity(5.0, hz=True)
     assert lo <= f0 <= hi
     assert fit.jerk_time == pytest.approx(1 / (fit.frequency_hz * math.sqrt(1 - fit.damping ** 2)))
+    # with a drift margin the recommendation widens, and its band holds the margin
+    for margin in (0.05, 0.15, 0.3):
+        s = type(fit).recommend(fit.frequency_hz, fit.damping, fit.frequency_se, margin=margin)
+        lo, hi = s.insensitivity(5.0)
+        assert lo <= 1 - margin and hi >= 1 + margin, (margin, s.kind)
+        assert s.duration >= fit.shaper.duration
 
 
 # ----------------------------------------------------------------------------------------------
@@ -460,6 +466,7 @@ def test_identify_mode_from_encoder(load_ratio, excitation):
     (lambda: identify_mode(np.ones(100), np.arange(101.0), 0.01), "u"),
     (lambda: identify_mode(np.sin(np.arange(100.0)), np.arange(101.0), -0.01), "Ts"),
     (lambda: chirp_input(1.0, 0.01, 1.0, 1.0, 80.0), "f1"),
+    (lambda: identify_mode(np.sin(np.arange(100.0)), np.arange(101.0), 0.01, margin=-0.1), "margin"),
     (lambda: tuned_profile("ramp", 1.0, 8.0, 300.0, 100.0), "kind"),
     (lambda: tuned_profile("scurve", 1.0, 8.0, -300.0, 100.0), "max_accel"),
     (lambda: robust_move(0.0), "distance"),
