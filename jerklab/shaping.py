@@ -91,6 +91,10 @@ _ALIASES = {
     "threehumpei": "3hump_ei",
 }
 
+#: the largest design damping of the EI family (Klipper's limits in shaper_defs.py: above them the
+#: humps of the vibration curve merge)
+EI_MAX_DAMPING = {"ei": 0.4, "2hump_ei": 0.3, "3hump_ei": 0.2}
+
 #: Klipper's and Singhose's vibration tolerance of the EI family (5 %: "vibration reduction 20x")
 DEFAULT_VTOL = 0.05
 
@@ -218,28 +222,35 @@ def _ei_design(m: int, zeta: float, V: float):
         return A0, t0
     n = m + 2
     x = np.concatenate([A0, t0[1:], zr, hr])
-    steps = max(2, int(math.ceil(zeta / 0.02)))
     h = 1e-6
-    for z in np.linspace(0.0, zeta, steps + 1)[1:]:
-        def eqs(x, z=z):
-            A, tt = x[:n], np.concatenate([[0.0], x[n:2 * n - 1]])
-            zr, hr = x[2 * n - 1:2 * n + m], x[2 * n + m:]
-            sig = lambda r: z * 2 * math.pi * r + 1j * 2 * math.pi * r * math.sqrt(1 - z * z)
-            out = [A.sum() - 1.0]
-            for r in zr:
-                c = np.exp(sig(r) * (tt - tt[-1])) @ A
-                out += [c.real, c.imag]
-            for r in hr:
-                vv = lambda rr: abs(np.exp(sig(rr) * (tt - tt[-1])) @ A)
-                out += [vv(r) - V, (vv(r + h) - vv(r - h)) / (2 * h)]
-            mid = hr[(m - 1) // 2] if m % 2 == 1 else zr[m // 2]
-            out.append(mid - 1.0)
-            return out
-        sol, info, ier, msg = fsolve(eqs, x, full_output=True, xtol=1e-12)
-        if ier != 1 or np.max(np.abs(eqs(sol))) > 1e-8:
-            raise ValueError(f"damping = {zeta!r}: the {m}-hump EI conditions have no solution near "
-                             f"the undamped one ({msg.strip()})")
-        x = sol
+
+    def eqs(x, z):
+        A, tt = x[:n], np.concatenate([[0.0], x[n:2 * n - 1]])
+        zr, hr = x[2 * n - 1:2 * n + m], x[2 * n + m:]
+        wd = math.sqrt(1 - z * z)
+        out = [A.sum() - 1.0]
+        for r in zr:
+            c = np.exp(2 * math.pi * r * (z + 1j * wd) * (tt - tt[-1])) @ A
+            out += [c.real, c.imag]
+        for r in hr:
+            vv = lambda rr: abs(np.exp(2 * math.pi * rr * (z + 1j * wd) * (tt - tt[-1])) @ A)
+            out += [vv(r) - V, (vv(r + h) - vv(r - h)) / (2 * h)]
+        mid = hr[(m - 1) // 2] if m % 2 == 1 else zr[m // 2]
+        out.append(mid - 1.0)
+        return out
+
+    # continuation in ζ from the undamped solution, the step halved where Newton fails
+    z_now, dz, msg = 0.0, 0.02, ""
+    while z_now < zeta:
+        z_try = min(zeta, z_now + dz)
+        sol, info, ier, msg = fsolve(eqs, x, args=(z_try,), full_output=True, xtol=1e-12)
+        if np.max(np.abs(eqs(sol, z_try))) <= 1e-9 and np.all(sol[:n] > 0):
+            x, z_now, dz = sol, z_try, min(1.5 * dz, 0.05)
+        else:
+            dz /= 2
+            if dz < 1e-4:
+                raise ValueError(f"damping = {zeta!r}: the {m}-hump EI conditions have no solution near "
+                                 f"the undamped one ({msg.strip()})")
     A, tt = x[:n], np.concatenate([[0.0], x[n:2 * n - 1]])
     if np.any(A <= 0) or np.any(np.diff(tt) <= 0):
         raise ValueError(f"damping = {zeta!r}: the {m}-hump EI design loses positive amplitudes")
@@ -400,7 +411,8 @@ def input_shaper(kind, frequency_hz, damping=0.0, vtol=DEFAULT_VTOL) -> InputSha
     frequency_hz : float
         Natural frequency of the mode, Hz (> 0).
     damping : float
-        Damping ratio of the mode, 0 <= ζ < 1 (the EI family: up to about 0.3).
+        Damping ratio of the mode, 0 <= ζ < 1 (the EI family: up to ``EI_MAX_DAMPING``, 0.4, 0.3
+        and 0.2 for EI, 2-hump and 3-hump EI).
     vtol : float
         Hump height of the EI family as a fraction (default 0.05, Klipper's and Singhose's).
 
@@ -423,6 +435,9 @@ def input_shaper(kind, frequency_hz, damping=0.0, vtol=DEFAULT_VTOL) -> InputSha
         raise ValueError(f"vtol must lie in (0, 0.5) (a fraction: 0.05 is 5 %), got {vtol!r}")
     if kind in ("ei", "2hump_ei", "3hump_ei"):
         m = {"ei": 1, "2hump_ei": 2, "3hump_ei": 3}[kind]
+        if zeta > EI_MAX_DAMPING[kind]:
+            raise ValueError(f"damping must be <= {EI_MAX_DAMPING[kind]} for the {kind} shaper (above it the "
+                             f"humps merge and the design conditions have no solution), got {zeta!r}")
         A, tn = _ei_design(m, round(zeta, 12), round(vtol, 12))
         return InputShaper(kind, f, zeta, A / A.sum(), tn / f)
     A, t = _closed_form(kind, f, zeta)

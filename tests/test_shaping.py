@@ -131,6 +131,19 @@ def test_damped_ei_conditions(kind, zeta):
         assert s.residual_vibration(5.0) < 1e-6                              # the middle zero at the design
 
 
+@pytest.mark.parametrize("kind", ["ei", "2hump_ei", "3hump_ei"])
+def test_ei_family_over_its_damping_range(kind):
+    """Designable at every damping up to Klipper's limit (continuation in ζ), refused above it."""
+    from jerklab.shaping import EI_MAX_DAMPING
+    zmax = EI_MAX_DAMPING[kind]
+    for z in np.linspace(0.0, zmax, 9)[1:]:
+        s = input_shaper(kind, 3.0, float(z) - 0.003)     # off the cached grid points
+        lo, hi = s.insensitivity(5.0)
+        assert lo < 1 < hi and np.all(s.amplitudes > 0)
+    with pytest.raises(ValueError, match="damping"):
+        input_shaper(kind, 3.0, zmax + 0.01)
+
+
 def test_klipper_ei_amplitudes_close():
     """Klipper's EI (Singhose's curve fit, v_tol = 5 %) at ζ = 0.1: our numerically designed EI
     should be near its published first amplitude 0.2497 + 0.2496 v + (0.8001 + 1.2333 v) ζ + ... ≈ 0.355."""
