@@ -499,3 +499,17 @@ def test_kind_aliases():
         assert input_shaper(alias, 5.0).kind == kind
     with pytest.raises(TypeError, match="profile"):
         profile_residual_vibration("trapezoid", 8.0)
+
+
+@settings(max_examples=200, deadline=None)
+@given(kind=st.sampled_from(["trapezoid", "scurve", "sine_jerk", "sine_jerk_optimal"]),
+       distance=st.floats(1e-3, 1e3), f=st.floats(0.5, 50.0), A=st.floats(1.0, 1e4), V=st.floats(0.1, 1e3),
+       zeta=st.sampled_from([0.0, 0.02, 0.1]))
+def test_tuned_profile_properties(kind, distance, f, A, V, zeta):
+    p = tuned_profile(kind, distance, f, A, V, damping=zeta)
+    assert p.peak_accel <= A * (1 + 1e-9) and p.peak_velocity <= V * (1 + 1e-9)
+    assert p.duration >= planner.plan_trapezoid(distance, A, V).duration * (1 - 1e-12)
+    v = profile_residual_vibration(p, np.array([0.5 * f, f, 2 * f]), zeta)
+    assert np.all((v >= 0) & (v <= 100 + 1e-9))        # a positive density never beats a step
+    if zeta == 0.0:
+        assert v[1] < 1e-7
