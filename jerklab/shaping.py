@@ -572,7 +572,7 @@ class ModeFit:
         return s
 
 
-def identify_mode(u, y, Ts, f_range=None, max_nfev=400, margin=0.0):
+def identify_mode(u, y=None, Ts=None, f_range=None, max_nfev=400, margin=0.0):
     """Find the flexible mode from a drive-voltage record ``u`` and the encoder angle ``y``.
 
     A two-mass model (:class:`jerklab.plant.FlexibleDCMotor`: K, τ, load ratio, shaft
@@ -587,9 +587,10 @@ def identify_mode(u, y, Ts, f_range=None, max_nfev=400, margin=0.0):
 
     Parameters
     ----------
-    u : array_like
+    u : array_like or jerklab.ident.IdentData
         Drive voltage per sample (V), held over each sample (a chirp: :func:`chirp_input`, or
-        ``jerklab.ident.prbs``).
+        ``jerklab.ident.prbs``); or a whole record (``IdentData``: its ``u``, ``y``, ``Ts``; then
+        leave ``y`` and ``Ts`` out).
     y : array_like
         Encoder angle (rad): ``len(u) + 1`` samples (``plant.open_loop``'s convention: ``y[k]``
         read at ``k Ts`` before ``u[k]``) or ``len(u)`` (then the last input is not used).
@@ -611,6 +612,13 @@ def identify_mode(u, y, Ts, f_range=None, max_nfev=400, margin=0.0):
     from scipy.optimize import least_squares
     from scipy.signal import csd, welch
 
+    from jerklab.ident import IdentData
+    if isinstance(u, IdentData):
+        if y is not None or Ts is not None:
+            raise TypeError("y and Ts must be left out when u is an IdentData record")
+        u, y, Ts = u.u, u.y, u.Ts
+    if y is None or Ts is None:
+        raise TypeError("y and Ts are required (or pass an IdentData record as u)")
     u = as_finite_array("u", u, ndim=1)
     y = as_finite_array("y", y, ndim=1)
     Ts = as_positive("Ts", Ts)

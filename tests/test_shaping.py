@@ -450,6 +450,10 @@ def test_identify_mode_from_encoder(load_ratio, excitation):
     lo, hi = fit.shaper.insensitivity(5.0, hz=True)
     assert lo <= f0 <= hi
     assert fit.jerk_time == pytest.approx(1 / (fit.frequency_hz * math.sqrt(1 - fit.damping ** 2)))
+    # the same record as an IdentData (equal lengths: the last input is not used)
+    from jerklab.ident import IdentData
+    fit2 = identify_mode(IdentData(u, y[:-1], Ts))
+    assert fit2.frequency_hz == pytest.approx(fit.frequency_hz, rel=2e-3)
     # with a drift margin the recommendation widens, and its band holds the margin
     for margin in (0.05, 0.15, 0.3):
         s = type(fit).recommend(fit.frequency_hz, fit.damping, fit.frequency_se, margin=margin)
@@ -476,6 +480,7 @@ def test_identify_mode_from_encoder(load_ratio, excitation):
     (lambda: input_shaper("zv", 1.0).insensitivity(150.0), "tolerance"),
     (lambda: input_shaper("zv", 1.0).residual_vibration(0.0), "frequency_hz"),
     (lambda: identify_mode(np.ones(100), np.ones(50), 0.01), "y"),
+    (lambda: identify_mode(np.ones(100)), "Ts"),
     (lambda: identify_mode(np.ones(100), np.arange(101.0), 0.01), "u"),
     (lambda: identify_mode(np.sin(np.arange(100.0)), np.arange(101.0), -0.01), "Ts"),
     (lambda: chirp_input(1.0, 0.01, 1.0, 1.0, 80.0), "f1"),
