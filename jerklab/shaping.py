@@ -294,6 +294,17 @@ class InputShaper:
         object.__setattr__(self, "amplitudes", A)
         object.__setattr__(self, "times", t)
 
+    @classmethod
+    def _trusted(cls, kind, frequency_hz, damping, amplitudes, times):
+        """A shaper from this module's own designs (already checked): no re-validation."""
+        obj = object.__new__(cls)
+        amplitudes.setflags(write=False)
+        times.setflags(write=False)
+        for name, value in (("kind", kind), ("frequency_hz", frequency_hz), ("damping", damping),
+                            ("amplitudes", amplitudes), ("times", times)):
+            object.__setattr__(obj, name, value)
+        return obj
+
     @property
     def duration(self) -> float:
         """Time from the first to the last impulse (s): the delay the shaper adds to a move."""
@@ -439,9 +450,9 @@ def input_shaper(kind, frequency_hz, damping=0.0, vtol=DEFAULT_VTOL) -> InputSha
             raise ValueError(f"damping must be <= {EI_MAX_DAMPING[kind]} for the {kind} shaper (above it the "
                              f"humps merge and the design conditions have no solution), got {zeta!r}")
         A, tn = _ei_design(m, round(zeta, 12), round(vtol, 12))
-        return InputShaper(kind, f, zeta, A / A.sum(), tn / f)
+        return InputShaper._trusted(kind, f, zeta, A / A.sum(), tn / f)
     A, t = _closed_form(kind, f, zeta)
-    return InputShaper(kind, f, zeta, A, t)
+    return InputShaper._trusted(kind, f, zeta, A, t)
 
 
 def insensitivity_table(tolerances=(5.0, 10.0), damping=0.0, kinds=KINDS):
