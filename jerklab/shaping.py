@@ -77,7 +77,7 @@ __all__ = [
     "KINDS", "InputShaper", "input_shaper", "residual_vibration_of", "insensitivity_table",
     "chirp_input", "ModeFit", "identify_mode", "profile_residual_vibration", "tuned_profile",
     "move_time_comparison", "RobustMove", "robust_move_rows", "robust_move", "energy_optimal_move",
-    "Tradeoff", "tradeoff",
+    "Tradeoff", "tradeoff", "residual_amplitude",
 ]
 
 #: the shaper kinds, in order of duration (aliases are accepted: "2-hump EI", "EI3", ...)
@@ -1229,3 +1229,47 @@ def tradeoff(model=None, distance=1.0, Ts=0.005, max_accel=None, max_velocity=No
         add(f"robust LP order {o}", "robust LP", m.duration, m.duration - rigid.duration,
             lambda x, m=m: m.sensitivity_curve(x))
     return Tradeoff(frequency_hz=f, damping=z, distance=float(distance), ratios=r, curves=curves, rows=rows)
+
+
+# ----------------------------------------------------------------------------------------------
+# measuring the ringing in a record
+# ----------------------------------------------------------------------------------------------
+def residual_amplitude(y, Ts, start, frequency_hz=None, damping=0.0, final=None):
+    """Amplitude of the ringing left in a sampled record after the move ends (same unit as ``y``).
+
+    Parameters
+    ----------
+    y : array_like
+        The record (an encoder or load angle, rad), sampled every ``Ts``.
+    Ts : float
+        Sample period, s.
+    start : int
+        First sample after the move (the command has ended).
+    frequency_hz, damping : float, optional
+        The mode. Given, ``y[start:] − final`` is fitted by least squares with
+        ``e^{−ζωt}(a cos ω_d t + b sin ω_d t)`` (t from ``start``) and ``√(a² + b²)`` is returned:
+        the amplitude at ``start``, robust to encoder quantization and noise. Without it, the largest
+        ``|y − final|`` after ``start``.
+    final : float, optional
+        The rest position (default: the mean of the last quarter of the record after ``start``).
+    """
+    y = as_finite_array("y", y, ndim=1)
+    Ts = as_positive("Ts", Ts)
+    from jerklab._validate import as_int
+    start = as_int("start", start, minimum=0)
+    if start > y.size - 4:
+        raise ValueError(f"start must leave at least 4 samples of y (len {y.size}), got {start}")
+    tail = y[start:]
+    final = float(tail[-max(1, tail.size // 4):].mean()) if final is None else as_real("final", final)
+    e = tail - final
+    if frequency_hz is None:
+        return float(np.abs(e).max())
+    f = as_positive("frequency_hz", frequency_hz)
+    zeta = _damping("damping", damping)
+    w = 2 * math.pi * f
+    t = np.arange(e.size) * Ts
+    env = np.exp(-zeta * w * t)
+    wd = w * math.sqrt(1 - zeta * zeta)
+    X = np.column_stack([env * np.cos(wd * t), env * np.sin(wd * t)])
+    (a, b), *_ = np.linalg.lstsq(X, e, rcond=None)
+    return float(math.hypot(a, b))

@@ -22,8 +22,8 @@ from jerklab import planner
 from jerklab.plant import FlexibleDCMotor
 from jerklab.shaping import (KINDS, InputShaper, chirp_input, energy_optimal_move, identify_mode,
                              input_shaper, insensitivity_table, move_time_comparison,
-                             profile_residual_vibration, residual_vibration_of, robust_move,
-                             robust_move_rows, tradeoff, tuned_profile)
+                             profile_residual_vibration, residual_amplitude, residual_vibration_of,
+                             robust_move, robust_move_rows, tradeoff, tuned_profile)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -518,3 +518,25 @@ def test_tuned_profile_properties(kind, distance, f, A, V, zeta):
     assert np.all((v >= 0) & (v <= 100 + 1e-9))        # a positive density never beats a step
     if zeta == 0.0:
         assert v[1] < 1e-7
+
+
+def test_residual_amplitude_from_a_record():
+    """A shaped step into a second-order mode, sampled and quantized: the fitted amplitude matches
+    the formula's V times the step."""
+    from scipy.signal import lsim
+    f, zeta, Ts, D = 6.0, 0.03, 0.001, 2.0
+    w = 2 * math.pi * f
+    t = np.arange(0, 3.0, Ts)
+    for kind, ratio in (("zv", 1.08), ("zvd", 1.2), ("ei", 0.8)):
+        s = input_shaper(kind, f, zeta)
+        x = D * np.array([s.amplitudes[s.times <= tk + 1e-12].sum() for tk in t])
+        _, y, _ = lsim(([(w * ratio) ** 2], [1, 2 * zeta * w * ratio, (w * ratio) ** 2]), x, t)
+        yq = np.floor(y / 1e-3) * 1e-3 + 5e-4                 # a 1 mrad encoder
+        k0 = int(math.ceil(s.duration / Ts)) + 1
+        got = residual_amplitude(yq, Ts, k0, frequency_hz=f * ratio, damping=zeta, final=D)
+        want = s.residual_vibration(f * ratio) / 100 * D / math.sqrt(1 - zeta ** 2) \
+            * math.exp(-zeta * w * ratio * (k0 * Ts - s.duration))
+        assert got == pytest.approx(want, rel=0.03, abs=2e-4)
+        assert residual_amplitude(yq, Ts, k0, final=D) == pytest.approx(want, rel=0.1, abs=1e-3)
+    with pytest.raises(ValueError, match="start"):
+        residual_amplitude(np.zeros(10), 0.01, 8)
