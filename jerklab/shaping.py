@@ -367,6 +367,43 @@ class InputShaper:
         np.add.at(h, np.minimum(k + 1, n - 1), self.amplitudes * a)
         return h
 
+    def fir_fixed(self, Ts, frac_bits=15):
+        """:meth:`fir` in fixed point for a microcontroller: integer taps summing to exactly
+        ``2**frac_bits`` (largest-remainder rounding: each tap within one unit of ``2**frac_bits·h``),
+        so a shaped move still ends exactly on its target. Returns an ``int64`` array."""
+        from jerklab._validate import as_int
+        b = as_int("frac_bits", frac_bits, minimum=1)
+        if b > 30:
+            raise ValueError(f"frac_bits must be <= 30, got {b}")
+        h = self.fir(Ts) * (1 << b)
+        q = np.floor(h).astype(np.int64)
+        short = (1 << b) - int(q.sum())
+        if short > 0:
+            order = np.argsort(-(h - q), kind="stable")
+            q[order[:short]] += 1
+        return q
+
+    def apply_fixed(self, reference, Ts, frac_bits=15, extend=True):
+        """Integer shaping, the reference arithmetic for the firmware: for integer references
+        (encoder counts) ``y[n] = floor((Σ_j q_j r[n−j] + 2**(frac_bits−1)) / 2**frac_bits)`` with the
+        taps ``q`` of :meth:`fir_fixed` (round half up; the same history and extension rules as
+        :meth:`apply`). Exact in int64 while ``|r| < 2**(62 − frac_bits)``."""
+        r = np.asarray(reference)
+        if r.ndim != 1 or r.size == 0 or r.dtype.kind not in "iu":
+            raise ValueError("reference must be a non-empty 1-D array of integers (counts)")
+        r = r.astype(np.int64)
+        q = self.fir_fixed(Ts, frac_bits)
+        b = int(frac_bits)
+        if np.abs(r).max() >= 1 << (62 - b):
+            raise ValueError(f"reference is too large for int64 arithmetic with frac_bits = {b}")
+        n = q.size - 1
+        x = np.concatenate([np.full(n, r[0]), r, np.full(n if extend else 0, r[-1])])
+        m = r.size + (n if extend else 0)
+        acc = np.zeros(m, dtype=np.int64)
+        for j in np.flatnonzero(q):
+            acc += q[j] * x[n - j:n - j + m]
+        return (acc + (1 << (b - 1))) >> b
+
     def digitized(self, Ts) -> "InputShaper":
         """The shaper that :meth:`apply` really applies on the grid ``Ts``: the FIR taps as impulses
         at ``k Ts`` (to check its residual vibration honestly)."""

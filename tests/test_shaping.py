@@ -540,3 +540,25 @@ def test_residual_amplitude_from_a_record():
         assert residual_amplitude(yq, Ts, k0, final=D) == pytest.approx(want, rel=0.1, abs=1e-3)
     with pytest.raises(ValueError, match="start"):
         residual_amplitude(np.zeros(10), 0.01, 8)
+
+
+@settings(max_examples=150, deadline=None)
+@given(kind=kinds, f=freqs, zeta=dampings, Ts=st.floats(1e-3, 0.02), bits=st.integers(8, 24),
+       ref=st.lists(st.integers(-10**6, 10**6), min_size=1, max_size=40))
+def test_fixed_point_fir(kind, f, zeta, Ts, bits, ref):
+    s = input_shaper(kind, f, zeta)
+    q = s.fir_fixed(Ts, bits)
+    h = s.fir(Ts)
+    assert q.dtype == np.int64 and q.sum() == 1 << bits and np.all(q >= 0)
+    assert np.abs(q - h * (1 << bits)).max() < 1.0
+    r = np.array(ref, dtype=np.int64)
+    y = s.apply_fixed(r, Ts, bits)
+    assert y[-1] == r[-1] and y[0] == r[0]                     # exact ends
+    # against the float FIR: the rounding of the taps plus half a count
+    err = np.abs(y - s.apply(r.astype(float), Ts))
+    assert np.all(err <= 0.5 + q.size * np.abs(r).max() / (1 << bits) + 1e-9)
+    # integer arithmetic written out for one sample, as the firmware would
+    k = min(len(ref) - 1, 3)
+    n = q.size - 1
+    hist = [r[max(k - j, 0)] for j in range(q.size)]
+    assert y[k] == (sum(int(q[j]) * int(hist[j]) for j in range(q.size)) + (1 << (bits - 1))) >> bits
