@@ -319,12 +319,23 @@ class InputShaper:
         return residual_vibration_of(self.amplitudes, self.times, frequency_hz, zeta)
 
     def sensitivity_curve(self, ratios, damping=None):
-        """Residual vibration (%) at ``ratios`` × the design frequency (the classic robustness plot)."""
+        """Residual vibration (%) at ``ratios`` × the design frequency (the classic robustness plot).
+
+        ``damping`` is the plant's (default: the design damping); a sequence of dampings gives
+        the worst case over them at each ratio (a plant whose damping is only known to lie in a
+        range, the reading of Klipper's table).
+        """
         r = as_finite_array("ratios", ratios, ndim=1)
         if np.any(r <= 0):
             raise ValueError("ratios must be positive")
+        w = 2 * math.pi * self.frequency_hz * r
+        if damping is not None and np.ndim(damping) == 1:
+            zs = [_damping("damping", z) for z in damping]
+            if not zs:
+                raise ValueError("damping must not be an empty sequence")
+            return 100.0 * np.max([_v_impulses(self.amplitudes, self.times, w, z) for z in zs], axis=0)
         zeta = self.damping if damping is None else _damping("damping", damping)
-        return 100.0 * _v_impulses(self.amplitudes, self.times, 2 * math.pi * self.frequency_hz * r, zeta)
+        return 100.0 * _v_impulses(self.amplitudes, self.times, w, zeta)
 
     def insensitivity(self, tolerance=5.0, damping=None, hz=False):
         """The frequency band around the design in which the vibration stays <= ``tolerance`` %.
@@ -338,10 +349,12 @@ class InputShaper:
         ----------
         tolerance : float
             Vibration tolerance in percent (0 < tolerance < 100); 5 means 5 %.
-        damping : float, optional
-            Plant damping (default: the design damping).
+        damping : float or sequence of float, optional
+            Plant damping (default: the design damping); a sequence: the worst case over those
+            dampings (e.g. ``np.linspace(0.05, 0.2, 7)`` for a shaper designed at 0.1, which is
+            how Klipper's table reads: its ZVD row ±15 %/±22 % comes out exactly so).
         """
-        zeta = self.damping if damping is None else _damping("damping", damping)
+        zeta = self.damping if damping is None else damping
         lo, hi = _band(lambda r: self.sensitivity_curve(r, zeta), tolerance)
         f0 = self.frequency_hz
         return (lo * f0, hi * f0) if hz else (lo, hi)

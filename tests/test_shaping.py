@@ -191,6 +191,23 @@ def test_klipper_asymmetric_bands_at_light_damping():
         assert 100 * (hi - 1) == pytest.approx(w, abs=1.5)
 
 
+def test_klipper_reading_worst_case_over_damping():
+    """Klipper: shapers designed at ζ = 0.1, widths meant to hold for ζ ≈ 0.05–0.2. The worst case
+    over that range gives its ZVD row (±15 %, ±22 %) and its MZV 10 % band (−10…+15 %) within 2 points."""
+    zs = np.linspace(0.05, 0.2, 7)
+    zvd = input_shaper("zvd", 1.0, 0.1)
+    for tol, w in ((5.0, 15), (10.0, 22)):
+        lo, hi = zvd.insensitivity(tol, damping=zs)
+        assert 100 * (1 - lo) == pytest.approx(w, abs=1.0) and 100 * (hi - 1) == pytest.approx(w, abs=1.0)
+    lo, hi = input_shaper("mzv", 1.0, 0.1).insensitivity(10.0, damping=zs)
+    assert 100 * (lo - 1) == pytest.approx(-10, abs=2.0) and 100 * (hi - 1) == pytest.approx(15, abs=2.0)
+    # the worst case is never better than any single damping of the range
+    r = np.linspace(0.5, 1.5, 101)
+    worst = zvd.sensitivity_curve(r, damping=zs)
+    for z in zs:
+        assert np.all(worst >= zvd.sensitivity_curve(r, damping=z) - 1e-12)
+
+
 def test_insensitivity_units_and_edges():
     s = input_shaper("zvd", 20.0, 0.0)
     lo, hi = s.insensitivity(5.0)
