@@ -77,7 +77,7 @@ __all__ = [
     "KINDS", "InputShaper", "input_shaper", "residual_vibration_of", "insensitivity_table",
     "chirp_input", "ModeFit", "identify_mode", "profile_residual_vibration", "tuned_profile",
     "move_time_comparison", "RobustMove", "robust_move_rows", "robust_move", "energy_optimal_move",
-    "Tradeoff", "tradeoff", "residual_amplitude",
+    "Tradeoff", "tradeoff", "residual_amplitude", "flexible_mode",
 ]
 
 #: the shaper kinds, in order of duration (aliases are accepted: "2-hump EI", "EI3", ...)
@@ -562,6 +562,13 @@ def _coupled_mode(K, tau, ratio, wr, zr):
     s = c[np.argmax(c.imag)]
     wn = abs(s)
     return wn / (2 * math.pi), -s.real / wn
+
+
+def flexible_mode(model=None):
+    """``(f, ζ)``: natural frequency (Hz) and damping of the lightly damped pole pair of a
+    :class:`jerklab.plant.FlexibleDCMotor` (the coupled mode of motor and load, open loop)."""
+    m = _flex_model(model)
+    return _coupled_mode(m.K, m.tau, m.load_ratio, m.mode_frequency, m.mode_damping)
 
 
 def _flex_simulate(p, u, Ts):

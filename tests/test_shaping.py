@@ -451,6 +451,17 @@ def _true_mode(m):
     return abs(s) / (2 * math.pi), -s.real / abs(s)
 
 
+def test_fit_model_simulation_matches_the_plant():
+    """The identification's fast simulation (eigen-decomposed ZOH, lfilter) against the plant's."""
+    from jerklab.shaping import _flex_simulate, flexible_mode
+    m = FlexibleDCMotor(load_ratio=0.3, mode_frequency=50.0, mode_damping=0.02).ideal()
+    u = np.random.default_rng(0).normal(size=800)
+    th, _ = m.open_loop(u, 0.005)
+    p = np.log([m.K, m.tau, m.load_ratio, m.mode_frequency, m.mode_damping])
+    np.testing.assert_allclose(_flex_simulate(p, u, 0.005), th, atol=1e-9 * np.abs(th).max())
+    assert flexible_mode(m) == pytest.approx(_true_mode(m))
+
+
 @pytest.mark.parametrize("load_ratio,excitation", [(0.05, "chirp"), (0.3, "prbs"), (0.15, "chirp")])
 def test_identify_mode_from_encoder(load_ratio, excitation):
     from jerklab.ident import prbs
