@@ -72,6 +72,20 @@ def test_zv_zvd_closed_forms(f, zeta):
         assert s.times[0] == 0.0 and s.duration == s.times[-1]
 
 
+@pytest.mark.parametrize("zeta", [0.0, 0.1])
+def test_mzv_closed_form(zeta):
+    """MZV: impulses at 0, 3T_d/8, 3T_d/4 with amplitudes ∝ [1, √2 K', K'²], K' = e^{−3ζπ/(4√(1−ζ²))}
+    (the z-polynomial 1 + √2 q + q² has its roots at e^{±j3π/4}: the mode; Klipper's mzv)."""
+    f = 12.0
+    df = math.sqrt(1 - zeta ** 2)
+    Kp = math.exp(-0.75 * zeta * math.pi / df)
+    A = np.array([1, math.sqrt(2) * Kp, Kp * Kp])
+    s = input_shaper("mzv", f, zeta)
+    np.testing.assert_allclose(s.amplitudes, A / A.sum(), rtol=1e-13)
+    np.testing.assert_allclose(s.times, np.array([0, 0.375, 0.75]) / (f * df), rtol=1e-13)
+    assert s.duration == pytest.approx(0.75 / (f * df))
+
+
 @pytest.mark.parametrize("kind", ["zv", "zvd", "mzv", "ei", "2hump_ei"])
 @pytest.mark.parametrize("zeta", [0.0, 0.05])
 def test_residual_against_integrated_mode(kind, zeta):
