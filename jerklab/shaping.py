@@ -1067,6 +1067,8 @@ class RobustMove:
         a voltage impulse of the same area (a position step) would leave 100 %.
         """
         r = as_finite_array("ratios", ratios, ndim=1)
+        if np.any(r <= 0):
+            raise ValueError("ratios must be positive")
         zeta = self.mode_damping if damping is None else _damping("damping", damping)
         sig = _sigma(self.mode_hz * r, zeta)[:, None]
         k = np.arange(self.u.size)
