@@ -359,6 +359,52 @@ class MultiAxisPlan:
         parts = [p.sample(t) for p in self.axes]
         return ProfileSample(*(np.stack([getattr(p, f) for p in parts]) for f in ProfileSample._fields))
 
+    def synchronized(self, Ts) -> "MultiAxisPlan":
+        """The same move with every phase time of every axis a whole multiple of ``Ts``, still together.
+
+        ``axes[i].synchronized(Ts)`` rounds each axis on its own, so the axes would no longer
+        end together; this rounds them as one:
+
+        * phase sync: the normalized path is synchronized (``Profile.synchronized``: phases rounded
+          up, the jerk lowered to keep the distance) and scaled again, so the axes stay on the line;
+        * time sync: each axis's pulse and plateau times are rounded up to whole samples; the
+          common duration is the longest axis's total with its cruise rounded up too, in whole
+          samples; every axis's cruise fills it, and its jerk (a trapezoid's acceleration) is
+          lowered to keep its distance.
+
+        No phase gets shorter, so no peak grows: every limit still holds (as for one axis).
+
+        Parameters
+        ----------
+        Ts : float
+            Sample time (s), > 0.
+        """
+        Ts = as_positive("Ts", Ts)
+        if self.duration == 0.0:
+            return self
+        kind = self.planner
+        if self.path is not None:
+            path = self.path.synchronized(Ts)
+            return _scaled(self.distances, self.sync, kind, self.limits, self.min_durations, path)
+        counts = []
+        for p, di in zip(self.axes, self.distances.tolist()):
+            if di == 0.0:
+                counts.append(None)
+                continue
+            tj, ta, tv = _times(p)
+            counts.append((_samples(tj, Ts), _samples(ta, Ts), _samples(tv, Ts)))
+        n_total = max(4 * nj + 2 * na + nv for nj, na, nv in (c for c in counts if c is not None))
+        T = n_total * Ts
+        axes = []
+        for p, di, c, lim in zip(self.axes, self.distances.tolist(), counts, self.limits):
+            if c is None:
+                axes.append(_standstill(kind, T, lim))
+                continue
+            tj, ta, tv = _fill(T, c[0] * Ts, c[1] * Ts)
+            axes.append(_make(kind, di, tj, ta, tv, _jerk_for_distance(kind, abs(di), tj, ta, tv), lim))
+        return MultiAxisPlan(self.distances, self.sync, kind, self.limits, tuple(axes), T,
+                             self.min_durations, None)
+
     def to_dict(self) -> dict:
         """JSON-able description: sync, planner, duration, and each axis's ``Profile.to_dict()``."""
         return {"sync": self.sync, "planner": self.planner, "duration": self.duration,
@@ -451,12 +497,26 @@ def plan_multi_axis(distances, limits_per_axis, sync="time", planner="scurve") -
     except ValueError as exc:
         raise ValueError(f"distances and limits_per_axis give normalized limits (J, A, V) = "
                          f"({J_n!r}, {A_n!r}, {V_n!r}) with no finite plan: {exc}") from None
+    return _scaled(d, sync, planner, limits, min_durations, path)
+
+
+def _scaled(d, sync, planner, limits, min_durations, path) -> MultiAxisPlan:
+    """The phase-synchronized plan: axis ``i`` is the normalized ``path`` scaled by ``d_i``."""
     tj, ta, tv = _times(path)
     jn = path.peak_accel if planner == "trapezoid" else path.peak_jerk
     axes = []
-    for di, lim_i in zip(dl, limits):
+    for di, lim_i in zip(d.tolist(), limits):
         if di == 0.0:
             axes.append(_standstill(planner, path.duration, lim_i))
         else:
             axes.append(_make(planner, di, tj, ta, tv, jn * abs(di), lim_i))
     return MultiAxisPlan(d, sync, planner, limits, tuple(axes), path.duration, min_durations, path)
+
+
+def _samples(x, Ts):
+    """Whole samples covering ``x`` (as ``Profile.synchronized``: a relative 1e-12 below a whole
+    number counts as that number); 0 stays 0."""
+    if x <= 0.0:
+        return 0
+    r = x / Ts
+    return max(math.ceil(r - min(1e-12 * r, 1e-6)), 1)

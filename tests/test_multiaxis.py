@@ -567,3 +567,33 @@ def test_yang_axes_slow_axis(dy):
     silent_from = (axes.end_tick - gy.start_count + 1) * R + 1    # n < n0: speed 0 from this posedge on
     longest = int(gy.speed_table().cycle.max())
     assert silent_from - longest <= int(trains[1].fall[-1]) <= silent_from + longest
+
+
+@settings(max_examples=120, deadline=None)
+@given(axes=st.lists(AXIS, min_size=1, max_size=4), planner=st.sampled_from(PLANNERS),
+       sync=st.sampled_from(["time", "phase"]), ets=st.floats(-4, 0))
+def test_synchronized_keeps_the_axes_together(axes, planner, sync, ets):
+    """Every phase time of every axis a whole multiple of Ts, one common duration, the limits and
+    the end points kept, and phase sync still on the line."""
+    d, lims = build(axes)
+    Ts = 10.0 ** ets
+    plan = plan_multi_axis(d, lims, sync=sync, planner=planner)
+    sp = plan.synchronized(Ts)
+    assert sp.duration >= plan.duration * (1 - 1e-12)
+    if plan.duration == 0.0:
+        return
+    n = sp.duration / Ts
+    assert abs(n - round(n)) <= 1e-9 * max(n, 1.0)
+    for p in sp.axes:
+        for x in p.phase_times:
+            assert abs(x / Ts - round(x / Ts)) <= 1e-9 * max(x / Ts, 1.0)
+    check_ends(sp)
+    check_limits(sp, np.linspace(0.0, sp.duration, 401))
+    if sync == "phase" and sp.path is not None:
+        t = np.linspace(0.0, sp.duration, 301)
+        s = sp.path.sample(t).position
+        x = np.stack([p.sample(t).position for p in sp.axes])
+        dd = np.asarray(d)
+        assert np.all(np.abs(x - dd[:, None] * s) <= RTOL * np.abs(dd)[:, None])
+    with pytest.raises(ValueError, match="Ts"):
+        plan.synchronized(0.0)
