@@ -423,6 +423,7 @@ class VirtualDevice:
             return self._nack(frame, P.ErrorCode.BAD_VALUE, 0)
         self._send(P.Ack(frame.type), frame.seq)
         self._rt_target = float(m.distance)
+        self._retargeted = True
         self._retarget_from(self._k)
         return None
 
@@ -582,6 +583,9 @@ class VirtualDevice:
 
     def _end(self, reason, detail=0.0):
         samples = self._k
+        if getattr(self, "_retargeted", False):
+            self.plan = None                 # consumed, as on the board (PLAN again before RUN)
+            self._retargeted = False
         self.state = self.STATE_IDLE
         self._ref = None
         self._send(P.EndOfRun(int(reason), samples, self.rx_errors, self.overruns, float(detail)))
