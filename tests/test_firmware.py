@@ -519,3 +519,41 @@ def test_device_closed_loop_matches_jerklab_controller(host_driver, loop):
     dp = np.abs(np.array([t.pwm for t in tel]) - pwms)
     assert dc.max() <= 1 and dp.max() <= 2, (dc.max(), dp.max())
     assert np.mean(dp == 0) > 0.95                         # float32 vs float64: rare 1-tick ties
+
+
+def test_device_retarget_checks_and_ends_on_the_new_target(host_driver):
+    """RETARGET (protocol version 3) on the board's state machine: refused when no move runs, on a
+    wrong length or a bad value; during a run the reference ends on the new target, at rest."""
+    nan = float("nan")
+    dev = HostDevice(host_driver)
+    dev.send(pr.Retarget(1.0))                                               # idle: NOT_READY
+    dev.send(pr.encode_frame(int(pr.MsgType.RETARGET), 9, b"\x00\x00"))      # BAD_LENGTH
+    dev.send(pr.SetPlant(32.4, 0.025, 12.0, 448)).send(_gains(0.005))
+    dev.send(pr.SetLimits(2000.0, 300.0, 60.0, 12.0, 200)).send(pr.Plan(f32(4 * math.pi), 1))
+    dev.send(pr.Run(60, 1))
+    dev.wait(60, heartbeat_every=20)
+    dev.send(pr.Retarget(nan))                                               # BAD_VALUE
+    dev.send(pr.Retarget(2e6))                                               # BAD_VALUE
+    dev.send(pr.Retarget(20.0))                                              # accepted
+    dev.wait(2400, heartbeat_every=40)
+    dev.send(pr.Run(0, 1))                                                   # plan consumed
+    msgs, _ = dev.run()
+    replies = [m for _, _, m in msgs]
+    nacks = [(m.command, m.error, m.param) for m in replies if isinstance(m, pr.Nack)]
+    R = int(pr.MsgType.RETARGET)
+    assert nacks == [(R, int(pr.ErrorCode.NOT_READY), 0xFF), (R, int(pr.ErrorCode.BAD_LENGTH), 0xFF),
+                     (R, int(pr.ErrorCode.BAD_VALUE), 0), (R, int(pr.ErrorCode.BAD_VALUE), 0),
+                     (int(pr.MsgType.RUN), int(pr.ErrorCode.NOT_READY), 0xFF)]
+    assert sum(isinstance(m, pr.Ack) and m.command == R for m in replies) == 1
+    end = [m for m in replies if isinstance(m, pr.EndOfRun)]
+    assert len(end) == 1 and end[0].reason == pr.EndReason.DONE and end[0].overruns == 0
+    tel = [m for m in replies if isinstance(m, pr.Telemetry)]
+    assert [t.index for t in tel] == list(range(end[0].samples))
+    ref = np.array([t.reference for t in tel])
+    assert ref[-1] == pytest.approx(20.0, abs=1e-5) and np.all(np.abs(ref[-60:] - 20.0) <= 1e-5)
+    assert abs(tel[-1].counts - 20.0 * 448 / (2 * math.pi)) <= 2
+    # the reference is smooth through the change: no jump in its third differences (jerk)
+    # (a step of the peak jerk J would move this 3-sample average by >= J/2 between samples; the
+    # smooth half-sine pulses of this move by ~J w Ts = 0.07 J)
+    j = np.diff(ref.astype(float), 3) / 0.005 ** 3
+    assert np.max(np.abs(np.diff(j))) <= 0.3 * 2000.0
