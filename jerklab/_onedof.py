@@ -1,0 +1,430 @@
+"""Time-optimal jerk-limited motion of one axis from any start state (private kernel of planner.py).
+
+The problem: from position 0, velocity ``v0`` and acceleration ``a0`` to position ``d``, velocity
+``vf`` and acceleration 0, with ``|j| <= J``, ``|a| <= A``, ``|v| <= V``, in least time.
+
+Everything here works in normalized units -- time ``A/J``, acceleration ``A``, velocity ``A^2/J``,
+position ``A^3/J^2`` -- so that ``J = A = 1`` and every acceleration of a candidate lies in
+``[-1, 1]``; :func:`solve` returns the segments in those units and ``planner.py`` scales them back.
+
+Structure of the optimum (docs/THEORY.md, "Any start state"): after an optional braking
+pre-trajectory that brings a start outside the limits back inside them (the same rule as Ruckig's),
+the acceleration is made of three ramps at full jerk, ``sigma`` up, down, up (``sigma = +-1``):
+``a0 -> P`` (hold ``P = sigma A`` for ``t1`` if it is reached), ``P -> -N`` (through 0, where a
+cruise at ``v = sigma V`` may be inserted), ``-N -> 0`` (hold ``N = A`` for ``t5``).  With the
+velocity equation solved for one unknown, each case (which acceleration limits are reached) is one
+polynomial equation in one variable of degree <= 5 (the end position), whose real roots in the
+admissible interval are found by isolating them between the roots of its derivatives.  Every root is
+checked against all limits and the shortest valid profile wins.
+
+The sine family (``kappa != 0``) uses the same algebra: a half-sine jerk pulse of peak J changes the
+acceleration and the velocity exactly as a constant jerk ``2J/pi`` over the same time, and moves the
+position by ``-kappa * da^3 / J'^2`` less, with ``kappa = 1/pi^2 - 1/12`` and ``J' = 2J/pi``
+(docs/THEORY.md); the end-position polynomials carry that term.
+
+Written in the subset of Python that numba compiles (floats, lists of floats, no objects); when numba
+is installed :func:`solve` is the compiled version.
+"""
+from __future__ import annotations
+
+import math
+
+#: 1/pi^2 - 1/12: position lag of a half-sine jerk pulse behind the linear ramp of the same impulse
+KAPPA_SINE = 1.0 / (math.pi * math.pi) - 1.0 / 12.0
+
+_TOL = 1e-10          # slack of the validity checks, in normalized units (times, accelerations)
+
+
+# ---------------------------------------------------------------------------------------------
+# real roots of a polynomial on an interval
+# ---------------------------------------------------------------------------------------------
+def _peval(c, x):
+    r = 0.0
+    for ci in c:
+        r = r * x + ci
+    return r
+
+
+def _pscale(c, x):
+    """Sum of |terms| of the polynomial at x: the round-off scale of its value."""
+    r = 0.0
+    ax = abs(x)
+    for ci in c:
+        r = r * ax + abs(ci)
+    return r
+
+
+def _deriv(c):
+    n = len(c) - 1
+    out = []
+    for i in range(n):
+        out.append(c[i] * (n - i))
+    return out
+
+
+def _root_between(c, lo, hi, flo):
+    """The root of ``c`` in ``[lo, hi]`` where it is monotone and changes sign (bisection + secant)."""
+    a, b = lo, hi
+    fa = flo
+    for _ in range(200):
+        m = 0.5 * (a + b)
+        if m <= a or m >= b:
+            break
+        fm = _peval(c, m)
+        if fm == 0.0:
+            return m
+        if (fm < 0.0) == (fa < 0.0):
+            a, fa = m, fm
+        else:
+            b = m
+        if b - a <= 1e-15 * max(abs(a), abs(b), 1e-300):
+            break
+    return 0.5 * (a + b)
+
+
+def _roots_from_critical(c, crit, lo, hi):
+    """Real roots of ``c`` in ``[lo, hi]`` given its sorted critical points inside (monotone between)."""
+    pts = [lo]
+    for x in crit:
+        if lo < x < hi:
+            pts.append(x)
+    pts.append(hi)
+    roots = []
+    fprev = _peval(c, pts[0])
+    if abs(fprev) <= 1e-13 * _pscale(c, pts[0]):
+        roots.append(pts[0])
+    for i in range(1, len(pts)):
+        x = pts[i]
+        f = _peval(c, x)
+        if abs(f) <= 1e-13 * _pscale(c, x):
+            roots.append(x)              # a (double) root at a critical point or an end
+        elif (f < 0.0) != (fprev < 0.0) and abs(fprev) > 1e-13 * _pscale(c, pts[i - 1]):
+            roots.append(_root_between(c, pts[i - 1], x, fprev))
+        fprev = f
+    return roots
+
+
+def _real_roots(c, lo, hi):
+    """All real roots of the polynomial ``c`` (highest power first, degree <= 5) in ``[lo, hi]``.
+
+    The roots of the derivatives, from the linear one up, split ``[lo, hi]`` into pieces on which
+    the polynomial is monotone; a sign change on a piece is bisected, a value at round-off level at
+    a piece's end (a double root) is taken as a root.
+    """
+    k = 0
+    while k < len(c) - 1 and c[k] == 0.0:
+        k += 1
+    c = c[k:]
+    n = len(c) - 1
+    crit = [0.0 for _ in range(0)]
+    if n <= 0:
+        return crit
+    ds = [c]
+    for i in range(n - 1):
+        ds.append(_deriv(ds[-1]))
+    if n >= 2:
+        lin = ds[n - 1]
+        x = -lin[1] / lin[0]
+        if lo < x < hi:
+            crit.append(x)
+        for i in range(n - 2, 0, -1):
+            crit = _roots_from_critical(ds[i], crit, lo, hi)
+    return _roots_from_critical(c, crit, lo, hi)
+
+
+# ---------------------------------------------------------------------------------------------
+# the step profile (sigma = +1) from (v0, a0) to (vf, 0) over d, normalized units
+# ---------------------------------------------------------------------------------------------
+def _cubes(P, N, a0):
+    """Sum of the cubes of the acceleration changes of the pulses (each ramp split at a = 0)."""
+    if P >= 0.0:
+        if a0 >= 0.0:
+            return (P - a0) ** 3 - P ** 3
+        return -a0 ** 3
+    return (P - a0) ** 3 - (N + P) ** 3 + N ** 3
+
+
+def _check(P, N, t1, t5, tc, a0, v0, V):
+    """Times and limits of a sigma = +1 candidate; returns its duration or -1 if invalid."""
+    t0 = P - a0
+    t2 = P + N
+    if t0 < -_TOL or t2 < -_TOL or N < -_TOL or t1 < -_TOL or t5 < -_TOL or tc < -_TOL:
+        return -1.0
+    if P > 1.0 + _TOL or N > 1.0 + _TOL or P < -1.0 - _TOL:
+        return -1.0
+    if t1 > _TOL and P < 1.0 - 1e-9:
+        return -1.0
+    if t5 > _TOL and N < 1.0 - 1e-9:
+        return -1.0
+    vtol = _TOL * (1.0 + V)
+    if P > 0.0:
+        vpk = v0 + P * P - 0.5 * a0 * a0 + P * max(t1, 0.0)
+        if vpk > V + vtol:
+            return -1.0
+        if a0 < 0.0 and v0 - 0.5 * a0 * a0 < -V - vtol:
+            return -1.0
+    return max(t0, 0.0) + max(t1, 0.0) + max(t2, 0.0) + max(t5, 0.0) + max(N, 0.0) + max(tc, 0.0)
+
+
+def _end_pos(P, N, t1, t5, tc, a0, v0, k):
+    """End position of the candidate (sigma = +1), integrated segment by segment."""
+    p = 0.0
+    v = v0
+    a = a0
+    # (jerk, time) segments; the cruise sits where a = 0 in the middle ramp
+    segs_j = (1.0, 0.0, -1.0, 0.0, -1.0, 0.0, 1.0)
+    if P > 0.0:
+        segs_t = (P - a0, t1, P, tc, N, t5, N)
+    else:
+        segs_t = (P - a0, t1, P + N, tc, 0.0, t5, N)
+    for i in range(7):
+        j = segs_j[i]
+        t = segs_t[i]
+        if t <= 0.0:
+            continue
+        p += t * (v + t * (0.5 * a + t * j / 6.0))
+        v += t * (a + 0.5 * j * t)
+        a += j * t
+    return p - k * _cubes(P, N, a0)
+
+
+def _candidates(d, v0, a0, vf, V, k, out):
+    """Append valid sigma = +1 candidates as (duration, P, N, t1, t5, tc) to ``out``."""
+    H = vf - v0 + 0.5 * a0 * a0
+    dtol = 1e-9 * (abs(d) + abs(v0) + abs(vf) + 1.0)
+    # --- cruise at +V (VEL, ACC0_VEL, ACC1_VEL, ACC0_ACC1_VEL) ---
+    pn2 = V - v0 + 0.5 * a0 * a0
+    nn2 = V - vf
+    if pn2 >= 0.0 and nn2 >= -_TOL:
+        P = math.sqrt(pn2)
+        t1 = 0.0
+        if P > 1.0:
+            P = 1.0
+            t1 = pn2 - 1.0
+        N = math.sqrt(max(nn2, 0.0))
+        t5 = 0.0
+        if N > 1.0:
+            N = 1.0
+            t5 = nn2 - 1.0
+        if P >= a0 - _TOL:
+            rest = d - _end_pos(P, N, t1, t5, 0.0, a0, v0, k)
+            tc = rest / V
+            T = _check(P, N, t1, t5, tc, a0, v0, V)
+            if T >= 0.0:
+                out.append((T, P, N, t1, t5, max(tc, 0.0)))
+    # --- no cruise ---
+    k6 = 6.0 * k
+    a2 = a0 * a0
+    a3 = a2 * a0
+    # branches of the sine term: A (P >= 0, a0 >= 0), B (P >= 0, a0 < 0), C (P < 0)
+    kA = k if a0 >= 0.0 else 0.0      # the P-dependent part of the cubes exists only in branch A
+    kc = k6 * a3 if a0 >= 0.0 else 0.0
+    # ACC0_ACC1: P = N = 1, t1 = t5 + H, quadratic in t5
+    c1 = 2.0 * H - a2 + 2.0 * v0 + 3.0
+    c0 = -(-3.0 * H * H + 3.0 * H * a2 - 6.0 * H * v0 - 21.0 * H - 6.0 * k * a3 - 2.0 * a3
+           + (12.0 + 18.0 * kA) * a2 - 18.0 * kA * a0 + 6.0 * a0 * v0 + 6.0 * d - 24.0 * v0 - 12.0) / 6.0
+    disc = c1 * c1 - 4.0 * c0
+    if disc >= 0.0:
+        sq = math.sqrt(disc)
+        for t5 in ((-c1 + sq) * 0.5, (-c1 - sq) * 0.5):
+            t1 = t5 + H
+            T = _check(1.0, 1.0, t1, t5, 0.0, a0, v0, V)
+            if T >= 0.0 and abs(_end_pos(1.0, 1.0, max(t1, 0.0), max(t5, 0.0), 0.0, a0, v0, k) - d) <= dtol:
+                out.append((T, 1.0, 1.0, max(t1, 0.0), max(t5, 0.0), 0.0))
+    # ACC0: P = 1, t1 = H - 1 + N^2, quartic in N on [0, 1]
+    e0 = -(-3.0 * H * H + 3.0 * H * a2 - 6.0 * H * v0 - 3.0 * H - 6.0 * k * a3 - 2.0 * a3
+           + (3.0 + 18.0 * kA) * a2 - 18.0 * kA * a0 + 6.0 * a0 * v0 + 6.0 * d - 6.0 * v0) / 6.0
+    cq = [0.5, 1.0, 0.5 * (2.0 * H - a2 + 2.0 * v0 + 1.0), 2.0 * H - a2 + 2.0 * v0, e0]
+    for N in _real_roots(cq, 0.0, 1.0):
+        t1 = H - 1.0 + N * N
+        T = _check(1.0, N, t1, 0.0, 0.0, a0, v0, V)
+        if T >= 0.0 and abs(_end_pos(1.0, N, max(t1, 0.0), 0.0, 0.0, a0, v0, k) - d) <= dtol:
+            out.append((T, 1.0, N, max(t1, 0.0), 0.0, 0.0))
+    # ACC1: N = 1, t5 = P^2 - 1 - H, quartic in P; branch C on [a0, 0), A/B on [max(a0, 0), 1]
+    e0 = -(3.0 * H * H - 3.0 * H * a2 + 6.0 * H * v0 - 3.0 * H - 6.0 * k * a3 - 2.0 * a3 + 3.0 * a2
+           + 6.0 * a0 * v0 + 6.0 * d - 6.0 * v0) / 6.0
+    lo_ab = max(a0, 0.0)
+    if lo_ab <= 1.0:
+        cq = [0.5, 1.0, 0.5 * (-a2 + 6.0 * kA * a0 + 2.0 * v0 + 1.0), -3.0 * kA * a2 - a2 + 2.0 * v0, e0]
+        for P in _real_roots(cq, lo_ab, 1.0):
+            t5 = P * P - 1.0 - H
+            T = _check(P, 1.0, 0.0, t5, 0.0, a0, v0, V)
+            if T >= 0.0 and abs(_end_pos(P, 1.0, 0.0, max(t5, 0.0), 0.0, a0, v0, k) - d) <= dtol:
+                out.append((T, P, 1.0, 0.0, max(t5, 0.0), 0.0))
+    if a0 < 0.0:
+        cq = [0.5, 1.0, 0.5 * (-a2 + 6.0 * k * a0 + 6.0 * k + 2.0 * v0 + 1.0),
+              -3.0 * k * a2 - a2 + 3.0 * k + 2.0 * v0, e0]
+        for P in _real_roots(cq, max(a0, -1.0), 0.0):
+            if P >= 0.0:
+                continue
+            t5 = P * P - 1.0 - H
+            T = _check(P, 1.0, 0.0, t5, 0.0, a0, v0, V)
+            if T >= 0.0 and abs(_end_pos(P, 1.0, 0.0, max(t5, 0.0), 0.0, a0, v0, k) - d) <= dtol:
+                out.append((T, P, 1.0, 0.0, max(t5, 0.0), 0.0))
+    # NONE: u = P + N, P = (u^2 + H)/(2u), N = (u^2 - H)/(2u); quintic in u on (0, 2]
+    b2 = 12.0 * H - 18.0 * a2 * k - 12.0 * a2 + 24.0 * v0
+    b1 = 18.0 * H * a0 * k + 12.0 * a3 * k + 4.0 * a3 - 12.0 * a0 * v0 - 12.0 * d
+    if H >= 0.0:
+        split = 0.0
+    else:
+        split = math.sqrt(-H)           # P < 0 below (branch C), P >= 0 above
+    ulo = math.sqrt(H) if H > 0.0 else 0.0
+    for br in range(2):
+        if br == 0:                     # P >= 0: branch A or B
+            lo, hi = max(split, ulo), 2.0
+            if a0 >= 0.0:
+                cq = [3.0, 9.0 * a0 * k, b2, b1, -3.0 * H * (H + 6.0 * a2 * k), 9.0 * H * H * a0 * k]
+            else:
+                cq = [3.0, 0.0, 12.0 * (H - a2 + 2.0 * v0),
+                      -4.0 * (-3.0 * a3 * k - a3 + 3.0 * a0 * v0 + 3.0 * d), -3.0 * H * H]
+        else:                           # P < 0: branch C (only when H < 0)
+            if split <= 0.0:
+                continue
+            lo, hi = ulo, min(split, 2.0)
+            cq = [3.0 * (3.0 * k + 1.0), 9.0 * a0 * k, b2, b1, -3.0 * H * (3.0 * H * k + H + 6.0 * a2 * k),
+                  9.0 * H * H * a0 * k]
+        if hi <= lo:
+            continue
+        for u in _real_roots(cq, max(lo, 1e-300), hi):
+            if u <= 0.0:
+                continue
+            P = 0.5 * (u + H / u)
+            N = 0.5 * (u - H / u)
+            if (br == 0 and P < -_TOL) or (br == 1 and P > _TOL):
+                continue
+            T = _check(P, N, 0.0, 0.0, 0.0, a0, v0, V)
+            if T >= 0.0 and abs(_end_pos(P, N, 0.0, 0.0, 0.0, a0, v0, k) - d) <= dtol:
+                out.append((T, P, N, 0.0, 0.0, 0.0))
+
+
+def _brake(v0, a0, V):
+    """Ruckig's braking pre-trajectory for a start outside the limits (normalized units).
+
+    Returns ``(j1, t1, j2, t2)``: jerk and time of up to two segments (``t = 0`` when unused).
+    A start with ``a0 > A`` ramps the acceleration down to the limit (then holds it while the
+    velocity is below ``-V``); a start whose velocity is above the limit, or will be whatever the
+    jerk does (``v0 + a0|a0|/2J > V``), ramps the acceleration down until the velocity is back at
+    the limit or the acceleration at ``-A`` (then holds ``-A``).  Mirror images for the other sign.
+    """
+    if a0 > 1.0:
+        if v0 + 0.5 * a0 * a0 > V:
+            return _velocity_brake(v0, a0, V, 1.0)
+        vA = v0 + 0.5 * (a0 * a0 - 1.0)
+        if vA < -V:
+            t_lo = -V - vA
+            t_hi = -0.5 + V - vA
+            return -1.0, a0 - 1.0, 0.0, max(min(t_lo, t_hi), 0.0)
+        return -1.0, a0 - 1.0, 0.0, 0.0
+    if a0 < -1.0:
+        if v0 - 0.5 * a0 * a0 < -V:
+            return _velocity_brake(-v0, -a0, V, -1.0)
+        vA = -v0 + 0.5 * (a0 * a0 - 1.0)
+        if vA < -V:
+            t_lo = -V - vA
+            t_hi = -0.5 + V - vA
+            return 1.0, -a0 - 1.0, 0.0, max(min(t_lo, t_hi), 0.0)
+        return 1.0, -a0 - 1.0, 0.0, 0.0
+    if (v0 > V and v0 - 0.5 * a0 * a0 > -V) or (a0 > 0.0 and v0 + 0.5 * a0 * a0 > V):
+        return _velocity_brake(v0, a0, V, 1.0)
+    if (v0 < -V and v0 + 0.5 * a0 * a0 < V) or (a0 < 0.0 and v0 - 0.5 * a0 * a0 < -V):
+        return _velocity_brake(-v0, -a0, V, -1.0)
+    return 0.0, 0.0, 0.0, 0.0
+
+
+def _velocity_brake(v0, a0, V, s):
+    """Jerk -1 until v = V on the way down (or a = -1, then hold -1); ``s`` flips the result."""
+    t_amin = a0 + 1.0
+    q1 = a0 * a0 + 2.0 * (v0 - V)
+    q2 = 0.5 * a0 * a0 + (v0 + V)
+    t_vmax = a0 + math.sqrt(q1) if q1 >= 0.0 else math.inf
+    t_vmin = a0 + math.sqrt(q2) if q2 >= 0.0 else math.inf
+    tm = min(t_vmax, t_vmin)
+    if t_amin < tm:
+        v_amin = v0 + t_amin * (a0 - 0.5 * t_amin)
+        t2 = max(min(v_amin - V, -0.5 + v_amin + V), 0.0)
+        return -s, max(t_amin, 0.0), 0.0, t2
+    return -s, max(tm, 0.0), 0.0, 0.0
+
+
+def solve(d, v0, a0, vf, V, k):
+    """Shortest profile from (0, v0, a0) to (d, vf, 0) in normalized units (J = A = 1).
+
+    ``k`` is 0 for the linear-jerk S-curve and :data:`KAPPA_SINE` for half-sine pulses.  Returns a
+    list of floats ``[n, j_1, t_1, ..., j_n, t_n]``: the jerk (in units of J, the mean jerk of the
+    pulse for the sine family) and duration of every segment, brake included; ``n = -1`` if no
+    valid profile was found.
+    """
+    res = [0.0]
+    # braking pre-trajectory (jerk segments then a constant-acceleration segment)
+    bj, bt, bj2, bt2 = _brake(v0, a0, V)
+    p = 0.0
+    v = v0
+    a = a0
+    if bt > 0.0:
+        # split at a = 0 so that each half-sine pulse keeps one sign of the acceleration
+        ts = bt
+        if k != 0.0 and ((a > 0.0 and bj < 0.0 and a < bt) or (a < 0.0 and bj > 0.0 and -a < bt)):
+            tz = abs(a)
+            _append(res, bj, tz)
+            p, v, a = _advance(p, v, a, bj, tz, k)
+            ts = bt - tz
+        _append(res, bj, ts)
+        p, v, a = _advance(p, v, a, bj, ts, k)
+    if bt2 > 0.0:
+        _append(res, bj2, bt2)
+        p, v, a = _advance(p, v, a, bj2, bt2, k)
+    if bt > 0.0 and a > 1.0:        # round-off of the ramp to the limit
+        a = 1.0
+    if bt > 0.0 and a < -1.0:
+        a = -1.0
+    best_T = math.inf
+    best = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    best_s = 0.0
+    dd = d - p
+    for s in (1.0, -1.0):
+        out = [(0.0, 0.0, 0.0, 0.0, 0.0, 0.0) for _ in range(0)]
+        _candidates(s * dd, s * v, s * a, s * vf, V, k, out)
+        for c in out:
+            if c[0] < best_T:
+                best_T = c[0]
+                best = c
+                best_s = s
+    if best_s == 0.0:
+        res[0] = -1.0
+        return res
+    T, P, N, t1, t5, tc = best
+    s = best_s
+    a0s = s * a
+    # rebuild the segments in the sigma frame, then flip the jerk signs by s
+    if P > 0.0:
+        if a0s < 0.0 and k != 0.0:      # split the first ramp at a = 0 (sine pulses keep one sign)
+            _append(res, s, -a0s)
+            _append(res, s, P)
+        else:
+            _append(res, s, P - a0s)
+        _append(res, 0.0, t1)
+        _append(res, -s, P)
+        _append(res, 0.0, tc)
+        _append(res, -s, N)
+    else:
+        _append(res, s, P - a0s)
+        _append(res, 0.0, t1)
+        _append(res, -s, P + N)
+    _append(res, 0.0, t5)
+    _append(res, s, N)
+    return res
+
+
+def _append(res, j, t):
+    if t > 0.0:
+        res.append(j)
+        res.append(t)
+        res[0] += 1.0
+
+
+def _advance(p, v, a, j, t, k):
+    """State after a segment: a constant jerk j, or (k != 0) a half-sine pulse of mean jerk j."""
+    da = j * t
+    p2 = p + t * (v + t * (0.5 * a + t * j / 6.0)) - k * da * da * da
+    v2 = v + t * (a + 0.5 * j * t)
+    return p2, v2, a + da
