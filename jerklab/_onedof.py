@@ -29,112 +29,156 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
+try:  # compiled when numba is installed (the pure-Python code is the same, about 150x slower)
+    import numba as _numba
+
+    def _jit(f):
+        return _numba.njit(cache=True, nogil=True)(f)
+except Exception:  # pragma: no cover - numba missing or unusable
+    _numba = None
+
+    def _jit(f):
+        return f
+
 #: 1/pi^2 - 1/12: position lag of a half-sine jerk pulse behind the linear ramp of the same impulse
 KAPPA_SINE = 1.0 / (math.pi * math.pi) - 1.0 / 12.0
 
-_TOL = 1e-10          # slack of the validity checks, in normalized units (times, accelerations)
+_TOL = 1e-10
+_MAX_SEG = 12         # most segments of a profile (2 brake + 8 + a cruise)          # slack of the validity checks, in normalized units (times, accelerations)
 
 
 # ---------------------------------------------------------------------------------------------
 # real roots of a polynomial on an interval
 # ---------------------------------------------------------------------------------------------
-def _peval(c, x):
+@_jit
+def _peval(D, i, deg, x):
     r = 0.0
-    for ci in c:
-        r = r * x + ci
+    for m in range(deg + 1):
+        r = r * x + D[i, m]
     return r
 
 
-def _pscale(c, x):
+@_jit
+def _pscale(D, i, deg, x):
     """Sum of |terms| of the polynomial at x: the round-off scale of its value."""
     r = 0.0
     ax = abs(x)
-    for ci in c:
-        r = r * ax + abs(ci)
+    for m in range(deg + 1):
+        r = r * ax + abs(D[i, m])
     return r
 
 
-def _deriv(c):
-    n = len(c) - 1
-    out = []
-    for i in range(n):
-        out.append(c[i] * (n - i))
-    return out
-
-
-def _root_between(c, lo, hi, flo):
-    """The root of ``c`` in ``[lo, hi]`` where it is monotone and changes sign (bisection + secant)."""
+@_jit
+def _root_between(D, i, deg, lo, hi, flo):
+    """The root of row ``i`` in ``[lo, hi]``, where it is monotone and changes sign (safeguarded Newton)."""
     a, b = lo, hi
-    fa = flo
-    for _ in range(200):
-        m = 0.5 * (a + b)
-        if m <= a or m >= b:
-            break
-        fm = _peval(c, m)
-        if fm == 0.0:
-            return m
-        if (fm < 0.0) == (fa < 0.0):
-            a, fa = m, fm
+    neg_lo = flo < 0.0
+    x = 0.5 * (a + b)
+    for _ in range(100):
+        f = 0.0
+        df = 0.0
+        for m in range(deg + 1):
+            df = df * x + f
+            f = f * x + D[i, m]
+        if f == 0.0:
+            return x
+        if (f < 0.0) == neg_lo:
+            a = x
         else:
-            b = m
-        if b - a <= 1e-15 * max(abs(a), abs(b), 1e-300):
-            break
-    return 0.5 * (a + b)
+            b = x
+        xn = x - f / df if df != 0.0 else a - 1.0
+        if not (a < xn < b):
+            xn = 0.5 * (a + b)
+        if abs(xn - x) <= 4e-16 * abs(x) or b - a <= 4e-16 * max(abs(a), abs(b)):
+            return xn
+        x = xn
+    return x
 
 
-def _roots_from_critical(c, crit, lo, hi):
-    """Real roots of ``c`` in ``[lo, hi]`` given its sorted critical points inside (monotone between)."""
-    pts = [lo]
-    for x in crit:
-        if lo < x < hi:
-            pts.append(x)
-    pts.append(hi)
-    roots = []
-    fprev = _peval(c, pts[0])
-    if abs(fprev) <= 1e-13 * _pscale(c, pts[0]):
-        roots.append(pts[0])
-    for i in range(1, len(pts)):
-        x = pts[i]
-        f = _peval(c, x)
-        if abs(f) <= 1e-13 * _pscale(c, x):
-            roots.append(x)              # a (double) root at a critical point or an end
-        elif (f < 0.0) != (fprev < 0.0) and abs(fprev) > 1e-13 * _pscale(c, pts[i - 1]):
-            roots.append(_root_between(c, pts[i - 1], x, fprev))
-        fprev = f
-    return roots
+@_jit
+def _roots_from_critical(D, i, deg, crit, ncrit, lo, hi, out):
+    """Real roots of row ``i`` of ``D`` in ``[lo, hi]`` into ``out`` (their number is returned),
+    given its sorted critical points ``crit[:ncrit]`` (it is monotone between them)."""
+    nout = 0
+    xprev = lo
+    fprev = _peval(D, i, deg, lo)
+    small_prev = abs(fprev) <= 1e-13 * _pscale(D, i, deg, lo)
+    if small_prev:
+        out[nout] = lo
+        nout += 1
+    for m in range(ncrit + 1):
+        if m < ncrit:
+            x = crit[m]
+            if not (xprev < x < hi):
+                continue
+        else:
+            x = hi
+        f = _peval(D, i, deg, x)
+        small = abs(f) <= 1e-13 * _pscale(D, i, deg, x)
+        if small:
+            out[nout] = x                # a (double) root at a critical point or an end
+            nout += 1
+        elif not small_prev and (f < 0.0) != (fprev < 0.0):
+            out[nout] = _root_between(D, i, deg, xprev, x, fprev)
+            nout += 1
+        xprev, fprev, small_prev = x, f, small
+    return nout
 
 
-def _real_roots(c, lo, hi):
-    """All real roots of the polynomial ``c`` (highest power first, degree <= 5) in ``[lo, hi]``.
+@_jit
+def _real_roots(D, deg, lo, hi, crit, out):
+    """Real roots in ``[lo, hi]`` of the polynomial in ``D[0, :deg + 1]`` (highest power first,
+    degree <= 5) into ``out``; returns their number.  ``D`` (6 x 6) and ``crit`` (8) are scratch.
 
     The roots of the derivatives, from the linear one up, split ``[lo, hi]`` into pieces on which
-    the polynomial is monotone; a sign change on a piece is bisected, a value at round-off level at
-    a piece's end (a double root) is taken as a root.
+    the polynomial is monotone; a sign change on a piece is bisected (safeguarded Newton), a value
+    at round-off level at a piece's end (a double root) is taken as a root.
     """
     k = 0
-    while k < len(c) - 1 and c[k] == 0.0:
+    while k < deg and D[0, k] == 0.0:
         k += 1
-    c = c[k:]
-    n = len(c) - 1
-    crit = [0.0 for _ in range(0)]
-    if n <= 0:
-        return crit
-    ds = [c]
-    for i in range(n - 1):
-        ds.append(_deriv(ds[-1]))
-    if n >= 2:
-        lin = ds[n - 1]
-        x = -lin[1] / lin[0]
-        if lo < x < hi:
-            crit.append(x)
-        for i in range(n - 2, 0, -1):
-            crit = _roots_from_critical(ds[i], crit, lo, hi)
-    return _roots_from_critical(c, crit, lo, hi)
+    if k:
+        for m in range(deg + 1 - k):
+            D[0, m] = D[0, m + k]
+        deg -= k
+    if deg <= 0:
+        return 0
+    for i in range(1, deg):                 # D[i] = i-th derivative, degree deg - i
+        di = deg - i
+        for m in range(di + 1):
+            D[i, m] = D[i - 1, m] * (di + 1 - m)
+    ncrit = 0
+    if deg >= 2:
+        i = deg - 1                         # the linear derivative
+        if D[i, 0] != 0.0:
+            x = -D[i, 1] / D[i, 0]
+            if lo < x < hi:
+                crit[0] = x
+                ncrit = 1
+        for i in range(deg - 2, 0, -1):
+            ncrit = _roots_from_critical(D, i, deg - i, crit, ncrit, lo, hi, out)
+            for m in range(ncrit):
+                crit[m] = out[m]
+    return _roots_from_critical(D, 0, deg, crit, ncrit, lo, hi, out)
+
+
+@_jit
+def _set(D, c0, c1, c2, c3, c4, c5):
+    """Row 0 of ``D`` = the coefficients (highest power first; leading zeros are stripped later)."""
+    D[0, 0] = c0
+    D[0, 1] = c1
+    D[0, 2] = c2
+    D[0, 3] = c3
+    D[0, 4] = c4
+    D[0, 5] = c5
 
 
 # ---------------------------------------------------------------------------------------------
 # the step profile (sigma = +1) from (v0, a0) to (vf, 0) over d, normalized units
 # ---------------------------------------------------------------------------------------------
+@_jit
 def _cubes(P, N, a0):
     """Sum of the cubes of the acceleration changes of the pulses (each ramp split at a = 0)."""
     if P >= 0.0:
@@ -144,6 +188,7 @@ def _cubes(P, N, a0):
     return (P - a0) ** 3 - (N + P) ** 3 + N ** 3
 
 
+@_jit
 def _check(P, N, t1, t5, tc, a0, v0, V):
     """Times and limits of a sigma = +1 candidate; returns its duration or -1 if invalid."""
     t0 = P - a0
@@ -166,6 +211,7 @@ def _check(P, N, t1, t5, tc, a0, v0, V):
     return max(t0, 0.0) + max(t1, 0.0) + max(t2, 0.0) + max(t5, 0.0) + max(N, 0.0) + max(tc, 0.0)
 
 
+@_jit
 def _end_pos(P, N, t1, t5, tc, a0, v0, k):
     """End position of the candidate (sigma = +1), integrated segment by segment."""
     p = 0.0
@@ -188,8 +234,12 @@ def _end_pos(P, N, t1, t5, tc, a0, v0, k):
     return p - k * _cubes(P, N, a0)
 
 
-def _candidates(d, v0, a0, vf, V, k, out):
-    """Append valid sigma = +1 candidates as (duration, P, N, t1, t5, tc) to ``out``."""
+@_jit
+def _candidates(d, v0, a0, vf, V, k, s, best, D, crit, rts):
+    """Valid sigma = +1 candidates; the shortest so far is kept in ``best`` = (T, P, N, t1, t5, tc, s).
+
+    ``D``, ``crit``, ``rts``: scratch arrays of :func:`_real_roots`.
+    """
     H = vf - v0 + 0.5 * a0 * a0
     dtol = 1e-9 * (abs(d) + abs(v0) + abs(vf) + 1.0)
     # --- cruise at +V (VEL, ACC0_VEL, ACC1_VEL, ACC0_ACC1_VEL) ---
@@ -211,14 +261,12 @@ def _candidates(d, v0, a0, vf, V, k, out):
             tc = rest / V
             T = _check(P, N, t1, t5, tc, a0, v0, V)
             if T >= 0.0:
-                out.append((T, P, N, t1, t5, max(tc, 0.0)))
+                _keep(best, T, P, N, t1, t5, max(tc, 0.0), s)
     # --- no cruise ---
-    k6 = 6.0 * k
     a2 = a0 * a0
     a3 = a2 * a0
     # branches of the sine term: A (P >= 0, a0 >= 0), B (P >= 0, a0 < 0), C (P < 0)
     kA = k if a0 >= 0.0 else 0.0      # the P-dependent part of the cubes exists only in branch A
-    kc = k6 * a3 if a0 >= 0.0 else 0.0
     # ACC0_ACC1: P = N = 1, t1 = t5 + H, quadratic in t5
     c1 = 2.0 * H - a2 + 2.0 * v0 + 3.0
     c0 = -(-3.0 * H * H + 3.0 * H * a2 - 6.0 * H * v0 - 21.0 * H - 6.0 * k * a3 - 2.0 * a3
@@ -230,37 +278,40 @@ def _candidates(d, v0, a0, vf, V, k, out):
             t1 = t5 + H
             T = _check(1.0, 1.0, t1, t5, 0.0, a0, v0, V)
             if T >= 0.0 and abs(_end_pos(1.0, 1.0, max(t1, 0.0), max(t5, 0.0), 0.0, a0, v0, k) - d) <= dtol:
-                out.append((T, 1.0, 1.0, max(t1, 0.0), max(t5, 0.0), 0.0))
+                _keep(best, T, 1.0, 1.0, max(t1, 0.0), max(t5, 0.0), 0.0, s)
     # ACC0: P = 1, t1 = H - 1 + N^2, quartic in N on [0, 1]
     e0 = -(-3.0 * H * H + 3.0 * H * a2 - 6.0 * H * v0 - 3.0 * H - 6.0 * k * a3 - 2.0 * a3
            + (3.0 + 18.0 * kA) * a2 - 18.0 * kA * a0 + 6.0 * a0 * v0 + 6.0 * d - 6.0 * v0) / 6.0
-    cq = [0.5, 1.0, 0.5 * (2.0 * H - a2 + 2.0 * v0 + 1.0), 2.0 * H - a2 + 2.0 * v0, e0]
-    for N in _real_roots(cq, 0.0, 1.0):
+    _set(D, 0.0, 0.5, 1.0, 0.5 * (2.0 * H - a2 + 2.0 * v0 + 1.0), 2.0 * H - a2 + 2.0 * v0, e0)
+    for r in range(_real_roots(D, 5, 0.0, 1.0, crit, rts)):
+        N = rts[r]
         t1 = H - 1.0 + N * N
         T = _check(1.0, N, t1, 0.0, 0.0, a0, v0, V)
         if T >= 0.0 and abs(_end_pos(1.0, N, max(t1, 0.0), 0.0, 0.0, a0, v0, k) - d) <= dtol:
-            out.append((T, 1.0, N, max(t1, 0.0), 0.0, 0.0))
+            _keep(best, T, 1.0, N, max(t1, 0.0), 0.0, 0.0, s)
     # ACC1: N = 1, t5 = P^2 - 1 - H, quartic in P; branch C on [a0, 0), A/B on [max(a0, 0), 1]
     e0 = -(3.0 * H * H - 3.0 * H * a2 + 6.0 * H * v0 - 3.0 * H - 6.0 * k * a3 - 2.0 * a3 + 3.0 * a2
            + 6.0 * a0 * v0 + 6.0 * d - 6.0 * v0) / 6.0
     lo_ab = max(a0, 0.0)
     if lo_ab <= 1.0:
-        cq = [0.5, 1.0, 0.5 * (-a2 + 6.0 * kA * a0 + 2.0 * v0 + 1.0), -3.0 * kA * a2 - a2 + 2.0 * v0, e0]
-        for P in _real_roots(cq, lo_ab, 1.0):
+        _set(D, 0.0, 0.5, 1.0, 0.5 * (-a2 + 6.0 * kA * a0 + 2.0 * v0 + 1.0), -3.0 * kA * a2 - a2 + 2.0 * v0, e0)
+        for r in range(_real_roots(D, 5, lo_ab, 1.0, crit, rts)):
+            P = rts[r]
             t5 = P * P - 1.0 - H
             T = _check(P, 1.0, 0.0, t5, 0.0, a0, v0, V)
             if T >= 0.0 and abs(_end_pos(P, 1.0, 0.0, max(t5, 0.0), 0.0, a0, v0, k) - d) <= dtol:
-                out.append((T, P, 1.0, 0.0, max(t5, 0.0), 0.0))
+                _keep(best, T, P, 1.0, 0.0, max(t5, 0.0), 0.0, s)
     if a0 < 0.0:
-        cq = [0.5, 1.0, 0.5 * (-a2 + 6.0 * k * a0 + 6.0 * k + 2.0 * v0 + 1.0),
-              -3.0 * k * a2 - a2 + 3.0 * k + 2.0 * v0, e0]
-        for P in _real_roots(cq, max(a0, -1.0), 0.0):
+        _set(D, 0.0, 0.5, 1.0, 0.5 * (-a2 + 6.0 * k * a0 + 6.0 * k + 2.0 * v0 + 1.0),
+             -3.0 * k * a2 - a2 + 3.0 * k + 2.0 * v0, e0)
+        for r in range(_real_roots(D, 5, max(a0, -1.0), 0.0, crit, rts)):
+            P = rts[r]
             if P >= 0.0:
                 continue
             t5 = P * P - 1.0 - H
             T = _check(P, 1.0, 0.0, t5, 0.0, a0, v0, V)
             if T >= 0.0 and abs(_end_pos(P, 1.0, 0.0, max(t5, 0.0), 0.0, a0, v0, k) - d) <= dtol:
-                out.append((T, P, 1.0, 0.0, max(t5, 0.0), 0.0))
+                _keep(best, T, P, 1.0, 0.0, max(t5, 0.0), 0.0, s)
     # NONE: u = P + N, P = (u^2 + H)/(2u), N = (u^2 - H)/(2u); quintic in u on (0, 2]
     b2 = 12.0 * H - 18.0 * a2 * k - 12.0 * a2 + 24.0 * v0
     b1 = 18.0 * H * a0 * k + 12.0 * a3 * k + 4.0 * a3 - 12.0 * a0 * v0 - 12.0 * d
@@ -273,19 +324,20 @@ def _candidates(d, v0, a0, vf, V, k, out):
         if br == 0:                     # P >= 0: branch A or B
             lo, hi = max(split, ulo), 2.0
             if a0 >= 0.0:
-                cq = [3.0, 9.0 * a0 * k, b2, b1, -3.0 * H * (H + 6.0 * a2 * k), 9.0 * H * H * a0 * k]
+                _set(D, 3.0, 9.0 * a0 * k, b2, b1, -3.0 * H * (H + 6.0 * a2 * k), 9.0 * H * H * a0 * k)
             else:
-                cq = [3.0, 0.0, 12.0 * (H - a2 + 2.0 * v0),
-                      -4.0 * (-3.0 * a3 * k - a3 + 3.0 * a0 * v0 + 3.0 * d), -3.0 * H * H]
+                _set(D, 0.0, 3.0, 0.0, 12.0 * (H - a2 + 2.0 * v0),
+                     -4.0 * (-3.0 * a3 * k - a3 + 3.0 * a0 * v0 + 3.0 * d), -3.0 * H * H)
         else:                           # P < 0: branch C (only when H < 0)
             if split <= 0.0:
                 continue
             lo, hi = ulo, min(split, 2.0)
-            cq = [3.0 * (3.0 * k + 1.0), 9.0 * a0 * k, b2, b1, -3.0 * H * (3.0 * H * k + H + 6.0 * a2 * k),
-                  9.0 * H * H * a0 * k]
+            _set(D, 3.0 * (3.0 * k + 1.0), 9.0 * a0 * k, b2, b1, -3.0 * H * (3.0 * H * k + H + 6.0 * a2 * k),
+                 9.0 * H * H * a0 * k)
         if hi <= lo:
             continue
-        for u in _real_roots(cq, max(lo, 1e-300), hi):
+        for r in range(_real_roots(D, 5, max(lo, 1e-300), hi, crit, rts)):
+            u = rts[r]
             if u <= 0.0:
                 continue
             P = 0.5 * (u + H / u)
@@ -294,9 +346,22 @@ def _candidates(d, v0, a0, vf, V, k, out):
                 continue
             T = _check(P, N, 0.0, 0.0, 0.0, a0, v0, V)
             if T >= 0.0 and abs(_end_pos(P, N, 0.0, 0.0, 0.0, a0, v0, k) - d) <= dtol:
-                out.append((T, P, N, 0.0, 0.0, 0.0))
+                _keep(best, T, P, N, 0.0, 0.0, 0.0, s)
 
 
+@_jit
+def _keep(best, T, P, N, t1, t5, tc, s):
+    if T < best[0]:
+        best[0] = T
+        best[1] = P
+        best[2] = N
+        best[3] = t1
+        best[4] = t5
+        best[5] = tc
+        best[6] = s
+
+
+@_jit
 def _brake(v0, a0, V):
     """Ruckig's braking pre-trajectory for a start outside the limits (normalized units).
 
@@ -331,6 +396,7 @@ def _brake(v0, a0, V):
     return 0.0, 0.0, 0.0, 0.0
 
 
+@_jit
 def _velocity_brake(v0, a0, V, s):
     """Jerk -1 until v = V on the way down (or a = -1, then hold -1); ``s`` flips the result."""
     t_amin = a0 + 1.0
@@ -346,15 +412,16 @@ def _velocity_brake(v0, a0, V, s):
     return -s, max(tm, 0.0), 0.0, 0.0
 
 
+@_jit
 def solve(d, v0, a0, vf, V, k):
     """Shortest profile from (0, v0, a0) to (d, vf, 0) in normalized units (J = A = 1).
 
     ``k`` is 0 for the linear-jerk S-curve and :data:`KAPPA_SINE` for half-sine pulses.  Returns a
     list of floats ``[n, j_1, t_1, ..., j_n, t_n]``: the jerk (in units of J, the mean jerk of the
     pulse for the sine family) and duration of every segment, brake included; ``n = -1`` if no
-    valid profile was found.
+    valid profile was found.  (A numpy array of length ``2 * _MAX_SEG + 1``.)
     """
-    res = [0.0]
+    res = np.zeros(2 * _MAX_SEG + 1)
     # braking pre-trajectory (jerk segments then a constant-acceleration segment)
     bj, bt, bj2, bt2 = _brake(v0, a0, V)
     p = 0.0
@@ -377,23 +444,19 @@ def solve(d, v0, a0, vf, V, k):
         a = 1.0
     if bt > 0.0 and a < -1.0:
         a = -1.0
-    best_T = math.inf
-    best = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-    best_s = 0.0
+    best = np.empty(7)
+    best[0] = math.inf
+    best[6] = 0.0
+    D = np.empty((6, 6))
+    crit = np.empty(8)
+    rts = np.empty(8)
     dd = d - p
-    for s in (1.0, -1.0):
-        out = [(0.0, 0.0, 0.0, 0.0, 0.0, 0.0) for _ in range(0)]
-        _candidates(s * dd, s * v, s * a, s * vf, V, k, out)
-        for c in out:
-            if c[0] < best_T:
-                best_T = c[0]
-                best = c
-                best_s = s
-    if best_s == 0.0:
+    _candidates(dd, v, a, vf, V, k, 1.0, best, D, crit, rts)
+    _candidates(-dd, -v, -a, -vf, V, k, -1.0, best, D, crit, rts)
+    if best[6] == 0.0:
         res[0] = -1.0
         return res
-    T, P, N, t1, t5, tc = best
-    s = best_s
+    P, N, t1, t5, tc, s = best[1], best[2], best[3], best[4], best[5], best[6]
     a0s = s * a
     # rebuild the segments in the sigma frame, then flip the jerk signs by s
     if P > 0.0:
@@ -415,13 +478,16 @@ def solve(d, v0, a0, vf, V, k):
     return res
 
 
+@_jit
 def _append(res, j, t):
     if t > 0.0:
-        res.append(j)
-        res.append(t)
-        res[0] += 1.0
+        n = int(res[0])
+        res[2 * n + 1] = j
+        res[2 * n + 2] = t
+        res[0] = n + 1
 
 
+@_jit
 def _advance(p, v, a, j, t, k):
     """State after a segment: a constant jerk j, or (k != 0) a half-sine pulse of mean jerk j."""
     da = j * t
