@@ -22,8 +22,8 @@ acceleration and the velocity exactly as a constant jerk ``2J/pi`` over the same
 position by ``-kappa * da^3 / J'^2`` less, with ``kappa = 1/pi^2 - 1/12`` and ``J' = 2J/pi``
 (docs/THEORY.md); the end-position polynomials carry that term.
 
-Written in the subset of Python that numba compiles (floats, lists of floats, no objects); when numba
-is installed :func:`solve` is the compiled version.
+Written in the subset of Python that numba compiles (floats and preallocated arrays, no objects);
+:func:`solver` returns the compiled :func:`solve` when numba is installed.
 """
 from __future__ import annotations
 
@@ -31,16 +31,41 @@ import math
 
 import numpy as np
 
-try:  # compiled when numba is installed (the pure-Python code is the same, about 150x slower)
-    import numba as _numba
+#: the functions numba compiles (:func:`solver`), in the order they are defined
+_JITTED = []
 
-    def _jit(f):
-        return _numba.njit(cache=True, nogil=True)(f)
-except Exception:  # pragma: no cover - numba missing or unusable
-    _numba = None
 
-    def _jit(f):
-        return f
+def _jit(f):
+    """Mark ``f`` for compilation by :func:`solver` (numba is imported only when a plan needs it)."""
+    _JITTED.append(f.__name__)
+    return f
+
+
+_SOLVER = None
+#: the pure-Python functions, kept when :func:`solver` replaces them by their compiled versions
+PURE = {}
+
+
+def solver():
+    """:func:`solve`, compiled by numba (cached on disk) when numba is installed, else pure Python.
+
+    The compiled form takes about 3 us a plan, the pure-Python one about 150 times longer.
+    """
+    global _SOLVER
+    if _SOLVER is None:
+        g = globals()
+        PURE.update({name: g[name] for name in _JITTED})
+        try:
+            import numba
+
+            for name in _JITTED:        # module globals, so that compiled code calls compiled code
+                g[name] = numba.njit(cache=True, nogil=True)(PURE[name])
+            _SOLVER = g["solve"]
+        except Exception:  # pragma: no cover - numba missing or unusable
+            for name in _JITTED:
+                g[name] = PURE[name]
+            _SOLVER = PURE["solve"]
+    return _SOLVER
 
 #: 1/pi^2 - 1/12: position lag of a half-sine jerk pulse behind the linear ramp of the same impulse
 KAPPA_SINE = 1.0 / (math.pi * math.pi) - 1.0 / 12.0
@@ -419,9 +444,10 @@ def solve(d, v0, a0, vf, V, k):
     ``k`` is 0 for the linear-jerk S-curve and :data:`KAPPA_SINE` for half-sine pulses.  Returns a
     list of floats ``[n, j_1, t_1, ..., j_n, t_n]``: the jerk (in units of J, the mean jerk of the
     pulse for the sine family) and duration of every segment, brake included; ``n = -1`` if no
-    valid profile was found.  (A numpy array of length ``2 * _MAX_SEG + 1``.)
+    valid profile was found; the last entry is the number of brake segments (a numpy array
+    of length ``2 * _MAX_SEG + 2``).
     """
-    res = np.zeros(2 * _MAX_SEG + 1)
+    res = np.zeros(2 * _MAX_SEG + 2)
     # braking pre-trajectory (jerk segments then a constant-acceleration segment)
     bj, bt, bj2, bt2 = _brake(v0, a0, V)
     p = 0.0
@@ -440,6 +466,7 @@ def solve(d, v0, a0, vf, V, k):
     if bt2 > 0.0:
         _append(res, bj2, bt2)
         p, v, a = _advance(p, v, a, bj2, bt2, k)
+    res[-1] = res[0]                # the number of brake segments
     if bt > 0.0 and a > 1.0:        # round-off of the ramp to the limit
         a = 1.0
     if bt > 0.0 and a < -1.0:

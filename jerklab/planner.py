@@ -45,10 +45,12 @@ from typing import NamedTuple
 
 import numpy as np
 
+from jerklab import _onedof
 from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
 
 __all__ = [
     "Profile",
+    "AnyStateProfile",
     "ProfileSample",
     "BatchPlan",
     "plan_sine_jerk",
@@ -597,7 +599,8 @@ def _scurve_times(d, J, A, V):
     return d ** _THIRD * (0.5 / J) ** _THIRD, 0.0, 0.0     # d = 2 J tj^3 (no underflow of d/2J)
 
 
-def plan_sine_jerk_optimal(distance, max_jerk, max_accel, max_velocity) -> "SineJerkOptimalProfile":
+def plan_sine_jerk_optimal(distance, max_jerk, max_accel, max_velocity, *, initial_velocity=0.0,
+                           initial_accel=0.0, final_velocity=0.0) -> "SineJerkOptimalProfile":
     """Time-optimal rest-to-rest profile made of half-sine jerk pulses of peak <= ``max_jerk``.
 
     Seven segments: a rising half-sine jerk pulse (length ``tj``), an acceleration plateau
@@ -608,13 +611,28 @@ def plan_sine_jerk_optimal(distance, max_jerk, max_accel, max_velocity) -> "Sine
     S-curve's (:func:`plan_scurve`).  Here the limits are upper bounds; the published algorithm
     (:func:`plan_sine_jerk`) is the special case ``ta = 0`` with a pulse shortened instead.
 
+    From a moving start (``initial_velocity``, ``initial_accel`` or ``final_velocity`` not 0) the
+    profile is the time-optimal one of the same family -- every constant-jerk ramp of the
+    time-optimal S-curve at jerk ``2J/pi``, split where the acceleration crosses 0, becomes one
+    half-sine pulse -- and its duration equals that S-curve's exactly when ``initial_accel`` is 0;
+    otherwise the pulses' position lag is made up by the solver (docs/THEORY.md, "Any start
+    state"; :class:`AnyStateProfile`).
+
     Parameters
     ----------
     distance : float
         Signed move length.
     max_jerk, max_accel, max_velocity : float
         Peak of the sine jerk, acceleration and velocity limits (> 0).
+    initial_velocity, initial_accel, final_velocity : float, keyword-only
+        Start velocity and acceleration, end velocity (default 0; the end acceleration is 0).
+        A start above a limit brakes back inside it first; ``|final_velocity| > max_velocity``
+        raises ValueError.
     """
+    if (initial_velocity.__class__ is not float or initial_accel.__class__ is not float
+            or final_velocity.__class__ is not float or initial_velocity or initial_accel or final_velocity):
+        return _plan_any_state("sine_jerk_optimal", distance, max_jerk, max_accel, max_velocity,
+                               initial_velocity, initial_accel, final_velocity)
     J, E, W = max_jerk, max_accel, max_velocity
     if not (type(distance) is float is type(J) is type(E) is type(W)
             and J > 0.0 and E > 0.0 and W > 0.0 and (distance + J + E + W) * 0.0 == 0.0):
@@ -631,12 +649,19 @@ def plan_sine_jerk_optimal(distance, max_jerk, max_accel, max_velocity) -> "Sine
     return _check_plan(p, "plan_sine_jerk_optimal")
 
 
-def plan_scurve(distance, max_jerk, max_accel, max_velocity) -> "SCurveProfile":
+def plan_scurve(distance, max_jerk, max_accel, max_velocity, *, initial_velocity=0.0,
+                initial_accel=0.0, final_velocity=0.0) -> "SCurveProfile":
     """Time-optimal linear-jerk 7-segment S-curve, rest to rest.
 
     Jerk ``+J, 0, -J, 0, -J, 0, +J`` over ``(tj, ta, tj, tv, tj, ta, tj)``.  All four cases are
     handled: acceleration limit reached (``ta > 0``) or not, velocity limit reached (``tv > 0``) or
     not.  Yang et al. (2013) use the special case ``ta = 0`` with the velocity reached.
+
+    From any start state (``initial_velocity``, ``initial_accel``) to any end velocity
+    (``final_velocity``, end acceleration 0) the profile is the time-optimal one (Ruckig's
+    duration): a braking pre-trajectory when the start is outside the limits (Ruckig's rule), then
+    at most seven segments of jerk ``+-J`` or 0 (docs/THEORY.md, "Any start state";
+    :class:`AnyStateProfile`).
 
     Parameters
     ----------
@@ -644,7 +669,15 @@ def plan_scurve(distance, max_jerk, max_accel, max_velocity) -> "SCurveProfile":
         Signed move length.
     max_jerk, max_accel, max_velocity : float
         Limits (> 0).
+    initial_velocity, initial_accel, final_velocity : float, keyword-only
+        Start velocity and acceleration, end velocity (default 0; the end acceleration is 0).
+        A start above a limit brakes back inside it first; ``|final_velocity| > max_velocity``
+        raises ValueError.
     """
+    if (initial_velocity.__class__ is not float or initial_accel.__class__ is not float
+            or final_velocity.__class__ is not float or initial_velocity or initial_accel or final_velocity):
+        return _plan_any_state("scurve", distance, max_jerk, max_accel, max_velocity,
+                               initial_velocity, initial_accel, final_velocity)
     J, A, V = max_jerk, max_accel, max_velocity
     if not (type(distance) is float is type(J) is type(A) is type(V)
             and J > 0.0 and A > 0.0 and V > 0.0 and (distance + J + A + V) * 0.0 == 0.0):
@@ -695,6 +728,267 @@ def plan_trapezoid(distance, max_accel, max_velocity) -> "TrapezoidProfile":
         p._ta = _sqrt(d / A)
         p._tv = 0.0
     return _check_plan(p, "plan_trapezoid")
+
+
+# ---------------------------------------------------------------------------------------------
+# any start state (initial velocity and acceleration, final velocity)
+# ---------------------------------------------------------------------------------------------
+def _segment_states(p, v, a, jerk, times, sine):
+    """Start states of the segments and the end state (exact integrals: Stojčić eq. 2 for pulses).
+
+    A constant-jerk segment ``(j, tau)`` adds ``tau (v + tau (a/2 + j tau/6))`` to the position;
+    a half-sine pulse of peak ``j`` and length ``tau`` changes ``a`` and ``v`` as the constant jerk
+    ``2 j / pi`` does and the position by ``tau^2 (j tau)(2/pi)(1/4 - 1/pi^2)`` instead of
+    ``(2 j tau/pi) tau^2 / 6`` (docs/THEORY.md, "Any start state").
+    """
+    n = len(times)
+    P = np.empty(n + 1)
+    Vv = np.empty(n + 1)
+    Aa = np.empty(n + 1)
+    P[0], Vv[0], Aa[0] = p, v, a
+    for i in range(n):
+        j, t = jerk[i], times[i]
+        if sine and j != 0.0:
+            da = _TWO_OVER_PI * j * t
+            p = p + t * (v + 0.5 * a * t) + da * t * t * (0.25 - 1.0 / (_PI * _PI))
+            v = v + t * (a + 0.5 * da)
+            a = a + da
+        else:
+            p = p + t * (v + t * (0.5 * a + t * j / 6.0))
+            v = v + t * (a + 0.5 * j * t)
+            a = a + j * t
+        P[i + 1], Vv[i + 1], Aa[i + 1] = p, v, a
+    return P, Vv, Aa
+
+
+class AnyStateProfile(Profile):
+    """A move from any start state: ``plan_scurve`` / ``plan_sine_jerk_optimal`` with an initial
+    velocity or acceleration or a final velocity.
+
+    A sequence of segments of constant jerk (``kind = "scurve"``) or of half-sine jerk pulses
+    (``kind = "sine_jerk_optimal"``; a segment of jerk 0 is a plateau or a cruise), starting with
+    the braking pre-trajectory when the start is outside the limits (``brake_time`` > 0).
+
+    Attributes
+    ----------
+    kind, distance, duration, phase_times, max_jerk, max_accel, max_velocity
+        As :class:`Profile`; ``phase_times`` are the segment durations (the brake's first).
+    initial_velocity, initial_accel, final_velocity : float
+        The boundary state (the end acceleration is 0).
+    segment_jerk : tuple of float
+        Jerk of each segment (its peak for a half-sine pulse).
+    brake_time : float
+        Length of the braking pre-trajectory (s), 0 when the start is inside the limits.
+
+    ``sample(0)`` is exactly ``(position 0, initial_velocity, initial_accel)`` and
+    ``sample(duration)`` exactly ``(distance, final_velocity, 0)``; before 0 the initial state is
+    held (jerk 0), after ``duration`` the motion goes on at ``final_velocity``.
+    :meth:`synchronized` is for rest-to-rest moves only and raises ``NotImplementedError``.
+    """
+
+    __slots__ = ("kind", "initial_velocity", "initial_accel", "final_velocity", "_jerk", "_times",
+                 "_start", "_P", "_V", "_A", "_T", "_sine", "brake_time")
+
+    def __init__(self, kind, distance, limits, initial_velocity, initial_accel, final_velocity,
+                 jerk, times, brake_segments=0):
+        self.kind = kind
+        self.distance = distance
+        self._limits = limits
+        self.initial_velocity = initial_velocity
+        self.initial_accel = initial_accel
+        self.final_velocity = final_velocity
+        self._jerk = np.asarray(jerk, dtype=float)
+        self._times = np.asarray(times, dtype=float)
+        self._sine = _SHAPE[kind] == _SINE
+        self._start = np.concatenate(([0.0], np.cumsum(self._times)))
+        self._T = float(self._start[-1])
+        self._P, self._V, self._A = _segment_states(0.0, initial_velocity, initial_accel,
+                                                    self._jerk, self._times, self._sine)
+        self.brake_time = float(np.sum(self._times[:brake_segments]))
+        # the zero-size fields of Profile (not used by this class)
+        self._tj = self._ta = self._tv = 0.0
+        self._jpar = limits[0]
+
+    @property
+    def duration(self) -> float:
+        """Total time of the move (s), the brake included."""
+        return self._T
+
+    @property
+    def phase_times(self) -> tuple:
+        return tuple(float(t) for t in self._times)
+
+    @property
+    def segment_jerk(self) -> tuple:
+        return tuple(float(j) for j in self._jerk)
+
+    @property
+    def peak_jerk(self) -> float:
+        return float(np.max(np.abs(self._jerk))) if self._jerk.size else 0.0
+
+    @property
+    def peak_accel(self) -> float:
+        return float(np.max(np.abs(self._A)))
+
+    @property
+    def peak_velocity(self) -> float:
+        v = np.abs(self._V)
+        peak = float(v.max())
+        # a constant-jerk segment whose acceleration changes sign has a velocity extremum inside
+        # (half-sine pulses never change its sign: the solver splits them at a = 0)
+        a0, a1, j = self._A[:-1], self._A[1:], self._jerk
+        cross = (a0 * a1 < 0.0) & (j != 0.0)
+        if cross.any():
+            scale = _TWO_OVER_PI if self._sine else 1.0
+            vx = self._V[:-1][cross] - 0.5 * a0[cross] ** 2 / (scale * j[cross])
+            peak = max(peak, float(np.max(np.abs(vx))))
+        return peak
+
+    def sample(self, t) -> ProfileSample:
+        """Jerk, acceleration, velocity and position at the times ``t`` (closed form per segment).
+
+        Parameters
+        ----------
+        t : float or array_like
+            Times (s).  ``t <= 0`` gives the initial state (jerk 0 before 0), ``t >= duration``
+            the final state moved on at ``final_velocity``.
+        """
+        t = as_finite_array("t", t)
+        n = self._times.size
+        i = np.clip(np.searchsorted(self._start, t, side="right") - 1, 0, max(n - 1, 0))
+        r = np.clip(t - self._start[i], 0.0, None)
+        if n:
+            r = np.minimum(r, self._times[i])
+            j = self._jerk[i]
+            p0, v0, a0 = self._P[i], self._V[i], self._A[i]
+            jk = j.copy()
+            acc = a0 + j * r
+            vel = v0 + r * (a0 + 0.5 * j * r)
+            pos = p0 + r * (v0 + r * (0.5 * a0 + r * j / 6.0))
+            if self._sine:
+                pulse = j != 0.0
+                if pulse.any():
+                    tau = self._times[i][pulse]
+                    w = _PI / tau
+                    jp = j[pulse]
+                    c = jp / w
+                    rp = r[pulse]
+                    wr = w * rp
+                    sn = np.sin(wr)
+                    omc = 2.0 * np.sin(0.5 * wr) ** 2
+                    x2 = wr * wr
+                    small = wr < 0.1
+                    with np.errstate(invalid="ignore", over="ignore"):
+                        wms = np.where(small, wr * x2 * (1 / 6 - x2 * (1 / 120 - x2 * (1 / 5040 - x2 * (
+                            1 / 362880 - x2 / 39916800)))), wr - sn)
+                        hmo = np.where(small, x2 * x2 * (1 / 24 - x2 * (1 / 720 - x2 * (1 / 40320 - x2 * (
+                            1 / 3628800 - x2 / 479001600)))), 0.5 * x2 - omc)
+                    ap, vp, pp = a0[pulse], v0[pulse], p0[pulse]
+                    jk[pulse] = jp * sn
+                    acc[pulse] = ap + c * omc
+                    vel[pulse] = vp + ap * rp + c * wms / w
+                    pos[pulse] = pp + rp * (vp + 0.5 * ap * rp) + c * hmo / (w * w)
+        else:
+            jk = acc = vel = pos = np.zeros(t.shape)
+        T = self._T
+        before = t <= 0.0
+        after = t >= T
+        vf = self.final_velocity
+        jk = np.where(before | after, 0.0, jk)
+        if n:                       # right-continuous jerk at 0 for constant-jerk segments
+            j0 = 0.0 if self._sine else float(self._jerk[0])
+            jk = np.where(t == 0.0, j0 if T > 0.0 else 0.0, jk)
+        acc = np.where(before, self.initial_accel, np.where(after, 0.0, acc))
+        vel = np.where(before, self.initial_velocity, np.where(after, vf, vel))
+        pos = np.where(before, 0.0, np.where(after, self.distance + vf * (t - T), pos))
+        return ProfileSample(np.array(t, dtype=float, copy=True), jk, acc, vel, pos)
+
+    def synchronized(self, Ts):
+        """Not available from a moving start (the phase times cannot be rounded independently
+        without changing the boundary state): raises ``NotImplementedError``."""
+        raise NotImplementedError(
+            f"synchronized(Ts) is for rest-to-rest moves; this {self.kind} move starts at "
+            f"initial_velocity={self.initial_velocity!r}, initial_accel={self.initial_accel!r} or ends "
+            f"at final_velocity={self.final_velocity!r}: sample the closed form at k Ts instead")
+
+    def discretize(self, Ts, t_end=None) -> ProfileSample:
+        """Stojčić eq. 15 from the initial state (acceleration and velocity start at
+        ``initial_accel`` and ``initial_velocity``); see :meth:`Profile.discretize`."""
+        Ts = as_positive("Ts", Ts)
+        if t_end is None:
+            t_end = self.duration + Ts
+        t_end = as_nonnegative("t_end", t_end)
+        steps = t_end / Ts
+        if not steps < MAX_SAMPLES:
+            raise ValueError(f"t_end / Ts = {t_end!r} / {Ts!r} asks for more than MAX_SAMPLES = "
+                             f"{MAX_SAMPLES} samples: raise Ts or lower t_end")
+        n = max(int(math.ceil(steps - 1e-9)), 0) + 1
+        tk = np.arange(n) * Ts
+        jerk = self.sample(tk).jerk
+        with np.errstate(over="ignore", invalid="ignore"):
+            accel = self.initial_accel + np.cumsum(jerk) * Ts
+            vel = self.initial_velocity + np.cumsum(accel) * Ts
+            pos = np.cumsum(vel) * Ts
+        return ProfileSample(tk, jerk, accel, vel, pos)
+
+    def to_dict(self) -> dict:
+        d = Profile.to_dict(self)
+        d.update(initial_velocity=self.initial_velocity, initial_accel=self.initial_accel,
+                 final_velocity=self.final_velocity, segment_jerk=list(self.segment_jerk),
+                 brake_time=self.brake_time)
+        return d
+
+    def __repr__(self) -> str:
+        return (f"{type(self).__name__}(kind={self.kind!r}, distance={self.distance!r}, "
+                f"initial_velocity={self.initial_velocity!r}, initial_accel={self.initial_accel!r}, "
+                f"final_velocity={self.final_velocity!r}, duration={self.duration!r})")
+
+
+_SOLVE = None
+
+
+def _solver():
+    global _SOLVE
+    _SOLVE = _onedof.solver()
+    return _SOLVE
+
+
+def _plan_any_state(kind, distance, max_jerk, max_accel, max_velocity, v0, a0, vf):
+    """:func:`plan_scurve` / :func:`plan_sine_jerk_optimal` from a moving start (jerklab._onedof)."""
+    func = "plan_" + kind
+    distance, J, A, V = _check_limits(distance, max_jerk, max_accel, max_velocity)
+    v0 = as_real("initial_velocity", v0)
+    a0 = as_real("initial_accel", a0)
+    vf = as_real("final_velocity", vf)
+    if v0 == 0.0 and a0 == 0.0 and vf == 0.0:
+        plan = plan_scurve if kind == "scurve" else plan_sine_jerk_optimal
+        return plan(distance, J, A, V)
+    if abs(vf) > V:
+        raise ValueError(f"{func}: final_velocity={vf!r} is above max_velocity={V!r}: a move cannot "
+                         f"end outside the velocity limit (lower |final_velocity| or raise max_velocity)")
+    sine = kind == "sine_jerk_optimal"
+    Jm = _TWO_OVER_PI * J if sine else J         # the mean jerk of a half-sine pulse of peak J
+    with np.errstate(all="ignore"):
+        tu = A / Jm
+        vu = A * tu
+        pu = vu * tu
+        args = (distance / pu, v0 / vu, a0 / A, vf / vu, V / vu)
+    if not (all(math.isfinite(x) for x in args + (tu, vu, pu)) and tu > 0.0 and vu > 0.0 and pu > 0.0):
+        raise ValueError(f"{func}: no finite plan for distance={distance!r}, max_jerk={J!r}, "
+                         f"max_accel={A!r}, max_velocity={V!r}, initial_velocity={v0!r}, "
+                         f"initial_accel={a0!r}, final_velocity={vf!r}: the limits are too far apart "
+                         f"in scale (the normalized values overflow); scale the units")
+    res = (_SOLVE or _solver())(*args, _onedof.KAPPA_SINE if sine else 0.0)
+    n = int(res[0])
+    if n <= 0:
+        raise ValueError(f"{func}: no valid profile found for distance={distance!r}, max_jerk={J!r}, "
+                         f"max_accel={A!r}, max_velocity={V!r}, initial_velocity={v0!r}, "
+                         f"initial_accel={a0!r}, final_velocity={vf!r} (outside the solver's numeric "
+                         f"range); scale the units")
+    seg = res[1:2 * n + 1]
+    jerk = seg[0::2] * J
+    times = seg[1::2] * tu
+    return AnyStateProfile(kind, distance, (J, A, V), v0, a0, vf, jerk, times, int(res[-1]))
 
 
 # ---------------------------------------------------------------------------------------------
