@@ -444,10 +444,13 @@ def solve(d, v0, a0, vf, V, k):
     ``k`` is 0 for the linear-jerk S-curve and :data:`KAPPA_SINE` for half-sine pulses.  Returns a
     list of floats ``[n, j_1, t_1, ..., j_n, t_n]``: the jerk (in units of J, the mean jerk of the
     pulse for the sine family) and duration of every segment, brake included; ``n = -1`` if no
-    valid profile was found; the last entry is the number of brake segments (a numpy array
-    of length ``2 * _MAX_SEG + 2``).
+    valid profile was found; then the total duration and, last, the number of brake segments
+    (a numpy array of length ``2 * _MAX_SEG + 3``).
     """
-    res = np.zeros(2 * _MAX_SEG + 2)
+    # one allocation: the result, then the scratch arrays (views of the same buffer)
+    nres = 2 * _MAX_SEG + 3
+    buf = np.zeros(nres + 7 + 36 + 16)
+    res = buf[:nres]
     # braking pre-trajectory (jerk segments then a constant-acceleration segment)
     bj, bt, bj2, bt2 = _brake(v0, a0, V)
     p = 0.0
@@ -471,12 +474,12 @@ def solve(d, v0, a0, vf, V, k):
         a = 1.0
     if bt > 0.0 and a < -1.0:
         a = -1.0
-    best = np.empty(7)
+    best = buf[nres:nres + 7]
     best[0] = math.inf
     best[6] = 0.0
-    D = np.empty((6, 6))
-    crit = np.empty(8)
-    rts = np.empty(8)
+    D = buf[nres + 7:nres + 43].reshape((6, 6))
+    crit = buf[nres + 43:nres + 51]
+    rts = buf[nres + 51:nres + 59]
     dd = d - p
     _candidates(dd, v, a, vf, V, k, 1.0, best, D, crit, rts)
     _candidates(-dd, -v, -a, -vf, V, k, -1.0, best, D, crit, rts)
@@ -502,6 +505,10 @@ def solve(d, v0, a0, vf, V, k):
         _append(res, -s, P + N)
     _append(res, 0.0, t5)
     _append(res, s, N)
+    total = 0.0
+    for i in range(int(res[0])):
+        total += res[2 * i + 2]
+    res[-2] = total
     return res
 
 

@@ -786,28 +786,44 @@ class AnyStateProfile(Profile):
     :meth:`synchronized` is for rest-to-rest moves only and raises ``NotImplementedError``.
     """
 
-    __slots__ = ("kind", "initial_velocity", "initial_accel", "final_velocity", "_jerk", "_times",
-                 "_start", "_P", "_V", "_A", "_T", "_sine", "brake_time")
+    __slots__ = ("kind", "initial_velocity", "initial_accel", "final_velocity", "_res", "_tu", "_T",
+                 "_seg", "_sine")
 
     def __init__(self, kind, distance, limits, initial_velocity, initial_accel, final_velocity,
-                 jerk, times, brake_segments=0):
+                 res, time_unit):
         self.kind = kind
         self.distance = distance
         self._limits = limits
         self.initial_velocity = initial_velocity
         self.initial_accel = initial_accel
         self.final_velocity = final_velocity
-        self._jerk = np.asarray(jerk, dtype=float)
-        self._times = np.asarray(times, dtype=float)
+        self._res = res                 # jerklab._onedof.solve's result (normalized units)
+        self._tu = time_unit
+        self._T = float(res[-2]) * time_unit
         self._sine = _SHAPE[kind] == _SINE
-        self._start = np.concatenate(([0.0], np.cumsum(self._times)))
-        self._T = float(self._start[-1])
-        self._P, self._V, self._A = _segment_states(0.0, initial_velocity, initial_accel,
-                                                    self._jerk, self._times, self._sine)
-        self.brake_time = float(np.sum(self._times[:brake_segments]))
-        # the zero-size fields of Profile (not used by this class)
+        self._seg = None
+        # the fields of the symmetric Profile (not used by this class)
         self._tj = self._ta = self._tv = 0.0
         self._jpar = limits[0]
+
+    def _segments(self):
+        """(jerk, times, start times, start positions, velocities, accelerations), built once."""
+        if self._seg is None:
+            res = self._res
+            n = int(res[0])
+            jerk = res[1:2 * n + 1:2] * self._limits[0]
+            times = res[2:2 * n + 2:2] * self._tu
+            start = np.concatenate(([0.0], np.cumsum(times)))
+            P, V, A = _segment_states(0.0, self.initial_velocity, self.initial_accel, jerk, times,
+                                      self._sine)
+            self._seg = (jerk, times, start, P, V, A)
+        return self._seg
+
+    @property
+    def brake_time(self) -> float:
+        """Length of the braking pre-trajectory (s), 0 when the start is inside the limits."""
+        nb = int(self._res[-1])
+        return float(np.sum(self._res[2:2 * nb + 2:2])) * self._tu
 
     @property
     def duration(self) -> float:
@@ -816,31 +832,33 @@ class AnyStateProfile(Profile):
 
     @property
     def phase_times(self) -> tuple:
-        return tuple(float(t) for t in self._times)
+        return tuple(float(t) for t in self._segments()[1])
 
     @property
     def segment_jerk(self) -> tuple:
-        return tuple(float(j) for j in self._jerk)
+        """Jerk of each segment (its peak for a half-sine pulse), as ``phase_times``."""
+        return tuple(float(j) for j in self._segments()[0])
 
     @property
     def peak_jerk(self) -> float:
-        return float(np.max(np.abs(self._jerk))) if self._jerk.size else 0.0
+        jerk = self._segments()[0]
+        return float(np.max(np.abs(jerk))) if jerk.size else 0.0
 
     @property
     def peak_accel(self) -> float:
-        return float(np.max(np.abs(self._A)))
+        return float(np.max(np.abs(self._segments()[5])))
 
     @property
     def peak_velocity(self) -> float:
-        v = np.abs(self._V)
-        peak = float(v.max())
+        jerk, _, _, _, V, A = self._segments()
+        peak = float(np.abs(V).max())
         # a constant-jerk segment whose acceleration changes sign has a velocity extremum inside
         # (half-sine pulses never change its sign: the solver splits them at a = 0)
-        a0, a1, j = self._A[:-1], self._A[1:], self._jerk
+        a0, a1, j = A[:-1], A[1:], jerk
         cross = (a0 * a1 < 0.0) & (j != 0.0)
         if cross.any():
             scale = _TWO_OVER_PI if self._sine else 1.0
-            vx = self._V[:-1][cross] - 0.5 * a0[cross] ** 2 / (scale * j[cross])
+            vx = V[:-1][cross] - 0.5 * a0[cross] ** 2 / (scale * j[cross])
             peak = max(peak, float(np.max(np.abs(vx))))
         return peak
 
@@ -854,13 +872,14 @@ class AnyStateProfile(Profile):
             the final state moved on at ``final_velocity``.
         """
         t = as_finite_array("t", t)
-        n = self._times.size
-        i = np.clip(np.searchsorted(self._start, t, side="right") - 1, 0, max(n - 1, 0))
-        r = np.clip(t - self._start[i], 0.0, None)
+        jerk, times, start, P, V, A = self._segments()
+        n = times.size
+        i = np.clip(np.searchsorted(start, t, side="right") - 1, 0, max(n - 1, 0))
+        r = np.clip(t - start[i], 0.0, None)
         if n:
-            r = np.minimum(r, self._times[i])
-            j = self._jerk[i]
-            p0, v0, a0 = self._P[i], self._V[i], self._A[i]
+            r = np.minimum(r, times[i])
+            j = jerk[i]
+            p0, v0, a0 = P[i], V[i], A[i]
             jk = j.copy()
             acc = a0 + j * r
             vel = v0 + r * (a0 + 0.5 * j * r)
@@ -868,7 +887,7 @@ class AnyStateProfile(Profile):
             if self._sine:
                 pulse = j != 0.0
                 if pulse.any():
-                    tau = self._times[i][pulse]
+                    tau = times[i][pulse]
                     w = _PI / tau
                     jp = j[pulse]
                     c = jp / w
@@ -896,7 +915,7 @@ class AnyStateProfile(Profile):
         vf = self.final_velocity
         jk = np.where(before | after, 0.0, jk)
         if n:                       # right-continuous jerk at 0 for constant-jerk segments
-            j0 = 0.0 if self._sine else float(self._jerk[0])
+            j0 = 0.0 if self._sine else float(jerk[0])
             jk = np.where(t == 0.0, j0 if T > 0.0 else 0.0, jk)
         acc = np.where(before, self.initial_accel, np.where(after, 0.0, acc))
         vel = np.where(before, self.initial_velocity, np.where(after, vf, vel))
@@ -955,40 +974,42 @@ def _solver():
 
 def _plan_any_state(kind, distance, max_jerk, max_accel, max_velocity, v0, a0, vf):
     """:func:`plan_scurve` / :func:`plan_sine_jerk_optimal` from a moving start (jerklab._onedof)."""
-    func = "plan_" + kind
-    distance, J, A, V = _check_limits(distance, max_jerk, max_accel, max_velocity)
-    v0 = as_real("initial_velocity", v0)
-    a0 = as_real("initial_accel", a0)
-    vf = as_real("final_velocity", vf)
-    if v0 == 0.0 and a0 == 0.0 and vf == 0.0:
-        plan = plan_scurve if kind == "scurve" else plan_sine_jerk_optimal
-        return plan(distance, J, A, V)
-    if abs(vf) > V:
-        raise ValueError(f"{func}: final_velocity={vf!r} is above max_velocity={V!r}: a move cannot "
-                         f"end outside the velocity limit (lower |final_velocity| or raise max_velocity)")
+    J, A, V = max_jerk, max_accel, max_velocity
+    if not (type(distance) is float is type(J) is type(A) is type(V) is type(v0) is type(a0) is type(vf)
+            and J > 0.0 and A > 0.0 and V > 0.0 and (distance + J + A + V + v0 + a0 + vf) * 0.0 == 0.0):
+        distance, J, A, V = _check_limits(distance, J, A, V)
+        v0 = as_real("initial_velocity", v0)
+        a0 = as_real("initial_accel", a0)
+        vf = as_real("final_velocity", vf)
+        if v0 == 0.0 and a0 == 0.0 and vf == 0.0:
+            plan = plan_scurve if kind == "scurve" else plan_sine_jerk_optimal
+            return plan(distance, J, A, V)
+    if vf > V or -vf > V:
+        raise ValueError(f"plan_{kind}: final_velocity={vf!r} is above max_velocity={V!r}: a move "
+                         f"cannot end outside the velocity limit (lower |final_velocity| or raise "
+                         f"max_velocity)")
     sine = kind == "sine_jerk_optimal"
     Jm = _TWO_OVER_PI * J if sine else J         # the mean jerk of a half-sine pulse of peak J
-    with np.errstate(all="ignore"):
-        tu = A / Jm
+    try:
+        tu = A / Jm                             # normalized units: J = A = 1
         vu = A * tu
         pu = vu * tu
         args = (distance / pu, v0 / vu, a0 / A, vf / vu, V / vu)
-    if not (all(math.isfinite(x) for x in args + (tu, vu, pu)) and tu > 0.0 and vu > 0.0 and pu > 0.0):
-        raise ValueError(f"{func}: no finite plan for distance={distance!r}, max_jerk={J!r}, "
+        ok = (sum(args) + tu + vu + pu) * 0.0 == 0.0 and pu > 0.0
+    except (ZeroDivisionError, OverflowError):
+        ok = False
+    if not ok:
+        raise ValueError(f"plan_{kind}: no finite plan for distance={distance!r}, max_jerk={J!r}, "
                          f"max_accel={A!r}, max_velocity={V!r}, initial_velocity={v0!r}, "
                          f"initial_accel={a0!r}, final_velocity={vf!r}: the limits are too far apart "
                          f"in scale (the normalized values overflow); scale the units")
     res = (_SOLVE or _solver())(*args, _onedof.KAPPA_SINE if sine else 0.0)
-    n = int(res[0])
-    if n <= 0:
-        raise ValueError(f"{func}: no valid profile found for distance={distance!r}, max_jerk={J!r}, "
+    if res[0] <= 0.0:
+        raise ValueError(f"plan_{kind}: no valid profile found for distance={distance!r}, max_jerk={J!r}, "
                          f"max_accel={A!r}, max_velocity={V!r}, initial_velocity={v0!r}, "
                          f"initial_accel={a0!r}, final_velocity={vf!r} (outside the solver's numeric "
                          f"range); scale the units")
-    seg = res[1:2 * n + 1]
-    jerk = seg[0::2] * J
-    times = seg[1::2] * tu
-    return AnyStateProfile(kind, distance, (J, A, V), v0, a0, vf, jerk, times, int(res[-1]))
+    return AnyStateProfile(kind, distance, (J, A, V), v0, a0, vf, res, tu)
 
 
 # ---------------------------------------------------------------------------------------------
