@@ -260,13 +260,18 @@ def _end_pos(P, N, t1, t5, tc, a0, v0, k):
 
 
 @_jit
+def _near(p, d, T, v0, V):
+    """End position ``p`` is ``d`` to 1e-9 of the path's scale (a candidate root, not a spurious one)."""
+    return abs(p - d) <= 1e-9 * (abs(d) + (abs(v0) + V) * T + 1.0)
+
+
+@_jit
 def _candidates(d, v0, a0, vf, V, k, s, best, D, crit, rts):
     """Valid sigma = +1 candidates; the shortest so far is kept in ``best`` = (T, P, N, t1, t5, tc, s).
 
     ``D``, ``crit``, ``rts``: scratch arrays of :func:`_real_roots`.
     """
     H = vf - v0 + 0.5 * a0 * a0
-    dtol = 1e-9 * (abs(d) + abs(v0) + abs(vf) + 1.0)
     # --- cruise at +V (VEL, ACC0_VEL, ACC1_VEL, ACC0_ACC1_VEL) ---
     pn2 = V - v0 + 0.5 * a0 * a0
     nn2 = V - vf
@@ -298,11 +303,11 @@ def _candidates(d, v0, a0, vf, V, k, s, best, D, crit, rts):
            + (12.0 + 18.0 * kA) * a2 - 18.0 * kA * a0 + 6.0 * a0 * v0 + 6.0 * d - 24.0 * v0 - 12.0) / 6.0
     disc = c1 * c1 - 4.0 * c0
     if disc >= 0.0:
-        sq = math.sqrt(disc)
-        for t5 in ((-c1 + sq) * 0.5, (-c1 - sq) * 0.5):
+        q = -0.5 * (c1 + math.copysign(math.sqrt(disc), c1))     # the roots q and c0/q, no cancellation
+        for t5 in (q, c0 / q if q != 0.0 else 0.0):
             t1 = t5 + H
             T = _check(1.0, 1.0, t1, t5, 0.0, a0, v0, V)
-            if T >= 0.0 and abs(_end_pos(1.0, 1.0, max(t1, 0.0), max(t5, 0.0), 0.0, a0, v0, k) - d) <= dtol:
+            if T >= 0.0 and _near(_end_pos(1.0, 1.0, max(t1, 0.0), max(t5, 0.0), 0.0, a0, v0, k), d, T, v0, V):
                 _keep(best, T, 1.0, 1.0, max(t1, 0.0), max(t5, 0.0), 0.0, s)
     # ACC0: P = 1, t1 = H - 1 + N^2, quartic in N on [0, 1]
     e0 = -(-3.0 * H * H + 3.0 * H * a2 - 6.0 * H * v0 - 3.0 * H - 6.0 * k * a3 - 2.0 * a3
@@ -312,7 +317,7 @@ def _candidates(d, v0, a0, vf, V, k, s, best, D, crit, rts):
         N = rts[r]
         t1 = H - 1.0 + N * N
         T = _check(1.0, N, t1, 0.0, 0.0, a0, v0, V)
-        if T >= 0.0 and abs(_end_pos(1.0, N, max(t1, 0.0), 0.0, 0.0, a0, v0, k) - d) <= dtol:
+        if T >= 0.0 and _near(_end_pos(1.0, N, max(t1, 0.0), 0.0, 0.0, a0, v0, k), d, T, v0, V):
             _keep(best, T, 1.0, N, max(t1, 0.0), 0.0, 0.0, s)
     # ACC1: N = 1, t5 = P^2 - 1 - H, quartic in P; branch C on [a0, 0), A/B on [max(a0, 0), 1]
     e0 = -(3.0 * H * H - 3.0 * H * a2 + 6.0 * H * v0 - 3.0 * H - 6.0 * k * a3 - 2.0 * a3 + 3.0 * a2
@@ -324,7 +329,7 @@ def _candidates(d, v0, a0, vf, V, k, s, best, D, crit, rts):
             P = rts[r]
             t5 = P * P - 1.0 - H
             T = _check(P, 1.0, 0.0, t5, 0.0, a0, v0, V)
-            if T >= 0.0 and abs(_end_pos(P, 1.0, 0.0, max(t5, 0.0), 0.0, a0, v0, k) - d) <= dtol:
+            if T >= 0.0 and _near(_end_pos(P, 1.0, 0.0, max(t5, 0.0), 0.0, a0, v0, k), d, T, v0, V):
                 _keep(best, T, P, 1.0, 0.0, max(t5, 0.0), 0.0, s)
     if a0 < 0.0:
         _set(D, 0.0, 0.5, 1.0, 0.5 * (-a2 + 6.0 * k * a0 + 6.0 * k + 2.0 * v0 + 1.0),
@@ -335,7 +340,7 @@ def _candidates(d, v0, a0, vf, V, k, s, best, D, crit, rts):
                 continue
             t5 = P * P - 1.0 - H
             T = _check(P, 1.0, 0.0, t5, 0.0, a0, v0, V)
-            if T >= 0.0 and abs(_end_pos(P, 1.0, 0.0, max(t5, 0.0), 0.0, a0, v0, k) - d) <= dtol:
+            if T >= 0.0 and _near(_end_pos(P, 1.0, 0.0, max(t5, 0.0), 0.0, a0, v0, k), d, T, v0, V):
                 _keep(best, T, P, 1.0, 0.0, max(t5, 0.0), 0.0, s)
     # NONE: u = P + N, P = (u^2 + H)/(2u), N = (u^2 - H)/(2u); quintic in u on (0, 2]
     b2 = 12.0 * H - 18.0 * a2 * k - 12.0 * a2 + 24.0 * v0
@@ -370,7 +375,7 @@ def _candidates(d, v0, a0, vf, V, k, s, best, D, crit, rts):
             if (br == 0 and P < -_TOL) or (br == 1 and P > _TOL):
                 continue
             T = _check(P, N, 0.0, 0.0, 0.0, a0, v0, V)
-            if T >= 0.0 and abs(_end_pos(P, N, 0.0, 0.0, 0.0, a0, v0, k) - d) <= dtol:
+            if T >= 0.0 and _near(_end_pos(P, N, 0.0, 0.0, 0.0, a0, v0, k), d, T, v0, V):
                 _keep(best, T, P, N, 0.0, 0.0, 0.0, s)
 
 
@@ -499,9 +504,10 @@ def solve(d, v0, a0, vf, V, k):
         _append(res, -s, P)
         _append(res, 0.0, tc)
         _append(res, -s, N)
-    else:
+    else:                               # no a = 0 in the middle ramp (a cruise only when P = 0)
         _append(res, s, P - a0s)
         _append(res, 0.0, t1)
+        _append(res, 0.0, tc)
         _append(res, -s, P + N)
     _append(res, 0.0, t5)
     _append(res, s, N)

@@ -733,13 +733,15 @@ def plan_trapezoid(distance, max_accel, max_velocity) -> "TrapezoidProfile":
 # ---------------------------------------------------------------------------------------------
 # any start state (initial velocity and acceleration, final velocity)
 # ---------------------------------------------------------------------------------------------
-def _segment_states(p, v, a, jerk, times, sine):
+def _segment_states(p, v, a, jerk, times, sine, ascale):
     """Start states of the segments and the end state (exact integrals: Stojčić eq. 2 for pulses).
 
     A constant-jerk segment ``(j, tau)`` adds ``tau (v + tau (a/2 + j tau/6))`` to the position;
     a half-sine pulse of peak ``j`` and length ``tau`` changes ``a`` and ``v`` as the constant jerk
     ``2 j / pi`` does and the position by ``tau^2 (j tau)(2/pi)(1/4 - 1/pi^2)`` instead of
-    ``(2 j tau/pi) tau^2 / 6`` (docs/THEORY.md, "Any start state").
+    ``(2 j tau/pi) tau^2 / 6`` (docs/THEORY.md, "Any start state").  An acceleration within
+    ``1e-12 ascale`` of 0 after a ramp is 0 (the ramps end there; a long cruise would otherwise
+    integrate the round-off into the velocity).
     """
     n = len(times)
     P = np.empty(n + 1)
@@ -757,6 +759,8 @@ def _segment_states(p, v, a, jerk, times, sine):
             p = p + t * (v + t * (0.5 * a + t * j / 6.0))
             v = v + t * (a + 0.5 * j * t)
             a = a + j * t
+        if j != 0.0 and abs(a) <= 1e-12 * ascale:
+            a = 0.0
         P[i + 1], Vv[i + 1], Aa[i + 1] = p, v, a
     return P, Vv, Aa
 
@@ -815,7 +819,7 @@ class AnyStateProfile(Profile):
             times = res[2:2 * n + 2:2] * self._tu
             start = np.concatenate(([0.0], np.cumsum(times)))
             P, V, A = _segment_states(0.0, self.initial_velocity, self.initial_accel, jerk, times,
-                                      self._sine)
+                                      self._sine, max(self._limits[1], abs(self.initial_accel)))
             self._seg = (jerk, times, start, P, V, A)
         return self._seg
 
