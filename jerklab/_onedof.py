@@ -511,10 +511,28 @@ def solve(d, v0, a0, vf, V, k):
         _append(res, -s, P + N)
     _append(res, 0.0, t5)
     _append(res, s, N)
+    # the whole profile integrated once more: a result the round-off has spoilt (limits far apart
+    # in scale) is refused rather than returned
     total = 0.0
+    p = 0.0
+    v = v0
+    a = a0
+    pvar = 0.0
+    vvar = 0.0
     for i in range(int(res[0])):
-        total += res[2 * i + 2]
+        j = res[2 * i + 1]
+        t = res[2 * i + 2]
+        total += t
+        p2, v2, a2 = _advance(p, v, a, j, t, k)
+        if j != 0.0 and abs(a2) <= 1e-12 * (1.0 + abs(a0)):
+            a2 = 0.0                    # a ramp that ends at a = 0 (as planner._segment_states)
+        pvar += abs(p2 - p)
+        vvar += abs(v2 - v)
+        p, v, a = p2, v2, a2
     res[-2] = total
+    if not (abs(p - d) <= 1e-8 * (abs(d) + pvar) + 1e-300 and abs(v - vf) <= 1e-8 * (V + vvar)
+            and abs(a) <= 1e-8 * (1.0 + abs(a0))):
+        res[0] = -1.0
     return res
 
 

@@ -743,13 +743,10 @@ def _segment_states(p, v, a, jerk, times, sine, ascale):
     ``1e-12 ascale`` of 0 after a ramp is 0 (the ramps end there; a long cruise would otherwise
     integrate the round-off into the velocity).
     """
-    n = len(times)
-    P = np.empty(n + 1)
-    Vv = np.empty(n + 1)
-    Aa = np.empty(n + 1)
-    P[0], Vv[0], Aa[0] = p, v, a
-    for i in range(n):
-        j, t = jerk[i], times[i]
+    P = [p]
+    Vv = [v]
+    Aa = [a]
+    for j, t in zip(jerk.tolist(), times.tolist()):
         if sine and j != 0.0:
             da = _TWO_OVER_PI * j * t
             p = p + t * (v + 0.5 * a * t) + da * t * t * (0.25 - 1.0 / (_PI * _PI))
@@ -761,8 +758,10 @@ def _segment_states(p, v, a, jerk, times, sine, ascale):
             a = a + j * t
         if j != 0.0 and abs(a) <= 1e-12 * ascale:
             a = 0.0
-        P[i + 1], Vv[i + 1], Aa[i + 1] = p, v, a
-    return P, Vv, Aa
+        P.append(p)
+        Vv.append(v)
+        Aa.append(a)
+    return np.array(P), np.array(Vv), np.array(Aa)
 
 
 class AnyStateProfile(Profile):
@@ -836,12 +835,16 @@ class AnyStateProfile(Profile):
 
     @property
     def phase_times(self) -> tuple:
-        return tuple(float(t) for t in self._segments()[1])
+        res = self._res
+        tu = self._tu
+        return tuple([x * tu for x in res[2:2 * int(res[0]) + 2:2].tolist()])
 
     @property
     def segment_jerk(self) -> tuple:
         """Jerk of each segment (its peak for a half-sine pulse), as ``phase_times``."""
-        return tuple(float(j) for j in self._segments()[0])
+        res = self._res
+        J = self._limits[0]
+        return tuple([x * J for x in res[1:2 * int(res[0]) + 1:2].tolist()])
 
     @property
     def peak_jerk(self) -> float:
@@ -875,7 +878,8 @@ class AnyStateProfile(Profile):
             Times (s).  ``t <= 0`` gives the initial state (jerk 0 before 0), ``t >= duration``
             the final state moved on at ``final_velocity``.
         """
-        t = as_finite_array("t", t)
+        t_in = as_finite_array("t", t)
+        t = t_in.reshape(-1)
         jerk, times, start, P, V, A = self._segments()
         n = times.size
         i = np.clip(np.searchsorted(start, t, side="right") - 1, 0, max(n - 1, 0))
@@ -889,7 +893,7 @@ class AnyStateProfile(Profile):
             vel = v0 + r * (a0 + 0.5 * j * r)
             pos = p0 + r * (v0 + r * (0.5 * a0 + r * j / 6.0))
             if self._sine:
-                pulse = j != 0.0
+                pulse = (j != 0.0) & (times[i] > 1e-300)    # (a denormal pulse is a ramp)
                 if pulse.any():
                     tau = times[i][pulse]
                     w = _PI / tau
@@ -924,7 +928,9 @@ class AnyStateProfile(Profile):
         acc = np.where(before, self.initial_accel, np.where(after, 0.0, acc))
         vel = np.where(before, self.initial_velocity, np.where(after, vf, vel))
         pos = np.where(before, 0.0, np.where(after, self.distance + vf * (t - T), pos))
-        return ProfileSample(np.array(t, dtype=float, copy=True), jk, acc, vel, pos)
+        shape = t_in.shape
+        return ProfileSample(t_in.copy(), jk.reshape(shape), acc.reshape(shape), vel.reshape(shape),
+                             pos.reshape(shape))
 
     def synchronized(self, Ts):
         """Not available from a moving start (the phase times cannot be rounded independently
@@ -993,6 +999,10 @@ def _plan_any_state(kind, distance, max_jerk, max_accel, max_velocity, v0, a0, v
                          f"cannot end outside the velocity limit (lower |final_velocity| or raise "
                          f"max_velocity)")
     sine = kind == "sine_jerk_optimal"
+    if distance == 0.0 and a0 == 0.0 and v0 == vf and -V <= v0 <= V:
+        # already on target (Ruckig plans a loop out and back here; the empty move is optimal)
+        res = np.zeros(2 * _onedof._MAX_SEG + 3)
+        return AnyStateProfile(kind, distance, (J, A, V), v0, a0, vf, res, 1.0)
     Jm = _TWO_OVER_PI * J if sine else J         # the mean jerk of a half-sine pulse of peak J
     try:
         tu = A / Jm                             # normalized units: J = A = 1

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
-from scipy.integrate import cumulative_trapezoid
+from scipy.integrate import cumulative_trapezoid, fixed_quad
 
 from jerklab import _onedof
 from jerklab.planner import (AnyStateProfile, SCurveProfile, SineJerkOptimalProfile, plan_scurve,
@@ -98,6 +98,7 @@ def random_cases(n, seed, outside=0.25):
 
 
 N_GRID = 24
+MAX_SEG = 12
 
 
 def sample_times(p):
@@ -106,59 +107,130 @@ def sample_times(p):
     b = np.cumsum(p.phase_times)
     pt = np.asarray(p.phase_times)
     delta = 1e-7 * max(pt[pt > 0].min(), 1e-300)
-    return np.concatenate([np.linspace(0.0, T, N_GRID), b - delta, b, b + delta]), delta, b.size
+    return np.concatenate([np.linspace(0.0, T, N_GRID), b - delta, b, b + delta]), b.size
 
 
-def check_batch(kind, cases, ruckig_check):
-    """Plan every case, assert the invariants (vectorized), return the profiles."""
-    rows = []
-    nbad_rk = 0
-    for d, J, A, V, v0, a0, vf in cases:
-        p = plan(kind, d, J, A, V, v0, a0, vf)
-        assert isinstance(p, AnyStateProfile) and p.kind == kind
-        T = p.duration
-        # exact boundary states
-        s0 = p.sample(0.0)
-        assert (s0.position, s0.velocity, s0.accel) == (0.0, v0, a0)
-        sT = p.sample(T)
-        assert (sT.position, sT.velocity, sT.accel, sT.jerk) == (d, vf, 0.0, 0.0)
+def check_sampled(p, d, J, A, V, v0, a0, vf):
+    """Invariants of one profile through its closed form ``sample``."""
+    T = p.duration
+    s0 = p.sample(0.0)
+    assert (s0.position, s0.velocity, s0.accel) == (0.0, v0, a0)          # exactly the start
+    sT = p.sample(T)
+    assert (sT.position, sT.velocity, sT.accel, sT.jerk) == (d, vf, 0.0, 0.0)   # exactly the target
+    t, m = sample_times(p)
+    s = p.sample(t)
+    # limits: the jerk always; the acceleration after the brake (which ramps it to the limit);
+    # the velocity from the moment it is back inside after the brake (a start with
+    # v0 + a0|a0|/2J > V overshoots whatever the jerk does -- Ruckig's profile too)
+    after = t > p.brake_time
+    assert np.all(np.abs(s.jerk) <= J * (1 + RTOL))
+    assert np.all(np.abs(s.accel[after]) <= A * (1 + RTOL))
+    inside = after & (np.abs(s.velocity) <= V * (1 + RTOL))
+    if inside.any():
+        assert np.all(np.abs(s.velocity[t >= t[inside].min()]) <= V * (1 + RTOL))
+    if p.brake_time == 0.0:         # no brake: the start is inside, so every limit holds throughout
+        assert abs(a0) <= A * (1 + RTOL) and abs(v0) <= V * (1 + RTOL)
+        assert np.all(np.abs(s.velocity) <= V * (1 + RTOL))
+        assert np.all(np.abs(s.accel) <= A * (1 + RTOL))
+    # reported peaks bound the samples
+    assert np.all(np.abs(s.velocity) <= p.peak_velocity * (1 + 1e-12) + 1e-300)
+    assert np.all(np.abs(s.accel) <= p.peak_accel * (1 + 1e-12) + 1e-300)
+    # continuity of p, v, a across every boundary: the jump over the sampled offset is what the
+    # next derivative allows (the offset known to the resolution of t, a few ulp of the boundary)
+    g = N_GRID
+    left, mid, right = slice(g, g + m), slice(g + m, g + 2 * m), slice(g + 2 * m, g + 3 * m)
+    amax = max(A, abs(a0)) * 1.0000001
+    vmax = max(V, abs(v0), p.peak_velocity) * 1.0000001
+    for arr, lip, scale in ((s.accel, J, amax), (s.velocity, amax, vmax),
+                            (s.position, vmax, abs(d) + vmax * T)):
+        for side in (left, right):
+            dt = np.abs(t[side] - t[mid]) + 4.0 * np.spacing(np.abs(t[mid]))
+            assert np.all(np.abs(arr[side] - arr[mid]) <= lip * 1.01 * dt + 1e-9 * scale)
+
+
+def integrate_segments(kind, v0, a0, PT, JK):
+    """Boundary states (n, k+1) of padded segment arrays, integrated here (the half-sine pulse by
+    its lemma, which test_half_sine_pulse_lemma_by_quadrature checks by quadrature); also the
+    velocity at every zero of the acceleration inside a constant-jerk segment."""
+    n, k = PT.shape
+    P = np.zeros((n, k + 1))
+    Vb = np.zeros((n, k + 1))
+    Ab = np.zeros((n, k + 1))
+    Vb[:, 0], Ab[:, 0] = v0, a0
+    vext = np.zeros((n, k))
+    for i in range(k):
+        t, j, a, v = PT[:, i], JK[:, i], Ab[:, i], Vb[:, i]
+        if kind == "sine_jerk_optimal":
+            da = 2.0 / math.pi * j * t
+            P[:, i + 1] = P[:, i] + t * (v + 0.5 * a * t) + da * t * t * (0.25 - 1.0 / math.pi ** 2)
+            Vb[:, i + 1] = v + t * (a + 0.5 * da)
+            Ab[:, i + 1] = a + da
+            jm = 2.0 / math.pi * j
+        else:
+            P[:, i + 1] = P[:, i] + t * (v + t * (0.5 * a + t * j / 6.0))
+            Vb[:, i + 1] = v + t * (a + 0.5 * j * t)
+            Ab[:, i + 1] = a + j * t
+            jm = j
+        cross = (a * Ab[:, i + 1] < 0.0) & (jm != 0.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            vext[:, i] = np.where(cross, v - 0.5 * a * a / np.where(cross, jm, 1.0), v)
+    return P, Vb, Ab, vext
+
+
+def check_batch(kind, cases, ruckig_check, sample_every=25):
+    """Plan every case; Ruckig's duration; the segments integrated here must end on the target and
+    keep every limit (vectorized over the batch); every ``sample_every``-th profile is also checked
+    through ``sample`` (:func:`check_sampled`).  Returns the durations and the Ruckig refusals."""
+    n = len(cases)
+    T = np.empty(n)
+    R = np.full(n, np.nan)
+    BT = np.empty(n)
+    PT = np.zeros((n, MAX_SEG))
+    JK = np.zeros((n, MAX_SEG))
+    f = KINDS[kind]
+    for i, (d, J, A, V, v0, a0, vf) in enumerate(cases.tolist()):
+        p = f(d, J, A, V, initial_velocity=v0, initial_accel=a0, final_velocity=vf)
+        T[i] = p.duration
+        BT[i] = p.brake_time
+        pt = p.phase_times
+        PT[i, :len(pt)] = pt
+        JK[i, :len(pt)] = p.segment_jerk
         if ruckig_check:
             r = RK.duration(d, J, A, V, v0, a0, vf)
-            if r is None:
-                nbad_rk += 1
-            else:
-                assert T == pytest.approx(r, rel=RTOL, abs=1e-12), (d, J, A, V, v0, a0, vf)
-        t, delta, m = sample_times(p)
-        s = p.sample(t)
-        # limits: the jerk always; the acceleration after the brake (which ramps it to the limit);
-        # the velocity from the moment it is back inside after the brake (a start with
-        # v0 + a0|a0|/2J > V overshoots whatever the jerk does -- Ruckig's profile too)
-        after = t >= p.brake_time * (1 + 1e-12) + delta
-        assert np.all(np.abs(s.jerk) <= J * (1 + RTOL))
-        assert np.all(np.abs(s.accel[after]) <= A * (1 + RTOL))
-        inside = after & (np.abs(s.velocity) <= V * (1 + RTOL))
-        if inside.any():
-            assert np.all(np.abs(s.velocity[t >= t[inside].min()]) <= V * (1 + RTOL))
-        if p.brake_time == 0.0:         # no brake: the start is inside, so every limit holds throughout
-            assert abs(a0) <= A * (1 + RTOL) and abs(v0) <= V * (1 + RTOL)
-            assert np.all(np.abs(s.velocity) <= V * (1 + RTOL))
-            assert np.all(np.abs(s.accel) <= A * (1 + RTOL))
-        # reported peaks bound the samples
-        assert np.all(np.abs(s.velocity) <= p.peak_velocity * (1 + 1e-12) + 1e-300)
-        assert np.all(np.abs(s.accel) <= p.peak_accel * (1 + 1e-12) + 1e-300)
-        # continuity of p, v, a across every boundary: the jump over 2 delta is what the next
-        # derivative allows
-        g = N_GRID
-        left, mid, right = slice(g, g + m), slice(g + m, g + 2 * m), slice(g + 2 * m, g + 3 * m)
-        amax = max(A, abs(a0)) * 1.0000001
-        vmax = max(V, abs(v0), p.peak_velocity) * 1.0000001
-        for arr, lip, scale in ((s.accel, J, amax), (s.velocity, amax, vmax),
-                                (s.position, vmax, abs(d) + vmax * T)):
-            tol = lip * 2.2 * delta + 1e-9 * scale
-            assert np.all(np.abs(arr[left] - arr[mid]) <= tol)
-            assert np.all(np.abs(arr[right] - arr[mid]) <= tol)
-        rows.append(p)
-    return rows, nbad_rk
+            if r is not None:
+                R[i] = r
+        if i % sample_every == 0:
+            assert isinstance(p, AnyStateProfile) and p.kind == kind
+            check_sampled(p, d, J, A, V, v0, a0, vf)
+    d, J, A, V, v0, a0, vf = cases.T
+    # Ruckig's duration
+    if ruckig_check:
+        ok = ~np.isnan(R)
+        bad = ok & ~(np.abs(T - R) <= RTOL * R + 1e-12)
+        assert not bad.any(), cases[bad][:5]
+    # the segments: sum to the duration, jerk +-J or 0
+    assert np.all(PT >= 0.0)
+    np.testing.assert_allclose(PT.sum(axis=1), T, rtol=1e-12, atol=0)
+    assert np.all((JK == 0.0) | (np.abs(np.abs(JK) - J[:, None]) <= 1e-12 * J[:, None]))
+    # integrated here: the end state is the target
+    P, Vb, Ab, vext = integrate_segments(kind, v0, a0, PT, JK)
+    # (round-off scale: the total variation of each quantity along the move)
+    pvar, vvar, avar = (np.abs(np.diff(X, axis=1)).sum(axis=1) for X in (P, Vb, Ab))
+    np.testing.assert_array_less(np.abs(P[:, -1] - d), 1e-9 * (np.abs(d) + pvar) + 1e-300)
+    np.testing.assert_array_less(np.abs(Vb[:, -1] - vf), 1e-9 * (V + vvar) + 1e-300)
+    np.testing.assert_array_less(np.abs(Ab[:, -1]), 1e-9 * (A + avar) + 1e-300)
+    # limits: the acceleration after the brake; without a brake, everything everywhere
+    tb = np.concatenate([np.zeros((n, 1)), np.cumsum(PT, axis=1)], axis=1)
+    after = tb >= BT[:, None] * (1 - 1e-12)
+    assert np.all(np.abs(Ab)[after] <= np.broadcast_to(A[:, None], Ab.shape)[after] * (1 + RTOL))
+    # (the integration here adds its own round-off: an acceleration residue of a few ulp, integrated
+    # over a cruise of up to 1e5 s, moves the velocity by ~1e-15 A T)
+    nob = BT == 0.0
+    vtol = (V * (1 + RTOL) + 1e-12 * vvar + 1e-15 * np.abs(Ab).max(axis=1) * T)[nob, None]
+    assert np.all(np.abs(Vb[nob]) <= vtol)
+    assert np.all(np.abs(vext[nob]) <= vtol)
+    assert np.all(np.abs(Ab[nob]) <= A[nob, None] * (1 + RTOL))
+    return T, int(np.isnan(R).sum()) if ruckig_check else 0
 
 
 def test_scurve_batch_equals_ruckig_and_keeps_every_invariant():
@@ -167,22 +239,25 @@ def test_scurve_batch_equals_ruckig_and_keeps_every_invariant():
     for seed in range(7):
         _, bad = check_batch("scurve", random_cases(10_000, seed), ruckig_check=True)
         total_bad += bad
-    # Ruckig itself refuses a few of the wildest random cases; they are still checked above
-    assert total_bad <= 70, total_bad
+    # Ruckig itself refuses a few of the random cases (about 0.1 %); they are still checked above
+    assert total_bad <= 200, total_bad
 
 
 def test_sine_batch_keeps_every_invariant_and_equals_scurve_at_2J_over_pi_when_a0_is_0():
-    """40 000 random non-rest sine moves; with initial_accel = 0 the duration is the S-curve's at 2J/pi."""
+    """40 000 random non-rest sine moves; from a start inside the limits with initial_accel = 0 the
+    duration is the S-curve's at 2J/pi (docs/THEORY.md, "Any start state")."""
     for seed in range(100, 104):
         cases = random_cases(10_000, seed)
         cases[::2, 5] = 0.0                     # half of them start without acceleration
         rest = (cases[:, 4] == 0.0) & (cases[:, 5] == 0.0) & (cases[:, 6] == 0.0)
         cases[rest, 4] = 0.5 * cases[rest, 3]
-        profiles, _ = check_batch("sine_jerk_optimal", cases, ruckig_check=False)
-        for (d, J, A, V, v0, a0, vf), p in zip(cases[::2], profiles[::2]):
+        T, _ = check_batch("sine_jerk_optimal", cases, ruckig_check=False)
+        for (d, J, A, V, v0, a0, vf), Ti in zip(cases[::2].tolist(), T[::2]):
+            if abs(v0) > V:         # a brake first: its pulses end away from a = 0 (THEORY.md)
+                continue
             q = plan_scurve(d, 2.0 * J / math.pi, A, V, initial_velocity=v0, initial_accel=0.0,
                             final_velocity=vf)
-            assert p.duration == pytest.approx(q.duration, rel=1e-12, abs=1e-15)
+            assert Ti == pytest.approx(q.duration, rel=1e-12, abs=1e-15)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -193,37 +268,54 @@ UNIT = st.floats(-1.6, 1.6)
 
 
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(kind=st.sampled_from(sorted(KINDS)), ed=st.floats(-4.0, 2.0), sign=st.booleans(),
-       ej=st.floats(-1.0, 4.0), ea=st.floats(-1.0, 3.0), ev=st.floats(-1.0, 2.0),
+@given(kind=st.sampled_from(sorted(KINDS)), ed=st.floats(-5.0, 5.0), sign=st.booleans(),
+       ej=st.floats(0.0, 5.0), ea=st.floats(-1.0, 2.0), ev=st.floats(-3.0, 3.0),
        uv0=UNIT, ua0=UNIT, uvf=st.floats(-1.0, 1.0))
-@example(kind="scurve", ed=-4.0, sign=False, ej=4.0, ea=-1.0, ev=2.0, uv0=0.0, ua0=0.0, uvf=1.0)
-@example(kind="sine_jerk_optimal", ed=2.0, sign=True, ej=-1.0, ea=3.0, ev=-1.0, uv0=1.6, ua0=-1.6, uvf=-1.0)
+@example(kind="scurve", ed=-5.0, sign=False, ej=5.0, ea=-1.0, ev=3.0, uv0=0.0, ua0=0.0, uvf=1.0)
+@example(kind="sine_jerk_optimal", ed=5.0, sign=True, ej=0.0, ea=2.0, ev=-3.0, uv0=1.6, ua0=-1.6, uvf=-1.0)
+@example(kind="scurve", ed=5.0, sign=True, ej=0.0, ea=2.0, ev=-3.0, uv0=1.6, ua0=1.6, uvf=-1.0)
 def test_any_state_integrates_to_its_closed_form(kind, ed, sign, ej, ea, ev, uv0, ua0, uvf):
-    J, A, V = 10.0 ** ej, 10.0 ** ea, 10.0 ** ev
-    d = (-1.0 if sign else 1.0) * 10.0 ** ed
+    """Distance and velocity limit in the move's own units (A^3/J^2, A^2/J) over 10 and 6 decades."""
+    J, A = 10.0 ** ej, 10.0 ** ea
+    V = 10.0 ** ev * A * A / J
+    d = (-1.0 if sign else 1.0) * 10.0 ** ed * A ** 3 / J ** 2
     v0, a0, vf = uv0 * V, ua0 * A, uvf * V
     if v0 == 0.0 and a0 == 0.0 and vf == 0.0:
         v0 = 0.3 * V
     p = plan(kind, d, J, A, V, v0, a0, vf)
-    if kind == "scurve":
+    T = p.duration
+    if kind == "scurve" and V >= 1e-3 and abs(d) >= 1e-5:
+        # (Ruckig works with absolute tolerances of about 1e-8: smaller SI values are outside its range)
         r = RK.duration(d, J, A, V, v0, a0, vf)
         if r is not None:
-            assert p.duration == pytest.approx(r, rel=RTOL, abs=1e-12)
-    # the closed form's acceleration, velocity, position are the integrals of its jerk
+            pos, vel, _ = (x[0] for x in RK.traj.at_time(r))
+            if abs(pos - d) <= 1e-9 * (abs(d) + max(V, abs(v0)) * r) and abs(vel - vf) <= 1e-9 * V:
+                # (Ruckig's own end state is off target far outside its numeric range)
+                assert T == pytest.approx(r, rel=RTOL, abs=1e-12)
+    # each segment: the closed form's changes of a, v, p are the integrals of its j, a, v
+    # (Gauss-Legendre, 24 interior points: exact for the polynomials, 1e-15 for the sine pulses)
     b = np.concatenate([[0.0], np.cumsum(p.phase_times)])
-    t = np.unique(np.concatenate([np.linspace(b[i], b[i + 1], 400) for i in range(len(b) - 1)]))
-    s = p.sample(t)
-    for deriv, arr, init, scale in ((s.jerk, s.accel, a0, max(A, abs(a0))),
-                                    (s.accel, s.velocity, v0, max(V, abs(v0))),
-                                    (s.velocity, s.position, 0.0, abs(d) + max(V, abs(v0)) * p.duration)):
-        integral = init + cumulative_trapezoid(deriv, t, initial=0.0)
-        # trapezoid error <= h^2/12 * T * max|second derivative|, h = segment / 399
-        h = max(np.diff(b).max() / 399.0, 1e-300)
-        assert np.max(np.abs(integral - arr)) <= 2e-4 * scale + 10 * h * h * J * p.duration * 10, kind
-    # the end state is the target to round-off
-    end = p.sample(np.nextafter(p.duration, 0.0))
-    assert end.position == pytest.approx(d, rel=1e-9, abs=1e-9 * (abs(d) + V * p.duration))
-    assert end.velocity == pytest.approx(vf, rel=1e-9, abs=1e-9 * V)
+    assert b[-1] == pytest.approx(T, rel=1e-14)
+    b[-1] = T
+    s = p.sample(b)
+    assert (s.position[0], s.velocity[0], s.accel[0]) == (0.0, v0, a0)
+    assert (s.position[-1], s.velocity[-1], s.accel[-1]) == (d, vf, 0.0)
+    ascale = max(A, abs(a0))
+    vscale = max(V, abs(v0), p.peak_velocity)
+    pscale = abs(d) + vscale * T
+    ends = [p.sample(np.nextafter(b[1:], 0.0))]      # left limits at the ends of the segments
+    for i in range(len(b) - 1):
+        lo, hi = b[i], b[i + 1]
+        da = fixed_quad(lambda x: p.sample(x).jerk, lo, hi, n=24)[0]
+        dv = fixed_quad(lambda x: p.sample(x).accel, lo, hi, n=24)[0]
+        dp = fixed_quad(lambda x: p.sample(x).velocity, lo, hi, n=24)[0]
+        # (times are known to a few ulp of T: the next derivative times that is added)
+        res_t = 8.0 * np.spacing(T)
+        for delta, arr, scale, lip in ((da, "accel", ascale, J), (dv, "velocity", vscale, ascale),
+                                       (dp, "position", pscale, vscale)):
+            start = getattr(s, arr)[i]
+            end = getattr(ends[0], arr)[i]
+            assert abs(start + delta - end) <= 1e-9 * scale + 24 * lip * res_t, (kind, i, arr)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -248,7 +340,7 @@ EDGES = {
     "end at the velocity limit": (3.0, 50.0, 5.0, 2.0, 0.0, 0.0, 2.0),
     "end at minus the velocity limit": (3.0, 50.0, 5.0, 2.0, 0.0, 0.0, -2.0),
     "zero distance, moving": (0.0, 50.0, 5.0, 2.0, 1.0, -1.0, 0.0),
-    "zero distance, through": (0.0, 50.0, 5.0, 2.0, 1.0, 0.0, 1.0),
+    "zero distance, through": (0.0, 50.0, 5.0, 2.0, 1.0, -1.0, 1.0),
     "already there at speed": (0.0, 50.0, 5.0, 2.0, 0.0, 0.0, 0.0001),
 }
 
@@ -257,9 +349,9 @@ EDGES = {
 @pytest.mark.parametrize("name", sorted(EDGES))
 def test_edges(kind, name):
     d, J, A, V, v0, a0, vf = EDGES[name]
-    cases = np.array([EDGES[name]])
-    check_batch(kind, cases, ruckig_check=kind == "scurve")
+    check_batch(kind, np.array([EDGES[name]]), ruckig_check=kind == "scurve")
     p = plan(kind, d, J, A, V, v0, a0, vf)
+    check_sampled(p, d, J, A, V, v0, a0, vf)
     if kind == "scurve":
         r = RK.duration(d, J, A, V, v0, a0, vf)
         assert r is not None
@@ -274,13 +366,27 @@ def test_edges(kind, name):
             assert s.accel == pytest.approx(acc, rel=1e-6, abs=1e-6 * max(A, abs(a0)))
 
 
+@pytest.mark.parametrize("kind", sorted(KINDS))
+def test_already_on_target_is_an_empty_move(kind):
+    """Start state = target state (distance 0, a0 = 0, v0 = vf): duration 0.  (Ruckig returns a
+    loop out and back here, 1 s for these limits: the one place where the durations differ.)"""
+    p = plan(kind, 0.0, 50.0, 5.0, 2.0, 1.0, 0.0, 1.0)
+    assert p.duration == 0.0 and p.phase_times == ()
+    s = p.sample([0.0, 0.5])
+    assert list(s.position) == [0.0, 0.5] and list(s.velocity) == [1.0, 1.0] and list(s.accel) == [0.0, 0.0]
+    assert RK.duration(0.0, 50.0, 5.0, 2.0, 1.0, 0.0, 1.0) > 0.0
+
+
 def test_start_above_the_limits_brakes_first_as_ruckig():
     p = plan_scurve(5.0, 100.0, 10.0, 1.0, initial_velocity=1.5, initial_accel=15.0)
     assert p.brake_time > 0.0
-    # the brake ramps the acceleration down at full jerk
+    # Ruckig's brake, as long
+    traj = RK.trajectory(5.0, 100.0, 10.0, 1.0, 1.5, 15.0, 0.0)
+    assert p.brake_time == pytest.approx(traj.profiles[0][0].brake.duration, rel=1e-9)
+    # the brake ramps the acceleration down at full jerk (then holds -A)
     assert p.segment_jerk[0] == -100.0
     s = p.sample(np.linspace(0.0, p.brake_time, 50))
-    assert np.all(np.diff(s.accel) < 0.0)
+    assert np.all(np.diff(s.accel) <= 1e-12) and s.accel[-1] < s.accel[0]
     # inside the limits from there on
     s = p.sample(np.linspace(p.brake_time, p.duration, 500))
     assert np.all(np.abs(s.accel) <= 10.0 * (1 + RTOL)) and np.all(np.abs(s.velocity) <= 1.0 * (1 + RTOL))
@@ -395,13 +501,9 @@ def _integrate(J, Tm, v0, a0, k):
     return p, vmax
 
 
-def _scan_sigma(d, v0, a0, vf, V, k, n):
-    lo = max(a0, -1.0)
-    if lo > 1.0:
-        return math.inf
-    t1max = 4.0 * (abs(vf) + abs(v0) + V + 1.0)
-    P = np.concatenate([np.linspace(lo, 1.0, n), np.ones(n - 1)])
-    t1 = np.concatenate([np.zeros(n), np.linspace(0.0, t1max, n)[1:]])
+def _scan_eval(P, t1, d, v0, a0, vf, V, k):
+    """End position error, duration and validity of the family members with first peak P and
+    plateau t1 (N and t5 from the velocity equation), integrated pulse by pulse."""
     rhs = P * P - 0.5 * a0 * a0 + P * t1 - (vf - v0)
     ok = rhs >= 0.0
     rhs = np.maximum(rhs, 0.0)
@@ -417,12 +519,36 @@ def _scan_sigma(d, v0, a0, vf, V, k, n):
     Tm = np.maximum(Tm, 0.0)
     p, vmax = _integrate(J, Tm, v0, a0, k)
     ok &= vmax <= V * (1 + 1e-9) + 1e-12
-    T = Tm.sum(axis=1)
-    f = p - d
+    return p - d, Tm.sum(axis=1), ok
+
+
+def _scan_sigma(d, v0, a0, vf, V, k, n):
+    lo = max(a0, -1.0)
+    if lo > 1.0:
+        return math.inf
+    t1max = 4.0 * (abs(vf) + abs(v0) + V + 1.0)
+    P = np.concatenate([np.linspace(lo, 1.0, n), np.ones(n - 1)])
+    t1 = np.concatenate([np.zeros(n), np.linspace(0.0, t1max, n)[1:]])
+    f, T, ok = _scan_eval(P, t1, d, v0, a0, vf, V, k)
     best = math.inf
-    for i in np.nonzero(ok[:-1] & ok[1:] & (np.sign(f[:-1]) != np.sign(f[1:])))[0]:
-        w = f[i] / (f[i] - f[i + 1])
-        best = min(best, T[i] + w * (T[i + 1] - T[i]))
+    i = np.nonzero(ok[:-1] & ok[1:] & (np.sign(f[:-1]) != np.sign(f[1:])))[0]
+    if i.size:
+        # each crossing refined by bisection along the segment between the two samples
+        lam_lo, lam_hi = np.zeros(i.size), np.ones(i.size)
+        f_lo = f[i]
+        for _ in range(60):
+            lam = 0.5 * (lam_lo + lam_hi)
+            fm, _, _ = _scan_eval(P[i] + lam * (P[i + 1] - P[i]), t1[i] + lam * (t1[i + 1] - t1[i]),
+                                  d, v0, a0, vf, V, k)
+            same = np.sign(fm) == np.sign(f_lo)
+            lam_lo = np.where(same, lam, lam_lo)
+            lam_hi = np.where(same, lam_hi, lam)
+        lam = 0.5 * (lam_lo + lam_hi)
+        _, Tx, okx = _scan_eval(P[i] + lam * (P[i + 1] - P[i]), t1[i] + lam * (t1[i + 1] - t1[i]),
+                                d, v0, a0, vf, V, k)
+        if okx.any():
+            best = float(Tx[okx].min())
+    J = np.array([1.0, 1.0, 0.0, -1.0, -1.0, 0.0, 1.0])
     pn2, nn2 = V - v0 + 0.5 * a0 * a0, V - vf
     if pn2 >= 0.0 and nn2 >= 0.0:                       # cruise at +V
         Pc, t1c = min(math.sqrt(pn2), 1.0), max(pn2 - 1.0, 0.0)
@@ -448,13 +574,14 @@ def test_sine_family_optimum_against_brute_force():
         v0, vf = rng.uniform(-1, 1) * V, rng.uniform(-1, 1) * V
         a0 = 0.0 if i % 3 == 0 else rng.uniform(-1, 1) * A
         p = plan_sine_jerk_optimal(d, J, A, V, initial_velocity=v0, initial_accel=a0, final_velocity=vf)
-        assert p.brake_time == 0.0
+        if p.brake_time > 0.0:          # v0 + a0|a0|/2J beyond V: the brake is not in the family
+            continue
         Jm = 2 * J / math.pi
         tu = A / Jm
         vu = A * tu
         scan = _scan_family(d / (vu * tu), v0 / vu, a0 / A, vf / vu, V / vu, _onedof.KAPPA_SINE) * tu
         assert scan >= p.duration * (1 - 1e-9)                  # nothing shorter in the family
-        assert scan <= p.duration * (1 + 2e-3)                  # and the scan finds it
+        assert scan <= p.duration * (1 + 1e-9)                  # and the scan finds it
         q = plan_scurve(d, Jm, A, V, initial_velocity=v0, initial_accel=a0, final_velocity=vf)
         if a0 == 0.0:
             assert p.duration == pytest.approx(q.duration, rel=1e-12)
@@ -467,10 +594,12 @@ def test_sine_family_optimum_against_brute_force():
 def test_scan_reproduces_ruckig_for_the_linear_family():
     """The brute-force scan itself is checked: with kappa = 0 it finds Ruckig's duration."""
     rng = np.random.default_rng(5)
-    for _ in range(20):
+    for _ in range(30):
         J, A, V = 10 ** rng.uniform(0, 3), 10 ** rng.uniform(-1, 1), 10 ** rng.uniform(-1, 1)
         d, v0, a0, vf = rng.uniform(-3, 3), rng.uniform(-1, 1) * V, rng.uniform(-1, 1) * A, rng.uniform(-1, 1) * V
+        if plan_scurve(d, J, A, V, initial_velocity=v0, initial_accel=a0, final_velocity=vf).brake_time:
+            continue                    # the scan has no brake
         tu, vu = A / J, A * A / J
         scan = _scan_family(d / (vu * tu), v0 / vu, a0 / A, vf / vu, V / vu, 0.0) * tu
         r = RK.duration(d, J, A, V, v0, a0, vf)
-        assert scan == pytest.approx(r, rel=2e-3) and scan >= r * (1 - 1e-9)
+        assert scan == pytest.approx(r, rel=1e-9)
