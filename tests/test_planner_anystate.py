@@ -603,3 +603,22 @@ def test_scan_reproduces_ruckig_for_the_linear_family():
         scan = _scan_family(d / (vu * tu), v0 / vu, a0 / A, vf / vu, V / vu, 0.0) * tu
         r = RK.duration(d, J, A, V, v0, a0, vf)
         assert scan == pytest.approx(r, rel=1e-9)
+
+
+def test_pure_python_solver_is_the_compiled_one():
+    """Without numba the same code runs as Python (jerklab._onedof.PURE): same result."""
+    compiled = _onedof.solver()
+    pure = _onedof.PURE["solve"]
+    rng = np.random.default_rng(9)
+    saved = {name: getattr(_onedof, name) for name in _onedof._JITTED}
+    try:
+        for name in _onedof._JITTED:          # the Python functions call each other
+            setattr(_onedof, name, _onedof.PURE[name])
+        for _ in range(40):
+            args = (rng.uniform(-5, 5), rng.uniform(-2, 2), rng.uniform(-1.5, 1.5), rng.uniform(-1, 1), 1.5)
+            for k in (0.0, _onedof.KAPPA_SINE):
+                a, b = np.asarray(pure(*args, k)), np.asarray(compiled(*args, k))
+                np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-14)
+    finally:
+        for name, f in saved.items():
+            setattr(_onedof, name, f)
