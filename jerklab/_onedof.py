@@ -116,8 +116,8 @@ def _root_between(D, i, deg, lo, hi, flo):
         xn = x - f / df if df != 0.0 else a - 1.0
         if not (a < xn < b):
             xn = 0.5 * (a + b)
-        if abs(xn - x) <= 4e-16 * abs(x) or b - a <= 4e-16 * max(abs(a), abs(b)):
-            return xn
+        if abs(xn - x) <= 4e-16 * abs(x) + 1e-22 or b - a <= 4e-16 * max(abs(a), abs(b)) + 1e-22:
+            return xn                   # (1e-22: a root at 0 is not refined below the normalized unit)
         x = xn
     return x
 
@@ -309,39 +309,45 @@ def _candidates(d, v0, a0, vf, V, k, s, best, D, crit, rts):
             T = _check(1.0, 1.0, t1, t5, 0.0, a0, v0, V)
             if T >= 0.0 and _near(_end_pos(1.0, 1.0, max(t1, 0.0), max(t5, 0.0), 0.0, a0, v0, k), d, T, v0, V):
                 _keep(best, T, 1.0, 1.0, max(t1, 0.0), max(t5, 0.0), 0.0, s)
-    # ACC0: P = 1, t1 = H - 1 + N^2, quartic in N on [0, 1]
-    e0 = -(-3.0 * H * H + 3.0 * H * a2 - 6.0 * H * v0 - 3.0 * H - 6.0 * k * a3 - 2.0 * a3
-           + (3.0 + 18.0 * kA) * a2 - 18.0 * kA * a0 + 6.0 * a0 * v0 + 6.0 * d - 6.0 * v0) / 6.0
-    _set(D, 0.0, 0.5, 1.0, 0.5 * (2.0 * H - a2 + 2.0 * v0 + 1.0), 2.0 * H - a2 + 2.0 * v0, e0)
-    for r in range(_real_roots(D, 5, 0.0, 1.0, crit, rts)):
-        N = rts[r]
-        t1 = H - 1.0 + N * N
-        T = _check(1.0, N, t1, 0.0, 0.0, a0, v0, V)
-        if T >= 0.0 and _near(_end_pos(1.0, N, max(t1, 0.0), 0.0, 0.0, a0, v0, k), d, T, v0, V):
-            _keep(best, T, 1.0, N, max(t1, 0.0), 0.0, 0.0, s)
-    # ACC1: N = 1, t5 = P^2 - 1 - H, quartic in P; branch C on [a0, 0), A/B on [max(a0, 0), 1]
-    e0 = -(3.0 * H * H - 3.0 * H * a2 + 6.0 * H * v0 - 3.0 * H - 6.0 * k * a3 - 2.0 * a3 + 3.0 * a2
-           + 6.0 * a0 * v0 + 6.0 * d - 6.0 * v0) / 6.0
-    lo_ab = max(a0, 0.0)
-    if lo_ab <= 1.0:
-        _set(D, 0.0, 0.5, 1.0, 0.5 * (-a2 + 6.0 * kA * a0 + 2.0 * v0 + 1.0), -3.0 * kA * a2 - a2 + 2.0 * v0, e0)
-        for r in range(_real_roots(D, 5, lo_ab, 1.0, crit, rts)):
-            P = rts[r]
-            t5 = P * P - 1.0 - H
-            T = _check(P, 1.0, 0.0, t5, 0.0, a0, v0, V)
-            if T >= 0.0 and _near(_end_pos(P, 1.0, 0.0, max(t5, 0.0), 0.0, a0, v0, k), d, T, v0, V):
-                _keep(best, T, P, 1.0, 0.0, max(t5, 0.0), 0.0, s)
-    if a0 < 0.0:
-        _set(D, 0.0, 0.5, 1.0, 0.5 * (-a2 + 6.0 * k * a0 + 6.0 * k + 2.0 * v0 + 1.0),
-             -3.0 * k * a2 - a2 + 3.0 * k + 2.0 * v0, e0)
-        for r in range(_real_roots(D, 5, max(a0, -1.0), 0.0, crit, rts)):
-            P = rts[r]
-            if P >= 0.0:
-                continue
-            t5 = P * P - 1.0 - H
-            T = _check(P, 1.0, 0.0, t5, 0.0, a0, v0, V)
-            if T >= 0.0 and _near(_end_pos(P, 1.0, 0.0, max(t5, 0.0), 0.0, a0, v0, k), d, T, v0, V):
-                _keep(best, T, P, 1.0, 0.0, max(t5, 0.0), 0.0, s)
+    # ACC0: P = 1, t1 = H - 1 + N^2 >= 0, quartic in N on [sqrt(1 - H), 1] (none if H < 0)
+    if H >= -1e-9:
+        e0 = -(-3.0 * H * H + 3.0 * H * a2 - 6.0 * H * v0 - 3.0 * H - 6.0 * k * a3 - 2.0 * a3
+               + (3.0 + 18.0 * kA) * a2 - 18.0 * kA * a0 + 6.0 * a0 * v0 + 6.0 * d - 6.0 * v0) / 6.0
+        _set(D, 0.0, 0.5, 1.0, 0.5 * (2.0 * H - a2 + 2.0 * v0 + 1.0), 2.0 * H - a2 + 2.0 * v0, e0)
+        lo = max(math.sqrt(max(1.0 - H, 0.0)) - 1e-9, 0.0)
+        for r in range(_real_roots(D, 5, lo, 1.0, crit, rts)):
+            N = rts[r]
+            t1 = H - 1.0 + N * N
+            T = _check(1.0, N, t1, 0.0, 0.0, a0, v0, V)
+            if T >= 0.0 and _near(_end_pos(1.0, N, max(t1, 0.0), 0.0, 0.0, a0, v0, k), d, T, v0, V):
+                _keep(best, T, 1.0, N, max(t1, 0.0), 0.0, 0.0, s)
+    # ACC1: N = 1, t5 = P^2 - 1 - H >= 0, quartic in P (none if H > 0); |P| >= sqrt(1 + H);
+    # branch C on [a0, 0), A/B on [max(a0, 0), 1]
+    if H <= 1e-9:
+        e0 = -(3.0 * H * H - 3.0 * H * a2 + 6.0 * H * v0 - 3.0 * H - 6.0 * k * a3 - 2.0 * a3 + 3.0 * a2
+               + 6.0 * a0 * v0 + 6.0 * d - 6.0 * v0) / 6.0
+        pmin = math.sqrt(max(1.0 + H, 0.0)) - 1e-9
+        lo_ab = max(a0, 0.0, pmin)
+        if lo_ab <= 1.0:
+            _set(D, 0.0, 0.5, 1.0, 0.5 * (-a2 + 6.0 * kA * a0 + 2.0 * v0 + 1.0), -3.0 * kA * a2 - a2 + 2.0 * v0, e0)
+            for r in range(_real_roots(D, 5, lo_ab, 1.0, crit, rts)):
+                P = rts[r]
+                t5 = P * P - 1.0 - H
+                T = _check(P, 1.0, 0.0, t5, 0.0, a0, v0, V)
+                if T >= 0.0 and _near(_end_pos(P, 1.0, 0.0, max(t5, 0.0), 0.0, a0, v0, k), d, T, v0, V):
+                    _keep(best, T, P, 1.0, 0.0, max(t5, 0.0), 0.0, s)
+        hi_c = min(0.0, -pmin)
+        if a0 < 0.0 and max(a0, -1.0) < hi_c:
+            _set(D, 0.0, 0.5, 1.0, 0.5 * (-a2 + 6.0 * k * a0 + 6.0 * k + 2.0 * v0 + 1.0),
+                 -3.0 * k * a2 - a2 + 3.0 * k + 2.0 * v0, e0)
+            for r in range(_real_roots(D, 5, max(a0, -1.0), hi_c, crit, rts)):
+                P = rts[r]
+                if P >= 0.0:
+                    continue
+                t5 = P * P - 1.0 - H
+                T = _check(P, 1.0, 0.0, t5, 0.0, a0, v0, V)
+                if T >= 0.0 and _near(_end_pos(P, 1.0, 0.0, max(t5, 0.0), 0.0, a0, v0, k), d, T, v0, V):
+                    _keep(best, T, P, 1.0, 0.0, max(t5, 0.0), 0.0, s)
     # NONE: u = P + N, P = (u^2 + H)/(2u), N = (u^2 - H)/(2u); quintic in u on (0, 2]
     b2 = 12.0 * H - 18.0 * a2 * k - 12.0 * a2 + 24.0 * v0
     b1 = 18.0 * H * a0 * k + 12.0 * a3 * k + 4.0 * a3 - 12.0 * a0 * v0 - 12.0 * d
@@ -350,9 +356,15 @@ def _candidates(d, v0, a0, vf, V, k, s, best, D, crit, rts):
     else:
         split = math.sqrt(-H)           # P < 0 below (branch C), P >= 0 above
     ulo = math.sqrt(H) if H > 0.0 else 0.0
+    # P <= 1 and N <= 1: u in [1 - m, 1 + m], m = sqrt(1 - |H|) (nothing if |H| > 1)
+    if abs(H) > 1.0 + 1e-9:
+        return
+    m = math.sqrt(max(1.0 - abs(H), 0.0))
+    ulo = max(ulo, 1.0 - m - 1e-9)
+    uhi = min(2.0, 1.0 + m + 1e-9)
     for br in range(2):
         if br == 0:                     # P >= 0: branch A or B
-            lo, hi = max(split, ulo), 2.0
+            lo, hi = max(split, ulo), uhi
             if a0 >= 0.0:
                 _set(D, 3.0, 9.0 * a0 * k, b2, b1, -3.0 * H * (H + 6.0 * a2 * k), 9.0 * H * H * a0 * k)
             else:
@@ -361,7 +373,7 @@ def _candidates(d, v0, a0, vf, V, k, s, best, D, crit, rts):
         else:                           # P < 0: branch C (only when H < 0)
             if split <= 0.0:
                 continue
-            lo, hi = ulo, min(split, 2.0)
+            lo, hi = ulo, min(split, uhi)
             _set(D, 3.0 * (3.0 * k + 1.0), 9.0 * a0 * k, b2, b1, -3.0 * H * (3.0 * H * k + H + 6.0 * a2 * k),
                  9.0 * H * H * a0 * k)
         if hi <= lo:
