@@ -47,7 +47,7 @@ PURE = {}
 
 
 def solver():
-    """:func:`solve`, compiled by numba (cached on disk) when numba is installed, else pure Python.
+    """:func:`solve_tuple`, compiled by numba (cached on disk) when numba is installed, else pure Python.
 
     The compiled form takes about 3 us a plan, the pure-Python one about 150 times longer.
     """
@@ -60,11 +60,11 @@ def solver():
 
             for name in _JITTED:        # module globals, so that compiled code calls compiled code
                 g[name] = numba.njit(cache=True, nogil=True)(PURE[name])
-            _SOLVER = g["solve"]
+            _SOLVER = g["solve_tuple"]
         except Exception:  # pragma: no cover - numba missing or unusable
             for name in _JITTED:
                 g[name] = PURE[name]
-            _SOLVER = PURE["solve"]
+            _SOLVER = PURE["solve_tuple"]
     return _SOLVER
 
 #: 1/pi^2 - 1/12: position lag of a half-sine jerk pulse behind the linear ramp of the same impulse
@@ -546,6 +546,15 @@ def solve(d, v0, a0, vf, V, k):
             and abs(a) <= 1e-8 * (1.0 + abs(a0))):
         res[0] = -1.0
     return res
+
+
+@_jit
+def solve_tuple(d, v0, a0, vf, V, k):
+    """:func:`solve`'s result as a tuple of floats (cheaper to hand to Python than an array)."""
+    r = solve(d, v0, a0, vf, V, k)
+    return (r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10], r[11], r[12], r[13],
+            r[14], r[15], r[16], r[17], r[18], r[19], r[20], r[21], r[22], r[23], r[24], r[25],
+            r[26])
 
 
 @_jit

@@ -800,9 +800,9 @@ class AnyStateProfile(Profile):
         self.initial_velocity = initial_velocity
         self.initial_accel = initial_accel
         self.final_velocity = final_velocity
-        self._res = res                 # jerklab._onedof.solve's result (normalized units)
+        self._res = res                 # jerklab._onedof.solve_tuple's result (normalized units)
         self._tu = time_unit
-        self._T = float(res[-2]) * time_unit
+        self._T = res[-2] * time_unit
         self._sine = _SHAPE[kind] == _SINE
         self._seg = None
         # the fields of the symmetric Profile (not used by this class)
@@ -812,7 +812,7 @@ class AnyStateProfile(Profile):
     def _segments(self):
         """(jerk, times, start times, start positions, velocities, accelerations), built once."""
         if self._seg is None:
-            res = self._res
+            res = np.asarray(self._res, dtype=float)
             n = int(res[0])
             jerk = res[1:2 * n + 1:2] * self._limits[0]
             times = res[2:2 * n + 2:2] * self._tu
@@ -826,7 +826,7 @@ class AnyStateProfile(Profile):
     def brake_time(self) -> float:
         """Length of the braking pre-trajectory (s), 0 when the start is inside the limits."""
         nb = int(self._res[-1])
-        return float(np.sum(self._res[2:2 * nb + 2:2])) * self._tu
+        return math.fsum(self._res[2:2 * nb + 2:2]) * self._tu
 
     @property
     def duration(self) -> float:
@@ -837,14 +837,14 @@ class AnyStateProfile(Profile):
     def phase_times(self) -> tuple:
         res = self._res
         tu = self._tu
-        return tuple([x * tu for x in res[2:2 * int(res[0]) + 2:2].tolist()])
+        return tuple([x * tu for x in res[2:2 * int(res[0]) + 2:2]])
 
     @property
     def segment_jerk(self) -> tuple:
         """Jerk of each segment (its peak for a half-sine pulse), as ``phase_times``."""
         res = self._res
         J = self._limits[0]
-        return tuple([x * J for x in res[1:2 * int(res[0]) + 1:2].tolist()])
+        return tuple([x * J for x in res[1:2 * int(res[0]) + 1:2]])
 
     @property
     def peak_jerk(self) -> float:
@@ -974,6 +974,7 @@ class AnyStateProfile(Profile):
 
 
 _SOLVE = None
+_KAPPA_SINE = _onedof.KAPPA_SINE
 
 
 def _solver():
@@ -1001,8 +1002,7 @@ def _plan_any_state(kind, distance, max_jerk, max_accel, max_velocity, v0, a0, v
     sine = kind == "sine_jerk_optimal"
     if distance == 0.0 and a0 == 0.0 and v0 == vf and -V <= v0 <= V:
         # already on target (Ruckig plans a loop out and back here; the empty move is optimal)
-        res = np.zeros(2 * _onedof._MAX_SEG + 3)
-        return AnyStateProfile(kind, distance, (J, A, V), v0, a0, vf, res, 1.0)
+        return AnyStateProfile(kind, distance, (J, A, V), v0, a0, vf, (0.0,) * (2 * _onedof._MAX_SEG + 3), 1.0)
     Jm = _TWO_OVER_PI * J if sine else J         # the mean jerk of a half-sine pulse of peak J
     try:
         tu = A / Jm                             # normalized units: J = A = 1
@@ -1017,7 +1017,8 @@ def _plan_any_state(kind, distance, max_jerk, max_accel, max_velocity, v0, a0, v
                          f"max_accel={A!r}, max_velocity={V!r}, initial_velocity={v0!r}, "
                          f"initial_accel={a0!r}, final_velocity={vf!r}: the limits are too far apart "
                          f"in scale (the normalized values overflow); scale the units")
-    res = (_SOLVE or _solver())(*args, _onedof.KAPPA_SINE if sine else 0.0)
+    res = (_SOLVE or _solver())(args[0], args[1], args[2], args[3], args[4],
+                                _KAPPA_SINE if sine else 0.0)
     if res[0] <= 0.0:
         raise ValueError(f"plan_{kind}: no valid profile found for distance={distance!r}, max_jerk={J!r}, "
                          f"max_accel={A!r}, max_velocity={V!r}, initial_velocity={v0!r}, "
