@@ -15,7 +15,8 @@ cruise at ``v = sigma V`` may be inserted), ``-N -> 0`` (hold ``N = A`` for ``t5
 velocity equation solved for one unknown, each case (which acceleration limits are reached) is one
 polynomial equation in one variable of degree <= 5 (the end position), whose real roots in the
 admissible interval are found by isolating them between the roots of its derivatives.  Every root is
-checked against all limits and the shortest valid profile wins.
+checked against all limits and the shortest valid profile wins; the winner is integrated once more
+and refused if it misses the target (limits too far apart in scale for double precision).
 
 The sine family (``kappa != 0``) uses the same algebra: a half-sine jerk pulse of peak J changes the
 acceleration and the velocity exactly as a constant jerk ``2J/pi`` over the same time, and moves the
@@ -23,7 +24,7 @@ position by ``-kappa * da^3 / J'^2`` less, with ``kappa = 1/pi^2 - 1/12`` and ``
 (docs/THEORY.md); the end-position polynomials carry that term.
 
 Written in the subset of Python that numba compiles (floats and preallocated arrays, no objects);
-:func:`solver` returns the compiled :func:`solve` when numba is installed.
+:func:`solver` returns the compiled :func:`solve_tuple` when numba is installed.
 """
 from __future__ import annotations
 
@@ -49,7 +50,8 @@ PURE = {}
 def solver():
     """:func:`solve_tuple`, compiled by numba (cached on disk) when numba is installed, else pure Python.
 
-    The compiled form takes about 3 us a plan, the pure-Python one about 150 times longer.
+    The compiled form takes a few microseconds a plan, the pure-Python one two orders of
+    magnitude longer.
     """
     global _SOLVER
     if _SOLVER is None:

@@ -22,6 +22,12 @@ All take SI values, accept a negative ``distance`` (a move backwards) and zero, 
 :class:`Profile` whose :meth:`Profile.sample` evaluates the closed form (polynomials and sine
 terms, vectorized with numpy), never an integration.
 
+:func:`plan_scurve` and :func:`plan_sine_jerk_optimal` also start from any state
+(``initial_velocity``, ``initial_accel``) and end at any ``final_velocity``: they then return an
+:class:`AnyStateProfile` (up to a dozen segments, a braking pre-trajectory first when the start is
+outside the limits), planned by the one-axis time-optimal solver of ``jerklab._onedof``
+(docs/THEORY.md, "Any start state").  The rest of this docstring is about rest-to-rest moves.
+
 Every profile is symmetric: the velocity satisfies ``v(t) = v(duration - t)``, so the closed form is
 evaluated on the first half and mirrored (``x(t) = distance - x(duration - t)``); the end state is
 therefore exactly ``distance`` at rest.  Inside the acceleration phase the acceleration is symmetric
