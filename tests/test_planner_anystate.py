@@ -275,6 +275,8 @@ UNIT = st.floats(-1.6, 1.6)
 @example(kind="scurve", ed=-5.0, sign=False, ej=5.0, ea=-1.0, ev=3.0, uv0=0.0, ua0=0.0, uvf=1.0)
 @example(kind="sine_jerk_optimal", ed=5.0, sign=True, ej=0.0, ea=2.0, ev=-3.0, uv0=1.6, ua0=-1.6, uvf=-1.0)
 @example(kind="scurve", ed=5.0, sign=True, ej=0.0, ea=2.0, ev=-3.0, uv0=1.6, ua0=1.6, uvf=-1.0)
+@example(kind="scurve", ed=2.412094926682964, sign=False, ej=0.11054893596211368, ea=1.9534231148886785,
+         ev=1.763828120112029, uv0=0.0, ua0=0.0, uvf=0.0)      # Ruckig 25 % longer (see above)
 def test_any_state_integrates_to_its_closed_form(kind, ed, sign, ej, ea, ev, uv0, ua0, uvf):
     """Distance and velocity limit in the move's own units (A^3/J^2, A^2/J) over 10 and 6 decades."""
     J, A = 10.0 ** ej, 10.0 ** ea
@@ -285,14 +287,18 @@ def test_any_state_integrates_to_its_closed_form(kind, ed, sign, ej, ea, ev, uv0
         v0 = 0.3 * V
     p = plan(kind, d, J, A, V, v0, a0, vf)
     T = p.duration
-    if kind == "scurve" and V >= 1e-3 and abs(d) >= 1e-5:
-        # (Ruckig works with absolute tolerances of about 1e-8: smaller SI values are outside its range)
+    if kind == "scurve":
         r = RK.duration(d, J, A, V, v0, a0, vf)
         if r is not None:
             pos, vel, _ = (x[0] for x in RK.traj.at_time(r))
             if abs(pos - d) <= 1e-9 * (abs(d) + max(V, abs(v0)) * r) and abs(vel - vf) <= 1e-9 * V:
-                # (Ruckig's own end state is off target far outside its numeric range)
-                assert T == pytest.approx(r, rel=RTOL, abs=1e-12)
+                # Ruckig's profile is on target: ours is never longer, and equally long inside
+                # Ruckig's numeric range (it works with absolute tolerances of about 1e-8: far
+                # below 1e-3 or above 1e4 it may end off target -- skipped above -- or settle for
+                # a longer profile: d = 1.1e8, V = 3.6e5, 2066 s where 1648 s is feasible)
+                assert T <= r * (1 + RTOL) + 1e-12
+                if 1e-3 <= V <= 1e4 and 1e-5 <= abs(d) <= 1e5:
+                    assert T == pytest.approx(r, rel=RTOL, abs=1e-12)
     # each segment: the closed form's changes of a, v, p are the integrals of its j, a, v
     # (Gauss-Legendre, 24 interior points: exact for the polynomials, 1e-15 for the sine pulses)
     b = np.concatenate([[0.0], np.cumsum(p.phase_times)])
