@@ -796,7 +796,7 @@ class AnyStateProfile(Profile):
     """
 
     __slots__ = ("kind", "initial_velocity", "initial_accel", "final_velocity", "_res", "_tu", "_T",
-                 "_seg", "_sine")
+                 "_seg")
 
     def __init__(self, kind, distance, limits, initial_velocity, initial_accel, final_velocity,
                  res, time_unit):
@@ -809,11 +809,11 @@ class AnyStateProfile(Profile):
         self._res = res                 # jerklab._onedof.solve_tuple's result (normalized units)
         self._tu = time_unit
         self._T = res[-2] * time_unit
-        self._sine = _SHAPE[kind] == _SINE
         self._seg = None
-        # the fields of the symmetric Profile (not used by this class)
-        self._tj = self._ta = self._tv = 0.0
-        self._jpar = limits[0]
+
+    @property
+    def _sine(self):
+        return self.kind == "sine_jerk_optimal"
 
     def _segments(self):
         """(jerk, times, start times, start positions, velocities, accelerations), built once."""
@@ -1014,8 +1014,8 @@ def _plan_any_state(kind, distance, max_jerk, max_accel, max_velocity, v0, a0, v
         tu = A / Jm                             # normalized units: J = A = 1
         vu = A * tu
         pu = vu * tu
-        args = (distance / pu, v0 / vu, a0 / A, vf / vu, V / vu)
-        ok = (sum(args) + tu + vu + pu) * 0.0 == 0.0 and pu > 0.0
+        dn, v0n, a0n, vfn, Vn = distance / pu, v0 / vu, a0 / A, vf / vu, V / vu
+        ok = (dn + v0n + a0n + vfn + Vn + tu + vu + pu) * 0.0 == 0.0 and pu > 0.0
     except (ZeroDivisionError, OverflowError):
         ok = False
     if not ok:
@@ -1023,14 +1023,24 @@ def _plan_any_state(kind, distance, max_jerk, max_accel, max_velocity, v0, a0, v
                          f"max_accel={A!r}, max_velocity={V!r}, initial_velocity={v0!r}, "
                          f"initial_accel={a0!r}, final_velocity={vf!r}: the limits are too far apart "
                          f"in scale (the normalized values overflow); scale the units")
-    res = (_SOLVE or _solver())(args[0], args[1], args[2], args[3], args[4],
-                                _KAPPA_SINE if sine else 0.0)
+    res = (_SOLVE or _solver())(dn, v0n, a0n, vfn, Vn, _KAPPA_SINE if sine else 0.0)
     if res[0] <= 0.0:
         raise ValueError(f"plan_{kind}: no valid profile found for distance={distance!r}, max_jerk={J!r}, "
                          f"max_accel={A!r}, max_velocity={V!r}, initial_velocity={v0!r}, "
                          f"initial_accel={a0!r}, final_velocity={vf!r} (outside the solver's numeric "
                          f"range); scale the units")
-    return AnyStateProfile(kind, distance, (J, A, V), v0, a0, vf, res, tu)
+    p = _new(AnyStateProfile)                   # (the hot path: __init__'s work, inline)
+    p.kind = kind
+    p.distance = distance
+    p._limits = (J, A, V)
+    p.initial_velocity = v0
+    p.initial_accel = a0
+    p.final_velocity = vf
+    p._res = res
+    p._tu = tu
+    p._T = res[-2] * tu
+    p._seg = None
+    return p
 
 
 # ---------------------------------------------------------------------------------------------
