@@ -552,11 +552,19 @@ def solve(d, v0, a0, vf, V, k):
 
 @_jit
 def solve_tuple(d, v0, a0, vf, V, k):
-    """:func:`solve`'s result as a tuple of floats (cheaper to hand to Python than an array)."""
+    """:func:`solve`'s result packed in 16 floats (cheaper to hand to Python than an array):
+    ``(n, jerk code, duration, brake segments, t_1, ..., t_12)``, the jerk of segment ``i`` being
+    ``(code // 3**i) % 3 - 1``."""
     r = solve(d, v0, a0, vf, V, k)
-    return (r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10], r[11], r[12], r[13],
-            r[14], r[15], r[16], r[17], r[18], r[19], r[20], r[21], r[22], r[23], r[24], r[25],
-            r[26])
+    n = int(r[0])
+    code = 0.0
+    p3 = 1.0
+    for i in range(max(n, 0)):
+        code += (r[2 * i + 1] + 1.0) * p3
+        p3 *= 3.0
+    # (the unused entries of r are 0)
+    return (r[0], code, r[-2], r[-1], r[2], r[4], r[6], r[8], r[10], r[12], r[14], r[16], r[18],
+            r[20], r[22], r[24])
 
 
 @_jit

@@ -806,9 +806,9 @@ class AnyStateProfile(Profile):
         self.initial_velocity = initial_velocity
         self.initial_accel = initial_accel
         self.final_velocity = final_velocity
-        self._res = res                 # jerklab._onedof.solve_tuple's result (normalized units)
+        self._res = res                 # jerklab._onedof.solve_tuple's packed result (normalized units)
         self._tu = time_unit
-        self._T = res[-2] * time_unit
+        self._T = res[2] * time_unit
         self._seg = None
 
     @property
@@ -818,21 +818,28 @@ class AnyStateProfile(Profile):
     def _segments(self):
         """(jerk, times, start times, start positions, velocities, accelerations), built once."""
         if self._seg is None:
-            res = np.asarray(self._res, dtype=float)
-            n = int(res[0])
-            jerk = res[1:2 * n + 1:2] * self._limits[0]
-            times = res[2:2 * n + 2:2] * self._tu
+            jerk = np.array(self._jerk_signs()) * self._limits[0]
+            times = np.array(self._res[4:4 + int(self._res[0])]) * self._tu
             start = np.concatenate(([0.0], np.cumsum(times)))
             P, V, A = _segment_states(0.0, self.initial_velocity, self.initial_accel, jerk, times,
                                       self._sine, max(self._limits[1], abs(self.initial_accel)))
             self._seg = (jerk, times, start, P, V, A)
         return self._seg
 
+    def _jerk_signs(self):
+        """-1, 0 or +1 per segment, from the solver's packed code (jerklab._onedof.solve_tuple)."""
+        code = int(self._res[1])
+        out = []
+        for _ in range(int(self._res[0])):
+            code, digit = divmod(code, 3)
+            out.append(digit - 1.0)
+        return out
+
     @property
     def brake_time(self) -> float:
         """Length of the braking pre-trajectory (s), 0 when the start is inside the limits."""
-        nb = int(self._res[-1])
-        return math.fsum(self._res[2:2 * nb + 2:2]) * self._tu
+        nb = int(self._res[3])
+        return math.fsum(self._res[4:4 + nb]) * self._tu
 
     @property
     def duration(self) -> float:
@@ -843,14 +850,13 @@ class AnyStateProfile(Profile):
     def phase_times(self) -> tuple:
         res = self._res
         tu = self._tu
-        return tuple([x * tu for x in res[2:2 * int(res[0]) + 2:2]])
+        return tuple([x * tu for x in res[4:4 + int(res[0])]])
 
     @property
     def segment_jerk(self) -> tuple:
         """Jerk of each segment (its peak for a half-sine pulse), as ``phase_times``."""
-        res = self._res
         J = self._limits[0]
-        return tuple([x * J for x in res[1:2 * int(res[0]) + 1:2]])
+        return tuple([x * J for x in self._jerk_signs()])
 
     @property
     def peak_jerk(self) -> float:
@@ -1008,7 +1014,7 @@ def _plan_any_state(kind, distance, max_jerk, max_accel, max_velocity, v0, a0, v
     sine = kind == "sine_jerk_optimal"
     if distance == 0.0 and a0 == 0.0 and v0 == vf and -V <= v0 <= V:
         # already on target (Ruckig plans a loop out and back here; the empty move is optimal)
-        return AnyStateProfile(kind, distance, (J, A, V), v0, a0, vf, (0.0,) * (2 * _onedof._MAX_SEG + 3), 1.0)
+        return AnyStateProfile(kind, distance, (J, A, V), v0, a0, vf, (0.0,) * (4 + _onedof._MAX_SEG), 1.0)
     Jm = _TWO_OVER_PI * J if sine else J         # the mean jerk of a half-sine pulse of peak J
     try:
         tu = A / Jm                             # normalized units: J = A = 1
@@ -1038,7 +1044,7 @@ def _plan_any_state(kind, distance, max_jerk, max_accel, max_velocity, v0, a0, v
     p.final_velocity = vf
     p._res = res
     p._tu = tu
-    p._T = res[-2] * tu
+    p._T = res[2] * tu
     p._seg = None
     return p
 

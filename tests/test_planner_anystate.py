@@ -615,7 +615,7 @@ def test_scan_reproduces_ruckig_for_the_linear_family():
 def test_pure_python_solver_is_the_compiled_one():
     """Without numba the same code runs as Python (jerklab._onedof.PURE): same result."""
     compiled = _onedof.solver()
-    pure = _onedof.PURE["solve"]
+    pure = _onedof.PURE["solve_tuple"]
     rng = np.random.default_rng(9)
     saved = {name: getattr(_onedof, name) for name in _onedof._JITTED}
     try:
