@@ -1,6 +1,6 @@
 """Planner speed and move time, against Ruckig in the same process.
 
-``python -m benchmarks planner`` prints five tables:
+``python -m benchmarks planner`` prints six tables:
 
 1. microseconds per plan of each jerklab planner next to Ruckig's Python API (setting the inputs and
    ``calculate``), interleaved and repeated, the median of the repeats; the ratio column is
@@ -8,7 +8,8 @@
 2. the same for moves from a moving start (``initial_velocity``, ``initial_accel``,
    ``final_velocity``; Ruckig with ``current_velocity``, ``current_acceleration``,
    ``target_velocity``), target <= 1.0;
-3. the batch planner (``plan_batch``) in plans per second on 1e6 moves (target >= 2e7);
+3. the batch planner (``plan_batch``) in plans per second on 1e6 moves (target >= 2e7), and
+   ``plan_batch_any_state`` on 2e5 moves from moving starts;
 4. the move time of the published sine-jerk planner and of the optimal sine planner divided by
    Ruckig's time-optimal duration, over a grid of limits (median, max);
 5. from a moving start: the S-curve's duration / Ruckig's (max |ratio - 1|) and the optimal sine's
@@ -25,7 +26,7 @@ import time
 import numpy as np
 
 from benchmarks._record import table
-from jerklab.planner import (KINDS, plan_batch, plan_scurve, plan_sine_jerk,
+from jerklab.planner import (KINDS, plan_batch, plan_batch_any_state, plan_scurve, plan_sine_jerk,
                              plan_sine_jerk_optimal, plan_trapezoid)
 
 try:
@@ -136,6 +137,21 @@ def time_per_moving_plan(repeats=7, n=2000):
     return {k: statistics.median(v) for k, v in runs.items()}
 
 
+def batch_rate_moving(n=200_000, repeats=3):
+    """plan_batch_any_state in plans per second (moving starts, 20 % above the limits)."""
+    cols = np.array(_moving_cases(n, seed=2)).T
+    out = {}
+    for kind in ("scurve", "sine_jerk_optimal"):
+        plan_batch_any_state(kind, *cols[:, :10])             # compile / load outside the clock
+        best = math.inf
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            plan_batch_any_state(kind, *cols)
+            best = min(best, time.perf_counter() - t0)
+        out[kind] = n / best
+    return out
+
+
 def moving_duration_ratios(n=3000):
     """S-curve vs Ruckig, and optimal sine vs the S-curve at jerk 2J/pi, from moving starts."""
     rk = _ruckig_moving()
@@ -203,6 +219,8 @@ def main():
           [(name, v, v / ref if ref else "-") for name, v in us.items()])
     table("Batch planner (plan_batch, 1e6 random moves, best of 3)", ["kind", "plans/s", "target"],
           [(kind, rate, 2e7) for kind, rate in batch_rate().items()])
+    table("Batch planner from moving starts (plan_batch_any_state, 2e5 random moves, best of 3)",
+          ["kind", "plans/s"], list(batch_rate_moving().items()))
     if ruckig is None:
         print("\n(ruckig not installed: no move-time comparison)")
         return

@@ -583,3 +583,36 @@ def _advance(p, v, a, j, t, k):
     p2 = p + t * (v + t * (0.5 * a + t * j / 6.0)) - k * da * da * da
     v2 = v + t * (a + 0.5 * j * t)
     return p2, v2, a + da
+
+
+@_jit
+def solve_many(d, v0, a0, vf, J, A, V, sine, out, tu_out):
+    """:func:`solve_tuple` over arrays of moves in SI units (one loop, compiled with the rest).
+
+    Row ``i`` of ``out`` (shape ``(n, 16)``) receives the packed result of move ``i``, ``tu_out[i]``
+    its time unit.  Returns -1, or the index of the first move that cannot be planned (a value not
+    finite, a limit <= 0, ``|vf| > V``, or no valid profile): the caller names it.
+    """
+    k = KAPPA_SINE if sine else 0.0
+    for i in range(d.shape[0]):
+        Ji, Ai, Vi = J[i], A[i], V[i]
+        if not (0.0 < Ji < math.inf and 0.0 < Ai < math.inf and 0.0 < Vi < math.inf
+                and abs(d[i]) < math.inf and abs(v0[i]) < math.inf and abs(a0[i]) < math.inf
+                and abs(vf[i]) <= Vi):
+            return i
+        for m in range(16):
+            out[i, m] = 0.0
+        if d[i] == 0.0 and a0[i] == 0.0 and v0[i] == vf[i] and abs(v0[i]) <= Vi:
+            tu_out[i] = 1.0                     # already on target: the empty move
+            continue
+        Jm = Ji * (2.0 / math.pi) if sine else Ji
+        tu = Ai / Jm
+        vu = Ai * tu
+        pu = vu * tu
+        tu_out[i] = tu
+        r = solve_tuple(d[i] / pu, v0[i] / vu, a0[i] / Ai, vf[i] / vu, Vi / vu, k)
+        if not (r[0] > 0.0):
+            return i
+        for m in range(16):
+            out[i, m] = r[m]
+    return -1

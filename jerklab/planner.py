@@ -64,6 +64,8 @@ __all__ = [
     "plan_scurve",
     "plan_trapezoid",
     "plan_batch",
+    "plan_batch_any_state",
+    "AnyStateBatch",
     "KINDS",
 ]
 
@@ -1418,3 +1420,113 @@ def _check_batch(kind, dist, tj, ta, tv, J, A, V):
         i = int(np.argmin(ok))
         jj = None if J is None else float(J[i])
         raise _no_plan(f"plan_batch (move {i})", float(dist[i]), jj, float(A[i]), float(V[i]))
+
+
+class AnyStateBatch:
+    """Many moves from moving starts (:func:`plan_batch_any_state`); arrays of shape ``(n,)``.
+
+    ``duration``, ``brake_time``; ``phase_times`` and ``segment_jerk`` as ``(n, 12)`` arrays padded
+    with 0; ``profile(i)`` is move ``i`` as the :class:`AnyStateProfile` the scalar planner returns.
+    """
+
+    __slots__ = ("kind", "distance", "max_jerk", "max_accel", "max_velocity", "initial_velocity",
+                 "initial_accel", "final_velocity", "_packed", "_tu")
+
+    def __init__(self, kind, arrays, packed, tu):
+        self.kind = kind
+        (self.distance, self.max_jerk, self.max_accel, self.max_velocity, self.initial_velocity,
+         self.initial_accel, self.final_velocity) = arrays
+        self._packed = packed
+        self._tu = tu
+
+    def __len__(self) -> int:
+        return self.distance.shape[0]
+
+    @property
+    def duration(self) -> np.ndarray:
+        return self._packed[:, 2] * self._tu
+
+    @property
+    def phase_times(self) -> np.ndarray:
+        return self._packed[:, 4:] * self._tu[:, None]
+
+    @property
+    def segment_jerk(self) -> np.ndarray:
+        code = self._packed[:, 1].astype(np.int64)
+        n = self._packed[:, 0].astype(np.int64)
+        digits = (code[:, None] // 3 ** np.arange(_onedof._MAX_SEG)) % 3 - 1.0
+        digits[np.arange(_onedof._MAX_SEG)[None, :] >= n[:, None]] = 0.0
+        return digits * self.max_jerk[:, None]
+
+    @property
+    def brake_time(self) -> np.ndarray:
+        nb = self._packed[:, 3].astype(np.int64)
+        mask = np.arange(_onedof._MAX_SEG)[None, :] < nb[:, None]
+        return np.where(mask, self.phase_times, 0.0).sum(axis=1)
+
+    def profile(self, i: int) -> AnyStateProfile:
+        """The ``i``-th move as an :class:`AnyStateProfile` (``-len(self) <= i < len(self)``)."""
+        n = len(self)
+        i = as_int("i", i)
+        if not -n <= i < n:
+            raise ValueError(f"i must be in [{-n}, {n}) for a batch of {n} moves, got {i}")
+        lim = (float(self.max_jerk[i]), float(self.max_accel[i]), float(self.max_velocity[i]))
+        return AnyStateProfile(self.kind, float(self.distance[i]), lim, float(self.initial_velocity[i]),
+                               float(self.initial_accel[i]), float(self.final_velocity[i]),
+                               tuple(self._packed[i].tolist()), float(self._tu[i]))
+
+
+def plan_batch_any_state(kind, distance, max_jerk, max_accel, max_velocity, initial_velocity=0.0,
+                         initial_accel=0.0, final_velocity=0.0) -> AnyStateBatch:
+    """Plan many moves from moving starts at once: :func:`plan_scurve` or
+    :func:`plan_sine_jerk_optimal` with ``initial_velocity``, ``initial_accel``,
+    ``final_velocity``, over arrays that broadcast to one shape ``(n,)``.
+
+    One compiled loop over the moves (numba when installed), the scalar planners' solver and
+    results (``profile(i)`` equals the scalar plan).  ``benchmarks/bench_planner.py`` measures
+    the plans per second.
+
+    Parameters
+    ----------
+    kind : {"scurve", "sine_jerk_optimal"}
+    distance, max_jerk, max_accel, max_velocity, initial_velocity, initial_accel, final_velocity
+        array_like, as the scalar planners' arguments.
+
+    Returns
+    -------
+    AnyStateBatch
+    """
+    if kind not in ("scurve", "sine_jerk_optimal"):
+        raise ValueError(f"kind must be 'scurve' or 'sine_jerk_optimal', got {kind!r}")
+    names = ("distance", "max_jerk", "max_accel", "max_velocity", "initial_velocity", "initial_accel",
+             "final_velocity")
+    values = (distance, max_jerk, max_accel, max_velocity, initial_velocity, initial_accel,
+              final_velocity)
+    arrays = [as_finite_array(name, v) for name, v in zip(names, values)]
+    try:
+        shape = np.broadcast_shapes(*(a.shape for a in arrays))
+    except ValueError:
+        raise ValueError("the arguments must broadcast to one shape (n,); got "
+                         + ", ".join(f"{nm} {a.shape}" for nm, a in zip(names, arrays))) from None
+    if math.prod(shape) > MAX_BATCH_MOVES:
+        raise ValueError(f"more than MAX_BATCH_MOVES = {MAX_BATCH_MOVES} moves: plan them in several calls")
+    arrays = [np.ascontiguousarray(np.ravel(a)) for a in np.broadcast_arrays(*arrays)]
+    d, J, A, V, v0, a0, vf = arrays
+    n = d.shape[0]
+    packed = np.zeros((n, 4 + _onedof._MAX_SEG))
+    tu = np.ones(n)
+    _solver()                                   # compiles (or picks the pure-Python) solver
+    bad = _onedof.solve_many(d, v0, a0, vf, J, A, V, kind == "sine_jerk_optimal", packed, tu)
+    if bad >= 0:
+        i = int(bad)
+        for name, a in zip(("max_jerk", "max_accel", "max_velocity"), (J, A, V)):
+            if not a[i] > 0.0:
+                raise ValueError(f"{name} must be > 0 everywhere, got {a[i]!r} (move {i})")
+        if abs(vf[i]) > V[i]:
+            raise ValueError(f"final_velocity={vf[i]!r} is above max_velocity={V[i]!r} (move {i})")
+        KINDS_SCALAR = {"scurve": plan_scurve, "sine_jerk_optimal": plan_sine_jerk_optimal}
+        KINDS_SCALAR[kind](float(d[i]), float(J[i]), float(A[i]), float(V[i]),
+                           initial_velocity=float(v0[i]), initial_accel=float(a0[i]),
+                           final_velocity=float(vf[i]))      # raises, naming the reason
+        raise ValueError(f"plan_batch_any_state: no valid profile for move {i}")  # pragma: no cover
+    return AnyStateBatch(kind, (d, J, A, V, v0, a0, vf), packed, tu)

@@ -629,3 +629,36 @@ def test_pure_python_solver_is_the_compiled_one():
     finally:
         for name, f in saved.items():
             setattr(_onedof, name, f)
+
+
+@pytest.mark.parametrize("kind", sorted(KINDS))
+def test_batch_any_state_is_the_scalar_planner(kind):
+    from jerklab.planner import plan_batch_any_state
+
+    cases = random_cases(3000, 555)
+    b = plan_batch_any_state(kind, *cases.T)
+    assert len(b) == 3000
+    for i in range(0, 3000, 7):
+        d, J, A, V, v0, a0, vf = cases[i].tolist()
+        p = plan(kind, d, J, A, V, v0, a0, vf)
+        q = b.profile(i)
+        assert q.duration == p.duration == b.duration[i]
+        assert q.phase_times == p.phase_times and q.segment_jerk == p.segment_jerk
+        k = len(p.phase_times)
+        assert np.array_equal(b.phase_times[i, :k], p.phase_times) and not b.phase_times[i, k:].any()
+        assert np.array_equal(b.segment_jerk[i, :k], p.segment_jerk)
+        assert b.brake_time[i] == pytest.approx(p.brake_time, rel=1e-14, abs=0)
+        np.testing.assert_array_equal(q.sample([0.3 * p.duration]).position, p.sample([0.3 * p.duration]).position)
+    # broadcasting, the empty move, and bad input named
+    b = plan_batch_any_state(kind, [0.0, 1.0], 100.0, 10.0, 2.0, initial_velocity=1.0, final_velocity=1.0)
+    assert b.duration[0] == 0.0 and b.duration[1] > 0.0
+    with pytest.raises(ValueError, match="final_velocity"):
+        plan_batch_any_state(kind, [1.0, 1.0], 100.0, 10.0, 2.0, final_velocity=[0.0, 3.0])
+    with pytest.raises(ValueError, match="max_accel"):
+        plan_batch_any_state(kind, [1.0, 1.0], 100.0, [10.0, -1.0], 2.0, initial_velocity=0.5)
+    with pytest.raises(ValueError, match="initial_accel"):
+        plan_batch_any_state(kind, [1.0, 1.0], 100.0, 10.0, 2.0, initial_accel=[0.0, np.nan])
+    with pytest.raises(ValueError, match="kind"):
+        plan_batch_any_state("trapezoid", 1.0, 100.0, 10.0, 2.0)
+    with pytest.raises(ValueError, match="i must be"):
+        b.profile(5)
