@@ -230,6 +230,7 @@ void loop() {
     if (g_tick_flag) {
         g_tick_flag = 0;
         if (device.state() != jl::Device::kIdle) {
+            JL_PART_BEGIN(10);                          // the whole tick (probe build 10)
 #ifndef JL_PROBE_PART
             PORTB |= kProbe;
 #endif
@@ -243,6 +244,7 @@ void loop() {
             JL_PART_BEGIN(7);
             device.background();
             JL_PART_END(7);
+            JL_PART_END(10);
         }
     }
     if (g_overrun) {

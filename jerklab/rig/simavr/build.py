@@ -93,8 +93,8 @@ def build_firmware(*targets: str, build_dir=None, baud=None, probe_part=None) ->
             raise ValueError(f"baud must be 115200, 500000 or 1000000, got {baud!r}")
         defs.append(f"-DJL_BAUD={int(baud)}UL")
     if probe_part is not None:
-        if isinstance(probe_part, bool) or not isinstance(probe_part, int) or not 1 <= probe_part <= 9:
-            raise ValueError(f"probe_part must be an integer in 1..9, got {probe_part!r}")
+        if isinstance(probe_part, bool) or not isinstance(probe_part, int) or not 1 <= probe_part <= 10:
+            raise ValueError(f"probe_part must be an integer in 1..10, got {probe_part!r}")
         defs.append(f"-DJL_PROBE_PART={probe_part}")
     extra = [f"EXTRA_DEFS={' '.join(defs)}"] if defs else []
     with _build_lock(build):
