@@ -1,6 +1,7 @@
 #include "jl_planner.h"
 #include "jl_port.h"
 #include "jl_protocol.h"
+#include <string.h>
 
 namespace jl {
 
@@ -379,98 +380,123 @@ static uint32_t first_k(float t0, float Ts) {
 
 uint32_t PlanStepper::first_sample(uint8_t i) const { return first_k(p_->seg[i].t0, Ts_); }
 
-// The coefficients of segment i in stages of at most ~5000 AVR cycles each (prepare() runs one
-// stage per control tick, so even a 1 ms tick never runs long): 0 the first sample; on a sine
-// pulse 1 cos and sin of w delta, 2 cos and sin of theta/2, 3 the polynomial parts, 4 the
-// recurrence; on a polynomial segment 1 all coefficients.
+// Stage 0 of segment i's coefficients, its first sample k0 and that of the next segment known.
+void PlanStepper::begin_coef(uint8_t i, Coef* c, uint32_t k0, uint32_t k_end) const {
+    const Segment& g = p_->seg[i];
+    c->seg = 0xFE;                              // in preparation
+    c->k0 = k0;
+    c->k_end = k_end;
+    c->sine = g.sine;
+    c->j = static_cast<float>(k0) * Ts_ - g.t0;  // delta = k0 Ts - t0 in [0, Ts), kept in j until the last stage
+}
+
+// The coefficients of segment i in stages of at most ~2000 AVR cycles each (prepare() runs one
+// stage per control tick, so a 1 ms tick never runs long): 0 the first samples of the segment
+// and of the next one; on a sine pulse 1 cos(w delta), 2 sin(w delta), 3 sin(theta/2),
+// 4 cos(theta/2), 5 B and 2 q2, 6 and 7 the polynomial parts, 8 the feedforward terms of the
+// recurrence, 9 the rest; on a polynomial segment 1 the state at the first sample, 2 its scaled
+// values, 3 and 4 the other coefficients.
 bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
     const Segment& g = p_->seg[i];
     const float Ts = Ts_, sx = sx_, sv = sv_;
     if (stage == 0) {
-        const uint32_t k0 = first_k(g.t0, Ts);
-        c->seg = 0xFE;                              // in preparation
-        c->k0 = k0;
-        c->sine = g.sine;
-        c->delta = static_cast<float>(k0) * Ts - g.t0;   // >= 0, < Ts
+        begin_coef(i, c, first_k(g.t0, Ts),
+                   i + 1 < p_->nseg ? first_k(p_->seg[i + 1].t0, Ts) : 0xFFFFFFFFUL);
         return false;
     }
-    if (g.sine && stage == 1) {
-        c->h = jl_cosf(g.w * c->delta);
-        c->q = jl_sinf(g.w * c->delta);
-        return false;
-    }
-    if (g.sine && stage == 2) {
-        const float th = g.w * Ts;
-        c->s2 = jl_sinf(0.5f * th);
-        c->ic2 = jl_cosf(0.5f * th);
-        return false;
-    }
-    if (g.sine && stage == 3) {
-        // the polynomial parts: x = (x0 - B) + v0 u + q2 u^2 + B cos(w u) (kept in x0..x2)
-        const float w = g.w, jw = g.jp / w;
-        const float B = jw / (w * w);
-        const float q2 = 0.5f * (g.a0 + jw);
-        const float delta = c->delta;
-        const float vd = g.v0 + 2.0f * q2 * delta;
-        c->x0 = sx * ((g.x0 - B) + delta * (g.v0 + delta * q2));
-        c->x1 = sx * Ts * vd;
-        c->x2 = sx * q2 * Ts * Ts;
-        c->x3 = 0.0f;
-        c->v0 = sv * vd;                           // v = v0 + 2 q2 u - w B sin(w u)
-        c->v1 = sv * 2.0f * q2 * Ts;
-        c->v2 = 0.0f;
-        c->a0 = 2.0f * q2;                         // a = 2 q2 - w^2 B cos(w u)
-        c->a1 = 0.0f;
-        c->f0 = alpha_ * c->a0 + beta_ * vd;
-        c->f1 = beta_ * 2.0f * q2 * Ts;
-        c->f2 = 0.0f;
-        c->j = 0.0f;
-        c->w = B;                                  // (B until stage 4)
-        return false;
-    }
-    const float delta = c->delta;
-    if (g.sine) {
-        const float w = g.w, B = c->w;
-        // Minsky's recurrence h -= e q; q += e h with e = 2 sin(theta/2), theta = w Ts, keeps
-        // h_n = sx B cos(w u_n) and q_n = sx B sin(w u_n + theta/2) exactly (2 fmul a step):
-        // sx B sin(w u_n) = (q_n - s2 h_n) / c2, s2 = sin(theta/2), c2 = cos(theta/2).
-        const float s2 = c->s2, c2 = c->ic2;
-        const float cwd = c->h, swd = c->q;        // cos, sin of w delta (stage 0)
-        const float isx = 1.0f / sx, ic2 = 1.0f / c2;
-        c->eps = 2.0f * s2;
-        c->w = w;
-        c->ic2 = ic2;
-        c->isx = isx;
-        c->fh = isx * (-alpha_ * w * w + beta_ * w * s2 * ic2);
-        c->fq = -isx * beta_ * w * ic2;
+    const bool last = i == p_->nseg - 1;
+    if (g.sine && !last) {
+        switch (stage) {
+        case 1: c->h = jl_cosf(g.w * c->j); return false;
+        case 2: c->q = jl_sinf(g.w * c->j); return false;
+        case 3: c->s2 = jl_sinf(0.5f * (g.w * Ts)); return false;
+        case 4: c->ic2 = jl_cosf(0.5f * (g.w * Ts)); return false;
+        case 5: {
+            const float w = g.w, jw = g.jp / w;
+            c->w = jw / (w * w);                   // B (until stage 9)
+            c->a0 = g.a0 + jw;                     // 2 q2
+            return false;
+        }
+        case 6: {
+            // the polynomial parts: x = (x0 - B) + v0 u + q2 u^2 + B cos(w u) (kept in x0..x2)
+            const float B = c->w, q2 = 0.5f * c->a0;
+            const float delta = c->j;
+            const float vd = g.v0 + 2.0f * q2 * delta;
+            c->x0 = sx * ((g.x0 - B) + delta * (g.v0 + delta * q2));
+            c->x1 = sx * Ts * vd;
+            c->x2 = sx * q2 * Ts * Ts;
+            c->x3 = 0.0f;
+            c->v0 = vd;                            // (unscaled until stage 7)
+            return false;
+        }
+        case 7: {
+            const float q2 = 0.5f * c->a0, vd = c->v0;
+            c->v0 = sv * vd;                       // v = v0 + 2 q2 u - w B sin(w u)
+            c->v1 = sv * 2.0f * q2 * Ts;
+            c->v2 = 0.0f;
+            c->a0 = 2.0f * q2;                     // a = 2 q2 - w^2 B cos(w u)
+            c->a1 = 0.0f;
+            c->f0 = alpha_ * c->a0 + beta_ * vd;
+            c->f1 = beta_ * 2.0f * q2 * Ts;
+            c->f2 = 0.0f;
+            c->j = 0.0f;
+            return false;
+        }
+        case 8: {
+            // Minsky's recurrence h -= e q; q += e h with e = 2 sin(theta/2), theta = w Ts, keeps
+            // h_n = sx B cos(w u_n) and q_n = sx B sin(w u_n + theta/2) exactly (2 fmul a step):
+            // sx B sin(w u_n) = (q_n - s2 h_n) / c2, s2 = sin(theta/2), c2 = cos(theta/2).
+            const float w = g.w, s2 = c->s2;
+            const float isx = 1.0f / sx, ic2 = 1.0f / c->ic2;
+            c->eps = ic2;                          // (1 / c2 until stage 9)
+            c->isx = isx;
+            c->fh = isx * (-alpha_ * w * w + beta_ * w * s2 * ic2);
+            c->fq = -isx * beta_ * w * ic2;
+            return false;
+        }
+        default: break;
+        }
+        // stage 9
+        const float w = g.w, B = c->w, s2 = c->s2, c2 = c->ic2, ic2 = c->eps, isx = c->isx;
+        const float cwd = c->h, swd = c->q;        // cos, sin of w delta (stages 1, 2)
         c->vh = sv * isx * w * s2 * ic2;
         c->vq = -sv * isx * w * ic2;
         c->h = sx * B * cwd;
         c->q = sx * B * (swd * c2 + cwd * s2);     // sin(w delta + theta/2)
-    } else {
+        c->eps = 2.0f * s2;
+        c->w = w;
+        c->ic2 = ic2;
+    } else if (last) {                              // the rest at the target
+        memset(&c->x0, 0, sizeof(float) * static_cast<size_t>(&c->vq - &c->x0 + 1));
+        c->x0 = sx * g.x0;
+    } else if (stage == 1) {
         Sample s;
-        eval_poly(g, delta, &s);
-        const float j = g.jp;
-        c->x0 = sx * s.position;
-        c->x1 = sx * s.velocity * Ts;
-        c->x2 = sx * 0.5f * s.accel * Ts * Ts;
-        c->x3 = sx * j * Ts * Ts * Ts * (1.0f / 6.0f);
-        c->v0 = sv * s.velocity;
-        c->v1 = sv * s.accel * Ts;
-        c->v2 = sv * 0.5f * j * Ts * Ts;
+        eval_poly(g, c->j, &s);
+        c->x0 = s.position;                        // (unscaled until stage 2)
+        c->v0 = s.velocity;
         c->a0 = s.accel;
+        return false;
+    } else if (stage == 2) {
+        const float v = c->v0;
+        c->x0 = sx * c->x0;
+        c->x1 = sx * v * Ts;
+        c->v0 = sv * v;
+        c->f0 = alpha_ * c->a0 + beta_ * v;
+        return false;
+    } else if (stage == 3) {
+        const float j = g.jp, a = c->a0;
+        c->x2 = sx * 0.5f * a * Ts * Ts;
+        c->x3 = sx * j * Ts * Ts * Ts * (1.0f / 6.0f);
+        c->v1 = sv * a * Ts;
+        c->v2 = sv * 0.5f * j * Ts * Ts;
+        return false;
+    } else {
+        const float j = g.jp, a = c->a0;
         c->a1 = j * Ts;
-        c->f0 = alpha_ * s.accel + beta_ * s.velocity;
-        c->f1 = alpha_ * j * Ts + beta_ * s.accel * Ts;
+        c->f1 = alpha_ * j * Ts + beta_ * a * Ts;
         c->f2 = beta_ * 0.5f * j * Ts * Ts;
         c->j = j;
-        c->h = c->q = c->eps = c->w = c->s2 = c->ic2 = c->isx = 0.0f;
-        c->fh = c->fq = c->vh = c->vq = 0.0f;
-    }
-    if (i == p_->nseg - 1) {                        // the rest at the target
-        c->x0 = sx * g.x0;
-        c->x1 = c->x2 = c->x3 = c->v0 = c->v1 = c->v2 = c->a0 = c->a1 = 0.0f;
-        c->f0 = c->f1 = c->f2 = c->j = 0.0f;
+        memset(&c->h, 0, sizeof(float) * static_cast<size_t>(&c->vq - &c->h + 1));
     }
     c->seg = i;
     return true;
@@ -492,10 +518,10 @@ void PlanStepper::start(const Plan& p, float Ts, float alpha, float beta, float 
     n_ = 0;
     seg_ = 0;
     while (seg_ + 1 < p.nseg && first_sample(seg_ + 1) <= 0) ++seg_;
-    compute(seg_, &cur_);
-    n_ = k_ - cur_.k0;
-    next_.seg = 0xFF;
-    k_next_ = seg_ + 1 < p.nseg ? first_sample(seg_ + 1) : 0xFFFFFFFFUL;
+    ci_ = 0;
+    compute(seg_, &buf_[0]);
+    n_ = k_ - buf_[0].k0;
+    reset_next();
     prepare();
 }
 
@@ -503,25 +529,33 @@ void PlanStepper::switch_plan(const Plan& p) {
     p_ = &p;
     seg_ = 0;
     while (seg_ + 1 < p.nseg && first_sample(seg_ + 1) <= k_) ++seg_;
-    compute(seg_, &cur_);
-    n_ = k_ - cur_.k0;
-    next_.seg = 0xFF;
-    k_next_ = seg_ + 1 < p.nseg ? first_sample(seg_ + 1) : 0xFFFFFFFFUL;
+    compute(seg_, &buf_[ci_]);
+    n_ = k_ - buf_[ci_].k0;
+    reset_next();
 }
 
 void PlanStepper::prepare() {
     if (seg_ + 1 >= p_->nseg) return;
-    // The segment that the next change of segment enters: skip those without a sample.
-    uint8_t j = seg_ + 1;
-    if (next_.seg < 0xFE && next_.seg >= j) return;     // ready
-    if (next_.seg != 0xFE || prep_seg_ < j) {       // start afresh
-        uint32_t kj = first_sample(j);
-        while (j + 1 < p_->nseg && first_sample(j + 1) <= kj) { ++j; kj = first_sample(j); }
-        if (next_.seg == j) return;
-        prep_seg_ = j;
-        prep_stage_ = 0;
+    Coef* nx = &buf_[ci_ ^ 1];
+    if (nx->seg < 0xFD) return;                     // ready
+    if (nx->seg == 0xFF) {
+        // The segment that the next change of segment enters (the first sample kj of seg_ + 1 is
+        // known): skip those without a sample; one first_k per call.
+        const uint8_t j = prep_seg_;
+        const uint32_t kj = buf_[ci_].k_end;
+        const uint32_t ke = j + 1 < p_->nseg ? first_sample(j + 1) : 0xFFFFFFFFUL;
+        if (ke <= kj) { ++prep_seg_; return; }     // segment j has no sample: the next one
+        nx->k0 = kj;
+        nx->k_end = ke;
+        nx->seg = 0xFD;                             // both first samples known
+        return;
     }
-    if (compute_stage(prep_seg_, &next_, prep_stage_)) prep_stage_ = 0;
+    if (nx->seg == 0xFD) {
+        begin_coef(prep_seg_, nx, nx->k0, nx->k_end);
+        prep_stage_ = 1;
+        return;
+    }
+    if (compute_stage(prep_seg_, nx, prep_stage_)) prep_stage_ = 0;
     else ++prep_stage_;
 }
 
@@ -531,7 +565,7 @@ bool PlanStepper::prepare_switch(const Plan& p) {
         pend_stage_ = 0;
         pend_.seg = 0xFF;
     }
-    if (pend_.seg < 0xFE) return true;
+    if (pend_.seg < 0xFD) return true;
     // the first segment of p (its first sample at or after p.t_start); p_ swapped for the call
     const Plan* keep = p_;
     p_ = &p;
@@ -544,34 +578,32 @@ bool PlanStepper::prepare_switch(const Plan& p) {
 }
 
 void PlanStepper::advance_segment() {
-    // Called when k_ reached next_.k0 (prepared) or, unprepared, found by search (slow path).
-    if (next_.seg < 0xFE && next_.seg > seg_ && k_ >= next_.k0) {
-        cur_ = next_;
-        seg_ = cur_.seg;
+    // Called when k_ reached the next segment's first sample: the prepared coefficients take
+    // over (a buffer swap), or, unprepared, the segment is found by search (slow path).
+    Coef* nx = &buf_[ci_ ^ 1];
+    if (nx->seg < 0xFD && nx->seg > seg_ && k_ >= nx->k0) {
+        ci_ ^= 1;
+        seg_ = nx->seg;
     } else {
         while (seg_ + 1 < p_->nseg && first_sample(seg_ + 1) <= k_) ++seg_;
-        compute(seg_, &cur_);
+        compute(seg_, &buf_[ci_]);
     }
-    next_.seg = 0xFF;
-    n_ = k_ - cur_.k0;
-    k_next_ = seg_ + 1 < p_->nseg ? first_sample(seg_ + 1) : 0xFFFFFFFFUL;
+    reset_next();
+    n_ = k_ - buf_[ci_].k0;
 }
 
 bool PlanStepper::next_fast(float* position, float* velocity, float* ff) {
-    if (pend_p_ != nullptr && pend_.seg < 0xFE && k_ >= pend_.k0) {
+    if (pend_p_ != nullptr && pend_.seg < 0xFD && k_ >= pend_.k0) {
         // re-targeting: the new plan takes over at its first sample
         p_ = pend_p_;
         pend_p_ = nullptr;
-        cur_ = pend_;
-        seg_ = cur_.seg;
-        n_ = k_ - cur_.k0;
-        next_.seg = 0xFF;
-        k_next_ = seg_ + 1 < p_->nseg ? first_sample(seg_ + 1) : 0xFFFFFFFFUL;
+        buf_[ci_] = pend_;
+        seg_ = pend_.seg;
+        n_ = k_ - pend_.k0;
+        reset_next();
     }
-    if (seg_ + 1 < p_->nseg) {
-        if (k_ >= k_next_) advance_segment();
-    }
-    Coef& c = cur_;
+    if (k_ >= buf_[ci_].k_end) advance_segment();
+    Coef& c = buf_[ci_];
     const float n = static_cast<float>(n_);
     if (c.sine) {
         const float h = c.h, q = c.q;
@@ -592,10 +624,8 @@ bool PlanStepper::next_fast(float* position, float* velocity, float* ff) {
 }
 
 bool PlanStepper::next(Sample* s) {
-    if (seg_ + 1 < p_->nseg) {
-        if (k_ >= k_next_) advance_segment();
-    }
-    const Coef& c = cur_;
+    if (k_ >= buf_[ci_].k_end) advance_segment();
+    const Coef& c = buf_[ci_];
     const bool moving = c.seg + 1 < p_->nseg;
     const float n = static_cast<float>(n_);
     if (c.sine) {

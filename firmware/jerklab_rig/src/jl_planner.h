@@ -139,14 +139,14 @@ public:
     /// which takes over at its first sample; true once scheduled. next_fast() then switches.
     bool prepare_switch(const Plan& p);
     void cancel_switch() { pend_p_ = nullptr; }
-    bool switch_scheduled() const { return pend_p_ != nullptr && pend_.seg < 0xFE; }
+    bool switch_scheduled() const { return pend_p_ != nullptr && pend_.seg < 0xFD; }
     const Plan* plan() const { return p_; }
     /// The control loop's sample at t = k Ts: position (and velocity, feedforward), then k++.
     /// Returns false once the move is over (rest at the target).
     bool next_fast(float* position, float* velocity, float* ff);
     /// The full sample (jerk, acceleration, velocity, position) at t = k Ts, then k++.
     bool next(Sample* s);
-    /// Work ahead: one stage (of up to five, each <= ~5000 AVR cycles) of the coefficients of the
+    /// Work ahead: one stage (of up to eight, each <= ~2000 AVR cycles) of the coefficients of the
     /// next segment, if not ready yet (call after each step; nothing to do most of the time).
     void prepare();
     uint32_t index() const { return k_; }
@@ -158,27 +158,31 @@ public:
 
     struct Coef {
         uint32_t k0;      // first sample of the segment
-        uint8_t seg;      // segment index (0xFF: not prepared)
+        uint32_t k_end;   // first sample of the next segment (0xFFFFFFFF: none)
+        uint8_t seg;      // segment index (0xFF: not prepared, 0xFE: in preparation, 0xFD: k0, k_end known)
         uint8_t sine;
         float x0, x1, x2, x3;      // x = x0 + n (x1 + n (x2 + n x3)) [+ h]
         float v0, v1, v2;          // v = v0 + n (v1 + n v2) [- w h']
         float a0, a1;              // a = a0 + n a1 [- w^2 h]
         float f0, f1, f2;          // u_F = f0 + n (f1 + n f2) [+ fh h + fhp h']
-        float j;                   // constant jerk
+        float j;                   // constant jerk (k0 Ts - t0 during the preparation)
         // sine: (h, q) = sx B (cos w u, sin(w u + theta/2)) advanced by Minsky's recurrence
         float h, q, eps, w, s2, ic2, isx, fh, fq, vh, vq;
-        float delta;               // k0 Ts - t0
     };
 
 private:
     void compute(uint8_t i, Coef* c) const;
+    void begin_coef(uint8_t i, Coef* c, uint32_t k0, uint32_t k_end) const;
     bool compute_stage(uint8_t i, Coef* c, uint8_t stage) const;
     void advance_segment();
+    /// The next segment is to be prepared afresh (from seg_ + 1 on).
+    void reset_next() { buf_[ci_ ^ 1].seg = 0xFF; prep_seg_ = static_cast<uint8_t>(seg_ + 1); }
     const Plan* p_ = nullptr;
     float Ts_ = 0.005f, alpha_ = 0.0f, beta_ = 0.0f, sx_ = 1.0f, sv_ = 1.0f;
-    uint32_t k_ = 0, n_ = 0, k_next_ = 0;   // k_next_: first sample of the next segment
+    uint32_t k_ = 0, n_ = 0;
     uint8_t seg_ = 0, prep_seg_ = 0, prep_stage_ = 0, pend_stage_ = 0;
-    Coef cur_, next_, pend_;
+    uint8_t ci_ = 0;           // buf_[ci_]: the current segment, buf_[ci_ ^ 1]: the next one
+    Coef buf_[2], pend_;
     const Plan* pend_p_ = nullptr;
 };
 
