@@ -7,8 +7,8 @@
 
 namespace jl {
 
-/// Update a running CRC-16/CCITT-FALSE with one byte (table driven; the table
-/// lives in flash on the AVR).
+/// Update a running CRC-16/CCITT-FALSE with one byte (no table: avr-libc's
+/// _crc_xmodem_update on the AVR).
 uint16_t crc16_update(uint16_t crc, uint8_t byte);
 
 /// CRC-16/CCITT-FALSE of a buffer ("123456789" -> 0x29B1).
