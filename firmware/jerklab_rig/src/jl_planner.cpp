@@ -390,12 +390,13 @@ void PlanStepper::begin_coef(uint8_t i, Coef* c, uint32_t k0, uint32_t k_end) co
     c->j = static_cast<float>(k0) * Ts_ - g.t0;  // delta = k0 Ts - t0 in [0, Ts), kept in j until the last stage
 }
 
-// The coefficients of segment i in stages of at most ~2000 AVR cycles each (prepare() runs one
+// The coefficients of segment i in stages of at most ~2500 AVR cycles each (interrupts included) (prepare() runs one
 // stage per control tick, so a 1 ms tick never runs long): 0 the first samples of the segment
 // and of the next one; on a sine pulse 1 cos(w delta), 2 sin(w delta), 3 sin(theta/2),
-// 4 cos(theta/2), 5 B and 2 q2, 6 and 7 the polynomial parts, 8 the feedforward terms of the
-// recurrence, 9 the rest; on a polynomial segment 1 the state at the first sample, 2 its scaled
-// values, 3 and 4 the other coefficients.
+// 4 cos(theta/2), 5 B and 2 q2, 6 to 8 the polynomial parts, 9 the two divisions of the
+// recurrence terms, 10 those of the feedforward, 11 of the velocity, 12 the recurrence's start;
+// on a polynomial segment 1 the state at the first sample, 2 its scaled values, 3 to 5 the
+// other coefficients.
 bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
     const Segment& g = p_->seg[i];
     const float Ts = Ts_, sx = sx_, sv = sv_;
@@ -413,7 +414,7 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
         case 4: c->ic2 = jl_cosf(0.5f * (g.w * Ts)); return false;
         case 5: {
             const float w = g.w, jw = g.jp / w;
-            c->w = jw / (w * w);                   // B (until stage 9)
+            c->w = jw / (w * w);                   // B (until stage 12)
             c->a0 = g.a0 + jw;                     // 2 q2
             return false;
         }
@@ -424,43 +425,52 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
             const float vd = g.v0 + 2.0f * q2 * delta;
             c->x0 = sx * ((g.x0 - B) + delta * (g.v0 + delta * q2));
             c->x1 = sx * Ts * vd;
-            c->x2 = sx * q2 * Ts * Ts;
-            c->x3 = 0.0f;
             c->v0 = vd;                            // (unscaled until stage 7)
             return false;
         }
         case 7: {
             const float q2 = 0.5f * c->a0, vd = c->v0;
+            c->x2 = sx * q2 * Ts * Ts;
+            c->x3 = 0.0f;
             c->v0 = sv * vd;                       // v = v0 + 2 q2 u - w B sin(w u)
             c->v1 = sv * 2.0f * q2 * Ts;
             c->v2 = 0.0f;
+            c->f0 = alpha_ * c->a0 + beta_ * vd;   // (vd = v0 / sv not kept: f0 here)
+            return false;
+        }
+        case 8: {
+            const float q2 = 0.5f * c->a0;
             c->a0 = 2.0f * q2;                     // a = 2 q2 - w^2 B cos(w u)
             c->a1 = 0.0f;
-            c->f0 = alpha_ * c->a0 + beta_ * vd;
             c->f1 = beta_ * 2.0f * q2 * Ts;
             c->f2 = 0.0f;
             c->j = 0.0f;
             return false;
         }
-        case 8: {
+        case 9:
             // Minsky's recurrence h -= e q; q += e h with e = 2 sin(theta/2), theta = w Ts, keeps
             // h_n = sx B cos(w u_n) and q_n = sx B sin(w u_n + theta/2) exactly (2 fmul a step):
             // sx B sin(w u_n) = (q_n - s2 h_n) / c2, s2 = sin(theta/2), c2 = cos(theta/2).
-            const float w = g.w, s2 = c->s2;
-            const float isx = 1.0f / sx, ic2 = 1.0f / c->ic2;
-            c->eps = ic2;                          // (1 / c2 until stage 9)
-            c->isx = isx;
+            c->isx = 1.0f / sx;
+            c->eps = 1.0f / c->ic2;                // (1 / c2 until stage 12)
+            return false;
+        case 10: {
+            const float w = g.w, s2 = c->s2, ic2 = c->eps, isx = c->isx;
             c->fh = isx * (-alpha_ * w * w + beta_ * w * s2 * ic2);
             c->fq = -isx * beta_ * w * ic2;
             return false;
         }
+        case 11: {
+            const float w = g.w, s2 = c->s2, ic2 = c->eps, isx = c->isx;
+            c->vh = sv * isx * w * s2 * ic2;
+            c->vq = -sv * isx * w * ic2;
+            return false;
+        }
         default: break;
         }
-        // stage 9
-        const float w = g.w, B = c->w, s2 = c->s2, c2 = c->ic2, ic2 = c->eps, isx = c->isx;
+        // stage 12
+        const float w = g.w, B = c->w, s2 = c->s2, c2 = c->ic2, ic2 = c->eps;
         const float cwd = c->h, swd = c->q;        // cos, sin of w delta (stages 1, 2)
-        c->vh = sv * isx * w * s2 * ic2;
-        c->vq = -sv * isx * w * ic2;
         c->h = sx * B * cwd;
         c->q = sx * B * (swd * c2 + cwd * s2);     // sin(w delta + theta/2)
         c->eps = 2.0f * s2;
@@ -478,21 +488,24 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
         return false;
     } else if (stage == 2) {
         const float v = c->v0;
+        c->f0 = alpha_ * c->a0 + beta_ * v;
         c->x0 = sx * c->x0;
         c->x1 = sx * v * Ts;
         c->v0 = sv * v;
-        c->f0 = alpha_ * c->a0 + beta_ * v;
         return false;
     } else if (stage == 3) {
         const float j = g.jp, a = c->a0;
         c->x2 = sx * 0.5f * a * Ts * Ts;
         c->x3 = sx * j * Ts * Ts * Ts * (1.0f / 6.0f);
+        return false;
+    } else if (stage == 4) {
+        const float j = g.jp, a = c->a0;
         c->v1 = sv * a * Ts;
         c->v2 = sv * 0.5f * j * Ts * Ts;
+        c->a1 = j * Ts;
         return false;
     } else {
         const float j = g.jp, a = c->a0;
-        c->a1 = j * Ts;
         c->f1 = alpha_ * j * Ts + beta_ * a * Ts;
         c->f2 = beta_ * 0.5f * j * Ts * Ts;
         c->j = j;

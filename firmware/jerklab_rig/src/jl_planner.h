@@ -146,7 +146,7 @@ public:
     bool next_fast(float* position, float* velocity, float* ff);
     /// The full sample (jerk, acceleration, velocity, position) at t = k Ts, then k++.
     bool next(Sample* s);
-    /// Work ahead: one stage (of up to eight, each <= ~2000 AVR cycles) of the coefficients of the
+    /// Work ahead: one stage (of up to 13, each <= ~2500 AVR cycles) of the coefficients of the
     /// next segment, if not ready yet (call after each step; nothing to do most of the time).
     void prepare();
     uint32_t index() const { return k_; }
