@@ -547,29 +547,45 @@ void PlanStepper::switch_plan(const Plan& p) {
     reset_next();
 }
 
-void PlanStepper::prepare() {
-    if (seg_ + 1 >= p_->nseg) return;
+// One stage of the next segment's coefficients; true when they are ready (or not needed).
+bool PlanStepper::prepare_stage() {
+    if (seg_ + 1 >= p_->nseg) return true;
     Coef* nx = &buf_[ci_ ^ 1];
-    if (nx->seg < 0xFD) return;                     // ready
+    if (nx->seg < 0xFD) return true;                // ready
     if (nx->seg == 0xFF) {
         // The segment that the next change of segment enters (the first sample kj of seg_ + 1 is
         // known): skip those without a sample; one first_k per call.
         const uint8_t j = prep_seg_;
         const uint32_t kj = buf_[ci_].k_end;
         const uint32_t ke = j + 1 < p_->nseg ? first_sample(j + 1) : 0xFFFFFFFFUL;
-        if (ke <= kj) { ++prep_seg_; return; }     // segment j has no sample: the next one
+        if (ke <= kj) { ++prep_seg_; return false; }   // segment j has no sample: the next one
         nx->k0 = kj;
         nx->k_end = ke;
         nx->seg = 0xFD;                             // both first samples known
-        return;
+        return false;
     }
     if (nx->seg == 0xFD) {
         begin_coef(prep_seg_, nx, nx->k0, nx->k_end);
         prep_stage_ = 1;
-        return;
+        return false;
     }
-    if (compute_stage(prep_seg_, nx, prep_stage_)) prep_stage_ = 0;
-    else ++prep_stage_;
+    if (compute_stage(prep_seg_, nx, prep_stage_)) { prep_stage_ = 0; return true; }
+    ++prep_stage_;
+    return false;
+}
+
+// One stage per call while the current segment has as many samples left as stages to go;
+// otherwise the stages left spread evenly over its last samples (short segments, long Ts), so
+// the switch never finds the next segment unprepared.
+void PlanStepper::prepare() {
+    if (prepare_stage()) return;
+    // stages to go (over-estimated by one before stage 1: prep_stage_ is 0 until then)
+    const uint8_t left = static_cast<uint8_t>((p_->seg[prep_seg_].sine ? 14 : 7) - prep_stage_);
+    const uint32_t ticks = buf_[ci_].k_end - k_;    // calls before the switch
+    if (ticks > left) return;
+    const uint8_t t = static_cast<uint8_t>(ticks);
+    for (uint8_t n = t ? static_cast<uint8_t>((left + t - 1) / t) : left; n > 1; --n)
+        if (prepare_stage()) return;
 }
 
 bool PlanStepper::prepare_switch(const Plan& p) {

@@ -147,7 +147,8 @@ public:
     /// The full sample (jerk, acceleration, velocity, position) at t = k Ts, then k++.
     bool next(Sample* s);
     /// Work ahead: one stage (of up to 13, each <= ~2500 AVR cycles) of the coefficients of the
-    /// next segment, if not ready yet (call after each step; nothing to do most of the time).
+    /// next segment, if not ready yet, or more when the current segment ends before the rest
+    /// would be done (call after each step; nothing to do most of the time).
     void prepare();
     uint32_t index() const { return k_; }
     bool done() const { return seg_ + 1 >= p_->nseg; }
@@ -175,8 +176,9 @@ private:
     void begin_coef(uint8_t i, Coef* c, uint32_t k0, uint32_t k_end) const;
     bool compute_stage(uint8_t i, Coef* c, uint8_t stage) const;
     void advance_segment();
+    bool prepare_stage();
     /// The next segment is to be prepared afresh (from seg_ + 1 on).
-    void reset_next() { buf_[ci_ ^ 1].seg = 0xFF; prep_seg_ = static_cast<uint8_t>(seg_ + 1); }
+    void reset_next() { buf_[ci_ ^ 1].seg = 0xFF; prep_seg_ = static_cast<uint8_t>(seg_ + 1); prep_stage_ = 0; }
     const Plan* p_ = nullptr;
     float Ts_ = 0.005f, alpha_ = 0.0f, beta_ = 0.0f, sx_ = 1.0f, sv_ = 1.0f;
     uint32_t k_ = 0, n_ = 0;
