@@ -2,20 +2,22 @@
 
 Runs moves of every planner, one near top speed, and a 12 V open-loop step on the real firmware
 ELF in the simavr harness (as fast as the host allows: the budget is counted in CPU cycles, not
-wall time) and prints the control step's cycles (min/mean/max while the motor moves, measured
-between the rises and falls of the firmware's PB5 probe, interrupts included: encoder read,
-PID + feedforward, PWM write, telemetry record) against the period and against the issue-21
-ceiling of 4000 cycles (25 % of 1 ms); whether an encoder count was lost (the firmware's count
-against the harness's ideal one, and INT0 latency against a quarter encoder period at top
-speed); then where the cycles of a 1 ms tick go, from builds that raise the probe around one
-part each (``EXTRA_DEFS=-DJL_PROBE_PART=n``): the reference sample (computed one tick ahead,
-after the PWM write), one stage of a segment's preparation, the TELEMETRY frame (encode, CRC,
-UART ring), and flash/RAM against the Uno's.
+wall time) and prints the control step's cycles against the period and against the issue-21
+ceiling of 4000 cycles (25 % of 1 ms). The control step is the whole work of a tick, interrupts
+included: encoder read, safety checks, PID + feedforward, PWM write, the TELEMETRY frame (encode,
+CRC, into the UART ring), the reference of the next sample and one stage of the next segment's
+preparation -- measured between the rise and fall of the PB5 probe in the probe build 10
+(``EXTRA_DEFS=-DJL_PROBE_PART=10``), min/mean/max over the ticks while the motor moves. It also
+prints whether an encoder count was lost (the firmware's count against the harness's ideal one,
+and INT0 latency against a quarter encoder period at top speed), then where the cycles of a 1 ms
+tick go, from builds that raise the probe around one part each (``-DJL_PROBE_PART=n``), and
+flash/RAM against the Uno's.
 
     python -m benchmarks firmware
 
-The 1 ms runs use the sketch built for 1 Mbaud (``JL_BAUD``), so a TELEMETRY goes out at every
-sample (115200 baud carries ~11.8 bytes/ms, a 22-byte frame every 3rd sample at 1 ms).
+The runs use the sketch built for 115200 baud at 5 ms and for 1 Mbaud (``JL_BAUD``) at 1 ms, so
+a TELEMETRY goes out at every sample (115200 baud carries ~11.8 bytes/ms, a 22-byte frame every
+3rd sample at 1 ms).
 """
 from __future__ import annotations
 
@@ -103,15 +105,17 @@ def main():
         return
     fw = simavr.firmware_dir()
     out = simavr.build_firmware("avr", "size", "simavr")
-    fast = simavr.build_firmware("avr", build_dir=fw / "build" / "baud1m", baud=1000000)
     m = re.search(r"flash (\d+) / (\d+) bytes .*RAM (\d+) / (\d+) bytes", out["output"])
+    # the whole tick: probe build 10 (the default build's probe covers encoder read -> PWM write)
+    whole = {baud: simavr.build_firmware("avr", build_dir=fw / "build" / f"tick{baud}", baud=baud,
+                                         probe_part=10)["elf"] for baud in (115200, 1000000)}
     rows, summary = [], {}
-    for Ts_us, elf, baud in [(5000, out["elf"], 115200), (1000, fast["elf"], 1000000)]:
+    for Ts_us, baud in [(5000, 115200), (1000, 1000000)]:
         cases = _cases(Ts_us) + [(f"open-loop step 12 V, {100 * Ts_us / 1e6:g} s",
                                   [pr.Step(VS, Ts_us, 100)])]
         worst_mean, worst_max = 0.0, 0
         for label, cmds in cases:
-            s, end, wall = _run(elf, Ts_us, cmds, baud, run=not label.startswith("open-loop"))
+            s, end, wall = _run(whole[baud], Ts_us, cmds, baud, run=not label.startswith("open-loop"))
             b = s["control_step_cycles_moving"]
             lost = abs(s.get("firmware_counts", s["ideal_counts_x1"]) - s["ideal_counts_x1"])   # counts
             rows.append((Ts_us, label, b["n"], b["min"], b["mean"], b["max"], b["max"] / (16 * Ts_us),
@@ -121,8 +125,9 @@ def main():
                 worst_mean = max(worst_mean, b["mean"])
                 worst_max = max(worst_max, b["max"])
         summary[Ts_us] = (worst_mean, worst_max)
-    print("control step on the simulated Uno (encoder read -> PID + feedforward -> PWM write; cycles "
-          "at 16 MHz while moving, interrupts included)")
+    print("control step on the simulated Uno = the whole work of a tick (encoder read, PID + "
+          "feedforward, PWM write, TELEMETRY, next reference, one preparation stage; cycles at "
+          "16 MHz while moving, interrupts included)")
     print(f"{'Ts':>5s} {'case':46s} {'steps':>6s} {'min':>6s} {'mean':>7s} {'max':>6s} {'max/Ts':>7s} "
           f"{'max/4000':>8s} {'INT0 lat':>8s} {'lost':>5s} {'ovr':>4s} {'sim/wall':>8s}")
     for r in rows:
@@ -130,29 +135,26 @@ def main():
               f"{r[7]:8.3f} {r[8]:8d} {r[9]:5d} {r[10]:4d} {r[11]:8.1f}")
     for Ts_us in (5000, 1000):
         mean, mx = summary[Ts_us]
-        print(f"control step at Ts={Ts_us // 1000} ms: max {mx} cycles (mean {mean:.0f}; worst case over "
-              f"the moves; {mx / (16 * Ts_us):.3f} of the period)")
+        print(f"control step at Ts={Ts_us // 1000} ms: max {mx} cycles (mean {mean:.0f}; worst tick over "
+              f"the moves; {mx / (16 * Ts_us):.3f} of the period, {mx / 4000:.2f} x the 4000-cycle ceiling)")
     quarter = 16e6 / (4 * 448 * K * VS / (2 * math.pi))
     print(f"INT0 latency budget at top speed (quarter encoder period): {quarter:.0f} cycles")
 
-    # where a 1 ms tick's cycles go: one probe build per part
-    parts = [(8, "reference sample for the next tick (after the PWM write)"),
-             (9, "segment preparation, one stage (a few ticks per segment)"),
+    # where a 1 ms tick's cycles go: one probe build per part (0 = the default build's probe)
+    parts = [(0, "encoder read -> PWM write (Device::control)"),
+             (4, "  of which the PID"),
              (6, "TELEMETRY frame: encode, CRC, into the UART ring"),
-             (4, "PID (inside the control step)")]
-    print("\nparts of a 1 ms tick (near-top-speed sine-jerk move; each part's own probe build)")
-    print(f"{'part':58s} {'n':>6s} {'mean':>7s} {'max':>6s} {'max/4000':>8s}")
-    total_max = summary[1000][1]
+             (8, "reference sample for the next tick (after the PWM write)"),
+             (9, "segment preparation, one stage (the first ~13 ticks of a segment)")]
+    print("\nparts of a 1 ms tick (near-top-speed sine-jerk move; each part's own probe build; "
+          "interrupts included)")
+    print(f"{'part':66s} {'n':>6s} {'mean':>7s} {'max':>6s} {'max/4000':>8s}")
     for n, label in parts:
-        b_dir = fw / "build" / f"probe{n}"
-        simavr.build_firmware("avr", build_dir=b_dir, baud=1000000, probe_part=n)
+        b_dir = fw / "build" / (f"probe{n}" if n else "baud1m")
+        simavr.build_firmware("avr", build_dir=b_dir, baud=1000000, probe_part=n or None)
         s, end, wall = _run(b_dir / "jerklab_rig.elf", 1000, _cases(1000)[1][1], 1000000)
         b = s["control_step_cycles_all"]
-        print(f"{label:58s} {b['n']:6d} {b['mean']:7.0f} {b['max']:6d} {b['max'] / 4000:8.3f}")
-        if n in (8, 6):
-            total_max += b["max"]
-    print(f"tick total, control step + next reference + telemetry (sum of maxima): {total_max} cycles "
-          f"= {total_max / 16000:.3f} of 1 ms")
+        print(f"{label:66s} {b['n']:6d} {b['mean']:7.0f} {b['max']:6d} {b['max'] / 4000:8.3f}")
     if m:
         f, ft, r_, rt = (int(x) for x in m.groups())
         print(f"flash {f} / {ft} B = {f / ft:.3f} of the Uno, RAM {r_} / {rt} B = {r_ / rt:.3f} "
