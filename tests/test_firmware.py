@@ -56,8 +56,13 @@ def test_sketch_builds_and_fits_half_the_uno():
     assert m, out["output"]
     flash, flash_total, ram, ram_total = (int(m.group(i)) for i in (1, 2, 4, 5))
     assert flash_total == 32256 and ram_total == 2048
-    assert 4000 < flash <= 0.5 * flash_total
-    assert 100 < ram <= 0.5 * ram_total
+    # Budget 75 % (was 50 %): protocol version 3 adds the PRBS of SEQUENCE and the input
+    # shaper of SET_SHAPER, whose 128-sample reference ring buffer alone takes 512 B of RAM
+    # (delays up to 0.635 s at Ts = 5 ms: a 3-hump EI shaper down to ~3 Hz). 25 % of the
+    # Uno stays free for the stack (~500 B at most: the frame buffers of handle/send) and
+    # for later features.
+    assert 4000 < flash <= 0.75 * flash_total
+    assert 100 < ram <= 0.75 * ram_total
     # The hex holds the same bytes as the ELF's flash image (record checksums verified).
     data = 0
     for line in out["hex"].read_text().split():

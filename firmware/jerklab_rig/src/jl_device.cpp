@@ -99,6 +99,7 @@ static bool valid_period(uint16_t ts_us, uint16_t tick_us) {
 }
 
 void Device::handle(const Frame& f) {
+    if (handle_v3(f)) return;
     const uint8_t* p = f.payload;
     static const uint8_t kLen[10] = {0, kLenHello, kLenSetPlant, kLenSetGains, kLenSetLimits,
                                      kLenPlan, kLenRun, kLenStop, kLenStep, kLenHeartbeat};
@@ -113,7 +114,7 @@ void Device::handle(const Frame& f) {
     case kHello: {
         uint8_t r[kLenHelloReply];
         uint16_t caps = kCapSineJerk | kCapLoopPosition | kCapLoopVelocity | kCapOpenLoopStep |
-                        kCapFeedforward;
+                        kCapFeedforward | kCapSequence | kCapShaper;
         if (hal_.simulated_plant()) caps |= kCapSimulatedPlant;
         r[0] = kProtocolVersion;
         r[1] = cfg_.fw_major;
@@ -219,8 +220,9 @@ void Device::handle(const Frame& f) {
         hal_.zero_counts();
         pid_.reset();
         stepper_.start(plan_, Ts_);
+        shaper_.reset(1.0f / Ts_);
         k_ = 0;
-        n_total_ = plan_samples_ + settle;
+        n_total_ = plan_samples_ + shaper_.max_delay() + settle;   // the shaper lengthens the move
         decimation_ = dec;
         prev_counts_ = 0;
         last_pwm_ = 0;
@@ -250,6 +252,7 @@ void Device::handle(const Frame& f) {
         ack(f);
         hal_.zero_counts();
         step_pwm_ = volts_to_pwm(v);
+        seq_on_ = false;
         k_ = 0;
         n_total_ = n;
         decimation_ = 1;
@@ -265,6 +268,59 @@ void Device::handle(const Frame& f) {
         nack(f, kErrUnknownType);
         return;
     }
+}
+
+// Version 3 commands (PROTOCOL.md "Version 3"): SEQUENCE (open-loop PRBS) and SET_SHAPER.
+bool Device::handle_v3(const Frame& f) {
+    if (f.type != kSequence && f.type != kSetShaper) return false;
+    const uint8_t* p = f.payload;
+    if (f.len != (f.type == kSequence ? kLenSequence : kLenSetShaper)) { nack(f, kErrBadLength); return true; }
+    if (state_ != kIdle) { nack(f, kErrBusy); return true; }
+    if (f.type == kSequence) {
+        float amp = get_f32(p), off = get_f32(p + 4);
+        uint16_t ts = get_u16(p + 8), n = get_u16(p + 10), seed = get_u16(p + 12);
+        uint8_t order = p[14], hold = p[15];
+        if (!finite_f(amp) || !(amp >= 0.0f)) { nack(f, kErrBadValue, 0); return true; }
+        if (!finite_f(off) || !(jl_fabsf(off) + amp <= max_voltage_)) { nack(f, kErrBadValue, 1); return true; }
+        if (!valid_period(ts, cfg_.tick_us)) { nack(f, kErrBadValue, 2); return true; }
+        if (n < 1) { nack(f, kErrBadValue, 3); return true; }
+        if (prbs_mask(order) == 0) { nack(f, kErrBadValue, 5); return true; }
+        if ((seed & ((1UL << order) - 1)) == 0) { nack(f, kErrBadValue, 4); return true; }
+        if (hold < 1) { nack(f, kErrBadValue, 6); return true; }
+        ack(f);
+        hal_.zero_counts();
+        prbs_.start(seed, order, hold);
+        seq_volts_[0] = off - amp;
+        seq_volts_[1] = off + amp;
+        seq_pwm_[0] = volts_to_pwm(seq_volts_[0]);
+        seq_pwm_[1] = volts_to_pwm(seq_volts_[1]);
+        seq_on_ = true;
+        k_ = 0;
+        n_total_ = n;
+        decimation_ = 1;
+        have_sample_ = finished_ = false;
+        state_ = kStepping;
+        hal_.set_period(static_cast<uint16_t>(ts / cfg_.tick_us));
+        return true;
+    }
+    // SET_SHAPER: u8 n_taps, f32 amplitudes[10], u8 delays[10]; taps past n_taps are 0.
+    const uint8_t n = p[0];
+    if (n > kShaperMaxTaps) { nack(f, kErrBadValue, 0); return true; }
+    float a[kShaperMaxTaps];
+    float sum = 0.0f;
+    for (uint8_t i = 0; i < kShaperMaxTaps; ++i) {
+        a[i] = get_f32(p + 1 + 4 * i);
+        if (!finite_f(a[i]) || (i >= n && a[i] != 0.0f)) { nack(f, kErrBadValue, 1); return true; }
+        sum += a[i];
+    }
+    if (n && !(jl_fabsf(sum - 1.0f) <= 1e-3f)) { nack(f, kErrBadValue, 1); return true; }
+    const uint8_t* d = p + 1 + 4 * kShaperMaxTaps;
+    for (uint8_t i = 0; i < kShaperMaxTaps; ++i) {
+        if (i < n ? d[i] >= kShaperRing : d[i] != 0) { nack(f, kErrBadValue, 2); return true; }
+    }
+    shaper_.set(n, a, d);
+    ack(f);
+    return true;
 }
 
 bool Device::control() {
@@ -284,7 +340,8 @@ bool Device::control() {
     if (state_ == kRunning) {
         Sample s;
         stepper_.next(&s);
-        if (k_ >= plan_samples_) flags |= kTelemetrySettling;
+        if (shaper_.on()) shaper_.apply(&s.position, &s.velocity, &s.accel);   // SET_SHAPER
+        if (k_ >= plan_samples_ + shaper_.max_delay()) flags |= kTelemetrySettling;
         ref = s.position;
         const float pos_error = s.position - static_cast<float>(c) * rad_per_count_;
         float detail = 0.0f;
@@ -322,6 +379,10 @@ bool Device::control() {
             flags |= kTelemetryFault;
         }
         last_pwm_ = pwm;
+    } else if (seq_on_) {
+        const uint8_t b = prbs_.next();   // SEQUENCE: the PRBS level, its volts as the reference
+        pwm = seq_pwm_[b];
+        ref = seq_volts_[b];
     } else {
         pwm = step_pwm_;
     }

@@ -6,6 +6,7 @@
 #define JL_DEVICE_H
 #include <stdint.h>
 #include "jl_control.h"
+#include "jl_excite.h"
 #include "jl_frame.h"
 #include "jl_planner.h"
 #include "jl_protocol.h"
@@ -74,6 +75,8 @@ private:
     void apply_plant();
     int16_t volts_to_pwm(float u) const;
     void update_pwm_top();
+    // Version 3 (jl_excite): SEQUENCE and SET_SHAPER; false if the frame was not one of them.
+    bool handle_v3(const Frame& f);
 
     Hal& hal_;
     DeviceConfig cfg_;
@@ -125,6 +128,14 @@ private:
     // Saturation stop: a level that counts up at a clamped sample and down at another.
     uint16_t sat_n_ = 0;
     uint16_t sat_level_ = 0;
+
+    // Version 3: the PRBS of an active SEQUENCE (seq_on_; its two PWM levels and their
+    // commanded volts) and the input shaper of the run reference.
+    bool seq_on_ = false;
+    Prbs prbs_;
+    int16_t seq_pwm_[2] = {0, 0};
+    float seq_volts_[2] = {0.0f, 0.0f};
+    Shaper shaper_;
 
     // Results of the last control() for report().
     bool have_sample_ = false;

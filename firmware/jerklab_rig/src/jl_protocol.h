@@ -1,4 +1,4 @@
-// Message types, codes and payload sizes of the jerklab rig protocol, version 2.
+// Message types, codes and payload sizes of the jerklab rig protocol, version 3.
 // Mirrors jerklab/protocol.py and firmware/PROTOCOL.md (the reference definitions).
 #ifndef JL_PROTOCOL_H
 #define JL_PROTOCOL_H
@@ -6,11 +6,12 @@
 
 namespace jl {
 
-static const uint8_t kProtocolVersion = 2;
+static const uint8_t kProtocolVersion = 3;
 
 enum MsgType : uint8_t {
     kHello = 0x01, kSetPlant = 0x02, kSetGains = 0x03, kSetLimits = 0x04, kPlan = 0x05,
     kRun = 0x06, kStop = 0x07, kStep = 0x08, kHeartbeat = 0x09,
+    kSequence = 0x0A, kSetShaper = 0x0B,   // version 3
     kAck = 0x80, kNack = 0x81, kHelloReply = 0x82, kPlanInfo = 0x83,
     kTelemetry = 0x90, kEndOfRun = 0x91, kError = 0x92,
 };
@@ -36,6 +37,7 @@ enum Capability : uint16_t {
     kCapSineJerk = 1u << 0, kCapSineJerkOptimal = 1u << 1, kCapScurve = 1u << 2,
     kCapTrapezoid = 1u << 3, kCapLoopPosition = 1u << 4, kCapLoopVelocity = 1u << 5,
     kCapOpenLoopStep = 1u << 6, kCapFeedforward = 1u << 7, kCapSimulatedPlant = 1u << 8,
+    kCapSequence = 1u << 12, kCapShaper = 1u << 13,   // version 3
 };
 
 static const uint8_t kGainsFeedforward = 0x01;
@@ -48,6 +50,7 @@ static const uint8_t kLenHello = 1, kLenSetPlant = 14, kLenSetGains = 20, kLenSe
     kLenPlan = 5, kLenRun = 3, kLenStop = 0, kLenStep = 8, kLenHeartbeat = 0, kLenAck = 1,
     kLenNack = 3, kLenHelloReply = 26, kLenPlanInfo = 16, kLenTelemetry = 15, kLenEndOfRun = 13,
     kLenError = 3;
+static const uint8_t kLenSequence = 16, kLenSetShaper = 51;   // version 3
 
 }  // namespace jl
 #endif

@@ -1,0 +1,65 @@
+// Protocol version 3 additions (firmware/PROTOCOL.md): the PRBS of SEQUENCE (0x0A) and the
+// FIR input shaper of SET_SHAPER (0x0B) on the run reference. Mirrors jerklab.protocol
+// (prbs_bits, SetShaper) and jerklab.rig.virtual.
+#ifndef JL_EXCITE_H
+#define JL_EXCITE_H
+#include <stdint.h>
+
+namespace jl {
+
+/// Maximal-length Galois LFSR mask of an order 2..16 (0 for any other order).
+uint16_t prbs_mask(uint8_t order);
+
+/// The PRBS of SEQUENCE: b = s & 1; s >>= 1; if (b) s ^= mask -- one bit per `hold` samples.
+class Prbs {
+public:
+    void start(uint16_t seed, uint8_t order, uint8_t hold) {
+        mask_ = prbs_mask(order);
+        state_ = static_cast<uint16_t>(seed & ((1UL << order) - 1));
+        hold_ = hold;
+        left_ = 0;
+        bit_ = 0;
+    }
+    /// The bit of the next sample.
+    uint8_t next() {
+        if (left_ == 0) {
+            bit_ = state_ & 1u;
+            state_ >>= 1;
+            if (bit_) state_ ^= mask_;
+            left_ = hold_;
+        }
+        --left_;
+        return bit_;
+    }
+
+private:
+    uint16_t mask_ = 0, state_ = 1;
+    uint8_t hold_ = 1, left_ = 0, bit_ = 0;
+};
+
+static const uint8_t kShaperMaxTaps = 10;
+static const uint8_t kShaperRing = 128;        // a power of two; delays up to kShaperRing - 1
+
+/// Sparse FIR on the position reference: r_s(k) = sum_i a_i r(k - d_i), r(j < 0) = 0; the
+/// velocity and acceleration references are the backward differences of r_s.
+class Shaper {
+public:
+    /// Copy the taps of a checked SET_SHAPER payload (n = 0: off).
+    void set(uint8_t n, const float* a, const uint8_t* d);
+    bool on() const { return n_ != 0; }
+    uint8_t max_delay() const { return max_delay_; }
+    /// Start of a run: the history is the rest position 0.
+    void reset(float inv_ts);
+    /// Shape one sample in place: position -> the FIR, velocity, accel -> backward differences.
+    void apply(float* position, float* velocity, float* accel);
+
+private:
+    uint8_t n_ = 0, max_delay_ = 0, pos_ = 0;
+    float a_[kShaperMaxTaps];
+    uint8_t d_[kShaperMaxTaps];
+    float ring_[kShaperRing];
+    float inv_ts_ = 0.0f, prev_pos_ = 0.0f, prev_vel_ = 0.0f;
+};
+
+}  // namespace jl
+#endif
