@@ -6,7 +6,9 @@ the control step's cycles (min/mean/max while the motor moves, measured between 
 falls of the firmware's PB5 probe, interrupts included) as ratios of the 80 000-cycle period and
 of the issue's 8000-cycle (10 %) ceiling; the INT0 latency against a quarter encoder period at
 top speed; and flash/RAM against the Uno's. The peer is the budget itself, plus the naive
-step measured in RIG-NOTES (three sinf/cosf per step, ~12 000 cycles).
+step measured in RIG-NOTES (three sinf/cosf per step, ~12 000 cycles), and for the input
+shaper (SET_SHAPER, protocol version 3) the same moves without it: a ZV shaper on the Ts grid
+(3 taps) and the longest the device takes (10 taps).
 
     python -m benchmarks firmware
 """
@@ -56,6 +58,10 @@ def main():
     period = 16e6 * 0.005
     K, tau, Vs = 32.4, 0.025, 12.0
     g = pole_placement_pid(K, tau, 20).discretize(0.005)
+    # ZV for an 8 Hz mode (zeta 0.02) split on the 5 ms grid, and a 10-tap shaper spread over
+    # the ring buffer (the worst case the device accepts)
+    zv = pr.SetShaper(3, (0.26, 0.51, 0.23), (0, 12, 13))
+    ten = pr.SetShaper(10, (0.1,) * 10, tuple(range(0, 127, 14))[:10])
     rows = []
     for label, cmds in [
         ("move 4*pi rad (J 2e4, E 300, W 100)",
@@ -63,6 +69,13 @@ def main():
         ("move 600 rad near top speed (J 380, E 300, W 370)",
          [pr.SetLimits(380.0, 300.0, 370.0, Vs, 0), pr.Plan(600.0, 0), pr.Run(50, 1)]),
         ("open-loop step 12 V, 0.5 s", [pr.Step(Vs, 5000, 100)]),
+        ("move 4*pi rad, ZV shaper on (3 taps)",
+         [zv, pr.Plan(4 * math.pi, 0), pr.Run(50, 1)]),
+        ("move 4*pi rad, 10-tap shaper on",
+         [ten, pr.Plan(4 * math.pi, 0), pr.Run(50, 1)]),
+        ("move 600 rad near top speed, 10-tap shaper on",
+         [ten, pr.SetLimits(380.0, 300.0, 370.0, Vs, 0), pr.Plan(600.0, 0), pr.Run(50, 1)]),
+        ("open-loop PRBS 12 V (SEQUENCE), 0.5 s", [pr.Sequence(Vs, 0.0, 5000, 100, 1, 8, 1)]),
     ]:
         with simavr.launch(realtime=False, build=False) as uno:
             setup = [pr.SetPlant(K, tau, Vs, 448), pr.SetGains(g.kpd, g.kid, g.kdd, 5000, 0, 1, 0.0),

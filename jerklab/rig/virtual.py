@@ -393,15 +393,23 @@ class VirtualDevice:
         return max(m.delays[:m.n_taps], default=0)
 
     def _shape(self, position):
-        """The firmware's ``Shaper::apply`` in float32: the FIR of the position reference,
-        velocity and acceleration as its backward differences (PROTOCOL.md SET_SHAPER)."""
+        """The firmware's ``Shaper`` in float32: the FIR of the position reference (the delayed
+        taps summed in index order, then ``a0 * p + that``, a0 the delay-0 taps' sum), velocity
+        and acceleration as its backward differences (PROTOCOL.md SET_SHAPER)."""
         f32 = np.float32
         m = self.shaper
-        self._ring[self._ring_pos] = f32(position)
-        r = f32(0.0)
+        ring, pos = self._ring, self._ring_pos
+        partial = f32(0.0)
+        a0 = f32(0.0)
         for a, d in zip(m.amplitudes[:m.n_taps], m.delays[:m.n_taps]):
-            r = f32(r + f32(f32(a) * self._ring[(self._ring_pos - d) % len(self._ring)]))
-        self._ring_pos = (self._ring_pos + 1) % len(self._ring)
+            if d:
+                partial = f32(partial + f32(f32(a) * ring[(pos - d) % len(ring)]))
+            else:
+                a0 = f32(a0 + f32(a))
+        p = f32(position)
+        ring[pos] = p
+        self._ring_pos = (pos + 1) % len(ring)
+        r = f32(f32(a0 * p) + partial)
         v = f32(f32(r - self._shp_prev[0]) * self._inv_ts)
         acc = f32(f32(v - self._shp_prev[1]) * self._inv_ts)
         self._shp_prev = (r, v)

@@ -398,6 +398,7 @@ bool Device::control() {
 }
 
 void Device::report() {
+    if (state_ == kRunning && shaper_.on()) shaper_.prepare();   // SET_SHAPER: next sample's taps
     if (have_sample_) {
         have_sample_ = false;
         uint8_t p[kLenTelemetry];

@@ -16,10 +16,12 @@ uint16_t prbs_mask(uint8_t order) {
 void Shaper::set(uint8_t n, const float* a, const uint8_t* d) {
     n_ = n;
     max_delay_ = 0;
+    a0_ = 0.0f;
     for (uint8_t i = 0; i < n; ++i) {
         a_[i] = a[i];
         d_[i] = d[i];
         if (d[i] > max_delay_) max_delay_ = d[i];
+        if (d[i] == 0) a0_ += a[i];
     }
 }
 
@@ -27,21 +29,29 @@ void Shaper::reset(float inv_ts) {
     memset(ring_, 0, sizeof(ring_));
     pos_ = 0;
     inv_ts_ = inv_ts;
+    partial_ = 0.0f;
     prev_pos_ = 0.0f;
     prev_vel_ = 0.0f;
 }
 
 void Shaper::apply(float* position, float* velocity, float* accel) {
     ring_[pos_] = *position;
-    float r = 0.0f;
-    for (uint8_t i = 0; i < n_; ++i) r += a_[i] * ring_[(pos_ - d_[i]) & (kShaperRing - 1)];
     pos_ = (pos_ + 1) & (kShaperRing - 1);
+    const float r = a0_ * *position + partial_;
     const float v = (r - prev_pos_) * inv_ts_;
     *accel = (v - prev_vel_) * inv_ts_;
     *velocity = v;
     *position = r;
     prev_pos_ = r;
     prev_vel_ = v;
+}
+
+void Shaper::prepare() {
+    float s = 0.0f;
+    for (uint8_t i = 0; i < n_; ++i) {
+        if (d_[i]) s += a_[i] * ring_[(pos_ - d_[i]) & (kShaperRing - 1)];
+    }
+    partial_ = s;
 }
 
 }  // namespace jl
