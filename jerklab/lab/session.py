@@ -116,6 +116,12 @@ class LabSession:
         self.recordings[name] = rec
         return rec
 
+    def record_prbs(self, amplitude, name="prbs", Ts=paper.TS, **kwargs):
+        """``rig.record_prbs(amplitude, Ts=Ts, **kwargs)`` (the on-board PRBS) saved as ``name``."""
+        rec = self.rig.record_prbs(amplitude, Ts=Ts, path=self._path(name), **kwargs)
+        self.recordings[name] = rec
+        return rec
+
     def run_move(self, profile, gains, Ts=None, name=None, **kwargs):
         """``rig.run_move(profile, gains, Ts)`` saved as ``name`` (default ``move_<kind>``).
 
