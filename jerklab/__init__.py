@@ -2,7 +2,8 @@
 
 Planners are re-exported here; the other modules are imported by name
 (``jerklab.plant``, ``jerklab.controller``, ``jerklab.sim``, ``jerklab.ident``,
-``jerklab.rig``, ``jerklab.fpga``, ``jerklab.piezo``, ``jerklab.hysteresis``).
+``jerklab.rig``, ``jerklab.fpga``, ``jerklab.piezo``, ``jerklab.hysteresis``,
+``jerklab.shaping``).
 """
 from __future__ import annotations
 

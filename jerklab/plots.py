@@ -10,6 +10,8 @@ an ``Axes`` and returns it, so a notebook or a widget can compose several on one
 * :func:`plot_ident_data`, :func:`plot_compare`, :func:`plot_compare_result`,
   :func:`plot_residuals` — identification records, model against record (MATLAB's
   ``compare``) and the residual tests (MATLAB's ``resid``); ``jerklab.ident``'s ``.plot()``.
+* :func:`plot_tradeoff` — residual vibration against the frequency ratio for profiles,
+  input shapers and robust LP commands (``jerklab.shaping.tradeoff``, notebook 09).
 * :func:`plot_recording`, :func:`plot_comparison` — a rig recording, and a recording against
   a simulation (``jerklab.rig.Recording.plot``, ``jerklab.rig.plot_comparison``).
 
@@ -24,7 +26,7 @@ import numpy as np
 from jerklab._validate import as_finite_array
 
 __all__ = ["zplane", "plot_simulation", "plot_ident_data", "plot_compare", "plot_compare_result",
-           "plot_residuals", "plot_recording", "plot_comparison"]
+           "plot_residuals", "plot_recording", "plot_comparison", "plot_tradeoff"]
 
 _CIRCLE_GID = "jerklab-unit-circle"
 
@@ -330,3 +332,29 @@ def plot_comparison(rec, sim, title="Measured vs simulated sine-jerk move"):
     ax[0].set_title(title)
     fig.tight_layout()
     return fig
+
+
+_FAMILY_STYLE = {"profile": "-", "shaper": "--", "robust LP": ":"}
+
+
+def plot_tradeoff(tradeoff, ax=None, floor=1e-2):
+    """Residual vibration (%, log scale, clipped at ``floor``) against the frequency ratio, one line
+    per method of ``jerklab.shaping.Tradeoff``: profiles solid, shapers dashed, robust LP dotted,
+    with the 5 % tolerance as a grey line."""
+    import matplotlib.pyplot as plt
+
+    if ax is None:
+        _, ax = plt.subplots(figsize=(10, 5), layout="constrained")
+    fams = {r["name"]: r["family"] for r in tradeoff.rows}
+    for name, v in tradeoff.curves.items():
+        ax.semilogy(tradeoff.ratios, np.maximum(v, floor), _FAMILY_STYLE.get(fams.get(name), "-"),
+                    label=name, lw=1.4)
+    ax.axhline(5.0, color="0.5", lw=0.8)
+    ax.set_xlabel(f"mode frequency / nominal {tradeoff.frequency_hz:.2f} Hz (–)")
+    ax.set_ylabel("residual vibration (% of a step)")
+    ax.set_title(f"Residual vibration, mode ζ = {tradeoff.damping:.3f}, move {tradeoff.distance:.2f} rad")
+    ax.set_xlim(tradeoff.ratios[0], tradeoff.ratios[-1])
+    ax.set_ylim(floor, 300)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    return ax

@@ -47,6 +47,9 @@ def main():
             raise AssertionError("the import blocker let tty through")
         refused.clear()
 
+    # jerklab[lab] does not install otter-grader: the student path must not need it
+    sys.modules["otter"] = None
+
     import numpy as np
 
     import jerklab
@@ -81,12 +84,14 @@ def main():
     panel_for_page()
     print("step: panel and class page")
 
-    try:
-        import jerklab.lab  # noqa: F401   (the labs package, once merged)
-        print("step: jerklab.lab")
-    except ModuleNotFoundError as exc:
-        if exc.name != "jerklab.lab":
-            raise
+    # a worksheet's check cell, from the copied worksheet, in an environment without otter-grader
+    from jerklab import lab
+    from jerklab.lab.notebook import Notebook
+    grader = Notebook(os.path.join(work, "lab", "notebooks", "labs", "lab1_identify.ipynb"))
+    S = lab.start(1, student="s7", port=None)
+    outcome = grader.check("pre_speed", {"S": S, "pre_speed": ...})
+    assert not outcome.passed and "`...`" in outcome.message, outcome
+    print("step: worksheet check ->", outcome)
 
     try:
         connect("COM7", hello_timeout=0.2, progress=False)

@@ -20,7 +20,8 @@ BELOW_THE_FACE = ["jerklab", "jerklab.law", "jerklab.paper", "jerklab.planner", 
                   "jerklab.controller", "jerklab.sim", "jerklab.ident", "jerklab.protocol", "jerklab.piezo",
                   "jerklab.hysteresis", "jerklab.fpga", "jerklab.plots", "jerklab.rig", "jerklab.rig.virtual",
                   "jerklab.rig.server", "jerklab.rig.recording", "jerklab.rig.client", "jerklab.rig.simavr",
-                  "jerklab.rig.progress", "jerklab.rig.ports", "jerklab.rig.check", "jerklab.tuning"]
+                  "jerklab.rig.progress", "jerklab.rig.ports", "jerklab.rig.check", "jerklab.tuning",
+                  "jerklab.shaping"]
 
 
 def _imports(module):

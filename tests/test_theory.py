@@ -11,7 +11,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 THEORY = (ROOT / "docs" / "THEORY.md").read_text(encoding="utf-8")
 HEADINGS = [line for line in THEORY.splitlines() if line.startswith("#")]
-MODULES = ("paper", "planner", "plant", "controller", "sim", "ident", "piezo", "hysteresis", "fpga",
+MODULES = ("paper", "planner", "plant", "controller", "sim", "ident", "piezo", "hysteresis", "fpga", "shaping",
            "peers", "plots", "protocol", "widgets", "rig")
 
 

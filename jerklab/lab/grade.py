@@ -88,6 +88,13 @@ def autograder_zip(lab: int) -> Path:
     return zips[-1]
 
 
+# otter's initialisation cell becomes jerklab's check runner, so that a student's machine needs no
+# otter-grader (jerklab.lab.notebook runs the same checks from the notebook's metadata)
+_OTTER_INIT = re.compile(r"# Initialize Otter\nimport otter\ngrader = otter\.Notebook\(")
+_CHECKS_INIT = ("# The checks (otter-grader's format, run by jerklab without otter)\n"
+                "from jerklab.lab.notebook import Notebook\ngrader = Notebook(")
+
+
 def assign(out_dir, labs=tuple(LABS)) -> list[Path]:
     """Write the student versions (solutions stripped) of ``labs`` into ``out_dir``."""
     import nbformat
@@ -100,6 +107,8 @@ def assign(out_dir, labs=tuple(LABS)) -> list[Path]:
         nb = nbformat.read(src, as_version=4)
         for c in nb.cells:                      # otter stamps ids; keep the committed files stable
             c.pop("id", None)
+            if c.cell_type == "code" and _OTTER_INIT.search(c.source):
+                c.source = _OTTER_INIT.sub(_CHECKS_INIT, c.source)
             if c.cell_type == "code":
                 c.outputs, c.execution_count = [], None
         nb.nbformat_minor = 4
