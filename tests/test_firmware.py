@@ -171,6 +171,7 @@ def _write_vectors(path, rng):
     msgs = [pr.Hello(2), pr.SetPlant(32.4, 0.025, 12.0, 448),
             pr.SetGains(1.0, 0.1, 2.0, 5000, 0, 1, 0.25), pr.SetLimits(2e4, 300, 100, 12, 1000, 0.5, 200, 500),
             pr.Plan(31.4159, 0), pr.Run(40, 1), pr.Stop(), pr.Step(6.0, 5000, 200), pr.Heartbeat(),
+            pr.Sequence(2.0, 0.5, 5000, 255, 1, 8, 1), pr.SetShaper(3, (0.25, 0.5, 0.25), (0, 9, 18)),
             pr.Ack(2), pr.Nack(3, 3, 1), pr.Nack(5, 8, 0),
             pr.HelloReply(2, 1, 0, 0, 0x1F1, 1000, 1023, "jerklab-uno"),
             pr.PlanInfo(0.1, 0.2, 0.4, 81), pr.Telemetry(12, 1.5, -300, -1023, 5),

@@ -195,3 +195,28 @@ class _NoSettle:
     def __init__(self, rec):
         self.flags = np.zeros(len(rec), dtype=int)
         self.metadata = rec.metadata
+
+
+def test_lab4_session_on_simavr_finds_the_students_mode(tmp_path):
+    """The worksheet's calls on the firmware in a simulated Uno driving the student's two-mass
+    load: the PRBS finds the hidden mode, the check says right, a ZV-shaped move completes."""
+    from conftest import require_tool
+
+    require_tool("make", "cc", "avr-g++", "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
+                 "/usr/include/simavr/sim_avr.h")
+    from jerklab import shaping
+    from jerklab.planner import plan_sine_jerk
+
+    S = lab.start(4, student="sim4", port="simavr", folder=tmp_path)
+    try:
+        assert S.plant == "flexible" and S.rig.is_virtual
+        rp = S.record_prbs(**lab.PRBS_MODE)
+        assert rp.metadata["status"] == "complete" and rp.metadata["lost_samples"] == 0
+        fit = shaping.identify_mode(rp.control, rp.position, rp.metadata["Ts"])
+        assert S.verify("mode", (fit.frequency_hz, fit.damping)).ok
+        S.set_model(fit.params["K"], fit.params["tau"])
+        S.set_shaper(shaping.input_shaper("zv", fit.frequency_hz, fit.damping))
+        rec = S.run_move(plan_sine_jerk(**lab.MOVE4), lab.soft_gains(), name="move_zv", settle=0.3, force=True)
+        assert rec.metadata["status"] == "complete" and rec.metadata["shaper"]["delays"][0] == 0
+    finally:
+        S.close()

@@ -1,4 +1,4 @@
-"""Labs a student does: three two-hour worksheets on the rig, a hidden motor per student,
+"""Labs a student does: four two-hour worksheets on the rig, a hidden motor per student,
 checks that answer at once, a hand-in zip and autograding (otter-grader).
 
 >>> from jerklab import lab
