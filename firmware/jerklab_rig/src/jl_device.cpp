@@ -114,7 +114,9 @@ void Device::handle(const Frame& f) {
     case kHello: {
         uint8_t r[kLenHelloReply];
         uint16_t caps = kCapSineJerk | kCapLoopPosition | kCapLoopVelocity | kCapOpenLoopStep |
-                        kCapFeedforward | kCapSequence | kCapShaper;
+                        kCapFeedforward;
+        if (JL_WITH_SEQUENCE) caps |= kCapSequence;
+        if (JL_WITH_SHAPER) caps |= kCapShaper;
         if (hal_.simulated_plant()) caps |= kCapSimulatedPlant;
         r[0] = kProtocolVersion;
         r[1] = cfg_.fw_major;
@@ -276,6 +278,11 @@ bool Device::handle_v3(const Frame& f) {
     const uint8_t* p = f.payload;
     if (f.len != (f.type == kSequence ? kLenSequence : kLenSetShaper)) { nack(f, kErrBadLength); return true; }
     if (state_ != kIdle) { nack(f, kErrBusy); return true; }
+    if ((f.type == kSequence && !JL_WITH_SEQUENCE) || (f.type == kSetShaper && !JL_WITH_SHAPER)) {
+        nack(f, kErrUnsupported);
+        return true;
+    }
+#if JL_WITH_SEQUENCE
     if (f.type == kSequence) {
         float amp = get_f32(p), off = get_f32(p + 4);
         uint16_t ts = get_u16(p + 8), n = get_u16(p + 10), seed = get_u16(p + 12);
@@ -303,6 +310,8 @@ bool Device::handle_v3(const Frame& f) {
         hal_.set_period(static_cast<uint16_t>(ts / cfg_.tick_us));
         return true;
     }
+#endif
+#if JL_WITH_SHAPER
     // SET_SHAPER: u8 n_taps, f32 amplitudes[10], u8 delays[10]; taps past n_taps are 0.
     const uint8_t n = p[0];
     if (n > kShaperMaxTaps) { nack(f, kErrBadValue, 0); return true; }
@@ -320,6 +329,7 @@ bool Device::handle_v3(const Frame& f) {
     }
     shaper_.set(n, a, d);
     ack(f);
+#endif
     return true;
 }
 

@@ -13,6 +13,7 @@ uint16_t prbs_mask(uint8_t order) {
     return JL_READ_U16(&kPrbsMasks[order - 2]);
 }
 
+#if JL_WITH_SHAPER
 void Shaper::set(uint8_t n, const float* a, const uint8_t* d) {
     n_ = n;
     max_delay_ = 0;
@@ -53,5 +54,6 @@ void Shaper::prepare() {
     }
     partial_ = s;
 }
+#endif
 
 }  // namespace jl

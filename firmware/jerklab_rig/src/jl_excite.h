@@ -37,9 +37,25 @@ private:
     uint8_t hold_ = 1, left_ = 0, bit_ = 0;
 };
 
+// Build options (firmware/README.md): JL_WITH_SEQUENCE, JL_WITH_SHAPER (default 1; 0 leaves the
+// feature out, its capability bit clear and its command answered NACK UNSUPPORTED) and
+// JL_SHAPER_RING (the reference history, a power of two <= 128; delays up to JL_SHAPER_RING - 1;
+// 4 bytes of RAM each).
+#ifndef JL_WITH_SEQUENCE
+#define JL_WITH_SEQUENCE 1
+#endif
+#ifndef JL_WITH_SHAPER
+#define JL_WITH_SHAPER 1
+#endif
+#ifndef JL_SHAPER_RING
+#define JL_SHAPER_RING 128
+#endif
 static const uint8_t kShaperMaxTaps = 10;
-static const uint8_t kShaperRing = 128;        // a power of two; delays up to kShaperRing - 1
+static const uint8_t kShaperRing = JL_SHAPER_RING;   // a power of two; delays up to kShaperRing - 1
+static_assert((JL_SHAPER_RING & (JL_SHAPER_RING - 1)) == 0 && JL_SHAPER_RING >= 2 && JL_SHAPER_RING <= 128,
+              "JL_SHAPER_RING must be a power of two in 2..128");
 
+#if JL_WITH_SHAPER
 /// Sparse FIR on the position reference: r_s(k) = sum_i a_i r(k - d_i), r(j < 0) = 0; the
 /// velocity and acceleration references are the backward differences of r_s. Split in two so
 /// that the control step stays short: prepare() (after a sample's PWM is out, untimed) sums the
@@ -67,6 +83,18 @@ private:
     float ring_[kShaperRing];
     float inv_ts_ = 0.0f, prev_pos_ = 0.0f, prev_vel_ = 0.0f;
 };
+#else
+/// Built without the shaper (JL_WITH_SHAPER 0): never on, no RAM, calls compile to nothing.
+class Shaper {
+public:
+    void set(uint8_t, const float*, const uint8_t*) {}
+    bool on() const { return false; }
+    uint8_t max_delay() const { return 0; }
+    void reset(float) {}
+    void apply(float*, float*, float*) {}
+    void prepare() {}
+};
+#endif
 
 }  // namespace jl
 #endif
