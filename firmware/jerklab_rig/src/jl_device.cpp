@@ -224,7 +224,8 @@ void Device::handle(const Frame& f) {
         stepper_.start(plan_, Ts_);
         shaper_.reset(1.0f / Ts_);
         k_ = 0;
-        n_total_ = plan_samples_ + shaper_.max_delay() + settle;   // the shaper lengthens the move
+        run_profile_samples_ = plan_samples_ + shaper_.max_delay();   // the shaper lengthens the move
+        n_total_ = run_profile_samples_ + settle;
         decimation_ = dec;
         prev_counts_ = 0;
         last_pwm_ = 0;
@@ -351,7 +352,7 @@ bool Device::control() {
         Sample s;
         stepper_.next(&s);
         if (shaper_.on()) shaper_.apply(&s.position, &s.velocity, &s.accel);   // SET_SHAPER
-        if (k_ >= plan_samples_ + shaper_.max_delay()) flags |= kTelemetrySettling;
+        if (k_ >= run_profile_samples_) flags |= kTelemetrySettling;
         ref = s.position;
         const float pos_error = s.position - static_cast<float>(c) * rad_per_count_;
         float detail = 0.0f;

@@ -136,6 +136,7 @@ private:
     int16_t seq_pwm_[2] = {0, 0};
     float seq_volts_[2] = {0.0f, 0.0f};
     Shaper shaper_;
+    uint32_t run_profile_samples_ = 0;   // the run's profile samples: the plan's + the shaper's delay
 
     // Results of the last control() for report().
     bool have_sample_ = false;
