@@ -100,7 +100,7 @@ def main():
     if m:
         f, ft, r_, rt = (int(x) for x in m.groups())
         print(f"flash {f} / {ft} B = {f / ft:.3f} of the Uno, RAM {r_} / {rt} B = {r_ / rt:.3f} "
-              f"(target <= 0.5 each)")
+              f"(budget <= 0.75 each since protocol 3; was 0.5)")
 
 
 if __name__ == "__main__":
