@@ -19,6 +19,12 @@ the firmware's rules sample for sample; the reference is sampled in blocks of
 plan (a plan of more than ``protocol.MAX_PLAN_SAMPLES`` samples is refused with NACK
 TOO_LONG, as on the firmware).
 
+Protocol version 3: SEQUENCE (the PRBS of ``jerklab.protocol.prbs_bits``, the commanded volts in
+TELEMETRY's reference) and SET_SHAPER (the firmware's FIR on the run reference, in float32 in the
+firmware's order of operations, velocity and acceleration by backward differences). The motor
+may be a ``jerklab.plant.FlexibleDCMotor`` (state ``[θ_m, ω_m, θ_l, ω_l]``, the encoder on the
+motor; ``connect(plant="flexible")``).
+
 Differences from the real board, on purpose: the control step takes no time (the
 Uno's ~0.75 ms computation delay is not modelled), the motor coasts to rest
 instantly between runs (the encoder is zeroed at each RUN anyway), and the
