@@ -220,3 +220,29 @@ def test_lab4_session_on_simavr_finds_the_students_mode(tmp_path):
         assert rec.metadata["status"] == "complete" and rec.metadata["shaper"]["delays"][0] == 0
     finally:
         S.close()
+
+
+def test_grade_command_scores_lab4(tmp_path):
+    """`python -m jerklab.lab grade` on two lab 4 submissions (the autograder's notebook with
+    its solutions, and the same with a wrong choice): 13/13 and 12/13, each against its own
+    student's hidden mode."""
+    import csv
+
+    from jerklab.lab.__main__ import main
+    from jerklab.lab.grade import _assigned, student_version_name
+
+    subs = tmp_path / "subs"
+    subs.mkdir()
+    for sid, wrong in (("gina", False), ("hal", True)):
+        nb = nbformat.read(_assigned(4) / "autograder" / student_version_name(4), as_version=4)
+        _set_student(nb, sid)
+        if wrong:
+            hits = [c for c in nb.cells if c.cell_type == "code" and c.source.startswith("choice = ")]
+            assert len(hits) == 1
+            hits[0].source = 'choice = "zv"'
+        nbformat.write(nb, subs / f"{sid}_lab4.ipynb")
+    out = tmp_path / "grades.csv"
+    assert main(["grade", str(subs), "--out", str(out), "--timeout", "300"]) == 0
+    rows = {r["student"]: r for r in csv.DictReader(out.open())}
+    assert rows["gina"]["status"] == "graded" and float(rows["gina"]["total"]) == float(rows["gina"]["max"]) == 13.0
+    assert float(rows["hal"]["total"]) == 12.0 and float(rows["hal"]["choice"]) == 0.0
