@@ -1,12 +1,13 @@
 """jerklab: jerk-controlled positioning for the lab.
 
-Planners are re-exported here; the other modules are imported by name
+Planners (and the multi-axis ``plan_multi_axis``) are re-exported here; the other modules are imported by name
 (``jerklab.plant``, ``jerklab.controller``, ``jerklab.sim``, ``jerklab.ident``,
 ``jerklab.rig``, ``jerklab.fpga``, ``jerklab.piezo``, ``jerklab.hysteresis``,
 ``jerklab.shaping``).
 """
 from __future__ import annotations
 
+from .multiaxis import plan_multi_axis
 from .planner import (
     Profile,
     ProfileSample,
@@ -23,6 +24,7 @@ __all__ = [
     "Profile",
     "ProfileSample",
     "plan_batch",
+    "plan_multi_axis",
     "plan_scurve",
     "plan_sine_jerk",
     "plan_sine_jerk_optimal",

@@ -51,7 +51,8 @@ from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positi
 __all__ = ["YangSCurve", "PulseTrain", "SpeedTable", "paper_speed", "published_divider_lockup",
            "simulate_verilog", "simulate_divider_verilog", "read_vcd", "VerilogRun",
            "divider_edges", "published_divider", "HardwareLimitError", "PAPER", "pulse_speed",
-           "vcd_timescale", "vcd_to_posedge"]
+           "vcd_timescale", "vcd_to_posedge", "YangAxes", "yang_axes", "simulate_verilog_xy",
+           "min_start_count"]
 
 
 class HardwareLimitError(ValueError):
@@ -682,3 +683,299 @@ def read_vcd(path, signals):
             vs.append(int(tok[0]) if tok[0] in "01" else -1)
     return {name: (np.array(ts, dtype=np.int64), np.array(vs, dtype=np.int64))
             for name, (ts, vs) in data.items()}
+
+
+# ---------------------------------------------------------------------- several axes (x–y stand)
+#: speed (µm/s) at Yang's ``PWM_INITAL_COUNT`` in the paper's set-up: 144 µm/s (Yang eq. 7 at n = 300),
+#: the slowest speed the paper's design emits (7 pulses/s at 20 µm per pulse)
+PAPER_START_SPEED = paper_speed(PAPER["start_count"])
+
+
+def _whole_ticks(x, tc):
+    """``ceil(x / tc)``, a value within a relative 1e-9 of a whole number taken as that number."""
+    r = x / tc
+    n = round(r)
+    return int(n) if abs(r - n) <= 1e-9 * max(1.0, r) else int(np.ceil(r))
+
+
+def min_start_count(max_velocity, half_counts, min_speed):
+    """Smallest counter ``n`` whose integer speed (Yang eq. 5, Yang eq. 6) is ``>= min_speed`` µm/s.
+
+    ``a / b = V / (2 N^2)`` in lowest terms; on the first half ``floor(a n^2 / b) >= s`` holds
+    from ``n = ceil(sqrt(s b / a))`` on; above ``V / 2`` the second half
+    ``V - floor(a (2N - n)^2 / b)`` is searched.  ``ValueError`` if ``min_speed > max_velocity``.
+    """
+    import math
+
+    V = as_int("max_velocity", max_velocity, minimum=1)
+    N = as_int("half_counts", half_counts, minimum=1)
+    s = as_int("min_speed", min_speed, minimum=0)
+    if s > V:
+        raise ValueError(f"min_speed = {s} µm/s is above max_velocity = {V} µm/s: no count reaches it")
+    frac = Fraction(V, 2 * N * N)
+    a, b = frac.numerator, frac.denominator
+    n = math.isqrt((s * b + a - 1) // a)
+    while n <= N and (a * n * n) // b < s:
+        n += 1
+    if n <= N:
+        return n
+    n = N + 1
+    while V - (a * (2 * N - n) ** 2) // b < s:       # ends at n = 2N at the latest (speed V)
+        n += 1
+    return n
+
+
+#: how far :func:`yang_axes` may move the common end tick ``M`` and each axis's ``N`` to find integer
+#: speeds that fit the registers and the limits (ticks, counts)
+YANG_TICK_SEARCH = 64
+YANG_COUNT_SEARCH = 16
+
+
+def _fitting_speed(dist, n, M, tc, step_um, bits, limits):
+    """The integer peak speed nearest ``dist / ((M - 2n) tc)`` that fits and keeps the limits, or None.
+
+    ``A_NUM n^2`` and ``B_DEN`` (``V / (2 n^2)`` in lowest terms) must fit ``bits``; the speeds
+    tried lie within half a pulse of distance (``step_um / 2``) of the ideal one, nearest first,
+    and must keep the axis's limits: ``V``, ``A = 2V/T = V/(n tc)``, ``J = 4V/T^2 = V/(n tc)^2``
+    (relative 1e-12).
+    """
+    if 4 * n > M:
+        return None
+    top = 2 ** bits
+    J, A, Vmax = limits
+    slack = 1.0 + 1e-12
+    span = (M - 2 * n) * tc                             # T + cruise (s)
+    vt = dist / span
+    w = max(0.5, 0.5 * step_um / span)
+    lo, hi = max(1, int(np.ceil(vt - w))), int(np.floor(vt + w))
+    th = n * tc                                         # T / 2
+    for v in sorted(range(lo, hi + 1), key=lambda x: (abs(x - vt), x)):
+        f = Fraction(v, 2 * n * n)
+        if (f.numerator * n * n < top and f.denominator < top and v <= Vmax * slack
+                and v / th <= A * slack and v / (th * th) <= J * slack):
+            return v
+    return None
+
+
+def _choose_ticks(dists, counts, limits, M0, common, tc, step_um, bits):
+    """``(M, [(N_i, V_i)])``: the first end tick ``M >= M0`` (and counts ``N_i >= counts[i]``, the
+    same for every axis when ``common``) where every axis has a fitting integer speed."""
+    for M in range(M0, M0 + YANG_TICK_SEARCH):
+        if common:
+            for dn in range(YANG_COUNT_SEARCH):
+                n = counts[0] + dn
+                vs = [_fitting_speed(d, n, M, tc, step_um, bits, lim) for d, lim in zip(dists, limits)]
+                if all(v is not None for v in vs):
+                    return M, [(n, v) for v in vs]
+            continue
+        out = []
+        for d, n0, lim in zip(dists, counts, limits):
+            for n in range(n0, n0 + YANG_COUNT_SEARCH):
+                v = _fitting_speed(d, n, M, tc, step_um, bits, lim)
+                if v is not None:
+                    out.append((n, v))
+                    break
+            else:
+                break
+        if len(out) == len(dists):
+            return M, out
+    raise HardwareLimitError(
+        f"no integer peak speeds near {[round(d / ((M0 - 2 * n) * tc), 1) for d, n in zip(dists, counts)]} "
+        f"µm/s fit the {bits}-bit multiplier (A_NUM * N^2) and the axes' limits within {YANG_TICK_SEARCH} "
+        f"ticks and {YANG_COUNT_SEARCH} counts: use another refresh_period")
+
+
+@dataclass(frozen=True)
+class YangAxes:
+    """Yang S-curve generators that run one synchronized multi-axis plan (:func:`yang_axes`).
+
+    Attributes
+    ----------
+    generators : tuple of YangSCurve or None
+        One per axis (``None``: the axis does not move, no pulses).
+    directions : tuple of int
+        ``+1``/``-1`` (the drive's direction input), ``0`` for a standstill.
+    distances_um : tuple of float
+        The plan's signed distances (µm).
+    end_tick : int
+        Refresh tick at which every generator's speed is back to 0 (``4 N_i + C_i``, the same for
+        every axis).
+    """
+
+    generators: tuple
+    directions: tuple
+    distances_um: tuple
+    end_tick: int
+
+    def __len__(self):
+        return len(self.generators)
+
+    @property
+    def end_posedge(self) -> int:
+        """First posedge at which every generator's cycle input is 0 (``end_tick R + 1``)."""
+        g = next(g for g in self.generators if g is not None)
+        return self.end_tick * g.refresh_clocks + 1
+
+    def default_p_end(self) -> int:
+        """Last posedge to simulate: the end of the move plus two of the longest periods."""
+        ends = []
+        for g in self.generators:
+            if g is not None:
+                starts, values = g.cycle_input()
+                ends.append(int(starts[-1] + 2 * int(values.max()) + 2))
+        return max(ends)
+
+    def pulses(self, p_end=None) -> tuple:
+        """Each axis's :class:`PulseTrain` (the model, clock-exact; ``None`` for a standstill)."""
+        p_end = self.default_p_end() if p_end is None else p_end
+        return tuple(None if g is None else g.pulses(p_end) for g in self.generators)
+
+    def positions(self, t, trains=None):
+        """Signed commanded positions (µm), shape ``(n_axes,) + shape(t)``: ``direction * k * pulses``.
+
+        ``trains``: pulse trains to count (default: :meth:`pulses`), e.g. rising edges from Verilog.
+        """
+        t = as_finite_array("t", t)
+        trains = self.pulses() if trains is None else trains
+        out = np.zeros((len(self.generators),) + t.shape)
+        for i, (tr, s) in enumerate(zip(trains, self.directions)):
+            if tr is not None:
+                out[i] = s * tr.position(t)
+        return out
+
+
+def yang_axes(plan, refresh_period=PAPER["refresh_period"], clock_hz=PAPER["clock_hz"],
+              step_um=PAPER["step_um"], start_count=None, bits=32) -> YangAxes:
+    """Map a synchronized multi-axis S-curve plan (µm, s) to one Yang generator per axis.
+
+    Yang's speed generator (Yang eq. 5, Yang eq. 6) runs the linear-jerk S-curve *without* an
+    acceleration plateau, fixed by three integers per axis: the peak speed ``V`` (µm/s), the
+    counts per half acceleration ``N = T / (2 tc)`` and the cruise ticks ``C``; its move lasts
+    ``4 N + C`` refresh ticks and covers ``V (2 N + C) tc`` µm.  The mapping:
+
+    1. ``plan.planner`` must be ``"scurve"`` and no axis may have a plateau (``ta = 0``): phase
+       synchronization gives every axis the phase times of the normalized path, time
+       synchronization of a move whose accelerations stay below ``A`` stretches each axis without
+       one (:func:`jerklab.multiaxis.stretch_to_duration`).
+    2. Ticks, rounded up (a move never gets faster): ``N_i = ceil(tj_i / tc)``; the common end
+       tick ``M = max(ceil(T / tc), 4 N_i)`` (``T`` the plan's duration); ``C_i = M - 4 N_i``.
+       Every generator's speed is therefore 0 again from the same tick ``M`` on.  Under phase
+       synchronization every axis has the same ``N`` and ``C``: the per-axis profile is the
+       normalized one scaled by ``|d_i|`` -- the *scaled limits* ``J_n |d_i|``, ``A_n |d_i|``,
+       ``V_n |d_i|``.
+    3. ``V_i``: the integer nearest ``|d_i| / ((2 N_i + C_i) tc)`` (the ideal move then covers
+       ``|d_i|`` within ``(2 N_i + C_i) tc / 2`` µm) among those whose integer form fits the
+       registers (``A_NUM N_i^2 < 2^bits`` with ``A_NUM / B_DEN = V / (2 N^2)`` in lowest terms:
+       the paper's ``V = 20000``, ``N = 2500`` give 1/625) and that keep the axis's limits
+       (``V_i``, ``2 V_i / T_i``, ``4 V_i / T_i^2``, relative 1e-12), searched within half a pulse
+       of distance.  If an axis has none, ``N_i`` grows (the same ``N`` for all axes under phase
+       sync; up to ``YANG_COUNT_SEARCH`` = 16 counts), then ``M`` (up to ``YANG_TICK_SEARCH`` = 64
+       ticks, 12.8 ms at 200 µs): a slightly slower move whose integers exist.  Else
+       ``HardwareLimitError``.
+    4. The direction (``sign d_i``) goes to the drive's direction input; the generator counts
+       ``|d_i|``.
+    5. ``start_count`` (Yang's ``PWM_INITAL_COUNT``): ``None`` takes, per axis, the first count
+       whose speed reaches the paper's start speed ``PAPER_START_SPEED`` (144 µm/s, Yang eq. 7 at
+       n = 300; at least ``step_um``, 1 pulse/s): 300 for the paper's axis.  A slower axis then
+       starts later in its ramp instead of with a longer first pulse period, during which the
+       latched divider emits nothing (``1 / f`` at the start speed).  Symmetrically, every
+       generator falls silent when its deceleration passes the start count, ``n0_i`` ticks before
+       ``M``: an axis whose peak speed is near the start speed (say below 300 µm/s) stops its
+       pulses that much earlier than the others (``tests/test_multiaxis.py``).
+
+    Parameters
+    ----------
+    plan : jerklab.multiaxis.MultiAxisPlan
+        Distances in µm, times in s.
+    refresh_period, clock_hz, step_um, bits
+        As :class:`YangSCurve` (the same for every axis: one clock, one refresh prescaler).
+    start_count : int or None
+        Start count for every axis, or ``None`` (see 5.).
+
+    Returns
+    -------
+    YangAxes
+
+    Raises
+    ------
+    ValueError
+        A plan of another planner or with an acceleration plateau; ``HardwareLimitError``
+        when an axis does not fit the registers (see :class:`YangSCurve`).
+    """
+    from jerklab.multiaxis import MultiAxisPlan
+
+    if not isinstance(plan, MultiAxisPlan):
+        raise ValueError(f"plan must be a jerklab.multiaxis.MultiAxisPlan, got {type(plan).__name__}")
+    if plan.planner != "scurve":
+        raise ValueError(f"plan.planner must be 'scurve' (Yang eq. 5 is a linear-jerk S-curve), "
+                         f"got {plan.planner!r}")
+    tc = as_positive("refresh_period", refresh_period)
+    if start_count is not None:
+        start_count = as_int("start_count", start_count, minimum=0)
+    rows = []
+    for i, (p, d) in enumerate(zip(plan.axes, plan.distances)):
+        if d == 0.0:
+            rows.append(None)
+            continue
+        tj, ta, _, tv = p.phase_times[:4]
+        if ta > 1e-9 * tj:
+            raise ValueError(f"plan axis {i} has an acceleration plateau (ta = {ta!r} s): Yang's generator "
+                             f"(Yang eq. 5, Yang eq. 6) has none; raise that axis's max_accel to "
+                             f"sqrt(max_jerk * max_velocity) or more")
+        rows.append(max(_whole_ticks(tj, tc), 1))
+    if all(r is None for r in rows):
+        raise ValueError("plan moves no axis: nothing for the generators to do")
+    moving = [i for i, r in enumerate(rows) if r is not None]
+    counts = [rows[i] for i in moving]
+    M0 = max([_whole_ticks(plan.duration, tc)] + [4 * n for n in counts])
+    for i in moving:
+        if abs(float(plan.distances[i])) / ((M0 - 2 * rows[i]) * tc) < 0.5:
+            raise HardwareLimitError(f"axis {i}: distance {float(plan.distances[i])!r} µm over "
+                                     f"{M0 * tc!r} s needs a peak speed below 1 µm/s, the resolution of "
+                                     f"max_velocity")
+    M, chosen = _choose_ticks([abs(float(plan.distances[i])) for i in moving], counts,
+                              [plan.limits[i] for i in moving], M0, plan.sync == "phase", tc, step_um, bits)
+    gens, dirs = [None] * len(rows), [0] * len(rows)
+    for i, (N, V) in zip(moving, chosen):
+        C = M - 4 * N
+        if start_count is None:
+            n0 = min_start_count(V, N, min(max(PAPER_START_SPEED, step_um), V))
+        else:
+            n0 = min(start_count, 2 * N)
+        gens[i] = YangSCurve(V, accel_time=2 * N * tc, cruise_time=C * tc, refresh_period=tc,
+                             clock_hz=clock_hz, step_um=step_um, start_count=n0, bits=bits)
+        dirs[i] = 1 if plan.distances[i] > 0 else -1
+    return YangAxes(tuple(gens), tuple(dirs), tuple(float(x) for x in plan.distances), M)
+
+
+def simulate_verilog_xy(axes: YangAxes, p_end=None, workdir=None, vcd=None):
+    """Run ``firmware/fpga/tb_xy.v``: the two generators + dividers of an x–y :class:`YangAxes`.
+
+    Returns
+    -------
+    (VerilogRun, VerilogRun)
+        x and y: per-tick speed tables and edges, as :func:`simulate_verilog` (same posedge
+        numbering), to compare with ``axes.generators[i]`` bit for bit.
+    """
+    import tempfile
+
+    if not isinstance(axes, YangAxes) or len(axes) != 2 or any(g is None for g in axes.generators):
+        raise ValueError("axes must be a YangAxes of two moving axes (x and y)")
+    _need_iverilog()
+    p_end = axes.default_p_end() if p_end is None else as_int("p_end", p_end, minimum=1)
+    d = firmware_dir()
+    with tempfile.TemporaryDirectory() as tmp:
+        wd = workdir or tmp
+        exe = f"{wd}/tb_xy.vvp"
+        params = [f"-Ptb_xy.{ax}_{k}={v}" for ax, g in zip("XY", axes.generators)
+                  for k, v in g.verilog_defines().items()]
+        params.append(f"-Ptb_xy.P_END={p_end}")
+        _run(["iverilog", "-g2012", "-o", exe, *params, str(d / "tb_xy.v"), str(d / "scurve_gen.v"),
+              str(d / "pulse_divider.v")], wd)
+        log = _run(["vvp", "-n", exe] + ([f"+vcd={vcd}"] if vcd else []), wd)
+    runs = []
+    for ax in "XY":
+        lines = [ln[0] + ln[2:] for ln in log.splitlines() if ln[:2] in (f"S{ax}", f"E{ax}")]
+        table, rise, fall = _parse("\n".join(lines))
+        runs.append(VerilogRun(table, rise, fall, log))
+    return tuple(runs)

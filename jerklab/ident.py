@@ -80,6 +80,7 @@ __all__ = [
     "compare",
     "resid",
     "load_micromouse",
+    "load_dc_generator",
     "micromouse_battery_voltage",
     "validate",
     "plot_compare",
@@ -584,6 +585,9 @@ class MotorFit:
         Input dead zone (V) after the offset (``dead_zone=True``; else 0.0, 0.0).
     delay : int
         Pure input delay in whole samples (given or estimated with ``delay=True``).
+    tau_coast, tau_coast_std : float
+        Time constant (s) while the drive is open at u = 0 (``coast=True``; :func:`simulate_motor`),
+        and its standard error; 0.0 and 0.0 when the drive always holds u.
     estimated : tuple of str
         The estimated parameters, in the order of ``covariance``.
     warnings : list of str
@@ -622,6 +626,8 @@ class MotorFit:
     n_segments: int = 1                  #: shooting segments of the output-error fit
     n_experiments: int = 1               #: experiments merged in the estimation data
     omega0: float = 0.0                  #: initial velocity of the first segment (rad/s)
+    tau_coast: float = 0.0               #: time constant (s) with the drive open at u = 0; 0.0: no coasting
+    tau_coast_std: float = 0.0
 
     def simulate(self, u, theta0=0.0, omega0=0.0) -> np.ndarray:
         """The fitted model's ZOH response to ``u`` (see :func:`simulate_dc_motor`).
@@ -632,37 +638,45 @@ class MotorFit:
         u = _signal("u", u, min_len=1)
         if not self.is_linear:
             return simulate_motor(self.K, self.tau, self.Ts, u, theta0, omega0, self.friction,
-                                  self.offset, self.dead_zone, self.delay)
+                                  self.offset, self.dead_zone, self.delay, self.tau_coast or None)
         return simulate_dc_motor(self.K, self.tau, self.Ts, u, theta0, omega0)
 
     @property
     def is_linear(self) -> bool:
         """True when the model is Stojčić eq. 1 alone (no friction, offset, dead zone or delay)."""
-        return not (self.friction or self.offset or self.dead_zone or self.delay)
+        return not (self.friction or self.offset or self.dead_zone or self.delay or self.tau_coast)
 
     @property
     def std(self) -> dict:
-        """Standard errors by name: K, tau, friction, offset, dead_zone (0.0 when fixed)."""
+        """Standard errors by name: K, tau, friction, offset, dead_zone, tau_coast (0.0 when fixed)."""
         return {"K": self.K_std, "tau": self.tau_std, "friction": self.friction_std,
-                "offset": self.offset_std, "dead_zone": self.dead_zone_std}
+                "offset": self.offset_std, "dead_zone": self.dead_zone_std,
+                "tau_coast": self.tau_coast_std}
 
     def confidence_interval(self, level: float = 0.95):
         """Normal-approximation intervals ``{"K": (lo, hi), "tau": (lo, hi), ...}`` for every
-        estimated parameter (friction, offset, dead_zone when estimated)."""
+        estimated parameter (friction, offset, dead_zone, tau_coast when estimated)."""
         level = as_real("level", level)
         if not 0.0 < level < 1.0:
             raise ValueError(f"level must be in (0, 1), got {level}")
         z = stats.norm.ppf(0.5 + level / 2)
         out = {}
-        for name in ("K", "tau", "friction", "offset", "dead_zone"):
+        for name in ("K", "tau", "friction", "offset", "dead_zone", "tau_coast"):
             if name in ("K", "tau") or name in self.estimated:
                 v, sd = getattr(self, name), self.std[name]
                 out[name] = (v - z * sd, v + z * sd)
         return out
 
     def to_motor(self, **kwargs):
-        """A ``jerklab.plant.DCMotor`` with the fitted K and tau (other arguments passed on)."""
+        """A ``jerklab.plant.DCMotor`` with the fitted K and tau (other arguments passed on).
+
+        The plant has no open-drive (coasting) mode: a fit with ``tau_coast`` raises ValueError
+        (simulate it with :meth:`simulate` or :func:`simulate_motor`)."""
         from jerklab.plant import DCMotor
+
+        if self.tau_coast:
+            raise ValueError("tau_coast: jerklab.plant.DCMotor has no open-drive (coasting) mode; "
+                             "use fit.simulate or ident.simulate_motor(..., tau_coast=fit.tau_coast)")
 
         kw = dict(coulomb_friction=max(self.friction, 0.0), offset=self.offset,
                   dead_zone=max(self.dead_zone, 0.0))
@@ -680,6 +694,10 @@ class MotorFit:
             fr += f", dead zone = {self.dead_zone:.3g} ± {self.dead_zone_std:.2g} V"
         if self.delay:
             fr += f", delay = {self.delay} sample{'s' if self.delay > 1 else ''}"
+        if "tau_coast" in self.estimated:
+            fr += f", tau_coast = {self.tau_coast * 1e3:.4g} ± {self.tau_coast_std * 1e3:.2g} ms"
+        elif self.tau_coast == math.inf:
+            fr += ", coasting on Coulomb friction (tau_coast = inf)"
         return (f"{self.method.upper():>3}: K = {self.K:.4g} ± {self.K_std:.2g} rad/(V s), "
                 f"tau = {self.tau * 1e3:.4g} ± {self.tau_std * 1e3:.2g} ms{fr}, "
                 f"fit = {self.fit_percent:.2f} %")
@@ -804,7 +822,7 @@ FIT_TS_RANGE = (1e-9, 1e3)
 
 def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
                  friction: bool = False, offset: bool = False, delay=0, dead_zone: bool = False,
-                 segment=None, max_delay: int = 10, cutoff=None) -> MotorFit:
+                 segment=None, max_delay: int = 10, cutoff=None, coast=False) -> MotorFit:
     """Identify K and tau of P(s) = K/(s(tau s + 1)) (Stojčić eq. 1, §4A) from a voltage/angle record.
 
     The paper ran MATLAB's ``pem(iddata(y, u, Ts), 'P2')``; 'P2' has no integrator, so this fits
@@ -864,6 +882,16 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
     cutoff : float, optional
         Cut-off (Hz) of the low-pass filter of the inverse-dynamics regression; default
         1/(10 Ts) (a fifth of the Nyquist frequency).
+    coast : bool or "coulomb"
+        True: also estimate ``tau_coast``, the time constant while the drive is *open* at u = 0
+        (a switch or bridge that floats the motor: no back-EMF braking, the motor runs down on
+        its mechanical friction; :func:`simulate_motor`). It is estimated as the rate
+        1/tau_coast >= 0; with ``friction=True`` the coasting motor also decelerates by the same
+        Coulomb torque, K friction / tau. "coulomb" (needs ``friction=True``): the open motor
+        has no viscous drag (tau_coast = inf) and runs down on Coulomb friction alone, the model
+        to choose when ``coast=True`` reports its rate at the bound 0. ``method="pem"`` only; u = 0
+        must occur in the record, and an offset or dead zone is then seen only at the non-zero
+        levels.
 
     Returns
     -------
@@ -879,7 +907,11 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
     ValueError
         NaN/inf in ``u`` or ``theta``, mismatched lengths, fewer than 10 samples, constant ``u``
         or ``theta``, a ``Ts`` outside ``FIT_TS_RANGE``, an unknown ``method`` or option, or data from which
-        the ARX pole falls outside (0, 1).
+        the ARX pole falls outside (0, 1). Also an input with too few distinct levels for the
+        input map asked for: the motor sees K dz(u + offset) only at the levels u takes, so K,
+        ``offset`` and ``dead_zone`` need at least 1 + offset + dead_zone distinct (driven) levels
+        (without an offset, distinct non-zero magnitudes |u|); a two-level input (a PRBS, a step)
+        cannot separate all three, nor K and a dead zone alone.
 
     References
     ----------
@@ -895,6 +927,12 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
                     ("fit_theta0", fit_theta0)):
         if not isinstance(val, (bool, np.bool_)):
             raise ValueError(f"{nm} must be True or False, got {val!r}")
+    if not (isinstance(coast, (bool, np.bool_)) or coast == "coulomb"):
+        raise ValueError(f"coast must be True, False or 'coulomb', got {coast!r}")
+    coast = coast if coast == "coulomb" else bool(coast)
+    if coast == "coulomb" and not friction:
+        raise ValueError("coast='coulomb' (the open motor runs down on Coulomb friction alone) needs "
+                         "friction=True; without friction it would never stop")
     estimate_delay = delay is True
     if not estimate_delay:
         if delay is False:
@@ -922,10 +960,33 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
         if segment_n < 10:
             raise ValueError(f"segment must be at least 10 samples ({10 * Ts:g} s), got {segment:g} s")
     opts = {"friction": bool(friction), "offset": bool(offset), "dead_zone": bool(dead_zone)}
-    extended = any(opts.values()) or estimate_delay or delay or len(exps) > 1 or segment_n is not None
+    extended = (any(opts.values()) or coast or estimate_delay or delay or len(exps) > 1
+                or segment_n is not None)
     if method == "arx" and (extended and (any(opts.values()) or estimate_delay or delay or len(exps) > 1)):
         raise ValueError("friction, offset, dead_zone, delay and merged experiments need method='pem' "
                          "or 'idim' (ARX has no such terms)")
+    if coast and method != "pem":
+        raise ValueError(f"coast={coast!r} needs method='pem' (the output-error fit), got method={method!r}")
+    u_all = np.concatenate([uu for uu, _ in exps])
+    if coast and not np.any(u_all == 0.0):
+        raise ValueError("coast: u is never exactly 0, so the drive is never open; fit without coast")
+    if offset or dead_zone:
+        # the static map u -> K dz(u + offset) is only seen at the levels u takes
+        # (without an offset, dz(0) = 0 and dz is odd: u = 0 tells nothing, and -l says what l says)
+        levels = np.unique(u_all if offset else np.abs(u_all))
+        if coast or not offset:
+            levels = levels[levels != 0.0]
+        need = 1 + int(bool(offset)) + int(bool(dead_zone))
+        if levels.size < need:
+            shown = ", ".join(f"{lv:.4g}" for lv in levels[:4]) + (" ..." if levels.size > 4 else "")
+            which = [nm for nm, on in (("K", True), ("offset", offset), ("dead_zone", dead_zone)) if on]
+            which = ", ".join(which[:-1]) + " and " + which[-1]
+            raise ValueError(
+                f"{'dead_zone' if dead_zone else 'offset'}: the {'driven ' if coast else ''}input takes only "
+                f"{levels.size} distinct level{'s' if levels.size > 1 else ''} ({shown} V), and the motor sees "
+                f"K dz(u + offset) only at those levels, so {which} ({need} parameters) cannot be "
+                f"separated: the fit would trade them off without bound. Drop "
+                f"{'dead_zone' if dead_zone else 'offset'}, or record an input with at least {need} levels")
     u_abs_max = max(float(np.max(np.abs(uu))) for uu, _ in exps)
     if method in ("arx",) or (method == "pem" and not extended):
         fit = _fit_legacy(exps[0][0], exps[0][1], Ts, method, fit_theta0)
@@ -952,6 +1013,9 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
     p, cov_p, _, _ = _idim(exps, Ts, delay, opts, cutoff, iv_iterations=idim_iv, segment_n=segment_n)
     par = _params_from_idim(p, opts)
     names = ["K", "tau"] + [nm for nm in ("friction", "offset", "dead_zone") if opts[nm]]
+    if coast is True:
+        names.append("tau_coast")
+    opts = dict(opts, coast=coast)
     if method in ("idim", "idim-iv"):
         Jt = np.zeros((len(names), p.size))
         a_, b_ = p[0], p[1]
@@ -981,9 +1045,12 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
             g_exp = max(exps, key=lambda e: e[0].size)
             K0, tau0, _, _ = _initial_guess(g_exp[0], g_exp[1], Ts, True, False)
             par = {"K": K0, "tau": tau0, "friction": 0.0, "offset": 0.0, "dead_zone": 0.0}
+        # start friction and dead zone well inside (0, max |u|): the inverse-dynamics value can be
+        # far off, and a start near max |u| lets the fit trade a huge K against a dead zone that
+        # swallows the whole input
         for nm in ("friction", "dead_zone"):
             if opts[nm]:
-                par[nm] = min(max(par[nm], 0.01 * u_abs_max), 0.9 * u_abs_max)
+                par[nm] = min(max(par[nm], 0.01 * u_abs_max), 0.5 * u_abs_max)
         # the inverse-dynamics delay first; then its neighbours, started from that optimum
         cands = [delay] if not estimate_delay else [delay] + sorted(
             {max(delay - 1, 0), min(delay + 1, max_delay)} - {delay})
@@ -1003,6 +1070,7 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
         om0 = float(res["seg_omega0"][0])
         msgs = _diagnose(par, cov, names, u_abs_max, res["at_bound"])
     _issue(msgs)
+    par.setdefault("tau_coast", 0.0)
     std = dict(zip(names, np.sqrt(np.clip(np.diag(cov), 0.0, None))))
     K, tau = float(par["K"]), float(par["tau"])
     fp = fit_percent(theta_c, y_sim) if np.all(np.isfinite(y_sim)) else float("nan")
@@ -1014,7 +1082,8 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
                     offset=float(par["offset"]), offset_std=float(std.get("offset", 0.0)),
                     dead_zone=float(par["dead_zone"]), dead_zone_std=float(std.get("dead_zone", 0.0)),
                     delay=int(delay), estimated=tuple(names), covariance=cov, warnings=msgs,
-                    n_segments=int(nseg), n_experiments=len(exps), omega0=om0)
+                    n_segments=int(nseg), n_experiments=len(exps), omega0=om0,
+                    tau_coast=float(par["tau_coast"]), tau_coast_std=float(std.get("tau_coast", 0.0)))
 
 
 def _issue(msgs):
@@ -1067,9 +1136,32 @@ def _drive(u, offset=0.0, dead_zone=0.0, delay=0):
 
 
 @_jit
-def _sim_kernel(v, fc, K, tau, Ts, starts, th0, om0, out):
-    """Exact ZOH simulation with Coulomb friction (plant.advance_em), restarted at each segment start."""
+def _coast_step(th, om, fc, K, tau, rc, dt, emc):
+    """One period with the drive open: omega' = -rc omega - (K fc / tau) sign(omega), sticking at 0.
+
+    ``rc`` = 1/tau_coast >= 0; ``emc`` = 1 - exp(-rc dt). rc > 0 is plant.advance_em with no voltage,
+    time constant 1/rc and gain K/(tau rc) (the same Coulomb torque); rc = 0 is the pure Coulomb
+    run-down at the constant deceleration K fc / tau, solved exactly."""
+    if rc > 0.0:
+        return advance_em(th, om, 0.0, fc, K / (tau * rc), 1.0 / rc, dt, emc)
+    dec = K * fc / tau
+    if om == 0.0:
+        return th, 0.0
+    s = 1.0 if om > 0.0 else -1.0
+    if dec > 0.0 and abs(om) <= dec * dt:
+        t_star = abs(om) / dec
+        return th + 0.5 * om * t_star, 0.0
+    return th + om * dt - 0.5 * s * dec * dt * dt, om - s * dec * dt
+
+
+@_jit
+def _sim_kernel(v, coast, fc, K, tau, rc, Ts, starts, th0, om0, out):
+    """Exact ZOH simulation with Coulomb friction (plant.advance_em), restarted at each segment start.
+
+    Where ``coast[k]`` the drive is open (:func:`_coast_step`, ``rc`` = 1/tau_coast): no voltage and
+    no back-EMF braking, so the motor runs down on its mechanical friction alone."""
     em = -math.expm1(-Ts / tau)
+    emc = -math.expm1(-Ts * rc)
     j = 0
     nseg = starts.size
     th = 0.0
@@ -1080,19 +1172,30 @@ def _sim_kernel(v, fc, K, tau, Ts, starts, th0, om0, out):
             om = om0[j]
             j += 1
         out[k] = th
-        th, om = advance_em(th, om, v[k], fc, K, tau, Ts, em)
+        if coast[k]:
+            th, om = _coast_step(th, om, fc, K, tau, rc, Ts, emc)
+        else:
+            th, om = advance_em(th, om, v[k], fc, K, tau, Ts, em)
     return out
 
 
-def _simulate_segments(v, fc, K, tau, Ts, starts, th0, om0):
+def _simulate_segments(v, fc, K, tau, Ts, starts, th0, om0, coast=None, coast_rate=0.0):
     out = np.empty(v.size)
-    return _sim_kernel(np.ascontiguousarray(v, dtype=float), float(fc), float(K), float(tau), float(Ts),
+    if coast is None:
+        coast, coast_rate = np.zeros(v.size, dtype=np.bool_), 0.0
+    return _sim_kernel(np.ascontiguousarray(v, dtype=float), np.ascontiguousarray(coast, dtype=np.bool_),
+                       float(fc), float(K), float(tau), float(coast_rate), float(Ts),
                        np.asarray(starts, dtype=np.int64), np.asarray(th0, dtype=float),
                        np.asarray(om0, dtype=float), out)
 
 
+def _coast_mask(u, delay=0):
+    """Samples at which the drive is open: the (delayed) *commanded* voltage is exactly 0."""
+    return _drive(u, 0.0, 0.0, delay) == 0.0
+
+
 def simulate_motor(K, tau, Ts, u, theta0=0.0, omega0=0.0, friction=0.0, offset=0.0, dead_zone=0.0,
-                   delay=0) -> np.ndarray:
+                   delay=0, tau_coast=None) -> np.ndarray:
     """Exact ZOH simulation of Stojčić eq. 1 with friction by velocity, offset, dead zone and delay.
 
     The motor obeys
@@ -1104,6 +1207,22 @@ def simulate_motor(K, tau, Ts, u, theta0=0.0, omega0=0.0, friction=0.0, offset=0
     samples it is solved exactly (``jerklab.plant.advance_em``: the linear ZOH solution, the zero
     crossing of omega found analytically). With every extra term 0 it equals
     :func:`simulate_dc_motor`. Before the record, ``u[0]`` is held (for the delay).
+
+    With ``tau_coast`` the drive is *open* wherever the commanded u(k - delay) is exactly 0 (a
+    switch or a bridge that floats its outputs, not one that shorts the motor): no current flows,
+    so there is neither a voltage nor the back-EMF braking that makes up most of 1/tau. For a motor
+    with inertia J, viscous friction b, Coulomb torque T_c, torque constant k_t, back-EMF constant
+    k_e and armature resistance R (inductance neglected, Stojčić eq. 1),
+
+        driven:  J omega' = k_t (u - k_e omega)/R - b omega - T_c sign(omega)
+                 -> tau = J/(b + k_t k_e/R), K = (k_t/R) tau/J, friction = T_c R/k_t;
+        open:    J omega' = -b omega - T_c sign(omega)
+                 -> omega' = -omega/tau_coast - (K friction/tau) sign(omega),  tau_coast = J/b,
+
+    so the coasting motor runs down with the mechanical time constant ``tau_coast`` (>= tau) and
+    the *same* Coulomb deceleration K friction / tau, and sticks when it reaches 0 (the DC motor
+    model of Stojčić eq. 1 with the electrical circuit opened; see e.g. Franklin, Powell &
+    Emami-Naeini, *Feedback Control of Dynamic Systems*, §2.3).
 
     Parameters
     ----------
@@ -1117,6 +1236,11 @@ def simulate_motor(K, tau, Ts, u, theta0=0.0, omega0=0.0, friction=0.0, offset=0
         Coulomb friction voltage (V, >= 0), input offset (V), dead zone (V, >= 0).
     delay : int
         Input delay in whole samples (>= 0).
+    tau_coast : float, optional
+        Mechanical time constant (s, > 0) while the drive is open (u = 0); ``math.inf``: no
+        viscous drag, the open motor runs down at the constant Coulomb deceleration
+        K friction / tau alone. None (default): the drive always holds u (u = 0 is a short
+        across the motor, Stojčić eq. 1).
 
     Returns
     -------
@@ -1134,7 +1258,12 @@ def simulate_motor(K, tau, Ts, u, theta0=0.0, omega0=0.0, friction=0.0, offset=0
     dead_zone = as_nonnegative("dead_zone", dead_zone)
     delay = as_int("delay", delay, minimum=0)
     v = _drive(u, offset, dead_zone, delay)
-    return _simulate_segments(v, friction, K, tau, Ts, [0], [theta0], [omega0])
+    if tau_coast is None:
+        return _simulate_segments(v, friction, K, tau, Ts, [0], [theta0], [omega0])
+    if not (isinstance(tau_coast, (int, float, np.floating, np.integer)) and tau_coast == math.inf):
+        tau_coast = as_positive("tau_coast", tau_coast)
+    return _simulate_segments(v, friction, K, tau, Ts, [0], [theta0], [omega0], _coast_mask(u, delay),
+                              1.0 / tau_coast)
 
 
 def _as_experiments(u, theta):
@@ -1283,6 +1412,9 @@ def _fit_oe_ms(exps, Ts, delay, opts, init, segment_n, cutoff, max_nfev=200):
     continuity constraints, i.e. each segment a short output-error problem with its own initial
     state, so an integrating plant cannot drift over a long record)."""
     names = ["K", "tau"] + [nm for nm in ("friction", "offset", "dead_zone") if opts[nm]]
+    coast = opts.get("coast", False)
+    if coast is True:
+        names.append("tau_coast")
     ng = len(names)
     vs_u, ths, starts_all, offsets = [], [], [], []
     pos = 0
@@ -1296,7 +1428,11 @@ def _fit_oe_ms(exps, Ts, delay, opts, init, segment_n, cutoff, max_nfev=200):
     starts = np.concatenate(starts_all)
     ucat = np.concatenate(vs_u)
     theta = np.concatenate(ths)
+    cmask = ucat == 0.0 if coast else None
     nseg = starts.size
+    # the dead zone stays below the largest input it acts on (a larger one would stop the motor for
+    # good, and lets K run to infinity against it); reaching this bound is reported
+    dz_max = float(np.max(np.abs(ucat))) + 2.0 * abs(init.get("offset", 0.0))
     # initial segment states from the filtered record
     th0, om0 = [], []
     for (u, th), st in zip(exps, starts_all):
@@ -1305,22 +1441,48 @@ def _fit_oe_ms(exps, Ts, delay, opts, init, segment_n, cutoff, max_nfev=200):
         for s_ in st - base:
             th0.append(th[s_])
             om0.append(w[min(max(s_ - 1, 0), w.size - 1)])
-    gl = [init["K"], math.log(init["tau"])] + [init[nm] for nm in names[2:]]
+    tau_lo, tau_hi = math.log(Ts * 1e-3), math.log(Ts * theta.size * 1e3)
+    if coast is True and "coast_rate" not in init:
+        # start the coasting rate 1/tau_coast from the best of 0 and a few fractions of 1/tau (one
+        # simulation each, segment states from the filtered record)
+        best = None
+        for m in (0.0, 1.0 / 64, 1.0 / 16, 1.0 / 4, 1.0):
+            v = ucat + init["offset"]
+            if init["dead_zone"] > 0:
+                v = np.sign(v) * np.maximum(np.abs(v) - init["dead_zone"], 0.0)
+            ys = _simulate_segments(v, max(init["friction"], 0.0), init["K"], init["tau"], Ts, starts,
+                                    th0, om0, cmask, m / init["tau"])
+            c = float(np.sum((ys - theta) ** 2))
+            if best is None or c < best[0]:
+                best = (c, m / init["tau"])
+        init = dict(init, coast_rate=max(best[1], 1e-3 / init["tau"]))
+    # the coasting enters as its rate 1/tau_coast >= 0 (|p|, like friction): 0 is a motor with no
+    # viscous drag, whose open-drive run-down is Coulomb friction alone
+    gl = [init["K"], math.log(init["tau"])] + [
+        init["coast_rate"] if nm == "tau_coast" else init[nm] for nm in names[2:]]
     x0 = np.concatenate([gl, np.ravel(np.column_stack([th0, om0]))])
     # friction and dead zone enter as |p| (>= 0 without bounds, so MINPACK's Levenberg-Marquardt
     # can be used: it is much faster than a bounded trust region on hundreds of segment states);
     # ln tau is clamped to a range no motor leaves, so a hopeless record cannot overflow
-    tau_lo, tau_hi = math.log(Ts * 1e-3), math.log(Ts * theta.size * 1e3)
     x0[1] = min(max(x0[1], tau_lo + 1e-6), tau_hi - 1e-6)
     for i, nm in enumerate(names[2:], start=2):
         if nm in ("friction", "dead_zone"):
             x0[i] = max(abs(x0[i]), 1e-6)
+        if nm == "dead_zone":
+            x0[i] = min(x0[i], 0.5 * dz_max)
+        if nm == "tau_coast":
+            x0[i] = abs(x0[i])
 
     def unpack(x):
         g = dict(zip(names, x[:ng]))
         g["tau"] = math.exp(min(max(g["tau"], tau_lo), tau_hi))
+        if coast is True:
+            g["coast_rate"] = abs(g.pop("tau_coast"))
+        else:
+            g["coast_rate"] = 0.0
         for nm in ("friction", "dead_zone"):
             g[nm] = abs(g.get(nm, 0.0))
+        g["dead_zone"] = min(g["dead_zone"], dz_max)
         g.setdefault("offset", 0.0)
         return g, x[ng::2], x[ng + 1::2]
 
@@ -1329,7 +1491,8 @@ def _fit_oe_ms(exps, Ts, delay, opts, init, segment_n, cutoff, max_nfev=200):
         v = ucat + g["offset"]
         if g["dead_zone"]:
             v = np.sign(v) * np.maximum(np.abs(v) - g["dead_zone"], 0.0)
-        return _simulate_segments(v, g["friction"], g["K"], g["tau"], Ts, starts, t0, w0)
+        return _simulate_segments(v, g["friction"], g["K"], g["tau"], Ts, starts, t0, w0, cmask,
+                                  g["coast_rate"])
 
     def resid(x):
         return model(x) - theta
@@ -1368,13 +1531,26 @@ def _fit_oe_ms(exps, Ts, delay, opts, init, segment_n, cutoff, max_nfev=200):
     # (K, ln tau, ...) -> (K, tau, ...)
     T = np.eye(ng)
     T[1, 1] = g["tau"]
+    rate_sd = 0.0
+    if coast is True:
+        # tau_coast = 1/rate: d tau_coast / d rate = -1/rate^2 (infinite at rate 0)
+        rate_sd = math.sqrt(max(cov_x[ng - 1, ng - 1], 0.0))
+        T[ng - 1, ng - 1] = -1.0 / g["coast_rate"] ** 2 if g["coast_rate"] > 0 else 0.0
     cov = T @ cov_x[:ng, :ng] @ T
-    Jg = J[:, :ng] @ np.linalg.inv(T) if ng else J
+    if coast is True and not g["coast_rate"] > 0:
+        cov[ng - 1, ng - 1] = math.inf
+    if coast:
+        g["tau_coast"] = 1.0 / g["coast_rate"] if g["coast_rate"] > 0 else math.inf
+    Jg = None
     sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     at_bound = [nm for i, nm in enumerate(names) if nm in ("friction", "dead_zone")
                 and (g[nm] <= 1e-4 * float(np.max(np.abs(ucat))) or g[nm] < 2.0 * sd[i])]
     if not (tau_lo + 1e-3 < x[1] < tau_hi - 1e-3):
         at_bound.append("tau")
+    if coast is True and g["coast_rate"] <= 2.0 * rate_sd:
+        at_bound.append("tau_coast")
+    if "dead_zone" in names and g["dead_zone"] >= 0.98 * dz_max:
+        at_bound.append("dead_zone_max")
     y_sim = theta + r            # r = model - theta
     return dict(par=g, names=names, cov=cov, y_sim=y_sim, theta=theta, nfev=sol.nfev,
                 s=math.sqrt(s2), nseg=nseg, starts=starts, seg_theta0=t0, seg_omega0=w0,
@@ -1402,7 +1578,17 @@ def _diagnose(par, cov, names, u_abs_max, at_bound=(), Jg=None):
                     f"fit these data (u not in volts? a reversed encoder? an offset or dead zone "
                     f"not modelled?)")
     for nm in at_bound:
+        if nm == "dead_zone_max":
+            msgs.append(f"dead_zone = {par['dead_zone']:.4g} V ran to its upper bound, the largest input "
+                        f"|u| = {u_abs_max:.4g} V: a dead zone that swallows the whole input would stop the "
+                        f"motor for good, so K ({par['K']:.3g}) was blown up against it. The input cannot "
+                        f"separate K from the dead zone (too few levels, or an offset or friction absorbs "
+                        f"it): fit without dead_zone, or record several input levels")
+            continue
         what = {"tau": "tau ran to the edge of its search range",
+                "tau_coast": f"the coasting rate 1/tau_coast (tau_coast = {par.get('tau_coast', 0.0):.3g} s) "
+                             f"is at (or within two standard errors of) its bound 0: the open motor "
+                             f"shows no viscous drag. With friction, fit coast='coulomb' instead",
                 "friction": f"friction f_c = {par['friction']:.3g} V is at (or within two standard "
                             f"errors of) its bound 0",
                 "dead_zone": f"dead_zone = {par['dead_zone']:.3g} V is at (or within two standard "
@@ -1410,7 +1596,15 @@ def _diagnose(par, cov, names, u_abs_max, at_bound=(), Jg=None):
         msgs.append(f"{what}: the data do not support this term (or another term absorbed it); "
                     f"fit without it or record an input that shows it")
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    if np.all(np.isfinite(cov)) and np.all(std > 0):
+    # (all zero is a noise-free record; some zero while others are not is a rank-deficient fit)
+    bad = [names[i] for i in range(len(names)) if names[i] not in at_bound
+           and (not np.isfinite(std[i]) or (std[i] == 0 and np.nanmax(std) > 0))]
+    if bad:
+        msgs.append(f"singular fit: the standard error of {', '.join(bad)} is zero or undefined, so "
+                    f"the data do not determine {'it' if len(bad) == 1 else 'them'} (a parameter at a "
+                    f"bound, or several parameters trading off without limit); the values are not "
+                    f"estimates: fit fewer parameters or record a richer input")
+    elif np.all(np.isfinite(cov)):
         C = cov / np.outer(std, std)
         w, V = np.linalg.eigh(C)
         if w[0] < 1e-4:
@@ -1424,7 +1618,7 @@ def _diagnose(par, cov, names, u_abs_max, at_bound=(), Jg=None):
                         f"(a PRBS about zero), or fewer parameters")
     for i, nm in enumerate(names):
         val = par[nm]
-        if nm in ("K", "tau") and np.isfinite(std[i]) and val != 0 and std[i] > 0.5 * abs(val):
+        if nm in ("K", "tau", "tau_coast") and nm not in at_bound and np.isfinite(std[i]) and val != 0 and std[i] > 0.5 * abs(val):
             msgs.append(f"{nm} is poorly determined ({val:.4g} ± {std[i]:.2g}): the input is not "
                         f"exciting enough (too short, too small, or too slow for tau)")
     return msgs
@@ -1833,32 +2027,68 @@ def _initial_state(fit, u, y, initial):
     return float(best.x[0]), float(best.x[1])
 
 
+def _initial_speed(fit, u, y):
+    """Initial (theta0, omega0) for a speed comparison: omega0 minimises the speed error over the
+    record (the angle offset does not enter the speed; a fit of the *angle* would pick omega0 to
+    cancel the drift of the integrated error, far from the measured initial speed)."""
+    w = np.diff(y) / fit.Ts
+
+    def r(x):
+        return np.diff(fit.simulate(u, 0.0, x[0])) / fit.Ts - w
+
+    best = None
+    for start in (w[0], 0.0):
+        sol = optimize.least_squares(r, [start], method="lm", x_scale=[max(abs(w[0]), 1.0)])
+        if best is None or sol.cost < best.cost:
+            best = sol
+    om0 = float(best.x[0])
+    return float(np.mean(y - fit.simulate(u, 0.0, om0))), om0
+
+
 @_jit
-def _predict_kernel(v, y, fc, K, tau, Ts, k, out):
+def _predict_kernel(v, coast, y, fc, K, tau, rc, Ts, k, out):
     """k-step-ahead prediction: at t - k restart from the state the two measured angles
     y(t-k-1), y(t-k) imply (the angle from y, the velocity from the exact one-sample relation),
-    then simulate k samples."""
+    then simulate k samples. Where ``coast`` the drive is open (``_coast_step``, rc = 1/tau_coast)."""
     em = -math.expm1(-Ts / tau)
-    a = 1.0 - em
-    c = tau * em
+    emc = -math.expm1(-Ts * rc)
     for t in range(k + 1, y.size):
         s = t - k
         d = y[s] - y[s - 1]
-        vv = v[s - 1]
-        if fc > 0.0:
-            if d > 0.0:
-                vv = vv - fc
-            elif d < 0.0:
-                vv = vv + fc
+        if coast[s - 1]:
+            # open drive: d = om_prev T - (K fc/tau) sgn T^2/2 (rc = 0), or the linear relation
+            sg = 1.0 if d > 0.0 else (-1.0 if d < 0.0 else 0.0)
+            dec = K * fc / tau
+            if rc > 0.0:
+                tc = 1.0 / rc
+                w_inf = -dec * tc * sg
+                om_prev = w_inf + (d - w_inf * Ts) / (tc * emc)
+                om = w_inf + (om_prev - w_inf) * (1.0 - emc)
             else:
-                vv = 0.0
-        om_prev = (d - K * (Ts - c) * vv) / c
-        om = a * om_prev + K * em * vv
-        if fc > 0.0 and d == 0.0:
-            om = 0.0
+                om_prev = d / Ts + 0.5 * sg * dec * Ts
+                om = om_prev - sg * dec * Ts
+            if sg == 0.0 or om * sg < 0.0:
+                om = 0.0
+        else:
+            vv = v[s - 1]
+            if fc > 0.0:
+                if d > 0.0:
+                    vv = vv - fc
+                elif d < 0.0:
+                    vv = vv + fc
+                else:
+                    vv = 0.0
+            c = tau * em
+            om_prev = (d - K * (Ts - c) * vv) / c
+            om = (1.0 - em) * om_prev + K * em * vv
+            if fc > 0.0 and d == 0.0:
+                om = 0.0
         th = y[s]
         for j in range(s, t):
-            th, om = advance_em(th, om, v[j], fc, K, tau, Ts, em)
+            if coast[j]:
+                th, om = _coast_step(th, om, fc, K, tau, rc, Ts, emc)
+            else:
+                th, om = advance_em(th, om, v[j], fc, K, tau, Ts, em)
         out[t] = th
     return out
 
@@ -1885,7 +2115,8 @@ class CompareResult:
         return plot_compare_result(self, ax, unit)
 
 
-def compare(data, fit, horizon=None, initial: str = "estimate", label: str = "") -> CompareResult:
+def compare(data, fit, horizon=None, initial: str = "estimate", label: str = "",
+            output: str = "angle") -> CompareResult:
     """Model output against a record and the fit %, as MATLAB's ``compare``.
 
     fit % = 100 (1 - ||y - yhat|| / ||y - mean(y)||) over every sample of the record.
@@ -1904,6 +2135,13 @@ def compare(data, fit, horizon=None, initial: str = "estimate", label: str = "")
         ``compare(data, arx_model, k)``. The first k + 1 samples take the simulation.
     initial : {"estimate", "rest"}
         Initial state of the simulation: fitted (MATLAB's ``InitialCondition='e'``) or at rest.
+    label : str
+        Name of the model in the plot's legend.
+    output : {"angle", "speed"}
+        "angle" (default): the record's y. "speed": the mean speed over each sample period,
+        diff(y)/Ts, against the model's (the angle simulation differenced; n - 1 samples), so
+        a record of an integrating plant is judged on what it shows, not on its integral (whose
+        fit % is always high). Only for simulation (``horizon`` None).
 
     Returns
     -------
@@ -1929,18 +2167,31 @@ def compare(data, fit, horizon=None, initial: str = "estimate", label: str = "")
         horizon = as_int("horizon", horizon, minimum=1)
     else:
         horizon = None
-    th0, om0 = _initial_state(fit, u, y, initial)
+    if output not in ("angle", "speed"):
+        raise ValueError(f"output must be 'angle' or 'speed', got {output!r}")
+    if output == "speed" and horizon is not None:
+        raise ValueError("horizon: output='speed' compares the simulation only (horizon=None)")
+    if output == "speed" and initial == "estimate":
+        th0, om0 = _initial_speed(fit, u, y)
+    else:
+        th0, om0 = _initial_state(fit, u, y, initial)
     y_hat = fit.simulate(u, th0, om0)
     if horizon is not None and y.size > horizon + 1:
         v = _drive(u, fit.offset, fit.dead_zone, fit.delay)
-        pred = _predict_kernel(np.ascontiguousarray(v), np.ascontiguousarray(y), float(fit.friction),
-                               float(fit.K), float(fit.tau), float(fit.Ts), int(horizon), y_hat.copy())
+        cm = _coast_mask(u, fit.delay) if fit.tau_coast else np.zeros(u.size, dtype=np.bool_)
+        rc = 1.0 / fit.tau_coast if fit.tau_coast else 0.0
+        pred = _predict_kernel(np.ascontiguousarray(v), cm, np.ascontiguousarray(y), float(fit.friction),
+                               float(fit.K), float(fit.tau), rc, float(fit.Ts),
+                               int(horizon), y_hat.copy())
         y_hat = pred
     t = np.arange(y.size) * Ts
+    if output == "speed":
+        y, y_hat, t = np.diff(y) / Ts, np.diff(y_hat) / Ts, t[:-1] + 0.5 * Ts
     return CompareResult(t, y, y_hat, fit_percent(y, y_hat), horizon, th0, om0, label)
 
 
-def resid(data, fit, max_lag: int = 25, confidence: float = 0.99, initial: str = "estimate") -> "ResidualAnalysis":
+def resid(data, fit, max_lag: int = 25, confidence: float = 0.99, initial: str = "estimate",
+          output: str = "angle") -> "ResidualAnalysis":
     """Residual tests of a model on a record, as MATLAB's ``resid``.
 
     The residuals are the output errors y - yhat of the simulation (the prediction errors of an
@@ -1948,9 +2199,11 @@ def resid(data, fit, max_lag: int = 25, confidence: float = 0.99, initial: str =
     state. Returns :func:`residual_analysis` of them with the input: autocorrelation over lags
     0..``max_lag``, cross-correlation with u over -``max_lag``..``max_lag``, ``confidence`` bands
     (99 % by default), the whiteness and independence tests. ``result.plot()`` draws the two panels.
+    ``output="speed"``: the residuals of the mean speed over each period (see :func:`compare`).
     """
-    c = compare(data, fit, None, initial)
+    c = compare(data, fit, None, initial, output=output)
     u = data.u if isinstance(data, IdentData) else _signal("u", data[0])
+    u = u[:c.y.size]
     e = c.y - c.y_hat
     max_lag = min(as_int("max_lag", max_lag, minimum=1), (e.size - 1) // 2)
     return residual_analysis(e, u if np.std(u) > 0 else None, max_lag, confidence)
@@ -2068,6 +2321,84 @@ def load_micromouse(name: str, root=None, battery_voltage=None, counts_per_motor
             "counts_per_motor_rev": counts_per_motor_rev, "gear_ratio": gear_ratio, "sign": sign,
             "rad_per_count": rad_per_count, "t0_ms": float(t_ms[start])}
     return IdentData(u, y, Ts, "V", "rad", meta)
+
+
+#: the DC motor/generator record (data/real/dc-generator): the file, the raw samples per stored row,
+#: and the raw samples per PRBS clock period (the hold of the input)
+DC_GENERATOR_FILE = "dc_generator_every25.csv"
+DC_GENERATOR_ROW_STEP = 25
+DC_GENERATOR_RAW_PER_CLOCK = 500
+
+
+def load_dc_generator(root=None, decimate: int = 1, clock_period: float = 1.0) -> IdentData:
+    """The measured DC motor driving a DC generator of SysIdentPy as identification data.
+
+    Lacerda Junior, W. R., et al., "Identificação de um motor/gerador CC por meio de modelos
+    polinomiais autorregressivos e redes neurais artificiais", SBAI 2017; the files ``x_cc.csv``
+    (motor voltage, 0 or 5 V, a PRBS held for 500 raw samples) and ``y_cc.csv`` (a speed-like
+    output, units not stated) of github.com/wilsonrljr/sysidentpy-data (MIT). The repository
+    ships every 25th raw sample (``data/real/dc-generator``, README there).
+
+    * u (V): ``x_cc``, as recorded.
+    * speed: ``y_cc`` minus its median at rest (the samples before the first switch-on,
+      -143.64), in the record's own unit (not stated by the authors).
+    * y: the speed integrated by the trapezoidal rule from 0, so the angle-based estimators of
+      this module apply: ``fit_dc_motor`` fits K (speed unit per V) and tau on it, and
+      ``compare(data, fit, output="speed")`` compares the speed, ``diff(y)/Ts`` (the mean of
+      two neighbouring speed samples) against the model's mean speed over each sample period.
+    * time: the sample period of the record is not stated anywhere. The input is held for 500
+      raw samples (its PRBS clock), so time is counted in clock periods: ``Ts`` =
+      25 ``decimate`` / 500 ``clock_period``. With the default ``clock_period=1.0`` every time
+      (Ts, tau) is in clock periods, *written as seconds*; pass the true clock period (s) if
+      you know it.
+
+    Parameters
+    ----------
+    root : path, optional
+        Folder holding the CSV (default: the repository's data/real/dc-generator).
+    decimate : int
+        Keep every ``decimate``-th stored row (1: 20 samples per clock period, 20000 samples).
+        The output is smooth, so plain decimation (no filter) loses nothing above the clock rate.
+    clock_period : float
+        The PRBS clock period (s); 1.0 by convention (time in clock periods).
+
+    Returns
+    -------
+    IdentData
+        u in V, y the integrated speed (``output_unit`` "y_cc*s"), Ts = 0.05 ``decimate``
+        ``clock_period``; metadata names the source, the rest level and the conventions.
+    """
+    decimate = as_int("decimate", decimate, minimum=1)
+    clock_period = as_positive("clock_period", clock_period)
+    root = pathlib.Path(root) if root is not None else _default_real_root() / "dc-generator"
+    header, table = _read_table(root / DC_GENERATOR_FILE)
+    for col in ("sample", "x_cc", "y_cc"):
+        if col not in header:
+            raise ValueError(f"path: {DC_GENERATOR_FILE} has no '{col}' column (columns {header})")
+    raw = table[:, header.index("sample")]
+    if np.any(np.diff(raw) != DC_GENERATOR_ROW_STEP):
+        raise ValueError(f"path: {DC_GENERATOR_FILE} is not every {DC_GENERATOR_ROW_STEP}th raw sample")
+    rows = slice(None, None, decimate)
+    u = table[rows, header.index("x_cc")]
+    y_cc = table[rows, header.index("y_cc")]
+    if u.size < MIN_SAMPLES:
+        raise ValueError(f"decimate: {decimate} leaves {u.size} samples, fewer than {MIN_SAMPLES}")
+    on = np.flatnonzero(u != 0)
+    if on.size == 0 or on[0] < 1:
+        raise ValueError(f"path: {DC_GENERATOR_FILE} has no idle lead-in before the first switch-on")
+    rest = float(np.median(y_cc[:on[0]]))
+    speed = y_cc - rest
+    Ts = DC_GENERATOR_ROW_STEP * decimate / DC_GENERATOR_RAW_PER_CLOCK * clock_period
+    y = np.concatenate([[0.0], np.cumsum(0.5 * Ts * (speed[1:] + speed[:-1]))])
+    meta = {"source": "github.com/wilsonrljr/sysidentpy-data datasets/generator (MIT), commit "
+                      "72715362eadcf860fdbd77d88b5d7e92b6143a83",
+            "paper": "Lacerda Junior et al., SBAI 2017, motor/gerador CC",
+            "raw_samples_per_row": DC_GENERATOR_ROW_STEP * decimate,
+            "raw_samples_per_clock": DC_GENERATOR_RAW_PER_CLOCK, "clock_period_s": clock_period,
+            "time_unit": "PRBS clock period" if clock_period == 1.0 else "s",
+            "speed_rest_level": rest, "output": "trapezoidal integral of (y_cc - rest)",
+            "speed_unit": "y_cc (not stated by the authors)"}
+    return IdentData(u, y, Ts, "V", "y_cc*s", meta)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -77,7 +77,7 @@ __all__ = [
     "KINDS", "InputShaper", "input_shaper", "residual_vibration_of", "insensitivity_table",
     "chirp_input", "ModeFit", "identify_mode", "profile_residual_vibration", "tuned_profile",
     "move_time_comparison", "RobustMove", "robust_move_rows", "robust_move", "energy_optimal_move",
-    "Tradeoff", "tradeoff", "residual_amplitude",
+    "Tradeoff", "tradeoff", "residual_amplitude", "flexible_mode",
 ]
 
 #: the shaper kinds, in order of duration (aliases are accepted: "2-hump EI", "EI3", ...)
@@ -319,12 +319,23 @@ class InputShaper:
         return residual_vibration_of(self.amplitudes, self.times, frequency_hz, zeta)
 
     def sensitivity_curve(self, ratios, damping=None):
-        """Residual vibration (%) at ``ratios`` × the design frequency (the classic robustness plot)."""
+        """Residual vibration (%) at ``ratios`` × the design frequency (the classic robustness plot).
+
+        ``damping`` is the plant's (default: the design damping); a sequence of dampings gives
+        the worst case over them at each ratio (a plant whose damping is only known to lie in a
+        range, the reading of Klipper's table).
+        """
         r = as_finite_array("ratios", ratios, ndim=1)
         if np.any(r <= 0):
             raise ValueError("ratios must be positive")
+        w = 2 * math.pi * self.frequency_hz * r
+        if damping is not None and np.ndim(damping) == 1:
+            zs = [_damping("damping", z) for z in damping]
+            if not zs:
+                raise ValueError("damping must not be an empty sequence")
+            return 100.0 * np.max([_v_impulses(self.amplitudes, self.times, w, z) for z in zs], axis=0)
         zeta = self.damping if damping is None else _damping("damping", damping)
-        return 100.0 * _v_impulses(self.amplitudes, self.times, 2 * math.pi * self.frequency_hz * r, zeta)
+        return 100.0 * _v_impulses(self.amplitudes, self.times, w, zeta)
 
     def insensitivity(self, tolerance=5.0, damping=None, hz=False):
         """The frequency band around the design in which the vibration stays <= ``tolerance`` %.
@@ -338,10 +349,12 @@ class InputShaper:
         ----------
         tolerance : float
             Vibration tolerance in percent (0 < tolerance < 100); 5 means 5 %.
-        damping : float, optional
-            Plant damping (default: the design damping).
+        damping : float or sequence of float, optional
+            Plant damping (default: the design damping); a sequence: the worst case over those
+            dampings (e.g. ``np.linspace(0.05, 0.2, 7)`` for a shaper designed at 0.1, which is
+            how Klipper's table reads: its ZVD row ±15 %/±22 % comes out exactly so).
         """
-        zeta = self.damping if damping is None else _damping("damping", damping)
+        zeta = self.damping if damping is None else damping
         lo, hi = _band(lambda r: self.sensitivity_curve(r, zeta), tolerance)
         f0 = self.frequency_hz
         return (lo * f0, hi * f0) if hz else (lo, hi)
@@ -366,6 +379,43 @@ class InputShaper:
         np.add.at(h, k, self.amplitudes * (1 - a))
         np.add.at(h, np.minimum(k + 1, n - 1), self.amplitudes * a)
         return h
+
+    def fir_fixed(self, Ts, frac_bits=15):
+        """:meth:`fir` in fixed point for a microcontroller: integer taps summing to exactly
+        ``2**frac_bits`` (largest-remainder rounding: each tap within one unit of ``2**frac_bits·h``),
+        so a shaped move still ends exactly on its target. Returns an ``int64`` array."""
+        from jerklab._validate import as_int
+        b = as_int("frac_bits", frac_bits, minimum=1)
+        if b > 30:
+            raise ValueError(f"frac_bits must be <= 30, got {b}")
+        h = self.fir(Ts) * (1 << b)
+        q = np.floor(h).astype(np.int64)
+        short = (1 << b) - int(q.sum())
+        if short > 0:
+            order = np.argsort(-(h - q), kind="stable")
+            q[order[:short]] += 1
+        return q
+
+    def apply_fixed(self, reference, Ts, frac_bits=15, extend=True):
+        """Integer shaping, the reference arithmetic for the firmware: for integer references
+        (encoder counts) ``y[n] = floor((Σ_j q_j r[n−j] + 2**(frac_bits−1)) / 2**frac_bits)`` with the
+        taps ``q`` of :meth:`fir_fixed` (round half up; the same history and extension rules as
+        :meth:`apply`). Exact in int64 while ``|r| < 2**(62 − frac_bits)``."""
+        r = np.asarray(reference)
+        if r.ndim != 1 or r.size == 0 or r.dtype.kind not in "iu":
+            raise ValueError("reference must be a non-empty 1-D array of integers (counts)")
+        r = r.astype(np.int64)
+        q = self.fir_fixed(Ts, frac_bits)
+        b = int(frac_bits)
+        if np.abs(r).max() >= 1 << (62 - b):
+            raise ValueError(f"reference is too large for int64 arithmetic with frac_bits = {b}")
+        n = q.size - 1
+        x = np.concatenate([np.full(n, r[0]), r, np.full(n if extend else 0, r[-1])])
+        m = r.size + (n if extend else 0)
+        acc = np.zeros(m, dtype=np.int64)
+        for j in np.flatnonzero(q):
+            acc += q[j] * x[n - j:n - j + m]
+        return (acc + (1 << (b - 1))) >> b
 
     def digitized(self, Ts) -> "InputShaper":
         """The shaper that :meth:`apply` really applies on the grid ``Ts``: the FIR taps as impulses
@@ -512,6 +562,13 @@ def _coupled_mode(K, tau, ratio, wr, zr):
     s = c[np.argmax(c.imag)]
     wn = abs(s)
     return wn / (2 * math.pi), -s.real / wn
+
+
+def flexible_mode(model=None):
+    """``(f, ζ)``: natural frequency (Hz) and damping of the lightly damped pole pair of a
+    :class:`jerklab.plant.FlexibleDCMotor` (the coupled mode of motor and load, open loop)."""
+    m = _flex_model(model)
+    return _coupled_mode(m.K, m.tau, m.load_ratio, m.mode_frequency, m.mode_damping)
 
 
 def _flex_simulate(p, u, Ts):
@@ -1010,6 +1067,8 @@ class RobustMove:
         a voltage impulse of the same area (a position step) would leave 100 %.
         """
         r = as_finite_array("ratios", ratios, ndim=1)
+        if np.any(r <= 0):
+            raise ValueError("ratios must be positive")
         zeta = self.mode_damping if damping is None else _damping("damping", damping)
         sig = _sigma(self.mode_hz * r, zeta)[:, None]
         k = np.arange(self.u.size)

@@ -21,7 +21,7 @@ BELOW_THE_FACE = ["jerklab", "jerklab.law", "jerklab.paper", "jerklab.planner", 
                   "jerklab.hysteresis", "jerklab.fpga", "jerklab.plots", "jerklab.rig", "jerklab.rig.virtual",
                   "jerklab.rig.server", "jerklab.rig.recording", "jerklab.rig.client", "jerklab.rig.simavr",
                   "jerklab.rig.progress", "jerklab.rig.ports", "jerklab.rig.check", "jerklab.tuning",
-                  "jerklab.shaping"]
+                  "jerklab.shaping", "jerklab.multiaxis"]
 
 
 def _imports(module):

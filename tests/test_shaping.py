@@ -72,6 +72,20 @@ def test_zv_zvd_closed_forms(f, zeta):
         assert s.times[0] == 0.0 and s.duration == s.times[-1]
 
 
+@pytest.mark.parametrize("zeta", [0.0, 0.1])
+def test_mzv_closed_form(zeta):
+    """MZV: impulses at 0, 3T_d/8, 3T_d/4 with amplitudes ∝ [1, √2 K', K'²], K' = e^{−3ζπ/(4√(1−ζ²))}
+    (the z-polynomial 1 + √2 q + q² has its roots at e^{±j3π/4}: the mode; Klipper's mzv)."""
+    f = 12.0
+    df = math.sqrt(1 - zeta ** 2)
+    Kp = math.exp(-0.75 * zeta * math.pi / df)
+    A = np.array([1, math.sqrt(2) * Kp, Kp * Kp])
+    s = input_shaper("mzv", f, zeta)
+    np.testing.assert_allclose(s.amplitudes, A / A.sum(), rtol=1e-13)
+    np.testing.assert_allclose(s.times, np.array([0, 0.375, 0.75]) / (f * df), rtol=1e-13)
+    assert s.duration == pytest.approx(0.75 / (f * df))
+
+
 @pytest.mark.parametrize("kind", ["zv", "zvd", "mzv", "ei", "2hump_ei"])
 @pytest.mark.parametrize("zeta", [0.0, 0.05])
 def test_residual_against_integrated_mode(kind, zeta):
@@ -189,6 +203,23 @@ def test_klipper_asymmetric_bands_at_light_damping():
         lo, hi = zvd.insensitivity(tol)
         assert 100 * (1 - lo) == pytest.approx(w, abs=1.5)
         assert 100 * (hi - 1) == pytest.approx(w, abs=1.5)
+
+
+def test_klipper_reading_worst_case_over_damping():
+    """Klipper: shapers designed at ζ = 0.1, widths meant to hold for ζ ≈ 0.05–0.2. The worst case
+    over that range gives its ZVD row (±15 %, ±22 %) and its MZV 10 % band (−10…+15 %) within 2 points."""
+    zs = np.linspace(0.05, 0.2, 7)
+    zvd = input_shaper("zvd", 1.0, 0.1)
+    for tol, w in ((5.0, 15), (10.0, 22)):
+        lo, hi = zvd.insensitivity(tol, damping=zs)
+        assert 100 * (1 - lo) == pytest.approx(w, abs=1.0) and 100 * (hi - 1) == pytest.approx(w, abs=1.0)
+    lo, hi = input_shaper("mzv", 1.0, 0.1).insensitivity(10.0, damping=zs)
+    assert 100 * (lo - 1) == pytest.approx(-10, abs=2.0) and 100 * (hi - 1) == pytest.approx(15, abs=2.0)
+    # the worst case is never better than any single damping of the range
+    r = np.linspace(0.5, 1.5, 101)
+    worst = zvd.sensitivity_curve(r, damping=zs)
+    for z in zs:
+        assert np.all(worst >= zvd.sensitivity_curve(r, damping=z) - 1e-12)
 
 
 def test_insensitivity_units_and_edges():
@@ -434,6 +465,17 @@ def _true_mode(m):
     return abs(s) / (2 * math.pi), -s.real / abs(s)
 
 
+def test_fit_model_simulation_matches_the_plant():
+    """The identification's fast simulation (eigen-decomposed ZOH, lfilter) against the plant's."""
+    from jerklab.shaping import _flex_simulate, flexible_mode
+    m = FlexibleDCMotor(load_ratio=0.3, mode_frequency=50.0, mode_damping=0.02).ideal()
+    u = np.random.default_rng(0).normal(size=800)
+    th, _ = m.open_loop(u, 0.005)
+    p = np.log([m.K, m.tau, m.load_ratio, m.mode_frequency, m.mode_damping])
+    np.testing.assert_allclose(_flex_simulate(p, u, 0.005), th, atol=1e-9 * np.abs(th).max())
+    assert flexible_mode(m) == pytest.approx(_true_mode(m))
+
+
 @pytest.mark.parametrize("load_ratio,excitation", [(0.05, "chirp"), (0.3, "prbs"), (0.15, "chirp")])
 def test_identify_mode_from_encoder(load_ratio, excitation):
     from jerklab.ident import prbs
@@ -488,6 +530,12 @@ def test_identify_mode_from_encoder(load_ratio, excitation):
     (lambda: tuned_profile("ramp", 1.0, 8.0, 300.0, 100.0), "kind"),
     (lambda: tuned_profile("scurve", 1.0, 8.0, -300.0, 100.0), "max_accel"),
     (lambda: robust_move(0.0), "distance"),
+    (lambda: robust_move(1.0, model="motor"), "model"),
+    (lambda: robust_move(1.0).sensitivity_curve([-1.0, 1.0]), "ratios"),
+    (lambda: input_shaper("zv", 1.0).sensitivity_curve([0.0]), "ratios"),
+    (lambda: input_shaper("zv", 1.0).sensitivity_curve([1.0], damping=[]), "damping"),
+    (lambda: profile_residual_vibration(planner.plan_trapezoid(1.0, 1.0, 1.0), -2.0), "frequency_hz"),
+    (lambda: tradeoff(ratios=[0.0, 1.0]), "ratios"),
     (lambda: robust_move(1.0, order=-1), "order"),
     (lambda: robust_move(1.0, u_max=0.0), "u_max"),
     (lambda: energy_optimal_move(1.0, 40, objective="fast"), "objective"),
@@ -540,3 +588,25 @@ def test_residual_amplitude_from_a_record():
         assert residual_amplitude(yq, Ts, k0, final=D) == pytest.approx(want, rel=0.1, abs=1e-3)
     with pytest.raises(ValueError, match="start"):
         residual_amplitude(np.zeros(10), 0.01, 8)
+
+
+@settings(max_examples=150, deadline=None)
+@given(kind=kinds, f=freqs, zeta=dampings, Ts=st.floats(1e-3, 0.02), bits=st.integers(8, 24),
+       ref=st.lists(st.integers(-10**6, 10**6), min_size=1, max_size=40))
+def test_fixed_point_fir(kind, f, zeta, Ts, bits, ref):
+    s = input_shaper(kind, f, zeta)
+    q = s.fir_fixed(Ts, bits)
+    h = s.fir(Ts)
+    assert q.dtype == np.int64 and q.sum() == 1 << bits and np.all(q >= 0)
+    assert np.abs(q - h * (1 << bits)).max() < 1.0
+    r = np.array(ref, dtype=np.int64)
+    y = s.apply_fixed(r, Ts, bits)
+    assert y[-1] == r[-1] and y[0] == r[0]                     # exact ends
+    # against the float FIR: the rounding of the taps plus half a count
+    err = np.abs(y - s.apply(r.astype(float), Ts))
+    assert np.all(err <= 0.5 + q.size * np.abs(r).max() / (1 << bits) + 1e-9)
+    # integer arithmetic written out for one sample, as the firmware would
+    k = min(len(ref) - 1, 3)
+    n = q.size - 1
+    hist = [r[max(k - j, 0)] for j in range(q.size)]
+    assert y[k] == (sum(int(q[j]) * int(hist[j]) for j in range(q.size)) + (1 << (bits - 1))) >> bits

@@ -11,8 +11,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 THEORY = (ROOT / "docs" / "THEORY.md").read_text(encoding="utf-8")
 HEADINGS = [line for line in THEORY.splitlines() if line.startswith("#")]
-MODULES = ("paper", "planner", "plant", "controller", "sim", "ident", "piezo", "hysteresis", "fpga", "shaping",
-           "peers", "plots", "protocol", "widgets", "rig")
+MODULES = ("paper", "planner", "plant", "controller", "sim", "ident", "piezo", "hysteresis", "fpga",
+           "multiaxis", "shaping", "peers", "plots", "protocol", "widgets", "rig")
 
 
 def _in_heading(citation):
