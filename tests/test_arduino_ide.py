@@ -63,7 +63,8 @@ def test_ide_build_makes_a_hex_that_fits(built):
     m = re.search(r"Sketch uses (\d+) bytes \((\d+)%\) of program storage space. Maximum is (\d+)", out)
     assert m, out
     used, maximum = int(m.group(1)), int(m.group(3))
-    assert maximum == 32256 and used <= 0.5 * maximum
+    # the budget of tests/test_firmware.py: 75 % since protocol version 3 (SEQUENCE, SET_SHAPER)
+    assert maximum == 32256 and used <= 0.75 * maximum
     # every core source was compiled with the sketch
     for src in (SKETCH_DIR / "src").glob("*.cpp"):
         assert (build / "sketch" / "src" / (src.name + ".o")).is_file(), src.name
