@@ -1,16 +1,21 @@
-"""Firmware cycle budget on a simulated ATmega328P (simavr), against the 5 ms control period.
+"""Firmware cycle budget on a simulated ATmega328P (simavr), at Ts = 5 ms and at Ts = 1 ms.
 
-Runs sine-jerk moves and a 12 V open-loop step on the real firmware ELF in the simavr harness
-(as fast as the host allows: the budget is counted in CPU cycles, not wall time) and prints
-the control step's cycles (min/mean/max while the motor moves, measured between the rises and
-falls of the firmware's PB5 probe, interrupts included) as ratios of the 80 000-cycle period and
-of the issue's 8000-cycle (10 %) ceiling; the INT0 latency against a quarter encoder period at
-top speed; and flash/RAM against the Uno's. The peer is the budget itself, plus the naive
-step measured in RIG-NOTES (three sinf/cosf per step, ~12 000 cycles), and for the input
-shaper (SET_SHAPER, protocol version 3) the same moves without it: a ZV shaper on the Ts grid
-(3 taps) and the longest the device takes (10 taps).
+Runs moves of every planner, one near top speed, and a 12 V open-loop step on the real firmware
+ELF in the simavr harness (as fast as the host allows: the budget is counted in CPU cycles, not
+wall time) and prints the control step's cycles (min/mean/max while the motor moves, measured
+between the rises and falls of the firmware's PB5 probe, interrupts included: encoder read,
+PID + feedforward, PWM write, telemetry record) against the period and against the issue-21
+ceiling of 4000 cycles (25 % of 1 ms); whether an encoder count was lost (the firmware's count
+against the harness's ideal one, and INT0 latency against a quarter encoder period at top
+speed); then where the cycles of a 1 ms tick go, from builds that raise the probe around one
+part each (``EXTRA_DEFS=-DJL_PROBE_PART=n``): the reference sample (computed one tick ahead,
+after the PWM write), one stage of a segment's preparation, the TELEMETRY frame (encode, CRC,
+UART ring), and flash/RAM against the Uno's.
 
     python -m benchmarks firmware
+
+The 1 ms runs use the sketch built for 1 Mbaud (``JL_BAUD``), so a TELEMETRY goes out at every
+sample (115200 baud carries ~11.8 bytes/ms, a 22-byte frame every 3rd sample at 1 ms).
 """
 from __future__ import annotations
 
@@ -19,22 +24,32 @@ import re
 import time
 
 
-def _session(port, commands, timeout=60.0):
+def _session(port, commands, timeout=60.0, baud=115200):
     import serial
 
     from jerklab import protocol as pr
 
     msgs, dec = [], pr.Decoder()
-    with serial.Serial(port, 115200, timeout=0.02) as ser:
+    with serial.Serial(port, baud, timeout=0.02) as ser:
         # handshake first: the session starts once the firmware has answered HELLO
-        ser.write(pr.encode(pr.Hello(1), 0xA5))
+        ser.write(pr.encode(pr.Hello(pr.PROTOCOL_VERSION), 0xA5))
         t0, info = time.monotonic(), None
         while info is None:
             if time.monotonic() - t0 > 10.0:
                 raise RuntimeError(f"the simulated Uno on {port} did not answer HELLO within 10 s")
             info = next((f for f in dec.feed(ser.read(256)) if f.type == pr.MsgType.HELLO_REPLY), None)
+        # one command at a time, each after the previous reply (at 1 Mbaud a burst of frames
+        # would overrun the firmware's 64-byte receive ring while it handles the first)
         for i, m in enumerate(commands):
             ser.write(pr.encode(m, i + 1))
+            if isinstance(m, (pr.Run, pr.Step)):
+                break
+            t0 = time.monotonic()
+            while not any(getattr(x, "command", None) == int(m.TYPE) or isinstance(x, pr.PlanInfo)
+                          for x in msgs[-1:]):
+                if time.monotonic() - t0 > 10.0:
+                    raise RuntimeError(f"no reply to {m} from the simulated Uno (last: {msgs[-3:]})")
+                msgs += [pr.parse(f) for f in dec.feed(ser.read(256))]
         t0 = time.monotonic()
         while time.monotonic() - t0 < timeout:
             msgs += [pr.parse(f) for f in dec.feed(ser.read(4096))]
@@ -44,63 +59,114 @@ def _session(port, commands, timeout=60.0):
                        f"(last messages: {msgs[-3:]})")
 
 
-def main():
+K, TAU, VS = 32.4, 0.025, 12.0
+
+
+def _cases(Ts_us):
+    from jerklab import protocol as pr
+
+    top = 600.0 if Ts_us == 5000 else 150.0
+    return [
+        ("sine-jerk 4*pi rad (J 2e4, E 300, W 100)", [pr.Plan(4 * math.pi, 0)]),
+        (f"sine-jerk {top:g} rad near top speed (J 380, W 370)",
+         [pr.SetLimits(380.0, 300.0, 370.0, VS, 0), pr.Plan(top, 0)]),
+        ("optimal sine 4*pi rad", [pr.Plan(4 * math.pi, 1)]),
+        ("S-curve 4*pi rad", [pr.Plan(4 * math.pi, 2)]),
+        ("trapezoid 4*pi rad", [pr.Plan(4 * math.pi, 3)]),
+        # protocol 3's input shaper (SET_SHAPER): a ZV shaper split on the grid (3 taps) and the
+        # longest the default firmware takes (10 taps over its 31-sample history); the FIR runs
+        # with the reference one tick ahead, after the PWM write
+        ("sine-jerk 4*pi rad, ZV shaper (3 taps)",
+         [pr.SetShaper(3, (0.26, 0.51, 0.23), (0, 12, 13)), pr.Plan(4 * math.pi, 0)]),
+        (f"sine-jerk {top:g} rad near top speed, 10-tap shaper",
+         [pr.SetShaper(10, (0.1,) * 10, tuple(range(0, 30, 3))), pr.SetLimits(380.0, 300.0, 370.0, VS, 0),
+          pr.Plan(top, 0)]),
+    ]
+
+
+def _run(elf, Ts_us, cmds, baud, run=True):
     from jerklab import protocol as pr
     from jerklab.controller import pole_placement_pid
+    from jerklab.rig import simavr
+
+    g = pole_placement_pid(K, TAU, 20).discretize(Ts_us * 1e-6)
+    with simavr.launch(elf, realtime=False, build=False) as uno:
+        setup = [pr.SetPlant(K, TAU, VS, 448), pr.SetGains(g.kpd, g.kid, g.kdd, Ts_us, 0, 1, 0.0),
+                 pr.SetLimits(2e4, 300.0, 100.0, VS, 0)]
+        t0 = time.perf_counter()
+        msgs = _session(uno.port, setup + cmds + ([pr.Run(50, 1)] if run else []), baud=baud)
+        wall = time.perf_counter() - t0
+        s = uno.stats()
+    end = next(m for m in msgs if isinstance(m, pr.EndOfRun))
+    return s, end, wall
+
+
+def main():
+    from jerklab import protocol as pr
     from jerklab.rig import simavr
 
     missing = simavr.tools_missing()
     if missing:
         print(f"skipped: needs {', '.join(missing)}")
         return
+    fw = simavr.firmware_dir()
     out = simavr.build_firmware("avr", "size", "simavr")
+    fast = simavr.build_firmware("avr", build_dir=fw / "build" / "baud1m", baud=1000000)
     m = re.search(r"flash (\d+) / (\d+) bytes .*RAM (\d+) / (\d+) bytes", out["output"])
-    period = 16e6 * 0.005
-    K, tau, Vs = 32.4, 0.025, 12.0
-    g = pole_placement_pid(K, tau, 20).discretize(0.005)
-    # ZV for an 8 Hz mode (zeta 0.02) split on the 5 ms grid, and a 10-tap shaper spread over
-    # the ring buffer (the worst case the device accepts)
-    zv = pr.SetShaper(3, (0.26, 0.51, 0.23), (0, 12, 13))
-    ten = pr.SetShaper(10, (0.1,) * 10, tuple(range(0, 127, 14))[:10])
-    rows = []
-    for label, cmds in [
-        ("move 4*pi rad (J 2e4, E 300, W 100)",
-         [pr.Plan(4 * math.pi, 0), pr.Run(50, 1)]),
-        ("move 600 rad near top speed (J 380, E 300, W 370)",
-         [pr.SetLimits(380.0, 300.0, 370.0, Vs, 0), pr.Plan(600.0, 0), pr.Run(50, 1)]),
-        ("open-loop step 12 V, 0.5 s", [pr.Step(Vs, 5000, 100)]),
-        ("move 4*pi rad, ZV shaper on (3 taps)",
-         [zv, pr.Plan(4 * math.pi, 0), pr.Run(50, 1)]),
-        ("move 4*pi rad, 10-tap shaper on",
-         [ten, pr.Plan(4 * math.pi, 0), pr.Run(50, 1)]),
-        ("move 600 rad near top speed, 10-tap shaper on",
-         [ten, pr.SetLimits(380.0, 300.0, 370.0, Vs, 0), pr.Plan(600.0, 0), pr.Run(50, 1)]),
-        ("open-loop PRBS 12 V (SEQUENCE), 0.5 s", [pr.Sequence(Vs, 0.0, 5000, 100, 1, 8, 1)]),
-    ]:
-        with simavr.launch(realtime=False, build=False) as uno:
-            setup = [pr.SetPlant(K, tau, Vs, 448), pr.SetGains(g.kpd, g.kid, g.kdd, 5000, 0, 1, 0.0),
-                     pr.SetLimits(2e4, 300.0, 100.0, Vs, 0)]
-            t0 = time.perf_counter()
-            _session(uno.port, setup + cmds)
-            wall = time.perf_counter() - t0
-            s = uno.stats()
-        b = s["control_step_cycles_moving"]
-        rows.append((label, b["n"], b["min"], b["mean"], b["max"], b["max"] / period, b["max"] / 8000,
-                     s["int0_latency_cycles"]["max"], s["sim_seconds"] / wall))
-    print("control step on the simulated Uno (cycles at 16 MHz, while moving, interrupts included)")
-    print(f"{'case':52s} {'steps':>6s} {'min':>6s} {'mean':>7s} {'max':>6s} {'max/Ts':>7s} "
-          f"{'max/8000':>8s} {'INT0 lat':>8s} {'sim/wall':>8s}")
+    rows, summary = [], {}
+    for Ts_us, elf, baud in [(5000, out["elf"], 115200), (1000, fast["elf"], 1000000)]:
+        cases = _cases(Ts_us) + [(f"open-loop step 12 V, {100 * Ts_us / 1e6:g} s",
+                                  [pr.Step(VS, Ts_us, 100)]),
+                                 (f"open-loop PRBS 12 V (SEQUENCE), {100 * Ts_us / 1e6:g} s",
+                                  [pr.Sequence(VS, 0.0, Ts_us, 100, 1, 8, 1)])]
+        worst_mean, worst_max = 0.0, 0
+        for label, cmds in cases:
+            s, end, wall = _run(elf, Ts_us, cmds, baud, run=not label.startswith("open-loop"))
+            b = s["control_step_cycles_moving"]
+            lost = abs(s.get("firmware_counts", s["ideal_counts_x1"]) - s["ideal_counts_x1"])   # counts
+            rows.append((Ts_us, label, b["n"], b["min"], b["mean"], b["max"], b["max"] / (16 * Ts_us),
+                         b["max"] / 4000, s["int0_latency_cycles"]["max"], lost,
+                         end.overruns, s["sim_seconds"] / wall))
+            if not label.startswith("open-loop"):
+                worst_mean = max(worst_mean, b["mean"])
+                worst_max = max(worst_max, b["max"])
+        summary[Ts_us] = (worst_mean, worst_max)
+    print("control step on the simulated Uno (encoder read -> PID + feedforward -> PWM write; cycles "
+          "at 16 MHz while moving, interrupts included)")
+    print(f"{'Ts':>5s} {'case':46s} {'steps':>6s} {'min':>6s} {'mean':>7s} {'max':>6s} {'max/Ts':>7s} "
+          f"{'max/4000':>8s} {'INT0 lat':>8s} {'lost':>5s} {'ovr':>4s} {'sim/wall':>8s}")
     for r in rows:
-        print(f"{r[0]:52s} {r[1]:6d} {r[2]:6d} {r[3]:7.0f} {r[4]:6d} {r[5]:7.3f} {r[6]:8.3f} "
-              f"{r[7]:8d} {r[8]:8.1f}")
-    quarter = 16e6 / (4 * 448 * K * Vs / (2 * math.pi))
+        print(f"{r[0] / 1000:4g}ms {r[1]:46s} {r[2]:6d} {r[3]:6d} {r[4]:7.0f} {r[5]:6d} {r[6]:7.3f} "
+              f"{r[7]:8.3f} {r[8]:8d} {r[9]:5d} {r[10]:4d} {r[11]:8.1f}")
+    for Ts_us in (5000, 1000):
+        mean, mx = summary[Ts_us]
+        print(f"control step at Ts={Ts_us // 1000} ms: max {mx} cycles (mean {mean:.0f}; worst case over "
+              f"the moves; {mx / (16 * Ts_us):.3f} of the period)")
+    quarter = 16e6 / (4 * 448 * K * VS / (2 * math.pi))
     print(f"INT0 latency budget at top speed (quarter encoder period): {quarter:.0f} cycles")
-    worst = max(r[4] for r in rows)
-    print(f"worst step / naive step with three trig calls (RIG-NOTES, ~12000 cycles): {worst / 12000:.2f}")
+
+    # where a 1 ms tick's cycles go: one probe build per part
+    parts = [(8, "reference sample for the next tick (after the PWM write)"),
+             (9, "segment preparation, one stage (a few ticks per segment)"),
+             (6, "TELEMETRY frame: encode, CRC, into the UART ring"),
+             (4, "PID (inside the control step)")]
+    print("\nparts of a 1 ms tick (near-top-speed sine-jerk move; each part's own probe build)")
+    print(f"{'part':58s} {'n':>6s} {'mean':>7s} {'max':>6s} {'max/4000':>8s}")
+    total_max = summary[1000][1]
+    for n, label in parts:
+        b_dir = fw / "build" / f"probe{n}"
+        simavr.build_firmware("avr", build_dir=b_dir, baud=1000000, probe_part=n)
+        s, end, wall = _run(b_dir / "jerklab_rig.elf", 1000, _cases(1000)[1][1], 1000000)
+        b = s["control_step_cycles_all"]
+        print(f"{label:58s} {b['n']:6d} {b['mean']:7.0f} {b['max']:6d} {b['max'] / 4000:8.3f}")
+        if n in (8, 6):
+            total_max += b["max"]
+    print(f"tick total, control step + next reference + telemetry (sum of maxima): {total_max} cycles "
+          f"= {total_max / 16000:.3f} of 1 ms")
     if m:
         f, ft, r_, rt = (int(x) for x in m.groups())
         print(f"flash {f} / {ft} B = {f / ft:.3f} of the Uno, RAM {r_} / {rt} B = {r_ / rt:.3f} "
-              f"(budget <= 0.75 each since protocol 3; was 0.5)")
+              f"(budget 0.92 / 0.75)")
 
 
 if __name__ == "__main__":

@@ -1,13 +1,20 @@
 """Planner speed and move time, against Ruckig in the same process.
 
-``python -m benchmarks planner`` prints three tables:
+``python -m benchmarks planner`` prints six tables:
 
 1. microseconds per plan of each jerklab planner next to Ruckig's Python API (setting the inputs and
    ``calculate``), interleaved and repeated, the median of the repeats; the ratio column is
    jerklab / Ruckig (target <= 1.0);
-2. the batch planner (``plan_batch``) in plans per second on 1e6 moves (target >= 2e7);
-3. the move time of the published sine-jerk planner and of the optimal sine planner divided by
-   Ruckig's time-optimal duration, over a grid of limits (median, max).
+2. the same for moves from a moving start (``initial_velocity``, ``initial_accel``,
+   ``final_velocity``; Ruckig with ``current_velocity``, ``current_acceleration``,
+   ``target_velocity``), target <= 1.0;
+3. the batch planner (``plan_batch``) in plans per second on 1e6 moves (target >= 2e7), and
+   ``plan_batch_any_state`` on 2e5 moves from moving starts;
+4. the move time of the published sine-jerk planner and of the optimal sine planner divided by
+   Ruckig's time-optimal duration, over a grid of limits (median, max);
+5. from a moving start: the S-curve's duration / Ruckig's (max |ratio - 1|) and the optimal sine's
+   duration / the S-curve's at jerk 2J/pi, with and without an initial acceleration
+   (docs/THEORY.md, "Any start state").
 """
 from __future__ import annotations
 
@@ -19,7 +26,7 @@ import time
 import numpy as np
 
 from benchmarks._record import table
-from jerklab.planner import (KINDS, plan_batch, plan_scurve, plan_sine_jerk,
+from jerklab.planner import (KINDS, plan_batch, plan_batch_any_state, plan_scurve, plan_sine_jerk,
                              plan_sine_jerk_optimal, plan_trapezoid)
 
 try:
@@ -74,6 +81,95 @@ def time_per_plan(repeats=7, n=2000):
     return {k: statistics.median(v) for k, v in runs.items()}
 
 
+def _moving_cases(n, seed=0):
+    """Non-rest moves inside Ruckig's numeric range: starts inside the limits and 20 % above them."""
+    rng = np.random.default_rng(seed)
+    d = rng.choice([-1.0, 1.0], n) * 10.0 ** rng.uniform(-3, 2, n)
+    J = 10.0 ** rng.uniform(1, 4, n)
+    A = 10.0 ** rng.uniform(0, 2, n)
+    V = 10.0 ** rng.uniform(-1, 1, n)
+    over = np.where(rng.random(n) < 0.2, 1.5, 1.0)
+    v0 = rng.uniform(-1, 1, n) * V * over
+    a0 = rng.uniform(-1, 1, n) * A * over
+    vf = rng.uniform(-1, 1, n) * V
+    return [tuple(float(x) for x in c) for c in zip(d, J, A, V, v0, a0, vf)]
+
+
+def _ruckig_moving():
+    otg, inp, traj = ruckig.Ruckig(1), ruckig.InputParameter(1), ruckig.Trajectory(1)
+    inp.current_position = [0.0]
+
+    def plan(distance, max_jerk, max_accel, max_velocity, v0, a0, vf):
+        inp.target_position = [distance]
+        inp.current_velocity = [v0]
+        inp.current_acceleration = [a0]
+        inp.target_velocity = [vf]
+        inp.max_velocity = [max_velocity]
+        inp.max_acceleration = [max_accel]
+        inp.max_jerk = [max_jerk]
+        otg.calculate(inp, traj)
+        return traj.duration
+
+    return plan
+
+
+def time_per_moving_plan(repeats=7, n=2000):
+    """Median over ``repeats`` of the mean time per non-rest plan (µs), interleaved with Ruckig."""
+    cases = _moving_cases(n)
+    planners = {
+        "plan_scurve (moving start)": lambda d, j, a, v, v0, a0, vf: plan_scurve(
+            d, j, a, v, initial_velocity=v0, initial_accel=a0, final_velocity=vf),
+        "plan_sine_jerk_optimal (moving start)": lambda d, j, a, v, v0, a0, vf: plan_sine_jerk_optimal(
+            d, j, a, v, initial_velocity=v0, initial_accel=a0, final_velocity=vf),
+    }
+    if ruckig is not None:
+        planners["ruckig (moving start)"] = _ruckig_moving()
+    for f in planners.values():                 # compile / load the cached solver outside the clock
+        f(*cases[0])
+    runs = {k: [] for k in planners}
+    clock = time.perf_counter
+    for _ in range(repeats):
+        for name, f in planners.items():
+            t0 = clock()
+            for c in cases:
+                f(*c)
+            runs[name].append((clock() - t0) / n * 1e6)
+    return {k: statistics.median(v) for k, v in runs.items()}
+
+
+def batch_rate_moving(n=200_000, repeats=3):
+    """plan_batch_any_state in plans per second (moving starts, 20 % above the limits)."""
+    cols = np.array(_moving_cases(n, seed=2)).T
+    out = {}
+    for kind in ("scurve", "sine_jerk_optimal"):
+        plan_batch_any_state(kind, *cols[:, :10])             # compile / load outside the clock
+        best = math.inf
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            plan_batch_any_state(kind, *cols)
+            best = min(best, time.perf_counter() - t0)
+        out[kind] = n / best
+    return out
+
+
+def moving_duration_ratios(n=3000):
+    """S-curve vs Ruckig, and optimal sine vs the S-curve at jerk 2J/pi, from moving starts."""
+    rk = _ruckig_moving()
+    sc, sine0, sine1 = [], [], []
+    for d, J, A, V, v0, a0, vf in _moving_cases(n, seed=1):
+        sc.append(plan_scurve(d, J, A, V, initial_velocity=v0, initial_accel=a0,
+                              final_velocity=vf).duration / rk(d, J, A, V, v0, a0, vf))
+        if abs(v0) > V or abs(a0) > A:
+            continue
+        for acc, out in ((0.0, sine0), (a0, sine1)):
+            s = plan_sine_jerk_optimal(d, J, A, V, initial_velocity=v0, initial_accel=acc,
+                                       final_velocity=vf)
+            q = plan_scurve(d, 2 * J / math.pi, A, V, initial_velocity=v0, initial_accel=acc,
+                            final_velocity=vf)
+            out.append(s.duration / q.duration)
+    return sc, sine0, sine1
+
+
 def batch_rate(n=1_000_000, repeats=3):
     rng = np.random.default_rng(1)
     d = rng.choice([-1.0, 1.0], n) * 10.0 ** rng.uniform(-3, 3, n)
@@ -116,14 +212,28 @@ def main():
     ref = us.get("ruckig")
     table("Time per plan (µs, median of 7 interleaved runs of 2000 random moves)",
           ["planner", "µs/plan", "x Ruckig"], [(name, v, v / ref if ref else "-") for name, v in us.items()])
+    us = time_per_moving_plan()
+    ref = us.get("ruckig (moving start)")
+    table("Time per non-rest plan (µs, median of 7 interleaved runs of 2000 random moves from a moving "
+          "start, 20 % above the limits)", ["planner", "µs/plan", "x Ruckig"],
+          [(name, v, v / ref if ref else "-") for name, v in us.items()])
     table("Batch planner (plan_batch, 1e6 random moves, best of 3)", ["kind", "plans/s", "target"],
           [(kind, rate, 2e7) for kind, rate in batch_rate().items()])
+    table("Batch planner from moving starts (plan_batch_any_state, 2e5 random moves, best of 3)",
+          ["kind", "plans/s"], list(batch_rate_moving().items()))
     if ruckig is None:
         print("\n(ruckig not installed: no move-time comparison)")
         return
     table(f"Move time / Ruckig's time-optimal duration over {len(GRID)} limit sets "
           "(distance 0.01..1000, J 1e3|2e4, E 10|300, Omega 10|100)", ["planner", "median", "max"],
           [(name, statistics.median(r), max(r)) for name, r in move_time_ratios().items()])
+    sc, sine0, sine1 = moving_duration_ratios()
+    table("From a moving start (3000 random moves): duration ratios", ["ratio", "min", "median", "max"],
+          [("plan_scurve / Ruckig", min(sc), statistics.median(sc), max(sc)),
+           ("optimal sine / S-curve at 2J/pi, initial_accel = 0", min(sine0), statistics.median(sine0),
+            max(sine0)),
+           ("optimal sine / S-curve at 2J/pi, initial_accel != 0", min(sine1), statistics.median(sine1),
+            max(sine1))])
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from .multiaxis import plan_multi_axis
 from .planner import (
+    AnyStateProfile,
     Profile,
     ProfileSample,
     plan_batch,
@@ -21,6 +22,7 @@ from .planner import (
 __version__ = "0.1.0"
 
 __all__ = [
+    "AnyStateProfile",
     "Profile",
     "ProfileSample",
     "plan_batch",

@@ -22,6 +22,12 @@ All take SI values, accept a negative ``distance`` (a move backwards) and zero, 
 :class:`Profile` whose :meth:`Profile.sample` evaluates the closed form (polynomials and sine
 terms, vectorized with numpy), never an integration.
 
+:func:`plan_scurve` and :func:`plan_sine_jerk_optimal` also start from any state
+(``initial_velocity``, ``initial_accel``) and end at any ``final_velocity``: they then return an
+:class:`AnyStateProfile` (up to a dozen segments, a braking pre-trajectory first when the start is
+outside the limits), planned by the one-axis time-optimal solver of ``jerklab._onedof``
+(docs/THEORY.md, "Any start state").  The rest of this docstring is about rest-to-rest moves.
+
 Every profile is symmetric: the velocity satisfies ``v(t) = v(duration - t)``, so the closed form is
 evaluated on the first half and mirrored (``x(t) = distance - x(duration - t)``); the end state is
 therefore exactly ``distance`` at rest.  Inside the acceleration phase the acceleration is symmetric
@@ -45,10 +51,12 @@ from typing import NamedTuple
 
 import numpy as np
 
+from jerklab import _onedof
 from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
 
 __all__ = [
     "Profile",
+    "AnyStateProfile",
     "ProfileSample",
     "BatchPlan",
     "plan_sine_jerk",
@@ -56,6 +64,8 @@ __all__ = [
     "plan_scurve",
     "plan_trapezoid",
     "plan_batch",
+    "plan_batch_any_state",
+    "AnyStateBatch",
     "KINDS",
 ]
 
@@ -597,7 +607,8 @@ def _scurve_times(d, J, A, V):
     return d ** _THIRD * (0.5 / J) ** _THIRD, 0.0, 0.0     # d = 2 J tj^3 (no underflow of d/2J)
 
 
-def plan_sine_jerk_optimal(distance, max_jerk, max_accel, max_velocity) -> "SineJerkOptimalProfile":
+def plan_sine_jerk_optimal(distance, max_jerk, max_accel, max_velocity, *, initial_velocity=0.0,
+                           initial_accel=0.0, final_velocity=0.0) -> "SineJerkOptimalProfile":
     """Time-optimal rest-to-rest profile made of half-sine jerk pulses of peak <= ``max_jerk``.
 
     Seven segments: a rising half-sine jerk pulse (length ``tj``), an acceleration plateau
@@ -608,13 +619,28 @@ def plan_sine_jerk_optimal(distance, max_jerk, max_accel, max_velocity) -> "Sine
     S-curve's (:func:`plan_scurve`).  Here the limits are upper bounds; the published algorithm
     (:func:`plan_sine_jerk`) is the special case ``ta = 0`` with a pulse shortened instead.
 
+    From a moving start (``initial_velocity``, ``initial_accel`` or ``final_velocity`` not 0) the
+    profile is the time-optimal one of the same family -- every constant-jerk ramp of the
+    time-optimal S-curve at jerk ``2J/pi``, split where the acceleration crosses 0, becomes one
+    half-sine pulse -- and its duration equals that S-curve's exactly when ``initial_accel`` is 0;
+    otherwise the pulses' position lag is made up by the solver (docs/THEORY.md, "Any start
+    state"; :class:`AnyStateProfile`).
+
     Parameters
     ----------
     distance : float
         Signed move length.
     max_jerk, max_accel, max_velocity : float
         Peak of the sine jerk, acceleration and velocity limits (> 0).
+    initial_velocity, initial_accel, final_velocity : float, keyword-only
+        Start velocity and acceleration, end velocity (default 0; the end acceleration is 0).
+        A start above a limit brakes back inside it first; ``|final_velocity| > max_velocity``
+        raises ValueError.
     """
+    if (initial_velocity.__class__ is not float or initial_accel.__class__ is not float
+            or final_velocity.__class__ is not float or initial_velocity or initial_accel or final_velocity):
+        return _plan_any_state("sine_jerk_optimal", distance, max_jerk, max_accel, max_velocity,
+                               initial_velocity, initial_accel, final_velocity)
     J, E, W = max_jerk, max_accel, max_velocity
     if not (type(distance) is float is type(J) is type(E) is type(W)
             and J > 0.0 and E > 0.0 and W > 0.0 and (distance + J + E + W) * 0.0 == 0.0):
@@ -631,12 +657,19 @@ def plan_sine_jerk_optimal(distance, max_jerk, max_accel, max_velocity) -> "Sine
     return _check_plan(p, "plan_sine_jerk_optimal")
 
 
-def plan_scurve(distance, max_jerk, max_accel, max_velocity) -> "SCurveProfile":
+def plan_scurve(distance, max_jerk, max_accel, max_velocity, *, initial_velocity=0.0,
+                initial_accel=0.0, final_velocity=0.0) -> "SCurveProfile":
     """Time-optimal linear-jerk 7-segment S-curve, rest to rest.
 
     Jerk ``+J, 0, -J, 0, -J, 0, +J`` over ``(tj, ta, tj, tv, tj, ta, tj)``.  All four cases are
     handled: acceleration limit reached (``ta > 0``) or not, velocity limit reached (``tv > 0``) or
     not.  Yang et al. (2013) use the special case ``ta = 0`` with the velocity reached.
+
+    From any start state (``initial_velocity``, ``initial_accel``) to any end velocity
+    (``final_velocity``, end acceleration 0) the profile is the time-optimal one (Ruckig's
+    duration): a braking pre-trajectory when the start is outside the limits (Ruckig's rule), then
+    at most seven segments of jerk ``+-J`` or 0 (docs/THEORY.md, "Any start state";
+    :class:`AnyStateProfile`).
 
     Parameters
     ----------
@@ -644,7 +677,15 @@ def plan_scurve(distance, max_jerk, max_accel, max_velocity) -> "SCurveProfile":
         Signed move length.
     max_jerk, max_accel, max_velocity : float
         Limits (> 0).
+    initial_velocity, initial_accel, final_velocity : float, keyword-only
+        Start velocity and acceleration, end velocity (default 0; the end acceleration is 0).
+        A start above a limit brakes back inside it first; ``|final_velocity| > max_velocity``
+        raises ValueError.
     """
+    if (initial_velocity.__class__ is not float or initial_accel.__class__ is not float
+            or final_velocity.__class__ is not float or initial_velocity or initial_accel or final_velocity):
+        return _plan_any_state("scurve", distance, max_jerk, max_accel, max_velocity,
+                               initial_velocity, initial_accel, final_velocity)
     J, A, V = max_jerk, max_accel, max_velocity
     if not (type(distance) is float is type(J) is type(A) is type(V)
             and J > 0.0 and A > 0.0 and V > 0.0 and (distance + J + A + V) * 0.0 == 0.0):
@@ -695,6 +736,319 @@ def plan_trapezoid(distance, max_accel, max_velocity) -> "TrapezoidProfile":
         p._ta = _sqrt(d / A)
         p._tv = 0.0
     return _check_plan(p, "plan_trapezoid")
+
+
+# ---------------------------------------------------------------------------------------------
+# any start state (initial velocity and acceleration, final velocity)
+# ---------------------------------------------------------------------------------------------
+def _segment_states(p, v, a, jerk, times, sine, ascale):
+    """Start states of the segments and the end state (exact integrals: Stojčić eq. 2 for pulses).
+
+    A constant-jerk segment ``(j, tau)`` adds ``tau (v + tau (a/2 + j tau/6))`` to the position;
+    a half-sine pulse of peak ``j`` and length ``tau`` changes ``a`` and ``v`` as the constant jerk
+    ``2 j / pi`` does and the position by ``tau^2 (j tau)(2/pi)(1/4 - 1/pi^2)`` instead of
+    ``(2 j tau/pi) tau^2 / 6`` (docs/THEORY.md, "Any start state").  An acceleration within
+    ``1e-12 ascale`` of 0 after a ramp is 0 (the ramps end there; a long cruise would otherwise
+    integrate the round-off into the velocity).
+    """
+    P = [p]
+    Vv = [v]
+    Aa = [a]
+    for j, t in zip(jerk.tolist(), times.tolist()):
+        if sine and j != 0.0:
+            da = _TWO_OVER_PI * j * t
+            p = p + t * (v + 0.5 * a * t) + da * t * t * (0.25 - 1.0 / (_PI * _PI))
+            v = v + t * (a + 0.5 * da)
+            a = a + da
+        else:
+            p = p + t * (v + t * (0.5 * a + t * j / 6.0))
+            v = v + t * (a + 0.5 * j * t)
+            a = a + j * t
+        if j != 0.0 and abs(a) <= 1e-12 * ascale:
+            a = 0.0
+        P.append(p)
+        Vv.append(v)
+        Aa.append(a)
+    return np.array(P), np.array(Vv), np.array(Aa)
+
+
+class AnyStateProfile(Profile):
+    """A move from any start state: ``plan_scurve`` / ``plan_sine_jerk_optimal`` with an initial
+    velocity or acceleration or a final velocity.
+
+    A sequence of segments of constant jerk (``kind = "scurve"``) or of half-sine jerk pulses
+    (``kind = "sine_jerk_optimal"``; a segment of jerk 0 is a plateau or a cruise), starting with
+    the braking pre-trajectory when the start is outside the limits (``brake_time`` > 0).
+
+    Attributes
+    ----------
+    kind, distance, duration, phase_times, max_jerk, max_accel, max_velocity
+        As :class:`Profile`; ``phase_times`` are the segment durations (the brake's first).
+    initial_velocity, initial_accel, final_velocity : float
+        The boundary state (the end acceleration is 0).
+    segment_jerk : tuple of float
+        Jerk of each segment (its peak for a half-sine pulse).
+    brake_time : float
+        Length of the braking pre-trajectory (s), 0 when the start is inside the limits.
+
+    ``sample(0)`` is exactly ``(position 0, initial_velocity, initial_accel)`` and
+    ``sample(duration)`` exactly ``(distance, final_velocity, 0)``; before 0 the initial state is
+    held (jerk 0), after ``duration`` the motion goes on at ``final_velocity``.
+    :meth:`synchronized` is for rest-to-rest moves only and raises ``NotImplementedError``.
+    """
+
+    __slots__ = ("kind", "initial_velocity", "initial_accel", "final_velocity", "_res", "_tu", "_T",
+                 "_seg")
+
+    def __init__(self, kind, distance, limits, initial_velocity, initial_accel, final_velocity,
+                 res, time_unit):
+        self.kind = kind
+        self.distance = distance
+        self._limits = limits
+        self.initial_velocity = initial_velocity
+        self.initial_accel = initial_accel
+        self.final_velocity = final_velocity
+        self._res = res                 # jerklab._onedof.solve_tuple's packed result (normalized units)
+        self._tu = time_unit
+        self._T = res[2] * time_unit
+        self._seg = None
+
+    @property
+    def _sine(self):
+        return self.kind == "sine_jerk_optimal"
+
+    def _segments(self):
+        """(jerk, times, start times, start positions, velocities, accelerations), built once."""
+        if self._seg is None:
+            jerk = np.array(self._jerk_signs()) * self._limits[0]
+            times = np.array(self._res[4:4 + int(self._res[0])]) * self._tu
+            start = np.concatenate(([0.0], np.cumsum(times)))
+            P, V, A = _segment_states(0.0, self.initial_velocity, self.initial_accel, jerk, times,
+                                      self._sine, max(self._limits[1], abs(self.initial_accel)))
+            self._seg = (jerk, times, start, P, V, A)
+        return self._seg
+
+    def _jerk_signs(self):
+        """-1, 0 or +1 per segment, from the solver's packed code (jerklab._onedof.solve_tuple)."""
+        code = int(self._res[1])
+        out = []
+        for _ in range(int(self._res[0])):
+            code, digit = divmod(code, 3)
+            out.append(digit - 1.0)
+        return out
+
+    @property
+    def brake_time(self) -> float:
+        """Length of the braking pre-trajectory (s), 0 when the start is inside the limits."""
+        nb = int(self._res[3])
+        return math.fsum(self._res[4:4 + nb]) * self._tu
+
+    @property
+    def duration(self) -> float:
+        """Total time of the move (s), the brake included."""
+        return self._T
+
+    @property
+    def phase_times(self) -> tuple:
+        res = self._res
+        tu = self._tu
+        return tuple([x * tu for x in res[4:4 + int(res[0])]])
+
+    @property
+    def segment_jerk(self) -> tuple:
+        """Jerk of each segment (its peak for a half-sine pulse), as ``phase_times``."""
+        J = self._limits[0]
+        return tuple([x * J for x in self._jerk_signs()])
+
+    @property
+    def peak_jerk(self) -> float:
+        jerk = self._segments()[0]
+        return float(np.max(np.abs(jerk))) if jerk.size else 0.0
+
+    @property
+    def peak_accel(self) -> float:
+        return float(np.max(np.abs(self._segments()[5])))
+
+    @property
+    def peak_velocity(self) -> float:
+        jerk, _, _, _, V, A = self._segments()
+        peak = float(np.abs(V).max())
+        # a constant-jerk segment whose acceleration changes sign has a velocity extremum inside
+        # (half-sine pulses never change its sign: the solver splits them at a = 0)
+        a0, a1, j = A[:-1], A[1:], jerk
+        cross = (a0 * a1 < 0.0) & (j != 0.0)
+        if cross.any():
+            scale = _TWO_OVER_PI if self._sine else 1.0
+            vx = V[:-1][cross] - 0.5 * a0[cross] ** 2 / (scale * j[cross])
+            peak = max(peak, float(np.max(np.abs(vx))))
+        return peak
+
+    def sample(self, t) -> ProfileSample:
+        """Jerk, acceleration, velocity and position at the times ``t`` (closed form per segment).
+
+        Parameters
+        ----------
+        t : float or array_like
+            Times (s).  ``t <= 0`` gives the initial state (jerk 0 before 0), ``t >= duration``
+            the final state moved on at ``final_velocity``.
+        """
+        t_in = as_finite_array("t", t)
+        t = t_in.reshape(-1)
+        jerk, times, start, P, V, A = self._segments()
+        n = times.size
+        i = np.clip(np.searchsorted(start, t, side="right") - 1, 0, max(n - 1, 0))
+        r = np.clip(t - start[i], 0.0, None)
+        if n:
+            r = np.minimum(r, times[i])
+            j = jerk[i]
+            p0, v0, a0 = P[i], V[i], A[i]
+            jk = j.copy()
+            acc = a0 + j * r
+            vel = v0 + r * (a0 + 0.5 * j * r)
+            pos = p0 + r * (v0 + r * (0.5 * a0 + r * j / 6.0))
+            if self._sine:
+                pulse = (j != 0.0) & (times[i] > 1e-300)    # (a denormal pulse is a ramp)
+                if pulse.any():
+                    tau = times[i][pulse]
+                    w = _PI / tau
+                    jp = j[pulse]
+                    c = jp / w
+                    rp = r[pulse]
+                    wr = w * rp
+                    sn = np.sin(wr)
+                    omc = 2.0 * np.sin(0.5 * wr) ** 2
+                    x2 = wr * wr
+                    small = wr < 0.1
+                    with np.errstate(invalid="ignore", over="ignore"):
+                        wms = np.where(small, wr * x2 * (1 / 6 - x2 * (1 / 120 - x2 * (1 / 5040 - x2 * (
+                            1 / 362880 - x2 / 39916800)))), wr - sn)
+                        hmo = np.where(small, x2 * x2 * (1 / 24 - x2 * (1 / 720 - x2 * (1 / 40320 - x2 * (
+                            1 / 3628800 - x2 / 479001600)))), 0.5 * x2 - omc)
+                    ap, vp, pp = a0[pulse], v0[pulse], p0[pulse]
+                    jk[pulse] = jp * sn
+                    acc[pulse] = ap + c * omc
+                    vel[pulse] = vp + ap * rp + c * wms / w
+                    pos[pulse] = pp + rp * (vp + 0.5 * ap * rp) + c * hmo / (w * w)
+        else:
+            jk = acc = vel = pos = np.zeros(t.shape)
+        T = self._T
+        before = t <= 0.0
+        after = t >= T
+        vf = self.final_velocity
+        jk = np.where(before | after, 0.0, jk)
+        if n:                       # right-continuous jerk at 0 for constant-jerk segments
+            j0 = 0.0 if self._sine else float(jerk[0])
+            jk = np.where(t == 0.0, j0 if T > 0.0 else 0.0, jk)
+        acc = np.where(before, self.initial_accel, np.where(after, 0.0, acc))
+        vel = np.where(before, self.initial_velocity, np.where(after, vf, vel))
+        pos = np.where(before, 0.0, np.where(after, self.distance + vf * (t - T), pos))
+        shape = t_in.shape
+        return ProfileSample(t_in.copy(), jk.reshape(shape), acc.reshape(shape), vel.reshape(shape),
+                             pos.reshape(shape))
+
+    def synchronized(self, Ts):
+        """Not available from a moving start (the phase times cannot be rounded independently
+        without changing the boundary state): raises ``NotImplementedError``."""
+        raise NotImplementedError(
+            f"synchronized(Ts) is for rest-to-rest moves; this {self.kind} move starts at "
+            f"initial_velocity={self.initial_velocity!r}, initial_accel={self.initial_accel!r} or ends "
+            f"at final_velocity={self.final_velocity!r}: sample the closed form at k Ts instead")
+
+    def discretize(self, Ts, t_end=None) -> ProfileSample:
+        """Stojčić eq. 15 from the initial state (acceleration and velocity start at
+        ``initial_accel`` and ``initial_velocity``); see :meth:`Profile.discretize`."""
+        Ts = as_positive("Ts", Ts)
+        if t_end is None:
+            t_end = self.duration + Ts
+        t_end = as_nonnegative("t_end", t_end)
+        steps = t_end / Ts
+        if not steps < MAX_SAMPLES:
+            raise ValueError(f"t_end / Ts = {t_end!r} / {Ts!r} asks for more than MAX_SAMPLES = "
+                             f"{MAX_SAMPLES} samples: raise Ts or lower t_end")
+        n = max(int(math.ceil(steps - 1e-9)), 0) + 1
+        tk = np.arange(n) * Ts
+        jerk = self.sample(tk).jerk
+        with np.errstate(over="ignore", invalid="ignore"):
+            accel = self.initial_accel + np.cumsum(jerk) * Ts
+            vel = self.initial_velocity + np.cumsum(accel) * Ts
+            pos = np.cumsum(vel) * Ts
+        return ProfileSample(tk, jerk, accel, vel, pos)
+
+    def to_dict(self) -> dict:
+        d = Profile.to_dict(self)
+        d.update(initial_velocity=self.initial_velocity, initial_accel=self.initial_accel,
+                 final_velocity=self.final_velocity, segment_jerk=list(self.segment_jerk),
+                 brake_time=self.brake_time)
+        return d
+
+    def __repr__(self) -> str:
+        return (f"{type(self).__name__}(kind={self.kind!r}, distance={self.distance!r}, "
+                f"initial_velocity={self.initial_velocity!r}, initial_accel={self.initial_accel!r}, "
+                f"final_velocity={self.final_velocity!r}, duration={self.duration!r})")
+
+
+_SOLVE = None
+_KAPPA_SINE = _onedof.KAPPA_SINE
+
+
+def _solver():
+    global _SOLVE
+    _SOLVE = _onedof.solver()
+    return _SOLVE
+
+
+def _plan_any_state(kind, distance, max_jerk, max_accel, max_velocity, v0, a0, vf):
+    """:func:`plan_scurve` / :func:`plan_sine_jerk_optimal` from a moving start (jerklab._onedof)."""
+    J, A, V = max_jerk, max_accel, max_velocity
+    if not (type(distance) is float is type(J) is type(A) is type(V) is type(v0) is type(a0) is type(vf)
+            and J > 0.0 and A > 0.0 and V > 0.0 and (distance + J + A + V + v0 + a0 + vf) * 0.0 == 0.0):
+        distance, J, A, V = _check_limits(distance, J, A, V)
+        v0 = as_real("initial_velocity", v0)
+        a0 = as_real("initial_accel", a0)
+        vf = as_real("final_velocity", vf)
+        if v0 == 0.0 and a0 == 0.0 and vf == 0.0:
+            plan = plan_scurve if kind == "scurve" else plan_sine_jerk_optimal
+            return plan(distance, J, A, V)
+    if vf > V or -vf > V:
+        raise ValueError(f"plan_{kind}: final_velocity={vf!r} is above max_velocity={V!r}: a move "
+                         f"cannot end outside the velocity limit (lower |final_velocity| or raise "
+                         f"max_velocity)")
+    sine = kind == "sine_jerk_optimal"
+    if distance == 0.0 and a0 == 0.0 and v0 == vf and -V <= v0 <= V:
+        # already on target (Ruckig plans a loop out and back here; the empty move is optimal)
+        return AnyStateProfile(kind, distance, (J, A, V), v0, a0, vf, (0.0,) * (4 + _onedof._MAX_SEG), 1.0)
+    Jm = _TWO_OVER_PI * J if sine else J         # the mean jerk of a half-sine pulse of peak J
+    try:
+        tu = A / Jm                             # normalized units: J = A = 1
+        vu = A * tu
+        pu = vu * tu
+        dn, v0n, a0n, vfn, Vn = distance / pu, v0 / vu, a0 / A, vf / vu, V / vu
+        ok = (dn + v0n + a0n + vfn + Vn + tu + vu + pu) * 0.0 == 0.0 and pu > 0.0
+    except (ZeroDivisionError, OverflowError):
+        ok = False
+    if not ok:
+        raise ValueError(f"plan_{kind}: no finite plan for distance={distance!r}, max_jerk={J!r}, "
+                         f"max_accel={A!r}, max_velocity={V!r}, initial_velocity={v0!r}, "
+                         f"initial_accel={a0!r}, final_velocity={vf!r}: the limits are too far apart "
+                         f"in scale (the normalized values overflow); scale the units")
+    res = (_SOLVE or _solver())(dn, v0n, a0n, vfn, Vn, _KAPPA_SINE if sine else 0.0)
+    if res[0] <= 0.0:
+        raise ValueError(f"plan_{kind}: no valid profile found for distance={distance!r}, max_jerk={J!r}, "
+                         f"max_accel={A!r}, max_velocity={V!r}, initial_velocity={v0!r}, "
+                         f"initial_accel={a0!r}, final_velocity={vf!r} (outside the solver's numeric "
+                         f"range); scale the units")
+    p = _new(AnyStateProfile)                   # (the hot path: __init__'s work, inline)
+    p.kind = kind
+    p.distance = distance
+    p._limits = (J, A, V)
+    p.initial_velocity = v0
+    p.initial_accel = a0
+    p.final_velocity = vf
+    p._res = res
+    p._tu = tu
+    p._T = res[2] * tu
+    p._seg = None
+    return p
 
 
 # ---------------------------------------------------------------------------------------------
@@ -1066,3 +1420,113 @@ def _check_batch(kind, dist, tj, ta, tv, J, A, V):
         i = int(np.argmin(ok))
         jj = None if J is None else float(J[i])
         raise _no_plan(f"plan_batch (move {i})", float(dist[i]), jj, float(A[i]), float(V[i]))
+
+
+class AnyStateBatch:
+    """Many moves from moving starts (:func:`plan_batch_any_state`); arrays of shape ``(n,)``.
+
+    ``duration``, ``brake_time``; ``phase_times`` and ``segment_jerk`` as ``(n, 12)`` arrays padded
+    with 0; ``profile(i)`` is move ``i`` as the :class:`AnyStateProfile` the scalar planner returns.
+    """
+
+    __slots__ = ("kind", "distance", "max_jerk", "max_accel", "max_velocity", "initial_velocity",
+                 "initial_accel", "final_velocity", "_packed", "_tu")
+
+    def __init__(self, kind, arrays, packed, tu):
+        self.kind = kind
+        (self.distance, self.max_jerk, self.max_accel, self.max_velocity, self.initial_velocity,
+         self.initial_accel, self.final_velocity) = arrays
+        self._packed = packed
+        self._tu = tu
+
+    def __len__(self) -> int:
+        return self.distance.shape[0]
+
+    @property
+    def duration(self) -> np.ndarray:
+        return self._packed[:, 2] * self._tu
+
+    @property
+    def phase_times(self) -> np.ndarray:
+        return self._packed[:, 4:] * self._tu[:, None]
+
+    @property
+    def segment_jerk(self) -> np.ndarray:
+        code = self._packed[:, 1].astype(np.int64)
+        n = self._packed[:, 0].astype(np.int64)
+        digits = (code[:, None] // 3 ** np.arange(_onedof._MAX_SEG)) % 3 - 1.0
+        digits[np.arange(_onedof._MAX_SEG)[None, :] >= n[:, None]] = 0.0
+        return digits * self.max_jerk[:, None]
+
+    @property
+    def brake_time(self) -> np.ndarray:
+        nb = self._packed[:, 3].astype(np.int64)
+        mask = np.arange(_onedof._MAX_SEG)[None, :] < nb[:, None]
+        return np.where(mask, self.phase_times, 0.0).sum(axis=1)
+
+    def profile(self, i: int) -> AnyStateProfile:
+        """The ``i``-th move as an :class:`AnyStateProfile` (``-len(self) <= i < len(self)``)."""
+        n = len(self)
+        i = as_int("i", i)
+        if not -n <= i < n:
+            raise ValueError(f"i must be in [{-n}, {n}) for a batch of {n} moves, got {i}")
+        lim = (float(self.max_jerk[i]), float(self.max_accel[i]), float(self.max_velocity[i]))
+        return AnyStateProfile(self.kind, float(self.distance[i]), lim, float(self.initial_velocity[i]),
+                               float(self.initial_accel[i]), float(self.final_velocity[i]),
+                               tuple(self._packed[i].tolist()), float(self._tu[i]))
+
+
+def plan_batch_any_state(kind, distance, max_jerk, max_accel, max_velocity, initial_velocity=0.0,
+                         initial_accel=0.0, final_velocity=0.0) -> AnyStateBatch:
+    """Plan many moves from moving starts at once: :func:`plan_scurve` or
+    :func:`plan_sine_jerk_optimal` with ``initial_velocity``, ``initial_accel``,
+    ``final_velocity``, over arrays that broadcast to one shape ``(n,)``.
+
+    One compiled loop over the moves (numba when installed), the scalar planners' solver and
+    results (``profile(i)`` equals the scalar plan).  ``benchmarks/bench_planner.py`` measures
+    the plans per second.
+
+    Parameters
+    ----------
+    kind : {"scurve", "sine_jerk_optimal"}
+    distance, max_jerk, max_accel, max_velocity, initial_velocity, initial_accel, final_velocity
+        array_like, as the scalar planners' arguments.
+
+    Returns
+    -------
+    AnyStateBatch
+    """
+    if kind not in ("scurve", "sine_jerk_optimal"):
+        raise ValueError(f"kind must be 'scurve' or 'sine_jerk_optimal', got {kind!r}")
+    names = ("distance", "max_jerk", "max_accel", "max_velocity", "initial_velocity", "initial_accel",
+             "final_velocity")
+    values = (distance, max_jerk, max_accel, max_velocity, initial_velocity, initial_accel,
+              final_velocity)
+    arrays = [as_finite_array(name, v) for name, v in zip(names, values)]
+    try:
+        shape = np.broadcast_shapes(*(a.shape for a in arrays))
+    except ValueError:
+        raise ValueError("the arguments must broadcast to one shape (n,); got "
+                         + ", ".join(f"{nm} {a.shape}" for nm, a in zip(names, arrays))) from None
+    if math.prod(shape) > MAX_BATCH_MOVES:
+        raise ValueError(f"more than MAX_BATCH_MOVES = {MAX_BATCH_MOVES} moves: plan them in several calls")
+    arrays = [np.ascontiguousarray(np.ravel(a)) for a in np.broadcast_arrays(*arrays)]
+    d, J, A, V, v0, a0, vf = arrays
+    n = d.shape[0]
+    packed = np.zeros((n, 4 + _onedof._MAX_SEG))
+    tu = np.ones(n)
+    _solver()                                   # compiles (or picks the pure-Python) solver
+    bad = _onedof.solve_many(d, v0, a0, vf, J, A, V, kind == "sine_jerk_optimal", packed, tu)
+    if bad >= 0:
+        i = int(bad)
+        for name, a in zip(("max_jerk", "max_accel", "max_velocity"), (J, A, V)):
+            if not a[i] > 0.0:
+                raise ValueError(f"{name} must be > 0 everywhere, got {a[i]!r} (move {i})")
+        if abs(vf[i]) > V[i]:
+            raise ValueError(f"final_velocity={vf[i]!r} is above max_velocity={V[i]!r} (move {i})")
+        KINDS_SCALAR = {"scurve": plan_scurve, "sine_jerk_optimal": plan_sine_jerk_optimal}
+        KINDS_SCALAR[kind](float(d[i]), float(J[i]), float(A[i]), float(V[i]),
+                           initial_velocity=float(v0[i]), initial_accel=float(a0[i]),
+                           final_velocity=float(vf[i]))      # raises, naming the reason
+        raise ValueError(f"plan_batch_any_state: no valid profile for move {i}")  # pragma: no cover
+    return AnyStateBatch(kind, (d, J, A, V, v0, a0, vf), packed, tu)

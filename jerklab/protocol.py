@@ -44,7 +44,7 @@ __all__ = [
     "ProtocolError", "MESSAGES", "payload_field_name",
     "Hello", "SetPlant", "SetGains", "SetLimits", "Plan", "Run", "Stop", "Step", "Heartbeat",
     "Sequence", "SetShaper", "PRBS_TAPS", "SHAPER_MAX_TAPS", "SHAPER_MAX_DELAY", "SHAPER_SUM_TOL",
-    "prbs_bits", "sequence_voltages",
+    "prbs_bits", "sequence_voltages", "Retarget",
     "Ack", "Nack", "HelloReply", "PlanInfo", "Telemetry", "EndOfRun", "DeviceError",
 ]
 
@@ -115,6 +115,7 @@ class MsgType(enum.IntEnum):
     HEARTBEAT = 0x09
     SEQUENCE = 0x0A
     SET_SHAPER = 0x0B
+    RETARGET = 0x0C
     ACK = 0x80
     NACK = 0x81
     HELLO_REPLY = 0x82
@@ -181,6 +182,7 @@ class Capability(enum.IntFlag):
     SIMULATED_PLANT = 1 << 8   #: the motor is a model (virtual rig, simavr harness)
     SEQUENCE = 1 << 12         #: open-loop PRBS excitation (SEQUENCE, version 3)
     SHAPER = 1 << 13           #: FIR input shaper on the run reference (SET_SHAPER, version 3)
+    RETARGET = 1 << 9          #: RETARGET during a run (protocol version 3)
 
 
 #: ``SetGains.flags`` bit: add the feedforward u_F = (tau*accel + vel)/K (Stojčić eq. 8, Stojčić eq. 16)
@@ -478,9 +480,10 @@ class Sequence(_Message):
 
 
 #: SET_SHAPER: at most this many taps, delays at most this many samples (the device's ring buffer
-#: holds the last SHAPER_MAX_DELAY + 1 reference samples), taps summing to 1 within SHAPER_SUM_TOL
+#: holds the last SHAPER_MAX_DELAY + 1 reference samples: 32 in the default firmware, whose RAM the
+#: planners and re-targeting nearly fill; 155 ms at Ts = 5 ms), taps summing to 1 within SHAPER_SUM_TOL
 SHAPER_MAX_TAPS = 10
-SHAPER_MAX_DELAY = 127
+SHAPER_MAX_DELAY = 31
 SHAPER_SUM_TOL = 1e-3
 
 
@@ -528,6 +531,20 @@ class SetShaper(_Message):
             raise ProtocolError(f"{cls.__name__} payload must be {size} bytes, got {len(payload)}")
         v = struct.unpack(cls.FORMAT, payload)
         return cls(v[0], tuple(v[1:11]), tuple(v[11:21]))
+@dataclass(frozen=True)
+class Retarget(_Message):
+    """Change the target of the running move to ``distance`` rad from the run's start point.
+
+    Accepted only while a move runs (else NACK NOT_READY). The device switches at the next
+    instant where the reference's jerk and acceleration are both zero (the end of the
+    acceleration phase; in the cruise at once; else at rest at the old target) and plans from
+    the reference's state there (position, velocity, acceleration 0) to rest at the new
+    target; see firmware/PROTOCOL.md "Re-targeting".
+    """
+
+    TYPE: ClassVar[MsgType] = MsgType.RETARGET
+    FORMAT: ClassVar[str] = "<f"
+    distance: float
 
 
 # device -> host -------------------------------------------------------------
@@ -627,7 +644,7 @@ class DeviceError(_Message):
 
 
 MESSAGES: dict[int, type] = {cls.TYPE: cls for cls in (
-    Hello, SetPlant, SetGains, SetLimits, Plan, Run, Stop, Step, Heartbeat, Sequence, SetShaper,
+    Hello, SetPlant, SetGains, SetLimits, Plan, Run, Stop, Step, Heartbeat, Sequence, SetShaper, Retarget,
     Ack, Nack, HelloReply, PlanInfo, Telemetry, EndOfRun, DeviceError)}
 
 

@@ -459,7 +459,7 @@ def test_grade_command_on_three_submissions(tmp_path):
 
 def test_session_on_simavr_uses_the_students_motor(tmp_path, capsys):
     """The same session code on the firmware in a simulated Uno: the hidden motor's τ is found by
-    PEM and passes the check; the planners the firmware lacks are reported, not raised."""
+    PEM and passes the check; since issue 21 the firmware runs lab 3's S-curve too."""
     import sys
 
     sys.path.insert(0, str(Path(__file__).parent))
@@ -477,8 +477,10 @@ def test_session_on_simavr_uses_the_students_motor(tmp_path, capsys):
         assert S.verify("tau", fit.tau).ok
         assert S.verify("tau", fit.tau * 1000).ok is False
         g = discrete_pole_placement_pid(fit.K, fit.tau, 30.0, Ts=0.005)
-        assert S.run_move(plan_scurve(**lab.MOVE), g) is None
-        assert "no 'scurve' planner" in capsys.readouterr().out
+        rec = S.run_move(plan_scurve(**lab.MOVE), g)
+        assert rec is not None and rec.metadata["status"] == "complete"
+        assert abs(rec.position[-1] - lab.MOVE["distance"]) < 0.05
+        assert "no 'scurve' planner" not in capsys.readouterr().out
     finally:
         S.close()
 

@@ -53,6 +53,7 @@ EXAMPLES = [
     P.Heartbeat(),
     P.Sequence(amplitude=2.5, offset=-0.5, Ts_us=2000, n_samples=1023, seed=0x1234, order=10, hold=3),
     P.SetShaper(n_taps=4, amplitudes=(0.125, 0.375, 0.375, 0.125), delays=(0, 7, 14, 21)),
+    P.Retarget(25.0),
     P.Ack(command=P.MsgType.SET_GAINS),
     P.Nack(command=P.MsgType.SET_LIMITS, error=P.ErrorCode.BAD_VALUE, param=3),
     P.HelloReply(1, 0, 1, 2, 0x1F1, 1000, 1023, "jerklab-uno"),
@@ -118,7 +119,7 @@ def test_golden_frames_match_protocol_md():
         P.SetShaper(3, (0.25, 0.5, 0.25), (0, 9, 18)), P.Ack(2), P.Nack(3, 3, 1), P.Nack(5, 8, 0),
         P.HelloReply(2, 0, 1, 0, 0x1F1, 1000, 1023, "jerklab-uno"), P.PlanInfo(0.1, 0.2, 0.4, 81),
         P.Telemetry(12, 1.5, -300, -1023, 1), P.EndOfRun(0, 81, 0, 0, 0.0),
-        P.EndOfRun(4, 169, 0, 0, 0.52), P.DeviceError(3, 1),
+        P.EndOfRun(4, 169, 0, 0, 0.52), P.DeviceError(3, 1), P.Retarget(25.0),
     ]
     assert len(hexes) == len(expected)
     for h, m in zip(hexes, expected):

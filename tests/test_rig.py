@@ -74,12 +74,22 @@ def test_step_identifies_the_hidden_motor(tmp_path):
 
 def _spec_run(profile, kpd, kid, kdd, Ts, n, vmax=12.0):
     """PROTOCOL.md "Device state machine", RUN, written out independently of the rig code:
-    float32 parameters from the wire, exact ZOH plant, floor encoder, lround PWM."""
+    float32 parameters from the wire, exact ZOH plant, floor encoder, lround PWM; the PWM of
+    sample k is written ``delay`` after the encoder was read (the board's computation delay,
+    modelled by the virtual rig since issue 21), the previous one driving the motor until then."""
+    from jerklab.rig.virtual import VirtualDevice
+
+    delay = VirtualDevice.COMPUTE_DELAY
     kpd, kid, kdd = f32(kpd), f32(kid), f32(kdd)
     Kf, tf = f32(K), f32(TAU)
-    a = math.exp(-Ts / TAU)
-    Phi = np.array([[1.0, TAU * (1 - a)], [0.0, a]])
-    Gam = np.array([K * (Ts - TAU * (1 - a)), K * (1 - a)])
+
+    def zoh(dt):
+        a = math.exp(-dt / TAU)
+        return (np.array([[1.0, TAU * (1 - a)], [0.0, a]]),
+                np.array([K * (dt - TAU * (1 - a)), K * (1 - a)]))
+
+    (P1, G1), (P2, G2) = zoh(delay), zoh(Ts - delay)
+    p_prev = 0
     s = profile.sample(np.arange(n) * Ts)
     x = np.zeros(2)
     i_acc = e_prev = d_prev = 0.0
@@ -102,7 +112,9 @@ def _spec_run(profile, kpd, kid, kdd, Ts, n, vmax=12.0):
         p = p if u >= 0 else -p
         counts.append(c)
         pwms.append(p)
-        x = Phi @ x + Gam * (p / 1023 * 12.0)
+        x = P1 @ x + G1 * (p_prev / 1023 * 12.0)
+        x = P2 @ x + G2 * (p / 1023 * 12.0)
+        p_prev = p
     return np.array(counts), np.array(pwms)
 
 
@@ -125,12 +137,18 @@ def test_move_follows_the_protocol_spec(rig):
 
 
 def test_move_agrees_with_sim(rig):
-    """The virtual rig and jerklab.sim.simulate run the same loop on the same motor."""
+    """The virtual rig and jerklab.sim.simulate run the same loop on the same motor (with the
+    board's computation delay switched off: simulate() writes u at the sampling instant)."""
     from jerklab.sim import simulate
 
     prof = _move()
     g = pole_placement_pid(K, TAU, wn=20.0).discretize(0.005)
-    rec = rig.run_move(prof, g, Ts=0.005, settle=0.2)
+    dev = rig.link.device
+    delay, dev.compute_delay = dev.compute_delay, 0.0
+    try:
+        rec = rig.run_move(prof, g, Ts=0.005, settle=0.2)
+    finally:
+        dev.compute_delay = delay
     c = DigitalController(g, feedforward=Feedforward(K, TAU), output_limit=12.0)
     sim = simulate(prof, DCMotor(), c, Ts=0.005, t_end=rec.time[-1])
     n = min(len(rec), len(sim.t))

@@ -47,9 +47,16 @@ def test_identify_the_simulated_motor(uno):
 
 
 def test_firmware_and_virtual_rig_agree(uno, tmp_path):
-    """Same move, same gains, same motor: the firmware on simavr and its Python model."""
+    """Same move, same gains, same motor: the firmware on simavr and its Python model.
+
+    The gains have a derivative filter (z-domain placement, fourth pole 0.5): with the
+    unfiltered derivative of the Stojčić eq. 13 design (37 V/rad per sample) a one-count
+    difference in edge timing swings the PWM by ~45 ticks and grew into a two-count difference
+    near rest in about one run of three (with or without the computation delay modelled)."""
+    from jerklab.controller import discrete_pole_placement_pid
+
     prof = plan_sine_jerk(4 * math.pi, 2000.0, 300.0, 60.0)
-    g = pole_placement_pid(MOTOR["K"], MOTOR["tau"], wn=20.0).discretize(0.005)
+    g = discrete_pole_placement_pid(MOTOR["K"], MOTOR["tau"], 20.0, Ts=0.005, extra_pole=0.5)
     uno.set_model(**MOTOR)
     fw = uno.run_move(prof, g, Ts=0.005, settle=0.2)
     with connect(motor=DCMotor(**MOTOR), model=(MOTOR["K"], MOTOR["tau"]), recordings=tmp_path,
@@ -68,18 +75,21 @@ def test_firmware_and_virtual_rig_agree(uno, tmp_path):
     # rest (a limit cycle whose phase depends on round-off), so this is checked during the move.
     n = fw.metadata["plan"]["n_samples"]
     dc = fw.counts[:n] != py.counts[:n]
-    assert np.max(np.abs(fw.counts - py.counts)) <= 1
-    # How many samples may differ: the firmware writes each PWM value at the end of its control
-    # step, the model at the sampling instant (its computation delay is not modelled, see
-    # jerklab/rig/virtual.py), so the firmware's angle lags by about one control step, which the
-    # firmware keeps under 10 % of Ts (tests/test_simavr.py). A count differs where the model's
-    # angle is within that lag's travel of a count boundary, so the differing fraction is about
-    # lag * (counts travelled) / (n Ts): bound the lag it implies. (The fraction itself is 0.261
-    # from a fresh start and moves by a few samples with the sub-count angle the motor starts
-    # at, so the former fixed bound of 0.25 failed at random; the implied lag is ~0.2 ms.)
+    assert np.max(np.abs(fw.counts[:n] - py.counts[:n])) <= 1
+    # at rest: both hold the target within the one-count limit cycle (whose phase differs)
+    target = round(prof.distance * uno.counts_per_rad)
+    assert np.max(np.abs(fw.counts[n:] - target)) <= 1 and np.max(np.abs(py.counts[n:] - target)) <= 1
+    # How many samples may differ: a count differs where an edge falls between the instant the
+    # firmware reads the encoder (a few µs after the tick) and the model's t = k Ts, and where the
+    # PWM the board writes at the end of its control step (modelled since issue 21:
+    # VirtualDevice.COMPUTE_DELAY, ~0.13 ms now that the reference is sampled a tick ahead)
+    # differs in effect from the model's by the step's jitter; the sub-count angle the motor
+    # starts at moves the count by a few samples. The differing fraction is about lag * (counts
+    # travelled) / (n Ts): bound the timing mismatch it implies. It was bounded by 10 % of Ts
+    # when the delay was not modelled (~0.2 ms implied); now by 5 % (~0.17 ms seen).
     travelled = np.sum(np.abs(np.diff(py.counts[:n])))
     implied_lag = dc.sum() * 0.005 / travelled
-    assert implied_lag < 0.1 * 0.005, (dc.mean(), implied_lag)
+    assert implied_lag < 0.05 * 0.005, (dc.mean(), implied_lag)
     explained = dc | np.r_[False, dc[:-1]]
     dp = np.abs(fw.pwm[:n] - py.pwm[:n])
     assert np.all(dp[~explained] <= 2), np.flatnonzero(dp > 2)
@@ -99,3 +109,69 @@ def test_firmware_refuses_bad_parameters(uno):
     if not uno.capabilities & P.Capability.PLANNER_SCURVE:
         with pytest.raises(RigError, match="no 'scurve' planner"):
             uno.run_move(plan_scurve(1.0, 1e3, 100.0, 10.0), pole_placement_pid(27.5, 0.034, wn=20.0))
+
+
+def test_1khz_loop_on_the_simulated_uno_matches_the_virtual_rig(tmp_path):
+    """Issue 21: a move at Ts = 1 ms on the simulated Uno (telemetry at every sample, so the
+    sketch is built for 1 Mbaud) matches the virtual rig within one count at every sample; the
+    control step stays under 25 % of the period with no encoder count lost."""
+    require_tool("make", "cc", "avr-g++", "avr-size", "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
+                 "/usr/include/simavr/sim_avr.h")
+    from jerklab.controller import discrete_pole_placement_pid
+    from jerklab.rig import simavr
+
+    build = simavr.firmware_dir() / "build" / "baud1m"
+    paths = simavr.build_firmware("avr", build_dir=build, baud=1000000)
+    simavr.build_firmware("simavr")
+    Ts = 0.001
+    prof = plan_sine_jerk(4 * math.pi, 2000.0, 300.0, 60.0)
+    # z-domain pole placement with a derivative filter (fourth pole 0.9): at 1 ms an unfiltered
+    # derivative turns one count into ~200 PWM ticks
+    g = discrete_pole_placement_pid(MOTOR["K"], MOTOR["tau"], 20.0, Ts=Ts, extra_pole=0.9)
+    with simavr.launch(paths["elf"], K=MOTOR["K"], tau=MOTOR["tau"], build=False) as uno:
+        with connect(uno.port, baudrate=1000000, recordings=tmp_path, progress=False, timeout=10.0) as fw_rig:
+            fw_rig.set_model(**MOTOR)
+            fw = fw_rig.run_move(prof, g, Ts=Ts, settle=0.2)
+        st = uno.stats()
+    with connect(motor=DCMotor(**MOTOR), model=(MOTOR["K"], MOTOR["tau"]), recordings=tmp_path,
+                 progress=False) as virt:
+        py = virt.run_move(prof, g, Ts=Ts, settle=0.2)
+    assert fw.metadata["status"] == "complete" and len(fw) == len(py) == fw.metadata["plan"]["n_samples"] + 200
+    assert fw.metadata["device_overruns"] == 0 and fw.metadata["lost_samples"] == 0
+    assert np.max(np.abs(fw.reference - py.reference)) < 1e-5 * prof.distance
+    assert np.max(np.abs(fw.counts - py.counts)) <= 1                     # at every sample
+    assert abs(fw.position[-1] - prof.distance) < 2 / fw_rig.counts_per_rad
+    # the control step (encoder read to PWM write) and the count: nothing lost at this speed
+    assert st["control_step_cycles_moving"]["max"] <= 4000, st["control_step_cycles_moving"]
+    assert st["firmware_counts"] == st["ideal_counts_x1"]
+    assert st["int0_latency_cycles"]["over_120"] == 0
+
+
+@pytest.mark.parametrize("kind,at,new", [(1, 10, 25.0), (2, 15, -3.0)])
+def test_retarget_on_the_firmware_matches_the_virtual_rig(uno, tmp_path, kind, at, new):
+    """Issue 21: RETARGET on the firmware (simavr) during the acceleration phase: the reference
+    follows the virtual rig's (the same rule in float64) to float32 precision, stays
+    jerk-continuous (no jump in its third differences) and the run ends on the new target."""
+    from jerklab.planner import plan_sine_jerk_optimal
+
+    prof = [plan_sine_jerk, plan_sine_jerk_optimal, plan_scurve][kind](4 * math.pi, 2000.0, 300.0, 60.0)
+    g = pole_placement_pid(MOTOR["K"], MOTOR["tau"], wn=20.0).discretize(0.005)
+    recs = []
+    uno.set_model(**MOTOR)
+    with connect(motor=DCMotor(**MOTOR), model=(MOTOR["K"], MOTOR["tau"]), recordings=tmp_path,
+                 progress=False) as virt:
+        for rig in (uno, virt):
+            def cb(k, r, y, rig=rig):
+                if k == at:
+                    rig.retarget(new)
+            recs.append(rig.run_move(prof, g, Ts=0.005, settle=0.3, on_telemetry=cb))
+    fw, py = recs
+    assert fw.metadata["status"] == "complete" and fw.metadata["retargets"][0][1] == new
+    assert fw.metadata["device_overruns"] == 0 and fw.metadata["lost_samples"] == 0
+    assert len(fw) == len(py)
+    assert np.max(np.abs(fw.reference - py.reference)) < 1e-5 * 30.0
+    assert fw.reference[-1] == pytest.approx(new, abs=1e-5)
+    assert abs(fw.position[-1] - new) < 2 / uno.counts_per_rad
+    if kind == 1:
+        j = np.diff(fw.reference.astype(float), 3) / 0.005 ** 3
+        assert np.max(np.abs(np.diff(j))) <= 0.4 * 2000.0

@@ -40,7 +40,8 @@ def _host(driver):
 
 def _virtual_talk(msgs, ticks=0, motor=None):
     """Send ``msgs`` to a VirtualDevice, run ``ticks`` control periods, return its messages."""
-    dev = VirtualDevice(motor if motor is not None else DCMotor(), clock=lambda: 0.0)
+    # the host driver applies each PWM at its tick: no computation delay on either side
+    dev = VirtualDevice(motor if motor is not None else DCMotor(), clock=lambda: 0.0, compute_delay=0.0)
     for i, m in enumerate(msgs):
         dev.receive(P.encode(m, i + 1))
     for _ in range(ticks):
@@ -62,7 +63,7 @@ BAD_SHAPERS = [
     (P.SetShaper(2, (0.5, 0.4), (0, 3)), 1),                          # sum 0.9
     (P.SetShaper(2, (0.5, float("nan")), (0, 3)), 1),
     (P.SetShaper(1, (1.0, 0.25), (0, 0)), 1),                         # a tap past n_taps
-    (P.SetShaper(2, (0.5, 0.5), (0, 128)), 2),                        # beyond the ring buffer
+    (P.SetShaper(2, (0.5, 0.5), (0, P.SHAPER_MAX_DELAY + 1)), 2),   # beyond the ring buffer
     (P.SetShaper(1, (1.0,), (0, 4)), 2),                              # a delay past n_taps
 ]
 
@@ -264,7 +265,7 @@ def test_set_shaper_client_and_ts_guard():
         assert msg.n_taps == 3 and abs(sum(msg.amplitudes) - 1) < 1e-6
         with pytest.raises(ValueError, match="sum to 1"):
             rig.set_shaper([0.5, 0.4])
-        with pytest.raises(ValueError, match="at most 127"):
+        with pytest.raises(ValueError, match=f"at most {P.SHAPER_MAX_DELAY} samples"):
             rig.set_shaper(np.r_[0.5, np.zeros(200), 0.5])
         with pytest.raises(ValueError, match="at most 10"):
             rig.set_shaper(np.full(11, 1 / 11))

@@ -7,7 +7,7 @@
 // budget probe, also visible on a scope); D12 (PB4, pull-up) held low by a simulator
 // announces a simulated plant in HELLO_REPLY.
 //
-// Serial: a small interrupt-driven UART0 driver (115200 baud 8N1, U2X) instead of the
+// Serial: a small interrupt-driven UART0 driver (115200 baud 8N1, U2X; JL_BAUD below) instead of the
 // Arduino HardwareSerial, whose ~110-cycle transmit ISR could hold off the encoder interrupt
 // past a quarter encoder period at top speed (channel B then read after it changed, a count
 // in the wrong direction). Every ISR here is short, so INT0 is served within ~70 cycles.
@@ -25,6 +25,7 @@
 #include <util/atomic.h>
 
 #include "src/jl_device.h"
+#include "src/jl_port.h"
 
 #ifndef JL_ENCODER_PPR
 #define JL_ENCODER_PPR 448
@@ -75,9 +76,16 @@ ISR(USART_UDRE_vect) {
     if (t == tx_head) UCSR0B &= ~_BV(UDRIE0);
 }
 
+// Serial speed: 115200 by default (UBRR 16: 117647 baud, +2.1 %); build with
+// -DJL_BAUD=1000000UL (UBRR 1) or 500000UL (UBRR 3), both exact with U2X, for telemetry at
+// every sample of a 1 ms loop (a 22-byte TELEMETRY per ms needs > 220 000 baud; 115200 carries
+// ~11.8 bytes/ms, i.e. a TELEMETRY every 3rd sample at Ts = 1 ms).
+#ifndef JL_BAUD
+#define JL_BAUD 115200UL
+#endif
 static void uart_begin() {
     UCSR0A = _BV(U2X0);
-    UBRR0 = 16;                                         // 16 MHz / (8 * 17) = 117647 baud (+2.1 %)
+    UBRR0 = static_cast<uint16_t>((F_CPU + 4UL * JL_BAUD) / (8UL * JL_BAUD) - 1UL);
     UCSR0C = _BV(UCSZ01) | _BV(UCSZ00);                 // 8N1
     UCSR0B = _BV(RXEN0) | _BV(TXEN0) | _BV(RXCIE0);
 }
@@ -222,10 +230,19 @@ void loop() {
     if (g_tick_flag) {
         g_tick_flag = 0;
         if (device.state() != jl::Device::kIdle) {
+#ifndef JL_PROBE_PART
             PORTB |= kProbe;
+#endif
             const bool produced = device.control();
+#ifndef JL_PROBE_PART
             PORTB &= ~kProbe;
+#endif
+            JL_PART_BEGIN(6);
             if (produced) device.report();
+            JL_PART_END(6);
+            JL_PART_BEGIN(7);
+            device.background();
+            JL_PART_END(7);
         }
     }
     if (g_overrun) {

@@ -53,7 +53,7 @@ SUPPLY_VOLTAGE = paper.SUPPLY_VOLTAGE
 #: 0.3 of the motor's inertia, so the mode shows on the motor's encoder; the coupled mode the
 #: encoder sees (``_truth``: ``mode_hz``, ``mode_zeta``) is then a little stiffer and better damped.
 MODE_RANGES = {
-    "mode_hz": (6.0, 14.0),            # Hz, the shaft mode with the motor held still
+    "mode_hz": (7.0, 15.0),            # Hz, the shaft mode with the motor held still
     "mode_damping": (0.01, 0.04),      # damping ratio of the shaft
     "load_ratio": (0.3, 0.3),          # J_load / J_motor
 }

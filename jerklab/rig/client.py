@@ -141,6 +141,9 @@ class Rig:
         self._seq = 0
         self._frames: list[P.Frame] = []
         self.ignored_frames = 0
+        import collections
+        self._retargets = collections.deque()    # RETARGETs waiting for the run loop to send
+        self._streaming = False
         self.closed = False
         try:
             self.info = self._hello(as_positive("hello_timeout", hello_timeout))
@@ -466,7 +469,8 @@ class Rig:
     def run_move(self, profile, gains, Ts=paper.TS, *, feedforward=True, max_voltage=None, settle=0.25,
                  decimation=1, host_timeout=1.0, path=None, progress=None,
                  max_error=P.DEFAULT_MAX_ERROR, runaway_time=P.DEFAULT_RUNAWAY_MS / 1000.0,
-                 saturation_time=P.DEFAULT_SATURATION_MS / 1000.0, force=False) -> Recording:
+                 saturation_time=P.DEFAULT_SATURATION_MS / 1000.0, force=False,
+                 on_telemetry=None) -> Recording:
         """Run a planned move on the rig; return the :class:`Recording` (saved as it arrives).
 
         The device re-plans the move from ``profile``'s distance and limits with the same
@@ -520,6 +524,9 @@ class Rig:
             fault; 0 = off.
         force : bool
             Run a design even if its sampled closed loop is unstable (the safety stops still apply).
+        on_telemetry : callable, optional
+            Called as ``on_telemetry(k, reference, position)`` (sample index, rad, rad) for each
+            sample as it arrives, in the thread of this call; it may call :meth:`retarget`.
 
         Raises
         ------
@@ -578,7 +585,37 @@ class Rig:
         rec = self._new_recording("move", meta, path)
         total = info.n_samples + shaper_delay + settle_n
         bar = _progress(total, f"{self.port} move", self.progress if progress is None else progress)
-        return self._stream(P.Run(settle_n, int(decimation)), rec, total, host_timeout, bar)
+        if on_telemetry is not None and not callable(on_telemetry):
+            raise TypeError(f"on_telemetry must be callable, got {on_telemetry!r}")
+        return self._stream(P.Run(settle_n, int(decimation)), rec, total, host_timeout, bar,
+                            on_telemetry=on_telemetry)
+
+    def retarget(self, new_distance):
+        """Change the target of the move that runs to ``new_distance`` rad from its start.
+
+        Usable during :meth:`run_move` -- from its ``on_telemetry`` callback or from another
+        thread: the RETARGET is queued and sent by the run loop (so frames never interleave).
+        The device switches where the reference has jerk and acceleration 0 and plans from its
+        state there (firmware/PROTOCOL.md "Re-targeting", docs/THEORY.md); the run then ends
+        on the new target (the recording's metadata lists the requests under ``retargets``).
+
+        Raises
+        ------
+        ValueError
+            ``new_distance`` not a finite number with ``|new_distance| <= 1e6``.
+        RigError
+            No move is running, or the device cannot re-target (protocol version < 3).
+        """
+        d = as_real("new_distance", new_distance)
+        if not abs(d) <= 1e6:
+            raise ValueError(f"new_distance must be within +-1e6 rad, got {d!r}")
+        if not self.capabilities & P.Capability.RETARGET:
+            raise RigError(f"{self.port}: firmware {self.firmware_version} cannot re-target "
+                           f"(capabilities: {self.device_info()['capabilities']})")
+        if not self._streaming:
+            raise RigError("retarget() changes a running move: call it during run_move(), from its "
+                           "on_telemetry callback or another thread")
+        self._retargets.append(float(d))
 
     def _check_stable(self, gains, Ts):
         """UnstableDesignError unless the sampled loop of ``gains`` on the rig's model is stable."""
@@ -742,7 +779,7 @@ class Rig:
 
         ``shaper`` is an object with ``.fir(Ts)`` (e.g. ``jerklab.shaping.input_shaper(...)``)
         or the taps themselves on the ``Ts`` grid (a 1-D sequence, tap ``i`` delayed ``i``
-        samples). The device keeps the nonzero taps: at most 10, delays up to 127 samples,
+        samples). The device keeps the nonzero taps: at most 10, delays up to 31 samples (155 ms at 5 ms),
         summing to 1. Its reference becomes the FIR of the planned position; velocity and
         acceleration references (the feedforward, the velocity loop) are the backward
         differences of that, and the move lasts the last delay longer. Moves run at ``Ts``
@@ -821,7 +858,8 @@ class Rig:
             if time.monotonic() >= deadline:
                 return False
 
-    def _stream(self, command, rec, total, host_timeout, bar, final=True, offset=(0, 0)):
+    def _stream(self, command, rec, total, host_timeout, bar, final=True, offset=(0, 0),
+                on_telemetry=None):
         """Start a run/step and record telemetry until END_OF_RUN (or an error).
 
         ``offset = (counts, index)`` is added to the telemetry (a record made of two steps);
@@ -834,10 +872,18 @@ class Rig:
         hb_every = max(0.05, host_timeout / 4.0) if host_timeout > 0 else 0.5
         dropped0 = self._decoder.stats.dropped
         status, error, end = "recording", None, None
+        self._retargets.clear()
+        retargets = []
         try:
             self._request(command)
+            self._streaming = isinstance(command, P.Run)
             last_rx = last_hb = time.monotonic()
             while end is None:
+                while self._retargets:
+                    d = self._retargets.popleft()
+                    self._write(P.Retarget(d))
+                    retargets.append([next_index, d])
+                    rec.metadata["retargets"] = retargets
                 now = time.monotonic()
                 if now - last_hb >= hb_every:
                     self._write(P.Heartbeat())
@@ -862,8 +908,14 @@ class Rig:
                         next_index = t.index + getattr(command, "decimation", 1)
                         received += 1
                         rec.append(t.index + index_off, t.reference, t.counts + count_off, t.pwm, t.flags)
+                        if on_telemetry is not None:
+                            on_telemetry(t.index, t.reference, t.counts / self.counts_per_rad)
                     elif f.type == P.MsgType.END_OF_RUN:
                         end = P.EndOfRun.unpack(f.payload)
+                    elif f.type == P.MsgType.NACK and f.payload[:1] == bytes([P.MsgType.RETARGET]):
+                        n = P.Nack.unpack(f.payload)
+                        rec.metadata.setdefault("retargets_refused", []).append(
+                            [P.ErrorCode(n.error).name if n.error in iter(P.ErrorCode) else n.error, n.param])
                     elif f.type == P.MsgType.ERROR:
                         self._check_busy(f)
                         e = P.DeviceError.unpack(f.payload)
@@ -886,6 +938,7 @@ class Rig:
             status, error = f"error: {exc}", exc
         except BaseException as exc:
             status, error = f"error: {type(exc).__name__}: {exc}", exc
+        self._streaming = False
         stopped = None
         if error is not None and not isinstance(error, (RigConnectionError, RigTimeoutError)):
             stopped = self._stop_after_error(isinstance(error, KeyboardInterrupt))

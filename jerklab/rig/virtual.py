@@ -25,8 +25,12 @@ firmware's order of operations, velocity and acceleration by backward difference
 may be a ``jerklab.plant.FlexibleDCMotor`` (state ``[θ_m, ω_m, θ_l, ω_l]``, the encoder on the
 motor; ``connect(plant="flexible")``).
 
-Differences from the real board, on purpose: the control step takes no time (the
-Uno's ~0.75 ms computation delay is not modelled), the motor coasts to rest
+The board's computation delay is modelled: in a run, the PWM of sample k takes effect
+:attr:`VirtualDevice.compute_delay` after the encoder was read at t = k Ts (the firmware's
+control step, encoder read to PWM write; the reference of the sample is computed one tick
+ahead, after the previous step), the previous sample's PWM driving the motor until then.
+
+Differences from the real board, on purpose: the motor coasts to rest
 instantly between runs (the encoder is zeroed at each RUN anyway), and the
 watchdog counts wall-clock time, as a host's silence is a wall-clock fact.
 """
@@ -83,7 +87,13 @@ class VirtualDevice:
 
     STATE_IDLE, STATE_RUNNING, STATE_STEPPING = 0, 1, 2
 
-    def __init__(self, motor=None, clock=time.monotonic, name="jerklab-virtual", tick_us=1000):
+    #: Encoder read to PWM write in a closed-loop run on the Uno firmware (s): the mean of the
+    #: control step measured on the simulated ATmega328P (``python -m benchmarks firmware``,
+    #: ~2100 cycles at 16 MHz while moving, plus the wake-up from the 1 ms tick).
+    COMPUTE_DELAY = 132e-6
+
+    def __init__(self, motor=None, clock=time.monotonic, name="jerklab-virtual", tick_us=1000,
+                 compute_delay=None):
         from jerklab import __version__
         from jerklab.plant import DCMotor
 
@@ -91,6 +101,14 @@ class VirtualDevice:
         if self.motor.supply_voltage is None or self.motor.counts_per_rad is None:
             raise ValueError("motor must have a supply_voltage and an encoder (encoder_ppr) to be a rig")
         self.clock = clock
+        if compute_delay is None:
+            compute_delay = self.COMPUTE_DELAY
+        if (isinstance(compute_delay, bool) or not isinstance(compute_delay, (int, float))
+                or not math.isfinite(compute_delay) or not 0.0 <= compute_delay < 1e-3):
+            raise ValueError(f"compute_delay must be a time in seconds in [0, 1e-3) (below the shortest Ts), "
+                             f"got {compute_delay!r}")
+        self.compute_delay = float(compute_delay)
+        self._applied_volts = 0.0
         self.name = str(name)[:16]
         self.tick_us = int(tick_us)
         bits = self.motor.pwm_bits or paper.PWM_BITS
@@ -99,6 +117,7 @@ class VirtualDevice:
         self.version = (major, minor, patch)
         self.capabilities = (P.Capability.PLANNER_SINE_JERK | P.Capability.PLANNER_SINE_JERK_OPTIMAL
                              | P.Capability.PLANNER_SCURVE | P.Capability.PLANNER_TRAPEZOID
+                             | P.Capability.RETARGET
                              | P.Capability.LOOP_POSITION | P.Capability.LOOP_VELOCITY
                              | P.Capability.OPEN_LOOP_STEP | P.Capability.FEEDFORWARD
                              | P.Capability.SIMULATED_PLANT | P.Capability.SEQUENCE
@@ -241,6 +260,8 @@ class VirtualDevice:
             if was_active:
                 self._end(P.EndReason.STOPPED)
             return None
+        if isinstance(msg, P.Retarget):
+            return self._retarget(frame, msg)
         if self.active:
             return self._nack(frame, P.ErrorCode.BUSY)
         handler = getattr(self, "_cmd_" + type(msg).__name__)
@@ -329,10 +350,20 @@ class VirtualDevice:
         ff = Feedforward(self.plant.K, self.plant.tau) if g.flags & P.GAINS_FEEDFORWARD else None
         self._ctrl = DigitalController(dg, feedforward=ff, output_limit=self.limits.max_voltage,
                                        anti_windup=True)
-        prof, n, _ = self.plan
+        prof, n, plan_msg = self.plan
         self._profile = prof
+        # re-targeting (jerklab.rig.retarget): the pieces of the reference, from their start time
+        self._pieces = [(-math.inf, prof)]
+        L = self.limits
+        self._splan = None                  # the running plan as segments, made on first use
+        self._active_plan = None
+        self._plan_msg = plan_msg
+        self._settle = m.settle_samples
+        self._followup_k = None             # a braking plan ends: the move to the target follows
+        self._switch = None                 # (k, n_profile) when a new plan takes over
         delay = self._shaper_delay if self.shaper.n_taps else 0
-        self._n_profile = n + delay          # the shaper lengthens the move by its last delay
+        self._shp_delay = delay             # SET_SHAPER: the move lasts the last delay longer
+        self._n_profile = n + delay
         self._n_total = n + delay + m.settle_samples
         self._ring = np.zeros(P.SHAPER_MAX_DELAY + 1, dtype=np.float32)
         self._ring_pos = 0
@@ -438,6 +469,7 @@ class VirtualDevice:
 
     def _start(self, Ts):
         self._Ts = Ts
+        self._applied_volts = 0.0            # PWM 0 until the first sample's is written
         self._k = 0
         self._count0 = self._counts()
         self._prev_y = None
@@ -451,12 +483,74 @@ class VirtualDevice:
         i = k - self._ref_k0
         if self._ref is None or i >= len(self._ref[0]):
             self._ref_k0 = k
-            n = min(self.REF_BLOCK, self._n_total - k)
-            s = self._profile.sample((k + np.arange(n)) * self._Ts)
-            self._ref = tuple(np.atleast_1d(np.asarray(v, float))
-                              for v in (s.position, s.velocity, s.accel))
+            n = max(1, min(self.REF_BLOCK, self._n_total - k))
+            t = (k + np.arange(n)) * self._Ts
+            s = self._profile.sample(t)
+            ref = [np.atleast_1d(np.asarray(v, float)).copy() for v in (s.position, s.velocity, s.accel)]
+            for t0, piece in self._pieces[1:]:          # re-targeted plans, from their start
+                sel = t >= t0
+                if sel.any():
+                    x, v, a, _ = piece.sample(t[sel])
+                    ref[0][sel], ref[1][sel], ref[2][sel] = x, v, a
+            self._ref = tuple(ref)
             i = 0
         return self._ref[0][i], self._ref[1][i], self._ref[2][i]
+
+    # ------------------------------------------------------------------ re-targeting
+    def _retarget(self, frame, m):
+        """RETARGET (PROTOCOL.md "Re-targeting"), the firmware's rule in float64."""
+        if self.state != self.STATE_RUNNING:
+            return self._nack(frame, P.ErrorCode.NOT_READY)
+        if not (_finite(m.distance) and abs(m.distance) <= 1e6):
+            return self._nack(frame, P.ErrorCode.BAD_VALUE, 0)
+        self._send(P.Ack(frame.type), frame.seq)
+        self._rt_target = float(m.distance)
+        self._retargeted = True
+        self._retarget_from(self._k)
+        return None
+
+    def _current_plan(self):
+        from jerklab.rig import retarget as R
+
+        if self._splan is None:
+            L, pm = self.limits, self._plan_msg
+            self._splan = R.rest_plan(pm.planner, pm.distance, L.max_jerk, L.max_accel, L.max_velocity)
+        return self._splan
+
+    def _retarget_from(self, k_now):
+        from jerklab.rig import retarget as R
+
+        L = self.limits
+        Ts_us = self.gains.Ts_us
+        Ts = Ts_us * 1e-6
+        if self._switch is not None:         # a newer target replaces one not yet switched to
+            self._pieces.pop()
+            self._switch = self._followup_k = None
+            self._splan = self._active_plan
+        cur = self._current_plan()
+        self._active_plan = cur
+        kind = self._plan_msg.planner
+        t_e = (k_now + R.lead_samples(Ts_us)) * Ts
+        t_s, x_s, v_s = R.switch_point(cur, t_e, Ts)
+        d = self._rt_target - x_s
+        new = None
+        if v_s == 0.0:
+            new = R.rest_plan(kind, d, L.max_jerk, L.max_accel, L.max_velocity, t_s, x_s)
+        elif d != 0.0 and (d > 0) == (v_s > 0):
+            new = R.moving_plan(kind, d, abs(v_s), L.max_jerk, L.max_accel, L.max_velocity, t_s, x_s)
+        braking = new is None
+        if braking:
+            new = R.stop_plan(kind, v_s, L.max_jerk, L.max_accel, t_s, x_s)
+        self._pieces = [p for p in self._pieces if p[0] < t_s] + [(t_s, new)]
+        self._splan = new
+        self._ref = None                     # re-sample from the current sample on
+        k_sw = int(math.ceil(t_s / Ts - 1e-9))
+        while k_sw * Ts < t_s:
+            k_sw += 1
+        n_profile = int(math.ceil(new.end / Ts - 1e-4)) + 1
+        self._switch = (k_sw, n_profile + self._shp_delay)
+        self._n_total = n_profile + self._shp_delay + self._settle
+        self._followup_k = k_sw if braking else None
 
     def _pwm_top(self) -> int:
         """lround(max_voltage * pwm_max / supply), at most pwm_max (PROTOCOL.md step 4)."""
@@ -501,6 +595,13 @@ class VirtualDevice:
             self._end(P.EndReason.HOST_TIMEOUT)
             return
         k = self._k
+        if self.state == self.STATE_RUNNING and self._switch is not None and k >= self._switch[0]:
+            self._n_profile = self._switch[1]        # the re-targeted plan took over
+            self._switch = None
+            self._active_plan = self._splan
+            if self._followup_k is not None:
+                self._followup_k = None
+                self._retarget_from(k)               # braked: now the move to the target
         counts = self._counts() - self._count0
         flags = 0
         fault = None
@@ -545,7 +646,12 @@ class VirtualDevice:
             self._end(fault, detail)
             return
         volts = self.pwm / self.pwm_max * self.motor.supply_voltage * self.supply_fraction  # H-bridge
-        self.x = self.motor.step_state(self.x, volts, self._Ts, t=self.t)
+        d = self.compute_delay if self.state == self.STATE_RUNNING else 0.0
+        if d > 0.0:
+            # the previous sample's PWM until the board has written the new one
+            self.x = self.motor.step_state(self.x, self._applied_volts, d, t=self.t)
+        self.x = self.motor.step_state(self.x, volts, self._Ts - d, t=self.t + d)
+        self._applied_volts = volts
         self.t += self._Ts
         self._k = k + 1
         if self._k >= self._n_total:
@@ -564,6 +670,9 @@ class VirtualDevice:
 
     def _end(self, reason, detail=0.0):
         samples = self._k
+        if getattr(self, "_retargeted", False):
+            self.plan = None                 # consumed, as on the board (PLAN again before RUN)
+            self._retargeted = False
         self.state = self.STATE_IDLE
         self._ref = None
         self._send(P.EndOfRun(int(reason), samples, self.rx_errors, self.overruns, float(detail)))

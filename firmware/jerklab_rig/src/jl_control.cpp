@@ -1,5 +1,6 @@
 #include "jl_control.h"
 #include "jl_port.h"
+#include <string.h>
 
 namespace jl {
 
@@ -19,6 +20,7 @@ bool Pid::set(float kpd, float kid, float kdd, float gamma, float limit) {
     kid_ = kid;
     kdd_ = kdd;
     limit_ = limit;
+    memcpy(&limit_bits_, &limit, 4);
     return true;
 }
 
@@ -49,6 +51,41 @@ float Pid::step(float e, float ff, ControlParts* parts) {
         parts->u = u;
         parts->saturated = sat;
     }
+    return u;
+}
+
+}  // namespace jl
+
+namespace jl {
+
+float Pid::step_fast(float e, float ff, bool* saturated) {
+    const float p = kpd_ * e;                       // eq. 17
+    float i = i_ + kid_ * e;
+    float d = kdd_ * (e - e_prev_);
+    if (gamma_ != 0.0f) d += gamma_ * d_prev_;
+    e_prev_ = e;
+    d_prev_ = d;
+    float u = ff + p + i + d;                       // eq. 18 + feedforward (eq. 16)
+    uint32_t ub;
+    memcpy(&ub, &u, 4);
+    // |u| > limit (or NaN): for floats the magnitude bits order like the values.
+    const uint32_t mag = ub & 0x7FFFFFFFUL;
+    if (mag > limit_bits_ && mag <= 0x7F800000UL) {
+        *saturated = true;
+        const bool neg = (ub & 0x80000000UL) != 0;
+        uint32_t eb;
+        memcpy(&eb, &e, 4);
+        // e has the sign of u (and is not 0): freeze the integrator (conditional integration)
+        if ((eb & 0x7FFFFFFFUL) != 0 && ((eb & 0x80000000UL) != 0) == neg) {
+            u -= i - i_;
+            i = i_;
+        }
+        if (u > limit_) u = limit_;
+        else if (u < -limit_) u = -limit_;
+    } else {
+        *saturated = false;
+    }
+    i_ = i;
     return u;
 }
 

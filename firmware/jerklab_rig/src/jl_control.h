@@ -18,6 +18,8 @@ public:
     /// Returns false (and keeps the previous values) unless K > 0 and tau >= 0 are finite.
     bool set(float K, float tau);
     float operator()(float velocity, float accel) const { return tau_over_k_ * accel + inv_k_ * velocity; }
+    float alpha() const { return tau_over_k_; }   // u_F = alpha a + beta v
+    float beta() const { return inv_k_; }
     bool enabled = true;
 
 private:
@@ -37,10 +39,14 @@ public:
     void reset() { i_ = 0.0f; e_prev_ = 0.0f; d_prev_ = 0.0f; }
     /// One sample: error e = reference - measurement, feedforward ff. Returns u.
     float step(float e, float ff, ControlParts* parts = nullptr);
+    /// The same step for the control loop: the same arithmetic, only the saturation flag out,
+    /// and |u| > limit as an integer compare of the IEEE bits (no soft-float compare).
+    float step_fast(float e, float ff, bool* saturated);
     float limit() const { return limit_; }
 
 private:
     float kpd_ = 0.0f, kid_ = 0.0f, kdd_ = 0.0f, gamma_ = 0.0f, limit_ = 12.0f;
+    uint32_t limit_bits_ = 0x41400000UL;   // IEEE bits of limit_ (> 0)
     float i_ = 0.0f, e_prev_ = 0.0f, d_prev_ = 0.0f;
 };
 

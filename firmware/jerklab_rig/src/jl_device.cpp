@@ -30,6 +30,21 @@ void Device::update_pwm_top() {
     pwm_top_ = static_cast<int16_t>(top);
 }
 
+// lround(u) (halves away from zero) clamped to +-pwm_top, for |u| < 2^22 (u + 0.5 is then exact):
+// the sign bit and a truncation instead of the library's lround.
+int16_t Device::ticks_to_pwm(float u) const {
+    uint32_t b;
+    memcpy(&b, &u, 4);
+    const bool neg = (b & 0x80000000UL) != 0;
+    if ((b & 0x7FFFFFFFUL) >= 0x4A800000UL) return neg ? -pwm_top_ : pwm_top_;   // |u| >= 2^22, NaN
+    b &= 0x7FFFFFFFUL;
+    float m;
+    memcpy(&m, &b, 4);
+    long pwm = static_cast<long>(m + 0.5f);
+    if (pwm > pwm_top_) pwm = pwm_top_;
+    return static_cast<int16_t>(neg ? -pwm : pwm);
+}
+
 int16_t Device::volts_to_pwm(float u) const {
     long pwm = jl_lroundf(u * pwm_per_volt_);
     if (pwm > pwm_top_) pwm = pwm_top_;
@@ -79,6 +94,9 @@ void Device::end_run(uint8_t reason, float detail) {
     state_ = kIdle;
     have_sample_ = false;
     finished_ = false;
+    if (rt_active_) plan_ok_ = false;      // a re-targeted run may have planned into plan_
+    rt_active_ = false;
+    rt_stage_ = 0;
     send(kEndOfRun, tx_seq_++, p, kLenEndOfRun);
 }
 
@@ -103,6 +121,7 @@ void Device::handle(const Frame& f) {
     const uint8_t* p = f.payload;
     static const uint8_t kLen[10] = {0, kLenHello, kLenSetPlant, kLenSetGains, kLenSetLimits,
                                      kLenPlan, kLenRun, kLenStop, kLenStep, kLenHeartbeat};
+    if (f.type == kRetarget) { handle_retarget(f); return; }
     if (f.type == 0 || f.type > kHeartbeat) { nack(f, kErrUnknownType); return; }
     if (f.len != kLen[f.type]) { nack(f, kErrBadLength); return; }
     const bool active = state_ != kIdle;
@@ -113,7 +132,8 @@ void Device::handle(const Frame& f) {
     switch (f.type) {
     case kHello: {
         uint8_t r[kLenHelloReply];
-        uint16_t caps = kCapSineJerk | kCapLoopPosition | kCapLoopVelocity | kCapOpenLoopStep |
+        uint16_t caps = kCapSineJerk | kCapSineJerkOptimal | kCapScurve | kCapTrapezoid |
+                        kCapRetarget | kCapLoopPosition | kCapLoopVelocity | kCapOpenLoopStep |
                         kCapFeedforward;
         if (JL_WITH_SEQUENCE) caps |= kCapSequence;
         if (JL_WITH_SHAPER) caps |= kCapShaper;
@@ -190,24 +210,22 @@ void Device::handle(const Frame& f) {
         uint8_t kind = p[4];
         if (!in_range(jl_fabsf(d), 0.0f, 1e6f)) { nack(f, kErrBadValue, 0); return; }
         if (kind > kPlannerTrapezoid) { nack(f, kErrBadValue, 1); return; }
-        if (kind != kPlannerSineJerk) { nack(f, kErrUnsupported, 1); return; }
-        SineJerkPlan plan;
-        if (plan_sine_jerk(d, max_jerk_, max_accel_, max_velocity_, &plan) != kPlanOk) {
+        plan_ok_ = false;            // planned in place (a Plan is ~260 bytes of RAM)
+        if (plan_kind(kind, d, max_jerk_, max_accel_, max_velocity_, &plan_) != kPlanOk) {
             nack(f, kErrBadValue, 0);
             return;
         }
-        float x = plan.duration / Ts_ - 1e-4f;
+        float x = plan_.duration / Ts_ - 1e-4f;
         // n = ceil(x) + 1 must stay <= kMaxPlanSamples (float32 holds 2e9 - 1 as 2e9).
         if (!finite_f(x) || x >= static_cast<float>(kMaxPlanSamples)) { nack(f, kErrTooLong, 0); return; }
         uint32_t n = static_cast<uint32_t>(x < 0.0f ? 0.0f : x);
         if (static_cast<float>(n) < x) ++n;           // ceil
-        plan_ = plan;
         plan_samples_ = n + 1;
         plan_ok_ = true;
         uint8_t r[kLenPlanInfo];
-        put_f32(r, plan.accel_time);
-        put_f32(r + 4, plan.cruise_time);
-        put_f32(r + 8, plan.duration);
+        put_f32(r, plan_.accel_time);
+        put_f32(r + 4, plan_.cruise_time);
+        put_f32(r + 8, plan_.duration);
         put_u32(r + 12, plan_samples_);
         send(kPlanInfo, f.seq, r, kLenPlanInfo);
         return;
@@ -217,16 +235,43 @@ void Device::handle(const Frame& f) {
         uint8_t dec = p[2];
         if (dec < 1) { nack(f, kErrBadValue, 1); return; }
         if (!gains_ok_ || !plan_ok_) { nack(f, kErrNotReady); return; }
-        if (!pid_.set(kpd_, kid_, kdd_, gamma_, max_voltage_)) { nack(f, kErrBadValue); return; }
+        // The loop runs in encoder counts and PWM ticks (saves two float multiplies a sample):
+        // the gains take rad per count (and 1/Ts in the velocity loop) and PWM ticks per volt.
+        const float g = (loop_ == kLoopVelocity ? rad_per_count_ / Ts_ : rad_per_count_) * pwm_per_volt_;
+        if (!pid_.set(kpd_ * g, kid_ * g, kdd_ * g, gamma_, max_voltage_ * pwm_per_volt_)) {
+            nack(f, kErrBadValue);
+            return;
+        }
         ack(f);
         hal_.zero_counts();
         pid_.reset();
-        stepper_.start(plan_, Ts_);
-        shaper_.reset(1.0f / Ts_);
+        cur_plan_ = &plan_;
+        run_kind_ = plan_.kind;
+        rt_stage_ = 0;
+        rt_active_ = false;
+        settle_ = settle;
+        seq_on_ = false;
+        {
+            const float cpr = 1.0f / rad_per_count_;
+            stepper_.start(plan_, Ts_, use_ff_ ? ff_.alpha() * pwm_per_volt_ : 0.0f,
+                           use_ff_ ? ff_.beta() * pwm_per_volt_ : 0.0f, cpr, cpr * Ts_);
+            // the tracking-error limit in counts, as IEEE bits (0 = off)
+            float emax_c;
+            memcpy(&emax_c, &max_error_bits_, 4);
+            emax_c *= cpr;
+            memcpy(&max_error_c_bits_, &emax_c, 4);
+            uf_ = ref_v_ = 0.0f;
+            // SET_SHAPER: the FIR runs on the reference in counts, its differences per sample;
+            // the feedforward in PWM ticks from them: uf = ka (v_k - v_{k-1}) + kv v_k
+            shaper_.reset(1.0f);
+            shp_kv_ = use_ff_ ? ff_.beta() * pwm_per_volt_ / (cpr * Ts_) : 0.0f;
+            shp_ka_ = use_ff_ ? ff_.alpha() * pwm_per_volt_ / (cpr * Ts_ * Ts_) : 0.0f;
+            sample_ahead();                     // the reference of sample 0
+        }
         k_ = 0;
-        run_profile_samples_ = plan_samples_ + shaper_.max_delay();   // the shaper lengthens the move
-        n_total_ = run_profile_samples_ + settle;
+        n_total_ = plan_samples_ + shaper_.max_delay() + settle;   // the shaper lengthens the move
         decimation_ = dec;
+        dec_left_ = 0;
         prev_counts_ = 0;
         last_pwm_ = 0;
         runaway_pwm_ = static_cast<int16_t>((pwm_top_ + 1) / 2);
@@ -254,11 +299,12 @@ void Device::handle(const Frame& f) {
         if (n < 1) { nack(f, kErrBadValue, 2); return; }
         ack(f);
         hal_.zero_counts();
-        step_pwm_ = volts_to_pwm(v);
+        step_pwm_ = ticks_to_pwm(v * pwm_per_volt_);
         seq_on_ = false;
         k_ = 0;
         n_total_ = n;
         decimation_ = 1;
+        dec_left_ = 0;
         have_sample_ = finished_ = false;
         state_ = kStepping;
         hal_.set_period(static_cast<uint16_t>(ts / cfg_.tick_us));
@@ -347,16 +393,23 @@ bool Device::control() {
     const int32_t c = hal_.counts();
     int16_t pwm;
     uint8_t flags = 0;
-    float ref = 0.0f;
     if (state_ == kRunning) {
-        Sample s;
-        stepper_.next(&s);
-        if (shaper_.on()) shaper_.apply(&s.position, &s.velocity, &s.accel);   // SET_SHAPER
-        if (k_ >= run_profile_samples_) flags |= kTelemetrySettling;
-        ref = s.position;
-        const float pos_error = s.position - static_cast<float>(c) * rad_per_count_;
+        // ref, e in encoder counts; ref_v in counts per sample; uf in PWM ticks
+        // (sampled one tick ahead by background(); inline only if that did not run)
+        if (!ahead_) {
+            JL_PART_BEGIN(1);
+            sample_ahead();
+            JL_PART_END(1);
+        }
+        ahead_ = false;
+        const float ref = ref_, ref_v = ref_v_, uf = uf_;
+        if (k_ >= plan_samples_ + shaper_.max_delay()) flags |= kTelemetrySettling;
+        rep_ref_ = ref;
+        const float pos_error = ref - static_cast<float>(c);
         float detail = 0.0f;
+        JL_PART_BEGIN(2);
         uint8_t fault = check_safety(c, pos_error, &detail);
+        JL_PART_END(2);
         pwm = 0;
         if (fault == kEndDone) {
             float e;
@@ -365,13 +418,14 @@ bool Device::control() {
             } else {
                 // Velocity loop (Stojčić §4B): counts over the last sample; y(-1) = y(0).
                 if (k_ == 0) prev_counts_ = c;
-                e = s.velocity - static_cast<float>(c - prev_counts_) * rad_per_count_ / Ts_;
+                e = ref_v - static_cast<float>(c - prev_counts_);
             }
             prev_counts_ = c;
-            const float uf = use_ff_ ? ff_(s.velocity, s.accel) : 0.0f;
-            ControlParts parts;
-            const float u = pid_.step(e, uf, &parts);
-            if (parts.saturated) {
+            bool saturated;
+            JL_PART_BEGIN(4);
+            const float u = pid_.step_fast(e, uf, &saturated);
+            JL_PART_END(4);
+            if (saturated) {
                 flags |= kTelemetrySaturated;
                 ++sat_level_;
             } else if (sat_level_) {
@@ -379,7 +433,11 @@ bool Device::control() {
             }
             // Saturation stop (PROTOCOL.md): at the clamp in most samples for the window.
             if (sat_n_ && sat_level_ >= sat_n_) fault = kEndSaturation;
-            else pwm = volts_to_pwm(u);
+            else {
+                JL_PART_BEGIN(5);
+                pwm = ticks_to_pwm(u);
+                JL_PART_END(5);
+            }
         }
         if (fault != kEndDone) {
             // Safety stop: PWM 0 in this very sample; its telemetry goes out whatever the
@@ -393,14 +451,17 @@ bool Device::control() {
     } else if (seq_on_) {
         const uint8_t b = prbs_.next();   // SEQUENCE: the PRBS level, its volts as the reference
         pwm = seq_pwm_[b];
-        ref = seq_volts_[b];
+        rep_ref_ = seq_volts_[b];         // volts, sent as they are (report)
     } else {
         pwm = step_pwm_;
+        rep_ref_ = 0.0f;
     }
     hal_.set_pwm(pwm);
-    have_sample_ = finished_ || (k_ % decimation_) == 0;
+    // k % decimation == 0, counted down (a 32-bit modulo costs ~600 cycles on the AVR)
+    if (dec_left_ == 0) dec_left_ = decimation_;
+    have_sample_ = finished_ || dec_left_ == decimation_;
+    --dec_left_;
     rep_index_ = k_;
-    rep_ref_ = ref;
     rep_counts_ = c;
     rep_pwm_ = pwm;
     rep_flags_ = flags;
@@ -408,13 +469,139 @@ bool Device::control() {
     return true;
 }
 
+// ceil(t / Ts - 1e-4) + 1 samples (PROTOCOL.md: PLAN's n_samples), t >= 0
+static uint32_t samples_of(float t, float Ts) {
+    const float x = t / Ts - 1e-4f;
+    uint32_t n = static_cast<uint32_t>(x < 0.0f ? 0.0f : x);
+    if (static_cast<float>(n) < x) ++n;
+    return n + 1;
+}
+
+void Device::sample_ahead() {
+    stepper_.next_fast(&ref_, loop_ == kLoopVelocity ? &ref_v_ : nullptr, use_ff_ ? &uf_ : nullptr);
+    if (shaper_.on()) {
+        // SET_SHAPER (PROTOCOL.md): the reference's FIR and its backward differences, here
+        // outside the timed control step (the delayed taps' sum for the next sample too)
+        float v, a;
+        shaper_.apply(&ref_, &v, &a);
+        shaper_.prepare();
+        ref_v_ = v;
+        uf_ = shp_ka_ * a + shp_kv_ * v;
+    }
+    ahead_ = true;
+    if (stepper_.plan() != cur_plan_) {
+        // a re-targeted plan took over at this sample (k_): the run now ends with it
+        cur_plan_ = stepper_.plan();
+        plan_samples_ = samples_of(cur_plan_->t_start + cur_plan_->duration, Ts_);
+        n_total_ = plan_samples_ + shaper_.max_delay() + settle_;
+        rt_stage_ = 0;
+        // braked to rest first (the target was behind): the move to the target follows
+        if (rt_mode_ == 2) retarget_begin(k_);
+    }
+}
+
+void Device::handle_retarget(const Frame& f) {
+    if (f.len != kLenRetarget) { nack(f, kErrBadLength); return; }
+    if (state_ != kRunning) { nack(f, kErrNotReady); return; }
+    const float d = get_f32(f.payload);
+    if (!finite_f(d) || !(jl_fabsf(d) <= 1e6f)) { nack(f, kErrBadValue, 0); return; }
+    ack(f);
+    rt_target_ = d;
+    rt_active_ = true;
+    retarget_begin(k_);
+}
+
+// Samples from a RETARGET to the earliest switch: the stages below run one per tick, the
+// bisection max(2, Ts_us / 400) halvings at a time (jerklab.rig.retarget.lead_samples).
+static uint8_t halvings_per_tick(uint16_t ts_us) {
+    const uint16_t n = ts_us / 400u;
+    return n < 2 ? 2 : (n > 24 ? 24 : static_cast<uint8_t>(n));
+}
+
+void Device::retarget_begin(uint32_t k_now) {
+    const uint8_t per = halvings_per_tick(Ts_us_);
+    rt_k_ = k_now + 2u + (24u + per - 1u) / per;
+    rt_stage_ = 1;
+    rt_mode_ = 0;
+    stepper_.cancel_switch();              // a newer target replaces one not yet switched to
+    n_total_ = 0xFFFFFFFFUL;               // the run lasts until the new plan's end
+}
+
+// One stage of the re-targeting work; true when it did something.
+bool Device::retarget_work() {
+    if (rt_stage_ == 0 || rt_stage_ == 5) return false;
+    const Plan& cp = *cur_plan_;
+    Plan* np = cur_plan_ == &plan_ ? &plan_b_ : &plan_;
+    if (rt_stage_ == 1) {
+        // the switch point: jerk and acceleration 0 (jerklab.rig.retarget.switch_point)
+        const float te = static_cast<float>(rt_k_) * Ts_;
+        const float tc0 = cp.t_start + cp.accel_time, tc1 = tc0 + cp.tv;
+        if (te < tc1 || te <= tc0) {
+            rt_ts_ = te <= tc0 ? tc0 : te;
+            rt_xs_ = position_at_switch(cp, rt_ts_);
+            rt_vs_ = cp.sign * cp.v_peak;
+        } else {
+            const float tend = cp.t_start + cp.duration;
+            rt_ts_ = tend > te ? tend : te;
+            rt_xs_ = cp.x_start + cp.distance;
+            rt_vs_ = 0.0f;
+        }
+        const float d = rt_target_ - rt_xs_;
+        if (rt_vs_ == 0.0f) {
+            rt_mode_ = 0;
+            rt_stage_ = 3;
+        } else if ((d > 0.0f) == (rt_vs_ > 0.0f) && d != 0.0f &&
+                   solver_.begin(cp.kind, d, jl_fabsf(rt_vs_), max_jerk_, max_accel_, max_velocity_) == kPlanOk) {
+            rt_mode_ = 1;
+            rt_stage_ = 2;
+        } else {
+            rt_mode_ = 2;                  // brake to rest first
+            rt_stage_ = 3;
+        }
+        return true;
+    }
+    if (rt_stage_ == 2) {
+        if (solver_.step(halvings_per_tick(Ts_us_))) rt_stage_ = 3;
+        return true;
+    }
+    if (rt_stage_ == 3) {
+        const float d = rt_target_ - rt_xs_;
+        if (rt_mode_ == 1) {
+            solver_.finish(d, rt_ts_, rt_xs_, np);
+        } else if (rt_mode_ == 2) {
+            plan_stop(cp.kind, jl_fabsf(rt_vs_), rt_vs_, max_jerk_, max_accel_, rt_ts_, rt_xs_, np);
+        } else {
+            plan_kind(run_kind_, d, max_jerk_, max_accel_, max_velocity_, np);
+            place(np, rt_ts_, rt_xs_);
+        }
+        rt_stage_ = 4;
+        return true;
+    }
+    // stage 4: the new plan's first segment, then scheduled (the stepper switches)
+    if (stepper_.prepare_switch(*np)) rt_stage_ = 5;
+    return true;
+}
+
+void Device::background() {
+    if (state_ != kRunning) return;
+    if (!ahead_) {
+        JL_PART_BEGIN(8);
+        sample_ahead();
+        JL_PART_END(8);
+    }
+    // one more piece of work per tick: the re-targeting, else the next segment
+    if (retarget_work()) return;
+    JL_PART_BEGIN(9);
+    stepper_.prepare();
+    JL_PART_END(9);
+}
+
 void Device::report() {
-    if (state_ == kRunning && shaper_.on()) shaper_.prepare();   // SET_SHAPER: next sample's taps
     if (have_sample_) {
         have_sample_ = false;
         uint8_t p[kLenTelemetry];
         put_u32(p, rep_index_);
-        put_f32(p + 4, rep_ref_);
+        put_f32(p + 4, seq_on_ ? rep_ref_ : rep_ref_ * rad_per_count_);   // counts -> rad (SEQUENCE: V)
         put_i32(p + 8, rep_counts_);
         put_u16(p + 12, static_cast<uint16_t>(rep_pwm_));
         p[14] = rep_flags_;
@@ -432,8 +619,8 @@ uint8_t Device::check_safety(int32_t c, float pos_error, float* detail) {
     // ~50-cycle float compare of the AVR's soft float in the timed step.
     uint32_t bits;
     memcpy(&bits, &pos_error, 4);
-    if (max_error_bits_ != 0 && (bits & 0x7FFFFFFFUL) > max_error_bits_) {
-        *detail = pos_error;
+    if (max_error_c_bits_ != 0 && (bits & 0x7FFFFFFFUL) > max_error_c_bits_) {
+        *detail = pos_error * rad_per_count_;
         return kEndTrackingError;
     }
     if (runaway_n_ == 0) return kEndDone;

@@ -56,6 +56,8 @@ public:
     bool control();
     /// Telemetry / end-of-run frames of the last control() (kept out of the timed step).
     void report();
+    /// Work ahead of the control step (the planner's next segment); call after report().
+    void background();
     /// Host watchdog check (call often from loop()).
     void poll();
     /// A tick started before the previous one was handled.
@@ -74,6 +76,11 @@ private:
     uint8_t check_safety(int32_t c, float pos_error, float* detail);
     void apply_plant();
     int16_t volts_to_pwm(float u) const;
+    int16_t ticks_to_pwm(float u) const;
+    void sample_ahead();
+    void handle_retarget(const Frame& f);
+    bool retarget_work();
+    void retarget_begin(uint32_t k_now);
     void update_pwm_top();
     // Version 3 (jl_excite): SEQUENCE and SET_SHAPER; false if the frame was not one of them.
     bool handle_v3(const Frame& f);
@@ -94,6 +101,7 @@ private:
     // Safety stops (PROTOCOL.md "Safety stops"): tracking-error limit (rad, 0 = off) and the
     // runaway / no-motion window (ms, 0 = off).
     uint32_t max_error_bits_ = 0x3F000000UL;   // IEEE bits of max_error (0.5 rad at boot)
+    uint32_t max_error_c_bits_ = 0;            // the same in encoder counts (set at RUN)
     uint16_t runaway_ms_ = 200;
     uint16_t saturation_ms_ = 500;   // saturation stop window (ms, 0 = off)
     bool gains_ok_ = false;
@@ -104,8 +112,24 @@ private:
     bool use_ff_ = true;
 
     bool plan_ok_ = false;
-    SineJerkPlan plan_;
+    Plan plan_;
+    // Re-targeting (PROTOCOL.md "Re-targeting"): the plan that takes over is built in the buffer
+    // the stepper does not use, in stages run by background(); rt_stage_ 0 idle, 1 find the
+    // switch point, 2 bisection, 3 build, 4 prepare its first segment, 5 scheduled.
+    Plan plan_b_;
+    const Plan* cur_plan_ = &plan_;
+    MovingSolver solver_;
+    float rt_target_ = 0.0f, rt_ts_ = 0.0f, rt_xs_ = 0.0f, rt_vs_ = 0.0f;
+    uint32_t rt_k_ = 0;
+    uint8_t rt_stage_ = 0, rt_mode_ = 0, run_kind_ = 0;   // mode: 0 rest to rest, 1 moving start, 2 stop
+    bool rt_active_ = false;               // a RETARGET arrived in this run
+    uint16_t settle_ = 0;
     uint32_t plan_samples_ = 0;
+
+    // The reference of the next sample (counts), its velocity (counts per sample) and
+    // feedforward (PWM ticks), computed ahead by background() after the previous step.
+    float ref_ = 0.0f, ref_v_ = 0.0f, uf_ = 0.0f;
+    bool ahead_ = false;
 
     // Active run / step.
     PlanStepper stepper_;
@@ -113,6 +137,7 @@ private:
     Feedforward ff_;
     uint32_t k_ = 0, n_total_ = 0;
     uint8_t decimation_ = 1;
+    uint8_t dec_left_ = 0;
     int16_t step_pwm_ = 0;
     int32_t prev_counts_ = 0;
     uint32_t last_rx_ms_ = 0;
@@ -136,7 +161,7 @@ private:
     int16_t seq_pwm_[2] = {0, 0};
     float seq_volts_[2] = {0.0f, 0.0f};
     Shaper shaper_;
-    uint32_t run_profile_samples_ = 0;   // the run's profile samples: the plan's + the shaper's delay
+    float shp_kv_ = 0.0f, shp_ka_ = 0.0f;   // feedforward ticks per (count/sample), per (count/sample^2)
 
     // Results of the last control() for report().
     bool have_sample_ = false;

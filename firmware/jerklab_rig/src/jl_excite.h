@@ -39,8 +39,9 @@ private:
 
 // Build options (firmware/README.md): JL_WITH_SEQUENCE, JL_WITH_SHAPER (default 1; 0 leaves the
 // feature out, its capability bit clear and its command answered NACK UNSUPPORTED) and
-// JL_SHAPER_RING (the reference history, a power of two <= 128; delays up to JL_SHAPER_RING - 1;
-// 4 bytes of RAM each).
+// JL_SHAPER_RING (the reference history, a power of two <= 128, default 32: the Uno's RAM is
+// nearly full with the four planners and re-targeting; delays up to JL_SHAPER_RING - 1; 4 bytes of
+// RAM each; jerklab.protocol.SHAPER_MAX_DELAY must match the default).
 #ifndef JL_WITH_SEQUENCE
 #define JL_WITH_SEQUENCE 1
 #endif
@@ -48,7 +49,7 @@ private:
 #define JL_WITH_SHAPER 1
 #endif
 #ifndef JL_SHAPER_RING
-#define JL_SHAPER_RING 128
+#define JL_SHAPER_RING 32
 #endif
 static const uint8_t kShaperMaxTaps = 10;
 static const uint8_t kShaperRing = JL_SHAPER_RING;   // a power of two; delays up to kShaperRing - 1

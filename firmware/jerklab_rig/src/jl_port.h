@@ -27,6 +27,18 @@
 #define jl_lroundf(x) lroundf(x)
 #endif
 
+// Cycle profiling (measurement builds only, make EXTRA_DEFS=-DJL_PROBE_PART=n): the probe pin
+// D13 (PB5) is high during part n of the control step instead of the whole step, so the simavr
+// harness's control_step_cycles report that part (firmware/README.md "Cycle budget").
+#if defined(__AVR__) && defined(JL_PROBE_PART)
+#include <avr/io.h>
+#define JL_PART_BEGIN(n) do { if ((n) == JL_PROBE_PART) PORTB |= _BV(PB5); } while (0)
+#define JL_PART_END(n) do { if ((n) == JL_PROBE_PART) PORTB &= ~_BV(PB5); } while (0)
+#else
+#define JL_PART_BEGIN(n) do { } while (0)
+#define JL_PART_END(n) do { } while (0)
+#endif
+
 namespace jl {
 /// True for a finite float (NaN - NaN and inf - inf are NaN; needs no -ffast-math).
 static inline bool finite_f(float x) { volatile float d = x - x; return d == 0.0f; }

@@ -57,7 +57,7 @@ def _build_lock(build: Path):
                 msvcrt.locking(fh.fileno(), msvcrt.LK_UNLCK, 1)
 
 
-def build_firmware(*targets: str, build_dir=None) -> dict:
+def build_firmware(*targets: str, build_dir=None, baud=None, probe_part=None) -> dict:
     """Run ``make -C firmware <targets>`` (serialised by a file lock) and return the paths.
 
     Parameters
@@ -67,6 +67,12 @@ def build_firmware(*targets: str, build_dir=None) -> dict:
         the default (everything the installed tools allow).
     build_dir : path-like, optional
         Output folder (default ``firmware/build``).
+    baud : int, optional
+        UART speed of the sketch (``-DJL_BAUD``): 115200 (default), 500000 or 1000000 (both
+        exact on a 16 MHz Uno with U2X). Use a separate ``build_dir`` for another speed.
+    probe_part : int, optional
+        A cycle-profiling build (``-DJL_PROBE_PART``): the PB5 probe is high around that part of
+        a tick instead of the whole control step (firmware/README.md "Cycle budget").
 
     Returns
     -------
@@ -81,8 +87,18 @@ def build_firmware(*targets: str, build_dir=None) -> dict:
     for t in targets:
         if not isinstance(t, str) or not t.replace("_", "").isalnum():
             raise ValueError(f"targets must be make target names, got {t!r}")
+    defs = []
+    if baud is not None:
+        if baud not in (115200, 500000, 1000000):
+            raise ValueError(f"baud must be 115200, 500000 or 1000000, got {baud!r}")
+        defs.append(f"-DJL_BAUD={int(baud)}UL")
+    if probe_part is not None:
+        if isinstance(probe_part, bool) or not isinstance(probe_part, int) or not 1 <= probe_part <= 9:
+            raise ValueError(f"probe_part must be an integer in 1..9, got {probe_part!r}")
+        defs.append(f"-DJL_PROBE_PART={probe_part}")
+    extra = [f"EXTRA_DEFS={' '.join(defs)}"] if defs else []
     with _build_lock(build):
-        proc = subprocess.run(["make", "-s", "-C", str(fw), f"BUILD={build}", *targets],
+        proc = subprocess.run(["make", "-s", "-C", str(fw), f"BUILD={build}", *extra, *targets],
                               capture_output=True, text=True)
     if proc.returncode != 0:
         raise FirmwareBuildError(f"make -C {fw} {' '.join(targets)} failed:\n{proc.stdout}\n{proc.stderr}")
