@@ -43,7 +43,9 @@ __all__ = [
     "crc16_ccitt_false", "encode_frame", "encode", "parse", "Frame", "Decoder", "DecoderStats",
     "ProtocolError", "MESSAGES", "payload_field_name",
     "Hello", "SetPlant", "SetGains", "SetLimits", "Plan", "Run", "Stop", "Step", "Heartbeat",
-    "Retarget", "Ack", "Nack", "HelloReply", "PlanInfo", "Telemetry", "EndOfRun", "DeviceError",
+    "Sequence", "SetShaper", "PRBS_TAPS", "SHAPER_MAX_TAPS", "SHAPER_MAX_DELAY", "SHAPER_SUM_TOL",
+    "prbs_bits", "sequence_voltages", "Retarget",
+    "Ack", "Nack", "HelloReply", "PlanInfo", "Telemetry", "EndOfRun", "DeviceError",
 ]
 
 PROTOCOL_VERSION = 3
@@ -111,6 +113,8 @@ class MsgType(enum.IntEnum):
     STOP = 0x07
     STEP = 0x08
     HEARTBEAT = 0x09
+    SEQUENCE = 0x0A
+    SET_SHAPER = 0x0B
     RETARGET = 0x0C
     ACK = 0x80
     NACK = 0x81
@@ -176,6 +180,8 @@ class Capability(enum.IntFlag):
     OPEN_LOOP_STEP = 1 << 6
     FEEDFORWARD = 1 << 7
     SIMULATED_PLANT = 1 << 8   #: the motor is a model (virtual rig, simavr harness)
+    SEQUENCE = 1 << 12         #: open-loop PRBS excitation (SEQUENCE, version 3)
+    SHAPER = 1 << 13           #: FIR input shaper on the run reference (SET_SHAPER, version 3)
     RETARGET = 1 << 9          #: RETARGET during a run (protocol version 3)
 
 
@@ -402,6 +408,129 @@ class Heartbeat(_Message):
     FORMAT: ClassVar[str] = "<"
 
 
+#: maximal-length Galois LFSR masks by order (right-shifting: ``b = s & 1; s >>= 1; if b: s ^= mask``);
+#: each gives the period 2**order - 1 (checked in tests/test_protocol.py)
+PRBS_TAPS = {2: 0x3, 3: 0x6, 4: 0xC, 5: 0x14, 6: 0x30, 7: 0x60, 8: 0xB8, 9: 0x110, 10: 0x240,
+             11: 0x500, 12: 0x829, 13: 0x100D, 14: 0x2015, 15: 0x6000, 16: 0xD008}
+
+
+def prbs_bits(order: int, seed: int, n: int) -> list[int]:
+    """The first ``n`` bits of the maximal-length PRBS of ``order`` from ``seed`` (SEQUENCE).
+
+    A right-shifting Galois LFSR with the mask :data:`PRBS_TAPS` ``[order]``: each bit is the
+    state's lowest bit before the shift, ``b = s & 1; s >>= 1; if b: s ^= mask`` — exactly
+    the firmware's loop. The period is ``2**order - 1`` bits, of which ``2**(order-1)`` are 1.
+    """
+    for name, v in (("order", order), ("seed", seed), ("n", n)):
+        if isinstance(v, bool) or not isinstance(v, numbers.Integral):
+            raise TypeError(f"{name} must be an integer, got {type(v).__name__}")
+    if order not in PRBS_TAPS:
+        raise ValueError(f"order must be in 2..16, got {order!r}")
+    state = int(seed) & ((1 << order) - 1)
+    if state == 0 or not 0 < seed <= 0xFFFF:
+        raise ValueError(f"seed must be in 1..65535 with a nonzero low {order} bits, got {seed!r}")
+    if n < 0:
+        raise ValueError(f"n must be >= 0, got {n!r}")
+    mask = PRBS_TAPS[order]
+    out = []
+    for _ in range(int(n)):
+        b = state & 1
+        out.append(b)
+        state >>= 1
+        if b:
+            state ^= mask
+    return out
+
+
+def sequence_voltages(msg: "Sequence") -> list[float]:
+    """The commanded voltage of each of the ``n_samples`` samples of a :class:`Sequence`:
+    ``offset + amplitude`` for a 1 bit, ``offset - amplitude`` for a 0, each bit held
+    ``hold`` samples (float32 arithmetic, as on the device)."""
+    hi = _f32(_f32(msg.offset) + _f32(msg.amplitude))
+    lo = _f32(_f32(msg.offset) - _f32(msg.amplitude))
+    nbits = -(-int(msg.n_samples) // int(msg.hold))
+    bits = prbs_bits(int(msg.order), int(msg.seed), nbits)
+    return [hi if bits[k // msg.hold] else lo for k in range(int(msg.n_samples))]
+
+
+def _f32(x: float) -> float:
+    return struct.unpack("<f", struct.pack("<f", float(x)))[0]
+
+
+@dataclass(frozen=True)
+class Sequence(_Message):
+    """Open-loop excitation for identification (version 3): a maximal-length PRBS.
+
+    ``n_samples`` periods of ``Ts_us`` µs; the voltage is ``offset ± amplitude`` (V), the sign
+    the bits of :func:`prbs_bits` ``(order, seed)``, each bit held ``hold`` samples. As for
+    STEP the encoder is zeroed at sample 0 and every sample is sent as TELEMETRY, its
+    ``reference`` field the commanded voltage (V) and ``pwm`` the applied one, so the host
+    records the input exactly.
+    """
+
+    TYPE: ClassVar[MsgType] = MsgType.SEQUENCE
+    FORMAT: ClassVar[str] = "<ffHHHBB"
+    amplitude: float
+    offset: float
+    Ts_us: int
+    n_samples: int
+    seed: int = 1
+    order: int = 8
+    hold: int = 1
+
+
+#: SET_SHAPER: at most this many taps, delays at most this many samples (the device's ring buffer
+#: holds the last SHAPER_MAX_DELAY + 1 reference samples: 32 in the default firmware, whose RAM the
+#: planners and re-targeting nearly fill; 155 ms at Ts = 5 ms), taps summing to 1 within SHAPER_SUM_TOL
+SHAPER_MAX_TAPS = 10
+SHAPER_MAX_DELAY = 31
+SHAPER_SUM_TOL = 1e-3
+
+
+@dataclass(frozen=True)
+class SetShaper(_Message):
+    """An input shaper on the run reference (version 3): a sparse FIR on the Ts grid.
+
+    The device's reference at sample k becomes ``sum_i amplitudes[i] * r(k - delays[i])``
+    (``r`` the planned position, ``r(j < 0) = 0``: the start), its velocity and acceleration
+    references the backward differences of that shaped position; ``n_taps = 0`` switches the
+    shaper off. Up to :data:`SHAPER_MAX_TAPS` taps, delays (samples) up to
+    :data:`SHAPER_MAX_DELAY`; the amplitudes must sum to 1 (within :data:`SHAPER_SUM_TOL`), so
+    the move still ends at its distance. The payload is fixed, 51 bytes:
+    ``u8 n_taps, f32 amplitudes[10], u8 delays[10]``; the taps past ``n_taps`` are 0.
+    ``amplitudes`` and ``delays`` may be given shorter (padded with zeros).
+    """
+
+    TYPE: ClassVar[MsgType] = MsgType.SET_SHAPER
+    FORMAT: ClassVar[str] = "<B10f10B"
+    n_taps: int
+    amplitudes: tuple = ()
+    delays: tuple = ()
+
+    def __post_init__(self):
+        for name in ("amplitudes", "delays"):
+            v = getattr(self, name)
+            try:
+                v = tuple(v)
+            except TypeError:
+                raise ProtocolError(f"SetShaper: {name} must be a sequence, got {type(v).__name__}") from None
+            if len(v) > SHAPER_MAX_TAPS:
+                raise ProtocolError(f"SetShaper: {name} has {len(v)} entries, at most {SHAPER_MAX_TAPS}")
+            object.__setattr__(self, name, v + (0,) * (SHAPER_MAX_TAPS - len(v)))
+
+    def pack(self) -> bytes:
+        n = _wire_value("SetShaper", "n_taps", "B", self.n_taps)
+        a = [_wire_value("SetShaper", f"amplitudes[{i}]", "f", x) for i, x in enumerate(self.amplitudes)]
+        d = [_wire_value("SetShaper", f"delays[{i}]", "B", x) for i, x in enumerate(self.delays)]
+        return struct.pack(self.FORMAT, n, *a, *d)
+
+    @classmethod
+    def unpack(cls, payload: bytes):
+        size = struct.calcsize(cls.FORMAT)
+        if len(payload) != size:
+            raise ProtocolError(f"{cls.__name__} payload must be {size} bytes, got {len(payload)}")
+        v = struct.unpack(cls.FORMAT, payload)
+        return cls(v[0], tuple(v[1:11]), tuple(v[11:21]))
 @dataclass(frozen=True)
 class Retarget(_Message):
     """Change the target of the running move to ``distance`` rad from the run's start point.
@@ -515,7 +644,7 @@ class DeviceError(_Message):
 
 
 MESSAGES: dict[int, type] = {cls.TYPE: cls for cls in (
-    Hello, SetPlant, SetGains, SetLimits, Plan, Run, Stop, Step, Heartbeat, Retarget,
+    Hello, SetPlant, SetGains, SetLimits, Plan, Run, Stop, Step, Heartbeat, Sequence, SetShaper, Retarget,
     Ack, Nack, HelloReply, PlanInfo, Telemetry, EndOfRun, DeviceError)}
 
 

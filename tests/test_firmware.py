@@ -61,8 +61,12 @@ def test_sketch_builds_and_fits_the_uno_budget():
     # in RAM: the budget is 92 % of the flash (~2.5 KB of headroom) and 75 % of the RAM (>= 500
     # bytes stay for the stack, whose deepest path -- a command handler sending a reply -- needs
     # about 250).
-    assert 4000 < flash <= 0.92 * flash_total
-    assert 100 < ram <= 0.75 * ram_total
+    # Protocol 3's SEQUENCE and SET_SHAPER (its 32-sample reference ring) add ~2 KB of flash and
+    # ~200 B of RAM on top: the budget is now 99 % of the flash and 87 % of the RAM, which leaves
+    # ~290 B for the stack against the ~250 B its deepest path needs. The Uno is full: a further
+    # feature must take something out (build options JL_WITH_SHAPER, JL_WITH_SEQUENCE).
+    assert 4000 < flash <= 0.99 * flash_total
+    assert 100 < ram <= 0.87 * ram_total
     # The hex holds the same bytes as the ELF's flash image (record checksums verified).
     data = 0
     for line in out["hex"].read_text().split():
@@ -177,6 +181,7 @@ def _write_vectors(path, rng):
     msgs = [pr.Hello(2), pr.SetPlant(32.4, 0.025, 12.0, 448),
             pr.SetGains(1.0, 0.1, 2.0, 5000, 0, 1, 0.25), pr.SetLimits(2e4, 300, 100, 12, 1000, 0.5, 200, 500),
             pr.Plan(31.4159, 0), pr.Run(40, 1), pr.Stop(), pr.Step(6.0, 5000, 200), pr.Heartbeat(),
+            pr.Sequence(2.0, 0.5, 5000, 255, 1, 8, 1), pr.SetShaper(3, (0.25, 0.5, 0.25), (0, 9, 18)),
             pr.Ack(2), pr.Nack(3, 3, 1), pr.Nack(5, 8, 0),
             pr.HelloReply(2, 1, 0, 0, 0x1F1, 1000, 1023, "jerklab-uno"),
             pr.PlanInfo(0.1, 0.2, 0.4, 81), pr.Telemetry(12, 1.5, -300, -1023, 5),

@@ -372,6 +372,22 @@ def test_worksheet_wrong_answer_gets_its_hint(n, tmp_path):
     assert "✘ not yet" in verdict and hint in verdict, verdict
 
 
+def test_lab1_prbs_fit_without_offset_gets_its_hint(tmp_path):
+    """Lab 1's PRBS task answered with PEM *without* the offset: the friction-biased gain, named."""
+    nb = _read_master(1)
+    _set_student(nb, "wrongprbs")
+    old = 'fit_prbs = ident.fit_dc_motor(rp.control, rp.position, Ts, method="pem", offset=True)'
+    hits = [c for c in nb.cells if c.cell_type == "code" and old in c.source]
+    assert len(hits) == 1
+    hits[0].source = hits[0].source.replace(old, old.replace(", offset=True", ""))
+    last = next(i for i, c in enumerate(nb.cells) if c.cell_type == "code" and c.source.startswith('S.check("prbs_fit"'))
+    nb.cells = [c for i, c in enumerate(nb.cells[:last + 1])
+                if i <= 3 or c.cell_type != "code" or "S.check(" not in c.source or i == last]
+    _execute(nb, tmp_path)
+    verdict = "\n".join(_outputs(nb)[-3:])
+    assert "✘ not yet" in verdict and "PEM without the offset" in verdict, verdict
+
+
 # ------------------------------------------------------------------ student versions and grading
 def test_student_versions_are_generated_and_current(tmp_path):
     """`python -m jerklab.lab assign` (otter assign) gives the committed worksheets: no solution left."""
@@ -428,8 +444,8 @@ def test_grade_command_on_three_submissions(tmp_path):
     assert set(rows) == {"lab1_alice.zip", "bob_lab1.ipynb", "lab1_carol.zip", "dave_lab1.ipynb"}
     a, b = rows["lab1_alice.zip"], rows["bob_lab1.ipynb"]
     assert a["status"] == "graded" and b["status"] == "graded", (a, b)
-    assert float(a["total"]) == float(a["max"]) == 17.0
-    assert float(b["max"]) == 17.0 and float(b["total"]) == 15.0
+    assert float(a["total"]) == float(a["max"]) == 20.0          # 17 + the PRBS question's 3
+    assert float(b["max"]) == 20.0 and float(b["total"]) == 18.0
     assert float(b["pre_speed"]) == 0.0 and float(b["trust"]) == 0.0 and float(b["K"]) == 3.0
     assert a["student"] == "alice" and b["student"] == "bob"
     c, d = rows["lab1_carol.zip"], rows["dave_lab1.ipynb"]

@@ -51,6 +51,8 @@ EXAMPLES = [
     P.Stop(),
     P.Step(voltage=-6.0, Ts_us=5000, n_samples=200),
     P.Heartbeat(),
+    P.Sequence(amplitude=2.5, offset=-0.5, Ts_us=2000, n_samples=1023, seed=0x1234, order=10, hold=3),
+    P.SetShaper(n_taps=4, amplitudes=(0.125, 0.375, 0.375, 0.125), delays=(0, 7, 14, 21)),
     P.Retarget(25.0),
     P.Ack(command=P.MsgType.SET_GAINS),
     P.Nack(command=P.MsgType.SET_LIMITS, error=P.ErrorCode.BAD_VALUE, param=3),
@@ -89,8 +91,11 @@ def test_every_type_has_an_example_and_fits():
     assert {type(m) for m in EXAMPLES} == set(P.MESSAGES.values())
     for cls in P.MESSAGES.values():
         assert struct.calcsize(cls.FORMAT) <= P.MAX_PAYLOAD
-    # the Uno needs a receive buffer of one maximal frame of the types it can receive
-    assert max(struct.calcsize(c.FORMAT) for c in P.MESSAGES.values()) + P.MIN_FRAME <= 34
+    # the Uno's 64-byte UART receive buffer holds one maximal frame of the types it receives
+    # (SET_SHAPER, 58 bytes, the largest since version 3); the others stay within 33 bytes
+    assert max(struct.calcsize(c.FORMAT) for c in P.MESSAGES.values()) + P.MIN_FRAME <= 64
+    assert max(struct.calcsize(c.FORMAT) for c in P.MESSAGES.values()
+               if c is not P.SetShaper) + P.MIN_FRAME <= 34
 
 
 def test_protocol_version_is_stated_once():
@@ -110,7 +115,8 @@ def test_golden_frames_match_protocol_md():
     expected = [
         P.Hello(2), P.SetPlant(32.4, 0.025, 12.0, 448), P.SetGains(1.0, 0.1, 2.0, 5000, 0, 1, 0.0),
         P.SetLimits(2e4, 300, 100, 12, 1000, 0.5, 200, 500), P.Plan(31.4159, 0), P.Run(40, 1), P.Stop(),
-        P.Step(6.0, 5000, 200), P.Heartbeat(), P.Ack(2), P.Nack(3, 3, 1), P.Nack(5, 8, 0),
+        P.Step(6.0, 5000, 200), P.Heartbeat(), P.Sequence(2.0, 0.5, 5000, 255, 1, 8, 1),
+        P.SetShaper(3, (0.25, 0.5, 0.25), (0, 9, 18)), P.Ack(2), P.Nack(3, 3, 1), P.Nack(5, 8, 0),
         P.HelloReply(2, 0, 1, 0, 0x1F1, 1000, 1023, "jerklab-uno"), P.PlanInfo(0.1, 0.2, 0.4, 81),
         P.Telemetry(12, 1.5, -300, -1023, 1), P.EndOfRun(0, 81, 0, 0, 0.0),
         P.EndOfRun(4, 169, 0, 0, 0.52), P.DeviceError(3, 1), P.Retarget(25.0),
@@ -182,3 +188,100 @@ def test_float_nan_travels_but_is_visible():
     # the wire can carry NaN (the device then NACKs BAD_VALUE); the host never sends one
     m = P.parse(P.Decoder().feed(P.encode(P.Plan(math.nan, 0)))[0])
     assert math.isnan(m.distance)
+
+
+# ----------------------------------------------------------------------------- version 3
+
+def test_prbs_masks_are_maximal_length():
+    """Every order's LFSR visits all 2**n - 1 nonzero states (checked by brute force), and a
+    period holds 2**(n-1) ones and 2**(n-1) - 1 zeros (the balance of an m-sequence)."""
+    for order, mask in P.PRBS_TAPS.items():
+        state, seen = 1, set()
+        while state not in seen:
+            seen.add(state)
+            b = state & 1
+            state >>= 1
+            if b:
+                state ^= mask
+        assert len(seen) == 2 ** order - 1 and state == 1, order
+        bits = P.prbs_bits(order, 1, 2 ** order - 1)
+        assert sum(bits) == 2 ** (order - 1), order
+        assert P.prbs_bits(order, 1, 2 ** (order + 1) - 2)[2 ** order - 1:] == bits   # periodic
+
+
+def test_prbs_autocorrelation_is_two_valued():
+    """The ±1 m-sequence's periodic autocorrelation is N at lag 0 and -1 at every other lag
+    (independent of how the bits were produced: a property of maximal-length sequences)."""
+    import numpy as np
+
+    for order in (5, 8, 11):
+        n = 2 ** order - 1
+        x = 2 * np.array(P.prbs_bits(order, 7, n)) - 1
+        r = np.array([np.dot(x, np.roll(x, k)) for k in range(n)])
+        assert r[0] == n and np.all(r[1:] == -1)
+
+
+def test_prbs_bits_bad_input():
+    with pytest.raises(ValueError, match="order"):
+        P.prbs_bits(17, 1, 5)
+    with pytest.raises(ValueError, match="seed"):
+        P.prbs_bits(4, 0x10, 5)          # low 4 bits zero
+    with pytest.raises(TypeError, match="seed"):
+        P.prbs_bits(4, 1.5, 5)
+
+
+def test_sequence_voltages_hold_and_levels():
+    m = P.Sequence(2.0, 0.5, 5000, 10, seed=1, order=3, hold=3)
+    v = P.sequence_voltages(m)
+    bits = P.prbs_bits(3, 1, 4)
+    assert v == [2.5 if bits[k // 3] else -1.5 for k in range(10)]
+
+
+def test_set_shaper_pads_and_refuses_too_many_taps():
+    m = P.SetShaper(2, (0.5, 0.5), (0, 10))
+    assert m.amplitudes == (0.5, 0.5) + (0,) * 8 and len(m.delays) == 10
+    assert len(m.pack()) == 51
+    with pytest.raises(P.ProtocolError, match="amplitudes has 11 entries"):
+        P.SetShaper(11, (0.1,) * 11, (0,) * 11)
+    with pytest.raises(P.ProtocolError, match=r"delays\[1\]"):
+        P.SetShaper(2, (0.5, 0.5), (0, 300)).pack()
+    assert P.payload_field_name(P.MsgType.SET_SHAPER, 2) == "delays"
+    assert P.payload_field_name(P.MsgType.SEQUENCE, 5) == "order"
+
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+_f32s = st.floats(width=32, allow_nan=False)
+
+
+@settings(max_examples=300, deadline=None)
+@given(amp=_f32s, off=_f32s, ts=st.integers(0, 0xFFFF), n=st.integers(0, 0xFFFF),
+       seed=st.integers(0, 0xFFFF), order=st.integers(0, 255), hold=st.integers(0, 255),
+       seq=st.integers(0, 255))
+def test_sequence_encoding_property(amp, off, ts, n, seed, order, hold, seq):
+    """Any in-range Sequence survives encode -> decode exactly, in 16 payload bytes laid out
+    as PROTOCOL.md says (independent struct layout below)."""
+    m = P.Sequence(amp, off, ts, n, seed, order, hold)
+    wire = P.encode(m, seq)
+    assert len(wire) == 16 + P.MIN_FRAME
+    assert wire[5:-2] == struct.pack("<ffHHHBB", amp, off, ts, n, seed, order, hold)
+    (f,) = P.Decoder().feed(wire)
+    assert (f.type, f.seq) == (0x0A, seq) and P.parse(f) == m
+
+
+@settings(max_examples=300, deadline=None)
+@given(taps=st.lists(st.tuples(_f32s, st.integers(0, 255)), max_size=10),
+       n=st.integers(0, 255), seq=st.integers(0, 255))
+def test_set_shaper_encoding_property(taps, n, seq):
+    """Any SetShaper of at most 10 (amplitude, delay) pairs round-trips; the payload is
+    n, the 10 amplitudes then the 10 delays, zero-padded."""
+    amps = tuple(a for a, _ in taps)
+    dels = tuple(d for _, d in taps)
+    m = P.SetShaper(n, amps, dels)
+    payload = m.pack()
+    pad = 10 - len(taps)
+    assert payload == struct.pack("<B", n) + struct.pack("<10f", *(amps + (0.0,) * pad)) + bytes(dels + (0,) * pad)
+    (f,) = P.Decoder().feed(P.encode(m, seq))
+    back = P.parse(f)
+    assert back == m and back.n_taps == n and f.seq == seq

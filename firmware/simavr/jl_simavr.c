@@ -23,6 +23,14 @@
  * |v| <= fc) every --step-us of simulated time; the encoder edges inside a step are placed at
  * their interpolated times (cycle timers), so no edge is bunched up even at top speed.
  *
+ * Flexible load (--load-ratio R > 0; jerklab.plant.FlexibleDCMotor, the encoder on the motor):
+ * the motor drives a load through a compliant shaft, in units where the motor's damping is 1
+ * (J_m + J_l = tau, J_l / J_m = R, k = w_r^2 J_l, c = 2 zeta_r w_r J_l):
+ *   J_m theta_m'' = K v - theta_m' - k (theta_m - theta_l) - c (theta_m' - theta_l')
+ *   J_l theta_l'' =                   k (theta_m - theta_l) + c (theta_m' - theta_l')
+ * integrated by classical Runge-Kutta (4th order) over each --step-us (no Coulomb friction,
+ * as in the Python model: --friction must then be 0).
+ *
  * Options:
  *   --K 32.4 --tau 0.025 --supply 12 --friction 0 (Coulomb, volts) --load 0 (volts)
  *   --ppr 448 (pulses per revolution of one channel) --step-us 20
@@ -33,6 +41,10 @@
  *                     the port causes on an Uno; --no-app instead of the ELF: empty application)
  *   --counts-addr ADDR (data address of the firmware's encoder count, from avr-nm: reported
  *                       as "firmware_counts" so a test can compare it with the ideal count)
+ *   --load-ratio R --mode-hz F --mode-zeta Z (the flexible load: J_l/J_m, the shaft's mode with
+ *                       the motor held still in Hz, its damping ratio; default R = 0: rigid)
+ *   --trace FILE (every 1 ms of simulated time a line "t theta_m theta_l volts": the load's
+ *                 motion, which no encoder sees; theta_l = theta_m for a rigid motor)
  *
  * SIGTERM/SIGINT: write the stats and exit.
  * JL_TRACE_COUNTS=1 in the environment: trace encoder disagreements, late or missed INT0.
@@ -85,7 +97,9 @@ static struct {
     long counts_addr;                 /* data address of the firmware's int32 encoder count */
     const char *bootloader;           /* Intel hex loaded at its address and started first */
     int no_app;                       /* --no-app: empty application flash (bootloader only) */
-} opt = {32.4, 0.025, 12.0, 0.0, 0.0, 448, 20, 0, 0.0, NULL, NULL, -1, NULL, 0};
+    double load_ratio, mode_hz, mode_zeta;   /* flexible load (load_ratio 0: rigid) */
+    const char *trace_path;
+} opt = {32.4, 0.025, 12.0, 0.0, 0.0, 448, 20, 0, 0.0, NULL, NULL, -1, NULL, 0, 0.0, 8.0, 0.02, NULL};
 static avr_flashaddr_t boot_start;    /* byte address of the bootloader (0: none) */
 static uint64_t board_resets;         /* resets into the bootloader (watchdog) after the start */
 
@@ -106,8 +120,11 @@ static size_t rxq_head, rxq_tail;
 static uint64_t uart_tx_bytes, uart_rx_bytes, uart_tx_dropped;
 static avr_irq_t *irq_a, *irq_b;
 
-/* motor */
+/* motor (and the flexible load's angle and velocity) */
 static double theta, omega, volts;
+static double theta_l, omega_l;
+static FILE *trace_file;
+static double trace_next;             /* simulated time of the next trace line */
 static double quads_per_rad;          /* 4 ppr / 2 pi */
 static avr_cycle_count_t step_cycles;
 
@@ -158,8 +175,35 @@ static void lin(double *th, double *om, double winf, double t) {
 
 static double sgn(double x) { return (x > 0) - (x < 0); }
 
+/* The two-mass load (see the header): x = theta_m, omega_m, theta_l, omega_l -> dx/dt. */
+static void flex_deriv(const double *x, double v, double *dx) {
+    double Jm = opt.tau / (1.0 + opt.load_ratio), Jl = opt.tau - Jm;
+    double wr = 2.0 * M_PI * opt.mode_hz;
+    double k = wr * wr * Jl, c = 2.0 * opt.mode_zeta * wr * Jl;
+    double shaft = k * (x[0] - x[2]) + c * (x[1] - x[3]);
+    dx[0] = x[1];
+    dx[1] = (opt.K * v - x[1] - shaft) / Jm;
+    dx[2] = x[3];
+    dx[3] = shaft / Jl;
+}
+
+/* One classical Runge-Kutta step of the flexible load under the held voltage v. */
+static void advance_flex(double v, double dt) {
+    double x[4] = {theta, omega, theta_l, omega_l}, k1[4], k2[4], k3[4], k4[4], t[4];
+    flex_deriv(x, v, k1);
+    for (int i = 0; i < 4; ++i) t[i] = x[i] + 0.5 * dt * k1[i];
+    flex_deriv(t, v, k2);
+    for (int i = 0; i < 4; ++i) t[i] = x[i] + 0.5 * dt * k2[i];
+    flex_deriv(t, v, k3);
+    for (int i = 0; i < 4; ++i) t[i] = x[i] + dt * k3[i];
+    flex_deriv(t, v, k4);
+    for (int i = 0; i < 4; ++i) x[i] += dt / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
+    theta = x[0]; omega = x[1]; theta_l = x[2]; omega_l = x[3];
+}
+
 /* Exact motion over dt under the held net voltage v with Coulomb friction fc (jerklab.plant). */
 static void advance(double v, double dt) {
+    if (opt.load_ratio > 0.0) { advance_flex(v, dt); return; }
     double fc = opt.friction;
     if (omega == 0.0 && fabs(v) <= fc) return;                       /* stuck */
     double s = omega != 0.0 ? sgn(omega) : sgn(v);
@@ -175,6 +219,8 @@ static void advance(double v, double dt) {
         }
     }
     lin(&theta, &omega, winf, dt);
+    theta_l = theta;
+    omega_l = omega;
 }
 
 static void set_pins(int64_t q) {
@@ -440,6 +486,10 @@ static avr_cycle_count_t motor_cb(avr_t *a, avr_cycle_count_t when, void *param)
     volts = bridge_volts();
     double th0 = theta;
     advance(volts + opt.load, (double)step_cycles / a->frequency);
+    if (trace_file && sim_seconds() >= trace_next) {
+        fprintf(trace_file, "%.6f %.9g %.9g %.6g\n", sim_seconds(), theta, theta_l, volts);
+        trace_next += 1e-3;
+    }
     /* encoder edges between th0 and theta at their interpolated cycles */
     int64_t q_new = (int64_t)floor(theta * quads_per_rad) + 1;
     int64_t q_last = q_tail != q_head ? queue[(q_tail - 1) % QLEN].q : q_now;
@@ -530,7 +580,7 @@ static void write_stats(void) {
     fprintf(f, "{\"seq\": %u, \"sim_seconds\": %.6f, \"wall_seconds\": %.3f, \"realtime_factor\": %.3f, "
                "\"lag_forgiven_seconds\": %.3f, \"missed_interrupts\": %llu, \"firmware_resets\": %llu, "
                "\"board_resets\": %llu, "
-               "\"cycles\": %llu, \"theta\": %.9g, \"omega\": %.9g, \"volts\": %.6g, "
+               "\"cycles\": %llu, \"theta\": %.9g, \"omega\": %.9g, \"theta_load\": %.9g, \"volts\": %.6g, "
                "\"ideal_counts_x1\": %lld, \"ideal_counts_x4\": %lld, \"edges\": %llu, "
                "\"edge_queue_overflow\": %llu, \"pty\": \"%s\", \"uart_tx_bytes\": %llu, "
                "\"uart_rx_bytes\": %llu, \"uart_tx_dropped\": %llu, \"uart_ready_seconds\": %.6f, "
@@ -538,7 +588,7 @@ static void write_stats(void) {
             ++stats_seq, sim, wall, wall > 0 ? sim / wall : 0.0, wall_offset,
             (unsigned long long)missed_interrupts, (unsigned long long)resets,
             (unsigned long long)board_resets, (unsigned long long)avr->cycle,
-            theta, omega, volts, (long long)ideal_x1, (long long)ideal_x4,
+            theta, omega, theta_l, volts, (long long)ideal_x1, (long long)ideal_x4,
             (unsigned long long)edges, (unsigned long long)queue_overflow, pty_name,
             (unsigned long long)uart_tx_bytes, (unsigned long long)uart_rx_bytes,
             (unsigned long long)uart_tx_dropped,
@@ -556,8 +606,11 @@ static void write_stats(void) {
     fprintf(f, ", ");
     write_budget(f, "control_step_cycles_all", &b_all);
     fprintf(f, ", \"params\": {\"K\": %g, \"tau\": %g, \"supply\": %g, \"friction\": %g, \"load\": %g, "
-               "\"ppr\": %d, \"step_us\": %d, \"fast\": %d}}\n",
-            opt.K, opt.tau, opt.supply, opt.friction, opt.load, opt.ppr, opt.step_us, opt.fast);
+               "\"ppr\": %d, \"step_us\": %d, \"fast\": %d, \"load_ratio\": %g, \"mode_hz\": %g, "
+               "\"mode_zeta\": %g}}\n",
+            opt.K, opt.tau, opt.supply, opt.friction, opt.load, opt.ppr, opt.step_us, opt.fast,
+            opt.load_ratio, opt.mode_hz, opt.mode_zeta);
+    if (trace_file) fflush(trace_file);
     fclose(f);
     rename(tmp, opt.stats_path);
 }
@@ -570,7 +623,8 @@ static void on_signal(int sig) {
 static void usage(void) {
     fprintf(stderr, "usage: jl_simavr [--K v] [--tau v] [--supply v] [--friction v] [--load v] [--ppr n] "
                     "[--step-us n] [--fast] [--stats FILE] [--max-seconds s] [--counts-addr a] "
-                    "[--bootloader optiboot.hex] firmware.elf | --no-app\n");
+                    "[--bootloader optiboot.hex] [--load-ratio r --mode-hz f --mode-zeta z] [--trace FILE] "
+                    "firmware.elf | --no-app\n");
     _exit(2);
 }
 
@@ -604,6 +658,10 @@ int main(int argc, char **argv) {
             else if (!strcmp(a, "--max-seconds")) opt.max_seconds = num("max-seconds", v, 0, 1e9);
             else if (!strcmp(a, "--counts-addr")) opt.counts_addr = strtol(v, NULL, 0);
             else if (!strcmp(a, "--bootloader")) opt.bootloader = v;
+            else if (!strcmp(a, "--load-ratio")) opt.load_ratio = num("load-ratio", v, 0, 1e3);
+            else if (!strcmp(a, "--mode-hz")) opt.mode_hz = num("mode-hz", v, 1e-3, 1e4);
+            else if (!strcmp(a, "--mode-zeta")) opt.mode_zeta = num("mode-zeta", v, 0, 10);
+            else if (!strcmp(a, "--trace")) opt.trace_path = v;
             else usage();
             ++i;
             continue;
@@ -611,6 +669,14 @@ int main(int argc, char **argv) {
         opt.elf = a;
     }
     if (!opt.elf && !(opt.no_app && opt.bootloader)) usage();
+    if (opt.load_ratio > 0.0 && opt.friction != 0.0) {
+        fprintf(stderr, "jl_simavr: the flexible load (--load-ratio) has no Coulomb friction: --friction must be 0\n");
+        _exit(2);
+    }
+    if (opt.trace_path && !(trace_file = fopen(opt.trace_path, "w"))) {
+        fprintf(stderr, "jl_simavr: cannot write the trace %s: %s\n", opt.trace_path, strerror(errno));
+        _exit(2);
+    }
     /* Handlers first: a stats request (SIGUSR1) may come as soon as the pty is printed. */
     struct sigaction sa;
     memset(&sa, 0, sizeof sa);
@@ -648,7 +714,7 @@ int main(int argc, char **argv) {
     irq_a = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), 2);
     irq_b = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), 3);
     quads_per_rad = 4.0 * opt.ppr / (2.0 * M_PI);
-    theta = omega = 0.0;
+    theta = omega = theta_l = omega_l = 0.0;
     q_now = 1;                                   /* A high, B low at theta = 0 */
     avr_ioport_external_t ext = {0};
     ext.name = 'D';

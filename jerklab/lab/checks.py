@@ -16,11 +16,15 @@ import numpy as np
 from jerklab.lab.session import MOVE, SPEC, CheckResult, _Missing
 
 __all__ = ["run_check", "CHECKS", "steady_speed", "sweep_fit", "move_metrics", "SWEEP_VOLTS",
-           "STEP_SECONDS", "DESIGN_TS"]
+           "STEP_SECONDS", "DESIGN_TS", "PRBS"]
 
 #: Voltages of lab 1's sweep of steps (each from rest) and their length (s).
 SWEEP_VOLTS = (-9.0, -6.0, -3.0, 3.0, 6.0, 9.0)
 STEP_SECONDS = 0.4
+#: Lab 1's PRBS record (``rig.record_prbs(**PRBS)``): 6 ± 2 V, so the motor never stops or turns
+#: back (friction then acts as a constant input bias, which PEM's offset absorbs), a maximal-length
+#: sequence of order 7 with each bit held 2 samples: 254 samples, 1.27 s at Ts = 5 ms.
+PRBS = {"amplitude": 2.0, "offset": 6.0, "order": 7, "hold": 2}
 #: Control period of labs 2-3 (s)
 DESIGN_TS = 0.005
 
@@ -282,6 +286,49 @@ def _white(s, ans):
         return CheckResult("white", True, f"{why}.")
     return CheckResult("white", False, "read `analysis.white` of the validation (Ljung-Box test over 25 lags), "
                        "not the autocorrelation at lag 0 (always 1).")
+
+
+@_check("prbs_fit")
+def _prbs_fit(s, ans):
+    from jerklab import ident
+
+    K_a, tau_a = (_num(f"prbs_fit[{i}]", a) for i, a in enumerate(ans))
+    r = _rec(s, "prbs")
+    u, y, Ts = r.control, r.position, r.metadata["Ts"]
+    truth = s._truth()
+    if truth is not None:
+        K, tau, src = truth["K"], truth["tau"], "your motor"
+    else:
+        f = ident.fit_dc_motor(u, y, Ts, "pem", offset=True)
+        K, tau, src = f.K, f.tau, "the checker's PEM fit (with offset) of your PRBS record (real rig)"
+    if _rel(K_a, K) <= 0.04 and _rel(tau_a, tau) <= 0.08:
+        return CheckResult("prbs_fit", True, f"K within {100 * _rel(K_a, K):.1f} % and τ within "
+                           f"{100 * _rel(tau_a, tau):.1f} % of {src}. The PRBS keeps the motor turning one "
+                           "way, so friction acts as a constant input bias: PEM's offset absorbs it "
+                           "(offset − f_c), and K comes out unbiased from one record, where a single step "
+                           "could not tell K from friction.")
+    if _rel(tau_a, tau * 1000) < 0.15:
+        return CheckResult("prbs_fit", False, "τ is about 1000× too large: seconds, not milliseconds.")
+    for factor, hint in ((2 * math.pi, "K is 2π too large: radians were converted twice?"),
+                         (1 / (2 * math.pi), "K is in revolutions: K is in rad/(V·s).")):
+        if _rel(K_a, K * factor) < 0.06:
+            return CheckResult("prbs_fit", False, hint)
+    for method, kw, hint in (
+            ("pem", {}, "that is PEM without the offset: the PRBS runs at 6 ± 2 V, so friction takes a "
+                        "constant share of the input and shows up as a lower gain. Fit with offset=True."),
+            ("arx", {}, "that is the ARX estimate: its regressor holds the differenced, quantized angle "
+                        "(errors in the variables), and it has no offset term for the friction. Report PEM "
+                        "with offset=True.")):
+        try:
+            f = ident.fit_dc_motor(u, y, Ts, method, **kw)
+        except ValueError:
+            continue
+        if _rel(K_a, f.K) < 0.01 and _rel(tau_a, f.tau) < 0.03 and (_rel(f.K, K) > 0.02 or _rel(f.tau, tau) > 0.04):
+            return CheckResult("prbs_fit", False, f"K is {_pct(K_a, K):+.0f} % and τ {_pct(tau_a, tau):+.0f} % "
+                               f"off — {hint}")
+    return CheckResult("prbs_fit", False, f"K is {_pct(K_a, K):+.0f} % and τ {_pct(tau_a, tau):+.0f} % off: fit "
+                       "the PRBS record with u = rp.control (the applied volts) and y = rp.position, by PEM "
+                       "with offset=True.")
 
 
 @_check("trust")
@@ -644,3 +691,7 @@ def _pem_friction(s, ans):
                        "voltages and both directions, the output-error fit separates the gain, the friction "
                        "(which flips with the direction) and the offset (which does not), and it agrees "
                        "with the sweep — two methods, one motor.")
+
+
+# ------------------------------------------------------------------ lab 4: stop the ringing
+from jerklab.lab import ringing as _ringing  # noqa: E402,F401  (registers lab 4's checks)

@@ -27,10 +27,10 @@ from pathlib import Path
 import numpy as np
 
 from jerklab import paper
-from jerklab.plant import DCMotor
+from jerklab.plant import DCMotor, FlexibleDCMotor
 from jerklab.rig.virtual import VirtualDevice
 
-__all__ = ["CLASSROOM_DEFAULT_KEY", "RANGES", "StudentMotor", "StudentDevice", "student_motor",
+__all__ = ["CLASSROOM_DEFAULT_KEY", "RANGES", "MODE_RANGES", "StudentMotor", "StudentFlexibleMotor", "StudentDevice", "student_motor",
            "instructor_key", "normalize_student", "connect_student", "DefaultKeyWarning"]
 
 #: Used when no instructor key is set. Public (it is in the source): fine for practice, not for marks.
@@ -46,6 +46,17 @@ RANGES = {
     "encoder_ppr": (448, 896),         # counts per output revolution (x1 decoding)
 }
 SUPPLY_VOLTAGE = paper.SUPPLY_VOLTAGE
+
+#: The hidden load mode of ``connect(student=..., plant="flexible")`` (issue "vibration"): the
+#: shaft's own mode (motor held still) uniform in log frequency, its damping uniform, drawn
+#: with a separate HMAC purpose so the rigid motor of a student does not change. The load is
+#: 0.3 of the motor's inertia, so the mode shows on the motor's encoder; the coupled mode the
+#: encoder sees (``_truth``: ``mode_hz``, ``mode_zeta``) is then a little stiffer and better damped.
+MODE_RANGES = {
+    "mode_hz": (7.0, 15.0),            # Hz, the shaft mode with the motor held still
+    "mode_damping": (0.01, 0.04),      # damping ratio of the shaft
+    "load_ratio": (0.3, 0.3),          # J_load / J_motor
+}
 
 _ID_RE = re.compile(r"^[A-Za-z0-9._@+-]{1,64}$")
 
@@ -140,7 +151,7 @@ class StudentMotor(DCMotor):
     __str__ = __repr__
 
 
-def student_motor(student, key: bytes | None = None) -> StudentMotor:
+def student_motor(student, key: bytes | None = None, plant: str = "rigid") -> StudentMotor:
     """The hidden motor of ``student`` (same ID and key -> same motor).
 
     Parameters
@@ -149,18 +160,70 @@ def student_motor(student, key: bytes | None = None) -> StudentMotor:
         Student ID (case and surrounding spaces ignored).
     key : bytes, optional
         Instructor key; default :func:`instructor_key` (environment or key file).
+    plant : "rigid" or "flexible"
+        ``"flexible"``: the same K, τ and encoder driving a load with a hidden mode
+        (:class:`StudentFlexibleMotor`, seeded by the same key and ID).
     """
     sid = normalize_student(student)
+    if plant not in ("rigid", "flexible", None):
+        raise ValueError(f"plant must be 'rigid' or 'flexible', got {plant!r}")
     if key is None:
         key, _ = instructor_key()
     seed = _seed(sid, bytes(key))
+    if plant == "flexible":
+        return StudentFlexibleMotor(sid, _draw(seed), seed, _draw_mode(_seed(sid, bytes(key), "mode-v1")))
     return StudentMotor(sid, _draw(seed), seed)
 
 
 def _truth(motor: StudentMotor) -> dict:
     """The true values, for the checks only (never print them)."""
-    return {"K": motor.K, "tau": motor.tau, "coulomb_friction": motor.coulomb_friction,
-            "offset": motor.offset, "counts_per_rev": motor.encoder_ppr * motor.decoding}
+    truth = {"K": motor.K, "tau": motor.tau, "coulomb_friction": motor.coulomb_friction,
+             "offset": getattr(motor, "offset", 0.0), "counts_per_rev": motor.encoder_ppr * motor.decoding}
+    if isinstance(motor, FlexibleDCMotor):
+        truth["mode_hz"], truth["mode_zeta"] = coupled_mode(motor)
+    return truth
+
+
+def _draw_mode(seed: int) -> tuple[float, float, float]:
+    rng = np.random.default_rng(seed)
+    lo, hi = MODE_RANGES["mode_hz"]
+    f = float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
+    z = float(rng.uniform(*MODE_RANGES["mode_damping"]))
+    lr = float(rng.uniform(*MODE_RANGES["load_ratio"]))
+    return f, z, lr
+
+
+class StudentFlexibleMotor(FlexibleDCMotor):
+    """A student's hidden motor (K, τ, encoder of :class:`StudentMotor`) driving a load through
+    a compliant shaft with a hidden mode (:data:`MODE_RANGES`). The two-mass model has no
+    Coulomb friction or offset (``jerklab.plant.FlexibleDCMotor``); the rig adds the encoder
+    count noise. ``repr`` never shows a value. Make one with :func:`student_motor` ``(...,
+    plant="flexible")``."""
+
+    def __init__(self, student, params: _Parameters, seed: int, mode: tuple[float, float, float]):
+        f, z, lr = mode
+        super().__init__(K=params.K, tau=params.tau, load_ratio=lr, mode_frequency=2.0 * math.pi * f,
+                         mode_damping=z, supply_voltage=SUPPLY_VOLTAGE, pwm_bits=10,
+                         encoder_ppr=params.encoder_ppr, decoding=1, seed=seed % 2**32)
+        self.student = student
+        self.noise_counts = params.noise_counts
+
+    def __repr__(self):
+        return f"StudentFlexibleMotor(student={self.student!r}, parameters hidden)"
+
+    __str__ = __repr__
+
+
+def coupled_mode(motor) -> tuple[float, float]:
+    """The lightly damped mode the motor's encoder sees: (frequency Hz, damping ratio) of the
+    complex pole pair of a :class:`jerklab.plant.FlexibleDCMotor`'s state matrix."""
+    A, _ = motor._matrices()
+    ev = np.linalg.eigvals(A)
+    ev = ev[np.abs(ev.imag) > 0]
+    if ev.size == 0:
+        raise ValueError("the motor has no oscillatory mode")
+    p = ev[np.argmax(ev.imag)]
+    return float(abs(p) / (2.0 * math.pi)), float(-p.real / abs(p))
 
 
 class StudentDevice(VirtualDevice):
@@ -191,7 +254,8 @@ def connect_student(student, port=None, *, key=None, **options):
     from jerklab.rig.virtual import VirtualSerial
 
     sid = normalize_student(student)
-    motor = student_motor(sid, key)
+    plant = options.pop("plant", None) or "rigid"
+    motor = student_motor(sid, key, plant=plant)
     if port in (None, "virtual", ""):
         speed = options.pop("speed", None)
         link = VirtualSerial(StudentDevice(motor), speed=speed, timeout=0.05)
@@ -204,6 +268,15 @@ def connect_student(student, port=None, *, key=None, **options):
             rig.close()
             raise TypeError(f"unexpected options for the virtual rig: {sorted(options)}")
         hidden = motor
+    elif port == "simavr" and plant == "flexible":
+        # the simulated Uno's two-mass load: the student's K, tau and mode, a 448-count encoder
+        sim_motor = FlexibleDCMotor(K=motor.K, tau=motor.tau, load_ratio=motor.load_ratio,
+                                    mode_frequency=motor.mode_frequency, mode_damping=motor.mode_damping,
+                                    supply_voltage=SUPPLY_VOLTAGE, encoder_ppr=paper.ENCODER_PPR)
+        rig = connect("simavr", motor=sim_motor, **options)
+        hidden = StudentFlexibleMotor(sid, _Parameters(motor.K, motor.tau, 0.0, 0.0, 0.0, paper.ENCODER_PPR),
+                                      motor.seed, (motor.mode_frequency / (2.0 * math.pi), motor.mode_damping,
+                                                   motor.load_ratio))
     elif port == "simavr":
         # the simulated Uno's plant: K, tau, friction and a 448-count encoder (the harness
         # decodes x1 at 448); no offset or count noise there

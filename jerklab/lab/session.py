@@ -15,7 +15,10 @@ from jerklab.lab.motors import _truth, normalize_student
 __all__ = ["LabSession", "start", "panel_gains", "CheckResult", "LABS", "SPEC", "MOVE"]
 
 #: lab number -> short name (also the worksheet file stem: notebooks/labs/labN_<name>.ipynb)
-LABS = {1: "identify", 2: "poles", 3: "move"}
+LABS = {1: "identify", 2: "poles", 3: "move", 4: "ringing"}
+#: labs whose rig carries the flexible load (``connect(plant="flexible")``): the student's motor
+#: with a hidden load mode
+FLEXIBLE_LABS = (4,)
 
 #: The move of labs 2 and 3 (rad, rad/s^3, rad/s^2, rad/s): three revolutions and a bit.
 MOVE = {"distance": 20.0, "max_jerk": 2.0e4, "max_accel": 600.0, "max_velocity": 80.0}
@@ -83,6 +86,11 @@ class LabSession:
         opts = {"progress": progress, "recordings": self.folder}
         if speed is not None:
             opts["speed"] = speed
+        self.plant = "flexible" if lab in FLEXIBLE_LABS else "rigid"
+        if self.plant == "flexible" and self.port not in (None, "virtual", "", "simavr"):
+            print(f"⚠ lab {lab} needs the flexible load: on a real Uno, mount the load on its shaft coupling")
+        elif self.plant == "flexible":
+            opts["plant"] = "flexible"
         if key is not None:
             from jerklab.lab.motors import connect_student
             self.rig = connect_student(self.student, self.port, key=key, **opts)
@@ -115,6 +123,16 @@ class LabSession:
         rec = self.rig.step(voltage, seconds, Ts=Ts, path=self._path(name), **kwargs)
         self.recordings[name] = rec
         return rec
+
+    def record_prbs(self, amplitude, name="prbs", Ts=paper.TS, **kwargs):
+        """``rig.record_prbs(amplitude, Ts=Ts, **kwargs)`` (the on-board PRBS) saved as ``name``."""
+        rec = self.rig.record_prbs(amplitude, Ts=Ts, path=self._path(name), **kwargs)
+        self.recordings[name] = rec
+        return rec
+
+    def set_shaper(self, shaper, Ts=paper.TS):
+        """``rig.set_shaper(shaper, Ts)``: the input shaper of the following moves (None: off)."""
+        return self.rig.set_shaper(shaper, Ts)
 
     def run_move(self, profile, gains, Ts=None, name=None, **kwargs):
         """``rig.run_move(profile, gains, Ts)`` saved as ``name`` (default ``move_<kind>``).
@@ -216,7 +234,7 @@ def _jsonable(x):
 
 
 def start(lab, student, port=None, **options):
-    """Start lab ``lab`` (1, 2 or 3) for ``student`` on ``port`` (None: the virtual rig with
+    """Start lab ``lab`` (1 to 4; lab 4's rig has the flexible load) for ``student`` on ``port`` (None: the virtual rig with
     the student's hidden motor; ``"simavr"``; a serial port of a real Uno)."""
     s = LabSession(lab, student, port, **options)
     if s.port in (None, "virtual", ""):

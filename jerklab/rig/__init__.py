@@ -50,7 +50,7 @@ def list_ports(include_all=False) -> list:
     return _list(include_all=include_all)
 
 
-def connect(port=None, *, student=None, motor=None, speed=None, timeout=2.0, hello_timeout=None, progress=True,
+def connect(port=None, *, student=None, motor=None, plant=None, speed=None, timeout=2.0, hello_timeout=None, progress=True,
             recordings=None, supply_voltage=None, counts_per_rev=None, model=(paper.MOTOR_K, paper.MOTOR_TAU),
             baudrate=BAUDRATE, **link_options) -> Rig:
     """Connect to a rig and return a :class:`Rig`.
@@ -69,7 +69,13 @@ def connect(port=None, *, student=None, motor=None, speed=None, timeout=2.0, hel
         port the ID is only remembered (``rig.student``). Not together with ``motor``.
     motor : jerklab.plant.DCMotor, optional
         The simulated motor of the virtual rig or of ``"simavr"`` (default: the paper's,
-        K = 32.4 rad/(V s), tau = 25 ms); not allowed for a real port.
+        K = 32.4 rad/(V s), tau = 25 ms); not allowed for a real port. A
+        ``jerklab.plant.FlexibleDCMotor`` gives a flexible load.
+    plant : None, "rigid" or "flexible"
+        ``"flexible"``: the simulated motor drives its load through a compliant shaft
+        (``jerklab.plant.FlexibleDCMotor``, the encoder on the motor): the paper's motor with
+        an 8 Hz load mode, or with ``student`` that student's motor with a hidden mode
+        (``jerklab.lab.motors``). Virtual rig and ``"simavr"`` only.
     speed : float or None
         Virtual rig only: ``None`` as fast as possible, else that many times real time.
     timeout : float
@@ -113,11 +119,19 @@ def connect(port=None, *, student=None, motor=None, speed=None, timeout=2.0, hel
         if value is not None and as_positive(name, value) < MIN_TIMEOUT:
             raise ValueError(f"{name} must be >= MIN_TIMEOUT = {MIN_TIMEOUT:g} s (one frame at {BAUDRATE} baud), "
                              f"got {value!r}")
+    if plant not in (None, "rigid", "flexible"):
+        raise ValueError(f"plant must be None, 'rigid' or 'flexible', got {plant!r}")
+    if plant == "flexible" and port not in _VIRTUAL_NAMES and port != "simavr":
+        raise ValueError("plant='flexible' applies to the virtual rig (port=None) and 'simavr' only")
+    if plant == "flexible" and motor is not None:
+        raise ValueError("give either plant='flexible' or motor (a FlexibleDCMotor), not both")
     if student is not None:
         if motor is not None:
             raise ValueError("give either student (a hidden motor) or motor, not both")
         from jerklab.lab.motors import connect_student
 
+        if plant == "flexible":
+            link_options = dict(link_options, plant="flexible")
         opts = dict(link_options, speed=speed, timeout=timeout, hello_timeout=hello_timeout,
                     progress=progress, recordings=recordings, model=model)
         if port not in _VIRTUAL_NAMES:
@@ -126,6 +140,10 @@ def connect(port=None, *, student=None, motor=None, speed=None, timeout=2.0, hel
             opts.pop("speed")
             opts.update(supply_voltage=supply_voltage, counts_per_rev=counts_per_rev, baudrate=baudrate)
         return connect_student(student, port, **opts)
+    if plant == "flexible":
+        from jerklab.plant import FlexibleDCMotor
+
+        motor = FlexibleDCMotor()
     if port in _VIRTUAL_NAMES:
         from jerklab.plant import DCMotor
 
@@ -284,6 +302,9 @@ def _launch_simavr(motor=None):
             raise ValueError("motor for 'simavr' needs a supply_voltage, an encoder_ppr and decoding=1")
         kwargs = dict(K=motor.K, tau=motor.tau, supply_voltage=motor.supply_voltage,
                       coulomb_friction=motor.coulomb_friction, encoder_ppr=motor.encoder_ppr)
+        if getattr(motor, "n_states", 2) == 4:           # FlexibleDCMotor: the two-mass load
+            kwargs.update(load_ratio=motor.load_ratio, mode_frequency=motor.mode_frequency,
+                          mode_damping=motor.mode_damping)
     try:
         return simavr.launch(**kwargs)
     except FileNotFoundError as exc:

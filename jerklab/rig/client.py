@@ -131,6 +131,7 @@ class Rig:
             raise ValueError(f"counts_per_rev must be a positive integer, got {counts_per_rev!r}")
         self.counts_per_rev = int(counts_per_rev)
         self.set_model(*model)
+        self._shaper = None                  # SetShaper sent before each move (set_shaper)
         self.timeout = as_positive("timeout", timeout)
         self.progress = bool(progress)
         self.recordings = Path(recordings) if recordings is not None else None
@@ -571,12 +572,18 @@ class Rig:
         settle_n = int(math.ceil(settle / Ts - 1e-9))
         if settle_n > 0xFFFF:
             raise ValueError(f"settle must be <= {0xFFFF * Ts:g} s at Ts = {Ts} s, got {settle}")
+        shaper_delay = self._send_shaper(Ts)
         meta = dict(cfg, profile=_jsonable(profile.to_dict()),
                     plan={"accel_time": info.accel_time, "cruise_time": info.cruise_time,
                           "duration": info.duration, "n_samples": info.n_samples},
                     settle_samples=settle_n, decimation=int(decimation))
+        if self._shaper is not None:
+            msg, shaper_Ts, what = self._shaper
+            meta["shaper"] = {"taps": list(msg.amplitudes[:msg.n_taps]),
+                              "delays": list(msg.delays[:msg.n_taps]), "Ts": shaper_Ts,
+                              "source": what}
         rec = self._new_recording("move", meta, path)
-        total = info.n_samples + settle_n
+        total = info.n_samples + shaper_delay + settle_n
         bar = _progress(total, f"{self.port} move", self.progress if progress is None else progress)
         if on_telemetry is not None and not callable(on_telemetry):
             raise TypeError(f"on_telemetry must be callable, got {on_telemetry!r}")
@@ -675,6 +682,160 @@ class Rig:
         if not getattr(self.link, "instant_coast", False):
             self.wait_still(timeout=max(2.0, 4 * coast), Ts=Ts)
         return rec
+
+    def record_prbs(self, amplitude, seconds=None, Ts=paper.TS, *, order=8, seed=1, hold=1, offset=0.0,
+                    rest=0.05, coast=None, max_voltage=None, host_timeout=1.0, path=None,
+                    progress=None) -> Recording:
+        """Open-loop PRBS record for identification (SEQUENCE, protocol version 3); returns the
+        :class:`Recording`, like :meth:`step`.
+
+        The device applies ``offset ± amplitude`` V, the sign the bits of a maximal-length
+        PRBS (:func:`jerklab.protocol.prbs_bits` of ``order`` and ``seed``), each bit held
+        ``hold`` samples of ``Ts``; it generates the sequence itself (nothing streams to it)
+        and reports every sample, with the commanded voltage in the ``reference`` column (V,
+        not rad, for this kind) and the PWM-quantized applied voltage in ``rec.control``, so
+        the input is recorded exactly. With ``rest`` > 0 the record starts with that many
+        seconds at 0 V, as :meth:`step`. A pulled cable or a silent device ends it with every
+        sample received saved (the recording's status says why).
+
+        Parameters
+        ----------
+        amplitude : float
+            Half the PRBS swing (V), > 0.
+        seconds : float, optional
+            Length; default one period of the PRBS, ``(2**order - 1) * hold * Ts``.
+        Ts : float
+            Sample period (s), a multiple of the device tick.
+        order : int
+            LFSR order 2..16 (period ``2**order - 1`` bits).
+        seed : int
+            LFSR start state 1..65535 (its low ``order`` bits nonzero).
+        hold : int
+            Samples per bit, 1..255 (a longer bit puts more power at low frequencies).
+        offset : float
+            Voltage the PRBS swings around (V); ``|offset| + amplitude <= max_voltage``.
+        rest, coast, max_voltage, host_timeout, path, progress
+            As for :meth:`step`.
+
+        Raises
+        ------
+        ValueError
+            A parameter out of range (the message names it).
+        RigError
+            The device has no SEQUENCE (capability bit 12).
+        RigConnectionError, RigTimeoutError, RigRunError
+            As for :meth:`step`; the samples received are saved.
+        """
+        amplitude = as_positive("amplitude", amplitude)
+        offset = as_real("offset", offset)
+        for name, v, lo, hi in (("order", order, 2, 16), ("seed", seed, 1, 0xFFFF), ("hold", hold, 1, 255)):
+            if isinstance(v, bool) or not isinstance(v, (int,)) and not (
+                    isinstance(v, float) and v.is_integer()) or not lo <= v <= hi:
+                raise ValueError(f"{name} must be an integer in {lo}..{hi}, got {v!r}")
+        order, seed, hold = int(order), int(seed), int(hold)
+        if seed & ((1 << order) - 1) == 0:
+            raise ValueError(f"seed must have a nonzero low {order} bits (order {order}), got {seed}")
+        us = self._ts_us(Ts)
+        Ts = us * 1e-6
+        if not self.capabilities & P.Capability.SEQUENCE:
+            raise RigError(f"{self.port}: firmware {self.firmware_version} has no SEQUENCE (PRBS); "
+                           f"it needs protocol version 3 with capability bit 12")
+        vmax = self.supply_voltage if max_voltage is None else as_positive("max_voltage", max_voltage)
+        if abs(offset) + amplitude > vmax:
+            raise ValueError(f"amplitude + |offset| must be <= max_voltage = {vmax} V, got "
+                             f"amplitude {amplitude} V, offset {offset} V")
+        if seconds is None:
+            n = ((1 << order) - 1) * hold
+        else:
+            n = max(1, int(math.ceil(as_positive("seconds", seconds) / Ts - 1e-9)))
+        if n > 0xFFFF:
+            raise ValueError(f"seconds must be <= {0xFFFF * Ts:g} s at Ts = {Ts} s (65535 samples), got "
+                             f"{n} samples" + (" (one period of this order and hold)" if seconds is None else ""))
+        n_rest = int(math.ceil(as_nonnegative("rest", rest) / Ts - 1e-9))
+        if n_rest > 0xFFFF:
+            raise ValueError(f"rest must be <= {0xFFFF * Ts:g} s at Ts = {Ts} s, got {rest}")
+        tmo = as_nonnegative("host_timeout", host_timeout)
+        self._request(P.SetPlant(*self.model, self.supply_voltage, self.counts_per_rev))
+        self._request(P.SetLimits(*paper.LIMITS, vmax, int(round(tmo * 1000))))
+        msg = P.Sequence(amplitude, offset, us, n, seed, order, hold)
+        meta = {"Ts": Ts, "amplitude": amplitude, "offset": offset, "order": order, "seed": seed,
+                "hold": hold, "seconds": n * Ts, "rest": n_rest * Ts, "reference_unit": "V",
+                "limits": {"max_voltage": vmax, "host_timeout": tmo},
+                "plant": {"supply_voltage": self.supply_voltage, "counts_per_rev": self.counts_per_rev}}
+        rec = self._new_recording("prbs", meta, path)
+        bar = _progress(n_rest + n, f"{self.port} prbs", self.progress if progress is None else progress)
+        if n_rest:
+            self._stream(P.Step(0.0, us, n_rest), rec, n_rest, host_timeout, bar, final=False)
+        offset_ = (len(rec) and int(rec.counts[-1]), n_rest)
+        coast = 8.0 * self.model[1] if coast is None else as_nonnegative("coast", coast)
+        rec = self._stream(msg, rec, n, host_timeout, bar, offset=offset_)
+        if not getattr(self.link, "instant_coast", False):
+            self.wait_still(timeout=max(2.0, 4 * coast), Ts=Ts)
+        return rec
+
+    def set_shaper(self, shaper, Ts=paper.TS):
+        """Shape the reference of the following moves with an input shaper (SET_SHAPER,
+        protocol version 3); ``None`` switches it off.
+
+        ``shaper`` is an object with ``.fir(Ts)`` (e.g. ``jerklab.shaping.input_shaper(...)``)
+        or the taps themselves on the ``Ts`` grid (a 1-D sequence, tap ``i`` delayed ``i``
+        samples). The device keeps the nonzero taps: at most 10, delays up to 31 samples (155 ms at 5 ms),
+        summing to 1. Its reference becomes the FIR of the planned position; velocity and
+        acceleration references (the feedforward, the velocity loop) are the backward
+        differences of that, and the move lasts the last delay longer. Moves run at ``Ts``
+        then (:meth:`run_move` refuses another Ts while the shaper is on). Returns the
+        ``SetShaper`` message sent.
+        """
+        import numpy as np
+
+        us = self._ts_us(Ts)
+        Ts = us * 1e-6
+        if not self.capabilities & P.Capability.SHAPER:
+            raise RigError(f"{self.port}: firmware {self.firmware_version} has no input shaper; it needs "
+                           f"protocol version 3 with capability bit 13")
+        if shaper is None:
+            msg, what = P.SetShaper(0), None
+        else:
+            what = type(shaper).__name__
+            taps = shaper.fir(Ts) if hasattr(shaper, "fir") else shaper
+            try:
+                taps = np.asarray(taps, dtype=float)
+            except (TypeError, ValueError):
+                raise TypeError(f"shaper must be an object with .fir(Ts) or a sequence of taps, got "
+                                f"{type(shaper).__name__}") from None
+            if taps.ndim != 1 or taps.size == 0 or not np.all(np.isfinite(taps)):
+                raise ValueError(f"shaper taps must be a nonempty 1-D sequence of finite numbers, got shape "
+                                 f"{taps.shape}")
+            delays = np.flatnonzero(taps)
+            if delays.size > P.SHAPER_MAX_TAPS:
+                raise ValueError(f"shaper has {delays.size} nonzero taps on the Ts = {Ts:g} s grid; the "
+                                 f"device takes at most {P.SHAPER_MAX_TAPS}")
+            if delays.size and delays[-1] > P.SHAPER_MAX_DELAY:
+                raise ValueError(f"shaper lasts {delays[-1]} samples ({delays[-1] * Ts:g} s) at Ts = {Ts:g} s; "
+                                 f"the device delays at most {P.SHAPER_MAX_DELAY} samples "
+                                 f"({P.SHAPER_MAX_DELAY * Ts:g} s): a longer Ts or a faster mode")
+            amps = taps[delays]
+            if not abs(amps.sum() - 1.0) <= P.SHAPER_SUM_TOL:
+                raise ValueError(f"shaper taps must sum to 1 (the move must end at its distance), got "
+                                 f"{amps.sum():.6g}")
+            msg = P.SetShaper(int(delays.size), tuple(float(a) for a in amps), tuple(int(d) for d in delays))
+        self._request(msg)
+        self._shaper = None if msg.n_taps == 0 else (msg, Ts, what)
+        return msg
+
+    def _send_shaper(self, Ts) -> int:
+        """Before a move: the rig's shaper (or none) to the device; returns its last delay."""
+        if not self.capabilities & P.Capability.SHAPER:
+            return 0
+        if self._shaper is None:
+            self._request(P.SetShaper(0))
+            return 0
+        msg, shaper_Ts, _ = self._shaper
+        if abs(shaper_Ts - Ts) > 1e-9:
+            raise ValueError(f"the shaper was set for Ts = {shaper_Ts:g} s, the move runs at Ts = {Ts:g} s: "
+                             f"call set_shaper(..., Ts={Ts:g}) again")
+        self._request(msg)
+        return max(msg.delays[:msg.n_taps])
 
     def wait_still(self, timeout=2.0, Ts=paper.TS, window=10, tolerance=0) -> bool:
         """Wait until the motor is at rest: repeat a 0 V STEP of ``window`` samples until the

@@ -19,6 +19,12 @@ the firmware's rules sample for sample; the reference is sampled in blocks of
 plan (a plan of more than ``protocol.MAX_PLAN_SAMPLES`` samples is refused with NACK
 TOO_LONG, as on the firmware).
 
+Protocol version 3: SEQUENCE (the PRBS of ``jerklab.protocol.prbs_bits``, the commanded volts in
+TELEMETRY's reference) and SET_SHAPER (the firmware's FIR on the run reference, in float32 in the
+firmware's order of operations, velocity and acceleration by backward differences). The motor
+may be a ``jerklab.plant.FlexibleDCMotor`` (state ``[θ_m, ω_m, θ_l, ω_l]``, the encoder on the
+motor; ``connect(plant="flexible")``).
+
 The board's computation delay is modelled: in a run, the PWM of sample k takes effect
 :attr:`VirtualDevice.compute_delay` after the encoder was read at t = k Ts (the firmware's
 control step, encoder read to PWM write; the reference of the sample is computed one tick
@@ -114,12 +120,13 @@ class VirtualDevice:
                              | P.Capability.RETARGET
                              | P.Capability.LOOP_POSITION | P.Capability.LOOP_VELOCITY
                              | P.Capability.OPEN_LOOP_STEP | P.Capability.FEEDFORWARD
-                             | P.Capability.SIMULATED_PLANT)
+                             | P.Capability.SIMULATED_PLANT | P.Capability.SEQUENCE
+                             | P.Capability.SHAPER)
         self._decoder = P.Decoder()
         self._last_byte = self.clock()
         self._out = bytearray()
         self._seq = 0
-        self.x = np.zeros(2)                 # motor state [theta, omega]
+        self.x = self.motor.initial_state()  # [theta, omega] (a FlexibleDCMotor: and the load's)
         self.t = 0.0                         # simulated time (s)
         self.pwm = 0
         self.overruns = 0
@@ -146,6 +153,7 @@ class VirtualDevice:
                                   saturation_ms=P.DEFAULT_SATURATION_MS)
         self.gains = None
         self.plan = None
+        self.shaper = P.SetShaper(0)         # version 3: no input shaper at boot
         self.state = self.STATE_IDLE
         self.pwm = 0
         self.last_rx = self.clock()
@@ -353,8 +361,15 @@ class VirtualDevice:
         self._settle = m.settle_samples
         self._followup_k = None             # a braking plan ends: the move to the target follows
         self._switch = None                 # (k, n_profile) when a new plan takes over
-        self._n_profile = n
-        self._n_total = n + m.settle_samples
+        delay = self._shaper_delay if self.shaper.n_taps else 0
+        self._shp_delay = delay             # SET_SHAPER: the move lasts the last delay longer
+        self._n_profile = n + delay
+        self._n_total = n + delay + m.settle_samples
+        self._ring = np.zeros(P.SHAPER_MAX_DELAY + 1, dtype=np.float32)
+        self._ring_pos = 0
+        self._shp_prev = (np.float32(0.0), np.float32(0.0))
+        ts_f32 = np.float32(np.float32(g.Ts_us) * np.float32(1e-6))      # the firmware's Ts_
+        self._inv_ts = np.float32(np.float32(1.0) / ts_f32)
         self._ref_k0 = 0
         self._ref = None                     # block of samples from _ref_k0 (see _reference)
         self._decimation = m.decimation
@@ -371,6 +386,72 @@ class VirtualDevice:
         self.state = self.STATE_RUNNING
         return P.ErrorCode.OK, 0xFF
 
+    def _cmd_Sequence(self, m):
+        """SEQUENCE (version 3): the open-loop PRBS; checks in the firmware's order."""
+        amp, off = m.amplitude, m.offset
+        limit_ok = _finite(off) and _finite(amp) and _f32(_f32(abs(off)) + amp) <= _f32(self.limits.max_voltage)
+        checks = [(0, _finite(amp) and amp >= 0), (1, limit_ok), (2, self._ts_ok(m.Ts_us)),
+                  (3, m.n_samples >= 1), (5, m.order in P.PRBS_TAPS),
+                  (4, m.seed & ((1 << m.order) - 1) != 0), (6, m.hold >= 1)]
+        for param, ok in checks:
+            if not ok:
+                return P.ErrorCode.BAD_VALUE, param
+        self._step_Ts = m.Ts_us * 1e-6
+        volts = P.sequence_voltages(m)
+        self._seq_volts = volts
+        self._seq_pwm = {v: self._to_pwm(v) for v in set(volts)}
+        self._n_total = m.n_samples
+        self._decimation = 1
+        self._start(self._step_Ts)
+        self.state = self.STATE_STEPPING
+        return P.ErrorCode.OK, 0xFF
+
+    def _cmd_SetShaper(self, m):
+        """SET_SHAPER (version 3): the FIR taps of the run reference; checks as the firmware."""
+        n = m.n_taps
+        if n > P.SHAPER_MAX_TAPS:
+            return P.ErrorCode.BAD_VALUE, 0
+        total = np.float32(0.0)
+        for i, a in enumerate(m.amplitudes):
+            if not (_finite(float(a))) or (i >= n and a != 0.0):
+                return P.ErrorCode.BAD_VALUE, 1
+            total = np.float32(total + np.float32(a))
+        if n and not abs(float(np.float32(total - np.float32(1.0)))) <= _f32(P.SHAPER_SUM_TOL):
+            return P.ErrorCode.BAD_VALUE, 1
+        for i, d in enumerate(m.delays):
+            if (d > P.SHAPER_MAX_DELAY) if i < n else d != 0:
+                return P.ErrorCode.BAD_VALUE, 2
+        self.shaper = m
+        return P.ErrorCode.OK, 0xFF
+
+    @property
+    def _shaper_delay(self) -> int:
+        m = self.shaper
+        return max(m.delays[:m.n_taps], default=0)
+
+    def _shape(self, position):
+        """The firmware's ``Shaper`` in float32: the FIR of the position reference (the delayed
+        taps summed in index order, then ``a0 * p + that``, a0 the delay-0 taps' sum), velocity
+        and acceleration as its backward differences (PROTOCOL.md SET_SHAPER)."""
+        f32 = np.float32
+        m = self.shaper
+        ring, pos = self._ring, self._ring_pos
+        partial = f32(0.0)
+        a0 = f32(0.0)
+        for a, d in zip(m.amplitudes[:m.n_taps], m.delays[:m.n_taps]):
+            if d:
+                partial = f32(partial + f32(f32(a) * ring[(pos - d) % len(ring)]))
+            else:
+                a0 = f32(a0 + f32(a))
+        p = f32(position)
+        ring[pos] = p
+        self._ring_pos = (pos + 1) % len(ring)
+        r = f32(f32(a0 * p) + partial)
+        v = f32(f32(r - self._shp_prev[0]) * self._inv_ts)
+        acc = f32(f32(v - self._shp_prev[1]) * self._inv_ts)
+        self._shp_prev = (r, v)
+        return float(r), float(v), float(acc)
+
     def _cmd_Step(self, m):
         checks = [_finite(m.voltage) and abs(m.voltage) <= self.limits.max_voltage,
                   self._ts_ok(m.Ts_us), m.n_samples >= 1]
@@ -379,6 +460,7 @@ class VirtualDevice:
             return P.ErrorCode.BAD_VALUE, bad
         self._step_Ts = m.Ts_us * 1e-6
         self._step_pwm = self._to_pwm(m.voltage)
+        self._seq_volts = None
         self._n_total = m.n_samples
         self._decimation = 1
         self._start(self._step_Ts)
@@ -466,8 +548,8 @@ class VirtualDevice:
         while k_sw * Ts < t_s:
             k_sw += 1
         n_profile = int(math.ceil(new.end / Ts - 1e-4)) + 1
-        self._switch = (k_sw, n_profile)
-        self._n_total = n_profile + self._settle
+        self._switch = (k_sw, n_profile + self._shp_delay)
+        self._n_total = n_profile + self._shp_delay + self._settle
         self._followup_k = k_sw if braking else None
 
     def _pwm_top(self) -> int:
@@ -527,6 +609,8 @@ class VirtualDevice:
             cpr = self.plant.counts_per_rev / (2.0 * math.pi)
             y = counts / cpr
             rp, rv, ra = self._reference(k)
+            if self.shaper.n_taps:
+                rp, rv, ra = self._shape(rp)
             if k >= self._n_profile:
                 flags |= P.TELEMETRY_SETTLING
             fault, detail = self._check_safety(counts, rp - y)
@@ -549,6 +633,9 @@ class VirtualDevice:
             self._last_pwm = self.pwm
             self._prev_counts = counts
             ref = float(rp)
+        elif self._seq_volts is not None:
+            ref = self._seq_volts[k]         # SEQUENCE: the commanded volts as the reference
+            self.pwm = self._seq_pwm[ref]
         else:
             self.pwm = self._step_pwm
             ref = 0.0
@@ -592,6 +679,9 @@ class VirtualDevice:
         # between runs the motor coasts to rest (PWM 0 for 1 s of model time)
         self.x = self.motor.step_state(self.x, 0.0, 1.0, t=self.t)
         self.t += 1.0
+        if len(self.x) == 4:
+            # a flexible load still rings after 1 s of a lightly damped mode: at rest at once
+            self.x = np.array([self.x[0], 0.0, self.x[0], 0.0])
 
 
 def _first_false(checks):

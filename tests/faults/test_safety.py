@@ -550,5 +550,5 @@ def test_a_version_1_device_is_refused_by_name():
                 msg = dataclasses.replace(msg, protocol_version=1)
             super()._send(msg, seq)
 
-    with pytest.raises(RigError, match="device speaks protocol version 1, jerklab speaks 2"):
+    with pytest.raises(RigError, match=f"device speaks protocol version 1, jerklab speaks {P.PROTOCOL_VERSION}"):
         Rig(VirtualSerial(Version1()), "old-uno", progress=False)

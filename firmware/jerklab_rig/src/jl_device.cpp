@@ -117,6 +117,7 @@ static bool valid_period(uint16_t ts_us, uint16_t tick_us) {
 }
 
 void Device::handle(const Frame& f) {
+    if (handle_v3(f)) return;
     const uint8_t* p = f.payload;
     static const uint8_t kLen[10] = {0, kLenHello, kLenSetPlant, kLenSetGains, kLenSetLimits,
                                      kLenPlan, kLenRun, kLenStop, kLenStep, kLenHeartbeat};
@@ -134,6 +135,8 @@ void Device::handle(const Frame& f) {
         uint16_t caps = kCapSineJerk | kCapSineJerkOptimal | kCapScurve | kCapTrapezoid |
                         kCapRetarget | kCapLoopPosition | kCapLoopVelocity | kCapOpenLoopStep |
                         kCapFeedforward;
+        if (JL_WITH_SEQUENCE) caps |= kCapSequence;
+        if (JL_WITH_SHAPER) caps |= kCapShaper;
         if (hal_.simulated_plant()) caps |= kCapSimulatedPlant;
         r[0] = kProtocolVersion;
         r[1] = cfg_.fw_major;
@@ -247,6 +250,7 @@ void Device::handle(const Frame& f) {
         rt_stage_ = 0;
         rt_active_ = false;
         settle_ = settle;
+        seq_on_ = false;
         {
             const float cpr = 1.0f / rad_per_count_;
             stepper_.start(plan_, Ts_, use_ff_ ? ff_.alpha() * pwm_per_volt_ : 0.0f,
@@ -257,10 +261,15 @@ void Device::handle(const Frame& f) {
             emax_c *= cpr;
             memcpy(&max_error_c_bits_, &emax_c, 4);
             uf_ = ref_v_ = 0.0f;
+            // SET_SHAPER: the FIR runs on the reference in counts, its differences per sample;
+            // the feedforward in PWM ticks from them: uf = ka (v_k - v_{k-1}) + kv v_k
+            shaper_.reset(1.0f);
+            shp_kv_ = use_ff_ ? ff_.beta() * pwm_per_volt_ / (cpr * Ts_) : 0.0f;
+            shp_ka_ = use_ff_ ? ff_.alpha() * pwm_per_volt_ / (cpr * Ts_ * Ts_) : 0.0f;
             sample_ahead();                     // the reference of sample 0
         }
         k_ = 0;
-        n_total_ = plan_samples_ + settle;
+        n_total_ = plan_samples_ + shaper_.max_delay() + settle;   // the shaper lengthens the move
         decimation_ = dec;
         dec_left_ = 0;
         prev_counts_ = 0;
@@ -291,6 +300,7 @@ void Device::handle(const Frame& f) {
         ack(f);
         hal_.zero_counts();
         step_pwm_ = ticks_to_pwm(v * pwm_per_volt_);
+        seq_on_ = false;
         k_ = 0;
         n_total_ = n;
         decimation_ = 1;
@@ -307,6 +317,67 @@ void Device::handle(const Frame& f) {
         nack(f, kErrUnknownType);
         return;
     }
+}
+
+// Version 3 commands (PROTOCOL.md "Version 3"): SEQUENCE (open-loop PRBS) and SET_SHAPER.
+bool Device::handle_v3(const Frame& f) {
+    if (f.type != kSequence && f.type != kSetShaper) return false;
+    const uint8_t* p = f.payload;
+    if (f.len != (f.type == kSequence ? kLenSequence : kLenSetShaper)) { nack(f, kErrBadLength); return true; }
+    if (state_ != kIdle) { nack(f, kErrBusy); return true; }
+    if ((f.type == kSequence && !JL_WITH_SEQUENCE) || (f.type == kSetShaper && !JL_WITH_SHAPER)) {
+        nack(f, kErrUnsupported);
+        return true;
+    }
+#if JL_WITH_SEQUENCE
+    if (f.type == kSequence) {
+        float amp = get_f32(p), off = get_f32(p + 4);
+        uint16_t ts = get_u16(p + 8), n = get_u16(p + 10), seed = get_u16(p + 12);
+        uint8_t order = p[14], hold = p[15];
+        if (!finite_f(amp) || !(amp >= 0.0f)) { nack(f, kErrBadValue, 0); return true; }
+        if (!finite_f(off) || !(jl_fabsf(off) + amp <= max_voltage_)) { nack(f, kErrBadValue, 1); return true; }
+        if (!valid_period(ts, cfg_.tick_us)) { nack(f, kErrBadValue, 2); return true; }
+        if (n < 1) { nack(f, kErrBadValue, 3); return true; }
+        if (prbs_mask(order) == 0) { nack(f, kErrBadValue, 5); return true; }
+        if ((seed & ((1UL << order) - 1)) == 0) { nack(f, kErrBadValue, 4); return true; }
+        if (hold < 1) { nack(f, kErrBadValue, 6); return true; }
+        ack(f);
+        hal_.zero_counts();
+        prbs_.start(seed, order, hold);
+        seq_volts_[0] = off - amp;
+        seq_volts_[1] = off + amp;
+        seq_pwm_[0] = volts_to_pwm(seq_volts_[0]);
+        seq_pwm_[1] = volts_to_pwm(seq_volts_[1]);
+        seq_on_ = true;
+        k_ = 0;
+        n_total_ = n;
+        decimation_ = 1;
+        have_sample_ = finished_ = false;
+        state_ = kStepping;
+        hal_.set_period(static_cast<uint16_t>(ts / cfg_.tick_us));
+        return true;
+    }
+#endif
+#if JL_WITH_SHAPER
+    // SET_SHAPER: u8 n_taps, f32 amplitudes[10], u8 delays[10]; taps past n_taps are 0.
+    const uint8_t n = p[0];
+    if (n > kShaperMaxTaps) { nack(f, kErrBadValue, 0); return true; }
+    float a[kShaperMaxTaps];
+    float sum = 0.0f;
+    for (uint8_t i = 0; i < kShaperMaxTaps; ++i) {
+        a[i] = get_f32(p + 1 + 4 * i);
+        if (!finite_f(a[i]) || (i >= n && a[i] != 0.0f)) { nack(f, kErrBadValue, 1); return true; }
+        sum += a[i];
+    }
+    if (n && !(jl_fabsf(sum - 1.0f) <= 1e-3f)) { nack(f, kErrBadValue, 1); return true; }
+    const uint8_t* d = p + 1 + 4 * kShaperMaxTaps;
+    for (uint8_t i = 0; i < kShaperMaxTaps; ++i) {
+        if (i < n ? d[i] >= kShaperRing : d[i] != 0) { nack(f, kErrBadValue, 2); return true; }
+    }
+    shaper_.set(n, a, d);
+    ack(f);
+#endif
+    return true;
 }
 
 bool Device::control() {
@@ -332,7 +403,7 @@ bool Device::control() {
         }
         ahead_ = false;
         const float ref = ref_, ref_v = ref_v_, uf = uf_;
-        if (k_ >= plan_samples_) flags |= kTelemetrySettling;
+        if (k_ >= plan_samples_ + shaper_.max_delay()) flags |= kTelemetrySettling;
         rep_ref_ = ref;
         const float pos_error = ref - static_cast<float>(c);
         float detail = 0.0f;
@@ -377,6 +448,10 @@ bool Device::control() {
             flags |= kTelemetryFault;
         }
         last_pwm_ = pwm;
+    } else if (seq_on_) {
+        const uint8_t b = prbs_.next();   // SEQUENCE: the PRBS level, its volts as the reference
+        pwm = seq_pwm_[b];
+        rep_ref_ = seq_volts_[b];         // volts, sent as they are (report)
     } else {
         pwm = step_pwm_;
         rep_ref_ = 0.0f;
@@ -404,12 +479,21 @@ static uint32_t samples_of(float t, float Ts) {
 
 void Device::sample_ahead() {
     stepper_.next_fast(&ref_, loop_ == kLoopVelocity ? &ref_v_ : nullptr, use_ff_ ? &uf_ : nullptr);
+    if (shaper_.on()) {
+        // SET_SHAPER (PROTOCOL.md): the reference's FIR and its backward differences, here
+        // outside the timed control step (the delayed taps' sum for the next sample too)
+        float v, a;
+        shaper_.apply(&ref_, &v, &a);
+        shaper_.prepare();
+        ref_v_ = v;
+        uf_ = shp_ka_ * a + shp_kv_ * v;
+    }
     ahead_ = true;
     if (stepper_.plan() != cur_plan_) {
         // a re-targeted plan took over at this sample (k_): the run now ends with it
         cur_plan_ = stepper_.plan();
         plan_samples_ = samples_of(cur_plan_->t_start + cur_plan_->duration, Ts_);
-        n_total_ = plan_samples_ + settle_;
+        n_total_ = plan_samples_ + shaper_.max_delay() + settle_;
         rt_stage_ = 0;
         // braked to rest first (the target was behind): the move to the target follows
         if (rt_mode_ == 2) retarget_begin(k_);
@@ -517,7 +601,7 @@ void Device::report() {
         have_sample_ = false;
         uint8_t p[kLenTelemetry];
         put_u32(p, rep_index_);
-        put_f32(p + 4, rep_ref_ * rad_per_count_);     // counts -> rad
+        put_f32(p + 4, seq_on_ ? rep_ref_ : rep_ref_ * rad_per_count_);   // counts -> rad (SEQUENCE: V)
         put_i32(p + 8, rep_counts_);
         put_u16(p + 12, static_cast<uint16_t>(rep_pwm_));
         p[14] = rep_flags_;

@@ -6,6 +6,7 @@
 #define JL_DEVICE_H
 #include <stdint.h>
 #include "jl_control.h"
+#include "jl_excite.h"
 #include "jl_frame.h"
 #include "jl_planner.h"
 #include "jl_protocol.h"
@@ -81,6 +82,8 @@ private:
     bool retarget_work();
     void retarget_begin(uint32_t k_now);
     void update_pwm_top();
+    // Version 3 (jl_excite): SEQUENCE and SET_SHAPER; false if the frame was not one of them.
+    bool handle_v3(const Frame& f);
 
     Hal& hal_;
     DeviceConfig cfg_;
@@ -150,6 +153,15 @@ private:
     // Saturation stop: a level that counts up at a clamped sample and down at another.
     uint16_t sat_n_ = 0;
     uint16_t sat_level_ = 0;
+
+    // Version 3: the PRBS of an active SEQUENCE (seq_on_; its two PWM levels and their
+    // commanded volts) and the input shaper of the run reference.
+    bool seq_on_ = false;
+    Prbs prbs_;
+    int16_t seq_pwm_[2] = {0, 0};
+    float seq_volts_[2] = {0.0f, 0.0f};
+    Shaper shaper_;
+    float shp_kv_ = 0.0f, shp_ka_ = 0.0f;   // feedforward ticks per (count/sample), per (count/sample^2)
 
     // Results of the last control() for report().
     bool have_sample_ = false;

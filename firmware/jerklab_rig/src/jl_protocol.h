@@ -11,6 +11,7 @@ static const uint8_t kProtocolVersion = 3;
 enum MsgType : uint8_t {
     kHello = 0x01, kSetPlant = 0x02, kSetGains = 0x03, kSetLimits = 0x04, kPlan = 0x05,
     kRun = 0x06, kStop = 0x07, kStep = 0x08, kHeartbeat = 0x09, kRetarget = 0x0C,
+    kSequence = 0x0A, kSetShaper = 0x0B,   // version 3 (input shaping, identification)
     kAck = 0x80, kNack = 0x81, kHelloReply = 0x82, kPlanInfo = 0x83,
     kTelemetry = 0x90, kEndOfRun = 0x91, kError = 0x92,
 };
@@ -37,6 +38,7 @@ enum Capability : uint16_t {
     kCapTrapezoid = 1u << 3, kCapLoopPosition = 1u << 4, kCapLoopVelocity = 1u << 5,
     kCapOpenLoopStep = 1u << 6, kCapFeedforward = 1u << 7, kCapSimulatedPlant = 1u << 8,
     kCapRetarget = 1u << 9,
+    kCapSequence = 1u << 12, kCapShaper = 1u << 13,   // version 3 (identification, input shaping)
 };
 
 static const uint8_t kGainsFeedforward = 0x01;
@@ -50,6 +52,7 @@ static const uint8_t kLenHello = 1, kLenSetPlant = 14, kLenSetGains = 20, kLenSe
     kLenNack = 3, kLenHelloReply = 26, kLenPlanInfo = 16, kLenTelemetry = 15, kLenEndOfRun = 13,
     kLenError = 3;
 static const uint8_t kLenRetarget = 4;
+static const uint8_t kLenSequence = 16, kLenSetShaper = 51;   // version 3
 
 }  // namespace jl
 #endif

@@ -12,6 +12,7 @@ earlier wait in the harness's bridge (as in the Uno's USB-serial chip) instead o
 from __future__ import annotations
 
 import json
+import math
 import os
 import selectors
 import shutil
@@ -120,6 +121,24 @@ class SimulatedUno:
         raise HarnessError(f"the simavr harness (pid {self.pid}, state {state}, exit status "
                            f"{self._proc.poll()}) wrote no stats in {timeout} s{self._log_tail()}")
 
+    def trace(self):
+        """The harness's 1 ms trace so far (``launch(trace=True)``): an array of rows
+        ``(t s, theta_motor rad, theta_load rad, volts V)`` in simulated time — the load's
+        motion, which the encoder does not see. Read it before :meth:`close`."""
+        import numpy as np
+
+        path = os.path.join(self._workdir.name, "trace.txt") if self._workdir is not None else None
+        if path is None or not os.path.exists(path):
+            raise HarnessError("no trace: launch the harness with trace=True (and read it before close())")
+        self.stats()                                   # the harness flushes its trace then
+        rows = []
+        with open(path) as fh:
+            for line in fh:
+                parts = line.split()
+                if len(parts) == 4 and line.endswith("\n"):
+                    rows.append([float(p) for p in parts])
+        return np.array(rows).reshape(-1, 4)
+
     def _log_tail(self, n=2000):
         try:
             with open(os.path.join(self._workdir.name, "harness.log")) as fh:
@@ -159,7 +178,8 @@ def _symbol_address(elf, name):
 
 def launch(elf=None, *, K=paper.MOTOR_K, tau=paper.MOTOR_TAU, supply_voltage=paper.SUPPLY_VOLTAGE,
            coulomb_friction=0.0, load_disturbance=0.0, encoder_ppr=paper.ENCODER_PPR, step_us=20, realtime=True, build=True,
-           startup_timeout=20.0, bootloader=None, wait_ready=True) -> SimulatedUno:
+           startup_timeout=20.0, bootloader=None, wait_ready=True, load_ratio=0.0,
+           mode_frequency=2 * math.pi * 8.0, mode_damping=0.02, trace=False) -> SimulatedUno:
     """Start the firmware on a simulated Uno with a DC motor; return a :class:`SimulatedUno`.
 
     Returns once the firmware has switched its UART receiver on (``wait_ready``), so a host
@@ -200,6 +220,13 @@ def launch(elf=None, *, K=paper.MOTOR_K, tau=paper.MOTOR_TAU, supply_voltage=pap
     wait_ready : bool
         Return only once the firmware's UART receiver is on (default). False returns as soon
         as the pty exists.
+    load_ratio, mode_frequency, mode_damping : float
+        A flexible load (``load_ratio > 0``): the two-mass model of
+        :class:`jerklab.plant.FlexibleDCMotor` (J_l/J_m, the shaft's mode in rad/s, its damping
+        ratio), the encoder on the motor; no Coulomb friction then. 0: the rigid motor.
+    trace : bool
+        Record the motor's and the load's angles and the bridge voltage every 1 ms of simulated
+        time (:meth:`SimulatedUno.trace`).
 
     Raises
     ------
@@ -211,6 +238,12 @@ def launch(elf=None, *, K=paper.MOTOR_K, tau=paper.MOTOR_TAU, supply_voltage=pap
     """
     K = as_positive("K", K)
     tau = as_positive("tau", tau)
+    load_ratio = as_nonnegative("load_ratio", load_ratio)
+    mode_frequency = as_positive("mode_frequency", mode_frequency)
+    mode_damping = as_nonnegative("mode_damping", mode_damping)
+    if load_ratio > 0 and coulomb_friction:
+        raise ValueError("coulomb_friction must be 0 with a flexible load (load_ratio > 0): the two-mass "
+                         "model has none")
     supply_voltage = as_positive("supply_voltage", supply_voltage)
     coulomb_friction = as_nonnegative("coulomb_friction", coulomb_friction)
     load_disturbance = as_real("load_disturbance", load_disturbance)
@@ -252,7 +285,8 @@ def launch(elf=None, *, K=paper.MOTOR_K, tau=paper.MOTOR_TAU, supply_voltage=pap
     params = dict(K=K, tau=tau, supply_voltage=supply_voltage, coulomb_friction=coulomb_friction,
                   load_disturbance=load_disturbance, encoder_ppr=encoder_ppr, step_us=step_us,
                   realtime=bool(realtime), elf=None if elf is False else str(elf),
-                  bootloader=None if bootloader is None else str(bootloader))
+                  bootloader=None if bootloader is None else str(bootloader), load_ratio=load_ratio,
+                  mode_frequency=mode_frequency, mode_damping=mode_damping)
     workdir = tempfile.TemporaryDirectory(prefix="jerklab-simavr-")
     cmd = [str(harness), "--K", repr(K), "--tau", repr(tau), "--supply", repr(supply_voltage),
            "--friction", repr(coulomb_friction), "--load", repr(load_disturbance),
@@ -265,6 +299,11 @@ def launch(elf=None, *, K=paper.MOTOR_K, tau=paper.MOTOR_TAU, supply_voltage=pap
         cmd += ["--bootloader", str(bootloader)]
     if not realtime:
         cmd.append("--fast")
+    if load_ratio > 0:
+        cmd += ["--load-ratio", repr(load_ratio), "--mode-hz", repr(mode_frequency / (2 * math.pi)),
+                "--mode-zeta", repr(mode_damping)]
+    if trace:
+        cmd += ["--trace", os.path.join(workdir.name, "trace.txt")]
     cmd.append("--no-app" if elf is False else str(elf))
     log = open(os.path.join(workdir.name, "harness.log"), "w")
     try:

@@ -1,0 +1,249 @@
+"""Lab 4, "Stop the ringing" (issue 16, in the format of issue 13's labs): the worksheet headless
+with its solutions (every check passes, in under 2 minutes, no true value in the output) and with
+wrong answers (each check fails with its hint); the student version is generated and current;
+the flexible students' hidden modes; the helper that estimates the load's motion."""
+from __future__ import annotations
+
+import math
+import re
+import time
+from pathlib import Path
+
+import nbformat
+import numpy as np
+import pytest
+
+from jerklab import lab
+from jerklab.lab.motors import _truth, coupled_mode, student_motor
+
+ROOT = Path(__file__).parent.parent
+KEY = "test-instructor-key"
+
+
+@pytest.fixture(autouse=True)
+def _key(monkeypatch, tmp_path):
+    monkeypatch.setenv("JERKLAB_INSTRUCTOR_KEY", KEY)
+    monkeypatch.setenv("JERKLAB_LAB_WORK", str(tmp_path / "work"))
+    monkeypatch.setenv("JERKLAB_RECORDINGS", str(tmp_path / "rec"))
+    monkeypatch.delenv("JERKLAB_LAB_GRADING", raising=False)
+
+
+def _execute(nb, cwd, timeout=240):
+    from nbclient import NotebookClient
+
+    NotebookClient(nb, timeout=timeout, kernel_name="python3", allow_errors=True,
+                   resources={"metadata": {"path": str(cwd)}}).execute()
+    return nb
+
+
+def _outputs(nb):
+    out = []
+    for c in nb.cells:
+        if c.cell_type != "code":
+            continue
+        for o in c.get("outputs", []):
+            if o.output_type == "error":
+                out.append(f"ERROR {o.ename}: {o.evalue}")
+            out.append(o.get("text", ""))
+            for v in o.get("data", {}).values():
+                if isinstance(v, str):
+                    out.append(v)
+    return out
+
+
+def _master():
+    from jerklab.lab.grade import master_path
+
+    return nbformat.read(master_path(4), as_version=4)
+
+
+def _set_student(nb, sid):
+    for c in nb.cells:
+        if c.cell_type == "code" and 'STUDENT = "' in c.source:
+            c.source = re.sub(r'STUDENT = "[^"]*"', f'STUDENT = "{sid}"', c.source)
+            return
+    raise AssertionError("no STUDENT cell")
+
+
+def _leaks(motor):
+    t = _truth(motor)
+    pats = set()
+    for v in (t["K"], t["tau"], t["mode_hz"], t["mode_zeta"], motor.mode_frequency, motor.mode_damping,
+              motor.mode_frequency / (2 * math.pi)):
+        pats.add(repr(v))
+        for d in (5, 6, 7):
+            pats.add(f"{v:.{d}g}")
+    return pats
+
+
+def test_lab4_with_solutions_passes_every_check_quickly(tmp_path):
+    nb = _master()
+    _set_student(nb, "sol4")
+    t0 = time.monotonic()
+    _execute(nb, tmp_path)
+    elapsed = time.monotonic() - t0
+    outs = _outputs(nb)
+    errors = [o for o in outs if o.startswith("ERROR")]
+    assert not errors, errors
+    verdicts = [o for o in outs if "right —" in o or "not yet —" in o]
+    n_checks = sum(1 for c in nb.cells if c.cell_type == "code" and c.source.startswith("S.check("))
+    assert len(verdicts) == n_checks == 7
+    assert all("✔ right" in v for v in verdicts), [v for v in verdicts if "✔" not in v]
+    blob = "\n".join(outs)
+    for pat in _leaks(student_motor("sol4", plant="flexible")):
+        assert pat not in blob, f"true value {pat} in the notebook's output"
+    assert elapsed < 120, f"lab 4 took {elapsed:.0f} s headless (limit 2 min)"
+
+
+#: (a line of the solution cell, the wrong answer appended after it, the check, its hint)
+WRONG4 = [
+    ("mode = (fit.frequency_hz, fit.damping)", "_wrong_mode = (2 * np.pi * fit.frequency_hz, fit.damping)",
+     "mode", "2π too large"),
+    ("zv_delay = float(zv.times[-1])", "_wrong_zv_delay = float(zvd.times[-1])", "zv_delay", "whole period"),
+    ('residual_pct = {k: 100 * amp[k] / amp["none"] for k in ("zv", "zvd", "ei")}',
+     '_wrong_residual_pct = {k: amp[k] / amp["none"] for k in ("zv", "zvd", "ei")}', "residual_pct", "fractions"),
+    ("float(sh.residual_vibration((1 - lab.MODE_DRIFT) * f, z))",
+     '_wrong_robust = {k: float(sh.residual_vibration(f, z)) '
+     'for k, sh in (("zv", zv), ("zvd", zvd), ("ei", ei))}', "robust", "at the design frequency"),
+    ('choice = "ei"', '_wrong_choice = "zv"', "choice", "a fifth of the vibration"),
+]
+
+
+def test_lab4_wrong_answers_get_their_hints(tmp_path):
+    """Each wrong answer in turn, in one execution: the wrong answer goes into its own variable
+    and is the one checked; the right one stays for the cells after it."""
+    nb = _master()
+    _set_student(nb, "wrong4")
+    for old, wrong, name, hint in WRONG4:
+        hits = [c for c in nb.cells if c.cell_type == "code" and old in c.source]
+        assert len(hits) == 1, old
+        check = next(c for c in nb.cells if c.cell_type == "code" and c.source.startswith(f'S.check("{name}"'))
+        hits[0].source = hits[0].source + "\n" + wrong
+        check.source = f'S.check("{name}", _wrong_{name})'
+    cut = max(i for i, c in enumerate(nb.cells) if c.cell_type == "code" and c.source.startswith("S.check("))
+    nb.cells = nb.cells[:cut + 1]
+    _execute(nb, tmp_path)
+    outs = _outputs(nb)
+    assert not [o for o in outs if o.startswith("ERROR")]
+    for _, _, name, hint in WRONG4:
+        verdict = next(o for o in outs if f"— {name}**" in o)
+        assert "✘ not yet" in verdict and hint in verdict, (name, verdict)
+
+
+def test_lab4_student_version_is_generated_and_current(tmp_path):
+    from jerklab.lab.grade import assign
+
+    (p,) = assign(tmp_path, labs=(4,))
+    committed = nbformat.read(ROOT / "notebooks" / "labs" / p.name, as_version=4)
+    fresh = nbformat.read(p, as_version=4)
+    assert [c.source for c in committed.cells] == [c.source for c in fresh.cells]
+    text = "\n".join(c.source for c in fresh.cells)
+    assert "SOLUTION" not in text and "BEGIN TESTS" not in text
+    assert "choice = ..." in text and "pre_zv_delay = ..." in text
+    code = "\n".join(c.source for c in fresh.cells if c.cell_type == "code")
+    for solution in ("fit = shaping.identify_mode", "zv = shaping.input_shaper", "residual_pct = {k:"):
+        assert solution not in code
+    assert committed.metadata["jerklab"]["lab"] == 4
+    assert all(not c.get("outputs") for c in committed.cells if c.cell_type == "code")
+
+
+def test_flexible_modes_in_range_and_distinct():
+    modes = [coupled_mode(student_motor(f"s{i}", plant="flexible")) for i in range(30)]
+    f = np.array([m[0] for m in modes])
+    z = np.array([m[1] for m in modes])
+    assert len(set(np.round(f, 6))) == 30
+    assert f.min() > 5.0 and f.max() < 17.0 and z.min() > 0.02 and z.max() < 0.2
+    # same ID, same mode; the key enters the seed (the autouse fixture's key vs another)
+    assert coupled_mode(student_motor("s1", plant="flexible")) == modes[1]
+    assert coupled_mode(student_motor("s1", key=b"other", plant="flexible")) != modes[1]
+
+
+def test_load_deflection_matches_the_virtual_rigs_load():
+    """lab.load_deflection (the model driven by the recorded volts) against the virtual rig's
+    own state: the same load motion when the model is the rig's motor."""
+    import warnings
+
+    from jerklab.planner import plan_sine_jerk
+    from jerklab.rig import connect
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rig = connect(student="defl", plant="flexible", progress=False)
+    dev = rig.link.device
+    dev.compute_delay = 0.0      # each PWM held over its whole sample, as load_deflection assumes
+    log = []
+    tick = dev.tick
+
+    def logged():
+        log.append(dev.x[2] - dev.x[0])          # the state at the sample, before the period
+        tick()
+
+    dev.tick = logged
+    rec = rig.run_move(plan_sine_jerk(**lab.MOVE4), lab.soft_gains(), path=False, settle=0.3, force=True)
+    rig.close()
+    est = lab.load_deflection(rig._hidden_motor.ideal(), rec)
+    true = np.array(log[:len(rec)])
+    assert np.max(np.abs(est - true)) < 1e-9 + 1e-6 * np.max(np.abs(true))
+    amp = lab.residual_amplitude(rec, est)
+    assert 0 < amp < np.max(np.abs(est))
+    with pytest.raises(ValueError, match="settling"):
+        lab.residual_amplitude(_NoSettle(rec), est)
+
+
+class _NoSettle:
+    """A recording-like object without settling samples."""
+
+    def __init__(self, rec):
+        self.flags = np.zeros(len(rec), dtype=int)
+        self.metadata = rec.metadata
+
+
+def test_lab4_session_on_simavr_finds_the_students_mode(tmp_path):
+    """The worksheet's calls on the firmware in a simulated Uno driving the student's two-mass
+    load: the PRBS finds the hidden mode, the check says right, a ZV-shaped move completes."""
+    from conftest import require_tool
+
+    require_tool("make", "cc", "avr-g++", "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
+                 "/usr/include/simavr/sim_avr.h")
+    from jerklab import shaping
+    from jerklab.planner import plan_sine_jerk
+
+    S = lab.start(4, student="sim4", port="simavr", folder=tmp_path)
+    try:
+        assert S.plant == "flexible" and S.rig.is_virtual
+        rp = S.record_prbs(**lab.PRBS_MODE)
+        assert rp.metadata["status"] == "complete" and rp.metadata["lost_samples"] == 0
+        fit = shaping.identify_mode(rp.control, rp.position, rp.metadata["Ts"])
+        assert S.verify("mode", (fit.frequency_hz, fit.damping)).ok
+        S.set_model(fit.params["K"], fit.params["tau"])
+        S.set_shaper(shaping.input_shaper("zv", fit.frequency_hz, fit.damping))
+        rec = S.run_move(plan_sine_jerk(**lab.MOVE4), lab.soft_gains(), name="move_zv", settle=0.3, force=True)
+        assert rec.metadata["status"] == "complete" and rec.metadata["shaper"]["delays"][0] == 0
+    finally:
+        S.close()
+
+
+def test_grade_command_scores_lab4(tmp_path):
+    """`python -m jerklab.lab grade` on two lab 4 submissions (the autograder's notebook with
+    its solutions, and the same with a wrong choice): 13/13 and 12/13, each against its own
+    student's hidden mode."""
+    import csv
+
+    from jerklab.lab.__main__ import main
+    from jerklab.lab.grade import _assigned, student_version_name
+
+    subs = tmp_path / "subs"
+    subs.mkdir()
+    for sid, wrong in (("gina", False), ("hal", True)):
+        nb = nbformat.read(_assigned(4) / "autograder" / student_version_name(4), as_version=4)
+        _set_student(nb, sid)
+        if wrong:
+            hits = [c for c in nb.cells if c.cell_type == "code" and c.source.startswith("choice = ")]
+            assert len(hits) == 1
+            hits[0].source = 'choice = "zv"'
+        nbformat.write(nb, subs / f"{sid}_lab4.ipynb")
+    out = tmp_path / "grades.csv"
+    assert main(["grade", str(subs), "--out", str(out), "--timeout", "300"]) == 0
+    rows = {r["student"]: r for r in csv.DictReader(out.open())}
+    assert rows["gina"]["status"] == "graded" and float(rows["gina"]["total"]) == float(rows["gina"]["max"]) == 13.0
+    assert float(rows["hal"]["total"]) == 12.0 and float(rows["hal"]["choice"]) == 0.0
