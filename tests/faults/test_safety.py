@@ -89,9 +89,12 @@ class _Clock:
 
 
 def run_virtual(commands, seconds, encoder=1, Ts=0.005):
-    """The same commands to the virtual device (lock-step clock); its messages."""
+    """The same commands to the virtual device (lock-step clock); its messages.
+
+    The host driver (firmware/host/jl_host.cpp) applies each PWM at the sample instant, so the
+    virtual device runs without its model of the board's computation delay here."""
     clock = _Clock()
-    dev = VirtualDevice(clock=clock)
+    dev = VirtualDevice(clock=clock, compute_delay=0.0)
     dev.encoder_sign = encoder
     out = bytearray()
     for i, m in enumerate(commands):
