@@ -113,8 +113,11 @@ def test_firmware_refuses_bad_parameters(uno):
 
 def test_1khz_loop_on_the_simulated_uno_matches_the_virtual_rig(tmp_path):
     """Issue 21: a move at Ts = 1 ms on the simulated Uno (telemetry at every sample, so the
-    sketch is built for 1 Mbaud) matches the virtual rig within one count at every sample; the
-    control step stays under 25 % of the period with no encoder count lost."""
+    sketch is built for 1 Mbaud) matches the virtual rig within one count at every sample, with
+    no encoder count lost and no overrun. The bound checked here is on the encoder-read-to-PWM
+    part of the tick (<= 4000 cycles, 25 % of the period); the whole tick (telemetry, next
+    reference sample, preparation) is measured by ``python -m benchmarks firmware`` and is still
+    above that figure (firmware/README.md)."""
     require_tool("make", "cc", "avr-g++", "avr-size", "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
                  "/usr/include/simavr/sim_avr.h")
     from jerklab.controller import discrete_pole_placement_pid
@@ -141,7 +144,7 @@ def test_1khz_loop_on_the_simulated_uno_matches_the_virtual_rig(tmp_path):
     assert np.max(np.abs(fw.reference - py.reference)) < 1e-5 * prof.distance
     assert np.max(np.abs(fw.counts - py.counts)) <= 1                     # at every sample
     assert abs(fw.position[-1] - prof.distance) < 2 / fw_rig.counts_per_rad
-    # the control step (encoder read to PWM write) and the count: nothing lost at this speed
+    # encoder read to PWM write (not the whole tick) and the count: nothing lost at this speed
     assert st["control_step_cycles_moving"]["max"] <= 4000, st["control_step_cycles_moving"]
     assert st["firmware_counts"] == st["ideal_counts_x1"]
     assert st["int0_latency_cycles"]["over_120"] == 0
