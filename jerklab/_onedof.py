@@ -69,6 +69,31 @@ def solver():
             _SOLVER = PURE["solve_tuple"]
     return _SOLVER
 
+_PLAN = None
+
+
+def planner():
+    """:func:`plan_tuple` for Python floats (``sine`` a bool): compiled by numba when installed, else
+    pure Python (:func:`solver` compiles).
+
+    The compiled form is the float64 overload's entry point, which skips numba's type dispatch
+    (about 0.1 us a call); the callers (``planner.py``) pass Python floats only.
+    """
+    global _PLAN
+    if _PLAN is None:
+        solver()
+        f = globals()["plan_tuple"]
+        if f is not PURE["plan_tuple"]:
+            try:
+                from numba import types
+
+                f = f.compile((types.float64,) * 7 + (types.boolean,))
+            except Exception:  # pragma: no cover - an older numba: the dispatcher itself
+                pass
+        _PLAN = f
+    return _PLAN
+
+
 #: 1/pi^2 - 1/12: position lag of a half-sine jerk pulse behind the linear ramp of the same impulse
 KAPPA_SINE = 1.0 / (math.pi * math.pi) - 1.0 / 12.0
 
@@ -568,6 +593,59 @@ def solve_tuple(d, v0, a0, vf, V, k):
 
 
 @_jit
+def plan_tuple(d, J, A, V, v0, a0, vf, sine):
+    """One move in SI units: the checks, the normalization, :func:`solve_tuple` and the time unit,
+    in one compiled call (the scalar planners' and :func:`solve_many`'s entry).
+
+    Returns 18 floats: ``(status, code, duration, brake segments, t_1, ..., t_12, tu, T)`` --
+    :func:`solve_tuple`'s result in normalized units, then the time unit ``tu = A / J'`` (``J' = J``,
+    or ``2J/pi`` when ``sine``) and the duration ``T`` in seconds.  ``status`` is the number of
+    segments (> 0), or: 0 when the start is already the target (the empty move, ``tu = 1``);
+    -1 no valid profile (the solver's numeric range); -2 a value not finite or a limit <= 0;
+    -3 ``|vf| > V``; -4 the normalized values overflow (limits far apart in scale).
+    """
+    if not (0.0 < J < math.inf and 0.0 < A < math.inf and 0.0 < V < math.inf and abs(d) < math.inf
+            and abs(v0) < math.inf and abs(a0) < math.inf and abs(vf) < math.inf):
+        return (-2.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                1.0, 0.0)
+    if vf > V or -vf > V:
+        return (-3.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                1.0, 0.0)
+    if d == 0.0 and a0 == 0.0 and v0 == vf:     # (|v0| <= V: v0 == vf)
+        # already on target (Ruckig plans a loop out and back here; the empty move is optimal)
+        return (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                1.0, 0.0)
+    Jm = J * (2.0 / math.pi) if sine else J     # the mean jerk of a half-sine pulse of peak J
+    tu = A / Jm                                 # normalized units: J' = A = 1
+    vu = A * tu
+    pu = vu * tu
+    if not pu > 0.0:
+        return (-4.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                tu, 0.0)
+    dn = d / pu
+    v0n = v0 / vu
+    a0n = a0 / A
+    vfn = vf / vu
+    Vn = V / vu
+    if not (dn + v0n + a0n + vfn + Vn + tu + vu + pu) * 0.0 == 0.0:
+        return (-4.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                tu, 0.0)
+    r = solve(dn, v0n, a0n, vfn, Vn, KAPPA_SINE if sine else 0.0)
+    n = int(r[0])
+    if n <= 0:
+        return (-1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                tu, 0.0)
+    code = 0.0
+    p3 = 1.0
+    for i in range(n):
+        code += (r[2 * i + 1] + 1.0) * p3
+        p3 *= 3.0
+    # (the unused entries of r are 0)
+    return (r[0], code, r[-2], r[-1], r[2], r[4], r[6], r[8], r[10], r[12], r[14], r[16], r[18],
+            r[20], r[22], r[24], tu, r[-2] * tu)
+
+
+@_jit
 def _append(res, j, t):
     if t > 0.0:
         n = int(res[0])
@@ -593,26 +671,11 @@ def solve_many(d, v0, a0, vf, J, A, V, sine, out, tu_out):
     its time unit.  Returns -1, or the index of the first move that cannot be planned (a value not
     finite, a limit <= 0, ``|vf| > V``, or no valid profile): the caller names it.
     """
-    k = KAPPA_SINE if sine else 0.0
     for i in range(d.shape[0]):
-        Ji, Ai, Vi = J[i], A[i], V[i]
-        if not (0.0 < Ji < math.inf and 0.0 < Ai < math.inf and 0.0 < Vi < math.inf
-                and abs(d[i]) < math.inf and abs(v0[i]) < math.inf and abs(a0[i]) < math.inf
-                and abs(vf[i]) <= Vi):
-            return i
-        for m in range(16):
-            out[i, m] = 0.0
-        if d[i] == 0.0 and a0[i] == 0.0 and v0[i] == vf[i] and abs(v0[i]) <= Vi:
-            tu_out[i] = 1.0                     # already on target: the empty move
-            continue
-        Jm = Ji * (2.0 / math.pi) if sine else Ji
-        tu = Ai / Jm
-        vu = Ai * tu
-        pu = vu * tu
-        tu_out[i] = tu
-        r = solve_tuple(d[i] / pu, v0[i] / vu, a0[i] / Ai, vf[i] / vu, Vi / vu, k)
-        if not (r[0] > 0.0):
+        r = plan_tuple(d[i], J[i], A[i], V[i], v0[i], a0[i], vf[i], sine)
+        if r[0] < 0.0:
             return i
         for m in range(16):
             out[i, m] = r[m]
+        tu_out[i] = r[16]
     return -1

@@ -639,7 +639,24 @@ def plan_sine_jerk_optimal(distance, max_jerk, max_accel, max_velocity, *, initi
     """
     if (initial_velocity.__class__ is not float or initial_accel.__class__ is not float
             or final_velocity.__class__ is not float or initial_velocity or initial_accel or final_velocity):
-        return _plan_any_state("sine_jerk_optimal", distance, max_jerk, max_accel, max_velocity,
+        # from a moving start; Python floats straight to the compiled solver (as _plan_any_state)
+        if (distance.__class__ is max_jerk.__class__ is max_accel.__class__ is max_velocity.__class__
+                is initial_velocity.__class__ is initial_accel.__class__ is final_velocity.__class__ is float):
+            res = (_PLAN or _planner())(distance, max_jerk, max_accel, max_velocity, initial_velocity,
+                                        initial_accel, final_velocity, True)
+            if res[0] > 0.0:
+                p = _new(AnyStateProfile)
+                p.kind = "sine_jerk_optimal"
+                p.distance = distance
+                p._limits = (max_jerk, max_accel, max_velocity)
+                p.initial_velocity = initial_velocity
+                p.initial_accel = initial_accel
+                p.final_velocity = final_velocity
+                p._res = res
+                return p
+            return _any_state_special("sine_jerk_optimal", distance, max_jerk, max_accel, max_velocity,
+                                      initial_velocity, initial_accel, final_velocity, res)
+        return _plan_any_state("sine_jerk_optimal", True, distance, max_jerk, max_accel, max_velocity,
                                initial_velocity, initial_accel, final_velocity)
     J, E, W = max_jerk, max_accel, max_velocity
     if not (type(distance) is float is type(J) is type(E) is type(W)
@@ -684,7 +701,24 @@ def plan_scurve(distance, max_jerk, max_accel, max_velocity, *, initial_velocity
     """
     if (initial_velocity.__class__ is not float or initial_accel.__class__ is not float
             or final_velocity.__class__ is not float or initial_velocity or initial_accel or final_velocity):
-        return _plan_any_state("scurve", distance, max_jerk, max_accel, max_velocity,
+        # from a moving start; Python floats straight to the compiled solver (as _plan_any_state)
+        if (distance.__class__ is max_jerk.__class__ is max_accel.__class__ is max_velocity.__class__
+                is initial_velocity.__class__ is initial_accel.__class__ is final_velocity.__class__ is float):
+            res = (_PLAN or _planner())(distance, max_jerk, max_accel, max_velocity, initial_velocity,
+                                        initial_accel, final_velocity, False)
+            if res[0] > 0.0:
+                p = _new(AnyStateProfile)
+                p.kind = "scurve"
+                p.distance = distance
+                p._limits = (max_jerk, max_accel, max_velocity)
+                p.initial_velocity = initial_velocity
+                p.initial_accel = initial_accel
+                p.final_velocity = final_velocity
+                p._res = res
+                return p
+            return _any_state_special("scurve", distance, max_jerk, max_accel, max_velocity,
+                                      initial_velocity, initial_accel, final_velocity, res)
+        return _plan_any_state("scurve", False, distance, max_jerk, max_accel, max_velocity,
                                initial_velocity, initial_accel, final_velocity)
     J, A, V = max_jerk, max_accel, max_velocity
     if not (type(distance) is float is type(J) is type(A) is type(V)
@@ -797,8 +831,7 @@ class AnyStateProfile(Profile):
     :meth:`synchronized` is for rest-to-rest moves only and raises ``NotImplementedError``.
     """
 
-    __slots__ = ("kind", "initial_velocity", "initial_accel", "final_velocity", "_res", "_tu", "_T",
-                 "_seg")
+    __slots__ = ("kind", "initial_velocity", "initial_accel", "final_velocity", "_res", "_seg")
 
     def __init__(self, kind, distance, limits, initial_velocity, initial_accel, final_velocity,
                  res, time_unit):
@@ -808,10 +841,9 @@ class AnyStateProfile(Profile):
         self.initial_velocity = initial_velocity
         self.initial_accel = initial_accel
         self.final_velocity = final_velocity
-        self._res = res                 # jerklab._onedof.solve_tuple's packed result (normalized units)
-        self._tu = time_unit
-        self._T = res[2] * time_unit
-        self._seg = None
+        # jerklab._onedof.plan_tuple's result: solve_tuple's (normalized units), the time unit, the
+        # duration (s); _seg (the segments' states) is set on first use
+        self._res = tuple(res[:4 + _onedof._MAX_SEG]) + (time_unit, res[2] * time_unit)
 
     @property
     def _sine(self):
@@ -819,13 +851,16 @@ class AnyStateProfile(Profile):
 
     def _segments(self):
         """(jerk, times, start times, start positions, velocities, accelerations), built once."""
-        if self._seg is None:
-            jerk = np.array(self._jerk_signs()) * self._limits[0]
-            times = np.array(self._res[4:4 + int(self._res[0])]) * self._tu
-            start = np.concatenate(([0.0], np.cumsum(times)))
-            P, V, A = _segment_states(0.0, self.initial_velocity, self.initial_accel, jerk, times,
-                                      self._sine, max(self._limits[1], abs(self.initial_accel)))
-            self._seg = (jerk, times, start, P, V, A)
+        try:
+            return self._seg
+        except AttributeError:
+            pass
+        jerk = np.array(self._jerk_signs()) * self._limits[0]
+        times = np.array(self._res[4:4 + int(self._res[0])]) * self._res[16]
+        start = np.concatenate(([0.0], np.cumsum(times)))
+        P, V, A = _segment_states(0.0, self.initial_velocity, self.initial_accel, jerk, times,
+                                  self._sine, max(self._limits[1], abs(self.initial_accel)))
+        self._seg = (jerk, times, start, P, V, A)
         return self._seg
 
     def _jerk_signs(self):
@@ -841,17 +876,17 @@ class AnyStateProfile(Profile):
     def brake_time(self) -> float:
         """Length of the braking pre-trajectory (s), 0 when the start is inside the limits."""
         nb = int(self._res[3])
-        return math.fsum(self._res[4:4 + nb]) * self._tu
+        return math.fsum(self._res[4:4 + nb]) * self._res[16]
 
     @property
     def duration(self) -> float:
         """Total time of the move (s), the brake included."""
-        return self._T
+        return self._res[17]
 
     @property
     def phase_times(self) -> tuple:
         res = self._res
-        tu = self._tu
+        tu = res[16]
         return tuple([x * tu for x in res[4:4 + int(res[0])]])
 
     @property
@@ -931,7 +966,7 @@ class AnyStateProfile(Profile):
                     pos[pulse] = pp + rp * (vp + 0.5 * ap * rp) + c * hmo / (w * w)
         else:
             jk = acc = vel = pos = np.zeros(t.shape)
-        T = self._T
+        T = self._res[17]
         before = t <= 0.0
         after = t >= T
         vf = self.final_velocity
@@ -987,57 +1022,40 @@ class AnyStateProfile(Profile):
                 f"final_velocity={self.final_velocity!r}, duration={self.duration!r})")
 
 
-_SOLVE = None
-_KAPPA_SINE = _onedof.KAPPA_SINE
+_PLAN = None
+
+
+def _planner():
+    global _PLAN
+    _PLAN = _onedof.planner()
+    return _PLAN
 
 
 def _solver():
-    global _SOLVE
-    _SOLVE = _onedof.solver()
-    return _SOLVE
+    """The compiled (or pure-Python) solver, compiled on first use (jerklab._onedof.solver)."""
+    return _onedof.solver()
 
 
-def _plan_any_state(kind, distance, max_jerk, max_accel, max_velocity, v0, a0, vf):
-    """:func:`plan_scurve` / :func:`plan_sine_jerk_optimal` from a moving start (jerklab._onedof)."""
+def _plan_any_state(kind, sine, distance, max_jerk, max_accel, max_velocity, v0, a0, vf):
+    """:func:`plan_scurve` / :func:`plan_sine_jerk_optimal` from a moving start (jerklab._onedof).
+
+    The hot path (one call per move; benchmarks/bench_planner.py compares it with Ruckig): Python
+    floats go straight to the compiled :func:`jerklab._onedof.plan_tuple`, which checks them,
+    normalizes, solves and scales back in one call; anything else is validated here first.
+    """
     J, A, V = max_jerk, max_accel, max_velocity
-    if not (type(distance) is float is type(J) is type(A) is type(V) is type(v0) is type(a0) is type(vf)
-            and J > 0.0 and A > 0.0 and V > 0.0 and (distance + J + A + V + v0 + a0 + vf) * 0.0 == 0.0):
+    if not (distance.__class__ is J.__class__ is A.__class__ is V.__class__ is v0.__class__
+            is a0.__class__ is vf.__class__ is float):
         distance, J, A, V = _check_limits(distance, J, A, V)
         v0 = as_real("initial_velocity", v0)
         a0 = as_real("initial_accel", a0)
         vf = as_real("final_velocity", vf)
         if v0 == 0.0 and a0 == 0.0 and vf == 0.0:
-            plan = plan_scurve if kind == "scurve" else plan_sine_jerk_optimal
-            return plan(distance, J, A, V)
-    if vf > V or -vf > V:
-        raise ValueError(f"plan_{kind}: final_velocity={vf!r} is above max_velocity={V!r}: a move "
-                         f"cannot end outside the velocity limit (lower |final_velocity| or raise "
-                         f"max_velocity)")
-    sine = kind == "sine_jerk_optimal"
-    if distance == 0.0 and a0 == 0.0 and v0 == vf and -V <= v0 <= V:
-        # already on target (Ruckig plans a loop out and back here; the empty move is optimal)
-        return AnyStateProfile(kind, distance, (J, A, V), v0, a0, vf, (0.0,) * (4 + _onedof._MAX_SEG), 1.0)
-    Jm = _TWO_OVER_PI * J if sine else J         # the mean jerk of a half-sine pulse of peak J
-    try:
-        tu = A / Jm                             # normalized units: J = A = 1
-        vu = A * tu
-        pu = vu * tu
-        dn, v0n, a0n, vfn, Vn = distance / pu, v0 / vu, a0 / A, vf / vu, V / vu
-        ok = (dn + v0n + a0n + vfn + Vn + tu + vu + pu) * 0.0 == 0.0 and pu > 0.0
-    except (ZeroDivisionError, OverflowError):
-        ok = False
-    if not ok:
-        raise ValueError(f"plan_{kind}: no finite plan for distance={distance!r}, max_jerk={J!r}, "
-                         f"max_accel={A!r}, max_velocity={V!r}, initial_velocity={v0!r}, "
-                         f"initial_accel={a0!r}, final_velocity={vf!r}: the limits are too far apart "
-                         f"in scale (the normalized values overflow); scale the units")
-    res = (_SOLVE or _solver())(dn, v0n, a0n, vfn, Vn, _KAPPA_SINE if sine else 0.0)
-    if res[0] <= 0.0:
-        raise ValueError(f"plan_{kind}: no valid profile found for distance={distance!r}, max_jerk={J!r}, "
-                         f"max_accel={A!r}, max_velocity={V!r}, initial_velocity={v0!r}, "
-                         f"initial_accel={a0!r}, final_velocity={vf!r} (outside the solver's numeric "
-                         f"range); scale the units")
-    p = _new(AnyStateProfile)                   # (the hot path: __init__'s work, inline)
+            return (plan_sine_jerk_optimal if sine else plan_scurve)(distance, J, A, V)
+    res = (_PLAN or _planner())(distance, J, A, V, v0, a0, vf, sine)
+    if not res[0] > 0.0:
+        return _any_state_special(kind, distance, J, A, V, v0, a0, vf, res)
+    p = _new(AnyStateProfile)                   # (__init__'s work, inline)
     p.kind = kind
     p.distance = distance
     p._limits = (J, A, V)
@@ -1045,10 +1063,41 @@ def _plan_any_state(kind, distance, max_jerk, max_accel, max_velocity, v0, a0, v
     p.initial_accel = a0
     p.final_velocity = vf
     p._res = res
-    p._tu = tu
-    p._T = res[2] * tu
-    p._seg = None
     return p
+
+
+def _any_state_special(kind, distance, J, A, V, v0, a0, vf, res):
+    """The empty move (``res[0] == 0``), or the ValueError for :func:`jerklab._onedof.plan_tuple`'s
+    status ``res[0] < 0``."""
+    status = res[0]
+    if status == 0.0:                           # already on target
+        p = _new(AnyStateProfile)
+        p.kind = kind
+        p.distance = distance
+        p._limits = (J, A, V)
+        p.initial_velocity = v0
+        p.initial_accel = a0
+        p.final_velocity = vf
+        p._res = (0.0,) * (4 + _onedof._MAX_SEG) + (1.0, 0.0)
+        return p
+    if status == -2.0:                          # a value not finite or a limit <= 0: named here
+        _check_limits(distance, J, A, V)
+        as_real("initial_velocity", v0)
+        as_real("initial_accel", a0)
+        as_real("final_velocity", vf)
+    if status == -3.0:
+        raise ValueError(f"plan_{kind}: final_velocity={vf!r} is above max_velocity={V!r}: a move "
+                         f"cannot end outside the velocity limit (lower |final_velocity| or raise "
+                         f"max_velocity)")
+    if status == -4.0:
+        raise ValueError(f"plan_{kind}: no finite plan for distance={distance!r}, max_jerk={J!r}, "
+                         f"max_accel={A!r}, max_velocity={V!r}, initial_velocity={v0!r}, "
+                         f"initial_accel={a0!r}, final_velocity={vf!r}: the limits are too far apart "
+                         f"in scale (the normalized values overflow); scale the units")
+    raise ValueError(f"plan_{kind}: no valid profile found for distance={distance!r}, max_jerk={J!r}, "
+                     f"max_accel={A!r}, max_velocity={V!r}, initial_velocity={v0!r}, "
+                     f"initial_accel={a0!r}, final_velocity={vf!r} (outside the solver's numeric "
+                     f"range); scale the units")
 
 
 # ---------------------------------------------------------------------------------------------
