@@ -62,6 +62,12 @@ def solver():
 
             for name in _JITTED:        # module globals, so that compiled code calls compiled code
                 g[name] = numba.njit(cache=True, nogil=True)(PURE[name])
+            # compiled now (or loaded from the cache) for float arguments, while the globals it
+            # calls are the compiled ones (the planners call plan_tuple, not solve_tuple)
+            try:
+                g["solve_tuple"].compile((numba.types.float64,) * 6)
+            except Exception:  # pragma: no cover - compiled on the first call instead
+                pass
             _SOLVER = g["solve_tuple"]
         except Exception:  # pragma: no cover - numba missing or unusable
             for name in _JITTED:
@@ -186,8 +192,11 @@ def _real_roots(D, deg, lo, hi, crit, out):
 
     The roots of the derivatives, from the linear one up, split ``[lo, hi]`` into pieces on which
     the polynomial is monotone; a sign change on a piece is bisected (safeguarded Newton), a value
-    at round-off level at a piece's end (a double root) is taken as a root.
+    at round-off level at a piece's end (a double root) is taken as a root.  A polynomial whose
+    Taylor bound on the interval clears 0 (:func:`_no_root`) has none: nothing is searched.
     """
+    if _no_root(D, deg, lo, hi):
+        return 0
     k = 0
     while k < deg and D[0, k] == 0.0:
         k += 1
@@ -214,6 +223,38 @@ def _real_roots(D, deg, lo, hi, crit, out):
             for m in range(ncrit):
                 crit[m] = out[m]
     return _roots_from_critical(D, 0, deg, crit, ncrit, lo, hi, out)
+
+
+@_jit
+def _no_root(D, deg, lo, hi):
+    """True when the polynomial in ``D[0, :deg + 1]`` (degree <= 5) provably has no root on
+    ``[lo, hi]``, nor a value that :func:`_real_roots` would take for one (so that it would find
+    none): a cheap test that saves most of the root searches.
+
+    The Taylor coefficients ``c_k`` at ``lo`` (repeated synthetic division, in row 5 of ``D``, which
+    the root search never uses) bound the polynomial on the interval, ``h = hi - lo``:
+    ``c_0 + sum(min(c_k h^k, 0)) <= p <= c_0 + sum(max(c_k h^k, 0))``.  The bound must clear 0 by
+    ``1e-11`` of the sum of |terms| at ``|lo| + h`` (the round-off of the shift, and the root
+    search's own test, ``1e-13`` of the same scale at most, with a wide margin).
+    """
+    h = hi - lo
+    for m in range(deg + 1):
+        D[5, m] = D[0, m]
+    for k in range(deg):                # after pass k, D[5, deg - k] = c_k
+        for m in range(1, deg + 1 - k):
+            D[5, m] += lo * D[5, m - 1]
+    low = D[5, deg]
+    high = low
+    hk = 1.0
+    for k in range(1, deg + 1):
+        hk *= h
+        term = D[5, deg - k] * hk
+        if term < 0.0:
+            low += term
+        else:
+            high += term
+    margin = 1e-11 * _pscale(D, 0, deg, abs(lo) + h)
+    return low > margin or high < -margin
 
 
 @_jit
@@ -493,8 +534,9 @@ def solve(d, v0, a0, vf, V, k):
     """
     # one allocation: the result, then the scratch arrays (views of the same buffer)
     nres = 2 * _MAX_SEG + 3
-    buf = np.zeros(nres + 7 + 36 + 16)
+    buf = np.empty(nres + 7 + 36 + 16)
     res = buf[:nres]
+    res[:] = 0.0                    # (the scratch arrays are written before they are read)
     # braking pre-trajectory (jerk segments then a constant-acceleration segment)
     bj, bt, bj2, bt2 = _brake(v0, a0, V)
     p = 0.0
