@@ -637,11 +637,11 @@ def plan_sine_jerk_optimal(distance, max_jerk, max_accel, max_velocity, *, initi
         A start above a limit brakes back inside it first; ``|final_velocity| > max_velocity``
         raises ValueError.
     """
-    if (initial_velocity.__class__ is not float or initial_accel.__class__ is not float
-            or final_velocity.__class__ is not float or initial_velocity or initial_accel or final_velocity):
+    floats = initial_velocity.__class__ is initial_accel.__class__ is final_velocity.__class__ is float
+    if not floats or initial_velocity or initial_accel or final_velocity:
         # from a moving start; Python floats straight to the compiled solver (as _plan_any_state)
-        if (distance.__class__ is max_jerk.__class__ is max_accel.__class__ is max_velocity.__class__
-                is initial_velocity.__class__ is initial_accel.__class__ is final_velocity.__class__ is float):
+        if floats and (distance.__class__ is max_jerk.__class__ is max_accel.__class__
+                       is max_velocity.__class__ is float):
             res = (_PLAN or _planner())(distance, max_jerk, max_accel, max_velocity, initial_velocity,
                                         initial_accel, final_velocity, True)
             if res[0] > 0.0:
@@ -699,11 +699,11 @@ def plan_scurve(distance, max_jerk, max_accel, max_velocity, *, initial_velocity
         A start above a limit brakes back inside it first; ``|final_velocity| > max_velocity``
         raises ValueError.
     """
-    if (initial_velocity.__class__ is not float or initial_accel.__class__ is not float
-            or final_velocity.__class__ is not float or initial_velocity or initial_accel or final_velocity):
+    floats = initial_velocity.__class__ is initial_accel.__class__ is final_velocity.__class__ is float
+    if not floats or initial_velocity or initial_accel or final_velocity:
         # from a moving start; Python floats straight to the compiled solver (as _plan_any_state)
-        if (distance.__class__ is max_jerk.__class__ is max_accel.__class__ is max_velocity.__class__
-                is initial_velocity.__class__ is initial_accel.__class__ is final_velocity.__class__ is float):
+        if floats and (distance.__class__ is max_jerk.__class__ is max_accel.__class__
+                       is max_velocity.__class__ is float):
             res = (_PLAN or _planner())(distance, max_jerk, max_accel, max_velocity, initial_velocity,
                                         initial_accel, final_velocity, False)
             if res[0] > 0.0:
