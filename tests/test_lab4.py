@@ -5,7 +5,6 @@ the flexible students' hidden modes; the helper that estimates the load's motion
 from __future__ import annotations
 
 import math
-import re
 import time
 from pathlib import Path
 
@@ -15,6 +14,8 @@ import pytest
 
 from jerklab import lab
 from jerklab.lab.motors import _truth, coupled_mode, student_motor
+
+from _labnb import execute as _execute, outputs as _outputs, set_student as _set_student
 
 ROOT = Path(__file__).parent.parent
 KEY = "test-instructor-key"
@@ -28,41 +29,10 @@ def _key(monkeypatch, tmp_path):
     monkeypatch.delenv("JERKLAB_LAB_GRADING", raising=False)
 
 
-def _execute(nb, cwd, timeout=240):
-    from nbclient import NotebookClient
-
-    NotebookClient(nb, timeout=timeout, kernel_name="python3", allow_errors=True,
-                   resources={"metadata": {"path": str(cwd)}}).execute()
-    return nb
-
-
-def _outputs(nb):
-    out = []
-    for c in nb.cells:
-        if c.cell_type != "code":
-            continue
-        for o in c.get("outputs", []):
-            if o.output_type == "error":
-                out.append(f"ERROR {o.ename}: {o.evalue}")
-            out.append(o.get("text", ""))
-            for v in o.get("data", {}).values():
-                if isinstance(v, str):
-                    out.append(v)
-    return out
-
-
 def _master():
     from jerklab.lab.grade import master_path
 
     return nbformat.read(master_path(4), as_version=4)
-
-
-def _set_student(nb, sid):
-    for c in nb.cells:
-        if c.cell_type == "code" and 'STUDENT = "' in c.source:
-            c.source = re.sub(r'STUDENT = "[^"]*"', f'STUDENT = "{sid}"', c.source)
-            return
-    raise AssertionError("no STUDENT cell")
 
 
 def _leaks(motor):

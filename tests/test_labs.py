@@ -10,7 +10,6 @@ import csv
 import json
 import math
 import os
-import re
 import shutil
 import zipfile
 from pathlib import Path
@@ -29,6 +28,8 @@ from jerklab.planner import plan_sine_jerk
 from jerklab.rig import connect
 from jerklab.rig.client import Rig
 from jerklab.rig.virtual import VirtualSerial
+
+from _labnb import execute as _execute, outputs as _outputs, set_student as _set_student
 
 ROOT = Path(__file__).parent.parent
 KEY = "test-instructor-key"
@@ -291,41 +292,10 @@ def test_handin_zip_roundtrip_and_tamper(tmp_path):
 
 
 # ------------------------------------------------------------------ the worksheets, headless
-def _execute(nb, cwd, timeout=240):
-    from nbclient import NotebookClient
-
-    NotebookClient(nb, timeout=timeout, kernel_name="python3", allow_errors=True,
-                   resources={"metadata": {"path": str(cwd)}}).execute()
-    return nb
-
-
-def _outputs(nb):
-    out = []
-    for c in nb.cells:
-        if c.cell_type != "code":
-            continue
-        for o in c.get("outputs", []):
-            if o.output_type == "error":
-                out.append(f"ERROR {o.ename}: {o.evalue}")
-            out.append(o.get("text", ""))
-            for v in o.get("data", {}).values():
-                if isinstance(v, str):
-                    out.append(v)
-    return out
-
-
 def _read_master(n):
     from jerklab.lab.grade import master_path
 
     return nbformat.read(master_path(n), as_version=4)
-
-
-def _set_student(nb, sid):
-    for c in nb.cells:
-        if c.cell_type == "code" and 'STUDENT = "' in c.source:
-            c.source = re.sub(r'STUDENT = "[^"]*"', f'STUDENT = "{sid}"', c.source)
-            return
-    raise AssertionError("no STUDENT cell")
 
 
 @pytest.mark.parametrize("n", [1, 2, 3])
