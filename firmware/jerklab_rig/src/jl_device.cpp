@@ -25,9 +25,9 @@ void Device::apply_plant() {
 }
 
 void Device::update_pwm_top() {
-    long top = jl_lroundf(max_voltage_ * pwm_per_volt_);
-    if (top > cfg_.pwm_max) top = cfg_.pwm_max;
-    pwm_top_ = static_cast<int16_t>(top);
+    // lround(max_voltage * pwm_max / supply), at most pwm_max (the rounding of ticks_to_pwm)
+    pwm_top_ = static_cast<int16_t>(cfg_.pwm_max);
+    pwm_top_ = ticks_to_pwm(max_voltage_ * pwm_per_volt_);
 }
 
 // lround(u) (halves away from zero) clamped to +-pwm_top, for |u| < 2^22 (u + 0.5 is then exact):
@@ -45,12 +45,7 @@ int16_t Device::ticks_to_pwm(float u) const {
     return static_cast<int16_t>(neg ? -pwm : pwm);
 }
 
-int16_t Device::volts_to_pwm(float u) const {
-    long pwm = jl_lroundf(u * pwm_per_volt_);
-    if (pwm > pwm_top_) pwm = pwm_top_;
-    if (pwm < -pwm_top_) pwm = -pwm_top_;
-    return static_cast<int16_t>(pwm);
-}
+int16_t Device::volts_to_pwm(float u) const { return ticks_to_pwm(u * pwm_per_volt_); }
 
 void Device::send(uint8_t type, uint8_t seq, const uint8_t* payload, uint8_t n) {
     uint8_t buf[kMaxFrame];
@@ -89,7 +84,8 @@ void Device::end_run(uint8_t reason, float detail) {
     p[0] = reason;
     put_u32(p + 1, k_);
     put_u16(p + 5, parser_.dropped());
-    put_u16(p + 7, overruns_);
+    // overruns: late ticks, and chunk changes the idle-time preparation did not keep up with
+    put_u16(p + 7, static_cast<uint16_t>(overruns_ + (state_ == kRunning ? stepper_.misses() : 0u)));
     put_f32(p + 9, detail);
     state_ = kIdle;
     have_sample_ = false;
@@ -255,11 +251,11 @@ void Device::handle(const Frame& f) {
             const float cpr = 1.0f / rad_per_count_;
             stepper_.start(plan_, Ts_, use_ff_ ? ff_.alpha() * pwm_per_volt_ : 0.0f,
                            use_ff_ ? ff_.beta() * pwm_per_volt_ : 0.0f, cpr, cpr * Ts_);
-            // the tracking-error limit in counts, as IEEE bits (0 = off)
+            // the tracking-error limit in counts, Q16.16 (0 = off; saturated: beyond 32767 counts
+            // the error saturates too, so such a limit never trips)
             float emax_c;
             memcpy(&emax_c, &max_error_bits_, 4);
-            emax_c *= cpr;
-            memcpy(&max_error_c_bits_, &emax_c, 4);
+            max_error_q16_ = q32_to_q16(to_q32(emax_c * cpr));
             uf_ = ref_v_ = 0.0f;
             // SET_SHAPER: the FIR runs on the reference in counts, its differences per sample;
             // the feedforward in PWM ticks from them: uf = ka (v_k - v_{k-1}) + kv v_k
@@ -283,6 +279,7 @@ void Device::handle(const Frame& f) {
         moved_ = 0;
         have_sample_ = finished_ = false;
         state_ = kRunning;
+        background();                           // the shaper's delayed taps for sample 1
         hal_.set_period(static_cast<uint16_t>(Ts_us_ / cfg_.tick_us));
         return;
     }
@@ -396,16 +393,12 @@ bool Device::control() {
     if (state_ == kRunning) {
         // ref, e in encoder counts; ref_v in counts per sample; uf in PWM ticks
         // (sampled one tick ahead by background(); inline only if that did not run)
-        if (!ahead_) {
-            JL_PART_BEGIN(1);
-            sample_ahead();
-            JL_PART_END(1);
-        }
-        ahead_ = false;
-        const float ref = ref_, ref_v = ref_v_, uf = uf_;
+        ahead_ = false;                 // (sampled by reference() after the previous step, or RUN)
+        // e = ref - c in Q16.16 counts from the Q32.32 reference (integer, saturated)
+        Q32 e32 = ref_q_;
+        e32.hi -= c;
+        const int32_t pos_error = q32_to_q16(e32);
         if (k_ >= plan_samples_ + shaper_.max_delay()) flags |= kTelemetrySettling;
-        rep_ref_ = ref;
-        const float pos_error = ref - static_cast<float>(c);
         float detail = 0.0f;
         JL_PART_BEGIN(2);
         uint8_t fault = check_safety(c, pos_error, &detail);
@@ -414,16 +407,16 @@ bool Device::control() {
         if (fault == kEndDone) {
             float e;
             if (loop_ == kLoopPosition) {
-                e = pos_error;
+                e = q16_to_float(pos_error);
             } else {
                 // Velocity loop (Stojčić §4B): counts over the last sample; y(-1) = y(0).
                 if (k_ == 0) prev_counts_ = c;
-                e = ref_v - static_cast<float>(c - prev_counts_);
+                e = ref_v_ - static_cast<float>(c - prev_counts_);
             }
             prev_counts_ = c;
             bool saturated;
             JL_PART_BEGIN(4);
-            const float u = pid_.step_fast(e, uf, &saturated);
+            const float u = pid_.step_fast(e, uf_, &saturated);
             JL_PART_END(4);
             if (saturated) {
                 flags |= kTelemetrySaturated;
@@ -448,6 +441,7 @@ bool Device::control() {
             flags |= kTelemetryFault;
         }
         last_pwm_ = pwm;
+        rep_ref_ = q32_to_float(ref_q_);   // counts (report() converts to rad)
     } else if (seq_on_) {
         const uint8_t b = prbs_.next();   // SEQUENCE: the PRBS level, its volts as the reference
         pwm = seq_pwm_[b];
@@ -478,13 +472,13 @@ static uint32_t samples_of(float t, float Ts) {
 }
 
 void Device::sample_ahead() {
-    stepper_.next_fast(&ref_, loop_ == kLoopVelocity ? &ref_v_ : nullptr, use_ff_ ? &uf_ : nullptr);
+    stepper_.next_fast(&ref_q_, loop_ == kLoopVelocity ? &ref_v_ : nullptr, use_ff_ ? &uf_ : nullptr);
     if (shaper_.on()) {
-        // SET_SHAPER (PROTOCOL.md): the reference's FIR and its backward differences, here
-        // outside the timed control step (the delayed taps' sum for the next sample too)
-        float v, a;
-        shaper_.apply(&ref_, &v, &a);
-        shaper_.prepare();
+        // SET_SHAPER (PROTOCOL.md): the reference's FIR (the delay-0 taps; the delayed taps'
+        // sum for the next sample in background()) and its backward differences, in float
+        float r = q32_to_float(ref_q_), v, a;
+        shaper_.apply(&r, &v, &a);
+        ref_q_ = to_q32(r);
         ref_v_ = v;
         uf_ = shp_ka_ * a + shp_kv_ * v;
     }
@@ -582,17 +576,19 @@ bool Device::retarget_work() {
     return true;
 }
 
+void Device::reference() {
+    if (state_ != kRunning || ahead_) return;
+    JL_PART_BEGIN(8);
+    sample_ahead();
+    JL_PART_END(8);
+}
+
 void Device::background() {
     if (state_ != kRunning) return;
-    if (!ahead_) {
-        JL_PART_BEGIN(8);
-        sample_ahead();
-        JL_PART_END(8);
-    }
-    // one more piece of work per tick: the re-targeting, else the next segment
-    if (retarget_work()) return;
     JL_PART_BEGIN(9);
-    stepper_.prepare();
+    shaper_.prepare();                   // the delayed taps' sum for the next sample
+    // one more piece of work per tick: the re-targeting, else the next chunk
+    if (!retarget_work()) stepper_.prepare();
     JL_PART_END(9);
 }
 
@@ -613,14 +609,10 @@ void Device::report() {
 // PROTOCOL.md "Safety stops". Called at each run sample k with the count c_k (before the
 // controller): the tracking-error limit, then the runaway / no-motion window over the PWM
 // applied during the last period (last_pwm_) and the counts it produced (c_k - c_{k-1}).
-uint8_t Device::check_safety(int32_t c, float pos_error, float* detail) {
-    // |e| > max_error (or e NaN) as an integer compare of the IEEE bits: for floats >= 0 the
-    // bit patterns order like the values, and a NaN's pattern lies above +inf's. Saves the
-    // ~50-cycle float compare of the AVR's soft float in the timed step.
-    uint32_t bits;
-    memcpy(&bits, &pos_error, 4);
-    if (max_error_c_bits_ != 0 && (bits & 0x7FFFFFFFUL) > max_error_c_bits_) {
-        *detail = pos_error * rad_per_count_;
+uint8_t Device::check_safety(int32_t c, int32_t pos_error, float* detail) {
+    // |e| > max_error in Q16.16 counts (an integer compare)
+    if (max_error_q16_ != 0 && (pos_error > max_error_q16_ || pos_error < -max_error_q16_)) {
+        *detail = q16_to_float(pos_error) * rad_per_count_;
         return kEndTrackingError;
     }
     if (runaway_n_ == 0) return kEndDone;
