@@ -164,8 +164,7 @@ int run_vectors(const char* path) {
                     ls >> tag >> j >> a >> v >> x;
                     jl::Sample s;
                     stepper.next(&s);
-                    jl::Q32 fx;
-                    float fq;
+                    float fx, fq;
                     fstep.next_fast(&fx, nullptr, &fq);
                     fstep.prepare();
                     const double fa = fq / alpha;

@@ -251,11 +251,11 @@ void Device::handle(const Frame& f) {
             const float cpr = 1.0f / rad_per_count_;
             stepper_.start(plan_, Ts_, use_ff_ ? ff_.alpha() * pwm_per_volt_ : 0.0f,
                            use_ff_ ? ff_.beta() * pwm_per_volt_ : 0.0f, cpr, cpr * Ts_);
-            // the tracking-error limit in counts, Q16.16 (0 = off; saturated: beyond 32767 counts
-            // the error saturates too, so such a limit never trips)
+            // the tracking-error limit in counts, as IEEE bits (0 = off)
             float emax_c;
             memcpy(&emax_c, &max_error_bits_, 4);
-            max_error_q16_ = q32_to_q16(to_q32(emax_c * cpr));
+            emax_c *= cpr;
+            memcpy(&max_error_c_bits_, &emax_c, 4);
             uf_ = ref_v_ = 0.0f;
             // SET_SHAPER: the FIR runs on the reference in counts, its differences per sample;
             // the feedforward in PWM ticks from them: uf = ka (v_k - v_{k-1}) + kv v_k
@@ -263,6 +263,7 @@ void Device::handle(const Frame& f) {
             shp_kv_ = use_ff_ ? ff_.beta() * pwm_per_volt_ / (cpr * Ts_) : 0.0f;
             shp_ka_ = use_ff_ ? ff_.alpha() * pwm_per_volt_ / (cpr * Ts_ * Ts_) : 0.0f;
             sample_ahead();                     // the reference of sample 0
+            shaper_.prepare();                  // (then in background() after each step)
         }
         k_ = 0;
         n_total_ = plan_samples_ + shaper_.max_delay() + settle;   // the shaper lengthens the move
@@ -279,7 +280,6 @@ void Device::handle(const Frame& f) {
         moved_ = 0;
         have_sample_ = finished_ = false;
         state_ = kRunning;
-        background();                           // the shaper's delayed taps for sample 1
         hal_.set_period(static_cast<uint16_t>(Ts_us_ / cfg_.tick_us));
         return;
     }
@@ -394,11 +394,10 @@ bool Device::control() {
         // ref, e in encoder counts; ref_v in counts per sample; uf in PWM ticks
         // (sampled one tick ahead by background(); inline only if that did not run)
         ahead_ = false;                 // (sampled by reference() after the previous step, or RUN)
-        // e = ref - c in Q16.16 counts from the Q32.32 reference (integer, saturated)
-        Q32 e32 = ref_q_;
-        e32.hi -= c;
-        const int32_t pos_error = q32_to_q16(e32);
+        const float ref = ref_;
         if (k_ >= plan_samples_ + shaper_.max_delay()) flags |= kTelemetrySettling;
+        rep_ref_ = ref;
+        const float pos_error = ref - static_cast<float>(c);
         float detail = 0.0f;
         JL_PART_BEGIN(2);
         uint8_t fault = check_safety(c, pos_error, &detail);
@@ -407,7 +406,7 @@ bool Device::control() {
         if (fault == kEndDone) {
             float e;
             if (loop_ == kLoopPosition) {
-                e = q16_to_float(pos_error);
+                e = pos_error;
             } else {
                 // Velocity loop (Stojčić §4B): counts over the last sample; y(-1) = y(0).
                 if (k_ == 0) prev_counts_ = c;
@@ -441,7 +440,6 @@ bool Device::control() {
             flags |= kTelemetryFault;
         }
         last_pwm_ = pwm;
-        rep_ref_ = q32_to_float(ref_q_);   // counts (report() converts to rad)
     } else if (seq_on_) {
         const uint8_t b = prbs_.next();   // SEQUENCE: the PRBS level, its volts as the reference
         pwm = seq_pwm_[b];
@@ -472,13 +470,12 @@ static uint32_t samples_of(float t, float Ts) {
 }
 
 void Device::sample_ahead() {
-    stepper_.next_fast(&ref_q_, loop_ == kLoopVelocity ? &ref_v_ : nullptr, use_ff_ ? &uf_ : nullptr);
+    stepper_.next_fast(&ref_, loop_ == kLoopVelocity ? &ref_v_ : nullptr, use_ff_ ? &uf_ : nullptr);
     if (shaper_.on()) {
         // SET_SHAPER (PROTOCOL.md): the reference's FIR (the delay-0 taps; the delayed taps'
         // sum for the next sample in background()) and its backward differences, in float
-        float r = q32_to_float(ref_q_), v, a;
-        shaper_.apply(&r, &v, &a);
-        ref_q_ = to_q32(r);
+        float v, a;
+        shaper_.apply(&ref_, &v, &a);
         ref_v_ = v;
         uf_ = shp_ka_ * a + shp_kv_ * v;
     }
@@ -609,10 +606,14 @@ void Device::report() {
 // PROTOCOL.md "Safety stops". Called at each run sample k with the count c_k (before the
 // controller): the tracking-error limit, then the runaway / no-motion window over the PWM
 // applied during the last period (last_pwm_) and the counts it produced (c_k - c_{k-1}).
-uint8_t Device::check_safety(int32_t c, int32_t pos_error, float* detail) {
-    // |e| > max_error in Q16.16 counts (an integer compare)
-    if (max_error_q16_ != 0 && (pos_error > max_error_q16_ || pos_error < -max_error_q16_)) {
-        *detail = q16_to_float(pos_error) * rad_per_count_;
+uint8_t Device::check_safety(int32_t c, float pos_error, float* detail) {
+    // |e| > max_error (or e NaN) as an integer compare of the IEEE bits: for floats >= 0 the
+    // bit patterns order like the values, and a NaN's pattern lies above +inf's. Saves the
+    // ~50-cycle float compare of the AVR's soft float in the timed step.
+    uint32_t bits;
+    memcpy(&bits, &pos_error, 4);
+    if (max_error_c_bits_ != 0 && (bits & 0x7FFFFFFFUL) > max_error_c_bits_) {
+        *detail = pos_error * rad_per_count_;
         return kEndTrackingError;
     }
     if (runaway_n_ == 0) return kEndDone;

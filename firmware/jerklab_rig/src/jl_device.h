@@ -77,7 +77,7 @@ private:
     void ack(const Frame& f);
     void nack(const Frame& f, uint8_t err, uint8_t param = 0xFF);
     void end_run(uint8_t reason, float detail = 0.0f);
-    uint8_t check_safety(int32_t c, int32_t pos_error, float* detail);
+    uint8_t check_safety(int32_t c, float pos_error, float* detail);
     void apply_plant();
     int16_t volts_to_pwm(float u) const;
     int16_t ticks_to_pwm(float u) const;
@@ -105,7 +105,7 @@ private:
     // Safety stops (PROTOCOL.md "Safety stops"): tracking-error limit (rad, 0 = off) and the
     // runaway / no-motion window (ms, 0 = off).
     uint32_t max_error_bits_ = 0x3F000000UL;   // IEEE bits of max_error (0.5 rad at boot)
-    int32_t max_error_q16_ = 0;                // the same in encoder counts, Q16.16 (set at RUN)
+    uint32_t max_error_c_bits_ = 0;            // the same in encoder counts (set at RUN)
     uint16_t runaway_ms_ = 200;
     uint16_t saturation_ms_ = 500;   // saturation stop window (ms, 0 = off)
     bool gains_ok_ = false;
@@ -130,10 +130,10 @@ private:
     uint16_t settle_ = 0;
     uint32_t plan_samples_ = 0;
 
-    // The reference of the next sample (counts, Q32.32), its velocity (counts per sample) and
-    // feedforward (PWM ticks), computed ahead by reference() after the previous step.
-    Q32 ref_q_ = {0, 0};
-    float ref_v_ = 0.0f, uf_ = 0.0f;
+    // The reference of the next sample (counts; the planner samples it in Q32.32), its velocity
+    // (counts per sample) and feedforward (PWM ticks), computed ahead by reference() after the
+    // previous step.
+    float ref_ = 0.0f, ref_v_ = 0.0f, uf_ = 0.0f;
     bool ahead_ = false;
 
     // Active run / step.

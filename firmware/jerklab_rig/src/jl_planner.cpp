@@ -429,9 +429,9 @@ int32_t __attribute__((noinline)) q32_to_q16(const Q32& x) {
 
 // x 2^-n for an integer-valued float (|x| >= 1 or 0) by its exponent: exact, no multiply.
 static float __attribute__((noinline)) scale_down(float x, uint8_t n) {
-    if (x == 0.0f) return x;
     uint32_t b;
     memcpy(&b, &x, 4);
+    if ((b & 0x7F800000UL) == 0) return x;                  // 0 (an integer's float: no subnormal)
     b -= static_cast<uint32_t>(n) << 23;
     memcpy(&x, &b, 4);
     return x;
@@ -445,20 +445,6 @@ float q32_to_float(const Q32& x) {
     if (q != 0x7FFFFFFFL && q != -0x7FFFFFFFL) return scale_down(static_cast<float>(q), 16);
     const int32_t hi = x.hi > 8388607L ? 8388607L : (x.hi < -8388608L ? -8388608L : x.hi);
     return scale_down(static_cast<float>(static_cast<int32_t>((static_cast<uint32_t>(hi) << 8) | (x.lo >> 24))), 8);
-}
-
-// (int32) h << 8 hoff as a Q32.32, hoff in 0..4: the four bytes placed in a little-endian
-// 64-bit image (AVR and the hosts), the rest sign-filled.
-static inline Q32 place_h(float h, uint8_t hoff) {
-    const int32_t v = static_cast<int32_t>(h);
-    uint8_t b[8];
-    memset(b, v < 0 ? 0xFF : 0x00, 8);
-    memset(b, 0, hoff);
-    memcpy(b + hoff, &v, 4);
-    Q32 r;
-    memcpy(&r.lo, b, 4);
-    memcpy(&r.hi, b + 4, 4);
-    return r;
 }
 
 // The smallest k with (float)k * Ts >= t0 (in the float arithmetic of the stepper).
@@ -510,7 +496,6 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
         memset(&c->h, 0, sizeof(float) * 10);     // the float part
         memset(&c->X, 0, sizeof(Q32) * 7);       // X..F2
         c->X = to_q32(sx * g.x0);
-        c->hoff = 4;
         c->sine = 0;
         c->seg = i;
         return true;
@@ -535,15 +520,10 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
         }
         case 9: {
             // Minsky's recurrence h -= e q; q += e h with e = 2 sin(theta/2) keeps
-            // h_n = A cos(w u_n) and q_n = A sin(w u_n + theta/2) exactly (2 fmul a step), A = sx B
-            // in units of 2^(8 hoff - 32): sin(w u_n) = (q_n - s2 h_n) / c2, s2, c2 = sin, cos(theta/2).
+            // h_n = A cos(w u_n) and q_n = A sin(w u_n + theta/2) exactly (2 fmul a step), A = sx B:
+            // sin(w u_n) = (q_n - s2 h_n) / c2, s2, c2 = sin, cos(theta/2).
             const float cw = c->s_cw, sw = c->s_sw, B = c->s_B, s2 = c->s_s2, c2 = c->s_c2;
-            // the finest unit with A / unit < 2^29: A < 2^(8 hoff - 3)
-            float A = jl_fabsf(sx * B) * 8.0f, scale = 4294967296.0f;
-            uint8_t hoff = 0;
-            while (hoff < 4 && !(A < 1.0f)) { A *= (1.0f / 256.0f); scale *= (1.0f / 256.0f); ++hoff; }
-            const float a = scale * sx * B;
-            c->hoff = hoff;
+            const float a = sx * B;
             c->h = a * cw;
             c->q = a * (sw * c2 + cw * s2);        // sin(w delta + theta/2)
             c->eps = 2.0f * s2;
@@ -596,8 +576,7 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
     float fh = 0.0f, fq = 0.0f, vh = 0.0f, vq = 0.0f;
     if (sine) {
         const float s2 = c->s_s2, c2 = c->s_c2;
-        float unit = 1.0f / (4294967296.0f * sx);   // rad per unit of h: 2^(8 hoff - 32) / sx
-        for (uint8_t o = c->hoff; o > 0; --o) unit *= 256.0f;
+        const float unit = 1.0f / sx;               // rad per unit of h
         // a = a2 - w^2 B cos, v = vd + a2 u - w B sin, w B sin = w (q - s2 h) / c2 per unit of h
         // and of q: with t = unit w / c2, v: (t s2, -t), a: -unit w^2 h
         const float t = unit * w / c2;
@@ -607,7 +586,6 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
         fh = -fq * s2 - alpha_ * unit * w * w;
     } else {
         c->h = c->q = c->eps = 0.0f;
-        c->hoff = 4;
     }
     c->v0 = sv * v;
     c->v1 = sv * a * Ts;
@@ -736,7 +714,7 @@ void PlanStepper::advance_segment() {
     n_ = k_ - buf_[ci_].k0;
 }
 
-bool PlanStepper::next_fast(Q32* position, float* velocity, float* ff) {
+bool PlanStepper::next_fast(float* position, float* velocity, float* ff) {
     if (pend_p_ != nullptr && pend_.seg < 0xFD && k_ >= pend_.k0) {
         // re-targeting: the new plan takes over at its first sample
         p_ = pend_p_;
@@ -748,15 +726,14 @@ bool PlanStepper::next_fast(Q32* position, float* velocity, float* ff) {
     }
     if (k_ >= buf_[ci_].k_end) advance_segment();
     Coef& c = buf_[ci_];
-    Q32 x = c.X;
     const float h = c.h, q = c.q;                 // 0 off a sine pulse
     if (velocity) {                               // (the velocity loop only)
         const float n = static_cast<float>(n_);
         *velocity = c.v0 + n * (c.v1 + n * c.v2) + c.vh * h + c.vq * q;
     }
-    float fs = 0.0f;
+    float x = q32_to_float(c.X), fs = 0.0f;
     if (c.sine) {
-        q32_add(&x, place_h(h, c.hoff));
+        x += h;
         if (ff) fs = c.fh * h + c.fq * q;
         const float h1 = h - c.eps * q;           // Minsky: advance by w Ts
         c.q = q + c.eps * h1;
@@ -779,14 +756,13 @@ bool PlanStepper::next_fast(Q32* position, float* velocity, float* ff) {
 
 bool PlanStepper::next(Sample* s) {
     const float t = static_cast<float>(k_) * Ts_;
-    Q32 x;
-    float v;
+    float x, v;
     const bool moving = next_fast(&x, &v, nullptr);
     Sample cf;
     sample(*p_, t, &cf);
     s->jerk = cf.jerk;
     s->accel = cf.accel;
-    s->position = q32_to_float(x);
+    s->position = x;
     s->velocity = v;
     prepare();
     return moving;

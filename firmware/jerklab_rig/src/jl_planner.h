@@ -167,10 +167,11 @@ public:
     void cancel_switch() { pend_p_ = nullptr; }
     bool switch_scheduled() const { return pend_p_ != nullptr && pend_.seg < 0xFD; }
     const Plan* plan() const { return p_; }
-    /// The control loop's sample at t = k Ts, then k++: position x sx in Q32.32, velocity x sv
-    /// and feedforward as floats (nullptr: not computed; the feedforward's polynomial part to
-    /// 2^-16, saturated at +-2^15). Returns false once the move is over (rest at the target).
-    bool next_fast(Q32* position, float* velocity, float* ff);
+    /// The control loop's sample at t = k Ts, then k++: position x sx, velocity x sv and
+    /// feedforward as floats (velocity, ff nullptr: not computed). The polynomial parts come
+    /// from the Q32.32 differences (the position's 32-bit window, the feedforward's Q16.16, each
+    /// converted once), the pulse terms from the float pair. Returns false once the move is over.
+    bool next_fast(float* position, float* velocity, float* ff);
     /// The sample at t = k Ts, then k++, for the golden vectors: position and velocity (x sx,
     /// x sv) from next_fast(), jerk and acceleration from the closed form sample() at t = k Ts.
     bool next(Sample* s);
@@ -192,7 +193,6 @@ public:
     struct Coef {
         uint8_t seg;      // segment index (0xFF: not prepared, 0xFE: in preparation, 0xFD: k0, k_end known)
         uint8_t sine;
-        uint8_t hoff;     // sine: h, q in units of 2^(8 hoff - 32) (Q32.32 = (int32) h << 8 hoff)
         // The float part; during the preparation the same bytes hold the scratch values
         // (stages write each output only after its scratch was read, see compute_stage).
         union {
