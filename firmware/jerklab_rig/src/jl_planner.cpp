@@ -440,11 +440,25 @@ static float __attribute__((noinline)) scale_down(float x, uint8_t n) {
 float q16_to_float(int32_t x) { return scale_down(static_cast<float>(x), 16); }
 
 float q32_to_float(const Q32& x) {
-    // the widest 32-bit window that holds the value: Q16.16 below 2^15, else Q24.8 (to 2^23)
-    const int32_t q = q32_to_q16(x);
-    if (q != 0x7FFFFFFFL && q != -0x7FFFFFFFL) return scale_down(static_cast<float>(q), 16);
-    const int32_t hi = x.hi > 8388607L ? 8388607L : (x.hi < -8388608L ? -8388608L : x.hi);
-    return scale_down(static_cast<float>(static_cast<int32_t>((static_cast<uint32_t>(hi) << 8) | (x.lo >> 24))), 8);
+    // the widest 32-bit window that holds the value: Q16.16 below 2^15, else Q24.8 (byte moves),
+    // one conversion, the window's 2^-16 or 2^-8 by the exponent
+    const int32_t hi = x.hi;
+    int32_t w;
+    uint32_t n;
+    if (hi >= -32768L && hi < 32768L) {
+        w = static_cast<int32_t>((static_cast<uint32_t>(hi) << 16) | (x.lo >> 16));
+        n = 16UL << 23;
+    } else {
+        const int32_t h = hi > 8388607L ? 8388607L : (hi < -8388608L ? -8388608L : hi);
+        w = static_cast<int32_t>((static_cast<uint32_t>(h) << 8) | (x.lo >> 24));
+        n = 8UL << 23;
+    }
+    float f = static_cast<float>(w);
+    uint32_t b;
+    memcpy(&b, &f, 4);
+    if (b & 0x7F800000UL) b -= n;
+    memcpy(&f, &b, 4);
+    return f;
 }
 
 // The smallest k with (float)k * Ts >= t0 (in the float arithmetic of the stepper).
@@ -742,7 +756,15 @@ bool PlanStepper::next_fast(float* position, float* velocity, float* ff) {
     *position = x;
     q32_add(&c.X, c.X1);
     if (ff) {
-        const float f = q16_to_float(q32_to_q16(c.F));
+        // the Q16.16 window (|ff| < 2^15 ticks, saturated), one conversion, 2^-16 by the exponent
+        const int32_t fhi = c.F.hi;
+        const int32_t fw = fhi >= 32768L ? 0x7FFFFFFFL : (fhi < -32768L ? -0x7FFFFFFFL
+                           : static_cast<int32_t>((static_cast<uint32_t>(fhi) << 16) | (c.F.lo >> 16)));
+        float f = static_cast<float>(fw);
+        uint32_t fb;
+        memcpy(&fb, &f, 4);
+        if (fb & 0x7F800000UL) fb -= 16UL << 23;
+        memcpy(&f, &fb, 4);
         *ff = c.sine ? f + fs : f;
         q32_add(&c.F, c.F1);
         q32_add(&c.F1, c.F2);
