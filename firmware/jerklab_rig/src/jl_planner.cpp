@@ -396,8 +396,9 @@ void q32_add(Q32* a, const Q32& b) {
 #endif
 }
 
-// x 2^32 from the float's bits: the 24-bit mantissa shifted to its place in the 64-bit pair
-// (exact from 2^-8 up, truncated to 2^-32 below), then the sign; a bit loop (preparation only).
+// x 2^32 from the float's bits: the 24-bit mantissa placed at its bit position in the 64-bit
+// image (a byte offset and at most 7 bit shifts; exact from 2^-8 up, truncated to 2^-32 below),
+// then the sign. No 64-bit arithmetic.
 Q32 to_q32(float x) {
     uint32_t b;
     memcpy(&b, &x, 4);
@@ -407,12 +408,18 @@ Q32 to_q32(float x) {
     if (e >= 127 + 31) {                                    // |x| >= 2^31, inf, NaN: saturated
         r.hi = 0x7FFFFFFFL;
     } else {
-        r.lo = (b & 0x7FFFFFUL) | 0x800000UL;               // x 2^32 = m 2^(e - 118)
-        for (uint8_t k = e; k > 118; --k) {
-            r.hi = static_cast<int32_t>((static_cast<uint32_t>(r.hi) << 1) | (r.lo >> 31));
-            r.lo <<= 1;
+        uint32_t m = (b & 0x7FFFFFUL) | 0x800000UL;         // x 2^32 = m 2^(e - 118)
+        if (e < 118) {
+            const uint8_t sh = static_cast<uint8_t>(118 - e);
+            r.lo = sh < 24 ? m >> sh : 0;
+        } else {
+            const uint8_t sh = static_cast<uint8_t>(e - 118);   // 0..39
+            for (uint8_t k = sh & 7; k; --k) m <<= 1;             // < 2^31
+            uint8_t img[8] = {0, 0, 0, 0, 0, 0, 0, 0};
+            memcpy(img + (sh >> 3), &m, 4);                       // byte offset 0..4
+            memcpy(&r.lo, img, 4);
+            memcpy(&r.hi, img + 4, 4);
         }
-        for (uint8_t k = e; k < 118 && r.lo; ++k) r.lo >>= 1;
     }
     if (b & 0x80000000UL) {                                 // two's complement negation
         r.hi = ~r.hi + (r.lo == 0 ? 1 : 0);
@@ -472,12 +479,18 @@ static uint32_t first_k(float t0, float Ts) {
 
 uint32_t PlanStepper::first_sample(uint8_t i) const { return first_k(p_->seg[i].t0, Ts_); }
 
-// The first sample after the chunk of segment i that starts at k0: the next segment's first
-// sample or k0 + kChunk, whichever comes first (none after the rest at the target).
+// The first sample after the chunk of segment i that starts at k0 (none after the rest at the
+// target).
 uint32_t PlanStepper::chunk_end(uint8_t i, uint32_t k0) const {
     if (i + 1 >= p_->nseg) return 0xFFFFFFFFUL;
-    const uint32_t ke = first_sample(static_cast<uint8_t>(i + 1)), kc = k0 + kChunk;
-    return kc < ke ? kc : ke;
+    const uint32_t ke = first_sample(static_cast<uint8_t>(i + 1));
+    if (ke <= k0) return ke;
+    const uint32_t len = ke - k0;
+    // chunks of kChunk, the last two balanced: no short tail whose preparation would have to
+    // run in a few ticks (each chunk of a longer segment has >= kChunk / 2 samples)
+    if (len > 2u * kChunk) return k0 + kChunk;
+    if (len > kChunk) return k0 + len / 2;
+    return ke;
 }
 
 // Stage 0 of a chunk's coefficients: its first sample k0 and the next chunk's known.
@@ -660,7 +673,7 @@ bool PlanStepper::prepare_stage() {
         const uint32_t ke = j + 1 < p_->nseg ? first_sample(static_cast<uint8_t>(j + 1)) : 0xFFFFFFFFUL;
         if (ke <= kj) { ++prep_seg_; return false; }   // segment j ends before kj: the next one
         nx->k0 = kj;
-        nx->k_end = j + 1 < p_->nseg && kj + kChunk < ke ? kj + kChunk : ke;
+        nx->k_end = chunk_end(j, kj);
         nx->seg = 0xFD;                             // both ends known
         return false;
     }
