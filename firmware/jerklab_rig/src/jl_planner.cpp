@@ -428,24 +428,6 @@ Q32 to_q32(float x) {
     return r;
 }
 
-int32_t __attribute__((noinline)) q32_to_q16(const Q32& x) {
-    if (x.hi >= 32768L) return 0x7FFFFFFFL;
-    if (x.hi < -32768L) return -0x7FFFFFFFL;
-    return static_cast<int32_t>((static_cast<uint32_t>(x.hi) << 16) | (x.lo >> 16));
-}
-
-// x 2^-n for an integer-valued float (|x| >= 1 or 0) by its exponent: exact, no multiply.
-static float __attribute__((noinline)) scale_down(float x, uint8_t n) {
-    uint32_t b;
-    memcpy(&b, &x, 4);
-    if ((b & 0x7F800000UL) == 0) return x;                  // 0 (an integer's float: no subnormal)
-    b -= static_cast<uint32_t>(n) << 23;
-    memcpy(&x, &b, 4);
-    return x;
-}
-
-float q16_to_float(int32_t x) { return scale_down(static_cast<float>(x), 16); }
-
 float q32_to_float(const Q32& x) {
     // the widest 32-bit window that holds the value: Q16.16 below 2^15, else Q24.8 (byte moves),
     // one conversion, the window's 2^-16 or 2^-8 by the exponent

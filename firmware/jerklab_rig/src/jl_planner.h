@@ -120,11 +120,11 @@ float position_at_switch(const Plan& p, float t);
 /// the end).
 void sample(const Plan& p, float t, Sample* s);
 
-/// Fixed point of the control loop (docs/THEORY.md "Fixed-point control step"): a Q32.32 is the
-/// 64-bit two's complement value * 2^32 as two words (counts, PWM ticks; its integer part hi,
-/// |value| < 2^31 as the encoder count's own int32 range), a Q16.16 an int32_t holding value *
-/// 2^16. The loop's hot arithmetic is 32-bit adds with a carry (avr-gcc's 64-bit arithmetic is
-/// library calls); the float conversions run in the preparation.
+/// Fixed point of the control loop (docs/THEORY.md "the fixed-point control step"): a Q32.32 is
+/// the 64-bit two's complement value * 2^32 as two words (counts, PWM ticks; its integer part hi,
+/// |value| < 2^31 as the encoder count's own int32 range). The loop's hot arithmetic is 64-bit
+/// adds done as eight add-with-carry steps (avr-gcc's 64-bit arithmetic is library calls); the
+/// float -> Q32.32 conversions run in the preparation, one Q32.32 -> float per quantity a sample.
 struct Q32 {
     uint32_t lo;
     int32_t hi;
@@ -133,13 +133,9 @@ struct Q32 {
 void q32_add(Q32* a, const Q32& b);
 /// x * 2^32 (exact from 2^-8 up, truncated toward 0 to 2^-32 below), |x| < 2^31 (saturated beyond).
 Q32 to_q32(float x);
-/// The Q16.16 value of a Q32.32 one (hi << 16 | lo >> 16), saturated at +-(2^31 - 1).
-int32_t q32_to_q16(const Q32& x);
 /// A Q32.32 as a float: its widest 32-bit window (Q16.16 below 2^15, else Q24.8, saturated at 2^23),
 /// converted once and scaled by the exponent (rounded to float32 once, truncated to the window).
 float q32_to_float(const Q32& x);
-/// An int32 Q16.16 as a float: the conversion, then 2^-16 by the exponent (exact, no multiply).
-float q16_to_float(int32_t x);
 
 /// Samples at t = k Ts, k = 0, 1, 2, ... for the control loop. The segment is cut into chunks of
 /// at most kChunk samples; on each chunk the position (Q32.32, scaled by sx) and the
@@ -175,7 +171,7 @@ public:
     /// The sample at t = k Ts, then k++, for the golden vectors: position and velocity (x sx,
     /// x sv) from next_fast(), jerk and acceleration from the closed form sample() at t = k Ts.
     bool next(Sample* s);
-    /// Work ahead: one stage (of up to 13, each <= ~2700 AVR cycles) of the coefficients of the
+    /// Work ahead: one stage (of up to 10, each <= ~5000 AVR cycles) of the coefficients of the
     /// next chunk, if not ready yet, or more when the current chunk ends before the rest
     /// would be done (call after each step, in the idle time; nothing to do most of the time).
     void prepare();
