@@ -225,7 +225,9 @@ def test_host_core_agrees_with_jerklab_on_golden_vectors(host_driver, tmp_path):
     bound 2^-32 (n + n^2 + n^3) < 6.2e-5 count per 64-sample chunk (docs/THEORY.md), its
     feedforward likewise plus 2^-15 of its unit, no chunk change unprepared when prepare() runs
     after each sample, and each one counted as a miss when it never runs; the PID to 2e-5 of the
-    output limit (plus float32 time rounding and either side's value at a jump)."""
+    output limit (plus float32 time rounding and either side's value at a jump); the fixed-point
+    PID (jl_fixed / PidQ, e in counts and u in PWM ticks, Q16.16) to the same plus its
+    quantisation bound (docs/THEORY.md "The fixed-point PID")."""
     vec = tmp_path / "golden.txt"
     clamp = _write_vectors(vec, np.random.default_rng(20151))
     # issue 19: the controller vectors saturate in both directions, and on each side of the clamp
@@ -241,7 +243,7 @@ def test_host_core_agrees_with_jerklab_on_golden_vectors(host_driver, tmp_path):
                                     proc.stdout)}
     assert proc.returncode == 0, proc.stdout + proc.stderr[-3000:]
     for kind, minimum in [("plan", 600), ("sample", 40000), ("stepper", 80000), ("controller", 2000),
-                          ("encode", 56), ("decode", 400)]:
+                          ("controller_fixed", 400), ("encode", 56), ("decode", 400)]:
         records, failures, worst = summary[kind]
         assert records >= minimum and failures == 0 and worst <= 1.0, (kind, summary[kind])
 

@@ -40,6 +40,7 @@
 #include "jl_control.h"
 #include "jl_crc.h"
 #include "jl_device.h"
+#include "jl_fixed.h"
 #include "jl_frame.h"
 #include "jl_planner.h"
 
@@ -85,8 +86,10 @@ const double kRtolControl = 2e-5;       // of the output limit / gains x signal 
 int run_vectors(const char* path) {
     std::ifstream in(path);
     if (!in) { std::fprintf(stderr, "cannot open %s\n", path); return 2; }
-    Stat plan("plan"), smp("sample"), stp("stepper"), ctl("controller"), enc("encode"), dec("decode");
+    Stat plan("plan"), smp("sample"), stp("stepper"), ctl("controller"), ctlq("controller_fixed"), enc("encode"), dec("decode");
     jl::Pid pid;
+    jl::PidQ pidq;               // the fixed-point law, in "counts" and "ticks" (scales below)
+    double q_se = 1.0, q_su = 1.0, q_kabs = 0.0, q_kid = 0.0, q_acc = 0.0;
     jl::Feedforward ff;
     bool use_ff = false, velocity_loop = false, first = true;
     float ctl_Ts = 0.005f, y_prev = 0.0f;
@@ -207,6 +210,21 @@ int run_vectors(const char* path) {
             pid.reset();
             use_ff = f != 0;
             ctl_scale = limit;
+            // fixed point: e x q_se (counts per rad as on the Uno; the velocity loop's rad/s as
+            // they are), u x q_su (PWM ticks per volt, 1023 / limit)
+            q_se = loop == 1 ? 1.0 : 448.0 / (2.0 * M_PI);
+            q_su = 1023.0 / limit;
+            {
+                const double g = q_su / q_se;
+                if (!pidq.set((float)(kpd * g), (float)(kid * g), (float)(kdd * g), (float)gamma, (float)(limit * q_su))) {
+                    ctlq.check(1, 0, where.str() + " fixed-point gains refused");
+                    continue;
+                }
+            }
+            pidq.reset();
+            q_kabs = (std::fabs(kpd) + 2.0 * std::fabs(kdd)) / (1.0 - std::fabs(gamma));
+            q_kid = std::fabs(kid);
+            q_acc = 0.0;
         } else if (kind == "c") {
             double r, v, a, y, u, p, i, d, uf;
             int sat;
@@ -230,6 +248,21 @@ int run_vectors(const char* path) {
             ctl.check(std::fabs(parts.d - d), tol, where.str() + " d");
             ctl.check(std::fabs(parts.ff - uf), tol, where.str() + " ff");
             ctl.check(parts.saturated != (sat != 0), 0.5, where.str() + " saturated");
+            // PidQ: the float path's bound plus the fixed point's (docs/THEORY.md "The fixed-point
+            // PID"): e rounded to 2^-17 of its unit, ff to 2^-17 tick, each product floored
+            // (<= 2^-16 tick, 3 a step plus the integrator's running sum), gains exact (float32
+            // gains >= 2^-9) or within 2^-33 (|e| < 2^15: < 2^-18 tick)
+            {
+                bool qsat;
+                const int32_t eq = jl::to_q16((float)(e * q_se));
+                const int32_t fq = jl::to_q16((float)(uff * q_su));
+                const int32_t uq = pidq.step(eq, fq, &qsat);
+                const double lsb = 1.0 / 65536.0;
+                q_acc += q_kid * 0.5 * lsb / q_se + lsb / q_su;            // integrator: e's rounding, floor
+                const double tq = kRtolControl * ctl_scale + q_kabs * 0.5 * lsb / q_se
+                                  + (4.0 * lsb + 3.0 * lsb) / q_su + q_acc;
+                ctlq.check(std::fabs(uq * lsb / q_su - u), tq, where.str() + " u (fixed point)");
+            }
         } else if (kind == "F") {
             unsigned type, seq;
             std::string ph, fh;
@@ -270,7 +303,7 @@ int run_vectors(const char* path) {
         }
     }
     int fail = 0;
-    for (Stat* s : {&plan, &smp, &stp, &ctl, &enc, &dec}) {
+    for (Stat* s : {&plan, &smp, &stp, &ctl, &ctlq, &enc, &dec}) {
         std::printf("%s records=%ld failures=%ld worst_error_over_tol=%.3g at %s\n", s->name, s->records,
                     s->failures, s->worst, s->worst_what.empty() ? "-" : s->worst_what.c_str());
         if (s->failures) fail = 1;
@@ -364,8 +397,56 @@ int run_device(double K, double tau, double supply, int encoder) {
 
 }  // namespace
 
+// jl_host fixed: the fixed-point helpers (jl_fixed) on records from stdin, one result line each:
+//   w A B        -> "LO HI"      mul_s32x32 (the full signed product's two words)
+//   m A MANT S   -> "R"          mul_q(A, {MANT, S})
+//   g BITS       -> "OK MANT S"  to_qgain of the float32 with these IEEE bits
+//   q BITS       -> "R"          to_q16 of the float32 with these IEEE bits
+//   s A B        -> "SUM DIFF"   add_sat, sub_sat
+int run_fixed() {
+    std::string line;
+    while (std::getline(std::cin, line)) {
+        std::istringstream ss(line);
+        std::string k;
+        if (!(ss >> k)) continue;
+        if (k == "w") {
+            long long a, b;
+            ss >> a >> b;
+            uint32_t lo;
+            int32_t hi;
+            jl::mul_s32x32((int32_t)a, (int32_t)b, &lo, &hi);
+            std::printf("%lu %ld\n", (unsigned long)lo, (long)hi);
+        } else if (k == "m") {
+            long long a, m;
+            int sh;
+            ss >> a >> m >> sh;
+            jl::QGain g = {(int32_t)m, (uint8_t)sh};
+            std::printf("%ld\n", (long)jl::mul_q((int32_t)a, g));
+        } else if (k == "g" || k == "q") {
+            unsigned long bits;
+            ss >> bits;
+            uint32_t b32 = (uint32_t)bits;
+            float x;
+            std::memcpy(&x, &b32, 4);
+            if (k == "q") {
+                std::printf("%ld\n", (long)jl::to_q16(x));
+            } else {
+                jl::QGain g = {0, 0};
+                const bool ok = jl::to_qgain(x, &g);
+                std::printf("%d %ld %u\n", ok ? 1 : 0, (long)g.mant, (unsigned)g.shift);
+            }
+        } else if (k == "s") {
+            long long a, b;
+            ss >> a >> b;
+            std::printf("%ld %ld\n", (long)jl::add_sat((int32_t)a, (int32_t)b), (long)jl::sub_sat((int32_t)a, (int32_t)b));
+        }
+    }
+    return 0;
+}
+
 int main(int argc, char** argv) {
     if (argc >= 3 && std::strcmp(argv[1], "vectors") == 0) return run_vectors(argv[2]);
+    if (argc >= 2 && std::strcmp(argv[1], "fixed") == 0) return run_fixed();
     if (argc >= 2 && std::strcmp(argv[1], "device") == 0) {
         double K = argc > 2 ? std::atof(argv[2]) : 32.4;
         double tau = argc > 3 ? std::atof(argv[3]) : 0.025;

@@ -96,4 +96,61 @@ float Pid::step_fast(float e, float ff, bool* saturated) {
     return u;
 }
 
+bool PidQ::set(float kpd, float kid, float kdd, float gamma, float limit) {
+    if (!finite_f(limit) || !(limit > 0.0f) || !(limit < 32768.0f)) return false;
+    if (!finite_f(gamma) || !(jl_fabsf(gamma) < 1.0f)) return false;
+    QGain p, i, d, g;
+    if (!to_qgain(kpd, &p) || !to_qgain(kid, &i) || !to_qgain(kdd, &d) || !to_qgain(gamma, &g))
+        return false;
+    kpd_ = p;
+    kid_ = i;
+    kdd_ = d;
+    gamma_ = g;
+    filtered_ = g.mant != 0;
+    limit_ = to_q16(limit);
+    return true;
+}
+
+int32_t __attribute__((noinline)) PidQ::step(int32_t e, int32_t ff, bool* saturated) {
+    const int32_t kEmax = 0x40000000L;
+    if (e > kEmax) e = kEmax;
+    else if (e < -kEmax) e = -kEmax;
+    const int32_t i0 = i_;
+    const int32_t i = add_sat(i0, mul_q(e, kid_));          // eq. 17
+    int32_t d = mul_q(e - e_prev_, kdd_);
+    if (filtered_) {
+        d = add_sat(d, mul_q(d_prev_, gamma_));              // derivative filter
+        d_prev_ = d;
+    }
+    e_prev_ = e;
+    const int32_t pd = add_sat(mul_q(e, kpd_), d);
+    const int32_t fpd = add_sat(ff, pd);
+    int32_t u = add_sat(fpd, i);                             // eq. 18 + feedforward (eq. 16)
+    const int32_t lim = limit_;
+    if (u > lim || u < -lim) {
+        *saturated = true;
+        if (e != 0 && (e > 0) == (u > 0)) {                  // freeze the integrator
+            u = add_sat(fpd, i0);
+            i_ = i0;
+        } else {
+            i_ = i;
+        }
+        if (u > lim) u = lim;
+        else if (u < -lim) u = -lim;
+    } else {
+        *saturated = false;
+        i_ = i;
+    }
+    return u;
+}
+
+int16_t q16_to_pwm(int32_t u, int16_t top) {
+    // |u| rounded (halves up), in ticks; |u| <= 2^31 - 1 (a saturated sum never is INT32_MIN + 0)
+    const bool neg = u < 0;
+    const uint32_t m = neg ? static_cast<uint32_t>(-(u + 1)) + 1u : static_cast<uint32_t>(u);
+    const uint32_t r = (m + 0x8000UL) >> 16;
+    const int16_t t = r > static_cast<uint32_t>(top) ? top : static_cast<int16_t>(r);
+    return neg ? static_cast<int16_t>(-t) : t;
+}
+
 }  // namespace jl

@@ -4,6 +4,7 @@
 #ifndef JL_CONTROL_H
 #define JL_CONTROL_H
 #include <stdint.h>
+#include "jl_fixed.h"
 
 namespace jl {
 
@@ -53,6 +54,33 @@ private:
     bool filtered_ = false;                // gamma != 0
     float i_ = 0.0f, e_prev_ = 0.0f, d_prev_ = 0.0f;
 };
+
+/// The same law in fixed point for the control loop (docs/THEORY.md "The fixed-point PID"):
+/// the error e and the feedforward in Q16.16 (e.g. encoder counts and PWM ticks x 2^16), u in
+/// Q16.16 of the feedforward's unit; gains as QGain (set() quantises them, see to_qgain); each
+/// product floor(e g) by mul_q, the sums saturated at +-2^31 / 2^16. p = kpd e, i' = i + kid e,
+/// d = kdd (e - e(k-1)) [+ gamma d(k-1)], u = ff + p + i' + d; |u| > limit: saturated, and
+/// when e has the sign of u, u = ff + p + i + d and i' = i (conditional integration), then u
+/// clamped to +-limit. |e| is clamped to 2^30 (so that e - e(k-1) cannot overflow).
+class PidQ {
+public:
+    /// Returns false unless all gains are finite with |g| < 2^31, |gamma| < 1 and
+    /// 0 < limit < 2^15 (the limit in the output's unit).
+    bool set(float kpd, float kid, float kdd, float gamma, float limit);
+    void reset() { i_ = 0; e_prev_ = 0; d_prev_ = 0; }
+    /// One sample: e and ff in Q16.16; returns u in Q16.16 and the saturation flag.
+    int32_t step(int32_t e, int32_t ff, bool* saturated);
+    int32_t limit() const { return limit_; }
+
+private:
+    QGain kpd_ = {0, 0}, kid_ = {0, 0}, kdd_ = {0, 0}, gamma_ = {0, 0};
+    int32_t limit_ = 12L << 16;
+    bool filtered_ = false;
+    int32_t i_ = 0, e_prev_ = 0, d_prev_ = 0;
+};
+
+/// u (Q16.16) to PWM ticks: round half away from 0, clamped to +-top.
+int16_t q16_to_pwm(int32_t u, int16_t top);
 
 }  // namespace jl
 #endif

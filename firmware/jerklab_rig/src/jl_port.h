@@ -41,7 +41,7 @@
 
 namespace jl {
 /// True for a finite float (NaN - NaN and inf - inf are NaN; needs no -ffast-math).
-static inline bool finite_f(float x) { volatile float d = x - x; return d == 0.0f; }
+bool finite_f(float x);
 static const float kPi = 3.14159265358979f;
 static const float kTwoPi = 6.28318530717959f;
 }

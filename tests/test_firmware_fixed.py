@@ -1,0 +1,199 @@
+"""The firmware's fixed-point helpers (firmware/jerklab_rig/src/jl_fixed, the host build) against
+Python's exact integer arithmetic: the signed 32 x 32 -> 64-bit product, the gain as mantissa and
+byte shift with its floor and saturation, the Q16.16 conversion of a float32 and the saturating
+adds. The AVR's inline-assembly multiply (the same functions under ``__AVR__``) is compiled for
+the ATmega328P and run in simavr against avr-gcc's own int64 arithmetic and a checksum of Python's."""
+from __future__ import annotations
+
+import math
+import random
+import struct
+import subprocess
+
+import numpy as np
+import pytest
+
+from jerklab.rig.simavr import build_firmware
+from conftest import require_tool
+
+I32_MIN, I32_MAX = -2**31, 2**31 - 1
+EDGES = [I32_MIN, I32_MIN + 1, -2**30, -65536, -256, -255, -1, 0, 1, 2, 255, 256, 65535, 2**23,
+         2**30, I32_MAX - 1, I32_MAX]
+
+
+@pytest.fixture(scope="module")
+def host_driver():
+    require_tool("g++", "make")
+    return build_firmware("host")["host"]
+
+
+def _run(host, lines):
+    out = subprocess.run([str(host), "fixed"], input="\n".join(lines) + "\n", capture_output=True,
+                         text=True, check=True, timeout=60).stdout.split("\n")
+    return [ln.split() for ln in out if ln.strip()]
+
+
+def _sat(x):
+    return max(I32_MIN, min(I32_MAX, x))
+
+
+def _bits(x):
+    return struct.unpack("<I", struct.pack("<f", x))[0]
+
+
+def _pairs(n, seed):
+    rng = random.Random(seed)
+    pairs = [(a, b) for a in EDGES for b in EDGES]
+    pairs += [(rng.randint(I32_MIN, I32_MAX), rng.randint(I32_MIN, I32_MAX)) for _ in range(n)]
+    # small and mixed magnitudes (one byte, two bytes, ...) where carries between columns matter
+    pairs += [(rng.randint(-2**rng.randint(1, 31), 2**rng.randint(1, 31) - 1),
+               rng.randint(-2**rng.randint(1, 31), 2**rng.randint(1, 31) - 1)) for _ in range(n)]
+    return pairs
+
+
+def test_signed_product_is_exact(host_driver):
+    pairs = _pairs(3000, 1)
+    got = _run(host_driver, [f"w {a} {b}" for a, b in pairs])
+    assert len(got) == len(pairs)
+    for (a, b), (lo, hi) in zip(pairs, got):
+        p = a * b
+        assert (int(hi) << 32) + int(lo) == p, (a, b)
+        assert 0 <= int(lo) < 2**32
+
+
+def test_mul_q_is_the_floor_of_the_shifted_product_saturated(host_driver):
+    rng = random.Random(2)
+    cases = [(a, m, s) for (a, m) in _pairs(1500, 3) for s in (rng.randint(0, 4),)]
+    cases += [(a, m, s) for a in EDGES for m in (I32_MIN + 1, -1, 1, I32_MAX) for s in range(5)]
+    got = _run(host_driver, [f"m {a} {m} {s}" for a, m, s in cases])
+    for (a, m, s), (r,) in zip(cases, got):
+        assert int(r) == _sat((a * m) >> (8 * s)), (a, m, s)      # >> floors in Python
+
+
+def test_gain_quantisation_bound(host_driver):
+    """to_qgain: the largest byte shift with |mant| < 2^31; float32 gains >= 2^-9 exact, smaller
+    ones within 2^-33 (half a unit of 2^-32); |g| >= 2^31, inf and NaN refused."""
+    rng = np.random.default_rng(4)
+    gains = [0.0, 1.0, -1.0, 0.5, 0.4999999, 2.0**-9, 3e-3, -7e-6, 1e-12, 123.456, -2.0**30,
+             2.0**31 * (1 - 2**-24), 1e-40]
+    gains += list(np.float32(10.0 ** rng.uniform(-12, 9, 400) * rng.choice([-1, 1], 400)))
+    refused = [2.0**31, -2.0**31, math.inf, -math.inf, math.nan]
+    got = _run(host_driver, [f"g {_bits(float(g))}" for g in gains + refused])
+    for g, (ok, mant, s) in zip(gains, got):
+        g = float(np.float32(g))
+        ok, mant, s = int(ok), int(mant), int(s)
+        assert ok == 1 and 0 <= s <= 4 and abs(mant) < 2**31, g
+        assert s == 4 or abs(g) * 2.0 ** (8 * (s + 1)) >= 2**31, (g, s)     # the largest shift
+        err = abs(mant * 2.0 ** (-8 * s) - g)
+        if abs(g) >= 2**-9:
+            assert err == 0.0, g
+        else:
+            assert err <= 2.0**-33, g
+    assert all(int(r[0]) == 0 for r in got[len(gains):])
+
+
+def test_q16_conversion(host_driver):
+    rng = np.random.default_rng(5)
+    xs = [0.0, -0.0, 0.5, -0.5, 1.0 / 65536, 1.5 / 65536, -2.5 / 65536, 1.0 / 131072 * 0.99,
+          100.25, -32767.99, 32767.999, 32768.0, -32768.0, 1e30, -1e30, math.inf, -math.inf, math.nan]
+    xs += list(np.float32(rng.uniform(-40000, 40000, 300))) + list(np.float32(rng.normal(0, 3, 300)))
+    got = _run(host_driver, [f"q {_bits(float(x))}" for x in xs])
+    for x, (r,) in zip(xs, got):
+        x = float(np.float32(x))
+        r = int(r)
+        if math.isnan(x):
+            assert r == 0
+        elif abs(x) >= 32768.0:
+            assert r == (I32_MAX if x > 0 else -I32_MAX)
+        else:
+            exact = x * 65536.0                                   # exact in float64
+            want = math.floor(abs(exact) + 0.5) * (1 if x >= 0 else -1)
+            assert abs(r - want) <= (1 if abs(exact - round(exact)) > 0.5 - 2**-24 * abs(exact) else 0), x
+            assert abs(r - exact) <= 0.5 + 1e-6 * abs(exact) + 1e-9, x
+
+
+def test_saturating_adds(host_driver):
+    pairs = _pairs(500, 6)
+    got = _run(host_driver, [f"s {a} {b}" for a, b in pairs])
+    for (a, b), (s, d) in zip(pairs, got):
+        assert int(s) == _sat(a + b) and int(d) == _sat(a - b), (a, b)
+
+
+_AVR_MAIN = r"""
+#include <avr/io.h>
+#include <avr/interrupt.h>
+#include <avr/pgmspace.h>
+#include <avr/sleep.h>
+#include <util/delay.h>
+#include "jl_fixed.h"
+static const int32_t kV[][3] PROGMEM = {VECTORS};
+static void tx(uint8_t c) { while (!(UCSR0A & _BV(UDRE0))) {} UDR0 = c; }
+static void hex32(uint32_t v) {
+    for (int8_t i = 28; i >= 0; i -= 4) { uint8_t d = (v >> i) & 15; tx(d < 10 ? '0' + d : 'a' + d - 10); }
+}
+int main() {
+    UBRR0 = 0;
+    UCSR0B = _BV(TXEN0);
+    // each result against avr-gcc's own int64 arithmetic (the library multiply), and a
+    // checksum of all of them for the host to recompute
+    uint16_t bad = 0;
+    uint32_t sum = 0;
+    for (uint16_t k = 0; k < sizeof(kV) / sizeof(kV[0]); ++k) {
+        const int32_t a = (int32_t)pgm_read_dword(&kV[k][0]), b = (int32_t)pgm_read_dword(&kV[k][1]);
+        const uint8_t s = (uint8_t)pgm_read_dword(&kV[k][2]);
+        uint32_t lo;
+        int32_t hi;
+        jl::mul_s32x32(a, b, &lo, &hi);
+        const int32_t q = jl::mul_q_(a, b, s);
+        const int64_t p = (int64_t)a * (int64_t)b;
+        int64_t w = p >> (8 * s);
+        if (w > INT32_MAX) w = INT32_MAX;
+        if (w < INT32_MIN) w = INT32_MIN;
+        if (lo != (uint32_t)p || hi != (int32_t)(p >> 32) || q != (int32_t)w) ++bad;
+        sum += lo ^ (uint32_t)hi ^ (uint32_t)q;
+    }
+    tx('<'); hex32(bad); tx(' '); hex32(sum); tx('>'); tx('\n');   // (simavr prints whole lines)
+    _delay_ms(20);               // the simulated UART drains before the simulation ends
+    cli();
+    sleep_cpu();
+}
+"""
+
+
+def test_avr_assembly_multiply_on_the_simulated_atmega328p(tmp_path):
+    """The inline-assembly product (sixteen MULs, the signed correction) and mul_q's window and
+    saturation as compiled for the ATmega328P, run in simavr, against Python's integers."""
+    require_tool("avr-g++", "simavr")
+    from jerklab.rig.simavr.build import firmware_dir
+
+    src = firmware_dir() / "jerklab_rig" / "src"
+    rng = random.Random(7)
+    pairs = [(a, b) for a in EDGES[::2] + [-1, 1] for b in EDGES[1::2] + [0]]
+    pairs += [(rng.randint(I32_MIN, I32_MAX), rng.randint(I32_MIN, I32_MAX))
+                                  for _ in range(60)]
+    pairs += [(rng.randint(-2**rng.randint(1, 31), 2**rng.randint(1, 31) - 1),
+               rng.randint(-2**rng.randint(1, 31), 2**rng.randint(1, 31) - 1)) for _ in range(60)]
+    cases = [(a, b, rng.randint(0, 4)) for a, b in pairs]
+    body = ",".join(f"{{{a}L,{b}L,{s}}}" if a != I32_MIN and b != I32_MIN else
+                    f"{{{'(-2147483647L-1)' if a == I32_MIN else str(a) + 'L'},"
+                    f"{'(-2147483647L-1)' if b == I32_MIN else str(b) + 'L'},{s}}}" for a, b, s in cases)
+    (tmp_path / "t.cpp").write_text(_AVR_MAIN.replace("VECTORS", body))
+    elf = tmp_path / "t.elf"
+    subprocess.run(["avr-g++", "-mmcu=atmega328p", "-DF_CPU=16000000L", "-Os", "-std=gnu++11",
+                    f"-I{src}", str(tmp_path / "t.cpp"), str(src / "jl_fixed.cpp"), "-o", str(elf)],
+                   check=True, capture_output=True, timeout=120)
+    run = subprocess.run(["simavr", "-m", "atmega328p", "-f", "16000000", str(elf)],
+                         capture_output=True, text=True, timeout=120)
+    import re
+
+    # (simavr echoes the UART on stderr in colour, broken into lines)
+    text = re.sub(r"\x1b\[[0-9;]*m|[\r\n]", "", run.stderr + run.stdout)
+    got = re.findall(r"<([0-9a-f]{8}) ([0-9a-f]{8})>", text)
+    assert len(got) == 1, (run.stdout[-500:], run.stderr[-500:])
+    bad, checksum = int(got[0][0], 16), int(got[0][1], 16)
+    want = 0
+    for a, b, s in cases:
+        p = a * b
+        lo, hi, q = p & 0xFFFFFFFF, (p >> 32) & 0xFFFFFFFF, _sat(p >> (8 * s)) & 0xFFFFFFFF
+        want = (want + (lo ^ hi ^ q)) & 0xFFFFFFFF
+    assert bad == 0 and checksum == want, (bad, hex(checksum), hex(want))
