@@ -197,3 +197,23 @@ def test_avr_assembly_multiply_on_the_simulated_atmega328p(tmp_path):
         lo, hi, q = p & 0xFFFFFFFF, (p >> 32) & 0xFFFFFFFF, _sat(p >> (8 * s)) & 0xFFFFFFFF
         want = (want + (lo ^ hi ^ q)) & 0xFFFFFFFF
     assert bad == 0 and checksum == want, (bad, hex(checksum), hex(want))
+
+
+def test_pwm_rounding_is_lround_clamped(host_driver):
+    """round_clamp (the control step's PWM write): lround, halves away from 0, clamped to +-top,
+    on every half-integer and its float32 neighbours below 2048, random floats, the edges."""
+    rng = np.random.default_rng(9)
+    xs = []
+    for k in range(0, 2048):
+        h = np.float32(k + 0.5)
+        xs += [h, np.nextafter(h, np.float32(0)), np.nextafter(h, np.float32(4096)), np.float32(k)]
+    xs += list(np.float32(rng.uniform(-3000, 3000, 3000))) + list(np.float32(rng.normal(0, 2, 1000)))
+    xs += [np.float32(v) for v in (0.0, -0.0, 0.49999997, 1e-40, 32767.0, 32768.0, -1e30, np.inf, -np.inf)]
+    xs += [-x for x in xs[:8192]]
+    cases = [(float(x), top) for x in xs for top in (1023,)] + [(float(x), 255) for x in xs[:2000]]
+    got = _run(host_driver, [f"p {_bits(x)} {top}" for x, top in cases] + [f"p {_bits(math.nan)} 1023"])
+    for (x, top), (r,) in zip(cases, got):
+        want = math.floor(abs(x) + 0.5) if math.isfinite(x) else top
+        want = min(want, top) * (-1 if math.copysign(1.0, x) < 0 else 1)
+        assert int(r) == want, (x, top)
+    assert int(got[-1][0]) == 1023

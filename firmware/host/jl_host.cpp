@@ -403,6 +403,7 @@ int run_device(double K, double tau, double supply, int encoder) {
 //   g BITS       -> "OK MANT S"  to_qgain of the float32 with these IEEE bits
 //   q BITS       -> "R"          to_q16 of the float32 with these IEEE bits
 //   s A B        -> "SUM DIFF"   add_sat, sub_sat
+//   p BITS TOP   -> "R"          round_clamp of the float32 with these IEEE bits
 int run_fixed() {
     std::string line;
     while (std::getline(std::cin, line)) {
@@ -435,6 +436,14 @@ int run_fixed() {
                 const bool ok = jl::to_qgain(x, &g);
                 std::printf("%d %ld %u\n", ok ? 1 : 0, (long)g.mant, (unsigned)g.shift);
             }
+        } else if (k == "p") {
+            unsigned long bits;
+            int top;
+            ss >> bits >> top;
+            uint32_t b32 = (uint32_t)bits;
+            float x;
+            std::memcpy(&x, &b32, 4);
+            std::printf("%d\n", (int)jl::round_clamp(x, (int16_t)top));
         } else if (k == "s") {
             long long a, b;
             ss >> a >> b;

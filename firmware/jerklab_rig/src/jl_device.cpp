@@ -1,5 +1,6 @@
 #include "jl_device.h"
 #include "jl_port.h"
+#include "jl_fixed.h"
 
 namespace jl {
 
@@ -30,20 +31,8 @@ void Device::update_pwm_top() {
     pwm_top_ = ticks_to_pwm(max_voltage_ * pwm_per_volt_);
 }
 
-// lround(u) (halves away from zero) clamped to +-pwm_top, for |u| < 2^22 (u + 0.5 is then exact):
-// the sign bit and a truncation instead of the library's lround.
-int16_t Device::ticks_to_pwm(float u) const {
-    uint32_t b;
-    memcpy(&b, &u, 4);
-    const bool neg = (b & 0x80000000UL) != 0;
-    if ((b & 0x7FFFFFFFUL) >= 0x4A800000UL) return neg ? -pwm_top_ : pwm_top_;   // |u| >= 2^22, NaN
-    b &= 0x7FFFFFFFUL;
-    float m;
-    memcpy(&m, &b, 4);
-    long pwm = static_cast<long>(m + 0.5f);
-    if (pwm > pwm_top_) pwm = pwm_top_;
-    return static_cast<int16_t>(neg ? -pwm : pwm);
-}
+// lround(u) clamped to +-pwm_top (jl_fixed's byte-level rounding, no soft float)
+int16_t Device::ticks_to_pwm(float u) const { return round_clamp(u, pwm_top_); }
 
 int16_t Device::volts_to_pwm(float u) const { return ticks_to_pwm(u * pwm_per_volt_); }
 

@@ -35,5 +35,10 @@ int32_t sub_sat(int32_t a, int32_t b);
 /// round(x * 2^16) (halves away from 0) for |x| < 2^15, saturated to +-(2^31 - 1) beyond (NaN: 0).
 int32_t to_q16(float x);
 
+/// lround(u) (halves away from 0) clamped to +-top (0 <= top < 2^15), NaN to +top: byte
+/// operations on the IEEE bits (the PWM write of the control step; ~60-100 AVR cycles against
+/// ~275 through the soft-float add and conversion).
+int16_t round_clamp(float u, int16_t top);
+
 }  // namespace jl
 #endif
