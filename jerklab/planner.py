@@ -963,7 +963,9 @@ class AnyStateProfile(Profile):
                     jk[pulse] = jp * sn
                     acc[pulse] = ap + c * omc
                     vel[pulse] = vp + ap * rp + c * wms / w
-                    pos[pulse] = pp + rp * (vp + 0.5 * ap * rp) + c * hmo / (w * w)
+                    # (/ w / w, not / (w * w): a pulse of 1e-160 s has w * w = inf, while its
+                    # term underflows to 0 as it should)
+                    pos[pulse] = pp + rp * (vp + 0.5 * ap * rp) + c * hmo / w / w
         else:
             jk = acc = vel = pos = np.zeros(t.shape)
         T = self._res[17]
