@@ -61,7 +61,9 @@ def solver():
             import numba
 
             for name in _JITTED:        # module globals, so that compiled code calls compiled code
-                g[name] = numba.njit(cache=True, nogil=True)(PURE[name])
+                # (plan_tuple, the scalar planners' entry from Python, keeps the GIL: releasing and
+                # taking it back costs about 0.05 us a call, 5 % of a plan)
+                g[name] = numba.njit(cache=True, nogil=name != "plan_tuple")(PURE[name])
             # compiled now (or loaded from the cache) for float arguments, while the globals it
             # calls are the compiled ones (the planners call plan_tuple, not solve_tuple)
             try:
@@ -114,7 +116,7 @@ _MAX_SEG = 12         # most segments of a profile (2 brake + 8 + a cruise)     
 def _peval(D, i, deg, x):
     r = 0.0
     for m in range(deg + 1):
-        r = r * x + D[i, m]
+        r = r * x + D[6 * i + m]
     return r
 
 
@@ -124,7 +126,7 @@ def _pscale(D, i, deg, x):
     r = 0.0
     ax = abs(x)
     for m in range(deg + 1):
-        r = r * ax + abs(D[i, m])
+        r = r * ax + abs(D[6 * i + m])
     return r
 
 
@@ -139,7 +141,7 @@ def _root_between(D, i, deg, lo, hi, flo):
         df = 0.0
         for m in range(deg + 1):
             df = df * x + f
-            f = f * x + D[i, m]
+            f = f * x + D[6 * i + m]
         if f == 0.0:
             return x
         if (f < 0.0) == neg_lo:
@@ -187,8 +189,9 @@ def _roots_from_critical(D, i, deg, crit, ncrit, lo, hi, out):
 
 @_jit
 def _real_roots(D, deg, lo, hi, crit, out):
-    """Real roots in ``[lo, hi]`` of the polynomial in ``D[0, :deg + 1]`` (highest power first,
-    degree <= 5) into ``out``; returns their number.  ``D`` (6 x 6) and ``crit`` (8) are scratch.
+    """Real roots in ``[lo, hi]`` of the polynomial in ``D[:deg + 1]`` (highest power first,
+    degree <= 5) into ``out``; returns their number.  ``D`` (36: six rows of 6, row ``i`` at
+    ``6 i``, flat: no reshape on the hot path) and ``crit`` (8) are scratch.
 
     The roots of the derivatives, from the linear one up, split ``[lo, hi]`` into pieces on which
     the polynomial is monotone; a sign change on a piece is bisected (safeguarded Newton), a value
@@ -197,24 +200,40 @@ def _real_roots(D, deg, lo, hi, crit, out):
     """
     if _no_root(D, deg, lo, hi):
         return 0
+    return _search_roots(D, deg, lo, hi, crit, out)
+
+
+@_jit
+def _roots5(c0, c1, c2, c3, c4, c5, lo, hi, D, crit, out):
+    """:func:`_real_roots` of ``c0 x^5 + ... + c5`` on ``[lo, hi]``: the coefficients go into
+    row 0 of ``D`` only when :func:`_no_root5` cannot rule a root out."""
+    if _no_root5(c0, c1, c2, c3, c4, c5, lo, hi):
+        return 0
+    _set(D, c0, c1, c2, c3, c4, c5)
+    return _search_roots(D, 5, lo, hi, crit, out)
+
+
+@_jit
+def _search_roots(D, deg, lo, hi, crit, out):
+    """:func:`_real_roots` without the no-root test."""
     k = 0
-    while k < deg and D[0, k] == 0.0:
+    while k < deg and D[k] == 0.0:
         k += 1
     if k:
         for m in range(deg + 1 - k):
-            D[0, m] = D[0, m + k]
+            D[m] = D[m + k]
         deg -= k
     if deg <= 0:
         return 0
-    for i in range(1, deg):                 # D[i] = i-th derivative, degree deg - i
+    for i in range(1, deg):                 # row i = i-th derivative, degree deg - i
         di = deg - i
         for m in range(di + 1):
-            D[i, m] = D[i - 1, m] * (di + 1 - m)
+            D[6 * i + m] = D[6 * i - 6 + m] * (di + 1 - m)
     ncrit = 0
     if deg >= 2:
         i = deg - 1                         # the linear derivative
-        if D[i, 0] != 0.0:
-            x = -D[i, 1] / D[i, 0]
+        if D[6 * i] != 0.0:
+            x = -D[6 * i + 1] / D[6 * i]
             if lo < x < hi:
                 crit[0] = x
                 ncrit = 1
@@ -227,45 +246,96 @@ def _real_roots(D, deg, lo, hi, crit, out):
 
 @_jit
 def _no_root(D, deg, lo, hi):
-    """True when the polynomial in ``D[0, :deg + 1]`` (degree <= 5) provably has no root on
+    """True when the polynomial in ``D[:deg + 1]`` (degree <= 5) provably has no root on
     ``[lo, hi]``, nor a value that :func:`_real_roots` would take for one (so that it would find
-    none): a cheap test that saves most of the root searches.
+    none): :func:`_no_root5` on the coefficients (leading zeros added up to degree 5, which change
+    no value)."""
+    c = np.zeros(6)
+    for m in range(deg + 1):
+        c[5 - deg + m] = D[m]
+    return _no_root5(c[0], c[1], c[2], c[3], c[4], c[5], lo, hi)
 
-    The Taylor coefficients ``c_k`` at ``lo`` (repeated synthetic division, in row 5 of ``D``, which
-    the root search never uses) bound the polynomial on the interval, ``h = hi - lo``:
-    ``c_0 + sum(min(c_k h^k, 0)) <= p <= c_0 + sum(max(c_k h^k, 0))``.  The bound must clear 0 by
-    ``1e-11`` of the sum of |terms| at ``|lo| + h`` (the round-off of the shift, and the root
-    search's own test, ``1e-13`` of the same scale at most, with a wide margin).
+
+@_jit
+def _no_root5(c0, c1, c2, c3, c4, c5, lo, hi):
+    """True when ``c0 x^5 + ... + c5`` provably has no root on ``[lo, hi]``, nor a value that
+    :func:`_real_roots` would take for one (so that it would find none): a cheap test that saves
+    most of the root searches (on scalars: no array is touched).
+
+    The Taylor coefficients ``t_k`` at ``lo`` (repeated synthetic division) bound the polynomial on
+    the interval, ``h = hi - lo``: ``t_0 + sum(min(t_k h^k, 0)) <= p <= t_0 + sum(max(t_k h^k, 0))``.
+    The bound must clear 0 by ``1e-11`` of the sum of |terms| at ``|lo| + h`` (the round-off of the
+    shift, and the root search's own test, ``1e-13`` of the same scale at most, with a wide margin).
     """
     h = hi - lo
-    for m in range(deg + 1):
-        D[5, m] = D[0, m]
-    for k in range(deg):                # after pass k, D[5, deg - k] = c_k
-        for m in range(1, deg + 1 - k):
-            D[5, m] += lo * D[5, m - 1]
-    low = D[5, deg]
+    d0, d1, d2, d3, d4, d5 = c0, c1, c2, c3, c4, c5
+    d1 += lo * d0                       # after pass k, d_(5 - k) = t_k
+    d2 += lo * d1
+    d3 += lo * d2
+    d4 += lo * d3
+    d5 += lo * d4
+    d1 += lo * d0
+    d2 += lo * d1
+    d3 += lo * d2
+    d4 += lo * d3
+    d1 += lo * d0
+    d2 += lo * d1
+    d3 += lo * d2
+    d1 += lo * d0
+    d2 += lo * d1
+    d1 += lo * d0
+    low = d5
     high = low
-    hk = 1.0
-    for k in range(1, deg + 1):
-        hk *= h
-        term = D[5, deg - k] * hk
-        if term < 0.0:
-            low += term
-        else:
-            high += term
-    margin = 1e-11 * _pscale(D, 0, deg, abs(lo) + h)
+    hk = h
+    term = d4 * hk
+    if term < 0.0:
+        low += term
+    else:
+        high += term
+    hk *= h
+    term = d3 * hk
+    if term < 0.0:
+        low += term
+    else:
+        high += term
+    hk *= h
+    term = d2 * hk
+    if term < 0.0:
+        low += term
+    else:
+        high += term
+    hk *= h
+    term = d1 * hk
+    if term < 0.0:
+        low += term
+    else:
+        high += term
+    hk *= h
+    term = d0 * hk
+    if term < 0.0:
+        low += term
+    else:
+        high += term
+    x = abs(lo) + h                     # sum of |terms| at x (as _pscale)
+    r = abs(c0)
+    r = r * x + abs(c1)
+    r = r * x + abs(c2)
+    r = r * x + abs(c3)
+    r = r * x + abs(c4)
+    r = r * x + abs(c5)
+    margin = 1e-11 * r
     return low > margin or high < -margin
 
 
 @_jit
 def _set(D, c0, c1, c2, c3, c4, c5):
     """Row 0 of ``D`` = the coefficients (highest power first; leading zeros are stripped later)."""
-    D[0, 0] = c0
-    D[0, 1] = c1
-    D[0, 2] = c2
-    D[0, 3] = c3
-    D[0, 4] = c4
-    D[0, 5] = c5
+    D[0] = c0
+    D[1] = c1
+    D[2] = c2
+    D[3] = c3
+    D[4] = c4
+    D[5] = c5
 
 
 # ---------------------------------------------------------------------------------------------
@@ -381,9 +451,9 @@ def _candidates(d, v0, a0, vf, V, k, s, best, D, crit, rts):
     if H >= -1e-9:
         e0 = -(-3.0 * H * H + 3.0 * H * a2 - 6.0 * H * v0 - 3.0 * H - 6.0 * k * a3 - 2.0 * a3
                + (3.0 + 18.0 * kA) * a2 - 18.0 * kA * a0 + 6.0 * a0 * v0 + 6.0 * d - 6.0 * v0) / 6.0
-        _set(D, 0.0, 0.5, 1.0, 0.5 * (2.0 * H - a2 + 2.0 * v0 + 1.0), 2.0 * H - a2 + 2.0 * v0, e0)
         lo = max(math.sqrt(max(1.0 - H, 0.0)) - 1e-9, 0.0)
-        for r in range(_real_roots(D, 5, lo, 1.0, crit, rts)):
+        for r in range(_roots5(0.0, 0.5, 1.0, 0.5 * (2.0 * H - a2 + 2.0 * v0 + 1.0), 2.0 * H - a2 + 2.0 * v0,
+                               e0, lo, 1.0, D, crit, rts)):
             N = rts[r]
             t1 = H - 1.0 + N * N
             T = _check(1.0, N, t1, 0.0, 0.0, a0, v0, V)
@@ -397,8 +467,8 @@ def _candidates(d, v0, a0, vf, V, k, s, best, D, crit, rts):
         pmin = math.sqrt(max(1.0 + H, 0.0)) - 1e-9
         lo_ab = max(a0, 0.0, pmin)
         if lo_ab <= 1.0:
-            _set(D, 0.0, 0.5, 1.0, 0.5 * (-a2 + 6.0 * kA * a0 + 2.0 * v0 + 1.0), -3.0 * kA * a2 - a2 + 2.0 * v0, e0)
-            for r in range(_real_roots(D, 5, lo_ab, 1.0, crit, rts)):
+            for r in range(_roots5(0.0, 0.5, 1.0, 0.5 * (-a2 + 6.0 * kA * a0 + 2.0 * v0 + 1.0),
+                                   -3.0 * kA * a2 - a2 + 2.0 * v0, e0, lo_ab, 1.0, D, crit, rts)):
                 P = rts[r]
                 t5 = P * P - 1.0 - H
                 T = _check(P, 1.0, 0.0, t5, 0.0, a0, v0, V)
@@ -406,9 +476,9 @@ def _candidates(d, v0, a0, vf, V, k, s, best, D, crit, rts):
                     _keep(best, T, P, 1.0, 0.0, max(t5, 0.0), 0.0, s)
         hi_c = min(0.0, -pmin)
         if a0 < 0.0 and max(a0, -1.0) < hi_c:
-            _set(D, 0.0, 0.5, 1.0, 0.5 * (-a2 + 6.0 * k * a0 + 6.0 * k + 2.0 * v0 + 1.0),
-                 -3.0 * k * a2 - a2 + 3.0 * k + 2.0 * v0, e0)
-            for r in range(_real_roots(D, 5, max(a0, -1.0), hi_c, crit, rts)):
+            for r in range(_roots5(0.0, 0.5, 1.0, 0.5 * (-a2 + 6.0 * k * a0 + 6.0 * k + 2.0 * v0 + 1.0),
+                                   -3.0 * k * a2 - a2 + 3.0 * k + 2.0 * v0, e0, max(a0, -1.0), hi_c, D,
+                                   crit, rts)):
                 P = rts[r]
                 if P >= 0.0:
                     continue
@@ -434,19 +504,20 @@ def _candidates(d, v0, a0, vf, V, k, s, best, D, crit, rts):
         if br == 0:                     # P >= 0: branch A or B
             lo, hi = max(split, ulo), uhi
             if a0 >= 0.0:
-                _set(D, 3.0, 9.0 * a0 * k, b2, b1, -3.0 * H * (H + 6.0 * a2 * k), 9.0 * H * H * a0 * k)
+                q0, q1, q2, q3 = 3.0, 9.0 * a0 * k, b2, b1
+                q4, q5 = -3.0 * H * (H + 6.0 * a2 * k), 9.0 * H * H * a0 * k
             else:
-                _set(D, 0.0, 3.0, 0.0, 12.0 * (H - a2 + 2.0 * v0),
-                     -4.0 * (-3.0 * a3 * k - a3 + 3.0 * a0 * v0 + 3.0 * d), -3.0 * H * H)
+                q0, q1, q2, q3 = 0.0, 3.0, 0.0, 12.0 * (H - a2 + 2.0 * v0)
+                q4, q5 = -4.0 * (-3.0 * a3 * k - a3 + 3.0 * a0 * v0 + 3.0 * d), -3.0 * H * H
         else:                           # P < 0: branch C (only when H < 0)
             if split <= 0.0:
                 continue
             lo, hi = ulo, min(split, uhi)
-            _set(D, 3.0 * (3.0 * k + 1.0), 9.0 * a0 * k, b2, b1, -3.0 * H * (3.0 * H * k + H + 6.0 * a2 * k),
-                 9.0 * H * H * a0 * k)
+            q0, q1, q2, q3 = 3.0 * (3.0 * k + 1.0), 9.0 * a0 * k, b2, b1
+            q4, q5 = -3.0 * H * (3.0 * H * k + H + 6.0 * a2 * k), 9.0 * H * H * a0 * k
         if hi <= lo:
             continue
-        for r in range(_real_roots(D, 5, max(lo, 1e-300), hi, crit, rts)):
+        for r in range(_roots5(q0, q1, q2, q3, q4, q5, max(lo, 1e-300), hi, D, crit, rts)):
             u = rts[r]
             if u <= 0.0:
                 continue
@@ -563,7 +634,7 @@ def solve(d, v0, a0, vf, V, k):
     best = buf[nres:nres + 7]
     best[0] = math.inf
     best[6] = 0.0
-    D = buf[nres + 7:nres + 43].reshape((6, 6))
+    D = buf[nres + 7:nres + 43]
     crit = buf[nres + 43:nres + 51]
     rts = buf[nres + 51:nres + 59]
     dd = d - p
