@@ -43,6 +43,8 @@ def _jit(f):
 
 
 _SOLVER = None
+#: compiled functions called once per plan from Python (they keep the GIL)
+_ENTRIES = ("plan_tuple", "plan_scurve_packed", "plan_sine_packed")
 #: the pure-Python functions, kept when :func:`solver` replaces them by their compiled versions
 PURE = {}
 
@@ -61,9 +63,9 @@ def solver():
             import numba
 
             for name in _JITTED:        # module globals, so that compiled code calls compiled code
-                # (plan_tuple, the scalar planners' entry from Python, keeps the GIL: releasing and
-                # taking it back costs about 0.05 us a call, 5 % of a plan)
-                g[name] = numba.njit(cache=True, nogil=name != "plan_tuple")(PURE[name])
+                # (the scalar planners' entries from Python keep the GIL: releasing and taking it
+                # back costs about 0.05 us a call, 3 % of a plan)
+                g[name] = numba.njit(cache=True, nogil=name not in _ENTRIES)(PURE[name])
             # compiled now (or loaded from the cache) for float arguments, while the globals it
             # calls are the compiled ones (the planners call plan_tuple, not solve_tuple)
             try:
@@ -100,6 +102,30 @@ def planner():
                 pass
         _PLAN = f
     return _PLAN
+
+
+_PACKED = {}
+
+
+def packed_planner(sine):
+    """:func:`plan_scurve_packed` (``sine`` false) or :func:`plan_sine_packed` for Python floats:
+    compiled by numba when installed (the float64 entry point, as :func:`planner`), else pure
+    Python.  These are the scalar planners' entries (``planner.py``): seven arguments, the family
+    fixed at compile time, nine Python objects returned instead of eighteen floats."""
+    f = _PACKED.get(bool(sine))
+    if f is None:
+        solver()
+        name = "plan_sine_packed" if sine else "plan_scurve_packed"
+        f = globals()[name]
+        if f is not PURE[name]:
+            try:
+                from numba import types
+
+                f = f.compile((types.float64,) * 7)
+            except Exception:  # pragma: no cover - an older numba: the dispatcher itself
+                pass
+        _PACKED[bool(sine)] = f
+    return f
 
 
 #: 1/pi^2 - 1/12: position lag of a half-sine jerk pulse behind the linear ramp of the same impulse
@@ -756,6 +782,28 @@ def plan_tuple(d, J, A, V, v0, a0, vf, sine):
     # (the unused entries of r are 0)
     return (r[0], code, r[-2], r[-1], r[2], r[4], r[6], r[8], r[10], r[12], r[14], r[16], r[18],
             r[20], r[22], r[24], tu, r[-2] * tu)
+
+
+@_jit
+def _pack(r):
+    """:func:`plan_tuple`'s 18 floats as ``(status, complex(T, tu), complex(code, brake segments),
+    complex(t_1, t_2), ..., complex(t_11, t_12))``: the same values (the normalized duration
+    left out), in 9 Python objects -- boxing and freeing a float costs about as much as a complex,
+    and 18 of them were a tenth of a plan's time."""
+    return (r[0], complex(r[17], r[16]), complex(r[1], r[3]), complex(r[4], r[5]), complex(r[6], r[7]),
+            complex(r[8], r[9]), complex(r[10], r[11]), complex(r[12], r[13]), complex(r[14], r[15]))
+
+
+@_jit
+def plan_scurve_packed(d, J, A, V, v0, a0, vf):
+    """:func:`plan_tuple` for the S-curve (``sine`` false, so compiled for it alone), :func:`_pack`-ed."""
+    return _pack(plan_tuple(d, J, A, V, v0, a0, vf, False))
+
+
+@_jit
+def plan_sine_packed(d, J, A, V, v0, a0, vf):
+    """:func:`plan_tuple` for the sine family (``sine`` true), :func:`_pack`-ed."""
+    return _pack(plan_tuple(d, J, A, V, v0, a0, vf, True))
 
 
 @_jit
