@@ -131,8 +131,15 @@ def packed_planner(sine):
 #: 1/pi^2 - 1/12: position lag of a half-sine jerk pulse behind the linear ramp of the same impulse
 KAPPA_SINE = 1.0 / (math.pi * math.pi) - 1.0 / 12.0
 
-_TOL = 1e-10
-_MAX_SEG = 12         # most segments of a profile (2 brake + 8 + a cruise)          # slack of the validity checks, in normalized units (times, accelerations)
+_TOL = 1e-10          # slack of the validity checks, in normalized units (times, accelerations)
+# the solver's scratch array (one array, so that each compiled call takes one reference): the
+# polynomial and its derivatives in six rows of 6 (row i at 6 i), the critical points, the roots
+# found, the best candidate
+_CRIT = 36
+_OUT = 44
+_BEST = 52
+_SCRATCH = 60
+_MAX_SEG = 12         # most segments of a profile (2 brake + 8 + a cruise)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -184,19 +191,19 @@ def _root_between(D, i, deg, lo, hi, flo):
 
 
 @_jit
-def _roots_from_critical(D, i, deg, crit, ncrit, lo, hi, out):
-    """Real roots of row ``i`` of ``D`` in ``[lo, hi]`` into ``out`` (their number is returned),
-    given its sorted critical points ``crit[:ncrit]`` (it is monotone between them)."""
+def _roots_from_critical(D, i, deg, ncrit, lo, hi):
+    """Real roots of row ``i`` of ``D`` in ``[lo, hi]`` into ``D[_OUT:]`` (their number is returned),
+    given its sorted critical points ``D[_CRIT:_CRIT + ncrit]`` (it is monotone between them)."""
     nout = 0
     xprev = lo
     fprev = _peval(D, i, deg, lo)
     small_prev = abs(fprev) <= 1e-13 * _pscale(D, i, deg, lo)
     if small_prev:
-        out[nout] = lo
+        D[_OUT + nout] = lo
         nout += 1
     for m in range(ncrit + 1):
         if m < ncrit:
-            x = crit[m]
+            x = D[_CRIT + m]
             if not (xprev < x < hi):
                 continue
         else:
@@ -204,20 +211,21 @@ def _roots_from_critical(D, i, deg, crit, ncrit, lo, hi, out):
         f = _peval(D, i, deg, x)
         small = abs(f) <= 1e-13 * _pscale(D, i, deg, x)
         if small:
-            out[nout] = x                # a (double) root at a critical point or an end
+            D[_OUT + nout] = x           # a (double) root at a critical point or an end
             nout += 1
         elif not small_prev and (f < 0.0) != (fprev < 0.0):
-            out[nout] = _root_between(D, i, deg, xprev, x, fprev)
+            D[_OUT + nout] = _root_between(D, i, deg, xprev, x, fprev)
             nout += 1
         xprev, fprev, small_prev = x, f, small
     return nout
 
 
 @_jit
-def _real_roots(D, deg, lo, hi, crit, out):
+def _real_roots(D, deg, lo, hi):
     """Real roots in ``[lo, hi]`` of the polynomial in ``D[:deg + 1]`` (highest power first,
-    degree <= 5) into ``out``; returns their number.  ``D`` (36: six rows of 6, row ``i`` at
-    ``6 i``, flat: no reshape on the hot path) and ``crit`` (8) are scratch.
+    degree <= 5) into ``D[_OUT:_OUT + 8]``; returns their number.  ``D`` is the solver's scratch
+    array (``_SCRATCH`` floats, flat: six rows of 6, row ``i`` at ``6 i``, then the critical points
+    from ``_CRIT``).
 
     The roots of the derivatives, from the linear one up, split ``[lo, hi]`` into pieces on which
     the polynomial is monotone; a sign change on a piece is bisected (safeguarded Newton), a value
@@ -226,21 +234,21 @@ def _real_roots(D, deg, lo, hi, crit, out):
     """
     if _no_root(D, deg, lo, hi):
         return 0
-    return _search_roots(D, deg, lo, hi, crit, out)
+    return _search_roots(D, deg, lo, hi)
 
 
 @_jit
-def _roots5(c0, c1, c2, c3, c4, c5, lo, hi, D, crit, out):
+def _roots5(c0, c1, c2, c3, c4, c5, lo, hi, D):
     """:func:`_real_roots` of ``c0 x^5 + ... + c5`` on ``[lo, hi]``: the coefficients go into
     row 0 of ``D`` only when :func:`_no_root5` cannot rule a root out."""
     if _no_root5(c0, c1, c2, c3, c4, c5, lo, hi):
         return 0
     _set(D, c0, c1, c2, c3, c4, c5)
-    return _search_roots(D, 5, lo, hi, crit, out)
+    return _search_roots(D, 5, lo, hi)
 
 
 @_jit
-def _search_roots(D, deg, lo, hi, crit, out):
+def _search_roots(D, deg, lo, hi):
     """:func:`_real_roots` without the no-root test."""
     k = 0
     while k < deg and D[k] == 0.0:
@@ -261,13 +269,13 @@ def _search_roots(D, deg, lo, hi, crit, out):
         if D[6 * i] != 0.0:
             x = -D[6 * i + 1] / D[6 * i]
             if lo < x < hi:
-                crit[0] = x
+                D[_CRIT] = x
                 ncrit = 1
         for i in range(deg - 2, 0, -1):
-            ncrit = _roots_from_critical(D, i, deg - i, crit, ncrit, lo, hi, out)
+            ncrit = _roots_from_critical(D, i, deg - i, ncrit, lo, hi)
             for m in range(ncrit):
-                crit[m] = out[m]
-    return _roots_from_critical(D, 0, deg, crit, ncrit, lo, hi, out)
+                D[_CRIT + m] = D[_OUT + m]
+    return _roots_from_critical(D, 0, deg, ncrit, lo, hi)
 
 
 @_jit
@@ -430,10 +438,11 @@ def _near(p, d, T, v0, V):
 
 
 @_jit
-def _candidates(d, v0, a0, vf, V, k, s, best, D, crit, rts):
-    """Valid sigma = +1 candidates; the shortest so far is kept in ``best`` = (T, P, N, t1, t5, tc, s).
+def _candidates(d, v0, a0, vf, V, k, s, D):
+    """Valid sigma = +1 candidates; the shortest so far is kept in ``D[_BEST:_BEST + 7]`` =
+    (T, P, N, t1, t5, tc, s) (:func:`_keep`).
 
-    ``D``, ``crit``, ``rts``: scratch arrays of :func:`_real_roots`.
+    ``D``: the solver's scratch array (:func:`_real_roots`).
     """
     H = vf - v0 + 0.5 * a0 * a0
     # --- cruise at +V (VEL, ACC0_VEL, ACC1_VEL, ACC0_ACC1_VEL) ---
@@ -455,7 +464,7 @@ def _candidates(d, v0, a0, vf, V, k, s, best, D, crit, rts):
             tc = rest / V
             T = _check(P, N, t1, t5, tc, a0, v0, V)
             if T >= 0.0:
-                _keep(best, T, P, N, t1, t5, max(tc, 0.0), s)
+                _keep(D, T, P, N, t1, t5, max(tc, 0.0), s)
     # --- no cruise ---
     a2 = a0 * a0
     a3 = a2 * a0
@@ -472,19 +481,19 @@ def _candidates(d, v0, a0, vf, V, k, s, best, D, crit, rts):
             t1 = t5 + H
             T = _check(1.0, 1.0, t1, t5, 0.0, a0, v0, V)
             if T >= 0.0 and _near(_end_pos(1.0, 1.0, max(t1, 0.0), max(t5, 0.0), 0.0, a0, v0, k), d, T, v0, V):
-                _keep(best, T, 1.0, 1.0, max(t1, 0.0), max(t5, 0.0), 0.0, s)
+                _keep(D, T, 1.0, 1.0, max(t1, 0.0), max(t5, 0.0), 0.0, s)
     # ACC0: P = 1, t1 = H - 1 + N^2 >= 0, quartic in N on [sqrt(1 - H), 1] (none if H < 0)
     if H >= -1e-9:
         e0 = -(-3.0 * H * H + 3.0 * H * a2 - 6.0 * H * v0 - 3.0 * H - 6.0 * k * a3 - 2.0 * a3
                + (3.0 + 18.0 * kA) * a2 - 18.0 * kA * a0 + 6.0 * a0 * v0 + 6.0 * d - 6.0 * v0) / 6.0
         lo = max(math.sqrt(max(1.0 - H, 0.0)) - 1e-9, 0.0)
         for r in range(_roots5(0.0, 0.5, 1.0, 0.5 * (2.0 * H - a2 + 2.0 * v0 + 1.0), 2.0 * H - a2 + 2.0 * v0,
-                               e0, lo, 1.0, D, crit, rts)):
-            N = rts[r]
+                               e0, lo, 1.0, D)):
+            N = D[_OUT + r]
             t1 = H - 1.0 + N * N
             T = _check(1.0, N, t1, 0.0, 0.0, a0, v0, V)
             if T >= 0.0 and _near(_end_pos(1.0, N, max(t1, 0.0), 0.0, 0.0, a0, v0, k), d, T, v0, V):
-                _keep(best, T, 1.0, N, max(t1, 0.0), 0.0, 0.0, s)
+                _keep(D, T, 1.0, N, max(t1, 0.0), 0.0, 0.0, s)
     # ACC1: N = 1, t5 = P^2 - 1 - H >= 0, quartic in P (none if H > 0); |P| >= sqrt(1 + H);
     # branch C on [a0, 0), A/B on [max(a0, 0), 1]
     if H <= 1e-9:
@@ -494,24 +503,24 @@ def _candidates(d, v0, a0, vf, V, k, s, best, D, crit, rts):
         lo_ab = max(a0, 0.0, pmin)
         if lo_ab <= 1.0:
             for r in range(_roots5(0.0, 0.5, 1.0, 0.5 * (-a2 + 6.0 * kA * a0 + 2.0 * v0 + 1.0),
-                                   -3.0 * kA * a2 - a2 + 2.0 * v0, e0, lo_ab, 1.0, D, crit, rts)):
-                P = rts[r]
+                                   -3.0 * kA * a2 - a2 + 2.0 * v0, e0, lo_ab, 1.0, D)):
+                P = D[_OUT + r]
                 t5 = P * P - 1.0 - H
                 T = _check(P, 1.0, 0.0, t5, 0.0, a0, v0, V)
                 if T >= 0.0 and _near(_end_pos(P, 1.0, 0.0, max(t5, 0.0), 0.0, a0, v0, k), d, T, v0, V):
-                    _keep(best, T, P, 1.0, 0.0, max(t5, 0.0), 0.0, s)
+                    _keep(D, T, P, 1.0, 0.0, max(t5, 0.0), 0.0, s)
         hi_c = min(0.0, -pmin)
         if a0 < 0.0 and max(a0, -1.0) < hi_c:
             for r in range(_roots5(0.0, 0.5, 1.0, 0.5 * (-a2 + 6.0 * k * a0 + 6.0 * k + 2.0 * v0 + 1.0),
-                                   -3.0 * k * a2 - a2 + 3.0 * k + 2.0 * v0, e0, max(a0, -1.0), hi_c, D,
-                                   crit, rts)):
-                P = rts[r]
+                                   -3.0 * k * a2 - a2 + 3.0 * k + 2.0 * v0, e0, max(a0, -1.0), hi_c,
+                                   D)):
+                P = D[_OUT + r]
                 if P >= 0.0:
                     continue
                 t5 = P * P - 1.0 - H
                 T = _check(P, 1.0, 0.0, t5, 0.0, a0, v0, V)
                 if T >= 0.0 and _near(_end_pos(P, 1.0, 0.0, max(t5, 0.0), 0.0, a0, v0, k), d, T, v0, V):
-                    _keep(best, T, P, 1.0, 0.0, max(t5, 0.0), 0.0, s)
+                    _keep(D, T, P, 1.0, 0.0, max(t5, 0.0), 0.0, s)
     # NONE: u = P + N, P = (u^2 + H)/(2u), N = (u^2 - H)/(2u); quintic in u on (0, 2]
     b2 = 12.0 * H - 18.0 * a2 * k - 12.0 * a2 + 24.0 * v0
     b1 = 18.0 * H * a0 * k + 12.0 * a3 * k + 4.0 * a3 - 12.0 * a0 * v0 - 12.0 * d
@@ -543,8 +552,8 @@ def _candidates(d, v0, a0, vf, V, k, s, best, D, crit, rts):
             q4, q5 = -3.0 * H * (3.0 * H * k + H + 6.0 * a2 * k), 9.0 * H * H * a0 * k
         if hi <= lo:
             continue
-        for r in range(_roots5(q0, q1, q2, q3, q4, q5, max(lo, 1e-300), hi, D, crit, rts)):
-            u = rts[r]
+        for r in range(_roots5(q0, q1, q2, q3, q4, q5, max(lo, 1e-300), hi, D)):
+            u = D[_OUT + r]
             if u <= 0.0:
                 continue
             P = 0.5 * (u + H / u)
@@ -553,19 +562,20 @@ def _candidates(d, v0, a0, vf, V, k, s, best, D, crit, rts):
                 continue
             T = _check(P, N, 0.0, 0.0, 0.0, a0, v0, V)
             if T >= 0.0 and _near(_end_pos(P, N, 0.0, 0.0, 0.0, a0, v0, k), d, T, v0, V):
-                _keep(best, T, P, N, 0.0, 0.0, 0.0, s)
+                _keep(D, T, P, N, 0.0, 0.0, 0.0, s)
 
 
 @_jit
-def _keep(best, T, P, N, t1, t5, tc, s):
-    if T < best[0]:
-        best[0] = T
-        best[1] = P
-        best[2] = N
-        best[3] = t1
-        best[4] = t5
-        best[5] = tc
-        best[6] = s
+def _keep(D, T, P, N, t1, t5, tc, s):
+    """The candidate into ``D[_BEST:_BEST + 7]`` if it is shorter than the one there."""
+    if T < D[_BEST]:
+        D[_BEST] = T
+        D[_BEST + 1] = P
+        D[_BEST + 2] = N
+        D[_BEST + 3] = t1
+        D[_BEST + 4] = t5
+        D[_BEST + 5] = tc
+        D[_BEST + 6] = s
 
 
 @_jit
@@ -631,7 +641,7 @@ def solve(d, v0, a0, vf, V, k):
     """
     # one allocation: the result, then the scratch arrays (views of the same buffer)
     nres = 2 * _MAX_SEG + 3
-    buf = np.empty(nres + 7 + 36 + 16)
+    buf = np.empty(nres + _SCRATCH)
     res = buf[:nres]
     res[:] = 0.0                    # (the scratch arrays are written before they are read)
     # braking pre-trajectory (jerk segments then a constant-acceleration segment)
@@ -657,19 +667,16 @@ def solve(d, v0, a0, vf, V, k):
         a = 1.0
     if bt > 0.0 and a < -1.0:
         a = -1.0
-    best = buf[nres:nres + 7]
-    best[0] = math.inf
-    best[6] = 0.0
-    D = buf[nres + 7:nres + 43]
-    crit = buf[nres + 43:nres + 51]
-    rts = buf[nres + 51:nres + 59]
+    D = buf[nres:]
+    D[_BEST] = math.inf
+    D[_BEST + 6] = 0.0
     dd = d - p
-    _candidates(dd, v, a, vf, V, k, 1.0, best, D, crit, rts)
-    _candidates(-dd, -v, -a, -vf, V, k, -1.0, best, D, crit, rts)
-    if best[6] == 0.0:
+    _candidates(dd, v, a, vf, V, k, 1.0, D)
+    _candidates(-dd, -v, -a, -vf, V, k, -1.0, D)
+    if D[_BEST + 6] == 0.0:
         res[0] = -1.0
         return res
-    P, N, t1, t5, tc, s = best[1], best[2], best[3], best[4], best[5], best[6]
+    P, N, t1, t5, tc, s = D[_BEST + 1], D[_BEST + 2], D[_BEST + 3], D[_BEST + 4], D[_BEST + 5], D[_BEST + 6]
     a0s = s * a
     # rebuild the segments in the sigma frame, then flip the jerk signs by s
     if P > 0.0:

@@ -42,7 +42,7 @@ def test_no_root_is_sound():
     skipped = 0
     total = 0
     for c, lo, hi in _poly_cases(rng, 4000):
-        D = np.zeros(36)
+        D = np.zeros(_onedof._SCRATCH)
         D[:6] = c
         total += 1
         if not _onedof._no_root(D, 5, lo, hi):
@@ -53,9 +53,9 @@ def test_no_root_is_sound():
         assert not np.any((r >= lo - 1e-12) & (r <= hi + 1e-12)), (c, lo, hi, r)
         _onedof._no_root = lambda D, deg, lo, hi: False     # the search alone (pure Python)
         try:
-            D = np.zeros(36)
+            D = np.zeros(_onedof._SCRATCH)
             D[:6] = c
-            assert real_roots(D, 5, lo, hi, np.zeros(8), np.zeros(8)) == 0
+            assert real_roots(D, 5, lo, hi) == 0
         finally:
             _onedof._no_root = saved
     assert 0.2 * total < skipped < total
