@@ -45,6 +45,8 @@ def _jit(f):
 _SOLVER = None
 #: compiled functions called once per plan from Python (they keep the GIL)
 _ENTRIES = ("plan_tuple", "plan_scurve_packed", "plan_sine_packed")
+#: small helpers that numba inlines into their callers
+_INLINED = ("_keep", "_check", "_near", "_cubes", "_append", "_set", "_peval", "_pscale", "_advance")
 #: the pure-Python functions, kept when :func:`solver` replaces them by their compiled versions
 PURE = {}
 
@@ -64,8 +66,10 @@ def solver():
 
             for name in _JITTED:        # module globals, so that compiled code calls compiled code
                 # (the scalar planners' entries from Python keep the GIL: releasing and taking it
-                # back costs about 0.05 us a call, 3 % of a plan)
-                g[name] = numba.njit(cache=True, nogil=name not in _ENTRIES)(PURE[name])
+                # back costs about 0.05 us a call, 3 % of a plan; the small helpers are inlined by
+                # numba itself: 5 % of a solve, 3 s more to compile once)
+                g[name] = numba.njit(cache=True, nogil=name not in _ENTRIES,
+                                     inline="always" if name in _INLINED else "never")(PURE[name])
             # compiled now (or loaded from the cache) for float arguments, while the globals it
             # calls are the compiled ones (the planners call plan_tuple, not solve_tuple)
             try:
