@@ -46,7 +46,8 @@ _SOLVER = None
 #: compiled functions called once per plan from Python (they keep the GIL)
 _ENTRIES = ("plan_tuple", "plan_scurve_packed", "plan_sine_packed")
 #: small helpers that numba inlines into their callers
-_INLINED = ("_keep", "_check", "_near", "_cubes", "_append", "_set", "_peval", "_pscale", "_advance")
+_INLINED = ("_keep", "_check", "_near", "_cubes", "_append", "_set", "_peval", "_pscale", "_pvalue",
+            "_advance")
 #: the pure-Python functions, kept when :func:`solver` replaces them by their compiled versions
 PURE = {}
 
@@ -168,6 +169,20 @@ def _pscale(D, i, deg, x):
 
 
 @_jit
+def _pvalue(D, i, deg, x):
+    """Value of row ``i`` at ``x`` (:func:`_peval`) and whether it is at round-off level: within
+    ``1e-13`` of the sum of |terms| (:func:`_pscale`); both in one pass (the same operations)."""
+    f = 0.0
+    r = 0.0
+    ax = abs(x)
+    for m in range(deg + 1):
+        c = D[6 * i + m]
+        f = f * x + c
+        r = r * ax + abs(c)
+    return f, abs(f) <= 1e-13 * r
+
+
+@_jit
 def _root_between(D, i, deg, lo, hi, flo):
     """The root of row ``i`` in ``[lo, hi]``, where it is monotone and changes sign (safeguarded Newton)."""
     a, b = lo, hi
@@ -200,8 +215,7 @@ def _roots_from_critical(D, i, deg, ncrit, lo, hi):
     given its sorted critical points ``D[_CRIT:_CRIT + ncrit]`` (it is monotone between them)."""
     nout = 0
     xprev = lo
-    fprev = _peval(D, i, deg, lo)
-    small_prev = abs(fprev) <= 1e-13 * _pscale(D, i, deg, lo)
+    fprev, small_prev = _pvalue(D, i, deg, lo)
     if small_prev:
         D[_OUT + nout] = lo
         nout += 1
@@ -212,8 +226,7 @@ def _roots_from_critical(D, i, deg, ncrit, lo, hi):
                 continue
         else:
             x = hi
-        f = _peval(D, i, deg, x)
-        small = abs(f) <= 1e-13 * _pscale(D, i, deg, x)
+        f, small = _pvalue(D, i, deg, x)
         if small:
             D[_OUT + nout] = x           # a (double) root at a critical point or an end
             nout += 1
