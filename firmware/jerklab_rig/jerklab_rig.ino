@@ -3,8 +3,8 @@
 // L298, quadrature encoder on INT0/INT1, binary serial protocol (firmware/PROTOCOL.md).
 //
 // Pin map (docs/INTERFACES.md): encoder A D2 (PD2/INT0), B D3 (PD3/INT1); PWM D9 (OC1A);
-// L298 IN1 D7 (PD7), IN2 D8 (PB0). Extra: D13 (PB5) is high during each control step (cycle
-// budget probe, also visible on a scope); D12 (PB4, pull-up) held low by a simulator
+// L298 IN1 D7 (PD7), IN2 D8 (PB0). Extra: D13 (PB5) is high during each control step (encoder
+// read to PWM write, the next reference, TELEMETRY: the cycle budget probe, also on a scope); D12 (PB4, pull-up) held low by a simulator
 // announces a simulated plant in HELLO_REPLY.
 //
 // Serial: a small interrupt-driven UART0 driver (115200 baud 8N1, U2X; JL_BAUD below) instead of the
@@ -230,21 +230,27 @@ void loop() {
     if (g_tick_flag) {
         g_tick_flag = 0;
         if (device.state() != jl::Device::kIdle) {
-            JL_PART_BEGIN(10);                          // the whole tick (probe build 10)
+            // The control step (probe D13 high; probe build 10 the same span): encoder read ->
+            // PWM write, the next sample's reference, the TELEMETRY frame. Then, in the idle
+            // time before the next tick, the work ahead (probe build 7).
+            JL_PART_BEGIN(10);
 #ifndef JL_PROBE_PART
             PORTB |= kProbe;
 #endif
+            JL_PART_BEGIN(3);
             const bool produced = device.control();
-#ifndef JL_PROBE_PART
-            PORTB &= ~kProbe;
-#endif
+            JL_PART_END(3);
+            device.reference();
             JL_PART_BEGIN(6);
             if (produced) device.report();
             JL_PART_END(6);
+#ifndef JL_PROBE_PART
+            PORTB &= ~kProbe;
+#endif
+            JL_PART_END(10);
             JL_PART_BEGIN(7);
             device.background();
             JL_PART_END(7);
-            JL_PART_END(10);
         }
     }
     if (g_overrun) {
