@@ -46,8 +46,7 @@ _SOLVER = None
 #: compiled functions called once per plan from Python (they keep the GIL)
 _ENTRIES = ("plan_tuple", "plan_scurve_packed", "plan_sine_packed")
 #: small helpers that numba inlines into their callers
-_INLINED = ("_keep", "_check", "_near", "_cubes", "_append", "_set", "_peval", "_pscale", "_pvalue",
-            "_advance")
+_INLINED = ("_keep", "_check", "_near", "_cubes", "_append", "_set", "_pvalue", "_advance")
 #: the pure-Python functions, kept when :func:`solver` replaces them by their compiled versions
 PURE = {}
 
@@ -151,27 +150,9 @@ _MAX_SEG = 12         # most segments of a profile (2 brake + 8 + a cruise)
 # real roots of a polynomial on an interval
 # ---------------------------------------------------------------------------------------------
 @_jit
-def _peval(D, i, deg, x):
-    r = 0.0
-    for m in range(deg + 1):
-        r = r * x + D[6 * i + m]
-    return r
-
-
-@_jit
-def _pscale(D, i, deg, x):
-    """Sum of |terms| of the polynomial at x: the round-off scale of its value."""
-    r = 0.0
-    ax = abs(x)
-    for m in range(deg + 1):
-        r = r * ax + abs(D[6 * i + m])
-    return r
-
-
-@_jit
 def _pvalue(D, i, deg, x):
-    """Value of row ``i`` at ``x`` (:func:`_peval`) and whether it is at round-off level: within
-    ``1e-13`` of the sum of |terms| (:func:`_pscale`); both in one pass (the same operations)."""
+    """Value of row ``i`` at ``x`` (Horner) and whether it is at round-off level: within ``1e-13`` of
+    the sum of |terms| at ``x``, the round-off scale of the value (both in one pass)."""
     f = 0.0
     r = 0.0
     ax = abs(x)
@@ -367,7 +348,7 @@ def _no_root5(c0, c1, c2, c3, c4, c5, lo, hi):
         low += term
     else:
         high += term
-    x = abs(lo) + h                     # sum of |terms| at x (as _pscale)
+    x = abs(lo) + h                     # sum of |terms| at x (as _pvalue)
     r = abs(c0)
     r = r * x + abs(c1)
     r = r * x + abs(c2)
