@@ -51,9 +51,14 @@ static volatile uint8_t g_overrun = 0;
 
 // ---------------------------------------------------------------- UART0
 static const uint8_t kRxSize = 64, kTxSize = 64;   // powers of two
-static volatile uint8_t rx_buf[kRxSize], tx_buf[kTxSize];
+static volatile uint8_t rx_buf[kRxSize];
+// The transmit ring: a frame is encoded straight into it (UnoHal::write_frame), then published by
+// moving tx_head; the UDRE interrupt sends bytes tail..head. It holds the largest frame the device
+// sends (HELLO_REPLY, 33 bytes) with room to spare.
+static uint8_t tx_buf[kTxSize];
 static volatile uint8_t rx_head = 0, rx_tail = 0, tx_head = 0, tx_tail = 0;
 static volatile uint8_t rx_overflow = 0;
+static_assert(jl::kLenHelloReply + 7 <= kTxSize - 1, "the transmit ring must hold the largest frame sent");
 
 ISR(USART_RX_vect) {
     const uint8_t status = UCSR0A;
@@ -68,6 +73,8 @@ ISR(USART_RX_vect) {
     }
 }
 
+// Enabled only while the ring holds bytes (uart_tx_start sets UDRIE0 with interrupts off, after
+// publishing the head; the ISR clears it when the ring runs empty), so it never sends a stale byte.
 ISR(USART_UDRE_vect) {
     uint8_t t = tx_tail;
     UDR0 = tx_buf[t];
@@ -83,6 +90,18 @@ ISR(USART_UDRE_vect) {
 #ifndef JL_BAUD
 #define JL_BAUD 115200UL
 #endif
+// Transmit held during the control step (uart_tx_hold / uart_tx_release around the tick in
+// loop()): at 1 Mbaud a byte leaves every 160 cycles, and a UDRE interrupt per byte (~57 cycles)
+// inside the tick cost ~1250 cycles a TELEMETRY; held, the bytes go out in the idle time after
+// the tick (a 22-byte frame takes 3520 cycles of the 16000 of a 1 ms period; the line idles
+// during the tick, at most ~4000 cycles, which 1 Mbaud can spare). At 115200 a byte takes ~1390
+// cycles, the interrupt load is ~4 % and the line needs every byte time at Ts = 1 ms: not held
+// (the UART's two-byte buffer would cover only ~2800 cycles of the tick).
+#ifndef JL_TX_HOLD
+#define JL_TX_HOLD (JL_BAUD >= 500000UL)
+#endif
+static uint8_t tx_hold = 0;                            // main code only
+
 static void uart_begin() {
     UCSR0A = _BV(U2X0);
     UBRR0 = static_cast<uint16_t>((F_CPU + 4UL * JL_BAUD) / (8UL * JL_BAUD) - 1UL);
@@ -90,14 +109,51 @@ static void uart_begin() {
     UCSR0B = _BV(RXEN0) | _BV(TXEN0) | _BV(RXCIE0);
 }
 
-static void uart_write(const uint8_t* data, uint8_t n) {
-    for (uint8_t i = 0; i < n; ++i) {
-        const uint8_t h = (tx_head + 1) & (kTxSize - 1);
-        while (h == tx_tail) {}                         // full: the UDRE ISR makes room
-        tx_buf[tx_head] = data[i];
-        tx_head = h;
-        UCSR0B |= _BV(UDRIE0);
+// Let the UDRE interrupt send what the ring holds. Interrupts off around the read-modify-write
+// of UCSR0B: the ISR clears UDRIE0 when the ring runs empty, and setting it back after that
+// would send a stale byte.
+static void uart_tx_start() {
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+        if (tx_head != tx_tail) UCSR0B |= _BV(UDRIE0);
     }
+}
+
+static inline void uart_tx_hold() {
+#if JL_TX_HOLD
+    tx_hold = 1;
+    UCSR0B &= ~_BV(UDRIE0);                             // the ISR only ever clears it too
+#endif
+}
+
+static inline void uart_tx_release() {
+#if JL_TX_HOLD
+    tx_hold = 0;
+    uart_tx_start();
+#endif
+}
+
+// Wait until the ring has room for n bytes (n <= kTxSize - 1). While it is full, send by polling
+// UDRE0 (the interrupt may be held): bytes leave in order, at the line's speed.
+static void uart_room(uint8_t n) {
+    while (static_cast<uint8_t>((tx_tail - tx_head - 1) & (kTxSize - 1)) < n) {
+        ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+            if (UCSR0A & _BV(UDRE0)) {
+                const uint8_t t = tx_tail;
+                UDR0 = tx_buf[t];
+                tx_tail = (t + 1) & (kTxSize - 1);
+            }
+        }
+    }
+}
+
+// One frame into the ring in one pass (jl::encode_frame_ring: header, payload, CRC as the bytes
+// are written), then published by one store of the head.
+static void uart_write_frame(uint8_t type, uint8_t seq, const uint8_t* payload, uint8_t n) {
+    uart_room(static_cast<uint8_t>(n + 7));
+    const uint8_t h = jl::encode_frame_ring(tx_buf, kTxSize - 1, tx_head, type, seq, payload, n);
+    __asm__ __volatile__("" ::: "memory");              // the bytes are in before the head moves
+    tx_head = h;
+    if (!tx_hold) uart_tx_start();
 }
 
 static inline bool uart_available() { return rx_head != rx_tail; }
@@ -134,7 +190,9 @@ ISR(TIMER2_COMPA_vect, ISR_NOBLOCK) {
 
 class UnoHal : public jl::Hal {
 public:
-    void write(const uint8_t* data, uint8_t n) override { uart_write(data, n); }
+    void write_frame(uint8_t type, uint8_t seq, const uint8_t* payload, uint8_t n) override {
+        uart_write_frame(type, seq, payload, n);
+    }
     int32_t counts() override {
         int32_t c;
         ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { c = g_counts; }
@@ -231,6 +289,7 @@ void loop() {
         g_tick_flag = 0;
         if (device.state() != jl::Device::kIdle) {
             JL_PART_BEGIN(10);                          // the whole tick (probe build 10)
+            uart_tx_hold();                             // no UDRE interrupt inside the tick
 #ifndef JL_PROBE_PART
             PORTB |= kProbe;
 #endif
@@ -244,6 +303,7 @@ void loop() {
             JL_PART_BEGIN(7);
             device.background();
             JL_PART_END(7);
+            uart_tx_release();
             JL_PART_END(10);
         }
     }

@@ -18,6 +18,33 @@ uint8_t encode_frame(uint8_t* out, uint8_t type, uint8_t seq, const uint8_t* pay
     return static_cast<uint8_t>(payload_len + 7);
 }
 
+// The ring is walked with a pointer and a count of the bytes left before its end (a store, a
+// decrement, a branch per byte; a frame wraps at most once); the CRC update is inlined in the
+// payload loop.
+uint8_t encode_frame_ring(uint8_t* ring, uint8_t mask, uint8_t head, uint8_t type, uint8_t seq,
+                          const uint8_t* payload, uint8_t payload_len) {
+    const uint8_t hdr[5] = {kSync0, kSync1, static_cast<uint8_t>(payload_len + 2), type, seq};
+    uint8_t* p = ring + head;
+    uint8_t room = static_cast<uint8_t>(mask + 1 - head);   // 1..mask + 1
+    for (uint8_t i = 0; i < 5; ++i) {
+        *p++ = hdr[i];
+        if (--room == 0) p = ring;
+    }
+    uint16_t crc = crc16(hdr + 2, 3);
+    const uint8_t* src = payload;
+    for (uint8_t i = payload_len; i != 0; --i) {
+        const uint8_t b = *src++;
+        *p++ = b;
+        if (--room == 0) p = ring;
+        crc = crc16_update(crc, b);
+    }
+    *p++ = static_cast<uint8_t>(crc & 0xFF);
+    if (--room == 0) p = ring;
+    *p++ = static_cast<uint8_t>(crc >> 8);
+    if (--room == 0) p = ring;
+    return static_cast<uint8_t>((p - ring) & mask);
+}
+
 // buf_[0..n_) holds the bytes not yet consumed. A frame is emitted as soon as it is
 // complete; a false sync (impossible length, bad CRC) is counted and dropped one byte at a
 // time, so the scan restarts at the next sync inside the rejected bytes.
