@@ -10,7 +10,9 @@
 // Serial: a small interrupt-driven UART0 driver (115200 baud 8N1, U2X; JL_BAUD below) instead of the
 // Arduino HardwareSerial, whose ~110-cycle transmit ISR could hold off the encoder interrupt
 // past a quarter encoder period at top speed (channel B then read after it changed, a count
-// in the wrong direction). Every ISR here is short, so INT0 is served within ~70 cycles.
+// in the wrong direction). Every ISR here is short, so INT0 is served within ~70 cycles. A frame
+// is encoded straight into the transmit ring (UnoHal::write_frame); in the 1 Mbaud build the
+// transmit interrupt is held while the control step runs and the bytes leave after it (JL_TX_HOLD).
 //
 // Timing: Timer2 CTC gives an exact 1 ms tick (16 MHz / 64 / 250); every Ts/1 ms ticks it
 // raises a flag, and loop() runs the control step (never inside the ISR, so encoder edges
