@@ -96,11 +96,12 @@ ISR(USART_UDRE_vect) {
 // loop()): at 1 Mbaud a byte leaves every 160 cycles, and a UDRE interrupt per byte (~57 cycles)
 // inside the tick cost ~1250 cycles a TELEMETRY; held, the bytes go out in the idle time after
 // the tick (a 22-byte frame takes 3520 cycles of the 16000 of a 1 ms period; the line idles
-// during the tick, at most ~4000 cycles, which 1 Mbaud can spare). At 115200 a byte takes ~1390
-// cycles, the interrupt load is ~4 % and the line needs every byte time at Ts = 1 ms: not held
-// (the UART's two-byte buffer would cover only ~2800 cycles of the tick).
+// during the tick, which 1 Mbaud can spare: a frame needs 3520 of the 16000 cycles). At 500000 a
+// frame needs 7040 cycles of line time, more than a slow tick (the 10-tap shaper's, ~12600
+// cycles) leaves, and at 115200 (a byte ~1390 cycles, interrupt load ~4 %) the line needs every
+// byte time at Ts = 1 ms: not held there.
 #ifndef JL_TX_HOLD
-#define JL_TX_HOLD (JL_BAUD >= 500000UL)
+#define JL_TX_HOLD (JL_BAUD > 500000UL)
 #endif
 static uint8_t tx_hold = 0;                            // main code only
 
