@@ -7,8 +7,9 @@ after it. These tests check, on the real firmware in simavr, that the Python cli
 every frame intact and in order (its decoder checks each CRC against jerklab.protocol's) while the
 encoder is counted without a loss, that the frame's cycle cost stays bounded (cycles counted by the
 simulator, independent of the host's load), and that the 115200-baud default build (transmit not
-held) still carries a decimated 1 ms run and survives back-pressure without losing a byte.
-The host driver checks ``encode_frame_ring`` against jerklab's frames at wrapping heads
+held) still carries a decimated 1 ms run and survives back-pressure without losing a byte. The
+encoder ISRs (assembly, byte-wise carry) count like a perfect decoder in x1 and x4, both ways,
+across the count's byte boundaries. The host driver checks ``encode_frame_ring`` against jerklab's frames at wrapping heads
 (tests/test_firmware.py, golden vectors).
 """
 from __future__ import annotations
@@ -33,14 +34,15 @@ def _fast_move():
     return plan_sine_jerk(60.0, 4000.0, 600.0, 250.0)
 
 
-def _run(elf, baud, Ts, decimation, tmp_path):
+def _run(elf, baud, Ts, decimation, tmp_path, move=None, counts_per_rev=448):
     from jerklab.rig import simavr
 
     g = discrete_pole_placement_pid(MOTOR["K"], MOTOR["tau"], 20.0, Ts=Ts, extra_pole=0.9)
     with simavr.launch(elf, K=MOTOR["K"], tau=MOTOR["tau"], build=False) as uno:
-        with connect(uno.port, baudrate=baud, recordings=tmp_path, progress=False, timeout=10.0) as rig:
+        with connect(uno.port, baudrate=baud, recordings=tmp_path, progress=False, timeout=10.0,
+                     counts_per_rev=counts_per_rev) as rig:
             rig.set_model(**MOTOR)
-            rec = rig.run_move(_fast_move(), g, Ts=Ts, settle=0.1, decimation=decimation,
+            rec = rig.run_move(move or _fast_move(), g, Ts=Ts, settle=0.1, decimation=decimation,
                                max_error=0.0, saturation_time=0.0)
         st = uno.stats()
     return rec, st
@@ -109,3 +111,22 @@ def test_back_pressure_loses_no_byte(tmp_path):
     _complete(rec, 1)
     assert rec.metadata["device_overruns"] > 0
     assert st["firmware_counts"] == st["ideal_counts_x1"]
+
+
+@pytest.mark.parametrize("counts_per_rev,distance", [(448, -60.0), (1792, 250.0), (1792, -250.0)])
+def test_encoder_isrs_count_like_a_perfect_decoder(tmp_path, counts_per_rev, distance):
+    """x1 (INT0, A rising) and x4 (INT0 and INT1, both edges) at up to 250 rad/s, forward and
+    backward: the firmware's count equals the harness's perfect decoder after the run. 250 rad at
+    x4 is ~71 000 counts (a carry or borrow into the count's third byte; 0 -> -1 borrows through
+    all four), with an edge every ~220 cycles."""
+    require_tool(*TOOLS)
+    from jerklab.rig import simavr
+
+    paths = simavr.build_firmware("avr", "simavr")
+    move = plan_sine_jerk(distance, 4000.0, 600.0, 250.0)
+    rec, st = _run(paths["elf"], 115200, 0.005, 1, tmp_path, move=move, counts_per_rev=counts_per_rev)
+    _complete(rec, 1)
+    ideal = st["ideal_counts_x4" if counts_per_rev == 1792 else "ideal_counts_x1"]
+    assert st["firmware_counts"] == ideal
+    assert abs(ideal - distance * counts_per_rev / (2 * math.pi)) < 0.01 * abs(distance) * counts_per_rev
+    assert st["int0_latency_cycles"]["over_120"] == 0
