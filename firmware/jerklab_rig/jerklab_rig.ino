@@ -169,15 +169,14 @@ static uint8_t uart_read() {
 
 // Encoder ISRs, in assembly: ~39 cycles from the edge's interrupt to the end of reti (avr-gcc's
 // code of the same two lines took ~80: nine register pushes, a 32-bit load, add and store). At
-// top speed (~27 A edges per ms) that is ~1000 cycles a ms less, ~40 a edge inside the control
+// top speed (~27 A edges per ms) that is ~1000 cycles a ms less, ~40 an edge inside the control
 // step. PIND is read by the second instruction (B must be sampled within a quarter encoder period
 // of the A edge); (pd >> 1) moves B (bit 3) onto A's bit 2, so bit 2 of pd ^ (pd >> 1) is A != B.
 // The 32-bit count is stepped byte by byte and stops at the first byte that does not carry
 // (borrow): the main code reads it with interrupts off (UnoHal::counts), so it never sees a
 // partial update, and the ISRs cannot interrupt each other. Only r24, r25 and SREG are used.
-// `updown` is sbrs (A != B counts up) or sbrc (A != B counts down).
-#define JL_ENCODER_ISR_BODY(updown)                                                            \
-    __asm__ __volatile__(                                                                      \
+// INT1 inverts the direction bit and shares INT0's count code (jl_encoder_step).
+#define JL_ENCODER_ISR_ENTRY                                                                   \
         "push r24"              "\n\t"                                                         \
         "in   r24, %[pind]"     "\n\t"                                                         \
         "push r25"              "\n\t"                                                         \
@@ -185,52 +184,63 @@ static uint8_t uart_read() {
         "push r25"              "\n\t"                                                         \
         "mov  r25, r24"         "\n\t"                                                         \
         "lsr  r25"              "\n\t"                                                         \
-        "eor  r24, r25"         "\n\t"                                                         \
-        "lds  r25, %[c]"        "\n\t"                                                         \
-        updown " r24, 2"        "\n\t"                                                         \
-        "rjmp 3f"               "\n\t"                                                         \
-        "subi r25, 0xFF"        "\n\t"   /* +1 */                                             \
-        "sts  %[c], r25"        "\n\t"                                                         \
-        "brne 9f"               "\n\t"                                                         \
-        "lds  r25, %[c]+1"      "\n\t"                                                         \
-        "subi r25, 0xFF"        "\n\t"                                                         \
-        "sts  %[c]+1, r25"      "\n\t"                                                         \
-        "brne 9f"               "\n\t"                                                         \
-        "lds  r25, %[c]+2"      "\n\t"                                                         \
-        "subi r25, 0xFF"        "\n\t"                                                         \
-        "sts  %[c]+2, r25"      "\n\t"                                                         \
-        "brne 9f"               "\n\t"                                                         \
-        "lds  r25, %[c]+3"      "\n\t"                                                         \
-        "subi r25, 0xFF"        "\n\t"                                                         \
-        "sts  %[c]+3, r25"      "\n\t"                                                         \
-        "rjmp 9f"               "\n\t"                                                         \
-        "3: subi r25, 1"        "\n\t"   /* -1: carry set on a borrow */                      \
-        "sts  %[c], r25"        "\n\t"                                                         \
-        "brcc 9f"               "\n\t"                                                         \
-        "lds  r25, %[c]+1"      "\n\t"                                                         \
-        "subi r25, 1"           "\n\t"                                                         \
-        "sts  %[c]+1, r25"      "\n\t"                                                         \
-        "brcc 9f"               "\n\t"                                                         \
-        "lds  r25, %[c]+2"      "\n\t"                                                         \
-        "subi r25, 1"           "\n\t"                                                         \
-        "sts  %[c]+2, r25"      "\n\t"                                                         \
-        "brcc 9f"               "\n\t"                                                         \
-        "lds  r25, %[c]+3"      "\n\t"                                                         \
-        "subi r25, 1"           "\n\t"                                                         \
-        "sts  %[c]+3, r25"      "\n\t"                                                         \
-        "9: pop r25"            "\n\t"                                                         \
-        "out  __SREG__, r25"    "\n\t"                                                         \
-        "pop  r25"              "\n\t"                                                         \
-        "pop  r24"              "\n\t"                                                         \
-        "reti"                  "\n\t"                                                         \
-        :: [pind] "I"(_SFR_IO_ADDR(PIND)), [c] "i"(&g_counts))
+        "eor  r24, r25"         "\n\t"   /* bit 2: A != B */
 
 // Channel A edge. Forward (A leads B): at an A edge A != B -> +1. With x1 decoding only the
 // rising edge interrupts; B is stable for a quarter period around it.
-ISR(INT0_vect, ISR_NAKED) { JL_ENCODER_ISR_BODY("sbrs"); }
+ISR(INT0_vect, ISR_NAKED) {
+    __asm__ __volatile__(
+        JL_ENCODER_ISR_ENTRY
+        ".global jl_encoder_step" "\n\t"   /* INT1 jumps here (LTO may put it elsewhere) */
+        "jl_encoder_step:"      "\n\t"   /* r24 bit 2 set: +1, clear: -1 */
+        "lds  r25, %[c]"        "\n\t"
+        "sbrs r24, 2"           "\n\t"
+        "rjmp 3f"               "\n\t"
+        "subi r25, 0xFF"        "\n\t"   /* +1 */
+        "sts  %[c], r25"        "\n\t"
+        "brne 9f"               "\n\t"
+        "lds  r25, %[c]+1"      "\n\t"
+        "subi r25, 0xFF"        "\n\t"
+        "sts  %[c]+1, r25"      "\n\t"
+        "brne 9f"               "\n\t"
+        "lds  r25, %[c]+2"      "\n\t"
+        "subi r25, 0xFF"        "\n\t"
+        "sts  %[c]+2, r25"      "\n\t"
+        "brne 9f"               "\n\t"
+        "lds  r25, %[c]+3"      "\n\t"
+        "subi r25, 0xFF"        "\n\t"
+        "sts  %[c]+3, r25"      "\n\t"
+        "rjmp 9f"               "\n\t"
+        "3: subi r25, 1"        "\n\t"   /* -1: carry set on a borrow */
+        "sts  %[c], r25"        "\n\t"
+        "brcc 9f"               "\n\t"
+        "lds  r25, %[c]+1"      "\n\t"
+        "subi r25, 1"           "\n\t"
+        "sts  %[c]+1, r25"      "\n\t"
+        "brcc 9f"               "\n\t"
+        "lds  r25, %[c]+2"      "\n\t"
+        "subi r25, 1"           "\n\t"
+        "sts  %[c]+2, r25"      "\n\t"
+        "brcc 9f"               "\n\t"
+        "lds  r25, %[c]+3"      "\n\t"
+        "subi r25, 1"           "\n\t"
+        "sts  %[c]+3, r25"      "\n\t"
+        "9: pop r25"            "\n\t"
+        "out  __SREG__, r25"    "\n\t"
+        "pop  r25"              "\n\t"
+        "pop  r24"              "\n\t"
+        "reti"                  "\n\t"
+        :: [pind] "I"(_SFR_IO_ADDR(PIND)), [c] "i"(&g_counts));
+}
 
 // Channel B edge (x4 decoding only). Forward: at a B edge A == B -> +1.
-ISR(INT1_vect, ISR_NAKED) { JL_ENCODER_ISR_BODY("sbrc"); }
+ISR(INT1_vect, ISR_NAKED) {
+    __asm__ __volatile__(
+        JL_ENCODER_ISR_ENTRY
+        "com  r24"              "\n\t"   /* bit 2 set: A == B */
+        "rjmp jl_encoder_step"  "\n\t"
+        :: [pind] "I"(_SFR_IO_ADDR(PIND)));
+}
 
 // Interruptible (the compare flag is cleared on entry): an encoder edge never waits for it.
 ISR(TIMER2_COMPA_vect, ISR_NOBLOCK) {
