@@ -191,7 +191,7 @@ static uint8_t uart_read() {
 ISR(INT0_vect, ISR_NAKED) {
     __asm__ __volatile__(
         JL_ENCODER_ISR_ENTRY
-        ".global jl_encoder_step" "\n\t"   /* INT1 jumps here (LTO may put it elsewhere) */
+        ".global jl_encoder_step" "\n\t"   /* INT1 jumps here (another LTO partition maybe) */
         "jl_encoder_step:"      "\n\t"   /* r24 bit 2 set: +1, clear: -1 */
         "lds  r25, %[c]"        "\n\t"
         "sbrs r24, 2"           "\n\t"
@@ -238,7 +238,7 @@ ISR(INT1_vect, ISR_NAKED) {
     __asm__ __volatile__(
         JL_ENCODER_ISR_ENTRY
         "com  r24"              "\n\t"   /* bit 2 set: A == B */
-        "rjmp jl_encoder_step"  "\n\t"
+        "jmp  jl_encoder_step"  "\n\t"   /* jmp: LTO may place INT0 anywhere */
         :: [pind] "I"(_SFR_IO_ADDR(PIND)));
 }
 
