@@ -3,15 +3,16 @@
 Runs moves of every planner, one near top speed, and a 12 V open-loop step on the real firmware
 ELF in the simavr harness (as fast as the host allows: the budget is counted in CPU cycles, not
 wall time) and prints the control step's cycles against the period and against the issue-21
-ceiling of 4000 cycles (25 % of 1 ms). The control step is the whole work of a tick, interrupts
-included: encoder read, safety checks, PID + feedforward, PWM write, the TELEMETRY frame (encode,
-CRC, into the UART ring), the reference of the next sample and one stage of the next segment's
-preparation -- measured between the rise and fall of the PB5 probe in the probe build 10
-(``EXTRA_DEFS=-DJL_PROBE_PART=10``), min/mean/max over the ticks while the motor moves. It also
-prints whether an encoder count was lost (the firmware's count against the harness's ideal one,
-and INT0 latency against a quarter encoder period at top speed), then where the cycles of a 1 ms
-tick go, from builds that raise the probe around one part each (``-DJL_PROBE_PART=n``), and
-flash/RAM against the Uno's.
+ceiling of 4000 cycles (25 % of 1 ms). The control step is what the default build's PB5 probe
+spans, interrupts included: encoder read, safety checks, PID + feedforward, PWM write, the
+reference of the next sample (planner sample, feedforward, SET_SHAPER's FIR) and the TELEMETRY
+frame (encode, CRC, into the UART ring) -- min/mean/max over the ticks while the motor moves. The
+work done after it in the idle time before the next tick (the next chunk's coefficients,
+re-targeting, the shaper's delayed taps) is measured separately (probe build 7) and the CPU load
+per period reported with it. It also prints whether an encoder count was lost (the firmware's
+count against the harness's ideal one, and INT0 latency against a quarter encoder period at top
+speed), then where the cycles of a 1 ms tick go, from builds that raise the probe around one part
+each (``-DJL_PROBE_PART=n``), and flash/RAM against the Uno's.
 
     python -m benchmarks firmware
 
@@ -114,9 +115,10 @@ def main():
     fw = simavr.firmware_dir()
     out = simavr.build_firmware("avr", "size", "simavr")
     m = re.search(r"flash (\d+) / (\d+) bytes .*RAM (\d+) / (\d+) bytes", out["output"])
-    # the whole tick: probe build 10 (the default build's probe covers encoder read -> PWM write)
-    whole = {baud: simavr.build_firmware("avr", build_dir=fw / "build" / f"tick{baud}", baud=baud,
-                                         probe_part=10)["elf"] for baud in (115200, 1000000)}
+    # the control step: the default build's probe (encoder read -> PWM write, next reference,
+    # TELEMETRY)
+    whole = {baud: simavr.build_firmware("avr", build_dir=fw / "build" / f"step{baud}", baud=baud)["elf"]
+             for baud in (115200, 1000000)}
     rows, summary = [], {}
     for Ts_us, baud in [(5000, 115200), (1000, 1000000)]:
         cases = _cases(Ts_us) + [(f"open-loop step 12 V, {100 * Ts_us / 1e6:g} s",
@@ -135,9 +137,9 @@ def main():
                 worst_mean = max(worst_mean, b["mean"])
                 worst_max = max(worst_max, b["max"])
         summary[Ts_us] = (worst_mean, worst_max)
-    print("control step on the simulated Uno = the whole work of a tick (encoder read, PID + "
-          "feedforward, PWM write, TELEMETRY, next reference, one preparation stage; cycles at "
-          "16 MHz while moving, interrupts included)")
+    print("control step on the simulated Uno = the default build's D13 probe (encoder read, PID + "
+          "feedforward, PWM write, the next sample's reference, TELEMETRY; cycles at 16 MHz while "
+          "moving, interrupts included; the idle-time work after it: see the parts table)")
     print(f"{'Ts':>5s} {'case':46s} {'steps':>6s} {'min':>6s} {'mean':>7s} {'max':>6s} {'max/Ts':>7s} "
           f"{'max/4000':>8s} {'INT0 lat':>8s} {'lost':>5s} {'ovr':>4s} {'sim/wall':>8s}")
     for r in rows:
@@ -151,20 +153,27 @@ def main():
     print(f"INT0 latency budget at top speed (quarter encoder period): {quarter:.0f} cycles")
 
     # where a 1 ms tick's cycles go: one probe build per part (0 = the default build's probe)
-    parts = [(0, "encoder read -> PWM write (Device::control)"),
-             (4, "  of which the PID"),
-             (6, "TELEMETRY frame: encode, CRC, into the UART ring"),
-             (8, "reference sample for the next tick (after the PWM write)"),
-             (9, "segment preparation, one stage (the first ~13 ticks of a segment)")]
-    print("\nparts of a 1 ms tick (near-top-speed sine-jerk move; each part's own probe build; "
-          "interrupts included)")
-    print(f"{'part':66s} {'n':>6s} {'mean':>7s} {'max':>6s} {'max/4000':>8s}")
-    for n, label in parts:
-        b_dir = fw / "build" / (f"probe{n}" if n else "baud1m")
-        simavr.build_firmware("avr", build_dir=b_dir, baud=1000000, probe_part=n or None)
-        s, end, wall = _run(b_dir / "jerklab_rig.elf", 1000, _cases(1000)[1][1], 1000000)
-        b = s["control_step_cycles_all"]
-        print(f"{label:66s} {b['n']:6d} {b['mean']:7.0f} {b['max']:6d} {b['max'] / 4000:8.3f}")
+    parts = [(0, "control step (the default build's probe)"),
+             (3, "  encoder read -> PWM write (Device::control)"),
+             (4, "    of which the PID"),
+             (8, "  reference of the next sample (Device::reference)"),
+             (6, "  TELEMETRY frame: encode, CRC, into the UART ring"),
+             (7, "idle-time work after the step (Device::background)")]
+    for ci in (1, 3):
+        label0 = _cases(1000)[ci][0]
+        print(f"\nparts of a 1 ms tick ({label0}; each part's own probe build; interrupts included)")
+        print(f"{'part':66s} {'n':>6s} {'mean':>7s} {'max':>6s} {'max/4000':>8s}")
+        means = {}
+        for n, label in parts:
+            b_dir = fw / "build" / (f"probe{n}" if n else "step1000000")
+            simavr.build_firmware("avr", build_dir=b_dir, baud=1000000, probe_part=n or None)
+            s, end, wall = _run(b_dir / "jerklab_rig.elf", 1000, _cases(1000)[ci][1], 1000000)
+            b = s["control_step_cycles_all"]
+            means[n] = (b["mean"], b["max"])
+            print(f"{label:66s} {b['n']:6d} {b['mean']:7.0f} {b['max']:6d} {b['max'] / 4000:8.3f}")
+        print(f"CPU load per 1 ms period (step + idle-time work, means): "
+              f"{(means[0][0] + means[7][0]) / 16000:.3f}; worst single period <= "
+              f"{(means[0][1] + means[7][1]) / 16000:.3f}")
     if m:
         f, ft, r_, rt = (int(x) for x in m.groups())
         print(f"flash {f} / {ft} B = {f / ft:.3f} of the Uno, RAM {r_} / {rt} B = {r_ / rt:.3f} "

@@ -218,6 +218,14 @@ def _write_vectors(path, rng):
 
 
 def test_host_core_agrees_with_jerklab_on_golden_vectors(host_driver, tmp_path):
+    """The C++ core (host build) against jerklab on golden vectors, each record within its stated
+    bound (firmware/host/jl_host.cpp): plans' phase times to 1.6e-5 of the duration, closed-form
+    samples to 1e-5 of each quantity's scale, the control loop's fixed-point stepper (positions in
+    encoder counts, 448 per revolution, as on the device) to 5e-5 of the scale plus the Q32.32
+    bound 2^-32 (n + n^2 + n^3) < 6.2e-5 count per 64-sample chunk (docs/THEORY.md), its
+    feedforward likewise plus 2^-15 of its unit, no chunk change unprepared when prepare() runs
+    after each sample, and each one counted as a miss when it never runs; the PID to 2e-5 of the
+    output limit (plus float32 time rounding and either side's value at a jump)."""
     vec = tmp_path / "golden.txt"
     clamp = _write_vectors(vec, np.random.default_rng(20151))
     # issue 19: the controller vectors saturate in both directions, and on each side of the clamp

@@ -82,7 +82,7 @@ def test_firmware_and_virtual_rig_agree(uno, tmp_path):
     # How many samples may differ: a count differs where an edge falls between the instant the
     # firmware reads the encoder (a few µs after the tick) and the model's t = k Ts, and where the
     # PWM the board writes at the end of its control step (modelled since issue 21:
-    # VirtualDevice.COMPUTE_DELAY, ~0.13 ms now that the reference is sampled a tick ahead)
+    # VirtualDevice.COMPUTE_DELAY, ~0.12 ms now that the reference is sampled a tick ahead)
     # differs in effect from the model's by the step's jitter; the sub-count angle the motor
     # starts at moves the count by a few samples. The differing fraction is about lag * (counts
     # travelled) / (n Ts): bound the timing mismatch it implies. It was bounded by 10 % of Ts
@@ -111,18 +111,17 @@ def test_firmware_refuses_bad_parameters(uno):
             uno.run_move(plan_scurve(1.0, 1e3, 100.0, 10.0), pole_placement_pid(27.5, 0.034, wn=20.0))
 
 
-def test_1khz_loop_on_the_simulated_uno_matches_the_virtual_rig(tmp_path):
-    """Issue 21: a move at Ts = 1 ms on the simulated Uno (telemetry at every sample, so the
-    sketch is built for 1 Mbaud) matches the virtual rig within one count at every sample, with
-    no encoder count lost and no overrun. The bound checked here is on the encoder-read-to-PWM
-    part of the tick (<= 4000 cycles, 25 % of the period); the whole tick (telemetry, next
-    reference sample, preparation) is measured by ``python -m benchmarks firmware`` and is still
-    above that figure (firmware/README.md)."""
+@pytest.fixture(scope="module")
+def run_1khz(tmp_path_factory):
+    """A 4 pi rad sine-jerk move at Ts = 1 ms on the simulated Uno (telemetry at every sample, so
+    the sketch is built for 1 Mbaud) and on the virtual rig, and the harness's statistics (the
+    default build's D13 probe spans the whole control step)."""
     require_tool("make", "cc", "avr-g++", "avr-size", "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
                  "/usr/include/simavr/sim_avr.h")
     from jerklab.controller import discrete_pole_placement_pid
     from jerklab.rig import simavr
 
+    tmp_path = tmp_path_factory.mktemp("rig-1khz")
     build = simavr.firmware_dir() / "build" / "baud1m"
     paths = simavr.build_firmware("avr", build_dir=build, baud=1000000)
     simavr.build_firmware("simavr")
@@ -135,19 +134,40 @@ def test_1khz_loop_on_the_simulated_uno_matches_the_virtual_rig(tmp_path):
         with connect(uno.port, baudrate=1000000, recordings=tmp_path, progress=False, timeout=10.0) as fw_rig:
             fw_rig.set_model(**MOTOR)
             fw = fw_rig.run_move(prof, g, Ts=Ts, settle=0.2)
+            cpr = fw_rig.counts_per_rad
         st = uno.stats()
     with connect(motor=DCMotor(**MOTOR), model=(MOTOR["K"], MOTOR["tau"]), recordings=tmp_path,
                  progress=False) as virt:
         py = virt.run_move(prof, g, Ts=Ts, settle=0.2)
+    return prof, fw, py, st, cpr
+
+
+def test_1khz_loop_on_the_simulated_uno_matches_the_virtual_rig(run_1khz):
+    """Issue 21: a move at Ts = 1 ms on the simulated Uno matches the virtual rig within one count
+    at every sample, with no encoder count lost and no overrun (the idle-time preparation keeps
+    up: a chunk computed inside a sample counts as an overrun). The whole control step (encoder
+    read to PWM write, the next reference, TELEMETRY) leaves at least half of the period for the
+    idle-time work; the issue's 4000 cycles are the next test."""
+    prof, fw, py, st, cpr = run_1khz
     assert fw.metadata["status"] == "complete" and len(fw) == len(py) == fw.metadata["plan"]["n_samples"] + 200
     assert fw.metadata["device_overruns"] == 0 and fw.metadata["lost_samples"] == 0
     assert np.max(np.abs(fw.reference - py.reference)) < 1e-5 * prof.distance
     assert np.max(np.abs(fw.counts - py.counts)) <= 1                     # at every sample
-    assert abs(fw.position[-1] - prof.distance) < 2 / fw_rig.counts_per_rad
-    # encoder read to PWM write (not the whole tick) and the count: nothing lost at this speed
-    assert st["control_step_cycles_moving"]["max"] <= 4000, st["control_step_cycles_moving"]
+    assert abs(fw.position[-1] - prof.distance) < 2 / cpr
+    step = st["control_step_cycles_moving"]
+    assert step["n"] >= 0.5 * len(fw) and step["max"] <= 8000, step     # (n: ticks while moving)
     assert st["firmware_counts"] == st["ideal_counts_x1"]
     assert st["int0_latency_cycles"]["over_120"] == 0
+
+
+@pytest.mark.xfail(strict=True, reason="issue 21 not met yet: the whole 1 ms control step is ~6500-6900 "
+                   "cycles here (firmware/README.md 'Cycle budget'; TELEMETRY ~2100, the float PID ~1000, "
+                   "a sine pulse's reference ~2300)")
+def test_1khz_whole_control_step_within_a_quarter_of_the_period(run_1khz):
+    """Issue 21's ceiling: the whole control step (planner sample, feedforward, PID, TELEMETRY;
+    interrupts included) <= 4000 cycles, 25 % of 1 ms, at its maximum over the move."""
+    prof, fw, py, st, cpr = run_1khz
+    assert st["control_step_cycles_moving"]["max"] <= 4000, st["control_step_cycles_moving"]
 
 
 @pytest.mark.parametrize("kind,at,new", [(1, 10, 25.0), (2, 15, -3.0)])

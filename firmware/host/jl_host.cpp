@@ -146,8 +146,21 @@ int run_vectors(const char* path) {
                 double Ts;
                 long n;
                 ss >> Ts >> n;
-                jl::PlanStepper stepper;
-                stepper.start(p, (float)Ts);
+                jl::PlanStepper stepper, fstep;
+                // positions in counts as on the device (448 per rev x1): the fixed point's
+                // absolute bound 2^-32 (n + n^2 + n^3) < 6.2e-5 counts (n < 64) is in counts
+                const double cpr = 448.0 / (2.0 * M_PI);
+                const double fx_bound = std::ldexp(1.0, -32) * (64.0 + 64.0 * 64.0 + 64.0 * 64.0 * 64.0) / cpr;
+                stepper.start(p, (float)Ts, 0.0f, 0.0f, (float)cpr, (float)cpr);
+                // never prepared ahead: every change of chunk takes the slow path, which must
+                // give the same samples and count each change as a miss
+                jl::PlanStepper lazy;
+                lazy.start(p, (float)Ts, 0.0f, 0.0f, (float)cpr, (float)cpr);
+                uint8_t lazy_seg = lazy.segment();
+                long lazy_changes = 0;
+                // the feedforward path (Q16.16): alpha a with alpha = 1000 / peak accel
+                const float alpha = sa > 0 ? (float)(1000.0 / sa) : 1.0f;
+                fstep.start(p, (float)Ts, alpha, 0.0f, 1.0f, 1.0f);
                 for (long k = 0; k < n; ++k) {
                     if (!std::getline(in, line)) { stp.check(1, 0, "truncated stepper block"); break; }
                     ++lineno;
@@ -157,14 +170,28 @@ int run_vectors(const char* path) {
                     ls >> tag >> j >> a >> v >> x;
                     jl::Sample s;
                     stepper.next(&s);
+                    float fx, fq, lx;
+                    fstep.next_fast(&fx, nullptr, &fq);
+                    fstep.prepare();
+                    lazy.next_fast(&lx, nullptr, nullptr);
+                    if (lazy.segment() != lazy_seg) { ++lazy_changes; lazy_seg = lazy.segment(); }
+                    const double fa = fq / alpha;
                     std::ostringstream wh;
                     wh << path << ":" << lineno << " k=" << k;
                     const double t = k * Ts;
                     stp.check(std::fabs(s.jerk - j), near_jump(t) ? 2.000001 * sj : tol(kRtolStepper, sj, sj * w, t, 16), wh.str() + " jerk");
                     stp.check(std::fabs(s.accel - a), near_jump(t) && p.shape == jl::kShapeStep ? 2.000001 * sa : tol(kRtolStepper, sa, sj, t, 16), wh.str() + " accel");
-                    stp.check(std::fabs(s.velocity - v), tol(kRtolStepper, sv, sa, t, 16), wh.str() + " velocity");
-                    stp.check(std::fabs(s.position - x), tol(kRtolStepper, sx, sv, t, 16), wh.str() + " position");
+                    stp.check(std::fabs(s.velocity / cpr - v), tol(kRtolStepper, sv, sa, t, 16), wh.str() + " velocity");
+                    stp.check(std::fabs(s.position / cpr - x), tol(kRtolStepper, sx, sv, t, 16) + fx_bound, wh.str() + " position");
+                    stp.check(std::fabs(lx / cpr - x), tol(kRtolStepper, sx, sv, t, 16) + fx_bound, wh.str() + " position (unprepared)");
+                    // fixed-point feedforward: the stepper's bound plus the Q16.16 rounding
+                    stp.check(std::fabs(fa - a), (near_jump(t) && p.shape == jl::kShapeStep ? 2.000001 * sa : tol(kRtolStepper, sa, sj, t, 16)) + 2.0 / 65536.0 / alpha,
+                              wh.str() + " feedforward (accel)");
                 }
+                // the idle-time preparation kept up: no chunk computed inside a sample
+                stp.check(stepper.misses() + fstep.misses(), 0.5, where.str() + " chunk changes unprepared");
+                // the lazy stepper changed chunk through misses only (start() prepares one ahead)
+                stp.check(lazy_changes > 1 + (long)lazy.misses(), 0.5, where.str() + " misses not counted");
             }
         } else if (kind == "C") {
             double kpd, kid, kdd, gamma, limit, K, tau, Ts;
@@ -335,7 +362,12 @@ int run_device(double K, double tau, double supply, int encoder) {
             long n;
             ss >> n;
             for (long i = 0; i < n; ++i) {
-                if (hal.tick() && dev.control()) { dev.report(); dev.background(); }
+                if (hal.tick() && dev.state() != jl::Device::kIdle) {   // as loop() in the sketch
+                    const bool produced = dev.control();
+                    dev.reference();
+                    if (produced) dev.report();
+                    dev.background();
+                }
                 dev.poll();
             }
         } else if (cmd == "idle") {

@@ -3,8 +3,8 @@
 // L298, quadrature encoder on INT0/INT1, binary serial protocol (firmware/PROTOCOL.md).
 //
 // Pin map (docs/INTERFACES.md): encoder A D2 (PD2/INT0), B D3 (PD3/INT1); PWM D9 (OC1A);
-// L298 IN1 D7 (PD7), IN2 D8 (PB0). Extra: D13 (PB5) is high during each control step (cycle
-// budget probe, also visible on a scope); D12 (PB4, pull-up) held low by a simulator
+// L298 IN1 D7 (PD7), IN2 D8 (PB0). Extra: D13 (PB5) is high during each control step (encoder
+// read to PWM write, the next reference, TELEMETRY: the cycle budget probe, also on a scope); D12 (PB4, pull-up) held low by a simulator
 // announces a simulated plant in HELLO_REPLY.
 //
 // Serial: a small interrupt-driven UART0 driver (115200 baud 8N1, U2X; JL_BAUD below) instead of the
@@ -92,14 +92,13 @@ ISR(USART_UDRE_vect) {
 #ifndef JL_BAUD
 #define JL_BAUD 115200UL
 #endif
-// Transmit held during the control step (uart_tx_hold / uart_tx_release around the tick in
-// loop()): at 1 Mbaud a byte leaves every 160 cycles, and a UDRE interrupt per byte (~57 cycles)
-// inside the tick cost ~1250 cycles a TELEMETRY; held, the bytes go out in the idle time after
-// the tick (a 22-byte frame takes 3520 cycles of the 16000 of a 1 ms period; the line idles
-// during the tick, which 1 Mbaud can spare: a frame needs 3520 of the 16000 cycles). At 500000 a
-// frame needs 7040 cycles of line time, more than a slow tick (the 10-tap shaper's, ~12600
-// cycles) leaves, and at 115200 (a byte ~1390 cycles, interrupt load ~4 %) the line needs every
-// byte time at Ts = 1 ms: not held there.
+// Transmit held during the control step (uart_tx_hold / uart_tx_release around it in loop()):
+// at 1 Mbaud a byte leaves every 160 cycles, and a UDRE interrupt per byte (~57 cycles) inside
+// the step cost ~1250 cycles a TELEMETRY; held, the bytes go out in the idle time after the step
+// (the line idles during the step, which 1 Mbaud can spare: a 22-byte frame needs 3520 of the
+// 16000 cycles of a 1 ms period). At 500000 a frame needs 7040 cycles of line time, close to
+// what a slow step leaves (16000 - ~8000), and at 115200 (a byte ~1390 cycles, interrupt load
+// ~4 %) the line needs every byte time at Ts = 1 ms: not held there.
 #ifndef JL_TX_HOLD
 #define JL_TX_HOLD (JL_BAUD > 500000UL)
 #endif
@@ -352,23 +351,29 @@ void loop() {
     if (g_tick_flag) {
         g_tick_flag = 0;
         if (device.state() != jl::Device::kIdle) {
-            JL_PART_BEGIN(10);                          // the whole tick (probe build 10)
-            uart_tx_hold();                             // no UDRE interrupt inside the tick
+            // The control step (probe D13 high; probe build 10 the same span): encoder read ->
+            // PWM write, the next sample's reference, the TELEMETRY frame. Then, in the idle
+            // time before the next tick, the work ahead (probe build 7).
+            JL_PART_BEGIN(10);
 #ifndef JL_PROBE_PART
             PORTB |= kProbe;
 #endif
+            uart_tx_hold();                             // no UDRE interrupt inside the step
+            JL_PART_BEGIN(3);
             const bool produced = device.control();
-#ifndef JL_PROBE_PART
-            PORTB &= ~kProbe;
-#endif
+            JL_PART_END(3);
+            device.reference();
             JL_PART_BEGIN(6);
             if (produced) device.report();
             JL_PART_END(6);
+#ifndef JL_PROBE_PART
+            PORTB &= ~kProbe;
+#endif
+            JL_PART_END(10);
+            uart_tx_release();                          // the frame leaves in the idle time
             JL_PART_BEGIN(7);
             device.background();
             JL_PART_END(7);
-            uart_tx_release();
-            JL_PART_END(10);
         }
     }
     if (g_overrun) {

@@ -21,6 +21,8 @@ bool Pid::set(float kpd, float kid, float kdd, float gamma, float limit) {
     kdd_ = kdd;
     limit_ = limit;
     memcpy(&limit_bits_, &limit, 4);
+    kpk_ = kpd + kdd;
+    filtered_ = gamma != 0.0f;
     return true;
 }
 
@@ -59,13 +61,18 @@ float Pid::step(float e, float ff, ControlParts* parts) {
 namespace jl {
 
 float Pid::step_fast(float e, float ff, bool* saturated) {
-    const float p = kpd_ * e;                       // eq. 17
-    float i = i_ + kid_ * e;
-    float d = kdd_ * (e - e_prev_);
-    if (gamma_ != 0.0f) d += gamma_ * d_prev_;
+    float i = i_ + kid_ * e;                        // eq. 17
+    float pd;                                       // p + d
+    if (!filtered_) {
+        // gamma = 0: p + d = (kpd + kdd) e - kdd e(k-1), one addition fewer (d(k-1) unused)
+        pd = kpk_ * e - kdd_ * e_prev_;
+    } else {
+        const float d = kdd_ * (e - e_prev_) + gamma_ * d_prev_;
+        d_prev_ = d;
+        pd = kpd_ * e + d;
+    }
     e_prev_ = e;
-    d_prev_ = d;
-    float u = ff + p + i + d;                       // eq. 18 + feedforward (eq. 16)
+    float u = ff + i + pd;                          // eq. 18 + feedforward (eq. 16)
     uint32_t ub;
     memcpy(&ub, &u, 4);
     // |u| > limit (or NaN): for floats the magnitude bits order like the values.

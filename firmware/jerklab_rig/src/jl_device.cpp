@@ -25,9 +25,9 @@ void Device::apply_plant() {
 }
 
 void Device::update_pwm_top() {
-    long top = jl_lroundf(max_voltage_ * pwm_per_volt_);
-    if (top > cfg_.pwm_max) top = cfg_.pwm_max;
-    pwm_top_ = static_cast<int16_t>(top);
+    // lround(max_voltage * pwm_max / supply), at most pwm_max (the rounding of ticks_to_pwm)
+    pwm_top_ = static_cast<int16_t>(cfg_.pwm_max);
+    pwm_top_ = ticks_to_pwm(max_voltage_ * pwm_per_volt_);
 }
 
 // lround(u) (halves away from zero) clamped to +-pwm_top, for |u| < 2^22 (u + 0.5 is then exact):
@@ -45,12 +45,7 @@ int16_t Device::ticks_to_pwm(float u) const {
     return static_cast<int16_t>(neg ? -pwm : pwm);
 }
 
-int16_t Device::volts_to_pwm(float u) const {
-    long pwm = jl_lroundf(u * pwm_per_volt_);
-    if (pwm > pwm_top_) pwm = pwm_top_;
-    if (pwm < -pwm_top_) pwm = -pwm_top_;
-    return static_cast<int16_t>(pwm);
-}
+int16_t Device::volts_to_pwm(float u) const { return ticks_to_pwm(u * pwm_per_volt_); }
 
 void Device::send(uint8_t type, uint8_t seq, const uint8_t* payload, uint8_t n) {
     hal_.write_frame(type, seq, payload, n);
@@ -87,7 +82,8 @@ void Device::end_run(uint8_t reason, float detail) {
     p[0] = reason;
     put_u32(p + 1, k_);
     put_u16(p + 5, parser_.dropped());
-    put_u16(p + 7, overruns_);
+    // overruns: late ticks, and chunk changes the idle-time preparation did not keep up with
+    put_u16(p + 7, static_cast<uint16_t>(overruns_ + (state_ == kRunning ? stepper_.misses() : 0u)));
     put_f32(p + 9, detail);
     state_ = kIdle;
     have_sample_ = false;
@@ -265,6 +261,7 @@ void Device::handle(const Frame& f) {
             shp_kv_ = use_ff_ ? ff_.beta() * pwm_per_volt_ / (cpr * Ts_) : 0.0f;
             shp_ka_ = use_ff_ ? ff_.alpha() * pwm_per_volt_ / (cpr * Ts_ * Ts_) : 0.0f;
             sample_ahead();                     // the reference of sample 0
+            shaper_.prepare();                  // (then in background() after each step)
         }
         k_ = 0;
         n_total_ = plan_samples_ + shaper_.max_delay() + settle;   // the shaper lengthens the move
@@ -394,13 +391,8 @@ bool Device::control() {
     if (state_ == kRunning) {
         // ref, e in encoder counts; ref_v in counts per sample; uf in PWM ticks
         // (sampled one tick ahead by background(); inline only if that did not run)
-        if (!ahead_) {
-            JL_PART_BEGIN(1);
-            sample_ahead();
-            JL_PART_END(1);
-        }
-        ahead_ = false;
-        const float ref = ref_, ref_v = ref_v_, uf = uf_;
+        ahead_ = false;                 // (sampled by reference() after the previous step, or RUN)
+        const float ref = ref_;
         if (k_ >= plan_samples_ + shaper_.max_delay()) flags |= kTelemetrySettling;
         rep_ref_ = ref;
         const float pos_error = ref - static_cast<float>(c);
@@ -416,12 +408,12 @@ bool Device::control() {
             } else {
                 // Velocity loop (Stojčić §4B): counts over the last sample; y(-1) = y(0).
                 if (k_ == 0) prev_counts_ = c;
-                e = ref_v - static_cast<float>(c - prev_counts_);
+                e = ref_v_ - static_cast<float>(c - prev_counts_);
             }
             prev_counts_ = c;
             bool saturated;
             JL_PART_BEGIN(4);
-            const float u = pid_.step_fast(e, uf, &saturated);
+            const float u = pid_.step_fast(e, uf_, &saturated);
             JL_PART_END(4);
             if (saturated) {
                 flags |= kTelemetrySaturated;
@@ -478,11 +470,10 @@ static uint32_t samples_of(float t, float Ts) {
 void Device::sample_ahead() {
     stepper_.next_fast(&ref_, loop_ == kLoopVelocity ? &ref_v_ : nullptr, use_ff_ ? &uf_ : nullptr);
     if (shaper_.on()) {
-        // SET_SHAPER (PROTOCOL.md): the reference's FIR and its backward differences, here
-        // outside the timed control step (the delayed taps' sum for the next sample too)
+        // SET_SHAPER (PROTOCOL.md): the reference's FIR (the delay-0 taps; the delayed taps'
+        // sum for the next sample in background()) and its backward differences, in float
         float v, a;
         shaper_.apply(&ref_, &v, &a);
-        shaper_.prepare();
         ref_v_ = v;
         uf_ = shp_ka_ * a + shp_kv_ * v;
     }
@@ -580,17 +571,19 @@ bool Device::retarget_work() {
     return true;
 }
 
+void Device::reference() {
+    if (state_ != kRunning || ahead_) return;
+    JL_PART_BEGIN(8);
+    sample_ahead();
+    JL_PART_END(8);
+}
+
 void Device::background() {
     if (state_ != kRunning) return;
-    if (!ahead_) {
-        JL_PART_BEGIN(8);
-        sample_ahead();
-        JL_PART_END(8);
-    }
-    // one more piece of work per tick: the re-targeting, else the next segment
-    if (retarget_work()) return;
     JL_PART_BEGIN(9);
-    stepper_.prepare();
+    shaper_.prepare();                   // the delayed taps' sum for the next sample
+    // one more piece of work per tick: the re-targeting, else the next chunk
+    if (!retarget_work()) stepper_.prepare();
     JL_PART_END(9);
 }
 

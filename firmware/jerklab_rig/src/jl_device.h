@@ -57,9 +57,13 @@ public:
     /// The control computation of one tick (planner, controller, PWM write); returns true
     /// when a sample was produced and report() should be called.
     bool control();
-    /// Telemetry / end-of-run frames of the last control() (kept out of the timed step).
+    /// The reference of the next sample (position, velocity, feedforward: the planner's sample,
+    /// SET_SHAPER's FIR): part of the timed control step, after control().
+    void reference();
+    /// Telemetry / end-of-run frames of the last control().
     void report();
-    /// Work ahead of the control step (the planner's next segment); call after report().
+    /// Work in the idle time after the control step (the planner's next chunk, re-targeting,
+    /// the shaper's delayed taps); call after report().
     void background();
     /// Host watchdog check (call often from loop()).
     void poll();
@@ -129,8 +133,9 @@ private:
     uint16_t settle_ = 0;
     uint32_t plan_samples_ = 0;
 
-    // The reference of the next sample (counts), its velocity (counts per sample) and
-    // feedforward (PWM ticks), computed ahead by background() after the previous step.
+    // The reference of the next sample (counts; the planner samples it in Q32.32), its velocity
+    // (counts per sample) and feedforward (PWM ticks), computed ahead by reference() after the
+    // previous step.
     float ref_ = 0.0f, ref_v_ = 0.0f, uf_ = 0.0f;
     bool ahead_ = false;
 

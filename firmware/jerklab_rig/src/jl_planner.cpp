@@ -369,6 +369,87 @@ void sample(const Plan& p, float t, Sample* s) {
 
 // ------------------------------------------------------------------------------- stepper
 
+// ------------------------------------------------------------------- fixed point
+
+void q32_add(Q32* a, const Q32& b) {
+#if defined(__AVR__)
+    // eight add-with-carry steps through the X and Z pointers (~60 cycles; avr-gcc's C for the
+    // carry compare is twice the code)
+    uint8_t* pa = reinterpret_cast<uint8_t*>(a);
+    const uint8_t* pb = reinterpret_cast<const uint8_t*>(&b);
+    asm volatile(
+        "ld r18, X\n\t" "ld r19, Z+\n\t" "add r18, r19\n\t" "st X+, r18\n\t"
+        "ld r18, X\n\t" "ld r19, Z+\n\t" "adc r18, r19\n\t" "st X+, r18\n\t"
+        "ld r18, X\n\t" "ld r19, Z+\n\t" "adc r18, r19\n\t" "st X+, r18\n\t"
+        "ld r18, X\n\t" "ld r19, Z+\n\t" "adc r18, r19\n\t" "st X+, r18\n\t"
+        "ld r18, X\n\t" "ld r19, Z+\n\t" "adc r18, r19\n\t" "st X+, r18\n\t"
+        "ld r18, X\n\t" "ld r19, Z+\n\t" "adc r18, r19\n\t" "st X+, r18\n\t"
+        "ld r18, X\n\t" "ld r19, Z+\n\t" "adc r18, r19\n\t" "st X+, r18\n\t"
+        "ld r18, X\n\t" "ld r19, Z+\n\t" "adc r18, r19\n\t" "st X+, r18\n\t"
+        : "+x"(pa), "+z"(pb)
+        :
+        : "r18", "r19", "memory");
+#else
+    const uint32_t lo = a->lo + b.lo;
+    a->hi += b.hi + (lo < b.lo ? 1 : 0);
+    a->lo = lo;
+#endif
+}
+
+// x 2^32 from the float's bits: the 24-bit mantissa placed at its bit position in the 64-bit
+// image (a byte offset and at most 7 bit shifts; exact from 2^-8 up, truncated to 2^-32 below),
+// then the sign. No 64-bit arithmetic.
+Q32 to_q32(float x) {
+    uint32_t b;
+    memcpy(&b, &x, 4);
+    const uint8_t e = static_cast<uint8_t>(b >> 23);        // biased exponent
+    Q32 r = {0, 0};
+    if (e == 0) return r;                                   // 0, subnormals
+    if (e >= 127 + 31) {                                    // |x| >= 2^31, inf, NaN: saturated
+        r.hi = 0x7FFFFFFFL;
+    } else {
+        uint32_t m = (b & 0x7FFFFFUL) | 0x800000UL;         // x 2^32 = m 2^(e - 118)
+        if (e < 118) {
+            const uint8_t sh = static_cast<uint8_t>(118 - e);
+            r.lo = sh < 24 ? m >> sh : 0;
+        } else {
+            const uint8_t sh = static_cast<uint8_t>(e - 118);   // 0..39
+            for (uint8_t k = sh & 7; k; --k) m <<= 1;             // < 2^31
+            uint8_t img[8] = {0, 0, 0, 0, 0, 0, 0, 0};
+            memcpy(img + (sh >> 3), &m, 4);                       // byte offset 0..4
+            memcpy(&r.lo, img, 4);
+            memcpy(&r.hi, img + 4, 4);
+        }
+    }
+    if (b & 0x80000000UL) {                                 // two's complement negation
+        r.hi = ~r.hi + (r.lo == 0 ? 1 : 0);
+        r.lo = 0u - r.lo;
+    }
+    return r;
+}
+
+float q32_to_float(const Q32& x) {
+    // the widest 32-bit window that holds the value: Q16.16 below 2^15, else Q24.8 (byte moves),
+    // one conversion, the window's 2^-16 or 2^-8 by the exponent
+    const int32_t hi = x.hi;
+    int32_t w;
+    uint32_t n;
+    if (hi >= -32768L && hi < 32768L) {
+        w = static_cast<int32_t>((static_cast<uint32_t>(hi) << 16) | (x.lo >> 16));
+        n = 16UL << 23;
+    } else {
+        const int32_t h = hi > 8388607L ? 8388607L : (hi < -8388608L ? -8388608L : hi);
+        w = static_cast<int32_t>((static_cast<uint32_t>(h) << 8) | (x.lo >> 24));
+        n = 8UL << 23;
+    }
+    float f = static_cast<float>(w);
+    uint32_t b;
+    memcpy(&b, &f, 4);
+    if (b & 0x7F800000UL) b -= n;
+    memcpy(&f, &b, 4);
+    return f;
+}
+
 // The smallest k with (float)k * Ts >= t0 (in the float arithmetic of the stepper).
 static uint32_t first_k(float t0, float Ts) {
     if (!(t0 > 0.0f)) return 0;
@@ -380,143 +461,156 @@ static uint32_t first_k(float t0, float Ts) {
 
 uint32_t PlanStepper::first_sample(uint8_t i) const { return first_k(p_->seg[i].t0, Ts_); }
 
-// Stage 0 of segment i's coefficients, its first sample k0 and that of the next segment known.
+// The first sample after the chunk of segment i that starts at k0 (none after the rest at the
+// target).
+uint32_t PlanStepper::chunk_end(uint8_t i, uint32_t k0) const {
+    if (i + 1 >= p_->nseg) return 0xFFFFFFFFUL;
+    const uint32_t ke = first_sample(static_cast<uint8_t>(i + 1));
+    if (ke <= k0) return ke;
+    const uint32_t len = ke - k0;
+    // chunks of kChunk, the last two balanced: no short tail whose preparation would have to
+    // run in a few ticks (each chunk of a longer segment has >= kChunk / 2 samples)
+    if (len > 2u * kChunk) return k0 + kChunk;
+    if (len > kChunk) return k0 + len / 2;
+    return ke;
+}
+
+// Stage 0 of a chunk's coefficients: its first sample k0 and the next chunk's known.
 void PlanStepper::begin_coef(uint8_t i, Coef* c, uint32_t k0, uint32_t k_end) const {
     const Segment& g = p_->seg[i];
     c->seg = 0xFE;                              // in preparation
     c->k0 = k0;
     c->k_end = k_end;
     c->sine = g.sine;
-    c->j = static_cast<float>(k0) * Ts_ - g.t0;  // delta = k0 Ts - t0 in [0, Ts), kept in j until the last stage
+    c->s_delta = static_cast<float>(k0) * Ts_ - g.t0;   // delta = k0 Ts - t0 (>= 0 but on the slow path)
 }
 
-// The coefficients of segment i in stages of at most ~2500 AVR cycles each (interrupts included) (prepare() runs one
-// stage per control tick, so a 1 ms tick never runs long): 0 the first samples of the segment
-// and of the next one; on a sine pulse 1 cos(w delta), 2 sin(w delta), 3 sin(theta/2),
-// 4 cos(theta/2), 5 B and 2 q2, 6 to 8 the polynomial parts, 9 the two divisions of the
-// recurrence terms, 10 those of the feedforward, 11 of the velocity, 12 the recurrence's start;
-// on a polynomial segment 1 the state at the first sample, 2 its scaled values, 3 to 5 the
-// other coefficients.
+// to_q32(a b) (one call site per product: smaller code on the AVR).
+static Q32 __attribute__((noinline)) q32_of(float a, float b) { return to_q32(a * b); }
+
+// The coefficients of chunk c of segment i, one stage per call (prepare() runs them in the idle
+// time after the control step). The state (x, v, a) at the chunk's first sample and the jerk j
+// of the polynomial part give, on every segment, x = x(n Ts) as forward differences in Q32.32
+// (sx x, sx Ts (v + ...), ...), the feedforward alpha a + beta v likewise and the float velocity
+// polynomial. A polynomial segment: 1 the state (closed form), 2 to 4 the differences, 5 the
+// velocity. A half-sine pulse x = (x0 - B) + v0 u + q2 u^2 + B cos(w u) (j = 0 on the
+// polynomial part): 1 cos(w delta), 2 sin(w delta), 3 sin(theta/2), 4 cos(theta/2) (theta = w
+// Ts), 5 B and the state, 6 to 8 the differences, 9 Minsky's pair, 10 the velocity and the
+// pair's terms. Each stage reads its scratch (Coef's union) before it writes an output that
+// shares its bytes.
 bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
     const Segment& g = p_->seg[i];
     const float Ts = Ts_, sx = sx_, sv = sv_;
-    if (stage == 0) {
-        begin_coef(i, c, first_k(g.t0, Ts),
-                   i + 1 < p_->nseg ? first_k(p_->seg[i + 1].t0, Ts) : 0xFFFFFFFFUL);
-        return false;
+    if (i == p_->nseg - 1) {                        // the rest at the target
+        memset(&c->h, 0, sizeof(float) * 10);     // the float part
+        memset(&c->X, 0, sizeof(Q32) * 7);       // X..F2
+        c->X = to_q32(sx * g.x0);
+        c->sine = 0;
+        c->seg = i;
+        return true;
     }
-    const bool last = i == p_->nseg - 1;
-    if (g.sine && !last) {
+    const bool sine = g.sine != 0;
+    const float w = g.w, j = sine ? 0.0f : g.jp;
+    uint8_t st = stage;
+    if (sine) {
         switch (stage) {
-        case 1: c->h = jl_cosf(g.w * c->j); return false;
-        case 2: c->q = jl_sinf(g.w * c->j); return false;
-        case 3: c->s2 = jl_sinf(0.5f * (g.w * Ts)); return false;
-        case 4: c->ic2 = jl_cosf(0.5f * (g.w * Ts)); return false;
+        case 1: c->s_cw = jl_cosf(w * c->s_delta); return false;
+        case 2: c->s_sw = jl_sinf(w * c->s_delta); return false;
+        case 3: c->s_s2 = jl_sinf(0.5f * (w * Ts)); return false;
+        case 4: c->s_c2 = jl_cosf(0.5f * (w * Ts)); return false;
         case 5: {
-            const float w = g.w, jw = g.jp / w;
-            c->w = jw / (w * w);                   // B (until stage 12)
-            c->a0 = g.a0 + jw;                     // 2 q2
+            const float jw = g.jp / w, a2 = g.a0 + jw, d = c->s_delta;
+            const float B = jw / (w * w);
+            c->s_B = B;
+            c->s_x = (g.x0 - B) + d * (g.v0 + d * (0.5f * a2));   // the polynomial part at delta
+            c->s_v = g.v0 + a2 * d;
+            c->s_a = a2;                                          // 2 q2
             return false;
         }
-        case 6: {
-            // the polynomial parts: x = (x0 - B) + v0 u + q2 u^2 + B cos(w u) (kept in x0..x2)
-            const float B = c->w, q2 = 0.5f * c->a0;
-            const float delta = c->j;
-            const float vd = g.v0 + 2.0f * q2 * delta;
-            c->x0 = sx * ((g.x0 - B) + delta * (g.v0 + delta * q2));
-            c->x1 = sx * Ts * vd;
-            c->v0 = vd;                            // (unscaled until stage 7)
-            return false;
-        }
-        case 7: {
-            const float q2 = 0.5f * c->a0, vd = c->v0;
-            c->x2 = sx * q2 * Ts * Ts;
-            c->x3 = 0.0f;
-            c->v0 = sv * vd;                       // v = v0 + 2 q2 u - w B sin(w u)
-            c->v1 = sv * 2.0f * q2 * Ts;
-            c->v2 = 0.0f;
-            c->f0 = alpha_ * c->a0 + beta_ * vd;   // (vd = v0 / sv not kept: f0 here)
-            return false;
-        }
-        case 8: {
-            const float q2 = 0.5f * c->a0;
-            c->a0 = 2.0f * q2;                     // a = 2 q2 - w^2 B cos(w u)
-            c->a1 = 0.0f;
-            c->f1 = beta_ * 2.0f * q2 * Ts;
-            c->f2 = 0.0f;
-            c->j = 0.0f;
-            return false;
-        }
-        case 9:
-            // Minsky's recurrence h -= e q; q += e h with e = 2 sin(theta/2), theta = w Ts, keeps
-            // h_n = sx B cos(w u_n) and q_n = sx B sin(w u_n + theta/2) exactly (2 fmul a step):
-            // sx B sin(w u_n) = (q_n - s2 h_n) / c2, s2 = sin(theta/2), c2 = cos(theta/2).
-            c->isx = 1.0f / sx;
-            c->eps = 1.0f / c->ic2;                // (1 / c2 until stage 12)
-            return false;
-        case 10: {
-            const float w = g.w, s2 = c->s2, ic2 = c->eps, isx = c->isx;
-            c->fh = isx * (-alpha_ * w * w + beta_ * w * s2 * ic2);
-            c->fq = -isx * beta_ * w * ic2;
-            return false;
-        }
-        case 11: {
-            const float w = g.w, s2 = c->s2, ic2 = c->eps, isx = c->isx;
-            c->vh = sv * isx * w * s2 * ic2;
-            c->vq = -sv * isx * w * ic2;
+        case 9: {
+            // Minsky's recurrence h -= e q; q += e h with e = 2 sin(theta/2) keeps
+            // h_n = A cos(w u_n) and q_n = A sin(w u_n + theta/2) exactly (2 fmul a step), A = sx B:
+            // sin(w u_n) = (q_n - s2 h_n) / c2, s2, c2 = sin, cos(theta/2).
+            const float cw = c->s_cw, sw = c->s_sw, B = c->s_B, s2 = c->s_s2, c2 = c->s_c2;
+            const float a = sx * B;
+            c->h = a * cw;
+            c->q = a * (sw * c2 + cw * s2);        // sin(w delta + theta/2)
+            c->eps = 2.0f * s2;
             return false;
         }
         default: break;
         }
-        // stage 12
-        const float w = g.w, B = c->w, s2 = c->s2, c2 = c->ic2, ic2 = c->eps;
-        const float cwd = c->h, swd = c->q;        // cos, sin of w delta (stages 1, 2)
-        c->h = sx * B * cwd;
-        c->q = sx * B * (swd * c2 + cwd * s2);     // sin(w delta + theta/2)
-        c->eps = 2.0f * s2;
-        c->w = w;
-        c->ic2 = ic2;
-    } else if (last) {                              // the rest at the target
-        memset(&c->x0, 0, sizeof(float) * static_cast<size_t>(&c->vq - &c->x0 + 1));
-        c->x0 = sx * g.x0;
+        st = stage >= 10 ? 5 : static_cast<uint8_t>(stage - 4);   // 6..8 -> 2..4, 10 -> 5
     } else if (stage == 1) {
         Sample s;
-        eval_poly(g, c->j, &s);
-        c->x0 = s.position;                        // (unscaled until stage 2)
-        c->v0 = s.velocity;
-        c->a0 = s.accel;
+        eval_poly(g, c->s_delta, &s);
+        c->s_x = s.position;
+        c->s_v = s.velocity;
+        c->s_a = s.accel;
         return false;
-    } else if (stage == 2) {
-        const float v = c->v0;
-        c->f0 = alpha_ * c->a0 + beta_ * v;
-        c->x0 = sx * c->x0;
-        c->x1 = sx * v * Ts;
-        c->v0 = sv * v;
-        return false;
-    } else if (stage == 3) {
-        const float j = g.jp, a = c->a0;
-        c->x2 = sx * 0.5f * a * Ts * Ts;
-        c->x3 = sx * j * Ts * Ts * Ts * (1.0f / 6.0f);
-        return false;
-    } else if (stage == 4) {
-        const float j = g.jp, a = c->a0;
-        c->v1 = sv * a * Ts;
-        c->v2 = sv * 0.5f * j * Ts * Ts;
-        c->a1 = j * Ts;
-        return false;
-    } else {
-        const float j = g.jp, a = c->a0;
-        c->f1 = alpha_ * j * Ts + beta_ * a * Ts;
-        c->f2 = beta_ * 0.5f * j * Ts * Ts;
-        c->j = j;
-        memset(&c->h, 0, sizeof(float) * static_cast<size_t>(&c->vq - &c->h + 1));
     }
+    const float sxTs = sx * Ts;
+    if (st == 2) {
+        // x = x0 + x1 n + x2 n^2 + x3 n^3 in Q32.32 (each rounded once), as forward differences
+        const Q32 x2 = q32_of(0.5f * sxTs * Ts, c->s_a);
+        c->X = q32_of(sx, c->s_x);
+        c->X1 = q32_of(sxTs, c->s_v);
+        q32_add(&c->X1, x2);                        // + x3 in stage 3
+        c->X2 = x2;
+        q32_add(&c->X2, x2);                        // + 6 x3 in stage 3
+        return false;
+    }
+    if (st == 3) {
+        const Q32 x3 = q32_of(sxTs * Ts * Ts * (1.0f / 6.0f), j);
+        q32_add(&c->X1, x3);
+        c->X3 = x3;
+        q32_add(&c->X3, x3);
+        q32_add(&c->X3, x3);                        // 3 x3
+        q32_add(&c->X3, c->X3);                     // 6 x3
+        q32_add(&c->X2, c->X3);
+        return false;
+    }
+    const float a = c->s_a, v = c->s_v;
+    if (st == 4) {
+        // u_F = f0 + f1 n + f2 n^2
+        const Q32 f2 = q32_of(beta_ * 0.5f * Ts * Ts, j);
+        c->F = to_q32(alpha_ * a + beta_ * v);
+        c->F1 = q32_of(alpha_ * j + beta_ * a, Ts);
+        q32_add(&c->F1, f2);
+        c->F2 = f2;
+        q32_add(&c->F2, f2);
+        return false;
+    }
+    // the last stage: the float part (scratch read above: a, v; below: s2, c2)
+    float fh = 0.0f, fq = 0.0f, vh = 0.0f, vq = 0.0f;
+    if (sine) {
+        const float s2 = c->s_s2, c2 = c->s_c2;
+        const float unit = 1.0f / sx;               // rad per unit of h
+        // a = a2 - w^2 B cos, v = vd + a2 u - w B sin, w B sin = w (q - s2 h) / c2 per unit of h
+        // and of q: with t = unit w / c2, v: (t s2, -t), a: -unit w^2 h
+        const float t = unit * w / c2;
+        vq = -sv * t;
+        vh = -vq * s2;
+        fq = -beta_ * t;
+        fh = -fq * s2 - alpha_ * unit * w * w;
+    } else {
+        c->h = c->q = c->eps = 0.0f;
+    }
+    c->v0 = sv * v;
+    c->v1 = sv * a * Ts;
+    c->v2 = sv * 0.5f * j * Ts * Ts;
+    c->fh = fh;
+    c->fq = fq;
+    c->vh = vh;
+    c->vq = vq;
     c->seg = i;
     return true;
 }
 
-void PlanStepper::compute(uint8_t i, Coef* c) const {
-    for (uint8_t st = 0; !compute_stage(i, c, st); ++st) {}
+// All the stages of segment i's chunk from sample k0 at once (start, switch_plan, slow path).
+void PlanStepper::compute(uint8_t i, Coef* c, uint32_t k0) const {
+    begin_coef(i, c, k0, chunk_end(i, k0));
+    for (uint8_t st = 1; !compute_stage(i, c, st); ++st) {}
 }
 
 void PlanStepper::start(const Plan& p, float Ts, float alpha, float beta, float sx, float sv) {
@@ -529,10 +623,11 @@ void PlanStepper::start(const Plan& p, float Ts, float alpha, float beta, float 
     sv_ = sv;
     k_ = 0;
     n_ = 0;
+    misses_ = 0;
     seg_ = 0;
     while (seg_ + 1 < p.nseg && first_sample(seg_ + 1) <= 0) ++seg_;
     ci_ = 0;
-    compute(seg_, &buf_[0]);
+    compute(seg_, &buf_[0], first_sample(seg_));
     n_ = k_ - buf_[0].k0;
     reset_next();
     prepare();
@@ -542,26 +637,26 @@ void PlanStepper::switch_plan(const Plan& p) {
     p_ = &p;
     seg_ = 0;
     while (seg_ + 1 < p.nseg && first_sample(seg_ + 1) <= k_) ++seg_;
-    compute(seg_, &buf_[ci_]);
-    n_ = k_ - buf_[ci_].k0;
+    compute(seg_, &buf_[ci_], k_);
+    n_ = 0;
     reset_next();
 }
 
-// One stage of the next segment's coefficients; true when they are ready (or not needed).
+// One stage of the next chunk's coefficients; true when they are ready (or not needed).
 bool PlanStepper::prepare_stage() {
-    if (seg_ + 1 >= p_->nseg) return true;
+    if (buf_[ci_].k_end == 0xFFFFFFFFUL) return true;   // the rest at the target: nothing follows
     Coef* nx = &buf_[ci_ ^ 1];
     if (nx->seg < 0xFD) return true;                // ready
     if (nx->seg == 0xFF) {
-        // The segment that the next change of segment enters (the first sample kj of seg_ + 1 is
-        // known): skip those without a sample; one first_k per call.
+        // The segment that holds the next chunk's first sample kj (skip those without a
+        // sample); one first_k per call.
         const uint8_t j = prep_seg_;
         const uint32_t kj = buf_[ci_].k_end;
-        const uint32_t ke = j + 1 < p_->nseg ? first_sample(j + 1) : 0xFFFFFFFFUL;
-        if (ke <= kj) { ++prep_seg_; return false; }   // segment j has no sample: the next one
+        const uint32_t ke = j + 1 < p_->nseg ? first_sample(static_cast<uint8_t>(j + 1)) : 0xFFFFFFFFUL;
+        if (ke <= kj) { ++prep_seg_; return false; }   // segment j ends before kj: the next one
         nx->k0 = kj;
-        nx->k_end = ke;
-        nx->seg = 0xFD;                             // both first samples known
+        nx->k_end = chunk_end(j, kj);
+        nx->seg = 0xFD;                             // both ends known
         return false;
     }
     if (nx->seg == 0xFD) {
@@ -574,14 +669,14 @@ bool PlanStepper::prepare_stage() {
     return false;
 }
 
-// One stage per call while the current segment has as many samples left as stages to go;
+// One stage per call while the current chunk has as many samples left as stages to go;
 // otherwise the stages left spread evenly over its last samples (short segments, long Ts), so
-// the switch never finds the next segment unprepared.
+// the change of chunk never finds the next one unprepared.
 void PlanStepper::prepare() {
     if (prepare_stage()) return;
-    // stages to go (over-estimated by one before stage 1: prep_stage_ is 0 until then)
-    const uint8_t left = static_cast<uint8_t>((p_->seg[prep_seg_].sine ? 14 : 7) - prep_stage_);
-    const uint32_t ticks = buf_[ci_].k_end - k_;    // calls before the switch
+    // stages to go (over-estimated before stage 1: prep_stage_ is 0 until then)
+    const uint8_t left = static_cast<uint8_t>((p_->seg[prep_seg_].sine ? 14 : 9) - prep_stage_);
+    const uint32_t ticks = buf_[ci_].k_end - k_;    // calls before the change
     if (ticks > left) return;
     const uint8_t t = static_cast<uint8_t>(ticks);
     for (uint8_t n = t ? static_cast<uint8_t>((left + t - 1) / t) : left; n > 1; --n)
@@ -600,22 +695,29 @@ bool PlanStepper::prepare_switch(const Plan& p) {
     p_ = &p;
     uint8_t j = 0;
     while (j + 1 < p.nseg && first_sample(j + 1) <= first_sample(0)) ++j;
-    const bool done = compute_stage(j, &pend_, pend_stage_);
+    bool done = false;
+    if (pend_stage_ == 0) {
+        const uint32_t k0 = first_sample(j);
+        begin_coef(j, &pend_, k0, chunk_end(j, k0));
+    } else {
+        done = compute_stage(j, &pend_, pend_stage_);
+    }
     p_ = keep;
     if (done) pend_stage_ = 0; else ++pend_stage_;
     return done;
 }
 
 void PlanStepper::advance_segment() {
-    // Called when k_ reached the next segment's first sample: the prepared coefficients take
-    // over (a buffer swap), or, unprepared, the segment is found by search (slow path).
+    // Called when k_ reached the end of the current chunk: the prepared coefficients take over
+    // (a buffer swap), or, unprepared, the chunk is computed here (slow path, counted).
     Coef* nx = &buf_[ci_ ^ 1];
-    if (nx->seg < 0xFD && nx->seg > seg_ && k_ >= nx->k0) {
+    if (nx->seg < 0xFD && k_ >= nx->k0 && k_ < nx->k_end) {
         ci_ ^= 1;
         seg_ = nx->seg;
     } else {
+        if (misses_ < 0xFFFF) ++misses_;
         while (seg_ + 1 < p_->nseg && first_sample(seg_ + 1) <= k_) ++seg_;
-        compute(seg_, &buf_[ci_]);
+        compute(seg_, &buf_[ci_], k_);
     }
     reset_next();
     n_ = k_ - buf_[ci_].k0;
@@ -633,40 +735,50 @@ bool PlanStepper::next_fast(float* position, float* velocity, float* ff) {
     }
     if (k_ >= buf_[ci_].k_end) advance_segment();
     Coef& c = buf_[ci_];
-    const float n = static_cast<float>(n_);
+    const float h = c.h, q = c.q;                 // 0 off a sine pulse
+    if (velocity) {                               // (the velocity loop only)
+        const float n = static_cast<float>(n_);
+        *velocity = c.v0 + n * (c.v1 + n * c.v2) + c.vh * h + c.vq * q;
+    }
+    float x = q32_to_float(c.X), fs = 0.0f;
     if (c.sine) {
-        const float h = c.h, q = c.q;
-        *position = c.x0 + n * (c.x1 + n * c.x2) + h;
-        if (velocity) *velocity = c.v0 + n * c.v1 + c.vh * h + c.vq * q;
-        if (ff) *ff = c.f0 + n * c.f1 + c.fh * h + c.fq * q;
+        x += h;
+        if (ff) fs = c.fh * h + c.fq * q;
         const float h1 = h - c.eps * q;           // Minsky: advance by w Ts
         c.q = q + c.eps * h1;
         c.h = h1;
-    } else {
-        *position = c.x0 + n * (c.x1 + n * (c.x2 + n * c.x3));
-        if (velocity) *velocity = c.v0 + n * (c.v1 + n * c.v2);
-        if (ff) *ff = c.f0 + n * (c.f1 + n * c.f2);
     }
+    *position = x;
+    q32_add(&c.X, c.X1);
+    if (ff) {
+        // the Q16.16 window (|ff| < 2^15 ticks, saturated), one conversion, 2^-16 by the exponent
+        const int32_t fhi = c.F.hi;
+        const int32_t fw = fhi >= 32768L ? 0x7FFFFFFFL : (fhi < -32768L ? -0x7FFFFFFFL
+                           : static_cast<int32_t>((static_cast<uint32_t>(fhi) << 16) | (c.F.lo >> 16)));
+        float f = static_cast<float>(fw);
+        uint32_t fb;
+        memcpy(&fb, &f, 4);
+        if (fb & 0x7F800000UL) fb -= 16UL << 23;
+        memcpy(&f, &fb, 4);
+        *ff = c.sine ? f + fs : f;
+        q32_add(&c.F, c.F1);
+        q32_add(&c.F1, c.F2);
+    }
+    q32_add(&c.X1, c.X2);
+    q32_add(&c.X2, c.X3);
     ++n_;
     ++k_;
     return seg_ + 1 < p_->nseg;
 }
 
 bool PlanStepper::next(Sample* s) {
-    if (k_ >= buf_[ci_].k_end) advance_segment();
-    const Coef& c = buf_[ci_];
-    const bool moving = c.seg + 1 < p_->nseg;
-    const float n = static_cast<float>(n_);
-    if (c.sine) {
-        const float w = c.w;
-        s->jerk = w * w * w * (c.q - c.s2 * c.h) * c.ic2 * c.isx;
-        s->accel = c.a0 - w * w * c.h * c.isx;
-    } else {
-        s->jerk = c.j;
-        s->accel = c.a0 + n * c.a1;
-    }
+    const float t = static_cast<float>(k_) * Ts_;
     float x, v;
-    next_fast(&x, &v, nullptr);
+    const bool moving = next_fast(&x, &v, nullptr);
+    Sample cf;
+    sample(*p_, t, &cf);
+    s->jerk = cf.jerk;
+    s->accel = cf.accel;
     s->position = x;
     s->velocity = v;
     prepare();

@@ -120,35 +120,60 @@ float position_at_switch(const Plan& p, float t);
 /// the end).
 void sample(const Plan& p, float t, Sample* s);
 
-/// Samples at t = k Ts, k = 0, 1, 2, ... for the control loop, in a fixed number of float
-/// operations: on each segment the position, velocity, acceleration and the feedforward
-/// alpha a + beta v are polynomials in n = k - k0 (Horner) plus, on a sine pulse, terms of a
-/// pair (h, q) advanced by Minsky's two-multiply recurrence (see compute()). The
-/// coefficients of a segment are prepared before it starts (prepare(), outside the timed step).
+/// Fixed point of the control loop (docs/THEORY.md "the fixed-point control step"): a Q32.32 is
+/// the 64-bit two's complement value * 2^32 as two words (counts, PWM ticks; its integer part hi,
+/// |value| < 2^31 as the encoder count's own int32 range). The loop's hot arithmetic is 64-bit
+/// adds done as eight add-with-carry steps (avr-gcc's 64-bit arithmetic is library calls); the
+/// float -> Q32.32 conversions run in the preparation, one Q32.32 -> float per quantity a sample.
+struct Q32 {
+    uint32_t lo;
+    int32_t hi;
+};
+/// a += b (two 32-bit adds and the carry).
+void q32_add(Q32* a, const Q32& b);
+/// x * 2^32 (exact from 2^-8 up, truncated toward 0 to 2^-32 below), |x| < 2^31 (saturated beyond).
+Q32 to_q32(float x);
+/// A Q32.32 as a float: its widest 32-bit window (Q16.16 below 2^15, else Q24.8, saturated at 2^23),
+/// converted once and scaled by the exponent (rounded to float32 once, truncated to the window).
+float q32_to_float(const Q32& x);
+
+/// Samples at t = k Ts, k = 0, 1, 2, ... for the control loop. The segment is cut into chunks of
+/// at most kChunk samples; on each chunk the position (Q32.32, scaled by sx) and the
+/// feedforward alpha a + beta v (Q32.32) are polynomials in n = k - k0 advanced by integer forward
+/// differences (exact adds: the only error is the rounding of the chunk's coefficients to 2^-32,
+/// |error| <= 2^-32 (n + n^2 + n^3) < 6.2e-5 at n < 64, on top of the float32 closed form at the
+/// chunk's first sample, where they are re-anchored); on a half-sine pulse a pair (h, q) advanced by
+/// Minsky's two-multiply float recurrence adds the cosine terms. The velocity (velocity loop
+/// only) is a float Horner polynomial plus the pair's terms. The coefficients of a chunk are
+/// prepared before it starts (prepare(), in stages, in the idle time after the control step).
 class PlanStepper {
 public:
+    /// Chunk length in samples (re-anchoring to the closed form; bounds the cubic's rounding).
+    static const uint16_t kChunk = 64;
     /// Start at k = 0. The fast samples come scaled: position x sx (e.g. counts per rad),
     /// velocity x sv, feedforward alpha a + beta v (e.g. alpha = tau/K in PWM ticks per V).
-    /// next() (the full sample) needs sx = 1.
     void start(const Plan& p, float Ts, float alpha = 0.0f, float beta = 0.0f, float sx = 1.0f,
                float sv = 1.0f);
     /// Continue with the plan `p` (same Ts, same k) from its first sample on: p.t_start must be
     /// after the last sample taken (re-targeting).
     void switch_plan(const Plan& p);
-    /// Re-targeting: prepare (one stage per call, like prepare()) the first segment of `p`,
+    /// Re-targeting: prepare (one stage per call, like prepare()) the first chunk of `p`,
     /// which takes over at its first sample; true once scheduled. next_fast() then switches.
     bool prepare_switch(const Plan& p);
     void cancel_switch() { pend_p_ = nullptr; }
     bool switch_scheduled() const { return pend_p_ != nullptr && pend_.seg < 0xFD; }
     const Plan* plan() const { return p_; }
-    /// The control loop's sample at t = k Ts: position (and velocity, feedforward), then k++.
-    /// Returns false once the move is over (rest at the target).
+    /// The control loop's sample at t = k Ts, then k++: position x sx, velocity x sv and
+    /// feedforward as floats (velocity, ff nullptr: not computed). The polynomial parts come
+    /// from the Q32.32 differences (the position's 32-bit window, the feedforward's Q16.16, each
+    /// converted once), the pulse terms from the float pair. Returns false once the move is over.
     bool next_fast(float* position, float* velocity, float* ff);
-    /// The full sample (jerk, acceleration, velocity, position) at t = k Ts, then k++.
+    /// The sample at t = k Ts, then k++, for the golden vectors: position and velocity (x sx,
+    /// x sv) from next_fast(), jerk and acceleration from the closed form sample() at t = k Ts.
     bool next(Sample* s);
-    /// Work ahead: one stage (of up to 13, each <= ~2500 AVR cycles) of the coefficients of the
-    /// next segment, if not ready yet, or more when the current segment ends before the rest
-    /// would be done (call after each step; nothing to do most of the time).
+    /// Work ahead: one stage (of up to 10, each <= ~5000 AVR cycles) of the coefficients of the
+    /// next chunk, if not ready yet, or more when the current chunk ends before the rest
+    /// would be done (call after each step, in the idle time; nothing to do most of the time).
     void prepare();
     uint32_t index() const { return k_; }
     bool done() const { return seg_ + 1 >= p_->nseg; }
@@ -156,34 +181,50 @@ public:
     uint8_t segment() const { return seg_; }
     /// First sample index of segment i of the current plan.
     uint32_t first_sample(uint8_t i) const;
+    /// Chunk changes that found the next chunk unprepared (computed inside the sample: a
+    /// scheduling fault; the device counts it as an overrun). 0 when prepare() keeps up.
+    uint16_t misses() const { return misses_; }
 
+    // (the hot fields first: the AVR reaches a structure's first 64 bytes with one instruction)
     struct Coef {
-        uint32_t k0;      // first sample of the segment
-        uint32_t k_end;   // first sample of the next segment (0xFFFFFFFF: none)
         uint8_t seg;      // segment index (0xFF: not prepared, 0xFE: in preparation, 0xFD: k0, k_end known)
         uint8_t sine;
-        float x0, x1, x2, x3;      // x = x0 + n (x1 + n (x2 + n x3)) [+ h]
-        float v0, v1, v2;          // v = v0 + n (v1 + n v2) [- w h']
-        float a0, a1;              // a = a0 + n a1 [- w^2 h]
-        float f0, f1, f2;          // u_F = f0 + n (f1 + n f2) [+ fh h + fhp h']
-        float j;                   // constant jerk (k0 Ts - t0 during the preparation)
-        // sine: (h, q) = sx B (cos w u, sin(w u + theta/2)) advanced by Minsky's recurrence
-        float h, q, eps, w, s2, ic2, isx, fh, fq, vh, vq;
+        // The float part; during the preparation the same bytes hold the scratch values
+        // (stages write each output only after its scratch was read, see compute_stage).
+        union {
+            struct {
+                float h, q, eps;       // sine: the pair and Minsky's 2 sin(theta/2)
+                float v0, v1, v2;      // v = v0 + n (v1 + n v2) [+ vh h + vq q]
+                float fh, fq, vh, vq;  // sine: ff and velocity per unit of h and of q
+            };
+            struct {
+                float s_cw, s_sw, s_B;        // sine: cos, sin of w delta; B = jp / w^3
+                float s_delta, s_s2, s_c2;    // k0 Ts - t0; sin, cos of w Ts / 2
+                float s_x, s_v, s_a;          // polynomial: the state at the chunk's first sample
+                                              // (sine: s_x = 2 q2, the polynomial part's accel)
+            };
+        };
+        uint32_t k0;      // first sample of the chunk
+        uint32_t k_end;   // first sample after the chunk (0xFFFFFFFF: none)
+        Q32 X, X1, X2, X3;         // position x sx and its forward differences
+        Q32 F, F1, F2;             // feedforward and its forward differences
     };
 
 private:
-    void compute(uint8_t i, Coef* c) const;
-    void begin_coef(uint8_t i, Coef* c, uint32_t k0, uint32_t k_end) const;
+    void compute(uint8_t i, Coef* c, uint32_t k0) const;
+    void __attribute__((noinline)) begin_coef(uint8_t i, Coef* c, uint32_t k0, uint32_t k_end) const;
     bool compute_stage(uint8_t i, Coef* c, uint8_t stage) const;
+    uint32_t __attribute__((noinline)) chunk_end(uint8_t i, uint32_t k0) const;
     void advance_segment();
     bool prepare_stage();
-    /// The next segment is to be prepared afresh (from seg_ + 1 on).
-    void reset_next() { buf_[ci_ ^ 1].seg = 0xFF; prep_seg_ = static_cast<uint8_t>(seg_ + 1); prep_stage_ = 0; }
+    /// The next chunk is to be prepared afresh (from seg_ on).
+    void reset_next() { buf_[ci_ ^ 1].seg = 0xFF; prep_seg_ = seg_; prep_stage_ = 0; }
     const Plan* p_ = nullptr;
     float Ts_ = 0.005f, alpha_ = 0.0f, beta_ = 0.0f, sx_ = 1.0f, sv_ = 1.0f;
     uint32_t k_ = 0, n_ = 0;
+    uint16_t misses_ = 0;
     uint8_t seg_ = 0, prep_seg_ = 0, prep_stage_ = 0, pend_stage_ = 0;
-    uint8_t ci_ = 0;           // buf_[ci_]: the current segment, buf_[ci_ ^ 1]: the next one
+    uint8_t ci_ = 0;           // buf_[ci_]: the current chunk, buf_[ci_ ^ 1]: the next one
     Coef buf_[2], pend_;
     const Plan* pend_p_ = nullptr;
 };
