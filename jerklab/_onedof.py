@@ -739,7 +739,8 @@ def solve_tuple(d, v0, a0, vf, V, k):
 @_jit
 def plan_tuple(d, J, A, V, v0, a0, vf, sine):
     """One move in SI units: the checks, the normalization, :func:`solve_tuple` and the time unit,
-    in one compiled call (the scalar planners' and :func:`solve_many`'s entry).
+    in one compiled call (:func:`solve_many`'s entry; the scalar planners call it through
+    :func:`plan_scurve_packed` / :func:`plan_sine_packed`).
 
     Returns 18 floats: ``(status, code, duration, brake segments, t_1, ..., t_12, tu, T)`` --
     :func:`solve_tuple`'s result in normalized units, then the time unit ``tu = A / J'`` (``J' = J``,
