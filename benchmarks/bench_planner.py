@@ -3,8 +3,9 @@
 ``python -m benchmarks planner`` prints six tables:
 
 1. microseconds per plan of each jerklab planner next to Ruckig's Python API (setting the inputs and
-   ``calculate``), interleaved and repeated, the median of the repeats; the ratio column is
-   jerklab / Ruckig (target <= 1.0);
+   ``calculate``); the ratio column is jerklab / Ruckig (target <= 1.0), the median of the ratios
+   of rounds in which every planner plans the same short chunk of moves, one after the other in
+   a shuffled order (:func:`_interleaved`: robust to a load that changes during the run);
 2. the same for moves from a moving start (``initial_velocity``, ``initial_accel``,
    ``final_velocity``; Ruckig with ``current_velocity``, ``current_acceleration``,
    ``target_velocity``), target <= 1.0;
@@ -59,8 +60,50 @@ def _cases(n, seed=0):
     return [tuple(float(x) for x in c) for c in zip(d, J, A, V)]
 
 
+def _interleaved(planners, cases, repeats, chunk=250, seed=0):
+    """Time every planner on the same cases, interleaved: per-planner µs per plan and ratio to
+    ``"ruckig..."``.
+
+    ``cases`` are cut into chunks of ``chunk`` moves; in each round (``repeats`` passes over the
+    chunks) every planner plans one chunk, the planners in a shuffled order, timed by the
+    thread's CPU clock (a time slice given to another process is not counted).  Returns
+    ``{name: (median µs per plan over the rounds, median over the rounds of the ratio to the
+    reference planner in the same round)}`` -- a paired comparison, so that a load that comes
+    and goes during the run moves both sides of each ratio together.
+    """
+    import random
+
+    ref = next((k for k in planners if k.startswith("ruckig")), None)
+    for f in planners.values():                 # compile / load the cached solver outside the clock
+        f(*cases[0])
+    chunks = [cases[i:i + chunk] for i in range(0, len(cases), chunk)]
+    rng = random.Random(seed)
+    rounds = {k: [] for k in planners}
+    clock = time.thread_time if hasattr(time, "thread_time") else time.perf_counter
+    for _ in range(repeats):
+        for ch in chunks:
+            order = list(planners.items())
+            rng.shuffle(order)
+            for name, f in order:
+                t0 = clock()
+                for c in ch:
+                    f(*c)
+                rounds[name].append((clock() - t0) / len(ch) * 1e6)
+    out = {}
+    for name, us in rounds.items():
+        ratio = statistics.median([u / r for u, r in zip(us, rounds[ref])]) if ref else math.nan
+        out[name] = (statistics.median(us), ratio)
+    return out
+
+
 def time_per_plan(repeats=7, n=2000):
-    """Median over ``repeats`` of the mean time per plan (µs), each planner on the same cases."""
+    """Median over the interleaved rounds (:func:`_interleaved`) of the time per plan (µs) of each
+    planner on the same cases."""
+    return {k: v[0] for k, v in time_per_plan_and_ratio(repeats, n).items()}
+
+
+def time_per_plan_and_ratio(repeats=7, n=2000):
+    """:func:`time_per_plan` and the median ratio to Ruckig (``{name: (µs, ratio)}``)."""
     cases = _cases(n)
     planners = {
         "plan_sine_jerk": plan_sine_jerk,
@@ -70,15 +113,7 @@ def time_per_plan(repeats=7, n=2000):
     }
     if ruckig is not None:
         planners["ruckig"] = _ruckig_planner()
-    runs = {k: [] for k in planners}
-    clock = time.perf_counter
-    for _ in range(repeats):
-        for name, f in planners.items():         # interleaved: load changes hit every planner
-            t0 = clock()
-            for c in cases:
-                f(*c)
-            runs[name].append((clock() - t0) / n * 1e6)
-    return {k: statistics.median(v) for k, v in runs.items()}
+    return _interleaved(planners, cases, repeats)
 
 
 def _moving_cases(n, seed=0):
@@ -114,7 +149,12 @@ def _ruckig_moving():
 
 
 def time_per_moving_plan(repeats=7, n=2000):
-    """Median over ``repeats`` of the mean time per non-rest plan (µs), interleaved with Ruckig."""
+    """Median over the interleaved rounds (:func:`_interleaved`) of the time per non-rest plan (µs)."""
+    return {k: v[0] for k, v in time_per_moving_plan_and_ratio(repeats, n).items()}
+
+
+def time_per_moving_plan_and_ratio(repeats=7, n=2000):
+    """:func:`time_per_moving_plan` and the median ratio to Ruckig (``{name: (µs, ratio)}``)."""
     cases = _moving_cases(n)
     planners = {
         "plan_scurve (moving start)": lambda d, j, a, v, v0, a0, vf: plan_scurve(
@@ -124,17 +164,7 @@ def time_per_moving_plan(repeats=7, n=2000):
     }
     if ruckig is not None:
         planners["ruckig (moving start)"] = _ruckig_moving()
-    for f in planners.values():                 # compile / load the cached solver outside the clock
-        f(*cases[0])
-    runs = {k: [] for k in planners}
-    clock = time.perf_counter
-    for _ in range(repeats):
-        for name, f in planners.items():
-            t0 = clock()
-            for c in cases:
-                f(*c)
-            runs[name].append((clock() - t0) / n * 1e6)
-    return {k: statistics.median(v) for k, v in runs.items()}
+    return _interleaved(planners, cases, repeats)
 
 
 def batch_rate_moving(n=200_000, repeats=3):
@@ -208,15 +238,16 @@ def move_time_ratios(grid=GRID):
 
 
 def main():
-    us = time_per_plan()
-    ref = us.get("ruckig")
-    table("Time per plan (µs, median of 7 interleaved runs of 2000 random moves)",
-          ["planner", "µs/plan", "x Ruckig"], [(name, v, v / ref if ref else "-") for name, v in us.items()])
-    us = time_per_moving_plan()
-    ref = us.get("ruckig (moving start)")
-    table("Time per non-rest plan (µs, median of 7 interleaved runs of 2000 random moves from a moving "
-          "start, 20 % above the limits)", ["planner", "µs/plan", "x Ruckig"],
-          [(name, v, v / ref if ref else "-") for name, v in us.items()])
+    have_ref = ruckig is not None
+    us = time_per_plan_and_ratio()
+    table("Time per plan (µs; 2000 random moves in chunks of 250, 7 rounds, planners interleaved in a "
+          "shuffled order, thread CPU time; medians over the 56 rounds, x Ruckig = median of the "
+          "per-round ratios)", ["planner", "µs/plan", "x Ruckig"],
+          [(name, v, r if have_ref else "-") for name, (v, r) in us.items()])
+    us = time_per_moving_plan_and_ratio()
+    table("Time per non-rest plan (µs; 2000 random moves from a moving start, 20 % above the limits; "
+          "rounds and medians as above)", ["planner", "µs/plan", "x Ruckig"],
+          [(name, v, r if have_ref else "-") for name, (v, r) in us.items()])
     table("Batch planner (plan_batch, 1e6 random moves, best of 3)", ["kind", "plans/s", "target"],
           [(kind, rate, 2e7) for kind, rate in batch_rate().items()])
     table("Batch planner from moving starts (plan_batch_any_state, 2e5 random moves, best of 3)",

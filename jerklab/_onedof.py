@@ -43,6 +43,10 @@ def _jit(f):
 
 
 _SOLVER = None
+#: compiled functions called once per plan from Python (they keep the GIL)
+_ENTRIES = ("plan_tuple", "plan_scurve_packed", "plan_sine_packed")
+#: small helpers that numba inlines into their callers
+_INLINED = ("_keep", "_check", "_near", "_cubes", "_append", "_set", "_pvalue", "_advance")
 #: the pure-Python functions, kept when :func:`solver` replaces them by their compiled versions
 PURE = {}
 
@@ -61,7 +65,11 @@ def solver():
             import numba
 
             for name in _JITTED:        # module globals, so that compiled code calls compiled code
-                g[name] = numba.njit(cache=True, nogil=True)(PURE[name])
+                # (the scalar planners' entries from Python keep the GIL: releasing and taking it
+                # back costs about 0.05 us a call, 3 % of a plan; the small helpers are inlined by
+                # numba itself: 5 % of a solve, 3 s more to compile once)
+                g[name] = numba.njit(cache=True, nogil=name not in _ENTRIES,
+                                     inline="always" if name in _INLINED else "never")(PURE[name])
             # compiled now (or loaded from the cache) for float arguments, while the globals it
             # calls are the compiled ones (the planners call plan_tuple, not solve_tuple)
             try:
@@ -100,32 +108,59 @@ def planner():
     return _PLAN
 
 
+_PACKED = {}
+
+
+def packed_planner(sine):
+    """:func:`plan_scurve_packed` (``sine`` false) or :func:`plan_sine_packed` for Python floats:
+    compiled by numba when installed (the float64 entry point, as :func:`planner`), else pure
+    Python.  These are the scalar planners' entries (``planner.py``): seven arguments, the family
+    fixed at compile time, nine Python objects returned instead of eighteen floats."""
+    f = _PACKED.get(bool(sine))
+    if f is None:
+        solver()
+        name = "plan_sine_packed" if sine else "plan_scurve_packed"
+        f = globals()[name]
+        if f is not PURE[name]:
+            try:
+                from numba import types
+
+                f = f.compile((types.float64,) * 7)
+            except Exception:  # pragma: no cover - an older numba: the dispatcher itself
+                pass
+        _PACKED[bool(sine)] = f
+    return f
+
+
 #: 1/pi^2 - 1/12: position lag of a half-sine jerk pulse behind the linear ramp of the same impulse
 KAPPA_SINE = 1.0 / (math.pi * math.pi) - 1.0 / 12.0
 
-_TOL = 1e-10
-_MAX_SEG = 12         # most segments of a profile (2 brake + 8 + a cruise)          # slack of the validity checks, in normalized units (times, accelerations)
+_TOL = 1e-10          # slack of the validity checks, in normalized units (times, accelerations)
+# the solver's scratch array (one array, so that each compiled call takes one reference): the
+# polynomial and its derivatives in six rows of 6 (row i at 6 i), the critical points, the roots
+# found, the best candidate
+_CRIT = 36
+_OUT = 44
+_BEST = 52
+_SCRATCH = 60
+_MAX_SEG = 12         # most segments of a profile (2 brake + 8 + a cruise)
 
 
 # ---------------------------------------------------------------------------------------------
 # real roots of a polynomial on an interval
 # ---------------------------------------------------------------------------------------------
 @_jit
-def _peval(D, i, deg, x):
-    r = 0.0
-    for m in range(deg + 1):
-        r = r * x + D[i, m]
-    return r
-
-
-@_jit
-def _pscale(D, i, deg, x):
-    """Sum of |terms| of the polynomial at x: the round-off scale of its value."""
+def _pvalue(D, i, deg, x):
+    """Value of row ``i`` at ``x`` (Horner) and whether it is at round-off level: within ``1e-13`` of
+    the sum of |terms| at ``x``, the round-off scale of the value (both in one pass)."""
+    f = 0.0
     r = 0.0
     ax = abs(x)
     for m in range(deg + 1):
-        r = r * ax + abs(D[i, m])
-    return r
+        c = D[6 * i + m]
+        f = f * x + c
+        r = r * ax + abs(c)
+    return f, abs(f) <= 1e-13 * r
 
 
 @_jit
@@ -139,7 +174,7 @@ def _root_between(D, i, deg, lo, hi, flo):
         df = 0.0
         for m in range(deg + 1):
             df = df * x + f
-            f = f * x + D[i, m]
+            f = f * x + D[6 * i + m]
         if f == 0.0:
             return x
         if (f < 0.0) == neg_lo:
@@ -156,39 +191,39 @@ def _root_between(D, i, deg, lo, hi, flo):
 
 
 @_jit
-def _roots_from_critical(D, i, deg, crit, ncrit, lo, hi, out):
-    """Real roots of row ``i`` of ``D`` in ``[lo, hi]`` into ``out`` (their number is returned),
-    given its sorted critical points ``crit[:ncrit]`` (it is monotone between them)."""
+def _roots_from_critical(D, i, deg, ncrit, lo, hi):
+    """Real roots of row ``i`` of ``D`` in ``[lo, hi]`` into ``D[_OUT:]`` (their number is returned),
+    given its sorted critical points ``D[_CRIT:_CRIT + ncrit]`` (it is monotone between them)."""
     nout = 0
     xprev = lo
-    fprev = _peval(D, i, deg, lo)
-    small_prev = abs(fprev) <= 1e-13 * _pscale(D, i, deg, lo)
+    fprev, small_prev = _pvalue(D, i, deg, lo)
     if small_prev:
-        out[nout] = lo
+        D[_OUT + nout] = lo
         nout += 1
     for m in range(ncrit + 1):
         if m < ncrit:
-            x = crit[m]
+            x = D[_CRIT + m]
             if not (xprev < x < hi):
                 continue
         else:
             x = hi
-        f = _peval(D, i, deg, x)
-        small = abs(f) <= 1e-13 * _pscale(D, i, deg, x)
+        f, small = _pvalue(D, i, deg, x)
         if small:
-            out[nout] = x                # a (double) root at a critical point or an end
+            D[_OUT + nout] = x           # a (double) root at a critical point or an end
             nout += 1
         elif not small_prev and (f < 0.0) != (fprev < 0.0):
-            out[nout] = _root_between(D, i, deg, xprev, x, fprev)
+            D[_OUT + nout] = _root_between(D, i, deg, xprev, x, fprev)
             nout += 1
         xprev, fprev, small_prev = x, f, small
     return nout
 
 
 @_jit
-def _real_roots(D, deg, lo, hi, crit, out):
-    """Real roots in ``[lo, hi]`` of the polynomial in ``D[0, :deg + 1]`` (highest power first,
-    degree <= 5) into ``out``; returns their number.  ``D`` (6 x 6) and ``crit`` (8) are scratch.
+def _real_roots(D, deg, lo, hi):
+    """Real roots in ``[lo, hi]`` of the polynomial in ``D[:deg + 1]`` (highest power first,
+    degree <= 5) into ``D[_OUT:_OUT + 8]``; returns their number.  ``D`` is the solver's scratch
+    array (``_SCRATCH`` floats, flat: six rows of 6, row ``i`` at ``6 i``, then the critical points
+    from ``_CRIT``).
 
     The roots of the derivatives, from the linear one up, split ``[lo, hi]`` into pieces on which
     the polynomial is monotone; a sign change on a piece is bisected (safeguarded Newton), a value
@@ -197,75 +232,142 @@ def _real_roots(D, deg, lo, hi, crit, out):
     """
     if _no_root(D, deg, lo, hi):
         return 0
+    return _search_roots(D, deg, lo, hi)
+
+
+@_jit
+def _roots5(c0, c1, c2, c3, c4, c5, lo, hi, D):
+    """:func:`_real_roots` of ``c0 x^5 + ... + c5`` on ``[lo, hi]``: the coefficients go into
+    row 0 of ``D`` only when :func:`_no_root5` cannot rule a root out."""
+    if _no_root5(c0, c1, c2, c3, c4, c5, lo, hi):
+        return 0
+    _set(D, c0, c1, c2, c3, c4, c5)
+    return _search_roots(D, 5, lo, hi)
+
+
+@_jit
+def _search_roots(D, deg, lo, hi):
+    """:func:`_real_roots` without the no-root test."""
     k = 0
-    while k < deg and D[0, k] == 0.0:
+    while k < deg and D[k] == 0.0:
         k += 1
     if k:
         for m in range(deg + 1 - k):
-            D[0, m] = D[0, m + k]
+            D[m] = D[m + k]
         deg -= k
     if deg <= 0:
         return 0
-    for i in range(1, deg):                 # D[i] = i-th derivative, degree deg - i
+    for i in range(1, deg):                 # row i = i-th derivative, degree deg - i
         di = deg - i
         for m in range(di + 1):
-            D[i, m] = D[i - 1, m] * (di + 1 - m)
+            D[6 * i + m] = D[6 * i - 6 + m] * (di + 1 - m)
     ncrit = 0
     if deg >= 2:
         i = deg - 1                         # the linear derivative
-        if D[i, 0] != 0.0:
-            x = -D[i, 1] / D[i, 0]
+        if D[6 * i] != 0.0:
+            x = -D[6 * i + 1] / D[6 * i]
             if lo < x < hi:
-                crit[0] = x
+                D[_CRIT] = x
                 ncrit = 1
         for i in range(deg - 2, 0, -1):
-            ncrit = _roots_from_critical(D, i, deg - i, crit, ncrit, lo, hi, out)
+            ncrit = _roots_from_critical(D, i, deg - i, ncrit, lo, hi)
             for m in range(ncrit):
-                crit[m] = out[m]
-    return _roots_from_critical(D, 0, deg, crit, ncrit, lo, hi, out)
+                D[_CRIT + m] = D[_OUT + m]
+    return _roots_from_critical(D, 0, deg, ncrit, lo, hi)
 
 
 @_jit
 def _no_root(D, deg, lo, hi):
-    """True when the polynomial in ``D[0, :deg + 1]`` (degree <= 5) provably has no root on
+    """True when the polynomial in ``D[:deg + 1]`` (degree <= 5) provably has no root on
     ``[lo, hi]``, nor a value that :func:`_real_roots` would take for one (so that it would find
-    none): a cheap test that saves most of the root searches.
+    none): :func:`_no_root5` on the coefficients (leading zeros added up to degree 5, which change
+    no value)."""
+    c = np.zeros(6)
+    for m in range(deg + 1):
+        c[5 - deg + m] = D[m]
+    return _no_root5(c[0], c[1], c[2], c[3], c[4], c[5], lo, hi)
 
-    The Taylor coefficients ``c_k`` at ``lo`` (repeated synthetic division, in row 5 of ``D``, which
-    the root search never uses) bound the polynomial on the interval, ``h = hi - lo``:
-    ``c_0 + sum(min(c_k h^k, 0)) <= p <= c_0 + sum(max(c_k h^k, 0))``.  The bound must clear 0 by
-    ``1e-11`` of the sum of |terms| at ``|lo| + h`` (the round-off of the shift, and the root
-    search's own test, ``1e-13`` of the same scale at most, with a wide margin).
+
+@_jit
+def _no_root5(c0, c1, c2, c3, c4, c5, lo, hi):
+    """True when ``c0 x^5 + ... + c5`` provably has no root on ``[lo, hi]``, nor a value that
+    :func:`_real_roots` would take for one (so that it would find none): a cheap test that saves
+    most of the root searches (on scalars: no array is touched).
+
+    The Taylor coefficients ``t_k`` at ``lo`` (repeated synthetic division) bound the polynomial on
+    the interval, ``h = hi - lo``: ``t_0 + sum(min(t_k h^k, 0)) <= p <= t_0 + sum(max(t_k h^k, 0))``.
+    The bound must clear 0 by ``1e-11`` of the sum of |terms| at ``|lo| + h`` (the round-off of the
+    shift, and the root search's own test, ``1e-13`` of the same scale at most, with a wide margin).
     """
     h = hi - lo
-    for m in range(deg + 1):
-        D[5, m] = D[0, m]
-    for k in range(deg):                # after pass k, D[5, deg - k] = c_k
-        for m in range(1, deg + 1 - k):
-            D[5, m] += lo * D[5, m - 1]
-    low = D[5, deg]
+    d0, d1, d2, d3, d4, d5 = c0, c1, c2, c3, c4, c5
+    d1 += lo * d0                       # after pass k, d_(5 - k) = t_k
+    d2 += lo * d1
+    d3 += lo * d2
+    d4 += lo * d3
+    d5 += lo * d4
+    d1 += lo * d0
+    d2 += lo * d1
+    d3 += lo * d2
+    d4 += lo * d3
+    d1 += lo * d0
+    d2 += lo * d1
+    d3 += lo * d2
+    d1 += lo * d0
+    d2 += lo * d1
+    d1 += lo * d0
+    low = d5
     high = low
-    hk = 1.0
-    for k in range(1, deg + 1):
-        hk *= h
-        term = D[5, deg - k] * hk
-        if term < 0.0:
-            low += term
-        else:
-            high += term
-    margin = 1e-11 * _pscale(D, 0, deg, abs(lo) + h)
+    hk = h
+    term = d4 * hk
+    if term < 0.0:
+        low += term
+    else:
+        high += term
+    hk *= h
+    term = d3 * hk
+    if term < 0.0:
+        low += term
+    else:
+        high += term
+    hk *= h
+    term = d2 * hk
+    if term < 0.0:
+        low += term
+    else:
+        high += term
+    hk *= h
+    term = d1 * hk
+    if term < 0.0:
+        low += term
+    else:
+        high += term
+    hk *= h
+    term = d0 * hk
+    if term < 0.0:
+        low += term
+    else:
+        high += term
+    x = abs(lo) + h                     # sum of |terms| at x (as _pvalue)
+    r = abs(c0)
+    r = r * x + abs(c1)
+    r = r * x + abs(c2)
+    r = r * x + abs(c3)
+    r = r * x + abs(c4)
+    r = r * x + abs(c5)
+    margin = 1e-11 * r
     return low > margin or high < -margin
 
 
 @_jit
 def _set(D, c0, c1, c2, c3, c4, c5):
     """Row 0 of ``D`` = the coefficients (highest power first; leading zeros are stripped later)."""
-    D[0, 0] = c0
-    D[0, 1] = c1
-    D[0, 2] = c2
-    D[0, 3] = c3
-    D[0, 4] = c4
-    D[0, 5] = c5
+    D[0] = c0
+    D[1] = c1
+    D[2] = c2
+    D[3] = c3
+    D[4] = c4
+    D[5] = c5
 
 
 # ---------------------------------------------------------------------------------------------
@@ -334,10 +436,11 @@ def _near(p, d, T, v0, V):
 
 
 @_jit
-def _candidates(d, v0, a0, vf, V, k, s, best, D, crit, rts):
-    """Valid sigma = +1 candidates; the shortest so far is kept in ``best`` = (T, P, N, t1, t5, tc, s).
+def _candidates(d, v0, a0, vf, V, k, s, D):
+    """Valid sigma = +1 candidates; the shortest so far is kept in ``D[_BEST:_BEST + 7]`` =
+    (T, P, N, t1, t5, tc, s) (:func:`_keep`).
 
-    ``D``, ``crit``, ``rts``: scratch arrays of :func:`_real_roots`.
+    ``D``: the solver's scratch array (:func:`_real_roots`).
     """
     H = vf - v0 + 0.5 * a0 * a0
     # --- cruise at +V (VEL, ACC0_VEL, ACC1_VEL, ACC0_ACC1_VEL) ---
@@ -359,7 +462,7 @@ def _candidates(d, v0, a0, vf, V, k, s, best, D, crit, rts):
             tc = rest / V
             T = _check(P, N, t1, t5, tc, a0, v0, V)
             if T >= 0.0:
-                _keep(best, T, P, N, t1, t5, max(tc, 0.0), s)
+                _keep(D, T, P, N, t1, t5, max(tc, 0.0), s)
     # --- no cruise ---
     a2 = a0 * a0
     a3 = a2 * a0
@@ -376,19 +479,19 @@ def _candidates(d, v0, a0, vf, V, k, s, best, D, crit, rts):
             t1 = t5 + H
             T = _check(1.0, 1.0, t1, t5, 0.0, a0, v0, V)
             if T >= 0.0 and _near(_end_pos(1.0, 1.0, max(t1, 0.0), max(t5, 0.0), 0.0, a0, v0, k), d, T, v0, V):
-                _keep(best, T, 1.0, 1.0, max(t1, 0.0), max(t5, 0.0), 0.0, s)
+                _keep(D, T, 1.0, 1.0, max(t1, 0.0), max(t5, 0.0), 0.0, s)
     # ACC0: P = 1, t1 = H - 1 + N^2 >= 0, quartic in N on [sqrt(1 - H), 1] (none if H < 0)
     if H >= -1e-9:
         e0 = -(-3.0 * H * H + 3.0 * H * a2 - 6.0 * H * v0 - 3.0 * H - 6.0 * k * a3 - 2.0 * a3
                + (3.0 + 18.0 * kA) * a2 - 18.0 * kA * a0 + 6.0 * a0 * v0 + 6.0 * d - 6.0 * v0) / 6.0
-        _set(D, 0.0, 0.5, 1.0, 0.5 * (2.0 * H - a2 + 2.0 * v0 + 1.0), 2.0 * H - a2 + 2.0 * v0, e0)
         lo = max(math.sqrt(max(1.0 - H, 0.0)) - 1e-9, 0.0)
-        for r in range(_real_roots(D, 5, lo, 1.0, crit, rts)):
-            N = rts[r]
+        for r in range(_roots5(0.0, 0.5, 1.0, 0.5 * (2.0 * H - a2 + 2.0 * v0 + 1.0), 2.0 * H - a2 + 2.0 * v0,
+                               e0, lo, 1.0, D)):
+            N = D[_OUT + r]
             t1 = H - 1.0 + N * N
             T = _check(1.0, N, t1, 0.0, 0.0, a0, v0, V)
             if T >= 0.0 and _near(_end_pos(1.0, N, max(t1, 0.0), 0.0, 0.0, a0, v0, k), d, T, v0, V):
-                _keep(best, T, 1.0, N, max(t1, 0.0), 0.0, 0.0, s)
+                _keep(D, T, 1.0, N, max(t1, 0.0), 0.0, 0.0, s)
     # ACC1: N = 1, t5 = P^2 - 1 - H >= 0, quartic in P (none if H > 0); |P| >= sqrt(1 + H);
     # branch C on [a0, 0), A/B on [max(a0, 0), 1]
     if H <= 1e-9:
@@ -397,25 +500,25 @@ def _candidates(d, v0, a0, vf, V, k, s, best, D, crit, rts):
         pmin = math.sqrt(max(1.0 + H, 0.0)) - 1e-9
         lo_ab = max(a0, 0.0, pmin)
         if lo_ab <= 1.0:
-            _set(D, 0.0, 0.5, 1.0, 0.5 * (-a2 + 6.0 * kA * a0 + 2.0 * v0 + 1.0), -3.0 * kA * a2 - a2 + 2.0 * v0, e0)
-            for r in range(_real_roots(D, 5, lo_ab, 1.0, crit, rts)):
-                P = rts[r]
+            for r in range(_roots5(0.0, 0.5, 1.0, 0.5 * (-a2 + 6.0 * kA * a0 + 2.0 * v0 + 1.0),
+                                   -3.0 * kA * a2 - a2 + 2.0 * v0, e0, lo_ab, 1.0, D)):
+                P = D[_OUT + r]
                 t5 = P * P - 1.0 - H
                 T = _check(P, 1.0, 0.0, t5, 0.0, a0, v0, V)
                 if T >= 0.0 and _near(_end_pos(P, 1.0, 0.0, max(t5, 0.0), 0.0, a0, v0, k), d, T, v0, V):
-                    _keep(best, T, P, 1.0, 0.0, max(t5, 0.0), 0.0, s)
+                    _keep(D, T, P, 1.0, 0.0, max(t5, 0.0), 0.0, s)
         hi_c = min(0.0, -pmin)
         if a0 < 0.0 and max(a0, -1.0) < hi_c:
-            _set(D, 0.0, 0.5, 1.0, 0.5 * (-a2 + 6.0 * k * a0 + 6.0 * k + 2.0 * v0 + 1.0),
-                 -3.0 * k * a2 - a2 + 3.0 * k + 2.0 * v0, e0)
-            for r in range(_real_roots(D, 5, max(a0, -1.0), hi_c, crit, rts)):
-                P = rts[r]
+            for r in range(_roots5(0.0, 0.5, 1.0, 0.5 * (-a2 + 6.0 * k * a0 + 6.0 * k + 2.0 * v0 + 1.0),
+                                   -3.0 * k * a2 - a2 + 3.0 * k + 2.0 * v0, e0, max(a0, -1.0), hi_c,
+                                   D)):
+                P = D[_OUT + r]
                 if P >= 0.0:
                     continue
                 t5 = P * P - 1.0 - H
                 T = _check(P, 1.0, 0.0, t5, 0.0, a0, v0, V)
                 if T >= 0.0 and _near(_end_pos(P, 1.0, 0.0, max(t5, 0.0), 0.0, a0, v0, k), d, T, v0, V):
-                    _keep(best, T, P, 1.0, 0.0, max(t5, 0.0), 0.0, s)
+                    _keep(D, T, P, 1.0, 0.0, max(t5, 0.0), 0.0, s)
     # NONE: u = P + N, P = (u^2 + H)/(2u), N = (u^2 - H)/(2u); quintic in u on (0, 2]
     b2 = 12.0 * H - 18.0 * a2 * k - 12.0 * a2 + 24.0 * v0
     b1 = 18.0 * H * a0 * k + 12.0 * a3 * k + 4.0 * a3 - 12.0 * a0 * v0 - 12.0 * d
@@ -434,20 +537,21 @@ def _candidates(d, v0, a0, vf, V, k, s, best, D, crit, rts):
         if br == 0:                     # P >= 0: branch A or B
             lo, hi = max(split, ulo), uhi
             if a0 >= 0.0:
-                _set(D, 3.0, 9.0 * a0 * k, b2, b1, -3.0 * H * (H + 6.0 * a2 * k), 9.0 * H * H * a0 * k)
+                q0, q1, q2, q3 = 3.0, 9.0 * a0 * k, b2, b1
+                q4, q5 = -3.0 * H * (H + 6.0 * a2 * k), 9.0 * H * H * a0 * k
             else:
-                _set(D, 0.0, 3.0, 0.0, 12.0 * (H - a2 + 2.0 * v0),
-                     -4.0 * (-3.0 * a3 * k - a3 + 3.0 * a0 * v0 + 3.0 * d), -3.0 * H * H)
+                q0, q1, q2, q3 = 0.0, 3.0, 0.0, 12.0 * (H - a2 + 2.0 * v0)
+                q4, q5 = -4.0 * (-3.0 * a3 * k - a3 + 3.0 * a0 * v0 + 3.0 * d), -3.0 * H * H
         else:                           # P < 0: branch C (only when H < 0)
             if split <= 0.0:
                 continue
             lo, hi = ulo, min(split, uhi)
-            _set(D, 3.0 * (3.0 * k + 1.0), 9.0 * a0 * k, b2, b1, -3.0 * H * (3.0 * H * k + H + 6.0 * a2 * k),
-                 9.0 * H * H * a0 * k)
+            q0, q1, q2, q3 = 3.0 * (3.0 * k + 1.0), 9.0 * a0 * k, b2, b1
+            q4, q5 = -3.0 * H * (3.0 * H * k + H + 6.0 * a2 * k), 9.0 * H * H * a0 * k
         if hi <= lo:
             continue
-        for r in range(_real_roots(D, 5, max(lo, 1e-300), hi, crit, rts)):
-            u = rts[r]
+        for r in range(_roots5(q0, q1, q2, q3, q4, q5, max(lo, 1e-300), hi, D)):
+            u = D[_OUT + r]
             if u <= 0.0:
                 continue
             P = 0.5 * (u + H / u)
@@ -456,19 +560,20 @@ def _candidates(d, v0, a0, vf, V, k, s, best, D, crit, rts):
                 continue
             T = _check(P, N, 0.0, 0.0, 0.0, a0, v0, V)
             if T >= 0.0 and _near(_end_pos(P, N, 0.0, 0.0, 0.0, a0, v0, k), d, T, v0, V):
-                _keep(best, T, P, N, 0.0, 0.0, 0.0, s)
+                _keep(D, T, P, N, 0.0, 0.0, 0.0, s)
 
 
 @_jit
-def _keep(best, T, P, N, t1, t5, tc, s):
-    if T < best[0]:
-        best[0] = T
-        best[1] = P
-        best[2] = N
-        best[3] = t1
-        best[4] = t5
-        best[5] = tc
-        best[6] = s
+def _keep(D, T, P, N, t1, t5, tc, s):
+    """The candidate into ``D[_BEST:_BEST + 7]`` if it is shorter than the one there."""
+    if T < D[_BEST]:
+        D[_BEST] = T
+        D[_BEST + 1] = P
+        D[_BEST + 2] = N
+        D[_BEST + 3] = t1
+        D[_BEST + 4] = t5
+        D[_BEST + 5] = tc
+        D[_BEST + 6] = s
 
 
 @_jit
@@ -534,7 +639,7 @@ def solve(d, v0, a0, vf, V, k):
     """
     # one allocation: the result, then the scratch arrays (views of the same buffer)
     nres = 2 * _MAX_SEG + 3
-    buf = np.empty(nres + 7 + 36 + 16)
+    buf = np.empty(nres + _SCRATCH)
     res = buf[:nres]
     res[:] = 0.0                    # (the scratch arrays are written before they are read)
     # braking pre-trajectory (jerk segments then a constant-acceleration segment)
@@ -560,19 +665,16 @@ def solve(d, v0, a0, vf, V, k):
         a = 1.0
     if bt > 0.0 and a < -1.0:
         a = -1.0
-    best = buf[nres:nres + 7]
-    best[0] = math.inf
-    best[6] = 0.0
-    D = buf[nres + 7:nres + 43].reshape((6, 6))
-    crit = buf[nres + 43:nres + 51]
-    rts = buf[nres + 51:nres + 59]
+    D = buf[nres:]
+    D[_BEST] = math.inf
+    D[_BEST + 6] = 0.0
     dd = d - p
-    _candidates(dd, v, a, vf, V, k, 1.0, best, D, crit, rts)
-    _candidates(-dd, -v, -a, -vf, V, k, -1.0, best, D, crit, rts)
-    if best[6] == 0.0:
+    _candidates(dd, v, a, vf, V, k, 1.0, D)
+    _candidates(-dd, -v, -a, -vf, V, k, -1.0, D)
+    if D[_BEST + 6] == 0.0:
         res[0] = -1.0
         return res
-    P, N, t1, t5, tc, s = best[1], best[2], best[3], best[4], best[5], best[6]
+    P, N, t1, t5, tc, s = D[_BEST + 1], D[_BEST + 2], D[_BEST + 3], D[_BEST + 4], D[_BEST + 5], D[_BEST + 6]
     a0s = s * a
     # rebuild the segments in the sigma frame, then flip the jerk signs by s
     if P > 0.0:
@@ -637,7 +739,8 @@ def solve_tuple(d, v0, a0, vf, V, k):
 @_jit
 def plan_tuple(d, J, A, V, v0, a0, vf, sine):
     """One move in SI units: the checks, the normalization, :func:`solve_tuple` and the time unit,
-    in one compiled call (the scalar planners' and :func:`solve_many`'s entry).
+    in one compiled call (:func:`solve_many`'s entry; the scalar planners call it through
+    :func:`plan_scurve_packed` / :func:`plan_sine_packed`).
 
     Returns 18 floats: ``(status, code, duration, brake segments, t_1, ..., t_12, tu, T)`` --
     :func:`solve_tuple`'s result in normalized units, then the time unit ``tu = A / J'`` (``J' = J``,
@@ -685,6 +788,28 @@ def plan_tuple(d, J, A, V, v0, a0, vf, sine):
     # (the unused entries of r are 0)
     return (r[0], code, r[-2], r[-1], r[2], r[4], r[6], r[8], r[10], r[12], r[14], r[16], r[18],
             r[20], r[22], r[24], tu, r[-2] * tu)
+
+
+@_jit
+def _pack(r):
+    """:func:`plan_tuple`'s 18 floats as ``(status, complex(T, tu), complex(code, brake segments),
+    complex(t_1, t_2), ..., complex(t_11, t_12))``: the same values (the normalized duration
+    left out), in 9 Python objects -- boxing and freeing a float costs about as much as a complex,
+    and 18 of them were a tenth of a plan's time."""
+    return (r[0], complex(r[17], r[16]), complex(r[1], r[3]), complex(r[4], r[5]), complex(r[6], r[7]),
+            complex(r[8], r[9]), complex(r[10], r[11]), complex(r[12], r[13]), complex(r[14], r[15]))
+
+
+@_jit
+def plan_scurve_packed(d, J, A, V, v0, a0, vf):
+    """:func:`plan_tuple` for the S-curve (``sine`` false, so compiled for it alone), :func:`_pack`-ed."""
+    return _pack(plan_tuple(d, J, A, V, v0, a0, vf, False))
+
+
+@_jit
+def plan_sine_packed(d, J, A, V, v0, a0, vf):
+    """:func:`plan_tuple` for the sine family (``sine`` true), :func:`_pack`-ed."""
+    return _pack(plan_tuple(d, J, A, V, v0, a0, vf, True))
 
 
 @_jit

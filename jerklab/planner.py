@@ -642,8 +642,8 @@ def plan_sine_jerk_optimal(distance, max_jerk, max_accel, max_velocity, *, initi
         # from a moving start; Python floats straight to the compiled solver (as _plan_any_state)
         if floats and (distance.__class__ is max_jerk.__class__ is max_accel.__class__
                        is max_velocity.__class__ is float):
-            res = (_PLAN or _planner())(distance, max_jerk, max_accel, max_velocity, initial_velocity,
-                                        initial_accel, final_velocity, True)
+            res = (_SINE_PLAN or _packed(True))(distance, max_jerk, max_accel, max_velocity,
+                                                initial_velocity, initial_accel, final_velocity)
             if res[0] > 0.0:
                 p = _new(AnyStateProfile)
                 p.kind = "sine_jerk_optimal"
@@ -704,8 +704,8 @@ def plan_scurve(distance, max_jerk, max_accel, max_velocity, *, initial_velocity
         # from a moving start; Python floats straight to the compiled solver (as _plan_any_state)
         if floats and (distance.__class__ is max_jerk.__class__ is max_accel.__class__
                        is max_velocity.__class__ is float):
-            res = (_PLAN or _planner())(distance, max_jerk, max_accel, max_velocity, initial_velocity,
-                                        initial_accel, final_velocity, False)
+            res = (_SCURVE_PLAN or _packed(False))(distance, max_jerk, max_accel, max_velocity,
+                                                   initial_velocity, initial_accel, final_velocity)
             if res[0] > 0.0:
                 p = _new(AnyStateProfile)
                 p.kind = "scurve"
@@ -841,9 +841,10 @@ class AnyStateProfile(Profile):
         self.initial_velocity = initial_velocity
         self.initial_accel = initial_accel
         self.final_velocity = final_velocity
-        # jerklab._onedof.plan_tuple's result: solve_tuple's (normalized units), the time unit, the
-        # duration (s); _seg (the segments' states) is set on first use
-        self._res = tuple(res[:4 + _onedof._MAX_SEG]) + (time_unit, res[2] * time_unit)
+        # res: jerklab._onedof.solve_tuple's 16 floats (normalized units), kept in the form of
+        # jerklab._onedof._pack: (status, T + i tu, code + i brake segments, t_1 + i t_2, ...);
+        # _seg (the segments' states) is set on first use
+        self._res = _pack_res(res, time_unit)
 
     @property
     def _sine(self):
@@ -856,7 +857,7 @@ class AnyStateProfile(Profile):
         except AttributeError:
             pass
         jerk = np.array(self._jerk_signs()) * self._limits[0]
-        times = np.array(self._res[4:4 + int(self._res[0])]) * self._res[16]
+        times = np.array(self._times()) * self._res[1].imag
         start = np.concatenate(([0.0], np.cumsum(times)))
         P, V, A = _segment_states(0.0, self.initial_velocity, self.initial_accel, jerk, times,
                                   self._sine, max(self._limits[1], abs(self.initial_accel)))
@@ -865,29 +866,36 @@ class AnyStateProfile(Profile):
 
     def _jerk_signs(self):
         """-1, 0 or +1 per segment, from the solver's packed code (jerklab._onedof.solve_tuple)."""
-        code = int(self._res[1])
+        code = int(self._res[2].real)
         out = []
         for _ in range(int(self._res[0])):
             code, digit = divmod(code, 3)
             out.append(digit - 1.0)
         return out
 
+    def _times(self):
+        """The segment times in the solver's time unit (normalized), a list."""
+        out = []
+        for z in self._res[3:]:
+            out.append(z.real)
+            out.append(z.imag)
+        return out[:int(self._res[0])]
+
     @property
     def brake_time(self) -> float:
         """Length of the braking pre-trajectory (s), 0 when the start is inside the limits."""
-        nb = int(self._res[3])
-        return math.fsum(self._res[4:4 + nb]) * self._res[16]
+        res = self._res
+        return math.fsum(self._times()[:int(res[2].imag)]) * res[1].imag
 
     @property
     def duration(self) -> float:
         """Total time of the move (s), the brake included."""
-        return self._res[17]
+        return self._res[1].real
 
     @property
     def phase_times(self) -> tuple:
-        res = self._res
-        tu = res[16]
-        return tuple([x * tu for x in res[4:4 + int(res[0])]])
+        tu = self._res[1].imag
+        return tuple([x * tu for x in self._times()])
 
     @property
     def segment_jerk(self) -> tuple:
@@ -963,10 +971,12 @@ class AnyStateProfile(Profile):
                     jk[pulse] = jp * sn
                     acc[pulse] = ap + c * omc
                     vel[pulse] = vp + ap * rp + c * wms / w
-                    pos[pulse] = pp + rp * (vp + 0.5 * ap * rp) + c * hmo / (w * w)
+                    # (/ w / w, not / (w * w): a pulse of 1e-160 s has w * w = inf, while its
+                    # term underflows to 0 as it should)
+                    pos[pulse] = pp + rp * (vp + 0.5 * ap * rp) + c * hmo / w / w
         else:
             jk = acc = vel = pos = np.zeros(t.shape)
-        T = self._res[17]
+        T = self._res[1].real
         before = t <= 0.0
         after = t >= T
         vf = self.final_velocity
@@ -1023,12 +1033,34 @@ class AnyStateProfile(Profile):
 
 
 _PLAN = None
+#: the compiled scalar entries (jerklab._onedof.packed_planner), set on first use
+_SCURVE_PLAN = None
+_SINE_PLAN = None
 
 
 def _planner():
     global _PLAN
     _PLAN = _onedof.planner()
     return _PLAN
+
+
+def _packed(sine):
+    global _SCURVE_PLAN, _SINE_PLAN
+    f = _onedof.packed_planner(sine)
+    if sine:
+        _SINE_PLAN = f
+    else:
+        _SCURVE_PLAN = f
+    return f
+
+
+def _pack_res(res, time_unit):
+    """:func:`jerklab._onedof._pack`'s form of a :func:`jerklab._onedof.solve_tuple` result
+    (16 floats) and its time unit; the duration is ``res[2] * time_unit``, as the solver computes
+    it."""
+    r = [float(x) for x in res[:4 + _onedof._MAX_SEG]]
+    return (r[0], complex(r[2] * time_unit, time_unit), complex(r[1], r[3])) + tuple(
+        complex(r[k], r[k + 1]) for k in range(4, 4 + _onedof._MAX_SEG, 2))
 
 
 def _solver():
@@ -1052,7 +1084,8 @@ def _plan_any_state(kind, sine, distance, max_jerk, max_accel, max_velocity, v0,
         vf = as_real("final_velocity", vf)
         if v0 == 0.0 and a0 == 0.0 and vf == 0.0:
             return (plan_sine_jerk_optimal if sine else plan_scurve)(distance, J, A, V)
-    res = (_PLAN or _planner())(distance, J, A, V, v0, a0, vf, sine)
+    f = (_SINE_PLAN or _packed(True)) if sine else (_SCURVE_PLAN or _packed(False))
+    res = f(distance, J, A, V, v0, a0, vf)
     if not res[0] > 0.0:
         return _any_state_special(kind, distance, J, A, V, v0, a0, vf, res)
     p = _new(AnyStateProfile)                   # (__init__'s work, inline)
@@ -1078,7 +1111,7 @@ def _any_state_special(kind, distance, J, A, V, v0, a0, vf, res):
         p.initial_velocity = v0
         p.initial_accel = a0
         p.final_velocity = vf
-        p._res = (0.0,) * (4 + _onedof._MAX_SEG) + (1.0, 0.0)
+        p._res = _pack_res((0.0,) * (4 + _onedof._MAX_SEG), 1.0)
         return p
     if status == -2.0:                          # a value not finite or a limit <= 0: named here
         _check_limits(distance, J, A, V)

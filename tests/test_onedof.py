@@ -42,8 +42,8 @@ def test_no_root_is_sound():
     skipped = 0
     total = 0
     for c, lo, hi in _poly_cases(rng, 4000):
-        D = np.zeros((6, 6))
-        D[0] = c
+        D = np.zeros(_onedof._SCRATCH)
+        D[:6] = c
         total += 1
         if not _onedof._no_root(D, 5, lo, hi):
             continue
@@ -53,9 +53,9 @@ def test_no_root_is_sound():
         assert not np.any((r >= lo - 1e-12) & (r <= hi + 1e-12)), (c, lo, hi, r)
         _onedof._no_root = lambda D, deg, lo, hi: False     # the search alone (pure Python)
         try:
-            D = np.zeros((6, 6))
-            D[0] = c
-            assert real_roots(D, 5, lo, hi, np.zeros(8), np.zeros(8)) == 0
+            D = np.zeros(_onedof._SCRATCH)
+            D[:6] = c
+            assert real_roots(D, 5, lo, hi) == 0
         finally:
             _onedof._no_root = saved
     assert 0.2 * total < skipped < total
@@ -90,3 +90,29 @@ def test_plan_tuple_compiled_is_pure_python(sine):
     status = [compiled(*c, sine)[0] for c in cases[:5]]
     assert status == [0.0, -3.0, -2.0, -2.0, -2.0]
     assert all(compiled(*c, sine)[0] > 0 for c in cases[5:])
+
+
+@pytest.mark.parametrize("sine", [False, True])
+def test_packed_entry_is_plan_tuple(sine):
+    """The scalar planners' entry (packed_planner: 7 arguments, 9 objects) returns exactly
+    plan_tuple's values: status, duration, time unit, code, brake segments and the 12 times, bit
+    for bit; and planner._pack_res (the batch's profiles) packs a solve_tuple row the same way."""
+    from jerklab.planner import _pack_res
+
+    packed = _onedof.packed_planner(sine)
+    full = _onedof.planner()
+    rng = np.random.default_rng(31 + sine)
+    cases = [(0.0, 10.0, 2.0, 1.0, 0.3, 0.0, 0.3), (1.0, 10.0, 2.0, 1.0, 0.0, 0.0, 1.5),
+             (math.nan, 1.0, 2.0, 1.0, 0.1, 0.0, 0.0)]
+    for _ in range(300):
+        J, A, V = 10 ** rng.uniform(0, 4), 10 ** rng.uniform(-1, 2), 10 ** rng.uniform(-1, 1)
+        cases.append((rng.uniform(-3, 3), J, A, V, rng.uniform(-1.6, 1.6) * V, rng.uniform(-1.6, 1.6) * A,
+                      rng.uniform(-1, 1) * V))
+    for c in cases:
+        z, r = packed(*c), full(*c, sine)
+        assert len(z) == 9 and z[0] == r[0]
+        assert (z[1].real, z[1].imag, z[2].real, z[2].imag) == (r[17], r[16], r[1], r[3])
+        times = [v for w in z[3:] for v in (w.real, w.imag)]
+        assert times == list(r[4:16])
+        if r[0] > 0:
+            assert _pack_res(r[:16], r[16]) == z

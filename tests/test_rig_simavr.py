@@ -160,8 +160,8 @@ def test_1khz_loop_on_the_simulated_uno_matches_the_virtual_rig(run_1khz):
     assert st["int0_latency_cycles"]["over_120"] == 0
 
 
-@pytest.mark.xfail(strict=True, reason="issue 21 not met yet: the whole 1 ms control step is ~6500-6900 "
-                   "cycles here (firmware/README.md 'Cycle budget'; TELEMETRY ~2100, the float PID ~1000, "
+@pytest.mark.xfail(strict=True, reason="issue 21 not met yet: the whole 1 ms control step is ~5300-5900 "
+                   "cycles here (firmware/README.md 'Cycle budget'; TELEMETRY ~920, the float PID ~1000, "
                    "a sine pulse's reference ~2300)")
 def test_1khz_whole_control_step_within_a_quarter_of_the_period(run_1khz):
     """Issue 21's ceiling: the whole control step (planner sample, feedforward, PID, TELEMETRY;

@@ -10,7 +10,9 @@
 // Serial: a small interrupt-driven UART0 driver (115200 baud 8N1, U2X; JL_BAUD below) instead of the
 // Arduino HardwareSerial, whose ~110-cycle transmit ISR could hold off the encoder interrupt
 // past a quarter encoder period at top speed (channel B then read after it changed, a count
-// in the wrong direction). Every ISR here is short, so INT0 is served within ~70 cycles.
+// in the wrong direction). Every ISR here is short, so INT0 is served within ~70 cycles. A frame
+// is encoded straight into the transmit ring (UnoHal::write_frame); in the 1 Mbaud build the
+// transmit interrupt is held while the control step runs and the bytes leave after it (JL_TX_HOLD).
 //
 // Timing: Timer2 CTC gives an exact 1 ms tick (16 MHz / 64 / 250); every Ts/1 ms ticks it
 // raises a flag, and loop() runs the control step (never inside the ISR, so encoder edges
@@ -51,9 +53,14 @@ static volatile uint8_t g_overrun = 0;
 
 // ---------------------------------------------------------------- UART0
 static const uint8_t kRxSize = 64, kTxSize = 64;   // powers of two
-static volatile uint8_t rx_buf[kRxSize], tx_buf[kTxSize];
+static volatile uint8_t rx_buf[kRxSize];
+// The transmit ring: a frame is encoded straight into it (UnoHal::write_frame), then published by
+// moving tx_head; the UDRE interrupt sends bytes tail..head. It holds the largest frame the device
+// sends (HELLO_REPLY, 33 bytes) with room to spare.
+static uint8_t tx_buf[kTxSize];
 static volatile uint8_t rx_head = 0, rx_tail = 0, tx_head = 0, tx_tail = 0;
 static volatile uint8_t rx_overflow = 0;
+static_assert(jl::kLenHelloReply + 7 <= kTxSize - 1, "the transmit ring must hold the largest frame sent");
 
 ISR(USART_RX_vect) {
     const uint8_t status = UCSR0A;
@@ -68,6 +75,8 @@ ISR(USART_RX_vect) {
     }
 }
 
+// Enabled only while the ring holds bytes (uart_tx_start sets UDRIE0 with interrupts off, after
+// publishing the head; the ISR clears it when the ring runs empty), so it never sends a stale byte.
 ISR(USART_UDRE_vect) {
     uint8_t t = tx_tail;
     UDR0 = tx_buf[t];
@@ -83,6 +92,18 @@ ISR(USART_UDRE_vect) {
 #ifndef JL_BAUD
 #define JL_BAUD 115200UL
 #endif
+// Transmit held during the control step (uart_tx_hold / uart_tx_release around it in loop()):
+// at 1 Mbaud a byte leaves every 160 cycles, and a UDRE interrupt per byte (~57 cycles) inside
+// the step cost ~1250 cycles a TELEMETRY; held, the bytes go out in the idle time after the step
+// (the line idles during the step, which 1 Mbaud can spare: a 22-byte frame needs 3520 of the
+// 16000 cycles of a 1 ms period). At 500000 a frame needs 7040 cycles of line time, close to
+// what a slow step leaves (16000 - ~8000), and at 115200 (a byte ~1390 cycles, interrupt load
+// ~4 %) the line needs every byte time at Ts = 1 ms: not held there.
+#ifndef JL_TX_HOLD
+#define JL_TX_HOLD (JL_BAUD > 500000UL)
+#endif
+static uint8_t tx_hold = 0;                            // main code only
+
 static void uart_begin() {
     UCSR0A = _BV(U2X0);
     UBRR0 = static_cast<uint16_t>((F_CPU + 4UL * JL_BAUD) / (8UL * JL_BAUD) - 1UL);
@@ -90,14 +111,51 @@ static void uart_begin() {
     UCSR0B = _BV(RXEN0) | _BV(TXEN0) | _BV(RXCIE0);
 }
 
-static void uart_write(const uint8_t* data, uint8_t n) {
-    for (uint8_t i = 0; i < n; ++i) {
-        const uint8_t h = (tx_head + 1) & (kTxSize - 1);
-        while (h == tx_tail) {}                         // full: the UDRE ISR makes room
-        tx_buf[tx_head] = data[i];
-        tx_head = h;
-        UCSR0B |= _BV(UDRIE0);
+// Let the UDRE interrupt send what the ring holds. Interrupts off around the read-modify-write
+// of UCSR0B: the ISR clears UDRIE0 when the ring runs empty, and setting it back after that
+// would send a stale byte.
+static void uart_tx_start() {
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+        if (tx_head != tx_tail) UCSR0B |= _BV(UDRIE0);
     }
+}
+
+static inline void uart_tx_hold() {
+#if JL_TX_HOLD
+    tx_hold = 1;
+    UCSR0B &= ~_BV(UDRIE0);                             // the ISR only ever clears it too
+#endif
+}
+
+static inline void uart_tx_release() {
+#if JL_TX_HOLD
+    tx_hold = 0;
+    uart_tx_start();
+#endif
+}
+
+// Wait until the ring has room for n bytes (n <= kTxSize - 1). While it is full, send by polling
+// UDRE0 (the interrupt may be held): bytes leave in order, at the line's speed.
+static void uart_room(uint8_t n) {
+    while (static_cast<uint8_t>((tx_tail - tx_head - 1) & (kTxSize - 1)) < n) {
+        ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+            if (UCSR0A & _BV(UDRE0)) {
+                const uint8_t t = tx_tail;
+                UDR0 = tx_buf[t];
+                tx_tail = (t + 1) & (kTxSize - 1);
+            }
+        }
+    }
+}
+
+// One frame into the ring in one pass (jl::encode_frame_ring: header, payload, CRC as the bytes
+// are written), then published by one store of the head.
+static void uart_write_frame(uint8_t type, uint8_t seq, const uint8_t* payload, uint8_t n) {
+    uart_room(static_cast<uint8_t>(n + 7));
+    const uint8_t h = jl::encode_frame_ring(tx_buf, kTxSize - 1, tx_head, type, seq, payload, n);
+    __asm__ __volatile__("" ::: "memory");              // the bytes are in before the head moves
+    tx_head = h;
+    if (!tx_hold) uart_tx_start();
 }
 
 static inline bool uart_available() { return rx_head != rx_tail; }
@@ -108,18 +166,79 @@ static uint8_t uart_read() {
     return c;
 }
 
+// Encoder ISRs, in assembly: ~39 cycles from the edge's interrupt to the end of reti (avr-gcc's
+// code of the same two lines took ~80: nine register pushes, a 32-bit load, add and store). At
+// top speed (~27 A edges per ms) that is ~1000 cycles a ms less, ~40 an edge inside the control
+// step. PIND is read by the second instruction (B must be sampled within a quarter encoder period
+// of the A edge); (pd >> 1) moves B (bit 3) onto A's bit 2, so bit 2 of pd ^ (pd >> 1) is A != B.
+// The 32-bit count is stepped byte by byte and stops at the first byte that does not carry
+// (borrow): the main code reads it with interrupts off (UnoHal::counts), so it never sees a
+// partial update, and the ISRs cannot interrupt each other. Only r24, r25 and SREG are used.
+// INT1 inverts the direction bit and shares INT0's count code (jl_encoder_step).
+#define JL_ENCODER_ISR_ENTRY                                                                   \
+        "push r24"              "\n\t"                                                         \
+        "in   r24, %[pind]"     "\n\t"                                                         \
+        "push r25"              "\n\t"                                                         \
+        "in   r25, __SREG__"    "\n\t"                                                         \
+        "push r25"              "\n\t"                                                         \
+        "mov  r25, r24"         "\n\t"                                                         \
+        "lsr  r25"              "\n\t"                                                         \
+        "eor  r24, r25"         "\n\t"   /* bit 2: A != B */
+
 // Channel A edge. Forward (A leads B): at an A edge A != B -> +1. With x1 decoding only the
-// rising edge interrupts; B is stable for a quarter period around it. PIND is sampled first;
-// (pd >> 1) moves B (bit 3) onto A's bit 2.
-ISR(INT0_vect) {
-    const uint8_t pd = PIND;
-    if ((pd ^ (pd >> 1)) & _BV(PD2)) ++g_counts; else --g_counts;
+// rising edge interrupts; B is stable for a quarter period around it.
+ISR(INT0_vect, ISR_NAKED) {
+    __asm__ __volatile__(
+        JL_ENCODER_ISR_ENTRY
+        ".global jl_encoder_step" "\n\t"   /* INT1 jumps here (another LTO partition maybe) */
+        "jl_encoder_step:"      "\n\t"   /* r24 bit 2 set: +1, clear: -1 */
+        "lds  r25, %[c]"        "\n\t"
+        "sbrs r24, 2"           "\n\t"
+        "rjmp 3f"               "\n\t"
+        "subi r25, 0xFF"        "\n\t"   /* +1 */
+        "sts  %[c], r25"        "\n\t"
+        "brne 9f"               "\n\t"
+        "lds  r25, %[c]+1"      "\n\t"
+        "subi r25, 0xFF"        "\n\t"
+        "sts  %[c]+1, r25"      "\n\t"
+        "brne 9f"               "\n\t"
+        "lds  r25, %[c]+2"      "\n\t"
+        "subi r25, 0xFF"        "\n\t"
+        "sts  %[c]+2, r25"      "\n\t"
+        "brne 9f"               "\n\t"
+        "lds  r25, %[c]+3"      "\n\t"
+        "subi r25, 0xFF"        "\n\t"
+        "sts  %[c]+3, r25"      "\n\t"
+        "rjmp 9f"               "\n\t"
+        "3: subi r25, 1"        "\n\t"   /* -1: carry set on a borrow */
+        "sts  %[c], r25"        "\n\t"
+        "brcc 9f"               "\n\t"
+        "lds  r25, %[c]+1"      "\n\t"
+        "subi r25, 1"           "\n\t"
+        "sts  %[c]+1, r25"      "\n\t"
+        "brcc 9f"               "\n\t"
+        "lds  r25, %[c]+2"      "\n\t"
+        "subi r25, 1"           "\n\t"
+        "sts  %[c]+2, r25"      "\n\t"
+        "brcc 9f"               "\n\t"
+        "lds  r25, %[c]+3"      "\n\t"
+        "subi r25, 1"           "\n\t"
+        "sts  %[c]+3, r25"      "\n\t"
+        "9: pop r25"            "\n\t"
+        "out  __SREG__, r25"    "\n\t"
+        "pop  r25"              "\n\t"
+        "pop  r24"              "\n\t"
+        "reti"                  "\n\t"
+        :: [pind] "I"(_SFR_IO_ADDR(PIND)), [c] "i"(&g_counts));
 }
 
 // Channel B edge (x4 decoding only). Forward: at a B edge A == B -> +1.
-ISR(INT1_vect) {
-    const uint8_t pd = PIND;
-    if ((pd ^ (pd >> 1)) & _BV(PD2)) --g_counts; else ++g_counts;
+ISR(INT1_vect, ISR_NAKED) {
+    __asm__ __volatile__(
+        JL_ENCODER_ISR_ENTRY
+        "com  r24"              "\n\t"   /* bit 2 set: A == B */
+        "jmp  jl_encoder_step"  "\n\t"   /* jmp: LTO may place INT0 anywhere */
+        :: [pind] "I"(_SFR_IO_ADDR(PIND)));
 }
 
 // Interruptible (the compare flag is cleared on entry): an encoder edge never waits for it.
@@ -134,7 +253,9 @@ ISR(TIMER2_COMPA_vect, ISR_NOBLOCK) {
 
 class UnoHal : public jl::Hal {
 public:
-    void write(const uint8_t* data, uint8_t n) override { uart_write(data, n); }
+    void write_frame(uint8_t type, uint8_t seq, const uint8_t* payload, uint8_t n) override {
+        uart_write_frame(type, seq, payload, n);
+    }
     int32_t counts() override {
         int32_t c;
         ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { c = g_counts; }
@@ -237,6 +358,7 @@ void loop() {
 #ifndef JL_PROBE_PART
             PORTB |= kProbe;
 #endif
+            uart_tx_hold();                             // no UDRE interrupt inside the step
             JL_PART_BEGIN(3);
             const bool produced = device.control();
             JL_PART_END(3);
@@ -248,6 +370,7 @@ void loop() {
             PORTB &= ~kProbe;
 #endif
             JL_PART_END(10);
+            uart_tx_release();                          // the frame leaves in the idle time
             JL_PART_BEGIN(7);
             device.background();
             JL_PART_END(7);

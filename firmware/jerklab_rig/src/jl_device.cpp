@@ -37,9 +37,7 @@ int16_t Device::ticks_to_pwm(float u) const { return round_clamp(u, pwm_top_); }
 int16_t Device::volts_to_pwm(float u) const { return ticks_to_pwm(u * pwm_per_volt_); }
 
 void Device::send(uint8_t type, uint8_t seq, const uint8_t* payload, uint8_t n) {
-    uint8_t buf[kMaxFrame];
-    uint8_t len = encode_frame(buf, type, seq, payload, n);
-    hal_.write(buf, len);
+    hal_.write_frame(type, seq, payload, n);
 }
 
 void Device::ack(const Frame& f) { send(kAck, f.seq, &f.type, 1); }

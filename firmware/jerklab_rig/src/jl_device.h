@@ -16,8 +16,11 @@ namespace jl {
 /// What the state machine needs from the board.
 class Hal {
 public:
-    /// Send bytes to the host (may block until the UART buffer has room).
-    virtual void write(const uint8_t* data, uint8_t n) = 0;
+    /// Send one frame to the host (PROTOCOL.md framing: sync, len, type, seq, payload, CRC),
+    /// payload_len <= kMaxPayload; may block until the transmit buffer has room. One call per
+    /// frame: the Uno encodes it straight into its UART ring (encode_frame_ring), the host
+    /// driver with encode_frame.
+    virtual void write_frame(uint8_t type, uint8_t seq, const uint8_t* payload, uint8_t payload_len) = 0;
     /// Encoder count (atomic read).
     virtual int32_t counts() = 0;
     virtual void zero_counts() = 0;

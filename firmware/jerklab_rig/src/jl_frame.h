@@ -26,6 +26,14 @@ struct Frame {
 uint8_t encode_frame(uint8_t* out, uint8_t type, uint8_t seq, const uint8_t* payload,
                      uint8_t payload_len);
 
+/// Encode a frame straight into a transmit ring of mask + 1 bytes (a power of two), starting at
+/// index head, in one pass: header, payload, and the CRC accumulated as the bytes are written.
+/// Returns the index after the frame (the caller publishes it as the ring's new head once the
+/// bytes are in). The caller guarantees room for payload_len + 7 bytes and payload_len <=
+/// kMaxPayload. Same bytes as encode_frame (tests/test_firmware.py: golden frames, wrapping).
+uint8_t encode_frame_ring(uint8_t* ring, uint8_t mask, uint8_t head, uint8_t type, uint8_t seq,
+                          const uint8_t* payload, uint8_t payload_len);
+
 /// Byte-at-a-time decoder. A corrupt frame (bad CRC, bad length) is dropped and counted;
 /// the decoder then resynchronises by rescanning the bytes after the false sync, so a good
 /// frame that follows garbage (or starts inside a truncated one) is still found.
