@@ -22,6 +22,7 @@ bool Pid::set(float kpd, float kid, float kdd, float gamma, float limit) {
     limit_ = limit;
     memcpy(&limit_bits_, &limit, 4);
     kpk_ = kpd + kdd;
+    kdg_ = kdd * (gamma - 1.0f);
     filtered_ = gamma != 0.0f;
     return true;
 }
@@ -67,9 +68,10 @@ float Pid::step_fast(float e, float ff, bool* saturated) {
         // gamma = 0: p + d = (kpd + kdd) e - kdd e(k-1), one addition fewer (d(k-1) unused)
         pd = kpk_ * e - kdd_ * e_prev_;
     } else {
-        const float d = kdd_ * (e - e_prev_) + gamma_ * d_prev_;
-        d_prev_ = d;
-        pd = kpd_ * e + d;
+        // p + d = (kpd + kdd) e + w, w = d - kdd e advanced by w = gamma w(k-1) + kdd (gamma - 1) e(k-1)
+        const float w = gamma_ * w_ + kdg_ * e_prev_;
+        w_ = w;
+        pd = kpk_ * e + w;
     }
     e_prev_ = e;
     float u = ff + i + pd;                          // eq. 18 + feedforward (eq. 16)

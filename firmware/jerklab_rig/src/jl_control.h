@@ -37,13 +37,14 @@ class Pid {
 public:
     /// Returns false unless all gains are finite, |gamma| < 1 and limit > 0.
     bool set(float kpd, float kid, float kdd, float gamma, float limit);
-    void reset() { i_ = 0.0f; e_prev_ = 0.0f; d_prev_ = 0.0f; }
+    void reset() { i_ = 0.0f; e_prev_ = 0.0f; d_prev_ = 0.0f; w_ = 0.0f; }
     /// One sample: error e = reference - measurement, feedforward ff. Returns u.
     float step(float e, float ff, ControlParts* parts = nullptr);
     /// The same law for the control loop: only the saturation flag out, |u| > limit as an
-    /// integer compare of the IEEE bits (no soft-float compare), and without the derivative
-    /// filter (gamma = 0) p + d as (kpd + kdd) e - kdd e(k-1) (one float addition fewer; the
-    /// same value up to float32 rounding).
+    /// integer compare of the IEEE bits (no soft-float compare), p + d = (kpd + kdd) e + w with
+    /// w = d - kdd e carried instead of d: without the derivative filter w = -kdd e(k-1), with it
+    /// w(k) = gamma w(k-1) + kdd (gamma - 1) e(k-1) (from d(k) = gamma d(k-1) + kdd (e - e(k-1)));
+    /// one float addition fewer either way, the same value up to float32 rounding.
     float step_fast(float e, float ff, bool* saturated);
     float limit() const { return limit_; }
 
@@ -51,8 +52,10 @@ private:
     float kpd_ = 0.0f, kid_ = 0.0f, kdd_ = 0.0f, gamma_ = 0.0f, limit_ = 12.0f;
     uint32_t limit_bits_ = 0x41400000UL;   // IEEE bits of limit_ (> 0)
     float kpk_ = 0.0f;                     // kpd + kdd (step_fast)
+    float kdg_ = 0.0f;                     // kdd (gamma - 1) (step_fast, derivative filter)
     bool filtered_ = false;                // gamma != 0
     float i_ = 0.0f, e_prev_ = 0.0f, d_prev_ = 0.0f;
+    float w_ = 0.0f;                       // step_fast: d - kdd e of the last sample
 };
 
 /// The same law in fixed point for the control loop (docs/THEORY.md "The fixed-point PID"):
