@@ -119,13 +119,12 @@ def main():
     # TELEMETRY)
     whole = {baud: simavr.build_firmware("avr", build_dir=fw / "build" / f"step{baud}", baud=baud)["elf"]
              for baud in (115200, 1000000)}
-    rows, summary = [], {}
+    rows, groups = [], {}
     for Ts_us, baud in [(5000, 115200), (1000, 1000000)]:
         cases = _cases(Ts_us) + [(f"open-loop step 12 V, {100 * Ts_us / 1e6:g} s",
                                   [pr.Step(VS, Ts_us, 100)]),
                                  (f"open-loop PRBS 12 V (SEQUENCE), {100 * Ts_us / 1e6:g} s",
                                   [pr.Sequence(VS, 0.0, Ts_us, 100, 1, 8, 1)])]
-        worst_mean, worst_max = 0.0, 0
         for label, cmds in cases:
             s, end, wall = _run(whole[baud], Ts_us, cmds, baud, run=not label.startswith("open-loop"))
             b = s["control_step_cycles_moving"]
@@ -134,9 +133,12 @@ def main():
                          b["max"] / 4000, s["int0_latency_cycles"]["max"], lost,
                          end.overruns, s["sim_seconds"] / wall))
             if not label.startswith("open-loop"):
-                worst_mean = max(worst_mean, b["mean"])
-                worst_max = max(worst_max, b["max"])
-        summary[Ts_us] = (worst_mean, worst_max)
+                # the line over the unshaped closed-loop moves; SET_SHAPER's FIR and the
+                # moves of polynomial segments only (no half-sine pulse) on lines of their own
+                group = "shaped" if "shaper" in label else "unshaped"
+                for g in (group, "polynomial") if label.startswith(("S-curve", "trapezoid")) else (group,):
+                    wm, wx = groups.setdefault((Ts_us, g), (0.0, 0))
+                    groups[(Ts_us, g)] = (max(wm, b["mean"]), max(wx, b["max"]))
     print("control step on the simulated Uno = the default build's D13 probe (encoder read, PID + "
           "feedforward, PWM write, the next sample's reference, TELEMETRY; cycles at 16 MHz while "
           "moving, interrupts included; the idle-time work after it: see the parts table)")
@@ -146,9 +148,12 @@ def main():
         print(f"{r[0] / 1000:4g}ms {r[1]:46s} {r[2]:6d} {r[3]:6d} {r[4]:7.0f} {r[5]:6d} {r[6]:7.3f} "
               f"{r[7]:8.3f} {r[8]:8d} {r[9]:5d} {r[10]:4d} {r[11]:8.1f}")
     for Ts_us in (5000, 1000):
-        mean, mx = summary[Ts_us]
-        print(f"control step at Ts={Ts_us // 1000} ms: max {mx} cycles (mean {mean:.0f}; worst tick over "
-              f"the moves; {mx / (16 * Ts_us):.3f} of the period, {mx / 4000:.2f} x the 4000-cycle ceiling)")
+        for g, what, head in [("unshaped", "the closed-loop moves without SET_SHAPER", ""),
+                              ("shaped", "the moves with SET_SHAPER's FIR", " with SET_SHAPER"),
+                              ("polynomial", "S-curve and trapezoid, no half-sine pulse", " on polynomial segments")]:
+            mean, mx = groups[(Ts_us, g)]
+            print(f"control step at Ts={Ts_us // 1000} ms{head}: max {mx} cycles (mean {mean:.0f}; worst tick "
+                  f"over {what}; {mx / (16 * Ts_us):.3f} of the period, {mx / 4000:.2f} x the 4000-cycle ceiling)")
     quarter = 16e6 / (4 * 448 * K * VS / (2 * math.pi))
     print(f"INT0 latency budget at top speed (quarter encoder period): {quarter:.0f} cycles")
 
