@@ -36,7 +36,7 @@ def firmware_pins():
     assert consts["kPwm"] == OC1A
     # which channel each external interrupt reads: comments "Channel A edge" / "Channel B edge"
     chan = {}
-    for m in re.finditer(r"// Channel (\w) edge[^\n]*\n(?:[^\n]*\n)*?ISR\((INT\d)_vect\)", src):
+    for m in re.finditer(r"// Channel (\w) edge[^\n]*\n(?:[^\n]*\n)*?ISR\((INT\d)_vect[^)]*\)", src):
         chan[m.group(1)] = m.group(2)
     assert set(chan) == {"A", "B"}
     # both encoder inputs get pull-ups and are inputs
