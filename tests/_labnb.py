@@ -3,6 +3,19 @@ from __future__ import annotations
 
 import re
 
+import pytest
+
+KEY = "test-instructor-key"
+
+
+@pytest.fixture(autouse=True)
+def lab_env(monkeypatch, tmp_path):
+    """The instructor key and per-test work and recording folders (imported by the lab tests)."""
+    monkeypatch.setenv("JERKLAB_INSTRUCTOR_KEY", KEY)
+    monkeypatch.setenv("JERKLAB_LAB_WORK", str(tmp_path / "work"))
+    monkeypatch.setenv("JERKLAB_RECORDINGS", str(tmp_path / "rec"))
+    monkeypatch.delenv("JERKLAB_LAB_GRADING", raising=False)
+
 
 def execute(nb, cwd, timeout=240):
     """Execute ``nb`` in place (errors kept as outputs) with ``cwd`` as its folder."""

@@ -15,18 +15,10 @@ import pytest
 from jerklab import lab
 from jerklab.lab.motors import _truth, coupled_mode, student_motor
 
+from _labnb import KEY, lab_env  # noqa: F401  (lab_env: autouse fixture)
 from _labnb import execute as _execute, outputs as _outputs, set_student as _set_student
 
 ROOT = Path(__file__).parent.parent
-KEY = "test-instructor-key"
-
-
-@pytest.fixture(autouse=True)
-def _key(monkeypatch, tmp_path):
-    monkeypatch.setenv("JERKLAB_INSTRUCTOR_KEY", KEY)
-    monkeypatch.setenv("JERKLAB_LAB_WORK", str(tmp_path / "work"))
-    monkeypatch.setenv("JERKLAB_RECORDINGS", str(tmp_path / "rec"))
-    monkeypatch.delenv("JERKLAB_LAB_GRADING", raising=False)
 
 
 def _master():

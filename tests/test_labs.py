@@ -29,18 +29,10 @@ from jerklab.rig import connect
 from jerklab.rig.client import Rig
 from jerklab.rig.virtual import VirtualSerial
 
+from _labnb import KEY, lab_env  # noqa: F401  (lab_env: autouse fixture)
 from _labnb import execute as _execute, outputs as _outputs, set_student as _set_student
 
 ROOT = Path(__file__).parent.parent
-KEY = "test-instructor-key"
-
-
-@pytest.fixture(autouse=True)
-def _key(monkeypatch, tmp_path):
-    monkeypatch.setenv("JERKLAB_INSTRUCTOR_KEY", KEY)
-    monkeypatch.setenv("JERKLAB_LAB_WORK", str(tmp_path / "work"))
-    monkeypatch.setenv("JERKLAB_RECORDINGS", str(tmp_path / "rec"))
-    monkeypatch.delenv("JERKLAB_LAB_GRADING", raising=False)
 
 
 def _rig_for(motor):
