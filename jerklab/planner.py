@@ -639,7 +639,8 @@ def plan_sine_jerk_optimal(distance, max_jerk, max_accel, max_velocity, *, initi
     """
     floats = initial_velocity.__class__ is initial_accel.__class__ is final_velocity.__class__ is float
     if not floats or initial_velocity or initial_accel or final_velocity:
-        # from a moving start; Python floats straight to the compiled solver (as _plan_any_state)
+        # from a moving start; Python floats straight to the compiled solver (as _plan_any_state).
+        # Written out in both planners on purpose: a shared helper adds a Python call to each plan.
         if floats and (distance.__class__ is max_jerk.__class__ is max_accel.__class__
                        is max_velocity.__class__ is float):
             res = (_SINE_PLAN or _packed(True))(distance, max_jerk, max_accel, max_velocity,
@@ -701,7 +702,8 @@ def plan_scurve(distance, max_jerk, max_accel, max_velocity, *, initial_velocity
     """
     floats = initial_velocity.__class__ is initial_accel.__class__ is final_velocity.__class__ is float
     if not floats or initial_velocity or initial_accel or final_velocity:
-        # from a moving start; Python floats straight to the compiled solver (as _plan_any_state)
+        # from a moving start; Python floats straight to the compiled solver (as _plan_any_state).
+        # Written out in both planners on purpose: a shared helper adds a Python call to each plan.
         if floats and (distance.__class__ is max_jerk.__class__ is max_accel.__class__
                        is max_velocity.__class__ is float):
             res = (_SCURVE_PLAN or _packed(False))(distance, max_jerk, max_accel, max_velocity,
