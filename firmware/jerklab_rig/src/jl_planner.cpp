@@ -723,7 +723,7 @@ void PlanStepper::advance_segment() {
     n_ = k_ - buf_[ci_].k0;
 }
 
-bool PlanStepper::next_fast(float* position, float* velocity, float* ff) {
+bool PlanStepper::next_q(Q32* position, int32_t* ff, float* velocity) {
     if (pend_p_ != nullptr && pend_.seg < 0xFD && k_ >= pend_.k0) {
         // re-targeting: the new plan takes over at its first sample
         p_ = pend_p_;
@@ -740,10 +740,11 @@ bool PlanStepper::next_fast(float* position, float* velocity, float* ff) {
         const float n = static_cast<float>(n_);
         *velocity = c.v0 + n * (c.v1 + n * c.v2) + c.vh * h + c.vq * q;
     }
-    float x = q32_to_float(c.X), fs = 0.0f;
+    Q32 x = c.X;
+    int32_t fs = 0;
     if (c.sine) {
-        x += h;
-        if (ff) fs = c.fh * h + c.fq * q;
+        q32_add(&x, to_q32(h));
+        if (ff) fs = static_cast<int32_t>((c.fh * h + c.fq * q) * 65536.0f);   // |.| < 2^15
         const float h1 = h - c.eps * q;           // Minsky: advance by w Ts
         c.q = q + c.eps * h1;
         c.h = h1;
@@ -751,16 +752,11 @@ bool PlanStepper::next_fast(float* position, float* velocity, float* ff) {
     *position = x;
     q32_add(&c.X, c.X1);
     if (ff) {
-        // the Q16.16 window (|ff| < 2^15 ticks, saturated), one conversion, 2^-16 by the exponent
+        // the Q16.16 window (|ff| < 2^15 ticks, saturated)
         const int32_t fhi = c.F.hi;
         const int32_t fw = fhi >= 32768L ? 0x7FFFFFFFL : (fhi < -32768L ? -0x7FFFFFFFL
                            : static_cast<int32_t>((static_cast<uint32_t>(fhi) << 16) | (c.F.lo >> 16)));
-        float f = static_cast<float>(fw);
-        uint32_t fb;
-        memcpy(&fb, &f, 4);
-        if (fb & 0x7F800000UL) fb -= 16UL << 23;
-        memcpy(&f, &fb, 4);
-        *ff = c.sine ? f + fs : f;
+        *ff = fw + fs;
         q32_add(&c.F, c.F1);
         q32_add(&c.F1, c.F2);
     }
@@ -769,6 +765,15 @@ bool PlanStepper::next_fast(float* position, float* velocity, float* ff) {
     ++n_;
     ++k_;
     return seg_ + 1 < p_->nseg;
+}
+
+bool PlanStepper::next_fast(float* position, float* velocity, float* ff) {
+    Q32 x;
+    int32_t f;
+    const bool moving = next_q(&x, ff ? &f : nullptr, velocity);
+    *position = q32_to_float(x);
+    if (ff) *ff = static_cast<float>(f) * (1.0f / 65536.0f);
+    return moving;
 }
 
 bool PlanStepper::next(Sample* s) {

@@ -168,6 +168,10 @@ public:
     /// from the Q32.32 differences (the position's 32-bit window, the feedforward's Q16.16, each
     /// converted once), the pulse terms from the float pair. Returns false once the move is over.
     bool next_fast(float* position, float* velocity, float* ff);
+    /// next_fast() in fixed point (the control step's form): position x sx in Q32.32 (the
+    /// polynomial part plus a sine pulse's), the feedforward in Q16.16 PWM ticks (saturated to
+    /// +-(2^31 - 1); ff nullptr: not computed), the velocity (x sv) as next_fast().
+    bool next_q(Q32* position, int32_t* ff, float* velocity);
     /// The sample at t = k Ts, then k++, for the golden vectors: position and velocity (x sx,
     /// x sv) from next_fast(), jerk and acceleration from the closed form sample() at t = k Ts.
     bool next(Sample* s);
