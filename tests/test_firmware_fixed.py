@@ -70,25 +70,43 @@ def test_mul_q_is_the_floor_of_the_shifted_product_saturated(host_driver):
         assert int(r) == _sat((a * m) >> (8 * s)), (a, m, s)      # >> floors in Python
 
 
+def _round_away(x):
+    """round half away from 0 of an exact Fraction."""
+    from fractions import Fraction
+
+    f = math.floor(abs(Fraction(x)) + Fraction(1, 2))
+    return f if x >= 0 else -f
+
+
 def test_gain_quantisation_bound(host_driver):
-    """to_qgain: the largest byte shift with |mant| < 2^31; float32 gains >= 2^-9 exact, smaller
-    ones within 2^-33 (half a unit of 2^-32); |g| >= 2^31, inf and NaN refused."""
+    """to_qgain: a 24-bit signed mantissa and a byte shift, the largest shift <= 4 with
+    |round(g 2^(8 shift))| < 2^23 (rounded half away from 0, exact against Python's fractions);
+    so |mant| >= 2^15 (16 significant bits) and |error| <= 2^-16 |g| from |g| >= 2^-17, and
+    <= 2^-33 below; |g| >= 2^23 (also after rounding), inf and NaN refused."""
+    from fractions import Fraction
+
     rng = np.random.default_rng(4)
-    gains = [0.0, 1.0, -1.0, 0.5, 0.4999999, 2.0**-9, 3e-3, -7e-6, 1e-12, 123.456, -2.0**30,
-             2.0**31 * (1 - 2**-24), 1e-40]
-    gains += list(np.float32(10.0 ** rng.uniform(-12, 9, 400) * rng.choice([-1, 1], 400)))
-    refused = [2.0**31, -2.0**31, math.inf, -math.inf, math.nan]
+    gains = [0.0, 1.0, -1.0, 0.5, 0.4999999, 2.0**-9, 3e-3, -7e-6, 1e-12, 123.456, -2.0**22,
+             2.0**23 - 1.0, -(2.0**23 - 1.0), 255.99998, 65535.996, 2.0**-17, 1e-40,
+             float(np.nextafter(np.float32(32768.0), np.float32(0)))]
+    gains += list(np.float32(10.0 ** rng.uniform(-12, 6.9, 400) * rng.choice([-1, 1], 400)))
+    # mantissas of all ones: rounding up to 2^23 takes one byte less
+    gains += [float(np.float32((2**24 - 1) * 2.0**k)) for k in range(-60, -1)]
+    refused = [2.0**23, -2.0**23, 8388607.5, -8388607.5, 2.0**31, math.inf, -math.inf, math.nan]
     got = _run(host_driver, [f"g {_bits(float(g))}" for g in gains + refused])
     for g, (ok, mant, s) in zip(gains, got):
         g = float(np.float32(g))
         ok, mant, s = int(ok), int(mant), int(s)
-        assert ok == 1 and 0 <= s <= 4 and abs(mant) < 2**31, g
-        assert s == 4 or abs(g) * 2.0 ** (8 * (s + 1)) >= 2**31, (g, s)     # the largest shift
-        err = abs(mant * 2.0 ** (-8 * s) - g)
-        if abs(g) >= 2**-9:
-            assert err == 0.0, g
+        want_s = next((k for k in range(4, -1, -1) if abs(_round_away(Fraction(g) * 256**k)) < 2**23), None)
+        assert want_s is not None
+        assert ok == 1 and s == want_s and mant == _round_away(Fraction(g) * 256**s), (g, mant, s)
+        assert abs(mant) < 2**23
+        err = abs(Fraction(mant, 256**s) - Fraction(g))
+        assert err <= Fraction(1, 2 * 256**s)
+        if abs(g) >= 2.0**-17:
+            assert abs(mant) >= 2**15 and err <= Fraction(abs(g)) / 2**16, g
         else:
-            assert err <= 2.0**-33, g
+            assert err <= Fraction(1, 2**33), g
     assert all(int(r[0]) == 0 for r in got[len(gains):])
 
 
@@ -149,8 +167,22 @@ int main() {
         int64_t w = p >> (8 * s);
         if (w > INT32_MAX) w = INT32_MAX;
         if (w < INT32_MIN) w = INT32_MIN;
+        // the narrow product (jl_mac) with b's low 24 bits as a signed mantissa, and its
+        // multiply-accumulate onto a (saturated)
+        const int32_t m = (int32_t)((uint32_t)b << 8) >> 8;
+        const jl::QGain g = {m, s};
+        const int32_t n = jl::mul_g_(a, m, s);
+        const int32_t c = jl::mac_g(a, b, g);
+        int64_t v = ((int64_t)a * (int64_t)m) >> (8 * s);
+        if (v > INT32_MAX) v = INT32_MAX;
+        if (v < INT32_MIN) v = INT32_MIN;
+        int64_t t = (int64_t)a + (((int64_t)b * (int64_t)m) >> (8 * s) > INT32_MAX ? INT32_MAX :
+                     (((int64_t)b * (int64_t)m) >> (8 * s) < INT32_MIN ? INT32_MIN : ((int64_t)b * (int64_t)m) >> (8 * s)));
+        if (t > INT32_MAX) t = INT32_MAX;
+        if (t < INT32_MIN) t = INT32_MIN;
         if (lo != (uint32_t)p || hi != (int32_t)(p >> 32) || q != (int32_t)w) ++bad;
-        sum += lo ^ (uint32_t)hi ^ (uint32_t)q;
+        if (n != (int32_t)v || c != (int32_t)t) ++bad;
+        sum += lo ^ (uint32_t)hi ^ (uint32_t)q ^ (uint32_t)n ^ (uint32_t)c;
     }
     tx('<'); hex32(bad); tx(' '); hex32(sum); tx('>'); tx('\n');   // (simavr prints whole lines)
     _delay_ms(20);               // the simulated UART drains before the simulation ends
@@ -162,7 +194,9 @@ int main() {
 
 def test_avr_assembly_multiply_on_the_simulated_atmega328p(tmp_path):
     """The inline-assembly product (sixteen MULs, the signed correction) and mul_q's window and
-    saturation as compiled for the ATmega328P, run in simavr, against Python's integers."""
+    saturation, and the control step's narrow multiply-accumulate (jl_mac: twelve MULs, the
+    24-bit mantissa's signed correction, the window, both saturations) as compiled for the
+    ATmega328P, run in simavr, against avr-gcc's int64 arithmetic and Python's integers."""
     require_tool("avr-g++", "simavr")
     from jerklab.rig.simavr.build import firmware_dir
 
@@ -195,7 +229,10 @@ def test_avr_assembly_multiply_on_the_simulated_atmega328p(tmp_path):
     for a, b, s in cases:
         p = a * b
         lo, hi, q = p & 0xFFFFFFFF, (p >> 32) & 0xFFFFFFFF, _sat(p >> (8 * s)) & 0xFFFFFFFF
-        want = (want + (lo ^ hi ^ q)) & 0xFFFFFFFF
+        m = ((b & 0xFFFFFF) ^ 0x800000) - 0x800000                  # b's low 24 bits, signed
+        n = _sat((a * m) >> (8 * s)) & 0xFFFFFFFF
+        c = _sat(a + _sat((b * m) >> (8 * s))) & 0xFFFFFFFF
+        want = (want + (lo ^ hi ^ q ^ n ^ c)) & 0xFFFFFFFF
     assert bad == 0 and checksum == want, (bad, hex(checksum), hex(want))
 
 

@@ -20,10 +20,6 @@ bool Pid::set(float kpd, float kid, float kdd, float gamma, float limit) {
     kid_ = kid;
     kdd_ = kdd;
     limit_ = limit;
-    memcpy(&limit_bits_, &limit, 4);
-    kpk_ = kpd + kdd;
-    kdg_ = kdd * (gamma - 1.0f);
-    filtered_ = gamma != 0.0f;
     return true;
 }
 
@@ -61,43 +57,6 @@ float Pid::step(float e, float ff, ControlParts* parts) {
 
 namespace jl {
 
-float Pid::step_fast(float e, float ff, bool* saturated) {
-    float i = i_ + kid_ * e;                        // eq. 17
-    float pd;                                       // p + d
-    if (!filtered_) {
-        // gamma = 0: p + d = (kpd + kdd) e - kdd e(k-1), one addition fewer (d(k-1) unused)
-        pd = kpk_ * e - kdd_ * e_prev_;
-    } else {
-        // p + d = (kpd + kdd) e + w, w = d - kdd e advanced by w = gamma w(k-1) + kdd (gamma - 1) e(k-1)
-        const float w = gamma_ * w_ + kdg_ * e_prev_;
-        w_ = w;
-        pd = kpk_ * e + w;
-    }
-    e_prev_ = e;
-    float u = ff + i + pd;                          // eq. 18 + feedforward (eq. 16)
-    uint32_t ub;
-    memcpy(&ub, &u, 4);
-    // |u| > limit (or NaN): for floats the magnitude bits order like the values.
-    const uint32_t mag = ub & 0x7FFFFFFFUL;
-    if (mag > limit_bits_ && mag <= 0x7F800000UL) {
-        *saturated = true;
-        const bool neg = (ub & 0x80000000UL) != 0;
-        uint32_t eb;
-        memcpy(&eb, &e, 4);
-        // e has the sign of u (and is not 0): freeze the integrator (conditional integration)
-        if ((eb & 0x7FFFFFFFUL) != 0 && ((eb & 0x80000000UL) != 0) == neg) {
-            u -= i - i_;
-            i = i_;
-        }
-        if (u > limit_) u = limit_;
-        else if (u < -limit_) u = -limit_;
-    } else {
-        *saturated = false;
-    }
-    i_ = i;
-    return u;
-}
-
 bool PidQ::set(float kpd, float kid, float kdd, float gamma, float limit) {
     if (!finite_f(limit) || !(limit > 0.0f) || !(limit < 32768.0f)) return false;
     if (!finite_f(gamma) || !(jl_fabsf(gamma) < 1.0f)) return false;
@@ -113,36 +72,34 @@ bool PidQ::set(float kpd, float kid, float kdd, float gamma, float limit) {
     return true;
 }
 
-int32_t __attribute__((noinline)) PidQ::step(int32_t e, int32_t ff, bool* saturated) {
-    const int32_t kEmax = 0x40000000L;
+// |u| > lim for 0 < lim < 2^31: one add and an unsigned compare
+static inline bool beyond(int32_t u, int32_t lim) {
+    return static_cast<uint32_t>(u) + static_cast<uint32_t>(lim) > 2u * static_cast<uint32_t>(lim);
+}
+
+int32_t __attribute__((noinline, noclone)) PidQ::step(int32_t e, int32_t ff, bool* saturated) {
+    const int32_t kEmax = 0x40000000L;                             // (e - e(k-1) cannot overflow)
     if (e > kEmax) e = kEmax;
     else if (e < -kEmax) e = -kEmax;
-    const int32_t i0 = i_;
-    const int32_t i = add_sat(i0, mul_q(e, kid_));          // eq. 17
-    int32_t d = mul_q(e - e_prev_, kdd_);
-    if (filtered_) {
-        d = add_sat(d, mul_q(d_prev_, gamma_));              // derivative filter
-        d_prev_ = d;
-    }
+    int32_t d = filtered_ ? mac_g(0, d_, gamma_) : 0;              // derivative filter
+    d = mac_g(d, e - e_prev_, kdd_);                               // eq. 17
+    d_ = d;
     e_prev_ = e;
-    const int32_t pd = add_sat(mul_q(e, kpd_), d);
-    const int32_t fpd = add_sat(ff, pd);
-    int32_t u = add_sat(fpd, i);                             // eq. 18 + feedforward (eq. 16)
+    const int32_t fpd = mac_g(add_sat(ff, d), e, kpd_);            // ff + p + d
+    const int32_t i0 = i_;
+    int32_t i = mac_g(i0, e, kid_);
+    int32_t u = add_sat(fpd, i);                                   // eq. 18 + feedforward (eq. 16)
     const int32_t lim = limit_;
-    if (u > lim || u < -lim) {
-        *saturated = true;
-        if (e != 0 && (e > 0) == (u > 0)) {                  // freeze the integrator
+    const bool sat = beyond(u, lim);
+    if (sat) {
+        if (e != 0 && (e ^ u) >= 0) {                              // freeze the integrator
             u = add_sat(fpd, i0);
-            i_ = i0;
-        } else {
-            i_ = i;
+            i = i0;
         }
-        if (u > lim) u = lim;
-        else if (u < -lim) u = -lim;
-    } else {
-        *saturated = false;
-        i_ = i;
+        if (beyond(u, lim)) u = u < 0 ? -lim : lim;
     }
+    i_ = i;
+    *saturated = sat;
     return u;
 }
 
