@@ -396,7 +396,6 @@ bool Device::control() {
         ahead_ = false;                 // (sampled by reference() after the previous step, or RUN)
         const Q32 ref = refq_;
         if (k_ >= plan_samples_ + shaper_.max_delay()) flags |= kTelemetrySettling;
-        rep_ref_.q = ref;
         // e = ref - c exactly (floored to 2^-16 count): the integer part's difference and the
         // fraction's top 16 bits, saturated beyond +-2^15 counts
         const int32_t pos_error = counts_q16(sub_sat(ref.hi, c), ref.lo);
@@ -445,11 +444,10 @@ bool Device::control() {
     } else if (seq_on_) {
         const uint8_t b = prbs_.next();   // SEQUENCE: the PRBS level, its volts as the reference
         pwm = seq_pwm_[b];
-        rep_ref_.f = seq_volts_[b];       // volts, sent as they are (report)
+        rep_ref_ = seq_volts_[b];         // volts, sent as they are (report)
     } else {
         pwm = step_pwm_;
-        rep_ref_.q.lo = 0;
-        rep_ref_.q.hi = 0;
+        rep_ref_ = 0.0f;
     }
     hal_.set_pwm(pwm);
     // k % decimation == 0, counted down (a 32-bit modulo costs ~600 cycles on the AVR)
@@ -581,6 +579,9 @@ bool Device::retarget_work() {
 void Device::reference() {
     if (state_ != kRunning || ahead_) return;
     JL_PART_BEGIN(8);
+    // the reference control() used, as a float in counts for the telemetry (the one Q32.32 ->
+    // float of a sample), before the next sample replaces it
+    rep_ref_ = q32_to_float(refq_);
     sample_ahead();
     JL_PART_END(8);
 }
@@ -599,8 +600,7 @@ void Device::report() {
         have_sample_ = false;
         uint8_t p[kLenTelemetry];
         put_u32(p, rep_index_);
-        // counts -> rad (SEQUENCE: V)
-        put_f32(p + 4, seq_on_ ? rep_ref_.f : q32_to_float(rep_ref_.q) * rad_per_count_);
+        put_f32(p + 4, seq_on_ ? rep_ref_ : rep_ref_ * rad_per_count_);   // counts -> rad (SEQUENCE: V)
         put_i32(p + 8, rep_counts_);
         put_u16(p + 12, static_cast<uint16_t>(rep_pwm_));
         p[14] = rep_flags_;
