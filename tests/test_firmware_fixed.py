@@ -214,7 +214,8 @@ def test_avr_assembly_multiply_on_the_simulated_atmega328p(tmp_path):
     (tmp_path / "t.cpp").write_text(_AVR_MAIN.replace("VECTORS", body))
     elf = tmp_path / "t.elf"
     subprocess.run(["avr-g++", "-mmcu=atmega328p", "-DF_CPU=16000000L", "-Os", "-std=gnu++11",
-                    f"-I{src}", str(tmp_path / "t.cpp"), str(src / "jl_fixed.cpp"), "-o", str(elf)],
+                    f"-I{src}", str(tmp_path / "t.cpp"), str(src / "jl_fixed.cpp"), str(src / "jl_control.cpp"),
+                    "-o", str(elf)],
                    check=True, capture_output=True, timeout=120)
     run = subprocess.run(["simavr", "-m", "atmega328p", "-f", "16000000", str(elf)],
                          capture_output=True, text=True, timeout=120)

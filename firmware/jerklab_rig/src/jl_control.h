@@ -47,6 +47,11 @@ private:
     float i_ = 0.0f, e_prev_ = 0.0f, d_prev_ = 0.0f;
 };
 
+class PidQ;
+#if defined(__AVR__)
+extern "C" int32_t jl_pidq_step(PidQ* self, int32_t e, int32_t ff, bool* saturated);
+#endif
+
 /// The same law in fixed point: the control loop's PID (docs/THEORY.md "The fixed-point PID").
 /// The error e and the feedforward in Q16.16 (encoder counts and PWM ticks x 2^16), u in Q16.16
 /// of the feedforward's unit; the gains quantised by to_qgain (24-bit mantissas). p = kpd e,
@@ -63,8 +68,13 @@ public:
     /// 0 < limit < 2^15 (the limit in the output's unit).
     bool set(float kpd, float kid, float kdd, float gamma, float limit);
     void reset() { i_ = 0; e_prev_ = 0; d_ = 0; }
-    /// One sample: e and ff in Q16.16; returns u in Q16.16 and the saturation flag.
+    /// One sample: e and ff in Q16.16; returns u in Q16.16 and the saturation flag. (On the AVR
+    /// the assembly routine jl_pidq_step, jl_control.cpp.)
+#if defined(__AVR__)
+    int32_t step(int32_t e, int32_t ff, bool* saturated) { return jl_pidq_step(this, e, ff, saturated); }
+#else
     int32_t step(int32_t e, int32_t ff, bool* saturated);
+#endif
     int32_t limit() const { return limit_; }
 
 private:

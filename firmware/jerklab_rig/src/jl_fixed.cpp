@@ -88,67 +88,6 @@ int32_t mul_q_(int32_t a, int32_t mant, uint8_t shift) {
 #endif
 }
 
-#if defined(__AVR__)
-// jl_mac(acc: r22..r25, a: r18..r21, g: r16:r17) -> r22..r25 = add_sat(acc, mul_g(a, *g)), the
-// avr-gcc calling convention (r16, r17 only read; r14, r15 saved). acc and the shift wait on
-// the stack; the mantissa m0..m2 in r22..r24, the product p0..p6 in r14, r15, r25, r26, r27,
-// r30, r31. Column k = i + j of a_i m_j: each 16-bit partial product is added at k with its
-// carry into k + 2, which cannot carry further (the columns <= k sum to < 256^(k+3)); r1 is
-// cleared before that carry (clr keeps C), so no zero register is needed. The unsigned product
-// of the two's complement patterns is corrected to the signed one mod 2^56: - m 2^32 if a < 0,
-// - a 2^24 if m < 0. Then the product's sign byte z (r1) as byte 7, `shift` one-byte moves
-// down (counted in r0), the window r14 r15 r25 r26, saturated unless the bytes above it
-// (r27 r30 r31 z) are its sign; then acc + window, saturated on overflow.
-asm(".section .text.jl_mac,\"ax\",@progbits\n"
-    ".global jl_mac\n"
-    ".type jl_mac, @function\n"
-    "jl_mac:\n"
-    "push r14\n" "push r15\n"
-    "push r22\n" "push r23\n" "push r24\n" "push r25\n"
-    "movw r30, r16\n"
-    "ld r22, Z\n" "ldd r23, Z+1\n" "ldd r24, Z+2\n" "ldd r25, Z+4\n" "push r25\n"
-    "mul r18, r22\n" "movw r14, r0\n"
-    "clr r25\n" "clr r26\n" "clr r27\n" "clr r30\n" "clr r31\n"
-    "mul r18, r23\n" "add r15, r0\n" "adc r25, r1\n" "clr r1\n" "adc r26, r1\n"
-    "mul r19, r22\n" "add r15, r0\n" "adc r25, r1\n" "clr r1\n" "adc r26, r1\n"
-    "mul r18, r24\n" "add r25, r0\n" "adc r26, r1\n" "clr r1\n" "adc r27, r1\n"
-    "mul r19, r23\n" "add r25, r0\n" "adc r26, r1\n" "clr r1\n" "adc r27, r1\n"
-    "mul r20, r22\n" "add r25, r0\n" "adc r26, r1\n" "clr r1\n" "adc r27, r1\n"
-    "mul r19, r24\n" "add r26, r0\n" "adc r27, r1\n" "clr r1\n" "adc r30, r1\n"
-    "mul r20, r23\n" "add r26, r0\n" "adc r27, r1\n" "clr r1\n" "adc r30, r1\n"
-    "mul r21, r22\n" "add r26, r0\n" "adc r27, r1\n" "clr r1\n" "adc r30, r1\n"
-    "mul r20, r24\n" "add r27, r0\n" "adc r30, r1\n" "clr r1\n" "adc r31, r1\n"
-    "mul r21, r23\n" "add r27, r0\n" "adc r30, r1\n" "clr r1\n" "adc r31, r1\n"
-    "mul r21, r24\n" "add r30, r0\n" "adc r31, r1\n"
-    "sbrs r21, 7\n" "rjmp 1f\n"
-    "sub r27, r22\n" "sbc r30, r23\n" "sbc r31, r24\n"
-    "1:\n"
-    "sbrs r24, 7\n" "rjmp 2f\n"
-    "sub r26, r18\n" "sbc r27, r19\n" "sbc r30, r20\n" "sbc r31, r21\n"
-    "2:\n"
-    "mov r1, r31\n" "lsl r1\n" "sbc r1, r1\n"
-    "pop r0\n" "tst r0\n" "breq 4f\n"
-    "3:\n"
-    "mov r14, r15\n" "mov r15, r25\n" "mov r25, r26\n" "mov r26, r27\n" "mov r27, r30\n"
-    "mov r30, r31\n" "mov r31, r1\n" "dec r0\n" "brne 3b\n"
-    "4:\n"
-    "mov r0, r26\n" "lsl r0\n" "sbc r0, r0\n"
-    "cp r27, r0\n" "cpc r30, r0\n" "cpc r31, r0\n" "cpc r1, r0\n" "breq 5f\n"
-    "mov r14, r1\n" "com r14\n" "mov r15, r14\n" "mov r25, r14\n" "mov r26, r14\n"
-    "bst r1, 7\n" "bld r26, 7\n"
-    "5:\n"
-    "pop r21\n" "pop r20\n" "pop r19\n" "pop r18\n"
-    "movw r22, r14\n" "mov r24, r25\n" "mov r25, r26\n"
-    "add r22, r18\n" "adc r23, r19\n" "adc r24, r20\n" "adc r25, r21\n"
-    "brvc 6f\n"
-    "mov r22, r25\n" "lsl r22\n" "sbc r22, r22\n" "mov r23, r22\n" "mov r24, r22\n" "mov r25, r22\n"
-    "subi r25, 0x80\n"
-    "6:\n"
-    "clr r1\n" "pop r15\n" "pop r14\n" "ret\n"
-    ".size jl_mac, .-jl_mac\n"
-    ".text\n");
-#endif
-
 int32_t mul_g_(int32_t a, int32_t mant, uint8_t shift) {
 #if defined(__AVR__)
     const QGain g = {mant, shift};

@@ -45,10 +45,10 @@ static inline int32_t mul_q(int32_t a, const QGain& g) { return mul_q_(a, g.mant
 int32_t mul_g_(int32_t a, int32_t mant, uint8_t shift);
 static inline int32_t mul_g(int32_t a, const QGain& g) { return mul_g_(a, g.mant, g.shift); }
 
-/// add_sat(acc, mul_g(a, g)): the multiply-accumulate of the control step. On the AVR one
-/// hand-written assembly routine (jl_mac, jl_fixed.cpp): the 24-bit mantissa times the 32-bit
-/// operand as twelve 8 x 8 MULs into 7 bytes, the signed correction, the window by `shift` byte
-/// moves, its saturation, then the saturating add (~150 cycles with the call, ~240 bytes).
+/// add_sat(acc, mul_g(a, g)): the multiply-accumulate of the control step. On the AVR the
+/// assembly routine of PidQ::step (jl_control.cpp: the 24-bit mantissa times the 32-bit operand
+/// as twelve 8 x 8 MULs into 7 bytes, the signed correction, the window by `shift` byte moves,
+/// its saturation, then the saturating add), through a C-callable entry for the tests.
 #if defined(__AVR__)
 extern "C" int32_t jl_mac(int32_t acc, int32_t a, const QGain* g);
 static inline int32_t mac_g(int32_t acc, int32_t a, const QGain& g) { return jl_mac(acc, a, &g); }
