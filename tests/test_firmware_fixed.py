@@ -255,3 +255,142 @@ def test_pwm_rounding_is_lround_clamped(host_driver):
         want = min(want, top) * (-1 if math.copysign(1.0, x) < 0 else 1)
         assert int(r) == want, (x, top)
     assert int(got[-1][0]) == 1023
+
+
+def _qgain_model(g):
+    """to_qgain in Python: (mant, shift) of the float32 g (the rule test_gain_quantisation_bound
+    checks the host's against)."""
+    from fractions import Fraction
+
+    g = float(np.float32(g))
+    s = next(k for k in range(4, -1, -1) if abs(_round_away(Fraction(g) * 256**k)) < 2**23)
+    return _round_away(Fraction(g) * 256**s), s
+
+
+class _PidQModel:
+    """jl::PidQ's integer law (jl_control.h) on Python integers: products floored and saturated,
+    sums saturated, conditional integration, the clamp."""
+
+    def __init__(self, kpd, kid, kdd, gamma, limit):
+        self.g = [_qgain_model(x) for x in (kpd, kid, kdd, gamma)]
+        self.lim = _round_away(__import__("fractions").Fraction(float(np.float32(limit))) * 65536)
+        self.i = self.e_prev = self.d = 0
+
+    @staticmethod
+    def _mac(acc, a, g):
+        m, s = g
+        return _sat(acc + _sat((a * m) >> (8 * s)))
+
+    def step(self, e, ff):
+        kpd, kid, kdd, gamma = self.g
+        e = max(-2**30, min(2**30 - 1, e))
+        d = self._mac(0, self.d, gamma) if gamma[0] != 0 else 0
+        d = self._mac(d, e - self.e_prev, kdd)
+        self.d, self.e_prev = d, e
+        fpd = self._mac(_sat(ff + d), e, kpd)
+        i0 = self.i
+        i = self._mac(i0, e, kid)
+        u = _sat(fpd + i)
+        sat = abs(u) > self.lim
+        if sat:
+            if e != 0 and (e < 0) == (u < 0):
+                u, i = _sat(fpd + i0), i0
+            u = max(-self.lim, min(self.lim, u))
+        self.i = i
+        return u, sat
+
+
+_AVR_PID_MAIN = r"""
+#include <avr/io.h>
+#include <avr/pgmspace.h>
+#include <avr/sleep.h>
+#include <avr/interrupt.h>
+#include <util/delay.h>
+#include "jl_control.h"
+static const float kG[][5] PROGMEM = {GAINS};
+static const int32_t kV[][2] PROGMEM = {VECTORS};
+static void tx(uint8_t c) { while (!(UCSR0A & _BV(UDRE0))) {} UDR0 = c; }
+static void hex32(uint32_t v) {
+    for (int8_t i = 28; i >= 0; i -= 4) { uint8_t d = (v >> i) & 15; tx(d < 10 ? '0' + d : 'a' + d - 10); }
+}
+static jl::PidQ pid;
+int main() {
+    UBRR0 = 0;
+    UCSR0B = _BV(TXEN0);
+    for (uint8_t g = 0; g < sizeof(kG) / sizeof(kG[0]); ++g) {
+        float p[5];
+        memcpy_P(p, kG[g], sizeof(p));
+        const bool ok = pid.set(p[0], p[1], p[2], p[3], p[4]);
+        pid.reset();
+        uint32_t sum = 0, nsat = 0;
+        for (uint16_t k = 0; k < sizeof(kV) / sizeof(kV[0]); ++k) {
+            bool sat;
+            const int32_t u = pid.step((int32_t)pgm_read_dword(&kV[k][0]), (int32_t)pgm_read_dword(&kV[k][1]), &sat);
+            sum = (sum * 31u) ^ (uint32_t)u;
+            nsat += sat;
+        }
+        tx('<'); hex32(ok); tx(' '); hex32(sum); tx(' '); hex32(nsat); tx('>'); tx('\n');
+    }
+    _delay_ms(20);
+    cli();
+    sleep_cpu();
+}
+"""
+
+
+def _c_i32(v):
+    return "(-2147483647L-1)" if v == I32_MIN else f"{v}L"
+
+
+def test_assembly_pid_matches_the_integer_law_on_the_simulated_atmega328p(tmp_path):
+    """PidQ::step as the Uno runs it (jl_pidq_step, hand-written assembly) against the integer
+    law in Python, sample by sample (a running checksum of u and the count of saturated
+    samples): with and without the derivative filter, negative gains, errors beyond 2^30 (the
+    clamp), the output clamp with and without the integrator frozen, e = 0."""
+    require_tool("avr-g++", "simavr")
+    import re
+
+    from jerklab.rig.simavr.build import firmware_dir
+
+    src = firmware_dir() / "jerklab_rig" / "src"
+    gains = [(374.6, 0.05, 310.0, 0.0, 1023.0), (12.0, 1.2e-3, 60.0, 0.6, 1023.0),
+             (-3.5, -0.02, 7.25, -0.3, 255.0), (1.0e4, 2.0e-6, 4.0e5, 0.95, 1023.0),
+             (0.75, 0.0, 0.0, 0.0, 100.0)]
+    rng = random.Random(11)
+    vecs = []
+    for k in range(300):
+        r = rng.random()
+        if r < 0.5:
+            e = rng.randint(-40 * 65536, 40 * 65536)
+        elif r < 0.7:
+            e = rng.randint(-2**16, 2**16)
+        elif r < 0.8:
+            e = 0
+        elif r < 0.9:
+            e = rng.choice([I32_MIN, I32_MAX, -I32_MAX, 2**30 + 1, -2**30 - 1, 2**30, -2**30])
+        else:
+            e = rng.randint(-2**31, 2**31 - 1)
+        ff = rng.randint(-600 * 65536, 600 * 65536) if rng.random() < 0.7 else 0
+        vecs.append((e, ff))
+    body_g = ",".join("{" + ",".join(f"{float(np.float32(x))!r}f" for x in g) + "}" for g in gains)
+    body_v = ",".join(f"{{{_c_i32(e)},{_c_i32(f)}}}" for e, f in vecs)
+    (tmp_path / "t.cpp").write_text(_AVR_PID_MAIN.replace("GAINS", body_g).replace("VECTORS", body_v))
+    elf = tmp_path / "t.elf"
+    subprocess.run(["avr-g++", "-mmcu=atmega328p", "-DF_CPU=16000000L", "-Os", "-std=gnu++11",
+                    f"-I{src}", str(tmp_path / "t.cpp"), str(src / "jl_fixed.cpp"), str(src / "jl_control.cpp"),
+                    "-o", str(elf)], check=True, capture_output=True, timeout=120)
+    run = subprocess.run(["simavr", "-m", "atmega328p", "-f", "16000000", str(elf)],
+                         capture_output=True, text=True, timeout=120)
+    text = re.sub(r"\x1b\[[0-9;]*m|[\r\n]", "", run.stderr + run.stdout)
+    got = re.findall(r"<([0-9a-f]{8}) ([0-9a-f]{8}) ([0-9a-f]{8})>", text)
+    assert len(got) == len(gains), (run.stdout[-500:], run.stderr[-500:])
+    for g, (ok, checksum, nsat) in zip(gains, got):
+        model = _PidQModel(*g)
+        s, n = 0, 0
+        for e, ff in vecs:
+            u, sat = model.step(e, ff)
+            s = ((s * 31) ^ (u & 0xFFFFFFFF)) & 0xFFFFFFFF
+            n += sat
+        assert int(ok, 16) == 1, g
+        assert (int(checksum, 16), int(nsat, 16)) == (s, n), (g, checksum, hex(s), nsat, n)
+        assert 0 < n < len(vecs), g          # both branches ran

@@ -97,8 +97,9 @@ bool PidQ::set(float kpd, float kid, float kdd, float gamma, float limit) {
 // sum to < 4 255^2 256^k 256/255 < 256^(k+3)); r1 is cleared before that carry (clr keeps C),
 // so no zero register is needed. The unsigned product of the two's complement patterns is
 // corrected to the signed one mod 2^56: - m 2^32 if a < 0, - a 2^24 if m < 0. Then the
-// product's sign byte z (r1) as byte 7, `shift` one-byte moves down, the window r10 r11 r12 r26
-// saturated unless the bytes above it (r27 r30 r31 z) are its sign. jl_add_acc: ACC += r18..r21,
+// product's sign byte z (r1) as byte 7, the bytes moved down by `shift` (its bits 1, 0, 2: two,
+// one, four bytes, z shifted in), the window r10 r11 r12 r26 saturated unless the bytes above
+// it (r27 r30 r31 z) are its sign. jl_add_acc: ACC += r18..r21,
 // saturated on overflow (the sum's sign bit is then the opposite of the true sum's).
 asm(".section .text.jl_pidq,\"ax\",@progbits\n"
     ".global jl_pidq_step\n"
@@ -108,9 +109,12 @@ asm(".section .text.jl_pidq,\"ax\",@progbits\n"
     "push r9\n" "push r10\n" "push r11\n" "push r12\n" "push r13\n" "push r28\n" "push r29\n"
     "push r16\n" "push r17\n" "push r18\n" "push r19\n"          // ff
     "movw r28, r24\n"
-    // |e| <= 2^30 (e - e(k-1) cannot overflow): bits 31 and 30 differ -> +-2^30
+    // e clamped to [-2^30, 2^30 - 1] (bits 31 and 30 equal: e - e(k-1) cannot overflow)
     "mov r0, r23\n" "lsl r0\n" "eor r0, r23\n" "sbrs r0, 7\n" "rjmp 1f\n"
-    "clr r20\n" "clr r21\n" "clr r22\n" "andi r23, 0x80\n" "ori r23, 0x40\n"
+    "sbrc r23, 7\n" "rjmp 0f\n"
+    "ldi r20, 0xFF\n" "ldi r21, 0xFF\n" "ldi r22, 0xFF\n" "ldi r23, 0x3F\n" "rjmp 1f\n"
+    "0:\n"
+    "clr r20\n" "clr r21\n" "clr r22\n" "ldi r23, 0xC0\n"
     "1:\n"
     "movw r2, r20\n" "movw r4, r22\n"
     "clr r6\n" "clr r7\n" "movw r8, r6\n"
@@ -184,10 +188,17 @@ asm(".section .text.jl_pidq,\"ax\",@progbits\n"
     "sub r26, r18\n" "sbc r27, r19\n" "sbc r30, r20\n" "sbc r31, r21\n"
     "2:\n"
     "mov r1, r31\n" "lsl r1\n" "sbc r1, r1\n"
-    "tst r25\n" "breq 4f\n"
+    "sbrs r25, 1\n" "rjmp 3f\n"                                 // shift & 2: two bytes
+    "mov r10, r12\n" "mov r11, r26\n" "mov r12, r27\n" "mov r26, r30\n" "mov r27, r31\n"
+    "mov r30, r1\n" "mov r31, r1\n"
     "3:\n"
+    "sbrs r25, 0\n" "rjmp 4f\n"                                 // shift & 1: one byte
     "mov r10, r11\n" "mov r11, r12\n" "mov r12, r26\n" "mov r26, r27\n" "mov r27, r30\n"
-    "mov r30, r31\n" "mov r31, r1\n" "dec r25\n" "brne 3b\n"
+    "mov r30, r31\n" "mov r31, r1\n"
+    "4:\n"
+    "sbrs r25, 2\n" "rjmp 4f\n"                                 // shift & 4: four bytes
+    "mov r10, r27\n" "mov r11, r30\n" "mov r12, r31\n" "mov r26, r1\n" "mov r27, r1\n"
+    "mov r30, r1\n" "mov r31, r1\n"
     "4:\n"
     "mov r0, r26\n" "lsl r0\n" "sbc r0, r0\n"
     "cp r27, r0\n" "cpc r30, r0\n" "cpc r31, r0\n" "cpc r1, r0\n" "breq 5f\n"
@@ -224,9 +235,8 @@ asm(".section .text.jl_mac,\"ax\",@progbits\n"
 static inline bool beyond(int32_t u, int32_t lim) { return u > lim || u < -lim; }
 
 int32_t PidQ::step(int32_t e, int32_t ff, bool* saturated) {
-    const int32_t kEmax = 0x40000000L;                             // (e - e(k-1) cannot overflow)
-    if (e > kEmax) e = kEmax;
-    else if (e < -kEmax) e = -kEmax;
+    if (e > 0x3FFFFFFFL) e = 0x3FFFFFFFL;                          // (e - e(k-1) cannot overflow)
+    else if (e < -0x40000000L) e = -0x40000000L;
     int32_t d = filtered_ ? mac_g(0, d_, gamma_) : 0;              // derivative filter
     d = mac_g(d, e - e_prev_, kdd_);                               // eq. 17
     d_ = d;

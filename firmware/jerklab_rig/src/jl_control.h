@@ -59,7 +59,7 @@ extern "C" int32_t jl_pidq_step(PidQ* self, int32_t e, int32_t ff, bool* saturat
 /// sample without the derivative filter, four with it, each a multiply-accumulate mac_g
 /// (product floored, saturated, then added saturated at +-2^31 / 2^16). |u| > limit: saturated,
 /// and when e has the sign of u, u = ff + p + d + i and i' = i (conditional integration), then
-/// u clamped to +-limit. |e| is clamped to 2^30 (so that e - e(k-1) cannot overflow). Zero
+/// u clamped to +-limit. e is clamped to [-2^30, 2^30 - 1] (e - e(k-1) cannot overflow). Zero
 /// initial state. (Not step_fast's p + d = (kpd + kdd) e + w form: its two terms are each
 /// about kdd e, which leave the Q16.16 range long before their difference does.)
 class PidQ {
