@@ -579,9 +579,9 @@ bool Device::retarget_work() {
 void Device::reference() {
     if (state_ != kRunning || ahead_) return;
     JL_PART_BEGIN(8);
-    // the reference control() used, as a float in counts for the telemetry (the one Q32.32 ->
-    // float of a sample), before the next sample replaces it
-    rep_ref_ = q32_to_float(refq_);
+    // the reference control() used, as a float in counts for its telemetry (the one Q32.32 ->
+    // float of a sample, skipped when decimation sends none), before the next sample replaces it
+    if (have_sample_) rep_ref_ = q32_to_float(refq_);
     sample_ahead();
     JL_PART_END(8);
 }
