@@ -91,16 +91,17 @@ bool PidQ::set(float kpd, float kid, float kdd, float gamma, float limit) {
 // accumulator ACC in r6..r9; ff, then fpd = ff + p + d wait on the stack.
 //
 // jl_mac_core: ACC += floor(a * g) saturated, a in r18..r21, Z -> g; clobbers r0, r1 (left 0),
-// r10..r12, r18..r27, r30, r31. The mantissa m0..m2 in r22..r24, the shift in r25, the product
-// p0..p6 in r10, r11, r12, r26, r27, r30, r31. Column k = i + j of a_i m_j: each 16-bit partial
-// product is added at k with its carry into k + 2, which cannot carry further (the columns <= k
-// sum to < 4 255^2 256^k 256/255 < 256^(k+3)); r1 is cleared before that carry (clr keeps C),
-// so no zero register is needed. The unsigned product of the two's complement patterns is
-// corrected to the signed one mod 2^56: - m 2^32 if a < 0, - a 2^24 if m < 0. Then the
-// product's sign byte z (r1) as byte 7, the bytes moved down by `shift` (its bits 1, 0, 2: two,
-// one, four bytes, z shifted in), the window r10 r11 r12 r26 saturated unless the bytes above
-// it (r27 r30 r31 z) are its sign. jl_add_acc: ACC += r18..r21,
-// saturated on overflow (the sum's sign bit is then the opposite of the true sum's).
+// r10..r13, r18..r27, r30, r31 (r13 its zero register). The mantissa m0..m2 in r22..r24, the
+// shift in r25, the product p0..p6 in r10, r11, r12, r26, r27, r30, r31. Column k = i + j of
+// a_i m_j (a0..a2 first): each 16-bit partial product is added at k with its carry into k + 2,
+// which cannot carry further (the columns <= k sum to < 4 255^2 256^k 256/255 < 256^(k+3)).
+// When a fits in 24 bits (a3 is a2's sign: the usual error) a3's three products are skipped;
+// else they follow, carried through p6. The unsigned product of the two's complement patterns
+// is corrected to the signed one mod 2^56: - m 2^32 if a < 0 (- m 2^24 for a 24-bit a), - a 2^24
+// if m < 0. Then the product's sign byte z (r1) as byte 7, the bytes moved down by `shift` (its
+// bits 1, 0, 2: two, one, four bytes, z shifted in), the window r10 r11 r12 r26 saturated unless
+// the bytes above it (r27 r30 r31 z) are its sign. jl_add_acc: ACC += r18..r21, saturated on
+// overflow (the sum's sign bit is then the opposite of the true sum's).
 asm(".section .text.jl_pidq,\"ax\",@progbits\n"
     ".global jl_pidq_step\n"
     ".type jl_pidq_step, @function\n"
@@ -167,19 +168,27 @@ asm(".section .text.jl_pidq,\"ax\",@progbits\n"
     "ret\n"
     ".size jl_pidq_step, .-jl_pidq_step\n"
     "jl_mac_core:\n"
+    "clr r13\n"
     "ld r22, Z\n" "ldd r23, Z+1\n" "ldd r24, Z+2\n" "ldd r25, Z+4\n"
     "mul r18, r22\n" "movw r10, r0\n"
     "clr r12\n" "clr r26\n" "clr r27\n" "clr r30\n" "clr r31\n"
-    "mul r18, r23\n" "add r11, r0\n" "adc r12, r1\n" "clr r1\n" "adc r26, r1\n"
-    "mul r19, r22\n" "add r11, r0\n" "adc r12, r1\n" "clr r1\n" "adc r26, r1\n"
-    "mul r18, r24\n" "add r12, r0\n" "adc r26, r1\n" "clr r1\n" "adc r27, r1\n"
-    "mul r19, r23\n" "add r12, r0\n" "adc r26, r1\n" "clr r1\n" "adc r27, r1\n"
-    "mul r20, r22\n" "add r12, r0\n" "adc r26, r1\n" "clr r1\n" "adc r27, r1\n"
-    "mul r19, r24\n" "add r26, r0\n" "adc r27, r1\n" "clr r1\n" "adc r30, r1\n"
-    "mul r20, r23\n" "add r26, r0\n" "adc r27, r1\n" "clr r1\n" "adc r30, r1\n"
-    "mul r21, r22\n" "add r26, r0\n" "adc r27, r1\n" "clr r1\n" "adc r30, r1\n"
-    "mul r20, r24\n" "add r27, r0\n" "adc r30, r1\n" "clr r1\n" "adc r31, r1\n"
-    "mul r21, r23\n" "add r27, r0\n" "adc r30, r1\n" "clr r1\n" "adc r31, r1\n"
+    "mul r18, r23\n" "add r11, r0\n" "adc r12, r1\n" "adc r26, r13\n"
+    "mul r19, r22\n" "add r11, r0\n" "adc r12, r1\n" "adc r26, r13\n"
+    "mul r18, r24\n" "add r12, r0\n" "adc r26, r1\n" "adc r27, r13\n"
+    "mul r19, r23\n" "add r12, r0\n" "adc r26, r1\n" "adc r27, r13\n"
+    "mul r20, r22\n" "add r12, r0\n" "adc r26, r1\n" "adc r27, r13\n"
+    "mul r19, r24\n" "add r26, r0\n" "adc r27, r1\n" "adc r30, r13\n"
+    "mul r20, r23\n" "add r26, r0\n" "adc r27, r1\n" "adc r30, r13\n"
+    "mul r20, r24\n" "add r27, r0\n" "adc r30, r1\n" "adc r31, r13\n"
+    // a within 24 bits (a3 a2's sign, the usual error): a3's three products are 0 or, with
+    // a < 0, together with the correction below, - m 2^24
+    "mov r0, r20\n" "lsl r0\n" "sbc r0, r0\n" "cp r0, r21\n" "brne 7f\n"
+    "sbrs r21, 7\n" "rjmp 1f\n"
+    "sub r26, r22\n" "sbc r27, r23\n" "sbc r30, r24\n" "sbc r31, r13\n"
+    "rjmp 1f\n"
+    "7:\n"                                                       // a3's products, carried through
+    "mul r21, r22\n" "add r26, r0\n" "adc r27, r1\n" "adc r30, r13\n" "adc r31, r13\n"
+    "mul r21, r23\n" "add r27, r0\n" "adc r30, r1\n" "adc r31, r13\n"
     "mul r21, r24\n" "add r30, r0\n" "adc r31, r1\n"
     "sbrs r21, 7\n" "rjmp 1f\n"
     "sub r27, r22\n" "sbc r30, r23\n" "sbc r31, r24\n"
@@ -223,9 +232,11 @@ asm(".section .text.jl_mac,\"ax\",@progbits\n"
     ".type jl_mac, @function\n"
     "jl_mac:\n"
     "push r6\n" "push r7\n" "push r8\n" "push r9\n" "push r10\n" "push r11\n" "push r12\n"
+    "push r13\n"
     "movw r6, r22\n" "movw r8, r24\n" "movw r30, r16\n"
     "call jl_mac_core\n"
     "movw r22, r6\n" "movw r24, r8\n"
+    "pop r13\n"
     "pop r12\n" "pop r11\n" "pop r10\n" "pop r9\n" "pop r8\n" "pop r7\n" "pop r6\n"
     "ret\n"
     ".size jl_mac, .-jl_mac\n"
