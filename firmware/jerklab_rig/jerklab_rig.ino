@@ -62,17 +62,51 @@ static volatile uint8_t rx_head = 0, rx_tail = 0, tx_head = 0, tx_tail = 0;
 static volatile uint8_t rx_overflow = 0;
 static_assert(jl::kLenHelloReply + 7 <= kTxSize - 1, "the transmit ring must hold the largest frame sent");
 
-ISR(USART_RX_vect) {
-    const uint8_t status = UCSR0A;
-    const uint8_t c = UDR0;
-    if (status & _BV(FE0)) return;                     // framing error: drop the byte
-    const uint8_t h = (rx_head + 1) & (kRxSize - 1);
-    if (h != rx_tail) {
-        rx_buf[rx_head] = c;
-        rx_head = h;
-    } else {
-        rx_overflow = 1;                               // the parser will see a bad frame
-    }
+// Receive, in assembly (ISR_NAKED, like the encoder ISRs): ~52 cycles from the interrupt to the
+// end of reti against ~72 for avr-gcc's code of the same C (its prologue saves r0, r1, r18, r24,
+// r25, r30, r31 and clears r1): a HEARTBEAT's 7 bytes landing in a control step cost ~140 cycles
+// less. Only r24, r30, r31 and SREG are used. The status is read before the data (FE0 belongs to
+// the byte in UDR0); UDR0 is read on every path (that clears RXC0). A byte with a framing error is
+// dropped; a byte that finds the ring full (head + 1 == tail) is dropped and sets rx_overflow (the
+// parser then sees a bad frame). The free space is (tail - head - 1) mod kRxSize: 0 means full.
+// The byte is stored before the head moves (the main code reads bytes tail..head).
+static_assert(kRxSize == 64, "the receive ISR masks with 0x3F");
+ISR(USART_RX_vect, ISR_NAKED) {
+    __asm__ __volatile__(
+        "push r24"              "\n\t"
+        "in   r24, __SREG__"    "\n\t"
+        "push r24"              "\n\t"
+        "push r30"              "\n\t"
+        "push r31"              "\n\t"
+        "lds  r24, %[ucsra]"    "\n\t"
+        "sbrc r24, %[fe]"       "\n\t"
+        "rjmp 8f"               "\n\t"   /* framing error: drop */
+        "lds  r30, %[head]"     "\n\t"
+        "lds  r24, %[tail]"     "\n\t"
+        "sub  r24, r30"         "\n\t"
+        "dec  r24"              "\n\t"
+        "andi r24, 0x3F"        "\n\t"   /* free bytes */
+        "breq 7f"               "\n\t"
+        "lds  r24, %[udr]"      "\n\t"
+        "clr  r31"              "\n\t"
+        "subi r30, lo8(-(%[buf]))" "\n\t"
+        "sbci r31, hi8(-(%[buf]))" "\n\t"
+        "st   Z+, r24"          "\n\t"
+        "subi r30, lo8(%[buf])" "\n\t"   /* head + 1 */
+        "andi r30, 0x3F"        "\n\t"
+        "sts  %[head], r30"     "\n\t"
+        "9: pop r31"            "\n\t"
+        "pop  r30"              "\n\t"
+        "pop  r24"              "\n\t"
+        "out  __SREG__, r24"    "\n\t"
+        "pop  r24"              "\n\t"
+        "reti"                  "\n\t"
+        "7: ldi r24, 1"         "\n\t"   /* full: drop, flag the overflow */
+        "sts  %[ovf], r24"      "\n\t"
+        "8: lds r24, %[udr]"    "\n\t"
+        "rjmp 9b"               "\n\t"
+        :: [ucsra] "n"(_SFR_MEM_ADDR(UCSR0A)), [udr] "n"(_SFR_MEM_ADDR(UDR0)), [fe] "I"(FE0),
+           [head] "i"(&rx_head), [tail] "i"(&rx_tail), [buf] "i"(rx_buf), [ovf] "i"(&rx_overflow));
 }
 
 // Enabled only while the ring holds bytes (uart_tx_start sets UDRIE0 with interrupts off, after

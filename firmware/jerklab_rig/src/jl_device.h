@@ -177,7 +177,7 @@ private:
     bool have_sample_ JL_ZERO;
     bool finished_ JL_ZERO;
     uint32_t rep_index_ JL_ZERO;
-    float rep_ref_ JL_ZERO;   // a run: the reference in counts (reference() converts it); SEQUENCE: V
+    float rep_ref_ JL_ZERO;   // a run: the reference in rad (reference() converts it); SEQUENCE: V
     int32_t rep_counts_ JL_ZERO;
     int16_t rep_pwm_ JL_ZERO;
     uint8_t rep_flags_ JL_ZERO;
