@@ -444,20 +444,20 @@ bool Device::control() {
     } else if (seq_on_) {
         const uint8_t b = prbs_.next();   // SEQUENCE: the PRBS level, its volts as the reference
         pwm = seq_pwm_[b];
-        rep_ref_ = seq_volts_[b];         // volts, sent as they are (report)
+        rep_.ref = seq_volts_[b];         // volts, sent as they are (report)
     } else {
         pwm = step_pwm_;
-        rep_ref_ = 0.0f;
+        rep_.ref = 0.0f;
     }
     hal_.set_pwm(pwm);
     // k % decimation == 0, counted down (a 32-bit modulo costs ~600 cycles on the AVR)
     if (dec_left_ == 0) dec_left_ = decimation_;
     have_sample_ = finished_ || dec_left_ == decimation_;
     --dec_left_;
-    rep_index_ = k_;
-    rep_counts_ = c;
-    rep_pwm_ = pwm;
-    rep_flags_ = flags;
+    rep_.index = k_;
+    rep_.counts = c;
+    rep_.pwm = pwm;
+    rep_.flags = flags;
     ++k_;
     return true;
 }
@@ -610,7 +610,7 @@ void Device::reference() {
     JL_PART_BEGIN(8);
     // the reference control() used, in rad for its telemetry (the one Q32.32 -> float of a
     // sample, skipped when decimation sends none), before the next sample replaces it
-    if (have_sample_) rep_ref_ = q32_counts_to_rad(refq_, rad_per_count_);
+    if (have_sample_) rep_.ref = q32_counts_to_rad(refq_, rad_per_count_);
     sample_ahead();
     JL_PART_END(8);
 }
@@ -627,13 +627,7 @@ void Device::background() {
 void Device::report() {
     if (have_sample_) {
         have_sample_ = false;
-        uint8_t p[kLenTelemetry];
-        put_u32(p, rep_index_);
-        put_f32(p + 4, rep_ref_);                   // rad (SEQUENCE: V)
-        put_i32(p + 8, rep_counts_);
-        put_u16(p + 12, static_cast<uint16_t>(rep_pwm_));
-        p[14] = rep_flags_;
-        send(kTelemetry, tx_seq_++, p, kLenTelemetry);
+        send(kTelemetry, tx_seq_++, reinterpret_cast<const uint8_t*>(&rep_), kLenTelemetry);
     }
     if (finished_) end_run(end_reason_, end_detail_);
 }

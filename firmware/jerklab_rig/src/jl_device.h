@@ -36,6 +36,18 @@ public:
     virtual bool simulated_plant() = 0;
 };
 
+/// A TELEMETRY payload as it goes on the wire (PROTOCOL.md: u32 index, f32 reference, i32 counts,
+/// i16 pwm, u8 flags; little-endian, no padding, as the AVR and the hosts store them): the control
+/// step fills it and sends its bytes as they are (no per-field copy into a buffer).
+struct __attribute__((packed)) TelemetryPayload {
+    uint32_t index;
+    float ref;
+    int32_t counts;
+    int16_t pwm;
+    uint8_t flags;
+};
+static_assert(sizeof(TelemetryPayload) == kLenTelemetry, "TELEMETRY's payload: 15 bytes");
+
 struct DeviceConfig {
     uint16_t tick_us;        // hardware tick (1000 on the Uno)
     uint16_t pwm_max;        // PWM full scale in ticks (1023 for Timer1 10-bit)
@@ -176,11 +188,9 @@ private:
     // Results of the last control() for report().
     bool have_sample_ JL_ZERO;
     bool finished_ JL_ZERO;
-    uint32_t rep_index_ JL_ZERO;
-    float rep_ref_ JL_ZERO;   // a run: the reference in rad (reference() converts it); SEQUENCE: V
-    int32_t rep_counts_ JL_ZERO;
-    int16_t rep_pwm_ JL_ZERO;
-    uint8_t rep_flags_ JL_ZERO;
+    // (the TELEMETRY payload itself: report() sends its bytes; ref: a run's reference in rad,
+    // converted by reference(); SEQUENCE: V)
+    TelemetryPayload rep_ JL_ZERO;
     uint8_t end_reason_ = kEndDone;
     float end_detail_ JL_ZERO;
 };

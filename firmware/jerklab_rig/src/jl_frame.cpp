@@ -20,10 +20,12 @@ uint8_t encode_frame(uint8_t* out, uint8_t type, uint8_t seq, const uint8_t* pay
 
 // Copy n1 >= 1 bytes from src1, then n2 >= 0 from src2, into the ring at p (room: bytes left
 // before the ring's end; the frame wraps at most once) and run them through the CRC. On the AVR
-// in assembly, 29 cycles a byte (load, store, wrap test, the 19-cycle update of crc16_update,
-// loop) against ~40 for avr-gcc's code of the C loop (pointer copies and an extra move per byte);
-// the same arithmetic as crc16_update: x = hi ^ b, x ^= x >> 4, hi' = lo ^ (x << 4) ^ (x >> 3),
-// lo' = x ^ (x << 5). One loop for both pieces (the frame's len/type/seq, then its payload).
+// in assembly, 27 cycles a byte (load, store, wrap test, a 17-cycle update, loop) against ~40 for
+// avr-gcc's code of the C loop (pointer copies and an extra move per byte); the same arithmetic as
+// crc16_update: x = hi ^ b, x ^= x >> 4, hi' = lo ^ (x << 4) ^ (x >> 3), lo' = x ^ (x << 5), where
+// x << 5 and x >> 3 are the two halves of x rotated left by 5 (swap, then lsl / adc of the zero
+// register: 2 cycles fewer than three lsr). One loop for both pieces (the frame's len/type/seq,
+// then its payload).
 static inline __attribute__((always_inline)) void ring_copy_crc(uint8_t*& p, uint8_t& room, uint8_t* ring,
                                                                 const uint8_t* src1, uint8_t n1,
                                                                 const uint8_t* src2, uint8_t n2, uint16_t& crc) {
@@ -40,18 +42,16 @@ static inline __attribute__((always_inline)) void ring_copy_crc(uint8_t*& p, uin
         "    swap %[t]"               "\n\t"
         "    andi %[t], 0x0F"         "\n\t"
         "    eor  %[x], %[t]"         "\n\t"   // x ^= x >> 4
-        "    mov  %B[crc], %[x]"      "\n\t"
-        "    swap %B[crc]"            "\n\t"
+        "    mov  %[t], %[x]"         "\n\t"
+        "    swap %[t]"               "\n\t"   // t = x rotated left by 4
+        "    mov  %B[crc], %[t]"      "\n\t"
         "    andi %B[crc], 0xF0"      "\n\t"
         "    eor  %B[crc], %A[crc]"   "\n\t"   // hi' = lo ^ (x << 4) ...
-        "    mov  %[t], %[x]"         "\n\t"
-        "    lsr  %[t]"               "\n\t"
-        "    lsr  %[t]"               "\n\t"
-        "    lsr  %[t]"               "\n\t"
+        "    lsl  %[t]"               "\n\t"
+        "    adc  %[t], __zero_reg__" "\n\t"   // t = x rotated left by 5: (x << 5) | (x >> 3)
+        "    mov  %A[crc], %[t]"      "\n\t"
+        "    andi %[t], 0x1F"         "\n\t"
         "    eor  %B[crc], %[t]"      "\n\t"   // ... ^ (x >> 3)
-        "    mov  %A[crc], %[x]"      "\n\t"
-        "    swap %A[crc]"            "\n\t"
-        "    lsl  %A[crc]"            "\n\t"
         "    andi %A[crc], 0xE0"      "\n\t"
         "    eor  %A[crc], %[x]"      "\n\t"   // lo' = x ^ (x << 5)
         "    dec  %[n]"               "\n\t"
