@@ -556,14 +556,15 @@ static float scale_of(int8_t s) {
     return p;
 }
 
-// One step of a sinusoid's difference form (yD = {y, D}): D -= eps y; y += D. Returns the y
-// before the step.
-static int32_t __attribute__((noinline)) sin_step(int32_t* yD, int32_t E, uint8_t eb) {
+// One sample of a sinusoid (yD = {y, D}, units 2^(s - 32)): *out += y, then the difference
+// form's step D -= eps y; y += D.
+static void __attribute__((noinline)) sin_out(Q32* out, int32_t* yD, int32_t E, uint8_t eb,
+                                              uint8_t s) {
     const int32_t y = yD[0];
+    q32_add_units(out, y, s);
     const int32_t D = yD[1] - mul_eps(y, E, eb);
     yD[1] = D;
     yD[0] = y + D;
-    return y;
 }
 
 // The smallest k with (float)k * Ts >= t0 (in the float arithmetic of the stepper).
@@ -880,14 +881,14 @@ bool PlanStepper::next_q(Q32* position, int32_t* ff, float* velocity) {
         // advanced by D -= eps y; y += D (one MUL product)
         if (velocity) {
             Q32 t = {0, 0};
-            q32_add_units(&t, sin_step(&c.yv, c.E, c.eb), c.vs);
+            sin_out(&t, &c.yv, c.E, c.eb, c.vs);
             vs = q32_to_float(t);
         }
-        q32_add_units(&x, sin_step(&c.yx, c.E, c.eb), c.xs);
+        sin_out(&x, &c.yx, c.E, c.eb, c.xs);
         *position = x;
         if (ff) {
             Q32 f = c.F;
-            q32_add_units(&f, sin_step(&c.yf, c.E, c.eb), c.fs);
+            sin_out(&f, &c.yf, c.E, c.eb, c.fs);
             *ff = q16_window(f);
         }
     }
