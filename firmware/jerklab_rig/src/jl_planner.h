@@ -233,6 +233,8 @@ public:
             struct { int32_t yf, Df; };   // sine: the feedforward's sinusoid and its difference
         };
     };
+    /// The current chunk's coefficients (the golden vectors check the sinusoids' bound on them).
+    const Coef& chunk() const { return buf_[ci_]; }
 private:
     void compute(uint8_t i, Coef* c, uint32_t k0) const;
     void __attribute__((noinline)) begin_coef(uint8_t i, Coef* c, uint32_t k0, uint32_t k_end) const;
