@@ -653,9 +653,10 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
             // a = -w^2 B cos, v = -w B sin: P = -alpha w^2 B, Q = -beta w B. 8 velocity (x sv).
             const float cw = c->s_cw, sw = c->s_sw, B = c->s_B, s2 = c->s_s2, c2 = c->s_c2;
             const float S = sw * c2 - cw * s2, C = cw * c2 + sw * s2;
-            float P = 0.0f, Q = -sv * w * B;
+            const float wB = w * B;
+            float P = 0.0f, Q = -sv * wB;
             if (stage == 6) { P = sx * B; Q = 0.0f; }
-            if (stage == 7) { P = -alpha_ * w * w * B; Q = -beta_ * w * B; }
+            if (stage == 7) { P = -alpha_ * w * wB; Q = -beta_ * wB; }
             const uint8_t u = units_of(jl_fabsf(P) + jl_fabsf(Q));
             const float p = scale_of(u);               // (exact: a power of 2)
             P *= p;

@@ -146,8 +146,9 @@ float q32_to_float(const Q32& x);
 /// feedforward's cosine terms are each a sinusoid y(n) of the one angle step theta = w Ts, advanced
 /// in int32 (units 2^-f of a count / PWM tick, f per chunk) by the difference form
 /// D(n+1) = D(n) - eps y(n), y(n+1) = y(n) + D(n+1), eps = 4 sin^2(theta/2): one 32 x 32 MUL
-/// product a sample each, |error| <= n(n+1)/2 + n + 1/2 + n eps/2 units 2^-f (< 2112 2^-f, f with
-/// amplitude 2^f < 2^28: < 1.6e-5 of the amplitude, or 4.9e-7 counts when f = 32; docs/THEORY.md).
+/// product a sample each, |error| < 1 + n (1 + eps/2) + n(n+1)/2 units 2^-f (< 2206 at n < 64;
+/// f with amplitude 2^f < 2^28: < 1.6e-5 of the amplitude, or 5.1e-7 count when f = 32;
+/// docs/THEORY.md).
 /// The velocity (velocity loop only) is a float Horner polynomial plus, on a pulse, a third such
 /// sinusoid converted to float. The coefficients of a chunk are prepared before it
 /// starts (prepare(), in stages, in the idle time after the control step).
