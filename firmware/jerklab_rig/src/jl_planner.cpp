@@ -469,25 +469,59 @@ Q32 to_q32(float x) {
     return r;
 }
 
-float q32_to_float(const Q32& x) {
-    // the widest 32-bit window that holds the value: Q16.16 below 2^15, else Q24.8 (byte moves),
-    // one conversion, the window's 2^-16 or 2^-8 by the exponent
-    const int32_t hi = x.hi;
+// The widest 32-bit window of x that holds it: Q16.16 (*n = 16) when |x| < 2^15, else Q24.8
+// (*n = 8) when |x| < 2^23, else Q24.8's +-(2^31 - 1) (*n = 8). Byte moves (AVR: hi's bytes 2, 3
+// compared with byte 1's sign, byte 3 with byte 2's).
+static int32_t __attribute__((noinline)) q32_window(const Q32& x, uint8_t* n) {
     int32_t w;
-    uint32_t n;
+    uint8_t nb;
+#if defined(__AVR__)
+    const uint8_t* px = reinterpret_cast<const uint8_t*>(&x);
+    uint8_t t;
+    asm volatile(
+        "ldd %A[w], Z+2\n\t" "ldd %B[w], Z+3\n\t" "ldd %C[w], Z+4\n\t" "ldd %D[w], Z+5\n\t"
+        "ldi %[n], 16\n\t"
+        "mov %[t], %D[w]\n\t" "lsl %[t]\n\t" "sbc %[t], %[t]\n\t"
+        "ldd __tmp_reg__, Z+6\n\t" "cp __tmp_reg__, %[t]\n\t" "brne 1f\n\t"
+        "ldd __tmp_reg__, Z+7\n\t" "cp __tmp_reg__, %[t]\n\t" "breq 3f\n\t"
+        "1:\n\t"
+        "ldi %[n], 8\n\t"
+        "mov %A[w], %B[w]\n\t" "mov %B[w], %C[w]\n\t" "mov %C[w], %D[w]\n\t" "ldd %D[w], Z+6\n\t"
+        "mov %[t], %D[w]\n\t" "lsl %[t]\n\t" "sbc %[t], %[t]\n\t"
+        "ldd __tmp_reg__, Z+7\n\t" "cp __tmp_reg__, %[t]\n\t" "breq 3f\n\t"
+        "ldi %A[w], 0xFF\n\t" "ldi %B[w], 0xFF\n\t" "ldi %C[w], 0xFF\n\t" "ldi %D[w], 0x7F\n\t"
+        "sbrs __tmp_reg__, 7\n\t" "rjmp 3f\n\t"
+        "ldi %A[w], 0x01\n\t" "ldi %B[w], 0x00\n\t" "ldi %C[w], 0x00\n\t" "ldi %D[w], 0x80\n\t"
+        "3:\n\t"
+        : [w] "=&d"(w), [n] "=&d"(nb), [t] "=&r"(t)
+        : "z"(px)
+        : "r0");
+#else
+    const int32_t hi = x.hi;
     if (hi >= -32768L && hi < 32768L) {
         w = static_cast<int32_t>((static_cast<uint32_t>(hi) << 16) | (x.lo >> 16));
-        n = 16UL << 23;
+        nb = 16;
     } else {
-        const int32_t h = hi > 8388607L ? 8388607L : (hi < -8388608L ? -8388608L : hi);
-        w = static_cast<int32_t>((static_cast<uint32_t>(h) << 8) | (x.lo >> 24));
-        n = 8UL << 23;
+        w = hi > 8388607L ? 0x7FFFFFFFL : (hi < -8388608L ? -0x7FFFFFFFL
+            : static_cast<int32_t>((static_cast<uint32_t>(hi) << 8) | (x.lo >> 24)));
+        nb = 8;
     }
+#endif
+    *n = nb;
+    return w;
+}
+
+float q32_to_float(const Q32& x) {
+    // the window, one conversion, the window's 2^-16 or 2^-8 by the exponent
+    uint8_t n;
+    const int32_t w = q32_window(x, &n);
     float f = static_cast<float>(w);
-    uint32_t b;
-    memcpy(&b, &f, 4);
-    if (b & 0x7F800000UL) b -= n;
-    memcpy(&f, &b, 4);
+    if (w != 0) {                                   // exponent - n: (n / 2) off the top byte
+        uint8_t by[4];
+        memcpy(by, &f, 4);
+        by[3] = static_cast<uint8_t>(by[3] - (n >> 1));
+        memcpy(&f, by, 4);
+    }
     return f;
 }
 
@@ -556,13 +590,13 @@ static float scale_of(int8_t s) {
     return p;
 }
 
-// One sample of a sinusoid (yD = {y, D}, units 2^(s - 32)): *out += y, then the difference
-// form's step D -= eps y; y += D.
-static void __attribute__((noinline)) sin_out(Q32* out, int32_t* yD, int32_t E, uint8_t eb,
-                                              uint8_t s) {
+// One sample of a sinusoid (yD = {y, D}, units 2^(s - 32)) of chunk c: *out += y, then the
+// difference form's step D -= eps y; y += D.
+static void __attribute__((noinline)) sin_out(Q32* out, int32_t* yD, uint8_t s,
+                                              const PlanStepper::Coef& c) {
     const int32_t y = yD[0];
     q32_add_units(out, y, s);
-    const int32_t D = yD[1] - mul_eps(y, E, eb);
+    const int32_t D = yD[1] - mul_eps(y, c.E, c.eb);
     yD[1] = D;
     yD[0] = y + D;
 }
@@ -852,11 +886,11 @@ void PlanStepper::advance_segment() {
 }
 
 // The Q16.16 window of a Q32.32 (|value| < 2^15, saturated to +-(2^31 - 1)).
-static int32_t __attribute__((noinline)) q16_window(const Q32& f) {
-    const int32_t fhi = f.hi;
-    if (static_cast<uint32_t>(static_cast<uint32_t>(fhi) + static_cast<uint32_t>(32768)) > 65535u)
-        return fhi < 0 ? -0x7FFFFFFFL : 0x7FFFFFFFL;
-    return static_cast<int32_t>((static_cast<uint32_t>(fhi) << 16) | (f.lo >> 16));
+static int32_t q16_window(const Q32& f) {
+    uint8_t n;
+    const int32_t w = q32_window(f, &n);
+    if (n == 16) return w;
+    return f.hi < 0 ? -0x7FFFFFFFL : 0x7FFFFFFFL;
 }
 
 bool PlanStepper::next_q(Q32* position, int32_t* ff, float* velocity) {
@@ -882,14 +916,14 @@ bool PlanStepper::next_q(Q32* position, int32_t* ff, float* velocity) {
         // advanced by D -= eps y; y += D (one MUL product)
         if (velocity) {
             Q32 t = {0, 0};
-            sin_out(&t, &c.yv, c.E, c.eb, c.vs);
+            sin_out(&t, &c.yv, c.vs, c);
             vs = q32_to_float(t);
         }
-        sin_out(&x, &c.yx, c.E, c.eb, c.xs);
+        sin_out(&x, &c.yx, c.xs, c);
         *position = x;
         if (ff) {
             Q32 f = c.F;
-            sin_out(&f, &c.yf, c.E, c.eb, c.fs);
+            sin_out(&f, &c.yf, c.fs, c);
             *ff = q16_window(f);
         }
     }
