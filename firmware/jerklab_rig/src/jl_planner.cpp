@@ -323,10 +323,11 @@ void place(Plan* p, float t_start, float x_start) {
 
 // The closed form on a segment of constant jerk at local time u >= 0.
 static void eval_poly(const Segment& s, float u, Sample* o) {
+    const float ju = s.jp * u;
     o->jerk = s.jp;
-    o->accel = s.a0 + s.jp * u;
-    o->velocity = s.v0 + u * (s.a0 + 0.5f * s.jp * u);
-    o->position = s.x0 + u * (s.v0 + u * (0.5f * s.a0 + u * s.jp * (1.0f / 6.0f)));
+    o->accel = s.a0 + ju;
+    o->velocity = s.v0 + u * (s.a0 + 0.5f * ju);
+    o->position = s.x0 + u * (s.v0 + u * (0.5f * s.a0 + ju * (1.0f / 6.0f)));
 }
 
 float position_at_switch(const Plan& p, float t) {
@@ -604,9 +605,10 @@ static void __attribute__((noinline)) sin_out(Q32* out, int32_t* yD, uint8_t s,
 // The smallest k with (float)k * Ts >= t0 (in the float arithmetic of the stepper).
 static uint32_t first_k(float t0, float Ts) {
     if (!(t0 > 0.0f)) return 0;
-    uint32_t k = static_cast<uint32_t>(t0 / Ts);
+    // from above: t0 / Ts's truncation + 2 is past the answer (float k Ts is monotonic in k and
+    // within a relative 2^-24 of k Ts, for t0 / Ts < 2^23), then down to it
+    uint32_t k = static_cast<uint32_t>(t0 / Ts) + 2;
     while (k > 0 && static_cast<float>(k - 1) * Ts >= t0) --k;
-    while (static_cast<float>(k) * Ts < t0) ++k;
     return k;
 }
 
@@ -646,9 +648,9 @@ static void __attribute__((noinline)) q32_of(Q32* r, float a, float b) { q32_set
 // polynomial. A polynomial segment: 1 the state (closed form), 2 and 3 the position's
 // differences, 4 the feedforward's and the velocity. A half-sine pulse
 // x = (x0 - B) + v0 u + q2 u^2 + B cos(w u) (j = 0 on the polynomial part, whose X3 and F2 are 0:
-// their bytes hold the sinusoids): 1 cos(w delta), 2 sin(w delta), 3 sin(theta/2),
-// 4 cos(theta/2) (theta = w Ts), 5 B and the state, 6 to 8 the position's, the feedforward's and
-// the velocity's sinusoids, 9 and 10 the differences and the velocity. Each stage reads its
+// their bytes hold the sinusoids): 1 cos, sin(w delta), 2 sin, cos(theta/2) (theta = w Ts), 3 B
+// and the state, 4 to 6 the position's, the feedforward's and the velocity's sinusoids, 7 and 8
+// the differences and the velocity. Each stage reads its
 // scratch (Coef's union) before it writes an output that shares its bytes.
 bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
     const Segment& g = p_->seg[i];
@@ -666,11 +668,19 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
     uint8_t st = stage;
     if (sine) {
         switch (stage) {
-        case 1: c->s_cw = jl_cosf(w * c->s_delta); return false;
-        case 2: c->s_sw = jl_sinf(w * c->s_delta); return false;
-        case 3: c->s_s2 = jl_sinf(0.5f * (w * Ts)); return false;
-        case 4: c->s_c2 = jl_cosf(0.5f * (w * Ts)); return false;
-        case 5: {
+        case 1: {
+            const float wd = w * c->s_delta;
+            c->s_cw = jl_cosf(wd);
+            c->s_sw = jl_sinf(wd);
+            return false;
+        }
+        case 2: {
+            const float h = 0.5f * (w * Ts);
+            c->s_s2 = jl_sinf(h);
+            c->s_c2 = jl_cosf(h);
+            return false;
+        }
+        case 3: {
             const float jw = g.jp / w, a2 = g.a0 + jw, d = c->s_delta;
             const float B = jw / (w * w);
             c->s_B = B;
@@ -679,18 +689,18 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
             c->s_a = a2;                                          // 2 q2
             return false;
         }
-        case 6: case 7: case 8: {
+        case 4: case 5: case 6: {
             // y(u) = P cos(w u) + Q sin(w u) at u = delta + n Ts: y(0) = P cw + Q sw and
             // D(0) = y(0) - y(-1) = 2 s2 (Q C - P S), S, C = sin, cos(w delta - theta/2), in units
             // 2^(s - 32) for the amplitude |P| + |Q|; eps = 4 s2^2 as E 2^(-8 eb), exactly.
-            // 6 position (x sx, counts): P = sx B. 7 feedforward alpha a + beta v (ticks) with
-            // a = -w^2 B cos, v = -w B sin: P = -alpha w^2 B, Q = -beta w B. 8 velocity (x sv).
+            // 4 position (x sx, counts): P = sx B. 5 feedforward alpha a + beta v (ticks) with
+            // a = -w^2 B cos, v = -w B sin: P = -alpha w^2 B, Q = -beta w B. 6 velocity (x sv).
             const float cw = c->s_cw, sw = c->s_sw, B = c->s_B, s2 = c->s_s2, c2 = c->s_c2;
             const float S = sw * c2 - cw * s2, C = cw * c2 + sw * s2;
             const float wB = w * B;
             float P = 0.0f, Q = -sv * wB;
-            if (stage == 6) { P = sx * B; Q = 0.0f; }
-            if (stage == 7) { P = -alpha_ * w * wB; Q = -beta_ * wB; }
+            if (stage == 4) { P = sx * B; Q = 0.0f; }
+            if (stage == 5) { P = -alpha_ * w * wB; Q = -beta_ * wB; }
             const uint8_t u = units_of(jl_fabsf(P) + jl_fabsf(Q));
             const float p = scale_of(u);               // (exact: a power of 2)
             P *= p;
@@ -698,7 +708,7 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
             // truncated toward 0 (|y| < 2^28, |D| < 2^29)
             const int32_t y = static_cast<int32_t>(P * cw + Q * sw);
             const int32_t D = static_cast<int32_t>(2.0f * s2 * (Q * C - P * S));
-            if (stage == 6) {
+            if (stage == 4) {
                 c->xs = u; c->yx = y; c->Dx = D;
                 // eps = E 2^(-8 eb): eb = ceil(t / 8) for eps = m 2^-t (t >= 21), at most 7
                 // (eps < 2^-32 then keeps 24 - (t - 56) bits); E < 2^31 (E = eps 2^(8 eb))
@@ -707,9 +717,9 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
                 memcpy(&b, &eps, 4);
                 uint8_t eb = static_cast<uint8_t>((157 - ((b >> 23) & 0xFF)) >> 3);
                 if (eb > 7) eb = 7;
-                c->E = static_cast<int32_t>(eps * scale_of(static_cast<int8_t>(32 - 8 * eb)));   // (over s_delta, dead)
+                c->E = static_cast<int32_t>(eps * scale_of(static_cast<int8_t>(32 - 8 * eb)));   // (over s_delta, read in stage 3 last)
                 c->eb = eb;
-            } else if (stage == 7) {
+            } else if (stage == 5) {
                 c->fs = u; c->yf = y; c->Df = D;
             } else {
                 c->vs = u; c->yv = y; c->Dv = D;      // (over s_cw, s_sw: read for the last time)
@@ -718,7 +728,7 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
         }
         default: break;
         }
-        st = stage == 9 ? 2 : 4;                    // 9 -> 2 (X3 = 0), 10 -> 4 (F2 = 0)
+        st = stage == 7 ? 2 : 4;                    // 7 -> 2 (X3 = 0), 8 -> 4 (F2 = 0)
     } else if (stage == 1) {
         Sample s;
         eval_poly(g, c->s_delta, &s);
@@ -752,9 +762,9 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
     }
     // the last stage: u_F = f0 + f1 n + f2 n^2 (f2 = 0 on a pulse, where F2's bytes hold a
     // sinusoid) and the float part (its scratch a, v read first)
-    const float a = c->s_a, v = c->s_v;
+    const float a = c->s_a, v = c->s_v, hjT2 = 0.5f * j * Ts * Ts;
     Q32 f2;
-    q32_of(&f2, beta_ * 0.5f * Ts * Ts, j);
+    q32_of(&f2, beta_, hjT2);
     q32_set(&c->F, alpha_ * a + beta_ * v);
     q32_of(&c->F1, alpha_ * j + beta_ * a, Ts);
     q32_add(&c->F1, f2);
@@ -764,7 +774,7 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
     }
     c->v0 = sv * v;
     c->v1 = sv * a * Ts;
-    c->v2 = sv * 0.5f * j * Ts * Ts;
+    c->v2 = sv * hjT2;
     c->seg = i;
     return true;
 }
@@ -837,7 +847,7 @@ bool PlanStepper::prepare_stage() {
 void PlanStepper::prepare() {
     if (prepare_stage()) return;
     // stages to go (over-estimated before stage 1: prep_stage_ is 0 until then)
-    const uint8_t left = static_cast<uint8_t>((p_->seg[prep_seg_].sine ? 14 : 8) - prep_stage_);
+    const uint8_t left = static_cast<uint8_t>((p_->seg[prep_seg_].sine ? 12 : 8) - prep_stage_);
     const uint32_t ticks = buf_[ci_].k_end - k_;    // calls before the change
     if (ticks > left) return;
     const uint8_t t = static_cast<uint8_t>(ticks);
