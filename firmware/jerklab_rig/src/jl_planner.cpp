@@ -438,25 +438,24 @@ static void __attribute__((noinline)) q32_add_units(Q32* a, int32_t y, uint8_t s
 // by q32_add_units (from 2^23 up m shifted into hi); exact from 2^-8 up, truncated toward 0 to
 // 2^-32 below. No 64-bit arithmetic.
 static void __attribute__((noinline)) q32_set(Q32* r, float x) {
-    uint32_t b;
-    memcpy(&b, &x, 4);
-    const uint8_t e = static_cast<uint8_t>(b >> 23);        // biased exponent
-    const bool neg = (b & 0x80000000UL) != 0;
+    uint8_t by[4];
+    memcpy(by, &x, 4);
+    const bool neg = (by[3] & 0x80) != 0;
+    const uint8_t e = static_cast<uint8_t>((by[3] << 1) | (by[2] >> 7));   // biased exponent
+    by[3] = 0;
+    by[2] |= 0x80;
+    int32_t m;                                      // the mantissa: x 2^32 = m 2^(e - 118)
+    memcpy(&m, by, 4);
     r->lo = 0;
     r->hi = 0;
-    if (e == 0) return;                                     // 0, subnormals
-    if (e >= 127 + 31) {                                    // |x| >= 2^31, inf, NaN: saturated
-        r->hi = neg ? -0x7FFFFFFFL : 0x7FFFFFFFL;
-        return;
-    }
-    int32_t m = static_cast<int32_t>((b & 0x7FFFFFUL) | 0x800000UL);   // x 2^32 = m 2^(e - 118)
-    uint8_t sh = 0;
-    if (e >= 118 + 32) {                                    // whole: m 2^(e - 150) in hi
-        for (uint8_t k = static_cast<uint8_t>(e - 150); k; --k) m <<= 1;   // < 2^31
+    if (e >= 118 + 32) {                            // whole: m 2^(e - 150) in hi
+        if (e >= 127 + 31) m = 0x7FFFFFFFL;         // |x| >= 2^31, inf, NaN: saturated
+        else for (uint8_t k = static_cast<uint8_t>(e - 150); k; --k) m <<= 1;   // < 2^31
         r->hi = neg ? -m : m;
         return;
     }
-    if (e < 118) {
+    uint8_t sh = 0;
+    if (e < 118) {                                  // (0 and subnormals: m shifted out)
         for (uint8_t k = static_cast<uint8_t>(118 - e); k && m; --k) m >>= 1;
     } else {
         sh = static_cast<uint8_t>(e - 118);
@@ -958,7 +957,17 @@ bool PlanStepper::next_fast(float* position, float* velocity, float* ff) {
     int32_t f;
     const bool moving = next_q(&x, ff ? &f : nullptr, velocity);
     *position = q32_to_float(x);
-    if (ff) *ff = static_cast<float>(f) * (1.0f / 65536.0f);
+    if (ff) {
+        // f 2^-16: one conversion, the exponent lowered by 16 (8 off the top byte)
+        float u = static_cast<float>(f);
+        if (f != 0) {
+            uint8_t by[4];
+            memcpy(by, &u, 4);
+            by[3] = static_cast<uint8_t>(by[3] - 8);
+            memcpy(&u, by, 4);
+        }
+        *ff = u;
+    }
     return moving;
 }
 
