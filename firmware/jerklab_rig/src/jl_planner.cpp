@@ -574,19 +574,25 @@ static inline int32_t mul_eps(int32_t y, int32_t E, uint8_t eb) {
 
 // The units of a sinusoid of amplitude <= amp: s with amp 2^(32 - s) < 2^28 (s = 0: 2^-32, the
 // Q32.32's own; amp < 2^27 for s <= 31).
+// The biased exponent of a float (byte operations: no 32-bit shift).
+static uint8_t exponent_of(float x) {
+    uint8_t by[4];
+    memcpy(by, &x, 4);
+    return static_cast<uint8_t>((by[3] << 1) | (by[2] >> 7));
+}
+
 static uint8_t units_of(float amp) {
-    uint32_t b;
-    memcpy(&b, &amp, 4);
-    const uint8_t e = static_cast<uint8_t>((b >> 23) & 0xFF);   // amp < 2^(e - 126)
+    const uint8_t e = exponent_of(amp);             // amp < 2^(e - 126)
     if (e <= 122) return 0;
     return e - 122 > 31 ? 31 : static_cast<uint8_t>(e - 122);
 }
 
 // 2^(32 - s) as a float (s = -24..31): the scale of a sinusoid's units.
 static float scale_of(int8_t s) {
-    const uint32_t b = static_cast<uint32_t>(127 + 32 - s) << 23;
+    const uint8_t v = static_cast<uint8_t>(127 + 32 - s);   // the biased exponent
+    const uint8_t by[4] = {0, 0, static_cast<uint8_t>(v << 7), static_cast<uint8_t>(v >> 1)};
     float p;
-    memcpy(&p, &b, 4);
+    memcpy(&p, by, 4);
     return p;
 }
 
@@ -712,9 +718,7 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
                 // eps = E 2^(-8 eb): eb = ceil(t / 8) for eps = m 2^-t (t >= 21), at most 7
                 // (eps < 2^-32 then keeps 24 - (t - 56) bits); E < 2^31 (E = eps 2^(8 eb))
                 const float eps = 4.0f * s2 * s2;
-                uint32_t b;
-                memcpy(&b, &eps, 4);
-                uint8_t eb = static_cast<uint8_t>((157 - ((b >> 23) & 0xFF)) >> 3);
+                uint8_t eb = static_cast<uint8_t>((157 - exponent_of(eps)) >> 3);
                 if (eb > 7) eb = 7;
                 c->E = static_cast<int32_t>(eps * scale_of(static_cast<int8_t>(32 - 8 * eb)));   // (over s_delta, read in stage 3 last)
                 c->eb = eb;
