@@ -398,17 +398,25 @@ void q32_add(Q32* a, const Q32& b) {
 }
 
 // a += y 2^s (s = 0..31): the sinusoid in units 2^(s - 32) into a Q32.32. On the AVR y 2^(s & 7)
-// by four MULs (40 bits), added at byte s >> 3 with the carry and the sign through the top.
+// by four MULs (40 bits, the top one MULSU), added at byte s >> 3 with the carry and the sign
+// through the top.
 static void __attribute__((noinline)) q32_add_units(Q32* a, int32_t y, uint8_t s) {
 #if defined(__AVR__)
-    uint8_t* pa = reinterpret_cast<uint8_t*>(a) + (s >> 3);
-    uint8_t cnt = static_cast<uint8_t>(3 - (s >> 3));
-    uint8_t m = 1;
-    for (uint8_t k = s & 7; k; --k) m = static_cast<uint8_t>(m << 1);
+    // m = 2^(s & 7) by three conditional shifts (the last a nibble swap), the byte s >> 3 added
+    // to the pointer, cnt = 3 - (s >> 3) bytes above the five of y 2^(s & 7)
+    uint8_t* pa = reinterpret_cast<uint8_t*>(a);
     uint8_t top = static_cast<uint8_t>(static_cast<uint32_t>(y) >> 24);
     uint32_t p;
-    uint8_t p4, sg;
+    uint8_t p4, sg, m, cnt;
     asm volatile(
+        "ldi %[m], 1\n\t"
+        "sbrc %[s], 0\n\t" "lsl %[m]\n\t"
+        "sbrc %[s], 1\n\t" "lsl %[m]\n\t"
+        "sbrc %[s], 1\n\t" "lsl %[m]\n\t"
+        "sbrc %[s], 2\n\t" "swap %[m]\n\t"
+        "lsr %[s]\n\t" "lsr %[s]\n\t" "lsr %[s]\n\t"
+        "add r26, %[s]\n\t" "adc r27, __zero_reg__\n\t"
+        "ldi %[c], 3\n\t" "sub %[c], %[s]\n\t"
         "mul %A[y], %[m]\n\t" "movw %A[p], r0\n\t"
         "mul %B[y], %[m]\n\t" "add %B[p], r0\n\t" "clr %C[p]\n\t" "adc %C[p], r1\n\t"
         "mul %C[y], %[m]\n\t" "add %C[p], r0\n\t" "clr %D[p]\n\t" "adc %D[p], r1\n\t"
@@ -423,8 +431,9 @@ static void __attribute__((noinline)) q32_add_units(Q32* a, int32_t y, uint8_t s
         "tst %[c]\n\t" "breq 2f\n\t"
         "1:\n\t" "ld r0, X\n\t" "adc r0, %[sg]\n\t" "st X+, r0\n\t" "dec %[c]\n\t" "brne 1b\n\t"
         "2:\n\t"
-        : [p] "=&r"(p), [p4] "=&r"(p4), [sg] "=&r"(sg), "+x"(pa), [c] "+r"(cnt)
-        : [y] "r"(y), [m] "a"(m), [t] "a"(top)
+        : [p] "=&r"(p), [p4] "=&r"(p4), [sg] "=&r"(sg), "+x"(pa), [c] "=&d"(cnt), [m] "=&a"(m),
+          [s] "+r"(s)
+        : [y] "r"(y), [t] "a"(top)
         : "r0", "r1", "memory");
 #else
     const uint64_t v = ((static_cast<uint64_t>(static_cast<uint32_t>(a->hi)) << 32) | a->lo)
