@@ -93,6 +93,7 @@ int run_vectors(const char* path) {
     std::ifstream in(path);
     if (!in) { std::fprintf(stderr, "cannot open %s\n", path); return 2; }
     Stat plan("plan"), smp("sample"), stp("stepper"), ctl("controller"), ctlq("controller_fixed"), enc("encode"), dec("decode");
+    Stat pulse("pulse");         // the pulses' integer sinusoids (recurrence, eps, range)
     jl::Pid pid;
     jl::PidQ pidq;               // the fixed-point law, in "counts" and "ticks" (scales below)
     double q_se = 1.0, q_su = 1.0, q_kabs = 0.0, q_kid = 0.0, q_acc = 0.0;
@@ -220,16 +221,16 @@ int run_vectors(const char* path) {
                                 const double th = 0.5 * (double)p.seg[c.seg].w * (double)(float)Ts;
                                 const double eps = 4.0 * std::sin(th) * std::sin(th);
                                 // (float32 sin of the float32 angle w Ts / 2: |d eps / d th| <= 4 times its rounding)
-                                stp.check(std::fabs(reps - eps), eps * std::ldexp(1.0, -20) + 4.0 * th * std::ldexp(1.0, -21),
+                                pulse.check(std::fabs(reps - eps), eps * std::ldexp(1.0, -20) + 4.0 * th * std::ldexp(1.0, -21),
                                           wh0(path, lineno, k) + " pulse eps");
-                                stp.check(std::max(std::fabs((double)c.yx) / std::ldexp(1.0, 28),
+                                pulse.check(std::max(std::fabs((double)c.yx) / std::ldexp(1.0, 28),
                                                    std::fabs((double)c.Dx) / std::ldexp(1.0, 29)), 1.0,
                                           wh0(path, lineno, k) + " pulse sinusoid range");
                             } else {
                                 rDd -= reps * ryd;
                                 ryd += rDd;
                                 ++rj;
-                                stp.check(std::fabs((double)c.yx - ryd), 0.5 * rj * (rj + 1) + 1e-6,
+                                pulse.check(std::fabs((double)c.yx - ryd), 0.5 * rj * (rj + 1) + 1e-6,
                                           wh0(path, lineno, k) + " pulse recurrence (integer vs double)");
                             }
                         }
@@ -383,7 +384,7 @@ int run_vectors(const char* path) {
         }
     }
     int fail = 0;
-    for (Stat* s : {&plan, &smp, &stp, &ctl, &ctlq, &enc, &dec}) {
+    for (Stat* s : {&plan, &smp, &stp, &pulse, &ctl, &ctlq, &enc, &dec}) {
         std::printf("%s records=%ld failures=%ld worst_error_over_tol=%.3g at %s\n", s->name, s->records,
                     s->failures, s->worst, s->worst_what.empty() ? "-" : s->worst_what.c_str());
         if (s->failures) fail = 1;
