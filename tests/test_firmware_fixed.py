@@ -70,25 +70,43 @@ def test_mul_q_is_the_floor_of_the_shifted_product_saturated(host_driver):
         assert int(r) == _sat((a * m) >> (8 * s)), (a, m, s)      # >> floors in Python
 
 
+def _round_away(x):
+    """round half away from 0 of an exact Fraction."""
+    from fractions import Fraction
+
+    f = math.floor(abs(Fraction(x)) + Fraction(1, 2))
+    return f if x >= 0 else -f
+
+
 def test_gain_quantisation_bound(host_driver):
-    """to_qgain: the largest byte shift with |mant| < 2^31; float32 gains >= 2^-9 exact, smaller
-    ones within 2^-33 (half a unit of 2^-32); |g| >= 2^31, inf and NaN refused."""
+    """to_qgain: a 24-bit signed mantissa and a byte shift, the largest shift <= 4 with
+    |round(g 2^(8 shift))| < 2^23 (rounded half away from 0, exact against Python's fractions);
+    so |mant| >= 2^15 (16 significant bits) and |error| <= 2^-16 |g| from |g| >= 2^-17, and
+    <= 2^-33 below; |g| >= 2^23 (also after rounding), inf and NaN refused."""
+    from fractions import Fraction
+
     rng = np.random.default_rng(4)
-    gains = [0.0, 1.0, -1.0, 0.5, 0.4999999, 2.0**-9, 3e-3, -7e-6, 1e-12, 123.456, -2.0**30,
-             2.0**31 * (1 - 2**-24), 1e-40]
-    gains += list(np.float32(10.0 ** rng.uniform(-12, 9, 400) * rng.choice([-1, 1], 400)))
-    refused = [2.0**31, -2.0**31, math.inf, -math.inf, math.nan]
+    gains = [0.0, 1.0, -1.0, 0.5, 0.4999999, 2.0**-9, 3e-3, -7e-6, 1e-12, 123.456, -2.0**22,
+             2.0**23 - 1.0, -(2.0**23 - 1.0), 255.99998, 65535.996, 2.0**-17, 1e-40,
+             float(np.nextafter(np.float32(32768.0), np.float32(0)))]
+    gains += list(np.float32(10.0 ** rng.uniform(-12, 6.9, 400) * rng.choice([-1, 1], 400)))
+    # mantissas of all ones: rounding up to 2^23 takes one byte less
+    gains += [float(np.float32((2**24 - 1) * 2.0**k)) for k in range(-60, -1)]
+    refused = [2.0**23, -2.0**23, 8388607.5, -8388607.5, 2.0**31, math.inf, -math.inf, math.nan]
     got = _run(host_driver, [f"g {_bits(float(g))}" for g in gains + refused])
     for g, (ok, mant, s) in zip(gains, got):
         g = float(np.float32(g))
         ok, mant, s = int(ok), int(mant), int(s)
-        assert ok == 1 and 0 <= s <= 4 and abs(mant) < 2**31, g
-        assert s == 4 or abs(g) * 2.0 ** (8 * (s + 1)) >= 2**31, (g, s)     # the largest shift
-        err = abs(mant * 2.0 ** (-8 * s) - g)
-        if abs(g) >= 2**-9:
-            assert err == 0.0, g
+        want_s = next((k for k in range(4, -1, -1) if abs(_round_away(Fraction(g) * 256**k)) < 2**23), None)
+        assert want_s is not None
+        assert ok == 1 and s == want_s and mant == _round_away(Fraction(g) * 256**s), (g, mant, s)
+        assert abs(mant) < 2**23
+        err = abs(Fraction(mant, 256**s) - Fraction(g))
+        assert err <= Fraction(1, 2 * 256**s)
+        if abs(g) >= 2.0**-17:
+            assert abs(mant) >= 2**15 and err <= Fraction(abs(g)) / 2**16, g
         else:
-            assert err <= 2.0**-33, g
+            assert err <= Fraction(1, 2**33), g
     assert all(int(r[0]) == 0 for r in got[len(gains):])
 
 
@@ -149,8 +167,22 @@ int main() {
         int64_t w = p >> (8 * s);
         if (w > INT32_MAX) w = INT32_MAX;
         if (w < INT32_MIN) w = INT32_MIN;
+        // the narrow product (jl_mac) with b's low 24 bits as a signed mantissa, and its
+        // multiply-accumulate onto a (saturated)
+        const int32_t m = (int32_t)((uint32_t)b << 8) >> 8;
+        const jl::QGain g = {m, s};
+        const int32_t n = jl::mul_g_(a, m, s);
+        const int32_t c = jl::mac_g(a, b, g);
+        int64_t v = ((int64_t)a * (int64_t)m) >> (8 * s);
+        if (v > INT32_MAX) v = INT32_MAX;
+        if (v < INT32_MIN) v = INT32_MIN;
+        int64_t t = (int64_t)a + (((int64_t)b * (int64_t)m) >> (8 * s) > INT32_MAX ? INT32_MAX :
+                     (((int64_t)b * (int64_t)m) >> (8 * s) < INT32_MIN ? INT32_MIN : ((int64_t)b * (int64_t)m) >> (8 * s)));
+        if (t > INT32_MAX) t = INT32_MAX;
+        if (t < INT32_MIN) t = INT32_MIN;
         if (lo != (uint32_t)p || hi != (int32_t)(p >> 32) || q != (int32_t)w) ++bad;
-        sum += lo ^ (uint32_t)hi ^ (uint32_t)q;
+        if (n != (int32_t)v || c != (int32_t)t) ++bad;
+        sum += lo ^ (uint32_t)hi ^ (uint32_t)q ^ (uint32_t)n ^ (uint32_t)c;
     }
     tx('<'); hex32(bad); tx(' '); hex32(sum); tx('>'); tx('\n');   // (simavr prints whole lines)
     _delay_ms(20);               // the simulated UART drains before the simulation ends
@@ -162,7 +194,9 @@ int main() {
 
 def test_avr_assembly_multiply_on_the_simulated_atmega328p(tmp_path):
     """The inline-assembly product (sixteen MULs, the signed correction) and mul_q's window and
-    saturation as compiled for the ATmega328P, run in simavr, against Python's integers."""
+    saturation, and the control step's narrow multiply-accumulate (jl_mac: twelve MULs, the
+    24-bit mantissa's signed correction, the window, both saturations) as compiled for the
+    ATmega328P, run in simavr, against avr-gcc's int64 arithmetic and Python's integers."""
     require_tool("avr-g++", "simavr")
     from jerklab.rig.simavr.build import firmware_dir
 
@@ -180,7 +214,8 @@ def test_avr_assembly_multiply_on_the_simulated_atmega328p(tmp_path):
     (tmp_path / "t.cpp").write_text(_AVR_MAIN.replace("VECTORS", body))
     elf = tmp_path / "t.elf"
     subprocess.run(["avr-g++", "-mmcu=atmega328p", "-DF_CPU=16000000L", "-Os", "-std=gnu++11",
-                    f"-I{src}", str(tmp_path / "t.cpp"), str(src / "jl_fixed.cpp"), "-o", str(elf)],
+                    f"-I{src}", str(tmp_path / "t.cpp"), str(src / "jl_fixed.cpp"), str(src / "jl_control.cpp"),
+                    "-o", str(elf)],
                    check=True, capture_output=True, timeout=120)
     run = subprocess.run(["simavr", "-m", "atmega328p", "-f", "16000000", str(elf)],
                          capture_output=True, text=True, timeout=120)
@@ -195,7 +230,10 @@ def test_avr_assembly_multiply_on_the_simulated_atmega328p(tmp_path):
     for a, b, s in cases:
         p = a * b
         lo, hi, q = p & 0xFFFFFFFF, (p >> 32) & 0xFFFFFFFF, _sat(p >> (8 * s)) & 0xFFFFFFFF
-        want = (want + (lo ^ hi ^ q)) & 0xFFFFFFFF
+        m = ((b & 0xFFFFFF) ^ 0x800000) - 0x800000                  # b's low 24 bits, signed
+        n = _sat((a * m) >> (8 * s)) & 0xFFFFFFFF
+        c = _sat(a + _sat((b * m) >> (8 * s))) & 0xFFFFFFFF
+        want = (want + (lo ^ hi ^ q ^ n ^ c)) & 0xFFFFFFFF
     assert bad == 0 and checksum == want, (bad, hex(checksum), hex(want))
 
 
@@ -217,3 +255,142 @@ def test_pwm_rounding_is_lround_clamped(host_driver):
         want = min(want, top) * (-1 if math.copysign(1.0, x) < 0 else 1)
         assert int(r) == want, (x, top)
     assert int(got[-1][0]) == 1023
+
+
+def _qgain_model(g):
+    """to_qgain in Python: (mant, shift) of the float32 g (the rule test_gain_quantisation_bound
+    checks the host's against)."""
+    from fractions import Fraction
+
+    g = float(np.float32(g))
+    s = next(k for k in range(4, -1, -1) if abs(_round_away(Fraction(g) * 256**k)) < 2**23)
+    return _round_away(Fraction(g) * 256**s), s
+
+
+class _PidQModel:
+    """jl::PidQ's integer law (jl_control.h) on Python integers: products floored and saturated,
+    sums saturated, conditional integration, the clamp."""
+
+    def __init__(self, kpd, kid, kdd, gamma, limit):
+        self.g = [_qgain_model(x) for x in (kpd, kid, kdd, gamma)]
+        self.lim = _round_away(__import__("fractions").Fraction(float(np.float32(limit))) * 65536)
+        self.i = self.e_prev = self.d = 0
+
+    @staticmethod
+    def _mac(acc, a, g):
+        m, s = g
+        return _sat(acc + _sat((a * m) >> (8 * s)))
+
+    def step(self, e, ff):
+        kpd, kid, kdd, gamma = self.g
+        e = max(-2**30, min(2**30 - 1, e))
+        d = self._mac(0, self.d, gamma) if gamma[0] != 0 else 0
+        d = self._mac(d, e - self.e_prev, kdd)
+        self.d, self.e_prev = d, e
+        fpd = self._mac(_sat(ff + d), e, kpd)
+        i0 = self.i
+        i = self._mac(i0, e, kid)
+        u = _sat(fpd + i)
+        sat = abs(u) > self.lim
+        if sat:
+            if e != 0 and (e < 0) == (u < 0):
+                u, i = _sat(fpd + i0), i0
+            u = max(-self.lim, min(self.lim, u))
+        self.i = i
+        return u, sat
+
+
+_AVR_PID_MAIN = r"""
+#include <avr/io.h>
+#include <avr/pgmspace.h>
+#include <avr/sleep.h>
+#include <avr/interrupt.h>
+#include <util/delay.h>
+#include "jl_control.h"
+static const float kG[][5] PROGMEM = {GAINS};
+static const int32_t kV[][2] PROGMEM = {VECTORS};
+static void tx(uint8_t c) { while (!(UCSR0A & _BV(UDRE0))) {} UDR0 = c; }
+static void hex32(uint32_t v) {
+    for (int8_t i = 28; i >= 0; i -= 4) { uint8_t d = (v >> i) & 15; tx(d < 10 ? '0' + d : 'a' + d - 10); }
+}
+static jl::PidQ pid;
+int main() {
+    UBRR0 = 0;
+    UCSR0B = _BV(TXEN0);
+    for (uint8_t g = 0; g < sizeof(kG) / sizeof(kG[0]); ++g) {
+        float p[5];
+        memcpy_P(p, kG[g], sizeof(p));
+        const bool ok = pid.set(p[0], p[1], p[2], p[3], p[4]);
+        pid.reset();
+        uint32_t sum = 0, nsat = 0;
+        for (uint16_t k = 0; k < sizeof(kV) / sizeof(kV[0]); ++k) {
+            bool sat;
+            const int32_t u = pid.step((int32_t)pgm_read_dword(&kV[k][0]), (int32_t)pgm_read_dword(&kV[k][1]), &sat);
+            sum = (sum * 31u) ^ (uint32_t)u;
+            nsat += sat;
+        }
+        tx('<'); hex32(ok); tx(' '); hex32(sum); tx(' '); hex32(nsat); tx('>'); tx('\n');
+    }
+    _delay_ms(20);
+    cli();
+    sleep_cpu();
+}
+"""
+
+
+def _c_i32(v):
+    return "(-2147483647L-1)" if v == I32_MIN else f"{v}L"
+
+
+def test_assembly_pid_matches_the_integer_law_on_the_simulated_atmega328p(tmp_path):
+    """PidQ::step as the Uno runs it (jl_pidq_step, hand-written assembly) against the integer
+    law in Python, sample by sample (a running checksum of u and the count of saturated
+    samples): with and without the derivative filter, negative gains, errors beyond 2^30 (the
+    clamp), the output clamp with and without the integrator frozen, e = 0."""
+    require_tool("avr-g++", "simavr")
+    import re
+
+    from jerklab.rig.simavr.build import firmware_dir
+
+    src = firmware_dir() / "jerklab_rig" / "src"
+    gains = [(374.6, 0.05, 310.0, 0.0, 1023.0), (12.0, 1.2e-3, 60.0, 0.6, 1023.0),
+             (-3.5, -0.02, 7.25, -0.3, 255.0), (1.0e4, 2.0e-6, 4.0e5, 0.95, 1023.0),
+             (0.75, 0.0, 0.0, 0.0, 100.0)]
+    rng = random.Random(11)
+    vecs = []
+    for k in range(300):
+        r = rng.random()
+        if r < 0.5:
+            e = rng.randint(-40 * 65536, 40 * 65536)
+        elif r < 0.7:
+            e = rng.randint(-2**16, 2**16)
+        elif r < 0.8:
+            e = 0
+        elif r < 0.9:
+            e = rng.choice([I32_MIN, I32_MAX, -I32_MAX, 2**30 + 1, -2**30 - 1, 2**30, -2**30])
+        else:
+            e = rng.randint(-2**31, 2**31 - 1)
+        ff = rng.randint(-600 * 65536, 600 * 65536) if rng.random() < 0.7 else 0
+        vecs.append((e, ff))
+    body_g = ",".join("{" + ",".join(f"{float(np.float32(x))!r}f" for x in g) + "}" for g in gains)
+    body_v = ",".join(f"{{{_c_i32(e)},{_c_i32(f)}}}" for e, f in vecs)
+    (tmp_path / "t.cpp").write_text(_AVR_PID_MAIN.replace("GAINS", body_g).replace("VECTORS", body_v))
+    elf = tmp_path / "t.elf"
+    subprocess.run(["avr-g++", "-mmcu=atmega328p", "-DF_CPU=16000000L", "-Os", "-std=gnu++11",
+                    f"-I{src}", str(tmp_path / "t.cpp"), str(src / "jl_fixed.cpp"), str(src / "jl_control.cpp"),
+                    "-o", str(elf)], check=True, capture_output=True, timeout=120)
+    run = subprocess.run(["simavr", "-m", "atmega328p", "-f", "16000000", str(elf)],
+                         capture_output=True, text=True, timeout=120)
+    text = re.sub(r"\x1b\[[0-9;]*m|[\r\n]", "", run.stderr + run.stdout)
+    got = re.findall(r"<([0-9a-f]{8}) ([0-9a-f]{8}) ([0-9a-f]{8})>", text)
+    assert len(got) == len(gains), (run.stdout[-500:], run.stderr[-500:])
+    for g, (ok, checksum, nsat) in zip(gains, got):
+        model = _PidQModel(*g)
+        s, n = 0, 0
+        for e, ff in vecs:
+            u, sat = model.step(e, ff)
+            s = ((s * 31) ^ (u & 0xFFFFFFFF)) & 0xFFFFFFFF
+            n += sat
+        assert int(ok, 16) == 1, g
+        assert (int(checksum, 16), int(nsat, 16)) == (s, n), (g, checksum, hex(s), nsat, n)
+        assert 0 < n < len(vecs), g          # both branches ran

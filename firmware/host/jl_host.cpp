@@ -96,7 +96,7 @@ int run_vectors(const char* path) {
     Stat pulse("pulse");         // the pulses' integer sinusoids (recurrence, eps, range)
     jl::Pid pid;
     jl::PidQ pidq;               // the fixed-point law, in "counts" and "ticks" (scales below)
-    double q_se = 1.0, q_su = 1.0, q_kabs = 0.0, q_kid = 0.0, q_acc = 0.0;
+    double q_se = 1.0, q_su = 1.0, q_kabs = 0.0, q_kid = 0.0, q_acc = 0.0, q_gamma = 0.0, q_emax = 0.0;
     jl::Feedforward ff;
     bool use_ff = false, velocity_loop = false, first = true;
     float ctl_Ts = 0.005f, y_prev = 0.0f;
@@ -286,6 +286,8 @@ int run_vectors(const char* path) {
             pidq.reset();
             q_kabs = (std::fabs(kpd) + 2.0 * std::fabs(kdd)) / (1.0 - std::fabs(gamma));
             q_kid = std::fabs(kid);
+            q_gamma = std::fabs(gamma);
+            q_emax = 0.0;
             q_acc = 0.0;
         } else if (kind == "c") {
             double r, v, a, y, u, p, i, d, uf;
@@ -312,17 +314,23 @@ int run_vectors(const char* path) {
             ctl.check(parts.saturated != (sat != 0), 0.5, where.str() + " saturated");
             // PidQ: the float path's bound plus the fixed point's (docs/THEORY.md "The fixed-point
             // PID"): e rounded to 2^-17 of its unit, ff to 2^-17 tick, each product floored
-            // (<= 2^-16 tick, 3 a step plus the integrator's running sum), gains exact (float32
-            // gains >= 2^-9) or within 2^-33 (|e| < 2^15: < 2^-18 tick)
+            // (<= 2^-16 tick, 3 a step plus the integrator's running sum), each gain within
+            // 2^-16 of itself (24-bit mantissa, >= 16 significant bits) or 2^-33 absolute:
+            // 2^-16 (|p| + |d| / (1 - |gamma|)) and the integrator's running 2^-16 |kid e|
             {
                 bool qsat;
+                q_emax = std::max(q_emax, std::fabs(e * q_se));
                 const int32_t eq = jl::to_q16((float)(e * q_se));
                 const int32_t fq = jl::to_q16((float)(uff * q_su));
                 const int32_t uq = pidq.step(eq, fq, &qsat);
                 const double lsb = 1.0 / 65536.0;
-                q_acc += q_kid * 0.5 * lsb / q_se + lsb / q_su;            // integrator: e's rounding, floor
+                q_acc += q_kid * 0.5 * lsb / q_se + lsb / q_su             // integrator: e's rounding, floor,
+                         + std::ldexp(std::fabs(q_kid * e), -16)           // gain: 2^-16 relative
+                         + std::ldexp(std::fabs(e * q_se), -33) / q_su;     // or 2^-33 tick/unit
                 const double tq = kRtolControl * ctl_scale + q_kabs * 0.5 * lsb / q_se
-                                  + (4.0 * lsb + 3.0 * lsb) / q_su + q_acc;
+                                  + (4.0 * lsb + 3.0 * lsb) / q_su + q_acc
+                                  + std::ldexp(std::fabs(p) + std::fabs(d) / (1.0 - q_gamma), -16)
+                                  + 4.0 * std::ldexp(q_emax, -33) / ((1.0 - q_gamma) * q_su);
                 ctlq.check(std::fabs(uq * lsb / q_su - u), tq, where.str() + " u (fixed point)");
             }
         } else if (kind == "F") {

@@ -24,7 +24,7 @@ public:
     bool enabled = true;
 
 private:
-    float inv_k_ = 0.0f, tau_over_k_ = 0.0f;
+    float inv_k_ JL_ZERO, tau_over_k_ JL_ZERO;
 };
 
 /// Discrete PID, Stojčić eqs. 17-18 (the law of jerklab.controller.DigitalController):
@@ -37,49 +37,51 @@ class Pid {
 public:
     /// Returns false unless all gains are finite, |gamma| < 1 and limit > 0.
     bool set(float kpd, float kid, float kdd, float gamma, float limit);
-    void reset() { i_ = 0.0f; e_prev_ = 0.0f; d_prev_ = 0.0f; w_ = 0.0f; }
+    void reset() { i_ = 0.0f; e_prev_ = 0.0f; d_prev_ = 0.0f; }
     /// One sample: error e = reference - measurement, feedforward ff. Returns u.
     float step(float e, float ff, ControlParts* parts = nullptr);
-    /// The same law for the control loop: only the saturation flag out, |u| > limit as an
-    /// integer compare of the IEEE bits (no soft-float compare), p + d = (kpd + kdd) e + w with
-    /// w = d - kdd e carried instead of d: without the derivative filter w = -kdd e(k-1), with it
-    /// w(k) = gamma w(k-1) + kdd (gamma - 1) e(k-1) (from d(k) = gamma d(k-1) + kdd (e - e(k-1)));
-    /// one float addition fewer either way, the same value up to float32 rounding.
-    float step_fast(float e, float ff, bool* saturated);
     float limit() const { return limit_; }
 
 private:
     float kpd_ = 0.0f, kid_ = 0.0f, kdd_ = 0.0f, gamma_ = 0.0f, limit_ = 12.0f;
-    uint32_t limit_bits_ = 0x41400000UL;   // IEEE bits of limit_ (> 0)
-    float kpk_ = 0.0f;                     // kpd + kdd (step_fast)
-    float kdg_ = 0.0f;                     // kdd (gamma - 1) (step_fast, derivative filter)
-    bool filtered_ = false;                // gamma != 0
     float i_ = 0.0f, e_prev_ = 0.0f, d_prev_ = 0.0f;
-    float w_ = 0.0f;                       // step_fast: d - kdd e of the last sample
 };
 
-/// The same law in fixed point for the control loop (docs/THEORY.md "The fixed-point PID"):
-/// the error e and the feedforward in Q16.16 (e.g. encoder counts and PWM ticks x 2^16), u in
-/// Q16.16 of the feedforward's unit; gains as QGain (set() quantises them, see to_qgain); each
-/// product floor(e g) by mul_q, the sums saturated at +-2^31 / 2^16. p = kpd e, i' = i + kid e,
-/// d = kdd (e - e(k-1)) [+ gamma d(k-1)], u = ff + p + i' + d; |u| > limit: saturated, and
-/// when e has the sign of u, u = ff + p + i + d and i' = i (conditional integration), then u
-/// clamped to +-limit. |e| is clamped to 2^30 (so that e - e(k-1) cannot overflow).
+class PidQ;
+#if defined(__AVR__)
+extern "C" int32_t jl_pidq_step(PidQ* self, int32_t e, int32_t ff, bool* saturated);
+#endif
+
+/// The same law in fixed point: the control loop's PID (docs/THEORY.md "The fixed-point PID").
+/// The error e and the feedforward in Q16.16 (encoder counts and PWM ticks x 2^16), u in Q16.16
+/// of the feedforward's unit; the gains quantised by to_qgain (24-bit mantissas). p = kpd e,
+/// i' = i + kid e, d = kdd (e - e(k-1)) [+ gamma d(k-1)], u = ff + p + d + i': three products a
+/// sample without the derivative filter, four with it, each a multiply-accumulate mac_g
+/// (product floored, saturated, then added saturated at +-2^31 / 2^16). |u| > limit: saturated,
+/// and when e has the sign of u, u = ff + p + d + i and i' = i (conditional integration), then
+/// u clamped to +-limit. e is clamped to [-2^30, 2^30 - 1] (e - e(k-1) cannot overflow). Zero
+/// initial state. (Not step_fast's p + d = (kpd + kdd) e + w form: its two terms are each
+/// about kdd e, which leave the Q16.16 range long before their difference does.)
 class PidQ {
 public:
-    /// Returns false unless all gains are finite with |g| < 2^31, |gamma| < 1 and
+    /// Returns false unless all gains are finite with |g| < 2^23, |gamma| < 1 and
     /// 0 < limit < 2^15 (the limit in the output's unit).
     bool set(float kpd, float kid, float kdd, float gamma, float limit);
-    void reset() { i_ = 0; e_prev_ = 0; d_prev_ = 0; }
-    /// One sample: e and ff in Q16.16; returns u in Q16.16 and the saturation flag.
+    void reset() { i_ = 0; e_prev_ = 0; d_ = 0; }
+    /// One sample: e and ff in Q16.16; returns u in Q16.16 and the saturation flag. (On the AVR
+    /// the assembly routine jl_pidq_step, jl_control.cpp.)
+#if defined(__AVR__)
+    int32_t step(int32_t e, int32_t ff, bool* saturated) { return jl_pidq_step(this, e, ff, saturated); }
+#else
     int32_t step(int32_t e, int32_t ff, bool* saturated);
+#endif
     int32_t limit() const { return limit_; }
 
 private:
-    QGain kpd_ = {0, 0}, kid_ = {0, 0}, kdd_ = {0, 0}, gamma_ = {0, 0};
+    QGain kpd_ JL_ZERO, kid_ JL_ZERO, kdd_ JL_ZERO, gamma_ JL_ZERO;
     int32_t limit_ = 12L << 16;
-    bool filtered_ = false;
-    int32_t i_ = 0, e_prev_ = 0, d_prev_ = 0;
+    bool filtered_ JL_ZERO;
+    int32_t i_ JL_ZERO, e_prev_ JL_ZERO, d_ JL_ZERO;
 };
 
 /// u (Q16.16) to PWM ticks: round half away from 0, clamped to +-top.

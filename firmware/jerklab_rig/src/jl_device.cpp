@@ -6,6 +6,10 @@ namespace jl {
 
 static const char kName[16] = {'j', 'e', 'r', 'k', 'l', 'a', 'b', '-', 'u', 'n', 'o', 0, 0, 0, 0, 0};
 
+// (out of line, `this` a pointer: the members' initial values as indexed stores, about half
+// the flash of the absolute stores of a static object's inlined initialisation)
+__attribute__((noinline, noclone)) Device::Device(Hal& hal, const DeviceConfig& cfg) : hal_(hal), cfg_(cfg) {}
+
 void Device::begin() {
     apply_plant();
     hal_.set_pwm(0);
@@ -81,6 +85,14 @@ void Device::end_run(uint8_t reason, float detail) {
     rt_active_ = false;
     rt_stage_ = 0;
     send(kEndOfRun, tx_seq_++, p, kLenEndOfRun);
+}
+
+// d + frac / 2^32 counts (frac: a Q32.32's fraction word) in Q16.16, floored to 2^-16 count:
+// d's low half and frac's high half; saturated to +-(2^31 - 1) beyond +-2^15 counts.
+static inline int32_t counts_q16(int32_t d, uint32_t frac) {
+    if (d >= 32768L) return 0x7FFFFFFFL;
+    if (d < -32768L) return -0x7FFFFFFFL;
+    return static_cast<int32_t>((static_cast<uint32_t>(d) << 16) | (frac >> 16));
 }
 
 // ceil(ms * 1000 / Ts_us): a safety window in samples (0 = off); at most 65535 as Ts >= 1 ms.
@@ -238,12 +250,13 @@ void Device::handle(const Frame& f) {
             const float cpr = 1.0f / rad_per_count_;
             stepper_.start(plan_, Ts_, use_ff_ ? ff_.alpha() * pwm_per_volt_ : 0.0f,
                            use_ff_ ? ff_.beta() * pwm_per_volt_ : 0.0f, cpr, cpr * Ts_);
-            // the tracking-error limit in counts, as IEEE bits (0 = off)
+            // the tracking-error limit in counts, Q16.16 (0 = off; from 2^15 counts on never hit)
             float emax_c;
             memcpy(&emax_c, &max_error_bits_, 4);
-            emax_c *= cpr;
-            memcpy(&max_error_c_bits_, &emax_c, 4);
-            uf_ = ref_v_ = 0.0f;
+            emax_q_ = to_q16(emax_c * cpr);
+            if (emax_q_ == 0 && max_error_bits_ != 0) emax_q_ = 1;
+            ufq_ = 0;
+            ref_v_ = 0.0f;
             // SET_SHAPER: the FIR runs on the reference in counts, its differences per sample;
             // the feedforward in PWM ticks from them: uf = ka (v_k - v_{k-1}) + kv v_k
             shaper_.reset(1.0f);
@@ -378,31 +391,32 @@ bool Device::control() {
     int16_t pwm;
     uint8_t flags = 0;
     if (state_ == kRunning) {
-        // ref, e in encoder counts; ref_v in counts per sample; uf in PWM ticks
-        // (sampled one tick ahead by background(); inline only if that did not run)
+        // ref, e in encoder counts (Q32.32, Q16.16); ref_v in counts per sample; uf in PWM
+        // ticks (Q16.16): integer arithmetic from the count to the PWM write
         ahead_ = false;                 // (sampled by reference() after the previous step, or RUN)
-        const float ref = ref_;
+        const Q32 ref = refq_;
         if (k_ >= plan_samples_ + shaper_.max_delay()) flags |= kTelemetrySettling;
-        rep_ref_ = ref;
-        const float pos_error = ref - static_cast<float>(c);
+        // e = ref - c exactly (floored to 2^-16 count): the integer part's difference and the
+        // fraction's top 16 bits, saturated beyond +-2^15 counts
+        const int32_t pos_error = counts_q16(sub_sat(ref.hi, c), ref.lo);
         float detail = 0.0f;
         JL_PART_BEGIN(2);
         uint8_t fault = check_safety(c, pos_error, &detail);
         JL_PART_END(2);
         pwm = 0;
         if (fault == kEndDone) {
-            float e;
+            int32_t e;
             if (loop_ == kLoopPosition) {
                 e = pos_error;
             } else {
                 // Velocity loop (Stojčić §4B): counts over the last sample; y(-1) = y(0).
                 if (k_ == 0) prev_counts_ = c;
-                e = ref_v_ - static_cast<float>(c - prev_counts_);
+                e = sub_sat(to_q16(ref_v_), counts_q16(c - prev_counts_, 0));
             }
             prev_counts_ = c;
             bool saturated;
             JL_PART_BEGIN(4);
-            const float u = pid_.step_fast(e, uf_, &saturated);
+            const int32_t u = pid_.step(e, ufq_, &saturated);
             JL_PART_END(4);
             if (saturated) {
                 flags |= kTelemetrySaturated;
@@ -414,7 +428,7 @@ bool Device::control() {
             if (sat_n_ && sat_level_ >= sat_n_) fault = kEndSaturation;
             else {
                 JL_PART_BEGIN(5);
-                pwm = ticks_to_pwm(u);
+                pwm = q16_to_pwm(u, pwm_top_);
                 JL_PART_END(5);
             }
         }
@@ -457,14 +471,16 @@ static uint32_t samples_of(float t, float Ts) {
 }
 
 void Device::sample_ahead() {
-    stepper_.next_fast(&ref_, loop_ == kLoopVelocity ? &ref_v_ : nullptr, use_ff_ ? &uf_ : nullptr);
+    stepper_.next_q(&refq_, use_ff_ ? &ufq_ : nullptr, loop_ == kLoopVelocity ? &ref_v_ : nullptr);
     if (shaper_.on()) {
         // SET_SHAPER (PROTOCOL.md): the reference's FIR (the delay-0 taps; the delayed taps'
-        // sum for the next sample in background()) and its backward differences, in float
-        float v, a;
-        shaper_.apply(&ref_, &v, &a);
+        // sum for the next sample in background()) and its backward differences, in float,
+        // converted back to the control step's fixed point once
+        float ref = q32_to_float(refq_), v, a;
+        shaper_.apply(&ref, &v, &a);
         ref_v_ = v;
-        uf_ = shp_ka_ * a + shp_kv_ * v;
+        refq_ = to_q32(ref);
+        ufq_ = to_q16(shp_ka_ * a + shp_kv_ * v);
     }
     ahead_ = true;
     if (stepper_.plan() != cur_plan_) {
@@ -563,6 +579,9 @@ bool Device::retarget_work() {
 void Device::reference() {
     if (state_ != kRunning || ahead_) return;
     JL_PART_BEGIN(8);
+    // the reference control() used, as a float in counts for its telemetry (the one Q32.32 ->
+    // float of a sample, skipped when decimation sends none), before the next sample replaces it
+    if (have_sample_) rep_ref_ = q32_to_float(refq_);
     sample_ahead();
     JL_PART_END(8);
 }
@@ -593,14 +612,12 @@ void Device::report() {
 // PROTOCOL.md "Safety stops". Called at each run sample k with the count c_k (before the
 // controller): the tracking-error limit, then the runaway / no-motion window over the PWM
 // applied during the last period (last_pwm_) and the counts it produced (c_k - c_{k-1}).
-uint8_t Device::check_safety(int32_t c, float pos_error, float* detail) {
-    // |e| > max_error (or e NaN) as an integer compare of the IEEE bits: for floats >= 0 the
-    // bit patterns order like the values, and a NaN's pattern lies above +inf's. Saves the
-    // ~50-cycle float compare of the AVR's soft float in the timed step.
-    uint32_t bits;
-    memcpy(&bits, &pos_error, 4);
-    if (max_error_c_bits_ != 0 && (bits & 0x7FFFFFFFUL) > max_error_c_bits_) {
-        *detail = pos_error * rad_per_count_;
+uint8_t Device::check_safety(int32_t c, int32_t pos_error, float* detail) {
+    // |e| > max_error, both in Q16.16 counts: integer compares (e saturates at +-2^15 counts,
+    // so a limit from 2^15 counts on is never reached)
+    const int32_t lim = emax_q_;
+    if (lim != 0 && (pos_error > lim || pos_error < -lim)) {
+        *detail = static_cast<float>(pos_error) * (rad_per_count_ * (1.0f / 65536.0f));
         return kEndTrackingError;
     }
     if (runaway_n_ == 0) return kEndDone;

@@ -46,7 +46,7 @@ struct DeviceConfig {
 class Device {
 public:
     /// Stores the references only (safe for a global object built before main()).
-    Device(Hal& hal, const DeviceConfig& cfg) : hal_(hal), cfg_(cfg) {}
+    __attribute__((noinline, noclone)) Device(Hal& hal, const DeviceConfig& cfg);
     /// Boot state (PROTOCOL.md): PWM 0, default plant, period Ts = 5 ms. Call from setup().
     void begin();
     /// Feed one received byte (from loop()).
@@ -80,7 +80,7 @@ private:
     void ack(const Frame& f);
     void nack(const Frame& f, uint8_t err, uint8_t param = 0xFF);
     void end_run(uint8_t reason, float detail = 0.0f);
-    uint8_t check_safety(int32_t c, float pos_error, float* detail);
+    uint8_t check_safety(int32_t c, int32_t pos_error, float* detail);
     void apply_plant();
     int16_t volts_to_pwm(float u) const;
     int16_t ticks_to_pwm(float u) const;
@@ -95,30 +95,30 @@ private:
     Hal& hal_;
     DeviceConfig cfg_;
     FrameParser parser_;
-    State state_ = kIdle;
-    uint8_t tx_seq_ = 0;
+    State state_ JL_ZERO;
+    uint8_t tx_seq_ JL_ZERO;
 
     // Plant, limits, gains (PROTOCOL.md defaults at boot: no gains, no plan).
     float K_ = 32.4f, tau_ = 0.025f, supply_ = 12.0f;
     uint16_t counts_per_rev_ = 448;
-    float rad_per_count_ = 0.0f, pwm_per_volt_ = 0.0f;
+    float rad_per_count_ JL_ZERO, pwm_per_volt_ JL_ZERO;
     int16_t pwm_top_ = 1023;   // lround(max_voltage * pwm_max / supply), at most pwm_max
     float max_jerk_ = 2e4f, max_accel_ = 300.0f, max_velocity_ = 100.0f, max_voltage_ = 12.0f;
     uint16_t host_timeout_ms_ = 1000;
     // Safety stops (PROTOCOL.md "Safety stops"): tracking-error limit (rad, 0 = off) and the
     // runaway / no-motion window (ms, 0 = off).
     uint32_t max_error_bits_ = 0x3F000000UL;   // IEEE bits of max_error (0.5 rad at boot)
-    uint32_t max_error_c_bits_ = 0;            // the same in encoder counts (set at RUN)
+    int32_t emax_q_ JL_ZERO;                       // the same in encoder counts, Q16.16 (set at RUN)
     uint16_t runaway_ms_ = 200;
     uint16_t saturation_ms_ = 500;   // saturation stop window (ms, 0 = off)
-    bool gains_ok_ = false;
-    float kpd_ = 0, kid_ = 0, kdd_ = 0, gamma_ = 0;
+    bool gains_ok_ JL_ZERO;
+    float kpd_ JL_ZERO, kid_ JL_ZERO, kdd_ JL_ZERO, gamma_ JL_ZERO;
     uint16_t Ts_us_ = 5000;
     float Ts_ = 0.005f;
     uint8_t loop_ = kLoopPosition;
     bool use_ff_ = true;
 
-    bool plan_ok_ = false;
+    bool plan_ok_ JL_ZERO;
     Plan plan_;
     // Re-targeting (PROTOCOL.md "Re-targeting"): the plan that takes over is built in the buffer
     // the stepper does not use, in stages run by background(); rt_stage_ 0 idle, 1 find the
@@ -126,61 +126,63 @@ private:
     Plan plan_b_;
     const Plan* cur_plan_ = &plan_;
     MovingSolver solver_;
-    float rt_target_ = 0.0f, rt_ts_ = 0.0f, rt_xs_ = 0.0f, rt_vs_ = 0.0f;
-    uint32_t rt_k_ = 0;
-    uint8_t rt_stage_ = 0, rt_mode_ = 0, run_kind_ = 0;   // mode: 0 rest to rest, 1 moving start, 2 stop
-    bool rt_active_ = false;               // a RETARGET arrived in this run
-    uint16_t settle_ = 0;
-    uint32_t plan_samples_ = 0;
+    float rt_target_ JL_ZERO, rt_ts_ JL_ZERO, rt_xs_ JL_ZERO, rt_vs_ JL_ZERO;
+    uint32_t rt_k_ JL_ZERO;
+    uint8_t rt_stage_ JL_ZERO, rt_mode_ JL_ZERO, run_kind_ JL_ZERO;   // mode: 0 rest to rest, 1 moving start, 2 stop
+    bool rt_active_ JL_ZERO;               // a RETARGET arrived in this run
+    uint16_t settle_ JL_ZERO;
+    uint32_t plan_samples_ JL_ZERO;
 
-    // The reference of the next sample (counts; the planner samples it in Q32.32), its velocity
-    // (counts per sample) and feedforward (PWM ticks), computed ahead by reference() after the
-    // previous step.
-    float ref_ = 0.0f, ref_v_ = 0.0f, uf_ = 0.0f;
-    bool ahead_ = false;
+    // The reference of the next sample (counts, Q32.32 as the planner samples it), its velocity
+    // (counts per sample, float: the velocity loop only) and feedforward (PWM ticks, Q16.16),
+    // computed ahead by reference() after the previous step.
+    Q32 refq_ JL_ZERO;
+    int32_t ufq_ JL_ZERO;
+    float ref_v_ JL_ZERO;
+    bool ahead_ JL_ZERO;
 
     // Active run / step.
     PlanStepper stepper_;
-    Pid pid_;
+    PidQ pid_;
     Feedforward ff_;
-    uint32_t k_ = 0, n_total_ = 0;
+    uint32_t k_ JL_ZERO, n_total_ JL_ZERO;
     uint8_t decimation_ = 1;
-    uint8_t dec_left_ = 0;
-    int16_t step_pwm_ = 0;
-    int32_t prev_counts_ = 0;
-    uint32_t last_rx_ms_ = 0;
-    uint16_t overruns_ = 0;
+    uint8_t dec_left_ JL_ZERO;
+    int16_t step_pwm_ JL_ZERO;
+    int32_t prev_counts_ JL_ZERO;
+    uint32_t last_rx_ms_ JL_ZERO;
+    uint16_t overruns_ JL_ZERO;
     // Runaway detector state: the last PWM applied, the drive threshold, the window length in
     // samples, and the current window (drive sign, samples in it, counts moved along the drive).
-    int16_t last_pwm_ = 0;
+    int16_t last_pwm_ JL_ZERO;
     int16_t runaway_pwm_ = 512;
-    uint16_t runaway_n_ = 0;
-    int8_t run_sign_ = 0;
-    uint16_t run_len_ = 0;
-    int32_t moved_ = 0;
+    uint16_t runaway_n_ JL_ZERO;
+    int8_t run_sign_ JL_ZERO;
+    uint16_t run_len_ JL_ZERO;
+    int32_t moved_ JL_ZERO;
     // Saturation stop: a level that counts up at a clamped sample and down at another.
-    uint16_t sat_n_ = 0;
-    uint16_t sat_level_ = 0;
+    uint16_t sat_n_ JL_ZERO;
+    uint16_t sat_level_ JL_ZERO;
 
     // Version 3: the PRBS of an active SEQUENCE (seq_on_; its two PWM levels and their
     // commanded volts) and the input shaper of the run reference.
-    bool seq_on_ = false;
+    bool seq_on_ JL_ZERO;
     Prbs prbs_;
-    int16_t seq_pwm_[2] = {0, 0};
-    float seq_volts_[2] = {0.0f, 0.0f};
+    int16_t seq_pwm_[2] JL_ZERO;
+    float seq_volts_[2] JL_ZERO;
     Shaper shaper_;
-    float shp_kv_ = 0.0f, shp_ka_ = 0.0f;   // feedforward ticks per (count/sample), per (count/sample^2)
+    float shp_kv_ JL_ZERO, shp_ka_ JL_ZERO;   // feedforward ticks per (count/sample), per (count/sample^2)
 
     // Results of the last control() for report().
-    bool have_sample_ = false;
-    bool finished_ = false;
-    uint32_t rep_index_ = 0;
-    float rep_ref_ = 0;
-    int32_t rep_counts_ = 0;
-    int16_t rep_pwm_ = 0;
-    uint8_t rep_flags_ = 0;
+    bool have_sample_ JL_ZERO;
+    bool finished_ JL_ZERO;
+    uint32_t rep_index_ JL_ZERO;
+    float rep_ref_ JL_ZERO;   // a run: the reference in counts (reference() converts it); SEQUENCE: V
+    int32_t rep_counts_ JL_ZERO;
+    int16_t rep_pwm_ JL_ZERO;
+    uint8_t rep_flags_ JL_ZERO;
     uint8_t end_reason_ = kEndDone;
-    float end_detail_ = 0.0f;
+    float end_detail_ JL_ZERO;
 };
 
 }  // namespace jl

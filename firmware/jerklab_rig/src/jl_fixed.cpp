@@ -88,34 +88,63 @@ int32_t mul_q_(int32_t a, int32_t mant, uint8_t shift) {
 #endif
 }
 
+int32_t mul_g_(int32_t a, int32_t mant, uint8_t shift) {
+#if defined(__AVR__)
+    const QGain g = {mant, shift};
+    return jl_mac(0, a, &g);
+#else
+    return mul_q_(a, mant, shift);
+#endif
+}
+
+// round(m / 2^k) (halves up), k >= 1; 0 from k = 26 on (m < 2^25)
+static uint32_t __attribute__((noinline)) round_shift(uint32_t m, uint8_t k) {
+    if (k > 25) return 0;
+    for (--k; k; --k) m >>= 1;
+    return (m + 1) >> 1;
+}
+
 bool to_qgain(float g, QGain* out) {
-    // integer work on the IEEE bits: g = m 2^(e - 150), m < 2^24
+    // integer work on the IEEE bits: |g| = m 2^(e - 150), m < 2^24; mant = round(m / 2^r),
+    // r = 150 - e - 8 shift >= 1 with the largest shift <= 4
     uint32_t b;
     memcpy(&b, &g, 4);
-    const uint8_t e = static_cast<uint8_t>((b >> 23) & 0xFF);
-    if (e >= 127 + 31) return false;                         // |g| >= 2^31, inf, NaN
-    uint32_t m = e ? (b & 0x7FFFFFUL) | 0x800000UL : 0;       // (subnormals: 0)
-    uint8_t s = 4;                                           // |g| 2^(8 s) < 2^31
-    while (s && e + 8u * s > 157u) --s;
-    int16_t sh = static_cast<int16_t>(e) - 150 + 8 * s;     // mant = m 2^sh, < 2^31
-    if (sh >= 0) {
-        for (; sh; --sh) m <<= 1;
-    } else if (sh < -24) {
-        m = 0;
-    } else {                                                 // round half away from 0
-        m += 1UL << (-sh - 1);
-        for (; sh; ++sh) m >>= 1;
+    const uint8_t be = static_cast<uint8_t>((b >> 23) & 0xFF);   // biased exponent
+    if (be >= 150) return false;                             // |g| >= 2^23, inf, NaN
+    uint32_t m = be ? (b & 0x7FFFFFUL) | 0x800000UL : 0;      // (subnormals: 0)
+    uint8_t r = static_cast<uint8_t>(150 - be), s = 0;
+    while (s < 4 && r > 8) {
+        r -= 8;
+        ++s;
+    }
+    m = round_shift(m, r);
+    if (m >= 0x800000UL) {                                   // rounded up to 2^23: one byte less
+        if (s == 0) return false;
+        --s;
+        m = 0x8000UL;
     }
     out->mant = (b & 0x80000000UL) ? -static_cast<int32_t>(m) : static_cast<int32_t>(m);
     out->shift = s;
     return true;
 }
 
-// (out of line: one copy of the 32-bit compare code on the AVR)
+// (out of line: one copy; on the AVR four add-with-carry and a branch on the overflow flag)
 int32_t __attribute__((noinline)) add_sat(int32_t a, int32_t b) {
+#if defined(__AVR__)
+    asm("add %A[r], %A[b]\n\t" "adc %B[r], %B[b]\n\t" "adc %C[r], %C[b]\n\t" "adc %D[r], %D[b]\n\t"
+        "brvc 1f\n\t"
+        // overflow: the sum's sign bit is the opposite of the true sum's; 0x7FFFFFFF or 0x80000000
+        "mov %A[r], %D[r]\n\t" "lsl %A[r]\n\t" "sbc %A[r], %A[r]\n\t"
+        "mov %B[r], %A[r]\n\t" "mov %C[r], %A[r]\n\t" "mov %D[r], %A[r]\n\t" "subi %D[r], 0x80\n\t"
+        "1:\n\t"
+        : [r] "+d"(a)
+        : [b] "r"(b));
+    return a;
+#else
     const int32_t r = static_cast<int32_t>(static_cast<uint32_t>(a) + static_cast<uint32_t>(b));
     if (((a ^ r) & (b ^ r)) < 0) return a < 0 ? INT32_MIN : INT32_MAX;
     return r;
+#endif
 }
 
 int32_t sub_sat(int32_t a, int32_t b) {

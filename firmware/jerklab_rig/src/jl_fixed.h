@@ -6,29 +6,59 @@
 #define JL_FIXED_H
 #include <stdint.h>
 
+// A member whose initial value is 0: `int32_t x JL_ZERO;`. On the AVR the objects holding such
+// members are static (the sketch's Device and its parts: zero-initialised storage before any
+// constructor runs), so they get no initialiser there, which spares the constructor a store of
+// 0 per byte (~2-4 bytes of flash each, ~600 bytes in all); elsewhere (the host driver's
+// Device on the stack) they are value-initialised as usual.
+#if defined(__AVR__)
+#define JL_ZERO
+#else
+#define JL_ZERO = {}
+#endif
+
 namespace jl {
 
-/// A gain g = mant * 2^(-8 shift), shift 0..4: the largest shift with |mant| < 2^31, so that
-/// |mant| >= 2^23 (24 significant bits) for |g| >= 2^-9 and the quantisation is |error| <= 2^-33
-/// below that; a float32 g with |g| >= 2^-9 is represented exactly.
+/// A gain g = mant * 2^(-8 shift), shift 0..4, |mant| < 2^23 (a 24-bit signed mantissa, the
+/// narrow operand of mul_g): the largest shift with |mant| < 2^23, so that |mant| >= 2^15 (16
+/// significant bits at least, up to 23) for |g| >= 2^-17; the quantisation (round half away from
+/// 0) is |error| <= 2^-(8 shift + 1), i.e. <= 2^-16 |g| for |g| >= 2^-17 and <= 2^-33 below.
 struct QGain {
     int32_t mant;
     uint8_t shift;
 };
 
-/// The QGain of g; false (gain unchanged) unless g is finite and |g| < 2^31.
+/// a + b saturated to [INT32_MIN, INT32_MAX] (overflow: the sum's sign differs from both's).
+int32_t add_sat(int32_t a, int32_t b);
+
+/// The QGain of g; false (gain unchanged) unless g is finite and |g| < 2^23.
 bool to_qgain(float g, QGain* out);
 
-/// floor(a * g.mant / 2^(8 g.shift)), saturated to [INT32_MIN, INT32_MAX]. On the AVR the
-/// 64-bit product is sixteen 8 x 8 MULs in inline assembly, the window taken by byte moves in registers.
+/// floor(a * mant / 2^(8 shift)), saturated to [INT32_MIN, INT32_MAX], for any 32-bit mant (the
+/// reference the narrow product is tested against). On the AVR the 64-bit product is sixteen
+/// 8 x 8 MULs in inline assembly, the window taken by byte moves in registers.
 int32_t mul_q_(int32_t a, int32_t mant, uint8_t shift);
 static inline int32_t mul_q(int32_t a, const QGain& g) { return mul_q_(a, g.mant, g.shift); }
+
+/// The control step's product: floor(a * mant / 2^(8 shift)) saturated to [INT32_MIN, INT32_MAX],
+/// equal to mul_q_ for |mant| < 2^23 and shift 0..4 (a QGain from to_qgain).
+int32_t mul_g_(int32_t a, int32_t mant, uint8_t shift);
+static inline int32_t mul_g(int32_t a, const QGain& g) { return mul_g_(a, g.mant, g.shift); }
+
+/// add_sat(acc, mul_g(a, g)): the multiply-accumulate of the control step. On the AVR the
+/// assembly routine of PidQ::step (jl_control.cpp: the 24-bit mantissa times the 32-bit operand
+/// as twelve 8 x 8 MULs into 7 bytes, the signed correction, the window by `shift` byte moves,
+/// its saturation, then the saturating add), through a C-callable entry for the tests.
+#if defined(__AVR__)
+extern "C" int32_t jl_mac(int32_t acc, int32_t a, const QGain* g);
+static inline int32_t mac_g(int32_t acc, int32_t a, const QGain& g) { return jl_mac(acc, a, &g); }
+#else
+static inline int32_t mac_g(int32_t acc, int32_t a, const QGain& g) { return add_sat(acc, mul_g(a, g)); }
+#endif
 
 /// The full signed 64-bit product a * b as two words (lo, hi), AVR inline assembly on the AVR.
 void mul_s32x32(int32_t a, int32_t b, uint32_t* lo, int32_t* hi);
 
-/// a + b saturated to [INT32_MIN, INT32_MAX] (overflow: the sum's sign differs from both's).
-int32_t add_sat(int32_t a, int32_t b);
 /// a - b saturated to [INT32_MIN, INT32_MAX].
 int32_t sub_sat(int32_t a, int32_t b);
 
