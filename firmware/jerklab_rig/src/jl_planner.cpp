@@ -581,8 +581,6 @@ static inline int32_t mul_eps(int32_t y, int32_t E, uint8_t eb) {
 #endif
 }
 
-// The units of a sinusoid of amplitude <= amp: s with amp 2^(32 - s) < 2^28 (s = 0: 2^-32, the
-// Q32.32's own; amp < 2^27 for s <= 31).
 // The biased exponent of a float (byte operations: no 32-bit shift).
 static uint8_t exponent_of(float x) {
     uint8_t by[4];
@@ -590,6 +588,8 @@ static uint8_t exponent_of(float x) {
     return static_cast<uint8_t>((by[3] << 1) | (by[2] >> 7));
 }
 
+// The units of a sinusoid of amplitude <= amp: s with amp 2^(32 - s) < 2^28 (s = 0: 2^-32, the
+// Q32.32's own; amp < 2^27 for s <= 31).
 static uint8_t units_of(float amp) {
     const uint8_t e = exponent_of(amp);             // amp < 2^(e - 126)
     if (e <= 122) return 0;

@@ -209,9 +209,9 @@ public:
         union {
             struct {
                 int32_t yv, Dv;        // sine: the velocity's sinusoid and its difference
-                float pad_;
+                float pad_;            // (s_B while preparing)
                 int32_t E;             // sine: eps's mantissa (exactly the float eps)
-                float pad2_, pad3_;
+                float pad2_, pad3_;    // (s_s2, s_c2 while preparing)
                 float v0, v1, v2;      // v = v0 + n (v1 + n v2) [+ the sinusoid]
             };
             struct {
