@@ -479,6 +479,11 @@ class Sequence(_Message):
     hold: int = 1
 
 
+#: RUN: each gain scaled to PWM ticks per encoder count (per count per sample in the velocity loop)
+#: must be below this (the firmware's fixed-point PID keeps a 24-bit mantissa): NACK BAD_VALUE
+RUN_GAIN_LIMIT = 2.0 ** 23
+
+
 #: SET_SHAPER: at most this many taps, delays at most this many samples (the device's ring buffer
 #: holds the last SHAPER_MAX_DELAY + 1 reference samples: 32 in the default firmware, whose RAM the
 #: planners and re-targeting nearly fill; 155 ms at Ts = 5 ms), taps summing to 1 within SHAPER_SUM_TOL

@@ -496,7 +496,7 @@ def test_device_stop_and_open_loop_step(host_driver):
 @pytest.mark.parametrize("loop", ["position", "velocity"])
 def test_device_closed_loop_matches_jerklab_controller(host_driver, loop):
     """The whole device loop (planner stepper, encoder scaling, feedforward, PID eq. 16-18 in
-    float32, PWM rounding and clamp) against jerklab.controller.DigitalController +
+    fixed point (Q16.16 error and states, 24-bit gain mantissas), PWM rounding and clamp) against jerklab.controller.DigitalController +
     jerklab.planner on the same exact ZOH motor, sample by sample."""
     from jerklab.controller import velocity_pole_placement_pid
 
@@ -538,7 +538,7 @@ def test_device_closed_loop_matches_jerklab_controller(host_driver, loop):
     dc = np.abs(np.array([t.counts for t in tel]) - counts)
     dp = np.abs(np.array([t.pwm for t in tel]) - pwms)
     assert dc.max() <= 1 and dp.max() <= 2, (dc.max(), dp.max())
-    assert np.mean(dp == 0) > 0.95                         # float32 vs float64: rare 1-tick ties
+    assert np.mean(dp == 0) > 0.95                         # fixed point vs float64: rare 1-tick ties
 
 
 def test_device_retarget_checks_and_ends_on_the_new_target(host_driver):

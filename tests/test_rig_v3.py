@@ -91,6 +91,36 @@ def test_sequence_and_shaper_checks_firmware_and_virtual_agree(host_driver):
         assert r[-2:] == [P.Ack(P.MsgType.SET_SHAPER)] * 2
 
 
+@pytest.mark.parametrize("loop", [0, 1])
+def test_run_refuses_a_gain_the_fixed_point_pid_cannot_hold_firmware_and_virtual_agree(host_driver, loop):
+    """RUN: a gain scaled to PWM ticks per count (per count per sample in the velocity loop) must be
+    below RUN_GAIN_LIMIT (the firmware's fixed-point PID keeps a 24-bit mantissa): NACK BAD_VALUE
+    on both the firmware core and the virtual rig, and a gain at 0.9 of the limit is accepted."""
+    Ts = 0.005
+    scale = 2 * math.pi / 448 * 1023 / 12.0 / (Ts if loop else 1.0)
+    limit = P.RUN_GAIN_LIMIT / scale                      # the largest gain in V/rad (V s/rad)
+    setup = [P.SetPlant(32.4, 0.025, 12.0, 448), P.SetLimits(2000.0, 300.0, 60.0, 12.0, 0)]
+    script = []
+    for k, which in ((1.1 * limit, 0), (1.1 * limit, 2), (0.9 * limit, 0)):
+        kk = [0.0, 0.0, 0.0]
+        kk[which] = f32(k)
+        script += [P.SetGains(kk[0], kk[1], kk[2], int(Ts * 1e6), loop, 0, 0.0), P.Plan(f32(4 * math.pi), 1),
+                   P.Run(0, 1)]
+    dev = _host(host_driver)
+    for m in setup + script:
+        dev.send(m)
+    dev.send(P.Stop())
+    fw, _ = dev.run()
+    fw = [m for _, _, m in fw]
+    py = _virtual_talk(setup + script + [P.Stop()])
+    R = int(P.MsgType.RUN)
+    for r in (fw, py):
+        runs = [m for m in r if getattr(m, "command", None) == R]
+        assert [(type(m), getattr(m, "error", None)) for m in runs] == [
+            (P.Nack, P.ErrorCode.BAD_VALUE), (P.Nack, P.ErrorCode.BAD_VALUE), (P.Ack, None)], runs
+        assert runs[0].param == runs[1].param == 0xFF
+
+
 def test_sequence_busy_and_length(host_driver):
     dev = _host(host_driver)
     dev.send(P.Step(1.0, 5000, 50)).send(P.Sequence(1.0, 0.0, 5000, 10)).send(P.SetShaper(0))
