@@ -222,8 +222,12 @@ def test_host_core_agrees_with_jerklab_on_golden_vectors(host_driver, tmp_path):
     bound (firmware/host/jl_host.cpp): plans' phase times to 1.6e-5 of the duration, closed-form
     samples to 1e-5 of each quantity's scale, the control loop's fixed-point stepper (positions in
     encoder counts, 448 per revolution, as on the device) to 5e-5 of the scale plus the Q32.32
-    bound 2^-32 (n + n^2 + n^3) < 6.2e-5 count per 64-sample chunk (docs/THEORY.md), its
-    feedforward likewise plus 2^-15 of its unit, no chunk change unprepared when prepare() runs
+    bound 2^-32 (n + n^2 + n^3) < 6.2e-5 count per 64-sample chunk (docs/THEORY.md) and, on a
+    half-sine pulse, the integer sinusoids' bound 1 + n (1 + eps/2) + n(n+1)/2 units of the plan's
+    largest pulse term, its feedforward likewise plus 2^-15 of its unit; the sinusoids themselves
+    ("pulse": from each chunk's first state the integer recurrence against the same in double
+    within j(j+1)/2 units after j steps, eps against 4 sin^2(w Ts / 2), the int32 ranges); no
+    chunk change unprepared when prepare() runs
     after each sample, and each one counted as a miss when it never runs; the PID to 2e-5 of the
     output limit (plus float32 time rounding and either side's value at a jump); the fixed-point
     PID (jl_fixed / PidQ, e in counts and u in PWM ticks, Q16.16) to the same plus its
@@ -242,7 +246,8 @@ def test_host_core_agrees_with_jerklab_on_golden_vectors(host_driver, tmp_path):
                for m in re.finditer(r"(\w+) records=(\d+) failures=(\d+) worst_error_over_tol=(\S+)",
                                     proc.stdout)}
     assert proc.returncode == 0, proc.stdout + proc.stderr[-3000:]
-    for kind, minimum in [("plan", 600), ("sample", 40000), ("stepper", 80000), ("controller", 2000),
+    for kind, minimum in [("plan", 600), ("sample", 40000), ("stepper", 80000), ("pulse", 5000),
+                          ("controller", 2000),
                           ("controller_fixed", 400), ("encode", 56), ("decode", 400)]:
         records, failures, worst = summary[kind]
         assert records >= minimum and failures == 0 and worst <= 1.0, (kind, summary[kind])
@@ -491,7 +496,7 @@ def test_device_stop_and_open_loop_step(host_driver):
 @pytest.mark.parametrize("loop", ["position", "velocity"])
 def test_device_closed_loop_matches_jerklab_controller(host_driver, loop):
     """The whole device loop (planner stepper, encoder scaling, feedforward, PID eq. 16-18 in
-    float32, PWM rounding and clamp) against jerklab.controller.DigitalController +
+    fixed point (Q16.16 error and states, 24-bit gain mantissas), PWM rounding and clamp) against jerklab.controller.DigitalController +
     jerklab.planner on the same exact ZOH motor, sample by sample."""
     from jerklab.controller import velocity_pole_placement_pid
 
@@ -533,7 +538,7 @@ def test_device_closed_loop_matches_jerklab_controller(host_driver, loop):
     dc = np.abs(np.array([t.counts for t in tel]) - counts)
     dp = np.abs(np.array([t.pwm for t in tel]) - pwms)
     assert dc.max() <= 1 and dp.max() <= 2, (dc.max(), dp.max())
-    assert np.mean(dp == 0) > 0.95                         # float32 vs float64: rare 1-tick ties
+    assert np.mean(dp == 0) > 0.95                         # fixed point vs float64: rare 1-tick ties
 
 
 def test_device_retarget_checks_and_ends_on_the_new_target(host_driver):

@@ -160,11 +160,11 @@ def test_1khz_loop_on_the_simulated_uno_matches_the_virtual_rig(run_1khz):
     assert st["int0_latency_cycles"]["over_120"] == 0
 
 
-@pytest.mark.xfail(strict=True, reason="issue 21 not met yet on half-sine jerk pulses: the whole 1 ms "
-                   "control step is ~5100-5250 cycles at its maximum there (firmware/README.md 'Cycle "
-                   "budget'; a sine pulse's reference ~2300 against ~1000 on polynomial segments, the "
-                   "float PID ~1000); S-curve and trapezoid moves ~3800 without host bytes arriving "
-                   "during a step, up to ~4130 with a HEARTBEAT's receive interrupts in it")
+@pytest.mark.xfail(strict=False, reason="issue 21 not met robustly: on this sine-jerk move the whole "
+                   "1 ms control step is ~3920 cycles at its maximum (firmware/README.md 'Cycle budget': "
+                   "fixed-point PID, integer pulse terms), but ~4270 when a HEARTBEAT's receive "
+                   "interrupts land in a step (about one run in four), so it passes or fails by where "
+                   "the host's bytes fall; the issue asks for ~3500 to leave room for them")
 def test_1khz_whole_control_step_within_a_quarter_of_the_period(run_1khz):
     """Issue 21's ceiling: the whole control step (planner sample, feedforward, PID, TELEMETRY;
     interrupts included) <= 4000 cycles, 25 % of 1 ms, at its maximum over the move."""

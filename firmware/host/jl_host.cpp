@@ -83,10 +83,17 @@ const double kRtolSample = 1e-5;        // closed form: ~ 100 float32 eps of the
 const double kRtolStepper = 5e-5;       // rotation recurrence drifts ~ eps per step
 const double kRtolControl = 2e-5;       // of the output limit / gains x signal scale
 
+static std::string wh0(const char* path, long lineno, long k) {
+    std::ostringstream w;
+    w << path << ":" << lineno << " k=" << k;
+    return w.str();
+}
+
 int run_vectors(const char* path) {
     std::ifstream in(path);
     if (!in) { std::fprintf(stderr, "cannot open %s\n", path); return 2; }
     Stat plan("plan"), smp("sample"), stp("stepper"), ctl("controller"), ctlq("controller_fixed"), enc("encode"), dec("decode");
+    Stat pulse("pulse");         // the pulses' integer sinusoids (recurrence, eps, range)
     jl::Pid pid;
     jl::PidQ pidq;               // the fixed-point law, in "counts" and "ticks" (scales below)
     double q_se = 1.0, q_su = 1.0, q_kabs = 0.0, q_kid = 0.0, q_acc = 0.0, q_gamma = 0.0, q_emax = 0.0;
@@ -154,6 +161,27 @@ int run_vectors(const char* path) {
                 // absolute bound 2^-32 (n + n^2 + n^3) < 6.2e-5 counts (n < 64) is in counts
                 const double cpr = 448.0 / (2.0 * M_PI);
                 const double fx_bound = std::ldexp(1.0, -32) * (64.0 + 64.0 * 64.0 + 64.0 * 64.0 * 64.0) / cpr;
+                // the pulses' integer sinusoids (docs/THEORY.md): |error| < 1 + n (1 + eps/2) +
+                // n (n + 1)/2 units 2^(s - 32) at n < 64 (< 2206 units, eps <= 4), the unit from
+                // the amplitude a (a 2^(32 - s) < 2^28: s = floor(log2 a) + 5, at least 0), for
+                // the plan's largest pulse: position a = cpr |B|, B = jp / w^3 (counts), velocity
+                // a = cpr w |B|, the feedforward below a = alpha w^2 |B| (ticks)
+                auto pulse_unit = [](double a) {
+                    if (!(a > 0.0)) return std::ldexp(1.0, -32);
+                    const int e = std::max(0, (int)std::floor(std::log2(a * (1.0 + 1e-6))) + 5);
+                    return std::ldexp(1.0, std::min(e, 31) - 32);
+                };
+                const double kSinUnits = 1.0 + 63.0 * 3.0 + 63.0 * 64.0 / 2.0;
+                double bmax = 0.0, wbmax = 0.0, w2bmax = 0.0;
+                for (int i = 0; i < p.nseg; ++i)
+                    if (p.seg[i].sine) {
+                        const double wi = p.seg[i].w, bi = std::fabs((double)p.seg[i].jp) / (wi * wi * wi);
+                        bmax = std::max(bmax, bi);
+                        wbmax = std::max(wbmax, wi * bi);
+                        w2bmax = std::max(w2bmax, wi * wi * bi);
+                    }
+                const double sx_bound = bmax > 0 ? kSinUnits * pulse_unit(cpr * bmax) / cpr : 0.0;
+                const double sv_bound = wbmax > 0 ? kSinUnits * pulse_unit(cpr * wbmax) / cpr : 0.0;
                 stepper.start(p, (float)Ts, 0.0f, 0.0f, (float)cpr, (float)cpr);
                 // never prepared ahead: every change of chunk takes the slow path, which must
                 // give the same samples and count each change as a miss
@@ -164,6 +192,14 @@ int run_vectors(const char* path) {
                 // the feedforward path (Q16.16): alpha a with alpha = 1000 / peak accel
                 const float alpha = sa > 0 ? (float)(1000.0 / sa) : 1.0f;
                 fstep.start(p, (float)Ts, alpha, 0.0f, 1.0f, 1.0f);
+                const double sf_bound = w2bmax > 0 ? kSinUnits * pulse_unit(alpha * w2bmax) / alpha : 0.0;
+                // The integer recurrence itself: from a chunk's first observed state (y, D, eps =
+                // E 2^(-8 eb)), the same recurrence in double (exact to ~1e-16) must stay within
+                // j (j + 1)/2 units after j steps (the product's floors), and eps must be
+                // 4 sin^2(w Ts / 2) (as the float32 closed form gives it).
+                uint32_t rk0 = 0xFFFFFFFFu;
+                double ryd = 0.0, rDd = 0.0, reps = 0.0;
+                long rj = 0;
                 for (long k = 0; k < n; ++k) {
                     if (!std::getline(in, line)) { stp.check(1, 0, "truncated stepper block"); break; }
                     ++lineno;
@@ -173,6 +209,32 @@ int run_vectors(const char* path) {
                     ls >> tag >> j >> a >> v >> x;
                     jl::Sample s;
                     stepper.next(&s);
+                    {
+                        const jl::PlanStepper::Coef& c = stepper.chunk();
+                        if (c.sine && c.seg < p.nseg) {
+                            if (c.k0 != rk0) {
+                                rk0 = c.k0;
+                                ryd = c.yx;
+                                rDd = c.Dx;
+                                reps = std::ldexp((double)c.E, -8 * c.eb);
+                                rj = 0;
+                                const double th = 0.5 * (double)p.seg[c.seg].w * (double)(float)Ts;
+                                const double eps = 4.0 * std::sin(th) * std::sin(th);
+                                // (float32 sin of the float32 angle w Ts / 2: |d eps / d th| <= 4 times its rounding)
+                                pulse.check(std::fabs(reps - eps), eps * std::ldexp(1.0, -20) + 4.0 * th * std::ldexp(1.0, -21),
+                                          wh0(path, lineno, k) + " pulse eps");
+                                pulse.check(std::max(std::fabs((double)c.yx) / std::ldexp(1.0, 28),
+                                                   std::fabs((double)c.Dx) / std::ldexp(1.0, 29)), 1.0,
+                                          wh0(path, lineno, k) + " pulse sinusoid range");
+                            } else {
+                                rDd -= reps * ryd;
+                                ryd += rDd;
+                                ++rj;
+                                pulse.check(std::fabs((double)c.yx - ryd), 0.5 * rj * (rj + 1) + 1e-6,
+                                          wh0(path, lineno, k) + " pulse recurrence (integer vs double)");
+                            }
+                        }
+                    }
                     float fx, fq, lx;
                     fstep.next_fast(&fx, nullptr, &fq);
                     fstep.prepare();
@@ -184,11 +246,11 @@ int run_vectors(const char* path) {
                     const double t = k * Ts;
                     stp.check(std::fabs(s.jerk - j), near_jump(t) ? 2.000001 * sj : tol(kRtolStepper, sj, sj * w, t, 16), wh.str() + " jerk");
                     stp.check(std::fabs(s.accel - a), near_jump(t) && p.shape == jl::kShapeStep ? 2.000001 * sa : tol(kRtolStepper, sa, sj, t, 16), wh.str() + " accel");
-                    stp.check(std::fabs(s.velocity / cpr - v), tol(kRtolStepper, sv, sa, t, 16), wh.str() + " velocity");
-                    stp.check(std::fabs(s.position / cpr - x), tol(kRtolStepper, sx, sv, t, 16) + fx_bound, wh.str() + " position");
-                    stp.check(std::fabs(lx / cpr - x), tol(kRtolStepper, sx, sv, t, 16) + fx_bound, wh.str() + " position (unprepared)");
+                    stp.check(std::fabs(s.velocity / cpr - v), tol(kRtolStepper, sv, sa, t, 16) + sv_bound, wh.str() + " velocity");
+                    stp.check(std::fabs(s.position / cpr - x), tol(kRtolStepper, sx, sv, t, 16) + fx_bound + sx_bound, wh.str() + " position");
+                    stp.check(std::fabs(lx / cpr - x), tol(kRtolStepper, sx, sv, t, 16) + fx_bound + sx_bound, wh.str() + " position (unprepared)");
                     // fixed-point feedforward: the stepper's bound plus the Q16.16 rounding
-                    stp.check(std::fabs(fa - a), (near_jump(t) && p.shape == jl::kShapeStep ? 2.000001 * sa : tol(kRtolStepper, sa, sj, t, 16)) + 2.0 / 65536.0 / alpha,
+                    stp.check(std::fabs(fa - a), (near_jump(t) && p.shape == jl::kShapeStep ? 2.000001 * sa : tol(kRtolStepper, sa, sj, t, 16)) + 2.0 / 65536.0 / alpha + sf_bound,
                               wh.str() + " feedforward (accel)");
                 }
                 // the idle-time preparation kept up: no chunk computed inside a sample
@@ -330,7 +392,7 @@ int run_vectors(const char* path) {
         }
     }
     int fail = 0;
-    for (Stat* s : {&plan, &smp, &stp, &ctl, &ctlq, &enc, &dec}) {
+    for (Stat* s : {&plan, &smp, &stp, &pulse, &ctl, &ctlq, &enc, &dec}) {
         std::printf("%s records=%ld failures=%ld worst_error_over_tol=%.3g at %s\n", s->name, s->records,
                     s->failures, s->worst, s->worst_what.empty() ? "-" : s->worst_what.c_str());
         if (s->failures) fail = 1;

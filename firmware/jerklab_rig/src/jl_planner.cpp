@@ -323,10 +323,11 @@ void place(Plan* p, float t_start, float x_start) {
 
 // The closed form on a segment of constant jerk at local time u >= 0.
 static void eval_poly(const Segment& s, float u, Sample* o) {
+    const float ju = s.jp * u;
     o->jerk = s.jp;
-    o->accel = s.a0 + s.jp * u;
-    o->velocity = s.v0 + u * (s.a0 + 0.5f * s.jp * u);
-    o->position = s.x0 + u * (s.v0 + u * (0.5f * s.a0 + u * s.jp * (1.0f / 6.0f)));
+    o->accel = s.a0 + ju;
+    o->velocity = s.v0 + u * (s.a0 + 0.5f * ju);
+    o->position = s.x0 + u * (s.v0 + u * (0.5f * s.a0 + ju * (1.0f / 6.0f)));
 }
 
 float position_at_switch(const Plan& p, float t) {
@@ -396,66 +397,232 @@ void q32_add(Q32* a, const Q32& b) {
 #endif
 }
 
-// x 2^32 from the float's bits: the 24-bit mantissa placed at its bit position in the 64-bit
-// image (a byte offset and at most 7 bit shifts; exact from 2^-8 up, truncated to 2^-32 below),
-// then the sign. No 64-bit arithmetic.
-Q32 to_q32(float x) {
-    uint32_t b;
-    memcpy(&b, &x, 4);
-    const uint8_t e = static_cast<uint8_t>(b >> 23);        // biased exponent
-    Q32 r = {0, 0};
-    if (e == 0) return r;                                   // 0, subnormals
-    if (e >= 127 + 31) {                                    // |x| >= 2^31, inf, NaN: saturated
-        r.hi = 0x7FFFFFFFL;
+// a += y 2^s (s = 0..31): the sinusoid in units 2^(s - 32) into a Q32.32. On the AVR y 2^(s & 7)
+// by four MULs (40 bits, the top one MULSU), added at byte s >> 3 with the carry and the sign
+// through the top.
+static void __attribute__((noinline)) q32_add_units(Q32* a, int32_t y, uint8_t s) {
+#if defined(__AVR__)
+    // m = 2^(s & 7) by three conditional shifts (the last a nibble swap), the byte s >> 3 added
+    // to the pointer, cnt = 3 - (s >> 3) bytes above the five of y 2^(s & 7)
+    uint8_t* pa = reinterpret_cast<uint8_t*>(a);
+    uint8_t top = static_cast<uint8_t>(static_cast<uint32_t>(y) >> 24);
+    uint32_t p;
+    uint8_t p4, sg, m, cnt;
+    asm volatile(
+        "ldi %[m], 1\n\t"
+        "sbrc %[s], 0\n\t" "lsl %[m]\n\t"
+        "sbrc %[s], 1\n\t" "lsl %[m]\n\t"
+        "sbrc %[s], 1\n\t" "lsl %[m]\n\t"
+        "sbrc %[s], 2\n\t" "swap %[m]\n\t"
+        "lsr %[s]\n\t" "lsr %[s]\n\t" "lsr %[s]\n\t"
+        "add r26, %[s]\n\t" "adc r27, __zero_reg__\n\t"
+        "ldi %[c], 3\n\t" "sub %[c], %[s]\n\t"
+        "mul %A[y], %[m]\n\t" "movw %A[p], r0\n\t"
+        "mul %B[y], %[m]\n\t" "add %B[p], r0\n\t" "clr %C[p]\n\t" "adc %C[p], r1\n\t"
+        "mul %C[y], %[m]\n\t" "add %C[p], r0\n\t" "clr %D[p]\n\t" "adc %D[p], r1\n\t"
+        "mulsu %[t], %[m]\n\t" "add %D[p], r0\n\t" "clr %[p4]\n\t" "adc %[p4], r1\n\t"
+        "clr r1\n\t"
+        "clr %[sg]\n\t" "sbrc %[p4], 7\n\t" "com %[sg]\n\t"
+        "ld r0, X\n\t" "add r0, %A[p]\n\t" "st X+, r0\n\t"
+        "ld r0, X\n\t" "adc r0, %B[p]\n\t" "st X+, r0\n\t"
+        "ld r0, X\n\t" "adc r0, %C[p]\n\t" "st X+, r0\n\t"
+        "ld r0, X\n\t" "adc r0, %D[p]\n\t" "st X+, r0\n\t"
+        "ld r0, X\n\t" "adc r0, %[p4]\n\t" "st X+, r0\n\t"
+        "tst %[c]\n\t" "breq 2f\n\t"
+        "1:\n\t" "ld r0, X\n\t" "adc r0, %[sg]\n\t" "st X+, r0\n\t" "dec %[c]\n\t" "brne 1b\n\t"
+        "2:\n\t"
+        : [p] "=&r"(p), [p4] "=&r"(p4), [sg] "=&r"(sg), "+x"(pa), [c] "=&d"(cnt), [m] "=&a"(m),
+          [s] "+r"(s)
+        : [y] "r"(y), [t] "a"(top)
+        : "r0", "r1", "memory");
+#else
+    const uint64_t v = ((static_cast<uint64_t>(static_cast<uint32_t>(a->hi)) << 32) | a->lo)
+                       + static_cast<uint64_t>(static_cast<int64_t>(y) * (static_cast<int64_t>(1) << s));
+    a->lo = static_cast<uint32_t>(v);
+    a->hi = static_cast<int32_t>(static_cast<uint32_t>(v >> 32));
+#endif
+}
+
+// x 2^32 from the float's bits: the 24-bit mantissa m, x 2^32 = m 2^(e - 118), signed and added
+// by q32_add_units (from 2^23 up m shifted into hi); exact from 2^-8 up, truncated toward 0 to
+// 2^-32 below. No 64-bit arithmetic.
+static void __attribute__((noinline)) q32_set(Q32* r, float x) {
+    uint8_t by[4];
+    memcpy(by, &x, 4);
+    const bool neg = (by[3] & 0x80) != 0;
+    const uint8_t e = static_cast<uint8_t>((by[3] << 1) | (by[2] >> 7));   // biased exponent
+    by[3] = 0;
+    by[2] |= 0x80;
+    int32_t m;                                      // the mantissa: x 2^32 = m 2^(e - 118)
+    memcpy(&m, by, 4);
+    r->lo = 0;
+    r->hi = 0;
+    if (e >= 118 + 32) {                            // whole: m 2^(e - 150) in hi
+        if (e >= 127 + 31) m = 0x7FFFFFFFL;         // |x| >= 2^31, inf, NaN: saturated
+        else for (uint8_t k = static_cast<uint8_t>(e - 150); k; --k) m <<= 1;   // < 2^31
+        r->hi = neg ? -m : m;
+        return;
+    }
+    uint8_t sh = 0;
+    if (e < 118) {                                  // (0 and subnormals: m shifted out)
+        for (uint8_t k = static_cast<uint8_t>(118 - e); k && m; --k) m >>= 1;
     } else {
-        uint32_t m = (b & 0x7FFFFFUL) | 0x800000UL;         // x 2^32 = m 2^(e - 118)
-        if (e < 118) {
-            const uint8_t sh = static_cast<uint8_t>(118 - e);
-            r.lo = sh < 24 ? m >> sh : 0;
-        } else {
-            const uint8_t sh = static_cast<uint8_t>(e - 118);   // 0..39
-            for (uint8_t k = sh & 7; k; --k) m <<= 1;             // < 2^31
-            uint8_t img[8] = {0, 0, 0, 0, 0, 0, 0, 0};
-            memcpy(img + (sh >> 3), &m, 4);                       // byte offset 0..4
-            memcpy(&r.lo, img, 4);
-            memcpy(&r.hi, img + 4, 4);
-        }
+        sh = static_cast<uint8_t>(e - 118);
     }
-    if (b & 0x80000000UL) {                                 // two's complement negation
-        r.hi = ~r.hi + (r.lo == 0 ? 1 : 0);
-        r.lo = 0u - r.lo;
-    }
+    q32_add_units(r, neg ? -m : m, sh);
+}
+
+Q32 to_q32(float x) {
+    Q32 r;
+    q32_set(&r, x);
     return r;
 }
 
-float q32_to_float(const Q32& x) {
-    // the widest 32-bit window that holds the value: Q16.16 below 2^15, else Q24.8 (byte moves),
-    // one conversion, the window's 2^-16 or 2^-8 by the exponent
-    const int32_t hi = x.hi;
+// The widest 32-bit window of x that holds it: Q16.16 (*n = 16) when |x| < 2^15, else Q24.8
+// (*n = 8) when |x| < 2^23, else Q24.8's +-(2^31 - 1) (*n = 8). Byte moves (AVR: hi's bytes 2, 3
+// compared with byte 1's sign, byte 3 with byte 2's).
+static int32_t __attribute__((noinline)) q32_window(const Q32& x, uint8_t* n) {
     int32_t w;
-    uint32_t n;
+    uint8_t nb;
+#if defined(__AVR__)
+    const uint8_t* px = reinterpret_cast<const uint8_t*>(&x);
+    uint8_t t;
+    asm volatile(
+        "ldd %A[w], Z+2\n\t" "ldd %B[w], Z+3\n\t" "ldd %C[w], Z+4\n\t" "ldd %D[w], Z+5\n\t"
+        "ldi %[n], 16\n\t"
+        "mov %[t], %D[w]\n\t" "lsl %[t]\n\t" "sbc %[t], %[t]\n\t"
+        "ldd __tmp_reg__, Z+6\n\t" "cp __tmp_reg__, %[t]\n\t" "brne 1f\n\t"
+        "ldd __tmp_reg__, Z+7\n\t" "cp __tmp_reg__, %[t]\n\t" "breq 3f\n\t"
+        "1:\n\t"
+        "ldi %[n], 8\n\t"
+        "mov %A[w], %B[w]\n\t" "mov %B[w], %C[w]\n\t" "mov %C[w], %D[w]\n\t" "ldd %D[w], Z+6\n\t"
+        "mov %[t], %D[w]\n\t" "lsl %[t]\n\t" "sbc %[t], %[t]\n\t"
+        "ldd __tmp_reg__, Z+7\n\t" "cp __tmp_reg__, %[t]\n\t" "breq 3f\n\t"
+        "ldi %A[w], 0xFF\n\t" "ldi %B[w], 0xFF\n\t" "ldi %C[w], 0xFF\n\t" "ldi %D[w], 0x7F\n\t"
+        "sbrs __tmp_reg__, 7\n\t" "rjmp 3f\n\t"
+        "ldi %A[w], 0x01\n\t" "ldi %B[w], 0x00\n\t" "ldi %C[w], 0x00\n\t" "ldi %D[w], 0x80\n\t"
+        "3:\n\t"
+        : [w] "=&d"(w), [n] "=&d"(nb), [t] "=&r"(t)
+        : "z"(px)
+        : "r0");
+#else
+    const int32_t hi = x.hi;
     if (hi >= -32768L && hi < 32768L) {
         w = static_cast<int32_t>((static_cast<uint32_t>(hi) << 16) | (x.lo >> 16));
-        n = 16UL << 23;
+        nb = 16;
     } else {
-        const int32_t h = hi > 8388607L ? 8388607L : (hi < -8388608L ? -8388608L : hi);
-        w = static_cast<int32_t>((static_cast<uint32_t>(h) << 8) | (x.lo >> 24));
-        n = 8UL << 23;
+        w = hi > 8388607L ? 0x7FFFFFFFL : (hi < -8388608L ? -0x7FFFFFFFL
+            : static_cast<int32_t>((static_cast<uint32_t>(hi) << 8) | (x.lo >> 24)));
+        nb = 8;
     }
+#endif
+    *n = nb;
+    return w;
+}
+
+float q32_to_float(const Q32& x) {
+    // the window, one conversion, the window's 2^-16 or 2^-8 by the exponent
+    uint8_t n;
+    const int32_t w = q32_window(x, &n);
     float f = static_cast<float>(w);
-    uint32_t b;
-    memcpy(&b, &f, 4);
-    if (b & 0x7F800000UL) b -= n;
-    memcpy(&f, &b, 4);
+    if (w != 0) {                                   // exponent - n: (n / 2) off the top byte
+        uint8_t by[4];
+        memcpy(by, &f, 4);
+        by[3] = static_cast<uint8_t>(by[3] - (n >> 1));
+        memcpy(&f, by, 4);
+    }
     return f;
+}
+
+// ------------------------------------------------------------------- the pulses' sinusoids
+
+// floor(y E / 2^(8 eb)) for 0 <= E < 2^31, eb = 3..7, |result| < 2^31: the signed product y eps
+// of a sinusoid's recurrence (eps = E 2^(-8 eb), docs/THEORY.md). On the AVR a loop over y's four
+// bytes: byte times E (four MULs) added into a 5-byte accumulator, which then moves a byte down
+// (the product's bytes 0..2 only carry; byte 3 is kept); y's two's complement corrected (minus
+// E 2^32 when y < 0); then eb - 3 byte moves down with the sign.
+static inline int32_t mul_eps(int32_t y, int32_t E, uint8_t eb) {
+#if defined(__AVR__)
+    uint32_t acc;
+    uint8_t a4, d, z, c;
+    asm volatile(
+        "bst %D[y], 7\n\t"
+        "clr %[z]\n\t" "clr %A[acc]\n\t" "clr %B[acc]\n\t" "clr %C[acc]\n\t" "clr %D[acc]\n\t"
+        "clr %[a4]\n\t" "ldi %[c], 4\n\t"
+        "1:\n\t"
+        "mul %A[y], %A[e]\n\t" "add %A[acc], r0\n\t" "adc %B[acc], r1\n\t" "adc %C[acc], %[z]\n\t"
+        "adc %D[acc], %[z]\n\t" "adc %[a4], %[z]\n\t"
+        "mul %A[y], %B[e]\n\t" "add %B[acc], r0\n\t" "adc %C[acc], r1\n\t" "adc %D[acc], %[z]\n\t"
+        "adc %[a4], %[z]\n\t"
+        "mul %A[y], %C[e]\n\t" "add %C[acc], r0\n\t" "adc %D[acc], r1\n\t" "adc %[a4], %[z]\n\t"
+        "mul %A[y], %D[e]\n\t" "add %D[acc], r0\n\t" "adc %[a4], r1\n\t"
+        "mov %[d], %A[acc]\n\t" "mov %A[acc], %B[acc]\n\t" "mov %B[acc], %C[acc]\n\t"
+        "mov %C[acc], %D[acc]\n\t" "mov %D[acc], %[a4]\n\t" "clr %[a4]\n\t"
+        "mov %A[y], %B[y]\n\t" "mov %B[y], %C[y]\n\t" "mov %C[y], %D[y]\n\t"
+        "dec %[c]\n\t" "brne 1b\n\t"
+        "clr r1\n\t"
+        "brtc 2f\n\t"
+        "sub %A[acc], %A[e]\n\t" "sbc %B[acc], %B[e]\n\t" "sbc %C[acc], %C[e]\n\t" "sbc %D[acc], %D[e]\n\t"
+        "2:\n\t"
+        "mov %[z], %D[acc]\n\t" "lsl %[z]\n\t" "sbc %[z], %[z]\n\t"
+        "subi %[s], 3\n\t" "breq 4f\n\t"
+        "3:\n\t"
+        "mov %[d], %A[acc]\n\t" "mov %A[acc], %B[acc]\n\t" "mov %B[acc], %C[acc]\n\t"
+        "mov %C[acc], %D[acc]\n\t" "mov %D[acc], %[z]\n\t"
+        "dec %[s]\n\t" "brne 3b\n\t"
+        "4:\n\t"
+        : [acc] "=&r"(acc), [a4] "=&r"(a4), [d] "=&r"(d), [z] "=&r"(z), [c] "=&d"(c),
+          [y] "+r"(y), [s] "+d"(eb)
+        : [e] "r"(E)
+        : "r0", "r1");
+    return static_cast<int32_t>((acc << 8) | d);
+#else
+    return static_cast<int32_t>((static_cast<int64_t>(y) * E) >> (8 * eb));
+#endif
+}
+
+// The biased exponent of a float (byte operations: no 32-bit shift).
+static uint8_t exponent_of(float x) {
+    uint8_t by[4];
+    memcpy(by, &x, 4);
+    return static_cast<uint8_t>((by[3] << 1) | (by[2] >> 7));
+}
+
+// The units of a sinusoid of amplitude <= amp: s with amp 2^(32 - s) < 2^28 (s = 0: 2^-32, the
+// Q32.32's own; amp < 2^27 for s <= 31).
+static uint8_t units_of(float amp) {
+    const uint8_t e = exponent_of(amp);             // amp < 2^(e - 126)
+    if (e <= 122) return 0;
+    return e - 122 > 31 ? 31 : static_cast<uint8_t>(e - 122);
+}
+
+// 2^(32 - s) as a float (s = -24..31): the scale of a sinusoid's units.
+static float scale_of(int8_t s) {
+    const uint8_t v = static_cast<uint8_t>(127 + 32 - s);   // the biased exponent
+    const uint8_t by[4] = {0, 0, static_cast<uint8_t>(v << 7), static_cast<uint8_t>(v >> 1)};
+    float p;
+    memcpy(&p, by, 4);
+    return p;
+}
+
+// One sample of a sinusoid (yD = {y, D}, units 2^(s - 32)) of chunk c: *out += y, then the
+// difference form's step D -= eps y; y += D.
+static void __attribute__((noinline)) sin_out(Q32* out, int32_t* yD, uint8_t s,
+                                              const PlanStepper::Coef& c) {
+    const int32_t y = yD[0];
+    q32_add_units(out, y, s);
+    const int32_t D = yD[1] - mul_eps(y, c.E, c.eb);
+    yD[1] = D;
+    yD[0] = y + D;
 }
 
 // The smallest k with (float)k * Ts >= t0 (in the float arithmetic of the stepper).
 static uint32_t first_k(float t0, float Ts) {
     if (!(t0 > 0.0f)) return 0;
-    uint32_t k = static_cast<uint32_t>(t0 / Ts);
+    // from above: t0 / Ts's truncation + 2 is past the answer (float k Ts is monotonic in k and
+    // within a relative 2^-24 of k Ts, for t0 / Ts < 2^23), then down to it
+    uint32_t k = static_cast<uint32_t>(t0 / Ts) + 2;
     while (k > 0 && static_cast<float>(k - 1) * Ts >= t0) --k;
-    while (static_cast<float>(k) * Ts < t0) ++k;
     return k;
 }
 
@@ -485,26 +652,27 @@ void PlanStepper::begin_coef(uint8_t i, Coef* c, uint32_t k0, uint32_t k_end) co
     c->s_delta = static_cast<float>(k0) * Ts_ - g.t0;   // delta = k0 Ts - t0 (>= 0 but on the slow path)
 }
 
-// to_q32(a b) (one call site per product: smaller code on the AVR).
-static Q32 __attribute__((noinline)) q32_of(float a, float b) { return to_q32(a * b); }
+// *r = to_q32(a b) (one call site per product: smaller code on the AVR).
+static void __attribute__((noinline)) q32_of(Q32* r, float a, float b) { q32_set(r, a * b); }
 
 // The coefficients of chunk c of segment i, one stage per call (prepare() runs them in the idle
 // time after the control step). The state (x, v, a) at the chunk's first sample and the jerk j
 // of the polynomial part give, on every segment, x = x(n Ts) as forward differences in Q32.32
 // (sx x, sx Ts (v + ...), ...), the feedforward alpha a + beta v likewise and the float velocity
-// polynomial. A polynomial segment: 1 the state (closed form), 2 to 4 the differences, 5 the
-// velocity. A half-sine pulse x = (x0 - B) + v0 u + q2 u^2 + B cos(w u) (j = 0 on the
-// polynomial part): 1 cos(w delta), 2 sin(w delta), 3 sin(theta/2), 4 cos(theta/2) (theta = w
-// Ts), 5 B and the state, 6 to 8 the differences, 9 Minsky's pair, 10 the velocity and the
-// pair's terms. Each stage reads its scratch (Coef's union) before it writes an output that
-// shares its bytes.
+// polynomial. A polynomial segment: 1 the state (closed form), 2 and 3 the position's
+// differences, 4 the feedforward's and the velocity. A half-sine pulse
+// x = (x0 - B) + v0 u + q2 u^2 + B cos(w u) (j = 0 on the polynomial part, whose X3 and F2 are 0:
+// their bytes hold the sinusoids): 1 cos, sin(w delta), 2 sin, cos(theta/2) (theta = w Ts), 3 B
+// and the state, 4 to 6 the position's, the feedforward's and the velocity's sinusoids, 7 and 8
+// the differences and the velocity. Each stage reads its
+// scratch (Coef's union) before it writes an output that shares its bytes.
 bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
     const Segment& g = p_->seg[i];
     const float Ts = Ts_, sx = sx_, sv = sv_;
     if (i == p_->nseg - 1) {                        // the rest at the target
-        memset(&c->h, 0, sizeof(float) * 10);     // the float part
+        memset(&c->yv, 0, sizeof(float) * 9);     // the float part
         memset(&c->X, 0, sizeof(Q32) * 7);       // X..F2
-        c->X = to_q32(sx * g.x0);
+        q32_set(&c->X, sx * g.x0);
         c->sine = 0;
         c->seg = i;
         return true;
@@ -514,11 +682,19 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
     uint8_t st = stage;
     if (sine) {
         switch (stage) {
-        case 1: c->s_cw = jl_cosf(w * c->s_delta); return false;
-        case 2: c->s_sw = jl_sinf(w * c->s_delta); return false;
-        case 3: c->s_s2 = jl_sinf(0.5f * (w * Ts)); return false;
-        case 4: c->s_c2 = jl_cosf(0.5f * (w * Ts)); return false;
-        case 5: {
+        case 1: {
+            const float wd = w * c->s_delta;
+            c->s_cw = jl_cosf(wd);
+            c->s_sw = jl_sinf(wd);
+            return false;
+        }
+        case 2: {
+            const float h = 0.5f * (w * Ts);
+            c->s_s2 = jl_sinf(h);
+            c->s_c2 = jl_cosf(h);
+            return false;
+        }
+        case 3: {
             const float jw = g.jp / w, a2 = g.a0 + jw, d = c->s_delta;
             const float B = jw / (w * w);
             c->s_B = B;
@@ -527,20 +703,44 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
             c->s_a = a2;                                          // 2 q2
             return false;
         }
-        case 9: {
-            // Minsky's recurrence h -= e q; q += e h with e = 2 sin(theta/2) keeps
-            // h_n = A cos(w u_n) and q_n = A sin(w u_n + theta/2) exactly (2 fmul a step), A = sx B:
-            // sin(w u_n) = (q_n - s2 h_n) / c2, s2, c2 = sin, cos(theta/2).
+        case 4: case 5: case 6: {
+            // y(u) = P cos(w u) + Q sin(w u) at u = delta + n Ts: y(0) = P cw + Q sw and
+            // D(0) = y(0) - y(-1) = 2 s2 (Q C - P S), S, C = sin, cos(w delta - theta/2), in units
+            // 2^(s - 32) for the amplitude |P| + |Q|; eps = 4 s2^2 as E 2^(-8 eb), exactly.
+            // 4 position (x sx, counts): P = sx B. 5 feedforward alpha a + beta v (ticks) with
+            // a = -w^2 B cos, v = -w B sin: P = -alpha w^2 B, Q = -beta w B. 6 velocity (x sv).
             const float cw = c->s_cw, sw = c->s_sw, B = c->s_B, s2 = c->s_s2, c2 = c->s_c2;
-            const float a = sx * B;
-            c->h = a * cw;
-            c->q = a * (sw * c2 + cw * s2);        // sin(w delta + theta/2)
-            c->eps = 2.0f * s2;
+            const float S = sw * c2 - cw * s2, C = cw * c2 + sw * s2;
+            const float wB = w * B;
+            float P = 0.0f, Q = -sv * wB;
+            if (stage == 4) { P = sx * B; Q = 0.0f; }
+            if (stage == 5) { P = -alpha_ * w * wB; Q = -beta_ * wB; }
+            const uint8_t u = units_of(jl_fabsf(P) + jl_fabsf(Q));
+            const float p = scale_of(u);               // (exact: a power of 2)
+            P *= p;
+            Q *= p;
+            // truncated toward 0 (|y| < 2^28, |D| < 2^29)
+            const int32_t y = static_cast<int32_t>(P * cw + Q * sw);
+            const int32_t D = static_cast<int32_t>(2.0f * s2 * (Q * C - P * S));
+            if (stage == 4) {
+                c->xs = u; c->yx = y; c->Dx = D;
+                // eps = E 2^(-8 eb): eb = ceil(t / 8) for eps = m 2^-t (t >= 21), at most 7
+                // (eps < 2^-32 then keeps 24 - (t - 56) bits); E < 2^31 (E = eps 2^(8 eb))
+                const float eps = 4.0f * s2 * s2;
+                uint8_t eb = static_cast<uint8_t>((157 - exponent_of(eps)) >> 3);
+                if (eb > 7) eb = 7;
+                c->E = static_cast<int32_t>(eps * scale_of(static_cast<int8_t>(32 - 8 * eb)));   // (over s_delta, read in stage 3 last)
+                c->eb = eb;
+            } else if (stage == 5) {
+                c->fs = u; c->yf = y; c->Df = D;
+            } else {
+                c->vs = u; c->yv = y; c->Dv = D;      // (over s_cw, s_sw: read for the last time)
+            }
             return false;
         }
         default: break;
         }
-        st = stage >= 10 ? 5 : static_cast<uint8_t>(stage - 4);   // 6..8 -> 2..4, 10 -> 5
+        st = stage == 7 ? 2 : 4;                    // 7 -> 2 (X3 = 0), 8 -> 4 (F2 = 0)
     } else if (stage == 1) {
         Sample s;
         eval_poly(g, c->s_delta, &s);
@@ -552,16 +752,18 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
     const float sxTs = sx * Ts;
     if (st == 2) {
         // x = x0 + x1 n + x2 n^2 + x3 n^3 in Q32.32 (each rounded once), as forward differences
-        const Q32 x2 = q32_of(0.5f * sxTs * Ts, c->s_a);
-        c->X = q32_of(sx, c->s_x);
-        c->X1 = q32_of(sxTs, c->s_v);
+        Q32 x2;
+        q32_of(&x2, 0.5f * sxTs * Ts, c->s_a);
+        q32_of(&c->X, sx, c->s_x);
+        q32_of(&c->X1, sxTs, c->s_v);
         q32_add(&c->X1, x2);                        // + x3 in stage 3
         c->X2 = x2;
         q32_add(&c->X2, x2);                        // + 6 x3 in stage 3
         return false;
     }
     if (st == 3) {
-        const Q32 x3 = q32_of(sxTs * Ts * Ts * (1.0f / 6.0f), j);
+        Q32 x3;
+        q32_of(&x3, sxTs * Ts * Ts * (1.0f / 6.0f), j);
         q32_add(&c->X1, x3);
         c->X3 = x3;
         q32_add(&c->X3, x3);
@@ -570,39 +772,21 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
         q32_add(&c->X2, c->X3);
         return false;
     }
-    const float a = c->s_a, v = c->s_v;
-    if (st == 4) {
-        // u_F = f0 + f1 n + f2 n^2
-        const Q32 f2 = q32_of(beta_ * 0.5f * Ts * Ts, j);
-        c->F = to_q32(alpha_ * a + beta_ * v);
-        c->F1 = q32_of(alpha_ * j + beta_ * a, Ts);
-        q32_add(&c->F1, f2);
+    // the last stage: u_F = f0 + f1 n + f2 n^2 (f2 = 0 on a pulse, where F2's bytes hold a
+    // sinusoid) and the float part (its scratch a, v read first)
+    const float a = c->s_a, v = c->s_v, hjT2 = 0.5f * j * Ts * Ts;
+    Q32 f2;
+    q32_of(&f2, beta_, hjT2);
+    q32_set(&c->F, alpha_ * a + beta_ * v);
+    q32_of(&c->F1, alpha_ * j + beta_ * a, Ts);
+    q32_add(&c->F1, f2);
+    if (!sine) {
         c->F2 = f2;
         q32_add(&c->F2, f2);
-        return false;
-    }
-    // the last stage: the float part (scratch read above: a, v; below: s2, c2)
-    float fh = 0.0f, fq = 0.0f, vh = 0.0f, vq = 0.0f;
-    if (sine) {
-        const float s2 = c->s_s2, c2 = c->s_c2;
-        const float unit = 1.0f / sx;               // rad per unit of h
-        // a = a2 - w^2 B cos, v = vd + a2 u - w B sin, w B sin = w (q - s2 h) / c2 per unit of h
-        // and of q: with t = unit w / c2, v: (t s2, -t), a: -unit w^2 h
-        const float t = unit * w / c2;
-        vq = -sv * t;
-        vh = -vq * s2;
-        fq = -beta_ * t;
-        fh = -fq * s2 - alpha_ * unit * w * w;
-    } else {
-        c->h = c->q = c->eps = 0.0f;
     }
     c->v0 = sv * v;
     c->v1 = sv * a * Ts;
-    c->v2 = sv * 0.5f * j * Ts * Ts;
-    c->fh = fh;
-    c->fq = fq;
-    c->vh = vh;
-    c->vq = vq;
+    c->v2 = sv * hjT2;
     c->seg = i;
     return true;
 }
@@ -675,7 +859,7 @@ bool PlanStepper::prepare_stage() {
 void PlanStepper::prepare() {
     if (prepare_stage()) return;
     // stages to go (over-estimated before stage 1: prep_stage_ is 0 until then)
-    const uint8_t left = static_cast<uint8_t>((p_->seg[prep_seg_].sine ? 14 : 9) - prep_stage_);
+    const uint8_t left = static_cast<uint8_t>((p_->seg[prep_seg_].sine ? 12 : 8) - prep_stage_);
     const uint32_t ticks = buf_[ci_].k_end - k_;    // calls before the change
     if (ticks > left) return;
     const uint8_t t = static_cast<uint8_t>(ticks);
@@ -723,6 +907,14 @@ void PlanStepper::advance_segment() {
     n_ = k_ - buf_[ci_].k0;
 }
 
+// The Q16.16 window of a Q32.32 (|value| < 2^15, saturated to +-(2^31 - 1)).
+static int32_t q16_window(const Q32& f) {
+    uint8_t n;
+    const int32_t w = q32_window(f, &n);
+    if (n == 16) return w;
+    return f.hi < 0 ? -0x7FFFFFFFL : 0x7FFFFFFFL;
+}
+
 bool PlanStepper::next_q(Q32* position, int32_t* ff, float* velocity) {
     if (pend_p_ != nullptr && pend_.seg < 0xFD && k_ >= pend_.k0) {
         // re-targeting: the new plan takes over at its first sample
@@ -735,33 +927,39 @@ bool PlanStepper::next_q(Q32* position, int32_t* ff, float* velocity) {
     }
     if (k_ >= buf_[ci_].k_end) advance_segment();
     Coef& c = buf_[ci_];
-    const float h = c.h, q = c.q;                 // 0 off a sine pulse
+    Q32 x = c.X;
+    float vs = 0.0f;
+    const bool sine = c.sine != 0;
+    if (!sine) {
+        *position = x;
+        if (ff) *ff = q16_window(c.F);
+    } else {
+        // a half-sine pulse: the polynomial part (X3 = F2 = 0) plus the sinusoids, each
+        // advanced by D -= eps y; y += D (one MUL product)
+        if (velocity) {
+            Q32 t = {0, 0};
+            sin_out(&t, &c.yv, c.vs, c);
+            vs = q32_to_float(t);
+        }
+        sin_out(&x, &c.yx, c.xs, c);
+        *position = x;
+        if (ff) {
+            Q32 f = c.F;
+            sin_out(&f, &c.yf, c.fs, c);
+            *ff = q16_window(f);
+        }
+    }
     if (velocity) {                               // (the velocity loop only)
         const float n = static_cast<float>(n_);
-        *velocity = c.v0 + n * (c.v1 + n * c.v2) + c.vh * h + c.vq * q;
+        *velocity = c.v0 + n * (c.v1 + n * c.v2) + vs;
     }
-    Q32 x = c.X;
-    int32_t fs = 0;
-    if (c.sine) {
-        q32_add(&x, to_q32(h));
-        if (ff) fs = static_cast<int32_t>((c.fh * h + c.fq * q) * 65536.0f);   // |.| < 2^15
-        const float h1 = h - c.eps * q;           // Minsky: advance by w Ts
-        c.q = q + c.eps * h1;
-        c.h = h1;
-    }
-    *position = x;
-    q32_add(&c.X, c.X1);
     if (ff) {
-        // the Q16.16 window (|ff| < 2^15 ticks, saturated)
-        const int32_t fhi = c.F.hi;
-        const int32_t fw = fhi >= 32768L ? 0x7FFFFFFFL : (fhi < -32768L ? -0x7FFFFFFFL
-                           : static_cast<int32_t>((static_cast<uint32_t>(fhi) << 16) | (c.F.lo >> 16)));
-        *ff = fw + fs;
         q32_add(&c.F, c.F1);
-        q32_add(&c.F1, c.F2);
+        if (!sine) q32_add(&c.F1, c.F2);
     }
+    q32_add(&c.X, c.X1);
     q32_add(&c.X1, c.X2);
-    q32_add(&c.X2, c.X3);
+    if (!sine) q32_add(&c.X2, c.X3);
     ++n_;
     ++k_;
     return seg_ + 1 < p_->nseg;
@@ -772,7 +970,17 @@ bool PlanStepper::next_fast(float* position, float* velocity, float* ff) {
     int32_t f;
     const bool moving = next_q(&x, ff ? &f : nullptr, velocity);
     *position = q32_to_float(x);
-    if (ff) *ff = static_cast<float>(f) * (1.0f / 65536.0f);
+    if (ff) {
+        // f 2^-16: one conversion, the exponent lowered by 16 (8 off the top byte)
+        float u = static_cast<float>(f);
+        if (f != 0) {
+            uint8_t by[4];
+            memcpy(by, &u, 4);
+            by[3] = static_cast<uint8_t>(by[3] - 8);
+            memcpy(&u, by, 4);
+        }
+        *ff = u;
+    }
     return moving;
 }
 

@@ -142,10 +142,16 @@ float q32_to_float(const Q32& x);
 /// feedforward alpha a + beta v (Q32.32) are polynomials in n = k - k0 advanced by integer forward
 /// differences (exact adds: the only error is the rounding of the chunk's coefficients to 2^-32,
 /// |error| <= 2^-32 (n + n^2 + n^3) < 6.2e-5 at n < 64, on top of the float32 closed form at the
-/// chunk's first sample, where they are re-anchored); on a half-sine pulse a pair (h, q) advanced by
-/// Minsky's two-multiply float recurrence adds the cosine terms. The velocity (velocity loop
-/// only) is a float Horner polynomial plus the pair's terms. The coefficients of a chunk are
-/// prepared before it starts (prepare(), in stages, in the idle time after the control step).
+/// chunk's first sample, where they are re-anchored). On a half-sine pulse the position's and the
+/// feedforward's cosine terms are each a sinusoid y(n) of the one angle step theta = w Ts, advanced
+/// in int32 (units 2^-f of a count / PWM tick, f per chunk) by the difference form
+/// D(n+1) = D(n) - eps y(n), y(n+1) = y(n) + D(n+1), eps = 4 sin^2(theta/2): one 32 x 32 MUL
+/// product a sample each, |error| < 1 + n (1 + eps/2) + n(n+1)/2 units 2^-f (< 2206 at n < 64;
+/// f with amplitude 2^f < 2^28: < 1.6e-5 of the amplitude, or 5.1e-7 count when f = 32;
+/// docs/THEORY.md).
+/// The velocity (velocity loop only) is a float Horner polynomial plus, on a pulse, a third such
+/// sinusoid converted to float. The coefficients of a chunk are prepared before it
+/// starts (prepare(), in stages, in the idle time after the control step).
 class PlanStepper {
 public:
     /// Chunk length in samples (re-anchoring to the closed form; bounds the cubic's rounding).
@@ -166,11 +172,13 @@ public:
     /// The control loop's sample at t = k Ts, then k++: position x sx, velocity x sv and
     /// feedforward as floats (velocity, ff nullptr: not computed). The polynomial parts come
     /// from the Q32.32 differences (the position's 32-bit window, the feedforward's Q16.16, each
-    /// converted once), the pulse terms from the float pair. Returns false once the move is over.
+    /// converted once), the pulse terms from the integer sinusoids. Returns false once the move is over.
     bool next_fast(float* position, float* velocity, float* ff);
     /// next_fast() in fixed point (the control step's form): position x sx in Q32.32 (the
     /// polynomial part plus a sine pulse's), the feedforward in Q16.16 PWM ticks (saturated to
-    /// +-(2^31 - 1); ff nullptr: not computed), the velocity (x sv) as next_fast().
+    /// +-(2^31 - 1); ff nullptr: not computed), the velocity (x sv) as next_fast(). Ask for the
+    /// feedforward and the velocity each on every sample of a run or on none (they are advanced
+    /// only when asked for).
     bool next_q(Q32* position, int32_t* ff, float* velocity);
     /// The sample at t = k Ts, then k++, for the golden vectors: position and velocity (x sx,
     /// x sv) from next_fast(), jerk and acceleration from the closed form sample() at t = k Ts.
@@ -193,13 +201,18 @@ public:
     struct Coef {
         uint8_t seg;      // segment index (0xFF: not prepared, 0xFE: in preparation, 0xFD: k0, k_end known)
         uint8_t sine;
+        uint8_t eb;       // sine: eps = E 2^(-8 eb)
+        uint8_t xs, fs;   // sine: the sinusoids' units 2^(xs - 32) counts, 2^(fs - 32) ticks
+        uint8_t vs;       // sine: the velocity's sinusoid in units 2^(vs - 32) (x sv)
         // The float part; during the preparation the same bytes hold the scratch values
         // (stages write each output only after its scratch was read, see compute_stage).
         union {
             struct {
-                float h, q, eps;       // sine: the pair and Minsky's 2 sin(theta/2)
-                float v0, v1, v2;      // v = v0 + n (v1 + n v2) [+ vh h + vq q]
-                float fh, fq, vh, vq;  // sine: ff and velocity per unit of h and of q
+                int32_t yv, Dv;        // sine: the velocity's sinusoid and its difference
+                float pad_;            // (s_B while preparing)
+                int32_t E;             // sine: eps's mantissa (exactly the float eps)
+                float pad2_, pad3_;    // (s_s2, s_c2 while preparing)
+                float v0, v1, v2;      // v = v0 + n (v1 + n v2) [+ the sinusoid]
             };
             struct {
                 float s_cw, s_sw, s_B;        // sine: cos, sin of w delta; B = jp / w^3
@@ -210,10 +223,19 @@ public:
         };
         uint32_t k0;      // first sample of the chunk
         uint32_t k_end;   // first sample after the chunk (0xFFFFFFFF: none)
-        Q32 X, X1, X2, X3;         // position x sx and its forward differences
-        Q32 F, F1, F2;             // feedforward and its forward differences
+        Q32 X, X1, X2;             // position x sx and its forward differences
+        union {
+            Q32 X3;                // polynomial: the third difference
+            struct { int32_t yx, Dx; };   // sine: the position's sinusoid and its difference
+        };
+        Q32 F, F1;                 // feedforward and its forward differences
+        union {
+            Q32 F2;                // polynomial
+            struct { int32_t yf, Df; };   // sine: the feedforward's sinusoid and its difference
+        };
     };
-
+    /// The current chunk's coefficients (the golden vectors check the sinusoids' bound on them).
+    const Coef& chunk() const { return buf_[ci_]; }
 private:
     void compute(uint8_t i, Coef* c, uint32_t k0) const;
     void __attribute__((noinline)) begin_coef(uint8_t i, Coef* c, uint32_t k0, uint32_t k_end) const;
