@@ -4,6 +4,8 @@
 
 namespace jl {
 
+static float q32_counts_to_rad(const Q32& x, float rad_per_count);
+
 static const char kName[16] = {'j', 'e', 'r', 'k', 'l', 'a', 'b', '-', 'u', 'n', 'o', 0, 0, 0, 0, 0};
 
 // (out of line, `this` a pointer: the members' initial values as indexed stores, about half
@@ -263,6 +265,7 @@ void Device::handle(const Frame& f) {
             shp_kv_ = use_ff_ ? ff_.beta() * pwm_per_volt_ / (cpr * Ts_) : 0.0f;
             shp_ka_ = use_ff_ ? ff_.alpha() * pwm_per_volt_ / (cpr * Ts_ * Ts_) : 0.0f;
             sample_ahead();                     // the reference of sample 0
+            rep_.ref = q32_counts_to_rad(refq_, rad_per_count_);   // (then in background())
             shaper_.prepare();                  // (then in background() after each step)
         }
         k_ = 0;
@@ -584,22 +587,21 @@ bool Device::retarget_work() {
 // with the one rounding of the multiply; rad_per_count >= 2 pi / 65535, so the scaled constant stays
 // a normal float): ~100 cycles less on the AVR (one conversion and one multiply, not a conversion,
 // a 32-bit shift-or and a multiply).
-static float q32_counts_to_rad(const Q32& x, float rad_per_count) {
+static float __attribute__((noinline)) q32_counts_to_rad(const Q32& x, float rad_per_count) {
     const uint8_t* b = reinterpret_cast<const uint8_t*>(&x);   // lo then hi, little-endian
     static_assert(sizeof(Q32) == 8, "Q32: two words, no padding");
     const int32_t hi = x.hi;
-    int32_t w;
-    uint32_t n = 16UL << 23;
-    if (static_cast<uint32_t>(hi + 32768L) < 65536UL) {
-        memcpy(&w, b + 2, 4);                       // Q16.16
-    } else {
-        n = 8UL << 23;
-        if (static_cast<uint32_t>(hi + 8388608L) < 16777216UL) memcpy(&w, b + 3, 4);   // Q24.8
-        else w = static_cast<int32_t>((hi < 0 ? 0x80000000UL : 0x7FFFFF00UL) | b[3]);   // saturated (as q32_to_float)
-    }
     uint32_t s;
     memcpy(&s, &rad_per_count, 4);
-    s -= n;
+    uint8_t off = 2;                                            // Q16.16
+    s -= 16UL << 23;
+    if (static_cast<uint32_t>(hi + 32768L) >= 65536UL) {        // Q24.8
+        off = 3;
+        s += 8UL << 23;
+    }
+    int32_t w;
+    memcpy(&w, b + off, 4);
+    if (static_cast<uint32_t>(hi + 8388608L) >= 16777216UL) w = hi < 0 ? INT32_MIN : INT32_MAX;
     float scale;
     memcpy(&scale, &s, 4);
     return static_cast<float>(w) * scale;
@@ -608,9 +610,6 @@ static float q32_counts_to_rad(const Q32& x, float rad_per_count) {
 void Device::reference() {
     if (state_ != kRunning || ahead_) return;
     JL_PART_BEGIN(8);
-    // the reference control() used, in rad for its telemetry (the one Q32.32 -> float of a
-    // sample, skipped when decimation sends none), before the next sample replaces it
-    if (have_sample_) rep_.ref = q32_counts_to_rad(refq_, rad_per_count_);
     sample_ahead();
     JL_PART_END(8);
 }
@@ -618,6 +617,11 @@ void Device::reference() {
 void Device::background() {
     if (state_ != kRunning) return;
     JL_PART_BEGIN(9);
+    // The next sample's reference (refq_, sampled by reference() in the step just ended) in rad
+    // for its TELEMETRY: known a period ahead, so converted here in the idle time (report() of
+    // this step has sent the previous one; RUN converts sample 0's). Every sample, whatever the
+    // decimation: a safety stop sends the sample it stops at.
+    rep_.ref = q32_counts_to_rad(refq_, rad_per_count_);
     shaper_.prepare();                   // the delayed taps' sum for the next sample
     // one more piece of work per tick: the re-targeting, else the next chunk
     if (!retarget_work()) stepper_.prepare();

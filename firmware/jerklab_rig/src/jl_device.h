@@ -74,8 +74,9 @@ public:
     void reference();
     /// Telemetry / end-of-run frames of the last control().
     void report();
-    /// Work in the idle time after the control step (the planner's next chunk, re-targeting,
-    /// the shaper's delayed taps); call after report().
+    /// Work in the idle time after the control step (the next sample's reference in rad for its
+    /// telemetry, the planner's next chunk, re-targeting, the shaper's delayed taps); call after
+    /// report() and before the next control().
     void background();
     /// Host watchdog check (call often from loop()).
     void poll();
@@ -189,7 +190,7 @@ private:
     bool have_sample_ JL_ZERO;
     bool finished_ JL_ZERO;
     // (the TELEMETRY payload itself: report() sends its bytes; ref: a run's reference in rad,
-    // converted by reference(); SEQUENCE: V)
+    // converted a period ahead by background(), by RUN for sample 0; SEQUENCE: V)
     TelemetryPayload rep_ JL_ZERO;
     uint8_t end_reason_ = kEndDone;
     float end_detail_ JL_ZERO;
