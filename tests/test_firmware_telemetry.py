@@ -192,7 +192,7 @@ def test_receive_flood_during_a_1khz_run_loses_no_byte():
     land in a step of T cycles (1 Mbaud: a byte every 160 cycles), each costing <= 60 cycles (the
     ISR's ~52 from the interrupt to reti, and the instruction it waits for), so a step of T0 cycles
     without traffic takes T <= (T0 + 60) / (1 - 60 / 160) with it (T0: the same run without host
-    traffic; ~4900 cycles, bound ~7950; measured ~6500, ~7800 with the C ISR)."""
+    traffic: ~3450 cycles, bound ~5620)."""
     require_tool(*TOOLS)
     from jerklab.rig import simavr
 
