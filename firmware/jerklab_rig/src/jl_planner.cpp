@@ -397,6 +397,31 @@ void q32_add(Q32* a, const Q32& b) {
 #endif
 }
 
+// a[i] += a[i + 1] for i = 0 .. n - 1 (n >= 1), in this order (each with the next one's old
+// value): a chunk's forward differences advanced by one sample in one call. On the AVR each
+// add is eight add-with-carry steps in place (Z post-incremented, the addend at Z + 8).
+static void __attribute__((noinline)) q32_diffs(Q32* a, uint8_t n) {
+#if defined(__AVR__)
+    uint8_t* pa = reinterpret_cast<uint8_t*>(a);
+    asm volatile(
+        "1:\n\t"
+        "ld r18, Z\n\t" "ldd r19, Z+8\n\t" "add r18, r19\n\t" "st Z+, r18\n\t"
+        "ld r18, Z\n\t" "ldd r19, Z+8\n\t" "adc r18, r19\n\t" "st Z+, r18\n\t"
+        "ld r18, Z\n\t" "ldd r19, Z+8\n\t" "adc r18, r19\n\t" "st Z+, r18\n\t"
+        "ld r18, Z\n\t" "ldd r19, Z+8\n\t" "adc r18, r19\n\t" "st Z+, r18\n\t"
+        "ld r18, Z\n\t" "ldd r19, Z+8\n\t" "adc r18, r19\n\t" "st Z+, r18\n\t"
+        "ld r18, Z\n\t" "ldd r19, Z+8\n\t" "adc r18, r19\n\t" "st Z+, r18\n\t"
+        "ld r18, Z\n\t" "ldd r19, Z+8\n\t" "adc r18, r19\n\t" "st Z+, r18\n\t"
+        "ld r18, Z\n\t" "ldd r19, Z+8\n\t" "adc r18, r19\n\t" "st Z+, r18\n\t"
+        "dec %[n]\n\t" "brne 1b\n\t"
+        : "+z"(pa), [n] "+r"(n)
+        :
+        : "r18", "r19", "memory");
+#else
+    for (uint8_t i = 0; i < n; ++i) q32_add(&a[i], a[i + 1]);
+#endif
+}
+
 // a += y 2^s (s = 0..31): the sinusoid in units 2^(s - 32) into a Q32.32. On the AVR y 2^(s & 7)
 // by four MULs (40 bits, the top one MULSU), added at byte s >> 3 with the carry and the sign
 // through the top.
@@ -926,40 +951,34 @@ bool PlanStepper::next_q(Q32* position, int32_t* ff, float* velocity) {
         reset_next();
     }
     if (k_ >= buf_[ci_].k_end) advance_segment();
-    Coef& c = buf_[ci_];
-    Q32 x = c.X;
+    Coef* const c = &buf_[ci_];
+    *position = c->X;
     float vs = 0.0f;
-    const bool sine = c.sine != 0;
+    const bool sine = c->sine != 0;
     if (!sine) {
-        *position = x;
-        if (ff) *ff = q16_window(c.F);
+        if (ff) *ff = q16_window(c->F);
     } else {
         // a half-sine pulse: the polynomial part (X3 = F2 = 0) plus the sinusoids, each
         // advanced by D -= eps y; y += D (one MUL product)
         if (velocity) {
             Q32 t = {0, 0};
-            sin_out(&t, &c.yv, c.vs, c);
+            sin_out(&t, &c->yv, c->vs, *c);
             vs = q32_to_float(t);
         }
-        sin_out(&x, &c.yx, c.xs, c);
-        *position = x;
+        sin_out(position, &c->yx, c->xs, *c);
         if (ff) {
-            Q32 f = c.F;
-            sin_out(&f, &c.yf, c.fs, c);
+            Q32 f = c->F;
+            sin_out(&f, &c->yf, c->fs, *c);
             *ff = q16_window(f);
         }
     }
     if (velocity) {                               // (the velocity loop only)
         const float n = static_cast<float>(n_);
-        *velocity = c.v0 + n * (c.v1 + n * c.v2) + vs;
+        *velocity = c->v0 + n * (c->v1 + n * c->v2) + vs;
     }
-    if (ff) {
-        q32_add(&c.F, c.F1);
-        if (!sine) q32_add(&c.F1, c.F2);
-    }
-    q32_add(&c.X, c.X1);
-    q32_add(&c.X1, c.X2);
-    if (!sine) q32_add(&c.X2, c.X3);
+    // the forward differences (a pulse's X3, F2 bytes hold its sinusoids: not added)
+    if (ff) q32_diffs(&c->F, sine ? 1 : 2);
+    q32_diffs(&c->X, sine ? 2 : 3);
     ++n_;
     ++k_;
     return seg_ + 1 < p_->nseg;
