@@ -566,24 +566,26 @@ float q32_to_float(const Q32& x) {
 // bytes: byte times E (four MULs) added into a 5-byte accumulator, which then moves a byte down
 // (the product's bytes 0..2 only carry; byte 3 is kept); y's two's complement corrected (minus
 // E 2^32 when y < 0); then eb - 3 byte moves down with the sign.
-static inline int32_t mul_eps(int32_t y, int32_t E, uint8_t eb) {
+static inline int32_t mul_eps(const int32_t* py, int32_t E, uint8_t eb) {
 #if defined(__AVR__)
+    // (y's bytes read from memory one per pass through the X pointer: y needs no registers)
     uint32_t acc;
-    uint8_t a4, d, z, c;
+    uint8_t a4, d, z, c, yb;
+    const uint8_t* px = reinterpret_cast<const uint8_t*>(py);
     asm volatile(
-        "bst %D[y], 7\n\t"
+        "adiw r26, 3\n\t" "ld %[yb], X\n\t" "sbiw r26, 3\n\t" "bst %[yb], 7\n\t"
         "clr %[z]\n\t" "clr %A[acc]\n\t" "clr %B[acc]\n\t" "clr %C[acc]\n\t" "clr %D[acc]\n\t"
         "clr %[a4]\n\t" "ldi %[c], 4\n\t"
         "1:\n\t"
-        "mul %A[y], %A[e]\n\t" "add %A[acc], r0\n\t" "adc %B[acc], r1\n\t" "adc %C[acc], %[z]\n\t"
+        "ld %[yb], X+\n\t"
+        "mul %[yb], %A[e]\n\t" "add %A[acc], r0\n\t" "adc %B[acc], r1\n\t" "adc %C[acc], %[z]\n\t"
         "adc %D[acc], %[z]\n\t" "adc %[a4], %[z]\n\t"
-        "mul %A[y], %B[e]\n\t" "add %B[acc], r0\n\t" "adc %C[acc], r1\n\t" "adc %D[acc], %[z]\n\t"
+        "mul %[yb], %B[e]\n\t" "add %B[acc], r0\n\t" "adc %C[acc], r1\n\t" "adc %D[acc], %[z]\n\t"
         "adc %[a4], %[z]\n\t"
-        "mul %A[y], %C[e]\n\t" "add %C[acc], r0\n\t" "adc %D[acc], r1\n\t" "adc %[a4], %[z]\n\t"
-        "mul %A[y], %D[e]\n\t" "add %D[acc], r0\n\t" "adc %[a4], r1\n\t"
+        "mul %[yb], %C[e]\n\t" "add %C[acc], r0\n\t" "adc %D[acc], r1\n\t" "adc %[a4], %[z]\n\t"
+        "mul %[yb], %D[e]\n\t" "add %D[acc], r0\n\t" "adc %[a4], r1\n\t"
         "mov %[d], %A[acc]\n\t" "mov %A[acc], %B[acc]\n\t" "mov %B[acc], %C[acc]\n\t"
         "mov %C[acc], %D[acc]\n\t" "mov %D[acc], %[a4]\n\t" "clr %[a4]\n\t"
-        "mov %A[y], %B[y]\n\t" "mov %B[y], %C[y]\n\t" "mov %C[y], %D[y]\n\t"
         "dec %[c]\n\t" "brne 1b\n\t"
         "clr r1\n\t"
         "brtc 2f\n\t"
@@ -597,11 +599,12 @@ static inline int32_t mul_eps(int32_t y, int32_t E, uint8_t eb) {
         "dec %[s]\n\t" "brne 3b\n\t"
         "4:\n\t"
         : [acc] "=&r"(acc), [a4] "=&r"(a4), [d] "=&r"(d), [z] "=&r"(z), [c] "=&d"(c),
-          [y] "+r"(y), [s] "+d"(eb)
-        : [e] "r"(E)
+          [yb] "=&r"(yb), "+x"(px), [s] "+d"(eb)
+        : [e] "r"(E), "m"(*py)
         : "r0", "r1");
     return static_cast<int32_t>((acc << 8) | d);
 #else
+    const int32_t y = *py;
     return static_cast<int32_t>((static_cast<int64_t>(y) * E) >> (8 * eb));
 #endif
 }
@@ -631,14 +634,15 @@ static float scale_of(int8_t s) {
 }
 
 // One sample of a sinusoid (yD = {y, D}, units 2^(s - 32)) of chunk c: *out += y, then the
-// difference form's step D -= eps y; y += D.
+// difference form's step D -= eps y; y += D (the step first, *out += y last: a tail call, y
+// read by the product from memory, so that few registers live through the function).
 static void __attribute__((noinline)) sin_out(Q32* out, int32_t* yD, uint8_t s,
                                               const PlanStepper::Coef& c) {
+    const int32_t D = yD[1] - mul_eps(yD, c.E, c.eb);
     const int32_t y = yD[0];
-    q32_add_units(out, y, s);
-    const int32_t D = yD[1] - mul_eps(y, c.E, c.eb);
     yD[1] = D;
     yD[0] = y + D;
+    q32_add_units(out, y, s);                       // (a tail call)
 }
 
 // The smallest k with (float)k * Ts >= t0 (in the float arithmetic of the stepper).
