@@ -428,38 +428,39 @@ static void __attribute__((noinline)) q32_diffs(Q32* a, uint8_t n) {
 static void __attribute__((noinline)) q32_add_units(Q32* a, int32_t y, uint8_t s) {
 #if defined(__AVR__)
     // m = 2^(s & 7) by three conditional shifts (the last a nibble swap), the byte s >> 3 added
-    // to the pointer, cnt = 3 - (s >> 3) bytes above the five of y 2^(s & 7)
-    uint8_t* pa = reinterpret_cast<uint8_t*>(a);
-    uint8_t top = static_cast<uint8_t>(static_cast<uint32_t>(y) >> 24);
-    uint32_t p;
-    uint8_t p4, sg, m, cnt;
+    // to the pointer, cnt = 3 - (s >> 3) bytes above the five of y 2^(s & 7). Fixed registers,
+    // all call-clobbered (none to save): y in r20..r23 (its low byte then holds the product's
+    // fifth), s then cnt in r18, m then the sign byte in r19, the product's bytes 0..3 in
+    // r24, r25, r30, r31.
+    register uint8_t* pa asm("r26") = reinterpret_cast<uint8_t*>(a);
+    register int32_t yy asm("r20") = y;
+    register uint8_t ss asm("r18") = s;
     asm volatile(
-        "ldi %[m], 1\n\t"
-        "sbrc %[s], 0\n\t" "lsl %[m]\n\t"
-        "sbrc %[s], 1\n\t" "lsl %[m]\n\t"
-        "sbrc %[s], 1\n\t" "lsl %[m]\n\t"
-        "sbrc %[s], 2\n\t" "swap %[m]\n\t"
-        "lsr %[s]\n\t" "lsr %[s]\n\t" "lsr %[s]\n\t"
-        "add r26, %[s]\n\t" "adc r27, __zero_reg__\n\t"
-        "ldi %[c], 3\n\t" "sub %[c], %[s]\n\t"
-        "mul %A[y], %[m]\n\t" "movw %A[p], r0\n\t"
-        "mul %B[y], %[m]\n\t" "add %B[p], r0\n\t" "clr %C[p]\n\t" "adc %C[p], r1\n\t"
-        "mul %C[y], %[m]\n\t" "add %C[p], r0\n\t" "clr %D[p]\n\t" "adc %D[p], r1\n\t"
-        "mulsu %[t], %[m]\n\t" "add %D[p], r0\n\t" "clr %[p4]\n\t" "adc %[p4], r1\n\t"
+        "ldi r19, 1\n\t"
+        "sbrc r18, 0\n\t" "lsl r19\n\t"
+        "sbrc r18, 1\n\t" "lsl r19\n\t"
+        "sbrc r18, 1\n\t" "lsl r19\n\t"
+        "sbrc r18, 2\n\t" "swap r19\n\t"
+        "lsr r18\n\t" "lsr r18\n\t" "lsr r18\n\t"
+        "add r26, r18\n\t" "adc r27, __zero_reg__\n\t"
+        "neg r18\n\t" "subi r18, -3\n\t"
+        "mul r20, r19\n\t" "movw r24, r0\n\t"
+        "mul r21, r19\n\t" "add r25, r0\n\t" "clr r30\n\t" "adc r30, r1\n\t"
+        "mul r22, r19\n\t" "add r30, r0\n\t" "clr r31\n\t" "adc r31, r1\n\t"
+        "mulsu r23, r19\n\t" "add r31, r0\n\t" "clr r20\n\t" "adc r20, r1\n\t"
         "clr r1\n\t"
-        "clr %[sg]\n\t" "sbrc %[p4], 7\n\t" "com %[sg]\n\t"
-        "ld r0, X\n\t" "add r0, %A[p]\n\t" "st X+, r0\n\t"
-        "ld r0, X\n\t" "adc r0, %B[p]\n\t" "st X+, r0\n\t"
-        "ld r0, X\n\t" "adc r0, %C[p]\n\t" "st X+, r0\n\t"
-        "ld r0, X\n\t" "adc r0, %D[p]\n\t" "st X+, r0\n\t"
-        "ld r0, X\n\t" "adc r0, %[p4]\n\t" "st X+, r0\n\t"
-        "tst %[c]\n\t" "breq 2f\n\t"
-        "1:\n\t" "ld r0, X\n\t" "adc r0, %[sg]\n\t" "st X+, r0\n\t" "dec %[c]\n\t" "brne 1b\n\t"
+        "clr r19\n\t" "sbrc r20, 7\n\t" "com r19\n\t"
+        "ld r0, X\n\t" "add r0, r24\n\t" "st X+, r0\n\t"
+        "ld r0, X\n\t" "adc r0, r25\n\t" "st X+, r0\n\t"
+        "ld r0, X\n\t" "adc r0, r30\n\t" "st X+, r0\n\t"
+        "ld r0, X\n\t" "adc r0, r31\n\t" "st X+, r0\n\t"
+        "ld r0, X\n\t" "adc r0, r20\n\t" "st X+, r0\n\t"
+        "tst r18\n\t" "breq 2f\n\t"
+        "1:\n\t" "ld r0, X\n\t" "adc r0, r19\n\t" "st X+, r0\n\t" "dec r18\n\t" "brne 1b\n\t"
         "2:\n\t"
-        : [p] "=&r"(p), [p4] "=&r"(p4), [sg] "=&r"(sg), "+x"(pa), [c] "=&d"(cnt), [m] "=&a"(m),
-          [s] "+r"(s)
-        : [y] "r"(y), [t] "a"(top)
-        : "r0", "r1", "memory");
+        : "+r"(pa), "+r"(yy), "+r"(ss)
+        :
+        : "r0", "r19", "r24", "r25", "r30", "r31", "memory");
 #else
     const uint64_t v = ((static_cast<uint64_t>(static_cast<uint32_t>(a->hi)) << 32) | a->lo)
                        + static_cast<uint64_t>(static_cast<int64_t>(y) * (static_cast<int64_t>(1) << s));
