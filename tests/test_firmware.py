@@ -577,3 +577,109 @@ def test_device_retarget_checks_and_ends_on_the_new_target(host_driver):
     # smooth half-sine pulses of this move by ~J w Ts = 0.07 J)
     j = np.diff(ref.astype(float), 3) / 0.005 ** 3
     assert np.max(np.abs(np.diff(j))) <= 0.3 * 2000.0
+
+
+_AVR_STEPPER_MAIN = r"""
+#include <avr/io.h>
+#include <avr/interrupt.h>
+#include <avr/pgmspace.h>
+#include <avr/sleep.h>
+#include <util/delay.h>
+#include "jl_planner.cpp"   // (its file-local helpers: the AVR assembly under test)
+// y, E, eb (3..7), s (0..31), a.lo, a.hi, then four Q32s as lo, hi and n (1..3)
+static const uint32_t kV[][15] PROGMEM = {VECTORS};
+static void tx(char c) { while (!(UCSR0A & _BV(UDRE0))) {} UDR0 = c; }
+static void hex32(uint32_t v) {
+    for (int8_t i = 28; i >= 0; i -= 4) { uint8_t d = (v >> i) & 15; tx(d < 10 ? '0' + d : 'a' + d - 10); }
+}
+static uint64_t u64(const jl::Q32& q) { return ((uint64_t)(uint32_t)q.hi << 32) | q.lo; }
+int main() {
+    UBRR0 = 0;
+    UCSR0B = _BV(TXEN0);
+    uint16_t bad = 0;
+    uint32_t sum = 0;
+    for (uint16_t k = 0; k < sizeof(kV) / sizeof(kV[0]); ++k) {
+        uint32_t v[15];
+        for (uint8_t i = 0; i < 15; ++i) v[i] = pgm_read_dword(&kV[k][i]);
+        const int32_t y = (int32_t)v[0], E = (int32_t)v[1];
+        const uint8_t eb = (uint8_t)v[2], s = (uint8_t)v[3], n = (uint8_t)v[14];
+        // the sinusoid's product against avr-gcc's int64 arithmetic
+        const int32_t m = jl::mul_eps(&y, E, eb);
+        if (m != (int32_t)(((int64_t)y * E) >> (8 * eb))) ++bad;
+        // the placement y 2^s into a Q32.32
+        jl::Q32 a = {v[4], (int32_t)v[5]};
+        const uint64_t want = u64(a) + (uint64_t)((int64_t)y * ((int64_t)1 << s));
+        jl::q32_add_units(&a, y, s);
+        if (u64(a) != want) ++bad;
+        // the forward differences' step
+        jl::Q32 d[4], w[4];
+        for (uint8_t i = 0; i < 4; ++i) { d[i].lo = v[6 + 2 * i]; d[i].hi = (int32_t)v[7 + 2 * i]; w[i] = d[i]; }
+        for (uint8_t i = 0; i < n; ++i) { const uint64_t t = u64(w[i]) + u64(w[i + 1]); w[i].lo = (uint32_t)t; w[i].hi = (int32_t)(t >> 32); }
+        jl::q32_diffs(d, n);
+        for (uint8_t i = 0; i < 4; ++i) if (d[i].lo != w[i].lo || d[i].hi != w[i].hi) ++bad;
+        sum += (uint32_t)m ^ a.lo ^ (uint32_t)a.hi;
+        for (uint8_t i = 0; i < 4; ++i) sum += d[i].lo ^ (uint32_t)d[i].hi;
+    }
+    tx('<'); hex32(bad); tx(' '); hex32(sum); tx('>'); tx('\n');   // (simavr prints whole lines)
+    _delay_ms(20);               // the simulated UART drains before the simulation ends
+    cli();
+    sleep_cpu();
+}
+"""
+
+
+def test_avr_stepper_assembly_on_the_simulated_atmega328p(tmp_path):
+    """The stepper's per-sample AVR assembly (jl_planner.cpp): a pulse sinusoid's product
+    floor(y E / 2^(8 eb)), the placement of y 2^s into a Q32.32 (q32_add_units) and the forward
+    differences' in-place step (q32_diffs), compiled for the ATmega328P and run in simavr against
+    avr-gcc's own int64 arithmetic on the device and a checksum of Python's integers."""
+    require_tool("avr-g++", "simavr")
+    import random
+
+    from jerklab.rig.simavr.build import firmware_dir
+
+    src = firmware_dir() / "jerklab_rig" / "src"
+    rng = random.Random(21)
+    M32 = 0xFFFFFFFF
+
+    def i32():
+        return rng.randint(-2**31, 2**31 - 1) >> rng.randint(0, 31)
+
+    cases = []
+    while len(cases) < 100:
+        y, E, eb, s = i32(), rng.randint(0, 2**31 - 1) >> rng.randint(0, 30), rng.randint(3, 7), rng.randint(0, 31)
+        if len(cases) < 8:             # the extremes
+            y = [-2**31, 2**31 - 1, -1, 0][len(cases) % 4]
+            E, eb = (2**31 - 1, 7) if len(cases) < 4 else (2**24, 3)
+        if not -2**31 <= (y * E) >> (8 * eb) < 2**31:
+            continue                   # (mul_eps's domain: the result fits in 32 bits)
+        a = rng.getrandbits(64)
+        d = [rng.getrandbits(64) if rng.random() < 0.8 else rng.choice([0, 2**64 - 1, 2**63]) for _ in range(4)]
+        cases.append((y, E, eb, s, a, d, rng.randint(1, 3)))
+    rows = []
+    for y, E, eb, s, a, d, n in cases:
+        vals = [y & M32, E, eb, s, a & M32, a >> 32] + [w for q in d for w in (q & M32, q >> 32)] + [n]
+        rows.append("{" + ",".join(f"0x{v:08x}UL" for v in vals) + "}")
+    (tmp_path / "t.cpp").write_text(_AVR_STEPPER_MAIN.replace("VECTORS", ",".join(rows)))
+    elf = tmp_path / "t.elf"
+    subprocess.run(["avr-g++", "-mmcu=atmega328p", "-DF_CPU=16000000L", "-Os", "-std=gnu++11",
+                    "-ffunction-sections", "-fdata-sections", "-Wl,--gc-sections",
+                    f"-I{src}", str(tmp_path / "t.cpp"), str(src / "jl_fixed.cpp"),
+                    str(src / "jl_control.cpp"), "-lm", "-o", str(elf)],
+                   check=True, capture_output=True, timeout=120)
+    run = subprocess.run(["simavr", "-m", "atmega328p", "-f", "16000000", str(elf)],
+                         capture_output=True, text=True, timeout=120)
+    text = re.sub(r"\x1b\[[0-9;]*m|[\r\n]", "", run.stderr + run.stdout)
+    got = re.findall(r"<([0-9a-f]{8}) ([0-9a-f]{8})>", text)
+    assert len(got) == 1, (run.stdout[-500:], run.stderr[-500:])
+    bad, checksum = int(got[0][0], 16), int(got[0][1], 16)
+    want = 0
+    for y, E, eb, s, a, d, n in cases:
+        m = ((y * E) >> (8 * eb)) & M32
+        a = (a + y * 2**s) % 2**64
+        for i in range(n):
+            d[i] = (d[i] + d[i + 1]) % 2**64
+        want = (want + (m ^ (a & M32) ^ (a >> 32))) & M32
+        for q in d:
+            want = (want + ((q & M32) ^ (q >> 32))) & M32
+    assert bad == 0 and checksum == want, (bad, hex(checksum), hex(want))

@@ -397,44 +397,70 @@ void q32_add(Q32* a, const Q32& b) {
 #endif
 }
 
+// a[i] += a[i + 1] for i = 0 .. n - 1 (n >= 1), in this order (each with the next one's old
+// value): a chunk's forward differences advanced by one sample in one call. On the AVR each
+// add is eight add-with-carry steps in place (Z post-incremented, the addend at Z + 8).
+static void __attribute__((noinline)) q32_diffs(Q32* a, uint8_t n) {
+#if defined(__AVR__)
+    uint8_t* pa = reinterpret_cast<uint8_t*>(a);
+    asm volatile(
+        "1:\n\t"
+        "ld r18, Z\n\t" "ldd r19, Z+8\n\t" "add r18, r19\n\t" "st Z+, r18\n\t"
+        "ld r18, Z\n\t" "ldd r19, Z+8\n\t" "adc r18, r19\n\t" "st Z+, r18\n\t"
+        "ld r18, Z\n\t" "ldd r19, Z+8\n\t" "adc r18, r19\n\t" "st Z+, r18\n\t"
+        "ld r18, Z\n\t" "ldd r19, Z+8\n\t" "adc r18, r19\n\t" "st Z+, r18\n\t"
+        "ld r18, Z\n\t" "ldd r19, Z+8\n\t" "adc r18, r19\n\t" "st Z+, r18\n\t"
+        "ld r18, Z\n\t" "ldd r19, Z+8\n\t" "adc r18, r19\n\t" "st Z+, r18\n\t"
+        "ld r18, Z\n\t" "ldd r19, Z+8\n\t" "adc r18, r19\n\t" "st Z+, r18\n\t"
+        "ld r18, Z\n\t" "ldd r19, Z+8\n\t" "adc r18, r19\n\t" "st Z+, r18\n\t"
+        "dec %[n]\n\t" "brne 1b\n\t"
+        : "+z"(pa), [n] "+r"(n)
+        :
+        : "r18", "r19", "memory");
+#else
+    for (uint8_t i = 0; i < n; ++i) q32_add(&a[i], a[i + 1]);
+#endif
+}
+
 // a += y 2^s (s = 0..31): the sinusoid in units 2^(s - 32) into a Q32.32. On the AVR y 2^(s & 7)
 // by four MULs (40 bits, the top one MULSU), added at byte s >> 3 with the carry and the sign
 // through the top.
 static void __attribute__((noinline)) q32_add_units(Q32* a, int32_t y, uint8_t s) {
 #if defined(__AVR__)
     // m = 2^(s & 7) by three conditional shifts (the last a nibble swap), the byte s >> 3 added
-    // to the pointer, cnt = 3 - (s >> 3) bytes above the five of y 2^(s & 7)
-    uint8_t* pa = reinterpret_cast<uint8_t*>(a);
-    uint8_t top = static_cast<uint8_t>(static_cast<uint32_t>(y) >> 24);
-    uint32_t p;
-    uint8_t p4, sg, m, cnt;
+    // to the pointer, cnt = 3 - (s >> 3) bytes above the five of y 2^(s & 7). Fixed registers,
+    // all call-clobbered (none to save): y in r20..r23 (its low byte then holds the product's
+    // fifth), s then cnt in r18, m then the sign byte in r19, the product's bytes 0..3 in
+    // r24, r25, r30, r31.
+    register uint8_t* pa asm("r26") = reinterpret_cast<uint8_t*>(a);
+    register int32_t yy asm("r20") = y;
+    register uint8_t ss asm("r18") = s;
     asm volatile(
-        "ldi %[m], 1\n\t"
-        "sbrc %[s], 0\n\t" "lsl %[m]\n\t"
-        "sbrc %[s], 1\n\t" "lsl %[m]\n\t"
-        "sbrc %[s], 1\n\t" "lsl %[m]\n\t"
-        "sbrc %[s], 2\n\t" "swap %[m]\n\t"
-        "lsr %[s]\n\t" "lsr %[s]\n\t" "lsr %[s]\n\t"
-        "add r26, %[s]\n\t" "adc r27, __zero_reg__\n\t"
-        "ldi %[c], 3\n\t" "sub %[c], %[s]\n\t"
-        "mul %A[y], %[m]\n\t" "movw %A[p], r0\n\t"
-        "mul %B[y], %[m]\n\t" "add %B[p], r0\n\t" "clr %C[p]\n\t" "adc %C[p], r1\n\t"
-        "mul %C[y], %[m]\n\t" "add %C[p], r0\n\t" "clr %D[p]\n\t" "adc %D[p], r1\n\t"
-        "mulsu %[t], %[m]\n\t" "add %D[p], r0\n\t" "clr %[p4]\n\t" "adc %[p4], r1\n\t"
+        "ldi r19, 1\n\t"
+        "sbrc r18, 0\n\t" "lsl r19\n\t"
+        "sbrc r18, 1\n\t" "lsl r19\n\t"
+        "sbrc r18, 1\n\t" "lsl r19\n\t"
+        "sbrc r18, 2\n\t" "swap r19\n\t"
+        "lsr r18\n\t" "lsr r18\n\t" "lsr r18\n\t"
+        "add r26, r18\n\t" "adc r27, __zero_reg__\n\t"
+        "neg r18\n\t" "subi r18, -3\n\t"
+        "mul r20, r19\n\t" "movw r24, r0\n\t"
+        "mul r21, r19\n\t" "add r25, r0\n\t" "clr r30\n\t" "adc r30, r1\n\t"
+        "mul r22, r19\n\t" "add r30, r0\n\t" "clr r31\n\t" "adc r31, r1\n\t"
+        "mulsu r23, r19\n\t" "add r31, r0\n\t" "clr r20\n\t" "adc r20, r1\n\t"
         "clr r1\n\t"
-        "clr %[sg]\n\t" "sbrc %[p4], 7\n\t" "com %[sg]\n\t"
-        "ld r0, X\n\t" "add r0, %A[p]\n\t" "st X+, r0\n\t"
-        "ld r0, X\n\t" "adc r0, %B[p]\n\t" "st X+, r0\n\t"
-        "ld r0, X\n\t" "adc r0, %C[p]\n\t" "st X+, r0\n\t"
-        "ld r0, X\n\t" "adc r0, %D[p]\n\t" "st X+, r0\n\t"
-        "ld r0, X\n\t" "adc r0, %[p4]\n\t" "st X+, r0\n\t"
-        "tst %[c]\n\t" "breq 2f\n\t"
-        "1:\n\t" "ld r0, X\n\t" "adc r0, %[sg]\n\t" "st X+, r0\n\t" "dec %[c]\n\t" "brne 1b\n\t"
+        "clr r19\n\t" "sbrc r20, 7\n\t" "com r19\n\t"
+        "ld r0, X\n\t" "add r0, r24\n\t" "st X+, r0\n\t"
+        "ld r0, X\n\t" "adc r0, r25\n\t" "st X+, r0\n\t"
+        "ld r0, X\n\t" "adc r0, r30\n\t" "st X+, r0\n\t"
+        "ld r0, X\n\t" "adc r0, r31\n\t" "st X+, r0\n\t"
+        "ld r0, X\n\t" "adc r0, r20\n\t" "st X+, r0\n\t"
+        "tst r18\n\t" "breq 2f\n\t"
+        "1:\n\t" "ld r0, X\n\t" "adc r0, r19\n\t" "st X+, r0\n\t" "dec r18\n\t" "brne 1b\n\t"
         "2:\n\t"
-        : [p] "=&r"(p), [p4] "=&r"(p4), [sg] "=&r"(sg), "+x"(pa), [c] "=&d"(cnt), [m] "=&a"(m),
-          [s] "+r"(s)
-        : [y] "r"(y), [t] "a"(top)
-        : "r0", "r1", "memory");
+        : "+r"(pa), "+r"(yy), "+r"(ss)
+        :
+        : "r0", "r19", "r24", "r25", "r30", "r31", "memory");
 #else
     const uint64_t v = ((static_cast<uint64_t>(static_cast<uint32_t>(a->hi)) << 32) | a->lo)
                        + static_cast<uint64_t>(static_cast<int64_t>(y) * (static_cast<int64_t>(1) << s));
@@ -541,24 +567,26 @@ float q32_to_float(const Q32& x) {
 // bytes: byte times E (four MULs) added into a 5-byte accumulator, which then moves a byte down
 // (the product's bytes 0..2 only carry; byte 3 is kept); y's two's complement corrected (minus
 // E 2^32 when y < 0); then eb - 3 byte moves down with the sign.
-static inline int32_t mul_eps(int32_t y, int32_t E, uint8_t eb) {
+static inline int32_t mul_eps(const int32_t* py, int32_t E, uint8_t eb) {
 #if defined(__AVR__)
+    // (y's bytes read from memory one per pass through the X pointer: y needs no registers)
     uint32_t acc;
-    uint8_t a4, d, z, c;
+    uint8_t a4, d, z, c, yb;
+    const uint8_t* px = reinterpret_cast<const uint8_t*>(py);
     asm volatile(
-        "bst %D[y], 7\n\t"
+        "adiw r26, 3\n\t" "ld %[yb], X\n\t" "sbiw r26, 3\n\t" "bst %[yb], 7\n\t"
         "clr %[z]\n\t" "clr %A[acc]\n\t" "clr %B[acc]\n\t" "clr %C[acc]\n\t" "clr %D[acc]\n\t"
         "clr %[a4]\n\t" "ldi %[c], 4\n\t"
         "1:\n\t"
-        "mul %A[y], %A[e]\n\t" "add %A[acc], r0\n\t" "adc %B[acc], r1\n\t" "adc %C[acc], %[z]\n\t"
+        "ld %[yb], X+\n\t"
+        "mul %[yb], %A[e]\n\t" "add %A[acc], r0\n\t" "adc %B[acc], r1\n\t" "adc %C[acc], %[z]\n\t"
         "adc %D[acc], %[z]\n\t" "adc %[a4], %[z]\n\t"
-        "mul %A[y], %B[e]\n\t" "add %B[acc], r0\n\t" "adc %C[acc], r1\n\t" "adc %D[acc], %[z]\n\t"
+        "mul %[yb], %B[e]\n\t" "add %B[acc], r0\n\t" "adc %C[acc], r1\n\t" "adc %D[acc], %[z]\n\t"
         "adc %[a4], %[z]\n\t"
-        "mul %A[y], %C[e]\n\t" "add %C[acc], r0\n\t" "adc %D[acc], r1\n\t" "adc %[a4], %[z]\n\t"
-        "mul %A[y], %D[e]\n\t" "add %D[acc], r0\n\t" "adc %[a4], r1\n\t"
+        "mul %[yb], %C[e]\n\t" "add %C[acc], r0\n\t" "adc %D[acc], r1\n\t" "adc %[a4], %[z]\n\t"
+        "mul %[yb], %D[e]\n\t" "add %D[acc], r0\n\t" "adc %[a4], r1\n\t"
         "mov %[d], %A[acc]\n\t" "mov %A[acc], %B[acc]\n\t" "mov %B[acc], %C[acc]\n\t"
         "mov %C[acc], %D[acc]\n\t" "mov %D[acc], %[a4]\n\t" "clr %[a4]\n\t"
-        "mov %A[y], %B[y]\n\t" "mov %B[y], %C[y]\n\t" "mov %C[y], %D[y]\n\t"
         "dec %[c]\n\t" "brne 1b\n\t"
         "clr r1\n\t"
         "brtc 2f\n\t"
@@ -572,11 +600,12 @@ static inline int32_t mul_eps(int32_t y, int32_t E, uint8_t eb) {
         "dec %[s]\n\t" "brne 3b\n\t"
         "4:\n\t"
         : [acc] "=&r"(acc), [a4] "=&r"(a4), [d] "=&r"(d), [z] "=&r"(z), [c] "=&d"(c),
-          [y] "+r"(y), [s] "+d"(eb)
-        : [e] "r"(E)
+          [yb] "=&r"(yb), "+x"(px), [s] "+d"(eb)
+        : [e] "r"(E), "m"(*py)
         : "r0", "r1");
     return static_cast<int32_t>((acc << 8) | d);
 #else
+    const int32_t y = *py;
     return static_cast<int32_t>((static_cast<int64_t>(y) * E) >> (8 * eb));
 #endif
 }
@@ -606,14 +635,15 @@ static float scale_of(int8_t s) {
 }
 
 // One sample of a sinusoid (yD = {y, D}, units 2^(s - 32)) of chunk c: *out += y, then the
-// difference form's step D -= eps y; y += D.
+// difference form's step D -= eps y; y += D (the step first, *out += y last: a tail call, y
+// read by the product from memory, so that few registers live through the function).
 static void __attribute__((noinline)) sin_out(Q32* out, int32_t* yD, uint8_t s,
                                               const PlanStepper::Coef& c) {
+    const int32_t D = yD[1] - mul_eps(yD, c.E, c.eb);
     const int32_t y = yD[0];
-    q32_add_units(out, y, s);
-    const int32_t D = yD[1] - mul_eps(y, c.E, c.eb);
     yD[1] = D;
     yD[0] = y + D;
+    q32_add_units(out, y, s);                       // (a tail call)
 }
 
 // The smallest k with (float)k * Ts >= t0 (in the float arithmetic of the stepper).
@@ -926,40 +956,34 @@ bool PlanStepper::next_q(Q32* position, int32_t* ff, float* velocity) {
         reset_next();
     }
     if (k_ >= buf_[ci_].k_end) advance_segment();
-    Coef& c = buf_[ci_];
-    Q32 x = c.X;
+    Coef* const c = &buf_[ci_];
+    *position = c->X;
     float vs = 0.0f;
-    const bool sine = c.sine != 0;
+    const bool sine = c->sine != 0;
     if (!sine) {
-        *position = x;
-        if (ff) *ff = q16_window(c.F);
+        if (ff) *ff = q16_window(c->F);
     } else {
         // a half-sine pulse: the polynomial part (X3 = F2 = 0) plus the sinusoids, each
         // advanced by D -= eps y; y += D (one MUL product)
         if (velocity) {
             Q32 t = {0, 0};
-            sin_out(&t, &c.yv, c.vs, c);
+            sin_out(&t, &c->yv, c->vs, *c);
             vs = q32_to_float(t);
         }
-        sin_out(&x, &c.yx, c.xs, c);
-        *position = x;
+        sin_out(position, &c->yx, c->xs, *c);
         if (ff) {
-            Q32 f = c.F;
-            sin_out(&f, &c.yf, c.fs, c);
+            Q32 f = c->F;
+            sin_out(&f, &c->yf, c->fs, *c);
             *ff = q16_window(f);
         }
     }
     if (velocity) {                               // (the velocity loop only)
         const float n = static_cast<float>(n_);
-        *velocity = c.v0 + n * (c.v1 + n * c.v2) + vs;
+        *velocity = c->v0 + n * (c->v1 + n * c->v2) + vs;
     }
-    if (ff) {
-        q32_add(&c.F, c.F1);
-        if (!sine) q32_add(&c.F1, c.F2);
-    }
-    q32_add(&c.X, c.X1);
-    q32_add(&c.X1, c.X2);
-    if (!sine) q32_add(&c.X2, c.X3);
+    // the forward differences (a pulse's X3, F2 bytes hold its sinusoids: not added)
+    if (ff) q32_diffs(&c->F, sine ? 1 : 2);
+    q32_diffs(&c->X, sine ? 2 : 3);
     ++n_;
     ++k_;
     return seg_ + 1 < p_->nseg;
