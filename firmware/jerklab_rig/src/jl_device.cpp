@@ -58,6 +58,7 @@ void Device::on_byte(uint8_t b) {
     do {
         last_rx_ms_ = hal_.millis();
         handle(parser_.frame());
+        if (plan_pending_) plan_frame(parser_.frame());
     } while (parser_.process());
 }
 
@@ -67,6 +68,7 @@ void Device::on_rx_idle() {
         while (parser_.process()) {
             last_rx_ms_ = hal_.millis();
             handle(parser_.frame());
+            if (plan_pending_) plan_frame(parser_.frame());
         }
     }
 }
@@ -111,6 +113,29 @@ static const float kFloatMax = 3.40282347e38f;
 
 static bool valid_period(uint16_t ts_us, uint16_t tick_us) {
     return ts_us != 0 && ts_us <= 65000u && ts_us % tick_us == 0;
+}
+
+// The rest of PLAN (the frame handle() checked): plan, then PLAN_INFO or the NACK.
+void __attribute__((noinline)) Device::plan_frame(const Frame& f) {
+    plan_pending_ = false;
+    const uint8_t* p = f.payload;
+    if (plan_kind(p[4], get_f32(p), max_jerk_, max_accel_, max_velocity_, &plan_) != kPlanOk) {
+        nack(f, kErrBadValue, 0);
+        return;
+    }
+    float x = plan_.duration / Ts_ - 1e-4f;
+    // n = ceil(x) + 1 must stay <= kMaxPlanSamples (float32 holds 2e9 - 1 as 2e9).
+    if (!finite_f(x) || x >= static_cast<float>(kMaxPlanSamples)) { nack(f, kErrTooLong, 0); return; }
+    uint32_t n = static_cast<uint32_t>(x < 0.0f ? 0.0f : x);
+    if (static_cast<float>(n) < x) ++n;           // ceil
+    plan_samples_ = n + 1;
+    plan_ok_ = true;
+    uint8_t r[kLenPlanInfo];
+    put_f32(r, plan_.accel_time);
+    put_f32(r + 4, plan_.cruise_time);
+    put_f32(r + 8, plan_.duration);
+    put_u32(r + 12, plan_samples_);
+    send(kPlanInfo, f.seq, r, kLenPlanInfo);
 }
 
 void Device::handle(const Frame& f) {
@@ -208,23 +233,9 @@ void Device::handle(const Frame& f) {
         if (!in_range(jl_fabsf(d), 0.0f, 1e6f)) { nack(f, kErrBadValue, 0); return; }
         if (kind > kPlannerTrapezoid) { nack(f, kErrBadValue, 1); return; }
         plan_ok_ = false;            // planned in place (a Plan is ~260 bytes of RAM)
-        if (plan_kind(kind, d, max_jerk_, max_accel_, max_velocity_, &plan_) != kPlanOk) {
-            nack(f, kErrBadValue, 0);
-            return;
-        }
-        float x = plan_.duration / Ts_ - 1e-4f;
-        // n = ceil(x) + 1 must stay <= kMaxPlanSamples (float32 holds 2e9 - 1 as 2e9).
-        if (!finite_f(x) || x >= static_cast<float>(kMaxPlanSamples)) { nack(f, kErrTooLong, 0); return; }
-        uint32_t n = static_cast<uint32_t>(x < 0.0f ? 0.0f : x);
-        if (static_cast<float>(n) < x) ++n;           // ceil
-        plan_samples_ = n + 1;
-        plan_ok_ = true;
-        uint8_t r[kLenPlanInfo];
-        put_f32(r, plan_.accel_time);
-        put_f32(r + 4, plan_.cruise_time);
-        put_f32(r + 8, plan_.duration);
-        put_u32(r + 12, plan_samples_);
-        send(kPlanInfo, f.seq, r, kLenPlanInfo);
+        // planned by plan_frame() once handle() has returned: the planners' deep float calls
+        // then do not stack on handle()'s frame (PLAN is the deepest stack of the firmware)
+        plan_pending_ = true;
         return;
     }
     case kRun: {

@@ -89,6 +89,7 @@ public:
 
 private:
     void handle(const Frame& f);
+    void plan_frame(const Frame& f);
     void send(uint8_t type, uint8_t seq, const uint8_t* payload, uint8_t n);
     void ack(const Frame& f);
     void nack(const Frame& f, uint8_t err, uint8_t param = 0xFF);
@@ -132,6 +133,7 @@ private:
     bool use_ff_ = true;
 
     bool plan_ok_ JL_ZERO;
+    bool plan_pending_ JL_ZERO;   // a checked PLAN frame waits for plan_frame()
     Plan plan_;
     // Re-targeting (PROTOCOL.md "Re-targeting"): the plan that takes over is built in the buffer
     // the stepper does not use, in stages run by background(); rt_stage_ 0 idle, 1 find the

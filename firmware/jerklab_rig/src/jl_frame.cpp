@@ -104,6 +104,7 @@ uint8_t encode_frame_ring(uint8_t* ring, uint8_t mask, uint8_t head, uint8_t typ
 // complete; a false sync (impossible length, bad CRC) is counted and dropped one byte at a
 // time, so the scan restarts at the next sync inside the rejected bytes.
 bool FrameParser::feed(uint8_t byte) {
+    release();
     if (n_ >= kMaxFrame) shift(1);  // cannot happen (a full frame is always resolved)
     buf_[n_++] = byte;
     return process();
@@ -116,6 +117,7 @@ void FrameParser::shift(uint8_t k) {
 }
 
 bool FrameParser::process() {
+    release();
     for (;;) {
         if (n_ == 0) return false;
         if (buf_[0] != kSync0) { shift(1); continue; }          // noise between frames
@@ -132,8 +134,8 @@ bool FrameParser::process() {
         frame_.type = buf_[3];
         frame_.seq = buf_[4];
         frame_.len = static_cast<uint8_t>(len - 2);
-        memcpy(frame_.payload, buf_ + 5, frame_.len);
-        shift(total);
+        frame_.payload = buf_ + 5;
+        used_ = total;                                           // dropped on the next call
         return true;
     }
 }

@@ -14,11 +14,13 @@ static const uint8_t kSync1 = 0x5A;
 static const uint8_t kMaxPayload = 64;
 static const uint8_t kMaxFrame = kMaxPayload + 7;  // sync(2) len type seq payload crc(2)
 
+/// A received frame. The payload is not copied: it points into the FrameParser's buffer and is
+/// valid until the parser's next feed(), process() or abandon() (the handlers run before that).
 struct Frame {
     uint8_t type;
     uint8_t seq;
     uint8_t len;                 // payload bytes
-    uint8_t payload[kMaxPayload];
+    const uint8_t* payload;
 };
 
 /// Encode a frame into out (at least payload_len + 7 bytes). Returns the frame length,
@@ -40,7 +42,7 @@ uint8_t encode_frame_ring(uint8_t* ring, uint8_t mask, uint8_t head, uint8_t typ
 class FrameParser {
 public:
     FrameParser() { reset(); }
-    void reset() { n_ = 0; }
+    void reset() { n_ = 0; used_ = 0; }
     /// Feed one byte; returns true when `frame()` holds a new good frame. After a true,
     /// call `process()` until it returns false: resynchronisation after a corrupt frame can
     /// leave a further complete frame in the buffer.
@@ -53,13 +55,16 @@ public:
     /// After a silence: give up the partial frame at the front (count it truncated) and drop
     /// only its first sync byte; the caller then calls process() to re-scan the rest, so a
     /// short frame held back behind a truncated long one is still found (PROTOCOL.md).
-    void abandon() { if (n_ > 0) { ++dropped_; shift(1); } }
-    bool pending() const { return n_ > 0; }
+    void abandon() { release(); if (n_ > 0) { ++dropped_; shift(1); } }
+    bool pending() const { return n_ > used_; }
 
 private:
     void shift(uint8_t k);
+    /// Drop the frame last emitted (its bytes stayed in buf_ for frame().payload).
+    void release() { if (used_) { shift(used_); used_ = 0; } }
     uint8_t buf_[kMaxFrame];
     uint8_t n_;
+    uint8_t used_;               // bytes at the front of buf_ of the frame last emitted
     uint16_t dropped_ = 0;
     Frame frame_;
 };
