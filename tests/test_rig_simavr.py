@@ -198,3 +198,49 @@ def test_retarget_on_the_firmware_matches_the_virtual_rig(uno, tmp_path, kind, a
     if kind == 1:
         j = np.diff(fw.reference.astype(float), 3) / 0.005 ** 3
         assert np.max(np.abs(np.diff(j))) <= 0.4 * 2000.0
+
+
+def test_the_deepest_stack_stays_above_the_variables(tmp_path):
+    """The firmware's deepest stack, as the harness measures it (the lowest stack pointer of the
+    session, interrupts included), stays at least 32 bytes above the end of .bss over PLAN with
+    every planner, RUN with a RETARGET, SET_SHAPER, SEQUENCE and STEP. Below that the stack would
+    overwrite variables: PLAN's planning (the float planners' calls under the frame handler) once
+    reached 55 bytes into .bss, harmless or not only by the link order of the variables."""
+    import subprocess
+
+    from jerklab.controller import discrete_pole_placement_pid
+    from jerklab.planner import plan_sine_jerk_optimal, plan_trapezoid
+    from jerklab.rig import simavr
+    from jerklab.shaping import input_shaper
+
+    require_tool("make", "cc", "avr-g++", "avr-size", "avr-nm",
+                 "/usr/share/arduino/hardware/arduino/avr/cores/arduino", "/usr/include/simavr/sim_avr.h")
+    paths = simavr.build_firmware("avr")
+    simavr.build_firmware("simavr")
+    nm = subprocess.run(["avr-nm", str(paths["elf"])], capture_output=True, text=True, check=True).stdout
+    bss_end = next(int(ln.split()[0], 16) for ln in nm.splitlines() if ln.endswith(" __bss_end")) - 0x800000
+    Ts = 0.005
+    g = discrete_pole_placement_pid(MOTOR["K"], MOTOR["tau"], 20.0, Ts=Ts, extra_pole=0.5)
+    d, J, E, W = 4 * math.pi, 2000.0, 300.0, 60.0
+    profiles = [plan_sine_jerk(d, J, E, W), plan_sine_jerk_optimal(d, J, E, W), plan_scurve(d, J, E, W),
+                plan_trapezoid(d, E, W)]
+    with simavr.launch(paths["elf"], K=MOTOR["K"], tau=MOTOR["tau"], build=False) as sim:
+        with connect(sim.port, recordings=tmp_path, progress=False, timeout=10.0) as rig:
+            rig.set_model(**MOTOR)
+            for prof in profiles:
+                assert rig.run_move(prof, g, Ts=Ts, settle=0.05).metadata["status"] == "complete"
+
+            def cb(k, r, y):
+                if k == 10:
+                    rig.retarget(25.0)
+            rec = rig.run_move(profiles[1], g, Ts=Ts, settle=0.05, on_telemetry=cb)
+            assert rec.metadata["status"] == "complete" and rec.metadata["retargets"]
+            rig.set_shaper(input_shaper("zv", 8.0, 0.05), Ts=Ts)
+            assert rig.run_move(profiles[0], g, Ts=Ts, settle=0.05).metadata["status"] == "complete"
+            rig.set_shaper(None, Ts=Ts)
+            rig.record_prbs(2.0, 0.2, Ts=Ts)
+            rig.step(3.0, 0.1)
+        st = sim.stats()
+    gap = st["stack_min_sp"] + 1 - bss_end
+    assert gap >= 32, (f"the stack came within {gap} bytes of .bss (lowest SP {st['stack_min_sp']:#x} at "
+                       f"pc {st['stack_min_pc']:#x}, .bss ends at {bss_end:#x})")

@@ -327,9 +327,23 @@ static void sleep_hook(avr_t *a, avr_cycle_count_t how_long) {
  * channel B after B had changed at top speed and counted backwards). A real ATmega328P wakes
  * from idle in a few cycles: serve the interrupt now. */
 static uint64_t resets;               /* jumps to the reset vector after boot */
+/* The lowest stack pointer of the run (SPL/SPH at data 0x5D/0x5E), counted once it held for three
+ * instructions (a write of SP is two OUTs: the value between them is not a stack), and the pc
+ * there: the stack's deepest point, to compare with the end of .bss. */
+static unsigned sp_min = 0xFFFF, sp_min_pc;
 static void run_hook(avr_t *a) {
     avr_flashaddr_t new_pc = a->pc;
     if (a->state == cpu_Running) new_pc = avr_run_one(a);
+    {
+        static unsigned sp1 = 0xFFFF, sp2 = 0xFFFF;
+        const unsigned sp = a->data[0x5D] | (a->data[0x5E] << 8);
+        if (sp == sp1 && sp == sp2 && sp < sp_min && a->cycle > 100) {
+            sp_min = sp;
+            sp_min_pc = a->pc;
+        }
+        sp2 = sp1;
+        sp1 = sp;
+    }
     if (new_pc == 0 && a->cycle > 16 && !(boot_start && a->pc >= boot_start)) {
         resets++;
         if (getenv("JL_TRACE_COUNTS")) fprintf(stderr, "reset: jump to 0 from pc 0x%x at cycle %llu\n", a->pc, (unsigned long long)a->cycle);
@@ -599,6 +613,7 @@ static void write_stats(void) {
         int32_t v = (int32_t)((uint32_t)c[0] | ((uint32_t)c[1] << 8) | ((uint32_t)c[2] << 16) | ((uint32_t)c[3] << 24));
         fprintf(f, "\"firmware_counts\": %ld, ", (long)v);
     }
+    fprintf(f, "\"stack_min_sp\": %u, \"stack_min_pc\": %u, ", sp_min, sp_min_pc);
     fprintf(f, "\"int0_latency_cycles\": {\"n\": %llu, \"mean\": %.1f, \"max\": %llu, \"over_120\": %llu}, ",
             (unsigned long long)int0_lat_n, int0_lat_n ? int0_lat_sum / int0_lat_n : 0.0,
             (unsigned long long)int0_lat_max, (unsigned long long)int0_late);
