@@ -82,7 +82,7 @@ def test_firmware_and_virtual_rig_agree(uno, tmp_path):
     # How many samples may differ: a count differs where an edge falls between the instant the
     # firmware reads the encoder (a few µs after the tick) and the model's t = k Ts, and where the
     # PWM the board writes at the end of its control step (modelled since issue 21:
-    # VirtualDevice.COMPUTE_DELAY, ~0.12 ms now that the reference is sampled a tick ahead)
+    # VirtualDevice.COMPUTE_DELAY, ~0.07 ms with the fixed-point PID)
     # differs in effect from the model's by the step's jitter; the sub-count angle the motor
     # starts at moves the count by a few samples. The differing fraction is about lag * (counts
     # travelled) / (n Ts): bound the timing mismatch it implies. It was bounded by 10 % of Ts

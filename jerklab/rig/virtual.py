@@ -87,11 +87,11 @@ class VirtualDevice:
 
     STATE_IDLE, STATE_RUNNING, STATE_STEPPING = 0, 1, 2
 
-    #: Encoder read to PWM write in a closed-loop run on the Uno firmware (s): the mean of
-    #: ``Device::control()`` measured on the simulated ATmega328P (``python -m benchmarks
-    #: firmware``, parts table: ~1860-1940 cycles at 16 MHz while moving, plus the wake-up from
-    #: the 1 ms tick).
-    COMPUTE_DELAY = 120e-6
+    #: Encoder read to PWM write in a closed-loop run on the Uno firmware (s): ``Device::control()``
+    #: measured on the simulated ATmega328P (``python -m benchmarks firmware``, parts table: mean
+    #: ~1030, max ~1080 cycles at 16 MHz while moving with the fixed-point PID; 1080 cycles are
+    #: 67.5 µs), plus the wake-up from the 1 ms tick.
+    COMPUTE_DELAY = 70e-6
 
     def __init__(self, motor=None, clock=time.monotonic, name="jerklab-virtual", tick_us=1000,
                  compute_delay=None):
