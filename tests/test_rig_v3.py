@@ -121,6 +121,19 @@ def test_run_refuses_a_gain_the_fixed_point_pid_cannot_hold_firmware_and_virtual
         assert runs[0].param == runs[1].param == 0xFF
 
 
+def test_run_move_names_a_gain_the_device_cannot_hold(tmp_path):
+    """The client refuses such a gain before anything is sent, naming it and its limit in V/rad."""
+    from jerklab.controller import DiscreteGains
+
+    with connect(motor=DCMotor(), recordings=tmp_path, progress=False) as rig:
+        limit = P.RUN_GAIN_LIMIT / (2 * math.pi / rig.counts_per_rev * rig.info.pwm_max / rig.supply_voltage)
+        prof = plan_sine_jerk(1.0, 2000.0, 300.0, 60.0)
+        with pytest.raises(ValueError, match=r"gains\.kdd = .* must be < "):
+            rig.run_move(prof, DiscreteGains(10.0, 0.0, 1.01 * limit, 0.005), Ts=0.005, force=True)
+        rec = rig.run_move(prof, pole_placement_pid(32.4, 0.025, 20).discretize(0.005), Ts=0.005, settle=0.05)
+        assert rec.metadata["status"] == "complete"
+
+
 def test_sequence_busy_and_length(host_driver):
     dev = _host(host_driver)
     dev.send(P.Step(1.0, 5000, 50)).send(P.Sequence(1.0, 0.0, 5000, 10)).send(P.SetShaper(0))
