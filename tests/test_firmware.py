@@ -11,6 +11,7 @@ import subprocess
 import numpy as np
 import pytest
 
+from _avr import run_on_atmega328p
 from conftest import require_tool
 from jerklab import protocol as pr
 from jerklab.controller import (DigitalController, Feedforward, discrete_pole_placement_pid,
@@ -636,9 +637,6 @@ def test_avr_stepper_assembly_on_the_simulated_atmega328p(tmp_path):
     require_tool("avr-g++", "simavr")
     import random
 
-    from jerklab.rig.simavr.build import firmware_dir
-
-    src = firmware_dir() / "jerklab_rig" / "src"
     rng = random.Random(21)
     M32 = 0xFFFFFFFF
 
@@ -660,18 +658,10 @@ def test_avr_stepper_assembly_on_the_simulated_atmega328p(tmp_path):
     for y, E, eb, s, a, d, n in cases:
         vals = [y & M32, E, eb, s, a & M32, a >> 32] + [w for q in d for w in (q & M32, q >> 32)] + [n]
         rows.append("{" + ",".join(f"0x{v:08x}UL" for v in vals) + "}")
-    (tmp_path / "t.cpp").write_text(_AVR_STEPPER_MAIN.replace("VECTORS", ",".join(rows)))
-    elf = tmp_path / "t.elf"
-    subprocess.run(["avr-g++", "-mmcu=atmega328p", "-DF_CPU=16000000L", "-Os", "-std=gnu++11",
-                    "-ffunction-sections", "-fdata-sections", "-Wl,--gc-sections",
-                    f"-I{src}", str(tmp_path / "t.cpp"), str(src / "jl_fixed.cpp"),
-                    str(src / "jl_control.cpp"), "-lm", "-o", str(elf)],
-                   check=True, capture_output=True, timeout=120)
-    run = subprocess.run(["simavr", "-m", "atmega328p", "-f", "16000000", str(elf)],
-                         capture_output=True, text=True, timeout=120)
-    text = re.sub(r"\x1b\[[0-9;]*m|[\r\n]", "", run.stderr + run.stdout)
+    text = run_on_atmega328p(tmp_path, _AVR_STEPPER_MAIN.replace("VECTORS", ",".join(rows)),
+                             flags=("-ffunction-sections", "-fdata-sections", "-Wl,--gc-sections", "-lm"))
     got = re.findall(r"<([0-9a-f]{8}) ([0-9a-f]{8})>", text)
-    assert len(got) == 1, (run.stdout[-500:], run.stderr[-500:])
+    assert len(got) == 1, text[-500:]
     bad, checksum = int(got[0][0], 16), int(got[0][1], 16)
     want = 0
     for y, E, eb, s, a, d, n in cases:

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from jerklab.rig.simavr import build_firmware
+from _avr import run_on_atmega328p
 from conftest import require_tool
 
 I32_MIN, I32_MAX = -2**31, 2**31 - 1
@@ -198,9 +199,6 @@ def test_avr_assembly_multiply_on_the_simulated_atmega328p(tmp_path):
     24-bit mantissa's signed correction, the window, both saturations) as compiled for the
     ATmega328P, run in simavr, against avr-gcc's int64 arithmetic and Python's integers."""
     require_tool("avr-g++", "simavr")
-    from jerklab.rig.simavr.build import firmware_dir
-
-    src = firmware_dir() / "jerklab_rig" / "src"
     rng = random.Random(7)
     pairs = [(a, b) for a in EDGES[::2] + [-1, 1] for b in EDGES[1::2] + [0]]
     pairs += [(rng.randint(I32_MIN, I32_MAX), rng.randint(I32_MIN, I32_MAX))
@@ -211,20 +209,11 @@ def test_avr_assembly_multiply_on_the_simulated_atmega328p(tmp_path):
     body = ",".join(f"{{{a}L,{b}L,{s}}}" if a != I32_MIN and b != I32_MIN else
                     f"{{{'(-2147483647L-1)' if a == I32_MIN else str(a) + 'L'},"
                     f"{'(-2147483647L-1)' if b == I32_MIN else str(b) + 'L'},{s}}}" for a, b, s in cases)
-    (tmp_path / "t.cpp").write_text(_AVR_MAIN.replace("VECTORS", body))
-    elf = tmp_path / "t.elf"
-    subprocess.run(["avr-g++", "-mmcu=atmega328p", "-DF_CPU=16000000L", "-Os", "-std=gnu++11",
-                    f"-I{src}", str(tmp_path / "t.cpp"), str(src / "jl_fixed.cpp"), str(src / "jl_control.cpp"),
-                    "-o", str(elf)],
-                   check=True, capture_output=True, timeout=120)
-    run = subprocess.run(["simavr", "-m", "atmega328p", "-f", "16000000", str(elf)],
-                         capture_output=True, text=True, timeout=120)
     import re
 
-    # (simavr echoes the UART on stderr in colour, broken into lines)
-    text = re.sub(r"\x1b\[[0-9;]*m|[\r\n]", "", run.stderr + run.stdout)
+    text = run_on_atmega328p(tmp_path, _AVR_MAIN.replace("VECTORS", body))
     got = re.findall(r"<([0-9a-f]{8}) ([0-9a-f]{8})>", text)
-    assert len(got) == 1, (run.stdout[-500:], run.stderr[-500:])
+    assert len(got) == 1, text[-500:]
     bad, checksum = int(got[0][0], 16), int(got[0][1], 16)
     want = 0
     for a, b, s in cases:
@@ -350,9 +339,6 @@ def test_assembly_pid_matches_the_integer_law_on_the_simulated_atmega328p(tmp_pa
     require_tool("avr-g++", "simavr")
     import re
 
-    from jerklab.rig.simavr.build import firmware_dir
-
-    src = firmware_dir() / "jerklab_rig" / "src"
     gains = [(374.6, 0.05, 310.0, 0.0, 1023.0), (12.0, 1.2e-3, 60.0, 0.6, 1023.0),
              (-3.5, -0.02, 7.25, -0.3, 255.0), (1.0e4, 2.0e-6, 4.0e5, 0.95, 1023.0),
              (0.75, 0.0, 0.0, 0.0, 100.0)]
@@ -374,16 +360,9 @@ def test_assembly_pid_matches_the_integer_law_on_the_simulated_atmega328p(tmp_pa
         vecs.append((e, ff))
     body_g = ",".join("{" + ",".join(f"{float(np.float32(x))!r}f" for x in g) + "}" for g in gains)
     body_v = ",".join(f"{{{_c_i32(e)},{_c_i32(f)}}}" for e, f in vecs)
-    (tmp_path / "t.cpp").write_text(_AVR_PID_MAIN.replace("GAINS", body_g).replace("VECTORS", body_v))
-    elf = tmp_path / "t.elf"
-    subprocess.run(["avr-g++", "-mmcu=atmega328p", "-DF_CPU=16000000L", "-Os", "-std=gnu++11",
-                    f"-I{src}", str(tmp_path / "t.cpp"), str(src / "jl_fixed.cpp"), str(src / "jl_control.cpp"),
-                    "-o", str(elf)], check=True, capture_output=True, timeout=120)
-    run = subprocess.run(["simavr", "-m", "atmega328p", "-f", "16000000", str(elf)],
-                         capture_output=True, text=True, timeout=120)
-    text = re.sub(r"\x1b\[[0-9;]*m|[\r\n]", "", run.stderr + run.stdout)
+    text = run_on_atmega328p(tmp_path, _AVR_PID_MAIN.replace("GAINS", body_g).replace("VECTORS", body_v))
     got = re.findall(r"<([0-9a-f]{8}) ([0-9a-f]{8}) ([0-9a-f]{8})>", text)
-    assert len(got) == len(gains), (run.stdout[-500:], run.stderr[-500:])
+    assert len(got) == len(gains), text[-500:]
     for g, (ok, checksum, nsat) in zip(gains, got):
         model = _PidQModel(*g)
         s, n = 0, 0
