@@ -43,7 +43,7 @@ __all__ = [
     "crc16_ccitt_false", "encode_frame", "encode", "parse", "Frame", "Decoder", "DecoderStats",
     "ProtocolError", "MESSAGES", "payload_field_name",
     "Hello", "SetPlant", "SetGains", "SetLimits", "Plan", "Run", "Stop", "Step", "Heartbeat",
-    "Sequence", "SetShaper", "PRBS_TAPS", "SHAPER_MAX_TAPS", "SHAPER_MAX_DELAY", "SHAPER_SUM_TOL",
+    "Sequence", "SetShaper", "PRBS_TAPS", "SHAPER_MAX_TAPS", "SHAPER_MAX_DELAY", "SHAPER_SUM_TOL", "RUN_GAIN_LIMIT", "max_run_gain",
     "prbs_bits", "sequence_voltages", "Retarget",
     "Ack", "Nack", "HelloReply", "PlanInfo", "Telemetry", "EndOfRun", "DeviceError",
 ]
@@ -482,6 +482,29 @@ class Sequence(_Message):
 #: RUN: each gain scaled to PWM ticks per encoder count (per count per sample in the velocity loop)
 #: must be below this (the firmware's fixed-point PID keeps a 24-bit mantissa): NACK BAD_VALUE
 RUN_GAIN_LIMIT = 2.0 ** 23
+
+
+def max_run_gain(counts_per_rev, pwm_max, supply_voltage, Ts=None):
+    """The bound on |kpd|, |kid|, |kdd| that RUN accepts (firmware/PROTOCOL.md "Parameter checks").
+
+    Parameters
+    ----------
+    counts_per_rev, pwm_max, supply_voltage : float
+        The plant of SET_PLANT and the device's PWM range (HELLO_REPLY).
+    Ts : float, optional
+        The sampling period (s) of the velocity loop, whose gains are per count per sample;
+        None for the position loop.
+
+    Returns
+    -------
+    float
+        :data:`RUN_GAIN_LIMIT` PWM ticks per encoder count, in the gains' units (V/rad in the
+        position loop); a gain must be below it.
+    """
+    ticks_per_gain = 2.0 * math.pi / counts_per_rev * pwm_max / supply_voltage
+    if Ts is not None:
+        ticks_per_gain /= Ts
+    return RUN_GAIN_LIMIT / ticks_per_gain
 
 
 #: SET_SHAPER: at most this many taps, delays at most this many samples (the device's ring buffer

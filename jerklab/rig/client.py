@@ -431,14 +431,13 @@ class Rig:
         loop = P.LoopType.VELOCITY if gains.loop == "velocity" else P.LoopType.POSITION
         # the device's fixed-point PID holds a gain below RUN_GAIN_LIMIT PWM ticks per count (per
         # count per sample in the velocity loop); RUN would be refused without naming the gain
-        scale = 2.0 * math.pi / self.counts_per_rev * self.info.pwm_max / self.supply_voltage
-        if loop == P.LoopType.VELOCITY:
-            scale /= Ts
+        limit = P.max_run_gain(self.counts_per_rev, self.info.pwm_max, self.supply_voltage,
+                               Ts if loop == P.LoopType.VELOCITY else None)
         for name in ("kpd", "kid", "kdd"):
             k = getattr(gains, name)
-            if math.isfinite(k) and abs(k) * scale >= P.RUN_GAIN_LIMIT:
+            if math.isfinite(k) and abs(k) >= limit:
                 raise ValueError(f"gains.{name} = {k:g} is beyond what the device's PID can hold: |{name}| must be "
-                                 f"< {P.RUN_GAIN_LIMIT / scale:.4g} ({P.RUN_GAIN_LIMIT:.0f} PWM ticks per encoder "
+                                 f"< {limit:.4g} ({P.RUN_GAIN_LIMIT:.0f} PWM ticks per encoder "
                                  f"count{' per sample' if loop == P.LoopType.VELOCITY else ''})")
         msgs = [
             P.SetPlant(K, tau, self.supply_voltage, self.counts_per_rev),

@@ -348,10 +348,9 @@ class VirtualDevice:
         Ts = g.Ts_us * 1e-6
         # the firmware's fixed-point PID holds each gain, scaled to PWM ticks per count (per count
         # per sample in the velocity loop), below 2^23 (PROTOCOL.md "Parameter checks", RUN)
-        scale = 2.0 * math.pi / self.plant.counts_per_rev * self.pwm_max / self.plant.supply_voltage
-        if g.loop == P.LoopType.VELOCITY:
-            scale /= Ts
-        if any(abs(k) * scale >= P.RUN_GAIN_LIMIT for k in (g.kpd, g.kid, g.kdd)):
+        limit = P.max_run_gain(self.plant.counts_per_rev, self.pwm_max, self.plant.supply_voltage,
+                               Ts if g.loop == P.LoopType.VELOCITY else None)
+        if any(abs(k) >= limit for k in (g.kpd, g.kid, g.kdd)):
             return P.ErrorCode.BAD_VALUE, 0xFF
         loop = "velocity" if g.loop == P.LoopType.VELOCITY else "position"
         dg = DiscreteGains(g.kpd, g.kid, g.kdd, Ts, gamma=g.gamma, loop=loop)
