@@ -13,6 +13,7 @@
     For every table and row present in both records, the ratio B/A of each numeric cell
     (a time ratio > 1 means B is slower; for a "x peer" or rate column, higher is better).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -62,10 +63,12 @@ def _versions():
 def _git(root):
     def run(*args):
         try:
-            return subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True,
-                                  timeout=10).stdout.strip()
+            return subprocess.run(
+                ["git", "-C", str(root), *args], capture_output=True, text=True, timeout=10
+            ).stdout.strip()
         except (OSError, subprocess.SubprocessError):
             return ""
+
     commit = run("rev-parse", "HEAD")
     dirty = bool(run("status", "--porcelain", "--untracked-files=no"))
     return {"commit": commit or None, "dirty": dirty if commit else None}
@@ -81,8 +84,13 @@ def _machine():
     except OSError:
         pass
     load = os.getloadavg() if hasattr(os, "getloadavg") else None
-    return {"host": platform.node(), "system": platform.platform(), "cpu": cpu, "cpus": os.cpu_count(),
-            "load_average": list(load) if load else None}
+    return {
+        "host": platform.node(),
+        "system": platform.platform(),
+        "cpu": cpu,
+        "cpus": os.cpu_count(),
+        "load_average": list(load) if load else None,
+    }
 
 
 def run(names, out=None, save=True, options=None):
@@ -91,9 +99,15 @@ def run(names, out=None, save=True, options=None):
 
     jl_root = pathlib.Path(jerklab.__file__).resolve().parent.parent
     started = _dt.datetime.now(_dt.timezone.utc)
-    record = {"date": started.isoformat(timespec="seconds"), "machine": _machine(),
-              "versions": _versions(), "jerklab_path": str(jl_root), "git": _git(jl_root),
-              "argv": sys.argv[1:], "modules": {}}
+    record = {
+        "date": started.isoformat(timespec="seconds"),
+        "machine": _machine(),
+        "versions": _versions(),
+        "jerklab_path": str(jl_root),
+        "git": _git(jl_root),
+        "argv": sys.argv[1:],
+        "modules": {},
+    }
     for name in names:
         modname = f"benchmarks.{name if name.startswith('bench_') else 'bench_' + name}"
         mod = importlib.import_module(modname)
@@ -113,11 +127,15 @@ def run(names, out=None, save=True, options=None):
             entry["text"] = buf.getvalue()
         record["modules"][mod.__name__] = entry
     record["seconds"] = round((_dt.datetime.now(_dt.timezone.utc) - started).total_seconds(), 1)
-    record["machine"]["load_average_end"] = (list(os.getloadavg()) if hasattr(os, "getloadavg") else None)
+    record["machine"]["load_average_end"] = (
+        list(os.getloadavg()) if hasattr(os, "getloadavg") else None
+    )
     if save:
         if out is None:
             RESULTS.mkdir(exist_ok=True)
-            tag = (record["git"]["commit"] or "nogit")[:8] + ("-dirty" if record["git"]["dirty"] else "")
+            tag = (record["git"]["commit"] or "nogit")[:8] + (
+                "-dirty" if record["git"]["dirty"] else ""
+            )
             out = RESULTS / f"{started:%Y%m%dT%H%M%SZ}_{platform.node() or 'host'}_{tag}.json"
         out = pathlib.Path(out)
         out.write_text(json.dumps(record, indent=1, ensure_ascii=False) + "\n")
@@ -163,8 +181,12 @@ def compare(a_path, b_path, file=None):
             if out_rows:
                 found += 1
                 print("", file=file)
-                print(_record.format_table(f"[{mod}] {ta['title']}", [ta["columns"][0]] + cols, out_rows),
-                      file=file)
+                print(
+                    _record.format_table(
+                        f"[{mod}] {ta['title']}", [ta["columns"][0]] + cols, out_rows
+                    ),
+                    file=file,
+                )
     if not found:
         print("no table in common", file=file)
     return found

@@ -8,6 +8,7 @@ text of modules that print by hand, into one JSON record in ``benchmarks/results
 prints, for every table and row present in both records, the ratio B/A of each numeric
 cell.
 """
+
 from __future__ import annotations
 
 import math
@@ -46,12 +47,23 @@ def _cell(x):
 def format_table(title, columns, rows, note=None) -> str:
     """The table as aligned text (label column left, the others right)."""
     cells = [[_cell(c) for c in r] for r in rows]
-    widths = [max([len(str(col))] + [len(r[j]) for r in cells if j < len(r)]) for j, col in enumerate(columns)]
+    widths = [
+        max([len(str(col))] + [len(r[j]) for r in cells if j < len(r)])
+        for j, col in enumerate(columns)
+    ]
     out = [title]
-    out.append("  ".join(str(c).ljust(w) if j == 0 else str(c).rjust(w)
-                         for j, (c, w) in enumerate(zip(columns, widths))))
+    out.append(
+        "  ".join(
+            str(c).ljust(w) if j == 0 else str(c).rjust(w)
+            for j, (c, w) in enumerate(zip(columns, widths))
+        )
+    )
     for r in cells:
-        out.append("  ".join(c.ljust(w) if j == 0 else c.rjust(w) for j, (c, w) in enumerate(zip(r, widths))))
+        out.append(
+            "  ".join(
+                c.ljust(w) if j == 0 else c.rjust(w) for j, (c, w) in enumerate(zip(r, widths))
+            )
+        )
     if note:
         out.append(note)
     return "\n".join(out)
@@ -88,5 +100,12 @@ def table(title, columns, rows, note=None):
         if len(r) != len(columns):
             raise ValueError(f"row {r!r} has {len(r)} cells for {len(columns)} columns")
     print(format_table(title, columns, rows, note))
-    TABLES.append(dict(module=CURRENT["module"], title=str(title), columns=columns,
-                       rows=[[_jsonable(c) for c in r] for r in rows], note=note))
+    TABLES.append(
+        dict(
+            module=CURRENT["module"],
+            title=str(title),
+            columns=columns,
+            rows=[[_jsonable(c) for c in r] for r in rows],
+            note=note,
+        )
+    )

@@ -25,6 +25,7 @@ Run::
 
 Targets (issue 14): every panel within 5 s, slider → image p90 ≤ 1 s at N = 30.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -36,7 +37,6 @@ import random
 import re
 import signal
 import socket
-import struct
 import subprocess
 import sys
 import threading
@@ -62,8 +62,13 @@ class Server:
         env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "jerklab.app", f"--port={self.port}", f"--pool={pool}", *extra],
-            cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-            start_new_session=True)
+            cwd=ROOT,
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            start_new_session=True,
+        )
         self.pool = pool
         self.filled = threading.Event()
         self.log = []
@@ -155,26 +160,41 @@ WS_PROTOCOL = "v1.kernel.websocket.jupyter.org"
 def _decode(frame):
     """A message in the v1 kernel websocket protocol (jupyter_server): offsets, channel, parts."""
     n = int.from_bytes(frame[:8], "little")
-    off = [int.from_bytes(frame[8 * (i + 1):8 * (i + 2)], "little") for i in range(n)]
-    parts = [frame[off[i]:off[i + 1]] for i in range(n - 1)]
+    off = [int.from_bytes(frame[8 * (i + 1) : 8 * (i + 2)], "little") for i in range(n)]
+    parts = [frame[off[i] : off[i + 1]] for i in range(n - 1)]
     channel = parts[0].decode("utf-8")
     header, parent, metadata, content = (json.loads(p) for p in parts[1:5])
-    return {"channel": channel, "header": header, "parent_header": parent, "metadata": metadata,
-            "content": content, "buffers": parts[5:]}
+    return {
+        "channel": channel,
+        "header": header,
+        "parent_header": parent,
+        "metadata": metadata,
+        "content": content,
+        "buffers": parts[5:],
+    }
 
 
 def _msg(session, msg_type, content, channel="shell", metadata=None):
     """Encode a client message for the v1 protocol."""
-    header = {"msg_id": uuid.uuid4().hex, "username": "student", "session": session,
-              "msg_type": msg_type, "version": "5.3",
-              "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
-    parts = [channel.encode()] + [json.dumps(x).encode() for x in
-                                  (header, {}, metadata or {}, content)]
+    header = {
+        "msg_id": uuid.uuid4().hex,
+        "username": "student",
+        "session": session,
+        "msg_type": msg_type,
+        "version": "5.3",
+        "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+    }
+    parts = [channel.encode()] + [
+        json.dumps(x).encode() for x in (header, {}, metadata or {}, content)
+    ]
     off = [8 * (1 + len(parts) + 1)]
     for p in parts:
         off.append(off[-1] + len(p))
-    return (len(off).to_bytes(8, "little") + b"".join(o.to_bytes(8, "little") for o in off)
-            + b"".join(parts)), header["msg_id"]
+    return (
+        len(off).to_bytes(8, "little")
+        + b"".join(o.to_bytes(8, "little") for o in off)
+        + b"".join(parts)
+    ), header["msg_id"]
 
 
 class Student:
@@ -196,10 +216,13 @@ class Student:
             t_html = time.monotonic() - t0
             ws = await websocket_connect(
                 f"{self.base.replace('http', 'ws')}/api/kernels/{kid}/channels?session_id={self.session}",
-                subprotocols=[WS_PROTOCOL])
+                subprotocols=[WS_PROTOCOL],
+            )
             # as the widget manager does: list the kernel's widget comms, ask each for its state
-            await ws.write_message(_msg(self.session, "comm_info_request",
-                                        {"target_name": "jupyter.widget"})[0], binary=True)
+            await ws.write_message(
+                _msg(self.session, "comm_info_request", {"target_name": "jupyter.widget"})[0],
+                binary=True,
+            )
             comms = None
             while comms is None:
                 msg = _decode(await asyncio.wait_for(ws.read_message(), self.timeout * 4))
@@ -207,27 +230,37 @@ class Student:
                     comms = list(msg["content"]["comms"])
             last = None
             for cid in comms:
-                req, last = _msg(self.session, "comm_msg", {"comm_id": cid,
-                                                            "data": {"method": "request_state"}})
+                req, last = _msg(
+                    self.session, "comm_msg", {"comm_id": cid, "data": {"method": "request_state"}}
+                )
                 await ws.write_message(req, binary=True)
             states = {}
             while True:  # replies come before the kernel's idle after the last request
                 msg = _decode(await asyncio.wait_for(ws.read_message(), self.timeout * 4))
                 c = msg.get("content", {})
-                if (msg["header"]["msg_type"] == "comm_msg" and c.get("comm_id") in comms
-                        and c["data"].get("method") == "update"):
-                    states[c["comm_id"]] = {"model_name": c["data"]["state"].get("_model_name"),
-                                            "state": c["data"]["state"]}
-                elif (msg["header"]["msg_type"] == "status"
-                      and msg["parent_header"].get("msg_id") == last
-                      and c.get("execution_state") == "idle"):
+                if (
+                    msg["header"]["msg_type"] == "comm_msg"
+                    and c.get("comm_id") in comms
+                    and c["data"].get("method") == "update"
+                ):
+                    states[c["comm_id"]] = {
+                        "model_name": c["data"]["state"].get("_model_name"),
+                        "state": c["data"]["state"],
+                    }
+                elif (
+                    msg["header"]["msg_type"] == "status"
+                    and msg["parent_header"].get("msg_id") == last
+                    and c.get("execution_state") == "idle"
+                ):
                     break
             self.stats["panel"].append(time.monotonic() - t0)
             self.stats["html"].append(t_html)
         except Exception as exc:  # a page that never came counts as a failure
             self.stats["failed"].append(f"{type(exc).__name__}: {exc}")
             return
-        sliders = {m: s["state"] for m, s in states.items() if s["model_name"] == "FloatSliderModel"}
+        sliders = {
+            m: s["state"] for m, s in states.items() if s["model_name"] == "FloatSliderModel"
+        }
         images = [m for m, s in states.items() if s["model_name"] == "ImageModel"]
         wn = [m for m, st in sliders.items() if st.get("max") == 100.0] or list(sliders)
         slider, image = wn[0], images[0]
@@ -239,10 +272,21 @@ class Student:
                 t_next = time.monotonic() + self.period
                 value = float(round(rng.uniform(lo + 0.1 * (hi - lo), lo + 0.6 * (hi - lo))))
                 ts = time.monotonic()
-                await ws.write_message(_msg(self.session, "comm_msg", {
-                    "comm_id": slider,
-                    "data": {"method": "update", "state": {"value": value}, "buffer_paths": []}})[0],
-                    binary=True)
+                await ws.write_message(
+                    _msg(
+                        self.session,
+                        "comm_msg",
+                        {
+                            "comm_id": slider,
+                            "data": {
+                                "method": "update",
+                                "state": {"value": value},
+                                "buffer_paths": [],
+                            },
+                        },
+                    )[0],
+                    binary=True,
+                )
                 got = False
                 while not got:
                     left = ts + self.timeout - time.monotonic()
@@ -256,10 +300,15 @@ class Student:
                         raise ConnectionError("websocket closed")
                     msg = _decode(frame)
                     c = msg.get("content", {})
-                    if (msg["header"]["msg_type"] == "comm_msg" and c.get("comm_id") == image
-                            and c.get("data", {}).get("method") == "update"
-                            and (["value"] in c["data"].get("buffer_paths", [])
-                                 or "value" in c["data"].get("state", {}))):
+                    if (
+                        msg["header"]["msg_type"] == "comm_msg"
+                        and c.get("comm_id") == image
+                        and c.get("data", {}).get("method") == "update"
+                        and (
+                            ["value"] in c["data"].get("buffer_paths", [])
+                            or "value" in c["data"].get("state", {})
+                        )
+                    ):
                         got = True
                 if got:
                     self.stats["slider"].append(time.monotonic() - ts)
@@ -295,9 +344,12 @@ def run_class(n, minutes, pool, after=60.0, period=2.0, extra=()):
         base = f"http://127.0.0.1:{server.port}"
 
         async def main():
-            await asyncio.gather(*(Student(i, base, stats, period).run(60.0 * minutes,
-                                                                      random.uniform(0, 2))
-                                   for i in range(n)))
+            await asyncio.gather(
+                *(
+                    Student(i, base, stats, period).run(60.0 * minutes, random.uniform(0, 2))
+                    for i in range(n)
+                )
+            )
 
         t0 = time.monotonic()
         asyncio.run(main())
@@ -307,9 +359,19 @@ def run_class(n, minutes, pool, after=60.0, period=2.0, extra=()):
         time.sleep(after)
         alive_after = server.kernels()
         stop.set()
-        return {"n": n, "pool": pool, "ready_s": t_ready, "rss_idle": rss_idle, "rss_peak": mem["peak"],
-                "wall": wall, "load1": load, "alive_close": alive_close, "alive_after": alive_after,
-                "after": after, **stats}
+        return {
+            "n": n,
+            "pool": pool,
+            "ready_s": t_ready,
+            "rss_idle": rss_idle,
+            "rss_peak": mem["peak"],
+            "wall": wall,
+            "load1": load,
+            "alive_close": alive_close,
+            "alive_after": alive_after,
+            "after": after,
+            **stats,
+        }
     finally:
         stop.set()
         server.stop()
@@ -324,9 +386,11 @@ def _pct(xs, q):
 
 
 def table(rows):
-    head = (f"{'N':>3} {'pool':>4} | {'panel p50':>9} {'panel max':>9} {'<=5 s':>6} | "
-            f"{'slider p50':>10} {'p90':>6} {'max':>6} {'moves':>6} {'lost':>5} | "
-            f"{'RSS idle':>8} {'RSS peak':>8} {'GB/stud':>7} | {'kernels':>7} {'after':>9} | {'load1':>5}")
+    head = (
+        f"{'N':>3} {'pool':>4} | {'panel p50':>9} {'panel max':>9} {'<=5 s':>6} | "
+        f"{'slider p50':>10} {'p90':>6} {'max':>6} {'moves':>6} {'lost':>5} | "
+        f"{'RSS idle':>8} {'RSS peak':>8} {'GB/stud':>7} | {'kernels':>7} {'after':>9} | {'load1':>5}"
+    )
     lines = [head, "-" * len(head)]
     for r in rows:
         ok5 = sum(1 for t in r["panel"] if t <= 5.0)
@@ -336,33 +400,51 @@ def table(rows):
             f"{ok5:>3}/{r['n']:<2} | {_pct(r['slider'], 50):>9.2f}s {_pct(r['slider'], 90):>5.2f}s "
             f"{max(r['slider'] or [float('nan')]):>5.2f}s {len(r['slider']):>6} {r['timeouts'] + len(r['failed']):>5} | "
             f"{r['rss_idle'] / 1e9:>6.2f}GB {r['rss_peak'] / 1e9:>6.2f}GB {per:>7.2f} | "
-            f"{r['alive_close']:>7} {r['alive_after']:>3}@{r['after']:>3.0f}s | {r['load1']:>5.1f}")
+            f"{r['alive_close']:>7} {r['alive_after']:>3}@{r['after']:>3.0f}s | {r['load1']:>5.1f}"
+        )
     return "\n".join(lines)
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m benchmarks class", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(
+        prog="python -m benchmarks class", description=__doc__.split("\n")[0]
+    )
     ap.add_argument("--n", default="1,10,30", help="class sizes, comma separated (default 1,10,30)")
-    ap.add_argument("--minutes", type=float, default=3.0, help="slider minutes per student (default 3)")
-    ap.add_argument("--pool", default="n",
-                    help="kernels kept pre-executed: a number, or 'n' for one per student (default)")
-    ap.add_argument("--after", type=float, default=60.0,
-                    help="seconds after the last tab closed before counting live kernels (default 60)")
-    ap.add_argument("--period", type=float, default=2.0, help="seconds between slider moves (default 2)")
+    ap.add_argument(
+        "--minutes", type=float, default=3.0, help="slider minutes per student (default 3)"
+    )
+    ap.add_argument(
+        "--pool",
+        default="n",
+        help="kernels kept pre-executed: a number, or 'n' for one per student (default)",
+    )
+    ap.add_argument(
+        "--after",
+        type=float,
+        default=60.0,
+        help="seconds after the last tab closed before counting live kernels (default 60)",
+    )
+    ap.add_argument(
+        "--period", type=float, default=2.0, help="seconds between slider moves (default 2)"
+    )
     args = ap.parse_args([] if argv is None else argv)
     rows = []
     for n in [int(x) for x in args.n.split(",") if x.strip()]:
         pool = n if args.pool == "n" else int(args.pool)
-        print(f"class: N={n} pool={pool} {args.minutes:g} min (load {os.getloadavg()[0]:.1f}) ...",
-              flush=True)
+        print(
+            f"class: N={n} pool={pool} {args.minutes:g} min (load {os.getloadavg()[0]:.1f}) ...",
+            flush=True,
+        )
         r = run_class(n, args.minutes, pool, after=args.after, period=args.period)
         if r["failed"]:
             print(f"  {len(r['failed'])} students failed, first: {r['failed'][0]}", flush=True)
         print(f"  pool of {pool} filled {r['ready_s']:.0f} s after start", flush=True)
         rows.append(r)
         print(table(rows[-1:]), flush=True)
-    print("\nclass page (python -m jerklab.app), websocket students moving a slider every "
-          f"{args.period:g} s for {args.minutes:g} min; {os.cpu_count()} cores")
+    print(
+        "\nclass page (python -m jerklab.app), websocket students moving a slider every "
+        f"{args.period:g} s for {args.minutes:g} min; {os.cpu_count()} cores"
+    )
     print(table(rows))
     return rows
 

@@ -31,6 +31,7 @@ Run it as ``python -m benchmarks faults`` (add ``--verbose`` through ``JERKLAB_F
 to list every case that is not ``clear`` / ``ok``; ``JERKLAB_FAULTS_ONLY=planner,protocol`` to
 probe only some modules).
 """
+
 from __future__ import annotations
 
 import collections
@@ -56,21 +57,46 @@ TIME_LIMIT = float(os.environ.get("JERKLAB_FAULTS_TIME_LIMIT", "20"))
 #: the first call of a target (warm-up, numba compilation) gets this much
 WARMUP_LIMIT = 180.0
 #: the worker's address-space cap (bytes)
-MEMORY_LIMIT = 3 * 2 ** 30
+MEMORY_LIMIT = 3 * 2**30
 
 NAN, INF = float("nan"), float("inf")
 
 # ----------------------------------------------------------------------------- bad values
 # (label, value); value factories are used for arrays so that every case gets a fresh one
 
-REAL = [("nan", NAN), ("+inf", INF), ("-inf", -INF), ("0", 0.0), ("negative", -1.0), ("1e-300", 1e-300),
-        ("1e300", 1e300), ("1e9", 1e9), ("str", "1.0"), ("None", None), ("list", [1.0, 2.0])]
-INT = [("nan", NAN), ("0", 0), ("negative", -1), ("2.5", 2.5), ("1e9", 10 ** 9), ("2**64", 2 ** 64),
-       ("str", "3"), ("None", None)]
-ARRAY = [("nan-in-array", lambda: [0.0, NAN, 1.0, 2.0]), ("inf-in-array", lambda: [0.0, INF, 1.0, 2.0]),
-         ("empty", lambda: []), ("ragged", lambda: [[1.0], [1.0, 2.0]]),
-         ("2-D", lambda: [[0.0, 1.0], [2.0, 3.0]]), ("strings", lambda: ["a", "b", "c"]), ("None", None),
-         ("scalar-str", "x")]
+REAL = [
+    ("nan", NAN),
+    ("+inf", INF),
+    ("-inf", -INF),
+    ("0", 0.0),
+    ("negative", -1.0),
+    ("1e-300", 1e-300),
+    ("1e300", 1e300),
+    ("1e9", 1e9),
+    ("str", "1.0"),
+    ("None", None),
+    ("list", [1.0, 2.0]),
+]
+INT = [
+    ("nan", NAN),
+    ("0", 0),
+    ("negative", -1),
+    ("2.5", 2.5),
+    ("1e9", 10**9),
+    ("2**64", 2**64),
+    ("str", "3"),
+    ("None", None),
+]
+ARRAY = [
+    ("nan-in-array", lambda: [0.0, NAN, 1.0, 2.0]),
+    ("inf-in-array", lambda: [0.0, INF, 1.0, 2.0]),
+    ("empty", lambda: []),
+    ("ragged", lambda: [[1.0], [1.0, 2.0]]),
+    ("2-D", lambda: [[0.0, 1.0], [2.0, 3.0]]),
+    ("strings", lambda: ["a", "b", "c"]),
+    ("None", None),
+    ("scalar-str", "x"),
+]
 STR = [("unknown", "nonsense"), ("empty", ""), ("None", None), ("int", 3)]
 OBJ = [("None", None), ("str", "x"), ("int", 3), ("float", 1.5), ("dict", {})]
 
@@ -89,18 +115,18 @@ VALUES = {"R": REAL, "P": REAL, "N": REAL, "I1": INT, "I0": INT, "A": ARRAY, "S"
 
 @dataclasses.dataclass
 class Param:
-    name: str            # keyword passed to the call
-    domain: str          # key of REJECT / VALUES
-    ok: tuple = ()       # labels that are legal for this parameter although the domain refuses them
-    values: list | None = None   # replaces the domain's value list
-    shown: str | None = None     # the name the error must use (default: name)
+    name: str  # keyword passed to the call
+    domain: str  # key of REJECT / VALUES
+    ok: tuple = ()  # labels that are legal for this parameter although the domain refuses them
+    values: list | None = None  # replaces the domain's value list
+    shown: str | None = None  # the name the error must use (default: name)
 
 
 @dataclasses.dataclass
 class Target:
     module: str
     name: str
-    call: object          # callable(**kwargs)
+    call: object  # callable(**kwargs)
     base: dict
     params: list
     check: object = None  # callable(result, kwargs) -> None or a description of a wrong result
@@ -108,6 +134,7 @@ class Target:
 
 
 # ----------------------------------------------------------------------------- helpers
+
 
 def _prof(kind="sine_jerk"):
     from jerklab import planner
@@ -143,6 +170,7 @@ def _with_rig(method):
             return getattr(rig, method)(**kw)
         finally:
             rig.close()
+
     return call
 
 
@@ -165,6 +193,7 @@ def _protocol_roundtrip(cls):
         from jerklab import protocol as P
 
         return P.parse(P.Decoder().feed(P.encode(cls(**kw)))[0]), kw
+
     return call
 
 
@@ -183,7 +212,7 @@ def _check_roundtrip(result, kw):
     return None
 
 
-_BASE = object()   # "the valid object" in a base case
+_BASE = object()  # "the valid object" in a base case
 
 
 def _preisach():
@@ -255,57 +284,182 @@ def _targets() -> list[Target]:
     from jerklab import protocol as PR
 
     T: list[Target] = []
-    lim4 = [Param("distance", R), Param("max_jerk", P), Param("max_accel", P), Param("max_velocity", P)]
+    lim4 = [
+        Param("distance", R),
+        Param("max_jerk", P),
+        Param("max_accel", P),
+        Param("max_velocity", P),
+    ]
     for kind in ("sine_jerk", "sine_jerk_optimal", "scurve"):
-        T.append(Target("planner", f"plan_{kind}", getattr(PL, f"plan_{kind}"),
-                        dict(distance=1.0, max_jerk=2000.0, max_accel=300.0, max_velocity=100.0), lim4))
-    T.append(Target("planner", "plan_trapezoid", PL.plan_trapezoid,
-                    dict(distance=1.0, max_accel=300.0, max_velocity=100.0), lim4[:1] + lim4[2:]))
+        T.append(
+            Target(
+                "planner",
+                f"plan_{kind}",
+                getattr(PL, f"plan_{kind}"),
+                dict(distance=1.0, max_jerk=2000.0, max_accel=300.0, max_velocity=100.0),
+                lim4,
+            )
+        )
+    T.append(
+        Target(
+            "planner",
+            "plan_trapezoid",
+            PL.plan_trapezoid,
+            dict(distance=1.0, max_accel=300.0, max_velocity=100.0),
+            lim4[:1] + lim4[2:],
+        )
+    )
     # extreme but legal combinations: the plan must be finite or refused by name
-    T.append(Target("planner", "plan_sine_jerk(d=1e300)", PL.plan_sine_jerk,
-                    dict(distance=1e300, max_jerk=2000.0, max_accel=300.0, max_velocity=100.0),
-                    [Param("max_jerk", P), Param("max_accel", P), Param("max_velocity", P)]))
-    T.append(Target("planner", "plan_scurve(d=1e-300)", PL.plan_scurve,
-                    dict(distance=1e-300, max_jerk=2000.0, max_accel=300.0, max_velocity=100.0),
-                    [Param("max_jerk", P), Param("max_accel", P), Param("max_velocity", P)]))
-    AP = [("0", lambda: [1.0, 0.0, 2.0, 3.0]), ("negative", lambda: [1.0, -1.0, 2.0, 3.0]),
-          ("1e-300", lambda: [1.0, 1e-300, 2.0, 3.0]), ("1e300", lambda: [1.0, 1e300, 2.0, 3.0])]
+    T.append(
+        Target(
+            "planner",
+            "plan_sine_jerk(d=1e300)",
+            PL.plan_sine_jerk,
+            dict(distance=1e300, max_jerk=2000.0, max_accel=300.0, max_velocity=100.0),
+            [Param("max_jerk", P), Param("max_accel", P), Param("max_velocity", P)],
+        )
+    )
+    T.append(
+        Target(
+            "planner",
+            "plan_scurve(d=1e-300)",
+            PL.plan_scurve,
+            dict(distance=1e-300, max_jerk=2000.0, max_accel=300.0, max_velocity=100.0),
+            [Param("max_jerk", P), Param("max_accel", P), Param("max_velocity", P)],
+        )
+    )
+    AP = [
+        ("0", lambda: [1.0, 0.0, 2.0, 3.0]),
+        ("negative", lambda: [1.0, -1.0, 2.0, 3.0]),
+        ("1e-300", lambda: [1.0, 1e-300, 2.0, 3.0]),
+        ("1e300", lambda: [1.0, 1e300, 2.0, 3.0]),
+    ]
     arr_pos = ARRAY + AP
     for engine, n in (("numpy", 4), ("numba", 4)):
-        base = dict(kind="scurve", distance=np.linspace(0.1, 2.0, n), max_jerk=2000.0, max_accel=300.0,
-                    max_velocity=100.0, engine=engine)
-        T.append(Target("planner", f"plan_batch[{engine}]", PL.plan_batch, base, [
-            Param("kind", S), Param("distance", A, ok=("empty",), values=ARRAY + [("1e300", lambda: [1.0, 1e300, 2.0, 3.0])]),
-            Param("max_jerk", A, ok=("empty", "2-D"), values=arr_pos),
-            Param("max_accel", A, ok=("empty", "2-D"), values=arr_pos),
-            Param("max_velocity", A, ok=("empty", "2-D"), values=arr_pos)]))
-    T.append(Target("planner", "plan_batch(n huge)", lambda n: PL.plan_batch(
-        "scurve", np.broadcast_to(np.float64(1.0), (n,)), 1.0, 1.0, 1.0, engine="numpy"),
-                    dict(n=10), [Param("n", I1, values=[("1e9", 10 ** 9), ("2**40", 2 ** 40)])]))
-    T.append(Target("planner", "Profile.sample", lambda t: _prof().sample(t), dict(t=[0.0, 0.01]),
-                    [Param("t", A, ok=("empty", "2-D"))]))
-    T.append(Target("planner", "Profile.synchronized", lambda Ts: _prof().synchronized(Ts), dict(Ts=0.005),
-                    [Param("Ts", P)]))
-    T.append(Target("planner", "Profile.discretize", lambda Ts, t_end: _prof().discretize(Ts, t_end),
-                    dict(Ts=0.005, t_end=None), [Param("Ts", P), Param("t_end", N, ok=("None",))]))
-    T.append(Target("planner", "Profile.discretize(trapezoid)",
-                    lambda Ts, t_end: _prof("trapezoid").discretize(Ts, t_end),
-                    dict(Ts=0.005, t_end=None), [Param("Ts", P), Param("t_end", N, ok=("None",))]))
-    T.append(Target("planner", "BatchPlan.sample", lambda t: PL.plan_batch("scurve", [1.0, 2.0], 2000, 300, 100,
-                                                                            engine="numpy").sample(t),
-                    dict(t=[0.0, 0.01]), [Param("t", A, ok=("empty", "2-D"))]))
-    T.append(Target("planner", "BatchPlan.profile", lambda i: PL.plan_batch("scurve", [1.0, 2.0], 2000, 300, 100,
-                                                                             engine="numpy").profile(i),
-                    dict(i=1), [Param("i", I0, ok=("negative",), values=INT + [("2", 2), ("-3", -3)])]))
+        base = dict(
+            kind="scurve",
+            distance=np.linspace(0.1, 2.0, n),
+            max_jerk=2000.0,
+            max_accel=300.0,
+            max_velocity=100.0,
+            engine=engine,
+        )
+        T.append(
+            Target(
+                "planner",
+                f"plan_batch[{engine}]",
+                PL.plan_batch,
+                base,
+                [
+                    Param("kind", S),
+                    Param(
+                        "distance",
+                        A,
+                        ok=("empty",),
+                        values=ARRAY + [("1e300", lambda: [1.0, 1e300, 2.0, 3.0])],
+                    ),
+                    Param("max_jerk", A, ok=("empty", "2-D"), values=arr_pos),
+                    Param("max_accel", A, ok=("empty", "2-D"), values=arr_pos),
+                    Param("max_velocity", A, ok=("empty", "2-D"), values=arr_pos),
+                ],
+            )
+        )
+    T.append(
+        Target(
+            "planner",
+            "plan_batch(n huge)",
+            lambda n: PL.plan_batch(
+                "scurve", np.broadcast_to(np.float64(1.0), (n,)), 1.0, 1.0, 1.0, engine="numpy"
+            ),
+            dict(n=10),
+            [Param("n", I1, values=[("1e9", 10**9), ("2**40", 2**40)])],
+        )
+    )
+    T.append(
+        Target(
+            "planner",
+            "Profile.sample",
+            lambda t: _prof().sample(t),
+            dict(t=[0.0, 0.01]),
+            [Param("t", A, ok=("empty", "2-D"))],
+        )
+    )
+    T.append(
+        Target(
+            "planner",
+            "Profile.synchronized",
+            lambda Ts: _prof().synchronized(Ts),
+            dict(Ts=0.005),
+            [Param("Ts", P)],
+        )
+    )
+    T.append(
+        Target(
+            "planner",
+            "Profile.discretize",
+            lambda Ts, t_end: _prof().discretize(Ts, t_end),
+            dict(Ts=0.005, t_end=None),
+            [Param("Ts", P), Param("t_end", N, ok=("None",))],
+        )
+    )
+    T.append(
+        Target(
+            "planner",
+            "Profile.discretize(trapezoid)",
+            lambda Ts, t_end: _prof("trapezoid").discretize(Ts, t_end),
+            dict(Ts=0.005, t_end=None),
+            [Param("Ts", P), Param("t_end", N, ok=("None",))],
+        )
+    )
+    T.append(
+        Target(
+            "planner",
+            "BatchPlan.sample",
+            lambda t: PL.plan_batch("scurve", [1.0, 2.0], 2000, 300, 100, engine="numpy").sample(t),
+            dict(t=[0.0, 0.01]),
+            [Param("t", A, ok=("empty", "2-D"))],
+        )
+    )
+    T.append(
+        Target(
+            "planner",
+            "BatchPlan.profile",
+            lambda i: PL.plan_batch("scurve", [1.0, 2.0], 2000, 300, 100, engine="numpy").profile(
+                i
+            ),
+            dict(i=1),
+            [Param("i", I0, ok=("negative",), values=INT + [("2", 2), ("-3", -3)])],
+        )
+    )
 
     # -- protocol: every message, every field; the frame must carry the value back
     fmt_dom = {"f": R, "B": I0, "H": I0, "I": I0, "i": R, "h": R}
-    fmt_ok = {"f": ("nan", "+inf", "-inf", "0", "negative", "1e-300", "1e9"),
-              "B": ("0",), "H": ("0",), "I": ("0",), "i": ("0", "negative"), "h": ("0", "negative")}
+    fmt_ok = {
+        "f": ("nan", "+inf", "-inf", "0", "negative", "1e-300", "1e9"),
+        "B": ("0",),
+        "H": ("0",),
+        "I": ("0",),
+        "i": ("0", "negative"),
+        "h": ("0", "negative"),
+    }
     base_vals = {"f": 1.5, "B": 1, "H": 100, "I": 1000, "i": -5, "h": -5}
-    INTF = INT + [("256", 256), ("65536", 65536), ("2**32", 2 ** 32), ("-2**31-1", -2 ** 31 - 1)]
-    for cls in (PR.Hello, PR.SetPlant, PR.SetGains, PR.SetLimits, PR.Plan, PR.Run, PR.Step, PR.Ack, PR.Nack,
-                PR.HelloReply, PR.PlanInfo, PR.Telemetry, PR.EndOfRun, PR.DeviceError):
+    INTF = INT + [("256", 256), ("65536", 65536), ("2**32", 2**32), ("-2**31-1", -(2**31) - 1)]
+    for cls in (
+        PR.Hello,
+        PR.SetPlant,
+        PR.SetGains,
+        PR.SetLimits,
+        PR.Plan,
+        PR.Run,
+        PR.Step,
+        PR.Ack,
+        PR.Nack,
+        PR.HelloReply,
+        PR.PlanInfo,
+        PR.Telemetry,
+        PR.EndOfRun,
+        PR.DeviceError,
+    ):
         fmt = cls.FORMAT.lstrip("<")
         fields = dataclasses.fields(cls)
         codes = []
@@ -327,175 +481,674 @@ def _targets() -> list[Target]:
             else:
                 dom, ok = fmt_dom[ch], fmt_ok[ch]
             params.append(Param(f.name, dom, ok=ok, values=vals))
-        T.append(Target("protocol", f"encode({cls.__name__})", _protocol_roundtrip(cls), base, params,
-                        check=_check_roundtrip, allow_nonfinite=True))
-    T.append(Target("protocol", "encode_frame", PR.encode_frame, dict(msg_type=1, seq=0, payload=b""),
-                    [Param("msg_type", I0, values=INTF), Param("seq", I0, values=INTF),
-                     Param("payload", O, values=[("None", None), ("int", 3), ("str", "x"),
-                                                 ("too long", b"x" * 70)])]))
-    T.append(Target("protocol", "encode(seq)", lambda seq: PR.encode(PR.Stop(), seq), dict(seq=0),
-                    [Param("seq", I0, values=INTF)]))
-    T.append(Target("protocol", "Decoder.feed", lambda data: PR.Decoder().feed(data), dict(data=b"\xa5\x5a"),
-                    [Param("data", O, values=[("None", None), ("int", 3), ("str", "x"), ("float", 1.5),
-                                              ("list-of-str", ["a"])])]))
-    T.append(Target("protocol", "crc16_ccitt_false", PR.crc16_ccitt_false, dict(data=b"123456789"),
-                    [Param("data", O, values=[("None", None), ("str", "x"), ("float", 1.5)])]))
-    T.append(Target("protocol", "payload_field_name", PR.payload_field_name, dict(command=2, index=0),
-                    [Param("command", I0, values=INTF), Param("index", I0, values=INTF)]))
+        T.append(
+            Target(
+                "protocol",
+                f"encode({cls.__name__})",
+                _protocol_roundtrip(cls),
+                base,
+                params,
+                check=_check_roundtrip,
+                allow_nonfinite=True,
+            )
+        )
+    T.append(
+        Target(
+            "protocol",
+            "encode_frame",
+            PR.encode_frame,
+            dict(msg_type=1, seq=0, payload=b""),
+            [
+                Param("msg_type", I0, values=INTF),
+                Param("seq", I0, values=INTF),
+                Param(
+                    "payload",
+                    O,
+                    values=[("None", None), ("int", 3), ("str", "x"), ("too long", b"x" * 70)],
+                ),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "protocol",
+            "encode(seq)",
+            lambda seq: PR.encode(PR.Stop(), seq),
+            dict(seq=0),
+            [Param("seq", I0, values=INTF)],
+        )
+    )
+    T.append(
+        Target(
+            "protocol",
+            "Decoder.feed",
+            lambda data: PR.Decoder().feed(data),
+            dict(data=b"\xa5\x5a"),
+            [
+                Param(
+                    "data",
+                    O,
+                    values=[
+                        ("None", None),
+                        ("int", 3),
+                        ("str", "x"),
+                        ("float", 1.5),
+                        ("list-of-str", ["a"]),
+                    ],
+                )
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "protocol",
+            "crc16_ccitt_false",
+            PR.crc16_ccitt_false,
+            dict(data=b"123456789"),
+            [Param("data", O, values=[("None", None), ("str", "x"), ("float", 1.5)])],
+        )
+    )
+    T.append(
+        Target(
+            "protocol",
+            "payload_field_name",
+            PR.payload_field_name,
+            dict(command=2, index=0),
+            [Param("command", I0, values=INTF), Param("index", I0, values=INTF)],
+        )
+    )
 
     # -- plant
     from jerklab import plant as PLT
 
-    T.append(Target("plant", "DCMotor", PLT.DCMotor, dict(K=32.4, tau=0.025), [
-        Param("K", P), Param("tau", P), Param("supply_voltage", P, ok=("None",)),
-        Param("pwm_bits", I1, ok=("None",)), Param("encoder_ppr", I1, ok=("None",)), Param("decoding", I1),
-        Param("coulomb_friction", N), Param("noise_std", N), Param("load_disturbance", R, ok=("None", "list"))]))
-    T.append(Target("plant", "FlexibleDCMotor", PLT.FlexibleDCMotor, dict(K=32.4, tau=0.025), [
-        Param("K", P), Param("tau", P), Param("load_ratio", P), Param("mode_frequency", P),
-        Param("mode_damping", N)]))
-    T.append(Target("plant", "DCMotor.zoh", lambda Ts: _motor().zoh(Ts), dict(Ts=0.005), [Param("Ts", P)]))
-    T.append(Target("plant", "DCMotor.discrete_tf", lambda Ts: _motor().discrete_tf(Ts), dict(Ts=0.005),
-                    [Param("Ts", P)]))
-    T.append(Target("plant", "DCMotor.ss", lambda outputs: _motor().ss(outputs), dict(outputs="theta"),
-                    [Param("outputs", S)]))
-    T.append(Target("plant", "DCMotor.step_state", lambda x, u, dt, t: _motor().step_state(x, u, dt, t),
-                    dict(x=[0.0, 0.0], u=1.0, dt=0.005, t=0.0),
-                    [Param("x", A), Param("u", R), Param("dt", N), Param("t", R)]))
-    T.append(Target("plant", "DCMotor.open_loop", lambda u, Ts: _motor().open_loop(u, Ts),
-                    dict(u=[1.0, 1.0, 1.0], Ts=0.005), [Param("u", A, ok=("empty",)), Param("Ts", P)]))
-    T.append(Target("plant", "DCMotor.quantize_voltage", lambda u: _motor().quantize_voltage(u),
-                    dict(u=[1.0, 2.0]), [Param("u", A, ok=("empty", "2-D"))]))
-    T.append(Target("plant", "DCMotor.measure", lambda theta: _motor().measure(theta),
-                    dict(theta=[1.0, 2.0]), [Param("theta", A, ok=("empty", "2-D"))]))
-    T.append(Target("plant", "FlexibleDCMotor.open_loop",
-                    lambda u, Ts: PLT.FlexibleDCMotor().open_loop(u, Ts),
-                    dict(u=[1.0, 1.0, 1.0], Ts=0.005), [Param("u", A, ok=("empty",)), Param("Ts", P)]))
-    T.append(Target("plant", "advance_scalar", PLT.advance_scalar,
-                    dict(theta=0.0, omega=0.0, v=1.0, fc=0.0, K=32.4, tau=0.025, dt=0.005),
-                    [Param("theta", R), Param("omega", R), Param("v", R), Param("fc", N), Param("K", P),
-                     Param("tau", P), Param("dt", N)]))
-    T.append(Target("plant", "advance", PLT.advance,
-                    dict(theta=0.0, omega=0.0, v=1.0, fc=0.0, K=32.4, tau=0.025, dt=0.005),
-                    # vectorized: a list broadcasts (documented), so it is a legal value here
-                    [Param("v", R, ok=("list",)), Param("K", P, ok=("list",)), Param("tau", P, ok=("list",)),
-                     Param("dt", N, ok=("list",))]))
-    T.append(Target("plant", "quantize_voltage", PLT.quantize_voltage, dict(u=[1.0], supply_voltage=12.0,
-                                                                             pwm_bits=10),
-                    [Param("u", A, ok=("empty", "2-D")), Param("supply_voltage", P, ok=("None",)),
-                     Param("pwm_bits", I1, ok=("None",))]))
-    T.append(Target("plant", "measure_angle", PLT.measure_angle, dict(theta=[1.0], counts_per_rad=71.3),
-                    [Param("theta", A, ok=("empty", "2-D")), Param("counts_per_rad", P, ok=("None",))]))
-    T.append(Target("plant", "StepDisturbance", PLT.StepDisturbance, dict(amplitude=1.0, time=0.0),
-                    [Param("amplitude", R), Param("time", R)]))
+    T.append(
+        Target(
+            "plant",
+            "DCMotor",
+            PLT.DCMotor,
+            dict(K=32.4, tau=0.025),
+            [
+                Param("K", P),
+                Param("tau", P),
+                Param("supply_voltage", P, ok=("None",)),
+                Param("pwm_bits", I1, ok=("None",)),
+                Param("encoder_ppr", I1, ok=("None",)),
+                Param("decoding", I1),
+                Param("coulomb_friction", N),
+                Param("noise_std", N),
+                Param("load_disturbance", R, ok=("None", "list")),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "plant",
+            "FlexibleDCMotor",
+            PLT.FlexibleDCMotor,
+            dict(K=32.4, tau=0.025),
+            [
+                Param("K", P),
+                Param("tau", P),
+                Param("load_ratio", P),
+                Param("mode_frequency", P),
+                Param("mode_damping", N),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "plant", "DCMotor.zoh", lambda Ts: _motor().zoh(Ts), dict(Ts=0.005), [Param("Ts", P)]
+        )
+    )
+    T.append(
+        Target(
+            "plant",
+            "DCMotor.discrete_tf",
+            lambda Ts: _motor().discrete_tf(Ts),
+            dict(Ts=0.005),
+            [Param("Ts", P)],
+        )
+    )
+    T.append(
+        Target(
+            "plant",
+            "DCMotor.ss",
+            lambda outputs: _motor().ss(outputs),
+            dict(outputs="theta"),
+            [Param("outputs", S)],
+        )
+    )
+    T.append(
+        Target(
+            "plant",
+            "DCMotor.step_state",
+            lambda x, u, dt, t: _motor().step_state(x, u, dt, t),
+            dict(x=[0.0, 0.0], u=1.0, dt=0.005, t=0.0),
+            [Param("x", A), Param("u", R), Param("dt", N), Param("t", R)],
+        )
+    )
+    T.append(
+        Target(
+            "plant",
+            "DCMotor.open_loop",
+            lambda u, Ts: _motor().open_loop(u, Ts),
+            dict(u=[1.0, 1.0, 1.0], Ts=0.005),
+            [Param("u", A, ok=("empty",)), Param("Ts", P)],
+        )
+    )
+    T.append(
+        Target(
+            "plant",
+            "DCMotor.quantize_voltage",
+            lambda u: _motor().quantize_voltage(u),
+            dict(u=[1.0, 2.0]),
+            [Param("u", A, ok=("empty", "2-D"))],
+        )
+    )
+    T.append(
+        Target(
+            "plant",
+            "DCMotor.measure",
+            lambda theta: _motor().measure(theta),
+            dict(theta=[1.0, 2.0]),
+            [Param("theta", A, ok=("empty", "2-D"))],
+        )
+    )
+    T.append(
+        Target(
+            "plant",
+            "FlexibleDCMotor.open_loop",
+            lambda u, Ts: PLT.FlexibleDCMotor().open_loop(u, Ts),
+            dict(u=[1.0, 1.0, 1.0], Ts=0.005),
+            [Param("u", A, ok=("empty",)), Param("Ts", P)],
+        )
+    )
+    T.append(
+        Target(
+            "plant",
+            "advance_scalar",
+            PLT.advance_scalar,
+            dict(theta=0.0, omega=0.0, v=1.0, fc=0.0, K=32.4, tau=0.025, dt=0.005),
+            [
+                Param("theta", R),
+                Param("omega", R),
+                Param("v", R),
+                Param("fc", N),
+                Param("K", P),
+                Param("tau", P),
+                Param("dt", N),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "plant",
+            "advance",
+            PLT.advance,
+            dict(theta=0.0, omega=0.0, v=1.0, fc=0.0, K=32.4, tau=0.025, dt=0.005),
+            # vectorized: a list broadcasts (documented), so it is a legal value here
+            [
+                Param("v", R, ok=("list",)),
+                Param("K", P, ok=("list",)),
+                Param("tau", P, ok=("list",)),
+                Param("dt", N, ok=("list",)),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "plant",
+            "quantize_voltage",
+            PLT.quantize_voltage,
+            dict(u=[1.0], supply_voltage=12.0, pwm_bits=10),
+            [
+                Param("u", A, ok=("empty", "2-D")),
+                Param("supply_voltage", P, ok=("None",)),
+                Param("pwm_bits", I1, ok=("None",)),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "plant",
+            "measure_angle",
+            PLT.measure_angle,
+            dict(theta=[1.0], counts_per_rad=71.3),
+            [Param("theta", A, ok=("empty", "2-D")), Param("counts_per_rad", P, ok=("None",))],
+        )
+    )
+    T.append(
+        Target(
+            "plant",
+            "StepDisturbance",
+            PLT.StepDisturbance,
+            dict(amplitude=1.0, time=0.0),
+            [Param("amplitude", R), Param("time", R)],
+        )
+    )
 
     # -- fpga
     from jerklab import fpga as FP
 
-    T.append(Target("fpga", "YangSCurve", FP.YangSCurve, dict(), [
-        Param("max_velocity", I1), Param("accel_time", P), Param("cruise_time", N), Param("refresh_period", P),
-        Param("clock_hz", I1), Param("step_um", I1), Param("start_count", I0), Param("bits", I1)]))
-    T.append(Target("fpga", "YangSCurve.pulses", lambda p_end: FP.YangSCurve(cruise_time=0.01, accel_time=0.01, start_count=10)
-                    .pulses(p_end), dict(p_end=None), [Param("p_end", I1, ok=("None",))]))
-    T.append(Target("fpga", "YangSCurve.speed", lambda n: FP.YangSCurve().speed(n), dict(n=[0, 10]),
-                    [Param("n", A, ok=("empty", "2-D"))]))
-    T.append(Target("fpga", "paper_speed", FP.paper_speed, dict(n=[0, 10]), [Param("n", A, ok=("empty", "2-D"))]))
-    T.append(Target("fpga", "divider_edges", FP.divider_edges, dict(starts=[1, 100], values=[1000, 500],
-                                                                     p_end=50, bits=32),
-                    [Param("starts", A), Param("values", A), Param("p_end", I1), Param("bits", I1)]))
-    T.append(Target("fpga", "published_divider", FP.published_divider,
-                    dict(starts=[1, 100], values=[1000, 500], p_end=50, bits=32),
-                    [Param("starts", A), Param("values", A), Param("p_end", I1), Param("bits", I1)]))
-    T.append(Target("fpga", "PulseTrain.position", lambda t: FP.YangSCurve(cruise_time=0.01, accel_time=0.01, start_count=10)
-                    .pulses().position(t), dict(t=[0.0, 0.001]), [Param("t", A, ok=("empty", "2-D"))]))
+    T.append(
+        Target(
+            "fpga",
+            "YangSCurve",
+            FP.YangSCurve,
+            dict(),
+            [
+                Param("max_velocity", I1),
+                Param("accel_time", P),
+                Param("cruise_time", N),
+                Param("refresh_period", P),
+                Param("clock_hz", I1),
+                Param("step_um", I1),
+                Param("start_count", I0),
+                Param("bits", I1),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "fpga",
+            "YangSCurve.pulses",
+            lambda p_end: FP.YangSCurve(cruise_time=0.01, accel_time=0.01, start_count=10).pulses(
+                p_end
+            ),
+            dict(p_end=None),
+            [Param("p_end", I1, ok=("None",))],
+        )
+    )
+    T.append(
+        Target(
+            "fpga",
+            "YangSCurve.speed",
+            lambda n: FP.YangSCurve().speed(n),
+            dict(n=[0, 10]),
+            [Param("n", A, ok=("empty", "2-D"))],
+        )
+    )
+    T.append(
+        Target(
+            "fpga",
+            "paper_speed",
+            FP.paper_speed,
+            dict(n=[0, 10]),
+            [Param("n", A, ok=("empty", "2-D"))],
+        )
+    )
+    T.append(
+        Target(
+            "fpga",
+            "divider_edges",
+            FP.divider_edges,
+            dict(starts=[1, 100], values=[1000, 500], p_end=50, bits=32),
+            [Param("starts", A), Param("values", A), Param("p_end", I1), Param("bits", I1)],
+        )
+    )
+    T.append(
+        Target(
+            "fpga",
+            "published_divider",
+            FP.published_divider,
+            dict(starts=[1, 100], values=[1000, 500], p_end=50, bits=32),
+            [Param("starts", A), Param("values", A), Param("p_end", I1), Param("bits", I1)],
+        )
+    )
+    T.append(
+        Target(
+            "fpga",
+            "PulseTrain.position",
+            lambda t: (
+                FP.YangSCurve(cruise_time=0.01, accel_time=0.01, start_count=10)
+                .pulses()
+                .position(t)
+            ),
+            dict(t=[0.0, 0.001]),
+            [Param("t", A, ok=("empty", "2-D"))],
+        )
+    )
 
     # -- piezo
     from jerklab import piezo as PZ
 
-    T.append(Target("piezo", "PZTModel", PZ.PZTModel, dict(), [
-        Param("K", P), Param("zeta_z", N), Param("f_z", P), Param("zeta_1", N), Param("f_1", P),
-        Param("zeta_2", N), Param("f_2", P)]))
-    T.append(Target("piezo", "PZTModel.zoh", lambda Ts: PZ.PZTModel().zoh(Ts), dict(Ts=2e-4), [Param("Ts", P)]))
-    T.append(Target("piezo", "PZTModel.perturbed", lambda freq_scale: PZ.PZTModel().perturbed(freq_scale),
-                    dict(freq_scale=1.1), [Param("freq_scale", P)]))
-    T.append(Target("piezo", "ScanSpec", PZ.ScanSpec, dict(), [
-        Param("scan_length", P), Param("scan_velocity", P), Param("Ts", P), Param("F_max", P),
-        Param("velocity_tolerance", P)]))
-    T.append(Target("piezo", "simulate", lambda u, Ts: PZ.simulate(PZ.PZTModel(), u, Ts),
-                    dict(u=[0.0, 1.0, 1.0], Ts=2e-4), [Param("u", A, ok=("empty",)), Param("Ts", P)]))
-    T.append(Target("piezo", "simulate(model)", lambda model: PZ.simulate(model, [0.0, 1.0]),
-                    dict(model=PZ.PZTModel()), [Param("model", O)]))
-    T.append(Target("piezo", "shape_rampup", lambda max_samples, scan_start: PZ.shape_rampup(
-        max_samples=max_samples, scan_start=scan_start), dict(max_samples=400, scan_start=None),
-        [Param("max_samples", I1, values=INT[:4] + [("None", None), ("str", "3")]),
-         Param("scan_start", R, ok=("None",), values=[("nan", NAN), ("+inf", INF), ("negative", -1.0),
-                                                       ("str", "1"), ("1e300", 1e300)])]))
-    T.append(Target("piezo", "shape_return", lambda b, max_samples: PZ.shape_return(b, max_samples=max_samples),
-                    dict(b=-6.0, max_samples=400),
-                    [Param("b", R, values=[("nan", NAN), ("+inf", INF), ("str", "1"), ("None", None),
-                                           ("1e300", 1e300), ("0", 0.0)]),
-                     Param("max_samples", I1, values=INT[:4] + [("None", None)])]))
-    T.append(Target("piezo", "energy_optimal_return", lambda b, k_r: PZ.energy_optimal_return(b, k_r),
-                    dict(b=-6.0, k_r=40), [Param("b", R, values=[("nan", NAN), ("+inf", INF), ("None", None),
-                                                                 ("1e300", 1e300)]),
-                                           Param("k_r", I1, values=INT)]))
-    T.append(Target("piezo", "pole_placement_gains", PZ.pole_placement_gains, dict(), [
-        Param("Ts", P), Param("mode1_damping", P), Param("integral_frequency", P), Param("observer_speedup", P),
-        Param("observer_damping", P)]))
-    T.append(Target("piezo", "rampup_time_vs_scan_start",
-                    lambda scan_starts: PZ.rampup_time_vs_scan_start(scan_starts, max_samples=200),
-                    dict(scan_starts=[0.0, 0.5]), [Param("scan_starts", A, values=ARRAY[:1] + ARRAY[2:4] + ARRAY[5:])]))
+    T.append(
+        Target(
+            "piezo",
+            "PZTModel",
+            PZ.PZTModel,
+            dict(),
+            [
+                Param("K", P),
+                Param("zeta_z", N),
+                Param("f_z", P),
+                Param("zeta_1", N),
+                Param("f_1", P),
+                Param("zeta_2", N),
+                Param("f_2", P),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "piezo",
+            "PZTModel.zoh",
+            lambda Ts: PZ.PZTModel().zoh(Ts),
+            dict(Ts=2e-4),
+            [Param("Ts", P)],
+        )
+    )
+    T.append(
+        Target(
+            "piezo",
+            "PZTModel.perturbed",
+            lambda freq_scale: PZ.PZTModel().perturbed(freq_scale),
+            dict(freq_scale=1.1),
+            [Param("freq_scale", P)],
+        )
+    )
+    T.append(
+        Target(
+            "piezo",
+            "ScanSpec",
+            PZ.ScanSpec,
+            dict(),
+            [
+                Param("scan_length", P),
+                Param("scan_velocity", P),
+                Param("Ts", P),
+                Param("F_max", P),
+                Param("velocity_tolerance", P),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "piezo",
+            "simulate",
+            lambda u, Ts: PZ.simulate(PZ.PZTModel(), u, Ts),
+            dict(u=[0.0, 1.0, 1.0], Ts=2e-4),
+            [Param("u", A, ok=("empty",)), Param("Ts", P)],
+        )
+    )
+    T.append(
+        Target(
+            "piezo",
+            "simulate(model)",
+            lambda model: PZ.simulate(model, [0.0, 1.0]),
+            dict(model=PZ.PZTModel()),
+            [Param("model", O)],
+        )
+    )
+    T.append(
+        Target(
+            "piezo",
+            "shape_rampup",
+            lambda max_samples, scan_start: PZ.shape_rampup(
+                max_samples=max_samples, scan_start=scan_start
+            ),
+            dict(max_samples=400, scan_start=None),
+            [
+                Param("max_samples", I1, values=INT[:4] + [("None", None), ("str", "3")]),
+                Param(
+                    "scan_start",
+                    R,
+                    ok=("None",),
+                    values=[
+                        ("nan", NAN),
+                        ("+inf", INF),
+                        ("negative", -1.0),
+                        ("str", "1"),
+                        ("1e300", 1e300),
+                    ],
+                ),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "piezo",
+            "shape_return",
+            lambda b, max_samples: PZ.shape_return(b, max_samples=max_samples),
+            dict(b=-6.0, max_samples=400),
+            [
+                Param(
+                    "b",
+                    R,
+                    values=[
+                        ("nan", NAN),
+                        ("+inf", INF),
+                        ("str", "1"),
+                        ("None", None),
+                        ("1e300", 1e300),
+                        ("0", 0.0),
+                    ],
+                ),
+                Param("max_samples", I1, values=INT[:4] + [("None", None)]),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "piezo",
+            "energy_optimal_return",
+            lambda b, k_r: PZ.energy_optimal_return(b, k_r),
+            dict(b=-6.0, k_r=40),
+            [
+                Param(
+                    "b", R, values=[("nan", NAN), ("+inf", INF), ("None", None), ("1e300", 1e300)]
+                ),
+                Param("k_r", I1, values=INT),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "piezo",
+            "pole_placement_gains",
+            PZ.pole_placement_gains,
+            dict(),
+            [
+                Param("Ts", P),
+                Param("mode1_damping", P),
+                Param("integral_frequency", P),
+                Param("observer_speedup", P),
+                Param("observer_damping", P),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "piezo",
+            "rampup_time_vs_scan_start",
+            lambda scan_starts: PZ.rampup_time_vs_scan_start(scan_starts, max_samples=200),
+            dict(scan_starts=[0.0, 0.5]),
+            [Param("scan_starts", A, values=ARRAY[:1] + ARRAY[2:4] + ARRAY[5:])],
+        )
+    )
 
     # -- hysteresis
     from jerklab import hysteresis as HY
 
-    T.append(Target("hysteresis", "Preisach", HY.Preisach, dict(u_min=-1.0, u_max=1.0, density=np.ones((4, 4))),
-                    [Param("u_min", R), Param("u_max", R),
-                     Param("density", A, values=ARRAY + [("(1e9,1e9) size", None)]),
-                     Param("offset", R), Param("initial", S)]))
-    T.append(Target("hysteresis", "Preisach.uniform", HY.Preisach.uniform, dict(u_min=-1.0, u_max=1.0, n=10),
-                    [Param("u_min", R), Param("u_max", R), Param("n", I1), Param("gain", P)]))
-    T.append(Target("hysteresis", "Preisach.apply", lambda u: _preisach().apply(u), dict(u=[0.0, 0.5]),
-                    [Param("u", A, ok=("empty", "2-D"))]))
-    T.append(Target("hysteresis", "Preisach.peek", lambda u: _preisach().peek(u), dict(u=0.5), [Param("u", R, ok=("list",))]))
-    T.append(Target("hysteresis", "Preisach.invert", lambda f_d, eps, max_iter: _preisach().invert(
-        f_d, eps=eps, max_iter=max_iter), dict(f_d=[0.0, 0.5], eps=None, max_iter=200),
-        [Param("f_d", A, ok=("empty", "2-D")), Param("eps", P, ok=("None",)), Param("max_iter", I1)]))
-    T.append(Target("hysteresis", "Preisach.everett", lambda alpha, beta: _preisach().everett(alpha, beta),
-                    dict(alpha=0.5, beta=-0.5), [Param("alpha", R, ok=("list",)), Param("beta", R, ok=("list",))]))
-    T.append(Target("hysteresis", "forc_experiment", lambda system, **kw: HY.forc_experiment(
-        _preisach() if system is _BASE else system, **kw),
-                    dict(system=_BASE, u_min=-1.0, u_max=1.0, n_curves=5, points_per_curve=5),
-                    [Param("system", O), Param("u_min", R), Param("u_max", R), Param("n_curves", I1),
-                     Param("points_per_curve", I1)]))
-    T.append(Target("hysteresis", "fit_preisach", lambda forc_data, n, regularization: HY.fit_preisach(
-        forc_data if forc_data is not None else HY.forc_experiment(_preisach(), -1, 1, 5, 5), n, regularization),
-        dict(forc_data=None, n=5, regularization=0.0),
-        [Param("forc_data", O, values=OBJ[1:]), Param("n", I1), Param("regularization", N)]))
+    T.append(
+        Target(
+            "hysteresis",
+            "Preisach",
+            HY.Preisach,
+            dict(u_min=-1.0, u_max=1.0, density=np.ones((4, 4))),
+            [
+                Param("u_min", R),
+                Param("u_max", R),
+                Param("density", A, values=ARRAY + [("(1e9,1e9) size", None)]),
+                Param("offset", R),
+                Param("initial", S),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "hysteresis",
+            "Preisach.uniform",
+            HY.Preisach.uniform,
+            dict(u_min=-1.0, u_max=1.0, n=10),
+            [Param("u_min", R), Param("u_max", R), Param("n", I1), Param("gain", P)],
+        )
+    )
+    T.append(
+        Target(
+            "hysteresis",
+            "Preisach.apply",
+            lambda u: _preisach().apply(u),
+            dict(u=[0.0, 0.5]),
+            [Param("u", A, ok=("empty", "2-D"))],
+        )
+    )
+    T.append(
+        Target(
+            "hysteresis",
+            "Preisach.peek",
+            lambda u: _preisach().peek(u),
+            dict(u=0.5),
+            [Param("u", R, ok=("list",))],
+        )
+    )
+    T.append(
+        Target(
+            "hysteresis",
+            "Preisach.invert",
+            lambda f_d, eps, max_iter: _preisach().invert(f_d, eps=eps, max_iter=max_iter),
+            dict(f_d=[0.0, 0.5], eps=None, max_iter=200),
+            [
+                Param("f_d", A, ok=("empty", "2-D")),
+                Param("eps", P, ok=("None",)),
+                Param("max_iter", I1),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "hysteresis",
+            "Preisach.everett",
+            lambda alpha, beta: _preisach().everett(alpha, beta),
+            dict(alpha=0.5, beta=-0.5),
+            [Param("alpha", R, ok=("list",)), Param("beta", R, ok=("list",))],
+        )
+    )
+    T.append(
+        Target(
+            "hysteresis",
+            "forc_experiment",
+            lambda system, **kw: HY.forc_experiment(
+                _preisach() if system is _BASE else system, **kw
+            ),
+            dict(system=_BASE, u_min=-1.0, u_max=1.0, n_curves=5, points_per_curve=5),
+            [
+                Param("system", O),
+                Param("u_min", R),
+                Param("u_max", R),
+                Param("n_curves", I1),
+                Param("points_per_curve", I1),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "hysteresis",
+            "fit_preisach",
+            lambda forc_data, n, regularization: HY.fit_preisach(
+                forc_data
+                if forc_data is not None
+                else HY.forc_experiment(_preisach(), -1, 1, 5, 5),
+                n,
+                regularization,
+            ),
+            dict(forc_data=None, n=5, regularization=0.0),
+            [Param("forc_data", O, values=OBJ[1:]), Param("n", I1), Param("regularization", N)],
+        )
+    )
 
     # -- controller (fixed elsewhere; probed here for the lead)
     from jerklab import controller as C
 
-    T.append(Target("controller", "pole_placement_pid", C.pole_placement_pid, dict(K=32.4, tau=0.025, wn=20.0),
-                    [Param("K", P), Param("tau", P), Param("wn", P), Param("zeta", P), Param("sigma", P, ok=("None",))]))
-    T.append(Target("controller", "Gains.discretize", lambda Ts: _gains().discretize(Ts), dict(Ts=0.005),
-                    [Param("Ts", P)]))
-    T.append(Target("controller", "discrete_pole_placement_pid", C.discrete_pole_placement_pid,
-                    dict(K=32.4, tau=0.025, wn=20.0),
-                    [Param("K", P), Param("tau", P), Param("wn", P), Param("zeta", P), Param("Ts", P),
-                     Param("loop", S), Param("extra_pole", R, ok=("None", "0", "negative", "1e-300"))]))
-    T.append(Target("controller", "velocity_pole_placement_pid", C.velocity_pole_placement_pid,
-                    dict(K=32.4, tau=0.025, wn=20.0), [Param("K", P), Param("tau", P), Param("wn", P),
-                                                       Param("zeta", P), Param("kd", N)]))
+    T.append(
+        Target(
+            "controller",
+            "pole_placement_pid",
+            C.pole_placement_pid,
+            dict(K=32.4, tau=0.025, wn=20.0),
+            [
+                Param("K", P),
+                Param("tau", P),
+                Param("wn", P),
+                Param("zeta", P),
+                Param("sigma", P, ok=("None",)),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "controller",
+            "Gains.discretize",
+            lambda Ts: _gains().discretize(Ts),
+            dict(Ts=0.005),
+            [Param("Ts", P)],
+        )
+    )
+    T.append(
+        Target(
+            "controller",
+            "discrete_pole_placement_pid",
+            C.discrete_pole_placement_pid,
+            dict(K=32.4, tau=0.025, wn=20.0),
+            [
+                Param("K", P),
+                Param("tau", P),
+                Param("wn", P),
+                Param("zeta", P),
+                Param("Ts", P),
+                Param("loop", S),
+                Param("extra_pole", R, ok=("None", "0", "negative", "1e-300")),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "controller",
+            "velocity_pole_placement_pid",
+            C.velocity_pole_placement_pid,
+            dict(K=32.4, tau=0.025, wn=20.0),
+            [Param("K", P), Param("tau", P), Param("wn", P), Param("zeta", P), Param("kd", N)],
+        )
+    )
     # tau = 0 is the documented static inverse u = omega/K (domain tau >= 0), not a wrong value
-    T.append(Target("controller", "Feedforward", C.Feedforward, dict(K=32.4, tau=0.025),
-                    [Param("K", P), Param("tau", P, ok=("0",))]))
-    T.append(Target("controller", "DigitalController", lambda gains, output_limit, error_scale:
-                    C.DigitalController(gains if gains is not None else _gains(0.005), output_limit=output_limit,
-                                        error_scale=error_scale),
-                    dict(gains=None, output_limit=12.0, error_scale=1.0),
-                    # output_limit=None is documented: no clamp
-                    [Param("gains", O, values=OBJ[1:]), Param("output_limit", P, ok=("None",)),
-                     Param("error_scale", P)]))
+    T.append(
+        Target(
+            "controller",
+            "Feedforward",
+            C.Feedforward,
+            dict(K=32.4, tau=0.025),
+            [Param("K", P), Param("tau", P, ok=("0",))],
+        )
+    )
+    T.append(
+        Target(
+            "controller",
+            "DigitalController",
+            lambda gains, output_limit, error_scale: C.DigitalController(
+                gains if gains is not None else _gains(0.005),
+                output_limit=output_limit,
+                error_scale=error_scale,
+            ),
+            dict(gains=None, output_limit=12.0, error_scale=1.0),
+            # output_limit=None is documented: no clamp
+            [
+                Param("gains", O, values=OBJ[1:]),
+                Param("output_limit", P, ok=("None",)),
+                Param("error_scale", P),
+            ],
+        )
+    )
+
     def _ctl_step(ref_position, ref_velocity, ref_accel, measured_position):
         c = C.DigitalController(_gains(0.005), feedforward=C.Feedforward(32.4, 0.025))
         return c.step(ref_position, ref_velocity, ref_accel, measured_position), c.fault
@@ -508,16 +1161,48 @@ def _targets() -> list[Target]:
             return f"measured_position={m!r} held without a fault"
         return None
 
-    T.append(Target("controller", "DigitalController.step", _ctl_step,
-                    dict(ref_position=0.1, ref_velocity=0.0, ref_accel=0.0, measured_position=0.0),
-                    [Param("ref_position", R), Param("ref_velocity", R), Param("ref_accel", R),
-                     Param("measured_position", R, ok=("nan", "+inf", "-inf"))], check=_ctl_check))
-    T.append(Target("controller", "PositionLoop", lambda K, tau, Ts: C.PositionLoop(K, tau, _gains(), Ts=Ts),
-                    dict(K=32.4, tau=0.025, Ts=0.005), [Param("K", P), Param("tau", P), Param("Ts", P, ok=("None",))]))
-    T.append(Target("controller", "desired_poles", C.desired_poles, dict(wn=20.0),
-                    [Param("wn", P), Param("zeta", P), Param("sigma", P, ok=("None",))]))
-    T.append(Target("controller", "paper_error_scale", C.paper_error_scale, dict(),
-                    [Param("Ts", P), Param("encoder_ppr", I1), Param("decoding", I1)]))
+    T.append(
+        Target(
+            "controller",
+            "DigitalController.step",
+            _ctl_step,
+            dict(ref_position=0.1, ref_velocity=0.0, ref_accel=0.0, measured_position=0.0),
+            [
+                Param("ref_position", R),
+                Param("ref_velocity", R),
+                Param("ref_accel", R),
+                Param("measured_position", R, ok=("nan", "+inf", "-inf")),
+            ],
+            check=_ctl_check,
+        )
+    )
+    T.append(
+        Target(
+            "controller",
+            "PositionLoop",
+            lambda K, tau, Ts: C.PositionLoop(K, tau, _gains(), Ts=Ts),
+            dict(K=32.4, tau=0.025, Ts=0.005),
+            [Param("K", P), Param("tau", P), Param("Ts", P, ok=("None",))],
+        )
+    )
+    T.append(
+        Target(
+            "controller",
+            "desired_poles",
+            C.desired_poles,
+            dict(wn=20.0),
+            [Param("wn", P), Param("zeta", P), Param("sigma", P, ok=("None",))],
+        )
+    )
+    T.append(
+        Target(
+            "controller",
+            "paper_error_scale",
+            C.paper_error_scale,
+            dict(),
+            [Param("Ts", P), Param("encoder_ppr", I1), Param("decoding", I1)],
+        )
+    )
 
     # -- sim
     from jerklab import sim as SM
@@ -533,49 +1218,158 @@ def _targets() -> list[Target]:
         return f"result has {bad}" if bad else None
 
     # t_end >= 0 is the documented domain (t_end = 0: the one sample at t = 0)
-    T.append(Target("sim", "simulate", lambda profile, motor, controller, Ts, t_end: SM.simulate(
-        profile if profile is not None else _prof(), motor if motor is not None else _motor(),
-        controller if controller is not None else _gains(0.005), Ts=Ts, t_end=t_end),
-        dict(profile=None, motor=None, controller=None, Ts=None, t_end=None),
-        [Param("profile", O, values=OBJ[1:]), Param("motor", O, values=OBJ[1:]),
-         Param("controller", O, values=OBJ[1:]), Param("Ts", P, ok=("None",)), Param("t_end", N, ok=("None",))],
-        check=_sim_check, allow_nonfinite=True))
+    T.append(
+        Target(
+            "sim",
+            "simulate",
+            lambda profile, motor, controller, Ts, t_end: SM.simulate(
+                profile if profile is not None else _prof(),
+                motor if motor is not None else _motor(),
+                controller if controller is not None else _gains(0.005),
+                Ts=Ts,
+                t_end=t_end,
+            ),
+            dict(profile=None, motor=None, controller=None, Ts=None, t_end=None),
+            [
+                Param("profile", O, values=OBJ[1:]),
+                Param("motor", O, values=OBJ[1:]),
+                Param("controller", O, values=OBJ[1:]),
+                Param("Ts", P, ok=("None",)),
+                Param("t_end", N, ok=("None",)),
+            ],
+            check=_sim_check,
+            allow_nonfinite=True,
+        )
+    )
     # K=None / tau=None are documented: the template motor's value
-    T.append(Target("sim", "simulate_batch", lambda K, tau: SM.simulate_batch(_prof(), _motor(), _gains(0.005),
-                                                                                K=K, tau=tau, engine="numpy"),
-                    dict(K=[30.0, 32.4], tau=[0.025, 0.03]),
-                    [Param("K", A, values=ARRAY + AP, ok=("None",)), Param("tau", A, values=ARRAY + AP, ok=("None",))]))
-    T.append(Target("sim", "perturbed_plants", SM.perturbed_plants, dict(n=3),
-                    [Param("n", I1), Param("K", P), Param("tau", P), Param("K_spread", N), Param("tau_spread", N)]))
-    T.append(Target("sim", "SampledProfile", SM.SampledProfile, dict(Ts=0.005, position=[0.0, 0.1, 0.2]),
-                    [Param("Ts", P), Param("position", A)]))
-    T.append(Target("sim", "StepProfile", SM.StepProfile, dict(distance=1.0), [Param("distance", R)]))
+    T.append(
+        Target(
+            "sim",
+            "simulate_batch",
+            lambda K, tau: SM.simulate_batch(
+                _prof(), _motor(), _gains(0.005), K=K, tau=tau, engine="numpy"
+            ),
+            dict(K=[30.0, 32.4], tau=[0.025, 0.03]),
+            [
+                Param("K", A, values=ARRAY + AP, ok=("None",)),
+                Param("tau", A, values=ARRAY + AP, ok=("None",)),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "sim",
+            "perturbed_plants",
+            SM.perturbed_plants,
+            dict(n=3),
+            [
+                Param("n", I1),
+                Param("K", P),
+                Param("tau", P),
+                Param("K_spread", N),
+                Param("tau_spread", N),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "sim",
+            "SampledProfile",
+            SM.SampledProfile,
+            dict(Ts=0.005, position=[0.0, 0.1, 0.2]),
+            [Param("Ts", P), Param("position", A)],
+        )
+    )
+    T.append(
+        Target("sim", "StepProfile", SM.StepProfile, dict(distance=1.0), [Param("distance", R)])
+    )
 
     # -- ident
     from jerklab import ident as ID
 
     u_id = np.r_[np.zeros(10), 6.0 * np.ones(200)]
-    th_id = ID.simulate_dc_motor(32.4, 0.025, 0.005, u_id)[:len(u_id)]
-    T.append(Target("ident", "fit_dc_motor", ID.fit_dc_motor, dict(u=u_id, theta=th_id, Ts=0.005),
-                    [Param("u", A), Param("theta", A), Param("Ts", P), Param("method", S)]))
-    T.append(Target("ident", "arx", ID.arx, dict(y=th_id, u=u_id, na=2, nb=2, nk=1),
-                    # documented: na >= 0, nb >= 0 (na + nb >= 1): na = 0 is an FIR model, nb = 0 an AR model
-                    [Param("y", A), Param("u", A), Param("na", I0), Param("nb", I0), Param("nk", I0)]))
+    th_id = ID.simulate_dc_motor(32.4, 0.025, 0.005, u_id)[: len(u_id)]
+    T.append(
+        Target(
+            "ident",
+            "fit_dc_motor",
+            ID.fit_dc_motor,
+            dict(u=u_id, theta=th_id, Ts=0.005),
+            [Param("u", A), Param("theta", A), Param("Ts", P), Param("method", S)],
+        )
+    )
+    T.append(
+        Target(
+            "ident",
+            "arx",
+            ID.arx,
+            dict(y=th_id, u=u_id, na=2, nb=2, nk=1),
+            # documented: na >= 0, nb >= 0 (na + nb >= 1): na = 0 is an FIR model, nb = 0 an AR model
+            [Param("y", A), Param("u", A), Param("na", I0), Param("nb", I0), Param("nk", I0)],
+        )
+    )
     # K <= 0 is what a fit on a reversed encoder returns (fit_dc_motor warns); simulating that
     # fitted model (validate, compare) must work, so K is any finite real here
-    T.append(Target("ident", "simulate_dc_motor", ID.simulate_dc_motor, dict(K=32.4, tau=0.025, Ts=0.005, u=u_id),
-                    [Param("K", R), Param("tau", P), Param("Ts", P), Param("u", A, ok=("empty",))]))
-    T.append(Target("ident", "dc_motor_zoh_coefficients", ID.dc_motor_zoh_coefficients,
-                    dict(K=32.4, tau=0.025, Ts=0.005), [Param("K", R), Param("tau", P), Param("Ts", P)]))
-    T.append(Target("ident", "IdentData", ID.IdentData, dict(u=u_id, y=th_id, Ts=0.005),
-                    [Param("u", A), Param("y", A), Param("Ts", P)]))
-    T.append(Target("ident", "step_input", ID.step_input, dict(duration=1.0, Ts=0.005, amplitude=6.0),
-                    [Param("duration", P), Param("Ts", P), Param("amplitude", R), Param("t_step", N)]))
-    T.append(Target("ident", "prbs", ID.prbs, dict(duration=1.0, Ts=0.005, amplitude=6.0),
-                    [Param("duration", P), Param("Ts", P), Param("amplitude", R),
-                     Param("clock_period", P, ok=("None",))]))
-    T.append(Target("ident", "fit_percent", ID.fit_percent, dict(y=[1.0, 2.0, 3.0], y_hat=[1.0, 2.1, 2.9]),
-                    [Param("y", A), Param("y_hat", A)]))
+    T.append(
+        Target(
+            "ident",
+            "simulate_dc_motor",
+            ID.simulate_dc_motor,
+            dict(K=32.4, tau=0.025, Ts=0.005, u=u_id),
+            [Param("K", R), Param("tau", P), Param("Ts", P), Param("u", A, ok=("empty",))],
+        )
+    )
+    T.append(
+        Target(
+            "ident",
+            "dc_motor_zoh_coefficients",
+            ID.dc_motor_zoh_coefficients,
+            dict(K=32.4, tau=0.025, Ts=0.005),
+            [Param("K", R), Param("tau", P), Param("Ts", P)],
+        )
+    )
+    T.append(
+        Target(
+            "ident",
+            "IdentData",
+            ID.IdentData,
+            dict(u=u_id, y=th_id, Ts=0.005),
+            [Param("u", A), Param("y", A), Param("Ts", P)],
+        )
+    )
+    T.append(
+        Target(
+            "ident",
+            "step_input",
+            ID.step_input,
+            dict(duration=1.0, Ts=0.005, amplitude=6.0),
+            [Param("duration", P), Param("Ts", P), Param("amplitude", R), Param("t_step", N)],
+        )
+    )
+    T.append(
+        Target(
+            "ident",
+            "prbs",
+            ID.prbs,
+            dict(duration=1.0, Ts=0.005, amplitude=6.0),
+            [
+                Param("duration", P),
+                Param("Ts", P),
+                Param("amplitude", R),
+                Param("clock_period", P, ok=("None",)),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "ident",
+            "fit_percent",
+            ID.fit_percent,
+            dict(y=[1.0, 2.0, 3.0], y_hat=[1.0, 2.1, 2.9]),
+            [Param("y", A), Param("y_hat", A)],
+        )
+    )
+
     def _resid_check(r, kw):
         # documented: without u, cross_bound is NaN (no independence test, crosscorr None)
         fields = {f.name: getattr(r, f.name) for f in dataclasses.fields(r)}
@@ -584,11 +1378,22 @@ def _targets() -> list[Target]:
         bad = _nonfinite(fields)
         return f"result has {bad}" if bad else None
 
-    T.append(Target("ident", "residual_analysis", ID.residual_analysis,
-                    dict(residuals=np.sin(np.arange(100.0))),
-                    [Param("residuals", A), Param("max_lag", I1), Param("confidence", P)],
-                    check=_resid_check, allow_nonfinite=True))
-    T.append(Target("ident", "sample_time_range", ID.sample_time_range, dict(tau=0.025), [Param("tau", P)]))
+    T.append(
+        Target(
+            "ident",
+            "residual_analysis",
+            ID.residual_analysis,
+            dict(residuals=np.sin(np.arange(100.0))),
+            [Param("residuals", A), Param("max_lag", I1), Param("confidence", P)],
+            check=_resid_check,
+            allow_nonfinite=True,
+        )
+    )
+    T.append(
+        Target(
+            "ident", "sample_time_range", ID.sample_time_range, dict(tau=0.025), [Param("tau", P)]
+        )
+    )
 
     # -- widgets
     from jerklab import widgets as W
@@ -603,12 +1408,34 @@ def _targets() -> list[Target]:
         bad = _nonfinite(fields)
         return f"result has {bad}" if bad else None
 
-    T.append(Target("widgets", "compute_pole_placement", lambda **kw: W.compute_pole_placement(
-        simulate_move=False, **kw), dict(), [Param("K", P), Param("tau", P), Param("zeta", P), Param("wn", P),
-                                             Param("sigma_ratio", P), Param("Ts", P), Param("design", S)],
-        check=_tuning_check, allow_nonfinite=True))
-    T.append(Target("widgets", "stability_verdict", W.stability_verdict, dict(max_radius=0.9, desired_radius=0.9),
-                    [Param("max_radius", N), Param("desired_radius", N)]))
+    T.append(
+        Target(
+            "widgets",
+            "compute_pole_placement",
+            lambda **kw: W.compute_pole_placement(simulate_move=False, **kw),
+            dict(),
+            [
+                Param("K", P),
+                Param("tau", P),
+                Param("zeta", P),
+                Param("wn", P),
+                Param("sigma_ratio", P),
+                Param("Ts", P),
+                Param("design", S),
+            ],
+            check=_tuning_check,
+            allow_nonfinite=True,
+        )
+    )
+    T.append(
+        Target(
+            "widgets",
+            "stability_verdict",
+            W.stability_verdict,
+            dict(max_radius=0.9, desired_radius=0.9),
+            [Param("max_radius", N), Param("desired_radius", N)],
+        )
+    )
 
     # -- rig and recordings
     from jerklab import rig as RG
@@ -618,45 +1445,139 @@ def _targets() -> list[Target]:
     def recording(**kw):
         return RG.Recording(dict(meta, **kw))
 
-    T.append(Target("recording", "Recording(metadata)", recording, dict(),
-                    [Param("Ts", P), Param("counts_per_rad", P), Param("volts_per_pwm", P)]))
-    T.append(Target("recording", "Recording(metadata=...)", RG.Recording, dict(metadata=meta),
-                    [Param("metadata", O, values=OBJ[:4])]))
-    T.append(Target("recording", "Recording.append", lambda **kw: RG.Recording(meta).append(**kw),
-                    dict(index=0, reference=0.0, counts=0, pwm=0, flags=0),
-                    [Param("index", I0), Param("reference", R), Param("counts", I0, ok=("negative",)),
-                     Param("pwm", I0, ok=("negative",)), Param("flags", I0)]))
-    T.append(Target("rig", "connect", lambda port, timeout, hello_timeout: RG.connect(
-        port, timeout=timeout, hello_timeout=hello_timeout, progress=False).close(),
-        dict(port=None, timeout=2.0, hello_timeout=None),
-        [Param("port", O, ok=("None",), values=[("int", 3), ("float", 1.5), ("dict", {}),
-                                                ("no such device", "/dev/jerklab-nonexistent"),
-                                                ("bad url", "nonsense://x")]),
-         Param("timeout", P), Param("hello_timeout", P, ok=("None",))]))
-    T.append(Target("rig", "Rig.run_move", lambda profile, gains, Ts, settle, decimation, host_timeout, max_voltage:
-                    _with_rig("run_move")(profile=profile if profile is not None else _prof(),
-                                          gains=gains if gains is not None else _gains(), Ts=Ts, settle=settle,
-                                          decimation=decimation, host_timeout=host_timeout,
-                                          max_voltage=max_voltage, path=False),
-                    dict(profile=None, gains=None, Ts=0.005, settle=0.0, decimation=1, host_timeout=1.0,
-                         max_voltage=None),
-                    [Param("profile", O, values=OBJ[1:]), Param("gains", O, values=OBJ[1:]), Param("Ts", P),
-                     Param("settle", N), Param("decimation", I1), Param("host_timeout", N),
-                     Param("max_voltage", P, ok=("None",))]))
-    T.append(Target("rig", "Rig.run_move(limits)", _run_move_limits, dict(),
-                    [Param("max_accel", P, values=[("1e39", 1e39), ("1e300", 1e300)]),
-                     Param("max_velocity", P, values=[("1e39", 1e39), ("1e300", 1e300)]),
-                     Param("kpd_scale", P, shown="kpd", values=[("1e39", 1e39), ("1e300", 1e300)])]))
-    T.append(Target("rig", "Rig.step", lambda voltage, seconds, Ts, rest: _with_rig("step")(
-        voltage=voltage, seconds=seconds, Ts=Ts, rest=rest, path=False),
-        dict(voltage=1.0, seconds=0.05, Ts=0.005, rest=0.0),
-        [Param("voltage", R), Param("seconds", P), Param("Ts", P), Param("rest", N)]))
-    T.append(Target("rig", "Rig.set_model", lambda K, tau: _with_rig("set_model")(K=K, tau=tau),
-                    dict(K=32.4, tau=0.025), [Param("K", P), Param("tau", P)]))
+    T.append(
+        Target(
+            "recording",
+            "Recording(metadata)",
+            recording,
+            dict(),
+            [Param("Ts", P), Param("counts_per_rad", P), Param("volts_per_pwm", P)],
+        )
+    )
+    T.append(
+        Target(
+            "recording",
+            "Recording(metadata=...)",
+            RG.Recording,
+            dict(metadata=meta),
+            [Param("metadata", O, values=OBJ[:4])],
+        )
+    )
+    T.append(
+        Target(
+            "recording",
+            "Recording.append",
+            lambda **kw: RG.Recording(meta).append(**kw),
+            dict(index=0, reference=0.0, counts=0, pwm=0, flags=0),
+            [
+                Param("index", I0),
+                Param("reference", R),
+                Param("counts", I0, ok=("negative",)),
+                Param("pwm", I0, ok=("negative",)),
+                Param("flags", I0),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "rig",
+            "connect",
+            lambda port, timeout, hello_timeout: RG.connect(
+                port, timeout=timeout, hello_timeout=hello_timeout, progress=False
+            ).close(),
+            dict(port=None, timeout=2.0, hello_timeout=None),
+            [
+                Param(
+                    "port",
+                    O,
+                    ok=("None",),
+                    values=[
+                        ("int", 3),
+                        ("float", 1.5),
+                        ("dict", {}),
+                        ("no such device", "/dev/jerklab-nonexistent"),
+                        ("bad url", "nonsense://x"),
+                    ],
+                ),
+                Param("timeout", P),
+                Param("hello_timeout", P, ok=("None",)),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "rig",
+            "Rig.run_move",
+            lambda profile, gains, Ts, settle, decimation, host_timeout, max_voltage: _with_rig(
+                "run_move"
+            )(
+                profile=profile if profile is not None else _prof(),
+                gains=gains if gains is not None else _gains(),
+                Ts=Ts,
+                settle=settle,
+                decimation=decimation,
+                host_timeout=host_timeout,
+                max_voltage=max_voltage,
+                path=False,
+            ),
+            dict(
+                profile=None,
+                gains=None,
+                Ts=0.005,
+                settle=0.0,
+                decimation=1,
+                host_timeout=1.0,
+                max_voltage=None,
+            ),
+            [
+                Param("profile", O, values=OBJ[1:]),
+                Param("gains", O, values=OBJ[1:]),
+                Param("Ts", P),
+                Param("settle", N),
+                Param("decimation", I1),
+                Param("host_timeout", N),
+                Param("max_voltage", P, ok=("None",)),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "rig",
+            "Rig.run_move(limits)",
+            _run_move_limits,
+            dict(),
+            [
+                Param("max_accel", P, values=[("1e39", 1e39), ("1e300", 1e300)]),
+                Param("max_velocity", P, values=[("1e39", 1e39), ("1e300", 1e300)]),
+                Param("kpd_scale", P, shown="kpd", values=[("1e39", 1e39), ("1e300", 1e300)]),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "rig",
+            "Rig.step",
+            lambda voltage, seconds, Ts, rest: _with_rig("step")(
+                voltage=voltage, seconds=seconds, Ts=Ts, rest=rest, path=False
+            ),
+            dict(voltage=1.0, seconds=0.05, Ts=0.005, rest=0.0),
+            [Param("voltage", R), Param("seconds", P), Param("Ts", P), Param("rest", N)],
+        )
+    )
+    T.append(
+        Target(
+            "rig",
+            "Rig.set_model",
+            lambda K, tau: _with_rig("set_model")(K=K, tau=tau),
+            dict(K=32.4, tau=0.025),
+            [Param("K", P), Param("tau", P)],
+        )
+    )
     return T
 
 
 # ----------------------------------------------------------------------------- the cases
+
 
 def _value(v):
     return v() if callable(v) else v
@@ -672,7 +1593,7 @@ def _cases(targets):
             continue
         out.append((ti, None, "base", None))
         for p in t.params:
-            for label, v in (p.values if p.values is not None else VALUES[p.domain]):
+            for label, v in p.values if p.values is not None else VALUES[p.domain]:
                 out.append((ti, p.name, label, v))
     return out
 
@@ -687,7 +1608,7 @@ def classify(t: Target, pname, label, value) -> tuple[str, str]:
     param = next((p for p in t.params if p.name == pname), None)
     if param is not None:
         if label == "(1e9,1e9) size":
-            value = np.broadcast_to(np.float64(1.0), (10 ** 5, 10 ** 5))
+            value = np.broadcast_to(np.float64(1.0), (10**5, 10**5))
         kw[pname] = _value(value)
     try:
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
@@ -702,8 +1623,11 @@ def classify(t: Target, pname, label, value) -> tuple[str, str]:
         shown = param.shown or pname
         if _names_param(str(exc), shown):
             return "clear", f"{type(exc).__name__}"
-        return "obscure", f"{type(exc).__module__}.{type(exc).__name__} not naming {shown}: {str(exc)[:120]}"
-    except BaseException as exc:   # noqa: BLE001 - classifying is the point
+        return (
+            "obscure",
+            f"{type(exc).__module__}.{type(exc).__name__} not naming {shown}: {str(exc)[:120]}",
+        )
+    except BaseException as exc:  # noqa: BLE001 - classifying is the point
         if param is None:
             return "base-failed", f"{type(exc).__name__}: {exc}"
         return "obscure", f"{type(exc).__module__}.{type(exc).__name__}: {str(exc)[:120]}"
@@ -723,6 +1647,7 @@ def classify(t: Target, pname, label, value) -> tuple[str, str]:
 
 
 # ----------------------------------------------------------------------------- injected faults
+
 
 def _fault_rig(link_kw=None, **kw):
     from jerklab.plant import DCMotor
@@ -777,7 +1702,10 @@ def fault_corrupt_frames(tmp):
         rig.close()
     m = rec.metadata
     if m.get("lost_samples", 0) + m.get("host_dropped_frames", 0) > 0:
-        return "clear", f"status {m['status']}, lost {m['lost_samples']}, dropped {m['host_dropped_frames']}"
+        return (
+            "clear",
+            f"status {m['status']}, lost {m['lost_samples']}, dropped {m['host_dropped_frames']}",
+        )
     return "silent", "corruption not counted"
 
 
@@ -790,8 +1718,11 @@ def _broken_link_run(tmp, name, link_kw, expected_exc, expected_status, needs_co
         rig.run_move(prof, g, path=tmp / name)
     except expected_exc as exc:
         meta = _sidecar(tmp / f"{name}.csv")
-        ok = (meta["status"] == expected_status and f"{name}.csv" in str(exc)
-              and (not needs_count or "samples" in str(exc)))
+        ok = (
+            meta["status"] == expected_status
+            and f"{name}.csv" in str(exc)
+            and (not needs_count or "samples" in str(exc))
+        )
         return ("clear" if ok else "obscure"), f"status {meta['status']}: {str(exc)[:90]}"
     except Exception as exc:  # noqa: BLE001
         return "obscure", f"{type(exc).__name__}: {exc}"
@@ -803,15 +1734,22 @@ def _broken_link_run(tmp, name, link_kw, expected_exc, expected_status, needs_co
 def fault_pulled_cable(tmp):
     from jerklab.rig import RigConnectionError
 
-    return _broken_link_run(tmp, "pulled", dict(pull_cable_after=3000), RigConnectionError,
-                            "disconnected", needs_count=True)
+    return _broken_link_run(
+        tmp,
+        "pulled",
+        dict(pull_cable_after=3000),
+        RigConnectionError,
+        "disconnected",
+        needs_count=True,
+    )
 
 
 def fault_frozen_board(tmp):
     from jerklab.rig import RigTimeoutError
 
-    return _broken_link_run(tmp, "frozen", dict(freeze_after=3000), RigTimeoutError, "timeout",
-                            needs_count=False)
+    return _broken_link_run(
+        tmp, "frozen", dict(freeze_after=3000), RigTimeoutError, "timeout", needs_count=False
+    )
 
 
 class FailingFile:
@@ -871,16 +1809,25 @@ def _fault_disk(tmp, code, name):
                 return "silent", "no error"
         meta = _sidecar(tmp / f"{name}.csv")
         msg = str(err)
-        try:                                # the device must not be left BUSY: PLAN is refused while busy
-            rig._request(__import__("jerklab.protocol", fromlist=["Plan"]).Plan(1.0, 0),
-                         replies=(__import__("jerklab.protocol", fromlist=["MsgType"]).MsgType.PLAN_INFO,))
+        try:  # the device must not be left BUSY: PLAN is refused while busy
+            rig._request(
+                __import__("jerklab.protocol", fromlist=["Plan"]).Plan(1.0, 0),
+                replies=(__import__("jerklab.protocol", fromlist=["MsgType"]).MsgType.PLAN_INFO,),
+            )
             idle = True
         except Exception:  # noqa: BLE001
             idle = False
-        ok = (f"{name}.csv" in msg and "samples" in msg and str(meta.get("status", "")).startswith("error")
-              and idle and isinstance(err, OSError))
-        return ("clear" if ok else "obscure"), (f"{type(err).__name__}; sidecar {meta.get('status')!r}; "
-                                                f"rig idle after: {idle}; {msg[:80]}")
+        ok = (
+            f"{name}.csv" in msg
+            and "samples" in msg
+            and str(meta.get("status", "")).startswith("error")
+            and idle
+            and isinstance(err, OSError)
+        )
+        return ("clear" if ok else "obscure"), (
+            f"{type(err).__name__}; sidecar {meta.get('status')!r}; "
+            f"rig idle after: {idle}; {msg[:80]}"
+        )
     finally:
         rig.close()
 
@@ -933,7 +1880,9 @@ def fault_interrupted(tmp):
         rig.run_move(prof, g, path=tmp / "ctrlc")
     except KeyboardInterrupt:
         meta = _sidecar(tmp / "ctrlc.csv")
-        return ("clear" if meta["status"] == "interrupted" else "obscure"), f"status {meta['status']}"
+        return (
+            "clear" if meta["status"] == "interrupted" else "obscure"
+        ), f"status {meta['status']}"
     except Exception as exc:  # noqa: BLE001
         return "obscure", f"{type(exc).__name__}: {exc}"
     finally:
@@ -958,8 +1907,12 @@ def kill_client_mid_run(path, wait_rows=50, timeout=60.0):
     """Start a client in a subprocess recording a (real-time) move to ``path``, SIGKILL it once
     ``wait_rows`` rows are on disk; return the CSV path."""
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
-    proc = subprocess.Popen([sys.executable, "-c", KILL_SCRIPT, str(path)], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", KILL_SCRIPT, str(path)],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
     csv_path = Path(str(path) + ".csv")
     deadline = time.monotonic() + timeout
     try:
@@ -1003,7 +1956,9 @@ def fault_killed_client(tmp):
 def _small_recording(tmp, name, n=20):
     from jerklab.rig import Recording
 
-    rec = Recording(dict(kind="demo", Ts=0.005, counts_per_rad=71.3, volts_per_pwm=12 / 1023), tmp / name)
+    rec = Recording(
+        dict(kind="demo", Ts=0.005, counts_per_rad=71.3, volts_per_pwm=12 / 1023), tmp / name
+    )
     for i in range(n):
         rec.append(i, 0.01 * i, i, 10 * i)
     rec.finish("complete")
@@ -1107,6 +2062,7 @@ FAULTS = [
 
 # ----------------------------------------------------------------------------- worker / parent
 
+
 def _worker(start: int, faults: bool) -> None:
     import resource
     import warnings
@@ -1160,12 +2116,16 @@ def _run_all(n_cases: int, faults: bool, is_base=lambda i: False) -> dict:
         eof = False
         while True:
             if b"\n" not in pending and not eof:
-                limit = 120.0 if faults else (WARMUP_LIMIT if current is None or is_base(current) else TIME_LIMIT)
+                limit = (
+                    120.0
+                    if faults
+                    else (WARMUP_LIMIT if current is None or is_base(current) else TIME_LIMIT)
+                )
                 left = (t0 + limit) - time.monotonic() if current is not None else WARMUP_LIMIT
                 r, _, _ = select.select([fd], [], [], max(0.0, left))
                 if not r:
                     if current is None:
-                        restart = n_cases      # the worker does not start at all
+                        restart = n_cases  # the worker does not start at all
                         break
                     results[current] = ("hang", f"no answer within {limit:g} s")
                     restart = current + 1
@@ -1177,7 +2137,10 @@ def _run_all(n_cases: int, faults: bool, is_base=lambda i: False) -> dict:
                 eof = True
             if b"\n" not in pending:
                 if current is not None and current not in results:
-                    results[current] = ("obscure", f"worker died (exit {proc.poll()}): crash or kill")
+                    results[current] = (
+                        "obscure",
+                        f"worker died (exit {proc.poll()}): crash or kill",
+                    )
                     restart = current + 1
                 else:
                     restart = n_cases
@@ -1219,14 +2182,18 @@ def main() -> None:
         row[outcome] += 1
         if outcome not in ("clear", "ok"):
             problems.append(f"  {outcome:8s} {t.name}({pname}={label}): {detail}")
-    print(f"bad inputs: {sum(sum(c.values()) for c in by_mod.values())} cases over {len(targets)} targets "
-          f"(time limit {TIME_LIMIT:g} s per call, {elapsed:.0f} s in all)")
+    print(
+        f"bad inputs: {sum(sum(c.values()) for c in by_mod.values())} cases over {len(targets)} targets "
+        f"(time limit {TIME_LIMIT:g} s per call, {elapsed:.0f} s in all)"
+    )
     print(f"{'module':12s} " + " ".join(f"{k:>8s}" for k in kinds) + f" {'cases':>8s}")
     total = collections.Counter()
     for mod, c in by_mod.items():
         total.update(c)
         print(f"{mod:12s} " + " ".join(f"{c[k]:8d}" for k in kinds) + f" {sum(c.values()):8d}")
-    print(f"{'total':12s} " + " ".join(f"{total[k]:8d}" for k in kinds) + f" {sum(total.values()):8d}")
+    print(
+        f"{'total':12s} " + " ".join(f"{total[k]:8d}" for k in kinds) + f" {sum(total.values()):8d}"
+    )
     other = set(total) - set(kinds)
     if other:
         print("other outcomes:", {k: total[k] for k in other})

@@ -20,6 +20,7 @@ The runs use the sketch built for 115200 baud at 5 ms and for 1 Mbaud (``JL_BAUD
 a TELEMETRY goes out at every sample (115200 baud carries ~11.8 bytes/ms, a 22-byte frame every
 3rd sample at 1 ms).
 """
+
 from __future__ import annotations
 
 import math
@@ -40,7 +41,9 @@ def _session(port, commands, timeout=60.0, baud=115200):
         while info is None:
             if time.monotonic() - t0 > 10.0:
                 raise RuntimeError(f"the simulated Uno on {port} did not answer HELLO within 10 s")
-            info = next((f for f in dec.feed(ser.read(256)) if f.type == pr.MsgType.HELLO_REPLY), None)
+            info = next(
+                (f for f in dec.feed(ser.read(256)) if f.type == pr.MsgType.HELLO_REPLY), None
+            )
         # one command at a time, each after the previous reply (at 1 Mbaud a burst of frames
         # would overrun the firmware's 64-byte receive ring while it handles the first)
         for i, m in enumerate(commands):
@@ -48,18 +51,23 @@ def _session(port, commands, timeout=60.0, baud=115200):
             if isinstance(m, (pr.Run, pr.Step, pr.Sequence)):
                 break
             t0 = time.monotonic()
-            while not any(getattr(x, "command", None) == int(m.TYPE) or isinstance(x, pr.PlanInfo)
-                          for x in msgs[-1:]):
+            while not any(
+                getattr(x, "command", None) == int(m.TYPE) or isinstance(x, pr.PlanInfo)
+                for x in msgs[-1:]
+            ):
                 if time.monotonic() - t0 > 10.0:
-                    raise RuntimeError(f"no reply to {m} from the simulated Uno (last: {msgs[-3:]})")
+                    raise RuntimeError(
+                        f"no reply to {m} from the simulated Uno (last: {msgs[-3:]})"
+                    )
                 msgs += [pr.parse(f) for f in dec.feed(ser.read(256))]
         t0 = time.monotonic()
         while time.monotonic() - t0 < timeout:
             msgs += [pr.parse(f) for f in dec.feed(ser.read(4096))]
             if any(isinstance(m, pr.EndOfRun) for m in msgs):
                 return msgs
-    raise RuntimeError(f"no END_OF_RUN from the simulated Uno within {timeout} s "
-                       f"(last messages: {msgs[-3:]})")
+    raise RuntimeError(
+        f"no END_OF_RUN from the simulated Uno within {timeout} s (last messages: {msgs[-3:]})"
+    )
 
 
 K, TAU, VS = 32.4, 0.025, 12.0
@@ -71,19 +79,28 @@ def _cases(Ts_us):
     top = 600.0 if Ts_us == 5000 else 150.0
     return [
         ("sine-jerk 4*pi rad (J 2e4, E 300, W 100)", [pr.Plan(4 * math.pi, 0)]),
-        (f"sine-jerk {top:g} rad near top speed (J 380, W 370)",
-         [pr.SetLimits(380.0, 300.0, 370.0, VS, 0), pr.Plan(top, 0)]),
+        (
+            f"sine-jerk {top:g} rad near top speed (J 380, W 370)",
+            [pr.SetLimits(380.0, 300.0, 370.0, VS, 0), pr.Plan(top, 0)],
+        ),
         ("optimal sine 4*pi rad", [pr.Plan(4 * math.pi, 1)]),
         ("S-curve 4*pi rad", [pr.Plan(4 * math.pi, 2)]),
         ("trapezoid 4*pi rad", [pr.Plan(4 * math.pi, 3)]),
         # protocol 3's input shaper (SET_SHAPER): a ZV shaper split on the grid (3 taps) and the
         # longest the default firmware takes (10 taps over its 31-sample history); the FIR runs
         # with the reference one tick ahead, after the PWM write
-        ("sine-jerk 4*pi rad, ZV shaper (3 taps)",
-         [pr.SetShaper(3, (0.26, 0.51, 0.23), (0, 12, 13)), pr.Plan(4 * math.pi, 0)]),
-        (f"sine-jerk {top:g} rad near top speed, 10-tap shaper",
-         [pr.SetShaper(10, (0.1,) * 10, tuple(range(0, 30, 3))), pr.SetLimits(380.0, 300.0, 370.0, VS, 0),
-          pr.Plan(top, 0)]),
+        (
+            "sine-jerk 4*pi rad, ZV shaper (3 taps)",
+            [pr.SetShaper(3, (0.26, 0.51, 0.23), (0, 12, 13)), pr.Plan(4 * math.pi, 0)],
+        ),
+        (
+            f"sine-jerk {top:g} rad near top speed, 10-tap shaper",
+            [
+                pr.SetShaper(10, (0.1,) * 10, tuple(range(0, 30, 3))),
+                pr.SetLimits(380.0, 300.0, 370.0, VS, 0),
+                pr.Plan(top, 0),
+            ],
+        ),
     ]
 
 
@@ -94,8 +111,11 @@ def _run(elf, Ts_us, cmds, baud, run=True):
 
     g = pole_placement_pid(K, TAU, 20).discretize(Ts_us * 1e-6)
     with simavr.launch(elf, realtime=False, build=False) as uno:
-        setup = [pr.SetPlant(K, TAU, VS, 448), pr.SetGains(g.kpd, g.kid, g.kdd, Ts_us, 0, 1, 0.0),
-                 pr.SetLimits(2e4, 300.0, 100.0, VS, 0)]
+        setup = [
+            pr.SetPlant(K, TAU, VS, 448),
+            pr.SetGains(g.kpd, g.kid, g.kdd, Ts_us, 0, 1, 0.0),
+            pr.SetLimits(2e4, 300.0, 100.0, VS, 0),
+        ]
         t0 = time.perf_counter()
         msgs = _session(uno.port, setup + cmds + ([pr.Run(50, 1)] if run else []), baud=baud)
         wall = time.perf_counter() - t0
@@ -117,56 +137,96 @@ def main():
     m = re.search(r"flash (\d+) / (\d+) bytes .*RAM (\d+) / (\d+) bytes", out["output"])
     # the control step: the default build's probe (encoder read -> PWM write, next reference,
     # TELEMETRY)
-    whole = {baud: simavr.build_firmware("avr", build_dir=fw / "build" / f"step{baud}", baud=baud)["elf"]
-             for baud in (115200, 1000000)}
+    whole = {
+        baud: simavr.build_firmware("avr", build_dir=fw / "build" / f"step{baud}", baud=baud)["elf"]
+        for baud in (115200, 1000000)
+    }
     rows, groups = [], {}
     for Ts_us, baud in [(5000, 115200), (1000, 1000000)]:
-        cases = _cases(Ts_us) + [(f"open-loop step 12 V, {100 * Ts_us / 1e6:g} s",
-                                  [pr.Step(VS, Ts_us, 100)]),
-                                 (f"open-loop PRBS 12 V (SEQUENCE), {100 * Ts_us / 1e6:g} s",
-                                  [pr.Sequence(VS, 0.0, Ts_us, 100, 1, 8, 1)])]
+        cases = _cases(Ts_us) + [
+            (f"open-loop step 12 V, {100 * Ts_us / 1e6:g} s", [pr.Step(VS, Ts_us, 100)]),
+            (
+                f"open-loop PRBS 12 V (SEQUENCE), {100 * Ts_us / 1e6:g} s",
+                [pr.Sequence(VS, 0.0, Ts_us, 100, 1, 8, 1)],
+            ),
+        ]
         for label, cmds in cases:
-            s, end, wall = _run(whole[baud], Ts_us, cmds, baud, run=not label.startswith("open-loop"))
+            s, end, wall = _run(
+                whole[baud], Ts_us, cmds, baud, run=not label.startswith("open-loop")
+            )
             b = s["control_step_cycles_moving"]
-            lost = abs(s.get("firmware_counts", s["ideal_counts_x1"]) - s["ideal_counts_x1"])   # counts
-            rows.append((Ts_us, label, b["n"], b["min"], b["mean"], b["max"], b["max"] / (16 * Ts_us),
-                         b["max"] / 4000, s["int0_latency_cycles"]["max"], lost,
-                         end.overruns, s["sim_seconds"] / wall))
+            lost = abs(
+                s.get("firmware_counts", s["ideal_counts_x1"]) - s["ideal_counts_x1"]
+            )  # counts
+            rows.append(
+                (
+                    Ts_us,
+                    label,
+                    b["n"],
+                    b["min"],
+                    b["mean"],
+                    b["max"],
+                    b["max"] / (16 * Ts_us),
+                    b["max"] / 4000,
+                    s["int0_latency_cycles"]["max"],
+                    lost,
+                    end.overruns,
+                    s["sim_seconds"] / wall,
+                )
+            )
             if not label.startswith("open-loop"):
                 # the issue's line over the unshaped closed-loop moves; SET_SHAPER's FIR and the
                 # moves of polynomial segments only (no half-sine pulse) on lines of their own
                 group = "shaped" if "shaper" in label else "unshaped"
-                for g in (group, "polynomial") if label.startswith(("S-curve", "trapezoid")) else (group,):
+                for g in (
+                    (group, "polynomial")
+                    if label.startswith(("S-curve", "trapezoid"))
+                    else (group,)
+                ):
                     wm, wx = groups.setdefault((Ts_us, g), (0.0, 0))
                     groups[(Ts_us, g)] = (max(wm, b["mean"]), max(wx, b["max"]))
-    print("control step on the simulated Uno = the default build's D13 probe (encoder read, PID + "
-          "feedforward, PWM write, the next sample's reference, TELEMETRY; cycles at 16 MHz while "
-          "moving, interrupts included; the idle-time work after it: see the parts table)")
-    print(f"{'Ts':>5s} {'case':46s} {'steps':>6s} {'min':>6s} {'mean':>7s} {'max':>6s} {'max/Ts':>7s} "
-          f"{'max/4000':>8s} {'INT0 lat':>8s} {'lost':>5s} {'ovr':>4s} {'sim/wall':>8s}")
+    print(
+        "control step on the simulated Uno = the default build's D13 probe (encoder read, PID + "
+        "feedforward, PWM write, the next sample's reference, TELEMETRY; cycles at 16 MHz while "
+        "moving, interrupts included; the idle-time work after it: see the parts table)"
+    )
+    print(
+        f"{'Ts':>5s} {'case':46s} {'steps':>6s} {'min':>6s} {'mean':>7s} {'max':>6s} {'max/Ts':>7s} "
+        f"{'max/4000':>8s} {'INT0 lat':>8s} {'lost':>5s} {'ovr':>4s} {'sim/wall':>8s}"
+    )
     for r in rows:
-        print(f"{r[0] / 1000:4g}ms {r[1]:46s} {r[2]:6d} {r[3]:6d} {r[4]:7.0f} {r[5]:6d} {r[6]:7.3f} "
-              f"{r[7]:8.3f} {r[8]:8d} {r[9]:5d} {r[10]:4d} {r[11]:8.1f}")
+        print(
+            f"{r[0] / 1000:4g}ms {r[1]:46s} {r[2]:6d} {r[3]:6d} {r[4]:7.0f} {r[5]:6d} {r[6]:7.3f} "
+            f"{r[7]:8.3f} {r[8]:8d} {r[9]:5d} {r[10]:4d} {r[11]:8.1f}"
+        )
     for Ts_us in (5000, 1000):
-        for g, what, head in [("unshaped", "the closed-loop moves without SET_SHAPER", ""),
-                              ("shaped", "the moves with SET_SHAPER's FIR", " with SET_SHAPER"),
-                              ("polynomial", "S-curve and trapezoid, no half-sine pulse", " on polynomial segments")]:
+        for g, what, head in [
+            ("unshaped", "the closed-loop moves without SET_SHAPER", ""),
+            ("shaped", "the moves with SET_SHAPER's FIR", " with SET_SHAPER"),
+            ("polynomial", "S-curve and trapezoid, no half-sine pulse", " on polynomial segments"),
+        ]:
             mean, mx = groups[(Ts_us, g)]
-            print(f"control step at Ts={Ts_us // 1000} ms{head}: max {mx} cycles (mean {mean:.0f}; worst tick "
-                  f"over {what}; {mx / (16 * Ts_us):.3f} of the period, {mx / 4000:.2f} x the 4000-cycle ceiling)")
+            print(
+                f"control step at Ts={Ts_us // 1000} ms{head}: max {mx} cycles (mean {mean:.0f}; worst tick "
+                f"over {what}; {mx / (16 * Ts_us):.3f} of the period, {mx / 4000:.2f} x the 4000-cycle ceiling)"
+            )
     quarter = 16e6 / (4 * 448 * K * VS / (2 * math.pi))
     print(f"INT0 latency budget at top speed (quarter encoder period): {quarter:.0f} cycles")
 
     # where a 1 ms tick's cycles go: one probe build per part (0 = the default build's probe)
-    parts = [(0, "control step (the default build's probe)"),
-             (3, "  encoder read -> PWM write (Device::control)"),
-             (4, "    of which the PID"),
-             (8, "  reference of the next sample (Device::reference)"),
-             (6, "  TELEMETRY frame: encode, CRC, into the UART ring"),
-             (7, "idle-time work after the step (Device::background)")]
+    parts = [
+        (0, "control step (the default build's probe)"),
+        (3, "  encoder read -> PWM write (Device::control)"),
+        (4, "    of which the PID"),
+        (8, "  reference of the next sample (Device::reference)"),
+        (6, "  TELEMETRY frame: encode, CRC, into the UART ring"),
+        (7, "idle-time work after the step (Device::background)"),
+    ]
     for ci in (1, 3):
         label0 = _cases(1000)[ci][0]
-        print(f"\nparts of a 1 ms tick ({label0}; each part's own probe build; interrupts included)")
+        print(
+            f"\nparts of a 1 ms tick ({label0}; each part's own probe build; interrupts included)"
+        )
         print(f"{'part':66s} {'n':>6s} {'mean':>7s} {'max':>6s} {'max/4000':>8s}")
         means = {}
         for n, label in parts:
@@ -176,13 +236,17 @@ def main():
             b = s["control_step_cycles_all"]
             means[n] = (b["mean"], b["max"])
             print(f"{label:66s} {b['n']:6d} {b['mean']:7.0f} {b['max']:6d} {b['max'] / 4000:8.3f}")
-        print(f"CPU load per 1 ms period (step + idle-time work, means): "
-              f"{(means[0][0] + means[7][0]) / 16000:.3f}; worst single period <= "
-              f"{(means[0][1] + means[7][1]) / 16000:.3f}")
+        print(
+            f"CPU load per 1 ms period (step + idle-time work, means): "
+            f"{(means[0][0] + means[7][0]) / 16000:.3f}; worst single period <= "
+            f"{(means[0][1] + means[7][1]) / 16000:.3f}"
+        )
     if m:
         f, ft, r_, rt = (int(x) for x in m.groups())
-        print(f"flash {f} / {ft} B = {f / ft:.3f} of the Uno, RAM {r_} / {rt} B = {r_ / rt:.3f} "
-              f"(budget 0.99 / 0.87)")
+        print(
+            f"flash {f} / {ft} B = {f / ft:.3f} of the Uno, RAM {r_} / {rt} B = {r_ / rt:.3f} "
+            f"(budget 0.99 / 0.87)"
+        )
 
 
 if __name__ == "__main__":

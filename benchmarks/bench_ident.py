@@ -20,6 +20,7 @@
 Accuracy is the root-mean-square relative error over seeded runs, in percent. Friction is off
 (it is a model-structure error, shown in the notebook), PWM quantization is on.
 """
+
 from __future__ import annotations
 
 import time
@@ -37,8 +38,9 @@ SEEDS = range(12)
 
 def _record(duration, noise_std, seed, encoder=True):
     u = ident.prbs(duration, TS, 3.0, offset=6.0, clock_period=0.02, seed=seed)
-    m = DCMotor(K=K0, tau=TAU0, noise_std=noise_std, seed=100 + seed,
-                encoder_ppr=448 if encoder else None)
+    m = DCMotor(
+        K=K0, tau=TAU0, noise_std=noise_std, seed=100 + seed, encoder_ppr=448 if encoder else None
+    )
     return u, m.open_loop(u, TS)[1][:-1]
 
 
@@ -85,10 +87,11 @@ def _time(fn, repeat=5):
 
 
 def _closed_loop_cases(n_seeds=6, noise=0.0005):
-    import sys
     import pathlib
+    import sys
+
     sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "tests"))
-    from test_ident_models import closed_loop   # the same record the tests use
+    from test_ident_models import closed_loop  # the same record the tests use
 
     return [closed_loop(seed=s, noise=noise) for s in range(n_seeds)]
 
@@ -96,58 +99,87 @@ def _closed_loop_cases(n_seeds=6, noise=0.0005):
 def _table_closed_loop():
     truth = {"K": K0, "tau": TAU0, "friction": 0.4, "offset": 0.25}
     cases = _closed_loop_cases()
-    print(f"\n4) closed loop, 2 s at 1 kHz, x4 448-pulse encoder, 0.5 mrad noise, {len(cases)} seeds: "
-          f"max |relative error| (%) and delay found")
-    print(f"{'estimator':>9} | {'K':>7} {'tau':>7} {'f_c':>7} {'offset':>7} | delay | mean time (ms)")
+    print(
+        f"\n4) closed loop, 2 s at 1 kHz, x4 448-pulse encoder, 0.5 mrad noise, {len(cases)} seeds: "
+        f"max |relative error| (%) and delay found"
+    )
+    print(
+        f"{'estimator':>9} | {'K':>7} {'tau':>7} {'f_c':>7} {'offset':>7} | delay | mean time (ms)"
+    )
     import warnings
+
     for meth in ("idim", "idim-iv", "pem"):
         errs, delays, times = {k: [] for k in truth}, set(), []
         for u, y in cases:
             t0 = time.perf_counter()
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                f = ident.fit_dc_motor(u, y, 0.001, method=meth, friction=True, offset=True, delay=True)
+                f = ident.fit_dc_motor(
+                    u, y, 0.001, method=meth, friction=True, offset=True, delay=True
+                )
             times.append(time.perf_counter() - t0)
             for k, v in truth.items():
                 errs[k].append(abs(getattr(f, k) / v - 1))
             delays.add(f.delay)
         e = {k: 100 * max(v) for k, v in errs.items()}
-        print(f"{meth:>9} | {e['K']:7.3f} {e['tau']:7.3f} {e['friction']:7.3f} {e['offset']:7.3f} | "
-              f"{','.join(map(str, sorted(delays))):>5} | {1e3 * np.mean(times):8.1f}")
+        print(
+            f"{meth:>9} | {e['K']:7.3f} {e['tau']:7.3f} {e['friction']:7.3f} {e['offset']:7.3f} | "
+            f"{','.join(map(str, sorted(delays))):>5} | {1e3 * np.mean(times):8.1f}"
+        )
     print("   truth: delay 1 sample. Goal: every PEM error < 1 %.")
     return cases
 
 
 def _table_real():
     import warnings
+
     d = {n: ident.load_micromouse(n) for n in ("encoders1", "encoders3")}
-    print("\n5) measured Pololu 30:1 gearmotor (data/real/micromouse): fit % (simulation) on the "
-          "estimation and the validation record")
-    print(f"{'estimated on':>12} {'model':>26} | {'est. fit %':>10} {'val. fit %':>10} {'val. 10-step %':>14} | parameters")
+    print(
+        "\n5) measured Pololu 30:1 gearmotor (data/real/micromouse): fit % (simulation) on the "
+        "estimation and the validation record"
+    )
+    print(
+        f"{'estimated on':>12} {'model':>26} | {'est. fit %':>10} {'val. fit %':>10} {'val. 10-step %':>14} | parameters"
+    )
     for est, val in (("encoders1", "encoders3"), ("encoders3", "encoders1")):
-        for name, kw in (("eq. 1 + delay", dict(delay=True)),
-                         ("+ friction", dict(delay=True, friction=True)),
-                         ("+ friction + offset", dict(delay=True, friction=True, offset=True))):
+        for name, kw in (
+            ("eq. 1 + delay", dict(delay=True)),
+            ("+ friction", dict(delay=True, friction=True)),
+            ("+ friction + offset", dict(delay=True, friction=True, offset=True)),
+        ):
             with warnings.catch_warnings(record=True) as w:
                 warnings.simplefilter("always")
                 f = d[est].fit("pem", **kw)
-            flag = " (warned: ill-conditioned)" if any("ill-conditioned" in str(x.message) for x in w) else ""
-            print(f"{est:>12} {name:>26} | {f.fit_percent:10.2f} {ident.compare(d[val], f).fit_percent:10.2f} "
-                  f"{ident.compare(d[val], f, horizon=10).fit_percent:14.2f} | {f.summary()[5:]}{flag}")
+            flag = (
+                " (warned: ill-conditioned)"
+                if any("ill-conditioned" in str(x.message) for x in w)
+                else ""
+            )
+            print(
+                f"{est:>12} {name:>26} | {f.fit_percent:10.2f} {ident.compare(d[val], f).fit_percent:10.2f} "
+                f"{ident.compare(d[val], f, horizon=10).fit_percent:14.2f} | {f.summary()[5:]}{flag}"
+            )
 
 
 def _table_generator():
     import warnings
+
     gen = ident.load_dc_generator(decimate=2)
     half = gen.n // 2
     parts = {"first": gen[:half], "second": gen[half:]}
-    print("\n5b) measured DC motor driving a generator (data/real/dc-generator, time in PRBS clock periods): "
-          "speed fit % (simulation) on the estimation and the validation half")
-    print(f"{'estimated on':>12} {'model':>26} | {'est. fit %':>10} {'val. fit %':>10} | parameters")
+    print(
+        "\n5b) measured DC motor driving a generator (data/real/dc-generator, time in PRBS clock periods): "
+        "speed fit % (simulation) on the estimation and the validation half"
+    )
+    print(
+        f"{'estimated on':>12} {'model':>26} | {'est. fit %':>10} {'val. fit %':>10} | parameters"
+    )
     for est, val in (("first", "second"), ("second", "first")):
-        for name, kw in (("eq. 1 + delay", dict(delay=True)),
-                         ("open drive, viscous", dict(delay=True, coast=True)),
-                         ("open drive, Coulomb", dict(delay=True, coast="coulomb", friction=True))):
+        for name, kw in (
+            ("eq. 1 + delay", dict(delay=True)),
+            ("open drive, viscous", dict(delay=True, coast=True)),
+            ("open drive, Coulomb", dict(delay=True, coast="coulomb", friction=True)),
+        ):
             with warnings.catch_warnings(record=True) as w:
                 warnings.simplefilter("always")
                 f = parts[est].fit("pem", **kw)
@@ -155,7 +187,9 @@ def _table_generator():
             fe = ident.compare(parts[est], f, output="speed").fit_percent
             fv = ident.compare(parts[val], f, output="speed").fit_percent
             print(f"{est:>12} {name:>26} | {fe:10.2f} {fv:10.2f} | {f.summary()[5:]}{flag}")
-    print("   (time in clock periods: the summary's 'ms' are thousandths of a clock period; K in y_cc/V)")
+    print(
+        "   (time in clock periods: the summary's 'ms' are thousandths of a clock period; K in y_cc/V)"
+    )
 
 
 def _peer_friction_fit(u, y, Ts, delay):
@@ -166,8 +200,15 @@ def _peer_friction_fit(u, y, Ts, delay):
 
     def sim(p):
         K, tau, fc, off, th0 = p
-        m = DCMotor(K=abs(K), tau=abs(tau), coulomb_friction=abs(fc), offset=off, supply_voltage=None,
-                    pwm_bits=None, encoder_ppr=None)
+        m = DCMotor(
+            K=abs(K),
+            tau=abs(tau),
+            coulomb_friction=abs(fc),
+            offset=off,
+            supply_voltage=None,
+            pwm_bits=None,
+            encoder_ppr=None,
+        )
         x = np.array([th0, 0.0])
         out = np.empty(u.size)
         for k in range(u.size):
@@ -182,41 +223,64 @@ def _peer_friction_fit(u, y, Ts, delay):
 def _table_peer_nonlinear(cases):
     u, y = cases[0]
     import warnings
+
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        tj, f = _time(lambda: ident.fit_dc_motor(u, y, 0.001, friction=True, offset=True, delay=True), 3)
+        tj, f = _time(
+            lambda: ident.fit_dc_motor(u, y, 0.001, friction=True, offset=True, delay=True), 3
+        )
     tp, (p, nfev) = _time(lambda: _peer_friction_fit(u, y, 0.001, f.delay), 1)
-    print("\n6) friction + offset fit on one closed-loop record (2000 samples), against a peer in this process")
+    print(
+        "\n6) friction + offset fit on one closed-loop record (2000 samples), against a peer in this process"
+    )
     print(f"{'':>10} | {'time (s)':>9} | {'K':>8} {'tau (ms)':>9} {'f_c':>7} {'offset':>7}")
-    print(f"{'jerklab':>10} | {tj:9.3f} | {f.K:8.3f} {f.tau * 1e3:9.3f} {f.friction:7.4f} {f.offset:7.4f}  "
-          f"(delay estimated too)")
-    print(f"{'peer':>10} | {tp:9.3f} | {abs(p[0]):8.3f} {abs(p[1]) * 1e3:9.3f} {abs(p[2]):7.4f} {p[3]:7.4f}  "
-          f"(delay given, {nfev} evaluations)")
-    print(f"ratio peer/jerklab time: {tp / tj:.1f}x; truth K = 32.4, tau = 25 ms, f_c = 0.4 V, offset = 0.25 V")
+    print(
+        f"{'jerklab':>10} | {tj:9.3f} | {f.K:8.3f} {f.tau * 1e3:9.3f} {f.friction:7.4f} {f.offset:7.4f}  "
+        f"(delay estimated too)"
+    )
+    print(
+        f"{'peer':>10} | {tp:9.3f} | {abs(p[0]):8.3f} {abs(p[1]) * 1e3:9.3f} {abs(p[2]):7.4f} {p[3]:7.4f}  "
+        f"(delay given, {nfev} evaluations)"
+    )
+    print(
+        f"ratio peer/jerklab time: {tp / tj:.1f}x; truth K = 32.4, tau = 25 ms, f_c = 0.4 V, offset = 0.25 V"
+    )
 
 
 def main():
     print("1) RMS relative error (%) against noise, 2 s PRBS 6±3 V, 448-pulse encoder, 12 seeds")
-    print(f"{'noise (mrad)':>12} | {'ARX K':>8} {'ARX tau':>8} | {'PEM K':>8} {'PEM tau':>8} | ARX/PEM tau err")
+    print(
+        f"{'noise (mrad)':>12} | {'ARX K':>8} {'ARX tau':>8} | {'PEM K':>8} {'PEM tau':>8} | ARX/PEM tau err"
+    )
     for sigma in (0.0, 1e-3, 3e-3, 1e-2, 3e-2):
         a = _accuracy(2.0, sigma)
-        print(f"{sigma * 1e3:12.0f} | {a['arx'][0]:8.3f} {a['arx'][1]:8.3f} | {a['pem'][0]:8.3f} "
-              f"{a['pem'][1]:8.3f} | {a['arx'][1] / a['pem'][1]:8.1f}x")
+        print(
+            f"{sigma * 1e3:12.0f} | {a['arx'][0]:8.3f} {a['arx'][1]:8.3f} | {a['pem'][0]:8.3f} "
+            f"{a['pem'][1]:8.3f} | {a['arx'][1] / a['pem'][1]:8.1f}x"
+        )
     a = _accuracy(2.0, 0.0, encoder=False)
-    print(f"{'ideal sensor':>12} | {a['arx'][0]:8.3f} {a['arx'][1]:8.3f} | {a['pem'][0]:8.3f} "
-          f"{a['pem'][1]:8.3f} |  (PWM quantization only)")
-    print("   the ~0.1 % PEM tau floor is the 10-bit PWM: the fit is given the commanded 3/9 V, the motor saw\n"
-          "   3.0029/9.0088 V; fitted on the applied voltage the noise-free error is < 1e-12")
+    print(
+        f"{'ideal sensor':>12} | {a['arx'][0]:8.3f} {a['arx'][1]:8.3f} | {a['pem'][0]:8.3f} "
+        f"{a['pem'][1]:8.3f} |  (PWM quantization only)"
+    )
+    print(
+        "   the ~0.1 % PEM tau floor is the 10-bit PWM: the fit is given the commanded 3/9 V, the motor saw\n"
+        "   3.0029/9.0088 V; fitted on the applied voltage the noise-free error is < 1e-12"
+    )
 
     print("\n2) RMS relative error (%) against record length, encoder + 2 mrad noise, 12 seeds")
     print(f"{'length (s)':>12} | {'ARX K':>8} {'ARX tau':>8} | {'PEM K':>8} {'PEM tau':>8}")
     for dur in (0.25, 0.5, 1.0, 2.0, 4.0):
         a = _accuracy(dur, 2e-3)
-        print(f"{dur:12.2f} | {a['arx'][0]:8.3f} {a['arx'][1]:8.3f} | {a['pem'][0]:8.3f} {a['pem'][1]:8.3f}")
+        print(
+            f"{dur:12.2f} | {a['arx'][0]:8.3f} {a['arx'][1]:8.3f} | {a['pem'][0]:8.3f} {a['pem'][1]:8.3f}"
+        )
 
     print("\n3) fit time (best of 5) against peers in this process, encoder + 2 mrad noise")
-    print(f"{'length (s)':>10} | {'PEM ms':>8} {'peer ms':>8} {'ratio':>7} {'dK %':>7} {'dtau %':>7} | "
-          f"{'ARX ms':>8} {'lstsq ms':>8} {'ratio':>7}")
+    print(
+        f"{'length (s)':>10} | {'PEM ms':>8} {'peer ms':>8} {'ratio':>7} {'dK %':>7} {'dtau %':>7} | "
+        f"{'ARX ms':>8} {'lstsq ms':>8} {'ratio':>7}"
+    )
     worst = 0.0
     for dur in (0.5, 2.0, 8.0):
         u, y = _record(dur, 2e-3, 0)
@@ -225,11 +289,15 @@ def main():
         ta, _ = _time(lambda: ident.fit_dc_motor(u, y, TS, method="arx"))
         tl, _ = _time(lambda: _peer_arx(u, y))
         worst = max(worst, tp, ta)
-        print(f"{dur:10.1f} | {tp * 1e3:8.2f} {tq * 1e3:8.1f} {tq / tp:6.1f}x "
-              f"{100 * (fp.K / pq[0] - 1):7.3f} {100 * (fp.tau / pq[1] - 1):7.3f} | "
-              f"{ta * 1e3:8.2f} {tl * 1e3:8.2f} {ta / tl:6.1f}x")
-    print(f"(ratio = peer time / jerklab time for PEM, jerklab / bare lstsq for ARX; slowest jerklab "
-          f"fit {worst * 1e3:.1f} ms, budget 1000 ms: {'OK' if worst < 1.0 else 'OVER'})")
+        print(
+            f"{dur:10.1f} | {tp * 1e3:8.2f} {tq * 1e3:8.1f} {tq / tp:6.1f}x "
+            f"{100 * (fp.K / pq[0] - 1):7.3f} {100 * (fp.tau / pq[1] - 1):7.3f} | "
+            f"{ta * 1e3:8.2f} {tl * 1e3:8.2f} {ta / tl:6.1f}x"
+        )
+    print(
+        f"(ratio = peer time / jerklab time for PEM, jerklab / bare lstsq for ARX; slowest jerklab "
+        f"fit {worst * 1e3:.1f} ms, budget 1000 ms: {'OK' if worst < 1.0 else 'OVER'})"
+    )
 
     cases = _table_closed_loop()
     _table_real()

@@ -10,6 +10,7 @@
    synchronization leaves the straight line (it then falls back to time synchronization), over the
    same random moves.
 """
+
 from __future__ import annotations
 
 import statistics
@@ -39,7 +40,9 @@ def _cases(n_axes, n, seed=0):
 def _ruckig_planner(n_axes, sync):
     otg, inp, traj = ruckig.Ruckig(n_axes), ruckig.InputParameter(n_axes), ruckig.Trajectory(n_axes)
     inp.current_position = [0.0] * n_axes
-    inp.synchronization = ruckig.Synchronization.Phase if sync == "phase" else ruckig.Synchronization.Time
+    inp.synchronization = (
+        ruckig.Synchronization.Phase if sync == "phase" else ruckig.Synchronization.Time
+    )
 
     def plan(d, lims):
         inp.target_position = d
@@ -55,15 +58,17 @@ def _ruckig_planner(n_axes, sync):
 def time_per_plan(n_axes, repeats=7, n=500):
     """Median over ``repeats`` of the mean time per plan (µs), each planner on the same cases."""
     cases = _cases(n_axes, n)
-    planners = {f"jerklab {s}": (lambda s: lambda d, L: plan_multi_axis(d, L, sync=s))(s)
-                for s in ("time", "phase")}
+    planners = {
+        f"jerklab {s}": (lambda s: lambda d, L: plan_multi_axis(d, L, sync=s))(s)
+        for s in ("time", "phase")
+    }
     if ruckig is not None:
         for s in ("time", "phase"):
             planners[f"ruckig {s}"] = _ruckig_planner(n_axes, s)
     runs = {k: [] for k in planners}
     clock = time.perf_counter
     for _ in range(repeats):
-        for name, f in planners.items():         # interleaved: load changes hit every planner
+        for name, f in planners.items():  # interleaved: load changes hit every planner
             t0 = clock()
             for d, L in cases:
                 f(d, L)
@@ -76,8 +81,10 @@ def move_times(n_axes, n=500):
     ratios, off = [], 0
     rk = _ruckig_planner(n_axes, "phase") if ruckig is not None else None
     for d, L in _cases(n_axes, n, seed=100):
-        ratios.append(plan_multi_axis(d, L, sync="phase").duration
-                      / plan_multi_axis(d, L, sync="time").duration)
+        ratios.append(
+            plan_multi_axis(d, L, sync="phase").duration
+            / plan_multi_axis(d, L, sync="time").duration
+        )
         if rk is not None:
             traj = rk(d, L)
             x = np.array([traj.at_time(t)[0] for t in np.linspace(0.0, traj.duration, 11)]).T
@@ -92,16 +99,29 @@ def main():
         us = time_per_plan(n_axes)
         for s in ("time", "phase"):
             ref = us.get(f"ruckig {s}")
-            rows.append((f"{n_axes} axes, {s} sync", us[f"jerklab {s}"], ref if ref else "-",
-                         us[f"jerklab {s}"] / ref if ref else "-"))
-    table("Time per synchronized plan (µs, median of 7 interleaved runs of 500 random moves, S-curve)",
-          ["case", "jerklab µs", "Ruckig µs", "x Ruckig"], rows)
+            rows.append(
+                (
+                    f"{n_axes} axes, {s} sync",
+                    us[f"jerklab {s}"],
+                    ref if ref else "-",
+                    us[f"jerklab {s}"] / ref if ref else "-",
+                )
+            )
+    table(
+        "Time per synchronized plan (µs, median of 7 interleaved runs of 500 random moves, S-curve)",
+        ["case", "jerklab µs", "Ruckig µs", "x Ruckig"],
+        rows,
+    )
     rows = []
     for n_axes in (2, 3, 6):
         r, off = move_times(n_axes)
         rows.append((f"{n_axes} axes", statistics.median(r), max(r), "-" if off is None else off))
-    table("Move time, phase (straight line) / time sync, 500 random moves; share of them where "
-          "Ruckig's phase sync leaves the line", ["case", "median", "max", "Ruckig off the line"], rows)
+    table(
+        "Move time, phase (straight line) / time sync, 500 random moves; share of them where "
+        "Ruckig's phase sync leaves the line",
+        ["case", "median", "max", "Ruckig off the line"],
+        rows,
+    )
 
 
 if __name__ == "__main__":

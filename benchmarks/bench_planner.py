@@ -17,6 +17,7 @@
    duration / the S-curve's at jerk 2J/pi, with and without an initial acceleration
    (docs/THEORY.md, "Any start state").
 """
+
 from __future__ import annotations
 
 import itertools
@@ -27,8 +28,15 @@ import time
 import numpy as np
 
 from benchmarks._record import table
-from jerklab.planner import (KINDS, plan_batch, plan_batch_any_state, plan_scurve, plan_sine_jerk,
-                             plan_sine_jerk_optimal, plan_trapezoid)
+from jerklab.planner import (
+    KINDS,
+    plan_batch,
+    plan_batch_any_state,
+    plan_scurve,
+    plan_sine_jerk,
+    plan_sine_jerk_optimal,
+    plan_trapezoid,
+)
 
 try:
     import ruckig
@@ -74,9 +82,9 @@ def _interleaved(planners, cases, repeats, chunk=250, seed=0):
     import random
 
     ref = next((k for k in planners if k.startswith("ruckig")), None)
-    for f in planners.values():                 # compile / load the cached solver outside the clock
+    for f in planners.values():  # compile / load the cached solver outside the clock
         f(*cases[0])
-    chunks = [cases[i:i + chunk] for i in range(0, len(cases), chunk)]
+    chunks = [cases[i : i + chunk] for i in range(0, len(cases), chunk)]
     rng = random.Random(seed)
     rounds = {k: [] for k in planners}
     clock = time.thread_time if hasattr(time, "thread_time") else time.perf_counter
@@ -158,9 +166,13 @@ def time_per_moving_plan_and_ratio(repeats=7, n=2000):
     cases = _moving_cases(n)
     planners = {
         "plan_scurve (moving start)": lambda d, j, a, v, v0, a0, vf: plan_scurve(
-            d, j, a, v, initial_velocity=v0, initial_accel=a0, final_velocity=vf),
-        "plan_sine_jerk_optimal (moving start)": lambda d, j, a, v, v0, a0, vf: plan_sine_jerk_optimal(
-            d, j, a, v, initial_velocity=v0, initial_accel=a0, final_velocity=vf),
+            d, j, a, v, initial_velocity=v0, initial_accel=a0, final_velocity=vf
+        ),
+        "plan_sine_jerk_optimal (moving start)": lambda d, j, a, v, v0, a0, vf: (
+            plan_sine_jerk_optimal(
+                d, j, a, v, initial_velocity=v0, initial_accel=a0, final_velocity=vf
+            )
+        ),
     }
     if ruckig is not None:
         planners["ruckig (moving start)"] = _ruckig_moving()
@@ -172,7 +184,7 @@ def batch_rate_moving(n=200_000, repeats=3):
     cols = np.array(_moving_cases(n, seed=2)).T
     out = {}
     for kind in ("scurve", "sine_jerk_optimal"):
-        plan_batch_any_state(kind, *cols[:, :10])             # compile / load outside the clock
+        plan_batch_any_state(kind, *cols[:, :10])  # compile / load outside the clock
         best = math.inf
         for _ in range(repeats):
             t0 = time.perf_counter()
@@ -187,15 +199,21 @@ def moving_duration_ratios(n=3000):
     rk = _ruckig_moving()
     sc, sine0, sine1 = [], [], []
     for d, J, A, V, v0, a0, vf in _moving_cases(n, seed=1):
-        sc.append(plan_scurve(d, J, A, V, initial_velocity=v0, initial_accel=a0,
-                              final_velocity=vf).duration / rk(d, J, A, V, v0, a0, vf))
+        sc.append(
+            plan_scurve(
+                d, J, A, V, initial_velocity=v0, initial_accel=a0, final_velocity=vf
+            ).duration
+            / rk(d, J, A, V, v0, a0, vf)
+        )
         if abs(v0) > V or abs(a0) > A:
             continue
         for acc, out in ((0.0, sine0), (a0, sine1)):
-            s = plan_sine_jerk_optimal(d, J, A, V, initial_velocity=v0, initial_accel=acc,
-                                       final_velocity=vf)
-            q = plan_scurve(d, 2 * J / math.pi, A, V, initial_velocity=v0, initial_accel=acc,
-                            final_velocity=vf)
+            s = plan_sine_jerk_optimal(
+                d, J, A, V, initial_velocity=v0, initial_accel=acc, final_velocity=vf
+            )
+            q = plan_scurve(
+                d, 2 * J / math.pi, A, V, initial_velocity=v0, initial_accel=acc, final_velocity=vf
+            )
             out.append(s.duration / q.duration)
     return sc, sine0, sine1
 
@@ -218,8 +236,11 @@ def batch_rate(n=1_000_000, repeats=3):
 
 
 #: 48 limit sets: distance x jerk x acceleration x velocity (rad, rad/s^3, rad/s^2, rad/s)
-GRID = list(itertools.product([0.01, 0.1, 1.0, 10 * math.pi, 100.0, 1000.0],
-                              [1e3, 2e4], [10.0, 300.0], [10.0, 100.0]))
+GRID = list(
+    itertools.product(
+        [0.01, 0.1, 1.0, 10 * math.pi, 100.0, 1000.0], [1e3, 2e4], [10.0, 300.0], [10.0, 100.0]
+    )
+)
 
 
 def move_time_ratios(grid=GRID):
@@ -232,39 +253,69 @@ def move_time_ratios(grid=GRID):
         o = plan_sine_jerk_optimal(d, J, E, W).duration
         opt.append(o / r)
         opt_eq.append(o / rk(d, 2 * J / math.pi, E, W))
-    return {"published sine (plan_sine_jerk)": pub,
-            "optimal sine (plan_sine_jerk_optimal)": opt,
-            "optimal sine vs Ruckig at jerk 2J/pi": opt_eq}
+    return {
+        "published sine (plan_sine_jerk)": pub,
+        "optimal sine (plan_sine_jerk_optimal)": opt,
+        "optimal sine vs Ruckig at jerk 2J/pi": opt_eq,
+    }
 
 
 def main():
     have_ref = ruckig is not None
     us = time_per_plan_and_ratio()
-    table("Time per plan (µs; 2000 random moves in chunks of 250, 7 rounds, planners interleaved in a "
-          "shuffled order, thread CPU time; medians over the 56 rounds, x Ruckig = median of the "
-          "per-round ratios)", ["planner", "µs/plan", "x Ruckig"],
-          [(name, v, r if have_ref else "-") for name, (v, r) in us.items()])
+    table(
+        "Time per plan (µs; 2000 random moves in chunks of 250, 7 rounds, planners interleaved in a "
+        "shuffled order, thread CPU time; medians over the 56 rounds, x Ruckig = median of the "
+        "per-round ratios)",
+        ["planner", "µs/plan", "x Ruckig"],
+        [(name, v, r if have_ref else "-") for name, (v, r) in us.items()],
+    )
     us = time_per_moving_plan_and_ratio()
-    table("Time per non-rest plan (µs; 2000 random moves from a moving start, 20 % above the limits; "
-          "rounds and medians as above)", ["planner", "µs/plan", "x Ruckig"],
-          [(name, v, r if have_ref else "-") for name, (v, r) in us.items()])
-    table("Batch planner (plan_batch, 1e6 random moves, best of 3)", ["kind", "plans/s", "target"],
-          [(kind, rate, 2e7) for kind, rate in batch_rate().items()])
-    table("Batch planner from moving starts (plan_batch_any_state, 2e5 random moves, best of 3)",
-          ["kind", "plans/s"], list(batch_rate_moving().items()))
+    table(
+        "Time per non-rest plan (µs; 2000 random moves from a moving start, 20 % above the limits; "
+        "rounds and medians as above)",
+        ["planner", "µs/plan", "x Ruckig"],
+        [(name, v, r if have_ref else "-") for name, (v, r) in us.items()],
+    )
+    table(
+        "Batch planner (plan_batch, 1e6 random moves, best of 3)",
+        ["kind", "plans/s", "target"],
+        [(kind, rate, 2e7) for kind, rate in batch_rate().items()],
+    )
+    table(
+        "Batch planner from moving starts (plan_batch_any_state, 2e5 random moves, best of 3)",
+        ["kind", "plans/s"],
+        list(batch_rate_moving().items()),
+    )
     if ruckig is None:
         print("\n(ruckig not installed: no move-time comparison)")
         return
-    table(f"Move time / Ruckig's time-optimal duration over {len(GRID)} limit sets "
-          "(distance 0.01..1000, J 1e3|2e4, E 10|300, Omega 10|100)", ["planner", "median", "max"],
-          [(name, statistics.median(r), max(r)) for name, r in move_time_ratios().items()])
+    table(
+        f"Move time / Ruckig's time-optimal duration over {len(GRID)} limit sets "
+        "(distance 0.01..1000, J 1e3|2e4, E 10|300, Omega 10|100)",
+        ["planner", "median", "max"],
+        [(name, statistics.median(r), max(r)) for name, r in move_time_ratios().items()],
+    )
     sc, sine0, sine1 = moving_duration_ratios()
-    table("From a moving start (3000 random moves): duration ratios", ["ratio", "min", "median", "max"],
-          [("plan_scurve / Ruckig", min(sc), statistics.median(sc), max(sc)),
-           ("optimal sine / S-curve at 2J/pi, initial_accel = 0", min(sine0), statistics.median(sine0),
-            max(sine0)),
-           ("optimal sine / S-curve at 2J/pi, initial_accel != 0", min(sine1), statistics.median(sine1),
-            max(sine1))])
+    table(
+        "From a moving start (3000 random moves): duration ratios",
+        ["ratio", "min", "median", "max"],
+        [
+            ("plan_scurve / Ruckig", min(sc), statistics.median(sc), max(sc)),
+            (
+                "optimal sine / S-curve at 2J/pi, initial_accel = 0",
+                min(sine0),
+                statistics.median(sine0),
+                max(sine0),
+            ),
+            (
+                "optimal sine / S-curve at 2J/pi, initial_accel != 0",
+                min(sine1),
+                statistics.median(sine1),
+                max(sine1),
+            ),
+        ],
+    )
 
 
 if __name__ == "__main__":

@@ -16,6 +16,7 @@ its row shows what that costs. Every row starts from empty caches
 
 Run: ``python -m benchmarks widgets``.
 """
+
 from __future__ import annotations
 
 import io
@@ -27,10 +28,12 @@ from benchmarks._record import table
 from jerklab.tuning import clear_cache, compute_pole_placement
 from jerklab.widgets import PolePlacementFigure, pole_placement_panel
 
-SWEEP = ([("wn", w) for w in np.arange(21.0, 45.0, 1.0)]
-         + [("zeta", z) for z in np.arange(0.95, 0.6, -0.05)]
-         + [("sigma_ratio", s) for s in np.arange(6.5, 3.5, -0.5)]
-         + [("Ts_ms", t) for t in np.arange(6.0, 9.0, 1.0)])
+SWEEP = (
+    [("wn", w) for w in np.arange(21.0, 45.0, 1.0)]
+    + [("zeta", z) for z in np.arange(0.95, 0.6, -0.05)]
+    + [("sigma_ratio", s) for s in np.arange(6.5, 3.5, -0.5)]
+    + [("Ts_ms", t) for t in np.arange(6.0, 9.0, 1.0)]
+)
 
 
 def _panel_times(narrow=False):
@@ -51,7 +54,7 @@ def _full_redraw_times(params):
         t0 = time.perf_counter()
         res = compute_pole_placement(**prm)
         f.update(res)
-        f._background = None                        # no cached background: draw everything
+        f._background = None  # no cached background: draw everything
         f.png()
         out.append(time.perf_counter() - t0)
     return np.array(out)
@@ -95,21 +98,28 @@ def main():
         key = {"Ts_ms": "Ts"}.get(name, name)
         prm[key] = float(value) * (1e-3 if name == "Ts_ms" else 1.0)
         params.append(dict(prm))
-    clear_cache()                       # the peers compute every design again, as the panel did
+    clear_cache()  # the peers compute every design again, as the panel did
     full_t = _full_redraw_times(params)
     clear_cache()
     new_t = _new_figure_times(params)
     ref = np.median(panel_t)
-    rows = [(name, 1e3 * np.median(t), 1e3 * np.percentile(t, 90), 1e3 * np.max(t), np.median(t) / ref)
-            for name, t in (("panel (blit + partial axes)", panel_t),
-                            ("class page: + phone figure", phone_t),
-                            ("full redraw, same artists", full_t),
-                            ("new figure every move", new_t))]
-    table(f"{len(SWEEP)} slider moves (wn 21..44, zeta 0.95..0.65, sigma/wn 6.5..4, Ts 6..8 ms), "
-          "each: design + responses + move simulation + figure + PNG",
-          ["method", "median ms", "p90 ms", "max ms", "median ratio"], rows,
-          note=f"panel moves within 0.3 s: {np.mean(panel_t < 0.3) * 100:.0f} %; "
-               f"axes repainted per move: {p.figure.axes_redraws / len(SWEEP):.2f} of 6")
+    rows = [
+        (name, 1e3 * np.median(t), 1e3 * np.percentile(t, 90), 1e3 * np.max(t), np.median(t) / ref)
+        for name, t in (
+            ("panel (blit + partial axes)", panel_t),
+            ("class page: + phone figure", phone_t),
+            ("full redraw, same artists", full_t),
+            ("new figure every move", new_t),
+        )
+    ]
+    table(
+        f"{len(SWEEP)} slider moves (wn 21..44, zeta 0.95..0.65, sigma/wn 6.5..4, Ts 6..8 ms), "
+        "each: design + responses + move simulation + figure + PNG",
+        ["method", "median ms", "p90 ms", "max ms", "median ratio"],
+        rows,
+        note=f"panel moves within 0.3 s: {np.mean(panel_t < 0.3) * 100:.0f} %; "
+        f"axes repainted per move: {p.figure.axes_redraws / len(SWEEP):.2f} of 6",
+    )
 
 
 if __name__ == "__main__":

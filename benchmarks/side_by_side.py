@@ -9,6 +9,7 @@ interleaved, repeated, the best time kept: a loaded machine slows both alike. Th
 old/new (> 1: the new code is faster). ``--out`` writes the table as a JSON record (the
 format of ``python -m benchmarks``).
 """
+
 from __future__ import annotations
 
 import importlib
@@ -21,8 +22,17 @@ import numpy as np
 
 from benchmarks import _record
 
-MODULES = ("jerklab", "jerklab.law", "jerklab.controller", "jerklab.planner", "jerklab.plant", "jerklab.sim",
-           "jerklab.ident", "jerklab.piezo", "jerklab.widgets")
+MODULES = (
+    "jerklab",
+    "jerklab.law",
+    "jerklab.controller",
+    "jerklab.planner",
+    "jerklab.plant",
+    "jerklab.sim",
+    "jerklab.ident",
+    "jerklab.piezo",
+    "jerklab.widgets",
+)
 
 
 def load_tree(root):
@@ -39,7 +49,9 @@ def load_tree(root):
                 mods[name] = importlib.import_module(name)
             except ImportError:
                 mods[name] = None
-        loaded = {k: v for k, v in sys.modules.items() if k == "jerklab" or k.startswith("jerklab.")}
+        loaded = {
+            k: v for k, v in sys.modules.items() if k == "jerklab" or k.startswith("jerklab.")
+        }
     finally:
         sys.path.remove(root)
         for k in loaded:
@@ -52,33 +64,48 @@ def load_tree(root):
 
 def _cases(J):
     """name -> callable running the case with the modules ``J``."""
-    ctl, planner, plant, sim = J["jerklab.controller"], J["jerklab.planner"], J["jerklab.plant"], J["jerklab.sim"]
+    ctl, planner, plant, sim = (
+        J["jerklab.controller"],
+        J["jerklab.planner"],
+        J["jerklab.plant"],
+        J["jerklab.sim"],
+    )
     K, TAU, TS = 32.4, 0.025, 0.005
     d = ctl.discrete_pole_placement_pid(K, TAU, 30.0, Ts=TS)
     c = ctl.DigitalController(d, ctl.Feedforward(K, TAU), output_limit=12.0)
     motor = plant.DCMotor(coulomb_friction=0.3, load_disturbance=(1.0, -0.5))
     prof = planner.plan_sine_jerk(10.0, 2e4, 300.0, 100.0)
     pp = sim.perturbed_plants(2000, friction=(0.0, 0.5), seed=1)
-    dists = iter(np.linspace(9.0, 11.0, 10 ** 7))
+    dists = iter(np.linspace(9.0, 11.0, 10**7))
     rng = np.random.default_rng(0)
     cases = {
         "simulate 401 samples (same move)": lambda: sim.simulate(prof, motor, c, t_end=2.0),
-        "simulate 401 samples (new move each call)":
-            lambda: sim.simulate(planner.plan_sine_jerk(next(dists), 2e4, 300.0, 100.0), motor, c, t_end=2.0),
+        "simulate 401 samples (new move each call)": lambda: sim.simulate(
+            planner.plan_sine_jerk(next(dists), 2e4, 300.0, 100.0), motor, c, t_end=2.0
+        ),
         "simulate 4001 samples": lambda: sim.simulate(prof, motor, c, t_end=20.0),
-        "simulate_batch compiled 2000 plants": lambda: sim.simulate_batch(prof, motor, c, keep_traces=False, **pp),
-        "simulate_batch numpy 500 plants":
-            lambda: sim.simulate_batch(prof, motor, c, engine="numpy", keep_traces=False,
-                                       **{k: v[:500] for k, v in pp.items()}),
-        "DigitalController.step x1000": lambda: [c.step(0.1 * k, 1.0, 0.0, 0.1 * k - 0.01) for k in range(1000)],
-        "plan_sine_jerk x1000": lambda: [planner.plan_sine_jerk(1.0 + k, 2e4, 300.0, 100.0) for k in range(1000)],
-        "plan_batch sine_jerk 1e5": lambda: planner.plan_batch("sine_jerk", rng.uniform(0.1, 10, 100000), 2e4,
-                                                               300.0, 100.0),
-        "PositionLoop redraw set": lambda: [(L.poles_z(), L.step_response(0.5), L.disturbance_response(0.5),
-                                             L.tracking_error(prof))
-                                            for L in (ctl.PositionLoop(K, TAU, ctl.pole_placement_pid(K, TAU, 30.0)
-                                                                       .discretize(TS)),
-                                                      ctl.PositionLoop(K, TAU, d))],
+        "simulate_batch compiled 2000 plants": lambda: sim.simulate_batch(
+            prof, motor, c, keep_traces=False, **pp
+        ),
+        "simulate_batch numpy 500 plants": lambda: sim.simulate_batch(
+            prof, motor, c, engine="numpy", keep_traces=False, **{k: v[:500] for k, v in pp.items()}
+        ),
+        "DigitalController.step x1000": lambda: [
+            c.step(0.1 * k, 1.0, 0.0, 0.1 * k - 0.01) for k in range(1000)
+        ],
+        "plan_sine_jerk x1000": lambda: [
+            planner.plan_sine_jerk(1.0 + k, 2e4, 300.0, 100.0) for k in range(1000)
+        ],
+        "plan_batch sine_jerk 1e5": lambda: planner.plan_batch(
+            "sine_jerk", rng.uniform(0.1, 10, 100000), 2e4, 300.0, 100.0
+        ),
+        "PositionLoop redraw set": lambda: [
+            (L.poles_z(), L.step_response(0.5), L.disturbance_response(0.5), L.tracking_error(prof))
+            for L in (
+                ctl.PositionLoop(K, TAU, ctl.pole_placement_pid(K, TAU, 30.0).discretize(TS)),
+                ctl.PositionLoop(K, TAU, d),
+            )
+        ],
     }
     ident = J.get("jerklab.ident")
     if ident is not None:
@@ -87,8 +114,10 @@ def _cases(J):
         cases["fit_dc_motor pem 2 s"] = lambda: ident.fit_dc_motor(u, th[:-1], TS)
     widgets = J.get("jerklab.widgets")
     if widgets is not None and hasattr(widgets, "compute_pole_placement"):
-        ws = iter(np.linspace(20.0, 40.0, 10 ** 6))
-        cases["compute_pole_placement (panel math)"] = lambda: widgets.compute_pole_placement(wn=next(ws))
+        ws = iter(np.linspace(20.0, 40.0, 10**6))
+        cases["compute_pole_placement (panel math)"] = lambda: widgets.compute_pole_placement(
+            wn=next(ws)
+        )
     pz = J.get("jerklab.piezo")
     if pz is not None:
         cases["piezo shape_cycle(1, 2) default solver"] = lambda: pz.shape_cycle(1, 2)
@@ -110,12 +139,12 @@ def main(argv):
         if name not in co:
             continue
         fo, fn = co[name], cn[name]
-        fo(), fn()                                    # compile / warm caches
+        fo(), fn()  # compile / warm caches
         n = 1
         t0 = time.perf_counter()
         fn()
         one = time.perf_counter() - t0
-        n = max(1, int(0.1 / max(one, 1e-7)))        # ~0.1 s per timing
+        n = max(1, int(0.1 / max(one, 1e-7)))  # ~0.1 s per timing
         best = {"old": np.inf, "new": np.inf}
         for _ in range(repeat):
             for tag, f in (("old", fo), ("new", fn)):
@@ -126,15 +155,23 @@ def main(argv):
         rows.append((name, best["old"] * 1e3, best["new"] * 1e3, best["old"] / best["new"]))
     title = "old vs new jerklab, interleaved in one process (best of %d)" % repeat
     _record.CURRENT["module"] = "benchmarks.side_by_side"
-    _record.table(title, ["case", "old ms", "new ms", "old/new"], rows,
-                  note=f"old: {old['jerklab'].__file__}\nnew: {new['jerklab'].__file__}")
+    _record.table(
+        title,
+        ["case", "old ms", "new ms", "old/new"],
+        rows,
+        note=f"old: {old['jerklab'].__file__}\nnew: {new['jerklab'].__file__}",
+    )
     if out:
         from benchmarks.__main__ import _git, _machine, _versions
 
-        rec = {"date": time.strftime("%Y-%m-%dT%H:%M:%S+00:00", time.gmtime()), "machine": _machine(),
-               "versions": _versions(), "git": _git(pathlib.Path(new["jerklab"].__file__).parent.parent),
-               "old_tree": str(old_root),
-               "modules": {"benchmarks.side_by_side": {"tables": list(_record.TABLES)}}}
+        rec = {
+            "date": time.strftime("%Y-%m-%dT%H:%M:%S+00:00", time.gmtime()),
+            "machine": _machine(),
+            "versions": _versions(),
+            "git": _git(pathlib.Path(new["jerklab"].__file__).parent.parent),
+            "old_tree": str(old_root),
+            "modules": {"benchmarks.side_by_side": {"tables": list(_record.TABLES)}},
+        }
         pathlib.Path(out).write_text(json.dumps(rec, indent=1, ensure_ascii=False) + "\n")
         print(f"record written: {out}")
     return 0

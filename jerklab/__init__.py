@@ -5,6 +5,7 @@ Planners (and the multi-axis ``plan_multi_axis``) are re-exported here; the othe
 ``jerklab.rig``, ``jerklab.fpga``, ``jerklab.piezo``, ``jerklab.hysteresis``,
 ``jerklab.shaping``).
 """
+
 from __future__ import annotations
 
 from .multiaxis import plan_multi_axis

@@ -1,4 +1,5 @@
 """``python -m jerklab``: the ``jerklab`` command (see :mod:`jerklab.cli`)."""
+
 import sys
 
 from jerklab.cli import main

@@ -4,6 +4,7 @@ python-control imports matplotlib when it is imported; the computing modules (pl
 controller, ident, piezo) only need it when a transfer function is asked for, so they hold
 ``ct = lazy_module("control")`` and the import happens on the first ``ct.tf(...)``.
 """
+
 from __future__ import annotations
 
 import importlib

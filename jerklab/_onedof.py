@@ -26,6 +26,7 @@ position by ``-kappa * da^3 / J'^2`` less, with ``kappa = 1/pi^2 - 1/12`` and ``
 Written in the subset of Python that numba compiles (floats and preallocated arrays, no objects);
 :func:`solver` returns the compiled :func:`solve_tuple` when numba is installed.
 """
+
 from __future__ import annotations
 
 import math
@@ -64,12 +65,15 @@ def solver():
         try:
             import numba
 
-            for name in _JITTED:        # module globals, so that compiled code calls compiled code
+            for name in _JITTED:  # module globals, so that compiled code calls compiled code
                 # (the scalar planners' entries from Python keep the GIL: releasing and taking it
                 # back costs about 0.05 us a call, 3 % of a plan; the small helpers are inlined by
                 # numba itself: 5 % of a solve, 3 s more to compile once)
-                g[name] = numba.njit(cache=True, nogil=name not in _ENTRIES,
-                                     inline="always" if name in _INLINED else "never")(PURE[name])
+                g[name] = numba.njit(
+                    cache=True,
+                    nogil=name not in _ENTRIES,
+                    inline="always" if name in _INLINED else "never",
+                )(PURE[name])
             # compiled now (or loaded from the cache) for float arguments, while the globals it
             # calls are the compiled ones (the planners call plan_tuple, not solve_tuple)
             try:
@@ -82,6 +86,7 @@ def solver():
                 g[name] = PURE[name]
             _SOLVER = PURE["solve_tuple"]
     return _SOLVER
+
 
 _PLAN = None
 
@@ -135,7 +140,7 @@ def packed_planner(sine):
 #: 1/pi^2 - 1/12: position lag of a half-sine jerk pulse behind the linear ramp of the same impulse
 KAPPA_SINE = 1.0 / (math.pi * math.pi) - 1.0 / 12.0
 
-_TOL = 1e-10          # slack of the validity checks, in normalized units (times, accelerations)
+_TOL = 1e-10  # slack of the validity checks, in normalized units (times, accelerations)
 # the solver's scratch array (one array, so that each compiled call takes one reference): the
 # polynomial and its derivatives in six rows of 6 (row i at 6 i), the critical points, the roots
 # found, the best candidate
@@ -143,7 +148,7 @@ _CRIT = 36
 _OUT = 44
 _BEST = 52
 _SCRATCH = 60
-_MAX_SEG = 12         # most segments of a profile (2 brake + 8 + a cruise)
+_MAX_SEG = 12  # most segments of a profile (2 brake + 8 + a cruise)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -185,7 +190,7 @@ def _root_between(D, i, deg, lo, hi, flo):
         if not (a < xn < b):
             xn = 0.5 * (a + b)
         if abs(xn - x) <= 4e-16 * abs(x) + 1e-22 or b - a <= 4e-16 * max(abs(a), abs(b)) + 1e-22:
-            return xn                   # (1e-22: a root at 0 is not refined below the normalized unit)
+            return xn  # (1e-22: a root at 0 is not refined below the normalized unit)
         x = xn
     return x
 
@@ -209,7 +214,7 @@ def _roots_from_critical(D, i, deg, ncrit, lo, hi):
             x = hi
         f, small = _pvalue(D, i, deg, x)
         if small:
-            D[_OUT + nout] = x           # a (double) root at a critical point or an end
+            D[_OUT + nout] = x  # a (double) root at a critical point or an end
             nout += 1
         elif not small_prev and (f < 0.0) != (fprev < 0.0):
             D[_OUT + nout] = _root_between(D, i, deg, xprev, x, fprev)
@@ -257,13 +262,13 @@ def _search_roots(D, deg, lo, hi):
         deg -= k
     if deg <= 0:
         return 0
-    for i in range(1, deg):                 # row i = i-th derivative, degree deg - i
+    for i in range(1, deg):  # row i = i-th derivative, degree deg - i
         di = deg - i
         for m in range(di + 1):
             D[6 * i + m] = D[6 * i - 6 + m] * (di + 1 - m)
     ncrit = 0
     if deg >= 2:
-        i = deg - 1                         # the linear derivative
+        i = deg - 1  # the linear derivative
         if D[6 * i] != 0.0:
             x = -D[6 * i + 1] / D[6 * i]
             if lo < x < hi:
@@ -301,7 +306,7 @@ def _no_root5(c0, c1, c2, c3, c4, c5, lo, hi):
     """
     h = hi - lo
     d0, d1, d2, d3, d4, d5 = c0, c1, c2, c3, c4, c5
-    d1 += lo * d0                       # after pass k, d_(5 - k) = t_k
+    d1 += lo * d0  # after pass k, d_(5 - k) = t_k
     d2 += lo * d1
     d3 += lo * d2
     d4 += lo * d3
@@ -348,7 +353,7 @@ def _no_root5(c0, c1, c2, c3, c4, c5, lo, hi):
         low += term
     else:
         high += term
-    x = abs(lo) + h                     # sum of |terms| at x (as _pvalue)
+    x = abs(lo) + h  # sum of |terms| at x (as _pvalue)
     r = abs(c0)
     r = r * x + abs(c1)
     r = r * x + abs(c2)
@@ -378,9 +383,9 @@ def _cubes(P, N, a0):
     """Sum of the cubes of the acceleration changes of the pulses (each ramp split at a = 0)."""
     if P >= 0.0:
         if a0 >= 0.0:
-            return (P - a0) ** 3 - P ** 3
-        return -a0 ** 3
-    return (P - a0) ** 3 - (N + P) ** 3 + N ** 3
+            return (P - a0) ** 3 - P**3
+        return -(a0**3)
+    return (P - a0) ** 3 - (N + P) ** 3 + N**3
 
 
 @_jit
@@ -467,26 +472,70 @@ def _candidates(d, v0, a0, vf, V, k, s, D):
     a2 = a0 * a0
     a3 = a2 * a0
     # branches of the sine term: A (P >= 0, a0 >= 0), B (P >= 0, a0 < 0), C (P < 0)
-    kA = k if a0 >= 0.0 else 0.0      # the P-dependent part of the cubes exists only in branch A
+    kA = k if a0 >= 0.0 else 0.0  # the P-dependent part of the cubes exists only in branch A
     # ACC0_ACC1: P = N = 1, t1 = t5 + H, quadratic in t5
     c1 = 2.0 * H - a2 + 2.0 * v0 + 3.0
-    c0 = -(-3.0 * H * H + 3.0 * H * a2 - 6.0 * H * v0 - 21.0 * H - 6.0 * k * a3 - 2.0 * a3
-           + (12.0 + 18.0 * kA) * a2 - 18.0 * kA * a0 + 6.0 * a0 * v0 + 6.0 * d - 24.0 * v0 - 12.0) / 6.0
+    c0 = (
+        -(
+            -3.0 * H * H
+            + 3.0 * H * a2
+            - 6.0 * H * v0
+            - 21.0 * H
+            - 6.0 * k * a3
+            - 2.0 * a3
+            + (12.0 + 18.0 * kA) * a2
+            - 18.0 * kA * a0
+            + 6.0 * a0 * v0
+            + 6.0 * d
+            - 24.0 * v0
+            - 12.0
+        )
+        / 6.0
+    )
     disc = c1 * c1 - 4.0 * c0
     if disc >= 0.0:
-        q = -0.5 * (c1 + math.copysign(math.sqrt(disc), c1))     # the roots q and c0/q, no cancellation
+        q = -0.5 * (
+            c1 + math.copysign(math.sqrt(disc), c1)
+        )  # the roots q and c0/q, no cancellation
         for t5 in (q, c0 / q if q != 0.0 else 0.0):
             t1 = t5 + H
             T = _check(1.0, 1.0, t1, t5, 0.0, a0, v0, V)
-            if T >= 0.0 and _near(_end_pos(1.0, 1.0, max(t1, 0.0), max(t5, 0.0), 0.0, a0, v0, k), d, T, v0, V):
+            if T >= 0.0 and _near(
+                _end_pos(1.0, 1.0, max(t1, 0.0), max(t5, 0.0), 0.0, a0, v0, k), d, T, v0, V
+            ):
                 _keep(D, T, 1.0, 1.0, max(t1, 0.0), max(t5, 0.0), 0.0, s)
     # ACC0: P = 1, t1 = H - 1 + N^2 >= 0, quartic in N on [sqrt(1 - H), 1] (none if H < 0)
     if H >= -1e-9:
-        e0 = -(-3.0 * H * H + 3.0 * H * a2 - 6.0 * H * v0 - 3.0 * H - 6.0 * k * a3 - 2.0 * a3
-               + (3.0 + 18.0 * kA) * a2 - 18.0 * kA * a0 + 6.0 * a0 * v0 + 6.0 * d - 6.0 * v0) / 6.0
+        e0 = (
+            -(
+                -3.0 * H * H
+                + 3.0 * H * a2
+                - 6.0 * H * v0
+                - 3.0 * H
+                - 6.0 * k * a3
+                - 2.0 * a3
+                + (3.0 + 18.0 * kA) * a2
+                - 18.0 * kA * a0
+                + 6.0 * a0 * v0
+                + 6.0 * d
+                - 6.0 * v0
+            )
+            / 6.0
+        )
         lo = max(math.sqrt(max(1.0 - H, 0.0)) - 1e-9, 0.0)
-        for r in range(_roots5(0.0, 0.5, 1.0, 0.5 * (2.0 * H - a2 + 2.0 * v0 + 1.0), 2.0 * H - a2 + 2.0 * v0,
-                               e0, lo, 1.0, D)):
+        for r in range(
+            _roots5(
+                0.0,
+                0.5,
+                1.0,
+                0.5 * (2.0 * H - a2 + 2.0 * v0 + 1.0),
+                2.0 * H - a2 + 2.0 * v0,
+                e0,
+                lo,
+                1.0,
+                D,
+            )
+        ):
             N = D[_OUT + r]
             t1 = H - 1.0 + N * N
             T = _check(1.0, N, t1, 0.0, 0.0, a0, v0, V)
@@ -495,29 +544,67 @@ def _candidates(d, v0, a0, vf, V, k, s, D):
     # ACC1: N = 1, t5 = P^2 - 1 - H >= 0, quartic in P (none if H > 0); |P| >= sqrt(1 + H);
     # branch C on [a0, 0), A/B on [max(a0, 0), 1]
     if H <= 1e-9:
-        e0 = -(3.0 * H * H - 3.0 * H * a2 + 6.0 * H * v0 - 3.0 * H - 6.0 * k * a3 - 2.0 * a3 + 3.0 * a2
-               + 6.0 * a0 * v0 + 6.0 * d - 6.0 * v0) / 6.0
+        e0 = (
+            -(
+                3.0 * H * H
+                - 3.0 * H * a2
+                + 6.0 * H * v0
+                - 3.0 * H
+                - 6.0 * k * a3
+                - 2.0 * a3
+                + 3.0 * a2
+                + 6.0 * a0 * v0
+                + 6.0 * d
+                - 6.0 * v0
+            )
+            / 6.0
+        )
         pmin = math.sqrt(max(1.0 + H, 0.0)) - 1e-9
         lo_ab = max(a0, 0.0, pmin)
         if lo_ab <= 1.0:
-            for r in range(_roots5(0.0, 0.5, 1.0, 0.5 * (-a2 + 6.0 * kA * a0 + 2.0 * v0 + 1.0),
-                                   -3.0 * kA * a2 - a2 + 2.0 * v0, e0, lo_ab, 1.0, D)):
+            for r in range(
+                _roots5(
+                    0.0,
+                    0.5,
+                    1.0,
+                    0.5 * (-a2 + 6.0 * kA * a0 + 2.0 * v0 + 1.0),
+                    -3.0 * kA * a2 - a2 + 2.0 * v0,
+                    e0,
+                    lo_ab,
+                    1.0,
+                    D,
+                )
+            ):
                 P = D[_OUT + r]
                 t5 = P * P - 1.0 - H
                 T = _check(P, 1.0, 0.0, t5, 0.0, a0, v0, V)
-                if T >= 0.0 and _near(_end_pos(P, 1.0, 0.0, max(t5, 0.0), 0.0, a0, v0, k), d, T, v0, V):
+                if T >= 0.0 and _near(
+                    _end_pos(P, 1.0, 0.0, max(t5, 0.0), 0.0, a0, v0, k), d, T, v0, V
+                ):
                     _keep(D, T, P, 1.0, 0.0, max(t5, 0.0), 0.0, s)
         hi_c = min(0.0, -pmin)
         if a0 < 0.0 and max(a0, -1.0) < hi_c:
-            for r in range(_roots5(0.0, 0.5, 1.0, 0.5 * (-a2 + 6.0 * k * a0 + 6.0 * k + 2.0 * v0 + 1.0),
-                                   -3.0 * k * a2 - a2 + 3.0 * k + 2.0 * v0, e0, max(a0, -1.0), hi_c,
-                                   D)):
+            for r in range(
+                _roots5(
+                    0.0,
+                    0.5,
+                    1.0,
+                    0.5 * (-a2 + 6.0 * k * a0 + 6.0 * k + 2.0 * v0 + 1.0),
+                    -3.0 * k * a2 - a2 + 3.0 * k + 2.0 * v0,
+                    e0,
+                    max(a0, -1.0),
+                    hi_c,
+                    D,
+                )
+            ):
                 P = D[_OUT + r]
                 if P >= 0.0:
                     continue
                 t5 = P * P - 1.0 - H
                 T = _check(P, 1.0, 0.0, t5, 0.0, a0, v0, V)
-                if T >= 0.0 and _near(_end_pos(P, 1.0, 0.0, max(t5, 0.0), 0.0, a0, v0, k), d, T, v0, V):
+                if T >= 0.0 and _near(
+                    _end_pos(P, 1.0, 0.0, max(t5, 0.0), 0.0, a0, v0, k), d, T, v0, V
+                ):
                     _keep(D, T, P, 1.0, 0.0, max(t5, 0.0), 0.0, s)
     # NONE: u = P + N, P = (u^2 + H)/(2u), N = (u^2 - H)/(2u); quintic in u on (0, 2]
     b2 = 12.0 * H - 18.0 * a2 * k - 12.0 * a2 + 24.0 * v0
@@ -525,7 +612,7 @@ def _candidates(d, v0, a0, vf, V, k, s, D):
     if H >= 0.0:
         split = 0.0
     else:
-        split = math.sqrt(-H)           # P < 0 below (branch C), P >= 0 above
+        split = math.sqrt(-H)  # P < 0 below (branch C), P >= 0 above
     ulo = math.sqrt(H) if H > 0.0 else 0.0
     # P <= 1 and N <= 1: u in [1 - m, 1 + m], m = sqrt(1 - |H|) (nothing if |H| > 1)
     if abs(H) > 1.0 + 1e-9:
@@ -534,7 +621,7 @@ def _candidates(d, v0, a0, vf, V, k, s, D):
     ulo = max(ulo, 1.0 - m - 1e-9)
     uhi = min(2.0, 1.0 + m + 1e-9)
     for br in range(2):
-        if br == 0:                     # P >= 0: branch A or B
+        if br == 0:  # P >= 0: branch A or B
             lo, hi = max(split, ulo), uhi
             if a0 >= 0.0:
                 q0, q1, q2, q3 = 3.0, 9.0 * a0 * k, b2, b1
@@ -542,7 +629,7 @@ def _candidates(d, v0, a0, vf, V, k, s, D):
             else:
                 q0, q1, q2, q3 = 0.0, 3.0, 0.0, 12.0 * (H - a2 + 2.0 * v0)
                 q4, q5 = -4.0 * (-3.0 * a3 * k - a3 + 3.0 * a0 * v0 + 3.0 * d), -3.0 * H * H
-        else:                           # P < 0: branch C (only when H < 0)
+        else:  # P < 0: branch C (only when H < 0)
             if split <= 0.0:
                 continue
             lo, hi = ulo, min(split, uhi)
@@ -641,7 +728,7 @@ def solve(d, v0, a0, vf, V, k):
     nres = 2 * _MAX_SEG + 3
     buf = np.empty(nres + _SCRATCH)
     res = buf[:nres]
-    res[:] = 0.0                    # (the scratch arrays are written before they are read)
+    res[:] = 0.0  # (the scratch arrays are written before they are read)
     # braking pre-trajectory (jerk segments then a constant-acceleration segment)
     bj, bt, bj2, bt2 = _brake(v0, a0, V)
     p = 0.0
@@ -660,8 +747,8 @@ def solve(d, v0, a0, vf, V, k):
     if bt2 > 0.0:
         _append(res, bj2, bt2)
         p, v, a = _advance(p, v, a, bj2, bt2, k)
-    res[-1] = res[0]                # the number of brake segments
-    if bt > 0.0 and a > 1.0:        # round-off of the ramp to the limit
+    res[-1] = res[0]  # the number of brake segments
+    if bt > 0.0 and a > 1.0:  # round-off of the ramp to the limit
         a = 1.0
     if bt > 0.0 and a < -1.0:
         a = -1.0
@@ -674,11 +761,18 @@ def solve(d, v0, a0, vf, V, k):
     if D[_BEST + 6] == 0.0:
         res[0] = -1.0
         return res
-    P, N, t1, t5, tc, s = D[_BEST + 1], D[_BEST + 2], D[_BEST + 3], D[_BEST + 4], D[_BEST + 5], D[_BEST + 6]
+    P, N, t1, t5, tc, s = (
+        D[_BEST + 1],
+        D[_BEST + 2],
+        D[_BEST + 3],
+        D[_BEST + 4],
+        D[_BEST + 5],
+        D[_BEST + 6],
+    )
     a0s = s * a
     # rebuild the segments in the sigma frame, then flip the jerk signs by s
     if P > 0.0:
-        if a0s < 0.0 and k != 0.0:      # split the first ramp at a = 0 (sine pulses keep one sign)
+        if a0s < 0.0 and k != 0.0:  # split the first ramp at a = 0 (sine pulses keep one sign)
             _append(res, s, -a0s)
             _append(res, s, P)
         else:
@@ -687,7 +781,7 @@ def solve(d, v0, a0, vf, V, k):
         _append(res, -s, P)
         _append(res, 0.0, tc)
         _append(res, -s, N)
-    else:                               # no a = 0 in the middle ramp (a cruise only when P = 0)
+    else:  # no a = 0 in the middle ramp (a cruise only when P = 0)
         _append(res, s, P - a0s)
         _append(res, 0.0, t1)
         _append(res, 0.0, tc)
@@ -708,13 +802,16 @@ def solve(d, v0, a0, vf, V, k):
         total += t
         p2, v2, a2 = _advance(p, v, a, j, t, k)
         if j != 0.0 and abs(a2) <= 1e-12 * (1.0 + abs(a0)):
-            a2 = 0.0                    # a ramp that ends at a = 0 (as planner._segment_states)
+            a2 = 0.0  # a ramp that ends at a = 0 (as planner._segment_states)
         pvar += abs(p2 - p)
         vvar += abs(v2 - v)
         p, v, a = p2, v2, a2
     res[-2] = total
-    if not (abs(p - d) <= 1e-8 * (abs(d) + pvar) + 1e-300 and abs(v - vf) <= 1e-8 * (V + vvar)
-            and abs(a) <= 1e-8 * (1.0 + abs(a0))):
+    if not (
+        abs(p - d) <= 1e-8 * (abs(d) + pvar) + 1e-300
+        and abs(v - vf) <= 1e-8 * (V + vvar)
+        and abs(a) <= 1e-8 * (1.0 + abs(a0))
+    ):
         res[0] = -1.0
     return res
 
@@ -732,8 +829,24 @@ def solve_tuple(d, v0, a0, vf, V, k):
         code += (r[2 * i + 1] + 1.0) * p3
         p3 *= 3.0
     # (the unused entries of r are 0)
-    return (r[0], code, r[-2], r[-1], r[2], r[4], r[6], r[8], r[10], r[12], r[14], r[16], r[18],
-            r[20], r[22], r[24])
+    return (
+        r[0],
+        code,
+        r[-2],
+        r[-1],
+        r[2],
+        r[4],
+        r[6],
+        r[8],
+        r[10],
+        r[12],
+        r[14],
+        r[16],
+        r[18],
+        r[20],
+        r[22],
+        r[24],
+    )
 
 
 @_jit
@@ -749,45 +862,178 @@ def plan_tuple(d, J, A, V, v0, a0, vf, sine):
     -1 no valid profile (the solver's numeric range); -2 a value not finite or a limit <= 0;
     -3 ``|vf| > V``; -4 the normalized values overflow (limits far apart in scale).
     """
-    if not (0.0 < J < math.inf and 0.0 < A < math.inf and 0.0 < V < math.inf and abs(d) < math.inf
-            and abs(v0) < math.inf and abs(a0) < math.inf and abs(vf) < math.inf):
-        return (-2.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
-                1.0, 0.0)
+    if not (
+        0.0 < J < math.inf
+        and 0.0 < A < math.inf
+        and 0.0 < V < math.inf
+        and abs(d) < math.inf
+        and abs(v0) < math.inf
+        and abs(a0) < math.inf
+        and abs(vf) < math.inf
+    ):
+        return (
+            -2.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            1.0,
+            0.0,
+        )
     if vf > V or -vf > V:
-        return (-3.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
-                1.0, 0.0)
-    if d == 0.0 and a0 == 0.0 and v0 == vf:     # (|v0| <= V: v0 == vf)
+        return (
+            -3.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            1.0,
+            0.0,
+        )
+    if d == 0.0 and a0 == 0.0 and v0 == vf:  # (|v0| <= V: v0 == vf)
         # already on target (Ruckig plans a loop out and back here; the empty move is optimal)
-        return (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
-                1.0, 0.0)
-    Jm = J * (2.0 / math.pi) if sine else J     # the mean jerk of a half-sine pulse of peak J
-    tu = A / Jm                                 # normalized units: J' = A = 1
+        return (
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            1.0,
+            0.0,
+        )
+    Jm = J * (2.0 / math.pi) if sine else J  # the mean jerk of a half-sine pulse of peak J
+    tu = A / Jm  # normalized units: J' = A = 1
     vu = A * tu
     pu = vu * tu
     if not pu > 0.0:
-        return (-4.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
-                tu, 0.0)
+        return (
+            -4.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            tu,
+            0.0,
+        )
     dn = d / pu
     v0n = v0 / vu
     a0n = a0 / A
     vfn = vf / vu
     Vn = V / vu
     if not (dn + v0n + a0n + vfn + Vn + tu + vu + pu) * 0.0 == 0.0:
-        return (-4.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
-                tu, 0.0)
+        return (
+            -4.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            tu,
+            0.0,
+        )
     r = solve(dn, v0n, a0n, vfn, Vn, KAPPA_SINE if sine else 0.0)
     n = int(r[0])
     if n <= 0:
-        return (-1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
-                tu, 0.0)
+        return (
+            -1.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            tu,
+            0.0,
+        )
     code = 0.0
     p3 = 1.0
     for i in range(n):
         code += (r[2 * i + 1] + 1.0) * p3
         p3 *= 3.0
     # (the unused entries of r are 0)
-    return (r[0], code, r[-2], r[-1], r[2], r[4], r[6], r[8], r[10], r[12], r[14], r[16], r[18],
-            r[20], r[22], r[24], tu, r[-2] * tu)
+    return (
+        r[0],
+        code,
+        r[-2],
+        r[-1],
+        r[2],
+        r[4],
+        r[6],
+        r[8],
+        r[10],
+        r[12],
+        r[14],
+        r[16],
+        r[18],
+        r[20],
+        r[22],
+        r[24],
+        tu,
+        r[-2] * tu,
+    )
 
 
 @_jit
@@ -796,8 +1042,17 @@ def _pack(r):
     complex(t_1, t_2), ..., complex(t_11, t_12))``: the same values (the normalized duration
     left out), in 9 Python objects -- boxing and freeing a float costs about as much as a complex,
     and 18 of them were a tenth of a plan's time."""
-    return (r[0], complex(r[17], r[16]), complex(r[1], r[3]), complex(r[4], r[5]), complex(r[6], r[7]),
-            complex(r[8], r[9]), complex(r[10], r[11]), complex(r[12], r[13]), complex(r[14], r[15]))
+    return (
+        r[0],
+        complex(r[17], r[16]),
+        complex(r[1], r[3]),
+        complex(r[4], r[5]),
+        complex(r[6], r[7]),
+        complex(r[8], r[9]),
+        complex(r[10], r[11]),
+        complex(r[12], r[13]),
+        complex(r[14], r[15]),
+    )
 
 
 @_jit

@@ -4,6 +4,7 @@ Every public function checks its arguments with these helpers so that bad input
 (NaN, inf, a limit <= 0, a non-numeric value) raises a ``ValueError`` that names
 the parameter, instead of propagating a silent NaN.
 """
+
 from __future__ import annotations
 
 import math
@@ -65,7 +66,11 @@ def as_finite_array(name: str, value, ndim: int | None = None) -> np.ndarray:
         a = np.asarray(value, dtype=float)
     except (TypeError, ValueError, OverflowError) as exc:
         raise ValueError(f"{name} must be numeric: {exc}") from None
-    if isinstance(value, (list, tuple)) and a.size and any(isinstance(v, (str, bytes)) for v in value):
+    if (
+        isinstance(value, (list, tuple))
+        and a.size
+        and any(isinstance(v, (str, bytes)) for v in value)
+    ):
         raise ValueError(f"{name} must be numeric, got text in {value!r:.60}")
     if isinstance(value, np.ndarray) and value.dtype.kind in "USO" and value.dtype.kind != "O":
         raise ValueError(f"{name} must be numeric, got an array of {value.dtype}")

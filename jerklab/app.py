@@ -20,6 +20,7 @@ through ``JERKLAB_RIG_PORT=broker://127.0.0.1:PORT`` and their panels say "queue
 of you" while they wait. Kernels of pages left idle are shut down (culled) after
 ``--cull-idle`` seconds.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -29,8 +30,16 @@ import sys
 
 from jerklab.resources import share_path
 
-__all__ = ["APP_NOTEBOOK", "RIG_ENV", "CULL_IDLE_S", "CULL_INTERVAL_S", "panel_for_page",
-           "voila_argv", "start_broker", "main"]
+__all__ = [
+    "APP_NOTEBOOK",
+    "RIG_ENV",
+    "CULL_IDLE_S",
+    "CULL_INTERVAL_S",
+    "panel_for_page",
+    "voila_argv",
+    "start_broker",
+    "main",
+]
 
 #: The page Voilà renders (the clone's app/, or its copy in an installed wheel: jerklab.resources).
 APP_NOTEBOOK = share_path("app") / "tuning.ipynb"
@@ -86,14 +95,23 @@ def panel_for_page(rig_port=None, recordings=None):
         notice = widgets.HTML(
             '<div class="jerklab-rig-missing" style="color:#b71c1c;font-weight:bold">'
             f"No rig behind this page ({html.escape(f'{type(exc).__name__}: {exc}')}); "
-            "tuning and simulation only.</div>")
+            "tuning and simulation only.</div>"
+        )
         return widgets.VBox([notice, pole_placement_panel(**page)])
     return pole_placement_panel(rig=rig, **page)
 
 
-def voila_argv(port=8866, ip="127.0.0.1", open_browser=False, notebook=APP_NOTEBOOK, pool=1,
-               extra=(), cull_idle=CULL_IDLE_S, cull_interval=CULL_INTERVAL_S,
-               cull_connected=False):
+def voila_argv(
+    port=8866,
+    ip="127.0.0.1",
+    open_browser=False,
+    notebook=APP_NOTEBOOK,
+    pool=1,
+    extra=(),
+    cull_idle=CULL_IDLE_S,
+    cull_interval=CULL_INTERVAL_S,
+    cull_connected=False,
+):
     """Command-line arguments for Voilà serving ``notebook``.
 
     ``pool`` kernels are kept pre-executed (Voilà's preheat), so a visitor's page shows the
@@ -116,16 +134,23 @@ def voila_argv(port=8866, ip="127.0.0.1", open_browser=False, notebook=APP_NOTEB
     notebook = pathlib.Path(notebook)
     if not notebook.is_file():
         raise ValueError(f"notebook: {notebook} not found (run from a jerklab source checkout)")
-    argv = [str(notebook), f"--port={port}", f"--Voila.ip={ip}", "--theme=light",
-            "--show_tracebacks=True"]
+    argv = [
+        str(notebook),
+        f"--port={port}",
+        f"--Voila.ip={ip}",
+        "--theme=light",
+        "--show_tracebacks=True",
+    ]
     if not open_browser:
         argv.append("--no-browser")
     if pool:
         argv += ["--preheat_kernel=True", f"--pool_size={pool}"]
     if cull_idle:
-        argv += [f"--MappingKernelManager.cull_idle_timeout={cull_idle}",
-                 f"--MappingKernelManager.cull_interval={cull_interval}",
-                 f"--MappingKernelManager.cull_connected={bool(cull_connected)}"]
+        argv += [
+            f"--MappingKernelManager.cull_idle_timeout={cull_idle}",
+            f"--MappingKernelManager.cull_interval={cull_interval}",
+            f"--MappingKernelManager.cull_connected={bool(cull_connected)}",
+        ]
     return argv + list(extra)
 
 
@@ -136,47 +161,89 @@ def start_broker(rig, speed=1.0):
     """
     import subprocess
 
-    proc = subprocess.Popen([sys.executable, "-m", "jerklab.broker", f"--rig={rig}",
-                             f"--speed={speed}"], stdout=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "jerklab.broker", f"--rig={rig}", f"--speed={speed}"],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     line = proc.stdout.readline().strip()
     if not line.startswith("broker://"):
         proc.wait(10)
-        raise RuntimeError(f"the rig broker for {rig!r} did not start (exit code {proc.returncode}); "
-                           "see its message above")
+        raise RuntimeError(
+            f"the rig broker for {rig!r} did not start (exit code {proc.returncode}); "
+            "see its message above"
+        )
     return proc, line
 
 
 def main(argv=None):
     """``python -m jerklab.app``: serve the tuning page with Voilà (blocks until Ctrl-C)."""
-    ap = argparse.ArgumentParser(prog="python -m jerklab.app",
-                                 description="Serve the jerklab pole-placement tuning page (Voilà).")
+    ap = argparse.ArgumentParser(
+        prog="python -m jerklab.app",
+        description="Serve the jerklab pole-placement tuning page (Voilà).",
+    )
     ap.add_argument("--port", type=int, default=8866, help="TCP port (default 8866)")
     ap.add_argument("--ip", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
-    ap.add_argument("--public", action="store_true",
-                    help="listen on every interface (same as --ip 0.0.0.0), for a classroom")
-    ap.add_argument("--rig", default=None,
-                    help="rig behind the page: omit for the virtual rig, 'simavr', or a serial "
-                         "device / pyserial URL")
-    ap.add_argument("--pool", type=int, default=1,
-                    help="kernels kept pre-executed for the next visitors (default 1, 0: off)")
-    ap.add_argument("--rig-speed", type=float, default=1.0,
-                    help="--rig virtual only: the shared virtual rig's pace, times real time "
-                         "(default 1.0, like a board)")
-    ap.add_argument("--no-queue", action="store_true",
-                    help="with --rig: let every kernel open the rig itself (one student at a time!)")
-    ap.add_argument("--cull-idle", type=int, default=CULL_IDLE_S,
-                    help=f"shut down a page's kernel after this many idle seconds (default "
-                         f"{CULL_IDLE_S}, 0: never)")
-    ap.add_argument("--cull-interval", type=int, default=CULL_INTERVAL_S,
-                    help=f"seconds between idle checks (default {CULL_INTERVAL_S})")
-    ap.add_argument("--cull-connected", action="store_true",
-                    help="also cull idle kernels whose page is still open")
+    ap.add_argument(
+        "--public",
+        action="store_true",
+        help="listen on every interface (same as --ip 0.0.0.0), for a classroom",
+    )
+    ap.add_argument(
+        "--rig",
+        default=None,
+        help="rig behind the page: omit for the virtual rig, 'simavr', or a serial "
+        "device / pyserial URL",
+    )
+    ap.add_argument(
+        "--pool",
+        type=int,
+        default=1,
+        help="kernels kept pre-executed for the next visitors (default 1, 0: off)",
+    )
+    ap.add_argument(
+        "--rig-speed",
+        type=float,
+        default=1.0,
+        help="--rig virtual only: the shared virtual rig's pace, times real time "
+        "(default 1.0, like a board)",
+    )
+    ap.add_argument(
+        "--no-queue",
+        action="store_true",
+        help="with --rig: let every kernel open the rig itself (one student at a time!)",
+    )
+    ap.add_argument(
+        "--cull-idle",
+        type=int,
+        default=CULL_IDLE_S,
+        help=f"shut down a page's kernel after this many idle seconds (default "
+        f"{CULL_IDLE_S}, 0: never)",
+    )
+    ap.add_argument(
+        "--cull-interval",
+        type=int,
+        default=CULL_INTERVAL_S,
+        help=f"seconds between idle checks (default {CULL_INTERVAL_S})",
+    )
+    ap.add_argument(
+        "--cull-connected",
+        action="store_true",
+        help="also cull idle kernels whose page is still open",
+    )
     ap.add_argument("--browser", action="store_true", help="open a web browser")
     args, extra = ap.parse_known_args(argv)
     ip = "0.0.0.0" if args.public else args.ip
-    vargs = voila_argv(args.port, ip, args.browser, pool=args.pool, extra=extra,
-                       cull_idle=args.cull_idle, cull_interval=args.cull_interval,
-                       cull_connected=args.cull_connected)
+    vargs = voila_argv(
+        args.port,
+        ip,
+        args.browser,
+        pool=args.pool,
+        extra=extra,
+        cull_idle=args.cull_idle,
+        cull_interval=args.cull_interval,
+        cull_connected=args.cull_connected,
+    )
     broker = None
     if args.rig is not None and not args.no_queue:
         broker, address = start_broker(args.rig, speed=args.rig_speed)
@@ -185,10 +252,12 @@ def main(argv=None):
         os.environ[RIG_ENV] = args.rig
     from voila.app import main as voila_main
 
-    print(f"jerklab: serving the tuning page on http://{ip}:{args.port}/ "
-          f"(rig: {args.rig or 'virtual, one per kernel'}"
-          f"{', runs queued by ' + os.environ[RIG_ENV] if broker else ''}); Ctrl-C stops it",
-          flush=True)
+    print(
+        f"jerklab: serving the tuning page on http://{ip}:{args.port}/ "
+        f"(rig: {args.rig or 'virtual, one per kernel'}"
+        f"{', runs queued by ' + os.environ[RIG_ENV] if broker else ''}); Ctrl-C stops it",
+        flush=True,
+    )
     try:
         return voila_main(argv=vargs)
     finally:

@@ -26,6 +26,7 @@ still finishes on the rig (a move cannot be abandoned half-way), and its result 
 The broker refuses a design whose sampled loop has |z| ≥ 1 unless ``force`` is set
 (:func:`jerklab.tuning.check_runnable`), so no kernel can run away a motor.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -48,7 +49,7 @@ SCHEME = "broker://"
 #: ``4 × HEARTBEAT`` gives up).
 HEARTBEAT = 1.0
 
-_MAX_REQUEST = 1 << 16          # bytes of one request line
+_MAX_REQUEST = 1 << 16  # bytes of one request line
 
 
 class BrokerError(RuntimeError):
@@ -59,7 +60,7 @@ def parse_address(address):
     """``"broker://host:port"`` -> ``(host, port)``; ValueError naming ``address`` otherwise."""
     if not isinstance(address, str) or not address.startswith(SCHEME):
         raise ValueError(f"address must look like 'broker://host:port', got {address!r}")
-    host, sep, port = address[len(SCHEME):].rpartition(":")
+    host, sep, port = address[len(SCHEME) :].rpartition(":")
     if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
         raise ValueError(f"address must look like 'broker://host:port', got {address!r}")
     return host, int(port)
@@ -75,9 +76,9 @@ class _Ticket:
     def __init__(self, conn, request):
         self.conn = conn
         self.request = request
-        self.lock = threading.Lock()       # one writer at a time on conn
+        self.lock = threading.Lock()  # one writer at a time on conn
         self.done = threading.Event()
-        self.gone = False                  # the client disconnected
+        self.gone = False  # the client disconnected
         self.reply = None
 
     def tell(self, obj):
@@ -112,7 +113,7 @@ class RigBroker:
         if rig_port in (None, "", "virtual"):
             kwargs.setdefault("speed", speed)
         self.rig = connect(rig_port, progress=False, **kwargs)
-        self._queue = []                   # tickets waiting, in arrival order
+        self._queue = []  # tickets waiting, in arrival order
         self._running = None
         self._cond = threading.Condition()
         self._stop = threading.Event()
@@ -121,11 +122,11 @@ class RigBroker:
         h, p = self._listener.getsockname()[:2]
         self.address = f"{SCHEME}{h}:{p}"
         self.runs_done = 0
-        self.order = []                    # client labels in the order their runs started
-        self._threads = [threading.Thread(target=self._accept_loop, daemon=True,
-                                          name="jerklab-broker-accept"),
-                         threading.Thread(target=self._worker, daemon=True,
-                                          name="jerklab-broker-worker")]
+        self.order = []  # client labels in the order their runs started
+        self._threads = [
+            threading.Thread(target=self._accept_loop, daemon=True, name="jerklab-broker-accept"),
+            threading.Thread(target=self._worker, daemon=True, name="jerklab-broker-worker"),
+        ]
         for t in self._threads:
             t.start()
 
@@ -160,8 +161,9 @@ class RigBroker:
                 continue
             except OSError:
                 return
-            threading.Thread(target=self._serve, args=(conn,), daemon=True,
-                             name="jerklab-broker-client").start()
+            threading.Thread(
+                target=self._serve, args=(conn,), daemon=True, name="jerklab-broker-client"
+            ).start()
 
     def _read_request(self, conn):
         conn.settimeout(10.0)
@@ -188,14 +190,24 @@ class RigBroker:
             op = req.get("op")
             if op == "info":
                 r = self.rig
-                _send(conn, lock, {"ok": True, "info": r.device_info(),
-                                   "supply_voltage": r.supply_voltage,
-                                   "counts_per_rev": r.counts_per_rev,
-                                   "queued": self.queue_length()})
+                _send(
+                    conn,
+                    lock,
+                    {
+                        "ok": True,
+                        "info": r.device_info(),
+                        "supply_voltage": r.supply_voltage,
+                        "counts_per_rev": r.counts_per_rev,
+                        "queued": self.queue_length(),
+                    },
+                )
                 return
             if op != "run_move":
-                _send(conn, lock, {"error": f"op must be 'info' or 'run_move', got {op!r}",
-                                   "type": "ValueError"})
+                _send(
+                    conn,
+                    lock,
+                    {"error": f"op must be 'info' or 'run_move', got {op!r}", "type": "ValueError"},
+                )
                 return
             self._queue_and_wait(conn, req)
         except OSError:
@@ -267,7 +279,7 @@ class RigBroker:
             self.order.append(str(ticket.request.get("client", "?")))
             try:
                 ticket.reply = self._run(ticket.request)
-            except Exception as exc:            # every failure goes back to its client
+            except Exception as exc:  # every failure goes back to its client
                 ticket.reply = {"error": f"{type(exc).__name__}: {exc}", "type": type(exc).__name__}
             finally:
                 self.runs_done += 1
@@ -282,8 +294,11 @@ class RigBroker:
 
         p = req.get("profile") or {}
         kind = p.get("kind")
-        plan = {"sine_jerk": planner.plan_sine_jerk, "sine_jerk_optimal": planner.plan_sine_jerk_optimal,
-                "scurve": planner.plan_scurve}.get(kind)
+        plan = {
+            "sine_jerk": planner.plan_sine_jerk,
+            "sine_jerk_optimal": planner.plan_sine_jerk_optimal,
+            "scurve": planner.plan_scurve,
+        }.get(kind)
         if kind == "trapezoid":
             profile = planner.plan_trapezoid(p["distance"], p["max_accel"], p["max_velocity"])
         elif plan is None:
@@ -291,8 +306,14 @@ class RigBroker:
         else:
             profile = plan(p["distance"], p["max_jerk"], p["max_accel"], p["max_velocity"])
         g = req.get("gains") or {}
-        gains = DiscreteGains(g["kpd"], g["kid"], g["kdd"], g["Ts"], gamma=g.get("gamma", 0.0),
-                              loop=g.get("loop", "position"))
+        gains = DiscreteGains(
+            g["kpd"],
+            g["kid"],
+            g["kdd"],
+            g["Ts"],
+            gamma=g.get("gamma", 0.0),
+            loop=g.get("loop", "position"),
+        )
         ff = req.get("feedforward", True)
         if isinstance(ff, dict):
             ff = Feedforward(ff["K"], ff["tau"])
@@ -300,12 +321,22 @@ class RigBroker:
         else:
             K, tau = self.rig.model
         tuning.check_runnable(K, tau, gains, force=bool(req.get("force", False)))
-        rec = self.rig.run_move(profile, gains, Ts=req.get("Ts", gains.Ts), feedforward=ff,
-                                settle=req.get("settle", 0.25), path=False, progress=False)
+        rec = self.rig.run_move(
+            profile,
+            gains,
+            Ts=req.get("Ts", gains.Ts),
+            feedforward=ff,
+            settle=req.get("settle", 0.25),
+            path=False,
+            progress=False,
+        )
         with tempfile.TemporaryDirectory(prefix="jerklab-broker-") as tmp:
             csv_path = Path(rec.save(Path(tmp) / "run"))
-            return {"done": True, "csv": csv_path.read_text(encoding="ascii"),
-                    "json": csv_path.with_suffix(".json").read_text(encoding="utf-8")}
+            return {
+                "done": True,
+                "csv": csv_path.read_text(encoding="ascii"),
+                "json": csv_path.with_suffix(".json").read_text(encoding="utf-8"),
+            }
 
 
 class BrokerRig:
@@ -349,8 +380,10 @@ class BrokerRig:
         try:
             return socket.create_connection((self.host, self.port), timeout=self.timeout)
         except OSError as exc:
-            raise BrokerError(f"cannot reach the rig broker at {self.address}: {exc} "
-                              "(is `python -m jerklab.app --rig ...` still running?)") from exc
+            raise BrokerError(
+                f"cannot reach the rig broker at {self.address}: {exc} "
+                "(is `python -m jerklab.app --rig ...` still running?)"
+            ) from exc
 
     def _lines(self, sock):
         buf = b""
@@ -359,8 +392,9 @@ class BrokerRig:
                 try:
                     chunk = sock.recv(1 << 16)
                 except socket.timeout:
-                    raise BrokerError(f"the rig broker at {self.address} fell silent for "
-                                      f"{self.timeout:g} s") from None
+                    raise BrokerError(
+                        f"the rig broker at {self.address} fell silent for {self.timeout:g} s"
+                    ) from None
                 if not chunk:
                     raise BrokerError(f"the rig broker at {self.address} closed the connection")
                 buf += chunk
@@ -375,8 +409,19 @@ class BrokerRig:
             raise BrokerError(f"rig broker: {msg['error']}")
         return msg
 
-    def run_move(self, profile, gains, Ts=None, *, feedforward=True, settle=0.25, path=None,
-                 progress=None, on_status=None, force=False):
+    def run_move(
+        self,
+        profile,
+        gains,
+        Ts=None,
+        *,
+        feedforward=True,
+        settle=0.25,
+        path=None,
+        progress=None,
+        on_status=None,
+        force=False,
+    ):
         """Queue the move on the shared rig, wait for its turn, return the Recording.
 
         ``path``: None writes to the recordings folder, False keeps it in memory, else that
@@ -389,17 +434,37 @@ class BrokerRig:
             raise TypeError(f"gains must be DiscreteGains, got {type(gains).__name__}")
         kind = getattr(profile, "kind", None)
         if kind is None:
-            raise ValueError(f"profile must be a jerklab.planner Profile, got {type(profile).__name__}")
-        ff = ({"K": feedforward.K, "tau": feedforward.tau} if isinstance(feedforward, Feedforward)
-              else bool(feedforward))
-        req = {"op": "run_move", "client": self.client,
-               "profile": {"kind": kind, "distance": profile.distance,
-                           "max_jerk": profile.max_jerk, "max_accel": profile.max_accel,
-                           "max_velocity": profile.max_velocity},
-               "gains": {"kpd": gains.kpd, "kid": gains.kid, "kdd": gains.kdd, "Ts": gains.Ts,
-                         "gamma": gains.gamma, "loop": gains.loop},
-               "Ts": gains.Ts if Ts is None else float(Ts), "feedforward": ff,
-               "settle": float(settle), "force": bool(force)}
+            raise ValueError(
+                f"profile must be a jerklab.planner Profile, got {type(profile).__name__}"
+            )
+        ff = (
+            {"K": feedforward.K, "tau": feedforward.tau}
+            if isinstance(feedforward, Feedforward)
+            else bool(feedforward)
+        )
+        req = {
+            "op": "run_move",
+            "client": self.client,
+            "profile": {
+                "kind": kind,
+                "distance": profile.distance,
+                "max_jerk": profile.max_jerk,
+                "max_accel": profile.max_accel,
+                "max_velocity": profile.max_velocity,
+            },
+            "gains": {
+                "kpd": gains.kpd,
+                "kid": gains.kid,
+                "kdd": gains.kdd,
+                "Ts": gains.Ts,
+                "gamma": gains.gamma,
+                "loop": gains.loop,
+            },
+            "Ts": gains.Ts if Ts is None else float(Ts),
+            "feedforward": ff,
+            "settle": float(settle),
+            "force": bool(force),
+        }
         say = on_status or (lambda msg: None)
         with self._connect() as s:
             s.sendall((json.dumps(req) + "\n").encode("utf-8"))
@@ -443,25 +508,33 @@ def main(argv=None):
     """``python -m jerklab.broker``: own a rig, print ``broker://host:port``, serve until stopped."""
     import signal
 
-    ap = argparse.ArgumentParser(prog="python -m jerklab.broker", description=__doc__.split("\n")[0])
-    ap.add_argument("--rig", default="virtual", help="what jerklab.rig.connect opens (default: virtual)")
+    ap = argparse.ArgumentParser(
+        prog="python -m jerklab.broker", description=__doc__.split("\n")[0]
+    )
+    ap.add_argument(
+        "--rig", default="virtual", help="what jerklab.rig.connect opens (default: virtual)"
+    )
     ap.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
     ap.add_argument("--port", type=int, default=0, help="TCP port (default 0: any free port)")
-    ap.add_argument("--speed", type=float, default=1.0,
-                    help="virtual rig only: times real time (default 1.0)")
+    ap.add_argument(
+        "--speed", type=float, default=1.0, help="virtual rig only: times real time (default 1.0)"
+    )
     args = ap.parse_args(argv)
     if args.speed <= 0:
         ap.error(f"--speed must be > 0, got {args.speed}")
     rig_port = None if args.rig in ("", "virtual") else args.rig
     broker = RigBroker(rig_port, args.host, args.port, speed=args.speed)
     print(broker.address, flush=True)
-    print(f"jerklab rig broker: {broker.rig!r} on {broker.address}; Ctrl-C to stop",
-          file=sys.stderr, flush=True)
+    print(
+        f"jerklab rig broker: {broker.rig!r} on {broker.address}; Ctrl-C to stop",
+        file=sys.stderr,
+        flush=True,
+    )
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *a: done.set())
     try:
         while not done.wait(0.5):
-            if os.getppid() == 1:            # the app that started us is gone
+            if os.getppid() == 1:  # the app that started us is gone
                 break
     except KeyboardInterrupt:
         pass

@@ -1,13 +1,14 @@
 """The ``jerklab`` command (installed by pip on every OS; ``python -m jerklab`` is the same).
 
-    jerklab lab [FOLDER]         copy the notebooks, worksheets and data into your working folder
-                                 (first use; your edits are never overwritten), open JupyterLab there
-    jerklab app [...]            the class page (the tuning panel served by Voilà): python -m jerklab.app
-    jerklab rig ports            which serial port is the Uno?
-    jerklab rig check PORT       bring-up check of a rig before closing the loop
-    jerklab rig serve [--tcp N]  the virtual rig on a pseudo-terminal (Linux, macOS) or a TCP port
-    jerklab --version
+jerklab lab [FOLDER]         copy the notebooks, worksheets and data into your working folder
+                             (first use; your edits are never overwritten), open JupyterLab there
+jerklab app [...]            the class page (the tuning panel served by Voilà): python -m jerklab.app
+jerklab rig ports            which serial port is the Uno?
+jerklab rig check PORT       bring-up check of a rig before closing the loop
+jerklab rig serve [--tcp N]  the virtual rig on a pseudo-terminal (Linux, macOS) or a TCP port
+jerklab --version
 """
+
 from __future__ import annotations
 
 import argparse
@@ -31,18 +32,31 @@ def lab(argv=None) -> int:
     """``jerklab lab``: fill the working folder (missing files only) and open JupyterLab there."""
     from jerklab.resources import copy_missing, default_work_dir
 
-    ap = argparse.ArgumentParser(prog="jerklab lab", description=lab.__doc__.split(":", 1)[1].strip())
-    ap.add_argument("folder", nargs="?", default=None,
-                    help="working folder (default $JERKLAB_HOME or ~/jerklab)")
-    ap.add_argument("--no-copy", action="store_true",
-                    help="open FOLDER as it is, copy nothing (developers: make lab opens notebooks/)")
-    ap.add_argument("--copy-only", action="store_true", help="copy the files, do not start JupyterLab")
+    ap = argparse.ArgumentParser(
+        prog="jerklab lab", description=lab.__doc__.split(":", 1)[1].strip()
+    )
+    ap.add_argument(
+        "folder",
+        nargs="?",
+        default=None,
+        help="working folder (default $JERKLAB_HOME or ~/jerklab)",
+    )
+    ap.add_argument(
+        "--no-copy",
+        action="store_true",
+        help="open FOLDER as it is, copy nothing (developers: make lab opens notebooks/)",
+    )
+    ap.add_argument(
+        "--copy-only", action="store_true", help="copy the files, do not start JupyterLab"
+    )
     ap.add_argument("--no-browser", action="store_true", help="do not open a web browser")
-    ap.add_argument("--port", type=int, default=None, help="JupyterLab's port (default 8888 or the next free)")
+    ap.add_argument(
+        "--port", type=int, default=None, help="JupyterLab's port (default 8888 or the next free)"
+    )
     ap.epilog = "Other JupyterLab options after --, e.g. jerklab lab -- --ServerApp.ip=0.0.0.0"
     argv = list(sys.argv[1:] if argv is None else argv)
     cut = argv.index("--") if "--" in argv else len(argv)
-    args, extra = ap.parse_args(argv[:cut]), argv[cut + 1:]
+    args, extra = ap.parse_args(argv[:cut]), argv[cut + 1 :]
     work = Path(args.folder).expanduser() if args.folder else default_work_dir()
     if not args.no_copy:
         copied, kept = copy_missing(work)
@@ -62,7 +76,7 @@ def lab(argv=None) -> int:
         cmd.append("--no-browser")
     if args.port is not None:
         cmd.append(f"--port={args.port}")
-    if getattr(os, "geteuid", lambda: 1)() == 0:       # root in a container (POSIX only)
+    if getattr(os, "geteuid", lambda: 1)() == 0:  # root in a container (POSIX only)
         cmd.append("--allow-root")
     cmd += extra
     if args.copy_only:
@@ -77,7 +91,7 @@ def lab(argv=None) -> int:
     while True:
         try:
             return proc.wait()
-        except KeyboardInterrupt:     # JupyterLab has the same Ctrl-C and asks before it stops
+        except KeyboardInterrupt:  # JupyterLab has the same Ctrl-C and asks before it stops
             continue
 
 
@@ -114,15 +128,18 @@ _COMMANDS = {"lab": lab, "app": app, "rig": rig}
 def main(argv=None) -> int:
     """Entry point of the ``jerklab`` console script."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    ap = argparse.ArgumentParser(prog="jerklab", description=__doc__.split("\n")[0],
-                                 epilog="\n".join(__doc__.split("\n")[2:]),
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="jerklab",
+        description=__doc__.split("\n")[0],
+        epilog="\n".join(__doc__.split("\n")[2:]),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     ap.add_argument("--version", action="version", version=f"jerklab {_version()}")
     ap.add_argument("command", choices=sorted(_COMMANDS), help="what to do")
     ap.add_argument("args", nargs=argparse.REMAINDER, help="the command's own arguments")
     if argv and argv[0] in _COMMANDS:
         return _COMMANDS[argv[0]](argv[1:])
-    args = ap.parse_args(argv)           # --version, --help, or an error naming the choices
+    args = ap.parse_args(argv)  # --version, --help, or an error naming the choices
     return _COMMANDS[args.command](args.args)
 
 

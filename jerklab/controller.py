@@ -24,6 +24,7 @@ ASCII spelling for grep: Stojcic (Stojcic eq. 11, Stojcic eq. 13, Stojcic eq. 16
 SI units inside. The paper's velocity loop measures the error in encoder pulses per Ts;
 that is the ``error_scale`` of the controller (:func:`paper_error_scale`).
 """
+
 from __future__ import annotations
 
 import math
@@ -37,13 +38,25 @@ from jerklab import law, paper
 from jerklab._lazy import lazy_module
 from jerklab._validate import as_int, as_nonnegative, as_positive, as_real
 
-ct = lazy_module("control")   # python-control imports matplotlib: import it on first use
+ct = lazy_module("control")  # python-control imports matplotlib: import it on first use
 
-__all__ = ["Gains", "DiscreteGains", "pole_placement_pid", "velocity_pole_placement_pid",
-           "discrete_pole_placement_pid", "paper_error_scale", "paper_velocity_controller", "Feedforward",
-           "DigitalController",
-           "PositionLoop", "VelocityLoop", "desired_poles", "closed_loop_poles", "max_pole_radius",
-           "is_stable"]
+__all__ = [
+    "Gains",
+    "DiscreteGains",
+    "pole_placement_pid",
+    "velocity_pole_placement_pid",
+    "discrete_pole_placement_pid",
+    "paper_error_scale",
+    "paper_velocity_controller",
+    "Feedforward",
+    "DigitalController",
+    "PositionLoop",
+    "VelocityLoop",
+    "desired_poles",
+    "closed_loop_poles",
+    "max_pole_radius",
+    "is_stable",
+]
 
 
 # ---------------------------------------------------------------------------
@@ -71,7 +84,9 @@ class DiscreteGains:
             object.__setattr__(self, name, as_real(name, getattr(self, name)))
         object.__setattr__(self, "Ts", as_positive("Ts", self.Ts))
         if not abs(self.gamma) < 1.0:
-            raise ValueError(f"gamma (derivative filter pole) must satisfy |gamma| < 1, got {self.gamma}")
+            raise ValueError(
+                f"gamma (derivative filter pole) must satisfy |gamma| < 1, got {self.gamma}"
+            )
         if self.loop not in ("position", "velocity"):
             raise ValueError(f"loop must be 'position' or 'velocity', got {self.loop!r}")
 
@@ -83,8 +98,11 @@ class DiscreteGains:
     def _polys(self):
         # B(z) = [kpd (z-1)(z-g) + kid z (z-g) + kdd (z-1)^2] / ((z-1)(z-g))
         g = self.gamma
-        num = (self.kpd * np.array([1.0, -1.0 - g, g]) + self.kid * np.array([1.0, -g, 0.0])
-               + self.kdd * np.array([1.0, -2.0, 1.0]))
+        num = (
+            self.kpd * np.array([1.0, -1.0 - g, g])
+            + self.kid * np.array([1.0, -g, 0.0])
+            + self.kdd * np.array([1.0, -2.0, 1.0])
+        )
         den = np.array([1.0, -1.0 - g, g])
         return num, den
 
@@ -127,8 +145,14 @@ class Gains:
         ``kp − ki Ts/2``, ``ki Ts``, ``kd/Ts`` (the same algebra, safe for ki = 0 or kp = 0).
         """
         Ts = as_positive("Ts", Ts)
-        return DiscreteGains(self.kp - self.ki * Ts / 2.0, self.ki * Ts, self.kd / Ts, Ts,
-                             loop=self.loop, design=dict(self.design, method="eq13", Ts=Ts))
+        return DiscreteGains(
+            self.kp - self.ki * Ts / 2.0,
+            self.ki * Ts,
+            self.kd / Ts,
+            Ts,
+            loop=self.loop,
+            design=dict(self.design, method="eq13", Ts=Ts),
+        )
 
     def tf_polys(self):
         """Numerator and denominator of ``B(s) = (kd s² + kp s + ki)/s``."""
@@ -136,8 +160,12 @@ class Gains:
 
 
 def _check_design(K, tau, wn, zeta):
-    return (as_positive("K", K), as_positive("tau", tau), as_positive("wn", wn),
-            as_positive("zeta", zeta))
+    return (
+        as_positive("K", K),
+        as_positive("tau", tau),
+        as_positive("wn", wn),
+        as_positive("zeta", zeta),
+    )
 
 
 def desired_poles(wn, zeta=1.0, sigma=None):
@@ -175,10 +203,17 @@ def pole_placement_pid(K, tau, wn, zeta=1.0, sigma=None) -> Gains:
     ki = tau * sigma * wn * wn / K
     kd = (tau * (2.0 * zeta * wn + sigma) - 1.0) / K
     if not (math.isfinite(kp) and math.isfinite(ki) and math.isfinite(kd)):
-        raise ValueError(f"wn={wn}, sigma={sigma} (K={K}, tau={tau}) give gains that overflow "
-                         f"(kp={kp}, ki={ki}, kd={kd}); choose a smaller wn")
-    return Gains(kp, ki, kd, loop="position",
-                 design=dict(method="eq11", K=K, tau=tau, wn=wn, zeta=zeta, sigma=sigma))
+        raise ValueError(
+            f"wn={wn}, sigma={sigma} (K={K}, tau={tau}) give gains that overflow "
+            f"(kp={kp}, ki={ki}, kd={kd}); choose a smaller wn"
+        )
+    return Gains(
+        kp,
+        ki,
+        kd,
+        loop="position",
+        design=dict(method="eq11", K=K, tau=tau, wn=wn, zeta=zeta, sigma=sigma),
+    )
 
 
 def velocity_pole_placement_pid(K, tau, wn, zeta=1.0, kd=0.0) -> Gains:
@@ -198,10 +233,13 @@ def velocity_pole_placement_pid(K, tau, wn, zeta=1.0, kd=0.0) -> Gains:
     kp = (2.0 * zeta * wn * lead - 1.0) / K
     ki = lead * wn * wn / K
     if not (math.isfinite(kp) and math.isfinite(ki)):
-        raise ValueError(f"wn={wn} (K={K}, tau={tau}, kd={kd}) gives gains that overflow "
-                         f"(kp={kp}, ki={ki}); choose a smaller wn")
-    return Gains(kp, ki, kd, loop="velocity",
-                 design=dict(method="velocity", K=K, tau=tau, wn=wn, zeta=zeta))
+        raise ValueError(
+            f"wn={wn} (K={K}, tau={tau}, kd={kd}) gives gains that overflow "
+            f"(kp={kp}, ki={ki}); choose a smaller wn"
+        )
+    return Gains(
+        kp, ki, kd, loop="velocity", design=dict(method="velocity", K=K, tau=tau, wn=wn, zeta=zeta)
+    )
 
 
 def _zoh_position(K, tau, Ts):
@@ -224,8 +262,9 @@ def _plant_polys(K, tau, Ts, loop):
     return num / Ts, np.array([1.0, -a, 0.0])
 
 
-def discrete_pole_placement_pid(K, tau, wn, zeta=paper.ZETA, sigma=None, Ts=paper.TS, loop="position",
-                                extra_pole=None) -> DiscreteGains:
+def discrete_pole_placement_pid(
+    K, tau, wn, zeta=paper.ZETA, sigma=None, Ts=paper.TS, loop="position", extra_pole=None
+) -> DiscreteGains:
     """Pole placement directly in z on the exact ZOH plant.
 
     The desired s-poles ``−σ`` and the roots of ``s² + 2ζωn s + ωn²`` are mapped by
@@ -248,9 +287,9 @@ def discrete_pole_placement_pid(K, tau, wn, zeta=paper.ZETA, sigma=None, Ts=pape
     if loop not in ("position", "velocity"):
         raise ValueError(f"loop must be 'position' or 'velocity', got {loop!r}")
     zp = np.exp(desired_poles(wn, zeta, sigma) * Ts)
-    d3 = np.real(np.poly(zp))                       # monic cubic
-    B, A = _plant_polys(K, tau, Ts, loop)           # plant num (deg 1), den (deg 2)
-    Q = np.polymul(A, [1.0, -1.0])                  # plant den × integrator (deg 3)
+    d3 = np.real(np.poly(zp))  # monic cubic
+    B, A = _plant_polys(K, tau, Ts, loop)  # plant num (deg 1), den (deg 2)
+    Q = np.polymul(A, [1.0, -1.0])  # plant den × integrator (deg 3)
     # unknowns x = (n0, n1, n2, c): controller numerator n(z) and either
     #   (gamma fixed 0)  A(z)(z-1) z + B(z) n(z) = d3(z) (z - c)       [c = fourth pole]
     #   (extra pole z4)  A(z)(z-1)(z - c) + B(z) n(z) = d3(z) (z - z4)  [c = gamma]
@@ -269,29 +308,51 @@ def discrete_pole_placement_pid(K, tau, wn, zeta=paper.ZETA, sigma=None, Ts=pape
         M[:, 3] = -np.r_[0.0, Q]
         rhs = np.polymul(d3, [1.0, -z4]) - np.r_[Q, 0.0]
     if not (np.all(np.isfinite(M)) and np.all(np.isfinite(rhs))):
-        raise ValueError(f"wn={wn}, sigma={sigma}, Ts={Ts}: the sampled design overflows (poles e^(s Ts) "
-                         "not representable); choose a smaller wn or Ts")
+        raise ValueError(
+            f"wn={wn}, sigma={sigma}, Ts={Ts}: the sampled design overflows (poles e^(s Ts) "
+            "not representable); choose a smaller wn or Ts"
+        )
     try:
         x = np.linalg.solve(M[1:], rhs[1:])
     except np.linalg.LinAlgError:
-        raise ValueError(f"wn={wn}, sigma={sigma}, Ts={Ts} (K={K}, tau={tau}): the pole-placement equations "
-                         "are singular "
-                         "(poles e^(s Ts) coincide with the plant's); choose another wn or Ts") from None
+        raise ValueError(
+            f"wn={wn}, sigma={sigma}, Ts={Ts} (K={K}, tau={tau}): the pole-placement equations "
+            "are singular "
+            "(poles e^(s Ts) coincide with the plant's); choose another wn or Ts"
+        ) from None
     n = x[:3]
     if extra_pole is None:
         gamma, fourth = 0.0, float(x[3])
     else:
         gamma, fourth = float(x[3]), float(extra_pole)
         if not abs(gamma) < 1.0:
-            raise ValueError(f"extra_pole={extra_pole}: placing all four poles needs a derivative filter "
-                             f"pole gamma = {gamma:.4g} outside the unit circle (an unstable controller); "
-                             "choose another extra_pole or extra_pole=None")
+            raise ValueError(
+                f"extra_pole={extra_pole}: placing all four poles needs a derivative filter "
+                f"pole gamma = {gamma:.4g} outside the unit circle (an unstable controller); "
+                "choose another extra_pole or extra_pole=None"
+            )
     # decompose n(z) = kpd (z-1)(z-g) + kid z (z-g) + kdd (z-1)^2
     T = np.array([[1.0, 1.0, 1.0], [-(1.0 + gamma), -gamma, -2.0], [gamma, 0.0, 1.0]])
     kpd, kid, kdd = np.linalg.solve(T, n)
-    return DiscreteGains(float(kpd), float(kid), float(kdd), Ts, gamma=gamma, loop=loop,
-                         design=dict(method="z-domain", K=K, tau=tau, wn=wn, zeta=zeta, sigma=sigma,
-                                     Ts=Ts, poles_z=zp, fourth_pole=fourth))
+    return DiscreteGains(
+        float(kpd),
+        float(kid),
+        float(kdd),
+        Ts,
+        gamma=gamma,
+        loop=loop,
+        design=dict(
+            method="z-domain",
+            K=K,
+            tau=tau,
+            wn=wn,
+            zeta=zeta,
+            sigma=sigma,
+            Ts=Ts,
+            poles_z=zp,
+            fourth_pole=fourth,
+        ),
+    )
 
 
 def paper_error_scale(Ts=paper.TS, encoder_ppr=paper.ENCODER_PPR, decoding=paper.ENCODER_DECODING):
@@ -323,13 +384,15 @@ class Feedforward:
 
     def __call__(self, velocity, accel):
         """Feedforward voltage for the reference velocity (rad/s) and acceleration (rad/s²)."""
-        return (self.tau * np.asarray(accel, dtype=float) + np.asarray(velocity, dtype=float)) / self.K
+        return (
+            self.tau * np.asarray(accel, dtype=float) + np.asarray(velocity, dtype=float)
+        ) / self.K
 
     def __repr__(self):
         return f"Feedforward(K={self.K!r}, tau={self.tau!r})"
 
 
-_pid_step = law.SCALAR["pid_step"]       # the law's Python form: faster than a compiled call from Python
+_pid_step = law.SCALAR["pid_step"]  # the law's Python form: faster than a compiled call from Python
 
 _LOOPS = ("position", "velocity")
 
@@ -379,15 +442,29 @@ class DigitalController:
         Samples held because of a non-finite measurement since :meth:`reset`.
     """
 
-    def __init__(self, gains, feedforward=None, output_limit=paper.SUPPLY_VOLTAGE, anti_windup=True, loop=None,
-                 error_scale=1.0, bumpless=False):
+    def __init__(
+        self,
+        gains,
+        feedforward=None,
+        output_limit=paper.SUPPLY_VOLTAGE,
+        anti_windup=True,
+        loop=None,
+        error_scale=1.0,
+        bumpless=False,
+    ):
         if not isinstance(gains, DiscreteGains):
-            raise ValueError(f"gains must be DiscreteGains (use Gains.discretize(Ts)), got {type(gains).__name__}")
+            raise ValueError(
+                f"gains must be DiscreteGains (use Gains.discretize(Ts)), got {type(gains).__name__}"
+            )
         if feedforward is not None and not isinstance(feedforward, Feedforward):
-            raise ValueError(f"feedforward must be a Feedforward or None, got {type(feedforward).__name__}")
+            raise ValueError(
+                f"feedforward must be a Feedforward or None, got {type(feedforward).__name__}"
+            )
         self.gains = gains
         self.feedforward = feedforward
-        self.output_limit = None if output_limit is None else as_positive("output_limit", output_limit)
+        self.output_limit = (
+            None if output_limit is None else as_positive("output_limit", output_limit)
+        )
         self.anti_windup = bool(anti_windup)
         self.loop = gains.loop if loop is None else loop
         if self.loop not in _LOOPS:
@@ -414,19 +491,36 @@ class DigitalController:
         self._u0 = None if last_output is None else as_real("last_output", last_output)
         self.fault = None
         self.nonfinite_count = 0
-        self.last_parts = {"p": 0.0, "i": 0.0, "d": 0.0, "ff": 0.0, "u": 0.0, "e": 0.0,
-                           "saturated": False, "held": False}
+        self.last_parts = {
+            "p": 0.0,
+            "i": 0.0,
+            "d": 0.0,
+            "ff": 0.0,
+            "u": 0.0,
+            "e": 0.0,
+            "saturated": False,
+            "held": False,
+        }
 
     def params(self):
         """The law's parameters as a dict (the names of :data:`jerklab.law.CTL_FIELDS`)."""
         g = self.gains
         ff = self.feedforward
-        return dict(kpd=g.kpd, kid=g.kid, kdd=g.kdd, gamma=g.gamma, Ts=g.Ts,
-                    ff_on=ff is not None, ff_K=1.0 if ff is None else ff.K,
-                    ff_tau=0.0 if ff is None else ff.tau,
-                    limit=math.inf if self.output_limit is None else self.output_limit,
-                    anti_windup=self.anti_windup, velocity=self.loop == "velocity",
-                    error_scale=self.error_scale, bumpless=self.bumpless)
+        return dict(
+            kpd=g.kpd,
+            kid=g.kid,
+            kdd=g.kdd,
+            gamma=g.gamma,
+            Ts=g.Ts,
+            ff_on=ff is not None,
+            ff_K=1.0 if ff is None else ff.K,
+            ff_tau=0.0 if ff is None else ff.tau,
+            limit=math.inf if self.output_limit is None else self.output_limit,
+            anti_windup=self.anti_windup,
+            velocity=self.loop == "velocity",
+            error_scale=self.error_scale,
+            bumpless=self.bumpless,
+        )
 
     def law_params(self):
         """:meth:`params` packed as the float array the compiled kernels take (:func:`jerklab.law.pack`)."""
@@ -436,9 +530,12 @@ class DigitalController:
         self.nonfinite_count += 1
         if self.fault is None:
             self.fault = "non-finite measurement"
-            warnings.warn(f"DigitalController: non-finite measurement {y!r}; holding the last output "
-                          f"{self.last_parts['u']!r} V (counted in nonfinite_count, fault set)",
-                          RuntimeWarning, stacklevel=3)
+            warnings.warn(
+                f"DigitalController: non-finite measurement {y!r}; holding the last output "
+                f"{self.last_parts['u']!r} V (counted in nonfinite_count, fault set)",
+                RuntimeWarning,
+                stacklevel=3,
+            )
         parts = dict(self.last_parts)
         parts["held"] = True
         self.last_parts = parts
@@ -450,8 +547,12 @@ class DigitalController:
         Non-finite references raise ``ValueError``; a non-finite measurement holds the last
         output (see the class notes).
         """
-        for name, val in (("ref_position", ref_position), ("ref_velocity", ref_velocity),
-                          ("ref_accel", ref_accel), ("measured_position", measured_position)):
+        for name, val in (
+            ("ref_position", ref_position),
+            ("ref_velocity", ref_velocity),
+            ("ref_accel", ref_accel),
+            ("measured_position", measured_position),
+        ):
             if isinstance(val, (str, bytes)):
                 raise TypeError(f"{name} must be a real number, got the text {val!r}")
         try:
@@ -460,16 +561,25 @@ class DigitalController:
             a = float(ref_accel)
             y = float(measured_position)
         except (TypeError, ValueError):
-            for name, val in (("ref_position", ref_position), ("ref_velocity", ref_velocity),
-                              ("ref_accel", ref_accel), ("measured_position", measured_position)):
+            for name, val in (
+                ("ref_position", ref_position),
+                ("ref_velocity", ref_velocity),
+                ("ref_accel", ref_accel),
+                ("measured_position", measured_position),
+            ):
                 try:
                     float(val)
                 except (TypeError, ValueError):
-                    raise TypeError(f"{name} must be a real number, got {val!r} ({type(val).__name__})") from None
+                    raise TypeError(
+                        f"{name} must be a real number, got {val!r} ({type(val).__name__})"
+                    ) from None
             raise
         if not (math.isfinite(r) and math.isfinite(v) and math.isfinite(a)):
-            name, val = next((n, x) for n, x in (("ref_position", r), ("ref_velocity", v), ("ref_accel", a))
-                             if not math.isfinite(x))
+            name, val = next(
+                (n, x)
+                for n, x in (("ref_position", r), ("ref_velocity", v), ("ref_accel", a))
+                if not math.isfinite(x)
+            )
             raise ValueError(f"{name} must be finite, got {val!r}")
         if not math.isfinite(y):
             return self._hold(y)
@@ -480,26 +590,45 @@ class DigitalController:
             y_prev = y if self._y_prev is None else self._y_prev
             e = self.error_scale * (v - (y - y_prev) / g.Ts)
         self._y_prev = y
-        ff = 0.0 if self.feedforward is None else (self.feedforward.tau * a + v) / self.feedforward.K
+        ff = (
+            0.0 if self.feedforward is None else (self.feedforward.tau * a + v) / self.feedforward.K
+        )
         if self._first and (self.bumpless or self._u0 is not None):
             self._e = e
             if self._u0 is not None:
                 self._i = self._u0 - ff - g.kpd * e - g.kid * e
         self._first = False
         lim = math.inf if self.output_limit is None else self.output_limit
-        u, p, i_new, d, sat = _pid_step(e, self._e, self._i, self._d, ff, g.kpd, g.kid, g.kdd, g.gamma,
-                                        lim, self.anti_windup)
+        u, p, i_new, d, sat = _pid_step(
+            e, self._e, self._i, self._d, ff, g.kpd, g.kid, g.kdd, g.gamma, lim, self.anti_windup
+        )
         self._i = i_new
         self._e = e
         self._d = d
-        self.last_parts = {"p": p, "i": i_new, "d": d, "ff": ff, "u": u, "e": e, "saturated": sat,
-                           "held": False}
+        self.last_parts = {
+            "p": p,
+            "i": i_new,
+            "d": d,
+            "ff": ff,
+            "u": u,
+            "e": e,
+            "saturated": sat,
+            "held": False,
+        }
         return u
 
 
-def paper_velocity_controller(K=paper.MOTOR_K, tau=paper.MOTOR_TAU, wn=10.0, zeta=paper.ZETA, sigma=None,
-                              Ts=paper.TS, encoder_ppr=paper.ENCODER_PPR, decoding=paper.ENCODER_DECODING,
-                              output_limit=paper.SUPPLY_VOLTAGE):
+def paper_velocity_controller(
+    K=paper.MOTOR_K,
+    tau=paper.MOTOR_TAU,
+    wn=10.0,
+    zeta=paper.ZETA,
+    sigma=None,
+    Ts=paper.TS,
+    encoder_ppr=paper.ENCODER_PPR,
+    decoding=paper.ENCODER_DECODING,
+    output_limit=paper.SUPPLY_VOLTAGE,
+):
     """Stojčić §4B exactly as published, to reproduce it (not to use it).
 
     Stojčić eq. 11 gains designed for the *position* loop, discretized by Stojčić eq. 13, run on the
@@ -510,9 +639,17 @@ def paper_velocity_controller(K=paper.MOTOR_K, tau=paper.MOTOR_TAU, wn=10.0, zet
     ``discrete_pole_placement_pid(..., loop="velocity")`` place it correctly.
     """
     g = pole_placement_pid(K, tau, wn, zeta, sigma).discretize(Ts)
-    d = DiscreteGains(g.kpd, g.kid, g.kdd, g.Ts, loop="velocity", design=dict(g.design, paper="§4B"))
-    return DigitalController(d, Feedforward(K, tau), output_limit=output_limit, anti_windup=False,
-                             loop="velocity", error_scale=paper_error_scale(Ts, encoder_ppr, decoding))
+    d = DiscreteGains(
+        g.kpd, g.kid, g.kdd, g.Ts, loop="velocity", design=dict(g.design, paper="§4B")
+    )
+    return DigitalController(
+        d,
+        Feedforward(K, tau),
+        output_limit=output_limit,
+        anti_windup=False,
+        loop="velocity",
+        error_scale=paper_error_scale(Ts, encoder_ppr, decoding),
+    )
 
 
 # ---------------------------------------------------------------------------
@@ -547,8 +684,10 @@ class _Loop:
             raise ValueError(f"gains must be Gains or DiscreteGains, got {type(gains).__name__}")
         self._build()
         if not (np.all(np.isfinite(self._char)) and np.all(np.isfinite(self._Ln))):
-            raise ValueError(f"Ts={self.Ts} (K={self.K}, tau={self.tau}): the loop's polynomials overflow; "
-                             "choose a smaller Ts")
+            raise ValueError(
+                f"Ts={self.Ts} (K={self.K}, tau={self.tau}): the loop's polynomials overflow; "
+                "choose a smaller Ts"
+            )
 
     @property
     def discrete(self) -> bool:
@@ -650,7 +789,9 @@ class _Loop:
     def _t(self, t_end):
         n = int(round(as_positive("t_end", t_end) / self.Ts)) + 1
         if n > self.MAX_SAMPLES:
-            raise ValueError(f"t_end={t_end} at Ts={self.Ts} is {n} samples, more than {self.MAX_SAMPLES}")
+            raise ValueError(
+                f"t_end={t_end} at Ts={self.Ts} is {n} samples, more than {self.MAX_SAMPLES}"
+            )
         return np.arange(n) * self.Ts
 
     def step_response(self, t_end=0.5):
@@ -664,7 +805,11 @@ class _Loop:
         """Output after an input-referred step disturbance of ``amplitude`` V (Stojčić eq. 9)."""
         self._need_discrete()
         t = self._t(t_end)
-        y = _lf(np.polymul(self._Pn, self._Cd), self._char, np.full_like(t, as_real("amplitude", amplitude)))
+        y = _lf(
+            np.polymul(self._Pn, self._Cd),
+            self._char,
+            np.full_like(t, as_real("amplitude", amplitude)),
+        )
         return t, y
 
 
@@ -691,15 +836,21 @@ class PositionLoop(_Loop):
         """
         self._need_discrete()
         if not (hasattr(profile, "duration") and callable(getattr(profile, "sample", None))):
-            raise ValueError("profile must have .duration and .sample(t) (a jerklab.planner Profile), "
-                             f"got {type(profile).__name__}")
-        t_end = as_real("profile.duration", profile.duration) * 1.2 + 0.1 if t_end is None else t_end
+            raise ValueError(
+                "profile must have .duration and .sample(t) (a jerklab.planner Profile), "
+                f"got {type(profile).__name__}"
+            )
+        t_end = (
+            as_real("profile.duration", profile.duration) * 1.2 + 0.1 if t_end is None else t_end
+        )
         t = self._t(t_end)
         s = profile.sample(t)
         r = np.asarray(s.position, dtype=float)
         y = _lf(self._Ln, self._char, r)
         if feedforward:
-            uff = (self.tau * np.asarray(s.accel, dtype=float) + np.asarray(s.velocity, dtype=float)) / self.K
+            uff = (
+                self.tau * np.asarray(s.accel, dtype=float) + np.asarray(s.velocity, dtype=float)
+            ) / self.K
             y = y + _lf(np.polymul(self._Pn, self._Cd), self._char, uff)
         return t, r - y
 
@@ -725,7 +876,9 @@ def _sampled_gains(gains, Ts):
         return gains
     if isinstance(gains, Gains):
         if Ts is None:
-            raise ValueError("Ts is required for continuous Gains (they are discretized by Stojčić eq. 13)")
+            raise ValueError(
+                "Ts is required for continuous Gains (they are discretized by Stojčić eq. 13)"
+            )
         return gains.discretize(Ts)
     raise TypeError(f"gains must be Gains or DiscreteGains, got {type(gains).__name__}")
 

@@ -24,6 +24,7 @@ Naming in the Xu & Meckl diagrams follows the paper (Fig. 1): ``u_r`` is the ref
 hysteresis (the voltage the linear design asks for), ``u_c`` the compensated command that the CNIA
 inverse puts on the actuator, ``H(u_c) ≈ u_r``.
 """
+
 from __future__ import annotations
 
 import math
@@ -33,11 +34,24 @@ from typing import Callable
 from jerklab._validate import as_positive
 
 __all__ = [
-    "FlowStep", "PLANNER_FLOWCHART", "PLANNER_BRANCH_CASES", "FlowchartRun", "run_flowchart",
-    "flowchart_branches", "drawing_labels",
-    "stojcic_fig2", "stojcic_fig3", "stojcic_fig5", "stojcic_fig6",
-    "xu_fig1", "xu_fig3", "xu_fig8",
-    "yang_fig1", "yang_fig3", "yang_fig4", "yang_fig5",
+    "FlowStep",
+    "PLANNER_FLOWCHART",
+    "PLANNER_BRANCH_CASES",
+    "FlowchartRun",
+    "run_flowchart",
+    "flowchart_branches",
+    "drawing_labels",
+    "stojcic_fig2",
+    "stojcic_fig3",
+    "stojcic_fig5",
+    "stojcic_fig6",
+    "xu_fig1",
+    "xu_fig3",
+    "xu_fig8",
+    "yang_fig1",
+    "yang_fig3",
+    "yang_fig4",
+    "yang_fig5",
     "ALL_DIAGRAMS",
 ]
 
@@ -89,15 +103,28 @@ def _cruise(s):
 #: ``stojcic_fig2`` draws it; the same lambdas do both.
 PLANNER_FLOWCHART: tuple[FlowStep, ...] = (
     FlowStep("T_theta", "process", "T = ∛(2πΘ/J)", "Stojčić eq. 4", action=_t_theta),
-    FlowStep("accel_test", "decision", "JT/π > E ?", "Stojčić eq. 3",
-             test=lambda s: s["J"] * s["T"] / math.pi > s["E"], action=_t_accel,
-             yes_label="T = Eπ/J"),
+    FlowStep(
+        "accel_test",
+        "decision",
+        "JT/π > E ?",
+        "Stojčić eq. 3",
+        test=lambda s: s["J"] * s["T"] / math.pi > s["E"],
+        action=_t_accel,
+        yes_label="T = Eπ/J",
+    ),
     FlowStep("w_peak", "process", "ω̄ = JT²/(2π)", "Stojčić eq. 3", action=_w_peak),
-    FlowStep("velocity_test", "decision", "ω̄ > Ω ?", "Stojčić eq. 3",
-             test=lambda s: s["w"] > s["W"], action=_t_velocity,
-             yes_label="T = √(2πΩ/J), ω̄ = Ω"),
-    FlowStep("cruise", "process", "tᵥ = (Θ − ω̄T)/ω̄,  tᵤ = 2T + tᵥ",
-             "Stojčić eq. 2", action=_cruise),
+    FlowStep(
+        "velocity_test",
+        "decision",
+        "ω̄ > Ω ?",
+        "Stojčić eq. 3",
+        test=lambda s: s["w"] > s["W"],
+        action=_t_velocity,
+        yes_label="T = √(2πΩ/J), ω̄ = Ω",
+    ),
+    FlowStep(
+        "cruise", "process", "tᵥ = (Θ − ω̄T)/ω̄,  tᵤ = 2T + tᵥ", "Stojčić eq. 2", action=_cruise
+    ),
 )
 
 #: One move per branch of the flowchart, ``name: (Theta, J, E, Omega)``, and the decisions it takes
@@ -139,8 +166,12 @@ def run_flowchart(distance, max_jerk, max_accel, max_velocity) -> FlowchartRun:
     theta = abs(float(distance))
     if theta == 0.0 or not math.isfinite(theta):
         raise ValueError(f"distance must be a nonzero finite number, got {distance!r}")
-    s = {"theta": theta, "J": as_positive("max_jerk", max_jerk), "E": as_positive("max_accel", max_accel),
-         "W": as_positive("max_velocity", max_velocity)}
+    s = {
+        "theta": theta,
+        "J": as_positive("max_jerk", max_jerk),
+        "E": as_positive("max_accel", max_accel),
+        "W": as_positive("max_velocity", max_velocity),
+    }
     taken = []
     for step in PLANNER_FLOWCHART:
         if step.kind == "process":
@@ -156,7 +187,7 @@ def run_flowchart(distance, max_jerk, max_accel, max_velocity) -> FlowchartRun:
 def flowchart_branches() -> list[tuple[bool, ...]]:
     """Every combination of decision outcomes the flowchart can take (2 decisions: 4 paths)."""
     n = sum(st.kind == "decision" for st in PLANNER_FLOWCHART)
-    return [tuple(bool((i >> k) & 1) for k in range(n)) for i in range(2 ** n)]
+    return [tuple(bool((i >> k) & 1) for k in range(n)) for i in range(2**n)]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -167,7 +198,7 @@ def _schemdraw():
         import schemdraw
         import schemdraw.dsp as dsp
         import schemdraw.flow as flow
-    except ImportError as exc:                                 # pragma: no cover - dependency
+    except ImportError as exc:  # pragma: no cover - dependency
         raise ImportError("jerklab.diagrams needs schemdraw (pip install schemdraw)") from exc
     return schemdraw, dsp, flow
 
@@ -184,6 +215,7 @@ def _new(title, unit=1.6, fontsize=11):
 def _finish(d):
     """Put the title above the drawing, left-aligned, and widen the box to hold it."""
     import schemdraw.elements as elm
+
     bbox = d.get_bbox()
     y = bbox.ymax + 0.7
     d.add(elm.Label().at((bbox.xmin, y)).label(d.jerklab_title, fontsize=11, halign="left"))
@@ -210,18 +242,29 @@ def drawing_labels(d) -> list[str]:
 def stojcic_fig2():
     """Stojčić Fig. 2: flowchart of the trajectory planner, drawn from :data:`PLANNER_FLOWCHART`."""
     _, dsp, flow = _schemdraw()
-    d = _new("Stojčić Fig. 2 — flowchart of the planner (drawn from jerklab's executable steps)",
-             unit=0.8, fontsize=10)
+    d = _new(
+        "Stojčić Fig. 2 — flowchart of the planner (drawn from jerklab's executable steps)",
+        unit=0.8,
+        fontsize=10,
+    )
     d.add(start := flow.Start(w=3.2, h=1.1).label("Θ, J, E, Ω"))
     prev = start
     for step in PLANNER_FLOWCHART:
         d.add(flow.Arrow().down(0.8).at(prev.S))
         if step.kind == "process":
-            box = flow.Box(w=5.2, h=1.1).anchor("N").label(step.label + f"\n({step.equation})", fontsize=9)
+            box = (
+                flow.Box(w=5.2, h=1.1)
+                .anchor("N")
+                .label(step.label + f"\n({step.equation})", fontsize=9)
+            )
             d.add(box)
             prev = box
         else:
-            dec = flow.Decision(w=4.2, h=1.8, E="yes", S="no", fontsize=9).anchor("N").label(step.label)
+            dec = (
+                flow.Decision(w=4.2, h=1.8, E="yes", S="no", fontsize=9)
+                .anchor("N")
+                .label(step.label)
+            )
             d.add(dec)
             d.add(flow.Arrow().right(1.2).at(dec.E))
             yes = flow.Box(w=4.4, h=1.1).anchor("W").label(step.yes_label, fontsize=9)
@@ -270,6 +313,7 @@ def stojcic_fig3():
     # disturbance
     d.add(dsp.Arrow().down(1.0).at((sy.N[0], sy.N[1] + 2.2)))
     import schemdraw.elements as elm
+
     d.add(elm.Label().at((sy.N[0] + 0.6, sy.N[1] + 2.0)).label("w(s)"))
     d.add(wb := dsp.Box(w=1.3, h=0.9).anchor("N").label("W(s)"))
     d.add(dsp.Arrow().to(sy.N).at(wb.S))
@@ -283,7 +327,9 @@ def stojcic_fig3():
 def stojcic_fig5():
     """Stojčić Fig. 5: feedforward realisation, the Stojčić eq. 15 recursion and u_F(k) (Stojčić eq. 16)."""
     _, dsp, _ = _schemdraw()
-    d = _new("Stojčić Fig. 5 — feedforward: accumulators of Stojčić eq. 15, u_F(k) = (τ/K)ε(k) + (1/K)ω(k) (Stojčić eq. 16)")
+    d = _new(
+        "Stojčić Fig. 5 — feedforward: accumulators of Stojčić eq. 15, u_F(k) = (τ/K)ε(k) + (1/K)ω(k) (Stojčić eq. 16)"
+    )
     d.add(dsp.Arrow().right(1.2).label("j(k)", "left"))
     d.add(a1 := dsp.Box(w=2.2, h=1.2).anchor("W").label(r"$T_s/(1-z^{-1})$"))
     d.add(dsp.Line().right(1.0).at(a1.E).label(r"$\varepsilon(k)$"))
@@ -313,8 +359,13 @@ def stojcic_fig6():
     d = _new("Stojčić Fig. 6 — feedback: p(k) + i(k) + d(k) = u_B(k) (Stojčić eq. 18)")
     d.add(dsp.Arrow().right(1.4).label(r"$\omega_{Td}(k)$", "left"))
     d.add(se := dsp.Sum().anchor("W").label("+", "left", ofst=(0.15, 0.05), fontsize=9))
-    d.add(dsp.Arrow().up(1.0).at((se.S[0], se.S[1] - 1.0)).label(r"$\omega_T(k)$ (encoder)", "left")
-          .label("−", "right", fontsize=11))
+    d.add(
+        dsp.Arrow()
+        .up(1.0)
+        .at((se.S[0], se.S[1] - 1.0))
+        .label(r"$\omega_T(k)$ (encoder)", "left")
+        .label("−", "right", fontsize=11)
+    )
     d.add(dsp.Line().right(1.0).at(se.E).label("e(k)"))
     d.add(br := dsp.Dot())
     d.add(dsp.Arrow().right(1.4))
@@ -341,7 +392,9 @@ def stojcic_fig6():
 def xu_fig1():
     """Xu & Meckl Fig. 1: PZT model, hysteresis H then linear G (Xu & Meckl eq. 1), with the CNIA inverse."""
     _, dsp, _ = _schemdraw()
-    d = _new("Xu and Meckl Fig. 1 — PZT actuator model: H⁻¹ (CNIA) · H (hysteresis) · G(s) of Table I")
+    d = _new(
+        "Xu and Meckl Fig. 1 — PZT actuator model: H⁻¹ (CNIA) · H (hysteresis) · G(s) of Table I"
+    )
     d.add(dsp.Arrow().right(1.4).label(r"$u_r$", "left"))
     d.add(hi := dsp.Box(w=2.2, h=1.2).anchor("W").label(r"$H^{-1}$" + "\n(CNIA)", fontsize=10))
     d.add(dsp.Arrow().right(1.6).at(hi.E).label(r"$u_c$"))
@@ -365,6 +418,7 @@ def xu_fig3(cycle=None, ax=None):
     """
     import matplotlib.pyplot as plt
     import numpy as np
+
     if ax is None:
         _, ax = plt.subplots(figsize=(6.5, 3.2))
     if cycle is not None:
@@ -374,22 +428,35 @@ def xu_fig3(cycle=None, ax=None):
         T = cycle.N * cycle.spec.Ts * 1e3
         ax.step(t, u, where="post", lw=1.2, label=r"shaped $u_T(t)$, $t < T$, then the scan ramp")
         tt = np.linspace(T, t[-1], 50)
-        ax.plot(tt, u[cycle.N] + cycle.w / (cycle.spec.Ts * 1e3) * (tt - T), "k--", lw=0.9,
-                label=r"$u_\infty(t) = u_T(T) + w_{ss}(t-T)$ (Xu & Meckl eq. 11)")
+        ax.plot(
+            tt,
+            u[cycle.N] + cycle.w / (cycle.spec.Ts * 1e3) * (tt - T),
+            "k--",
+            lw=0.9,
+            label=r"$u_\infty(t) = u_T(T) + w_{ss}(t-T)$ (Xu & Meckl eq. 11)",
+        )
         ax.set_ylabel("input u (V)")
         ax.set_xlabel("time t (ms)")
     else:
         T = 1.0
         t = np.linspace(0, T, 200)
-        ax.plot(t, 0.4 * (1 - np.cos(np.pi * t)) + 0.15 * np.sin(3 * np.pi * t), lw=1.2,
-                label=r"$u_T(t)$ (time-bounded part)")
+        ax.plot(
+            t,
+            0.4 * (1 - np.cos(np.pi * t)) + 0.15 * np.sin(3 * np.pi * t),
+            lw=1.2,
+            label=r"$u_T(t)$ (time-bounded part)",
+        )
         tt = np.linspace(T, 2.2, 50)
-        ax.plot(tt, 0.8 + 0.6 * (tt - T), "k--", lw=0.9, label=r"$u_\infty(t) = u_T(T) + w_{ss}(t-T)$")
+        ax.plot(
+            tt, 0.8 + 0.6 * (tt - T), "k--", lw=0.9, label=r"$u_\infty(t) = u_T(T) + w_{ss}(t-T)$"
+        )
         ax.set_ylabel("input u (arbitrary units)")
         ax.set_xlabel("time t / T (–)")
     ax.axvline(T, color="gray", lw=0.8)
     ax.annotate("T", (T, ax.get_ylim()[0]), xytext=(3, 3), textcoords="offset points")
-    ax.set_title("Xu & Meckl Fig. 3 — input feature of velocity tracking (Xu & Meckl eq. 12)", fontsize=9)
+    ax.set_title(
+        "Xu & Meckl Fig. 3 — input feature of velocity tracking (Xu & Meckl eq. 12)", fontsize=9
+    )
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper left")
     return ax
@@ -398,7 +465,9 @@ def xu_fig3(cycle=None, ax=None):
 def xu_fig8():
     """Xu & Meckl Fig. 8: closed-loop framework, shaped command + pole-placement feedback + CNIA."""
     _, dsp, _ = _schemdraw()
-    d = _new("Xu and Meckl Fig. 8 — closed loop: shaped command, feedback, CNIA (jerklab.piezo.closed_loop)")
+    d = _new(
+        "Xu and Meckl Fig. 8 — closed loop: shaped command, feedback, CNIA (jerklab.piezo.closed_loop)"
+    )
     d.add(dsp.Arrow().right(1.2).label(r"$u_{ff}$ (shaped)", "left"))
     d.add(s1 := dsp.Sum().anchor("W").label("+", "left", ofst=(0.15, 0.05), fontsize=9))
     d.add(dsp.Arrow().right(1.3).at(s1.E).label(r"$u_r$"))
@@ -413,10 +482,19 @@ def xu_fig8():
     d.add(dsp.Line().down(2.0).at(out.center))
     d.add(dsp.Arrow().left(2.0))
     d.add(se := dsp.Sum().anchor("E").label("+", "top", fontsize=9))
-    d.add(dsp.Arrow().up(1.0).at((se.S[0], se.S[1] - 1.0)).label(r"$y_d$ (nominal)", "left")
-          .label("−", "right", fontsize=11))
+    d.add(
+        dsp.Arrow()
+        .up(1.0)
+        .at((se.S[0], se.S[1] - 1.0))
+        .label(r"$y_d$ (nominal)", "left")
+        .label("−", "right", fontsize=11)
+    )
     d.add(dsp.Arrow().left(1.3).at(se.W))
-    d.add(c := dsp.Box(w=3.4, h=1.1).anchor("E").label("pole placement\nobserver + integrator", fontsize=9))
+    d.add(
+        c := dsp.Box(w=3.4, h=1.1)
+        .anchor("E")
+        .label("pole placement\nobserver + integrator", fontsize=9)
+    )
     d.add(dsp.Line().at(c.W).tox(s1.S[0] - 0.0))
     d.add(dsp.Arrow().to(s1.S).label("−", "right", ofst=(0.1, -0.3), fontsize=11))
     return _finish(d)
@@ -432,7 +510,9 @@ def yang_fig1():
     d.add(dsp.Arrow().right(1.0).label("V, T", "left"))
     d.add(a := dsp.Box(w=3.0, h=1.4).anchor("W").label("S-curve speed\ndissociation", fontsize=9))
     d.add(dsp.Arrow().right(1.6).at(a.E).label("f = v/k"))
-    d.add(b := dsp.Box(w=3.0, h=1.4).anchor("W").label("PWM speed\nregulation\n(divider)", fontsize=9))
+    d.add(
+        b := dsp.Box(w=3.0, h=1.4).anchor("W").label("PWM speed\nregulation\n(divider)", fontsize=9)
+    )
     d.add(dsp.Arrow().right(1.6).at(b.E).label("pulses"))
     d.add(c := dsp.Box(w=2.4, h=1.4).anchor("W").label("motor drive\n(position mode)", fontsize=9))
     d.add(dsp.Arrow().right(1.2).at(c.E))
@@ -445,33 +525,61 @@ def _module(title, left, right, top_label):
     d = _new(title)
     pins = [dsp.IcPin(name=n, side="left", pin="") for n in left]
     pins += [dsp.IcPin(name=n, side="right", pin="") for n in right]
-    d.add(dsp.Ic(pins=pins, size=(4.6, max(len(left), len(right)) * 0.75 + 0.8), pinspacing=0.75)
-          .label(top_label, "top", fontsize=10))
+    d.add(
+        dsp.Ic(
+            pins=pins, size=(4.6, max(len(left), len(right)) * 0.75 + 0.8), pinspacing=0.75
+        ).label(top_label, "top", fontsize=10)
+    )
     return d
 
 
 def yang_fig3():
     """Yang Fig. 3: the S-curve module instantiated in the FPGA (ports of ``scurve_gen.v``)."""
-    return _finish(_module("Yang Fig. 3 — S-curve module instantiation (ports of firmware/fpga/scurve_gen.v)",
-                           ["clk", "reset_n"], ["m", "n", "speed", "freq", "cycle"], "scurve_gen"))
+    return _finish(
+        _module(
+            "Yang Fig. 3 — S-curve module instantiation (ports of firmware/fpga/scurve_gen.v)",
+            ["clk", "reset_n"],
+            ["m", "n", "speed", "freq", "cycle"],
+            "scurve_gen",
+        )
+    )
 
 
 def yang_fig4():
     """Yang Fig. 4: the basic pulse (PWM) model, reset, clk, cycle in and clkout (Yang eq. 8)."""
-    return _finish(_module("Yang Fig. 4 — basic pulse-frequency model: cycle = f_clk / f, 50 % duty",
-                           ["reset", "clk", "cycle"], ["clkout"], "PWM model"))
+    return _finish(
+        _module(
+            "Yang Fig. 4 — basic pulse-frequency model: cycle = f_clk / f, 50 % duty",
+            ["reset", "clk", "cycle"],
+            ["clkout"],
+            "PWM model",
+        )
+    )
 
 
 def yang_fig5():
     """Yang Fig. 5: the pulse divider instantiated in the FPGA (ports of ``pulse_divider.v``)."""
-    return _finish(_module("Yang Fig. 5 — pulse divider instantiation (ports of firmware/fpga/pulse_divider.v, "
-                           "corrected: cycle latched)",
-                           ["clk", "reset_n", "cycle[31:0]"], ["clkout", "count[31:0]"], "pulse_divider"))
+    return _finish(
+        _module(
+            "Yang Fig. 5 — pulse divider instantiation (ports of firmware/fpga/pulse_divider.v, "
+            "corrected: cycle latched)",
+            ["clk", "reset_n", "cycle[31:0]"],
+            ["clkout", "count[31:0]"],
+            "pulse_divider",
+        )
+    )
 
 
 #: The schematic drawings, ``figure id: function`` (xu_fig3 is a plot and takes a cycle).
 ALL_DIAGRAMS = {
-    "Stojčić Fig. 2": stojcic_fig2, "Stojčić Fig. 3": stojcic_fig3, "Stojčić Fig. 5": stojcic_fig5,
-    "Stojčić Fig. 6": stojcic_fig6, "Xu & Meckl Fig. 1": xu_fig1, "Xu & Meckl Fig. 8": xu_fig8,
-    "Yang Fig. 1": yang_fig1, "Yang Fig. 3": yang_fig3, "Yang Fig. 4": yang_fig4, "Yang Fig. 5": yang_fig5,
+    "Stojčić Fig. 2": stojcic_fig2,
+    "Stojčić Fig. 3": stojcic_fig3,
+    "Stojčić Fig. 5": stojcic_fig5,
+    "Stojčić Fig. 6": stojcic_fig6,
+    "Xu & Meckl Fig. 1": xu_fig1,
+    "Xu & Meckl Fig. 8": xu_fig8,
+    "Yang Fig. 1": yang_fig1,
+    "Yang Fig. 3": yang_fig3,
+    "Yang Fig. 4": yang_fig4,
+    "Yang Fig. 5": yang_fig5,
 }

@@ -38,6 +38,7 @@ Things the paper leaves open or gets wrong, and what is done here:
   points at the fix used here (and in ``firmware/fpga/pulse_divider.v``): the
   cycle is latched only at the end of a period (``count >= cycle``).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -48,11 +49,28 @@ import numpy as np
 from jerklab import paper as _paper
 from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive
 
-__all__ = ["YangSCurve", "PulseTrain", "SpeedTable", "paper_speed", "published_divider_lockup",
-           "simulate_verilog", "simulate_divider_verilog", "read_vcd", "VerilogRun",
-           "divider_edges", "published_divider", "HardwareLimitError", "PAPER", "pulse_speed",
-           "vcd_timescale", "vcd_to_posedge", "YangAxes", "yang_axes", "simulate_verilog_xy",
-           "min_start_count"]
+__all__ = [
+    "YangSCurve",
+    "PulseTrain",
+    "SpeedTable",
+    "paper_speed",
+    "published_divider_lockup",
+    "simulate_verilog",
+    "simulate_divider_verilog",
+    "read_vcd",
+    "VerilogRun",
+    "divider_edges",
+    "published_divider",
+    "HardwareLimitError",
+    "PAPER",
+    "pulse_speed",
+    "vcd_timescale",
+    "vcd_to_posedge",
+    "YangAxes",
+    "yang_axes",
+    "simulate_verilog_xy",
+    "min_start_count",
+]
 
 
 class HardwareLimitError(ValueError):
@@ -181,11 +199,10 @@ def vcd_to_posedge(times, clock_period, timescale=1e-12):
     t = as_finite_array("times", times)
     clock_period = as_positive("clock_period", clock_period)
     timescale = as_positive("timescale", timescale)
-    per = clock_period / timescale                 # VCD units per clock period
+    per = clock_period / timescale  # VCD units per clock period
     if abs(per - round(per)) <= 1e-9 * per:
-        per = float(round(per))                    # exact for whole units (20 ns in ps: 20000)
+        per = float(round(per))  # exact for whole units (20 ns in ps: 20000)
     return t / per + 0.5
-
 
 
 #: most edges :func:`divider_edges` / :func:`published_divider` simulate in one call (a Python
@@ -198,7 +215,7 @@ MAX_BITS = 64
 def _int_array(name, value):
     """``value`` as a 1-D int64 array of whole numbers (ValueError naming ``name``)."""
     a = as_finite_array(name, value, ndim=1)
-    if np.any(a != np.round(a)) or np.any(np.abs(a) >= 2.0 ** 62):
+    if np.any(a != np.round(a)) or np.any(np.abs(a) >= 2.0**62):
         raise ValueError(f"{name} must hold whole numbers below 2**62")
     return a.astype(np.int64)
 
@@ -217,8 +234,10 @@ def _divider_args(starts, values, p_end, bits):
     nz = values[values > 0]
     cmin = int(nz.min()) if nz.size else 0
     if cmin and 2 * p_end // cmin > 2 * MAX_EDGES:
-        raise ValueError(f"p_end = {p_end} asks for about {2 * p_end // cmin} edges (cycle {cmin}), more "
-                         f"than 2 * MAX_EDGES = {2 * MAX_EDGES}: simulate a shorter span")
+        raise ValueError(
+            f"p_end = {p_end} asks for about {2 * p_end // cmin} edges (cycle {cmin}), more "
+            f"than 2 * MAX_EDGES = {2 * MAX_EDGES}: simulate a shorter span"
+        )
     return starts, values, p_end, bits
 
 
@@ -250,7 +269,7 @@ def divider_edges(starts, values, p_end, bits=32):
     rise, fall : ndarray of int
     """
     starts, values, p_end, bits = _divider_args(starts, values, p_end, bits)
-    if np.any(values < 0) or np.any(values >= 2 ** bits):
+    if np.any(values < 0) or np.any(values >= 2**bits):
         raise HardwareLimitError(f"values (cycles) must fit an unsigned bits = {bits}-bit register")
     if np.any(values == 1):
         raise HardwareLimitError("values: cycle = 1 cannot give a 50 % duty pulse (f > f_clk/2)")
@@ -261,6 +280,7 @@ def divider_edges(starts, values, p_end, bits=32):
     rise, fall = [], []
     p = 1
     creg = 0
+    q = 0  # the posedge that latched the current period (set once a period has run)
     while p <= p_end:
         if creg == 0:
             # idle: latch at each posedge until a non-zero value appears
@@ -315,10 +335,17 @@ class YangSCurve:
         (below the minimum frequency ``k`` µm/s -> 1 Hz), or if a cycle would be < 2.
     """
 
-    def __init__(self, max_velocity=_paper.YANG_SETUP["max_velocity"],
-                 accel_time=_paper.YANG_SETUP["accel_time"], cruise_time=_paper.YANG_SETUP["cruise_time"],
-                 refresh_period=_paper.YANG_SETUP["refresh_period"], clock_hz=_paper.YANG_SETUP["clock_hz"],
-                 step_um=_paper.YANG_SETUP["step_um"], start_count=_paper.YANG_SETUP["start_count"], bits=32):
+    def __init__(
+        self,
+        max_velocity=_paper.YANG_SETUP["max_velocity"],
+        accel_time=_paper.YANG_SETUP["accel_time"],
+        cruise_time=_paper.YANG_SETUP["cruise_time"],
+        refresh_period=_paper.YANG_SETUP["refresh_period"],
+        clock_hz=_paper.YANG_SETUP["clock_hz"],
+        step_um=_paper.YANG_SETUP["step_um"],
+        start_count=_paper.YANG_SETUP["start_count"],
+        bits=32,
+    ):
         self.max_velocity = as_int("max_velocity", max_velocity, minimum=1)
         self.accel_time = as_positive("accel_time", accel_time)
         self.cruise_time = as_nonnegative("cruise_time", cruise_time)
@@ -329,7 +356,7 @@ class YangSCurve:
         self.bits = as_int("bits", bits, minimum=8)
         if self.bits > MAX_BITS:
             raise ValueError(f"bits must be <= {MAX_BITS}, got {self.bits}")
-        top = 2 ** self.bits
+        top = 2**self.bits
 
         def whole(name, x):
             r = round(x)
@@ -337,34 +364,48 @@ class YangSCurve:
                 raise ValueError(f"{name} must be a whole number >= 1, got {x!r}")
             return int(r)
 
-        self.half_counts = whole("accel_time / (2 refresh_period)", self.accel_time / (2 * self.refresh_period))
-        self.cruise_counts = (whole("cruise_time / refresh_period", self.cruise_time / self.refresh_period)
-                              if self.cruise_time > 0 else 0)
-        self.refresh_clocks = whole("refresh_period * clock_hz", self.refresh_period * self.clock_hz)
+        self.half_counts = whole(
+            "accel_time / (2 refresh_period)", self.accel_time / (2 * self.refresh_period)
+        )
+        self.cruise_counts = (
+            whole("cruise_time / refresh_period", self.cruise_time / self.refresh_period)
+            if self.cruise_time > 0
+            else 0
+        )
+        self.refresh_clocks = whole(
+            "refresh_period * clock_hz", self.refresh_period * self.clock_hz
+        )
         N = self.half_counts
         frac = Fraction(self.max_velocity, 2 * N * N)
         self.coef_num, self.coef_den = frac.numerator, frac.denominator
-        self.end_tick = 4 * N + self.cruise_counts           # n = 0 from here on
-        for name, val in (("multiplier product A_NUM * N^2 (max_velocity, accel_time)", self.coef_num * N * N),
-                          ("coefficient denominator (max_velocity, accel_time)", self.coef_den),
-                          ("clock_hz", self.clock_hz),
-                          ("refresh clocks (refresh_period * clock_hz)", self.refresh_clocks),
-                          ("tick count (accel_time, cruise_time, refresh_period)", self.end_tick),
-                          ("total clocks (accel_time, cruise_time, clock_hz)",
-                           (self.end_tick + 1) * self.refresh_clocks)):
+        self.end_tick = 4 * N + self.cruise_counts  # n = 0 from here on
+        for name, val in (
+            ("multiplier product A_NUM * N^2 (max_velocity, accel_time)", self.coef_num * N * N),
+            ("coefficient denominator (max_velocity, accel_time)", self.coef_den),
+            ("clock_hz", self.clock_hz),
+            ("refresh clocks (refresh_period * clock_hz)", self.refresh_clocks),
+            ("tick count (accel_time, cruise_time, refresh_period)", self.end_tick),
+            (
+                "total clocks (accel_time, cruise_time, clock_hz)",
+                (self.end_tick + 1) * self.refresh_clocks,
+            ),
+        ):
             if val >= top:
                 raise HardwareLimitError(f"{name} = {val} does not fit {self.bits} bits")
         if self.start_count > 2 * N:
             raise ValueError(f"start_count must be <= 2 T/(2 tc) = {2 * N}, got {self.start_count}")
         v0 = self.speed(max(self.start_count, 1))
         if self.step_um > self.max_velocity:
-            raise HardwareLimitError(f"step_um = {self.step_um} µm exceeds max_velocity = "
-                                     f"{self.max_velocity} µm/s: the top speed is below 1 pulse/s")
+            raise HardwareLimitError(
+                f"step_um = {self.step_um} µm exceeds max_velocity = "
+                f"{self.max_velocity} µm/s: the top speed is below 1 pulse/s"
+            )
         if v0 // self.step_um == 0:
             nmin = next(n for n in range(1, 2 * N + 1) if self.speed(n) >= self.step_um)
             raise HardwareLimitError(
                 f"start_count = {self.start_count} gives {v0} µm/s, below the minimum frequency "
-                f"(1 Hz = {self.step_um} µm/s): use start_count >= {nmin}")
+                f"(1 Hz = {self.step_um} µm/s): use start_count >= {nmin}"
+            )
         if self.clock_hz // (self.max_velocity // self.step_um or 1) < 2:
             raise HardwareLimitError("max_velocity / step_um exceeds f_clk / 2: cycle < 2")
 
@@ -403,7 +444,7 @@ class YangSCurve:
         v = self.speed(n)
         f = v // self.step_um
         cyc = np.where(f > 0, self.clock_hz // np.maximum(f, 1), 0)
-        if np.any(cyc >= 2 ** self.bits):
+        if np.any(cyc >= 2**self.bits):
             raise HardwareLimitError("a divider count does not fit the register")
         return SpeedTable(m, n, v, f, cyc)
 
@@ -442,7 +483,7 @@ class YangSCurve:
         from jerklab.planner import plan_scurve
 
         V, T = float(self.max_velocity), self.accel_time
-        return plan_scurve(self.distance_um, 4 * V / T ** 2, 2 * V / T, V)
+        return plan_scurve(self.distance_um, 4 * V / T**2, 2 * V / T, V)
 
     def tick_times(self) -> np.ndarray:
         """Time (s) at which each tick's speed takes effect (``m tc``)."""
@@ -450,9 +491,17 @@ class YangSCurve:
 
     def verilog_defines(self) -> dict:
         """Parameters for ``firmware/fpga/scurve_gen.v`` / its testbench (``-P`` / ``-D``)."""
-        return {"V": self.max_velocity, "N": self.half_counts, "CRUISE": self.cruise_counts,
-                "A_NUM": self.coef_num, "B_DEN": self.coef_den, "K": self.step_um,
-                "F_CLK": self.clock_hz, "R": self.refresh_clocks, "N_MIN": self.start_count}
+        return {
+            "V": self.max_velocity,
+            "N": self.half_counts,
+            "CRUISE": self.cruise_counts,
+            "A_NUM": self.coef_num,
+            "B_DEN": self.coef_den,
+            "K": self.step_um,
+            "F_CLK": self.clock_hz,
+            "R": self.refresh_clocks,
+            "N_MIN": self.start_count,
+        }
 
 
 PAPER = dict(_paper.YANG_SETUP)
@@ -478,7 +527,7 @@ def published_divider(starts, values, p_end, bits=32):
         ``lockup_clocks`` is the number of clocks until that edge.
     """
     starts, values, p_end, bits = _divider_args(starts, values, p_end, bits)
-    if np.any(values < 0) or np.any(values >= 2 ** bits):
+    if np.any(values < 0) or np.any(values >= 2**bits):
         raise HardwareLimitError(f"values (cycles) must fit an unsigned bits = {bits}-bit register")
     rise, fall = [], []
     count, out, lockup = 0, 0, None
@@ -494,9 +543,14 @@ def published_divider(starts, values, p_end, bits=32):
             count, out = 0, 0
             continue
         if count > c and lockup is None:
-            lockup = {"p": p, "m": i, "count": count, "compare_reg": c,
-                      "lockup_clocks": 2 ** bits - count + (c >> 1)}
-        while p < p1:                  # `count` is the value before posedge p
+            lockup = {
+                "p": p,
+                "m": i,
+                "count": count,
+                "compare_reg": c,
+                "lockup_clocks": 2**bits - count + (c >> 1),
+            }
+        while p < p1:  # `count` is the value before posedge p
             duty = c >> 1
             if count == duty:
                 if not out:
@@ -507,12 +561,12 @@ def published_divider(starts, values, p_end, bits=32):
                     fall.append(p)
                 out, count, p = 0, 1, p + 1
             else:
-                target = duty if count < duty else c if count < c else 2 ** bits + duty
+                target = duty if count < duty else c if count < c else 2**bits + duty
                 adv = min(p1 - p, target - count)
                 count += adv
                 p += adv
-                if count >= 2 ** bits:     # wrap-around of the 32-bit counter
-                    count -= 2 ** bits
+                if count >= 2**bits:  # wrap-around of the 32-bit counter
+                    count -= 2**bits
     return np.array(rise, dtype=np.int64), np.array(fall, dtype=np.int64), lockup
 
 
@@ -530,7 +584,7 @@ def published_divider_lockup(model: YangSCurve):
         return None
     hit = dict(hit)
     hit["t"] = hit["p"] / model.clock_hz
-    hit["lockup_s"] = 2 ** model.bits / model.clock_hz
+    hit["lockup_s"] = 2**model.bits / model.clock_hz
     return hit
 
 
@@ -587,8 +641,9 @@ def _parse(log):
     return table, rise, fall
 
 
-def simulate_verilog(model: YangSCurve, p_end=None, workdir=None, vcd=None,
-                     published=False) -> VerilogRun:
+def simulate_verilog(
+    model: YangSCurve, p_end=None, workdir=None, vcd=None, published=False
+) -> VerilogRun:
     """Compile and run ``tb_scurve.v`` (speed generator + divider) with Icarus Verilog.
 
     ``published=True`` uses the paper's divider as printed (``pulse_divider_published.v``,
@@ -612,10 +667,24 @@ def simulate_verilog(model: YangSCurve, p_end=None, workdir=None, vcd=None,
         exe = f"{wd}/tb_scurve.vvp"
         params = [f"-Ptb_scurve.{k}={v}" for k, v in model.verilog_defines().items()]
         params.append(f"-Ptb_scurve.P_END={p_end}")
-        div = ["-DPUBLISHED", str(d / "pulse_divider_published.v")] if published else \
-            [str(d / "pulse_divider.v")]
-        _run(["iverilog", "-g2012", "-o", exe, *params, str(d / "tb_scurve.v"),
-              str(d / "scurve_gen.v"), *div], wd)
+        div = (
+            ["-DPUBLISHED", str(d / "pulse_divider_published.v")]
+            if published
+            else [str(d / "pulse_divider.v")]
+        )
+        _run(
+            [
+                "iverilog",
+                "-g2012",
+                "-o",
+                exe,
+                *params,
+                str(d / "tb_scurve.v"),
+                str(d / "scurve_gen.v"),
+                *div,
+            ],
+            wd,
+        )
         args = ["vvp", "-n", exe] + ([f"+vcd={vcd}"] if vcd else [])
         log = _run(args, wd)
     table, rise, fall = _parse(log)
@@ -639,8 +708,17 @@ def simulate_divider_verilog(starts, values, p_end, workdir=None, vcd=None) -> V
         with open(stim, "w") as fh:
             for p, v in zip(starts, values):
                 fh.write(f"{int(p)} {int(v)}\n")
-        _run(["iverilog", "-g2012", "-o", exe, str(d / "tb_pulse_divider.v"),
-              str(d / "pulse_divider.v")], wd)
+        _run(
+            [
+                "iverilog",
+                "-g2012",
+                "-o",
+                exe,
+                str(d / "tb_pulse_divider.v"),
+                str(d / "pulse_divider.v"),
+            ],
+            wd,
+        )
         args = ["vvp", "-n", exe, f"+stim={stim}", f"+p_end={p_end}"]
         if vcd:
             args.append(f"+vcd={vcd}")
@@ -681,8 +759,10 @@ def read_vcd(path, signals):
             ts, vs = data[ids[tok[1:]]]
             ts.append(t)
             vs.append(int(tok[0]) if tok[0] in "01" else -1)
-    return {name: (np.array(ts, dtype=np.int64), np.array(vs, dtype=np.int64))
-            for name, (ts, vs) in data.items()}
+    return {
+        name: (np.array(ts, dtype=np.int64), np.array(vs, dtype=np.int64))
+        for name, (ts, vs) in data.items()
+    }
 
 
 # ---------------------------------------------------------------------- several axes (x–y stand)
@@ -711,7 +791,9 @@ def min_start_count(max_velocity, half_counts, min_speed):
     N = as_int("half_counts", half_counts, minimum=1)
     s = as_int("min_speed", min_speed, minimum=0)
     if s > V:
-        raise ValueError(f"min_speed = {s} µm/s is above max_velocity = {V} µm/s: no count reaches it")
+        raise ValueError(
+            f"min_speed = {s} µm/s is above max_velocity = {V} µm/s: no count reaches it"
+        )
     frac = Fraction(V, 2 * N * N)
     a, b = frac.numerator, frac.denominator
     n = math.isqrt((s * b + a - 1) // a)
@@ -720,7 +802,7 @@ def min_start_count(max_velocity, half_counts, min_speed):
     if n <= N:
         return n
     n = N + 1
-    while V - (a * (2 * N - n) ** 2) // b < s:       # ends at n = 2N at the latest (speed V)
+    while V - (a * (2 * N - n) ** 2) // b < s:  # ends at n = 2N at the latest (speed V)
         n += 1
     return n
 
@@ -741,18 +823,23 @@ def _fitting_speed(dist, n, M, tc, step_um, bits, limits):
     """
     if 4 * n > M:
         return None
-    top = 2 ** bits
+    top = 2**bits
     J, A, Vmax = limits
     slack = 1.0 + 1e-12
-    span = (M - 2 * n) * tc                             # T + cruise (s)
+    span = (M - 2 * n) * tc  # T + cruise (s)
     vt = dist / span
     w = max(0.5, 0.5 * step_um / span)
     lo, hi = max(1, int(np.ceil(vt - w))), int(np.floor(vt + w))
-    th = n * tc                                         # T / 2
+    th = n * tc  # T / 2
     for v in sorted(range(lo, hi + 1), key=lambda x: (abs(x - vt), x)):
         f = Fraction(v, 2 * n * n)
-        if (f.numerator * n * n < top and f.denominator < top and v <= Vmax * slack
-                and v / th <= A * slack and v / (th * th) <= J * slack):
+        if (
+            f.numerator * n * n < top
+            and f.denominator < top
+            and v <= Vmax * slack
+            and v / th <= A * slack
+            and v / (th * th) <= J * slack
+        ):
             return v
     return None
 
@@ -764,7 +851,9 @@ def _choose_ticks(dists, counts, limits, M0, common, tc, step_um, bits):
         if common:
             for dn in range(YANG_COUNT_SEARCH):
                 n = counts[0] + dn
-                vs = [_fitting_speed(d, n, M, tc, step_um, bits, lim) for d, lim in zip(dists, limits)]
+                vs = [
+                    _fitting_speed(d, n, M, tc, step_um, bits, lim) for d, lim in zip(dists, limits)
+                ]
                 if all(v is not None for v in vs):
                     return M, [(n, v) for v in vs]
             continue
@@ -782,7 +871,8 @@ def _choose_ticks(dists, counts, limits, M0, common, tc, step_um, bits):
     raise HardwareLimitError(
         f"no integer peak speeds near {[round(d / ((M0 - 2 * n) * tc), 1) for d, n in zip(dists, counts)]} "
         f"µm/s fit the {bits}-bit multiplier (A_NUM * N^2) and the axes' limits within {YANG_TICK_SEARCH} "
-        f"ticks and {YANG_COUNT_SEARCH} counts: use another refresh_period")
+        f"ticks and {YANG_COUNT_SEARCH} counts: use another refresh_period"
+    )
 
 
 @dataclass(frozen=True)
@@ -844,8 +934,14 @@ class YangAxes:
         return out
 
 
-def yang_axes(plan, refresh_period=PAPER["refresh_period"], clock_hz=PAPER["clock_hz"],
-              step_um=PAPER["step_um"], start_count=None, bits=32) -> YangAxes:
+def yang_axes(
+    plan,
+    refresh_period=PAPER["refresh_period"],
+    clock_hz=PAPER["clock_hz"],
+    step_um=PAPER["step_um"],
+    start_count=None,
+    bits=32,
+) -> YangAxes:
     """Map a synchronized multi-axis S-curve plan (µm, s) to one Yang generator per axis.
 
     Yang's speed generator (Yang eq. 5, Yang eq. 6) runs the linear-jerk S-curve *without* an
@@ -905,10 +1001,14 @@ def yang_axes(plan, refresh_period=PAPER["refresh_period"], clock_hz=PAPER["cloc
     from jerklab.multiaxis import MultiAxisPlan
 
     if not isinstance(plan, MultiAxisPlan):
-        raise ValueError(f"plan must be a jerklab.multiaxis.MultiAxisPlan, got {type(plan).__name__}")
+        raise ValueError(
+            f"plan must be a jerklab.multiaxis.MultiAxisPlan, got {type(plan).__name__}"
+        )
     if plan.planner != "scurve":
-        raise ValueError(f"plan.planner must be 'scurve' (Yang eq. 5 is a linear-jerk S-curve), "
-                         f"got {plan.planner!r}")
+        raise ValueError(
+            f"plan.planner must be 'scurve' (Yang eq. 5 is a linear-jerk S-curve), "
+            f"got {plan.planner!r}"
+        )
     tc = as_positive("refresh_period", refresh_period)
     if start_count is not None:
         start_count = as_int("start_count", start_count, minimum=0)
@@ -919,9 +1019,11 @@ def yang_axes(plan, refresh_period=PAPER["refresh_period"], clock_hz=PAPER["cloc
             continue
         tj, ta, _, tv = p.phase_times[:4]
         if ta > 1e-9 * tj:
-            raise ValueError(f"plan axis {i} has an acceleration plateau (ta = {ta!r} s): Yang's generator "
-                             f"(Yang eq. 5, Yang eq. 6) has none; raise that axis's max_accel to "
-                             f"sqrt(max_jerk * max_velocity) or more")
+            raise ValueError(
+                f"plan axis {i} has an acceleration plateau (ta = {ta!r} s): Yang's generator "
+                f"(Yang eq. 5, Yang eq. 6) has none; raise that axis's max_accel to "
+                f"sqrt(max_jerk * max_velocity) or more"
+            )
         rows.append(max(_whole_ticks(tj, tc), 1))
     if all(r is None for r in rows):
         raise ValueError("plan moves no axis: nothing for the generators to do")
@@ -930,11 +1032,21 @@ def yang_axes(plan, refresh_period=PAPER["refresh_period"], clock_hz=PAPER["cloc
     M0 = max([_whole_ticks(plan.duration, tc)] + [4 * n for n in counts])
     for i in moving:
         if abs(float(plan.distances[i])) / ((M0 - 2 * rows[i]) * tc) < 0.5:
-            raise HardwareLimitError(f"axis {i}: distance {float(plan.distances[i])!r} µm over "
-                                     f"{M0 * tc!r} s needs a peak speed below 1 µm/s, the resolution of "
-                                     f"max_velocity")
-    M, chosen = _choose_ticks([abs(float(plan.distances[i])) for i in moving], counts,
-                              [plan.limits[i] for i in moving], M0, plan.sync == "phase", tc, step_um, bits)
+            raise HardwareLimitError(
+                f"axis {i}: distance {float(plan.distances[i])!r} µm over "
+                f"{M0 * tc!r} s needs a peak speed below 1 µm/s, the resolution of "
+                f"max_velocity"
+            )
+    M, chosen = _choose_ticks(
+        [abs(float(plan.distances[i])) for i in moving],
+        counts,
+        [plan.limits[i] for i in moving],
+        M0,
+        plan.sync == "phase",
+        tc,
+        step_um,
+        bits,
+    )
     gens, dirs = [None] * len(rows), [0] * len(rows)
     for i, (N, V) in zip(moving, chosen):
         C = M - 4 * N
@@ -942,8 +1054,16 @@ def yang_axes(plan, refresh_period=PAPER["refresh_period"], clock_hz=PAPER["cloc
             n0 = min_start_count(V, N, min(max(PAPER_START_SPEED, step_um), V))
         else:
             n0 = min(start_count, 2 * N)
-        gens[i] = YangSCurve(V, accel_time=2 * N * tc, cruise_time=C * tc, refresh_period=tc,
-                             clock_hz=clock_hz, step_um=step_um, start_count=n0, bits=bits)
+        gens[i] = YangSCurve(
+            V,
+            accel_time=2 * N * tc,
+            cruise_time=C * tc,
+            refresh_period=tc,
+            clock_hz=clock_hz,
+            step_um=step_um,
+            start_count=n0,
+            bits=bits,
+        )
         dirs[i] = 1 if plan.distances[i] > 0 else -1
     return YangAxes(tuple(gens), tuple(dirs), tuple(float(x) for x in plan.distances), M)
 
@@ -967,11 +1087,25 @@ def simulate_verilog_xy(axes: YangAxes, p_end=None, workdir=None, vcd=None):
     with tempfile.TemporaryDirectory() as tmp:
         wd = workdir or tmp
         exe = f"{wd}/tb_xy.vvp"
-        params = [f"-Ptb_xy.{ax}_{k}={v}" for ax, g in zip("XY", axes.generators)
-                  for k, v in g.verilog_defines().items()]
+        params = [
+            f"-Ptb_xy.{ax}_{k}={v}"
+            for ax, g in zip("XY", axes.generators)
+            for k, v in g.verilog_defines().items()
+        ]
         params.append(f"-Ptb_xy.P_END={p_end}")
-        _run(["iverilog", "-g2012", "-o", exe, *params, str(d / "tb_xy.v"), str(d / "scurve_gen.v"),
-              str(d / "pulse_divider.v")], wd)
+        _run(
+            [
+                "iverilog",
+                "-g2012",
+                "-o",
+                exe,
+                *params,
+                str(d / "tb_xy.v"),
+                str(d / "scurve_gen.v"),
+                str(d / "pulse_divider.v"),
+            ],
+            wd,
+        )
         log = _run(["vvp", "-n", exe] + ([f"+vcd={vcd}"] if vcd else []), wd)
     runs = []
     for ax in "XY":

@@ -32,6 +32,7 @@ Examples
 >>> abs(P.output - 40.0) <= P.default_eps
 True
 """
+
 from __future__ import annotations
 
 import math
@@ -44,7 +45,15 @@ from scipy.optimize import nnls
 from jerklab import paper as _paper
 from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
 
-__all__ = ["Preisach", "ForcData", "forc_experiment", "fit_preisach", "MAX_GRID", "MAX_FIT_GRID", "MAX_FORC_POINTS"]
+__all__ = [
+    "Preisach",
+    "ForcData",
+    "forc_experiment",
+    "fit_preisach",
+    "MAX_GRID",
+    "MAX_FIT_GRID",
+    "MAX_FORC_POINTS",
+]
 
 #: largest Preisach grid (n x n cells; the operator keeps three n x n tables as Python lists)
 MAX_GRID = 1000
@@ -89,7 +98,9 @@ class Preisach:
         self.u_min = as_real("u_min", u_min)
         self.u_max = as_real("u_max", u_max)
         if not self.u_max > self.u_min:
-            raise ValueError(f"u_max must be > u_min, got u_min={self.u_min!r}, u_max={self.u_max!r}")
+            raise ValueError(
+                f"u_max must be > u_min, got u_min={self.u_min!r}, u_max={self.u_max!r}"
+            )
         shape = np.shape(density) if isinstance(density, np.ndarray) else None
         if shape is not None and len(shape) == 2:
             _check_grid("density size", max(shape))
@@ -107,14 +118,14 @@ class Preisach:
         self.n = mu.shape[0]
         self.h = (self.u_max - self.u_min) / self.n
         self.density = mu
-        M = mu + mu.T - np.diag(np.diag(mu))          # symmetric: E = L^T M L / 2
+        M = mu + mu.T - np.diag(np.diag(mu))  # symmetric: E = L^T M L / 2
         self._M = M
         S = np.zeros((self.n + 1, self.n + 1))
         S[1:, 1:] = np.cumsum(np.cumsum(M, axis=0), axis=1)
-        self._S = S                                   # 2-D prefix sums of M
+        self._S = S  # 2-D prefix sums of M
         R = np.zeros((self.n, self.n + 1))
         R[:, 1:] = np.cumsum(M, axis=1)
-        self._R = R                                   # row prefix sums of M
+        self._R = R  # row prefix sums of M
         self._Ml = M.tolist()
         self._Sl = S.tolist()
         self._Rl = R.tolist()
@@ -139,8 +150,9 @@ class Preisach:
         return cls(u_min, u_max, mu, offset=u_min if offset is None else offset, initial=initial)
 
     @classmethod
-    def from_density(cls, u_min, u_max, density: Callable, n=50, offset=0.0, initial="negative",
-                     quad=4):
+    def from_density(
+        cls, u_min, u_max, density: Callable, n=50, offset=0.0, initial="negative", quad=4
+    ):
         """Discretize a density ``mu(alpha, beta)`` (vectorized callable) by cell averages.
 
         Each cell's weight is the mean of ``density`` over a ``quad x quad`` midpoint
@@ -159,12 +171,12 @@ class Preisach:
             raise ValueError(f"u_max must be > u_min, got u_min={u_min!r}, u_max={u_max!r}")
         q = (np.arange(quad) + 0.5) / quad
         lo = u_min + h * np.arange(n)
-        A = (lo[:, None] + h * q[None, :])            # alpha samples per cell row
+        A = lo[:, None] + h * q[None, :]  # alpha samples per cell row
         a = A[:, None, :, None]
         b = A[None, :, None, :]
         aa, bb = np.broadcast_arrays(a, b)
         vals = np.asarray(density(aa, bb), dtype=float)
-        keep = (aa >= bb)
+        keep = aa >= bb
         vals = np.where(keep, vals, 0.0)
         cnt = keep.sum(axis=(2, 3))
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -203,13 +215,16 @@ class Preisach:
         tiny = 1e-9 * max(np.abs(mu).max(), 1e-300)
         mu[(mu < 0) & (mu > -tiny)] = 0.0
         if np.any(mu < 0):
-            raise ValueError("everett must have a non-negative mixed difference "
-                             "(E(a2,b1) - E(a1,b1) - E(a2,b2) + E(a1,b2) >= 0)")
+            raise ValueError(
+                "everett must have a non-negative mixed difference "
+                "(E(a2,b1) - E(a1,b1) - E(a2,b2) + E(a1,b2) >= 0)"
+            )
         return cls(u_min, u_max, np.tril(mu), offset=offset, initial=initial)
 
     @classmethod
-    def piezo_like(cls, u_min=0.0, u_max=100.0, n=50, gain=1.0, width=0.3, offset=None,
-                   initial="negative"):
+    def piezo_like(
+        cls, u_min=0.0, u_max=100.0, n=50, gain=1.0, width=0.3, offset=None, initial="negative"
+    ):
         """A piezo-like loop: density ``exp(-(alpha-beta)^2 / (2 (width*span)^2))``.
 
         Weight concentrated near the diagonal gives a narrow, nearly linear loop with
@@ -222,11 +237,22 @@ class Preisach:
         u_max = as_real("u_max", u_max)
         span = u_max - u_min
         sig = width * span
-        P = cls.from_density(u_min, u_max, lambda a, b: np.exp(-0.5 * ((a - b) / sig) ** 2), n=n,
-                             offset=0.0, initial=initial)
+        P = cls.from_density(
+            u_min,
+            u_max,
+            lambda a, b: np.exp(-0.5 * ((a - b) / sig) ** 2),
+            n=n,
+            offset=0.0,
+            initial=initial,
+        )
         total = P.everett(u_max, u_min)
-        return cls(u_min, u_max, P.density * (gain * span / total),
-                   offset=u_min if offset is None else offset, initial=initial)
+        return cls(
+            u_min,
+            u_max,
+            P.density * (gain * span / total),
+            offset=u_min if offset is None else offset,
+            initial=initial,
+        )
 
     def copy(self) -> "Preisach":
         """An independent operator with the same weights and the same current memory."""
@@ -246,15 +272,19 @@ class Preisach:
         M = self._Ml
         if ia == ib:
             return 0.5 * M[ia][ia] * (alpha - beta) ** 2
-        pa = u0 + (ia + 1) * h - beta            # part of beta's cell above beta
-        pb = alpha - (u0 + ib * h)               # part of alpha's cell below alpha
+        pa = u0 + (ia + 1) * h - beta  # part of beta's cell above beta
+        pb = alpha - (u0 + ib * h)  # part of alpha's cell below alpha
         S, R = self._Sl, self._Rl
         a1 = ia + 1
         full = S[ib][ib] - S[a1][ib] - S[ib][a1] + S[a1][a1]
         ra = R[ia][ib] - R[ia][a1]
         rb = R[ib][ib] - R[ib][a1]
-        return (0.5 * h * h * full + h * (pa * ra + pb * rb)
-                + 0.5 * (pa * pa * M[ia][ia] + pb * pb * M[ib][ib]) + pa * pb * M[ib][ia])
+        return (
+            0.5 * h * h * full
+            + h * (pa * ra + pb * rb)
+            + 0.5 * (pa * pa * M[ia][ia] + pb * pb * M[ib][ib])
+            + pa * pb * M[ib][ia]
+        )
 
     def everett(self, alpha, beta):
         """Everett function ``E(alpha, beta)`` (0 where ``alpha <= beta``); arrays broadcast.
@@ -314,9 +344,11 @@ class Preisach:
             if (s[i] > s[i - 1]) != (i % 2 == 1) or s[i] == s[i - 1]:
                 raise ValueError("state must alternate: u_min < M1 > m1 < M2 > ...")
             if i >= 2 and not (
-                    (i % 2 == 1 and s[i] < s[i - 2]) or (i % 2 == 0 and s[i] > s[i - 2])):
-                raise ValueError("state violates the wiping-out property "
-                                 "(maxima must decrease, minima increase)")
+                (i % 2 == 1 and s[i] < s[i - 2]) or (i % 2 == 0 and s[i] > s[i - 2])
+            ):
+                raise ValueError(
+                    "state violates the wiping-out property (maxima must decrease, minima increase)"
+                )
         self._s = s
         self._c = [0.0]
         for i in range(1, len(s)):
@@ -336,11 +368,14 @@ class Preisach:
             return np.array([s[0]]), np.array([s[0]])
         b, a = [s[0]], [s[1]]
         for i in range(1, len(s) - 1):
-            if i % 2 == 1:           # after a maximum: horizontal move in beta
-                b.append(s[i + 1]); a.append(s[i])
-            else:                    # after a minimum: vertical move in alpha
-                b.append(s[i]); a.append(s[i + 1])
-        b.append(s[-1]); a.append(s[-1])
+            if i % 2 == 1:  # after a maximum: horizontal move in beta
+                b.append(s[i + 1])
+                a.append(s[i])
+            else:  # after a minimum: vertical move in alpha
+                b.append(s[i])
+                a.append(s[i + 1])
+        b.append(s[-1])
+        a.append(s[-1])
         return np.array(b), np.array(a)
 
     def _term(self, s, i):
@@ -349,18 +384,18 @@ class Preisach:
     def _new_stack(self, u):
         """Memory after moving the input to ``u`` (not committed): (stack, kept prefix length)."""
         s = self._s
-        k = len(s)                   # s[:k] kept unchanged
+        k = len(s)  # s[:k] kept unchanged
         cur = s[-1]
         if u == cur:
             return s, k
         up = u > cur
         if k >= 2 and (s[-1] > s[-2]) == up:
-            k -= 1                   # same direction: the current input is not an extremum
+            k -= 1  # same direction: the current input is not an extremum
         # now s[k-1] is the last turning point kept; u continues from it
         while k >= 3 and ((up and u >= s[k - 2]) or (not up and u <= s[k - 2])):
-            k -= 2                   # wiping-out: u passes the previous extremum of its kind
+            k -= 2  # wiping-out: u passes the previous extremum of its kind
         if not up and k == 2 and u <= s[0]:
-            return [s[0]], 1         # back to negative saturation
+            return [s[0]], 1  # back to negative saturation
         return s[:k] + [u], k
 
     def _eval(self, u):
@@ -370,7 +405,7 @@ class Preisach:
             return self.offset
         i = len(new) - 1
         base = self._c[i - 1] if i - 1 < k else None
-        if base is None:             # cannot happen: new[:i] == s[:i] with i <= k
+        if base is None:  # cannot happen: new[:i] == s[:i] with i <= k
             raise RuntimeError("memory bookkeeping error")
         return self.offset + base + self._term(new, i)
 
@@ -378,7 +413,7 @@ class Preisach:
         new, k = self._new_stack(u)
         if new is self._s:
             return
-        c = self._c[:max(len(new) - 1, 1)]
+        c = self._c[: max(len(new) - 1, 1)]
         if len(new) > 1:
             c.append(c[-1] + self._term(new, len(new) - 1))
         self._s = list(new)
@@ -485,12 +520,12 @@ class Preisach:
         f_cur = self.output
         if abs(f_cur - fd) <= eps:
             return cur
-        if fd > f_cur:              # ascending branch from the current input
+        if fd > f_cur:  # ascending branch from the current input
             lo, hi = cur, self.u_max
             f_hi = self._eval(hi)
             if f_hi <= fd + eps:
                 return hi
-        else:                       # descending branch
+        else:  # descending branch
             lo, hi = self.u_min, cur
             f_lo = self._eval(lo)
             if f_lo >= fd - eps:
@@ -535,8 +570,10 @@ def forc_experiment(system, u_min, u_max, n_curves=20, points_per_curve=20) -> F
     n_curves = as_int("n_curves", n_curves, minimum=1)
     points_per_curve = as_int("points_per_curve", points_per_curve, minimum=1)
     if n_curves * points_per_curve > MAX_FORC_POINTS:
-        raise ValueError(f"n_curves * points_per_curve = {n_curves * points_per_curve} exceeds "
-                         f"MAX_FORC_POINTS = {MAX_FORC_POINTS}")
+        raise ValueError(
+            f"n_curves * points_per_curve = {n_curves * points_per_curve} exceeds "
+            f"MAX_FORC_POINTS = {MAX_FORC_POINTS}"
+        )
     if not (hasattr(system, "reset") and hasattr(system, "apply")):
         raise ValueError("system must have reset() and apply(u)")
     A, B, F = [], [], []
@@ -544,10 +581,14 @@ def forc_experiment(system, u_min, u_max, n_curves=20, points_per_curve=20) -> F
         system.reset()
         system.apply([u_min])
         fa = float(np.atleast_1d(system.apply([alpha]))[-1])
-        A.append(alpha); B.append(alpha); F.append(fa)
+        A.append(alpha)
+        B.append(alpha)
+        F.append(fa)
         betas = np.linspace(alpha, u_min, points_per_curve + 1)[1:]
         ys = np.atleast_1d(system.apply(betas))
-        A.extend([alpha] * len(betas)); B.extend(betas); F.extend(ys)
+        A.extend([alpha] * len(betas))
+        B.extend(betas)
+        F.extend(ys)
     return ForcData(np.array(A), np.array(B), np.array(F), u_min, u_max)
 
 

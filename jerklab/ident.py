@@ -39,6 +39,7 @@ prediction, :func:`resid`, :func:`validate`, :func:`residual_analysis`, :func:`p
 :func:`plot_residuals`), input design (:func:`step_input`, :func:`prbs`, :func:`sample_time_range`)
 and :func:`arx_asymptotic_bias`. Everything is SI: volts in, radians out, seconds.
 """
+
 from __future__ import annotations
 
 import json
@@ -55,7 +56,7 @@ from jerklab.law import zoh_coefficients
 from jerklab.plant import _jit, advance_em
 from jerklab.plots import plot_compare, plot_compare_result, plot_ident_data, plot_residuals
 
-control = lazy_module("control")   # python-control imports matplotlib: import it on first use
+control = lazy_module("control")  # python-control imports matplotlib: import it on first use
 
 __all__ = [
     "IdentData",
@@ -102,7 +103,9 @@ def _signal(name: str, value, min_len: int = MIN_SAMPLES) -> np.ndarray:
     if a.ndim != 1:
         a = np.squeeze(a)
         if a.ndim != 1:
-            raise ValueError(f"{name} must be a 1-D sequence of samples, got shape {np.shape(value)}")
+            raise ValueError(
+                f"{name} must be a 1-D sequence of samples, got shape {np.shape(value)}"
+            )
     if a.size < min_len:
         raise ValueError(f"{name} is too short: {a.size} samples, need at least {min_len}")
     return a
@@ -112,7 +115,9 @@ def _pair(u, y, u_name: str = "u", y_name: str = "y", min_len: int = MIN_SAMPLES
     u = _signal(u_name, u, min_len)
     y = _signal(y_name, y, min_len)
     if u.size != y.size:
-        raise ValueError(f"{u_name} and {y_name} must have the same length, got {u.size} and {y.size}")
+        raise ValueError(
+            f"{u_name} and {y_name} must have the same length, got {u.size} and {y.size}"
+        )
     return u, y
 
 
@@ -121,11 +126,14 @@ def _check_excitation(u: np.ndarray, y: np.ndarray, u_name: str, y_name: str) ->
     if np.ptp(u) <= 1e-12 * scale:
         raise ValueError(
             f"{u_name} is constant ({u[0]:g}): it does not excite the motor; record a step from rest "
-            f"(u = 0 first) or a PRBS (see step_input, prbs)")
+            f"(u = 0 first) or a PRBS (see step_input, prbs)"
+        )
     yscale = max(1.0, float(np.max(np.abs(y))))
     if np.ptp(y) <= 1e-12 * yscale:
-        raise ValueError(f"{y_name} is constant ({y[0]:g}): the motor did not move (check the supply, "
-                         f"the encoder, or a voltage below the friction threshold)")
+        raise ValueError(
+            f"{y_name} is constant ({y[0]:g}): the motor did not move (check the supply, "
+            f"the encoder, or a voltage below the friction threshold)"
+        )
 
 
 # ----------------------------------------------------------------------------------------------
@@ -203,12 +211,16 @@ class IdentData:
         md = dict(self.metadata)
         start = index.indices(self.n)[0]
         md["slice_start_sample"] = md.get("slice_start_sample", 0) + start
-        return IdentData(self.u[index], self.y[index], self.Ts, self.input_unit, self.output_unit, md)
+        return IdentData(
+            self.u[index], self.y[index], self.Ts, self.input_unit, self.output_unit, md
+        )
 
     def __repr__(self) -> str:
-        return (f"IdentData(n={self.n}, Ts={self.Ts:g} s, duration={self.duration:g} s, "
-                f"u in [{self.u.min():g}, {self.u.max():g}] {self.input_unit}, "
-                f"y in [{self.y.min():g}, {self.y.max():g}] {self.output_unit})")
+        return (
+            f"IdentData(n={self.n}, Ts={self.Ts:g} s, duration={self.duration:g} s, "
+            f"u in [{self.u.min():g}, {self.u.max():g}] {self.input_unit}, "
+            f"y in [{self.y.min():g}, {self.y.max():g}] {self.output_unit})"
+        )
 
     # -- conversions ---------------------------------------------------------------------------
     @classmethod
@@ -226,14 +238,17 @@ class IdentData:
         """
         for attr in ("time", "position", "control"):
             if not hasattr(rec, attr):
-                raise ValueError(f"rec must be a Recording with a '{attr}' field "
-                                 f"(got {type(rec).__name__})")
+                raise ValueError(
+                    f"rec must be a Recording with a '{attr}' field (got {type(rec).__name__})"
+                )
         t = _signal("rec.time", rec.time, min_len=2)
         u = _signal("rec.control", rec.control, min_len=2)
         y = _signal("rec.position", rec.position, min_len=2)
         if not (t.size == u.size == y.size):
-            raise ValueError(f"rec.time, rec.control and rec.position must have the same length, "
-                             f"got {t.size}, {u.size}, {y.size}")
+            raise ValueError(
+                f"rec.time, rec.control and rec.position must have the same length, "
+                f"got {t.size}, {u.size}, {y.size}"
+            )
         md = getattr(rec, "metadata", None) or {}
         if not isinstance(md, dict):
             md = {}
@@ -243,8 +258,10 @@ class IdentData:
             Ts = float(np.median(dt)) if Ts is None else Ts
         Ts = as_positive("Ts", Ts)
         if np.max(np.abs(dt - Ts)) > 0.01 * Ts:
-            raise ValueError(f"rec.time is not uniformly sampled at Ts = {Ts:g} s "
-                             f"(spacing from {dt.min():g} to {dt.max():g} s)")
+            raise ValueError(
+                f"rec.time is not uniformly sampled at Ts = {Ts:g} s "
+                f"(spacing from {dt.min():g} to {dt.max():g} s)"
+            )
         meta = {}
         for k, v in md.items():
             try:
@@ -278,9 +295,16 @@ class IdentData:
         csv_path.parent.mkdir(parents=True, exist_ok=True)
         cols = ["time_s", f"u_{self.input_unit}", f"y_{self.output_unit}"]
         table = np.column_stack([self.t, self.u, self.y])
-        header = ",".join(cols)           # plain ASCII, or UTF-8 with a BOM so a spreadsheet reads "µm"
-        np.savetxt(csv_path, table, delimiter=",", header=header, comments="", fmt="%.17g",
-                   encoding="ascii" if header.isascii() else "utf-8-sig")
+        header = ",".join(cols)  # plain ASCII, or UTF-8 with a BOM so a spreadsheet reads "µm"
+        np.savetxt(
+            csv_path,
+            table,
+            delimiter=",",
+            header=header,
+            comments="",
+            fmt="%.17g",
+            encoding="ascii" if header.isascii() else "utf-8-sig",
+        )
         side = {
             "format": self.FORMAT,
             "csv": csv_path.name,
@@ -307,8 +331,9 @@ class IdentData:
         except json.JSONDecodeError as exc:
             raise ValueError(f"path: corrupt JSON sidecar {json_path}: {exc}") from None
         if side.get("format") != cls.FORMAT:
-            raise ValueError(f"path: {json_path} is not an IdentData sidecar "
-                             f"(format {side.get('format')!r})")
+            raise ValueError(
+                f"path: {json_path} is not an IdentData sidecar (format {side.get('format')!r})"
+            )
         try:
             table = np.loadtxt(csv_path, delimiter=",", skiprows=1, ndmin=2)
         except ValueError as exc:
@@ -322,8 +347,14 @@ class IdentData:
         t = table[:, 0]
         if t.size > 1 and np.max(np.abs(np.diff(t) - Ts)) > 0.01 * Ts:
             raise ValueError(f"path: time column of {csv_path} is not sampled at Ts = {Ts:g} s")
-        return cls(table[:, 1], table[:, 2], Ts, side.get("input_unit", "V"),
-                   side.get("output_unit", "rad"), side.get("metadata", {}))
+        return cls(
+            table[:, 1],
+            table[:, 2],
+            Ts,
+            side.get("input_unit", "V"),
+            side.get("output_unit", "rad"),
+            side.get("metadata", {}),
+        )
 
     def plot(self, axes=None):
         """Input (V) and output (rad) against time (s): :func:`jerklab.plots.plot_ident_data`."""
@@ -346,11 +377,11 @@ class ARXResult:
     na: int
     nb: int
     nk: int
-    params: np.ndarray           #: [a1..a_na, b0..b_{nb-1}]
-    cov: np.ndarray              #: parameter covariance lambda (Phi^T Phi)^-1
-    noise_variance: float        #: lambda = SSR / (N - n_params)
-    residuals: np.ndarray        #: equation errors e(t) for t = n0 .. N-1
-    n_used: int                  #: number of equations (rows of Phi)
+    params: np.ndarray  #: [a1..a_na, b0..b_{nb-1}]
+    cov: np.ndarray  #: parameter covariance lambda (Phi^T Phi)^-1
+    noise_variance: float  #: lambda = SSR / (N - n_params)
+    residuals: np.ndarray  #: equation errors e(t) for t = n0 .. N-1
+    n_used: int  #: number of equations (rows of Phi)
 
     @property
     def std(self) -> np.ndarray:
@@ -362,7 +393,7 @@ class ARXResult:
         Ts = as_positive("Ts", Ts)
         n = max(self.na, self.nk + self.nb - 1)
         num = np.zeros(n + 1)
-        num[self.nk:self.nk + self.nb] = self.B
+        num[self.nk : self.nk + self.nb] = self.B
         den = np.zeros(n + 1)
         den[: self.na + 1] = self.A
         return control.tf(num, den, Ts)
@@ -380,10 +411,10 @@ def _arx_regressors(y, u, na, nb, nk):
     rows = N - n0
     Phi = np.empty((rows, na + nb))
     for i in range(1, na + 1):
-        Phi[:, i - 1] = -y[n0 - i:N - i]
+        Phi[:, i - 1] = -y[n0 - i : N - i]
     for j in range(nb):
         d = nk + j
-        Phi[:, na + j] = u[n0 - d:N - d]
+        Phi[:, na + j] = u[n0 - d : N - d]
     return Phi, y[n0:], n0
 
 
@@ -426,11 +457,13 @@ def arx(y, u, na, nb, nk=1) -> ARXResult:
     u, y = _pair(u, y, "u", "y", min_len=2)
     n0 = max(na, nk + nb - 1)
     if y.size - n0 < npar + 1:
-        raise ValueError(f"y is too short: {y.size} samples for na={na}, nb={nb}, nk={nk} "
-                         f"(need at least {n0 + npar + 1})")
+        raise ValueError(
+            f"y is too short: {y.size} samples for na={na}, nb={nb}, nk={nk} "
+            f"(need at least {n0 + npar + 1})"
+        )
     Phi, target, n0 = _arx_regressors(y, u, na, nb, nk)
     # column scaling keeps the QR well conditioned when u and y differ by orders of magnitude
-    scale = np.sqrt(np.sum(Phi ** 2, axis=0))
+    scale = np.sqrt(np.sum(Phi**2, axis=0))
     if np.any(scale == 0.0):
         bad = int(np.flatnonzero(scale == 0.0)[0])
         which = "y" if bad < na else "u"
@@ -441,7 +474,8 @@ def arx(y, u, na, nb, nk=1) -> ARXResult:
         raise ValueError(
             f"u does not excite an ARX({na},{nb},{nk}) model: the regression is rank deficient "
             f"(condition {sv[0] / max(sv[-1], 1e-300):.3g}); use a richer input (step from rest, PRBS) "
-            f"or lower orders")
+            f"or lower orders"
+        )
     theta_s = np.linalg.solve(R, Q.T @ target)
     params = theta_s / scale
     res = target - Phi @ params
@@ -468,7 +502,7 @@ def dc_motor_zoh_coefficients(K, tau, Ts):
     so the differenced angle obeys v(k) = a v(k-1) + (b1 u(k-1) + b2 u(k-2)) / Ts with
     v(k) = (theta(k) - theta(k-1)) / Ts, and b1 + b2 = K Ts (1 - a).
     """
-    z = zoh_coefficients(K, tau, Ts)          # the one home: jerklab.law
+    z = zoh_coefficients(K, tau, Ts)  # the one home: jerklab.law
     return z.a, z.b1, z.b0
 
 
@@ -613,20 +647,20 @@ class MotorFit:
     noise_std: float = float("nan")
     arx_result: ARXResult | None = field(default=None, repr=False)
     nfev: int = 0
-    friction: float = 0.0                #: Coulomb friction voltage f_c (V); 0.0 when not estimated
-    friction_std: float = 0.0            #: its standard error (V); 0.0 when fixed
-    offset: float = 0.0                  #: input offset (V): the motor sees u + offset
+    friction: float = 0.0  #: Coulomb friction voltage f_c (V); 0.0 when not estimated
+    friction_std: float = 0.0  #: its standard error (V); 0.0 when fixed
+    offset: float = 0.0  #: input offset (V): the motor sees u + offset
     offset_std: float = 0.0
-    dead_zone: float = 0.0               #: input dead zone (V), after the offset
+    dead_zone: float = 0.0  #: input dead zone (V), after the offset
     dead_zone_std: float = 0.0
-    delay: int = 0                       #: pure input delay (whole samples)
-    estimated: tuple = ("K", "tau")      #: names of the estimated parameters, in ``covariance`` order
-    covariance: np.ndarray | None = field(default=None, repr=False)   #: covariance of ``estimated``
-    warnings: list = field(default_factory=list, repr=False)   #: diagnostics raised by the fit
-    n_segments: int = 1                  #: shooting segments of the output-error fit
-    n_experiments: int = 1               #: experiments merged in the estimation data
-    omega0: float = 0.0                  #: initial velocity of the first segment (rad/s)
-    tau_coast: float = 0.0               #: time constant (s) with the drive open at u = 0; 0.0: no coasting
+    delay: int = 0  #: pure input delay (whole samples)
+    estimated: tuple = ("K", "tau")  #: names of the estimated parameters, in ``covariance`` order
+    covariance: np.ndarray | None = field(default=None, repr=False)  #: covariance of ``estimated``
+    warnings: list = field(default_factory=list, repr=False)  #: diagnostics raised by the fit
+    n_segments: int = 1  #: shooting segments of the output-error fit
+    n_experiments: int = 1  #: experiments merged in the estimation data
+    omega0: float = 0.0  #: initial velocity of the first segment (rad/s)
+    tau_coast: float = 0.0  #: time constant (s) with the drive open at u = 0; 0.0: no coasting
     tau_coast_std: float = 0.0
 
     def simulate(self, u, theta0=0.0, omega0=0.0) -> np.ndarray:
@@ -637,8 +671,19 @@ class MotorFit:
         """
         u = _signal("u", u, min_len=1)
         if not self.is_linear:
-            return simulate_motor(self.K, self.tau, self.Ts, u, theta0, omega0, self.friction,
-                                  self.offset, self.dead_zone, self.delay, self.tau_coast or None)
+            return simulate_motor(
+                self.K,
+                self.tau,
+                self.Ts,
+                u,
+                theta0,
+                omega0,
+                self.friction,
+                self.offset,
+                self.dead_zone,
+                self.delay,
+                self.tau_coast or None,
+            )
         return simulate_dc_motor(self.K, self.tau, self.Ts, u, theta0, omega0)
 
     @property
@@ -649,9 +694,14 @@ class MotorFit:
     @property
     def std(self) -> dict:
         """Standard errors by name: K, tau, friction, offset, dead_zone, tau_coast (0.0 when fixed)."""
-        return {"K": self.K_std, "tau": self.tau_std, "friction": self.friction_std,
-                "offset": self.offset_std, "dead_zone": self.dead_zone_std,
-                "tau_coast": self.tau_coast_std}
+        return {
+            "K": self.K_std,
+            "tau": self.tau_std,
+            "friction": self.friction_std,
+            "offset": self.offset_std,
+            "dead_zone": self.dead_zone_std,
+            "tau_coast": self.tau_coast_std,
+        }
 
     def confidence_interval(self, level: float = 0.95):
         """Normal-approximation intervals ``{"K": (lo, hi), "tau": (lo, hi), ...}`` for every
@@ -675,11 +725,16 @@ class MotorFit:
         from jerklab.plant import DCMotor
 
         if self.tau_coast:
-            raise ValueError("tau_coast: jerklab.plant.DCMotor has no open-drive (coasting) mode; "
-                             "use fit.simulate or ident.simulate_motor(..., tau_coast=fit.tau_coast)")
+            raise ValueError(
+                "tau_coast: jerklab.plant.DCMotor has no open-drive (coasting) mode; "
+                "use fit.simulate or ident.simulate_motor(..., tau_coast=fit.tau_coast)"
+            )
 
-        kw = dict(coulomb_friction=max(self.friction, 0.0), offset=self.offset,
-                  dead_zone=max(self.dead_zone, 0.0))
+        kw = dict(
+            coulomb_friction=max(self.friction, 0.0),
+            offset=self.offset,
+            dead_zone=max(self.dead_zone, 0.0),
+        )
         kw.update(kwargs)
         return DCMotor(K=self.K, tau=self.tau, **kw)
 
@@ -698,9 +753,11 @@ class MotorFit:
             fr += f", tau_coast = {self.tau_coast * 1e3:.4g} ± {self.tau_coast_std * 1e3:.2g} ms"
         elif self.tau_coast == math.inf:
             fr += ", coasting on Coulomb friction (tau_coast = inf)"
-        return (f"{self.method.upper():>3}: K = {self.K:.4g} ± {self.K_std:.2g} rad/(V s), "
-                f"tau = {self.tau * 1e3:.4g} ± {self.tau_std * 1e3:.2g} ms{fr}, "
-                f"fit = {self.fit_percent:.2f} %")
+        return (
+            f"{self.method.upper():>3}: K = {self.K:.4g} ± {self.K_std:.2g} rad/(V s), "
+            f"tau = {self.tau * 1e3:.4g} ± {self.tau_std * 1e3:.2g} ms{fr}, "
+            f"fit = {self.fit_percent:.2f} %"
+        )
 
 
 def _motor_tf(K, tau):
@@ -715,13 +772,18 @@ def _fit_arx(u, theta, Ts):
     if not 0.0 < a < 1.0:
         raise ValueError(
             f"theta: the ARX velocity fit found a pole a = {a:.4g} outside (0, 1), which no motor "
-            f"K/(s(tau s+1)) gives; the data are too noisy or too coarse for ARX (try method='pem')")
+            f"K/(s(tau s+1)) gives; the data are too noisy or too coarse for ARX (try method='pem')"
+        )
     bs = b1 + b2
     K = bs / (1.0 - a)
     tau = -Ts / math.log(a)
     # delta method on (a, b1, b2) -> (K, tau)
-    J = np.array([[bs / (1.0 - a) ** 2, 1.0 / (1.0 - a), 1.0 / (1.0 - a)],
-                  [Ts / (a * math.log(a) ** 2), 0.0, 0.0]])
+    J = np.array(
+        [
+            [bs / (1.0 - a) ** 2, 1.0 / (1.0 - a), 1.0 / (1.0 - a)],
+            [Ts / (a * math.log(a) ** 2), 0.0, 0.0],
+        ]
+    )
     cov = J @ res.cov @ J.T
     return K, tau, cov, res
 
@@ -733,7 +795,7 @@ def _pem_model(u, theta, Ts, fit_theta0, friction):
     lo, hi = math.log(Ts * 1e-4), math.log(Ts * u.size * 1e4)
 
     def sim(p):
-        K, tau = p[0], math.exp(min(max(p[1], lo), hi))     # keep tau finite on hopeless data
+        K, tau = p[0], math.exp(min(max(p[1], lo), hi))  # keep tau finite on hopeless data
         i = 2
         th0 = theta[0]
         if fit_theta0:
@@ -783,8 +845,9 @@ def _fit_pem(u, theta, Ts, fit_theta0, friction=False):
     def resid(p):
         return sim(p) - theta
 
-    sol = optimize.least_squares(resid, p0, method="lm", x_scale="jac", xtol=1e-12, ftol=1e-12,
-                                 gtol=1e-12, max_nfev=2000)
+    sol = optimize.least_squares(
+        resid, p0, method="lm", x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=2000
+    )
     p = sol.x
     # Jacobian at the optimum by central differences (more accurate than the solver's own)
     J = np.empty((theta.size, p.size))
@@ -803,7 +866,8 @@ def _fit_pem(u, theta, Ts, fit_theta0, friction=False):
     if not math.log(Ts * 1e-4) < p[1] < math.log(Ts * u.size * 1e4):
         raise ValueError(
             f"theta: the output-error fit ran tau to {math.exp(p[1]):.3g} s, outside any motor this "
-            f"record can describe (is the angle sampled with u, does the motor have an integrator?)")
+            f"record can describe (is the angle sampled with u, does the motor have an integrator?)"
+        )
     K, tau = p[0], math.exp(p[1])
     # (K, log tau) -> (K, tau)
     T = np.diag([1.0, tau])
@@ -820,9 +884,21 @@ def _fit_pem(u, theta, Ts, fit_theta0, friction=False):
 FIT_TS_RANGE = (1e-9, 1e3)
 
 
-def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
-                 friction: bool = False, offset: bool = False, delay=0, dead_zone: bool = False,
-                 segment=None, max_delay: int = 10, cutoff=None, coast=False) -> MotorFit:
+def fit_dc_motor(
+    u,
+    theta,
+    Ts,
+    method: str = "pem",
+    fit_theta0: bool = True,
+    friction: bool = False,
+    offset: bool = False,
+    delay=0,
+    dead_zone: bool = False,
+    segment=None,
+    max_delay: int = 10,
+    cutoff=None,
+    coast=False,
+) -> MotorFit:
     """Identify K and tau of P(s) = K/(s(tau s + 1)) (Stojčić eq. 1, §4A) from a voltage/angle record.
 
     The paper ran MATLAB's ``pem(iddata(y, u, Ts), 'P2')``; 'P2' has no integrator, so this fits
@@ -923,16 +999,22 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
     """
     if method not in ("pem", "arx", "idim", "idim-iv"):
         raise ValueError(f"method must be 'pem', 'arx', 'idim' or 'idim-iv', got {method!r}")
-    for nm, val in (("friction", friction), ("offset", offset), ("dead_zone", dead_zone),
-                    ("fit_theta0", fit_theta0)):
+    for nm, val in (
+        ("friction", friction),
+        ("offset", offset),
+        ("dead_zone", dead_zone),
+        ("fit_theta0", fit_theta0),
+    ):
         if not isinstance(val, (bool, np.bool_)):
             raise ValueError(f"{nm} must be True or False, got {val!r}")
     if not (isinstance(coast, (bool, np.bool_)) or coast == "coulomb"):
         raise ValueError(f"coast must be True, False or 'coulomb', got {coast!r}")
     coast = coast if coast == "coulomb" else bool(coast)
     if coast == "coulomb" and not friction:
-        raise ValueError("coast='coulomb' (the open motor runs down on Coulomb friction alone) needs "
-                         "friction=True; without friction it would never stop")
+        raise ValueError(
+            "coast='coulomb' (the open motor runs down on Coulomb friction alone) needs "
+            "friction=True; without friction it would never stop"
+        )
     estimate_delay = delay is True
     if not estimate_delay:
         if delay is False:
@@ -942,8 +1024,10 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
     Ts = as_positive("Ts", Ts)
     if not FIT_TS_RANGE[0] <= Ts <= FIT_TS_RANGE[1]:
         # the fit scales with Ts (tau ~ Ts); far outside this range its covariance under/overflows
-        raise ValueError(f"Ts must lie within {FIT_TS_RANGE[0]:g} … {FIT_TS_RANGE[1]:g} s (FIT_TS_RANGE: the "
-                         f"sample period of a motor record), got {Ts:g}")
+        raise ValueError(
+            f"Ts must lie within {FIT_TS_RANGE[0]:g} … {FIT_TS_RANGE[1]:g} s (FIT_TS_RANGE: the "
+            f"sample period of a motor record), got {Ts:g}"
+        )
     exps = _as_experiments(u, theta)
     for i, (uu, tt) in enumerate(exps):
         suffix = "" if len(exps) == 1 else f"[{i}]"
@@ -958,18 +1042,34 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
     else:
         segment_n = int(round(as_positive("segment", segment) / Ts))
         if segment_n < 10:
-            raise ValueError(f"segment must be at least 10 samples ({10 * Ts:g} s), got {segment:g} s")
+            raise ValueError(
+                f"segment must be at least 10 samples ({10 * Ts:g} s), got {segment:g} s"
+            )
     opts = {"friction": bool(friction), "offset": bool(offset), "dead_zone": bool(dead_zone)}
-    extended = (any(opts.values()) or coast or estimate_delay or delay or len(exps) > 1
-                or segment_n is not None)
-    if method == "arx" and (extended and (any(opts.values()) or estimate_delay or delay or len(exps) > 1)):
-        raise ValueError("friction, offset, dead_zone, delay and merged experiments need method='pem' "
-                         "or 'idim' (ARX has no such terms)")
+    extended = (
+        any(opts.values())
+        or coast
+        or estimate_delay
+        or delay
+        or len(exps) > 1
+        or segment_n is not None
+    )
+    if method == "arx" and (
+        extended and (any(opts.values()) or estimate_delay or delay or len(exps) > 1)
+    ):
+        raise ValueError(
+            "friction, offset, dead_zone, delay and merged experiments need method='pem' "
+            "or 'idim' (ARX has no such terms)"
+        )
     if coast and method != "pem":
-        raise ValueError(f"coast={coast!r} needs method='pem' (the output-error fit), got method={method!r}")
+        raise ValueError(
+            f"coast={coast!r} needs method='pem' (the output-error fit), got method={method!r}"
+        )
     u_all = np.concatenate([uu for uu, _ in exps])
     if coast and not np.any(u_all == 0.0):
-        raise ValueError("coast: u is never exactly 0, so the drive is never open; fit without coast")
+        raise ValueError(
+            "coast: u is never exactly 0, so the drive is never open; fit without coast"
+        )
     if offset or dead_zone:
         # the static map u -> K dz(u + offset) is only seen at the levels u takes
         # (without an offset, dz(0) = 0 and dz is odd: u = 0 tells nothing, and -l says what l says)
@@ -978,15 +1078,20 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
             levels = levels[levels != 0.0]
         need = 1 + int(bool(offset)) + int(bool(dead_zone))
         if levels.size < need:
-            shown = ", ".join(f"{lv:.4g}" for lv in levels[:4]) + (" ..." if levels.size > 4 else "")
-            which = [nm for nm, on in (("K", True), ("offset", offset), ("dead_zone", dead_zone)) if on]
+            shown = ", ".join(f"{lv:.4g}" for lv in levels[:4]) + (
+                " ..." if levels.size > 4 else ""
+            )
+            which = [
+                nm for nm, on in (("K", True), ("offset", offset), ("dead_zone", dead_zone)) if on
+            ]
             which = ", ".join(which[:-1]) + " and " + which[-1]
             raise ValueError(
                 f"{'dead_zone' if dead_zone else 'offset'}: the {'driven ' if coast else ''}input takes only "
                 f"{levels.size} distinct level{'s' if levels.size > 1 else ''} ({shown} V), and the motor sees "
                 f"K dz(u + offset) only at those levels, so {which} ({need} parameters) cannot be "
                 f"separated: the fit would trade them off without bound. Drop "
-                f"{'dead_zone' if dead_zone else 'offset'}, or record an input with at least {need} levels")
+                f"{'dead_zone' if dead_zone else 'offset'}, or record an input with at least {need} levels"
+            )
     u_abs_max = max(float(np.max(np.abs(uu))) for uu, _ in exps)
     if method in ("arx",) or (method == "pem" and not extended):
         fit = _fit_legacy(exps[0][0], exps[0][1], Ts, method, fit_theta0)
@@ -1010,7 +1115,9 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
     if best is None:
         raise ValueError("theta: the inverse-dynamics regression failed (too few moving samples)")
     delay = best[0]
-    p, cov_p, _, _ = _idim(exps, Ts, delay, opts, cutoff, iv_iterations=idim_iv, segment_n=segment_n)
+    p, cov_p, _, _ = _idim(
+        exps, Ts, delay, opts, cutoff, iv_iterations=idim_iv, segment_n=segment_n
+    )
     par = _params_from_idim(p, opts)
     names = ["K", "tau"] + [nm for nm in ("friction", "offset", "dead_zone") if opts[nm]]
     if coast is True:
@@ -1019,8 +1126,8 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
     if method in ("idim", "idim-iv"):
         Jt = np.zeros((len(names), p.size))
         a_, b_ = p[0], p[1]
-        Jt[0, 1] = -1.0 / b_ ** 2
-        Jt[1, 0], Jt[1, 1] = 1.0 / b_, -a_ / b_ ** 2
+        Jt[0, 1] = -1.0 / b_**2
+        Jt[1, 0], Jt[1, 1] = 1.0 / b_, -a_ / b_**2
         for i in range(2, len(names)):
             Jt[i, i] = 1.0
         cov = Jt @ cov_p @ Jt.T
@@ -1035,7 +1142,7 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
         theta_c = np.concatenate(th_all)
         resid = theta_c - y_sim
         msgs = _diagnose(par, cov, names, u_abs_max)
-        s = float(np.sqrt(np.mean(resid ** 2))) if np.all(np.isfinite(resid)) else float("nan")
+        s = float(np.sqrt(np.mean(resid**2))) if np.all(np.isfinite(resid)) else float("nan")
         nfev, nseg, th0 = 0, 1, float(theta_c[0])
         om0 = 0.0
         at_bound = []
@@ -1052,8 +1159,11 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
             if opts[nm]:
                 par[nm] = min(max(par[nm], 0.01 * u_abs_max), 0.5 * u_abs_max)
         # the inverse-dynamics delay first; then its neighbours, started from that optimum
-        cands = [delay] if not estimate_delay else [delay] + sorted(
-            {max(delay - 1, 0), min(delay + 1, max_delay)} - {delay})
+        cands = (
+            [delay]
+            if not estimate_delay
+            else [delay] + sorted({max(delay - 1, 0), min(delay + 1, max_delay)} - {delay})
+        )
         # (a neighbour only has to show a higher cost: a few iterations, a full fit if it wins)
         res = None
         for d in cands:
@@ -1074,20 +1184,42 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", fit_theta0: bool = True,
     std = dict(zip(names, np.sqrt(np.clip(np.diag(cov), 0.0, None))))
     K, tau = float(par["K"]), float(par["tau"])
     fp = fit_percent(theta_c, y_sim) if np.all(np.isfinite(y_sim)) else float("nan")
-    return MotorFit(K=K, tau=tau, K_std=float(std["K"]), tau_std=float(std["tau"]),
-                    fit_percent=fp, model=_motor_tf(K, tau) if tau > 0 else control.tf([K], [1.0, 0.0]),
-                    method=method, Ts=Ts, theta0=th0, cov=cov[:2, :2].copy(), y_sim=y_sim,
-                    residuals=resid, noise_std=float(s), nfev=int(nfev),
-                    friction=float(par["friction"]), friction_std=float(std.get("friction", 0.0)),
-                    offset=float(par["offset"]), offset_std=float(std.get("offset", 0.0)),
-                    dead_zone=float(par["dead_zone"]), dead_zone_std=float(std.get("dead_zone", 0.0)),
-                    delay=int(delay), estimated=tuple(names), covariance=cov, warnings=msgs,
-                    n_segments=int(nseg), n_experiments=len(exps), omega0=om0,
-                    tau_coast=float(par["tau_coast"]), tau_coast_std=float(std.get("tau_coast", 0.0)))
+    return MotorFit(
+        K=K,
+        tau=tau,
+        K_std=float(std["K"]),
+        tau_std=float(std["tau"]),
+        fit_percent=fp,
+        model=_motor_tf(K, tau) if tau > 0 else control.tf([K], [1.0, 0.0]),
+        method=method,
+        Ts=Ts,
+        theta0=th0,
+        cov=cov[:2, :2].copy(),
+        y_sim=y_sim,
+        residuals=resid,
+        noise_std=float(s),
+        nfev=int(nfev),
+        friction=float(par["friction"]),
+        friction_std=float(std.get("friction", 0.0)),
+        offset=float(par["offset"]),
+        offset_std=float(std.get("offset", 0.0)),
+        dead_zone=float(par["dead_zone"]),
+        dead_zone_std=float(std.get("dead_zone", 0.0)),
+        delay=int(delay),
+        estimated=tuple(names),
+        covariance=cov,
+        warnings=msgs,
+        n_segments=int(nseg),
+        n_experiments=len(exps),
+        omega0=om0,
+        tau_coast=float(par["tau_coast"]),
+        tau_coast_std=float(std.get("tau_coast", 0.0)),
+    )
 
 
 def _issue(msgs):
     import warnings
+
     for m in msgs:
         warnings.warn(m, IdentificationWarning, stacklevel=3)
 
@@ -1107,11 +1239,24 @@ def _fit_legacy(u, theta, Ts, method, fit_theta0) -> MotorFit:
         if not (math.isfinite(K) and math.isfinite(tau)):
             raise ValueError("theta: the output-error fit did not converge")
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    return MotorFit(K=float(K), tau=float(tau), K_std=float(std[0]), tau_std=float(std[1]),
-                    fit_percent=fit_percent(theta, y_sim), model=_motor_tf(K, tau), method=method,
-                    Ts=Ts, theta0=float(th0), cov=cov, y_sim=y_sim, residuals=theta - y_sim,
-                    noise_std=float(noise_std), arx_result=arx_res, nfev=int(nfev),
-                    covariance=cov.copy())
+    return MotorFit(
+        K=float(K),
+        tau=float(tau),
+        K_std=float(std[0]),
+        tau_std=float(std[1]),
+        fit_percent=fit_percent(theta, y_sim),
+        model=_motor_tf(K, tau),
+        method=method,
+        Ts=Ts,
+        theta0=float(th0),
+        cov=cov,
+        y_sim=y_sim,
+        residuals=theta - y_sim,
+        noise_std=float(noise_std),
+        arx_result=arx_res,
+        nfev=int(nfev),
+        covariance=cov.copy(),
+    )
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1128,7 +1273,11 @@ class IdentificationWarning(UserWarning):
 def _drive(u, offset=0.0, dead_zone=0.0, delay=0):
     """The voltage the motor sees: ``dz(u(k - delay) + offset)``; before the record, u(0) is held."""
     if delay:
-        u = np.concatenate([np.full(delay, u[0]), u[:-delay]]) if delay < u.size else np.full(u.size, u[0])
+        u = (
+            np.concatenate([np.full(delay, u[0]), u[:-delay]])
+            if delay < u.size
+            else np.full(u.size, u[0])
+        )
     x = u + offset
     if dead_zone:
         x = np.sign(x) * np.maximum(np.abs(x) - dead_zone, 0.0)
@@ -1183,10 +1332,19 @@ def _simulate_segments(v, fc, K, tau, Ts, starts, th0, om0, coast=None, coast_ra
     out = np.empty(v.size)
     if coast is None:
         coast, coast_rate = np.zeros(v.size, dtype=np.bool_), 0.0
-    return _sim_kernel(np.ascontiguousarray(v, dtype=float), np.ascontiguousarray(coast, dtype=np.bool_),
-                       float(fc), float(K), float(tau), float(coast_rate), float(Ts),
-                       np.asarray(starts, dtype=np.int64), np.asarray(th0, dtype=float),
-                       np.asarray(om0, dtype=float), out)
+    return _sim_kernel(
+        np.ascontiguousarray(v, dtype=float),
+        np.ascontiguousarray(coast, dtype=np.bool_),
+        float(fc),
+        float(K),
+        float(tau),
+        float(coast_rate),
+        float(Ts),
+        np.asarray(starts, dtype=np.int64),
+        np.asarray(th0, dtype=float),
+        np.asarray(om0, dtype=float),
+        out,
+    )
 
 
 def _coast_mask(u, delay=0):
@@ -1194,8 +1352,19 @@ def _coast_mask(u, delay=0):
     return _drive(u, 0.0, 0.0, delay) == 0.0
 
 
-def simulate_motor(K, tau, Ts, u, theta0=0.0, omega0=0.0, friction=0.0, offset=0.0, dead_zone=0.0,
-                   delay=0, tau_coast=None) -> np.ndarray:
+def simulate_motor(
+    K,
+    tau,
+    Ts,
+    u,
+    theta0=0.0,
+    omega0=0.0,
+    friction=0.0,
+    offset=0.0,
+    dead_zone=0.0,
+    delay=0,
+    tau_coast=None,
+) -> np.ndarray:
     """Exact ZOH simulation of Stojčić eq. 1 with friction by velocity, offset, dead zone and delay.
 
     The motor obeys
@@ -1262,18 +1431,28 @@ def simulate_motor(K, tau, Ts, u, theta0=0.0, omega0=0.0, friction=0.0, offset=0
         return _simulate_segments(v, friction, K, tau, Ts, [0], [theta0], [omega0])
     if not (isinstance(tau_coast, (int, float, np.floating, np.integer)) and tau_coast == math.inf):
         tau_coast = as_positive("tau_coast", tau_coast)
-    return _simulate_segments(v, friction, K, tau, Ts, [0], [theta0], [omega0], _coast_mask(u, delay),
-                              1.0 / tau_coast)
+    return _simulate_segments(
+        v, friction, K, tau, Ts, [0], [theta0], [omega0], _coast_mask(u, delay), 1.0 / tau_coast
+    )
 
 
 def _as_experiments(u, theta):
     """One record (two 1-D arrays) or several (two sequences of 1-D arrays) -> list of (u, theta)."""
+
     def is_multi(x):
-        return isinstance(x, (list, tuple)) and len(x) > 0 and np.ndim(x[0]) == 1 and not np.isscalar(x[0])
+        return (
+            isinstance(x, (list, tuple))
+            and len(x) > 0
+            and np.ndim(x[0]) == 1
+            and not np.isscalar(x[0])
+        )
+
     if is_multi(u) or is_multi(theta):
         if not (is_multi(u) and is_multi(theta)) or len(u) != len(theta):
-            raise ValueError("u and theta must both be one record (1-D arrays) or both lists of "
-                             "records of the same length")
+            raise ValueError(
+                "u and theta must both be one record (1-D arrays) or both lists of "
+                "records of the same length"
+            )
         return [_pair(uu, tt, f"u[{i}]", f"theta[{i}]") for i, (uu, tt) in enumerate(zip(u, theta))]
     return [_pair(u, theta, "u", "theta")]
 
@@ -1292,7 +1471,9 @@ def _filtered_states(theta, Ts, cutoff):
     k = 1 .. N - 3 (N - 3 values).
     """
     b, a = _lowpass(Ts, cutoff)
-    thf = signal.filtfilt(b, a, theta, padtype="odd", padlen=min(3 * max(len(a), len(b)), theta.size - 1))
+    thf = signal.filtfilt(
+        b, a, theta, padtype="odd", padlen=min(3 * max(len(a), len(b)), theta.size - 1)
+    )
     w = (thf[2:-1] - thf[1:-2]) / Ts
     al = (thf[3:] - thf[2:-1] - thf[1:-2] + thf[:-3]) / (2.0 * Ts * Ts)
     return 0.5 * (thf[2:-1] + thf[1:-2]), w, al
@@ -1311,12 +1492,21 @@ def _idim_rows(u, theta, Ts, cutoff, delay, opts, theta_inst=None, offset_guess=
         _, w, al = _filtered_states(th, Ts, cutoff)
         cols = [al, w]
         if opts["friction"]:
-            cols.append(signal.filtfilt(b, a, np.sign(np.concatenate([[w[0]], w, [w[-1]] * 2])),
-                                        padtype="odd", padlen=pad)[1:-2])
+            cols.append(
+                signal.filtfilt(
+                    b,
+                    a,
+                    np.sign(np.concatenate([[w[0]], w, [w[-1]] * 2])),
+                    padtype="odd",
+                    padlen=pad,
+                )[1:-2]
+            )
         if opts["offset"]:
             cols.append(-np.ones(w.size))
         if opts["dead_zone"]:
-            cols.append(signal.filtfilt(b, a, np.sign(ud + offset_guess), padtype="odd", padlen=pad)[1:-2])
+            cols.append(
+                signal.filtfilt(b, a, np.sign(ud + offset_guess), padtype="odd", padlen=pad)[1:-2]
+            )
         return np.column_stack(cols), w
 
     X, w = columns(theta)
@@ -1334,7 +1524,10 @@ def _idim_rows(u, theta, Ts, cutoff, delay, opts, theta_inst=None, offset_guess=
 
 def _params_from_idim(p, opts):
     """(tau/K, 1/K, [f_c], [offset], [dead_zone]) -> dict of physical parameters."""
-    out = {"K": 1.0 / p[1] if p[1] != 0 else math.inf, "tau": p[0] / p[1] if p[1] != 0 else math.nan}
+    out = {
+        "K": 1.0 / p[1] if p[1] != 0 else math.inf,
+        "tau": p[0] / p[1] if p[1] != 0 else math.nan,
+    }
     i = 2
     for name in ("friction", "offset", "dead_zone"):
         if opts[name]:
@@ -1366,7 +1559,9 @@ def _idim(exps, Ts, delay, opts, cutoff, iv_iterations=0, segment_n=None):
         for u, th in exps:
             th_sim = _shooting_sim(u, th, Ts, par, delay, cutoff, segment_n)
             X_, y_, Z_ = _idim_rows(u, th, Ts, cutoff, delay, opts, th_sim, -par["offset"])
-            Xs.append(X_); Zs.append(Z_); ys.append(y_)
+            Xs.append(X_)
+            Zs.append(Z_)
+            ys.append(y_)
         X, Z, y = np.vstack(Xs), np.vstack(Zs), np.concatenate(ys)
         try:
             p = np.linalg.solve(Z.T @ X, Z.T @ y)
@@ -1392,8 +1587,9 @@ def _shooting_sim(u, th, Ts, par, delay, cutoff, segment_n):
     thm, w, _ = _filtered_states(th, Ts, cutoff)
     idx = np.clip(starts, 0, w.size - 1)
     v = _drive(u, par["offset"], max(par["dead_zone"], 0.0), delay)
-    return _simulate_segments(v, max(par["friction"], 0.0), par["K"], par["tau"], Ts, starts,
-                              th[starts], w[idx])
+    return _simulate_segments(
+        v, max(par["friction"], 0.0), par["K"], par["tau"], Ts, starts, th[starts], w[idx]
+    )
 
 
 def _segment_starts(n, segment_n):
@@ -1401,7 +1597,7 @@ def _segment_starts(n, segment_n):
         return np.array([0])
     starts = np.arange(0, n, segment_n)
     if n - starts[-1] < max(segment_n // 2, 10) and starts.size > 1:
-        starts = starts[:-1]                     # fold a short tail into the previous segment
+        starts = starts[:-1]  # fold a short tail into the previous segment
     return starts
 
 
@@ -1450,8 +1646,18 @@ def _fit_oe_ms(exps, Ts, delay, opts, init, segment_n, cutoff, max_nfev=200):
             v = ucat + init["offset"]
             if init["dead_zone"] > 0:
                 v = np.sign(v) * np.maximum(np.abs(v) - init["dead_zone"], 0.0)
-            ys = _simulate_segments(v, max(init["friction"], 0.0), init["K"], init["tau"], Ts, starts,
-                                    th0, om0, cmask, m / init["tau"])
+            ys = _simulate_segments(
+                v,
+                max(init["friction"], 0.0),
+                init["K"],
+                init["tau"],
+                Ts,
+                starts,
+                th0,
+                om0,
+                cmask,
+                m / init["tau"],
+            )
             c = float(np.sum((ys - theta) ** 2))
             if best is None or c < best[0]:
                 best = (c, m / init["tau"])
@@ -1459,7 +1665,8 @@ def _fit_oe_ms(exps, Ts, delay, opts, init, segment_n, cutoff, max_nfev=200):
     # the coasting enters as its rate 1/tau_coast >= 0 (|p|, like friction): 0 is a motor with no
     # viscous drag, whose open-drive run-down is Coulomb friction alone
     gl = [init["K"], math.log(init["tau"])] + [
-        init["coast_rate"] if nm == "tau_coast" else init[nm] for nm in names[2:]]
+        init["coast_rate"] if nm == "tau_coast" else init[nm] for nm in names[2:]
+    ]
     x0 = np.concatenate([gl, np.ravel(np.column_stack([th0, om0]))])
     # friction and dead zone enter as |p| (>= 0 without bounds, so MINPACK's Levenberg-Marquardt
     # can be used: it is much faster than a bounded trust region on hundreds of segment states);
@@ -1484,15 +1691,16 @@ def _fit_oe_ms(exps, Ts, delay, opts, init, segment_n, cutoff, max_nfev=200):
             g[nm] = abs(g.get(nm, 0.0))
         g["dead_zone"] = min(g["dead_zone"], dz_max)
         g.setdefault("offset", 0.0)
-        return g, x[ng::2], x[ng + 1::2]
+        return g, x[ng::2], x[ng + 1 :: 2]
 
     def model(x):
         g, t0, w0 = unpack(x)
         v = ucat + g["offset"]
         if g["dead_zone"]:
             v = np.sign(v) * np.maximum(np.abs(v) - g["dead_zone"], 0.0)
-        return _simulate_segments(v, g["friction"], g["K"], g["tau"], Ts, starts, t0, w0, cmask,
-                                  g["coast_rate"])
+        return _simulate_segments(
+            v, g["friction"], g["K"], g["tau"], Ts, starts, t0, w0, cmask, g["coast_rate"]
+        )
 
     def resid(x):
         return model(x) - theta
@@ -1511,16 +1719,25 @@ def _fit_oe_ms(exps, Ts, delay, opts, init, segment_n, cutoff, max_nfev=200):
             xm[i] -= h
             J[:, i] = (model(xp) - model(xm)) / (2 * h)
         J[np.arange(theta.size), ng + 2 * seg_of] = 1.0
-        w0 = x[ng + 1::2]
+        w0 = x[ng + 1 :: 2]
         h = 1e-6 * max(float(np.max(np.abs(w0))), 1e-2)
         xp, xm = x.copy(), x.copy()
-        xp[ng + 1::2] += h
-        xm[ng + 1::2] -= h
+        xp[ng + 1 :: 2] += h
+        xm[ng + 1 :: 2] -= h
         J[np.arange(theta.size), ng + 2 * seg_of + 1] = (model(xp) - model(xm)) / (2 * h)
         return J
 
-    sol = optimize.least_squares(resid, x0, jac=jac, method="lm", x_scale="jac",
-                                 xtol=1e-8, ftol=1e-9, gtol=1e-9, max_nfev=max_nfev)
+    sol = optimize.least_squares(
+        resid,
+        x0,
+        jac=jac,
+        method="lm",
+        x_scale="jac",
+        xtol=1e-8,
+        ftol=1e-9,
+        gtol=1e-9,
+        max_nfev=max_nfev,
+    )
     x = sol.x
     J = jac(x)
     r = resid(x)
@@ -1543,18 +1760,36 @@ def _fit_oe_ms(exps, Ts, delay, opts, init, segment_n, cutoff, max_nfev=200):
         g["tau_coast"] = 1.0 / g["coast_rate"] if g["coast_rate"] > 0 else math.inf
     Jg = None
     sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    at_bound = [nm for i, nm in enumerate(names) if nm in ("friction", "dead_zone")
-                and (g[nm] <= 1e-4 * float(np.max(np.abs(ucat))) or g[nm] < 2.0 * sd[i])]
+    at_bound = [
+        nm
+        for i, nm in enumerate(names)
+        if nm in ("friction", "dead_zone")
+        and (g[nm] <= 1e-4 * float(np.max(np.abs(ucat))) or g[nm] < 2.0 * sd[i])
+    ]
     if not (tau_lo + 1e-3 < x[1] < tau_hi - 1e-3):
         at_bound.append("tau")
     if coast is True and g["coast_rate"] <= 2.0 * rate_sd:
         at_bound.append("tau_coast")
     if "dead_zone" in names and g["dead_zone"] >= 0.98 * dz_max:
         at_bound.append("dead_zone_max")
-    y_sim = theta + r            # r = model - theta
-    return dict(par=g, names=names, cov=cov, y_sim=y_sim, theta=theta, nfev=sol.nfev,
-                s=math.sqrt(s2), nseg=nseg, starts=starts, seg_theta0=t0, seg_omega0=w0,
-                at_bound=at_bound, cost=float(r @ r), Jg=Jg, exp_offsets=offsets)
+    y_sim = theta + r  # r = model - theta
+    return dict(
+        par=g,
+        names=names,
+        cov=cov,
+        y_sim=y_sim,
+        theta=theta,
+        nfev=sol.nfev,
+        s=math.sqrt(s2),
+        nseg=nseg,
+        starts=starts,
+        seg_theta0=t0,
+        seg_omega0=w0,
+        at_bound=at_bound,
+        cost=float(r @ r),
+        Jg=Jg,
+        exp_offsets=offsets,
+    )
 
 
 def _shift(u, delay):
@@ -1565,45 +1800,63 @@ def _diagnose(par, cov, names, u_abs_max, at_bound=(), Jg=None):
     """Physically impossible or poorly determined results -> list of messages (Ljung §16)."""
     msgs = []
     if not par["K"] > 0:
-        msgs.append(f"K = {par['K']:.4g} rad/(V s) <= 0: the angle falls when the voltage rises. The "
-                    f"encoder channels (A/B) or the motor leads are probably reversed, or u was logged "
-                    f"with the wrong sign: flip the sign of theta (or of u) and fit again")
+        msgs.append(
+            f"K = {par['K']:.4g} rad/(V s) <= 0: the angle falls when the voltage rises. The "
+            f"encoder channels (A/B) or the motor leads are probably reversed, or u was logged "
+            f"with the wrong sign: flip the sign of theta (or of u) and fit again"
+        )
     if not par["tau"] > 0:
-        msgs.append(f"tau = {par['tau']:.4g} s <= 0: no motor has a negative time constant; check "
-                    f"that theta is the angle (not the velocity) and that the encoder and motor "
-                    f"leads are not reversed")
+        msgs.append(
+            f"tau = {par['tau']:.4g} s <= 0: no motor has a negative time constant; check "
+            f"that theta is the angle (not the velocity) and that the encoder and motor "
+            f"leads are not reversed"
+        )
     if "friction" in names and par["friction"] > u_abs_max:
-        msgs.append(f"friction f_c = {par['friction']:.4g} V is larger than the largest input "
-                    f"|u| = {u_abs_max:.4g} V: the motor could never have moved. The model does not "
-                    f"fit these data (u not in volts? a reversed encoder? an offset or dead zone "
-                    f"not modelled?)")
+        msgs.append(
+            f"friction f_c = {par['friction']:.4g} V is larger than the largest input "
+            f"|u| = {u_abs_max:.4g} V: the motor could never have moved. The model does not "
+            f"fit these data (u not in volts? a reversed encoder? an offset or dead zone "
+            f"not modelled?)"
+        )
     for nm in at_bound:
         if nm == "dead_zone_max":
-            msgs.append(f"dead_zone = {par['dead_zone']:.4g} V ran to its upper bound, the largest input "
-                        f"|u| = {u_abs_max:.4g} V: a dead zone that swallows the whole input would stop the "
-                        f"motor for good, so K ({par['K']:.3g}) was blown up against it. The input cannot "
-                        f"separate K from the dead zone (too few levels, or an offset or friction absorbs "
-                        f"it): fit without dead_zone, or record several input levels")
+            msgs.append(
+                f"dead_zone = {par['dead_zone']:.4g} V ran to its upper bound, the largest input "
+                f"|u| = {u_abs_max:.4g} V: a dead zone that swallows the whole input would stop the "
+                f"motor for good, so K ({par['K']:.3g}) was blown up against it. The input cannot "
+                f"separate K from the dead zone (too few levels, or an offset or friction absorbs "
+                f"it): fit without dead_zone, or record several input levels"
+            )
             continue
-        what = {"tau": "tau ran to the edge of its search range",
-                "tau_coast": f"the coasting rate 1/tau_coast (tau_coast = {par.get('tau_coast', 0.0):.3g} s) "
-                             f"is at (or within two standard errors of) its bound 0: the open motor "
-                             f"shows no viscous drag. With friction, fit coast='coulomb' instead",
-                "friction": f"friction f_c = {par['friction']:.3g} V is at (or within two standard "
-                            f"errors of) its bound 0",
-                "dead_zone": f"dead_zone = {par['dead_zone']:.3g} V is at (or within two standard "
-                             f"errors of) its bound 0"}[nm]
-        msgs.append(f"{what}: the data do not support this term (or another term absorbed it); "
-                    f"fit without it or record an input that shows it")
+        what = {
+            "tau": "tau ran to the edge of its search range",
+            "tau_coast": f"the coasting rate 1/tau_coast (tau_coast = {par.get('tau_coast', 0.0):.3g} s) "
+            f"is at (or within two standard errors of) its bound 0: the open motor "
+            f"shows no viscous drag. With friction, fit coast='coulomb' instead",
+            "friction": f"friction f_c = {par['friction']:.3g} V is at (or within two standard "
+            f"errors of) its bound 0",
+            "dead_zone": f"dead_zone = {par['dead_zone']:.3g} V is at (or within two standard "
+            f"errors of) its bound 0",
+        }[nm]
+        msgs.append(
+            f"{what}: the data do not support this term (or another term absorbed it); "
+            f"fit without it or record an input that shows it"
+        )
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     # (all zero is a noise-free record; some zero while others are not is a rank-deficient fit)
-    bad = [names[i] for i in range(len(names)) if names[i] not in at_bound
-           and (not np.isfinite(std[i]) or (std[i] == 0 and np.nanmax(std) > 0))]
+    bad = [
+        names[i]
+        for i in range(len(names))
+        if names[i] not in at_bound
+        and (not np.isfinite(std[i]) or (std[i] == 0 and np.nanmax(std) > 0))
+    ]
     if bad:
-        msgs.append(f"singular fit: the standard error of {', '.join(bad)} is zero or undefined, so "
-                    f"the data do not determine {'it' if len(bad) == 1 else 'them'} (a parameter at a "
-                    f"bound, or several parameters trading off without limit); the values are not "
-                    f"estimates: fit fewer parameters or record a richer input")
+        msgs.append(
+            f"singular fit: the standard error of {', '.join(bad)} is zero or undefined, so "
+            f"the data do not determine {'it' if len(bad) == 1 else 'them'} (a parameter at a "
+            f"bound, or several parameters trading off without limit); the values are not "
+            f"estimates: fit fewer parameters or record a richer input"
+        )
     elif np.all(np.isfinite(cov)):
         C = cov / np.outer(std, std)
         w, V = np.linalg.eigh(C)
@@ -1611,16 +1864,26 @@ def _diagnose(par, cov, names, u_abs_max, at_bound=(), Jg=None):
             v = V[:, 0]
             idx = np.argsort(-np.abs(v))[:2]
             pair = " and ".join(names[i] for i in idx)
-            msgs.append(f"ill-conditioned fit (parameter correlation matrix eigenvalue {w[0]:.1e}): "
-                        f"the input is not exciting enough to separate {pair}. A single step level "
-                        f"cannot separate K from friction or offset, a motor turning one way cannot "
-                        f"separate friction from offset: use two or more levels, both directions "
-                        f"(a PRBS about zero), or fewer parameters")
+            msgs.append(
+                f"ill-conditioned fit (parameter correlation matrix eigenvalue {w[0]:.1e}): "
+                f"the input is not exciting enough to separate {pair}. A single step level "
+                f"cannot separate K from friction or offset, a motor turning one way cannot "
+                f"separate friction from offset: use two or more levels, both directions "
+                f"(a PRBS about zero), or fewer parameters"
+            )
     for i, nm in enumerate(names):
         val = par[nm]
-        if nm in ("K", "tau", "tau_coast") and nm not in at_bound and np.isfinite(std[i]) and val != 0 and std[i] > 0.5 * abs(val):
-            msgs.append(f"{nm} is poorly determined ({val:.4g} ± {std[i]:.2g}): the input is not "
-                        f"exciting enough (too short, too small, or too slow for tau)")
+        if (
+            nm in ("K", "tau", "tau_coast")
+            and nm not in at_bound
+            and np.isfinite(std[i])
+            and val != 0
+            and std[i] > 0.5 * abs(val)
+        ):
+            msgs.append(
+                f"{nm} is poorly determined ({val:.4g} ± {std[i]:.2g}): the input is not "
+                f"exciting enough (too short, too small, or too slow for tau)"
+            )
     return msgs
 
 
@@ -1654,10 +1917,10 @@ def arx_asymptotic_bias(u, K, tau, Ts, noise_std):
     # regression v(k) = -A1 v(k-1) + B0 u(k) + B1 u(k-1) in the indexing used by _fit_arx
     Phi, target, _ = _arx_regressors(v, u[:-1], 1, 2, 0)
     N = target.size
-    r0 = 2.0 * s ** 2 / Ts ** 2
-    r1 = -(s ** 2) / Ts ** 2
+    r0 = 2.0 * s**2 / Ts**2
+    r1 = -(s**2) / Ts**2
     Sigma = np.zeros((3, 3))
-    Sigma[0, 0] = r0                       # noise variance in the regressor -v(k-1)
+    Sigma[0, 0] = r0  # noise variance in the regressor -v(k-1)
     # E[phi_1 * eq_err] with phi_1 = -(v0(k-1) + n(k-1)), eq_err = n(k) - a n(k-1)
     c = np.array([-(r1 - a * r0), 0.0, 0.0])
     p_true = np.array([-a, b1 / Ts, b2 / Ts])
@@ -1686,7 +1949,7 @@ class P2Fit:
     theta0: float
     y_sim: np.ndarray = field(repr=False)
     at_bound: bool = False
-    integrator_gain: float = float("nan")   #: K/T1 (rad/(V s)), comparable to the K of Stojčić eq. 1
+    integrator_gain: float = float("nan")  #: K/T1 (rad/(V s)), comparable to the K of Stojčić eq. 1
 
 
 def _p2_response(g, lam, T2, Ts, u):
@@ -1697,12 +1960,13 @@ def _p2_response(g, lam, T2, Ts, u):
     gamma2 = g (1 - a2), gamma1 = g b (E(lam) - E(b))/(b - lam), E(c) = (1 - exp(-c Ts))/c.
     """
     b = 1.0 / T2
-    if abs(b - lam) * Ts < 1e-5:              # (nearly) a double pole: the matrix exponential
+    if abs(b - lam) * Ts < 1e-5:  # (nearly) a double pole: the matrix exponential
         A = np.array([[-lam, 1.0, 0.0], [0.0, -b, g * b], [0.0, 0.0, 0.0]])
         E = linalg.expm(A * Ts)
         a1, phi12, g1 = E[0, 0], E[0, 1], E[0, 2]
         a2, g2 = E[1, 1], E[1, 2]
     else:
+
         def integral(c):
             return Ts if c == 0.0 else -math.expm1(-c * Ts) / c
 
@@ -1748,11 +2012,18 @@ def fit_p2(u, theta, Ts) -> P2Fit:
         return coef, M @ coef
 
     best = None
-    for lam0 in (0.0, 1.0 / span, 10.0 / span):          # integrator, slow, and faster starts
+    for lam0 in (0.0, 1.0 / span, 10.0 / span):  # integrator, slow, and faster starts
         q0 = np.array([lam0, math.log(tau0)])
-        sol = optimize.least_squares(lambda q: linear_part(q)[1] - theta, q0, method="trf",
-                                     bounds=([0.0, math.log(Ts / 50)], [20.0 / Ts, math.log(1e3 * span)]),
-                                     x_scale=[1.0 / span, 1.0], xtol=1e-10, ftol=1e-12, max_nfev=200)
+        sol = optimize.least_squares(
+            lambda q: linear_part(q)[1] - theta,
+            q0,
+            method="trf",
+            bounds=([0.0, math.log(Ts / 50)], [20.0 / Ts, math.log(1e3 * span)]),
+            x_scale=[1.0 / span, 1.0],
+            xtol=1e-10,
+            ftol=1e-12,
+            max_nfev=200,
+        )
         if best is None or sol.cost < best.cost:
             best = sol
     (g, th0), y_sim = linear_part(best.x)
@@ -1766,8 +2037,18 @@ def fit_p2(u, theta, Ts) -> P2Fit:
     else:
         T1, K = math.inf, math.inf * np.sign(g)
         model = control.tf([g], [T2, 1.0, 0.0])
-    return P2Fit(float(K), float(T1), float(T2), fit_percent(theta, y_sim), model, Ts, float(th0),
-                 y_sim, bool(at_bound), float(g))
+    return P2Fit(
+        float(K),
+        float(T1),
+        float(T2),
+        fit_percent(theta, y_sim),
+        model,
+        Ts,
+        float(th0),
+        y_sim,
+        bool(at_bound),
+        float(g),
+    )
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1823,7 +2104,9 @@ def _xcorr_norm(x, y, lags):
     return out / den
 
 
-def residual_analysis(residuals, u=None, max_lag: int = 25, confidence: float = 0.99) -> ResidualAnalysis:
+def residual_analysis(
+    residuals, u=None, max_lag: int = 25, confidence: float = 0.99
+) -> ResidualAnalysis:
     """Residual autocorrelation and input-residual cross-correlation with confidence bounds.
 
     Under "e is white", each normalised autocorrelation at lag >= 1 is approximately N(0, 1/N); the
@@ -1861,8 +2144,9 @@ def residual_analysis(residuals, u=None, max_lag: int = 25, confidence: float = 
     white = p_auto > 1.0 - confidence
     cl = np.arange(-max_lag, max_lag + 1)
     if u is None:
-        return ResidualAnalysis(lags, ac, cl, None, auto_bound, float("nan"), confidence, white, None,
-                                p_auto, None)
+        return ResidualAnalysis(
+            lags, ac, cl, None, auto_bound, float("nan"), confidence, white, None, p_auto, None
+        )
     u = _signal("u", u)
     if u.size != N:
         raise ValueError(f"u and residuals must have the same length, got {u.size} and {N}")
@@ -1879,11 +2163,12 @@ def residual_analysis(residuals, u=None, max_lag: int = 25, confidence: float = 
     w, V = np.linalg.eigh(Ru)
     keep = w > 1e-8 * w.max()
     proj = V[:, keep].T @ cc
-    zeta = N * float(np.sum(proj ** 2 / w[keep]))
+    zeta = N * float(np.sum(proj**2 / w[keep]))
     p_cross = float(stats.chi2.sf(zeta, int(np.count_nonzero(keep))))
     independent = p_cross > 1.0 - confidence
-    return ResidualAnalysis(lags, ac, cl, cc, auto_bound, cross_bound, confidence, white, independent,
-                            p_auto, p_cross)
+    return ResidualAnalysis(
+        lags, ac, cl, cc, auto_bound, cross_bound, confidence, white, independent, p_auto, p_cross
+    )
 
 
 @dataclass
@@ -1898,8 +2183,15 @@ class Validation:
     omega0: float = 0.0
 
 
-def validate(fit: MotorFit, u, theta, Ts=None, max_lag: int = 25, confidence: float = 0.99,
-             initial: str = "estimate") -> Validation:
+def validate(
+    fit: MotorFit,
+    u,
+    theta,
+    Ts=None,
+    max_lag: int = 25,
+    confidence: float = 0.99,
+    initial: str = "estimate",
+) -> Validation:
     """Simulate ``fit`` on a record (ideally not the one it was estimated on) and test the residuals.
 
     Parameters
@@ -1969,8 +2261,10 @@ class MergedData:
         Ts = exps[0].Ts
         for i, d in enumerate(exps):
             if abs(d.Ts - Ts) > 1e-9 * Ts:
-                raise ValueError(f"experiments[{i}] has Ts = {d.Ts:g} s, experiments[0] has {Ts:g} s: "
-                                 f"resample one of them first")
+                raise ValueError(
+                    f"experiments[{i}] has Ts = {d.Ts:g} s, experiments[0] has {Ts:g} s: "
+                    f"resample one of them first"
+                )
         self.experiments = exps
         self.Ts = Ts
 
@@ -2021,7 +2315,9 @@ def _initial_state(fit, u, y, initial):
 
     best = None
     for start in (w0, 0.0):
-        sol = optimize.least_squares(r, [y[0], start], method="lm", x_scale=[1.0, max(abs(w0), 1.0)])
+        sol = optimize.least_squares(
+            r, [y[0], start], method="lm", x_scale=[1.0, max(abs(w0), 1.0)]
+        )
         if best is None or sol.cost < best.cost:
             best = sol
     return float(best.x[0]), float(best.x[1])
@@ -2115,8 +2411,9 @@ class CompareResult:
         return plot_compare_result(self, ax, unit)
 
 
-def compare(data, fit, horizon=None, initial: str = "estimate", label: str = "",
-            output: str = "angle") -> CompareResult:
+def compare(
+    data, fit, horizon=None, initial: str = "estimate", label: str = "", output: str = "angle"
+) -> CompareResult:
     """Model output against a record and the fit %, as MATLAB's ``compare``.
 
     fit % = 100 (1 - ||y - yhat|| / ||y - mean(y)||) over every sample of the record.
@@ -2152,8 +2449,10 @@ def compare(data, fit, horizon=None, initial: str = "estimate", label: str = "",
     if initial not in ("estimate", "rest"):
         raise ValueError(f"initial must be 'estimate' or 'rest', got {initial!r}")
     if not (fit.tau > 0 and math.isfinite(fit.K)):
-        raise ValueError(f"fit has tau = {fit.tau:.4g} s, K = {fit.K:.4g}: no motor to simulate "
-                         f"(see fit.warnings: {'; '.join(fit.warnings) or 'none'})")
+        raise ValueError(
+            f"fit has tau = {fit.tau:.4g} s, K = {fit.K:.4g}: no motor to simulate "
+            f"(see fit.warnings: {'; '.join(fit.warnings) or 'none'})"
+        )
     if isinstance(data, IdentData):
         u, y, Ts = data.u, data.y, data.Ts
     elif isinstance(data, (tuple, list)) and len(data) == 2:
@@ -2180,9 +2479,18 @@ def compare(data, fit, horizon=None, initial: str = "estimate", label: str = "",
         v = _drive(u, fit.offset, fit.dead_zone, fit.delay)
         cm = _coast_mask(u, fit.delay) if fit.tau_coast else np.zeros(u.size, dtype=np.bool_)
         rc = 1.0 / fit.tau_coast if fit.tau_coast else 0.0
-        pred = _predict_kernel(np.ascontiguousarray(v), cm, np.ascontiguousarray(y), float(fit.friction),
-                               float(fit.K), float(fit.tau), rc, float(fit.Ts),
-                               int(horizon), y_hat.copy())
+        pred = _predict_kernel(
+            np.ascontiguousarray(v),
+            cm,
+            np.ascontiguousarray(y),
+            float(fit.friction),
+            float(fit.K),
+            float(fit.tau),
+            rc,
+            float(fit.Ts),
+            int(horizon),
+            y_hat.copy(),
+        )
         y_hat = pred
     t = np.arange(y.size) * Ts
     if output == "speed":
@@ -2190,8 +2498,14 @@ def compare(data, fit, horizon=None, initial: str = "estimate", label: str = "",
     return CompareResult(t, y, y_hat, fit_percent(y, y_hat), horizon, th0, om0, label)
 
 
-def resid(data, fit, max_lag: int = 25, confidence: float = 0.99, initial: str = "estimate",
-          output: str = "angle") -> "ResidualAnalysis":
+def resid(
+    data,
+    fit,
+    max_lag: int = 25,
+    confidence: float = 0.99,
+    initial: str = "estimate",
+    output: str = "angle",
+) -> "ResidualAnalysis":
     """Residual tests of a model on a record, as MATLAB's ``resid``.
 
     The residuals are the output errors y - yhat of the simulation (the prediction errors of an
@@ -2203,7 +2517,7 @@ def resid(data, fit, max_lag: int = 25, confidence: float = 0.99, initial: str =
     """
     c = compare(data, fit, None, initial, output=output)
     u = data.u if isinstance(data, IdentData) else _signal("u", data[0])
-    u = u[:c.y.size]
+    u = u[: c.y.size]
     e = c.y - c.y_hat
     max_lag = min(as_int("max_lag", max_lag, minimum=1), (e.size - 1) // 2)
     return residual_analysis(e, u if np.std(u) > 0 else None, max_lag, confidence)
@@ -2215,12 +2529,15 @@ def resid(data, fit, max_lag: int = 25, confidence: float = 0.99, initial: str =
 #: PWM amplitude (of 255) of the micromouse records whose command the log lets us rebuild
 #: (README_original_data.md: "max speed"); the trapezoid records (2, 4, 6) ramp the PWM at a rate
 #: the log does not hold, so they cannot be used as input/output records.
-MICROMOUSE_RECORDS = {"encoders1": (100, "rectangle, 1 s"), "encoders3": (100, "step"),
-                      "encoders5": (255, "step")}
+MICROMOUSE_RECORDS = {
+    "encoders1": (100, "rectangle, 1 s"),
+    "encoders3": (100, "step"),
+    "encoders5": (255, "step"),
+}
 
 
 def _default_real_root():
-    from jerklab.resources import share_path    # the clone's data/, or the installed wheel's copy
+    from jerklab.resources import share_path  # the clone's data/, or the installed wheel's copy
 
     return share_path("data") / "real"
 
@@ -2243,8 +2560,15 @@ def micromouse_battery_voltage(root=None) -> float:
     return float(np.median(table[:, header.index("batteryVoltage")])) / 1000.0
 
 
-def load_micromouse(name: str, root=None, battery_voltage=None, counts_per_motor_rev: int = 12,
-                    gear_ratio: float = 29.861, sign: int = -1, pre_samples: int = 20) -> IdentData:
+def load_micromouse(
+    name: str,
+    root=None,
+    battery_voltage=None,
+    counts_per_motor_rev: int = 12,
+    gear_ratio: float = 29.861,
+    sign: int = -1,
+    pre_samples: int = 20,
+) -> IdentData:
     """A measured record of the Pololu 30:1 micro gearmotor of the micromouse "Algernon" as SI data.
 
     The files (``data/real/micromouse``, CERN-OHL-P v2, from github.com/opatiny/micromouse) log the
@@ -2285,8 +2609,10 @@ def load_micromouse(name: str, root=None, battery_voltage=None, counts_per_motor
         u in V, y in rad (output shaft), Ts = 0.005 s; metadata names the source and conversions.
     """
     if name not in MICROMOUSE_RECORDS:
-        raise ValueError(f"name must be one of {sorted(MICROMOUSE_RECORDS)} (the trapezoid records "
-                         f"encoders2/4/6 do not log their PWM ramp), got {name!r}")
+        raise ValueError(
+            f"name must be one of {sorted(MICROMOUSE_RECORDS)} (the trapezoid records "
+            f"encoders2/4/6 do not log their PWM ramp), got {name!r}"
+        )
     root = pathlib.Path(root) if root is not None else _default_real_root() / "micromouse"
     if battery_voltage is None:
         battery_voltage = micromouse_battery_voltage(root)
@@ -2316,10 +2642,18 @@ def load_micromouse(name: str, root=None, battery_voltage=None, counts_per_motor
     u = np.where(mode != 0, pwm / 255.0 * battery_voltage, 0.0)[start:]
     rad_per_count = 2.0 * math.pi / (counts_per_motor_rev * gear_ratio)
     y = sign * (counts[start:] - counts[start]) * rad_per_count
-    meta = {"source": "github.com/opatiny/micromouse matlab/data (CERN-OHL-P v2)", "record": name,
-            "profile": MICROMOUSE_RECORDS[name][1], "pwm": pwm, "battery_voltage_V": battery_voltage,
-            "counts_per_motor_rev": counts_per_motor_rev, "gear_ratio": gear_ratio, "sign": sign,
-            "rad_per_count": rad_per_count, "t0_ms": float(t_ms[start])}
+    meta = {
+        "source": "github.com/opatiny/micromouse matlab/data (CERN-OHL-P v2)",
+        "record": name,
+        "profile": MICROMOUSE_RECORDS[name][1],
+        "pwm": pwm,
+        "battery_voltage_V": battery_voltage,
+        "counts_per_motor_rev": counts_per_motor_rev,
+        "gear_ratio": gear_ratio,
+        "sign": sign,
+        "rad_per_count": rad_per_count,
+        "t0_ms": float(t_ms[start]),
+    }
     return IdentData(u, y, Ts, "V", "rad", meta)
 
 
@@ -2377,7 +2711,9 @@ def load_dc_generator(root=None, decimate: int = 1, clock_period: float = 1.0) -
             raise ValueError(f"path: {DC_GENERATOR_FILE} has no '{col}' column (columns {header})")
     raw = table[:, header.index("sample")]
     if np.any(np.diff(raw) != DC_GENERATOR_ROW_STEP):
-        raise ValueError(f"path: {DC_GENERATOR_FILE} is not every {DC_GENERATOR_ROW_STEP}th raw sample")
+        raise ValueError(
+            f"path: {DC_GENERATOR_FILE} is not every {DC_GENERATOR_ROW_STEP}th raw sample"
+        )
     rows = slice(None, None, decimate)
     u = table[rows, header.index("x_cc")]
     y_cc = table[rows, header.index("y_cc")]
@@ -2385,19 +2721,25 @@ def load_dc_generator(root=None, decimate: int = 1, clock_period: float = 1.0) -
         raise ValueError(f"decimate: {decimate} leaves {u.size} samples, fewer than {MIN_SAMPLES}")
     on = np.flatnonzero(u != 0)
     if on.size == 0 or on[0] < 1:
-        raise ValueError(f"path: {DC_GENERATOR_FILE} has no idle lead-in before the first switch-on")
-    rest = float(np.median(y_cc[:on[0]]))
+        raise ValueError(
+            f"path: {DC_GENERATOR_FILE} has no idle lead-in before the first switch-on"
+        )
+    rest = float(np.median(y_cc[: on[0]]))
     speed = y_cc - rest
     Ts = DC_GENERATOR_ROW_STEP * decimate / DC_GENERATOR_RAW_PER_CLOCK * clock_period
     y = np.concatenate([[0.0], np.cumsum(0.5 * Ts * (speed[1:] + speed[:-1]))])
-    meta = {"source": "github.com/wilsonrljr/sysidentpy-data datasets/generator (MIT), commit "
-                      "72715362eadcf860fdbd77d88b5d7e92b6143a83",
-            "paper": "Lacerda Junior et al., SBAI 2017, motor/gerador CC",
-            "raw_samples_per_row": DC_GENERATOR_ROW_STEP * decimate,
-            "raw_samples_per_clock": DC_GENERATOR_RAW_PER_CLOCK, "clock_period_s": clock_period,
-            "time_unit": "PRBS clock period" if clock_period == 1.0 else "s",
-            "speed_rest_level": rest, "output": "trapezoidal integral of (y_cc - rest)",
-            "speed_unit": "y_cc (not stated by the authors)"}
+    meta = {
+        "source": "github.com/wilsonrljr/sysidentpy-data datasets/generator (MIT), commit "
+        "72715362eadcf860fdbd77d88b5d7e92b6143a83",
+        "paper": "Lacerda Junior et al., SBAI 2017, motor/gerador CC",
+        "raw_samples_per_row": DC_GENERATOR_ROW_STEP * decimate,
+        "raw_samples_per_clock": DC_GENERATOR_RAW_PER_CLOCK,
+        "clock_period_s": clock_period,
+        "time_unit": "PRBS clock period" if clock_period == 1.0 else "s",
+        "speed_rest_level": rest,
+        "output": "trapezoidal integral of (y_cc - rest)",
+        "speed_unit": "y_cc (not stated by the authors)",
+    }
     return IdentData(u, y, Ts, "V", "y_cc*s", meta)
 
 
@@ -2419,12 +2761,16 @@ def _input_samples(duration, Ts):
     """``round(duration / Ts)``, refused (naming duration and Ts) outside 2 … MAX_INPUT_SAMPLES."""
     ratio = duration / Ts
     if not ratio < MAX_INPUT_SAMPLES + 0.5:
-        raise ValueError(f"duration / Ts = {duration:g} s / {Ts:g} s is more than MAX_INPUT_SAMPLES = "
-                         f"{MAX_INPUT_SAMPLES} samples; choose a shorter duration or a longer Ts")
+        raise ValueError(
+            f"duration / Ts = {duration:g} s / {Ts:g} s is more than MAX_INPUT_SAMPLES = "
+            f"{MAX_INPUT_SAMPLES} samples; choose a shorter duration or a longer Ts"
+        )
     n = int(round(ratio))
     if n < 2:
-        raise ValueError(f"duration must be at least 2 samples of Ts ({2 * Ts:g} s), got duration={duration:g} s "
-                         f"with Ts={Ts:g} s")
+        raise ValueError(
+            f"duration must be at least 2 samples of Ts ({2 * Ts:g} s), got duration={duration:g} s "
+            f"with Ts={Ts:g} s"
+        )
     return n
 
 
@@ -2478,10 +2824,14 @@ def prbs(duration, Ts, amplitude, offset=0.0, clock_period=None, nbits=None, see
     else:
         clock_period = as_positive("clock_period", clock_period)
         if clock_period > duration:
-            raise ValueError(f"clock_period must be <= duration ({duration:g} s), got {clock_period:g} s")
+            raise ValueError(
+                f"clock_period must be <= duration ({duration:g} s), got {clock_period:g} s"
+            )
         hold = int(round(clock_period / Ts))
         if hold < 1 or abs(hold * Ts - clock_period) > 1e-6 * clock_period:
-            raise ValueError(f"clock_period must be a whole multiple of Ts = {Ts:g} s, got {clock_period:g} s")
+            raise ValueError(
+                f"clock_period must be a whole multiple of Ts = {Ts:g} s, got {clock_period:g} s"
+            )
     nb = -(-n // hold)
     if nbits is None:
         nbits = max(3, int(math.ceil(math.log2(nb + 1))))

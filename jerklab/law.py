@@ -44,6 +44,7 @@ Encoder: the counter holds ``floor(θ · counts_per_rad)`` (floor, not truncatio
 -0.2 counts reads -1); a ``1e-9`` count guards against ``θ`` computed a rounding error below
 an exact count. The controller sees ``counts / counts_per_rad``.
 """
+
 from __future__ import annotations
 
 import math
@@ -53,9 +54,24 @@ import numpy as np
 
 from jerklab._validate import as_positive, as_real
 
-__all__ = ["HAVE_NUMBA", "pid_step", "pid_step_vec", "amplifier", "amplifier_vec", "voltage_vec", "pwm_duty",
-           "encoder", "encoder_counts", "encoder_vec", "zoh_coefficients", "ZOH", "SCALAR",
-           "ENCODER_EPS", "CTL_FIELDS", "pack"]
+__all__ = [
+    "HAVE_NUMBA",
+    "pid_step",
+    "pid_step_vec",
+    "amplifier",
+    "amplifier_vec",
+    "voltage_vec",
+    "pwm_duty",
+    "encoder",
+    "encoder_counts",
+    "encoder_vec",
+    "zoh_coefficients",
+    "ZOH",
+    "SCALAR",
+    "ENCODER_EPS",
+    "CTL_FIELDS",
+    "pack",
+]
 
 try:
     from numba import njit as _njit
@@ -69,6 +85,7 @@ except ImportError:  # pragma: no cover - pure-Python fallback
 
     def _jit(f):
         return f
+
 
 #: counts added before the encoder's floor (guards an angle a rounding error below a count)
 ENCODER_EPS = 1e-9
@@ -192,15 +209,21 @@ def _py(f):
 
 
 #: the plain-Python scalar forms (the same source, not compiled)
-SCALAR = {"pid_step": _py(pid_step), "pwm_duty": _py(pwm_duty), "amplifier": _py(amplifier),
-          "encoder_counts": _py(encoder_counts), "encoder": _py(encoder)}
+SCALAR = {
+    "pid_step": _py(pid_step),
+    "pwm_duty": _py(pwm_duty),
+    "amplifier": _py(amplifier),
+    "encoder_counts": _py(encoder_counts),
+    "encoder": _py(encoder),
+}
 
 
 # ---------------------------------------------------------------------------
 # vector forms (numpy, element-wise)
 # ---------------------------------------------------------------------------
-def pid_step_vec(e, e_prev, i_prev, d_prev, ff, kpd, kid, kdd, gamma, limit, anti_windup,
-                 want_saturated=True):
+def pid_step_vec(
+    e, e_prev, i_prev, d_prev, ff, kpd, kid, kdd, gamma, limit, anti_windup, want_saturated=True
+):
     """:func:`pid_step` over arrays (many plants at once); the same rule, element-wise.
 
     Returns ``(u, p, i, d, saturated)`` as arrays (``anti_windup`` is one bool for all;
@@ -252,20 +275,75 @@ def encoder_vec(theta, counts_per_rad):
 # the parameters of one controller, packed for the compiled kernels
 # ---------------------------------------------------------------------------
 #: order of the packed controller parameters (``DigitalController.law_params()``)
-CTL_FIELDS = ("kpd", "kid", "kdd", "gamma", "limit", "anti_windup", "ff_on", "ff_K", "ff_tau",
-              "velocity", "error_scale", "bumpless", "Ts")
-(C_KPD, C_KID, C_KDD, C_GAMMA, C_LIMIT, C_AW, C_FF_ON, C_FF_K, C_FF_TAU, C_VELOCITY, C_SCALE,
- C_BUMPLESS, C_TS) = range(len(CTL_FIELDS))
+CTL_FIELDS = (
+    "kpd",
+    "kid",
+    "kdd",
+    "gamma",
+    "limit",
+    "anti_windup",
+    "ff_on",
+    "ff_K",
+    "ff_tau",
+    "velocity",
+    "error_scale",
+    "bumpless",
+    "Ts",
+)
+(
+    C_KPD,
+    C_KID,
+    C_KDD,
+    C_GAMMA,
+    C_LIMIT,
+    C_AW,
+    C_FF_ON,
+    C_FF_K,
+    C_FF_TAU,
+    C_VELOCITY,
+    C_SCALE,
+    C_BUMPLESS,
+    C_TS,
+) = range(len(CTL_FIELDS))
 
 
-def pack(kpd, kid, kdd, gamma, limit, anti_windup, ff_on, ff_K, ff_tau, velocity, error_scale,
-         bumpless, Ts):
+def pack(
+    kpd,
+    kid,
+    kdd,
+    gamma,
+    limit,
+    anti_windup,
+    ff_on,
+    ff_K,
+    ff_tau,
+    velocity,
+    error_scale,
+    bumpless,
+    Ts,
+):
     """The controller's parameters as one float array in the order of :data:`CTL_FIELDS`.
 
     Flags are stored as 1.0/0.0; ``limit`` may be ``inf`` (no clamp).
     """
-    return np.array([kpd, kid, kdd, gamma, limit, float(bool(anti_windup)), float(bool(ff_on)), ff_K,
-                     ff_tau, float(bool(velocity)), error_scale, float(bool(bumpless)), Ts], dtype=float)
+    return np.array(
+        [
+            kpd,
+            kid,
+            kdd,
+            gamma,
+            limit,
+            float(bool(anti_windup)),
+            float(bool(ff_on)),
+            ff_K,
+            ff_tau,
+            float(bool(velocity)),
+            error_scale,
+            float(bool(bumpless)),
+            Ts,
+        ],
+        dtype=float,
+    )
 
 
 # ---------------------------------------------------------------------------

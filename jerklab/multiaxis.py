@@ -42,6 +42,7 @@ Facta Universitatis, 2015 (the sine-jerk pulse, Stojčić eq. 2).
 X. Yang, P. Ye, Y. Pan, Z. Ma, "The implementation of S-curve acceleration and deceleration using
 FPGA", 2013 (the linear-jerk S-curve of Yang eq. 5 and Yang eq. 6; the x–y stand of §4, Fig. 9).
 """
+
 from __future__ import annotations
 
 import math
@@ -68,8 +69,11 @@ SYNCS = ("time", "phase")
 #: single-axis planners :func:`plan_multi_axis` can synchronize
 PLANNERS = ("scurve", "sine_jerk_optimal", "trapezoid")
 
-_CLASS = {"scurve": SCurveProfile, "sine_jerk_optimal": SineJerkOptimalProfile,
-          "trapezoid": TrapezoidProfile}
+_CLASS = {
+    "scurve": SCurveProfile,
+    "sine_jerk_optimal": SineJerkOptimalProfile,
+    "trapezoid": TrapezoidProfile,
+}
 _LIMIT_KEYS = ("max_jerk", "max_accel", "max_velocity")
 _TWO_OVER_PI = 2.0 / math.pi
 _SQRT3 = math.sqrt(3.0)
@@ -128,7 +132,7 @@ def _fill(T, tj, ta):
     for _ in range(8):
         a = 2.0 * (2.0 * tj + ta)
         tv = max(T - a, 0.0)
-        for _k in range(8):                             # step tv by ulps until the sum is T
+        for _k in range(8):  # step tv by ulps until the sum is T
             tot = a + tv
             if tot == T:
                 return tj, ta, tv
@@ -139,7 +143,7 @@ def _fill(T, tj, ta):
             ta = max(ta - math.ulp(2.0 * tj + ta), 0.0)
         else:
             tj = max(tj - math.ulp(tj), 0.0)
-    return tj, ta, max(T - 2.0 * (2.0 * tj + ta), 0.0)      # pragma: no cover - not met
+    return tj, ta, max(T - 2.0 * (2.0 * tj + ta), 0.0)  # pragma: no cover - not met
 
 
 def stretch_to_duration(profile: Profile, duration) -> Profile:
@@ -197,27 +201,29 @@ def _stretch(profile, T):
     if T == T0:
         return profile
     if T < T0 * (1.0 - 1e-12):
-        raise ValueError(f"duration = {T!r} s is shorter than the time-optimal {T0!r} s of this move")
+        raise ValueError(
+            f"duration = {T!r} s is shorter than the time-optimal {T0!r} s of this move"
+        )
     d = abs(profile.distance)
     tj0, ta0, tv0 = _times(profile)
     if T <= T0:
         tj, ta = tj0, ta0
     else:
         A = profile.max_accel
-        v0 = profile.peak_velocity                      # the optimum's peak: never exceeded
+        v0 = profile.peak_velocity  # the optimum's peak: never exceeded
         if kind == "trapezoid":
             tj = 0.0
             v = 2.0 * d / (T + math.sqrt(max(T * T - 4.0 * d / A, 0.0)))
             ta = min(v, v0) / A
         else:
             J = profile.max_jerk * (_TWO_OVER_PI if kind == "sine_jerk_optimal" else 1.0)
-            tja = A / J                                 # pulse length up to the acceleration limit
+            tja = A / J  # pulse length up to the acceleration limit
             # v >= A^2/J (a plateau at A) needs the optimum to reach A^2/J, and T up to T(A^2/J)
             if v0 >= A * tja and T <= d / (A * tja) + 2.0 * tja:
                 B = T - tja
                 v = 2.0 * d / (B + math.sqrt(max(B * B - 4.0 * d / A, 0.0)))
                 tj, ta = tja, max(min(v, v0) / A - tja, 0.0)
-            else:                                       # no plateau: the cubic in tj
+            else:  # no plateau: the cubic in tj
                 z = min(27.0 * (d / J) / (T * T * T), 1.0)
                 th = (2.0 / 3.0) * math.asin(math.sqrt(z))
                 tj = T / 3.0 * math.sin(0.5 * th) ** 2 + T / (2.0 * _SQRT3) * math.sin(th)
@@ -226,8 +232,10 @@ def _stretch(profile, T):
     tj, ta, tv = _fill(T, tj, ta)
     jpar = _jerk_for_distance(kind, d, tj, ta, tv)
     if not (math.isfinite(jpar) and jpar > 0.0):
-        raise ValueError(f"no finite profile of distance {profile.distance!r} lasting {T!r} s "
-                         f"(a phase time underflows): scale the units")
+        raise ValueError(
+            f"no finite profile of distance {profile.distance!r} lasting {T!r} s "
+            f"(a phase time underflows): scale the units"
+        )
     return _make(kind, profile.distance, tj, ta, tv, jpar, limits)
 
 
@@ -238,31 +246,42 @@ def _axis_limits(limits_per_axis, n, planner):
     """One ``(max_jerk, max_accel, max_velocity)`` float triple per axis (``None`` jerk: trapezoid)."""
     if type(limits_per_axis) in (list, tuple) and len(limits_per_axis) == n:
         out = []
-        for row in limits_per_axis:             # fast path: (J, A, V) tuples of finite floats > 0
+        for row in limits_per_axis:  # fast path: (J, A, V) tuples of finite floats > 0
             if not (type(row) is tuple and len(row) == 3):
                 break
             J, A, V = row
-            if not (type(A) is float and type(V) is float and 0.0 < A < _INF and 0.0 < V < _INF
-                    and (type(J) is float and 0.0 < J < _INF or J is None and planner == "trapezoid")):
+            if not (
+                type(A) is float
+                and type(V) is float
+                and 0.0 < A < _INF
+                and 0.0 < V < _INF
+                and (type(J) is float and 0.0 < J < _INF or J is None and planner == "trapezoid")
+            ):
                 break
             out.append(row)
         else:
             return out
     if isinstance(limits_per_axis, (str, bytes, Mapping)) or not isinstance(
-            limits_per_axis, (Sequence, np.ndarray)):
-        raise ValueError("limits_per_axis must be a sequence with one (max_jerk, max_accel, max_velocity) "
-                         f"tuple or dict per axis, got {limits_per_axis!r:.80}")
+        limits_per_axis, (Sequence, np.ndarray)
+    ):
+        raise ValueError(
+            "limits_per_axis must be a sequence with one (max_jerk, max_accel, max_velocity) "
+            f"tuple or dict per axis, got {limits_per_axis!r:.80}"
+        )
     rows = list(limits_per_axis)
     if len(rows) != n:
-        raise ValueError(f"limits_per_axis has {len(rows)} entries for {n} distances: give one per axis")
+        raise ValueError(
+            f"limits_per_axis has {len(rows)} entries for {n} distances: give one per axis"
+        )
     out = []
     for i, row in enumerate(rows):
         name = f"limits_per_axis[{i}]"
         if isinstance(row, Mapping):
             unknown = set(row) - set(_LIMIT_KEYS)
             if unknown:
-                raise ValueError(f"{name} has unknown keys {sorted(map(str, unknown))}; "
-                                 f"expected {_LIMIT_KEYS}")
+                raise ValueError(
+                    f"{name} has unknown keys {sorted(map(str, unknown))}; expected {_LIMIT_KEYS}"
+                )
             missing = [k for k in _LIMIT_KEYS[1:] if k not in row]
             if planner != "trapezoid" and "max_jerk" not in row:
                 missing.insert(0, "max_jerk")
@@ -272,11 +291,14 @@ def _axis_limits(limits_per_axis, n, planner):
         elif isinstance(row, (Sequence, np.ndarray)) and not isinstance(row, (str, bytes)):
             vals = tuple(row)
             if len(vals) != 3:
-                raise ValueError(f"{name} must be (max_jerk, max_accel, max_velocity), got {len(vals)} "
-                                 "values")
+                raise ValueError(
+                    f"{name} must be (max_jerk, max_accel, max_velocity), got {len(vals)} values"
+                )
         else:
-            raise ValueError(f"{name} must be a (max_jerk, max_accel, max_velocity) tuple or a dict, "
-                             f"got {row!r:.60}")
+            raise ValueError(
+                f"{name} must be a (max_jerk, max_accel, max_velocity) tuple or a dict, "
+                f"got {row!r:.60}"
+            )
         J, A, V = vals
         if planner == "trapezoid" and J is None:
             J = None
@@ -314,7 +336,16 @@ class MultiAxisPlan:
         limits); ``None`` for time synchronization or when no axis moves.
     """
 
-    __slots__ = ("distances", "sync", "planner", "limits", "axes", "duration", "min_durations", "path")
+    __slots__ = (
+        "distances",
+        "sync",
+        "planner",
+        "limits",
+        "axes",
+        "duration",
+        "min_durations",
+        "path",
+    )
 
     def __init__(self, distances, sync, planner, limits, axes, duration, min_durations, path):
         self.distances = distances
@@ -354,10 +385,12 @@ class MultiAxisPlan:
             s = self.path.sample(t)
             tt = np.broadcast_to(s.t, d.shape[:1] + t.shape).copy()
             pos = d * s.position
-            pos = np.where(t >= self.duration, d, pos)      # the target, exactly
+            pos = np.where(t >= self.duration, d, pos)  # the target, exactly
             return ProfileSample(tt, d * s.jerk, d * s.accel, d * s.velocity, pos)
         parts = [p.sample(t) for p in self.axes]
-        return ProfileSample(*(np.stack([getattr(p, f) for p in parts]) for f in ProfileSample._fields))
+        return ProfileSample(
+            *(np.stack([getattr(p, f) for p in parts]) for f in ProfileSample._fields)
+        )
 
     def synchronized(self, Ts) -> "MultiAxisPlan":
         """The same move with every phase time of every axis a whole multiple of ``Ts``, still together.
@@ -401,21 +434,30 @@ class MultiAxisPlan:
                 axes.append(_standstill(kind, T, lim))
                 continue
             tj, ta, tv = _fill(T, c[0] * Ts, c[1] * Ts)
-            axes.append(_make(kind, di, tj, ta, tv, _jerk_for_distance(kind, abs(di), tj, ta, tv), lim))
-        return MultiAxisPlan(self.distances, self.sync, kind, self.limits, tuple(axes), T,
-                             self.min_durations, None)
+            axes.append(
+                _make(kind, di, tj, ta, tv, _jerk_for_distance(kind, abs(di), tj, ta, tv), lim)
+            )
+        return MultiAxisPlan(
+            self.distances, self.sync, kind, self.limits, tuple(axes), T, self.min_durations, None
+        )
 
     def to_dict(self) -> dict:
         """JSON-able description: sync, planner, duration, and each axis's ``Profile.to_dict()``."""
-        return {"sync": self.sync, "planner": self.planner, "duration": self.duration,
-                "distances": [float(x) for x in self.distances],
-                "min_durations": list(self.min_durations),
-                "normalized_limits": None if self.path is None else list(self.normalized_limits),
-                "axes": [p.to_dict() for p in self.axes]}
+        return {
+            "sync": self.sync,
+            "planner": self.planner,
+            "duration": self.duration,
+            "distances": [float(x) for x in self.distances],
+            "min_durations": list(self.min_durations),
+            "normalized_limits": None if self.path is None else list(self.normalized_limits),
+            "axes": [p.to_dict() for p in self.axes],
+        }
 
     def __repr__(self) -> str:
-        return (f"MultiAxisPlan(sync={self.sync!r}, planner={self.planner!r}, "
-                f"distances={self.distances.tolist()!r}, duration={self.duration!r})")
+        return (
+            f"MultiAxisPlan(sync={self.sync!r}, planner={self.planner!r}, "
+            f"distances={self.distances.tolist()!r}, duration={self.duration!r})"
+        )
 
 
 def plan_multi_axis(distances, limits_per_axis, sync="time", planner="scurve") -> MultiAxisPlan:
@@ -464,17 +506,26 @@ def plan_multi_axis(distances, limits_per_axis, sync="time", planner="scurve") -
     if sync not in SYNCS:
         raise ValueError(f"sync must be one of {SYNCS}, got {sync!r}")
     if planner not in PLANNERS:
-        hint = (" (the published sine-jerk planner cannot be stretched to a given duration: use "
-                "'sine_jerk_optimal')" if planner == "sine_jerk" else "")
+        hint = (
+            " (the published sine-jerk planner cannot be stretched to a given duration: use "
+            "'sine_jerk_optimal')"
+            if planner == "sine_jerk"
+            else ""
+        )
         raise ValueError(f"planner must be one of {PLANNERS}, got {planner!r}{hint}")
-    if type(distances) in (list, tuple) and distances and all(
-            type(x) is float and -_INF < x < _INF for x in distances):
-        dl = list(distances)                        # fast path: finite floats
+    if (
+        type(distances) in (list, tuple)
+        and distances
+        and all(type(x) is float and -_INF < x < _INF for x in distances)
+    ):
+        dl = list(distances)  # fast path: finite floats
         d = np.array(dl)
     else:
         d = as_finite_array("distances", distances)
         if d.ndim != 1 or d.size == 0:
-            raise ValueError(f"distances must be a non-empty 1-D sequence (one per axis), got shape {d.shape}")
+            raise ValueError(
+                f"distances must be a non-empty 1-D sequence (one per axis), got shape {d.shape}"
+            )
         d = d.copy()
         dl = d.tolist()
     limits = tuple(_axis_limits(limits_per_axis, len(dl), planner))
@@ -489,14 +540,16 @@ def plan_multi_axis(distances, limits_per_axis, sync="time", planner="scurve") -
         return MultiAxisPlan(d, sync, planner, limits, axes, T, min_durations, None)
     # phase: one normalized profile on [0, 1]
     mv = [(abs(di), lim) for di, lim in zip(dl, limits) if di != 0.0]
-    A_n = min(L[1] / x for x, L in mv)              # may overflow to inf for a tiny distance:
-    V_n = min(L[2] / x for x, L in mv)              # the min over the axes is what counts
+    A_n = min(L[1] / x for x, L in mv)  # may overflow to inf for a tiny distance:
+    V_n = min(L[2] / x for x, L in mv)  # the min over the axes is what counts
     J_n = None if planner == "trapezoid" else min(L[0] / x for x, L in mv)
     try:
         path = _plan_one(planner, 1.0, J_n, A_n, V_n)
     except ValueError as exc:
-        raise ValueError(f"distances and limits_per_axis give normalized limits (J, A, V) = "
-                         f"({J_n!r}, {A_n!r}, {V_n!r}) with no finite plan: {exc}") from None
+        raise ValueError(
+            f"distances and limits_per_axis give normalized limits (J, A, V) = "
+            f"({J_n!r}, {A_n!r}, {V_n!r}) with no finite plan: {exc}"
+        ) from None
     return _scaled(d, sync, planner, limits, min_durations, path)
 
 

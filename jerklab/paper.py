@@ -24,17 +24,33 @@ Examples
 >>> round(paper.COUNTS_PER_RAD, 3)
 71.301
 """
+
 from __future__ import annotations
 
 import math
 from types import MappingProxyType
 
 __all__ = [
-    "MOTOR_K", "MOTOR_TAU", "SUPPLY_VOLTAGE", "PWM_BITS", "PWM_MAX", "PWM_FREQUENCY", "MCU_CLOCK_HZ",
-    "ENCODER_PPR", "ENCODER_DECODING", "COUNTS_PER_RAD", "TS",
-    "ZETA", "SIGMA_RATIO",
-    "MAX_JERK", "MAX_ACCEL", "MAX_VELOCITY", "LIMITS",
-    "PIEZO_TABLE_I", "PIEZO_TS", "CNIA_EPS_FRACTION",
+    "MOTOR_K",
+    "MOTOR_TAU",
+    "SUPPLY_VOLTAGE",
+    "PWM_BITS",
+    "PWM_MAX",
+    "PWM_FREQUENCY",
+    "MCU_CLOCK_HZ",
+    "ENCODER_PPR",
+    "ENCODER_DECODING",
+    "COUNTS_PER_RAD",
+    "TS",
+    "ZETA",
+    "SIGMA_RATIO",
+    "MAX_JERK",
+    "MAX_ACCEL",
+    "MAX_VELOCITY",
+    "LIMITS",
+    "PIEZO_TABLE_I",
+    "PIEZO_TS",
+    "CNIA_EPS_FRACTION",
     "YANG_SETUP",
 ]
 
@@ -55,7 +71,7 @@ SUPPLY_VOLTAGE = 12.0
 PWM_BITS = 10
 
 #: Full-scale PWM duty in ticks: TOP of the phase-correct 10-bit mode.
-PWM_MAX = 2 ** PWM_BITS - 1
+PWM_MAX = 2**PWM_BITS - 1
 
 #: Clock of the ATmega328P on the Arduino Uno, Hz.
 MCU_CLOCK_HZ = 16_000_000
@@ -108,8 +124,17 @@ LIMITS = (MAX_JERK, MAX_ACCEL, MAX_VELOCITY)
 #: Xu & Meckl Table I, the linear PZT dynamics of Xu & Meckl eq. 1 (V → µm, frequencies in Hz):
 #: NMP zero ζ_z = 0.70 at 1643 Hz, first mode ζ_1 = 0.008 at 242 Hz, second mode ζ_2 = 0.39 at
 #: 777 Hz, gain K = 97000. Read-only.
-PIEZO_TABLE_I = MappingProxyType({"K": 97000.0, "zeta_z": 0.70, "f_z": 1643.0, "zeta_1": 0.008,
-                                  "f_1": 242.0, "zeta_2": 0.39, "f_2": 777.0})
+PIEZO_TABLE_I = MappingProxyType(
+    {
+        "K": 97000.0,
+        "zeta_z": 0.70,
+        "f_z": 1643.0,
+        "zeta_1": 0.008,
+        "f_1": 242.0,
+        "zeta_2": 0.39,
+        "f_2": 777.0,
+    }
+)
 
 #: Sampling time of the Xu & Meckl simulation study, s (0.2 ms).
 PIEZO_TS = 2e-4
@@ -123,6 +148,14 @@ CNIA_EPS_FRACTION = 0.002
 #: Yang §3: V = 20 mm/s = 20000 µm/s, acceleration and cruise 1 s each, refresh period
 #: t_c = 200 µs, 50 MHz clock, k = 20 µm per pulse (reading v = k·f), first count
 #: PWM_INITAL_COUNT = 300. Keyword arguments of ``jerklab.fpga.YangSCurve``. Read-only.
-YANG_SETUP = MappingProxyType(dict(max_velocity=20000, accel_time=1.0, cruise_time=1.0,
-                                   refresh_period=200e-6, clock_hz=50_000_000, step_um=20,
-                                   start_count=300))
+YANG_SETUP = MappingProxyType(
+    dict(
+        max_velocity=20000,
+        accel_time=1.0,
+        cruise_time=1.0,
+        refresh_period=200e-6,
+        clock_hz=50_000_000,
+        step_um=20,
+        start_count=300,
+    )
+)

@@ -5,15 +5,18 @@ duration is the yardstick of the planners (notebook 01, ``benchmarks/bench_plann
 Ruckig is optional: it is imported only when a function here is called, and a missing
 install raises an :class:`ImportError` that says how to get it.
 """
+
 from __future__ import annotations
 
 from jerklab._validate import as_positive, as_real
 
 __all__ = ["ruckig_duration", "ruckig_trajectory"]
 
-_HINT = ("ruckig is not installed; it is optional and only needed for the comparison with the "
-         "time-optimal jerk-limited planner: pip install 'ruckig>=0.12' (in environment.txt, "
-         "and the 'test' extra of pyproject.toml)")
+_HINT = (
+    "ruckig is not installed; it is optional and only needed for the comparison with the "
+    "time-optimal jerk-limited planner: pip install 'ruckig>=0.12' (in environment.txt, "
+    "and the 'test' extra of pyproject.toml)"
+)
 
 
 def _ruckig():
@@ -56,8 +59,10 @@ def ruckig_trajectory(distance, max_jerk, max_accel, max_velocity):
     inp.max_jerk, inp.max_acceleration, inp.max_velocity = [J], [A], [V]
     res = otg.calculate(inp, traj)
     if res != ruckig.Result.Working:
-        raise RuntimeError(f"ruckig could not plan distance={d!r} with max_jerk={J!r}, "
-                           f"max_accel={A!r}, max_velocity={V!r}: {res}")
+        raise RuntimeError(
+            f"ruckig could not plan distance={d!r} with max_jerk={J!r}, "
+            f"max_accel={A!r}, max_velocity={V!r}: {res}"
+        )
     return traj
 
 

@@ -25,6 +25,7 @@ Order 0 is the nominal zero-vibration condition. Because the model has no rigid-
 conditions fix the terminal state completely: after the ramp-up the output is exactly the steady
 ramp, after the return the state is exactly zero.
 """
+
 from __future__ import annotations
 
 import functools
@@ -34,21 +35,43 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.linalg import matrix_balance
-from scipy.signal import lfilter
 from scipy.optimize import linprog, lsq_linear, minimize, nnls
+from scipy.signal import lfilter
 
 from jerklab import paper as _paper
 from jerklab._lazy import lazy_module
 from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
 
-control = lazy_module("control")   # python-control imports matplotlib: import it on first use
+control = lazy_module("control")  # python-control imports matplotlib: import it on first use
 
 __all__ = [
-    "TABLE_I", "TABLE_II_PAPER", "TABLE_II_INPUTS", "TS", "DEFAULT_F_MAX", "PZTModel", "ScanSpec",
-    "RampUp", "Return", "ScanCycle", "CycleEvaluation", "FeedbackGains", "ClosedLoopResult",
-    "simulate", "robustness_rows_rampup", "robustness_rows_return", "shape_rampup", "shape_return",
-    "shape_cycle", "rampup_time_vs_scan_start", "evaluate_cycle", "table_ii", "format_table_ii",
-    "energy_optimal_return", "with_return", "pole_placement_gains", "closed_loop",
+    "TABLE_I",
+    "TABLE_II_PAPER",
+    "TABLE_II_INPUTS",
+    "TS",
+    "DEFAULT_F_MAX",
+    "PZTModel",
+    "ScanSpec",
+    "RampUp",
+    "Return",
+    "ScanCycle",
+    "CycleEvaluation",
+    "FeedbackGains",
+    "ClosedLoopResult",
+    "simulate",
+    "robustness_rows_rampup",
+    "robustness_rows_return",
+    "shape_rampup",
+    "shape_return",
+    "shape_cycle",
+    "rampup_time_vs_scan_start",
+    "evaluate_cycle",
+    "table_ii",
+    "format_table_ii",
+    "energy_optimal_return",
+    "with_return",
+    "pole_placement_gains",
+    "closed_loop",
 ]
 
 #: longest horizon (samples) a shaping problem is built for: a dense k x k problem beyond it
@@ -104,8 +127,8 @@ class PZTModel:
     def tf(self) -> control.TransferFunction:
         """Return G(s) (Xu & Meckl eq. 1) as a python-control transfer function (V -> µm)."""
         wz, w1, w2 = (2 * math.pi * f for f in (self.f_z, self.f_1, self.f_2))
-        num = self.K * np.array([1.0, -2 * self.zeta_z * wz, wz ** 2])
-        den = np.polymul([1.0, 2 * self.zeta_1 * w1, w1 ** 2], [1.0, 2 * self.zeta_2 * w2, w2 ** 2])
+        num = self.K * np.array([1.0, -2 * self.zeta_z * wz, wz**2])
+        den = np.polymul([1.0, 2 * self.zeta_1 * w1, w1**2], [1.0, 2 * self.zeta_2 * w2, w2**2])
         return control.tf(num, den)
 
     def ss(self) -> control.StateSpace:
@@ -132,14 +155,16 @@ class PZTModel:
             sysd = control.c2d(self.ss(), Ts, method="zoh")
         except (np.linalg.LinAlgError, ValueError, OverflowError) as exc:
             raise ValueError(f"Ts = {Ts!r} s cannot be discretized: {exc}") from None
-        if not np.all(np.isfinite(np.asarray(sysd.A))) or not np.all(np.isfinite(np.asarray(sysd.B))):
+        if not np.all(np.isfinite(np.asarray(sysd.A))) or not np.all(
+            np.isfinite(np.asarray(sysd.B))
+        ):
             raise ValueError(f"Ts = {Ts!r} s is too long for this model: the ZOH matrices overflow")
         return sysd
 
     def dc_gain(self) -> float:
         """Return G(0) = K ωz² / (ω1² ω2²) in µm/V (0.18759 for Table I)."""
         wz, w1, w2 = (2 * math.pi * f for f in (self.f_z, self.f_1, self.f_2))
-        return self.K * wz ** 2 / (w1 ** 2 * w2 ** 2)
+        return self.K * wz**2 / (w1**2 * w2**2)
 
     def mode_poles(self, Ts: float = TS) -> dict:
         """Return ``{1: z1, 2: z2}``, the discrete pole (upper half plane) of each mode at ``Ts``."""
@@ -147,11 +172,13 @@ class PZTModel:
         out = {}
         for i, (zeta, f) in enumerate(((self.zeta_1, self.f_1), (self.zeta_2, self.f_2)), 1):
             w = 2 * math.pi * f
-            s = -zeta * w + 1j * w * math.sqrt(max(1.0 - zeta ** 2, 0.0))
+            s = -zeta * w + 1j * w * math.sqrt(max(1.0 - zeta**2, 0.0))
             out[i] = complex(np.exp(s * Ts))
         return out
 
-    def perturbed(self, freq_scale: float = 1.1, modes=(1,), hold_dc_gain: bool = True) -> "PZTModel":
+    def perturbed(
+        self, freq_scale: float = 1.1, modes=(1,), hold_dc_gain: bool = True
+    ) -> "PZTModel":
         """Return the model with the natural frequency of ``modes`` scaled by ``freq_scale``.
 
         Xu & Meckl test robustness with a "+10 % frequency perturbation" without saying which
@@ -166,8 +193,11 @@ class PZTModel:
             if m not in (1, 2):
                 raise ValueError(f"modes must contain only 1 or 2, got {m!r}")
         try:
-            new = replace(self, f_1=self.f_1 * (freq_scale if 1 in modes else 1.0),
-                          f_2=self.f_2 * (freq_scale if 2 in modes else 1.0))
+            new = replace(
+                self,
+                f_1=self.f_1 * (freq_scale if 1 in modes else 1.0),
+                f_2=self.f_2 * (freq_scale if 2 in modes else 1.0),
+            )
             if hold_dc_gain:
                 new = replace(new, K=new.K * self.dc_gain() / new.dc_gain())
         except (ZeroDivisionError, OverflowError, ValueError) as exc:
@@ -178,8 +208,12 @@ class PZTModel:
 @functools.lru_cache(maxsize=64)
 def _discrete_cached(model: PZTModel, Ts: float):
     sysd = model.zoh(Ts)
-    out = (np.asarray(sysd.A, dtype=float), np.asarray(sysd.B, dtype=float).ravel(),
-           np.asarray(sysd.C, dtype=float).ravel(), float(np.asarray(sysd.D).ravel()[0]))
+    out = (
+        np.asarray(sysd.A, dtype=float),
+        np.asarray(sysd.B, dtype=float).ravel(),
+        np.asarray(sysd.C, dtype=float).ravel(),
+        float(np.asarray(sysd.D).ravel()[0]),
+    )
     for a in out[:3]:
         a.setflags(write=False)
     return out
@@ -201,7 +235,7 @@ def simulate(model: PZTModel, u, Ts: float = TS) -> np.ndarray:
     u = as_finite_array("u", u, ndim=1)
     A, B, C, D = _discrete(model, as_positive("Ts", Ts))
     den = np.real(np.poly(A))
-    num = np.real(np.poly(A - np.outer(B, C))) - den + D * den    # C (zI − A)^-1 B + D
+    num = np.real(np.poly(A - np.outer(B, C))) - den + D * den  # C (zI − A)^-1 B + D
     return lfilter(num, den, u)
 
 
@@ -232,8 +266,9 @@ def _dz_ramp_tail(M: int, z: complex, j: int) -> complex:
     tot = 0j
     for i in range(j + 1):
         n = j - i
-        g = ((-1) ** n * math.factorial(n) * (z - 1) ** (-n - 1)
-             + (-1) ** n * math.factorial(n + 1) * (z - 1) ** (-n - 2))
+        g = (-1) ** n * math.factorial(n) * (z - 1) ** (-n - 1) + (-1) ** n * math.factorial(
+            n + 1
+        ) * (z - 1) ** (-n - 2)
         tot += math.comb(j, i) * complex(_dz_power(np.array([M]), z, i)[0]) * g
     return tot
 
@@ -288,8 +323,9 @@ def _cycle_rows(N: int, S: int, N_r: int, poles: dict, orders: dict, w: float):
         z = poles[mode]
         for j in range(m + 1):
             ps = _dz_power(N + np.arange(S), z, j)
-            r = np.concatenate([_dz_power(np.arange(N), z, j), [ps.sum()],
-                                _dz_power(N + S + np.arange(N_r), z, j)])
+            r = np.concatenate(
+                [_dz_power(np.arange(N), z, j), [ps.sum()], _dz_power(N + S + np.arange(N_r), z, j)]
+            )
             c = w * (np.arange(S) * ps).sum()
             for part in (np.real, np.imag):
                 rows.append(part(r))
@@ -299,7 +335,9 @@ def _cycle_rows(N: int, S: int, N_r: int, poles: dict, orders: dict, w: float):
     return E / s[:, None], f / s
 
 
-def _scan_tracking_rows(N: int, model: "PZTModel", spec: "ScanSpec", w: float, G1: float, beta: float):
+def _scan_tracking_rows(
+    N: int, model: "PZTModel", spec: "ScanSpec", w: float, G1: float, beta: float
+):
     """Xu & Meckl eq. 4 on the scan: ``|y(k) − y_line(k)| <= e_allow`` and ``|Δy(k)/Ts − v_d| <= tol`` for
     the scan samples, as ``A_ub x <= b_ub`` on ``x = [u_0 .. u_{N-1}, a]`` (command continued by
     the scan ramp), with ``y_line(k) = y(T) + v_d Ts (k − N)`` and ``y(T) = G(1) a + β``."""
@@ -347,7 +385,11 @@ def robustness_rows_return(N_r: int, poles: dict, orders: dict, w: float):
         for j in range(m + 1):
             pk = _dz_power(k, z, j)
             coef_b = -pk.sum() - _dz_step_tail(N_r, z, j)
-            const = -w * (k * pk).sum() - w * N_r * _dz_step_tail(N_r, z, j) - w * _dz_ramp_tail(N_r, z, j)
+            const = (
+                -w * (k * pk).sum()
+                - w * N_r * _dz_step_tail(N_r, z, j)
+                - w * _dz_ramp_tail(N_r, z, j)
+            )
             r = np.concatenate([pk, [coef_b]])
             for part in (np.real, np.imag):
                 rows.append(part(r))
@@ -483,16 +525,18 @@ def _solve_lp(A_eq, b_eq, A_ub, b_ub, bounds, n, solver="lp"):
     if solver == "lp":
         if A_eq is not None and A_eq.shape[0] == 0:
             A_eq = b_eq = None
-        res = linprog(np.zeros(n), A_ub=A_ub, b_ub=b_ub, A_eq=A_eq, b_eq=b_eq, bounds=bounds,
-                      method="highs")
+        res = linprog(
+            np.zeros(n), A_ub=A_ub, b_ub=b_ub, A_eq=A_eq, b_eq=b_eq, bounds=bounds, method="highs"
+        )
         return res.x if res.status == 0 else None
     if solver == "nnls":
         if A_ub is not None or A_eq is None:
             return _solve_lp(A_eq, b_eq, A_ub, b_ub, bounds, n, "lp")
         return _screen_nnls(A_eq, b_eq, bounds)
     if A_ub is not None:
-        raise ValueError("solver='lsq' handles equality rows and bounds only (use solver='lp' "
-                         "with e_allow > 0)")
+        raise ValueError(
+            "solver='lsq' handles equality rows and bounds only (use solver='lp' with e_allow > 0)"
+        )
     lo = np.array([b[0] for b in bounds], dtype=float)
     hi = np.array([b[1] for b in bounds], dtype=float)
     fixed = lo == hi
@@ -532,7 +576,7 @@ def _screen_nnls(A_eq, b_eq, bounds):
     C[m:, n:] = np.eye(n)
     try:
         y, _ = nnls(C, np.r_[rhs, hi[free] - lo[free]], maxiter=50 * (2 * n + 1))
-    except RuntimeError:                     # no convergence: let the LP decide
+    except RuntimeError:  # no convergence: let the LP decide
         return _solve_lp(A_eq, b_eq, None, None, bounds, len(lo), "lp")
     x = lo.copy()
     x[free] += y[:n]
@@ -540,7 +584,7 @@ def _screen_nnls(A_eq, b_eq, bounds):
     res = np.abs(A_eq @ x - b_eq).max(initial=0.0)
     if res <= LSQ_TOL:
         return x
-    if res < SCREEN_CLEAR:                   # marginal: the LP's tolerance decides
+    if res < SCREEN_CLEAR:  # marginal: the LP's tolerance decides
         return _solve_lp(A_eq, b_eq, None, None, bounds, len(lo), "lp")
     return None
 
@@ -556,7 +600,7 @@ def _bisect_solver(make, n_lo, n_max, solver):
     """
     if solver == "lsq":
         return _bisect(lambda n: make(n, "lsq"), n_lo, n_max)
-    if solver == "highs":                    # an LP at every horizon (the former default)
+    if solver == "highs":  # an LP at every horizon (the former default)
         return _bisect(lambda n: make(n, "lp"), n_lo, n_max)
     hi, _ = _bisect(lambda n: make(n, "nnls"), n_lo, n_max)
     sol = make(hi, "lp")
@@ -626,8 +670,14 @@ def _bisect(feasible, n_lo, n_max):
     return hi, best
 
 
-def shape_rampup(model: PZTModel | None = None, spec: ScanSpec | None = None, orders=None,
-                 scan_start: float | None = None, max_samples: int = 400, solver: str = "lp") -> RampUp:
+def shape_rampup(
+    model: PZTModel | None = None,
+    spec: ScanSpec | None = None,
+    orders=None,
+    scan_start: float | None = None,
+    max_samples: int = 400,
+    solver: str = "lp",
+) -> RampUp:
     """Time-optimal (robust) ramp-up from rest to the scan velocity (Xu & Meckl eq. 3,
     Xu & Meckl eq. 4, Xu & Meckl eq. 5, Xu & Meckl eq. 6, Xu & Meckl eq. 13, Xu & Meckl eq. 16,
     Xu & Meckl eq. 17).
@@ -667,10 +717,14 @@ def shape_rampup(model: PZTModel | None = None, spec: ScanSpec | None = None, or
     w, G1, beta = _ramp_constants(model, spec)
     if scan_start is not None:
         # y(T) = G1 a + beta with the ramp level a within -F_max … F_max - (S-1) w (Xu & Meckl eq. 5 on the scan)
-        ends = sorted((G1 * -spec.F_max + beta, G1 * (spec.F_max - (spec.scan_samples - 1) * w) + beta))
+        ends = sorted(
+            (G1 * -spec.F_max + beta, G1 * (spec.F_max - (spec.scan_samples - 1) * w) + beta)
+        )
         if not ends[0] - 1e-9 <= scan_start <= ends[1] + 1e-9:
-            raise _Unreachable(f"scan_start must lie within {ends[0]:.6g} … {ends[1]:.6g} µm (the scan ramp within "
-                             f"|u| <= F_max = {spec.F_max:g} V), got {scan_start:g}")
+            raise _Unreachable(
+                f"scan_start must lie within {ends[0]:.6g} … {ends[1]:.6g} µm (the scan ramp within "
+                f"|u| <= F_max = {spec.F_max:g} V), got {scan_start:g}"
+            )
     count = [0]
 
     def feasible(N, how):
@@ -679,8 +733,9 @@ def shape_rampup(model: PZTModel | None = None, spec: ScanSpec | None = None, or
 
     N, x = _bisect_solver(feasible, 0, max_samples, solver)
     a = float(x[-1])
-    return RampUp(u=x[:-1].copy(), a=a, w=w, scan_start=G1 * a + beta, orders=orders,
-                  lp_count=count[0])
+    return RampUp(
+        u=x[:-1].copy(), a=a, w=w, scan_start=G1 * a + beta, orders=orders, lp_count=count[0]
+    )
 
 
 class _Unreachable(ValueError):
@@ -690,12 +745,20 @@ class _Unreachable(ValueError):
 def _check_return_level(b, w, F_max):
     """Refuse a ramp level ``b`` no scan under ``|u| <= F_max`` can end at (its last sample + one slope)."""
     if abs(b) > F_max + abs(w) + 1e-9:
-        raise ValueError(f"b must lie within ±(F_max + w) = ±{F_max + abs(w):.6g} V (the scan ramp's level one "
-                         f"sample after its last sample, |u| <= F_max = {F_max:g} V), got {b:g}")
+        raise ValueError(
+            f"b must lie within ±(F_max + w) = ±{F_max + abs(w):.6g} V (the scan ramp's level one "
+            f"sample after its last sample, |u| <= F_max = {F_max:g} V), got {b:g}"
+        )
 
 
-def shape_return(b: float, model: PZTModel | None = None, spec: ScanSpec | None = None,
-                 orders=None, max_samples: int = 400, solver: str = "lp") -> Return:
+def shape_return(
+    b: float,
+    model: PZTModel | None = None,
+    spec: ScanSpec | None = None,
+    orders=None,
+    max_samples: int = 400,
+    solver: str = "lp",
+) -> Return:
     """Time-optimal (robust) return from the scan ramp at input level ``b`` to rest at 0.
 
     Bisection on the return horizon over LP feasibility problems: ``|u| <= F_max`` and the
@@ -744,9 +807,9 @@ def _joint_lp(N, N_r, model, spec, t_orders, r_orders, poles, w, G1, beta, solve
         E1, f1 = robustness_rows_rampup(N, poles, t_orders, w)
         E2, f2 = robustness_rows_return(N_r, poles, r_orders, w)
         A = np.zeros((E1.shape[0] + E2.shape[0], n))
-        A[:E1.shape[0], :N + 1] = E1
-        A[E1.shape[0]:, N + 1:] = E2[:, :-1]
-        A[E1.shape[0]:, N] = E2[:, -1]           # b = a + S w
+        A[: E1.shape[0], : N + 1] = E1
+        A[E1.shape[0] :, N + 1 :] = E2[:, :-1]
+        A[E1.shape[0] :, N] = E2[:, -1]  # b = a + S w
         f = np.concatenate([f1, f2 - E2[:, -1] * S * w])
     F = spec.F_max
     a_lo, a_hi = -F, F - (S - 1) * w
@@ -762,13 +825,13 @@ def _joint_lp(N, N_r, model, spec, t_orders, r_orders, poles, w, G1, beta, solve
 class ScanCycle:
     """A full scan cycle: ramp-up, scan, return, rest (the command and its nominal response)."""
 
-    u: np.ndarray            # the command over the cycle (N + S + N_r samples), 0 afterwards
-    N: int                   # ramp-up samples
-    S: int                   # scan intervals
-    N_r: int                 # return samples
-    a: float                 # input level at the scan start, u_T(T)
-    w: float                 # input slope per sample during the scan
-    scan_start: float        # y(T), µm
+    u: np.ndarray  # the command over the cycle (N + S + N_r samples), 0 afterwards
+    N: int  # ramp-up samples
+    S: int  # scan intervals
+    N_r: int  # return samples
+    a: float  # input level at the scan start, u_T(T)
+    w: float  # input slope per sample during the scan
+    scan_start: float  # y(T), µm
     tracking_orders: dict
     return_orders: dict
     spec: ScanSpec
@@ -791,7 +854,11 @@ class ScanCycle:
 
     def command(self, extra_time: float | None = None) -> np.ndarray:
         """The command padded with zeros for ``extra_time`` (default: the residual window)."""
-        extra = self.spec.residual_window if extra_time is None else as_nonnegative("extra_time", extra_time)
+        extra = (
+            self.spec.residual_window
+            if extra_time is None
+            else as_nonnegative("extra_time", extra_time)
+        )
         pad = int(round(extra / self.spec.Ts))
         return np.concatenate([self.u, np.zeros(pad)])
 
@@ -804,9 +871,15 @@ class ScanCycle:
         return slice(self.N, self.N + self.S + 1)
 
 
-def shape_cycle(tracking_orders=0, return_orders=None, model: PZTModel | None = None,
-                spec: ScanSpec | None = None, max_samples: int = 400, joint_extra: int = 2,
-                solver: str = "lp") -> ScanCycle:
+def shape_cycle(
+    tracking_orders=0,
+    return_orders=None,
+    model: PZTModel | None = None,
+    spec: ScanSpec | None = None,
+    max_samples: int = 400,
+    joint_extra: int = 2,
+    solver: str = "lp",
+) -> ScanCycle:
     """Shape a whole scan cycle: robust time-optimal ramp-up, scan, robust time-optimal return.
 
     A cycle (the paper does not define it; this reading reproduces Table II) is: rest at 0 ->
@@ -841,11 +914,13 @@ def shape_cycle(tracking_orders=0, return_orders=None, model: PZTModel | None = 
     count = [up.lp_count]
     best = None
     for N in range(up.N, up.N + joint_extra + 1):
+
         def feasible(N_r, how, N=N):
             count[0] += 1
             return _joint_lp(N, N_r, model, spec, t_orders, r_orders, poles, w, G1, beta, how)
+
         try:
-            if solver == "lp":               # screen only; the LP runs once, for the winner below
+            if solver == "lp":  # screen only; the LP runs once, for the winner below
                 N_r, x = _bisect(lambda n, f=feasible: f(n, "nnls"), 0, max_samples)
             else:
                 N_r, x = _bisect_solver(feasible, 0, max_samples, solver)
@@ -858,22 +933,46 @@ def shape_cycle(tracking_orders=0, return_orders=None, model: PZTModel | None = 
     N, N_r, x, feasible = best
     if solver == "lp":
         x = feasible(N_r, "lp")
-        if x is None:                        # the screen and the LP disagree here: an LP everywhere
-            return shape_cycle(tracking_orders, return_orders, model, spec, max_samples=max_samples,
-                               joint_extra=joint_extra, solver="highs")
+        if x is None:  # the screen and the LP disagree here: an LP everywhere
+            return shape_cycle(
+                tracking_orders,
+                return_orders,
+                model,
+                spec,
+                max_samples=max_samples,
+                joint_extra=joint_extra,
+                solver="highs",
+            )
     S = spec.scan_samples
     a = float(x[N])
-    u = np.concatenate([x[:N], a + w * np.arange(S), x[N + 1:]])
-    return ScanCycle(u=u, N=N, S=S, N_r=N_r, a=a, w=w, scan_start=G1 * a + beta,
-                     tracking_orders=t_orders, return_orders=r_orders, spec=spec, model=model,
-                     lp_count=count[0], solve_time=time.perf_counter() - t0)
+    u = np.concatenate([x[:N], a + w * np.arange(S), x[N + 1 :]])
+    return ScanCycle(
+        u=u,
+        N=N,
+        S=S,
+        N_r=N_r,
+        a=a,
+        w=w,
+        scan_start=G1 * a + beta,
+        tracking_orders=t_orders,
+        return_orders=r_orders,
+        spec=spec,
+        model=model,
+        lp_count=count[0],
+        solve_time=time.perf_counter() - t0,
+    )
 
 
 # ----------------------------------------------------------------------------------------------
 # Fig. 4: the outer search over y(T)
 # ----------------------------------------------------------------------------------------------
-def rampup_time_vs_scan_start(scan_starts, orders=1, model: PZTModel | None = None,
-                              spec: ScanSpec | None = None, max_samples: int = 200) -> np.ndarray:
+def rampup_time_vs_scan_start(
+    scan_starts,
+    orders=1,
+    model: PZTModel | None = None,
+    spec: ScanSpec | None = None,
+    max_samples: int = 200,
+) -> np.ndarray:
     """Minimum ramp-up time for each fixed scan start y(T) (Xu & Meckl Fig. 4).
 
     For each y(T) the ramp level ``a = u_T(T)`` follows from Xu & Meckl eq. 18 in its discrete form
@@ -921,8 +1020,9 @@ class CycleEvaluation:
     y_perturbed: np.ndarray
 
 
-def evaluate_cycle(cycle: ScanCycle, perturbed: PZTModel | None = None, freq_scale: float = 1.1,
-                   modes=(1,)) -> CycleEvaluation:
+def evaluate_cycle(
+    cycle: ScanCycle, perturbed: PZTModel | None = None, freq_scale: float = 1.1, modes=(1,)
+) -> CycleEvaluation:
     """Cycle time, e_m, e_r and the scan velocity error of ``cycle`` (Xu & Meckl Table II).
 
     The perturbed plant defaults to ``cycle.model.perturbed(freq_scale, modes)`` (+10 % on ω1,
@@ -940,10 +1040,17 @@ def evaluate_cycle(cycle: ScanCycle, perturbed: PZTModel | None = None, freq_sca
     d = np.abs(yp - y)
     v = np.diff(y[sl]) / spec.Ts
     vp = np.diff(yp[sl]) / spec.Ts
-    return CycleEvaluation(cycle_time=cycle.cycle_time, e_m=float(d[sl].max()), e_r=float(d[n_end:].max()),
-                           velocity_error=float(np.abs(v - spec.scan_velocity).max()),
-                           perturbed_velocity_error=float(np.abs(vp - spec.scan_velocity).max()),
-                           t=cycle.time(u.size), u=u, y_nominal=y, y_perturbed=yp)
+    return CycleEvaluation(
+        cycle_time=cycle.cycle_time,
+        e_m=float(d[sl].max()),
+        e_r=float(d[n_end:].max()),
+        velocity_error=float(np.abs(v - spec.scan_velocity).max()),
+        perturbed_velocity_error=float(np.abs(vp - spec.scan_velocity).max()),
+        t=cycle.time(u.size),
+        u=u,
+        y_nominal=y,
+        y_perturbed=yp,
+    )
 
 
 #: The four inputs of Table II: (tracking orders, return orders); an int m means mode 1 at
@@ -956,8 +1063,15 @@ TABLE_II_INPUTS = {
 }
 
 
-def table_ii(F_max: float = DEFAULT_F_MAX, model: PZTModel | None = None, spec: ScanSpec | None = None,
-             freq_scale: float = 1.1, perturbed_modes=(1,), inputs=None, solver: str = "lp") -> dict:
+def table_ii(
+    F_max: float = DEFAULT_F_MAX,
+    model: PZTModel | None = None,
+    spec: ScanSpec | None = None,
+    freq_scale: float = 1.1,
+    perturbed_modes=(1,),
+    inputs=None,
+    solver: str = "lp",
+) -> dict:
     """Reproduce Xu & Meckl Table II with one call.
 
     Shapes the non-robust, 1st-order, 2nd-order and combined-robust (1st-order tracking, 2nd-order
@@ -979,20 +1093,30 @@ def table_ii(F_max: float = DEFAULT_F_MAX, model: PZTModel | None = None, spec: 
     for name, (t_o, r_o) in inputs.items():
         c = shape_cycle(t_o, r_o, model, spec, solver=solver)
         ev = evaluate_cycle(c, freq_scale=freq_scale, modes=perturbed_modes)
-        out[name] = {"cycle": c, "evaluation": ev, "cycle_time": ev.cycle_time, "e_m": ev.e_m,
-                     "e_r": ev.e_r, "velocity_error": ev.velocity_error,
-                     "paper": TABLE_II_PAPER.get(name)}
+        out[name] = {
+            "cycle": c,
+            "evaluation": ev,
+            "cycle_time": ev.cycle_time,
+            "e_m": ev.e_m,
+            "e_r": ev.e_r,
+            "velocity_error": ev.velocity_error,
+            "paper": TABLE_II_PAPER.get(name),
+        }
     return out
 
 
 def format_table_ii(rows: dict) -> str:
     """Format ``table_ii()`` next to the paper's values as a text table."""
-    lines = [f"{'input':<18} {'cycle ms':>9} {'paper':>6} {'e_m µm':>8} {'paper':>6} "
-             f"{'e_r µm':>8} {'paper':>6} {'|v-v_d| µm/s':>13}"]
+    lines = [
+        f"{'input':<18} {'cycle ms':>9} {'paper':>6} {'e_m µm':>8} {'paper':>6} "
+        f"{'e_r µm':>8} {'paper':>6} {'|v-v_d| µm/s':>13}"
+    ]
     for name, r in rows.items():
         p = r["paper"] or (float("nan"),) * 3
-        lines.append(f"{name:<18} {r['cycle_time'] * 1e3:9.1f} {p[0] * 1e3:6.1f} {r['e_m']:8.4f} "
-                     f"{p[1]:6.3f} {r['e_r']:8.4f} {p[2]:6.2f} {r['velocity_error']:13.2e}")
+        lines.append(
+            f"{name:<18} {r['cycle_time'] * 1e3:9.1f} {p[0] * 1e3:6.1f} {r['e_m']:8.4f} "
+            f"{p[1]:6.3f} {r['e_r']:8.4f} {p[2]:6.2f} {r['velocity_error']:13.2e}"
+        )
     return "\n".join(lines)
 
 
@@ -1010,10 +1134,15 @@ def _least_squares_qp(E, f, lo, hi, M=None, m=None, x0=None):
     if x0 is None:
         x0 = np.clip(E.T @ np.linalg.lstsq(E @ E.T, f, rcond=None)[0], lo, hi)
     H, g = M.T @ M, M.T @ m
-    res = minimize(lambda u: 0.5 * u @ H @ u - g @ u, x0, jac=lambda u: H @ u - g, method="SLSQP",
-                   bounds=list(zip(lo, hi)),
-                   constraints=[{"type": "eq", "fun": lambda u: E @ u - f, "jac": lambda u: E}],
-                   options={"maxiter": 1000, "ftol": 1e-14})
+    res = minimize(
+        lambda u: 0.5 * u @ H @ u - g @ u,
+        x0,
+        jac=lambda u: H @ u - g,
+        method="SLSQP",
+        bounds=list(zip(lo, hi)),
+        constraints=[{"type": "eq", "fun": lambda u: E @ u - f, "jac": lambda u: E}],
+        options={"maxiter": 1000, "ftol": 1e-14},
+    )
     # status 8 ("positive directional derivative in line search") is SLSQP stalling at round-off
     # when the feasible set is a thin sliver (k_r at the time-optimal minimum); accept the point
     # if it satisfies the constraints.
@@ -1023,8 +1152,14 @@ def _least_squares_qp(E, f, lo, hi, M=None, m=None, x0=None):
     return x
 
 
-def energy_optimal_return(b: float, k_r: int, model: PZTModel | None = None,
-                          spec: ScanSpec | None = None, orders=1, objective: str = "input") -> Return:
+def energy_optimal_return(
+    b: float,
+    k_r: int,
+    model: PZTModel | None = None,
+    spec: ScanSpec | None = None,
+    orders=1,
+    objective: str = "input",
+) -> Return:
     """Time-energy-optimal return of ``k_r`` steps (Xu & Meckl eq. 19, Fig. 7).
 
     Minimises a quadratic cost over the return samples subject to (a) the terminal/robustness
@@ -1064,7 +1199,7 @@ def energy_optimal_return(b: float, k_r: int, model: PZTModel | None = None,
         raise RuntimeError(f"k_r = {k_r} is shorter than the time-optimal return")
     M = m = None
     if objective == "increment":
-        M = (np.eye(k_r + 1, k_r) - np.eye(k_r + 1, k_r, -1))
+        M = np.eye(k_r + 1, k_r) - np.eye(k_r + 1, k_r, -1)
         m = np.zeros(k_r + 1)
         m[0] = b
     u = _least_squares_qp(E_u, f_u, np.full(k_r, -F), np.full(k_r, F), M, m, x0=x0)
@@ -1078,7 +1213,7 @@ def with_return(cycle: ScanCycle, ret: Return) -> ScanCycle:
     b = cycle.a + cycle.S * cycle.w
     if abs(ret.b - b) > 1e-9 * max(1.0, abs(b)):
         raise ValueError(f"ret starts at input level {ret.b}, the cycle's scan ends at {b}")
-    u = np.concatenate([cycle.u[:cycle.N + cycle.S], ret.u])
+    u = np.concatenate([cycle.u[: cycle.N + cycle.S], ret.u])
     return replace(cycle, u=u, N_r=ret.N, return_orders=ret.orders)
 
 
@@ -1087,7 +1222,10 @@ def with_return(cycle: ScanCycle, ret: Return) -> ScanCycle:
 # ----------------------------------------------------------------------------------------------
 def _s_poles(zeta, f):
     w = 2 * math.pi * f
-    return [complex(-zeta * w, w * math.sqrt(1 - zeta ** 2)), complex(-zeta * w, -w * math.sqrt(1 - zeta ** 2))]
+    return [
+        complex(-zeta * w, w * math.sqrt(1 - zeta**2)),
+        complex(-zeta * w, -w * math.sqrt(1 - zeta**2)),
+    ]
 
 
 @dataclass
@@ -1107,9 +1245,14 @@ class FeedbackGains:
     Ts: float
 
 
-def pole_placement_gains(model: PZTModel | None = None, Ts: float = TS, mode1_damping: float = 0.1,
-                         integral_frequency: float = 60.0, observer_speedup: float = 2.0,
-                         observer_damping: float = 0.7) -> FeedbackGains:
+def pole_placement_gains(
+    model: PZTModel | None = None,
+    Ts: float = TS,
+    mode1_damping: float = 0.1,
+    integral_frequency: float = 60.0,
+    observer_speedup: float = 2.0,
+    observer_damping: float = 0.7,
+) -> FeedbackGains:
     """Pole-placement feedback for the ZOH PZT model (Xu & Meckl, closed loop, Fig. 8).
 
     The paper only says "pole placement". Choices (continuous poles mapped by z = e^{sTs}):
@@ -1132,19 +1275,25 @@ def pole_placement_gains(model: PZTModel | None = None, Ts: float = TS, mode1_da
     n = A.shape[0]
     Aa = np.block([[A, np.zeros((n, 1))], [C[None, :], np.ones((1, 1))]])
     Ba = np.concatenate([B, [0.0]])[:, None]
-    s = (_s_poles(mode1_damping, model.f_1) + _s_poles(model.zeta_2, model.f_2)
-         + [-2 * math.pi * integral_frequency])
+    s = (
+        _s_poles(mode1_damping, model.f_1)
+        + _s_poles(model.zeta_2, model.f_2)
+        + [-2 * math.pi * integral_frequency]
+    )
     zp = np.exp(np.array(s) * Ts)
-    so = (_s_poles(observer_damping, observer_speedup * model.f_1)
-          + _s_poles(observer_damping, observer_speedup * model.f_2))
+    so = _s_poles(observer_damping, observer_speedup * model.f_1) + _s_poles(
+        observer_damping, observer_speedup * model.f_2
+    )
     zo = np.exp(np.array(so) * Ts)
     try:
         Ka = np.asarray(control.place(Aa, Ba, zp)).ravel()
         L = np.asarray(control.place(A.T, C[:, None], zo)).ravel()
     except (np.linalg.LinAlgError, ValueError) as exc:
-        raise ValueError(f"no pole placement for Ts = {Ts!r} s, integral_frequency = {integral_frequency!r} Hz, "
-                         f"observer_speedup = {observer_speedup!r}: the requested discrete poles "
-                         f"coincide or underflow ({exc})") from None
+        raise ValueError(
+            f"no pole placement for Ts = {Ts!r} s, integral_frequency = {integral_frequency!r} Hz, "
+            f"observer_speedup = {observer_speedup!r}: the requested discrete poles "
+            f"coincide or underflow ({exc})"
+        ) from None
     return FeedbackGains(K=Ka[:n], k_i=float(Ka[n]), L=L, poles=zp, observer_poles=zo, Ts=Ts)
 
 
@@ -1153,21 +1302,28 @@ class ClosedLoopResult:
     """Closed-loop simulation (Xu & Meckl Fig. 9): traces and the scan tracking error."""
 
     t: np.ndarray
-    y_desired: np.ndarray      # nominal output of the shaped command, µm
-    y: np.ndarray              # closed-loop output of the perturbed plant, µm
-    u_ff: np.ndarray           # shaped command (desired hysteresis output), V
-    u_r: np.ndarray            # reference of the hysteresis: feedforward + feedback (Xu & Meckl Fig. 1), V
-    u_c: np.ndarray            # compensated command on the actuator, H⁻¹(u_r) by the CNIA (Fig. 1), V
-    f: np.ndarray              # hysteresis output reaching G (with cancellation error), V
+    y_desired: np.ndarray  # nominal output of the shaped command, µm
+    y: np.ndarray  # closed-loop output of the perturbed plant, µm
+    u_ff: np.ndarray  # shaped command (desired hysteresis output), V
+    u_r: np.ndarray  # reference of the hysteresis: feedforward + feedback (Xu & Meckl Fig. 1), V
+    u_c: np.ndarray  # compensated command on the actuator, H⁻¹(u_r) by the CNIA (Fig. 1), V
+    f: np.ndarray  # hysteresis output reaching G (with cancellation error), V
     scan_slice: slice
-    scan_error: float          # max |y − y_desired| over the scan, µm
+    scan_error: float  # max |y − y_desired| over the scan, µm
     open_loop_scan_error: float  # the same without feedback, µm
 
 
-def closed_loop(cycle: ScanCycle, perturbed: PZTModel | None = None, gains: FeedbackGains | None = None,
-                hysteresis=None, actuator=None, cancellation_error: float = 0.15,
-                cancellation_model: str = "branch", extra_time: float = 10e-3,
-                feedback: bool = True) -> ClosedLoopResult:
+def closed_loop(
+    cycle: ScanCycle,
+    perturbed: PZTModel | None = None,
+    gains: FeedbackGains | None = None,
+    hysteresis=None,
+    actuator=None,
+    cancellation_error: float = 0.15,
+    cancellation_model: str = "branch",
+    extra_time: float = 10e-3,
+    feedback: bool = True,
+) -> ClosedLoopResult:
     """Closed-loop simulation of a shaped scan cycle (Xu & Meckl Figs. 8, 9).
 
     Per sample: the shaped command ``u_ff`` plus pole-placement feedback on the error to the
@@ -1200,7 +1356,9 @@ def closed_loop(cycle: ScanCycle, perturbed: PZTModel | None = None, gains: Feed
     """
     cancellation_error = as_nonnegative("cancellation_error", cancellation_error)
     if cancellation_model not in ("branch", "constant"):
-        raise ValueError(f"cancellation_model must be 'branch' or 'constant', got {cancellation_model!r}")
+        raise ValueError(
+            f"cancellation_model must be 'branch' or 'constant', got {cancellation_model!r}"
+        )
     extra_time = as_nonnegative("extra_time", extra_time)
     spec, model = cycle.spec, cycle.model
     perturbed = perturbed or model.perturbed()
@@ -1224,11 +1382,14 @@ def closed_loop(cycle: ScanCycle, perturbed: PZTModel | None = None, gains: Feed
         x = np.zeros(Ap.shape[0])
         xh = np.zeros(A.shape[0])
         xi = 0.0
-        y = np.empty(n_s); uc = np.empty(n_s); ur = np.empty(n_s); f = np.empty(n_s)
+        y = np.empty(n_s)
+        uc = np.empty(n_s)
+        ur = np.empty(n_s)
+        f = np.empty(n_s)
         sign = 1.0 if cancellation_model == "constant" else 0.0
         prev = 0.0
         for k in range(n_s):
-            y[k] = Cp @ x                                   # strictly proper plant (D = 0)
+            y[k] = Cp @ x  # strictly proper plant (D = 0)
             u = u_ff[k]
             if use_fb:
                 u = u - gains.K @ (xh - xd[k]) - gains.k_i * xi
@@ -1252,9 +1413,18 @@ def closed_loop(cycle: ScanCycle, perturbed: PZTModel | None = None, gains: Feed
     y, uc, ur, f = run(feedback)
     sl = cycle.scan_slice
     y_ol = run(False)[0] if feedback else y
-    return ClosedLoopResult(t=cycle.time(n_s), y_desired=yd, y=y, u_ff=u_ff, u_r=uc, u_c=ur, f=f,
-                            scan_slice=sl, scan_error=float(np.abs(y - yd)[sl].max()),
-                            open_loop_scan_error=float(np.abs(y_ol - yd)[sl].max()))
+    return ClosedLoopResult(
+        t=cycle.time(n_s),
+        y_desired=yd,
+        y=y,
+        u_ff=u_ff,
+        u_r=uc,
+        u_c=ur,
+        f=f,
+        scan_slice=sl,
+        scan_error=float(np.abs(y - yd)[sl].max()),
+        open_loop_scan_error=float(np.abs(y_ol - yd)[sl].max()),
+    )
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1269,9 +1439,14 @@ def _orders_for(m: int, modes) -> dict:
     return {1: m if 1 in modes else 0, 2: m if 2 in modes else 0}
 
 
-def table_ii_sensitivity(F_max_values=(20.0, 30.0, 38.0, 50.0, 70.0, 100.0), readings=None,
-                         model: PZTModel | None = None, spec: ScanSpec | None = None,
-                         freq_scale: float = 1.1, solver: str = "lp") -> list:
+def table_ii_sensitivity(
+    F_max_values=(20.0, 30.0, 38.0, 50.0, 70.0, 100.0),
+    readings=None,
+    model: PZTModel | None = None,
+    spec: ScanSpec | None = None,
+    freq_scale: float = 1.1,
+    solver: str = "lp",
+) -> list:
     """Xu & Meckl Table II under each reading of the choices the paper leaves open.
 
     The paper gives neither the actuator limit ``F_max`` (Xu & Meckl eq. 5) nor whether "m-th order robust"
@@ -1301,21 +1476,28 @@ def table_ii_sensitivity(F_max_values=(20.0, 30.0, 38.0, 50.0, 70.0, 100.0), rea
     for name, modes in readings.items():
         if not modes or any(m not in (1, 2) for m in modes):
             raise ValueError(f"readings[{name!r}]: modes are 1 and/or 2, got {modes!r}")
-        inputs = {k: (_orders_for(t, modes), _orders_for(r, modes)) for k, (t, r) in TABLE_II_INPUTS.items()}
+        inputs = {
+            k: (_orders_for(t, modes), _orders_for(r, modes))
+            for k, (t, r) in TABLE_II_INPUTS.items()
+        }
         for F in F_list:
             rows = {}
             for k, (t_o, r_o) in inputs.items():
-                key = (F, tuple(t_o.items()), tuple(r_o.items()))   # the non-robust row is shared
+                key = (F, tuple(t_o.items()), tuple(r_o.items()))  # the non-robust row is shared
                 if key not in memo:
                     try:
-                        c = shape_cycle(t_o, r_o, model, replace(spec or ScanSpec(), F_max=F), solver=solver)
+                        c = shape_cycle(
+                            t_o, r_o, model, replace(spec or ScanSpec(), F_max=F), solver=solver
+                        )
                     except RuntimeError:
                         memo[key] = (math.nan, math.nan, math.nan)
                     else:
                         ev = evaluate_cycle(c, freq_scale=freq_scale, modes=(1,))
                         memo[key] = (ev.cycle_time, ev.e_m, ev.e_r)
                 rows[k] = memo[key]
-            out.append({"reading": name, "F_max": F, "rows": rows, "distance": table_ii_distance(rows)})
+            out.append(
+                {"reading": name, "F_max": F, "rows": rows, "distance": table_ii_distance(rows)}
+            )
     return out
 
 
@@ -1339,8 +1521,11 @@ def table_ii_distance(rows: dict) -> dict:
         d_t.append((t - tp) * 1e3)
         fac += [max(em / emp, emp / em), max(er / erp, erp / er)]
     d_t = np.asarray(d_t)
-    return {"cycle_rms_ms": float(np.sqrt(np.mean(d_t ** 2))), "cycle_max_ms": float(np.abs(d_t).max()),
-            "error_factor": float(max(fac))}
+    return {
+        "cycle_rms_ms": float(np.sqrt(np.mean(d_t**2))),
+        "cycle_max_ms": float(np.abs(d_t).max()),
+        "error_factor": float(max(fac)),
+    }
 
 
 def best_table_ii_reading(sensitivity: list) -> dict:
@@ -1349,7 +1534,9 @@ def best_table_ii_reading(sensitivity: list) -> dict:
     ok = [r for r in sensitivity if np.isfinite(r["distance"]["cycle_rms_ms"])]
     if not ok:
         raise ValueError("sensitivity: no feasible reading")
-    return min(ok, key=lambda r: (round(r["distance"]["cycle_rms_ms"], 9), r["distance"]["error_factor"]))
+    return min(
+        ok, key=lambda r: (round(r["distance"]["cycle_rms_ms"], 9), r["distance"]["error_factor"])
+    )
 
 
 @dataclass(frozen=True)
@@ -1387,5 +1574,11 @@ def limit_excursions(t, u, F_max: float = DEFAULT_F_MAX) -> LimitExcursion:
     return LimitExcursion(F_max, float(u[k]), float(t[k]), float(above.sum() * dt), intervals)
 
 
-__all__ += ["TABLE_II_MODE_READINGS", "table_ii_sensitivity", "table_ii_distance", "best_table_ii_reading",
-            "LimitExcursion", "limit_excursions"]
+__all__ += [
+    "TABLE_II_MODE_READINGS",
+    "table_ii_sensitivity",
+    "table_ii_distance",
+    "best_table_ii_reading",
+    "LimitExcursion",
+    "limit_excursions",
+]

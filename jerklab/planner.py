@@ -44,6 +44,7 @@ References
 M. J. Stojčić, "Design and implementation of a digital positioning system with controlled jerk",
 Facta Universitatis, 2015 (Stojčić eq. 2, Stojčić eq. 3, Stojčić eq. 4, Stojčić eq. 15 and Fig. 2).
 """
+
 from __future__ import annotations
 
 import math
@@ -127,7 +128,7 @@ def _evaluate(t, distance, tj, ta, tv, jpar, shape):
     half = 0.5 * T
     mirror = t > half
     s = np.where(mirror, T - t, t)
-    s = np.maximum(s, 0.0)                      # before 0 and after T: at rest
+    s = np.maximum(s, 0.0)  # before 0 and after T: at rest
     # peak acceleration and velocity of the acceleration phase
     if shape == _SINE:
         apk = _TWO_OVER_PI * jpar * tj
@@ -136,7 +137,7 @@ def _evaluate(t, distance, tj, ta, tv, jpar, shape):
     else:
         apk = jpar
     vpk = apk * (tj + ta)
-    xacc = 0.5 * vpk * tacc                     # position at the end of the acceleration phase
+    xacc = 0.5 * vpk * tacc  # position at the end of the acceleration phase
     in_rise = s < tj
     in_plat = ~in_rise & (s <= tj + ta)
     in_fall = (s > tj + ta) & (s < tacc)
@@ -149,7 +150,7 @@ def _evaluate(t, distance, tj, ta, tv, jpar, shape):
             c = np.where(tj > 0.0, jpar / np.where(w > 0.0, w, 1.0), 0.0)
             wr = w * r
             sn = np.sin(wr)
-            omc = 2.0 * np.sin(0.5 * wr) ** 2       # 1 - cos(wr), without cancellation
+            omc = 2.0 * np.sin(0.5 * wr) ** 2  # 1 - cos(wr), without cancellation
             jr = jpar * sn
             ar = c * omc
             winv = np.where(w > 0.0, 1.0 / np.where(w > 0.0, w, 1.0), 0.0)
@@ -157,10 +158,22 @@ def _evaluate(t, distance, tj, ta, tv, jpar, shape):
             # where the differences would cancel (relative error < 1e-16 below wr = 0.1)
             x2 = wr * wr
             small = wr < 0.1
-            wms = np.where(small, wr * x2 * (1 / 6 - x2 * (1 / 120 - x2 * (1 / 5040 - x2 * (
-                1 / 362880 - x2 / 39916800)))), wr - sn)
-            hmo = np.where(small, x2 * x2 * (1 / 24 - x2 * (1 / 720 - x2 * (1 / 40320 - x2 * (
-                1 / 3628800 - x2 / 479001600)))), 0.5 * x2 - omc)
+            wms = np.where(
+                small,
+                wr
+                * x2
+                * (1 / 6 - x2 * (1 / 120 - x2 * (1 / 5040 - x2 * (1 / 362880 - x2 / 39916800)))),
+                wr - sn,
+            )
+            hmo = np.where(
+                small,
+                x2
+                * x2
+                * (
+                    1 / 24 - x2 * (1 / 720 - x2 * (1 / 40320 - x2 * (1 / 3628800 - x2 / 479001600)))
+                ),
+                0.5 * x2 - omc,
+            )
             vr = c * wms * winv
             xr = c * hmo * winv * winv
     elif shape == _LINEAR:
@@ -173,7 +186,7 @@ def _evaluate(t, distance, tj, ta, tv, jpar, shape):
     # plateau
     p = s - tj
     if shape == _SINE:
-        v1 = 0.5 * apk * tj                     # velocity at the end of the rising pulse
+        v1 = 0.5 * apk * tj  # velocity at the end of the rising pulse
         x1 = apk * tj * tj * (0.25 - 1.0 / (_PI * _PI))
     elif shape == _LINEAR:
         v1 = 0.5 * apk * tj
@@ -182,13 +195,16 @@ def _evaluate(t, distance, tj, ta, tv, jpar, shape):
         v1 = x1 = 0.0
     jerk = np.where(in_rise, jr, np.where(in_fall, -jr, 0.0))
     accel = np.where(in_rise | in_fall, ar, np.where(in_plat, apk, 0.0))
-    vel = np.where(in_rise, vr,
-                   np.where(in_plat, v1 + apk * p,
-                            np.where(in_fall, vpk - vr, vpk)))
-    pos = np.where(in_rise, xr,
-                   np.where(in_plat, x1 + p * (v1 + 0.5 * apk * p),
-                            np.where(in_fall, xacc - vpk * r + xr,
-                                     xacc + vpk * (s - tacc))))
+    vel = np.where(in_rise, vr, np.where(in_plat, v1 + apk * p, np.where(in_fall, vpk - vr, vpk)))
+    pos = np.where(
+        in_rise,
+        xr,
+        np.where(
+            in_plat,
+            x1 + p * (v1 + 0.5 * apk * p),
+            np.where(in_fall, xacc - vpk * r + xr, xacc + vpk * (s - tacc)),
+        ),
+    )
     outside = (t <= 0.0) | (t >= T)
     jerk = np.where(outside, 0.0, jerk)
     accel = np.where(outside, 0.0, np.where(mirror, -accel, accel))
@@ -199,11 +215,13 @@ def _evaluate(t, distance, tj, ta, tv, jpar, shape):
         # a trapezoid's acceleration jumps at t = 0: keep the right-continuous value there
         accel = np.where((t == 0.0) & (T > 0.0), apk, accel)
     bshape = np.broadcast_shapes(t.shape, sgn.shape, T.shape)
-    return ProfileSample(np.broadcast_to(t, bshape).copy(),
-                         np.broadcast_to(sgn * jerk, bshape).copy(),
-                         np.broadcast_to(sgn * accel, bshape).copy(),
-                         np.broadcast_to(sgn * vel, bshape).copy(),
-                         np.broadcast_to(sgn * pos, bshape).copy())
+    return ProfileSample(
+        np.broadcast_to(t, bshape).copy(),
+        np.broadcast_to(sgn * jerk, bshape).copy(),
+        np.broadcast_to(sgn * accel, bshape).copy(),
+        np.broadcast_to(sgn * vel, bshape).copy(),
+        np.broadcast_to(sgn * pos, bshape).copy(),
+    )
 
 
 def _ceil_multiple(x: float, Ts: float) -> float:
@@ -211,7 +229,7 @@ def _ceil_multiple(x: float, Ts: float) -> float:
     if x <= 0.0:
         return 0.0
     r = x / Ts
-    n = math.ceil(r - min(_SYNC_RTOL * r, 1e-6))    # never more than 1e-6 sample below x
+    n = math.ceil(r - min(_SYNC_RTOL * r, 1e-6))  # never more than 1e-6 sample below x
     return max(n, 1) * Ts
 
 
@@ -312,8 +330,9 @@ class Profile:
             Arrays of the shape of ``t``.
         """
         t = as_finite_array("t", t)
-        return _evaluate(t, self.distance, self._tj, self._ta, self._tv, self._jpar,
-                         _SHAPE[self.kind])
+        return _evaluate(
+            t, self.distance, self._tj, self._ta, self._tv, self._jpar, _SHAPE[self.kind]
+        )
 
     def synchronized(self, Ts) -> "Profile":
         """The same move with every phase time a whole multiple of ``Ts``.
@@ -385,8 +404,10 @@ class Profile:
         t_end = as_nonnegative("t_end", t_end)
         steps = t_end / Ts
         if not steps < MAX_SAMPLES:
-            raise ValueError(f"t_end / Ts = {t_end!r} / {Ts!r} asks for more than MAX_SAMPLES = "
-                             f"{MAX_SAMPLES} samples: raise Ts or lower t_end")
+            raise ValueError(
+                f"t_end / Ts = {t_end!r} / {Ts!r} asks for more than MAX_SAMPLES = "
+                f"{MAX_SAMPLES} samples: raise Ts or lower t_end"
+            )
         n = max(int(math.ceil(steps - 1e-9)), 0) + 1
         tk = np.arange(n) * Ts
         exact = self.sample(tk)
@@ -400,8 +421,10 @@ class Profile:
             vel = np.cumsum(accel) * Ts
             pos = np.cumsum(vel) * Ts
         if not np.isfinite(pos[-1]):
-            raise ValueError(f"Ts = {Ts!r} s is too large for this move (duration {self.duration!r} s): "
-                             f"the recursion overflows")
+            raise ValueError(
+                f"Ts = {Ts!r} s is too large for this move (duration {self.duration!r} s): "
+                f"the recursion overflows"
+            )
         return ProfileSample(tk, jerk, accel, vel, pos)
 
     def to_dict(self) -> dict:
@@ -410,8 +433,11 @@ class Profile:
         return {
             "kind": self.kind,
             "distance": self.distance,
-            "limits": {"max_jerk": self.max_jerk, "max_accel": self.max_accel,
-                       "max_velocity": self.max_velocity},
+            "limits": {
+                "max_jerk": self.max_jerk,
+                "max_accel": self.max_accel,
+                "max_velocity": self.max_velocity,
+            },
             "phase_times": list(self.phase_times),
             "duration": self.duration,
             "peak_jerk": pj if math.isfinite(pj) else None,
@@ -421,8 +447,10 @@ class Profile:
         }
 
     def __repr__(self) -> str:
-        return (f"{type(self).__name__}(distance={self.distance!r}, duration={self.duration!r}, "
-                f"phase_times={tuple(round(x, 12) for x in self.phase_times)!r})")
+        return (
+            f"{type(self).__name__}(distance={self.distance!r}, duration={self.duration!r}, "
+            f"phase_times={tuple(round(x, 12) for x in self.phase_times)!r})"
+        )
 
 
 class SineJerkProfile(Profile):
@@ -498,24 +526,33 @@ MAX_BATCH_MOVES = 20_000_000
 def _no_plan(func, distance, J, A, V):
     """The ValueError for limits that give no finite plan (a limit underflows, the move overflows)."""
     lim = f"max_jerk={J!r}, " if J is not None else ""
-    return ValueError(f"{func}: no finite plan for distance={distance!r}, {lim}max_accel={A!r}, "
-                      f"max_velocity={V!r}: a limit is too small for the distance (the phase times "
-                      f"underflow to 0 or overflow to inf); scale the units")
+    return ValueError(
+        f"{func}: no finite plan for distance={distance!r}, {lim}max_accel={A!r}, "
+        f"max_velocity={V!r}: a limit is too small for the distance (the phase times "
+        f"underflow to 0 or overflow to inf); scale the units"
+    )
 
 
 def _check_plan(p, func):
     """Raise :func:`_no_plan` unless the phase times are finite and the move has some duration."""
     tj, ta, tv = p._tj, p._ta, p._tv
-    if not ((tj + ta + tv) * 0.0 == 0.0 and (p.distance == 0.0 or tj + ta + tv > 0.0)
-            and (p.distance == 0.0 or p._jpar * 0.0 == 0.0 and p._jpar > 0.0)):
+    if not (
+        (tj + ta + tv) * 0.0 == 0.0
+        and (p.distance == 0.0 or tj + ta + tv > 0.0)
+        and (p.distance == 0.0 or p._jpar * 0.0 == 0.0 and p._jpar > 0.0)
+    ):
         raise _no_plan(func, p.distance, *p._limits)
     return p
 
 
 def _check_limits(distance, max_jerk, max_accel, max_velocity):
     """Validated floats (``jerklab._validate`` raises the ``ValueError`` naming the parameter)."""
-    return (as_real("distance", distance), as_positive("max_jerk", max_jerk),
-            as_positive("max_accel", max_accel), as_positive("max_velocity", max_velocity))
+    return (
+        as_real("distance", distance),
+        as_positive("max_jerk", max_jerk),
+        as_positive("max_accel", max_accel),
+        as_positive("max_velocity", max_velocity),
+    )
 
 
 _new = object.__new__
@@ -554,8 +591,13 @@ def plan_sine_jerk(distance, max_jerk, max_accel, max_velocity) -> "SineJerkProf
         With ``accel_time`` (T) and ``cruise_time`` (t_v).
     """
     J, E, W = max_jerk, max_accel, max_velocity
-    if not (type(distance) is float is type(J) is type(E) is type(W)
-            and J > 0.0 and E > 0.0 and W > 0.0 and (distance + J + E + W) * 0.0 == 0.0):
+    if not (
+        type(distance) is float is type(J) is type(E) is type(W)
+        and J > 0.0
+        and E > 0.0
+        and W > 0.0
+        and (distance + J + E + W) * 0.0 == 0.0
+    ):
         distance, J, E, W = _check_limits(distance, J, E, W)
     p = _new(SineJerkProfile)
     p.distance = distance
@@ -566,18 +608,18 @@ def plan_sine_jerk(distance, max_jerk, max_accel, max_velocity) -> "SineJerkProf
     if theta == 0.0:
         p._tj = p._tv = 0.0
         return p
-    T = (_TWO_PI * theta / J) ** _THIRD                     # Stojčić eq. 4
-    if J * T / _PI > E:                                     # Stojčić eq. 3: eps_max = J T / pi
+    T = (_TWO_PI * theta / J) ** _THIRD  # Stojčić eq. 4
+    if J * T / _PI > E:  # Stojčić eq. 3: eps_max = J T / pi
         T = E * _PI / J
-    wmax = J * T * T / _TWO_PI                              # Stojčić eq. 3: omega_max = J T^2 / (2 pi)
+    wmax = J * T * T / _TWO_PI  # Stojčić eq. 3: omega_max = J T^2 / (2 pi)
     if wmax > W:
         T = _sqrt(_TWO_PI * W / J)
-        wmax = W                                            # omega = min(omega_max, Omega)
-    if not wmax > 0.0:                                      # 1e-300 limits: T^2 underflows
+        wmax = W  # omega = min(omega_max, Omega)
+    if not wmax > 0.0:  # 1e-300 limits: T^2 underflows
         raise _no_plan("plan_sine_jerk", distance, J, E, W)
     tv = (theta - wmax * T) / wmax
     p._tj = 0.5 * T
-    p._tv = tv if tv > 0.0 else 0.0                         # round-off only (T <= T_Theta)
+    p._tv = tv if tv > 0.0 else 0.0  # round-off only (T <= T_Theta)
     return _check_plan(p, "plan_sine_jerk")
 
 
@@ -590,25 +632,33 @@ def _scurve_times(d, J, A, V):
     if d == 0.0:
         return 0.0, 0.0, 0.0
     tj = A / J
-    if V * J >= A * A:                      # V reachable with a plateau at A
+    if V * J >= A * A:  # V reachable with a plateau at A
         ta = V / A - tj
-        dv = V * (tj + tj + ta)             # distance to reach V and stop again
-    else:                                   # V reached before A
+        dv = V * (tj + tj + ta)  # distance to reach V and stop again
+    else:  # V reached before A
         tj = _sqrt(V / J)
         ta = 0.0
         dv = 2.0 * V * tj
     if d >= dv:
         return tj, ta, (d - dv) / V
-    tj = A / J                              # V not reached
+    tj = A / J  # V not reached
     tj2 = tj * tj
-    if d >= 2.0 * A * tj2:                  # A still reached: solve d = A (tj + ta)(2 tj + ta)
+    if d >= 2.0 * A * tj2:  # A still reached: solve d = A (tj + ta)(2 tj + ta)
         q = d / A
         return tj, 2.0 * (q - 2.0 * tj2) / (3.0 * tj + _sqrt(tj2 + 4.0 * q)), 0.0
-    return d ** _THIRD * (0.5 / J) ** _THIRD, 0.0, 0.0     # d = 2 J tj^3 (no underflow of d/2J)
+    return d**_THIRD * (0.5 / J) ** _THIRD, 0.0, 0.0  # d = 2 J tj^3 (no underflow of d/2J)
 
 
-def plan_sine_jerk_optimal(distance, max_jerk, max_accel, max_velocity, *, initial_velocity=0.0,
-                           initial_accel=0.0, final_velocity=0.0) -> "SineJerkOptimalProfile":
+def plan_sine_jerk_optimal(
+    distance,
+    max_jerk,
+    max_accel,
+    max_velocity,
+    *,
+    initial_velocity=0.0,
+    initial_accel=0.0,
+    final_velocity=0.0,
+) -> "SineJerkOptimalProfile":
     """Time-optimal rest-to-rest profile made of half-sine jerk pulses of peak <= ``max_jerk``.
 
     Seven segments: a rising half-sine jerk pulse (length ``tj``), an acceleration plateau
@@ -637,14 +687,28 @@ def plan_sine_jerk_optimal(distance, max_jerk, max_accel, max_velocity, *, initi
         A start above a limit brakes back inside it first; ``|final_velocity| > max_velocity``
         raises ValueError.
     """
-    floats = initial_velocity.__class__ is initial_accel.__class__ is final_velocity.__class__ is float
+    floats = (
+        initial_velocity.__class__ is initial_accel.__class__ is final_velocity.__class__ is float
+    )
     if not floats or initial_velocity or initial_accel or final_velocity:
         # from a moving start; Python floats straight to the compiled solver (as _plan_any_state).
         # Written out in both planners on purpose: a shared helper adds a Python call to each plan.
-        if floats and (distance.__class__ is max_jerk.__class__ is max_accel.__class__
-                       is max_velocity.__class__ is float):
-            res = (_SINE_PLAN or _packed(True))(distance, max_jerk, max_accel, max_velocity,
-                                                initial_velocity, initial_accel, final_velocity)
+        if floats and (
+            distance.__class__
+            is max_jerk.__class__
+            is max_accel.__class__
+            is max_velocity.__class__
+            is float
+        ):
+            res = (_SINE_PLAN or _packed(True))(
+                distance,
+                max_jerk,
+                max_accel,
+                max_velocity,
+                initial_velocity,
+                initial_accel,
+                final_velocity,
+            )
             if res[0] > 0.0:
                 p = _new(AnyStateProfile)
                 p.kind = "sine_jerk_optimal"
@@ -655,28 +719,60 @@ def plan_sine_jerk_optimal(distance, max_jerk, max_accel, max_velocity, *, initi
                 p.final_velocity = final_velocity
                 p._res = res
                 return p
-            return _any_state_special("sine_jerk_optimal", distance, max_jerk, max_accel, max_velocity,
-                                      initial_velocity, initial_accel, final_velocity, res)
-        return _plan_any_state("sine_jerk_optimal", True, distance, max_jerk, max_accel, max_velocity,
-                               initial_velocity, initial_accel, final_velocity)
+            return _any_state_special(
+                "sine_jerk_optimal",
+                distance,
+                max_jerk,
+                max_accel,
+                max_velocity,
+                initial_velocity,
+                initial_accel,
+                final_velocity,
+                res,
+            )
+        return _plan_any_state(
+            "sine_jerk_optimal",
+            True,
+            distance,
+            max_jerk,
+            max_accel,
+            max_velocity,
+            initial_velocity,
+            initial_accel,
+            final_velocity,
+        )
     J, E, W = max_jerk, max_accel, max_velocity
-    if not (type(distance) is float is type(J) is type(E) is type(W)
-            and J > 0.0 and E > 0.0 and W > 0.0 and (distance + J + E + W) * 0.0 == 0.0):
+    if not (
+        type(distance) is float is type(J) is type(E) is type(W)
+        and J > 0.0
+        and E > 0.0
+        and W > 0.0
+        and (distance + J + E + W) * 0.0 == 0.0
+    ):
         distance, J, E, W = _check_limits(distance, J, E, W)
     p = _new(SineJerkOptimalProfile)
     p.distance = distance
     p._jpar = J
     p._limits = (J, E, W)
     try:
-        p._tj, p._ta, p._tv = _scurve_times(distance if distance >= 0.0 else -distance,
-                                            _TWO_OVER_PI * J, E, W)
+        p._tj, p._ta, p._tv = _scurve_times(
+            distance if distance >= 0.0 else -distance, _TWO_OVER_PI * J, E, W
+        )
     except ZeroDivisionError:
         raise _no_plan("plan_sine_jerk_optimal", distance, J, E, W) from None
     return _check_plan(p, "plan_sine_jerk_optimal")
 
 
-def plan_scurve(distance, max_jerk, max_accel, max_velocity, *, initial_velocity=0.0,
-                initial_accel=0.0, final_velocity=0.0) -> "SCurveProfile":
+def plan_scurve(
+    distance,
+    max_jerk,
+    max_accel,
+    max_velocity,
+    *,
+    initial_velocity=0.0,
+    initial_accel=0.0,
+    final_velocity=0.0,
+) -> "SCurveProfile":
     """Time-optimal linear-jerk 7-segment S-curve, rest to rest.
 
     Jerk ``+J, 0, -J, 0, -J, 0, +J`` over ``(tj, ta, tj, tv, tj, ta, tj)``.  All four cases are
@@ -700,14 +796,28 @@ def plan_scurve(distance, max_jerk, max_accel, max_velocity, *, initial_velocity
         A start above a limit brakes back inside it first; ``|final_velocity| > max_velocity``
         raises ValueError.
     """
-    floats = initial_velocity.__class__ is initial_accel.__class__ is final_velocity.__class__ is float
+    floats = (
+        initial_velocity.__class__ is initial_accel.__class__ is final_velocity.__class__ is float
+    )
     if not floats or initial_velocity or initial_accel or final_velocity:
         # from a moving start; Python floats straight to the compiled solver (as _plan_any_state).
         # Written out in both planners on purpose: a shared helper adds a Python call to each plan.
-        if floats and (distance.__class__ is max_jerk.__class__ is max_accel.__class__
-                       is max_velocity.__class__ is float):
-            res = (_SCURVE_PLAN or _packed(False))(distance, max_jerk, max_accel, max_velocity,
-                                                   initial_velocity, initial_accel, final_velocity)
+        if floats and (
+            distance.__class__
+            is max_jerk.__class__
+            is max_accel.__class__
+            is max_velocity.__class__
+            is float
+        ):
+            res = (_SCURVE_PLAN or _packed(False))(
+                distance,
+                max_jerk,
+                max_accel,
+                max_velocity,
+                initial_velocity,
+                initial_accel,
+                final_velocity,
+            )
             if res[0] > 0.0:
                 p = _new(AnyStateProfile)
                 p.kind = "scurve"
@@ -718,13 +828,36 @@ def plan_scurve(distance, max_jerk, max_accel, max_velocity, *, initial_velocity
                 p.final_velocity = final_velocity
                 p._res = res
                 return p
-            return _any_state_special("scurve", distance, max_jerk, max_accel, max_velocity,
-                                      initial_velocity, initial_accel, final_velocity, res)
-        return _plan_any_state("scurve", False, distance, max_jerk, max_accel, max_velocity,
-                               initial_velocity, initial_accel, final_velocity)
+            return _any_state_special(
+                "scurve",
+                distance,
+                max_jerk,
+                max_accel,
+                max_velocity,
+                initial_velocity,
+                initial_accel,
+                final_velocity,
+                res,
+            )
+        return _plan_any_state(
+            "scurve",
+            False,
+            distance,
+            max_jerk,
+            max_accel,
+            max_velocity,
+            initial_velocity,
+            initial_accel,
+            final_velocity,
+        )
     J, A, V = max_jerk, max_accel, max_velocity
-    if not (type(distance) is float is type(J) is type(A) is type(V)
-            and J > 0.0 and A > 0.0 and V > 0.0 and (distance + J + A + V) * 0.0 == 0.0):
+    if not (
+        type(distance) is float is type(J) is type(A) is type(V)
+        and J > 0.0
+        and A > 0.0
+        and V > 0.0
+        and (distance + J + A + V) * 0.0 == 0.0
+    ):
         distance, J, A, V = _check_limits(distance, J, A, V)
     p = _new(SCurveProfile)
     p.distance = distance
@@ -751,8 +884,12 @@ def plan_trapezoid(distance, max_accel, max_velocity) -> "TrapezoidProfile":
         Limits (> 0).
     """
     A, V = max_accel, max_velocity
-    if not (type(distance) is float is type(A) is type(V)
-            and A > 0.0 and V > 0.0 and (distance + A + V) * 0.0 == 0.0):
+    if not (
+        type(distance) is float is type(A) is type(V)
+        and A > 0.0
+        and V > 0.0
+        and (distance + A + V) * 0.0 == 0.0
+    ):
         distance = as_real("distance", distance)
         A = as_positive("max_accel", A)
         V = as_positive("max_velocity", V)
@@ -835,8 +972,17 @@ class AnyStateProfile(Profile):
 
     __slots__ = ("kind", "initial_velocity", "initial_accel", "final_velocity", "_res", "_seg")
 
-    def __init__(self, kind, distance, limits, initial_velocity, initial_accel, final_velocity,
-                 res, time_unit):
+    def __init__(
+        self,
+        kind,
+        distance,
+        limits,
+        initial_velocity,
+        initial_accel,
+        final_velocity,
+        res,
+        time_unit,
+    ):
         self.kind = kind
         self.distance = distance
         self._limits = limits
@@ -861,8 +1007,15 @@ class AnyStateProfile(Profile):
         jerk = np.array(self._jerk_signs()) * self._limits[0]
         times = np.array(self._times()) * self._res[1].imag
         start = np.concatenate(([0.0], np.cumsum(times)))
-        P, V, A = _segment_states(0.0, self.initial_velocity, self.initial_accel, jerk, times,
-                                  self._sine, max(self._limits[1], abs(self.initial_accel)))
+        P, V, A = _segment_states(
+            0.0,
+            self.initial_velocity,
+            self.initial_accel,
+            jerk,
+            times,
+            self._sine,
+            max(self._limits[1], abs(self.initial_accel)),
+        )
         self._seg = (jerk, times, start, P, V, A)
         return self._seg
 
@@ -881,13 +1034,13 @@ class AnyStateProfile(Profile):
         for z in self._res[3:]:
             out.append(z.real)
             out.append(z.imag)
-        return out[:int(self._res[0])]
+        return out[: int(self._res[0])]
 
     @property
     def brake_time(self) -> float:
         """Length of the braking pre-trajectory (s), 0 when the start is inside the limits."""
         res = self._res
-        return math.fsum(self._times()[:int(res[2].imag)]) * res[1].imag
+        return math.fsum(self._times()[: int(res[2].imag)]) * res[1].imag
 
     @property
     def duration(self) -> float:
@@ -952,7 +1105,7 @@ class AnyStateProfile(Profile):
             vel = v0 + r * (a0 + 0.5 * j * r)
             pos = p0 + r * (v0 + r * (0.5 * a0 + r * j / 6.0))
             if self._sine:
-                pulse = (j != 0.0) & (times[i] > 1e-300)    # (a denormal pulse is a ramp)
+                pulse = (j != 0.0) & (times[i] > 1e-300)  # (a denormal pulse is a ramp)
                 if pulse.any():
                     tau = times[i][pulse]
                     w = _PI / tau
@@ -965,10 +1118,28 @@ class AnyStateProfile(Profile):
                     x2 = wr * wr
                     small = wr < 0.1
                     with np.errstate(invalid="ignore", over="ignore"):
-                        wms = np.where(small, wr * x2 * (1 / 6 - x2 * (1 / 120 - x2 * (1 / 5040 - x2 * (
-                            1 / 362880 - x2 / 39916800)))), wr - sn)
-                        hmo = np.where(small, x2 * x2 * (1 / 24 - x2 * (1 / 720 - x2 * (1 / 40320 - x2 * (
-                            1 / 3628800 - x2 / 479001600)))), 0.5 * x2 - omc)
+                        wms = np.where(
+                            small,
+                            wr
+                            * x2
+                            * (
+                                1 / 6
+                                - x2
+                                * (1 / 120 - x2 * (1 / 5040 - x2 * (1 / 362880 - x2 / 39916800)))
+                            ),
+                            wr - sn,
+                        )
+                        hmo = np.where(
+                            small,
+                            x2
+                            * x2
+                            * (
+                                1 / 24
+                                - x2
+                                * (1 / 720 - x2 * (1 / 40320 - x2 * (1 / 3628800 - x2 / 479001600)))
+                            ),
+                            0.5 * x2 - omc,
+                        )
                     ap, vp, pp = a0[pulse], v0[pulse], p0[pulse]
                     jk[pulse] = jp * sn
                     acc[pulse] = ap + c * omc
@@ -983,15 +1154,20 @@ class AnyStateProfile(Profile):
         after = t >= T
         vf = self.final_velocity
         jk = np.where(before | after, 0.0, jk)
-        if n:                       # right-continuous jerk at 0 for constant-jerk segments
+        if n:  # right-continuous jerk at 0 for constant-jerk segments
             j0 = 0.0 if self._sine else float(jerk[0])
             jk = np.where(t == 0.0, j0 if T > 0.0 else 0.0, jk)
         acc = np.where(before, self.initial_accel, np.where(after, 0.0, acc))
         vel = np.where(before, self.initial_velocity, np.where(after, vf, vel))
         pos = np.where(before, 0.0, np.where(after, self.distance + vf * (t - T), pos))
         shape = t_in.shape
-        return ProfileSample(t_in.copy(), jk.reshape(shape), acc.reshape(shape), vel.reshape(shape),
-                             pos.reshape(shape))
+        return ProfileSample(
+            t_in.copy(),
+            jk.reshape(shape),
+            acc.reshape(shape),
+            vel.reshape(shape),
+            pos.reshape(shape),
+        )
 
     def synchronized(self, Ts):
         """Not available from a moving start (the phase times cannot be rounded independently
@@ -999,7 +1175,8 @@ class AnyStateProfile(Profile):
         raise NotImplementedError(
             f"synchronized(Ts) is for rest-to-rest moves; this {self.kind} move starts at "
             f"initial_velocity={self.initial_velocity!r}, initial_accel={self.initial_accel!r} or ends "
-            f"at final_velocity={self.final_velocity!r}: sample the closed form at k Ts instead")
+            f"at final_velocity={self.final_velocity!r}: sample the closed form at k Ts instead"
+        )
 
     def discretize(self, Ts, t_end=None) -> ProfileSample:
         """Stojčić eq. 15 from the initial state (acceleration and velocity start at
@@ -1010,8 +1187,10 @@ class AnyStateProfile(Profile):
         t_end = as_nonnegative("t_end", t_end)
         steps = t_end / Ts
         if not steps < MAX_SAMPLES:
-            raise ValueError(f"t_end / Ts = {t_end!r} / {Ts!r} asks for more than MAX_SAMPLES = "
-                             f"{MAX_SAMPLES} samples: raise Ts or lower t_end")
+            raise ValueError(
+                f"t_end / Ts = {t_end!r} / {Ts!r} asks for more than MAX_SAMPLES = "
+                f"{MAX_SAMPLES} samples: raise Ts or lower t_end"
+            )
         n = max(int(math.ceil(steps - 1e-9)), 0) + 1
         tk = np.arange(n) * Ts
         jerk = self.sample(tk).jerk
@@ -1023,15 +1202,21 @@ class AnyStateProfile(Profile):
 
     def to_dict(self) -> dict:
         d = Profile.to_dict(self)
-        d.update(initial_velocity=self.initial_velocity, initial_accel=self.initial_accel,
-                 final_velocity=self.final_velocity, segment_jerk=list(self.segment_jerk),
-                 brake_time=self.brake_time)
+        d.update(
+            initial_velocity=self.initial_velocity,
+            initial_accel=self.initial_accel,
+            final_velocity=self.final_velocity,
+            segment_jerk=list(self.segment_jerk),
+            brake_time=self.brake_time,
+        )
         return d
 
     def __repr__(self) -> str:
-        return (f"{type(self).__name__}(kind={self.kind!r}, distance={self.distance!r}, "
-                f"initial_velocity={self.initial_velocity!r}, initial_accel={self.initial_accel!r}, "
-                f"final_velocity={self.final_velocity!r}, duration={self.duration!r})")
+        return (
+            f"{type(self).__name__}(kind={self.kind!r}, distance={self.distance!r}, "
+            f"initial_velocity={self.initial_velocity!r}, initial_accel={self.initial_accel!r}, "
+            f"final_velocity={self.final_velocity!r}, duration={self.duration!r})"
+        )
 
 
 _PLAN = None
@@ -1060,9 +1245,10 @@ def _pack_res(res, time_unit):
     """:func:`jerklab._onedof._pack`'s form of a :func:`jerklab._onedof.solve_tuple` result
     (16 floats) and its time unit; the duration is ``res[2] * time_unit``, as the solver computes
     it."""
-    r = [float(x) for x in res[:4 + _onedof._MAX_SEG]]
+    r = [float(x) for x in res[: 4 + _onedof._MAX_SEG]]
     return (r[0], complex(r[2] * time_unit, time_unit), complex(r[1], r[3])) + tuple(
-        complex(r[k], r[k + 1]) for k in range(4, 4 + _onedof._MAX_SEG, 2))
+        complex(r[k], r[k + 1]) for k in range(4, 4 + _onedof._MAX_SEG, 2)
+    )
 
 
 def _solver():
@@ -1078,8 +1264,16 @@ def _plan_any_state(kind, sine, distance, max_jerk, max_accel, max_velocity, v0,
     normalizes, solves and scales back in one call; anything else is validated here first.
     """
     J, A, V = max_jerk, max_accel, max_velocity
-    if not (distance.__class__ is J.__class__ is A.__class__ is V.__class__ is v0.__class__
-            is a0.__class__ is vf.__class__ is float):
+    if not (
+        distance.__class__
+        is J.__class__
+        is A.__class__
+        is V.__class__
+        is v0.__class__
+        is a0.__class__
+        is vf.__class__
+        is float
+    ):
         distance, J, A, V = _check_limits(distance, J, A, V)
         v0 = as_real("initial_velocity", v0)
         a0 = as_real("initial_accel", a0)
@@ -1090,7 +1284,7 @@ def _plan_any_state(kind, sine, distance, max_jerk, max_accel, max_velocity, v0,
     res = f(distance, J, A, V, v0, a0, vf)
     if not res[0] > 0.0:
         return _any_state_special(kind, distance, J, A, V, v0, a0, vf, res)
-    p = _new(AnyStateProfile)                   # (__init__'s work, inline)
+    p = _new(AnyStateProfile)  # (__init__'s work, inline)
     p.kind = kind
     p.distance = distance
     p._limits = (J, A, V)
@@ -1105,7 +1299,7 @@ def _any_state_special(kind, distance, J, A, V, v0, a0, vf, res):
     """The empty move (``res[0] == 0``), or the ValueError for :func:`jerklab._onedof.plan_tuple`'s
     status ``res[0] < 0``."""
     status = res[0]
-    if status == 0.0:                           # already on target
+    if status == 0.0:  # already on target
         p = _new(AnyStateProfile)
         p.kind = kind
         p.distance = distance
@@ -1115,24 +1309,30 @@ def _any_state_special(kind, distance, J, A, V, v0, a0, vf, res):
         p.final_velocity = vf
         p._res = _pack_res((0.0,) * (4 + _onedof._MAX_SEG), 1.0)
         return p
-    if status == -2.0:                          # a value not finite or a limit <= 0: named here
+    if status == -2.0:  # a value not finite or a limit <= 0: named here
         _check_limits(distance, J, A, V)
         as_real("initial_velocity", v0)
         as_real("initial_accel", a0)
         as_real("final_velocity", vf)
     if status == -3.0:
-        raise ValueError(f"plan_{kind}: final_velocity={vf!r} is above max_velocity={V!r}: a move "
-                         f"cannot end outside the velocity limit (lower |final_velocity| or raise "
-                         f"max_velocity)")
+        raise ValueError(
+            f"plan_{kind}: final_velocity={vf!r} is above max_velocity={V!r}: a move "
+            f"cannot end outside the velocity limit (lower |final_velocity| or raise "
+            f"max_velocity)"
+        )
     if status == -4.0:
-        raise ValueError(f"plan_{kind}: no finite plan for distance={distance!r}, max_jerk={J!r}, "
-                         f"max_accel={A!r}, max_velocity={V!r}, initial_velocity={v0!r}, "
-                         f"initial_accel={a0!r}, final_velocity={vf!r}: the limits are too far apart "
-                         f"in scale (the normalized values overflow); scale the units")
-    raise ValueError(f"plan_{kind}: no valid profile found for distance={distance!r}, max_jerk={J!r}, "
-                     f"max_accel={A!r}, max_velocity={V!r}, initial_velocity={v0!r}, "
-                     f"initial_accel={a0!r}, final_velocity={vf!r} (outside the solver's numeric "
-                     f"range); scale the units")
+        raise ValueError(
+            f"plan_{kind}: no finite plan for distance={distance!r}, max_jerk={J!r}, "
+            f"max_accel={A!r}, max_velocity={V!r}, initial_velocity={v0!r}, "
+            f"initial_accel={a0!r}, final_velocity={vf!r}: the limits are too far apart "
+            f"in scale (the normalized values overflow); scale the units"
+        )
+    raise ValueError(
+        f"plan_{kind}: no valid profile found for distance={distance!r}, max_jerk={J!r}, "
+        f"max_accel={A!r}, max_velocity={V!r}, initial_velocity={v0!r}, "
+        f"initial_accel={a0!r}, final_velocity={vf!r} (outside the solver's numeric "
+        f"range); scale the units"
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -1153,8 +1353,17 @@ class BatchPlan:
         trapezoid.
     """
 
-    __slots__ = ("kind", "distance", "tj", "ta", "tv", "jpar", "max_jerk", "max_accel",
-                 "max_velocity")
+    __slots__ = (
+        "kind",
+        "distance",
+        "tj",
+        "ta",
+        "tv",
+        "jpar",
+        "max_jerk",
+        "max_accel",
+        "max_velocity",
+    )
 
     def __init__(self, kind, distance, tj, ta, tv, jpar, max_jerk, max_accel, max_velocity):
         self.kind = kind
@@ -1206,21 +1415,37 @@ class BatchPlan:
             raise ValueError(f"i must be in [{-n}, {n}) for a batch of {n} moves, got {i}")
         cls = _CLASSES[self.kind]
         mj = None if self.max_jerk is None else float(self.max_jerk[i])
-        return cls(float(self.distance[i]), float(self.tj[i]), float(self.ta[i]),
-                   float(self.tv[i]), float(self.jpar[i]),
-                   (mj, float(self.max_accel[i]), float(self.max_velocity[i])))
+        return cls(
+            float(self.distance[i]),
+            float(self.tj[i]),
+            float(self.ta[i]),
+            float(self.tv[i]),
+            float(self.jpar[i]),
+            (mj, float(self.max_accel[i]), float(self.max_velocity[i])),
+        )
 
     def sample(self, t) -> ProfileSample:
         """Closed form of every move at ``t`` (broadcast against shape ``(n, 1)``, e.g. ``t`` of
         shape ``(n, m)`` or ``(m,)`` gives ``(n, m)`` arrays)."""
         t = as_finite_array("t", t)
         col = (slice(None), None)
-        return _evaluate(t, self.distance[col], self.tj[col], self.ta[col], self.tv[col],
-                         self.jpar[col], _SHAPE[self.kind])
+        return _evaluate(
+            t,
+            self.distance[col],
+            self.tj[col],
+            self.ta[col],
+            self.tv[col],
+            self.jpar[col],
+            _SHAPE[self.kind],
+        )
 
 
-_CLASSES = {"sine_jerk": SineJerkProfile, "sine_jerk_optimal": SineJerkOptimalProfile,
-            "scurve": SCurveProfile, "trapezoid": TrapezoidProfile}
+_CLASSES = {
+    "sine_jerk": SineJerkProfile,
+    "sine_jerk_optimal": SineJerkOptimalProfile,
+    "scurve": SCurveProfile,
+    "trapezoid": TrapezoidProfile,
+}
 
 _CHUNK = 8192
 
@@ -1238,7 +1463,7 @@ def _batch_scurve(d, J, A, V, tj_o, ta_o, tv_o):
     tj = np.minimum(A * invj, np.sqrt(V * invj))
     np.minimum(tj, np.cbrt(d) * np.cbrt(0.5 * invj), out=tj)
     a = J * tj
-    with np.errstate(divide="ignore", invalid="ignore"):     # d = 0 gives a = 0: fixed below
+    with np.errstate(divide="ignore", invalid="ignore"):  # d = 0 gives a = 0: fixed below
         inva = 1.0 / a
         tav = V * inva - tj
         q = d * inva
@@ -1265,7 +1490,7 @@ def _batch_sine_jerk(d, J, E, W, tj_o, ta_o, tv_o):
     w = np.minimum(J * T * T / (2.0 * _PI), W)
     with np.errstate(divide="ignore", invalid="ignore"):
         tv = (d - w * T) / w
-    tv = np.where(tv > 0.0, tv, 0.0)            # clamps round-off and the 0/0 of d = 0
+    tv = np.where(tv > 0.0, tv, 0.0)  # clamps round-off and the 0/0 of d = 0
     np.multiply(T, 0.5, out=tj_o)
     ta_o[...] = 0.0
     np.copyto(tv_o, tv)
@@ -1315,7 +1540,11 @@ def _batch_kernel_py(code, d, J, A, V, tj_o, ta_o, tv_o):  # pragma: no cover - 
                 T = tw
             y = two_pi * x / j
             if T * T * T > y:
-                T = y ** (1.0 / 3.0) if y > 1e-300 else (two_pi * x) ** (1.0 / 3.0) / j ** (1.0 / 3.0)
+                T = (
+                    y ** (1.0 / 3.0)
+                    if y > 1e-300
+                    else (two_pi * x) ** (1.0 / 3.0) / j ** (1.0 / 3.0)
+                )
             w = j * T * T / two_pi
             if w > v:
                 w = v
@@ -1352,7 +1581,7 @@ def _batch_kernel_py(code, d, J, A, V, tj_o, ta_o, tv_o):  # pragma: no cover - 
             y = 0.5 * x * invj
             if y > 1e-300:
                 tj_o[i] = y ** (1.0 / 3.0)
-            else:                                  # d / 2J would underflow
+            else:  # d / 2J would underflow
                 tj_o[i] = x ** (1.0 / 3.0) * (0.5 * invj) ** (1.0 / 3.0)
             ta_o[i] = 0.0
     return -1
@@ -1363,7 +1592,7 @@ def _batch_array(name, value, positive=True):
     try:
         a = np.ascontiguousarray(value, dtype=float)
     except (TypeError, ValueError):
-        a = as_finite_array(name, value)         # raises with the parameter's name
+        a = as_finite_array(name, value)  # raises with the parameter's name
     if a.size:
         lo, hi = a.min(), a.max()
         if not (-_INF < lo and hi < _INF):
@@ -1373,7 +1602,7 @@ def _batch_array(name, value, positive=True):
     return a
 
 
-_KERNEL = None          # the compiled kernel, or False when numba is not available
+_KERNEL = None  # the compiled kernel, or False when numba is not available
 _KIND_CODE = {"sine_jerk": 0, "sine_jerk_optimal": 1, "scurve": 2, "trapezoid": 3}
 #: below this many moves plan_batch uses numpy (no compilation); above, the numba kernel
 NUMBA_MIN_MOVES = 50_000
@@ -1384,14 +1613,16 @@ def _compiled_kernel():
     if _KERNEL is None:
         try:
             import numba
+
             _KERNEL = numba.njit(cache=True, nogil=True)(_batch_kernel_py)
         except Exception:  # pragma: no cover - numba missing or unusable
             _KERNEL = False
     return _KERNEL
 
 
-def plan_batch(kind, distance, max_jerk=None, max_accel=None, max_velocity=None,
-               engine="auto") -> BatchPlan:
+def plan_batch(
+    kind, distance, max_jerk=None, max_accel=None, max_velocity=None, engine="auto"
+) -> BatchPlan:
     """Plan many moves of one ``kind`` at once, vectorized (arrays broadcast to one shape ``(n,)``).
 
     The same algebra as the scalar planners, evaluated with numpy in cache-sized chunks
@@ -1423,26 +1654,34 @@ def plan_batch(kind, distance, max_jerk=None, max_accel=None, max_velocity=None,
         raise ValueError(f"max_jerk is required for kind {kind!r}")
     # The compiled loop checks every value itself (and, on a bad one, the checks below run to
     # name it); the numpy form checks first (min/max propagate NaN).
-    names = ("distance", "max_accel", "max_velocity") + (("max_jerk",) if kind != "trapezoid" else ())
+    names = ("distance", "max_accel", "max_velocity") + (
+        ("max_jerk",) if kind != "trapezoid" else ()
+    )
     values = (distance, max_accel, max_velocity) + ((max_jerk,) if kind != "trapezoid" else ())
     arrays = []
     for name, value in zip(names, values):
         if isinstance(value, (str, bytes)):
-            as_finite_array(name, value)             # raises with the parameter's name
+            as_finite_array(name, value)  # raises with the parameter's name
         try:
-            arrays.append(np.asarray(value, dtype=float))       # no copy yet (a broadcast view stays one)
+            arrays.append(
+                np.asarray(value, dtype=float)
+            )  # no copy yet (a broadcast view stays one)
         except (TypeError, ValueError):
-            as_finite_array(name, value)             # raises with the parameter's name
+            as_finite_array(name, value)  # raises with the parameter's name
             raise ValueError(f"{name} must be numeric, got {value!r}") from None
     try:
         shape = np.broadcast_shapes(*(a.shape for a in arrays))
     except ValueError:
-        raise ValueError("distance, max_jerk, max_accel, max_velocity must broadcast to one shape (n,); "
-                         f"got {', '.join(f'{nm} {a.shape}' for nm, a in zip(names, arrays))}") from None
+        raise ValueError(
+            "distance, max_jerk, max_accel, max_velocity must broadcast to one shape (n,); "
+            f"got {', '.join(f'{nm} {a.shape}' for nm, a in zip(names, arrays))}"
+        ) from None
     n_moves = math.prod(shape)
     if n_moves > MAX_BATCH_MOVES:
-        raise ValueError(f"distance and the limits ask for {n_moves} moves, more than MAX_BATCH_MOVES = "
-                         f"{MAX_BATCH_MOVES}: plan them in several calls")
+        raise ValueError(
+            f"distance and the limits ask for {n_moves} moves, more than MAX_BATCH_MOVES = "
+            f"{MAX_BATCH_MOVES}: plan them in several calls"
+        )
     arrays = [np.ascontiguousarray(a) for a in arrays]
     n_max = max(a.size for a in arrays)
     use_kernel = engine == "numba" or (engine == "auto" and n_max >= NUMBA_MIN_MOVES)
@@ -1450,8 +1689,9 @@ def plan_batch(kind, distance, max_jerk=None, max_accel=None, max_velocity=None,
     if engine == "numba" and not kernel:
         raise ValueError("engine='numba' needs the numba package")
     if not kernel:
-        arrays = [_batch_array(name, a, positive=name != "distance")
-                  for name, a in zip(names, arrays)]
+        arrays = [
+            _batch_array(name, a, positive=name != "distance") for name, a in zip(names, arrays)
+        ]
     J = arrays[3] if kind != "trapezoid" else None
     if len({a.shape for a in arrays}) > 1 or arrays[0].ndim != 1:
         arrays = [np.ascontiguousarray(np.ravel(a)) for a in np.broadcast_arrays(*arrays)]
@@ -1463,7 +1703,7 @@ def plan_batch(kind, distance, max_jerk=None, max_accel=None, max_velocity=None,
     ta = np.empty(n)
     tv = np.empty(n)
     if kernel:
-        Jk = J if J is not None else A          # a trapezoid has no jerk: A passes the check
+        Jk = J if J is not None else A  # a trapezoid has no jerk: A passes the check
         bad = kernel(_KIND_CODE[kind], dist, Jk, A, V, tj, ta, tv)
         if bad >= 0:
             for name, a in zip(names, arrays):
@@ -1476,7 +1716,7 @@ def plan_batch(kind, distance, max_jerk=None, max_accel=None, max_velocity=None,
     if kind == "sine_jerk_optimal":
         jeq = _TWO_OVER_PI * J
     with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
-        for lo in range(0, n, _CHUNK):      # (a non-finite plan is refused by _check_batch)
+        for lo in range(0, n, _CHUNK):  # (a non-finite plan is refused by _check_batch)
             sl = slice(lo, min(lo + _CHUNK, n))
             d = d_all[sl]
             if kind == "scurve":
@@ -1513,13 +1753,30 @@ class AnyStateBatch:
     with 0; ``profile(i)`` is move ``i`` as the :class:`AnyStateProfile` the scalar planner returns.
     """
 
-    __slots__ = ("kind", "distance", "max_jerk", "max_accel", "max_velocity", "initial_velocity",
-                 "initial_accel", "final_velocity", "_packed", "_tu")
+    __slots__ = (
+        "kind",
+        "distance",
+        "max_jerk",
+        "max_accel",
+        "max_velocity",
+        "initial_velocity",
+        "initial_accel",
+        "final_velocity",
+        "_packed",
+        "_tu",
+    )
 
     def __init__(self, kind, arrays, packed, tu):
         self.kind = kind
-        (self.distance, self.max_jerk, self.max_accel, self.max_velocity, self.initial_velocity,
-         self.initial_accel, self.final_velocity) = arrays
+        (
+            self.distance,
+            self.max_jerk,
+            self.max_accel,
+            self.max_velocity,
+            self.initial_velocity,
+            self.initial_accel,
+            self.final_velocity,
+        ) = arrays
         self._packed = packed
         self._tu = tu
 
@@ -1555,13 +1812,28 @@ class AnyStateBatch:
         if not -n <= i < n:
             raise ValueError(f"i must be in [{-n}, {n}) for a batch of {n} moves, got {i}")
         lim = (float(self.max_jerk[i]), float(self.max_accel[i]), float(self.max_velocity[i]))
-        return AnyStateProfile(self.kind, float(self.distance[i]), lim, float(self.initial_velocity[i]),
-                               float(self.initial_accel[i]), float(self.final_velocity[i]),
-                               tuple(self._packed[i].tolist()), float(self._tu[i]))
+        return AnyStateProfile(
+            self.kind,
+            float(self.distance[i]),
+            lim,
+            float(self.initial_velocity[i]),
+            float(self.initial_accel[i]),
+            float(self.final_velocity[i]),
+            tuple(self._packed[i].tolist()),
+            float(self._tu[i]),
+        )
 
 
-def plan_batch_any_state(kind, distance, max_jerk, max_accel, max_velocity, initial_velocity=0.0,
-                         initial_accel=0.0, final_velocity=0.0) -> AnyStateBatch:
+def plan_batch_any_state(
+    kind,
+    distance,
+    max_jerk,
+    max_accel,
+    max_velocity,
+    initial_velocity=0.0,
+    initial_accel=0.0,
+    final_velocity=0.0,
+) -> AnyStateBatch:
     """Plan many moves from moving starts at once: :func:`plan_scurve` or
     :func:`plan_sine_jerk_optimal` with ``initial_velocity``, ``initial_accel``,
     ``final_velocity``, over arrays that broadcast to one shape ``(n,)``.
@@ -1582,24 +1854,42 @@ def plan_batch_any_state(kind, distance, max_jerk, max_accel, max_velocity, init
     """
     if kind not in ("scurve", "sine_jerk_optimal"):
         raise ValueError(f"kind must be 'scurve' or 'sine_jerk_optimal', got {kind!r}")
-    names = ("distance", "max_jerk", "max_accel", "max_velocity", "initial_velocity", "initial_accel",
-             "final_velocity")
-    values = (distance, max_jerk, max_accel, max_velocity, initial_velocity, initial_accel,
-              final_velocity)
+    names = (
+        "distance",
+        "max_jerk",
+        "max_accel",
+        "max_velocity",
+        "initial_velocity",
+        "initial_accel",
+        "final_velocity",
+    )
+    values = (
+        distance,
+        max_jerk,
+        max_accel,
+        max_velocity,
+        initial_velocity,
+        initial_accel,
+        final_velocity,
+    )
     arrays = [as_finite_array(name, v) for name, v in zip(names, values)]
     try:
         shape = np.broadcast_shapes(*(a.shape for a in arrays))
     except ValueError:
-        raise ValueError("the arguments must broadcast to one shape (n,); got "
-                         + ", ".join(f"{nm} {a.shape}" for nm, a in zip(names, arrays))) from None
+        raise ValueError(
+            "the arguments must broadcast to one shape (n,); got "
+            + ", ".join(f"{nm} {a.shape}" for nm, a in zip(names, arrays))
+        ) from None
     if math.prod(shape) > MAX_BATCH_MOVES:
-        raise ValueError(f"more than MAX_BATCH_MOVES = {MAX_BATCH_MOVES} moves: plan them in several calls")
+        raise ValueError(
+            f"more than MAX_BATCH_MOVES = {MAX_BATCH_MOVES} moves: plan them in several calls"
+        )
     arrays = [np.ascontiguousarray(np.ravel(a)) for a in np.broadcast_arrays(*arrays)]
     d, J, A, V, v0, a0, vf = arrays
     n = d.shape[0]
     packed = np.zeros((n, 4 + _onedof._MAX_SEG))
     tu = np.ones(n)
-    _solver()                                   # compiles (or picks the pure-Python) solver
+    _solver()  # compiles (or picks the pure-Python) solver
     bad = _onedof.solve_many(d, v0, a0, vf, J, A, V, kind == "sine_jerk_optimal", packed, tu)
     if bad >= 0:
         i = int(bad)
@@ -1609,8 +1899,14 @@ def plan_batch_any_state(kind, distance, max_jerk, max_accel, max_velocity, init
         if abs(vf[i]) > V[i]:
             raise ValueError(f"final_velocity={vf[i]!r} is above max_velocity={V[i]!r} (move {i})")
         KINDS_SCALAR = {"scurve": plan_scurve, "sine_jerk_optimal": plan_sine_jerk_optimal}
-        KINDS_SCALAR[kind](float(d[i]), float(J[i]), float(A[i]), float(V[i]),
-                           initial_velocity=float(v0[i]), initial_accel=float(a0[i]),
-                           final_velocity=float(vf[i]))      # raises, naming the reason
+        KINDS_SCALAR[kind](
+            float(d[i]),
+            float(J[i]),
+            float(A[i]),
+            float(V[i]),
+            initial_velocity=float(v0[i]),
+            initial_accel=float(a0[i]),
+            final_velocity=float(vf[i]),
+        )  # raises, naming the reason
         raise ValueError(f"plan_batch_any_state: no valid profile for move {i}")  # pragma: no cover
     return AnyStateBatch(kind, (d, J, A, V, v0, a0, vf), packed, tu)

@@ -30,6 +30,7 @@ moves on in the other direction. No numerical ODE solver is involved.
 :class:`FlexibleDCMotor` adds a lightly damped mode (motor + shaft + load inertia);
 it shows why jerk matters: a jerk step excites the mode, a smooth jerk does not.
 """
+
 from __future__ import annotations
 
 import math
@@ -40,14 +41,21 @@ import scipy.linalg
 
 from jerklab import paper
 from jerklab._lazy import lazy_module
-from jerklab._validate import (as_finite_array, as_int, as_nonnegative, as_positive,
-                               as_real)
+from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
 from jerklab.law import encoder_vec, voltage_vec, zoh_coefficients
 
-ct = lazy_module("control")   # python-control imports matplotlib: import it on first use
+ct = lazy_module("control")  # python-control imports matplotlib: import it on first use
 
-__all__ = ["DCMotor", "FlexibleDCMotor", "StepDisturbance", "advance", "advance_scalar", "advance_em",
-           "quantize_voltage", "measure_angle"]
+__all__ = [
+    "DCMotor",
+    "FlexibleDCMotor",
+    "StepDisturbance",
+    "advance",
+    "advance_scalar",
+    "advance_em",
+    "quantize_voltage",
+    "measure_angle",
+]
 
 
 try:  # numba compiles the scalar kernels (jerklab.sim calls them from compiled code)
@@ -56,6 +64,7 @@ try:  # numba compiles the scalar kernels (jerklab.sim calls them from compiled 
     def _jit(f):
         return _njit(cache=True, nogil=True)(f)
 except ImportError:  # pragma: no cover - pure-Python fallback
+
     def _jit(f):
         return f
 
@@ -136,7 +145,9 @@ def _checked_array(name, value, low=None, strict=False):
     if low is not None and a.size:
         bad = a <= low if strict else a < low
         if np.any(bad):
-            raise ValueError(f"{name} must be {'>' if strict else '>='} {low:g}, got {a[bad].ravel()[0]!r}")
+            raise ValueError(
+                f"{name} must be {'>' if strict else '>='} {low:g}, got {a[bad].ravel()[0]!r}"
+            )
     return a
 
 
@@ -146,20 +157,29 @@ def advance(theta, omega, v, fc, K, tau, dt):
     Used by the batch simulation over many perturbed plants. The arguments are checked
     as in :func:`advance_scalar`, entry by entry (a ``ValueError`` naming the argument).
     """
-    checked = (_checked_array("theta", theta), _checked_array("omega", omega), _checked_array("v", v),
-               _checked_array("fc", fc, 0.0), _checked_array("K", K, 0.0, strict=True),
-               _checked_array("tau", tau, 0.0, strict=True), _checked_array("dt", dt, 0.0))
+    checked = (
+        _checked_array("theta", theta),
+        _checked_array("omega", omega),
+        _checked_array("v", v),
+        _checked_array("fc", fc, 0.0),
+        _checked_array("K", K, 0.0, strict=True),
+        _checked_array("tau", tau, 0.0, strict=True),
+        _checked_array("dt", dt, 0.0),
+    )
     try:
         np.broadcast_shapes(*(a.shape for a in checked))
     except ValueError as exc:
-        raise ValueError(f"theta, omega, v, fc, K, tau, dt must broadcast together: {exc}") from None
+        raise ValueError(
+            f"theta, omega, v, fc, K, tau, dt must broadcast together: {exc}"
+        ) from None
     return _advance(*checked)
 
 
 def _advance(theta, omega, v, fc, K, tau, dt):
     """The kernel of :func:`advance`, without argument checks (the batch simulator's hot path)."""
     theta, omega, v, fc, K, tau, dt = np.broadcast_arrays(
-        *(np.asarray(a, dtype=float) for a in (theta, omega, v, fc, K, tau, dt)))
+        *(np.asarray(a, dtype=float) for a in (theta, omega, v, fc, K, tau, dt))
+    )
 
     def lin(th, om, winf, t):
         em = -np.expm1(-t / tau)
@@ -203,7 +223,7 @@ def quantize_voltage(u, supply_voltage=None, pwm_bits=None):
         pwm_bits = as_int("pwm_bits", pwm_bits, minimum=1)
         if pwm_bits > 32:
             raise ValueError(f"pwm_bits must be <= 32, got {pwm_bits}")
-    return voltage_vec(u, supply_voltage, 0.0 if pwm_bits is None else float(2 ** pwm_bits - 1))
+    return voltage_vec(u, supply_voltage, 0.0 if pwm_bits is None else float(2**pwm_bits - 1))
 
 
 def measure_angle(theta, counts_per_rad=None):
@@ -247,20 +267,27 @@ def _as_disturbance(value):
     try:
         return StepDisturbance(amplitude=value)
     except ValueError:
-        raise ValueError("load_disturbance must be None, an amplitude in V, a (time, amplitude) "
-                         f"pair or a StepDisturbance, got {value!r}") from None
+        raise ValueError(
+            "load_disturbance must be None, an amplitude in V, a (time, amplitude) "
+            f"pair or a StepDisturbance, got {value!r}"
+        ) from None
 
 
 class _MotorBase:
     """Imperfections shared by the rigid and the flexible motor."""
 
-    def _init_common(self, supply_voltage, pwm_bits, encoder_ppr, decoding, load_disturbance,
-                     noise_std, seed):
-        self.supply_voltage = None if supply_voltage is None else as_positive("supply_voltage", supply_voltage)
+    def _init_common(
+        self, supply_voltage, pwm_bits, encoder_ppr, decoding, load_disturbance, noise_std, seed
+    ):
+        self.supply_voltage = (
+            None if supply_voltage is None else as_positive("supply_voltage", supply_voltage)
+        )
         self.pwm_bits = None if pwm_bits is None else as_int("pwm_bits", pwm_bits, minimum=1)
         if self.pwm_bits is not None and self.supply_voltage is None:
             raise ValueError("pwm_bits needs a supply_voltage (the PWM quantizes a fraction of it)")
-        self.encoder_ppr = None if encoder_ppr is None else as_int("encoder_ppr", encoder_ppr, minimum=1)
+        self.encoder_ppr = (
+            None if encoder_ppr is None else as_int("encoder_ppr", encoder_ppr, minimum=1)
+        )
         self.decoding = as_int("decoding", decoding)
         if self.decoding not in (1, 2, 4):
             raise ValueError(f"decoding must be 1, 2 or 4, got {self.decoding}")
@@ -355,25 +382,40 @@ class DCMotor(_MotorBase):
         ``jerklab.sim`` does not model them.
     """
 
-    def __init__(self, K=paper.MOTOR_K, tau=paper.MOTOR_TAU, supply_voltage=paper.SUPPLY_VOLTAGE,
-                 pwm_bits=paper.PWM_BITS, encoder_ppr=paper.ENCODER_PPR, decoding=paper.ENCODER_DECODING,
-                 coulomb_friction=0.0, load_disturbance=None, noise_std=0.0, seed=None,
-                 offset=0.0, dead_zone=0.0):
+    def __init__(
+        self,
+        K=paper.MOTOR_K,
+        tau=paper.MOTOR_TAU,
+        supply_voltage=paper.SUPPLY_VOLTAGE,
+        pwm_bits=paper.PWM_BITS,
+        encoder_ppr=paper.ENCODER_PPR,
+        decoding=paper.ENCODER_DECODING,
+        coulomb_friction=0.0,
+        load_disturbance=None,
+        noise_std=0.0,
+        seed=None,
+        offset=0.0,
+        dead_zone=0.0,
+    ):
         self.K = as_positive("K", K)
         self.tau = as_positive("tau", tau)
         self.coulomb_friction = as_nonnegative("coulomb_friction", coulomb_friction)
         self.offset = as_real("offset", offset)
         self.dead_zone = as_nonnegative("dead_zone", dead_zone)
-        self._init_common(supply_voltage, pwm_bits, encoder_ppr, decoding, load_disturbance,
-                          noise_std, seed)
+        self._init_common(
+            supply_voltage, pwm_bits, encoder_ppr, decoding, load_disturbance, noise_std, seed
+        )
 
     def __repr__(self):
-        return (f"DCMotor(K={self.K!r}, tau={self.tau!r}, supply_voltage={self.supply_voltage!r}, "
-                f"pwm_bits={self.pwm_bits!r}, encoder_ppr={self.encoder_ppr!r}, "
-                f"decoding={self.decoding!r}, coulomb_friction={self.coulomb_friction!r}, "
-                f"load_disturbance={self.load_disturbance!r}, noise_std={self.noise_std!r}"
-                + (f", offset={self.offset!r}" if self.offset else "")
-                + (f", dead_zone={self.dead_zone!r}" if self.dead_zone else "") + ")")
+        return (
+            f"DCMotor(K={self.K!r}, tau={self.tau!r}, supply_voltage={self.supply_voltage!r}, "
+            f"pwm_bits={self.pwm_bits!r}, encoder_ppr={self.encoder_ppr!r}, "
+            f"decoding={self.decoding!r}, coulomb_friction={self.coulomb_friction!r}, "
+            f"load_disturbance={self.load_disturbance!r}, noise_std={self.noise_std!r}"
+            + (f", offset={self.offset!r}" if self.offset else "")
+            + (f", dead_zone={self.dead_zone!r}" if self.dead_zone else "")
+            + ")"
+        )
 
     n_states = 2
 
@@ -383,11 +425,20 @@ class DCMotor(_MotorBase):
 
     def replace(self, **changes):
         """A copy with some constructor arguments changed (e.g. ``m.replace(K=30)``)."""
-        kw = dict(K=self.K, tau=self.tau, supply_voltage=self.supply_voltage, pwm_bits=self.pwm_bits,
-                  encoder_ppr=self.encoder_ppr, decoding=self.decoding,
-                  coulomb_friction=self.coulomb_friction, load_disturbance=self.load_disturbance,
-                  noise_std=self.noise_std, seed=self.seed, offset=self.offset,
-                  dead_zone=self.dead_zone)
+        kw = dict(
+            K=self.K,
+            tau=self.tau,
+            supply_voltage=self.supply_voltage,
+            pwm_bits=self.pwm_bits,
+            encoder_ppr=self.encoder_ppr,
+            decoding=self.decoding,
+            coulomb_friction=self.coulomb_friction,
+            load_disturbance=self.load_disturbance,
+            noise_std=self.noise_std,
+            seed=self.seed,
+            offset=self.offset,
+            dead_zone=self.dead_zone,
+        )
         kw.update(changes)
         return DCMotor(**kw)
 
@@ -419,8 +470,11 @@ class DCMotor(_MotorBase):
         """
         A = np.array([[0.0, 1.0], [0.0, -1.0 / self.tau]])
         B = np.array([[0.0], [self.K / self.tau]])
-        C = {"theta": np.array([[1.0, 0.0]]), "omega": np.array([[0.0, 1.0]]),
-             "both": np.eye(2)}.get(outputs)
+        C = {
+            "theta": np.array([[1.0, 0.0]]),
+            "omega": np.array([[0.0, 1.0]]),
+            "both": np.eye(2),
+        }.get(outputs)
         if C is None:
             raise ValueError(f"outputs must be 'theta', 'omega' or 'both', got {outputs!r}")
         return ct.ss(A, B, C, np.zeros((C.shape[0], 1)))
@@ -439,7 +493,9 @@ class DCMotor(_MotorBase):
         try:
             return ct.c2d(self.tf(), Ts, "zoh")
         except (np.linalg.LinAlgError, ValueError, OverflowError) as exc:
-            raise ValueError(f"Ts = {Ts!r} s cannot be discretized for tau = {self.tau!r} s: {exc}") from None
+            raise ValueError(
+                f"Ts = {Ts!r} s cannot be discretized for tau = {self.tau!r} s: {exc}"
+            ) from None
 
     # --- exact simulation --------------------------------------------------
     def initial_state(self, x0=None):
@@ -474,9 +530,12 @@ class DCMotor(_MotorBase):
         d = self.load_disturbance
         if d is not None and t < d.time < t + dt:
             first = d.time - t
-            th, om = _advance_scalar(th, om, u + float(d(t)), self.coulomb_friction, self.K, self.tau, first)
-            th, om = _advance_scalar(th, om, u + d.amplitude, self.coulomb_friction, self.K, self.tau,
-                                    dt - first)
+            th, om = _advance_scalar(
+                th, om, u + float(d(t)), self.coulomb_friction, self.K, self.tau, first
+            )
+            th, om = _advance_scalar(
+                th, om, u + d.amplitude, self.coulomb_friction, self.K, self.tau, dt - first
+            )
         else:
             w = 0.0 if d is None else float(d(t))
             th, om = _advance_scalar(th, om, u + w, self.coulomb_friction, self.K, self.tau, dt)
@@ -518,45 +577,82 @@ class FlexibleDCMotor(_MotorBase):
     n_states = 4
     coulomb_friction = 0.0
 
-    def __init__(self, K=paper.MOTOR_K, tau=paper.MOTOR_TAU, load_ratio=0.05, mode_frequency=2 * math.pi * 8.0,
-                 mode_damping=0.02, supply_voltage=paper.SUPPLY_VOLTAGE, pwm_bits=paper.PWM_BITS,
-                 encoder_ppr=paper.ENCODER_PPR, decoding=paper.ENCODER_DECODING,
-                 load_disturbance=None, noise_std=0.0, seed=None):
+    def __init__(
+        self,
+        K=paper.MOTOR_K,
+        tau=paper.MOTOR_TAU,
+        load_ratio=0.05,
+        mode_frequency=2 * math.pi * 8.0,
+        mode_damping=0.02,
+        supply_voltage=paper.SUPPLY_VOLTAGE,
+        pwm_bits=paper.PWM_BITS,
+        encoder_ppr=paper.ENCODER_PPR,
+        decoding=paper.ENCODER_DECODING,
+        load_disturbance=None,
+        noise_std=0.0,
+        seed=None,
+    ):
         self.K = as_positive("K", K)
         self.tau = as_positive("tau", tau)
         self.load_ratio = as_positive("load_ratio", load_ratio)
         self.mode_frequency = as_positive("mode_frequency", mode_frequency)
         self.mode_damping = as_nonnegative("mode_damping", mode_damping)
-        self._init_common(supply_voltage, pwm_bits, encoder_ppr, decoding, load_disturbance,
-                          noise_std, seed)
+        self._init_common(
+            supply_voltage, pwm_bits, encoder_ppr, decoding, load_disturbance, noise_std, seed
+        )
         self._zoh_cache = {}
 
     def ideal(self):
-        return FlexibleDCMotor(self.K, self.tau, self.load_ratio, self.mode_frequency,
-                               self.mode_damping, supply_voltage=None, pwm_bits=None, encoder_ppr=None)
+        return FlexibleDCMotor(
+            self.K,
+            self.tau,
+            self.load_ratio,
+            self.mode_frequency,
+            self.mode_damping,
+            supply_voltage=None,
+            pwm_bits=None,
+            encoder_ppr=None,
+        )
 
     def rigid(self):
         """The rigid motor with the same K, τ and imperfections (Stojčić eq. 1)."""
-        return DCMotor(self.K, self.tau, self.supply_voltage, self.pwm_bits, self.encoder_ppr,
-                       self.decoding, 0.0, self.load_disturbance, self.noise_std, self.seed)
+        return DCMotor(
+            self.K,
+            self.tau,
+            self.supply_voltage,
+            self.pwm_bits,
+            self.encoder_ppr,
+            self.decoding,
+            0.0,
+            self.load_disturbance,
+            self.noise_std,
+            self.seed,
+        )
 
     def _matrices(self):
         Jm = self.tau / (1.0 + self.load_ratio)
         Jl = self.tau - Jm
-        k = self.mode_frequency ** 2 * Jl
+        k = self.mode_frequency**2 * Jl
         c = 2.0 * self.mode_damping * self.mode_frequency * Jl
-        A = np.array([[0.0, 1.0, 0.0, 0.0],
-                      [-k / Jm, -(1.0 + c) / Jm, k / Jm, c / Jm],
-                      [0.0, 0.0, 0.0, 1.0],
-                      [k / Jl, c / Jl, -k / Jl, -c / Jl]])
+        A = np.array(
+            [
+                [0.0, 1.0, 0.0, 0.0],
+                [-k / Jm, -(1.0 + c) / Jm, k / Jm, c / Jm],
+                [0.0, 0.0, 0.0, 1.0],
+                [k / Jl, c / Jl, -k / Jl, -c / Jl],
+            ]
+        )
         B = np.array([[0.0], [self.K / Jm], [0.0], [0.0]])
         return A, B
 
     def ss(self, outputs="motor"):
         """State space; ``outputs`` is ``"motor"`` (θ_m), ``"load"`` (θ_l) or ``"both"``."""
         A, B = self._matrices()
-        C = {"motor": np.array([[1.0, 0, 0, 0]]), "load": np.array([[0, 0, 1.0, 0]]),
-             "both": np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]])}.get(outputs)
+        C = {
+            "motor": np.array([[1.0, 0, 0, 0]]),
+            "load": np.array([[0, 0, 1.0, 0]]),
+            "both": np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]]),
+        }.get(outputs)
         if C is None:
             raise ValueError(f"outputs must be 'motor', 'load' or 'both', got {outputs!r}")
         return ct.ss(A, B, C, np.zeros((C.shape[0], 1)))
@@ -583,8 +679,9 @@ class FlexibleDCMotor(_MotorBase):
             M[:4, 4:] = B * Ts
             E = scipy.linalg.expm(M)
             if not np.all(np.isfinite(E)):
-                raise ValueError(f"Ts = {Ts!r} s is too long for this model: the matrix exponential "
-                                 f"overflows")
+                raise ValueError(
+                    f"Ts = {Ts!r} s is too long for this model: the matrix exponential overflows"
+                )
             self._zoh_cache[Ts] = (E[:4, :4], E[:4, 4:])
         return self._zoh_cache[Ts]
 
@@ -594,7 +691,9 @@ class FlexibleDCMotor(_MotorBase):
             return np.zeros(4)
         x = as_finite_array("x0", x0, ndim=1)
         if x.shape != (4,):
-            raise ValueError(f"x0 must be [theta_m, omega_m, theta_l, omega_l], got shape {x.shape}")
+            raise ValueError(
+                f"x0 must be [theta_m, omega_m, theta_l, omega_l], got shape {x.shape}"
+            )
         return x.copy()
 
     _x0 = initial_state

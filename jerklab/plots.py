@@ -19,14 +19,24 @@ The result objects keep their ``.plot()`` methods as one-line calls of these. Im
 module does not import matplotlib (nor does any module below the face: planner, plant,
 controller, sim, ident, protocol, rig, law); the functions import it when called.
 """
+
 from __future__ import annotations
 
 import numpy as np
 
 from jerklab._validate import as_finite_array
 
-__all__ = ["zplane", "plot_simulation", "plot_ident_data", "plot_compare", "plot_compare_result",
-           "plot_residuals", "plot_recording", "plot_comparison", "plot_tradeoff"]
+__all__ = [
+    "zplane",
+    "plot_simulation",
+    "plot_ident_data",
+    "plot_compare",
+    "plot_compare_result",
+    "plot_residuals",
+    "plot_recording",
+    "plot_comparison",
+    "plot_tradeoff",
+]
 
 _CIRCLE_GID = "jerklab-unit-circle"
 
@@ -38,12 +48,21 @@ def _roots(name, values):
     if a.dtype.kind not in "biufc" or a.ndim > 1:
         raise TypeError(f"{name} must be a 1-D sequence of numbers, got {type(values).__name__}")
     a = a.astype(complex).ravel()
-    as_finite_array(name, np.r_[a.real, a.imag])          # NaN / inf -> ValueError naming it
+    as_finite_array(name, np.r_[a.real, a.imag])  # NaN / inf -> ValueError naming it
     return a
 
 
-def zplane(poles=None, zeros=None, ax=None, *, label=None, color=None, marker="x", title=None,
-           unit_circle=True):
+def zplane(
+    poles=None,
+    zeros=None,
+    ax=None,
+    *,
+    label=None,
+    color=None,
+    marker="x",
+    title=None,
+    unit_circle=True,
+):
     """Draw poles (``marker``, default ×) and zeros (○) in the z-plane, with the unit circle.
 
     Call it once per system on the same ``ax`` to compare designs; the unit circle is drawn
@@ -87,13 +106,17 @@ def zplane(poles=None, zeros=None, ax=None, *, label=None, color=None, marker="x
             poles = system.poles_z()
         elif hasattr(system, "poles") and callable(system.poles):
             if getattr(system, "dt", None) in (None, 0):
-                raise ValueError("poles: a continuous-time system has no z-plane poles; "
-                                 "discretize it first (e.g. control.c2d)")
+                raise ValueError(
+                    "poles: a continuous-time system has no z-plane poles; "
+                    "discretize it first (e.g. control.c2d)"
+                )
             poles = system.poles()
             if zeros is None and hasattr(system, "zeros"):
                 zeros = system.zeros()
         else:
-            raise TypeError(f"poles must be an array of roots or a system, got {type(system).__name__}")
+            raise TypeError(
+                f"poles must be an array of roots or a system, got {type(system).__name__}"
+            )
     p = _roots("poles", poles)
     z = _roots("zeros", zeros)
     if ax is None:
@@ -105,12 +128,30 @@ def zplane(poles=None, zeros=None, ax=None, *, label=None, color=None, marker="x
         ax.axvline(0.0, color="0.6", lw=0.5)
     hollow = marker in ("o", "s", "D", "^", "v", "p", "h", "*")
     if p.size:
-        (line,) = ax.plot(p.real, p.imag, ls="none", marker=marker, ms=8, mew=2, color=color,
-                          label=label, **({"mfc": "none"} if hollow else {}))
+        (line,) = ax.plot(
+            p.real,
+            p.imag,
+            ls="none",
+            marker=marker,
+            ms=8,
+            mew=2,
+            color=color,
+            label=label,
+            **({"mfc": "none"} if hollow else {}),
+        )
         color = line.get_color()
     if z.size:
-        ax.plot(z.real, z.imag, ls="none", marker="o", ms=8, mew=1.5, color=color, mfc="none",
-                label=None if label is None else f"{label} zeros")
+        ax.plot(
+            z.real,
+            z.imag,
+            ls="none",
+            marker="o",
+            ms=8,
+            mew=1.5,
+            color=color,
+            mfc="none",
+            label=None if label is None else f"{label} zeros",
+        )
     ax.set_aspect("equal", adjustable="box")
     ax.grid(True, alpha=0.3)
     ax.set_xlabel("Re z")
@@ -161,14 +202,27 @@ def plot_simulation(result, fig=None, title=None):
         ax[2].plot(res.t, res.parts[name], lw=1, label=name)
     ax[2].plot(res.t, res.u_applied, "k", lw=1.2, label="u applied")
     if np.any(res.saturated):
-        ax[2].fill_between(res.t, 0, 1, where=res.saturated, color="r", alpha=0.1,
-                           transform=ax[2].get_xaxis_transform(), label="saturated")
+        ax[2].fill_between(
+            res.t,
+            0,
+            1,
+            where=res.saturated,
+            color="r",
+            alpha=0.1,
+            transform=ax[2].get_xaxis_transform(),
+            label="saturated",
+        )
     ax[2].set_ylabel("voltage (V)")
     ax[2].set_xlabel("time (s)")
     ax[2].legend(loc="best", fontsize=8, ncol=3)
     m = res.metrics
-    ax[0].set_title(title or (f"{res.loop} loop: max |e| = {m['max_abs_error'] * 1e3:.3g} mrad, "
-                              f"RMS {m['rms_error'] * 1e3:.3g} mrad, final {m['final_error'] * 1e3:.3g} mrad"))
+    ax[0].set_title(
+        title
+        or (
+            f"{res.loop} loop: max |e| = {m['max_abs_error'] * 1e3:.3g} mrad, "
+            f"RMS {m['rms_error'] * 1e3:.3g} mrad, final {m['final_error'] * 1e3:.3g} mrad"
+        )
+    )
     fig.tight_layout()
     return fig
 
@@ -217,8 +271,13 @@ def plot_compare(data, *fits, ax=None, labels=None, horizon=None):
         c = compare(data, f, horizon)
         name = labels[i] if labels else f.method.upper()
         what = "" if horizon is None else f", {horizon}-step"
-        ax.plot(data.t, c.y_hat, "-", lw=1.5,
-                label=f"{name}: K={f.K:.3g}, τ={f.tau * 1e3:.3g} ms{what}, fit {c.fit_percent:.2f} %")
+        ax.plot(
+            data.t,
+            c.y_hat,
+            "-",
+            lw=1.5,
+            label=f"{name}: K={f.K:.3g}, τ={f.tau * 1e3:.3g} ms{what}, fit {c.fit_percent:.2f} %",
+        )
     ax.set_xlabel("time (s)")
     ax.set_ylabel(f"angle ({data.output_unit})")
     ax.legend(loc="best", fontsize=8)
@@ -233,8 +292,13 @@ def plot_compare_result(result, ax=None, unit: str = "rad"):
         _, ax = plt.subplots(figsize=(8, 3.5))
     ax.plot(result.t, result.y, ".", color="0.3", ms=3, label="measured")
     what = "simulation" if result.horizon is None else f"{result.horizon}-step prediction"
-    ax.plot(result.t, result.y_hat, "-", lw=1.5,
-            label=f"{result.label + ': ' if result.label else ''}{what}, fit {result.fit_percent:.2f} %")
+    ax.plot(
+        result.t,
+        result.y_hat,
+        "-",
+        lw=1.5,
+        label=f"{result.label + ': ' if result.label else ''}{what}, fit {result.fit_percent:.2f} %",
+    )
     ax.set_xlabel("time (s)")
     ax.set_ylabel(f"angle ({unit})")
     ax.legend(loc="best", fontsize=8)
@@ -258,8 +322,13 @@ def plot_residuals(analysis, axes=None, title: str | None = None):
     axes = np.atleast_1d(axes)
     ax = axes[0]
     ax.stem(analysis.lags, analysis.autocorr)
-    ax.axhspan(-analysis.auto_bound, analysis.auto_bound, color="C1", alpha=0.2,
-               label=f"{analysis.confidence:.0%} bound")
+    ax.axhspan(
+        -analysis.auto_bound,
+        analysis.auto_bound,
+        color="C1",
+        alpha=0.2,
+        label=f"{analysis.confidence:.0%} bound",
+    )
     ax.set_xlabel("lag (samples)")
     ax.set_ylabel("autocorr. of e (–)")
     ax.legend(loc="upper right", fontsize=8)
@@ -297,8 +366,9 @@ def plot_recording(rec, ax=None):
     ax[1].step(t, rec.control, where="post")
     ax[1].set_ylabel("control (V)")
     ax[1].set_xlabel("time (s)")
-    ax[0].set_title(f"rig recording: {rec.metadata.get('kind', '')} "
-                    f"({rec.metadata.get('status', '')})")
+    ax[0].set_title(
+        f"rig recording: {rec.metadata.get('kind', '')} ({rec.metadata.get('status', '')})"
+    )
     return fig
 
 
@@ -312,19 +382,25 @@ def plot_comparison(rec, sim, title="Measured vs simulated sine-jerk move"):
 
     n = min(len(rec), len(sim.t))
     idx = rec.index[rec.index < len(sim.t)][:n]
-    t = rec.time[:len(idx)]
+    t = rec.time[: len(idx)]
     fig, ax = plt.subplots(3, 1, sharex=True, figsize=(8, 7.5))
-    ax[0].plot(t, rec.reference[:len(idx)], "k--", lw=1, label="reference")
-    ax[0].plot(t, rec.position[:len(idx)], label="measured (rig)")
+    ax[0].plot(t, rec.reference[: len(idx)], "k--", lw=1, label="reference")
+    ax[0].plot(t, rec.position[: len(idx)], label="measured (rig)")
     ax[0].plot(t, np.asarray(sim.measured)[idx], ":", label="simulated")
     ax[0].set_ylabel("position (rad)")
     ax[0].legend(loc="lower right")
-    ax[1].plot(t, 1e3 * (rec.reference[:len(idx)] - rec.position[:len(idx)]), label="measured (rig)")
-    ax[1].plot(t, 1e3 * (np.asarray(sim.reference)[idx] - np.asarray(sim.measured)[idx]), ":",
-               label="simulated")
+    ax[1].plot(
+        t, 1e3 * (rec.reference[: len(idx)] - rec.position[: len(idx)]), label="measured (rig)"
+    )
+    ax[1].plot(
+        t,
+        1e3 * (np.asarray(sim.reference)[idx] - np.asarray(sim.measured)[idx]),
+        ":",
+        label="simulated",
+    )
     ax[1].set_ylabel("tracking error (mrad)")
     ax[1].legend(loc="upper right")
-    ax[2].step(t, rec.control[:len(idx)], where="post", label="measured (rig)")
+    ax[2].step(t, rec.control[: len(idx)], where="post", label="measured (rig)")
     ax[2].step(t, np.asarray(sim.u_applied)[idx], ":", where="post", label="simulated")
     ax[2].set_ylabel("control (V)")
     ax[2].set_xlabel("time (s)")
@@ -347,12 +423,19 @@ def plot_tradeoff(tradeoff, ax=None, floor=1e-2):
         _, ax = plt.subplots(figsize=(10, 5), layout="constrained")
     fams = {r["name"]: r["family"] for r in tradeoff.rows}
     for name, v in tradeoff.curves.items():
-        ax.semilogy(tradeoff.ratios, np.maximum(v, floor), _FAMILY_STYLE.get(fams.get(name), "-"),
-                    label=name, lw=1.4)
+        ax.semilogy(
+            tradeoff.ratios,
+            np.maximum(v, floor),
+            _FAMILY_STYLE.get(fams.get(name), "-"),
+            label=name,
+            lw=1.4,
+        )
     ax.axhline(5.0, color="0.5", lw=0.8)
     ax.set_xlabel(f"mode frequency / nominal {tradeoff.frequency_hz:.2f} Hz (–)")
     ax.set_ylabel("residual vibration (% of a step)")
-    ax.set_title(f"Residual vibration, mode ζ = {tradeoff.damping:.3f}, move {tradeoff.distance:.2f} rad")
+    ax.set_title(
+        f"Residual vibration, mode ζ = {tradeoff.damping:.3f}, move {tradeoff.distance:.2f} rad"
+    )
     ax.set_xlim(tradeoff.ratios[0], tradeoff.ratios[-1])
     ax.set_ylim(floor, 300)
     ax.grid(True, which="both", alpha=0.3)

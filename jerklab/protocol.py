@@ -24,6 +24,7 @@ Examples
 >>> dec.stats.skipped_bytes
 4
 """
+
 from __future__ import annotations
 
 import binascii
@@ -36,16 +37,62 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 __all__ = [
-    "PROTOCOL_VERSION", "SYNC", "MAX_PAYLOAD", "MAX_FRAME", "MIN_FRAME",
-    "MsgType", "ErrorCode", "EndReason", "Planner", "LoopType", "Capability",
-    "GAINS_FEEDFORWARD", "TELEMETRY_SATURATED", "TELEMETRY_SETTLING", "TELEMETRY_FAULT",
-    "MAX_PLAN_SAMPLES", "DEFAULT_MAX_ERROR", "DEFAULT_RUNAWAY_MS", "DEFAULT_SATURATION_MS",
-    "crc16_ccitt_false", "encode_frame", "encode", "parse", "Frame", "Decoder", "DecoderStats",
-    "ProtocolError", "MESSAGES", "payload_field_name",
-    "Hello", "SetPlant", "SetGains", "SetLimits", "Plan", "Run", "Stop", "Step", "Heartbeat",
-    "Sequence", "SetShaper", "PRBS_TAPS", "SHAPER_MAX_TAPS", "SHAPER_MAX_DELAY", "SHAPER_SUM_TOL", "RUN_GAIN_LIMIT", "max_run_gain",
-    "prbs_bits", "sequence_voltages", "Retarget",
-    "Ack", "Nack", "HelloReply", "PlanInfo", "Telemetry", "EndOfRun", "DeviceError",
+    "PROTOCOL_VERSION",
+    "SYNC",
+    "MAX_PAYLOAD",
+    "MAX_FRAME",
+    "MIN_FRAME",
+    "MsgType",
+    "ErrorCode",
+    "EndReason",
+    "Planner",
+    "LoopType",
+    "Capability",
+    "GAINS_FEEDFORWARD",
+    "TELEMETRY_SATURATED",
+    "TELEMETRY_SETTLING",
+    "TELEMETRY_FAULT",
+    "MAX_PLAN_SAMPLES",
+    "DEFAULT_MAX_ERROR",
+    "DEFAULT_RUNAWAY_MS",
+    "DEFAULT_SATURATION_MS",
+    "crc16_ccitt_false",
+    "encode_frame",
+    "encode",
+    "parse",
+    "Frame",
+    "Decoder",
+    "DecoderStats",
+    "ProtocolError",
+    "MESSAGES",
+    "payload_field_name",
+    "Hello",
+    "SetPlant",
+    "SetGains",
+    "SetLimits",
+    "Plan",
+    "Run",
+    "Stop",
+    "Step",
+    "Heartbeat",
+    "Sequence",
+    "SetShaper",
+    "PRBS_TAPS",
+    "SHAPER_MAX_TAPS",
+    "SHAPER_MAX_DELAY",
+    "SHAPER_SUM_TOL",
+    "RUN_GAIN_LIMIT",
+    "max_run_gain",
+    "prbs_bits",
+    "sequence_voltages",
+    "Retarget",
+    "Ack",
+    "Nack",
+    "HelloReply",
+    "PlanInfo",
+    "Telemetry",
+    "EndOfRun",
+    "DeviceError",
 ]
 
 PROTOCOL_VERSION = 3
@@ -67,6 +114,7 @@ class ProtocolError(ValueError):
 
 
 # --------------------------------------------------------------------------- CRC
+
 
 def _make_table() -> tuple[int, ...]:
     table = []
@@ -101,6 +149,7 @@ def _crc(data: bytes) -> int:
 
 # --------------------------------------------------------------------------- enums
 
+
 class MsgType(enum.IntEnum):
     """Message type byte.  Host -> device below 0x80, device -> host from 0x80."""
 
@@ -129,33 +178,33 @@ class ErrorCode(enum.IntEnum):
     """NACK error codes (``Nack.error``)."""
 
     OK = 0
-    UNKNOWN_TYPE = 1      #: type byte not a command
-    BAD_LENGTH = 2        #: payload length wrong for the type
-    BAD_VALUE = 3         #: a field is out of range / not finite; ``Nack.param`` = field index
-    BUSY = 4              #: a run or step is active (only STOP, HEARTBEAT, HELLO accepted)
-    NOT_READY = 5         #: RUN without gains, or without a PLAN since the last SET_*
-    UNSUPPORTED = 6       #: planner / loop type / feature not built into this firmware
-    BAD_VERSION = 7       #: protocol version not supported
-    TOO_LONG = 8          #: the plan needs more than MAX_PLAN_SAMPLES samples
+    UNKNOWN_TYPE = 1  #: type byte not a command
+    BAD_LENGTH = 2  #: payload length wrong for the type
+    BAD_VALUE = 3  #: a field is out of range / not finite; ``Nack.param`` = field index
+    BUSY = 4  #: a run or step is active (only STOP, HEARTBEAT, HELLO accepted)
+    NOT_READY = 5  #: RUN without gains, or without a PLAN since the last SET_*
+    UNSUPPORTED = 6  #: planner / loop type / feature not built into this firmware
+    BAD_VERSION = 7  #: protocol version not supported
+    TOO_LONG = 8  #: the plan needs more than MAX_PLAN_SAMPLES samples
 
 
 class EndReason(enum.IntEnum):
     """Why a run or step ended (``EndOfRun.reason``)."""
 
     DONE = 0
-    STOPPED = 1           #: STOP from the host
-    HOST_TIMEOUT = 2      #: no valid frame from the host for longer than host_timeout_ms
-    FAULT = 3             #: internal fault (control tick overrun, numeric error)
-    TRACKING_ERROR = 4    #: |reference - position| > SetLimits.max_error; detail = the error (rad)
-    RUNAWAY = 5           #: large drive, encoder moved against it (reversed?); detail = counts moved
-    NO_MOTION = 6         #: large drive, encoder did not move (disconnected? stalled?); detail = 0
-    SATURATION = 7        #: output at the clamp in most samples for saturation_ms (unstable loop?)
+    STOPPED = 1  #: STOP from the host
+    HOST_TIMEOUT = 2  #: no valid frame from the host for longer than host_timeout_ms
+    FAULT = 3  #: internal fault (control tick overrun, numeric error)
+    TRACKING_ERROR = 4  #: |reference - position| > SetLimits.max_error; detail = the error (rad)
+    RUNAWAY = 5  #: large drive, encoder moved against it (reversed?); detail = counts moved
+    NO_MOTION = 6  #: large drive, encoder did not move (disconnected? stalled?); detail = 0
+    SATURATION = 7  #: output at the clamp in most samples for saturation_ms (unstable loop?)
 
 
 class Planner(enum.IntEnum):
     """``Plan.planner`` values; which ones a device supports is in its capabilities."""
 
-    SINE_JERK = 0          #: Stojčić eq. 2, Stojčić eq. 3, Stojčić eq. 4, as published
+    SINE_JERK = 0  #: Stojčić eq. 2, Stojčić eq. 3, Stojčić eq. 4, as published
     SINE_JERK_OPTIMAL = 1
     SCURVE = 2
     TRAPEZOID = 3
@@ -164,8 +213,8 @@ class Planner(enum.IntEnum):
 class LoopType(enum.IntEnum):
     """``SetGains.loop``: which quantity the PID closes on."""
 
-    POSITION = 0           #: Stojčić eq. 11 design, error in rad
-    VELOCITY = 1           #: Stojčić §4B implementation, error in rad/s
+    POSITION = 0  #: Stojčić eq. 11 design, error in rad
+    VELOCITY = 1  #: Stojčić §4B implementation, error in rad/s
 
 
 class Capability(enum.IntFlag):
@@ -179,10 +228,10 @@ class Capability(enum.IntFlag):
     LOOP_VELOCITY = 1 << 5
     OPEN_LOOP_STEP = 1 << 6
     FEEDFORWARD = 1 << 7
-    SIMULATED_PLANT = 1 << 8   #: the motor is a model (virtual rig, simavr harness)
-    SEQUENCE = 1 << 12         #: open-loop PRBS excitation (SEQUENCE, version 3)
-    SHAPER = 1 << 13           #: FIR input shaper on the run reference (SET_SHAPER, version 3)
-    RETARGET = 1 << 9          #: RETARGET during a run (protocol version 3)
+    SIMULATED_PLANT = 1 << 8  #: the motor is a model (virtual rig, simavr harness)
+    SEQUENCE = 1 << 12  #: open-loop PRBS excitation (SEQUENCE, version 3)
+    SHAPER = 1 << 13  #: FIR input shaper on the run reference (SET_SHAPER, version 3)
+    RETARGET = 1 << 9  #: RETARGET during a run (protocol version 3)
 
 
 #: ``SetGains.flags`` bit: add the feedforward u_F = (tau*accel + vel)/K (Stojčić eq. 8, Stojčić eq. 16)
@@ -197,8 +246,13 @@ TELEMETRY_FAULT = 0x04
 
 # --------------------------------------------------------------------------- messages
 
-_INT_RANGES = {"B": (0, 0xFF), "H": (0, 0xFFFF), "I": (0, 0xFFFFFFFF), "h": (-0x8000, 0x7FFF),
-               "i": (-0x80000000, 0x7FFFFFFF)}
+_INT_RANGES = {
+    "B": (0, 0xFF),
+    "H": (0, 0xFFFF),
+    "I": (0, 0xFFFFFFFF),
+    "h": (-0x8000, 0x7FFF),
+    "i": (-0x80000000, 0x7FFFFFFF),
+}
 _F32_MAX = 3.4028234663852886e38
 
 
@@ -237,9 +291,16 @@ def _wire_value(msg: str, name: str, code: str, v):
         except OverflowError:
             x = math.copysign(math.inf, v)
         if math.isfinite(x) and abs(x) > _F32_MAX:
-            raise ProtocolError(f"{what}: beyond the float32 range |x| <= {_F32_MAX:.6g} of the wire")
-        if 0.0 < abs(x) < 1.1754943508222875e-38 and struct.unpack("<f", struct.pack("<f", x))[0] == 0.0:
-            raise ProtocolError(f"{what}: nonzero but below the float32 range (it would arrive as 0)")
+            raise ProtocolError(
+                f"{what}: beyond the float32 range |x| <= {_F32_MAX:.6g} of the wire"
+            )
+        if (
+            0.0 < abs(x) < 1.1754943508222875e-38
+            and struct.unpack("<f", struct.pack("<f", x))[0] == 0.0
+        ):
+            raise ProtocolError(
+                f"{what}: nonzero but below the float32 range (it would arrive as 0)"
+            )
         return x
     lo, hi = _INT_RANGES[code]
     if isinstance(v, bool) or not isinstance(v, numbers.Integral):
@@ -270,7 +331,7 @@ class _Message:
             values.append(_wire_value(type(self).__name__, f.name, code, getattr(self, f.name)))
         try:
             return struct.pack(self.FORMAT, *values)
-        except (struct.error, OverflowError, TypeError) as exc:    # pragma: no cover - checked above
+        except (struct.error, OverflowError, TypeError) as exc:  # pragma: no cover - checked above
             raise ProtocolError(f"{type(self).__name__}: cannot pack {values!r}: {exc}") from None
 
     @classmethod
@@ -278,8 +339,7 @@ class _Message:
         """Build the message from its payload bytes (ProtocolError if the length is wrong)."""
         size = struct.calcsize(cls.FORMAT)
         if len(payload) != size:
-            raise ProtocolError(
-                f"{cls.__name__} payload must be {size} bytes, got {len(payload)}")
+            raise ProtocolError(f"{cls.__name__} payload must be {size} bytes, got {len(payload)}")
         values = list(struct.unpack(cls.FORMAT, payload))
         for i, f in enumerate(dataclasses.fields(cls)):
             if isinstance(values[i], bytes):
@@ -288,6 +348,7 @@ class _Message:
 
 
 # host -> device -------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class Hello(_Message):
@@ -410,8 +471,23 @@ class Heartbeat(_Message):
 
 #: maximal-length Galois LFSR masks by order (right-shifting: ``b = s & 1; s >>= 1; if b: s ^= mask``);
 #: each gives the period 2**order - 1 (checked in tests/test_protocol.py)
-PRBS_TAPS = {2: 0x3, 3: 0x6, 4: 0xC, 5: 0x14, 6: 0x30, 7: 0x60, 8: 0xB8, 9: 0x110, 10: 0x240,
-             11: 0x500, 12: 0x829, 13: 0x100D, 14: 0x2015, 15: 0x6000, 16: 0xD008}
+PRBS_TAPS = {
+    2: 0x3,
+    3: 0x6,
+    4: 0xC,
+    5: 0x14,
+    6: 0x30,
+    7: 0x60,
+    8: 0xB8,
+    9: 0x110,
+    10: 0x240,
+    11: 0x500,
+    12: 0x829,
+    13: 0x100D,
+    14: 0x2015,
+    15: 0x6000,
+    16: 0xD008,
+}
 
 
 def prbs_bits(order: int, seed: int, n: int) -> list[int]:
@@ -481,7 +557,7 @@ class Sequence(_Message):
 
 #: RUN: each gain scaled to PWM ticks per encoder count (per count per sample in the velocity loop)
 #: must be below this (the firmware's fixed-point PID keeps a 24-bit mantissa): NACK BAD_VALUE
-RUN_GAIN_LIMIT = 2.0 ** 23
+RUN_GAIN_LIMIT = 2.0**23
 
 
 def max_run_gain(counts_per_rev, pwm_max, supply_voltage, Ts=None):
@@ -541,14 +617,21 @@ class SetShaper(_Message):
             try:
                 v = tuple(v)
             except TypeError:
-                raise ProtocolError(f"SetShaper: {name} must be a sequence, got {type(v).__name__}") from None
+                raise ProtocolError(
+                    f"SetShaper: {name} must be a sequence, got {type(v).__name__}"
+                ) from None
             if len(v) > SHAPER_MAX_TAPS:
-                raise ProtocolError(f"SetShaper: {name} has {len(v)} entries, at most {SHAPER_MAX_TAPS}")
+                raise ProtocolError(
+                    f"SetShaper: {name} has {len(v)} entries, at most {SHAPER_MAX_TAPS}"
+                )
             object.__setattr__(self, name, v + (0,) * (SHAPER_MAX_TAPS - len(v)))
 
     def pack(self) -> bytes:
         n = _wire_value("SetShaper", "n_taps", "B", self.n_taps)
-        a = [_wire_value("SetShaper", f"amplitudes[{i}]", "f", x) for i, x in enumerate(self.amplitudes)]
+        a = [
+            _wire_value("SetShaper", f"amplitudes[{i}]", "f", x)
+            for i, x in enumerate(self.amplitudes)
+        ]
         d = [_wire_value("SetShaper", f"delays[{i}]", "B", x) for i, x in enumerate(self.delays)]
         return struct.pack(self.FORMAT, n, *a, *d)
 
@@ -559,6 +642,8 @@ class SetShaper(_Message):
             raise ProtocolError(f"{cls.__name__} payload must be {size} bytes, got {len(payload)}")
         v = struct.unpack(cls.FORMAT, payload)
         return cls(v[0], tuple(v[1:11]), tuple(v[11:21]))
+
+
 @dataclass(frozen=True)
 class Retarget(_Message):
     """Change the target of the running move to ``distance`` rad from the run's start point.
@@ -576,6 +661,7 @@ class Retarget(_Message):
 
 
 # device -> host -------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class Ack(_Message):
@@ -671,9 +757,30 @@ class DeviceError(_Message):
     detail: int = 0
 
 
-MESSAGES: dict[int, type] = {cls.TYPE: cls for cls in (
-    Hello, SetPlant, SetGains, SetLimits, Plan, Run, Stop, Step, Heartbeat, Sequence, SetShaper, Retarget,
-    Ack, Nack, HelloReply, PlanInfo, Telemetry, EndOfRun, DeviceError)}
+MESSAGES: dict[int, type] = {
+    cls.TYPE: cls
+    for cls in (
+        Hello,
+        SetPlant,
+        SetGains,
+        SetLimits,
+        Plan,
+        Run,
+        Stop,
+        Step,
+        Heartbeat,
+        Sequence,
+        SetShaper,
+        Retarget,
+        Ack,
+        Nack,
+        HelloReply,
+        PlanInfo,
+        Telemetry,
+        EndOfRun,
+        DeviceError,
+    )
+}
 
 
 def payload_field_name(command: int, index: int) -> str:
@@ -691,6 +798,7 @@ def payload_field_name(command: int, index: int) -> str:
 
 
 # --------------------------------------------------------------------------- frames
+
 
 @dataclass(frozen=True)
 class Frame:
@@ -713,7 +821,11 @@ class Frame:
 
 def encode_frame(msg_type: int, seq: int, payload: bytes = b"") -> bytes:
     """Bytes on the wire for one frame (sync, len, type, seq, payload, CRC-16 LE)."""
-    if isinstance(msg_type, bool) or not isinstance(msg_type, numbers.Integral) or not 0 <= msg_type <= 0xFF:
+    if (
+        isinstance(msg_type, bool)
+        or not isinstance(msg_type, numbers.Integral)
+        or not 0 <= msg_type <= 0xFF
+    ):
         raise ProtocolError(f"msg_type must be a byte (0..255), got {msg_type!r}")
     if isinstance(seq, bool) or not isinstance(seq, numbers.Integral) or not 0 <= seq <= 0xFF:
         raise ProtocolError(f"seq must be a byte (0..255), got {seq!r}")
@@ -743,11 +855,11 @@ def parse(frame: Frame):
 class DecoderStats:
     """What a :class:`Decoder` has seen.  ``dropped`` = frames lost to corruption."""
 
-    frames: int = 0           #: good frames returned
-    bad_crc: int = 0          #: candidate frames whose CRC failed (corrupt or truncated)
-    bad_length: int = 0       #: candidate frames with len outside 2..66
-    truncated: int = 0        #: incomplete frames discarded by ``flush`` (end of stream / timeout)
-    skipped_bytes: int = 0    #: bytes outside any good frame (noise, garbage, lost frames)
+    frames: int = 0  #: good frames returned
+    bad_crc: int = 0  #: candidate frames whose CRC failed (corrupt or truncated)
+    bad_length: int = 0  #: candidate frames with len outside 2..66
+    truncated: int = 0  #: incomplete frames discarded by ``flush`` (end of stream / timeout)
+    skipped_bytes: int = 0  #: bytes outside any good frame (noise, garbage, lost frames)
 
     @property
     def dropped(self) -> int:
@@ -766,7 +878,7 @@ class Decoder:
 
     def __init__(self) -> None:
         self._buf = bytearray()
-        self._base = 0                 # stream offset of self._buf[0]
+        self._base = 0  # stream offset of self._buf[0]
         self.stats = DecoderStats()
 
     @property
@@ -795,7 +907,7 @@ class Decoder:
             stats.skipped_bytes += i - pos
             pos = i
             if n - i < 3:
-                break                                   # need the length byte
+                break  # need the length byte
             length = buf[i + 2]
             if length < 2 or length > MAX_PAYLOAD + 2:
                 stats.bad_length += 1
@@ -804,8 +916,8 @@ class Decoder:
                 continue
             end = i + 3 + length + 2
             if end > n:
-                break                                   # wait for more bytes
-            body = bytes(buf[i + 2:i + 3 + length])
+                break  # wait for more bytes
+            body = bytes(buf[i + 2 : i + 3 + length])
             crc = buf[end - 2] | (buf[end - 1] << 8)
             if _crc(body) != crc:
                 stats.bad_crc += 1
@@ -833,7 +945,6 @@ class Decoder:
             self.stats.skipped_bytes += 1
             rest = bytes(self._buf[1:])
             self._buf.clear()
-            self._base += 1                  # rest[0] is the next stream byte
+            self._base += 1  # rest[0] is the next stream byte
             out += self.feed(rest)
         return out
-

@@ -7,6 +7,7 @@ by ``pyproject.toml``, nothing moved in the repository). :func:`share_path` retu
 exists, the clone first. Students never write there: ``jerklab lab`` copies the notebooks and
 data into a working folder (:func:`copy_missing`), and recordings go under the working folder.
 """
+
 from __future__ import annotations
 
 import os
@@ -67,8 +68,10 @@ def copy_missing(work_dir, names=("notebooks", "data")) -> tuple[list[Path], lis
     for name in names:
         src = share_path(name)
         if not src.is_dir():
-            raise FileNotFoundError(f"jerklab's {name}/ folder is missing from {src.parent} "
-                                    "(a broken install? pip install --force-reinstall jerklab)")
+            raise FileNotFoundError(
+                f"jerklab's {name}/ folder is missing from {src.parent} "
+                "(a broken install? pip install --force-reinstall jerklab)"
+            )
         for rel in _files(src):
             dst = work / name / rel
             if dst.exists():

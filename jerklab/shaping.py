@@ -61,6 +61,7 @@ flexible spacecraft", J. Guidance Control Dyn. 19 (1996). Klipper, docs/Resonanc
 Xu & Meckl, robust time-optimal command shaping (Xu & Meckl eq. 3, Xu & Meckl eq. 5,
 Xu & Meckl eq. 13, Xu & Meckl eq. 19).
 """
+
 from __future__ import annotations
 
 import functools
@@ -74,20 +75,45 @@ from scipy.optimize import brentq, fsolve
 from jerklab._validate import as_finite_array, as_nonnegative, as_positive, as_real
 
 __all__ = [
-    "KINDS", "InputShaper", "input_shaper", "residual_vibration_of", "insensitivity_table",
-    "chirp_input", "ModeFit", "identify_mode", "profile_residual_vibration", "tuned_profile",
-    "move_time_comparison", "RobustMove", "robust_move_rows", "robust_move", "energy_optimal_move",
-    "Tradeoff", "tradeoff", "residual_amplitude", "flexible_mode",
+    "KINDS",
+    "InputShaper",
+    "input_shaper",
+    "residual_vibration_of",
+    "insensitivity_table",
+    "chirp_input",
+    "ModeFit",
+    "identify_mode",
+    "profile_residual_vibration",
+    "tuned_profile",
+    "move_time_comparison",
+    "RobustMove",
+    "robust_move_rows",
+    "robust_move",
+    "energy_optimal_move",
+    "Tradeoff",
+    "tradeoff",
+    "residual_amplitude",
+    "flexible_mode",
 ]
 
 #: the shaper kinds, in order of duration (aliases are accepted: "2-hump EI", "EI3", ...)
 KINDS = ("zv", "mzv", "zvd", "zvdd", "ei", "2hump_ei", "3hump_ei")
 
 _ALIASES = {
-    "zv": "zv", "mzv": "mzv", "zvd": "zvd", "zvdd": "zvdd", "ei": "ei",
-    "2hump_ei": "2hump_ei", "2humpei": "2hump_ei", "ei2": "2hump_ei", "2ei": "2hump_ei",
+    "zv": "zv",
+    "mzv": "mzv",
+    "zvd": "zvd",
+    "zvdd": "zvdd",
+    "ei": "ei",
+    "2hump_ei": "2hump_ei",
+    "2humpei": "2hump_ei",
+    "ei2": "2hump_ei",
+    "2ei": "2hump_ei",
     "twohumpei": "2hump_ei",
-    "3hump_ei": "3hump_ei", "3humpei": "3hump_ei", "ei3": "3hump_ei", "3ei": "3hump_ei",
+    "3hump_ei": "3hump_ei",
+    "3humpei": "3hump_ei",
+    "ei3": "3hump_ei",
+    "3ei": "3hump_ei",
     "threehumpei": "3hump_ei",
 }
 
@@ -101,14 +127,18 @@ DEFAULT_VTOL = 0.05
 
 def _kind(kind) -> str:
     if not isinstance(kind, str):
-        raise TypeError(f"kind must be a str such as 'zvd' or '2-hump EI', got {type(kind).__name__}")
+        raise TypeError(
+            f"kind must be a str such as 'zvd' or '2-hump EI', got {type(kind).__name__}"
+        )
     key = re.sub(r"[\s\-]+", "", kind.strip().lower())
     key2 = key.replace("_", "")
     for k in (key, key2):
         if k in _ALIASES:
             return _ALIASES[k]
-    raise ValueError(f"kind must be one of {', '.join(KINDS)} (case-insensitive; '2-hump EI' style "
-                     f"aliases accepted), got {kind!r}")
+    raise ValueError(
+        f"kind must be one of {', '.join(KINDS)} (case-insensitive; '2-hump EI' style "
+        f"aliases accepted), got {kind!r}"
+    )
 
 
 def _damping(name, zeta) -> float:
@@ -138,7 +168,9 @@ def residual_vibration_of(amplitudes, times, frequency_hz, damping=0.0):
     A = as_finite_array("amplitudes", amplitudes, ndim=1)
     t = as_finite_array("times", times, ndim=1)
     if A.shape != t.shape or A.size == 0:
-        raise ValueError(f"amplitudes and times must have the same non-zero length, got {A.size}, {t.size}")
+        raise ValueError(
+            f"amplitudes and times must have the same non-zero length, got {A.size}, {t.size}"
+        )
     s = A.sum()
     if s == 0:
         raise ValueError("amplitudes must not sum to 0 (the command would move nothing)")
@@ -177,9 +209,13 @@ def _band(curve, tolerance, r_max=_R_MAX):
         if i in (0, r.size - 1):
             edges.append(float(r[i]))
         else:
-            edges.append(brentq(lambda x: float(curve(np.array([x]))[0]) - tol, r[i], r[i + step], xtol=1e-10))
+            edges.append(
+                brentq(
+                    lambda x: float(curve(np.array([x]))[0]) - tol, r[i], r[i + step], xtol=1e-10
+                )
+            )
     lo, hi = sorted(edges)
-    if not lo <= 1.0 <= hi:                  # the band must hold the nominal mode
+    if not lo <= 1.0 <= hi:  # the band must hold the nominal mode
         return (math.nan, math.nan)
     return (lo, hi)
 
@@ -208,7 +244,7 @@ def _features(A, t, zeta, m):
     v = _v_impulses(A, t, 2 * math.pi * r, zeta)
     mins = [i for i in range(1, r.size - 1) if v[i] <= v[i - 1] and v[i] < v[i + 1]]
     maxs = [i for i in range(1, r.size - 1) if v[i] >= v[i - 1] and v[i] > v[i + 1]]
-    mins = sorted(sorted(mins, key=lambda i: abs(r[i] - 1))[:m + 1])
+    mins = sorted(sorted(mins, key=lambda i: abs(r[i] - 1))[: m + 1])
     maxs = [i for i in maxs if r[mins[0]] < r[i] < r[mins[-1]]]
     return r[mins], r[maxs]
 
@@ -225,8 +261,8 @@ def _ei_design(m: int, zeta: float, V: float):
     h = 1e-6
 
     def eqs(x, z):
-        A, tt = x[:n], np.concatenate([[0.0], x[n:2 * n - 1]])
-        zr, hr = x[2 * n - 1:2 * n + m], x[2 * n + m:]
+        A, tt = x[:n], np.concatenate([[0.0], x[n : 2 * n - 1]])
+        zr, hr = x[2 * n - 1 : 2 * n + m], x[2 * n + m :]
         wd = math.sqrt(1 - z * z)
         out = [A.sum() - 1.0]
         for r in zr:
@@ -249,9 +285,11 @@ def _ei_design(m: int, zeta: float, V: float):
         else:
             dz /= 2
             if dz < 1e-4:
-                raise ValueError(f"damping = {zeta!r}: the {m}-hump EI conditions have no solution near "
-                                 f"the undamped one ({msg.strip()})")
-    A, tt = x[:n], np.concatenate([[0.0], x[n:2 * n - 1]])
+                raise ValueError(
+                    f"damping = {zeta!r}: the {m}-hump EI conditions have no solution near "
+                    f"the undamped one ({msg.strip()})"
+                )
+    A, tt = x[:n], np.concatenate([[0.0], x[n : 2 * n - 1]])
     if np.any(A <= 0) or np.any(np.diff(tt) <= 0):
         raise ValueError(f"damping = {zeta!r}: the {m}-hump EI design loses positive amplitudes")
     return A, tt
@@ -300,8 +338,13 @@ class InputShaper:
         obj = object.__new__(cls)
         amplitudes.setflags(write=False)
         times.setflags(write=False)
-        for name, value in (("kind", kind), ("frequency_hz", frequency_hz), ("damping", damping),
-                            ("amplitudes", amplitudes), ("times", times)):
+        for name, value in (
+            ("kind", kind),
+            ("frequency_hz", frequency_hz),
+            ("damping", damping),
+            ("amplitudes", amplitudes),
+            ("times", times),
+        ):
             object.__setattr__(obj, name, value)
         return obj
 
@@ -333,7 +376,9 @@ class InputShaper:
             zs = [_damping("damping", z) for z in damping]
             if not zs:
                 raise ValueError("damping must not be an empty sequence")
-            return 100.0 * np.max([_v_impulses(self.amplitudes, self.times, w, z) for z in zs], axis=0)
+            return 100.0 * np.max(
+                [_v_impulses(self.amplitudes, self.times, w, z) for z in zs], axis=0
+            )
         zeta = self.damping if damping is None else _damping("damping", damping)
         return 100.0 * _v_impulses(self.amplitudes, self.times, w, zeta)
 
@@ -374,7 +419,9 @@ class InputShaper:
         a[a < 1e-9] = 0.0
         n = int(k[-1]) + (2 if a[-1] > 0 else 1)
         if n > 1_000_000:
-            raise ValueError(f"Ts = {Ts!r} s gives {n} taps for a {self.duration:g} s shaper (too many)")
+            raise ValueError(
+                f"Ts = {Ts!r} s gives {n} taps for a {self.duration:g} s shaper (too many)"
+            )
         h = np.zeros(n)
         np.add.at(h, k, self.amplitudes * (1 - a))
         np.add.at(h, np.minimum(k + 1, n - 1), self.amplitudes * a)
@@ -385,6 +432,7 @@ class InputShaper:
         ``2**frac_bits`` (largest-remainder rounding: each tap within one unit of ``2**frac_bits·h``),
         so a shaped move still ends exactly on its target. Returns an ``int64`` array."""
         from jerklab._validate import as_int
+
         b = as_int("frac_bits", frac_bits, minimum=1)
         if b > 30:
             raise ValueError(f"frac_bits must be <= 30, got {b}")
@@ -414,7 +462,7 @@ class InputShaper:
         m = r.size + (n if extend else 0)
         acc = np.zeros(m, dtype=np.int64)
         for j in np.flatnonzero(q):
-            acc += q[j] * x[n - j:n - j + m]
+            acc += q[j] * x[n - j : n - j + m]
         return (acc + (1 << (b - 1))) >> b
 
     def digitized(self, Ts) -> "InputShaper":
@@ -441,8 +489,8 @@ class InputShaper:
         x = np.concatenate([np.full(n, r[0]), r, np.full(n if extend else 0, r[-1])])
         m = r.size + (n if extend else 0)
         y = np.zeros(m)
-        for j in np.flatnonzero(h):              # at most two taps per impulse: a sparse FIR
-            y += h[j] * x[n - j:n - j + m]
+        for j in np.flatnonzero(h):  # at most two taps per impulse: a sparse FIR
+            y += h[j] * x[n - j : n - j + m]
         return y
 
 
@@ -452,7 +500,7 @@ def _closed_form(kind, f, zeta):
     K = math.exp(-zeta * math.pi / df)
     if kind in ("zv", "zvd", "zvdd"):
         n = {"zv": 1, "zvd": 2, "zvdd": 3}[kind]
-        A = np.array([math.comb(n, i) * K ** i for i in range(n + 1)])
+        A = np.array([math.comb(n, i) * K**i for i in range(n + 1)])
         return A / A.sum(), 0.5 * Td * np.arange(n + 1)
     if kind == "mzv":
         K3 = math.exp(-0.75 * zeta * math.pi / df)
@@ -497,8 +545,10 @@ def input_shaper(kind, frequency_hz, damping=0.0, vtol=DEFAULT_VTOL) -> InputSha
     if kind in ("ei", "2hump_ei", "3hump_ei"):
         m = {"ei": 1, "2hump_ei": 2, "3hump_ei": 3}[kind]
         if zeta > EI_MAX_DAMPING[kind]:
-            raise ValueError(f"damping must be <= {EI_MAX_DAMPING[kind]} for the {kind} shaper (above it the "
-                             f"humps merge and the design conditions have no solution), got {zeta!r}")
+            raise ValueError(
+                f"damping must be <= {EI_MAX_DAMPING[kind]} for the {kind} shaper (above it the "
+                f"humps merge and the design conditions have no solution), got {zeta!r}"
+            )
         A, tn = _ei_design(m, round(zeta, 12), round(vtol, 12))
         return InputShaper._trusted(kind, f, zeta, A / A.sum(), tn / f)
     A, t = _closed_form(kind, f, zeta)
@@ -531,10 +581,14 @@ def chirp_input(duration, Ts, amplitude, f0, f1, offset=0.0):
     f1 = as_positive("f1", f1)
     offset = as_real("offset", offset)
     if max(f0, f1) >= 0.5 / Ts:
-        raise ValueError(f"f1 and f0 must lie below the Nyquist frequency {0.5 / Ts:g} Hz, got {f0:g}, {f1:g}")
+        raise ValueError(
+            f"f1 and f0 must lie below the Nyquist frequency {0.5 / Ts:g} Hz, got {f0:g}, {f1:g}"
+        )
     n = int(round(duration / Ts))
     if n < 2:
-        raise ValueError(f"duration must span at least 2 samples of Ts = {Ts:g} s, got {duration:g}")
+        raise ValueError(
+            f"duration must span at least 2 samples of Ts = {Ts:g} s, got {duration:g}"
+        )
     t = np.arange(n) * Ts
     return offset + amplitude * np.sin(2 * math.pi * (f0 * t + 0.5 * (f1 - f0) * t * t / duration))
 
@@ -544,10 +598,14 @@ def _flex_matrices(K, tau, ratio, wr, zr):
     Jl = tau * ratio / (1.0 + ratio)
     k = wr * wr * Jl
     c = 2.0 * zr * wr * Jl
-    A = np.array([[0.0, 1.0, 0.0, 0.0],
-                  [-k / Jm, -(1.0 + c) / Jm, k / Jm, c / Jm],
-                  [0.0, 0.0, 0.0, 1.0],
-                  [k / Jl, c / Jl, -k / Jl, -c / Jl]])
+    A = np.array(
+        [
+            [0.0, 1.0, 0.0, 0.0],
+            [-k / Jm, -(1.0 + c) / Jm, k / Jm, c / Jm],
+            [0.0, 0.0, 0.0, 1.0],
+            [k / Jl, c / Jl, -k / Jl, -c / Jl],
+        ]
+    )
     B = np.array([0.0, K / Jm, 0.0, 0.0])
     return A, B
 
@@ -579,6 +637,7 @@ def _flex_simulate(p, u, Ts):
     (``scipy.linalg.expm`` of the augmented matrix gives the same, two orders slower).
     """
     from scipy.signal import lfilter
+
     K, tau, ratio, wr, zr = np.exp(p[:5])
     A, B = _flex_matrices(K, tau, ratio, wr, zr)
     lam, V = np.linalg.eig(A)
@@ -589,7 +648,7 @@ def _flex_simulate(p, u, Ts):
     Phi = np.real((V * e) @ Vi)
     Gam = np.real((V * phi) @ (Vi @ B))
     den = np.real(np.poly(e))
-    num = np.real(np.poly(Phi - np.outer(Gam, [1.0, 0, 0, 0]))) - den     # C (zI − Φ)^-1 Γ, C = e1
+    num = np.real(np.poly(Phi - np.outer(Gam, [1.0, 0, 0, 0]))) - den  # C (zI − Φ)^-1 Γ, C = e1
     return lfilter(num, den, np.concatenate([u, [0.0]]))
 
 
@@ -620,6 +679,7 @@ class ModeFit:
     def model(self):
         """The fitted plant as an ideal :class:`jerklab.plant.FlexibleDCMotor`."""
         from jerklab.plant import FlexibleDCMotor
+
         return FlexibleDCMotor(**self.params).ideal()
 
     @staticmethod
@@ -681,6 +741,7 @@ def identify_mode(u, y=None, Ts=None, f_range=None, max_nfev=400, margin=0.0):
     from scipy.signal import csd, welch
 
     from jerklab.ident import IdentData
+
     if isinstance(u, IdentData):
         if y is not None or Ts is not None:
             raise TypeError("y and Ts must be left out when u is an IdentData record")
@@ -694,7 +755,9 @@ def identify_mode(u, y=None, Ts=None, f_range=None, max_nfev=400, margin=0.0):
     if y.size == u.size:
         u = u[:-1]
     if y.size != u.size + 1:
-        raise ValueError(f"y must have len(u) + 1 (or len(u)) samples, got {y.size} for {u.size + 1}")
+        raise ValueError(
+            f"y must have len(u) + 1 (or len(u)) samples, got {y.size} for {u.size + 1}"
+        )
     if u.size < 64:
         raise ValueError(f"u must have at least 64 samples, got {u.size}")
     if np.ptp(u) == 0:
@@ -713,7 +776,11 @@ def identify_mode(u, y=None, Ts=None, f_range=None, max_nfev=400, margin=0.0):
     def resid(q, nmode=True):
         # output error on the angle increments: an integrating plant's angle error grows with
         # any gain error, its increments do not (the same minimum, a better-shaped cost)
-        p = q[:5] if nmode else np.r_[q[:2], math.log(1e-6), math.log(2 * math.pi * fmax), math.log(0.5)]
+        p = (
+            q[:5]
+            if nmode
+            else np.r_[q[:2], math.log(1e-6), math.log(2 * math.pi * fmax), math.log(0.5)]
+        )
         with np.errstate(all="ignore"):
             try:
                 r = (np.diff(_flex_simulate(p, u, Ts)) - dy_meas) / scale
@@ -722,7 +789,9 @@ def identify_mode(u, y=None, Ts=None, f_range=None, max_nfev=400, margin=0.0):
         return np.where(np.isfinite(r), r, 1e6)
 
     # stage 1: rigid K, τ (a negligible load far above the band)
-    q0 = np.array([math.log(max(np.ptp(y) / max(np.abs(u).sum() * Ts, 1e-12), 1e-6)), math.log(20 * Ts)])
+    q0 = np.array(
+        [math.log(max(np.ptp(y) / max(np.abs(u).sum() * Ts, 1e-12), 1e-6)), math.log(20 * Ts)]
+    )
     best = None
     for ltau in (math.log(5 * Ts), math.log(20 * Ts), math.log(100 * Ts)):
         q0[1] = ltau
@@ -739,10 +808,10 @@ def identify_mode(u, y=None, Ts=None, f_range=None, max_nfev=400, margin=0.0):
     nper = min(u.size, 1 << max(6, int(math.log2(u.size / 4))))
     f, Puy = csd(u, dy, fs=1 / Ts, nperseg=nper)
     _, Puu = welch(u, fs=1 / Ts, nperseg=nper)
-    H = Puy / np.where(Puu > 0, Puu, np.inf)          # Δθ per sample / V
+    H = Puy / np.where(Puu > 0, Puu, np.inf)  # Δθ per sample / V
     band = (f >= f_lo) & (f <= f_hi) & (f > 0)
     s = 2j * math.pi * np.where(band, f, 1.0)
-    rigid = K0 / (s * (tau0 * s + 1)) * (1 - np.exp(-s * Ts))   # Δθ per sample per V (ZOH ignored)
+    rigid = K0 / (s * (tau0 * s + 1)) * (1 - np.exp(-s * Ts))  # Δθ per sample per V (ZOH ignored)
     ratio = np.abs(H[band] / np.where(np.abs(rigid[band]) > 0, rigid[band], np.nan))
     fb = f[band]
     starts = []
@@ -757,8 +826,15 @@ def identify_mode(u, y=None, Ts=None, f_range=None, max_nfev=400, margin=0.0):
     for fc, fr in starts:
         lr = min(max((fc / fr) ** 2 - 1.0, 0.01), 3.0)
         for zr in (0.02, 0.1):
-            q = np.array([math.log(K0), math.log(tau0), math.log(lr), math.log(2 * math.pi * fr),
-                          math.log(zr)])
+            q = np.array(
+                [
+                    math.log(K0),
+                    math.log(tau0),
+                    math.log(lr),
+                    math.log(2 * math.pi * fr),
+                    math.log(zr),
+                ]
+            )
             try:
                 with np.errstate(all="ignore"):
                     r = least_squares(resid, q, method="trf", max_nfev=60, x_scale="jac")
@@ -769,8 +845,13 @@ def identify_mode(u, y=None, Ts=None, f_range=None, max_nfev=400, margin=0.0):
     if best is None:
         raise RuntimeError("identify_mode: no start value gave a finite fit")
     with np.errstate(all="ignore"):
-        r = least_squares(resid, best.x, method="trf", max_nfev=int(as_positive("max_nfev", max_nfev)),
-                          x_scale="jac")
+        r = least_squares(
+            resid,
+            best.x,
+            method="trf",
+            max_nfev=int(as_positive("max_nfev", max_nfev)),
+            x_scale="jac",
+        )
     q = r.x
     e = r.fun * scale
     dof = max(e.size - q.size, 1)
@@ -784,16 +865,26 @@ def identify_mode(u, y=None, Ts=None, f_range=None, max_nfev=400, margin=0.0):
         qp, qm = q.copy(), q.copy()
         qp[i] += h
         qm[i] -= h
-        G[:, i] = (np.array(_coupled_mode(*np.exp(qp[:5]))) - np.array(_coupled_mode(*np.exp(qm[:5])))) / (2 * h)
+        G[:, i] = (
+            np.array(_coupled_mode(*np.exp(qp[:5]))) - np.array(_coupled_mode(*np.exp(qm[:5])))
+        ) / (2 * h)
     cf = G @ cov @ G.T
     f_se, z_se = (math.sqrt(max(v, 0.0)) for v in np.diag(cf))
     fit = 100.0 * (1 - np.linalg.norm(e) / np.linalg.norm(dy_meas - dy_meas.mean()))
     K, tau, lr, wr, zr = (float(v) for v in np.exp(q[:5]))
     shaper = ModeFit.recommend(fm, zm, f_se, margin=margin)
     jt = 1.0 / (fm * math.sqrt(max(1 - zm * zm, 1e-12)))
-    return ModeFit(frequency_hz=fm, damping=zm, frequency_se=f_se, damping_se=z_se,
-                   params=dict(K=K, tau=tau, load_ratio=lr, mode_frequency=wr, mode_damping=zr),
-                   fit_percent=float(fit), shaper=shaper, jerk_time=jt, residual_std=math.sqrt(s2))
+    return ModeFit(
+        frequency_hz=fm,
+        damping=zm,
+        frequency_se=f_se,
+        damping_se=z_se,
+        params=dict(K=K, tau=tau, load_ratio=lr, mode_frequency=wr, mode_damping=zr),
+        fit_percent=float(fit),
+        shaper=shaper,
+        jerk_time=jt,
+        residual_std=math.sqrt(s2),
+    )
 
 
 # ----------------------------------------------------------------------------------------------
@@ -821,8 +912,11 @@ def _half_sine(sig, L):
     a = math.pi / L
     d = sig * sig + a * a
     sing = np.abs(d) < 1e-9 * a * a
-    return np.where(sing, math.pi / 4 * np.exp(-0.5j * math.pi),
-                    0.5 * a * a * (1 + np.exp(-sig * L)) / np.where(sing, 1.0, d))
+    return np.where(
+        sing,
+        math.pi / 4 * np.exp(-0.5j * math.pi),
+        0.5 * a * a * (1 + np.exp(-sig * L)) / np.where(sing, 1.0, d),
+    )
 
 
 def _raised_cosine(sig, L):
@@ -842,6 +936,7 @@ def _profile_factors(profile):
     """The velocity/distance of a planner profile as a convolution of unit pulses:
     ``[(shape, length), ...]`` (shape in "box", "half_sine", "raised_cosine")."""
     from jerklab.planner import Profile
+
     if not isinstance(profile, Profile):
         raise TypeError(f"profile must be a jerklab.planner Profile, got {type(profile).__name__}")
     if profile.distance == 0.0:
@@ -895,7 +990,9 @@ def profile_residual_vibration(profile, frequency_hz, damping=0.0):
     return float(v) if np.ndim(frequency_hz) == 0 else v
 
 
-def tuned_profile(kind, distance, frequency_hz, max_accel, max_velocity, max_jerk=None, damping=0.0):
+def tuned_profile(
+    kind, distance, frequency_hz, max_accel, max_velocity, max_jerk=None, damping=0.0
+):
     """The profile of ``kind`` with its jerk (or acceleration) time set on a spectral zero of the mode.
 
     * ``"scurve"``: the jerk time ``t_j = T_d = 1/f_d`` (the box of the jerk pulse has its first zero
@@ -918,6 +1015,7 @@ def tuned_profile(kind, distance, frequency_hz, max_accel, max_velocity, max_jer
     jerklab.planner.Profile
     """
     from jerklab import planner
+
     kind = str(kind)
     d = as_real("distance", distance)
     f = as_positive("frequency_hz", frequency_hz)
@@ -934,9 +1032,9 @@ def tuned_profile(kind, distance, frequency_hz, max_accel, max_velocity, max_jer
         # two boxes, box(t_a) and box(t_a + t_v): round the cheaper one up to whole periods
         base = planner.plan_trapezoid(ad, A, V)
         ta0, tv0, _ = base.phase_times
-        ta = max(1, math.ceil(ta0 / Td - 1e-9)) * Td            # option 1: the acceleration time
-        p1 = planner.plan_trapezoid(d, min(V / ta, ad / ta ** 2), V)
-        L2 = max(1, math.ceil((ta0 + tv0) / Td - 1e-9)) * Td    # option 2: the time between ramps
+        ta = max(1, math.ceil(ta0 / Td - 1e-9)) * Td  # option 1: the acceleration time
+        p1 = planner.plan_trapezoid(d, min(V / ta, ad / ta**2), V)
+        L2 = max(1, math.ceil((ta0 + tv0) / Td - 1e-9)) * Td  # option 2: the time between ramps
         v = ad / L2
         p2 = planner.plan_trapezoid(d, v / ta0, v * (1 + 1e-12))
         return p1 if p1.duration <= p2.duration else p2
@@ -950,13 +1048,16 @@ def tuned_profile(kind, distance, frequency_hz, max_accel, max_velocity, max_jer
         return planner.plan_sine_jerk_optimal(d, math.pi * A2 / (2 * tj), A2, V)
     if kind == "sine_jerk":
         T = 2 * Td
-        J = min(A * math.pi / T, 2 * math.pi * ad / T ** 3, 2 * math.pi * V / T ** 2)
+        J = min(A * math.pi / T, 2 * math.pi * ad / T**3, 2 * math.pi * V / T**2)
         return planner.plan_sine_jerk(d, J, A, V)
-    raise ValueError(f"kind must be 'trapezoid', 'scurve', 'sine_jerk' or 'sine_jerk_optimal', got {kind!r}")
+    raise ValueError(
+        f"kind must be 'trapezoid', 'scurve', 'sine_jerk' or 'sine_jerk_optimal', got {kind!r}"
+    )
 
 
-def move_time_comparison(distance, frequency_hz, max_accel, max_velocity, damping=0.0,
-                         shapers=("zv", "zvd", "ei")):
+def move_time_comparison(
+    distance, frequency_hz, max_accel, max_velocity, damping=0.0, shapers=("zv", "zvd", "ei")
+):
     """Move time of a zero-ringing move: a tuned profile against a shaped time-optimal trapezoid.
 
     The baseline is the time-optimal trapezoid under ``max_accel``, ``max_velocity`` (it rings).
@@ -968,18 +1069,34 @@ def move_time_comparison(distance, frequency_hz, max_accel, max_velocity, dampin
     the jerk time ``1/f`` is added almost entirely.
     """
     from jerklab import planner
+
     base = planner.plan_trapezoid(distance, max_accel, max_velocity)
-    out = {"trapezoid": {"duration": base.duration, "penalty": 0.0,
-                         "residual": profile_residual_vibration(base, frequency_hz, damping)}}
+    out = {
+        "trapezoid": {
+            "duration": base.duration,
+            "penalty": 0.0,
+            "residual": profile_residual_vibration(base, frequency_hz, damping),
+        }
+    }
     for kind in ("trapezoid", "scurve", "sine_jerk_optimal", "sine_jerk"):
         p = tuned_profile(kind, distance, frequency_hz, max_accel, max_velocity, damping=damping)
-        out[f"tuned {kind}"] = {"duration": p.duration, "penalty": p.duration - base.duration,
-                                "residual": profile_residual_vibration(p, frequency_hz, damping)}
+        out[f"tuned {kind}"] = {
+            "duration": p.duration,
+            "penalty": p.duration - base.duration,
+            "residual": profile_residual_vibration(p, frequency_hz, damping),
+        }
     for k in shapers:
         s = input_shaper(k, frequency_hz, damping)
-        r = s.residual_vibration(frequency_hz, damping) * profile_residual_vibration(base, frequency_hz, damping) / 100
-        out[f"trapezoid + {_kind(k).upper()}"] = {"duration": base.duration + s.duration,
-                                                  "penalty": s.duration, "residual": r}
+        r = (
+            s.residual_vibration(frequency_hz, damping)
+            * profile_residual_vibration(base, frequency_hz, damping)
+            / 100
+        )
+        out[f"trapezoid + {_kind(k).upper()}"] = {
+            "duration": base.duration + s.duration,
+            "penalty": s.duration,
+            "residual": r,
+        }
     return out
 
 
@@ -1073,7 +1190,12 @@ class RobustMove:
         sig = _sigma(self.mode_hz * r, zeta)[:, None]
         k = np.arange(self.u.size)
         T = self.u.size * self.Ts
-        F = np.exp(sig * (k * self.Ts - T)) @ self.u * _box(sig[:, 0], self.Ts) * np.exp(sig[:, 0] * self.Ts)
+        F = (
+            np.exp(sig * (k * self.Ts - T))
+            @ self.u
+            * _box(sig[:, 0], self.Ts)
+            * np.exp(sig[:, 0] * self.Ts)
+        )
         return 100.0 * np.abs(F) / abs(self.u.sum())
 
     def residual_vibration(self, frequency_hz, damping=None):
@@ -1084,10 +1206,13 @@ class RobustMove:
 
 def _flex_model(model):
     from jerklab.plant import FlexibleDCMotor
+
     if model is None:
         return FlexibleDCMotor()
     if not isinstance(model, FlexibleDCMotor):
-        raise TypeError(f"model must be a jerklab.plant.FlexibleDCMotor, got {type(model).__name__}")
+        raise TypeError(
+            f"model must be a jerklab.plant.FlexibleDCMotor, got {type(model).__name__}"
+        )
     return model
 
 
@@ -1117,6 +1242,7 @@ def robust_move(distance, model=None, Ts=0.005, order=0, u_max=None, max_samples
         Voltage limit, V (default the model's supply voltage, else 12 V).
     """
     from jerklab import piezo
+
     model = _flex_model(model)
     d = as_real("distance", distance)
     if d == 0.0:
@@ -1124,6 +1250,7 @@ def robust_move(distance, model=None, Ts=0.005, order=0, u_max=None, max_samples
     Ts = as_positive("Ts", Ts)
     if order is not None:
         from jerklab._validate import as_int
+
         order = as_int("order", order, minimum=0)
         if order > 4:
             raise ValueError(f"order must be <= 4, got {order}")
@@ -1131,6 +1258,7 @@ def robust_move(distance, model=None, Ts=0.005, order=0, u_max=None, max_samples
     if solver not in ("lp", "highs", "lsq"):
         raise ValueError(f"solver must be 'lp', 'highs' or 'lsq', got {solver!r}")
     from jerklab._validate import as_int
+
     max_samples = as_int("max_samples", max_samples, minimum=2)
     count = [0]
     real, cplx = _zoh_poles(model, Ts)
@@ -1139,7 +1267,7 @@ def robust_move(distance, model=None, Ts=0.005, order=0, u_max=None, max_samples
 
     def make(N, how):
         count[0] += 1
-        if N < n_rows:                       # fewer samples than conditions: a zero row at best
+        if N < n_rows:  # fewer samples than conditions: a zero row at best
             return None
         if order is None:
             E = np.vstack([np.ones(N)] + [np.real(_poly_rows(N, z, 0)) for z in real])
@@ -1150,11 +1278,21 @@ def robust_move(distance, model=None, Ts=0.005, order=0, u_max=None, max_samples
             E, f = robust_move_rows(N, model, Ts, d, order)
         return piezo._solve_lp(E, f, None, None, [(-U, U)] * N, N, how)
 
-    n_lo = max(1, math.ceil(abs(d) / (model.K * Ts * U)) - 1)   # Σ|u| Ts K >= |d|
+    n_lo = max(1, math.ceil(abs(d) / (model.K * Ts * U)) - 1)  # Σ|u| Ts K >= |d|
     N, x = piezo._bisect_solver(make, n_lo, max_samples, solver)
-    fm, zm = _coupled_mode(model.K, model.tau, model.load_ratio, model.mode_frequency, model.mode_damping)
-    return RobustMove(u=np.asarray(x, dtype=float), Ts=Ts, distance=d, order=order, u_max=U,
-                      mode_hz=fm, mode_damping=zm, lp_count=count[0])
+    fm, zm = _coupled_mode(
+        model.K, model.tau, model.load_ratio, model.mode_frequency, model.mode_damping
+    )
+    return RobustMove(
+        u=np.asarray(x, dtype=float),
+        Ts=Ts,
+        distance=d,
+        order=order,
+        u_max=U,
+        mode_hz=fm,
+        mode_damping=zm,
+        lp_count=count[0],
+    )
 
 
 def energy_optimal_move(distance, N, model=None, Ts=0.005, order=1, u_max=None, objective="input"):
@@ -1168,6 +1306,7 @@ def energy_optimal_move(distance, N, model=None, Ts=0.005, order=1, u_max=None, 
     """
     from jerklab import piezo
     from jerklab._validate import as_int
+
     model = _flex_model(model)
     d = as_real("distance", distance)
     if d == 0.0:
@@ -1191,9 +1330,19 @@ def energy_optimal_move(distance, N, model=None, Ts=0.005, order=1, u_max=None, 
     u = piezo._least_squares_qp(E, f, np.full(N, -U), np.full(N, U), M, m, x0=x0)
     if u is None:
         raise RuntimeError("the QP of Xu & Meckl eq. 19 did not converge")
-    fm, zm = _coupled_mode(model.K, model.tau, model.load_ratio, model.mode_frequency, model.mode_damping)
-    return RobustMove(u=u, Ts=Ts, distance=d, order=order, u_max=U, mode_hz=fm, mode_damping=zm,
-                      objective=objective)
+    fm, zm = _coupled_mode(
+        model.K, model.tau, model.load_ratio, model.mode_frequency, model.mode_damping
+    )
+    return RobustMove(
+        u=u,
+        Ts=Ts,
+        distance=d,
+        order=order,
+        u_max=U,
+        mode_hz=fm,
+        mode_damping=zm,
+        objective=objective,
+    )
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1221,7 +1370,9 @@ class Tradeoff:
 
     def table(self) -> str:
         """The table as text: method, move time, penalty, 5 % band and its width."""
-        lines = [f"{'method':<24} {'family':<10} {'move s':>7} {'penalty s':>9} {'5 % band':>16} {'width':>7}"]
+        lines = [
+            f"{'method':<24} {'family':<10} {'move s':>7} {'penalty s':>9} {'5 % band':>16} {'width':>7}"
+        ]
         for r in self.rows:
             lo, hi = r["band"]
             band = "—" if math.isnan(lo) else f"{100 * (lo - 1):+5.1f}…{100 * (hi - 1):+5.1f} %"
@@ -1230,18 +1381,29 @@ class Tradeoff:
             width = "—" if math.isnan(lo) else f"{100 * (hi - lo):5.1f} %"
             if not math.isnan(lo) and hi >= _R_MAX - 1e-9:
                 width = "∞"
-            lines.append(f"{r['name']:<24} {r['family']:<10} {r['duration']:7.3f} {r['penalty']:9.3f} "
-                         f"{band:>16} {width:>7}")
+            lines.append(
+                f"{r['name']:<24} {r['family']:<10} {r['duration']:7.3f} {r['penalty']:9.3f} "
+                f"{band:>16} {width:>7}"
+            )
         return "\n".join(lines)
 
     def plot(self, ax=None):
         """Draw the curves (``jerklab.plots.plot_tradeoff``)."""
         from jerklab.plots import plot_tradeoff
+
         return plot_tradeoff(self, ax=ax)
 
 
-def tradeoff(model=None, distance=1.0, Ts=0.005, max_accel=None, max_velocity=None,
-             ratios=None, orders=(0, 1, 2), shapers=("zv", "mzv", "zvd", "ei", "2hump_ei", "3hump_ei")):
+def tradeoff(
+    model=None,
+    distance=1.0,
+    Ts=0.005,
+    max_accel=None,
+    max_velocity=None,
+    ratios=None,
+    orders=(0, 1, 2),
+    shapers=("zv", "mzv", "zvd", "ei", "2hump_ei", "3hump_ei"),
+):
     """Compute the trade-off figure and table for the flexible motor's mode.
 
     The mode is the coupled pole pair of ``model`` (default ``FlexibleDCMotor()``: 8.1 Hz,
@@ -1255,39 +1417,77 @@ def tradeoff(model=None, distance=1.0, Ts=0.005, max_accel=None, max_velocity=No
     damping held, as a percentage of what a step of the same size leaves.
     """
     from jerklab import paper
+
     model = _flex_model(model)
     A = paper.MAX_ACCEL if max_accel is None else as_positive("max_accel", max_accel)
     V = paper.MAX_VELOCITY if max_velocity is None else as_positive("max_velocity", max_velocity)
     r = np.linspace(0.5, 1.5, 201) if ratios is None else as_finite_array("ratios", ratios, ndim=1)
     if np.any(r <= 0):
         raise ValueError("ratios must be positive")
-    f, z = _coupled_mode(model.K, model.tau, model.load_ratio, model.mode_frequency, model.mode_damping)
+    f, z = _coupled_mode(
+        model.K, model.tau, model.load_ratio, model.mode_frequency, model.mode_damping
+    )
     from jerklab import planner
+
     base = planner.plan_trapezoid(distance, A, V)
     curves, rows = {}, []
 
     def add(name, family, dur, pen, curve_fn):
         curves[name] = curve_fn(r)
         band = _band(curve_fn, 5.0)
-        rows.append(dict(name=name, family=family, duration=float(dur), penalty=float(pen), band=band,
-                         width=band[1] - band[0]))
+        rows.append(
+            dict(
+                name=name,
+                family=family,
+                duration=float(dur),
+                penalty=float(pen),
+                band=band,
+                width=band[1] - band[0],
+            )
+        )
 
-    add("trapezoid", "profile", base.duration, 0.0, lambda x: profile_residual_vibration(base, f * x, z))
-    for kind, label in (("trapezoid", "tuned trapezoid"), ("scurve", "tuned S-curve"),
-                        ("sine_jerk", "tuned sine-jerk")):
+    add(
+        "trapezoid",
+        "profile",
+        base.duration,
+        0.0,
+        lambda x: profile_residual_vibration(base, f * x, z),
+    )
+    for kind, label in (
+        ("trapezoid", "tuned trapezoid"),
+        ("scurve", "tuned S-curve"),
+        ("sine_jerk", "tuned sine-jerk"),
+    ):
         p = tuned_profile(kind, distance, f, A, V, damping=z)
-        add(label, "profile", p.duration, p.duration - base.duration,
-            lambda x, p=p: profile_residual_vibration(p, f * x, z))
+        add(
+            label,
+            "profile",
+            p.duration,
+            p.duration - base.duration,
+            lambda x, p=p: profile_residual_vibration(p, f * x, z),
+        )
     for k in shapers:
         s = input_shaper(k, f, z)
-        add(f"{_kind(k).upper().replace('HUMP_', '-hump ')}", "shaper", base.duration + s.duration, s.duration,
-            lambda x, s=s: s.sensitivity_curve(x))
+        add(
+            f"{_kind(k).upper().replace('HUMP_', '-hump ')}",
+            "shaper",
+            base.duration + s.duration,
+            s.duration,
+            lambda x, s=s: s.sensitivity_curve(x),
+        )
     rigid = robust_move(distance, model, Ts, order=None)
     for o in orders:
         m = robust_move(distance, model, Ts, order=o)
-        add(f"robust LP order {o}", "robust LP", m.duration, m.duration - rigid.duration,
-            lambda x, m=m: m.sensitivity_curve(x))
-    return Tradeoff(frequency_hz=f, damping=z, distance=float(distance), ratios=r, curves=curves, rows=rows)
+        add(
+            f"robust LP order {o}",
+            "robust LP",
+            m.duration,
+            m.duration - rigid.duration,
+            lambda x, m=m: m.sensitivity_curve(x),
+        )
+    return Tradeoff(
+        frequency_hz=f, damping=z, distance=float(distance), ratios=r, curves=curves, rows=rows
+    )
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1315,11 +1515,14 @@ def residual_amplitude(y, Ts, start, frequency_hz=None, damping=0.0, final=None)
     y = as_finite_array("y", y, ndim=1)
     Ts = as_positive("Ts", Ts)
     from jerklab._validate import as_int
+
     start = as_int("start", start, minimum=0)
     if start > y.size - 4:
         raise ValueError(f"start must leave at least 4 samples of y (len {y.size}), got {start}")
     tail = y[start:]
-    final = float(tail[-max(1, tail.size // 4):].mean()) if final is None else as_real("final", final)
+    final = (
+        float(tail[-max(1, tail.size // 4) :].mean()) if final is None else as_real("final", final)
+    )
     e = tail - final
     if frequency_hz is None:
         return float(np.abs(e).max())

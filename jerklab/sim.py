@@ -27,6 +27,7 @@ plants (K, τ, friction) at once, compiled or with the law's numpy form.
 
 ASCII spelling of the paper's author: Stojcic.
 """
+
 from __future__ import annotations
 
 import math
@@ -37,19 +38,44 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from jerklab import law, paper
-from jerklab.law import HAVE_NUMBA, _jit  # one switch for every compiled kernel
 from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
 from jerklab.controller import DigitalController, DiscreteGains, Gains
+from jerklab.law import HAVE_NUMBA, _jit  # one switch for every compiled kernel
 from jerklab.planner import Profile
 from jerklab.plant import DCMotor, FlexibleDCMotor, _advance, advance_em
 from jerklab.plots import plot_simulation
 
-__all__ = ["simulate", "simulate_batch", "SimResult", "BatchResult", "perturbed_plants",
-           "SampledProfile", "StepProfile", "HAVE_NUMBA"]
+__all__ = [
+    "simulate",
+    "simulate_batch",
+    "SimResult",
+    "BatchResult",
+    "perturbed_plants",
+    "SampledProfile",
+    "StepProfile",
+    "HAVE_NUMBA",
+]
 
 # packed plant and run parameters of :func:`_kernel` (see :func:`_plant_pack`)
-(P_RIGID, P_K, P_TAU, P_FC, P_DIST_ON, P_DIST_AMP, P_DIST_TIME, P_SUPPLY, P_LEVELS, P_CPR,
- P_DISTANCE, P_BAND, P_DURATION, P_NMOVE, P_BOUND, P_OFFSET, P_DEAD_ZONE) = range(17)
+(
+    P_RIGID,
+    P_K,
+    P_TAU,
+    P_FC,
+    P_DIST_ON,
+    P_DIST_AMP,
+    P_DIST_TIME,
+    P_SUPPLY,
+    P_LEVELS,
+    P_CPR,
+    P_DISTANCE,
+    P_BAND,
+    P_DURATION,
+    P_NMOVE,
+    P_BOUND,
+    P_OFFSET,
+    P_DEAD_ZONE,
+) = range(17)
 _NP = 17
 # rows of the kernel's output array after the ns state rows
 (O_MEAS, O_UCMD, O_UAPP, O_P, O_I, O_D, O_FF, O_E) = range(8)
@@ -185,7 +211,9 @@ def _kernel(ref, noise, x0, pp, M, ctl, OUT, sat, met):
         ff = (fftau * ref[2, k] + ref[1, k]) / ffK if ff_on else 0.0
         if k == 0 and bumpless:
             e_prev = e
-        u, p, i_prev, d_prev, s = law.pid_step(e, e_prev, i_prev, d_prev, ff, kpd, kid, kdd, gamma, limit, aw)
+        u, p, i_prev, d_prev, s = law.pid_step(
+            e, e_prev, i_prev, d_prev, ff, kpd, kid, kdd, gamma, limit, aw
+        )
         e_prev = e
         v, s2 = law.amplifier(u, supply, levels)
         OUT[ns + O_UCMD, k] = u
@@ -203,7 +231,9 @@ def _kernel(ref, noise, x0, pp, M, ctl, OUT, sat, met):
             umax = abs(v)
         if rigid:
             vm = _driver(v, offset, dead_zone) if drive else v
-            th1, om1 = _rigid_step(x[0], x[1], vm, k, Ts, fc, K, tau, em_full, dist_on, dist_amp, dist_time)
+            th1, om1 = _rigid_step(
+                x[0], x[1], vm, k, Ts, fc, K, tau, em_full, dist_on, dist_amp, dist_time
+            )
             x[0] = th1
             x[1] = om1
         else:
@@ -241,9 +271,32 @@ def _kernel(ref, noise, x0, pp, M, ctl, OUT, sat, met):
 
 
 @_jit
-def _batch_chunk(j0, j1, rpos, rvel, racc, Ks, taus, fcs, noise, noise_on,
-                 dist_on, dist_amp, dist_time, supply, levels, cpr, ctl,
-                 duration, distance, band, keep, POS, U, MET):
+def _batch_chunk(
+    j0,
+    j1,
+    rpos,
+    rvel,
+    racc,
+    Ks,
+    taus,
+    fcs,
+    noise,
+    noise_on,
+    dist_on,
+    dist_amp,
+    dist_time,
+    supply,
+    levels,
+    cpr,
+    ctl,
+    duration,
+    distance,
+    band,
+    keep,
+    POS,
+    U,
+    MET,
+):
     """Plants ``j0 … j1-1``, same law as :func:`_kernel`; metrics accumulated on the fly.
 
     Time is the outer loop and the plants the inner one, so the independent plants
@@ -316,7 +369,9 @@ def _batch_chunk(j0, j1, rpos, rvel, racc, Ks, taus, fcs, noise, noise_on,
             yp[q] = y
             if k == 0 and bumpless:
                 ep[q] = e
-            u, p, i_new, d, s = law.pid_step(e, ep[q], ip[q], dp[q], ff, kpd, kid, kdd, gamma, limit, aw)
+            u, p, i_new, d, s = law.pid_step(
+                e, ep[q], ip[q], dp[q], ff, kpd, kid, kdd, gamma, limit, aw
+            )
             ip[q] = i_new
             dp[q] = d
             ep[q] = e
@@ -327,8 +382,9 @@ def _batch_chunk(j0, j1, rpos, rvel, racc, Ks, taus, fcs, noise, noise_on,
                 POS[j, k] = x
                 U[j, k] = v
             if split:
-                th[q], om[q] = _rigid_step(x, om[q], v, k, Ts, fcs[j], Ks[j], taus[j], em[q],
-                                           dist_on, dist_amp, dist_time)
+                th[q], om[q] = _rigid_step(
+                    x, om[q], v, k, Ts, fcs[j], Ks[j], taus[j], em[q], dist_on, dist_amp, dist_time
+                )
             else:
                 th[q], om[q] = advance_em(x, om[q], v + w, fcs[j], Ks[j], taus[j], Ts, em[q])
     for q in range(m):
@@ -426,15 +482,26 @@ def _batch_metrics(t, reference, POS, Uapp, duration, distance, band):
     last = np.where(outside.any(axis=1), n - 1 - np.argmax(outside[:, ::-1], axis=1), -1)
     with np.errstate(invalid="ignore", over="ignore"):
         emax = np.max(np.abs(err), axis=1)
-        return _metric_dict(emax, np.sqrt(np.mean(err[:, move] ** 2, axis=1)), err[:, -1],
-                            _settling(last, n, t, duration), np.max(np.abs(Uapp), axis=1), distance)
+        return _metric_dict(
+            emax,
+            np.sqrt(np.mean(err[:, move] ** 2, axis=1)),
+            err[:, -1],
+            _settling(last, n, t, duration),
+            np.max(np.abs(Uapp), axis=1),
+            distance,
+        )
 
 
 def _metric_dict(emax, rms, final, settle, umax, distance):
     diverged = ~np.isfinite(emax) | (emax > DIVERGENCE_FACTOR * max(abs(distance), 1.0))
-    return {"max_abs_error": emax, "rms_error": rms, "final_error": final,
-            "settling_time": np.where(diverged, np.nan, settle), "max_abs_voltage": umax,
-            "diverged": diverged}
+    return {
+        "max_abs_error": emax,
+        "rms_error": rms,
+        "final_error": final,
+        "settling_time": np.where(diverged, np.nan, settle),
+        "max_abs_voltage": umax,
+        "diverged": diverged,
+    }
 
 
 # ---------------------------------------------------------------------------
@@ -444,7 +511,13 @@ class _Sample:
     __slots__ = ("t", "jerk", "accel", "velocity", "position")
 
     def __init__(self, t, jerk, accel, velocity, position):
-        self.t, self.jerk, self.accel, self.velocity, self.position = t, jerk, accel, velocity, position
+        self.t, self.jerk, self.accel, self.velocity, self.position = (
+            t,
+            jerk,
+            accel,
+            velocity,
+            position,
+        )
 
 
 class StepProfile:
@@ -475,11 +548,15 @@ class SampledProfile:
         n = len(self.position)
         if n == 0:
             raise ValueError("position must have at least one sample")
-        self.velocity = np.zeros(n) if velocity is None else as_finite_array("velocity", velocity, ndim=1)
+        self.velocity = (
+            np.zeros(n) if velocity is None else as_finite_array("velocity", velocity, ndim=1)
+        )
         self.accel = np.zeros(n) if accel is None else as_finite_array("accel", accel, ndim=1)
         if not len(self.velocity) == len(self.accel) == n:
             raise ValueError("position, velocity and accel must have the same length")
-        self.duration = (n - 1) * self.Ts if duration is None else as_nonnegative("duration", duration)
+        self.duration = (
+            (n - 1) * self.Ts if duration is None else as_nonnegative("duration", duration)
+        )
 
     @classmethod
     def from_profile(cls, profile, Ts, t_end=None):
@@ -501,8 +578,10 @@ class SampledProfile:
 # ---------------------------------------------------------------------------
 def _check_profile(profile):
     if not (hasattr(profile, "duration") and callable(getattr(profile, "sample", None))):
-        raise ValueError("profile must have .duration and .sample(t) (a jerklab.planner Profile), "
-                         f"got {type(profile).__name__}")
+        raise ValueError(
+            "profile must have .duration and .sample(t) (a jerklab.planner Profile), "
+            f"got {type(profile).__name__}"
+        )
 
 
 def _check_inputs(profile, motor):
@@ -523,15 +602,31 @@ def _law_for(controller, motor, loop, Ts):
     elif isinstance(controller, DiscreteGains):
         limit = math.inf if motor.supply_voltage is None else motor.supply_voltage
         g = controller
-        p = dict(kpd=g.kpd, kid=g.kid, kdd=g.kdd, gamma=g.gamma, Ts=g.Ts, ff_on=True, ff_K=motor.K,
-                 ff_tau=motor.tau, limit=limit, anti_windup=True, error_scale=1.0, bumpless=False)
+        p = dict(
+            kpd=g.kpd,
+            kid=g.kid,
+            kdd=g.kdd,
+            gamma=g.gamma,
+            Ts=g.Ts,
+            ff_on=True,
+            ff_K=motor.K,
+            ff_tau=motor.tau,
+            limit=limit,
+            anti_windup=True,
+            error_scale=1.0,
+            bumpless=False,
+        )
         cloop = g.loop
     elif isinstance(controller, Gains):
-        raise ValueError("controller must be a DigitalController or DiscreteGains; "
-                         "discretize continuous Gains first (Gains.discretize(Ts), Stojčić eq. 13)")
+        raise ValueError(
+            "controller must be a DigitalController or DiscreteGains; "
+            "discretize continuous Gains first (Gains.discretize(Ts), Stojčić eq. 13)"
+        )
     else:
-        raise TypeError(f"controller must be a DigitalController or DiscreteGains, got "
-                        f"{type(controller).__name__}")
+        raise TypeError(
+            f"controller must be a DigitalController or DiscreteGains, got "
+            f"{type(controller).__name__}"
+        )
     if loop is not None:
         if loop not in ("position", "velocity"):
             raise ValueError(f"loop must be 'position' or 'velocity', got {loop!r}")
@@ -561,7 +656,9 @@ def _duration(profile):
     try:
         d = float(profile.duration)
     except (TypeError, ValueError):
-        raise ValueError(f"profile.duration must be a real number, got {profile.duration!r}") from None
+        raise ValueError(
+            f"profile.duration must be a real number, got {profile.duration!r}"
+        ) from None
     if not (math.isfinite(d) and d >= 0.0):
         raise ValueError(f"profile.duration must be finite and >= 0, got {d!r}")
     return d
@@ -571,8 +668,10 @@ def _n_samples(duration, Ts, t_end):
     t_end = duration + 0.5 if t_end is None else as_nonnegative("t_end", t_end)
     n = math.floor(t_end / Ts + 1e-9) + 1
     if n > MAX_SAMPLES:
-        raise ValueError(f"t_end={t_end} at Ts={Ts} is {n} samples, more than MAX_SAMPLES={MAX_SAMPLES}; "
-                         "simulate a shorter time or a longer Ts")
+        raise ValueError(
+            f"t_end={t_end} at Ts={Ts} is {n} samples, more than MAX_SAMPLES={MAX_SAMPLES}; "
+            "simulate a shorter time or a longer Ts"
+        )
     return int(n)
 
 
@@ -580,8 +679,13 @@ def _profile_key(profile):
     """A key of a jerklab.planner profile (closed form, fixed by its public parameters), else None."""
     if not isinstance(profile, Profile) or type(profile).sample is not Profile.sample:
         return None
-    return (type(profile), profile.kind, float(profile.distance), tuple(profile.phase_times),
-            float(profile.peak_jerk))
+    return (
+        type(profile),
+        profile.kind,
+        float(profile.distance),
+        tuple(profile.phase_times),
+        float(profile.peak_jerk),
+    )
 
 
 def _reference(profile, Ts, n, duration):
@@ -610,10 +714,14 @@ def _reference(profile, Ts, n, duration):
             ref[1] = s.velocity
             ref[2] = s.accel
         except AttributeError:
-            raise ValueError("profile.sample(t) must return .position, .velocity and .accel "
-                             "(a jerklab.planner Profile does)") from None
+            raise ValueError(
+                "profile.sample(t) must return .position, .velocity and .accel "
+                "(a jerklab.planner Profile does)"
+            ) from None
         except (TypeError, ValueError) as exc:
-            raise ValueError(f"profile.sample(t) must return arrays of the shape of t ({n},): {exc}") from None
+            raise ValueError(
+                f"profile.sample(t) must return arrays of the shape of t ({n},): {exc}"
+            ) from None
     if not np.isfinite(ref).all():
         raise ValueError("profile.sample(t) returned non-finite values (NaN or inf)")
     if key is not None and n <= _REF_CACHE_MAX_N:
@@ -625,11 +733,14 @@ def _reference(profile, Ts, n, duration):
 
 def _common(motor):
     d = motor.load_disturbance
-    return dict(dist_on=d is not None, dist_amp=0.0 if d is None else d.amplitude,
-                dist_time=0.0 if d is None else d.time,
-                supply=0.0 if motor.supply_voltage is None else motor.supply_voltage,
-                levels=0.0 if motor.pwm_bits is None else float(2 ** motor.pwm_bits - 1),
-                cpr=0.0 if motor.counts_per_rad is None else motor.counts_per_rad)
+    return dict(
+        dist_on=d is not None,
+        dist_amp=0.0 if d is None else d.amplitude,
+        dist_time=0.0 if d is None else d.time,
+        supply=0.0 if motor.supply_voltage is None else motor.supply_voltage,
+        levels=0.0 if motor.pwm_bits is None else float(2**motor.pwm_bits - 1),
+        cpr=0.0 if motor.counts_per_rad is None else motor.counts_per_rad,
+    )
 
 
 def _plant_pack(motor, Ts):
@@ -741,13 +852,26 @@ def simulate(profile, motor, controller, Ts=None, t_end=None, loop=None, x0=None
     _kernel(ref, noise, x, pp, M, ctl, OUT, sat, met)
     metrics, diverged = _run_metrics(met, t, n, n_move, duration, band, ns, OUT, ref)
     position = OUT[0]
-    return SimResult(t=t, reference=ref[0], ref_velocity=ref[1], ref_accel=ref[2], measured=OUT[ns + O_MEAS],
-                     position=position, velocity=OUT[1], error=ref[0] - position,
-                     loop_error=OUT[ns + O_E], u=OUT[ns + O_UCMD], u_applied=OUT[ns + O_UAPP],
-                     parts={"p": OUT[ns + O_P], "i": OUT[ns + O_I], "d": OUT[ns + O_D], "ff": OUT[ns + O_FF]},
-                     saturated=sat, metrics=metrics, loop=cloop, load_position=OUT[2] if ns == 4 else None,
-                     info=dict(Ts=Ts, duration=duration, distance=distance, compiled=HAVE_NUMBA),
-                     diverged=diverged)
+    return SimResult(
+        t=t,
+        reference=ref[0],
+        ref_velocity=ref[1],
+        ref_accel=ref[2],
+        measured=OUT[ns + O_MEAS],
+        position=position,
+        velocity=OUT[1],
+        error=ref[0] - position,
+        loop_error=OUT[ns + O_E],
+        u=OUT[ns + O_UCMD],
+        u_applied=OUT[ns + O_UAPP],
+        parts={"p": OUT[ns + O_P], "i": OUT[ns + O_I], "d": OUT[ns + O_D], "ff": OUT[ns + O_FF]},
+        saturated=sat,
+        metrics=metrics,
+        loop=cloop,
+        load_position=OUT[2] if ns == 4 else None,
+        info=dict(Ts=Ts, duration=duration, distance=distance, compiled=HAVE_NUMBA),
+        diverged=diverged,
+    )
 
 
 def _run_metrics(met, t, n, n_move, duration, band, ns, OUT, ref):
@@ -767,7 +891,9 @@ def _run_metrics(met, t, n, n_move, duration, band, ns, OUT, ref):
         settle = max(0.0, float(t[last + 1] - duration))
     m = {
         "max_abs_error": math.inf if nonfinite else float(met[M_EMAX]),
-        "rms_error": math.inf if nonfinite and k_bad < n_move else math.sqrt(float(met[M_ESQ]) / n_move),
+        "rms_error": math.inf
+        if nonfinite and k_bad < n_move
+        else math.sqrt(float(met[M_ESQ]) / n_move),
         "final_error": float(ref[0, -1] - OUT[0, -1]),
         "max_abs_voltage": float(met[M_UMAX]),
         "saturated_fraction": float(met[M_NSAT]) / n,
@@ -776,14 +902,23 @@ def _run_metrics(met, t, n, n_move, duration, band, ns, OUT, ref):
         "diverged": diverged,
     }
     if ns == 4:
-        m["residual_vibration"] = (float(met[M_RESID]) if met[M_NAFTER] > 0 and not nonfinite else math.nan)
+        m["residual_vibration"] = (
+            float(met[M_RESID]) if met[M_NAFTER] > 0 and not nonfinite else math.nan
+        )
     if diverged:
         k = min(k for k in (k_bad, k_far) if k >= 0)
         m["diverged_at"] = float(t[k])
-        what = "a state became NaN/inf" if nonfinite and k == k_bad else \
-            f"|error| exceeded {DIVERGENCE_FACTOR:g} x max(|distance|, 1)"
-        warnings.warn(f"simulate: the loop diverged at t = {t[k]:.6g} s ({what}); settling_time is NaN"
-                      + ("; the samples after it are NaN" if nonfinite else ""), RuntimeWarning, stacklevel=3)
+        what = (
+            "a state became NaN/inf"
+            if nonfinite and k == k_bad
+            else f"|error| exceeded {DIVERGENCE_FACTOR:g} x max(|distance|, 1)"
+        )
+        warnings.warn(
+            f"simulate: the loop diverged at t = {t[k]:.6g} s ({what}); settling_time is NaN"
+            + ("; the samples after it are NaN" if nonfinite else ""),
+            RuntimeWarning,
+            stacklevel=3,
+        )
     return m, diverged
 
 
@@ -791,11 +926,20 @@ def _rng(seed):
     try:
         return np.random.default_rng(seed)
     except (TypeError, ValueError) as exc:
-        raise TypeError(f"seed must be None, an int or a numpy Generator/SeedSequence, got {seed!r}: {exc}") from None
+        raise TypeError(
+            f"seed must be None, an int or a numpy Generator/SeedSequence, got {seed!r}: {exc}"
+        ) from None
 
 
-def perturbed_plants(n, K=paper.MOTOR_K, tau=paper.MOTOR_TAU, K_spread=0.2, tau_spread=0.2, friction=(0.0, 0.0),
-                     seed=None):
+def perturbed_plants(
+    n,
+    K=paper.MOTOR_K,
+    tau=paper.MOTOR_TAU,
+    K_spread=0.2,
+    tau_spread=0.2,
+    friction=(0.0, 0.0),
+    seed=None,
+):
     """Random plants for robustness studies: K and τ uniform within ±spread (relative),
     Coulomb friction uniform in ``friction = (low, high)`` V. Returns a dict of arrays."""
     n = as_int("n", n, minimum=1)
@@ -809,16 +953,35 @@ def perturbed_plants(n, K=paper.MOTOR_K, tau=paper.MOTOR_TAU, K_spread=0.2, tau_
         raise ValueError("K_spread and tau_spread must be < 1 (relative spreads)")
     if isinstance(friction, (str, bytes)) or not hasattr(friction, "__len__") or len(friction) != 2:
         raise ValueError(f"friction must be a (low, high) pair in V, got {friction!r}")
-    lo, hi = (as_nonnegative("friction low", friction[0]), as_nonnegative("friction high", friction[1]))
+    lo, hi = (
+        as_nonnegative("friction low", friction[0]),
+        as_nonnegative("friction high", friction[1]),
+    )
     if hi < lo:
         raise ValueError(f"friction must be (low, high) with low <= high, got {friction!r}")
     rng = _rng(seed)
-    return dict(K=K * (1 + rng.uniform(-ks, ks, n)), tau=tau * (1 + rng.uniform(-ts, ts, n)),
-                coulomb_friction=rng.uniform(lo, hi, n))
+    return dict(
+        K=K * (1 + rng.uniform(-ks, ks, n)),
+        tau=tau * (1 + rng.uniform(-ts, ts, n)),
+        coulomb_friction=rng.uniform(lo, hi, n),
+    )
 
 
-def simulate_batch(profile, motor, controller, K=None, tau=None, coulomb_friction=None, Ts=None,
-                   t_end=None, loop=None, engine="auto", settle_band=None, seed=None, keep_traces=True):
+def simulate_batch(
+    profile,
+    motor,
+    controller,
+    K=None,
+    tau=None,
+    coulomb_friction=None,
+    Ts=None,
+    t_end=None,
+    loop=None,
+    engine="auto",
+    settle_band=None,
+    seed=None,
+    keep_traces=True,
+):
     """The closed loop of :func:`simulate` over many rigid plants at once.
 
     ``K``, ``tau``, ``coulomb_friction`` are arrays (or scalars, broadcast) overriding
@@ -843,20 +1006,30 @@ def simulate_batch(profile, motor, controller, K=None, tau=None, coulomb_frictio
     if not isinstance(motor, DCMotor):
         raise ValueError("simulate_batch needs a rigid DCMotor template")
     if getattr(motor, "offset", 0.0) or getattr(motor, "dead_zone", 0.0):
-        raise ValueError("simulate_batch does not model the motor's offset and dead_zone yet; "
-                         "use simulate() per plant, or a motor with offset=0 and dead_zone=0")
+        raise ValueError(
+            "simulate_batch does not model the motor's offset and dead_zone yet; "
+            "use simulate() per plant, or a motor with offset=0 and dead_zone=0"
+        )
     if engine not in ("auto", "numpy", "compiled"):
         raise ValueError(f"engine must be 'auto', 'numpy' or 'compiled', got {engine!r}")
     ctl, cloop, Ts = _law_for(controller, motor, loop, Ts)
     Kv = np.atleast_1d(as_finite_array("K", motor.K if K is None else K))
     tv = np.atleast_1d(as_finite_array("tau", motor.tau if tau is None else tau))
-    fv = np.atleast_1d(as_finite_array("coulomb_friction", motor.coulomb_friction
-                                       if coulomb_friction is None else coulomb_friction))
+    fv = np.atleast_1d(
+        as_finite_array(
+            "coulomb_friction",
+            motor.coulomb_friction if coulomb_friction is None else coulomb_friction,
+        )
+    )
     try:
-        Kv, tv, fv = (np.ascontiguousarray(a, dtype=float).ravel() for a in np.broadcast_arrays(Kv, tv, fv))
+        Kv, tv, fv = (
+            np.ascontiguousarray(a, dtype=float).ravel() for a in np.broadcast_arrays(Kv, tv, fv)
+        )
     except ValueError:
-        raise ValueError(f"K, tau and coulomb_friction must broadcast to one length, got shapes "
-                         f"{Kv.shape}, {tv.shape}, {fv.shape}") from None
+        raise ValueError(
+            f"K, tau and coulomb_friction must broadcast to one length, got shapes "
+            f"{Kv.shape}, {tv.shape}, {fv.shape}"
+        ) from None
     if Kv.size == 0:
         raise ValueError("K, tau and coulomb_friction give no plant (empty arrays)")
     if np.any(Kv <= 0) or np.any(tv <= 0) or np.any(fv < 0):
@@ -865,8 +1038,10 @@ def simulate_batch(profile, motor, controller, K=None, tau=None, coulomb_frictio
     duration = _duration(profile)
     n = _n_samples(duration, Ts, t_end)
     if keep_traces and m * n > MAX_SAMPLES * 10:
-        raise ValueError(f"keep_traces with {m} plants x {n} samples is more than {MAX_SAMPLES * 10} values; "
-                         "use keep_traces=False (metrics only) or fewer plants")
+        raise ValueError(
+            f"keep_traces with {m} plants x {n} samples is more than {MAX_SAMPLES * 10} values; "
+            "use keep_traces=False (metrics only) or fewer plants"
+        )
     t = np.arange(n) * Ts
     ref = _reference(profile, Ts, n, duration)
     rpos, rvel, racc = ref[0], ref[1], ref[2]
@@ -883,12 +1058,39 @@ def simulate_batch(profile, motor, controller, K=None, tau=None, coulomb_frictio
         POS = np.empty(shape)
         U = np.empty(shape)
         MET = np.empty((m, 6))
-        _batch_kernel(rpos, rvel, racc, Kv, tv, fv, noise, noise_on, common["dist_on"],
-                      common["dist_amp"], common["dist_time"], common["supply"], common["levels"],
-                      common["cpr"], ctl, duration, distance, band, keep_traces, POS, U, MET)
+        _batch_kernel(
+            rpos,
+            rvel,
+            racc,
+            Kv,
+            tv,
+            fv,
+            noise,
+            noise_on,
+            common["dist_on"],
+            common["dist_amp"],
+            common["dist_time"],
+            common["supply"],
+            common["levels"],
+            common["cpr"],
+            ctl,
+            duration,
+            distance,
+            band,
+            keep_traces,
+            POS,
+            U,
+            MET,
+        )
         with np.errstate(invalid="ignore", over="ignore"):
-            metrics = _metric_dict(MET[:, 0], np.sqrt(MET[:, 1] / np.maximum(MET[:, 5], 1.0)), MET[:, 2],
-                                   _settling(MET[:, 3].astype(int), n, t, duration), MET[:, 4], distance)
+            metrics = _metric_dict(
+                MET[:, 0],
+                np.sqrt(MET[:, 1] / np.maximum(MET[:, 5], 1.0)),
+                MET[:, 2],
+                _settling(MET[:, 3].astype(int), n, t, duration),
+                MET[:, 4],
+                distance,
+            )
         if not keep_traces:
             POS = U = None
     elif engine == "numpy":
@@ -898,8 +1100,9 @@ def simulate_batch(profile, motor, controller, K=None, tau=None, coulomb_frictio
         metrics = _batch_metrics(t, rpos, POS, U, duration, distance, band)
         if not keep_traces:
             POS = U = None
-    return BatchResult(t=t, reference=rpos, K=Kv, tau=tv, coulomb_friction=fv, position=POS, u=U,
-                       metrics=metrics)
+    return BatchResult(
+        t=t, reference=rpos, K=Kv, tau=tv, coulomb_friction=fv, position=POS, u=U, metrics=metrics
+    )
 
 
 def _batch_numpy(rpos, rvel, racc, Kv, tv, fv, noise, common, ctl):
@@ -908,10 +1111,19 @@ def _batch_numpy(rpos, rvel, racc, Kv, tv, fv, noise, common, ctl):
     Returns (θ, u applied).
     """
     m, n = noise.shape
-    kpd, kid, kdd, gamma, lim = (ctl[law.C_KPD], ctl[law.C_KID], ctl[law.C_KDD], ctl[law.C_GAMMA],
-                                 ctl[law.C_LIMIT])
-    aw, ff_on, velocity, bumpless = (bool(ctl[law.C_AW]), bool(ctl[law.C_FF_ON]), bool(ctl[law.C_VELOCITY]),
-                                     bool(ctl[law.C_BUMPLESS]))
+    kpd, kid, kdd, gamma, lim = (
+        ctl[law.C_KPD],
+        ctl[law.C_KID],
+        ctl[law.C_KDD],
+        ctl[law.C_GAMMA],
+        ctl[law.C_LIMIT],
+    )
+    aw, ff_on, velocity, bumpless = (
+        bool(ctl[law.C_AW]),
+        bool(ctl[law.C_FF_ON]),
+        bool(ctl[law.C_VELOCITY]),
+        bool(ctl[law.C_BUMPLESS]),
+    )
     ffK, fftau, scale, Ts = ctl[law.C_FF_K], ctl[law.C_FF_TAU], ctl[law.C_SCALE], ctl[law.C_TS]
     th = np.zeros(m)
     om = np.zeros(m)
@@ -936,8 +1148,9 @@ def _batch_numpy(rpos, rvel, racc, Kv, tv, fv, noise, common, ctl):
         ff = (fftau * racc[k] + rvel[k]) / ffK if ff_on else 0.0
         if k == 0 and bumpless:
             e_prev = e
-        u, _, i_prev, d_prev, _ = law.pid_step_vec(e, e_prev, i_prev, d_prev, ff, kpd, kid, kdd, gamma, lim, aw,
-                                                   want_saturated=False)
+        u, _, i_prev, d_prev, _ = law.pid_step_vec(
+            e, e_prev, i_prev, d_prev, ff, kpd, kid, kdd, gamma, lim, aw, want_saturated=False
+        )
         e_prev = e
         v = law.voltage_vec(u, supply, levels)
         U[:, k] = v
@@ -952,7 +1165,9 @@ def _batch_numpy(rpos, rvel, racc, Kv, tv, fv, noise, common, ctl):
     return POS, U
 
 
-def pd_rest_band(kpd, load, coulomb_friction, counts_per_rad=None, supply_voltage=None, pwm_bits=None):
+def pd_rest_band(
+    kpd, load, coulomb_friction, counts_per_rad=None, supply_voltage=None, pwm_bits=None
+):
     """Where a PD loop (no integrator) can come to rest under a constant load and Coulomb friction.
 
     At rest the derivative and the feedforward are zero, so the motor sees ``u = k_pd e_m`` (PWM

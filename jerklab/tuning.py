@@ -18,6 +18,7 @@ Main entry points
   unstable loop stable, each candidate checked by computing its loop.
 * :func:`format_angle`, :func:`angle_unit`, :func:`gain_table` — numbers with units that scale.
 """
+
 from __future__ import annotations
 
 import functools
@@ -79,8 +80,12 @@ CLIP_MRAD = 2000.0
 NEAR_UNSTABLE_RADIUS = 0.98
 
 #: The panel's slider ranges (min, max, step); :func:`advise` only proposes reachable values.
-SLIDER_RANGES = dict(zeta=(0.3, 2.0, 0.05), wn=(2.0, 100.0, 1.0), sigma_ratio=(1.0, 15.0, 0.5),
-                     Ts_ms=(1.0, 20.0, 1.0))
+SLIDER_RANGES = dict(
+    zeta=(0.3, 2.0, 0.05),
+    wn=(2.0, 100.0, 1.0),
+    sigma_ratio=(1.0, 15.0, 0.5),
+    Ts_ms=(1.0, 20.0, 1.0),
+)
 
 
 class UnstableDesignError(ValueError):
@@ -131,8 +136,9 @@ def design_gains(K, tau, zeta, wn, sigma_ratio, Ts, design="continuous"):
         g = ctl.pole_placement_pid(K, tau, wn, zeta=zeta, sigma=sigma)
         return g.discretize(Ts), g
     extra = 0.0 if design == "z-domain-filter" else None
-    return ctl.discrete_pole_placement_pid(K, tau, wn, zeta=zeta, sigma=sigma, Ts=Ts,
-                                           extra_pole=extra), None
+    return ctl.discrete_pole_placement_pid(
+        K, tau, wn, zeta=zeta, sigma=sigma, Ts=Ts, extra_pole=extra
+    ), None
 
 
 def closed_loop_max_radius(K, tau, gains, Ts=None):
@@ -160,14 +166,16 @@ def closed_loop_max_radius(K, tau, gains, Ts=None):
     tau = as_positive("tau", tau)
     if isinstance(gains, ctl.Gains):
         if Ts is None:
-            raise ValueError("Ts is needed to check continuous gains (they run discretized by Stojčić eq. 13)")
+            raise ValueError(
+                "Ts is needed to check continuous gains (they run discretized by Stojčić eq. 13)"
+            )
         gains = gains.discretize(Ts)
     elif not isinstance(gains, ctl.DiscreteGains):
         raise TypeError(f"gains must be DiscreteGains or Gains, got {type(gains).__name__}")
     if gains.loop != "position":
         raise ValueError(f"gains.loop must be 'position' for this check, got {gains.loop!r}")
     with np.errstate(all="ignore"):
-        if hasattr(ctl, "max_pole_radius"):            # the controller's own check (rig.run_move's)
+        if hasattr(ctl, "max_pole_radius"):  # the controller's own check (rig.run_move's)
             r = ctl.max_pole_radius(K, tau, gains)
         else:
             r = ctl.PositionLoop(K, tau, gains).max_pole_radius()
@@ -186,7 +194,10 @@ def check_runnable(K, tau, gains, Ts=None, *, force=False, design=None):
         raise UnstableDesignError(
             f"refused: the sampled loop of the {name} has a closed-loop pole at |z| = {r:.3f} ≥ 1 "
             f"(unstable) for K = {K:g} rad/(V·s), tau = {1e3 * tau:g} ms; change the design "
-            "(force=True runs it anyway)", max_radius=r, design=design)
+            "(force=True runs it anyway)",
+            max_radius=r,
+            design=design,
+        )
     return r
 
 
@@ -211,7 +222,7 @@ def stability_verdict(max_radius, desired_radius, Ts=None, sigma=None):
     message : str
         What the loop does; what would help is :func:`advise`'s job (it depends on the design).
     """
-    r = as_nonnegative("max_radius", max_radius)          # |z| of a pole: never negative
+    r = as_nonnegative("max_radius", max_radius)  # |z| of a pole: never negative
     rd = as_nonnegative("desired_radius", desired_radius)
     extra = ""
     if Ts is not None and sigma is not None:
@@ -220,9 +231,11 @@ def stability_verdict(max_radius, desired_radius, Ts=None, sigma=None):
         return "unstable", f"UNSTABLE: the sampled loop has a pole at |z| = {r:.3f} ≥ 1{extra}."
     margin, margin_designed = 1.0 - r, 1.0 - rd
     if r > NEAR_UNSTABLE_RADIUS and margin < 0.5 * margin_designed:
-        return "near", (f"Near instability: largest |z| = {r:.3f} (designed {rd:.3f}){extra}. "
-                        "A smooth reference with feedforward hides it; a step or a disturbance "
-                        "rings for a long time.")
+        return "near", (
+            f"Near instability: largest |z| = {r:.3f} (designed {rd:.3f}){extra}. "
+            "A smooth reference with feedforward hides it; a step or a disturbance "
+            "rings for a long time."
+        )
     return "ok", f"Stable: largest |z| = {r:.3f} (designed {rd:.3f}){extra}."
 
 
@@ -262,7 +275,9 @@ class Suggestion:
 
 def _grid_below(value, lo, step, hi):
     """Slider values below ``value`` down to ``lo``, nearest first (none above the slider's ``hi``)."""
-    value = min(value, hi + step)        # a value far above the slider (wn = 1e9) must not build 1e9 values
+    value = min(
+        value, hi + step
+    )  # a value far above the slider (wn = 1e9) must not build 1e9 values
     n = int(math.floor((value - lo) / step + 1e-9))
     vals = [round(lo + k * step, 10) for k in range(n, -1, -1)]
     return [v for v in vals if v < value - 1e-9]
@@ -313,8 +328,9 @@ def _advise(K, tau, zeta, wn, sigma_ratio, Ts, design):
         if other != design:
             level, r = ok(design=other)
             if level == "ok":
-                out.append(Suggestion("design", other, r,
-                                      f"the {DESIGN_NAMES[other]} (|z| = {r:.3f})"))
+                out.append(
+                    Suggestion("design", other, r, f"the {DESIGN_NAMES[other]} (|z| = {r:.3f})")
+                )
     return tuple(out)
 
 
@@ -341,8 +357,10 @@ def _advice_text(level, design, suggestions):
     if level == "ok":
         return ""
     if not suggestions:
-        return ("No single change of ωn, Ts, σ/ωn or design within the sliders' ranges makes it "
-                "stable and well damped; try another ζ.")
+        return (
+            "No single change of ωn, Ts, σ/ωn or design within the sliders' ranges makes it "
+            "stable and well damped; try another ζ."
+        )
     return "What would help (checked): " + "; ".join(s.text for s in suggestions) + "."
 
 
@@ -448,8 +466,14 @@ def move_profile(move=None):
 
 
 def _validated(K, tau, zeta, wn, sigma_ratio, Ts):
-    return (as_positive("K", K), as_positive("tau", tau), as_positive("zeta", zeta),
-            as_positive("wn", wn), as_positive("sigma_ratio", sigma_ratio), as_positive("Ts", Ts))
+    return (
+        as_positive("K", K),
+        as_positive("tau", tau),
+        as_positive("zeta", zeta),
+        as_positive("wn", wn),
+        as_positive("sigma_ratio", sigma_ratio),
+        as_positive("Ts", Ts),
+    )
 
 
 def _frozen(a):
@@ -458,9 +482,17 @@ def _frozen(a):
     return a
 
 
-def compute_pole_placement(K=paper.MOTOR_K, tau=paper.MOTOR_TAU, zeta=paper.ZETA, wn=20.0,
-                           sigma_ratio=paper.SIGMA_RATIO, Ts=paper.TS,
-                           design="continuous", move=None, simulate_move=True):
+def compute_pole_placement(
+    K=paper.MOTOR_K,
+    tau=paper.MOTOR_TAU,
+    zeta=paper.ZETA,
+    wn=20.0,
+    sigma_ratio=paper.SIGMA_RATIO,
+    Ts=paper.TS,
+    design="continuous",
+    move=None,
+    simulate_move=True,
+):
     """Design the position-loop PID for one setting and compute every curve of the panel.
 
     Parameters
@@ -487,8 +519,17 @@ def compute_pole_placement(K=paper.MOTOR_K, tau=paper.MOTOR_TAU, zeta=paper.ZETA
         Cached on the parameters: the same object (read-only arrays) for the same call.
     """
     K, tau, zeta, wn, sigma_ratio, Ts = _validated(K, tau, zeta, wn, sigma_ratio, Ts)
-    return _compute(K, tau, zeta, wn, sigma_ratio, Ts, _check_design_key(design), _move_key(move),
-                    bool(simulate_move))
+    return _compute(
+        K,
+        tau,
+        zeta,
+        wn,
+        sigma_ratio,
+        Ts,
+        _check_design_key(design),
+        _move_key(move),
+        bool(simulate_move),
+    )
 
 
 @functools.lru_cache(maxsize=64)
@@ -506,7 +547,7 @@ def _compute(K, tau, zeta, wn, sigma_ratio, Ts, design, move_key, simulate_move)
     poles_s_desired, poles_z_desired = _desired(zeta, wn, sigma_ratio, Ts)
     desired_radius = float(np.max(np.abs(poles_z_desired)))
     poles_s_equivalent = np.asarray(loop.poles_s(), dtype=complex)
-    poles_s_equivalent = poles_s_equivalent[np.isfinite(poles_s_equivalent)]   # z = 0 has no s image
+    poles_s_equivalent = poles_s_equivalent[np.isfinite(poles_s_equivalent)]  # z = 0 has no s image
     level, message = stability_verdict(min(max_radius, 1e300), desired_radius, Ts, sigma)
     advice = _advise(K, tau, zeta, wn, sigma_ratio, Ts, design) if level != "ok" else ()
     t1 = time.perf_counter()
@@ -528,8 +569,9 @@ def _compute(K, tau, zeta, wn, sigma_ratio, Ts, design, move_key, simulate_move)
 
         profile = _profile(move_key)
         motor = DCMotor(K, tau)
-        c = ctl.DigitalController(d, feedforward=ctl.Feedforward(K, tau),
-                                  output_limit=motor.supply_voltage)
+        c = ctl.DigitalController(
+            d, feedforward=ctl.Feedforward(K, tau), output_limit=motor.supply_voltage
+        )
         with np.errstate(all="ignore"):
             r = simulate(profile, motor, c, Ts=Ts, t_end=profile.duration + 0.3)
         t_move = np.asarray(r.t, dtype=float)
@@ -541,16 +583,38 @@ def _compute(K, tau, zeta, wn, sigma_ratio, Ts, design, move_key, simulate_move)
     t3 = time.perf_counter()
 
     return TuningResult(
-        params=dict(K=K, tau=tau, zeta=zeta, wn=wn, sigma_ratio=sigma_ratio, sigma=sigma, Ts=Ts,
-                    design=design),
-        gains=d, continuous_gains=g, poles_s_desired=_frozen(poles_s_desired),
-        poles_z=_frozen(poles_z), poles_z_desired=_frozen(poles_z_desired),
-        poles_s_equivalent=_frozen(poles_s_equivalent), max_radius=max_radius,
-        desired_radius=desired_radius, stable=stable, level=level, message=message,
-        t_step=_frozen(t_lin), y_step=_frozen(y_step), t_dist=_frozen(t_lin),
-        y_dist=_frozen(y_dist), t_move=_frozen(t_move), err_move=_frozen(err_move),
-        u_move=_frozen(u_move), err_move_measured=_frozen(err_meas), advice=advice,
-        advice_text=_advice_text(level, design, advice), t_view=t_view,
+        params=dict(
+            K=K,
+            tau=tau,
+            zeta=zeta,
+            wn=wn,
+            sigma_ratio=sigma_ratio,
+            sigma=sigma,
+            Ts=Ts,
+            design=design,
+        ),
+        gains=d,
+        continuous_gains=g,
+        poles_s_desired=_frozen(poles_s_desired),
+        poles_z=_frozen(poles_z),
+        poles_z_desired=_frozen(poles_z_desired),
+        poles_s_equivalent=_frozen(poles_s_equivalent),
+        max_radius=max_radius,
+        desired_radius=desired_radius,
+        stable=stable,
+        level=level,
+        message=message,
+        t_step=_frozen(t_lin),
+        y_step=_frozen(y_step),
+        t_dist=_frozen(t_lin),
+        y_dist=_frozen(y_dist),
+        t_move=_frozen(t_move),
+        err_move=_frozen(err_move),
+        u_move=_frozen(u_move),
+        err_move_measured=_frozen(err_meas),
+        advice=advice,
+        advice_text=_advice_text(level, design, advice),
+        t_view=t_view,
         timings=dict(design=t1 - t0, responses=t2 - t1, move=t3 - t2),
     )
 
@@ -587,8 +651,11 @@ def gain_table(gains, continuous=None):
     rows = [("kpd", gains.kpd, "V/rad"), ("kid", gains.kid, "V/rad"), ("kdd", gains.kdd, "V/rad")]
     if getattr(gains, "gamma", 0.0) != 0.0:
         rows.append(("γ", gains.gamma, ""))
-    kp, ki, kd = ((continuous.kp, continuous.ki, continuous.kd) if continuous is not None
-                  else continuous_equivalent(gains))
+    kp, ki, kd = (
+        (continuous.kp, continuous.ki, continuous.kd)
+        if continuous is not None
+        else continuous_equivalent(gains)
+    )
     rows += [("Kp", kp, "V/rad"), ("Ki", ki, "V/(rad·s)"), ("Kd", kd, "V·s/rad")]
     return rows
 

@@ -33,6 +33,7 @@ Design choices
   current figure, so headless execution (nbclient, nbconvert, a notebook viewer) keeps the
   default-value figure, while a widget front end shows the live panel.
 """
+
 from __future__ import annotations
 
 import base64
@@ -50,9 +51,16 @@ import numpy as np
 
 from jerklab import paper, tuning
 from jerklab._validate import as_positive
-from jerklab.tuning import (CLIP_MRAD, DEFAULT_MOVE, DESIGN_NAMES, DESIGNS, DISTURBANCE_VOLTS,
-                            NEAR_UNSTABLE_RADIUS, TuningResult, angle_unit, format_angle,
-                            stability_verdict)
+from jerklab.tuning import (
+    CLIP_MRAD,
+    DEFAULT_MOVE,
+    DESIGNS,
+    DISTURBANCE_VOLTS,
+    TuningResult,
+    angle_unit,
+    format_angle,
+    stability_verdict,
+)
 
 __all__ = [
     "DESIGNS",
@@ -68,8 +76,11 @@ __all__ = [
 
 def compute_pole_placement(*args, **kwargs):
     """Deprecated alias of :func:`jerklab.tuning.compute_pole_placement` (moved there)."""
-    warnings.warn("jerklab.widgets.compute_pole_placement moved to "
-                  "jerklab.tuning.compute_pole_placement", DeprecationWarning, stacklevel=2)
+    warnings.warn(
+        "jerklab.widgets.compute_pole_placement moved to jerklab.tuning.compute_pole_placement",
+        DeprecationWarning,
+        stacklevel=2,
+    )
     return tuning.compute_pole_placement(*args, **kwargs)
 
 
@@ -99,7 +110,7 @@ def nice_ceil(x):
         return 1.0
     k = math.floor(math.log10(x))
     for m in _NICE_STEPS:
-        v = m * 10.0 ** k
+        v = m * 10.0**k
         if v >= x * (1 - 1e-12):
             return v
     return 10.0 ** (k + 1)
@@ -123,24 +134,45 @@ def _nice_range(y, include=(), pad=0.06):
 #: Figure geometry of the two layouts: grid of the six plots, size (inches), ticks per axis,
 #: label offsets (axes fractions) and subplot margins.
 _LAYOUTS = {
-    "wide": dict(grid=(("s", "z", "step"), ("dist", "err", "u")), figsize=(11.0, 6.6), ticks=5,
-                 xlabel=-0.13, ylabel=-0.19, font=10.0, title=11.0,
-                 adjust=dict(left=0.07, right=0.985, bottom=0.08, top=0.88, wspace=0.38,
-                             hspace=0.45)),
-    "narrow": dict(grid=(("s", "z"), ("step", "dist"), ("err", "u")), figsize=(4.8, 8.0), ticks=4,
-                   xlabel=-0.17, ylabel=-0.34, font=8.5, title=8.5,
-                   adjust=dict(left=0.17, right=0.975, bottom=0.065, top=0.96, wspace=0.62,
-                               hspace=0.55)),
+    "wide": dict(
+        grid=(("s", "z", "step"), ("dist", "err", "u")),
+        figsize=(11.0, 6.6),
+        ticks=5,
+        xlabel=-0.13,
+        ylabel=-0.19,
+        font=10.0,
+        title=11.0,
+        adjust=dict(left=0.07, right=0.985, bottom=0.08, top=0.88, wspace=0.38, hspace=0.45),
+    ),
+    "narrow": dict(
+        grid=(("s", "z"), ("step", "dist"), ("err", "u")),
+        figsize=(4.8, 8.0),
+        ticks=4,
+        xlabel=-0.17,
+        ylabel=-0.34,
+        font=8.5,
+        title=8.5,
+        adjust=dict(left=0.17, right=0.975, bottom=0.065, top=0.96, wspace=0.62, hspace=0.55),
+    ),
 }
 
 _TITLES = {
-    "wide": dict(s="Closed-loop poles in s", z="Closed-loop poles in z",
-                 step="Unit step response (no feedforward)",
-                 dist=f"Step load disturbance {DISTURBANCE_VOLTS:g} V (Stojčić eq. 9)",
-                 err="Sine-jerk move: tracking error", u="Sine-jerk move: control voltage"),
-    "narrow": dict(s="Poles in s", z="Poles in z", step="Unit step",
-                   dist=f"{DISTURBANCE_VOLTS:g} V load step", err="Move: tracking error",
-                   u="Move: voltage"),
+    "wide": dict(
+        s="Closed-loop poles in s",
+        z="Closed-loop poles in z",
+        step="Unit step response (no feedforward)",
+        dist=f"Step load disturbance {DISTURBANCE_VOLTS:g} V (Stojčić eq. 9)",
+        err="Sine-jerk move: tracking error",
+        u="Sine-jerk move: control voltage",
+    ),
+    "narrow": dict(
+        s="Poles in s",
+        z="Poles in z",
+        step="Unit step",
+        dist=f"{DISTURBANCE_VOLTS:g} V load step",
+        err="Move: tracking error",
+        u="Move: voltage",
+    ),
 }
 
 
@@ -194,8 +226,9 @@ class PolePlacementFigure:
         a.axhline(0, color="0.7", lw=0.8)
         a.axvline(0, color="0.7", lw=0.8)
         (self.s_des,) = a.plot([], [], "x", ms=9, mew=2, color="C0", label="designed")
-        (self.s_eq,) = a.plot([], [], "o", ms=7, mfc="none", mew=1.5, color="C3",
-                              label="sampled loop, ln(z)/Ts")
+        (self.s_eq,) = a.plot(
+            [], [], "o", ms=7, mfc="none", mew=1.5, color="C3", label="sampled loop, ln(z)/Ts"
+        )
         a.set_xlabel("Re s [1/s]")
         a.set_ylabel("Im s [rad/s]")
         a.set_title(T["s"], y=1.0)
@@ -206,8 +239,9 @@ class PolePlacementFigure:
         a.axhline(0, color="0.8", lw=0.8)
         a.axvline(0, color="0.8", lw=0.8)
         (self.z_des,) = a.plot([], [], "x", ms=9, mew=2, color="C0", label="designed exp(s Ts)")
-        (self.z_ach,) = a.plot([], [], "o", ms=7, mfc="none", mew=1.5, color="C3",
-                               label="sampled loop")
+        (self.z_ach,) = a.plot(
+            [], [], "o", ms=7, mfc="none", mew=1.5, color="C3", label="sampled loop"
+        )
         a.set_aspect("equal", adjustable="box")
         a.set_xlabel("Re z [-]")
         a.set_ylabel("Im z [-]")
@@ -231,8 +265,7 @@ class PolePlacementFigure:
 
         a = self.ax_err
         a.axhline(0, color="0.7", lw=0.8)
-        (self.err_line,) = a.plot([], [], color="C2", drawstyle="steps-post",
-                                  label="simulation")
+        (self.err_line,) = a.plot([], [], color="C2", drawstyle="steps-post", label="simulation")
         (self.rig_line,) = a.plot([], [], color="C4", drawstyle="steps-post", label="rig")
         a.set_xlabel("time [s]")
         a.set_ylabel("ref. − encoder [mrad]")
@@ -259,16 +292,32 @@ class PolePlacementFigure:
             a.xaxis.set_label_coords(0.5, L["xlabel"])
             a.yaxis.set_label_coords(L["ylabel"], 0.5)
         self.ax_s.legend(handles=[self.s_des, self.s_eq], loc="upper left", fontsize=small)
-        self._dynamic = [self.s_des, self.s_eq, self.z_des, self.z_ach, self.step_line,
-                         self.dist_line, self.err_line, self.rig_line, self.u_line]
+        self._dynamic = [
+            self.s_des,
+            self.s_eq,
+            self.z_des,
+            self.z_ach,
+            self.step_line,
+            self.dist_line,
+            self.err_line,
+            self.rig_line,
+            self.u_line,
+        ]
         for art in self._dynamic + [self.suptitle]:
             art.set_animated(True)
         from matplotlib.patches import Rectangle
         from matplotlib.transforms import IdentityTransform
 
         # paints over one axes (in pixels) before it is redrawn with new limits
-        self._eraser = Rectangle((0, 0), 1, 1, transform=IdentityTransform(), animated=True,
-                                 facecolor=self.fig.get_facecolor(), edgecolor="none")
+        self._eraser = Rectangle(
+            (0, 0),
+            1,
+            1,
+            transform=IdentityTransform(),
+            animated=True,
+            facecolor=self.fig.get_facecolor(),
+            edgecolor="none",
+        )
         self.fig.add_artist(self._eraser)
         self._limits = {}
         self._drawn_limits = {}
@@ -285,16 +334,19 @@ class PolePlacementFigure:
         grid = self._grid
         R, C = len(grid), len(grid[0])
         W, H = self.fig.bbox.width, self.fig.bbox.height
-        pt = self.dpi / 72.0                                   # pixels per point
-        box = {ax: ax.get_position(original=True).transformed(self.fig.transFigure)
-               for row in grid for ax in row}
+        pt = self.dpi / 72.0  # pixels per point
+        box = {
+            ax: ax.get_position(original=True).transformed(self.fig.transFigure)
+            for row in grid
+            for ax in row
+        }
         cols = [max(box[grid[i][j]].x1 for i in range(R)) + 12 * pt for j in range(C - 1)]
         xl = -_LAYOUTS[self.layout]["xlabel"]
         rows = []
         for i in range(R - 1):
             lower = min(box[ax].y0 for ax in grid[i])
             h = min(box[ax].height for ax in grid[i])
-            rows.append(lower - xl * h - 16 * pt)              # below the x label
+            rows.append(lower - xl * h - 16 * pt)  # below the x label
         slots = {}
         for i in range(R):
             y1 = H if i == 0 else rows[i - 1]
@@ -332,8 +384,11 @@ class PolePlacementFigure:
         xr = max(float(np.max(np.abs(pts.real))), 1.0)
         yr = max(float(np.max(np.abs(pts.imag))), 0.25 * xr)
         nx, ny = nice_ceil(xr), nice_ceil(yr)
-        lim[self.ax_s] = (self._keep(self.ax_s, 0, (-1.08 * nx, 0.25 * nx), -xr, 0.25 * xr, 0.4),
-                          self._keep(self.ax_s, 1, (-1.1 * ny, 1.1 * ny), -yr, yr, 0.4), None)
+        lim[self.ax_s] = (
+            self._keep(self.ax_s, 0, (-1.08 * nx, 0.25 * nx), -xr, 0.25 * xr, 0.4),
+            self._keep(self.ax_s, 1, (-1.1 * ny, 1.1 * ny), -yr, yr, 0.4),
+            None,
+        )
 
         self.z_des.set_data(res.poles_z_desired.real, res.poles_z_desired.imag)
         self.z_ach.set_data(res.poles_z.real, res.poles_z.imag)
@@ -349,19 +404,28 @@ class PolePlacementFigure:
         # levels) instead of ranges chasing a growing oscillation
         diverges = res.level == "unstable"
         yv = np.concatenate([y[res.t_step <= t_lim[1]], [0.0, 1.0]])
-        lim[self.ax_step] = (t_lim, (-5.3, 5.3) if diverges else self._keep(
-            self.ax_step, 1, _nice_range(yv), yv.min(), yv.max()), None)
+        lim[self.ax_step] = (
+            t_lim,
+            (-5.3, 5.3)
+            if diverges
+            else self._keep(self.ax_step, 1, _nice_range(yv), yv.min(), yv.max()),
+            None,
+        )
 
-        clip = CLIP_MRAD * 1e-3                                 # rad
+        clip = CLIP_MRAD * 1e-3  # rad
         yd = _clip_for_plot(res.y_dist, clip)
         f, unit = angle_unit(np.max(np.abs(yd[res.t_dist <= t_lim[1]]), initial=0.0))
         self._unit_now[self.ax_dist] = unit
         yd = f * yd
         self.dist_line.set_data(res.t_dist, yd)
         yv = np.concatenate([yd[res.t_dist <= t_lim[1]], [0.0]])
-        lim[self.ax_dist] = (t_lim, (-1.06 * clip * f, 1.06 * clip * f) if diverges else
-                             self._keep(self.ax_dist, 1, _nice_range(yv), yv.min(), yv.max()),
-                             unit)
+        lim[self.ax_dist] = (
+            t_lim,
+            (-1.06 * clip * f, 1.06 * clip * f)
+            if diverges
+            else self._keep(self.ax_dist, 1, _nice_range(yv), yv.min(), yv.max()),
+            unit,
+        )
 
         t_mv = float(res.t_move[-1]) if res.t_move.size else 1.0
         e = _clip_for_plot(res.err_move_measured, clip)
@@ -382,35 +446,51 @@ class PolePlacementFigure:
         has_legend = self.ax_err.get_legend() is not None
         if (rig_error is not None) != has_legend:
             if rig_error is not None:
-                self.ax_err.legend(handles=[self.err_line, self.rig_line], loc="upper right",
-                                   fontsize=7)
+                self.ax_err.legend(
+                    handles=[self.err_line, self.rig_line], loc="upper right", fontsize=7
+                )
             else:
                 self.ax_err.get_legend().remove()
         ev = f * np.concatenate([np.asarray(v, dtype=float) for v in ys])
         t_mlim = (0.0, nice_ceil(t_mv))
-        lim[self.ax_err] = (t_mlim, (-1.06 * clip * f, 1.06 * clip * f) if diverges else
-                            self._keep(self.ax_err, 1, _nice_range(ev), ev.min(), ev.max()),
-                            rig_error is not None, unit)
+        lim[self.ax_err] = (
+            t_mlim,
+            (-1.06 * clip * f, 1.06 * clip * f)
+            if diverges
+            else self._keep(self.ax_err, 1, _nice_range(ev), ev.min(), ev.max()),
+            rig_error is not None,
+            unit,
+        )
 
         u = _clip_for_plot(res.u_move, 1e3)
         self.u_line.set_data(res.t_move, u)
         um = max(float(np.max(np.abs(u))) if u.size else 1.0, 0.5)
         nu = nice_ceil(um)
-        lim[self.ax_u] = (t_mlim, (-15.0, 15.0) if diverges else
-                          self._keep(self.ax_u, 1, (-1.06 * nu, 1.06 * nu), -um, um), None)
+        lim[self.ax_u] = (
+            t_mlim,
+            (-15.0, 15.0)
+            if diverges
+            else self._keep(self.ax_u, 1, (-1.06 * nu, 1.06 * nu), -um, um),
+            None,
+        )
 
-        name = {"continuous": "Stojčić eq. 11 + Stojčić eq. 13", "z-domain": "direct z-domain",
-                "z-domain-filter": "z-domain + γ filter"}[p["design"]]
+        name = {
+            "continuous": "Stojčić eq. 11 + Stojčić eq. 13",
+            "z-domain": "direct z-domain",
+            "z-domain-filter": "z-domain + γ filter",
+        }[p["design"]]
         if self.layout == "wide":
             self.suptitle.set_text(
                 f"{name}: ζ = {p['zeta']:.2f}, ωn = {p['wn']:.1f} rad/s, "
                 f"σ = {p['sigma_ratio']:.1f}·ωn, Ts = {1e3 * p['Ts']:.2f} ms — max |z| = "
-                f"{res.max_radius:.3f} ({res.level})")
+                f"{res.max_radius:.3f} ({res.level})"
+            )
         else:
             self.suptitle.set_text(
                 f"{name}: ζ = {p['zeta']:.2f}, ωn = {p['wn']:.0f} rad/s,\n"
                 f"σ = {p['sigma_ratio']:.1f}·ωn, Ts = {1e3 * p['Ts']:.0f} ms — max |z| = "
-                f"{res.max_radius:.3f} ({res.level})")
+                f"{res.max_radius:.3f} ({res.level})"
+            )
         self.suptitle.set_color(_LEVEL_COLORS[res.level])
         self._limits = lim
 
@@ -442,7 +522,7 @@ class PolePlacementFigure:
         if self._background is None:
             for ax, key in self._limits.items():
                 self._apply_limits(ax, key)
-            self.canvas.draw()                      # animated artists are skipped
+            self.canvas.draw()  # animated artists are skipped
             self._drawn_limits = dict(self._limits)
             self._background = self.canvas.copy_from_bbox(self.fig.bbox)
             self.full_redraws += 1
@@ -496,8 +576,14 @@ class PolePlacementFigure:
 # the widget
 # --------------------------------------------------------------------------------------
 #: Windows refuses these as file names (with any extension).
-_WINDOWS_RESERVED = {"CON", "PRN", "AUX", "NUL", *(f"COM{i}" for i in range(1, 10)),
-                     *(f"LPT{i}" for i in range(1, 10))}
+_WINDOWS_RESERVED = {
+    "CON",
+    "PRN",
+    "AUX",
+    "NUL",
+    *(f"COM{i}" for i in range(1, 10)),
+    *(f"LPT{i}" for i in range(1, 10)),
+}
 
 
 def sanitize_student_id(student_id, max_length=48):
@@ -571,16 +657,28 @@ class PolePlacementPanel(_panel_base()):
     student ID field or None), ``last_recording`` (the last rig run's Recording).
     """
 
-    def __init__(self, K=paper.MOTOR_K, tau=paper.MOTOR_TAU, zeta=paper.ZETA, wn=20.0,
-                 sigma_ratio=paper.SIGMA_RATIO, Ts=paper.TS,
-                 design="continuous", move=None, rig=None, dpi=80, student=False,
-                 narrow_figure=False, recordings=None):
+    def __init__(
+        self,
+        K=paper.MOTOR_K,
+        tau=paper.MOTOR_TAU,
+        zeta=paper.ZETA,
+        wn=20.0,
+        sigma_ratio=paper.SIGMA_RATIO,
+        Ts=paper.TS,
+        design="continuous",
+        move=None,
+        rig=None,
+        dpi=80,
+        student=False,
+        narrow_figure=False,
+        recordings=None,
+    ):
         import ipywidgets as widgets
 
         self.K = as_positive("K", K)
         self.tau = as_positive("tau", tau)
         self.move = dict(move or DEFAULT_MOVE)
-        tuning.move_profile(self.move)                    # a bad move fails here, named
+        tuning.move_profile(self.move)  # a bad move fails here, named
         self.rig = rig
         self.recordings = recordings
         self.result = None
@@ -597,27 +695,57 @@ class PolePlacementPanel(_panel_base()):
 
         R = tuning.SLIDER_RANGES
         c = dict(
-            zeta=widgets.FloatSlider(value=as_positive("zeta", zeta), min=R["zeta"][0],
-                                     max=R["zeta"][1], step=R["zeta"][2], description="ζ",
-                                     readout_format=".2f", continuous_update=False,
-                                     style=style, layout=lay()),
-            wn=widgets.FloatSlider(value=as_positive("wn", wn), min=R["wn"][0], max=R["wn"][1],
-                                   step=R["wn"][2], description="ωn [rad/s]", readout_format=".0f",
-                                   continuous_update=False, style=style, layout=lay()),
-            sigma_ratio=widgets.FloatSlider(value=as_positive("sigma_ratio", sigma_ratio),
-                                            min=R["sigma_ratio"][0], max=R["sigma_ratio"][1],
-                                            step=R["sigma_ratio"][2], description="σ / ωn",
-                                            readout_format=".1f", continuous_update=False,
-                                            style=style, layout=lay()),
-            Ts_ms=widgets.FloatSlider(value=1e3 * as_positive("Ts", Ts), min=R["Ts_ms"][0],
-                                      max=R["Ts_ms"][1], step=R["Ts_ms"][2], description="Ts [ms]",
-                                      readout_format=".1f", continuous_update=False, style=style,
-                                      layout=lay()),
-            design=widgets.ToggleButtons(options=list(DESIGNS.items()),
-                                         value=design if design in DESIGNS.values() else None,
-                                         description="design",
-                                         style={"button_width": "auto", **style},
-                                         layout=widgets.Layout(max_width="100%")),
+            zeta=widgets.FloatSlider(
+                value=as_positive("zeta", zeta),
+                min=R["zeta"][0],
+                max=R["zeta"][1],
+                step=R["zeta"][2],
+                description="ζ",
+                readout_format=".2f",
+                continuous_update=False,
+                style=style,
+                layout=lay(),
+            ),
+            wn=widgets.FloatSlider(
+                value=as_positive("wn", wn),
+                min=R["wn"][0],
+                max=R["wn"][1],
+                step=R["wn"][2],
+                description="ωn [rad/s]",
+                readout_format=".0f",
+                continuous_update=False,
+                style=style,
+                layout=lay(),
+            ),
+            sigma_ratio=widgets.FloatSlider(
+                value=as_positive("sigma_ratio", sigma_ratio),
+                min=R["sigma_ratio"][0],
+                max=R["sigma_ratio"][1],
+                step=R["sigma_ratio"][2],
+                description="σ / ωn",
+                readout_format=".1f",
+                continuous_update=False,
+                style=style,
+                layout=lay(),
+            ),
+            Ts_ms=widgets.FloatSlider(
+                value=1e3 * as_positive("Ts", Ts),
+                min=R["Ts_ms"][0],
+                max=R["Ts_ms"][1],
+                step=R["Ts_ms"][2],
+                description="Ts [ms]",
+                readout_format=".1f",
+                continuous_update=False,
+                style=style,
+                layout=lay(),
+            ),
+            design=widgets.ToggleButtons(
+                options=list(DESIGNS.items()),
+                value=design if design in DESIGNS.values() else None,
+                description="design",
+                style={"button_width": "auto", **style},
+                layout=widgets.Layout(max_width="100%"),
+            ),
         )
         if c["design"].value is None:
             raise ValueError(f"design must be one of {sorted(DESIGNS.values())}, got {design!r}")
@@ -630,15 +758,17 @@ class PolePlacementPanel(_panel_base()):
         self.figure = PolePlacementFigure(dpi=dpi)
         width_px = self.figure.canvas.get_width_height()[0]
         # shown at its own pixel size (no blurry upscaling), narrower on a small screen
-        self.image = widgets.Image(format="png", layout=widgets.Layout(width=f"{width_px}px",
-                                                                       max_width="100%"))
+        self.image = widgets.Image(
+            format="png", layout=widgets.Layout(width=f"{width_px}px", max_width="100%")
+        )
         self.image.add_class("jerklab-figure")
         self.figure_narrow = self.image_narrow = None
         if narrow_figure:
             self.figure_narrow = PolePlacementFigure(dpi=dpi, layout="narrow")
             w_n = self.figure_narrow.canvas.get_width_height()[0]
-            self.image_narrow = widgets.Image(format="png", layout=widgets.Layout(
-                width=f"{w_n}px", max_width="100%"))
+            self.image_narrow = widgets.Image(
+                format="png", layout=widgets.Layout(width=f"{w_n}px", max_width="100%")
+            )
             self.image_narrow.add_class("jerklab-figure-narrow")
 
         sliders = widgets.Box([c["zeta"], c["wn"], c["sigma_ratio"], c["Ts_ms"]])
@@ -646,20 +776,24 @@ class PolePlacementPanel(_panel_base()):
         rows = [widgets.HTML(_PANEL_CSS), sliders, c["design"]]
         self.student = None
         if rig is not None:
-            self.rig_button = widgets.Button(description="Run this move on the rig",
-                                             button_style="primary",
-                                             layout=widgets.Layout(width="260px",
-                                                                   max_width="100%"))
+            self.rig_button = widgets.Button(
+                description="Run this move on the rig",
+                button_style="primary",
+                layout=widgets.Layout(width="260px", max_width="100%"),
+            )
             self.rig_button.add_class("jerklab-rig-button")
             self.rig_status = widgets.HTML()
             self.rig_status.add_class("jerklab-rig-status")
             self.rig_button.on_click(self._run_on_rig)
             items = [self.rig_button, self.rig_status]
             if student:
-                self.student = widgets.Text(description="student ID", placeholder="your ID",
-                                            continuous_update=True, style=style,
-                                            layout=widgets.Layout(width="260px",
-                                                                  max_width="100%"))
+                self.student = widgets.Text(
+                    description="student ID",
+                    placeholder="your ID",
+                    continuous_update=True,
+                    style=style,
+                    layout=widgets.Layout(width="260px", max_width="100%"),
+                )
                 self.student.add_class("jerklab-student-id")
                 self.student.observe(lambda _c: self._update_rig_button(), names="value")
                 items.insert(0, self.student)
@@ -680,9 +814,16 @@ class PolePlacementPanel(_panel_base()):
     def params(self):
         """The current slider values as keyword arguments of :func:`jerklab.tuning.compute_pole_placement`."""
         c = self.controls
-        return dict(K=self.K, tau=self.tau, zeta=c["zeta"].value, wn=c["wn"].value,
-                    sigma_ratio=c["sigma_ratio"].value, Ts=c["Ts_ms"].value * 1e-3,
-                    design=c["design"].value, move=self.move)
+        return dict(
+            K=self.K,
+            tau=self.tau,
+            zeta=c["zeta"].value,
+            wn=c["wn"].value,
+            sigma_ratio=c["sigma_ratio"].value,
+            Ts=c["Ts_ms"].value * 1e-3,
+            design=c["design"].value,
+            move=self.move,
+        )
 
     @property
     def gains(self):
@@ -725,7 +866,8 @@ class PolePlacementPanel(_panel_base()):
             self.status.value = (
                 '<div class="jerklab-error" style="background:#fdecea;color:#b71c1c;'
                 'border:2px solid #c62828;padding:6px;font-weight:bold">'
-                f"Panel error: {html.escape(self.error)}</div>")
+                f"Panel error: {html.escape(self.error)}</div>"
+            )
             self.status.add_class("jerklab-error")
             raise
         self.error = None
@@ -748,8 +890,10 @@ class PolePlacementPanel(_panel_base()):
             return "no design yet"
         if not res.stable:
             advice = f" {res.advice_text}" if res.advice_text else ""
-            return (f"Not run on the rig: the sampled loop of the {res.design_name} has a pole "
-                    f"at |z| = {res.max_radius:.3f} ≥ 1, it would run away.{advice}")
+            return (
+                f"Not run on the rig: the sampled loop of the {res.design_name} has a pole "
+                f"at |z| = {res.max_radius:.3f} ≥ 1, it would run away.{advice}"
+            )
         if self.student is not None and self.student_id is None:
             return "Enter your student ID to run on the rig (your runs are saved under it)."
         return None
@@ -760,8 +904,9 @@ class PolePlacementPanel(_panel_base()):
         why = self._refusal()
         self.rig_button.disabled = why is not None
         if why is not None:
-            self.rig_status.value = (f'<span class="jerklab-rig-refused" style="color:#8a1c1c">'
-                                     f"{html.escape(why)}</span>")
+            self.rig_status.value = (
+                f'<span class="jerklab-rig-refused" style="color:#8a1c1c">{html.escape(why)}</span>'
+            )
         elif "jerklab-rig-refused" in self.rig_status.value or self._rig_error is None:
             self.rig_status.value = ""
 
@@ -792,17 +937,22 @@ class PolePlacementPanel(_panel_base()):
         res = self.result
         try:
             self.rig_button.disabled = True
-            tuning.check_runnable(self.K, self.tau, res.gains, force=force,
-                                  design=res.params["design"])
+            tuning.check_runnable(
+                self.K, self.tau, res.gains, force=force, design=res.params["design"]
+            )
             if self.student is not None and self.student_id is None:
                 raise ValueError("student_id: enter your student ID before running on the rig")
             self.rig_status.value = "running…"
-            kwargs = dict(Ts=res.params["Ts"], feedforward=Feedforward(self.K, self.tau),
-                          path=self._recording_path(), progress=False)
+            kwargs = dict(
+                Ts=res.params["Ts"],
+                feedforward=Feedforward(self.K, self.tau),
+                path=self._recording_path(),
+                progress=False,
+            )
             if getattr(self.rig, "queues_runs", False):
                 kwargs["on_status"] = lambda msg: self._show_rig_status(html.escape(msg))
                 if self.student_id is not None:
-                    self.rig.client = self.student_id      # names the run in the broker's queue
+                    self.rig.client = self.student_id  # names the run in the broker's queue
             if force and _accepts(self.rig.run_move, "force"):
                 kwargs["force"] = True
             rec = self.rig.run_move(tuning.move_profile(self.move), res.gains, **kwargs)
@@ -817,17 +967,21 @@ class PolePlacementPanel(_panel_base()):
             if self.figure_narrow is not None:
                 self.figure_narrow.update(res, self._rig_error)
                 self.image_narrow.value = self.figure_narrow.png()
-            sim = float(np.max(np.abs(res.err_move_measured))) if res.err_move_measured.size else 0.0
+            sim = (
+                float(np.max(np.abs(res.err_move_measured))) if res.err_move_measured.size else 0.0
+            )
             saved = ""
             if getattr(rec, "csv_path", None) is not None:
                 saved = f"; saved as {html.escape(str(rec.csv_path))}"
             self.rig_status.value = (
                 f"rig: max |ref. − encoder| = {format_angle(np.max(np.abs(err)))} over "
-                f"{t.size} samples (simulation: {format_angle(sim)}){saved}")
+                f"{t.size} samples (simulation: {format_angle(sim)}){saved}"
+            )
         except Exception as exc:
             self.rig_status.value = (
                 '<span class="jerklab-error" style="color:#b71c1c;font-weight:bold">rig error: '
-                f"{html.escape(f'{type(exc).__name__}: {exc}')}</span>")
+                f"{html.escape(f'{type(exc).__name__}: {exc}')}</span>"
+            )
             raise
         finally:
             self.rig_button.disabled = self._refusal() is not None
@@ -839,7 +993,9 @@ class PolePlacementPanel(_panel_base()):
         |z| ≥ 1 unless ``force=True``.
         """
         if self.rig is None:
-            raise ValueError("rig: this panel was built without a rig (pole_placement_panel(rig=...))")
+            raise ValueError(
+                "rig: this panel was built without a rig (pole_placement_panel(rig=...))"
+            )
         self._run_on_rig(force=force)
         return self._rig_error
 
@@ -877,27 +1033,43 @@ def _status_html(res):
     tag = {"ok": "OK", "near": "WARNING", "unstable": "UNSTABLE"}[res.level]
     message = res.message
     if message.startswith(tag + ": "):
-        message = message[len(tag) + 2:]
+        message = message[len(tag) + 2 :]
     rows = tuning.gain_table(res.gains, res.continuous_gains)
     disc = ", ".join(f"{n} = {_fmt_gain(v)} {u}".rstrip() for n, v, u in rows[:-3])
     cont = ", ".join(f"{n} = {_fmt_gain(v)} {u}" for n, v, u in rows[-3:])
-    how = ("Stojčić eq. 11" if res.continuous_gains is not None
-           else "Stojčić eq. 13 equivalent")
-    advice = (f'<br><span class="jerklab-advice">{html.escape(res.advice_text)}</span>'
-              if res.advice_text else "")
-    return (f'<div class="jerklab-verdict jerklab-{res.level}" style="background:{bg};'
-            f'color:{color};border-left:6px solid {color};padding:4px 8px">'
-            f'<b><span style="border:1px solid {color};border-radius:3px;padding:0 4px;'
-            f'margin-right:6px">{tag}</span>{html.escape(res.design_name)}: '
-            f"{html.escape(message)}</b>{advice}<br>"
-            f'<span style="color:#333">discrete (Stojčić eq. 12): {html.escape(disc)}<br>'
-            f"continuous ({how}): {html.escape(cont)}</span></div>")
+    how = "Stojčić eq. 11" if res.continuous_gains is not None else "Stojčić eq. 13 equivalent"
+    advice = (
+        f'<br><span class="jerklab-advice">{html.escape(res.advice_text)}</span>'
+        if res.advice_text
+        else ""
+    )
+    return (
+        f'<div class="jerklab-verdict jerklab-{res.level}" style="background:{bg};'
+        f'color:{color};border-left:6px solid {color};padding:4px 8px">'
+        f'<b><span style="border:1px solid {color};border-radius:3px;padding:0 4px;'
+        f'margin-right:6px">{tag}</span>{html.escape(res.design_name)}: '
+        f"{html.escape(message)}</b>{advice}<br>"
+        f'<span style="color:#333">discrete (Stojčić eq. 12): {html.escape(disc)}<br>'
+        f"continuous ({how}): {html.escape(cont)}</span></div>"
+    )
 
 
-def pole_placement_panel(K=paper.MOTOR_K, tau=paper.MOTOR_TAU, *, zeta=paper.ZETA, wn=20.0,
-                         sigma_ratio=paper.SIGMA_RATIO, Ts=paper.TS,
-                         design="continuous", move=None, rig=None, dpi=80, student=False,
-                         narrow_figure=False, recordings=None):
+def pole_placement_panel(
+    K=paper.MOTOR_K,
+    tau=paper.MOTOR_TAU,
+    *,
+    zeta=paper.ZETA,
+    wn=20.0,
+    sigma_ratio=paper.SIGMA_RATIO,
+    Ts=paper.TS,
+    design="continuous",
+    move=None,
+    rig=None,
+    dpi=80,
+    student=False,
+    narrow_figure=False,
+    recordings=None,
+):
     """The interactive pole-placement tuning panel of notebook 03, the labs and the class page.
 
     Sliders for ζ, ωn, σ/ωn and Ts and a choice of design (Stojčić eq. 11 discretized by
@@ -947,6 +1119,18 @@ def pole_placement_panel(K=paper.MOTOR_K, tau=paper.MOTOR_TAU, *, zeta=paper.ZET
     >>> panel.result.level, panel.gains.Ts                  # doctest: +SKIP
     ('unstable', 0.005)
     """
-    return PolePlacementPanel(K=K, tau=tau, zeta=zeta, wn=wn, sigma_ratio=sigma_ratio, Ts=Ts,
-                              design=design, move=move, rig=rig, dpi=dpi, student=student,
-                              narrow_figure=narrow_figure, recordings=recordings)
+    return PolePlacementPanel(
+        K=K,
+        tau=tau,
+        zeta=zeta,
+        wn=wn,
+        sigma_ratio=sigma_ratio,
+        Ts=Ts,
+        design=design,
+        move=move,
+        rig=rig,
+        dpi=dpi,
+        student=student,
+        narrow_figure=narrow_figure,
+        recordings=recordings,
+    )

@@ -10,6 +10,7 @@ Regenerate the picture of docs/RIG.md with::
 
     python -m jerklab.wiring docs/rig_wiring.png
 """
+
 from __future__ import annotations
 
 import sys
@@ -58,19 +59,38 @@ PARTS = {
 
 #: Pin positions on the box edges: "Part.pin" -> (x, y).
 PINS = {
-    "Uno.GND1": (3.0, 10.6), "Uno.D9": (3.0, 9.3), "Uno.D8": (3.0, 8.5), "Uno.D7": (3.0, 7.7),
-    "Uno.D2": (3.0, 3.9), "Uno.D3": (3.0, 3.1), "Uno.5V": (3.0, 2.1), "Uno.GND2": (3.0, 1.3),
-    "L298N.ENA": (7.0, 9.3), "L298N.IN2": (7.0, 8.5), "L298N.IN1": (7.0, 7.7),
-    "L298N.GND": (8.0, 10.0), "L298N.+12V": (9.0, 10.0),
-    "L298N.OUT1": (10.5, 9.3), "L298N.OUT2": (10.5, 8.5),
-    "Supply.+12V": (11.5, 11.4), "Supply.GND": (11.5, 12.4),
-    "Motor.M+": (13.5, 9.3), "Motor.M-": (13.5, 8.5),
-    "Encoder.A": (13.5, 3.9), "Encoder.B": (13.5, 3.1), "Encoder.VCC": (13.5, 2.1),
+    "Uno.GND1": (3.0, 10.6),
+    "Uno.D9": (3.0, 9.3),
+    "Uno.D8": (3.0, 8.5),
+    "Uno.D7": (3.0, 7.7),
+    "Uno.D2": (3.0, 3.9),
+    "Uno.D3": (3.0, 3.1),
+    "Uno.5V": (3.0, 2.1),
+    "Uno.GND2": (3.0, 1.3),
+    "L298N.ENA": (7.0, 9.3),
+    "L298N.IN2": (7.0, 8.5),
+    "L298N.IN1": (7.0, 7.7),
+    "L298N.GND": (8.0, 10.0),
+    "L298N.+12V": (9.0, 10.0),
+    "L298N.OUT1": (10.5, 9.3),
+    "L298N.OUT2": (10.5, 8.5),
+    "Supply.+12V": (11.5, 11.4),
+    "Supply.GND": (11.5, 12.4),
+    "Motor.M+": (13.5, 9.3),
+    "Motor.M-": (13.5, 8.5),
+    "Encoder.A": (13.5, 3.9),
+    "Encoder.B": (13.5, 3.1),
+    "Encoder.VCC": (13.5, 2.1),
     "Encoder.GND": (13.5, 1.3),
 }
 
-_COLOURS = {"signal": "tab:blue", "encoder": "tab:green", "power": "tab:red",
-            "ground": "black", "motor": "tab:orange"}
+_COLOURS = {
+    "signal": "tab:blue",
+    "encoder": "tab:green",
+    "power": "tab:red",
+    "ground": "black",
+    "motor": "tab:orange",
+}
 
 
 def _route(wire):
@@ -78,7 +98,7 @@ def _route(wire):
     (xa, ya), (xb, yb) = PINS[wire.a], PINS[wire.b]
     if ya == yb or xa == xb:
         return [(xa, ya), (xb, yb)]
-    if wire.a == "Uno.GND1":          # over the L298N to its ground terminal
+    if wire.a == "Uno.GND1":  # over the L298N to its ground terminal
         return [(xa, ya), (xb, ya), (xb, yb)]
     return [(xa, ya), (xb, ya), (xb, yb)]  # supply wires: across, then down to the terminal
 
@@ -117,10 +137,20 @@ def wiring_diagram(ax=None):
             raise TypeError(f"ax must be a matplotlib Axes, got {type(ax).__name__}")
         fig = ax.figure
     for name, (x0, y0, x1, y1, title) in PARTS.items():
-        ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, facecolor="#f4f4f4",
-                               edgecolor="0.3", lw=1.5, gid=f"part:{name}"))
-        ax.text((x0 + x1) / 2, y0 + 0.25, title, ha="center", va="bottom", fontsize=9,
-                weight="bold")
+        ax.add_patch(
+            Rectangle(
+                (x0, y0),
+                x1 - x0,
+                y1 - y0,
+                facecolor="#f4f4f4",
+                edgecolor="0.3",
+                lw=1.5,
+                gid=f"part:{name}",
+            )
+        )
+        ax.text(
+            (x0 + x1) / 2, y0 + 0.25, title, ha="center", va="bottom", fontsize=9, weight="bold"
+        )
     for key, (x, y) in PINS.items():
         part, pin = key.split(".", 1)
         x0, _, x1, _, _ = PARTS[part]
@@ -136,17 +166,39 @@ def wiring_diagram(ax=None):
     for wire in CONNECTIONS:
         pts = _route(wire)
         xs, ys = zip(*pts)
-        ax.plot(xs, ys, "-", color=_COLOURS[wire.kind], lw=2, gid=f"wire:{wire.a}|{wire.b}",
-                label=wire.kind, solid_capstyle="round")
+        ax.plot(
+            xs,
+            ys,
+            "-",
+            color=_COLOURS[wire.kind],
+            lw=2,
+            gid=f"wire:{wire.a}|{wire.b}",
+            label=wire.kind,
+            solid_capstyle="round",
+        )
         (xa, ya), (xb, yb) = pts[0], pts[1]
-        ax.text((xa + xb) / 2, ya + 0.12, wire.signal, fontsize=7, ha="center", va="bottom",
-                color=_COLOURS[wire.kind])
+        ax.text(
+            (xa + xb) / 2,
+            ya + 0.12,
+            wire.signal,
+            fontsize=7,
+            ha="center",
+            va="bottom",
+            color=_COLOURS[wire.kind],
+        )
     handles, labels = ax.get_legend_handles_labels()
     seen = {}
     for h, lab in zip(handles, labels):
         seen.setdefault(lab, h)
-    ax.legend(seen.values(), seen.keys(), loc="lower center", ncol=5, fontsize=8, frameon=False,
-              bbox_to_anchor=(0.5, -0.06))
+    ax.legend(
+        seen.values(),
+        seen.keys(),
+        loc="lower center",
+        ncol=5,
+        fontsize=8,
+        frameon=False,
+        bbox_to_anchor=(0.5, -0.06),
+    )
     ax.set_xlim(-0.5, 18.0)
     ax.set_ylim(-1.5, 13.5)
     ax.set_aspect("equal")

@@ -1,4 +1,5 @@
 """Running a lab worksheet headless in the tests (tests/test_labs.py, tests/test_lab4.py)."""
+
 from __future__ import annotations
 
 import re
@@ -21,8 +22,13 @@ def execute(nb, cwd, timeout=240):
     """Execute ``nb`` in place (errors kept as outputs) with ``cwd`` as its folder."""
     from nbclient import NotebookClient
 
-    NotebookClient(nb, timeout=timeout, kernel_name="python3", allow_errors=True,
-                   resources={"metadata": {"path": str(cwd)}}).execute()
+    NotebookClient(
+        nb,
+        timeout=timeout,
+        kernel_name="python3",
+        allow_errors=True,
+        resources={"metadata": {"path": str(cwd)}},
+    ).execute()
     return nb
 
 

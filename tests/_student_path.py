@@ -7,6 +7,7 @@ any importer from jerklab (pyserial and the standard library keep theirs), and t
 runs with ``sys.platform`` set to "win32" to check the Windows messages of ``serve`` and
 ``"simavr"``. Prints one ``step: ...`` line per step and ``STUDENT PATH OK`` at the end.
 """
+
 import os
 import sys
 
@@ -21,7 +22,9 @@ class BlockPosix:
         if name.split(".")[0] not in BLOCKED:
             return None
         f = sys._getframe(1)
-        while f is not None and ("importlib" in f.f_code.co_filename or f.f_code.co_filename.startswith("<frozen")):
+        while f is not None and (
+            "importlib" in f.f_code.co_filename or f.f_code.co_filename.startswith("<frozen")
+        ):
             f = f.f_back
         importer = f.f_globals.get("__name__", "") if f is not None else ""
         if importer.split(".")[0] == "jerklab":
@@ -50,7 +53,6 @@ def main():
     # jerklab[lab] does not install otter-grader: the student path must not need it
     sys.modules["otter"] = None
 
-    import numpy as np
 
     import jerklab
     from jerklab import cli, ident
@@ -59,6 +61,7 @@ def main():
     from jerklab.rig import UnknownPortError, connect
     from jerklab.rig.check import check_rig
     from jerklab.rig.server import DeviceServer
+
     print("step: import", jerklab.__version__, jerklab.__file__)
 
     assert cli.main(["lab", os.path.join(work, "lab"), "--copy-only"]) == 0
@@ -80,6 +83,7 @@ def main():
 
     from jerklab.app import panel_for_page
     from jerklab.widgets import pole_placement_panel
+
     pole_placement_panel()
     panel_for_page()
     print("step: panel and class page")
@@ -87,6 +91,7 @@ def main():
     # a worksheet's check cell, from the copied worksheet, in an environment without otter-grader
     from jerklab import lab
     from jerklab.lab.notebook import Notebook
+
     grader = Notebook(os.path.join(work, "lab", "notebooks", "labs", "lab1_identify.ipynb"))
     S = lab.start(1, student="s7", port=None)
     outcome = grader.check("pre_speed", {"S": S, "pre_speed": ...})
@@ -101,7 +106,9 @@ def main():
         raise AssertionError("COM7 opened")
     server = DeviceServer(speed=None)
     url = server.start_tcp("127.0.0.1", 0)
-    with connect(url, progress=False, recordings=os.path.join(work, "recordings"), hello_timeout=3.0) as net:
+    with connect(
+        url, progress=False, recordings=os.path.join(work, "recordings"), hello_timeout=3.0
+    ) as net:
         assert len(net.step(3.0, 0.1, Ts=0.005, rest=0.0, path=False)) == 20
     server.close()
     print("step: COM port message and the rig over TCP (serve --tcp)")
@@ -112,6 +119,7 @@ def main():
         from contextlib import redirect_stderr
 
         import jerklab.rig.__main__ as rig_main
+
         real = sys.platform
         sys.platform = "win32"
         try:

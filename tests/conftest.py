@@ -1,4 +1,5 @@
 """Shared test set-up: headless plotting, hypothesis profiles, system-tool checks."""
+
 from __future__ import annotations
 
 import os
@@ -17,7 +18,11 @@ from hypothesis import HealthCheck, settings  # noqa: E402
 # as an @example in the test).
 settings.register_profile("dev", max_examples=300, deadline=None)
 settings.register_profile(
-    "ci", max_examples=2000, deadline=None, derandomize=True, database=None,
+    "ci",
+    max_examples=2000,
+    deadline=None,
+    derandomize=True,
+    database=None,
     suppress_health_check=[HealthCheck.too_slow],
 )
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "dev"))
@@ -33,8 +38,10 @@ def require_tool(*names: str) -> None:
     """
     missing = [n for n in names if shutil.which(n) is None and not os.path.exists(n)]
     if missing:
-        msg = (f"needs {', '.join(missing)} (Debian packages; `.ci/run` installs them: "
-               f"sudo apt-get install make g++ gcc-avr avr-libc arduino-core-avr simavr libsimavr-dev iverilog chromium)")
+        msg = (
+            f"needs {', '.join(missing)} (Debian packages; `.ci/run` installs them: "
+            f"sudo apt-get install make g++ gcc-avr avr-libc arduino-core-avr simavr libsimavr-dev iverilog chromium)"
+        )
         if REQUIRE_TOOLS:
             pytest.fail(msg)
         pytest.skip(msg)
@@ -50,4 +57,8 @@ def artifacts_dir(tmp_path_factory):
 
 def pytest_collection_modifyitems(session, config, items):
     """Run tests/test_book.py last: it builds the book from the notebooks test_notebooks.py executed."""
-    items.sort(key=lambda it: it.nodeid.startswith("tests/test_book.py") or it.nodeid.startswith("test_book.py"))
+    items.sort(
+        key=lambda it: (
+            it.nodeid.startswith("tests/test_book.py") or it.nodeid.startswith("test_book.py")
+        )
+    )

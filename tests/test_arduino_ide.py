@@ -6,14 +6,13 @@ arduino-builder copies the sketch folder into its build folder before compiling,
 does, so a sketch that includes anything outside its own folder fails here as it would in the
 IDE.
 """
-import os
+
 import pathlib
 import re
 import shutil
 import subprocess
 
 import pytest
-
 from conftest import require_tool
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
@@ -26,10 +25,25 @@ def ide_build(sketch_dir, build, extra=""):
     # Debian's avr-libc lacks DECIMAL_DIG that the core's WString.cpp needs; the IDE's bundled
     # toolchain has it. firmware/Makefile passes the same define.
     flags = "-DDECIMAL_DIG=9 " + extra
-    cmd = ["arduino-builder", "-compile", "-hardware", HARDWARE, "-hardware", BUILDER_PLATFORM,
-           "-tools", "/usr/bin", "-tools", BUILDER_PLATFORM, "-fqbn", "arduino:avr:uno",
-           "-prefs", f"compiler.cpp.extra_flags={flags}", "-build-path", str(build),
-           str(sketch_dir / "jerklab_rig.ino")]
+    cmd = [
+        "arduino-builder",
+        "-compile",
+        "-hardware",
+        HARDWARE,
+        "-hardware",
+        BUILDER_PLATFORM,
+        "-tools",
+        "/usr/bin",
+        "-tools",
+        BUILDER_PLATFORM,
+        "-fqbn",
+        "arduino:avr:uno",
+        "-prefs",
+        f"compiler.cpp.extra_flags={flags}",
+        "-build-path",
+        str(build),
+        str(sketch_dir / "jerklab_rig.ino"),
+    ]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=600)
 
 
@@ -60,7 +74,9 @@ def test_ide_build_makes_a_hex_that_fits(built):
     build, out = built
     hexfile = build / "jerklab_rig.ino.hex"
     assert hexfile.is_file() and hexfile.stat().st_size > 1000
-    m = re.search(r"Sketch uses (\d+) bytes \((\d+)%\) of program storage space. Maximum is (\d+)", out)
+    m = re.search(
+        r"Sketch uses (\d+) bytes \((\d+)%\) of program storage space. Maximum is (\d+)", out
+    )
     assert m, out
     used, maximum = int(m.group(1)), int(m.group(3))
     # the flash budget of tests/test_firmware.py (issue 21: every planner and re-targeting on board;
@@ -74,8 +90,9 @@ def test_ide_build_makes_a_hex_that_fits(built):
 def test_ide_build_has_the_firmware_interrupts(built):
     build, _ = built
     require_tool("avr-nm")
-    syms = subprocess.run(["avr-nm", str(build / "jerklab_rig.ino.elf")], capture_output=True,
-                          text=True, check=True).stdout
+    syms = subprocess.run(
+        ["avr-nm", str(build / "jerklab_rig.ino.elf")], capture_output=True, text=True, check=True
+    ).stdout
     # INT0, INT1 (encoder), TIMER2_COMPA (1 ms tick), USART_RX and USART_UDRE (serial)
     for vec in ("__vector_1", "__vector_2", "__vector_7", "__vector_18", "__vector_19"):
         assert re.search(rf"\bT {vec}\b", syms), vec
@@ -89,11 +106,12 @@ def test_ide_build_with_another_encoder(tmp_path):
     ino = sketch / "jerklab_rig.ino"
     text = ino.read_text(encoding="utf-8")
     assert "#define JL_ENCODER_PPR 448" in text
-    ino.write_text(text.replace("#define JL_ENCODER_PPR 448", "#define JL_ENCODER_PPR 341"),
-                   encoding="utf-8")
+    ino.write_text(
+        text.replace("#define JL_ENCODER_PPR 448", "#define JL_ENCODER_PPR 341"), encoding="utf-8"
+    )
     (tmp_path / "b").mkdir()
     res = ide_build(sketch, tmp_path / "b", extra="-save-temps=obj")
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
-    pre = (tmp_path / "b" / "sketch" / "jerklab_rig.ino.cpp.ii")
+    pre = tmp_path / "b" / "sketch" / "jerklab_rig.ino.cpp.ii"
     assert pre.is_file()
     assert re.search(r"kConfig = \{1000, 1023, 341,", pre.read_text(errors="replace"))

@@ -3,6 +3,7 @@
 Runs after tests/test_notebooks.py (tests/conftest.py orders it last), so the notebooks arrive
 executed (build/executed/) and the build executes only those without outputs.
 """
+
 from __future__ import annotations
 
 import html
@@ -32,23 +33,37 @@ def figure_index():
 
 def test_index_lists_every_figure_of_the_papers():
     ids = [r[0] for r in figure_index()]
-    expect = ([f"Stojčić Fig. {i}" for i in range(1, 8)] + [f"Xu & Meckl Fig. {i}" for i in range(1, 10)]
-              + ["Xu & Meckl Table I", "Xu & Meckl Table II"] + [f"Yang Fig. {i}" for i in range(1, 10)])
+    expect = (
+        [f"Stojčić Fig. {i}" for i in range(1, 8)]
+        + [f"Xu & Meckl Fig. {i}" for i in range(1, 10)]
+        + ["Xu & Meckl Table I", "Xu & Meckl Table II"]
+        + [f"Yang Fig. {i}" for i in range(1, 10)]
+    )
     assert sorted(ids) == sorted(expect)
 
 
 def _figure_outputs(nb_path):
     import nbformat
+
     nb = nbformat.read(nb_path, as_version=4)
-    return sum(1 for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", [])
-               if "image/png" in o.get("data", {}) or "image/svg+xml" in o.get("data", {}))
+    return sum(
+        1
+        for c in nb.cells
+        if c.cell_type == "code"
+        for o in c.get("outputs", [])
+        if "image/png" in o.get("data", {}) or "image/svg+xml" in o.get("data", {})
+    )
 
 
 @pytest.mark.slow
 def test_book_builds_and_shows_every_indexed_figure(tmp_path):
     out = tmp_path / "book"
-    r = subprocess.run([sys.executable, str(ROOT / "tools/build_book.py"), "--out", str(out)],
-                       capture_output=True, text=True, cwd=ROOT)
+    r = subprocess.run(
+        [sys.executable, str(ROOT / "tools/build_book.py"), "--out", str(out)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-6000:]
     print(r.stdout)
     html_dir = out / "html"

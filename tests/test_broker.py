@@ -3,6 +3,7 @@
 A virtual rig at real-time pace sits behind the broker; clients are threads with their own
 connections, as the page's kernels would be.
 """
+
 from __future__ import annotations
 
 import json
@@ -46,21 +47,38 @@ def _client(address, name, delay, out, path=False, running=None, move=None):
 
     try:
         rig = BrokerRig(address, client=name)
-        rec = rig.run_move(tuning.move_profile(move), tuning.compute_pole_placement().gains,
-                           path=path, on_status=status)
+        rec = rig.run_move(
+            tuning.move_profile(move),
+            tuning.compute_pole_placement().gains,
+            path=path,
+            on_status=status,
+        )
         msgs.append((time.monotonic(), rec))
-    except Exception as exc:               # reported by the test
+    except Exception as exc:  # reported by the test
         msgs.append((time.monotonic(), exc))
 
 
 def test_two_concurrent_clients_are_queued_fifo(broker, tmp_path):
     out = {}
     running = threading.Event()
-    threads = [threading.Thread(target=_client, args=(broker.address, "first", 0.0, out,
-                                                      tmp_path / "first" / "run", running,
-                                                      LONG_MOVE)),
-               threading.Thread(target=_client, args=(broker.address, "second", running, out,
-                                                      tmp_path / "second" / "run"))]
+    threads = [
+        threading.Thread(
+            target=_client,
+            args=(
+                broker.address,
+                "first",
+                0.0,
+                out,
+                tmp_path / "first" / "run",
+                running,
+                LONG_MOVE,
+            ),
+        ),
+        threading.Thread(
+            target=_client,
+            args=(broker.address, "second", running, out, tmp_path / "second" / "run"),
+        ),
+    ]
     for t in threads:
         t.start()
     for t in threads:
@@ -89,15 +107,19 @@ def test_two_concurrent_clients_are_queued_fifo(broker, tmp_path):
 def test_a_client_that_leaves_the_queue_is_dropped(broker):
     out = {}
     running = threading.Event()
-    t1 = threading.Thread(target=_client, args=(broker.address, "a", 0.0, out, False, running,
-                                                LONG_MOVE))
+    t1 = threading.Thread(
+        target=_client, args=(broker.address, "a", 0.0, out, False, running, LONG_MOVE)
+    )
     t1.start()
     assert running.wait(30)
     # a client queues, then hangs up while waiting
     s = socket.create_connection(parse_address(broker.address))
-    req = {"op": "run_move", "client": "quitter",
-           "profile": dict(kind="sine_jerk", **tuning.DEFAULT_MOVE),
-           "gains": {"kpd": 4.5, "kid": 0.2, "kdd": 21.6, "Ts": 0.005}}
+    req = {
+        "op": "run_move",
+        "client": "quitter",
+        "profile": dict(kind="sine_jerk", **tuning.DEFAULT_MOVE),
+        "gains": {"kpd": 4.5, "kid": 0.2, "kdd": 21.6, "Ts": 0.005},
+    }
     s.sendall((json.dumps(req) + "\n").encode())
     assert json.loads(s.makefile().readline())["queued"] == 1
     s.close()
@@ -114,7 +136,7 @@ def test_broker_refuses_unstable_gains_and_bad_requests(broker):
     rig = BrokerRig(broker.address)
     with pytest.raises(BrokerError, match=r"UnstableDesignError.*\|z\| = 1\.\d+"):
         rig.run_move(tuning.move_profile(), bad, path=False)
-    assert broker.order == ["kernel"] and broker.runs_done == 1      # refused before the rig
+    assert broker.order == ["kernel"] and broker.runs_done == 1  # refused before the rig
     s = socket.create_connection(parse_address(broker.address))
     s.sendall(b'{"op": "format c:"}\n')
     assert "op must be" in json.loads(s.makefile().readline())["error"]
@@ -148,4 +170,6 @@ def test_class_page_panel_runs_through_the_broker(broker, tmp_path, monkeypatch)
     files = list((tmp_path / "s123").glob("*_move.csv"))
     assert len(files) == 1 and Recording.load(files[0]).metadata["broker"] == broker.address
     assert "saved as" in p.rig_status.value and str(files[0]) in p.rig_status.value
-    assert abs(float(np.max(np.abs(err))) - float(np.max(np.abs(p.result.err_move_measured)))) < 0.05
+    assert (
+        abs(float(np.max(np.abs(err))) - float(np.max(np.abs(p.result.err_move_measured)))) < 0.05
+    )

@@ -11,6 +11,7 @@ The check (:func:`check_live_panel`): the widget views are there (sliders and th
 no widget error is shown, moving a slider redraws the figure (its pixels change), and no
 kernel ``error`` message crossed the websocket while the page was used.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -35,8 +36,16 @@ pytestmark = pytest.mark.slow
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                 "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+CHROMIUM_ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
 NOTEBOOK_03 = ROOT / "notebooks" / "03_pole_placement.ipynb"
 # notebook 03 ends with this cell; the test runs the notebook's own copy when it is there
 PANEL_CELL = "from jerklab.widgets import pole_placement_panel\n\npole_placement_panel()"
@@ -55,11 +64,15 @@ def notebook03_panel_cell():
     """The source of notebook 03's panel cell (its last code cell calling the panel)."""
     if NOTEBOOK_03.exists():
         nb = nbformat.read(str(NOTEBOOK_03), as_version=4)
-        cells = [c.source for c in nb.cells
-                 if c.cell_type == "code" and "pole_placement_panel(" in c.source]
+        cells = [
+            c.source
+            for c in nb.cells
+            if c.cell_type == "code" and "pole_placement_panel(" in c.source
+        ]
         if cells:
             return cells[-1]
     return PANEL_CELL
+
 
 SERVER_TIMEOUT = 90.0
 PANEL_TIMEOUT_MS = 90_000
@@ -77,7 +90,11 @@ def _free_port():
 def _notebook(path, *sources):
     nb = nbformat.v4.new_notebook()
     nb.cells = [nbformat.v4.new_code_cell(src) for src in sources]
-    nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
+    nb.metadata["kernelspec"] = {
+        "name": "python3",
+        "display_name": "Python 3",
+        "language": "python",
+    }
     nbformat.write(nb, str(path))
     return path
 
@@ -92,8 +109,14 @@ class Server:
 
     def __enter__(self):
         self._log = open(self.log_path, "w")
-        self.proc = subprocess.Popen(self.cmd, stdout=self._log, stderr=subprocess.STDOUT,
-                                     env=self.env, cwd=self.cwd, start_new_session=True)
+        self.proc = subprocess.Popen(
+            self.cmd,
+            stdout=self._log,
+            stderr=subprocess.STDOUT,
+            env=self.env,
+            cwd=self.cwd,
+            start_new_session=True,
+        )
         deadline = time.monotonic() + SERVER_TIMEOUT
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
@@ -109,7 +132,9 @@ class Server:
             except Exception:
                 time.sleep(0.25)
         self.__exit__(None, None, None)
-        raise AssertionError(f"server did not answer {self.url} in {SERVER_TIMEOUT} s:\n{self.log_tail()}")
+        raise AssertionError(
+            f"server did not answer {self.url} in {SERVER_TIMEOUT} s:\n{self.log_tail()}"
+        )
 
     def log_tail(self, n=40):
         self._log.flush()
@@ -130,11 +155,15 @@ def _jupyter_env(tmp):
     env = dict(os.environ)
     cfg = pathlib.Path(tmp) / "config"
     (cfg / "labconfig").mkdir(parents=True, exist_ok=True)
-    env.update(JUPYTER_CONFIG_DIR=str(cfg), JUPYTER_RUNTIME_DIR=str(pathlib.Path(tmp) / "runtime"),
-               JUPYTERLAB_SETTINGS_DIR=str(pathlib.Path(tmp) / "settings"),
-               JUPYTERLAB_WORKSPACES_DIR=str(pathlib.Path(tmp) / "workspaces"),
-               JERKLAB_RECORDINGS=str(pathlib.Path(tmp) / "recordings"), MPLBACKEND="Agg",
-               PYTHONUNBUFFERED="1")
+    env.update(
+        JUPYTER_CONFIG_DIR=str(cfg),
+        JUPYTER_RUNTIME_DIR=str(pathlib.Path(tmp) / "runtime"),
+        JUPYTERLAB_SETTINGS_DIR=str(pathlib.Path(tmp) / "settings"),
+        JUPYTERLAB_WORKSPACES_DIR=str(pathlib.Path(tmp) / "workspaces"),
+        JERKLAB_RECORDINGS=str(pathlib.Path(tmp) / "recordings"),
+        MPLBACKEND="Agg",
+        PYTHONUNBUFFERED="1",
+    )
     return env
 
 
@@ -144,8 +173,9 @@ def voila_page(tmp, *args):
     env = _jupyter_env(tmp)
     cmd = [sys.executable, "-m", "jerklab.app", f"--port={port}", *args]
     url = f"http://127.0.0.1:{port}/"
-    server = Server(cmd, f"tcp://127.0.0.1:{port}", pathlib.Path(tmp) / "server.log", env=env,
-                    cwd=str(ROOT))
+    server = Server(
+        cmd, f"tcp://127.0.0.1:{port}", pathlib.Path(tmp) / "server.log", env=env, cwd=str(ROOT)
+    )
     return server, url
 
 
@@ -153,13 +183,24 @@ def jupyterlab(tmp, notebook):
     port = _free_port()
     token = "jerklab-browser-test"
     env = _jupyter_env(tmp)
-    cmd = [sys.executable, "-m", "jupyterlab", "--no-browser", f"--port={port}",
-           "--ServerApp.ip=127.0.0.1", f"--IdentityProvider.token={token}",
-           f"--ServerApp.root_dir={pathlib.Path(notebook).parent}",
-           "--ServerApp.allow_root=True", "--LabApp.extension_manager=readonly",
-           "--LabApp.news_url=", "--LabApp.check_for_updates_class=jupyterlab.NeverCheckForUpdate"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "jupyterlab",
+        "--no-browser",
+        f"--port={port}",
+        "--ServerApp.ip=127.0.0.1",
+        f"--IdentityProvider.token={token}",
+        f"--ServerApp.root_dir={pathlib.Path(notebook).parent}",
+        "--ServerApp.allow_root=True",
+        "--LabApp.extension_manager=readonly",
+        "--LabApp.news_url=",
+        "--LabApp.check_for_updates_class=jupyterlab.NeverCheckForUpdate",
+    ]
     base = f"http://127.0.0.1:{port}"
-    server = Server(cmd, f"{base}/api/status?token={token}", pathlib.Path(tmp) / "server.log", env=env)
+    server = Server(
+        cmd, f"{base}/api/status?token={token}", pathlib.Path(tmp) / "server.log", env=env
+    )
     return server, f"{base}/lab/tree/{pathlib.Path(notebook).name}?token={token}&reset"
 
 
@@ -171,7 +212,7 @@ def browser():
     require_tool(CHROMIUM)
     try:
         from playwright.sync_api import sync_playwright
-    except ImportError as exc:                  # environment.txt installs it
+    except ImportError as exc:  # environment.txt installs it
         msg = f"needs the playwright package (pip install -r environment.txt): {exc}"
         if REQUIRE_TOOLS:
             pytest.fail(msg)
@@ -180,9 +221,13 @@ def browser():
     profile = tempfile.mkdtemp(prefix="jerklab-chromium-")
     with sync_playwright() as pw:
         # a fresh profile (user-data-dir) per run
-        ctx = pw.chromium.launch_persistent_context(profile, executable_path=CHROMIUM,
-                                                    headless=True, args=CHROMIUM_ARGS,
-                                                    viewport={"width": 1300, "height": 1400})
+        ctx = pw.chromium.launch_persistent_context(
+            profile,
+            executable_path=CHROMIUM,
+            headless=True,
+            args=CHROMIUM_ARGS,
+            viewport={"width": 1300, "height": 1400},
+        )
         try:
             yield ctx
         finally:
@@ -198,8 +243,16 @@ class Watched:
         self.page = browser.new_page()
         self.console, self.page_errors, self.kernel_errors = [], [], []
         # nothing leaves localhost (fonts, CDNs, news): fail fast instead of waiting on DNS
-        self.page.route("**/*", lambda r: r.continue_() if r.request.url.startswith(
-            ("http://127.0.0.1", "ws://127.0.0.1", "blob:", "data:")) else r.abort())
+        self.page.route(
+            "**/*",
+            lambda r: (
+                r.continue_()
+                if r.request.url.startswith(
+                    ("http://127.0.0.1", "ws://127.0.0.1", "blob:", "data:")
+                )
+                else r.abort()
+            ),
+        )
         self.page.on("console", lambda m: self.console.append(f"{m.type}: {m.text}"))
         self.page.on("pageerror", lambda e: self.page_errors.append(str(e)))
         self.page.on("websocket", self._on_ws)
@@ -209,7 +262,8 @@ class Watched:
             data = payload if isinstance(payload, (bytes, bytearray)) else payload.encode()
             if b'"msg_type": "error"' in data or b'"msg_type":"error"' in data:
                 i = data.find(b'"evalue"')
-                self.kernel_errors.append(data[i:i + 200].decode(errors="replace"))
+                self.kernel_errors.append(data[i : i + 200].decode(errors="replace"))
+
         ws.on("framereceived", frame)
 
     def reset(self):
@@ -234,8 +288,14 @@ class Watched:
         except Exception:
             pass
         (self.artifacts / f"browser_{self.name}_console.log").write_text(
-            "\n".join(self.console + ["-- page errors --"] + self.page_errors
-                      + ["-- kernel errors --"] + self.kernel_errors))
+            "\n".join(
+                self.console
+                + ["-- page errors --"]
+                + self.page_errors
+                + ["-- kernel errors --"]
+                + self.kernel_errors
+            )
+        )
         self.page.close()
 
 
@@ -263,13 +323,16 @@ def check_live_panel(w: Watched, slider="ωn [rad/s]", presses=3, timeout_ms=30_
         if w.page_errors:
             raise AssertionError(f"uncaught page error {when}: {w.page_errors[0]}")
         if w.widget_console_errors():
-            raise AssertionError(f"widget error in the console {when}: {w.widget_console_errors()[0]}")
+            raise AssertionError(
+                f"widget error in the console {when}: {w.widget_console_errors()[0]}"
+            )
 
     sliders = page.locator(".jerklab-control.widget-slider")
     if sliders.count() < 4 or page.locator("img.jerklab-figure").count() != 1:
         raise AssertionError(
             f"no live panel: {sliders.count()} slider views, "
-            f"{page.locator('img.jerklab-figure').count()} figure views (widget front end missing?)")
+            f"{page.locator('img.jerklab-figure').count()} figure views (widget front end missing?)"
+        )
     no_widget_error("after loading")
     handle = page.locator(".jerklab-control.widget-slider", has_text=slider).locator(".noUi-handle")
     if handle.count() != 1:
@@ -285,12 +348,16 @@ def check_live_panel(w: Watched, slider="ωn [rad/s]", presses=3, timeout_ms=30_
         try:
             page.wait_for_function(
                 "old => { const i = document.querySelector('img.jerklab-figure');"
-                " return i && i.src !== old && i.complete; }", arg=src0, timeout=timeout_ms,
-                polling="raf")
+                " return i && i.src !== old && i.complete; }",
+                arg=src0,
+                timeout=timeout_ms,
+                polling="raf",
+            )
         except Exception:
             no_widget_error(f"after moving {slider!r}")
-            raise AssertionError(f"the figure did not change within {timeout_ms / 1e3:.0f} s "
-                                 f"of moving {slider!r}") from None
+            raise AssertionError(
+                f"the figure did not change within {timeout_ms / 1e3:.0f} s of moving {slider!r}"
+            ) from None
         times.append(time.perf_counter() - t0)
         if _figure_pixels(page) == pix0:
             raise AssertionError(f"the figure's pixels did not change after moving {slider!r}")
@@ -301,17 +368,23 @@ def check_live_panel(w: Watched, slider="ωn [rad/s]", presses=3, timeout_ms=30_
 def _record_times(name, times):
     path = ROOT / "artifacts" / "browser_redraw_times.json"
     data = json.loads(path.read_text()) if path.exists() else {}
-    data[name] = {"round_trip_s": times, "median_s": sorted(times)[len(times) // 2],
-                  "max_s": max(times), "unix_time": time.time()}
+    data[name] = {
+        "round_trip_s": times,
+        "median_s": sorted(times)[len(times) // 2],
+        "max_s": max(times),
+        "unix_time": time.time(),
+    }
     path.write_text(json.dumps(data, indent=1))
 
 
 def _wait_panel(w, timeout_ms=PANEL_TIMEOUT_MS):
     """Wait for the figure view, or for evidence that it will never come."""
     page = w.page
-    page.wait_for_selector("img.jerklab-figure, .jupyter-widgets-error-widget, "
-                           ".jp-OutputArea-output img, .jp-OutputArea-output pre",
-                           timeout=timeout_ms)
+    page.wait_for_selector(
+        "img.jerklab-figure, .jupyter-widgets-error-widget, "
+        ".jp-OutputArea-output img, .jp-OutputArea-output pre",
+        timeout=timeout_ms,
+    )
     page.wait_for_timeout(300)
 
 
@@ -349,7 +422,7 @@ def lab(browser, tmp_path_factory):
     _notebook(nbdir / "panel.ipynb", notebook03_panel_cell(), BREAK_CELL)
     server, url = jupyterlab(tmp, nbdir / "panel.ipynb")
     with server:
-        artifacts = ROOT / "artifacts"        # as conftest's artifacts_dir (function scoped)
+        artifacts = ROOT / "artifacts"  # as conftest's artifacts_dir (function scoped)
         artifacts.mkdir(exist_ok=True)
         w = Watched(browser, "jupyterlab", artifacts)
         try:
@@ -384,23 +457,28 @@ class Lab:
         deadline = time.monotonic() + PANEL_TIMEOUT_MS / 1e3
         while time.monotonic() < deadline:
             # the status bar says "Idle" once the kernel is connected and ready
-            page.wait_for_selector(".jp-StatusBar-Widget:has-text('Idle')", timeout=PANEL_TIMEOUT_MS)
+            page.wait_for_selector(
+                ".jp-StatusBar-Widget:has-text('Idle')", timeout=PANEL_TIMEOUT_MS
+            )
             cell.locator(".cm-content").click()
             page.keyboard.press("Control+Enter")
             try:
                 page.wait_for_function(
                     "([el, old]) => el.textContent !== old && /\\[\\d+\\]/.test(el.textContent)",
-                    arg=[prompt.element_handle(), before], timeout=PANEL_TIMEOUT_MS / 3)
+                    arg=[prompt.element_handle(), before],
+                    timeout=PANEL_TIMEOUT_MS / 3,
+                )
                 return
             except Exception:
-                continue      # the key press came before the kernel took requests: again
+                continue  # the key press came before the kernel took requests: again
         raise AssertionError(f"JupyterLab never executed cell {index}")
 
     @contextlib.contextmanager
     def without_widget_frontend(self):
         """Disable ipywidgets' JupyterLab extension for the pages loaded meanwhile."""
-        self.page_config.write_text(json.dumps(
-            {"disabledExtensions": {"@jupyter-widgets/jupyterlab-manager": True}}))
+        self.page_config.write_text(
+            json.dumps({"disabledExtensions": {"@jupyter-widgets/jupyterlab-manager": True}})
+        )
         try:
             yield
         finally:
@@ -420,9 +498,9 @@ def test_jupyterlab_notebook_panel(lab):
 
 def test_check_fails_when_a_callback_raises(lab):
     """A panel whose slider callback raises must not pass the check."""
-    lab.run_cell(0)                      # a fresh panel (the kernel is warm)
+    lab.run_cell(0)  # a fresh panel (the kernel is warm)
     _wait_panel(lab.w)
-    lab.run_cell(1)                      # break its callback
+    lab.run_cell(1)  # break its callback
     with pytest.raises(AssertionError) as err:
         check_live_panel(lab.w, "ωn [rad/s]", presses=1, timeout_ms=8_000)
     lab.w.shot("broken_callback_rejected")
@@ -434,7 +512,7 @@ def test_check_fails_when_a_callback_raises(lab):
 def test_check_fails_without_widget_frontend(lab):
     """JupyterLab with the ipywidgets front end disabled: the check must fail."""
     with lab.without_widget_frontend():
-        lab.open()                       # reload: the page now has no widget manager
+        lab.open()  # reload: the page now has no widget manager
         lab.run_cell(0)
         _wait_panel(lab.w)
     lab.w.shot("no_widgets_rejected")
@@ -451,26 +529,31 @@ def test_class_page_voila_with_rig(browser, class_page, artifacts_dir):
         _wait_panel(w)
         w.shot("loaded")
         times = check_live_panel(w, "ωn [rad/s]", presses=3)
-        for label in ("ζ", "σ / ωn", "Ts [ms]"):       # every slider reaches the figure
+        for label in ("ζ", "σ / ωn", "Ts [ms]"):  # every slider reaches the figure
             times += check_live_panel(w, label, presses=1)
         _record_times("voila", times)
         # the design choice too
         src = w.page.locator("img.jerklab-figure").get_attribute("src")
         w.page.get_by_role("button", name="direct z-domain (poles at z = exp(s Ts))").click()
         w.page.wait_for_function(
-            "old => document.querySelector('img.jerklab-figure').src !== old", arg=src,
-            timeout=30_000)
+            "old => document.querySelector('img.jerklab-figure').src !== old",
+            arg=src,
+            timeout=30_000,
+        )
         # the rig behind the page: refused until a student ID is entered
         button = w.page.locator(".jerklab-rig-button")
         assert button.is_disabled()
         assert "student ID" in w.page.locator(".jerklab-rig-status").inner_text()
         w.page.locator(".jerklab-student-id input").fill("s-0042 Ana")
         w.page.wait_for_function(
-            "() => !document.querySelector('.jerklab-rig-button').disabled", timeout=30_000)
+            "() => !document.querySelector('.jerklab-rig-button').disabled", timeout=30_000
+        )
         button.click()
         w.page.wait_for_function(
             "() => (document.querySelector('.jerklab-rig-status') || {}).textContent"
-            "?.includes('max |ref. − encoder|')", timeout=60_000)
+            "?.includes('max |ref. − encoder|')",
+            timeout=60_000,
+        )
         status = w.page.locator(".jerklab-rig-status").inner_text()
         assert "rig: max |ref. − encoder|" in status and "saved as" in status
         saved = list((url.tmp / "recordings").glob("s-0042_Ana-*/*_move.csv"))
@@ -488,9 +571,10 @@ def _open_class_page(browser, url, name, artifacts_dir, viewport=None):
     if viewport:
         w.page.set_viewport_size(viewport)
     w.page.goto(url, wait_until="commit", timeout=PANEL_TIMEOUT_MS)
-    if viewport and viewport["width"] <= 640:             # the phone figure instead
-        w.page.wait_for_selector("img.jerklab-figure-narrow", state="visible",
-                                 timeout=PANEL_TIMEOUT_MS)
+    if viewport and viewport["width"] <= 640:  # the phone figure instead
+        w.page.wait_for_selector(
+            "img.jerklab-figure-narrow", state="visible", timeout=PANEL_TIMEOUT_MS
+        )
     else:
         _wait_panel(w)
     return w
@@ -510,14 +594,17 @@ def test_class_page_queues_two_students_on_one_rig(browser, class_page, artifact
         for i, w in enumerate(pages):
             w.page.locator(".jerklab-student-id input").fill(f"queue-student-{i}")
             w.page.wait_for_function(
-                "() => !document.querySelector('.jerklab-rig-button').disabled", timeout=30_000)
+                "() => !document.querySelector('.jerklab-rig-button').disabled", timeout=30_000
+            )
             w.page.evaluate(_WATCH_STATUS)
         for w in pages:
             w.page.locator(".jerklab-rig-button").click()
         for w in pages:
             w.page.wait_for_function(
                 "() => document.querySelector('.jerklab-rig-status').textContent"
-                ".includes('max |ref. − encoder|')", timeout=90_000)
+                ".includes('max |ref. − encoder|')",
+                timeout=90_000,
+            )
         seen = [w.page.evaluate("window.__statuses") for w in pages]
         # Both runs went through the broker's queue and were run by it. How many were ahead
         # ("queued: next" or "queued: 1 ahead of you") depends on whether the two kernels'
@@ -538,8 +625,9 @@ def test_class_page_queues_two_students_on_one_rig(browser, class_page, artifact
 
 def test_class_page_at_phone_width(browser, class_page, artifacts_dir):
     """390 px wide: sliders stacked with their values on screen, the narrow figure legible."""
-    w = _open_class_page(browser, class_page, "phone", artifacts_dir,
-                         viewport={"width": 390, "height": 844})
+    w = _open_class_page(
+        browser, class_page, "phone", artifacts_dir, viewport={"width": 390, "height": 844}
+    )
     try:
         page = w.page
         page.wait_for_selector("img.jerklab-figure-narrow", state="visible", timeout=30_000)
@@ -550,25 +638,32 @@ def test_class_page_at_phone_width(browser, class_page, artifacts_dir):
             box = slider.bounding_box()
             readout = slider.locator(".widget-readout").bounding_box()
             assert box["x"] >= 0 and box["x"] + box["width"] <= 390 + 0.5, (label, box)
-            assert readout and readout["width"] > 10 and readout["x"] + readout["width"] <= 390, \
-                (label, readout)
+            assert readout and readout["width"] > 10 and readout["x"] + readout["width"] <= 390, (
+                label,
+                readout,
+            )
             boxes.append(box)
         # one column: each slider below the previous one
         assert all(b["y"] >= a["y"] + a["height"] - 1 for a, b in zip(boxes, boxes[1:])), boxes
         assert not page.locator("img.jerklab-figure").is_visible()
-        size = page.evaluate("() => { const i = document.querySelector('img.jerklab-figure-narrow');"
-                             " return [i.naturalWidth, i.getBoundingClientRect().width]; }")
+        size = page.evaluate(
+            "() => { const i = document.querySelector('img.jerklab-figure-narrow');"
+            " return [i.naturalWidth, i.getBoundingClientRect().width]; }"
+        )
         # drawn for this width: tick labels (8.5 pt at 80 dpi = 9.4 px) shown at >= 85 % size
         assert size[0] <= 400 and size[1] >= 0.85 * size[0], size
         assert page.evaluate("document.documentElement.scrollWidth") <= 390
         # a slider still redraws the phone figure
         src = page.locator("img.jerklab-figure-narrow").get_attribute("src")
         page.locator(".jerklab-control.widget-slider", has_text="ωn [rad/s]").locator(
-            ".noUi-handle").focus()
+            ".noUi-handle"
+        ).focus()
         page.keyboard.press("ArrowRight")
         page.wait_for_function(
-            "old => document.querySelector('img.jerklab-figure-narrow').src !== old", arg=src,
-            timeout=30_000)
+            "old => document.querySelector('img.jerklab-figure-narrow').src !== old",
+            arg=src,
+            timeout=30_000,
+        )
         assert not w.kernel_errors and not w.page_errors
     finally:
         w.close()
@@ -606,7 +701,7 @@ def test_abandoned_class_page_kernel_is_culled(browser, tmp_path, artifacts_dir)
                 time.sleep(0.2)
             kernels = _kernels_of(server.proc.pid)
             assert len(kernels) == 2, (kernels, server.log_tail())
-            gone.page.close(run_before_unload=False)     # no goodbye: an abandoned tab
+            gone.page.close(run_before_unload=False)  # no goodbye: an abandoned tab
             t0 = time.monotonic()
             while len(_kernels_of(server.proc.pid)) > 1 and time.monotonic() - t0 < 60:
                 time.sleep(0.25)

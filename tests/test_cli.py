@@ -1,12 +1,13 @@
 """The ``jerklab`` command (jerklab.cli) and the rig bring-up check (jerklab.rig.check)."""
+
 from __future__ import annotations
 
 import sys
 from pathlib import Path
 
 import pytest
-
 from conftest import require_tool
+
 from jerklab import cli
 from jerklab.plant import DCMotor
 from jerklab.rig import connect
@@ -37,10 +38,14 @@ def test_unknown_command_names_the_choices(capsys):
 
 
 def test_lab_copies_every_notebook_and_data_file_then_keeps_edits(tmp_path, capsys):
-    work = tmp_path / "my work"                     # a space, as in "C:\Users\First Last"
+    work = tmp_path / "my work"  # a space, as in "C:\Users\First Last"
     assert cli.main(["lab", str(work), "--copy-only"]) == 0
-    shipped = sorted(p.relative_to(ROOT) for d in ("notebooks", "data") for p in (ROOT / d).rglob("*")
-                     if p.is_file() and ".ipynb_checkpoints" not in p.parts and "__pycache__" not in p.parts)
+    shipped = sorted(
+        p.relative_to(ROOT)
+        for d in ("notebooks", "data")
+        for p in (ROOT / d).rglob("*")
+        if p.is_file() and ".ipynb_checkpoints" not in p.parts and "__pycache__" not in p.parts
+    )
     copied = sorted(p.relative_to(work) for p in work.rglob("*") if p.is_file())
     assert copied == shipped and len(copied) > 10
     out = capsys.readouterr().out
@@ -78,16 +83,23 @@ def test_lab_starts_jupyterlab_in_the_working_folder(tmp_path, monkeypatch):
             return 0
 
     monkeypatch.setattr(cli.subprocess, "Popen", FakePopen)
-    assert cli.main(["lab", str(tmp_path), "--no-browser", "--port", "8999", "--", "--ServerApp.ip=::1"]) == 0
+    assert (
+        cli.main(
+            ["lab", str(tmp_path), "--no-browser", "--port", "8999", "--", "--ServerApp.ip=::1"]
+        )
+        == 0
+    )
     cmd = calls[0]
     assert cmd[:4] == [sys.executable, "-m", "jupyterlab", str(tmp_path)]
     assert "--no-browser" in cmd and "--port=8999" in cmd and cmd[-1] == "--ServerApp.ip=::1"
     with pytest.raises(SystemExit):
-        cli.main(["lab", str(tmp_path), "--prot", "8999"])              # a typo is an error, not a folder
+        cli.main(["lab", str(tmp_path), "--prot", "8999"])  # a typo is an error, not a folder
     # developers: make lab opens the repository's notebooks/ as they are, nothing copied
     before = sorted((ROOT / "notebooks").rglob("*"))
     assert cli.main(["lab", "--no-copy", str(ROOT / "notebooks")]) == 0
-    assert calls[1][3] == str(ROOT / "notebooks") and sorted((ROOT / "notebooks").rglob("*")) == before
+    assert (
+        calls[1][3] == str(ROOT / "notebooks") and sorted((ROOT / "notebooks").rglob("*")) == before
+    )
     assert cli.main(["lab", "--no-copy", str(tmp_path / "nowhere")]) == 2
 
 
@@ -122,7 +134,7 @@ def test_check_passes_a_healthy_virtual_rig_with_friction(capsys):
     found, report = _check(_virtual(DCMotor(coulomb_friction=0.4)))
     assert all(f.ok for f in found.values()), report
     assert set(found) == {"firmware", "encoder", "direction", "cpr", "supply"}
-    assert "dead band" in found["supply"].message          # the friction, seen and not held against K
+    assert "dead band" in found["supply"].message  # the friction, seen and not held against K
     assert cli.main(["rig", "check", "virtual"]) == 0
     assert "all checks passed" in capsys.readouterr().out
 
@@ -130,8 +142,11 @@ def test_check_passes_a_healthy_virtual_rig_with_friction(capsys):
 def test_check_finds_a_reversed_encoder():
     found, report = _check(_virtual(encoder_sign=-1))
     assert not found["direction"].ok
-    assert "swap the encoder's A and B" in found["direction"].fix and "motor leads" in found["direction"].fix
-    assert found["cpr"].ok and found["supply"].ok, report          # the rest is measured all the same
+    assert (
+        "swap the encoder's A and B" in found["direction"].fix
+        and "motor leads" in found["direction"].fix
+    )
+    assert found["cpr"].ok and found["supply"].ok, report  # the rest is measured all the same
 
 
 def test_check_finds_a_disconnected_encoder():
@@ -149,10 +164,13 @@ def test_check_finds_a_weak_supply():
 
 @pytest.mark.parametrize("configured, actual", [(112, 448), (1792, 448)])
 def test_check_finds_a_wrong_counts_per_revolution(configured, actual):
-    rig = connect(progress=False, counts_per_rev=configured)          # the motor's encoder gives 448
+    rig = connect(progress=False, counts_per_rev=configured)  # the motor's encoder gives 448
     found, _ = _check(rig)
     assert not found["cpr"].ok
-    assert f"about {actual} counts/rev" in found["cpr"].message and f"counts_per_rev={actual}" in found["cpr"].fix
+    assert (
+        f"about {actual} counts/rev" in found["cpr"].message
+        and f"counts_per_rev={actual}" in found["cpr"].fix
+    )
 
 
 def test_check_validates_its_arguments():
@@ -169,10 +187,21 @@ def test_check_validates_its_arguments():
 
 
 def test_check_on_the_firmware_on_simavr():
-    require_tool("make", "cc", "avr-g++", "avr-size", "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
-                 "/usr/include/simavr/sim_avr.h")
-    rig = connect("simavr", motor=DCMotor(K=27.5, tau=0.034, coulomb_friction=0.3), progress=False,
-                  timeout=10.0, model=(27.5, 0.034))
+    require_tool(
+        "make",
+        "cc",
+        "avr-g++",
+        "avr-size",
+        "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
+        "/usr/include/simavr/sim_avr.h",
+    )
+    rig = connect(
+        "simavr",
+        motor=DCMotor(K=27.5, tau=0.034, coulomb_friction=0.3),
+        progress=False,
+        timeout=10.0,
+        model=(27.5, 0.034),
+    )
     try:
         found = {f.name: f for f in check_rig(rig)}
         assert all(f.ok for f in found.values()), format_report(found.values())

@@ -1,4 +1,5 @@
 """Tests of jerklab.controller: gains against python-control, the difference equations."""
+
 from __future__ import annotations
 
 import control as ct
@@ -7,9 +8,19 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from jerklab.controller import (DigitalController, DiscreteGains, Feedforward, Gains, PositionLoop,
-                                VelocityLoop, discrete_pole_placement_pid, paper_error_scale,
-                                paper_velocity_controller, pole_placement_pid, velocity_pole_placement_pid)
+from jerklab.controller import (
+    DigitalController,
+    DiscreteGains,
+    Feedforward,
+    Gains,
+    PositionLoop,
+    VelocityLoop,
+    discrete_pole_placement_pid,
+    paper_error_scale,
+    paper_velocity_controller,
+    pole_placement_pid,
+    velocity_pole_placement_pid,
+)
 from jerklab.plant import DCMotor
 
 K, TAU, TS = 32.4, 0.025, 0.005
@@ -34,7 +45,13 @@ def _z_pid_tf(d):
 
 
 @settings(max_examples=60)
-@given(st.floats(0.5, 200), st.floats(0.3, 2.0), st.floats(1.5, 15), st.floats(1, 100), st.floats(0.005, 0.2))
+@given(
+    st.floats(0.5, 200),
+    st.floats(0.3, 2.0),
+    st.floats(1.5, 15),
+    st.floats(1, 100),
+    st.floats(0.005, 0.2),
+)
 def test_eq11_places_position_poles(wn, zeta, ratio, K_, tau_):
     g = pole_placement_pid(K_, tau_, wn, zeta, sigma=ratio * wn)
     P = ct.tf([K_], [tau_, 1.0, 0.0])
@@ -48,10 +65,12 @@ def test_eq11_closed_form_and_times():
     g = pole_placement_pid(K, TAU, wn)
     assert g.design["sigma"] == sigma
     assert g.kp == pytest.approx(wn * TAU * (2 * zeta * sigma + wn) / K)
-    assert g.ki == pytest.approx(TAU * sigma * wn ** 2 / K)
+    assert g.ki == pytest.approx(TAU * sigma * wn**2 / K)
     assert g.kd == pytest.approx((TAU * (2 * zeta * wn + sigma) - 1) / K)
-    assert g.Ti == pytest.approx((2 * zeta * sigma + wn) / (sigma * wn))          # eq. 11
-    assert g.Td == pytest.approx((TAU * (2 * zeta * wn + sigma) - 1) / (wn * TAU * (2 * zeta * sigma + wn)))
+    assert g.Ti == pytest.approx((2 * zeta * sigma + wn) / (sigma * wn))  # eq. 11
+    assert g.Td == pytest.approx(
+        (TAU * (2 * zeta * wn + sigma) - 1) / (wn * TAU * (2 * zeta * sigma + wn))
+    )
 
 
 def test_eq13_coefficients():
@@ -150,7 +169,9 @@ def test_loop_objects_against_python_control():
     m = L.margins()
     gm, pm, _, _ = ct.margin(Pz * _z_pid_tf(d))
     assert m["phase_margin"] == pytest.approx(pm)
-    np.testing.assert_allclose(np.sort(np.abs(L.poles_s())), np.sort(np.abs(np.log(L.poles_z()) / TS)))
+    np.testing.assert_allclose(
+        np.sort(np.abs(L.poles_s())), np.sort(np.abs(np.log(L.poles_z()) / TS))
+    )
     c = PositionLoop(K, TAU, pole_placement_pid(K, TAU, 30.0))
     _match(c.poles_s(), [-210, -30, -30], 1e-5)
     assert c.is_stable() and not c.discrete
@@ -187,7 +208,9 @@ def test_difference_equations_agree_with_python_control():
         y[k] = x[0]
         u = c.step(r[k], v[k], a[k], x[0])
         parts = c.last_parts
-        assert parts["u"] == pytest.approx(parts["p"] + parts["i"] + parts["d"] + parts["ff"], abs=1e-12)
+        assert parts["u"] == pytest.approx(
+            parts["p"] + parts["i"] + parts["d"] + parts["ff"], abs=1e-12
+        )
         x = m.step_state(x, u, TS)
     np.testing.assert_allclose(y, y_ref, atol=1e-9)
 
@@ -195,13 +218,13 @@ def test_difference_equations_agree_with_python_control():
 def test_eq17_state_and_output_limit():
     d = DiscreteGains(2.0, 0.5, 3.0, TS)
     c = DigitalController(d, output_limit=None)
-    u0 = c.step(1.0, measured_position=0.0)           # e = 1, e(-1) = 0: p=2, i=0.5, d=3
+    u0 = c.step(1.0, measured_position=0.0)  # e = 1, e(-1) = 0: p=2, i=0.5, d=3
     assert u0 == pytest.approx(5.5)
-    u1 = c.step(1.0, measured_position=0.5)           # e = 0.5: p=1, i=0.75, d=-1.5
+    u1 = c.step(1.0, measured_position=0.5)  # e = 0.5: p=1, i=0.75, d=-1.5
     assert u1 == pytest.approx(0.25)
     c = DigitalController(d, output_limit=1.0, anti_windup=True)
     assert c.step(10.0) == 1.0 and c.last_parts["saturated"]
-    assert c.last_parts["i"] == 0.0                   # frozen while clamped
+    assert c.last_parts["i"] == 0.0  # frozen while clamped
     c = DigitalController(d, output_limit=1.0, anti_windup=False)
     c.step(10.0)
     assert c.last_parts["i"] == pytest.approx(5.0)
@@ -211,7 +234,7 @@ def test_bumpless_start():
     d = DiscreteGains(2.0, 0.5, 3.0, TS)
     c = DigitalController(d, output_limit=None, bumpless=True)
     c.step(1.0, measured_position=0.0)
-    assert c.last_parts["d"] == 0.0                   # no derivative kick
+    assert c.last_parts["d"] == 0.0  # no derivative kick
     c.reset(last_output=4.0)
     assert c.step(0.3, measured_position=0.1) == pytest.approx(4.0)
     assert c.step(0.3, measured_position=0.1) == pytest.approx(4.0 + 0.5 * 0.2)
@@ -222,7 +245,7 @@ def test_velocity_loop_controller_error():
     c = DigitalController(d, output_limit=None, error_scale=paper_error_scale())
     c.step(0.0, 10.0, 0.0, 0.0)
     assert c.last_parts["e"] == pytest.approx(10.0 * paper_error_scale())
-    c.step(0.0, 10.0, 0.0, 0.05)                      # measured 10 rad/s
+    c.step(0.0, 10.0, 0.0, 0.05)  # measured 10 rad/s
     assert c.last_parts["e"] == pytest.approx(0.0, abs=1e-12)
 
 
@@ -231,18 +254,21 @@ def test_feedforward_eq8():
     assert ff(3.0, 100.0) == pytest.approx((TAU * 100.0 + 3.0) / K)
 
 
-@pytest.mark.parametrize("call, name", [
-    (lambda: pole_placement_pid(K, TAU, -1.0), "wn"),
-    (lambda: pole_placement_pid(K, float("nan"), 10.0), "tau"),
-    (lambda: pole_placement_pid(K, TAU, 10.0, sigma=0.0), "sigma"),
-    (lambda: pole_placement_pid(K, TAU, 10.0).discretize(0.0), "Ts"),
-    (lambda: discrete_pole_placement_pid(K, TAU, 10.0, Ts=-1.0), "Ts"),
-    (lambda: discrete_pole_placement_pid(K, TAU, 10.0, extra_pole=1.5), "extra_pole"),
-    (lambda: DigitalController(pole_placement_pid(K, TAU, 10.0)), "gains"),
-    (lambda: DigitalController(DiscreteGains(1, 1, 1, TS), output_limit=-1), "output_limit"),
-    (lambda: Feedforward(0.0, TAU), "K"),
-    (lambda: Gains(1.0, float("inf"), 0.0), "ki"),
-])
+@pytest.mark.parametrize(
+    "call, name",
+    [
+        (lambda: pole_placement_pid(K, TAU, -1.0), "wn"),
+        (lambda: pole_placement_pid(K, float("nan"), 10.0), "tau"),
+        (lambda: pole_placement_pid(K, TAU, 10.0, sigma=0.0), "sigma"),
+        (lambda: pole_placement_pid(K, TAU, 10.0).discretize(0.0), "Ts"),
+        (lambda: discrete_pole_placement_pid(K, TAU, 10.0, Ts=-1.0), "Ts"),
+        (lambda: discrete_pole_placement_pid(K, TAU, 10.0, extra_pole=1.5), "extra_pole"),
+        (lambda: DigitalController(pole_placement_pid(K, TAU, 10.0)), "gains"),
+        (lambda: DigitalController(DiscreteGains(1, 1, 1, TS), output_limit=-1), "output_limit"),
+        (lambda: Feedforward(0.0, TAU), "K"),
+        (lambda: Gains(1.0, float("inf"), 0.0), "ki"),
+    ],
+)
 def test_bad_input(call, name):
     with pytest.raises(ValueError, match=name):
         call()

@@ -1,10 +1,12 @@
 """jerklab.diagrams: every diagram builds; the flowchart of Stojčić Fig. 2 is the planner."""
+
 from __future__ import annotations
 
 import math
 
 import pytest
-from hypothesis import given, strategies as st
+from hypothesis import given
+from hypothesis import strategies as st
 
 from jerklab import diagrams as D
 from jerklab.planner import plan_sine_jerk
@@ -67,8 +69,10 @@ def test_diagram_builds_svg(name, tmp_path):
 
 def test_xu_fig3_from_a_shaped_cycle():
     import matplotlib
+
     matplotlib.use("Agg")
     from jerklab.piezo import ScanSpec, shape_cycle
+
     c = shape_cycle(0, 0, spec=ScanSpec(F_max=100.0))
     ax = D.xu_fig3(c)
     assert "Fig. 3" in ax.get_title()

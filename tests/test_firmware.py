@@ -2,6 +2,7 @@
 host, agrees with jerklab on golden vectors (planner, controller, frames); the device state
 machine speaks jerklab.protocol (replies, parameter checks with NACK codes, runs, the host
 watchdog)."""
+
 from __future__ import annotations
 
 import math
@@ -10,12 +11,16 @@ import subprocess
 
 import numpy as np
 import pytest
-
 from _avr import run_on_atmega328p
 from conftest import require_tool
+
 from jerklab import protocol as pr
-from jerklab.controller import (DigitalController, Feedforward, discrete_pole_placement_pid,
-                                pole_placement_pid)
+from jerklab.controller import (
+    DigitalController,
+    Feedforward,
+    discrete_pole_placement_pid,
+    pole_placement_pid,
+)
 from jerklab.planner import plan_scurve, plan_sine_jerk, plan_sine_jerk_optimal, plan_trapezoid
 
 K_M, TAU_M = 32.4, 0.025
@@ -49,11 +54,15 @@ def host_driver():
 
 
 def test_sketch_builds_and_fits_the_uno_budget():
-    require_tool("avr-g++", "avr-size", "make", "/usr/share/arduino/hardware/arduino/avr/cores/arduino")
+    require_tool(
+        "avr-g++", "avr-size", "make", "/usr/share/arduino/hardware/arduino/avr/cores/arduino"
+    )
     out = build_firmware("avr", "size")
     assert out["elf"].is_file() and out["hex"].is_file()
-    m = re.search(r"flash (\d+) / (\d+) bytes \(([\d.]+) %\), RAM (\d+) / (\d+) bytes \(([\d.]+) %\)",
-                  out["output"])
+    m = re.search(
+        r"flash (\d+) / (\d+) bytes \(([\d.]+) %\), RAM (\d+) / (\d+) bytes \(([\d.]+) %\)",
+        out["output"],
+    )
     assert m, out["output"]
     flash, flash_total, ram, ram_total = (int(m.group(i)) for i in (1, 2, 4, 5))
     assert flash_total == 32256 and ram_total == 2048
@@ -80,6 +89,7 @@ def test_sketch_builds_and_fits_the_uno_budget():
 
 # ----------------------------------------------------------------------------- golden vectors
 
+
 def _limit_cases(rng, n):
     """Distances and limits over the regimes of Stojčić Fig. 2 (jerk, accel or velocity bound)."""
     cases = []
@@ -87,15 +97,21 @@ def _limit_cases(rng, n):
         regime = i % 3
         d = f32(rng.choice([-1, 1]) * 10 ** rng.uniform(-2, 3))
         J = f32(10 ** rng.uniform(2, 6))
-        if regime == 0:          # jerk bound: generous E and Omega
+        if regime == 0:  # jerk bound: generous E and Omega
             E, W = f32(1e9), f32(1e9)
-        elif regime == 1:        # acceleration bound
-            E = f32(10 ** rng.uniform(0, 3)); W = f32(1e9)
-        else:                    # velocity bound
-            E = f32(1e9); W = f32(10 ** rng.uniform(-1, 2))
+        elif regime == 1:  # acceleration bound
+            E = f32(10 ** rng.uniform(0, 3))
+            W = f32(1e9)
+        else:  # velocity bound
+            E = f32(1e9)
+            W = f32(10 ** rng.uniform(-1, 2))
         cases.append((d, J, E, W))
-    cases += [(f32(10 * math.pi), 2e4, 300.0, 100.0), (f32(-31.4159), 2e4, 300.0, 100.0),
-              (100.0, 1000.0, 100.0, 60.0), (f32(1e-3), 2e4, 300.0, 100.0)]
+    cases += [
+        (f32(10 * math.pi), 2e4, 300.0, 100.0),
+        (f32(-31.4159), 2e4, 300.0, 100.0),
+        (100.0, 1000.0, 100.0, 60.0),
+        (f32(1e-3), 2e4, 300.0, 100.0),
+    ]
     return cases
 
 
@@ -106,64 +122,92 @@ def _write_vectors(path, rng):
     lines = []
     clamp_stats = []
     # every planner of the firmware (PLAN's planner byte 0..3) on the same limit cases
-    planners = [(0, plan_sine_jerk), (1, plan_sine_jerk_optimal), (2, plan_scurve),
-                (3, lambda d, J, E, W: plan_trapezoid(d, E, W))]
+    planners = [
+        (0, plan_sine_jerk),
+        (1, plan_sine_jerk_optimal),
+        (2, plan_scurve),
+        (3, lambda d, J, E, W: plan_trapezoid(d, E, W)),
+    ]
     for i, (d, J, E, W) in enumerate(_limit_cases(rng, 60)):
-      for kind, planner in planners:
-        p = planner(d, J, E, W)
-        hdr = f"{kind} {float(d)!r} {float(J)!r} {float(E)!r} {float(W)!r}"
-        pt = p.phase_times
-        accel_time, cruise = (pt[0], pt[1]) if len(pt) == 3 else (sum(pt[:3]), pt[3])
-        lines.append(f"P {hdr} {float(accel_time)!r} {float(cruise)!r} {float(p.duration)!r}")
-        # closed form at random times, at the phase boundaries and outside the move
-        bounds = np.cumsum([0.0, *pt])
-        t = np.concatenate([rng.uniform(0, p.duration, 40), bounds, [-1.0, p.duration + 1.0]])
-        s = p.sample(t)
-        for k in range(len(t)):
-            lines.append(f"S {hdr} {float(t[k])!r} {float(s.jerk[k])!r} {float(s.accel[k])!r} {float(s.velocity[k])!r} {float(s.position[k])!r}")
-        # the control loop's stepper at t = k Ts (capped for very long moves), at Ts = 5 ms and
-        # at 1 ms (the 1 kHz loop)
-        Ts = (0.005, 0.001)[(i + kind) % 2]
-        n = min(int(math.ceil(p.duration / Ts)) + 3, 4000)
-        s = p.sample(np.arange(n) * Ts)
-        lines.append(f"K {hdr} {float(Ts)!r} {n}")
-        lines += [f"s {float(s.jerk[k])!r} {float(s.accel[k])!r} {float(s.velocity[k])!r} {float(s.position[k])!r}" for k in range(n)]
+        for kind, planner in planners:
+            p = planner(d, J, E, W)
+            hdr = f"{kind} {float(d)!r} {float(J)!r} {float(E)!r} {float(W)!r}"
+            pt = p.phase_times
+            accel_time, cruise = (pt[0], pt[1]) if len(pt) == 3 else (sum(pt[:3]), pt[3])
+            lines.append(f"P {hdr} {float(accel_time)!r} {float(cruise)!r} {float(p.duration)!r}")
+            # closed form at random times, at the phase boundaries and outside the move
+            bounds = np.cumsum([0.0, *pt])
+            t = np.concatenate([rng.uniform(0, p.duration, 40), bounds, [-1.0, p.duration + 1.0]])
+            s = p.sample(t)
+            for k in range(len(t)):
+                lines.append(
+                    f"S {hdr} {float(t[k])!r} {float(s.jerk[k])!r} {float(s.accel[k])!r} {float(s.velocity[k])!r} {float(s.position[k])!r}"
+                )
+            # the control loop's stepper at t = k Ts (capped for very long moves), at Ts = 5 ms and
+            # at 1 ms (the 1 kHz loop)
+            Ts = (0.005, 0.001)[(i + kind) % 2]
+            n = min(int(math.ceil(p.duration / Ts)) + 3, 4000)
+            s = p.sample(np.arange(n) * Ts)
+            lines.append(f"K {hdr} {float(Ts)!r} {n}")
+            lines += [
+                f"s {float(s.jerk[k])!r} {float(s.accel[k])!r} {float(s.velocity[k])!r} {float(s.position[k])!r}"
+                for k in range(n)
+            ]
     # controllers: Stojčić eq. 13 gains and z-domain gains (with a derivative filter), position
     # and velocity loops, feedforward on/off, output limits low enough to saturate. The move goes
     # out and back (15 rad, then -15 rad), so the clamp is hit in both directions.
     K, tau, Ts = 32.4, 0.025, 0.005
-    designs = [(pole_placement_pid(K, tau, 20).discretize(Ts), "position"),
-               (discrete_pole_placement_pid(K, tau, 20, Ts=Ts), "position"),
-               (discrete_pole_placement_pid(K, tau, 25, Ts=Ts, extra_pole=0.3), "position"),
-               (discrete_pole_placement_pid(K, tau, 20, Ts=Ts, loop="velocity"), "velocity")]
+    designs = [
+        (pole_placement_pid(K, tau, 20).discretize(Ts), "position"),
+        (discrete_pole_placement_pid(K, tau, 20, Ts=Ts), "position"),
+        (discrete_pole_placement_pid(K, tau, 25, Ts=Ts, extra_pole=0.3), "position"),
+        (discrete_pole_placement_pid(K, tau, 20, Ts=Ts, loop="velocity"), "velocity"),
+    ]
     counts_per_rad = 448 / (2 * math.pi)
     # (the plant obeys `obey` x u: < 1 lags, so the error pushes into the clamp and the
     # integrator freezes; > 1 leads, so the feedforward holds the clamp against the error and
     # the integrator keeps integrating back)
-    for (gains, loop), limit, ff_on, obey in [(designs[0], 12.0, True, 0.8), (designs[1], 2.0, True, 0.8),
-                                              (designs[2], 12.0, False, 0.8), (designs[3], 6.0, True, 0.8),
-                                              (designs[0], 1.0, False, 0.8), (designs[0], 1.5, True, 1.6)]:
-        g = type(gains)(f32(gains.kpd), f32(gains.kid), f32(gains.kdd), Ts, gamma=f32(gains.gamma),
-                        loop=loop)
+    for (gains, loop), limit, ff_on, obey in [
+        (designs[0], 12.0, True, 0.8),
+        (designs[1], 2.0, True, 0.8),
+        (designs[2], 12.0, False, 0.8),
+        (designs[3], 6.0, True, 0.8),
+        (designs[0], 1.0, False, 0.8),
+        (designs[0], 1.5, True, 1.6),
+    ]:
+        g = type(gains)(
+            f32(gains.kpd), f32(gains.kid), f32(gains.kdd), Ts, gamma=f32(gains.gamma), loop=loop
+        )
         ff = Feedforward(K, tau) if ff_on else None
         c = DigitalController(g, feedforward=ff, output_limit=limit)
-        lines.append(f"C {float(g.kpd)!r} {float(g.kid)!r} {float(g.kdd)!r} {float(g.gamma)!r} {float(limit)!r} {float(K)!r} {float(tau)!r} "
-                     f"{int(ff_on)} {int(loop == 'velocity')} {float(Ts)!r}")
-        prof = plan_sine_jerk(f32(15.0), 2e4, 3000.0, 100.0)     # 88 rad/s, 1060 rad/s^2: u_F 3.5 V
-        back = prof.duration + 0.1                       # the return move starts here
+        lines.append(
+            f"C {float(g.kpd)!r} {float(g.kid)!r} {float(g.kdd)!r} {float(g.gamma)!r} {float(limit)!r} {float(K)!r} {float(tau)!r} "
+            f"{int(ff_on)} {int(loop == 'velocity')} {float(Ts)!r}"
+        )
+        prof = plan_sine_jerk(f32(15.0), 2e4, 3000.0, 100.0)  # 88 rad/s, 1060 rad/s^2: u_F 3.5 V
+        back = prof.duration + 0.1  # the return move starts here
         n = int((back + prof.duration) / Ts) + 60
         t = np.arange(n) * Ts
         out_, ret = prof.sample(t), prof.sample(t - back)
-        ref = [np.asarray(out_.position) - np.asarray(ret.position),
-               np.asarray(out_.velocity) - np.asarray(ret.velocity),
-               np.asarray(out_.accel) - np.asarray(ret.accel)]
+        ref = [
+            np.asarray(out_.position) - np.asarray(ret.position),
+            np.asarray(out_.velocity) - np.asarray(ret.velocity),
+            np.asarray(out_.accel) - np.asarray(ret.accel),
+        ]
         theta = omega = 0.0
         a = math.exp(-Ts / tau)
-        st = dict(case=(gains.design.get("method"), loop, limit, ff_on), pos=0, neg=0, frozen_pos=0,
-                  frozen_neg=0, integrating_pos=0, integrating_neg=0)
+        st = dict(
+            case=(gains.design.get("method"), loop, limit, ff_on),
+            pos=0,
+            neg=0,
+            frozen_pos=0,
+            frozen_neg=0,
+            integrating_pos=0,
+            integrating_neg=0,
+        )
         i_prev = 0.0
         for k in range(n):
-            y = f32(math.floor(theta * counts_per_rad) / counts_per_rad)     # encoder, x1
+            y = f32(math.floor(theta * counts_per_rad) / counts_per_rad)  # encoder, x1
             r, v, acc = f32(ref[0][k]), f32(ref[1][k]), f32(ref[2][k])
             u = c.step(r, v, acc, y)
             pt = c.last_parts
@@ -172,47 +216,71 @@ def _write_vectors(path, rng):
                 st[side] += u == (limit if u > 0 else -limit)
                 st[("frozen_" if pt["i"] == i_prev else "integrating_") + side] += 1
             i_prev = pt["i"]
-            lines.append(f"c {float(r)!r} {float(v)!r} {float(acc)!r} {float(y)!r} {float(u)!r} {float(pt['p'])!r} {float(pt['i'])!r} {float(pt['d'])!r} "
-                         f"{float(pt['ff'])!r} {int(pt['saturated'])}")
-            u_m = obey * u + 0.3 * math.sin(0.05 * k)     # a plant that does not quite obey
-            theta, omega = (theta + tau * (1 - a) * omega + K * u_m * (Ts - tau * (1 - a)),
-                            a * omega + (1 - a) * K * u_m)
+            lines.append(
+                f"c {float(r)!r} {float(v)!r} {float(acc)!r} {float(y)!r} {float(u)!r} {float(pt['p'])!r} {float(pt['i'])!r} {float(pt['d'])!r} "
+                f"{float(pt['ff'])!r} {int(pt['saturated'])}"
+            )
+            u_m = obey * u + 0.3 * math.sin(0.05 * k)  # a plant that does not quite obey
+            theta, omega = (
+                theta + tau * (1 - a) * omega + K * u_m * (Ts - tau * (1 - a)),
+                a * omega + (1 - a) * K * u_m,
+            )
         clamp_stats.append(st)
     # frames: every message type encoded by jerklab.protocol, C++ must produce the same bytes
-    msgs = [pr.Hello(2), pr.SetPlant(32.4, 0.025, 12.0, 448),
-            pr.SetGains(1.0, 0.1, 2.0, 5000, 0, 1, 0.25), pr.SetLimits(2e4, 300, 100, 12, 1000, 0.5, 200, 500),
-            pr.Plan(31.4159, 0), pr.Run(40, 1), pr.Stop(), pr.Step(6.0, 5000, 200), pr.Heartbeat(),
-            pr.Sequence(2.0, 0.5, 5000, 255, 1, 8, 1), pr.SetShaper(3, (0.25, 0.5, 0.25), (0, 9, 18)),
-            pr.Ack(2), pr.Nack(3, 3, 1), pr.Nack(5, 8, 0),
-            pr.HelloReply(2, 1, 0, 0, 0x1F1, 1000, 1023, "jerklab-uno"),
-            pr.PlanInfo(0.1, 0.2, 0.4, 81), pr.Telemetry(12, 1.5, -300, -1023, 5),
-            pr.EndOfRun(0, 81, 0, 0, 0.0), pr.EndOfRun(4, 169, 2, 1, -0.52), pr.DeviceError(3, 1)]
+    msgs = [
+        pr.Hello(2),
+        pr.SetPlant(32.4, 0.025, 12.0, 448),
+        pr.SetGains(1.0, 0.1, 2.0, 5000, 0, 1, 0.25),
+        pr.SetLimits(2e4, 300, 100, 12, 1000, 0.5, 200, 500),
+        pr.Plan(31.4159, 0),
+        pr.Run(40, 1),
+        pr.Stop(),
+        pr.Step(6.0, 5000, 200),
+        pr.Heartbeat(),
+        pr.Sequence(2.0, 0.5, 5000, 255, 1, 8, 1),
+        pr.SetShaper(3, (0.25, 0.5, 0.25), (0, 9, 18)),
+        pr.Ack(2),
+        pr.Nack(3, 3, 1),
+        pr.Nack(5, 8, 0),
+        pr.HelloReply(2, 1, 0, 0, 0x1F1, 1000, 1023, "jerklab-uno"),
+        pr.PlanInfo(0.1, 0.2, 0.4, 81),
+        pr.Telemetry(12, 1.5, -300, -1023, 5),
+        pr.EndOfRun(0, 81, 0, 0, 0.0),
+        pr.EndOfRun(4, 169, 2, 1, -0.52),
+        pr.DeviceError(3, 1),
+    ]
     for i, m in enumerate(msgs):
         seq = (i * 37) % 256
         lines.append(f"F {int(m.TYPE)} {seq} {m.pack().hex() or '-'} {pr.encode(m, seq).hex()}")
     for i in range(40):
         payload = bytes(rng.integers(0, 256, rng.integers(0, 65), dtype=np.uint8))
         mtype = int(rng.integers(0, 256))
-        lines.append(f"F {mtype} {i} {payload.hex() or '-'} {pr.encode_frame(mtype, i, payload).hex()}")
+        lines.append(
+            f"F {mtype} {i} {payload.hex() or '-'} {pr.encode_frame(mtype, i, payload).hex()}"
+        )
     # decoder streams: good frames, noise, corrupted and truncated frames, false syncs
     for i in range(200):
         stream = bytearray()
         for _ in range(int(rng.integers(1, 6))):
             payload = bytes(rng.integers(0, 256, rng.integers(0, 65), dtype=np.uint8))
-            fr = bytearray(pr.encode_frame(int(rng.integers(0, 256)), int(rng.integers(0, 256)), payload))
+            fr = bytearray(
+                pr.encode_frame(int(rng.integers(0, 256)), int(rng.integers(0, 256)), payload)
+            )
             kind = rng.integers(0, 6)
             if kind == 1:
-                fr[rng.integers(2, len(fr))] ^= 1 << int(rng.integers(0, 8))     # bit flip
+                fr[rng.integers(2, len(fr))] ^= 1 << int(rng.integers(0, 8))  # bit flip
             elif kind == 2:
-                fr = fr[: rng.integers(1, len(fr))]                              # truncated
+                fr = fr[: rng.integers(1, len(fr))]  # truncated
             elif kind == 3:
                 stream += bytes(rng.integers(0, 256, rng.integers(0, 20), dtype=np.uint8))
             elif kind == 4:
-                stream += b"\xa5\x5a" + bytes([int(rng.integers(0, 256))])        # false sync
+                stream += b"\xa5\x5a" + bytes([int(rng.integers(0, 256))])  # false sync
             stream += fr
         dec = pr.Decoder()
         frames = dec.feed(bytes(stream))
-        lines.append(f"D {bytes(stream).hex() or '-'} {len(frames)} {dec.stats.bad_crc + dec.stats.bad_length}")
+        lines.append(
+            f"D {bytes(stream).hex() or '-'} {len(frames)} {dec.stats.bad_crc + dec.stats.bad_length}"
+        )
         lines += [f"f {f.type} {f.seq} {f.payload.hex() or '-'}" for f in frames]
     path.write_text("\n".join(lines) + "\n")
     return clamp_stats
@@ -241,15 +309,26 @@ def test_host_core_agrees_with_jerklab_on_golden_vectors(host_driver, tmp_path):
     assert len(both) >= 3, clamp
     for key in ("frozen_pos", "frozen_neg", "integrating_pos", "integrating_neg"):
         assert sum(st[key] for st in clamp) > 0, (key, clamp)
-    proc = subprocess.run([str(host_driver), "vectors", str(vec)], capture_output=True, text=True,
-                          timeout=120)
-    summary = {m.group(1): (int(m.group(2)), int(m.group(3)), float(m.group(4)))
-               for m in re.finditer(r"(\w+) records=(\d+) failures=(\d+) worst_error_over_tol=(\S+)",
-                                    proc.stdout)}
+    proc = subprocess.run(
+        [str(host_driver), "vectors", str(vec)], capture_output=True, text=True, timeout=120
+    )
+    summary = {
+        m.group(1): (int(m.group(2)), int(m.group(3)), float(m.group(4)))
+        for m in re.finditer(
+            r"(\w+) records=(\d+) failures=(\d+) worst_error_over_tol=(\S+)", proc.stdout
+        )
+    }
     assert proc.returncode == 0, proc.stdout + proc.stderr[-3000:]
-    for kind, minimum in [("plan", 600), ("sample", 40000), ("stepper", 80000), ("pulse", 5000),
-                          ("controller", 2000),
-                          ("controller_fixed", 400), ("encode", 56), ("decode", 400)]:
+    for kind, minimum in [
+        ("plan", 600),
+        ("sample", 40000),
+        ("stepper", 80000),
+        ("pulse", 5000),
+        ("controller", 2000),
+        ("controller_fixed", 400),
+        ("encode", 56),
+        ("decode", 400),
+    ]:
         records, failures, worst = summary[kind]
         assert records >= minimum and failures == 0 and worst <= 1.0, (kind, summary[kind])
 
@@ -261,9 +340,11 @@ def test_host_driver_detects_a_wrong_vector(host_driver, tmp_path):
     bad = tmp_path / "bad.txt"
     frame = bytearray(pr.encode(pr.Stop(), 1))
     frame[-1] ^= 0xFF
-    bad.write_text(f"S 0 10.0 1000.0 100.0 60.0 0.3 {float(s.jerk)} {float(s.accel)} "
-                   f"{float(s.velocity)} {float(s.position) * 1.001}\n"
-                   f"F {int(pr.MsgType.STOP)} 1 - {frame.hex()}\n")
+    bad.write_text(
+        f"S 0 10.0 1000.0 100.0 60.0 0.3 {float(s.jerk)} {float(s.accel)} "
+        f"{float(s.velocity)} {float(s.position) * 1.001}\n"
+        f"F {int(pr.MsgType.STOP)} 1 - {frame.hex()}\n"
+    )
     proc = subprocess.run([str(host_driver), "vectors", str(bad)], capture_output=True, text=True)
     assert proc.returncode == 1
     assert "sample records=4 failures=1" in proc.stdout
@@ -271,6 +352,7 @@ def test_host_driver_detects_a_wrong_vector(host_driver, tmp_path):
 
 
 # ----------------------------------------------------------------------------- device state machine
+
 
 class HostDevice:
     """Scripts the firmware's state machine (jerklab_rig/src/jl_device, host build) with jerklab.protocol
@@ -300,8 +382,13 @@ class HostDevice:
         return self
 
     def run(self):
-        proc = subprocess.run([str(self.driver), "device"], input="\n".join(self.script) + "\nquit\n",
-                              capture_output=True, text=True, timeout=60)
+        proc = subprocess.run(
+            [str(self.driver), "device"],
+            input="\n".join(self.script) + "\nquit\n",
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
         assert proc.returncode == 0, proc.stderr
         msgs, pwm = [], []
         dec = pr.Decoder()
@@ -326,20 +413,31 @@ def test_device_hello_and_parameter_checks(host_driver):
     nan, inf = float("nan"), float("inf")
     dev = HostDevice(host_driver)
     dev.send(pr.Hello(1)).send(pr.Hello(9))
-    bad = [pr.SetPlant(nan, 0.025, 12.0, 448), pr.SetPlant(32.4, -1.0, 12.0, 448),
-           pr.SetPlant(32.4, 0.025, 60.0, 448), pr.SetPlant(32.4, 0.025, 12.0, 0),
-           pr.SetGains(inf, 0, 0, 5000, 0, 1, 0.0), pr.SetGains(1, 0, 0, 5500, 0, 1, 0.0),
-           pr.SetGains(1, 0, 0, 5000, 2, 1, 0.0), pr.SetGains(1, 0, 0, 5000, 0, 4, 0.0),
-           pr.SetGains(1, 0, 0, 5000, 0, 1, 1.0), pr.SetLimits(-1, 300, 100, 12, 1000),
-           pr.SetLimits(2e4, 300, 100, 13.0, 1000), pr.Plan(0.0, 0), pr.Plan(nan, 0),
-           pr.Plan(1.0, 7), pr.Step(20.0, 5000, 10), pr.Step(1.0, 0, 10),
-           pr.Step(1.0, 5000, 0)]
+    bad = [
+        pr.SetPlant(nan, 0.025, 12.0, 448),
+        pr.SetPlant(32.4, -1.0, 12.0, 448),
+        pr.SetPlant(32.4, 0.025, 60.0, 448),
+        pr.SetPlant(32.4, 0.025, 12.0, 0),
+        pr.SetGains(inf, 0, 0, 5000, 0, 1, 0.0),
+        pr.SetGains(1, 0, 0, 5500, 0, 1, 0.0),
+        pr.SetGains(1, 0, 0, 5000, 2, 1, 0.0),
+        pr.SetGains(1, 0, 0, 5000, 0, 4, 0.0),
+        pr.SetGains(1, 0, 0, 5000, 0, 1, 1.0),
+        pr.SetLimits(-1, 300, 100, 12, 1000),
+        pr.SetLimits(2e4, 300, 100, 13.0, 1000),
+        pr.Plan(0.0, 0),
+        pr.Plan(nan, 0),
+        pr.Plan(1.0, 7),
+        pr.Step(20.0, 5000, 10),
+        pr.Step(1.0, 0, 10),
+        pr.Step(1.0, 5000, 0),
+    ]
     for m in bad:
         dev.send(m)
-    dev.send(pr.Run(0, 1))                                       # no gains, no plan
-    dev.send(pr.encode_frame(0x33, 1, b""))                      # unknown type
+    dev.send(pr.Run(0, 1))  # no gains, no plan
+    dev.send(pr.encode_frame(0x33, 1, b""))  # unknown type
     dev.send(pr.encode_frame(int(pr.MsgType.PLAN), 2, b"\x00\x00"))  # wrong payload length
-    dev.send(pr.encode_frame(int(pr.MsgType.ACK), 3, b"\x01"))   # device->host type
+    dev.send(pr.encode_frame(int(pr.MsgType.ACK), 3, b"\x01"))  # device->host type
     msgs, pwm = dev.run()
     replies = [m for _, _, m in msgs]
     hello = replies[0]
@@ -348,26 +446,53 @@ def test_device_hello_and_parameter_checks(host_driver):
     assert hello.tick_us == 1000 and hello.pwm_max == 1023
     caps = pr.Capability(hello.capabilities)
     # issue 21: every planner is on the board
-    for c in (pr.Capability.PLANNER_SINE_JERK, pr.Capability.PLANNER_SINE_JERK_OPTIMAL,
-              pr.Capability.PLANNER_SCURVE, pr.Capability.PLANNER_TRAPEZOID,
-              pr.Capability.LOOP_POSITION, pr.Capability.LOOP_VELOCITY,
-              pr.Capability.OPEN_LOOP_STEP, pr.Capability.FEEDFORWARD, pr.Capability.SIMULATED_PLANT):
+    for c in (
+        pr.Capability.PLANNER_SINE_JERK,
+        pr.Capability.PLANNER_SINE_JERK_OPTIMAL,
+        pr.Capability.PLANNER_SCURVE,
+        pr.Capability.PLANNER_TRAPEZOID,
+        pr.Capability.LOOP_POSITION,
+        pr.Capability.LOOP_VELOCITY,
+        pr.Capability.OPEN_LOOP_STEP,
+        pr.Capability.FEEDFORWARD,
+        pr.Capability.SIMULATED_PLANT,
+    ):
         assert c in caps
-    want = [(0, 3), (1, 3), (2, 3), (3, 3), (0, 3), (3, 3), (4, 3), (5, 3), (6, 3), (0, 3), (3, 3),
-            (0, 3), (0, 3), (1, 3), (0, 3), (1, 3), (2, 3)]
-    nacks = replies[2:2 + len(bad)]
+    want = [
+        (0, 3),
+        (1, 3),
+        (2, 3),
+        (3, 3),
+        (0, 3),
+        (3, 3),
+        (4, 3),
+        (5, 3),
+        (6, 3),
+        (0, 3),
+        (3, 3),
+        (0, 3),
+        (0, 3),
+        (1, 3),
+        (0, 3),
+        (1, 3),
+        (2, 3),
+    ]
+    nacks = replies[2 : 2 + len(bad)]
     for m, got, (param, err) in zip(bad, nacks, want):
         assert isinstance(got, pr.Nack), (m, got)
         assert (got.command, got.error, got.param) == (int(m.TYPE), err, param), (m, got)
         # the NACK names the offending field
         assert pr.payload_field_name(got.command, got.param)
-    tail = replies[2 + len(bad):]
+    tail = replies[2 + len(bad) :]
     assert [(n.command, n.error) for n in tail] == [
-        (int(pr.MsgType.RUN), int(pr.ErrorCode.NOT_READY)), (0x33, int(pr.ErrorCode.UNKNOWN_TYPE)),
-        (int(pr.MsgType.PLAN), int(pr.ErrorCode.BAD_LENGTH)), (int(pr.MsgType.ACK), int(pr.ErrorCode.UNKNOWN_TYPE))]
-    seqs = [seq for _, seq, _ in msgs]                                # replies echo the seq
+        (int(pr.MsgType.RUN), int(pr.ErrorCode.NOT_READY)),
+        (0x33, int(pr.ErrorCode.UNKNOWN_TYPE)),
+        (int(pr.MsgType.PLAN), int(pr.ErrorCode.BAD_LENGTH)),
+        (int(pr.MsgType.ACK), int(pr.ErrorCode.UNKNOWN_TYPE)),
+    ]
+    seqs = [seq for _, seq, _ in msgs]  # replies echo the seq
     assert seqs == list(range(1, len(bad) + 4)) + [1, 2, 3]
-    assert pwm == []                                                  # nothing ever moved
+    assert pwm == []  # nothing ever moved
 
 
 def test_device_run_matches_jerklab_plan_and_reaches_target(host_driver):
@@ -377,9 +502,9 @@ def test_device_run_matches_jerklab_plan_and_reaches_target(host_driver):
     dev.send(pr.SetPlant(32.4, 0.025, 12.0, 448)).send(_gains())
     dev.send(pr.SetLimits(J, E, W, 12.0, 200)).send(pr.Plan(distance, 0))
     dev.send(pr.encode_frame(int(pr.MsgType.HEARTBEAT), 77, b"\x01\x02"))  # bad length: NACK
-    dev.send(b"\xa5\x5a\x02\x09\x10\x00\x00")                               # bad CRC: dropped
+    dev.send(b"\xa5\x5a\x02\x09\x10\x00\x00")  # bad CRC: dropped
     dev.send(pr.Run(40, 2))
-    dev.send(pr.SetGains(1, 0, 0, 5000, 0, 1, 0.0))                         # BUSY during the run
+    dev.send(pr.SetGains(1, 0, 0, 5000, 0, 1, 0.0))  # BUSY during the run
     dev.wait(2200, heartbeat_every=40)
     msgs, pwm = dev.run()
     replies = [m for _, _, m in msgs]
@@ -395,18 +520,20 @@ def test_device_run_matches_jerklab_plan_and_reaches_target(host_driver):
     end = [m for m in replies if isinstance(m, pr.EndOfRun)]
     assert len(end) == 1 and end[0].reason == pr.EndReason.DONE and end[0].samples == n + 40
     assert end[0].rx_errors == 1
-    assert [t.index for t in tel] == list(range(0, n + 40, 2))              # decimation 2
+    assert [t.index for t in tel] == list(range(0, n + 40, 2))  # decimation 2
     k = np.array([t.index for t in tel])
     ref = p.sample(k * 0.005).position
     assert np.max(np.abs(np.array([t.reference for t in tel]) - ref)) <= 1e-5 * distance
     counts_per_rad = 448 / (2 * math.pi)
     target = distance * counts_per_rad
-    assert abs(tel[-1].counts - target) <= 2                              # within 2 counts
+    assert abs(tel[-1].counts - target) <= 2  # within 2 counts
     track = np.array([t.counts for t in tel]) / counts_per_rad - ref
-    assert np.max(np.abs(track)) < 0.05 * distance                         # it tracked the move
-    assert all((t.flags & pr.TELEMETRY_SETTLING) == (pr.TELEMETRY_SETTLING if t.index >= n else 0)
-               for t in tel)
-    assert max(abs(t.pwm) for t in tel) <= 1023 and pwm[-1][1] == 0       # stopped at the end
+    assert np.max(np.abs(track)) < 0.05 * distance  # it tracked the move
+    assert all(
+        (t.flags & pr.TELEMETRY_SETTLING) == (pr.TELEMETRY_SETTLING if t.index >= n else 0)
+        for t in tel
+    )
+    assert max(abs(t.pwm) for t in tel) <= 1023 and pwm[-1][1] == 0  # stopped at the end
 
 
 @pytest.mark.parametrize("planner,Ts", [(1, 0.001), (2, 0.005), (2, 0.001), (3, 0.001), (0, 0.001)])
@@ -415,8 +542,12 @@ def test_device_runs_every_planner(host_driver, planner, Ts):
     as at 5 ms; the reference in the telemetry is jerklab's profile to float32 precision."""
     distance = f32(-3 * math.pi)
     J, E, W = 1e4, 300.0, 60.0
-    fn = [plan_sine_jerk, plan_sine_jerk_optimal, plan_scurve,
-          lambda d, J, E, W: plan_trapezoid(d, E, W)][planner]
+    fn = [
+        plan_sine_jerk,
+        plan_sine_jerk_optimal,
+        plan_scurve,
+        lambda d, J, E, W: plan_trapezoid(d, E, W),
+    ][planner]
     p = fn(distance, J, E, W)
     dev = HostDevice(host_driver)
     dev.send(pr.SetPlant(32.4, 0.025, 12.0, 448)).send(_gains(Ts))
@@ -450,10 +581,10 @@ def test_device_rescans_a_truncated_frame_after_silence(host_driver):
     from the byte after its sync, so a short frame held back behind a truncated long one is found."""
     long_frame = pr.encode(_gains(), 200)
     dev = HostDevice(host_driver)
-    dev.send(long_frame[:6])                 # a cut SET_GAINS: its length holds back what follows
-    dev.send(pr.Hello(1))                    # complete, but inside the cut frame's window
-    dev.script.append("idle")                # the firmware's 20 ms silence
-    dev.send(pr.Hello(1))                    # the link works normally afterwards
+    dev.send(long_frame[:6])  # a cut SET_GAINS: its length holds back what follows
+    dev.send(pr.Hello(1))  # complete, but inside the cut frame's window
+    dev.script.append("idle")  # the firmware's 20 ms silence
+    dev.send(pr.Hello(1))  # the link works normally afterwards
     msgs, _ = dev.run()
     replies = [m for _, _, m in msgs]
     assert [type(m) for m in replies] == [pr.HelloReply, pr.HelloReply], replies
@@ -463,14 +594,14 @@ def test_device_rescans_a_truncated_frame_after_silence(host_driver):
 def test_device_host_watchdog_stops_the_motor(host_driver):
     dev = HostDevice(host_driver)
     dev.send(_gains()).send(pr.SetLimits(2e4, 300, 100, 12.0, 100)).send(pr.Plan(f32(20.0), 0))
-    dev.send(pr.Run(0, 1)).wait(60, heartbeat_every=20).wait(400)          # then the host falls silent
+    dev.send(pr.Run(0, 1)).wait(60, heartbeat_every=20).wait(400)  # then the host falls silent
     msgs, pwm = dev.run()
     end = [(ms, m) for ms, _, m in msgs if isinstance(m, pr.EndOfRun)]
     assert len(end) == 1 and end[0][1].reason == pr.EndReason.HOST_TIMEOUT
-    last_rx = 60                                                          # the last heartbeat
-    assert last_rx + 100 < end[0][0] <= last_rx + 102                     # after host_timeout_ms
-    assert pwm[-1] == (end[0][0], 0)                                      # motor stopped then
-    assert any(v != 0 for _, v in pwm[:-1])                               # it had been driven
+    last_rx = 60  # the last heartbeat
+    assert last_rx + 100 < end[0][0] <= last_rx + 102  # after host_timeout_ms
+    assert pwm[-1] == (end[0][0], 0)  # motor stopped then
+    assert any(v != 0 for _, v in pwm[:-1])  # it had been driven
     later = [ms for ms, _, m in msgs if isinstance(m, pr.Telemetry) and ms > end[0][0]]
     assert later == []
 
@@ -482,10 +613,12 @@ def test_device_stop_and_open_loop_step(host_driver):
     msgs, pwm = dev.run()
     replies = [m for _, _, m in msgs]
     tel = [m for m in replies if isinstance(m, pr.Telemetry)]
-    assert len(tel) == 20 and all(t.pwm == round(6.0 * 1023 / 12.0) == 512 and t.reference == 0 for t in tel)
+    assert len(tel) == 20 and all(
+        t.pwm == round(6.0 * 1023 / 12.0) == 512 and t.reference == 0 for t in tel
+    )
     # open loop from rest: the counts follow the step response of K/(s(tau s+1))
     K, tau, u = 32.4, 0.025, 512 / 1023 * 12.0
-    t = np.array([m.index for m in tel]) * 0.005       # the step starts at sample 0
+    t = np.array([m.index for m in tel]) * 0.005  # the step starts at sample 0
     theta = K * u * (t - tau * (1 - np.exp(-t / tau)))
     counts = np.array([m.counts for m in tel])
     assert np.all(np.abs(counts - np.floor(theta * 448 / (2 * math.pi))) <= 2)
@@ -513,7 +646,9 @@ def test_device_closed_loop_matches_jerklab_controller(host_driver, loop):
     dev = HostDevice(host_driver)
     dev.send(pr.SetPlant(K_M, TAU_M, vs, 448))
     dev.send(pr.SetGains(g.kpd, g.kid, g.kdd, 5000, 0 if loop == "position" else 1, 1, 0.0))
-    dev.send(pr.SetLimits(2e4, 300.0, 100.0, vs, 0)).send(pr.Plan(distance, 0)).send(pr.Run(settle, 1))
+    dev.send(pr.SetLimits(2e4, 300.0, 100.0, vs, 0)).send(pr.Plan(distance, 0)).send(
+        pr.Run(settle, 1)
+    )
     info_n = math.ceil(profile.duration / Ts - 1e-4) + 1
     dev.wait((info_n + settle + 2) * 5)
     msgs, _ = dev.run()
@@ -533,13 +668,15 @@ def test_device_closed_loop_matches_jerklab_controller(host_driver, loop):
         counts.append(c)
         pwms.append(pwm)
         volts = pwm * vs / 1023
-        for _ in range(5):                                  # the driver integrates 1 ms ticks
-            theta, omega = (theta + TAU_M * (1 - a) * omega + K_M * volts * (1e-3 - TAU_M * (1 - a)),
-                            a * omega + (1 - a) * K_M * volts)
+        for _ in range(5):  # the driver integrates 1 ms ticks
+            theta, omega = (
+                theta + TAU_M * (1 - a) * omega + K_M * volts * (1e-3 - TAU_M * (1 - a)),
+                a * omega + (1 - a) * K_M * volts,
+            )
     dc = np.abs(np.array([t.counts for t in tel]) - counts)
     dp = np.abs(np.array([t.pwm for t in tel]) - pwms)
     assert dc.max() <= 1 and dp.max() <= 2, (dc.max(), dp.max())
-    assert np.mean(dp == 0) > 0.95                         # fixed point vs float64: rare 1-tick ties
+    assert np.mean(dp == 0) > 0.95  # fixed point vs float64: rare 1-tick ties
 
 
 def test_device_retarget_checks_and_ends_on_the_new_target(host_driver):
@@ -547,24 +684,28 @@ def test_device_retarget_checks_and_ends_on_the_new_target(host_driver):
     wrong length or a bad value; during a run the reference ends on the new target, at rest."""
     nan = float("nan")
     dev = HostDevice(host_driver)
-    dev.send(pr.Retarget(1.0))                                               # idle: NOT_READY
-    dev.send(pr.encode_frame(int(pr.MsgType.RETARGET), 9, b"\x00\x00"))      # BAD_LENGTH
+    dev.send(pr.Retarget(1.0))  # idle: NOT_READY
+    dev.send(pr.encode_frame(int(pr.MsgType.RETARGET), 9, b"\x00\x00"))  # BAD_LENGTH
     dev.send(pr.SetPlant(32.4, 0.025, 12.0, 448)).send(_gains(0.005))
     dev.send(pr.SetLimits(2000.0, 300.0, 60.0, 12.0, 200)).send(pr.Plan(f32(4 * math.pi), 1))
     dev.send(pr.Run(60, 1))
     dev.wait(60, heartbeat_every=20)
-    dev.send(pr.Retarget(nan))                                               # BAD_VALUE
-    dev.send(pr.Retarget(2e6))                                               # BAD_VALUE
-    dev.send(pr.Retarget(20.0))                                              # accepted
+    dev.send(pr.Retarget(nan))  # BAD_VALUE
+    dev.send(pr.Retarget(2e6))  # BAD_VALUE
+    dev.send(pr.Retarget(20.0))  # accepted
     dev.wait(2400, heartbeat_every=40)
-    dev.send(pr.Run(0, 1))                                                   # plan consumed
+    dev.send(pr.Run(0, 1))  # plan consumed
     msgs, _ = dev.run()
     replies = [m for _, _, m in msgs]
     nacks = [(m.command, m.error, m.param) for m in replies if isinstance(m, pr.Nack)]
     R = int(pr.MsgType.RETARGET)
-    assert nacks == [(R, int(pr.ErrorCode.NOT_READY), 0xFF), (R, int(pr.ErrorCode.BAD_LENGTH), 0xFF),
-                     (R, int(pr.ErrorCode.BAD_VALUE), 0), (R, int(pr.ErrorCode.BAD_VALUE), 0),
-                     (int(pr.MsgType.RUN), int(pr.ErrorCode.NOT_READY), 0xFF)]
+    assert nacks == [
+        (R, int(pr.ErrorCode.NOT_READY), 0xFF),
+        (R, int(pr.ErrorCode.BAD_LENGTH), 0xFF),
+        (R, int(pr.ErrorCode.BAD_VALUE), 0),
+        (R, int(pr.ErrorCode.BAD_VALUE), 0),
+        (int(pr.MsgType.RUN), int(pr.ErrorCode.NOT_READY), 0xFF),
+    ]
     assert sum(isinstance(m, pr.Ack) and m.command == R for m in replies) == 1
     end = [m for m in replies if isinstance(m, pr.EndOfRun)]
     assert len(end) == 1 and end[0].reason == pr.EndReason.DONE and end[0].overruns == 0
@@ -576,7 +717,7 @@ def test_device_retarget_checks_and_ends_on_the_new_target(host_driver):
     # the reference is smooth through the change: no jump in its third differences (jerk)
     # (a step of the peak jerk J would move this 3-sample average by >= J/2 between samples; the
     # smooth half-sine pulses of this move by ~J w Ts = 0.07 J)
-    j = np.diff(ref.astype(float), 3) / 0.005 ** 3
+    j = np.diff(ref.astype(float), 3) / 0.005**3
     assert np.max(np.abs(np.diff(j))) <= 0.3 * 2000.0
 
 
@@ -641,25 +782,38 @@ def test_avr_stepper_assembly_on_the_simulated_atmega328p(tmp_path):
     M32 = 0xFFFFFFFF
 
     def i32():
-        return rng.randint(-2**31, 2**31 - 1) >> rng.randint(0, 31)
+        return rng.randint(-(2**31), 2**31 - 1) >> rng.randint(0, 31)
 
     cases = []
     while len(cases) < 100:
-        y, E, eb, s = i32(), rng.randint(0, 2**31 - 1) >> rng.randint(0, 30), rng.randint(3, 7), rng.randint(0, 31)
-        if len(cases) < 8:             # the extremes
-            y = [-2**31, 2**31 - 1, -1, 0][len(cases) % 4]
+        y, E, eb, s = (
+            i32(),
+            rng.randint(0, 2**31 - 1) >> rng.randint(0, 30),
+            rng.randint(3, 7),
+            rng.randint(0, 31),
+        )
+        if len(cases) < 8:  # the extremes
+            y = [-(2**31), 2**31 - 1, -1, 0][len(cases) % 4]
             E, eb = (2**31 - 1, 7) if len(cases) < 4 else (2**24, 3)
-        if not -2**31 <= (y * E) >> (8 * eb) < 2**31:
-            continue                   # (mul_eps's domain: the result fits in 32 bits)
+        if not -(2**31) <= (y * E) >> (8 * eb) < 2**31:
+            continue  # (mul_eps's domain: the result fits in 32 bits)
         a = rng.getrandbits(64)
-        d = [rng.getrandbits(64) if rng.random() < 0.8 else rng.choice([0, 2**64 - 1, 2**63]) for _ in range(4)]
+        d = [
+            rng.getrandbits(64) if rng.random() < 0.8 else rng.choice([0, 2**64 - 1, 2**63])
+            for _ in range(4)
+        ]
         cases.append((y, E, eb, s, a, d, rng.randint(1, 3)))
     rows = []
     for y, E, eb, s, a, d, n in cases:
-        vals = [y & M32, E, eb, s, a & M32, a >> 32] + [w for q in d for w in (q & M32, q >> 32)] + [n]
+        vals = (
+            [y & M32, E, eb, s, a & M32, a >> 32] + [w for q in d for w in (q & M32, q >> 32)] + [n]
+        )
         rows.append("{" + ",".join(f"0x{v:08x}UL" for v in vals) + "}")
-    text = run_on_atmega328p(tmp_path, _AVR_STEPPER_MAIN.replace("VECTORS", ",".join(rows)),
-                             flags=("-ffunction-sections", "-fdata-sections", "-Wl,--gc-sections", "-lm"))
+    text = run_on_atmega328p(
+        tmp_path,
+        _AVR_STEPPER_MAIN.replace("VECTORS", ",".join(rows)),
+        flags=("-ffunction-sections", "-fdata-sections", "-Wl,--gc-sections", "-lm"),
+    )
     got = re.findall(r"<([0-9a-f]{8}) ([0-9a-f]{8})>", text)
     assert len(got) == 1, text[-500:]
     bad, checksum = int(got[0][0], 16), int(got[0][1], 16)

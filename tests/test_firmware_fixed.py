@@ -3,6 +3,7 @@ Python's exact integer arithmetic: the signed 32 x 32 -> 64-bit product, the gai
 byte shift with its floor and saturation, the Q16.16 conversion of a float32 and the saturating
 adds. The AVR's inline-assembly multiply (the same functions under ``__AVR__``) is compiled for
 the ATmega328P and run in simavr against avr-gcc's own int64 arithmetic and a checksum of Python's."""
+
 from __future__ import annotations
 
 import math
@@ -12,14 +13,31 @@ import subprocess
 
 import numpy as np
 import pytest
-
-from jerklab.rig.simavr import build_firmware
 from _avr import run_on_atmega328p
 from conftest import require_tool
 
-I32_MIN, I32_MAX = -2**31, 2**31 - 1
-EDGES = [I32_MIN, I32_MIN + 1, -2**30, -65536, -256, -255, -1, 0, 1, 2, 255, 256, 65535, 2**23,
-         2**30, I32_MAX - 1, I32_MAX]
+from jerklab.rig.simavr import build_firmware
+
+I32_MIN, I32_MAX = -(2**31), 2**31 - 1
+EDGES = [
+    I32_MIN,
+    I32_MIN + 1,
+    -(2**30),
+    -65536,
+    -256,
+    -255,
+    -1,
+    0,
+    1,
+    2,
+    255,
+    256,
+    65535,
+    2**23,
+    2**30,
+    I32_MAX - 1,
+    I32_MAX,
+]
 
 
 @pytest.fixture(scope="module")
@@ -29,8 +47,14 @@ def host_driver():
 
 
 def _run(host, lines):
-    out = subprocess.run([str(host), "fixed"], input="\n".join(lines) + "\n", capture_output=True,
-                         text=True, check=True, timeout=60).stdout.split("\n")
+    out = subprocess.run(
+        [str(host), "fixed"],
+        input="\n".join(lines) + "\n",
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=60,
+    ).stdout.split("\n")
     return [ln.split() for ln in out if ln.strip()]
 
 
@@ -47,8 +71,13 @@ def _pairs(n, seed):
     pairs = [(a, b) for a in EDGES for b in EDGES]
     pairs += [(rng.randint(I32_MIN, I32_MAX), rng.randint(I32_MIN, I32_MAX)) for _ in range(n)]
     # small and mixed magnitudes (one byte, two bytes, ...) where carries between columns matter
-    pairs += [(rng.randint(-2**rng.randint(1, 31), 2**rng.randint(1, 31) - 1),
-               rng.randint(-2**rng.randint(1, 31), 2**rng.randint(1, 31) - 1)) for _ in range(n)]
+    pairs += [
+        (
+            rng.randint(-(2 ** rng.randint(1, 31)), 2 ** rng.randint(1, 31) - 1),
+            rng.randint(-(2 ** rng.randint(1, 31)), 2 ** rng.randint(1, 31) - 1),
+        )
+        for _ in range(n)
+    ]
     return pairs
 
 
@@ -68,7 +97,7 @@ def test_mul_q_is_the_floor_of_the_shifted_product_saturated(host_driver):
     cases += [(a, m, s) for a in EDGES for m in (I32_MIN + 1, -1, 1, I32_MAX) for s in range(5)]
     got = _run(host_driver, [f"m {a} {m} {s}" for a, m, s in cases])
     for (a, m, s), (r,) in zip(cases, got):
-        assert int(r) == _sat((a * m) >> (8 * s)), (a, m, s)      # >> floors in Python
+        assert int(r) == _sat((a * m) >> (8 * s)), (a, m, s)  # >> floors in Python
 
 
 def _round_away(x):
@@ -87,18 +116,37 @@ def test_gain_quantisation_bound(host_driver):
     from fractions import Fraction
 
     rng = np.random.default_rng(4)
-    gains = [0.0, 1.0, -1.0, 0.5, 0.4999999, 2.0**-9, 3e-3, -7e-6, 1e-12, 123.456, -2.0**22,
-             2.0**23 - 1.0, -(2.0**23 - 1.0), 255.99998, 65535.996, 2.0**-17, 1e-40,
-             float(np.nextafter(np.float32(32768.0), np.float32(0)))]
+    gains = [
+        0.0,
+        1.0,
+        -1.0,
+        0.5,
+        0.4999999,
+        2.0**-9,
+        3e-3,
+        -7e-6,
+        1e-12,
+        123.456,
+        -(2.0**22),
+        2.0**23 - 1.0,
+        -(2.0**23 - 1.0),
+        255.99998,
+        65535.996,
+        2.0**-17,
+        1e-40,
+        float(np.nextafter(np.float32(32768.0), np.float32(0))),
+    ]
     gains += list(np.float32(10.0 ** rng.uniform(-12, 6.9, 400) * rng.choice([-1, 1], 400)))
     # mantissas of all ones: rounding up to 2^23 takes one byte less
     gains += [float(np.float32((2**24 - 1) * 2.0**k)) for k in range(-60, -1)]
-    refused = [2.0**23, -2.0**23, 8388607.5, -8388607.5, 2.0**31, math.inf, -math.inf, math.nan]
+    refused = [2.0**23, -(2.0**23), 8388607.5, -8388607.5, 2.0**31, math.inf, -math.inf, math.nan]
     got = _run(host_driver, [f"g {_bits(float(g))}" for g in gains + refused])
     for g, (ok, mant, s) in zip(gains, got):
         g = float(np.float32(g))
         ok, mant, s = int(ok), int(mant), int(s)
-        want_s = next((k for k in range(4, -1, -1) if abs(_round_away(Fraction(g) * 256**k)) < 2**23), None)
+        want_s = next(
+            (k for k in range(4, -1, -1) if abs(_round_away(Fraction(g) * 256**k)) < 2**23), None
+        )
         assert want_s is not None
         assert ok == 1 and s == want_s and mant == _round_away(Fraction(g) * 256**s), (g, mant, s)
         assert abs(mant) < 2**23
@@ -108,14 +156,34 @@ def test_gain_quantisation_bound(host_driver):
             assert abs(mant) >= 2**15 and err <= Fraction(abs(g)) / 2**16, g
         else:
             assert err <= Fraction(1, 2**33), g
-    assert all(int(r[0]) == 0 for r in got[len(gains):])
+    assert all(int(r[0]) == 0 for r in got[len(gains) :])
 
 
 def test_q16_conversion(host_driver):
     rng = np.random.default_rng(5)
-    xs = [0.0, -0.0, 0.5, -0.5, 1.0 / 65536, 1.5 / 65536, -2.5 / 65536, 1.0 / 131072 * 0.99,
-          100.25, -32767.99, 32767.999, 32768.0, -32768.0, 1e30, -1e30, math.inf, -math.inf, math.nan]
-    xs += list(np.float32(rng.uniform(-40000, 40000, 300))) + list(np.float32(rng.normal(0, 3, 300)))
+    xs = [
+        0.0,
+        -0.0,
+        0.5,
+        -0.5,
+        1.0 / 65536,
+        1.5 / 65536,
+        -2.5 / 65536,
+        1.0 / 131072 * 0.99,
+        100.25,
+        -32767.99,
+        32767.999,
+        32768.0,
+        -32768.0,
+        1e30,
+        -1e30,
+        math.inf,
+        -math.inf,
+        math.nan,
+    ]
+    xs += list(np.float32(rng.uniform(-40000, 40000, 300))) + list(
+        np.float32(rng.normal(0, 3, 300))
+    )
     got = _run(host_driver, [f"q {_bits(float(x))}" for x in xs])
     for x, (r,) in zip(xs, got):
         x = float(np.float32(x))
@@ -125,9 +193,11 @@ def test_q16_conversion(host_driver):
         elif abs(x) >= 32768.0:
             assert r == (I32_MAX if x > 0 else -I32_MAX)
         else:
-            exact = x * 65536.0                                   # exact in float64
+            exact = x * 65536.0  # exact in float64
             want = math.floor(abs(exact) + 0.5) * (1 if x >= 0 else -1)
-            assert abs(r - want) <= (1 if abs(exact - round(exact)) > 0.5 - 2**-24 * abs(exact) else 0), x
+            assert abs(r - want) <= (
+                1 if abs(exact - round(exact)) > 0.5 - 2**-24 * abs(exact) else 0
+            ), x
             assert abs(r - exact) <= 0.5 + 1e-6 * abs(exact) + 1e-9, x
 
 
@@ -201,14 +271,22 @@ def test_avr_assembly_multiply_on_the_simulated_atmega328p(tmp_path):
     require_tool("avr-g++", "simavr")
     rng = random.Random(7)
     pairs = [(a, b) for a in EDGES[::2] + [-1, 1] for b in EDGES[1::2] + [0]]
-    pairs += [(rng.randint(I32_MIN, I32_MAX), rng.randint(I32_MIN, I32_MAX))
-                                  for _ in range(60)]
-    pairs += [(rng.randint(-2**rng.randint(1, 31), 2**rng.randint(1, 31) - 1),
-               rng.randint(-2**rng.randint(1, 31), 2**rng.randint(1, 31) - 1)) for _ in range(60)]
+    pairs += [(rng.randint(I32_MIN, I32_MAX), rng.randint(I32_MIN, I32_MAX)) for _ in range(60)]
+    pairs += [
+        (
+            rng.randint(-(2 ** rng.randint(1, 31)), 2 ** rng.randint(1, 31) - 1),
+            rng.randint(-(2 ** rng.randint(1, 31)), 2 ** rng.randint(1, 31) - 1),
+        )
+        for _ in range(60)
+    ]
     cases = [(a, b, rng.randint(0, 4)) for a, b in pairs]
-    body = ",".join(f"{{{a}L,{b}L,{s}}}" if a != I32_MIN and b != I32_MIN else
-                    f"{{{'(-2147483647L-1)' if a == I32_MIN else str(a) + 'L'},"
-                    f"{'(-2147483647L-1)' if b == I32_MIN else str(b) + 'L'},{s}}}" for a, b, s in cases)
+    body = ",".join(
+        f"{{{a}L,{b}L,{s}}}"
+        if a != I32_MIN and b != I32_MIN
+        else f"{{{'(-2147483647L-1)' if a == I32_MIN else str(a) + 'L'},"
+        f"{'(-2147483647L-1)' if b == I32_MIN else str(b) + 'L'},{s}}}"
+        for a, b, s in cases
+    )
     import re
 
     text = run_on_atmega328p(tmp_path, _AVR_MAIN.replace("VECTORS", body))
@@ -219,7 +297,7 @@ def test_avr_assembly_multiply_on_the_simulated_atmega328p(tmp_path):
     for a, b, s in cases:
         p = a * b
         lo, hi, q = p & 0xFFFFFFFF, (p >> 32) & 0xFFFFFFFF, _sat(p >> (8 * s)) & 0xFFFFFFFF
-        m = ((b & 0xFFFFFF) ^ 0x800000) - 0x800000                  # b's low 24 bits, signed
+        m = ((b & 0xFFFFFF) ^ 0x800000) - 0x800000  # b's low 24 bits, signed
         n = _sat((a * m) >> (8 * s)) & 0xFFFFFFFF
         c = _sat(a + _sat((b * m) >> (8 * s))) & 0xFFFFFFFF
         want = (want + (lo ^ hi ^ q ^ n ^ c)) & 0xFFFFFFFF
@@ -234,11 +312,18 @@ def test_pwm_rounding_is_lround_clamped(host_driver):
     for k in range(0, 2048):
         h = np.float32(k + 0.5)
         xs += [h, np.nextafter(h, np.float32(0)), np.nextafter(h, np.float32(4096)), np.float32(k)]
-    xs += list(np.float32(rng.uniform(-3000, 3000, 3000))) + list(np.float32(rng.normal(0, 2, 1000)))
-    xs += [np.float32(v) for v in (0.0, -0.0, 0.49999997, 1e-40, 32767.0, 32768.0, -1e30, np.inf, -np.inf)]
+    xs += list(np.float32(rng.uniform(-3000, 3000, 3000))) + list(
+        np.float32(rng.normal(0, 2, 1000))
+    )
+    xs += [
+        np.float32(v)
+        for v in (0.0, -0.0, 0.49999997, 1e-40, 32767.0, 32768.0, -1e30, np.inf, -np.inf)
+    ]
     xs += [-x for x in xs[:8192]]
     cases = [(float(x), top) for x in xs for top in (1023,)] + [(float(x), 255) for x in xs[:2000]]
-    got = _run(host_driver, [f"p {_bits(x)} {top}" for x, top in cases] + [f"p {_bits(math.nan)} 1023"])
+    got = _run(
+        host_driver, [f"p {_bits(x)} {top}" for x, top in cases] + [f"p {_bits(math.nan)} 1023"]
+    )
     for (x, top), (r,) in zip(cases, got):
         want = math.floor(abs(x) + 0.5) if math.isfinite(x) else top
         want = min(want, top) * (-1 if math.copysign(1.0, x) < 0 else 1)
@@ -272,7 +357,7 @@ class _PidQModel:
 
     def step(self, e, ff):
         kpd, kid, kdd, gamma = self.g
-        e = max(-2**30, min(2**30 - 1, e))
+        e = max(-(2**30), min(2**30 - 1, e))
         d = self._mac(0, self.d, gamma) if gamma[0] != 0 else 0
         d = self._mac(d, e - self.e_prev, kdd)
         self.d, self.e_prev = d, e
@@ -339,9 +424,13 @@ def test_assembly_pid_matches_the_integer_law_on_the_simulated_atmega328p(tmp_pa
     require_tool("avr-g++", "simavr")
     import re
 
-    gains = [(374.6, 0.05, 310.0, 0.0, 1023.0), (12.0, 1.2e-3, 60.0, 0.6, 1023.0),
-             (-3.5, -0.02, 7.25, -0.3, 255.0), (1.0e4, 2.0e-6, 4.0e5, 0.95, 1023.0),
-             (0.75, 0.0, 0.0, 0.0, 100.0)]
+    gains = [
+        (374.6, 0.05, 310.0, 0.0, 1023.0),
+        (12.0, 1.2e-3, 60.0, 0.6, 1023.0),
+        (-3.5, -0.02, 7.25, -0.3, 255.0),
+        (1.0e4, 2.0e-6, 4.0e5, 0.95, 1023.0),
+        (0.75, 0.0, 0.0, 0.0, 100.0),
+    ]
     rng = random.Random(11)
     vecs = []
     for k in range(300):
@@ -349,18 +438,20 @@ def test_assembly_pid_matches_the_integer_law_on_the_simulated_atmega328p(tmp_pa
         if r < 0.5:
             e = rng.randint(-40 * 65536, 40 * 65536)
         elif r < 0.7:
-            e = rng.randint(-2**16, 2**16)
+            e = rng.randint(-(2**16), 2**16)
         elif r < 0.8:
             e = 0
         elif r < 0.9:
-            e = rng.choice([I32_MIN, I32_MAX, -I32_MAX, 2**30 + 1, -2**30 - 1, 2**30, -2**30])
+            e = rng.choice([I32_MIN, I32_MAX, -I32_MAX, 2**30 + 1, -(2**30) - 1, 2**30, -(2**30)])
         else:
-            e = rng.randint(-2**31, 2**31 - 1)
+            e = rng.randint(-(2**31), 2**31 - 1)
         ff = rng.randint(-600 * 65536, 600 * 65536) if rng.random() < 0.7 else 0
         vecs.append((e, ff))
     body_g = ",".join("{" + ",".join(f"{float(np.float32(x))!r}f" for x in g) + "}" for g in gains)
     body_v = ",".join(f"{{{_c_i32(e)},{_c_i32(f)}}}" for e, f in vecs)
-    text = run_on_atmega328p(tmp_path, _AVR_PID_MAIN.replace("GAINS", body_g).replace("VECTORS", body_v))
+    text = run_on_atmega328p(
+        tmp_path, _AVR_PID_MAIN.replace("GAINS", body_g).replace("VECTORS", body_v)
+    )
     got = re.findall(r"<([0-9a-f]{8}) ([0-9a-f]{8}) ([0-9a-f]{8})>", text)
     assert len(got) == len(gains), text[-500:]
     for g, (ok, checksum, nsat) in zip(gains, got):
@@ -372,4 +463,4 @@ def test_assembly_pid_matches_the_integer_law_on_the_simulated_atmega328p(tmp_pa
             n += sat
         assert int(ok, 16) == 1, g
         assert (int(checksum, 16), int(nsat, 16)) == (s, n), (g, checksum, hex(s), nsat, n)
-        assert 0 < n < len(vecs), g          # both branches ran
+        assert 0 < n < len(vecs), g  # both branches ran

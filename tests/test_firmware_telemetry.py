@@ -12,21 +12,28 @@ encoder ISRs (assembly, byte-wise carry) count like a perfect decoder in x1 and 
 across the count's byte boundaries. The host driver checks ``encode_frame_ring`` against jerklab's frames at wrapping heads
 (tests/test_firmware.py, golden vectors).
 """
+
 from __future__ import annotations
 
 import math
 
 import numpy as np
 import pytest
-
 from conftest import require_tool
+
 from jerklab.controller import discrete_pole_placement_pid
 from jerklab.planner import plan_sine_jerk
 from jerklab.rig import connect
 
 MOTOR = dict(K=27.5, tau=0.034)
-TOOLS = ("make", "cc", "avr-g++", "avr-size", "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
-         "/usr/include/simavr/sim_avr.h")
+TOOLS = (
+    "make",
+    "cc",
+    "avr-g++",
+    "avr-size",
+    "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
+    "/usr/include/simavr/sim_avr.h",
+)
 
 
 def _fast_move():
@@ -39,11 +46,24 @@ def _run(elf, baud, Ts, decimation, tmp_path, move=None, counts_per_rev=448):
 
     g = discrete_pole_placement_pid(MOTOR["K"], MOTOR["tau"], 20.0, Ts=Ts, extra_pole=0.9)
     with simavr.launch(elf, K=MOTOR["K"], tau=MOTOR["tau"], build=False) as uno:
-        with connect(uno.port, baudrate=baud, recordings=tmp_path, progress=False, timeout=10.0,
-                     counts_per_rev=counts_per_rev) as rig:
+        with connect(
+            uno.port,
+            baudrate=baud,
+            recordings=tmp_path,
+            progress=False,
+            timeout=10.0,
+            counts_per_rev=counts_per_rev,
+        ) as rig:
             rig.set_model(**MOTOR)
-            rec = rig.run_move(move or _fast_move(), g, Ts=Ts, settle=0.1, decimation=decimation,
-                               max_error=0.0, saturation_time=0.0)
+            rec = rig.run_move(
+                move or _fast_move(),
+                g,
+                Ts=Ts,
+                settle=0.1,
+                decimation=decimation,
+                max_error=0.0,
+                saturation_time=0.0,
+            )
         st = uno.stats()
     return rec, st
 
@@ -66,8 +86,9 @@ def test_telemetry_frame_cost_and_every_frame_at_1khz_1mbaud(tmp_path):
     require_tool(*TOOLS)
     from jerklab.rig import simavr
 
-    paths = simavr.build_firmware("avr", build_dir=simavr.firmware_dir() / "build" / "telemetry6",
-                                  baud=1000000, probe_part=6)
+    paths = simavr.build_firmware(
+        "avr", build_dir=simavr.firmware_dir() / "build" / "telemetry6", baud=1000000, probe_part=6
+    )
     simavr.build_firmware("simavr")
     rec, st = _run(paths["elf"], 1000000, 0.001, 1, tmp_path)
     _complete(rec, 1)
@@ -124,11 +145,16 @@ def test_encoder_isrs_count_like_a_perfect_decoder(tmp_path, counts_per_rev, dis
 
     paths = simavr.build_firmware("avr", "simavr")
     move = plan_sine_jerk(distance, 4000.0, 600.0, 250.0)
-    rec, st = _run(paths["elf"], 115200, 0.005, 1, tmp_path, move=move, counts_per_rev=counts_per_rev)
+    rec, st = _run(
+        paths["elf"], 115200, 0.005, 1, tmp_path, move=move, counts_per_rev=counts_per_rev
+    )
     _complete(rec, 1)
     ideal = st["ideal_counts_x4" if counts_per_rev == 1792 else "ideal_counts_x1"]
     assert st["firmware_counts"] == ideal
-    assert abs(ideal - distance * counts_per_rev / (2 * math.pi)) < 0.01 * abs(distance) * counts_per_rev
+    assert (
+        abs(ideal - distance * counts_per_rev / (2 * math.pi))
+        < 0.01 * abs(distance) * counts_per_rev
+    )
     assert st["int0_latency_cycles"]["over_120"] == 0
 
 
@@ -147,8 +173,12 @@ def _flood_run(elf, window):
 
     K, TAU, VS = 32.4, 0.025, 12.0
     g = pole_placement_pid(K, TAU, 20).discretize(1e-3)
-    cmds = [pr.SetPlant(K, TAU, VS, 448), pr.SetGains(g.kpd, g.kid, g.kdd, 1000, 0, 1, 0.0),
-            pr.SetLimits(380.0, 300.0, 370.0, VS, 0), pr.Plan(150.0, 0)]
+    cmds = [
+        pr.SetPlant(K, TAU, VS, 448),
+        pr.SetGains(g.kpd, g.kid, g.kdd, 1000, 0, 1, 0.0),
+        pr.SetLimits(380.0, 300.0, 370.0, VS, 0),
+        pr.Plan(150.0, 0),
+    ]
     hb = int(pr.MsgType.HEARTBEAT)
     with simavr.launch(elf, realtime=False, build=False) as uno:
         dec, msgs = pr.Decoder(), []
@@ -160,8 +190,10 @@ def _flood_run(elf, window):
             for i, m in enumerate(cmds):
                 ser.write(pr.encode(m, i + 1))
                 t0 = time.monotonic()
-                while not any(getattr(x, "command", None) == int(m.TYPE) or isinstance(x, pr.PlanInfo)
-                              for x in msgs[-1:]):
+                while not any(
+                    getattr(x, "command", None) == int(m.TYPE) or isinstance(x, pr.PlanInfo)
+                    for x in msgs[-1:]
+                ):
                     assert time.monotonic() - t0 < 10.0, f"no reply to {m}"
                     msgs += [pr.parse(f) for f in dec.feed(ser.read(256))]
             ser.write(pr.encode(pr.Run(50, 1), 100))
@@ -178,7 +210,9 @@ def _flood_run(elf, window):
                         end = m
                 k = window - (sent - acks)
                 if index and end is None and k > 0:
-                    ser.write(b"".join(pr.encode(pr.Heartbeat(), (seq + j) & 0xFF) for j in range(k)))
+                    ser.write(
+                        b"".join(pr.encode(pr.Heartbeat(), (seq + j) & 0xFF) for j in range(k))
+                    )
                     seq, sent = seq + k, sent + k
         st = uno.stats()
     return index, sent, acks, end, st, dec
@@ -196,8 +230,9 @@ def test_receive_flood_during_a_1khz_run_loses_no_byte():
     require_tool(*TOOLS)
     from jerklab.rig import simavr
 
-    paths = simavr.build_firmware("avr", build_dir=simavr.firmware_dir() / "build" / "rxflood",
-                                  baud=1000000)
+    paths = simavr.build_firmware(
+        "avr", build_dir=simavr.firmware_dir() / "build" / "rxflood", baud=1000000
+    )
     simavr.build_firmware("simavr")
     idx0, _, _, end0, st0, _ = _flood_run(paths["elf"], 0)
     idx, sent, acks, end, st, dec = _flood_run(paths["elf"], 8)

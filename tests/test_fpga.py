@@ -1,4 +1,5 @@
 """Yang et al. S-curve: integer model vs eqs. 7-8, vs the exact S-curve, vs Verilog (Icarus)."""
+
 from __future__ import annotations
 
 import math
@@ -8,14 +9,35 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from jerklab.fpga import (PAPER, HardwareLimitError, YangSCurve, divider_edges, paper_speed,
-                          published_divider, published_divider_lockup, simulate_divider_verilog,
-                          simulate_verilog)
+from jerklab.fpga import (
+    PAPER,
+    HardwareLimitError,
+    YangSCurve,
+    divider_edges,
+    paper_speed,
+    published_divider,
+    published_divider_lockup,
+    simulate_divider_verilog,
+    simulate_verilog,
+)
 
 
 # ---------------------------------------------------------------- eqs. 7, 8
-@pytest.mark.parametrize("n, v", [(300, 144), (1000, 1600), (2499, 9992), (2500, 10000),
-                                  (2501, 10008), (3750, 17500), (4999, 20000), (4990, 20000), (4900, 19984), (5000, 20000)])
+@pytest.mark.parametrize(
+    "n, v",
+    [
+        (300, 144),
+        (1000, 1600),
+        (2499, 9992),
+        (2500, 10000),
+        (2501, 10008),
+        (3750, 17500),
+        (4999, 20000),
+        (4990, 20000),
+        (4900, 19984),
+        (5000, 20000),
+    ],
+)
 def test_paper_eq7_eq8_values(n, v):
     # eq. 7: 16 n^2 / 10000; eq. 8: 20000 - (10000 - 2n)^2 / 2500 (integer division)
     assert paper_speed(n) == v
@@ -27,7 +49,7 @@ def test_general_integer_form_is_bit_identical_to_eq7_eq8():
     n = np.arange(300, 5001)
     assert (Y.coef_num, Y.coef_den) == (1, 625)
     assert np.array_equal(Y.speed(n), paper_speed(n))
-    assert np.all(Y.speed(np.arange(300)) == 0)          # below PWM_INITAL_COUNT
+    assert np.all(Y.speed(np.arange(300)) == 0)  # below PWM_INITAL_COUNT
 
 
 @settings(max_examples=200)
@@ -36,16 +58,16 @@ def test_integer_speed_within_one_of_exact_scurve(V, half, tc_us):
     """floor-divided eqs. 5, 6 stay within 1 µm/s of v = J t^2/2, v = V - J (T-t)^2/2."""
     tc = tc_us * 1e-6
     T = 2 * half * tc
-    start = math.ceil(half * math.sqrt(2.0 / V)) + 1          # first count with v >= 1 µm/s
+    start = math.ceil(half * math.sqrt(2.0 / V)) + 1  # first count with v >= 1 µm/s
     Y = YangSCurve(V, T, T, tc, clock_hz=50_000_000, step_um=1, start_count=start)
-    assert Y.coef_num * half ** 2 < 2 ** 32                   # V N^2 < 2^32 here: no overflow
+    assert Y.coef_num * half**2 < 2**32  # V N^2 < 2^32 here: no overflow
     n = np.arange(start, 2 * half + 1)
     t = n * tc
-    J = 4 * V / T ** 2
-    exact = np.where(t <= T / 2, J * t ** 2 / 2, V - J * (T - t) ** 2 / 2)
+    J = 4 * V / T**2
+    exact = np.where(t <= T / 2, J * t**2 / 2, V - J * (T - t) ** 2 / 2)
     v = Y.speed(n)
     assert np.all(np.abs(v - exact) < 1 + 1e-6)
-    assert np.all(np.diff(v) >= 0) and v[-1] == V           # monotone speed-up to V
+    assert np.all(np.diff(v) >= 0) and v[-1] == V  # monotone speed-up to V
     assert np.all(Y.speed(np.arange(start)) == 0)
 
 
@@ -53,7 +75,7 @@ def test_speed_table_matches_planner_scurve():
     Y = YangSCurve(**PAPER)
     p = Y.exact_profile()
     assert p.duration == pytest.approx(3.0)
-    assert p.phase_times[1] == pytest.approx(0.0, abs=1e-12)   # no constant-accel segment
+    assert p.phase_times[1] == pytest.approx(0.0, abs=1e-12)  # no constant-accel segment
     tab = Y.speed_table()
     ve = p.sample(Y.tick_times()).velocity
     on = tab.n >= Y.start_count
@@ -101,8 +123,11 @@ def brute_divider(starts, values, p_end):
     return np.array(rise), np.array(fall)
 
 
-stimulus = st.lists(st.tuples(st.integers(1, 40), st.sampled_from([0, 2, 3, 4, 5, 7, 10, 16, 31])),
-                    min_size=1, max_size=25)
+stimulus = st.lists(
+    st.tuples(st.integers(1, 40), st.sampled_from([0, 2, 3, 4, 5, 7, 10, 16, 31])),
+    min_size=1,
+    max_size=25,
+)
 
 
 @settings(max_examples=300)
@@ -157,23 +182,24 @@ def test_published_divider_locks_up_in_paper_move():
     hit = published_divider_lockup(YangSCurve(**PAPER))
     assert hit is not None
     assert hit["count"] > hit["compare_reg"]
-    assert 0.06 < hit["t"] < 1.0                  # during the first acceleration stage
-    assert hit["lockup_s"] == pytest.approx(2 ** 32 / 50e6)
+    assert 0.06 < hit["t"] < 1.0  # during the first acceleration stage
+    assert hit["lockup_s"] == pytest.approx(2**32 / 50e6)
 
 
 # ---------------------------------------------------------------- hardware limits
 def test_limits_raise_clear_errors():
     with pytest.raises(HardwareLimitError, match="minimum frequency"):
-        YangSCurve(**{**PAPER, "start_count": 100})          # 16 µm/s < 20 µm/s = 1 Hz
+        YangSCurve(**{**PAPER, "start_count": 100})  # 16 µm/s < 20 µm/s = 1 Hz
     with pytest.raises(HardwareLimitError, match="32 bits"):
-        YangSCurve(max_velocity=3_000_001, accel_time=1.0, refresh_period=1e-5, step_um=1,
-                   start_count=1000)
+        YangSCurve(
+            max_velocity=3_000_001, accel_time=1.0, refresh_period=1e-5, step_um=1, start_count=1000
+        )
     with pytest.raises(HardwareLimitError, match="32 bits"):
         YangSCurve(**{**PAPER, "clock_hz": 5_000_000_000})
     with pytest.raises(HardwareLimitError, match="f_clk / 2"):
         YangSCurve(**{**PAPER, "clock_hz": 1_000, "refresh_period": 1e-3})
     with pytest.raises(HardwareLimitError, match="register"):
-        divider_edges([1], [2 ** 32], 10)
+        divider_edges([1], [2**32], 10)
     with pytest.raises(ValueError, match="whole number"):
         YangSCurve(**{**PAPER, "refresh_period": 300e-6})
     with pytest.raises(ValueError, match="max_velocity"):
@@ -189,6 +215,7 @@ def test_limits_raise_clear_errors():
 # ---------------------------------------------------------------- Verilog, bit for bit
 def test_verilog_divider_matches_model(tmp_path):
     from conftest import require_tool
+
     require_tool("iverilog", "vvp")
     rng = np.random.default_rng(7)
     starts = np.r_[1, 1 + np.cumsum(rng.integers(1, 60, 80))]
@@ -207,6 +234,7 @@ def test_verilog_whole_paper_move_bit_for_bit(tmp_path):
     Icarus runs the 3 s move (6e5 clocks) in seconds.  Every tick's n, v, f, cycle and
     every pulse edge must equal the Python model."""
     from conftest import require_tool
+
     require_tool("iverilog", "vvp")
     Y = YangSCurve(**{**PAPER, "clock_hz": 200_000})
     run = simulate_verilog(Y, workdir=str(tmp_path))
@@ -222,6 +250,7 @@ def test_verilog_published_divider_locks_up_like_the_model(tmp_path):
     """The paper's divider as printed, driven by the paper's speed generator (200 kHz clock):
     Verilog and model give the same two pulses, then silence from the lock-up on."""
     from conftest import require_tool
+
     require_tool("iverilog", "vvp")
     Y = YangSCurve(**{**PAPER, "clock_hz": 200_000})
     p_end = 120_000
@@ -230,14 +259,22 @@ def test_verilog_published_divider_locks_up_like_the_model(tmp_path):
     rise, fall, hit = published_divider(starts, values, p_end)
     assert np.array_equal(run.rise, rise) and np.array_equal(run.fall, fall)
     assert hit is not None and run.rise.max() < hit["p"] < p_end
-    assert len(Y.pulses(p_end=p_end).rise) > 100          # the latched divider keeps going
+    assert len(Y.pulses(p_end=p_end).rise) > 100  # the latched divider keeps going
 
 
 def test_verilog_general_parameters_bit_for_bit(tmp_path):
     from conftest import require_tool
+
     require_tool("iverilog", "vvp")
-    Y = YangSCurve(max_velocity=15000, accel_time=0.06, cruise_time=0.02, refresh_period=100e-6,
-                   clock_hz=1_000_000, step_um=7, start_count=40)
+    Y = YangSCurve(
+        max_velocity=15000,
+        accel_time=0.06,
+        cruise_time=0.02,
+        refresh_period=100e-6,
+        clock_hz=1_000_000,
+        step_um=7,
+        start_count=40,
+    )
     assert (Y.coef_num, Y.coef_den) != (1, 625)
     run = simulate_verilog(Y, workdir=str(tmp_path))
     tab = Y.speed_table()

@@ -4,11 +4,11 @@ their folder, and a lab cell runs in a kernel of each (jerklab with the virtual 
 
 Needs jupyterhub (pip) and configurable-http-proxy (npm); skips without them (fails in CI).
 """
+
 import json
 import os
 import pathlib
 import secrets
-import shutil
 import signal
 import socket
 import subprocess
@@ -19,7 +19,6 @@ import urllib.request
 import uuid
 
 import pytest
-
 from conftest import require_tool
 
 pytestmark = pytest.mark.slow
@@ -39,18 +38,36 @@ print("LAB", os.environ.get("JUPYTERHUB_USER"), type(rig).__name__,
 # and 4.x) that deploy/z2jh/values.yaml may use; a typo in a key is silently ignored by Helm.
 Z2JH_KEYS = {
     "hub": {"config": None, "extraConfig": None, "extraEnv": None, "db": None, "resources": None},
-    "singleuser": {"image": {"name": None, "tag": None, "pullPolicy": None}, "defaultUrl": None,
-                   "memory": {"guarantee": None, "limit": None},
-                   "cpu": {"guarantee": None, "limit": None},
-                   "storage": {"capacity": None, "type": None, "homeMountPath": None},
-                   "extraEnv": None, "lifecycleHooks": None, "cmd": None, "profileList": None,
-                   "startTimeout": None},
-    "cull": {"enabled": None, "timeout": None, "every": None, "users": None, "maxAge": None,
-             "concurrency": None, "removeNamedServers": None, "adminUsers": None},
+    "singleuser": {
+        "image": {"name": None, "tag": None, "pullPolicy": None},
+        "defaultUrl": None,
+        "memory": {"guarantee": None, "limit": None},
+        "cpu": {"guarantee": None, "limit": None},
+        "storage": {"capacity": None, "type": None, "homeMountPath": None},
+        "extraEnv": None,
+        "lifecycleHooks": None,
+        "cmd": None,
+        "profileList": None,
+        "startTimeout": None,
+    },
+    "cull": {
+        "enabled": None,
+        "timeout": None,
+        "every": None,
+        "users": None,
+        "maxAge": None,
+        "concurrency": None,
+        "removeNamedServers": None,
+        "adminUsers": None,
+    },
     "prePuller": {"hook": {"enabled": None}, "continuous": {"enabled": None}},
-    "scheduling": {"userScheduler": {"enabled": None}, "podPriority": {"enabled": None},
-                   "userPlaceholder": {"enabled": None, "replicas": None}},
-    "proxy": None, "ingress": None,
+    "scheduling": {
+        "userScheduler": {"enabled": None},
+        "podPriority": {"enabled": None},
+        "userPlaceholder": {"enabled": None, "replicas": None},
+    },
+    "proxy": None,
+    "ingress": None,
 }
 
 
@@ -86,9 +103,12 @@ def _free_port():
 
 def _api(url, token, method="GET", body=None, timeout=30):
     data = json.dumps(body).encode() if body is not None else (b"" if method == "POST" else None)
-    req = urllib.request.Request(url, data=data, method=method,
-                                 headers={"Authorization": f"token {token}",
-                                          "Content-Type": "application/json"})
+    req = urllib.request.Request(
+        url,
+        data=data,
+        method=method,
+        headers={"Authorization": f"token {token}", "Content-Type": "application/json"},
+    )
     with urllib.request.urlopen(req, timeout=timeout) as r:
         txt = r.read().decode()
         return r.status, (json.loads(txt) if txt.strip().startswith(("{", "[")) else txt)
@@ -101,14 +121,24 @@ def hub(tmp_path_factory):
     state = tmp_path_factory.mktemp("hub")
     port, api, proxy = _free_port(), _free_port(), _free_port()
     token = secrets.token_hex(16)
-    env = dict(os.environ, JERKLAB_HUB_URL=f"http://127.0.0.1:{port}",
-               JERKLAB_HUB_API_URL=f"http://127.0.0.1:{api}",
-               JERKLAB_HUB_PROXY_API=f"http://127.0.0.1:{proxy}",
-               JERKLAB_HUB_STATE=str(state), JERKLAB_HUB_ADMIN_TOKEN=token,
-               PATH=os.path.dirname(sys.executable) + os.pathsep + os.environ["PATH"])
+    env = dict(
+        os.environ,
+        JERKLAB_HUB_URL=f"http://127.0.0.1:{port}",
+        JERKLAB_HUB_API_URL=f"http://127.0.0.1:{api}",
+        JERKLAB_HUB_PROXY_API=f"http://127.0.0.1:{proxy}",
+        JERKLAB_HUB_STATE=str(state),
+        JERKLAB_HUB_ADMIN_TOKEN=token,
+        PATH=os.path.dirname(sys.executable) + os.pathsep + os.environ["PATH"],
+    )
     log = open(state / "hub.log", "w")
-    proc = subprocess.Popen([sys.executable, "-m", "jupyterhub", "-f", str(CONFIG)], cwd=state,
-                            env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "jupyterhub", "-f", str(CONFIG)],
+        cwd=state,
+        env=env,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )
     base = f"http://127.0.0.1:{port}"
     try:
         t0 = time.monotonic()
@@ -138,14 +168,33 @@ def _run_cell(base, user, token, code, timeout=90):
     try:
         ws = websocket.create_connection(
             f"{base.replace('http', 'ws')}/user/{user}/api/kernels/{kernel['id']}/channels",
-            header=[f"Authorization: token {token}"], timeout=timeout)
+            header=[f"Authorization: token {token}"],
+            timeout=timeout,
+        )
         msg_id = uuid.uuid4().hex
-        ws.send(json.dumps({
-            "header": {"msg_id": msg_id, "username": user, "session": uuid.uuid4().hex,
-                       "msg_type": "execute_request", "version": "5.3"},
-            "parent_header": {}, "metadata": {}, "channel": "shell",
-            "content": {"code": code, "silent": False, "store_history": False,
-                        "user_expressions": {}, "allow_stdin": False}}))
+        ws.send(
+            json.dumps(
+                {
+                    "header": {
+                        "msg_id": msg_id,
+                        "username": user,
+                        "session": uuid.uuid4().hex,
+                        "msg_type": "execute_request",
+                        "version": "5.3",
+                    },
+                    "parent_header": {},
+                    "metadata": {},
+                    "channel": "shell",
+                    "content": {
+                        "code": code,
+                        "silent": False,
+                        "store_history": False,
+                        "user_expressions": {},
+                        "allow_stdin": False,
+                    },
+                }
+            )
+        )
         out, t0 = [], time.monotonic()
         while time.monotonic() - t0 < timeout:
             msg = json.loads(ws.recv())
@@ -194,6 +243,7 @@ def test_two_students_run_a_lab_cell(hub):
         _api(f"{base}/user/alice/api/kernels", tokens["bob"])
     assert err.value.code in (403, 404)
     # the class page is served to a student by Voilà (server extension)
-    status, page = _api(f"{base}/user/alice/voila/render/tuning.ipynb", tokens["alice"],
-                        timeout=180)
+    status, page = _api(
+        f"{base}/user/alice/voila/render/tuning.ipynb", tokens["alice"], timeout=180
+    )
     assert status == 200 and "kernelId" in page

@@ -1,4 +1,5 @@
 """Preisach operator and CNIA (Xu & Meckl, Fig. 2) against closed forms and invariants."""
+
 from __future__ import annotations
 
 import math
@@ -32,8 +33,9 @@ def test_uniform_major_and_first_order_curves_closed_form():
 
 
 def test_everett_matches_numerical_integration_of_density():
-    P = Preisach.from_density(0.0, 10.0, lambda a, b: 1.0 + np.sin(a) * np.cos(b) ** 2 + 0.1 * a,
-                              n=7)
+    P = Preisach.from_density(
+        0.0, 10.0, lambda a, b: 1.0 + np.sin(a) * np.cos(b) ** 2 + 0.1 * a, n=7
+    )
 
     def mu(a, b):
         i = min(int(a / P.h), P.n - 1)
@@ -66,11 +68,11 @@ def test_from_everett_reproduces_everett_on_nodes():
 # ---------------------------------------------------------------- memory
 def test_wiping_out_removes_dominated_extrema():
     P, Q = piezo(), piezo()
-    y1 = P.apply([70.0, 20.0, 50.0, 30.0, 90.0])      # 90 wipes out (50, 30) and (70, 20)
+    y1 = P.apply([70.0, 20.0, 50.0, 30.0, 90.0])  # 90 wipes out (50, 30) and (70, 20)
     y2 = Q.apply([90.0])
     assert P.state == Q.state == (0.0, 90.0)
     assert y1[-1] == pytest.approx(y2[-1], abs=1e-12)
-    P.apply([40.0, 60.0, 45.0, 10.0])                 # 10 wipes out 45 and 40
+    P.apply([40.0, 60.0, 45.0, 10.0])  # 10 wipes out 45 and 40
     Q.apply([10.0])
     assert P.state == Q.state
     assert P.output == pytest.approx(Q.output, abs=1e-12)
@@ -101,7 +103,7 @@ def test_rate_independence_and_peek_does_not_commit():
     st0 = P.state
     cand = P.peek([0.0, 20.0, 50.0, 64.0, 100.0])
     assert P.state == st0
-    assert np.all(np.diff(cand) >= 0)                 # monotone from the current memory
+    assert np.all(np.diff(cand) >= 0)  # monotone from the current memory
     assert cand[2] == pytest.approx(P.output)
     R = P.copy()
     assert R.apply(20.0) == pytest.approx(cand[1])
@@ -125,7 +127,13 @@ def test_interface_area_gives_output_for_uniform_density():
     """Uniform weight mu: output = offset + mu * area(S+) (shoelace on the staircase)."""
     P = Preisach.uniform(0.0, 10.0, n=5)
     mu = P.density[0, 0]
-    for seq in ([7.0], [7.0, 2.0], [9.0, 1.0, 6.0], [9.0, 1.0, 6.0, 3.5], [10.0, 0.0, 8.0, 4.0, 7.0]):
+    for seq in (
+        [7.0],
+        [7.0, 2.0],
+        [9.0, 1.0, 6.0],
+        [9.0, 1.0, 6.0, 3.5],
+        [10.0, 0.0, 8.0, 4.0, 7.0],
+    ):
         P.reset()
         P.apply(seq)
         b, a = P.interface()
@@ -168,12 +176,12 @@ def test_cnia_stays_on_branch_and_in_bounds(hist, f_d, eps):
     lo, hi = P.peek(P.u_min), P.peek(P.u_max)
     tol = P.default_eps if eps is None else eps
     u = P.invert(f_d, eps=eps, commit=False)
-    assert P.state[-1] == u0                         # not committed
+    assert P.state[-1] == u0  # not committed
     assert P.u_min <= u <= P.u_max
     if f_d > f0 + tol:
-        assert u >= u0                                # ascending branch
+        assert u >= u0  # ascending branch
     elif f_d < f0 - tol:
-        assert u <= u0                                # descending branch
+        assert u <= u0  # descending branch
     y = P.peek(u)
     if lo - tol <= f_d <= hi + tol:
         assert abs(y - f_d) <= tol * (1 + 1e-9)
@@ -208,8 +216,9 @@ def test_fit_recovers_density_on_same_grid():
 
 
 def test_fit_on_coarser_grid_predicts_unseen_input():
-    true = Preisach.from_density(0.0, 100.0, lambda a, b: np.exp(-((a - b) / 20) ** 2) *
-                                 (1 + 0.01 * (a + b)), n=60)
+    true = Preisach.from_density(
+        0.0, 100.0, lambda a, b: np.exp(-(((a - b) / 20) ** 2)) * (1 + 0.01 * (a + b)), n=60
+    )
     data = forc_experiment(true, 0.0, 100.0, n_curves=25, points_per_curve=25)
     fit = fit_preisach(data, n=25)
     rng = np.random.default_rng(1)
@@ -221,21 +230,24 @@ def test_fit_on_coarser_grid_predicts_unseen_input():
 
 
 # ---------------------------------------------------------------- bad input
-@pytest.mark.parametrize("call, name", [
-    (lambda: Preisach.uniform(1.0, 1.0), "u_max"),
-    (lambda: Preisach.uniform(0.0, math.nan), "u_max"),
-    (lambda: Preisach.uniform(0.0, 1.0, n=0), "n"),
-    (lambda: Preisach(0.0, 1.0, -np.ones((3, 3))), "density"),
-    (lambda: Preisach(0.0, 1.0, np.ones((3, 2))), "density"),
-    (lambda: piezo().apply([1.0, math.inf]), "u"),
-    (lambda: piezo().invert(math.nan), "f_d"),
-    (lambda: piezo().invert(1.0, eps=0.0), "eps"),
-    (lambda: piezo().invert([1.0, 2.0], commit=False), "commit"),
-    (lambda: piezo().reset("sideways"), "state"),
-    (lambda: Preisach.from_everett(0.0, 1.0, lambda a, b: -(a - b) ** 2, n=4), "everett"),
-    (lambda: fit_preisach({"alpha": [1]}), "forc_data"),
-    (lambda: fit_preisach(ForcData(np.ones(2), np.ones(3), np.ones(2), 0.0, 1.0)), "same"),
-])
+@pytest.mark.parametrize(
+    "call, name",
+    [
+        (lambda: Preisach.uniform(1.0, 1.0), "u_max"),
+        (lambda: Preisach.uniform(0.0, math.nan), "u_max"),
+        (lambda: Preisach.uniform(0.0, 1.0, n=0), "n"),
+        (lambda: Preisach(0.0, 1.0, -np.ones((3, 3))), "density"),
+        (lambda: Preisach(0.0, 1.0, np.ones((3, 2))), "density"),
+        (lambda: piezo().apply([1.0, math.inf]), "u"),
+        (lambda: piezo().invert(math.nan), "f_d"),
+        (lambda: piezo().invert(1.0, eps=0.0), "eps"),
+        (lambda: piezo().invert([1.0, 2.0], commit=False), "commit"),
+        (lambda: piezo().reset("sideways"), "state"),
+        (lambda: Preisach.from_everett(0.0, 1.0, lambda a, b: -((a - b) ** 2), n=4), "everett"),
+        (lambda: fit_preisach({"alpha": [1]}), "forc_data"),
+        (lambda: fit_preisach(ForcData(np.ones(2), np.ones(3), np.ones(2), 0.0, 1.0)), "same"),
+    ],
+)
 def test_bad_input_raises_naming_parameter(call, name):
     with pytest.raises(ValueError, match=name):
         call()

@@ -1,5 +1,6 @@
 """Tests of jerklab.ident: exactness against python-control, PEM accuracy on the plant model,
 ARX bias against its asymptotic prediction, uncertainty coverage, bad data."""
+
 from __future__ import annotations
 
 import json
@@ -36,7 +37,9 @@ def plant_record(u, seed, **kw):
 
 
 # ---------------------------------------------------------------- the ZOH model itself
-@pytest.mark.parametrize("K,tau,Ts", [(32.4, 0.025, 0.005), (5.0, 0.3, 0.01), (100.0, 0.001, 0.005)])
+@pytest.mark.parametrize(
+    "K,tau,Ts", [(32.4, 0.025, 0.005), (5.0, 0.3, 0.01), (100.0, 0.001, 0.005)]
+)
 def test_simulation_matches_python_control(K, tau, Ts):
     u = ident.prbs(1.0, Ts, 2.0, offset=1.0, clock_period=2 * Ts, seed=4)
     ours = ident.simulate_dc_motor(K, tau, Ts, u, theta0=0.3, omega0=-2.0)
@@ -59,8 +62,11 @@ def test_zoh_coefficients_match_c2d():
 # ---------------------------------------------------------------- ARX
 @pytest.mark.parametrize("kind", ["step", "prbs"])
 def test_arx_exact_on_noise_free_data(kind):
-    u = (ident.step_input(1.0, TS, 6.0) if kind == "step"
-         else ident.prbs(1.0, TS, 3.0, offset=2.0, clock_period=0.02, seed=2))
+    u = (
+        ident.step_input(1.0, TS, 6.0)
+        if kind == "step"
+        else ident.prbs(1.0, TS, 3.0, offset=2.0, clock_period=0.02, seed=2)
+    )
     theta = ct_response(K0, TAU0, TS, u)
     f = ident.fit_dc_motor(u, theta, TS, method="arx")
     assert abs(f.K / K0 - 1) < 1e-9
@@ -88,12 +94,19 @@ def test_arx_any_order_matches_lstsq_and_covariance():
     u = rng.normal(size=n)
     num = np.concatenate([np.zeros(nk), B])
     e = 0.1 * rng.normal(size=n)
-    y = signal.lfilter(num, A, u) + signal.lfilter([1.0], A, e)    # ARX: A y = B u(t-nk) + e
+    y = signal.lfilter(num, A, u) + signal.lfilter([1.0], A, e)  # ARX: A y = B u(t-nk) + e
     r = ident.arx(y, u, na=2, nb=3, nk=nk)
     # independent: build the regression by hand and call numpy's least squares
     n0 = 4
-    Phi = np.column_stack([-y[n0 - 1:n - 1], -y[n0 - 2:n - 2], u[n0 - 2:n - 2], u[n0 - 3:n - 3],
-                           u[n0 - 4:n - 4]])
+    Phi = np.column_stack(
+        [
+            -y[n0 - 1 : n - 1],
+            -y[n0 - 2 : n - 2],
+            u[n0 - 2 : n - 2],
+            u[n0 - 3 : n - 3],
+            u[n0 - 4 : n - 4],
+        ]
+    )
     p_ref, *_ = np.linalg.lstsq(Phi, y[n0:], rcond=None)
     np.testing.assert_allclose(r.params, p_ref, rtol=1e-9, atol=1e-12)
     assert r.noise_variance == pytest.approx(0.01, rel=0.1)
@@ -127,7 +140,7 @@ def test_arx_bad_input():
     with pytest.raises(ValueError, match="na \\+ nb"):
         ident.arx(np.arange(50.0), u, 0, 0, 1)
     with pytest.raises(ValueError, match="rank deficient"):
-        ident.arx(np.arange(50.0) ** 2, u, 1, 2, 1)      # constant input cannot split b0, b1
+        ident.arx(np.arange(50.0) ** 2, u, 1, 2, 1)  # constant input cannot split b0, b1
     with pytest.raises(ValueError, match="too short"):
         ident.arx(np.arange(5.0), np.arange(5.0), 3, 3, 1)
     with pytest.raises(ValueError, match="same length"):
@@ -138,9 +151,12 @@ def test_arx_bad_input():
 @pytest.mark.parametrize("seed", [1, 2, 3])
 @pytest.mark.parametrize("kind", ["step", "prbs"])
 def test_pem_within_one_percent_on_quantized_noisy_plant(kind, seed):
-    u = (ident.step_input(2.0, TS, 6.0) if kind == "step"
-         else ident.prbs(2.0, TS, 3.0, offset=6.0, clock_period=0.02, seed=seed))
-    theta = plant_record(u, seed)          # 448-pulse encoder, 10-bit PWM, noise 2 mrad
+    u = (
+        ident.step_input(2.0, TS, 6.0)
+        if kind == "step"
+        else ident.prbs(2.0, TS, 3.0, offset=6.0, clock_period=0.02, seed=seed)
+    )
+    theta = plant_record(u, seed)  # 448-pulse encoder, 10-bit PWM, noise 2 mrad
     f = ident.fit_dc_motor(u, theta, TS, method="pem")
     assert abs(f.K / K0 - 1) < 0.01, f.summary()
     assert abs(f.tau / TAU0 - 1) < 0.01, f.summary()
@@ -150,14 +166,23 @@ def test_pem_within_one_percent_on_quantized_noisy_plant(kind, seed):
 
 
 @settings(max_examples=80, deadline=None)
-@given(K=st.floats(-200, 200).filter(lambda k: abs(k) > 0.1), tau=st.floats(0.0005, 2.0),
-       Ts=st.sampled_from([0.001, 0.005, 0.02]), n=st.integers(30, 600),
-       kind=st.sampled_from(["step", "prbs"]), amp=st.floats(0.1, 12.0), seed=st.integers(0, 99))
+@given(
+    K=st.floats(-200, 200).filter(lambda k: abs(k) > 0.1),
+    tau=st.floats(0.0005, 2.0),
+    Ts=st.sampled_from([0.001, 0.005, 0.02]),
+    n=st.integers(30, 600),
+    kind=st.sampled_from(["step", "prbs"]),
+    amp=st.floats(0.1, 12.0),
+    seed=st.integers(0, 99),
+)
 def test_pem_converges_from_its_own_start(K, tau, Ts, n, kind, amp, seed):
     """No initial guess from the user: the tau grid + LM finds the optimum over 4 decades of tau/Ts,
     either sign of K, records shorter than tau."""
-    u = (ident.step_input(n * Ts, Ts, amp, t_step=3 * Ts) if kind == "step"
-         else ident.prbs(n * Ts, Ts, amp, offset=amp / 2, seed=seed))
+    u = (
+        ident.step_input(n * Ts, Ts, amp, t_step=3 * Ts)
+        if kind == "step"
+        else ident.prbs(n * Ts, Ts, amp, offset=amp / 2, seed=seed)
+    )
     a, b1, b2 = ident.dc_motor_zoh_coefficients(K, tau, Ts)
     y = signal.lfilter([0.0, b1, b2], np.convolve([1, -1], [1, -a]), u) + 0.7
     f = ident.fit_dc_motor(u, y, Ts, method="pem")
@@ -172,7 +197,7 @@ def test_pem_with_friction_on_prbs():
     fr = ident.fit_dc_motor(u, theta, TS, friction=True)
     assert abs(fr.K / K0 - 1) < 0.01 and abs(fr.tau / TAU0 - 1) < 0.01, fr.summary()
     assert fr.friction == pytest.approx(0.3, abs=0.03)
-    assert plain.K < 0.97 * K0          # friction unmodelled: K biased by ~ -f_c/|u|
+    assert plain.K < 0.97 * K0  # friction unmodelled: K biased by ~ -f_c/|u|
     # the fitted model, simulated on the record, includes the friction
     np.testing.assert_allclose(fr.simulate(u, fr.theta0, fr.omega0), fr.y_sim, atol=1e-9)
 
@@ -256,16 +281,24 @@ def test_fit_p2_on_the_motor_runs_to_an_integrator():
 
 
 # ---------------------------------------------------------------- bad data
-@pytest.mark.parametrize("u,theta,Ts,msg", [
-    (np.r_[np.zeros(10), np.full(40, 6.0)], np.r_[np.zeros(10), np.arange(40.0)][:-1], TS, "same length"),
-    (np.r_[np.nan, np.ones(49)], np.arange(50.0), TS, "u contains"),
-    (np.r_[0.0, np.ones(49)], np.r_[np.arange(49.0), np.inf], TS, "theta contains"),
-    (np.r_[0.0, np.ones(4)], np.arange(5.0), TS, "too short"),
-    (np.full(50, 6.0), np.arange(50.0), TS, "u is constant"),
-    (np.r_[0.0, np.ones(49)], np.zeros(50), TS, "theta is constant"),
-    (np.r_[0.0, np.ones(49)], np.arange(50.0), 0.0, "Ts"),
-    (np.r_[0.0, np.ones(49)], np.arange(50.0), float("nan"), "Ts"),
-])
+@pytest.mark.parametrize(
+    "u,theta,Ts,msg",
+    [
+        (
+            np.r_[np.zeros(10), np.full(40, 6.0)],
+            np.r_[np.zeros(10), np.arange(40.0)][:-1],
+            TS,
+            "same length",
+        ),
+        (np.r_[np.nan, np.ones(49)], np.arange(50.0), TS, "u contains"),
+        (np.r_[0.0, np.ones(49)], np.r_[np.arange(49.0), np.inf], TS, "theta contains"),
+        (np.r_[0.0, np.ones(4)], np.arange(5.0), TS, "too short"),
+        (np.full(50, 6.0), np.arange(50.0), TS, "u is constant"),
+        (np.r_[0.0, np.ones(49)], np.zeros(50), TS, "theta is constant"),
+        (np.r_[0.0, np.ones(49)], np.arange(50.0), 0.0, "Ts"),
+        (np.r_[0.0, np.ones(49)], np.arange(50.0), float("nan"), "Ts"),
+    ],
+)
 @pytest.mark.parametrize("method", ["pem", "arx"])
 def test_bad_data_raises(u, theta, Ts, msg, method):
     with pytest.raises(ValueError, match=msg):
@@ -282,13 +315,17 @@ def test_bad_options_raise():
     with pytest.raises(ValueError, match="u must be"):
         ident.fit_dc_motor(np.ones((10, 10)), th, TS)
     with pytest.raises(ValueError, match="theta"):
-        ident.fit_dc_motor(u, -th * 0 + np.where(np.arange(u.size) % 2, 1.0, -1.0), TS, method="arx")
+        ident.fit_dc_motor(
+            u, -th * 0 + np.where(np.arange(u.size) % 2, 1.0, -1.0), TS, method="arx"
+        )
 
 
 # ---------------------------------------------------------------- data container
 def test_identdata_roundtrip(tmp_path):
     u = ident.prbs(0.5, TS, 3.0, offset=6.0, seed=1)
-    y = ident.simulate_dc_motor(K0, TAU0, TS, u) + 1e-3 * np.random.default_rng(0).normal(size=u.size)
+    y = ident.simulate_dc_motor(K0, TAU0, TS, u) + 1e-3 * np.random.default_rng(0).normal(
+        size=u.size
+    )
     d = ident.IdentData(u, y, TS, metadata={"seed": 1, "note": "ö"})
     csv, js = d.save(tmp_path / "run")
     assert csv.name == "run.csv" and js.name == "run.json"
@@ -327,12 +364,20 @@ def test_identdata_bad(tmp_path):
 def test_identdata_from_recording_object():
     t = np.arange(100) * TS
     u = ident.step_input(0.5, TS, 6.0)
-    rec = types.SimpleNamespace(time=t + 1.0, position=ident.simulate_dc_motor(K0, TAU0, TS, u),
-                                control=u, metadata={"Ts": TS, "port": "virtual"})
+    rec = types.SimpleNamespace(
+        time=t + 1.0,
+        position=ident.simulate_dc_motor(K0, TAU0, TS, u),
+        control=u,
+        metadata={"Ts": TS, "port": "virtual"},
+    )
     d = ident.IdentData.from_recording(rec)
     assert d.Ts == TS and d.n == 100 and d.metadata["port"] == "virtual" and d.metadata["t0"] == 1.0
-    jitter = types.SimpleNamespace(time=t + np.r_[np.zeros(50), np.full(50, 0.2 * TS)], position=rec.position,
-                                   control=u, metadata={})
+    jitter = types.SimpleNamespace(
+        time=t + np.r_[np.zeros(50), np.full(50, 0.2 * TS)],
+        position=rec.position,
+        control=u,
+        metadata={},
+    )
     with pytest.raises(ValueError, match="rec.time"):
         ident.IdentData.from_recording(jitter)
     with pytest.raises(ValueError, match="position"):
@@ -375,8 +420,7 @@ def test_residual_analysis_detects_colour_and_feedthrough():
     assert ra.white and ra.independent
     assert 0.01 < ra.auto_pvalue and 0.01 < ra.cross_pvalue
     # the joint tests hold their level: about 1 % false alarms over many white sequences
-    alarms = sum(not ident.residual_analysis(rng.normal(size=400)).white
-                 for _ in range(100))
+    alarms = sum(not ident.residual_analysis(rng.normal(size=400)).white for _ in range(100))
     assert alarms <= 5
     assert ra.autocorr[0] == pytest.approx(1.0)
     coloured = signal.lfilter([1.0], [1.0, -0.5], white)
@@ -389,6 +433,7 @@ def test_residual_analysis_detects_colour_and_feedthrough():
 
 def test_validate_on_fresh_record_and_plots():
     import matplotlib
+
     matplotlib.use("Agg")
     u_est = ident.prbs(2.0, TS, 3.0, offset=6.0, clock_period=0.02, seed=1)
     u_val = ident.step_input(1.0, TS, 5.0)
@@ -398,7 +443,9 @@ def test_validate_on_fresh_record_and_plots():
     assert v.fit_percent > 99
     assert v.residuals.size == u_val.size
     d = ident.IdentData(u_val, y_val, TS)
-    ax = ident.plot_compare(d, fit, ident.fit_dc_motor(u_est, plant_record(u_est, 1), TS, method="arx"))
+    ax = ident.plot_compare(
+        d, fit, ident.fit_dc_motor(u_est, plant_record(u_est, 1), TS, method="arx")
+    )
     assert "rad" in ax.get_ylabel() and "s" in ax.get_xlabel()
     assert len(ax.get_lines()) == 3
     axes = ident.plot_residuals(v.analysis)
@@ -420,6 +467,7 @@ def test_validate_estimates_initial_velocity():
     assert v.fit_percent > 100 - 1e-6
     assert ident.validate(fit, u, th, initial="rest").fit_percent < 99.9
     import matplotlib.pyplot as plt
+
     plt.close("all")
 
 
@@ -440,10 +488,11 @@ def test_prbs_properties():
     assert u.size == 127 * 4
     assert set(np.unique(u)) == {3.0, 7.0}
     bits = u[::4]
-    assert np.all(u.reshape(-1, 4) == bits[:, None])      # each bit held 4 samples
-    assert np.count_nonzero(bits == 7.0) == 64             # maximum-length: 2^(n-1) ones per period
-    assert not np.array_equal(bits, ident.prbs(127 * 0.02, TS, 2.0, offset=5.0, clock_period=0.02,
-                                               nbits=7, seed=4)[::4])
+    assert np.all(u.reshape(-1, 4) == bits[:, None])  # each bit held 4 samples
+    assert np.count_nonzero(bits == 7.0) == 64  # maximum-length: 2^(n-1) ones per period
+    assert not np.array_equal(
+        bits, ident.prbs(127 * 0.02, TS, 2.0, offset=5.0, clock_period=0.02, nbits=7, seed=4)[::4]
+    )
     with pytest.raises(ValueError, match="clock_period"):
         ident.prbs(1.0, TS, 1.0, clock_period=0.0123)
     with pytest.raises(ValueError, match="amplitude"):

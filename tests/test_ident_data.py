@@ -1,4 +1,5 @@
 """The shipped identification data set: reproducible from its script, and fits as its README says."""
+
 from __future__ import annotations
 
 import importlib.util
@@ -44,14 +45,17 @@ def test_dataset_files_and_metadata():
         assert np.max(np.abs(frac)) * q < 6 * 0.001
 
 
-@pytest.mark.parametrize("name,method,friction,K,tau,tol", [
-    ("step_6V", "pem", False, 32.4 * (1 - 0.2 / 6.0058651), 0.025, 0.005),   # effective gain
-    ("prbs_6V_3V", "pem", True, 32.4, 0.025, 0.005),
-    ("step_6V", "arx", False, 31.35, 0.02455, 0.005),                          # README table
-    ("prbs_6V_3V", "arx", False, 31.39, 0.02417, 0.005),
-    ("rig_step_6V", "pem", False, 32.4 * (1 - 0.2 / 6.0058651), 0.025, 0.003),
-    ("rig_step_6V", "arx", False, 31.32, 0.02459, 0.005),
-])
+@pytest.mark.parametrize(
+    "name,method,friction,K,tau,tol",
+    [
+        ("step_6V", "pem", False, 32.4 * (1 - 0.2 / 6.0058651), 0.025, 0.005),  # effective gain
+        ("prbs_6V_3V", "pem", True, 32.4, 0.025, 0.005),
+        ("step_6V", "arx", False, 31.35, 0.02455, 0.005),  # README table
+        ("prbs_6V_3V", "arx", False, 31.39, 0.02417, 0.005),
+        ("rig_step_6V", "pem", False, 32.4 * (1 - 0.2 / 6.0058651), 0.025, 0.003),
+        ("rig_step_6V", "arx", False, 31.32, 0.02459, 0.005),
+    ],
+)
 def test_dataset_fits_as_documented(name, method, friction, K, tau, tol):
     f = ident.IdentData.load(DATA / name).fit(method, friction=friction)
     assert f.K == pytest.approx(K, rel=tol)

@@ -2,6 +2,7 @@
 the shipped file and its attribution, the loader against the raw CSV, the open-drive (coasting) model
 against closed forms, a fit on one half validated on the other, model-free cross-checks, and the
 diagnostics that replaced the silent dead-zone blow-up."""
+
 from __future__ import annotations
 
 import hashlib
@@ -21,7 +22,7 @@ FILE = ROOT / "dc_generator_every25.csv"
 
 @pytest.fixture(scope="module")
 def data():
-    return ident.load_dc_generator(decimate=2)          # Ts = 0.1 clock period, 10 000 samples
+    return ident.load_dc_generator(decimate=2)  # Ts = 0.1 clock period, 10 000 samples
 
 
 @pytest.fixture(scope="module")
@@ -44,11 +45,18 @@ def fits(halves):
 
 def test_licence_attribution_and_integrity_ship_with_the_data():
     lic = (ROOT / "LICENCE").read_text()
-    assert "MIT License" in lic and "Copyright (c) 2024 Wilson Rocha" in lic and "BSD 3-Clause" in lic
+    assert (
+        "MIT License" in lic and "Copyright (c) 2024 Wilson Rocha" in lic and "BSD 3-Clause" in lic
+    )
     readme = (ROOT / "README.md").read_text()
-    for must in ("wilsonrljr/sysidentpy-data", "72715362eadcf860fdbd77d88b5d7e92b6143a83", "Lacerda Junior",
-                 "SBAI", "673e1550f82f83f73d7370fba29d2fdf117740dea27832567efa80bd86417fae",
-                 "45f87a54ccb1a478a5f813e9adf80240844ce5a23a9e5a983850fbbcdceaafb5"):
+    for must in (
+        "wilsonrljr/sysidentpy-data",
+        "72715362eadcf860fdbd77d88b5d7e92b6143a83",
+        "Lacerda Junior",
+        "SBAI",
+        "673e1550f82f83f73d7370fba29d2fdf117740dea27832567efa80bd86417fae",
+        "45f87a54ccb1a478a5f813e9adf80240844ce5a23a9e5a983850fbbcdceaafb5",
+    ):
         assert must in readme
     # the shipped file is the one the README describes
     assert hashlib.sha256(FILE.read_bytes()).hexdigest() in readme
@@ -66,7 +74,7 @@ def test_loader_against_the_raw_csv():
     np.testing.assert_array_equal(d.u, raw[:, 1])
     rest = d.metadata["speed_rest_level"]
     first_on = int(np.flatnonzero(raw[:, 1] != 0)[0])
-    assert first_on == 200                               # raw sample 5000: 10 clock periods at rest
+    assert first_on == 200  # raw sample 5000: 10 clock periods at rest
     assert rest == np.median(raw[:first_on, 2]) and -144.0 < rest < -143.0
     speed = raw[:, 2] - rest
     # the angle is the trapezoidal integral: its difference quotient is the mean of neighbouring speeds
@@ -84,7 +92,7 @@ def test_coasting_model_against_closed_forms():
     a = K * fc / tau
     th = ident.simulate_motor(K, tau, Ts, u, omega0=w0, friction=fc, tau_coast=math.inf)
     t_stop = w0 / a
-    exact = np.where(t < t_stop, w0 * t - 0.5 * a * t ** 2, 0.5 * w0 * t_stop)
+    exact = np.where(t < t_stop, w0 * t - 0.5 * a * t**2, 0.5 * w0 * t_stop)
     np.testing.assert_allclose(th, exact, atol=1e-12)
     # no friction: the mechanical time constant alone
     th = ident.simulate_motor(K, tau, Ts, u, omega0=w0, tau_coast=0.7)
@@ -116,9 +124,22 @@ def test_k_step_prediction_of_a_coasting_model_is_exact_on_its_own_output():
     u = np.tile(np.r_[np.full(40, 5.0), np.zeros(60)], 4)
     for tc in (0.3, math.inf):
         y = ident.simulate_motor(20.0, 0.05, Ts, u, friction=0.4, tau_coast=tc)
-        f = ident.MotorFit(K=20.0, tau=0.05, K_std=0.0, tau_std=0.0, fit_percent=100.0, model=None,
-                           method="pem", Ts=Ts, theta0=0.0, cov=np.zeros((2, 2)), y_sim=y, residuals=0 * y,
-                           friction=0.4, tau_coast=tc)
+        f = ident.MotorFit(
+            K=20.0,
+            tau=0.05,
+            K_std=0.0,
+            tau_std=0.0,
+            fit_percent=100.0,
+            model=None,
+            method="pem",
+            Ts=Ts,
+            theta0=0.0,
+            cov=np.zeros((2, 2)),
+            y_sim=y,
+            residuals=0 * y,
+            friction=0.4,
+            tau_coast=tc,
+        )
         c = ident.compare((u, y), f, horizon=5, initial="rest")
         np.testing.assert_allclose(c.y_hat, y, atol=1e-9)
 
@@ -141,7 +162,9 @@ def test_fit_on_first_half_validated_on_second(halves, fits):
     # given both run-down terms, the fit drops the viscous one and says which model to take
     assert any("coast='coulomb'" in m for m in both.warnings)
     assert both.tau_coast > 1e3 * both.tau
-    assert both.K == pytest.approx(f.K, rel=0.01) and both.friction == pytest.approx(f.friction, rel=0.02)
+    assert both.K == pytest.approx(f.K, rel=0.01) and both.friction == pytest.approx(
+        f.friction, rel=0.02
+    )
     r = {k: ident.resid(val, g, output="speed") for k, g in (("coulomb", f), ("linear", lin))}
     assert r["coulomb"].lags[-1] == 25
     e = {k: ident.compare(val, g, output="speed") for k, g in (("coulomb", f), ("linear", lin))}
@@ -196,21 +219,40 @@ def test_unseparable_input_maps_warn_instead_of_returning_silent_values():
     # three levels, one direction: friction, offset and dead zone all act as one constant voltage
     rng = np.random.default_rng(1)
     u = np.repeat(rng.choice([0.0, 2.5, 5.0], 60), 50)
-    th = ident.simulate_motor(30.0, 0.1, 0.01, u, friction=0.5, offset=0.3) + rng.normal(0, 1e-3, u.size)
+    th = ident.simulate_motor(30.0, 0.1, 0.01, u, friction=0.5, offset=0.3) + rng.normal(
+        0, 1e-3, u.size
+    )
     with pytest.warns(ident.IdentificationWarning, match="ill-conditioned|singular|bound"):
         ident.fit_dc_motor(u, th, 0.01, friction=True, offset=True, dead_zone=True)
     # a rank-deficient covariance (some standard errors 0, others not) is named, not passed on
     par = {"K": 1e16, "tau": 3.9, "friction": 0.0, "offset": 0.0, "dead_zone": 5.0}
-    msgs = ident._diagnose(par, np.diag([0.0, 1e-3, 0.0, 0.0]), ["K", "tau", "offset", "dead_zone"], 5.0,
-                           ["dead_zone_max"])
+    msgs = ident._diagnose(
+        par,
+        np.diag([0.0, 1e-3, 0.0, 0.0]),
+        ["K", "tau", "offset", "dead_zone"],
+        5.0,
+        ["dead_zone_max"],
+    )
     assert any("singular" in m and "K" in m for m in msgs)
     assert any("upper bound" in m for m in msgs)
 
 
 def test_bad_arguments_name_the_parameter(halves):
     est, val = halves
-    f = ident.MotorFit(K=1.0, tau=1.0, K_std=0.0, tau_std=0.0, fit_percent=0.0, model=None, method="pem",
-                       Ts=est.Ts, theta0=0.0, cov=np.zeros((2, 2)), y_sim=est.y, residuals=0 * est.y)
+    f = ident.MotorFit(
+        K=1.0,
+        tau=1.0,
+        K_std=0.0,
+        tau_std=0.0,
+        fit_percent=0.0,
+        model=None,
+        method="pem",
+        Ts=est.Ts,
+        theta0=0.0,
+        cov=np.zeros((2, 2)),
+        y_sim=est.y,
+        residuals=0 * est.y,
+    )
     cases = [
         (lambda: ident.load_dc_generator(decimate=0), "decimate"),
         (lambda: ident.load_dc_generator(clock_period=-1.0), "clock_period"),
@@ -218,8 +260,12 @@ def test_bad_arguments_name_the_parameter(halves):
         (lambda: est.fit("pem", coast="yes"), "coast"),
         (lambda: est.fit("pem", coast="coulomb"), "friction"),
         (lambda: est.fit("idim", coast=True), "coast"),
-        (lambda: ident.fit_dc_motor(np.ones(50) + np.arange(50) % 2, np.arange(50.0), 0.1, coast=True),
-         "coast"),
+        (
+            lambda: ident.fit_dc_motor(
+                np.ones(50) + np.arange(50) % 2, np.arange(50.0), 0.1, coast=True
+            ),
+            "coast",
+        ),
         (lambda: ident.simulate_motor(1.0, 1.0, 0.1, np.zeros(5), tau_coast=-1.0), "tau_coast"),
         (lambda: ident.compare(val, f, output="torque"), "output"),
         (lambda: ident.compare(val, f, horizon=3, output="speed"), "horizon"),
@@ -228,6 +274,18 @@ def test_bad_arguments_name_the_parameter(halves):
         with pytest.raises(ValueError, match=name):
             call()
     with pytest.raises(ValueError, match="tau_coast"):
-        ident.MotorFit(K=1.0, tau=1.0, K_std=0.0, tau_std=0.0, fit_percent=0.0, model=None, method="pem",
-                       Ts=0.1, theta0=0.0, cov=np.zeros((2, 2)), y_sim=est.y, residuals=0 * est.y,
-                       tau_coast=2.0).to_motor()
+        ident.MotorFit(
+            K=1.0,
+            tau=1.0,
+            K_std=0.0,
+            tau_std=0.0,
+            fit_percent=0.0,
+            model=None,
+            method="pem",
+            Ts=0.1,
+            theta0=0.0,
+            cov=np.zeros((2, 2)),
+            y_sim=est.y,
+            residuals=0 * est.y,
+            tau_coast=2.0,
+        ).to_motor()

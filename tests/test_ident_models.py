@@ -1,6 +1,7 @@
 """Tests of the identification of real-record effects (issue 15): friction by the sign of the velocity,
 input offset, dead zone, delay; multiple-shooting output error and inverse dynamics on step, PRBS and
 closed-loop records; merged experiments; diagnostics; compare/resid against hand-computed cases."""
+
 from __future__ import annotations
 
 import math
@@ -21,7 +22,7 @@ def record(u, delay=0, seed=0, Ts=TS, noise_std=0.001, **kw):
     """What a logger sees: the commanded u (the motor gets it ``delay`` samples late), the
     quantized, noisy angle of jerklab.plant.DCMotor (448-pulse encoder, 10-bit PWM)."""
     m = DCMotor(K=K0, tau=TAU0, seed=seed, noise_std=noise_std, **kw)
-    ud = np.concatenate([np.full(delay, u[0]), u[:len(u) - delay]]) if delay else u
+    ud = np.concatenate([np.full(delay, u[0]), u[: len(u) - delay]]) if delay else u
     return m.open_loop(ud, Ts)[1][:-1]
 
 
@@ -36,8 +37,9 @@ def levels(duration=3.0, hold=8, lo=-6.0, hi=6.0, seed=1):
 def closed_loop(T=2.0, Ts=0.001, fc=0.4, off=0.25, delay=1, noise=0.0005, seed=0):
     """A PD position loop around DCMotor, 1 kHz, 448-pulse x4 encoder, dither on the command;
     the logged u is the controller output, the motor gets it ``delay`` samples late."""
-    m = DCMotor(K=K0, tau=TAU0, coulomb_friction=fc, offset=off, noise_std=noise, seed=seed,
-                decoding=4)
+    m = DCMotor(
+        K=K0, tau=TAU0, coulomb_friction=fc, offset=off, noise_std=noise, seed=seed, decoding=4
+    )
     n = int(round(T / Ts))
     rng = np.random.default_rng(seed)
     t = np.arange(n) * Ts
@@ -70,15 +72,19 @@ def rel(a, b):
 # ---------------------------------------------------------------- the model
 def test_simulate_motor_reduces_to_eq1_and_matches_python_control_with_offset_and_delay():
     u = ident.prbs(1.0, TS, 3.0, offset=1.0, clock_period=0.02, seed=2)
-    np.testing.assert_allclose(ident.simulate_motor(K0, TAU0, TS, u, 0.3, 2.0),
-                               ident.simulate_dc_motor(K0, TAU0, TS, u, 0.3, 2.0), atol=1e-12)
+    np.testing.assert_allclose(
+        ident.simulate_motor(K0, TAU0, TS, u, 0.3, 2.0),
+        ident.simulate_dc_motor(K0, TAU0, TS, u, 0.3, 2.0),
+        atol=1e-12,
+    )
     # offset and delay are linear: python-control on the shifted, offset input is an independent reference
     d, off = 3, 0.4
     ushift = np.concatenate([np.full(d, u[0]), u[:-d]]) + off
     sysd = ct.c2d(ct.ss([[0, 1], [0, -1 / TAU0]], [[0], [K0 / TAU0]], [[1, 0]], [[0]]), TS, "zoh")
     ref = np.ravel(ct.forced_response(sysd, T=np.arange(u.size) * TS, U=ushift).outputs)
-    np.testing.assert_allclose(ident.simulate_motor(K0, TAU0, TS, u, offset=off, delay=d), ref,
-                               rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(
+        ident.simulate_motor(K0, TAU0, TS, u, offset=off, delay=d), ref, rtol=1e-10, atol=1e-10
+    )
 
 
 def test_simulate_motor_friction_by_velocity_matches_ode_integration():
@@ -96,12 +102,18 @@ def test_simulate_motor_friction_by_velocity_matches_ode_integration():
             t0 = 0.0
             while t0 < Ts - 1e-12:
                 if om == 0.0 and abs(v) <= fc:
-                    break                                   # stuck for the rest of the sample
+                    break  # stuck for the rest of the sample
                 s = np.sign(om) if om != 0.0 else np.sign(v)
-                ev = lambda t, x: x[1]                      # noqa: E731 - velocity reaches zero
+                ev = lambda t, x: x[1]  # noqa: E731 - velocity reaches zero
                 ev.terminal, ev.direction = True, -s
-                sol = integrate.solve_ivp(lambda t, x: [x[1], (K * (v - s * fc) - x[1]) / tau],
-                                          (t0, Ts), [th, om], events=ev, rtol=1e-11, atol=1e-12)
+                sol = integrate.solve_ivp(
+                    lambda t, x: [x[1], (K * (v - s * fc) - x[1]) / tau],
+                    (t0, Ts),
+                    [th, om],
+                    events=ev,
+                    rtol=1e-11,
+                    atol=1e-12,
+                )
                 th, om = sol.y[0, -1], sol.y[1, -1]
                 if sol.status == 1:
                     om = 0.0
@@ -109,10 +121,11 @@ def test_simulate_motor_friction_by_velocity_matches_ode_integration():
         return np.array(out)
 
     np.testing.assert_allclose(y, reference(), atol=1e-7)
-    assert np.all(np.diff(y[45:60]) < 0)                     # driven backwards
+    assert np.all(np.diff(y[45:60]) < 0)  # driven backwards
     # while |u| <= fc after a stop the motor sticks: -0.5 V after coasting to rest holds the angle
-    held = ident.simulate_motor(K, tau, Ts, np.concatenate([np.full(5, 3.0), np.full(60, -0.5)]),
-                                friction=fc)
+    held = ident.simulate_motor(
+        K, tau, Ts, np.concatenate([np.full(5, 3.0), np.full(60, -0.5)]), friction=fc
+    )
     assert np.ptp(held[-20:]) == 0.0
 
 
@@ -121,8 +134,9 @@ def test_dcmotor_offset_and_dead_zone():
     np.testing.assert_allclose(m.drive_voltage([0.0, 0.2, 1.0, -1.0]), [0.0, 0.0, 0.8, -0.2])
     u = levels(1.0)
     th = m.open_loop(u, TS)[0][:-1]
-    np.testing.assert_allclose(th, ident.simulate_motor(32.4, 0.025, TS, u, offset=0.3, dead_zone=0.5),
-                               atol=1e-9)
+    np.testing.assert_allclose(
+        th, ident.simulate_motor(32.4, 0.025, TS, u, offset=0.3, dead_zone=0.5), atol=1e-9
+    )
     # the defaults change nothing
     m0 = DCMotor()
     assert m0.offset == 0.0 and m0.dead_zone == 0.0
@@ -153,8 +167,14 @@ def test_staircase_step_recovers_friction():
 @pytest.mark.parametrize("delay", [0, 2])
 def test_prbs_about_zero_recovers_friction_offset_delay(delay):
     u = ident.prbs(3.0, TS, 4.0, offset=0.0, clock_period=0.04, seed=3)
-    f = fit_quiet(u, record(u, delay, coulomb_friction=0.4, offset=0.2), TS, friction=True,
-                  offset=True, delay=True)
+    f = fit_quiet(
+        u,
+        record(u, delay, coulomb_friction=0.4, offset=0.2),
+        TS,
+        friction=True,
+        offset=True,
+        delay=True,
+    )
     assert f.delay == delay
     assert rel(f.K, K0) < 0.01 and rel(f.tau, TAU0) < 0.01, f.summary()
     assert f.friction == pytest.approx(0.4, rel=0.02)
@@ -165,8 +185,15 @@ def test_prbs_about_zero_recovers_friction_offset_delay(delay):
 
 def test_random_levels_recover_dead_zone_friction_and_offset():
     u = levels()
-    f = fit_quiet(u, record(u, 2, coulomb_friction=0.4, dead_zone=0.5, offset=0.2), TS,
-                  friction=True, offset=True, dead_zone=True, delay=True)
+    f = fit_quiet(
+        u,
+        record(u, 2, coulomb_friction=0.4, dead_zone=0.5, offset=0.2),
+        TS,
+        friction=True,
+        offset=True,
+        dead_zone=True,
+        delay=True,
+    )
     assert f.delay == 2
     assert rel(f.K, K0) < 0.01 and rel(f.tau, TAU0) < 0.01, f.summary()
     assert f.friction == pytest.approx(0.4, rel=0.03)
@@ -183,7 +210,7 @@ def test_closed_loop_record_recovers_every_parameter_within_one_percent(seed):
     """2 s of a 1 kHz PD loop: quantized, noisy, the input correlated with the noise by feedback."""
     u, y = closed_loop(seed=seed)
     f = fit_quiet(u, y, 0.001, friction=True, offset=True, delay=True)
-    assert f.n_segments > 1                                   # multiple shooting on a long record
+    assert f.n_segments > 1  # multiple shooting on a long record
     assert f.delay == 1
     assert rel(f.K, K0) < 0.01 and rel(f.tau, TAU0) < 0.01, f.summary()
     assert rel(f.friction, 0.4) < 0.01 and rel(f.offset, 0.25) < 0.01, f.summary()
@@ -193,7 +220,7 @@ def test_closed_loop_single_shooting_from_rest_is_what_drifts():
     """Evidence for multiple shooting: the old fit (eq. 1 from rest, no friction or offset) on the
     same closed-loop record is far off, as issue 15 reported for a real record."""
     u, y = closed_loop(seed=0)
-    old = ident.fit_dc_motor(u[:1000], y[:1000], 0.001)        # legacy path (<= 1000 samples)
+    old = ident.fit_dc_motor(u[:1000], y[:1000], 0.001)  # legacy path (<= 1000 samples)
     assert rel(old.K, K0) > 0.05 or rel(old.tau, TAU0) > 0.05
 
 
@@ -213,7 +240,10 @@ def test_idim_iv_reduces_the_tau_bias_of_idim_ls_and_pem_beats_both():
 def test_merged_experiments_estimate_and_validation_apart():
     u1 = np.concatenate([np.zeros(10), np.full(100, 3.0), np.full(100, 8.0)])
     u2 = np.concatenate([np.zeros(10), np.full(200, -5.0)])
-    y1, y2 = record(u1, coulomb_friction=0.4, offset=0.2), record(u2, seed=1, coulomb_friction=0.4, offset=0.2)
+    y1, y2 = (
+        record(u1, coulomb_friction=0.4, offset=0.2),
+        record(u2, seed=1, coulomb_friction=0.4, offset=0.2),
+    )
     d1, d2 = ident.IdentData(u1, y1, TS), ident.IdentData(u2, y2, TS)
     # neither record alone separates K, friction and offset (one turns one way, one has one level);
     # together they do
@@ -225,7 +255,9 @@ def test_merged_experiments_estimate_and_validation_apart():
     assert rel(f.K, K0) < 0.01 and rel(f.tau, TAU0) < 0.01, f.summary()
     assert f.friction == pytest.approx(0.4, rel=0.03) and f.offset == pytest.approx(0.2, rel=0.05)
     uv = levels(1.0, seed=7)
-    val = ident.compare(ident.IdentData(uv, record(uv, seed=9, coulomb_friction=0.4, offset=0.2), TS), f)
+    val = ident.compare(
+        ident.IdentData(uv, record(uv, seed=9, coulomb_friction=0.4, offset=0.2), TS), f
+    )
     assert val.fit_percent > 99.0
     with pytest.raises(ValueError, match="Ts"):
         ident.merge(d1, ident.IdentData(u2, y2, 0.001))
@@ -257,8 +289,12 @@ def test_friction_stuck_at_its_bound_is_reported():
 
 
 def test_friction_above_the_input_range_is_reported():
-    msgs = ident._diagnose({"K": 10.0, "tau": 0.1, "friction": 5.0, "offset": 0.0, "dead_zone": 0.0},
-                           np.diag([1.0, 1e-4, 0.01]), ["K", "tau", "friction"], u_abs_max=3.0)
+    msgs = ident._diagnose(
+        {"K": 10.0, "tau": 0.1, "friction": 5.0, "offset": 0.0, "dead_zone": 0.0},
+        np.diag([1.0, 1e-4, 0.01]),
+        ["K", "tau", "friction"],
+        u_abs_max=3.0,
+    )
     assert any("larger than the largest input" in m for m in msgs)
 
 
@@ -294,8 +330,8 @@ def test_k_step_prediction_is_the_arx_predictor_by_hand(k):
     a, b1, b2 = ident.dc_motor_zoh_coefficients(f.K, f.tau, TS)
     c = ident.compare((u, y), f, horizon=k)
     for t in range(k + 1, u.size):
-        p = list(y[:t - k + 1])                              # y known up to t - k
-        for s in range(t - k + 1, t + 1):                    # A = (1 - q^-1)(1 - a q^-1)
+        p = list(y[: t - k + 1])  # y known up to t - k
+        for s in range(t - k + 1, t + 1):  # A = (1 - q^-1)(1 - a q^-1)
             p.append((1 + a) * p[s - 1] - a * p[s - 2] + b1 * u[s - 1] + b2 * u[s - 2])
         assert c.y_hat[t] == pytest.approx(p[t], abs=1e-9)
     assert c.fit_percent == pytest.approx(ident.fit_percent(y, c.y_hat))
@@ -320,18 +356,19 @@ def test_residual_analysis_hand_computed():
     r = ident.residual_analysis(e, u, max_lag=2, confidence=0.99)
     ec, uc = e - e.mean(), u - u.mean()
     N = e.size
-    r1 = sum(ec[t] * ec[t - 1] for t in range(1, N)) / sum(ec ** 2)
+    r1 = sum(ec[t] * ec[t - 1] for t in range(1, N)) / sum(ec**2)
     assert r.autocorr[0] == pytest.approx(1.0)
     assert r.autocorr[1] == pytest.approx(r1)
     assert r.auto_bound == pytest.approx(2.5758293035489 / math.sqrt(N))
     # cross-correlation at lag +1: u leads e by one sample
-    c1 = sum(uc[t - 1] * ec[t] for t in range(1, N)) / math.sqrt(sum(uc ** 2) * sum(ec ** 2))
+    c1 = sum(uc[t - 1] * ec[t] for t in range(1, N)) / math.sqrt(sum(uc**2) * sum(ec**2))
     assert r.crosscorr[list(r.cross_lags).index(1)] == pytest.approx(c1)
-    cm1 = sum(uc[t + 1] * ec[t] for t in range(N - 1)) / math.sqrt(sum(uc ** 2) * sum(ec ** 2))
+    cm1 = sum(uc[t + 1] * ec[t] for t in range(N - 1)) / math.sqrt(sum(uc**2) * sum(ec**2))
     assert r.crosscorr[list(r.cross_lags).index(-1)] == pytest.approx(cm1)
     # Ljung-Box by hand
     Q = N * (N + 2) * sum(r.autocorr[k] ** 2 / (N - k) for k in (1, 2))
     from scipy import stats
+
     assert r.auto_pvalue == pytest.approx(stats.chi2.sf(Q, 2))
 
 

@@ -1,5 +1,6 @@
 """Identification on measured records (data/real/micromouse, CERN-OHL-P v2): the loader's units, a fit
 on one record validated on another, against bands justified from the raw data themselves."""
+
 from __future__ import annotations
 
 import math
@@ -21,7 +22,10 @@ def records():
 @pytest.fixture(scope="module")
 def fits(records):
     d1 = records["encoders1"]
-    return {"friction": d1.fit("pem", friction=True, delay=True), "linear": d1.fit("pem", delay=True)}
+    return {
+        "friction": d1.fit("pem", friction=True, delay=True),
+        "linear": d1.fit("pem", delay=True),
+    }
 
 
 def test_licence_and_attribution_ship_with_the_data():
@@ -33,7 +37,10 @@ def test_licence_and_attribution_ship_with_the_data():
 
 def test_loader_units_against_the_raw_csv():
     raw = np.loadtxt(ROOT / "encoders3.csv", delimiter=",", skiprows=1)
-    vbat = np.median(np.loadtxt(ROOT / "wheelSpeedCalibration3.csv", delimiter=",", skiprows=1)[:, 1]) / 1000
+    vbat = (
+        np.median(np.loadtxt(ROOT / "wheelSpeedCalibration3.csv", delimiter=",", skiprows=1)[:, 1])
+        / 1000
+    )
     d = ident.load_micromouse("encoders3", pre_samples=5)
     first_on = int(np.flatnonzero(raw[:, 3] != 0)[0])
     start = first_on - 5
@@ -87,7 +94,7 @@ def test_fit_on_rectangle_validated_on_step(records, fits):
     last_on = int(np.flatnonzero(d1.u > 0)[-1])
     w1 = (d1.y[last_on] - d1.y[last_on - 80]) / (80 * d1.Ts)
     w3 = (d3.y[-1] - d3.y[-81]) / (80 * d3.Ts)
-    assert 0.8 < w1 / w3 < 0.95                       # the gain difference the bands account for
+    assert 0.8 < w1 / w3 < 0.95  # the gain difference the bands account for
     floor = ident.fit_percent(d3.y, d3.y * w1 / w3)
     val = ident.compare(d3, f)
     assert floor < val.fit_percent < 100.0

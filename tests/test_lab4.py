@@ -2,6 +2,7 @@
 with its solutions (every check passes, in under 2 minutes, no true value in the output) and with
 wrong answers (each check fails with its hint); the student version is generated and current;
 the flexible students' hidden modes; the helper that estimates the load's motion."""
+
 from __future__ import annotations
 
 import math
@@ -11,12 +12,13 @@ from pathlib import Path
 import nbformat
 import numpy as np
 import pytest
+from _labnb import KEY, lab_env  # noqa: F401  (lab_env: autouse fixture)
+from _labnb import execute as _execute
+from _labnb import outputs as _outputs
+from _labnb import set_student as _set_student
 
 from jerklab import lab
 from jerklab.lab.motors import _truth, coupled_mode, student_motor
-
-from _labnb import KEY, lab_env  # noqa: F401  (lab_env: autouse fixture)
-from _labnb import execute as _execute, outputs as _outputs, set_student as _set_student
 
 ROOT = Path(__file__).parent.parent
 
@@ -30,8 +32,15 @@ def _master():
 def _leaks(motor):
     t = _truth(motor)
     pats = set()
-    for v in (t["K"], t["tau"], t["mode_hz"], t["mode_zeta"], motor.mode_frequency, motor.mode_damping,
-              motor.mode_frequency / (2 * math.pi)):
+    for v in (
+        t["K"],
+        t["tau"],
+        t["mode_hz"],
+        t["mode_zeta"],
+        motor.mode_frequency,
+        motor.mode_damping,
+        motor.mode_frequency / (2 * math.pi),
+    ):
         pats.add(repr(v))
         for d in (5, 6, 7):
             pats.add(f"{v:.{d}g}")
@@ -59,14 +68,31 @@ def test_lab4_with_solutions_passes_every_check_quickly(tmp_path):
 
 #: (a line of the solution cell, the wrong answer appended after it, the check, its hint)
 WRONG4 = [
-    ("mode = (fit.frequency_hz, fit.damping)", "_wrong_mode = (2 * np.pi * fit.frequency_hz, fit.damping)",
-     "mode", "2π too large"),
-    ("zv_delay = float(zv.times[-1])", "_wrong_zv_delay = float(zvd.times[-1])", "zv_delay", "whole period"),
-    ('residual_pct = {k: 100 * amp[k] / amp["none"] for k in ("zv", "zvd", "ei")}',
-     '_wrong_residual_pct = {k: amp[k] / amp["none"] for k in ("zv", "zvd", "ei")}', "residual_pct", "fractions"),
-    ("float(sh.residual_vibration((1 - lab.MODE_DRIFT) * f, z))",
-     '_wrong_robust = {k: float(sh.residual_vibration(f, z)) '
-     'for k, sh in (("zv", zv), ("zvd", zvd), ("ei", ei))}', "robust", "at the design frequency"),
+    (
+        "mode = (fit.frequency_hz, fit.damping)",
+        "_wrong_mode = (2 * np.pi * fit.frequency_hz, fit.damping)",
+        "mode",
+        "2π too large",
+    ),
+    (
+        "zv_delay = float(zv.times[-1])",
+        "_wrong_zv_delay = float(zvd.times[-1])",
+        "zv_delay",
+        "whole period",
+    ),
+    (
+        'residual_pct = {k: 100 * amp[k] / amp["none"] for k in ("zv", "zvd", "ei")}',
+        '_wrong_residual_pct = {k: amp[k] / amp["none"] for k in ("zv", "zvd", "ei")}',
+        "residual_pct",
+        "fractions",
+    ),
+    (
+        "float(sh.residual_vibration((1 - lab.MODE_DRIFT) * f, z))",
+        '_wrong_robust = {k: float(sh.residual_vibration(f, z)) '
+        'for k, sh in (("zv", zv), ("zvd", zvd), ("ei", ei))}',
+        "robust",
+        "at the design frequency",
+    ),
     ('choice = "ei"', '_wrong_choice = "zv"', "choice", "a fifth of the vibration"),
 ]
 
@@ -79,11 +105,19 @@ def test_lab4_wrong_answers_get_their_hints(tmp_path):
     for old, wrong, name, hint in WRONG4:
         hits = [c for c in nb.cells if c.cell_type == "code" and old in c.source]
         assert len(hits) == 1, old
-        check = next(c for c in nb.cells if c.cell_type == "code" and c.source.startswith(f'S.check("{name}"'))
+        check = next(
+            c
+            for c in nb.cells
+            if c.cell_type == "code" and c.source.startswith(f'S.check("{name}"')
+        )
         hits[0].source = hits[0].source + "\n" + wrong
         check.source = f'S.check("{name}", _wrong_{name})'
-    cut = max(i for i, c in enumerate(nb.cells) if c.cell_type == "code" and c.source.startswith("S.check("))
-    nb.cells = nb.cells[:cut + 1]
+    cut = max(
+        i
+        for i, c in enumerate(nb.cells)
+        if c.cell_type == "code" and c.source.startswith("S.check(")
+    )
+    nb.cells = nb.cells[: cut + 1]
     _execute(nb, tmp_path)
     outs = _outputs(nb)
     assert not [o for o in outs if o.startswith("ERROR")]
@@ -103,7 +137,11 @@ def test_lab4_student_version_is_generated_and_current(tmp_path):
     assert "SOLUTION" not in text and "BEGIN TESTS" not in text
     assert "choice = ..." in text and "pre_zv_delay = ..." in text
     code = "\n".join(c.source for c in fresh.cells if c.cell_type == "code")
-    for solution in ("fit = shaping.identify_mode", "zv = shaping.input_shaper", "residual_pct = {k:"):
+    for solution in (
+        "fit = shaping.identify_mode",
+        "zv = shaping.input_shaper",
+        "residual_pct = {k:",
+    ):
         assert solution not in code
     assert committed.metadata["jerklab"]["lab"] == 4
     assert all(not c.get("outputs") for c in committed.cells if c.cell_type == "code")
@@ -132,19 +170,21 @@ def test_load_deflection_matches_the_virtual_rigs_load():
         warnings.simplefilter("ignore")
         rig = connect(student="defl", plant="flexible", progress=False)
     dev = rig.link.device
-    dev.compute_delay = 0.0      # each PWM held over its whole sample, as load_deflection assumes
+    dev.compute_delay = 0.0  # each PWM held over its whole sample, as load_deflection assumes
     log = []
     tick = dev.tick
 
     def logged():
-        log.append(dev.x[2] - dev.x[0])          # the state at the sample, before the period
+        log.append(dev.x[2] - dev.x[0])  # the state at the sample, before the period
         tick()
 
     dev.tick = logged
-    rec = rig.run_move(plan_sine_jerk(**lab.MOVE4), lab.soft_gains(), path=False, settle=0.3, force=True)
+    rec = rig.run_move(
+        plan_sine_jerk(**lab.MOVE4), lab.soft_gains(), path=False, settle=0.3, force=True
+    )
     rig.close()
     est = lab.load_deflection(rig._hidden_motor.ideal(), rec)
-    true = np.array(log[:len(rec)])
+    true = np.array(log[: len(rec)])
     assert np.max(np.abs(est - true)) < 1e-9 + 1e-6 * np.max(np.abs(true))
     amp = lab.residual_amplitude(rec, est)
     assert 0 < amp < np.max(np.abs(est))
@@ -165,8 +205,13 @@ def test_lab4_session_on_simavr_finds_the_students_mode(tmp_path):
     load: the PRBS finds the hidden mode, the check says right, a ZV-shaped move completes."""
     from conftest import require_tool
 
-    require_tool("make", "cc", "avr-g++", "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
-                 "/usr/include/simavr/sim_avr.h")
+    require_tool(
+        "make",
+        "cc",
+        "avr-g++",
+        "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
+        "/usr/include/simavr/sim_avr.h",
+    )
     from jerklab import shaping
     from jerklab.planner import plan_sine_jerk
 
@@ -179,7 +224,9 @@ def test_lab4_session_on_simavr_finds_the_students_mode(tmp_path):
         assert S.verify("mode", (fit.frequency_hz, fit.damping)).ok
         S.set_model(fit.params["K"], fit.params["tau"])
         S.set_shaper(shaping.input_shaper("zv", fit.frequency_hz, fit.damping))
-        rec = S.run_move(plan_sine_jerk(**lab.MOVE4), lab.soft_gains(), name="move_zv", settle=0.3, force=True)
+        rec = S.run_move(
+            plan_sine_jerk(**lab.MOVE4), lab.soft_gains(), name="move_zv", settle=0.3, force=True
+        )
         assert rec.metadata["status"] == "complete" and rec.metadata["shaper"]["delays"][0] == 0
     finally:
         S.close()
@@ -200,12 +247,17 @@ def test_grade_command_scores_lab4(tmp_path):
         nb = nbformat.read(_assigned(4) / "autograder" / student_version_name(4), as_version=4)
         _set_student(nb, sid)
         if wrong:
-            hits = [c for c in nb.cells if c.cell_type == "code" and c.source.startswith("choice = ")]
+            hits = [
+                c for c in nb.cells if c.cell_type == "code" and c.source.startswith("choice = ")
+            ]
             assert len(hits) == 1
             hits[0].source = 'choice = "zv"'
         nbformat.write(nb, subs / f"{sid}_lab4.ipynb")
     out = tmp_path / "grades.csv"
     assert main(["grade", str(subs), "--out", str(out), "--timeout", "300"]) == 0
     rows = {r["student"]: r for r in csv.DictReader(out.open())}
-    assert rows["gina"]["status"] == "graded" and float(rows["gina"]["total"]) == float(rows["gina"]["max"]) == 13.0
+    assert (
+        rows["gina"]["status"] == "graded"
+        and float(rows["gina"]["total"]) == float(rows["gina"]["max"]) == 13.0
+    )
     assert float(rows["hal"]["total"]) == 12.0 and float(rows["hal"]["choice"]) == 0.0

@@ -4,6 +4,7 @@ The student versions carry the checks in otter's format in their metadata; ``jer
 runs them with the standard library's doctest. Independent reference: each check's verdict is
 compared with ``S.verify`` called directly, and the run happens with ``otter`` blocked from import.
 """
+
 import json
 import os
 import subprocess
@@ -46,10 +47,21 @@ def test_checks_run_with_otter_blocked(tmp_path):
         assert right.passed and not wrong.passed and not missing.passed
         assert direct.message in wrong.message
         """)
-    env = dict(os.environ, JERKLAB_INSTRUCTOR_KEY="k", JERKLAB_LAB_WORK=str(tmp_path / "w"),
-               JERKLAB_RECORDINGS=str(tmp_path / "r"), PYTHONPATH=str(ROOT))
-    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env,
-                       cwd=tmp_path, timeout=300)
+    env = dict(
+        os.environ,
+        JERKLAB_INSTRUCTOR_KEY="k",
+        JERKLAB_LAB_WORK=str(tmp_path / "w"),
+        JERKLAB_RECORDINGS=str(tmp_path / "r"),
+        PYTHONPATH=str(ROOT),
+    )
+    r = subprocess.run(
+        [sys.executable, "-c", script],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tmp_path,
+        timeout=300,
+    )
     assert r.returncode == 0, r.stdout + r.stderr
     lines = r.stdout.strip().splitlines()[-3:]
     assert lines[0].startswith("✔ K") and lines[1].startswith("✘ K") and "factor 6.28" in lines[1]
@@ -73,5 +85,5 @@ def test_unknown_check_and_missing_worksheet_are_named(tmp_path):
 def test_a_renamed_copy_still_finds_its_checks(tmp_path, monkeypatch):
     from jerklab.lab.notebook import Notebook
 
-    monkeypatch.chdir(tmp_path)                 # not the worksheet's folder: the shipped copy is used
+    monkeypatch.chdir(tmp_path)  # not the worksheet's folder: the shipped copy is used
     assert Notebook(LABS[0].name).tests == Notebook(LABS[0]).tests

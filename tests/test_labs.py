@@ -4,40 +4,52 @@ The worksheets are executed headless from their masters (solutions in): every ch
 with a wrong answer injected, the check fails with its hint. The grader runs otter on three
 synthetic submissions. Truth values are looked for, and must not be found, in every output.
 """
+
 from __future__ import annotations
 
 import csv
 import json
 import math
-import os
-import shutil
 import zipfile
 from pathlib import Path
 
 import nbformat
 import numpy as np
 import pytest
+from _labnb import KEY, lab_env  # noqa: F401  (lab_env: autouse fixture)
+from _labnb import execute as _execute
+from _labnb import outputs as _outputs
+from _labnb import set_student as _set_student
 
 from jerklab import lab
+from jerklab.controller import discrete_pole_placement_pid
 from jerklab.lab import checks, motors
 from jerklab.lab.handin import HandinError, pack, read_handin
-from jerklab.lab.motors import (RANGES, StudentDevice, StudentMotor, _Parameters, _truth,
-                                student_motor)
-from jerklab.controller import discrete_pole_placement_pid
+from jerklab.lab.motors import (
+    RANGES,
+    StudentDevice,
+    StudentMotor,
+    _Parameters,
+    _truth,
+    student_motor,
+)
 from jerklab.planner import plan_sine_jerk
 from jerklab.rig import connect
 from jerklab.rig.client import Rig
 from jerklab.rig.virtual import VirtualSerial
 
-from _labnb import KEY, lab_env  # noqa: F401  (lab_env: autouse fixture)
-from _labnb import execute as _execute, outputs as _outputs, set_student as _set_student
-
 ROOT = Path(__file__).parent.parent
 
 
 def _rig_for(motor):
-    return Rig(VirtualSerial(StudentDevice(motor), timeout=0.05), "virtual", supply_voltage=12.0,
-               counts_per_rev=motor.encoder_ppr, progress=False, hello_timeout=1.0)
+    return Rig(
+        VirtualSerial(StudentDevice(motor), timeout=0.05),
+        "virtual",
+        supply_voltage=12.0,
+        counts_per_rev=motor.encoder_ppr,
+        progress=False,
+        hello_timeout=1.0,
+    )
 
 
 def _leak_patterns(truth):
@@ -95,8 +107,10 @@ def test_parameters_within_ranges():
         m = student_motor(f"r{i}")
         assert RANGES["K"][0] <= t["K"] <= RANGES["K"][1]
         assert RANGES["tau"][0] <= t["tau"] <= RANGES["tau"][1]
-        assert RANGES["coulomb_friction"][0] <= t["coulomb_friction"] <= RANGES["coulomb_friction"][1]
-        assert abs(t["offset"]) < RANGES["coulomb_friction"][0]        # no creep at 0 V
+        assert (
+            RANGES["coulomb_friction"][0] <= t["coulomb_friction"] <= RANGES["coulomb_friction"][1]
+        )
+        assert abs(t["offset"]) < RANGES["coulomb_friction"][0]  # no creep at 0 V
         assert t["counts_per_rev"] in RANGES["encoder_ppr"]
         assert 0 <= m.noise_counts <= RANGES["noise_counts"][1]
 
@@ -122,14 +136,16 @@ def test_connect_student_keyword():
 
 def test_offset_acts_like_the_model():
     """The hidden motor's offset: a step from rest reaches K (V + offset - f_c) (closed form)."""
-    p = _Parameters(K=30.0, tau=0.02, coulomb_friction=0.3, offset=0.07, noise_counts=0.0, encoder_ppr=896)
+    p = _Parameters(
+        K=30.0, tau=0.02, coulomb_friction=0.3, offset=0.07, noise_counts=0.0, encoder_ppr=896
+    )
     m = StudentMotor("t", p, 1)
     x = np.zeros(2)
     for _ in range(400):
         x = m.step_state(x, 6.0, 0.001)
     assert x[1] == pytest.approx(30.0 * (6.0 + 0.07 - 0.3), rel=1e-6)
     x = np.zeros(2)
-    assert m.step_state(x, 0.0, 1.0)[1] == 0.0        # |offset| < f_c: it does not creep
+    assert m.step_state(x, 0.0, 1.0)[1] == 0.0  # |offset| < f_c: it does not creep
 
 
 def test_no_leak_in_repr_metadata_recordings(tmp_path):
@@ -137,9 +153,17 @@ def test_no_leak_in_repr_metadata_recordings(tmp_path):
     truth = _truth(rig._hidden_motor)
     try:
         rig.step(6.0, 0.3)
-        rig.run_move(plan_sine_jerk(**lab.MOVE), discrete_pole_placement_pid(30.0, 0.02, 30.0), 0.005)
-        texts = [repr(rig), repr(rig.link), repr(rig.link.device), repr(rig._hidden_motor),
-                 str(rig._hidden_motor), json.dumps(rig.device_info())]
+        rig.run_move(
+            plan_sine_jerk(**lab.MOVE), discrete_pole_placement_pid(30.0, 0.02, 30.0), 0.005
+        )
+        texts = [
+            repr(rig),
+            repr(rig.link),
+            repr(rig.link.device),
+            repr(rig._hidden_motor),
+            str(rig._hidden_motor),
+            json.dumps(rig.device_info()),
+        ]
         texts += [p.read_text() for p in tmp_path.iterdir()]
     finally:
         rig.close()
@@ -161,8 +185,11 @@ def _corners():
     return out
 
 
-@pytest.mark.parametrize("params", _corners() + [None] * 6,
-                         ids=[f"corner{i}" for i in range(8)] + [f"random{i}" for i in range(6)])
+@pytest.mark.parametrize(
+    "params",
+    _corners() + [None] * 6,
+    ids=[f"corner{i}" for i in range(8)] + [f"random{i}" for i in range(6)],
+)
 def test_every_spec_feasible_over_the_distribution(params, request):
     """At the corners of RANGES and for random IDs, the worksheets' own methods pass their checks:
     the sweep gives K within 4 % and f_c within 0.06 V, PEM τ within 8 %, PEM with friction and
@@ -183,8 +210,13 @@ def test_every_spec_feasible_over_the_distribution(params, request):
         tau = ident.fit_dc_motor(r6.control, r6.position, 0.005).tau
         assert abs(K / t["K"] - 1) <= 0.04 and abs(fc - t["coulomb_friction"]) <= 0.06
         assert abs(tau / t["tau"] - 1) <= 0.08
-        fit = ident.fit_dc_motor([r.control for r in recs.values()], [r.position for r in recs.values()],
-                                 0.005, friction=True, offset=True)
+        fit = ident.fit_dc_motor(
+            [r.control for r in recs.values()],
+            [r.position for r in recs.values()],
+            0.005,
+            friction=True,
+            offset=True,
+        )
         assert abs(fit.K / t["K"] - 1) <= 0.04 and abs(fit.tau / t["tau"] - 1) <= 0.08
         assert abs(fit.friction - t["coulomb_friction"]) <= 0.06
         for eK, et in ((1.05, 0.92), (0.95, 1.08)):
@@ -206,8 +238,13 @@ def test_spec_can_be_missed():
     try:
         rig.set_model(30.0, 0.03)
         prof = plan_sine_jerk(**lab.MOVE)
-        rec = rig.run_move(prof, discrete_pole_placement_pid(30.0, 0.03, 8.0, 1.0, Ts=0.005), 0.005,
-                           settle=0.4, path=False)
+        rec = rig.run_move(
+            prof,
+            discrete_pole_placement_pid(30.0, 0.03, 8.0, 1.0, Ts=0.005),
+            0.005,
+            settle=0.4,
+            path=False,
+        )
         fails = checks._spec_failures(lab.move_metrics(rec, prof.duration, prof.distance))
     finally:
         rig.close()
@@ -221,8 +258,11 @@ def test_unsupported_planner_is_reported_not_raised(tmp_path, capsys):
 
     S = lab.start(3, student="fw-like", folder=tmp_path)
     dev = S.rig.link.device
-    dev.capabilities &= ~(P.Capability.PLANNER_SCURVE | P.Capability.PLANNER_TRAPEZOID
-                          | P.Capability.PLANNER_SINE_JERK_OPTIMAL)
+    dev.capabilities &= ~(
+        P.Capability.PLANNER_SCURVE
+        | P.Capability.PLANNER_TRAPEZOID
+        | P.Capability.PLANNER_SINE_JERK_OPTIMAL
+    )
     S.rig.hello()
     g = discrete_pole_placement_pid(30.0, 0.02, 30.0, Ts=0.005)
     assert S.run_move(plan_scurve(**lab.MOVE), g) is None
@@ -247,7 +287,7 @@ def test_check_messages(tmp_path):
     r = S.verify("K", t["K"] * 1.2)
     assert not r.ok and "20 % off" in r.message
     r = S.verify("fit_valid", 90.0)
-    assert not r.ok and "recording" in r.message          # the task's recording is not there yet
+    assert not r.ok and "recording" in r.message  # the task's recording is not there yet
     S.close()
 
 
@@ -310,12 +350,18 @@ def test_worksheet_with_solutions_passes_every_check(n, tmp_path):
 
 WRONG = {
     1: ("K = coef[0]", "K = coef[0] * 2 * np.pi", 'S.check("K"', "factor 6.28"),
-    2: ('panel.controls["wn"].value = 30.0',
+    2: (
+        'panel.controls["wn"].value = 30.0',
         'panel.controls["design"].value = "continuous"; panel.controls["wn"].value = 80.0',
-        'S.check("design"', "your sampled loop has |z| = "),
-    3: ("lost_time = plan_sine_jerk(**M).duration - plan_sine_jerk_optimal(**M).duration",
+        'S.check("design"',
+        "your sampled loop has |z| = ",
+    ),
+    3: (
+        "lost_time = plan_sine_jerk(**M).duration - plan_sine_jerk_optimal(**M).duration",
         "lost_time = plan_sine_jerk_optimal(**M).duration - plan_sine_jerk(**M).duration",
-        'S.check("lost_time"', "the sign"),
+        'S.check("lost_time"',
+        "the sign",
+    ),
 }
 
 
@@ -327,8 +373,10 @@ def test_worksheet_wrong_answer_gets_its_hint(n, tmp_path):
     hits = [c for c in nb.cells if c.cell_type == "code" and old in c.source]
     assert len(hits) == 1
     hits[0].source = hits[0].source.replace(old, new)
-    last = next(i for i, c in enumerate(nb.cells) if c.cell_type == "code" and c.source.startswith(check))
-    nb.cells = nb.cells[:last + 1]           # stop at the check under test
+    last = next(
+        i for i, c in enumerate(nb.cells) if c.cell_type == "code" and c.source.startswith(check)
+    )
+    nb.cells = nb.cells[: last + 1]  # stop at the check under test
     _execute(nb, tmp_path)
     verdict = "\n".join(_outputs(nb)[-3:])
     assert "✘ not yet" in verdict and hint in verdict, verdict
@@ -342,9 +390,16 @@ def test_lab1_prbs_fit_without_offset_gets_its_hint(tmp_path):
     hits = [c for c in nb.cells if c.cell_type == "code" and old in c.source]
     assert len(hits) == 1
     hits[0].source = hits[0].source.replace(old, old.replace(", offset=True", ""))
-    last = next(i for i, c in enumerate(nb.cells) if c.cell_type == "code" and c.source.startswith('S.check("prbs_fit"'))
-    nb.cells = [c for i, c in enumerate(nb.cells[:last + 1])
-                if i <= 3 or c.cell_type != "code" or "S.check(" not in c.source or i == last]
+    last = next(
+        i
+        for i, c in enumerate(nb.cells)
+        if c.cell_type == "code" and c.source.startswith('S.check("prbs_fit"')
+    )
+    nb.cells = [
+        c
+        for i, c in enumerate(nb.cells[: last + 1])
+        if i <= 3 or c.cell_type != "code" or "S.check(" not in c.source or i == last
+    ]
     _execute(nb, tmp_path)
     verdict = "\n".join(_outputs(nb)[-3:])
     assert "✘ not yet" in verdict and "PEM without the offset" in verdict, verdict
@@ -382,8 +437,17 @@ def test_grade_command_on_three_submissions(tmp_path):
     good = _autograder_notebook(1)
     _set_student(good, "alice")
     nbj = nbformat.writes(good).encode()
-    pack({"notebook/lab1_identify.ipynb": nbj, "answers.json": b"{}", "gains.json": b"null",
-          "student.json": b'{"student": "alice"}'}, "alice", 1, subs / "lab1_alice.zip")
+    pack(
+        {
+            "notebook/lab1_identify.ipynb": nbj,
+            "answers.json": b"{}",
+            "gains.json": b"null",
+            "student.json": b'{"student": "alice"}',
+        },
+        "alice",
+        1,
+        subs / "lab1_alice.zip",
+    )
     part = _autograder_notebook(1)
     _set_student(part, "bob")
     edits = 0
@@ -395,7 +459,10 @@ def test_grade_command_on_three_submissions(tmp_path):
     assert edits == 2
     nbformat.write(part, subs / "bob_lab1.ipynb")
     pack({"notebook/lab1_identify.ipynb": nbj}, "carol", 1, tmp_path / "c.zip")
-    with zipfile.ZipFile(tmp_path / "c.zip") as zin, zipfile.ZipFile(subs / "lab1_carol.zip", "w") as zout:
+    with (
+        zipfile.ZipFile(tmp_path / "c.zip") as zin,
+        zipfile.ZipFile(subs / "lab1_carol.zip", "w") as zout,
+    ):
         for n in zin.namelist():
             d = zin.read(n)
             zout.writestr(n, d.replace(b'"trust = ', b'"trust=') if n.endswith(".ipynb") else d)
@@ -406,7 +473,7 @@ def test_grade_command_on_three_submissions(tmp_path):
     assert set(rows) == {"lab1_alice.zip", "bob_lab1.ipynb", "lab1_carol.zip", "dave_lab1.ipynb"}
     a, b = rows["lab1_alice.zip"], rows["bob_lab1.ipynb"]
     assert a["status"] == "graded" and b["status"] == "graded", (a, b)
-    assert float(a["total"]) == float(a["max"]) == 20.0          # 17 + the PRBS question's 3
+    assert float(a["total"]) == float(a["max"]) == 20.0  # 17 + the PRBS question's 3
     assert float(b["max"]) == 20.0 and float(b["total"]) == 18.0
     assert float(b["pre_speed"]) == 0.0 and float(b["trust"]) == 0.0 and float(b["K"]) == 3.0
     assert a["student"] == "alice" and b["student"] == "bob"
@@ -426,14 +493,21 @@ def test_session_on_simavr_uses_the_students_motor(tmp_path, capsys):
 
     sys.path.insert(0, str(Path(__file__).parent))
     from conftest import require_tool
+
     from jerklab import ident
     from jerklab.planner import plan_scurve
 
-    require_tool("make", "cc", "avr-g++", "avr-size", "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
-                 "/usr/include/simavr/sim_avr.h")
+    require_tool(
+        "make",
+        "cc",
+        "avr-g++",
+        "avr-size",
+        "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
+        "/usr/include/simavr/sim_avr.h",
+    )
     S = lab.start(3, student="simavr-student", port="simavr", folder=tmp_path)
     try:
-        assert S.simulated and S.rig.name != "jerklab-virtual"      # the firmware answers
+        assert S.simulated and S.rig.name != "jerklab-virtual"  # the firmware answers
         r6 = S.step(6.0, lab.STEP_SECONDS)
         fit = ident.fit_dc_motor(r6.control, r6.position, r6.metadata["Ts"])
         assert S.verify("tau", fit.tau).ok
@@ -451,7 +525,7 @@ def test_grade_timeout_gets_a_row(tmp_path):
     """A submission that never ends is stopped after the timeout and gets its row."""
     from jerklab.lab.grade import autograder_zip, grade_folder
 
-    autograder_zip(1)                       # made (or reused) before the clock matters
+    autograder_zip(1)  # made (or reused) before the clock matters
     subs = tmp_path / "subs"
     subs.mkdir()
     nb = nbformat.v4.new_notebook()

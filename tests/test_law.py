@@ -6,6 +6,7 @@ the encoder's floor), never by calling jerklab's own helpers. Every test runs on
 of the law: the plain-Python scalar form, the numba-compiled form and the numpy vector form
 (and, for the PID, the stateful DigitalController).
 """
+
 from __future__ import annotations
 
 import math
@@ -30,7 +31,7 @@ def _pid_compiled(*a):
 
 
 def _pid_vector(e, e_prev, i_prev, d_prev, ff, kpd, kid, kdd, gamma, limit, aw):
-    arr = [np.array([x, 0.0]) for x in (e, e_prev, i_prev, d_prev)]      # a second, idle plant
+    arr = [np.array([x, 0.0]) for x in (e, e_prev, i_prev, d_prev)]  # a second, idle plant
     u, p, i, d, sat = law.pid_step_vec(*arr, ff, kpd, kid, kdd, gamma, limit, aw)
     return float(u[0]), float(p[0]), float(i[0]), float(d[0]), bool(sat[0])
 
@@ -41,17 +42,24 @@ def _pid_controller(e, e_prev, i_prev, d_prev, ff, kpd, kid, kdd, gamma, limit, 
     Position loop with r = e and y = 0, so the error is e; the feedforward (τ a + ω)/K with
     K = 1, τ = 0 is the reference velocity, so ``ff`` enters as ω.
     """
-    c = DigitalController(DiscreteGains(kpd, kid, kdd, 0.005, gamma=gamma),
-                          Feedforward(1.0, 0.0) if ff != 0.0 else None,
-                          output_limit=None if math.isinf(limit) else limit, anti_windup=aw)
+    c = DigitalController(
+        DiscreteGains(kpd, kid, kdd, 0.005, gamma=gamma),
+        Feedforward(1.0, 0.0) if ff != 0.0 else None,
+        output_limit=None if math.isinf(limit) else limit,
+        anti_windup=aw,
+    )
     c._e, c._i, c._d, c._first = e_prev, i_prev, d_prev, False
     u = c.step(e, ff, 0.0, 0.0)
     pt = c.last_parts
     return u, pt["p"], pt["i"], pt["d"], pt["saturated"]
 
 
-PID_FORMS = {"scalar": _pid_scalar, "compiled": _pid_compiled, "vector": _pid_vector,
-             "controller": _pid_controller}
+PID_FORMS = {
+    "scalar": _pid_scalar,
+    "compiled": _pid_compiled,
+    "vector": _pid_vector,
+    "controller": _pid_controller,
+}
 
 
 @pytest.fixture(params=list(PID_FORMS))
@@ -67,10 +75,13 @@ G = dict(kpd=1.0, kid=0.5, kdd=0.0, gamma=0.0, limit=1.0)
 
 def _call(pid, e, i_prev, ff=0.0, aw=True, e_prev=0.0, d_prev=0.0, **kw):
     g = dict(G, **kw)
-    return pid(e, e_prev, i_prev, d_prev, ff, g["kpd"], g["kid"], g["kdd"], g["gamma"], g["limit"], aw)
+    return pid(
+        e, e_prev, i_prev, d_prev, ff, g["kpd"], g["kid"], g["kdd"], g["gamma"], g["limit"], aw
+    )
 
 
 # --------------------------------------------------------------------------- PID, eq. 17/18
+
 
 def test_linear_region_is_eq17_eq18(pid):
     # p = 1·0.2, i = 0.1 + 0.5·0.2 = 0.2, d = 0, u = 0.4: inside ±1, not saturated
@@ -170,10 +181,11 @@ def test_controller_winds_down_from_both_limits():
     for _ in range(5):
         assert c.step(-2.0, measured_position=0.0) == -1.0
         assert c.last_parts["i"] == pytest.approx(0.1) and c.last_parts["saturated"]
-    assert c.step(-0.2, measured_position=0.0) == pytest.approx(-0.2 + 0.0)   # i = 0.1 − 0.1
+    assert c.step(-0.2, measured_position=0.0) == pytest.approx(-0.2 + 0.0)  # i = 0.1 − 0.1
 
 
 # --------------------------------------------------------------------------- PWM
+
 
 def _lround_spec(u, supply, levels):
     """The firmware's duty: lround(u/supply·levels), half away from zero, clamped to ±levels."""
@@ -204,8 +216,13 @@ def _duty_plant(u, s, L):
     return float(quantize_voltage(u, s, bits)) / s * L
 
 
-DUTY_FORMS = {"scalar": _duty_scalar, "compiled": _duty_compiled, "amplifier": _duty_amplifier,
-              "vector": _duty_vector, "plant.quantize_voltage": _duty_plant}
+DUTY_FORMS = {
+    "scalar": _duty_scalar,
+    "compiled": _duty_compiled,
+    "amplifier": _duty_amplifier,
+    "vector": _duty_vector,
+    "plant.quantize_voltage": _duty_plant,
+}
 
 
 @pytest.fixture(params=list(DUTY_FORMS))
@@ -215,23 +232,26 @@ def duty(request):
     return DUTY_FORMS[request.param]
 
 
-@pytest.mark.parametrize("u, supply, levels, want", [
-    (1.0, 2.0, 7, 4),          # q = 3.5: half away → 4 (truncation and banker's both give 3)
-    (-1.0, 2.0, 7, -4),        # q = −3.5 → −4 (the sign is the direction pin)
-    (0.5, 1.0, 1023, 512),     # q = 511.5 → 512
-    (-0.5, 1.0, 1023, -512),
-    (0.25, 1.0, 3, 1),         # q = 0.75 → 1 (truncation: 0)
-    (-0.25, 1.0, 3, -1),
-    (0.1, 1.0, 3, 0),          # q = 0.3 → 0
-    (12.0, 12.0, 1023, 1023),  # full scale
-    (-12.0, 12.0, 1023, -1023),
-    (30.0, 12.0, 1023, 1023),  # beyond the supply: clamped
-    (-30.0, 12.0, 1023, -1023),
-])
+@pytest.mark.parametrize(
+    "u, supply, levels, want",
+    [
+        (1.0, 2.0, 7, 4),  # q = 3.5: half away → 4 (truncation and banker's both give 3)
+        (-1.0, 2.0, 7, -4),  # q = −3.5 → −4 (the sign is the direction pin)
+        (0.5, 1.0, 1023, 512),  # q = 511.5 → 512
+        (-0.5, 1.0, 1023, -512),
+        (0.25, 1.0, 3, 1),  # q = 0.75 → 1 (truncation: 0)
+        (-0.25, 1.0, 3, -1),
+        (0.1, 1.0, 3, 0),  # q = 0.3 → 0
+        (12.0, 12.0, 1023, 1023),  # full scale
+        (-12.0, 12.0, 1023, -1023),
+        (30.0, 12.0, 1023, 1023),  # beyond the supply: clamped
+        (-30.0, 12.0, 1023, -1023),
+    ],
+)
 def test_pwm_rounds_half_away_from_zero(duty, u, supply, levels, want):
     if duty is _duty_plant and levels not in (1, 3, 7, 1023):
         pytest.skip("plant.quantize_voltage takes bits")
-    assert _lround_spec(u, supply, levels) == want                 # the spec itself
+    assert _lround_spec(u, supply, levels) == want  # the spec itself
     assert duty(u, supply, levels) == pytest.approx(want, abs=1e-9)
 
 
@@ -241,7 +261,7 @@ def test_pwm_random_against_spec(duty):
         want = _lround_spec(float(u), 12.0, 1023)
         frac = abs(float(Fraction(float(u)) / 12 * 1023)) % 1.0
         if abs(frac - 0.5) < 1e-9:
-            continue                        # a float-level tie: the spec is exact, the code is float
+            continue  # a float-level tie: the spec is exact, the code is float
         assert duty(float(u), 12.0, 1023) == pytest.approx(want, abs=1e-9)
 
 
@@ -255,7 +275,7 @@ def test_amplifier_reports_the_supply_clamp():
         assert f(12.5, 12.0, 1023.0) == (12.0, True)
         assert f(-12.5, 12.0, 1023.0) == (-12.0, True)
         assert f(3.0, 12.0, 1023.0)[1] is False
-        assert f(3.3, 0.0, 0.0) == (3.3, False)             # no amplifier
+        assert f(3.3, 0.0, 0.0) == (3.3, False)  # no amplifier
     v, c = law.amplifier_vec(np.array([12.5, -12.5, 3.0]), 12.0, 1023.0)
     assert list(c) == [True, True, False] and list(v[:2]) == [12.0, -12.0]
 
@@ -285,8 +305,13 @@ def _counts_plant(th, cpr):
     return round(float(measure_angle(th, cpr)) * cpr)
 
 
-COUNT_FORMS = {"scalar": _counts_scalar, "compiled": _counts_compiled, "angle": _counts_angle,
-               "vector": _counts_vector, "plant.measure_angle": _counts_plant}
+COUNT_FORMS = {
+    "scalar": _counts_scalar,
+    "compiled": _counts_compiled,
+    "angle": _counts_angle,
+    "vector": _counts_vector,
+    "plant.measure_angle": _counts_plant,
+}
 
 
 @pytest.fixture(params=list(COUNT_FORMS))
@@ -296,17 +321,20 @@ def counts(request):
     return COUNT_FORMS[request.param]
 
 
-@pytest.mark.parametrize("fraction, want", [
-    (0.3, 0),      # floor 0, round 0
-    (0.7, 0),      # floor 0 (round would give 1)
-    (-0.3, -1),    # floor −1 (round and truncation give 0)
-    (-0.7, -1),
-    (-1.2, -2),    # floor −2 (truncation −1)
-    (5.5, 5),
-    (-5.5, -6),    # floor −6 (round half away −6, truncation −5)
-])
+@pytest.mark.parametrize(
+    "fraction, want",
+    [
+        (0.3, 0),  # floor 0, round 0
+        (0.7, 0),  # floor 0 (round would give 1)
+        (-0.3, -1),  # floor −1 (round and truncation give 0)
+        (-0.7, -1),
+        (-1.2, -2),  # floor −2 (truncation −1)
+        (5.5, 5),
+        (-5.5, -6),  # floor −6 (round half away −6, truncation −5)
+    ],
+)
 def test_encoder_is_floor_not_round_or_truncation(counts, fraction, want):
-    assert math.floor(fraction) == want                          # the spec
+    assert math.floor(fraction) == want  # the spec
     assert counts(fraction / CPR, CPR) == want
 
 
@@ -322,6 +350,7 @@ def test_ideal_sensor_passes_the_angle():
 
 # --------------------------------------------------------------------------- ZOH of eq. 1
 
+
 def test_zoh_coefficients_against_python_control():
     import control as ct
 
@@ -336,8 +365,15 @@ def test_zoh_coefficients_against_python_control():
     assert z.a + z.one_minus_a == pytest.approx(1.0, abs=1e-16)
 
 
-@pytest.mark.parametrize("kw, name", [(dict(K=float("nan")), "K"), (dict(tau=0.0), "tau"),
-                                      (dict(Ts=-1.0), "Ts"), (dict(tau="x"), "tau")])
+@pytest.mark.parametrize(
+    "kw, name",
+    [
+        (dict(K=float("nan")), "K"),
+        (dict(tau=0.0), "tau"),
+        (dict(Ts=-1.0), "Ts"),
+        (dict(tau="x"), "tau"),
+    ],
+)
 def test_zoh_bad_input(kw, name):
     args = {**dict(K=32.4, tau=0.025, Ts=0.005), **kw}
     with pytest.raises(ValueError, match=name):
@@ -345,10 +381,28 @@ def test_zoh_bad_input(kw, name):
 
 
 def test_pack_layout():
-    p = law.pack(kpd=1.0, kid=2.0, kdd=3.0, gamma=0.1, limit=math.inf, anti_windup=True, ff_on=False, ff_K=1.0,
-                 ff_tau=0.0, velocity=True, error_scale=2.0, bumpless=False, Ts=0.005)
+    p = law.pack(
+        kpd=1.0,
+        kid=2.0,
+        kdd=3.0,
+        gamma=0.1,
+        limit=math.inf,
+        anti_windup=True,
+        ff_on=False,
+        ff_K=1.0,
+        ff_tau=0.0,
+        velocity=True,
+        error_scale=2.0,
+        bumpless=False,
+        Ts=0.005,
+    )
     assert len(p) == len(law.CTL_FIELDS)
-    assert p[law.C_KID] == 2.0 and p[law.C_AW] == 1.0 and p[law.C_VELOCITY] == 1.0 and p[law.C_TS] == 0.005
+    assert (
+        p[law.C_KID] == 2.0
+        and p[law.C_AW] == 1.0
+        and p[law.C_VELOCITY] == 1.0
+        and p[law.C_TS] == 0.005
+    )
     assert math.isinf(p[law.C_LIMIT]) and p[law.C_FF_ON] == 0.0 and p[law.C_SCALE] == 2.0
 
 

@@ -5,6 +5,7 @@ a benchmark or the rig's command line that never draws does not pay for matplotl
 a backend). Each module is imported in a fresh interpreter; python-control, which imports
 matplotlib itself, must be imported lazily by the modules that use it.
 """
+
 from __future__ import annotations
 
 import os
@@ -16,19 +17,41 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
-BELOW_THE_FACE = ["jerklab", "jerklab.law", "jerklab.paper", "jerklab.planner", "jerklab.plant",
-                  "jerklab.controller", "jerklab.sim", "jerklab.ident", "jerklab.protocol", "jerklab.piezo",
-                  "jerklab.hysteresis", "jerklab.fpga", "jerklab.plots", "jerklab.rig", "jerklab.rig.virtual",
-                  "jerklab.rig.server", "jerklab.rig.recording", "jerklab.rig.client", "jerklab.rig.simavr",
-                  "jerklab.rig.progress", "jerklab.rig.ports", "jerklab.rig.check", "jerklab.tuning",
-                  "jerklab.shaping", "jerklab.multiaxis"]
+BELOW_THE_FACE = [
+    "jerklab",
+    "jerklab.law",
+    "jerklab.paper",
+    "jerklab.planner",
+    "jerklab.plant",
+    "jerklab.controller",
+    "jerklab.sim",
+    "jerklab.ident",
+    "jerklab.protocol",
+    "jerklab.piezo",
+    "jerklab.hysteresis",
+    "jerklab.fpga",
+    "jerklab.plots",
+    "jerklab.rig",
+    "jerklab.rig.virtual",
+    "jerklab.rig.server",
+    "jerklab.rig.recording",
+    "jerklab.rig.client",
+    "jerklab.rig.simavr",
+    "jerklab.rig.progress",
+    "jerklab.rig.ports",
+    "jerklab.rig.check",
+    "jerklab.tuning",
+    "jerklab.shaping",
+    "jerklab.multiaxis",
+]
 
 
 def _imports(module):
     code = f"import sys, {module}; print(sorted(m for m in ('matplotlib', 'control') if m in sys.modules))"
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120,
-                         cwd=ROOT)
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120, cwd=ROOT
+    )
     assert out.returncode == 0, out.stderr
     return out.stdout.strip()
 

@@ -1,14 +1,14 @@
 """Helpers moved out of the notebooks (issue 19): VCD clock conversion and pulse-train speed
 (notebook 06, jerklab.fpga), the Preisach density image (notebook 08, jerklab.hysteresis)."""
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import require_tool
 
 from jerklab import fpga
 from jerklab.hysteresis import Preisach
-
-from conftest import require_tool
 
 
 # ------------------------------------------------------------------------------ pulse speed
@@ -29,7 +29,7 @@ def test_pulse_speed_follows_the_scurve():
     t2, v2 = fpga.pulse_speed(pt.rise, pt.clock_hz, pt.step_um)
     assert np.array_equal(t, t2) and np.array_equal(v, v2)
     cruise = (t > 1.1) & (t < 1.9)
-    assert np.all(np.abs(v[cruise] - 20000) <= 20000 * 2e-3)        # cycle = 1e6 // 1000 exactly
+    assert np.all(np.abs(v[cruise] - 20000) <= 20000 * 2e-3)  # cycle = 1e6 // 1000 exactly
     exact = Y.exact_profile().sample(t).velocity
     fast = exact > 5000
     assert np.max(np.abs(v[fast] - exact[fast])) < 0.06 * 20000
@@ -79,9 +79,11 @@ def test_vcd_edges_equal_the_model(tmp_path):
     p = fpga.vcd_to_posedge(t, 20e-9, scale)
     rise, fall = fpga.divider_edges(starts, values, p_end)
     assert np.array_equal(p[val == 1], rise)
-    assert np.array_equal(p[(val == 0) & (p >= 1)], fall)          # (the reset pulse is before posedge 1)
+    assert np.array_equal(p[(val == 0) & (p >= 1)], fall)  # (the reset pulse is before posedge 1)
     tc, vc = w["clk"]
-    assert np.all(fpga.vcd_to_posedge(tc[vc == 1], 20e-9, scale) == np.arange(1, (vc == 1).sum() + 1))
+    assert np.all(
+        fpga.vcd_to_posedge(tc[vc == 1], 20e-9, scale) == np.arange(1, (vc == 1).sum() + 1)
+    )
 
 
 # ------------------------------------------------------------------------------ Preisach image
@@ -91,6 +93,6 @@ def test_masked_density():
     i, j = np.indices(m.shape)
     assert np.array_equal(m[i >= j], P.density[i >= j]) and np.all(np.isnan(m[i < j]))
     # the weight over the half plane (diagonal cells are half squares) is the output span
-    area = np.where(i == j, 0.5, 1.0) * P.h ** 2
+    area = np.where(i == j, 0.5, 1.0) * P.h**2
     assert np.nansum(m * area) == pytest.approx(P.everett(100.0, 0.0))
     assert np.nansum(m * area) == pytest.approx(P.output_range[1] - P.output_range[0])

@@ -12,6 +12,7 @@ Checks against something independent of ``jerklab.multiaxis``'s algebra:
 * the x–y stand: two ``YangSCurve`` generators (Python model) and their Verilog (Icarus) from one
   plan, pulse edge for pulse edge.
 """
+
 from __future__ import annotations
 
 import math
@@ -25,9 +26,11 @@ from jerklab.multiaxis import PLANNERS, plan_multi_axis, stretch_to_duration
 from jerklab.planner import plan_scurve, plan_sine_jerk_optimal, plan_trapezoid
 
 RTOL = 1e-9
-SINGLE = {"scurve": lambda d, J, A, V: plan_scurve(d, J, A, V),
-          "sine_jerk_optimal": lambda d, J, A, V: plan_sine_jerk_optimal(d, J, A, V),
-          "trapezoid": lambda d, J, A, V: plan_trapezoid(d, A, V)}
+SINGLE = {
+    "scurve": lambda d, J, A, V: plan_scurve(d, J, A, V),
+    "sine_jerk_optimal": lambda d, J, A, V: plan_sine_jerk_optimal(d, J, A, V),
+    "trapezoid": lambda d, J, A, V: plan_trapezoid(d, A, V),
+}
 
 
 def dense_times(plan, m=4001):
@@ -67,7 +70,9 @@ def check_ends(plan):
         start = p.sample(0.0)
         assert float(start.position) == 0.0 and float(start.velocity) == 0.0
     s = plan.sample(np.array([0.0, T, 2 * T + 1]))
-    assert np.array_equal(s.position[:, 1], plan.distances) and np.array_equal(s.position[:, 2], plan.distances)
+    assert np.array_equal(s.position[:, 1], plan.distances) and np.array_equal(
+        s.position[:, 2], plan.distances
+    )
     assert np.all(s.position[:, 0] == 0.0)
 
 
@@ -87,7 +92,9 @@ def check_integrates(plan, m=20001):
         J, A, V = plan.limits[i]
         jmax = A / (dt) if plan.planner == "trapezoid" else J
         assert np.abs(pos - s.position).max() <= 1e-6 * scale + dt * dt * T * (jmax + A) / 6, i
-        assert np.abs(vel - s.velocity).max() <= 1e-6 * max(p.peak_velocity, 1e-300) + dt * (A + jmax * dt), i
+        assert np.abs(vel - s.velocity).max() <= 1e-6 * max(p.peak_velocity, 1e-300) + dt * (
+            A + jmax * dt
+        ), i
 
 
 # --------------------------------------------------------------------------- examples
@@ -130,8 +137,12 @@ def test_phase_sync_is_the_fastest_straight_line():
     # axis at least exceeds one of its limits
     faster = plan_scurve(1.0, 1.01 * Jn, 1.01 * An, 1.01 * Vn)
     assert faster.duration < plan.duration
-    over = [abs(x) * faster.peak_jerk > L[0] * (1 + 1e-12) or abs(x) * faster.peak_accel > L[1] * (1 + 1e-12)
-            or abs(x) * faster.peak_velocity > L[2] * (1 + 1e-12) for L, x in zip(lims, d)]
+    over = [
+        abs(x) * faster.peak_jerk > L[0] * (1 + 1e-12)
+        or abs(x) * faster.peak_accel > L[1] * (1 + 1e-12)
+        or abs(x) * faster.peak_velocity > L[2] * (1 + 1e-12)
+        for L, x in zip(lims, d)
+    ]
     assert any(over)
 
 
@@ -147,41 +158,66 @@ def test_standstill_axes():
 
 
 def test_dict_limits_and_array_limits():
-    a = plan_multi_axis([1.0, 2.0], [dict(max_jerk=5, max_accel=2, max_velocity=1)] * 2, sync="phase")
+    a = plan_multi_axis(
+        [1.0, 2.0], [dict(max_jerk=5, max_accel=2, max_velocity=1)] * 2, sync="phase"
+    )
     b = plan_multi_axis([1.0, 2.0], np.array([[5.0, 2.0, 1.0]] * 2), sync="phase")
     assert a.duration == b.duration
-    c = plan_multi_axis([1.0, 2.0], [dict(max_accel=2, max_velocity=1), (None, 3, 1)], planner="trapezoid")
+    c = plan_multi_axis(
+        [1.0, 2.0], [dict(max_accel=2, max_velocity=1), (None, 3, 1)], planner="trapezoid"
+    )
     assert c.axes[0].kind == "trapezoid" and c.to_dict()["axes"][1]["kind"] == "trapezoid"
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    (dict(sync="space"), "sync"),
-    (dict(sync=None), "sync"),
-    (dict(planner="sine_jerk"), "planner.*sine_jerk_optimal"),
-    (dict(planner="bang"), "planner"),
-    (dict(distances=[1.0, math.nan]), "distances"),
-    (dict(distances=[1.0, math.inf]), "distances"),
-    (dict(distances=[]), "distances"),
-    (dict(distances=[[1.0, 2.0]]), "distances"),
-    (dict(distances="12"), "distances"),
-    (dict(limits_per_axis=[(1, 1, 1)]), "limits_per_axis"),
-    (dict(limits_per_axis=[(1, 1, 1), (1, -1, 1)]), r"limits_per_axis\[1\]\.max_accel"),
-    (dict(limits_per_axis=[(1, 1, 1), (math.nan, 1, 1)]), r"limits_per_axis\[1\]\.max_jerk"),
-    (dict(limits_per_axis=[(1, 1, 0.0), (1, 1, 1)]), r"limits_per_axis\[0\]\.max_velocity"),
-    (dict(limits_per_axis=[(1, 1), (1, 1, 1)]), r"limits_per_axis\[0\]"),
-    (dict(limits_per_axis=[{"max_jerk": 1, "max_accel": 1, "max_vel": 1}, (1, 1, 1)]), "unknown keys"),
-    (dict(limits_per_axis=[{"max_accel": 1, "max_velocity": 1}, (1, 1, 1)]), "max_jerk"),
-    (dict(limits_per_axis=[(None, 1, 1), (1, 1, 1)]), r"limits_per_axis\[0\]\.max_jerk"),
-    (dict(limits_per_axis=[("1", 1, 1), (1, 1, 1)]), r"limits_per_axis\[0\]\.max_jerk"),
-    (dict(limits_per_axis={"max_jerk": 1, "max_accel": 1, "max_velocity": 1}), "limits_per_axis"),
-    (dict(limits_per_axis=5.0), "limits_per_axis"),
-    # plain float tuples take a fast path: it must hand every bad value to the named checks
-    (dict(limits_per_axis=[(1.0, 1.0, 1.0), (1.0, math.nan, 1.0)]), r"limits_per_axis\[1\]\.max_accel"),
-    (dict(limits_per_axis=[(1.0, 1.0, math.inf), (1.0, 1.0, 1.0)]), r"limits_per_axis\[0\]\.max_velocity"),
-    (dict(limits_per_axis=[(-1.0, 1.0, 1.0), (1.0, 1.0, 1.0)]), r"limits_per_axis\[0\]\.max_jerk"),
-    (dict(limits_per_axis=[(None, 1.0, 1.0), (1.0, 1.0, 1.0)]), r"limits_per_axis\[0\]\.max_jerk"),
-    (dict(distances=[1.0, -math.inf]), "distances"),
-])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(sync="space"), "sync"),
+        (dict(sync=None), "sync"),
+        (dict(planner="sine_jerk"), "planner.*sine_jerk_optimal"),
+        (dict(planner="bang"), "planner"),
+        (dict(distances=[1.0, math.nan]), "distances"),
+        (dict(distances=[1.0, math.inf]), "distances"),
+        (dict(distances=[]), "distances"),
+        (dict(distances=[[1.0, 2.0]]), "distances"),
+        (dict(distances="12"), "distances"),
+        (dict(limits_per_axis=[(1, 1, 1)]), "limits_per_axis"),
+        (dict(limits_per_axis=[(1, 1, 1), (1, -1, 1)]), r"limits_per_axis\[1\]\.max_accel"),
+        (dict(limits_per_axis=[(1, 1, 1), (math.nan, 1, 1)]), r"limits_per_axis\[1\]\.max_jerk"),
+        (dict(limits_per_axis=[(1, 1, 0.0), (1, 1, 1)]), r"limits_per_axis\[0\]\.max_velocity"),
+        (dict(limits_per_axis=[(1, 1), (1, 1, 1)]), r"limits_per_axis\[0\]"),
+        (
+            dict(limits_per_axis=[{"max_jerk": 1, "max_accel": 1, "max_vel": 1}, (1, 1, 1)]),
+            "unknown keys",
+        ),
+        (dict(limits_per_axis=[{"max_accel": 1, "max_velocity": 1}, (1, 1, 1)]), "max_jerk"),
+        (dict(limits_per_axis=[(None, 1, 1), (1, 1, 1)]), r"limits_per_axis\[0\]\.max_jerk"),
+        (dict(limits_per_axis=[("1", 1, 1), (1, 1, 1)]), r"limits_per_axis\[0\]\.max_jerk"),
+        (
+            dict(limits_per_axis={"max_jerk": 1, "max_accel": 1, "max_velocity": 1}),
+            "limits_per_axis",
+        ),
+        (dict(limits_per_axis=5.0), "limits_per_axis"),
+        # plain float tuples take a fast path: it must hand every bad value to the named checks
+        (
+            dict(limits_per_axis=[(1.0, 1.0, 1.0), (1.0, math.nan, 1.0)]),
+            r"limits_per_axis\[1\]\.max_accel",
+        ),
+        (
+            dict(limits_per_axis=[(1.0, 1.0, math.inf), (1.0, 1.0, 1.0)]),
+            r"limits_per_axis\[0\]\.max_velocity",
+        ),
+        (
+            dict(limits_per_axis=[(-1.0, 1.0, 1.0), (1.0, 1.0, 1.0)]),
+            r"limits_per_axis\[0\]\.max_jerk",
+        ),
+        (
+            dict(limits_per_axis=[(None, 1.0, 1.0), (1.0, 1.0, 1.0)]),
+            r"limits_per_axis\[0\]\.max_jerk",
+        ),
+        (dict(distances=[1.0, -math.inf]), "distances"),
+    ],
+)
 def test_bad_input_names_the_parameter(kwargs, match):
     args = dict(distances=[1.0, 2.0], limits_per_axis=[(1, 1, 1), (1, 1, 1)])
     args.update(kwargs)
@@ -200,9 +236,16 @@ def test_stretch_to_duration_rejects_a_shorter_duration():
 
 @pytest.mark.parametrize("planner", PLANNERS)
 @pytest.mark.parametrize("factor", [1.0 + 1e-15, 1.0 + 1e-9, 1.0001, 1.3, 3.0, 1e3, 1e6])
-@pytest.mark.parametrize("d, J, A, V", [(1.0, 1.0, 1.0, 1.0), (100.0, 10.0, 5.0, 1.0),
-                                        (0.01, 1e4, 1.0, 10.0), (2.0, 1.0, 10.0, 0.3),
-                                        (1.0, 1.0, 1.0, 0.5)])   # last: V = d A / ... edge of a cruise
+@pytest.mark.parametrize(
+    "d, J, A, V",
+    [
+        (1.0, 1.0, 1.0, 1.0),
+        (100.0, 10.0, 5.0, 1.0),
+        (0.01, 1e4, 1.0, 10.0),
+        (2.0, 1.0, 10.0, 0.3),
+        (1.0, 1.0, 1.0, 0.5),
+    ],
+)  # last: V = d A / ... edge of a cruise
 def test_stretch_is_time_optimal_for_a_lowered_velocity(planner, factor, d, J, A, V):
     """Independent check: the existing planner, given the stretched axis's peak velocity as its
     velocity limit, plans the same duration (1e-9) -- the axis is 'no faster than its own limits
@@ -221,24 +264,37 @@ def test_stretch_is_time_optimal_for_a_lowered_velocity(planner, factor, d, J, A
 
 # --------------------------------------------------------------------------- properties
 SIGN = st.sampled_from([1.0, -1.0])
-AXIS = st.tuples(st.one_of(st.just(0.0), st.floats(-4, 4)), SIGN,     # log10 |d| (0.0 flag below)
-                 st.floats(-2, 5), st.floats(-2, 4), st.floats(-2, 3),  # log10 J, A, V
-                 st.booleans())                                      # zero-distance axis
+AXIS = st.tuples(
+    st.one_of(st.just(0.0), st.floats(-4, 4)),
+    SIGN,  # log10 |d| (0.0 flag below)
+    st.floats(-2, 5),
+    st.floats(-2, 4),
+    st.floats(-2, 3),  # log10 J, A, V
+    st.booleans(),
+)  # zero-distance axis
 
 
 def build(axes):
     d, lims = [], []
     for ed, sgn, ej, ea, ev, zero in axes:
-        d.append(0.0 if zero else sgn * 10.0 ** ed)
-        lims.append((10.0 ** ej, 10.0 ** ea, 10.0 ** ev))
+        d.append(0.0 if zero else sgn * 10.0**ed)
+        lims.append((10.0**ej, 10.0**ea, 10.0**ev))
     return d, lims
 
 
 @settings(max_examples=150, deadline=None)
 @given(axes=st.lists(AXIS, min_size=1, max_size=5), planner=st.sampled_from(PLANNERS))
-@example(axes=[(0.0, 1.0, 0.0, 0.0, 0.0, False), (-4.0, -1.0, 5.0, 4.0, 3.0, False)], planner="scurve")
-@example(axes=[(4.0, 1.0, -2.0, -2.0, -2.0, False), (-4.0, 1.0, 5.0, 4.0, 3.0, False),
-               (0.0, 1.0, 0.0, 0.0, 0.0, True)], planner="sine_jerk_optimal")
+@example(
+    axes=[(0.0, 1.0, 0.0, 0.0, 0.0, False), (-4.0, -1.0, 5.0, 4.0, 3.0, False)], planner="scurve"
+)
+@example(
+    axes=[
+        (4.0, 1.0, -2.0, -2.0, -2.0, False),
+        (-4.0, 1.0, 5.0, 4.0, 3.0, False),
+        (0.0, 1.0, 0.0, 0.0, 0.0, True),
+    ],
+    planner="sine_jerk_optimal",
+)
 def test_time_sync_property(axes, planner):
     """Random distances and limits, zero axes, one axis dominating, negative distances."""
     d, lims = build(axes)
@@ -247,14 +303,18 @@ def test_time_sync_property(axes, planner):
     check_ends(plan)
     check_limits(plan, np.linspace(0.0, plan.duration, 801))
     for i, p in enumerate(plan.axes):
-        if d[i] != 0.0:          # the single-axis planner agrees that the axis is time-optimal for its v
+        if d[i] != 0.0:  # the single-axis planner agrees that the axis is time-optimal for its v
             J, A, _ = lims[i]
-            assert SINGLE[planner](d[i], J, A, p.peak_velocity).duration == pytest.approx(plan.duration, rel=RTOL)
+            assert SINGLE[planner](d[i], J, A, p.peak_velocity).duration == pytest.approx(
+                plan.duration, rel=RTOL
+            )
 
 
 @settings(max_examples=150, deadline=None)
 @given(axes=st.lists(AXIS, min_size=1, max_size=5), planner=st.sampled_from(PLANNERS))
-@example(axes=[(0.0, 1.0, 0.0, 0.0, 0.0, False), (-4.0, -1.0, 5.0, 4.0, 3.0, False)], planner="trapezoid")
+@example(
+    axes=[(0.0, 1.0, 0.0, 0.0, 0.0, False), (-4.0, -1.0, 5.0, 4.0, 3.0, False)], planner="trapezoid"
+)
 def test_phase_sync_property(axes, planner):
     """Every axis on the straight line x_i = d_i s(t) to 1e-9 at many sample times."""
     d, lims = build(axes)
@@ -266,7 +326,7 @@ def test_phase_sync_property(axes, planner):
         assert all(x == 0.0 for x in d)
         return
     t = np.sort(np.random.default_rng(len(d)).uniform(0.0, plan.duration, 997))
-    s = plan.path.sample(t).position                    # the normalized profile, 0 -> 1
+    s = plan.path.sample(t).position  # the normalized profile, 0 -> 1
     assert np.all(np.diff(s) >= -1e-15) and 0.0 <= s.min() and s.max() <= 1.0
     dd = np.asarray(d)
     for x in (plan.sample(t).position, np.stack([p.sample(t).position for p in plan.axes])):
@@ -279,8 +339,11 @@ def test_phase_sync_property(axes, planner):
 
 
 @settings(max_examples=60, deadline=None)
-@given(axes=st.lists(AXIS, min_size=2, max_size=3), planner=st.sampled_from(PLANNERS),
-       sync=st.sampled_from(["time", "phase"]))
+@given(
+    axes=st.lists(AXIS, min_size=2, max_size=3),
+    planner=st.sampled_from(PLANNERS),
+    sync=st.sampled_from(["time", "phase"]),
+)
 def test_continuity_property(axes, planner, sync):
     d, lims = build(axes)
     plan = plan_multi_axis(d, lims, sync=sync, planner=planner)
@@ -292,7 +355,9 @@ def test_seeded_batch_time_and_phase():
     rng = np.random.default_rng(21)
     for k in range(2000):
         n = 3
-        d = np.where(rng.random(n) < 0.15, 0.0, rng.choice([-1, 1], n) * 10 ** rng.uniform(-3, 3, n))
+        d = np.where(
+            rng.random(n) < 0.15, 0.0, rng.choice([-1, 1], n) * 10 ** rng.uniform(-3, 3, n)
+        )
         lims = [tuple(10 ** rng.uniform(-1, 3, 3)) for _ in range(n)]
         planner = PLANNERS[k % 3]
         for sync in ("time", "phase"):
@@ -308,12 +373,18 @@ def test_seeded_batch_time_and_phase():
 
 
 # --------------------------------------------------------------------------- Yang's x–y stand
-from jerklab.fpga import (PAPER, YANG_TICK_SEARCH, HardwareLimitError, YangSCurve,  # noqa: E402
-                          simulate_verilog_xy, yang_axes)
+from jerklab.fpga import (
+    PAPER,
+    YANG_TICK_SEARCH,
+    HardwareLimitError,
+    YangSCurve,  # noqa: E402
+    simulate_verilog_xy,
+    yang_axes,
+)
 
 #: the paper's axis limits: V = 20 mm/s, T = 1 s -> A = 2V/T, J = 4V/T^2 (µm, s)
 YANG_LIMITS = (4 * 20000.0, 2 * 20000.0, 20000.0)
-XY = [40000.0, -15000.0]            # µm: x is the paper's move (Yang §3), y a shorter one backwards
+XY = [40000.0, -15000.0]  # µm: x is the paper's move (Yang §3), y a shorter one backwards
 
 
 def move_error_bound(axes, i):
@@ -341,11 +412,11 @@ def test_yang_axes_mapping(sync):
     for g, lim, d in zip(axes.generators, plan.limits, XY):
         J, A, V = lim
         T = g.accel_time
-        assert g.end_tick == axes.end_tick                         # every generator stops at tick M
+        assert g.end_tick == axes.end_tick  # every generator stops at tick M
         assert g.max_velocity <= V and 2 * g.max_velocity / T <= A * (1 + 1e-12)
-        assert 4 * g.max_velocity / T ** 2 <= J * (1 + 1e-12)
-        assert abs(g.distance_um - abs(d)) <= g.step_um / 2 + 1e-9    # the ideal generator move
-        assert g.speed(g.start_count) >= g.step_um                   # >= 1 pulse/s at the start
+        assert 4 * g.max_velocity / T**2 <= J * (1 + 1e-12)
+        assert abs(g.distance_um - abs(d)) <= g.step_um / 2 + 1e-9  # the ideal generator move
+        assert g.speed(g.start_count) >= g.step_um  # >= 1 pulse/s at the start
     if sync == "phase":
         assert (gx.half_counts, gx.cruise_counts) == (gy.half_counts, gy.cruise_counts)
         assert gy.max_velocity / gx.max_velocity == pytest.approx(15000 / 40000, rel=1e-4)
@@ -360,8 +431,8 @@ def test_xy_stand_model_reaches_target_together(sync):
     W = end_window(axes)
     for i, (tr, d) in enumerate(zip(trains, XY)):
         assert abs(final[i] - d) <= move_error_bound(axes, i), (i, final[i], d)
-        assert len(tr.rise) == len(tr.fall)                          # every pulse completed
-        assert abs(int(tr.fall[-1]) - axes.end_posedge) <= W          # ends in the common window
+        assert len(tr.rise) == len(tr.fall)  # every pulse completed
+        assert abs(int(tr.fall[-1]) - axes.end_posedge) <= W  # ends in the common window
     t = np.linspace(0.0, 3.5, 3501)
     pos = axes.positions(t)
     assert np.all(np.diff(pos[0]) >= 0) and np.all(np.diff(pos[1]) <= 0)
@@ -391,6 +462,7 @@ def test_xy_stand_verilog_matches_model_on_both_axes(sync, tmp_path):
     the parameters of one synchronized plan: every tick and every edge of both axes equal the
     Python model; the pulse counts reach the target and both axes end in the same window."""
     from conftest import require_tool
+
     require_tool("iverilog", "vvp")
     plan = plan_multi_axis(XY, [YANG_LIMITS] * 2, sync=sync)
     axes = yang_axes(plan, clock_hz=100_000)
@@ -419,14 +491,20 @@ def test_yang_axes_refuses_what_the_generator_cannot_run():
     with pytest.raises(ValueError, match="no axis"):
         yang_axes(plan_multi_axis([0.0, 0.0], [YANG_LIMITS] * 2))
     with pytest.raises(HardwareLimitError):
-        yang_axes(plan_multi_axis([40000.0, 1.0], [YANG_LIMITS] * 2, sync="phase"))   # V < 1 µm/s
+        yang_axes(plan_multi_axis([40000.0, 1.0], [YANG_LIMITS] * 2, sync="phase"))  # V < 1 µm/s
     with pytest.raises(ValueError, match="two moving axes"):
         simulate_verilog_xy(yang_axes(plan_multi_axis([1e4, 0.0], [YANG_LIMITS] * 2)))
 
 
 @settings(max_examples=100, deadline=None)
-@given(dx=st.floats(500.0, 80000.0), dy=st.floats(500.0, 80000.0), sx=SIGN, sy=SIGN,
-       sync=st.sampled_from(["phase", "time"]), vy=st.floats(0.3, 1.0))
+@given(
+    dx=st.floats(500.0, 80000.0),
+    dy=st.floats(500.0, 80000.0),
+    sx=SIGN,
+    sy=SIGN,
+    sync=st.sampled_from(["phase", "time"]),
+    vy=st.floats(0.3, 1.0),
+)
 def test_yang_axes_property(dx, dy, sx, sy, sync, vy):
     """Random x–y moves (y with its own, lower limits): the generators stop on the same tick,
     keep each axis's limits and cover the distance within half a pulse (ideal integer move)."""
@@ -434,14 +512,14 @@ def test_yang_axes_property(dx, dy, sx, sy, sync, vy):
     plan = plan_multi_axis([sx * dx, sy * dy], lims, sync=sync)
     try:
         axes = yang_axes(plan, clock_hz=1_000_000)
-    except HardwareLimitError as exc:          # only a speed below the 1 µm/s resolution
+    except HardwareLimitError as exc:  # only a speed below the 1 µm/s resolution
         assert "1 µm/s" in str(exc)
         return
     for g, (J, A, V), d in zip(axes.generators, lims, plan.distances):
         assert g.end_tick == axes.end_tick
-        th = g.half_counts * g.refresh_period                      # T / 2
+        th = g.half_counts * g.refresh_period  # T / 2
         assert g.max_velocity <= V * (1 + 1e-12) and g.max_velocity / th <= A * (1 + 1e-12)
-        assert g.max_velocity / th ** 2 <= J * (1 + 1e-12)
+        assert g.max_velocity / th**2 <= J * (1 + 1e-12)
         assert abs(g.distance_um - abs(d)) <= g.step_um / 2 + 1e-9
     assert axes.end_tick * PAPER["refresh_period"] >= plan.duration * (1 - 1e-12)
     # rounded up to whole counts (4 N <= 4 (tj/tc + 1)), then at most YANG_TICK_SEARCH ticks later
@@ -452,17 +530,28 @@ def test_yang_axes_property(dx, dy, sx, sy, sync, vy):
 
 
 @settings(max_examples=300, deadline=None)
-@given(ed=st.floats(-6, 6), ej=st.floats(-3, 6), ea=st.floats(-3, 6), ev=st.floats(-3, 6),
-       ef=st.one_of(st.floats(-16, 3), st.just(-math.inf)), planner=st.sampled_from(PLANNERS))
-@example(ed=math.log10(474.7185969920547), ej=math.log10(0.0012307999088097205),
-         ea=math.log10(0.015660035597204983), ev=math.log10(0.34173348751316734),
-         ef=math.log10(3.046619e-10), planner="sine_jerk_optimal")     # every a + tv a tie
+@given(
+    ed=st.floats(-6, 6),
+    ej=st.floats(-3, 6),
+    ea=st.floats(-3, 6),
+    ev=st.floats(-3, 6),
+    ef=st.one_of(st.floats(-16, 3), st.just(-math.inf)),
+    planner=st.sampled_from(PLANNERS),
+)
+@example(
+    ed=math.log10(474.7185969920547),
+    ej=math.log10(0.0012307999088097205),
+    ea=math.log10(0.015660035597204983),
+    ev=math.log10(0.34173348751316734),
+    ef=math.log10(3.046619e-10),
+    planner="sine_jerk_optimal",
+)  # every a + tv a tie
 def test_stretch_property(ed, ej, ea, ev, ef, planner):
     """The stretched axis lasts T to the last bit, ends exactly at d, keeps every limit to 1e-12
     (a few ulp), and the single-axis planner, given its peak velocity, plans the same duration."""
-    d, J, A, V = 10.0 ** ed, 10.0 ** ej, 10.0 ** ea, 10.0 ** ev
+    d, J, A, V = 10.0**ed, 10.0**ej, 10.0**ea, 10.0**ev
     opt = SINGLE[planner](d, J, A, V)
-    T = opt.duration * (1.0 + 10.0 ** ef)
+    T = opt.duration * (1.0 + 10.0**ef)
     p = stretch_to_duration(opt, T)
     assert p.duration == T
     assert float(p.sample(T).position) == d and float(p.sample(T).velocity) == 0.0
@@ -481,7 +570,9 @@ def ruckig_multi(d, lims, sync):
     inp.max_jerk = [L[0] for L in lims]
     inp.max_acceleration = [L[1] for L in lims]
     inp.max_velocity = [L[2] for L in lims]
-    inp.synchronization = ruckig.Synchronization.Phase if sync == "phase" else ruckig.Synchronization.Time
+    inp.synchronization = (
+        ruckig.Synchronization.Phase if sync == "phase" else ruckig.Synchronization.Time
+    )
     assert otg.calculate(inp, traj) == ruckig.Result.Working
     return traj
 
@@ -490,7 +581,9 @@ def random_moves(seed, count):
     rng = np.random.default_rng(seed)
     for _ in range(count):
         n = int(rng.integers(2, 5))
-        d = np.where(rng.random(n) < 0.15, 0.0, rng.choice([-1, 1], n) * 10 ** rng.uniform(-2, 2, n))
+        d = np.where(
+            rng.random(n) < 0.15, 0.0, rng.choice([-1, 1], n) * 10 ** rng.uniform(-2, 2, n)
+        )
         if not d.any():
             continue
         yield d, [tuple(10 ** rng.uniform(-1, 3, 3)) for _ in range(n)]
@@ -527,7 +620,7 @@ def test_phase_sync_against_ruckig():
         else:
             off_line += 1
             assert traj.duration <= plan.duration * (1 + RTOL)
-    assert on_line > 100 and off_line > 10          # both cases are exercised
+    assert on_line > 100 and off_line > 10  # both cases are exercised
 
 
 @settings(max_examples=200, deadline=None)
@@ -538,6 +631,7 @@ def test_min_start_count_is_the_first_count_reaching_the_speed(V, N, s):
     from fractions import Fraction
 
     from jerklab.fpga import min_start_count
+
     if s > V:
         with pytest.raises(ValueError, match="min_speed"):
             min_start_count(V, N, s)
@@ -547,6 +641,7 @@ def test_min_start_count_is_the_first_count_reaching_the_speed(V, N, s):
 
     def speed(n):
         return math.floor(c * n * n) if n <= N else V - math.floor(c * (2 * N - n) ** 2)
+
     assert speed(n0) >= s and all(speed(n) < s for n in range(n0))
 
 
@@ -560,23 +655,29 @@ def test_yang_axes_slow_axis(dy):
     axes = yang_axes(plan, clock_hz=100_000)
     gy = axes.generators[1]
     assert gy.speed(gy.start_count) >= min(144, gy.max_velocity)
-    assert gy.start_count > gy.half_counts                 # not reached on the first half
+    assert gy.start_count > gy.half_counts  # not reached on the first half
     trains = axes.pulses()
     assert abs(axes.positions(1e3)[1] - dy) <= move_error_bound(axes, 1)
     R = gy.refresh_clocks
-    silent_from = (axes.end_tick - gy.start_count + 1) * R + 1    # n < n0: speed 0 from this posedge on
+    silent_from = (
+        axes.end_tick - gy.start_count + 1
+    ) * R + 1  # n < n0: speed 0 from this posedge on
     longest = int(gy.speed_table().cycle.max())
     assert silent_from - longest <= int(trains[1].fall[-1]) <= silent_from + longest
 
 
 @settings(max_examples=120, deadline=None)
-@given(axes=st.lists(AXIS, min_size=1, max_size=4), planner=st.sampled_from(PLANNERS),
-       sync=st.sampled_from(["time", "phase"]), ets=st.floats(-4, 0))
+@given(
+    axes=st.lists(AXIS, min_size=1, max_size=4),
+    planner=st.sampled_from(PLANNERS),
+    sync=st.sampled_from(["time", "phase"]),
+    ets=st.floats(-4, 0),
+)
 def test_synchronized_keeps_the_axes_together(axes, planner, sync, ets):
     """Every phase time of every axis a whole multiple of Ts, one common duration, the limits and
     the end points kept, and phase sync still on the line."""
     d, lims = build(axes)
-    Ts = 10.0 ** ets
+    Ts = 10.0**ets
     plan = plan_multi_axis(d, lims, sync=sync, planner=planner)
     sp = plan.synchronized(Ts)
     assert sp.duration >= plan.duration * (1 - 1e-12)

@@ -2,9 +2,9 @@
 
 Each must run top to bottom without error in under a minute, with the virtual rig.
 """
+
 from __future__ import annotations
 
-import os
 import pathlib
 import time
 
@@ -26,13 +26,18 @@ def test_notebooks_exist():
 def test_notebook_runs(path, tmp_path, monkeypatch):
     nb = nbformat.read(path, as_version=4)
     assert not any(c.get("outputs") for c in nb.cells if c.cell_type == "code"), (
-        f"{path.name} is committed with outputs; clear them")
+        f"{path.name} is committed with outputs; clear them"
+    )
     # the kernel's inline backend, as in JupyterLab: headless, and every figure becomes a PNG output,
     # which the book (tests/test_book.py, make book) shows from the executed copy kept below
     monkeypatch.setenv("MPLBACKEND", "module://matplotlib_inline.backend_inline")
     monkeypatch.setenv("JERKLAB_RECORDINGS", str(tmp_path))
-    client = NotebookClient(nb, timeout=TIME_LIMIT_S, kernel_name="python3",
-                            resources={"metadata": {"path": str(path.parent)}})
+    client = NotebookClient(
+        nb,
+        timeout=TIME_LIMIT_S,
+        kernel_name="python3",
+        resources={"metadata": {"path": str(path.parent)}},
+    )
     t0 = time.perf_counter()
     client.execute()
     elapsed = time.perf_counter() - t0

@@ -1,5 +1,6 @@
 """jerklab._onedof's fast paths: the no-root test that skips root searches, and the one-call entry
 ``plan_tuple`` (compiled and pure Python agree; statuses)."""
+
 import math
 
 import numpy as np
@@ -14,16 +15,16 @@ def _poly_cases(rng, n):
         lo = rng.uniform(-1.5, 1.5)
         hi = lo + 10 ** rng.uniform(-6, 0.5)
         kind = rng.integers(5)
-        if kind == 0:                       # roots anywhere
+        if kind == 0:  # roots anywhere
             roots = rng.uniform(-3, 3, rng.integers(1, 6))
-        elif kind == 1:                     # one root just outside the interval
+        elif kind == 1:  # one root just outside the interval
             roots = [hi + 10 ** rng.uniform(-12, -2), rng.uniform(-3, 3)]
-        elif kind == 2:                     # a double root inside (the polynomial only touches 0)
+        elif kind == 2:  # a double root inside (the polynomial only touches 0)
             r = rng.uniform(lo, hi)
             roots = [r, r, rng.uniform(-3, 3)]
-        elif kind == 3:                     # a root at an end
+        elif kind == 3:  # a root at an end
             roots = [lo if rng.random() < 0.5 else hi, rng.uniform(-3, 3), rng.uniform(-3, 3)]
-        else:                               # complex pair + a real root away
+        else:  # complex pair + a real root away
             roots = [rng.uniform(-3, 3)]
         c = np.poly(roots) * rng.choice([-1.0, 1.0]) * 10 ** rng.uniform(-3, 3)
         if kind == 4:
@@ -51,7 +52,7 @@ def test_no_root_is_sound():
         r = np.roots(np.trim_zeros(c, "f"))
         r = r[np.abs(r.imag) <= 1e-7 * (1 + np.abs(r.real))].real
         assert not np.any((r >= lo - 1e-12) & (r <= hi + 1e-12)), (c, lo, hi, r)
-        _onedof._no_root = lambda D, deg, lo, hi: False     # the search alone (pure Python)
+        _onedof._no_root = lambda D, deg, lo, hi: False  # the search alone (pure Python)
         try:
             D = np.zeros(_onedof._SCRATCH)
             D[:6] = c
@@ -70,13 +71,26 @@ def test_plan_tuple_compiled_is_pure_python(sine):
     pure = _onedof.PURE["plan_tuple"]
     saved = {name: getattr(_onedof, name) for name in _onedof._JITTED}
     rng = np.random.default_rng(22 + sine)
-    cases = [(0.0, 10.0, 2.0, 1.0, 0.3, 0.0, 0.3), (1.0, 10.0, 2.0, 1.0, 0.0, 0.0, 1.5),
-             (1.0, -1.0, 2.0, 1.0, 0.1, 0.0, 0.0), (math.nan, 1.0, 2.0, 1.0, 0.1, 0.0, 0.0),
-             (1.0, 1.0, 2.0, math.inf, 0.1, 0.0, 0.0)]
+    cases = [
+        (0.0, 10.0, 2.0, 1.0, 0.3, 0.0, 0.3),
+        (1.0, 10.0, 2.0, 1.0, 0.0, 0.0, 1.5),
+        (1.0, -1.0, 2.0, 1.0, 0.1, 0.0, 0.0),
+        (math.nan, 1.0, 2.0, 1.0, 0.1, 0.0, 0.0),
+        (1.0, 1.0, 2.0, math.inf, 0.1, 0.0, 0.0),
+    ]
     for _ in range(60):
         J, A, V = 10 ** rng.uniform(1, 4), 10 ** rng.uniform(0, 2), 10 ** rng.uniform(-1, 1)
-        cases.append((rng.uniform(-3, 3), J, A, V, rng.uniform(-1.5, 1.5) * V, rng.uniform(-1.5, 1.5) * A,
-                      rng.uniform(-1, 1) * V))
+        cases.append(
+            (
+                rng.uniform(-3, 3),
+                J,
+                A,
+                V,
+                rng.uniform(-1.5, 1.5) * V,
+                rng.uniform(-1.5, 1.5) * A,
+                rng.uniform(-1, 1) * V,
+            )
+        )
     try:
         for name in _onedof._JITTED:
             setattr(_onedof, name, _onedof.PURE[name])
@@ -102,12 +116,24 @@ def test_packed_entry_is_plan_tuple(sine):
     packed = _onedof.packed_planner(sine)
     full = _onedof.planner()
     rng = np.random.default_rng(31 + sine)
-    cases = [(0.0, 10.0, 2.0, 1.0, 0.3, 0.0, 0.3), (1.0, 10.0, 2.0, 1.0, 0.0, 0.0, 1.5),
-             (math.nan, 1.0, 2.0, 1.0, 0.1, 0.0, 0.0)]
+    cases = [
+        (0.0, 10.0, 2.0, 1.0, 0.3, 0.0, 0.3),
+        (1.0, 10.0, 2.0, 1.0, 0.0, 0.0, 1.5),
+        (math.nan, 1.0, 2.0, 1.0, 0.1, 0.0, 0.0),
+    ]
     for _ in range(300):
         J, A, V = 10 ** rng.uniform(0, 4), 10 ** rng.uniform(-1, 2), 10 ** rng.uniform(-1, 1)
-        cases.append((rng.uniform(-3, 3), J, A, V, rng.uniform(-1.6, 1.6) * V, rng.uniform(-1.6, 1.6) * A,
-                      rng.uniform(-1, 1) * V))
+        cases.append(
+            (
+                rng.uniform(-3, 3),
+                J,
+                A,
+                V,
+                rng.uniform(-1.6, 1.6) * V,
+                rng.uniform(-1.6, 1.6) * A,
+                rng.uniform(-1, 1) * V,
+            )
+        )
     for c in cases:
         z, r = packed(*c), full(*c, sine)
         assert len(z) == 9 and z[0] == r[0]

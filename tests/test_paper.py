@@ -4,6 +4,7 @@ Each default is read where it is used (a signature, the firmware header, a modul
 so a drift in either place fails here. The derived values are recomputed from their
 definitions, and the firmware's defaults are parsed from its C++ header (an independent copy).
 """
+
 from __future__ import annotations
 
 import inspect
@@ -39,19 +40,28 @@ def test_derived_values():
     # the paper's "8 kHz": phase-correct 10-bit PWM at 16 MHz, no prescaler
     assert paper.PWM_FREQUENCY == pytest.approx(7820.1, abs=0.1)
     assert paper.COUNTS_PER_RAD * 2 * math.pi == pytest.approx(448)
-    assert paper.LIMITS == (paper.MAX_JERK, paper.MAX_ACCEL, paper.MAX_VELOCITY) == (2e4, 300.0, 100.0)
+    assert (
+        paper.LIMITS == (paper.MAX_JERK, paper.MAX_ACCEL, paper.MAX_VELOCITY) == (2e4, 300.0, 100.0)
+    )
 
 
 def test_xu_meckl_table_i_and_its_dc_gain():
     t = paper.PIEZO_TABLE_I
-    assert dict(t) == {"K": 97000.0, "zeta_z": 0.70, "f_z": 1643.0, "zeta_1": 0.008, "f_1": 242.0,
-                       "zeta_2": 0.39, "f_2": 777.0}
+    assert dict(t) == {
+        "K": 97000.0,
+        "zeta_z": 0.70,
+        "f_z": 1643.0,
+        "zeta_1": 0.008,
+        "f_1": 242.0,
+        "zeta_2": 0.39,
+        "f_2": 777.0,
+    }
     # G(0) = K ωz²/(ω1² ω2²) = 0.18759 µm/V (a published consequence of Table I)
     g0 = t["K"] * t["f_z"] ** 2 / (t["f_1"] ** 2 * t["f_2"] ** 2) / (2 * math.pi) ** 2
     assert g0 == pytest.approx(0.18759, abs=5e-6)
     assert paper.PIEZO_TS == 2e-4 and paper.CNIA_EPS_FRACTION == 0.002
     with pytest.raises(TypeError):
-        t["K"] = 1.0                                   # read-only
+        t["K"] = 1.0  # read-only
 
 
 def test_yang_setup():
@@ -83,8 +93,15 @@ def test_controller_defaults():
     assert _default(C.paper_error_scale, "Ts") == paper.TS
     assert _default(C.paper_error_scale, "encoder_ppr") == paper.ENCODER_PPR
     f = C.paper_velocity_controller
-    assert (_default(f, "K"), _default(f, "tau"), _default(f, "Ts")) == (paper.MOTOR_K, paper.MOTOR_TAU, paper.TS)
-    assert (_default(f, "encoder_ppr"), _default(f, "output_limit")) == (paper.ENCODER_PPR, paper.SUPPLY_VOLTAGE)
+    assert (_default(f, "K"), _default(f, "tau"), _default(f, "Ts")) == (
+        paper.MOTOR_K,
+        paper.MOTOR_TAU,
+        paper.TS,
+    )
+    assert (_default(f, "encoder_ppr"), _default(f, "output_limit")) == (
+        paper.ENCODER_PPR,
+        paper.SUPPLY_VOLTAGE,
+    )
     # the paper's pulses-per-Ts error scale: 1/2.80
     assert 1 / C.paper_error_scale() == pytest.approx(2 * math.pi / (448 * 0.005))
 
@@ -93,8 +110,10 @@ def test_sim_and_rig_defaults():
     from jerklab import sim
     from jerklab.rig import client, virtual
 
-    assert (_default(sim.perturbed_plants, "K"), _default(sim.perturbed_plants, "tau")) == \
-        (paper.MOTOR_K, paper.MOTOR_TAU)
+    assert (_default(sim.perturbed_plants, "K"), _default(sim.perturbed_plants, "tau")) == (
+        paper.MOTOR_K,
+        paper.MOTOR_TAU,
+    )
     r = client.Rig.__init__
     assert _default(r, "supply_voltage") == paper.SUPPLY_VOLTAGE
     assert _default(r, "counts_per_rev") == paper.ENCODER_PPR * paper.ENCODER_DECODING
@@ -118,7 +137,8 @@ def test_firmware_header_defaults():
         return float(m.group(1))
 
     assert (num("K_"), num("tau_"), num("supply_")) == pytest.approx(
-        (paper.MOTOR_K, paper.MOTOR_TAU, paper.SUPPLY_VOLTAGE), rel=1e-7)
+        (paper.MOTOR_K, paper.MOTOR_TAU, paper.SUPPLY_VOLTAGE), rel=1e-7
+    )
     assert num("counts_per_rev_") == paper.ENCODER_PPR
     assert num("pwm_top_") == paper.PWM_MAX
     assert (num("max_jerk_"), num("max_accel_"), num("max_velocity_")) == paper.LIMITS

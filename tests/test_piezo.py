@@ -2,6 +2,7 @@
 closed loop. Results are checked against the paper's numbers and against independent
 computations (python-control simulation, direct series sums, closed-form minimum-norm solutions).
 """
+
 from __future__ import annotations
 
 import math
@@ -14,9 +15,20 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from jerklab import piezo as pz
-from jerklab.piezo import (PZTModel, ScanSpec, closed_loop, energy_optimal_return, evaluate_cycle,
-                           pole_placement_gains, rampup_time_vs_scan_start, shape_cycle,
-                           shape_rampup, shape_return, table_ii, with_return)
+from jerklab.piezo import (
+    PZTModel,
+    ScanSpec,
+    closed_loop,
+    energy_optimal_return,
+    evaluate_cycle,
+    pole_placement_gains,
+    rampup_time_vs_scan_start,
+    shape_cycle,
+    shape_rampup,
+    shape_return,
+    table_ii,
+    with_return,
+)
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +48,7 @@ def ct_sim(model, u, Ts=pz.TS):
 # ---------------------------------------------------------------------------- model
 def test_model_dc_gain_poles_and_nmp_zeros():
     m = PZTModel()
-    assert m.dc_gain() == pytest.approx(0.18759, abs=1e-5)                    # docs/THEORY.md, Xu & Meckl eq. 1
+    assert m.dc_gain() == pytest.approx(0.18759, abs=1e-5)  # docs/THEORY.md, Xu & Meckl eq. 1
     assert float(np.real(control.dcgain(m.tf()))) == pytest.approx(m.dc_gain(), rel=1e-9)
     sysd = m.zoh()
     assert sysd.dt == pytest.approx(2e-4)
@@ -46,10 +58,10 @@ def test_model_dc_gain_poles_and_nmp_zeros():
     assert m.mode_poles()[1] == pytest.approx(0.9518 + 0.2987j, abs=1e-4)
     assert m.mode_poles()[2] == pytest.approx(0.4252 + 0.5349j, abs=1e-4)
     zeros = control.zeros(control.c2d(m.tf(), 2e-4, "zoh"))
-    cz = zeros[np.abs(np.imag(zeros)) > 1e-6]             # the NMP pair (+ one sampling zero)
+    cz = zeros[np.abs(np.imag(zeros)) > 1e-6]  # the NMP pair (+ one sampling zero)
     assert np.allclose(np.sort_complex(cz), [-0.112 - 3.847j, -0.112 + 3.847j], atol=2e-3)
     assert np.all(np.abs(cz) > 1)
-    assert np.any(np.real(control.zeros(m.tf())) > 0)                        # NMP continuous zero
+    assert np.any(np.real(control.zeros(m.tf())) > 0)  # NMP continuous zero
 
 
 def test_perturbed_model_holds_dc_gain():
@@ -70,8 +82,14 @@ def test_own_simulation_matches_python_control():
 
 # ---------------------------------------------------------------------------- z-transform rows
 @settings(max_examples=60)
-@given(N=st.integers(1, 12), j=st.integers(0, 2), r=st.floats(1.05, 1.6), ang=st.floats(0.1, 2.5),
-       a=st.floats(-5, 5), seed=st.integers(0, 1000))
+@given(
+    N=st.integers(1, 12),
+    j=st.integers(0, 2),
+    r=st.floats(1.05, 1.6),
+    ang=st.floats(0.1, 2.5),
+    a=st.floats(-5, 5),
+    seed=st.integers(0, 1000),
+)
 def test_rampup_rows_equal_direct_series(N, j, r, ang, a, seed):
     """For |z| > 1 the series converges: compare the closed form with a direct (truncated) sum."""
     z = r * np.exp(1j * ang)
@@ -98,8 +116,14 @@ def test_rampup_rows_equal_direct_series(N, j, r, ang, a, seed):
 
 
 @settings(max_examples=40)
-@given(Nr=st.integers(1, 10), j=st.integers(0, 2), r=st.floats(1.05, 1.6), ang=st.floats(0.1, 2.5),
-       b=st.floats(-5, 5), seed=st.integers(0, 1000))
+@given(
+    Nr=st.integers(1, 10),
+    j=st.integers(0, 2),
+    r=st.floats(1.05, 1.6),
+    ang=st.floats(0.1, 2.5),
+    b=st.floats(-5, 5),
+    seed=st.integers(0, 1000),
+)
 def test_return_rows_equal_direct_series(Nr, j, r, ang, b, seed):
     z = r * np.exp(1j * ang)
     u = np.random.default_rng(seed).normal(size=Nr)
@@ -127,14 +151,17 @@ def test_rampup_reaches_exact_ramp_and_is_minimal(orders):
     r = shape_rampup(m, spec, orders)
     assert np.abs(r.u).max() <= spec.F_max + 1e-7
     u = np.concatenate([r.u, r.a + r.w * np.arange(200)])
-    y = ct_sim(m, u)                                   # independent simulation
+    y = ct_sim(m, u)  # independent simulation
     assert y[r.N] == pytest.approx(r.scan_start, abs=1e-8)
-    assert r.scan_start >= -1e-9                       # min_scan_start = 0
-    v = np.diff(y[r.N:]) / spec.Ts
+    assert r.scan_start >= -1e-9  # min_scan_start = 0
+    v = np.diff(y[r.N :]) / spec.Ts
     assert np.abs(v - spec.scan_velocity).max() <= spec.velocity_tolerance
     # one sample shorter is infeasible (bisection found the minimum)
     w, G1, beta = pz._ramp_constants(m, spec)
-    assert pz._rampup_lp(r.N - 1, m, spec, pz._normalize_orders(orders), m.mode_poles(), w, G1, beta) is None
+    assert (
+        pz._rampup_lp(r.N - 1, m, spec, pz._normalize_orders(orders), m.mode_poles(), w, G1, beta)
+        is None
+    )
 
 
 def test_rampup_robustness_order_scales_residual():
@@ -148,8 +175,13 @@ def test_rampup_robustness_order_scales_residual():
             p = m.perturbed(1 + d, modes=(1, 2))
             e = ct_sim(p, u) - ct_sim(m, u)
             # the vibration part: remove the steady offset (lag change) of the ramp
-            tail = e[r.N + 100:]
-            errs.append(np.ptp(tail - np.polyval(np.polyfit(np.arange(tail.size), tail, 1), np.arange(tail.size))))
+            tail = e[r.N + 100 :]
+            errs.append(
+                np.ptp(
+                    tail
+                    - np.polyval(np.polyfit(np.arange(tail.size), tail, 1), np.arange(tail.size))
+                )
+            )
         ratio = errs[1] / errs[0]
         assert ratio == pytest.approx(2 ** (order + 1), rel=0.25), (order, ratio)
 
@@ -166,7 +198,7 @@ def test_return_ends_at_rest():
         pre = b + w * np.arange(-K, 0)
         u = np.concatenate([pre, ret.u, np.zeros(300)])
         y = ct_sim(m, u)
-        assert np.abs(y[K + ret.N:]).max() < 1e-6
+        assert np.abs(y[K + ret.N :]).max() < 1e-6
         assert np.abs(ret.u).max() <= spec.F_max + 1e-7
 
 
@@ -194,7 +226,11 @@ def test_table_ii_against_paper(table):
     order = ["non-robust", "1st-order robust", "combined-robust", "2nd-order robust"]
     times = [rows[n]["cycle_time"] for n in order]
     assert all(a < b for a, b in zip(times, times[1:]))
-    assert rows["2nd-order robust"]["e_m"] < rows["1st-order robust"]["e_m"] < rows["non-robust"]["e_m"]
+    assert (
+        rows["2nd-order robust"]["e_m"]
+        < rows["1st-order robust"]["e_m"]
+        < rows["non-robust"]["e_m"]
+    )
     assert rows["combined-robust"]["e_r"] < rows["1st-order robust"]["e_r"]
 
 
@@ -232,12 +268,12 @@ def test_scan_tolerance_e_allow():
     exact = shape_cycle(1, 2)
     spec = ScanSpec(e_allow=1e-3)
     c = shape_cycle(1, 2, spec=spec)
-    assert c.cycle_time == pytest.approx(exact.cycle_time)      # 0.1 µm/s leaves nothing to gain
+    assert c.cycle_time == pytest.approx(exact.cycle_time)  # 0.1 µm/s leaves nothing to gain
     y = ct_sim(PZTModel(), c.command())
     line = c.scan_start + 0.2 * np.arange(c.S + 1)
     assert np.abs(y[c.scan_slice] - line).max() <= 1e-3 + 1e-9
     assert np.abs(np.diff(y[c.scan_slice]) / 2e-4 - 1e3).max() <= 0.1 + 1e-6
-    assert np.abs(y[c.N + c.S + c.N_r:]).max() < 1e-8           # whole-cycle rest condition
+    assert np.abs(y[c.N + c.S + c.N_r :]).max() < 1e-8  # whole-cycle rest condition
     loose = shape_cycle(0, 0, spec=ScanSpec(e_allow=0.3, velocity_tolerance=300.0))
     assert loose.cycle_time <= shape_cycle(0, 0).cycle_time
     with pytest.raises(ValueError, match="solver"):
@@ -264,10 +300,10 @@ def test_energy_optimal_return_rest_and_min_norm():
     closed = np.linalg.pinv(Eu) @ fu
     assert np.abs(closed).max() < spec.F_max
     assert np.allclose(ret.u, closed, atol=1e-5 * np.abs(closed).max())
-    K = 15000                                        # 3 s of ramp: start-up transient gone
+    K = 15000  # 3 s of ramp: start-up transient gone
     pre = b + w * np.arange(-K, 0)
     y = ct_sim(m, np.concatenate([pre, ret.u, np.zeros(200)]))
-    assert np.abs(y[K + k_r:]).max() < 1e-6
+    assert np.abs(y[K + k_r :]).max() < 1e-6
 
 
 @pytest.mark.parametrize("objective", ["input", "increment"])
@@ -280,10 +316,10 @@ def test_energy_optimal_tradeoff(objective):
         assert np.abs(ret.u).max() <= c.spec.F_max + 1e-7
         c2 = with_return(c, ret)
         ev = evaluate_cycle(c2)
-        assert np.abs(ev.y_nominal[c2.N + c2.S + c2.N_r:]).max() < 1e-6
+        assert np.abs(ev.y_nominal[c2.N + c2.S + c2.N_r :]).max() < 1e-6
         x = ret.u if objective == "input" else np.diff(np.concatenate([[b], ret.u, [0.0]]))
         costs.append(x @ x)
-    assert costs[1] <= costs[0] + 1e-6                 # more steps never cost more energy
+    assert costs[1] <= costs[0] + 1e-6  # more steps never cost more energy
     with pytest.raises(RuntimeError):
         energy_optimal_return(b, c.N_r - 1, orders=1)
 
@@ -292,10 +328,10 @@ def test_increment_objective_is_smoother_than_time_optimal():
     c = shape_cycle(1, 1)
     b = c.a + c.S * c.w
     smooth = energy_optimal_return(b, c.N_r + 18, orders=1, objective="increment")
-    y0 = evaluate_cycle(c).y_nominal[c.N + c.S:]
+    y0 = evaluate_cycle(c).y_nominal[c.N + c.S :]
     c2 = with_return(c, smooth)
-    y1 = evaluate_cycle(c2).y_nominal[c2.N + c2.S:]
-    osc = lambda y: np.clip(np.diff(y), 0, None).sum()   # upward motion during the return
+    y1 = evaluate_cycle(c2).y_nominal[c2.N + c2.S :]
+    osc = lambda y: np.clip(np.diff(y), 0, None).sum()  # upward motion during the return
     assert osc(y1) < 0.5 * osc(y0)
     assert y1.min() > -0.05
 
@@ -310,9 +346,14 @@ def test_pole_placement_places_poles():
     Aa = np.block([[A, np.zeros((n, 1))], [C, np.ones((1, 1))]])
     Ba = np.vstack([B, [[0.0]]])
     K = np.concatenate([g.K, [g.k_i]])[None, :]
-    assert np.allclose(np.sort_complex(np.linalg.eigvals(Aa - Ba @ K)), np.sort_complex(g.poles), atol=1e-6)
-    assert np.allclose(np.sort_complex(np.linalg.eigvals(A - np.outer(g.L, C))),
-                       np.sort_complex(g.observer_poles), atol=1e-6)
+    assert np.allclose(
+        np.sort_complex(np.linalg.eigvals(Aa - Ba @ K)), np.sort_complex(g.poles), atol=1e-6
+    )
+    assert np.allclose(
+        np.sort_complex(np.linalg.eigvals(A - np.outer(g.L, C))),
+        np.sort_complex(g.observer_poles),
+        atol=1e-6,
+    )
 
 
 def test_closed_loop_nominal_is_exact_and_perturbed_is_close_to_paper():
@@ -321,8 +362,8 @@ def test_closed_loop_nominal_is_exact_and_perturbed_is_close_to_paper():
     assert np.abs(ideal.y - ideal.y_desired).max() < 1e-8
     assert np.allclose(ideal.u_r, ideal.u_ff, atol=1e-8)
     r = closed_loop(c)
-    assert 0.07 / 2 <= r.scan_error <= 0.07 * 2          # paper: 0.07 µm in the scan region
-    assert r.scan_error < r.open_loop_scan_error         # feedback reduces the cancellation error
+    assert 0.07 / 2 <= r.scan_error <= 0.07 * 2  # paper: 0.07 µm in the scan region
+    assert r.scan_error < r.open_loop_scan_error  # feedback reduces the cancellation error
     # after the cycle the integrator pulls the error down
     assert np.abs(r.y - r.y_desired)[-10:].max() < np.abs(r.y - r.y_desired).max()
 
@@ -340,8 +381,16 @@ def test_closed_loop_with_preisach_compensation():
 
 
 # ---------------------------------------------------------------------------- validation
-@pytest.mark.parametrize("kwargs", [dict(F_max=-1.0), dict(F_max=float("nan")), dict(Ts=0.0),
-                                    dict(velocity_tolerance=float("inf")), dict(scan_length="6")])
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        dict(F_max=-1.0),
+        dict(F_max=float("nan")),
+        dict(Ts=0.0),
+        dict(velocity_tolerance=float("inf")),
+        dict(scan_length="6"),
+    ],
+)
 def test_scan_spec_rejects_bad_input(kwargs):
     with pytest.raises(ValueError):
         ScanSpec(**kwargs)
@@ -367,5 +416,5 @@ def test_bad_arguments_raise_named_errors():
     with pytest.raises(ValueError, match="scan_samples|whole number"):
         ScanSpec(scan_length=6.1).scan_samples
     with pytest.raises(RuntimeError):
-        shape_rampup(spec=ScanSpec(F_max=16.0))       # the scan ramp alone needs 31 V
+        shape_rampup(spec=ScanSpec(F_max=16.0))  # the scan ramp alone needs 31 V
     assert math.isfinite(ScanSpec().scan_samples)

@@ -1,4 +1,5 @@
 """piezo.table_ii_sensitivity / table_ii_distance / limit_excursions and the u_r / u_c names of Fig. 1."""
+
 from __future__ import annotations
 
 import math
@@ -26,7 +27,9 @@ def test_sensitivity_matches_table_ii_and_the_both_modes_reading():
     ref = pz.table_ii(38.0)
     m1 = next(r for r in sens if r["reading"] == "mode 1" and r["F_max"] == 38.0)
     for name, row in ref.items():
-        assert np.allclose(m1["rows"][name], (row["cycle_time"], row["e_m"], row["e_r"]), rtol=1e-12)
+        assert np.allclose(
+            m1["rows"][name], (row["cycle_time"], row["e_m"], row["e_r"]), rtol=1e-12
+        )
     # both modes robustified at 100 V: the cycle times 8.0 / 11.2 / 15.0 / 13.4 ms
     both = next(r for r in sens if r["reading"] == "both modes" and r["F_max"] == 100.0)
     assert [round(v[0] * 1e3, 1) for v in both["rows"].values()] == [8.0, 11.2, 15.0, 13.4]
@@ -68,5 +71,7 @@ def test_closed_loop_names_follow_fig_1():
     P = hyst.Preisach.piezo_like(-45.0, 45.0, n=30)
     c = pz.shape_cycle(1, 2)
     r = pz.closed_loop(c, hysteresis=P, cancellation_error=0.0, perturbed=c.model)
-    assert np.abs(r.f - r.u_r).max() <= P.default_eps + 1e-9      # the hysteresis output follows u_r
-    assert np.abs(r.u_c - r.u_r).max() > 10 * P.default_eps        # u_c is the inverted (different) signal
+    assert np.abs(r.f - r.u_r).max() <= P.default_eps + 1e-9  # the hysteresis output follows u_r
+    assert (
+        np.abs(r.u_c - r.u_r).max() > 10 * P.default_eps
+    )  # u_c is the inverted (different) signal

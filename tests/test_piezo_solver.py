@@ -3,6 +3,7 @@
 The screen must give the LP's verdict on every horizon it is asked about, and the default
 must return the LP's horizon and command exactly (so Xu & Meckl Table II does not change).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -23,10 +24,10 @@ def test_screen_agrees_with_the_lp_on_every_horizon(orders):
         screen = pz._rampup_lp(N, model, spec, o, poles, w, G1, beta, None, "nnls")
         assert (lp is None) == (screen is None), N
         verdicts.append(lp is not None)
-        if screen is not None:                              # the screen's point is feasible
+        if screen is not None:  # the screen's point is feasible
             lo = -spec.F_max
             assert np.all(screen[:-1] >= lo - 1e-9) and np.all(screen[:-1] <= spec.F_max + 1e-9)
-    assert not all(verdicts) and any(verdicts)              # both kinds were tried
+    assert not all(verdicts) and any(verdicts)  # both kinds were tried
 
 
 @pytest.mark.parametrize("t_orders, r_orders", [(0, None), (1, 2)])

@@ -7,6 +7,7 @@ seeded batch tests check 4 kinds x 25 hypothesis seeds x 4000 moves = 4e5 more r
 the same invariants, through ``plan_batch`` and ``BatchPlan.sample``.  Hypothesis by itself costs
 1-3 ms per example here, so 1e5 single-move examples would not fit the minute this file may use.
 """
+
 from __future__ import annotations
 
 import json
@@ -19,12 +20,21 @@ from hypothesis import strategies as st
 from scipy.integrate import fixed_quad
 
 import jerklab.planner as planner
-from jerklab.planner import (KINDS, BatchPlan, Profile, ProfileSample, plan_batch, plan_scurve,
-                             plan_sine_jerk, plan_sine_jerk_optimal, plan_trapezoid)
+from jerklab.planner import (
+    KINDS,
+    BatchPlan,
+    Profile,
+    ProfileSample,
+    plan_batch,
+    plan_scurve,
+    plan_sine_jerk,
+    plan_sine_jerk_optimal,
+    plan_trapezoid,
+)
 
 ruckig = pytest.importorskip("ruckig")
 
-RTOL = 1e-9                       # limits and end state, relative
+RTOL = 1e-9  # limits and end state, relative
 PLANNERS = {
     "sine_jerk": plan_sine_jerk,
     "sine_jerk_optimal": plan_sine_jerk_optimal,
@@ -39,7 +49,7 @@ PLANNERS = {
 
 # Plain float strategies (exponents), turned into values inside the tests: hypothesis spends
 # ~1.5 ms per example on four plain floats and nearly twice that with .map/one_of.
-EXP_D = st.floats(-9.0, 7.0)          # |distance| = 10**e, and exactly 0 below e = -8.5
+EXP_D = st.floats(-9.0, 7.0)  # |distance| = 10**e, and exactly 0 below e = -8.5
 EXP_J = st.floats(-4.0, 7.0)
 EXP_A = st.floats(-4.0, 6.0)
 EXP_V = st.floats(-4.0, 5.0)
@@ -47,8 +57,8 @@ SIGN = st.booleans()
 
 
 def move(sign, ed, ej, ea, ev):
-    d = 0.0 if ed < -8.5 else (-1.0 if sign else 1.0) * 10.0 ** ed
-    return d, 10.0 ** ej, 10.0 ** ea, 10.0 ** ev
+    d = 0.0 if ed < -8.5 else (-1.0 if sign else 1.0) * 10.0**ed
+    return d, 10.0**ej, 10.0**ea, 10.0**ev
 
 
 # ------------------------------------------------------------------------------------------------
@@ -63,11 +73,13 @@ def boundaries(phase_times):
     return np.concatenate([b, 0.5 * b[:, -1:]], axis=1)
 
 
-def check_moves(kind, distance, J, A, V, duration, phase_times, peak_j, peak_a, peak_v, sampler,
-                n_grid=64):
+def check_moves(
+    kind, distance, J, A, V, duration, phase_times, peak_j, peak_a, peak_v, sampler, n_grid=64
+):
     """Assert every invariant of rest-to-rest moves; arrays are (n,), ``sampler(t)`` -> (n, m)."""
-    distance, J, A, V, T = (np.asarray(x, float).reshape(-1, 1)
-                            for x in (distance, J, A, V, duration))
+    distance, J, A, V, T = (
+        np.asarray(x, float).reshape(-1, 1) for x in (distance, J, A, V, duration)
+    )
     peak_j, peak_a, peak_v = (np.asarray(x, float).reshape(-1, 1) for x in (peak_j, peak_a, peak_v))
     d = np.abs(distance)
     # phase times add up, none negative, zero move is empty
@@ -111,18 +123,19 @@ def check_moves(kind, distance, J, A, V, duration, phase_times, peak_j, peak_a, 
     # continuity of position / velocity / acceleration across every boundary and the middle
     m = b.shape[1]
     k0 = n_grid
-    back = np.argsort(order, axis=1)                # back to the order t was built in
+    back = np.argsort(order, axis=1)  # back to the order t was built in
     unsorted = [np.take_along_axis(arr, back, axis=1) for arr in (s.accel, s.velocity, s.position)]
     tu = np.take_along_axis(t, back, axis=1)
-    dt_left = tu[:, k0 + m:k0 + 2 * m] - tu[:, k0:k0 + m]         # the offsets actually sampled
-    dt_right = tu[:, k0 + 2 * m:k0 + 3 * m] - tu[:, k0 + m:k0 + 2 * m]
-    for arr, lip, scale in zip(unsorted, (J if kind != "trapezoid" else None, A, V),
-                               (peak_a, peak_v, d)):
+    dt_left = tu[:, k0 + m : k0 + 2 * m] - tu[:, k0 : k0 + m]  # the offsets actually sampled
+    dt_right = tu[:, k0 + 2 * m : k0 + 3 * m] - tu[:, k0 + m : k0 + 2 * m]
+    for arr, lip, scale in zip(
+        unsorted, (J if kind != "trapezoid" else None, A, V), (peak_a, peak_v, d)
+    ):
         if lip is None:
-            continue                      # a trapezoid's acceleration jumps
-        left = arr[:, k0:k0 + m]
-        mid = arr[:, k0 + m:k0 + 2 * m]
-        right = arr[:, k0 + 2 * m:k0 + 3 * m]
+            continue  # a trapezoid's acceleration jumps
+        left = arr[:, k0 : k0 + m]
+        mid = arr[:, k0 + m : k0 + 2 * m]
+        right = arr[:, k0 + 2 * m : k0 + 3 * m]
         # the closed form mirrors t -> T - t, which moves a time by up to an ulp of T
         tol = 1e-9 * scale + lip * 4 * np.finfo(float).eps * T + 1e-300
         assert np.all(np.abs(mid - left) <= lip * dt_left * (1 + 1e-6) + tol)
@@ -139,17 +152,28 @@ def check_moves(kind, distance, J, A, V, duration, phase_times, peak_j, peak_a, 
 
 def check_profile(p, J, A, V):
     assert isinstance(p, Profile)
-    check_moves(p.kind, p.distance, J, A, V, p.duration, p.phase_times, p.peak_jerk,
-                p.peak_accel, p.peak_velocity, p.sample)
+    check_moves(
+        p.kind,
+        p.distance,
+        J,
+        A,
+        V,
+        p.duration,
+        p.phase_times,
+        p.peak_jerk,
+        p.peak_accel,
+        p.peak_velocity,
+        p.sample,
+    )
 
 
 # ------------------------------------------------------------------------------------------------
 # per-move property tests (hypothesis shrinks a failure to a small case)
 # ------------------------------------------------------------------------------------------------
-N_INVARIANT = 800         # x 4 planners
-N_SYNC = 300              # x 4 planners
-N_RUCKIG = 1000           # x 2 planners
-N_INTEGRATE = 100         # x 4 planners (scipy quadrature)
+N_INVARIANT = 800  # x 4 planners
+N_SYNC = 300  # x 4 planners
+N_RUCKIG = 1000  # x 2 planners
+N_INTEGRATE = 100  # x 4 planners (scipy quadrature)
 
 
 @pytest.mark.parametrize("kind", KINDS)
@@ -161,7 +185,7 @@ def test_invariants(kind, sign, ed, ej, ea, ev):
     assert p.kind == kind and p.distance == distance
     check_profile(p, J, A, V)
     if kind != "trapezoid" and distance != 0.0:
-        assert p.peak_jerk == J                     # every jerk-limited planner uses all of J
+        assert p.peak_jerk == J  # every jerk-limited planner uses all of J
     # moving backwards mirrors moving forwards
     q = PLANNERS[kind](-distance, J, A, V)
     assert q.duration == p.duration and q.phase_times == p.phase_times
@@ -174,7 +198,7 @@ def test_invariants(kind, sign, ed, ej, ea, ev):
 @example(sign=False, ed=5.5625, ej=2.0, ea=-3.21875, ev=0.0, ts_exp=-4.0)
 def test_synchronized(kind, sign, ed, ej, ea, ev, ts_exp):
     distance, J, A, V = move(sign, ed, ej, ea, ev)
-    Ts = 10.0 ** ts_exp
+    Ts = 10.0**ts_exp
     p = PLANNERS[kind](distance, J, A, V)
     q = p.synchronized(Ts)
     assert q.kind == kind and q.distance == distance
@@ -198,7 +222,7 @@ def test_synchronized(kind, sign, ed, ej, ea, ev, ts_exp):
 @pytest.mark.parametrize("kind", KINDS)
 def test_synchronized_more_samples_than_float_integers(kind):
     """A cruise of ~2e17 samples: rounding up must not drop thousands of seconds (regression)."""
-    p = PLANNERS[kind](1e6, 10.0 ** 6.75, 10.0 ** -1.375, 1.0)
+    p = PLANNERS[kind](1e6, 10.0**6.75, 10.0**-1.375, 1.0)
     q = p.synchronized(0.01)
     assert q.duration >= p.duration * (1 - 1e-12)
     assert q.peak_velocity <= 1.0 * (1 + 1e-9)
@@ -225,7 +249,7 @@ def test_scurve_equals_ruckig(sign, ed, ej, ea, ev):
     p = plan_scurve(distance, J, A, V)
     assert abs(p.duration - traj.duration) <= 1e-9 * traj.duration
     # pointwise too: Ruckig's own closed form at a few times
-    dt = 1e-12 * traj.duration          # the two durations may differ by this much
+    dt = 1e-12 * traj.duration  # the two durations may differ by this much
     for frac in (0.1, 0.37, 0.5, 0.81):
         t = frac * traj.duration
         x, v, a = (u[0] for u in traj.at_time(t))
@@ -270,10 +294,14 @@ def integrate_jerk(p, n_nodes=64):
         # local time tau in [0, L] (L a phase time, exact), the jerk sampled at t0 + tau
         if L <= 0.0:
             return a, v, x
-        f = (lambda tau: p.sample(t0 + tau).accel) if step else (lambda tau: p.sample(t0 + tau).jerk)
+        f = (
+            (lambda tau: p.sample(t0 + tau).accel)
+            if step
+            else (lambda tau: p.sample(t0 + tau).jerk)
+        )
         i0 = fixed_quad(f, 0.0, L, n=n_nodes)[0]
         i1 = fixed_quad(lambda tau: (L - tau) * f(tau), 0.0, L, n=n_nodes)[0]
-        if step:                     # integrate the (piecewise constant) acceleration
+        if step:  # integrate the (piecewise constant) acceleration
             return 0.0, v + i0, x + v * L + i1
         i2 = fixed_quad(lambda tau: 0.5 * (L - tau) ** 2 * f(tau), 0.0, L, n=n_nodes)[0]
         return a + i0, v + a * L + i1, x + v * L + 0.5 * a * L * L + i2
@@ -344,14 +372,27 @@ def test_batch_invariants(kind, seed):
     d, J, A, V = random_moves(rng, BATCH)
     b = plan_batch(kind, d, J, A, V)
     assert isinstance(b, BatchPlan) and len(b) == BATCH
-    check_moves(kind, d, J, A, V, b.duration, b.phase_times, b.peak_jerk, b.peak_accel,
-                b.peak_velocity, b.sample, n_grid=24)
+    check_moves(
+        kind,
+        d,
+        J,
+        A,
+        V,
+        b.duration,
+        b.phase_times,
+        b.peak_jerk,
+        b.peak_accel,
+        b.peak_velocity,
+        b.sample,
+        n_grid=24,
+    )
     # the batch planner agrees with the scalar planner
     f = PLANNERS[kind]
     for i in rng.choice(BATCH, 25, replace=False):
         p = f(float(d[i]), float(J[i]), float(A[i]), float(V[i]))
-        np.testing.assert_allclose(b.phase_times[i], p.phase_times, rtol=1e-9,
-                                   atol=1e-12 * p.duration)
+        np.testing.assert_allclose(
+            b.phase_times[i], p.phase_times, rtol=1e-9, atol=1e-12 * p.duration
+        )
         q = b.profile(int(i))
         assert q.kind == kind and abs(q.duration - p.duration) <= 1e-9 * p.duration
 
@@ -371,8 +412,12 @@ def test_batch_engines_agree(kind):
     with pytest.raises(ValueError, match="engine"):
         plan_batch(kind, d, J, A, V, engine="fortran")
     # the compiled loop checks every value and the error names the parameter
-    for name, arr, bad in (("distance", d, math.inf), ("max_accel", A, -1.0),
-                           ("max_velocity", V, math.nan), ("max_jerk", J, 0.0)):
+    for name, arr, bad in (
+        ("distance", d, math.inf),
+        ("max_accel", A, -1.0),
+        ("max_velocity", V, math.nan),
+        ("max_jerk", J, 0.0),
+    ):
         if kind == "trapezoid" and name == "max_jerk":
             continue
         saved = arr[12345]
@@ -387,14 +432,20 @@ def test_batch_engines_agree(kind):
 # ------------------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("theta,J,E,W", [(1.0, 1000.0, 100.0, 60.0), (100.0, 1000.0, 100.0, 60.0),
-                                         (10 * math.pi, 2e4, 300.0, 100.0),
-                                         (1e4, 10.0, 1e3, 1.0)])
+@pytest.mark.parametrize(
+    "theta,J,E,W",
+    [
+        (1.0, 1000.0, 100.0, 60.0),
+        (100.0, 1000.0, 100.0, 60.0),
+        (10 * math.pi, 2e4, 300.0, 100.0),
+        (1e4, 10.0, 1e3, 1.0),
+    ],
+)
 def test_eq3_peaks(theta, J, E, W):
     p = plan_sine_jerk(theta, J, E, W)
     T = p.accel_time
     s = p.sample(np.array([T / 4, T / 2, T]))
-    assert s.jerk[0] == pytest.approx(J, rel=1e-12)               # eq. 2: J sin(2 pi t/T) at T/4
+    assert s.jerk[0] == pytest.approx(J, rel=1e-12)  # eq. 2: J sin(2 pi t/T) at T/4
     assert s.accel[1] == pytest.approx(J * T / math.pi, rel=1e-12)  # eq. 3: E = J T / pi
     assert s.velocity[2] == pytest.approx(J * T**2 / (2 * math.pi), rel=1e-12)
     assert s.position[2] == pytest.approx(J * T**3 / (4 * math.pi), rel=1e-12)
@@ -405,8 +456,9 @@ def test_eq3_peaks(theta, J, E, W):
     # eq. 2 on the deceleration: -J sin(2 pi (t - t1)/T)
     t1 = T + p.cruise_time
     tt = t1 + np.linspace(0.01, 0.99, 7) * T
-    np.testing.assert_allclose(p.sample(tt).jerk, -J * np.sin(2 * np.pi * (tt - t1) / T),
-                               rtol=1e-9, atol=1e-9 * J)
+    np.testing.assert_allclose(
+        p.sample(tt).jerk, -J * np.sin(2 * np.pi * (tt - t1) / T), rtol=1e-9, atol=1e-9 * J
+    )
 
 
 def test_fig2_distance_binds():
@@ -500,7 +552,7 @@ def test_eq15_short_move_goes_backwards():
     # T spanning 9 samples (acceleration limit binding, long cruise): the recursion misses the
     # target by ~4 % and ends with the motor still moving backwards
     Ts, J, theta = 0.005, 1e4, 100.0
-    E = J * 9 * Ts / math.pi                             # T = E pi / J = 9 Ts
+    E = J * 9 * Ts / math.pi  # T = E pi / J = 9 Ts
     p = plan_sine_jerk(theta, J, E, 1e9)
     assert p.accel_time == pytest.approx(9 * Ts)
     disc = p.discretize(Ts)
@@ -513,7 +565,9 @@ def test_eq15_short_move_goes_backwards():
     assert (half.discretize(Ts).position[-1] - theta) / theta < -5.0
     sync = half.synchronized(Ts)
     assert sync.accel_time / Ts == pytest.approx(10.0)
-    assert float(sync.sample(sync.duration * (1 - 1e-12)).position) == pytest.approx(theta, rel=1e-9)
+    assert float(sync.sample(sync.duration * (1 - 1e-12)).position) == pytest.approx(
+        theta, rel=1e-9
+    )
     # the shorter the pulse in samples, the larger the drift
     long = plan_sine_jerk(theta, J, J * 63 * Ts / math.pi, 1e9).discretize(Ts)
     assert abs(long.position[-1] - theta) < abs(disc.position[-1] - theta) / 3
@@ -532,16 +586,19 @@ def test_discretize_trapezoid_integrates_accel():
 
 
 @pytest.mark.parametrize("kind", KINDS)
-@pytest.mark.parametrize("case", [
-    (1e-12, 1.0, 1.0, 1.0),          # tiny move
-    (1e-300, 1.0, 1.0, 1.0),         # nearly the smallest normal float
-    (1.0, 1e15, 1.0, 1.0),           # huge jerk: nearly a trapezoid
-    (1.0, 1e-6, 1e6, 1e6),           # jerk dominates
-    (1.0, 1e6, 1e-6, 1e6),           # acceleration dominates
-    (1.0, 1e6, 1e6, 1e-6),           # velocity dominates
-    (1e9, 1.0, 1.0, 1.0),            # long move
-    (-3.0, 1000.0, 100.0, 60.0),
-])
+@pytest.mark.parametrize(
+    "case",
+    [
+        (1e-12, 1.0, 1.0, 1.0),  # tiny move
+        (1e-300, 1.0, 1.0, 1.0),  # nearly the smallest normal float
+        (1.0, 1e15, 1.0, 1.0),  # huge jerk: nearly a trapezoid
+        (1.0, 1e-6, 1e6, 1e6),  # jerk dominates
+        (1.0, 1e6, 1e-6, 1e6),  # acceleration dominates
+        (1.0, 1e6, 1e6, 1e-6),  # velocity dominates
+        (1e9, 1.0, 1.0, 1.0),  # long move
+        (-3.0, 1000.0, 100.0, 60.0),
+    ],
+)
 def test_edges(kind, case):
     d, J, A, V = case
     p = PLANNERS[kind](d, J, A, V)
@@ -606,13 +663,15 @@ def test_integer_and_numpy_inputs():
 
 
 @pytest.mark.parametrize("kind", KINDS)
-@pytest.mark.parametrize("pos,name", [(0, "distance"), (1, "max_jerk"), (2, "max_accel"),
-                                      (3, "max_velocity")])
-@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf, -1.0, 0.0, "1", None, [1.0],
-                                 True, 1 + 2j])
+@pytest.mark.parametrize(
+    "pos,name", [(0, "distance"), (1, "max_jerk"), (2, "max_accel"), (3, "max_velocity")]
+)
+@pytest.mark.parametrize(
+    "bad", [math.nan, math.inf, -math.inf, -1.0, 0.0, "1", None, [1.0], True, 1 + 2j]
+)
 def test_bad_input_names_the_parameter(kind, pos, name, bad):
     if name == "distance" and bad in (-1.0, 0.0):
-        return                                   # negative and zero distances are valid
+        return  # negative and zero distances are valid
     if kind == "trapezoid" and name == "max_jerk":
         return
     args = [1.0, 10.0, 10.0, 10.0]

@@ -10,6 +10,7 @@ sampled at its phase boundaries from both sides and on a grid) and 40 000 sine m
 the same way, half of them also against the S-curve at jerk 2J/pi) -- 110 000 random non-rest
 cases -- plus the hypothesis examples and the edge cases.
 """
+
 from __future__ import annotations
 
 import math
@@ -21,8 +22,14 @@ from hypothesis import strategies as st
 from scipy.integrate import cumulative_trapezoid, fixed_quad
 
 from jerklab import _onedof
-from jerklab.planner import (AnyStateProfile, SCurveProfile, SineJerkOptimalProfile, plan_scurve,
-                             plan_sine_jerk, plan_sine_jerk_optimal)
+from jerklab.planner import (
+    AnyStateProfile,
+    SCurveProfile,
+    SineJerkOptimalProfile,
+    plan_scurve,
+    plan_sine_jerk,
+    plan_sine_jerk_optimal,
+)
 
 ruckig = pytest.importorskip("ruckig")
 
@@ -41,7 +48,11 @@ class Ruckig:
     """Ruckig's one-DoF time-optimal duration from (0, v0, a0) to (d, vf, 0)."""
 
     def __init__(self):
-        self.otg, self.inp, self.traj = ruckig.Ruckig(1), ruckig.InputParameter(1), ruckig.Trajectory(1)
+        self.otg, self.inp, self.traj = (
+            ruckig.Ruckig(1),
+            ruckig.InputParameter(1),
+            ruckig.Trajectory(1),
+        )
         self.inp.current_position = [0.0]
 
     def duration(self, d, J, A, V, v0, a0, vf):
@@ -53,7 +64,7 @@ class Ruckig:
         inp.max_velocity, inp.max_acceleration, inp.max_jerk = [V], [A], [J]
         try:
             res = self.otg.calculate(inp, self.traj)
-        except ruckig.RuckigError:          # outside Ruckig's numeric range (it raises)
+        except ruckig.RuckigError:  # outside Ruckig's numeric range (it raises)
             return None
         return self.traj.duration if res == ruckig.Result.Working else None
 
@@ -117,9 +128,9 @@ def check_sampled(p, d, J, A, V, v0, a0, vf):
     """Invariants of one profile through its closed form ``sample``."""
     T = p.duration
     s0 = p.sample(0.0)
-    assert (s0.position, s0.velocity, s0.accel) == (0.0, v0, a0)          # exactly the start
+    assert (s0.position, s0.velocity, s0.accel) == (0.0, v0, a0)  # exactly the start
     sT = p.sample(T)
-    assert (sT.position, sT.velocity, sT.accel, sT.jerk) == (d, vf, 0.0, 0.0)   # exactly the target
+    assert (sT.position, sT.velocity, sT.accel, sT.jerk) == (d, vf, 0.0, 0.0)  # exactly the target
     t, m = sample_times(p)
     s = p.sample(t)
     # limits: the jerk always; the acceleration after the brake (which ramps it to the limit);
@@ -131,7 +142,7 @@ def check_sampled(p, d, J, A, V, v0, a0, vf):
     inside = after & (np.abs(s.velocity) <= V * (1 + RTOL))
     if inside.any():
         assert np.all(np.abs(s.velocity[t >= t[inside].min()]) <= V * (1 + RTOL))
-    if p.brake_time == 0.0:         # no brake: the start is inside, so every limit holds throughout
+    if p.brake_time == 0.0:  # no brake: the start is inside, so every limit holds throughout
         assert abs(a0) <= A * (1 + RTOL) and abs(v0) <= V * (1 + RTOL)
         assert np.all(np.abs(s.velocity) <= V * (1 + RTOL))
         assert np.all(np.abs(s.accel) <= A * (1 + RTOL))
@@ -144,8 +155,11 @@ def check_sampled(p, d, J, A, V, v0, a0, vf):
     left, mid, right = slice(g, g + m), slice(g + m, g + 2 * m), slice(g + 2 * m, g + 3 * m)
     amax = max(A, abs(a0)) * 1.0000001
     vmax = max(V, abs(v0), p.peak_velocity) * 1.0000001
-    for arr, lip, scale in ((s.accel, J, amax), (s.velocity, amax, vmax),
-                            (s.position, vmax, abs(d) + vmax * T)):
+    for arr, lip, scale in (
+        (s.accel, J, amax),
+        (s.velocity, amax, vmax),
+        (s.position, vmax, abs(d) + vmax * T),
+    ):
         for side in (left, right):
             dt = np.abs(t[side] - t[mid]) + 4.0 * np.spacing(np.abs(t[mid]))
             assert np.all(np.abs(arr[side] - arr[mid]) <= lip * 1.01 * dt + 1e-9 * scale)
@@ -165,7 +179,7 @@ def integrate_segments(kind, v0, a0, PT, JK):
         t, j, a, v = PT[:, i], JK[:, i], Ab[:, i], Vb[:, i]
         if kind == "sine_jerk_optimal":
             da = 2.0 / math.pi * j * t
-            P[:, i + 1] = P[:, i] + t * (v + 0.5 * a * t) + da * t * t * (0.25 - 1.0 / math.pi ** 2)
+            P[:, i + 1] = P[:, i] + t * (v + 0.5 * a * t) + da * t * t * (0.25 - 1.0 / math.pi**2)
             Vb[:, i + 1] = v + t * (a + 0.5 * da)
             Ab[:, i + 1] = a + da
             jm = 2.0 / math.pi * j
@@ -196,8 +210,8 @@ def check_batch(kind, cases, ruckig_check, sample_every=25):
         T[i] = p.duration
         BT[i] = p.brake_time
         pt = p.phase_times
-        PT[i, :len(pt)] = pt
-        JK[i, :len(pt)] = p.segment_jerk
+        PT[i, : len(pt)] = pt
+        JK[i, : len(pt)] = p.segment_jerk
         if ruckig_check:
             r = RK.duration(d, J, A, V, v0, a0, vf)
             if r is not None:
@@ -222,7 +236,9 @@ def check_batch(kind, cases, ruckig_check, sample_every=25):
     # of up to 1e5 s, moves the velocity by ~1e-15 A T and the position by ~1e-15 A T^2)
     pvar, vvar, avar = (np.abs(np.diff(X, axis=1)).sum(axis=1) for X in (P, Vb, Ab))
     ares = 1e-15 * np.abs(Ab).max(axis=1)
-    np.testing.assert_array_less(np.abs(P[:, -1] - d), 1e-9 * (np.abs(d) + pvar) + ares * T * T + 1e-300)
+    np.testing.assert_array_less(
+        np.abs(P[:, -1] - d), 1e-9 * (np.abs(d) + pvar) + ares * T * T + 1e-300
+    )
     np.testing.assert_array_less(np.abs(Vb[:, -1] - vf), 1e-9 * (V + vvar) + ares * T + 1e-300)
     np.testing.assert_array_less(np.abs(Ab[:, -1]), 1e-9 * (A + avar) + 1e-300)
     # limits: the acceleration after the brake; without a brake, everything everywhere
@@ -252,15 +268,22 @@ def test_sine_batch_keeps_every_invariant_and_equals_scurve_at_2J_over_pi_when_a
     duration is the S-curve's at 2J/pi (docs/THEORY.md, "Any start state")."""
     for seed in range(100, 104):
         cases = random_cases(10_000, seed)
-        cases[::2, 5] = 0.0                     # half of them start without acceleration
+        cases[::2, 5] = 0.0  # half of them start without acceleration
         rest = (cases[:, 4] == 0.0) & (cases[:, 5] == 0.0) & (cases[:, 6] == 0.0)
         cases[rest, 4] = 0.5 * cases[rest, 3]
         T, _ = check_batch("sine_jerk_optimal", cases, ruckig_check=False)
         for (d, J, A, V, v0, a0, vf), Ti in zip(cases[::2].tolist(), T[::2]):
-            if abs(v0) > V:         # a brake first: its pulses end away from a = 0 (THEORY.md)
+            if abs(v0) > V:  # a brake first: its pulses end away from a = 0 (THEORY.md)
                 continue
-            q = plan_scurve(d, 2.0 * J / math.pi, A, V, initial_velocity=v0, initial_accel=0.0,
-                            final_velocity=vf)
+            q = plan_scurve(
+                d,
+                2.0 * J / math.pi,
+                A,
+                V,
+                initial_velocity=v0,
+                initial_accel=0.0,
+                final_velocity=vf,
+            )
             assert Ti == pytest.approx(q.duration, rel=1e-12, abs=1e-15)
 
 
@@ -272,22 +295,58 @@ UNIT = st.floats(-1.6, 1.6)
 
 
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(kind=st.sampled_from(sorted(KINDS)), ed=st.floats(-5.0, 5.0), sign=st.booleans(),
-       ej=st.floats(0.0, 5.0), ea=st.floats(-1.0, 2.0), ev=st.floats(-3.0, 3.0),
-       uv0=UNIT, ua0=UNIT, uvf=st.floats(-1.0, 1.0))
+@given(
+    kind=st.sampled_from(sorted(KINDS)),
+    ed=st.floats(-5.0, 5.0),
+    sign=st.booleans(),
+    ej=st.floats(0.0, 5.0),
+    ea=st.floats(-1.0, 2.0),
+    ev=st.floats(-3.0, 3.0),
+    uv0=UNIT,
+    ua0=UNIT,
+    uvf=st.floats(-1.0, 1.0),
+)
 @example(kind="scurve", ed=-5.0, sign=False, ej=5.0, ea=-1.0, ev=3.0, uv0=0.0, ua0=0.0, uvf=1.0)
-@example(kind="sine_jerk_optimal", ed=5.0, sign=True, ej=0.0, ea=2.0, ev=-3.0, uv0=1.6, ua0=-1.6, uvf=-1.0)
+@example(
+    kind="sine_jerk_optimal",
+    ed=5.0,
+    sign=True,
+    ej=0.0,
+    ea=2.0,
+    ev=-3.0,
+    uv0=1.6,
+    ua0=-1.6,
+    uvf=-1.0,
+)
 @example(kind="scurve", ed=5.0, sign=True, ej=0.0, ea=2.0, ev=-3.0, uv0=1.6, ua0=1.6, uvf=-1.0)
-@example(kind="scurve", ed=2.412094926682964, sign=False, ej=0.11054893596211368, ea=1.9534231148886785,
-         ev=1.763828120112029, uv0=0.0, ua0=0.0, uvf=0.0)      # Ruckig 25 % longer (see above)
+@example(
+    kind="scurve",
+    ed=2.412094926682964,
+    sign=False,
+    ej=0.11054893596211368,
+    ea=1.9534231148886785,
+    ev=1.763828120112029,
+    uv0=0.0,
+    ua0=0.0,
+    uvf=0.0,
+)  # Ruckig 25 % longer (see above)
 @example(kind="scurve", ed=0.0, sign=False, ej=1.0, ea=0.0, ev=0.0, uv0=0.0, ua0=0.0, uvf=1.0)
-@example(kind="sine_jerk_optimal", ed=0.0, sign=False, ej=0.0, ea=0.0, ev=0.0, uv0=0.0,
-         ua0=1.786561668900516e-163, uvf=1.0)          # a pulse of 3e-163 s: sampled without overflow
+@example(
+    kind="sine_jerk_optimal",
+    ed=0.0,
+    sign=False,
+    ej=0.0,
+    ea=0.0,
+    ev=0.0,
+    uv0=0.0,
+    ua0=1.786561668900516e-163,
+    uvf=1.0,
+)  # a pulse of 3e-163 s: sampled without overflow
 def test_any_state_integrates_to_its_closed_form(kind, ed, sign, ej, ea, ev, uv0, ua0, uvf):
     """Distance and velocity limit in the move's own units (A^3/J^2, A^2/J) over 10 and 6 decades."""
-    J, A = 10.0 ** ej, 10.0 ** ea
-    V = 10.0 ** ev * A * A / J
-    d = (-1.0 if sign else 1.0) * 10.0 ** ed * A ** 3 / J ** 2
+    J, A = 10.0**ej, 10.0**ea
+    V = 10.0**ev * A * A / J
+    d = (-1.0 if sign else 1.0) * 10.0**ed * A**3 / J**2
     v0, a0, vf = uv0 * V, ua0 * A, uvf * V
     if v0 == 0.0 and a0 == 0.0 and vf == 0.0:
         v0 = 0.3 * V
@@ -325,7 +384,7 @@ def test_any_state_integrates_to_its_closed_form(kind, ed, sign, ej, ea, ev, uv0
     ascale = max(A, abs(a0))
     vscale = max(V, abs(v0), p.peak_velocity)
     pscale = abs(d) + vscale * T
-    ends = [p.sample(np.nextafter(b[1:], 0.0))]      # left limits at the ends of the segments
+    ends = [p.sample(np.nextafter(b[1:], 0.0))]  # left limits at the ends of the segments
     for i in range(len(b) - 1):
         lo, hi = b[i], b[i + 1]
         da = fixed_quad(lambda x: p.sample(x).jerk, lo, hi, n=24)[0]
@@ -333,8 +392,11 @@ def test_any_state_integrates_to_its_closed_form(kind, ed, sign, ej, ea, ev, uv0
         dp = fixed_quad(lambda x: p.sample(x).velocity, lo, hi, n=24)[0]
         # (times are known to a few ulp of T: the next derivative times that is added)
         res_t = 8.0 * np.spacing(T)
-        for delta, arr, scale, lip in ((da, "accel", ascale, J), (dv, "velocity", vscale, ascale),
-                                       (dp, "position", pscale, vscale)):
+        for delta, arr, scale, lip in (
+            (da, "accel", ascale, J),
+            (dv, "velocity", vscale, ascale),
+            (dp, "position", pscale, vscale),
+        ):
             start = getattr(s, arr)[i]
             end = getattr(ends[0], arr)[i]
             assert abs(start + delta - end) <= 1e-9 * scale + 24 * lip * res_t, (kind, i, arr)
@@ -395,7 +457,11 @@ def test_already_on_target_is_an_empty_move(kind):
     p = plan(kind, 0.0, 50.0, 5.0, 2.0, 1.0, 0.0, 1.0)
     assert p.duration == 0.0 and p.phase_times == ()
     s = p.sample([0.0, 0.5])
-    assert list(s.position) == [0.0, 0.5] and list(s.velocity) == [1.0, 1.0] and list(s.accel) == [0.0, 0.0]
+    assert (
+        list(s.position) == [0.0, 0.5]
+        and list(s.velocity) == [1.0, 1.0]
+        and list(s.accel) == [0.0, 0.0]
+    )
     assert RK.duration(0.0, 50.0, 5.0, 2.0, 1.0, 0.0, 1.0) > 0.0
 
 
@@ -411,13 +477,17 @@ def test_start_above_the_limits_brakes_first_as_ruckig():
     assert np.all(np.diff(s.accel) <= 1e-12) and s.accel[-1] < s.accel[0]
     # inside the limits from there on
     s = p.sample(np.linspace(p.brake_time, p.duration, 500))
-    assert np.all(np.abs(s.accel) <= 10.0 * (1 + RTOL)) and np.all(np.abs(s.velocity) <= 1.0 * (1 + RTOL))
+    assert np.all(np.abs(s.accel) <= 10.0 * (1 + RTOL)) and np.all(
+        np.abs(s.velocity) <= 1.0 * (1 + RTOL)
+    )
 
 
 # ------------------------------------------------------------------------------------------------
 # the rest-to-rest path is unchanged; the interface
 # ------------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("kind, cls", [("scurve", SCurveProfile), ("sine_jerk_optimal", SineJerkOptimalProfile)])
+@pytest.mark.parametrize(
+    "kind, cls", [("scurve", SCurveProfile), ("sine_jerk_optimal", SineJerkOptimalProfile)]
+)
 def test_zero_state_is_todays_rest_to_rest_profile(kind, cls):
     f = KINDS[kind]
     for zero in (0.0, 0, -0.0, np.float64(0.0)):
@@ -431,11 +501,17 @@ def test_zero_state_is_todays_rest_to_rest_profile(kind, cls):
 
 
 def test_moving_start_profile_interface():
-    p = plan_scurve(2.0, 100.0, 10.0, 2.0, initial_velocity=1.0, initial_accel=-3.0, final_velocity=0.5)
-    assert len(p.phase_times) == len(p.segment_jerk) and sum(p.phase_times) == pytest.approx(p.duration)
+    p = plan_scurve(
+        2.0, 100.0, 10.0, 2.0, initial_velocity=1.0, initial_accel=-3.0, final_velocity=0.5
+    )
+    assert len(p.phase_times) == len(p.segment_jerk) and sum(p.phase_times) == pytest.approx(
+        p.duration
+    )
     assert p.max_jerk == 100.0 and p.max_accel == 10.0 and p.max_velocity == 2.0
     d = p.to_dict()
-    assert d["initial_velocity"] == 1.0 and d["final_velocity"] == 0.5 and d["duration"] == p.duration
+    assert (
+        d["initial_velocity"] == 1.0 and d["final_velocity"] == 0.5 and d["duration"] == p.duration
+    )
     # after the end the motion goes on at the final velocity; before 0 the start state is held
     s = p.sample([-1.0, p.duration + 2.0])
     assert list(s.position) == [0.0, 2.0 + 2 * 0.5] and list(s.velocity) == [1.0, 0.5]
@@ -452,24 +528,40 @@ def test_moving_start_profile_interface():
 
 
 @pytest.mark.parametrize("kind", sorted(KINDS))
-@pytest.mark.parametrize("param, value, match", [
-    ("initial_velocity", math.nan, "initial_velocity"),
-    ("initial_accel", math.inf, "initial_accel"),
-    ("final_velocity", math.nan, "final_velocity"),
-    ("final_velocity", 2.5, "final_velocity"),
-    ("final_velocity", -2.0000001, "final_velocity"),
-    ("initial_velocity", "1.0", "initial_velocity"),
-    ("max_jerk", -1.0, "max_jerk"),
-    ("max_accel", 0.0, "max_accel"),
-    ("max_velocity", math.nan, "max_velocity"),
-    ("distance", math.nan, "distance"),
-])
+@pytest.mark.parametrize(
+    "param, value, match",
+    [
+        ("initial_velocity", math.nan, "initial_velocity"),
+        ("initial_accel", math.inf, "initial_accel"),
+        ("final_velocity", math.nan, "final_velocity"),
+        ("final_velocity", 2.5, "final_velocity"),
+        ("final_velocity", -2.0000001, "final_velocity"),
+        ("initial_velocity", "1.0", "initial_velocity"),
+        ("max_jerk", -1.0, "max_jerk"),
+        ("max_accel", 0.0, "max_accel"),
+        ("max_velocity", math.nan, "max_velocity"),
+        ("distance", math.nan, "distance"),
+    ],
+)
 def test_bad_input_names_the_parameter(kind, param, value, match):
-    kw = dict(distance=1.0, max_jerk=100.0, max_accel=10.0, max_velocity=2.0, initial_velocity=0.5,
-              initial_accel=1.0, final_velocity=0.0)
+    kw = dict(
+        distance=1.0,
+        max_jerk=100.0,
+        max_accel=10.0,
+        max_velocity=2.0,
+        initial_velocity=0.5,
+        initial_accel=1.0,
+        final_velocity=0.0,
+    )
     kw[param] = value
     with pytest.raises(ValueError, match=match):
-        KINDS[kind](kw.pop("distance"), kw.pop("max_jerk"), kw.pop("max_accel"), kw.pop("max_velocity"), **kw)
+        KINDS[kind](
+            kw.pop("distance"),
+            kw.pop("max_jerk"),
+            kw.pop("max_accel"),
+            kw.pop("max_velocity"),
+            **kw,
+        )
 
 
 def test_limits_too_far_apart_in_scale_raise():
@@ -492,9 +584,9 @@ def test_half_sine_pulse_lemma_by_quadrature():
     Jm = 2 * J / np.pi
     da = Jm * tau
     assert a[-1] == pytest.approx(a0 + da, rel=1e-9)
-    assert v[-1] == pytest.approx(v0 + a0 * tau + Jm * tau ** 2 / 2, rel=1e-9)
-    lin = v0 * tau + a0 * tau ** 2 / 2 + Jm * tau ** 3 / 6
-    assert x[-1] - lin == pytest.approx(-_onedof.KAPPA_SINE * da ** 3 / Jm ** 2, rel=1e-6)
+    assert v[-1] == pytest.approx(v0 + a0 * tau + Jm * tau**2 / 2, rel=1e-9)
+    lin = v0 * tau + a0 * tau**2 / 2 + Jm * tau**3 / 6
+    assert x[-1] - lin == pytest.approx(-_onedof.KAPPA_SINE * da**3 / Jm**2, rel=1e-6)
 
 
 def _scan_family(d, v0, a0, vf, V, k, n=4001):
@@ -516,7 +608,7 @@ def _integrate(J, Tm, v0, a0, k):
     for i in range(Tm.shape[1]):
         j, t = J[i], Tm[:, i]
         da = j * t
-        p = p + t * (v + t * (0.5 * a + t * j / 6.0)) - k * da ** 3
+        p = p + t * (v + t * (0.5 * a + t * j / 6.0)) - k * da**3
         v = v + t * (a + 0.5 * j * t)
         a = a + da
         vmax = np.maximum(vmax, np.abs(v))
@@ -535,8 +627,18 @@ def _scan_eval(P, t1, d, v0, a0, vf, V, k):
     Pp = P >= 0.0
     split = (a0 < 0.0) & Pp
     J = np.array([1.0, 1.0, 0.0, -1.0, -1.0, 0.0, 1.0])
-    Tm = np.stack([np.where(split, -a0, P - a0), np.where(split, P, 0.0), t1,
-                   np.where(Pp, P, P + N), np.where(Pp, N, 0.0), t5, N], axis=1)
+    Tm = np.stack(
+        [
+            np.where(split, -a0, P - a0),
+            np.where(split, P, 0.0),
+            t1,
+            np.where(Pp, P, P + N),
+            np.where(Pp, N, 0.0),
+            t5,
+            N,
+        ],
+        axis=1,
+    )
     ok &= np.all(Tm >= -1e-12, axis=1)
     Tm = np.maximum(Tm, 0.0)
     p, vmax = _integrate(J, Tm, v0, a0, k)
@@ -560,23 +662,34 @@ def _scan_sigma(d, v0, a0, vf, V, k, n):
         f_lo = f[i]
         for _ in range(60):
             lam = 0.5 * (lam_lo + lam_hi)
-            fm, _, _ = _scan_eval(P[i] + lam * (P[i + 1] - P[i]), t1[i] + lam * (t1[i + 1] - t1[i]),
-                                  d, v0, a0, vf, V, k)
+            fm, _, _ = _scan_eval(
+                P[i] + lam * (P[i + 1] - P[i]),
+                t1[i] + lam * (t1[i + 1] - t1[i]),
+                d,
+                v0,
+                a0,
+                vf,
+                V,
+                k,
+            )
             same = np.sign(fm) == np.sign(f_lo)
             lam_lo = np.where(same, lam, lam_lo)
             lam_hi = np.where(same, lam_hi, lam)
         lam = 0.5 * (lam_lo + lam_hi)
-        _, Tx, okx = _scan_eval(P[i] + lam * (P[i + 1] - P[i]), t1[i] + lam * (t1[i + 1] - t1[i]),
-                                d, v0, a0, vf, V, k)
+        _, Tx, okx = _scan_eval(
+            P[i] + lam * (P[i + 1] - P[i]), t1[i] + lam * (t1[i + 1] - t1[i]), d, v0, a0, vf, V, k
+        )
         if okx.any():
             best = float(Tx[okx].min())
     J = np.array([1.0, 1.0, 0.0, -1.0, -1.0, 0.0, 1.0])
     pn2, nn2 = V - v0 + 0.5 * a0 * a0, V - vf
-    if pn2 >= 0.0 and nn2 >= 0.0:                       # cruise at +V
+    if pn2 >= 0.0 and nn2 >= 0.0:  # cruise at +V
         Pc, t1c = min(math.sqrt(pn2), 1.0), max(pn2 - 1.0, 0.0)
         Nc, t5c = min(math.sqrt(nn2), 1.0), max(nn2 - 1.0, 0.0)
         if Pc >= a0:
-            Tc = np.array([[-a0 if a0 < 0 else Pc - a0, Pc if a0 < 0 else 0.0, t1c, Pc, Nc, t5c, Nc]])
+            Tc = np.array(
+                [[-a0 if a0 < 0 else Pc - a0, Pc if a0 < 0 else 0.0, t1c, Pc, Nc, t5c, Nc]]
+            )
             p, vm = _integrate(J, Tc, v0, a0, k)
             tc = (d - p[0]) / V
             if tc >= 0.0 and vm[0] <= V * (1 + 1e-9):
@@ -595,22 +708,26 @@ def test_sine_family_optimum_against_brute_force():
         d = rng.uniform(-3, 3)
         v0, vf = rng.uniform(-1, 1) * V, rng.uniform(-1, 1) * V
         a0 = 0.0 if i % 3 == 0 else rng.uniform(-1, 1) * A
-        p = plan_sine_jerk_optimal(d, J, A, V, initial_velocity=v0, initial_accel=a0, final_velocity=vf)
-        if p.brake_time > 0.0:          # v0 + a0|a0|/2J beyond V: the brake is not in the family
+        p = plan_sine_jerk_optimal(
+            d, J, A, V, initial_velocity=v0, initial_accel=a0, final_velocity=vf
+        )
+        if p.brake_time > 0.0:  # v0 + a0|a0|/2J beyond V: the brake is not in the family
             continue
         Jm = 2 * J / math.pi
         tu = A / Jm
         vu = A * tu
-        scan = _scan_family(d / (vu * tu), v0 / vu, a0 / A, vf / vu, V / vu, _onedof.KAPPA_SINE) * tu
-        assert scan >= p.duration * (1 - 1e-9)                  # nothing shorter in the family
-        assert scan <= p.duration * (1 + 1e-9)                  # and the scan finds it
+        scan = (
+            _scan_family(d / (vu * tu), v0 / vu, a0 / A, vf / vu, V / vu, _onedof.KAPPA_SINE) * tu
+        )
+        assert scan >= p.duration * (1 - 1e-9)  # nothing shorter in the family
+        assert scan <= p.duration * (1 + 1e-9)  # and the scan finds it
         q = plan_scurve(d, Jm, A, V, initial_velocity=v0, initial_accel=a0, final_velocity=vf)
         if a0 == 0.0:
             assert p.duration == pytest.approx(q.duration, rel=1e-12)
         else:
             shorter += p.duration < q.duration * (1 - 1e-9)
             longer += p.duration > q.duration * (1 + 1e-9)
-    assert shorter and longer          # the claim: neither bound holds in general for a0 != 0
+    assert shorter and longer  # the claim: neither bound holds in general for a0 != 0
 
 
 def test_scan_reproduces_ruckig_for_the_linear_family():
@@ -618,9 +735,16 @@ def test_scan_reproduces_ruckig_for_the_linear_family():
     rng = np.random.default_rng(5)
     for _ in range(30):
         J, A, V = 10 ** rng.uniform(0, 3), 10 ** rng.uniform(-1, 1), 10 ** rng.uniform(-1, 1)
-        d, v0, a0, vf = rng.uniform(-3, 3), rng.uniform(-1, 1) * V, rng.uniform(-1, 1) * A, rng.uniform(-1, 1) * V
-        if plan_scurve(d, J, A, V, initial_velocity=v0, initial_accel=a0, final_velocity=vf).brake_time:
-            continue                    # the scan has no brake
+        d, v0, a0, vf = (
+            rng.uniform(-3, 3),
+            rng.uniform(-1, 1) * V,
+            rng.uniform(-1, 1) * A,
+            rng.uniform(-1, 1) * V,
+        )
+        if plan_scurve(
+            d, J, A, V, initial_velocity=v0, initial_accel=a0, final_velocity=vf
+        ).brake_time:
+            continue  # the scan has no brake
         tu, vu = A / J, A * A / J
         scan = _scan_family(d / (vu * tu), v0 / vu, a0 / A, vf / vu, V / vu, 0.0) * tu
         r = RK.duration(d, J, A, V, v0, a0, vf)
@@ -634,10 +758,16 @@ def test_pure_python_solver_is_the_compiled_one():
     rng = np.random.default_rng(9)
     saved = {name: getattr(_onedof, name) for name in _onedof._JITTED}
     try:
-        for name in _onedof._JITTED:          # the Python functions call each other
+        for name in _onedof._JITTED:  # the Python functions call each other
             setattr(_onedof, name, _onedof.PURE[name])
         for _ in range(40):
-            args = (rng.uniform(-5, 5), rng.uniform(-2, 2), rng.uniform(-1.5, 1.5), rng.uniform(-1, 1), 1.5)
+            args = (
+                rng.uniform(-5, 5),
+                rng.uniform(-2, 2),
+                rng.uniform(-1.5, 1.5),
+                rng.uniform(-1, 1),
+                1.5,
+            )
             for k in (0.0, _onedof.KAPPA_SINE):
                 a, b = np.asarray(pure(*args, k)), np.asarray(compiled(*args, k))
                 np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-14)
@@ -660,12 +790,18 @@ def test_batch_any_state_is_the_scalar_planner(kind):
         assert q.duration == p.duration == b.duration[i]
         assert q.phase_times == p.phase_times and q.segment_jerk == p.segment_jerk
         k = len(p.phase_times)
-        assert np.array_equal(b.phase_times[i, :k], p.phase_times) and not b.phase_times[i, k:].any()
+        assert (
+            np.array_equal(b.phase_times[i, :k], p.phase_times) and not b.phase_times[i, k:].any()
+        )
         assert np.array_equal(b.segment_jerk[i, :k], p.segment_jerk)
         assert b.brake_time[i] == pytest.approx(p.brake_time, rel=1e-14, abs=0)
-        np.testing.assert_array_equal(q.sample([0.3 * p.duration]).position, p.sample([0.3 * p.duration]).position)
+        np.testing.assert_array_equal(
+            q.sample([0.3 * p.duration]).position, p.sample([0.3 * p.duration]).position
+        )
     # broadcasting, the empty move, and bad input named
-    b = plan_batch_any_state(kind, [0.0, 1.0], 100.0, 10.0, 2.0, initial_velocity=1.0, final_velocity=1.0)
+    b = plan_batch_any_state(
+        kind, [0.0, 1.0], 100.0, 10.0, 2.0, initial_velocity=1.0, final_velocity=1.0
+    )
     assert b.duration[0] == 0.0 and b.duration[1] > 0.0
     with pytest.raises(ValueError, match="final_velocity"):
         plan_batch_any_state(kind, [1.0, 1.0], 100.0, 10.0, 2.0, final_velocity=[0.0, 3.0])

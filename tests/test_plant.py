@@ -1,4 +1,5 @@
 """Tests of jerklab.plant against python-control and brute-force integration."""
+
 from __future__ import annotations
 
 import math
@@ -9,8 +10,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from jerklab.plant import (DCMotor, FlexibleDCMotor, StepDisturbance, advance, advance_scalar,
-                           quantize_voltage)
+from jerklab.plant import (
+    DCMotor,
+    FlexibleDCMotor,
+    StepDisturbance,
+    advance,
+    advance_scalar,
+    quantize_voltage,
+)
 
 
 def test_defaults_are_the_paper_motor():
@@ -59,15 +66,24 @@ def _brute_force(theta, omega, v, fc, K, tau, dt, n=200_000):
             continue
         s = math.copysign(1.0, omega) if omega != 0.0 else math.copysign(1.0, v)
         new = omega + h * (K * (v - s * fc) - omega) / tau
-        if omega != 0.0 and new * omega < 0.0:      # crossed zero inside this tiny step
+        if omega != 0.0 and new * omega < 0.0:  # crossed zero inside this tiny step
             new = 0.0
         omega = new
         theta += h * omega
     return theta, omega
 
 
-@pytest.mark.parametrize("x0, v", [((0.0, 0.0), 0.8), ((0.0, 0.0), 1.7), ((0.3, 40.0), -0.5),
-                                   ((0.3, 40.0), -4.0), ((0.0, -12.0), 0.2), ((0.0, 5.0), 3.0)])
+@pytest.mark.parametrize(
+    "x0, v",
+    [
+        ((0.0, 0.0), 0.8),
+        ((0.0, 0.0), 1.7),
+        ((0.3, 40.0), -0.5),
+        ((0.3, 40.0), -4.0),
+        ((0.0, -12.0), 0.2),
+        ((0.0, 5.0), 3.0),
+    ],
+)
 def test_coulomb_friction_against_brute_force(x0, v):
     fc, K, tau, dt = 1.0, 32.4, 0.025, 0.1
     th, om = advance_scalar(x0[0], x0[1], v, fc, K, tau, dt)
@@ -80,7 +96,7 @@ def test_friction_sticks_and_steady_speed():
     m = DCMotor(coulomb_friction=1.0, supply_voltage=None, pwm_bits=None, encoder_ppr=None)
     assert np.all(m.step_state([0.2, 0.0], 0.99, 1.0) == [0.2, 0.0])
     x = m.step_state([0.0, 0.0], 3.0, 2.0)
-    assert x[1] == pytest.approx(32.4 * 2.0, rel=1e-9)          # K (u - f_c)
+    assert x[1] == pytest.approx(32.4 * 2.0, rel=1e-9)  # K (u - f_c)
     # decelerating with a small opposite voltage: stops and stays stopped
     x = m.step_state([0.0, 30.0], -0.5, 1.0)
     assert x[1] == 0.0 and x[0] > 0.0
@@ -126,7 +142,9 @@ def test_encoder_quantization_and_noise():
 
 
 def test_step_disturbance_splits_interval():
-    m = DCMotor(load_disturbance=(0.0123, -2.0), supply_voltage=None, pwm_bits=None, encoder_ppr=None)
+    m = DCMotor(
+        load_disturbance=(0.0123, -2.0), supply_voltage=None, pwm_bits=None, encoder_ppr=None
+    )
     assert isinstance(m.load_disturbance, StepDisturbance)
     x = m.step_state([0.0, 0.0], 1.0, 0.02, t=0.01)
     ref = m.ideal().step_state([0.0, 0.0], 1.0, 0.0023)
@@ -142,7 +160,7 @@ def test_flexible_rigid_body_and_mode():
     assert -q.real / abs(q) == pytest.approx(0.02, rel=1e-2)
     g = FlexibleDCMotor()
     m = DCMotor()
-    w = np.logspace(-1, 0.5, 10)                     # far below the mode: eq. 1
+    w = np.logspace(-1, 0.5, 10)  # far below the mode: eq. 1
     np.testing.assert_allclose(g.tf()(1j * w), m.tf()(1j * w), rtol=2e-3)
     Phi, Gamma = g.zoh(0.005)
     d = ct.c2d(g.ss(), 0.005, "zoh")
@@ -152,9 +170,19 @@ def test_flexible_rigid_body_and_mode():
     assert th_load.shape == meas.shape == (51,)
 
 
-@pytest.mark.parametrize("kw", [dict(K=-1), dict(tau=float("nan")), dict(decoding=3),
-                                dict(coulomb_friction=-0.1), dict(noise_std=float("inf")),
-                                dict(supply_voltage=0.0), dict(pwm_bits=1.5), dict(load_disturbance="x")])
+@pytest.mark.parametrize(
+    "kw",
+    [
+        dict(K=-1),
+        dict(tau=float("nan")),
+        dict(decoding=3),
+        dict(coulomb_friction=-0.1),
+        dict(noise_std=float("inf")),
+        dict(supply_voltage=0.0),
+        dict(pwm_bits=1.5),
+        dict(load_disturbance="x"),
+    ],
+)
 def test_bad_input_names_the_parameter(kw):
     name = next(iter(kw))
     with pytest.raises(ValueError, match=name):

@@ -1,4 +1,5 @@
 """jerklab.plots.zplane: unit circle, poles and zeros where they are, labelled axes."""
+
 from __future__ import annotations
 
 import matplotlib
@@ -29,17 +30,20 @@ def test_poles_zeros_circle_and_labels():
     circle = [ln for ln in ax.get_lines() if ln.get_gid() == "jerklab-unit-circle"]
     assert len(circle) == 1
     x, y = circle[0].get_data()
-    assert np.allclose(np.hypot(x, y), 1.0) and np.ptp(np.arctan2(y, x)) > 6.2   # the whole circle
+    assert np.allclose(np.hypot(x, y), 1.0) and np.ptp(np.arctan2(y, x)) > 6.2  # the whole circle
     poles, zeros = _markers(ax)
     assert np.allclose(poles.get_xdata() + 1j * poles.get_ydata(), p) and poles.get_marker() == "x"
-    assert np.allclose(zeros.get_xdata() + 1j * zeros.get_ydata(), [-0.8]) and zeros.get_marker() == "o"
+    assert (
+        np.allclose(zeros.get_xdata() + 1j * zeros.get_ydata(), [-0.8])
+        and zeros.get_marker() == "o"
+    )
     assert zeros.get_markerfacecolor() == "none" and zeros.get_color() == poles.get_color()
     assert (ax.get_xlabel(), ax.get_ylabel(), ax.get_title()) == ("Re z", "Im z", "closed loop")
     assert ax.get_aspect() == 1.0
     lo, hi = ax.get_xlim()
     assert lo <= -1.0 and hi >= 1.0
     labels = ax.get_legend_handles_labels()[1]
-    assert labels == ["loop", "loop zeros"]                      # the circle stays out of the legend
+    assert labels == ["loop", "loop zeros"]  # the circle stays out of the legend
 
 
 def test_two_designs_on_one_axes_share_one_circle():
@@ -49,7 +53,7 @@ def test_two_designs_on_one_axes_share_one_circle():
     assert sum(ln.get_gid() == "jerklab-unit-circle" for ln in ax.get_lines()) == 1
     a, b = _markers(ax)
     assert a.get_color() == "r" and b.get_color() == "b" and b.get_markerfacecolor() == "none"
-    assert ax.get_xlim()[1] >= 1.16                               # an unstable pole stays in view
+    assert ax.get_xlim()[1] >= 1.16  # an unstable pole stays in view
 
 
 def test_systems_are_accepted():
@@ -58,16 +62,25 @@ def test_systems_are_accepted():
     loop = PositionLoop(32.4, 0.025, discrete_pole_placement_pid(32.4, 0.025, 30.0, Ts=0.005))
     ax = zplane(loop)
     pts = _markers(ax)[0]
-    assert np.allclose(np.sort_complex(pts.get_xdata() + 1j * pts.get_ydata()), np.sort_complex(loop.poles_z()))
+    assert np.allclose(
+        np.sort_complex(pts.get_xdata() + 1j * pts.get_ydata()), np.sort_complex(loop.poles_z())
+    )
     sysd = control.c2d(control.tf([1.0], [1.0, 3.0, 2.0]), 0.1)
     ax = zplane(sysd)
     got = _markers(ax)[0]
     assert np.allclose(np.sort(got.get_xdata()), np.sort(np.exp(np.array([-2.0, -1.0]) * 0.1)))
-    assert len(_markers(ax)) == 2                                 # the ZOH zero too
+    assert len(_markers(ax)) == 2  # the ZOH zero too
 
 
-@pytest.mark.parametrize("bad, exc", [([np.nan], ValueError), ([1.0, np.inf], ValueError),
-                                       ("abc", TypeError), (object(), TypeError)])
+@pytest.mark.parametrize(
+    "bad, exc",
+    [
+        ([np.nan], ValueError),
+        ([1.0, np.inf], ValueError),
+        ("abc", TypeError),
+        (object(), TypeError),
+    ],
+)
 def test_bad_input(bad, exc):
     with pytest.raises(exc, match="poles"):
         zplane(bad)
@@ -89,21 +102,30 @@ def _data_of(ax, label):
 def test_simulation_figure_draws_the_result():
     from jerklab import plots
     from jerklab.controller import discrete_pole_placement_pid
-    from jerklab.plant import DCMotor
     from jerklab.planner import plan_sine_jerk
+    from jerklab.plant import DCMotor
     from jerklab.sim import simulate
 
-    r = simulate(plan_sine_jerk(3.0, 2000.0, 100.0, 20.0), DCMotor(0.9 * 32.4, 0.03),
-                 discrete_pole_placement_pid(32.4, 0.025, 30.0, Ts=0.005))
+    r = simulate(
+        plan_sine_jerk(3.0, 2000.0, 100.0, 20.0),
+        DCMotor(0.9 * 32.4, 0.03),
+        discrete_pole_placement_pid(32.4, 0.025, 30.0, Ts=0.005),
+    )
     fig = r.plot(title="run")
-    assert [a.get_ylabel() for a in fig.axes] == ["angle (rad)", "tracking error (mrad)", "voltage (V)"]
+    assert [a.get_ylabel() for a in fig.axes] == [
+        "angle (rad)",
+        "tracking error (mrad)",
+        "voltage (V)",
+    ]
     assert fig.axes[2].get_xlabel() == "time (s)" and fig.axes[0].get_title() == "run"
     t, y = _data_of(fig.axes[0], "motor (true)")
     np.testing.assert_array_equal(t, r.t)
     np.testing.assert_array_equal(y, r.position)
-    np.testing.assert_array_equal(fig.axes[1].get_lines()[0].get_ydata(), 1e3 * (r.reference - r.position))
+    np.testing.assert_array_equal(
+        fig.axes[1].get_lines()[0].get_ydata(), 1e3 * (r.reference - r.position)
+    )
     np.testing.assert_array_equal(_data_of(fig.axes[2], "u applied")[1], r.u_applied)
-    fig2 = plots.plot_simulation(r)                     # the same figure from the function
+    fig2 = plots.plot_simulation(r)  # the same figure from the function
     assert "mrad" in fig2.axes[0].get_title()
     assert [len(a.get_lines()) for a in fig2.axes] == [len(a.get_lines()) for a in fig.axes]
 
@@ -132,13 +154,19 @@ def test_ident_figures_and_aliases():
         plots.plot_residuals(np.zeros(3))
 
 
-
 def test_recording_figures_and_alias():
     from jerklab import plots, rig
 
     assert rig.plot_comparison is plots.plot_comparison
-    rec = rig.Recording({"kind": "step", "Ts": 0.005, "counts_per_rad": 448 / (2 * np.pi),
-                         "volts_per_pwm": 12 / 1023, "status": "ok"})
+    rec = rig.Recording(
+        {
+            "kind": "step",
+            "Ts": 0.005,
+            "counts_per_rad": 448 / (2 * np.pi),
+            "volts_per_pwm": 12 / 1023,
+            "status": "ok",
+        }
+    )
     for k in range(5):
         rec.append(k, 0.0, 3 * k, 100 * k)
     fig = rec.plot()

@@ -1,4 +1,5 @@
 """The student's path on any OS: no POSIX-only import, Windows-valid file names, spreadsheet CSVs."""
+
 from __future__ import annotations
 
 import ast
@@ -27,8 +28,14 @@ def test_student_path_with_posix_modules_blocked(tmp_path):
     env = {k: v for k, v in os.environ.items() if k not in ("JERKLAB_RECORDINGS", "JERKLAB_HOME")}
     env["PYTHONPATH"] = str(ROOT)
     env["MPLBACKEND"] = "Agg"
-    r = subprocess.run([sys.executable, str(ROOT / "tests" / "_student_path.py"), str(tmp_path), "--block-posix"],
-                       cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    r = subprocess.run(
+        [sys.executable, str(ROOT / "tests" / "_student_path.py"), str(tmp_path), "--block-posix"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 0 and "STUDENT PATH OK" in r.stdout, r.stdout[-3000:] + r.stderr[-3000:]
     assert "step: Windows messages of serve and simavr" in r.stdout
 
@@ -38,8 +45,13 @@ def _unguarded_imports(tree):
     guarded = set()
     for node in ast.walk(tree):
         if isinstance(node, ast.Try) and any(
-                h.type is None or any(isinstance(n, ast.Name) and n.id in ("ImportError", "ModuleNotFoundError")
-                                      for n in ast.walk(h.type)) for h in node.handlers):
+            h.type is None
+            or any(
+                isinstance(n, ast.Name) and n.id in ("ImportError", "ModuleNotFoundError")
+                for n in ast.walk(h.type)
+            )
+            for h in node.handlers
+        ):
             guarded.update(id(n) for stmt in node.body for n in ast.walk(stmt))
     for node in ast.walk(tree):
         if id(node) in guarded:
@@ -67,11 +79,22 @@ def test_no_posix_only_import_outside_the_posix_tools():
     assert not top & POSIX_ONLY, top & POSIX_ONLY
     # the rule sees an unguarded import and accepts a guarded one
     assert "fcntl" in set(_unguarded_imports(ast.parse("import fcntl")))
-    assert "fcntl" not in set(_unguarded_imports(ast.parse("try:\n    import fcntl\nexcept ImportError:\n    fcntl = None")))
+    assert "fcntl" not in set(
+        _unguarded_imports(
+            ast.parse("try:\n    import fcntl\nexcept ImportError:\n    fcntl = None")
+        )
+    )
 
 
 # ----------------------------------------------------------------------------- file names
-_RESERVED = {"CON", "PRN", "AUX", "NUL", *(f"COM{i}" for i in range(1, 10)), *(f"LPT{i}" for i in range(1, 10))}
+_RESERVED = {
+    "CON",
+    "PRN",
+    "AUX",
+    "NUL",
+    *(f"COM{i}" for i in range(1, 10)),
+    *(f"LPT{i}" for i in range(1, 10)),
+}
 
 
 def windows_name_problem(name: str):
@@ -87,9 +110,17 @@ def windows_name_problem(name: str):
     return None
 
 
-@pytest.mark.parametrize("name, ok", [("20261127-183838_move.csv", True), ("12:30_move.csv", False),
-                                      ("NUL.csv", False), ("com3.json", False), ("run.", False),
-                                      ("console.csv", True)])
+@pytest.mark.parametrize(
+    "name, ok",
+    [
+        ("20261127-183838_move.csv", True),
+        ("12:30_move.csv", False),
+        ("NUL.csv", False),
+        ("com3.json", False),
+        ("run.", False),
+        ("console.csv", True),
+    ],
+)
 def test_windows_name_rule(name, ok):
     assert (windows_name_problem(name) is None) == ok
 
@@ -100,12 +131,16 @@ def test_recording_names_are_valid_on_windows(tmp_path):
 
     with connect(progress=False, recordings=tmp_path) as rig:
         rig.step(3.0, 0.05)
-        rig.step(3.0, 0.05)                       # the same second: a suffix, no clash
-        rig.run_move(plan_sine_jerk(1.0, 2e4, 300.0, 100.0), pole_placement_pid(32.4, 0.025, 20.0), settle=0.05)
+        rig.step(3.0, 0.05)  # the same second: a suffix, no clash
+        rig.run_move(
+            plan_sine_jerk(1.0, 2e4, 300.0, 100.0),
+            pole_placement_pid(32.4, 0.025, 20.0),
+            settle=0.05,
+        )
     names = sorted(p.name for p in tmp_path.iterdir())
     assert len(names) == 6, names
     assert [n for n in names if windows_name_problem(n)] == []
-    assert len({n.lower() for n in names}) == len(names)      # no two differ by case only
+    assert len({n.lower() for n in names}) == len(names)  # no two differ by case only
 
 
 def test_shipped_files_have_windows_names():
@@ -113,7 +148,7 @@ def test_shipped_files_have_windows_names():
         for p in (ROOT / folder).rglob("*"):
             rel = p.relative_to(ROOT)
             assert all(windows_name_problem(part) is None for part in rel.parts), rel
-            assert len(str(rel)) < 120, rel                   # room under MAX_PATH below C:\Users\...
+            assert len(str(rel)) < 120, rel  # room under MAX_PATH below C:\Users\...
 
 
 def test_recordings_default_to_the_working_folder(tmp_path, monkeypatch):
@@ -127,7 +162,9 @@ def test_recordings_default_to_the_working_folder(tmp_path, monkeypatch):
     import jerklab.app
 
     monkeypatch.setenv("JERKLAB_HOME", str(tmp_path / "w"))
-    monkeypatch.setattr(jerklab.app, "main", lambda argv: seen.update(env=os.environ["JERKLAB_RECORDINGS"]) or 0)
+    monkeypatch.setattr(
+        jerklab.app, "main", lambda argv: seen.update(env=os.environ["JERKLAB_RECORDINGS"]) or 0
+    )
     pytest.importorskip("voila")
     assert cli.main(["app", "--pool", "0"]) == 0
     assert seen["env"] == str(tmp_path / "w" / "recordings")
@@ -148,7 +185,9 @@ def _spreadsheet_ok(path):
     for line in lines[1:]:
         fields = line.split(",")
         assert len(fields) == len(cols), f"{path}: {line!r}"
-        assert all(_NUMBER.match(f) for f in fields), f"{path}: {line!r} (one decimal separator: '.')"
+        assert all(_NUMBER.match(f) for f in fields), (
+            f"{path}: {line!r} (one decimal separator: '.')"
+        )
     return cols, bom
 
 

@@ -1,4 +1,5 @@
 """Protocol round-trips, CRC check values, the golden frames of firmware/PROTOCOL.md."""
+
 from __future__ import annotations
 
 import binascii
@@ -34,6 +35,7 @@ def test_crc_check_value():
 
 def test_crc_table_matches_bitwise():
     import random
+
     rng = random.Random(1)
     for _ in range(200):
         data = bytes(rng.randrange(256) for _ in range(rng.randrange(70)))
@@ -43,22 +45,34 @@ def test_crc_table_matches_bitwise():
 EXAMPLES = [
     P.Hello(),
     P.SetPlant(K=32.4, tau=0.025, supply_voltage=12.0, counts_per_rev=448),
-    P.SetGains(kpd=1.0, kid=0.1, kdd=2.0, Ts_us=5000, loop=P.LoopType.VELOCITY, flags=0, gamma=0.25),
-    P.SetLimits(max_jerk=2e4, max_accel=300.0, max_velocity=100.0, max_voltage=12.0, host_timeout_ms=500,
-                max_error=0.25, runaway_ms=150, saturation_ms=300),
+    P.SetGains(
+        kpd=1.0, kid=0.1, kdd=2.0, Ts_us=5000, loop=P.LoopType.VELOCITY, flags=0, gamma=0.25
+    ),
+    P.SetLimits(
+        max_jerk=2e4,
+        max_accel=300.0,
+        max_velocity=100.0,
+        max_voltage=12.0,
+        host_timeout_ms=500,
+        max_error=0.25,
+        runaway_ms=150,
+        saturation_ms=300,
+    ),
     P.Plan(distance=-31.4159, planner=P.Planner.SINE_JERK),
     P.Run(settle_samples=40, decimation=2),
     P.Stop(),
     P.Step(voltage=-6.0, Ts_us=5000, n_samples=200),
     P.Heartbeat(),
-    P.Sequence(amplitude=2.5, offset=-0.5, Ts_us=2000, n_samples=1023, seed=0x1234, order=10, hold=3),
+    P.Sequence(
+        amplitude=2.5, offset=-0.5, Ts_us=2000, n_samples=1023, seed=0x1234, order=10, hold=3
+    ),
     P.SetShaper(n_taps=4, amplitudes=(0.125, 0.375, 0.375, 0.125), delays=(0, 7, 14, 21)),
     P.Retarget(25.0),
     P.Ack(command=P.MsgType.SET_GAINS),
     P.Nack(command=P.MsgType.SET_LIMITS, error=P.ErrorCode.BAD_VALUE, param=3),
     P.HelloReply(1, 0, 1, 2, 0x1F1, 1000, 1023, "jerklab-uno"),
     P.PlanInfo(0.1, 0.2, 0.4, 81),
-    P.Telemetry(index=2**32 - 1, reference=-1.5, counts=-2**31, pwm=-1023, flags=3),
+    P.Telemetry(index=2**32 - 1, reference=-1.5, counts=-(2**31), pwm=-1023, flags=3),
     P.EndOfRun(reason=P.EndReason.HOST_TIMEOUT, samples=81, rx_errors=3, overruns=1),
     P.EndOfRun(reason=P.EndReason.RUNAWAY, samples=12, rx_errors=0, overruns=0, detail=-35.0),
     P.DeviceError(code=3, detail=65535),
@@ -82,7 +96,7 @@ def test_round_trip(msg):
         for f in dataclasses.fields(msg):
             a, b = getattr(msg, f.name), getattr(back, f.name)
             if isinstance(a, float):
-                assert b == _f32(a)          # float32 on the wire
+                assert b == _f32(a)  # float32 on the wire
             else:
                 assert a == b
 
@@ -94,15 +108,22 @@ def test_every_type_has_an_example_and_fits():
     # the Uno's 64-byte UART receive buffer holds one maximal frame of the types it receives
     # (SET_SHAPER, 58 bytes, the largest since version 3); the others stay within 33 bytes
     assert max(struct.calcsize(c.FORMAT) for c in P.MESSAGES.values()) + P.MIN_FRAME <= 64
-    assert max(struct.calcsize(c.FORMAT) for c in P.MESSAGES.values()
-               if c is not P.SetShaper) + P.MIN_FRAME <= 34
+    assert (
+        max(struct.calcsize(c.FORMAT) for c in P.MESSAGES.values() if c is not P.SetShaper)
+        + P.MIN_FRAME
+        <= 34
+    )
 
 
 def test_protocol_version_is_stated_once():
     """PROTOCOL.md's title, protocol.py and the firmware core name the same version."""
     text = open(os.path.join(ROOT, "firmware", "PROTOCOL.md"), encoding="utf-8").read()
-    assert re.search(r"^# jerklab rig protocol, version (\d+)$", text, re.M).group(1) == str(P.PROTOCOL_VERSION)
-    hdr = open(os.path.join(ROOT, "firmware", "jerklab_rig", "src", "jl_protocol.h"), encoding="utf-8").read()
+    assert re.search(r"^# jerklab rig protocol, version (\d+)$", text, re.M).group(1) == str(
+        P.PROTOCOL_VERSION
+    )
+    hdr = open(
+        os.path.join(ROOT, "firmware", "jerklab_rig", "src", "jl_protocol.h"), encoding="utf-8"
+    ).read()
     assert re.search(r"kProtocolVersion = (\d+);", hdr).group(1) == str(P.PROTOCOL_VERSION)
     assert re.search(r"kMaxPlanSamples = (\d+)UL;", hdr).group(1) == str(P.MAX_PLAN_SAMPLES)
 
@@ -113,13 +134,27 @@ def test_golden_frames_match_protocol_md():
     golden = text.split("## Golden frames", 1)[1]
     hexes = [bytes.fromhex(h) for h in re.findall(r"((?:[0-9a-f]{2} ){4,}[0-9a-f]{2})", golden)]
     expected = [
-        P.Hello(2), P.SetPlant(32.4, 0.025, 12.0, 448), P.SetGains(1.0, 0.1, 2.0, 5000, 0, 1, 0.0),
-        P.SetLimits(2e4, 300, 100, 12, 1000, 0.5, 200, 500), P.Plan(31.4159, 0), P.Run(40, 1), P.Stop(),
-        P.Step(6.0, 5000, 200), P.Heartbeat(), P.Sequence(2.0, 0.5, 5000, 255, 1, 8, 1),
-        P.SetShaper(3, (0.25, 0.5, 0.25), (0, 9, 18)), P.Ack(2), P.Nack(3, 3, 1), P.Nack(5, 8, 0),
-        P.HelloReply(2, 0, 1, 0, 0x1F1, 1000, 1023, "jerklab-uno"), P.PlanInfo(0.1, 0.2, 0.4, 81),
-        P.Telemetry(12, 1.5, -300, -1023, 1), P.EndOfRun(0, 81, 0, 0, 0.0),
-        P.EndOfRun(4, 169, 0, 0, 0.52), P.DeviceError(3, 1), P.Retarget(25.0),
+        P.Hello(2),
+        P.SetPlant(32.4, 0.025, 12.0, 448),
+        P.SetGains(1.0, 0.1, 2.0, 5000, 0, 1, 0.0),
+        P.SetLimits(2e4, 300, 100, 12, 1000, 0.5, 200, 500),
+        P.Plan(31.4159, 0),
+        P.Run(40, 1),
+        P.Stop(),
+        P.Step(6.0, 5000, 200),
+        P.Heartbeat(),
+        P.Sequence(2.0, 0.5, 5000, 255, 1, 8, 1),
+        P.SetShaper(3, (0.25, 0.5, 0.25), (0, 9, 18)),
+        P.Ack(2),
+        P.Nack(3, 3, 1),
+        P.Nack(5, 8, 0),
+        P.HelloReply(2, 0, 1, 0, 0x1F1, 1000, 1023, "jerklab-uno"),
+        P.PlanInfo(0.1, 0.2, 0.4, 81),
+        P.Telemetry(12, 1.5, -300, -1023, 1),
+        P.EndOfRun(0, 81, 0, 0, 0.0),
+        P.EndOfRun(4, 169, 0, 0, 0.52),
+        P.DeviceError(3, 1),
+        P.Retarget(25.0),
     ]
     assert len(hexes) == len(expected)
     for h, m in zip(hexes, expected):
@@ -129,7 +164,9 @@ def test_golden_frames_match_protocol_md():
 
 def test_documented_payload_sizes():
     text = open(os.path.join(ROOT, "firmware", "PROTOCOL.md"), encoding="utf-8").read()
-    sizes = dict(re.findall(r"([A-Z_]+) (\d+)[,.]", text.split("Payload sizes:", 1)[1].split("largest")[0]))
+    sizes = dict(
+        re.findall(r"([A-Z_]+) (\d+)[,.]", text.split("Payload sizes:", 1)[1].split("largest")[0])
+    )
     for cls in P.MESSAGES.values():
         assert int(sizes[cls.TYPE.name]) == struct.calcsize(cls.FORMAT), cls.TYPE.name
 
@@ -159,7 +196,7 @@ def test_decoder_any_chunking():
         d = P.Decoder()
         got = []
         for i in range(0, len(wire), chunk):
-            got += d.feed(wire[i:i + chunk])
+            got += d.feed(wire[i : i + chunk])
         assert [f.seq for f in got] == list(range(len(EXAMPLES)))
         assert d.stats.dropped == 0 and d.stats.skipped_bytes == 0 and d.pending == 0
 
@@ -168,7 +205,7 @@ def test_decoder_resyncs_inside_a_truncated_frame():
     good = P.encode(P.Telemetry(1, 0.5, 10, 20, 0), 1)
     nxt = P.encode(P.Telemetry(2, 0.5, 11, 21, 0), 2)
     d = P.Decoder()
-    frames = d.feed(good[:-6] + nxt)      # first frame cut short, the next starts inside it
+    frames = d.feed(good[:-6] + nxt)  # first frame cut short, the next starts inside it
     assert [f.seq for f in frames] == [2]
     assert d.stats.bad_crc == 1 and d.stats.frames == 1
 
@@ -192,6 +229,7 @@ def test_float_nan_travels_but_is_visible():
 
 # ----------------------------------------------------------------------------- version 3
 
+
 def test_prbs_masks_are_maximal_length():
     """Every order's LFSR visits all 2**n - 1 nonzero states (checked by brute force), and a
     period holds 2**(n-1) ones and 2**(n-1) - 1 zeros (the balance of an m-sequence)."""
@@ -203,10 +241,10 @@ def test_prbs_masks_are_maximal_length():
             state >>= 1
             if b:
                 state ^= mask
-        assert len(seen) == 2 ** order - 1 and state == 1, order
-        bits = P.prbs_bits(order, 1, 2 ** order - 1)
+        assert len(seen) == 2**order - 1 and state == 1, order
+        bits = P.prbs_bits(order, 1, 2**order - 1)
         assert sum(bits) == 2 ** (order - 1), order
-        assert P.prbs_bits(order, 1, 2 ** (order + 1) - 2)[2 ** order - 1:] == bits   # periodic
+        assert P.prbs_bits(order, 1, 2 ** (order + 1) - 2)[2**order - 1 :] == bits  # periodic
 
 
 def test_prbs_autocorrelation_is_two_valued():
@@ -215,7 +253,7 @@ def test_prbs_autocorrelation_is_two_valued():
     import numpy as np
 
     for order in (5, 8, 11):
-        n = 2 ** order - 1
+        n = 2**order - 1
         x = 2 * np.array(P.prbs_bits(order, 7, n)) - 1
         r = np.array([np.dot(x, np.roll(x, k)) for k in range(n)])
         assert r[0] == n and np.all(r[1:] == -1)
@@ -225,7 +263,7 @@ def test_prbs_bits_bad_input():
     with pytest.raises(ValueError, match="order"):
         P.prbs_bits(17, 1, 5)
     with pytest.raises(ValueError, match="seed"):
-        P.prbs_bits(4, 0x10, 5)          # low 4 bits zero
+        P.prbs_bits(4, 0x10, 5)  # low 4 bits zero
     with pytest.raises(TypeError, match="seed"):
         P.prbs_bits(4, 1.5, 5)
 
@@ -256,9 +294,16 @@ _f32s = st.floats(width=32, allow_nan=False)
 
 
 @settings(max_examples=300, deadline=None)
-@given(amp=_f32s, off=_f32s, ts=st.integers(0, 0xFFFF), n=st.integers(0, 0xFFFF),
-       seed=st.integers(0, 0xFFFF), order=st.integers(0, 255), hold=st.integers(0, 255),
-       seq=st.integers(0, 255))
+@given(
+    amp=_f32s,
+    off=_f32s,
+    ts=st.integers(0, 0xFFFF),
+    n=st.integers(0, 0xFFFF),
+    seed=st.integers(0, 0xFFFF),
+    order=st.integers(0, 255),
+    hold=st.integers(0, 255),
+    seq=st.integers(0, 255),
+)
 def test_sequence_encoding_property(amp, off, ts, n, seed, order, hold, seq):
     """Any in-range Sequence survives encode -> decode exactly, in 16 payload bytes laid out
     as PROTOCOL.md says (independent struct layout below)."""
@@ -271,8 +316,11 @@ def test_sequence_encoding_property(amp, off, ts, n, seed, order, hold, seq):
 
 
 @settings(max_examples=300, deadline=None)
-@given(taps=st.lists(st.tuples(_f32s, st.integers(0, 255)), max_size=10),
-       n=st.integers(0, 255), seq=st.integers(0, 255))
+@given(
+    taps=st.lists(st.tuples(_f32s, st.integers(0, 255)), max_size=10),
+    n=st.integers(0, 255),
+    seq=st.integers(0, 255),
+)
 def test_set_shaper_encoding_property(taps, n, seq):
     """Any SetShaper of at most 10 (amplitude, delay) pairs round-trips; the payload is
     n, the 10 amplitudes then the 10 delays, zero-padded."""
@@ -281,7 +329,9 @@ def test_set_shaper_encoding_property(taps, n, seq):
     m = P.SetShaper(n, amps, dels)
     payload = m.pack()
     pad = 10 - len(taps)
-    assert payload == struct.pack("<B", n) + struct.pack("<10f", *(amps + (0.0,) * pad)) + bytes(dels + (0,) * pad)
+    assert payload == struct.pack("<B", n) + struct.pack("<10f", *(amps + (0.0,) * pad)) + bytes(
+        dels + (0,) * pad
+    )
     (f,) = P.Decoder().feed(P.encode(m, seq))
     back = P.parse(f)
     assert back == m and back.n_taps == n and f.seq == seq

@@ -1,6 +1,7 @@
 """Issue 21, re-targeting: the moving-start planner of jerklab.rig.retarget (the firmware's
 rule in float64) and RETARGET on the virtual rig. The firmware on simavr is checked against the
 virtual rig in tests/test_rig_simavr.py."""
+
 from __future__ import annotations
 
 import math
@@ -30,27 +31,32 @@ def _check_plan(p, J, A, V, v0):
     # exact up to the rounding of the distance)
     assert abs(x0 - p.x_start) <= 4 * np.spacing(abs(p.distance) + abs(p.x_start))
     assert v_0 == pytest.approx(p.sign * v0, abs=1e-12)
-    assert a0 == 0.0 or p.shape == 2                      # a trapezoid's acceleration steps
+    assert a0 == 0.0 or p.shape == 2  # a trapezoid's acceleration steps
     assert p.state(t1) == (0.0, 0.0, 0.0, p.target)
     scale = (abs(p.distance) + 1.0, V + v0, A, J)
     for seg in p.segments[1:]:
         tb = seg[0]
         left = p.state(np.nextafter(tb, -np.inf) if tb > t0 else tb)
         right = p.state(tb)
-        for i, (l, r) in enumerate(zip(left[1:], right[1:])):    # a, v, x
+        for i, (l, r) in enumerate(zip(left[1:], right[1:])):  # a, v, x
             if i == 0 and p.shape == 2:
                 continue
             # (plus the rounding of the time tb itself times the derivative)
             deriv = (J, A, V + v0)[i]
-            assert abs(l - r) <= 1e-9 * scale[2 - i] + 8 * deriv * np.spacing(tb) + 1e-12, (i, tb, l, r)
+            assert abs(l - r) <= 1e-9 * scale[2 - i] + 8 * deriv * np.spacing(tb) + 1e-12, (
+                i,
+                tb,
+                l,
+                r,
+            )
         if p.shape == 0:
-            assert abs(left[0] - right[0]) <= 1e-6 * J          # half-sine pulses: jerk continuous
+            assert abs(left[0] - right[0]) <= 1e-6 * J  # half-sine pulses: jerk continuous
     bounds = [seg[0] for seg in p.segments]
-    a_i, v_i, x_i = 0.0, p.sign * v0, p.x_start          # state integrated from the start
+    a_i, v_i, x_i = 0.0, p.sign * v0, p.x_start  # state integrated from the start
     T = t1 - t0
     for ta_, tb_ in zip(bounds[:-1], bounds[1:]):
         t = np.linspace(ta_, tb_, 401)
-        t[-1] = np.nextafter(tb_, -np.inf)                  # the segment's own end value
+        t[-1] = np.nextafter(tb_, -np.inf)  # the segment's own end value
         x, v, a, j = p.sample(t)
         assert np.all(np.abs(v) <= max(V, v0) * (1 + 1e-9) + 1e-12)
         assert np.all(np.abs(a) <= A * (1 + 1e-9) + 1e-12)
@@ -72,9 +78,15 @@ def _check_plan(p, J, A, V, v0):
 
 
 @settings(max_examples=80, deadline=None, derandomize=True)
-@given(kind=st.integers(0, 3), d=st.floats(1e-3, 1e3), frac=st.floats(0.0, 1.0),
-       J=st.floats(10.0, 1e5), A=st.floats(1.0, 1e3), V=st.floats(0.1, 200.0),
-       back=st.booleans())
+@given(
+    kind=st.integers(0, 3),
+    d=st.floats(1e-3, 1e3),
+    frac=st.floats(0.0, 1.0),
+    J=st.floats(10.0, 1e5),
+    A=st.floats(1.0, 1e3),
+    V=st.floats(0.1, 200.0),
+    back=st.booleans(),
+)
 def test_moving_start_plan_is_continuous_exact_and_within_limits(kind, d, frac, J, A, V, back):
     v0 = frac * V
     d = -d if back else d
@@ -98,12 +110,17 @@ def test_moving_start_from_rest_is_the_rest_to_rest_planner():
             assert p.duration == pytest.approx(prof.duration, rel=1e-9)
     prof = plan_trapezoid(5.0, 300.0, 60.0)
     assert R.moving_plan(3, 5.0, 0.0, 1.0, 300.0, 60.0, iterations=60).duration == pytest.approx(
-        prof.duration, rel=1e-9)
+        prof.duration, rel=1e-9
+    )
 
 
 def _run(kind, at, new, Ts=0.005, settle=0.3):
-    prof = [plan_sine_jerk, plan_sine_jerk_optimal, plan_scurve,
-            lambda d, J, A, V: plan_trapezoid(d, A, V)][kind](4 * math.pi, 2000.0, 300.0, 60.0)
+    prof = [
+        plan_sine_jerk,
+        plan_sine_jerk_optimal,
+        plan_scurve,
+        lambda d, J, A, V: plan_trapezoid(d, A, V),
+    ][kind](4 * math.pi, 2000.0, 300.0, 60.0)
     g = pole_placement_pid(MOTOR["K"], MOTOR["tau"], wn=20.0).discretize(Ts)
     rig = connect(motor=DCMotor(**MOTOR), model=(MOTOR["K"], MOTOR["tau"]), progress=False)
     dev = rig.link.device
@@ -118,15 +135,18 @@ def _run(kind, at, new, Ts=0.005, settle=0.3):
     return rec, pieces, prof
 
 
-@pytest.mark.parametrize("kind,at,new,case", [
-    (1, 10, 25.0, "accel"),       # during the acceleration: switch at its end, then further
-    (2, 10, 25.0, "accel"),
-    (0, 10, 9.0, "accel"),        # shorter than planned: brake earlier
-    (1, 75, 20.0, "cruise"),      # in the cruise: at once (after the planning lead)
-    (2, 20, -3.0, "brake"),       # behind: brake to rest, then back
-    (3, 10, 15.0, "accel"),
-    (1, 200, 2.0, "rest"),        # after the end (settling): a new move from rest
-])
+@pytest.mark.parametrize(
+    "kind,at,new,case",
+    [
+        (1, 10, 25.0, "accel"),  # during the acceleration: switch at its end, then further
+        (2, 10, 25.0, "accel"),
+        (0, 10, 9.0, "accel"),  # shorter than planned: brake earlier
+        (1, 75, 20.0, "cruise"),  # in the cruise: at once (after the planning lead)
+        (2, 20, -3.0, "brake"),  # behind: brake to rest, then back
+        (3, 10, 15.0, "accel"),
+        (1, 200, 2.0, "rest"),  # after the end (settling): a new move from rest
+    ],
+)
 def test_virtual_rig_retarget_is_jerk_continuous_and_ends_on_target(kind, at, new, case):
     rec, pieces, prof = _run(kind, at, new, settle=0.5 if case == "rest" else 0.3)
     assert rec.metadata["status"] == "complete", rec.metadata["status"]
@@ -135,13 +155,15 @@ def test_virtual_rig_retarget_is_jerk_continuous_and_ends_on_target(kind, at, ne
     # across every change of plan the reference's state is continuous, with acceleration 0 and,
     # for the half-sine pulses, jerk 0 on both sides (the S-curve's and the trapezoid's own
     # jerk and acceleration steps are theirs, not the change's)
-    prev = R.rest_plan(kind, float(np.float32(prof.distance)), 2000.0, 300.0, 60.0)   # as sent in PLAN
+    prev = R.rest_plan(
+        kind, float(np.float32(prof.distance)), 2000.0, 300.0, 60.0
+    )  # as sent in PLAN
     for t_s, plan in pieces[1:]:
         jl, al, vl, xl = prev.state(np.nextafter(t_s, -np.inf))
         jr, ar, vr, xr = plan.state(t_s)
         # (the first plan here from the float64 distance, the device's from the float32 one of PLAN)
         assert xr == pytest.approx(xl, abs=1e-6) and vr == pytest.approx(vl, abs=1e-6)
-        if kind != 3:                                  # a trapezoid's acceleration steps there
+        if kind != 3:  # a trapezoid's acceleration steps there
             assert abs(al) <= 1e-9 * 300.0 and abs(ar) <= 1e-9 * 300.0
         if kind in (0, 1):
             assert abs(jl) <= 1e-6 * 2000.0 and abs(jr) <= 1e-6 * 2000.0
@@ -153,7 +175,7 @@ def test_virtual_rig_retarget_is_jerk_continuous_and_ends_on_target(kind, at, ne
     # a step of the peak jerk J would move it by >= J/2 between samples; the smooth pulses of
     # this run by < 0.2 J
     if kind in (0, 1):
-        j = np.diff(rec.reference.astype(float), 3) / 0.005 ** 3
+        j = np.diff(rec.reference.astype(float), 3) / 0.005**3
         assert np.max(np.abs(np.diff(j))) <= 0.4 * 2000.0
 
 
@@ -170,6 +192,6 @@ def test_retarget_outside_a_run_and_bad_values_are_refused():
         nack = None
         try:
             rig._request(P.Retarget(1.0))
-        except Exception as exc:                                  # RigCommandError
+        except Exception as exc:  # RigCommandError
             nack = exc
         assert nack is not None and "NOT_READY" in str(nack).upper().replace(" ", "_")

@@ -1,4 +1,5 @@
 """The rig client and the virtual rig: results, recordings, errors (in process)."""
+
 from __future__ import annotations
 
 import json
@@ -12,8 +13,15 @@ from jerklab import protocol as P
 from jerklab.controller import DigitalController, Feedforward, pole_placement_pid
 from jerklab.planner import plan_sine_jerk
 from jerklab.plant import DCMotor
-from jerklab.rig import (Recording, RigCommandError, RigTimeoutError, UnknownPortError, VirtualDevice,
-                         VirtualSerial, connect)
+from jerklab.rig import (
+    Recording,
+    RigCommandError,
+    RigTimeoutError,
+    UnknownPortError,
+    VirtualDevice,
+    VirtualSerial,
+    connect,
+)
 from jerklab.rig.client import Rig
 
 K, TAU = 32.4, 0.025
@@ -32,7 +40,9 @@ def rig(tmp_path):
 
 
 def _move():
-    return plan_sine_jerk(10 * math.pi, 2e4, 300.0, 100.0)      # docs/THEORY.md example (Stojčić eq. 4): T = 47 ms
+    return plan_sine_jerk(
+        10 * math.pi, 2e4, 300.0, 100.0
+    )  # docs/THEORY.md example (Stojčić eq. 4): T = 47 ms
 
 
 def test_connect_virtual_identity(rig):
@@ -47,7 +57,7 @@ def test_step_matches_closed_form(rig):
     rec = rig.step(6.0, 0.5, rest=0.05)
     assert len(rec) == 110 and rec.metadata["status"] == "complete"
     assert np.array_equal(rec.index, np.arange(110))
-    v = round(6.0 / 12.0 * 1023) / 1023 * 12.0                    # the PWM-quantized voltage
+    v = round(6.0 / 12.0 * 1023) / 1023 * 12.0  # the PWM-quantized voltage
     assert np.all(rec.control[:10] == 0) and np.all(rec.counts[:10] == 0)
     assert np.all(rec.control[10:] == pytest.approx(v))
     t = rec.time - 0.05
@@ -68,7 +78,7 @@ def test_step_identifies_the_hidden_motor(tmp_path):
     assert fit.K == pytest.approx(27.5, rel=0.01) and fit.tau == pytest.approx(0.034, rel=0.03)
     from jerklab.ident import IdentData
 
-    data = IdentData.from_recording(Recording.load(rec.csv_path))       # from the files on disk
+    data = IdentData.from_recording(Recording.load(rec.csv_path))  # from the files on disk
     assert data.Ts == 0.005 and len(data.u) == len(rec)
 
 
@@ -85,8 +95,10 @@ def _spec_run(profile, kpd, kid, kdd, Ts, n, vmax=12.0):
 
     def zoh(dt):
         a = math.exp(-dt / TAU)
-        return (np.array([[1.0, TAU * (1 - a)], [0.0, a]]),
-                np.array([K * (dt - TAU * (1 - a)), K * (1 - a)]))
+        return (
+            np.array([[1.0, TAU * (1 - a)], [0.0, a]]),
+            np.array([K * (dt - TAU * (1 - a)), K * (1 - a)]),
+        )
 
     (P1, G1), (P2, G2) = zoh(delay), zoh(Ts - delay)
     p_prev = 0
@@ -172,7 +184,7 @@ def test_velocity_loop_and_decimation(rig):
 def test_recording_on_disk_while_and_after(rig, tmp_path):
     prof = _move()
     g = pole_placement_pid(K, TAU, wn=20.0)
-    rec = rig.run_move(prof, g, Ts=0.005)          # continuous gains: discretized at Ts
+    rec = rig.run_move(prof, g, Ts=0.005)  # continuous gains: discretized at Ts
     assert rec.csv_path.parent == tmp_path and rec.csv_path.exists() and rec.json_path.exists()
     meta = json.loads(rec.json_path.read_text())
     assert meta["status"] == "complete" and meta["n_samples"] == len(rec)
@@ -254,7 +266,7 @@ def test_simavr_dispatch(monkeypatch, tmp_path):
     import sys
     import types
 
-    monkeypatch.setitem(sys.modules, "jerklab.rig.simavr", None)    # module absent
+    monkeypatch.setitem(sys.modules, "jerklab.rig.simavr", None)  # module absent
     with pytest.raises(UnknownPortError, match="simavr"):
         connect("simavr")
     # a launcher that serves the virtual rig on a pty stands in for the simulated Uno
@@ -314,8 +326,13 @@ def test_corrupted_link_resyncs(tmp_path):
                     data[i] ^= 1 << int(rng.integers(8))
             return bytes(data)
 
-    r = Rig(Noisy(VirtualDevice(), timeout=0.05), "noisy", progress=False, recordings=tmp_path,
-            hello_timeout=2.0)
+    r = Rig(
+        Noisy(VirtualDevice(), timeout=0.05),
+        "noisy",
+        progress=False,
+        recordings=tmp_path,
+        hello_timeout=2.0,
+    )
     with pytest.warns(RuntimeWarning, match=r"noisy: \d+ telemetry samples were lost"):
         rec = r.run_move(_move(), pole_placement_pid(K, TAU, wn=20.0), Ts=0.005, settle=0.1)
     md = rec.metadata
@@ -326,6 +343,7 @@ def test_corrupted_link_resyncs(tmp_path):
 
 
 # ----------------------------------------------------------------------------- the device alone
+
 
 class _Clock:
     def __init__(self):
@@ -349,8 +367,11 @@ def test_device_state_machine_and_watchdog():
     dev.receive(P.encode_frame(P.MsgType.SET_PLANT, 4, b"\x00"))
     dev.receive(P.encode_frame(P.MsgType.ACK, 5, b"\x01"))
     nacks = [P.parse(f) for f in P.Decoder().feed(dev.read_output())]
-    assert [n.error for n in nacks] == [P.ErrorCode.UNKNOWN_TYPE, P.ErrorCode.BAD_LENGTH,
-                                        P.ErrorCode.UNKNOWN_TYPE]
+    assert [n.error for n in nacks] == [
+        P.ErrorCode.UNKNOWN_TYPE,
+        P.ErrorCode.BAD_LENGTH,
+        P.ErrorCode.UNKNOWN_TYPE,
+    ]
     assert _talk(dev, P.SetGains(10.0, 0.1, 50.0, 5000))[0] == P.Ack(P.MsgType.SET_GAINS)
     assert _talk(dev, P.SetLimits(2e4, 300.0, 100.0, 12.0, 200))[0] == P.Ack(P.MsgType.SET_LIMITS)
     info = _talk(dev, P.Plan(10 * math.pi, 0))[0]
@@ -359,10 +380,10 @@ def test_device_state_machine_and_watchdog():
     assert _talk(dev, P.SetGains(1.0, 0.0, 0.0, 5000))[0].error == P.ErrorCode.BUSY
     for _ in range(10):
         dev.tick()
-    clock.t = 0.15                       # host silent 150 ms < 200 ms: still running
+    clock.t = 0.15  # host silent 150 ms < 200 ms: still running
     dev.tick()
     assert dev.active
-    clock.t = 0.25                       # 250 ms > 200 ms: the watchdog stops the motor
+    clock.t = 0.25  # 250 ms > 200 ms: the watchdog stops the motor
     dev.tick()
     out = [P.parse(f) for f in P.Decoder().feed(dev.read_output())]
     assert isinstance(out[-1], P.EndOfRun) and out[-1].reason == P.EndReason.HOST_TIMEOUT
@@ -377,21 +398,26 @@ def test_device_stop_mid_run():
     _talk(dev, P.Run(0, 1))
     dev.tick()
     dev.tick()
-    assert len(P.Decoder().feed(dev.read_output())) == 2        # two TELEMETRY frames
+    assert len(P.Decoder().feed(dev.read_output())) == 2  # two TELEMETRY frames
     out = _talk(dev, P.Stop(), seq=9)
     assert out[0] == P.Ack(P.MsgType.STOP)
-    assert any(isinstance(m, P.EndOfRun) and m.reason == P.EndReason.STOPPED and m.samples == 2 for m in out)
+    assert any(
+        isinstance(m, P.EndOfRun) and m.reason == P.EndReason.STOPPED and m.samples == 2
+        for m in out
+    )
 
 
 def test_load_keeps_whole_rows_of_a_cut_file(tmp_path):
     """A crash mid-write leaves a partial last row: loading keeps every whole row."""
-    rec = Recording({"kind": "move", "Ts": 0.005, "counts_per_rad": CPR, "volts_per_pwm": 12 / 1023},
-                    tmp_path / "cut")
+    rec = Recording(
+        {"kind": "move", "Ts": 0.005, "counts_per_rad": CPR, "volts_per_pwm": 12 / 1023},
+        tmp_path / "cut",
+    )
     for k in range(50):
         rec.append(k, 0.01 * k, k, 10 * k, 0)
-    rec.flush()                          # no finish(): the sidecar still says "recording"
+    rec.flush()  # no finish(): the sidecar still says "recording"
     text = rec.csv_path.read_text()
-    rec.csv_path.write_text(text[:-7])   # cut inside the last row
+    rec.csv_path.write_text(text[:-7])  # cut inside the last row
     with pytest.warns(UserWarning, match="still says 'recording'"):
         back = Recording.load(tmp_path / "cut.json")
     assert back.metadata["status"] == "incomplete" and len(back) == 49
@@ -412,8 +438,11 @@ def test_docstring_examples():
 
 def test_connect_stops_a_leftover_run(tmp_path):
     dev = VirtualDevice()
-    dev.receive(P.encode(P.SetGains(10.0, 0.1, 50.0, 5000)) + P.encode(P.Plan(50.0, 0))
-                + P.encode(P.Run(0, 1)))
+    dev.receive(
+        P.encode(P.SetGains(10.0, 0.1, 50.0, 5000))
+        + P.encode(P.Plan(50.0, 0))
+        + P.encode(P.Run(0, 1))
+    )
     dev.tick()
     assert dev.active
     r = Rig(VirtualSerial(dev, timeout=0.05), "virtual", progress=False, recordings=tmp_path)
@@ -440,10 +469,10 @@ def test_partial_frame_expires_on_both_sides(tmp_path):
     clock = _Clock()
     dev = VirtualDevice(clock=clock)
     long_frame = P.encode(P.SetLimits(2e4, 300.0, 100.0, 12.0, 1000), 1)
-    dev.receive(long_frame[:6])                      # cut: the device waits for 20 more bytes
-    dev.receive(P.encode(P.Hello(), 2))              # arrives at once: still inside the cut frame
+    dev.receive(long_frame[:6])  # cut: the device waits for 20 more bytes
+    dev.receive(P.encode(P.Hello(), 2))  # arrives at once: still inside the cut frame
     assert dev.read_output() == b""
-    clock.t = 0.03                                   # 30 ms of silence: the partial frame expires
+    clock.t = 0.03  # 30 ms of silence: the partial frame expires
     dev.tick()
     out = [(f.seq, P.parse(f)) for f in P.Decoder().feed(dev.read_output())]
     assert [seq for seq, _ in out] == [2] and isinstance(out[0][1], P.HelloReply)
@@ -456,20 +485,27 @@ def test_partial_frame_expires_on_both_sides(tmp_path):
         def read(self, size=1):
             if self.first:
                 self.first = False
-                return b"\xa5\x5a\x40\x90"               # a frame of len 64 that never comes
+                return b"\xa5\x5a\x40\x90"  # a frame of len 64 that never comes
             return super().read(size)
 
-    r = Rig(Prefixed(VirtualDevice(), timeout=0.05), "virtual", progress=False, recordings=tmp_path,
-            hello_timeout=1.0)
+    r = Rig(
+        Prefixed(VirtualDevice(), timeout=0.05),
+        "virtual",
+        progress=False,
+        recordings=tmp_path,
+        hello_timeout=1.0,
+    )
     assert r.name == "jerklab-virtual"
     assert r._decoder.stats.truncated == 1
-    assert r._seq == 2                 # one HELLO and the STOP: the first reply was not held back
+    assert r._seq == 2  # one HELLO and the STOP: the first reply was not held back
 
 
 def test_load_names_a_corrupt_sidecar(tmp_path):
     """A sidecar that is not JSON raises a clear error naming it and pointing at the samples."""
-    rec = Recording({"kind": "move", "Ts": 0.005, "counts_per_rad": CPR, "volts_per_pwm": 12 / 1023},
-                    tmp_path / "bad")
+    rec = Recording(
+        {"kind": "move", "Ts": 0.005, "counts_per_rad": CPR, "volts_per_pwm": 12 / 1023},
+        tmp_path / "bad",
+    )
     for k in range(5):
         rec.append(k, 0.0, k, 0, 0)
     rec.finish("complete")

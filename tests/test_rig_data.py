@@ -1,5 +1,6 @@
 """The shipped rig recordings (data/rig/): metadata, contents against independent models, the
 virtual ones re-made by their script, and the firmware-on-simavr one against the virtual rig."""
+
 from __future__ import annotations
 
 import importlib.util
@@ -8,8 +9,8 @@ import pathlib
 
 import numpy as np
 import pytest
-
 from conftest import require_tool
+
 from jerklab.plant import DCMotor
 from jerklab.rig import Recording
 
@@ -22,7 +23,9 @@ MAX_COUNT_DIFF = 2
 
 @pytest.fixture(scope="module")
 def script():
-    spec = importlib.util.spec_from_file_location("make_rig_recordings", DATA / "make_recordings.py")
+    spec = importlib.util.spec_from_file_location(
+        "make_rig_recordings", DATA / "make_recordings.py"
+    )
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
@@ -55,20 +58,28 @@ def test_metadata(recs, script, name):
     assert m["plant"] == {"supply_voltage": 12.0, "counts_per_rev": 448}
     made = m["made_by"]
     assert made["plant"] == script.PLANT and made["seed"] == script.PLANT["seed"]
-    assert made["command"].endswith("--only " + ("simavr" if name.startswith("simavr") else "virtual"))
+    assert made["command"].endswith(
+        "--only " + ("simavr" if name.startswith("simavr") else "virtual")
+    )
     assert np.array_equal(rec.index, np.arange(len(rec)))
-    assert m["device"]["name"] == ("jerklab-uno" if name.startswith("simavr") else "jerklab-virtual")
+    assert m["device"]["name"] == (
+        "jerklab-uno" if name.startswith("simavr") else "jerklab-virtual"
+    )
     if "move" in name:
         g = script.gains()
         assert m["kind"] == "move" and m["profile"]["kind"] == "sine_jerk"
-        assert made["move"] == pytest.approx(script.MOVE) and made["gains"]["wn"] == script.GAINS["wn"]
-        assert m["gains"]["kpd"] == g.kpd and m["gains"]["kid"] == g.kid and m["gains"]["kdd"] == g.kdd
+        assert (
+            made["move"] == pytest.approx(script.MOVE) and made["gains"]["wn"] == script.GAINS["wn"]
+        )
+        assert (
+            m["gains"]["kpd"] == g.kpd and m["gains"]["kid"] == g.kid and m["gains"]["kdd"] == g.kdd
+        )
         # Stojčić eq. 11 at K = 32.4, tau = 25 ms, wn = 20, zeta = 1, sigma = 140 rad/s, then eq. 13
         K, tau, wn, sigma, Ts = 32.4, 0.025, 20.0, 140.0, 0.005
-        kp = tau * (wn ** 2 + 2 * wn * sigma) / K
-        ki = tau * wn ** 2 * sigma / K
+        kp = tau * (wn**2 + 2 * wn * sigma) / K
+        ki = tau * wn**2 * sigma / K
         kd = (tau * (2 * wn + sigma) - 1) / K
-        assert m["gains"]["kpd"] == pytest.approx(kp - ki * Ts / 2, rel=1e-12)   # kp (1 - Ts / 2Ti)
+        assert m["gains"]["kpd"] == pytest.approx(kp - ki * Ts / 2, rel=1e-12)  # kp (1 - Ts / 2Ti)
         assert m["gains"]["kid"] == pytest.approx(ki * Ts, rel=1e-12)
         assert m["gains"]["kdd"] == pytest.approx(kd / Ts, rel=1e-12)
         assert m["feedforward"] == {"on": True, "K": 32.4, "tau": 0.025}
@@ -95,7 +106,7 @@ def test_move_follows_the_published_planner(recs, script, name):
         assert np.max(np.abs(rec.reference - exact)) < 1e-6 * prof.distance
     target = round(prof.distance * rec.metadata["counts_per_rad"])
     assert target == 896 and abs(rec.counts[-1] - target) <= 1
-    assert np.max(np.abs(rec.error)) < 0.05                 # < 4 counts while tracking
+    assert np.max(np.abs(rec.error)) < 0.05  # < 4 counts while tracking
     assert not rec.saturated.any()
 
 
@@ -132,8 +143,14 @@ def test_simavr_recording_agrees_with_the_virtual_one(recs):
 
 
 def test_simavr_move_remade_agrees_with_the_virtual_file(recs, script):
-    require_tool("make", "cc", "avr-g++", "simavr", "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
-                 "/usr/include/simavr/sim_avr.h")
+    require_tool(
+        "make",
+        "cc",
+        "avr-g++",
+        "simavr",
+        "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
+        "/usr/include/simavr/sim_avr.h",
+    )
     fresh = script.make_simavr_move()
     assert fresh.metadata["status"] == "complete" and fresh.metadata["lost_samples"] == 0
     _agree(fresh, recs["virtual_sine_jerk_move"])

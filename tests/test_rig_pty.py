@@ -1,5 +1,6 @@
 """The virtual rig over real links: a pseudo-terminal opened by pyserial, a TCP socket,
 the `python -m jerklab.rig serve` command, and failures (pulled cable, hung board, silent host)."""
+
 from __future__ import annotations
 
 import math
@@ -19,7 +20,9 @@ from jerklab.planner import plan_sine_jerk
 from jerklab.rig import Recording, RigConnectionError, RigTimeoutError, connect
 from jerklab.rig.server import DeviceServer
 
-pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="pseudo-terminals: Linux")
+pytestmark = pytest.mark.skipif(
+    not sys.platform.startswith("linux"), reason="pseudo-terminals: Linux"
+)
 
 K, TAU = 32.4, 0.025
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -37,11 +40,19 @@ def _gains():
 def served(tmp_path):
     """Start `python -m jerklab.rig serve` in a subprocess; yield the pty path it prints."""
     env = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    proc = subprocess.Popen([sys.executable, "-m", "jerklab.rig", "serve", "--speed", "0"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "jerklab.rig", "serve", "--speed", "0"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
     try:
         path = proc.stdout.readline().strip()
-        assert path.startswith("/dev/pts/"), (path, proc.stderr.read() if proc.poll() is not None else "")
+        assert path.startswith("/dev/pts/"), (
+            path,
+            proc.stderr.read() if proc.poll() is not None else "",
+        )
         yield path
     finally:
         proc.terminate()
@@ -60,7 +71,11 @@ def test_serve_subprocess_through_pyserial(served, tmp_path):
         while not frames and time.monotonic() < deadline:
             frames = dec.feed(s.read(s.in_waiting or 1))
         reply = P.parse(frames[0])
-        assert frames[0].seq == 77 and isinstance(reply, P.HelloReply) and reply.name == "jerklab-virtual"
+        assert (
+            frames[0].seq == 77
+            and isinstance(reply, P.HelloReply)
+            and reply.name == "jerklab-virtual"
+        )
     with connect(served, recordings=tmp_path / "pty", progress=False, timeout=10.0) as rig:
         assert rig.port == served and rig.is_virtual
         rec = rig.run_move(_move(), _gains(), Ts=0.005, settle=0.1)
@@ -114,7 +129,7 @@ def test_cable_pulled_mid_run_keeps_the_data(tmp_path):
     assert np.array_equal(rec.index, np.arange(len(rec)))
     with connect(recordings=tmp_path / "ref", progress=False) as ref_rig:
         ref = ref_rig.run_move(_move(), _gains(), Ts=0.005)
-    np.testing.assert_array_equal(rec.counts, ref.counts[:len(rec)])
+    np.testing.assert_array_equal(rec.counts, ref.counts[: len(rec)])
 
 
 def test_hung_board_times_out_with_the_data(tmp_path):
@@ -149,9 +164,14 @@ def test_device_watchdog_stops_a_silent_host():
     with DeviceServer(speed=1.0) as srv:
         path = srv.start_pty()
         with serial.Serial(path, 115200, timeout=0.05) as s:
-            for i, m in enumerate([P.SetGains(10.0, 0.1, 50.0, 5000),
-                                   P.SetLimits(2e4, 300.0, 100.0, 12.0, 150), P.Plan(100.0, 0),
-                                   P.Run(0, 1)]):
+            for i, m in enumerate(
+                [
+                    P.SetGains(10.0, 0.1, 50.0, 5000),
+                    P.SetLimits(2e4, 300.0, 100.0, 12.0, 150),
+                    P.Plan(100.0, 0),
+                    P.Run(0, 1),
+                ]
+            ):
                 s.write(P.encode(m, i))
             dec, msgs = P.Decoder(), []
             t0 = time.monotonic()
@@ -162,6 +182,6 @@ def test_device_watchdog_stops_a_silent_host():
         elapsed = time.monotonic() - t0
     end = msgs[-1]
     assert isinstance(end, P.EndOfRun) and end.reason == P.EndReason.HOST_TIMEOUT
-    assert 0.1 < elapsed < 1.5                       # ~150 ms of silence, not the whole move
-    assert 5 <= end.samples <= 80                    # ~30 samples of 5 ms (fewer on a loaded CPU)
+    assert 0.1 < elapsed < 1.5  # ~150 ms of silence, not the whole move
+    assert 5 <= end.samples <= 80  # ~30 samples of 5 ms (fewer on a loaded CPU)
     assert srv.device.pwm == 0 and not srv.device.active

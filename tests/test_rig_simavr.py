@@ -1,13 +1,14 @@
 """The rig client against the real firmware on a simulated Uno (``connect("simavr")``),
 and the virtual rig (the Python model of that firmware) against it, sample by sample."""
+
 from __future__ import annotations
 
 import math
 
 import numpy as np
 import pytest
-
 from conftest import require_tool
+
 from jerklab import protocol as P
 from jerklab.controller import pole_placement_pid
 from jerklab.planner import plan_scurve, plan_sine_jerk
@@ -19,10 +20,18 @@ MOTOR = dict(K=27.5, tau=0.034)
 
 @pytest.fixture(scope="module")
 def uno(tmp_path_factory):
-    require_tool("make", "cc", "avr-g++", "avr-size", "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
-                 "/usr/include/simavr/sim_avr.h")
+    require_tool(
+        "make",
+        "cc",
+        "avr-g++",
+        "avr-size",
+        "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
+        "/usr/include/simavr/sim_avr.h",
+    )
     rec_dir = tmp_path_factory.mktemp("simavr-recordings")
-    rig = connect("simavr", motor=DCMotor(**MOTOR), recordings=rec_dir, progress=False, timeout=10.0)
+    rig = connect(
+        "simavr", motor=DCMotor(**MOTOR), recordings=rec_dir, progress=False, timeout=10.0
+    )
     yield rig
     rig.close()
 
@@ -59,8 +68,12 @@ def test_firmware_and_virtual_rig_agree(uno, tmp_path):
     g = discrete_pole_placement_pid(MOTOR["K"], MOTOR["tau"], 20.0, Ts=0.005, extra_pole=0.5)
     uno.set_model(**MOTOR)
     fw = uno.run_move(prof, g, Ts=0.005, settle=0.2)
-    with connect(motor=DCMotor(**MOTOR), model=(MOTOR["K"], MOTOR["tau"]), recordings=tmp_path,
-                 progress=False) as virt:
+    with connect(
+        motor=DCMotor(**MOTOR),
+        model=(MOTOR["K"], MOTOR["tau"]),
+        recordings=tmp_path,
+        progress=False,
+    ) as virt:
         py = virt.run_move(prof, g, Ts=0.005, settle=0.2)
     assert fw.metadata["status"] == "complete" and len(fw) == len(py)
     assert fw.metadata["plan"]["n_samples"] == py.metadata["plan"]["n_samples"]
@@ -78,7 +91,9 @@ def test_firmware_and_virtual_rig_agree(uno, tmp_path):
     assert np.max(np.abs(fw.counts[:n] - py.counts[:n])) <= 1
     # at rest: both hold the target within the one-count limit cycle (whose phase differs)
     target = round(prof.distance * uno.counts_per_rad)
-    assert np.max(np.abs(fw.counts[n:] - target)) <= 1 and np.max(np.abs(py.counts[n:] - target)) <= 1
+    assert (
+        np.max(np.abs(fw.counts[n:] - target)) <= 1 and np.max(np.abs(py.counts[n:] - target)) <= 1
+    )
     # How many samples may differ: a count differs where an edge falls between the instant the
     # firmware reads the encoder (a few µs after the tick) and the model's t = k Ts, and where the
     # PWM the board writes at the end of its control step (modelled since issue 21:
@@ -108,7 +123,9 @@ def test_firmware_refuses_bad_parameters(uno):
         uno._request(P.SetLimits(1e4, 100.0, 50.0, 30.0, 1000))
     if not uno.capabilities & P.Capability.PLANNER_SCURVE:
         with pytest.raises(RigError, match="no 'scurve' planner"):
-            uno.run_move(plan_scurve(1.0, 1e3, 100.0, 10.0), pole_placement_pid(27.5, 0.034, wn=20.0))
+            uno.run_move(
+                plan_scurve(1.0, 1e3, 100.0, 10.0), pole_placement_pid(27.5, 0.034, wn=20.0)
+            )
 
 
 @pytest.fixture(scope="module")
@@ -116,8 +133,14 @@ def run_1khz(tmp_path_factory):
     """A 4 pi rad sine-jerk move at Ts = 1 ms on the simulated Uno (telemetry at every sample, so
     the sketch is built for 1 Mbaud) and on the virtual rig, and the harness's statistics (the
     default build's D13 probe spans the whole control step)."""
-    require_tool("make", "cc", "avr-g++", "avr-size", "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
-                 "/usr/include/simavr/sim_avr.h")
+    require_tool(
+        "make",
+        "cc",
+        "avr-g++",
+        "avr-size",
+        "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
+        "/usr/include/simavr/sim_avr.h",
+    )
     from jerklab.controller import discrete_pole_placement_pid
     from jerklab.rig import simavr
 
@@ -131,13 +154,19 @@ def run_1khz(tmp_path_factory):
     # derivative turns one count into ~200 PWM ticks
     g = discrete_pole_placement_pid(MOTOR["K"], MOTOR["tau"], 20.0, Ts=Ts, extra_pole=0.9)
     with simavr.launch(paths["elf"], K=MOTOR["K"], tau=MOTOR["tau"], build=False) as uno:
-        with connect(uno.port, baudrate=1000000, recordings=tmp_path, progress=False, timeout=10.0) as fw_rig:
+        with connect(
+            uno.port, baudrate=1000000, recordings=tmp_path, progress=False, timeout=10.0
+        ) as fw_rig:
             fw_rig.set_model(**MOTOR)
             fw = fw_rig.run_move(prof, g, Ts=Ts, settle=0.2)
             cpr = fw_rig.counts_per_rad
         st = uno.stats()
-    with connect(motor=DCMotor(**MOTOR), model=(MOTOR["K"], MOTOR["tau"]), recordings=tmp_path,
-                 progress=False) as virt:
+    with connect(
+        motor=DCMotor(**MOTOR),
+        model=(MOTOR["K"], MOTOR["tau"]),
+        recordings=tmp_path,
+        progress=False,
+    ) as virt:
         py = virt.run_move(prof, g, Ts=Ts, settle=0.2)
     return prof, fw, py, st, cpr
 
@@ -149,13 +178,16 @@ def test_1khz_loop_on_the_simulated_uno_matches_the_virtual_rig(run_1khz):
     read to PWM write, the next reference, TELEMETRY) leaves at least half of the period for the
     idle-time work; the issue's 4000 cycles are the next test."""
     prof, fw, py, st, cpr = run_1khz
-    assert fw.metadata["status"] == "complete" and len(fw) == len(py) == fw.metadata["plan"]["n_samples"] + 200
+    assert (
+        fw.metadata["status"] == "complete"
+        and len(fw) == len(py) == fw.metadata["plan"]["n_samples"] + 200
+    )
     assert fw.metadata["device_overruns"] == 0 and fw.metadata["lost_samples"] == 0
     assert np.max(np.abs(fw.reference - py.reference)) < 1e-5 * prof.distance
-    assert np.max(np.abs(fw.counts - py.counts)) <= 1                     # at every sample
+    assert np.max(np.abs(fw.counts - py.counts)) <= 1  # at every sample
     assert abs(fw.position[-1] - prof.distance) < 2 / cpr
     step = st["control_step_cycles_moving"]
-    assert step["n"] >= 0.5 * len(fw) and step["max"] <= 8000, step     # (n: ticks while moving)
+    assert step["n"] >= 0.5 * len(fw) and step["max"] <= 8000, step  # (n: ticks while moving)
     assert st["firmware_counts"] == st["ideal_counts_x1"]
     assert st["int0_latency_cycles"]["over_120"] == 0
 
@@ -177,16 +209,24 @@ def test_retarget_on_the_firmware_matches_the_virtual_rig(uno, tmp_path, kind, a
     jerk-continuous (no jump in its third differences) and the run ends on the new target."""
     from jerklab.planner import plan_sine_jerk_optimal
 
-    prof = [plan_sine_jerk, plan_sine_jerk_optimal, plan_scurve][kind](4 * math.pi, 2000.0, 300.0, 60.0)
+    prof = [plan_sine_jerk, plan_sine_jerk_optimal, plan_scurve][kind](
+        4 * math.pi, 2000.0, 300.0, 60.0
+    )
     g = pole_placement_pid(MOTOR["K"], MOTOR["tau"], wn=20.0).discretize(0.005)
     recs = []
     uno.set_model(**MOTOR)
-    with connect(motor=DCMotor(**MOTOR), model=(MOTOR["K"], MOTOR["tau"]), recordings=tmp_path,
-                 progress=False) as virt:
+    with connect(
+        motor=DCMotor(**MOTOR),
+        model=(MOTOR["K"], MOTOR["tau"]),
+        recordings=tmp_path,
+        progress=False,
+    ) as virt:
         for rig in (uno, virt):
+
             def cb(k, r, y, rig=rig):
                 if k == at:
                     rig.retarget(new)
+
             recs.append(rig.run_move(prof, g, Ts=0.005, settle=0.3, on_telemetry=cb))
     fw, py = recs
     assert fw.metadata["status"] == "complete" and fw.metadata["retargets"][0][1] == new
@@ -196,7 +236,7 @@ def test_retarget_on_the_firmware_matches_the_virtual_rig(uno, tmp_path, kind, a
     assert fw.reference[-1] == pytest.approx(new, abs=1e-5)
     assert abs(fw.position[-1] - new) < 2 / uno.counts_per_rad
     if kind == 1:
-        j = np.diff(fw.reference.astype(float), 3) / 0.005 ** 3
+        j = np.diff(fw.reference.astype(float), 3) / 0.005**3
         assert np.max(np.abs(np.diff(j))) <= 0.4 * 2000.0
 
 
@@ -213,17 +253,33 @@ def test_the_deepest_stack_stays_above_the_variables(tmp_path):
     from jerklab.rig import simavr
     from jerklab.shaping import input_shaper
 
-    require_tool("make", "cc", "avr-g++", "avr-size", "avr-nm",
-                 "/usr/share/arduino/hardware/arduino/avr/cores/arduino", "/usr/include/simavr/sim_avr.h")
+    require_tool(
+        "make",
+        "cc",
+        "avr-g++",
+        "avr-size",
+        "avr-nm",
+        "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
+        "/usr/include/simavr/sim_avr.h",
+    )
     paths = simavr.build_firmware("avr")
     simavr.build_firmware("simavr")
-    nm = subprocess.run(["avr-nm", str(paths["elf"])], capture_output=True, text=True, check=True).stdout
-    bss_end = next(int(ln.split()[0], 16) for ln in nm.splitlines() if ln.endswith(" __bss_end")) - 0x800000
+    nm = subprocess.run(
+        ["avr-nm", str(paths["elf"])], capture_output=True, text=True, check=True
+    ).stdout
+    bss_end = (
+        next(int(ln.split()[0], 16) for ln in nm.splitlines() if ln.endswith(" __bss_end"))
+        - 0x800000
+    )
     Ts = 0.005
     g = discrete_pole_placement_pid(MOTOR["K"], MOTOR["tau"], 20.0, Ts=Ts, extra_pole=0.5)
     d, J, E, W = 4 * math.pi, 2000.0, 300.0, 60.0
-    profiles = [plan_sine_jerk(d, J, E, W), plan_sine_jerk_optimal(d, J, E, W), plan_scurve(d, J, E, W),
-                plan_trapezoid(d, E, W)]
+    profiles = [
+        plan_sine_jerk(d, J, E, W),
+        plan_sine_jerk_optimal(d, J, E, W),
+        plan_scurve(d, J, E, W),
+        plan_trapezoid(d, E, W),
+    ]
     with simavr.launch(paths["elf"], K=MOTOR["K"], tau=MOTOR["tau"], build=False) as sim:
         with connect(sim.port, recordings=tmp_path, progress=False, timeout=10.0) as rig:
             rig.set_model(**MOTOR)
@@ -233,6 +289,7 @@ def test_the_deepest_stack_stays_above_the_variables(tmp_path):
             def cb(k, r, y):
                 if k == 10:
                     rig.retarget(25.0)
+
             rec = rig.run_move(profiles[1], g, Ts=Ts, settle=0.05, on_telemetry=cb)
             assert rec.metadata["status"] == "complete" and rec.metadata["retargets"]
             rig.set_shaper(input_shaper("zv", 8.0, 0.05), Ts=Ts)
@@ -242,5 +299,7 @@ def test_the_deepest_stack_stays_above_the_variables(tmp_path):
             rig.step(3.0, 0.1)
         st = sim.stats()
     gap = st["stack_min_sp"] + 1 - bss_end
-    assert gap >= 32, (f"the stack came within {gap} bytes of .bss (lowest SP {st['stack_min_sp']:#x} at "
-                       f"pc {st['stack_min_pc']:#x}, .bss ends at {bss_end:#x})")
+    assert gap >= 32, (
+        f"the stack came within {gap} bytes of .bss (lowest SP {st['stack_min_sp']:#x} at "
+        f"pc {st['stack_min_pc']:#x}, .bss ends at {bss_end:#x})"
+    )

@@ -4,6 +4,7 @@ virtual rig that mirrors it, the client (``Rig.record_prbs``, ``Rig.set_shaper``
 flexible load (``connect(plant="flexible")``, per-student hidden modes).
 
 The simulated-Uno side (the firmware ELF on simavr) is in tests/test_rig_v3_simavr.py."""
+
 from __future__ import annotations
 
 import math
@@ -41,7 +42,9 @@ def _host(driver):
 def _virtual_talk(msgs, ticks=0, motor=None):
     """Send ``msgs`` to a VirtualDevice, run ``ticks`` control periods, return its messages."""
     # the host driver applies each PWM at its tick: no computation delay on either side
-    dev = VirtualDevice(motor if motor is not None else DCMotor(), clock=lambda: 0.0, compute_delay=0.0)
+    dev = VirtualDevice(
+        motor if motor is not None else DCMotor(), clock=lambda: 0.0, compute_delay=0.0
+    )
     for i, m in enumerate(msgs):
         dev.receive(P.encode(m, i + 1))
     for _ in range(ticks):
@@ -52,19 +55,24 @@ def _virtual_talk(msgs, ticks=0, motor=None):
 # ----------------------------------------------------------------------------- parameter checks
 
 BAD_SEQUENCES = [
-    (P.Sequence(-1.0, 0.0, 5000, 10), 0), (P.Sequence(float("nan"), 0.0, 5000, 10), 0),
-    (P.Sequence(6.0, 6.5, 5000, 10), 1), (P.Sequence(1.0, float("inf"), 5000, 10), 1),
-    (P.Sequence(1.0, 0.0, 5500, 10), 2), (P.Sequence(1.0, 0.0, 5000, 0), 3),
-    (P.Sequence(1.0, 0.0, 5000, 10, seed=0x100, order=8), 4), (P.Sequence(1.0, 0.0, 5000, 10, order=1), 5),
-    (P.Sequence(1.0, 0.0, 5000, 10, order=17), 5), (P.Sequence(1.0, 0.0, 5000, 10, hold=0), 6),
+    (P.Sequence(-1.0, 0.0, 5000, 10), 0),
+    (P.Sequence(float("nan"), 0.0, 5000, 10), 0),
+    (P.Sequence(6.0, 6.5, 5000, 10), 1),
+    (P.Sequence(1.0, float("inf"), 5000, 10), 1),
+    (P.Sequence(1.0, 0.0, 5500, 10), 2),
+    (P.Sequence(1.0, 0.0, 5000, 0), 3),
+    (P.Sequence(1.0, 0.0, 5000, 10, seed=0x100, order=8), 4),
+    (P.Sequence(1.0, 0.0, 5000, 10, order=1), 5),
+    (P.Sequence(1.0, 0.0, 5000, 10, order=17), 5),
+    (P.Sequence(1.0, 0.0, 5000, 10, hold=0), 6),
 ]
 BAD_SHAPERS = [
     (P.SetShaper(11, (0.1,) * 10, (0,) * 10), 0),
-    (P.SetShaper(2, (0.5, 0.4), (0, 3)), 1),                          # sum 0.9
+    (P.SetShaper(2, (0.5, 0.4), (0, 3)), 1),  # sum 0.9
     (P.SetShaper(2, (0.5, float("nan")), (0, 3)), 1),
-    (P.SetShaper(1, (1.0, 0.25), (0, 0)), 1),                         # a tap past n_taps
-    (P.SetShaper(2, (0.5, 0.5), (0, P.SHAPER_MAX_DELAY + 1)), 2),   # beyond the ring buffer
-    (P.SetShaper(1, (1.0,), (0, 4)), 2),                              # a delay past n_taps
+    (P.SetShaper(1, (1.0, 0.25), (0, 0)), 1),  # a tap past n_taps
+    (P.SetShaper(2, (0.5, 0.5), (0, P.SHAPER_MAX_DELAY + 1)), 2),  # beyond the ring buffer
+    (P.SetShaper(1, (1.0,), (0, 4)), 2),  # a delay past n_taps
 ]
 
 
@@ -87,25 +95,34 @@ def test_sequence_and_shaper_checks_firmware_and_virtual_agree(host_driver):
         assert r[0].protocol_version == 3
         for (m, param), got in zip(BAD_SEQUENCES + BAD_SHAPERS, r[1:]):
             assert isinstance(got, P.Nack), (m, got)
-            assert (got.command, got.error, got.param) == (int(m.TYPE), P.ErrorCode.BAD_VALUE, param), (m, got)
+            assert (got.command, got.error, got.param) == (
+                int(m.TYPE),
+                P.ErrorCode.BAD_VALUE,
+                param,
+            ), (m, got)
         assert r[-2:] == [P.Ack(P.MsgType.SET_SHAPER)] * 2
 
 
 @pytest.mark.parametrize("loop", [0, 1])
-def test_run_refuses_a_gain_the_fixed_point_pid_cannot_hold_firmware_and_virtual_agree(host_driver, loop):
+def test_run_refuses_a_gain_the_fixed_point_pid_cannot_hold_firmware_and_virtual_agree(
+    host_driver, loop
+):
     """RUN: a gain scaled to PWM ticks per count (per count per sample in the velocity loop) must be
     below RUN_GAIN_LIMIT (the firmware's fixed-point PID keeps a 24-bit mantissa): NACK BAD_VALUE
     on both the firmware core and the virtual rig, and a gain at 0.9 of the limit is accepted."""
     Ts = 0.005
     scale = 2 * math.pi / 448 * 1023 / 12.0 / (Ts if loop else 1.0)
-    limit = P.RUN_GAIN_LIMIT / scale                      # the largest gain in V/rad (V s/rad)
+    limit = P.RUN_GAIN_LIMIT / scale  # the largest gain in V/rad (V s/rad)
     setup = [P.SetPlant(32.4, 0.025, 12.0, 448), P.SetLimits(2000.0, 300.0, 60.0, 12.0, 0)]
     script = []
     for k, which in ((1.1 * limit, 0), (1.1 * limit, 2), (0.9 * limit, 0)):
         kk = [0.0, 0.0, 0.0]
         kk[which] = f32(k)
-        script += [P.SetGains(kk[0], kk[1], kk[2], int(Ts * 1e6), loop, 0, 0.0), P.Plan(f32(4 * math.pi), 1),
-                   P.Run(0, 1)]
+        script += [
+            P.SetGains(kk[0], kk[1], kk[2], int(Ts * 1e6), loop, 0, 0.0),
+            P.Plan(f32(4 * math.pi), 1),
+            P.Run(0, 1),
+        ]
     dev = _host(host_driver)
     for m in setup + script:
         dev.send(m)
@@ -117,7 +134,10 @@ def test_run_refuses_a_gain_the_fixed_point_pid_cannot_hold_firmware_and_virtual
     for r in (fw, py):
         runs = [m for m in r if getattr(m, "command", None) == R]
         assert [(type(m), getattr(m, "error", None)) for m in runs] == [
-            (P.Nack, P.ErrorCode.BAD_VALUE), (P.Nack, P.ErrorCode.BAD_VALUE), (P.Ack, None)], runs
+            (P.Nack, P.ErrorCode.BAD_VALUE),
+            (P.Nack, P.ErrorCode.BAD_VALUE),
+            (P.Ack, None),
+        ], runs
         assert runs[0].param == runs[1].param == 0xFF
 
 
@@ -126,11 +146,15 @@ def test_run_move_names_a_gain_the_device_cannot_hold(tmp_path):
     from jerklab.controller import DiscreteGains
 
     with connect(motor=DCMotor(), recordings=tmp_path, progress=False) as rig:
-        limit = P.RUN_GAIN_LIMIT / (2 * math.pi / rig.counts_per_rev * rig.info.pwm_max / rig.supply_voltage)
+        limit = P.RUN_GAIN_LIMIT / (
+            2 * math.pi / rig.counts_per_rev * rig.info.pwm_max / rig.supply_voltage
+        )
         prof = plan_sine_jerk(1.0, 2000.0, 300.0, 60.0)
         with pytest.raises(ValueError, match=r"gains\.kdd = .* must be < "):
             rig.run_move(prof, DiscreteGains(10.0, 0.0, 1.01 * limit, 0.005), Ts=0.005, force=True)
-        rec = rig.run_move(prof, pole_placement_pid(32.4, 0.025, 20).discretize(0.005), Ts=0.005, settle=0.05)
+        rec = rig.run_move(
+            prof, pole_placement_pid(32.4, 0.025, 20).discretize(0.005), Ts=0.005, settle=0.05
+        )
         assert rec.metadata["status"] == "complete"
 
 
@@ -142,18 +166,24 @@ def test_sequence_busy_and_length(host_driver):
     msgs, _ = dev.run()
     nacks = [m for _, _, m in msgs if isinstance(m, P.Nack)]
     assert [(n.command, n.error) for n in nacks] == [
-        (0x0A, P.ErrorCode.BUSY), (0x0B, P.ErrorCode.BUSY), (0x0A, P.ErrorCode.BAD_LENGTH)]
+        (0x0A, P.ErrorCode.BUSY),
+        (0x0B, P.ErrorCode.BUSY),
+        (0x0A, P.ErrorCode.BAD_LENGTH),
+    ]
 
 
 # ----------------------------------------------------------------------------- the PRBS
 
-@pytest.mark.parametrize("order,seed,hold,amp,off", [(8, 1, 1, 3.0, 0.0), (5, 0x13, 3, 2.0, 0.5),
-                                                      (10, 0x2AB, 2, 1.7, -0.3)])
+
+@pytest.mark.parametrize(
+    "order,seed,hold,amp,off",
+    [(8, 1, 1, 3.0, 0.0), (5, 0x13, 3, 2.0, 0.5), (10, 0x2AB, 2, 1.7, -0.3)],
+)
 def test_prbs_bit_for_bit_firmware_virtual_python(host_driver, order, seed, hold, amp, off):
     """The firmware core's SEQUENCE and the virtual rig's apply exactly jerklab.protocol's PRBS:
     the commanded volts (TELEMETRY reference) equal ``sequence_voltages`` and the PWM is its
     rounding, sample for sample."""
-    n = min(300, ((1 << order) - 1) * hold + 7)            # past one period for the short ones
+    n = min(300, ((1 << order) - 1) * hold + 7)  # past one period for the short ones
     msg = P.Sequence(amp, off, 5000, n, seed, order, hold)
     dev = _host(host_driver)
     dev.send(msg).wait(50 * (-(-(5 * n + 30) // 50)), heartbeat_every=50)
@@ -163,14 +193,16 @@ def test_prbs_bit_for_bit_firmware_virtual_python(host_driver, order, seed, hold
     volts = P.sequence_voltages(msg)
     bits = P.prbs_bits(order, seed, -(-n // hold))
     # lround (half away from zero), as PROTOCOL.md step 4
-    expect_pwm = [int(np.clip(math.copysign(math.floor(abs(v) * 1023 / 12.0 + 0.5), v), -1023, 1023))
-                  for v in volts]
+    expect_pwm = [
+        int(np.clip(math.copysign(math.floor(abs(v) * 1023 / 12.0 + 0.5), v), -1023, 1023))
+        for v in volts
+    ]
     for tel in (fw_tel, py_tel):
         assert [t.index for t in tel] == list(range(n))
         assert [t.reference for t in tel] == volts
         assert [t.pwm for t in tel] == expect_pwm
         assert [int(t.reference > off) for t in tel] == [bits[k // hold] for k in range(n)]
-    assert pwm_out[-1][1] == 0                                           # off at the end
+    assert pwm_out[-1][1] == 0  # off at the end
 
 
 def test_record_prbs_on_the_virtual_rig(tmp_path):
@@ -184,7 +216,9 @@ def test_record_prbs_on_the_virtual_rig(tmp_path):
     n = 127 * 3
     assert rec.metadata["kind"] == "prbs" and rec.metadata["status"] == "complete"
     assert len(rec) == 10 + n and list(rec.index) == list(range(10 + n))
-    assert np.all(rec.control[:10] == 0) and np.all(np.abs(np.abs(rec.control[10:]) - 4.0) < 12 / 1023)
+    assert np.all(rec.control[:10] == 0) and np.all(
+        np.abs(np.abs(rec.control[10:]) - 4.0) < 12 / 1023
+    )
     assert list(rec.reference[10:]) == P.sequence_voltages(P.Sequence(4.0, 0.0, 5000, n, 1, 7, 3))
     assert rec.csv_path is not None and rec.csv_path.exists()
     fit = fit_dc_motor(rec.control, rec.position, rec.Ts, method="pem")
@@ -193,11 +227,15 @@ def test_record_prbs_on_the_virtual_rig(tmp_path):
 
 def test_record_prbs_bad_input_names_the_parameter():
     with connect(progress=False) as rig:
-        for kwargs, name in [(dict(amplitude=-1), "amplitude"), (dict(amplitude=1, order=1), "order"),
-                             (dict(amplitude=1, seed=0), "seed"), (dict(amplitude=1, hold=0), "hold"),
-                             (dict(amplitude=1, order=4, seed=16), "seed"),
-                             (dict(amplitude=8, offset=5), "offset"),
-                             (dict(amplitude=1, order=16, hold=2), "seconds")]:
+        for kwargs, name in [
+            (dict(amplitude=-1), "amplitude"),
+            (dict(amplitude=1, order=1), "order"),
+            (dict(amplitude=1, seed=0), "seed"),
+            (dict(amplitude=1, hold=0), "hold"),
+            (dict(amplitude=1, order=4, seed=16), "seed"),
+            (dict(amplitude=8, offset=5), "offset"),
+            (dict(amplitude=1, order=16, hold=2), "seconds"),
+        ]:
             with pytest.raises(ValueError, match=name):
                 rig.record_prbs(path=False, **kwargs)
 
@@ -217,7 +255,7 @@ def test_record_prbs_pulled_cable_keeps_every_sample(tmp_path):
     back = Recording.load(files[0])
     assert back.metadata["status"] == "disconnected"
     assert 50 < len(back) < 10 + 255
-    assert list(back.index) == list(range(len(back)))          # nothing lost before the cut
+    assert list(back.index) == list(range(len(back)))  # nothing lost before the cut
 
 
 def test_record_prbs_needs_the_capability():
@@ -238,16 +276,17 @@ def test_record_prbs_needs_the_capability():
 
 # ----------------------------------------------------------------------------- the shaper
 
+
 def _fir(taps, x):
     """Reference FIR (numpy convolution from rest), independent of the devices' ring buffers."""
-    return np.convolve(np.asarray(taps, float), np.asarray(x, float))[:len(x)]
+    return np.convolve(np.asarray(taps, float), np.asarray(x, float))[: len(x)]
 
 
 def _zv_taps(f_hz, zeta, Ts):
     """ZV shaper (two impulses, Singer & Seering) on the Ts grid, each impulse split linearly
     between its two neighbouring samples (so the taps sum to 1)."""
-    wd = 2 * math.pi * f_hz * math.sqrt(1 - zeta ** 2)
-    K = math.exp(-zeta * math.pi / math.sqrt(1 - zeta ** 2))
+    wd = 2 * math.pi * f_hz * math.sqrt(1 - zeta**2)
+    K = math.exp(-zeta * math.pi / math.sqrt(1 - zeta**2))
     amps, times = [1 / (1 + K), K / (1 + K)], [0.0, math.pi / wd]
     h = np.zeros(int(times[-1] / Ts) + 2)
     for a, t in zip(amps, times):
@@ -265,11 +304,19 @@ def test_shaped_run_firmware_virtual_and_numpy_agree(host_driver):
     Ts = 0.005
     taps = _zv_taps(7.0, 0.05, Ts)
     delays = np.flatnonzero(taps)
-    shaper = P.SetShaper(len(delays), tuple(f32(a) for a in taps[delays]), tuple(int(d) for d in delays))
+    shaper = P.SetShaper(
+        len(delays), tuple(f32(a) for a in taps[delays]), tuple(int(d) for d in delays)
+    )
     distance = f32(4 * math.pi)
     g = pole_placement_pid(32.4, 0.025, 20).discretize(Ts)
-    setup = [P.SetPlant(32.4, 0.025, 12.0, 448), P.SetGains(f32(g.kpd), f32(g.kid), f32(g.kdd), 5000, 0, 1, 0.0),
-             P.SetLimits(2e4, 300.0, 100.0, 12.0, 0), shaper, P.Plan(distance, 0), P.Run(30, 1)]
+    setup = [
+        P.SetPlant(32.4, 0.025, 12.0, 448),
+        P.SetGains(f32(g.kpd), f32(g.kid), f32(g.kdd), 5000, 0, 1, 0.0),
+        P.SetLimits(2e4, 300.0, 100.0, 12.0, 0),
+        shaper,
+        P.Plan(distance, 0),
+        P.Run(30, 1),
+    ]
     prof = plan_sine_jerk(distance, 2e4, 300.0, 100.0)
     n = math.ceil(prof.duration / Ts - 1e-4) + 1
     D = int(delays[-1])
@@ -287,7 +334,7 @@ def test_shaped_run_firmware_virtual_and_numpy_agree(host_driver):
         ref = np.array([t.reference for t in tel])
         assert np.max(np.abs(ref - expect)) <= 2e-6 * distance
         settling = np.array([bool(t.flags & P.TELEMETRY_SETTLING) for t in tel])
-        assert not settling[:n + D].any() and settling[n + D:].all()
+        assert not settling[: n + D].any() and settling[n + D :].all()
         assert abs(tel[-1].counts - distance * 448 / (2 * math.pi)) <= 2
     fr = np.array([t.reference for t in fw_tel])
     pr_ = np.array([t.reference for t in py_tel])
@@ -298,7 +345,7 @@ def test_shaped_run_firmware_virtual_and_numpy_agree(host_driver):
     dc = np.abs(np.array([t.counts for t in fw_tel]) - np.array([t.counts for t in py_tel]))
     dp = np.abs(np.array([t.pwm for t in fw_tel]) - np.array([t.pwm for t in py_tel]))
     assert dc.max() <= 1 and np.mean(dc == 0) > 0.9
-    near = np.convolve(dc != 0, np.ones(3), mode="full")[:len(dc)] > 0
+    near = np.convolve(dc != 0, np.ones(3), mode="full")[: len(dc)] > 0
     assert dp[~near].max() <= 2
 
 
@@ -353,7 +400,7 @@ def _residual_deflection(rig, shaper, f_mode, zeta):
     finally:
         dev.tick = tick
     end = int(np.argmax(rec.flags & P.TELEMETRY_SETTLING))
-    return float(np.max(np.abs(log[end:len(rec)])))
+    return float(np.max(np.abs(log[end : len(rec)])))
 
 
 def test_zv_shaper_stops_the_ringing_on_the_virtual_flexible_rig():
@@ -368,12 +415,13 @@ def test_zv_shaper_stops_the_ringing_on_the_virtual_flexible_rig():
         none = _residual_deflection(rig, None, f, z)
         tuned = _residual_deflection(rig, _ShaperLike(f, z), f, z)
         off = _residual_deflection(rig, _ShaperLike(1.4 * f, z), f, z)
-    assert none > 0.05                                 # the load rings after the move
+    assert none > 0.05  # the load rings after the move
     assert tuned < 0.1 * none
     assert off > 3 * tuned
 
 
 # ----------------------------------------------------------------------------- flexible students
+
 
 def test_student_flexible_motor_is_hidden_seeded_and_in_range(monkeypatch):
     from jerklab.lab.motors import MODE_RANGES, _truth, student_motor
@@ -385,7 +433,7 @@ def test_student_flexible_motor_is_hidden_seeded_and_in_range(monkeypatch):
     rigid = student_motor("alice")
     assert (a.mode_frequency, a.mode_damping) == (a2.mode_frequency, a2.mode_damping)
     assert a.mode_frequency != b.mode_frequency
-    assert (a.K, a.tau, a.encoder_ppr) == (rigid.K, rigid.tau, rigid.encoder_ppr)   # same motor
+    assert (a.K, a.tau, a.encoder_ppr) == (rigid.K, rigid.tau, rigid.encoder_ppr)  # same motor
     lo, hi = MODE_RANGES["mode_hz"]
     for m in (a, b):
         assert 2 * math.pi * lo <= m.mode_frequency <= 2 * math.pi * hi
@@ -403,8 +451,14 @@ def test_student_flexible_motor_is_hidden_seeded_and_in_range(monkeypatch):
         text = repr(rig) + repr(rig.link.device) + repr(rig._hidden_motor) + str(rig.device_info())
         rec = rig.step(3.0, 0.3, path=False)
         text += repr(rec) + str(rec.metadata)
-        for v in (truth["K"], truth["tau"], truth["mode_hz"], truth["mode_zeta"],
-                  rig._hidden_motor.mode_frequency, rig._hidden_motor.mode_damping):
+        for v in (
+            truth["K"],
+            truth["tau"],
+            truth["mode_hz"],
+            truth["mode_zeta"],
+            rig._hidden_motor.mode_frequency,
+            rig._hidden_motor.mode_damping,
+        ):
             for shown in (f"{v:.5g}", f"{v:.6g}", repr(v)):
                 assert shown not in text, v
         assert isinstance(rig.link.device.motor, FlexibleDCMotor)
@@ -427,15 +481,28 @@ def test_random_v3_commands_get_the_same_reply_from_firmware_and_virtual(host_dr
     low bits, NaN and inf): the firmware core and the virtual rig answer each the same way
     (ACK, or NACK with the same error and field). Sequences are stopped at once."""
     rng = np.random.default_rng(2026)
-    f = lambda x: float(np.float32(x))   # noqa: E731
+    f = lambda x: float(np.float32(x))  # noqa: E731
     msgs = []
     for i in range(200):
         amp = f(rng.choice([rng.uniform(0, 12), 6.0, -0.0, -1e-3, float("nan"), float("inf")]))
-        off = f(rng.choice([rng.uniform(-12, 12), 12.0 - amp if amp == amp and amp < 1e30 else 0.0, -6.0]))
+        off = f(
+            rng.choice(
+                [rng.uniform(-12, 12), 12.0 - amp if amp == amp and amp < 1e30 else 0.0, -6.0]
+            )
+        )
         order = int(rng.choice([rng.integers(0, 20), 2, 16, 17]))
         seed = int(rng.choice([rng.integers(0, 65536), 1 << min(order, 15), 0]))
-        msgs.append(P.Sequence(amp, off, int(rng.choice([5000, 1000, 0, 1500, 65000, 65535])),
-                               int(rng.choice([0, 1, 10])), seed, order, int(rng.choice([0, 1, 3]))))
+        msgs.append(
+            P.Sequence(
+                amp,
+                off,
+                int(rng.choice([5000, 1000, 0, 1500, 65000, 65535])),
+                int(rng.choice([0, 1, 10])),
+                seed,
+                order,
+                int(rng.choice([0, 1, 3])),
+            )
+        )
     for i in range(200):
         n = int(rng.choice([0, 1, 3, 10, 11, int(rng.integers(0, 12))]))
         k = min(n, 10)
@@ -447,7 +514,9 @@ def test_random_v3_commands_get_the_same_reply_from_firmware_and_virtual(host_dr
             a[-1] = float("nan")
         d = [int(rng.choice([rng.integers(0, 128), 127, 128, 255])) for _ in range(k)]
         extra_a = [f(rng.choice([0.0, 0.0, 0.25]))] if k < 10 and rng.random() < 0.2 else []
-        extra_d = [int(rng.choice([0, 0, 5]))] if k + len(extra_a) < 10 and rng.random() < 0.2 else []
+        extra_d = (
+            [int(rng.choice([0, 0, 5]))] if k + len(extra_a) < 10 and rng.random() < 0.2 else []
+        )
         msgs.append(P.SetShaper(n, tuple(a + extra_a), tuple(d + extra_d)))
     dev = _host(host_driver)
     py_dev = VirtualDevice(DCMotor(), clock=lambda: 0.0)
@@ -459,12 +528,15 @@ def test_random_v3_commands_get_the_same_reply_from_firmware_and_virtual(host_dr
         py_dev.receive(P.encode(m, 1))
         if isinstance(m, P.Sequence):
             py_dev.receive(P.encode(P.Stop(), 2))
-        py += [x for x in (P.parse(fr) for fr in P.Decoder().feed(py_dev.read_output()))
-               if isinstance(x, (P.Ack, P.Nack)) and x.command != P.MsgType.STOP]
+        py += [
+            x
+            for x in (P.parse(fr) for fr in P.Decoder().feed(py_dev.read_output()))
+            if isinstance(x, (P.Ack, P.Nack)) and x.command != P.MsgType.STOP
+        ]
     fw, _ = dev.run()
     fw = [x for _, _, x in fw if isinstance(x, (P.Ack, P.Nack)) and x.command != P.MsgType.STOP]
     assert len(fw) == len(py) == len(msgs)
     for m, a_, b_ in zip(msgs, fw, py):
         assert a_ == b_, (m, a_, b_)
     kinds = {(type(x).__name__, getattr(x, "param", None)) for x in fw}
-    assert len(kinds) >= 8                     # acks and NACKs naming many different fields
+    assert len(kinds) >= 8  # acks and NACKs naming many different fields

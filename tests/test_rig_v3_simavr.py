@@ -3,14 +3,15 @@ bit for bit, the shaped reference of SET_SHAPER sample by sample, and the residu
 the flexible load under each input shaper, against the virtual rig (issues 13 and 16).
 
 Heavy (a simulated Uno in real time): run alone."""
+
 from __future__ import annotations
 
 import math
 
 import numpy as np
 import pytest
-
 from conftest import require_tool
+
 from jerklab import protocol as P
 from jerklab.controller import discrete_pole_placement_pid
 from jerklab.planner import plan_sine_jerk
@@ -26,8 +27,14 @@ TS = 0.005
 
 
 def _require():
-    require_tool("make", "cc", "avr-g++", "avr-size", "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
-                 "/usr/include/simavr/sim_avr.h")
+    require_tool(
+        "make",
+        "cc",
+        "avr-g++",
+        "avr-size",
+        "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
+        "/usr/include/simavr/sim_avr.h",
+    )
 
 
 @pytest.fixture(scope="module")
@@ -150,7 +157,9 @@ def test_prbs_on_the_simulated_uno_bit_for_bit(flex_uno):
     msg = P.Sequence(3.0, 0.0, 5000, 126, 0x2D, 6, 2)
     assert rec.metadata["status"] == "complete" and rec.metadata["lost_samples"] == 0
     assert list(rec.reference[4:]) == P.sequence_voltages(msg)
-    assert list(rec.pwm[4:]) == [256 if v > 0 else -256 for v in P.sequence_voltages(msg)]   # lround(3*1023/12)
+    assert list(rec.pwm[4:]) == [
+        256 if v > 0 else -256 for v in P.sequence_voltages(msg)
+    ]  # lround(3*1023/12)
 
 
 def test_shaped_reference_on_the_simulated_uno(flex_uno):
@@ -164,7 +173,7 @@ def test_shaped_reference_on_the_simulated_uno(flex_uno):
     n = rec.metadata["plan"]["n_samples"]
     D = int(np.flatnonzero(taps)[-1])
     assert len(rec) == n + D + 20 and rec.metadata["lost_samples"] == 0
-    want = np.convolve(taps, prof.sample(np.arange(len(rec)) * TS).position)[:len(rec)]
+    want = np.convolve(taps, prof.sample(np.arange(len(rec)) * TS).position)[: len(rec)]
     assert np.max(np.abs(rec.reference - want)) <= 2e-6 * prof.distance
 
 
@@ -190,8 +199,10 @@ def test_residual_vibration_simavr_matches_the_virtual_rig(flex_uno):
         sim, rec = _simavr_residual(uno, rig, taps)
         assert rec.metadata["device_overruns"] == 0 and rec.metadata["lost_samples"] == 0
         results[kind or "none"] = (sim, _virtual_residual(taps))
-    print("residual deflection (rad) simavr / virtual:",
-          {k: (round(a, 4), round(b, 4)) for k, (a, b) in results.items()})
+    print(
+        "residual deflection (rad) simavr / virtual:",
+        {k: (round(a, 4), round(b, 4)) for k, (a, b) in results.items()},
+    )
     none = results["none"][0]
     assert none > 0.03
     sim0, virt0 = results["none"]

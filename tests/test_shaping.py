@@ -7,6 +7,7 @@ second-order mode (scipy solve_ivp) for the residual vibration of shapers and pr
 continuous-time convolution for ``apply``; the plant simulation (``FlexibleDCMotor.open_loop``)
 for the LP moves; simulated encoder records for ``identify_mode``.
 """
+
 from __future__ import annotations
 
 import math
@@ -20,10 +21,23 @@ from scipy.optimize import linprog
 
 from jerklab import planner
 from jerklab.plant import FlexibleDCMotor
-from jerklab.shaping import (KINDS, InputShaper, chirp_input, energy_optimal_move, identify_mode,
-                             input_shaper, insensitivity_table, move_time_comparison,
-                             profile_residual_vibration, residual_amplitude, residual_vibration_of,
-                             robust_move, robust_move_rows, tradeoff, tuned_profile)
+from jerklab.shaping import (
+    KINDS,
+    InputShaper,
+    chirp_input,
+    energy_optimal_move,
+    identify_mode,
+    input_shaper,
+    insensitivity_table,
+    move_time_comparison,
+    profile_residual_vibration,
+    residual_amplitude,
+    residual_vibration_of,
+    robust_move,
+    robust_move_rows,
+    tradeoff,
+    tuned_profile,
+)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -36,7 +50,7 @@ def _mode_residual(x_of_t, T, f, zeta, D, t_breaks=()):
     a step of D at T leaves D/√(1−ζ²).
     """
     w = 2 * math.pi * f
-    wd = w * math.sqrt(1 - zeta ** 2)
+    wd = w * math.sqrt(1 - zeta**2)
 
     def rhs(t, s):
         return [s[1], w * w * (x_of_t(t) - s[0]) - 2 * zeta * w * s[1]]
@@ -44,12 +58,19 @@ def _mode_residual(x_of_t, T, f, zeta, D, t_breaks=()):
     edges = sorted({0.0, *[b for b in t_breaks if 0 < b < T], T})
     s = [0.0, 0.0]
     for a, b in zip(edges[:-1], edges[1:]):
-        sol = solve_ivp(rhs, (a, b), s, method="DOP853", rtol=1e-11, atol=1e-13 * max(1.0, D),
-                        max_step=(b - a) / 20 or None)
+        sol = solve_ivp(
+            rhs,
+            (a, b),
+            s,
+            method="DOP853",
+            rtol=1e-11,
+            atol=1e-13 * max(1.0, D),
+            max_step=(b - a) / 20 or None,
+        )
         s = sol.y[:, -1]
     e, ed = s[0] - D, s[1]
     amp = math.hypot(e, (ed + zeta * w * e) / wd)
-    return 100 * amp / (D / math.sqrt(1 - zeta ** 2))
+    return 100 * amp / (D / math.sqrt(1 - zeta**2))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -58,13 +79,15 @@ def _mode_residual(x_of_t, T, f, zeta, D, t_breaks=()):
 @pytest.mark.parametrize("zeta", [0.0, 0.02, 0.1, 0.3])
 @pytest.mark.parametrize("f", [1.0, 8.0, 42.5])
 def test_zv_zvd_closed_forms(f, zeta):
-    K = math.exp(-zeta * math.pi / math.sqrt(1 - zeta ** 2))
-    Td = 1 / (f * math.sqrt(1 - zeta ** 2))
+    K = math.exp(-zeta * math.pi / math.sqrt(1 - zeta**2))
+    Td = 1 / (f * math.sqrt(1 - zeta**2))
     zv = input_shaper("zv", f, zeta)
     np.testing.assert_allclose(zv.amplitudes, [1 / (1 + K), K / (1 + K)], rtol=1e-13)
     np.testing.assert_allclose(zv.times, [0, Td / 2], rtol=1e-13)
     zvd = input_shaper("ZVD", f, zeta)
-    np.testing.assert_allclose(zvd.amplitudes, np.array([1, 2 * K, K * K]) / (1 + K) ** 2, rtol=1e-13)
+    np.testing.assert_allclose(
+        zvd.amplitudes, np.array([1, 2 * K, K * K]) / (1 + K) ** 2, rtol=1e-13
+    )
     np.testing.assert_allclose(zvd.times, [0, Td / 2, Td], rtol=1e-13)
     for s in (zv, zvd, input_shaper("zvdd", f, zeta), input_shaper("mzv", f, zeta)):
         assert s.residual_vibration(f) < 1e-10
@@ -77,7 +100,7 @@ def test_mzv_closed_form(zeta):
     """MZV: impulses at 0, 3T_d/8, 3T_d/4 with amplitudes ∝ [1, √2 K', K'²], K' = e^{−3ζπ/(4√(1−ζ²))}
     (the z-polynomial 1 + √2 q + q² has its roots at e^{±j3π/4}: the mode; Klipper's mzv)."""
     f = 12.0
-    df = math.sqrt(1 - zeta ** 2)
+    df = math.sqrt(1 - zeta**2)
     Kp = math.exp(-0.75 * zeta * math.pi / df)
     A = np.array([1, math.sqrt(2) * Kp, Kp * Kp])
     s = input_shaper("mzv", f, zeta)
@@ -95,8 +118,10 @@ def test_residual_against_integrated_mode(kind, zeta):
     s = input_shaper(kind, f, zeta)
     D = 1.5
     for r in (1.0, 1.1):
+
         def x(t):
             return D * float(np.sum(s.amplitudes[s.times <= t + 1e-15]))
+
         got = _mode_residual(x, s.duration, f * r, zeta, D, t_breaks=s.times)
         assert got == pytest.approx(s.residual_vibration(f * r), abs=2e-6)
 
@@ -109,18 +134,23 @@ def test_singhose_undamped_ei_family():
     np.testing.assert_allclose(ei.times, [0, 0.5, 1.0], rtol=1e-12)
     X = (V * V * (math.sqrt(1 - V * V) + 1)) ** (1 / 3)
     a1 = (3 * X * X + 2 * X + 3 * V * V) / (16 * X)
-    np.testing.assert_allclose(input_shaper("2-hump EI", 1.0).amplitudes, [a1, 0.5 - a1, 0.5 - a1, a1], rtol=1e-12)
+    np.testing.assert_allclose(
+        input_shaper("2-hump EI", 1.0).amplitudes, [a1, 0.5 - a1, 0.5 - a1, a1], rtol=1e-12
+    )
     b1 = (1 + 3 * V + 2 * math.sqrt(2 * V * (V + 1))) / 16
     b2 = (1 - V) / 4
-    np.testing.assert_allclose(input_shaper("3hump_ei", 1.0).amplitudes, [b1, b2, 1 - 2 * (b1 + b2), b2, b1],
-                               rtol=1e-12)
+    np.testing.assert_allclose(
+        input_shaper("3hump_ei", 1.0).amplitudes, [b1, b2, 1 - 2 * (b1 + b2), b2, b1], rtol=1e-12
+    )
     # the humps of the undamped EI family are exactly V high
     for kind, humps in (("ei", 1), ("2hump_ei", 2), ("3hump_ei", 3)):
         s = input_shaper(kind, 1.0)
         r = np.linspace(0.4, 1.6, 24001)
         v = s.sensitivity_curve(r)
         inner = (r > 0.5) & (r < 1.5)
-        peaks = [i for i in np.flatnonzero(inner) if v[i] >= v[i - 1] and v[i] >= v[i + 1] and v[i] > 1]
+        peaks = [
+            i for i in np.flatnonzero(inner) if v[i] >= v[i - 1] and v[i] >= v[i + 1] and v[i] > 1
+        ]
         assert len(peaks) == humps
         np.testing.assert_allclose(v[peaks], 5.0, atol=1e-3)
 
@@ -135,23 +165,29 @@ def test_damped_ei_conditions(kind, zeta):
     r = np.linspace(0.4, 1.7, 26001)
     v = s.sensitivity_curve(r)
     mins = [i for i in range(1, r.size - 1) if v[i] <= v[i - 1] and v[i] < v[i + 1] and v[i] < 1e-2]
-    maxs = [i for i in range(1, r.size - 1) if v[i] >= v[i - 1] and v[i] > v[i + 1]
-            and r[mins[0]] < r[i] < r[mins[-1]]]
+    maxs = [
+        i
+        for i in range(1, r.size - 1)
+        if v[i] >= v[i - 1] and v[i] > v[i + 1] and r[mins[0]] < r[i] < r[mins[-1]]
+    ]
     assert len(mins) >= m + 1 and len(maxs) == m
     np.testing.assert_allclose(v[maxs], 5.0, atol=2e-3)
     if m % 2:
-        assert s.residual_vibration(5.0) == pytest.approx(5.0, abs=1e-6)   # the middle hump at the design
+        assert s.residual_vibration(5.0) == pytest.approx(
+            5.0, abs=1e-6
+        )  # the middle hump at the design
     else:
-        assert s.residual_vibration(5.0) < 1e-6                              # the middle zero at the design
+        assert s.residual_vibration(5.0) < 1e-6  # the middle zero at the design
 
 
 @pytest.mark.parametrize("kind", ["ei", "2hump_ei", "3hump_ei"])
 def test_ei_family_over_its_damping_range(kind):
     """Designable at every damping up to Klipper's limit (continuation in ζ), refused above it."""
     from jerklab.shaping import EI_MAX_DAMPING
+
     zmax = EI_MAX_DAMPING[kind]
     for z in np.linspace(0.0, zmax, 9)[1:]:
-        s = input_shaper(kind, 3.0, float(z) - 0.003)     # off the cached grid points
+        s = input_shaper(kind, 3.0, float(z) - 0.003)  # off the cached grid points
         lo, hi = s.insensitivity(5.0)
         assert lo < 1 < hi and np.all(s.amplitudes > 0)
     with pytest.raises(ValueError, match="damping"):
@@ -212,9 +248,13 @@ def test_klipper_reading_worst_case_over_damping():
     zvd = input_shaper("zvd", 1.0, 0.1)
     for tol, w in ((5.0, 15), (10.0, 22)):
         lo, hi = zvd.insensitivity(tol, damping=zs)
-        assert 100 * (1 - lo) == pytest.approx(w, abs=1.0) and 100 * (hi - 1) == pytest.approx(w, abs=1.0)
+        assert 100 * (1 - lo) == pytest.approx(w, abs=1.0) and 100 * (hi - 1) == pytest.approx(
+            w, abs=1.0
+        )
     lo, hi = input_shaper("mzv", 1.0, 0.1).insensitivity(10.0, damping=zs)
-    assert 100 * (lo - 1) == pytest.approx(-10, abs=2.0) and 100 * (hi - 1) == pytest.approx(15, abs=2.0)
+    assert 100 * (lo - 1) == pytest.approx(-10, abs=2.0) and 100 * (hi - 1) == pytest.approx(
+        15, abs=2.0
+    )
     # the worst case is never better than any single damping of the range
     r = np.linspace(0.5, 1.5, 101)
     worst = zvd.sensitivity_curve(r, damping=zs)
@@ -242,15 +282,17 @@ def test_fir_split_preserves_area_and_delay():
         h = s.fir(Ts)
         assert h.sum() == pytest.approx(1.0, abs=1e-14)
         assert np.all(h >= 0)
-        assert (np.arange(h.size) * h).sum() * Ts == pytest.approx((s.amplitudes * s.times).sum(), rel=1e-12)
+        assert (np.arange(h.size) * h).sum() * Ts == pytest.approx(
+            (s.amplitudes * s.times).sum(), rel=1e-12
+        )
 
 
 def test_fir_on_grid_is_exact_and_off_grid_is_reported():
-    s = input_shaper("zv", 10.0, 0.0)                # impulses at 0 and 50 ms
+    s = input_shaper("zv", 10.0, 0.0)  # impulses at 0 and 50 ms
     h = s.fir(0.005)
     np.testing.assert_allclose(h[[0, 10]], [0.5, 0.5])
     assert s.digitized(0.005).residual_vibration(10.0) < 1e-10
-    off = s.digitized(0.007)                         # 50 ms = 7.14 samples: split 0.86/0.14
+    off = s.digitized(0.007)  # 50 ms = 7.14 samples: split 0.86/0.14
     assert 0 < off.residual_vibration(10.0) < 5.0
     assert off.kind == "fir"
 
@@ -266,7 +308,10 @@ def test_apply_equals_continuous_convolution_for_piecewise_linear_reference():
         s = input_shaper(kind, 9.1, 0.03)
         y = s.apply(r, Ts)
         tk = np.arange(y.size) * Ts
-        cont = sum(A * np.interp(tk - ti, t, r, left=r[0], right=r[-1]) for A, ti in zip(s.amplitudes, s.times))
+        cont = sum(
+            A * np.interp(tk - ti, t, r, left=r[0], right=r[-1])
+            for A, ti in zip(s.amplitudes, s.times)
+        )
         np.testing.assert_allclose(y, cont, atol=1e-12)
 
 
@@ -279,7 +324,7 @@ def test_apply_smooth_reference_close_to_continuous():
     y = s.apply(r, Ts)
     tk = np.arange(y.size) * Ts
     cont = sum(A * p.sample(tk - ti).position for A, ti in zip(s.amplitudes, s.times))
-    assert np.abs(y - cont).max() < 5e-4                  # O(Ts²) interpolation error
+    assert np.abs(y - cont).max() < 5e-4  # O(Ts²) interpolation error
     assert y[-1] == pytest.approx(1.0)
 
 
@@ -293,8 +338,13 @@ sample_times = st.floats(1e-4, 0.02)
 
 
 @settings(max_examples=150, deadline=None)
-@given(kind=kinds, f=freqs, zeta=dampings, Ts=sample_times,
-       ref=st.lists(st.floats(-1e3, 1e3, allow_nan=False), min_size=1, max_size=60))
+@given(
+    kind=kinds,
+    f=freqs,
+    zeta=dampings,
+    Ts=sample_times,
+    ref=st.lists(st.floats(-1e3, 1e3, allow_nan=False), min_size=1, max_size=60),
+)
 def test_apply_properties(kind, f, zeta, Ts, ref):
     s = input_shaper(kind, f, zeta)
     r = np.array(ref)
@@ -317,13 +367,15 @@ def test_apply_properties(kind, f, zeta, Ts, ref):
 def test_residual_properties(kind, f, zeta, ratio, zp):
     s = input_shaper(kind, f, zeta)
     v = s.residual_vibration(f * ratio, zp)
-    assert 0.0 <= v <= 100.0 + 1e-9                  # positive impulses never beat a step
+    assert 0.0 <= v <= 100.0 + 1e-9  # positive impulses never beat a step
     if kind in ("zv", "zvd", "zvdd", "mzv"):
         assert s.residual_vibration(f) < 1e-8
     # scaling the time axis: a shaper for f at ratio r is the shaper for 2f at ratio r
     s2 = input_shaper(kind, 2 * f, zeta)
     assert s2.residual_vibration(2 * f * ratio, zp) == pytest.approx(v, abs=1e-7)
-    np.testing.assert_allclose(residual_vibration_of(3 * s.amplitudes, s.times, f * ratio, zp), v, atol=1e-9)
+    np.testing.assert_allclose(
+        residual_vibration_of(3 * s.amplitudes, s.times, f * ratio, zp), v, atol=1e-9
+    )
 
 
 # ----------------------------------------------------------------------------------------------
@@ -343,7 +395,9 @@ def test_profile_spectrum_against_mass_spring(kind, f, zeta):
     p = PROFILES[kind]()
     T = p.duration
     breaks = np.cumsum(p.phase_times)
-    got = _mode_residual(lambda t: float(p.sample(t).position), T, f, zeta, p.distance, t_breaks=breaks)
+    got = _mode_residual(
+        lambda t: float(p.sample(t).position), T, f, zeta, p.distance, t_breaks=breaks
+    )
     assert profile_residual_vibration(p, f, zeta) == pytest.approx(got, rel=1e-5, abs=1e-6)
 
 
@@ -420,7 +474,7 @@ def test_robust_residual_on_the_perturbed_plant(flex):
     for order in (0, 2):
         m = robust_move(1.0, flex, 0.005, order=order)
         th_l, _ = stiff.open_loop(np.r_[m.u, np.zeros(200)], 0.005, output="load")
-        amps.append(np.abs(th_l[m.u.size:] - th_l[-1]).max())
+        amps.append(np.abs(th_l[m.u.size :] - th_l[-1]).max())
     assert amps[1] < amps[0] / 5
 
 
@@ -428,9 +482,9 @@ def test_energy_optimal_move(flex):
     d, Ts = 1.0, 0.005
     m = robust_move(d, flex, Ts, order=1)
     e = energy_optimal_move(d, m.u.size + 20, flex, Ts, order=1)
-    assert (e.u ** 2).sum() < (m.u ** 2).sum()
+    assert (e.u**2).sum() < (m.u**2).sum()
     th_l, _ = flex.open_loop(np.r_[e.u, np.zeros(100)], Ts, output="load")
-    np.testing.assert_allclose(th_l[e.u.size:], d, atol=1e-6)
+    np.testing.assert_allclose(th_l[e.u.size :], d, atol=1e-6)
     inc = energy_optimal_move(d, m.u.size + 20, flex, Ts, order=1, objective="increment")
     assert np.abs(np.diff(inc.u)).max() < np.abs(np.diff(e.u)).max()
     with pytest.raises(RuntimeError):
@@ -448,7 +502,11 @@ def test_tradeoff_table_and_figure():
             assert lo <= 1 <= hi
     rows = {r["name"]: r for r in t.rows}
     assert rows["ZV"]["width"] < rows["ZVD"]["width"] < rows["2-hump EI"]["width"]
-    assert rows["robust LP order 0"]["width"] < rows["robust LP order 1"]["width"] < rows["robust LP order 2"]["width"]
+    assert (
+        rows["robust LP order 0"]["width"]
+        < rows["robust LP order 1"]["width"]
+        < rows["robust LP order 2"]["width"]
+    )
     text = t.table()
     assert "penalty" in text and "3-hump EI" in text
     ax = t.plot()
@@ -468,6 +526,7 @@ def _true_mode(m):
 def test_fit_model_simulation_matches_the_plant():
     """The identification's fast simulation (eigen-decomposed ZOH, lfilter) against the plant's."""
     from jerklab.shaping import _flex_simulate, flexible_mode
+
     m = FlexibleDCMotor(load_ratio=0.3, mode_frequency=50.0, mode_damping=0.02).ideal()
     u = np.random.default_rng(0).normal(size=800)
     th, _ = m.open_loop(u, 0.005)
@@ -479,11 +538,21 @@ def test_fit_model_simulation_matches_the_plant():
 @pytest.mark.parametrize("load_ratio,excitation", [(0.05, "chirp"), (0.3, "prbs"), (0.15, "chirp")])
 def test_identify_mode_from_encoder(load_ratio, excitation):
     from jerklab.ident import prbs
-    m = FlexibleDCMotor(load_ratio=load_ratio, mode_frequency=2 * math.pi * 8.0, mode_damping=0.02,
-                        noise_std=0.002, seed=7)
+
+    m = FlexibleDCMotor(
+        load_ratio=load_ratio,
+        mode_frequency=2 * math.pi * 8.0,
+        mode_damping=0.02,
+        noise_std=0.002,
+        seed=7,
+    )
     Ts = 0.005
-    u = chirp_input(8.0, Ts, 3.0, 1.0, 30.0) if excitation == "chirp" else prbs(8.0, Ts, 3.0, clock_period=0.01)
-    _, y = m.open_loop(u, Ts)                 # quantized to 448 counts/rev, plus noise
+    u = (
+        chirp_input(8.0, Ts, 3.0, 1.0, 30.0)
+        if excitation == "chirp"
+        else prbs(8.0, Ts, 3.0, clock_period=0.01)
+    )
+    _, y = m.open_loop(u, Ts)  # quantized to 448 counts/rev, plus noise
     fit = identify_mode(u, y, Ts)
     f0, z0 = _true_mode(m)
     assert abs(fit.frequency_hz - f0) < max(4 * fit.frequency_se, 0.005 * f0)
@@ -491,9 +560,10 @@ def test_identify_mode_from_encoder(load_ratio, excitation):
     assert 0 < fit.frequency_se < 0.02 * f0
     lo, hi = fit.shaper.insensitivity(5.0, hz=True)
     assert lo <= f0 <= hi
-    assert fit.jerk_time == pytest.approx(1 / (fit.frequency_hz * math.sqrt(1 - fit.damping ** 2)))
+    assert fit.jerk_time == pytest.approx(1 / (fit.frequency_hz * math.sqrt(1 - fit.damping**2)))
     # the same record as an IdentData (equal lengths: the last input is not used)
     from jerklab.ident import IdentData
+
     fit2 = identify_mode(IdentData(u, y[:-1], Ts))
     assert fit2.frequency_hz == pytest.approx(fit.frequency_hz, rel=2e-3)
     # with a drift margin the recommendation widens, and its band holds the margin
@@ -507,63 +577,86 @@ def test_identify_mode_from_encoder(load_ratio, excitation):
 # ----------------------------------------------------------------------------------------------
 # bad input
 # ----------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("call,name", [
-    (lambda: input_shaper("zz", 1.0), "kind"),
-    (lambda: input_shaper(3, 1.0), "kind"),
-    (lambda: input_shaper("zv", -1.0), "frequency_hz"),
-    (lambda: input_shaper("zv", float("nan")), "frequency_hz"),
-    (lambda: input_shaper("zv", 1.0, 1.0), "damping"),
-    (lambda: input_shaper("zv", 1.0, -0.1), "damping"),
-    (lambda: input_shaper("ei", 1.0, 0.0, vtol=0.7), "vtol"),
-    (lambda: input_shaper("zv", 1.0).fir(0.0), "Ts"),
-    (lambda: input_shaper("zv", 1.0).apply([0.0, float("inf")], 0.01), "reference"),
-    (lambda: input_shaper("zv", 1.0).apply([], 0.01), "reference"),
-    (lambda: input_shaper("zv", 1.0).insensitivity(0.0), "tolerance"),
-    (lambda: input_shaper("zv", 1.0).insensitivity(150.0), "tolerance"),
-    (lambda: input_shaper("zv", 1.0).residual_vibration(0.0), "frequency_hz"),
-    (lambda: identify_mode(np.ones(100), np.ones(50), 0.01), "y"),
-    (lambda: identify_mode(np.ones(100)), "Ts"),
-    (lambda: identify_mode(np.ones(100), np.arange(101.0), 0.01), "u"),
-    (lambda: identify_mode(np.sin(np.arange(100.0)), np.arange(101.0), -0.01), "Ts"),
-    (lambda: chirp_input(1.0, 0.01, 1.0, 1.0, 80.0), "f1"),
-    (lambda: identify_mode(np.sin(np.arange(100.0)), np.arange(101.0), 0.01, margin=-0.1), "margin"),
-    (lambda: tuned_profile("ramp", 1.0, 8.0, 300.0, 100.0), "kind"),
-    (lambda: tuned_profile("scurve", 1.0, 8.0, -300.0, 100.0), "max_accel"),
-    (lambda: robust_move(0.0), "distance"),
-    (lambda: robust_move(1.0, model="motor"), "model"),
-    (lambda: robust_move(1.0).sensitivity_curve([-1.0, 1.0]), "ratios"),
-    (lambda: input_shaper("zv", 1.0).sensitivity_curve([0.0]), "ratios"),
-    (lambda: input_shaper("zv", 1.0).sensitivity_curve([1.0], damping=[]), "damping"),
-    (lambda: profile_residual_vibration(planner.plan_trapezoid(1.0, 1.0, 1.0), -2.0), "frequency_hz"),
-    (lambda: tradeoff(ratios=[0.0, 1.0]), "ratios"),
-    (lambda: robust_move(1.0, order=-1), "order"),
-    (lambda: robust_move(1.0, u_max=0.0), "u_max"),
-    (lambda: energy_optimal_move(1.0, 40, objective="fast"), "objective"),
-    (lambda: InputShaper("custom", 1.0, 0.0, np.array([0.5, 0.6]), np.array([0.0, 1.0])), "amplitudes"),
-])
+@pytest.mark.parametrize(
+    "call,name",
+    [
+        (lambda: input_shaper("zz", 1.0), "kind"),
+        (lambda: input_shaper(3, 1.0), "kind"),
+        (lambda: input_shaper("zv", -1.0), "frequency_hz"),
+        (lambda: input_shaper("zv", float("nan")), "frequency_hz"),
+        (lambda: input_shaper("zv", 1.0, 1.0), "damping"),
+        (lambda: input_shaper("zv", 1.0, -0.1), "damping"),
+        (lambda: input_shaper("ei", 1.0, 0.0, vtol=0.7), "vtol"),
+        (lambda: input_shaper("zv", 1.0).fir(0.0), "Ts"),
+        (lambda: input_shaper("zv", 1.0).apply([0.0, float("inf")], 0.01), "reference"),
+        (lambda: input_shaper("zv", 1.0).apply([], 0.01), "reference"),
+        (lambda: input_shaper("zv", 1.0).insensitivity(0.0), "tolerance"),
+        (lambda: input_shaper("zv", 1.0).insensitivity(150.0), "tolerance"),
+        (lambda: input_shaper("zv", 1.0).residual_vibration(0.0), "frequency_hz"),
+        (lambda: identify_mode(np.ones(100), np.ones(50), 0.01), "y"),
+        (lambda: identify_mode(np.ones(100)), "Ts"),
+        (lambda: identify_mode(np.ones(100), np.arange(101.0), 0.01), "u"),
+        (lambda: identify_mode(np.sin(np.arange(100.0)), np.arange(101.0), -0.01), "Ts"),
+        (lambda: chirp_input(1.0, 0.01, 1.0, 1.0, 80.0), "f1"),
+        (
+            lambda: identify_mode(np.sin(np.arange(100.0)), np.arange(101.0), 0.01, margin=-0.1),
+            "margin",
+        ),
+        (lambda: tuned_profile("ramp", 1.0, 8.0, 300.0, 100.0), "kind"),
+        (lambda: tuned_profile("scurve", 1.0, 8.0, -300.0, 100.0), "max_accel"),
+        (lambda: robust_move(0.0), "distance"),
+        (lambda: robust_move(1.0, model="motor"), "model"),
+        (lambda: robust_move(1.0).sensitivity_curve([-1.0, 1.0]), "ratios"),
+        (lambda: input_shaper("zv", 1.0).sensitivity_curve([0.0]), "ratios"),
+        (lambda: input_shaper("zv", 1.0).sensitivity_curve([1.0], damping=[]), "damping"),
+        (
+            lambda: profile_residual_vibration(planner.plan_trapezoid(1.0, 1.0, 1.0), -2.0),
+            "frequency_hz",
+        ),
+        (lambda: tradeoff(ratios=[0.0, 1.0]), "ratios"),
+        (lambda: robust_move(1.0, order=-1), "order"),
+        (lambda: robust_move(1.0, u_max=0.0), "u_max"),
+        (lambda: energy_optimal_move(1.0, 40, objective="fast"), "objective"),
+        (
+            lambda: InputShaper("custom", 1.0, 0.0, np.array([0.5, 0.6]), np.array([0.0, 1.0])),
+            "amplitudes",
+        ),
+    ],
+)
 def test_bad_input_names_the_parameter(call, name):
     with pytest.raises((ValueError, TypeError), match=name):
         call()
 
 
 def test_kind_aliases():
-    for alias, kind in (("ZV", "zv"), ("2-hump EI", "2hump_ei"), ("EI2", "2hump_ei"), ("3-Hump EI", "3hump_ei"),
-                        ("3hump_ei", "3hump_ei"), (" Mzv ", "mzv")):
+    for alias, kind in (
+        ("ZV", "zv"),
+        ("2-hump EI", "2hump_ei"),
+        ("EI2", "2hump_ei"),
+        ("3-Hump EI", "3hump_ei"),
+        ("3hump_ei", "3hump_ei"),
+        (" Mzv ", "mzv"),
+    ):
         assert input_shaper(alias, 5.0).kind == kind
     with pytest.raises(TypeError, match="profile"):
         profile_residual_vibration("trapezoid", 8.0)
 
 
 @settings(max_examples=200, deadline=None)
-@given(kind=st.sampled_from(["trapezoid", "scurve", "sine_jerk", "sine_jerk_optimal"]),
-       distance=st.floats(1e-3, 1e3), f=st.floats(0.5, 50.0), A=st.floats(1.0, 1e4), V=st.floats(0.1, 1e3),
-       zeta=st.sampled_from([0.0, 0.02, 0.1]))
+@given(
+    kind=st.sampled_from(["trapezoid", "scurve", "sine_jerk", "sine_jerk_optimal"]),
+    distance=st.floats(1e-3, 1e3),
+    f=st.floats(0.5, 50.0),
+    A=st.floats(1.0, 1e4),
+    V=st.floats(0.1, 1e3),
+    zeta=st.sampled_from([0.0, 0.02, 0.1]),
+)
 def test_tuned_profile_properties(kind, distance, f, A, V, zeta):
     p = tuned_profile(kind, distance, f, A, V, damping=zeta)
     assert p.peak_accel <= A * (1 + 1e-9) and p.peak_velocity <= V * (1 + 1e-9)
     assert p.duration >= planner.plan_trapezoid(distance, A, V).duration * (1 - 1e-12)
     v = profile_residual_vibration(p, np.array([0.5 * f, f, 2 * f]), zeta)
-    assert np.all((v >= 0) & (v <= 100 + 1e-9))        # a positive density never beats a step
+    assert np.all((v >= 0) & (v <= 100 + 1e-9))  # a positive density never beats a step
     if zeta == 0.0:
         assert v[1] < 1e-7
 
@@ -572,6 +665,7 @@ def test_residual_amplitude_from_a_record():
     """A shaped step into a second-order mode, sampled and quantized: the fitted amplitude matches
     the formula's V times the step."""
     from scipy.signal import lsim
+
     f, zeta, Ts, D = 6.0, 0.03, 0.001, 2.0
     w = 2 * math.pi * f
     t = np.arange(0, 3.0, Ts)
@@ -579,11 +673,16 @@ def test_residual_amplitude_from_a_record():
         s = input_shaper(kind, f, zeta)
         x = D * np.array([s.amplitudes[s.times <= tk + 1e-12].sum() for tk in t])
         _, y, _ = lsim(([(w * ratio) ** 2], [1, 2 * zeta * w * ratio, (w * ratio) ** 2]), x, t)
-        yq = np.floor(y / 1e-3) * 1e-3 + 5e-4                 # a 1 mrad encoder
+        yq = np.floor(y / 1e-3) * 1e-3 + 5e-4  # a 1 mrad encoder
         k0 = int(math.ceil(s.duration / Ts)) + 1
         got = residual_amplitude(yq, Ts, k0, frequency_hz=f * ratio, damping=zeta, final=D)
-        want = s.residual_vibration(f * ratio) / 100 * D / math.sqrt(1 - zeta ** 2) \
+        want = (
+            s.residual_vibration(f * ratio)
+            / 100
+            * D
+            / math.sqrt(1 - zeta**2)
             * math.exp(-zeta * w * ratio * (k0 * Ts - s.duration))
+        )
         assert got == pytest.approx(want, rel=0.03, abs=2e-4)
         assert residual_amplitude(yq, Ts, k0, final=D) == pytest.approx(want, rel=0.1, abs=1e-3)
     with pytest.raises(ValueError, match="start"):
@@ -591,8 +690,14 @@ def test_residual_amplitude_from_a_record():
 
 
 @settings(max_examples=150, deadline=None)
-@given(kind=kinds, f=freqs, zeta=dampings, Ts=st.floats(1e-3, 0.02), bits=st.integers(8, 24),
-       ref=st.lists(st.integers(-10**6, 10**6), min_size=1, max_size=40))
+@given(
+    kind=kinds,
+    f=freqs,
+    zeta=dampings,
+    Ts=st.floats(1e-3, 0.02),
+    bits=st.integers(8, 24),
+    ref=st.lists(st.integers(-(10**6), 10**6), min_size=1, max_size=40),
+)
 def test_fixed_point_fir(kind, f, zeta, Ts, bits, ref):
     s = input_shaper(kind, f, zeta)
     q = s.fir_fixed(Ts, bits)
@@ -601,7 +706,7 @@ def test_fixed_point_fir(kind, f, zeta, Ts, bits, ref):
     assert np.abs(q - h * (1 << bits)).max() < 1.0
     r = np.array(ref, dtype=np.int64)
     y = s.apply_fixed(r, Ts, bits)
-    assert y[-1] == r[-1] and y[0] == r[0]                     # exact ends
+    assert y[-1] == r[-1] and y[0] == r[0]  # exact ends
     # against the float FIR: the rounding of the taps plus half a count
     err = np.abs(y - s.apply(r.astype(float), Ts))
     assert np.all(err <= 0.5 + q.size * np.abs(r).max() / (1 << bits) + 1e-9)
@@ -609,4 +714,6 @@ def test_fixed_point_fir(kind, f, zeta, Ts, bits, ref):
     k = min(len(ref) - 1, 3)
     n = q.size - 1
     hist = [r[max(k - j, 0)] for j in range(q.size)]
-    assert y[k] == (sum(int(q[j]) * int(hist[j]) for j in range(q.size)) + (1 << (bits - 1))) >> bits
+    assert (
+        y[k] == (sum(int(q[j]) * int(hist[j]) for j in range(q.size)) + (1 << (bits - 1))) >> bits
+    )

@@ -1,15 +1,22 @@
 """Tests of jerklab.sim: the compiled loop against Python stepping and python-control."""
+
 from __future__ import annotations
 
 import control as ct
 import numpy as np
 import pytest
 
-from jerklab.controller import (DigitalController, DiscreteGains, Feedforward, discrete_pole_placement_pid,
-                                paper_error_scale, pole_placement_pid)
+from jerklab.controller import (
+    DigitalController,
+    DiscreteGains,
+    Feedforward,
+    discrete_pole_placement_pid,
+    paper_error_scale,
+    pole_placement_pid,
+)
 from jerklab.planner import plan_sine_jerk, plan_trapezoid
 from jerklab.plant import DCMotor, FlexibleDCMotor
-from jerklab.sim import (SampledProfile, StepProfile, perturbed_plants, simulate, simulate_batch)
+from jerklab.sim import SampledProfile, StepProfile, perturbed_plants, simulate, simulate_batch
 
 K, TAU, TS = 32.4, 0.025, 0.005
 
@@ -50,12 +57,15 @@ def _python_loop(profile, motor, controller, n):
 
 
 @pytest.mark.parametrize("loop", ["position", "velocity"])
-@pytest.mark.parametrize("motor_kw", [
-    dict(),
-    dict(coulomb_friction=0.4, load_disturbance=(0.4123, -1.5), supply_voltage=6.0),
-    dict(decoding=4, pwm_bits=8, coulomb_friction=1.0),
-    dict(offset=0.4, dead_zone=0.7, coulomb_friction=0.2),
-])
+@pytest.mark.parametrize(
+    "motor_kw",
+    [
+        dict(),
+        dict(coulomb_friction=0.4, load_disturbance=(0.4123, -1.5), supply_voltage=6.0),
+        dict(decoding=4, pwm_bits=8, coulomb_friction=1.0),
+        dict(offset=0.4, dead_zone=0.7, coulomb_friction=0.2),
+    ],
+)
 def test_kernel_equals_python_stepping(loop, motor_kw):
     motor = DCMotor(**motor_kw)
     if loop == "position":
@@ -98,9 +108,16 @@ def test_linear_loop_matches_python_control():
     Cz = ct.ss(ct.tf(num, den, TS))
     P = ct.ss(Pz.A, Pz.B, Pz.C, Pz.D, TS, inputs="u", outputs="y")
     C = ct.ss(Cz.A, Cz.B, Cz.C, Cz.D, TS, inputs="e", outputs="uc")
-    sys = ct.interconnect([P, C, ct.summing_junction(inputs=["uc", "uff"], output="u"),
-                           ct.summing_junction(inputs=["r", "-y"], output="e")],
-                          inputs=["r", "uff"], outputs=["y"])
+    sys = ct.interconnect(
+        [
+            P,
+            C,
+            ct.summing_junction(inputs=["uc", "uff"], output="u"),
+            ct.summing_junction(inputs=["r", "-y"], output="e"),
+        ],
+        inputs=["r", "uff"],
+        outputs=["y"],
+    )
     uff = (TAU * r.ref_accel + r.ref_velocity) / K
     y = np.ravel(ct.forced_response(sys, T=r.t, U=np.vstack([r.reference, uff])).outputs)
     np.testing.assert_allclose(r.position, y, atol=1e-9)
@@ -118,8 +135,8 @@ def _disturbance_run(kid_zero):
 
 def test_zero_steady_error_under_step_disturbance_with_integrator():
     r, _, _ = _disturbance_run(False)
-    assert np.max(np.abs(r.error)) > 1e-3                   # the disturbance did move it
-    assert abs(r.metrics["final_error"]) < 1e-9              # eq. 9 with B(0) = inf
+    assert np.max(np.abs(r.error)) > 1e-3  # the disturbance did move it
+    assert abs(r.metrics["final_error"]) < 1e-9  # eq. 9 with B(0) = inf
 
 
 def test_steady_error_without_integrator_is_eq9():
@@ -138,18 +155,20 @@ def test_anti_windup_bounds_overshoot():
         r = simulate(StepProfile(20.0), motor, c, t_end=3.0)
         assert np.any(r.saturated)
         over[aw] = np.max(r.position) - 20.0
-    assert over[True] < 0.05 * over[False]                  # 0.36 rad against 16 rad
-    assert over[True] < 0.025 * 20.0                         # < 2.5 % of the step
+    assert over[True] < 0.05 * over[False]  # 0.36 rad against 16 rad
+    assert over[True] < 0.025 * 20.0  # < 2.5 % of the step
 
 
 def test_z_domain_design_stable_where_eq13_is_not():
-    motor = DCMotor(supply_voltage=None, pwm_bits=None, encoder_ppr=None, load_disturbance=(0.5, 0.5))
+    motor = DCMotor(
+        supply_voltage=None, pwm_bits=None, encoder_ppr=None, load_disturbance=(0.5, 0.5)
+    )
     prof = plan_sine_jerk(2.0, 5000.0, 200.0, 50.0)
     wn = 50.0
     with pytest.warns(RuntimeWarning, match="diverged"):
         bad = simulate(prof, motor, pole_placement_pid(K, TAU, wn).discretize(TS), t_end=3.0)
     good = simulate(prof, motor, discrete_pole_placement_pid(K, TAU, wn, Ts=TS), t_end=3.0)
-    assert not np.all(np.abs(bad.error[-50:]) < 1.0)          # diverging
+    assert not np.all(np.abs(bad.error[-50:]) < 1.0)  # diverging
     assert bad.diverged and np.isnan(bad.metrics["settling_time"])
     assert not good.diverged and abs(good.metrics["final_error"]) < 1e-6
 
@@ -159,10 +178,15 @@ def test_velocity_loop_with_paper_gains_vs_placed():
     motor = DCMotor()
     prof = plan_sine_jerk(5.0, 5000.0, 200.0, 30.0)
     g = pole_placement_pid(K, TAU, 10.0).discretize(TS)
-    paper = DigitalController(DiscreteGains(g.kpd, g.kid, g.kdd, TS, loop="velocity"), Feedforward(K, TAU),
-                              error_scale=paper_error_scale(TS, 448, 1))
-    placed = DigitalController(discrete_pole_placement_pid(K, TAU, 20.0, Ts=TS, loop="velocity",
-                                                           extra_pole=0.0), Feedforward(K, TAU))
+    paper = DigitalController(
+        DiscreteGains(g.kpd, g.kid, g.kdd, TS, loop="velocity"),
+        Feedforward(K, TAU),
+        error_scale=paper_error_scale(TS, 448, 1),
+    )
+    placed = DigitalController(
+        discrete_pole_placement_pid(K, TAU, 20.0, Ts=TS, loop="velocity", extra_pole=0.0),
+        Feedforward(K, TAU),
+    )
     rp = simulate(prof, motor, paper, t_end=prof.duration + 0.5)
     rq = simulate(prof, motor, placed, t_end=prof.duration + 0.5)
     assert rq.loop == "velocity"
@@ -186,8 +210,11 @@ def test_feedforward_makes_tracking_small():
 def test_batch_engines_agree_and_match_single_runs():
     motor = DCMotor(coulomb_friction=0.2, load_disturbance=(0.8, -0.7))
     prof = plan_trapezoid(4.0, 300.0, 40.0)
-    d = DigitalController(discrete_pole_placement_pid(K, TAU, 25.0, Ts=TS), Feedforward(K, TAU),
-                          output_limit=motor.supply_voltage)
+    d = DigitalController(
+        discrete_pole_placement_pid(K, TAU, 25.0, Ts=TS),
+        Feedforward(K, TAU),
+        output_limit=motor.supply_voltage,
+    )
     pp = perturbed_plants(40, friction=(0.0, 0.6), seed=3)
     a = simulate_batch(prof, motor, d, engine="compiled", **pp)
     b = simulate_batch(prof, motor, d, engine="numpy", **pp)
@@ -195,10 +222,18 @@ def test_batch_engines_agree_and_match_single_runs():
     for key in a.metrics:
         np.testing.assert_allclose(a.metrics[key], b.metrics[key], atol=1e-10, err_msg=key)
     for j in (0, 17, 39):
-        m = motor.replace(K=pp["K"][j], tau=pp["tau"][j], coulomb_friction=pp["coulomb_friction"][j])
+        m = motor.replace(
+            K=pp["K"][j], tau=pp["tau"][j], coulomb_friction=pp["coulomb_friction"][j]
+        )
         r = simulate(prof, m, d)
         np.testing.assert_allclose(a.position[j], r.position, atol=1e-12)
-        for key in ("max_abs_error", "rms_error", "final_error", "settling_time", "max_abs_voltage"):
+        for key in (
+            "max_abs_error",
+            "rms_error",
+            "final_error",
+            "settling_time",
+            "max_abs_voltage",
+        ):
             assert a.metrics[key][j] == pytest.approx(r.metrics[key], abs=1e-12), key
     c = simulate_batch(prof, motor, d, keep_traces=False, **pp)
     assert c.position is None
@@ -224,17 +259,20 @@ def test_metrics_and_plot():
     assert len(fig.axes) == 3 and "rad" in fig.axes[0].get_ylabel()
 
 
-@pytest.mark.parametrize("call, name", [
-    (lambda d: simulate(object(), DCMotor(), d), "profile"),
-    (lambda d: simulate(Cosine(), "motor", d), "motor"),
-    (lambda d: simulate(Cosine(), DCMotor(), pole_placement_pid(K, TAU, 10.0)), "discretize"),
-    (lambda d: simulate(Cosine(), DCMotor(), d, Ts=0.001), "Ts"),
-    (lambda d: simulate(Cosine(), DCMotor(), d, t_end=-1.0), "t_end"),
-    (lambda d: simulate(Cosine(), DCMotor(), d, loop="speed"), "loop"),
-    (lambda d: simulate_batch(Cosine(), DCMotor(), d, K=[1.0, -2.0]), "K"),
-    (lambda d: simulate_batch(Cosine(), DCMotor(), d, tau=[np.nan]), "tau"),
-    (lambda d: simulate_batch(Cosine(), DCMotor(), d, engine="gpu"), "engine"),
-])
+@pytest.mark.parametrize(
+    "call, name",
+    [
+        (lambda d: simulate(object(), DCMotor(), d), "profile"),
+        (lambda d: simulate(Cosine(), "motor", d), "motor"),
+        (lambda d: simulate(Cosine(), DCMotor(), pole_placement_pid(K, TAU, 10.0)), "discretize"),
+        (lambda d: simulate(Cosine(), DCMotor(), d, Ts=0.001), "Ts"),
+        (lambda d: simulate(Cosine(), DCMotor(), d, t_end=-1.0), "t_end"),
+        (lambda d: simulate(Cosine(), DCMotor(), d, loop="speed"), "loop"),
+        (lambda d: simulate_batch(Cosine(), DCMotor(), d, K=[1.0, -2.0]), "K"),
+        (lambda d: simulate_batch(Cosine(), DCMotor(), d, tau=[np.nan]), "tau"),
+        (lambda d: simulate_batch(Cosine(), DCMotor(), d, engine="gpu"), "engine"),
+    ],
+)
 def test_bad_input(call, name):
     d = discrete_pole_placement_pid(K, TAU, 20.0, Ts=TS)
     with pytest.raises(ValueError, match=name):

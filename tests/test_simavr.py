@@ -4,6 +4,7 @@ The harness (firmware/simavr/jl_simavr.c) runs the ELF cycle-accurately, bridges
 pty, reads OCR1A and the L298 direction pins, integrates the DC motor and feeds quadrature
 edges back; these tests talk to it over pyserial exactly as to a board on a USB port.
 """
+
 from __future__ import annotations
 
 import math
@@ -15,8 +16,8 @@ import time
 
 import numpy as np
 import pytest
-
 from conftest import require_tool
+
 import jerklab.rig as rig_mod
 from jerklab import protocol as pr
 from jerklab.controller import pole_placement_pid
@@ -52,8 +53,14 @@ def _forget_simavr_module():
 
 @pytest.fixture
 def tools():
-    require_tool("make", "cc", "avr-g++", "avr-nm", "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
-                 "/usr/include/simavr/sim_avr.h")
+    require_tool(
+        "make",
+        "cc",
+        "avr-g++",
+        "avr-nm",
+        "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
+        "/usr/include/simavr/sim_avr.h",
+    )
 
 
 @pytest.fixture
@@ -94,8 +101,10 @@ def test_sine_jerk_move_on_simulated_uno_matches_virtual_rig(uno, tmp_path):
     assert rec.metadata["status"] == "complete"
     assert rec.metadata["device_overruns"] == 0 and rec.metadata["device_rx_errors"] == 0
     assert abs(rec.counts[-1] - target) <= 2
-    assert len(rec.counts) == len(ref.counts), (rec.metadata, sorted(set(range(len(ref.counts)))
-                                                - set(np.round(rec.time / 0.005).astype(int).tolist())))
+    assert len(rec.counts) == len(ref.counts), (
+        rec.metadata,
+        sorted(set(range(len(ref.counts))) - set(np.round(rec.time / 0.005).astype(int).tolist())),
+    )
     assert np.max(np.abs(rec.counts - ref.counts)) <= 2
     np.testing.assert_allclose(rec.reference, ref.reference, atol=1e-5 * profile.distance)
     # the firmware's own counter agrees with a perfect decoder on the harness side
@@ -144,8 +153,15 @@ def test_no_encoder_count_lost_at_top_speed(uno):
     perfect decoder, and INT0 was always served within a quarter encoder period (so channel B
     is read before it changes)."""
     s0 = uno.stats()
-    msgs = _raw_session(uno.port, [pr.Hello(1), pr.SetPlant(K, TAU, VS, 448),
-                                   pr.SetLimits(2e4, 300.0, 100.0, VS, 1000), pr.Step(VS, 5000, 100)])
+    msgs = _raw_session(
+        uno.port,
+        [
+            pr.Hello(1),
+            pr.SetPlant(K, TAU, VS, 448),
+            pr.SetLimits(2e4, 300.0, 100.0, VS, 1000),
+            pr.Step(VS, 5000, 100),
+        ],
+    )
     tel = [m for m in msgs if isinstance(m, pr.Telemetry)]
     end = [m for m in msgs if isinstance(m, pr.EndOfRun)]
     assert len(tel) == 100 and end[0].reason == pr.EndReason.DONE and end[0].overruns == 0
@@ -167,16 +183,23 @@ def test_firmware_stops_the_motor_when_the_host_falls_silent(uno):
     """Host watchdog on the real firmware: a run with host_timeout 100 ms and no heartbeat ends
     with END_OF_RUN(HOST_TIMEOUT) and the bridge switched off."""
     g = pole_placement_pid(K, TAU, 20).discretize(0.005)
-    msgs = _raw_session(uno.port, [pr.SetGains(g.kpd, g.kid, g.kdd, 5000, 0, 1, 0.0),
-                                   pr.SetLimits(2e4, 300.0, 100.0, VS, 100), pr.Plan(200.0, 0),
-                                   pr.Run(0, 1)], heartbeat=1e9)
+    msgs = _raw_session(
+        uno.port,
+        [
+            pr.SetGains(g.kpd, g.kid, g.kdd, 5000, 0, 1, 0.0),
+            pr.SetLimits(2e4, 300.0, 100.0, VS, 100),
+            pr.Plan(200.0, 0),
+            pr.Run(0, 1),
+        ],
+        heartbeat=1e9,
+    )
     end = [m for m in msgs if isinstance(m, pr.EndOfRun)][0]
     tel = [m for m in msgs if isinstance(m, pr.Telemetry)]
     assert end.reason == pr.EndReason.HOST_TIMEOUT
-    assert 19 <= end.samples <= 23                  # ~100 ms of 5 ms samples, then it stopped
-    assert any(t.pwm != 0 for t in tel)             # the motor had been driven
+    assert 19 <= end.samples <= 23  # ~100 ms of 5 ms samples, then it stopped
+    assert any(t.pwm != 0 for t in tel)  # the motor had been driven
     s = uno.stats()
-    assert s["volts"] == 0.0                         # IN1 = IN2 = 0 and OCR1A = 0
+    assert s["volts"] == 0.0  # IN1 = IN2 = 0 and OCR1A = 0
 
 
 def test_connect_simavr_and_close_ends_the_harness(tools, tmp_path):
@@ -192,7 +215,7 @@ def test_connect_simavr_and_close_ends_the_harness(tools, tmp_path):
     end = time.monotonic() + 5
     while os.path.exists(port) and time.monotonic() < end:
         time.sleep(0.05)
-    assert not os.path.exists(port)          # the pty went away with the harness
+    assert not os.path.exists(port)  # the pty went away with the harness
 
 
 def test_two_simulations_side_by_side(tools, tmp_path):
@@ -214,7 +237,7 @@ def test_two_simulations_side_by_side(tools, tmp_path):
             rec = results[i]
             assert rec is not None and len(rec.counts) == 60
             v_end = (rec.position[-1] - rec.position[-11]) / (10 * 0.005)
-            assert v_end == pytest.approx(k * 6.0 * 512 / 511.5, rel=0.02)   # each its own motor
+            assert v_end == pytest.approx(k * 6.0 * 512 / 511.5, rel=0.02)  # each its own motor
     finally:
         for u in unos:
             u.close()
@@ -239,8 +262,11 @@ def _replies(ser, dec, n, timeout):
     out = []
     end = time.monotonic() + timeout
     while len(out) < n and time.monotonic() < end:
-        out += [f for f in dec.feed(ser.read(256)) if f.type in (pr.MsgType.ACK, pr.MsgType.HELLO_REPLY,
-                                                                   pr.MsgType.NACK)]
+        out += [
+            f
+            for f in dec.feed(ser.read(256))
+            if f.type in (pr.MsgType.ACK, pr.MsgType.HELLO_REPLY, pr.MsgType.NACK)
+        ]
     return out
 
 
@@ -252,8 +278,12 @@ def test_bytes_written_right_after_launch_are_not_lost(tools):
     exactly the bytes the host wrote."""
     import serial
 
-    burst = [pr.Hello(1), pr.SetPlant(K, TAU, VS, 448), pr.SetLimits(2e4, 300.0, 100.0, VS, 1000),
-             pr.Hello(1)]
+    burst = [
+        pr.Hello(1),
+        pr.SetPlant(K, TAU, VS, 448),
+        pr.SetLimits(2e4, 300.0, 100.0, VS, 1000),
+        pr.Hello(1),
+    ]
     data = b"".join(pr.encode(m, i + 1) for i, m in enumerate(burst))
     for attempt in range(6):
         # not waiting for the firmware's UART: the harness alone must keep the bytes
@@ -263,8 +293,12 @@ def test_bytes_written_right_after_launch_are_not_lost(tools):
                 replies = _replies(ser, pr.Decoder(), len(burst), timeout=10.0)
                 s = uno.stats()
         assert [f.seq for f in replies] == [1, 2, 3, 4], (attempt, replies, s)
-        assert [f.type for f in replies] == [pr.MsgType.HELLO_REPLY, pr.MsgType.ACK, pr.MsgType.ACK,
-                                             pr.MsgType.HELLO_REPLY]
+        assert [f.type for f in replies] == [
+            pr.MsgType.HELLO_REPLY,
+            pr.MsgType.ACK,
+            pr.MsgType.ACK,
+            pr.MsgType.HELLO_REPLY,
+        ]
         assert s["uart_rx_bytes"] == len(data) and s["uart_rx_pending"] == 0
         assert s["uart_ready_seconds"] > 0
 
@@ -280,10 +314,13 @@ def test_launch_returns_once_the_firmware_can_receive(uno):
     assert info.name == "jerklab-uno"
 
 
-
 @pytest.fixture
 def avrdude(tools):
-    require_tool("avrdude", "avr-gcc", "/usr/share/arduino/hardware/arduino/avr/bootloaders/optiboot/optiboot.c")
+    require_tool(
+        "avrdude",
+        "avr-gcc",
+        "/usr/share/arduino/hardware/arduino/avr/bootloaders/optiboot/optiboot.c",
+    )
 
 
 def test_make_upload_flashes_the_sketch_through_optiboot(avrdude, tmp_path):
@@ -294,11 +331,15 @@ def test_make_upload_flashes_the_sketch_through_optiboot(avrdude, tmp_path):
     HELLO."""
     fw = simavr.firmware_dir()
     with simavr.launch(elf=False, bootloader=True) as uno:
-        out = subprocess.run(["make", "-C", str(fw), "upload", f"PORT={uno.port}"], capture_output=True,
-                             text=True, timeout=180)
+        out = subprocess.run(
+            ["make", "-C", str(fw), "upload", f"PORT={uno.port}"],
+            capture_output=True,
+            text=True,
+            timeout=180,
+        )
         log = out.stdout + out.stderr
         assert out.returncode == 0, log
-        with open(fw / "build" / "jerklab_rig.hex") as fh:     # data bytes of the Intel hex
+        with open(fw / "build" / "jerklab_rig.hex") as fh:  # data bytes of the Intel hex
             size = sum(int(ln[1:3], 16) for ln in fh if ln.startswith(":") and ln[7:9] == "00")
         m = re.search(r"(\d+) bytes of flash verified", log)
         assert m and int(m.group(1)) == size, log
@@ -317,8 +358,8 @@ def test_connect_gets_the_sketch_after_the_bootloader(tools, tmp_path):
         with rig_mod.connect(uno.port, progress=False, recordings=tmp_path) as rig:
             took = time.monotonic() - t0
             assert rig.name == "jerklab-uno"
-            if s0["sim_seconds"] < 0.8:               # Optiboot still listening (~1 s) at the first HELLO
-                assert rig.hello_answered >= 2        # ... so the first HELLO went to Optiboot
+            if s0["sim_seconds"] < 0.8:  # Optiboot still listening (~1 s) at the first HELLO
+                assert rig.hello_answered >= 2  # ... so the first HELLO went to Optiboot
             assert rig.step(3.0, 0.05, rest=0.0).metadata["status"] == "complete"
         assert took < 3.0
 
@@ -330,7 +371,9 @@ def test_a_bootloader_that_does_not_fit_is_refused(tools, tmp_path):
     if not os.path.exists(hexfile):
         pytest.skip("needs arduino-core-avr's optiboot_atmega328.hex")
     with open(hexfile) as fh:
-        beyond = [ln for ln in fh if ln.startswith(":") and ln[7:9] == "00" and int(ln[3:7], 16) >= 0x8000]
+        beyond = [
+            ln for ln in fh if ln.startswith(":") and ln[7:9] == "00" and int(ln[3:7], 16) >= 0x8000
+        ]
     if not beyond:
         pytest.skip("this arduino-core-avr's Optiboot fits the boot section")
     with pytest.raises(simavr.HarnessError, match="does not fit the flash"):

@@ -1,5 +1,6 @@
 """docs/THEORY.md: every equation heading the code needs is there, every function it names exists,
 and nothing points outside the repository."""
+
 from __future__ import annotations
 
 import importlib
@@ -11,8 +12,24 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 THEORY = (ROOT / "docs" / "THEORY.md").read_text(encoding="utf-8")
 HEADINGS = [line for line in THEORY.splitlines() if line.startswith("#")]
-MODULES = ("paper", "planner", "plant", "controller", "sim", "ident", "piezo", "hysteresis", "fpga",
-           "multiaxis", "shaping", "peers", "plots", "protocol", "widgets", "rig")
+MODULES = (
+    "paper",
+    "planner",
+    "plant",
+    "controller",
+    "sim",
+    "ident",
+    "piezo",
+    "hysteresis",
+    "fpga",
+    "multiaxis",
+    "shaping",
+    "peers",
+    "plots",
+    "protocol",
+    "widgets",
+    "rig",
+)
 
 
 def _in_heading(citation):
@@ -20,10 +37,38 @@ def _in_heading(citation):
     return any(pat.search(h) for h in HEADINGS)
 
 
-@pytest.mark.parametrize("citation", [f"Stojčić eq. {i}" for i in range(1, 19)]
-                         + [f"Xu & Meckl eq. {i}" for i in (1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, "14.1",
-                                                            "14.2", "15.1", "15.2", "15.3", 16, 17, 18, 19)]
-                         + [f"Yang eq. {i}" for i in range(1, 9)])
+@pytest.mark.parametrize(
+    "citation",
+    [f"Stojčić eq. {i}" for i in range(1, 19)]
+    + [
+        f"Xu & Meckl eq. {i}"
+        for i in (
+            1,
+            2,
+            3,
+            4,
+            5,
+            6,
+            7,
+            8,
+            9,
+            10,
+            11,
+            12,
+            13,
+            "14.1",
+            "14.2",
+            "15.1",
+            "15.2",
+            "15.3",
+            16,
+            17,
+            18,
+            19,
+        )
+    ]
+    + [f"Yang eq. {i}" for i in range(1, 9)],
+)
 def test_every_equation_has_a_heading(citation):
     assert _in_heading(citation), citation
 
@@ -35,7 +80,7 @@ def test_well_formed_code_citations_are_explained():
     for f in list((ROOT / "jerklab").glob("*.py")) + list((ROOT / "jerklab" / "rig").glob("*.py")):
         for paper, num in cite.findall(f.read_text(encoding="utf-8")):
             found.add(f"{'Stojčić' if paper == 'Stojcic' else paper} eq. {num}")
-    assert found                                                   # the package cites something
+    assert found  # the package cites something
     missing = sorted(c for c in found if not _in_heading(c))
     assert missing == []
 
@@ -52,7 +97,7 @@ def test_named_functions_exist():
                 try:
                     obj = getattr(obj, name)
                 except AttributeError:
-                    obj = importlib.import_module(f"jerklab.{'.'.join(parts[:i + 1])}")
+                    obj = importlib.import_module(f"jerklab.{'.'.join(parts[: i + 1])}")
         except (AttributeError, ImportError):
             bad.append(ref)
     assert bad == []
@@ -60,8 +105,15 @@ def test_named_functions_exist():
 
 # the developers' material beside the repository, spelled in pieces so this file does not name it
 _SH = "sha" + "red"
-OUTSIDE = ("../" + _SH, "/work/" + _SH, "READ" + "ING.md", "RIG" + "-NOTES", "LA" + "BS.md",
-           "ARCHI" + "TECTURE.md", "STY" + "LE.md")
+OUTSIDE = (
+    "../" + _SH,
+    "/work/" + _SH,
+    "READ" + "ING.md",
+    "RIG" + "-NOTES",
+    "LA" + "BS.md",
+    "ARCHI" + "TECTURE.md",
+    "STY" + "LE.md",
+)
 
 
 def test_the_ascii_spelling_and_no_outside_pointer():
@@ -74,20 +126,52 @@ def test_the_repository_points_inside_itself():
     """No file of the repository sends a reader to the developers' folder beside it or to their
     reading notes (issue 19)."""
     here = Path(__file__).resolve()
-    roots = [ROOT / d for d in ("jerklab", "notebooks", "tests", "firmware", "docs", "data", "app",
-                                "benchmarks", "tools")] + [ROOT / "README.md", ROOT / "CONTRIBUTING.md"]
+    roots = [
+        ROOT / d
+        for d in (
+            "jerklab",
+            "notebooks",
+            "tests",
+            "firmware",
+            "docs",
+            "data",
+            "app",
+            "benchmarks",
+            "tools",
+        )
+    ] + [ROOT / "README.md", ROOT / "CONTRIBUTING.md"]
     pattern = re.compile("|".join(re.escape(o) for o in OUTSIDE + ("READING §",)))
     bad = []
     for root in roots:
-        files = [root] if root.is_file() else [f for f in root.rglob("*") if f.is_file()] if root.exists() else []
+        files = (
+            [root]
+            if root.is_file()
+            else [f for f in root.rglob("*") if f.is_file()]
+            if root.exists()
+            else []
+        )
         for f in files:
-            if f.resolve() == here or f.suffix not in {".py", ".ipynb", ".md", ".h", ".cpp", ".c", ".ino", ".v",
-                                                        ".txt", ".json", ""}:
+            if f.resolve() == here or f.suffix not in {
+                ".py",
+                ".ipynb",
+                ".md",
+                ".h",
+                ".cpp",
+                ".c",
+                ".ino",
+                ".v",
+                ".txt",
+                ".json",
+                "",
+            }:
                 continue
             try:
                 text = f.read_text(encoding="utf-8")
             except (UnicodeDecodeError, OSError):
                 continue
-            bad += [f"{f.relative_to(ROOT)}:{i}" for i, line in enumerate(text.splitlines(), 1)
-                    if pattern.search(line)]
+            bad += [
+                f"{f.relative_to(ROOT)}:{i}"
+                for i, line in enumerate(text.splitlines(), 1)
+                if pattern.search(line)
+            ]
     assert bad == []

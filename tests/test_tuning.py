@@ -4,6 +4,7 @@ The sampled loop is rebuilt here from python-control alone (ZOH plant by ``ct.c2
 Stojčić eq. 12 PID with its derivative filter written out), independent of
 ``jerklab.controller``'s polynomials.
 """
+
 from __future__ import annotations
 
 import math
@@ -48,8 +49,15 @@ def test_z_domain_design_leaves_the_unit_circle_inside_the_slider_range():
     assert first_unstable_wn("z-domain-filter", 0.020) is None
 
 
-@pytest.mark.parametrize("design,wn,Ts", [("z-domain", 35.0, 0.011), ("continuous", 50.0, 0.005),
-                                          ("continuous", 40.0, 0.005), ("z-domain", 60.0, 0.005)])
+@pytest.mark.parametrize(
+    "design,wn,Ts",
+    [
+        ("z-domain", 35.0, 0.011),
+        ("continuous", 50.0, 0.005),
+        ("continuous", 40.0, 0.005),
+        ("z-domain", 60.0, 0.005),
+    ],
+)
 def test_advice_is_checked_for_the_selected_design(design, wn, Ts):
     res = tuning.compute_pole_placement(wn=wn, Ts=Ts, design=design)
     assert res.level in ("near", "unstable")
@@ -59,10 +67,12 @@ def test_advice_is_checked_for_the_selected_design(design, wn, Ts):
     for s in res.advice:
         p = dict(zeta=1.0, wn=wn, sigma_ratio=7.0, Ts=Ts, design=design)
         p[s.change] = s.value
-        d, _ = tuning.design_gains(K, TAU, p["zeta"], p["wn"], p["sigma_ratio"], p["Ts"], p["design"])
+        d, _ = tuning.design_gains(
+            K, TAU, p["zeta"], p["wn"], p["sigma_ratio"], p["Ts"], p["design"]
+        )
         r = loop_radius(d)
         assert r < 1.0 and s.max_radius == pytest.approx(r, rel=1e-6)
-        if s.change == "wn" and s.value + 1.0 < wn:     # the largest such ωn on the slider grid
+        if s.change == "wn" and s.value + 1.0 < wn:  # the largest such ωn on the slider grid
             assert tuning._level(K, TAU, 1.0, s.value + 1.0, 7.0, Ts, design)[0] != "ok"
 
 
@@ -80,7 +90,9 @@ def test_check_runnable_refuses_unstable_unless_forced():
     res = tuning.compute_pole_placement(wn=35.0, Ts=0.011, design="z-domain")
     with pytest.raises(tuning.UnstableDesignError, match=r"\|z\| = 1\.\d+ ≥ 1") as err:
         tuning.check_runnable(K, TAU, res.gains, design="z-domain")
-    assert isinstance(err.value, ValueError) and err.value.max_radius == pytest.approx(loop_radius(res.gains))
+    assert isinstance(err.value, ValueError) and err.value.max_radius == pytest.approx(
+        loop_radius(res.gains)
+    )
     assert "direct z-domain design" in str(err.value)
     assert tuning.check_runnable(K, TAU, res.gains, force=True) > 1.0
     ok = tuning.compute_pole_placement()

@@ -4,6 +4,7 @@ The numbers the panel shows are checked against an independent construction of t
 sampled loop with python-control (ZOH plant from ``ct.c2d``, eq. 12 controller written out
 here), not against the controller module's own polynomials.
 """
+
 from __future__ import annotations
 
 import base64
@@ -26,7 +27,7 @@ K, TAU = 32.4, 0.025
 def eq11_gains(K, tau, wn, zeta, sigma):
     """Stojčić eq. 11, written out again here."""
     kp = wn * tau * (2 * zeta * sigma + wn) / K
-    ki = tau * sigma * wn ** 2 / K
+    ki = tau * sigma * wn**2 / K
     kd = (tau * (2 * zeta * wn + sigma) - 1) / K
     return kp, ki, kd
 
@@ -69,7 +70,7 @@ def test_panel_builds_with_default_figure(panel):
 def test_default_design_matches_independent_loop(panel):
     r = panel.result
     kp, ki, kd = eq11_gains(K, TAU, 20.0, 1.0, 140.0)
-    kpd, kid, kdd = kp - ki * 0.005 / 2, ki * 0.005, kd / 0.005      # eq. 13
+    kpd, kid, kdd = kp - ki * 0.005 / 2, ki * 0.005, kd / 0.005  # eq. 13
     assert (r.gains.kpd, r.gains.kid, r.gains.kdd) == pytest.approx((kpd, kid, kdd), rel=1e-12)
     ref = sampled_loop_poles(kpd, kid, kdd, 0.005)
     assert r.max_radius == pytest.approx(np.max(np.abs(ref)), rel=1e-9)
@@ -120,7 +121,12 @@ def test_slider_move_recomputes_and_flags_instability():
     p.controls["sigma_ratio"].value = 5.0
     p.controls["Ts_ms"].value = 2.0
     prm = p.result.params
-    assert (prm["zeta"], prm["sigma"], prm["Ts"], prm["design"]) == (0.7, 200.0, 0.002, "continuous")
+    assert (prm["zeta"], prm["sigma"], prm["Ts"], prm["design"]) == (
+        0.7,
+        200.0,
+        0.002,
+        "continuous",
+    )
     kp, ki, kd = eq11_gains(K, TAU, 40.0, 0.7, 200.0)
     ref = sampled_loop_poles(kp - ki * 0.001, ki * 0.002, kd / 0.002, 0.002)
     assert p.result.max_radius == pytest.approx(np.max(np.abs(ref)), rel=1e-9)
@@ -153,7 +159,7 @@ def test_axis_change_redraws_that_axes_and_picture_matches_full_draw():
         p.controls["wn"].value = wn
     assert p.figure.axes_redraws > 0
     live = Image.open(io.BytesIO(p.figure.png())).convert("RGB")
-    p.figure._background = None                 # force a full draw of the same state
+    p.figure._background = None  # force a full draw of the same state
     full = Image.open(io.BytesIO(p.figure.png())).convert("RGB")
     diff = np.asarray(ImageChops.difference(live, full)).astype(int)
     # identical up to antialiasing seams at the edge of a repainted region
@@ -179,7 +185,7 @@ def test_savefig_is_the_live_picture(panel, tmp_path):
     diff = np.asarray(ImageChops.difference(saved, live)).max(axis=2)
     assert np.mean(diff > 40) < 2e-3
     # and a picture without the data lines would differ: the lines are really there
-    blank = Image.open(io.BytesIO(panel.figure.png())).convert("RGB")    # no title
+    blank = Image.open(io.BytesIO(panel.figure.png())).convert("RGB")  # no title
     assert np.mean(np.asarray(ImageChops.difference(blank, live)).max(axis=2) > 40) > 1e-3
 
 
@@ -294,10 +300,14 @@ def test_headless_notebook_gets_the_default_figure(tmp_path):
     from nbclient import NotebookClient
 
     nb = nbformat.v4.new_notebook()
-    nb.cells = [nbformat.v4.new_code_cell("from jerklab.widgets import pole_placement_panel\n"
-                                          "pole_placement_panel()")]
-    NotebookClient(nb, timeout=120, kernel_name="python3",
-                   resources={"metadata": {"path": str(tmp_path)}}).execute()
+    nb.cells = [
+        nbformat.v4.new_code_cell(
+            "from jerklab.widgets import pole_placement_panel\npole_placement_panel()"
+        )
+    ]
+    NotebookClient(
+        nb, timeout=120, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}
+    ).execute()
     outs = nb.cells[0].outputs
     assert not [o for o in outs if o.output_type == "error"]
     data = [o for o in outs if o.output_type == "execute_result"][0].data

@@ -5,6 +5,7 @@ of IN1, IN2 and the PWM output, which external interrupt reads which encoder cha
 Timer1 compare output that carries the PWM. The connections are read back from the drawing's
 geometry (wire end points on pin positions), not from jerklab.wiring.CONNECTIONS.
 """
+
 import pathlib
 import re
 
@@ -16,10 +17,15 @@ import pytest  # noqa: E402
 
 from jerklab import wiring  # noqa: E402
 
-SKETCH = pathlib.Path(__file__).resolve().parent.parent / "firmware" / "jerklab_rig" / "jerklab_rig.ino"
+SKETCH = (
+    pathlib.Path(__file__).resolve().parent.parent / "firmware" / "jerklab_rig" / "jerklab_rig.ino"
+)
 
 # ATmega328P on the Uno: port bit -> Arduino pin; INTn -> pin (datasheet / Uno schematic).
-AVR_TO_ARDUINO = {**{f"PD{i}": f"D{i}" for i in range(8)}, **{f"PB{i}": f"D{8 + i}" for i in range(6)}}
+AVR_TO_ARDUINO = {
+    **{f"PD{i}": f"D{i}" for i in range(8)},
+    **{f"PB{i}": f"D{8 + i}" for i in range(6)},
+}
 INT_PIN = {"INT0": "PD2", "INT1": "PD3"}
 OC1A = "PB1"
 
@@ -28,15 +34,17 @@ def firmware_pins():
     src = SKETCH.read_text(encoding="utf-8")
     consts = dict(re.findall(r"static const uint8_t (k\w+) = _BV\((P[BD]\d)\);", src))
     # IN1 is driven high for positive PWM, IN2 for negative (set_pwm)
-    body = src[src.index("void set_pwm"):]
-    body = body[:body.index("void set_period")]
-    pos = body[body.index("if (pwm > 0)"):body.index("else if (pwm < 0)")]
+    body = src[src.index("void set_pwm") :]
+    body = body[: body.index("void set_period")]
+    pos = body[body.index("if (pwm > 0)") : body.index("else if (pwm < 0)")]
     high_pos = re.search(r"PORT[BD] \|= (k\w+);", pos).group(1)
     assert "OCR1A" in pos and "COM1A1" in src, "PWM must be Timer1's OC1A"
     assert consts["kPwm"] == OC1A
     # which channel each external interrupt reads: comments "Channel A edge" / "Channel B edge"
     chan = {}
-    for m in re.finditer(r"// Channel (\w) edge[^\n]*\n(?:[^\n]*\n)*?ISR\((INT\d)_vect[^)]*\)", src):
+    for m in re.finditer(
+        r"// Channel (\w) edge[^\n]*\n(?:[^\n]*\n)*?ISR\((INT\d)_vect[^)]*\)", src
+    ):
         chan[m.group(1)] = m.group(2)
     assert set(chan) == {"A", "B"}
     # both encoder inputs get pull-ups and are inputs

@@ -9,6 +9,7 @@ with warnings as errors. Prints the build time.
 
     python tools/build_book.py [--out build/book] [--executed build/executed]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -55,7 +56,7 @@ def stage(src: pathlib.Path, executed: pathlib.Path) -> dict:
         done = executed / nb.name
         if nb.parent == nbdir and done.exists() and done.stat().st_mtime >= nb.stat().st_mtime:
             book = nbformat.read(done, as_version=4)
-            book.metadata["mystnb"] = {"execution_mode": "off"}     # executed by the tests already
+            book.metadata["mystnb"] = {"execution_mode": "off"}  # executed by the tests already
             nbformat.write(book, dest)
             reused.append(nb.name)
         elif "labs" in rel.parts:
@@ -68,9 +69,9 @@ def stage(src: pathlib.Path, executed: pathlib.Path) -> dict:
         else:
             shutil.copy2(nb, dest)
             fresh.append(str(rel))
-    (src / "data").symlink_to(ROOT / "data", target_is_directory=True)   # notebooks read ../data
+    (src / "data").symlink_to(ROOT / "data", target_is_directory=True)  # notebooks read ../data
     labs = nbdir / "labs"
-    if labs.is_dir():                      # the labs' data files and Markdown pages
+    if labs.is_dir():  # the labs' data files and Markdown pages
         for f in labs.rglob("*"):
             if f.is_file() and f.suffix != ".ipynb" and ".ipynb_checkpoints" not in f.parts:
                 d = src / f.relative_to(ROOT)
@@ -83,10 +84,25 @@ def build(out: pathlib.Path, executed: pathlib.Path) -> float:
     t0 = time.perf_counter()
     src = out.parent / (out.name + "-src")
     info = stage(src, executed)
-    print(f"book: {len(info['reused'])} notebooks not executed (outputs from the tests, or lab worksheets), "
-          f"{len(info['executed'])} to execute: {', '.join(info['executed']) or '-'}", flush=True)
-    cmd = [sys.executable, "-m", "sphinx", "-W", "--keep-going", "-q", "-b", "html",
-           "-c", str(ROOT / "docs/book"), str(src), str(out / "html")]
+    print(
+        f"book: {len(info['reused'])} notebooks not executed (outputs from the tests, or lab worksheets), "
+        f"{len(info['executed'])} to execute: {', '.join(info['executed']) or '-'}",
+        flush=True,
+    )
+    cmd = [
+        sys.executable,
+        "-m",
+        "sphinx",
+        "-W",
+        "--keep-going",
+        "-q",
+        "-b",
+        "html",
+        "-c",
+        str(ROOT / "docs/book"),
+        str(src),
+        str(out / "html"),
+    ]
     subprocess.run(cmd, check=True, cwd=ROOT / "notebooks")
     dt = time.perf_counter() - t0
     print(f"book: built {out / 'html' / 'index.html'} in {dt:.1f} s")

@@ -19,6 +19,7 @@ Usage::
 
 prints ``file:line: text`` for each offender and exits 1 if there is any, 0 otherwise.
 """
+
 from __future__ import annotations
 
 import re
@@ -46,15 +47,15 @@ def check_text(text: str, name: str = "<text>") -> list[tuple[str, int, str]]:
     out = []
     for m in CITE.finditer(text):
         start = m.start()
-        before = text[max(0, start - _LOOKBEHIND):start]
+        before = text[max(0, start - _LOOKBEHIND) : start]
         if OTHER_SOURCES.search(before) and not re.search(PAPERS, before.split("\n")[-1]):
             continue
-        ok = GOOD.match(text, start) is not None and NAMED.search(text[max(0, start - 40):start])
+        ok = GOOD.match(text, start) is not None and NAMED.search(text[max(0, start - 40) : start])
         if not ok:
             line = text.count("\n", 0, start) + 1
             lo = text.rfind("\n", 0, start) + 1
             hi = text.find("\n", start)
-            out.append((name, line, text[lo:hi if hi >= 0 else None].strip()))
+            out.append((name, line, text[lo : hi if hi >= 0 else None].strip()))
     return out
 
 
@@ -94,8 +95,11 @@ def main(argv=None) -> int:
         print(f"{name}:{line}: {excerpt}")
     total = sum(len(CITE.findall(Path(p).read_text(encoding="utf-8"))) for p in paths)
     n_doc = sum(1 for b in bad if b[2].startswith("module docstring"))
-    print(f"{len(bad) - n_doc} of {total} equation citations do not read 'Stojčić eq. N' / 'Xu & Meckl eq. N' / "
-          f"'Yang eq. N'; {n_doc} module docstrings lack the ASCII spelling 'Stojcic'", file=sys.stderr)
+    print(
+        f"{len(bad) - n_doc} of {total} equation citations do not read 'Stojčić eq. N' / 'Xu & Meckl eq. N' / "
+        f"'Yang eq. N'; {n_doc} module docstrings lack the ASCII spelling 'Stojcic'",
+        file=sys.stderr,
+    )
     return 1 if bad else 0
 
 

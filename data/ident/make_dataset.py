@@ -9,6 +9,7 @@ Run from the repository root:
 Every number that defines a record is in ``RUNS`` and ``PLANT`` below and is copied into the
 record's JSON sidecar, so a file says how it was made.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -25,14 +26,24 @@ TS = 0.005
 
 #: the motor: the paper's K and tau, the rig's imperfections (friction and noise are our choice:
 #: the paper neglects friction and does not report noise)
-PLANT = dict(K=32.4, tau=0.025, supply_voltage=12.0, pwm_bits=10, encoder_ppr=448, decoding=1,
-             coulomb_friction=0.2, noise_std=0.001)
+PLANT = dict(
+    K=32.4,
+    tau=0.025,
+    supply_voltage=12.0,
+    pwm_bits=10,
+    encoder_ppr=448,
+    decoding=1,
+    coulomb_friction=0.2,
+    noise_std=0.001,
+)
 
 #: name -> (input generator, plant seed)
 RUNS = {
     "step_6V": (dict(kind="step", duration=2.0, amplitude=6.0, t_step=0.05), 1),
-    "prbs_6V_3V": (dict(kind="prbs", duration=4.0, amplitude=3.0, offset=6.0, clock_period=0.02,
-                        seed=4), 2),
+    "prbs_6V_3V": (
+        dict(kind="prbs", duration=4.0, amplitude=3.0, offset=6.0, clock_period=0.02, seed=4),
+        2,
+    ),
 }
 
 
@@ -94,25 +105,37 @@ def make_rig_run(name: str) -> ident.IdentData:
             rig.close()
         d = ident.IdentData.from_recording(rec)
     meta = {k: v for k, v in d.metadata.items() if k not in ("created", "csv")}
-    meta.update({
-        "description": "open-loop step recorded from the virtual rig (jerklab.rig.connect())",
-        "made_by": "data/ident/make_dataset.py: connect(motor=DCMotor(seed=plant_seed, **plant))"
-                   ".step(voltage, seconds, Ts=0.005, rest=rest)",
-        "plant": RIG_PLANT, "plant_seed": seed, "input": RIG_RUNS[name],
-        "u_is": "voltage the rig applied (PWM-quantized), as logged by the rig",
-        "y_is": "encoder counts / counts_per_rad (rad), zeroed at the start",
-        "true_K": PLANT["K"], "true_tau": PLANT["tau"],
-    })
+    meta.update(
+        {
+            "description": "open-loop step recorded from the virtual rig (jerklab.rig.connect())",
+            "made_by": "data/ident/make_dataset.py: connect(motor=DCMotor(seed=plant_seed, **plant))"
+            ".step(voltage, seconds, Ts=0.005, rest=rest)",
+            "plant": RIG_PLANT,
+            "plant_seed": seed,
+            "input": RIG_RUNS[name],
+            "u_is": "voltage the rig applied (PWM-quantized), as logged by the rig",
+            "y_is": "encoder counts / counts_per_rad (rad), zeroed at the start",
+            "true_K": PLANT["K"],
+            "true_tau": PLANT["tau"],
+        }
+    )
     return ident.IdentData(d.u, d.y, d.Ts, d.input_unit, d.output_unit, meta)
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--check", action="store_true",
-                    help="regenerate in memory and compare with the files on disk")
+    ap.add_argument(
+        "--check",
+        action="store_true",
+        help="regenerate in memory and compare with the files on disk",
+    )
     ap.add_argument("--out", type=pathlib.Path, default=HERE, help="output folder (default: here)")
-    ap.add_argument("--only", choices=["plant", "rig"], default=None,
-                    help="only the plant-model records or only the virtual-rig record")
+    ap.add_argument(
+        "--only",
+        choices=["plant", "rig"],
+        default=None,
+        help="only the plant-model records or only the virtual-rig record",
+    )
     args = ap.parse_args(argv)
     bad = 0
     makers = {}
@@ -124,8 +147,12 @@ def main(argv=None) -> int:
         d = maker(name)
         if args.check:
             old = ident.IdentData.load(args.out / name)
-            same = (old.n == d.n and np.array_equal(old.u, d.u) and np.array_equal(old.y, d.y)
-                    and old.Ts == d.Ts)
+            same = (
+                old.n == d.n
+                and np.array_equal(old.u, d.u)
+                and np.array_equal(old.y, d.y)
+                and old.Ts == d.Ts
+            )
             print(f"{name}: {'identical' if same else 'DIFFERENT'}")
             bad += not same
         else:

@@ -13,6 +13,7 @@ libsimavr-dev and the firmware build (``make -C firmware``; ``connect("simavr")`
 incrementally). Every number that defines a recording is in the constants below and is copied into
 its JSON sidecar (``"made_by"``), so a file says how it was made.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -35,8 +36,17 @@ TS = 0.005
 #: (channel A, 448 counts/rev), and Coulomb friction 0.2 V (our choice, as data/ident: the paper
 #: neglects friction). No angle noise: the encoder count is an integer. Nothing here is random;
 #: the seed is fixed anyway so that the record says so.
-PLANT = dict(K=32.4, tau=0.025, supply_voltage=12.0, pwm_bits=10, encoder_ppr=448, decoding=1,
-             coulomb_friction=0.2, noise_std=0.0, seed=0)
+PLANT = dict(
+    K=32.4,
+    tau=0.025,
+    supply_voltage=12.0,
+    pwm_bits=10,
+    encoder_ppr=448,
+    decoding=1,
+    coulomb_friction=0.2,
+    noise_std=0.0,
+    seed=0,
+)
 
 #: the move: Stojčić's published sine-jerk planner (eq. 2-4), two turns
 MOVE = dict(distance=4 * math.pi, max_jerk=2000.0, max_accel=300.0, max_velocity=60.0)
@@ -49,8 +59,11 @@ GAINS = dict(wn=20.0, zeta=1.0)
 RUN = dict(Ts=TS, settle=0.25, host_timeout=1.0, feedforward=True)
 STEP = dict(voltage=6.0, seconds=0.5, Ts=TS, rest=0.05)
 
-NAMES = {"virtual_sine_jerk_move": "virtual", "virtual_step_6V": "virtual",
-         "simavr_sine_jerk_move": "simavr"}
+NAMES = {
+    "virtual_sine_jerk_move": "virtual",
+    "virtual_step_6V": "virtual",
+    "simavr_sine_jerk_move": "simavr",
+}
 
 #: sidecar keys that change from one making to the next (not part of the data)
 VOLATILE = ("created", "csv")
@@ -76,8 +89,11 @@ def _made_by(name: str, port, call: str) -> dict:
         "call": call,
         "plant": PLANT,
         "move": MOVE,
-        "gains": dict(GAINS, design="jerklab.controller.pole_placement_pid(K, tau, **gains)"
-                                    ".discretize(Ts)  (Stojčić eq. 11, 13)"),
+        "gains": dict(
+            GAINS,
+            design="jerklab.controller.pole_placement_pid(K, tau, **gains)"
+            ".discretize(Ts)  (Stojčić eq. 11, 13)",
+        ),
         "run": RUN if "move" in name else STEP,
         "seed": PLANT["seed"],
     }
@@ -86,13 +102,20 @@ def _made_by(name: str, port, call: str) -> dict:
 def _move(port, name: str) -> Recording:
     with tempfile.TemporaryDirectory() as tmp:
         opts = dict(timeout=10.0) if port == "simavr" else {}
-        with connect(port, motor=motor(), model=(PLANT["K"], PLANT["tau"]), progress=False,
-                     recordings=tmp, **opts) as rig:
+        with connect(
+            port,
+            motor=motor(),
+            model=(PLANT["K"], PLANT["tau"]),
+            progress=False,
+            recordings=tmp,
+            **opts,
+        ) as rig:
             rec = rig.run_move(profile(), gains(), path=False, **RUN)
     rec.metadata["made_by"] = _made_by(
-        name, port, "rig.run_move(plan_sine_jerk(**move), gains, path=False, **run)")
+        name, port, "rig.run_move(plan_sine_jerk(**move), gains, path=False, **run)"
+    )
     if port == "simavr":
-        rec.metadata["device"]["port"] = "simavr"     # was the harness's pty, /dev/pts/N
+        rec.metadata["device"]["port"] = "simavr"  # was the harness's pty, /dev/pts/N
     return rec
 
 
@@ -109,16 +132,23 @@ def make_simavr_move() -> Recording:
 def make_virtual_step() -> Recording:
     """An open-loop step from rest on the virtual rig: ``rig.step(6.0, 0.5, Ts=0.005, rest=0.05)``."""
     with tempfile.TemporaryDirectory() as tmp:
-        with connect(motor=motor(), model=(PLANT["K"], PLANT["tau"]), progress=False,
-                     recordings=tmp) as rig:
-            rec = rig.step(STEP["voltage"], STEP["seconds"], Ts=STEP["Ts"], rest=STEP["rest"], path=False)
-    rec.metadata["made_by"] = _made_by("virtual_step_6V", None,
-                                       "rig.step(voltage, seconds, Ts=Ts, rest=rest, path=False)")
+        with connect(
+            motor=motor(), model=(PLANT["K"], PLANT["tau"]), progress=False, recordings=tmp
+        ) as rig:
+            rec = rig.step(
+                STEP["voltage"], STEP["seconds"], Ts=STEP["Ts"], rest=STEP["rest"], path=False
+            )
+    rec.metadata["made_by"] = _made_by(
+        "virtual_step_6V", None, "rig.step(voltage, seconds, Ts=Ts, rest=rest, path=False)"
+    )
     return rec
 
 
-MAKERS = {"virtual_sine_jerk_move": make_virtual_move, "virtual_step_6V": make_virtual_step,
-          "simavr_sine_jerk_move": make_simavr_move}
+MAKERS = {
+    "virtual_sine_jerk_move": make_virtual_move,
+    "virtual_step_6V": make_virtual_step,
+    "simavr_sine_jerk_move": make_simavr_move,
+}
 
 
 def differences(a: Recording, b: Recording, reference_tol: float = 1e-9) -> list[str]:
@@ -130,7 +160,9 @@ def differences(a: Recording, b: Recording, reference_tol: float = 1e-9) -> list
     for col in ("index", "counts", "pwm", "flags"):
         x, y = getattr(a, col), getattr(b, col)
         if not np.array_equal(x, y):
-            out.append(f"{col} differs at {int(np.sum(x != y))} samples (max {int(np.max(np.abs(x - y)))})")
+            out.append(
+                f"{col} differs at {int(np.sum(x != y))} samples (max {int(np.max(np.abs(x - y)))})"
+            )
     d = np.max(np.abs(a.reference - b.reference)) if len(a) else 0.0
     if d > reference_tol:
         out.append(f"reference differs by {d:.3g} rad")
@@ -154,8 +186,11 @@ def _normal(o):
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", choices=["virtual", "simavr"], default=None)
-    ap.add_argument("--check", action="store_true",
-                    help="re-make the virtual-rig recordings in memory and compare with the files")
+    ap.add_argument(
+        "--check",
+        action="store_true",
+        help="re-make the virtual-rig recordings in memory and compare with the files",
+    )
     ap.add_argument("--out", type=pathlib.Path, default=HERE, help="output folder (default: here)")
     args = ap.parse_args(argv)
     only = "virtual" if args.check and args.only is None else args.only
@@ -170,8 +205,10 @@ def main(argv=None) -> int:
             print(f"{name}: {'; '.join(diff) if diff else 'identical'}")
         else:
             path = rec.save(args.out / name)
-            print(f"{path}: {len(rec)} samples, {rec.metadata['status']}, "
-                  f"final {rec.position[-1]:.5f} rad")
+            print(
+                f"{path}: {len(rec)} samples, {rec.metadata['status']}, "
+                f"final {rec.position[-1]:.5f} rad"
+            )
     return 1 if bad else 0
 
 

@@ -24,6 +24,7 @@ SimpleLocalProcessSpawner runs every student's server as the hub's own Unix user
 of its own: fine for a lab room behind a firewall. For real accounts use the Littlest JupyterHub
 (one server, system users) or Zero to JupyterHub (deploy/z2jh/values.yaml).
 """
+
 import os
 import pathlib
 import shutil
@@ -52,11 +53,16 @@ c.Authenticator.allow_all = True
 c.Authenticator.admin_users = {"instructor"}
 
 if os.environ.get("JERKLAB_HUB_ADMIN_TOKEN"):
-    c.JupyterHub.services = [{"name": "jerklab-admin",
-                              "api_token": os.environ["JERKLAB_HUB_ADMIN_TOKEN"]}]
-    c.JupyterHub.load_roles = [{"name": "jerklab-admin", "services": ["jerklab-admin"],
-                                "scopes": ["admin:users", "admin:servers", "tokens",
-                                           "access:servers"]}]
+    c.JupyterHub.services = [
+        {"name": "jerklab-admin", "api_token": os.environ["JERKLAB_HUB_ADMIN_TOKEN"]}
+    ]
+    c.JupyterHub.load_roles = [
+        {
+            "name": "jerklab-admin",
+            "services": ["jerklab-admin"],
+            "scopes": ["admin:users", "admin:servers", "tokens", "access:servers"],
+        }
+    ]
 
 # ------------------------------------------------------------------ the students' servers
 c.JupyterHub.spawner_class = "simple"  # jupyterhub.spawner.SimpleLocalProcessSpawner

@@ -1,4 +1,5 @@
 """``python -m jerklab.lab grade SUBMISSIONS_DIR --out grades.csv`` and ``... assign``."""
+
 from __future__ import annotations
 
 import argparse
@@ -11,9 +12,17 @@ def main(argv=None):
     g = sub.add_parser("grade", help="grade a folder of hand-in zips and notebooks")
     g.add_argument("submissions", metavar="SUBMISSIONS_DIR")
     g.add_argument("--out", default="grades.csv", help="CSV to write (default grades.csv)")
-    g.add_argument("--feedback", default=None, help="folder for the feedback files (default: feedback/ beside the CSV)")
-    g.add_argument("--timeout", type=float, default=300.0, help="seconds per submission (default 300)")
-    a = sub.add_parser("assign", help="write the student worksheets (solutions stripped) from the masters")
+    g.add_argument(
+        "--feedback",
+        default=None,
+        help="folder for the feedback files (default: feedback/ beside the CSV)",
+    )
+    g.add_argument(
+        "--timeout", type=float, default=300.0, help="seconds per submission (default 300)"
+    )
+    a = sub.add_parser(
+        "assign", help="write the student worksheets (solutions stripped) from the masters"
+    )
     a.add_argument("--out", default="notebooks/labs", help="folder (default notebooks/labs)")
     args = ap.parse_args(argv)
     if args.cmd == "grade":
@@ -23,7 +32,9 @@ def main(argv=None):
         _, source = instructor_key(warn=True)
         rows = grade_folder(args.submissions, args.out, args.feedback, args.timeout)
         for r in rows:
-            print(f"{r['student'] or '?':>16}  lab {r['lab'] or '?'}  {r['total']:5.1f} / {r['max']:4.1f}  {r['status']}")
+            print(
+                f"{r['student'] or '?':>16}  lab {r['lab'] or '?'}  {r['total']:5.1f} / {r['max']:4.1f}  {r['status']}"
+            )
         print(f"{len(rows)} submissions -> {args.out} (instructor key from: {source})")
         return 0
     from jerklab.lab.grade import assign

@@ -8,6 +8,7 @@ submission is scored against its own student's hidden motor: the grader sets
 ``JERKLAB_LAB_GRADING=1``, which makes every worksheet run on the virtual rig of the
 student ID it names, seeded with the instructor key of the grading environment.
 """
+
 from __future__ import annotations
 
 import csv
@@ -24,7 +25,14 @@ from pathlib import Path
 from jerklab.lab.handin import HandinError, read_handin
 from jerklab.lab.session import LABS
 
-__all__ = ["MASTERS", "master_path", "assign", "autograder_zip", "grade_folder", "student_version_name"]
+__all__ = [
+    "MASTERS",
+    "master_path",
+    "assign",
+    "autograder_zip",
+    "grade_folder",
+    "student_version_name",
+]
 
 MASTERS = Path(__file__).parent / "masters"
 
@@ -50,7 +58,9 @@ def _assign_into(lab: int, dest: Path) -> Path:
     out = dest / "dist"
     r = _otter("assign", work / src.name, out, "-v", cwd=work)
     if r.returncode != 0 or not (out / "student" / src.name).is_file():
-        raise RuntimeError(f"otter assign failed for lab {lab}:\n{r.stdout[-3000:]}\n{r.stderr[-3000:]}")
+        raise RuntimeError(
+            f"otter assign failed for lab {lab}:\n{r.stdout[-3000:]}\n{r.stderr[-3000:]}"
+        )
     return out
 
 
@@ -70,7 +80,7 @@ def _assigned(lab: int) -> Path:
         tmp = Path(tempfile.mkdtemp(prefix="assign-", dir=d))
         try:
             _assign_into(lab, tmp)
-            try:       # atomic: a complete folder appears or, if another process won, stays theirs
+            try:  # atomic: a complete folder appears or, if another process won, stays theirs
                 os.rename(tmp / "dist", out)
             except OSError:
                 if not (out / "student" / student_version_name(lab)).is_file():
@@ -91,8 +101,10 @@ def autograder_zip(lab: int) -> Path:
 # otter's initialisation cell becomes jerklab's check runner, so that a student's machine needs no
 # otter-grader (jerklab.lab.notebook runs the same checks from the notebook's metadata)
 _OTTER_INIT = re.compile(r"# Initialize Otter\nimport otter\ngrader = otter\.Notebook\(")
-_CHECKS_INIT = ("# The checks (otter-grader's format, run by jerklab without otter)\n"
-                "from jerklab.lab.notebook import Notebook\ngrader = Notebook(")
+_CHECKS_INIT = (
+    "# The checks (otter-grader's format, run by jerklab without otter)\n"
+    "from jerklab.lab.notebook import Notebook\ngrader = Notebook("
+)
 
 
 def assign(out_dir, labs=tuple(LABS)) -> list[Path]:
@@ -105,7 +117,7 @@ def assign(out_dir, labs=tuple(LABS)) -> list[Path]:
     for lab in labs:
         src = _assigned(lab) / "student" / student_version_name(lab)
         nb = nbformat.read(src, as_version=4)
-        for c in nb.cells:                      # otter stamps ids; keep the committed files stable
+        for c in nb.cells:  # otter stamps ids; keep the committed files stable
             c.pop("id", None)
             if c.cell_type == "code" and _OTTER_INIT.search(c.source):
                 c.source = _OTTER_INIT.sub(_CHECKS_INIT, c.source)
@@ -131,7 +143,9 @@ def _notebook_info(data: bytes, name: str):
     try:
         nb = nbformat.reads(data.decode("utf-8"), as_version=4)
     except Exception as exc:  # nbformat raises several kinds on junk
-        raise ValueError(f"not a readable notebook ({type(exc).__name__}: {str(exc)[:120]})") from None
+        raise ValueError(
+            f"not a readable notebook ({type(exc).__name__}: {str(exc)[:120]})"
+        ) from None
     lab = nb.metadata.get("jerklab", {}).get("lab")
     if lab is None:
         m = re.search(r"lab(\d)", name)
@@ -156,12 +170,34 @@ def _run_otter(lab, nb_bytes, student, timeout):
         nb.write_bytes(nb_bytes)
         out = tmp / "out"
         out.mkdir()
-        env = dict(os.environ, JERKLAB_LAB_GRADING="1", JERKLAB_LAB_WORK=str(tmp / "work"),
-                   JERKLAB_RECORDINGS=str(tmp / "rec"), MPLBACKEND="Agg")
-        cmd = [sys.executable, "-m", "otter", "run", "-a", str(autograder_zip(lab)), "-o", str(out), str(nb)]
+        env = dict(
+            os.environ,
+            JERKLAB_LAB_GRADING="1",
+            JERKLAB_LAB_WORK=str(tmp / "work"),
+            JERKLAB_RECORDINGS=str(tmp / "rec"),
+            MPLBACKEND="Agg",
+        )
+        cmd = [
+            sys.executable,
+            "-m",
+            "otter",
+            "run",
+            "-a",
+            str(autograder_zip(lab)),
+            "-o",
+            str(out),
+            str(nb),
+        ]
         # a session of its own, so that a timeout ends otter *and* the kernel it started
-        proc = subprocess.Popen(cmd, cwd=tmp, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                text=True, start_new_session=True)
+        proc = subprocess.Popen(
+            cmd,
+            cwd=tmp,
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            start_new_session=True,
+        )
         try:
             stdout, stderr = proc.communicate(timeout=timeout)
         except subprocess.TimeoutExpired:
@@ -179,7 +215,7 @@ def _kill_group(proc):
     try:
         if hasattr(os, "killpg"):
             os.killpg(proc.pid, signal.SIGKILL)
-        else:                                   # Windows: the process only
+        else:  # Windows: the process only
             proc.kill()
     except (ProcessLookupError, PermissionError):
         pass
@@ -200,7 +236,11 @@ def _scores(results):
     for t in results.get("tests", []):
         if t.get("name") == "Public Tests" or "score" not in t:
             continue
-        qs[t["name"]] = (float(t.get("score") or 0.0), float(t.get("max_score") or 0.0), t.get("output", ""))
+        qs[t["name"]] = (
+            float(t.get("score") or 0.0),
+            float(t.get("max_score") or 0.0),
+            t.get("output", ""),
+        )
     return qs
 
 
@@ -218,7 +258,9 @@ def grade_folder(folder, out_csv, feedback_dir=None, timeout=300.0, labs=None) -
     feedback_dir = Path(feedback_dir) if feedback_dir else out_csv.parent / "feedback"
     feedback_dir.mkdir(parents=True, exist_ok=True)
     rows = []
-    subs = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in (".zip", ".ipynb"))
+    subs = sorted(
+        p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in (".zip", ".ipynb")
+    )
     for p in subs:
         row = {"file": p.name, "student": "", "lab": "", "status": "", "total": 0.0, "max": 0.0}
         notes = []
@@ -230,8 +272,12 @@ def grade_folder(folder, out_csv, feedback_dir=None, timeout=300.0, labs=None) -
                     raise HandinError(f"{p.name}: no notebook in the hand-in")
                 s2, _ = _notebook_info(nb, h["notebook_name"] or "")
                 if s2 is not None and s2.strip().lower() != student:
-                    notes.append(f"the notebook names student {s2!r}, the manifest {student!r}: graded as {student!r}")
-                    nb = _STUDENT_RE.sub(f'STUDENT = "{student}"', nb.decode("utf-8"), count=1).encode()
+                    notes.append(
+                        f"the notebook names student {s2!r}, the manifest {student!r}: graded as {student!r}"
+                    )
+                    nb = _STUDENT_RE.sub(
+                        f'STUDENT = "{student}"', nb.decode("utf-8"), count=1
+                    ).encode()
                 notes.append(f"manifest verified ({len(h['files'])} files)")
             else:
                 nb = p.read_bytes()
@@ -249,7 +295,9 @@ def grade_folder(folder, out_csv, feedback_dir=None, timeout=300.0, labs=None) -
                 row["total"] += sc
                 row["max"] += mx
                 verdict = "right" if sc >= mx else "not yet"
-                notes.append(f"{q}: {sc:g}/{mx:g} ({verdict})" + (f"\n    {_hint(out)}" if sc < mx else ""))
+                notes.append(
+                    f"{q}: {sc:g}/{mx:g} ({verdict})" + (f"\n    {_hint(out)}" if sc < mx else "")
+                )
             row["status"] = "graded"
         except (HandinError, ValueError, RuntimeError, OSError, UnicodeDecodeError) as exc:
             row["status"] = f"error: {exc}"
@@ -257,12 +305,20 @@ def grade_folder(folder, out_csv, feedback_dir=None, timeout=300.0, labs=None) -
         rows.append(row)
         who = row["student"] or p.stem
         fb = feedback_dir / f"{who}_lab{row['lab'] or 'X'}_{p.stem}.txt"
-        fb.write_text(f"Feedback for {who}, lab {row['lab']}, file {p.name}\n"
-                      f"Score: {row['total']:g} / {row['max']:g}  ({row['status']})\n\n" + "\n".join(notes) + "\n")
-    qcols = sorted({k for r in rows for k in r} - {"file", "student", "lab", "status", "total", "max"})
+        fb.write_text(
+            f"Feedback for {who}, lab {row['lab']}, file {p.name}\n"
+            f"Score: {row['total']:g} / {row['max']:g}  ({row['status']})\n\n"
+            + "\n".join(notes)
+            + "\n"
+        )
+    qcols = sorted(
+        {k for r in rows for k in r} - {"file", "student", "lab", "status", "total", "max"}
+    )
     out_csv.parent.mkdir(parents=True, exist_ok=True)
     with out_csv.open("w", newline="") as f:
-        w = csv.DictWriter(f, ["student", "lab", "file", "status", *qcols, "total", "max"], restval="")
+        w = csv.DictWriter(
+            f, ["student", "lab", "file", "status", *qcols, "total", "max"], restval=""
+        )
         w.writeheader()
         for r in rows:
             w.writerow(r)

@@ -11,6 +11,7 @@ Layout of ``lab<N>_<student>.zip``::
 
 No file holds a true motor parameter (the answers are the student's own estimates).
 """
+
 from __future__ import annotations
 
 import datetime as _dt
@@ -51,29 +52,48 @@ def write_handin(session, notebook=None, out=None) -> Path:
     if notebook is not None:
         nb = Path(notebook)
         if not nb.is_file():
-            raise ValueError(f"notebook {str(nb)!r} is not a file (save the worksheet and give its name)")
+            raise ValueError(
+                f"notebook {str(nb)!r} is not a file (save the worksheet and give its name)"
+            )
         files[f"notebook/{nb.name}"] = nb.read_bytes()
     for p in sorted(session.folder.iterdir()) if session.folder.is_dir() else []:
         if p.is_file() and p.suffix in (".csv", ".json"):
             files[f"recordings/{p.name}"] = p.read_bytes()
-    answers = {k: {"answer": session.answers.get(k), "ok": r.ok} for k, r in session.results.items()}
+    answers = {
+        k: {"answer": session.answers.get(k), "ok": r.ok} for k, r in session.results.items()
+    }
     files["answers.json"] = json.dumps(answers, indent=1).encode()
     files["gains.json"] = json.dumps(_jsonable(session.gains), indent=1).encode()
     _, source = instructor_key(warn=False)
-    meta = {"student": session.student, "lab": session.lab,
-            "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-            "jerklab_version": __version__, "rig": session.rig.port, "key_source": source}
+    meta = {
+        "student": session.student,
+        "lab": session.lab,
+        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "jerklab_version": __version__,
+        "rig": session.rig.port,
+        "key_source": source,
+    }
     files["student.json"] = json.dumps(meta, indent=1).encode()
-    folder = Path(out) if out is not None else (Path(notebook).parent if notebook else Path(".")) / "handin"
-    path = pack(files, session.student, session.lab, folder / f"lab{session.lab}_{session.student}.zip")
+    folder = (
+        Path(out)
+        if out is not None
+        else (Path(notebook).parent if notebook else Path(".")) / "handin"
+    )
+    path = pack(
+        files, session.student, session.lab, folder / f"lab{session.lab}_{session.student}.zip"
+    )
     print(f"hand-in written: {path} ({len(files)} files, manifest with SHA-256 checksums)")
     return path
 
 
 def pack(files: dict, student: str, lab: int, path) -> Path:
     """Write ``files`` ({name in the zip: bytes}) and their manifest into the zip ``path``."""
-    manifest = {"format": 1, "student": student, "lab": int(lab),
-                "files": {name: _sha(data) for name, data in files.items()}}
+    manifest = {
+        "format": 1,
+        "student": student,
+        "lab": int(lab),
+        "files": {name: _sha(data) for name, data in files.items()},
+    }
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
@@ -112,11 +132,18 @@ def read_handin(path) -> dict:
             raise HandinError(f"{path.name}: {name} is listed in the manifest but missing")
         try:
             blob = z.read(name)
-        except (zipfile.BadZipFile, OSError, ValueError) as exc:   # CRC error, truncated member
+        except (zipfile.BadZipFile, OSError, ValueError) as exc:  # CRC error, truncated member
             raise HandinError(f"{path.name}: {name} cannot be read ({exc})") from None
         if _sha(blob) != digest:
-            raise HandinError(f"{path.name}: checksum of {name} differs from the manifest (changed after submit)")
+            raise HandinError(
+                f"{path.name}: checksum of {name} differs from the manifest (changed after submit)"
+            )
         contents[name] = blob
     nbs = [n for n in contents if n.startswith("notebook/") and n.endswith(".ipynb")]
-    return {"student": student, "lab": lab, "notebook": contents[nbs[0]] if nbs else None,
-            "notebook_name": nbs[0].split("/", 1)[1] if nbs else None, "files": contents}
+    return {
+        "student": student,
+        "lab": lab,
+        "notebook": contents[nbs[0]] if nbs else None,
+        "notebook_name": nbs[0].split("/", 1)[1] if nbs else None,
+        "files": contents,
+    }

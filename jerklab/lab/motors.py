@@ -13,6 +13,7 @@ documented :data:`CLASSROOM_DEFAULT_KEY` is used with a warning: it is *not* sec
 The true values never appear in a ``repr``, in rig metadata or in a recording; they are read
 only by the checks of :mod:`jerklab.lab` (through :func:`_truth`).
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -30,20 +31,31 @@ from jerklab import paper
 from jerklab.plant import DCMotor, FlexibleDCMotor
 from jerklab.rig.virtual import VirtualDevice
 
-__all__ = ["CLASSROOM_DEFAULT_KEY", "RANGES", "MODE_RANGES", "StudentMotor", "StudentFlexibleMotor", "StudentDevice", "student_motor",
-           "instructor_key", "normalize_student", "connect_student", "DefaultKeyWarning"]
+__all__ = [
+    "CLASSROOM_DEFAULT_KEY",
+    "RANGES",
+    "MODE_RANGES",
+    "StudentMotor",
+    "StudentFlexibleMotor",
+    "StudentDevice",
+    "student_motor",
+    "instructor_key",
+    "normalize_student",
+    "connect_student",
+    "DefaultKeyWarning",
+]
 
 #: Used when no instructor key is set. Public (it is in the source): fine for practice, not for marks.
 CLASSROOM_DEFAULT_KEY = b"jerklab-classroom-default-key (not secret)"
 
 #: The distribution every hidden motor is drawn from (uniform in log for K and tau).
 RANGES = {
-    "K": (15.0, 45.0),                 # rad/(V s)
-    "tau": (0.010, 0.060),             # s
+    "K": (15.0, 45.0),  # rad/(V s)
+    "tau": (0.010, 0.060),  # s
     "coulomb_friction": (0.10, 0.60),  # V, input referred
-    "offset": (-0.08, 0.08),           # V, input referred; |offset| < min friction: no creep at 0 V
-    "noise_counts": (0.0, 0.5),        # standard deviation of the encoder count noise
-    "encoder_ppr": (448, 896),         # counts per output revolution (x1 decoding)
+    "offset": (-0.08, 0.08),  # V, input referred; |offset| < min friction: no creep at 0 V
+    "noise_counts": (0.0, 0.5),  # standard deviation of the encoder count noise
+    "encoder_ppr": (448, 896),  # counts per output revolution (x1 decoding)
 }
 SUPPLY_VOLTAGE = paper.SUPPLY_VOLTAGE
 
@@ -53,9 +65,9 @@ SUPPLY_VOLTAGE = paper.SUPPLY_VOLTAGE
 #: 0.3 of the motor's inertia, so the mode shows on the motor's encoder; the coupled mode the
 #: encoder sees (``_truth``: ``mode_hz``, ``mode_zeta``) is then a little stiffer and better damped.
 MODE_RANGES = {
-    "mode_hz": (7.0, 15.0),            # Hz, the shaft mode with the motor held still
-    "mode_damping": (0.01, 0.04),      # damping ratio of the shaft
-    "load_ratio": (0.3, 0.3),          # J_load / J_motor
+    "mode_hz": (7.0, 15.0),  # Hz, the shaft mode with the motor held still
+    "mode_damping": (0.01, 0.04),  # damping ratio of the shaft
+    "load_ratio": (0.3, 0.3),  # J_load / J_motor
 }
 
 _ID_RE = re.compile(r"^[A-Za-z0-9._@+-]{1,64}$")
@@ -71,7 +83,9 @@ def normalize_student(student) -> str:
         raise TypeError(f"student must be a string ID, got {type(student).__name__}")
     s = student.strip().lower()
     if not _ID_RE.match(s):
-        raise ValueError(f"student must be 1-64 characters of letters, digits and ._@+-, got {student!r}")
+        raise ValueError(
+            f"student must be 1-64 characters of letters, digits and ._@+-, got {student!r}"
+        )
     return s
 
 
@@ -90,9 +104,13 @@ def instructor_key(warn: bool = True) -> tuple[bytes, str]:
         elif path:
             raise ValueError(f"JERKLAB_INSTRUCTOR_KEY_FILE names {path!r}, which is not a file")
     if warn:
-        warnings.warn("no instructor key set (JERKLAB_INSTRUCTOR_KEY or a key file): using the "
-                      "classroom default key, which is public — anyone can regenerate any motor. "
-                      "Fine for practice, not for graded work.", DefaultKeyWarning, stacklevel=3)
+        warnings.warn(
+            "no instructor key set (JERKLAB_INSTRUCTOR_KEY or a key file): using the "
+            "classroom default key, which is public — anyone can regenerate any motor. "
+            "Fine for practice, not for graded work.",
+            DefaultKeyWarning,
+            stacklevel=3,
+        )
     return CLASSROOM_DEFAULT_KEY, "default"
 
 
@@ -138,10 +156,18 @@ class StudentMotor(DCMotor):
     """
 
     def __init__(self, student, params: _Parameters, seed: int):
-        super().__init__(K=params.K, tau=params.tau, supply_voltage=SUPPLY_VOLTAGE, pwm_bits=10,
-                         encoder_ppr=params.encoder_ppr, decoding=1,
-                         coulomb_friction=params.coulomb_friction, noise_std=0.0, seed=seed % 2**32,
-                         offset=params.offset)
+        super().__init__(
+            K=params.K,
+            tau=params.tau,
+            supply_voltage=SUPPLY_VOLTAGE,
+            pwm_bits=10,
+            encoder_ppr=params.encoder_ppr,
+            decoding=1,
+            coulomb_friction=params.coulomb_friction,
+            noise_std=0.0,
+            seed=seed % 2**32,
+            offset=params.offset,
+        )
         self.student = student
         self.noise_counts = params.noise_counts
 
@@ -171,14 +197,21 @@ def student_motor(student, key: bytes | None = None, plant: str = "rigid") -> St
         key, _ = instructor_key()
     seed = _seed(sid, bytes(key))
     if plant == "flexible":
-        return StudentFlexibleMotor(sid, _draw(seed), seed, _draw_mode(_seed(sid, bytes(key), "mode-v1")))
+        return StudentFlexibleMotor(
+            sid, _draw(seed), seed, _draw_mode(_seed(sid, bytes(key), "mode-v1"))
+        )
     return StudentMotor(sid, _draw(seed), seed)
 
 
 def _truth(motor: StudentMotor) -> dict:
     """The true values, for the checks only (never print them)."""
-    truth = {"K": motor.K, "tau": motor.tau, "coulomb_friction": motor.coulomb_friction,
-             "offset": getattr(motor, "offset", 0.0), "counts_per_rev": motor.encoder_ppr * motor.decoding}
+    truth = {
+        "K": motor.K,
+        "tau": motor.tau,
+        "coulomb_friction": motor.coulomb_friction,
+        "offset": getattr(motor, "offset", 0.0),
+        "counts_per_rev": motor.encoder_ppr * motor.decoding,
+    }
     if isinstance(motor, FlexibleDCMotor):
         truth["mode_hz"], truth["mode_zeta"] = coupled_mode(motor)
     return truth
@@ -202,9 +235,18 @@ class StudentFlexibleMotor(FlexibleDCMotor):
 
     def __init__(self, student, params: _Parameters, seed: int, mode: tuple[float, float, float]):
         f, z, lr = mode
-        super().__init__(K=params.K, tau=params.tau, load_ratio=lr, mode_frequency=2.0 * math.pi * f,
-                         mode_damping=z, supply_voltage=SUPPLY_VOLTAGE, pwm_bits=10,
-                         encoder_ppr=params.encoder_ppr, decoding=1, seed=seed % 2**32)
+        super().__init__(
+            K=params.K,
+            tau=params.tau,
+            load_ratio=lr,
+            mode_frequency=2.0 * math.pi * f,
+            mode_damping=z,
+            supply_voltage=SUPPLY_VOLTAGE,
+            pwm_bits=10,
+            encoder_ppr=params.encoder_ppr,
+            decoding=1,
+            seed=seed % 2**32,
+        )
         self.student = student
         self.noise_counts = params.noise_counts
 
@@ -234,7 +276,9 @@ class StudentDevice(VirtualDevice):
         super().__init__(motor, **kwargs)
 
     def _raw_counts(self) -> int:
-        jitter = self._noise_rng.normal(0.0, self.motor.noise_counts) if self.motor.noise_counts else 0.0
+        jitter = (
+            self._noise_rng.normal(0.0, self.motor.noise_counts) if self.motor.noise_counts else 0.0
+        )
         return int(math.floor(float(self.x[0]) * self.motor.counts_per_rad + 1e-9 + jitter))
 
     def __repr__(self):
@@ -259,33 +303,55 @@ def connect_student(student, port=None, *, key=None, **options):
     if port in (None, "virtual", ""):
         speed = options.pop("speed", None)
         link = VirtualSerial(StudentDevice(motor), speed=speed, timeout=0.05)
-        rig = Rig(link, "virtual", supply_voltage=motor.supply_voltage,
-                  counts_per_rev=motor.encoder_ppr * motor.decoding,
-                  model=options.pop("model", (paper.MOTOR_K, paper.MOTOR_TAU)), timeout=options.pop("timeout", 2.0),
-                  hello_timeout=options.pop("hello_timeout", None) or 1.0,
-                  progress=options.pop("progress", True), recordings=options.pop("recordings", None))
+        rig = Rig(
+            link,
+            "virtual",
+            supply_voltage=motor.supply_voltage,
+            counts_per_rev=motor.encoder_ppr * motor.decoding,
+            model=options.pop("model", (paper.MOTOR_K, paper.MOTOR_TAU)),
+            timeout=options.pop("timeout", 2.0),
+            hello_timeout=options.pop("hello_timeout", None) or 1.0,
+            progress=options.pop("progress", True),
+            recordings=options.pop("recordings", None),
+        )
         if options:
             rig.close()
             raise TypeError(f"unexpected options for the virtual rig: {sorted(options)}")
         hidden = motor
     elif port == "simavr" and plant == "flexible":
         # the simulated Uno's two-mass load: the student's K, tau and mode, a 448-count encoder
-        sim_motor = FlexibleDCMotor(K=motor.K, tau=motor.tau, load_ratio=motor.load_ratio,
-                                    mode_frequency=motor.mode_frequency, mode_damping=motor.mode_damping,
-                                    supply_voltage=SUPPLY_VOLTAGE, encoder_ppr=paper.ENCODER_PPR)
+        sim_motor = FlexibleDCMotor(
+            K=motor.K,
+            tau=motor.tau,
+            load_ratio=motor.load_ratio,
+            mode_frequency=motor.mode_frequency,
+            mode_damping=motor.mode_damping,
+            supply_voltage=SUPPLY_VOLTAGE,
+            encoder_ppr=paper.ENCODER_PPR,
+        )
         rig = connect("simavr", motor=sim_motor, **options)
-        hidden = StudentFlexibleMotor(sid, _Parameters(motor.K, motor.tau, 0.0, 0.0, 0.0, paper.ENCODER_PPR),
-                                      motor.seed, (motor.mode_frequency / (2.0 * math.pi), motor.mode_damping,
-                                                   motor.load_ratio))
+        hidden = StudentFlexibleMotor(
+            sid,
+            _Parameters(motor.K, motor.tau, 0.0, 0.0, 0.0, paper.ENCODER_PPR),
+            motor.seed,
+            (motor.mode_frequency / (2.0 * math.pi), motor.mode_damping, motor.load_ratio),
+        )
     elif port == "simavr":
         # the simulated Uno's plant: K, tau, friction and a 448-count encoder (the harness
         # decodes x1 at 448); no offset or count noise there
-        sim_motor = DCMotor(K=motor.K, tau=motor.tau, supply_voltage=SUPPLY_VOLTAGE, encoder_ppr=paper.ENCODER_PPR,
-                            coulomb_friction=motor.coulomb_friction)
+        sim_motor = DCMotor(
+            K=motor.K,
+            tau=motor.tau,
+            supply_voltage=SUPPLY_VOLTAGE,
+            encoder_ppr=paper.ENCODER_PPR,
+            coulomb_friction=motor.coulomb_friction,
+        )
         rig = connect("simavr", motor=sim_motor, **options)
-        hidden = StudentMotor(sid, _Parameters(motor.K, motor.tau, motor.coulomb_friction, 0.0, 0.0,
-                                               paper.ENCODER_PPR),
-                              motor.seed)
+        hidden = StudentMotor(
+            sid,
+            _Parameters(motor.K, motor.tau, motor.coulomb_friction, 0.0, 0.0, paper.ENCODER_PPR),
+            motor.seed,
+        )
     else:
         rig = connect(port, **options)
         hidden = None

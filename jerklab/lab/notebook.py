@@ -12,6 +12,7 @@ it pulls in (nbconvert's PDF export and with it the Playwright package); the ins
 >>> grader.check("K")                            # doctest: +SKIP
 ✘ K: K is 12 % off: did you fit the angle or the differenced angle?
 """
+
 from __future__ import annotations
 
 import doctest
@@ -55,8 +56,10 @@ def load_tests(notebook) -> dict:
             if not tests:
                 raise ValueError(f"notebook: {p} holds no checks (no metadata.otter.tests)")
             return tests
-    raise FileNotFoundError(f"notebook: no worksheet named {str(notebook)!r} here or among jerklab's "
-                            "worksheets; pass the worksheet's file name, e.g. 'lab1_identify.ipynb'")
+    raise FileNotFoundError(
+        f"notebook: no worksheet named {str(notebook)!r} here or among jerklab's "
+        "worksheets; pass the worksheet's file name, e.g. 'lab1_identify.ipynb'"
+    )
 
 
 class CheckOutcome:
@@ -74,8 +77,10 @@ class CheckOutcome:
 
     def _repr_html_(self):
         color = "#1a7f37" if self.passed else "#b3261e"
-        return (f'<p style="color:{color};font-family:monospace;white-space:pre-wrap">'
-                f"{html.escape(repr(self))}</p>")
+        return (
+            f'<p style="color:{color};font-family:monospace;white-space:pre-wrap">'
+            f"{html.escape(repr(self))}</p>"
+        )
 
 
 class _Collect(doctest.DocTestRunner):
@@ -92,8 +97,11 @@ class _Collect(doctest.DocTestRunner):
     def report_unexpected_exception(self, out, test, example, exc_info):
         if self.failure is None:
             exc = exc_info[1]
-            self.failure = str(exc) if isinstance(exc, AssertionError) and str(exc) else \
-                f"{type(exc).__name__}: {exc}"
+            self.failure = (
+                str(exc)
+                if isinstance(exc, AssertionError) and str(exc)
+                else f"{type(exc).__name__}: {exc}"
+            )
 
 
 class Notebook:
@@ -120,8 +128,12 @@ class Notebook:
             The namespace to run in; by default the caller's globals.
         """
         if name not in self.tests:
-            raise KeyError(f"name: no check {name!r} in {self.notebook} (known: {sorted(self.tests)})")
-        env = dict(global_env if global_env is not None else inspect.currentframe().f_back.f_globals)
+            raise KeyError(
+                f"name: no check {name!r} in {self.notebook} (known: {sorted(self.tests)})"
+            )
+        env = dict(
+            global_env if global_env is not None else inspect.currentframe().f_back.f_globals
+        )
         parser, runner = doctest.DocTestParser(), _Collect()
         for suite in self.tests[name].get("suites", []):
             for case in suite.get("cases", []):

@@ -12,6 +12,7 @@ The checks judge every answer against the student's own hidden mode (:func:`_tru
 motor: ``mode_hz``, ``mode_zeta``, the coupled mode of the two-mass model) or, on a real rig,
 against the checker's own analysis of the student's recordings. No message prints a true value.
 """
+
 from __future__ import annotations
 
 import math
@@ -21,8 +22,16 @@ import numpy as np
 from jerklab.lab.checks import _check, _Missing, _num, _pct, _rec, _rel
 from jerklab.lab.session import CheckResult
 
-__all__ = ["PRBS_MODE", "MOVE4", "SOFT_KPD", "MODE_DRIFT", "soft_gains", "load_deflection",
-           "residual_amplitude", "KINDS4"]
+__all__ = [
+    "PRBS_MODE",
+    "MOVE4",
+    "SOFT_KPD",
+    "MODE_DRIFT",
+    "soft_gains",
+    "load_deflection",
+    "residual_amplitude",
+    "KINDS4",
+]
 
 #: Lab 4's PRBS (``S.record_prbs(**PRBS_MODE)``): 6 ± 3 V, order 9, one sample per bit —
 #: 511 samples (2.6 s at 5 ms) whose flat spectrum reaches the 6-16 Hz modes of the class.
@@ -95,7 +104,12 @@ def _truth4(s):
 
     r = _rec(s, "prbs")
     fit = shaping.identify_mode(r.control, r.position, r.metadata["Ts"])
-    return fit.frequency_hz, fit.damping, fit.model(), "the checker's fit of your PRBS record (real rig)"
+    return (
+        fit.frequency_hz,
+        fit.damping,
+        fit.model(),
+        "the checker's fit of your PRBS record (real rig)",
+    )
 
 
 def _zv_delay(f, z):
@@ -108,33 +122,59 @@ def _pre_zv_delay(s, ans):
     v = _num("pre_zv_delay", ans)
     ref = 0.05
     if _rel(v, ref) < 0.01:
-        return CheckResult("pre_zv_delay", True, "half the period, 1/(2f) = 0.05 s: the second impulse "
-                           "starts a vibration in antiphase with the first, and they cancel.")
+        return CheckResult(
+            "pre_zv_delay",
+            True,
+            "half the period, 1/(2f) = 0.05 s: the second impulse "
+            "starts a vibration in antiphase with the first, and they cancel.",
+        )
     if _rel(v, 0.1) < 0.01:
-        return CheckResult("pre_zv_delay", False, "that is a full period: an impulse one period later rings "
-                           "in phase with the first and doubles the vibration. Half a period cancels it.")
+        return CheckResult(
+            "pre_zv_delay",
+            False,
+            "that is a full period: an impulse one period later rings "
+            "in phase with the first and doubles the vibration. Half a period cancels it.",
+        )
     if _rel(v, 1 / (2 * 2 * math.pi * 10)) < 0.02 or _rel(v, 1 / (2 * math.pi * 10)) < 0.02:
-        return CheckResult("pre_zv_delay", False, "10 Hz is a frequency in hertz, not rad/s: the period is "
-                           "1/f, no 2π.")
+        return CheckResult(
+            "pre_zv_delay",
+            False,
+            "10 Hz is a frequency in hertz, not rad/s: the period is 1/f, no 2π.",
+        )
     if _rel(v, 50.0) < 0.01:
         return CheckResult("pre_zv_delay", False, "1000× too large: seconds, not milliseconds.")
-    return CheckResult("pre_zv_delay", False, f"{_pct(v, ref):+.0f} % off: when does an impulse ring in "
-                       "antiphase with one at t = 0?")
+    return CheckResult(
+        "pre_zv_delay",
+        False,
+        f"{_pct(v, ref):+.0f} % off: when does an impulse ring in antiphase with one at t = 0?",
+    )
 
 
 @_check("pre_zvd_length")
 def _pre_zvd_length(s, ans):
     v = _num("pre_zvd_length", ans)
     if _rel(v, 0.1) < 0.01:
-        return CheckResult("pre_zvd_length", True, "ZVD's impulses sit at 0, T/2 and T (T = 1/f = 0.1 s): it "
-                           "delays every move by one period, twice ZV, and buys a much wider band.")
+        return CheckResult(
+            "pre_zvd_length",
+            True,
+            "ZVD's impulses sit at 0, T/2 and T (T = 1/f = 0.1 s): it "
+            "delays every move by one period, twice ZV, and buys a much wider band.",
+        )
     if _rel(v, 0.05) < 0.01:
-        return CheckResult("pre_zvd_length", False, "that is ZV's length: ZVD adds a third impulse, another "
-                           "half period later.")
+        return CheckResult(
+            "pre_zvd_length",
+            False,
+            "that is ZV's length: ZVD adds a third impulse, another half period later.",
+        )
     if _rel(v, 0.15) < 0.01:
-        return CheckResult("pre_zvd_length", False, "three impulses half a period apart span two half "
-                           "periods, not three.")
-    return CheckResult("pre_zvd_length", False, f"{_pct(v, 0.1):+.0f} % off: ZVD = ZV convolved with ZV.")
+        return CheckResult(
+            "pre_zvd_length",
+            False,
+            "three impulses half a period apart span two half periods, not three.",
+        )
+    return CheckResult(
+        "pre_zvd_length", False, f"{_pct(v, 0.1):+.0f} % off: ZVD = ZV convolved with ZV."
+    )
 
 
 # ------------------------------------------------------------------ on the rig
@@ -144,20 +184,34 @@ def _mode(s, ans):
     f, z, _, src = _truth4(s)
     ok_f, ok_z = _rel(f_a, f) <= 0.03, abs(z_a - z) <= max(0.3 * z, 0.01)
     if ok_f and ok_z:
-        return CheckResult("mode", True, f"f within {100 * _rel(f_a, f):.1f} % and ζ within "
-                           f"{abs(z_a - z):.3f} of {src}. The PRBS puts power at every frequency up to "
-                           "1/(2Ts); the two-mass model's output-error fit reads the mode from the tiny "
-                           "wiggle it leaves in the motor's angle.")
+        return CheckResult(
+            "mode",
+            True,
+            f"f within {100 * _rel(f_a, f):.1f} % and ζ within "
+            f"{abs(z_a - z):.3f} of {src}. The PRBS puts power at every frequency up to "
+            "1/(2Ts); the two-mass model's output-error fit reads the mode from the tiny "
+            "wiggle it leaves in the motor's angle.",
+        )
     if _rel(f_a, 2 * math.pi * f) < 0.04:
-        return CheckResult("mode", False, "f is 2π too large: that is ω in rad/s; the shapers take hertz.")
+        return CheckResult(
+            "mode", False, "f is 2π too large: that is ω in rad/s; the shapers take hertz."
+        )
     if ok_f and _rel(z_a, 100 * z) < 0.3:
         return CheckResult("mode", False, "ζ is a ratio (0.05), not a percent (5).")
     if ok_f:
-        return CheckResult("mode", False, f"f is right, ζ is {z_a - z:+.3f} off: take `fit.damping`, the "
-                           "damping ratio of the fitted pole pair.")
-    return CheckResult("mode", False, f"f is {_pct(f_a, f):+.0f} % off: fit the PRBS record with "
-                       "shaping.identify_mode(rp.control, rp.position, Ts) — the applied volts and the "
-                       "encoder angle of the same record.")
+        return CheckResult(
+            "mode",
+            False,
+            f"f is right, ζ is {z_a - z:+.3f} off: take `fit.damping`, the "
+            "damping ratio of the fitted pole pair.",
+        )
+    return CheckResult(
+        "mode",
+        False,
+        f"f is {_pct(f_a, f):+.0f} % off: fit the PRBS record with "
+        "shaping.identify_mode(rp.control, rp.position, Ts) — the applied volts and the "
+        "encoder angle of the same record.",
+    )
 
 
 @_check("zv_delay")
@@ -166,16 +220,31 @@ def _zv_delay_check(s, ans):
     f, z, _, src = _truth4(s)
     ref = _zv_delay(f, z)
     if _rel(v, ref) <= 0.04:
-        return CheckResult("zv_delay", True, f"within {100 * _rel(v, ref):.1f} % of half the damped period "
-                           f"of {src}: ZV's second impulse, which every shaped move waits for.")
+        return CheckResult(
+            "zv_delay",
+            True,
+            f"within {100 * _rel(v, ref):.1f} % of half the damped period "
+            f"of {src}: ZV's second impulse, which every shaped move waits for.",
+        )
     if _rel(v, 2 * ref) <= 0.05:
-        return CheckResult("zv_delay", False, "that is a whole period (ZVD's length, or your own 1/f): ZV's "
-                           "second impulse comes half a period after the first.")
+        return CheckResult(
+            "zv_delay",
+            False,
+            "that is a whole period (ZVD's length, or your own 1/f): ZV's "
+            "second impulse comes half a period after the first.",
+        )
     if _rel(v, ref / math.pi) <= 0.05:
-        return CheckResult("zv_delay", False, "that is 1/(2·ω) with ω in rad/s: half the period is 1/(2 f_d), "
-                           "f in Hz.")
-    return CheckResult("zv_delay", False, f"{_pct(v, ref):+.0f} % off: build the ZV shaper from *your* mode "
-                       "(shaping.input_shaper('zv', f, ζ)) and read its last impulse time, zv.times[-1].")
+        return CheckResult(
+            "zv_delay",
+            False,
+            "that is 1/(2·ω) with ω in rad/s: half the period is 1/(2 f_d), f in Hz.",
+        )
+    return CheckResult(
+        "zv_delay",
+        False,
+        f"{_pct(v, ref):+.0f} % off: build the ZV shaper from *your* mode "
+        "(shaping.input_shaper('zv', f, ζ)) and read its last impulse time, zv.times[-1].",
+    )
 
 
 def _runs(s):
@@ -188,7 +257,9 @@ def _runs(s):
 @_check("residual_pct")
 def _residual_pct(s, ans):
     if not isinstance(ans, dict):
-        raise _Missing('residual_pct: answer a dict {"zv": ..., "zvd": ..., "ei": ...} of percentages.')
+        raise _Missing(
+            'residual_pct: answer a dict {"zv": ..., "zvd": ..., "ei": ...} of percentages.'
+        )
     got = {k: _num(f"residual_pct[{k!r}]", ans.get(k)) for k in KINDS4}
     _, _, model, src = _truth4(s)
     runs = _runs(s)
@@ -197,26 +268,47 @@ def _residual_pct(s, ans):
     tol = {k: max(3.0, 0.25 * ref[k]) for k in KINDS4}
     bad = [k for k in KINDS4 if abs(got[k] - ref[k]) > tol[k]]
     if not bad:
-        return CheckResult("residual_pct", True, f"each within {max(abs(got[k] - ref[k]) for k in KINDS4):.1f} "
-                           f"percentage points of the load of {src}, driven by the voltages your runs applied. "
-                           "Tuned to the mode, every shaper removes most of the ringing; what is left "
-                           "comes from the mode estimate and the sampled (5 ms) reference.")
-    if all(0 <= got[k] <= 1.0 for k in KINDS4) and all(abs(100 * got[k] - ref[k]) <= tol[k] for k in KINDS4):
-        return CheckResult("residual_pct", False, "those are fractions: answer percentages of the unshaped "
-                           "move's residual (100 × shaped / unshaped).")
+        return CheckResult(
+            "residual_pct",
+            True,
+            f"each within {max(abs(got[k] - ref[k]) for k in KINDS4):.1f} "
+            f"percentage points of the load of {src}, driven by the voltages your runs applied. "
+            "Tuned to the mode, every shaper removes most of the ringing; what is left "
+            "comes from the mode estimate and the sampled (5 ms) reference.",
+        )
+    if all(0 <= got[k] <= 1.0 for k in KINDS4) and all(
+        abs(100 * got[k] - ref[k]) <= tol[k] for k in KINDS4
+    ):
+        return CheckResult(
+            "residual_pct",
+            False,
+            "those are fractions: answer percentages of the unshaped "
+            "move's residual (100 × shaped / unshaped).",
+        )
     if all(got[k] > 100 for k in bad):
-        return CheckResult("residual_pct", False, "above 100 %: divide the shaped move's residual by the "
-                           "unshaped one's, not the other way round.")
-    return CheckResult("residual_pct", False, f"{', '.join(bad)} off by more than {max(tol[k] for k in bad):.0f} "
-                       "percentage points: simulate your identified model (fit.model()) with each run's "
-                       "applied voltage (lab.load_deflection) and compare residual_amplitude with the "
-                       "unshaped run's.")
+        return CheckResult(
+            "residual_pct",
+            False,
+            "above 100 %: divide the shaped move's residual by the "
+            "unshaped one's, not the other way round.",
+        )
+    return CheckResult(
+        "residual_pct",
+        False,
+        f"{', '.join(bad)} off by more than {max(tol[k] for k in bad):.0f} "
+        "percentage points: simulate your identified model (fit.model()) with each run's "
+        "applied voltage (lab.load_deflection) and compare residual_amplitude with the "
+        "unshaped run's.",
+    )
 
 
 def _drifted(f, z):
     from jerklab import shaping
 
-    return {k: float(shaping.input_shaper(k, f, z).residual_vibration((1 - MODE_DRIFT) * f, z)) for k in KINDS4}
+    return {
+        k: float(shaping.input_shaper(k, f, z).residual_vibration((1 - MODE_DRIFT) * f, z))
+        for k in KINDS4
+    }
 
 
 @_check("robust")
@@ -228,24 +320,44 @@ def _robust(s, ans):
     ref = _drifted(f, z)
     tol = {k: max(1.5, 0.15 * ref[k]) for k in KINDS4}
     if all(abs(got[k] - ref[k]) <= tol[k] for k in KINDS4):
-        return CheckResult("robust", True, f"within {max(abs(got[k] - ref[k]) for k in KINDS4):.1f} points of "
-                           f"the shapers designed for {src}, on a mode {100 * MODE_DRIFT:.0f} % lower. ZV "
-                           "leaves a large part of the vibration; ZVD and EI, whose curves are flat around "
-                           "the design frequency, keep it small.")
+        return CheckResult(
+            "robust",
+            True,
+            f"within {max(abs(got[k] - ref[k]) for k in KINDS4):.1f} points of "
+            f"the shapers designed for {src}, on a mode {100 * MODE_DRIFT:.0f} % lower. ZV "
+            "leaves a large part of the vibration; ZVD and EI, whose curves are flat around "
+            "the design frequency, keep it small.",
+        )
     from jerklab import shaping
 
-    up = {k: float(shaping.input_shaper(k, f, z).residual_vibration((1 + MODE_DRIFT) * f, z)) for k in KINDS4}
+    up = {
+        k: float(shaping.input_shaper(k, f, z).residual_vibration((1 + MODE_DRIFT) * f, z))
+        for k in KINDS4
+    }
     if all(abs(got[k] - up[k]) <= tol[k] for k in KINDS4):
-        return CheckResult("robust", False, "that is a mode 15 % *higher*: a heavier load lowers the "
-                           "frequency, f·(1 − 0.15).")
+        return CheckResult(
+            "robust",
+            False,
+            "that is a mode 15 % *higher*: a heavier load lowers the frequency, f·(1 − 0.15).",
+        )
     if all(abs(100 * got[k] - ref[k]) <= tol[k] for k in KINDS4):
-        return CheckResult("robust", False, "residual_vibration already returns percent: do not scale it.")
+        return CheckResult(
+            "robust", False, "residual_vibration already returns percent: do not scale it."
+        )
     at_design = {k: float(shaping.input_shaper(k, f, z).residual_vibration(f, z)) for k in KINDS4}
     if all(abs(got[k] - at_design[k]) <= tol[k] for k in KINDS4):
-        return CheckResult("robust", False, "that is the vibration at the design frequency, where each shaper "
-                           "was made to work: evaluate at the lower mode, (1 − 0.15)·f.")
-    return CheckResult("robust", False, "evaluate each shaper you designed for your mode at the lower "
-                       "frequency: zv.residual_vibration(0.85 * f, ζ), the same for zvd and ei.")
+        return CheckResult(
+            "robust",
+            False,
+            "that is the vibration at the design frequency, where each shaper "
+            "was made to work: evaluate at the lower mode, (1 − 0.15)·f.",
+        )
+    return CheckResult(
+        "robust",
+        False,
+        "evaluate each shaper you designed for your mode at the lower "
+        "frequency: zv.residual_vibration(0.85 * f, ζ), the same for zvd and ei.",
+    )
 
 
 @_check("choice")
@@ -257,11 +369,23 @@ def _choice(s, ans):
     left = _drifted(f, z)
     best = min(KINDS4, key=lambda k: left[k])
     if a == best:
-        return CheckResult("choice", True, f"{a.upper()} leaves the least vibration on the heavier load: its "
-                           "sensitivity curve is flattest around the design frequency. It costs about one "
-                           "period of delay per move, twice ZV's.")
+        return CheckResult(
+            "choice",
+            True,
+            f"{a.upper()} leaves the least vibration on the heavier load: its "
+            "sensitivity curve is flattest around the design frequency. It costs about one "
+            "period of delay per move, twice ZV's.",
+        )
     if a == "zv":
-        return CheckResult("choice", False, "ZV is the shortest, but on a mode 15 % off it leaves a fifth of "
-                           "the vibration: compare your `robust` numbers.")
-    return CheckResult("choice", False, f"{a.upper()} is good, but another shaper of about the same length "
-                       "leaves less on the lower mode: compare your `robust` numbers.")
+        return CheckResult(
+            "choice",
+            False,
+            "ZV is the shortest, but on a mode 15 % off it leaves a fifth of "
+            "the vibration: compare your `robust` numbers.",
+        )
+    return CheckResult(
+        "choice",
+        False,
+        f"{a.upper()} is good, but another shaper of about the same length "
+        "leaves less on the lower mode: compare your `robust` numbers.",
+    )

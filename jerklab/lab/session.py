@@ -1,7 +1,7 @@
 """A lab session: the student's rig, the recordings of the lab, the answers and their checks."""
+
 from __future__ import annotations
 
-import json
 import math
 import os
 import re
@@ -24,11 +24,13 @@ FLEXIBLE_LABS = (4,)
 MOVE = {"distance": 20.0, "max_jerk": 2.0e4, "max_accel": 600.0, "max_velocity": 80.0}
 
 #: The spec of lab 2, feasible for every motor of jerklab.lab.motors.RANGES (tests/test_labs.py).
-SPEC = {"max_error": 0.40,          # rad, |r - y| during the move
-        "overshoot_pct": 1.0,       # % of the distance, after the move
-        "settle_band": 0.05,        # rad
-        "settling_time": 0.25,      # s after the end of the move, into the band for good
-        "max_voltage": 12.0}        # V, and no saturated sample
+SPEC = {
+    "max_error": 0.40,  # rad, |r - y| during the move
+    "overshoot_pct": 1.0,  # % of the distance, after the move
+    "settle_band": 0.05,  # rad
+    "settling_time": 0.25,  # s after the end of the move, into the band for good
+    "max_voltage": 12.0,
+}  # V, and no saturated sample
 
 
 class CheckResult:
@@ -78,7 +80,11 @@ class LabSession:
         self.lab = lab
         self.student = normalize_student(student)
         self.port = _port_from_env(port)
-        base = Path(folder) if folder is not None else Path(os.environ.get("JERKLAB_LAB_WORK", "lab-work"))
+        base = (
+            Path(folder)
+            if folder is not None
+            else Path(os.environ.get("JERKLAB_LAB_WORK", "lab-work"))
+        )
         self.folder = base / self.student / f"lab{lab}"
         self.folder.mkdir(parents=True, exist_ok=True)
         from jerklab.rig import connect
@@ -88,11 +94,14 @@ class LabSession:
             opts["speed"] = speed
         self.plant = "flexible" if lab in FLEXIBLE_LABS else "rigid"
         if self.plant == "flexible" and self.port not in (None, "virtual", "", "simavr"):
-            print(f"⚠ lab {lab} needs the flexible load: on a real Uno, mount the load on its shaft coupling")
+            print(
+                f"⚠ lab {lab} needs the flexible load: on a real Uno, mount the load on its shaft coupling"
+            )
         elif self.plant == "flexible":
             opts["plant"] = "flexible"
         if key is not None:
             from jerklab.lab.motors import connect_student
+
             self.rig = connect_student(self.student, self.port, key=key, **opts)
         else:
             self.rig = connect(self.port, student=self.student, **opts)
@@ -149,9 +158,11 @@ class LabSession:
         except RigError as exc:
             if "planner" not in str(exc):
                 raise
-            print(f"⚠ {self.rig.port}: this device has no {profile.kind!r} planner (the firmware runs "
-                  f"only the published sine-jerk today); the {profile.kind} move is skipped here and "
-                  f"its cells use the simulation only.")
+            print(
+                f"⚠ {self.rig.port}: this device has no {profile.kind!r} planner (the firmware runs "
+                f"only the published sine-jerk today); the {profile.kind} move is skipped here and "
+                f"its cells use the simulation only."
+            )
             return None
         self.recordings[name] = rec
         self.gains = gains
@@ -172,8 +183,12 @@ class LabSession:
         except _Missing as exc:
             res = CheckResult(name, False, str(exc))
         except (TypeError, ValueError, KeyError, AttributeError, IndexError) as exc:
-            res = CheckResult(name, False, f"could not read your answer ({type(exc).__name__}: {exc}). "
-                                           "Replace the `...` with a value of the type the task asks for.")
+            res = CheckResult(
+                name,
+                False,
+                f"could not read your answer ({type(exc).__name__}: {exc}). "
+                "Replace the `...` with a value of the type the task asks for.",
+            )
         self.results[name] = res
         return res
 
@@ -184,6 +199,7 @@ class LabSession:
         try:
             from IPython import get_ipython
             from IPython.display import display
+
             if get_ipython() is not None:
                 display(res)
                 return
@@ -207,8 +223,10 @@ class LabSession:
         self.rig.close()
 
     def __repr__(self):
-        return (f"LabSession(lab={self.lab}, student={self.student!r}, rig={self.rig.port!r}, "
-                f"recordings={len(self.recordings)})")
+        return (
+            f"LabSession(lab={self.lab}, student={self.student!r}, rig={self.rig.port!r}, "
+            f"recordings={len(self.recordings)})"
+        )
 
 
 class _Missing(Exception):
@@ -243,7 +261,9 @@ def start(lab, student, port=None, **options):
         where = f"firmware on a simulated Uno (your hidden motor; {s.rig.port})"
     else:
         where = f"rig at {s.rig.port}"
-    print(f"Lab {lab} ({LABS[lab]}) for student {s.student} on the {where}; "
-          f"encoder {s.rig.counts_per_rev} counts/rev, supply {s.rig.supply_voltage:g} V; "
-          f"recordings in {s.folder}")
+    print(
+        f"Lab {lab} ({LABS[lab]}) for student {s.student} on the {where}; "
+        f"encoder {s.rig.counts_per_rev} counts/rev, supply {s.rig.supply_voltage:g} V; "
+        f"recordings in {s.folder}"
+    )
     return s

@@ -14,25 +14,51 @@ gains, Ts=0.005)`` return a :class:`Recording` that is written to disk while it 
 ``python -m jerklab.rig serve`` puts the virtual rig on a pseudo-terminal so any serial
 client can talk to it as to a board.
 """
+
 from __future__ import annotations
 
 import importlib
-
 import os
 import sys
 
 from jerklab import paper
 from jerklab._validate import as_positive
-from jerklab.rig.client import (PortBusyError, Rig, RigBusyError, RigCommandError, RigConnectionError,
-                                RigError, RigRunError, RigTimeoutError, UnknownPortError,
-                                UnstableDesignError)
+from jerklab.rig.client import (
+    PortBusyError,
+    Rig,
+    RigBusyError,
+    RigCommandError,
+    RigConnectionError,
+    RigError,
+    RigRunError,
+    RigTimeoutError,
+    UnknownPortError,
+    UnstableDesignError,
+)
 from jerklab.rig.recording import Recording, compare, plot_comparison, recordings_dir
 from jerklab.rig.virtual import VirtualDevice, VirtualSerial
 
-__all__ = ["connect", "Rig", "Recording", "recordings_dir", "compare", "plot_comparison", "VirtualDevice", "VirtualSerial",
-           "RigError", "RigConnectionError", "RigTimeoutError", "RigCommandError", "RigRunError",
-           "UnknownPortError", "PortBusyError", "RigBusyError", "UnstableDesignError", "list_ports",
-           "BAUDRATE"]
+__all__ = [
+    "connect",
+    "Rig",
+    "Recording",
+    "recordings_dir",
+    "compare",
+    "plot_comparison",
+    "VirtualDevice",
+    "VirtualSerial",
+    "RigError",
+    "RigConnectionError",
+    "RigTimeoutError",
+    "RigCommandError",
+    "RigRunError",
+    "UnknownPortError",
+    "PortBusyError",
+    "RigBusyError",
+    "UnstableDesignError",
+    "list_ports",
+    "BAUDRATE",
+]
 
 BAUDRATE = 115200
 #: the shortest reply ``timeout`` / ``hello_timeout`` accepted (s): an ACK frame takes about 1 ms at
@@ -50,9 +76,23 @@ def list_ports(include_all=False) -> list:
     return _list(include_all=include_all)
 
 
-def connect(port=None, *, student=None, motor=None, plant=None, speed=None, timeout=2.0, hello_timeout=None, progress=True,
-            recordings=None, supply_voltage=None, counts_per_rev=None, model=(paper.MOTOR_K, paper.MOTOR_TAU),
-            baudrate=BAUDRATE, **link_options) -> Rig:
+def connect(
+    port=None,
+    *,
+    student=None,
+    motor=None,
+    plant=None,
+    speed=None,
+    timeout=2.0,
+    hello_timeout=None,
+    progress=True,
+    recordings=None,
+    supply_voltage=None,
+    counts_per_rev=None,
+    model=(paper.MOTOR_K, paper.MOTOR_TAU),
+    baudrate=BAUDRATE,
+    **link_options,
+) -> Rig:
     """Connect to a rig and return a :class:`Rig`.
 
     Parameters
@@ -117,12 +157,16 @@ def connect(port=None, *, student=None, motor=None, plant=None, speed=None, time
     """
     for name, value in (("timeout", timeout), ("hello_timeout", hello_timeout)):
         if value is not None and as_positive(name, value) < MIN_TIMEOUT:
-            raise ValueError(f"{name} must be >= MIN_TIMEOUT = {MIN_TIMEOUT:g} s (one frame at {BAUDRATE} baud), "
-                             f"got {value!r}")
+            raise ValueError(
+                f"{name} must be >= MIN_TIMEOUT = {MIN_TIMEOUT:g} s (one frame at {BAUDRATE} baud), "
+                f"got {value!r}"
+            )
     if plant not in (None, "rigid", "flexible"):
         raise ValueError(f"plant must be None, 'rigid' or 'flexible', got {plant!r}")
     if plant == "flexible" and port not in _VIRTUAL_NAMES and port != "simavr":
-        raise ValueError("plant='flexible' applies to the virtual rig (port=None) and 'simavr' only")
+        raise ValueError(
+            "plant='flexible' applies to the virtual rig (port=None) and 'simavr' only"
+        )
     if plant == "flexible" and motor is not None:
         raise ValueError("give either plant='flexible' or motor (a FlexibleDCMotor), not both")
     if student is not None:
@@ -132,13 +176,22 @@ def connect(port=None, *, student=None, motor=None, plant=None, speed=None, time
 
         if plant == "flexible":
             link_options = dict(link_options, plant="flexible")
-        opts = dict(link_options, speed=speed, timeout=timeout, hello_timeout=hello_timeout,
-                    progress=progress, recordings=recordings, model=model)
+        opts = dict(
+            link_options,
+            speed=speed,
+            timeout=timeout,
+            hello_timeout=hello_timeout,
+            progress=progress,
+            recordings=recordings,
+            model=model,
+        )
         if port not in _VIRTUAL_NAMES:
             if speed is not None:
                 raise ValueError("speed applies to the virtual rig only (port=None)")
             opts.pop("speed")
-            opts.update(supply_voltage=supply_voltage, counts_per_rev=counts_per_rev, baudrate=baudrate)
+            opts.update(
+                supply_voltage=supply_voltage, counts_per_rev=counts_per_rev, baudrate=baudrate
+            )
         return connect_student(student, port, **opts)
     if plant == "flexible":
         from jerklab.plant import FlexibleDCMotor
@@ -149,12 +202,19 @@ def connect(port=None, *, student=None, motor=None, plant=None, speed=None, time
 
         motor = DCMotor() if motor is None else motor
         link = VirtualSerial(VirtualDevice(motor), speed=speed, timeout=0.05)
-        return Rig(link, "virtual",
-                   supply_voltage=motor.supply_voltage if supply_voltage is None else supply_voltage,
-                   counts_per_rev=(motor.encoder_ppr * motor.decoding if counts_per_rev is None
-                                   else counts_per_rev),
-                   model=model, timeout=timeout, hello_timeout=hello_timeout or 1.0,
-                   progress=progress, recordings=recordings)
+        return Rig(
+            link,
+            "virtual",
+            supply_voltage=motor.supply_voltage if supply_voltage is None else supply_voltage,
+            counts_per_rev=(
+                motor.encoder_ppr * motor.decoding if counts_per_rev is None else counts_per_rev
+            ),
+            model=model,
+            timeout=timeout,
+            hello_timeout=hello_timeout or 1.0,
+            progress=progress,
+            recordings=recordings,
+        )
     port = _check_port(port)
     if speed is not None:
         raise ValueError("speed applies to the virtual rig only (port=None)")
@@ -166,7 +226,9 @@ def connect(port=None, *, student=None, motor=None, plant=None, speed=None, time
         port, on_close = launcher.port, launcher.close
         if motor is not None:
             supply_voltage = motor.supply_voltage if supply_voltage is None else supply_voltage
-            counts_per_rev = motor.encoder_ppr * motor.decoding if counts_per_rev is None else counts_per_rev
+            counts_per_rev = (
+                motor.encoder_ppr * motor.decoding if counts_per_rev is None else counts_per_rev
+            )
     lock = None
     try:
         if "://" not in port:
@@ -182,11 +244,20 @@ def connect(port=None, *, student=None, motor=None, plant=None, speed=None, time
         raise
     if lock is not None:
         on_close = _chain(lock.release, on_close)
-    return Rig(link, port, supply_voltage=paper.SUPPLY_VOLTAGE if supply_voltage is None else supply_voltage,
-               counts_per_rev=(paper.ENCODER_PPR * paper.ENCODER_DECODING if counts_per_rev is None
-                               else counts_per_rev), model=model,
-               timeout=timeout, hello_timeout=hello_timeout or 3.0, progress=progress,
-               recordings=recordings, on_close=on_close)
+    return Rig(
+        link,
+        port,
+        supply_voltage=paper.SUPPLY_VOLTAGE if supply_voltage is None else supply_voltage,
+        counts_per_rev=(
+            paper.ENCODER_PPR * paper.ENCODER_DECODING if counts_per_rev is None else counts_per_rev
+        ),
+        model=model,
+        timeout=timeout,
+        hello_timeout=hello_timeout or 3.0,
+        progress=progress,
+        recordings=recordings,
+        on_close=on_close,
+    )
 
 
 def _chain(first, then):
@@ -196,6 +267,7 @@ def _chain(first, then):
         finally:
             if then is not None:
                 then()
+
     return close
 
 
@@ -204,27 +276,36 @@ def _check_port(port) -> str:
     if isinstance(port, os.PathLike):
         port = os.fspath(port)
     if isinstance(port, bytes):
-        raise UnknownPortError(f"port must be a str (a device path or a pyserial URL), got bytes {port!r}: "
-                               "decode it first")
+        raise UnknownPortError(
+            f"port must be a str (a device path or a pyserial URL), got bytes {port!r}: "
+            "decode it first"
+        )
     if not isinstance(port, str):
-        raise UnknownPortError(f"port must be None (the virtual rig), 'simavr', a device path or a pyserial "
-                               f"URL, got {port!r} ({type(port).__name__})")
+        raise UnknownPortError(
+            f"port must be None (the virtual rig), 'simavr', a device path or a pyserial "
+            f"URL, got {port!r} ({type(port).__name__})"
+        )
     if port == "":
-        raise UnknownPortError("port must not be empty: use None for the virtual rig, 'simavr', a device "
-                               "path such as '/dev/ttyACM0' or 'COM3' (python -m jerklab.rig ports lists "
-                               "candidates), or a pyserial URL such as 'socket://host:5000'")
+        raise UnknownPortError(
+            "port must not be empty: use None for the virtual rig, 'simavr', a device "
+            "path such as '/dev/ttyACM0' or 'COM3' (python -m jerklab.rig ports lists "
+            "candidates), or a pyserial URL such as 'socket://host:5000'"
+        )
     if not port.strip():
         raise UnknownPortError(f"port must not be blank, got {port!r}")
     if port != port.strip():
-        raise UnknownPortError(f"port has leading or trailing whitespace: {port!r} (did you mean "
-                               f"{port.strip()!r}?)")
+        raise UnknownPortError(
+            f"port has leading or trailing whitespace: {port!r} (did you mean {port.strip()!r}?)"
+        )
     if "\0" in port:
         raise UnknownPortError(f"port must not contain a NUL byte, got {port!r}")
     if "://" in port:
         scheme = port.split("://", 1)[0]
         if scheme not in _URL_SCHEMES:
-            raise UnknownPortError(f"port {port!r} is not a known pyserial URL: the scheme {scheme!r} is not "
-                                   f"one of {', '.join(s + '://' for s in _URL_SCHEMES)}")
+            raise UnknownPortError(
+                f"port {port!r} is not a known pyserial URL: the scheme {scheme!r} is not "
+                f"one of {', '.join(s + '://' for s in _URL_SCHEMES)}"
+            )
     elif port != "simavr" and not _is_windows_com(port) and not os.path.exists(port):
         hint = ""
         dev = os.path.join("/dev", port)
@@ -235,10 +316,14 @@ def _check_port(port) -> str:
                 found = [r["device"] for r in list_ports()]
             except Exception:
                 found = []
-            hint = (f"; ports found: {', '.join(found)}" if found else
-                    "; no USB serial port found: is the board plugged in?")
-        raise UnknownPortError(f"port {port!r} does not exist{hint} (python -m jerklab.rig ports lists "
-                               "candidates)")
+            hint = (
+                f"; ports found: {', '.join(found)}"
+                if found
+                else "; no USB serial port found: is the board plugged in?"
+            )
+        raise UnknownPortError(
+            f"port {port!r} does not exist{hint} (python -m jerklab.rig ports lists candidates)"
+        )
     return port
 
 
@@ -246,7 +331,10 @@ def _is_windows_com(port: str) -> bool:
     import re
     import sys
 
-    return sys.platform.startswith("win") and re.fullmatch(r"(\\\\\.\\)?COM\d+", port, re.I) is not None
+    return (
+        sys.platform.startswith("win")
+        and re.fullmatch(r"(\\\\\.\\)?COM\d+", port, re.I) is not None
+    )
 
 
 def _open_serial(port, baudrate, options):
@@ -254,20 +342,26 @@ def _open_serial(port, baudrate, options):
 
     kwargs = dict(baudrate=baudrate, timeout=0.05, write_timeout=2.0)
     if "://" not in port and os.name == "posix":
-        kwargs["exclusive"] = True           # TIOCEXCL + flock: a second open fails
+        kwargs["exclusive"] = True  # TIOCEXCL + flock: a second open fails
     kwargs.update(options)
     try:
         link = serial.serial_for_url(port, **kwargs)
     except PermissionError as exc:
         raise UnknownPortError(_permission_message(port, exc)) from exc
     except (serial.SerialException, OSError, ValueError) as exc:
-        if isinstance(exc.__context__, PermissionError) or getattr(exc, "errno", None) == 13 or \
-                "Permission denied" in str(exc):
+        if (
+            isinstance(exc.__context__, PermissionError)
+            or getattr(exc, "errno", None) == 13
+            or "Permission denied" in str(exc)
+        ):
             raise UnknownPortError(_permission_message(port, exc)) from exc
         if "exclusively lock" in str(exc) or getattr(exc, "errno", None) in (11, 16):
             from jerklab.rig.ports import port_holders
 
-            who = "; ".join(f"pid {pid} ({cmd})" for pid, cmd in port_holders(port)) or "another program"
+            who = (
+                "; ".join(f"pid {pid} ({cmd})" for pid, cmd in port_holders(port))
+                or "another program"
+            )
             raise PortBusyError(f"port {port!r} is in use by {who}: {exc}", port=port) from exc
         raise UnknownPortError(f"cannot open rig port {port!r}: {exc}") from exc
     try:
@@ -280,36 +374,52 @@ def _open_serial(port, baudrate, options):
 def _permission_message(port, exc):
     import getpass
 
-    return (f"cannot open rig port {port!r}: permission denied ({exc}). On Linux add yourself to the "
-            f"group that owns it (usually dialout): sudo usermod -aG dialout {getpass.getuser()}, then log "
-            "out and in again")
+    return (
+        f"cannot open rig port {port!r}: permission denied ({exc}). On Linux add yourself to the "
+        f"group that owns it (usually dialout): sudo usermod -aG dialout {getpass.getuser()}, then log "
+        "out and in again"
+    )
 
 
 def _launch_simavr(motor=None):
     if sys.platform == "win32":
-        raise UnknownPortError("port 'simavr' (the firmware on a simulated Uno) needs Linux or macOS; on "
-                               "Windows use the virtual rig, connect(), or a real Uno on its COM port")
+        raise UnknownPortError(
+            "port 'simavr' (the firmware on a simulated Uno) needs Linux or macOS; on "
+            "Windows use the virtual rig, connect(), or a real Uno on its COM port"
+        )
     try:
         # through sys.modules (not the package attribute), so a stand-in launcher can be swapped in
         simavr = importlib.import_module("jerklab.rig.simavr")
     except ImportError as exc:
         raise UnknownPortError(
             "port 'simavr' needs jerklab.rig.simavr (the firmware-on-simavr harness) which is not "
-            f"available: {exc}") from exc
+            f"available: {exc}"
+        ) from exc
     kwargs = {}
     if motor is not None:
         if motor.supply_voltage is None or motor.encoder_ppr is None or motor.decoding != 1:
-            raise ValueError("motor for 'simavr' needs a supply_voltage, an encoder_ppr and decoding=1")
-        kwargs = dict(K=motor.K, tau=motor.tau, supply_voltage=motor.supply_voltage,
-                      coulomb_friction=motor.coulomb_friction, encoder_ppr=motor.encoder_ppr)
-        if getattr(motor, "n_states", 2) == 4:           # FlexibleDCMotor: the two-mass load
-            kwargs.update(load_ratio=motor.load_ratio, mode_frequency=motor.mode_frequency,
-                          mode_damping=motor.mode_damping)
+            raise ValueError(
+                "motor for 'simavr' needs a supply_voltage, an encoder_ppr and decoding=1"
+            )
+        kwargs = dict(
+            K=motor.K,
+            tau=motor.tau,
+            supply_voltage=motor.supply_voltage,
+            coulomb_friction=motor.coulomb_friction,
+            encoder_ppr=motor.encoder_ppr,
+        )
+        if getattr(motor, "n_states", 2) == 4:  # FlexibleDCMotor: the two-mass load
+            kwargs.update(
+                load_ratio=motor.load_ratio,
+                mode_frequency=motor.mode_frequency,
+                mode_damping=motor.mode_damping,
+            )
     try:
         return simavr.launch(**kwargs)
     except FileNotFoundError as exc:
         raise UnknownPortError(
             f"port 'simavr': a tool or the firmware build is missing ({exc}); install simavr, "
-            "libsimavr-dev, gcc-avr, avr-libc, arduino-core-avr and run `make -C firmware`") from exc
+            "libsimavr-dev, gcc-avr, avr-libc, arduino-core-avr and run `make -C firmware`"
+        ) from exc
     except (RuntimeError, OSError) as exc:
         raise UnknownPortError(f"port 'simavr': the simulated Uno did not start: {exc}") from exc

@@ -6,6 +6,7 @@ It speaks ``jerklab.protocol`` over anything with pyserial's ``read``/``write``
 it configures is Stojčić's (ASCII: Stojcic eq. 16, Stojcic eq. 17, Stojcic eq. 18). Progress
 bars: :mod:`jerklab.rig.progress` (tqdm).
 """
+
 from __future__ import annotations
 
 import copy
@@ -23,8 +24,18 @@ from jerklab.rig.progress import NoProgress as _NoProgress
 from jerklab.rig.progress import progress as _progress
 from jerklab.rig.recording import Recording, RecordingIOError, recordings_dir
 
-__all__ = ["Rig", "RigError", "RigConnectionError", "RigTimeoutError", "RigCommandError",
-           "RigRunError", "RigBusyError", "UnstableDesignError", "UnknownPortError", "PortBusyError"]
+__all__ = [
+    "Rig",
+    "RigError",
+    "RigConnectionError",
+    "RigTimeoutError",
+    "RigCommandError",
+    "RigRunError",
+    "RigBusyError",
+    "UnstableDesignError",
+    "UnknownPortError",
+    "PortBusyError",
+]
 
 
 class RigError(RuntimeError):
@@ -89,8 +100,13 @@ _KIND_TO_PLANNER = {
 }
 _F32_MAX = 3.4028234663852886e38
 #: END_OF_RUN reasons that are faults (the run's status then reads "fault: ...")
-_FAULTS = (P.EndReason.FAULT, P.EndReason.TRACKING_ERROR, P.EndReason.RUNAWAY, P.EndReason.NO_MOTION,
-           P.EndReason.SATURATION)
+_FAULTS = (
+    P.EndReason.FAULT,
+    P.EndReason.TRACKING_ERROR,
+    P.EndReason.RUNAWAY,
+    P.EndReason.NO_MOTION,
+    P.EndReason.SATURATION,
+)
 
 
 class Rig:
@@ -120,10 +136,20 @@ class Rig:
         Directory for recordings (default ``$JERKLAB_RECORDINGS`` or ``./recordings``).
     """
 
-    def __init__(self, link, port="?", *, supply_voltage=paper.SUPPLY_VOLTAGE,
-                 counts_per_rev=paper.ENCODER_PPR * paper.ENCODER_DECODING,
-                 model=(paper.MOTOR_K, paper.MOTOR_TAU),
-                 timeout=2.0, hello_timeout=3.0, progress=True, recordings=None, on_close=None):
+    def __init__(
+        self,
+        link,
+        port="?",
+        *,
+        supply_voltage=paper.SUPPLY_VOLTAGE,
+        counts_per_rev=paper.ENCODER_PPR * paper.ENCODER_DECODING,
+        model=(paper.MOTOR_K, paper.MOTOR_TAU),
+        timeout=2.0,
+        hello_timeout=3.0,
+        progress=True,
+        recordings=None,
+        on_close=None,
+    ):
         self.link = link
         self.port = str(port)
         self.supply_voltage = as_positive("supply_voltage", supply_voltage)
@@ -131,7 +157,7 @@ class Rig:
             raise ValueError(f"counts_per_rev must be a positive integer, got {counts_per_rev!r}")
         self.counts_per_rev = int(counts_per_rev)
         self.set_model(*model)
-        self._shaper = None                  # SetShaper sent before each move (set_shaper)
+        self._shaper = None  # SetShaper sent before each move (set_shaper)
         self.timeout = as_positive("timeout", timeout)
         self.progress = bool(progress)
         self.recordings = Path(recordings) if recordings is not None else None
@@ -142,7 +168,8 @@ class Rig:
         self._frames: list[P.Frame] = []
         self.ignored_frames = 0
         import collections
-        self._retargets = collections.deque()    # RETARGETs waiting for the run loop to send
+
+        self._retargets = collections.deque()  # RETARGETs waiting for the run loop to send
         self._streaming = False
         self.closed = False
         try:
@@ -152,10 +179,12 @@ class Rig:
             raise
         if self.info.protocol_version != P.PROTOCOL_VERSION:
             self.close()
-            raise RigError(f"{self.port}: device speaks protocol version {self.info.protocol_version}, "
-                           f"jerklab speaks {P.PROTOCOL_VERSION}: update the firmware or jerklab")
+            raise RigError(
+                f"{self.port}: device speaks protocol version {self.info.protocol_version}, "
+                f"jerklab speaks {P.PROTOCOL_VERSION}: update the firmware or jerklab"
+            )
         try:
-            self.stop()          # a run left over from a host that went away ends here
+            self.stop()  # a run left over from a host that went away ends here
         except BaseException:
             self.close()
             raise
@@ -187,14 +216,22 @@ class Rig:
 
     def device_info(self) -> dict:
         i = self.info
-        return {"name": i.name, "firmware_version": i.firmware_version, "protocol_version": i.protocol_version,
-                "capabilities": [c.name for c in P.Capability if c & i.capabilities],
-                "tick_us": i.tick_us, "pwm_max": i.pwm_max, "port": self.port}
+        return {
+            "name": i.name,
+            "firmware_version": i.firmware_version,
+            "protocol_version": i.protocol_version,
+            "capabilities": [c.name for c in P.Capability if c & i.capabilities],
+            "tick_us": i.tick_us,
+            "pwm_max": i.pwm_max,
+            "port": self.port,
+        }
 
     def __repr__(self):
         state = "closed" if self.closed else "open"
-        return (f"Rig(port={self.port!r}, device={self.info.name!r}, firmware={self.firmware_version}, "
-                f"{state})")
+        return (
+            f"Rig(port={self.port!r}, device={self.info.name!r}, firmware={self.firmware_version}, "
+            f"{state})"
+        )
 
     def __enter__(self):
         return self
@@ -272,12 +309,14 @@ class Rig:
         while True:
             left = deadline - time.monotonic()
             if left <= 0:
-                raise RigTimeoutError(f"{self.port}: no reply to {type(msg).__name__} within {timeout:g} s")
+                raise RigTimeoutError(
+                    f"{self.port}: no reply to {type(msg).__name__} within {timeout:g} s"
+                )
             frames = self._read_frames(min(left, 0.05))
             for i, f in enumerate(frames):
                 self._check_busy(f)
                 if f.seq == seq and f.type in (P.MsgType.NACK, *replies):
-                    self._frames = frames[i + 1:] + self._frames
+                    self._frames = frames[i + 1 :] + self._frames
                     reply = P.parse(f)
                     if isinstance(reply, P.Nack):
                         raise self._nack_error(msg, reply)
@@ -301,9 +340,11 @@ class Rig:
             err = f"error {nack.error}"
         name = type(msg).__name__
         if nack.error == P.ErrorCode.TOO_LONG:
-            text = (f"{self.port}: device refused {name}: the move needs more than "
-                    f"{P.MAX_PLAN_SAMPLES:,} samples (the device's limit) at this Ts; "
-                    f"use a shorter move, higher limits or a longer Ts")
+            text = (
+                f"{self.port}: device refused {name}: the move needs more than "
+                f"{P.MAX_PLAN_SAMPLES:,} samples (the device's limit) at this Ts; "
+                f"use a shorter move, higher limits or a longer Ts"
+            )
             return RigCommandError(text, command=msg.TYPE, error=nack.error, param=nack.param)
         if nack.param != 0xFF:
             field = P.payload_field_name(msg.TYPE, nack.param)
@@ -326,7 +367,7 @@ class Rig:
         import serial
 
         deadline = time.monotonic() + hello_timeout
-        sent = {}                                     # seq -> attempt number
+        sent = {}  # seq -> attempt number
         self.hello_attempts = self.hello_answered = 0
         other = 0
         skipped0 = self._decoder.stats.skipped_bytes
@@ -340,31 +381,43 @@ class Rig:
             frames = self._read_frames(max(0.0, min(0.05, deadline - now)))
             for i, f in enumerate(frames):
                 if f.type == P.MsgType.HELLO_REPLY and f.seq in sent:
-                    self._frames = frames[i + 1:] + self._frames
+                    self._frames = frames[i + 1 :] + self._frames
                     self.hello_answered = sent[f.seq]
                     return P.parse(f)
-                self._check_busy(f)                   # a served rig that has a client: BUSY
+                self._check_busy(f)  # a served rig that has a client: BUSY
                 other += 1
                 self.ignored_frames += 1
             if time.monotonic() >= deadline:
                 break
         baud = getattr(self.link, "baudrate", None)
         junk = self._decoder.stats.skipped_bytes - skipped0
-        heard = (f"; it sent {other} frame(s) that were not a HELLO_REPLY" if other else
-                 f"; it sent {junk} byte(s) that were no jerklab frame (another sketch, or a wrong "
-                 "baud rate?)" if junk else "; nothing came back")
-        checks = ["the port is the rig's (list candidates: python -m jerklab.rig ports)",
-                  "the jerklab firmware is flashed (make -C firmware upload PORT=...)",
-                  "the baud rate (the jerklab firmware runs at 115200" +
-                  (f", this link at {baud})" if baud else ")"),
-                  f"the firmware speaks protocol version {P.PROTOCOL_VERSION} (a newer or older "
-                  "jerklab needs the matching firmware)"]
+        heard = (
+            f"; it sent {other} frame(s) that were not a HELLO_REPLY"
+            if other
+            else f"; it sent {junk} byte(s) that were no jerklab frame (another sketch, or a wrong "
+            "baud rate?)"
+            if junk
+            else "; nothing came back"
+        )
+        checks = [
+            "the port is the rig's (list candidates: python -m jerklab.rig ports)",
+            "the jerklab firmware is flashed (make -C firmware upload PORT=...)",
+            "the baud rate (the jerklab firmware runs at 115200"
+            + (f", this link at {baud})" if baud else ")"),
+            f"the firmware speaks protocol version {P.PROTOCOL_VERSION} (a newer or older "
+            "jerklab needs the matching firmware)",
+        ]
         if isinstance(self.link, serial.Serial) and sys.platform.startswith("linux"):
             checks.append("no other program (serial monitor, another kernel) talks to it")
         raise RigTimeoutError(
             f"{self.port}: no jerklab rig answered HELLO: sent {self.hello_attempts} HELLO(s) over "
-            f"{hello_timeout:g} s" + (f" at {baud} baud" if baud else "") + heard +
-            ". Check: " + "; ".join(checks) + ".")
+            f"{hello_timeout:g} s"
+            + (f" at {baud} baud" if baud else "")
+            + heard
+            + ". Check: "
+            + "; ".join(checks)
+            + "."
+        )
 
     def stop(self):
         """Stop the motor now (STOP)."""
@@ -380,17 +433,30 @@ class Rig:
         Ts = as_positive("Ts", Ts)
         tick = self.info.tick_us or 1
         if Ts > 0.065:
-            raise ValueError(f"Ts must be at most 65 ms (a multiple of the device tick {tick} µs), got {Ts!r} s")
+            raise ValueError(
+                f"Ts must be at most 65 ms (a multiple of the device tick {tick} µs), got {Ts!r} s"
+            )
         us = int(round(Ts * 1e6))
         if abs(us - Ts * 1e6) > 1e-3 or us % tick or us < tick:
-            raise ValueError(f"Ts must be a multiple of the device tick {tick} µs and at most 65 ms, "
-                             f"got {Ts!r} s")
+            raise ValueError(
+                f"Ts must be a multiple of the device tick {tick} µs and at most 65 ms, "
+                f"got {Ts!r} s"
+            )
         return us
 
-    def configure(self, gains, Ts=paper.TS, *, feedforward=True, max_voltage=None, limits=None,
-                  host_timeout=1.0, max_error=P.DEFAULT_MAX_ERROR,
-                  runaway_time=P.DEFAULT_RUNAWAY_MS / 1000.0,
-                  saturation_time=P.DEFAULT_SATURATION_MS / 1000.0):
+    def configure(
+        self,
+        gains,
+        Ts=paper.TS,
+        *,
+        feedforward=True,
+        max_voltage=None,
+        limits=None,
+        host_timeout=1.0,
+        max_error=P.DEFAULT_MAX_ERROR,
+        runaway_time=P.DEFAULT_RUNAWAY_MS / 1000.0,
+        saturation_time=P.DEFAULT_SATURATION_MS / 1000.0,
+    ):
         """Send plant, gains and limits (SET_PLANT, SET_GAINS, SET_LIMITS); return them as a dict.
 
         ``max_error`` (rad, 0 = off), ``runaway_time`` and ``saturation_time`` (s, 0 = off) set
@@ -403,22 +469,35 @@ class Rig:
         if isinstance(gains, Gains):
             gains = gains.discretize(Ts)
         if not isinstance(gains, DiscreteGains):
-            raise ValueError(f"gains must be jerklab.controller Gains or DiscreteGains, got {type(gains).__name__}")
+            raise ValueError(
+                f"gains must be jerklab.controller Gains or DiscreteGains, got {type(gains).__name__}"
+            )
         if abs(gains.Ts - Ts) > 1e-9:
-            raise ValueError(f"gains were discretized for Ts = {gains.Ts!r} s, the run uses Ts = {Ts!r} s")
+            raise ValueError(
+                f"gains were discretized for Ts = {gains.Ts!r} s, the run uses Ts = {Ts!r} s"
+            )
         K, tau = self.model
         if feedforward is not True and feedforward not in (False, None):
-            K, tau = as_positive("feedforward.K", feedforward.K), as_positive("feedforward.tau", feedforward.tau)
+            K, tau = (
+                as_positive("feedforward.K", feedforward.K),
+                as_positive("feedforward.tau", feedforward.tau),
+            )
         ff_on = feedforward is not False and feedforward is not None
-        vmax = self.supply_voltage if max_voltage is None else as_positive("max_voltage", max_voltage)
+        vmax = (
+            self.supply_voltage if max_voltage is None else as_positive("max_voltage", max_voltage)
+        )
         if vmax > self.supply_voltage:
-            raise ValueError(f"max_voltage must be <= supply_voltage {self.supply_voltage} V, got {vmax}")
+            raise ValueError(
+                f"max_voltage must be <= supply_voltage {self.supply_voltage} V, got {vmax}"
+            )
         tmo = as_nonnegative("host_timeout", host_timeout)
         if tmo > 65.535:
             raise ValueError(f"host_timeout must be <= 65.535 s, got {tmo}")
         emax = as_nonnegative("max_error", max_error)
         if emax > _F32_MAX:
-            raise ValueError(f"max_error must be a float32 (<= {_F32_MAX:g} rad), got {max_error!r}")
+            raise ValueError(
+                f"max_error must be a float32 (<= {_F32_MAX:g} rad), got {max_error!r}"
+            )
         runaway = as_nonnegative("runaway_time", runaway_time)
         if runaway > 65.535:
             raise ValueError(f"runaway_time must be <= 65.535 s, got {runaway}")
@@ -431,37 +510,76 @@ class Rig:
         loop = P.LoopType.VELOCITY if gains.loop == "velocity" else P.LoopType.POSITION
         # the device's fixed-point PID holds a gain below RUN_GAIN_LIMIT PWM ticks per count (per
         # count per sample in the velocity loop); RUN would be refused without naming the gain
-        limit = P.max_run_gain(self.counts_per_rev, self.info.pwm_max, self.supply_voltage,
-                               Ts if loop == P.LoopType.VELOCITY else None)
+        limit = P.max_run_gain(
+            self.counts_per_rev,
+            self.info.pwm_max,
+            self.supply_voltage,
+            Ts if loop == P.LoopType.VELOCITY else None,
+        )
         for name in ("kpd", "kid", "kdd"):
             k = getattr(gains, name)
             if math.isfinite(k) and abs(k) >= limit:
-                raise ValueError(f"gains.{name} = {k:g} is beyond what the device's PID can hold: |{name}| must be "
-                                 f"< {limit:.4g} ({P.RUN_GAIN_LIMIT:.0f} PWM ticks per encoder "
-                                 f"count{' per sample' if loop == P.LoopType.VELOCITY else ''})")
+                raise ValueError(
+                    f"gains.{name} = {k:g} is beyond what the device's PID can hold: |{name}| must be "
+                    f"< {limit:.4g} ({P.RUN_GAIN_LIMIT:.0f} PWM ticks per encoder "
+                    f"count{' per sample' if loop == P.LoopType.VELOCITY else ''})"
+                )
         msgs = [
             P.SetPlant(K, tau, self.supply_voltage, self.counts_per_rev),
-            P.SetGains(gains.kpd, gains.kid, gains.kdd, us, int(loop),
-                       P.GAINS_FEEDFORWARD if ff_on else 0, gains.gamma),
-            P.SetLimits(J, E, W, vmax, int(round(tmo * 1000)), emax, int(round(runaway * 1000)),
-                        int(round(sat * 1000))),
+            P.SetGains(
+                gains.kpd,
+                gains.kid,
+                gains.kdd,
+                us,
+                int(loop),
+                P.GAINS_FEEDFORWARD if ff_on else 0,
+                gains.gamma,
+            ),
+            P.SetLimits(
+                J,
+                E,
+                W,
+                vmax,
+                int(round(tmo * 1000)),
+                emax,
+                int(round(runaway * 1000)),
+                int(round(sat * 1000)),
+            ),
         ]
         for m in msgs:
             self._request(m)
-        return {"Ts": Ts, "gains": {"kpd": gains.kpd, "kid": gains.kid, "kdd": gains.kdd,
-                                    "gamma": gains.gamma, "loop": gains.loop,
-                                    "design": _jsonable(gains.design)},
-                "feedforward": {"on": ff_on, "K": K, "tau": tau},
-                "limits": {"max_jerk": J, "max_accel": E, "max_velocity": W, "max_voltage": vmax,
-                           "host_timeout": tmo, "max_error": emax,
-                           "runaway_time": int(round(runaway * 1000)) / 1000.0,
-                           "saturation_time": int(round(sat * 1000)) / 1000.0},
-                "plant": {"supply_voltage": self.supply_voltage, "counts_per_rev": self.counts_per_rev}}
+        return {
+            "Ts": Ts,
+            "gains": {
+                "kpd": gains.kpd,
+                "kid": gains.kid,
+                "kdd": gains.kdd,
+                "gamma": gains.gamma,
+                "loop": gains.loop,
+                "design": _jsonable(gains.design),
+            },
+            "feedforward": {"on": ff_on, "K": K, "tau": tau},
+            "limits": {
+                "max_jerk": J,
+                "max_accel": E,
+                "max_velocity": W,
+                "max_voltage": vmax,
+                "host_timeout": tmo,
+                "max_error": emax,
+                "runaway_time": int(round(runaway * 1000)) / 1000.0,
+                "saturation_time": int(round(sat * 1000)) / 1000.0,
+            },
+            "plant": {"supply_voltage": self.supply_voltage, "counts_per_rev": self.counts_per_rev},
+        }
 
     def _new_recording(self, kind, meta, path):
         meta = dict(meta)
-        meta.update(kind=kind, device=self.device_info(), counts_per_rad=self.counts_per_rad,
-                    volts_per_pwm=self.supply_voltage / self.info.pwm_max)
+        meta.update(
+            kind=kind,
+            device=self.device_info(),
+            counts_per_rad=self.counts_per_rad,
+            volts_per_pwm=self.supply_voltage / self.info.pwm_max,
+        )
         if path is None:
             folder = self.recordings if self.recordings is not None else recordings_dir()
             stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
@@ -476,11 +594,25 @@ class Rig:
         return Recording(meta, path)
 
     # ---------------------------------------------------------------- runs
-    def run_move(self, profile, gains, Ts=paper.TS, *, feedforward=True, max_voltage=None, settle=0.25,
-                 decimation=1, host_timeout=1.0, path=None, progress=None,
-                 max_error=P.DEFAULT_MAX_ERROR, runaway_time=P.DEFAULT_RUNAWAY_MS / 1000.0,
-                 saturation_time=P.DEFAULT_SATURATION_MS / 1000.0, force=False,
-                 on_telemetry=None) -> Recording:
+    def run_move(
+        self,
+        profile,
+        gains,
+        Ts=paper.TS,
+        *,
+        feedforward=True,
+        max_voltage=None,
+        settle=0.25,
+        decimation=1,
+        host_timeout=1.0,
+        path=None,
+        progress=None,
+        max_error=P.DEFAULT_MAX_ERROR,
+        runaway_time=P.DEFAULT_RUNAWAY_MS / 1000.0,
+        saturation_time=P.DEFAULT_SATURATION_MS / 1000.0,
+        force=False,
+        on_telemetry=None,
+    ) -> Recording:
         """Run a planned move on the rig; return the :class:`Recording` (saved as it arrives).
 
         The device re-plans the move from ``profile``'s distance and limits with the same
@@ -553,52 +685,90 @@ class Rig:
         """
         kind = getattr(profile, "kind", None)
         if kind not in _KIND_TO_PLANNER:
-            raise ValueError(f"profile must be a jerklab.planner Profile, got {type(profile).__name__}")
+            raise ValueError(
+                f"profile must be a jerklab.planner Profile, got {type(profile).__name__}"
+            )
         planner = _KIND_TO_PLANNER[kind]
         if not self.capabilities & (1 << planner):
-            raise RigError(f"{self.port}: firmware {self.firmware_version} has no {kind!r} planner "
-                           f"(capabilities: {self.device_info()['capabilities']})")
+            raise RigError(
+                f"{self.port}: firmware {self.firmware_version} has no {kind!r} planner "
+                f"(capabilities: {self.device_info()['capabilities']})"
+            )
         distance = as_real("profile.distance", profile.distance)
         if distance == 0.0:
             raise ValueError("profile.distance must be nonzero for a rig move")
         settle = as_nonnegative("settle", settle)
-        if (isinstance(decimation, bool) or not isinstance(decimation, (int, float)) or not math.isfinite(decimation)
-                or int(decimation) != decimation or not 1 <= decimation <= 255):
+        if (
+            isinstance(decimation, bool)
+            or not isinstance(decimation, (int, float))
+            or not math.isfinite(decimation)
+            or int(decimation) != decimation
+            or not 1 <= decimation <= 255
+        ):
             raise ValueError(f"decimation must be an integer in 1..255, got {decimation!r}")
-        limits = (profile.max_jerk if profile.max_jerk is not None else _F32_MAX,
-                  profile.max_accel, profile.max_velocity)
+        limits = (
+            profile.max_jerk if profile.max_jerk is not None else _F32_MAX,
+            profile.max_accel,
+            profile.max_velocity,
+        )
         if not force:
             self._check_stable(gains, Ts)
-        cfg = self.configure(gains, Ts, feedforward=feedforward, max_voltage=max_voltage,
-                             limits=limits, host_timeout=host_timeout, max_error=max_error,
-                             runaway_time=runaway_time, saturation_time=saturation_time)
+        cfg = self.configure(
+            gains,
+            Ts,
+            feedforward=feedforward,
+            max_voltage=max_voltage,
+            limits=limits,
+            host_timeout=host_timeout,
+            max_error=max_error,
+            runaway_time=runaway_time,
+            saturation_time=saturation_time,
+        )
         Ts = cfg["Ts"]
         info = self._request(P.Plan(distance, int(planner)), replies=(P.MsgType.PLAN_INFO,))
         if abs(info.duration - profile.duration) > 1e-4 * profile.duration + 2e-5:
             raise RigError(
                 f"{self.port}: the device planned a {info.duration:.6f} s move but the profile lasts "
                 f"{profile.duration:.6f} s. The device re-plans from the distance and the limits, "
-                f"so only an unmodified planner result can be run (not .synchronized() or edited).")
+                f"so only an unmodified planner result can be run (not .synchronized() or edited)."
+            )
         settle_n = int(math.ceil(settle / Ts - 1e-9))
         if settle_n > 0xFFFF:
             raise ValueError(f"settle must be <= {0xFFFF * Ts:g} s at Ts = {Ts} s, got {settle}")
         shaper_delay = self._send_shaper(Ts)
-        meta = dict(cfg, profile=_jsonable(profile.to_dict()),
-                    plan={"accel_time": info.accel_time, "cruise_time": info.cruise_time,
-                          "duration": info.duration, "n_samples": info.n_samples},
-                    settle_samples=settle_n, decimation=int(decimation))
+        meta = dict(
+            cfg,
+            profile=_jsonable(profile.to_dict()),
+            plan={
+                "accel_time": info.accel_time,
+                "cruise_time": info.cruise_time,
+                "duration": info.duration,
+                "n_samples": info.n_samples,
+            },
+            settle_samples=settle_n,
+            decimation=int(decimation),
+        )
         if self._shaper is not None:
             msg, shaper_Ts, what = self._shaper
-            meta["shaper"] = {"taps": list(msg.amplitudes[:msg.n_taps]),
-                              "delays": list(msg.delays[:msg.n_taps]), "Ts": shaper_Ts,
-                              "source": what}
+            meta["shaper"] = {
+                "taps": list(msg.amplitudes[: msg.n_taps]),
+                "delays": list(msg.delays[: msg.n_taps]),
+                "Ts": shaper_Ts,
+                "source": what,
+            }
         rec = self._new_recording("move", meta, path)
         total = info.n_samples + shaper_delay + settle_n
         bar = _progress(total, f"{self.port} move", self.progress if progress is None else progress)
         if on_telemetry is not None and not callable(on_telemetry):
             raise TypeError(f"on_telemetry must be callable, got {on_telemetry!r}")
-        return self._stream(P.Run(settle_n, int(decimation)), rec, total, host_timeout, bar,
-                            on_telemetry=on_telemetry)
+        return self._stream(
+            P.Run(settle_n, int(decimation)),
+            rec,
+            total,
+            host_timeout,
+            bar,
+            on_telemetry=on_telemetry,
+        )
 
     def retarget(self, new_distance):
         """Change the target of the move that runs to ``new_distance`` rad from its start.
@@ -620,11 +790,15 @@ class Rig:
         if not abs(d) <= 1e6:
             raise ValueError(f"new_distance must be within +-1e6 rad, got {d!r}")
         if not self.capabilities & P.Capability.RETARGET:
-            raise RigError(f"{self.port}: firmware {self.firmware_version} cannot re-target "
-                           f"(capabilities: {self.device_info()['capabilities']})")
+            raise RigError(
+                f"{self.port}: firmware {self.firmware_version} cannot re-target "
+                f"(capabilities: {self.device_info()['capabilities']})"
+            )
         if not self._streaming:
-            raise RigError("retarget() changes a running move: call it during run_move(), from its "
-                           "on_telemetry callback or another thread")
+            raise RigError(
+                "retarget() changes a running move: call it during run_move(), from its "
+                "on_telemetry callback or another thread"
+            )
         self._retargets.append(float(d))
 
     def _check_stable(self, gains, Ts):
@@ -635,7 +809,7 @@ class Rig:
         if isinstance(gains, Gains):
             gains = gains.discretize(Ts)
         if not isinstance(gains, DiscreteGains):
-            return                          # configure() names the bad type
+            return  # configure() names the bad type
         K, tau = self.model
         r = max_pole_radius(K, tau, gains)
         if not r < 1.0:
@@ -643,10 +817,22 @@ class Rig:
                 f"{self.port}: refusing an unstable design: its sampled closed loop has a pole at "
                 f"|z| = {r:.4g} >= 1 ({_describe_design(gains)}; on the model K = {K:g} rad/(V s), "
                 f"tau = {tau:g} s, Ts = {gains.Ts:g} s). Choose a smaller wn, a shorter Ts or another "
-                f"design, or pass force=True to run it anyway (the safety stops will end it).")
+                f"design, or pass force=True to run it anyway (the safety stops will end it)."
+            )
 
-    def step(self, voltage, seconds, Ts=paper.TS, *, rest=0.05, coast=None, max_voltage=None,
-             host_timeout=1.0, path=None, progress=None) -> Recording:
+    def step(
+        self,
+        voltage,
+        seconds,
+        Ts=paper.TS,
+        *,
+        rest=0.05,
+        coast=None,
+        max_voltage=None,
+        host_timeout=1.0,
+        path=None,
+        progress=None,
+    ) -> Recording:
         """Open-loop step of ``voltage`` V for ``seconds`` (identification); returns the Recording.
 
         Samples are taken every ``Ts``; ``rec.control`` is the PWM-quantized voltage applied
@@ -665,7 +851,9 @@ class Rig:
         Ts = us * 1e-6
         if not self.capabilities & P.Capability.OPEN_LOOP_STEP:
             raise RigError(f"{self.port}: firmware {self.firmware_version} has no open-loop STEP")
-        vmax = self.supply_voltage if max_voltage is None else as_positive("max_voltage", max_voltage)
+        vmax = (
+            self.supply_voltage if max_voltage is None else as_positive("max_voltage", max_voltage)
+        )
         if abs(voltage) > vmax:
             raise ValueError(f"voltage must be within ±max_voltage = ±{vmax} V, got {voltage}")
         n = max(1, int(math.ceil(seconds / Ts - 1e-9)))
@@ -678,12 +866,18 @@ class Rig:
         # limits: keep the planner limits at their defaults, set the clamp and the watchdog
         self._request(P.SetPlant(*self.model, self.supply_voltage, self.counts_per_rev))
         self._request(P.SetLimits(*paper.LIMITS, vmax, int(round(tmo * 1000))))
-        meta = {"Ts": Ts, "voltage": voltage, "seconds": n * Ts, "rest": n_rest * Ts,
-                "limits": {"max_voltage": vmax, "host_timeout": tmo},
-                "plant": {"supply_voltage": self.supply_voltage, "counts_per_rev": self.counts_per_rev}}
+        meta = {
+            "Ts": Ts,
+            "voltage": voltage,
+            "seconds": n * Ts,
+            "rest": n_rest * Ts,
+            "limits": {"max_voltage": vmax, "host_timeout": tmo},
+            "plant": {"supply_voltage": self.supply_voltage, "counts_per_rev": self.counts_per_rev},
+        }
         rec = self._new_recording("step", meta, path)
-        bar = _progress(n_rest + n, f"{self.port} step",
-                        self.progress if progress is None else progress)
+        bar = _progress(
+            n_rest + n, f"{self.port} step", self.progress if progress is None else progress
+        )
         if n_rest:
             self._stream(P.Step(0.0, us, n_rest), rec, n_rest, host_timeout, bar, final=False)
         offset = (len(rec) and int(rec.counts[-1]), n_rest)
@@ -693,9 +887,23 @@ class Rig:
             self.wait_still(timeout=max(2.0, 4 * coast), Ts=Ts)
         return rec
 
-    def record_prbs(self, amplitude, seconds=None, Ts=paper.TS, *, order=8, seed=1, hold=1, offset=0.0,
-                    rest=0.05, coast=None, max_voltage=None, host_timeout=1.0, path=None,
-                    progress=None) -> Recording:
+    def record_prbs(
+        self,
+        amplitude,
+        seconds=None,
+        Ts=paper.TS,
+        *,
+        order=8,
+        seed=1,
+        hold=1,
+        offset=0.0,
+        rest=0.05,
+        coast=None,
+        max_voltage=None,
+        host_timeout=1.0,
+        path=None,
+        progress=None,
+    ) -> Recording:
         """Open-loop PRBS record for identification (SEQUENCE, protocol version 3); returns the
         :class:`Recording`, like :meth:`step`.
 
@@ -738,29 +946,47 @@ class Rig:
         """
         amplitude = as_positive("amplitude", amplitude)
         offset = as_real("offset", offset)
-        for name, v, lo, hi in (("order", order, 2, 16), ("seed", seed, 1, 0xFFFF), ("hold", hold, 1, 255)):
-            if isinstance(v, bool) or not isinstance(v, (int,)) and not (
-                    isinstance(v, float) and v.is_integer()) or not lo <= v <= hi:
+        for name, v, lo, hi in (
+            ("order", order, 2, 16),
+            ("seed", seed, 1, 0xFFFF),
+            ("hold", hold, 1, 255),
+        ):
+            if (
+                isinstance(v, bool)
+                or not isinstance(v, (int,))
+                and not (isinstance(v, float) and v.is_integer())
+                or not lo <= v <= hi
+            ):
                 raise ValueError(f"{name} must be an integer in {lo}..{hi}, got {v!r}")
         order, seed, hold = int(order), int(seed), int(hold)
         if seed & ((1 << order) - 1) == 0:
-            raise ValueError(f"seed must have a nonzero low {order} bits (order {order}), got {seed}")
+            raise ValueError(
+                f"seed must have a nonzero low {order} bits (order {order}), got {seed}"
+            )
         us = self._ts_us(Ts)
         Ts = us * 1e-6
         if not self.capabilities & P.Capability.SEQUENCE:
-            raise RigError(f"{self.port}: firmware {self.firmware_version} has no SEQUENCE (PRBS); "
-                           f"it needs protocol version 3 with capability bit 12")
-        vmax = self.supply_voltage if max_voltage is None else as_positive("max_voltage", max_voltage)
+            raise RigError(
+                f"{self.port}: firmware {self.firmware_version} has no SEQUENCE (PRBS); "
+                f"it needs protocol version 3 with capability bit 12"
+            )
+        vmax = (
+            self.supply_voltage if max_voltage is None else as_positive("max_voltage", max_voltage)
+        )
         if abs(offset) + amplitude > vmax:
-            raise ValueError(f"amplitude + |offset| must be <= max_voltage = {vmax} V, got "
-                             f"amplitude {amplitude} V, offset {offset} V")
+            raise ValueError(
+                f"amplitude + |offset| must be <= max_voltage = {vmax} V, got "
+                f"amplitude {amplitude} V, offset {offset} V"
+            )
         if seconds is None:
             n = ((1 << order) - 1) * hold
         else:
             n = max(1, int(math.ceil(as_positive("seconds", seconds) / Ts - 1e-9)))
         if n > 0xFFFF:
-            raise ValueError(f"seconds must be <= {0xFFFF * Ts:g} s at Ts = {Ts} s (65535 samples), got "
-                             f"{n} samples" + (" (one period of this order and hold)" if seconds is None else ""))
+            raise ValueError(
+                f"seconds must be <= {0xFFFF * Ts:g} s at Ts = {Ts} s (65535 samples), got "
+                f"{n} samples" + (" (one period of this order and hold)" if seconds is None else "")
+            )
         n_rest = int(math.ceil(as_nonnegative("rest", rest) / Ts - 1e-9))
         if n_rest > 0xFFFF:
             raise ValueError(f"rest must be <= {0xFFFF * Ts:g} s at Ts = {Ts} s, got {rest}")
@@ -768,12 +994,23 @@ class Rig:
         self._request(P.SetPlant(*self.model, self.supply_voltage, self.counts_per_rev))
         self._request(P.SetLimits(*paper.LIMITS, vmax, int(round(tmo * 1000))))
         msg = P.Sequence(amplitude, offset, us, n, seed, order, hold)
-        meta = {"Ts": Ts, "amplitude": amplitude, "offset": offset, "order": order, "seed": seed,
-                "hold": hold, "seconds": n * Ts, "rest": n_rest * Ts, "reference_unit": "V",
-                "limits": {"max_voltage": vmax, "host_timeout": tmo},
-                "plant": {"supply_voltage": self.supply_voltage, "counts_per_rev": self.counts_per_rev}}
+        meta = {
+            "Ts": Ts,
+            "amplitude": amplitude,
+            "offset": offset,
+            "order": order,
+            "seed": seed,
+            "hold": hold,
+            "seconds": n * Ts,
+            "rest": n_rest * Ts,
+            "reference_unit": "V",
+            "limits": {"max_voltage": vmax, "host_timeout": tmo},
+            "plant": {"supply_voltage": self.supply_voltage, "counts_per_rev": self.counts_per_rev},
+        }
         rec = self._new_recording("prbs", meta, path)
-        bar = _progress(n_rest + n, f"{self.port} prbs", self.progress if progress is None else progress)
+        bar = _progress(
+            n_rest + n, f"{self.port} prbs", self.progress if progress is None else progress
+        )
         if n_rest:
             self._stream(P.Step(0.0, us, n_rest), rec, n_rest, host_timeout, bar, final=False)
         offset_ = (len(rec) and int(rec.counts[-1]), n_rest)
@@ -801,8 +1038,10 @@ class Rig:
         us = self._ts_us(Ts)
         Ts = us * 1e-6
         if not self.capabilities & P.Capability.SHAPER:
-            raise RigError(f"{self.port}: firmware {self.firmware_version} has no input shaper; it needs "
-                           f"protocol version 3 with capability bit 13")
+            raise RigError(
+                f"{self.port}: firmware {self.firmware_version} has no input shaper; it needs "
+                f"protocol version 3 with capability bit 13"
+            )
         if shaper is None:
             msg, what = P.SetShaper(0), None
         else:
@@ -811,24 +1050,36 @@ class Rig:
             try:
                 taps = np.asarray(taps, dtype=float)
             except (TypeError, ValueError):
-                raise TypeError(f"shaper must be an object with .fir(Ts) or a sequence of taps, got "
-                                f"{type(shaper).__name__}") from None
+                raise TypeError(
+                    f"shaper must be an object with .fir(Ts) or a sequence of taps, got "
+                    f"{type(shaper).__name__}"
+                ) from None
             if taps.ndim != 1 or taps.size == 0 or not np.all(np.isfinite(taps)):
-                raise ValueError(f"shaper taps must be a nonempty 1-D sequence of finite numbers, got shape "
-                                 f"{taps.shape}")
+                raise ValueError(
+                    f"shaper taps must be a nonempty 1-D sequence of finite numbers, got shape "
+                    f"{taps.shape}"
+                )
             delays = np.flatnonzero(taps)
             if delays.size > P.SHAPER_MAX_TAPS:
-                raise ValueError(f"shaper has {delays.size} nonzero taps on the Ts = {Ts:g} s grid; the "
-                                 f"device takes at most {P.SHAPER_MAX_TAPS}")
+                raise ValueError(
+                    f"shaper has {delays.size} nonzero taps on the Ts = {Ts:g} s grid; the "
+                    f"device takes at most {P.SHAPER_MAX_TAPS}"
+                )
             if delays.size and delays[-1] > P.SHAPER_MAX_DELAY:
-                raise ValueError(f"shaper lasts {delays[-1]} samples ({delays[-1] * Ts:g} s) at Ts = {Ts:g} s; "
-                                 f"the device delays at most {P.SHAPER_MAX_DELAY} samples "
-                                 f"({P.SHAPER_MAX_DELAY * Ts:g} s): a longer Ts or a faster mode")
+                raise ValueError(
+                    f"shaper lasts {delays[-1]} samples ({delays[-1] * Ts:g} s) at Ts = {Ts:g} s; "
+                    f"the device delays at most {P.SHAPER_MAX_DELAY} samples "
+                    f"({P.SHAPER_MAX_DELAY * Ts:g} s): a longer Ts or a faster mode"
+                )
             amps = taps[delays]
             if not abs(amps.sum() - 1.0) <= P.SHAPER_SUM_TOL:
-                raise ValueError(f"shaper taps must sum to 1 (the move must end at its distance), got "
-                                 f"{amps.sum():.6g}")
-            msg = P.SetShaper(int(delays.size), tuple(float(a) for a in amps), tuple(int(d) for d in delays))
+                raise ValueError(
+                    f"shaper taps must sum to 1 (the move must end at its distance), got "
+                    f"{amps.sum():.6g}"
+                )
+            msg = P.SetShaper(
+                int(delays.size), tuple(float(a) for a in amps), tuple(int(d) for d in delays)
+            )
         self._request(msg)
         self._shaper = None if msg.n_taps == 0 else (msg, Ts, what)
         return msg
@@ -842,10 +1093,12 @@ class Rig:
             return 0
         msg, shaper_Ts, _ = self._shaper
         if abs(shaper_Ts - Ts) > 1e-9:
-            raise ValueError(f"the shaper was set for Ts = {shaper_Ts:g} s, the move runs at Ts = {Ts:g} s: "
-                             f"call set_shaper(..., Ts={Ts:g}) again")
+            raise ValueError(
+                f"the shaper was set for Ts = {shaper_Ts:g} s, the move runs at Ts = {Ts:g} s: "
+                f"call set_shaper(..., Ts={Ts:g}) again"
+            )
         self._request(msg)
-        return max(msg.delays[:msg.n_taps])
+        return max(msg.delays[: msg.n_taps])
 
     def wait_still(self, timeout=2.0, Ts=paper.TS, window=10, tolerance=0) -> bool:
         """Wait until the motor is at rest: repeat a 0 V STEP of ``window`` samples until the
@@ -858,8 +1111,13 @@ class Rig:
         us = self._ts_us(Ts)
         deadline = time.monotonic() + timeout
         while True:
-            rec = Recording({"Ts": us * 1e-6, "counts_per_rad": self.counts_per_rad,
-                             "volts_per_pwm": self.supply_voltage / self.info.pwm_max})
+            rec = Recording(
+                {
+                    "Ts": us * 1e-6,
+                    "counts_per_rad": self.counts_per_rad,
+                    "volts_per_pwm": self.supply_voltage / self.info.pwm_max,
+                }
+            )
             bar = _NoProgress()
             self._stream(P.Step(0.0, us, int(window)), rec, int(window), 1.0, bar)
             c = rec.counts
@@ -868,8 +1126,9 @@ class Rig:
             if time.monotonic() >= deadline:
                 return False
 
-    def _stream(self, command, rec, total, host_timeout, bar, final=True, offset=(0, 0),
-                on_telemetry=None):
+    def _stream(
+        self, command, rec, total, host_timeout, bar, final=True, offset=(0, 0), on_telemetry=None
+    ):
         """Start a run/step and record telemetry until END_OF_RUN (or an error).
 
         ``offset = (counts, index)`` is added to the telemetry (a record made of two steps);
@@ -905,7 +1164,8 @@ class Rig:
                 elif now - last_rx > self.timeout:
                     raise RigTimeoutError(
                         f"{self.port}: no data from the rig for {self.timeout:g} s after {len(rec)} "
-                        f"samples of {total}")
+                        f"samples of {total}"
+                    )
                 for f in frames:
                     if f.type == P.MsgType.TELEMETRY:
                         try:
@@ -914,10 +1174,14 @@ class Rig:
                             self.ignored_frames += 1
                             continue
                         if t.index > next_index:
-                            lost += (t.index - next_index) // max(1, getattr(command, "decimation", 1))
+                            lost += (t.index - next_index) // max(
+                                1, getattr(command, "decimation", 1)
+                            )
                         next_index = t.index + getattr(command, "decimation", 1)
                         received += 1
-                        rec.append(t.index + index_off, t.reference, t.counts + count_off, t.pwm, t.flags)
+                        rec.append(
+                            t.index + index_off, t.reference, t.counts + count_off, t.pwm, t.flags
+                        )
                         if on_telemetry is not None:
                             on_telemetry(t.index, t.reference, t.counts / self.counts_per_rad)
                     elif f.type == P.MsgType.END_OF_RUN:
@@ -925,13 +1189,19 @@ class Rig:
                     elif f.type == P.MsgType.NACK and f.payload[:1] == bytes([P.MsgType.RETARGET]):
                         n = P.Nack.unpack(f.payload)
                         rec.metadata.setdefault("retargets_refused", []).append(
-                            [P.ErrorCode(n.error).name if n.error in iter(P.ErrorCode) else n.error, n.param])
+                            [
+                                P.ErrorCode(n.error).name
+                                if n.error in iter(P.ErrorCode)
+                                else n.error,
+                                n.param,
+                            ]
+                        )
                     elif f.type == P.MsgType.ERROR:
                         self._check_busy(f)
                         e = P.DeviceError.unpack(f.payload)
                         rec.metadata.setdefault("device_errors", []).append([e.code, e.detail])
                     else:
-                        self.ignored_frames += 1       # ACKs of heartbeats, stray replies
+                        self.ignored_frames += 1  # ACKs of heartbeats, stray replies
                 rec.flush()
                 bar.update(len(rec))
             if final is False and end.reason == P.EndReason.DONE:
@@ -959,14 +1229,22 @@ class Rig:
             if end.reason in _FAULTS and end.samples and (end.samples - 1) % dec:
                 expected += 1
             lost = max(lost, expected - received)
-        stats = {"lost_samples": lost,
-                 "host_dropped_frames": self._decoder.stats.dropped - dropped0}
+        stats = {
+            "lost_samples": lost,
+            "host_dropped_frames": self._decoder.stats.dropped - dropped0,
+        }
         if end is not None:
-            reason = P.EndReason(end.reason).name if end.reason in iter(P.EndReason) else str(end.reason)
-            stats.update(end_reason=reason, device_samples=end.samples,
-                         device_rx_errors=end.rx_errors, device_overruns=end.overruns)
+            reason = (
+                P.EndReason(end.reason).name if end.reason in iter(P.EndReason) else str(end.reason)
+            )
+            stats.update(
+                end_reason=reason,
+                device_samples=end.samples,
+                device_rx_errors=end.rx_errors,
+                device_overruns=end.overruns,
+            )
             if error is not None:
-                pass                                    # the host-side error is the status
+                pass  # the host-side error is the status
             elif end.reason == P.EndReason.DONE:
                 status = "complete"
             elif end.reason in _FAULTS:
@@ -977,9 +1255,13 @@ class Rig:
         if stopped is not None:
             stats["rig_stopped"] = stopped
         if lost:
-            warnings.warn(f"{self.port}: {lost} telemetry samples were lost on the link (the host did not "
-                          f"read fast enough, or a noisy line); the recording's metadata says "
-                          f"lost_samples={lost}", RuntimeWarning, stacklevel=3)
+            warnings.warn(
+                f"{self.port}: {lost} telemetry samples were lost on the link (the host did not "
+                f"read fast enough, or a noisy line); the recording's metadata says "
+                f"lost_samples={lost}",
+                RuntimeWarning,
+                stacklevel=3,
+            )
         try:
             rec.finish(status, **stats, **({"error": str(error)} if error is not None else {}))
         except RecordingIOError as exc:
@@ -988,26 +1270,40 @@ class Rig:
                 if stopped is None and end is None:
                     stopped = self._stop_after_error(False)
         bar.close(status if not status.startswith("error") else "error")
-        where = f"; the {len(rec)} samples received are saved in {rec.csv_path}" if rec.csv_path else ""
+        where = (
+            f"; the {len(rec)} samples received are saved in {rec.csv_path}" if rec.csv_path else ""
+        )
         if error is not None:
             if isinstance(error, KeyboardInterrupt):
                 raise error
             if isinstance(error, RigError):
                 raise type(error)(f"{error}{where}") from error
             if isinstance(error, RecordingIOError):
-                note = ("the rig was stopped" if stopped else
-                        "the rig did not confirm the STOP: call rig.stop()" if stopped is False else
-                        "the run had ended on the rig")
-                err = RecordingIOError(error.errno, f"{error}; all {len(rec)} samples received are in "
-                                                    f"memory (the exception's .recording); {note}",
-                                       error.filename, error.samples_saved)
+                note = (
+                    "the rig was stopped"
+                    if stopped
+                    else "the rig did not confirm the STOP: call rig.stop()"
+                    if stopped is False
+                    else "the run had ended on the rig"
+                )
+                err = RecordingIOError(
+                    error.errno,
+                    f"{error}; all {len(rec)} samples received are in "
+                    f"memory (the exception's .recording); {note}",
+                    error.filename,
+                    error.samples_saved,
+                )
                 err.recording = rec
                 raise err from error
             raise error
         if end.reason != P.EndReason.DONE:
             what = status if status.startswith("fault") else stats["end_reason"]
-            raise RigRunError(f"{self.port}: run ended early on the device ({what}) after "
-                              f"{end.samples} samples{where}", status=status, recording=rec)
+            raise RigRunError(
+                f"{self.port}: run ended early on the device ({what}) after "
+                f"{end.samples} samples{where}",
+                status=status,
+                recording=rec,
+            )
         return rec
 
     def _stop_after_error(self, interrupted: bool):
@@ -1015,7 +1311,7 @@ class Rig:
         the device does not stay BUSY; True if the device acknowledged it."""
         try:
             if interrupted:
-                self._write(P.Stop())                 # Ctrl-C: do not wait
+                self._write(P.Stop())  # Ctrl-C: do not wait
                 return None
             self._request(P.Stop(), timeout=min(self.timeout, 1.0))
             return True
@@ -1049,16 +1345,22 @@ def _fault_status(end, meta) -> str:
     window = limits.get("runaway_time")
     window = f"{window:g} s" if isinstance(window, (int, float)) else "the runaway window"
     if end.reason == P.EndReason.RUNAWAY:
-        return (f"fault: runaway — encoder reversed? (the encoder counted {-end.detail:.0f} counts against "
-                f"a drive of at least half the clamp for {window}) at t={t:.3f} s")
+        return (
+            f"fault: runaway — encoder reversed? (the encoder counted {-end.detail:.0f} counts against "
+            f"a drive of at least half the clamp for {window}) at t={t:.3f} s"
+        )
     if end.reason == P.EndReason.NO_MOTION:
-        return (f"fault: no motion — encoder disconnected or motor stalled? (no counts under a drive of at "
-                f"least half the clamp for {window}) at t={t:.3f} s")
+        return (
+            f"fault: no motion — encoder disconnected or motor stalled? (no counts under a drive of at "
+            f"least half the clamp for {window}) at t={t:.3f} s"
+        )
     if end.reason == P.EndReason.SATURATION:
         sw = limits.get("saturation_time")
         sw = f"{sw:g} s" if isinstance(sw, (int, float)) else "the saturation window"
-        return (f"fault: output saturated — unstable loop? (the output sat at the ±{limits.get('max_voltage', '?')} V "
-                f"clamp in most samples for {sw}) at t={t:.3f} s")
+        return (
+            f"fault: output saturated — unstable loop? (the output sat at the ±{limits.get('max_voltage', '?')} V "
+            f"clamp in most samples for {sw}) at t={t:.3f} s"
+        )
     return f"fault: device fault at t={t:.3f} s"
 
 

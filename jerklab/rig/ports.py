@@ -6,6 +6,7 @@ exclusively (pyserial ``exclusive=True`` on POSIX) and leaves a lock file that n
 says who has it, instead of silently sharing the port (a second client would kill the first
 one's run; on a real Uno opening the port also resets the board).
 """
+
 from __future__ import annotations
 
 import errno
@@ -18,9 +19,9 @@ import tempfile
 import time
 from pathlib import Path
 
-try:                                   # POSIX only; Windows opens a COM port exclusively anyway
+try:  # POSIX only; Windows opens a COM port exclusively anyway
     import fcntl
-except ImportError:                    # pragma: no cover - Windows
+except ImportError:  # pragma: no cover - Windows
     fcntl = None
 
 __all__ = ["list_ports", "PortLock", "lock_dir", "port_holders", "ARDUINO_USB_IDS"]
@@ -34,9 +35,11 @@ ARDUINO_USB_IDS = {
     (0x2A03, 0x0043): "Arduino Uno (arduino.org)",
 }
 _ARDUINO_VIDS = {0x2341: "Arduino", 0x2A03: "Arduino (arduino.org)"}
-_CLONE_CHIPS = {(0x1A86, 0x7523): "CH340 USB-serial (Uno clone?)",
-                (0x0403, 0x6001): "FTDI FT232R USB-serial",
-                (0x10C4, 0xEA60): "CP210x USB-serial"}
+_CLONE_CHIPS = {
+    (0x1A86, 0x7523): "CH340 USB-serial (Uno clone?)",
+    (0x0403, 0x6001): "FTDI FT232R USB-serial",
+    (0x10C4, 0xEA60): "CP210x USB-serial",
+}
 
 
 def list_ports(include_all=False) -> list:
@@ -56,7 +59,7 @@ def list_ports(include_all=False) -> list:
     """
     try:
         from serial.tools import list_ports as lp
-    except ImportError as exc:         # pragma: no cover - pyserial is a dependency
+    except ImportError as exc:  # pragma: no cover - pyserial is a dependency
         raise ImportError("listing ports needs pyserial (pip install pyserial)") from exc
     rows = []
     for p in lp.comports():
@@ -72,11 +75,18 @@ def list_ports(include_all=False) -> list:
             elif (vid, pid) in _CLONE_CHIPS:
                 note, likely = _CLONE_CHIPS[(vid, pid)], "usb-serial"
         holder = PortLock.holder_of(p.device)
-        rows.append({"device": p.device, "description": p.description or "",
-                     "vid_pid": None if vid is None else f"{vid:04x}:{pid or 0:04x}",
-                     "manufacturer": p.manufacturer, "serial_number": p.serial_number,
-                     "likely": likely, "note": note,
-                     "holder": _describe(holder) if holder else ""})
+        rows.append(
+            {
+                "device": p.device,
+                "description": p.description or "",
+                "vid_pid": None if vid is None else f"{vid:04x}:{pid or 0:04x}",
+                "manufacturer": p.manufacturer,
+                "serial_number": p.serial_number,
+                "likely": likely,
+                "note": note,
+                "holder": _describe(holder) if holder else "",
+            }
+        )
     order = {"arduino": 0, "usb-serial": 1, "": 2}
     rows.sort(key=lambda r: (order[r["likely"]], r["device"]))
     return rows
@@ -97,7 +107,11 @@ def _lock_path(device: str) -> Path:
 def _describe(info: dict) -> str:
     prog = info.get("program") or "?"
     since = info.get("since")
-    when = time.strftime(" since %H:%M:%S", time.localtime(since)) if isinstance(since, (int, float)) else ""
+    when = (
+        time.strftime(" since %H:%M:%S", time.localtime(since))
+        if isinstance(since, (int, float))
+        else ""
+    )
     return f"pid {info.get('pid', '?')} on {info.get('host', '?')} ({prog}){when}"
 
 
@@ -110,7 +124,7 @@ def _pid_alive(pid) -> bool:
         return False
     except PermissionError:
         return True
-    except OSError:                    # pragma: no cover - Windows without the pid
+    except OSError:  # pragma: no cover - Windows without the pid
         return False
     return True
 
@@ -175,10 +189,10 @@ class PortLock:
                     try:
                         fcntl.flock(fh, fcntl.LOCK_SH | fcntl.LOCK_NB)
                     except OSError:
-                        pass                       # held: read what the holder wrote
+                        pass  # held: read what the holder wrote
                     else:
                         fcntl.flock(fh, fcntl.LOCK_UN)
-                        return None                # nobody holds it (stale file)
+                        return None  # nobody holds it (stale file)
                 info = json.loads(fh.read() or "{}")
         except (OSError, ValueError):
             return None
@@ -207,20 +221,34 @@ class PortLock:
                     raise PortBusyError(
                         f"port {self.device!r} is in use by {_describe(info) if info else 'another process'} "
                         f"(lock file {self.path}); close that rig (rig.close(), or stop its kernel) or use "
-                        "another port", port=self.device, holder=info) from None
-            else:                                  # pragma: no cover - Windows
+                        "another port",
+                        port=self.device,
+                        holder=info,
+                    ) from None
+            else:  # pragma: no cover - Windows
                 import msvcrt
 
                 try:
                     msvcrt.locking(fh.fileno(), msvcrt.LK_NBLCK, 1)
                 except OSError:
-                    raise PortBusyError(f"port {self.device!r} is in use by another jerklab process "
-                                        f"(lock file {self.path})", port=self.device) from None
+                    raise PortBusyError(
+                        f"port {self.device!r} is in use by another jerklab process "
+                        f"(lock file {self.path})",
+                        port=self.device,
+                    ) from None
             fh.seek(0)
             fh.truncate()
-            fh.write(json.dumps({"pid": os.getpid(), "host": socket.gethostname(),
-                                 "program": " ".join(sys.argv)[:200] or sys.executable,
-                                 "port": self.device, "since": time.time()}))
+            fh.write(
+                json.dumps(
+                    {
+                        "pid": os.getpid(),
+                        "host": socket.gethostname(),
+                        "program": " ".join(sys.argv)[:200] or sys.executable,
+                        "port": self.device,
+                        "since": time.time(),
+                    }
+                )
+            )
             fh.flush()
         except BaseException:
             fh.close()
@@ -240,7 +268,7 @@ class PortLock:
         except OSError:
             pass
         finally:
-            fh.close()                             # closing drops the flock
+            fh.close()  # closing drops the flock
 
     @property
     def held(self) -> bool:

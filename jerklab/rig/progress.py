@@ -26,11 +26,11 @@ Usage (the rig client calls ``bar.update(samples_so_far)`` after every read and
     bar.update(len(rec))
     bar.close("complete")
 """
+
 from __future__ import annotations
 
 import math
 import sys
-import time
 
 __all__ = ["NoProgress", "TqdmProgress", "progress", "in_jupyter_kernel"]
 
@@ -117,7 +117,9 @@ class TqdmProgress:
 
     min_interval = 0.1
 
-    def __init__(self, total, label, *, widget=False, stream=None, display=None, live=None, clock=None):
+    def __init__(
+        self, total, label, *, widget=False, stream=None, display=None, live=None, clock=None
+    ):
         self.total = max(1, int(total))
         self.label = str(label)
         self.kind = "widget" if widget else "text"
@@ -127,13 +129,20 @@ class TqdmProgress:
         if live is None:
             live = widget or _isatty(stream)
         self.live = bool(live)
-        common = dict(total=self.total, desc=self.label, miniters=1, leave=True,
-                      mininterval=self.min_interval if self.live else math.inf, maxinterval=0,
-                      smoothing=0)
+        common = dict(
+            total=self.total,
+            desc=self.label,
+            miniters=1,
+            leave=True,
+            mininterval=self.min_interval if self.live else math.inf,
+            maxinterval=0,
+            smoothing=0,
+        )
         if widget:
-            from tqdm.notebook import IProgress, tqdm as base
+            from tqdm.notebook import IProgress
+            from tqdm.notebook import tqdm as base
 
-            if IProgress is None:          # tqdm found no ipywidgets
+            if IProgress is None:  # tqdm found no ipywidgets
                 raise ImportError("ipywidgets is needed for the widget progress bar")
             self._fmt = "{desc}<bar/>{n}/{total} samples, {elapsed_s:.1f} s"
             self._t = _counting(base)(bar_format=self._fmt, display=False, **common)
@@ -143,11 +152,12 @@ class TqdmProgress:
         else:
             from tqdm.std import tqdm as base
 
-            self._fmt = ("{desc} [{bar:%d}] {n}/{total} samples {elapsed_s:5.1f} s" % TEXT_BAR_WIDTH)
-            self._t = _counting(base)(bar_format=self._fmt, file=stream, ascii=".#",
-                                      dynamic_ncols=False, **common)
+            self._fmt = "{desc} [{bar:%d}] {n}/{total} samples {elapsed_s:5.1f} s" % TEXT_BAR_WIDTH
+            self._t = _counting(base)(
+                bar_format=self._fmt, file=stream, ascii=".#", dynamic_ncols=False, **common
+            )
             self.stream = stream
-        if clock is not None:              # before the first update: tqdm reads self._time
+        if clock is not None:  # before the first update: tqdm reads self._time
             self._t._time = clock
             self._t.start_t = self._t.last_print_t = clock()
 
@@ -163,7 +173,7 @@ class TqdmProgress:
         t = self._t
         if n == t.n:
             return
-        if self._drawn is None and self.live:      # the first sample shows at once
+        if self._drawn is None and self.live:  # the first sample shows at once
             t.n = n
             t.refresh()
             t.last_print_n, t.last_print_t = n, t._time()

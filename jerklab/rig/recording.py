@@ -9,6 +9,7 @@ every sample received so far on disk, described.
 
 SI units in the arrays: s, rad, V.  ``counts`` and ``pwm`` keep the raw integers.
 """
+
 from __future__ import annotations
 
 import datetime as _dt
@@ -53,8 +54,13 @@ class RecordingIOError(OSError):
 def _io_error(exc: OSError, path, saved: int, doing: str) -> RecordingIOError:
     code = exc.errno if exc.errno is not None else _errno.EIO
     reason = exc.strerror or os.strerror(code)
-    return RecordingIOError(code, f"{path}: {reason} [errno {code}, {_errno.errorcode.get(code, '?')}] while "
-                                  f"{doing}; {saved} samples saved in the file", path, saved)
+    return RecordingIOError(
+        code,
+        f"{path}: {reason} [errno {code}, {_errno.errorcode.get(code, '?')}] while "
+        f"{doing}; {saved} samples saved in the file",
+        path,
+        saved,
+    )
 
 
 def _check_metadata(meta, where: str) -> tuple[float, float, float]:
@@ -67,6 +73,7 @@ def _check_metadata(meta, where: str) -> tuple[float, float, float]:
             raise ValueError(f"{where}: metadata must contain {key!r}")
         out.append(as_positive(f"{where}: metadata {key!r}", meta[key]))
     return tuple(out)
+
 
 COLUMNS = ("index", "time", "reference", "position", "counts", "control", "pwm", "flags")
 
@@ -132,12 +139,14 @@ class Recording:
         self.metadata = dict(metadata)
         self._rows: list[tuple] = []
         self._file = None
-        self._saved = 0              # rows known to be on disk (flushed)
-        self._written = 0            # rows handed to the file object
+        self._saved = 0  # rows known to be on disk (flushed)
+        self._written = 0  # rows handed to the file object
         self.write_error: RecordingIOError | None = None
         self.csv_path = self.json_path = None
         self.metadata.setdefault("status", RECORDING)
-        self.metadata.setdefault("created", _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"))
+        self.metadata.setdefault(
+            "created", _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+        )
         if path is not None:
             self._open(path)
 
@@ -177,7 +186,7 @@ class Recording:
             try:
                 f.close()
             except OSError:
-                pass              # the buffered rows that could not be written are lost to the file
+                pass  # the buffered rows that could not be written are lost to the file
 
     def _fail(self, exc: OSError, doing: str):
         """Stop writing after an I/O error: the samples stay in memory, the error is kept."""
@@ -199,13 +208,20 @@ class Recording:
             index = as_int("index", index, minimum=0)
         if type(reference) is not float or not math.isfinite(reference):
             reference = as_real("reference", reference)
-        row = (index, reference, as_int("counts", counts), as_int("pwm", pwm),
-               as_int("flags", flags, minimum=0))
+        row = (
+            index,
+            reference,
+            as_int("counts", counts),
+            as_int("pwm", pwm),
+            as_int("flags", flags, minimum=0),
+        )
         self._rows.append(row)
         if self._file is not None:
             i, r, c, p, fl = row
             try:
-                self._file.write(f"{i},{i * self._Ts!r},{r!r},{c / self._cpr!r},{c},{p * self._vpp!r},{p},{fl}\r\n")
+                self._file.write(
+                    f"{i},{i * self._Ts!r},{r!r},{c / self._cpr!r},{c},{p * self._vpp!r},{p},{fl}\r\n"
+                )
             except OSError as exc:
                 self._fail(exc, f"writing sample {len(self._rows) - 1}")
             self._written = len(self._rows)
@@ -335,14 +351,18 @@ class Recording:
         if not csv_path.exists():
             raise FileNotFoundError(f"no recording at {csv_path}")
         if not json_path.exists():
-            raise ValueError(f"{json_path} missing: cannot recover Ts, counts_per_rad, volts_per_pwm "
-                             f"for the samples in {csv_path}")
+            raise ValueError(
+                f"{json_path} missing: cannot recover Ts, counts_per_rad, volts_per_pwm "
+                f"for the samples in {csv_path}"
+            )
         try:
             with open(json_path, encoding="utf-8") as f:
                 meta = json.load(f)
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise ValueError(f"{json_path} is not a valid JSON sidecar ({exc}); the samples are "
-                             f"still in {csv_path}") from None
+            raise ValueError(
+                f"{json_path} is not a valid JSON sidecar ({exc}); the samples are "
+                f"still in {csv_path}"
+            ) from None
         if not isinstance(meta, dict):
             raise ValueError(f"{json_path} is not a jerklab sidecar (a JSON {type(meta).__name__})")
         _check_metadata(meta, str(json_path))
@@ -351,9 +371,11 @@ class Recording:
         try:
             text = data.decode("ascii")
         except UnicodeDecodeError as exc:
-            raise ValueError(f"{csv_path} is not a jerklab recording (not ASCII at byte {exc.start})") from None
+            raise ValueError(
+                f"{csv_path} is not a jerklab recording (not ASCII at byte {exc.start})"
+            ) from None
         lines = text.split("\n")
-        terminated = lines[-1] == ""           # the writer ends every row with a newline
+        terminated = lines[-1] == ""  # the writer ends every row with a newline
         if terminated:
             lines.pop()
         header = lines[0].rstrip("\r") if lines else None
@@ -364,8 +386,11 @@ class Recording:
             line = line.rstrip("\r")
             last = ln == len(lines)
             if last and not terminated:
-                warnings.warn(f"{csv_path}: line {ln} (the last row) is torn (no end of line, the "
-                              f"writer stopped mid-row): dropped, {len(rows)} samples kept", stacklevel=2)
+                warnings.warn(
+                    f"{csv_path}: line {ln} (the last row) is torn (no end of line, the "
+                    f"writer stopped mid-row): dropped, {len(rows)} samples kept",
+                    stacklevel=2,
+                )
                 break
             if line == "":
                 warnings.warn(f"{csv_path}: line {ln} is blank (skipped)", stacklevel=2)
@@ -376,19 +401,27 @@ class Recording:
                     raise ValueError(f"{len(cells)} fields instead of {len(COLUMNS)}")
                 row = (int(cells[0]), float(cells[2]), int(cells[4]), int(cells[6]), int(cells[7]))
             except ValueError as exc:
-                warnings.warn(f"{csv_path}: line {ln} is not a whole row ({exc}): skipped", stacklevel=2)
+                warnings.warn(
+                    f"{csv_path}: line {ln} is not a whole row ({exc}): skipped", stacklevel=2
+                )
                 continue
             rows.append(row)
         status = meta.get("status")
         if status == RECORDING:
             meta["status"] = INCOMPLETE
             meta["status_on_disk"] = RECORDING
-            warnings.warn(f"{json_path} still says 'recording': its writer stopped without finishing "
-                          f"(process killed, power lost, or still running); loaded as 'incomplete' "
-                          f"with the {len(rows)} whole samples in {csv_path}", stacklevel=2)
+            warnings.warn(
+                f"{json_path} still says 'recording': its writer stopped without finishing "
+                f"(process killed, power lost, or still running); loaded as 'incomplete' "
+                f"with the {len(rows)} whole samples in {csv_path}",
+                stacklevel=2,
+            )
         elif isinstance(meta.get("n_samples"), int) and meta["n_samples"] != len(rows):
-            warnings.warn(f"{csv_path}: {len(rows)} samples, the sidecar says {meta['n_samples']} "
-                          f"(status {status!r})", stacklevel=2)
+            warnings.warn(
+                f"{csv_path}: {len(rows)} samples, the sidecar says {meta['n_samples']} "
+                f"(status {status!r})",
+                stacklevel=2,
+            )
         rec = cls(meta)
         rec._rows = rows
         rec.csv_path, rec.json_path = csv_path, json_path
@@ -400,8 +433,10 @@ class Recording:
 
     def __repr__(self):
         where = f", path={str(self.csv_path)!r}" if self.csv_path else ""
-        return (f"Recording(kind={self.metadata.get('kind')!r}, samples={len(self)}, "
-                f"status={self.metadata.get('status')!r}{where})")
+        return (
+            f"Recording(kind={self.metadata.get('kind')!r}, samples={len(self)}, "
+            f"status={self.metadata.get('status')!r}{where})"
+        )
 
 
 def compare(rec: Recording, sim) -> dict:
@@ -413,17 +448,18 @@ def compare(rec: Recording, sim) -> dict:
     """
     n = min(len(rec), len(sim.t))
     idx = rec.index[rec.index < len(sim.t)][:n]
-    meas = rec.position[:len(idx)]
+    meas = rec.position[: len(idx)]
     sim_meas = np.asarray(sim.measured)[idx]
     d = meas - sim_meas
     return {
         "samples": int(len(idx)),
         "max_abs_position_diff": float(np.max(np.abs(d))) if len(d) else float("nan"),
-        "rms_position_diff": float(np.sqrt(np.mean(d ** 2))) if len(d) else float("nan"),
-        "max_abs_error_measured": float(np.max(np.abs(rec.reference[:len(idx)] - meas))),
+        "rms_position_diff": float(np.sqrt(np.mean(d**2))) if len(d) else float("nan"),
+        "max_abs_error_measured": float(np.max(np.abs(rec.reference[: len(idx)] - meas))),
         "max_abs_error_simulated": float(np.max(np.abs(np.asarray(sim.reference)[idx] - sim_meas))),
-        "max_abs_control_diff": float(np.max(np.abs(rec.control[:len(idx)]
-                                                    - np.asarray(sim.u_applied)[idx]))),
+        "max_abs_control_diff": float(
+            np.max(np.abs(rec.control[: len(idx)] - np.asarray(sim.u_applied)[idx]))
+        ),
     }
 
 

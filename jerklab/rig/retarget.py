@@ -20,14 +20,22 @@ overshoot a jerk-limited move cannot avoid) and a rest-to-rest move to the targe
 :class:`SegmentPlan` mirrors the firmware's ``jl::Plan`` (``firmware/jerklab_rig/src/jl_planner``)
 in float64: the same segments, start states and closed forms.
 """
+
 from __future__ import annotations
 
 import math
 
 import numpy as np
 
-__all__ = ["SegmentPlan", "moving_plan", "stop_plan", "rest_plan", "switch_point", "lead_samples",
-           "BISECTION_STEPS"]
+__all__ = [
+    "SegmentPlan",
+    "moving_plan",
+    "stop_plan",
+    "rest_plan",
+    "switch_point",
+    "lead_samples",
+    "BISECTION_STEPS",
+]
 
 _TWO_OVER_PI = 2.0 / math.pi
 #: bisection halvings of the peak velocity (the firmware's plan_moving default)
@@ -87,8 +95,9 @@ class SegmentPlan:
         Acceleration phase, cruise and whole length (s).
     """
 
-    def __init__(self, shape, jpar, distance, v_start, tj1, ta1, tv, tj, ta, v_peak,
-                 t_start=0.0, x_start=0.0):
+    def __init__(
+        self, shape, jpar, distance, v_start, tj1, ta1, tv, tj, ta, v_peak, t_start=0.0, x_start=0.0
+    ):
         self.shape, self.jerk = shape, float(jpar)
         self.distance = float(distance)
         self.sign = -1.0 if distance < 0 else 1.0
@@ -169,10 +178,18 @@ class SegmentPlan:
             wu = w * u
             sn, omc = math.sin(wu), 2.0 * math.sin(0.5 * wu) ** 2
             c = jp / w
-            return (jp * sn, a0 + c * omc, v0 + a0 * u + c * (u - sn / w),
-                    x0 + u * (v0 + 0.5 * a0 * u) + c * (0.5 * u * u - omc / (w * w)))
-        return (jp, a0 + jp * u, v0 + u * (a0 + 0.5 * jp * u),
-                x0 + u * (v0 + u * (0.5 * a0 + u * jp / 6.0)))
+            return (
+                jp * sn,
+                a0 + c * omc,
+                v0 + a0 * u + c * (u - sn / w),
+                x0 + u * (v0 + 0.5 * a0 * u) + c * (0.5 * u * u - omc / (w * w)),
+            )
+        return (
+            jp,
+            a0 + jp * u,
+            v0 + u * (a0 + 0.5 * jp * u),
+            x0 + u * (v0 + u * (0.5 * a0 + u * jp / 6.0)),
+        )
 
     def sample(self, t):
         """Arrays ``(position, velocity, accel, jerk)`` at the times ``t`` (vectorized
@@ -219,12 +236,22 @@ def rest_plan(kind, distance, max_jerk, max_accel, max_velocity, t_start=0.0, x_
     shape = _SHAPES[kind]
     tj, ta, tv = prof._tj, prof._ta, prof._tv
     jpar = max_accel if shape == _STEP else max_jerk
-    return SegmentPlan(shape, jpar, distance, 0.0, tj, ta, tv, tj, ta, prof.peak_velocity,
-                       t_start, x_start)
+    return SegmentPlan(
+        shape, jpar, distance, 0.0, tj, ta, tv, tj, ta, prof.peak_velocity, t_start, x_start
+    )
 
 
-def moving_plan(kind, distance, v0, max_jerk, max_accel, max_velocity, t_start=0.0, x_start=0.0,
-                iterations=BISECTION_STEPS):
+def moving_plan(
+    kind,
+    distance,
+    v0,
+    max_jerk,
+    max_accel,
+    max_velocity,
+    t_start=0.0,
+    x_start=0.0,
+    iterations=BISECTION_STEPS,
+):
     """Moving start ``v0 >= 0`` along ``distance`` (a0 = 0), rest at the end; ``None`` when
     the move cannot stop within ``distance`` (mirrors the firmware's ``plan_moving``)."""
     shape = _SHAPES[kind]
@@ -262,8 +289,9 @@ def stop_plan(kind, v, max_jerk, max_accel, t_start=0.0, x_start=0.0):
     tj, ta = _pair_times(shape, v0, Je, max_accel)
     d = 0.5 * v0 * (2.0 * tj + ta)
     jpar = max_accel if shape == _STEP else max_jerk
-    return SegmentPlan(shape, jpar, math.copysign(d, v), v0, 0.0, 0.0, 0.0, tj, ta, v0,
-                       t_start, x_start)
+    return SegmentPlan(
+        shape, jpar, math.copysign(d, v), v0, 0.0, 0.0, 0.0, tj, ta, v0, t_start, x_start
+    )
 
 
 def switch_point(plan, t_earliest, Ts):

@@ -19,6 +19,7 @@ loses whole TELEMETRY frames once more than ``_OUT_LIMIT`` bytes wait (never a r
 END_OF_RUN, never part of a frame): :attr:`DeviceServer.dropped_frames` counts them and
 the client sees the gap in the telemetry ``index`` (``lost_samples`` in the recording).
 """
+
 from __future__ import annotations
 
 import collections
@@ -34,9 +35,9 @@ from jerklab.rig.virtual import VirtualDevice
 
 __all__ = ["DeviceServer"]
 
-_OUT_LIMIT = 1 << 16      # bytes kept for a host that does not read (then oldest telemetry dropped)
-_BUSY_LINGER = 3.0        # s a refused second TCP client is kept at most (a HELLO's retry time)
-_AHEAD = 4096             # at speed=None, run ticks while less than this is waiting to be sent
+_OUT_LIMIT = 1 << 16  # bytes kept for a host that does not read (then oldest telemetry dropped)
+_BUSY_LINGER = 3.0  # s a refused second TCP client is kept at most (a HELLO's retry time)
+_AHEAD = 4096  # at speed=None, run ticks while less than this is waiting to be sent
 
 
 class DeviceServer:
@@ -56,32 +57,34 @@ class DeviceServer:
             raise ValueError(f"speed must be > 0 or None, got {speed!r}")
         self.speed = speed
         self.port = None
-        self._fd = None            # the fd the device talks through (pty master or socket)
+        self._fd = None  # the fd the device talks through (pty master or socket)
         self._slave = None
         self._listener = None
         self._conn = None
         self._thread = None
         self._stop = threading.Event()
-        self._pull = threading.Event()     # pull_cable() asks the serving thread to drop the link
+        self._pull = threading.Event()  # pull_cable() asks the serving thread to drop the link
         self._lock = threading.Lock()
         self._frozen = False
         self.dropped_bytes = 0
-        self.dropped_frames = 0     # TELEMETRY frames dropped for a host that did not read
+        self.dropped_frames = 0  # TELEMETRY frames dropped for a host that did not read
         self.sent_bytes = 0
-        self.refused_clients = 0    # second TCP clients answered BUSY
-        self._busy = []             # (socket, close time) of refused clients
+        self.refused_clients = 0  # second TCP clients answered BUSY
+        self._busy = []  # (socket, close time) of refused clients
         self.error = None
 
     # ------------------------------------------------------------------ start / stop
     def start_pty(self) -> str:
         """Open a pseudo-terminal, start serving, return the path a client opens."""
         if not hasattr(os, "openpty"):
-            raise OSError("a pseudo-terminal needs Linux or macOS; on Windows use start_tcp() "
-                          "(`serve --tcp PORT`) or the in-process virtual rig, jerklab.rig.connect()")
-        import tty                          # POSIX only (termios): imported here, not at module load
+            raise OSError(
+                "a pseudo-terminal needs Linux or macOS; on Windows use start_tcp() "
+                "(`serve --tcp PORT`) or the in-process virtual rig, jerklab.rig.connect()"
+            )
+        import tty  # POSIX only (termios): imported here, not at module load
 
         master, slave = os.openpty()
-        tty.setraw(slave)                   # no echo, no line editing: a binary link
+        tty.setraw(slave)  # no echo, no line editing: a binary link
         os.set_blocking(master, False)
         self._fd, self._slave = master, slave
         self.port = os.ttyname(slave)
@@ -102,7 +105,9 @@ class DeviceServer:
         return self.port
 
     def _start(self):
-        self._thread = threading.Thread(target=self._run, name=f"jerklab-rig {self.port}", daemon=True)
+        self._thread = threading.Thread(
+            target=self._run, name=f"jerklab-rig {self.port}", daemon=True
+        )
         self._thread.start()
 
     def close(self):
@@ -216,7 +221,7 @@ class DeviceServer:
     def _run(self):
         try:
             self._loop()
-        except Exception as exc:            # keep the reason for the test or the CLI
+        except Exception as exc:  # keep the reason for the test or the CLI
             self.error = exc
         finally:
             for entry in self._busy:
@@ -243,7 +248,7 @@ class DeviceServer:
             fd = self._fd
             if fd is None:
                 if self._listener is None:
-                    return                  # pty closed (pull_cable)
+                    return  # pty closed (pull_cable)
                 out.clear()
                 self._accept()
                 continue
@@ -259,7 +264,7 @@ class DeviceServer:
             try:
                 r, w, _ = select.select(rlist, [fd] if out else [], [], wait)
             except (OSError, ValueError):
-                continue                    # the fd was closed under us: next round sees None
+                continue  # the fd was closed under us: next round sees None
             if self._listener is not None and self._listener in r:
                 self._refuse()
             if fd in r:
@@ -273,12 +278,12 @@ class DeviceServer:
                     else:
                         raise
                 if data == b"" and self._conn is not None:
-                    self._host_gone(out)    # TCP client went away: wait for the next one
+                    self._host_gone(out)  # TCP client went away: wait for the next one
                     continue
                 if data:
                     dev.receive(data)
             if not self._frozen:
-                dev.poll()                  # a partial frame expires after 20 ms, as on the board
+                dev.poll()  # a partial frame expires after 20 ms, as on the board
             now = time.monotonic()
             if running:
                 if self.speed is None:
@@ -287,7 +292,7 @@ class DeviceServer:
                 elif now >= next_tick:
                     dev.tick()
                     next_tick += dev.period / self.speed
-                    if next_tick < now - 0.25:          # fell far behind: do not burst
+                    if next_tick < now - 0.25:  # fell far behind: do not burst
                         next_tick = now
             produced = dev.read_output()
             if not self._frozen:
@@ -316,7 +321,7 @@ class _FrameQueue:
 
     def __init__(self):
         self._frames = collections.deque()
-        self._offset = 0            # bytes of the first frame already written
+        self._offset = 0  # bytes of the first frame already written
         self._len = 0
 
     def __len__(self):
@@ -331,7 +336,7 @@ class _FrameQueue:
         i = 0
         while i < len(data):
             n = data[i + 2] + 5 if i + 2 < len(data) else len(data) - i
-            self._frames.append(bytes(data[i:i + n]))
+            self._frames.append(bytes(data[i : i + n]))
             i += n
         self._len += len(data)
 

@@ -34,6 +34,7 @@ Differences from the real board, on purpose: the motor coasts to rest
 instantly between runs (the encoder is zeroed at each RUN anyway), and the
 watchdog counts wall-clock time, as a host's silence is a wall-clock fact.
 """
+
 from __future__ import annotations
 
 import math
@@ -93,68 +94,99 @@ class VirtualDevice:
     #: 67.5 µs), plus the wake-up from the 1 ms tick.
     COMPUTE_DELAY = 70e-6
 
-    def __init__(self, motor=None, clock=time.monotonic, name="jerklab-virtual", tick_us=1000,
-                 compute_delay=None):
+    def __init__(
+        self,
+        motor=None,
+        clock=time.monotonic,
+        name="jerklab-virtual",
+        tick_us=1000,
+        compute_delay=None,
+    ):
         from jerklab import __version__
         from jerklab.plant import DCMotor
 
         self.motor = DCMotor() if motor is None else motor
         if self.motor.supply_voltage is None or self.motor.counts_per_rad is None:
-            raise ValueError("motor must have a supply_voltage and an encoder (encoder_ppr) to be a rig")
+            raise ValueError(
+                "motor must have a supply_voltage and an encoder (encoder_ppr) to be a rig"
+            )
         self.clock = clock
         if compute_delay is None:
             compute_delay = self.COMPUTE_DELAY
-        if (isinstance(compute_delay, bool) or not isinstance(compute_delay, (int, float))
-                or not math.isfinite(compute_delay) or not 0.0 <= compute_delay < 1e-3):
-            raise ValueError(f"compute_delay must be a time in seconds in [0, 1e-3) (below the shortest Ts), "
-                             f"got {compute_delay!r}")
+        if (
+            isinstance(compute_delay, bool)
+            or not isinstance(compute_delay, (int, float))
+            or not math.isfinite(compute_delay)
+            or not 0.0 <= compute_delay < 1e-3
+        ):
+            raise ValueError(
+                f"compute_delay must be a time in seconds in [0, 1e-3) (below the shortest Ts), "
+                f"got {compute_delay!r}"
+            )
         self.compute_delay = float(compute_delay)
         self._applied_volts = 0.0
         self.name = str(name)[:16]
         self.tick_us = int(tick_us)
         bits = self.motor.pwm_bits or paper.PWM_BITS
-        self.pwm_max = 2 ** bits - 1
+        self.pwm_max = 2**bits - 1
         major, minor, patch = (int(x) for x in (__version__.split(".") + ["0", "0"])[:3])
         self.version = (major, minor, patch)
-        self.capabilities = (P.Capability.PLANNER_SINE_JERK | P.Capability.PLANNER_SINE_JERK_OPTIMAL
-                             | P.Capability.PLANNER_SCURVE | P.Capability.PLANNER_TRAPEZOID
-                             | P.Capability.RETARGET
-                             | P.Capability.LOOP_POSITION | P.Capability.LOOP_VELOCITY
-                             | P.Capability.OPEN_LOOP_STEP | P.Capability.FEEDFORWARD
-                             | P.Capability.SIMULATED_PLANT | P.Capability.SEQUENCE
-                             | P.Capability.SHAPER)
+        self.capabilities = (
+            P.Capability.PLANNER_SINE_JERK
+            | P.Capability.PLANNER_SINE_JERK_OPTIMAL
+            | P.Capability.PLANNER_SCURVE
+            | P.Capability.PLANNER_TRAPEZOID
+            | P.Capability.RETARGET
+            | P.Capability.LOOP_POSITION
+            | P.Capability.LOOP_VELOCITY
+            | P.Capability.OPEN_LOOP_STEP
+            | P.Capability.FEEDFORWARD
+            | P.Capability.SIMULATED_PLANT
+            | P.Capability.SEQUENCE
+            | P.Capability.SHAPER
+        )
         self._decoder = P.Decoder()
         self._last_byte = self.clock()
         self._out = bytearray()
         self._seq = 0
         self.x = self.motor.initial_state()  # [theta, omega] (a FlexibleDCMotor: and the load's)
-        self.t = 0.0                         # simulated time (s)
+        self.t = 0.0  # simulated time (s)
         self.pwm = 0
         self.overruns = 0
-        self.rejected = 0                    # good frames answered by NACK
+        self.rejected = 0  # good frames answered by NACK
         # fault injection (tests of `jerklab rig check`; the encoder's is encoder_sign):
         # supply_fraction < 1 = a weak supply giving only that share of its volts
         self.supply_fraction = 1.0
-        self.motor.step_state(self.x, 0.0, 1e-3)   # warm up (a compiled kernel) before the first run
+        self.motor.step_state(self.x, 0.0, 1e-3)  # warm up (a compiled kernel) before the first run
         # python-control (imported on first use since the layering change) is loaded now, at
         # power-on: importing it in the middle of a run stalls the served device for ~1 s,
         # long enough for its own host watchdog to end the run (HOST_TIMEOUT).
         import control  # noqa: F401
+
         self.boot()
 
     # ------------------------------------------------------------------ state
     def boot(self):
         """Power-on defaults of PROTOCOL.md ("Device state machine")."""
-        self.plant = P.SetPlant(K=_f32(paper.MOTOR_K), tau=_f32(paper.MOTOR_TAU), supply_voltage=paper.SUPPLY_VOLTAGE,
-                                counts_per_rev=paper.ENCODER_PPR * paper.ENCODER_DECODING)
-        self.limits = P.SetLimits(max_jerk=paper.MAX_JERK, max_accel=paper.MAX_ACCEL,
-                                  max_velocity=paper.MAX_VELOCITY, max_voltage=paper.SUPPLY_VOLTAGE,
-                                  host_timeout_ms=1000,
-                                  max_error=P.DEFAULT_MAX_ERROR, runaway_ms=P.DEFAULT_RUNAWAY_MS,
-                                  saturation_ms=P.DEFAULT_SATURATION_MS)
+        self.plant = P.SetPlant(
+            K=_f32(paper.MOTOR_K),
+            tau=_f32(paper.MOTOR_TAU),
+            supply_voltage=paper.SUPPLY_VOLTAGE,
+            counts_per_rev=paper.ENCODER_PPR * paper.ENCODER_DECODING,
+        )
+        self.limits = P.SetLimits(
+            max_jerk=paper.MAX_JERK,
+            max_accel=paper.MAX_ACCEL,
+            max_velocity=paper.MAX_VELOCITY,
+            max_voltage=paper.SUPPLY_VOLTAGE,
+            host_timeout_ms=1000,
+            max_error=P.DEFAULT_MAX_ERROR,
+            runaway_ms=P.DEFAULT_RUNAWAY_MS,
+            saturation_ms=P.DEFAULT_SATURATION_MS,
+        )
         self.gains = None
         self.plan = None
-        self.shaper = P.SetShaper(0)         # version 3: no input shaper at boot
+        self.shaper = P.SetShaper(0)  # version 3: no input shaper at boot
         self.state = self.STATE_IDLE
         self.pwm = 0
         self.last_rx = self.clock()
@@ -240,7 +272,7 @@ class VirtualDevice:
 
     # ------------------------------------------------------------------ commands
     def _handle(self, frame: P.Frame) -> None:
-        self._current_seq = frame.seq           # for handlers that reply themselves (PLAN)
+        self._current_seq = frame.seq  # for handlers that reply themselves (PLAN)
         cls = P.MESSAGES.get(frame.type)
         if cls is None or frame.type >= 0x80:
             return self._nack(frame, P.ErrorCode.UNKNOWN_TYPE)
@@ -250,8 +282,19 @@ class VirtualDevice:
             return self._nack(frame, P.ErrorCode.BAD_LENGTH)
         if isinstance(msg, P.Hello):
             maj, mnr, pat = self.version
-            return self._send(P.HelloReply(P.PROTOCOL_VERSION, maj, mnr, pat, int(self.capabilities),
-                                           self.tick_us, self.pwm_max, self.name), frame.seq)
+            return self._send(
+                P.HelloReply(
+                    P.PROTOCOL_VERSION,
+                    maj,
+                    mnr,
+                    pat,
+                    int(self.capabilities),
+                    self.tick_us,
+                    self.pwm_max,
+                    self.name,
+                ),
+                frame.seq,
+            )
         if isinstance(msg, P.Heartbeat):
             return self._send(P.Ack(frame.type), frame.seq)
         if isinstance(msg, P.Stop):
@@ -268,7 +311,7 @@ class VirtualDevice:
         handler = getattr(self, "_cmd_" + type(msg).__name__)
         error, param = handler(msg)
         if error is None:
-            return None                     # the handler replied itself
+            return None  # the handler replied itself
         if error != P.ErrorCode.OK:
             return self._nack(frame, error, param)
         return self._send(P.Ack(frame.type), frame.seq)
@@ -277,8 +320,12 @@ class VirtualDevice:
         return 0 < ts_us <= 65000 and ts_us % self.tick_us == 0
 
     def _cmd_SetPlant(self, m):
-        checks = [_finite(m.K) and 0 < m.K <= 1e4, _finite(m.tau) and 0 < m.tau <= 10,
-                  _finite(m.supply_voltage) and 0 < m.supply_voltage <= 48, m.counts_per_rev >= 1]
+        checks = [
+            _finite(m.K) and 0 < m.K <= 1e4,
+            _finite(m.tau) and 0 < m.tau <= 10,
+            _finite(m.supply_voltage) and 0 < m.supply_voltage <= 48,
+            m.counts_per_rev >= 1,
+        ]
         bad = _first_false(checks)
         if bad is not None:
             return P.ErrorCode.BAD_VALUE, bad
@@ -286,9 +333,15 @@ class VirtualDevice:
         return P.ErrorCode.OK, 0xFF
 
     def _cmd_SetGains(self, m):
-        checks = [_finite(m.kpd), _finite(m.kid), _finite(m.kdd), self._ts_ok(m.Ts_us),
-                  m.loop in (P.LoopType.POSITION, P.LoopType.VELOCITY),
-                  (m.flags & ~P.GAINS_FEEDFORWARD) == 0, _finite(m.gamma) and abs(m.gamma) < 1.0]
+        checks = [
+            _finite(m.kpd),
+            _finite(m.kid),
+            _finite(m.kdd),
+            self._ts_ok(m.Ts_us),
+            m.loop in (P.LoopType.POSITION, P.LoopType.VELOCITY),
+            (m.flags & ~P.GAINS_FEEDFORWARD) == 0,
+            _finite(m.gamma) and abs(m.gamma) < 1.0,
+        ]
         bad = _first_false(checks)
         if bad is not None:
             return P.ErrorCode.BAD_VALUE, bad
@@ -297,10 +350,16 @@ class VirtualDevice:
         return P.ErrorCode.OK, 0xFF
 
     def _cmd_SetLimits(self, m):
-        checks = [_finite(m.max_jerk) and m.max_jerk > 0, _finite(m.max_accel) and m.max_accel > 0,
-                  _finite(m.max_velocity) and m.max_velocity > 0,
-                  _finite(m.max_voltage) and 0 < m.max_voltage <= self.plant.supply_voltage, True,
-                  _finite(m.max_error) and m.max_error >= 0, True, True]
+        checks = [
+            _finite(m.max_jerk) and m.max_jerk > 0,
+            _finite(m.max_accel) and m.max_accel > 0,
+            _finite(m.max_velocity) and m.max_velocity > 0,
+            _finite(m.max_voltage) and 0 < m.max_voltage <= self.plant.supply_voltage,
+            True,
+            _finite(m.max_error) and m.max_error >= 0,
+            True,
+            True,
+        ]
         bad = _first_false(checks)
         if bad is not None:
             return P.ErrorCode.BAD_VALUE, bad
@@ -348,37 +407,42 @@ class VirtualDevice:
         Ts = g.Ts_us * 1e-6
         # the firmware's fixed-point PID holds each gain, scaled to PWM ticks per count (per count
         # per sample in the velocity loop), below 2^23 (PROTOCOL.md "Parameter checks", RUN)
-        limit = P.max_run_gain(self.plant.counts_per_rev, self.pwm_max, self.plant.supply_voltage,
-                               Ts if g.loop == P.LoopType.VELOCITY else None)
+        limit = P.max_run_gain(
+            self.plant.counts_per_rev,
+            self.pwm_max,
+            self.plant.supply_voltage,
+            Ts if g.loop == P.LoopType.VELOCITY else None,
+        )
         if any(abs(k) >= limit for k in (g.kpd, g.kid, g.kdd)):
             return P.ErrorCode.BAD_VALUE, 0xFF
         loop = "velocity" if g.loop == P.LoopType.VELOCITY else "position"
         dg = DiscreteGains(g.kpd, g.kid, g.kdd, Ts, gamma=g.gamma, loop=loop)
         ff = Feedforward(self.plant.K, self.plant.tau) if g.flags & P.GAINS_FEEDFORWARD else None
-        self._ctrl = DigitalController(dg, feedforward=ff, output_limit=self.limits.max_voltage,
-                                       anti_windup=True)
+        self._ctrl = DigitalController(
+            dg, feedforward=ff, output_limit=self.limits.max_voltage, anti_windup=True
+        )
         prof, n, plan_msg = self.plan
         self._profile = prof
         # re-targeting (jerklab.rig.retarget): the pieces of the reference, from their start time
         self._pieces = [(-math.inf, prof)]
         L = self.limits
-        self._splan = None                  # the running plan as segments, made on first use
+        self._splan = None  # the running plan as segments, made on first use
         self._active_plan = None
         self._plan_msg = plan_msg
         self._settle = m.settle_samples
-        self._followup_k = None             # a braking plan ends: the move to the target follows
-        self._switch = None                 # (k, n_profile) when a new plan takes over
+        self._followup_k = None  # a braking plan ends: the move to the target follows
+        self._switch = None  # (k, n_profile) when a new plan takes over
         delay = self._shaper_delay if self.shaper.n_taps else 0
-        self._shp_delay = delay             # SET_SHAPER: the move lasts the last delay longer
+        self._shp_delay = delay  # SET_SHAPER: the move lasts the last delay longer
         self._n_profile = n + delay
         self._n_total = n + delay + m.settle_samples
         self._ring = np.zeros(P.SHAPER_MAX_DELAY + 1, dtype=np.float32)
         self._ring_pos = 0
         self._shp_prev = (np.float32(0.0), np.float32(0.0))
-        ts_f32 = np.float32(np.float32(g.Ts_us) * np.float32(1e-6))      # the firmware's Ts_
+        ts_f32 = np.float32(np.float32(g.Ts_us) * np.float32(1e-6))  # the firmware's Ts_
         self._inv_ts = np.float32(np.float32(1.0) / ts_f32)
         self._ref_k0 = 0
-        self._ref = None                     # block of samples from _ref_k0 (see _reference)
+        self._ref = None  # block of samples from _ref_k0 (see _reference)
         self._decimation = m.decimation
         L = self.limits
         self._max_error = float(L.max_error)
@@ -396,10 +460,20 @@ class VirtualDevice:
     def _cmd_Sequence(self, m):
         """SEQUENCE (version 3): the open-loop PRBS; checks in the firmware's order."""
         amp, off = m.amplitude, m.offset
-        limit_ok = _finite(off) and _finite(amp) and _f32(_f32(abs(off)) + amp) <= _f32(self.limits.max_voltage)
-        checks = [(0, _finite(amp) and amp >= 0), (1, limit_ok), (2, self._ts_ok(m.Ts_us)),
-                  (3, m.n_samples >= 1), (5, m.order in P.PRBS_TAPS),
-                  (4, m.seed & ((1 << m.order) - 1) != 0), (6, m.hold >= 1)]
+        limit_ok = (
+            _finite(off)
+            and _finite(amp)
+            and _f32(_f32(abs(off)) + amp) <= _f32(self.limits.max_voltage)
+        )
+        checks = [
+            (0, _finite(amp) and amp >= 0),
+            (1, limit_ok),
+            (2, self._ts_ok(m.Ts_us)),
+            (3, m.n_samples >= 1),
+            (5, m.order in P.PRBS_TAPS),
+            (4, m.seed & ((1 << m.order) - 1) != 0),
+            (6, m.hold >= 1),
+        ]
         for param, ok in checks:
             if not ok:
                 return P.ErrorCode.BAD_VALUE, param
@@ -434,7 +508,7 @@ class VirtualDevice:
     @property
     def _shaper_delay(self) -> int:
         m = self.shaper
-        return max(m.delays[:m.n_taps], default=0)
+        return max(m.delays[: m.n_taps], default=0)
 
     def _shape(self, position):
         """The firmware's ``Shaper`` in float32: the FIR of the position reference (the delayed
@@ -445,7 +519,7 @@ class VirtualDevice:
         ring, pos = self._ring, self._ring_pos
         partial = f32(0.0)
         a0 = f32(0.0)
-        for a, d in zip(m.amplitudes[:m.n_taps], m.delays[:m.n_taps]):
+        for a, d in zip(m.amplitudes[: m.n_taps], m.delays[: m.n_taps]):
             if d:
                 partial = f32(partial + f32(f32(a) * ring[(pos - d) % len(ring)]))
             else:
@@ -460,8 +534,11 @@ class VirtualDevice:
         return float(r), float(v), float(acc)
 
     def _cmd_Step(self, m):
-        checks = [_finite(m.voltage) and abs(m.voltage) <= self.limits.max_voltage,
-                  self._ts_ok(m.Ts_us), m.n_samples >= 1]
+        checks = [
+            _finite(m.voltage) and abs(m.voltage) <= self.limits.max_voltage,
+            self._ts_ok(m.Ts_us),
+            m.n_samples >= 1,
+        ]
         bad = _first_false(checks)
         if bad is not None:
             return P.ErrorCode.BAD_VALUE, bad
@@ -476,7 +553,7 @@ class VirtualDevice:
 
     def _start(self, Ts):
         self._Ts = Ts
-        self._applied_volts = 0.0            # PWM 0 until the first sample's is written
+        self._applied_volts = 0.0  # PWM 0 until the first sample's is written
         self._k = 0
         self._count0 = self._counts()
         self._prev_y = None
@@ -493,8 +570,11 @@ class VirtualDevice:
             n = max(1, min(self.REF_BLOCK, self._n_total - k))
             t = (k + np.arange(n)) * self._Ts
             s = self._profile.sample(t)
-            ref = [np.atleast_1d(np.asarray(v, float)).copy() for v in (s.position, s.velocity, s.accel)]
-            for t0, piece in self._pieces[1:]:          # re-targeted plans, from their start
+            ref = [
+                np.atleast_1d(np.asarray(v, float)).copy()
+                for v in (s.position, s.velocity, s.accel)
+            ]
+            for t0, piece in self._pieces[1:]:  # re-targeted plans, from their start
                 sel = t >= t0
                 if sel.any():
                     x, v, a, _ = piece.sample(t[sel])
@@ -521,7 +601,9 @@ class VirtualDevice:
 
         if self._splan is None:
             L, pm = self.limits, self._plan_msg
-            self._splan = R.rest_plan(pm.planner, pm.distance, L.max_jerk, L.max_accel, L.max_velocity)
+            self._splan = R.rest_plan(
+                pm.planner, pm.distance, L.max_jerk, L.max_accel, L.max_velocity
+            )
         return self._splan
 
     def _retarget_from(self, k_now):
@@ -530,7 +612,7 @@ class VirtualDevice:
         L = self.limits
         Ts_us = self.gains.Ts_us
         Ts = Ts_us * 1e-6
-        if self._switch is not None:         # a newer target replaces one not yet switched to
+        if self._switch is not None:  # a newer target replaces one not yet switched to
             self._pieces.pop()
             self._switch = self._followup_k = None
             self._splan = self._active_plan
@@ -544,13 +626,15 @@ class VirtualDevice:
         if v_s == 0.0:
             new = R.rest_plan(kind, d, L.max_jerk, L.max_accel, L.max_velocity, t_s, x_s)
         elif d != 0.0 and (d > 0) == (v_s > 0):
-            new = R.moving_plan(kind, d, abs(v_s), L.max_jerk, L.max_accel, L.max_velocity, t_s, x_s)
+            new = R.moving_plan(
+                kind, d, abs(v_s), L.max_jerk, L.max_accel, L.max_velocity, t_s, x_s
+            )
         braking = new is None
         if braking:
             new = R.stop_plan(kind, v_s, L.max_jerk, L.max_accel, t_s, x_s)
         self._pieces = [p for p in self._pieces if p[0] < t_s] + [(t_s, new)]
         self._splan = new
-        self._ref = None                     # re-sample from the current sample on
+        self._ref = None  # re-sample from the current sample on
         k_sw = int(math.ceil(t_s / Ts - 1e-9))
         while k_sw * Ts < t_s:
             k_sw += 1
@@ -561,11 +645,15 @@ class VirtualDevice:
 
     def _pwm_top(self) -> int:
         """lround(max_voltage * pwm_max / supply), at most pwm_max (PROTOCOL.md step 4)."""
-        top = int(math.floor(self.limits.max_voltage * self.pwm_max / self.plant.supply_voltage + 0.5))
+        top = int(
+            math.floor(self.limits.max_voltage * self.pwm_max / self.plant.supply_voltage + 0.5)
+        )
         return min(top, self.pwm_max)
 
     def _to_pwm(self, u: float) -> int:
-        return int(_pwm_duty(u, self.plant.supply_voltage, self.pwm_max, self._pwm_top()))  # lround, clamp (jerklab.law)
+        return int(
+            _pwm_duty(u, self.plant.supply_voltage, self.pwm_max, self._pwm_top())
+        )  # lround, clamp (jerklab.law)
 
     def _check_safety(self, counts: int, pos_error: float):
         """The safety stops of PROTOCOL.md at one run sample: ``(reason, detail)``, or
@@ -603,12 +691,12 @@ class VirtualDevice:
             return
         k = self._k
         if self.state == self.STATE_RUNNING and self._switch is not None and k >= self._switch[0]:
-            self._n_profile = self._switch[1]        # the re-targeted plan took over
+            self._n_profile = self._switch[1]  # the re-targeted plan took over
             self._switch = None
             self._active_plan = self._splan
             if self._followup_k is not None:
                 self._followup_k = None
-                self._retarget_from(k)               # braked: now the move to the target
+                self._retarget_from(k)  # braked: now the move to the target
         counts = self._counts() - self._count0
         flags = 0
         fault = None
@@ -622,7 +710,7 @@ class VirtualDevice:
                 flags |= P.TELEMETRY_SETTLING
             fault, detail = self._check_safety(counts, rp - y)
             if fault is not None:
-                self.pwm = 0                 # stopped in this very sample
+                self.pwm = 0  # stopped in this very sample
                 flags |= P.TELEMETRY_FAULT
             else:
                 u = self._ctrl.step(rp, rv, ra, y)
@@ -632,7 +720,7 @@ class VirtualDevice:
                 elif self._sat_level:
                     self._sat_level -= 1
                 if self._sat_n and self._sat_level >= self._sat_n:
-                    fault, detail = P.EndReason.SATURATION, 0.0      # PROTOCOL.md stop 3
+                    fault, detail = P.EndReason.SATURATION, 0.0  # PROTOCOL.md stop 3
                     self.pwm = 0
                     flags |= P.TELEMETRY_FAULT
                 else:
@@ -641,7 +729,7 @@ class VirtualDevice:
             self._prev_counts = counts
             ref = float(rp)
         elif self._seq_volts is not None:
-            ref = self._seq_volts[k]         # SEQUENCE: the commanded volts as the reference
+            ref = self._seq_volts[k]  # SEQUENCE: the commanded volts as the reference
             self.pwm = self._seq_pwm[ref]
         else:
             self.pwm = self._step_pwm
@@ -652,7 +740,9 @@ class VirtualDevice:
             self._k = k + 1
             self._end(fault, detail)
             return
-        volts = self.pwm / self.pwm_max * self.motor.supply_voltage * self.supply_fraction  # H-bridge
+        volts = (
+            self.pwm / self.pwm_max * self.motor.supply_voltage * self.supply_fraction
+        )  # H-bridge
         d = self.compute_delay if self.state == self.STATE_RUNNING else 0.0
         if d > 0.0:
             # the previous sample's PWM until the board has written the new one
@@ -678,7 +768,7 @@ class VirtualDevice:
     def _end(self, reason, detail=0.0):
         samples = self._k
         if getattr(self, "_retargeted", False):
-            self.plan = None                 # consumed, as on the board (PLAN again before RUN)
+            self.plan = None  # consumed, as on the board (PLAN again before RUN)
             self._retargeted = False
         self.state = self.STATE_IDLE
         self._ref = None
@@ -712,9 +802,15 @@ class VirtualSerial:
     #: the device's motor coasts to rest at once between runs (the client need not wait)
     instant_coast = True
 
-    def __init__(self, device: VirtualDevice | None = None, speed: float | None = None, timeout=1.0,
-                 pull_cable_after: int | None = None, freeze_after: int | None = None,
-                 port="virtual"):
+    def __init__(
+        self,
+        device: VirtualDevice | None = None,
+        speed: float | None = None,
+        timeout=1.0,
+        pull_cable_after: int | None = None,
+        freeze_after: int | None = None,
+        port="virtual",
+    ):
         self.device = VirtualDevice() if device is None else device
         if speed is not None and not (isinstance(speed, (int, float)) and speed > 0):
             raise ValueError(f"speed must be > 0 or None (as fast as possible), got {speed!r}")

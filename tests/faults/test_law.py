@@ -7,6 +7,7 @@
   parameter (never AttributeError, IndexError, MemoryError, LinAlgError without a name, or a
   numba typing error).
 """
+
 from __future__ import annotations
 
 import math
@@ -33,6 +34,7 @@ def _ctrl(loop="position", **kw):
 
 # --------------------------------------------------------------------------- non-finite measurement
 
+
 @pytest.mark.parametrize("loop", ["position", "velocity"])
 @pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
 def test_nonfinite_measurement_is_held_and_reported(loop, bad):
@@ -43,7 +45,7 @@ def test_nonfinite_measurement_is_held_and_reported(loop, bad):
         ref.step(1.0, 2.0, 0.0, y)
     with pytest.warns(RuntimeWarning, match="non-finite measurement"):
         held = c.step(1.0, 2.0, 0.0, bad)
-    assert held == u_c                                    # the last output, held
+    assert held == u_c  # the last output, held
     assert c.fault == "non-finite measurement" and c.nonfinite_count == 1
     assert c.last_parts["held"] and math.isfinite(c.last_parts["i"])
     # a second bad sample: counted, no second warning
@@ -66,9 +68,14 @@ def test_nonfinite_measurement_before_any_output_holds_zero():
     assert c.step(0.5, 0.0, 0.0, 0.0) != 0.0
 
 
-@pytest.mark.parametrize("name, args", [
-    ("ref_position", (math.nan, 0.0, 0.0, 0.0)), ("ref_velocity", (0.0, math.inf, 0.0, 0.0)),
-    ("ref_accel", (0.0, 0.0, -math.inf, 0.0))])
+@pytest.mark.parametrize(
+    "name, args",
+    [
+        ("ref_position", (math.nan, 0.0, 0.0, 0.0)),
+        ("ref_velocity", (0.0, math.inf, 0.0, 0.0)),
+        ("ref_accel", (0.0, 0.0, -math.inf, 0.0)),
+    ],
+)
 def test_nonfinite_reference_is_an_error(name, args):
     c = _ctrl()
     with pytest.raises(ValueError, match=name):
@@ -76,8 +83,14 @@ def test_nonfinite_reference_is_an_error(name, args):
     assert c.nonfinite_count == 0
 
 
-@pytest.mark.parametrize("name, args", [
-    ("ref_position", ("a",)), ("ref_velocity", (0.0, None)), ("measured_position", (0.0, 0.0, 0.0, [1, 2]))])
+@pytest.mark.parametrize(
+    "name, args",
+    [
+        ("ref_position", ("a",)),
+        ("ref_velocity", (0.0, None)),
+        ("measured_position", (0.0, 0.0, 0.0, [1, 2])),
+    ],
+)
 def test_non_numeric_step_arguments_name_the_parameter(name, args):
     with pytest.raises(TypeError, match=name):
         _ctrl().step(*args)
@@ -85,9 +98,12 @@ def test_non_numeric_step_arguments_name_the_parameter(name, args):
 
 # --------------------------------------------------------------------------- divergence
 
+
 def _unstable():
-    g = C.pole_placement_pid(K, TAU, 60.0).discretize(TS)      # |z| > 1 at Ts = 5 ms
-    return DCMotor(supply_voltage=None, pwm_bits=None, encoder_ppr=None), C.DigitalController(g, None, None)
+    g = C.pole_placement_pid(K, TAU, 60.0).discretize(TS)  # |z| > 1 at Ts = 5 ms
+    return DCMotor(supply_voltage=None, pwm_bits=None, encoder_ppr=None), C.DigitalController(
+        g, None, None
+    )
 
 
 def test_simulation_diverging_to_nan_says_diverged():
@@ -95,10 +111,10 @@ def test_simulation_diverging_to_nan_says_diverged():
     with pytest.warns(RuntimeWarning, match="diverged"):
         r = S.simulate(S.StepProfile(1.0), motor, c, t_end=20.0)
     assert r.diverged and r.metrics["diverged"]
-    assert math.isnan(r.metrics["settling_time"])                # never a number
+    assert math.isnan(r.metrics["settling_time"])  # never a number
     assert math.isinf(r.metrics["max_abs_error"])
     assert 0.0 < r.metrics["diverged_at"] < 1.0
-    assert np.isnan(r.position[-1])                              # the run stopped: NaN after it
+    assert np.isnan(r.position[-1])  # the run stopped: NaN after it
     assert np.all(np.isfinite(r.position[:10]))
 
 
@@ -106,7 +122,7 @@ def test_simulation_diverging_beyond_the_bound_says_diverged():
     motor, c = _unstable()
     with pytest.warns(RuntimeWarning, match="diverged"):
         r = S.simulate(S.StepProfile(1.0), motor, c, t_end=1.0)
-    assert np.all(np.isfinite(r.position))                     # still finite, but far beyond any move
+    assert np.all(np.isfinite(r.position))  # still finite, but far beyond any move
     assert r.diverged and math.isnan(r.metrics["settling_time"])
     assert r.metrics["max_abs_error"] > S.DIVERGENCE_FACTOR
 
@@ -115,14 +131,20 @@ def test_stable_simulation_does_not_say_diverged():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         r = S.simulate(plan_sine_jerk(2.0, 2e4, 300.0, 100.0), DCMotor(), _ctrl())
-    assert not r.diverged and not r.metrics["diverged"] and math.isfinite(r.metrics["settling_time"])
+    assert (
+        not r.diverged and not r.metrics["diverged"] and math.isfinite(r.metrics["settling_time"])
+    )
 
 
 def test_batch_diverged_plants_have_no_settling_time():
     motor, c = _unstable()
-    b = S.simulate_batch(plan_sine_jerk(1.0, 2e4, 300.0, 100.0), motor, c, K=[32.4, 3.0], t_end=30.0)
+    b = S.simulate_batch(
+        plan_sine_jerk(1.0, 2e4, 300.0, 100.0), motor, c, K=[32.4, 3.0], t_end=30.0
+    )
     assert list(b.metrics["diverged"]) == [True, False]
-    assert math.isnan(b.metrics["settling_time"][0]) and math.isfinite(b.metrics["settling_time"][1])
+    assert math.isnan(b.metrics["settling_time"][0]) and math.isfinite(
+        b.metrics["settling_time"][1]
+    )
 
 
 # --------------------------------------------------------------------------- bad input
@@ -174,11 +196,14 @@ BAD = [
     ("engine", lambda: S.simulate_batch(PROF, MOTOR, CTRL, engine="gpu")),
     ("offset", lambda: S.simulate_batch(PROF, DCMotor(offset=0.1), CTRL)),
     ("seed", lambda: S.simulate_batch(PROF, MOTOR, CTRL, seed="x")),
-    ("keep_traces", lambda: S.simulate_batch(PROF, MOTOR, CTRL, K=np.full(100000, 30.0), t_end=1000.0)),
+    (
+        "keep_traces",
+        lambda: S.simulate_batch(PROF, MOTOR, CTRL, K=np.full(100000, 30.0), t_end=1000.0),
+    ),
     ("n", lambda: S.perturbed_plants(-1)),
     ("n", lambda: S.perturbed_plants("x")),
     ("n", lambda: S.perturbed_plants(2.5)),
-    ("n", lambda: S.perturbed_plants(10 ** 12)),
+    ("n", lambda: S.perturbed_plants(10**12)),
     ("friction", lambda: S.perturbed_plants(3, friction=(1.0,))),
     ("friction", lambda: S.perturbed_plants(3, friction=5.0)),
     ("friction", lambda: S.perturbed_plants(3, friction=(2.0, 1.0))),
@@ -205,4 +230,4 @@ BAD = [
 def test_bad_input_names_the_parameter(name, call):
     with pytest.raises((ValueError, TypeError), match=name) as exc:
         call()
-    assert type(exc.value) in (ValueError, TypeError)          # not a subclass like LinAlgError
+    assert type(exc.value) in (ValueError, TypeError)  # not a subclass like LinAlgError

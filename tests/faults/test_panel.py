@@ -1,5 +1,6 @@
 """Faults around the tuning panel and the class page: unstable designs, bad student IDs,
 a rig or broker that is not there (issue 12 items 3-5, issue 14's page part)."""
+
 from __future__ import annotations
 
 import re
@@ -52,7 +53,7 @@ def test_forced_unstable_run_is_stopped_by_the_rig_and_shown():
         p.run_on_rig(force=True)
     status = p.rig_status.value
     assert "rig error" in status and "tracking error" in status, status
-    assert p.rig_button.disabled                       # still refused for the button
+    assert p.rig_button.disabled  # still refused for the button
 
 
 def test_unstable_banner_never_recommends_the_selected_design():
@@ -78,7 +79,11 @@ def test_panel_designs_for_a_given_motor_and_exposes_gains():
     p = W.pole_placement_panel(K=K, tau=tau, wn=25.0)
     # Stojčić eq. 11 then eq. 13, written out here
     wn, z, s, Ts = 25.0, 1.0, 175.0, 0.005
-    kp, ki, kd = wn * tau * (2 * z * s + wn) / K, tau * s * wn ** 2 / K, (tau * (2 * z * wn + s) - 1) / K
+    kp, ki, kd = (
+        wn * tau * (2 * z * s + wn) / K,
+        tau * s * wn**2 / K,
+        (tau * (2 * z * wn + s) - 1) / K,
+    )
     g = p.gains
     assert isinstance(g, DiscreteGains) and g.Ts == Ts
     assert (g.kpd, g.kid, g.kdd) == pytest.approx((kp - ki * Ts / 2, ki * Ts, kd / Ts), rel=1e-12)
@@ -115,7 +120,7 @@ def test_student_ids_do_not_collide():
     ids = ["a/b", "a_b", "a b", "a:b", "Stojčić", "Stojcic", "CON", "_CON"]
     names = [W.sanitize_student_id(i) for i in ids]
     assert len(set(names)) == len(ids), names
-    assert W.sanitize_student_id("s1234") == "s1234"          # a plain ID is kept as is
+    assert W.sanitize_student_id("s1234") == "s1234"  # a plain ID is kept as is
     with pytest.raises(ValueError, match="student_id"):
         W.sanitize_student_id("   ")
     with pytest.raises(TypeError, match="student_id"):

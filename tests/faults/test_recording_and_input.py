@@ -6,6 +6,7 @@ object the recording writes to raises ``OSError(ENOSPC)`` (``benchmarks.bench_fa
 patched into ``jerklab.rig.recording.open``), and, where the machine allows mounting, a real
 64 kB tmpfs fills up.
 """
+
 from __future__ import annotations
 
 import errno
@@ -25,18 +26,36 @@ from benchmarks.bench_faults import FailingFile, failing_csv_writes, kill_client
 from jerklab import protocol as P
 from jerklab._validate import as_finite_array
 from jerklab.controller import DiscreteGains, pole_placement_pid
-from jerklab.planner import (MAX_BATCH_MOVES, MAX_SAMPLES, plan_batch, plan_scurve, plan_sine_jerk,
-                             plan_sine_jerk_optimal, plan_trapezoid)
+from jerklab.planner import (
+    MAX_BATCH_MOVES,
+    MAX_SAMPLES,
+    plan_batch,
+    plan_scurve,
+    plan_sine_jerk,
+    plan_sine_jerk_optimal,
+    plan_trapezoid,
+)
 from jerklab.plant import DCMotor
 from jerklab.rig import Recording, Rig, VirtualDevice, VirtualSerial
 from jerklab.rig.recording import RecordingIOError
 
-META = {"kind": "demo", "Ts": 0.005, "counts_per_rad": 448 / (2 * math.pi), "volts_per_pwm": 12 / 1023}
+META = {
+    "kind": "demo",
+    "Ts": 0.005,
+    "counts_per_rad": 448 / (2 * math.pi),
+    "volts_per_pwm": 12 / 1023,
+}
 
 
 def _rig(tmp_path, **link):
-    return Rig(VirtualSerial(VirtualDevice(DCMotor()), timeout=0.05, **link), "virtual", progress=False,
-               timeout=0.5, hello_timeout=1.0, recordings=tmp_path)
+    return Rig(
+        VirtualSerial(VirtualDevice(DCMotor()), timeout=0.05, **link),
+        "virtual",
+        progress=False,
+        timeout=0.5,
+        hello_timeout=1.0,
+        recordings=tmp_path,
+    )
 
 
 def _move():
@@ -79,6 +98,7 @@ def _small(tmp_path, name="rec", n=20):
 
 # ---------------------------------------------------------------------------- disk full, I/O errors
 
+
 @pytest.mark.parametrize("code", [errno.ENOSPC, errno.EIO])
 def test_write_error_mid_run_names_file_and_count_and_stops_the_rig(tmp_path, code):
     rig = _rig(tmp_path)
@@ -96,7 +116,9 @@ def test_write_error_mid_run_names_file_and_count_and_stops_the_rig(tmp_path, co
     assert meta["samples_saved"] == err.samples_saved and meta["rig_stopped"] is True
     on_disk, _ = _load(tmp_path / "full.csv")
     assert len(on_disk) >= err.samples_saved
-    np.testing.assert_array_equal(on_disk.counts[:err.samples_saved], rec.counts[:err.samples_saved])
+    np.testing.assert_array_equal(
+        on_disk.counts[: err.samples_saved], rec.counts[: err.samples_saved]
+    )
     # the device is idle: PLAN (refused while BUSY) is answered without a STOP first
     info = rig._request(P.Plan(1.0, 0), replies=(P.MsgType.PLAN_INFO,))
     assert info.duration > 0
@@ -110,10 +132,12 @@ def test_write_error_in_recording_append_and_flush(tmp_path):
         rec.append(i, 0.0, i, 0)
     rec.flush()
     assert rec._saved == 5
-    with pytest.raises(RecordingIOError, match=r"r\.csv: No space left on device .* 5 samples saved"):
+    with pytest.raises(
+        RecordingIOError, match=r"r\.csv: No space left on device .* 5 samples saved"
+    ):
         for i in range(5, 100):
             rec.append(i, 0.0, i, 0)
-    rec.append(100, 0.0, 100, 0)                 # after the error: kept in memory only
+    rec.append(100, 0.0, 100, 0)  # after the error: kept in memory only
     rec.finish("complete")
     meta = json.loads(rec.json_path.read_text())
     assert meta["status"].startswith("error: ") and meta["samples_saved"] == 5
@@ -123,7 +147,7 @@ def test_write_error_in_recording_append_and_flush(tmp_path):
 def test_creating_a_recording_where_it_cannot_names_the_file(tmp_path):
     (tmp_path / "file").write_text("x")
     with pytest.raises(RecordingIOError, match=r"file/rec\.csv.* 0 samples saved"):
-        Recording(META, tmp_path / "file" / "rec")        # a file where a folder should be
+        Recording(META, tmp_path / "file" / "rec")  # a file where a folder should be
 
 
 def test_real_full_filesystem(tmp_path):
@@ -132,22 +156,25 @@ def test_real_full_filesystem(tmp_path):
     mnt.mkdir()
     if os.geteuid() != 0:
         pytest.skip("mounting a tmpfs needs root")
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(mnt)], capture_output=True)
+    r = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(mnt)], capture_output=True
+    )
     if r.returncode != 0:
         pytest.skip(f"cannot mount a tmpfs here: {r.stderr.decode().strip()}")
     try:
         rig = _rig(tmp_path)
-        prof = plan_sine_jerk(40 * math.pi, 200.0, 30.0, 10.0)       # ~1,000 rows: > 64 kB
+        prof = plan_sine_jerk(40 * math.pi, 200.0, 30.0, 10.0)  # ~1,000 rows: > 64 kB
         with pytest.raises(RecordingIOError) as ei:
             rig.run_move(prof, pole_placement_pid(32.4, 0.025, 20.0), path=mnt / "run")
         assert ei.value.errno == errno.ENOSPC and str(mnt / "run.csv") in str(ei.value)
-        rig._request(P.Plan(1.0, 0), replies=(P.MsgType.PLAN_INFO,))   # not BUSY
+        rig._request(P.Plan(1.0, 0), replies=(P.MsgType.PLAN_INFO,))  # not BUSY
         rig.close()
     finally:
         subprocess.run(["umount", str(mnt)], check=False)
 
 
 # ---------------------------------------------------------------------------- other exit paths
+
 
 def test_ctrl_c_mid_run_ends_interrupted_and_stops(tmp_path, monkeypatch):
     rig = _rig(tmp_path)
@@ -185,7 +212,7 @@ def test_torn_last_row_is_dropped_with_a_warning(tmp_path):
     body = text.rstrip("\r\n")
     last = body.rsplit("\n", 1)[1]
     cut = len(body) - len(last) + [i for i, c in enumerate(last) if c == ","][6] + 1
-    p.write_text(text[:cut])                         # cut right after the 7th comma of the last row
+    p.write_text(text[:cut])  # cut right after the 7th comma of the last row
     rec, warns = _load(p)
     assert len(rec) == 19 and rec.counts[-1] == 18
     assert any("line 21" in w and "torn" in w for w in warns)
@@ -197,7 +224,7 @@ def test_blank_line_is_not_a_silent_end(tmp_path):
     lines.insert(10, b"")
     p.write_bytes(b"\r\n".join(lines))
     rec, warns = _load(p)
-    assert len(rec) == 20                            # nothing after the blank line is lost
+    assert len(rec) == 20  # nothing after the blank line is lost
     assert any("line 11 is blank" in w for w in warns)
 
 
@@ -206,8 +233,17 @@ def test_trailing_newline_is_fine(tmp_path):
     assert len(rec) == 20 and warns == []
 
 
-@pytest.mark.parametrize("field, value", [("Ts", 0.0), ("Ts", -0.005), ("Ts", "nan"), ("Ts", None),
-                                          ("counts_per_rad", 0), ("volts_per_pwm", "inf")])
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("Ts", 0.0),
+        ("Ts", -0.005),
+        ("Ts", "nan"),
+        ("Ts", None),
+        ("counts_per_rad", 0),
+        ("volts_per_pwm", "inf"),
+    ],
+)
 def test_bad_metadata_on_load_names_field_and_file(tmp_path, field, value):
     p = _small(tmp_path)
     j = p.with_suffix(".json")
@@ -228,8 +264,16 @@ def test_missing_metadata_key_names_it(tmp_path):
         Recording.load(p)
 
 
-@pytest.mark.parametrize("field, value", [("Ts", 0.0), ("Ts", math.nan), ("counts_per_rad", 0.0),
-                                          ("volts_per_pwm", -1.0), ("Ts", "0.005")])
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("Ts", 0.0),
+        ("Ts", math.nan),
+        ("counts_per_rad", 0.0),
+        ("volts_per_pwm", -1.0),
+        ("Ts", "0.005"),
+    ],
+)
 def test_bad_metadata_on_save_names_field(tmp_path, field, value):
     with pytest.raises(ValueError, match=field):
         Recording(dict(META, **{field: value}), tmp_path / "x")
@@ -238,8 +282,13 @@ def test_bad_metadata_on_save_names_field(tmp_path, field, value):
 
 def test_append_refuses_bad_samples():
     rec = Recording(META)
-    for kw, name in ((dict(index=-1), "index"), (dict(index=1.5), "index"), (dict(reference=math.nan), "reference"),
-                     (dict(counts="3"), "counts"), (dict(flags=-1), "flags")):
+    for kw, name in (
+        (dict(index=-1), "index"),
+        (dict(index=1.5), "index"),
+        (dict(reference=math.nan), "reference"),
+        (dict(counts="3"), "counts"),
+        (dict(flags=-1), "flags"),
+    ):
         args = {**dict(index=0, reference=0.0, counts=0, pwm=0, flags=0), **kw}
         with pytest.raises(ValueError, match=name):
             rec.append(**args)
@@ -248,7 +297,10 @@ def test_append_refuses_bad_samples():
 
 # ---------------------------------------------------------------------------- numbers: protocol, run_move
 
-@pytest.mark.parametrize("limits, field", [((1e39, 100.0), "max_accel"), ((300.0, 1e300), "max_velocity")])
+
+@pytest.mark.parametrize(
+    "limits, field", [((1e39, 100.0), "max_accel"), ((300.0, 1e300), "max_velocity")]
+)
 def test_run_move_above_float32_names_the_field(tmp_path, limits, field):
     rig = _rig(tmp_path)
     prof = plan_trapezoid(1.0, *limits)
@@ -256,21 +308,41 @@ def test_run_move_above_float32_names_the_field(tmp_path, limits, field):
         rig.run_move(prof, pole_placement_pid(32.4, 0.025, 20.0), path=False)
     d = pole_placement_pid(32.4, 0.025, 20.0).discretize(0.005)
     with pytest.raises(ValueError, match="kpd"):
-        rig.run_move(plan_trapezoid(1.0, 300.0, 100.0), DiscreteGains(1e300, d.kid, d.kdd, d.Ts), path=False)
+        rig.run_move(
+            plan_trapezoid(1.0, 300.0, 100.0), DiscreteGains(1e300, d.kid, d.kdd, d.Ts), path=False
+        )
     rig.close()
 
 
-_INT_FIELDS = [(cls, f.name, code) for cls in (P.SetPlant, P.SetGains, P.SetLimits, P.Plan, P.Run, P.Step,
-                                                P.Telemetry, P.EndOfRun, P.PlanInfo, P.Nack)
-               for f, code in zip(__import__("dataclasses").fields(cls), P._field_codes(cls.FORMAT))]
+_INT_FIELDS = [
+    (cls, f.name, code)
+    for cls in (
+        P.SetPlant,
+        P.SetGains,
+        P.SetLimits,
+        P.Plan,
+        P.Run,
+        P.Step,
+        P.Telemetry,
+        P.EndOfRun,
+        P.PlanInfo,
+        P.Nack,
+    )
+    for f, code in zip(__import__("dataclasses").fields(cls), P._field_codes(cls.FORMAT))
+]
 
 
 def _base(cls):
     vals = {"f": 1.5, "B": 1, "H": 7, "I": 9, "i": -3, "h": -3}
-    return {f.name: vals[c] for f, c in zip(__import__("dataclasses").fields(cls), P._field_codes(cls.FORMAT))}
+    return {
+        f.name: vals[c]
+        for f, c in zip(__import__("dataclasses").fields(cls), P._field_codes(cls.FORMAT))
+    }
 
 
-@given(st.sampled_from(_INT_FIELDS), st.one_of(st.integers(-2 ** 70, 2 ** 70), st.floats(allow_nan=True)))
+@given(
+    st.sampled_from(_INT_FIELDS), st.one_of(st.integers(-(2**70), 2**70), st.floats(allow_nan=True))
+)
 def test_protocol_field_out_of_range_is_named_or_round_trips(field, value):
     cls, name, code = field
     kw = dict(_base(cls), **{name: value})
@@ -279,16 +351,22 @@ def test_protocol_field_out_of_range_is_named_or_round_trips(field, value):
     except P.ProtocolError as exc:
         assert name in str(exc)
         if code == "f":
-            assert isinstance(value, int) or math.isfinite(value) and (
-                abs(value) > 3.4028234663852886e38 or 0 < abs(value) < 1e-44)
+            assert (
+                isinstance(value, int)
+                or math.isfinite(value)
+                and (abs(value) > 3.4028234663852886e38 or 0 < abs(value) < 1e-44)
+            )
         else:
             lo, hi = P._INT_RANGES[code]
             assert not isinstance(value, int) or not lo <= value <= hi
         return
     back = getattr(P.parse(P.Decoder().feed(frame)[0]), name)
     if code == "f":
-        assert back == pytest.approx(float(value), rel=1e-7) or (math.isnan(value) and math.isnan(back)) \
+        assert (
+            back == pytest.approx(float(value), rel=1e-7)
+            or (math.isnan(value) and math.isnan(back))
             or (math.isinf(value) and back == value)
+        )
     else:
         assert back == value
 
@@ -305,10 +383,11 @@ def test_protocol_wrong_types_are_named():
     with pytest.raises(TypeError, match="data"):
         P.Decoder().feed(None)
     with pytest.raises(ValueError, match="distance.*arrive as 0"):
-        P.encode(P.Plan(1e-300, 0))                  # would reach the device as a zero move
+        P.encode(P.Plan(1e-300, 0))  # would reach the device as a zero move
 
 
 # ---------------------------------------------------------------------------- numbers: planners
+
 
 @pytest.mark.parametrize("planner", [plan_sine_jerk, plan_sine_jerk_optimal, plan_scurve])
 @pytest.mark.parametrize("name", ["max_jerk", "max_accel", "max_velocity"])
@@ -330,10 +409,19 @@ def test_sine_jerk_tiny_accel_is_a_value_error_not_zero_division():
         plan_sine_jerk(1.0, 2000.0, 1e-300, 100.0)
 
 
-@given(st.floats(-1e308, 1e308), st.floats(1e-308, 1e308), st.floats(1e-308, 1e308), st.floats(1e-308, 1e308))
+@given(
+    st.floats(-1e308, 1e308),
+    st.floats(1e-308, 1e308),
+    st.floats(1e-308, 1e308),
+    st.floats(1e-308, 1e308),
+)
 def test_planners_never_return_a_non_finite_plan(d, J, A, V):
-    for plan in (lambda: plan_sine_jerk(d, J, A, V), lambda: plan_sine_jerk_optimal(d, J, A, V),
-                 lambda: plan_scurve(d, J, A, V), lambda: plan_trapezoid(d, A, V)):
+    for plan in (
+        lambda: plan_sine_jerk(d, J, A, V),
+        lambda: plan_sine_jerk_optimal(d, J, A, V),
+        lambda: plan_scurve(d, J, A, V),
+        lambda: plan_trapezoid(d, A, V),
+    ):
         try:
             p = plan()
         except ValueError as exc:
@@ -376,23 +464,24 @@ def test_batch_profile_index_is_checked():
 
 # ---------------------------------------------------------------------------- numbers: fpga, plant, piezo, hysteresis
 
+
 def test_fpga_divider_refuses_instead_of_hanging():
     from jerklab.fpga import MAX_EDGES, YangSCurve, divider_edges, published_divider
 
     for fn in (divider_edges, published_divider):
         with pytest.raises(ValueError, match="p_end"):
-            _within(10, lambda: fn([1, 100], [1000, 500], 10 ** 9))
+            _within(10, lambda: fn([1, 100], [1000, 500], 10**9))
         with pytest.raises(ValueError, match="bits"):
-            _within(10, lambda: fn([1, 100], [1000, 500], 50, bits=2 ** 64))
+            _within(10, lambda: fn([1, 100], [1000, 500], 50, bits=2**64))
         with pytest.raises(ValueError, match="starts"):
             fn([1, math.nan], [1000, 500], 50)
         with pytest.raises(ValueError, match="values"):
             fn([1, 100], ["a", "b"], 50)
     assert MAX_EDGES >= 100_000
     with pytest.raises(ValueError, match="bits"):
-        _within(10, lambda: YangSCurve(bits=2 ** 64))
+        _within(10, lambda: YangSCurve(bits=2**64))
     with pytest.raises(ValueError, match="step_um"):
-        YangSCurve(step_um=10 ** 9)
+        YangSCurve(step_um=10**9)
     with pytest.raises(ValueError, match="accel_time"):
         YangSCurve(accel_time=1e9)
 
@@ -401,11 +490,11 @@ def test_plant_quantize_and_measure_are_checked():
     from jerklab.plant import measure_angle, quantize_voltage
 
     with pytest.raises(ValueError, match="supply_voltage"):
-        _within(10, lambda: quantize_voltage([1.0], -1.0, 10))          # was an endless loop
+        _within(10, lambda: quantize_voltage([1.0], -1.0, 10))  # was an endless loop
     with pytest.raises(ValueError, match="u"):
         quantize_voltage([math.nan], 12.0, 10)
     with pytest.raises(ValueError, match="pwm_bits"):
-        quantize_voltage([1.0], 12.0, 2 ** 64)
+        quantize_voltage([1.0], 12.0, 2**64)
     with pytest.raises(ValueError, match="counts_per_rad"):
         measure_angle([1.0], 0.0)
     with pytest.raises(ValueError, match="theta"):
@@ -430,13 +519,13 @@ def test_piezo_and_hysteresis_arguments_are_named():
     with pytest.raises(ValueError, match="freq_scale"):
         Z.PZTModel().perturbed(1e-300)
     with pytest.raises(ValueError, match="k_r"):
-        _within(10, lambda: Z.energy_optimal_return(-6.0, 10 ** 9))
+        _within(10, lambda: Z.energy_optimal_return(-6.0, 10**9))
     with pytest.raises(ValueError, match="observer_speedup"):
         Z.pole_placement_gains(observer_speedup=1e9)
     with pytest.raises(ValueError, match="n"):
-        _within(10, lambda: H.Preisach.uniform(-1.0, 1.0, n=10 ** 9))
+        _within(10, lambda: H.Preisach.uniform(-1.0, 1.0, n=10**9))
     with pytest.raises(ValueError, match="points_per_curve"):
-        H.forc_experiment(H.Preisach.uniform(-1, 1, 5), -1, 1, 10, 10 ** 9)
+        H.forc_experiment(H.Preisach.uniform(-1, 1, 5), -1, 1, 10, 10**9)
     with pytest.raises(ValueError, match="u"):
         H.Preisach.uniform(-1.0, 1.0, n=5).peek("0.5")
     with pytest.raises(ValueError, match="x"):
@@ -446,27 +535,50 @@ def test_piezo_and_hysteresis_arguments_are_named():
 # ----------------------------------------------------------------------------------------------
 # h-probe2: the remaining probe cases (plant kernels, piezo, controller, ident); each failed before
 # ----------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("name, bad", [
-    ("theta", math.nan), ("omega", "1.0"), ("v", None), ("v", [1.0, 2.0]), ("fc", -1.0), ("K", 0.0),
-    ("K", -1.0), ("tau", 0.0), ("tau", math.inf), ("dt", -1.0), ("dt", math.nan)])
+@pytest.mark.parametrize(
+    "name, bad",
+    [
+        ("theta", math.nan),
+        ("omega", "1.0"),
+        ("v", None),
+        ("v", [1.0, 2.0]),
+        ("fc", -1.0),
+        ("K", 0.0),
+        ("K", -1.0),
+        ("tau", 0.0),
+        ("tau", math.inf),
+        ("dt", -1.0),
+        ("dt", math.nan),
+    ],
+)
 def test_probe2_advance_scalar_names_the_bad_argument(name, bad):
     from jerklab.plant import advance_scalar
 
     kw = dict(theta=0.0, omega=0.0, v=1.0, fc=0.0, K=32.4, tau=0.025, dt=0.005)
     kw[name] = bad
-    with pytest.raises(ValueError, match=name):      # was a numba TypingError, ZeroDivisionError or NaN
+    with pytest.raises(ValueError, match=name):  # was a numba TypingError, ZeroDivisionError or NaN
         advance_scalar(**kw)
 
 
-@pytest.mark.parametrize("name, bad", [
-    ("v", "1.0"), ("v", [0.0, math.inf]), ("K", [32.4, 0.0]), ("K", "3"), ("tau", -0.025), ("dt", [-1.0]),
-    ("fc", [-0.1]), ("theta", None)])
+@pytest.mark.parametrize(
+    "name, bad",
+    [
+        ("v", "1.0"),
+        ("v", [0.0, math.inf]),
+        ("K", [32.4, 0.0]),
+        ("K", "3"),
+        ("tau", -0.025),
+        ("dt", [-1.0]),
+        ("fc", [-0.1]),
+        ("theta", None),
+    ],
+)
 def test_probe2_advance_names_the_bad_argument(name, bad):
     from jerklab.plant import advance
 
     kw = dict(theta=0.0, omega=0.0, v=1.0, fc=0.0, K=32.4, tau=0.025, dt=0.005)
     kw[name] = bad
-    with pytest.raises(ValueError, match=name):      # was accepted (text parsed, K <= 0) or NaN out
+    with pytest.raises(ValueError, match=name):  # was accepted (text parsed, K <= 0) or NaN out
         advance(**kw)
 
 
@@ -501,17 +613,17 @@ def test_probe2_piezo_refuses_unreachable_levels_up_front():
 def test_probe2_controller_names_the_parameter():
     from jerklab import controller as C
 
-    with pytest.raises(ValueError, match="wn"):        # was "ki must be finite, got inf"
+    with pytest.raises(ValueError, match="wn"):  # was "ki must be finite, got inf"
         C.velocity_pole_placement_pid(32.4, 0.025, 1e300)
-    with pytest.raises(ValueError, match="tau"):       # the singular-design message did not name tau
+    with pytest.raises(ValueError, match="tau"):  # the singular-design message did not name tau
         C.discrete_pole_placement_pid(32.4, 1e300, 20.0)
-    with pytest.raises(ValueError, match="Ts"):        # was a loop with inf polynomials
+    with pytest.raises(ValueError, match="Ts"):  # was a loop with inf polynomials
         C.PositionLoop(32.4, 0.025, pole_placement_pid(32.4, 0.025, 20.0), Ts=1e300)
     c = C.DigitalController(pole_placement_pid(32.4, 0.025, 20.0).discretize(0.005))
     for name in ("ref_position", "ref_velocity", "ref_accel", "measured_position"):
         kw = dict(ref_position=0.1, ref_velocity=0.0, ref_accel=0.0, measured_position=0.0)
         kw[name] = "1.0"
-        with pytest.raises(TypeError, match=name):    # text was parsed by float()
+        with pytest.raises(TypeError, match=name):  # text was parsed by float()
             c.step(**kw)
 
 
@@ -519,13 +631,13 @@ def test_probe2_ident_inputs_refuse_huge_records_up_front():
     from jerklab import ident as I
 
     for f in (I.step_input, I.prbs):
-        with pytest.raises(ValueError, match="MAX_INPUT_SAMPLES"):   # was a raw MemoryError
+        with pytest.raises(ValueError, match="MAX_INPUT_SAMPLES"):  # was a raw MemoryError
             _within(10, lambda: f(1e9, 0.005, 6.0))
-        with pytest.raises(ValueError, match="Ts"):                 # was "Maximum allowed dimension"
+        with pytest.raises(ValueError, match="Ts"):  # was "Maximum allowed dimension"
             _within(10, lambda: f(1.0, 1e-300, 6.0))
-        with pytest.raises(ValueError, match="Ts"):                 # said only "duration"
+        with pytest.raises(ValueError, match="Ts"):  # said only "duration"
             f(1.0, 1e9, 6.0)
-    with pytest.raises(ValueError, match="clock_period"):           # was OverflowError / MemoryError
+    with pytest.raises(ValueError, match="clock_period"):  # was OverflowError / MemoryError
         _within(10, lambda: I.prbs(1.0, 0.005, 6.0, clock_period=1e300))
     assert I.step_input(1.0, 0.005, 6.0).size == 200
 
@@ -534,11 +646,11 @@ def test_probe2_fit_dc_motor_refuses_a_sample_period_it_cannot_represent():
     from jerklab import ident as I
 
     u = np.r_[np.zeros(10), 6.0 * np.ones(200)]
-    th = I.simulate_dc_motor(32.4, 0.025, 0.005, u)[:u.size]
-    for Ts in (1e-300, 1e300):                      # were K_std = NaN / tau_std = inf, no warning
+    th = I.simulate_dc_motor(32.4, 0.025, 0.005, u)[: u.size]
+    for Ts in (1e-300, 1e300):  # were K_std = NaN / tau_std = inf, no warning
         with pytest.raises(ValueError, match="Ts"):
             I.fit_dc_motor(u, th, Ts)
-    f = I.fit_dc_motor(u, th, 0.005)                # the exact simulation is fitted back
+    f = I.fit_dc_motor(u, th, 0.005)  # the exact simulation is fitted back
     assert f.K == pytest.approx(32.4, rel=1e-6) and f.tau == pytest.approx(0.025, rel=1e-6)
 
 
@@ -546,21 +658,25 @@ def test_probe2_widgets_and_connect_refuse_impossible_values():
     from jerklab import rig as RG
     from jerklab import tuning as W
 
-    for name in ("max_radius", "desired_radius"):       # |z| < 0 was classified as a verdict
+    for name in ("max_radius", "desired_radius"):  # |z| < 0 was classified as a verdict
         kw = dict(max_radius=0.9, desired_radius=0.9)
         kw[name] = -1.0
         with pytest.raises(ValueError, match=name):
             W.stability_verdict(**kw)
-    with pytest.raises(ValueError, match="Ts"):         # was numpy LinAlgError
+    with pytest.raises(ValueError, match="Ts"):  # was numpy LinAlgError
         W.compute_pole_placement(Ts=1e300, simulate_move=False)
-    with pytest.raises(ValueError, match="hello_timeout"):   # 0 silently meant the default
+    with pytest.raises(ValueError, match="hello_timeout"):  # 0 silently meant the default
         RG.connect(None, hello_timeout=0, progress=False)
-    with pytest.raises(ValueError, match="timeout"):    # was RigTimeoutError "no reply within 1e-300 s"
+    with pytest.raises(
+        ValueError, match="timeout"
+    ):  # was RigTimeoutError "no reply within 1e-300 s"
         RG.connect(None, timeout=1e-300, progress=False)
     RG.connect(None, timeout=RG.MIN_TIMEOUT * 100, hello_timeout=1.0, progress=False).close()
 
 
-@pytest.mark.parametrize("kw", [dict(wn=1e9), dict(sigma_ratio=1e9), dict(sigma_ratio=1e300), dict(Ts=1e9)])
+@pytest.mark.parametrize(
+    "kw", [dict(wn=1e9), dict(sigma_ratio=1e9), dict(sigma_ratio=1e300), dict(Ts=1e9)]
+)
 def test_probe2_tuning_advice_far_above_the_sliders_answers_at_once(kw):
     from jerklab import tuning as T
 
@@ -569,9 +685,19 @@ def test_probe2_tuning_advice_far_above_the_sliders_answers_at_once(kw):
         warnings.simplefilter("ignore", RuntimeWarning)
         r = _within(20, lambda: T.compute_pole_placement(simulate_move=False, **kw))
     assert r.level == "unstable"
-    for s in T.advise(T.paper.MOTOR_K, T.paper.MOTOR_TAU, r.params["zeta"], r.params["wn"],
-                      r.params["sigma_ratio"], r.params["Ts"], r.params["design"]):
-        lo, hi, _ = T.SLIDER_RANGES.get(s.change, (-math.inf, math.inf, 0)) if s.change != "Ts" else \
-            (T.SLIDER_RANGES["Ts_ms"][0] * 1e-3, T.SLIDER_RANGES["Ts_ms"][1] * 1e-3, 0)
+    for s in T.advise(
+        T.paper.MOTOR_K,
+        T.paper.MOTOR_TAU,
+        r.params["zeta"],
+        r.params["wn"],
+        r.params["sigma_ratio"],
+        r.params["Ts"],
+        r.params["design"],
+    ):
+        lo, hi, _ = (
+            T.SLIDER_RANGES.get(s.change, (-math.inf, math.inf, 0))
+            if s.change != "Ts"
+            else (T.SLIDER_RANGES["Ts_ms"][0] * 1e-3, T.SLIDER_RANGES["Ts_ms"][1] * 1e-3, 0)
+        )
         if s.change != "design":
             assert lo - 1e-12 <= s.value <= hi + 1e-12 and s.max_radius < 1.0

@@ -4,6 +4,7 @@ the firmware core (host build) and in the virtual device alike; unstable designs
 partial frames expire while idle; plans are streamed and bounded; a host that does not read
 loses whole telemetry frames, counted; a second TCP client is told the rig is busy; a client
 that leaves stops its run; sessions longer than 256 commands wrap the sequence number."""
+
 from __future__ import annotations
 
 import math
@@ -15,13 +16,17 @@ import tracemalloc
 
 import numpy as np
 import pytest
+from conftest import require_tool
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from conftest import require_tool
 from jerklab import protocol as P
-from jerklab.controller import (discrete_pole_placement_pid, is_stable, max_pole_radius,
-                                pole_placement_pid)
+from jerklab.controller import (
+    discrete_pole_placement_pid,
+    is_stable,
+    max_pole_radius,
+    pole_placement_pid,
+)
 from jerklab.planner import plan_sine_jerk
 from jerklab.rig import Rig, RigRunError, VirtualDevice, VirtualSerial
 from jerklab.rig.client import RigBusyError, RigCommandError, UnstableDesignError
@@ -52,22 +57,31 @@ def _forget_simavr_module():
 
 # ----------------------------------------------------------------------------- two devices, one script
 
+
 def _gains(wn=20.0, Ts=0.005):
     g = pole_placement_pid(K, TAU, wn).discretize(Ts)
     return f32(g.kpd), f32(g.kid), f32(g.kdd)
 
 
 def _config(g, max_error=0.5, runaway_ms=200, saturation_ms=500, max_voltage=VS, Ts_us=5000):
-    return [P.SetPlant(K, TAU, VS, 448), P.SetGains(*g, Ts_us, 0, 1, 0.0),
-            P.SetLimits(2e4, 300.0, 100.0, max_voltage, 0, max_error, runaway_ms, saturation_ms)]
+    return [
+        P.SetPlant(K, TAU, VS, 448),
+        P.SetGains(*g, Ts_us, 0, 1, 0.0),
+        P.SetLimits(2e4, 300.0, 100.0, max_voltage, 0, max_error, runaway_ms, saturation_ms),
+    ]
 
 
 def run_host(driver, commands, ms, encoder=1):
     """The firmware core (host build) on its exact ZOH motor: (messages, pwm changes)."""
     script = [f"rx {P.encode(m, (i + 1) % 256).hex()}" for i, m in enumerate(commands)]
     script += [f"ms {int(ms)}", "quit"]
-    proc = subprocess.run([str(driver), "device", str(K), str(TAU), str(VS), str(encoder)],
-                          input="\n".join(script) + "\n", capture_output=True, text=True, timeout=60)
+    proc = subprocess.run(
+        [str(driver), "device", str(K), str(TAU), str(VS), str(encoder)],
+        input="\n".join(script) + "\n",
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert proc.returncode == 0, proc.stderr
     msgs, pwm, dec = [], [], P.Decoder()
     for line in proc.stdout.splitlines():
@@ -126,14 +140,44 @@ def _check_stop(tel, end, reason):
     return last
 
 
-@pytest.mark.parametrize("encoder, wn, limits, reason", [
-    (-1, 20.0, dict(max_error=0.5, runaway_ms=200), P.EndReason.TRACKING_ERROR),   # reversed: error grows
-    (-1, 20.0, dict(max_error=0.0, runaway_ms=50), P.EndReason.RUNAWAY),          # reversed, no error limit
-    (0, 20.0, dict(max_error=0.5, runaway_ms=100), P.EndReason.NO_MOTION),        # disconnected, short move
-    (1, 20.0, dict(max_error=2e-3, runaway_ms=200), P.EndReason.TRACKING_ERROR),  # a limit tighter than the loop
-    (1, 60.0, dict(max_error=0.0, runaway_ms=0, saturation_ms=500), P.EndReason.SATURATION),  # |z| = 1.33
-])
-def test_safety_stops_agree_between_firmware_core_and_virtual_device(host_driver, encoder, wn, limits, reason):
+@pytest.mark.parametrize(
+    "encoder, wn, limits, reason",
+    [
+        (
+            -1,
+            20.0,
+            dict(max_error=0.5, runaway_ms=200),
+            P.EndReason.TRACKING_ERROR,
+        ),  # reversed: error grows
+        (
+            -1,
+            20.0,
+            dict(max_error=0.0, runaway_ms=50),
+            P.EndReason.RUNAWAY,
+        ),  # reversed, no error limit
+        (
+            0,
+            20.0,
+            dict(max_error=0.5, runaway_ms=100),
+            P.EndReason.NO_MOTION,
+        ),  # disconnected, short move
+        (
+            1,
+            20.0,
+            dict(max_error=2e-3, runaway_ms=200),
+            P.EndReason.TRACKING_ERROR,
+        ),  # a limit tighter than the loop
+        (
+            1,
+            60.0,
+            dict(max_error=0.0, runaway_ms=0, saturation_ms=500),
+            P.EndReason.SATURATION,
+        ),  # |z| = 1.33
+    ],
+)
+def test_safety_stops_agree_between_firmware_core_and_virtual_device(
+    host_driver, encoder, wn, limits, reason
+):
     distance = f32(6.0) if encoder != 0 else f32(0.3)
     cmds = _config(_gains(wn), **limits) + [P.Plan(distance, 0), P.Run(400, 1)]
     fw, pwm = run_host(host_driver, cmds, 4000, encoder=encoder)
@@ -145,7 +189,10 @@ def test_safety_stops_agree_between_firmware_core_and_virtual_device(host_driver
     # the same sample, the same counts (float32 core vs float64 model: at most one sample apart)
     assert abs(fw_end[0].samples - py_end[0].samples) <= 1, (fw_end, py_end)
     n = min(len(fw_tel), len(py_tel)) - 1
-    assert np.max(np.abs(np.array([t.counts for t in fw_tel[:n]]) - [t.counts for t in py_tel[:n]])) <= 1
+    assert (
+        np.max(np.abs(np.array([t.counts for t in fw_tel[:n]]) - [t.counts for t in py_tel[:n]]))
+        <= 1
+    )
     # stopped in the fault sample itself: the PWM went to 0 at that sample's tick
     ms_end = next(ms for ms, _, m in fw if isinstance(m, P.EndOfRun))
     assert pwm[-1] == (ms_end, 0) and any(v != 0 for _, v in pwm[:-1])
@@ -167,7 +214,7 @@ def test_safety_stops_agree_between_firmware_core_and_virtual_device(host_driver
         else:
             # the window before the stop: large drive of one sign, counts against it or none
             w = math.ceil(limits["runaway_ms"] / 5.0)
-            drive = np.array([t.pwm for t in tel[-w - 1:-1]])
+            drive = np.array([t.pwm for t in tel[-w - 1 : -1]])
             assert np.all(np.abs(drive) >= 512) and len(set(np.sign(drive))) == 1
             moved = np.sign(drive[0]) * (tel[-1].counts - tel[-w - 1].counts)
             assert end.detail == moved
@@ -186,8 +233,10 @@ def test_wired_right_the_same_move_completes(host_driver):
 
 
 def test_safety_limits_are_checked_and_named(host_driver):
-    bad = [P.SetLimits(2e4, 300.0, 100.0, 12.0, 0, -0.1, 200),
-           P.SetLimits(2e4, 300.0, 100.0, 12.0, 0, math.nan, 200)]
+    bad = [
+        P.SetLimits(2e4, 300.0, 100.0, 12.0, 0, -0.1, 200),
+        P.SetLimits(2e4, 300.0, 100.0, 12.0, 0, math.nan, 200),
+    ]
     fw, _ = run_host(host_driver, bad, 1)
     py, _ = run_virtual(bad, 0.0)
     for msgs in ([m for _, _, m in fw], [m for _, m in py]):
@@ -196,6 +245,7 @@ def test_safety_limits_are_checked_and_named(host_driver):
 
 
 # ----------------------------------------------------------------------------- the client
+
 
 def _rig(tmp_path, encoder=1, **kw):
     dev = VirtualDevice()
@@ -206,10 +256,17 @@ def _rig(tmp_path, encoder=1, **kw):
 def test_client_names_a_reversed_encoder(tmp_path):
     rig = _rig(tmp_path, encoder=-1)
     with pytest.raises(RigRunError, match=r"fault: runaway — encoder reversed\?") as exc:
-        rig.run_move(plan_sine_jerk(6.0, 2e4, 300.0, 100.0), pole_placement_pid(K, TAU, 20.0),
-                     max_error=0, runaway_time=0.05)
+        rig.run_move(
+            plan_sine_jerk(6.0, 2e4, 300.0, 100.0),
+            pole_placement_pid(K, TAU, 20.0),
+            max_error=0,
+            runaway_time=0.05,
+        )
     rec = exc.value.recording
-    assert rec.metadata["status"].startswith("fault: runaway") and rec.metadata["end_reason"] == "RUNAWAY"
+    assert (
+        rec.metadata["status"].startswith("fault: runaway")
+        and rec.metadata["end_reason"] == "RUNAWAY"
+    )
     assert rec.metadata["status"] == exc.value.status
     assert rec.flags[-1] & P.TELEMETRY_FAULT and rec.pwm[-1] == 0
 
@@ -217,8 +274,11 @@ def test_client_names_a_reversed_encoder(tmp_path):
 def test_client_names_the_tracking_error(tmp_path):
     rig = _rig(tmp_path)
     with pytest.raises(RigRunError) as exc:
-        rig.run_move(plan_sine_jerk(6.0, 2e4, 300.0, 100.0), pole_placement_pid(K, TAU, 20.0),
-                     max_error=0.002)
+        rig.run_move(
+            plan_sine_jerk(6.0, 2e4, 300.0, 100.0),
+            pole_placement_pid(K, TAU, 20.0),
+            max_error=0.002,
+        )
     status = exc.value.status
     rec = exc.value.recording
     t = rec.index[-1] * 0.005
@@ -243,7 +303,11 @@ def test_unstable_design_is_refused_and_forced_runs_end_in_a_fault(tmp_path):
     rec = exc.value.recording
     assert rec.metadata["status"].startswith("fault: output saturated")
     # independent: the clamp flag was set in most of the samples before the stop
-    assert np.mean(rec.saturated) > 0.6 and rec.pwm[-1] == 0 and len(rec) < 0.5 * rec.metadata["plan"]["n_samples"]
+    assert (
+        np.mean(rec.saturated) > 0.6
+        and rec.pwm[-1] == 0
+        and len(rec) < 0.5 * rec.metadata["plan"]["n_samples"]
+    )
     # the z-domain design beyond its range (issue 12: wn >= 30 at Ts 11 ms) is refused as well
     dz = discrete_pole_placement_pid(K, TAU, 35.0, Ts=0.011)
     with pytest.raises(UnstableDesignError, match="z-domain design, wn = 35"):
@@ -272,18 +336,19 @@ def test_closed_loop_poles_against_python_control():
 
 # ----------------------------------------------------------------------------- virtual device ~ firmware
 
+
 def test_virtual_device_expires_a_partial_frame_while_idle():
     """Issue 12: the virtual device only dropped a partial frame when the next byte came; the
     firmware drops it after 20 ms of silence and finds a frame inside it (test_firmware)."""
     link = VirtualSerial(VirtualDevice(), timeout=0.5)
-    cut = P.encode(P.SetGains(1.0, 0.0, 0.0, 5000), 200)[:6]          # its length holds back...
-    link.write(cut + P.encode(P.Hello(), 7))                            # ...a complete HELLO
+    cut = P.encode(P.SetGains(1.0, 0.0, 0.0, 5000), 200)[:6]  # its length holds back...
+    link.write(cut + P.encode(P.Hello(), 7))  # ...a complete HELLO
     t0 = time.monotonic()
     data = link.read(64)
     frames = P.Decoder().feed(data)
     assert [(f.type, f.seq) for f in frames] == [(P.MsgType.HELLO_REPLY, 7)]
     assert 0.02 <= time.monotonic() - t0 < 0.4
-    assert link.device.rx_errors == 1                                   # the cut frame, counted
+    assert link.device.rx_errors == 1  # the cut frame, counted
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="pseudo-terminals: Linux")
@@ -322,7 +387,9 @@ def test_plan_longer_than_the_limit_is_refused_by_both(host_driver):
         assert msgs[-1] == P.Nack(P.MsgType.PLAN, P.ErrorCode.TOO_LONG, 0)
     rig = Rig(VirtualSerial(VirtualDevice()), "virtual", progress=False)
     prof = plan_sine_jerk(1e6, 1e-3, 1e-3, 1e-3)
-    with pytest.raises(RigCommandError, match=r"more than 2,000,000,000 samples \(the device's limit\)"):
+    with pytest.raises(
+        RigCommandError, match=r"more than 2,000,000,000 samples \(the device's limit\)"
+    ):
         rig.run_move(prof, pole_placement_pid(K, TAU, 20.0), path=False)
 
 
@@ -330,8 +397,13 @@ def test_virtual_device_memory_does_not_grow_with_the_plan():
     """Issue 12: the reference was sampled for the whole plan at RUN (3e7 samples took 6 GB).
     A plan of 4e6 samples now runs in a bounded amount of memory."""
     dev = VirtualDevice(clock=_Clock())
-    for i, m in enumerate([P.SetGains(1.0, 0.0, 0.0, 1000), P.SetLimits(1e3, 10.0, 0.5, 12.0, 0, 0.0, 0),
-                           P.Plan(2000.0, 0)]):
+    for i, m in enumerate(
+        [
+            P.SetGains(1.0, 0.0, 0.0, 1000),
+            P.SetLimits(1e3, 10.0, 0.5, 12.0, 0, 0.0, 0),
+            P.Plan(2000.0, 0),
+        ]
+    ):
         dev.receive(P.encode(m, i))
     info = P.parse(P.Decoder().feed(dev.read_output())[-1])
     assert info.n_samples > 4_000_000
@@ -348,6 +420,7 @@ def test_virtual_device_memory_does_not_grow_with_the_plan():
 
 
 # ----------------------------------------------------------------------------- the served rig
+
 
 def _read_all(sock_or_fd, seconds, dec):
     frames, deadline = [], time.monotonic() + seconds
@@ -375,8 +448,11 @@ def test_second_tcp_client_is_told_the_rig_is_busy(tmp_path):
                 connect(url, progress=False, recordings=tmp_path)
             assert time.monotonic() - t0 < 2.0
             # the first client was not disturbed
-            rec = first.run_move(plan_sine_jerk(2.0, 2e4, 300.0, 100.0), pole_placement_pid(K, TAU, 20.0),
-                                 settle=0.05)
+            rec = first.run_move(
+                plan_sine_jerk(2.0, 2e4, 300.0, 100.0),
+                pole_placement_pid(K, TAU, 20.0),
+                settle=0.05,
+            )
             assert rec.metadata["status"] == "complete"
         finally:
             first.close()
@@ -391,15 +467,19 @@ def test_a_client_that_disconnects_stops_its_run():
 
     with DeviceServer(speed=1.0) as srv:
         url = srv.start_tcp()
-        host, port = url[len("socket://"):].rsplit(":", 1)
+        host, port = url[len("socket://") :].rsplit(":", 1)
         a = socket.create_connection((host, int(port)))
-        cmds = [P.SetGains(10.0, 0.1, 50.0, 5000), P.SetLimits(2e4, 300.0, 100.0, 12.0, 0),
-                P.Plan(50.0, 0), P.Run(0, 1)]
+        cmds = [
+            P.SetGains(10.0, 0.1, 50.0, 5000),
+            P.SetLimits(2e4, 300.0, 100.0, 12.0, 0),
+            P.Plan(50.0, 0),
+            P.Run(0, 1),
+        ]
         a.sendall(b"".join(P.encode(m, i + 1) for i, m in enumerate(cmds)))
         a.settimeout(0.05)
         got = _read_all(a, 0.3, P.Decoder())
         assert any(f.type == P.MsgType.TELEMETRY for f in got) and srv.device.active
-        a.close()                                           # host_timeout 0: no watchdog to help
+        a.close()  # host_timeout 0: no watchdog to help
         deadline = time.monotonic() + 2.0
         while srv.device.active and time.monotonic() < deadline:
             time.sleep(0.01)
@@ -409,7 +489,7 @@ def test_a_client_that_disconnects_stops_its_run():
         b.sendall(P.encode(P.Hello(), 1))
         got = _read_all(b, 0.4, P.Decoder())
         b.close()
-        assert [f.type for f in got] == [P.MsgType.HELLO_REPLY]     # nothing of the old run
+        assert [f.type for f in got] == [P.MsgType.HELLO_REPLY]  # nothing of the old run
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="pseudo-terminals: Linux")
@@ -431,20 +511,33 @@ def test_a_host_that_stalls_loses_whole_frames_counted(tmp_path, monkeypatch):
                 frames = orig(wait)
                 if any(f.type == P.MsgType.TELEMETRY for f in frames) and state["t0"] is None:
                     state["t0"] = time.monotonic()
-                if state["t0"] is not None and not state["stalled"] and time.monotonic() - state["t0"] > 0.2:
+                if (
+                    state["t0"] is not None
+                    and not state["stalled"]
+                    and time.monotonic() - state["t0"] > 0.2
+                ):
                     # the host stalls until the server had to drop frames (the kernel's pty buffer
                     # and the server's 2 kB are full: ~1 s of telemetry), however slow the machine
                     state["stalled"] = True
                     deadline = time.monotonic() + 20.0
-                    while srv.dropped_frames == 0 and srv.device.active and time.monotonic() < deadline:
+                    while (
+                        srv.dropped_frames == 0
+                        and srv.device.active
+                        and time.monotonic() < deadline
+                    ):
                         time.sleep(0.01)
                     time.sleep(0.2)
                 return frames
 
             rig._read_frames = stalling
             with pytest.warns(RuntimeWarning, match=r"\d+ telemetry samples were lost"):
-                rec = rig.run_move(plan_sine_jerk(20.0, 2e4, 300.0, 100.0), pole_placement_pid(K, TAU, 20.0),
-                                   Ts=0.001, settle=0.05, host_timeout=0)    # 2.9 s, 64 kB of telemetry
+                rec = rig.run_move(
+                    plan_sine_jerk(20.0, 2e4, 300.0, 100.0),
+                    pole_placement_pid(K, TAU, 20.0),
+                    Ts=0.001,
+                    settle=0.05,
+                    host_timeout=0,
+                )  # 2.9 s, 64 kB of telemetry
         finally:
             rig.close()
     md = rec.metadata
@@ -455,12 +548,20 @@ def test_a_host_that_stalls_loses_whole_frames_counted(tmp_path, monkeypatch):
 
 # ----------------------------------------------------------------------------- sequence-number wrap
 
+
 def _long_session():
     """600 commands: the seq byte wraps twice (1..255, 0, 1, ...)."""
     cmds = []
     for i in range(600):
-        cmds.append([P.Hello(), P.Heartbeat(), P.SetPlant(K, TAU, VS, 448),
-                     P.SetLimits(2e4, 300.0, 100.0, 12.0, 0), P.Stop()][i % 5])
+        cmds.append(
+            [
+                P.Hello(),
+                P.Heartbeat(),
+                P.SetPlant(K, TAU, VS, 448),
+                P.SetLimits(2e4, 300.0, 100.0, 12.0, 0),
+                P.Stop(),
+            ][i % 5]
+        )
     return cmds
 
 
@@ -484,6 +585,7 @@ def test_session_longer_than_256_commands_virtual_device_and_client():
 
 
 # ----------------------------------------------------------------------------- the rule, restated
+
 
 def _expected_stop(tel, limits, Ts_us=5000, max_voltage=VS):
     """PROTOCOL.md "Safety stops" restated from a run's telemetry (decimation 1): the sample and
@@ -518,16 +620,27 @@ def _expected_stop(tel, limits, Ts_us=5000, max_voltage=VS):
 
 
 @settings(max_examples=40, deadline=None)
-@given(distance=st.floats(0.2, 12.0), sign=st.sampled_from([1.0, -1.0]), encoder=st.sampled_from([1, -1, 0]),
-       wn=st.sampled_from([10.0, 20.0, 60.0]), max_error=st.sampled_from([0.0, 0.01, 0.1, 0.5, 2.0]),
-       runaway_ms=st.sampled_from([0, 20, 100, 300]), saturation_ms=st.sampled_from([0, 50, 500]),
-       max_voltage=st.sampled_from([3.0, 12.0]))
-def test_virtual_device_stops_where_the_rule_says(distance, sign, encoder, wn, max_error, runaway_ms,
-                                                 saturation_ms, max_voltage):
+@given(
+    distance=st.floats(0.2, 12.0),
+    sign=st.sampled_from([1.0, -1.0]),
+    encoder=st.sampled_from([1, -1, 0]),
+    wn=st.sampled_from([10.0, 20.0, 60.0]),
+    max_error=st.sampled_from([0.0, 0.01, 0.1, 0.5, 2.0]),
+    runaway_ms=st.sampled_from([0, 20, 100, 300]),
+    saturation_ms=st.sampled_from([0, 50, 500]),
+    max_voltage=st.sampled_from([3.0, 12.0]),
+)
+def test_virtual_device_stops_where_the_rule_says(
+    distance, sign, encoder, wn, max_error, runaway_ms, saturation_ms, max_voltage
+):
     limits = dict(max_error=max_error, runaway_ms=runaway_ms, saturation_ms=saturation_ms)
-    cmds = [P.SetPlant(K, TAU, VS, 448), P.SetGains(*_gains(wn)[:3], 5000, 0, 1, 0.0),
-            P.SetLimits(2e4, 300.0, 100.0, max_voltage, 0, **limits),
-            P.Plan(f32(sign * distance), 0), P.Run(100, 1)]
+    cmds = [
+        P.SetPlant(K, TAU, VS, 448),
+        P.SetGains(*_gains(wn)[:3], 5000, 0, 1, 0.0),
+        P.SetLimits(2e4, 300.0, 100.0, max_voltage, 0, **limits),
+        P.Plan(f32(sign * distance), 0),
+        P.Run(100, 1),
+    ]
     msgs, dev = run_virtual(cmds, 6.0, encoder=encoder)
     tel, end = _split([m for _, m in msgs])
     assert len(end) == 1 and not dev.active and dev.pwm == 0
@@ -553,5 +666,7 @@ def test_a_version_1_device_is_refused_by_name():
                 msg = dataclasses.replace(msg, protocol_version=1)
             super()._send(msg, seq)
 
-    with pytest.raises(RigError, match=f"device speaks protocol version 1, jerklab speaks {P.PROTOCOL_VERSION}"):
+    with pytest.raises(
+        RigError, match=f"device speaks protocol version 1, jerklab speaks {P.PROTOCOL_VERSION}"
+    ):
         Rig(VirtualSerial(Version1()), "old-uno", progress=False)

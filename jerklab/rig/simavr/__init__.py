@@ -10,10 +10,18 @@ Two rooms, one public face (the names below, as before the split):
 ``jerklab.rig.connect("simavr")`` looks this package up through ``sys.modules`` at call time,
 so a test can put a stand-in launcher in its place.
 """
+
 from __future__ import annotations
 
 from jerklab.rig.simavr.build import FirmwareBuildError, build_firmware, firmware_dir
 from jerklab.rig.simavr.harness import HarnessError, SimulatedUno, launch, tools_missing
 
-__all__ = ["firmware_dir", "build_firmware", "FirmwareBuildError", "launch", "SimulatedUno",
-           "HarnessError", "tools_missing"]
+__all__ = [
+    "firmware_dir",
+    "build_firmware",
+    "FirmwareBuildError",
+    "launch",
+    "SimulatedUno",
+    "HarnessError",
+    "tools_missing",
+]

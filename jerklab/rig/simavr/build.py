@@ -3,6 +3,7 @@
 ``make -C firmware`` builds the Uno firmware (``build/jerklab_rig.elf``/``.hex``), the host
 build of its portable core (``build/jl_host``) and the simavr harness (``build/jl_simavr``).
 """
+
 from __future__ import annotations
 
 import os
@@ -11,9 +12,9 @@ import subprocess
 from contextlib import contextmanager
 from pathlib import Path
 
-try:                                   # POSIX; on Windows the build lock falls back to msvcrt
+try:  # POSIX; on Windows the build lock falls back to msvcrt
     import fcntl
-except ImportError:                    # pragma: no cover - Windows
+except ImportError:  # pragma: no cover - Windows
     fcntl = None
 
 __all__ = ["firmware_dir", "build_firmware", "FirmwareBuildError"]
@@ -30,7 +31,8 @@ def firmware_dir() -> Path:
     if not (path / "Makefile").is_file():
         raise FileNotFoundError(
             f"firmware sources not found at {path} (set JERKLAB_FIRMWARE_DIR to the firmware/ folder "
-            "of a jerklab checkout)")
+            "of a jerklab checkout)"
+        )
     return path
 
 
@@ -41,7 +43,7 @@ def _build_lock(build: Path):
     with open(build / ".lock", "a+") as fh:
         if fcntl is not None:
             fcntl.flock(fh, fcntl.LOCK_EX)
-        else:                          # pragma: no cover - Windows
+        else:  # pragma: no cover - Windows
             import msvcrt
 
             msvcrt.locking(fh.fileno(), msvcrt.LK_LOCK, 1)
@@ -50,7 +52,7 @@ def _build_lock(build: Path):
         finally:
             if fcntl is not None:
                 fcntl.flock(fh, fcntl.LOCK_UN)
-            else:                      # pragma: no cover - Windows
+            else:  # pragma: no cover - Windows
                 import msvcrt
 
                 fh.seek(0)
@@ -93,15 +95,29 @@ def build_firmware(*targets: str, build_dir=None, baud=None, probe_part=None) ->
             raise ValueError(f"baud must be 115200, 500000 or 1000000, got {baud!r}")
         defs.append(f"-DJL_BAUD={int(baud)}UL")
     if probe_part is not None:
-        if isinstance(probe_part, bool) or not isinstance(probe_part, int) or not 1 <= probe_part <= 10:
+        if (
+            isinstance(probe_part, bool)
+            or not isinstance(probe_part, int)
+            or not 1 <= probe_part <= 10
+        ):
             raise ValueError(f"probe_part must be an integer in 1..10, got {probe_part!r}")
         defs.append(f"-DJL_PROBE_PART={probe_part}")
     extra = [f"EXTRA_DEFS={' '.join(defs)}"] if defs else []
     with _build_lock(build):
-        proc = subprocess.run(["make", "-s", "-C", str(fw), f"BUILD={build}", *extra, *targets],
-                              capture_output=True, text=True)
+        proc = subprocess.run(
+            ["make", "-s", "-C", str(fw), f"BUILD={build}", *extra, *targets],
+            capture_output=True,
+            text=True,
+        )
     if proc.returncode != 0:
-        raise FirmwareBuildError(f"make -C {fw} {' '.join(targets)} failed:\n{proc.stdout}\n{proc.stderr}")
-    return {"elf": build / "jerklab_rig.elf", "hex": build / "jerklab_rig.hex",
-            "host": build / "jl_host", "harness": build / "jl_simavr",
-            "optiboot": build / "optiboot_atmega328.hex", "output": proc.stdout}
+        raise FirmwareBuildError(
+            f"make -C {fw} {' '.join(targets)} failed:\n{proc.stdout}\n{proc.stderr}"
+        )
+    return {
+        "elf": build / "jerklab_rig.elf",
+        "hex": build / "jerklab_rig.hex",
+        "host": build / "jl_host",
+        "harness": build / "jl_simavr",
+        "optiboot": build / "optiboot_atmega328.hex",
+        "output": proc.stdout,
+    }

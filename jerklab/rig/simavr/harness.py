@@ -9,6 +9,7 @@ firmware over pyserial exactly as to a board on a USB port.
 :func:`launch` returns once the firmware has switched its UART receiver on; bytes a host writes
 earlier wait in the harness's bridge (as in the Uno's USB-serial chip) instead of being lost.
 """
+
 from __future__ import annotations
 
 import json
@@ -102,8 +103,10 @@ class SimulatedUno:
         if not self.running:
             if self.final_stats is not None:
                 return self.final_stats
-            raise HarnessError(f"the simavr harness (pid {self.pid}) is not running (exit status "
-                               f"{self._proc.returncode}){self._log_tail()}")
+            raise HarnessError(
+                f"the simavr harness (pid {self.pid}) is not running (exit status "
+                f"{self._proc.returncode}){self._log_tail()}"
+            )
         old = self._read_stats()
         seq0 = old["seq"] if old else 0
         self._proc.send_signal(signal.SIGUSR1)
@@ -118,8 +121,10 @@ class SimulatedUno:
                 state = fh.read().split(")")[-1].split()[0]
         except OSError:
             state = "?"
-        raise HarnessError(f"the simavr harness (pid {self.pid}, state {state}, exit status "
-                           f"{self._proc.poll()}) wrote no stats in {timeout} s{self._log_tail()}")
+        raise HarnessError(
+            f"the simavr harness (pid {self.pid}, state {state}, exit status "
+            f"{self._proc.poll()}) wrote no stats in {timeout} s{self._log_tail()}"
+        )
 
     def trace(self):
         """The harness's 1 ms trace so far (``launch(trace=True)``): an array of rows
@@ -129,8 +134,10 @@ class SimulatedUno:
 
         path = os.path.join(self._workdir.name, "trace.txt") if self._workdir is not None else None
         if path is None or not os.path.exists(path):
-            raise HarnessError("no trace: launch the harness with trace=True (and read it before close())")
-        self.stats()                                   # the harness flushes its trace then
+            raise HarnessError(
+                "no trace: launch the harness with trace=True (and read it before close())"
+            )
+        self.stats()  # the harness flushes its trace then
         rows = []
         with open(path) as fh:
             for line in fh:
@@ -176,10 +183,26 @@ def _symbol_address(elf, name):
     return None
 
 
-def launch(elf=None, *, K=paper.MOTOR_K, tau=paper.MOTOR_TAU, supply_voltage=paper.SUPPLY_VOLTAGE,
-           coulomb_friction=0.0, load_disturbance=0.0, encoder_ppr=paper.ENCODER_PPR, step_us=20, realtime=True, build=True,
-           startup_timeout=20.0, bootloader=None, wait_ready=True, load_ratio=0.0,
-           mode_frequency=2 * math.pi * 8.0, mode_damping=0.02, trace=False) -> SimulatedUno:
+def launch(
+    elf=None,
+    *,
+    K=paper.MOTOR_K,
+    tau=paper.MOTOR_TAU,
+    supply_voltage=paper.SUPPLY_VOLTAGE,
+    coulomb_friction=0.0,
+    load_disturbance=0.0,
+    encoder_ppr=paper.ENCODER_PPR,
+    step_us=20,
+    realtime=True,
+    build=True,
+    startup_timeout=20.0,
+    bootloader=None,
+    wait_ready=True,
+    load_ratio=0.0,
+    mode_frequency=2 * math.pi * 8.0,
+    mode_damping=0.02,
+    trace=False,
+) -> SimulatedUno:
     """Start the firmware on a simulated Uno with a DC motor; return a :class:`SimulatedUno`.
 
     Returns once the firmware has switched its UART receiver on (``wait_ready``), so a host
@@ -242,8 +265,10 @@ def launch(elf=None, *, K=paper.MOTOR_K, tau=paper.MOTOR_TAU, supply_voltage=pap
     mode_frequency = as_positive("mode_frequency", mode_frequency)
     mode_damping = as_nonnegative("mode_damping", mode_damping)
     if load_ratio > 0 and coulomb_friction:
-        raise ValueError("coulomb_friction must be 0 with a flexible load (load_ratio > 0): the two-mass "
-                         "model has none")
+        raise ValueError(
+            "coulomb_friction must be 0 with a flexible load (load_ratio > 0): the two-mass "
+            "model has none"
+        )
     supply_voltage = as_positive("supply_voltage", supply_voltage)
     coulomb_friction = as_nonnegative("coulomb_friction", coulomb_friction)
     load_disturbance = as_real("load_disturbance", load_disturbance)
@@ -252,21 +277,31 @@ def launch(elf=None, *, K=paper.MOTOR_K, tau=paper.MOTOR_TAU, supply_voltage=pap
     if step_us > 1000:
         raise ValueError(f"step_us must be <= 1000, got {step_us}")
     startup_timeout = as_positive("startup_timeout", startup_timeout)
-    if bootloader is not None and bootloader is not True and not isinstance(bootloader, (str, os.PathLike)):
-        raise TypeError(f"bootloader must be a path to an Intel-hex file or True, got {bootloader!r}")
+    if (
+        bootloader is not None
+        and bootloader is not True
+        and not isinstance(bootloader, (str, os.PathLike))
+    ):
+        raise TypeError(
+            f"bootloader must be a path to an Intel-hex file or True, got {bootloader!r}"
+        )
     if elf is False and bootloader is None:
         raise ValueError("elf=False (no application) needs a bootloader")
     missing = tools_missing()
     if missing:
         raise FileNotFoundError(
             f"the simulated Uno needs {', '.join(missing)} (Debian: apt-get install gcc-avr avr-libc "
-            "arduino-core-avr simavr libsimavr-dev)")
+            "arduino-core-avr simavr libsimavr-dev)"
+        )
     if build:
         paths = build_firmware("avr", "simavr", *(("optiboot",) if bootloader is True else ()))
     else:
         build_dir = firmware_dir() / "build"
-        paths = {"harness": build_dir / "jl_simavr", "elf": build_dir / "jerklab_rig.elf",
-                 "optiboot": build_dir / "optiboot_atmega328.hex"}
+        paths = {
+            "harness": build_dir / "jl_simavr",
+            "elf": build_dir / "jerklab_rig.elf",
+            "optiboot": build_dir / "optiboot_atmega328.hex",
+        }
     harness = paths["harness"]
     elf = paths["elf"] if elf is None else elf
     if bootloader is True:
@@ -280,18 +315,47 @@ def launch(elf=None, *, K=paper.MOTOR_K, tau=paper.MOTOR_TAU, supply_voltage=pap
         checks.append(("bootloader hex", bootloader))
     for what, path in checks:
         if not Path(path).is_file():
-            hint = "apt-get install arduino-core-avr" if what == "bootloader hex" else "run `make -C firmware`"
+            hint = (
+                "apt-get install arduino-core-avr"
+                if what == "bootloader hex"
+                else "run `make -C firmware`"
+            )
             raise FileNotFoundError(f"{what} not found at {path} ({hint})")
-    params = dict(K=K, tau=tau, supply_voltage=supply_voltage, coulomb_friction=coulomb_friction,
-                  load_disturbance=load_disturbance, encoder_ppr=encoder_ppr, step_us=step_us,
-                  realtime=bool(realtime), elf=None if elf is False else str(elf),
-                  bootloader=None if bootloader is None else str(bootloader), load_ratio=load_ratio,
-                  mode_frequency=mode_frequency, mode_damping=mode_damping)
+    params = dict(
+        K=K,
+        tau=tau,
+        supply_voltage=supply_voltage,
+        coulomb_friction=coulomb_friction,
+        load_disturbance=load_disturbance,
+        encoder_ppr=encoder_ppr,
+        step_us=step_us,
+        realtime=bool(realtime),
+        elf=None if elf is False else str(elf),
+        bootloader=None if bootloader is None else str(bootloader),
+        load_ratio=load_ratio,
+        mode_frequency=mode_frequency,
+        mode_damping=mode_damping,
+    )
     workdir = tempfile.TemporaryDirectory(prefix="jerklab-simavr-")
-    cmd = [str(harness), "--K", repr(K), "--tau", repr(tau), "--supply", repr(supply_voltage),
-           "--friction", repr(coulomb_friction), "--load", repr(load_disturbance),
-           "--ppr", str(encoder_ppr), "--step-us", str(step_us),
-           "--stats", os.path.join(workdir.name, "stats.json")]
+    cmd = [
+        str(harness),
+        "--K",
+        repr(K),
+        "--tau",
+        repr(tau),
+        "--supply",
+        repr(supply_voltage),
+        "--friction",
+        repr(coulomb_friction),
+        "--load",
+        repr(load_disturbance),
+        "--ppr",
+        str(encoder_ppr),
+        "--step-us",
+        str(step_us),
+        "--stats",
+        os.path.join(workdir.name, "stats.json"),
+    ]
     addr = _symbol_address(elf, "g_counts") if elf is not False else None
     if addr is not None:
         cmd += ["--counts-addr", hex(addr)]
@@ -300,15 +364,22 @@ def launch(elf=None, *, K=paper.MOTOR_K, tau=paper.MOTOR_TAU, supply_voltage=pap
     if not realtime:
         cmd.append("--fast")
     if load_ratio > 0:
-        cmd += ["--load-ratio", repr(load_ratio), "--mode-hz", repr(mode_frequency / (2 * math.pi)),
-                "--mode-zeta", repr(mode_damping)]
+        cmd += [
+            "--load-ratio",
+            repr(load_ratio),
+            "--mode-hz",
+            repr(mode_frequency / (2 * math.pi)),
+            "--mode-zeta",
+            repr(mode_damping),
+        ]
     if trace:
         cmd += ["--trace", os.path.join(workdir.name, "trace.txt")]
     cmd.append("--no-app" if elf is False else str(elf))
     log = open(os.path.join(workdir.name, "harness.log"), "w")
     try:
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=log, stdin=subprocess.DEVNULL,
-                                cwd=workdir.name)
+        proc = subprocess.Popen(
+            cmd, stdout=subprocess.PIPE, stderr=log, stdin=subprocess.DEVNULL, cwd=workdir.name
+        )
     finally:
         log.close()
     port, ready = None, None
@@ -340,9 +411,15 @@ def launch(elf=None, *, K=paper.MOTOR_K, tau=paper.MOTOR_TAU, supply_voltage=pap
         tail = uno._log_tail()
         running = uno.running
         uno.close()
-        what = ("printed no pty" if port is None else
-                "ran, but the firmware never switched its UART receiver on (RXEN0)" if running else
-                "exited before the firmware switched its UART receiver on")
-        raise HarnessError(f"the simavr harness {what} within {startup_timeout} s "
-                           f"(output: {buf.decode(errors='replace')!r}){tail}")
+        what = (
+            "printed no pty"
+            if port is None
+            else "ran, but the firmware never switched its UART receiver on (RXEN0)"
+            if running
+            else "exited before the firmware switched its UART receiver on"
+        )
+        raise HarnessError(
+            f"the simavr harness {what} within {startup_timeout} s "
+            f"(output: {buf.decode(errors='replace')!r}){tail}"
+        )
     return uno
