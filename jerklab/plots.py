@@ -7,9 +7,10 @@ an ``Axes`` and returns it, so a notebook or a widget can compose several on one
 * :func:`zplane` — poles and zeros in the z-plane with the unit circle (the stability
   boundary of a sampled loop; notebook 03, the tuning panel).
 * :func:`plot_simulation` — a closed-loop run (``jerklab.sim.SimResult.plot``).
-* :func:`plot_ident_data`, :func:`plot_compare`, :func:`plot_compare_result`,
-  :func:`plot_residuals` — identification records, model against record (MATLAB's
-  ``compare``) and the residual tests (MATLAB's ``resid``); ``jerklab.ident``'s ``.plot()``.
+* :func:`plot_ident_data`, :func:`plot_compare`, :func:`plot_residuals` — identification
+  records, the results of ``jerklab.ident.compare`` (MATLAB's ``compare``) and of the residual
+  tests (MATLAB's ``resid``); ``jerklab.ident``'s ``.plot()`` methods call them, and this
+  module never imports ``jerklab.ident``.
 * :func:`plot_tradeoff` — residual vibration against the frequency ratio for profiles,
   input shapers and robust LP commands (``jerklab.shaping.tradeoff``, notebook 09).
 * :func:`plot_recording`, :func:`plot_comparison` — a rig recording, and a recording against
@@ -236,85 +237,80 @@ def plot_ident_data(data, axes=None):
 
     if axes is None:
         _, axes = plt.subplots(2, 1, sharex=True, figsize=(8, 4.5))
-    axes[0].step(data.t, data.u, where="post")
+    axes[0].step(data.time, data.voltage, where="post")
     axes[0].set_ylabel(f"input u ({data.input_unit})")
-    axes[1].plot(data.t, data.y, ".", ms=2)
+    axes[1].plot(data.time, data.position, ".", ms=2)
     axes[1].set_ylabel(f"output y ({data.output_unit})")
     axes[1].set_xlabel("time (s)")
     return axes
 
 
-def plot_compare(data, *fits, ax=None, labels=None, horizon=None):
-    """Measured angle against each fitted model's simulation, with fit % in the legend.
+_COMPARE_FIELDS = ("time", "y", "y_hat", "fit_percent", "horizon", "label")
+
+
+def plot_compare(*results, ax=None, unit=None, measured=True):
+    """Measured output and each model's output against time, fit % in the legend.
+
+    Draws results of ``jerklab.ident.compare`` (``CompareResult.plot`` calls this); it computes
+    nothing. ``jerklab.ident.plot_compare(data, *fits)`` compares a record with several fits and
+    draws them here.
 
     Parameters
     ----------
-    data : jerklab.ident.IdentData
-        The record to compare on.
-    *fits : jerklab.ident.MotorFit
-        Models to simulate.
+    *results : jerklab.ident.CompareResult
+        One or more comparisons on the same record; the measured output is drawn from the first.
     ax : matplotlib Axes, optional
-    labels : list of str, optional
-    horizon : None or int
-        None: simulation; k: k-step-ahead prediction (see :func:`jerklab.ident.compare`).
+    unit : str, optional
+        Unit of the axis label; default: the first result's ``unit`` (rad, or rad/s for speed).
+    measured : bool
+        Draw the measured output (False: only the models, on an ``ax`` that has it already).
+
+    Returns
+    -------
+    matplotlib.axes.Axes
     """
     import matplotlib.pyplot as plt
 
-    from jerklab.ident import IdentData, compare
-
-    if not isinstance(data, IdentData):
-        raise ValueError(f"data must be an IdentData, got {type(data).__name__}")
+    if not results:
+        raise ValueError("results: give at least one CompareResult (jerklab.ident.compare)")
+    for r in results:
+        if not all(hasattr(r, name) for name in _COMPARE_FIELDS):
+            raise ValueError(
+                f"results must be CompareResult objects of jerklab.ident.compare, got "
+                f"{type(r).__name__} (a record and fits: jerklab.ident.plot_compare(data, *fits))"
+            )
+    first = results[0]
     if ax is None:
         _, ax = plt.subplots(figsize=(8, 3.5))
-    ax.plot(data.t, data.y, ".", color="0.3", ms=3, label="measured")
-    for i, f in enumerate(fits):
-        c = compare(data, f, horizon)
-        name = labels[i] if labels else f.method.upper()
-        what = "" if horizon is None else f", {horizon}-step"
-        ax.plot(
-            data.t,
-            c.y_hat,
-            "-",
-            lw=1.5,
-            label=f"{name}: K={f.K:.3g}, τ={f.tau * 1e3:.3g} ms{what}, fit {c.fit_percent:.2f} %",
-        )
+    if measured:
+        ax.plot(first.time, first.y, ".", color="0.3", ms=3, label="measured")
+    for r in results:
+        what = "simulation" if r.horizon is None else f"{r.horizon}-step prediction"
+        name = f"{r.label}, " if r.label else ""
+        ax.plot(r.time, r.y_hat, "-", lw=1.5, label=f"{name}{what}, fit {r.fit_percent:.2f} %")
     ax.set_xlabel("time (s)")
-    ax.set_ylabel(f"angle ({data.output_unit})")
+    ax.set_ylabel(f"{getattr(first, 'output', 'angle')} ({unit or getattr(first, 'unit', 'rad')})")
     ax.legend(loc="best", fontsize=8)
     return ax
 
 
-def plot_compare_result(result, ax=None, unit: str = "rad"):
-    """A ``jerklab.ident.CompareResult``: measured and model output against time, fit % in the legend."""
-    import matplotlib.pyplot as plt
+def plot_compare_result(result, ax=None, unit=None):
+    """One ``jerklab.ident.CompareResult``: :func:`plot_compare` of it (kept name)."""
+    return plot_compare(result, ax=ax, unit=unit)
 
-    if ax is None:
-        _, ax = plt.subplots(figsize=(8, 3.5))
-    ax.plot(result.t, result.y, ".", color="0.3", ms=3, label="measured")
-    what = "simulation" if result.horizon is None else f"{result.horizon}-step prediction"
-    ax.plot(
-        result.t,
-        result.y_hat,
-        "-",
-        lw=1.5,
-        label=f"{result.label + ': ' if result.label else ''}{what}, fit {result.fit_percent:.2f} %",
-    )
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel(f"angle ({unit})")
-    ax.legend(loc="best", fontsize=8)
-    return ax
+
+_RESIDUAL_FIELDS = ("lags", "autocorr", "auto_bound", "cross_lags", "crosscorr", "confidence")
 
 
 def plot_residuals(analysis, axes=None, title: str | None = None):
     """Two panels as MATLAB's ``resid``: autocorrelation of e, cross-correlation of u and e.
 
-    ``analysis`` is a ``jerklab.ident.ResidualAnalysis``; one panel when it has no input.
+    ``analysis`` is a ``jerklab.ident.ResidualAnalysis`` (its ``.plot()`` calls this); one panel
+    when it has no input.
     """
     import matplotlib.pyplot as plt
 
-    from jerklab.ident import ResidualAnalysis
-
-    if not isinstance(analysis, ResidualAnalysis):
+    if not all(hasattr(analysis, name) for name in _RESIDUAL_FIELDS):
         raise ValueError(f"analysis must be a ResidualAnalysis, got {type(analysis).__name__}")
     n = 1 if analysis.crosscorr is None else 2
     if axes is None:

@@ -1,0 +1,57 @@
+"""Input checks shared by the identification modules: 1-D finite signals of matching length.
+
+Every public function of :mod:`jerklab.ident` checks its records through these, so a NaN, a
+wrong shape, a short or a constant record raises a ``ValueError`` naming the argument.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from jerklab._validate import as_finite_array
+
+__all__ = ["MIN_SAMPLES"]
+
+#: fewest samples a record must hold to be fitted (a handful per parameter, plus transients)
+MIN_SAMPLES = 10
+
+
+def _signal(name: str, value, min_len: int = MIN_SAMPLES) -> np.ndarray:
+    """``value`` as a 1-D finite float array of at least ``min_len`` samples (ValueError naming it)."""
+    a = as_finite_array(name, value)
+    if a.ndim != 1:
+        a = np.squeeze(a)
+        if a.ndim != 1:
+            raise ValueError(
+                f"{name} must be a 1-D sequence of samples, got shape {np.shape(value)}"
+            )
+    if a.size < min_len:
+        raise ValueError(f"{name} is too short: {a.size} samples, need at least {min_len}")
+    return a
+
+
+def _pair(u, y, u_name: str = "u", y_name: str = "y", min_len: int = MIN_SAMPLES):
+    """Two signals of the same length (see :func:`_signal`)."""
+    u = _signal(u_name, u, min_len)
+    y = _signal(y_name, y, min_len)
+    if u.size != y.size:
+        raise ValueError(
+            f"{u_name} and {y_name} must have the same length, got {u.size} and {y.size}"
+        )
+    return u, y
+
+
+def _check_excitation(u: np.ndarray, y: np.ndarray, u_name: str, y_name: str) -> None:
+    """Refuse a constant input (it excites nothing) or a constant output (the motor did not move)."""
+    scale = max(1.0, float(np.max(np.abs(u))))
+    if np.ptp(u) <= 1e-12 * scale:
+        raise ValueError(
+            f"{u_name} is constant ({u[0]:g}): it does not excite the motor; record a step from rest "
+            f"(u = 0 first) or a PRBS (see step_input, prbs)"
+        )
+    yscale = max(1.0, float(np.max(np.abs(y))))
+    if np.ptp(y) <= 1e-12 * yscale:
+        raise ValueError(
+            f"{y_name} is constant ({y[0]:g}): the motor did not move (check the supply, "
+            f"the encoder, or a voltage below the friction threshold)"
+        )
