@@ -15,7 +15,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from jerklab import ident
-from jerklab.ident.diagnose import _diagnose
+from jerklab.ident.diagnostics import _diagnose
 
 ROOT = pathlib.Path(__file__).resolve().parents[1] / "data" / "real" / "dc-generator"
 FILE = ROOT / "dc_generator_every25.csv"

@@ -13,7 +13,7 @@ import pytest
 from scipy import integrate
 
 from jerklab import ident
-from jerklab.ident.diagnose import _diagnose
+from jerklab.ident.diagnostics import _diagnose
 from jerklab.plant import DCMotor
 
 K0, TAU0, TS = 32.4, 0.025, 0.005

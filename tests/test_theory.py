@@ -77,7 +77,7 @@ def test_well_formed_code_citations_are_explained():
     """Each 'Stojčić eq. N' (etc.) cited in the package has its heading in THEORY.md."""
     cite = re.compile(r"(Stojčić|Stojcic|Xu & Meckl|Yang) eq\. (\d+(?:\.\d+)?)")
     found = set()
-    for f in list((ROOT / "jerklab").glob("*.py")) + list((ROOT / "jerklab" / "rig").glob("*.py")):
+    for f in (ROOT / "jerklab").rglob("*.py"):
         for paper, num in cite.findall(f.read_text(encoding="utf-8")):
             found.add(f"{'Stojčić' if paper == 'Stojcic' else paper} eq. {num}")
     assert found  # the package cites something

@@ -10,30 +10,32 @@ the structure of Stojčić eq. 1 is a pole plus an integrator (MATLAB's ``'P1I'`
 what this package fits; :func:`fit_p2` reproduces the paper's literal call to show where it goes
 (notebooks/02_identification.ipynb). Everything is SI: volts in, radians out, seconds.
 
-A module per concept, each re-exported here:
+A module per concept, each re-exported here (the modules are named apart from the functions,
+so ``jerklab.ident.validate`` is the function and ``jerklab.ident.validation`` its module):
 
-=================================  ==============================================================
-:mod:`jerklab.ident.data`          :class:`IdentData` (CSV + JSON records, built from a rig
-                                   ``Recording``), several experiments: :func:`merge`
-:mod:`jerklab.ident.model`         the motor model and its exact ZOH simulation
-                                   (:func:`simulate_dc_motor`, :func:`simulate_motor` with
-                                   friction, offset, dead zone, delay, coasting), :class:`MotorFit`
-:mod:`jerklab.ident.arx`           :func:`arx` of any orders, the velocity ARX fit,
-                                   :func:`arx_asymptotic_bias`
-:mod:`jerklab.ident.oe`            output error by multiple shooting, :func:`fit_p2`
-:mod:`jerklab.ident.idim`          inverse dynamics (IDIM-LS, IDIM-IV)
-:mod:`jerklab.ident.fit`           :func:`fit_dc_motor` in its steps, :class:`FitOptions`
-:mod:`jerklab.ident.diagnose`      implausible results named: :class:`IdentificationWarning`
-:mod:`jerklab.ident.validate`      :func:`fit_percent`, :func:`residual_analysis`,
-                                   :func:`validate`
-:mod:`jerklab.ident.compare`       :func:`compare` (simulation and k-step prediction) and
-                                   :func:`resid`, with MATLAB's semantics
-:mod:`jerklab.ident.datasets`      measured records: :func:`load_micromouse`,
-                                   :func:`load_dc_generator`
-:mod:`jerklab.ident.design`        input design: :func:`step_input`, :func:`prbs`,
-                                   :func:`sample_time_range`
-:mod:`jerklab.ident.mode`          the flexible mode from the encoder: :func:`identify_mode`
-=================================  ==============================================================
+======================================  =========================================================
+:mod:`jerklab.ident.data`               :class:`IdentData` (CSV + JSON records, built from a rig
+                                        ``Recording``), several experiments: :func:`merge`
+:mod:`jerklab.ident.model`              the motor model and its exact ZOH simulation
+                                        (:func:`simulate_dc_motor`, :func:`simulate_motor`:
+                                        friction, offset, dead zone, delay, coasting),
+                                        :class:`MotorFit`
+:mod:`jerklab.ident.equation_error`     ARX: :func:`arx` of any orders, the velocity ARX fit,
+                                        :func:`arx_asymptotic_bias`
+:mod:`jerklab.ident.output_error`       output error (PEM) by multiple shooting, :func:`fit_p2`
+:mod:`jerklab.ident.inverse_dynamics`   inverse dynamics (IDIM-LS, IDIM-IV)
+:mod:`jerklab.ident.fit`                :func:`fit_dc_motor` in its steps, :class:`FitOptions`
+:mod:`jerklab.ident.diagnostics`        implausible results named: :class:`IdentificationWarning`
+:mod:`jerklab.ident.validation`         :func:`fit_percent`, :func:`residual_analysis`,
+                                        :func:`validate`
+:mod:`jerklab.ident.comparison`         :func:`compare` (simulation and k-step prediction) and
+                                        :func:`resid`, with MATLAB's semantics
+:mod:`jerklab.ident.datasets`           measured records: :func:`load_micromouse`,
+                                        :func:`load_dc_generator`
+:mod:`jerklab.ident.design`             input design: :func:`step_input`, :func:`prbs`,
+                                        :func:`sample_time_range`
+:mod:`jerklab.ident.mode`               the flexible mode from the encoder: :func:`identify_mode`
+======================================  =========================================================
 
 The estimators of :func:`fit_dc_motor`:
 
@@ -62,8 +64,7 @@ python-control only when a transfer function is asked for.
 from __future__ import annotations
 
 from jerklab.ident._checks import MIN_SAMPLES
-from jerklab.ident.arx import ARXResult, arx, arx_asymptotic_bias, fit_velocity_arx
-from jerklab.ident.compare import CompareResult, compare, plot_compare, resid
+from jerklab.ident.comparison import CompareResult, compare, plot_compare, resid
 from jerklab.ident.data import IdentData, MergedData, merge
 from jerklab.ident.datasets import (
     DC_GENERATOR_FILE,
@@ -75,7 +76,8 @@ from jerklab.ident.datasets import (
     micromouse_battery_voltage,
 )
 from jerklab.ident.design import MAX_INPUT_SAMPLES, prbs, sample_time_range, step_input
-from jerklab.ident.diagnose import IdentificationWarning
+from jerklab.ident.diagnostics import IdentificationWarning
+from jerklab.ident.equation_error import ARXResult, arx, arx_asymptotic_bias, fit_velocity_arx
 from jerklab.ident.fit import FIT_TS_RANGE, METHODS, FitOptions, fit_dc_motor
 from jerklab.ident.mode import ModeFit, identify_mode, two_mass_mode
 from jerklab.ident.model import (
@@ -84,8 +86,8 @@ from jerklab.ident.model import (
     simulate_dc_motor,
     simulate_motor,
 )
-from jerklab.ident.oe import P2Fit, fit_p2
-from jerklab.ident.validate import (
+from jerklab.ident.output_error import P2Fit, fit_p2
+from jerklab.ident.validation import (
     ResidualAnalysis,
     Validation,
     fit_percent,

@@ -5,13 +5,14 @@ One estimate in small steps, each a function of its own:
 1. :class:`FitOptions` checks the options (friction, offset, dead zone, delay, segments, coasting);
 2. :func:`_experiments` checks the record(s) and :func:`_check_records` what the options ask of
    them (an estimator that has the terms, the input levels that separate them);
-3. ``method="arx"``: :func:`jerklab.ident.arx.fit_velocity_arx`, done;
+3. ``method="arx"``: ``jerklab.ident.equation_error.fit_velocity_arx``, done;
 4. :func:`_inverse_dynamics`: the inverse-dynamics least squares over the delays tried
-   (:mod:`jerklab.ident.idim`), the estimate of ``"idim"``/``"idim-iv"`` (:func:`_idim_result`)
-   and the start of the output-error fit;
-5. :func:`_output_error`: multiple-shooting output error (:func:`jerklab.ident.oe._fit_oe_ms`),
-   the delay refined among its neighbours;
-6. ``jerklab.ident.diagnose`` turns implausible or poorly determined results into
+   (``jerklab.ident.inverse_dynamics``), the estimate of ``"idim"``/``"idim-iv"``
+   (:func:`_idim_result`) and the delay (and, with friction, offset, dead zone or coasting,
+   the start) of the output-error fit;
+5. :func:`_start`, :func:`_output_error`: multiple-shooting output error
+   (``jerklab.ident.output_error``), the delay refined among its neighbours;
+6. ``jerklab.ident.diagnostics`` turns implausible or poorly determined results into
    :class:`IdentificationWarning` messages, and :func:`_motor_fit` assembles the
    :class:`~jerklab.ident.model.MotorFit`.
 """
@@ -27,12 +28,12 @@ import numpy as np
 from jerklab._lazy import lazy_module
 from jerklab._validate import as_int, as_positive
 from jerklab.ident._checks import _check_excitation, _pair
-from jerklab.ident.arx import fit_velocity_arx
-from jerklab.ident.diagnose import _diagnose, _issue
-from jerklab.ident.idim import _idim, _params_from_idim, _shooting_sim
+from jerklab.ident.diagnostics import _diagnose, _issue
+from jerklab.ident.equation_error import fit_velocity_arx
+from jerklab.ident.inverse_dynamics import _idim, _params_from_idim, _shooting_sim
 from jerklab.ident.model import MotorFit, _motor_tf
-from jerklab.ident.oe import _fit_oe_ms, _grid_start, _linear_start
-from jerklab.ident.validate import fit_percent
+from jerklab.ident.output_error import _fit_oe_ms, _grid_start, _linear_start
+from jerklab.ident.validation import fit_percent
 
 control = lazy_module("control")  # python-control imports matplotlib: import it on first use
 
@@ -358,10 +359,10 @@ def _idim_result(exps, Ts, opts, cutoff, segment_n, delay, p, cov_p, u_abs_max) 
 # ----------------------------------------------------------------------------------------------
 def _start(exps, Ts, opts, idim_par, delay, segment_n, u_abs_max) -> dict:
     """The start of the output-error fit. The linear model: its exact optimum over tau by variable
-    projection (:func:`jerklab.ident.oe._linear_start`), with every segment's state. With friction,
-    offset, dead zone or coasting: the inverse-dynamics parameters when they describe a motor, else
-    (a reversed encoder, K < 0, or a failed regression) the linear grid on the longest record;
-    friction and dead zone moved well inside (0, max |u|)."""
+    projection (``jerklab.ident.output_error._linear_start``), with every segment's state. With
+    friction, offset, dead zone or coasting: the inverse-dynamics parameters when they describe a
+    motor, else (a reversed encoder, K < 0, or a failed regression) the linear grid on the longest
+    record; friction and dead zone moved well inside (0, max |u|)."""
     if opts.is_linear:
         return _linear_start(exps, Ts, delay, segment_n)
     par = idim_par

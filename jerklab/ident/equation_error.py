@@ -28,7 +28,7 @@ from jerklab.ident.model import (
     dc_motor_zoh_coefficients,
     simulate_dc_motor,
 )
-from jerklab.ident.validate import fit_percent
+from jerklab.ident.validation import fit_percent
 
 control = lazy_module("control")  # python-control imports matplotlib: import it on first use
 

@@ -1,5 +1,5 @@
-"""ARX (jerklab.ident.arx): exactness on noise-free records, any orders against numpy's least
-squares and python-control, covariance calibration, the bias under output noise against its
+"""ARX (jerklab.ident.equation_error): exactness on noise-free records, any orders against numpy's
+least squares and python-control, covariance calibration, the bias under output noise against its
 asymptotic prediction, bad input."""
 
 from __future__ import annotations

@@ -27,9 +27,9 @@ from scipy import linalg, optimize, signal
 from jerklab._lazy import lazy_module
 from jerklab._validate import as_positive
 from jerklab.ident._checks import _check_excitation, _pair
-from jerklab.ident.idim import _filtered_states
+from jerklab.ident.inverse_dynamics import _filtered_states
 from jerklab.ident.model import _drive, _simulate_segments, _unit_response
-from jerklab.ident.validate import fit_percent
+from jerklab.ident.validation import fit_percent
 
 control = lazy_module("control")  # python-control imports matplotlib: import it on first use
 

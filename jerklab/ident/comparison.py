@@ -26,7 +26,7 @@ from jerklab.ident.model import (
     _initial_speed,
     _initial_state,
 )
-from jerklab.ident.validate import ResidualAnalysis, fit_percent, residual_analysis
+from jerklab.ident.validation import ResidualAnalysis, fit_percent, residual_analysis
 from jerklab.plant import _jit, advance_em
 
 __all__ = ["CompareResult", "compare", "resid", "plot_compare"]

@@ -1,4 +1,4 @@
-"""Validation (jerklab.ident.validate): fit % by its definition, the residual tests' levels and
+"""Validation (jerklab.ident.validation): fit % by its definition, the residual tests' levels and
 power, a fitted model on a fresh record and on a record cut while the motor turns."""
 
 from __future__ import annotations
