@@ -544,7 +544,9 @@ def fit_dc_motor(u, theta, Ts, method: str = "pem", *, options=None, **keywords)
         _issue(fit.warnings)
         return fit
     iv = IV_ITERATIONS if method == "idim-iv" else 0
-    found = _inverse_dynamics(exps, Ts, opts, cutoff, segment_n, iv)
+    # the output-error fit of the linear model needs the inverse dynamics only to find the delay
+    needed = method != "pem" or not opts.is_linear or opts.estimate_delay
+    found = _inverse_dynamics(exps, Ts, opts, cutoff, segment_n, iv) if needed else None
     if method == "pem":
         delay = found[0] if found else (0 if opts.estimate_delay else opts.delay)
         idim_par = _params_from_idim(found[1], opts.terms) if found else None

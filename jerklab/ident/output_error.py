@@ -53,27 +53,39 @@ def _grid_start(u, theta, Ts):
     return best[1:]
 
 
-def _linear_projection(exps, Ts, delay, segment_n, tau):
+def _linear_projection(exps, Ts, delay, segment_n, tau, states=False):
     """For a fixed tau the linear model's angle is linear in K and in each segment's initial angle
     and velocity: theta = K g(tau) + theta0_j + omega0_j tau (1 - a^k) on segment j (g the ZOH
     response from rest to the delayed input, restarted at the segment start). Returns the
-    least-squares (K, theta0s, omega0s) and the sum of squared residuals; the segment states are
-    projected out segment by segment (a QR of the two columns each), so it costs O(samples)."""
+    least-squares K and sum of squared residuals, and with ``states`` each segment's
+    (theta0, omega0). The segment states are projected out segment by segment (the two columns
+    made orthonormal by Gram-Schmidt), so one evaluation costs O(samples)."""
     segs = []
     for u, th in exps:
         v = _shift(u, delay)
         st = _segment_starts(u.size, segment_n)
         for s0, s1 in zip(st, np.append(st[1:], u.size)):
-            k = np.arange(s1 - s0)
-            B = np.column_stack([np.ones(k.size), -tau * np.expm1(-k * Ts / tau)])
-            Q, _ = np.linalg.qr(B)
+            h = -tau * np.expm1(-np.arange(s1 - s0) * Ts / tau)
             g, y = _unit_response(tau, Ts, v[s0:s1]), th[s0:s1]
-            segs.append((B, Q, g, y, g - Q @ (Q.T @ g), y - Q @ (Q.T @ y)))
+            hc = h - h.mean()
+            q = hc / np.linalg.norm(hc) if np.any(hc) else hc
+
+            def project(x, q=q):
+                xc = x - x.mean()
+                return xc - q * (q @ xc)
+
+            segs.append((h, g, y, project(g), project(y)))
     gg = sum(float(pg @ pg) for *_, pg, _ in segs)
     K = sum(float(pg @ py) for *_, pg, py in segs) / gg if gg > 0 else 0.0
     sse = sum(float((py - K * pg) @ (py - K * pg)) for *_, pg, py in segs)
-    states = [np.linalg.lstsq(B, y - K * g, rcond=None)[0] for B, _, g, y, _, _ in segs]
-    return K, np.array([c[0] for c in states]), np.array([c[1] for c in states]), sse
+    if not states:
+        return K, sse
+    theta0, omega0 = [], []
+    for h, g, y, _, _ in segs:
+        c, *_ = np.linalg.lstsq(np.column_stack([np.ones(h.size), h]), y - K * g, rcond=None)
+        theta0.append(c[0])
+        omega0.append(c[1])
+    return K, sse, np.array(theta0), np.array(omega0)
 
 
 def _linear_start(exps, Ts, delay, segment_n) -> dict:
@@ -83,27 +95,25 @@ def _linear_start(exps, Ts, delay, segment_n) -> dict:
     narrow valley on a record shorter than tau; projecting out K and the segment states leaves a
     one-dimensional search that does not stall there."""
     n = sum(u.size for u, _ in exps)
-    lo, hi = math.log(Ts * 1e-3), math.log(Ts * n * 1e3)
-    grid = np.linspace(lo, hi, 61)
-    cost = [_linear_projection(exps, Ts, delay, segment_n, math.exp(x))[3] for x in grid]
-    i = int(np.argmin(cost))
-    a, b = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
-    sol = optimize.minimize_scalar(
-        lambda x: _linear_projection(exps, Ts, delay, segment_n, math.exp(x))[3],
-        bounds=(a, b),
-        method="bounded",
-        options={"xatol": 1e-12},
-    )
-    x = sol.x if sol.fun <= cost[i] else grid[i]
-    K, th0, om0, _ = _linear_projection(exps, Ts, delay, segment_n, math.exp(x))
+
+    def cost(x):
+        return _linear_projection(exps, Ts, delay, segment_n, math.exp(x))[1]
+
+    grid = np.linspace(math.log(Ts * 1e-3), math.log(Ts * n * 1e3), 25)
+    costs = [cost(x) for x in grid]
+    i = int(np.argmin(costs))
+    bounds = (grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)])
+    sol = optimize.minimize_scalar(cost, bounds=bounds, method="bounded", options={"xatol": 1e-12})
+    x = sol.x if sol.fun <= costs[i] else grid[i]
+    K, _, theta0, omega0 = _linear_projection(exps, Ts, delay, segment_n, math.exp(x), True)
     return {
         "K": float(K),
         "tau": math.exp(x),
         "friction": 0.0,
         "offset": 0.0,
         "dead_zone": 0.0,
-        "seg_theta0": th0,
-        "seg_omega0": om0,
+        "seg_theta0": theta0,
+        "seg_omega0": omega0,
     }
 
 
