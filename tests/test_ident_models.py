@@ -13,6 +13,7 @@ import pytest
 from scipy import integrate
 
 from jerklab import ident
+from jerklab.ident import diagnostics
 from jerklab.plant import DCMotor
 
 K0, TAU0, TS = 32.4, 0.025, 0.005
@@ -289,7 +290,7 @@ def test_friction_stuck_at_its_bound_is_reported():
 
 
 def test_friction_above_the_input_range_is_reported():
-    msgs = ident._diagnose(
+    msgs = diagnostics._diagnose(
         {"K": 10.0, "tau": 0.1, "friction": 5.0, "offset": 0.0, "dead_zone": 0.0},
         np.diag([1.0, 1e-4, 0.01]),
         ["K", "tau", "friction"],
