@@ -54,20 +54,23 @@ from jerklab.ident.datasets import (
 )
 from jerklab.ident.design import MAX_INPUT_SAMPLES, prbs, sample_time_range, step_input
 from jerklab.ident.diagnostics import IdentificationWarning
-from jerklab.ident.fit import FIT_TS_RANGE, MotorFit, fit_dc_motor
+from jerklab.ident.fit import FIT_TS_RANGE, FitOptions, fit_dc_motor
 from jerklab.ident.model import dc_motor_zoh_coefficients, simulate_dc_motor, simulate_motor
+from jerklab.ident.motorfit import MotorFit
 from jerklab.ident.p2 import P2Fit, fit_p2
 from jerklab.ident.validate import (
     CompareResult,
+    CompareResults,
     ResidualAnalysis,
     Validation,
     compare,
     fit_percent,
+    plot_compare,
+    plot_residuals,
     resid,
     residual_analysis,
     validate,
 )
-from jerklab.plots import plot_compare, plot_residuals
 
 __all__ = [
     "IdentData",
@@ -75,6 +78,7 @@ __all__ = [
     "arx",
     "MotorFit",
     "fit_dc_motor",
+    "FitOptions",
     "IdentificationWarning",
     "simulate_motor",
     "simulate_dc_motor",
@@ -89,6 +93,7 @@ __all__ = [
     "MergedData",
     "merge",
     "CompareResult",
+    "CompareResults",
     "compare",
     "resid",
     "load_micromouse",

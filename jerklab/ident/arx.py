@@ -150,7 +150,30 @@ def arx(y, u, na, nb, nk=1) -> ARXResult:
     return ARXResult(A, B, na, nb, nk, params, cov, lam, res, int(target.size))
 
 
-def _fit_arx(u, theta, Ts):
+def velocity_arx(u, theta, Ts):
+    """The ARX fit of Stojčić eq. 1 on the differenced angle (``fit_dc_motor(method="arx")``).
+
+    Least squares (:func:`arx` with na = 1, nb = 2, nk = 0) on
+    v(k) = a v(k-1) + b1 u(k-1) + b2 u(k-2), v(k) = (theta(k) - theta(k-1)) / Ts, exact for the
+    ZOH model; then K = (b1 + b2)/(1 - a), tau = -Ts/ln a, their covariance by the delta method.
+
+    Parameters
+    ----------
+    u, theta : ndarray
+        Checked input (V) and angle (rad) of one record.
+    Ts : float
+        Sample period (s).
+
+    Returns
+    -------
+    (K, tau, cov, result) : (float, float, ndarray, ARXResult)
+        ``cov`` is the 2x2 covariance of (K, tau), ``result`` the ARX fit of the velocity.
+
+    Raises
+    ------
+    ValueError
+        When the pole a falls outside (0, 1) (no motor gives it: too noisy or too coarse data).
+    """
     v = np.diff(theta) / Ts
     res = arx(v, u[:-1], na=1, nb=2, nk=0)
     a = -res.A[1]
@@ -201,7 +224,7 @@ def arx_asymptotic_bias(u, K, tau, Ts, noise_std):
     a, b1, b2 = dc_motor_zoh_coefficients(K, tau, Ts)
     theta = simulate_dc_motor(K, tau, Ts, u)
     v = np.diff(theta) / Ts
-    # regression v(k) = -A1 v(k-1) + B0 u(k) + B1 u(k-1) in the indexing used by _fit_arx
+    # regression v(k) = -A1 v(k-1) + B0 u(k) + B1 u(k-1) in the indexing used by velocity_arx
     Phi, target, _ = _arx_regressors(v, u[:-1], 1, 2, 0)
     N = target.size
     r0 = 2.0 * s**2 / Ts**2

@@ -12,22 +12,26 @@ import pathlib
 import numpy as np
 
 from jerklab._validate import as_positive
+from jerklab._vocab import aliases
 from jerklab.ident._common import _pair, _signal
-from jerklab.ident.fit import MotorFit, fit_dc_motor
-from jerklab.plots import plot_ident_data
+from jerklab.ident.fit import fit_dc_motor
+from jerklab.ident.motorfit import MotorFit
 
 
+@aliases(t="time", u="voltage", y="position")
 class IdentData:
-    """An identification record: input u(k), output y(k) sampled every ``Ts`` seconds.
+    """An identification record: input voltage u(k), measured angle y(k) every ``Ts`` seconds.
 
-    The Python counterpart of MATLAB's ``iddata(y, u, Ts)`` used in Stojčić §4A.
+    The Python counterpart of MATLAB's ``iddata(y, u, Ts)`` used in Stojčić §4A. The series
+    carry the names of ``jerklab._vocab``: ``time``, ``voltage`` (the input u), ``position``
+    (the output y); the older names ``t``, ``u`` and ``y`` read and write the same arrays.
 
     Parameters
     ----------
-    u : array_like
-        Input samples (the motor voltage, V), held constant over each sample period (ZOH).
-    y : array_like
-        Output samples (the measured angle, rad), same length as ``u``.
+    voltage : array_like
+        Input samples u (the motor voltage, V), held constant over each sample period (ZOH).
+    position : array_like
+        Output samples y (the measured angle, rad, or ``output_unit``), same length.
     Ts : float
         Sample period (s), > 0.
     input_unit, output_unit : str
@@ -43,9 +47,12 @@ class IdentData:
     """
 
     FORMAT = "jerklab.ident.IdentData/1"
+    __slots__ = ("voltage", "position", "Ts", "input_unit", "output_unit", "metadata")
 
-    def __init__(self, u, y, Ts, input_unit: str = "V", output_unit: str = "rad", metadata=None):
-        self.u, self.y = _pair(u, y, "u", "y", min_len=2)
+    def __init__(
+        self, voltage, position, Ts, input_unit: str = "V", output_unit: str = "rad", metadata=None
+    ):
+        self.voltage, self.position = _pair(voltage, position, "voltage", "position", min_len=2)
         self.Ts = as_positive("Ts", Ts)
         if not isinstance(input_unit, str) or not input_unit:
             raise ValueError(f"input_unit must be a non-empty string, got {input_unit!r}")
@@ -67,13 +74,13 @@ class IdentData:
     @property
     def n(self) -> int:
         """Number of samples."""
-        return int(self.u.size)
+        return int(self.voltage.size)
 
     def __len__(self) -> int:
         return self.n
 
     @property
-    def t(self) -> np.ndarray:
+    def time(self) -> np.ndarray:
         """Sample times k*Ts (s)."""
         return np.arange(self.n) * self.Ts
 
@@ -90,41 +97,48 @@ class IdentData:
         start = index.indices(self.n)[0]
         md["slice_start_sample"] = md.get("slice_start_sample", 0) + start
         return IdentData(
-            self.u[index], self.y[index], self.Ts, self.input_unit, self.output_unit, md
+            self.voltage[index],
+            self.position[index],
+            self.Ts,
+            self.input_unit,
+            self.output_unit,
+            md,
         )
 
     def __repr__(self) -> str:
         return (
             f"IdentData(n={self.n}, Ts={self.Ts:g} s, duration={self.duration:g} s, "
-            f"u in [{self.u.min():g}, {self.u.max():g}] {self.input_unit}, "
-            f"y in [{self.y.min():g}, {self.y.max():g}] {self.output_unit})"
+            f"voltage in [{self.voltage.min():g}, {self.voltage.max():g}] {self.input_unit}, "
+            f"position in [{self.position.min():g}, {self.position.max():g}] {self.output_unit})"
         )
 
     # -- conversions ---------------------------------------------------------------------------
     @classmethod
     def from_recording(cls, rec, Ts=None) -> "IdentData":
-        """Build from a rig ``Recording`` (fields ``time``, ``position``, ``control``, ``metadata``).
+        """Build from a rig ``Recording`` (fields ``time``, ``position``, ``voltage`` or its older name
+        ``control``, and ``metadata``).
 
         Parameters
         ----------
         rec : jerklab.rig.Recording
-            An open-loop record (``rig.step(...)``) or a closed-loop move; ``control`` (V) becomes
+            An open-loop record (``rig.step(...)``) or a closed-loop move; its voltage (V) becomes
             the input and ``position`` (rad) the output.
         Ts : float, optional
             Sample period; by default ``rec.metadata["Ts"]`` if present, else the median spacing
             of ``rec.time``. The time stamps must be uniform to 1 % of Ts.
         """
-        for attr in ("time", "position", "control"):
+        volt = "voltage" if hasattr(rec, "voltage") else "control"
+        for attr in ("time", "position", volt):
             if not hasattr(rec, attr):
                 raise ValueError(
                     f"rec must be a Recording with a '{attr}' field (got {type(rec).__name__})"
                 )
         t = _signal("rec.time", rec.time, min_len=2)
-        u = _signal("rec.control", rec.control, min_len=2)
+        u = _signal(f"rec.{volt}", getattr(rec, volt), min_len=2)
         y = _signal("rec.position", rec.position, min_len=2)
         if not (t.size == u.size == y.size):
             raise ValueError(
-                f"rec.time, rec.control and rec.position must have the same length, "
+                f"rec.time, rec.{volt} and rec.position must have the same length, "
                 f"got {t.size}, {u.size}, {y.size}"
             )
         md = getattr(rec, "metadata", None) or {}
@@ -152,8 +166,8 @@ class IdentData:
         return cls(u, y, Ts, "V", "rad", meta)
 
     def fit(self, method: str = "pem", **kwargs) -> "MotorFit":
-        """``fit_dc_motor(self.u, self.y, self.Ts, method, **kwargs)``."""
-        return fit_dc_motor(self.u, self.y, self.Ts, method=method, **kwargs)
+        """``fit_dc_motor(self.voltage, self.position, self.Ts, method, **kwargs)``."""
+        return fit_dc_motor(self.voltage, self.position, self.Ts, method=method, **kwargs)
 
     # -- files ---------------------------------------------------------------------------------
     @staticmethod
@@ -164,7 +178,8 @@ class IdentData:
         return p.with_name(p.name + ".csv"), p.with_name(p.name + ".json")
 
     def save(self, path):
-        """Write ``<path>.csv`` (columns time_s, u, y) and its JSON sidecar ``<path>.json``.
+        """Write ``<path>.csv`` (columns time_s, u_<input_unit>, y_<output_unit>: the time, the
+        voltage and the position) and its JSON sidecar ``<path>.json``.
 
         Returns the two paths. Values are written with 17 significant digits, so a round trip is
         exact.
@@ -172,7 +187,7 @@ class IdentData:
         csv_path, json_path = self._paths(path)
         csv_path.parent.mkdir(parents=True, exist_ok=True)
         cols = ["time_s", f"u_{self.input_unit}", f"y_{self.output_unit}"]
-        table = np.column_stack([self.t, self.u, self.y])
+        table = np.column_stack([self.time, self.voltage, self.position])
         header = ",".join(cols)  # plain ASCII, or UTF-8 with a BOM so a spreadsheet reads "µm"
         np.savetxt(
             csv_path,
@@ -236,14 +251,18 @@ class IdentData:
 
     def plot(self, axes=None):
         """Input (V) and output (rad) against time (s): :func:`jerklab.plots.plot_ident_data`."""
+        from jerklab.plots import plot_ident_data  # drawing is imported when a figure is asked for
+
         return plot_ident_data(self, axes)
 
 
+@aliases(u="voltage", y="position")
 class MergedData:
     """Several experiments of the same motor, for one estimate (MATLAB's ``merge``).
 
     Each record keeps its own time axis and initial state; :meth:`fit` passes the lists of
-    inputs and outputs to :func:`fit_dc_motor`. Keep validation records out of it.
+    inputs and outputs to :func:`fit_dc_motor`. Keep validation records out of it. ``voltage``
+    and ``position`` (older names ``u``, ``y``) are the lists of the records' series.
     """
 
     def __init__(self, experiments):
@@ -270,16 +289,18 @@ class MergedData:
         return self.experiments[i]
 
     @property
-    def u(self):
-        return [d.u for d in self.experiments]
+    def voltage(self) -> list:
+        """The input voltage (V) of each experiment."""
+        return [d.voltage for d in self.experiments]
 
     @property
-    def y(self):
-        return [d.y for d in self.experiments]
+    def position(self) -> list:
+        """The measured angle (rad) of each experiment."""
+        return [d.position for d in self.experiments]
 
     def fit(self, method: str = "pem", **kwargs) -> "MotorFit":
         """One fit over every experiment: ``fit_dc_motor([u...], [y...], Ts, method, **kwargs)``."""
-        return fit_dc_motor(self.u, self.y, self.Ts, method=method, **kwargs)
+        return fit_dc_motor(self.voltage, self.position, self.Ts, method=method, **kwargs)
 
     def __repr__(self):
         return f"MergedData({len(self)} experiments, Ts={self.Ts:g} s, n={[d.n for d in self.experiments]})"

@@ -20,7 +20,7 @@ def _issue(msgs):
         warnings.warn(m, IdentificationWarning, stacklevel=3)
 
 
-def _diagnose(par, cov, names, u_abs_max, at_bound=(), Jg=None):
+def _diagnose(par, cov, names, u_abs_max, at_bound=()):
     """Physically impossible or poorly determined results -> list of messages (Ljung §16)."""
     msgs = []
     if not par["K"] > 0:

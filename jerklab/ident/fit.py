@@ -1,208 +1,113 @@
-"""The motor fit: :func:`fit_dc_motor` and its result :class:`MotorFit` (Stojčić eq. 1, §4A; ASCII:
-Stojcic)."""
+"""The motor fit :func:`fit_dc_motor` (Stojčić eq. 1, §4A; ASCII: Stojcic), one function per step.
+
+:func:`fit_dc_motor` checks its options (:class:`FitOptions`), the sample period and the record,
+then runs one estimator: the velocity ARX fit (:func:`jerklab.ident.arx.velocity_arx`), the
+inverse dynamics (:mod:`jerklab.ident.idim`) or the multiple-shooting output error
+(:mod:`jerklab.ident.oe`) started from it, and returns a :class:`~jerklab.ident.MotorFit` whose
+diagnostics (:mod:`jerklab.ident.diagnostics`) are also issued as warnings.
+"""
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
 
 from jerklab._lazy import lazy_module
-from jerklab._validate import as_int, as_positive, as_real
-from jerklab.ident._common import _check_excitation, _pair, _signal, fit_percent
-from jerklab.ident.arx import ARXResult, _fit_arx
+from jerklab._validate import as_int, as_positive
+from jerklab.ident._common import _check_excitation, _pair, fit_percent
+from jerklab.ident.arx import velocity_arx
 from jerklab.ident.diagnostics import _diagnose, _issue
 from jerklab.ident.idim import _idim, _params_from_idim, _shooting_sim
-from jerklab.ident.model import _best_theta0, _unit_response, simulate_dc_motor, simulate_motor
-from jerklab.ident.oe import _fit_oe_ms, _fit_pem, _initial_guess
-from jerklab.plant import DCMotor
+from jerklab.ident.model import _best_theta0, _unit_response
+from jerklab.ident.motorfit import MotorFit, _motor_tf
+from jerklab.ident.oe import TERMS, ShootingProblem, fit_output_error, tau_grid_start
 
 control = lazy_module("control")  # python-control imports matplotlib: import it on first use
 
-
-@dataclass
-class MotorFit:
-    """K and tau of P(s) = K/(s(tau s + 1)) (Stojčić eq. 1) with their uncertainty.
-
-    Attributes
-    ----------
-    K, tau : float
-        Gain rad/(V s) and time constant s.
-    K_std, tau_std : float
-        One-sigma standard errors (from the Jacobian for PEM, from the ARX covariance for ARX).
-    fit_percent : float
-        Simulation fit (NRMSE %, as MATLAB ``compare``) of the angle on the estimation data.
-    model : control.TransferFunction
-        K / (tau s^2 + s), volts -> rad.
-    method : str
-        "pem" or "arx".
-    Ts : float
-        Sample period of the data (s).
-    theta0 : float
-        Initial angle of the simulation (estimated).
-    cov : ndarray
-        2x2 covariance of (K, tau).
-    y_sim, residuals : ndarray
-        Simulated angle on the estimation data and measured - simulated.
-    noise_std : float
-        Residual standard deviation (rad for PEM; the equation-error scale for ARX).
-    friction, friction_std : float
-        Coulomb friction voltage f_c (V) by the sign of the velocity, with sticking, and its standard
-        error (``friction=True``; 0.0 and 0.0 when not estimated).
-    offset, offset_std : float
-        Input offset (V): the motor sees ``u + offset`` (``offset=True``; else 0.0, 0.0).
-    dead_zone, dead_zone_std : float
-        Input dead zone (V) after the offset (``dead_zone=True``; else 0.0, 0.0).
-    delay : int
-        Pure input delay in whole samples (given or estimated with ``delay=True``).
-    tau_coast, tau_coast_std : float
-        Time constant (s) while the drive is open at u = 0 (``coast=True``; :func:`simulate_motor`),
-        and its standard error; 0.0 and 0.0 when the drive always holds u.
-    estimated : tuple of str
-        The estimated parameters, in the order of ``covariance``.
-    warnings : list of str
-        The diagnostics the fit raised (also issued as :class:`IdentificationWarning`).
-
-    The full model (:func:`simulate_motor`) is
-    ``tau omega' = K (dz(u(t - delay Ts) + offset) - friction sign(omega)) - omega``, sticking at
-    omega = 0 while ``|dz(u + offset)| <= friction``; ``dz(x) = sign(x) max(|x| - dead_zone, 0)``.
-    """
-
-    K: float
-    tau: float
-    K_std: float
-    tau_std: float
-    fit_percent: float
-    model: control.TransferFunction
-    method: str
-    Ts: float
-    theta0: float
-    cov: np.ndarray
-    y_sim: np.ndarray = field(repr=False)
-    residuals: np.ndarray = field(repr=False)
-    noise_std: float = float("nan")
-    arx_result: ARXResult | None = field(default=None, repr=False)
-    nfev: int = 0
-    friction: float = 0.0  #: Coulomb friction voltage f_c (V); 0.0 when not estimated
-    friction_std: float = 0.0  #: its standard error (V); 0.0 when fixed
-    offset: float = 0.0  #: input offset (V): the motor sees u + offset
-    offset_std: float = 0.0
-    dead_zone: float = 0.0  #: input dead zone (V), after the offset
-    dead_zone_std: float = 0.0
-    delay: int = 0  #: pure input delay (whole samples)
-    estimated: tuple = ("K", "tau")  #: names of the estimated parameters, in ``covariance`` order
-    covariance: np.ndarray | None = field(default=None, repr=False)  #: covariance of ``estimated``
-    warnings: list = field(default_factory=list, repr=False)  #: diagnostics raised by the fit
-    n_segments: int = 1  #: shooting segments of the output-error fit
-    n_experiments: int = 1  #: experiments merged in the estimation data
-    omega0: float = 0.0  #: initial velocity of the first segment (rad/s)
-    tau_coast: float = 0.0  #: time constant (s) with the drive open at u = 0; 0.0: no coasting
-    tau_coast_std: float = 0.0
-
-    def simulate(self, u, theta0=0.0, omega0=0.0) -> np.ndarray:
-        """The fitted model's ZOH response to ``u`` (see :func:`simulate_dc_motor`).
-
-        With friction, offset, dead zone or delay, the full model of :func:`simulate_motor`
-        (friction by the sign of the velocity, with sticking).
-        """
-        u = _signal("u", u, min_len=1)
-        if not self.is_linear:
-            return simulate_motor(
-                self.K,
-                self.tau,
-                self.Ts,
-                u,
-                theta0,
-                omega0,
-                self.friction,
-                self.offset,
-                self.dead_zone,
-                self.delay,
-                self.tau_coast or None,
-            )
-        return simulate_dc_motor(self.K, self.tau, self.Ts, u, theta0, omega0)
-
-    @property
-    def is_linear(self) -> bool:
-        """True when the model is Stojčić eq. 1 alone (no friction, offset, dead zone or delay)."""
-        return not (self.friction or self.offset or self.dead_zone or self.delay or self.tau_coast)
-
-    @property
-    def std(self) -> dict:
-        """Standard errors by name: K, tau, friction, offset, dead_zone, tau_coast (0.0 when fixed)."""
-        return {
-            "K": self.K_std,
-            "tau": self.tau_std,
-            "friction": self.friction_std,
-            "offset": self.offset_std,
-            "dead_zone": self.dead_zone_std,
-            "tau_coast": self.tau_coast_std,
-        }
-
-    def confidence_interval(self, level: float = 0.95):
-        """Normal-approximation intervals ``{"K": (lo, hi), "tau": (lo, hi), ...}`` for every
-        estimated parameter (friction, offset, dead_zone, tau_coast when estimated)."""
-        level = as_real("level", level)
-        if not 0.0 < level < 1.0:
-            raise ValueError(f"level must be in (0, 1), got {level}")
-        z = stats.norm.ppf(0.5 + level / 2)
-        out = {}
-        for name in ("K", "tau", "friction", "offset", "dead_zone", "tau_coast"):
-            if name in ("K", "tau") or name in self.estimated:
-                v, sd = getattr(self, name), self.std[name]
-                out[name] = (v - z * sd, v + z * sd)
-        return out
-
-    def to_motor(self, **kwargs):
-        """A ``jerklab.plant.DCMotor`` with the fitted K and tau (other arguments passed on).
-
-        The plant has no open-drive (coasting) mode: a fit with ``tau_coast`` raises ValueError
-        (simulate it with :meth:`simulate` or :func:`simulate_motor`)."""
-        if self.tau_coast:
-            raise ValueError(
-                "tau_coast: jerklab.plant.DCMotor has no open-drive (coasting) mode; "
-                "use fit.simulate or ident.simulate_motor(..., tau_coast=fit.tau_coast)"
-            )
-
-        kw = dict(
-            coulomb_friction=max(self.friction, 0.0),
-            offset=self.offset,
-            dead_zone=max(self.dead_zone, 0.0),
-        )
-        kw.update(kwargs)
-        return DCMotor(K=self.K, tau=self.tau, **kw)
-
-    def summary(self) -> str:
-        """One line: K ± std, tau ± std, (friction ± std), fit %."""
-        fr = ""
-        if "friction" in self.estimated:
-            fr += f", f_c = {self.friction:.3g} ± {self.friction_std:.2g} V"
-        if "offset" in self.estimated:
-            fr += f", offset = {self.offset:.3g} ± {self.offset_std:.2g} V"
-        if "dead_zone" in self.estimated:
-            fr += f", dead zone = {self.dead_zone:.3g} ± {self.dead_zone_std:.2g} V"
-        if self.delay:
-            fr += f", delay = {self.delay} sample{'s' if self.delay > 1 else ''}"
-        if "tau_coast" in self.estimated:
-            fr += f", tau_coast = {self.tau_coast * 1e3:.4g} ± {self.tau_coast_std * 1e3:.2g} ms"
-        elif self.tau_coast == math.inf:
-            fr += ", coasting on Coulomb friction (tau_coast = inf)"
-        return (
-            f"{self.method.upper():>3}: K = {self.K:.4g} ± {self.K_std:.2g} rad/(V s), "
-            f"tau = {self.tau * 1e3:.4g} ± {self.tau_std * 1e3:.2g} ms{fr}, "
-            f"fit = {self.fit_percent:.2f} %"
-        )
-
-
-def _motor_tf(K, tau):
-    return control.tf([K], [tau, 1.0, 0.0])
-
+METHODS = ("pem", "arx", "idim", "idim-iv")
 
 #: the sample periods :func:`fit_dc_motor` accepts (s): 1 ns … 1000 s. The fit scales with Ts, and far
 #: outside this range its covariance under/overflows to NaN/inf (Ts = 1e-300 gives K_std = NaN)
 FIT_TS_RANGE = (1e-9, 1e3)
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """What :func:`fit_dc_motor` estimates and how: its keyword arguments, grouped and checked.
+
+    ``fit_dc_motor(u, theta, Ts, options=FitOptions(friction=True, delay=True))`` is
+    ``fit_dc_motor(u, theta, Ts, friction=True, delay=True)``; the fields, their defaults and
+    their meaning are those of :func:`fit_dc_motor`. A bad value raises ``ValueError`` naming
+    the field when the options are made.
+    """
+
+    method: str = "pem"
+    fit_theta0: bool = True
+    friction: bool = False
+    offset: bool = False
+    delay: int | bool = 0
+    dead_zone: bool = False
+    segment: float | None = None
+    max_delay: int = 10
+    cutoff: float | None = None
+    coast: bool | str = False
+
+    def __post_init__(self):
+        def put(name, value):
+            object.__setattr__(self, name, value)
+
+        if self.method not in METHODS:
+            raise ValueError(
+                f"method must be 'pem', 'arx', 'idim' or 'idim-iv', got {self.method!r}"
+            )
+        for nm in ("friction", "offset", "dead_zone", "fit_theta0"):
+            val = getattr(self, nm)
+            if not isinstance(val, (bool, np.bool_)):
+                raise ValueError(f"{nm} must be True or False, got {val!r}")
+            put(nm, bool(val))
+        coast = self.coast
+        if not (isinstance(coast, (bool, np.bool_)) or coast == "coulomb"):
+            raise ValueError(f"coast must be True, False or 'coulomb', got {coast!r}")
+        put("coast", coast if coast == "coulomb" else bool(coast))
+        if self.coast == "coulomb" and not self.friction:
+            raise ValueError(
+                "coast='coulomb' (the open motor runs down on Coulomb friction alone) needs "
+                "friction=True; without friction it would never stop"
+            )
+        if self.delay is not True:
+            put("delay", 0 if self.delay is False else as_int("delay", self.delay, minimum=0))
+        put("max_delay", as_int("max_delay", self.max_delay, minimum=0))
+        if self.cutoff is not None:
+            put("cutoff", as_positive("cutoff", self.cutoff))
+        if self.segment is not None:
+            put("segment", as_positive("segment", self.segment))
+        if self.method == "arx" and (self.terms or self.delay is True or self.delay):
+            raise ValueError(
+                "friction, offset, dead_zone, delay and merged experiments need method='pem' "
+                "or 'idim' (ARX has no such terms)"
+            )
+        if self.coast and self.method != "pem":
+            raise ValueError(
+                f"coast={self.coast!r} needs method='pem' (the output-error fit), "
+                f"got method={self.method!r}"
+            )
+
+    @property
+    def terms(self) -> tuple:
+        """The estimated terms of the input map, among ``("friction", "offset", "dead_zone")``."""
+        return tuple(nm for nm in TERMS if getattr(self, nm))
+
+    @property
+    def flags(self) -> dict:
+        """``{"friction": bool, "offset": bool, "dead_zone": bool}`` (the inverse-dynamics columns)."""
+        return {nm: getattr(self, nm) for nm in TERMS}
+
+    @property
+    def names(self) -> list:
+        """The estimated parameters, in the order of the covariance."""
+        return ["K", "tau", *self.terms] + (["tau_coast"] if self.coast is True else [])
 
 
 def fit_dc_motor(
@@ -219,6 +124,8 @@ def fit_dc_motor(
     max_delay: int = 10,
     cutoff=None,
     coast=False,
+    *,
+    options: FitOptions | None = None,
 ) -> MotorFit:
     """Identify K and tau of P(s) = K/(s(tau s + 1)) (Stojčić eq. 1, §4A) from a voltage/angle record.
 
@@ -238,14 +145,14 @@ def fit_dc_motor(
     Ts : float
         Sample period (s).
     method : {"pem", "arx", "idim", "idim-iv"}
-        "pem": output error. Without options, on one record of at most 1000 samples, the fit of
-        earlier versions: minimise sum (theta - theta_sim(K, tau, theta0))^2 over the exact ZOH
-        simulation from rest. Otherwise (friction, offset, dead zone, delay, several experiments,
-        a long record or ``segment``) **multiple shooting**: the record is cut into segments,
-        each with its own estimated initial angle and velocity, and K, tau (and the options) are
-        shared; so neither a closed-loop record nor an integrating plant can drift over a long
-        record (Ljung §4.2 output error; the segments are started by the inverse-dynamics estimate
-        below). The standard errors come from s^2 (J^T J)^-1 at the optimum.
+        "pem": output error with **multiple shooting**: K, tau (and the options) minimise
+        sum (theta - theta_sim)^2 over the exact ZOH simulation of the model, the record cut into
+        segments, each started from its own estimated angle and velocity; so neither a
+        closed-loop record nor an integrating plant can drift over a long record (Ljung §4.2
+        output error). A record of at most 1000 samples is one segment: the plain output-error
+        fit from an estimated initial state. Started from the inverse-dynamics estimate below
+        (and, for Stojčić eq. 1 alone, from a grid over tau: whichever starts lower). The
+        standard errors come from s^2 (J^T J)^-1 at the optimum.
         "arx": least squares on the differenced angle v(k) = a v(k-1) + b1 u(k-1) + b2 u(k-2)
         (exact for the ZOH model), K = (b1 + b2)/(1 - a), tau = -Ts/ln a; biased (tau short)
         under noise (:func:`arx_asymptotic_bias`). No options.
@@ -257,8 +164,9 @@ def fit_dc_motor(
         own simulated angle (re-started on each segment), iterated (Janot, Vandanjon & Gautier
         2014; Ljung §7.6), which removes most of that bias.
     fit_theta0 : bool
-        Estimate the initial angle (default) instead of trusting the first, noisy, sample
-        (legacy PEM path; the multiple-shooting fit always estimates every segment's state).
+        Estimate the initial angle (default). False holds it at the first, noisy, sample: the
+        first segment of each record for "pem", the simulation of "arx" ("idim" starts every
+        simulation at the measured angle anyway).
     friction : bool
         Also estimate a Coulomb friction voltage f_c >= 0 acting against the *velocity*, with
         sticking at rest (:func:`simulate_motor`). K and f_c are separable only if the record has
@@ -273,12 +181,12 @@ def fit_dc_motor(
         x = u + offset. Separable from friction only where the motor brakes or reverses.
     segment : float, optional
         Multiple-shooting segment length (s). Default: one segment per record of at most
-        1000 samples, else segments of 500 samples.
+        1000 samples, else segments of 500 samples. Not used by "arx".
     max_delay : int
         Largest delay tried with ``delay=True``.
     cutoff : float, optional
-        Cut-off (Hz) of the low-pass filter of the inverse-dynamics regression; default
-        1/(10 Ts) (a fifth of the Nyquist frequency).
+        Cut-off (Hz) of the low-pass filter of the inverse-dynamics regression (and of the
+        velocities that start the segments); default 1/(10 Ts) (a fifth of the Nyquist frequency).
     coast : bool or "coulomb"
         True: also estimate ``tau_coast``, the time constant while the drive is *open* at u = 0
         (a switch or bridge that floats the motor: no back-EMF braking, the motor runs down on
@@ -289,6 +197,8 @@ def fit_dc_motor(
         to choose when ``coast=True`` reports its rate at the bound 0. ``method="pem"`` only; u = 0
         must occur in the record, and an offset or dead zone is then seen only at the non-zero
         levels.
+    options : FitOptions, optional
+        All of the above as one :class:`FitOptions` (then leave the keywords at their defaults).
 
     Returns
     -------
@@ -303,12 +213,12 @@ def fit_dc_motor(
     ------
     ValueError
         NaN/inf in ``u`` or ``theta``, mismatched lengths, fewer than 10 samples, constant ``u``
-        or ``theta``, a ``Ts`` outside ``FIT_TS_RANGE``, an unknown ``method`` or option, or data from which
-        the ARX pole falls outside (0, 1). Also an input with too few distinct levels for the
-        input map asked for: the motor sees K dz(u + offset) only at the levels u takes, so K,
-        ``offset`` and ``dead_zone`` need at least 1 + offset + dead_zone distinct (driven) levels
-        (without an offset, distinct non-zero magnitudes |u|); a two-level input (a PRBS, a step)
-        cannot separate all three, nor K and a dead zone alone.
+        or ``theta``, a ``Ts`` outside ``FIT_TS_RANGE``, an unknown ``method`` or option, or data
+        from which the ARX pole falls outside (0, 1). Also an input with too few distinct levels
+        for the input map asked for: the motor sees K dz(u + offset) only at the levels u takes,
+        so K, ``offset`` and ``dead_zone`` need at least 1 + offset + dead_zone distinct (driven)
+        levels (without an offset, distinct non-zero magnitudes |u|); a two-level input (a PRBS,
+        a step) cannot separate all three, nor K and a dead zone alone.
 
     References
     ----------
@@ -318,30 +228,45 @@ def fit_dc_motor(
     ICRA 1997, and A. Janot, P.-O. Vandanjon, M. Gautier, "A generic instrumental variable
     approach for industrial robot identification", IEEE TCST 22(1), 2014 (IDIM-LS, IDIM-IV).
     """
-    if method not in ("pem", "arx", "idim", "idim-iv"):
-        raise ValueError(f"method must be 'pem', 'arx', 'idim' or 'idim-iv', got {method!r}")
-    for nm, val in (
-        ("friction", friction),
-        ("offset", offset),
-        ("dead_zone", dead_zone),
-        ("fit_theta0", fit_theta0),
-    ):
-        if not isinstance(val, (bool, np.bool_)):
-            raise ValueError(f"{nm} must be True or False, got {val!r}")
-    if not (isinstance(coast, (bool, np.bool_)) or coast == "coulomb"):
-        raise ValueError(f"coast must be True, False or 'coulomb', got {coast!r}")
-    coast = coast if coast == "coulomb" else bool(coast)
-    if coast == "coulomb" and not friction:
+    keywords = dict(method=method, fit_theta0=fit_theta0, friction=friction, offset=offset)
+    keywords.update(delay=delay, dead_zone=dead_zone, segment=segment, max_delay=max_delay)
+    opts = _options(options, dict(keywords, cutoff=cutoff, coast=coast))
+    Ts = _sample_period(Ts)
+    exps = _experiments(u, theta)
+    _check_record(opts, exps)
+    if opts.method == "arx":
+        fit = _fit_arx(*exps[0], Ts, opts)
+    else:
+        cutoff = 0.1 / Ts if opts.cutoff is None else opts.cutoff
+        segment_n = _segment_samples(opts.segment, exps, Ts)
+        delay, p_ls = _inverse_dynamics_delay(exps, Ts, opts, cutoff)
+        if opts.method == "pem":
+            fit = _fit_output_error(exps, Ts, opts, delay, p_ls, cutoff, segment_n)
+        else:
+            fit = _fit_inverse_dynamics(exps, Ts, opts, delay, cutoff, segment_n)
+    _issue(fit.warnings)
+    return fit
+
+
+# ----------------------------------------------------------------------------------------------
+# the steps of fit_dc_motor
+# ----------------------------------------------------------------------------------------------
+def _options(options, keywords) -> FitOptions:
+    """The checked options: ``options`` itself, or the keywords made into a FitOptions."""
+    given = FitOptions(**keywords)
+    if options is None:
+        return given
+    if not isinstance(options, FitOptions):
+        raise ValueError(f"options must be a FitOptions, got {type(options).__name__}")
+    if given != FitOptions():
         raise ValueError(
-            "coast='coulomb' (the open motor runs down on Coulomb friction alone) needs "
-            "friction=True; without friction it would never stop"
+            "options: give the fit options either as keywords or as options=FitOptions(...), "
+            "not both"
         )
-    estimate_delay = delay is True
-    if not estimate_delay:
-        if delay is False:
-            delay = 0
-        delay = as_int("delay", delay, minimum=0)
-    max_delay = as_int("max_delay", max_delay, minimum=0)
+    return options
+
+
+def _sample_period(Ts) -> float:
     Ts = as_positive("Ts", Ts)
     if not FIT_TS_RANGE[0] <= Ts <= FIT_TS_RANGE[1]:
         # the fit scales with Ts (tau ~ Ts); far outside this range its covariance under/overflows
@@ -349,232 +274,12 @@ def fit_dc_motor(
             f"Ts must lie within {FIT_TS_RANGE[0]:g} … {FIT_TS_RANGE[1]:g} s (FIT_TS_RANGE: the "
             f"sample period of a motor record), got {Ts:g}"
         )
-    exps = _as_experiments(u, theta)
-    for i, (uu, tt) in enumerate(exps):
-        suffix = "" if len(exps) == 1 else f"[{i}]"
-        _check_excitation(uu, tt, "u" + suffix, "theta" + suffix)
-    n_total = sum(uu.size for uu, _ in exps)
-    if cutoff is None:
-        cutoff = 0.1 / Ts
-    else:
-        cutoff = as_positive("cutoff", cutoff)
-    if segment is None:
-        segment_n = None if max(uu.size for uu, _ in exps) <= 1000 else 500
-    else:
-        segment_n = int(round(as_positive("segment", segment) / Ts))
-        if segment_n < 10:
-            raise ValueError(
-                f"segment must be at least 10 samples ({10 * Ts:g} s), got {segment:g} s"
-            )
-    opts = {"friction": bool(friction), "offset": bool(offset), "dead_zone": bool(dead_zone)}
-    extended = (
-        any(opts.values())
-        or coast
-        or estimate_delay
-        or delay
-        or len(exps) > 1
-        or segment_n is not None
-    )
-    if method == "arx" and (
-        extended and (any(opts.values()) or estimate_delay or delay or len(exps) > 1)
-    ):
-        raise ValueError(
-            "friction, offset, dead_zone, delay and merged experiments need method='pem' "
-            "or 'idim' (ARX has no such terms)"
-        )
-    if coast and method != "pem":
-        raise ValueError(
-            f"coast={coast!r} needs method='pem' (the output-error fit), got method={method!r}"
-        )
-    u_all = np.concatenate([uu for uu, _ in exps])
-    if coast and not np.any(u_all == 0.0):
-        raise ValueError(
-            "coast: u is never exactly 0, so the drive is never open; fit without coast"
-        )
-    if offset or dead_zone:
-        # the static map u -> K dz(u + offset) is only seen at the levels u takes
-        # (without an offset, dz(0) = 0 and dz is odd: u = 0 tells nothing, and -l says what l says)
-        levels = np.unique(u_all if offset else np.abs(u_all))
-        if coast or not offset:
-            levels = levels[levels != 0.0]
-        need = 1 + int(bool(offset)) + int(bool(dead_zone))
-        if levels.size < need:
-            shown = ", ".join(f"{lv:.4g}" for lv in levels[:4]) + (
-                " ..." if levels.size > 4 else ""
-            )
-            which = [
-                nm for nm, on in (("K", True), ("offset", offset), ("dead_zone", dead_zone)) if on
-            ]
-            which = ", ".join(which[:-1]) + " and " + which[-1]
-            raise ValueError(
-                f"{'dead_zone' if dead_zone else 'offset'}: the {'driven ' if coast else ''}input takes only "
-                f"{levels.size} distinct level{'s' if levels.size > 1 else ''} ({shown} V), and the motor sees "
-                f"K dz(u + offset) only at those levels, so {which} ({need} parameters) cannot be "
-                f"separated: the fit would trade them off without bound. Drop "
-                f"{'dead_zone' if dead_zone else 'offset'}, or record an input with at least {need} levels"
-            )
-    u_abs_max = max(float(np.max(np.abs(uu))) for uu, _ in exps)
-    if method in ("arx",) or (method == "pem" and not extended):
-        fit = _fit_legacy(exps[0][0], exps[0][1], Ts, method, fit_theta0)
-        names = ["K", "tau"]
-        par = {"K": fit.K, "tau": fit.tau, "friction": 0.0, "offset": 0.0, "dead_zone": 0.0}
-        fit.warnings = _diagnose(par, fit.cov, names, u_abs_max)
-        _issue(fit.warnings)
-        return fit
-
-    # -- inverse dynamics: the estimate (idim) or the start (pem) ----------------------------
-    delays = range(0, max_delay + 1) if estimate_delay else [delay]
-    idim_iv = 4 if method == "idim-iv" else 0
-    best = None
-    for d in delays:
-        try:
-            p, cov_p, sse, _ = _idim(exps, Ts, d, opts, cutoff)
-        except (ValueError, np.linalg.LinAlgError):
-            continue
-        if best is None or sse < best[2]:
-            best = (d, p, sse)
-    if best is None:
-        raise ValueError("theta: the inverse-dynamics regression failed (too few moving samples)")
-    delay = best[0]
-    p, cov_p, _, _ = _idim(
-        exps, Ts, delay, opts, cutoff, iv_iterations=idim_iv, segment_n=segment_n
-    )
-    par = _params_from_idim(p, opts)
-    names = ["K", "tau"] + [nm for nm in ("friction", "offset", "dead_zone") if opts[nm]]
-    if coast is True:
-        names.append("tau_coast")
-    opts = dict(opts, coast=coast)
-    if method in ("idim", "idim-iv"):
-        Jt = np.zeros((len(names), p.size))
-        a_, b_ = p[0], p[1]
-        Jt[0, 1] = -1.0 / b_**2
-        Jt[1, 0], Jt[1, 1] = 1.0 / b_, -a_ / b_**2
-        for i in range(2, len(names)):
-            Jt[i, i] = 1.0
-        cov = Jt @ cov_p @ Jt.T
-        ys, th_all = [], []
-        for uu, tt in exps:
-            if par["K"] > 0 and par["tau"] > 0:
-                ys.append(_shooting_sim(uu, tt, Ts, par, delay, cutoff, segment_n))
-            else:
-                ys.append(np.full(tt.size, np.nan))
-            th_all.append(tt)
-        y_sim = np.concatenate(ys)
-        theta_c = np.concatenate(th_all)
-        resid = theta_c - y_sim
-        msgs = _diagnose(par, cov, names, u_abs_max)
-        s = float(np.sqrt(np.mean(resid**2))) if np.all(np.isfinite(resid)) else float("nan")
-        nfev, nseg, th0 = 0, 1, float(theta_c[0])
-        om0 = 0.0
-        at_bound = []
-    else:
-        if not (par["K"] > 0 and par["tau"] > 0 and math.isfinite(par["K"])):
-            # a reversed encoder (K < 0) or an unusable regression: start from the linear grid
-            g_exp = max(exps, key=lambda e: e[0].size)
-            K0, tau0, _, _ = _initial_guess(g_exp[0], g_exp[1], Ts, True, False)
-            par = {"K": K0, "tau": tau0, "friction": 0.0, "offset": 0.0, "dead_zone": 0.0}
-        # start friction and dead zone well inside (0, max |u|): the inverse-dynamics value can be
-        # far off, and a start near max |u| lets the fit trade a huge K against a dead zone that
-        # swallows the whole input
-        for nm in ("friction", "dead_zone"):
-            if opts[nm]:
-                par[nm] = min(max(par[nm], 0.01 * u_abs_max), 0.5 * u_abs_max)
-        # the inverse-dynamics delay first; then its neighbours, started from that optimum
-        cands = (
-            [delay]
-            if not estimate_delay
-            else [delay] + sorted({max(delay - 1, 0), min(delay + 1, max_delay)} - {delay})
-        )
-        # (a neighbour only has to show a higher cost: a few iterations, a full fit if it wins)
-        res = None
-        for d in cands:
-            if res is None:
-                res = _fit_oe_ms(exps, Ts, d, opts, par, segment_n, cutoff)
-                continue
-            r_ = _fit_oe_ms(exps, Ts, d, opts, res["par"], segment_n, cutoff, max_nfev=15)
-            if r_["cost"] < res["cost"]:
-                res, delay = _fit_oe_ms(exps, Ts, d, opts, r_["par"], segment_n, cutoff), d
-        par, cov = res["par"], res["cov"]
-        y_sim, theta_c = res["y_sim"], res["theta"]
-        resid = theta_c - y_sim
-        nfev, s, nseg, th0 = res["nfev"], res["s"], res["nseg"], float(res["seg_theta0"][0])
-        om0 = float(res["seg_omega0"][0])
-        msgs = _diagnose(par, cov, names, u_abs_max, res["at_bound"])
-    _issue(msgs)
-    par.setdefault("tau_coast", 0.0)
-    std = dict(zip(names, np.sqrt(np.clip(np.diag(cov), 0.0, None))))
-    K, tau = float(par["K"]), float(par["tau"])
-    fp = fit_percent(theta_c, y_sim) if np.all(np.isfinite(y_sim)) else float("nan")
-    return MotorFit(
-        K=K,
-        tau=tau,
-        K_std=float(std["K"]),
-        tau_std=float(std["tau"]),
-        fit_percent=fp,
-        model=_motor_tf(K, tau) if tau > 0 else control.tf([K], [1.0, 0.0]),
-        method=method,
-        Ts=Ts,
-        theta0=th0,
-        cov=cov[:2, :2].copy(),
-        y_sim=y_sim,
-        residuals=resid,
-        noise_std=float(s),
-        nfev=int(nfev),
-        friction=float(par["friction"]),
-        friction_std=float(std.get("friction", 0.0)),
-        offset=float(par["offset"]),
-        offset_std=float(std.get("offset", 0.0)),
-        dead_zone=float(par["dead_zone"]),
-        dead_zone_std=float(std.get("dead_zone", 0.0)),
-        delay=int(delay),
-        estimated=tuple(names),
-        covariance=cov,
-        warnings=msgs,
-        n_segments=int(nseg),
-        n_experiments=len(exps),
-        omega0=om0,
-        tau_coast=float(par["tau_coast"]),
-        tau_coast_std=float(std.get("tau_coast", 0.0)),
-    )
+    return Ts
 
 
-def _fit_legacy(u, theta, Ts, method, fit_theta0) -> MotorFit:
-    """The linear single-record fits (ARX, and output error from rest) of earlier versions."""
-    arx_res = None
-    nfev = 0
-    if method == "arx":
-        K, tau, cov, arx_res = _fit_arx(u, theta, Ts)
-        g = K * _unit_response(tau, Ts, u)
-        th0 = _best_theta0(theta, g) if fit_theta0 else theta[0]
-        noise_std = math.sqrt(arx_res.noise_variance) * Ts
-        y_sim = g + th0
-    else:
-        K, tau, cov, th0, nfev, noise_std, _, _, y_sim = _fit_pem(u, theta, Ts, fit_theta0, False)
-        if not (math.isfinite(K) and math.isfinite(tau)):
-            raise ValueError("theta: the output-error fit did not converge")
-    std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    return MotorFit(
-        K=float(K),
-        tau=float(tau),
-        K_std=float(std[0]),
-        tau_std=float(std[1]),
-        fit_percent=fit_percent(theta, y_sim),
-        model=_motor_tf(K, tau),
-        method=method,
-        Ts=Ts,
-        theta0=float(th0),
-        cov=cov,
-        y_sim=y_sim,
-        residuals=theta - y_sim,
-        noise_std=float(noise_std),
-        arx_result=arx_res,
-        nfev=int(nfev),
-        covariance=cov.copy(),
-    )
-
-
-def _as_experiments(u, theta):
-    """One record (two 1-D arrays) or several (two sequences of 1-D arrays) -> list of (u, theta)."""
+def _experiments(u, theta) -> list:
+    """One record (two 1-D arrays) or several (two sequences of 1-D arrays) -> list of (u, theta),
+    each checked for finite values, equal lengths and an input and output that move."""
 
     def is_multi(x):
         return (
@@ -590,5 +295,241 @@ def _as_experiments(u, theta):
                 "u and theta must both be one record (1-D arrays) or both lists of "
                 "records of the same length"
             )
-        return [_pair(uu, tt, f"u[{i}]", f"theta[{i}]") for i, (uu, tt) in enumerate(zip(u, theta))]
-    return [_pair(u, theta, "u", "theta")]
+        exps = [_pair(uu, tt, f"u[{i}]", f"theta[{i}]") for i, (uu, tt) in enumerate(zip(u, theta))]
+    else:
+        exps = [_pair(u, theta, "u", "theta")]
+    for i, (uu, tt) in enumerate(exps):
+        suffix = "" if len(exps) == 1 else f"[{i}]"
+        _check_excitation(uu, tt, "u" + suffix, "theta" + suffix)
+    return exps
+
+
+def _check_record(opts: FitOptions, exps) -> None:
+    """What the options ask of the record: one record for ARX, an open drive for ``coast``,
+    enough input levels for the offset and dead zone."""
+    if opts.method == "arx" and len(exps) > 1:
+        raise ValueError(
+            "friction, offset, dead_zone, delay and merged experiments need method='pem' "
+            "or 'idim' (ARX has no such terms)"
+        )
+    u_all = np.concatenate([uu for uu, _ in exps])
+    if opts.coast and not np.any(u_all == 0.0):
+        raise ValueError(
+            "coast: u is never exactly 0, so the drive is never open; fit without coast"
+        )
+    if opts.offset or opts.dead_zone:
+        _check_input_levels(opts, u_all)
+
+
+def _check_input_levels(opts: FitOptions, u_all) -> None:
+    """The static map u -> K dz(u + offset) is only seen at the levels u takes (without an
+    offset, dz(0) = 0 and dz is odd: u = 0 tells nothing, and -l says what l says)."""
+    offset, dead_zone = opts.offset, opts.dead_zone
+    levels = np.unique(u_all if offset else np.abs(u_all))
+    if opts.coast or not offset:
+        levels = levels[levels != 0.0]
+    need = 1 + int(offset) + int(dead_zone)
+    if levels.size >= need:
+        return
+    shown = ", ".join(f"{lv:.4g}" for lv in levels[:4]) + (" ..." if levels.size > 4 else "")
+    which = [nm for nm, on in (("K", True), ("offset", offset), ("dead_zone", dead_zone)) if on]
+    which = ", ".join(which[:-1]) + " and " + which[-1]
+    name = "dead_zone" if dead_zone else "offset"
+    plural = "s" if levels.size > 1 else ""
+    raise ValueError(
+        f"{name}: the {'driven ' if opts.coast else ''}input takes only {levels.size} distinct "
+        f"level{plural} ({shown} V), and the motor sees K dz(u + offset) only at those levels, "
+        f"so {which} ({need} parameters) cannot be separated: the fit would trade them off "
+        f"without bound. Drop {name}, or record an input with at least {need} levels"
+    )
+
+
+def _segment_samples(segment, exps, Ts):
+    """Shooting segment length (samples): None (one segment per record) up to 1000 samples."""
+    if segment is None:
+        return None if max(uu.size for uu, _ in exps) <= 1000 else 500
+    segment_n = int(round(segment / Ts))
+    if segment_n < 10:
+        raise ValueError(f"segment must be at least 10 samples ({10 * Ts:g} s), got {segment:g} s")
+    return segment_n
+
+
+def _u_abs_max(exps) -> float:
+    return max(float(np.max(np.abs(uu))) for uu, _ in exps)
+
+
+def _fit_arx(u, theta, Ts, opts: FitOptions) -> MotorFit:
+    """The velocity ARX fit and the simulation of its model on the record."""
+    K, tau, cov, res = velocity_arx(u, theta, Ts)
+    g = K * _unit_response(tau, Ts, u)
+    th0 = _best_theta0(theta, g) if opts.fit_theta0 else float(theta[0])
+    par = {"K": K, "tau": tau, "friction": 0.0, "offset": 0.0, "dead_zone": 0.0}
+    return _motor_fit(
+        "arx",
+        Ts,
+        par,
+        cov,
+        ["K", "tau"],
+        g + th0,
+        theta,
+        _diagnose(par, cov, ["K", "tau"], _u_abs_max([(u, theta)])),
+        theta0=float(th0),
+        noise_std=math.sqrt(res.noise_variance) * Ts,
+        arx_result=res,
+    )
+
+
+def _inverse_dynamics_delay(exps, Ts, opts: FitOptions, cutoff):
+    """The given delay, or the one in 0 .. max_delay with the least inverse-dynamics residual,
+    and the IDIM-LS parameters (tau/K, 1/K, [f_c], [offset], [dead_zone]) at that delay."""
+    best = None
+    for d in range(opts.max_delay + 1) if opts.delay is True else [opts.delay]:
+        try:
+            p, _, sse, _ = _idim(exps, Ts, d, opts.flags, cutoff)
+        except (ValueError, np.linalg.LinAlgError):
+            continue
+        if best is None or sse < best[2]:
+            best = (d, p, sse)
+    if best is None:
+        raise ValueError("theta: the inverse-dynamics regression failed (too few moving samples)")
+    return best[0], best[1]
+
+
+def _fit_inverse_dynamics(exps, Ts, opts: FitOptions, delay, cutoff, segment_n) -> MotorFit:
+    """IDIM-LS or IDIM-IV, its covariance carried to (K, tau, ...), simulated segment by segment."""
+    iv = 4 if opts.method == "idim-iv" else 0
+    p, cov_p, _, _ = _idim(
+        exps, Ts, delay, opts.flags, cutoff, iv_iterations=iv, segment_n=segment_n
+    )
+    par = _params_from_idim(p, opts.flags)
+    names = opts.names
+    # (tau/K, 1/K, ...) -> (K, tau, ...)
+    Jt = np.zeros((len(names), p.size))
+    a_, b_ = p[0], p[1]
+    Jt[0, 1] = -1.0 / b_**2
+    Jt[1, 0], Jt[1, 1] = 1.0 / b_, -a_ / b_**2
+    for i in range(2, len(names)):
+        Jt[i, i] = 1.0
+    cov = Jt @ cov_p @ Jt.T
+    ys = []
+    for uu, tt in exps:
+        if par["K"] > 0 and par["tau"] > 0:
+            ys.append(_shooting_sim(uu, tt, Ts, par, delay, cutoff, segment_n))
+        else:
+            ys.append(np.full(tt.size, np.nan))
+    y_sim = np.concatenate(ys)
+    theta = np.concatenate([tt for _, tt in exps])
+    resid = theta - y_sim
+    s = float(np.sqrt(np.mean(resid**2))) if np.all(np.isfinite(resid)) else float("nan")
+    return _motor_fit(
+        opts.method,
+        Ts,
+        par,
+        cov,
+        names,
+        y_sim,
+        theta,
+        _diagnose(par, cov, names, _u_abs_max(exps)),
+        theta0=float(theta[0]),
+        noise_std=s,
+        delay=delay,
+        n_experiments=len(exps),
+    )
+
+
+def _output_error_starts(exps, Ts, opts: FitOptions, p_ls, segment_n) -> list:
+    """Starts of the output-error fit: the inverse-dynamics estimate when it is a motor; the tau
+    grid on the longest record when it is not (a reversed encoder, K < 0, or an unusable
+    regression), and for Stojčić eq. 1 alone on records of one segment, where the grid is the
+    start that cannot be far off (any sign of K, any tau/Ts)."""
+    idim = _params_from_idim(p_ls, opts.flags)
+    starts = []
+    if idim["K"] > 0 and idim["tau"] > 0 and math.isfinite(idim["K"]):
+        starts.append(idim)
+    if not starts or (segment_n is None and not (opts.terms or opts.coast)):
+        uu, tt = max(exps, key=lambda e: e[0].size)
+        K0, tau0, _ = tau_grid_start(uu, tt, Ts)
+        starts.append({"K": K0, "tau": tau0, "friction": 0.0, "offset": 0.0, "dead_zone": 0.0})
+    # friction and dead zone start well inside (0, max |u|): the inverse-dynamics value can be
+    # far off, and a start near max |u| lets the fit trade a huge K against a dead zone that
+    # swallows the whole input
+    u_max = _u_abs_max(exps)
+    for par in starts:
+        for nm in ("friction", "dead_zone"):
+            if getattr(opts, nm):
+                par[nm] = min(max(par[nm], 0.01 * u_max), 0.5 * u_max)
+    return starts
+
+
+def _fit_output_error(exps, Ts, opts: FitOptions, delay, p_ls, cutoff, segment_n) -> MotorFit:
+    """Multiple-shooting output error from the better start; with ``delay=True`` the
+    inverse-dynamics delay first, then its neighbours, started from that optimum."""
+    kw = dict(
+        terms=opts.terms,
+        coast=opts.coast,
+        segment_n=segment_n,
+        cutoff=cutoff,
+        fix_theta0=not opts.fit_theta0,
+    )
+    starts = _output_error_starts(exps, Ts, opts, p_ls, segment_n)
+    problem = ShootingProblem(exps, Ts, delay, offset_hint=starts[0].get("offset", 0.0), **kw)
+    x0s = [problem.start(s) for s in starts]
+    res = problem.solve(min(x0s, key=problem.cost))
+    if opts.delay is True:
+        neighbours = sorted({max(delay - 1, 0), min(delay + 1, opts.max_delay)} - {delay})
+        for d in neighbours:
+            # a neighbour only has to show a higher cost: a few iterations, a full fit if it wins
+            trial = fit_output_error(exps, Ts, d, res.par, max_nfev=15, **kw)
+            if trial.cost < res.cost:
+                res, delay = fit_output_error(exps, Ts, d, trial.par, **kw), d
+    names = opts.names
+    msgs = _diagnose(res.par, res.cov, names, _u_abs_max(exps), res.at_bound)
+    return _motor_fit(
+        "pem",
+        Ts,
+        res.par,
+        res.cov,
+        names,
+        res.y_sim,
+        res.theta,
+        msgs,
+        theta0=float(res.seg_theta0[0]),
+        omega0=float(res.seg_omega0[0]),
+        noise_std=res.s,
+        nfev=res.nfev,
+        delay=delay,
+        n_segments=res.nseg,
+        n_experiments=len(exps),
+    )
+
+
+def _motor_fit(method, Ts, par, cov, names, y_sim, theta, msgs, **extra) -> MotorFit:
+    """The MotorFit of estimated ``par`` (``names`` in the order of ``cov``) on the record."""
+    std = dict(zip(names, np.sqrt(np.clip(np.diag(cov), 0.0, None))))
+    K, tau = float(par["K"]), float(par["tau"])
+    fp = fit_percent(theta, y_sim) if np.all(np.isfinite(y_sim)) else float("nan")
+    return MotorFit(
+        K=K,
+        tau=tau,
+        K_std=float(std["K"]),
+        tau_std=float(std["tau"]),
+        fit_percent=fp,
+        model=_motor_tf(K, tau) if tau > 0 else control.tf([K], [1.0, 0.0]),
+        method=method,
+        Ts=Ts,
+        cov=cov[:2, :2].copy(),
+        y_sim=y_sim,
+        residuals=theta - y_sim,
+        friction=float(par["friction"]),
+        friction_std=float(std.get("friction", 0.0)),
+        offset=float(par["offset"]),
+        offset_std=float(std.get("offset", 0.0)),
+        dead_zone=float(par["dead_zone"]),
+        dead_zone_std=float(std.get("dead_zone", 0.0)),
+        estimated=tuple(names),
+        covariance=cov,
+        warnings=msgs,
+        tau_coast=float(par.get("tau_coast", 0.0)),
+        tau_coast_std=float(std.get("tau_coast", 0.0)),
+        **extra,
+    )

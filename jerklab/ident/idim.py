@@ -8,6 +8,7 @@ filter (parallel filtering).
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -16,10 +17,15 @@ from scipy import signal
 from jerklab.ident.model import _drive, _simulate_segments
 
 
+@functools.lru_cache(maxsize=64)
 def _lowpass(Ts, cutoff):
+    """4th-order Butterworth (b, a) at ``cutoff`` Hz (at most 0.95 Nyquist); read-only arrays,
+    designed once per (Ts, cutoff): a fit filters several times with the same filter."""
     nyq = 0.5 / Ts
     wn = min(cutoff / nyq, 0.95)
-    return signal.butter(4, wn)
+    b, a = signal.butter(4, wn)
+    b.flags.writeable = a.flags.writeable = False
+    return b, a
 
 
 def _filtered_states(theta, Ts, cutoff):

@@ -15,7 +15,7 @@ from scipy import linalg, optimize, signal
 from jerklab._lazy import lazy_module
 from jerklab._validate import as_positive
 from jerklab.ident._common import _check_excitation, _pair, fit_percent
-from jerklab.ident.oe import _initial_guess
+from jerklab.ident.oe import tau_grid_start
 
 control = lazy_module("control")  # python-control imports matplotlib: import it on first use
 
@@ -91,7 +91,7 @@ def fit_p2(u, theta, Ts) -> P2Fit:
     u, theta = _pair(u, theta, "u", "theta")
     _check_excitation(u, theta, "u", "theta")
     span = u.size * Ts
-    _, tau0, _, _ = _initial_guess(u, theta, Ts, True, False)
+    _, tau0, _ = tau_grid_start(u, theta, Ts)
     ones = np.ones(u.size)
 
     def linear_part(q):

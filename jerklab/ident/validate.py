@@ -15,12 +15,12 @@ import numpy as np
 from scipy import linalg, optimize, stats
 
 from jerklab._validate import as_int, as_positive, as_real
+from jerklab._vocab import aliases
 from jerklab.ident._common import _pair, _signal, fit_percent
 from jerklab.ident.data import IdentData
-from jerklab.ident.fit import MotorFit
 from jerklab.ident.model import _coast_mask, _coast_step, _drive
+from jerklab.ident.motorfit import MotorFit
 from jerklab.plant import _jit, advance_em
-from jerklab.plots import plot_compare_result, plot_residuals
 
 
 @dataclass
@@ -54,7 +54,9 @@ class ResidualAnalysis:
     cross_pvalue: float | None = None
 
     def plot(self, axes=None, title: str | None = None):
-        """The two panels of MATLAB's ``resid`` (see :func:`plot_residuals`)."""
+        """The two panels of MATLAB's ``resid``: :func:`jerklab.plots.plot_residuals`."""
+        from jerklab.plots import plot_residuals  # drawing is imported when a figure is asked for
+
         return plot_residuals(self, axes, title)
 
 
@@ -298,15 +300,19 @@ def _predict_kernel(v, coast, y, fc, K, tau, rc, Ts, k, out):
     return out
 
 
+@aliases(t="time")
 @dataclass
 class CompareResult:
-    """Output of :func:`compare`: the model's output on a record and its fit %.
+    """Output of :func:`compare`: a record, the model's output on it and the fit %.
 
+    ``time`` (older name ``t``, s), the measured output ``y`` and the model's ``y_hat``, in
+    ``unit``: the angle, or with ``output="speed"`` the mean speed over each sample period.
     ``horizon`` is None for simulation (MATLAB ``compare(data, sys)``, an infinite horizon) or
-    k for the k-step-ahead prediction (``compare(data, sys, k)``).
+    k for the k-step-ahead prediction (``compare(data, sys, k)``); ``theta0``, ``omega0`` the
+    initial state of the simulation; ``label`` names the model in a legend.
     """
 
-    t: np.ndarray
+    time: np.ndarray
     y: np.ndarray
     y_hat: np.ndarray
     fit_percent: float
@@ -314,10 +320,25 @@ class CompareResult:
     theta0: float
     omega0: float
     label: str = ""
+    output: str = "angle"
+    unit: str = "rad"
 
-    def plot(self, ax=None, unit: str = "rad"):
-        """Measured and model output, fit % in the legend: :func:`jerklab.plots.plot_compare_result`."""
+    def plot(self, ax=None, unit: str | None = None):
+        """Measured and model output, fit % in the legend: :func:`jerklab.plots.plot_compare`
+        (``unit`` overrides the axis label's unit)."""
+        from jerklab.plots import plot_compare_result  # imported when a figure is asked for
+
         return plot_compare_result(self, ax, unit)
+
+
+class CompareResults(list):
+    """Several :class:`CompareResult` of one record (different models), drawn on one axes."""
+
+    def plot(self, ax=None):
+        """The record once and each model's output: :func:`jerklab.plots.plot_compare`."""
+        from jerklab.plots import plot_compare  # imported when a figure is asked for
+
+        return plot_compare(*self, ax=ax)
 
 
 def compare(
@@ -362,8 +383,9 @@ def compare(
             f"fit has tau = {fit.tau:.4g} s, K = {fit.K:.4g}: no motor to simulate "
             f"(see fit.warnings: {'; '.join(fit.warnings) or 'none'})"
         )
+    unit = "rad"
     if isinstance(data, IdentData):
-        u, y, Ts = data.u, data.y, data.Ts
+        u, y, Ts, unit = data.voltage, data.position, data.Ts, data.output_unit
     elif isinstance(data, (tuple, list)) and len(data) == 2:
         u, y = _pair(data[0], data[1], "u", "y", min_len=3)
         Ts = fit.Ts
@@ -404,7 +426,8 @@ def compare(
     t = np.arange(y.size) * Ts
     if output == "speed":
         y, y_hat, t = np.diff(y) / Ts, np.diff(y_hat) / Ts, t[:-1] + 0.5 * Ts
-    return CompareResult(t, y, y_hat, fit_percent(y, y_hat), horizon, th0, om0, label)
+        unit = unit[:-2] if unit.endswith("*s") else f"{unit}/s"  # y_cc*s -> y_cc, rad -> rad/s
+    return CompareResult(t, y, y_hat, fit_percent(y, y_hat), horizon, th0, om0, label, output, unit)
 
 
 def resid(
@@ -425,8 +448,47 @@ def resid(
     ``output="speed"``: the residuals of the mean speed over each period (see :func:`compare`).
     """
     c = compare(data, fit, None, initial, output=output)
-    u = data.u if isinstance(data, IdentData) else _signal("u", data[0])
+    u = data.voltage if isinstance(data, IdentData) else _signal("u", data[0])
     u = u[: c.y.size]
     e = c.y - c.y_hat
     max_lag = min(as_int("max_lag", max_lag, minimum=1), (e.size - 1) // 2)
     return residual_analysis(e, u if np.std(u) > 0 else None, max_lag, confidence)
+
+
+def plot_compare(data, *fits, ax=None, labels=None, horizon=None):
+    """Measured angle against each fitted model's output, with fit % in the legend.
+
+    ``CompareResults([compare(data, f, horizon, label=...) for f in fits]).plot(ax)``: the
+    comparisons are computed here and drawn by :func:`jerklab.plots.plot_compare`.
+
+    Parameters
+    ----------
+    data : IdentData
+        The record to compare on.
+    *fits : MotorFit
+        Models to simulate.
+    ax : matplotlib Axes, optional
+    labels : list of str, optional
+        Legend names (default: the method, with K and tau).
+    horizon : None or int
+        None: simulation; k: k-step-ahead prediction (see :func:`compare`).
+    """
+    if not isinstance(data, IdentData):
+        raise ValueError(f"data must be an IdentData, got {type(data).__name__}")
+    if labels is not None and len(labels) != len(fits):
+        raise ValueError(f"labels must name each of the {len(fits)} fits, got {len(labels)}")
+    results = CompareResults()
+    for i, f in enumerate(fits):
+        if not isinstance(f, MotorFit):
+            raise ValueError(f"fits[{i}] must be a MotorFit, got {type(f).__name__}")
+        name = labels[i] if labels else f.method.upper()
+        label = f"{name}: K={f.K:.3g}, τ={f.tau * 1e3:.3g} ms"
+        results.append(compare(data, f, horizon, label=label))
+    return results.plot(ax=ax)
+
+
+def plot_residuals(analysis, axes=None, title: str | None = None):
+    """The two panels of MATLAB's ``resid`` for a :class:`ResidualAnalysis`: ``analysis.plot``."""
+    if not isinstance(analysis, ResidualAnalysis):
+        raise ValueError(f"analysis must be a ResidualAnalysis, got {type(analysis).__name__}")
+    return analysis.plot(axes, title)
