@@ -152,8 +152,9 @@ def test_fit_on_first_half_validated_on_second(halves, fits):
     validation half 75.3 % for the open-drive model with Coulomb run-down (coast='coulomb'), 62.7 % for
     a viscous run-down without friction (coast=True), -35.2 % for Stojčić eq. 1 alone; residual RMS
     216 vs 1179 (speed units). With both viscous and Coulomb run-down (coast=True, friction=True) the
-    viscous rate goes to its bound 0 (tau_coast = 5e7 clock periods) and the fit says so. The bands below keep 5 points of margin; the residuals are not white for any of
-    the models (the rise from rest is S-shaped, which no first-order model follows)."""
+    viscous rate goes to its bound 0 (tau_coast = 5e7 clock periods) and the fit says so. The
+    bands below keep 5 points of margin; the residuals are not white for any of the models (the
+    rise from rest is S-shaped, which no first-order model follows)."""
     _, val = halves
     f, lin, both = fits["coulomb"], fits["linear"], fits["both"]
     assert not f.warnings

@@ -55,6 +55,7 @@ from jerklab.ident.datasets import (
 from jerklab.ident.design import MAX_INPUT_SAMPLES, prbs, sample_time_range, step_input
 from jerklab.ident.diagnostics import IdentificationWarning
 from jerklab.ident.fit import FIT_TS_RANGE, FitOptions, fit_dc_motor
+from jerklab.ident.mode import ModeEstimate, coupled_mode, identify_mode
 from jerklab.ident.model import dc_motor_zoh_coefficients, simulate_dc_motor, simulate_motor
 from jerklab.ident.motorfit import MotorFit
 from jerklab.ident.p2 import P2Fit, fit_p2
@@ -105,6 +106,9 @@ __all__ = [
     "step_input",
     "prbs",
     "sample_time_range",
+    "ModeEstimate",
+    "identify_mode",
+    "coupled_mode",
     "MIN_SAMPLES",
     "FIT_TS_RANGE",
     "MAX_INPUT_SAMPLES",
