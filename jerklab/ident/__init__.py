@@ -18,9 +18,9 @@ module fits; :func:`fit_p2` reproduces the paper's literal call to show where it
   with K = (b1 + b2) / (1 - a) and tau = -Ts / ln a. It is exact on noise-free data, but the
   regressor v(k-1) carries the measurement noise, so under output noise or encoder quantization the
   estimate is biased (``arx_asymptotic_bias`` predicts by how much).
-* ``method="pem"``: the output-error (simulation-error) fit: K, tau (and the initial angle) minimise
-  sum (theta_measured - theta_simulated)^2, where theta_simulated is the exact ZOH simulation of
-  Stojčić eq. 1.
+* ``method="pem"``: the output-error (simulation-error) fit: K, tau (and the initial angle and
+  velocity) minimise sum (theta_measured - theta_simulated)^2, where theta_simulated is the exact
+  ZOH simulation of Stojčić eq. 1.
   With white measurement noise this is the maximum-likelihood estimate and is unbiased; its
   covariance comes from the Jacobian at the optimum.
 
@@ -36,8 +36,15 @@ Also here: :class:`IdentData` (CSV + JSON records, built from a rig ``Recording`
 of several experiments, :func:`load_micromouse` (measured gearmotor records, data/real), :func:`arx`
 for any orders, validation with MATLAB's semantics (:func:`compare` for simulation and k-step
 prediction, :func:`resid`, :func:`validate`, :func:`residual_analysis`, :func:`plot_compare`,
-:func:`plot_residuals`), input design (:func:`step_input`, :func:`prbs`, :func:`sample_time_range`)
-and :func:`arx_asymptotic_bias`. Everything is SI: volts in, radians out, seconds.
+:func:`plot_residuals`), input design (:func:`step_input`, :func:`prbs`, :func:`sample_time_range`),
+:func:`arx_asymptotic_bias`, and the flexible mode of motor and load (:func:`identify_mode`).
+Everything is SI: volts in, radians out, seconds.
+
+The modules, each one concept: ``data`` (IdentData, MergedData), ``model`` (the simulations),
+``arx``, ``fit`` (fit_dc_motor, FitOptions) with ``motorfit`` (its result), ``oe`` (multiple
+shooting), ``idim`` (inverse dynamics) and ``diagnostics``, ``p2``, ``validate``, ``datasets``,
+``design``, ``mode``. Results draw themselves (``.plot()``) with ``jerklab.plots``, imported only
+then; this package imports neither ``jerklab.plots`` nor matplotlib, and python-control lazily.
 """
 
 from jerklab.ident._common import MIN_SAMPLES

@@ -34,7 +34,7 @@ class MotorFit:
     model : control.TransferFunction
         K / (tau s^2 + s), volts -> rad.
     method : str
-        "pem" or "arx".
+        "pem", "arx", "idim" or "idim-iv" (see :func:`~jerklab.ident.fit_dc_motor`).
     Ts : float
         Sample period of the data (s).
     theta0 : float
