@@ -233,9 +233,19 @@ def fit_dc_motor(
     ICRA 1997, and A. Janot, P.-O. Vandanjon, M. Gautier, "A generic instrumental variable
     approach for industrial robot identification", IEEE TCST 22(1), 2014 (IDIM-LS, IDIM-IV).
     """
-    keywords = dict(method=method, fit_theta0=fit_theta0, friction=friction, offset=offset)
-    keywords.update(delay=delay, dead_zone=dead_zone, segment=segment, max_delay=max_delay)
-    opts = _options(options, dict(keywords, cutoff=cutoff, coast=coast))
+    keywords = dict(
+        method=method,
+        fit_theta0=fit_theta0,
+        friction=friction,
+        offset=offset,
+        delay=delay,
+        dead_zone=dead_zone,
+        segment=segment,
+        max_delay=max_delay,
+        cutoff=cutoff,
+        coast=coast,
+    )
+    opts = _options(options, keywords)
     Ts = _sample_period(Ts)
     exps = _experiments(u, theta)
     _check_record(opts, exps)
