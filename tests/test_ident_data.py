@@ -58,6 +58,7 @@ def test_dataset_files_and_metadata():
         ("prbs_6V_3V", "pem", True, 32.4, 0.025, 0.005),
         ("step_6V", "arx", False, 31.35, 0.02455, 0.005),  # README table
         ("prbs_6V_3V", "arx", False, 31.39, 0.02417, 0.005),
+        ("prbs_6V_3V", "pem", False, 31.31, 0.02479, 0.005),  # friction unmodelled
         ("rig_step_6V", "pem", False, 32.4 * (1 - 0.2 / 6.0058651), 0.025, 0.003),
         ("rig_step_6V", "arx", False, 31.32, 0.02459, 0.005),
     ],
