@@ -7,10 +7,11 @@ an ``Axes`` and returns it, so a notebook or a widget can compose several on one
 * :func:`zplane` — poles and zeros in the z-plane with the unit circle (the stability
   boundary of a sampled loop; notebook 03, the tuning panel).
 * :func:`plot_simulation` — a closed-loop run (``jerklab.sim.SimResult.plot``).
-* :func:`plot_ident_data`, :func:`plot_compare`, :func:`plot_residuals` — identification
-  records, the results of ``jerklab.ident.compare`` (MATLAB's ``compare``) and of the residual
-  tests (MATLAB's ``resid``); ``jerklab.ident``'s ``.plot()`` methods call them, and this
-  module never imports ``jerklab.ident``.
+* :func:`plot_ident_data`, :func:`plot_compare`, :func:`plot_compare_result`,
+  :func:`plot_residuals` — identification records, model against record (MATLAB's
+  ``compare``: ``jerklab.ident.compare`` computes a ``CompareResult``, these draw it) and the
+  residual tests (MATLAB's ``resid``); ``jerklab.ident``'s ``.plot()``. This module imports
+  nothing of ``jerklab.ident``: the results carry what is drawn.
 * :func:`plot_tradeoff` — residual vibration against the frequency ratio for profiles,
   input shapers and robust LP commands (``jerklab.shaping.tradeoff``, notebook 09).
 * :func:`plot_recording`, :func:`plot_comparison` — a rig recording, and a recording against
@@ -248,22 +249,26 @@ def plot_ident_data(data, axes=None):
 _COMPARE_FIELDS = ("time", "y", "y_hat", "fit_percent", "horizon", "label")
 
 
-def plot_compare(*results, ax=None, unit=None, measured=True):
-    """Measured output and each model's output against time, fit % in the legend.
+def _check_compare_result(i, result):
+    missing = [f for f in _COMPARE_FIELDS if not hasattr(result, f)]
+    if missing:
+        raise ValueError(
+            f"results[{i}] must be a jerklab.ident.CompareResult (compare(data, fit)), "
+            f"got {type(result).__name__}"
+        )
 
-    Draws results of ``jerklab.ident.compare`` (``CompareResult.plot`` calls this); it computes
-    nothing. ``jerklab.ident.plot_compare(data, *fits)`` compares a record with several fits and
-    draws them here.
+
+def plot_compare(*results, ax=None, unit: str | None = None):
+    """Measured output and each model's output against time, with fit % in the legend.
 
     Parameters
     ----------
     *results : jerklab.ident.CompareResult
-        One or more comparisons on the same record; the measured output is drawn from the first.
+        ``compare(data, fit, ...)`` of one or more models on the *same* record: the record is
+        drawn once (from the first), then each model's output.
     ax : matplotlib Axes, optional
     unit : str, optional
-        Unit of the axis label; default: the first result's ``unit`` (rad, or rad/s for speed).
-    measured : bool
-        Draw the measured output (False: only the models, on an ``ax`` that has it already).
+        Unit of the output axis; default the results' ``unit`` ("rad", or "rad/s" for speed).
 
     Returns
     -------
@@ -272,46 +277,46 @@ def plot_compare(*results, ax=None, unit=None, measured=True):
     import matplotlib.pyplot as plt
 
     if not results:
-        raise ValueError("results: give at least one CompareResult (jerklab.ident.compare)")
-    for r in results:
-        if not all(hasattr(r, name) for name in _COMPARE_FIELDS):
-            raise ValueError(
-                f"results must be CompareResult objects of jerklab.ident.compare, got "
-                f"{type(r).__name__} (a record and fits: jerklab.ident.plot_compare(data, *fits))"
-            )
+        raise ValueError("results: give at least one CompareResult")
+    for i, r in enumerate(results):
+        _check_compare_result(i, r)
     first = results[0]
+    for i, r in enumerate(results[1:], 1):
+        if not (np.array_equal(r.time, first.time) and np.array_equal(r.y, first.y)):
+            raise ValueError(f"results[{i}] compares on another record than results[0]")
     if ax is None:
         _, ax = plt.subplots(figsize=(8, 3.5))
-    if measured:
-        ax.plot(first.time, first.y, ".", color="0.3", ms=3, label="measured")
+    ax.plot(first.time, first.y, ".", color="0.3", ms=3, label="measured")
     for r in results:
         what = "simulation" if r.horizon is None else f"{r.horizon}-step prediction"
-        name = f"{r.label}, " if r.label else ""
+        name = f"{r.label}: " if r.label else ""
         ax.plot(r.time, r.y_hat, "-", lw=1.5, label=f"{name}{what}, fit {r.fit_percent:.2f} %")
+    output = getattr(first, "output", "angle")
     ax.set_xlabel("time (s)")
-    ax.set_ylabel(f"{getattr(first, 'output', 'angle')} ({unit or getattr(first, 'unit', 'rad')})")
+    ax.set_ylabel(f"{output} ({unit or getattr(first, 'unit', 'rad')})")
     ax.legend(loc="best", fontsize=8)
     return ax
 
 
-def plot_compare_result(result, ax=None, unit=None):
-    """One ``jerklab.ident.CompareResult``: :func:`plot_compare` of it (kept name)."""
+def plot_compare_result(result, ax=None, unit: str | None = None):
+    """One ``jerklab.ident.CompareResult``: :func:`plot_compare` of it alone."""
     return plot_compare(result, ax=ax, unit=unit)
 
 
-_RESIDUAL_FIELDS = ("lags", "autocorr", "auto_bound", "cross_lags", "crosscorr", "confidence")
+_RESIDUAL_FIELDS = ("lags", "autocorr", "auto_bound", "confidence", "crosscorr", "cross_lags")
 
 
 def plot_residuals(analysis, axes=None, title: str | None = None):
     """Two panels as MATLAB's ``resid``: autocorrelation of e, cross-correlation of u and e.
 
-    ``analysis`` is a ``jerklab.ident.ResidualAnalysis`` (its ``.plot()`` calls this); one panel
-    when it has no input.
+    ``analysis`` is a ``jerklab.ident.ResidualAnalysis``; one panel when it has no input.
     """
     import matplotlib.pyplot as plt
 
-    if not all(hasattr(analysis, name) for name in _RESIDUAL_FIELDS):
-        raise ValueError(f"analysis must be a ResidualAnalysis, got {type(analysis).__name__}")
+    if not all(hasattr(analysis, f) for f in _RESIDUAL_FIELDS):
+        raise ValueError(
+            f"analysis must be a jerklab.ident.ResidualAnalysis, got {type(analysis).__name__}"
+        )
     n = 1 if analysis.crosscorr is None else 2
     if axes is None:
         _, axes = plt.subplots(n, 1, figsize=(8, 2.4 * n))

@@ -64,18 +64,17 @@ Xu & Meckl eq. 13, Xu & Meckl eq. 19).
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 from scipy.optimize import brentq, fsolve
 
 from jerklab._validate import as_finite_array, as_nonnegative, as_positive, as_real
-from jerklab.ident import mode as _ident_mode
-from jerklab.ident.mode import two_mass_mode
+from jerklab.ident.mode import ModeEstimate, coupled_mode
+from jerklab.ident.mode import identify_mode as _identify_mode
 
 __all__ = [
     "KINDS",
@@ -272,10 +271,7 @@ def _ei_design(m: int, zeta: float, V: float):
             c = np.exp(2 * math.pi * r * (z + 1j * wd) * (tt - tt[-1])) @ A
             out += [c.real, c.imag]
         for r in hr:
-
-            def vv(rr):
-                return abs(np.exp(2 * math.pi * rr * (z + 1j * wd) * (tt - tt[-1])) @ A)
-
+            vv = lambda rr: abs(np.exp(2 * math.pi * rr * (z + 1j * wd) * (tt - tt[-1])) @ A)
             out += [vv(r) - V, (vv(r + h) - vv(r - h)) / (2 * h)]
         mid = hr[(m - 1) // 2] if m % 2 == 1 else zr[m // 2]
         out.append(mid - 1.0)
@@ -603,16 +599,16 @@ def flexible_mode(model=None):
     """``(f, ζ)``: natural frequency (Hz) and damping of the lightly damped pole pair of a
     :class:`jerklab.plant.FlexibleDCMotor` (the coupled mode of motor and load, open loop)."""
     m = _flex_model(model)
-    return two_mass_mode(m.K, m.tau, m.load_ratio, m.mode_frequency, m.mode_damping)
+    return coupled_mode(m.K, m.tau, m.load_ratio, m.mode_frequency, m.mode_damping)
 
 
 @dataclass
-class ModeFit(_ident_mode.ModeFit):
-    """The mode found by :func:`identify_mode`: :class:`jerklab.ident.ModeFit` and a shaper for it.
+class ModeFit(ModeEstimate):
+    """The mode found by :func:`identify_mode`, with the input shaper recommended for it.
 
-    Every field of the identification (``frequency_hz``, ``damping``, their standard errors,
-    ``params``, ``fit_percent``, ``jerk_time``, ``residual_std``, ``model()``), and ``shaper``, the
-    recommended :class:`InputShaper` (see :meth:`recommend`).
+    The fields of :class:`jerklab.ident.ModeEstimate` (``frequency_hz``, ``damping``, their
+    standard errors, ``params``, ``fit_percent``, ``jerk_time``, ``residual_std``, ``model()``),
+    and ``shaper``: the recommended :class:`InputShaper` (see :meth:`recommend`).
     """
 
     shaper: InputShaper
@@ -636,15 +632,15 @@ class ModeFit(_ident_mode.ModeFit):
 
 
 def identify_mode(u, y=None, Ts=None, f_range=None, max_nfev=400, margin=0.0) -> ModeFit:
-    """Find the flexible mode from the encoder (:func:`jerklab.ident.identify_mode`) and
-    recommend an input shaper for it (:meth:`ModeFit.recommend`).
+    """Find the flexible mode from a drive-voltage record and the encoder angle, and recommend
+    the input shaper for it.
+
+    The identification is :func:`jerklab.ident.identify_mode` (a two-mass model fitted by
+    output error; ``u``, ``y``, ``Ts``, ``f_range`` and ``max_nfev`` as there, ``u`` may be an
+    ``IdentData`` record); the shaper is :meth:`ModeFit.recommend` for the mode found.
 
     Parameters
     ----------
-    u, y, Ts, f_range, max_nfev
-        As :func:`jerklab.ident.identify_mode`: the drive voltage (V) per sample, the encoder
-        angle (rad), the sample period (s), the band searched for the mode (Hz), the function
-        evaluations of the final fit; or ``u`` an ``IdentData`` record and ``y``, ``Ts`` left out.
     margin : float
         Relative drift of the mode the recommended shaper must also cover (0.05: ±5 %, e.g.
         belts or loads that change). The standard errors are statistical only: they say how
@@ -655,9 +651,9 @@ def identify_mode(u, y=None, Ts=None, f_range=None, max_nfev=400, margin=0.0) ->
     ModeFit
     """
     margin = as_nonnegative("margin", margin)
-    fit = _ident_mode.identify_mode(u, y, Ts, f_range, max_nfev)
-    shaper = ModeFit.recommend(fit.frequency_hz, fit.damping, fit.frequency_se, margin=margin)
-    return ModeFit(**dataclasses.asdict(fit), shaper=shaper)
+    est = _identify_mode(u, y, Ts, f_range, max_nfev)
+    shaper = ModeFit.recommend(est.frequency_hz, est.damping, est.frequency_se, margin=margin)
+    return ModeFit(**{f.name: getattr(est, f.name) for f in fields(ModeEstimate)}, shaper=shaper)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1053,7 +1049,7 @@ def robust_move(distance, model=None, Ts=0.005, order=0, u_max=None, max_samples
 
     n_lo = max(1, math.ceil(abs(d) / (model.K * Ts * U)) - 1)  # Σ|u| Ts K >= |d|
     N, x = piezo._bisect_solver(make, n_lo, max_samples, solver)
-    fm, zm = two_mass_mode(
+    fm, zm = coupled_mode(
         model.K, model.tau, model.load_ratio, model.mode_frequency, model.mode_damping
     )
     return RobustMove(
@@ -1103,7 +1099,7 @@ def energy_optimal_move(distance, N, model=None, Ts=0.005, order=1, u_max=None, 
     u = piezo._least_squares_qp(E, f, np.full(N, -U), np.full(N, U), M, m, x0=x0)
     if u is None:
         raise RuntimeError("the QP of Xu & Meckl eq. 19 did not converge")
-    fm, zm = two_mass_mode(
+    fm, zm = coupled_mode(
         model.K, model.tau, model.load_ratio, model.mode_frequency, model.mode_damping
     )
     return RobustMove(
@@ -1182,9 +1178,8 @@ def tradeoff(
     The mode is the coupled pole pair of ``model`` (default ``FlexibleDCMotor()``: 8.1 Hz,
     ζ = 0.033). The default move (1 rad under Stojčić's limits) accelerates in 58 ms, under half
     the mode period, so the plain trapezoid rings; a move whose acceleration time exceeds the
-    period is already a good filter on its own (try ``distance=2 * math.pi``). Curves: the
-    time-optimal trapezoid and the S-curve and sine-jerk profiles tuned to the mode
-    (:func:`tuned_profile`) over ``distance`` under ``max_accel``/``max_velocity``
+    period is already a good filter on its own (try ``distance=2 * math.pi``). Curves: the time-optimal trapezoid and the S-curve and sine-jerk profiles tuned
+    to the mode (:func:`tuned_profile`) over ``distance`` under ``max_accel``/``max_velocity``
     (default Stojčić's limits, ``jerklab.paper``); the shapers designed for the mode; the robust
     time-optimal voltage commands (:func:`robust_move`) of each order. Every curve uses the same
     measure (module docstring): the residual with the mode at ``ratio ×`` its nominal frequency,
@@ -1198,7 +1193,7 @@ def tradeoff(
     r = np.linspace(0.5, 1.5, 201) if ratios is None else as_finite_array("ratios", ratios, ndim=1)
     if np.any(r <= 0):
         raise ValueError("ratios must be positive")
-    f, z = two_mass_mode(
+    f, z = coupled_mode(
         model.K, model.tau, model.load_ratio, model.mode_frequency, model.mode_damping
     )
     from jerklab import planner

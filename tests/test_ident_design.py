@@ -1,5 +1,6 @@
-"""Input design (jerklab.ident.design): the PRBS is a held maximum-length sequence, the step and
-Stojčić §4A's sample-period rule."""
+"""Input design (jerklab.ident.design): the PRBS is maximum-length and held per clock, the step and
+the sample-time rule of Stojčić §4A.
+"""
 
 from __future__ import annotations
 

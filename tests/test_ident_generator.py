@@ -15,7 +15,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from jerklab import ident
-from jerklab.ident.diagnostics import _diagnose
+from jerklab.ident import diagnostics
 
 ROOT = pathlib.Path(__file__).resolve().parents[1] / "data" / "real" / "dc-generator"
 FILE = ROOT / "dc_generator_every25.csv"
@@ -228,7 +228,7 @@ def test_unseparable_input_maps_warn_instead_of_returning_silent_values():
         ident.fit_dc_motor(u, th, 0.01, friction=True, offset=True, dead_zone=True)
     # a rank-deficient covariance (some standard errors 0, others not) is named, not passed on
     par = {"K": 1e16, "tau": 3.9, "friction": 0.0, "offset": 0.0, "dead_zone": 5.0}
-    msgs = _diagnose(
+    msgs = diagnostics._diagnose(
         par,
         np.diag([0.0, 1e-3, 0.0, 0.0]),
         ["K", "tau", "offset", "dead_zone"],

@@ -1,8 +1,10 @@
-"""The flexible mode from the encoder (jerklab.ident.mode): the two-mass model's simulation against
-the plant's, the mode found on simulated encoder records against the plant's true poles, bad input.
+"""The flexible mode found from the encoder alone (jerklab.ident.mode.identify_mode).
 
-Independent references: ``jerklab.plant.FlexibleDCMotor`` (its own ZOH model and ``open_loop``
-simulation, quantized and noisy) and the eigenvalues of its state matrix.
+Independent references: the plant's own state-space simulation and eigenvalues
+(``FlexibleDCMotor.open_loop``, ``FlexibleDCMotor._matrices``) for the identification's fast
+simulation and coupled mode; simulated, quantized, noisy encoder records of a known plant for
+the fit. The shaper recommended for the mode is tested with ``jerklab.shaping``
+(tests/test_shaping.py).
 """
 
 from __future__ import annotations
@@ -12,10 +14,10 @@ import math
 import numpy as np
 import pytest
 
-from jerklab import ident
+from jerklab import shaping
+from jerklab.ident import IdentData, ModeEstimate, coupled_mode, identify_mode, prbs
 from jerklab.ident.mode import _flex_simulate
 from jerklab.plant import FlexibleDCMotor
-from jerklab.shaping import chirp_input
 
 
 def _true_mode(m):
@@ -32,11 +34,13 @@ def test_fit_model_simulation_matches_the_plant():
     th, _ = m.open_loop(u, 0.005)
     p = np.log([m.K, m.tau, m.load_ratio, m.mode_frequency, m.mode_damping])
     np.testing.assert_allclose(_flex_simulate(p, u, 0.005), th, atol=1e-9 * np.abs(th).max())
-    params = (m.K, m.tau, m.load_ratio, m.mode_frequency, m.mode_damping)
-    assert ident.two_mass_mode(*params) == pytest.approx(_true_mode(m))
+    mode = coupled_mode(m.K, m.tau, m.load_ratio, m.mode_frequency, m.mode_damping)
+    assert mode == pytest.approx(_true_mode(m))
+    assert shaping.flexible_mode(m) == mode
 
 
-def _record(load_ratio, excitation, Ts=0.005):
+@pytest.mark.parametrize("load_ratio,excitation", [(0.05, "chirp"), (0.3, "prbs"), (0.15, "chirp")])
+def test_identify_mode_from_encoder(load_ratio, excitation):
     m = FlexibleDCMotor(
         load_ratio=load_ratio,
         mode_frequency=2 * math.pi * 8.0,
@@ -44,47 +48,51 @@ def _record(load_ratio, excitation, Ts=0.005):
         noise_std=0.002,
         seed=7,
     )
+    Ts = 0.005
     u = (
-        chirp_input(8.0, Ts, 3.0, 1.0, 30.0)
+        shaping.chirp_input(8.0, Ts, 3.0, 1.0, 30.0)
         if excitation == "chirp"
-        else ident.prbs(8.0, Ts, 3.0, clock_period=0.01)
+        else prbs(8.0, Ts, 3.0, clock_period=0.01)
     )
     _, y = m.open_loop(u, Ts)  # quantized to 448 counts/rev, plus noise
-    return m, u, y
-
-
-@pytest.mark.parametrize("load_ratio,excitation", [(0.05, "chirp"), (0.3, "prbs"), (0.15, "chirp")])
-def test_identify_mode_from_encoder(load_ratio, excitation):
-    Ts = 0.005
-    m, u, y = _record(load_ratio, excitation, Ts)
-    fit = ident.identify_mode(u, y, Ts)
-    assert isinstance(fit, ident.ModeFit)
+    fit = identify_mode(u, y, Ts)
+    assert isinstance(fit, ModeEstimate) and not hasattr(fit, "shaper")
     f0, z0 = _true_mode(m)
     assert abs(fit.frequency_hz - f0) < max(4 * fit.frequency_se, 0.005 * f0)
     assert abs(fit.damping - z0) < max(4 * fit.damping_se, 0.1 * z0)
     assert 0 < fit.frequency_se < 0.02 * f0
     assert fit.jerk_time == pytest.approx(1 / (fit.frequency_hz * math.sqrt(1 - fit.damping**2)))
-    # the fitted plant rings at the reported mode
-    model = fit.model()
-    assert _true_mode(model) == pytest.approx((fit.frequency_hz, fit.damping), rel=1e-9)
+    # the fitted plant has the mode that was reported
+    fm = fit.model()
+    assert coupled_mode(fm.K, fm.tau, fm.load_ratio, fm.mode_frequency, fm.mode_damping) == (
+        pytest.approx((fit.frequency_hz, fit.damping))
+    )
     # the same record as an IdentData (equal lengths: the last input is not used)
-    fit2 = ident.identify_mode(ident.IdentData(u, y[:-1], Ts))
+    fit2 = identify_mode(IdentData(u, y[:-1], Ts))
     assert fit2.frequency_hz == pytest.approx(fit.frequency_hz, rel=2e-3)
 
 
 @pytest.mark.parametrize(
     "call,name",
     [
-        (lambda: ident.identify_mode(np.ones(100), np.ones(50), 0.01), "y"),
-        (lambda: ident.identify_mode(np.ones(100)), "Ts"),
-        (lambda: ident.identify_mode(np.ones(100), np.arange(101.0), 0.01), "u"),
-        (lambda: ident.identify_mode(np.sin(np.arange(100.0)), np.arange(101.0), -0.01), "Ts"),
-        (lambda: ident.identify_mode(np.sin(np.arange(10.0)), np.arange(11.0), 0.01), "u"),
+        (lambda: identify_mode(np.ones(100), np.ones(50), 0.01), "y"),
+        (lambda: identify_mode(np.ones(100)), "Ts"),
+        (lambda: identify_mode(np.ones(100), np.arange(101.0), 0.01), "u"),
+        (lambda: identify_mode(np.sin(np.arange(100.0)), np.arange(101.0), -0.01), "Ts"),
+        (lambda: identify_mode(np.sin(np.arange(100.0)), np.arange(101.0), float("nan")), "Ts"),
+        (lambda: identify_mode(np.sin(np.arange(100.0)), [np.nan] * 101, 0.01), "y"),
+        (lambda: shaping.identify_mode(np.ones(100), np.ones(50), 0.01), "y"),
         (
-            lambda: ident.identify_mode(
+            lambda: identify_mode(
                 np.sin(np.arange(100.0)), np.arange(101.0), 0.01, f_range=(5.0, 1.0)
             ),
             "f_range",
+        ),
+        (
+            lambda: identify_mode(
+                IdentData(np.sin(np.arange(100.0)), np.arange(100.0), 0.01), Ts=1
+            ),
+            "Ts",
         ),
     ],
 )

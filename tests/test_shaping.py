@@ -1,12 +1,11 @@
-"""Input shapers, profiles as shapers, robust LP moves and mode identification (jerklab.shaping).
+"""Input shapers, profiles as shapers, robust LP moves, the shaper for a mode (jerklab.shaping).
 
 Independent references: the closed forms of Singer & Seering (ZV, ZVD) and of Singhose
 (undamped EI, 2-hump and 3-hump EI) written out here; the published insensitivity widths
 (Klipper's docs/Resonance_Compensation.md table, Singhose's papers); numerical integration of a
 second-order mode (scipy solve_ivp) for the residual vibration of shapers and profiles; a
 continuous-time convolution for ``apply``; the plant simulation (``FlexibleDCMotor.open_loop``)
-for the LP moves; simulated encoder records for the shaper ``identify_mode`` recommends (the mode
-fit itself: tests/test_ident_mode.py).
+for the LP moves; a simulated encoder record for the shaper ``identify_mode`` recommends.
 """
 
 from __future__ import annotations
@@ -21,10 +20,13 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import linprog
 
 from jerklab import planner
+from jerklab.ident import ModeEstimate
+from jerklab.ident import identify_mode as identify_mode_estimate
 from jerklab.plant import FlexibleDCMotor
 from jerklab.shaping import (
     KINDS,
     InputShaper,
+    ModeFit,
     chirp_input,
     energy_optimal_move,
     flexible_mode,
@@ -516,25 +518,9 @@ def test_tradeoff_table_and_figure():
 
 
 # ----------------------------------------------------------------------------------------------
-# identify_mode on simulated encoder records
+# the shaper recommended for an identified mode (the identification: tests/test_ident_mode.py)
 # ----------------------------------------------------------------------------------------------
-def _true_mode(m):
-    A, _ = m._matrices()
-    ev = np.linalg.eigvals(A)
-    s = ev[np.argmax(ev.imag)]
-    return abs(s) / (2 * math.pi), -s.real / abs(s)
-
-
-def test_flexible_mode_is_the_plants_pole_pair():
-    m = FlexibleDCMotor(load_ratio=0.3, mode_frequency=50.0, mode_damping=0.02).ideal()
-    assert flexible_mode(m) == pytest.approx(_true_mode(m))
-
-
-def test_identify_mode_recommends_a_shaper_for_the_identified_mode():
-    """shaping.identify_mode is jerklab.ident.identify_mode (tested in test_ident_mode.py) plus
-    the shortest shaper whose 5 % band covers the mode and its uncertainty (and a drift margin)."""
-    from jerklab import ident
-
+def test_identify_mode_recommends_a_shaper_that_covers_the_mode():
     m = FlexibleDCMotor(
         load_ratio=0.15,
         mode_frequency=2 * math.pi * 8.0,
@@ -544,28 +530,23 @@ def test_identify_mode_recommends_a_shaper_for_the_identified_mode():
     )
     Ts = 0.005
     u = chirp_input(8.0, Ts, 3.0, 1.0, 30.0)
-    _, y = m.open_loop(u, Ts)
+    _, y = m.open_loop(u, Ts)  # quantized to 448 counts/rev, plus noise
     fit = identify_mode(u, y, Ts)
-    mode = ident.identify_mode(u, y, Ts)
-    for name in ("frequency_hz", "damping", "frequency_se", "damping_se", "jerk_time"):
-        assert getattr(fit, name) == getattr(mode, name), name
-    assert isinstance(fit, ident.ModeFit) and isinstance(fit.shaper, InputShaper)
-    f0, _ = _true_mode(m)
+    assert isinstance(fit, ModeFit) and isinstance(fit, ModeEstimate)
+    est = identify_mode_estimate(u, y, Ts)  # the identification alone gives the same mode
+    assert (fit.frequency_hz, fit.damping) == (est.frequency_hz, est.damping)
+    f0, _ = flexible_mode(m)
     lo, hi = fit.shaper.insensitivity(5.0, hz=True)
     assert lo <= f0 <= hi
-    se = 2 * fit.frequency_se / fit.frequency_hz
-    blo, bhi = fit.shaper.insensitivity(5.0)
-    assert blo <= 1 - se and bhi >= 1 + se
+    again = ModeFit.recommend(fit.frequency_hz, fit.damping, fit.frequency_se)
+    assert fit.shaper.kind == again.kind
+    np.testing.assert_array_equal(fit.shaper.times, again.times)
     # with a drift margin the recommendation widens, and its band holds the margin
     for margin in (0.05, 0.15, 0.3):
-        s = type(fit).recommend(fit.frequency_hz, fit.damping, fit.frequency_se, margin=margin)
+        s = ModeFit.recommend(fit.frequency_hz, fit.damping, fit.frequency_se, margin=margin)
         lo, hi = s.insensitivity(5.0)
         assert lo <= 1 - margin and hi >= 1 + margin, (margin, s.kind)
         assert s.duration >= fit.shaper.duration
-    assert (
-        identify_mode(u, y, Ts, margin=0.3).shaper.kind
-        == type(fit).recommend(fit.frequency_hz, fit.damping, fit.frequency_se, margin=0.3).kind
-    )
 
 
 # ----------------------------------------------------------------------------------------------
@@ -702,6 +683,7 @@ def test_fixed_point_fir(kind, f, zeta, Ts, bits, ref):
     assert np.all(err <= 0.5 + q.size * np.abs(r).max() / (1 << bits) + 1e-9)
     # integer arithmetic written out for one sample, as the firmware would
     k = min(len(ref) - 1, 3)
+    n = q.size - 1
     hist = [r[max(k - j, 0)] for j in range(q.size)]
     assert (
         y[k] == (sum(int(q[j]) * int(hist[j]) for j in range(q.size)) + (1 << (bits - 1))) >> bits

@@ -1,4 +1,4 @@
-"""System identification of the DC motor: records, ARX, output error, inverse dynamics, validation.
+"""System identification of the DC motor: data container, ARX, output-error (PEM) fit, validation.
 
 Stojčić §4A (ASCII: Stojcic) identified the plant of Stojčić eq. 1,
 
@@ -6,65 +6,49 @@ Stojčić §4A (ASCII: Stojcic) identified the plant of Stojčić eq. 1,
 
 from a voltage step recorded every 5 ms, with MATLAB's ``pem(data, 'P2')``, and got
 K = 32.4 rad/(V s), tau = 0.025 s. A ``'P2'`` process model has two poles and *no* integrator;
-the structure of Stojčić eq. 1 is a pole plus an integrator (MATLAB's ``'P1I'``), and that is
-what this package fits; :func:`fit_p2` reproduces the paper's literal call to show where it goes
-(notebooks/02_identification.ipynb). Everything is SI: volts in, radians out, seconds.
+the structure of Stojčić eq. 1 is a pole plus an integrator (MATLAB's ``'P1I'``), and that is what this
+module fits; :func:`fit_p2` reproduces the paper's literal call to show where it goes
+(notebooks/02_identification.ipynb). Two estimators are offered:
 
-A module per concept, each re-exported here (the modules are named apart from the functions,
-so ``jerklab.ident.validate`` is the function and ``jerklab.ident.validation`` its module):
+* ``method="arx"``: linear least squares on the differenced angle. The ZOH discretization of
+  Stojčić eq. 1 gives, for v(k) = (theta(k) - theta(k-1)) / Ts, the *exact* difference equation
 
-======================================  =========================================================
-:mod:`jerklab.ident.data`               :class:`IdentData` (CSV + JSON records, built from a rig
-                                        ``Recording``), several experiments: :func:`merge`
-:mod:`jerklab.ident.model`              the motor model and its exact ZOH simulation
-                                        (:func:`simulate_dc_motor`, :func:`simulate_motor`:
-                                        friction, offset, dead zone, delay, coasting),
-                                        :class:`MotorFit`
-:mod:`jerklab.ident.equation_error`     ARX: :func:`arx` of any orders, the velocity ARX fit,
-                                        :func:`arx_asymptotic_bias`
-:mod:`jerklab.ident.output_error`       output error (PEM) by multiple shooting, :func:`fit_p2`
-:mod:`jerklab.ident.inverse_dynamics`   inverse dynamics (IDIM-LS, IDIM-IV)
-:mod:`jerklab.ident.fit`                :func:`fit_dc_motor` in its steps, :class:`FitOptions`
-:mod:`jerklab.ident.diagnostics`        implausible results named: :class:`IdentificationWarning`
-:mod:`jerklab.ident.validation`         :func:`fit_percent`, :func:`residual_analysis`,
-                                        :func:`validate`
-:mod:`jerklab.ident.comparison`         :func:`compare` (simulation and k-step prediction) and
-                                        :func:`resid`, with MATLAB's semantics
-:mod:`jerklab.ident.datasets`           measured records: :func:`load_micromouse`,
-                                        :func:`load_dc_generator`
-:mod:`jerklab.ident.design`             input design: :func:`step_input`, :func:`prbs`,
-                                        :func:`sample_time_range`
-:mod:`jerklab.ident.mode`               the flexible mode from the encoder: :func:`identify_mode`
-======================================  =========================================================
+      v(k) = a v(k-1) + b1 u(k-1) + b2 u(k-2),    a = exp(-Ts/tau),
 
-The estimators of :func:`fit_dc_motor`:
+  with K = (b1 + b2) / (1 - a) and tau = -Ts / ln a. It is exact on noise-free data, but the
+  regressor v(k-1) carries the measurement noise, so under output noise or encoder quantization the
+  estimate is biased (``arx_asymptotic_bias`` predicts by how much).
+* ``method="pem"``: the output-error (simulation-error) fit: K, tau (and the initial angle and
+  velocity) minimise sum (theta_measured - theta_simulated)^2, where theta_simulated is the exact
+  ZOH simulation of Stojčić eq. 1.
+  With white measurement noise this is the maximum-likelihood estimate and is unbiased; its
+  covariance comes from the Jacobian at the optimum.
 
-* ``method="pem"``: the output-error (simulation-error) fit: K, tau (and each segment's initial
-  state) minimise sum (theta_measured - theta_simulated)^2, theta_simulated the exact ZOH
-  simulation of Stojčić eq. 1. With white measurement noise this is the maximum-likelihood
-  estimate and is unbiased; its covariance comes from the Jacobian at the optimum.
-* ``method="arx"``: linear least squares on the differenced angle, exact on noise-free data but
-  biased under output noise or encoder quantization (``arx_asymptotic_bias`` predicts by how
-  much).
-* ``method="idim"`` / ``"idim-iv"``: the inverse-dynamics least squares of motion control
-  (Gautier & Janot), with instrumental variables for ``"idim-iv"``.
-
-Real records (measured, closed loop, several experiments) need more than Stojčić eq. 1:
-``fit_dc_motor`` also estimates Coulomb friction against the velocity (with sticking), an input
-offset, a dead zone and a pure delay (:func:`simulate_motor`), by output error with multiple
-shooting (each segment of the record starts from its own estimated state, so an integrating
-plant cannot drift), started by the inverse dynamics. Implausible results raise an
+Real records (measured, closed loop, several experiments) need more than Stojčić eq. 1: ``fit_dc_motor``
+also estimates Coulomb friction against the velocity (with sticking), an input offset, a dead zone
+and a pure delay (:func:`simulate_motor`), by output error with **multiple shooting** (each segment
+of the record starts from its own estimated state, so an integrating plant cannot drift), started
+by the inverse-dynamics least squares of motion control (``method="idim"``, Gautier & Janot; and
+``"idim-iv"`` with instrumental variables). Implausible results raise an
 :class:`IdentificationWarning` naming the likely cause.
 
-The results plot themselves through ``jerklab.plots`` (``IdentData.plot``,
-``CompareResult.plot``, ``ResidualAnalysis.plot``); this package never imports matplotlib, and
-python-control only when a transfer function is asked for.
+Also here: :class:`IdentData` (CSV + JSON records, built from a rig ``Recording``), :func:`merge`
+of several experiments, :func:`load_micromouse` (measured gearmotor records, data/real), :func:`arx`
+for any orders, validation with MATLAB's semantics (:func:`compare` for simulation and k-step
+prediction, :func:`resid`, :func:`validate`, :func:`residual_analysis`, :func:`plot_compare`,
+:func:`plot_residuals`), input design (:func:`step_input`, :func:`prbs`, :func:`sample_time_range`),
+:func:`arx_asymptotic_bias`, and the flexible mode of motor and load (:func:`identify_mode`).
+Everything is SI: volts in, radians out, seconds.
+
+The modules, each one concept: ``data`` (IdentData, MergedData), ``model`` (the simulations),
+``arx``, ``fit`` (fit_dc_motor, FitOptions) with ``motorfit`` (its result), ``oe`` (multiple
+shooting), ``idim`` (inverse dynamics) and ``diagnostics``, ``p2``, ``validate``, ``datasets``,
+``design``, ``mode``. Results draw themselves (``.plot()``) with ``jerklab.plots``, imported only
+then; this package imports neither ``jerklab.plots`` nor matplotlib, and python-control lazily.
 """
 
-from __future__ import annotations
-
-from jerklab.ident._checks import MIN_SAMPLES
-from jerklab.ident.comparison import CompareResult, compare, plot_compare, resid
+from jerklab.ident._common import MIN_SAMPLES
+from jerklab.ident.arx import ARXResult, arx, arx_asymptotic_bias
 from jerklab.ident.data import IdentData, MergedData, merge
 from jerklab.ident.datasets import (
     DC_GENERATOR_FILE,
@@ -77,21 +61,21 @@ from jerklab.ident.datasets import (
 )
 from jerklab.ident.design import MAX_INPUT_SAMPLES, prbs, sample_time_range, step_input
 from jerklab.ident.diagnostics import IdentificationWarning
-from jerklab.ident.equation_error import ARXResult, arx, arx_asymptotic_bias, fit_velocity_arx
-from jerklab.ident.fit import FIT_TS_RANGE, METHODS, FitOptions, fit_dc_motor
-from jerklab.ident.mode import ModeFit, identify_mode, two_mass_mode
-from jerklab.ident.model import (
-    MotorFit,
-    dc_motor_zoh_coefficients,
-    simulate_dc_motor,
-    simulate_motor,
-)
-from jerklab.ident.output_error import P2Fit, fit_p2
-from jerklab.ident.validation import (
+from jerklab.ident.fit import FIT_TS_RANGE, FitOptions, fit_dc_motor
+from jerklab.ident.mode import ModeEstimate, coupled_mode, identify_mode
+from jerklab.ident.model import dc_motor_zoh_coefficients, simulate_dc_motor, simulate_motor
+from jerklab.ident.motorfit import MotorFit
+from jerklab.ident.p2 import P2Fit, fit_p2
+from jerklab.ident.validate import (
+    CompareResult,
+    CompareResults,
     ResidualAnalysis,
     Validation,
+    compare,
     fit_percent,
+    plot_compare,
     plot_residuals,
+    resid,
     residual_analysis,
     validate,
 )
@@ -102,6 +86,7 @@ __all__ = [
     "arx",
     "MotorFit",
     "fit_dc_motor",
+    "FitOptions",
     "IdentificationWarning",
     "simulate_motor",
     "simulate_dc_motor",
@@ -116,6 +101,7 @@ __all__ = [
     "MergedData",
     "merge",
     "CompareResult",
+    "CompareResults",
     "compare",
     "resid",
     "load_micromouse",
@@ -127,16 +113,11 @@ __all__ = [
     "step_input",
     "prbs",
     "sample_time_range",
-    # added with the package
-    "FitOptions",
-    "fit_velocity_arx",
-    "ModeFit",
+    "ModeEstimate",
     "identify_mode",
-    "two_mass_mode",
-    # constants
+    "coupled_mode",
     "MIN_SAMPLES",
     "FIT_TS_RANGE",
-    "METHODS",
     "MAX_INPUT_SAMPLES",
     "MICROMOUSE_RECORDS",
     "DC_GENERATOR_FILE",

@@ -1,69 +1,43 @@
-"""Identification records: :class:`IdentData` (CSV + JSON), and several of them, :func:`merge`.
+"""Identification records: :class:`IdentData` (CSV + JSON sidecar) and :class:`MergedData`.
 
-An :class:`IdentData` is the Python counterpart of MATLAB's ``iddata`` that Stojčić §4A (ASCII:
-Stojcic) identified from: the voltage applied to the motor and the measured angle, sampled
-every ``Ts``. It names its series as every jerklab result does (``jerklab._vocab``): ``time``,
-``voltage`` (the input u) and ``position`` (the output y, the measured angle); the older names
-``t``, ``u``, ``y`` keep working. Records are saved as a CSV table with a JSON sidecar.
+The Python counterparts of MATLAB's ``iddata`` and ``merge`` used in Stojčić §4A (ASCII:
+Stojcic).
 """
 
 from __future__ import annotations
 
 import json
 import pathlib
-from dataclasses import dataclass
 
 import numpy as np
 
 from jerklab._validate import as_positive
 from jerklab._vocab import aliases
-from jerklab.ident._checks import _pair, _signal
+from jerklab.ident._common import _pair, _signal
 from jerklab.ident.fit import fit_dc_motor
-from jerklab.ident.model import MotorFit
-
-__all__ = ["IdentData", "MergedData", "merge"]
-
-_MISSING = object()
-
-
-def _new_or_old(new_name, new, old_name, old):
-    """The value given under the canonical name or under its older one (not both)."""
-    if old is _MISSING:
-        return new
-    if new is not _MISSING:
-        raise TypeError(f"give {new_name} or its older name {old_name}, not both")
-    return old
+from jerklab.ident.motorfit import MotorFit
 
 
 @aliases(t="time", u="voltage", y="position")
-@dataclass(init=False, eq=False, repr=False)
 class IdentData:
-    """An identification record: the input voltage and the measured angle every ``Ts`` seconds.
+    """An identification record: input voltage u(k), measured angle y(k) every ``Ts`` seconds.
 
-    The Python counterpart of MATLAB's ``iddata(y, u, Ts)`` used in Stojčić §4A.
+    The Python counterpart of MATLAB's ``iddata(y, u, Ts)`` used in Stojčić §4A. The series
+    carry the names of ``jerklab._vocab``: ``time``, ``voltage`` (the input u), ``position``
+    (the output y); the older names ``t``, ``u`` and ``y`` read and write the same arrays.
 
     Parameters
     ----------
     voltage : array_like
-        Input samples u(k) (the motor voltage, V), held constant over each sample period (ZOH).
-        Also accepted as ``u=`` (its older name).
+        Input samples u (the motor voltage, V), held constant over each sample period (ZOH).
     position : array_like
-        Output samples y(k) (the measured angle, rad), same length as ``voltage``. Also
-        accepted as ``y=``.
+        Output samples y (the measured angle, rad, or ``output_unit``), same length.
     Ts : float
         Sample period (s), > 0.
     input_unit, output_unit : str
-        Units, kept in the JSON sidecar ("V" and "rad" by default: SI inside; a record of another
-        plant may carry its own, e.g. ``load_dc_generator``'s integrated speed).
+        Units, kept in the JSON sidecar ("V" and "rad" by default: SI inside).
     metadata : dict, optional
         Anything JSON-able describing how the record was made (plant parameters, seed, command).
-
-    Attributes
-    ----------
-    voltage, position : ndarray
-        The series (older names ``u``, ``y``).
-    time : ndarray
-        Sample instants k Ts (s; older name ``t``).
 
     Examples
     --------
@@ -72,34 +46,13 @@ class IdentData:
     >>> fit = IdentData.load("data/ident/step").fit("pem")              # doctest: +SKIP
     """
 
-    voltage: np.ndarray
-    position: np.ndarray
-    Ts: float
-    input_unit: str
-    output_unit: str
-    metadata: dict
-
     FORMAT = "jerklab.ident.IdentData/1"
+    __slots__ = ("voltage", "position", "Ts", "input_unit", "output_unit", "metadata")
 
     def __init__(
-        self,
-        voltage=_MISSING,
-        position=_MISSING,
-        Ts=_MISSING,
-        input_unit: str = "V",
-        output_unit: str = "rad",
-        metadata=None,
-        *,
-        u=_MISSING,
-        y=_MISSING,
+        self, voltage, position, Ts, input_unit: str = "V", output_unit: str = "rad", metadata=None
     ):
-        names = ("u" if u is not _MISSING else "voltage", "y" if y is not _MISSING else "position")
-        voltage = _new_or_old("voltage", voltage, "u", u)
-        position = _new_or_old("position", position, "y", y)
-        for name, value in (("voltage", voltage), ("position", position), ("Ts", Ts)):
-            if value is _MISSING:
-                raise TypeError(f"IdentData() missing required argument {name!r}")
-        self.voltage, self.position = _pair(voltage, position, *names, min_len=2)
+        self.voltage, self.position = _pair(voltage, position, "voltage", "position", min_len=2)
         self.Ts = as_positive("Ts", Ts)
         if not isinstance(input_unit, str) or not input_unit:
             raise ValueError(f"input_unit must be a non-empty string, got {input_unit!r}")
@@ -162,30 +115,30 @@ class IdentData:
     # -- conversions ---------------------------------------------------------------------------
     @classmethod
     def from_recording(cls, rec, Ts=None) -> "IdentData":
-        """Build from a rig ``Recording`` (fields ``time``, ``position``, ``control``, ``metadata``).
+        """Build from a rig ``Recording`` (fields ``time``, ``position``, ``voltage`` or its older name
+        ``control``, and ``metadata``).
 
         Parameters
         ----------
         rec : jerklab.rig.Recording
-            An open-loop record (``rig.step(...)``) or a closed-loop move; its ``voltage`` (V;
-            ``control`` in records of earlier versions) becomes the input and ``position`` (rad)
-            the output.
+            An open-loop record (``rig.step(...)``) or a closed-loop move; its voltage (V) becomes
+            the input and ``position`` (rad) the output.
         Ts : float, optional
             Sample period; by default ``rec.metadata["Ts"]`` if present, else the median spacing
             of ``rec.time``. The time stamps must be uniform to 1 % of Ts.
         """
-        volts = "voltage" if hasattr(rec, "voltage") else "control"
-        for attr in ("time", "position", volts):
+        volt = "voltage" if hasattr(rec, "voltage") else "control"
+        for attr in ("time", "position", volt):
             if not hasattr(rec, attr):
                 raise ValueError(
                     f"rec must be a Recording with a '{attr}' field (got {type(rec).__name__})"
                 )
         t = _signal("rec.time", rec.time, min_len=2)
-        u = _signal(f"rec.{volts}", getattr(rec, volts), min_len=2)
+        u = _signal(f"rec.{volt}", getattr(rec, volt), min_len=2)
         y = _signal("rec.position", rec.position, min_len=2)
         if not (t.size == u.size == y.size):
             raise ValueError(
-                f"rec.time, rec.{volts} and rec.position must have the same length, "
+                f"rec.time, rec.{volt} and rec.position must have the same length, "
                 f"got {t.size}, {u.size}, {y.size}"
             )
         md = getattr(rec, "metadata", None) or {}
@@ -212,9 +165,9 @@ class IdentData:
         meta["t0"] = float(t[0])
         return cls(u, y, Ts, "V", "rad", meta)
 
-    def fit(self, method: str = "pem", **options) -> MotorFit:
-        """``fit_dc_motor(self.voltage, self.position, self.Ts, method, **options)``."""
-        return fit_dc_motor(self.voltage, self.position, self.Ts, method=method, **options)
+    def fit(self, method: str = "pem", **kwargs) -> "MotorFit":
+        """``fit_dc_motor(self.voltage, self.position, self.Ts, method, **kwargs)``."""
+        return fit_dc_motor(self.voltage, self.position, self.Ts, method=method, **kwargs)
 
     # -- files ---------------------------------------------------------------------------------
     @staticmethod
@@ -225,7 +178,8 @@ class IdentData:
         return p.with_name(p.name + ".csv"), p.with_name(p.name + ".json")
 
     def save(self, path):
-        """Write ``<path>.csv`` (columns time_s, u, y) and its JSON sidecar ``<path>.json``.
+        """Write ``<path>.csv`` (columns time_s, u_<input_unit>, y_<output_unit>: the time, the
+        voltage and the position) and its JSON sidecar ``<path>.json``.
 
         Returns the two paths. Values are written with 17 significant digits, so a round trip is
         exact.
@@ -297,7 +251,7 @@ class IdentData:
 
     def plot(self, axes=None):
         """Input (V) and output (rad) against time (s): :func:`jerklab.plots.plot_ident_data`."""
-        from jerklab.plots import plot_ident_data  # the result hands itself to the plots
+        from jerklab.plots import plot_ident_data  # drawing is imported when a figure is asked for
 
         return plot_ident_data(self, axes)
 
@@ -307,7 +261,8 @@ class MergedData:
     """Several experiments of the same motor, for one estimate (MATLAB's ``merge``).
 
     Each record keeps its own time axis and initial state; :meth:`fit` passes the lists of
-    inputs and outputs to ``fit_dc_motor``. Keep validation records out of it.
+    inputs and outputs to :func:`fit_dc_motor`. Keep validation records out of it. ``voltage``
+    and ``position`` (older names ``u``, ``y``) are the lists of the records' series.
     """
 
     def __init__(self, experiments):
@@ -335,17 +290,17 @@ class MergedData:
 
     @property
     def voltage(self) -> list:
-        """The input of each experiment (older name ``u``)."""
+        """The input voltage (V) of each experiment."""
         return [d.voltage for d in self.experiments]
 
     @property
     def position(self) -> list:
-        """The output of each experiment (older name ``y``)."""
+        """The measured angle (rad) of each experiment."""
         return [d.position for d in self.experiments]
 
-    def fit(self, method: str = "pem", **options) -> MotorFit:
-        """One fit over every experiment: ``fit_dc_motor([u...], [y...], Ts, method, **options)``."""
-        return fit_dc_motor(self.voltage, self.position, self.Ts, method=method, **options)
+    def fit(self, method: str = "pem", **kwargs) -> "MotorFit":
+        """One fit over every experiment: ``fit_dc_motor([u...], [y...], Ts, method, **kwargs)``."""
+        return fit_dc_motor(self.voltage, self.position, self.Ts, method=method, **kwargs)
 
     def __repr__(self):
         return f"MergedData({len(self)} experiments, Ts={self.Ts:g} s, n={[d.n for d in self.experiments]})"

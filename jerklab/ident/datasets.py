@@ -1,13 +1,7 @@
-"""Measured records shipped with jerklab, loaded as SI identification data.
+"""Measured records shipped in data/real, as SI :class:`~jerklab.ident.IdentData`.
 
-* :func:`load_micromouse`: the Pololu 30:1 micro gearmotor of the micromouse "Algernon"
-  (``data/real/micromouse``, CERN-OHL-P v2): encoder counts and a known PWM every 5 ms.
-* :func:`load_dc_generator`: the DC motor driving a DC generator of SysIdentPy
-  (``data/real/dc-generator``, MIT): a PRBS voltage and a speed-like output.
-
-Each returns an :class:`~jerklab.ident.data.IdentData` with its source, licence and unit
-conversions in the metadata, ready for ``fit_dc_motor`` (the model of Stojčić eq. 1, ASCII:
-Stojcic).
+The micromouse gearmotor records (CERN-OHL-P v2) and the DC motor/generator record of
+SysIdentPy (MIT); each folder's README holds the source, the licence and the conversions.
 """
 
 from __future__ import annotations
@@ -18,18 +12,9 @@ import pathlib
 import numpy as np
 
 from jerklab._validate import as_int, as_positive
-from jerklab.ident._checks import MIN_SAMPLES
+from jerklab.ident._common import MIN_SAMPLES
 from jerklab.ident.data import IdentData
 from jerklab.resources import share_path
-
-__all__ = [
-    "MICROMOUSE_RECORDS",
-    "micromouse_battery_voltage",
-    "load_micromouse",
-    "DC_GENERATOR_FILE",
-    "load_dc_generator",
-]
-
 
 #: PWM amplitude (of 255) of the micromouse records whose command the log lets us rebuild
 #: (README_original_data.md: "max speed"); the trapezoid records (2, 4, 6) ramp the PWM at a rate
@@ -42,7 +27,7 @@ MICROMOUSE_RECORDS = {
 
 
 def _default_real_root():
-    """``data/real`` of the clone, or of the installed wheel's copy."""
+    # the clone's data/, or the installed wheel's copy
     return share_path("data") / "real"
 
 

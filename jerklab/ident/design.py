@@ -1,10 +1,5 @@
-"""Input design for identification: a voltage step, a PRBS, and the sample period rule.
-
-Stojčić §4A (ASCII: Stojcic) identified from a voltage step sampled every 5 ms and chose the
-sample period by the rule Ts = tau/(2...5) (:func:`sample_time_range`). A step from rest keeps
-the regression of the ARX fit well posed; a PRBS (:func:`prbs`, a maximum-length LFSR) spreads
-the input power over the motor's bandwidth. Both return the voltage per sample (V).
-"""
+"""Input design for identification: the sample-time rule of Stojčić §4A (ASCII:
+Stojcic), steps and PRBS."""
 
 from __future__ import annotations
 
@@ -14,8 +9,6 @@ import numpy as np
 from scipy import signal
 
 from jerklab._validate import as_int, as_nonnegative, as_positive, as_real
-
-__all__ = ["sample_time_range", "MAX_INPUT_SAMPLES", "step_input", "prbs"]
 
 
 def sample_time_range(tau):

@@ -1,20 +1,10 @@
-"""Diagnostics of a motor fit: physically impossible or poorly determined results, named.
-
-A fit of Stojčić eq. 1 (ASCII: Stojcic) can finish with numbers no motor has (K or tau <= 0:
-reversed encoder or motor leads), friction larger than the input, a parameter at its bound, or a
-covariance that says the input did not separate the parameters (Ljung, *System
-Identification*, §16). :func:`_diagnose` turns each into a message naming the likely cause;
-``fit_dc_motor`` issues them as :class:`IdentificationWarning` and keeps them in
-``MotorFit.warnings``.
-"""
+"""What a fit says about itself: implausible or poorly determined results (Ljung §16)."""
 
 from __future__ import annotations
 
 import warnings
 
 import numpy as np
-
-__all__ = ["IdentificationWarning"]
 
 
 class IdentificationWarning(UserWarning):
@@ -31,21 +21,7 @@ def _issue(msgs):
 
 
 def _diagnose(par, cov, names, u_abs_max, at_bound=()):
-    """Physically impossible or poorly determined results -> list of messages (Ljung §16).
-
-    Parameters
-    ----------
-    par : dict
-        The parameters by name (K, tau, friction, offset, dead_zone, optionally tau_coast).
-    cov : ndarray
-        Covariance of the parameters ``names``, in that order.
-    names : list of str
-        The estimated parameters.
-    u_abs_max : float
-        The largest input magnitude (V) of the records.
-    at_bound : sequence of str
-        Parameters the output-error fit left at a bound (and "dead_zone_max").
-    """
+    """Physically impossible or poorly determined results -> list of messages (Ljung §16)."""
     msgs = []
     if not par["K"] > 0:
         msgs.append(

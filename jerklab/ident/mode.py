@@ -1,13 +1,10 @@
-"""The flexible mode from the encoder alone: a two-mass model fitted by output error.
+"""The flexible mode of motor and load found from the encoder alone (``identify_mode``).
 
-A motor driving a load through a compliant shaft (``jerklab.plant.FlexibleDCMotor``: the rigid
-motor of Stojčić eq. 1, ASCII: Stojcic, with its inertia split between the motor and a load, a
-shaft stiffness and damping) rings at the complex pole pair of the coupled system.
-:func:`identify_mode` fits the two-mass model to a drive-voltage record and the motor-side
-encoder angle, and reports that mode with its uncertainty (:class:`ModeFit`);
-:func:`two_mass_mode` gives the mode of given parameters. Designing a shaper for the mode is
-``jerklab.shaping``'s job: ``jerklab.shaping.identify_mode`` is this fit plus the recommended
-input shaper.
+A two-mass model (:class:`jerklab.plant.FlexibleDCMotor`: K, tau, load ratio, shaft frequency
+and damping) is fitted by output error to a drive-voltage record and the motor-side encoder
+angle; the mode is the lightly damped pole pair of the fitted model (:func:`coupled_mode`).
+``jerklab.shaping`` designs the input shaper for it (``jerklab.shaping.identify_mode`` adds the
+recommendation): identification knows nothing of shapers.
 """
 
 from __future__ import annotations
@@ -23,11 +20,8 @@ from jerklab._validate import as_finite_array, as_positive
 from jerklab.ident.data import IdentData
 from jerklab.plant import FlexibleDCMotor
 
-__all__ = ["ModeFit", "identify_mode", "two_mass_mode"]
-
 
 def _flex_matrices(K, tau, ratio, wr, zr):
-    """State matrices (A, B) of the two-mass model, states (theta_m, omega_m, theta_l, omega_l)."""
     Jm = tau / (1.0 + ratio)
     Jl = tau * ratio / (1.0 + ratio)
     k = wr * wr * Jl
@@ -44,10 +38,14 @@ def _flex_matrices(K, tau, ratio, wr, zr):
     return A, B
 
 
-def two_mass_mode(K, tau, ratio, wr, zr):
-    """``(f, zeta)``: natural frequency (Hz) and damping of the complex pole pair of the two-mass
-    model with the parameters of ``jerklab.plant.FlexibleDCMotor`` (K rad/(V s), tau s, load
-    ratio, shaft frequency wr rad/s and damping zr); NaN, NaN when the poles are all real."""
+def coupled_mode(K, tau, load_ratio, mode_frequency, mode_damping):
+    """(natural frequency Hz, damping) of the complex pole pair of the two-mass model.
+
+    The coupled mode of motor and load of :class:`jerklab.plant.FlexibleDCMotor` with these
+    parameters (K rad/(V s), tau s, load ratio, shaft frequency rad/s and damping), open loop:
+    what rings when the motor moves. ``(nan, nan)`` when the pair is real (overdamped).
+    """
+    K, tau, ratio, wr, zr = K, tau, load_ratio, mode_frequency, mode_damping
     A, _ = _flex_matrices(K, tau, ratio, wr, zr)
     ev = np.linalg.eigvals(A)
     c = ev[np.abs(ev.imag) > 1e-9]
@@ -80,17 +78,18 @@ def _flex_simulate(p, u, Ts):
 
 
 @dataclass
-class ModeFit:
-    """The mode found by :func:`identify_mode`.
+class ModeEstimate:
+    """The flexible mode found by :func:`identify_mode`.
 
     ``frequency_hz``, ``damping``: the lightly damped pole pair of the fitted two-mass model
     (natural frequency, Hz; damping ratio), with standard errors ``frequency_se``,
     ``damping_se`` (linearized: residual variance × (JᵀJ)⁻¹, carried to (f, ζ) by the delta
     method). ``params`` holds K (rad/(V s)), tau (s), load_ratio, mode_frequency (rad/s) and
     mode_damping of ``jerklab.plant.FlexibleDCMotor``; ``fit_percent`` is the NRMSE fit of the
-    simulated encoder angle increments (100 % = perfect); ``jerk_time`` the S-curve jerk time
-    ``1/f_d`` that puts a spectral zero on the mode (s); ``residual_std`` the standard deviation
-    of the increment residuals (rad).
+    simulated encoder angle (100 % = perfect); ``jerk_time`` the S-curve jerk time ``1/f_d``
+    that puts a spectral zero on the mode (s); ``residual_std`` the residual standard deviation
+    of the angle increments (rad). ``jerklab.shaping.identify_mode`` returns the same with the
+    input shaper it recommends for the mode (``jerklab.shaping.ModeFit``).
     """
 
     frequency_hz: float
@@ -107,26 +106,26 @@ class ModeFit:
         return FlexibleDCMotor(**self.params).ideal()
 
 
-def identify_mode(u, y=None, Ts=None, f_range=None, max_nfev=400) -> ModeFit:
+def identify_mode(u, y=None, Ts=None, f_range=None, max_nfev=400) -> ModeEstimate:
     """Find the flexible mode from a drive-voltage record ``u`` and the encoder angle ``y``.
 
     A two-mass model (:class:`jerklab.plant.FlexibleDCMotor`: K, τ, load ratio, shaft
     frequency and damping) is fitted by output error (the prediction-error method with an
     output-error noise model: the simulated encoder angle against the measured one,
     ``scipy.optimize.least_squares`` on log-parameters, on the angle *increments* per sample so
-    that the encoder's constant floor-quantization offset and the integrator's drift drop out).
-    Start values: a rigid fit of K, τ (the fit's first stage), then the resonance (peak) and
-    antiresonance (dip) of the ratio between the empirical
-    frequency response (Welch cross-spectra) and the rigid model, which give the coupled and
-    the shaft frequency and hence the load ratio. The reported mode is the complex pole pair
-    of the fitted model: what rings when the motor moves.
+    that the encoder's constant floor-quantization offset and the integrator's drift drop
+    out). Start values: a rigid fit of K, τ (the fit's first stage), then the resonance (peak)
+    and antiresonance (dip) of the ratio between the empirical frequency response (Welch
+    cross-spectra) and the rigid model, which give the coupled and the shaft frequency and
+    hence the load ratio. The reported mode is the complex pole pair of the fitted model (see
+    :func:`coupled_mode`): what rings when the motor moves.
 
     Parameters
     ----------
     u : array_like or jerklab.ident.IdentData
-        Drive voltage per sample (V), held over each sample (a chirp:
-        ``jerklab.shaping.chirp_input``, or ``jerklab.ident.prbs``); or a whole record
-        (``IdentData``: its ``voltage``, ``position``, ``Ts``; then leave ``y`` and ``Ts`` out).
+        Drive voltage per sample (V), held over each sample (a chirp: ``jerklab.shaping.chirp_input``, or
+        ``jerklab.ident.prbs``); or a whole record (``IdentData``: its ``u``, ``y``, ``Ts``; then
+        leave ``y`` and ``Ts`` out).
     y : array_like
         Encoder angle (rad): ``len(u) + 1`` samples (``plant.open_loop``'s convention: ``y[k]``
         read at ``k Ts`` before ``u[k]``) or ``len(u)`` (then the last input is not used).
@@ -135,12 +134,13 @@ def identify_mode(u, y=None, Ts=None, f_range=None, max_nfev=400) -> ModeFit:
     f_range : (float, float), optional
         Band (Hz) searched for the mode in the start values; default 0.5 Hz to 0.45/Ts.
     max_nfev : int
-        Function evaluations of the final fit. The standard errors are statistical only: they
-        say how well this record pins the mode down, not how much the machine will move it.
+        Function evaluations of the final fit.
 
     Returns
     -------
-    ModeFit
+    ModeEstimate
+        The standard errors are statistical only: they say how well this record pins the mode
+        down, not how much the machine will move it.
     """
     if isinstance(u, IdentData):
         if y is not None or Ts is not None:
@@ -257,7 +257,7 @@ def identify_mode(u, y=None, Ts=None, f_range=None, max_nfev=400) -> ModeFit:
     s2 = float(e @ e) / dof
     J = r.jac * scale
     cov = s2 * np.linalg.pinv(J.T @ J)
-    fm, zm = two_mass_mode(*np.exp(q[:5]))
+    fm, zm = coupled_mode(*np.exp(q[:5]))
     G = np.zeros((2, q.size))
     for i in range(5):
         h = 1e-6
@@ -265,14 +265,14 @@ def identify_mode(u, y=None, Ts=None, f_range=None, max_nfev=400) -> ModeFit:
         qp[i] += h
         qm[i] -= h
         G[:, i] = (
-            np.array(two_mass_mode(*np.exp(qp[:5]))) - np.array(two_mass_mode(*np.exp(qm[:5])))
+            np.array(coupled_mode(*np.exp(qp[:5]))) - np.array(coupled_mode(*np.exp(qm[:5])))
         ) / (2 * h)
     cf = G @ cov @ G.T
     f_se, z_se = (math.sqrt(max(v, 0.0)) for v in np.diag(cf))
     fit = 100.0 * (1 - np.linalg.norm(e) / np.linalg.norm(dy_meas - dy_meas.mean()))
     K, tau, lr, wr, zr = (float(v) for v in np.exp(q[:5]))
     jt = 1.0 / (fm * math.sqrt(max(1 - zm * zm, 1e-12)))
-    return ModeFit(
+    return ModeEstimate(
         frequency_hz=fm,
         damping=zm,
         frequency_se=f_se,

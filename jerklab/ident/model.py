@@ -1,36 +1,24 @@
-"""The motor model of identification and its exact ZOH simulation, and the fitted model.
+"""The motor model the fits simulate: Stojčić eq. 1 by exact ZOH, and the full model of real
+records (ASCII: Stojcic).
 
-Stojčić eq. 1 (ASCII: Stojcic), P(s) = K / (s (tau s + 1)) (volts -> rad), sampled with a
-zero-order hold: :func:`dc_motor_zoh_coefficients`, :func:`simulate_dc_motor`. Real records need
-more: :func:`simulate_motor` adds Coulomb friction against the velocity (with sticking), an input
-offset, a dead zone, a pure delay and an open drive at u = 0 (coasting), solved exactly between
-samples by ``jerklab.plant.advance_em``. :class:`MotorFit` is what every estimator of
-:mod:`jerklab.ident` returns: the parameters, their uncertainty, and the model simulated on the
-estimation record.
+:func:`simulate_dc_motor` is Stojčić eq. 1 alone; :func:`simulate_motor` adds Coulomb friction by
+the velocity (with sticking), an input offset, a dead zone, a pure delay and an open-drive
+(coasting) mode. Both are exact between samples (``jerklab.plant.advance_em``).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import optimize, signal, stats
+from scipy import signal
 
-from jerklab._lazy import lazy_module
 from jerklab._validate import as_int, as_nonnegative, as_positive, as_real
-from jerklab.ident._checks import _signal
+from jerklab.ident._common import _signal
 from jerklab.law import zoh_coefficients
-from jerklab.plant import DCMotor, _jit, advance_em
-
-control = lazy_module("control")  # python-control imports matplotlib: import it on first use
-
-__all__ = ["dc_motor_zoh_coefficients", "simulate_dc_motor", "simulate_motor", "MotorFit"]
+from jerklab.plant import _jit, advance_em
 
 
-# ----------------------------------------------------------------------------------------------
-# Stojčić eq. 1 and its exact ZOH simulation
-# ----------------------------------------------------------------------------------------------
 def dc_motor_zoh_coefficients(K, tau, Ts):
     """Exact ZOH discretization of Stojčić eq. 1, P(s) = K/(s(tau s + 1)).
 
@@ -104,9 +92,11 @@ def simulate_dc_motor(K, tau, Ts, u, theta0=0.0, omega0=0.0) -> np.ndarray:
     return th
 
 
-# ----------------------------------------------------------------------------------------------
-# the full motor model: Coulomb friction by the velocity, input offset, dead zone, delay
-# ----------------------------------------------------------------------------------------------
+def _best_theta0(y, y_model_zero_ic):
+    """Initial angle that best aligns a simulation started at 0 with y (least squares)."""
+    return float(np.mean(y - y_model_zero_ic))
+
+
 def _drive(u, offset=0.0, dead_zone=0.0, delay=0):
     """The voltage the motor sees: ``dz(u(k - delay) + offset)``; before the record, u(0) is held."""
     if delay:
@@ -273,227 +263,5 @@ def simulate_motor(
     )
 
 
-# ----------------------------------------------------------------------------------------------
-# the fitted model
-# ----------------------------------------------------------------------------------------------
-@dataclass
-class MotorFit:
-    """K and tau of P(s) = K/(s(tau s + 1)) (Stojčić eq. 1) with their uncertainty.
-
-    Attributes
-    ----------
-    K, tau : float
-        Gain rad/(V s) and time constant s.
-    K_std, tau_std : float
-        One-sigma standard errors (from the Jacobian for PEM, from the regression covariance for
-        ARX and the inverse-dynamics fits).
-    fit_percent : float
-        Simulation fit (NRMSE %, as MATLAB ``compare``) of the angle on the estimation data.
-    model : control.TransferFunction
-        K / (tau s^2 + s), volts -> rad.
-    method : str
-        The estimator: "pem", "arx", "idim" or "idim-iv" (see ``fit_dc_motor``).
-    Ts : float
-        Sample period of the data (s).
-    theta0 : float
-        Initial angle of the simulation (estimated).
-    cov : ndarray
-        2x2 covariance of (K, tau).
-    y_sim, residuals : ndarray
-        Simulated angle on the estimation data and measured - simulated.
-    noise_std : float
-        Residual standard deviation (rad for PEM; the equation-error scale for ARX).
-    friction, friction_std : float
-        Coulomb friction voltage f_c (V) by the sign of the velocity, with sticking, and its standard
-        error (``friction=True``; 0.0 and 0.0 when not estimated).
-    offset, offset_std : float
-        Input offset (V): the motor sees ``u + offset`` (``offset=True``; else 0.0, 0.0).
-    dead_zone, dead_zone_std : float
-        Input dead zone (V) after the offset (``dead_zone=True``; else 0.0, 0.0).
-    delay : int
-        Pure input delay in whole samples (given or estimated with ``delay=True``).
-    tau_coast, tau_coast_std : float
-        Time constant (s) while the drive is open at u = 0 (``coast=True``; :func:`simulate_motor`),
-        and its standard error; 0.0 and 0.0 when the drive always holds u.
-    estimated : tuple of str
-        The estimated parameters, in the order of ``covariance``.
-    warnings : list of str
-        The diagnostics the fit raised (also issued as :class:`IdentificationWarning`).
-
-    The full model (:func:`simulate_motor`) is
-    ``tau omega' = K (dz(u(t - delay Ts) + offset) - friction sign(omega)) - omega``, sticking at
-    omega = 0 while ``|dz(u + offset)| <= friction``; ``dz(x) = sign(x) max(|x| - dead_zone, 0)``.
-    """
-
-    K: float
-    tau: float
-    K_std: float
-    tau_std: float
-    fit_percent: float
-    model: control.TransferFunction
-    method: str
-    Ts: float
-    theta0: float
-    cov: np.ndarray
-    y_sim: np.ndarray = field(repr=False)
-    residuals: np.ndarray = field(repr=False)
-    noise_std: float = float("nan")
-    arx_result: object = field(default=None, repr=False)  #: the velocity ARXResult (``arx``)
-    nfev: int = 0
-    friction: float = 0.0  #: Coulomb friction voltage f_c (V); 0.0 when not estimated
-    friction_std: float = 0.0  #: its standard error (V); 0.0 when fixed
-    offset: float = 0.0  #: input offset (V): the motor sees u + offset
-    offset_std: float = 0.0
-    dead_zone: float = 0.0  #: input dead zone (V), after the offset
-    dead_zone_std: float = 0.0
-    delay: int = 0  #: pure input delay (whole samples)
-    estimated: tuple = ("K", "tau")  #: names of the estimated parameters, in ``covariance`` order
-    covariance: np.ndarray | None = field(default=None, repr=False)  #: covariance of ``estimated``
-    warnings: list = field(default_factory=list, repr=False)  #: diagnostics raised by the fit
-    n_segments: int = 1  #: shooting segments of the output-error fit
-    n_experiments: int = 1  #: experiments merged in the estimation data
-    omega0: float = 0.0  #: initial velocity of the first segment (rad/s)
-    tau_coast: float = 0.0  #: time constant (s) with the drive open at u = 0; 0.0: no coasting
-    tau_coast_std: float = 0.0
-
-    def simulate(self, u, theta0=0.0, omega0=0.0) -> np.ndarray:
-        """The fitted model's ZOH response to ``u`` (see :func:`simulate_dc_motor`).
-
-        With friction, offset, dead zone or delay, the full model of :func:`simulate_motor`
-        (friction by the sign of the velocity, with sticking).
-        """
-        u = _signal("u", u, min_len=1)
-        if not self.is_linear:
-            return simulate_motor(
-                self.K,
-                self.tau,
-                self.Ts,
-                u,
-                theta0,
-                omega0,
-                self.friction,
-                self.offset,
-                self.dead_zone,
-                self.delay,
-                self.tau_coast or None,
-            )
-        return simulate_dc_motor(self.K, self.tau, self.Ts, u, theta0, omega0)
-
-    @property
-    def is_linear(self) -> bool:
-        """True when the model is Stojčić eq. 1 alone (no friction, offset, dead zone or delay)."""
-        return not (self.friction or self.offset or self.dead_zone or self.delay or self.tau_coast)
-
-    @property
-    def std(self) -> dict:
-        """Standard errors by name: K, tau, friction, offset, dead_zone, tau_coast (0.0 when fixed)."""
-        return {
-            "K": self.K_std,
-            "tau": self.tau_std,
-            "friction": self.friction_std,
-            "offset": self.offset_std,
-            "dead_zone": self.dead_zone_std,
-            "tau_coast": self.tau_coast_std,
-        }
-
-    def confidence_interval(self, level: float = 0.95):
-        """Normal-approximation intervals ``{"K": (lo, hi), "tau": (lo, hi), ...}`` for every
-        estimated parameter (friction, offset, dead_zone, tau_coast when estimated)."""
-        level = as_real("level", level)
-        if not 0.0 < level < 1.0:
-            raise ValueError(f"level must be in (0, 1), got {level}")
-        z = stats.norm.ppf(0.5 + level / 2)
-        out = {}
-        for name in ("K", "tau", "friction", "offset", "dead_zone", "tau_coast"):
-            if name in ("K", "tau") or name in self.estimated:
-                v, sd = getattr(self, name), self.std[name]
-                out[name] = (v - z * sd, v + z * sd)
-        return out
-
-    def to_motor(self, **kwargs):
-        """A ``jerklab.plant.DCMotor`` with the fitted K and tau (other arguments passed on).
-
-        The plant has no open-drive (coasting) mode: a fit with ``tau_coast`` raises ValueError
-        (simulate it with :meth:`simulate` or :func:`simulate_motor`)."""
-        if self.tau_coast:
-            raise ValueError(
-                "tau_coast: jerklab.plant.DCMotor has no open-drive (coasting) mode; "
-                "use fit.simulate or ident.simulate_motor(..., tau_coast=fit.tau_coast)"
-            )
-
-        kw = dict(
-            coulomb_friction=max(self.friction, 0.0),
-            offset=self.offset,
-            dead_zone=max(self.dead_zone, 0.0),
-        )
-        kw.update(kwargs)
-        return DCMotor(K=self.K, tau=self.tau, **kw)
-
-    def summary(self) -> str:
-        """One line: K ± std, tau ± std, (friction ± std), fit %."""
-        fr = ""
-        if "friction" in self.estimated:
-            fr += f", f_c = {self.friction:.3g} ± {self.friction_std:.2g} V"
-        if "offset" in self.estimated:
-            fr += f", offset = {self.offset:.3g} ± {self.offset_std:.2g} V"
-        if "dead_zone" in self.estimated:
-            fr += f", dead zone = {self.dead_zone:.3g} ± {self.dead_zone_std:.2g} V"
-        if self.delay:
-            fr += f", delay = {self.delay} sample{'s' if self.delay > 1 else ''}"
-        if "tau_coast" in self.estimated:
-            fr += f", tau_coast = {self.tau_coast * 1e3:.4g} ± {self.tau_coast_std * 1e3:.2g} ms"
-        elif self.tau_coast == math.inf:
-            fr += ", coasting on Coulomb friction (tau_coast = inf)"
-        return (
-            f"{self.method.upper():>3}: K = {self.K:.4g} ± {self.K_std:.2g} rad/(V s), "
-            f"tau = {self.tau * 1e3:.4g} ± {self.tau_std * 1e3:.2g} ms{fr}, "
-            f"fit = {self.fit_percent:.2f} %"
-        )
-
-
-def _motor_tf(K, tau):
-    return control.tf([K], [tau, 1.0, 0.0])
-
-
-def _initial_state(fit, u, y, initial):
-    """Initial (theta0, omega0) of ``fit`` that best matches ``y`` (least squares, as compare's 'e')."""
-    if initial == "rest":
-        g = fit.simulate(u)
-        return float(np.mean(y - g)), 0.0
-    if fit.is_linear:
-        g = fit.simulate(u)
-        k = np.arange(u.size)
-        M = np.column_stack([np.ones(u.size), -fit.tau * np.expm1(-k * fit.Ts / fit.tau)])
-        coef, *_ = np.linalg.lstsq(M, y - g, rcond=None)
-        return float(coef[0]), float(coef[1])
-    w0 = (y[min(2, y.size - 1)] - y[0]) / (min(2, y.size - 1) * fit.Ts)
-
-    def r(x):
-        return fit.simulate(u, x[0], x[1]) - y
-
-    best = None
-    for start in (w0, 0.0):
-        sol = optimize.least_squares(
-            r, [y[0], start], method="lm", x_scale=[1.0, max(abs(w0), 1.0)]
-        )
-        if best is None or sol.cost < best.cost:
-            best = sol
-    return float(best.x[0]), float(best.x[1])
-
-
-def _initial_speed(fit, u, y):
-    """Initial (theta0, omega0) for a speed comparison: omega0 minimises the speed error over the
-    record (the angle offset does not enter the speed; a fit of the *angle* would pick omega0 to
-    cancel the drift of the integrated error, far from the measured initial speed)."""
-    w = np.diff(y) / fit.Ts
-
-    def r(x):
-        return np.diff(fit.simulate(u, 0.0, x[0])) / fit.Ts - w
-
-    best = None
-    for start in (w[0], 0.0):
-        sol = optimize.least_squares(r, [start], method="lm", x_scale=[max(abs(w[0]), 1.0)])
-        if best is None or sol.cost < best.cost:
-            best = sol
-    om0 = float(best.x[0])
-    return float(np.mean(y - fit.simulate(u, 0.0, om0))), om0
+def _shift(u, delay):
+    return _drive(u, 0.0, 0.0, delay)

@@ -1,7 +1,6 @@
-"""Input checks shared by the identification modules: 1-D finite signals of matching length.
+"""Input checks shared by the estimators, and the fit percent every one of them reports.
 
-Every public function of :mod:`jerklab.ident` checks its records through these, so a NaN, a
-wrong shape, a short or a constant record raises a ``ValueError`` naming the argument.
+Private to :mod:`jerklab.ident`; :func:`fit_percent` is public through :mod:`jerklab.ident.validate`.
 """
 
 from __future__ import annotations
@@ -10,14 +9,11 @@ import numpy as np
 
 from jerklab._validate import as_finite_array
 
-__all__ = ["MIN_SAMPLES"]
-
 #: fewest samples a record must hold to be fitted (a handful per parameter, plus transients)
 MIN_SAMPLES = 10
 
 
 def _signal(name: str, value, min_len: int = MIN_SAMPLES) -> np.ndarray:
-    """``value`` as a 1-D finite float array of at least ``min_len`` samples (ValueError naming it)."""
     a = as_finite_array(name, value)
     if a.ndim != 1:
         a = np.squeeze(a)
@@ -31,7 +27,6 @@ def _signal(name: str, value, min_len: int = MIN_SAMPLES) -> np.ndarray:
 
 
 def _pair(u, y, u_name: str = "u", y_name: str = "y", min_len: int = MIN_SAMPLES):
-    """Two signals of the same length (see :func:`_signal`)."""
     u = _signal(u_name, u, min_len)
     y = _signal(y_name, y, min_len)
     if u.size != y.size:
@@ -42,7 +37,6 @@ def _pair(u, y, u_name: str = "u", y_name: str = "y", min_len: int = MIN_SAMPLES
 
 
 def _check_excitation(u: np.ndarray, y: np.ndarray, u_name: str, y_name: str) -> None:
-    """Refuse a constant input (it excites nothing) or a constant output (the motor did not move)."""
     scale = max(1.0, float(np.max(np.abs(u))))
     if np.ptp(u) <= 1e-12 * scale:
         raise ValueError(
@@ -55,3 +49,15 @@ def _check_excitation(u: np.ndarray, y: np.ndarray, u_name: str, y_name: str) ->
             f"{y_name} is constant ({y[0]:g}): the motor did not move (check the supply, "
             f"the encoder, or a voltage below the friction threshold)"
         )
+
+
+def fit_percent(y, y_hat) -> float:
+    """Normalised-RMSE fit in percent, as MATLAB's ``compare``: 100 (1 - |y - yhat| / |y - mean y|).
+
+    100 is a perfect fit, 0 is no better than the mean, it can be negative.
+    """
+    y, y_hat = _pair(y, y_hat, "y", "y_hat", min_len=2)
+    den = np.linalg.norm(y - y.mean())
+    if den == 0.0:
+        raise ValueError("y is constant: fit percent is undefined")
+    return float(100.0 * (1.0 - np.linalg.norm(y - y_hat) / den))

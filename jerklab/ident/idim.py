@@ -1,22 +1,14 @@
-"""Inverse-dynamics identification of the motor (IDIM-LS and IDIM-IV, Gautier & Janot).
+"""Inverse-dynamics identification of motion control (IDIM-LS and IDIM-IV, Gautier & Janot).
 
-The motor of Stojčić eq. 1 (ASCII: Stojcic) with the terms of real records
-(``jerklab.ident.model.simulate_motor``) is linear in its parameters when written backwards,
-input against the motion:
-
-    u = (tau/K) omega' + (1/K) omega + f_c sgn(omega) - offset + dead_zone sgn(u + offset).
-
-The angle is low-passed by a zero-phase Butterworth filter and differentiated; every column and
-u pass the same filter (parallel filtering), so one linear least squares gives the parameters
-(IDIM-LS: fast, any record, but biased under noise: errors in variables). IDIM-IV replaces the
-regressors by those of the model's own simulated angle, re-started on each segment from the
-filtered measured state, and iterates (Janot, Vandanjon & Gautier, IEEE TCST 22(1), 2014; Ljung,
-*System Identification*, §7.6). ``fit_dc_motor`` uses it as ``method="idim"`` / ``"idim-iv"``
-and to start the output-error fit.
+The start of the output-error fit, and an estimator of its own (``method="idim"``,
+``"idim-iv"``): u = (tau/K) omega' + omega/K + f_c sign(omega) - offset + dead_zone sign(u) on the
+low-passed angle's derivatives, every column and u filtered by the same zero-phase Butterworth
+filter (parallel filtering).
 """
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -24,13 +16,16 @@ from scipy import signal
 
 from jerklab.ident.model import _drive, _simulate_segments
 
-__all__: list[str] = []
 
-
+@functools.lru_cache(maxsize=64)
 def _lowpass(Ts, cutoff):
+    """4th-order Butterworth (b, a) at ``cutoff`` Hz (at most 0.95 Nyquist); read-only arrays,
+    designed once per (Ts, cutoff): a fit filters several times with the same filter."""
     nyq = 0.5 / Ts
     wn = min(cutoff / nyq, 0.95)
-    return signal.butter(4, wn)
+    b, a = signal.butter(4, wn)
+    b.flags.writeable = a.flags.writeable = False
+    return b, a
 
 
 def _filtered_states(theta, Ts, cutoff):

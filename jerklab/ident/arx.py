@@ -1,14 +1,14 @@
-"""ARX least squares: any orders (MATLAB's ``arx``), and the velocity ARX fit of the motor.
+"""ARX of any order (MATLAB's ``arx``), the velocity ARX fit of Stojčić eq. 1
+(ASCII: Stojcic), and its bias.
 
-The ZOH discretization of Stojčić eq. 1 (ASCII: Stojcic), P(s) = K / (s (tau s + 1)), gives for
-the differenced angle v(k) = (theta(k) - theta(k-1)) / Ts the *exact* difference equation
+The ZOH discretization of Stojčić eq. 1 gives, for v(k) = (theta(k) - theta(k-1)) / Ts, the
+*exact* difference equation
 
     v(k) = a v(k-1) + b1 u(k-1) + b2 u(k-2),    a = exp(-Ts/tau),
 
-with K = (b1 + b2) / (1 - a) and tau = -Ts / ln a (:func:`fit_velocity_arx`, the
-``method="arx"`` of ``fit_dc_motor``). It is exact on noise-free data, but the regressor v(k-1)
-carries the measurement noise, so under output noise or encoder quantization the estimate is
-biased; :func:`arx_asymptotic_bias` predicts by how much.
+with K = (b1 + b2) / (1 - a) and tau = -Ts / ln a. It is exact on noise-free data, but the
+regressor v(k-1) carries the measurement noise, so under output noise or encoder quantization the
+estimate is biased (:func:`arx_asymptotic_bias` predicts by how much).
 """
 
 from __future__ import annotations
@@ -20,19 +20,10 @@ import numpy as np
 
 from jerklab._lazy import lazy_module
 from jerklab._validate import as_int, as_nonnegative, as_positive, as_real
-from jerklab.ident._checks import _pair, _signal
-from jerklab.ident.model import (
-    MotorFit,
-    _motor_tf,
-    _unit_response,
-    dc_motor_zoh_coefficients,
-    simulate_dc_motor,
-)
-from jerklab.ident.validation import fit_percent
+from jerklab.ident._common import _pair, _signal
+from jerklab.ident.model import dc_motor_zoh_coefficients, simulate_dc_motor
 
 control = lazy_module("control")  # python-control imports matplotlib: import it on first use
-
-__all__ = ["ARXResult", "arx", "fit_velocity_arx", "arx_asymptotic_bias"]
 
 
 @dataclass
@@ -159,11 +150,30 @@ def arx(y, u, na, nb, nk=1) -> ARXResult:
     return ARXResult(A, B, na, nb, nk, params, cov, lam, res, int(target.size))
 
 
-# ----------------------------------------------------------------------------------------------
-# the velocity ARX fit of Stojčić eq. 1
-# ----------------------------------------------------------------------------------------------
-def _velocity_arx(u, theta, Ts):
-    """(K, tau, cov of (K, tau), ARXResult) of the exact velocity difference equation."""
+def velocity_arx(u, theta, Ts):
+    """The ARX fit of Stojčić eq. 1 on the differenced angle (``fit_dc_motor(method="arx")``).
+
+    Least squares (:func:`arx` with na = 1, nb = 2, nk = 0) on
+    v(k) = a v(k-1) + b1 u(k-1) + b2 u(k-2), v(k) = (theta(k) - theta(k-1)) / Ts, exact for the
+    ZOH model; then K = (b1 + b2)/(1 - a), tau = -Ts/ln a, their covariance by the delta method.
+
+    Parameters
+    ----------
+    u, theta : ndarray
+        Checked input (V) and angle (rad) of one record.
+    Ts : float
+        Sample period (s).
+
+    Returns
+    -------
+    (K, tau, cov, result) : (float, float, ndarray, ARXResult)
+        ``cov`` is the 2x2 covariance of (K, tau), ``result`` the ARX fit of the velocity.
+
+    Raises
+    ------
+    ValueError
+        When the pole a falls outside (0, 1) (no motor gives it: too noisy or too coarse data).
+    """
     v = np.diff(theta) / Ts
     res = arx(v, u[:-1], na=1, nb=2, nk=0)
     a = -res.A[1]
@@ -185,58 +195,6 @@ def _velocity_arx(u, theta, Ts):
     )
     cov = J @ res.cov @ J.T
     return K, tau, cov, res
-
-
-def fit_velocity_arx(u, theta, Ts, fit_theta0: bool = True) -> MotorFit:
-    """K and tau of Stojčić eq. 1 by least squares on the differenced angle (``method="arx"``).
-
-    Fits v(k) = a v(k-1) + b1 u(k-1) + b2 u(k-2), v(k) = (theta(k) - theta(k-1)) / Ts (the exact
-    ZOH difference equation, see the module), then K = (b1 + b2)/(1 - a), tau = -Ts/ln a; their
-    covariance by the delta method from the ARX covariance. The model is then simulated from
-    rest on ``u``; its initial angle is the least-squares one (``fit_theta0``) or ``theta[0]``.
-
-    Parameters
-    ----------
-    u, theta : ndarray
-        Checked 1-D records of the same length (V, rad), as ``fit_dc_motor`` passes them.
-    Ts : float
-        Sample period (s).
-    fit_theta0 : bool
-        Estimate the initial angle of the simulation instead of taking the first sample.
-
-    Returns
-    -------
-    MotorFit
-        ``arx_result`` holds the velocity ARX; ``noise_std`` is the equation-error scale in rad
-        per sample (the velocity residual times Ts).
-
-    Raises
-    ------
-    ValueError
-        When the pole falls outside (0, 1) (noise or quantization too coarse for ARX).
-    """
-    K, tau, cov, arx_res = _velocity_arx(u, theta, Ts)
-    g = K * _unit_response(tau, Ts, u)
-    th0 = float(np.mean(theta - g)) if fit_theta0 else float(theta[0])
-    y_sim = g + th0
-    std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    return MotorFit(
-        K=float(K),
-        tau=float(tau),
-        K_std=float(std[0]),
-        tau_std=float(std[1]),
-        fit_percent=fit_percent(theta, y_sim),
-        model=_motor_tf(K, tau),
-        method="arx",
-        Ts=Ts,
-        theta0=th0,
-        cov=cov,
-        y_sim=y_sim,
-        residuals=theta - y_sim,
-        noise_std=float(math.sqrt(arx_res.noise_variance) * Ts),
-        arx_result=arx_res,
-        covariance=cov.copy(),
-    )
 
 
 def arx_asymptotic_bias(u, K, tau, Ts, noise_std):
@@ -266,7 +224,7 @@ def arx_asymptotic_bias(u, K, tau, Ts, noise_std):
     a, b1, b2 = dc_motor_zoh_coefficients(K, tau, Ts)
     theta = simulate_dc_motor(K, tau, Ts, u)
     v = np.diff(theta) / Ts
-    # regression v(k) = -A1 v(k-1) + B0 u(k) + B1 u(k-1) in the indexing of _velocity_arx
+    # regression v(k) = -A1 v(k-1) + B0 u(k) + B1 u(k-1) in the indexing used by velocity_arx
     Phi, target, _ = _arx_regressors(v, u[:-1], 1, 2, 0)
     N = target.size
     r0 = 2.0 * s**2 / Ts**2
