@@ -22,7 +22,13 @@ from jerklab.ident.diagnostics import _diagnose, _issue
 from jerklab.ident.idim import _idim, _params_from_idim, _shooting_sim
 from jerklab.ident.model import _best_theta0, _unit_response
 from jerklab.ident.motorfit import MotorFit, _motor_tf
-from jerklab.ident.oe import TERMS, ShootingProblem, fit_output_error, tau_grid_start
+from jerklab.ident.oe import (
+    TERMS,
+    ShootingProblem,
+    fit_output_error,
+    projection_start,
+    tau_grid_start,
+)
 
 control = lazy_module("control")  # python-control imports matplotlib: import it on first use
 
@@ -452,11 +458,12 @@ def _fit_inverse_dynamics(exps, Ts, opts: FitOptions, delay, cutoff, segment_n) 
     )
 
 
-def _output_error_starts(exps, Ts, opts: FitOptions, p_ls, segment_n) -> list:
+def _output_error_starts(exps, Ts, opts: FitOptions, delay, p_ls, segment_n) -> list:
     """Starts of the output-error fit: the inverse-dynamics estimate when it is a motor; the tau
     grid on the longest record when it is not (a reversed encoder, K < 0, or an unusable
     regression), and for Stojčić eq. 1 alone on records of one segment, where the grid is the
-    start that cannot be far off (any sign of K, any tau/Ts)."""
+    start that cannot be far off (any sign of K, any tau/Ts), and the exact optimum over tau with
+    every segment state (``oe.projection_start``), which a record much shorter than tau needs."""
     idim = _params_from_idim(p_ls, opts.flags)
     starts = []
     if idim["K"] > 0 and idim["tau"] > 0 and math.isfinite(idim["K"]):
@@ -465,6 +472,8 @@ def _output_error_starts(exps, Ts, opts: FitOptions, p_ls, segment_n) -> list:
         uu, tt = max(exps, key=lambda e: e[0].size)
         K0, tau0, _ = tau_grid_start(uu, tt, Ts)
         starts.append({"K": K0, "tau": tau0, "friction": 0.0, "offset": 0.0, "dead_zone": 0.0})
+    if segment_n is None and opts.linear:
+        starts.append(projection_start(exps, Ts, delay, segment_n))
     # friction and dead zone start well inside (0, max |u|): the inverse-dynamics value can be
     # far off, and a start near max |u| lets the fit trade a huge K against a dead zone that
     # swallows the whole input
@@ -486,7 +495,7 @@ def _fit_output_error(exps, Ts, opts: FitOptions, delay, p_ls, cutoff, segment_n
         cutoff=cutoff,
         fix_theta0=not opts.fit_theta0,
     )
-    starts = _output_error_starts(exps, Ts, opts, p_ls, segment_n)
+    starts = _output_error_starts(exps, Ts, opts, delay, p_ls, segment_n)
     # Stojčić eq. 1 on short records: cheap evaluations, and a flat valley when tau is much longer
     # than the record (noise-free, 30 samples of tau = 67 records need 311 evaluations)
     budget = 2000 if segment_n is None and opts.linear else 200

@@ -50,6 +50,68 @@ def tau_grid_start(u, theta, Ts):
     return best[1:]
 
 
+def _projection(exps, Ts, delay, segment_n, tau, states=False):
+    """Stojčić eq. 1 with the delayed input, for a fixed tau, is linear in K and in each segment's
+    initial angle and velocity: theta = K g(tau) + theta0_j + omega0_j tau (1 - a^k) on segment j
+    (g the ZOH response from rest to the input, restarted at the segment start). Returns the
+    least-squares K and sum of squared residuals, with ``states`` also each segment's
+    (theta0, omega0). The two state columns are made orthonormal (Gram-Schmidt) and projected out
+    segment by segment, so an evaluation costs O(samples)."""
+    segs = []
+    for u, th in exps:
+        v = _shift(u, delay)
+        st = _segment_starts(u.size, segment_n)
+        for s0, s1 in zip(st, np.append(st[1:], u.size)):
+            h = -tau * np.expm1(-np.arange(s1 - s0) * Ts / tau)
+            hc = h - h.mean()
+            q = hc / np.linalg.norm(hc) if np.any(hc) else hc
+            g, y = _unit_response(tau, Ts, v[s0:s1]), th[s0:s1]
+            gc, yc = g - g.mean(), y - y.mean()
+            segs.append((h, g, y, gc - q * (q @ gc), yc - q * (q @ yc)))
+    gg = sum(float(pg @ pg) for *_, pg, _ in segs)
+    K = sum(float(pg @ py) for *_, pg, py in segs) / gg if gg > 0 else 0.0
+    sse = sum(float((py - K * pg) @ (py - K * pg)) for *_, pg, py in segs)
+    if not states:
+        return K, sse
+    coefs = [
+        np.linalg.lstsq(np.column_stack([np.ones(h.size), h]), y - K * g, rcond=None)[0]
+        for h, g, y, _, _ in segs
+    ]
+    return K, sse, np.array([c[0] for c in coefs]), np.array([c[1] for c in coefs])
+
+
+def projection_start(exps, Ts, delay, segment_n) -> dict:
+    """Start of Stojčić eq. 1 alone: the exact optimum over tau, K and every segment state.
+
+    Variable projection (:func:`_projection`) leaves a one-dimensional search over ln tau, done on
+    a log grid over the fit's whole range of tau (1e-3 Ts to 1e3 times the record) and refined by
+    Brent's method. Where tau is much longer than the record, K and tau trade off along a narrow
+    valley in which Levenberg-Marquardt on all parameters stops short; the projection does not.
+    Returns K, tau, the terms at 0 and ``seg_theta0``, ``seg_omega0`` (:meth:`ShootingProblem.start`).
+    """
+    n = sum(u.size for u, _ in exps)
+
+    def cost(x):
+        return _projection(exps, Ts, delay, segment_n, math.exp(x))[1]
+
+    grid = np.linspace(math.log(Ts * 1e-3), math.log(Ts * n * 1e3), 25)
+    costs = [cost(x) for x in grid]
+    i = int(np.argmin(costs))
+    bounds = (grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)])
+    sol = optimize.minimize_scalar(cost, bounds=bounds, method="bounded", options={"xatol": 1e-12})
+    x = sol.x if sol.fun <= costs[i] else grid[i]
+    K, _, theta0, omega0 = _projection(exps, Ts, delay, segment_n, math.exp(x), states=True)
+    return {
+        "K": float(K),
+        "tau": math.exp(x),
+        "friction": 0.0,
+        "offset": 0.0,
+        "dead_zone": 0.0,
+        "seg_theta0": theta0,
+        "seg_omega0": omega0,
+    }
+
+
 def _segment_starts(n, segment_n):
     if segment_n is None or segment_n >= n:
         return np.array([0])
@@ -163,7 +225,9 @@ class ShootingProblem:
         return xf
 
     def start(self, init) -> np.ndarray:
-        """The free parameters at the start ``init`` (a dict of K, tau and the terms)."""
+        """The free parameters at the start ``init`` (a dict of K, tau and the terms; with
+        ``seg_theta0``, ``seg_omega0`` also the segments' states, else those of the filtered
+        record)."""
         init = dict(init)
         if self.coast is True and "coast_rate" not in init:
             init["coast_rate"] = self._coast_rate_start(init)
@@ -174,6 +238,11 @@ class ShootingProblem:
         ]
         x0 = self._x_all.copy()
         x0[: self.ng] = gl
+        th0, om0 = init.get("seg_theta0"), init.get("seg_omega0")
+        if th0 is not None and om0 is not None and len(th0) == len(om0) == self.nseg:
+            states = np.ravel(np.column_stack([th0, om0]))
+            keep = ~self.free[self.ng :]  # a fixed first angle stays at its sample
+            x0[self.ng :] = np.where(keep, self._x_all[self.ng :], states)
         # friction and dead zone enter as |p| (>= 0 without bounds, so MINPACK's
         # Levenberg-Marquardt can be used: it is much faster than a bounded trust region on
         # hundreds of segment states); ln tau is clamped to a range no motor leaves, so a hopeless
