@@ -72,7 +72,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import brentq, fsolve
 
-from jerklab._validate import as_finite_array, as_nonnegative, as_positive, as_real
+from jerklab import paper, piezo, planner
+from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
+from jerklab.ident import IdentData
+from jerklab.planner import Profile
+from jerklab.plant import FlexibleDCMotor
 
 __all__ = [
     "KINDS",
@@ -431,8 +435,6 @@ class InputShaper:
         """:meth:`fir` in fixed point for a microcontroller: integer taps summing to exactly
         ``2**frac_bits`` (largest-remainder rounding: each tap within one unit of ``2**frac_bits·h``),
         so a shaped move still ends exactly on its target. Returns an ``int64`` array."""
-        from jerklab._validate import as_int
-
         b = as_int("frac_bits", frac_bits, minimum=1)
         if b > 30:
             raise ValueError(f"frac_bits must be <= 30, got {b}")
@@ -678,8 +680,6 @@ class ModeFit:
 
     def model(self):
         """The fitted plant as an ideal :class:`jerklab.plant.FlexibleDCMotor`."""
-        from jerklab.plant import FlexibleDCMotor
-
         return FlexibleDCMotor(**self.params).ideal()
 
     @staticmethod
@@ -739,8 +739,6 @@ def identify_mode(u, y=None, Ts=None, f_range=None, max_nfev=400, margin=0.0):
     """
     from scipy.optimize import least_squares
     from scipy.signal import csd, welch
-
-    from jerklab.ident import IdentData
 
     if isinstance(u, IdentData):
         if y is not None or Ts is not None:
@@ -935,8 +933,6 @@ def _raised_cosine(sig, L):
 def _profile_factors(profile):
     """The velocity/distance of a planner profile as a convolution of unit pulses:
     ``[(shape, length), ...]`` (shape in "box", "half_sine", "raised_cosine")."""
-    from jerklab.planner import Profile
-
     if not isinstance(profile, Profile):
         raise TypeError(f"profile must be a jerklab.planner Profile, got {type(profile).__name__}")
     if profile.distance == 0.0:
@@ -1014,8 +1010,6 @@ def tuned_profile(
     -------
     jerklab.planner.Profile
     """
-    from jerklab import planner
-
     kind = str(kind)
     d = as_real("distance", distance)
     f = as_positive("frequency_hz", frequency_hz)
@@ -1068,8 +1062,6 @@ def move_time_comparison(
     period costs less than half a period, ZV's price), and loses for short, fast moves, where
     the jerk time ``1/f`` is added almost entirely.
     """
-    from jerklab import planner
-
     base = planner.plan_trapezoid(distance, max_accel, max_velocity)
     out = {
         "trapezoid": {
@@ -1205,8 +1197,6 @@ class RobustMove:
 
 
 def _flex_model(model):
-    from jerklab.plant import FlexibleDCMotor
-
     if model is None:
         return FlexibleDCMotor()
     if not isinstance(model, FlexibleDCMotor):
@@ -1241,24 +1231,18 @@ def robust_move(distance, model=None, Ts=0.005, order=0, u_max=None, max_samples
     u_max : float, optional
         Voltage limit, V (default the model's supply voltage, else 12 V).
     """
-    from jerklab import piezo
-
     model = _flex_model(model)
     d = as_real("distance", distance)
     if d == 0.0:
         raise ValueError("distance must not be 0")
     Ts = as_positive("Ts", Ts)
     if order is not None:
-        from jerklab._validate import as_int
-
         order = as_int("order", order, minimum=0)
         if order > 4:
             raise ValueError(f"order must be <= 4, got {order}")
     U = as_positive("u_max", u_max if u_max is not None else (model.supply_voltage or 12.0))
     if solver not in ("lp", "highs", "lsq"):
         raise ValueError(f"solver must be 'lp', 'highs' or 'lsq', got {solver!r}")
-    from jerklab._validate import as_int
-
     max_samples = as_int("max_samples", max_samples, minimum=2)
     count = [0]
     real, cplx = _zoh_poles(model, Ts)
@@ -1304,9 +1288,6 @@ def energy_optimal_move(distance, N, model=None, Ts=0.005, order=1, u_max=None, 
     time-optimal horizon of :func:`robust_move` trades time for a gentler command. Raises
     ``RuntimeError`` when ``N`` is shorter than the time-optimal horizon.
     """
-    from jerklab import piezo
-    from jerklab._validate import as_int
-
     model = _flex_model(model)
     d = as_real("distance", distance)
     if d == 0.0:
@@ -1416,8 +1397,6 @@ def tradeoff(
     measure (module docstring): the residual with the mode at ``ratio ×`` its nominal frequency,
     damping held, as a percentage of what a step of the same size leaves.
     """
-    from jerklab import paper
-
     model = _flex_model(model)
     A = paper.MAX_ACCEL if max_accel is None else as_positive("max_accel", max_accel)
     V = paper.MAX_VELOCITY if max_velocity is None else as_positive("max_velocity", max_velocity)
@@ -1427,8 +1406,6 @@ def tradeoff(
     f, z = _coupled_mode(
         model.K, model.tau, model.load_ratio, model.mode_frequency, model.mode_damping
     )
-    from jerklab import planner
-
     base = planner.plan_trapezoid(distance, A, V)
     curves, rows = {}, []
 
@@ -1514,8 +1491,6 @@ def residual_amplitude(y, Ts, start, frequency_hz=None, damping=0.0, final=None)
     """
     y = as_finite_array("y", y, ndim=1)
     Ts = as_positive("Ts", Ts)
-    from jerklab._validate import as_int
-
     start = as_int("start", start, minimum=0)
     if start > y.size - 4:
         raise ValueError(f"start must leave at least 4 samples of y (len {y.size}), got {start}")
