@@ -1012,12 +1012,15 @@ class PolePlacementPanel(_panel_base()):
 
 
 def _accepts(func, name):
+    """Whether ``func`` takes the keyword ``name`` (by name or through ``**kwargs``, as
+    ``Rig.run_move`` takes the RunSpec fields)."""
     import inspect
 
     try:
-        return name in inspect.signature(func).parameters
+        params = inspect.signature(func).parameters
     except (TypeError, ValueError):
         return False
+    return name in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
 
 
 def _fmt_gain(v):

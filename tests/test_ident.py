@@ -388,7 +388,7 @@ def test_identdata_from_virtual_rig_recording(tmp_path):
     """A real Recording from the virtual rig: sampling convention matches, PEM recovers K, tau."""
     from jerklab.rig import Recording, connect
 
-    rig = connect(motor=DCMotor(seed=4), progress=False, recordings=tmp_path)
+    rig = connect(progress=False, recordings=tmp_path, device=DCMotor(seed=4))
     try:
         rec = rig.step(6.0, 0.5, Ts=TS, rest=0.05)
     finally:

@@ -173,7 +173,7 @@ def test_ident_figures_and_aliases():
 
 
 def test_recording_figures_and_alias():
-    from jerklab import plots, rig
+    from jerklab import rig
 
     rec = rig.Recording(
         {

@@ -176,6 +176,11 @@ def connect(
             recordings=recordings,
             metadata=metadata,
         )
+    if port != "simavr" and device.simulated_only:
+        raise ValueError(
+            f"device.{device.simulated_only[0]} applies to a simulated rig (port=None or "
+            f"'simavr'), not to the board at {port!r}: a real board has its own motor"
+        )
     port = _check_port(port)
     supply, cpr = device.supply_voltage, device.counts_per_rev
     on_close = None
@@ -190,11 +195,6 @@ def connect(
         if device.motor is not None:
             supply = _or(supply, device.motor.supply_voltage)
             cpr = _or(cpr, device.motor.encoder_ppr * device.motor.decoding)
-    elif device.simulated_only:
-        raise ValueError(
-            f"device.{device.simulated_only[0]} applies to a simulated rig (port=None or "
-            f"'simavr'), not to the board at {port!r}: a real board has its own motor"
-        )
     lock = None
     try:
         if "://" not in port:
