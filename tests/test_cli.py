@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import types
 from pathlib import Path
 
 import pytest
@@ -82,7 +83,9 @@ def test_lab_starts_jupyterlab_in_the_working_folder(tmp_path, monkeypatch):
         def wait(self):
             return 0
 
-    monkeypatch.setattr(cli.subprocess, "Popen", FakePopen)
+    # the cli's own name only: patching subprocess.Popen itself would leak into any module that
+    # binds it on first import (jupyter_client.launcher, imported by `import jupyterlab` here)
+    monkeypatch.setattr(cli, "subprocess", types.SimpleNamespace(Popen=FakePopen))
     assert (
         cli.main(
             ["lab", str(tmp_path), "--no-browser", "--port", "8999", "--", "--ServerApp.ip=::1"]

@@ -221,7 +221,7 @@ def test_lab4_session_on_simavr_finds_the_students_mode(tmp_path):
         assert S.plant == "flexible" and S.rig.is_virtual
         rp = S.record_prbs(**lab.PRBS_MODE)
         assert rp.metadata["status"] == "complete" and rp.metadata["lost_samples"] == 0
-        fit = shaping.identify_mode(rp.control, rp.position, rp.metadata["Ts"])
+        fit = shaping.identify_mode(rp.voltage, rp.position, rp.metadata["Ts"])
         assert S.verify("mode", (fit.frequency_hz, fit.damping)).ok
         S.set_model(fit.params["K"], fit.params["tau"])
         S.set_shaper(shaping.input_shaper("zv", fit.frequency_hz, fit.damping))

@@ -400,7 +400,7 @@ def test_lab1_prbs_fit_without_offset_gets_its_hint(tmp_path):
     """Lab 1's PRBS task answered with PEM *without* the offset: the friction-biased gain, named."""
     nb = _read_master(1)
     _set_student(nb, "wrongprbs")
-    old = 'fit_prbs = ident.fit_dc_motor(rp.control, rp.position, Ts, method="pem", offset=True)'
+    old = 'fit_prbs = ident.fit_dc_motor(rp.voltage, rp.position, Ts, method="pem", offset=True)'
     hits = [c for c in nb.cells if c.cell_type == "code" and old in c.source]
     assert len(hits) == 1
     hits[0].source = hits[0].source.replace(old, old.replace(", offset=True", ""))

@@ -192,7 +192,7 @@ def check_tau(answer, evidence, truth):
         "tau",
         False,
         f"τ is {pct(v, tau):+.0f} % off: did you fit the angle (PEM) of the "
-        "+6 V step from rest, with u = rec.control and y = rec.position?",
+        "+6 V step from rest, with u = rec.voltage and y = rec.position?",
     )
 
 
@@ -419,7 +419,7 @@ def check_prbs_fit(answer, evidence, truth):
         "prbs_fit",
         False,
         f"K is {pct(K_a, K):+.0f} % and τ {pct(tau_a, tau):+.0f} % off: fit "
-        "the PRBS record with u = rp.control (the applied volts) and y = rp.position, by PEM "
+        "the PRBS record with u = rp.voltage (the applied volts) and y = rp.position, by PEM "
         "with offset=True.",
     )
 
@@ -630,7 +630,7 @@ def check_measured(answer, evidence, truth):
                 "max_error": "the largest |reference − position| while the move lasts (t ≤ duration)",
                 "overshoot_pct": "max(position − distance) after the move, in % of the distance, 0 if none",
                 "settling_time": f"the last time |e| leaves ±{SPEC['settle_band']} rad, minus the move's duration",
-                "peak_voltage": "max |rec.control| (the PWM-quantized voltage applied)",
+                "peak_voltage": "max |rec.voltage| (the PWM-quantized voltage applied)",
             }[k]
             return CheckResult("measured", False, f"{k} disagrees with the recording: {hint}.")
     fails = spec_failures(m)
@@ -796,7 +796,7 @@ def check_predicted(answer, evidence, truth):
         ref,
         0.03,
         "simulate(profile, DCMotor(K, τ, coulomb_friction=f_c, "
-        "encoder_ppr=rig.counts_per_rev), gains) and read metrics['max_abs_error'], ['max_abs_voltage'].",
+        "encoder_ppr=rig.counts_per_rev), gains) and read metrics['max_error'], ['peak_voltage'].",
     )
     if bad:
         return bad
@@ -824,7 +824,7 @@ def check_measured3(answer, evidence, truth):
         answer,
         ref,
         0.01,
-        "max |reference − position| for t ≤ duration, and max |rec.control|.",
+        "max |reference − position| for t ≤ duration, and max |rec.voltage|.",
     )
     if bad:
         return bad

@@ -204,7 +204,7 @@ def check_mode(answer, evidence, truth):
         "mode",
         False,
         f"f is {pct(f_a, f):+.0f} % off: fit the PRBS record with "
-        "shaping.identify_mode(rp.control, rp.position, Ts) — the applied volts and the "
+        "shaping.identify_mode(rp.voltage, rp.position, Ts) — the applied volts and the "
         "encoder angle of the same record.",
     )
 
