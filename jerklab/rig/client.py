@@ -776,7 +776,7 @@ class Rig:
     ) -> Recording:
         """Open-loop step of ``voltage`` V for ``seconds`` (identification); returns the Recording.
 
-        Samples are taken every ``Ts``; ``rec.control`` is the PWM-quantized voltage applied
+        Samples are taken every ``Ts``; ``rec.voltage`` is the PWM-quantized voltage applied
         (held from each sample to the next), ``rec.position`` the encoder angle (zeroed at the
         start). With ``rest`` > 0 the record starts with that many seconds at 0 V (a STEP of
         0 V, then the STEP of ``voltage``, joined into one record): a step *from rest*, as an
@@ -852,7 +852,7 @@ class Rig:
         PRBS (:func:`jerklab.protocol.prbs_bits` of ``order`` and ``seed``), each bit held
         ``hold`` samples of ``Ts``; it generates the sequence itself (nothing streams to it)
         and reports every sample, with the commanded voltage in the ``reference`` column (V,
-        not rad, for this kind) and the PWM-quantized applied voltage in ``rec.control``, so
+        not rad, for this kind) and the PWM-quantized applied voltage in ``rec.voltage``, so
         the input is recorded exactly. With ``rest`` > 0 the record starts with that many
         seconds at 0 V, as :meth:`step`. A pulled cable or a silent device ends it with every
         sample received saved (the recording's status says why).
