@@ -94,7 +94,6 @@ def test_runspec_period_is_the_gains_own_by_default():
     "kw, points_to",
     [
         ({"student": "s1"}, r"jerklab\.lab\.connect_student"),
-        ({"motor": DCMotor()}, r"device=motor"),
         ({"plant": "flexible"}, r"device=FlexibleDCMotor\(\)"),
         ({"speed": 1.0}, r"device=Device\(motor, speed=\.\.\.\)"),
         ({"supply_voltage": 12.0}, r"device=Device\(supply_voltage="),
@@ -108,6 +107,14 @@ def test_runspec_period_is_the_gains_own_by_default():
 def test_old_keywords_say_where_they_went(kw, points_to):
     with pytest.raises(TypeError, match=points_to):
         connect(**kw)
+
+
+def test_motor_is_the_older_name_of_device():
+    m = DCMotor(K=27.5, tau=0.034)
+    with connect(motor=m, progress=False) as rig:
+        assert rig.link.device.motor is m
+    with pytest.raises(TypeError, match="motor= is its older name"):
+        connect(motor=m, device=DCMotor())
 
 
 def test_a_simulated_device_field_is_refused_for_a_real_port_before_it_is_opened(monkeypatch):

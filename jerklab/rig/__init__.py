@@ -78,9 +78,9 @@ __all__ = [
 _VIRTUAL_NAMES = (None, "virtual")
 _URL_SCHEMES = ("socket", "rfc2217", "loop", "spy", "alt", "hwgrep", "cp2110")
 
-#: keywords connect() took before its options were grouped -> what to write now
+#: keywords connect() took before its options were grouped -> what to write now (``motor=``
+#: stays the older name of ``device=`` given a motor, as the vocabulary keeps older names)
 _REGROUPED = {
-    "motor": "device=motor (or device=Device(motor, ...))",
     "plant": "device=FlexibleDCMotor() for the flexible load (jerklab.plant)",
     "speed": "device=Device(motor, speed=...)",
     "supply_voltage": "device=Device(supply_voltage=...)",
@@ -135,6 +135,9 @@ def connect(
         Folder for recordings (default ``$JERKLAB_RECORDINGS`` or ``./recordings``).
     metadata : dict, optional
         The caller's fields, carried in every recording's metadata under ``"caller"``.
+    motor : jerklab.plant motor, optional
+        The older name of ``device`` given a bare motor (``connect(motor=m)`` is
+        ``connect(device=m)``).
 
     A device path is opened exclusively (pyserial ``exclusive=True`` on POSIX) and locked
     with a lock file naming this process (:class:`jerklab.rig.ports.PortLock`) until
@@ -157,6 +160,11 @@ def connect(
     TypeError
         A keyword connect() no longer takes: the message says where it went.
     """
+    if "motor" in regrouped:
+        motor = regrouped.pop("motor")
+        if device is not None:
+            raise TypeError("give the simulated motor once: device= (motor= is its older name)")
+        device = motor
     if regrouped:
         raise TypeError(_regrouped_message(regrouped))
     link = _as_link(link)
