@@ -61,6 +61,10 @@ BASE = ("jerklab", "jerklab._validate", "jerklab._lazy", "jerklab._vocab", "jerk
 #: (module, function qualname) of every ``.plot()`` that hands its result to jerklab.plots
 PLOT_HANDOFFS = {
     ("jerklab.sim", "SimResult.plot"),
+    ("jerklab.ident.data", "IdentData.plot"),
+    ("jerklab.ident.validate", "ResidualAnalysis.plot"),
+    ("jerklab.ident.validate", "CompareResult.plot"),
+    ("jerklab.ident.validate", "CompareResults.plot"),
     ("jerklab.rig.recording", "Recording.plot"),
     ("jerklab.rig.recording", "Recording.plot_comparison"),
     ("jerklab.shaping", "Tradeoff.plot"),
@@ -75,21 +79,10 @@ LATE_IMPORTS = {
     ("jerklab.cli", "rig"): "the command line loads only its subcommand (the rig takes ~1 s)",
 }
 
-#: The identification module re-exports four plot functions at its top and jerklab.plots reads
-#: ident's results back (issue 27's ident <-> plots cycle); ident's split into a package
-#: removes both. Until then the imports between jerklab.ident* and jerklab.plots, and the
-#: function-local imports inside jerklab.ident*, are tolerated (not required).
-IDENT = "jerklab.ident"
-
 
 def _top(module: str) -> str:
     """The first component under ``jerklab.`` ("" for the package itself)."""
     return module.split(".")[1] if "." in module else ""
-
-
-def _ident_plots(i) -> bool:
-    """An import between jerklab.ident (or a module of its package) and jerklab.plots."""
-    return {_top(i.source), _top(i.target)} == {"ident", "plots"}
 
 
 class Import:
@@ -248,12 +241,11 @@ def test_the_graph_is_read(graph):
 
 
 def test_no_cycle(graph):
-    modules, imports = graph
-    assert cycles(modules, [i for i in imports if not _ident_plots(i)]) == []
+    assert cycles(*graph) == []
 
 
 def test_no_upward_import(graph):
-    bad = [i for i in upward(graph[1]) if not _ident_plots(i)]
+    bad = upward(graph[1])
     assert bad == [], "imports from a lower layer to a higher one:\n" + "\n".join(map(repr, bad))
 
 
@@ -273,8 +265,6 @@ def test_function_local_imports_are_listed(graph):
         i
         for i in imports
         if i.function is not None
-        and not i.source.startswith(IDENT)
-        and not _ident_plots(i)
         and (i.source, i.function) not in PLOT_HANDOFFS
         and (i.source, i.function) not in LATE_IMPORTS
     ]

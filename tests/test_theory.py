@@ -77,7 +77,8 @@ def test_well_formed_code_citations_are_explained():
     """Each 'Stojčić eq. N' (etc.) cited in the package has its heading in THEORY.md."""
     cite = re.compile(r"(Stojčić|Stojcic|Xu & Meckl|Yang) eq\. (\d+(?:\.\d+)?)")
     found = set()
-    for f in list((ROOT / "jerklab").glob("*.py")) + list((ROOT / "jerklab" / "rig").glob("*.py")):
+    files = [ROOT / "jerklab", ROOT / "jerklab" / "rig", ROOT / "jerklab" / "ident"]
+    for f in [f for d in files for f in d.glob("*.py")]:
         for paper, num in cite.findall(f.read_text(encoding="utf-8")):
             found.add(f"{'Stojčić' if paper == 'Stojcic' else paper} eq. {num}")
     assert found  # the package cites something
