@@ -1212,9 +1212,9 @@ def _targets() -> list[Target]:
         # the case of every run that ends before the move does (t_end < duration); any other
         # non-finite number is wrong
         m = dict(r.metrics)
-        if math.isinf(m.get("settling_time", 0.0)) and r.t[-1] < r.info["duration"]:
+        if math.isinf(m.get("settling_time", 0.0)) and r.time[-1] < r.info["duration"]:
             del m["settling_time"]
-        bad = _nonfinite(m) or _nonfinite(r.position) or _nonfinite(r.u)
+        bad = _nonfinite(m) or _nonfinite(r.position) or _nonfinite(r.command)
         return f"result has {bad}" if bad else None
 
     # t_end >= 0 is the documented domain (t_end = 0: the one sample at t = 0)
@@ -1483,7 +1483,7 @@ def _targets() -> list[Target]:
             "rig",
             "connect",
             lambda port, timeout, hello_timeout: RG.connect(
-                port, timeout=timeout, hello_timeout=hello_timeout, progress=False
+                port, progress=False, link=RG.Link(timeout=timeout, hello_timeout=hello_timeout)
             ).close(),
             dict(port=None, timeout=2.0, hello_timeout=None),
             [
@@ -1895,8 +1895,8 @@ KILL_SCRIPT = r"""
 import sys
 from jerklab.controller import pole_placement_pid
 from jerklab.planner import plan_sine_jerk
-from jerklab.rig import connect
-rig = connect(None, speed=1.0, progress=False)
+from jerklab.rig import Device, connect
+rig = connect(None, device=Device(speed=1.0), progress=False)
 print("started", flush=True)
 rig.run_move(plan_sine_jerk(4 * 3.141592653589793, 20.0, 30.0, 10.0), pole_placement_pid(32.4, 0.025, 20.0),
              path=sys.argv[1])

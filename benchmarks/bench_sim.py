@@ -71,7 +71,9 @@ def main():
     for t_end in (2.0, 20.0, 200.0):
         r = simulate(prof, motor, ctrl, t_end=t_end)
         U = np.vstack([r.reference, (TAU * r.ref_accel + r.ref_velocity) / K])
-        t_fr = _best(lambda: ct.forced_response(loop, T=r.t, U=U), repeat=2 if t_end > 20 else 10)
+        t_fr = _best(
+            lambda: ct.forced_response(loop, T=r.time, U=U), repeat=2 if t_end > 20 else 10
+        )
         t_sim = _best(
             lambda: simulate(prof, motor, ctrl, t_end=t_end), repeat=3 if t_end > 20 else 30
         )
@@ -86,7 +88,7 @@ def main():
         )
         rows.append(
             (
-                len(r.t),
+                len(r.time),
                 t_fr * 1e3,
                 t_sim * 1e3,
                 t_fr / t_sim,
@@ -123,7 +125,7 @@ def main():
             lambda: simulate_batch(prof, motor, ctrl, engine=engine, keep_traces=False, **p),
             repeat=2,
         )
-        rows.append((f"{engine} {m}", m, len(b.t), t, m * len(b.t) / t))
+        rows.append((f"{engine} {m}", m, len(b.time), t, m * len(b.time) / t))
     table(
         "batch over perturbed plants (K, tau +-20 %, friction 0-0.5 V), all nonlinearities on",
         ["engine plants", "plants", "samples", "s", "controller steps/s"],

@@ -28,7 +28,11 @@ import os
 import pathlib
 import sys
 
+from jerklab._validate import as_int
+from jerklab.broker import BrokerRig
 from jerklab.resources import share_path
+from jerklab.rig import connect
+from jerklab.widgets import pole_placement_panel
 
 __all__ = [
     "APP_NOTEBOOK",
@@ -77,19 +81,13 @@ def panel_for_page(rig_port=None, recordings=None):
 
     import ipywidgets as widgets
 
-    from jerklab.widgets import pole_placement_panel
-
     if rig_port is None:
         rig_port = os.environ.get(RIG_ENV) or None
     page = dict(student=True, narrow_figure=True, recordings=recordings)
     try:
         if isinstance(rig_port, str) and rig_port.startswith("broker://"):
-            from jerklab.broker import BrokerRig
-
             rig = BrokerRig(rig_port)
         else:
-            from jerklab.rig import connect
-
             rig = connect(rig_port, progress=False)
     except Exception as exc:  # the page must still serve the tuning without a rig
         notice = widgets.HTML(
@@ -123,8 +121,6 @@ def voila_argv(
     (the student walked away), else only once the tab is closed. Voilà never culls the
     pre-executed pool.
     """
-    from jerklab._validate import as_int
-
     pool = as_int("pool", pool, minimum=0)
     cull_idle = as_int("cull_idle", cull_idle, minimum=0)
     cull_interval = as_int("cull_interval", cull_interval, minimum=1)

@@ -40,6 +40,11 @@ import threading
 import time
 from pathlib import Path
 
+from jerklab import planner, tuning
+from jerklab.controller import DiscreteGains, Feedforward
+from jerklab.rig import Device, connect
+from jerklab.rig.recording import Recording, recordings_dir
+
 __all__ = ["RigBroker", "BrokerRig", "BrokerError", "SCHEME", "HEARTBEAT", "main"]
 
 #: Address prefix of a broker: ``broker://host:port``.
@@ -107,11 +112,9 @@ class RigBroker:
     """
 
     def __init__(self, rig_port=None, host="127.0.0.1", port=0, speed=1.0, connect_kwargs=None):
-        from jerklab.rig import connect
-
         kwargs = dict(connect_kwargs or {})
-        if rig_port in (None, "", "virtual"):
-            kwargs.setdefault("speed", speed)
+        if rig_port in (None, "virtual"):
+            kwargs.setdefault("device", Device(speed=speed))
         self.rig = connect(rig_port, progress=False, **kwargs)
         self._queue = []  # tickets waiting, in arrival order
         self._running = None
@@ -289,9 +292,6 @@ class RigBroker:
                 self._tell_positions()
 
     def _run(self, req):
-        from jerklab import planner, tuning
-        from jerklab.controller import DiscreteGains, Feedforward
-
         p = req.get("profile") or {}
         kind = p.get("kind")
         plan = {
@@ -427,9 +427,6 @@ class BrokerRig:
         ``path``: None writes to the recordings folder, False keeps it in memory, else that
         path (``.csv`` + ``.json``). ``progress`` is accepted for compatibility (ignored).
         """
-        from jerklab.controller import DiscreteGains, Feedforward
-        from jerklab.rig.recording import Recording, recordings_dir
-
         if not isinstance(gains, DiscreteGains):
             raise TypeError(f"gains must be DiscreteGains, got {type(gains).__name__}")
         kind = getattr(profile, "kind", None)

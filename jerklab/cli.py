@@ -17,21 +17,16 @@ import subprocess
 import sys
 from pathlib import Path
 
+from jerklab import __version__
+from jerklab.resources import copy_missing, default_work_dir
+
 __all__ = ["main"]
 
 _LAB_HINT = 'JupyterLab is not installed: pip install "jerklab[lab]"'
 
 
-def _version() -> str:
-    from jerklab import __version__
-
-    return __version__
-
-
 def lab(argv=None) -> int:
     """``jerklab lab``: fill the working folder (missing files only) and open JupyterLab there."""
-    from jerklab.resources import copy_missing, default_work_dir
-
     ap = argparse.ArgumentParser(
         prog="jerklab lab", description=lab.__doc__.split(":", 1)[1].strip()
     )
@@ -102,8 +97,7 @@ def app(argv=None) -> int:
     except ImportError:
         print('jerklab app: Voilà is not installed: pip install "jerklab[lab]"', file=sys.stderr)
         return 1
-    from jerklab.app import main as app_main
-    from jerklab.resources import default_work_dir
+    from jerklab.app import main as app_main  # the subcommand's modules only (the rig: ~1 s)
 
     # the page's rig runs go to the working folder, never inside the installed package
     os.environ.setdefault("JERKLAB_RECORDINGS", str(default_work_dir() / "recordings"))
@@ -134,7 +128,7 @@ def main(argv=None) -> int:
         epilog="\n".join(__doc__.split("\n")[2:]),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    ap.add_argument("--version", action="version", version=f"jerklab {_version()}")
+    ap.add_argument("--version", action="version", version=f"jerklab {__version__}")
     ap.add_argument("command", choices=sorted(_COMMANDS), help="what to do")
     ap.add_argument("args", nargs=argparse.REMAINDER, help="the command's own arguments")
     if argv and argv[0] in _COMMANDS:

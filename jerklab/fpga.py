@@ -48,6 +48,8 @@ import numpy as np
 
 from jerklab import paper as _paper
 from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive
+from jerklab.multiaxis import MultiAxisPlan
+from jerklab.planner import plan_scurve
 
 __all__ = [
     "YangSCurve",
@@ -480,8 +482,6 @@ class YangSCurve:
         Yang's profile is the 7-segment linear-jerk S-curve with no constant-
         acceleration segment: ``J = 4V/T^2``, ``A = 2V/T``, distance ``V (T + t_cruise)``.
         """
-        from jerklab.planner import plan_scurve
-
         V, T = float(self.max_velocity), self.accel_time
         return plan_scurve(self.distance_um, 4 * V / T**2, 2 * V / T, V)
 
@@ -998,8 +998,6 @@ def yang_axes(
         A plan of another planner or with an acceleration plateau; ``HardwareLimitError``
         when an axis does not fit the registers (see :class:`YangSCurve`).
     """
-    from jerklab.multiaxis import MultiAxisPlan
-
     if not isinstance(plan, MultiAxisPlan):
         raise ValueError(
             f"plan must be a jerklab.multiaxis.MultiAxisPlan, got {type(plan).__name__}"

@@ -191,21 +191,21 @@ def plot_simulation(result, fig=None, title=None):
     if fig is None:
         fig = plt.figure(figsize=(9, 7))
     ax = fig.subplots(3, 1, sharex=True)
-    ax[0].plot(res.t, res.reference, "k--", lw=1, label="reference")
-    ax[0].plot(res.t, res.position, label="motor (true)")
-    ax[0].plot(res.t, res.measured, ".", ms=2, label="encoder")
+    ax[0].plot(res.time, res.reference, "k--", lw=1, label="reference")
+    ax[0].plot(res.time, res.position, label="motor (true)")
+    ax[0].plot(res.time, res.measured, ".", ms=2, label="encoder")
     if res.load_position is not None:
-        ax[0].plot(res.t, res.load_position, label="load")
+        ax[0].plot(res.time, res.load_position, label="load")
     ax[0].set_ylabel("angle (rad)")
     ax[0].legend(loc="best", fontsize=8)
-    ax[1].plot(res.t, res.error * 1e3)
+    ax[1].plot(res.time, res.error * 1e3)
     ax[1].set_ylabel("tracking error (mrad)")
     for name in ("ff", "p", "i", "d"):
-        ax[2].plot(res.t, res.parts[name], lw=1, label=name)
-    ax[2].plot(res.t, res.u_applied, "k", lw=1.2, label="u applied")
+        ax[2].plot(res.time, res.parts[name], lw=1, label=name)
+    ax[2].plot(res.time, res.voltage, "k", lw=1.2, label="u applied")
     if np.any(res.saturated):
         ax[2].fill_between(
-            res.t,
+            res.time,
             0,
             1,
             where=res.saturated,
@@ -221,7 +221,7 @@ def plot_simulation(result, fig=None, title=None):
     ax[0].set_title(
         title
         or (
-            f"{res.loop} loop: max |e| = {m['max_abs_error'] * 1e3:.3g} mrad, "
+            f"{res.loop} loop: max |e| = {m['peak_error'] * 1e3:.3g} mrad, "
             f"RMS {m['rms_error'] * 1e3:.3g} mrad, final {m['final_error'] * 1e3:.3g} mrad"
         )
     )
@@ -348,7 +348,7 @@ def plot_residuals(analysis, axes=None, title: str | None = None):
 # rig recordings
 # ----------------------------------------------------------------------------------------------
 def plot_recording(rec, ax=None):
-    """Reference and measured position (rad) and control (V) of a rig ``Recording`` against time (s).
+    """Reference and measured position (rad) and voltage (V) of a rig ``Recording`` against time (s).
 
     ``ax`` is a pair of axes (default: a new figure); returns the figure.
     """
@@ -364,8 +364,8 @@ def plot_recording(rec, ax=None):
     ax[0].plot(t, rec.position, label="measured")
     ax[0].set_ylabel("position (rad)")
     ax[0].legend()
-    ax[1].step(t, rec.control, where="post")
-    ax[1].set_ylabel("control (V)")
+    ax[1].step(t, rec.voltage, where="post")
+    ax[1].set_ylabel("voltage (V)")
     ax[1].set_xlabel("time (s)")
     ax[0].set_title(
         f"rig recording: {rec.metadata.get('kind', '')} ({rec.metadata.get('status', '')})"
@@ -381,8 +381,8 @@ def plot_comparison(rec, sim, title="Measured vs simulated sine-jerk move"):
     """
     import matplotlib.pyplot as plt
 
-    n = min(len(rec), len(sim.t))
-    idx = rec.index[rec.index < len(sim.t)][:n]
+    n = min(len(rec), len(sim.time))
+    idx = rec.index[rec.index < len(sim.time)][:n]
     t = rec.time[: len(idx)]
     fig, ax = plt.subplots(3, 1, sharex=True, figsize=(8, 7.5))
     ax[0].plot(t, rec.reference[: len(idx)], "k--", lw=1, label="reference")
@@ -401,9 +401,9 @@ def plot_comparison(rec, sim, title="Measured vs simulated sine-jerk move"):
     )
     ax[1].set_ylabel("tracking error (mrad)")
     ax[1].legend(loc="upper right")
-    ax[2].step(t, rec.control[: len(idx)], where="post", label="measured (rig)")
-    ax[2].step(t, np.asarray(sim.u_applied)[idx], ":", where="post", label="simulated")
-    ax[2].set_ylabel("control (V)")
+    ax[2].step(t, rec.voltage[: len(idx)], where="post", label="measured (rig)")
+    ax[2].step(t, np.asarray(sim.voltage)[idx], ":", where="post", label="simulated")
+    ax[2].set_ylabel("voltage (V)")
     ax[2].set_xlabel("time (s)")
     ax[2].legend(loc="upper right")
     ax[0].set_title(title)

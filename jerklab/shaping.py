@@ -72,9 +72,12 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 from scipy.optimize import brentq, fsolve
 
-from jerklab._validate import as_finite_array, as_nonnegative, as_positive, as_real
+from jerklab import paper, piezo, planner
+from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
 from jerklab.ident.mode import ModeEstimate, coupled_mode
 from jerklab.ident.mode import identify_mode as _identify_mode
+from jerklab.planner import Profile
+from jerklab.plant import FlexibleDCMotor
 
 __all__ = [
     "KINDS",
@@ -433,8 +436,6 @@ class InputShaper:
         """:meth:`fir` in fixed point for a microcontroller: integer taps summing to exactly
         ``2**frac_bits`` (largest-remainder rounding: each tap within one unit of ``2**frac_bits·h``),
         so a shaped move still ends exactly on its target. Returns an ``int64`` array."""
-        from jerklab._validate import as_int
-
         b = as_int("frac_bits", frac_bits, minimum=1)
         if b > 30:
             raise ValueError(f"frac_bits must be <= 30, got {b}")
@@ -704,8 +705,6 @@ def _raised_cosine(sig, L):
 def _profile_factors(profile):
     """The velocity/distance of a planner profile as a convolution of unit pulses:
     ``[(shape, length), ...]`` (shape in "box", "half_sine", "raised_cosine")."""
-    from jerklab.planner import Profile
-
     if not isinstance(profile, Profile):
         raise TypeError(f"profile must be a jerklab.planner Profile, got {type(profile).__name__}")
     if profile.distance == 0.0:
@@ -783,8 +782,6 @@ def tuned_profile(
     -------
     jerklab.planner.Profile
     """
-    from jerklab import planner
-
     kind = str(kind)
     d = as_real("distance", distance)
     f = as_positive("frequency_hz", frequency_hz)
@@ -837,8 +834,6 @@ def move_time_comparison(
     period costs less than half a period, ZV's price), and loses for short, fast moves, where
     the jerk time ``1/f`` is added almost entirely.
     """
-    from jerklab import planner
-
     base = planner.plan_trapezoid(distance, max_accel, max_velocity)
     out = {
         "trapezoid": {
@@ -974,8 +969,6 @@ class RobustMove:
 
 
 def _flex_model(model):
-    from jerklab.plant import FlexibleDCMotor
-
     if model is None:
         return FlexibleDCMotor()
     if not isinstance(model, FlexibleDCMotor):
@@ -1010,24 +1003,18 @@ def robust_move(distance, model=None, Ts=0.005, order=0, u_max=None, max_samples
     u_max : float, optional
         Voltage limit, V (default the model's supply voltage, else 12 V).
     """
-    from jerklab import piezo
-
     model = _flex_model(model)
     d = as_real("distance", distance)
     if d == 0.0:
         raise ValueError("distance must not be 0")
     Ts = as_positive("Ts", Ts)
     if order is not None:
-        from jerklab._validate import as_int
-
         order = as_int("order", order, minimum=0)
         if order > 4:
             raise ValueError(f"order must be <= 4, got {order}")
     U = as_positive("u_max", u_max if u_max is not None else (model.supply_voltage or 12.0))
     if solver not in ("lp", "highs", "lsq"):
         raise ValueError(f"solver must be 'lp', 'highs' or 'lsq', got {solver!r}")
-    from jerklab._validate import as_int
-
     max_samples = as_int("max_samples", max_samples, minimum=2)
     count = [0]
     real, cplx = _zoh_poles(model, Ts)
@@ -1073,9 +1060,6 @@ def energy_optimal_move(distance, N, model=None, Ts=0.005, order=1, u_max=None, 
     time-optimal horizon of :func:`robust_move` trades time for a gentler command. Raises
     ``RuntimeError`` when ``N`` is shorter than the time-optimal horizon.
     """
-    from jerklab import piezo
-    from jerklab._validate import as_int
-
     model = _flex_model(model)
     d = as_real("distance", distance)
     if d == 0.0:
@@ -1185,8 +1169,6 @@ def tradeoff(
     measure (module docstring): the residual with the mode at ``ratio ×`` its nominal frequency,
     damping held, as a percentage of what a step of the same size leaves.
     """
-    from jerklab import paper
-
     model = _flex_model(model)
     A = paper.MAX_ACCEL if max_accel is None else as_positive("max_accel", max_accel)
     V = paper.MAX_VELOCITY if max_velocity is None else as_positive("max_velocity", max_velocity)
@@ -1196,8 +1178,6 @@ def tradeoff(
     f, z = coupled_mode(
         model.K, model.tau, model.load_ratio, model.mode_frequency, model.mode_damping
     )
-    from jerklab import planner
-
     base = planner.plan_trapezoid(distance, A, V)
     curves, rows = {}, []
 
@@ -1283,8 +1263,6 @@ def residual_amplitude(y, Ts, start, frequency_hz=None, damping=0.0, final=None)
     """
     y = as_finite_array("y", y, ndim=1)
     Ts = as_positive("Ts", Ts)
-    from jerklab._validate import as_int
-
     start = as_int("start", start, minimum=0)
     if start > y.size - 4:
         raise ValueError(f"start must leave at least 4 samples of y (len {y.size}), got {start}")

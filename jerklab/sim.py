@@ -39,11 +39,12 @@ import numpy as np
 
 from jerklab import law, paper
 from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
+from jerklab._vocab import aliases
 from jerklab.controller import DigitalController, DiscreteGains, Gains
 from jerklab.law import HAVE_NUMBA, _jit  # one switch for every compiled kernel
+from jerklab.metrics import MoveMetrics, series_metrics
 from jerklab.planner import Profile
 from jerklab.plant import DCMotor, FlexibleDCMotor, _advance, advance_em
-from jerklab.plots import plot_simulation
 
 __all__ = [
     "simulate",
@@ -69,20 +70,19 @@ __all__ = [
     P_LEVELS,
     P_CPR,
     P_DISTANCE,
-    P_BAND,
     P_DURATION,
-    P_NMOVE,
     P_BOUND,
     P_OFFSET,
     P_DEAD_ZONE,
-) = range(17)
-_NP = 17
+) = range(15)
+_NP = 15
 # rows of the kernel's output array after the ns state rows
 (O_MEAS, O_UCMD, O_UAPP, O_P, O_I, O_D, O_FF, O_E) = range(8)
 _NO = 8
-# metrics the kernel accumulates
-(M_EMAX, M_ESQ, M_LAST, M_UMAX, M_NSAT, M_NONFINITE, M_BEYOND, M_RESID, M_NAFTER) = range(9)
-_NM = 9
+# what the kernel accumulates beyond the traces: where the run stopped (a non-finite state) or
+# left the divergence bound, and the flexible load's residual vibration after the move
+(M_NONFINITE, M_BEYOND, M_RESID, M_NAFTER) = range(4)
+_NM = 4
 #: a run whose |error| exceeds this many times max(|distance|, 1) has diverged
 DIVERGENCE_FACTOR = 1e3
 
@@ -117,7 +117,7 @@ def _driver(v, offset, dead_zone):
 
 @_jit
 def _kernel(ref, noise, x0, pp, M, ctl, OUT, sat, met):
-    """One run, every signal stored, metrics accumulated (see :func:`simulate`).
+    """One run, every signal stored, divergence and the load's vibration noted (:func:`simulate`).
 
     ``ref`` (3, n): position, velocity, acceleration; ``noise`` (n,) or empty; ``pp`` the
     packed plant (``P_*``); ``M`` (3, ns, ns + 1): ``[Φ | Γ]`` of the full period and of the
@@ -140,9 +140,7 @@ def _kernel(ref, noise, x0, pp, M, ctl, OUT, sat, met):
     levels = pp[P_LEVELS]
     cpr = pp[P_CPR]
     distance = pp[P_DISTANCE]
-    band = pp[P_BAND]
     duration = pp[P_DURATION]
-    n_move = pp[P_NMOVE]
     bound = pp[P_BOUND]
     offset = pp[P_OFFSET]
     dead_zone = pp[P_DEAD_ZONE]
@@ -166,11 +164,6 @@ def _kernel(ref, noise, x0, pp, M, ctl, OUT, sat, met):
     e_prev = 0.0
     d_prev = 0.0
     y_prev = 0.0
-    emax = 0.0
-    esq = 0.0
-    last = -1.0
-    umax = 0.0
-    nsat = 0.0
     beyond = -1.0
     resid = 0.0
     nafter = 0.0
@@ -182,14 +175,7 @@ def _kernel(ref, noise, x0, pp, M, ctl, OUT, sat, met):
             break
         for j in range(ns):
             OUT[j, k] = x[j]
-        err = ref[0, k] - th
-        a = abs(err)
-        if a > emax:
-            emax = a
-        if k < n_move:
-            esq += err * err
-        if abs(distance - th) > band:
-            last = k
+        a = abs(ref[0, k] - th)
         if beyond < 0.0 and a > bound:
             beyond = k
         if ns == 4 and k * Ts >= duration:
@@ -223,12 +209,7 @@ def _kernel(ref, noise, x0, pp, M, ctl, OUT, sat, met):
         OUT[ns + O_D, k] = d_prev
         OUT[ns + O_FF, k] = ff
         OUT[ns + O_E, k] = e
-        sk = s or s2
-        sat[k] = sk
-        if sk:
-            nsat += 1.0
-        if abs(v) > umax:
-            umax = abs(v)
+        sat[k] = s or s2
         if rigid:
             vm = _driver(v, offset, dead_zone) if drive else v
             th1, om1 = _rigid_step(
@@ -259,11 +240,6 @@ def _kernel(ref, noise, x0, pp, M, ctl, OUT, sat, met):
         for j in range(OUT.shape[0]):
             OUT[j, k] = np.nan
         sat[k] = False
-    met[M_EMAX] = emax
-    met[M_ESQ] = esq
-    met[M_LAST] = last
-    met[M_UMAX] = umax
-    met[M_NSAT] = nsat
     met[M_NONFINITE] = k_end if k_end < n else -1.0
     met[M_BEYOND] = beyond
     met[M_RESID] = resid
@@ -301,8 +277,9 @@ def _batch_chunk(
 
     Time is the outer loop and the plants the inner one, so the independent plants
     overlap in the CPU pipeline (one plant alone is a chain of dependent operations).
-    MET[j] = max|e|, sum e^2 during the move, final e, last index outside the band,
-    max|u applied|, number of samples in the move.
+    MET[j] = max|e| over the run, sum e^2 during the move, final e, last index outside the
+    band, max|u applied|, number of samples in the move, max|e| during the move, max
+    (θ − distance)·sign(distance) after the move (:func:`jerklab.metrics.series_metrics`).
     """
     kpd = ctl[law.C_KPD]
     kid = ctl[law.C_KID]
@@ -335,8 +312,11 @@ def _batch_chunk(
     last = np.full(m, -1.0)
     umax = np.zeros(m)
     fin = np.zeros(m)
+    emove = np.zeros(m)
+    over = np.full(m, -np.inf)
+    sgn = 1.0 if distance > 0 else -1.0
     for k in range(n):
-        in_move = k * Ts <= duration + 1e-12
+        in_move = k * Ts <= duration + 1e-9
         if in_move:
             nmove += 1.0
         rp = rpos[k]
@@ -354,6 +334,10 @@ def _batch_chunk(
                 emax[q] = a
             if in_move:
                 esq[q] += err * err
+                if a > emove[q]:
+                    emove[q] = a
+            elif (x - distance) * sgn > over[q]:
+                over[q] = (x - distance) * sgn
             if abs(distance - x) > band:
                 last[q] = k
             fin[q] = err
@@ -395,6 +379,8 @@ def _batch_chunk(
         MET[j, 3] = last[q]
         MET[j, 4] = umax[q]
         MET[j, 5] = nmove
+        MET[j, 6] = emove[q]
+        MET[j, 7] = over[q]
 
 
 def _batch_kernel(rpos, rvel, racc, Ks, taus, fcs, noise, noise_on, *args):
@@ -405,30 +391,35 @@ def _batch_kernel(rpos, rvel, racc, Ks, taus, fcs, noise, noise_on, *args):
 # ---------------------------------------------------------------------------
 # results
 # ---------------------------------------------------------------------------
+@aliases(t="time", u="command", u_applied="voltage")
 @dataclass
 class SimResult:
-    """Time series and metrics of one closed-loop run (all SI).
+    """Time series and metrics of one closed-loop run (all SI; names of :mod:`jerklab._vocab`).
 
     Attributes
     ----------
-    t : sample times k·Ts (s)
-    reference, ref_velocity, ref_accel : the profile sampled at t
+    time : sample times k·Ts (s)
+    reference, ref_velocity, ref_accel : the profile sampled at ``time``
     measured : encoder reading (rad)
-    position, velocity : true motor angle (rad) and speed (rad/s) at t
+    position, velocity : true motor angle (rad) and speed (rad/s) at ``time``
     load_position : load angle for a :class:`FlexibleDCMotor` (else None)
     error : tracking error ``reference − position`` (true, rad)
     loop_error : the error the PID saw (after ``error_scale``)
-    u : controller output after its clamp (V); ``u_applied`` what the motor got (PWM)
+    command : the controller's output after its own clamp (V): what it asks for
+    voltage : the voltage the motor got (V): ``command`` after the supply clamp and the PWM
+        rounding of the amplifier (:func:`jerklab.law.amplifier`)
     parts : dict of arrays ``p``, ``i``, ``d``, ``ff``
     saturated : bool array, controller clamp or supply limit active
-    metrics : dict (see :func:`simulate`)
+    metrics : :class:`jerklab.metrics.MoveMetrics` of the true angle (see :func:`simulate`)
     diverged : bool
         The run left every sensible range: a state became NaN/inf (the run stops there and
         the remaining samples are NaN) or |error| exceeded ``DIVERGENCE_FACTOR`` ×
         max(|distance|, 1). Its ``settling_time`` is then NaN, never a number.
+
+    The older names ``t``, ``u`` and ``u_applied`` read ``time``, ``command`` and ``voltage``.
     """
 
-    t: np.ndarray
+    time: np.ndarray
     reference: np.ndarray
     ref_velocity: np.ndarray
     ref_accel: np.ndarray
@@ -437,8 +428,8 @@ class SimResult:
     velocity: np.ndarray
     error: np.ndarray
     loop_error: np.ndarray
-    u: np.ndarray
-    u_applied: np.ndarray
+    command: np.ndarray
+    voltage: np.ndarray
     parts: dict
     saturated: np.ndarray
     metrics: dict
@@ -449,59 +440,65 @@ class SimResult:
 
     def plot(self, fig=None, title=None):
         """Reference and output, tracking error, control parts: :func:`jerklab.plots.plot_simulation`."""
+        from jerklab.plots import plot_simulation
+
         return plot_simulation(self, fig, title)
 
 
+@aliases(t="time", u="voltage")
 @dataclass
 class BatchResult:
-    """Runs over many plants: ``position`` and ``u`` are (n_plants, n_samples)."""
+    """Runs over many plants: ``position`` and ``voltage`` (applied, V) are
+    (n_plants, n_samples), or None without ``keep_traces``; ``metrics`` holds one array per
+    key over the plants. The older names ``t`` and ``u`` read ``time`` and ``voltage``."""
 
-    t: np.ndarray
+    time: np.ndarray
     reference: np.ndarray
     K: np.ndarray
     tau: np.ndarray
     coulomb_friction: np.ndarray
     position: np.ndarray
-    u: np.ndarray
+    voltage: np.ndarray
     metrics: dict
 
 
-def _settling(last_out, n, t, duration):
-    last_out = np.asarray(last_out)
-    idx = np.clip(last_out + 1, 0, n - 1).astype(int)
-    st = np.where(last_out < 0, 0.0, np.where(last_out >= n - 1, np.inf, t[idx] - duration))
-    return np.maximum(st, 0.0)
+def _batch_divergence(metrics, distance):
+    """Mark the diverged plants of a batch (non-finite, or |error| beyond the bound): their
+    settling time becomes NaN."""
+    peak = np.asarray(metrics["peak_error"])
+    diverged = ~np.isfinite(peak) | (peak > DIVERGENCE_FACTOR * max(abs(distance), 1.0))
+    metrics["settling_time"] = np.where(diverged, np.nan, metrics["settling_time"])
+    metrics["diverged"] = diverged
+    return metrics
 
 
-def _batch_metrics(t, reference, POS, Uapp, duration, distance, band):
-    """The per-plant metrics of :func:`simulate_batch` from full traces."""
-    err = reference[None, :] - POS
-    move = t <= duration + 1e-12
-    outside = np.abs(distance - POS) > band
+def _accumulated_metrics(MET, t, duration, distance, band):
+    """The metrics of the compiled batch kernel's accumulators: the definitions of
+    :func:`jerklab.metrics.series_metrics`, summed on the fly instead of from traces (the
+    tests check both give the same numbers)."""
     n = len(t)
-    last = np.where(outside.any(axis=1), n - 1 - np.argmax(outside[:, ::-1], axis=1), -1)
+    Ts = float(t[1] - t[0]) if n > 1 else 0.0
+    last = MET[:, 3].astype(int)
     with np.errstate(invalid="ignore", over="ignore"):
-        emax = np.max(np.abs(err), axis=1)
-        return _metric_dict(
-            emax,
-            np.sqrt(np.mean(err[:, move] ** 2, axis=1)),
-            err[:, -1],
-            _settling(last, n, t, duration),
-            np.max(np.abs(Uapp), axis=1),
-            distance,
+        settle = np.where(
+            last < 0,
+            0.0,
+            np.where(
+                last >= n - 1, np.inf, np.maximum(0.0, t[np.maximum(last, 0)] + Ts - duration)
+            ),
         )
-
-
-def _metric_dict(emax, rms, final, settle, umax, distance):
-    diverged = ~np.isfinite(emax) | (emax > DIVERGENCE_FACTOR * max(abs(distance), 1.0))
-    return {
-        "max_abs_error": emax,
-        "rms_error": rms,
-        "final_error": final,
-        "settling_time": np.where(diverged, np.nan, settle),
-        "max_abs_voltage": umax,
-        "diverged": diverged,
-    }
+        return MoveMetrics(
+            max_error=MET[:, 6],
+            peak_error=MET[:, 0],
+            rms_error=np.sqrt(MET[:, 1] / np.maximum(MET[:, 5], 1.0)),
+            final_error=MET[:, 2],
+            overshoot_pct=np.maximum(0.0, MET[:, 7]) / abs(distance) * 100.0
+            if distance
+            else np.full(len(MET), np.nan),
+            settling_time=settle,
+            settle_band=band,
+            peak_voltage=MET[:, 4],
+        )
 
 
 # ---------------------------------------------------------------------------
@@ -817,11 +814,12 @@ def simulate(profile, motor, controller, Ts=None, t_end=None, loop=None, x0=None
     Returns
     -------
     SimResult
-        Metrics: ``max_abs_error``, ``rms_error`` (during the move), ``final_error``,
-        ``settling_time`` (after the end of the profile, inf if never, NaN if the run
-        diverged), ``max_abs_voltage``, ``saturated_fraction``, ``diverged`` (and
-        ``diverged_at``, s) and, for a flexible load, ``residual_vibration`` (max
-        |load − distance| after the move).
+        ``metrics``: :func:`jerklab.metrics.move_metrics` of the true angle (``max_error``
+        during the move, ``peak_error`` over the run, ``rms_error``, ``final_error``,
+        ``overshoot_pct``, ``settling_time`` after the end of the profile into ``settle_band``
+        (inf if never, NaN if the run diverged), ``peak_voltage``, ``saturated``,
+        ``saturated_fraction``), with ``diverged`` (and ``diverged_at``, s) and, for a
+        flexible load, ``residual_vibration`` (max |load − distance| after the move).
 
     Warns
     -----
@@ -840,20 +838,20 @@ def simulate(profile, motor, controller, Ts=None, t_end=None, loop=None, x0=None
     x = motor.initial_state(x0)
     noise = motor.rng.normal(0.0, motor.noise_std, n) if motor.noise_std > 0 else _EMPTY
     pp, M, ns = _plant_pack(motor, Ts)
-    n_move = min(n, math.floor(duration / Ts + 1e-9) + 1)
     pp[P_DISTANCE] = distance
-    pp[P_BAND] = band
     pp[P_DURATION] = duration
-    pp[P_NMOVE] = n_move
     pp[P_BOUND] = DIVERGENCE_FACTOR * max(abs(distance), 1.0)
     OUT = np.empty((ns + _NO, n))
     sat = np.empty(n, dtype=np.bool_)
     met = np.empty(_NM)
     _kernel(ref, noise, x, pp, M, ctl, OUT, sat, met)
-    metrics, diverged = _run_metrics(met, t, n, n_move, duration, band, ns, OUT, ref)
     position = OUT[0]
+    metrics = series_metrics(
+        t, ref[0], position, OUT[ns + O_UAPP], duration, distance, settle_band=band, saturated=sat
+    )
+    diverged = _divergence(met, t, ns, metrics)
     return SimResult(
-        t=t,
+        time=t,
         reference=ref[0],
         ref_velocity=ref[1],
         ref_accel=ref[2],
@@ -862,8 +860,8 @@ def simulate(profile, motor, controller, Ts=None, t_end=None, loop=None, x0=None
         velocity=OUT[1],
         error=ref[0] - position,
         loop_error=OUT[ns + O_E],
-        u=OUT[ns + O_UCMD],
-        u_applied=OUT[ns + O_UAPP],
+        command=OUT[ns + O_UCMD],
+        voltage=OUT[ns + O_UAPP],
         parts={"p": OUT[ns + O_P], "i": OUT[ns + O_I], "d": OUT[ns + O_D], "ff": OUT[ns + O_FF]},
         saturated=sat,
         metrics=metrics,
@@ -874,40 +872,24 @@ def simulate(profile, motor, controller, Ts=None, t_end=None, loop=None, x0=None
     )
 
 
-def _run_metrics(met, t, n, n_move, duration, band, ns, OUT, ref):
-    """Metrics of one run from the kernel's accumulators (see :func:`simulate`)."""
+def _divergence(met, t, ns, metrics) -> bool:
+    """Add the run's divergence (and a flexible load's residual vibration) to ``metrics``
+    (:func:`jerklab.metrics.move_metrics` of the traces) from the kernel's notes; True if the
+    run diverged (its settling time is then NaN)."""
     k_bad = int(met[M_NONFINITE])
     k_far = int(met[M_BEYOND])
     nonfinite = k_bad >= 0
     diverged = nonfinite or k_far >= 0
-    last = int(met[M_LAST])
     if diverged:
-        settle = math.nan
-    elif last < 0:
-        settle = 0.0
-    elif last == n - 1:
-        settle = math.inf
-    else:
-        settle = max(0.0, float(t[last + 1] - duration))
-    m = {
-        "max_abs_error": math.inf if nonfinite else float(met[M_EMAX]),
-        "rms_error": math.inf
-        if nonfinite and k_bad < n_move
-        else math.sqrt(float(met[M_ESQ]) / n_move),
-        "final_error": float(ref[0, -1] - OUT[0, -1]),
-        "max_abs_voltage": float(met[M_UMAX]),
-        "saturated_fraction": float(met[M_NSAT]) / n,
-        "settling_time": settle,
-        "settling_band": band,
-        "diverged": diverged,
-    }
+        metrics["settling_time"] = math.nan
+    metrics["diverged"] = diverged
     if ns == 4:
-        m["residual_vibration"] = (
+        metrics["residual_vibration"] = (
             float(met[M_RESID]) if met[M_NAFTER] > 0 and not nonfinite else math.nan
         )
     if diverged:
         k = min(k for k in (k_bad, k_far) if k >= 0)
-        m["diverged_at"] = float(t[k])
+        metrics["diverged_at"] = float(t[k])
         what = (
             "a state became NaN/inf"
             if nonfinite and k == k_bad
@@ -919,7 +901,7 @@ def _run_metrics(met, t, n, n_move, duration, band, ns, OUT, ref):
             RuntimeWarning,
             stacklevel=3,
         )
-    return m, diverged
+    return diverged
 
 
 def _rng(seed):
@@ -997,10 +979,10 @@ def simulate_batch(
     Returns
     -------
     BatchResult
-        ``position`` and applied voltage ``u`` (n_plants × n_samples, None unless
-        ``keep_traces``) and per-plant ``metrics`` arrays (``max_abs_error``,
-        ``rms_error``, ``final_error``, ``settling_time``, ``max_abs_voltage``,
-        ``diverged``), defined as in :func:`simulate`.
+        ``position`` and applied ``voltage`` (n_plants × n_samples, None unless
+        ``keep_traces``) and per-plant ``metrics`` arrays: the keys of
+        :func:`jerklab.metrics.move_metrics` (no saturation count) and ``diverged``, defined
+        as in :func:`simulate`.
     """
     _check_inputs(profile, motor)
     if not isinstance(motor, DCMotor):
@@ -1057,7 +1039,7 @@ def simulate_batch(
         shape = (m, n) if keep_traces else (1, 1)
         POS = np.empty(shape)
         U = np.empty(shape)
-        MET = np.empty((m, 6))
+        MET = np.empty((m, 8))
         _batch_kernel(
             rpos,
             rvel,
@@ -1082,26 +1064,25 @@ def simulate_batch(
             U,
             MET,
         )
-        with np.errstate(invalid="ignore", over="ignore"):
-            metrics = _metric_dict(
-                MET[:, 0],
-                np.sqrt(MET[:, 1] / np.maximum(MET[:, 5], 1.0)),
-                MET[:, 2],
-                _settling(MET[:, 3].astype(int), n, t, duration),
-                MET[:, 4],
-                distance,
-            )
+        metrics = _accumulated_metrics(MET, t, duration, distance, band)
         if not keep_traces:
             POS = U = None
     elif engine == "numpy":
         if not noise_on:
             noise = np.zeros((m, n))
         POS, U = _batch_numpy(rpos, rvel, racc, Kv, tv, fv, noise, common, ctl)
-        metrics = _batch_metrics(t, rpos, POS, U, duration, distance, band)
+        metrics = series_metrics(t, rpos, POS, U, duration, distance, settle_band=band)
         if not keep_traces:
             POS = U = None
     return BatchResult(
-        t=t, reference=rpos, K=Kv, tau=tv, coulomb_friction=fv, position=POS, u=U, metrics=metrics
+        time=t,
+        reference=rpos,
+        K=Kv,
+        tau=tv,
+        coulomb_friction=fv,
+        position=POS,
+        voltage=U,
+        metrics=_batch_divergence(metrics, distance),
     )
 
 

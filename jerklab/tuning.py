@@ -28,8 +28,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from jerklab import controller as ctl
 from jerklab import paper
 from jerklab._validate import as_nonnegative, as_positive
+from jerklab.planner import plan_sine_jerk
+from jerklab.plant import DCMotor
+from jerklab.sim import simulate
 
 __all__ = [
     "DESIGNS",
@@ -128,8 +132,6 @@ def design_gains(K, tau, zeta, wn, sigma_ratio, Ts, design="continuous"):
     -------
     (DiscreteGains, Gains or None)
     """
-    from jerklab import controller as ctl
-
     _check_design_key(design)
     sigma = sigma_ratio * wn
     if design == "continuous":
@@ -160,8 +162,6 @@ def closed_loop_max_radius(K, tau, gains, Ts=None):
     -------
     float
     """
-    from jerklab import controller as ctl
-
     K = as_positive("K", K)
     tau = as_positive("tau", tau)
     if isinstance(gains, ctl.Gains):
@@ -454,8 +454,6 @@ def _move_key(move):
 
 @functools.lru_cache(maxsize=32)
 def _profile(key):
-    from jerklab.planner import plan_sine_jerk
-
     m = dict(key)
     return plan_sine_jerk(m["distance"], m["max_jerk"], m["max_accel"], m["max_velocity"])
 
@@ -534,8 +532,6 @@ def compute_pole_placement(
 
 @functools.lru_cache(maxsize=64)
 def _compute(K, tau, zeta, wn, sigma_ratio, Ts, design, move_key, simulate_move):
-    from jerklab import controller as ctl
-
     t0 = time.perf_counter()
     sigma = sigma_ratio * wn
     d, g = design_gains(K, tau, zeta, wn, sigma_ratio, Ts, design)
@@ -564,9 +560,6 @@ def _compute(K, tau, zeta, wn, sigma_ratio, Ts, design, move_key, simulate_move)
 
     # sine-jerk move on the full nonlinear simulation (PWM, saturation, encoder)
     if simulate_move:
-        from jerklab.plant import DCMotor
-        from jerklab.sim import simulate
-
         profile = _profile(move_key)
         motor = DCMotor(K, tau)
         c = ctl.DigitalController(
@@ -574,10 +567,10 @@ def _compute(K, tau, zeta, wn, sigma_ratio, Ts, design, move_key, simulate_move)
         )
         with np.errstate(all="ignore"):
             r = simulate(profile, motor, c, Ts=Ts, t_end=profile.duration + 0.3)
-        t_move = np.asarray(r.t, dtype=float)
+        t_move = np.asarray(r.time, dtype=float)
         err_move = np.asarray(r.error, dtype=float)
         err_meas = np.asarray(r.reference, dtype=float) - np.asarray(r.measured, dtype=float)
-        u_move = np.asarray(r.u, dtype=float)
+        u_move = np.asarray(r.command, dtype=float)
     else:
         t_move = err_move = err_meas = u_move = np.zeros(0)
     t3 = time.perf_counter()

@@ -46,11 +46,14 @@ import re
 import time
 import unicodedata
 import warnings
+from pathlib import Path
 
 import numpy as np
 
 from jerklab import paper, tuning
 from jerklab._validate import as_positive
+from jerklab.controller import Feedforward
+from jerklab.rig.recording import recordings_dir
 from jerklab.tuning import (
     CLIP_MRAD,
     DEFAULT_MOVE,
@@ -915,10 +918,6 @@ class PolePlacementPanel(_panel_base()):
         sid = self.student_id
         if self.student is None or sid is None:
             return False
-        from pathlib import Path
-
-        from jerklab.rig.recording import recordings_dir
-
         folder = (Path(self.recordings) if self.recordings is not None else recordings_dir()) / sid
         stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
         base, k = folder / f"{stamp}_move", 1
@@ -932,8 +931,6 @@ class PolePlacementPanel(_panel_base()):
 
     def _run_on_rig(self, _button=None, force=False):
         """Run the current move with the current discrete gains on the rig, overlay the error."""
-        from jerklab.controller import Feedforward
-
         res = self.result
         try:
             self.rig_button.disabled = True
@@ -1015,12 +1012,15 @@ class PolePlacementPanel(_panel_base()):
 
 
 def _accepts(func, name):
+    """Whether ``func`` takes the keyword ``name`` (by name or through ``**kwargs``, as
+    ``Rig.run_move`` takes the RunSpec fields)."""
     import inspect
 
     try:
-        return name in inspect.signature(func).parameters
+        params = inspect.signature(func).parameters
     except (TypeError, ValueError):
         return False
+    return name in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
 
 
 def _fmt_gain(v):

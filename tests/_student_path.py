@@ -53,12 +53,11 @@ def main():
     # jerklab[lab] does not install otter-grader: the student path must not need it
     sys.modules["otter"] = None
 
-
     import jerklab
     from jerklab import cli, ident
     from jerklab.controller import discrete_pole_placement_pid
     from jerklab.planner import plan_sine_jerk
-    from jerklab.rig import UnknownPortError, connect
+    from jerklab.rig import Link, UnknownPortError, connect
     from jerklab.rig.check import check_rig
     from jerklab.rig.server import DeviceServer
 
@@ -99,7 +98,7 @@ def main():
     print("step: worksheet check ->", outcome)
 
     try:
-        connect("COM7", hello_timeout=0.2, progress=False)
+        connect("COM7", progress=False, link=Link(hello_timeout=0.2))
     except UnknownPortError as exc:
         assert "COM7" in str(exc)
     else:
@@ -107,7 +106,10 @@ def main():
     server = DeviceServer(speed=None)
     url = server.start_tcp("127.0.0.1", 0)
     with connect(
-        url, progress=False, recordings=os.path.join(work, "recordings"), hello_timeout=3.0
+        url,
+        progress=False,
+        recordings=os.path.join(work, "recordings"),
+        link=Link(hello_timeout=3.0),
     ) as net:
         assert len(net.step(3.0, 0.1, Ts=0.005, rest=0.0, path=False)) == 20
     server.close()

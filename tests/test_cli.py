@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import types
 from pathlib import Path
 
 import pytest
@@ -10,7 +11,7 @@ from conftest import require_tool
 
 from jerklab import cli
 from jerklab.plant import DCMotor
-from jerklab.rig import connect
+from jerklab.rig import Device, Link, connect
 from jerklab.rig.check import check_rig, format_report
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -82,7 +83,9 @@ def test_lab_starts_jupyterlab_in_the_working_folder(tmp_path, monkeypatch):
         def wait(self):
             return 0
 
-    monkeypatch.setattr(cli.subprocess, "Popen", FakePopen)
+    # the cli's own name only: patching subprocess.Popen itself would leak into any module that
+    # binds it on first import (jupyter_client.launcher, imported by `import jupyterlab` here)
+    monkeypatch.setattr(cli, "subprocess", types.SimpleNamespace(Popen=FakePopen))
     assert (
         cli.main(
             ["lab", str(tmp_path), "--no-browser", "--port", "8999", "--", "--ServerApp.ip=::1"]
@@ -116,7 +119,7 @@ def test_rig_subcommands_dispatch(capsys):
 
 # ----------------------------------------------------------------------------- rig check
 def _virtual(motor=None, **faults):
-    rig = connect(motor=motor, progress=False)
+    rig = connect(progress=False, device=motor)
     for k, v in faults.items():
         setattr(rig.link.device, k, v)
     return rig
@@ -164,7 +167,9 @@ def test_check_finds_a_weak_supply():
 
 @pytest.mark.parametrize("configured, actual", [(112, 448), (1792, 448)])
 def test_check_finds_a_wrong_counts_per_revolution(configured, actual):
-    rig = connect(progress=False, counts_per_rev=configured)  # the motor's encoder gives 448
+    rig = connect(
+        progress=False, device=Device(counts_per_rev=configured)
+    )  # the motor's encoder gives 448
     found, _ = _check(rig)
     assert not found["cpr"].ok
     assert (
@@ -197,10 +202,10 @@ def test_check_on_the_firmware_on_simavr():
     )
     rig = connect(
         "simavr",
-        motor=DCMotor(K=27.5, tau=0.034, coulomb_friction=0.3),
         progress=False,
-        timeout=10.0,
         model=(27.5, 0.034),
+        device=DCMotor(K=27.5, tau=0.034, coulomb_friction=0.3),
+        link=Link(timeout=10.0),
     )
     try:
         found = {f.name: f for f in check_rig(rig)}

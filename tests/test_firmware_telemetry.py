@@ -23,7 +23,7 @@ from conftest import require_tool
 
 from jerklab.controller import discrete_pole_placement_pid
 from jerklab.planner import plan_sine_jerk
-from jerklab.rig import connect
+from jerklab.rig import Device, Link, connect
 
 MOTOR = dict(K=27.5, tau=0.034)
 TOOLS = (
@@ -48,11 +48,10 @@ def _run(elf, baud, Ts, decimation, tmp_path, move=None, counts_per_rev=448):
     with simavr.launch(elf, K=MOTOR["K"], tau=MOTOR["tau"], build=False) as uno:
         with connect(
             uno.port,
-            baudrate=baud,
             recordings=tmp_path,
             progress=False,
-            timeout=10.0,
-            counts_per_rev=counts_per_rev,
+            device=Device(counts_per_rev=counts_per_rev),
+            link=Link(timeout=10.0, baudrate=baud),
         ) as rig:
             rig.set_model(**MOTOR)
             rec = rig.run_move(

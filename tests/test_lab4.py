@@ -18,7 +18,8 @@ from _labnb import outputs as _outputs
 from _labnb import set_student as _set_student
 
 from jerklab import lab
-from jerklab.lab.motors import _truth, coupled_mode, student_motor
+from jerklab.lab.motors import coupled_mode, student_motor
+from jerklab.lab.motors import hidden_truth as _truth
 
 ROOT = Path(__file__).parent.parent
 
@@ -164,11 +165,11 @@ def test_load_deflection_matches_the_virtual_rigs_load():
     import warnings
 
     from jerklab.planner import plan_sine_jerk
-    from jerklab.rig import connect
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        rig = connect(student="defl", plant="flexible", progress=False)
+        rig = lab.connect_student("defl", plant="flexible", progress=False)
+        hidden = student_motor("defl", plant="flexible")
     dev = rig.link.device
     dev.compute_delay = 0.0  # each PWM held over its whole sample, as load_deflection assumes
     log = []
@@ -183,7 +184,7 @@ def test_load_deflection_matches_the_virtual_rigs_load():
         plan_sine_jerk(**lab.MOVE4), lab.soft_gains(), path=False, settle=0.3, force=True
     )
     rig.close()
-    est = lab.load_deflection(rig._hidden_motor.ideal(), rec)
+    est = lab.load_deflection(hidden.ideal(), rec)
     true = np.array(log[: len(rec)])
     assert np.max(np.abs(est - true)) < 1e-9 + 1e-6 * np.max(np.abs(true))
     amp = lab.residual_amplitude(rec, est)
@@ -220,7 +221,7 @@ def test_lab4_session_on_simavr_finds_the_students_mode(tmp_path):
         assert S.plant == "flexible" and S.rig.is_virtual
         rp = S.record_prbs(**lab.PRBS_MODE)
         assert rp.metadata["status"] == "complete" and rp.metadata["lost_samples"] == 0
-        fit = shaping.identify_mode(rp.control, rp.position, rp.metadata["Ts"])
+        fit = shaping.identify_mode(rp.voltage, rp.position, rp.metadata["Ts"])
         assert S.verify("mode", (fit.frequency_hz, fit.damping)).ok
         S.set_model(fit.params["K"], fit.params["tau"])
         S.set_shaper(shaping.input_shaper("zv", fit.frequency_hz, fit.damping))

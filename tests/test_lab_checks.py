@@ -34,11 +34,11 @@ def test_checks_run_with_otter_blocked(tmp_path):
         for m in ("otter", "nbconvert", "playwright"):
             sys.modules[m] = None                      # importing any of them now fails
         from jerklab import lab
-        from jerklab.lab.motors import _truth, student_motor
+        from jerklab.lab.motors import hidden_truth, student_motor
         from jerklab.lab.notebook import Notebook
         grader = Notebook({str(LABS[0])!r})
         S = lab.start(1, student="s42", port=None)
-        K = _truth(student_motor("s42"))["K"]
+        K = hidden_truth(student_motor("s42"))["K"]
         right = grader.check("K", {{"S": S, "K": K}})
         wrong = grader.check("K", {{"S": S, "K": K * 6.283185307179586}})
         missing = grader.check("K", {{"S": S, "K": ...}})

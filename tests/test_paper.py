@@ -108,7 +108,7 @@ def test_controller_defaults():
 
 def test_sim_and_rig_defaults():
     from jerklab import sim
-    from jerklab.rig import client, virtual
+    from jerklab.rig import client, options, virtual
 
     assert (_default(sim.perturbed_plants, "K"), _default(sim.perturbed_plants, "tau")) == (
         paper.MOTOR_K,
@@ -118,8 +118,10 @@ def test_sim_and_rig_defaults():
     assert _default(r, "supply_voltage") == paper.SUPPLY_VOLTAGE
     assert _default(r, "counts_per_rev") == paper.ENCODER_PPR * paper.ENCODER_DECODING
     assert _default(r, "model") == (paper.MOTOR_K, paper.MOTOR_TAU)
-    for name in ("configure", "run_move", "step"):
-        assert _default(getattr(client.Rig, name), "Ts") == paper.TS, name
+    assert _default(client.Rig.step, "Ts") == paper.TS
+    # configure and run_move take the period from RunSpec: the gains' own, else the paper's
+    assert _default(client.Rig.run_move, "Ts") is None
+    assert options.RunSpec().Ts is None and options.RunSpec().period(object()) == paper.TS
     dev = virtual.VirtualDevice()
     lim = dev.limits
     assert (lim.max_jerk, lim.max_accel, lim.max_velocity) == pytest.approx(paper.LIMITS)

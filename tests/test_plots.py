@@ -100,7 +100,7 @@ def _data_of(ax, label):
 
 
 def test_simulation_figure_draws_the_result():
-    from jerklab import plots
+    from jerklab import plots, rig
     from jerklab.controller import discrete_pole_placement_pid
     from jerklab.planner import plan_sine_jerk
     from jerklab.plant import DCMotor
@@ -111,6 +111,24 @@ def test_simulation_figure_draws_the_result():
         DCMotor(0.9 * 32.4, 0.03),
         discrete_pole_placement_pid(32.4, 0.025, 30.0, Ts=0.005),
     )
+    sim_rec = rig.Recording(
+        {
+            "kind": "move",
+            "Ts": 0.005,
+            "counts_per_rad": 448 / (2 * np.pi),
+            "volts_per_pwm": 12 / 1023,
+        }
+    )
+    for k in range(len(r.time)):
+        sim_rec.append(k, float(r.reference[k]), int(r.measured[k] * 448 / (2 * np.pi)), 0)
+    # jerklab.rig.plot_comparison hands the recording to jerklab.plots (Recording.plot_comparison)
+    cmp = rig.plot_comparison(sim_rec, r, title="cmp")
+    assert [a.get_ylabel() for a in cmp.axes] == [
+        "position (rad)",
+        "tracking error (mrad)",
+        "voltage (V)",
+    ] and cmp.axes[0].get_title() == "cmp"
+    np.testing.assert_array_equal(cmp.axes[2].get_lines()[1].get_ydata(), r.voltage)
     fig = r.plot(title="run")
     assert [a.get_ylabel() for a in fig.axes] == [
         "angle (rad)",
@@ -119,12 +137,12 @@ def test_simulation_figure_draws_the_result():
     ]
     assert fig.axes[2].get_xlabel() == "time (s)" and fig.axes[0].get_title() == "run"
     t, y = _data_of(fig.axes[0], "motor (true)")
-    np.testing.assert_array_equal(t, r.t)
+    np.testing.assert_array_equal(t, r.time)
     np.testing.assert_array_equal(y, r.position)
     np.testing.assert_array_equal(
         fig.axes[1].get_lines()[0].get_ydata(), 1e3 * (r.reference - r.position)
     )
-    np.testing.assert_array_equal(_data_of(fig.axes[2], "u applied")[1], r.u_applied)
+    np.testing.assert_array_equal(_data_of(fig.axes[2], "u applied")[1], r.voltage)
     fig2 = plots.plot_simulation(r)  # the same figure from the function
     assert "mrad" in fig2.axes[0].get_title()
     assert [len(a.get_lines()) for a in fig2.axes] == [len(a.get_lines()) for a in fig.axes]
@@ -174,9 +192,8 @@ def test_ident_figures_draw_the_results():
 
 
 def test_recording_figures_and_alias():
-    from jerklab import plots, rig
+    from jerklab import rig
 
-    assert rig.plot_comparison is plots.plot_comparison
     rec = rig.Recording(
         {
             "kind": "step",
@@ -190,6 +207,6 @@ def test_recording_figures_and_alias():
         rec.append(k, 0.0, 3 * k, 100 * k)
     fig = rec.plot()
     ax0, ax1 = fig.axes
-    assert ax0.get_ylabel() == "position (rad)" and ax1.get_ylabel() == "control (V)"
+    assert ax0.get_ylabel() == "position (rad)" and ax1.get_ylabel() == "voltage (V)"
     np.testing.assert_array_equal(ax0.get_lines()[0].get_ydata(), rec.position)
     assert ax0.get_title() == "rig recording: step (ok)"

@@ -122,7 +122,7 @@ def _run(kind, at, new, Ts=0.005, settle=0.3):
         lambda d, J, A, V: plan_trapezoid(d, A, V),
     ][kind](4 * math.pi, 2000.0, 300.0, 60.0)
     g = pole_placement_pid(MOTOR["K"], MOTOR["tau"], wn=20.0).discretize(Ts)
-    rig = connect(motor=DCMotor(**MOTOR), model=(MOTOR["K"], MOTOR["tau"]), progress=False)
+    rig = connect(model=(MOTOR["K"], MOTOR["tau"]), progress=False, device=DCMotor(**MOTOR))
     dev = rig.link.device
 
     def cb(k, r, y):
@@ -180,7 +180,7 @@ def test_virtual_rig_retarget_is_jerk_continuous_and_ends_on_target(kind, at, ne
 
 
 def test_retarget_outside_a_run_and_bad_values_are_refused():
-    with connect(motor=DCMotor(**MOTOR), progress=False) as rig:
+    with connect(progress=False, device=DCMotor(**MOTOR)) as rig:
         assert rig.capabilities & P.Capability.RETARGET
         with pytest.raises(RigError, match="during run_move"):
             rig.retarget(1.0)

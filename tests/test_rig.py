@@ -14,6 +14,7 @@ from jerklab.controller import DigitalController, Feedforward, pole_placement_pi
 from jerklab.planner import plan_sine_jerk
 from jerklab.plant import DCMotor
 from jerklab.rig import (
+    Link,
     Recording,
     RigCommandError,
     RigTimeoutError,
@@ -72,7 +73,7 @@ def test_step_identifies_the_hidden_motor(tmp_path):
     """A step from rest on a virtual motor that is not the paper's: the fit finds it."""
     from jerklab.ident import fit_dc_motor
 
-    with connect(motor=DCMotor(K=27.5, tau=0.034), recordings=tmp_path, progress=False) as r:
+    with connect(recordings=tmp_path, progress=False, device=DCMotor(K=27.5, tau=0.034)) as r:
         rec = r.step(6.0, 0.6)
     fit = fit_dc_motor(rec.control, rec.position, rec.Ts, method="pem")
     assert fit.K == pytest.approx(27.5, rel=0.01) and fit.tau == pytest.approx(0.034, rel=0.03)
@@ -259,7 +260,7 @@ def test_unknown_ports():
 def test_port_that_is_no_rig_times_out():
     # loop:// echoes our own HELLO back: a port that opens but has no jerklab rig behind it
     with pytest.raises(RigTimeoutError, match="no jerklab rig answered HELLO"):
-        connect("loop://", hello_timeout=0.3)
+        connect("loop://", link=Link(hello_timeout=0.3))
 
 
 def test_simavr_dispatch(monkeypatch, tmp_path):

@@ -17,7 +17,7 @@ import serial
 from jerklab import protocol as P
 from jerklab.controller import pole_placement_pid
 from jerklab.planner import plan_sine_jerk
-from jerklab.rig import Recording, RigConnectionError, RigTimeoutError, connect
+from jerklab.rig import Link, Recording, RigConnectionError, RigTimeoutError, connect
 from jerklab.rig.server import DeviceServer
 
 pytestmark = pytest.mark.skipif(
@@ -76,7 +76,9 @@ def test_serve_subprocess_through_pyserial(served, tmp_path):
             and isinstance(reply, P.HelloReply)
             and reply.name == "jerklab-virtual"
         )
-    with connect(served, recordings=tmp_path / "pty", progress=False, timeout=10.0) as rig:
+    with connect(
+        served, recordings=tmp_path / "pty", progress=False, link=Link(timeout=10.0)
+    ) as rig:
         assert rig.port == served and rig.is_virtual
         rec = rig.run_move(_move(), _gains(), Ts=0.005, settle=0.1)
     with connect(recordings=tmp_path / "inproc", progress=False) as rig:
@@ -135,7 +137,7 @@ def test_cable_pulled_mid_run_keeps_the_data(tmp_path):
 def test_hung_board_times_out_with_the_data(tmp_path):
     srv = DeviceServer(speed=None)
     path = srv.start_pty()
-    rig = connect(path, recordings=tmp_path, progress=False, timeout=0.5)
+    rig = connect(path, recordings=tmp_path, progress=False, link=Link(timeout=0.5))
     done = threading.Event()
 
     def freeze():

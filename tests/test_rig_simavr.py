@@ -13,7 +13,7 @@ from jerklab import protocol as P
 from jerklab.controller import pole_placement_pid
 from jerklab.planner import plan_scurve, plan_sine_jerk
 from jerklab.plant import DCMotor
-from jerklab.rig import RigCommandError, RigError, connect
+from jerklab.rig import Link, RigCommandError, RigError, connect
 
 MOTOR = dict(K=27.5, tau=0.034)
 
@@ -30,7 +30,11 @@ def uno(tmp_path_factory):
     )
     rec_dir = tmp_path_factory.mktemp("simavr-recordings")
     rig = connect(
-        "simavr", motor=DCMotor(**MOTOR), recordings=rec_dir, progress=False, timeout=10.0
+        "simavr",
+        recordings=rec_dir,
+        progress=False,
+        device=DCMotor(**MOTOR),
+        link=Link(timeout=10.0),
     )
     yield rig
     rig.close()
@@ -69,10 +73,10 @@ def test_firmware_and_virtual_rig_agree(uno, tmp_path):
     uno.set_model(**MOTOR)
     fw = uno.run_move(prof, g, Ts=0.005, settle=0.2)
     with connect(
-        motor=DCMotor(**MOTOR),
         model=(MOTOR["K"], MOTOR["tau"]),
         recordings=tmp_path,
         progress=False,
+        device=DCMotor(**MOTOR),
     ) as virt:
         py = virt.run_move(prof, g, Ts=0.005, settle=0.2)
     assert fw.metadata["status"] == "complete" and len(fw) == len(py)
@@ -155,17 +159,17 @@ def run_1khz(tmp_path_factory):
     g = discrete_pole_placement_pid(MOTOR["K"], MOTOR["tau"], 20.0, Ts=Ts, extra_pole=0.9)
     with simavr.launch(paths["elf"], K=MOTOR["K"], tau=MOTOR["tau"], build=False) as uno:
         with connect(
-            uno.port, baudrate=1000000, recordings=tmp_path, progress=False, timeout=10.0
+            uno.port, recordings=tmp_path, progress=False, link=Link(timeout=10.0, baudrate=1000000)
         ) as fw_rig:
             fw_rig.set_model(**MOTOR)
             fw = fw_rig.run_move(prof, g, Ts=Ts, settle=0.2)
             cpr = fw_rig.counts_per_rad
         st = uno.stats()
     with connect(
-        motor=DCMotor(**MOTOR),
         model=(MOTOR["K"], MOTOR["tau"]),
         recordings=tmp_path,
         progress=False,
+        device=DCMotor(**MOTOR),
     ) as virt:
         py = virt.run_move(prof, g, Ts=Ts, settle=0.2)
     return prof, fw, py, st, cpr
@@ -216,10 +220,10 @@ def test_retarget_on_the_firmware_matches_the_virtual_rig(uno, tmp_path, kind, a
     recs = []
     uno.set_model(**MOTOR)
     with connect(
-        motor=DCMotor(**MOTOR),
         model=(MOTOR["K"], MOTOR["tau"]),
         recordings=tmp_path,
         progress=False,
+        device=DCMotor(**MOTOR),
     ) as virt:
         for rig in (uno, virt):
 
@@ -281,7 +285,7 @@ def test_the_deepest_stack_stays_above_the_variables(tmp_path):
         plan_trapezoid(d, E, W),
     ]
     with simavr.launch(paths["elf"], K=MOTOR["K"], tau=MOTOR["tau"], build=False) as sim:
-        with connect(sim.port, recordings=tmp_path, progress=False, timeout=10.0) as rig:
+        with connect(sim.port, recordings=tmp_path, progress=False, link=Link(timeout=10.0)) as rig:
             rig.set_model(**MOTOR)
             for prof in profiles:
                 assert rig.run_move(prof, g, Ts=Ts, settle=0.05).metadata["status"] == "complete"

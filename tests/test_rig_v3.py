@@ -1,7 +1,7 @@
 """Protocol version 3 on the rig (issues 13 and 16): SEQUENCE (an on-board PRBS) and SET_SHAPER
 (an input shaper as a FIR on the run reference) — the firmware core on the host (g++), the
 virtual rig that mirrors it, the client (``Rig.record_prbs``, ``Rig.set_shaper``), and the
-flexible load (``connect(plant="flexible")``, per-student hidden modes).
+flexible load (``connect(device=FlexibleDCMotor())``, per-student hidden modes).
 
 The simulated-Uno side (the firmware ELF on simavr) is in tests/test_rig_v3_simavr.py."""
 
@@ -145,7 +145,7 @@ def test_run_move_names_a_gain_the_device_cannot_hold(tmp_path):
     """The client refuses such a gain before anything is sent, naming it and its limit in V/rad."""
     from jerklab.controller import DiscreteGains
 
-    with connect(motor=DCMotor(), recordings=tmp_path, progress=False) as rig:
+    with connect(recordings=tmp_path, progress=False, device=DCMotor()) as rig:
         limit = P.RUN_GAIN_LIMIT / (
             2 * math.pi / rig.counts_per_rev * rig.info.pwm_max / rig.supply_voltage
         )
@@ -211,7 +211,7 @@ def test_record_prbs_on_the_virtual_rig(tmp_path):
     from jerklab.ident import fit_dc_motor
 
     motor = DCMotor(K=27.5, tau=0.034)
-    with connect(motor=motor, recordings=tmp_path, progress=False) as rig:
+    with connect(recordings=tmp_path, progress=False, device=motor) as rig:
         rec = rig.record_prbs(4.0, order=7, hold=3, rest=0.05)
     n = 127 * 3
     assert rec.metadata["kind"] == "prbs" and rec.metadata["status"] == "complete"
@@ -407,7 +407,7 @@ def test_zv_shaper_stops_the_ringing_on_the_virtual_flexible_rig():
     """On the flexible load, a ZV shaper tuned to the mode leaves a small fraction of the
     unshaped residual deflection; a shaper 40 % off the mode leaves much more (a ZV shaper's
     narrow insensitivity)."""
-    with connect(plant="flexible", progress=False) as rig:
+    with connect(device=FlexibleDCMotor(), progress=False) as rig:
         assert isinstance(rig.link.device.motor, FlexibleDCMotor)
         from jerklab.lab.motors import coupled_mode
 
@@ -424,7 +424,9 @@ def test_zv_shaper_stops_the_ringing_on_the_virtual_flexible_rig():
 
 
 def test_student_flexible_motor_is_hidden_seeded_and_in_range(monkeypatch):
-    from jerklab.lab.motors import MODE_RANGES, _truth, student_motor
+    from jerklab import lab
+    from jerklab.lab.motors import MODE_RANGES, student_motor
+    from jerklab.lab.motors import hidden_truth as _truth
 
     monkeypatch.setenv("JERKLAB_INSTRUCTOR_KEY", "k1")
     a = student_motor("alice", plant="flexible")
@@ -445,10 +447,11 @@ def test_student_flexible_motor_is_hidden_seeded_and_in_range(monkeypatch):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         monkeypatch.setenv("JERKLAB_INSTRUCTOR_KEY", "k1")
-        rig = connect(student="alice", plant="flexible", progress=False)
+        rig = lab.connect_student("alice", plant="flexible", progress=False)
+        hidden = student_motor("alice", plant="flexible")
     try:
-        truth = _truth(rig._hidden_motor)
-        text = repr(rig) + repr(rig.link.device) + repr(rig._hidden_motor) + str(rig.device_info())
+        truth = _truth(hidden)
+        text = repr(rig) + repr(rig.link.device) + repr(hidden) + str(rig.device_info())
         rec = rig.step(3.0, 0.3, path=False)
         text += repr(rec) + str(rec.metadata)
         for v in (
@@ -456,8 +459,8 @@ def test_student_flexible_motor_is_hidden_seeded_and_in_range(monkeypatch):
             truth["tau"],
             truth["mode_hz"],
             truth["mode_zeta"],
-            rig._hidden_motor.mode_frequency,
-            rig._hidden_motor.mode_damping,
+            hidden.mode_frequency,
+            hidden.mode_damping,
         ):
             for shown in (f"{v:.5g}", f"{v:.6g}", repr(v)):
                 assert shown not in text, v
@@ -466,13 +469,15 @@ def test_student_flexible_motor_is_hidden_seeded_and_in_range(monkeypatch):
         rig.close()
 
 
-def test_connect_plant_argument_checks():
-    with pytest.raises(ValueError, match="plant"):
-        connect(plant="wobbly")
-    with pytest.raises(ValueError, match="plant='flexible'"):
-        connect("/dev/ttyACM9", plant="flexible")
-    with pytest.raises(ValueError, match="plant='flexible' or motor"):
-        connect(plant="flexible", motor=DCMotor())
+def test_connect_takes_the_flexible_load_as_a_device():
+    """The flexible load is a device (a FlexibleDCMotor), for simulated rigs only; the old
+    plant= keyword names its replacement."""
+    with pytest.raises(TypeError, match=r"device=FlexibleDCMotor\(\)"):
+        connect(plant="flexible")
+    with pytest.raises(ValueError, match="device.motor applies to a simulated rig"):
+        connect("/dev/ttyACM9", device=FlexibleDCMotor())
+    with pytest.raises(TypeError, match="device must be a jerklab.rig.Device"):
+        connect(device="flexible")
 
 
 def test_random_v3_commands_get_the_same_reply_from_firmware_and_virtual(host_driver):

@@ -16,7 +16,7 @@ from jerklab import protocol as P
 from jerklab.controller import discrete_pole_placement_pid
 from jerklab.planner import plan_sine_jerk
 from jerklab.plant import FlexibleDCMotor
-from jerklab.rig import connect
+from jerklab.rig import Link, connect
 
 K, TAU = 32.4, 0.025
 #: the flexible load of these tests: the shaft's mode at 14 Hz (every shaper of jerklab.shaping then
@@ -44,7 +44,9 @@ def flex_uno(tmp_path_factory):
     from jerklab.rig import simavr
 
     uno = simavr.launch(K=K, tau=TAU, trace=True, **FLEX)
-    rig = connect(uno.port, progress=False, timeout=10.0, recordings=tmp_path_factory.mktemp("rec"))
+    rig = connect(
+        uno.port, progress=False, recordings=tmp_path_factory.mktemp("rec"), link=Link(timeout=10.0)
+    )
     yield uno, rig
     rig.close()
     uno.close()
@@ -108,7 +110,7 @@ def _residual_from(t, defl, t0, n_end):
 
 
 def _virtual_residual(taps):
-    rig = connect(motor=FlexibleDCMotor(K=K, tau=TAU, **FLEX), progress=False)
+    rig = connect(progress=False, device=FlexibleDCMotor(K=K, tau=TAU, **FLEX))
     dev = rig.link.device
     rows = []
     tick = dev.tick

@@ -98,7 +98,7 @@ def make_rig_run(name: str) -> ident.IdentData:
     spec = dict(RIG_RUNS[name])
     seed = spec.pop("plant_seed")
     with tempfile.TemporaryDirectory() as tmp:
-        rig = connect(motor=DCMotor(seed=seed, **RIG_PLANT), progress=False, recordings=tmp)
+        rig = connect(progress=False, recordings=tmp, device=DCMotor(seed=seed, **RIG_PLANT))
         try:
             rec = rig.step(spec["voltage"], spec["seconds"], Ts=TS, rest=spec["rest"])
         finally:
@@ -108,7 +108,7 @@ def make_rig_run(name: str) -> ident.IdentData:
     meta.update(
         {
             "description": "open-loop step recorded from the virtual rig (jerklab.rig.connect())",
-            "made_by": "data/ident/make_dataset.py: connect(motor=DCMotor(seed=plant_seed, **plant))"
+            "made_by": "data/ident/make_dataset.py: connect(device=DCMotor(seed=plant_seed, **plant))"
             ".step(voltage, seconds, Ts=0.005, rest=rest)",
             "plant": RIG_PLANT,
             "plant_seed": seed,

@@ -27,7 +27,7 @@ import numpy as np
 from jerklab.controller import pole_placement_pid
 from jerklab.planner import plan_sine_jerk
 from jerklab.plant import DCMotor
-from jerklab.rig import Recording, connect
+from jerklab.rig import Link, Recording, connect
 
 HERE = pathlib.Path(__file__).resolve().parent
 TS = 0.005
@@ -85,7 +85,11 @@ def _made_by(name: str, port, call: str) -> dict:
     return {
         "script": "data/rig/make_recordings.py",
         "command": f".venv/bin/python data/rig/make_recordings.py --only {NAMES[name]}",
-        "connect": f"jerklab.rig.connect({port!r}, motor=DCMotor(**plant), model=(K, tau), progress=False)",
+        "connect": (
+            f"jerklab.rig.connect({port!r}, device=DCMotor(**plant), model=(K, tau), "
+            + ("link=Link(timeout=10.0), " if port == "simavr" else "")
+            + "progress=False)"
+        ),
         "call": call,
         "plant": PLANT,
         "move": MOVE,
@@ -101,14 +105,13 @@ def _made_by(name: str, port, call: str) -> dict:
 
 def _move(port, name: str) -> Recording:
     with tempfile.TemporaryDirectory() as tmp:
-        opts = dict(timeout=10.0) if port == "simavr" else {}
         with connect(
             port,
-            motor=motor(),
+            device=motor(),
+            link=Link(timeout=10.0) if port == "simavr" else None,
             model=(PLANT["K"], PLANT["tau"]),
             progress=False,
             recordings=tmp,
-            **opts,
         ) as rig:
             rec = rig.run_move(profile(), gains(), path=False, **RUN)
     rec.metadata["made_by"] = _made_by(
@@ -133,7 +136,7 @@ def make_virtual_step() -> Recording:
     """An open-loop step from rest on the virtual rig: ``rig.step(6.0, 0.5, Ts=0.005, rest=0.05)``."""
     with tempfile.TemporaryDirectory() as tmp:
         with connect(
-            motor=motor(), model=(PLANT["K"], PLANT["tau"]), progress=False, recordings=tmp
+            model=(PLANT["K"], PLANT["tau"]), progress=False, recordings=tmp, device=motor()
         ) as rig:
             rec = rig.step(
                 STEP["voltage"], STEP["seconds"], Ts=STEP["Ts"], rest=STEP["rest"], path=False

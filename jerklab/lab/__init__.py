@@ -8,16 +8,28 @@ checks that answer at once, a hand-in zip and autograding (otter-grader).
 ✘ tau: τ is +12 % off: ...
 
 The worksheets are ``notebooks/labs/lab1_identify.ipynb``, ``lab2_poles.ipynb``,
-``lab3_move.ipynb`` and ``lab4_ringing.ipynb`` (the flexible load) (generated from ``jerklab/lab/masters/`` by ``python -m jerklab.lab
-assign``); ``python -m jerklab.lab grade SUBMISSIONS_DIR --out grades.csv`` grades a class.
+``lab3_move.ipynb`` and ``lab4_ringing.ipynb`` (the flexible load) (generated from
+``jerklab/lab/masters/`` by ``python -m jerklab.lab assign``);
+``python -m jerklab.lab grade SUBMISSIONS_DIR --out grades.csv`` grades a class.
+
+The parts: :mod:`~jerklab.lab.motors` (hidden motors, the student's device and rig),
+:mod:`~jerklab.lab.session` (what a worksheet calls), the checks as pure functions
+(:mod:`~jerklab.lab.checks` for labs 1-3, :mod:`~jerklab.lab.ringing` for lab 4, on
+:mod:`~jerklab.lab.checkbase`), their table (:mod:`~jerklab.lab.registry`), the plain data they
+see (:mod:`~jerklab.lab.plain`), the hand-in (:mod:`~jerklab.lab.handin`) and the grader
+(:mod:`~jerklab.lab.grade`).
 """
 
+from jerklab.lab.checkbase import CheckResult
 from jerklab.lab.checks import (
     DESIGN_TS,
+    MOVE,
     PRBS,
+    SPEC,
     STEP_SECONDS,
     SWEEP_VOLTS,
-    move_metrics,
+    spec_failures,
+    spec_metrics,
     steady_speed,
     sweep_fit,
 )
@@ -31,8 +43,11 @@ from jerklab.lab.motors import (
     connect_student,
     coupled_mode,
     instructor_key,
+    student_device,
     student_motor,
 )
+from jerklab.lab.plain import Evidence, Run
+from jerklab.lab.registry import LABS, run_check
 from jerklab.lab.ringing import (
     MODE_DRIFT,
     MOVE4,
@@ -42,7 +57,8 @@ from jerklab.lab.ringing import (
     residual_amplitude,
     soft_gains,
 )
-from jerklab.lab.session import LABS, MOVE, SPEC, CheckResult, LabSession, panel_gains, start
+from jerklab.lab.session import LabSession, panel_gains, start
+from jerklab.metrics import move_metrics
 
 __all__ = [
     "start",
@@ -59,7 +75,13 @@ __all__ = [
     "steady_speed",
     "sweep_fit",
     "move_metrics",
+    "spec_metrics",
+    "spec_failures",
+    "run_check",
+    "Evidence",
+    "Run",
     "student_motor",
+    "student_device",
     "StudentMotor",
     "connect_student",
     "instructor_key",

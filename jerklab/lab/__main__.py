@@ -5,6 +5,9 @@ from __future__ import annotations
 import argparse
 import sys
 
+from jerklab.lab.grade import assign, grade_folder
+from jerklab.lab.motors import instructor_key
+
 
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m jerklab.lab", description=__doc__)
@@ -26,19 +29,15 @@ def main(argv=None):
     a.add_argument("--out", default="notebooks/labs", help="folder (default notebooks/labs)")
     args = ap.parse_args(argv)
     if args.cmd == "grade":
-        from jerklab.lab.grade import grade_folder
-        from jerklab.lab.motors import instructor_key
-
         _, source = instructor_key(warn=True)
         rows = grade_folder(args.submissions, args.out, args.feedback, args.timeout)
         for r in rows:
             print(
-                f"{r['student'] or '?':>16}  lab {r['lab'] or '?'}  {r['total']:5.1f} / {r['max']:4.1f}  {r['status']}"
+                f"{r['student'] or '?':>16}  lab {r['lab'] or '?'}  {r['total']:5.1f} / "
+                f"{r['max']:4.1f}  {r['status']}"
             )
         print(f"{len(rows)} submissions -> {args.out} (instructor key from: {source})")
         return 0
-    from jerklab.lab.grade import assign
-
     for p in assign(args.out):
         print(f"wrote {p}")
     return 0

@@ -1,11 +1,15 @@
-"""The checks of the three lab worksheets.
+"""The checks of labs 1-3 (identify, place the poles, move smoothly), as pure functions.
 
-Each check compares a student's answer with the truth of *this* student's motor (the hidden
-motor of the virtual rig or of simavr) or, on a real Uno, with the checker's own analysis of
-the student's recordings; tolerances follow what the measurement allows (quantization,
-noise). A failing check names the most likely mistake; a passing one says why the answer
-is right. No message ever prints a true parameter value. The physics is Stojčić's (Stojcic
-2015): the motor of Stojčić eq. 1, the load of Stojčić eq. 9, the PID of Stojčić eq. 11.
+Each check is ``check_<name>(answer, evidence, truth) -> CheckResult``
+(:mod:`jerklab.lab.checkbase`; :mod:`jerklab.lab.registry` maps each lab's check names to them).
+It compares the student's answer with the truth of *this* student's motor (``truth``: the
+hidden motor of the virtual rig or of simavr, :func:`jerklab.lab.motors.hidden_truth`) or, on a
+real Uno (``truth`` None), with the checker's own analysis of the student's recordings
+(``evidence``, :class:`jerklab.lab.plain.Evidence`); tolerances follow what the measurement
+allows (quantization, noise). A failing check names the most likely mistake; a passing one says
+why the answer is right. No message ever prints a true parameter value. The physics is
+Stojčić's (Stojcic 2015): the motor of Stojčić eq. 1, the load of Stojčić eq. 9, the PID of
+Stojčić eq. 11.
 """
 
 from __future__ import annotations
@@ -14,19 +18,45 @@ import math
 
 import numpy as np
 
-from jerklab.lab.session import MOVE, SPEC, CheckResult, _Missing
+from jerklab import ident
+from jerklab.controller import (
+    DiscreteGains,
+    PositionLoop,
+    discrete_pole_placement_pid,
+    pole_placement_pid,
+)
+from jerklab.lab.checkbase import CheckResult, Missing, number, pct, rel, run_of, step_name
+from jerklab.lab.motors import motor_from_truth, student_device
+from jerklab.metrics import move_metrics
+from jerklab.planner import plan_scurve, plan_sine_jerk, plan_sine_jerk_optimal, plan_trapezoid
+from jerklab.plant import DCMotor
+from jerklab.rig import connect
+from jerklab.sim import simulate
 
 __all__ = [
-    "run_check",
-    "CHECKS",
-    "steady_speed",
-    "sweep_fit",
-    "move_metrics",
+    "MOVE",
+    "SPEC",
     "SWEEP_VOLTS",
     "STEP_SECONDS",
     "DESIGN_TS",
     "PRBS",
+    "steady_speed",
+    "sweep_fit",
+    "spec_metrics",
+    "spec_failures",
 ]
+
+#: The move of labs 2 and 3 (rad, rad/s^3, rad/s^2, rad/s): three revolutions and a bit.
+MOVE = {"distance": 20.0, "max_jerk": 2.0e4, "max_accel": 600.0, "max_velocity": 80.0}
+
+#: The spec of lab 2, feasible for every motor of jerklab.lab.motors.RANGES (tests/test_labs.py).
+SPEC = {
+    "max_error": 0.40,  # rad, |r - y| during the move
+    "overshoot_pct": 1.0,  # % of the distance, after the move
+    "settle_band": 0.05,  # rad
+    "settling_time": 0.25,  # s after the end of the move, into the band for good
+    "max_voltage": 12.0,
+}  # V, and no saturated sample
 
 #: Voltages of lab 1's sweep of steps (each from rest) and their length (s).
 SWEEP_VOLTS = (-9.0, -6.0, -3.0, 3.0, 6.0, 9.0)
@@ -37,44 +67,6 @@ STEP_SECONDS = 0.4
 PRBS = {"amplitude": 2.0, "offset": 6.0, "order": 7, "hold": 2}
 #: Control period of labs 2-3 (s)
 DESIGN_TS = 0.005
-
-CHECKS = {}
-
-
-def _check(name):
-    def deco(f):
-        CHECKS[name] = f
-        return f
-
-    return deco
-
-
-def run_check(session, name, answer, **context):
-    if name not in CHECKS:
-        raise KeyError(f"no check named {name!r} (known: {sorted(CHECKS)})")
-    return CHECKS[name](session, answer, **context)
-
-
-def _num(name, x):
-    if x is Ellipsis or x is None:
-        raise _Missing(f"{name}: no answer yet — replace the `...`.")
-    v = float(x)
-    if not math.isfinite(v):
-        raise _Missing(f"{name}: your answer is {v}, not a finite number.")
-    return v
-
-
-def _rec_name(volts):
-    return f"step_{volts:+g}V".replace("+", "p").replace("-", "m").replace(".", "_")
-
-
-def _rec(session, name):
-    rec = session.recordings.get(name)
-    if rec is None:
-        raise _Missing(
-            f"the recording {name!r} is missing: run the recording cell of this task first."
-        )
-    return rec
 
 
 # ------------------------------------------------------------------ analysis helpers (the checker's own)
@@ -104,155 +96,121 @@ def sweep_fit(speeds):
     return (float(K), float(b / K), float(a / K)), tuple(float(s) for s in std)
 
 
-def move_metrics(rec, duration, distance):
-    """Tracking metrics of a move recording: max |e| during the move, overshoot (% of the
-    distance) after it, settling time into ``SPEC['settle_band']`` after the end, peak |u|,
-    saturated samples."""
-    t = np.asarray(rec.time)
-    e = np.asarray(rec.reference) - np.asarray(rec.position)
-    during = t <= duration + 1e-9
-    over = (np.asarray(rec.position) - distance) * np.sign(distance)
-    after = t > duration
-    overshoot = max(0.0, float(np.max(over[after]))) / abs(distance) * 100 if after.any() else 0.0
-    out = np.nonzero(np.abs(e) > SPEC["settle_band"])[0]
-    Ts = float(np.median(np.diff(t)))
-    settle = max(0.0, float(t[out[-1]] + Ts - duration)) if len(out) else 0.0
-    if len(out) and out[-1] == len(t) - 1:
-        settle = math.inf
-    return {
-        "max_error": float(np.max(np.abs(e[during]))),
-        "overshoot_pct": overshoot,
-        "settling_time": settle,
-        "peak_voltage": float(np.max(np.abs(rec.control))),
-        "saturated": int(np.count_nonzero(np.asarray(rec.saturated))),
-    }
-
-
-def _rel(a, b):
-    return abs(a - b) / abs(b)
-
-
-def _pct(a, b):
-    return 100.0 * (a - b) / abs(b)
+def spec_metrics(run, profile):
+    """:func:`jerklab.metrics.move_metrics` of a move recording with the spec's settle band
+    (``SPEC["settle_band"]``): max |e| during the move, overshoot (% of the distance) after it,
+    settling time after the end, peak |u|, saturated samples."""
+    return move_metrics(run, profile.duration, profile.distance, settle_band=SPEC["settle_band"])
 
 
 # ------------------------------------------------------------------ lab 1: identify your motor
-@_check("pre_speed")
-def _pre_speed(s, ans):
-    v = _num("pre_speed", ans)
+def check_pre_speed(answer, evidence, truth):
+    v = number("pre_speed", answer)
     ref = 30.0 * 6.0
-    if _rel(v, ref) < 0.01:
+    if rel(v, ref) < 0.01:
         return CheckResult(
             "pre_speed",
             True,
             "ω_ss = K·V = 30 × 6 = 180 rad/s: at steady state "
             "τ·ω' = 0, so the velocity part K/(τs+1) of Stojčić eq. 1 gives K·V; τ only sets how fast.",
         )
-    if _rel(v, ref / (2 * math.pi)) < 0.02:
+    if rel(v, ref / (2 * math.pi)) < 0.02:
         return CheckResult(
             "pre_speed", False, "that is in revolutions per second: K is in rad/(V·s)."
         )
-    if _rel(v, ref * 60 / (2 * math.pi)) < 0.02:
+    if rel(v, ref * 60 / (2 * math.pi)) < 0.02:
         return CheckResult("pre_speed", False, "that is in rpm: answer in rad/s.")
-    if _rel(v, 30 * 6 * 0.040) < 0.02 or _rel(v, 6 / 0.040) < 0.02:
+    if rel(v, 30 * 6 * 0.040) < 0.02 or rel(v, 6 / 0.040) < 0.02:
         return CheckResult(
             "pre_speed", False, "τ does not enter the steady speed: set ω' = 0 in τω' + ω = K·V."
         )
     return CheckResult(
-        "pre_speed", False, f"{_pct(v, ref):+.0f} % off: at steady state τω' = 0 in τω' + ω = K·V."
+        "pre_speed", False, f"{pct(v, ref):+.0f} % off: at steady state τω' = 0 in τω' + ω = K·V."
     )
 
 
-@_check("pre_tau63")
-def _pre_tau63(s, ans):
-    v = _num("pre_tau63", ans)
-    if _rel(v, 0.040) < 0.01:
+def check_pre_tau63(answer, evidence, truth):
+    v = number("pre_tau63", answer)
+    if rel(v, 0.040) < 0.01:
         return CheckResult(
             "pre_tau63", True, "ω(t) = K·V(1 − e^(−t/τ)) reaches 1 − 1/e ≈ 63 % at t = τ = 0.040 s."
         )
-    if _rel(v, 40.0) < 0.01:
+    if rel(v, 40.0) < 0.01:
         return CheckResult("pre_tau63", False, "1000× too large: seconds, not milliseconds.")
-    if _rel(v, 0.040 * math.log(2)) < 0.02 or _rel(v, 0.040 * 3) < 0.02:
+    if rel(v, 0.040 * math.log(2)) < 0.02 or rel(v, 0.040 * 3) < 0.02:
         return CheckResult(
             "pre_tau63", False, "that is the time to 50 % or 95 %: 63 % is exactly one τ."
         )
     return CheckResult(
-        "pre_tau63", False, f"{_pct(v, 0.040):+.0f} % off: solve 1 − e^(−t/τ) = 0.63 for t."
+        "pre_tau63", False, f"{pct(v, 0.040):+.0f} % off: solve 1 − e^(−t/τ) = 0.63 for t."
     )
 
 
-def _lab1_reference(s):
+def _lab1_reference(evidence, truth):
     """(K, tau, f_c, offset) of the motor: the truth on a simulated plant, else the checker's fit."""
-    truth = s._truth()
     if truth is not None:
         return truth["K"], truth["tau"], truth["coulomb_friction"], truth["offset"], "your motor"
-    from jerklab import ident
-
-    speeds = {v: steady_speed(_rec(s, _rec_name(v))) for v in SWEEP_VOLTS}
+    speeds = {v: steady_speed(run_of(evidence, step_name(v))) for v in SWEEP_VOLTS}
     (K, fc, off), _ = sweep_fit(speeds)
-    r = _rec(s, _rec_name(6.0))
-    tau = ident.fit_dc_motor(r.control, r.position, r.metadata["Ts"], "pem").tau
+    r = run_of(evidence, step_name(6.0))
+    tau = ident.fit_dc_motor(r.voltage, r.position, r.Ts, "pem").tau
     return K, tau, fc, off, "the checker's analysis of your recordings (real rig)"
 
 
-@_check("tau")
-def _tau(s, ans):
-    from jerklab import ident
-
-    v = _num("tau", ans)
-    K, tau, fc, off, src = _lab1_reference(s)
+def check_tau(answer, evidence, truth):
+    v = number("tau", answer)
+    K, tau, fc, off, src = _lab1_reference(evidence, truth)
     if v <= 0:
         return CheckResult(
             "tau", False, "τ must be positive: a time constant of the velocity's exponential."
         )
-    if _rel(v, tau * 1000) < 0.15:
+    if rel(v, tau * 1000) < 0.15:
         return CheckResult("tau", False, "τ is about 1000× too large: seconds, not milliseconds.")
-    if _rel(v, tau) <= 0.08:
+    if rel(v, tau) <= 0.08:
         return CheckResult(
             "tau",
             True,
-            f"within {100 * _rel(v, tau):.1f} % of {src}. From rest the "
+            f"within {100 * rel(v, tau):.1f} % of {src}. From rest the "
             "motor sees a constant net voltage (V + offset − f_c), so friction changes the "
             "gain of a step but not its time constant, and PEM, which fits the simulated "
             "angle, is not biased by the encoder's quantization.",
         )
     try:
-        r = _rec(s, _rec_name(6.0))
-        t_arx = ident.fit_dc_motor(r.control, r.position, r.metadata["Ts"], "arx").tau
-    except (_Missing, ValueError):
+        r = run_of(evidence, step_name(6.0))
+        t_arx = ident.fit_dc_motor(r.voltage, r.position, r.Ts, "arx").tau
+    except (Missing, ValueError):
         t_arx = None
-    if t_arx is not None and _rel(v, t_arx) < 0.02:
+    if t_arx is not None and rel(v, t_arx) < 0.02:
         return CheckResult(
             "tau",
             False,
-            f"τ is {_pct(v, tau):+.0f} % off — that is the ARX estimate: ARX "
+            f"τ is {pct(v, tau):+.0f} % off — that is the ARX estimate: ARX "
             "regresses the differenced angle, whose quantization noise sits in the regressor "
             "and biases τ short. Report PEM's τ.",
         )
     return CheckResult(
         "tau",
         False,
-        f"τ is {_pct(v, tau):+.0f} % off: did you fit the angle (PEM) of the "
-        "+6 V step from rest, with u = rec.control and y = rec.position?",
+        f"τ is {pct(v, tau):+.0f} % off: did you fit the angle (PEM) of the "
+        "+6 V step from rest, with u = rec.voltage and y = rec.position?",
     )
 
 
-@_check("K")
-def _K(s, ans):
-    v = _num("K", ans)
-    K, tau, fc, off, src = _lab1_reference(s)
-    if v < 0 and _rel(-v, K) < 0.1:
+def check_K(answer, evidence, truth):
+    v = number("K", answer)
+    K, tau, fc, off, src = _lab1_reference(evidence, truth)
+    if v < 0 and rel(-v, K) < 0.1:
         return CheckResult(
             "K",
             False,
             "K is negative: is the encoder wired backwards (swap A and B), or "
             "the motor leads — or did you regress V on ω instead of ω on V?",
         )
-    if _rel(v, K) <= 0.04:
+    if rel(v, K) <= 0.04:
         return CheckResult(
             "K",
             True,
-            f"within {100 * _rel(v, K):.1f} % of {src}. The slope of the "
+            f"within {100 * rel(v, K):.1f} % of {src}. The slope of the "
             "steady speed against the voltage is K whatever the friction: f_c and the offset "
             "only shift the lines, so the sweep separates them.",
         )
@@ -261,29 +219,28 @@ def _K(s, ans):
         (1 / (2 * math.pi), "that is revolutions, not radians: K is in rad/(V·s)."),
         (60 / (2 * math.pi), "that is rpm per volt: K is in rad/(V·s)."),
     ):
-        if _rel(v, K * factor) < 0.06:
+        if rel(v, K * factor) < 0.06:
             return CheckResult("K", False, f"K is off by a factor {factor:.3g}: {hint}")
     k_eff = K * (1 - (fc - off) / 6.0)
-    if _rel(v, k_eff) < 0.03 and _rel(k_eff, K) > 0.02:
+    if rel(v, k_eff) < 0.03 and rel(k_eff, K) > 0.02:
         return CheckResult(
             "K",
             False,
-            f"K is {_pct(v, K):+.0f} % off — that is the gain of the 6 V step "
+            f"K is {pct(v, K):+.0f} % off — that is the gain of the 6 V step "
             "alone: friction lowers a single step's gain by about f_c/V. Take the slope of "
             "the sweep's steady speeds.",
         )
     return CheckResult(
         "K",
         False,
-        f"K is {_pct(v, K):+.0f} % off: did you take the slope of steady speed "
+        f"K is {pct(v, K):+.0f} % off: did you take the slope of steady speed "
         "(rad/s) against voltage (V) — the speed at the end of each step, not the angle?",
     )
 
 
-@_check("f_c")
-def _fc(s, ans):
-    v = _num("f_c", ans)
-    K, tau, fc, off, src = _lab1_reference(s)
+def check_f_c(answer, evidence, truth):
+    v = number("f_c", answer)
+    K, tau, fc, off, src = _lab1_reference(evidence, truth)
     tol = 0.06
     if abs(v - fc) <= tol:
         return CheckResult(
@@ -318,10 +275,9 @@ def _fc(s, ans):
     )
 
 
-@_check("uncertainty")
-def _unc(s, ans):
-    ks, ts, fs = (_num(f"uncertainty[{i}]", a) for i, a in enumerate(ans))
-    K, tau, fc, off, src = _lab1_reference(s)
+def check_uncertainty(answer, evidence, truth):
+    ks, ts, fs = (number(f"uncertainty[{i}]", a) for i, a in enumerate(answer))
+    K, tau, fc, off, src = _lab1_reference(evidence, truth)
     bad = [n for n, x in (("K_std", ks), ("tau_std", ts), ("f_c_std", fs)) if not x > 0]
     if bad:
         return CheckResult(
@@ -349,19 +305,16 @@ def _unc(s, ans):
     )
 
 
-def _validation(s):
-    from jerklab import ident
-
-    r6, r3 = _rec(s, _rec_name(6.0)), _rec(s, _rec_name(3.0))
-    Ts = r6.metadata["Ts"]
-    fit = ident.fit_dc_motor(r6.control, r6.position, Ts, "pem")
-    return ident.validate(fit, r3.control, r3.position, Ts)
+def _validation(evidence):
+    r6, r3 = run_of(evidence, step_name(6.0)), run_of(evidence, step_name(3.0))
+    Ts = r6.Ts
+    fit = ident.fit_dc_motor(r6.voltage, r6.position, Ts, "pem")
+    return ident.validate(fit, r3.voltage, r3.position, Ts)
 
 
-@_check("fit_valid")
-def _fit_valid(s, ans):
-    v = _num("fit_valid", ans)
-    val = _validation(s)
+def check_fit_valid(answer, evidence, truth):
+    v = number("fit_valid", answer)
+    val = _validation(evidence)
     if abs(v - val.fit_percent) <= 1.5:
         return CheckResult(
             "fit_valid",
@@ -380,12 +333,11 @@ def _fit_valid(s, ans):
     )
 
 
-@_check("white")
-def _white(s, ans):
-    if not isinstance(ans, (bool, np.bool_)):
-        raise _Missing("white: answer True or False.")
-    val = _validation(s)
-    if bool(ans) == bool(val.analysis.white):
+def check_white(answer, evidence, truth):
+    if not isinstance(answer, (bool, np.bool_)):
+        raise Missing("white: answer True or False.")
+    val = _validation(evidence)
+    if bool(answer) == bool(val.analysis.white):
         why = (
             "the residuals are white: the model has explained all the structure"
             if val.analysis.white
@@ -401,14 +353,10 @@ def _white(s, ans):
     )
 
 
-@_check("prbs_fit")
-def _prbs_fit(s, ans):
-    from jerklab import ident
-
-    K_a, tau_a = (_num(f"prbs_fit[{i}]", a) for i, a in enumerate(ans))
-    r = _rec(s, "prbs")
-    u, y, Ts = r.control, r.position, r.metadata["Ts"]
-    truth = s._truth()
+def check_prbs_fit(answer, evidence, truth):
+    K_a, tau_a = (number(f"prbs_fit[{i}]", a) for i, a in enumerate(answer))
+    r = run_of(evidence, "prbs")
+    u, y, Ts = r.voltage, r.position, r.Ts
     if truth is not None:
         K, tau, src = truth["K"], truth["tau"], "your motor"
     else:
@@ -418,17 +366,17 @@ def _prbs_fit(s, ans):
             f.tau,
             "the checker's PEM fit (with offset) of your PRBS record (real rig)",
         )
-    if _rel(K_a, K) <= 0.04 and _rel(tau_a, tau) <= 0.08:
+    if rel(K_a, K) <= 0.04 and rel(tau_a, tau) <= 0.08:
         return CheckResult(
             "prbs_fit",
             True,
-            f"K within {100 * _rel(K_a, K):.1f} % and τ within "
-            f"{100 * _rel(tau_a, tau):.1f} % of {src}. The PRBS keeps the motor turning one "
+            f"K within {100 * rel(K_a, K):.1f} % and τ within "
+            f"{100 * rel(tau_a, tau):.1f} % of {src}. The PRBS keeps the motor turning one "
             "way, so friction acts as a constant input bias: PEM's offset absorbs it "
             "(offset − f_c), and K comes out unbiased from one record, where a single step "
             "could not tell K from friction.",
         )
-    if _rel(tau_a, tau * 1000) < 0.15:
+    if rel(tau_a, tau * 1000) < 0.15:
         return CheckResult(
             "prbs_fit", False, "τ is about 1000× too large: seconds, not milliseconds."
         )
@@ -436,7 +384,7 @@ def _prbs_fit(s, ans):
         (2 * math.pi, "K is 2π too large: radians were converted twice?"),
         (1 / (2 * math.pi), "K is in revolutions: K is in rad/(V·s)."),
     ):
-        if _rel(K_a, K * factor) < 0.06:
+        if rel(K_a, K * factor) < 0.06:
             return CheckResult("prbs_fit", False, hint)
     for method, kw, hint in (
         (
@@ -458,29 +406,28 @@ def _prbs_fit(s, ans):
         except ValueError:
             continue
         if (
-            _rel(K_a, f.K) < 0.01
-            and _rel(tau_a, f.tau) < 0.03
-            and (_rel(f.K, K) > 0.02 or _rel(f.tau, tau) > 0.04)
+            rel(K_a, f.K) < 0.01
+            and rel(tau_a, f.tau) < 0.03
+            and (rel(f.K, K) > 0.02 or rel(f.tau, tau) > 0.04)
         ):
             return CheckResult(
                 "prbs_fit",
                 False,
-                f"K is {_pct(K_a, K):+.0f} % and τ {_pct(tau_a, tau):+.0f} % off — {hint}",
+                f"K is {pct(K_a, K):+.0f} % and τ {pct(tau_a, tau):+.0f} % off — {hint}",
             )
     return CheckResult(
         "prbs_fit",
         False,
-        f"K is {_pct(K_a, K):+.0f} % and τ {_pct(tau_a, tau):+.0f} % off: fit "
-        "the PRBS record with u = rp.control (the applied volts) and y = rp.position, by PEM "
+        f"K is {pct(K_a, K):+.0f} % and τ {pct(tau_a, tau):+.0f} % off: fit "
+        "the PRBS record with u = rp.voltage (the applied volts) and y = rp.position, by PEM "
         "with offset=True.",
     )
 
 
-@_check("trust")
-def _trust(s, ans):
-    a = str(ans).strip().lower()
+def check_trust(answer, evidence, truth):
+    a = str(answer).strip().lower()
     if a not in ("pem", "arx"):
-        raise _Missing('trust: answer "pem" or "arx".')
+        raise Missing('trust: answer "pem" or "arx".')
     if a == "pem":
         return CheckResult(
             "trust",
@@ -498,9 +445,8 @@ def _trust(s, ans):
 
 
 # ------------------------------------------------------------------ lab 2: place the poles
-@_check("pre_z")
-def _pre_z(s, ans):
-    v = _num("pre_z", ans)
+def check_pre_z(answer, evidence, truth):
+    v = number("pre_z", answer)
     ref = math.exp(-140 * 0.005)
     if abs(v - ref) < 2e-3:
         return CheckResult(
@@ -522,11 +468,10 @@ def _pre_z(s, ans):
     return CheckResult("pre_z", False, "use z = e^(sTs) with s = −σ = −140 /s and Ts = 0.005 s.")
 
 
-@_check("pre_integral")
-def _pre_integral(s, ans):
-    if not isinstance(ans, (bool, np.bool_)):
-        raise _Missing("pre_integral: answer True or False.")
-    if ans is False or ans == False:  # noqa: E712
+def check_pre_integral(answer, evidence, truth):
+    if not isinstance(answer, (bool, np.bool_)):
+        raise Missing("pre_integral: answer True or False.")
+    if answer is False or answer == False:  # noqa: E712
         return CheckResult(
             "pre_integral",
             True,
@@ -542,15 +487,13 @@ def _pre_integral(s, ans):
     )
 
 
-@_check("model")
-def _model(s, ans):
-    K_hat, tau_hat = (_num(f"model[{i}]", a) for i, a in enumerate(ans))
-    truth = s._truth()
+def check_model(answer, evidence, truth):
+    K_hat, tau_hat = (number(f"model[{i}]", a) for i, a in enumerate(answer))
     if truth is None:
         return CheckResult(
             "model", True, "noted (real rig: your lab 1 values are the best model there is)."
         )
-    eK, et = _rel(K_hat, truth["K"]), _rel(tau_hat, truth["tau"])
+    eK, et = rel(K_hat, truth["K"]), rel(tau_hat, truth["tau"])
     if eK <= 0.08 and et <= 0.12:
         return CheckResult(
             "model",
@@ -558,7 +501,7 @@ def _model(s, ans):
             "your lab 1 values describe this motor: the design and the "
             "feedforward are built on them.",
         )
-    if _rel(tau_hat, truth["tau"] * 1000) < 0.2:
+    if rel(tau_hat, truth["tau"] * 1000) < 0.2:
         return CheckResult("model", False, "τ in milliseconds: the design needs seconds.")
     return CheckResult(
         "model",
@@ -568,37 +511,32 @@ def _model(s, ans):
     )
 
 
-def _gains_of(ans):
-    from jerklab.controller import DiscreteGains
-
-    if ans is Ellipsis or ans is None:
-        raise _Missing("gains: no answer yet — take them from the panel (lab.panel_gains(panel)).")
-    if not isinstance(ans, DiscreteGains):
-        raise _Missing(
+def _gains_of(answer):
+    if answer is Ellipsis or answer is None:
+        raise Missing("gains: no answer yet — take them from the panel (lab.panel_gains(panel)).")
+    if not isinstance(answer, DiscreteGains):
+        raise Missing(
             f"gains must be DiscreteGains (from the panel or discrete_pole_placement_pid, or "
-            f"Gains.discretize(Ts)), got {type(ans).__name__}"
+            f"Gains.discretize(Ts)), got {type(answer).__name__}"
         )
-    return ans
+    return answer
 
 
-def _simulate_on_motor(s, gains, model):
-    """The spec move on a fresh copy of the student's rig (same hidden motor), in memory."""
-    from jerklab.lab.motors import connect_student
-    from jerklab.planner import plan_sine_jerk
-
+def _spec_move_on(truth, gains, model):
+    """The spec move on the student's hidden motor rebuilt from ``truth`` (the same motor and
+    encoder noise as their virtual rig), the feedforward from their ``model``, in memory."""
     prof = plan_sine_jerk(**MOVE)
-    rig = connect_student(
-        s.student, None, progress=False, recordings=s.folder, key=getattr(s, "_key", None)
-    )
+    rig = connect(device=student_device(motor_from_truth(truth)), progress=False)
     try:
         rig.set_model(*model)
         rec = rig.run_move(prof, gains, gains.Ts, settle=0.4, path=False)
     finally:
         rig.close()
-    return move_metrics(rec, prof.duration, prof.distance)
+    return spec_metrics(rec, prof)
 
 
-def _spec_failures(m):
+def spec_failures(m):
+    """What a move's :func:`spec_metrics` miss of :data:`SPEC`, each with its hint (empty: met)."""
     out = []
     if m["saturated"] or m["peak_voltage"] > SPEC["max_voltage"] + 1e-9:
         out.append(
@@ -623,15 +561,11 @@ def _spec_failures(m):
     return out
 
 
-@_check("design")
-def _design(s, ans, model=None):
-    from jerklab.controller import PositionLoop
-
-    g = _gains_of(ans)
-    model = model or s.answers.get("model")
+def check_design(answer, evidence, truth):
+    g = _gains_of(answer)
+    model = evidence.answers.get("model")
     if model is None:
-        raise _Missing("design: check your model (K, τ) first (task 1).")
-    truth = s._truth()
+        raise Missing("design: check your model (K, τ) first (task 1).")
     K, tau = (truth["K"], truth["tau"]) if truth else model
     r = PositionLoop(K, tau, g).max_pole_radius()
     sigma = (g.design or {}).get("sigma")
@@ -661,8 +595,8 @@ def _design(s, ans, model=None):
             f"stable on your model (largest |z| = {r:.3f}) with integral "
             "action; the rig run below tells whether it meets the spec.",
         )
-    m = _simulate_on_motor(s, g, model)
-    fails = _spec_failures(m)
+    m = _spec_move_on(truth, g, model)
+    fails = spec_failures(m)
     if fails:
         return CheckResult("design", False, "on your motor " + "; ".join(fails) + ".")
     return CheckResult(
@@ -675,18 +609,15 @@ def _design(s, ans, model=None):
     )
 
 
-@_check("measured")
-def _measured(s, ans):
-    from jerklab.planner import plan_sine_jerk
-
-    rec = _rec(s, "move_sine_jerk")
+def check_measured(answer, evidence, truth):
+    rec = run_of(evidence, "move_sine_jerk")
     prof = plan_sine_jerk(**MOVE)
-    m = move_metrics(rec, prof.duration, prof.distance)
+    m = spec_metrics(rec, prof)
     keys = ("max_error", "overshoot_pct", "settling_time", "peak_voltage")
-    if not isinstance(ans, dict) or set(keys) - set(ans):
-        raise _Missing(f"measured: a dict with keys {keys}.")
+    if not isinstance(answer, dict) or set(keys) - set(answer):
+        raise Missing(f"measured: a dict with keys {keys}.")
     for k in keys:
-        v = _num(k, ans[k])
+        v = number(k, answer[k])
         ref = m[k]
         tol = {
             "max_error": 0.01 * ref + 1e-3,
@@ -699,10 +630,10 @@ def _measured(s, ans):
                 "max_error": "the largest |reference − position| while the move lasts (t ≤ duration)",
                 "overshoot_pct": "max(position − distance) after the move, in % of the distance, 0 if none",
                 "settling_time": f"the last time |e| leaves ±{SPEC['settle_band']} rad, minus the move's duration",
-                "peak_voltage": "max |rec.control| (the PWM-quantized voltage applied)",
+                "peak_voltage": "max |rec.voltage| (the PWM-quantized voltage applied)",
             }[k]
             return CheckResult("measured", False, f"{k} disagrees with the recording: {hint}.")
-    fails = _spec_failures(m)
+    fails = spec_failures(m)
     if fails:
         return CheckResult(
             "measured",
@@ -714,15 +645,12 @@ def _measured(s, ans):
     )
 
 
-@_check("gap")
-def _gap(s, ans):
-    from jerklab.controller import PositionLoop, discrete_pole_placement_pid, pole_placement_pid
-
-    model = s.answers.get("model")
+def check_gap(answer, evidence, truth):
+    model = evidence.answers.get("model")
     if model is None:
-        raise _Missing("gap: check your model (K, τ) first (task 1).")
+        raise Missing("gap: check your model (K, τ) first (task 1).")
     K, tau = model
-    rc, rz = (_num(f"gap[{i}]", a) for i, a in enumerate(ans))
+    rc, rz = (number(f"gap[{i}]", a) for i, a in enumerate(answer))
     Ts, wn = 0.020, 30.0
     ref_c = PositionLoop(
         K, tau, pole_placement_pid(K, tau, wn, 1.0).discretize(Ts)
@@ -760,8 +688,6 @@ KINDS = ("trapezoid", "scurve", "sine_jerk")
 
 
 def _plans():
-    from jerklab.planner import plan_scurve, plan_sine_jerk, plan_sine_jerk_optimal, plan_trapezoid
-
     return {
         "trapezoid": plan_trapezoid(MOVE["distance"], MOVE["max_accel"], MOVE["max_velocity"]),
         "scurve": plan_scurve(**MOVE),
@@ -770,11 +696,10 @@ def _plans():
     }
 
 
-@_check("pre_shortest")
-def _pre_shortest(s, ans):
-    a = str(ans).strip().lower().replace("-", "_")
+def check_pre_shortest(answer, evidence, truth):
+    a = str(answer).strip().lower().replace("-", "_")
     if a not in KINDS:
-        raise _Missing(f"pre_shortest: one of {KINDS}.")
+        raise Missing(f"pre_shortest: one of {KINDS}.")
     if a == "trapezoid":
         return CheckResult(
             "pre_shortest",
@@ -787,20 +712,19 @@ def _pre_shortest(s, ans):
     )
 
 
-@_check("durations")
-def _durations(s, ans):
+def check_durations(answer, evidence, truth):
     p = _plans()
-    if not isinstance(ans, dict):
-        raise _Missing(f"durations: a dict {{kind: seconds}} for {KINDS}.")
+    if not isinstance(answer, dict):
+        raise Missing(f"durations: a dict {{kind: seconds}} for {KINDS}.")
     for k in KINDS:
-        v = _num(f"durations[{k!r}]", ans.get(k))
-        if _rel(v, p[k].duration) > 1e-4:
-            if _rel(v, p[k].duration * 1000) < 1e-3:
+        v = number(f"durations[{k!r}]", answer.get(k))
+        if rel(v, p[k].duration) > 1e-4:
+            if rel(v, p[k].duration * 1000) < 1e-3:
                 return CheckResult("durations", False, f"{k}: milliseconds — give seconds.")
             return CheckResult(
                 "durations",
                 False,
-                f"{k}: {_pct(v, p[k].duration):+.1f} % off: plan it with "
+                f"{k}: {pct(v, p[k].duration):+.1f} % off: plan it with "
                 "the move's limits (lab.MOVE) and read profile.duration.",
             )
     return CheckResult(
@@ -811,9 +735,8 @@ def _durations(s, ans):
     )
 
 
-@_check("lost_time")
-def _lost(s, ans):
-    v = _num("lost_time", ans)
+def check_lost_time(answer, evidence, truth):
+    v = number("lost_time", answer)
     p = _plans()
     ref = p["sine_jerk"].duration - p["sine_jerk_optimal"].duration
     if abs(v - ref) <= 1e-4 + 1e-3 * abs(ref):
@@ -833,52 +756,47 @@ def _lost(s, ans):
     )
 
 
-def _prediction(s, model):
-    from jerklab.controller import discrete_pole_placement_pid
-    from jerklab.plant import DCMotor
-    from jerklab.sim import simulate
-
+def _prediction(evidence, model):
     K, tau, fc = model
     g = discrete_pole_placement_pid(K, tau, 30.0, 1.0, Ts=DESIGN_TS)
-    motor = DCMotor(K=K, tau=tau, coulomb_friction=fc, encoder_ppr=s.rig.counts_per_rev)
+    motor = DCMotor(K=K, tau=tau, coulomb_friction=fc, encoder_ppr=evidence.counts_per_rev)
     out = {}
     for k, p in _plans().items():
         if k in KINDS:
             met = simulate(p, motor, g).metrics
             out[k] = {
-                "max_error": float(met["max_abs_error"]),
-                "peak_voltage": float(met["max_abs_voltage"]),
+                "max_error": float(met["max_error"]),
+                "peak_voltage": float(met["peak_voltage"]),
             }
     return out
 
 
-def _pairs(name, ans, ref, tol_rel, hint):
-    if not isinstance(ans, dict):
-        raise _Missing(f"{name}: a dict {{kind: {{'max_error': ..., 'peak_voltage': ...}}}}.")
+def _pairs(name, answer, ref, tol_rel, hint):
+    if not isinstance(answer, dict):
+        raise Missing(f"{name}: a dict {{kind: {{'max_error': ..., 'peak_voltage': ...}}}}.")
     for k, r in ref.items():
-        a = ans.get(k)
+        a = answer.get(k)
         if not isinstance(a, dict):
-            raise _Missing(f"{name}[{k!r}]: a dict with 'max_error' and 'peak_voltage'.")
+            raise Missing(f"{name}[{k!r}]: a dict with 'max_error' and 'peak_voltage'.")
         for q in ("max_error", "peak_voltage"):
-            v = _num(f"{name}[{k!r}][{q!r}]", a.get(q))
+            v = number(f"{name}[{k!r}][{q!r}]", a.get(q))
             if abs(v - r[q]) > tol_rel * abs(r[q]) + 1e-3:
-                return CheckResult(name, False, f"{k}: {q} is {_pct(v, r[q]):+.0f} % off: {hint}")
+                return CheckResult(name, False, f"{k}: {q} is {pct(v, r[q]):+.0f} % off: {hint}")
     return None
 
 
-@_check("predicted")
-def _predicted(s, ans, model=None):
-    model = model or s.answers.get("model3")
+def check_predicted(answer, evidence, truth):
+    model = evidence.answers.get("model3")
     if model is None:
-        raise _Missing("predicted: check your model (K, τ, f_c) first.")
-    ref = _prediction(s, model)
+        raise Missing("predicted: check your model (K, τ, f_c) first.")
+    ref = _prediction(evidence, model)
     bad = _pairs(
         "predicted",
-        ans,
+        answer,
         ref,
         0.03,
         "simulate(profile, DCMotor(K, τ, coulomb_friction=f_c, "
-        "encoder_ppr=rig.counts_per_rev), gains) and read metrics['max_abs_error'], ['max_abs_voltage'].",
+        "encoder_ppr=rig.counts_per_rev), gains) and read metrics['max_error'], ['peak_voltage'].",
     )
     if bad:
         return bad
@@ -890,24 +808,23 @@ def _predicted(s, ans, model=None):
     )
 
 
-@_check("measured3")
-def _measured3(s, ans):
+def check_measured3(answer, evidence, truth):
     ref = {}
     for k in KINDS:
-        rec = s.recordings.get(f"move_{k}")
+        rec = evidence.runs.get(f"move_{k}")
         if rec is None:
             continue
         p = _plans()[k]
-        m = move_metrics(rec, p.duration, p.distance)
+        m = spec_metrics(rec, p)
         ref[k] = {"max_error": m["max_error"], "peak_voltage": m["peak_voltage"]}
     if "sine_jerk" not in ref:
-        raise _Missing("the recording 'move_sine_jerk' is missing: run the rig cell first.")
+        raise Missing("the recording 'move_sine_jerk' is missing: run the rig cell first.")
     bad = _pairs(
         "measured3",
-        ans,
+        answer,
         ref,
         0.01,
-        "max |reference − position| for t ≤ duration, and max |rec.control|.",
+        "max |reference − position| for t ≤ duration, and max |rec.voltage|.",
     )
     if bad:
         return bad
@@ -916,36 +833,33 @@ def _measured3(s, ans):
     return CheckResult("measured3", True, "read right from your recordings" + note + ".")
 
 
-@_check("rig_vs_sim")
-def _rig_vs_sim(s, ans):
-    v = _num("rig_vs_sim", ans)
-    model = s.answers.get("model3")
+def check_rig_vs_sim(answer, evidence, truth):
+    v = number("rig_vs_sim", answer)
+    model = evidence.answers.get("model3")
     if model is None:
-        raise _Missing("rig_vs_sim: check your model first.")
-    rec = _rec(s, "move_sine_jerk")
+        raise Missing("rig_vs_sim: check your model first.")
+    rec = run_of(evidence, "move_sine_jerk")
     p = _plans()["sine_jerk"]
-    meas = move_metrics(rec, p.duration, p.distance)["max_error"]
-    pred = _prediction(s, model)["sine_jerk"]["max_error"]
+    meas = spec_metrics(rec, p)["max_error"]
+    pred = _prediction(evidence, model)["sine_jerk"]["max_error"]
     ref = meas / pred
-    if _rel(v, ref) <= 0.03:
+    if rel(v, ref) <= 0.03:
         return CheckResult(
             "rig_vs_sim",
             True,
             f"measured / predicted = {ref:.2f}: what the model leaves out "
             "(the offset, count noise, errors in K, τ, f_c) shows up as the difference.",
         )
-    if _rel(v, 1 / ref) <= 0.03:
+    if rel(v, 1 / ref) <= 0.03:
         return CheckResult("rig_vs_sim", False, "inverted: measured divided by predicted.")
     return CheckResult(
         "rig_vs_sim", False, "the sine-jerk move's measured max error divided by the simulated one."
     )
 
 
-@_check("model3")
-def _model3(s, ans):
-    K_hat, tau_hat, fc_hat = (_num(f"model3[{i}]", a) for i, a in enumerate(ans))
-    res = _model(s, (K_hat, tau_hat))
-    truth = s._truth()
+def check_model3(answer, evidence, truth):
+    K_hat, tau_hat, fc_hat = (number(f"model3[{i}]", a) for i, a in enumerate(answer))
+    res = check_model((K_hat, tau_hat), evidence, truth)
     if not res.ok or truth is None:
         return CheckResult("model3", res.ok, res.message)
     if abs(fc_hat - truth["coulomb_friction"]) > 0.1:
@@ -962,25 +876,24 @@ def _model3(s, ans):
     )
 
 
-@_check("pem_friction")
-def _pem_friction(s, ans):
-    if not isinstance(ans, (tuple, list)) or len(ans) != 3:
-        raise _Missing(
+def check_pem_friction(answer, evidence, truth):
+    if not isinstance(answer, (tuple, list)) or len(answer) != 3:
+        raise Missing(
             "pem_friction: a tuple (K, tau, f_c) from the PEM fit with friction and offset."
         )
-    if ans[2] is None:
+    if answer[2] is None:
         return CheckResult(
             "pem_friction",
             False,
             "f_c is None: pass friction=True (and offset=True) to ident.fit_dc_motor.",
         )
-    Kp, tp, fp = (_num(f"pem_friction[{i}]", a) for i, a in enumerate(ans))
-    K, tau, fc, off, src = _lab1_reference(s)
+    Kp, tp, fp = (number(f"pem_friction[{i}]", a) for i, a in enumerate(answer))
+    K, tau, fc, off, src = _lab1_reference(evidence, truth)
     bad = []
-    if _rel(Kp, K) > 0.04:
-        bad.append(f"K is {_pct(Kp, K):+.0f} % off")
-    if _rel(tp, tau) > 0.08:
-        bad.append(f"τ is {_pct(tp, tau):+.0f} % off")
+    if rel(Kp, K) > 0.04:
+        bad.append(f"K is {pct(Kp, K):+.0f} % off")
+    if rel(tp, tau) > 0.08:
+        bad.append(f"τ is {pct(tp, tau):+.0f} % off")
     if abs(fp - fc) > 0.06:
         bad.append(f"f_c is {fp - fc:+.2f} V off")
     if bad:
@@ -999,7 +912,3 @@ def _pem_friction(s, ans):
         "(which flips with the direction) and the offset (which does not), and it agrees "
         "with the sweep — two methods, one motor.",
     )
-
-
-# ------------------------------------------------------------------ lab 4: stop the ringing
-from jerklab.lab import ringing as _ringing  # noqa: E402,F401  (registers lab 4's checks)

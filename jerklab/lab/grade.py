@@ -23,7 +23,8 @@ import tempfile
 from pathlib import Path
 
 from jerklab.lab.handin import HandinError, read_handin
-from jerklab.lab.session import LABS
+from jerklab.lab.motors import normalize_student
+from jerklab.lab.registry import LABS
 
 __all__ = [
     "MASTERS",
@@ -161,8 +162,6 @@ def _notebook_info(data: bytes, name: str):
 
 
 def _run_otter(lab, nb_bytes, student, timeout):
-    from jerklab.lab.motors import normalize_student
-
     student = normalize_student(student)
     with tempfile.TemporaryDirectory(prefix="jerklab-grade-") as tmp:
         tmp = Path(tmp)

@@ -21,6 +21,10 @@ import json
 import zipfile
 from pathlib import Path
 
+from jerklab import __version__
+from jerklab.lab.motors import instructor_key
+from jerklab.lab.plain import jsonable
+
 __all__ = ["write_handin", "read_handin", "pack", "HandinError", "MANIFEST"]
 
 MANIFEST = "manifest.json"
@@ -44,10 +48,6 @@ def write_handin(session, notebook=None, out=None) -> Path:
     out : path, optional
         Folder for the zip (default ``handin/`` beside the worksheet, or ``./handin``).
     """
-    from jerklab import __version__
-    from jerklab.lab.motors import instructor_key
-    from jerklab.lab.session import _jsonable
-
     files = {}
     if notebook is not None:
         nb = Path(notebook)
@@ -63,7 +63,7 @@ def write_handin(session, notebook=None, out=None) -> Path:
         k: {"answer": session.answers.get(k), "ok": r.ok} for k, r in session.results.items()
     }
     files["answers.json"] = json.dumps(answers, indent=1).encode()
-    files["gains.json"] = json.dumps(_jsonable(session.gains), indent=1).encode()
+    files["gains.json"] = json.dumps(jsonable(session.gains), indent=1).encode()
     _, source = instructor_key(warn=False)
     meta = {
         "student": session.student,

@@ -11,7 +11,12 @@ The key comes from ``$JERKLAB_INSTRUCTOR_KEY``, else the file named by
 documented :data:`CLASSROOM_DEFAULT_KEY` is used with a warning: it is *not* secret.
 
 The true values never appear in a ``repr``, in rig metadata or in a recording; they are read
-only by the checks of :mod:`jerklab.lab` (through :func:`_truth`).
+only by the checks of :mod:`jerklab.lab` (as :func:`hidden_truth`, which the session fetches
+and hands to the checks).
+
+The rig knows no student: the lab builds the student's device (:func:`student_device`: the
+hidden motor, its encoder count noise) and hands it to :func:`jerklab.rig.connect`, with the
+student ID as the recordings' caller metadata (:func:`connect_student`).
 """
 
 from __future__ import annotations
@@ -29,7 +34,7 @@ import numpy as np
 
 from jerklab import paper
 from jerklab.plant import DCMotor, FlexibleDCMotor
-from jerklab.rig.virtual import VirtualDevice
+from jerklab.rig import Device, connect
 
 __all__ = [
     "CLASSROOM_DEFAULT_KEY",
@@ -37,8 +42,11 @@ __all__ = [
     "MODE_RANGES",
     "StudentMotor",
     "StudentFlexibleMotor",
-    "StudentDevice",
     "student_motor",
+    "hidden_truth",
+    "motor_from_truth",
+    "simulated_motor",
+    "student_device",
     "instructor_key",
     "normalize_student",
     "connect_student",
@@ -59,11 +67,11 @@ RANGES = {
 }
 SUPPLY_VOLTAGE = paper.SUPPLY_VOLTAGE
 
-#: The hidden load mode of ``connect(student=..., plant="flexible")`` (issue "vibration"): the
+#: The hidden load mode of a flexible student motor (``student_motor(..., plant="flexible")``): the
 #: shaft's own mode (motor held still) uniform in log frequency, its damping uniform, drawn
 #: with a separate HMAC purpose so the rigid motor of a student does not change. The load is
 #: 0.3 of the motor's inertia, so the mode shows on the motor's encoder; the coupled mode the
-#: encoder sees (``_truth``: ``mode_hz``, ``mode_zeta``) is then a little stiffer and better damped.
+#: encoder sees (``hidden_truth``: ``mode_hz``, ``mode_zeta``) is then a little stiffer and better damped.
 MODE_RANGES = {
     "mode_hz": (7.0, 15.0),  # Hz, the shaft mode with the motor held still
     "mode_damping": (0.01, 0.04),  # damping ratio of the shaft
@@ -149,8 +157,8 @@ class StudentMotor(DCMotor):
     """A :class:`jerklab.plant.DCMotor` with hidden parameters.
 
     DCMotor's input offset (the motor sees ``u + offset``, a driver asymmetry, input referred,
-    V), Coulomb friction, PWM and encoder quantization; the rig adds encoder count noise
-    (:class:`StudentDevice`). No dead zone: at steady state it is indistinguishable from the
+    V), Coulomb friction, PWM and encoder quantization; the virtual rig adds encoder count noise
+    (:func:`student_device`). No dead zone: at steady state it is indistinguishable from the
     Coulomb friction, so lab 1 could not separate the two. ``repr`` never shows a value.
     Make one with :func:`student_motor`.
     """
@@ -203,18 +211,52 @@ def student_motor(student, key: bytes | None = None, plant: str = "rigid") -> St
     return StudentMotor(sid, _draw(seed), seed)
 
 
-def _truth(motor: StudentMotor) -> dict:
-    """The true values, for the checks only (never print them)."""
+def hidden_truth(motor) -> dict:
+    """The true values of a hidden motor, for the checks only (never print them).
+
+    Plain data: ``K``, ``tau``, ``coulomb_friction``, ``offset``, ``counts_per_rev``,
+    ``noise_counts`` and ``seed`` (enough to rebuild the motor, :func:`motor_from_truth`) and,
+    for a flexible load, the coupled mode the encoder sees (``mode_hz``, ``mode_zeta``) and the
+    shaft's (``mode_frequency`` rad/s, ``mode_damping``, ``load_ratio``).
+    """
     truth = {
         "K": motor.K,
         "tau": motor.tau,
         "coulomb_friction": motor.coulomb_friction,
         "offset": getattr(motor, "offset", 0.0),
         "counts_per_rev": motor.encoder_ppr * motor.decoding,
+        "noise_counts": float(getattr(motor, "noise_counts", 0.0)),
+        "seed": motor.seed,
     }
     if isinstance(motor, FlexibleDCMotor):
         truth["mode_hz"], truth["mode_zeta"] = coupled_mode(motor)
+        truth.update(
+            mode_frequency=motor.mode_frequency,
+            mode_damping=motor.mode_damping,
+            load_ratio=motor.load_ratio,
+        )
     return truth
+
+
+def motor_from_truth(truth: dict):
+    """The hidden motor :func:`hidden_truth` describes (the same parameters and seed): a
+    :class:`StudentMotor`, or a :class:`StudentFlexibleMotor` when ``truth`` has a mode."""
+    params = _Parameters(
+        truth["K"],
+        truth["tau"],
+        truth["coulomb_friction"],
+        truth["offset"],
+        truth["noise_counts"],
+        truth["counts_per_rev"],
+    )
+    if "mode_frequency" in truth:
+        mode = (
+            truth["mode_frequency"] / (2.0 * math.pi),
+            truth["mode_damping"],
+            truth["load_ratio"],
+        )
+        return StudentFlexibleMotor(None, params, truth["seed"], mode)
+    return StudentMotor(None, params, truth["seed"])
 
 
 def _draw_mode(seed: int) -> tuple[float, float, float]:
@@ -268,93 +310,53 @@ def coupled_mode(motor) -> tuple[float, float]:
     return float(abs(p) / (2.0 * math.pi)), float(-p.real / abs(p))
 
 
-class StudentDevice(VirtualDevice):
-    """The virtual rig's firmware in front of a :class:`StudentMotor`, with encoder count noise."""
+def simulated_motor(motor, port=None):
+    """The hidden motor as ``port`` simulates it, or None for a real board (its motor is real).
 
-    def __init__(self, motor: StudentMotor, **kwargs):
-        self._noise_rng = np.random.default_rng([motor.seed % 2**63, 1])
-        super().__init__(motor, **kwargs)
-
-    def _raw_counts(self) -> int:
-        jitter = (
-            self._noise_rng.normal(0.0, self.motor.noise_counts) if self.motor.noise_counts else 0.0
-        )
-        return int(math.floor(float(self.x[0]) * self.motor.counts_per_rad + 1e-9 + jitter))
-
-    def __repr__(self):
-        return f"StudentDevice({self.motor!r})"
-
-
-def connect_student(student, port=None, *, key=None, **options):
-    """A rig for ``student``: the virtual rig (``port`` None) or ``"simavr"`` with the student's
-    hidden motor; any other port is a real board (its motor is the real one).
-
-    ``options`` go to :func:`jerklab.rig.connect` (``speed``, ``timeout``, ``progress``,
-    ``recordings``, ``model`` ...). The returned rig has ``rig.student`` set and, on a
-    simulated plant, a private reference to the hidden motor for the checks.
+    The virtual rig (``port`` None or ``"virtual"``) runs ``motor`` itself. ``"simavr"`` runs
+    the firmware, whose encoder is the paper's 448 counts (x1) and whose plant has no input
+    offset or count noise: the same K, τ, friction (or load mode) with those.
     """
-    from jerklab.rig import connect
-    from jerklab.rig.client import Rig
-    from jerklab.rig.virtual import VirtualSerial
+    if port in (None, "virtual"):
+        return motor
+    if port != "simavr":
+        return None
+    params = _Parameters(motor.K, motor.tau, motor.coulomb_friction, 0.0, 0.0, paper.ENCODER_PPR)
+    if isinstance(motor, StudentFlexibleMotor):  # the two-mass model has no friction
+        mode = (motor.mode_frequency / (2.0 * math.pi), motor.mode_damping, motor.load_ratio)
+        return StudentFlexibleMotor(motor.student, params, motor.seed, mode)
+    return StudentMotor(motor.student, params, motor.seed)
 
+
+def student_device(motor, speed=None) -> Device:
+    """The simulated device of a hidden motor for :func:`jerklab.rig.connect`: the motor and
+    its encoder count noise (seeded by the motor's seed), at ``speed`` times real time (virtual
+    rig only; None: as fast as possible)."""
+    noise = float(getattr(motor, "noise_counts", 0.0))
+    return Device(
+        motor,
+        speed=speed,
+        count_noise=noise,
+        noise_seed=(motor.seed % 2**63, 1) if noise else None,
+    )
+
+
+def connect_student(student, port=None, *, key=None, plant="rigid", speed=None, **options):
+    """A rig for ``student``: the virtual rig (``port`` None) or ``"simavr"`` with the student's
+    hidden motor (``plant="flexible"``: with its hidden load mode); any other port is a real
+    board (its motor is the real one).
+
+    ``options`` go to :func:`jerklab.rig.connect` (``link``, ``progress``, ``recordings``,
+    ``model``); every recording carries ``{"student": ID}`` in its caller metadata. The rig
+    holds no truth: :func:`student_motor` (with the key) gives the hidden motor.
+    """
     sid = normalize_student(student)
-    plant = options.pop("plant", None) or "rigid"
-    motor = student_motor(sid, key, plant=plant)
-    if port in (None, "virtual", ""):
-        speed = options.pop("speed", None)
-        link = VirtualSerial(StudentDevice(motor), speed=speed, timeout=0.05)
-        rig = Rig(
-            link,
-            "virtual",
-            supply_voltage=motor.supply_voltage,
-            counts_per_rev=motor.encoder_ppr * motor.decoding,
-            model=options.pop("model", (paper.MOTOR_K, paper.MOTOR_TAU)),
-            timeout=options.pop("timeout", 2.0),
-            hello_timeout=options.pop("hello_timeout", None) or 1.0,
-            progress=options.pop("progress", True),
-            recordings=options.pop("recordings", None),
-        )
-        if options:
-            rig.close()
-            raise TypeError(f"unexpected options for the virtual rig: {sorted(options)}")
-        hidden = motor
-    elif port == "simavr" and plant == "flexible":
-        # the simulated Uno's two-mass load: the student's K, tau and mode, a 448-count encoder
-        sim_motor = FlexibleDCMotor(
-            K=motor.K,
-            tau=motor.tau,
-            load_ratio=motor.load_ratio,
-            mode_frequency=motor.mode_frequency,
-            mode_damping=motor.mode_damping,
-            supply_voltage=SUPPLY_VOLTAGE,
-            encoder_ppr=paper.ENCODER_PPR,
-        )
-        rig = connect("simavr", motor=sim_motor, **options)
-        hidden = StudentFlexibleMotor(
-            sid,
-            _Parameters(motor.K, motor.tau, 0.0, 0.0, 0.0, paper.ENCODER_PPR),
-            motor.seed,
-            (motor.mode_frequency / (2.0 * math.pi), motor.mode_damping, motor.load_ratio),
-        )
-    elif port == "simavr":
-        # the simulated Uno's plant: K, tau, friction and a 448-count encoder (the harness
-        # decodes x1 at 448); no offset or count noise there
-        sim_motor = DCMotor(
-            K=motor.K,
-            tau=motor.tau,
-            supply_voltage=SUPPLY_VOLTAGE,
-            encoder_ppr=paper.ENCODER_PPR,
-            coulomb_friction=motor.coulomb_friction,
-        )
-        rig = connect("simavr", motor=sim_motor, **options)
-        hidden = StudentMotor(
-            sid,
-            _Parameters(motor.K, motor.tau, motor.coulomb_friction, 0.0, 0.0, paper.ENCODER_PPR),
-            motor.seed,
-        )
+    hidden = simulated_motor(student_motor(sid, key, plant=plant), port)
+    if hidden is None:
+        if speed is not None:
+            raise ValueError("speed applies to the virtual rig only (port=None)")
+        device = None
     else:
-        rig = connect(port, **options)
-        hidden = None
-    rig.student = sid
-    rig._hidden_motor = hidden
-    return rig
+        device = student_device(hidden, speed)
+    metadata = dict(options.pop("metadata", None) or {}, student=sid)
+    return connect(port, device=device, metadata=metadata, **options)

@@ -21,6 +21,8 @@ import inspect
 import json
 from pathlib import Path
 
+from jerklab.resources import share_path
+
 __all__ = ["Notebook", "CheckOutcome", "load_tests"]
 
 
@@ -44,10 +46,8 @@ def load_tests(notebook) -> dict:
     path = Path(notebook)
     candidates = [path]
     try:
-        from jerklab.resources import share_path
-
         candidates.append(share_path("notebooks") / "labs" / path.name)
-    except (ImportError, FileNotFoundError):
+    except FileNotFoundError:
         pass
     for p in candidates:
         if p.is_file():

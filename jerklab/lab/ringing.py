@@ -1,16 +1,18 @@
 """Lab 4, "Stop the ringing": the rig's flexible load, its hidden mode, input shapers.
 
-The student's rig carries a load on a compliant shaft (``connect(student=..., plant="flexible")``,
-:class:`jerklab.lab.motors.StudentFlexibleMotor`): a lightly damped mode that the motor's encoder
-sees only faintly. The worksheet finds it from a PRBS through the encoder
+The student's rig carries a load on a compliant shaft (``lab.start(4, ...)``: the student's
+:class:`jerklab.lab.motors.StudentFlexibleMotor` on the virtual rig or simavr): a lightly damped
+mode that the motor's encoder sees only faintly. The worksheet finds it from a PRBS through the encoder
 (``jerklab.shaping.identify_mode``), designs input shapers for it
 (``jerklab.shaping.input_shaper``; Singer & Seering's ZV/ZVD, Singhose's EI), runs the move with and
 without them on the rig (``Rig.set_shaper``: the firmware's FIR on the reference), and estimates
 the load's residual vibration through the identified model, since no sensor sees the load.
 
-The checks judge every answer against the student's own hidden mode (:func:`_truth` of the
-motor: ``mode_hz``, ``mode_zeta``, the coupled mode of the two-mass model) or, on a real rig,
-against the checker's own analysis of the student's recordings. No message prints a true value.
+The checks (``check_<name>(answer, evidence, truth)``, pure functions like those of
+:mod:`jerklab.lab.checks`, listed in :mod:`jerklab.lab.registry`) judge every answer against
+the student's own hidden mode (``truth``, :func:`jerklab.lab.motors.hidden_truth`: ``mode_hz``,
+``mode_zeta``, the coupled mode of the two-mass model) or, on a real rig, against the checker's
+own analysis of the student's recordings. No message prints a true value.
 """
 
 from __future__ import annotations
@@ -19,8 +21,10 @@ import math
 
 import numpy as np
 
-from jerklab.lab.checks import _check, _Missing, _num, _pct, _rec, _rel
-from jerklab.lab.session import CheckResult
+from jerklab import shaping
+from jerklab.controller import DiscreteGains
+from jerklab.lab.checkbase import CheckResult, Missing, number, pct, rel, run_of
+from jerklab.lab.motors import coupled_mode, motor_from_truth
 
 __all__ = [
     "PRBS_MODE",
@@ -51,21 +55,19 @@ def soft_gains(Ts=0.005):
     """The gains of lab 4's moves: the feedforward (set with ``S.set_model``) and a weak P term
     (``SOFT_KPD``), no integral or derivative. The rig's stability check counts the unused
     integrator's pole at z = 1, so the moves run with ``force=True``."""
-    from jerklab.controller import DiscreteGains
-
     return DiscreteGains(SOFT_KPD, 0.0, 0.0, Ts)
 
 
 def load_deflection(model, rec):
     """The shaft deflection θ_load − θ_motor (rad) of a two-mass ``model``
     (``jerklab.plant.FlexibleDCMotor``, e.g. ``ModeFit.model()``) driven from rest by the
-    voltage a recording applied (``rec.control``, held over each sample), at each sample time.
+    voltage a recording applied (``rec.voltage``, held over each sample), at each sample time.
 
     No sensor sees the load: this is the model's estimate of what it did (an open-loop
     observer), exact ZOH (``model.zoh(Ts)``)."""
-    Ts = float(rec.metadata["Ts"])
+    Ts = float(rec.Ts)
     Phi, Gam = model.zoh(Ts)
-    u = np.asarray(rec.control, dtype=float)
+    u = np.asarray(rec.voltage, dtype=float)
     x = np.zeros(Phi.shape[0])
     out = np.empty(len(u))
     g = Gam[:, 0]
@@ -83,7 +85,7 @@ def residual_amplitude(rec, deflection, start=0.05):
     settling = np.flatnonzero(flags & 2)
     if settling.size == 0:
         raise ValueError("the recording has no settling samples: run the move with settle > 0")
-    Ts = float(rec.metadata["Ts"])
+    Ts = float(rec.Ts)
     i0 = int(settling[0]) + int(round(start / Ts))
     d = np.asarray(deflection, dtype=float)[i0:]
     if d.size < 2:
@@ -91,19 +93,15 @@ def residual_amplitude(rec, deflection, start=0.05):
     return float(np.ptp(d) / 2)
 
 
-def _truth4(s):
-    """(f Hz, zeta, model) of the student's mode: the hidden motor's, else the checker's fit of
-    the PRBS record (real rig)."""
-    from jerklab.lab.motors import coupled_mode
-
-    m = getattr(s.rig, "_hidden_motor", None)
-    if m is not None and hasattr(m, "mode_frequency"):
+def _truth4(evidence, truth):
+    """(f Hz, zeta, model, source) of the student's mode: the hidden motor's, else the checker's
+    fit of the PRBS record (real rig)."""
+    if truth is not None and "mode_frequency" in truth:
+        m = motor_from_truth(truth)
         f, z = coupled_mode(m)
         return f, z, m, "your rig (its hidden mode)"
-    from jerklab import shaping
-
-    r = _rec(s, "prbs")
-    fit = shaping.identify_mode(r.control, r.position, r.metadata["Ts"])
+    r = run_of(evidence, "prbs")
+    fit = shaping.identify_mode(r.voltage, r.position, r.Ts)
     return (
         fit.frequency_hz,
         fit.damping,
@@ -117,86 +115,83 @@ def _zv_delay(f, z):
 
 
 # ------------------------------------------------------------------ pre-lab
-@_check("pre_zv_delay")
-def _pre_zv_delay(s, ans):
-    v = _num("pre_zv_delay", ans)
+def check_pre_zv_delay(answer, evidence, truth):
+    v = number("pre_zv_delay", answer)
     ref = 0.05
-    if _rel(v, ref) < 0.01:
+    if rel(v, ref) < 0.01:
         return CheckResult(
             "pre_zv_delay",
             True,
             "half the period, 1/(2f) = 0.05 s: the second impulse "
             "starts a vibration in antiphase with the first, and they cancel.",
         )
-    if _rel(v, 0.1) < 0.01:
+    if rel(v, 0.1) < 0.01:
         return CheckResult(
             "pre_zv_delay",
             False,
             "that is a full period: an impulse one period later rings "
             "in phase with the first and doubles the vibration. Half a period cancels it.",
         )
-    if _rel(v, 1 / (2 * 2 * math.pi * 10)) < 0.02 or _rel(v, 1 / (2 * math.pi * 10)) < 0.02:
+    if rel(v, 1 / (2 * 2 * math.pi * 10)) < 0.02 or rel(v, 1 / (2 * math.pi * 10)) < 0.02:
         return CheckResult(
             "pre_zv_delay",
             False,
             "10 Hz is a frequency in hertz, not rad/s: the period is 1/f, no 2π.",
         )
-    if _rel(v, 50.0) < 0.01:
+    if rel(v, 50.0) < 0.01:
         return CheckResult("pre_zv_delay", False, "1000× too large: seconds, not milliseconds.")
     return CheckResult(
         "pre_zv_delay",
         False,
-        f"{_pct(v, ref):+.0f} % off: when does an impulse ring in antiphase with one at t = 0?",
+        f"{pct(v, ref):+.0f} % off: when does an impulse ring in antiphase with one at t = 0?",
     )
 
 
-@_check("pre_zvd_length")
-def _pre_zvd_length(s, ans):
-    v = _num("pre_zvd_length", ans)
-    if _rel(v, 0.1) < 0.01:
+def check_pre_zvd_length(answer, evidence, truth):
+    v = number("pre_zvd_length", answer)
+    if rel(v, 0.1) < 0.01:
         return CheckResult(
             "pre_zvd_length",
             True,
             "ZVD's impulses sit at 0, T/2 and T (T = 1/f = 0.1 s): it "
             "delays every move by one period, twice ZV, and buys a much wider band.",
         )
-    if _rel(v, 0.05) < 0.01:
+    if rel(v, 0.05) < 0.01:
         return CheckResult(
             "pre_zvd_length",
             False,
             "that is ZV's length: ZVD adds a third impulse, another half period later.",
         )
-    if _rel(v, 0.15) < 0.01:
+    if rel(v, 0.15) < 0.01:
         return CheckResult(
             "pre_zvd_length",
             False,
             "three impulses half a period apart span two half periods, not three.",
         )
     return CheckResult(
-        "pre_zvd_length", False, f"{_pct(v, 0.1):+.0f} % off: ZVD = ZV convolved with ZV."
+        "pre_zvd_length", False, f"{pct(v, 0.1):+.0f} % off: ZVD = ZV convolved with ZV."
     )
 
 
 # ------------------------------------------------------------------ on the rig
-@_check("mode")
-def _mode(s, ans):
-    f_a, z_a = (_num(f"mode[{i}]", a) for i, a in enumerate(ans))
-    f, z, _, src = _truth4(s)
-    ok_f, ok_z = _rel(f_a, f) <= 0.03, abs(z_a - z) <= max(0.3 * z, 0.01)
+def check_mode(answer, evidence, truth):
+    f_a, z_a = (number(f"mode[{i}]", a) for i, a in enumerate(answer))
+    f, z, _, src = _truth4(evidence, truth)
+    ok_f, ok_z = rel(f_a, f) <= 0.03, abs(z_a - z) <= max(0.3 * z, 0.01)
     if ok_f and ok_z:
         return CheckResult(
             "mode",
             True,
-            f"f within {100 * _rel(f_a, f):.1f} % and ζ within "
+            f"f within {100 * rel(f_a, f):.1f} % and ζ within "
             f"{abs(z_a - z):.3f} of {src}. The PRBS puts power at every frequency up to "
             "1/(2Ts); the two-mass model's output-error fit reads the mode from the tiny "
             "wiggle it leaves in the motor's angle.",
         )
-    if _rel(f_a, 2 * math.pi * f) < 0.04:
+    if rel(f_a, 2 * math.pi * f) < 0.04:
         return CheckResult(
             "mode", False, "f is 2π too large: that is ω in rad/s; the shapers take hertz."
         )
-    if ok_f and _rel(z_a, 100 * z) < 0.3:
+    if ok_f and rel(z_a, 100 * z) < 0.3:
         return CheckResult("mode", False, "ζ is a ratio (0.05), not a percent (5).")
     if ok_f:
         return CheckResult(
@@ -208,32 +203,31 @@ def _mode(s, ans):
     return CheckResult(
         "mode",
         False,
-        f"f is {_pct(f_a, f):+.0f} % off: fit the PRBS record with "
-        "shaping.identify_mode(rp.control, rp.position, Ts) — the applied volts and the "
+        f"f is {pct(f_a, f):+.0f} % off: fit the PRBS record with "
+        "shaping.identify_mode(rp.voltage, rp.position, Ts) — the applied volts and the "
         "encoder angle of the same record.",
     )
 
 
-@_check("zv_delay")
-def _zv_delay_check(s, ans):
-    v = _num("zv_delay", ans)
-    f, z, _, src = _truth4(s)
+def check_zv_delay(answer, evidence, truth):
+    v = number("zv_delay", answer)
+    f, z, _, src = _truth4(evidence, truth)
     ref = _zv_delay(f, z)
-    if _rel(v, ref) <= 0.04:
+    if rel(v, ref) <= 0.04:
         return CheckResult(
             "zv_delay",
             True,
-            f"within {100 * _rel(v, ref):.1f} % of half the damped period "
+            f"within {100 * rel(v, ref):.1f} % of half the damped period "
             f"of {src}: ZV's second impulse, which every shaped move waits for.",
         )
-    if _rel(v, 2 * ref) <= 0.05:
+    if rel(v, 2 * ref) <= 0.05:
         return CheckResult(
             "zv_delay",
             False,
             "that is a whole period (ZVD's length, or your own 1/f): ZV's "
             "second impulse comes half a period after the first.",
         )
-    if _rel(v, ref / math.pi) <= 0.05:
+    if rel(v, ref / math.pi) <= 0.05:
         return CheckResult(
             "zv_delay",
             False,
@@ -242,27 +236,26 @@ def _zv_delay_check(s, ans):
     return CheckResult(
         "zv_delay",
         False,
-        f"{_pct(v, ref):+.0f} % off: build the ZV shaper from *your* mode "
+        f"{pct(v, ref):+.0f} % off: build the ZV shaper from *your* mode "
         "(shaping.input_shaper('zv', f, ζ)) and read its last impulse time, zv.times[-1].",
     )
 
 
-def _runs(s):
+def _runs(evidence):
     runs = {}
     for kind in ("none",) + KINDS4:
-        runs[kind] = _rec(s, f"move_{kind}")
+        runs[kind] = run_of(evidence, f"move_{kind}")
     return runs
 
 
-@_check("residual_pct")
-def _residual_pct(s, ans):
-    if not isinstance(ans, dict):
-        raise _Missing(
+def check_residual_pct(answer, evidence, truth):
+    if not isinstance(answer, dict):
+        raise Missing(
             'residual_pct: answer a dict {"zv": ..., "zvd": ..., "ei": ...} of percentages.'
         )
-    got = {k: _num(f"residual_pct[{k!r}]", ans.get(k)) for k in KINDS4}
-    _, _, model, src = _truth4(s)
-    runs = _runs(s)
+    got = {k: number(f"residual_pct[{k!r}]", answer.get(k)) for k in KINDS4}
+    _, _, model, src = _truth4(evidence, truth)
+    runs = _runs(evidence)
     amp = {k: residual_amplitude(r, load_deflection(model, r)) for k, r in runs.items()}
     ref = {k: 100.0 * amp[k] / amp["none"] for k in KINDS4}
     tol = {k: max(3.0, 0.25 * ref[k]) for k in KINDS4}
@@ -303,20 +296,17 @@ def _residual_pct(s, ans):
 
 
 def _drifted(f, z):
-    from jerklab import shaping
-
     return {
         k: float(shaping.input_shaper(k, f, z).residual_vibration((1 - MODE_DRIFT) * f, z))
         for k in KINDS4
     }
 
 
-@_check("robust")
-def _robust(s, ans):
-    if not isinstance(ans, dict):
-        raise _Missing('robust: answer a dict {"zv": ..., "zvd": ..., "ei": ...} of percentages.')
-    got = {k: _num(f"robust[{k!r}]", ans.get(k)) for k in KINDS4}
-    f, z, _, src = _truth4(s)
+def check_robust(answer, evidence, truth):
+    if not isinstance(answer, dict):
+        raise Missing('robust: answer a dict {"zv": ..., "zvd": ..., "ei": ...} of percentages.')
+    got = {k: number(f"robust[{k!r}]", answer.get(k)) for k in KINDS4}
+    f, z, _, src = _truth4(evidence, truth)
     ref = _drifted(f, z)
     tol = {k: max(1.5, 0.15 * ref[k]) for k in KINDS4}
     if all(abs(got[k] - ref[k]) <= tol[k] for k in KINDS4):
@@ -328,8 +318,6 @@ def _robust(s, ans):
             "leaves a large part of the vibration; ZVD and EI, whose curves are flat around "
             "the design frequency, keep it small.",
         )
-    from jerklab import shaping
-
     up = {
         k: float(shaping.input_shaper(k, f, z).residual_vibration((1 + MODE_DRIFT) * f, z))
         for k in KINDS4
@@ -360,12 +348,11 @@ def _robust(s, ans):
     )
 
 
-@_check("choice")
-def _choice(s, ans):
-    a = str(ans).strip().lower()
+def check_choice(answer, evidence, truth):
+    a = str(answer).strip().lower()
     if a not in KINDS4:
-        raise _Missing(f"choice: answer one of {', '.join(repr(k) for k in KINDS4)}.")
-    f, z, _, _ = _truth4(s)
+        raise Missing(f"choice: answer one of {', '.join(repr(k) for k in KINDS4)}.")
+    f, z, _, _ = _truth4(evidence, truth)
     left = _drifted(f, z)
     best = min(KINDS4, key=lambda k: left[k])
     if a == best:

@@ -1,54 +1,34 @@
-"""A lab session: the student's rig, the recordings of the lab, the answers and their checks."""
+"""A lab session: the student's rig, the recordings of the lab, the answers and their checks.
+
+The session connects the student's device (:func:`jerklab.lab.motors.student_device`) to the
+rig, keeps what the student records and answers, and for each check gathers the plain
+evidence (:class:`jerklab.lab.plain.Evidence`), fetches the truth of the hidden motor (today
+from :mod:`jerklab.lab.motors`), calls the check through :mod:`jerklab.lab.registry` and stores
+the result.
+"""
 
 from __future__ import annotations
 
-import math
 import os
 import re
 from pathlib import Path
 
-import numpy as np
-
 from jerklab import paper
-from jerklab.lab.motors import _truth, normalize_student
+from jerklab.lab.checkbase import CheckResult, Missing
+from jerklab.lab.checks import MOVE, SPEC
+from jerklab.lab.handin import write_handin
+from jerklab.lab.motors import (
+    hidden_truth,
+    normalize_student,
+    simulated_motor,
+    student_device,
+    student_motor,
+)
+from jerklab.lab.plain import Evidence, Run, jsonable
+from jerklab.lab.registry import FLEXIBLE_LABS, LABS, check_function
+from jerklab.rig import RigError, connect
 
 __all__ = ["LabSession", "start", "panel_gains", "CheckResult", "LABS", "SPEC", "MOVE"]
-
-#: lab number -> short name (also the worksheet file stem: notebooks/labs/labN_<name>.ipynb)
-LABS = {1: "identify", 2: "poles", 3: "move", 4: "ringing"}
-#: labs whose rig carries the flexible load (``connect(plant="flexible")``): the student's motor
-#: with a hidden load mode
-FLEXIBLE_LABS = (4,)
-
-#: The move of labs 2 and 3 (rad, rad/s^3, rad/s^2, rad/s): three revolutions and a bit.
-MOVE = {"distance": 20.0, "max_jerk": 2.0e4, "max_accel": 600.0, "max_velocity": 80.0}
-
-#: The spec of lab 2, feasible for every motor of jerklab.lab.motors.RANGES (tests/test_labs.py).
-SPEC = {
-    "max_error": 0.40,  # rad, |r - y| during the move
-    "overshoot_pct": 1.0,  # % of the distance, after the move
-    "settle_band": 0.05,  # rad
-    "settling_time": 0.25,  # s after the end of the move, into the band for good
-    "max_voltage": 12.0,
-}  # V, and no saturated sample
-
-
-class CheckResult:
-    """Outcome of one check: ``ok``, the ``message`` shown (hint or explanation), ``name``."""
-
-    def __init__(self, name, ok, message):
-        self.name, self.ok, self.message = name, bool(ok), str(message)
-
-    def __bool__(self):
-        return self.ok
-
-    def __repr__(self):
-        return f"{'✔' if self.ok else '✘'} {self.name}: {self.message}"
-
-    def _repr_markdown_(self):
-        colour = "green" if self.ok else "#b00"
-        mark = "✔ right" if self.ok else "✘ not yet"
-        return f"<span style='color:{colour}'>**{mark} — {self.name}**</span>: {self.message}"
 
 
 def panel_gains(panel):
@@ -87,25 +67,23 @@ class LabSession:
         )
         self.folder = base / self.student / f"lab{lab}"
         self.folder.mkdir(parents=True, exist_ok=True)
-        from jerklab.rig import connect
-
-        opts = {"progress": progress, "recordings": self.folder}
-        if speed is not None:
-            opts["speed"] = speed
         self.plant = "flexible" if lab in FLEXIBLE_LABS else "rigid"
         if self.plant == "flexible" and self.port not in (None, "virtual", "", "simavr"):
             print(
                 f"⚠ lab {lab} needs the flexible load: on a real Uno, mount the load on its shaft coupling"
             )
-        elif self.plant == "flexible":
-            opts["plant"] = "flexible"
-        if key is not None:
-            from jerklab.lab.motors import connect_student
-
-            self.rig = connect_student(self.student, self.port, key=key, **opts)
-        else:
-            self.rig = connect(self.port, student=self.student, **opts)
-        self._key = key
+        port = None if self.port == "" else self.port
+        # the hidden motor as this port simulates it; None on a real board (its motor is real)
+        self._motor = simulated_motor(student_motor(self.student, key, plant=self.plant), port)
+        if self._motor is None and speed is not None:
+            raise ValueError("speed applies to the virtual rig only (port=None)")
+        self.rig = connect(
+            port,
+            device=None if self._motor is None else student_device(self._motor, speed),
+            progress=progress,
+            recordings=self.folder,
+            metadata={"student": self.student, "lab": lab},
+        )
         self.recordings = {}
         self.answers = {}
         self.results = {}
@@ -115,11 +93,11 @@ class LabSession:
     @property
     def simulated(self) -> bool:
         """True when the plant is the student's hidden motor (virtual rig or simavr)."""
-        return getattr(self.rig, "_hidden_motor", None) is not None
+        return self._motor is not None
 
     def _truth(self):
-        m = getattr(self.rig, "_hidden_motor", None)
-        return None if m is None else _truth(m)
+        """The hidden motor's parameters for the checks (None on a real rig)."""
+        return None if self._motor is None else hidden_truth(self._motor)
 
     def _path(self, name):
         if not re.match(r"^[A-Za-z0-9_.+-]{1,60}$", name):
@@ -143,18 +121,17 @@ class LabSession:
         """``rig.set_shaper(shaper, Ts)``: the input shaper of the following moves (None: off)."""
         return self.rig.set_shaper(shaper, Ts)
 
-    def run_move(self, profile, gains, Ts=None, name=None, **kwargs):
-        """``rig.run_move(profile, gains, Ts)`` saved as ``name`` (default ``move_<kind>``).
+    def run_move(self, profile, gains, Ts=None, name=None, **run):
+        """``rig.run_move(profile, gains, Ts, **run)`` saved as ``name`` (default
+        ``move_<kind>``); ``run`` are fields of :class:`jerklab.rig.RunSpec` (``settle=0.4``,
+        ``force=True``, ...).
 
         A planner the device does not have (the firmware runs only the published sine-jerk)
         returns None with a message instead of stopping the worksheet.
         """
-        from jerklab.rig import RigError
-
-        Ts = getattr(gains, "Ts", 0.005) if Ts is None else Ts
         name = name or f"move_{profile.kind}"
         try:
-            rec = self.rig.run_move(profile, gains, Ts, path=self._path(name), **kwargs)
+            rec = self.rig.run_move(profile, gains, Ts, path=self._path(name), **run)
         except RigError as exc:
             if "planner" not in str(exc):
                 raise
@@ -173,14 +150,24 @@ class LabSession:
         self.rig.set_model(K, tau)
 
     # ---------------------------------------------------------------- checks
-    def verify(self, name, answer, **context):
-        """Run check ``name`` on ``answer`` silently; return a :class:`CheckResult`."""
-        from jerklab.lab.checks import run_check
+    def evidence(self) -> Evidence:
+        """The plain data the checks see: every recording's arrays, the answers so far, the
+        rig's counts per revolution."""
+        return Evidence(
+            runs={k: Run.from_recording(r) for k, r in self.recordings.items()},
+            answers=dict(self.answers),
+            counts_per_rev=self.rig.counts_per_rev,
+        )
 
-        self.answers[name] = _jsonable(answer)
+    def verify(self, name, answer):
+        """Run check ``name`` of this lab on ``answer`` silently; return a :class:`CheckResult`.
+
+        Raises KeyError for a name the lab has no check for."""
+        check = check_function(self.lab, name)
+        self.answers[name] = jsonable(answer)
         try:
-            res = run_check(self, name, answer, **context)
-        except _Missing as exc:
+            res = check(answer, self.evidence(), self._truth())
+        except Missing as exc:
             res = CheckResult(name, False, str(exc))
         except (TypeError, ValueError, KeyError, AttributeError, IndexError) as exc:
             res = CheckResult(
@@ -192,10 +179,10 @@ class LabSession:
         self.results[name] = res
         return res
 
-    def check(self, name, answer, **context):
+    def check(self, name, answer):
         """Run check ``name`` and show right/wrong with a hint or the reason (the result is in
         ``self.results[name]``; :meth:`verify` returns it silently)."""
-        res = self.verify(name, answer, **context)
+        res = self.verify(name, answer)
         try:
             from IPython import get_ipython
             from IPython.display import display
@@ -215,8 +202,6 @@ class LabSession:
     # ---------------------------------------------------------------- hand-in
     def submit(self, notebook=None, out=None):
         """Write the hand-in zip (notebook, recordings, gains, answers, student ID, manifest)."""
-        from jerklab.lab.handin import write_handin
-
         return write_handin(self, notebook=notebook, out=out)
 
     def close(self):
@@ -229,31 +214,10 @@ class LabSession:
         )
 
 
-class _Missing(Exception):
-    """A check needs a recording or an earlier answer that is not there yet."""
-
-
-def _jsonable(x):
-    if isinstance(x, (np.floating, np.integer)):
-        return x.item()
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, float) and not math.isfinite(x):
-        return repr(x)
-    if isinstance(x, (str, int, float, bool)) or x is None:
-        return x
-    if hasattr(x, "kpd"):
-        return {"kpd": x.kpd, "kid": x.kid, "kdd": x.kdd, "Ts": x.Ts, "gamma": x.gamma}
-    return repr(x)
-
-
 def start(lab, student, port=None, **options):
-    """Start lab ``lab`` (1 to 4; lab 4's rig has the flexible load) for ``student`` on ``port`` (None: the virtual rig with
-    the student's hidden motor; ``"simavr"``; a serial port of a real Uno)."""
+    """Start lab ``lab`` (1 to 4; lab 4's rig has the flexible load) for ``student`` on
+    ``port`` (None: the virtual rig with the student's hidden motor; ``"simavr"``; a serial port
+    of a real Uno)."""
     s = LabSession(lab, student, port, **options)
     if s.port in (None, "virtual", ""):
         where = "virtual rig (your hidden motor)"

@@ -11,18 +11,26 @@ the network (the paper's Ethernet set-up), ``connect("simavr")`` the real firmwa
 simulated ATmega328P.  Then ``rig.step(voltage, seconds)`` and ``rig.run_move(profile,
 gains, Ts=0.005)`` return a :class:`Recording` that is written to disk while it arrives.
 
+The options come in three groups (:mod:`jerklab.rig.options`): ``connect(port,
+device=Device(motor, speed=...), link=Link(timeout=...))`` and ``rig.run_move(profile, gains,
+spec=RunSpec(settle=0.4))`` (or ``run_move(profile, gains, Ts, settle=0.4)``, the RunSpec fields
+as keywords). The rig runs a device; who runs it is the caller's business (``connect(...,
+metadata={...})`` puts the caller's fields into every recording).
+
 ``python -m jerklab.rig serve`` puts the virtual rig on a pseudo-terminal so any serial
 client can talk to it as to a board.
 """
 
 from __future__ import annotations
 
+import getpass
 import importlib
 import os
+import re
 import sys
 
 from jerklab import paper
-from jerklab._validate import as_positive
+from jerklab.plant import DCMotor, FlexibleDCMotor
 from jerklab.rig.client import (
     PortBusyError,
     Rig,
@@ -35,12 +43,18 @@ from jerklab.rig.client import (
     UnknownPortError,
     UnstableDesignError,
 )
+from jerklab.rig.options import BAUDRATE, MIN_TIMEOUT, Device, Link, RunSpec
+from jerklab.rig.ports import PortLock, port_holders
+from jerklab.rig.ports import list_ports as _list_ports
 from jerklab.rig.recording import Recording, compare, plot_comparison, recordings_dir
 from jerklab.rig.virtual import VirtualDevice, VirtualSerial
 
 __all__ = [
     "connect",
     "Rig",
+    "Link",
+    "Device",
+    "RunSpec",
     "Recording",
     "recordings_dir",
     "compare",
@@ -58,84 +72,72 @@ __all__ = [
     "UnstableDesignError",
     "list_ports",
     "BAUDRATE",
+    "MIN_TIMEOUT",
 ]
 
-BAUDRATE = 115200
-#: the shortest reply ``timeout`` / ``hello_timeout`` accepted (s): an ACK frame takes about 1 ms at
-#: 115 200 baud, so a shorter wait cannot be met by any rig
-MIN_TIMEOUT = 1e-3
 _VIRTUAL_NAMES = (None, "virtual")
 _URL_SCHEMES = ("socket", "rfc2217", "loop", "spy", "alt", "hwgrep", "cp2110")
+
+#: keywords connect() took before its options were grouped -> what to write now (``motor=``
+#: stays the older name of ``device=`` given a motor, as the vocabulary keeps older names)
+_REGROUPED = {
+    "plant": "device=FlexibleDCMotor() for the flexible load (jerklab.plant)",
+    "speed": "device=Device(motor, speed=...)",
+    "supply_voltage": "device=Device(supply_voltage=...)",
+    "counts_per_rev": "device=Device(counts_per_rev=...)",
+    "timeout": "link=Link(timeout=...)",
+    "hello_timeout": "link=Link(hello_timeout=...)",
+    "baudrate": "link=Link(baudrate=...)",
+}
 
 
 def list_ports(include_all=False) -> list:
     """Serial ports that may have a rig behind them, likely Arduinos first
     (see :func:`jerklab.rig.ports.list_ports`; ``python -m jerklab.rig ports`` prints them)."""
-    from jerklab.rig.ports import list_ports as _list
-
-    return _list(include_all=include_all)
+    return _list_ports(include_all=include_all)
 
 
 def connect(
     port=None,
     *,
-    student=None,
-    motor=None,
-    plant=None,
-    speed=None,
-    timeout=2.0,
-    hello_timeout=None,
+    device=None,
+    link=None,
+    model=(paper.MOTOR_K, paper.MOTOR_TAU),
     progress=True,
     recordings=None,
-    supply_voltage=None,
-    counts_per_rev=None,
-    model=(paper.MOTOR_K, paper.MOTOR_TAU),
-    baudrate=BAUDRATE,
-    **link_options,
+    metadata=None,
+    **regrouped,
 ) -> Rig:
     """Connect to a rig and return a :class:`Rig`.
 
     Parameters
     ----------
     port : None, str or path
-        ``None`` (or ``"virtual"``): the in-process virtual rig (``VirtualDevice`` driving a
-        ``jerklab.plant.DCMotor``). ``"simavr"``: the firmware ELF on a simulated Uno
+        ``None`` (or ``"virtual"``): the in-process virtual rig (``VirtualDevice`` driving the
+        device's motor). ``"simavr"``: the firmware ELF on a simulated Uno
         (``jerklab.rig.simavr.launch()``). Anything else: a device path (``/dev/ttyACM0``,
         ``COM3``, a ``/dev/pts/N`` from ``python -m jerklab.rig serve``) or a pyserial URL
         (``socket://host:port``, ``loop://``, ``rfc2217://...``).
-    student : str, optional
-        A student ID: the virtual rig (or ``"simavr"``) gets that student's hidden motor,
-        drawn by ``jerklab.lab.student_motor`` (seeded with the instructor key); with a real
-        port the ID is only remembered (``rig.student``). Not together with ``motor``.
-    motor : jerklab.plant.DCMotor, optional
-        The simulated motor of the virtual rig or of ``"simavr"`` (default: the paper's,
-        K = 32.4 rad/(V s), tau = 25 ms); not allowed for a real port. A
-        ``jerklab.plant.FlexibleDCMotor`` gives a flexible load.
-    plant : None, "rigid" or "flexible"
-        ``"flexible"``: the simulated motor drives its load through a compliant shaft
-        (``jerklab.plant.FlexibleDCMotor``, the encoder on the motor): the paper's motor with
-        an 8 Hz load mode, or with ``student`` that student's motor with a hidden mode
-        (``jerklab.lab.motors``). Virtual rig and ``"simavr"`` only.
-    speed : float or None
-        Virtual rig only: ``None`` as fast as possible, else that many times real time.
-    timeout : float
-        Seconds to wait for a reply or the next telemetry frame.
-    hello_timeout : float
-        Seconds to keep saying HELLO (every 0.25 s) after opening (default 3 s for a port — an
-        Uno reboots when the port opens and its bootloader listens for about 1 s — 1 s for the
-        virtual rig).
+    device : Device or jerklab.plant motor, optional
+        The hardware (:class:`jerklab.rig.Device`): for the virtual rig and ``"simavr"`` the
+        simulated motor (default the paper's, K = 32.4 rad/(V s), tau = 25 ms; a
+        ``jerklab.plant.FlexibleDCMotor`` gives a flexible load), the virtual rig's speed and
+        encoder count noise; for any rig its supply and counts per revolution (default the
+        motor's, else 12 V and 448). A bare motor is short for ``Device(motor)``.
+    link : Link, optional
+        Timeouts, baud rate and pyserial options (:class:`jerklab.rig.Link`).
+    model : (K, tau)
+        Motor model for the feedforward until you call ``rig.set_model`` (paper's values).
     progress : bool
         Progress bar during runs: an ipywidgets bar inside a Jupyter kernel, text in a terminal,
         nothing when False.
     recordings : path
         Folder for recordings (default ``$JERKLAB_RECORDINGS`` or ``./recordings``).
-    supply_voltage, counts_per_rev : float, int
-        The rig's H-bridge supply (V) and encoder counts per revolution (default: the virtual
-        motor's, else 12 V and 448).
-    model : (K, tau)
-        Motor model for the feedforward until you call ``rig.set_model`` (paper's values).
-    baudrate : int
-        Serial speed (115200, as the firmware).
+    metadata : dict, optional
+        The caller's fields, carried in every recording's metadata under ``"caller"``.
+    motor : jerklab.plant motor, optional
+        The older name of ``device`` given a bare motor (``connect(motor=m)`` is
+        ``connect(device=m)``).
 
     A device path is opened exclusively (pyserial ``exclusive=True`` on POSIX) and locked
     with a lock file naming this process (:class:`jerklab.rig.ports.PortLock`) until
@@ -153,89 +155,59 @@ def connect(
         The port opened but no jerklab rig answered HELLO; the message says what was tried
         and what to check.
     ValueError
-        ``timeout`` or ``hello_timeout`` not a number >= ``MIN_TIMEOUT`` (1 ms).
+        A simulated-only device field (motor, speed, count noise) for a real port; a bad
+        field of ``link`` or ``device`` (:class:`Link`, :class:`Device` name it).
+    TypeError
+        A keyword connect() no longer takes: the message says where it went.
     """
-    for name, value in (("timeout", timeout), ("hello_timeout", hello_timeout)):
-        if value is not None and as_positive(name, value) < MIN_TIMEOUT:
-            raise ValueError(
-                f"{name} must be >= MIN_TIMEOUT = {MIN_TIMEOUT:g} s (one frame at {BAUDRATE} baud), "
-                f"got {value!r}"
-            )
-    if plant not in (None, "rigid", "flexible"):
-        raise ValueError(f"plant must be None, 'rigid' or 'flexible', got {plant!r}")
-    if plant == "flexible" and port not in _VIRTUAL_NAMES and port != "simavr":
-        raise ValueError(
-            "plant='flexible' applies to the virtual rig (port=None) and 'simavr' only"
-        )
-    if plant == "flexible" and motor is not None:
-        raise ValueError("give either plant='flexible' or motor (a FlexibleDCMotor), not both")
-    if student is not None:
-        if motor is not None:
-            raise ValueError("give either student (a hidden motor) or motor, not both")
-        from jerklab.lab.motors import connect_student
-
-        if plant == "flexible":
-            link_options = dict(link_options, plant="flexible")
-        opts = dict(
-            link_options,
-            speed=speed,
-            timeout=timeout,
-            hello_timeout=hello_timeout,
-            progress=progress,
-            recordings=recordings,
-            model=model,
-        )
-        if port not in _VIRTUAL_NAMES:
-            if speed is not None:
-                raise ValueError("speed applies to the virtual rig only (port=None)")
-            opts.pop("speed")
-            opts.update(
-                supply_voltage=supply_voltage, counts_per_rev=counts_per_rev, baudrate=baudrate
-            )
-        return connect_student(student, port, **opts)
-    if plant == "flexible":
-        from jerklab.plant import FlexibleDCMotor
-
-        motor = FlexibleDCMotor()
+    if "motor" in regrouped:
+        motor = regrouped.pop("motor")
+        if device is not None:
+            raise TypeError("give the simulated motor once: device= (motor= is its older name)")
+        device = motor
+    if regrouped:
+        raise TypeError(_regrouped_message(regrouped))
+    link = _as_link(link)
+    device = _as_device(device)
     if port in _VIRTUAL_NAMES:
-        from jerklab.plant import DCMotor
-
-        motor = DCMotor() if motor is None else motor
-        link = VirtualSerial(VirtualDevice(motor), speed=speed, timeout=0.05)
+        motor = DCMotor() if device.motor is None else device.motor
+        dev = VirtualDevice(motor, count_noise=device.count_noise, noise_seed=device.noise_seed)
         return Rig(
-            link,
+            VirtualSerial(dev, speed=device.speed, timeout=0.05),
             "virtual",
-            supply_voltage=motor.supply_voltage if supply_voltage is None else supply_voltage,
-            counts_per_rev=(
-                motor.encoder_ppr * motor.decoding if counts_per_rev is None else counts_per_rev
-            ),
+            supply_voltage=_or(device.supply_voltage, motor.supply_voltage),
+            counts_per_rev=_or(device.counts_per_rev, motor.encoder_ppr * motor.decoding),
             model=model,
-            timeout=timeout,
-            hello_timeout=hello_timeout or 1.0,
+            timeout=link.timeout,
+            hello_timeout=_or(link.hello_timeout, 1.0),
             progress=progress,
             recordings=recordings,
+            metadata=metadata,
+        )
+    if port != "simavr" and device.simulated_only:
+        raise ValueError(
+            f"device.{device.simulated_only[0]} applies to a simulated rig (port=None or "
+            f"'simavr'), not to the board at {port!r}: a real board has its own motor"
         )
     port = _check_port(port)
-    if speed is not None:
-        raise ValueError("speed applies to the virtual rig only (port=None)")
-    if motor is not None and port != "simavr":
-        raise ValueError("motor applies to the virtual rig (port=None) and 'simavr' only")
+    supply, cpr = device.supply_voltage, device.counts_per_rev
     on_close = None
     if port == "simavr":
-        launcher = _launch_simavr(motor)
-        port, on_close = launcher.port, launcher.close
-        if motor is not None:
-            supply_voltage = motor.supply_voltage if supply_voltage is None else supply_voltage
-            counts_per_rev = (
-                motor.encoder_ppr * motor.decoding if counts_per_rev is None else counts_per_rev
+        extra = [n for n in device.simulated_only if n != "motor"]
+        if extra:
+            raise ValueError(
+                f"device.{extra[0]} applies to the virtual rig only (port=None), not 'simavr'"
             )
+        launcher = _launch_simavr(device.motor)
+        port, on_close = launcher.port, launcher.close
+        if device.motor is not None:
+            supply = _or(supply, device.motor.supply_voltage)
+            cpr = _or(cpr, device.motor.encoder_ppr * device.motor.decoding)
     lock = None
     try:
         if "://" not in port:
-            from jerklab.rig.ports import PortLock
-
             lock = PortLock(port).acquire()
-        link = _open_serial(port, baudrate, link_options)
+        serial_link = _open_serial(port, link)
     except BaseException:
         if lock is not None:
             lock.release()
@@ -245,19 +217,55 @@ def connect(
     if lock is not None:
         on_close = _chain(lock.release, on_close)
     return Rig(
-        link,
+        serial_link,
         port,
-        supply_voltage=paper.SUPPLY_VOLTAGE if supply_voltage is None else supply_voltage,
-        counts_per_rev=(
-            paper.ENCODER_PPR * paper.ENCODER_DECODING if counts_per_rev is None else counts_per_rev
-        ),
+        supply_voltage=_or(supply, paper.SUPPLY_VOLTAGE),
+        counts_per_rev=_or(cpr, paper.ENCODER_PPR * paper.ENCODER_DECODING),
         model=model,
-        timeout=timeout,
-        hello_timeout=hello_timeout or 3.0,
+        timeout=link.timeout,
+        hello_timeout=_or(link.hello_timeout, 3.0),
         progress=progress,
         recordings=recordings,
         on_close=on_close,
+        metadata=metadata,
     )
+
+
+def _or(value, default):
+    return default if value is None else value
+
+
+def _as_link(link) -> Link:
+    if link is None:
+        return Link()
+    if not isinstance(link, Link):
+        raise TypeError(f"link must be a jerklab.rig.Link, got {type(link).__name__}")
+    return link
+
+
+def _as_device(device) -> Device:
+    if device is None:
+        return Device()
+    if isinstance(device, Device):
+        return device
+    if isinstance(device, (DCMotor, FlexibleDCMotor)):
+        return Device(device)
+    raise TypeError(
+        f"device must be a jerklab.rig.Device or a jerklab.plant motor, got {type(device).__name__}"
+    )
+
+
+def _regrouped_message(kwargs) -> str:
+    name = sorted(kwargs)[0]
+    if name == "student":
+        return (
+            "connect() takes no student: a rig runs a device and knows nobody. For a student's "
+            "hidden motor use jerklab.lab.connect_student(student, port) or jerklab.lab.start(lab, "
+            "student, port)"
+        )
+    if name in _REGROUPED:
+        return f"connect() takes {name} no longer as a keyword: write {_REGROUPED[name]}"
+    return f"connect() got an unexpected keyword argument {name!r}"
 
 
 def _chain(first, then):
@@ -328,22 +336,19 @@ def _check_port(port) -> str:
 
 
 def _is_windows_com(port: str) -> bool:
-    import re
-    import sys
-
     return (
         sys.platform.startswith("win")
         and re.fullmatch(r"(\\\\\.\\)?COM\d+", port, re.I) is not None
     )
 
 
-def _open_serial(port, baudrate, options):
-    import serial
+def _open_serial(port, link: Link):
+    import serial  # pyserial, for a port only
 
-    kwargs = dict(baudrate=baudrate, timeout=0.05, write_timeout=2.0)
+    kwargs = dict(baudrate=link.baudrate, timeout=0.05, write_timeout=2.0)
     if "://" not in port and os.name == "posix":
         kwargs["exclusive"] = True  # TIOCEXCL + flock: a second open fails
-    kwargs.update(options)
+    kwargs.update(link.serial_options)
     try:
         link = serial.serial_for_url(port, **kwargs)
     except PermissionError as exc:
@@ -356,8 +361,6 @@ def _open_serial(port, baudrate, options):
         ):
             raise UnknownPortError(_permission_message(port, exc)) from exc
         if "exclusively lock" in str(exc) or getattr(exc, "errno", None) in (11, 16):
-            from jerklab.rig.ports import port_holders
-
             who = (
                 "; ".join(f"pid {pid} ({cmd})" for pid, cmd in port_holders(port))
                 or "another program"
@@ -372,8 +375,6 @@ def _open_serial(port, baudrate, options):
 
 
 def _permission_message(port, exc):
-    import getpass
-
     return (
         f"cannot open rig port {port!r}: permission denied ({exc}). On Linux add yourself to the "
         f"group that owns it (usually dialout): sudo usermod -aG dialout {getpass.getuser()}, then log "

@@ -19,13 +19,16 @@ import sys
 import threading
 
 from jerklab import paper
+from jerklab.plant import DCMotor
+from jerklab.rig.check import main as check_main
+from jerklab.rig.ports import list_ports
+from jerklab.rig.server import DeviceServer
+from jerklab.rig.virtual import VirtualDevice
 
 
 def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["check"]:  # the bring-up check has its own options (jerklab.rig.check)
-        from jerklab.rig.check import main as check_main
-
         return check_main(argv[1:])
     ap = argparse.ArgumentParser(prog="python -m jerklab.rig", description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -66,11 +69,6 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.cmd == "ports":
         return _ports(args.all)
-
-    from jerklab.plant import DCMotor
-    from jerklab.rig.server import DeviceServer
-    from jerklab.rig.virtual import VirtualDevice
-
     if args.tcp is None and sys.platform == "win32":
         ap.error(
             "serve on a pseudo-terminal needs Linux or macOS; on Windows use `serve --tcp 5000` "
@@ -103,8 +101,6 @@ def main(argv=None) -> int:
 
 
 def _ports(include_all=False) -> int:
-    from jerklab.rig.ports import list_ports
-
     rows = list_ports(include_all=include_all)
     if not rows:
         print(

@@ -28,7 +28,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from jerklab import paper
+from jerklab import __version__, paper
+from jerklab import protocol as P
+from jerklab.rig import Device, RigError, connect
 
 __all__ = ["Finding", "check_rig", "format_report", "main"]
 
@@ -83,9 +85,6 @@ def check_rig(rig, *, K=None, tolerance=1.5, voltage=None, seconds=0.6, min_coun
     -------
     list of Finding
     """
-    from jerklab import __version__
-    from jerklab import protocol as P
-
     K = float(rig.model[0] if K is None else K)
     if not (math.isfinite(K) and K > 0):
         raise ValueError(f"K must be a positive number (rad/(V s)), got {K!r}")
@@ -281,14 +280,11 @@ def main(argv=None, prog="python -m jerklab.rig check") -> int:
         "--voltage", type=float, default=None, help="test voltage, V (default supply/4)"
     )
     args = ap.parse_args(argv)
-    from jerklab.rig import RigError, connect
-
     port = None if args.port == "virtual" else args.port
     try:
         rig = connect(
             port,
-            supply_voltage=args.supply,
-            counts_per_rev=args.cpr,
+            device=Device(supply_voltage=args.supply, counts_per_rev=args.cpr),
             model=(args.K, args.tau),
             progress=False,
         )

@@ -9,8 +9,10 @@ bars: :mod:`jerklab.rig.progress` (tqdm).
 
 from __future__ import annotations
 
+import collections
 import copy
 import datetime as _dt
+import json
 import math
 import sys
 import time
@@ -20,6 +22,9 @@ from pathlib import Path
 from jerklab import paper
 from jerklab import protocol as P
 from jerklab._validate import as_nonnegative, as_positive, as_real
+from jerklab.controller import DiscreteGains, Gains, max_pole_radius
+from jerklab.rig.options import F32_MAX as _F32_MAX
+from jerklab.rig.options import RunSpec
 from jerklab.rig.progress import NoProgress as _NoProgress
 from jerklab.rig.progress import progress as _progress
 from jerklab.rig.recording import Recording, RecordingIOError, recordings_dir
@@ -98,7 +103,6 @@ _KIND_TO_PLANNER = {
     "scurve": P.Planner.SCURVE,
     "trapezoid": P.Planner.TRAPEZOID,
 }
-_F32_MAX = 3.4028234663852886e38
 #: END_OF_RUN reasons that are faults (the run's status then reads "fault: ...")
 _FAULTS = (
     P.EndReason.FAULT,
@@ -134,6 +138,9 @@ class Rig:
         Notebook, Voilà), a one-line text bar in a terminal; False shows nothing.
     recordings : path or None
         Directory for recordings (default ``$JERKLAB_RECORDINGS`` or ``./recordings``).
+    metadata : mapping, optional
+        Fields of the rig's owner (JSON-able, string keys) that every recording carries in its
+        metadata under ``"caller"`` (e.g. who ran it); the rig does not read them.
     """
 
     def __init__(
@@ -149,6 +156,7 @@ class Rig:
         progress=True,
         recordings=None,
         on_close=None,
+        metadata=None,
     ):
         self.link = link
         self.port = str(port)
@@ -161,14 +169,13 @@ class Rig:
         self.timeout = as_positive("timeout", timeout)
         self.progress = bool(progress)
         self.recordings = Path(recordings) if recordings is not None else None
+        self.metadata = _caller_metadata(metadata)
         self._on_close = on_close
         self._decoder = P.Decoder()
         self._last_byte = time.monotonic()
         self._seq = 0
         self._frames: list[P.Frame] = []
         self.ignored_frames = 0
-        import collections
-
         self._retargets = collections.deque()  # RETARGETs waiting for the run loop to send
         self._streaming = False
         self.closed = False
@@ -444,27 +451,17 @@ class Rig:
             )
         return us
 
-    def configure(
-        self,
-        gains,
-        Ts=paper.TS,
-        *,
-        feedforward=True,
-        max_voltage=None,
-        limits=None,
-        host_timeout=1.0,
-        max_error=P.DEFAULT_MAX_ERROR,
-        runaway_time=P.DEFAULT_RUNAWAY_MS / 1000.0,
-        saturation_time=P.DEFAULT_SATURATION_MS / 1000.0,
-    ):
+    def configure(self, gains, spec=None, limits=None):
         """Send plant, gains and limits (SET_PLANT, SET_GAINS, SET_LIMITS); return them as a dict.
 
-        ``max_error`` (rad, 0 = off), ``runaway_time`` and ``saturation_time`` (s, 0 = off) set
-        the device's safety stops (firmware/PROTOCOL.md "Safety stops").
+        ``spec`` (a :class:`jerklab.rig.RunSpec`) gives the period, the feedforward, the clamp,
+        the host watchdog and the device's safety stops (``max_error`` in rad, 0 = off;
+        ``runaway_time`` and ``saturation_time`` in s, 0 = off: firmware/PROTOCOL.md "Safety
+        stops"); ``limits`` the planner's (max_jerk, max_accel, max_velocity), default the
+        paper's.
         """
-        from jerklab.controller import DiscreteGains, Gains
-
-        us = self._ts_us(Ts)
+        spec = _run_spec(spec)
+        us = self._ts_us(spec.period(gains))
         Ts = us * 1e-6
         if isinstance(gains, Gains):
             gains = gains.discretize(Ts)
@@ -476,34 +473,18 @@ class Rig:
             raise ValueError(
                 f"gains were discretized for Ts = {gains.Ts!r} s, the run uses Ts = {Ts!r} s"
             )
+        feedforward = spec.feedforward
         K, tau = self.model
-        if feedforward is not True and feedforward not in (False, None):
-            K, tau = (
-                as_positive("feedforward.K", feedforward.K),
-                as_positive("feedforward.tau", feedforward.tau),
-            )
-        ff_on = feedforward is not False and feedforward is not None
-        vmax = (
-            self.supply_voltage if max_voltage is None else as_positive("max_voltage", max_voltage)
-        )
+        if not isinstance(feedforward, bool):  # a Feedforward (RunSpec checked K and tau)
+            K, tau = float(feedforward.K), float(feedforward.tau)
+        ff_on = feedforward is not False
+        vmax = self.supply_voltage if spec.max_voltage is None else spec.max_voltage
         if vmax > self.supply_voltage:
             raise ValueError(
                 f"max_voltage must be <= supply_voltage {self.supply_voltage} V, got {vmax}"
             )
-        tmo = as_nonnegative("host_timeout", host_timeout)
-        if tmo > 65.535:
-            raise ValueError(f"host_timeout must be <= 65.535 s, got {tmo}")
-        emax = as_nonnegative("max_error", max_error)
-        if emax > _F32_MAX:
-            raise ValueError(
-                f"max_error must be a float32 (<= {_F32_MAX:g} rad), got {max_error!r}"
-            )
-        runaway = as_nonnegative("runaway_time", runaway_time)
-        if runaway > 65.535:
-            raise ValueError(f"runaway_time must be <= 65.535 s, got {runaway}")
-        sat = as_nonnegative("saturation_time", saturation_time)
-        if sat > 65.535:
-            raise ValueError(f"saturation_time must be <= 65.535 s, got {sat}")
+        tmo, emax = spec.host_timeout, spec.max_error
+        runaway, sat = spec.runaway_time, spec.saturation_time
         J, E, W = limits if limits is not None else paper.LIMITS
         J = min(as_positive("max_jerk", J), _F32_MAX)
         E, W = as_positive("max_accel", E), as_positive("max_velocity", W)
@@ -580,6 +561,8 @@ class Rig:
             counts_per_rad=self.counts_per_rad,
             volts_per_pwm=self.supply_voltage / self.info.pwm_max,
         )
+        if self.metadata:
+            meta["caller"] = copy.deepcopy(self.metadata)
         if path is None:
             folder = self.recordings if self.recordings is not None else recordings_dir()
             stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
@@ -598,20 +581,13 @@ class Rig:
         self,
         profile,
         gains,
-        Ts=paper.TS,
+        Ts=None,
         *,
-        feedforward=True,
-        max_voltage=None,
-        settle=0.25,
-        decimation=1,
-        host_timeout=1.0,
+        spec=None,
         path=None,
         progress=None,
-        max_error=P.DEFAULT_MAX_ERROR,
-        runaway_time=P.DEFAULT_RUNAWAY_MS / 1000.0,
-        saturation_time=P.DEFAULT_SATURATION_MS / 1000.0,
-        force=False,
         on_telemetry=None,
+        **spec_fields,
     ) -> Recording:
         """Run a planned move on the rig; return the :class:`Recording` (saved as it arrives).
 
@@ -633,39 +609,23 @@ class Rig:
         profile : jerklab.planner.Profile
             A move from ``plan_sine_jerk`` (or another planner the device supports).
         gains : jerklab.controller.Gains or DiscreteGains
-            Continuous gains are discretized at ``Ts`` (Stojčić eq. 13).
-        Ts : float
-            Control period (s), a multiple of the device's tick (1 ms on the Uno).
-        feedforward : bool or Feedforward
-            True: u_F from the rig's model (:meth:`set_model`); a ``Feedforward``: its K, tau;
-            False: PID only.
-        max_voltage : float
-            Output clamp (V), default the supply voltage.
-        settle : float
-            Seconds recorded after the profile ends (holding the final position).
-        decimation : int
-            Telemetry every ``decimation`` samples.
-        host_timeout : float
-            The device stops the motor if the host is silent longer than this (s); 0 = off.
+            Continuous gains are discretized at the run's period (Stojčić eq. 13).
+        Ts : float, optional
+            Control period (s), short for ``spec.Ts``: a multiple of the device's tick (1 ms on
+            the Uno); default the gains' own period (``DiscreteGains.Ts``), else 5 ms.
+        spec : jerklab.rig.RunSpec, optional
+            How the move runs: feedforward, output clamp, settle time, decimation, host
+            watchdog, the safety stops (``max_error``, ``runaway_time``, ``saturation_time``)
+            and ``force`` (see :class:`jerklab.rig.RunSpec` for each, with its default).
+        **spec_fields
+            RunSpec fields given one by one (``settle=0.4, force=True``): they change ``spec``
+            (or the default RunSpec) for this run.
         path : path, None or False
             Where to write the recording (None: a new file in the recordings folder;
             False: keep it in memory only).
         progress : bool
             Progress bar (default: the rig's setting): ipywidgets in a Jupyter kernel, text in a
             terminal, nothing if False.
-        max_error : float
-            Tracking-error limit (rad): the device stops the motor and ends the run with a fault
-            when ``|reference − position|`` exceeds it; 0 = off.
-        runaway_time : float
-            Runaway / no-motion window (s): a drive of at least half the clamp for this long
-            that moves the encoder against it (reversed?) or not at all (disconnected?) ends
-            the run with a fault; 0 = off.
-        saturation_time : float
-            Saturation window (s): an output at the voltage clamp in clearly more than half the
-            samples for this long (the ±supply chatter of an unstable loop) ends the run with a
-            fault; 0 = off.
-        force : bool
-            Run a design even if its sampled closed loop is unstable (the safety stops still apply).
         on_telemetry : callable, optional
             Called as ``on_telemetry(k, reference, position)`` (sample index, rad, rad) for each
             sample as it arrives, in the thread of this call; it may call :meth:`retarget`.
@@ -689,6 +649,7 @@ class Rig:
                 f"profile must be a jerklab.planner Profile, got {type(profile).__name__}"
             )
         planner = _KIND_TO_PLANNER[kind]
+        spec = _run_spec(spec, Ts, spec_fields)
         if not self.capabilities & (1 << planner):
             raise RigError(
                 f"{self.port}: firmware {self.firmware_version} has no {kind!r} planner "
@@ -697,33 +658,15 @@ class Rig:
         distance = as_real("profile.distance", profile.distance)
         if distance == 0.0:
             raise ValueError("profile.distance must be nonzero for a rig move")
-        settle = as_nonnegative("settle", settle)
-        if (
-            isinstance(decimation, bool)
-            or not isinstance(decimation, (int, float))
-            or not math.isfinite(decimation)
-            or int(decimation) != decimation
-            or not 1 <= decimation <= 255
-        ):
-            raise ValueError(f"decimation must be an integer in 1..255, got {decimation!r}")
+        settle, decimation, host_timeout = spec.settle, spec.decimation, spec.host_timeout
         limits = (
             profile.max_jerk if profile.max_jerk is not None else _F32_MAX,
             profile.max_accel,
             profile.max_velocity,
         )
-        if not force:
-            self._check_stable(gains, Ts)
-        cfg = self.configure(
-            gains,
-            Ts,
-            feedforward=feedforward,
-            max_voltage=max_voltage,
-            limits=limits,
-            host_timeout=host_timeout,
-            max_error=max_error,
-            runaway_time=runaway_time,
-            saturation_time=saturation_time,
-        )
+        if not spec.force:
+            self._check_stable(gains, spec.period(gains))
+        cfg = self.configure(gains, spec, limits)
         Ts = cfg["Ts"]
         info = self._request(P.Plan(distance, int(planner)), replies=(P.MsgType.PLAN_INFO,))
         if abs(info.duration - profile.duration) > 1e-4 * profile.duration + 2e-5:
@@ -803,8 +746,6 @@ class Rig:
 
     def _check_stable(self, gains, Ts):
         """UnstableDesignError unless the sampled loop of ``gains`` on the rig's model is stable."""
-        from jerklab.controller import DiscreteGains, Gains, max_pole_radius
-
         Ts = self._ts_us(Ts) * 1e-6
         if isinstance(gains, Gains):
             gains = gains.discretize(Ts)
@@ -835,7 +776,7 @@ class Rig:
     ) -> Recording:
         """Open-loop step of ``voltage`` V for ``seconds`` (identification); returns the Recording.
 
-        Samples are taken every ``Ts``; ``rec.control`` is the PWM-quantized voltage applied
+        Samples are taken every ``Ts``; ``rec.voltage`` is the PWM-quantized voltage applied
         (held from each sample to the next), ``rec.position`` the encoder angle (zeroed at the
         start). With ``rest`` > 0 the record starts with that many seconds at 0 V (a STEP of
         0 V, then the STEP of ``voltage``, joined into one record): a step *from rest*, as an
@@ -911,7 +852,7 @@ class Rig:
         PRBS (:func:`jerklab.protocol.prbs_bits` of ``order`` and ``seed``), each bit held
         ``hold`` samples of ``Ts``; it generates the sequence itself (nothing streams to it)
         and reports every sample, with the commanded voltage in the ``reference`` column (V,
-        not rad, for this kind) and the PWM-quantized applied voltage in ``rec.control``, so
+        not rad, for this kind) and the PWM-quantized applied voltage in ``rec.voltage``, so
         the input is recorded exactly. With ``rest`` > 0 the record starts with that many
         seconds at 0 V, as :meth:`step`. A pulled cable or a silent device ends it with every
         sample received saved (the recording's status says why).
@@ -1379,3 +1320,36 @@ def _jsonable(d):
     if isinstance(d, (str, int, float, bool)) or d is None:
         return d
     return repr(d)
+
+
+def _run_spec(spec, Ts=None, fields=None) -> RunSpec:
+    """``spec`` (default ``RunSpec()``) with ``Ts`` and ``fields`` filled in (the short forms
+    of :meth:`Rig.run_move`)."""
+    if spec is None:
+        spec = RunSpec()
+    elif not isinstance(spec, RunSpec):
+        raise TypeError(f"spec must be a jerklab.rig.RunSpec, got {type(spec).__name__}")
+    changes = dict(fields or {})
+    if Ts is not None:
+        if "Ts" in changes:
+            raise TypeError("Ts given twice")
+        if spec.Ts is not None and spec.Ts != Ts:
+            raise ValueError(f"Ts = {Ts!r} s disagrees with spec.Ts = {spec.Ts!r} s")
+        changes["Ts"] = Ts
+    return spec.replace(**changes) if changes else spec
+
+
+def _caller_metadata(metadata) -> dict:
+    """The owner's fields for every recording: a JSON-able mapping with string keys."""
+    if metadata is None:
+        return {}
+    if not isinstance(metadata, dict):
+        raise TypeError(f"metadata must be a dict, got {type(metadata).__name__}")
+    try:
+        json.dumps(metadata, allow_nan=False)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"metadata must be JSON-able (str keys, finite numbers): {exc}") from None
+    bad = [k for k in metadata if not isinstance(k, str)]
+    if bad:
+        raise ValueError(f"metadata keys must be strings, got {bad!r}")
+    return copy.deepcopy(metadata)

@@ -24,6 +24,8 @@ try:  # POSIX only; Windows opens a COM port exclusively anyway
 except ImportError:  # pragma: no cover - Windows
     fcntl = None
 
+from jerklab.rig.client import PortBusyError
+
 __all__ = ["list_ports", "PortLock", "lock_dir", "port_holders", "ARDUINO_USB_IDS"]
 
 # USB vendor:product ids of boards and USB-serial chips an Uno (or a clone) shows up as.
@@ -202,8 +204,6 @@ class PortLock:
 
     def acquire(self):
         """Take the lock or raise :class:`~jerklab.rig.PortBusyError` naming the holder."""
-        from jerklab.rig.client import PortBusyError
-
         self.path.parent.mkdir(parents=True, exist_ok=True)
         fh = open(self.path, "a+")
         try:

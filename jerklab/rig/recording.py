@@ -7,7 +7,9 @@ profile, status).  The sidecar is written when the run starts (``"status":
 ``"disconnected"``, ``"stopped"``, ...), so a pulled cable or a crash leaves
 every sample received so far on disk, described.
 
-SI units in the arrays: s, rad, V.  ``counts`` and ``pwm`` keep the raw integers.
+SI units in the arrays: s, rad, V (the series names of :mod:`jerklab._vocab`: ``time``,
+``reference``, ``position``, ``voltage``).  ``counts`` and ``pwm`` keep the raw integers.  The
+CSV keeps its column names (``control`` for the voltage), so files written before stay readable.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from jerklab._validate import as_int, as_positive, as_real
-from jerklab.plots import plot_comparison, plot_recording
+from jerklab._vocab import aliases
 
 __all__ = ["Recording", "RecordingIOError", "recordings_dir", "compare", "plot_comparison"]
 
@@ -113,6 +115,7 @@ def _paths(path) -> tuple[Path, Path]:
     return p.with_name(p.name + ".csv"), p.with_name(p.name + ".json")
 
 
+@aliases(control="voltage")
 class Recording:
     """A run's time series and metadata, optionally streamed to ``path`` (.csv + .json).
 
@@ -121,16 +124,18 @@ class Recording:
     time : s, ``index * Ts``
     reference : rad, the position reference the device used (0 for an open-loop step)
     position : rad, ``counts / counts_per_rad``
-    control : V, ``pwm / pwm_max * supply_voltage``
+    voltage : V, ``pwm / pwm_max * supply_voltage``: the PWM-quantized voltage applied, held
+        from each sample to the next (older name: ``control``)
     counts, pwm, index, flags : the raw telemetry integers
-    metadata : dict (JSON sidecar): kind, Ts, gains, limits, plant, device, profile, status, ...
+    metadata : dict (JSON sidecar): kind, Ts, gains, limits, plant, device, profile, status,
+        and under ``"caller"`` the fields the rig's owner gave (``connect(metadata=...)``)
 
     Examples
     --------
     >>> rec = Recording({"kind": "demo", "Ts": 0.005, "counts_per_rad": 448 / (2 * math.pi),
     ...                  "volts_per_pwm": 12 / 1023})
     >>> rec.append(0, 0.0, 0, 0); rec.append(1, 0.01, 1, 1023)
-    >>> rec.time.tolist(), rec.control.tolist()
+    >>> rec.time.tolist(), rec.voltage.tolist()
     ([0.0, 0.005], [0.0, 12.0])
     """
 
@@ -307,7 +312,7 @@ class Recording:
         return self._col(3, np.int64)
 
     @property
-    def control(self):
+    def voltage(self):
         return self.pwm * self._vpp
 
     @property
@@ -428,8 +433,17 @@ class Recording:
         return rec
 
     def plot(self, ax=None):
-        """Reference and measured position (rad) and control (V): :func:`jerklab.plots.plot_recording`."""
+        """Reference and measured position (rad) and voltage (V): :func:`jerklab.plots.plot_recording`."""
+        from jerklab.plots import plot_recording
+
         return plot_recording(self, ax)
+
+    def plot_comparison(self, sim, title="Measured vs simulated sine-jerk move"):
+        """This recording against a simulation (position, tracking error, voltage):
+        :func:`jerklab.plots.plot_comparison`."""
+        from jerklab.plots import plot_comparison
+
+        return plot_comparison(self, sim, title)
 
     def __repr__(self):
         where = f", path={str(self.csv_path)!r}" if self.csv_path else ""
@@ -446,8 +460,8 @@ def compare(rec: Recording, sim) -> dict:
     Returns the number of common samples, the largest and RMS difference of the measured
     angles, the largest tracking error of each, and the largest control difference.
     """
-    n = min(len(rec), len(sim.t))
-    idx = rec.index[rec.index < len(sim.t)][:n]
+    n = min(len(rec), len(sim.time))
+    idx = rec.index[rec.index < len(sim.time)][:n]
     meas = rec.position[: len(idx)]
     sim_meas = np.asarray(sim.measured)[idx]
     d = meas - sim_meas
@@ -458,10 +472,12 @@ def compare(rec: Recording, sim) -> dict:
         "max_abs_error_measured": float(np.max(np.abs(rec.reference[: len(idx)] - meas))),
         "max_abs_error_simulated": float(np.max(np.abs(np.asarray(sim.reference)[idx] - sim_meas))),
         "max_abs_control_diff": float(
-            np.max(np.abs(rec.control[: len(idx)] - np.asarray(sim.u_applied)[idx]))
+            np.max(np.abs(rec.voltage[: len(idx)] - np.asarray(sim.voltage)[idx]))
         ),
     }
 
 
-# plot_comparison lives in jerklab.plots; the name here (and jerklab.rig.plot_comparison) is an alias,
-# imported at the top of this module.
+def plot_comparison(rec: Recording, sim, title="Measured vs simulated sine-jerk move"):
+    """``rec.plot_comparison(sim, title)``: a recording against a simulation
+    (:func:`jerklab.plots.plot_comparison`)."""
+    return rec.plot_comparison(sim, title)

@@ -27,6 +27,8 @@ import math
 
 import numpy as np
 
+from jerklab import planner
+
 __all__ = [
     "SegmentPlan",
     "moving_plan",
@@ -226,8 +228,6 @@ class SegmentPlan:
 def rest_plan(kind, distance, max_jerk, max_accel, max_velocity, t_start=0.0, x_start=0.0):
     """The rest-to-rest plan of PLAN's ``kind`` (0..3) as a :class:`SegmentPlan` (jerklab's
     phase times, the same closed form)."""
-    from jerklab import planner
-
     if kind == 3:
         prof = planner.plan_trapezoid(distance, max_accel, max_velocity)
     else:

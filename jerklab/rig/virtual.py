@@ -23,7 +23,7 @@ Protocol version 3: SEQUENCE (the PRBS of ``jerklab.protocol.prbs_bits``, the co
 TELEMETRY's reference) and SET_SHAPER (the firmware's FIR on the run reference, in float32 in the
 firmware's order of operations, velocity and acceleration by backward differences). The motor
 may be a ``jerklab.plant.FlexibleDCMotor`` (state ``[θ_m, ω_m, θ_l, ω_l]``, the encoder on the
-motor; ``connect(plant="flexible")``).
+motor; ``connect(device=FlexibleDCMotor())``).
 
 The board's computation delay is modelled: in a run, the PWM of sample k takes effect
 :attr:`VirtualDevice.compute_delay` after the encoder was read at t = k Ts (the firmware's
@@ -43,9 +43,13 @@ import time
 
 import numpy as np
 
-from jerklab import paper
+from jerklab import __version__, paper, planner
 from jerklab import protocol as P
+from jerklab.controller import DigitalController, DiscreteGains, Feedforward
+from jerklab.law import ENCODER_EPS
 from jerklab.law import SCALAR as _LAW
+from jerklab.plant import DCMotor
+from jerklab.rig import retarget as R
 
 _pwm_duty, _encoder_counts = _LAW["pwm_duty"], _LAW["encoder_counts"]
 
@@ -84,6 +88,11 @@ class VirtualDevice:
         Reported in HELLO_REPLY.
     tick_us : int
         Timer tick; Ts must be a multiple of it (1000 µs, as on the Uno).
+    count_noise : float
+        Standard deviation (counts) of a noise added to the encoder reading before it is
+        floored to a count (0: the exact counter).
+    noise_seed : int or sequence of int, optional
+        Seed of that noise (``numpy.random.default_rng``).
     """
 
     STATE_IDLE, STATE_RUNNING, STATE_STEPPING = 0, 1, 2
@@ -101,10 +110,9 @@ class VirtualDevice:
         name="jerklab-virtual",
         tick_us=1000,
         compute_delay=None,
+        count_noise=0.0,
+        noise_seed=None,
     ):
-        from jerklab import __version__
-        from jerklab.plant import DCMotor
-
         self.motor = DCMotor() if motor is None else motor
         if self.motor.supply_voltage is None or self.motor.counts_per_rad is None:
             raise ValueError(
@@ -124,6 +132,10 @@ class VirtualDevice:
                 f"got {compute_delay!r}"
             )
         self.compute_delay = float(compute_delay)
+        if not (isinstance(count_noise, (int, float)) and 0.0 <= count_noise < math.inf):
+            raise ValueError(f"count_noise must be a finite number >= 0, got {count_noise!r}")
+        self.count_noise = float(count_noise)
+        self._noise_rng = np.random.default_rng(noise_seed) if count_noise else None
         self._applied_volts = 0.0
         self.name = str(name)[:16]
         self.tick_us = int(tick_us)
@@ -213,7 +225,10 @@ class VirtualDevice:
     encoder_sign = 1
 
     def _raw_counts(self) -> int:
-        return int(_encoder_counts(float(self.x[0]), self.motor.counts_per_rad))
+        if self._noise_rng is None:
+            return int(_encoder_counts(float(self.x[0]), self.motor.counts_per_rad))
+        jitter = self._noise_rng.normal(0.0, self.count_noise)
+        return int(math.floor(float(self.x[0]) * self.motor.counts_per_rad + ENCODER_EPS + jitter))
 
     def _counts(self) -> int:
         return self.encoder_sign * self._raw_counts()
@@ -368,8 +383,6 @@ class VirtualDevice:
         return P.ErrorCode.OK, 0xFF
 
     def _cmd_Plan(self, m):
-        from jerklab import planner
-
         if not (_finite(m.distance) and 0 < abs(m.distance) <= 1e6):
             return P.ErrorCode.BAD_VALUE, 0
         if m.planner not in _PLANNERS:
@@ -397,8 +410,6 @@ class VirtualDevice:
         return None, None
 
     def _cmd_Run(self, m):
-        from jerklab.controller import DigitalController, DiscreteGains, Feedforward
-
         if m.decimation < 1:
             return P.ErrorCode.BAD_VALUE, 1
         if self.gains is None or self.plan is None:
@@ -597,8 +608,6 @@ class VirtualDevice:
         return None
 
     def _current_plan(self):
-        from jerklab.rig import retarget as R
-
         if self._splan is None:
             L, pm = self.limits, self._plan_msg
             self._splan = R.rest_plan(
@@ -607,8 +616,6 @@ class VirtualDevice:
         return self._splan
 
     def _retarget_from(self, k_now):
-        from jerklab.rig import retarget as R
-
         L = self.limits
         Ts_us = self.gains.Ts_us
         Ts = Ts_us * 1e-6

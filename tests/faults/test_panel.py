@@ -88,7 +88,7 @@ def test_panel_designs_for_a_given_motor_and_exposes_gains():
     assert isinstance(g, DiscreteGains) and g.Ts == Ts
     assert (g.kpd, g.kid, g.kdd) == pytest.approx((kp - ki * Ts / 2, ki * Ts, kd / Ts), rel=1e-12)
     # the gains go straight to a rig with that motor, and track the move
-    rig = connect(motor=DCMotor(K=K, tau=tau), progress=False)
+    rig = connect(progress=False, device=DCMotor(K=K, tau=tau))
     rig.set_model(K, tau)
     rec = rig.run_move(tuning.move_profile(), p.gains, Ts=p.gains.Ts, path=False)
     assert rec.metadata["status"] == "complete"

@@ -666,12 +666,14 @@ def test_probe2_widgets_and_connect_refuse_impossible_values():
     with pytest.raises(ValueError, match="Ts"):  # was numpy LinAlgError
         W.compute_pole_placement(Ts=1e300, simulate_move=False)
     with pytest.raises(ValueError, match="hello_timeout"):  # 0 silently meant the default
-        RG.connect(None, hello_timeout=0, progress=False)
+        RG.connect(None, progress=False, link=RG.Link(hello_timeout=0))
     with pytest.raises(
         ValueError, match="timeout"
     ):  # was RigTimeoutError "no reply within 1e-300 s"
-        RG.connect(None, timeout=1e-300, progress=False)
-    RG.connect(None, timeout=RG.MIN_TIMEOUT * 100, hello_timeout=1.0, progress=False).close()
+        RG.connect(None, progress=False, link=RG.Link(timeout=1e-300))
+    RG.connect(
+        None, progress=False, link=RG.Link(timeout=RG.MIN_TIMEOUT * 100, hello_timeout=1.0)
+    ).close()
 
 
 @pytest.mark.parametrize(

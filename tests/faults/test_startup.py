@@ -17,6 +17,7 @@ import pytest
 
 from jerklab import protocol as P
 from jerklab.rig import (
+    Link,
     PortBusyError,
     Rig,
     RigTimeoutError,
@@ -83,7 +84,7 @@ def test_permission_denied_points_at_the_dialout_group(monkeypatch):
 
     monkeypatch.setattr(serial, "serial_for_url", denied)
     with pytest.raises(UnknownPortError, match="dialout") as info:
-        _open_serial("/dev/ttyACM0", 115200, {})
+        _open_serial("/dev/ttyACM0", Link())
     assert "/dev/ttyACM0" in str(info.value) and "usermod -aG dialout" in str(info.value)
 
 
