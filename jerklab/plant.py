@@ -1,6 +1,6 @@
 """DC-motor plant of Stojčić (2015) §2A, with the real rig's imperfections.
 
-ASCII spelling for grep: Stojcic eq. 1, Stojcic eq. 9.
+ASCII spelling for grep: Stojcic eqs. 1, 9.
 
 The linear model is Stojčić eq. 1,
 

@@ -204,7 +204,7 @@ class EndReason(enum.IntEnum):
 class Planner(enum.IntEnum):
     """``Plan.planner`` values; which ones a device supports is in its capabilities."""
 
-    SINE_JERK = 0  #: Stojčić eq. 2, Stojčić eq. 3, Stojčić eq. 4, as published
+    SINE_JERK = 0  #: Stojčić eqs. 2–4, as published
     SINE_JERK_OPTIMAL = 1
     SCURVE = 2
     TRAPEZOID = 3
@@ -234,7 +234,7 @@ class Capability(enum.IntFlag):
     RETARGET = 1 << 9  #: RETARGET during a run (protocol version 3)
 
 
-#: ``SetGains.flags`` bit: add the feedforward u_F = (tau*accel + vel)/K (Stojčić eq. 8, Stojčić eq. 16)
+#: ``SetGains.flags`` bit: add the feedforward u_F = (tau*accel + vel)/K (Stojčić eqs. 8, 16)
 GAINS_FEEDFORWARD = 0x01
 #: ``Telemetry.flags`` bit: the control output hit the voltage clamp this sample
 TELEMETRY_SATURATED = 0x01
@@ -361,7 +361,7 @@ class Hello(_Message):
 
 @dataclass(frozen=True)
 class SetPlant(_Message):
-    """Motor model used by the feedforward (Stojčić eq. 1, Stojčić eq. 8) and the I/O scaling.
+    """Motor model used by the feedforward (Stojčić eqs. 1, 8) and the I/O scaling.
 
     ``K`` rad/(V s), ``tau`` s, ``supply_voltage`` V (PWM full scale),
     ``counts_per_rev`` encoder counts per revolution after quadrature decoding.
@@ -377,7 +377,7 @@ class SetPlant(_Message):
 
 @dataclass(frozen=True)
 class SetGains(_Message):
-    """Discrete PID gains (Stojčić eq. 12, Stojčić eq. 13) in SI units: V/rad (position loop) or V/(rad/s).
+    """Discrete PID gains (Stojčić eqs. 12, 13) in SI units: V/rad (position loop) or V/(rad/s).
 
     ``Ts_us`` is the control period in µs (a multiple of ``HelloReply.tick_us``),
     ``loop`` a :class:`LoopType`, ``flags`` bit 0 = feedforward on, ``gamma`` the

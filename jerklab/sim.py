@@ -10,7 +10,7 @@ At sample ``k`` (``t = k Ts``):
 1. the encoder gives ``y(k)`` = floor(θ(kTs)·counts/rad)/(counts/rad) (+ noise)
    (:func:`jerklab.law.encoder`);
 2. the profile is sampled in closed form at ``kTs`` (position, velocity, acceleration);
-3. the control law of :mod:`jerklab.law` (Stojčić eq. 16, Stojčić eq. 17, Stojčić eq. 18, output clamp,
+3. the control law of :mod:`jerklab.law` (Stojčić eqs. 16–18, output clamp,
    anti-windup; the law :class:`~jerklab.controller.DigitalController` runs) gives ``u(k)``;
    position loop ``e = r − y``, or the paper's velocity loop ``e = ω_r − (y(k) − y(k−1))/Ts``
    (pulses per sample, §4B);
