@@ -11,7 +11,7 @@ ASCII spelling for grep: Stojcic (Stojcic eqs. 11, 13, 16).
   the poles where Stojčić eq. 11 says (the paper does not notice).
 * :meth:`Gains.discretize` — Stojčić eqs. 12, 13 (trapezoidal integral, backward derivative).
   At Ts = 5 ms this "continuous design, then discretize" route leaves the designed
-  poles and goes unstable near ωn = 50 rad/s (|z| = 1.16).
+  poles and goes unstable near ωn = 50 rad/s (``|z|`` = 1.16).
 * :func:`discrete_pole_placement_pid` — design directly in z: the desired s-poles are
   mapped by z = e^{s Ts} and the gains solved on the exact ZOH plant, so the closed-loop
   poles land where asked at any Ts.
@@ -67,7 +67,7 @@ class DiscreteGains:
     """Discrete PID gains of Stojčić eqs. 12–14 at sampling time ``Ts``.
 
     ``B(z) = kpd + kid/(1 − z⁻¹) + kdd (1 − z⁻¹)/(1 − γ z⁻¹)``; ``gamma`` = 0 is the paper's
-    backward derivative, a non-zero ``gamma`` (|γ| < 1) is a first-order derivative filter
+    backward derivative, a non-zero ``gamma`` (``|γ|`` < 1) is a first-order derivative filter
     ``d(k) = γ d(k−1) + kdd (e(k) − e(k−1))`` used by the full z-domain placement.
     """
 
@@ -761,7 +761,7 @@ class _Loop:
             return np.log(p.astype(complex)) / self.Ts
 
     def max_pole_radius(self) -> float:
-        """Largest |z| (sampled loop) — stable iff < 1."""
+        """Largest ``|z|`` (sampled loop) — stable iff < 1."""
         return float(np.max(np.abs(self.poles_z())))
 
     def max_pole_real(self) -> float:

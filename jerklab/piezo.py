@@ -250,7 +250,7 @@ def _dz_power(k: np.ndarray, z: complex, j: int) -> np.ndarray:
 
 
 def _dz_step_tail(M: int, z: complex, j: int) -> complex:
-    """d^j/dz^j of sum_{k>=M} z^-k = z^-M · z/(z-1) (analytic continuation to |z| < 1)."""
+    """d^j/dz^j of sum_{k>=M} z^-k = z^-M · z/(z-1) (analytic continuation to ``|z|`` < 1)."""
     tot = 0j
     for i in range(j + 1):
         n = j - i
@@ -413,7 +413,7 @@ class ScanSpec:
     Ts : float
         Sampling time, s (paper: 0.2 ms).
     F_max : float
-        Actuator limit |u| <= F_max of Xu & Meckl eq. 5, V. Not given by the paper; 38 V (``DEFAULT_F_MAX``)
+        Actuator limit ``|u|`` <= F_max of Xu & Meckl eq. 5, V. Not given by the paper; 38 V (``DEFAULT_F_MAX``)
         reproduces Table II's cycle times with mode 1 robustified.
     velocity_tolerance : float
         Velocity tracking tolerance in the scan, µm/s (paper: 0.1 µm/s). With ``e_allow = 0`` the
@@ -999,9 +999,9 @@ def rampup_time_vs_scan_start(
 class CycleEvaluation:
     """Performance of a scan cycle under a plant perturbation (Xu & Meckl Table II).
 
-    ``e_m``: max |y_perturbed − y_nominal| over the scan (perturbed tracking error);
-    ``e_r``: max |y_perturbed − y_nominal| over ``residual_window`` after the return (perturbed
-    residual vibration); ``velocity_error``: max |v − v_d| of the nominal output in the scan, with
+    ``e_m``: max ``|y_perturbed − y_nominal|`` over the scan (perturbed tracking error);
+    ``e_r``: max ``|y_perturbed − y_nominal|`` over ``residual_window`` after the return (perturbed
+    residual vibration); ``velocity_error``: max ``|v − v_d|`` of the nominal output in the scan, with
     v the sample-to-sample velocity (µm/s); ``t``, ``y_nominal``, ``y_perturbed`` are the traces.
     """
 

@@ -195,7 +195,7 @@ class EndReason(enum.IntEnum):
     STOPPED = 1  #: STOP from the host
     HOST_TIMEOUT = 2  #: no valid frame from the host for longer than host_timeout_ms
     FAULT = 3  #: internal fault (control tick overrun, numeric error)
-    TRACKING_ERROR = 4  #: |reference - position| > SetLimits.max_error; detail = the error (rad)
+    TRACKING_ERROR = 4  #: ``|reference - position|`` > SetLimits.max_error; detail = the error (rad)
     RUNAWAY = 5  #: large drive, encoder moved against it (reversed?); detail = counts moved
     NO_MOTION = 6  #: large drive, encoder did not move (disconnected? stalled?); detail = 0
     SATURATION = 7  #: output at the clamp in most samples for saturation_ms (unstable loop?)
@@ -382,7 +382,7 @@ class SetGains(_Message):
     ``Ts_us`` is the control period in µs (a multiple of ``HelloReply.tick_us``),
     ``loop`` a :class:`LoopType`, ``flags`` bit 0 = feedforward on, ``gamma`` the
     derivative filter pole ``d(k) = gamma d(k-1) + kdd (e(k) - e(k-1))`` (0 = the
-    paper's backward difference, Stojčić eq. 17; |gamma| < 1).
+    paper's backward difference, Stojčić eq. 17; ``|gamma|`` < 1).
     """
 
     TYPE: ClassVar[MsgType] = MsgType.SET_GAINS
@@ -561,7 +561,7 @@ RUN_GAIN_LIMIT = 2.0**23
 
 
 def max_run_gain(counts_per_rev, pwm_max, supply_voltage, Ts=None):
-    """The bound on |kpd|, |kid|, |kdd| that RUN accepts (firmware/PROTOCOL.md "Parameter checks").
+    """The bound on ``|kpd|``, ``|kid|``, ``|kdd|`` that RUN accepts (firmware/PROTOCOL.md "Parameter checks").
 
     Parameters
     ----------

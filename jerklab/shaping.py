@@ -905,7 +905,7 @@ def _box(sig, L):
 
 def _half_sine(sig, L):
     """End-referenced transform of the unit-area half-sine pulse of length L (the jerk pulse of
-    the sine-jerk profiles): (a²/2)(1 + e^{−σL})/(σ² + a²), a = π/L (|.| = π/4 at σ = ja)."""
+    the sine-jerk profiles): (a²/2)(1 + e^{−σL})/(σ² + a²), a = π/L (``|.|`` = π/4 at σ = ja)."""
     if L == 0.0:
         return np.ones_like(sig)
     a = math.pi / L
@@ -1115,7 +1115,7 @@ def _zoh_poles(model, Ts):
 
 def _poly_rows(N, z, j):
     """Row of d^j/dz^j of P(z) = Σ_k u_k z^{N−1−k} (the command's z-transform times z^{N−1}: the
-    same zeros away from 0, and |z^m| <= 1 inside the unit circle, so the rows stay well scaled)."""
+    same zeros away from 0, and ``|z^m|`` <= 1 inside the unit circle, so the rows stay well scaled)."""
     m = (N - 1 - np.arange(N)).astype(float)
     coef = np.ones(N)
     for i in range(j):

@@ -424,8 +424,8 @@ class SimResult:
     metrics : dict (see :func:`simulate`)
     diverged : bool
         The run left every sensible range: a state became NaN/inf (the run stops there and
-        the remaining samples are NaN) or |error| exceeded ``DIVERGENCE_FACTOR`` ×
-        max(|distance|, 1). Its ``settling_time`` is then NaN, never a number.
+        the remaining samples are NaN) or ``|error|`` exceeded ``DIVERGENCE_FACTOR`` ×
+        max(``|distance|``, 1). Its ``settling_time`` is then NaN, never a number.
     """
 
     t: np.ndarray
@@ -821,13 +821,13 @@ def simulate(profile, motor, controller, Ts=None, t_end=None, loop=None, x0=None
         ``settling_time`` (after the end of the profile, inf if never, NaN if the run
         diverged), ``max_abs_voltage``, ``saturated_fraction``, ``diverged`` (and
         ``diverged_at``, s) and, for a flexible load, ``residual_vibration`` (max
-        |load − distance| after the move).
+        ``|load − distance|`` after the move).
 
     Warns
     -----
     RuntimeWarning
         When the run diverged (``result.diverged``): a state went NaN/inf, or the error
-        grew beyond ``DIVERGENCE_FACTOR`` × max(|distance|, 1).
+        grew beyond ``DIVERGENCE_FACTOR`` × max(``|distance|``, 1).
     """
     _check_inputs(profile, motor)
     ctl, cloop, Ts = _law_for(controller, motor, loop, Ts)
