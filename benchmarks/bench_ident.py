@@ -91,7 +91,7 @@ def _closed_loop_cases(n_seeds=6, noise=0.0005):
     import sys
 
     sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "tests"))
-    from test_ident_models import closed_loop  # the same record the tests use
+    from _ident import closed_loop  # the same record the tests use
 
     return [closed_loop(seed=s, noise=noise) for s in range(n_seeds)]
 

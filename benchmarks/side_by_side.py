@@ -112,6 +112,21 @@ def _cases(J):
         u = ident.prbs(2.0, TS, 3.0, offset=6.0)
         th, _ = plant.DCMotor(supply_voltage=12.0).open_loop(u, TS)
         cases["fit_dc_motor pem 2 s"] = lambda: ident.fit_dc_motor(u, th[:-1], TS)
+        recs = {}
+        for dur in (0.5, 8.0):
+            ud = ident.prbs(dur, TS, 3.0, offset=6.0, clock_period=0.02, seed=1)
+            recs[dur] = (ud, plant.DCMotor(noise_std=0.002, seed=1).open_loop(ud, TS)[1][:-1])
+        for dur, (ud, yd) in recs.items():
+            cases[f"fit_dc_motor pem {dur:g} s, 2 mrad"] = lambda ud=ud, yd=yd: ident.fit_dc_motor(
+                ud, yd, TS
+            )
+        uf = ident.prbs(8.0, TS, 4.0, clock_period=0.04, seed=3)
+        yf = plant.DCMotor(coulomb_friction=0.4, offset=0.2, noise_std=0.001, seed=3).open_loop(
+            uf, TS
+        )[1][:-1]
+        cases["fit_dc_motor pem friction+offset+delay 8 s"] = lambda: ident.fit_dc_motor(
+            uf, yf, TS, friction=True, offset=True, delay=True
+        )
     widgets = J.get("jerklab.widgets")
     if widgets is not None and hasattr(widgets, "compute_pole_placement"):
         ws = iter(np.linspace(20.0, 40.0, 10**6))

@@ -9,7 +9,9 @@ an ``Axes`` and returns it, so a notebook or a widget can compose several on one
 * :func:`plot_simulation` — a closed-loop run (``jerklab.sim.SimResult.plot``).
 * :func:`plot_ident_data`, :func:`plot_compare`, :func:`plot_compare_result`,
   :func:`plot_residuals` — identification records, model against record (MATLAB's
-  ``compare``) and the residual tests (MATLAB's ``resid``); ``jerklab.ident``'s ``.plot()``.
+  ``compare``: ``jerklab.ident.compare`` computes a ``CompareResult``, these draw it) and the
+  residual tests (MATLAB's ``resid``); ``jerklab.ident``'s ``.plot()``. This module imports
+  nothing of ``jerklab.ident``: the results carry what is drawn.
 * :func:`plot_tradeoff` — residual vibration against the frequency ratio for profiles,
   input shapers and robust LP commands (``jerklab.shaping.tradeoff``, notebook 09).
 * :func:`plot_recording`, :func:`plot_comparison` — a rig recording, and a recording against
@@ -247,73 +249,72 @@ def plot_ident_data(data, axes=None):
 
     if axes is None:
         _, axes = plt.subplots(2, 1, sharex=True, figsize=(8, 4.5))
-    axes[0].step(data.t, data.u, where="post")
+    axes[0].step(data.time, data.voltage, where="post")
     axes[0].set_ylabel(f"input u ({data.input_unit})")
-    axes[1].plot(data.t, data.y, ".", ms=2)
+    axes[1].plot(data.time, data.position, ".", ms=2)
     axes[1].set_ylabel(f"output y ({data.output_unit})")
     axes[1].set_xlabel("time (s)")
     return axes
 
 
-def plot_compare(data, *fits, ax=None, labels=None, horizon=None):
-    """Measured angle against each fitted model's simulation, with fit % in the legend.
+_COMPARE_FIELDS = ("time", "y", "y_hat", "fit_percent", "horizon", "label")
+
+
+def _check_compare_result(i, result):
+    missing = [f for f in _COMPARE_FIELDS if not hasattr(result, f)]
+    if missing:
+        raise ValueError(
+            f"results[{i}] must be a jerklab.ident.CompareResult (compare(data, fit)), "
+            f"got {type(result).__name__}"
+        )
+
+
+def plot_compare(*results, ax=None, unit: str | None = None):
+    """Measured output and each model's output against time, with fit % in the legend.
 
     Parameters
     ----------
-    data : jerklab.ident.IdentData
-        The record to compare on.
-    *fits : jerklab.ident.MotorFit
-        Models to simulate.
+    *results : jerklab.ident.CompareResult
+        ``compare(data, fit, ...)`` of one or more models on the *same* record: the record is
+        drawn once (from the first), then each model's output.
     ax : matplotlib Axes, optional
-    labels : list of str, optional
-    horizon : None or int
-        None: simulation; k: k-step-ahead prediction (see :func:`jerklab.ident.compare`).
+    unit : str, optional
+        Unit of the output axis; default the results' ``unit`` ("rad", or "rad/s" for speed).
+
+    Returns
+    -------
+    matplotlib.axes.Axes
     """
     import matplotlib.pyplot as plt
 
-    from jerklab.ident import IdentData, compare
-
-    if not isinstance(data, IdentData):
-        raise ValueError(f"data must be an IdentData, got {type(data).__name__}")
+    if not results:
+        raise ValueError("results: give at least one CompareResult")
+    for i, r in enumerate(results):
+        _check_compare_result(i, r)
+    first = results[0]
+    for i, r in enumerate(results[1:], 1):
+        if not (np.array_equal(r.time, first.time) and np.array_equal(r.y, first.y)):
+            raise ValueError(f"results[{i}] compares on another record than results[0]")
     if ax is None:
         _, ax = plt.subplots(figsize=(8, 3.5))
-    ax.plot(data.t, data.y, ".", color="0.3", ms=3, label="measured")
-    for i, f in enumerate(fits):
-        c = compare(data, f, horizon)
-        name = labels[i] if labels else f.method.upper()
-        what = "" if horizon is None else f", {horizon}-step"
-        ax.plot(
-            data.t,
-            c.y_hat,
-            "-",
-            lw=1.5,
-            label=f"{name}: K={f.K:.3g}, τ={f.tau * 1e3:.3g} ms{what}, fit {c.fit_percent:.2f} %",
-        )
+    ax.plot(first.time, first.y, ".", color="0.3", ms=3, label="measured")
+    for r in results:
+        what = "simulation" if r.horizon is None else f"{r.horizon}-step prediction"
+        name = f"{r.label}: " if r.label else ""
+        ax.plot(r.time, r.y_hat, "-", lw=1.5, label=f"{name}{what}, fit {r.fit_percent:.2f} %")
+    output = getattr(first, "output", "angle")
     ax.set_xlabel("time (s)")
-    ax.set_ylabel(f"angle ({data.output_unit})")
+    ax.set_ylabel(f"{output} ({unit or getattr(first, 'unit', 'rad')})")
     ax.legend(loc="best", fontsize=8)
     return ax
 
 
-def plot_compare_result(result, ax=None, unit: str = "rad"):
-    """A ``jerklab.ident.CompareResult``: measured and model output against time, fit % in the legend."""
-    import matplotlib.pyplot as plt
+def plot_compare_result(result, ax=None, unit: str | None = None):
+    """One ``jerklab.ident.CompareResult``: :func:`plot_compare` of it alone."""
+    return plot_compare(result, ax=ax, unit=unit)
 
-    if ax is None:
-        _, ax = plt.subplots(figsize=(8, 3.5))
-    ax.plot(result.t, result.y, ".", color="0.3", ms=3, label="measured")
-    what = "simulation" if result.horizon is None else f"{result.horizon}-step prediction"
-    ax.plot(
-        result.t,
-        result.y_hat,
-        "-",
-        lw=1.5,
-        label=f"{result.label + ': ' if result.label else ''}{what}, fit {result.fit_percent:.2f} %",
-    )
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel(f"angle ({unit})")
-    ax.legend(loc="best", fontsize=8)
-    return ax
+
+_RESIDUAL_FIELDS = ("lags", "autocorr", "auto_bound", "confidence", "crosscorr", "cross_lags")
 
 
 def plot_residuals(analysis, axes=None, title: str | None = None):
@@ -323,10 +324,10 @@ def plot_residuals(analysis, axes=None, title: str | None = None):
     """
     import matplotlib.pyplot as plt
 
-    from jerklab.ident import ResidualAnalysis
-
-    if not isinstance(analysis, ResidualAnalysis):
-        raise ValueError(f"analysis must be a ResidualAnalysis, got {type(analysis).__name__}")
+    if not all(hasattr(analysis, f) for f in _RESIDUAL_FIELDS):
+        raise ValueError(
+            f"analysis must be a jerklab.ident.ResidualAnalysis, got {type(analysis).__name__}"
+        )
     n = 1 if analysis.crosscorr is None else 2
     if axes is None:
         _, axes = plt.subplots(n, 1, figsize=(8, 2.4 * n))

@@ -87,14 +87,18 @@ def test_the_api_pages_come_from_the_package_not_a_list(tmp_path, monkeypatch):
     found; a name a module re-exports is linked to the page that defines it, not documented twice."""
     pkg = tmp_path / "fakepkg"
     (pkg / "sub").mkdir(parents=True)
-    (pkg / "__init__.py").write_text('"""Fake."""\nfrom .alpha import f\n__all__ = ["f"]\n')
+    (pkg / "__init__.py").write_text(
+        '"""Fake."""\nfrom ._hidden import helper\nfrom .alpha import f\n__all__ = ["f", "helper"]\n'
+    )
     (pkg / "alpha.py").write_text(
         '"""Alpha.\n\nMore."""\nLIMIT = 3\n\ndef f(x):\n    """F.\n\n    Parameters\n'
         '    ----------\n    x : float\n        The x.\n    """\n\nclass C:\n    """C."""\n'
     )
-    (pkg / "_hidden.py").write_text('"""Private."""\n')
+    (pkg / "_hidden.py").write_text('"""Private."""\n\ndef helper():\n    """Help."""\n')
     (pkg / "sub" / "__init__.py").write_text('"""Sub."""\n')
-    (pkg / "sub" / "beta.py").write_text('"""Beta."""\nimport math\nfrom ..alpha import C\n')
+    (pkg / "sub" / "beta.py").write_text(
+        '"""Beta."""\nimport math\nfrom .._hidden import helper\nfrom ..alpha import C\n'
+    )
     monkeypatch.syspath_prepend(str(tmp_path))
     src = tmp_path / "src"
     mods = build_book.stage_api(src, package="fakepkg")
@@ -106,13 +110,11 @@ def test_the_api_pages_come_from_the_package_not_a_list(tmp_path, monkeypatch):
     assert ".. autofunction:: f" in alpha and ".. autoclass:: C" in alpha
     assert ".. autodata:: LIMIT" in alpha
     # re-exports link to the defining page; imports of other libraries are not documented
-    assert (
-        ":py:obj:`fakepkg.alpha.f`" in pages["fakepkg"] and "autofunction" not in pages["fakepkg"]
-    )
-    assert (
-        ":py:obj:`fakepkg.alpha.C`" in pages["fakepkg.sub.beta"]
-        and "math" not in pages["fakepkg.sub.beta"]
-    )
+    top, beta = pages["fakepkg"], pages["fakepkg.sub.beta"]
+    assert ":py:obj:`fakepkg.alpha.f`" in top and ".. autofunction:: f" not in top
+    assert ":py:obj:`fakepkg.alpha.C`" in beta and "math" not in beta and "helper" not in beta
+    # a private module's function is documented where an __all__ publishes it, and only there
+    assert ".. autofunction:: helper" in top
     for m in expect:
         assert f":doc:`{m}`" in pages["index"]
 

@@ -15,6 +15,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from jerklab import ident
+from jerklab.ident import diagnostics
 
 ROOT = pathlib.Path(__file__).resolve().parents[1] / "data" / "real" / "dc-generator"
 FILE = ROOT / "dc_generator_every25.csv"
@@ -151,8 +152,9 @@ def test_fit_on_first_half_validated_on_second(halves, fits):
     validation half 75.3 % for the open-drive model with Coulomb run-down (coast='coulomb'), 62.7 % for
     a viscous run-down without friction (coast=True), -35.2 % for Stojčić eq. 1 alone; residual RMS
     216 vs 1179 (speed units). With both viscous and Coulomb run-down (coast=True, friction=True) the
-    viscous rate goes to its bound 0 (tau_coast = 5e7 clock periods) and the fit says so. The bands below keep 5 points of margin; the residuals are not white for any of
-    the models (the rise from rest is S-shaped, which no first-order model follows)."""
+    viscous rate goes to its bound 0 (tau_coast = 5e7 clock periods) and the fit says so. The
+    bands below keep 5 points of margin; the residuals are not white for any of the models (the
+    rise from rest is S-shaped, which no first-order model follows)."""
     _, val = halves
     f, lin, both = fits["coulomb"], fits["linear"], fits["both"]
     assert not f.warnings
@@ -226,7 +228,7 @@ def test_unseparable_input_maps_warn_instead_of_returning_silent_values():
         ident.fit_dc_motor(u, th, 0.01, friction=True, offset=True, dead_zone=True)
     # a rank-deficient covariance (some standard errors 0, others not) is named, not passed on
     par = {"K": 1e16, "tau": 3.9, "friction": 0.0, "offset": 0.0, "dead_zone": 5.0}
-    msgs = ident._diagnose(
+    msgs = diagnostics._diagnose(
         par,
         np.diag([0.0, 1e-3, 0.0, 0.0]),
         ["K", "tau", "offset", "dead_zone"],

@@ -130,11 +130,9 @@ def test_simulation_figure_draws_the_result():
     assert [len(a.get_lines()) for a in fig2.axes] == [len(a.get_lines()) for a in fig.axes]
 
 
-def test_ident_figures_and_aliases():
+def test_ident_figures_draw_the_results():
     from jerklab import ident, plots
 
-    assert ident.plot_compare is plots.plot_compare
-    assert ident.plot_residuals is plots.plot_residuals
     Ts = 0.005
     u = ident.step_input(0.6, Ts, 4.0)
     theta = ident.simulate_dc_motor(32.4, 0.025, Ts, u)
@@ -148,10 +146,31 @@ def test_ident_figures_and_aliases():
     np.testing.assert_allclose(ax.get_lines()[1].get_ydata(), c.y_hat)
     assert f"{c.fit_percent:.2f} %" in ax.get_lines()[1].get_label()
     assert ax.get_xlabel() == "time (s)" and ax.get_ylabel() == "angle (rad)"
+    # the speed comparison carries its own unit
+    s = ident.compare(d, fit, output="speed")
+    assert s.plot().get_ylabel() == "speed (rad/s)"
+    # ident.plot_compare computes the comparisons, plots.plot_compare only draws them
+    pem = ident.fit_dc_motor(u, theta, Ts)
+    ax2 = ident.plot_compare(d, fit, pem, horizon=5)
+    ax3 = plots.plot_compare(ident.compare(d, fit, 5), ident.compare(d, pem, 5))
+    assert len(ax2.get_lines()) == len(ax3.get_lines()) == 3
+    for a, b in zip(ax2.get_lines(), ax3.get_lines()):
+        np.testing.assert_array_equal(a.get_ydata(), b.get_ydata())
+    assert "5-step prediction" in ax3.get_lines()[2].get_label()
+    with pytest.raises(ValueError, match="results"):
+        plots.plot_compare(d, fit)  # a record and a model: compute compare(d, fit) first
+    with pytest.raises(ValueError, match="another record"):
+        plots.plot_compare(c, ident.compare(d[:50], fit))
     with pytest.raises(ValueError, match="data"):
-        plots.plot_compare((u, theta), fit)
+        ident.plot_compare((u, theta), fit)
     with pytest.raises(ValueError, match="analysis"):
         plots.plot_residuals(np.zeros(3))
+    with pytest.raises(ValueError, match="analysis"):
+        ident.plot_residuals(np.zeros(3))
+    r = ident.resid(d, pem)
+    axes = ident.plot_residuals(r, title="residuals")
+    np.testing.assert_array_equal(axes[0].containers[0].markerline.get_ydata(), r.autocorr)
+    assert axes[0].get_title() == "residuals"
 
 
 def test_recording_figures_and_alias():

@@ -88,8 +88,8 @@ def module_members(modname: str, documented: set[str]) -> tuple[list[str], list[
     """``(own, reexported)`` names of a public module.
 
     ``own``: what its page documents -- the classes and functions it defines (or that a private
-    module defines and it publishes) and the data its source assigns; ``reexported``: ``(name,
-    home)`` for names defined by another public module ``home`` in ``documented``.
+    module defines and its ``__all__`` publishes) and the data its source assigns; ``reexported``:
+    ``(name, home)`` for names defined by another public module ``home`` in ``documented``.
     """
     mod = importlib.import_module(modname)
     listed = getattr(mod, "__all__", None)
@@ -111,8 +111,8 @@ def module_members(modname: str, documented: set[str]) -> tuple[list[str], list[
         elif home.split(".")[0] == modname.split(".")[0]:
             if home in documented and name in vars(importlib.import_module(home)):
                 reexported.append((name, home))
-            elif home not in documented:
-                own.append(name)  # defined in a private module, published here
+            elif home not in documented and listed is not None:
+                own.append(name)  # defined in a private module, published by this __all__
     return own, reexported
 
 
