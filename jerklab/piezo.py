@@ -12,16 +12,15 @@ Units follow the paper: input in V, output in µm, time in s.
 
 How the discrete formulation relates to the paper
 -------------------------------------------------
-The paper sets terminal states of a Jordan-augmented *continuous* model (Xu & Meckl
-eqs. 14.1, 15.1, 16, 17). Used on a ZOH model those leave mode-1 ringing and a velocity error (a staircase input acts like the ramp
-delayed by Ts/2), and the augmented system is badly conditioned. The equivalent discrete condition
-is used instead: a command is *m-th order robust* for a mode with discrete pole ``z_i`` when the
-z-transform of the whole command (including its unbounded ramp tail, Xu & Meckl eqs. 11, 12
-in z) and its first ``m`` derivatives vanish at ``z_i`` (Bhat & Miu's condition, Xu & Meckl
-eqs. 8, 13, mapped by ``z = e^{sTs}``).
-Order 0 is the nominal zero-vibration condition. Because the model has no rigid-body mode, these
-conditions fix the terminal state completely: after the ramp-up the output is exactly the steady
-ramp, after the return the state is exactly zero.
+The paper sets terminal states of a Jordan-augmented *continuous* model (Xu & Meckl eqs. 14.1, 15.1,
+16, 17). Used on a ZOH model those leave mode-1 ringing and a velocity error (a staircase input acts
+like the ramp delayed by Ts/2), and the augmented system is badly conditioned. The equivalent
+discrete condition is used instead: a command is *m-th order robust* for a mode with discrete pole
+``z_i`` when the z-transform of the whole command (including its unbounded ramp tail, Xu & Meckl
+eqs. 11, 12 in z) and its first ``m`` derivatives vanish at ``z_i`` (Bhat & Miu's condition,
+Xu & Meckl eqs. 8, 13, mapped by ``z = e^{sTs}``). Order 0 is the nominal zero-vibration condition.
+Because the model has no rigid-body mode, these conditions fix the terminal state completely: after
+the ramp-up the output is exactly the steady ramp, after the return the state is exactly zero.
 """
 
 from __future__ import annotations
@@ -413,8 +412,8 @@ class ScanSpec:
     Ts : float
         Sampling time, s (paper: 0.2 ms).
     F_max : float
-        Actuator limit ``|u|`` <= F_max of Xu & Meckl eq. 5, V. Not given by the paper; 38 V (``DEFAULT_F_MAX``)
-        reproduces Table II's cycle times with mode 1 robustified.
+        Actuator limit ``|u|`` <= F_max of Xu & Meckl eq. 5, V. Not given by the paper; 38 V
+        (``DEFAULT_F_MAX``) reproduces Table II's cycle times with mode 1 robustified.
     velocity_tolerance : float
         Velocity tracking tolerance in the scan, µm/s (paper: 0.1 µm/s). With ``e_allow = 0`` the
         shaping imposes the zero-vibration conditions exactly and this is the acceptance bound

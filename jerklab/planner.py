@@ -4,11 +4,11 @@ ASCII spelling for grep: Stojcic eqs. 2–4, 15.
 
 Four planners share one :class:`Profile` interface (see ``docs/INTERFACES.md``):
 
-* :func:`plan_sine_jerk` -- Stojčić (2015) exactly as published (Stojčić eqs. 2–4, Fig. 2):
-  the jerk is one full sine period of peak ``max_jerk`` while accelerating, a cruise, and the
-  mirrored period while decelerating.  The peak jerk is *always* ``max_jerk``; when the acceleration limit binds, the
-  published algorithm shortens the pulse instead of adding an acceleration plateau, which makes it
-  slow (up to hundreds of times slower than a time-optimal planner on the same limits).
+* :func:`plan_sine_jerk` -- Stojčić (2015) exactly as published (Stojčić eqs. 2–4, Fig. 2): the jerk
+  is one full sine period of peak ``max_jerk`` while accelerating, a cruise, and the mirrored period
+  while decelerating.  The peak jerk is *always* ``max_jerk``; when the acceleration limit binds,
+  the published algorithm shortens the pulse instead of adding an acceleration plateau, which makes
+  it slow (up to hundreds of times slower than a time-optimal planner on the same limits).
 * :func:`plan_sine_jerk_optimal` -- the time-optimal profile made of half-sine jerk pulses of peak
   ``max_jerk``, with an acceleration plateau and a cruise where they help.  A half-sine jerk pulse of
   peak J and length Tj changes the acceleration by 2 J Tj / pi, exactly like a constant jerk 2J/pi

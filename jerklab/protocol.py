@@ -195,7 +195,7 @@ class EndReason(enum.IntEnum):
     STOPPED = 1  #: STOP from the host
     HOST_TIMEOUT = 2  #: no valid frame from the host for longer than host_timeout_ms
     FAULT = 3  #: internal fault (control tick overrun, numeric error)
-    TRACKING_ERROR = 4  #: ``|reference - position|`` > SetLimits.max_error; detail = the error (rad)
+    TRACKING_ERROR = 4  #: ``|reference - position|`` > SetLimits.max_error; detail = error (rad)
     RUNAWAY = 5  #: large drive, encoder moved against it (reversed?); detail = counts moved
     NO_MOTION = 6  #: large drive, encoder did not move (disconnected? stalled?); detail = 0
     SATURATION = 7  #: output at the clamp in most samples for saturation_ms (unstable loop?)
@@ -561,7 +561,9 @@ RUN_GAIN_LIMIT = 2.0**23
 
 
 def max_run_gain(counts_per_rev, pwm_max, supply_voltage, Ts=None):
-    """The bound on ``|kpd|``, ``|kid|``, ``|kdd|`` that RUN accepts (firmware/PROTOCOL.md "Parameter checks").
+    """The bound on ``|kpd|``, ``|kid|``, ``|kdd|`` that RUN accepts.
+
+    See firmware/PROTOCOL.md, "Parameter checks".
 
     Parameters
     ----------

@@ -988,12 +988,12 @@ def robust_move(distance, model=None, Ts=0.005, order=0, u_max=None, max_samples
     """Time-optimal (robust) voltage command moving the flexible motor by ``distance`` rad, rest to rest.
 
     Xu & Meckl's formulation (Xu & Meckl eqs. 3, 5, 6, 13) generalized from the piezo scan to a
-    positioning move: the smallest horizon N for which voltage samples with ``|u_k| <= u_max`` (Xu & Meckl eq. 5, the supply)
-    meet :func:`robust_move_rows` — rest at ``distance``, the mode robust to ``order`` (0, 1,
-    2: zero placement of multiplicity 1, 2, 3). Bisection on N over LP feasibility problems,
-    with the NNLS screen and the HiGHS LP of :mod:`jerklab.piezo` (``solver`` as there:
-    ``"lp"``, ``"highs"`` or ``"lsq"`` for Xu & Meckl eq. 6 literally). ``order=None`` ignores
-    the mode (rest of the rigid motor only): the baseline of the move-time penalty.
+    positioning move: the smallest horizon N for which voltage samples with ``|u_k| <= u_max``
+    (Xu & Meckl eq. 5, the supply) meet :func:`robust_move_rows` — rest at ``distance``, the mode robust
+    to ``order`` (0, 1, 2: zero placement of multiplicity 1, 2, 3). Bisection on N over LP
+    feasibility problems, with the NNLS screen and the HiGHS LP of :mod:`jerklab.piezo` (``solver``
+    as there: ``"lp"``, ``"highs"`` or ``"lsq"`` for Xu & Meckl eq. 6 literally). ``order=None``
+    ignores the mode (rest of the rigid motor only): the baseline of the move-time penalty.
 
     Parameters
     ----------

@@ -41,6 +41,7 @@ _spec.loader.exec_module(check_citations)
         "(Stojčić eqs. 6, 9)",
         "Stojcic eqs. 1, 16–18.",
         "the PID of Stojčić\n    eqs. 17, 18 (wrapped docstring)",
+        "(Xu & Meckl eqs. 14.1, 15.1,\n    16, 17 wrapped inside the list)",
         'design=dict(method="eq13")',
         "frequency 2 * pi * f; a sequence of 5 requests",
     ],
@@ -112,6 +113,7 @@ def test_package_citations_follow_the_form():
         ("15.1–17", ["15.1", "16", "17"]),
         ("7 and 8", ["7", "8"]),
         ("1, 16–18", ["1", "16", "17", "18"]),
+        ("14.1, 15.1,\n    16, 17", ["14.1", "15.1", "16", "17"]),
     ],
 )
 def test_lists_and_ranges_expand(numbers, expanded):

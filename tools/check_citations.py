@@ -7,7 +7,8 @@ The form (CONTRIBUTING.md): the paper's name, then one equation or a list of the
     Stojčić eqs. 16–18      Stojčić eqs. 12, 13     Xu & Meckl eqs. 3–6, 13  Yang eqs. 7 and 8
 
 A list is ``eqs.`` followed by two or more numbers: single equations and ranges (an en dash, the
-first number below the second) separated by ", " or " and ". A sub-numbered equation of the paper
+first number below the second) separated by ", " or " and " (a docstring may wrap the line
+after either). A sub-numbered equation of the paper
 (Xu & Meckl eq. 15.1) is one number. Offenders are citations without the paper's name
 ("eq. 11"), a list or range after the singular "eq." ("eq. 16–18", "eq. 1, 8"), the plural with
 one number ("eqs. 12"), a hyphen or slash between numbers ("eqs. 16-18", "eq. 8/13"), a range
@@ -52,11 +53,12 @@ _ITEM = rf"{_NUM}(?:–{_NUM})?"
 _NO_MORE = r"(?![\d.]*\s*(?:[-–/,]\s*\d|and\s+\d|&\s*\d))"
 #: the accepted forms, anchored at the citation's start (``eq.`` one number; ``eqs.`` a list)
 SINGLE = re.compile(rf"eq\. ({_NUM}){_NO_MORE}")
-PLURAL = re.compile(rf"eqs\. ({_ITEM}(?:(?:, |,? and ){_ITEM})*){_NO_MORE}")
+_SEP = r"(?:,\s+(?:and\s+)?|\s+and\s+)"  # ", " or " and ", a line break allowed after either
+PLURAL = re.compile(rf"eqs\. ({_ITEM}(?:{_SEP}{_ITEM})*){_NO_MORE}")
 #: the paper's name right before the citation (possibly across a line break in a docstring)
 NAMED = re.compile(r"(" + PAPERS + r")(?:'s)?\s+$")
 #: a well-formed citation with its paper, for --find and the THEORY.md check
-WELL_FORMED = re.compile(rf"({PAPERS})(?:'s)?\s+(eqs?\.) ({_ITEM}(?:(?:, |,? and ){_ITEM})*)")
+WELL_FORMED = re.compile(rf"({PAPERS})(?:'s)?\s+(eqs?\.) ({_ITEM}(?:{_SEP}{_ITEM})*)")
 
 
 def _key(num: str) -> tuple[int, int]:
@@ -70,7 +72,7 @@ def expand(numbers: str) -> list[str]:
     A range runs over the whole numbers from its first to its last ("15.1–17" gives 15.1, 16, 17).
     """
     out = []
-    for item in re.split(r", and |, | and ", numbers):
+    for item in re.split(_SEP, numbers):
         lo, dash, hi = item.partition("–")
         if not dash:
             out.append(lo)
@@ -83,7 +85,7 @@ def expand(numbers: str) -> list[str]:
 
 def _plural_ok(numbers: str) -> bool:
     """A plural citation names two or more equations and each range rises."""
-    items = re.split(r", and |, | and ", numbers)
+    items = re.split(_SEP, numbers)
     for item in items:
         lo, dash, hi = item.partition("–")
         if dash and not _key(lo) < _key(hi):
