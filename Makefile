@@ -4,8 +4,9 @@
 #   make test   set up .venv and run every test (unit, property, notebooks, firmware, browser)
 #   make app    the standalone tuning page for a class (Voila, virtual rig) on http://127.0.0.1:8866/
 #   make bench  print the benchmark tables and record them as JSON in benchmarks/results/
-#   make book   static HTML of the executed notebooks (build/book/html/index.html); reuses the notebooks
-#               make test executed (build/executed/), Sphinx warnings are errors
+#   make book   static HTML of the executed notebooks and the API reference built from the docstrings
+#               (build/book/html/index.html, api/index.html); reuses the notebooks make test executed
+#               (build/executed/), Sphinx warnings are errors
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin

@@ -157,7 +157,7 @@ _MAX_SEG = 12  # most segments of a profile (2 brake + 8 + a cruise)
 @_jit
 def _pvalue(D, i, deg, x):
     """Value of row ``i`` at ``x`` (Horner) and whether it is at round-off level: within ``1e-13`` of
-    the sum of |terms| at ``x``, the round-off scale of the value (both in one pass)."""
+    the sum of ``|terms|`` at ``x``, the round-off scale of the value (both in one pass)."""
     f = 0.0
     r = 0.0
     ax = abs(x)
@@ -301,7 +301,7 @@ def _no_root5(c0, c1, c2, c3, c4, c5, lo, hi):
 
     The Taylor coefficients ``t_k`` at ``lo`` (repeated synthetic division) bound the polynomial on
     the interval, ``h = hi - lo``: ``t_0 + sum(min(t_k h^k, 0)) <= p <= t_0 + sum(max(t_k h^k, 0))``.
-    The bound must clear 0 by ``1e-11`` of the sum of |terms| at ``|lo| + h`` (the round-off of the
+    The bound must clear 0 by ``1e-11`` of the sum of ``|terms|`` at ``|lo| + h`` (the round-off of the
     shift, and the root search's own test, ``1e-13`` of the same scale at most, with a wide margin).
     """
     h = hi - lo

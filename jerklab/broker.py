@@ -23,7 +23,7 @@ object per line (localhost only by default):
 
 A client that disconnects while queued leaves the queue. A run whose client went away
 still finishes on the rig (a move cannot be abandoned half-way), and its result is dropped.
-The broker refuses a design whose sampled loop has |z| ≥ 1 unless ``force`` is set
+The broker refuses a design whose sampled loop has ``|z|`` ≥ 1 unless ``force`` is set
 (:func:`jerklab.tuning.check_runnable`), so no kernel can run away a motor.
 """
 

@@ -1,12 +1,14 @@
 """The ``jerklab`` command (installed by pip on every OS; ``python -m jerklab`` is the same).
 
-jerklab lab [FOLDER]         copy the notebooks, worksheets and data into your working folder
-                             (first use; your edits are never overwritten), open JupyterLab there
-jerklab app [...]            the class page (the tuning panel served by Voilà): python -m jerklab.app
-jerklab rig ports            which serial port is the Uno?
-jerklab rig check PORT       bring-up check of a rig before closing the loop
-jerklab rig serve [--tcp N]  the virtual rig on a pseudo-terminal (Linux, macOS) or a TCP port
-jerklab --version
+Commands::
+
+    jerklab lab [FOLDER]         copy the notebooks, worksheets and data into your working folder
+                                 (first use; your edits are never overwritten), open JupyterLab there
+    jerklab app [...]            the class page (the tuning panel served by Voilà): python -m jerklab.app
+    jerklab rig ports            which serial port is the Uno?
+    jerklab rig check PORT       bring-up check of a rig before closing the loop
+    jerklab rig serve [--tcp N]  the virtual rig on a pseudo-terminal (Linux, macOS) or a TCP port
+    jerklab --version
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import argparse
 import os
 import subprocess
 import sys
+import textwrap
 from pathlib import Path
 
 from jerklab import __version__
@@ -125,7 +128,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(
         prog="jerklab",
         description=__doc__.split("\n")[0],
-        epilog="\n".join(__doc__.split("\n")[2:]),
+        epilog=textwrap.dedent("\n".join(__doc__.split("\n")[4:])),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     ap.add_argument("--version", action="version", version=f"jerklab {__version__}")

@@ -1,6 +1,6 @@
 """Feedforward + pole-placement PID of Stojčić (2015) §3 and §4B, and its analysis.
 
-ASCII spelling for grep: Stojcic (Stojcic eq. 11, Stojcic eq. 13, Stojcic eq. 16).
+ASCII spelling for grep: Stojcic (Stojcic eqs. 11, 13, 16).
 
 * :func:`pole_placement_pid` — Stojčić eq. 11: PID on the **position** plant
   P(s) = K/(s(τs+1)); the closed loop ``τs³ + (1+K kd)s² + K kp s + K ki`` is matched to
@@ -9,14 +9,14 @@ ASCII spelling for grep: Stojcic (Stojcic eq. 11, Stojcic eq. 13, Stojcic eq. 16
   **velocity** plant P_v(s) = K/(τs+1) that §4B actually controls: there a PID gives the
   second-order loop ``(τ + K kd)s² + (1 + K kp)s + K ki``, so Stojčić eq. 11's gains do not put
   the poles where Stojčić eq. 11 says (the paper does not notice).
-* :meth:`Gains.discretize` — Stojčić eq. 12, Stojčić eq. 13 (trapezoidal integral, backward derivative).
+* :meth:`Gains.discretize` — Stojčić eqs. 12, 13 (trapezoidal integral, backward derivative).
   At Ts = 5 ms this "continuous design, then discretize" route leaves the designed
-  poles and goes unstable near ωn = 50 rad/s (|z| = 1.16).
+  poles and goes unstable near ωn = 50 rad/s (``|z|`` = 1.16).
 * :func:`discrete_pole_placement_pid` — design directly in z: the desired s-poles are
   mapped by z = e^{s Ts} and the gains solved on the exact ZOH plant, so the closed-loop
   poles land where asked at any Ts.
-* :class:`Feedforward` (Stojčić eq. 8, Stojčić eq. 16) and :class:`DigitalController`
-  (Stojčić eq. 16, Stojčić eq. 17, Stojčić eq. 18) with the
+* :class:`Feedforward` (Stojčić eqs. 8, 16) and :class:`DigitalController`
+  (Stojčić eqs. 16–18) with the
   output limit, anti-windup and bumpless start the paper leaves out.
 * :class:`PositionLoop`, :class:`VelocityLoop` — open/closed loop as python-control
   systems, poles in s and z, margins and fast responses (used by the tuning widgets).
@@ -64,10 +64,10 @@ __all__ = [
 # ---------------------------------------------------------------------------
 @dataclass(frozen=True)
 class DiscreteGains:
-    """Discrete PID gains of Stojčić eq. 12, Stojčić eq. 13, Stojčić eq. 14 at sampling time ``Ts``.
+    """Discrete PID gains of Stojčić eqs. 12–14 at sampling time ``Ts``.
 
     ``B(z) = kpd + kid/(1 − z⁻¹) + kdd (1 − z⁻¹)/(1 − γ z⁻¹)``; ``gamma`` = 0 is the paper's
-    backward derivative, a non-zero ``gamma`` (|γ| < 1) is a first-order derivative filter
+    backward derivative, a non-zero ``gamma`` (``|γ|`` < 1) is a first-order derivative filter
     ``d(k) = γ d(k−1) + kdd (e(k) − e(k−1))`` used by the full z-domain placement.
     """
 
@@ -373,7 +373,7 @@ def paper_error_scale(Ts=paper.TS, encoder_ppr=paper.ENCODER_PPR, decoding=paper
 # feedforward and the digital controller
 # ---------------------------------------------------------------------------
 class Feedforward:
-    """Plant-inverse feedforward, Stojčić eq. 7, Stojčić eq. 8, Stojčić eq. 16: ``u_F = (τ ε + ω)/K``.
+    """Plant-inverse feedforward, Stojčić eqs. 7, 8, 16: ``u_F = (τ ε + ω)/K``.
 
     The inverse of P_v(s), so the same for the position and the velocity loop.
     """
@@ -398,7 +398,7 @@ _LOOPS = ("position", "velocity")
 
 
 class DigitalController:
-    """Feedforward + discrete PID run sample by sample (Stojčić eq. 16, Stojčić eq. 17, Stojčić eq. 18).
+    """Feedforward + discrete PID run sample by sample (Stojčić eqs. 16–18).
 
     ``p(k) = kpd e(k)``, ``i(k) = i(k−1) + kid e(k)``, ``d(k) = γ d(k−1) + kdd (e(k) − e(k−1))``
     (γ = 0: Stojčić eq. 17), ``u = u_F + p + i + d`` (Stojčić eq. 18 plus the feedforward of
@@ -730,7 +730,7 @@ class _Loop:
         return self._tf(self._Ln, self._char)
 
     def disturbance_tf(self):
-        """Input-referred disturbance w (V) → output: ``P/(1 + L)`` (Stojčić eq. 6, Stojčić eq. 9)."""
+        """Input-referred disturbance w (V) → output: ``P/(1 + L)`` (Stojčić eqs. 6, 9)."""
         return self._tf(np.polymul(self._Pn, self._Cd), self._char)
 
     def sensitivity(self):
@@ -761,7 +761,7 @@ class _Loop:
             return np.log(p.astype(complex)) / self.Ts
 
     def max_pole_radius(self) -> float:
-        """Largest |z| (sampled loop) — stable iff < 1."""
+        """Largest ``|z|`` (sampled loop) — stable iff < 1."""
         return float(np.max(np.abs(self.poles_z())))
 
     def max_pole_real(self) -> float:

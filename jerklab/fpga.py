@@ -2,7 +2,7 @@
 
 The paper's system (its Fig. 1): a *speed generator* that, every refresh period
 ``tc``, advances a counter ``n`` and computes the speed from integer formulas
-(Yang eq. 5 to Yang eq. 8), converts it to a pulse frequency ``f = v / k`` and a divider
+(Yang eqs. 5–8), converts it to a pulse frequency ``f = v / k`` and a divider
 count ``cycle = f_clk / f``; a *pulse divider* (the Verilog printed in the paper)
 counts the 50 MHz clock and emits one pulse of 50 % duty every ``cycle`` clocks.
 A stepper/servo drive in position mode moves ``k`` (µm) per pulse.
@@ -16,13 +16,13 @@ The reconstruction of the paper's formulas (docs/THEORY.md, Yang), for accelerat
 
 * Yang eq. 5 (``n <= N``): ``v = 2 V tc^2 n^2 / T^2 = V n^2 / (2 N^2)``;
 * Yang eq. 6 (``N < n <= 2N``): ``v = V (4 T n tc - 2 tc^2 n^2 - T^2) / T^2 = V - V (2N - n)^2 / (2 N^2)``;
-* Yang eq. 7 and Yang eq. 8 (paper set-up, V = 20000 µm/s, N = 2500): ``v = 16 n^2 / 10000`` and
+* Yang eqs. 7, 8 (paper set-up, V = 20000 µm/s, N = 2500): ``v = 16 n^2 / 10000`` and
   ``v = 20000 - (10000 - 2n)^2 / 2500``, Verilog integer division (floor for these
   non-negative operands).
 
 The general integer form used here reduces ``V / (2 N^2)`` to lowest terms ``a / b``
 and computes ``floor(a n^2 / b)``; for the paper set-up this is bit-identical to
-Yang eq. 7 and Yang eq. 8 (same rational number), which :func:`paper_speed` keeps verbatim.
+Yang eqs. 7, 8 (same rational number), which :func:`paper_speed` keeps verbatim.
 
 Things the paper leaves open or gets wrong, and what is done here:
 
@@ -80,7 +80,7 @@ class HardwareLimitError(ValueError):
 
 
 def paper_speed(n):
-    """Yang eq. 7 and Yang eq. 8 verbatim (µm/s): the paper's set-up, Verilog integer division.
+    """Yang eqs. 7, 8 verbatim (µm/s): the paper's set-up, Verilog integer division.
 
     ``v = 16 n^2 / 10000`` for ``n <= 2500`` (Yang eq. 7, ``div_3_result``),
     ``v = 20000 - (10000 - 2n)^2 / 2500`` for ``2500 < n <= 5000`` (Yang eq. 8, ``div_1_quo``).
@@ -413,7 +413,7 @@ class YangSCurve:
 
     # ------------------------------------------------------------------ speed generator
     def speed(self, n):
-        """Speed (µm/s) at counter ``n``: Yang eq. 5 and Yang eq. 6 in integer form (floor division).
+        """Speed (µm/s) at counter ``n``: Yang eqs. 5, 6 in integer form (floor division).
 
         ``v = floor(a n^2 / b)`` for ``n <= N``, ``v = V - floor(a (2N - n)^2 / b)`` for
         ``N < n <= 2N``, ``a/b = V/(2N^2)`` in lowest terms; 0 below ``start_count``.
@@ -779,7 +779,7 @@ def _whole_ticks(x, tc):
 
 
 def min_start_count(max_velocity, half_counts, min_speed):
-    """Smallest counter ``n`` whose integer speed (Yang eq. 5, Yang eq. 6) is ``>= min_speed`` µm/s.
+    """Smallest counter ``n`` whose integer speed (Yang eqs. 5, 6) is ``>= min_speed`` µm/s.
 
     ``a / b = V / (2 N^2)`` in lowest terms; on the first half ``floor(a n^2 / b) >= s`` holds
     from ``n = ceil(sqrt(s b / a))`` on; above ``V / 2`` the second half
@@ -944,7 +944,7 @@ def yang_axes(
 ) -> YangAxes:
     """Map a synchronized multi-axis S-curve plan (µm, s) to one Yang generator per axis.
 
-    Yang's speed generator (Yang eq. 5, Yang eq. 6) runs the linear-jerk S-curve *without* an
+    Yang's speed generator (Yang eqs. 5, 6) runs the linear-jerk S-curve *without* an
     acceleration plateau, fixed by three integers per axis: the peak speed ``V`` (µm/s), the
     counts per half acceleration ``N = T / (2 tc)`` and the cruise ticks ``C``; its move lasts
     ``4 N + C`` refresh ticks and covers ``V (2 N + C) tc`` µm.  The mapping:
@@ -1019,7 +1019,7 @@ def yang_axes(
         if ta > 1e-9 * tj:
             raise ValueError(
                 f"plan axis {i} has an acceleration plateau (ta = {ta!r} s): Yang's generator "
-                f"(Yang eq. 5, Yang eq. 6) has none; raise that axis's max_accel to "
+                f"(Yang eqs. 5, 6) has none; raise that axis's max_accel to "
                 f"sqrt(max_jerk * max_velocity) or more"
             )
         rows.append(max(_whole_ticks(tj, tc), 1))

@@ -1,9 +1,9 @@
 """The control law in one place: PID with clamp and anti-windup, PWM quantizer, encoder, ZOH.
 
-Stojčić (ASCII: Stojcic) 2015, §3–§4: the discrete PID of Stojčić eq. 17 and Stojčić eq. 18 with
+Stojčić (ASCII: Stojcic) 2015, §3–§4: the discrete PID of Stojčić eqs. 17, 18 with
 the feedforward of Stojčić eq. 16, run at ``Ts`` on encoder readings and applied through a
 PWM H-bridge; the motor of Stojčić eq. 1 sampled with a zero-order hold. In ASCII, for grep:
-Stojcic eq. 1, Stojcic eq. 16, Stojcic eq. 17, Stojcic eq. 18.
+Stojcic eqs. 1, 16–18.
 
 Every Python user of the law calls these functions: :class:`jerklab.controller.DigitalController`
 (one sample at a time), the compiled kernels of :mod:`jerklab.sim` (one run, and many plants
@@ -23,7 +23,7 @@ Forms
 
 The rules
 ---------
-PID (Stojčić eq. 17, Stojčić eq. 18, feedforward Stojčić eq. 16)::
+PID (Stojčić eqs. 17, 18, feedforward Stojčić eq. 16)::
 
     p(k) = kpd e(k)
     i(k) = i(k-1) + kid e(k)

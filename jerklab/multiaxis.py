@@ -1,7 +1,7 @@
 """Several axes that start and arrive together: time and phase synchronization.
 
 ASCII spelling for grep: the per-axis profiles are those of ``jerklab.planner`` (Stojcic eq. 2
-for the sine-jerk pulse shape, the linear-jerk S-curve of Yang eq. 5 and Yang eq. 6).
+for the sine-jerk pulse shape, the linear-jerk S-curve of Yang eqs. 5, 6).
 
 :func:`plan_multi_axis` plans a rest-to-rest move of ``n`` axes (a gantry, Yang et al.'s x–y
 stand) from one set of distances and per-axis limits, with one of the single-axis planners of
@@ -40,7 +40,7 @@ References
 M. J. Stojčić, "Design and implementation of a digital positioning system with controlled jerk",
 Facta Universitatis, 2015 (the sine-jerk pulse, Stojčić eq. 2).
 X. Yang, P. Ye, Y. Pan, Z. Ma, "The implementation of S-curve acceleration and deceleration using
-FPGA", 2013 (the linear-jerk S-curve of Yang eq. 5 and Yang eq. 6; the x–y stand of §4, Fig. 9).
+FPGA", 2013 (the linear-jerk S-curve of Yang eqs. 5, 6; the x–y stand of §4, Fig. 9).
 """
 
 from __future__ import annotations

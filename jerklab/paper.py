@@ -14,7 +14,7 @@ Sources (ASCII spellings for grep: Stojcic, Xu & Meckl, Yang)
   application" (Table I: the linear PZT model of Xu & Meckl eq. 1; the 0.2 ms sampling time;
   the 0.2 % CNIA tolerance of their Fig. 2).
 * G. Yang, Z. Ye, Y. Pan, Z. Ma, "The implementation of S-curve acceleration and deceleration
-  using FPGA", TELKOMNIKA 11(1), 2013 (§3: the test set-up of Yang eq. 7 and Yang eq. 8).
+  using FPGA", TELKOMNIKA 11(1), 2013 (§3: the test set-up of Yang eqs. 7, 8).
 
 Examples
 --------

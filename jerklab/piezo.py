@@ -1,10 +1,9 @@
 """PZT actuator model and robust time-optimal command shaping (Xu & Meckl).
 
 Implements the linear part of the piezo model (Xu & Meckl eq. 1, Table I), its ZOH model at
-Ts = 0.2 ms, time-optimal command shaping (Xu & Meckl eq. 3, Xu & Meckl eq. 4, Xu & Meckl eq. 5,
-Xu & Meckl eq. 6) as a linear program per horizon with the minimum horizon found by bisection,
-robust shaping for velocity tracking (Xu & Meckl eq. 7, Xu & Meckl eq. 8, Xu & Meckl eq. 13,
-Xu & Meckl eq. 16, Xu & Meckl eq. 17) with the outer search over the scan start y(T)
+Ts = 0.2 ms, time-optimal command shaping (Xu & Meckl eqs. 3–6) as a linear program per
+horizon with the minimum horizon found by bisection, robust shaping for velocity tracking
+(Xu & Meckl eqs. 7, 8, 13, 16, 17) with the outer search over the scan start y(T)
 (Xu & Meckl eq. 18, Fig. 4), the time-energy-optimal return (Xu & Meckl eq. 19, Fig. 7),
 the evaluation under a natural-frequency perturbation (Table II) and a closed loop with
 hysteresis compensation (Figs. 8, 9).
@@ -13,17 +12,15 @@ Units follow the paper: input in V, output in µm, time in s.
 
 How the discrete formulation relates to the paper
 -------------------------------------------------
-The paper sets terminal states of a Jordan-augmented *continuous* model (Xu & Meckl eq. 14.1,
-Xu & Meckl eq. 15.1, Xu & Meckl eq. 16, Xu & Meckl eq. 17). Used on a
-ZOH model those leave mode-1 ringing and a velocity error (a staircase input acts like the ramp
-delayed by Ts/2), and the augmented system is badly conditioned. The equivalent discrete condition
-is used instead: a command is *m-th order robust* for a mode with discrete pole ``z_i`` when the
-z-transform of the whole command (including its unbounded ramp tail, Xu & Meckl eq. 11 and Xu & Meckl eq. 12
-in z) and its first
-``m`` derivatives vanish at ``z_i`` (Bhat & Miu's condition, Xu & Meckl eq. 8 and Xu & Meckl eq. 13, mapped by ``z = e^{sTs}``).
-Order 0 is the nominal zero-vibration condition. Because the model has no rigid-body mode, these
-conditions fix the terminal state completely: after the ramp-up the output is exactly the steady
-ramp, after the return the state is exactly zero.
+The paper sets terminal states of a Jordan-augmented *continuous* model (Xu & Meckl eqs. 14.1, 15.1,
+16, 17). Used on a ZOH model those leave mode-1 ringing and a velocity error (a staircase input acts
+like the ramp delayed by Ts/2), and the augmented system is badly conditioned. The equivalent
+discrete condition is used instead: a command is *m-th order robust* for a mode with discrete pole
+``z_i`` when the z-transform of the whole command (including its unbounded ramp tail, Xu & Meckl
+eqs. 11, 12 in z) and its first ``m`` derivatives vanish at ``z_i`` (Bhat & Miu's condition,
+Xu & Meckl eqs. 8, 13, mapped by ``z = e^{sTs}``). Order 0 is the nominal zero-vibration condition.
+Because the model has no rigid-body mode, these conditions fix the terminal state completely: after
+the ramp-up the output is exactly the steady ramp, after the return the state is exactly zero.
 """
 
 from __future__ import annotations
@@ -252,7 +249,7 @@ def _dz_power(k: np.ndarray, z: complex, j: int) -> np.ndarray:
 
 
 def _dz_step_tail(M: int, z: complex, j: int) -> complex:
-    """d^j/dz^j of sum_{k>=M} z^-k = z^-M · z/(z-1) (analytic continuation to |z| < 1)."""
+    """d^j/dz^j of sum_{k>=M} z^-k = z^-M · z/(z-1) (analytic continuation to ``|z|`` < 1)."""
     tot = 0j
     for i in range(j + 1):
         n = j - i
@@ -290,7 +287,7 @@ def robustness_rows_rampup(N: int, poles: dict, orders: dict, w: float, min_orde
     The command is ``u_k`` for ``k < N`` and the ramp ``a + w (k − N)`` for ``k ≥ N`` (Xu & Meckl
     eq. 11, Fig. 3). Its z-transform ``U(z) = Σ u_k z^-k + z^-N (a z/(z−1) + w z/(z−1)²)``
     (Xu & Meckl eq. 12 in z) and its first ``orders[i]`` derivatives must vanish at each mode pole ``z_i``
-    (Xu & Meckl eq. 13 with Xu & Meckl eq. 15.1, Xu & Meckl eq. 16 and Xu & Meckl eq. 17 in
+    (Xu & Meckl eq. 13 with Xu & Meckl eqs. 15.1, 16, 17 in
     discrete form). Returns ``(E, f)`` with real rows ``E x = f``,
     each row scaled to unit norm. ``min_order = 1`` leaves out the order-0 (zero-vibration)
     rows, for a scan tracked within a tolerance instead (``ScanSpec.e_allow > 0``).
@@ -415,8 +412,8 @@ class ScanSpec:
     Ts : float
         Sampling time, s (paper: 0.2 ms).
     F_max : float
-        Actuator limit |u| <= F_max of Xu & Meckl eq. 5, V. Not given by the paper; 38 V (``DEFAULT_F_MAX``)
-        reproduces Table II's cycle times with mode 1 robustified.
+        Actuator limit ``|u|`` <= F_max of Xu & Meckl eq. 5, V. Not given by the paper; 38 V
+        (``DEFAULT_F_MAX``) reproduces Table II's cycle times with mode 1 robustified.
     velocity_tolerance : float
         Velocity tracking tolerance in the scan, µm/s (paper: 0.1 µm/s). With ``e_allow = 0`` the
         shaping imposes the zero-vibration conditions exactly and this is the acceptance bound
@@ -678,9 +675,7 @@ def shape_rampup(
     max_samples: int = 400,
     solver: str = "lp",
 ) -> RampUp:
-    """Time-optimal (robust) ramp-up from rest to the scan velocity (Xu & Meckl eq. 3,
-    Xu & Meckl eq. 4, Xu & Meckl eq. 5, Xu & Meckl eq. 6, Xu & Meckl eq. 13, Xu & Meckl eq. 16,
-    Xu & Meckl eq. 17).
+    """Time-optimal (robust) ramp-up from rest to the scan velocity (Xu & Meckl eqs. 3–6, 13, 16, 17).
 
     Minimises the horizon N by bisection over LP feasibility problems (HiGHS): find input samples
     with ``|u| <= F_max`` (Xu & Meckl eq. 5) whose command, continued by the scan ramp, meets the m-th order
@@ -1003,9 +998,9 @@ def rampup_time_vs_scan_start(
 class CycleEvaluation:
     """Performance of a scan cycle under a plant perturbation (Xu & Meckl Table II).
 
-    ``e_m``: max |y_perturbed − y_nominal| over the scan (perturbed tracking error);
-    ``e_r``: max |y_perturbed − y_nominal| over ``residual_window`` after the return (perturbed
-    residual vibration); ``velocity_error``: max |v − v_d| of the nominal output in the scan, with
+    ``e_m``: max ``|y_perturbed − y_nominal|`` over the scan (perturbed tracking error);
+    ``e_r``: max ``|y_perturbed − y_nominal|`` over ``residual_window`` after the return (perturbed
+    residual vibration); ``velocity_error``: max ``|v − v_d|`` of the nominal output in the scan, with
     v the sample-to-sample velocity (µm/s); ``t``, ``y_nominal``, ``y_perturbed`` are the traces.
     """
 

@@ -1,14 +1,14 @@
 """Rest-to-rest trajectory planners: Stojčić's sine-jerk profile and its peers.
 
-ASCII spelling for grep: Stojcic eq. 2, Stojcic eq. 3, Stojcic eq. 4, Stojcic eq. 15.
+ASCII spelling for grep: Stojcic eqs. 2–4, 15.
 
 Four planners share one :class:`Profile` interface (see ``docs/INTERFACES.md``):
 
-* :func:`plan_sine_jerk` -- Stojčić (2015) exactly as published (Stojčić eq. 2, Stojčić eq. 3,
-  Stojčić eq. 4, Fig. 2): the jerk is one full sine period of peak ``max_jerk`` while accelerating, a cruise, and the mirrored period while
-  decelerating.  The peak jerk is *always* ``max_jerk``; when the acceleration limit binds, the
-  published algorithm shortens the pulse instead of adding an acceleration plateau, which makes it
-  slow (up to hundreds of times slower than a time-optimal planner on the same limits).
+* :func:`plan_sine_jerk` -- Stojčić (2015) exactly as published (Stojčić eqs. 2–4, Fig. 2): the jerk
+  is one full sine period of peak ``max_jerk`` while accelerating, a cruise, and the mirrored period
+  while decelerating.  The peak jerk is *always* ``max_jerk``; when the acceleration limit binds,
+  the published algorithm shortens the pulse instead of adding an acceleration plateau, which makes
+  it slow (up to hundreds of times slower than a time-optimal planner on the same limits).
 * :func:`plan_sine_jerk_optimal` -- the time-optimal profile made of half-sine jerk pulses of peak
   ``max_jerk``, with an acceleration plateau and a cruise where they help.  A half-sine jerk pulse of
   peak J and length Tj changes the acceleration by 2 J Tj / pi, exactly like a constant jerk 2J/pi
@@ -42,7 +42,7 @@ Stojčić's eq. 15 recursion, which :meth:`Profile.discretize` keeps to show it)
 References
 ----------
 M. J. Stojčić, "Design and implementation of a digital positioning system with controlled jerk",
-Facta Universitatis, 2015 (Stojčić eq. 2, Stojčić eq. 3, Stojčić eq. 4, Stojčić eq. 15 and Fig. 2).
+Facta Universitatis, 2015 (Stojčić eqs. 2–4, 15 and Fig. 2).
 """
 
 from __future__ import annotations
@@ -566,7 +566,7 @@ _TWO_PI = 2.0 * math.pi
 
 
 def plan_sine_jerk(distance, max_jerk, max_accel, max_velocity) -> "SineJerkProfile":
-    """Stojčić's sine-jerk planner exactly as published (Stojčić eq. 3, Stojčić eq. 4
+    """Stojčić's sine-jerk planner exactly as published (Stojčić eqs. 3, 4
     and the flowchart of Fig. 2).
 
     ``T = (2 pi Theta / J)^(1/3)`` (Stojčić eq. 4); if ``J T / pi > E`` then ``T = E pi / J``; if

@@ -1,6 +1,6 @@
 """DC-motor plant of Stojčić (2015) §2A, with the real rig's imperfections.
 
-ASCII spelling for grep: Stojcic eq. 1, Stojcic eq. 9.
+ASCII spelling for grep: Stojcic eqs. 1, 9.
 
 The linear model is Stojčić eq. 1,
 
@@ -24,7 +24,7 @@ Coulomb friction with sticking (``coulomb_friction``), a step load disturbance
 
 Between samples the plant is integrated exactly: the linear part has a closed-form
 ZOH solution and a sign change of the velocity under Coulomb friction is located
-analytically (an event), after which the motor either sticks (|u + w| <= f_c) or
+analytically (an event), after which the motor either sticks (``|u + w|`` <= f_c) or
 moves on in the other direction. No numerical ODE solver is involved.
 
 :class:`FlexibleDCMotor` adds a lightly damped mode (motor + shaft + load inertia);

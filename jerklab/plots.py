@@ -16,6 +16,17 @@ an ``Axes`` and returns it, so a notebook or a widget can compose several on one
   input shapers and robust LP commands (``jerklab.shaping.tradeoff``, notebook 09).
 * :func:`plot_recording`, :func:`plot_comparison` — a rig recording, and a recording against
   a simulation (``jerklab.rig.Recording.plot``, ``jerklab.rig.plot_comparison``).
+* :func:`plot_profile` — jerk, acceleration, velocity and position of a plan (Stojčić Fig. 1,
+  ASCII Stojcic; Yang Fig. 2); :func:`plot_runs`, :func:`plot_control_parts` — several closed-loop runs
+  overlaid, and the parts of one run's voltage (notebooks 04, 06).
+* :func:`plot_scan_cycle`, :func:`plot_scan_closed_loop`, :func:`plot_table_ii` — the piezo
+  scanner's shaped cycles, its closed loop and Table II (Xu & Meckl Figs. 5, 6, 9, notebook 07).
+* :func:`plot_preisach_weight`, :func:`plot_preisach_memory`, :func:`plot_forc` — a Preisach
+  model's weight, its memory in the Preisach plane, reversal curves (notebook 08).
+* :func:`plot_speed_register`, :func:`plot_pulse_speed` — Yang's speed register and the speed
+  its pulses command (Yang Figs. 2, 7, notebook 06).
+* :func:`plot_sensitivity` — the sensitivity curves of input shapers and robust moves
+  (notebook 09).
 
 The result objects keep their ``.plot()`` methods as one-line calls of these. Importing this
 module does not import matplotlib (nor does any module below the face: planner, plant,
@@ -442,3 +453,499 @@ def plot_tradeoff(tradeoff, ax=None, floor=1e-2):
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     return ax
+
+
+# ----------------------------------------------------------------------------------------------
+# planned moves
+# ----------------------------------------------------------------------------------------------
+#: quantity of a profile sample -> (axis name, unit suffix after the length unit)
+_PROFILE_QUANTITIES = {
+    "jerk": ("jerk", "/s³"),
+    "accel": ("acceleration", "/s²"),
+    "velocity": ("velocity", "/s"),
+    "position": ("position", ""),
+}
+
+
+def _axes(axes, n, figsize):
+    import matplotlib.pyplot as plt
+
+    if axes is None:
+        _, axes = plt.subplots(n, 1, sharex=True, figsize=figsize, squeeze=False)
+        return list(axes[:, 0])
+    axes = list(np.atleast_1d(axes).ravel())
+    if len(axes) != n:
+        raise ValueError(f"axes must hold {n} Axes, got {len(axes)}")
+    return axes
+
+
+def plot_profile(
+    profile,
+    t=None,
+    axes=None,
+    *,
+    quantities=("jerk", "accel", "velocity", "position"),
+    unit="rad",
+    scale=1.0,
+    label=None,
+    boundaries=False,
+    **style,
+):
+    """Jerk, acceleration, velocity and position of a planned move against time, one panel each.
+
+    Parameters
+    ----------
+    profile : jerklab.planner.Profile or jerklab.planner.ProfileSample
+        A plan (anything with ``duration`` and ``sample(t)``; its closed form is drawn at ``t``) or
+        samples of one (a ``discretize`` recursion, say), drawn as they are.
+    t : array, optional
+        Times (s) at which to draw a plan; default 1000 points over ``[0, duration]``.
+    axes : sequence of matplotlib Axes, optional
+        One per quantity (default: a new figure); pass the same axes again to overlay moves.
+    quantities : sequence of {"jerk", "accel", "velocity", "position"}
+    unit : str
+        Length unit of the plotted values (after ``scale``): "rad", "µm", "mm" ...
+    scale : float
+        Factor applied to every value (``1e-3`` shows a plan in µm as mm).
+    label : str, optional
+        Legend entry (the legend is drawn on the first axes).
+    boundaries : bool
+        Mark the plan's phase boundaries and its end (the sums of ``phase_times``) with dashed
+        lines.
+    **style
+        Passed to ``Axes.plot`` (``ls``, ``color``, ``lw`` ...).
+
+    Returns
+    -------
+    list of matplotlib Axes
+    """
+    names = tuple(quantities)
+    bad = [q for q in names if q not in _PROFILE_QUANTITIES]
+    if bad or not names:
+        raise ValueError(f"quantities must be among {tuple(_PROFILE_QUANTITIES)}, got {names}")
+    if hasattr(profile, "sample"):
+        if t is None:
+            t = np.linspace(0.0, float(profile.duration), 1000)
+        s = profile.sample(as_finite_array("t", t, ndim=1))
+    elif all(hasattr(profile, q) for q in ("t", *names)):
+        s = profile
+    else:
+        raise TypeError(
+            "profile must be a planner Profile (sample(t)) or a ProfileSample, "
+            f"got {type(profile).__name__}"
+        )
+    axes = _axes(axes, len(names), (7, 1.9 * len(names) + 0.6))
+    for ax, q in zip(axes, names):
+        name, suffix = _PROFILE_QUANTITIES[q]
+        ax.plot(s.t, scale * np.asarray(getattr(s, q)), label=label, **style)
+        ax.set_ylabel(f"{name} ({unit}{suffix})")
+        ax.grid(alpha=0.3)
+        if boundaries and hasattr(profile, "phase_times"):
+            for x in np.cumsum(profile.phase_times):
+                ax.axvline(x, color="0.6", ls="--", lw=0.8)
+    axes[-1].set_xlabel("time (s)")
+    if label is not None:
+        axes[0].legend(fontsize=8)
+    return axes
+
+
+# ----------------------------------------------------------------------------------------------
+# several closed-loop runs
+# ----------------------------------------------------------------------------------------------
+#: signal of a SimResult -> (attribute, axis label, factor)
+_RUN_SIGNALS = {
+    "reference": ("reference", "reference (rad)", 1.0),
+    "ref_velocity": ("ref_velocity", "reference velocity (rad/s)", 1.0),
+    "position": ("position", "motor angle (rad)", 1.0),
+    "measured": ("measured", "encoder reading (rad)", 1.0),
+    "load_position": ("load_position", "load angle (rad)", 1.0),
+    "error": ("error", "tracking error (mrad)", 1e3),
+    "u_applied": ("u_applied", "motor voltage (V)", 1.0),
+}
+
+
+def plot_runs(results, signals=("error",), axes=None, *, labels=None, **style):
+    """Several closed-loop runs overlaid, one panel per signal, against time (s).
+
+    Parameters
+    ----------
+    results : mapping of str to jerklab.sim.SimResult, or a sequence of SimResult
+        The runs; a mapping's keys are the legend entries.
+    signals : sequence of str
+        Among "reference", "ref_velocity", "position", "measured", "load_position" (rad, rad/s),
+        "error" (``reference − position``, mrad) and "u_applied" (V).
+    axes : sequence of matplotlib Axes, optional
+        One per signal (default: a new figure).
+    labels : sequence of str, optional
+        Legend entries for a sequence of runs.
+    **style
+        Passed to ``Axes.plot``.
+
+    Returns
+    -------
+    list of matplotlib Axes
+    """
+    if hasattr(results, "items"):
+        labels, runs = list(results.keys()), list(results.values())
+    else:
+        runs = list(results)
+        labels = [None] * len(runs) if labels is None else list(labels)
+        if len(labels) != len(runs):
+            raise ValueError(f"labels must name the {len(runs)} runs, got {len(labels)}")
+    names = tuple(signals)
+    bad = [s for s in names if s not in _RUN_SIGNALS]
+    if bad or not names:
+        raise ValueError(f"signals must be among {tuple(_RUN_SIGNALS)}, got {names}")
+    axes = _axes(axes, len(names), (9, 2.6 * len(names) + 0.4))
+    for ax, name in zip(axes, names):
+        attr, ylabel, factor = _RUN_SIGNALS[name]
+        for run, label in zip(runs, labels):
+            y = getattr(run, attr)
+            if y is None:
+                raise ValueError(f"signal {name!r}: the run {label or ''} has no {attr}")
+            ax.plot(run.t, factor * np.asarray(y), label=label, **{"lw": 1, **style})
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlabel("time (s)")
+    if any(lb is not None for lb in labels):
+        axes[0].legend(fontsize=8)
+    return axes
+
+
+def plot_control_parts(result, ax=None):
+    """The parts of the control voltage of one run (feedforward ``ff`` and the PID's ``p``,
+    ``i``, ``d``: the outputs of Stojčić Figs. 5 and 6) against time (s).
+
+    Parameters
+    ----------
+    result : jerklab.sim.SimResult
+    ax : matplotlib Axes, optional
+
+    Returns
+    -------
+    matplotlib Axes
+    """
+    import matplotlib.pyplot as plt
+
+    if ax is None:
+        _, ax = plt.subplots(figsize=(7, 3.5))
+    for name in ("ff", "p", "i", "d"):
+        ax.plot(result.t, result.parts[name], lw=1, label=name)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("voltage (V)")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    return ax
+
+
+# ----------------------------------------------------------------------------------------------
+# the piezo scanner (Xu & Meckl)
+# ----------------------------------------------------------------------------------------------
+def _shade_scan(axes, cycle, factor):
+    Ts = cycle.spec.Ts
+    for a in axes:
+        a.axvspan(cycle.N * Ts * factor, (cycle.N + cycle.S) * Ts * factor, color="g", alpha=0.1)
+
+
+def plot_scan_cycle(evaluation, cycle, axes=None, *, title=None):
+    """A shaped scan cycle under the frequency perturbation: input, nominal and perturbed output,
+    and their difference against time (ms), the scan shaded (Xu & Meckl Figs. 5, 6).
+
+    Parameters
+    ----------
+    evaluation : jerklab.piezo.CycleEvaluation
+        From :func:`jerklab.piezo.evaluate_cycle`.
+    cycle : jerklab.piezo.ScanCycle
+        The cycle evaluated (its ramp-up, scan and limit ``spec.F_max``).
+    axes : three matplotlib Axes, optional
+    title : str, optional
+        Prefix of the title, which gives the cycle time, ``e_m`` and ``e_r``.
+
+    Returns
+    -------
+    list of matplotlib Axes
+    """
+    ev, c = evaluation, cycle
+    axes = _axes(axes, 3, (8, 7))
+    t = ev.t * 1e3
+    axes[0].step(t, ev.u, where="post")
+    for sign in (1, -1):
+        axes[0].axhline(sign * c.spec.F_max, color="k", lw=0.5, ls=":")
+    axes[0].set_ylabel("input u (V)")
+    axes[1].plot(t, ev.y_nominal, label="nominal")
+    axes[1].plot(t, ev.y_perturbed, "--", label="perturbed")
+    axes[1].set_ylabel("output y (µm)")
+    axes[1].legend(fontsize=8)
+    axes[2].plot(t, ev.y_perturbed - ev.y_nominal, color="C3")
+    axes[2].set_ylabel("y_pert − y_nom (µm)")
+    axes[2].set_xlabel("time (ms)")
+    axes[2].set_xlim(0, c.cycle_time * 1e3 + 15)
+    _shade_scan(axes, c, 1e3)
+    axes[0].set_title(
+        (f"{title}: " if title else "")
+        + f"cycle {c.cycle_time * 1e3:.1f} ms, e_m = {ev.e_m:.3f} µm, e_r = {ev.e_r:.3f} µm "
+        "(scan shaded)",
+        fontsize=9,
+    )
+    return axes
+
+
+def plot_scan_closed_loop(result, cycle, axes=None, *, title=None):
+    """The closed loop with hysteresis compensation (Xu & Meckl Fig. 9): the shaped command and
+    the compensated actuator voltage with the limit, the desired and obtained output, and the
+    tracking error against time (ms), the scan shaded.
+
+    Parameters
+    ----------
+    result : jerklab.piezo.ClosedLoopResult
+        From :func:`jerklab.piezo.closed_loop`.
+    cycle : jerklab.piezo.ScanCycle
+        The cycle run.
+    axes : three matplotlib Axes, optional
+    title : str, optional
+
+    Returns
+    -------
+    list of matplotlib Axes
+    """
+    cl, c = result, cycle
+    axes = _axes(axes, 3, (8, 7.5))
+    t = cl.t * 1e3
+    axes[0].plot(t, cl.u_ff, label="shaped command u_ff")
+    axes[0].plot(t, cl.u_c, "--", label="actuator voltage u_c (after CNIA)")
+    for sign in (1, -1):
+        axes[0].axhline(
+            sign * c.spec.F_max,
+            color="r",
+            lw=0.8,
+            ls=":",
+            label=f"actuator limit ±F_max = {c.spec.F_max:g} V" if sign > 0 else None,
+        )
+    axes[0].set_ylabel("voltage (V)")
+    axes[0].legend(fontsize=8)
+    axes[1].plot(t, cl.y_desired, label="desired (nominal response)")
+    axes[1].plot(t, cl.y, "--", label="closed loop")
+    axes[1].set_ylabel("output y (µm)")
+    axes[1].legend(fontsize=8)
+    axes[2].plot(t, cl.y - cl.y_desired, color="C3")
+    axes[2].set_ylabel("tracking error (µm)")
+    axes[2].set_xlabel("time (ms)")
+    _shade_scan(axes, c, 1e3)
+    if title:
+        axes[0].set_title(title, fontsize=9)
+    return axes
+
+
+def plot_table_ii(rows, axes=None, *, title="Xu & Meckl Table II: computed vs published"):
+    """Cycle time, ``e_m`` and ``e_r`` of each input of :func:`jerklab.piezo.table_ii`, beside
+    the published values (bars; the errors on a log scale).
+
+    Parameters
+    ----------
+    rows : dict
+        ``{input name: {"cycle_time", "e_m", "e_r", "paper": (cycle, e_m, e_r)}}``.
+    axes : three matplotlib Axes side by side, optional
+
+    Returns
+    -------
+    list of matplotlib Axes
+    """
+    import matplotlib.pyplot as plt
+
+    if axes is None:
+        fig, axes = plt.subplots(1, 3, figsize=(11, 3.3))
+    axes = list(np.atleast_1d(axes).ravel())
+    names = list(rows)
+    x = np.arange(len(names))
+    for a, key, idx, unit, factor in (
+        (axes[0], "cycle_time", 0, "ms", 1e3),
+        (axes[1], "e_m", 1, "µm", 1.0),
+        (axes[2], "e_r", 2, "µm", 1.0),
+    ):
+        a.bar(x - 0.2, [rows[n][key] * factor for n in names], 0.4, label="jerklab")
+        a.bar(x + 0.2, [rows[n]["paper"][idx] * factor for n in names], 0.4, label="paper")
+        a.set_xticks(
+            x, [n.replace(" robust", "").replace("-robust", "") for n in names], rotation=20
+        )
+        a.set_ylabel(f"{key} ({unit})")
+        if key != "cycle_time":
+            a.set_yscale("log")
+    axes[0].legend()
+    if title:
+        axes[0].figure.suptitle(title)
+    return axes
+
+
+# ----------------------------------------------------------------------------------------------
+# hysteresis (Preisach)
+# ----------------------------------------------------------------------------------------------
+def plot_preisach_weight(model, ax=None, *, colorbar=True, title="Preisach weight μ(α, β)"):
+    """The weight ``μ(α, β)`` of a :class:`jerklab.hysteresis.Preisach` model on its half plane
+    ``α >= β`` (an image; switch-off input β across, switch-on input α up).
+
+    Returns
+    -------
+    matplotlib Axes
+    """
+    import matplotlib.pyplot as plt
+
+    if ax is None:
+        _, ax = plt.subplots(figsize=(5, 4.3))
+    extent = [model.u_min, model.u_max, model.u_min, model.u_max]
+    im = ax.imshow(model.masked_density(), origin="lower", extent=extent, cmap="viridis")
+    ax.set_xlabel("β, switch-off input (V)")
+    ax.set_ylabel("α, switch-on input (V)")
+    if title:
+        ax.set_title(title)
+    if colorbar:
+        ax.figure.colorbar(im, ax=ax, label="μ (1/V)", shrink=0.85)
+    return ax
+
+
+def plot_preisach_memory(model, ax=None, *, title=None):
+    """The memory of a :class:`jerklab.hysteresis.Preisach` model: the region ``S+`` of the
+    relays that are on, bounded by the staircase of its alternating extrema, in the Preisach
+    plane.
+
+    Returns
+    -------
+    matplotlib Axes
+    """
+    import matplotlib.pyplot as plt
+
+    if ax is None:
+        _, ax = plt.subplots(figsize=(4.5, 4.5))
+    b, a = model.interface()
+    ax.fill(np.r_[model.u_min, b], np.r_[model.u_min, a], color="C1", alpha=0.4, label="S+ (on)")
+    ax.plot(b, a, "k.-", lw=1)
+    ax.plot([model.u_min, model.u_max], [model.u_min, model.u_max], "k", lw=0.6)
+    ax.set_xlabel("β (V)")
+    ax.set_ylabel("α (V)")
+    ax.set_aspect("equal")
+    ax.legend(loc="lower right", fontsize=8)
+    if title:
+        ax.set_title(title)
+    return ax
+
+
+def plot_forc(data, ax=None, **style):
+    """First-order reversal curves (:class:`jerklab.hysteresis.ForcData`): the output along each
+    descent from its turning point ``α``, against the input (V).
+
+    Returns
+    -------
+    matplotlib Axes
+    """
+    import matplotlib.pyplot as plt
+
+    if ax is None:
+        _, ax = plt.subplots(figsize=(5, 4.3))
+    for alpha in np.unique(data.alpha):
+        sel = data.alpha == alpha
+        ax.plot(data.beta[sel], data.f[sel], **{"lw": 0.8, "color": "C0", **style})
+    ax.set_xlabel("input u (V)")
+    ax.set_ylabel("output (V)")
+    return ax
+
+
+# ----------------------------------------------------------------------------------------------
+# the FPGA S-curve (Yang et al.)
+# ----------------------------------------------------------------------------------------------
+def plot_speed_register(generator, ax=None, *, scale=1e-3, unit="mm/s", **style):
+    """The speed register of a :class:`jerklab.fpga.YangSCurve` (Yang eqs. 5–8) tick by tick,
+    as the step it holds between refreshes, against time (s).
+
+    Returns
+    -------
+    matplotlib Axes
+    """
+    import matplotlib.pyplot as plt
+
+    if ax is None:
+        _, ax = plt.subplots(figsize=(8, 3))
+    speed = generator.speed_table().speed
+    ax.step(
+        generator.tick_times(),
+        scale * speed,
+        where="post",
+        **{"lw": 0.8, "label": "speed register", **style},
+    )
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel(f"speed ({unit})")
+    return ax
+
+
+def plot_pulse_speed(train, ax=None, *, scale=1e-3, unit="mm/s", **style):
+    """The speed a pulse train commands, ``k / Δt`` between rising edges (a
+    :class:`jerklab.fpga.PulseTrain`, or ``(t, v)`` in s and µm/s), one dot per pulse period.
+
+    Returns
+    -------
+    matplotlib Axes
+    """
+    import matplotlib.pyplot as plt
+
+    if ax is None:
+        _, ax = plt.subplots(figsize=(8, 3))
+    t, v = train.speed() if hasattr(train, "speed") else train
+    ax.plot(t, scale * np.asarray(v), **{"ls": "", "marker": ".", "ms": 2, **style})
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel(f"speed k/Δt ({unit})")
+    return ax
+
+
+# ----------------------------------------------------------------------------------------------
+# vibration: sensitivity of shapers and robust commands
+# ----------------------------------------------------------------------------------------------
+def plot_sensitivity(commands, ratios, ax=None, *, tolerance=5.0, frequency_hz=None):
+    """Residual vibration (% of a step's) against the mode frequency ratio, one line per command:
+    the sensitivity curves of input shapers (:class:`jerklab.shaping.InputShaper`) or robust
+    moves (:class:`jerklab.shaping.RobustMove`), from each one's ``sensitivity_curve``.
+
+    Parameters
+    ----------
+    commands : mapping of str to an object with ``sensitivity_curve(ratios)``
+    ratios : array
+        Mode frequency over the design frequency.
+    ax : matplotlib Axes, optional
+    tolerance : float or None
+        A grey line at this residual (%), the usual 5 %.
+    frequency_hz : float, optional
+        The design frequency, named in the axis label.
+
+    Returns
+    -------
+    matplotlib Axes
+    """
+    import matplotlib.pyplot as plt
+
+    if ax is None:
+        _, ax = plt.subplots(figsize=(8, 4))
+    r = as_finite_array("ratios", ratios, ndim=1)
+    for name, c in commands.items():
+        ax.plot(r, c.sensitivity_curve(r), label=name)
+    if tolerance is not None:
+        ax.axhline(tolerance, color="0.5", lw=0.8)
+    design = (
+        "design frequency" if frequency_hz is None else f"design frequency {frequency_hz:.2f} Hz"
+    )
+    ax.set_xlabel(f"mode frequency / {design} (–)")
+    ax.set_ylabel("residual vibration (%)")
+    ax.grid(alpha=0.3)
+    return ax
+
+
+__all__ += [
+    "plot_profile",
+    "plot_runs",
+    "plot_control_parts",
+    "plot_scan_cycle",
+    "plot_scan_closed_loop",
+    "plot_table_ii",
+    "plot_preisach_weight",
+    "plot_preisach_memory",
+    "plot_forc",
+    "plot_speed_register",
+    "plot_pulse_speed",
+    "plot_sensitivity",
+]

@@ -195,7 +195,7 @@ class EndReason(enum.IntEnum):
     STOPPED = 1  #: STOP from the host
     HOST_TIMEOUT = 2  #: no valid frame from the host for longer than host_timeout_ms
     FAULT = 3  #: internal fault (control tick overrun, numeric error)
-    TRACKING_ERROR = 4  #: |reference - position| > SetLimits.max_error; detail = the error (rad)
+    TRACKING_ERROR = 4  #: ``|reference - position|`` > SetLimits.max_error; detail = error (rad)
     RUNAWAY = 5  #: large drive, encoder moved against it (reversed?); detail = counts moved
     NO_MOTION = 6  #: large drive, encoder did not move (disconnected? stalled?); detail = 0
     SATURATION = 7  #: output at the clamp in most samples for saturation_ms (unstable loop?)
@@ -204,7 +204,7 @@ class EndReason(enum.IntEnum):
 class Planner(enum.IntEnum):
     """``Plan.planner`` values; which ones a device supports is in its capabilities."""
 
-    SINE_JERK = 0  #: Stojčić eq. 2, Stojčić eq. 3, Stojčić eq. 4, as published
+    SINE_JERK = 0  #: Stojčić eqs. 2–4, as published
     SINE_JERK_OPTIMAL = 1
     SCURVE = 2
     TRAPEZOID = 3
@@ -234,7 +234,7 @@ class Capability(enum.IntFlag):
     RETARGET = 1 << 9  #: RETARGET during a run (protocol version 3)
 
 
-#: ``SetGains.flags`` bit: add the feedforward u_F = (tau*accel + vel)/K (Stojčić eq. 8, Stojčić eq. 16)
+#: ``SetGains.flags`` bit: add the feedforward u_F = (tau*accel + vel)/K (Stojčić eqs. 8, 16)
 GAINS_FEEDFORWARD = 0x01
 #: ``Telemetry.flags`` bit: the control output hit the voltage clamp this sample
 TELEMETRY_SATURATED = 0x01
@@ -361,7 +361,7 @@ class Hello(_Message):
 
 @dataclass(frozen=True)
 class SetPlant(_Message):
-    """Motor model used by the feedforward (Stojčić eq. 1, Stojčić eq. 8) and the I/O scaling.
+    """Motor model used by the feedforward (Stojčić eqs. 1, 8) and the I/O scaling.
 
     ``K`` rad/(V s), ``tau`` s, ``supply_voltage`` V (PWM full scale),
     ``counts_per_rev`` encoder counts per revolution after quadrature decoding.
@@ -377,12 +377,12 @@ class SetPlant(_Message):
 
 @dataclass(frozen=True)
 class SetGains(_Message):
-    """Discrete PID gains (Stojčić eq. 12, Stojčić eq. 13) in SI units: V/rad (position loop) or V/(rad/s).
+    """Discrete PID gains (Stojčić eqs. 12, 13) in SI units: V/rad (position loop) or V/(rad/s).
 
     ``Ts_us`` is the control period in µs (a multiple of ``HelloReply.tick_us``),
     ``loop`` a :class:`LoopType`, ``flags`` bit 0 = feedforward on, ``gamma`` the
     derivative filter pole ``d(k) = gamma d(k-1) + kdd (e(k) - e(k-1))`` (0 = the
-    paper's backward difference, Stojčić eq. 17; |gamma| < 1).
+    paper's backward difference, Stojčić eq. 17; ``|gamma|`` < 1).
     """
 
     TYPE: ClassVar[MsgType] = MsgType.SET_GAINS
@@ -561,7 +561,9 @@ RUN_GAIN_LIMIT = 2.0**23
 
 
 def max_run_gain(counts_per_rev, pwm_max, supply_voltage, Ts=None):
-    """The bound on |kpd|, |kid|, |kdd| that RUN accepts (firmware/PROTOCOL.md "Parameter checks").
+    """The bound on ``|kpd|``, ``|kid|``, ``|kdd|`` that RUN accepts.
+
+    See firmware/PROTOCOL.md, "Parameter checks".
 
     Parameters
     ----------

@@ -3,7 +3,7 @@
 One question across the three papers: a move must end without ringing. An *input shaper*
 convolves the reference with a few impulses whose vibrations cancel at a mode (Singer &
 Seering 1990; Singhose, Seering & Singer 1994/1997); Xu & Meckl place zeros of the whole
-command on the mode, robustly (Xu & Meckl eq. 8, Xu & Meckl eq. 13); a smooth jerk profile
+command on the mode, robustly (Xu & Meckl eqs. 8, 13); a smooth jerk profile
 (Stojčić eq. 2, Yang's S-curve) is itself a convolution of boxes and pulses, so it has
 spectral zeros too (ASCII spelling for grep: Stojcic).
 
@@ -58,8 +58,7 @@ reduction using vector diagrams to generate shaped inputs", J. Mech. Design 116 
 W. Singhose, S. Derezinski, N. Singer, "Extra-insensitive input shapers for controlling
 flexible spacecraft", J. Guidance Control Dyn. 19 (1996). Klipper, docs/Resonance_Compensation.md
 (the table of insensitivity widths) and klippy/extras/shaper_defs.py (its definitions).
-Xu & Meckl, robust time-optimal command shaping (Xu & Meckl eq. 3, Xu & Meckl eq. 5,
-Xu & Meckl eq. 13, Xu & Meckl eq. 19).
+Xu & Meckl, robust time-optimal command shaping (Xu & Meckl eqs. 3, 5, 13, 19).
 """
 
 from __future__ import annotations
@@ -676,7 +675,7 @@ def _box(sig, L):
 
 def _half_sine(sig, L):
     """End-referenced transform of the unit-area half-sine pulse of length L (the jerk pulse of
-    the sine-jerk profiles): (a²/2)(1 + e^{−σL})/(σ² + a²), a = π/L (|.| = π/4 at σ = ja)."""
+    the sine-jerk profiles): (a²/2)(1 + e^{−σL})/(σ² + a²), a = π/L (``|.|`` = π/4 at σ = ja)."""
     if L == 0.0:
         return np.ones_like(sig)
     a = math.pi / L
@@ -880,7 +879,7 @@ def _zoh_poles(model, Ts):
 
 def _poly_rows(N, z, j):
     """Row of d^j/dz^j of P(z) = Σ_k u_k z^{N−1−k} (the command's z-transform times z^{N−1}: the
-    same zeros away from 0, and |z^m| <= 1 inside the unit circle, so the rows stay well scaled)."""
+    same zeros away from 0, and ``|z^m|`` <= 1 inside the unit circle, so the rows stay well scaled)."""
     m = (N - 1 - np.arange(N)).astype(float)
     coef = np.ones(N)
     for i in range(j):
@@ -897,7 +896,7 @@ def robust_move_rows(N, model, Ts, distance, order=0):
     samples. In modal form (Xu & Meckl eq. 3 with the terminal state of Xu & Meckl eq. 6) that is:
     the integrator sums the input (``K Ts Σ u_k = distance``: the rigid motor's momentum
     balance), and the command's z-transform vanishes at every other pole (the motor pole and the
-    mode pole). Order ``m`` robustness (Xu & Meckl eq. 8, Xu & Meckl eq. 13) makes the mode
+    mode pole). Order ``m`` robustness (Xu & Meckl eqs. 8, 13) makes the mode
     pole a zero of multiplicity ``m + 1`` (the derivatives up to m vanish too), as in
     :mod:`jerklab.piezo` — here on ``z^{N−1} U(z)``, a polynomial, so the rows are bounded.
     Rows are scaled to unit norm.
@@ -981,14 +980,13 @@ def _flex_model(model):
 def robust_move(distance, model=None, Ts=0.005, order=0, u_max=None, max_samples=2000, solver="lp"):
     """Time-optimal (robust) voltage command moving the flexible motor by ``distance`` rad, rest to rest.
 
-    Xu & Meckl's formulation (Xu & Meckl eq. 3, Xu & Meckl eq. 5, Xu & Meckl eq. 6,
-    Xu & Meckl eq. 13) generalized from the piezo scan to a positioning move: the smallest
-    horizon N for which voltage samples with ``|u_k| <= u_max`` (Xu & Meckl eq. 5, the supply)
-    meet :func:`robust_move_rows` — rest at ``distance``, the mode robust to ``order`` (0, 1,
-    2: zero placement of multiplicity 1, 2, 3). Bisection on N over LP feasibility problems,
-    with the NNLS screen and the HiGHS LP of :mod:`jerklab.piezo` (``solver`` as there:
-    ``"lp"``, ``"highs"`` or ``"lsq"`` for Xu & Meckl eq. 6 literally). ``order=None`` ignores
-    the mode (rest of the rigid motor only): the baseline of the move-time penalty.
+    Xu & Meckl's formulation (Xu & Meckl eqs. 3, 5, 6, 13) generalized from the piezo scan to a
+    positioning move: the smallest horizon N for which voltage samples with ``|u_k| <= u_max``
+    (Xu & Meckl eq. 5, the supply) meet :func:`robust_move_rows` — rest at ``distance``, the mode robust
+    to ``order`` (0, 1, 2: zero placement of multiplicity 1, 2, 3). Bisection on N over LP
+    feasibility problems, with the NNLS screen and the HiGHS LP of :mod:`jerklab.piezo` (``solver``
+    as there: ``"lp"``, ``"highs"`` or ``"lsq"`` for Xu & Meckl eq. 6 literally). ``order=None``
+    ignores the mode (rest of the rigid motor only): the baseline of the move-time penalty.
 
     Parameters
     ----------

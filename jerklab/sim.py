@@ -10,7 +10,7 @@ At sample ``k`` (``t = k Ts``):
 1. the encoder gives ``y(k)`` = floor(θ(kTs)·counts/rad)/(counts/rad) (+ noise)
    (:func:`jerklab.law.encoder`);
 2. the profile is sampled in closed form at ``kTs`` (position, velocity, acceleration);
-3. the control law of :mod:`jerklab.law` (Stojčić eq. 16, Stojčić eq. 17, Stojčić eq. 18, output clamp,
+3. the control law of :mod:`jerklab.law` (Stojčić eqs. 16–18, output clamp,
    anti-windup; the law :class:`~jerklab.controller.DigitalController` runs) gives ``u(k)``;
    position loop ``e = r − y``, or the paper's velocity loop ``e = ω_r − (y(k) − y(k−1))/Ts``
    (pulses per sample, §4B);
@@ -413,8 +413,8 @@ class SimResult:
     metrics : :class:`jerklab.metrics.MoveMetrics` of the true angle (see :func:`simulate`)
     diverged : bool
         The run left every sensible range: a state became NaN/inf (the run stops there and
-        the remaining samples are NaN) or |error| exceeded ``DIVERGENCE_FACTOR`` ×
-        max(|distance|, 1). Its ``settling_time`` is then NaN, never a number.
+        the remaining samples are NaN) or ``|error|`` exceeded ``DIVERGENCE_FACTOR`` ×
+        max(``|distance|``, 1). Its ``settling_time`` is then NaN, never a number.
 
     The older names ``t``, ``u`` and ``u_applied`` read ``time``, ``command`` and ``voltage``.
     """
@@ -819,13 +819,13 @@ def simulate(profile, motor, controller, Ts=None, t_end=None, loop=None, x0=None
         ``overshoot_pct``, ``settling_time`` after the end of the profile into ``settle_band``
         (inf if never, NaN if the run diverged), ``peak_voltage``, ``saturated``,
         ``saturated_fraction``), with ``diverged`` (and ``diverged_at``, s) and, for a
-        flexible load, ``residual_vibration`` (max |load − distance| after the move).
+        flexible load, ``residual_vibration`` (max ``|load − distance|`` after the move).
 
     Warns
     -----
     RuntimeWarning
         When the run diverged (``result.diverged``): a state went NaN/inf, or the error
-        grew beyond ``DIVERGENCE_FACTOR`` × max(|distance|, 1).
+        grew beyond ``DIVERGENCE_FACTOR`` × max(``|distance|``, 1).
     """
     _check_inputs(profile, motor)
     ctl, cloop, Ts = _law_for(controller, motor, loop, Ts)

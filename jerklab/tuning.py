@@ -12,8 +12,8 @@ back to a value already seen costs nothing; the cached arrays are read-only.
 Main entry points
 -----------------
 * :func:`compute_pole_placement` — every curve the panel shows for one setting.
-* :func:`closed_loop_max_radius` — the largest |z| of a sampled loop; the single place where
-  "may this design run on a rig?" is decided (:func:`check_runnable` refuses |z| ≥ 1).
+* :func:`closed_loop_max_radius` — the largest ``|z|`` of a sampled loop; the single place where
+  "may this design run on a rig?" is decided (:func:`check_runnable` refuses ``|z|`` ≥ 1).
 * :func:`advise` — which slider changes or other design would make an unstable or nearly
   unstable loop stable, each candidate checked by computing its loop.
 * :func:`format_angle`, :func:`angle_unit`, :func:`gain_table` — numbers with units that scale.
@@ -93,7 +93,7 @@ SLIDER_RANGES = dict(
 
 
 class UnstableDesignError(ValueError):
-    """A design whose sampled loop has a closed-loop pole at |z| ≥ 1 was asked to run."""
+    """A design whose sampled loop has a closed-loop pole at ``|z|`` ≥ 1 was asked to run."""
 
     def __init__(self, message, max_radius=None, design=None):
         super().__init__(message)
@@ -144,7 +144,7 @@ def design_gains(K, tau, zeta, wn, sigma_ratio, Ts, design="continuous"):
 
 
 def closed_loop_max_radius(K, tau, gains, Ts=None):
-    """Largest |z| of the closed-loop poles of the sampled position loop.
+    """Largest ``|z|`` of the closed-loop poles of the sampled position loop.
 
     The loop is the ZOH plant of Stojčić eq. 1 under the discrete PID of Stojčić eq. 12
     (with the derivative filter γ of ``gains``); it is stable iff the result is < 1. This is
@@ -183,9 +183,9 @@ def closed_loop_max_radius(K, tau, gains, Ts=None):
 
 
 def check_runnable(K, tau, gains, Ts=None, *, force=False, design=None):
-    """Refuse a design whose sampled loop is unstable (largest |z| ≥ 1) unless ``force``.
+    """Refuse a design whose sampled loop is unstable (largest ``|z|`` ≥ 1) unless ``force``.
 
-    Returns the largest |z|. Raises :class:`UnstableDesignError` (a ValueError) naming the
+    Returns the largest ``|z|``. Raises :class:`UnstableDesignError` (a ValueError) naming the
     radius and the design, so nothing is sent to a motor that would run away.
     """
     r = closed_loop_max_radius(K, tau, gains, Ts)
@@ -207,17 +207,17 @@ def stability_verdict(max_radius, desired_radius, Ts=None, sigma=None):
     Parameters
     ----------
     max_radius : float
-        Largest |z| of the closed-loop poles actually obtained.
+        Largest ``|z|`` of the closed-loop poles actually obtained.
     desired_radius : float
-        Largest |z| of the designed poles mapped by z = exp(s Ts).
+        Largest ``|z|`` of the designed poles mapped by z = exp(s Ts).
     Ts, sigma : float, optional
         Used only to add the σ·Ts figure to the message.
 
     Returns
     -------
     level : {"ok", "near", "unstable"}
-        ``"unstable"`` when |z| >= 1; ``"near"`` when |z| > ``NEAR_UNSTABLE_RADIUS`` and the
-        sampled loop lost more than half of the stability margin (1 - |z|) that the design
+        ``"unstable"`` when ``|z|`` >= 1; ``"near"`` when ``|z|`` > ``NEAR_UNSTABLE_RADIUS`` and the
+        sampled loop lost more than half of the stability margin (1 - ``|z|``) that the design
         asked for (a slow design is not flagged just because its poles are slow).
     message : str
         What the loop does; what would help is :func:`advise`'s job (it depends on the design).
@@ -247,7 +247,7 @@ def _desired(zeta, wn, sigma_ratio, Ts):
 
 @functools.lru_cache(maxsize=4096)
 def _level(K, tau, zeta, wn, sigma_ratio, Ts, design):
-    """(level, max |z|) of one setting; inf when the design cannot be built."""
+    """(level, max ``|z|``) of one setting; inf when the design cannot be built."""
     try:
         d, _ = design_gains(K, tau, zeta, wn, sigma_ratio, Ts, design)
         r = closed_loop_max_radius(K, tau, d)
@@ -263,7 +263,7 @@ class Suggestion:
     """One checked change that makes the loop stable and not near instability.
 
     ``change`` names the parameter (``"wn"``, ``"Ts"``, ``"sigma_ratio"``, ``"design"``),
-    ``value`` its new value (SI, or the design key), ``max_radius`` the largest |z| there,
+    ``value`` its new value (SI, or the design key), ``max_radius`` the largest ``|z|`` there,
     ``text`` the sentence shown.
     """
 
@@ -388,7 +388,7 @@ class TuningResult:
     poles_s_equivalent : ndarray
         ``log(z) / Ts`` of the achieved poles (where the sampled loop really puts them).
     max_radius, desired_radius : float
-        Largest |z| achieved and designed.
+        Largest ``|z|`` achieved and designed.
     stable : bool
     level, message : str
         ``"ok" | "near" | "unstable"`` and the verdict sentence.

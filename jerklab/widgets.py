@@ -987,7 +987,7 @@ class PolePlacementPanel(_panel_base()):
         """Script form of the "Run this move on the rig" button; returns (t, ref. − encoder).
 
         Refuses (:class:`jerklab.tuning.UnstableDesignError`) a design whose sampled loop has
-        |z| ≥ 1 unless ``force=True``.
+        ``|z|`` ≥ 1 unless ``force=True``.
         """
         if self.rig is None:
             raise ValueError(
@@ -1093,7 +1093,7 @@ def pole_placement_panel(
         A rig from :func:`jerklab.rig.connect` (or the class page's queue,
         :class:`jerklab.broker.BrokerRig`); adds a "Run this move on the rig" button that
         calls ``rig.run_move(profile, gains, Ts)`` and overlays the measured tracking
-        error. The button is disabled while the sampled loop is unstable (|z| ≥ 1).
+        error. The button is disabled while the sampled loop is unstable (``|z|`` ≥ 1).
     dpi : float
         Resolution of the figure.
     student : bool

@@ -10,7 +10,7 @@ core     law, paper, protocol, planner (and its kernel _onedof), plant, controll
 models   sim, metrics, ident (module or package), shaping, piezo, hysteresis, fpga, multiaxis,
          tuning, peers
 rig      rig and its subpackages
-top      lab, plots, widgets, app, broker, cli, diagrams, wiring, __main__, anything new
+face     lab, plots, widgets, app, broker, cli, diagrams, wiring, __main__, anything new
 =======  ======================================================================================
 
 ``jerklab/__init__.py``, ``_validate``, ``_lazy``, ``_vocab`` and ``resources`` are base
@@ -32,31 +32,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "jerklab"
 
-LAYER_NAMES = ("core", "models", "rig", "top")
-#: first component under ``jerklab.`` -> layer; anything not listed is "top"
-LAYERS = {
-    **dict.fromkeys(
-        ("law", "paper", "protocol", "planner", "_onedof", "plant", "controller"), "core"
-    ),
-    **dict.fromkeys(
-        (
-            "sim",
-            "metrics",
-            "ident",
-            "shaping",
-            "piezo",
-            "hysteresis",
-            "fpga",
-            "multiaxis",
-            "tuning",
-            "peers",
-        ),
-        "models",
-    ),
-    "rig": "rig",
-}
-#: usable by every layer
-BASE = ("jerklab", "jerklab._validate", "jerklab._lazy", "jerklab._vocab", "jerklab.resources")
+from jerklab._layers import BASE, LAYER_NAMES, LAYERS  # noqa: E402  (the one table)
 
 #: (module, function qualname) of every ``.plot()`` that hands its result to jerklab.plots
 PLOT_HANDOFFS = {
@@ -168,7 +144,7 @@ def layer(module: str, layers=LAYERS, base=BASE):
     """The layer of a module (None for a base utility): its first component's layer."""
     if module in base:
         return None
-    return layers.get(_top(module), "top")
+    return layers.get(_top(module), "face")
 
 
 def cycles(modules, imports):
@@ -341,6 +317,6 @@ def test_layers_of_modules():
     assert layer("jerklab.rig.simavr.harness") == "rig"
     assert layer("jerklab.ident.arx") == "models"  # the package form of ident
     assert layer("jerklab.ident") == "models"
-    assert layer("jerklab.lab.checks") == "top"
-    assert layer("jerklab.something_new") == "top"
+    assert layer("jerklab.lab.checks") == "face"
+    assert layer("jerklab.something_new") == "face"
     assert layer("jerklab._vocab") is None

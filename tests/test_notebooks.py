@@ -21,6 +21,27 @@ def test_notebooks_exist():
     assert NOTEBOOKS, "notebooks/ has no notebook"
 
 
+def test_paper_notebooks_tell_the_story_and_tests_check_the_numbers():
+    """The paper notebooks carry no ``assert``: the numbers they show are checked by the tests of
+    the modules that compute them (tests/test_figures_*.py)."""
+    import ast
+
+    found = {}
+    for path in NOTEBOOKS:
+        nb = nbformat.read(path, as_version=4)
+        for i, cell in enumerate(nb.cells):
+            if cell.cell_type != "code":
+                continue
+            code = "\n".join(
+                "pass" if line.lstrip().startswith(("%", "!")) else line
+                for line in cell.source.splitlines()
+            )
+            n = sum(isinstance(node, ast.Assert) for node in ast.walk(ast.parse(code)))
+            if n:
+                found[f"{path.name} cell {i}"] = n
+    assert found == {}
+
+
 @pytest.mark.notebook
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
 def test_notebook_runs(path, tmp_path, monkeypatch):

@@ -110,7 +110,7 @@ def nets(conns):
 
 
 def test_firmware_pin_map_is_the_documented_one():
-    # the sketch's header comment and docs/INTERFACES.md name these; the parser must agree
+    # the sketch's header comment, docs/RIG.md and docs/INTERFACES.md name these; the parser must agree
     assert firmware_pins() == {"ENA": "D9", "IN1": "D7", "IN2": "D8", "A": "D2", "B": "D3"}
 
 

@@ -3,7 +3,7 @@
 It speaks ``jerklab.protocol`` over anything with pyserial's ``read``/``write``
 (a ``serial.Serial``, a ``socket://`` URL, a pseudo-terminal, the in-process
 :class:`~jerklab.rig.virtual.VirtualSerial`), like TCLab's hardware/model swap. The control law
-it configures is Stojčić's (ASCII: Stojcic eq. 16, Stojcic eq. 17, Stojcic eq. 18). Progress
+it configures is Stojčić's (ASCII: Stojcic eqs. 16–18). Progress
 bars: :mod:`jerklab.rig.progress` (tqdm).
 """
 
@@ -218,7 +218,7 @@ class Rig:
         return bool(self.capabilities & P.Capability.SIMULATED_PLANT)
 
     def set_model(self, K, tau):
-        """Motor model for the feedforward: K rad/(V s), tau s (Stojčić eq. 1, Stojčić eq. 8)."""
+        """Motor model for the feedforward: K rad/(V s), tau s (Stojčić eqs. 1, 8)."""
         self.model = (as_positive("K", K), as_positive("tau", tau))
 
     def device_info(self) -> dict:
@@ -593,8 +593,7 @@ class Rig:
 
         The device re-plans the move from ``profile``'s distance and limits with the same
         planner (``PLAN``) and checks that the duration agrees; it then runs the
-        feedforward + discrete PID of Stojčić eq. 16, Stojčić eq. 17,
-        Stojčić eq. 18 at ``Ts`` on encoder counts.
+        feedforward + discrete PID of Stojčić eqs. 16–18 at ``Ts`` on encoder counts.
 
         Before anything is sent, the design is checked on the rig's model (:meth:`set_model`):
         a sampled closed loop (ZOH plant and discrete PID,

@@ -7,7 +7,7 @@
   and the encoder's counts per revolution (``connect(device=Device(motor, speed=1.0))``; a bare
   ``jerklab.plant`` motor is short for ``Device(motor)``).
 * :class:`RunSpec` — how :meth:`jerklab.rig.Rig.run_move` runs a move (the control law of
-  Stojčić eq. 16, Stojčić eq. 17, Stojčić eq. 18; ASCII Stojcic): control period,
+  Stojčić eqs. 16–18; ASCII Stojcic): control period,
   feedforward, output clamp, settle time, telemetry decimation, the host watchdog and the
   device's safety stops, and ``force``. ``run_move(profile, gains, Ts, settle=0.4)`` is short
   for ``run_move(profile, gains, spec=RunSpec(Ts=Ts, settle=0.4))``.

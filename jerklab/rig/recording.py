@@ -119,7 +119,9 @@ def _paths(path) -> tuple[Path, Path]:
 class Recording:
     """A run's time series and metadata, optionally streamed to ``path`` (.csv + .json).
 
-    Attributes (numpy arrays, one entry per received sample)
+    The series are numpy arrays with one entry per received sample.
+
+    Attributes
     ----------
     time : s, ``index * Ts``
     reference : rad, the position reference the device used (0 for an open-loop step)

@@ -2,9 +2,9 @@
 
 :class:`VirtualDevice` is the firmware's behaviour written in Python — the same
 protocol state machine (``firmware/PROTOCOL.md``), the same control law at Ts on
-encoder counts (``jerklab.controller.DigitalController``: Stojčić eq. 16, Stojčić eq. 17,
-Stojčić eq. 18 — ASCII Stojcic — with the output clamp and conditional-integration anti-windup), the same PWM rounding
-and clamp, and the host-silence watchdog — in front of a ``jerklab.plant.DCMotor``
+encoder counts (``jerklab.controller.DigitalController``: Stojčić eqs. 16–18 — ASCII
+Stojcic — with the output clamp and conditional-integration anti-windup), the same PWM
+rounding and clamp, and the host-silence watchdog — in front of a ``jerklab.plant.DCMotor``
 with its PWM and encoder quantization.  It is a byte-in / byte-out object with a
 ``tick()``; the transports move bytes and decide the pace:
 
