@@ -176,7 +176,7 @@ def wiring_diagram(ax=None):
             label=wire.kind,
             solid_capstyle="round",
         )
-        (xa, ya), (xb, yb) = pts[0], pts[1]
+        (xa, ya), (xb, _) = pts[0], pts[1]
         ax.text(
             (xa + xb) / 2,
             ya + 0.12,

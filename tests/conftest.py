@@ -40,7 +40,8 @@ def require_tool(*names: str) -> None:
     if missing:
         msg = (
             f"needs {', '.join(missing)} (Debian packages; `.ci/run` installs them: "
-            f"sudo apt-get install make g++ gcc-avr avr-libc arduino-core-avr simavr libsimavr-dev iverilog chromium)"
+            "sudo apt-get install make g++ gcc-avr avr-libc arduino-core-avr simavr "
+            "libsimavr-dev iverilog chromium)"
         )
         if REQUIRE_TOOLS:
             pytest.fail(msg)

@@ -248,7 +248,8 @@ int main() {
         if (v > INT32_MAX) v = INT32_MAX;
         if (v < INT32_MIN) v = INT32_MIN;
         int64_t t = (int64_t)a + (((int64_t)b * (int64_t)m) >> (8 * s) > INT32_MAX ? INT32_MAX :
-                     (((int64_t)b * (int64_t)m) >> (8 * s) < INT32_MIN ? INT32_MIN : ((int64_t)b * (int64_t)m) >> (8 * s)));
+                     (((int64_t)b * (int64_t)m) >> (8 * s) < INT32_MIN ? INT32_MIN :
+                      ((int64_t)b * (int64_t)m) >> (8 * s)));
         if (t > INT32_MAX) t = INT32_MAX;
         if (t < INT32_MIN) t = INT32_MIN;
         if (lo != (uint32_t)p || hi != (int32_t)(p >> 32) || q != (int32_t)w) ++bad;
@@ -399,7 +400,8 @@ int main() {
         uint32_t sum = 0, nsat = 0;
         for (uint16_t k = 0; k < sizeof(kV) / sizeof(kV[0]); ++k) {
             bool sat;
-            const int32_t u = pid.step((int32_t)pgm_read_dword(&kV[k][0]), (int32_t)pgm_read_dword(&kV[k][1]), &sat);
+            const int32_t u = pid.step((int32_t)pgm_read_dword(&kV[k][0]),
+                                       (int32_t)pgm_read_dword(&kV[k][1]), &sat);
             sum = (sum * 31u) ^ (uint32_t)u;
             nsat += sat;
         }

@@ -108,7 +108,10 @@ def check_rig(rig, *, K=None, tolerance=1.5, voltage=None, seconds=0.6, min_coun
             f"{P.PROTOCOL_VERSION}: flash this jerklab's firmware (make -C firmware upload PORT=...)"
         )
     elif not has_step:
-        fix = "this firmware has no open-loop STEP: flash the rig's firmware (make -C firmware upload PORT=...)"
+        fix = (
+            "this firmware has no open-loop STEP: flash the rig's firmware "
+            "(make -C firmware upload PORT=...)"
+        )
     found.append(
         Finding(
             "firmware",
