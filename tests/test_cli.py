@@ -191,6 +191,7 @@ def test_check_validates_its_arguments():
         rig.close()
 
 
+@pytest.mark.simavr
 def test_check_on_the_firmware_on_simavr():
     require_tool(
         "make",

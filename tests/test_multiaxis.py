@@ -457,6 +457,7 @@ def test_xy_path_phase_sync_is_straight_time_sync_is_not():
 
 
 @pytest.mark.parametrize("sync", ["phase", "time"])
+@pytest.mark.verilog
 def test_xy_stand_verilog_matches_model_on_both_axes(sync, tmp_path):
     """Two scurve_gen + pulse_divider pairs in one Icarus run (firmware/fpga/tb_xy.v), driven by
     the parameters of one synchronized plan: every tick and every edge of both axes equal the

@@ -1,6 +1,6 @@
-"""Protocol version 3 on the simulated Uno (the firmware ELF on simavr): the PRBS of SEQUENCE
-bit for bit, the shaped reference of SET_SHAPER sample by sample, and the residual vibration of
-the flexible load under each input shaper, against the virtual rig (issues 13 and 16).
+"""SEQUENCE and SET_SHAPER on the simulated Uno (the firmware ELF on simavr): the PRBS of
+SEQUENCE bit for bit, the shaped reference of SET_SHAPER sample by sample, and the residual
+vibration of the flexible load under each input shaper, against the virtual rig.
 
 Heavy (a simulated Uno in real time): run alone."""
 
