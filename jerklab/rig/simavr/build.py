@@ -17,7 +17,7 @@ try:  # POSIX; on Windows the build lock falls back to msvcrt
 except ImportError:  # pragma: no cover - Windows
     fcntl = None
 
-__all__ = ["firmware_dir", "build_firmware", "FirmwareBuildError"]
+__all__ = ["firmware_dir", "default_build_dir", "build_firmware", "FirmwareBuildError"]
 
 
 class FirmwareBuildError(RuntimeError):
@@ -34,6 +34,33 @@ def firmware_dir() -> Path:
             "of a jerklab checkout)"
         )
     return path
+
+
+def _env_defs() -> list[str]:
+    """``JERKLAB_FIRMWARE_DEFS``: extra ``-D`` options for every firmware build (e.g.
+    ``-DJL_ASM=1``, to run the simavr tests on the assembly build of the control law)."""
+    defs = os.environ.get("JERKLAB_FIRMWARE_DEFS", "").split()
+    for d in defs:
+        if not d.startswith("-D") or not d[2:].replace("_", "").replace("=", "").isalnum():
+            raise ValueError(
+                f"JERKLAB_FIRMWARE_DEFS must hold -DNAME or -DNAME=VALUE options, got {d!r}"
+            )
+    return defs
+
+
+def _defs_folder(build: Path) -> Path:
+    """``build``, or its subfolder for the options of ``JERKLAB_FIRMWARE_DEFS`` (a build folder
+    per set of options: builds with other options do not overwrite each other's)."""
+    defs = _env_defs()
+    if not defs:
+        return build
+    return build / ("defs-" + "-".join(d[2:].replace("=", "") for d in defs))
+
+
+def default_build_dir() -> Path:
+    """The folder ``build_firmware()`` builds in by default: ``firmware/build`` (its subfolder
+    for the options of ``JERKLAB_FIRMWARE_DEFS`` when that is set)."""
+    return _defs_folder(firmware_dir() / "build")
 
 
 @contextmanager
@@ -68,7 +95,9 @@ def build_firmware(*targets: str, build_dir=None, baud=None, probe_part=None) ->
         Make targets (``"avr"``, ``"size"``, ``"host"``, ``"simavr"``, ``"optiboot"``); none =
         the default (everything the installed tools allow).
     build_dir : path-like, optional
-        Output folder (default ``firmware/build``).
+        Output folder (default ``firmware/build``). With ``JERKLAB_FIRMWARE_DEFS`` set (extra
+        ``-D`` options for every build, e.g. ``-DJL_ASM=1``), a subfolder of it named after
+        those options.
     baud : int, optional
         UART speed of the sketch (``-DJL_BAUD``): 115200 (default), 500000 or 1000000 (both
         exact on a 16 MHz Uno with U2X). Use a separate ``build_dir`` for another speed.
@@ -85,11 +114,11 @@ def build_firmware(*targets: str, build_dir=None, baud=None, probe_part=None) ->
     if shutil.which("make") is None:
         raise FirmwareBuildError("make is not installed")
     fw = firmware_dir()
-    build = Path(build_dir) if build_dir is not None else fw / "build"
+    build = _defs_folder(Path(build_dir) if build_dir is not None else fw / "build")
     for t in targets:
         if not isinstance(t, str) or not t.replace("_", "").isalnum():
             raise ValueError(f"targets must be make target names, got {t!r}")
-    defs = []
+    defs = _env_defs()
     if baud is not None:
         if baud not in (115200, 500000, 1000000):
             raise ValueError(f"baud must be 115200, 500000 or 1000000, got {baud!r}")
