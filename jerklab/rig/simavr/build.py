@@ -36,12 +36,20 @@ def firmware_dir() -> Path:
     return path
 
 
+def _is_define(d: str) -> bool:
+    return (
+        d.startswith("-D")
+        and d[2:3].isalpha()
+        and d[2:].replace("_", "").replace("=", "").isalnum()
+    )
+
+
 def _env_defs() -> list[str]:
     """``JERKLAB_FIRMWARE_DEFS``: extra ``-D`` options for every firmware build (e.g.
     ``-DJL_ASM=1``, to run the simavr tests on the assembly build of the control law)."""
     defs = os.environ.get("JERKLAB_FIRMWARE_DEFS", "").split()
     for d in defs:
-        if not d.startswith("-D") or not d[2:].replace("_", "").replace("=", "").isalnum():
+        if not _is_define(d):
             raise ValueError(
                 f"JERKLAB_FIRMWARE_DEFS must hold -DNAME or -DNAME=VALUE options, got {d!r}"
             )
@@ -86,7 +94,7 @@ def _build_lock(build: Path):
                 msvcrt.locking(fh.fileno(), msvcrt.LK_UNLCK, 1)
 
 
-def build_firmware(*targets: str, build_dir=None, baud=None, probe_part=None) -> dict:
+def build_firmware(*targets: str, build_dir=None, baud=None, probe_part=None, defines=()) -> dict:
     """Run ``make -C firmware <targets>`` (serialised by a file lock) and return the paths.
 
     Parameters
@@ -104,6 +112,9 @@ def build_firmware(*targets: str, build_dir=None, baud=None, probe_part=None) ->
     probe_part : int, optional
         A cycle-profiling build (``-DJL_PROBE_PART``): the PB5 probe is high around that part of
         a tick instead of the whole control step (firmware/README.md "Cycle budget").
+    defines : sequence of str
+        More ``-DNAME`` or ``-DNAME=VALUE`` options (e.g. ``("-DJL_ASM=1",)``, the assembly
+        build of the control law). Use a separate ``build_dir`` for each set of options.
 
     Returns
     -------
@@ -119,6 +130,10 @@ def build_firmware(*targets: str, build_dir=None, baud=None, probe_part=None) ->
         if not isinstance(t, str) or not t.replace("_", "").isalnum():
             raise ValueError(f"targets must be make target names, got {t!r}")
     defs = _env_defs()
+    for d in defines:
+        if not isinstance(d, str) or not _is_define(d):
+            raise ValueError(f"defines must be -DNAME or -DNAME=VALUE options, got {d!r}")
+        defs.append(d)
     if baud is not None:
         if baud not in (115200, 500000, 1000000):
             raise ValueError(f"baud must be 115200, 500000 or 1000000, got {baud!r}")
