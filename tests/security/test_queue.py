@@ -190,3 +190,116 @@ def test_limits_and_authenticate_are_checked():
     lim = Limits(max_distance=1.0)
     with pytest.raises(ValueError, match="max_distance = 1 rad"):
         lim.check(1.5, 0.1, 0.1)
+
+
+# ---------------------------------------------------------------------------- the class page
+V1 = "v1.kernel.websocket.jupyter.org"
+
+
+@pytest.mark.slow
+def test_a_crafted_kernel_websocket_does_not_freeze_the_class_page(tmp_path):
+    """Voila's upstream hang, tried on ``python -m jerklab.app`` as documented. Before: a
+    websocket without the v1 subprotocol sending a legacy binary frame that declares 2**31
+    parts, or a v1 frame that declares 2**62 offsets, froze the server (no answer in 15 s)."""
+    import os
+    import re
+    import signal
+    import subprocess
+    import sys
+    import urllib.request
+
+    websocket = pytest.importorskip("websocket")
+    pytest.importorskip("voila")
+    from jupyter_server.services.kernels.connection.base import (
+        deserialize_msg_from_ws_v1,
+        serialize_msg_to_ws_v1,
+    )
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    env = dict(
+        os.environ,
+        JUPYTER_RUNTIME_DIR=str(tmp_path / "runtime"),
+        JUPYTER_DATA_DIR=str(tmp_path / "data"),
+        JERKLAB_RECORDINGS=str(tmp_path / "recordings"),
+        MPLBACKEND="Agg",
+    )
+    log = open(tmp_path / "server.log", "w")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "jerklab.app", f"--port={port}", "--pool=0"],
+        env=env,
+        cwd=tmp_path,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )
+    base = f"http://127.0.0.1:{port}"
+    try:
+        t0 = time.monotonic()
+        while True:
+            try:
+                with urllib.request.urlopen(base + "/", timeout=120) as r:
+                    page = r.read().decode()
+                break
+            except OSError:
+                assert proc.poll() is None and time.monotonic() - t0 < 180, "page did not start"
+                time.sleep(0.5)
+        # the page shows no server path and runs without tracebacks
+        assert str(tmp_path) not in page and "Traceback" not in page
+        kernel = re.search(r'kernelId["\']?\s*[:=]\s*["\']([0-9a-f-]{36})', page).group(1)
+        ws_url = f"ws://127.0.0.1:{port}/api/kernels/{kernel}/channels"
+
+        def page_answers():
+            t = time.monotonic()
+            with urllib.request.urlopen(f"{base}/api/kernels/{kernel}", timeout=15) as r:
+                assert r.status == 200
+            return time.monotonic() - t
+
+        attacks = [
+            (None, b"\x7f\xff\xff\xff" + b"\0" * 8),  # legacy frame: 2**31 - 1 parts
+            ([V1], (2**62).to_bytes(8, "little") + b"\0" * 16),  # v1 frame: 2**62 offsets
+        ]
+        for subprotocols, frame in attacks:
+            try:
+                ws = websocket.create_connection(ws_url, timeout=10, subprotocols=subprotocols)
+            except websocket.WebSocketBadStatusException as exc:
+                assert subprotocols is None and exc.status_code == 400  # refused at the door
+            else:
+                try:
+                    ws.send_binary(frame)
+                    time.sleep(1.0)
+                finally:
+                    ws.close()
+            assert page_answers() < 5.0
+        # the page's own protocol still works: a kernel_info round trip in v1 frames
+        ws = websocket.create_connection(ws_url, timeout=30, subprotocols=[V1])
+        try:
+            assert ws.getsubprotocol() == V1
+            msg_id = "jerklab-guard-test"
+            header = {
+                "msg_id": msg_id,
+                "msg_type": "kernel_info_request",
+                "username": "t",
+                "session": "s",
+                "version": "5.3",
+                "date": "",
+            }
+            parts = [json.dumps(x).encode() for x in (header, {}, {}, {})]
+            ws.send_binary(serialize_msg_to_ws_v1(parts, "shell"))
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < 30:
+                channel, msg_list = deserialize_msg_from_ws_v1(ws.recv())
+                parent = json.loads(msg_list[1])
+                kind = json.loads(msg_list[0])["msg_type"]
+                if parent.get("msg_id") == msg_id and kind == "kernel_info_reply":
+                    assert channel == "shell"
+                    break
+            else:
+                pytest.fail("no kernel_info_reply through the guarded websocket")
+        finally:
+            ws.close()
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)  # the frozen server of the old code ignores SIGTERM
+        proc.wait(30)
+        log.close()
