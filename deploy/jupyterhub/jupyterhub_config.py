@@ -207,6 +207,9 @@ c.Spawner.args = [
     "--ServerApp.shutdown_no_activity_timeout=3600",
     # the class page: no tracebacks (server paths) on a student's page
     "--VoilaConfiguration.show_tracebacks=False",
+    # a kernel websocket without the v1 protocol, or with a malformed frame, is refused: it
+    # would spin the server at 100 % CPU, deaf to SIGTERM (jerklab._voila_guard)
+    "--ServerApp.kernel_websocket_connection_class=jerklab._voila_guard.GuardedKernelConnection",
 ]
 
 WORKSHEETS = [REPO / "notebooks", REPO / "app" / "tuning.ipynb"]

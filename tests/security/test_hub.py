@@ -152,3 +152,23 @@ def test_the_rig_names_a_run_by_the_hub_login_not_a_typed_id(hub):
 
     with pytest.raises(BrokerError, match="token"):
         BrokerRig(f"broker://127.0.0.1:{hub.broker_port}", token="")
+
+
+def test_a_legacy_kernel_websocket_is_refused_on_a_students_server(hub):
+    """Voila's hang (tests/security/test_queue.py) on the hub: her own server, with her own
+    token, refuses a kernel websocket without the v1 subprotocol before it can spin."""
+    import websocket
+
+    hub.start_server(ALICE, hub.tokens[ALICE])
+    token = hub.tokens[ALICE]
+    _, kernel = api(f"{hub.base}/user/{ALICE}/api/kernels", token, "POST", {"name": "python3"})
+    try:
+        url = f"{hub.base.replace('http', 'ws')}/user/{ALICE}/api/kernels/{kernel['id']}/channels"
+        with pytest.raises(websocket.WebSocketBadStatusException) as err:
+            websocket.create_connection(url, header=[f"Authorization: token {token}"], timeout=30)
+        assert err.value.status_code == 400
+        # and the server answers
+        status, _ = api(f"{hub.base}/user/{ALICE}/api/status", token, timeout=15)
+        assert status == 200
+    finally:
+        api(f"{hub.base}/user/{ALICE}/api/kernels/{kernel['id']}", token, "DELETE")
