@@ -36,6 +36,7 @@ from jerklab.widgets import pole_placement_panel
 
 __all__ = [
     "APP_NOTEBOOK",
+    "GUARD",
     "RIG_ENV",
     "CULL_IDLE_S",
     "CULL_INTERVAL_S",
@@ -47,6 +48,9 @@ __all__ = [
 
 #: The page Voilà renders (the clone's app/, or its copy in an installed wheel: jerklab.resources).
 APP_NOTEBOOK = share_path("app") / "tuning.ipynb"
+
+#: The page's kernel websocket connection: v1 protocol only, malformed frames refused.
+GUARD = "jerklab._voila_guard.GuardedKernelConnection"
 
 #: Environment variable carrying ``--rig`` to the page's kernels ("" or unset: virtual rig).
 RIG_ENV = "JERKLAB_RIG_PORT"
@@ -90,13 +94,19 @@ def panel_for_page(rig_port=None, recordings=None):
         else:
             rig = connect(rig_port, progress=False)
     except Exception as exc:  # the page must still serve the tuning without a rig
+        # the kind of failure only: the message may hold the server's paths
         notice = widgets.HTML(
             '<div class="jerklab-rig-missing" style="color:#b71c1c;font-weight:bold">'
-            f"No rig behind this page ({html.escape(f'{type(exc).__name__}: {exc}')}); "
+            f"No rig behind this page ({html.escape(type(exc).__name__)}); "
             "tuning and simulation only.</div>"
         )
         return widgets.VBox([notice, pole_placement_panel(**page)])
-    return pole_placement_panel(rig=rig, **page)
+    panel = pole_placement_panel(rig=rig, **page)
+    if getattr(rig, "verified", False) and panel.student is not None:
+        # on the hub the broker knows who this is: the ID is the hub's, not typed
+        panel.student.value = rig.identity
+        panel.student.disabled = True
+    return panel
 
 
 def voila_argv(
@@ -135,7 +145,11 @@ def voila_argv(
         f"--port={port}",
         f"--Voila.ip={ip}",
         "--theme=light",
-        "--show_tracebacks=True",
+        # a student's page shows no traceback (they hold the server's paths)
+        "--show_tracebacks=False",
+        # a kernel websocket without Voila's v1 protocol, or a malformed frame, is refused
+        # (they freeze every page of the server: jerklab._voila_guard)
+        f"--Voila.kernel_websocket_connection_class={GUARD}",
     ]
     if not open_browser:
         argv.append("--no-browser")

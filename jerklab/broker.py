@@ -16,7 +16,7 @@ object per line (localhost only by default):
 * client -> broker: ``{"op": "run_move", "profile": {"kind", "distance", "max_jerk",
   "max_accel", "max_velocity"}, "gains": {"kpd", "kid", "kdd", "Ts", "gamma", "loop"},
   "Ts": s, "feedforward": {"K", "tau"} | true | false, "settle": s, "force": false,
-  "client": "label"}``, or ``{"op": "info"}``;
+  "client": "label", "token": "..."}``, or ``{"op": "info"}``;
 * broker -> client: ``{"queued": n_ahead}`` (on arrival, when the queue moves and every
   ``HEARTBEAT`` s), ``{"running": true}``, then ``{"done": true, "csv": ..., "json": ...}``
   (the :class:`jerklab.rig.Recording` files) or ``{"error": "...", "type": "..."}``.
@@ -25,19 +25,35 @@ A client that disconnects while queued leaves the queue. A run whose client went
 still finishes on the rig (a move cannot be abandoned half-way), and its result is dropped.
 The broker refuses a design whose sampled loop has ``|z|`` ≥ 1 unless ``force`` is set
 (:func:`jerklab.tuning.check_runnable`), so no kernel can run away a motor.
+
+A fair queue for a class. Who sent a run is its *identity*: with ``--hub-auth`` (the broker
+run as a JupyterHub service, deploy/jupyterhub) the hub's user name for the request's
+``token`` (:mod:`jerklab.hubauth`; a request without a valid token is refused), else the
+``client`` label, marked ``"identity": "unverified"`` in the recording. Each identity has at
+most one run queued or running (:data:`MAX_RUNS_PER_STUDENT`), and every run is bounded by
+:class:`Limits` (distance, planned duration, settle); a refusal names the limit. The run's
+recording carries ``"student"`` (the identity) and ``"identity"`` (``"hub"`` or
+``"unverified"``); with ``recordings=`` the broker also keeps its own copy under
+``<recordings>/<identity>/``, each run in a file of its own.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import datetime as _dt
+import itertools
 import json
+import math
 import os
+import re
 import select
 import socket
 import sys
 import tempfile
 import threading
 import time
+import uuid
 from pathlib import Path
 
 from jerklab import planner, tuning
@@ -45,7 +61,17 @@ from jerklab.controller import DiscreteGains, Feedforward
 from jerklab.rig import Device, connect
 from jerklab.rig.recording import Recording, recordings_dir
 
-__all__ = ["RigBroker", "BrokerRig", "BrokerError", "SCHEME", "HEARTBEAT", "main"]
+__all__ = [
+    "RigBroker",
+    "BrokerRig",
+    "BrokerError",
+    "Limits",
+    "SCHEME",
+    "HEARTBEAT",
+    "MAX_RUNS_PER_STUDENT",
+    "unique_run_name",
+    "main",
+]
 
 #: Address prefix of a broker: ``broker://host:port``.
 SCHEME = "broker://"
@@ -55,6 +81,69 @@ SCHEME = "broker://"
 HEARTBEAT = 1.0
 
 _MAX_REQUEST = 1 << 16  # bytes of one request line
+
+#: Runs one identity may have queued or running at once.
+MAX_RUNS_PER_STUDENT = 1
+
+
+@dataclasses.dataclass(frozen=True)
+class Limits:
+    """What the broker runs at most for one request (a refusal names the limit it passes).
+
+    Parameters
+    ----------
+    max_distance : float
+        |distance| of a move (rad).
+    max_duration : float
+        Planned duration of a move (s), the settle not counted.
+    max_settle : float
+        Settle time recorded after the move (s).
+    """
+
+    max_distance: float = 120.0
+    max_duration: float = 5.0
+    max_settle: float = 2.0
+
+    def check(self, distance, duration, settle):
+        """Raise :class:`LimitError` naming the first limit a run passes."""
+        for name, value, limit, unit in (
+            ("distance", abs(distance), self.max_distance, "rad"),
+            ("duration", duration, self.max_duration, "s"),
+            ("settle", settle, self.max_settle, "s"),
+        ):
+            if not math.isfinite(value) or value > limit:
+                raise LimitError(
+                    f"{name} {value:g} {unit} is beyond this rig's limit "
+                    f"max_{name} = {limit:g} {unit}"
+                )
+
+
+class LimitError(ValueError):
+    """A run passes one of the broker's :class:`Limits`."""
+
+
+class QueueFullError(RuntimeError):
+    """The identity already has :data:`MAX_RUNS_PER_STUDENT` runs queued or running."""
+
+
+_SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
+_RUN_COUNTER = itertools.count(1)
+
+
+def _folder_name(identity):
+    """A folder name for an identity: itself when it is a plain name, else a digest of it."""
+    if _SAFE_NAME.match(identity) and ".." not in identity:
+        return identity
+    import hashlib
+
+    return "id-" + hashlib.sha256(identity.encode("utf-8")).hexdigest()[:12]
+
+
+def unique_run_name(suffix="move"):
+    """``<UTC date-time to the microsecond>_<process counter>_<random>_<suffix>``: a file stem no
+    other run of this or any other process takes (two runs in one second get two names)."""
+    stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%d-%H%M%S-%f")
+    return f"{stamp}_{next(_RUN_COUNTER):04d}_{uuid.uuid4().hex[:8]}_{suffix}"
 
 
 class BrokerError(RuntimeError):
@@ -78,9 +167,12 @@ def _send(conn, lock, obj):
 
 
 class _Ticket:
-    def __init__(self, conn, request):
+    def __init__(self, conn, request, identity, verified, job):
         self.conn = conn
         self.request = request
+        self.identity = identity  # who sent it (the hub's name, or the unverified label)
+        self.verified = verified
+        self.job = job  # the checked run: a callable returning the Recording
         self.lock = threading.Lock()  # one writer at a time on conn
         self.done = threading.Event()
         self.gone = False  # the client disconnected
@@ -93,6 +185,10 @@ class _Ticket:
             _send(self.conn, self.lock, obj)
         except OSError:
             self.gone = True
+
+
+def _refusal(exc):
+    return {"error": f"{type(exc).__name__}: {exc}", "type": type(exc).__name__}
 
 
 class RigBroker:
@@ -109,12 +205,40 @@ class RigBroker:
         Virtual rig only: times real time (default 1.0, the pace of a board).
     connect_kwargs : dict, optional
         More arguments for :func:`jerklab.rig.connect`.
+    authenticate : callable, optional
+        ``token -> identity`` raising :class:`PermissionError` for a token it does not accept
+        (:class:`jerklab.hubauth.HubIdentity` on a hub). When given, a run without a valid
+        ``token`` is refused and its identity is the one returned; without it the identity is
+        the request's ``client`` label, recorded as unverified.
+    limits : Limits, optional
+        Bounds of one run (default :class:`Limits`).
+    recordings : path, optional
+        Folder where the broker keeps its own copy of every run, under
+        ``<recordings>/<identity>/<unique name>.csv`` (default: none kept).
     """
 
-    def __init__(self, rig_port=None, host="127.0.0.1", port=0, speed=1.0, connect_kwargs=None):
+    def __init__(
+        self,
+        rig_port=None,
+        host="127.0.0.1",
+        port=0,
+        speed=1.0,
+        connect_kwargs=None,
+        *,
+        authenticate=None,
+        limits=None,
+        recordings=None,
+    ):
+        if authenticate is not None and not callable(authenticate):
+            raise TypeError(f"authenticate must be callable, got {type(authenticate).__name__}")
+        if limits is not None and not isinstance(limits, Limits):
+            raise TypeError(f"limits must be a jerklab.broker.Limits, got {type(limits).__name__}")
         kwargs = dict(connect_kwargs or {})
         if rig_port in (None, "virtual"):
             kwargs.setdefault("device", Device(speed=speed))
+        self.authenticate = authenticate
+        self.limits = limits or Limits()
+        self.recordings = None if recordings is None else Path(recordings)
         self.rig = connect(rig_port, progress=False, **kwargs)
         self._queue = []  # tickets waiting, in arrival order
         self._running = None
@@ -125,7 +249,9 @@ class RigBroker:
         h, p = self._listener.getsockname()[:2]
         self.address = f"{SCHEME}{h}:{p}"
         self.runs_done = 0
-        self.order = []  # client labels in the order their runs started
+        self.order = []  # identities in the order their runs started
+        self.refused = []  # (identity or None, reason) of every refused run
+        self.saved = []  # CSV paths of the broker's own copies
         self._threads = [
             threading.Thread(target=self._accept_loop, daemon=True, name="jerklab-broker-accept"),
             threading.Thread(target=self._worker, daemon=True, name="jerklab-broker-worker"),
@@ -180,6 +306,16 @@ class RigBroker:
                 raise ValueError(f"request longer than {_MAX_REQUEST} bytes")
         return json.loads(buf.split(b"\n", 1)[0].decode("utf-8"))
 
+    def _identify(self, req):
+        """``(identity, verified)`` of a request; PermissionError when a token is required."""
+        if self.authenticate is not None:
+            token = req.get("token")
+            if not isinstance(token, str) or not token or len(token) > 4096:
+                raise PermissionError("token: a hub token is required (log in through the hub)")
+            return str(self.authenticate(token)), True
+        label = req.get("client", "?")
+        return (str(label)[:64] if label is not None else "?"), False
+
     def _serve(self, conn):
         lock = threading.Lock()
         try:
@@ -191,6 +327,19 @@ class RigBroker:
                 _send(conn, lock, {"error": f"bad request: {exc}", "type": "ValueError"})
                 return
             op = req.get("op")
+            if op not in ("info", "run_move"):
+                _send(
+                    conn,
+                    lock,
+                    {"error": f"op must be 'info' or 'run_move', got {op!r}", "type": "ValueError"},
+                )
+                return
+            try:
+                identity, verified = self._identify(req)
+            except PermissionError as exc:
+                self.refused.append((None, str(exc)))
+                _send(conn, lock, _refusal(exc))
+                return
             if op == "info":
                 r = self.rig
                 _send(
@@ -202,17 +351,19 @@ class RigBroker:
                         "supply_voltage": r.supply_voltage,
                         "counts_per_rev": r.counts_per_rev,
                         "queued": self.queue_length(),
+                        "identity": identity,
+                        "verified": verified,
+                        "limits": dataclasses.asdict(self.limits),
                     },
                 )
                 return
-            if op != "run_move":
-                _send(
-                    conn,
-                    lock,
-                    {"error": f"op must be 'info' or 'run_move', got {op!r}", "type": "ValueError"},
-                )
+            try:
+                job = self._prepare(req)
+            except Exception as exc:  # a bad or unsafe run is refused before it queues
+                self.refused.append((identity, str(exc)))
+                _send(conn, lock, _refusal(exc))
                 return
-            self._queue_and_wait(conn, req)
+            self._queue_and_wait(conn, _Ticket(conn, req, identity, verified, job))
         except OSError:
             pass
         finally:
@@ -222,9 +373,20 @@ class RigBroker:
         """Runs ahead of ``ticket`` (the running one included); call with the lock held."""
         return self._queue.index(ticket) + (1 if self._running is not None else 0)
 
-    def _queue_and_wait(self, conn, req):
-        ticket = _Ticket(conn, req)
+    def _queue_and_wait(self, conn, ticket):
         with self._cond:
+            mine = [t for t in self._queue if t.identity == ticket.identity]
+            if self._running is not None and self._running.identity == ticket.identity:
+                mine.append(self._running)
+            if len(mine) >= MAX_RUNS_PER_STUDENT:
+                exc = QueueFullError(
+                    f"{ticket.identity!r} already has {len(mine)} run(s) queued or running; "
+                    f"one student may have at most MAX_RUNS_PER_STUDENT = "
+                    f"{MAX_RUNS_PER_STUDENT} at a time (wait for it to finish)"
+                )
+                self.refused.append((ticket.identity, str(exc)))
+                ticket.tell(_refusal(exc))
+                return
             self._queue.append(ticket)
             ahead = self._ahead(ticket)
             self._cond.notify_all()
@@ -279,11 +441,11 @@ class RigBroker:
                 self._running = ticket
             self._tell_positions()
             ticket.tell({"running": True})
-            self.order.append(str(ticket.request.get("client", "?")))
+            self.order.append(ticket.identity)
             try:
-                ticket.reply = self._run(ticket.request)
+                ticket.reply = self._finish(ticket, ticket.job())
             except Exception as exc:  # every failure goes back to its client
-                ticket.reply = {"error": f"{type(exc).__name__}: {exc}", "type": type(exc).__name__}
+                ticket.reply = _refusal(exc)
             finally:
                 self.runs_done += 1
                 with self._cond:
@@ -291,21 +453,33 @@ class RigBroker:
                 ticket.done.set()
                 self._tell_positions()
 
-    def _run(self, req):
-        p = req.get("profile") or {}
+    def _prepare(self, req):
+        """Check a run request (kind, gains, stability, :class:`Limits`) and return its job."""
+        p = req.get("profile")
+        if not isinstance(p, dict):
+            raise ValueError("profile must be a JSON object")
         kind = p.get("kind")
         plan = {
             "sine_jerk": planner.plan_sine_jerk,
             "sine_jerk_optimal": planner.plan_sine_jerk_optimal,
             "scurve": planner.plan_scurve,
         }.get(kind)
+        distance = _number("profile.distance", p.get("distance"))
+        settle = _number("settle", req.get("settle", 0.25))
+        if settle < 0:
+            raise ValueError(f"settle must be >= 0, got {settle:g}")
+        # the distance first: planning a 1e12 rad move is itself work
+        self.limits.check(distance, 0.0, settle)
         if kind == "trapezoid":
-            profile = planner.plan_trapezoid(p["distance"], p["max_accel"], p["max_velocity"])
+            profile = planner.plan_trapezoid(distance, p["max_accel"], p["max_velocity"])
         elif plan is None:
             raise ValueError(f"profile.kind must be a jerklab planner kind, got {kind!r}")
         else:
-            profile = plan(p["distance"], p["max_jerk"], p["max_accel"], p["max_velocity"])
-        g = req.get("gains") or {}
+            profile = plan(distance, p["max_jerk"], p["max_accel"], p["max_velocity"])
+        self.limits.check(distance, float(profile.duration), settle)
+        g = req.get("gains")
+        if not isinstance(g, dict):
+            raise ValueError("gains must be a JSON object")
         gains = DiscreteGains(
             g["kpd"],
             g["kid"],
@@ -319,17 +493,29 @@ class RigBroker:
             ff = Feedforward(ff["K"], ff["tau"])
             K, tau = ff.K, ff.tau
         else:
+            ff = bool(ff)
             K, tau = self.rig.model
         tuning.check_runnable(K, tau, gains, force=bool(req.get("force", False)))
-        rec = self.rig.run_move(
-            profile,
-            gains,
-            Ts=req.get("Ts", gains.Ts),
-            feedforward=ff,
-            settle=req.get("settle", 0.25),
-            path=False,
-            progress=False,
-        )
+        Ts = req.get("Ts", gains.Ts)
+
+        def job():
+            return self.rig.run_move(
+                profile, gains, Ts=Ts, feedforward=ff, settle=settle, path=False, progress=False
+            )
+
+        return job
+
+    def _finish(self, ticket, rec):
+        """Stamp the identity into the recording, keep the broker's copy, build the reply."""
+        rec.metadata["student"] = ticket.identity
+        rec.metadata["identity"] = "hub" if ticket.verified else "unverified"
+        if self.recordings is not None:
+            folder = self.recordings / _folder_name(ticket.identity)
+            folder.mkdir(parents=True, exist_ok=True)
+            base = folder / unique_run_name()
+            while base.with_name(base.name + ".csv").exists():  # never another run's file
+                base = folder / unique_run_name()
+            self.saved.append(Path(rec.save(base)))
         with tempfile.TemporaryDirectory(prefix="jerklab-broker-") as tmp:
             csv_path = Path(rec.save(Path(tmp) / "run"))
             return {
@@ -337,6 +523,12 @@ class RigBroker:
                 "csv": csv_path.read_text(encoding="ascii"),
                 "json": csv_path.with_suffix(".json").read_text(encoding="utf-8"),
             }
+
+
+def _number(name, value):
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"{name} must be a number, got {value!r}")
+    return float(value)
 
 
 class BrokerRig:
@@ -354,17 +546,27 @@ class BrokerRig:
         Seconds to wait for the broker's answer to ``info`` and for each message while
         queued (the broker sends one every ``HEARTBEAT`` s) or running.
     client : str
-        A label for the broker's log (e.g. the student ID).
+        A label for the broker's log (e.g. the student ID); a broker on a hub ignores it and
+        names the run by the hub's user for ``token``.
+    token : str, optional
+        The JupyterHub token sent with every request (default ``$JUPYTERHUB_API_TOKEN``: a
+        kernel on the hub has its user's own).
     """
 
     queues_runs = True
 
-    def __init__(self, address, timeout=10.0, client="kernel"):
+    def __init__(self, address, timeout=10.0, client="kernel", token=None):
+        from jerklab.hubauth import token_from_env
+
         self.address = address
         self.host, self.port = parse_address(address)
         self.timeout = float(timeout)
         self.client = str(client)
+        self._token = token if token is not None else token_from_env()
         self.info = self._request({"op": "info"})
+        #: the name the broker knows this client by (the hub's user when ``verified``)
+        self.identity = self.info.get("identity")
+        self.verified = bool(self.info.get("verified"))
         self.port_name = address
         self.supply_voltage = self.info["supply_voltage"]
         self.counts_per_rev = self.info["counts_per_rev"]
@@ -402,6 +604,8 @@ class BrokerRig:
             yield json.loads(line.decode("utf-8"))
 
     def _request(self, req):
+        if self._token:
+            req = dict(req, token=self._token)
         with self._connect() as s:
             s.sendall((json.dumps(req) + "\n").encode("utf-8"))
             msg = next(self._lines(s))
@@ -462,6 +666,8 @@ class BrokerRig:
             "settle": float(settle),
             "force": bool(force),
         }
+        if self._token:
+            req["token"] = self._token
         say = on_status or (lambda msg: None)
         with self._connect() as s:
             s.sendall((json.dumps(req) + "\n").encode("utf-8"))
@@ -479,10 +685,7 @@ class BrokerRig:
                     break
         keep = path is not False
         if path is None:
-            import datetime as _dt
-
-            stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-            path = recordings_dir() / f"{stamp}_move"
+            path = recordings_dir() / unique_run_name()
         with tempfile.TemporaryDirectory(prefix="jerklab-run-") as tmp:
             base = Path(path) if keep else Path(tmp) / "run"
             if base.suffix.lower() in (".csv", ".json"):
@@ -490,7 +693,8 @@ class BrokerRig:
             base.parent.mkdir(parents=True, exist_ok=True)
             csv_path = base.with_name(base.name + ".csv")
             json_path = base.with_name(base.name + ".json")
-            csv_path.write_text(msg["csv"], encoding="ascii")
+            with open(csv_path, "x" if keep else "w", encoding="ascii") as f:  # never overwrite
+                f.write(msg["csv"])
             meta = json.loads(msg["json"])
             meta["csv"] = csv_path.name
             meta["broker"] = self.address
@@ -516,11 +720,42 @@ def main(argv=None):
     ap.add_argument(
         "--speed", type=float, default=1.0, help="virtual rig only: times real time (default 1.0)"
     )
+    ap.add_argument(
+        "--hub-auth",
+        action="store_true",
+        help="accept only runs whose token the JupyterHub of this service identifies "
+        "($JUPYTERHUB_API_URL, $JUPYTERHUB_API_TOKEN, $JUPYTERHUB_SERVICE_NAME)",
+    )
+    ap.add_argument(
+        "--recordings",
+        default=None,
+        help="keep a copy of every run under RECORDINGS/<identity>/ (default: none)",
+    )
+    d = Limits()
+    ap.add_argument("--max-distance", type=float, default=d.max_distance, help="rad per move")
+    ap.add_argument("--max-duration", type=float, default=d.max_duration, help="s per move")
+    ap.add_argument("--max-settle", type=float, default=d.max_settle, help="s of settle")
     args = ap.parse_args(argv)
     if args.speed <= 0:
         ap.error(f"--speed must be > 0, got {args.speed}")
+    for name in ("max_distance", "max_duration", "max_settle"):
+        if not getattr(args, name) > 0:
+            ap.error(f"--{name.replace('_', '-')} must be > 0, got {getattr(args, name)}")
+    authenticate = None
+    if args.hub_auth:
+        from jerklab.hubauth import HubIdentity
+
+        authenticate = HubIdentity()
     rig_port = None if args.rig in ("", "virtual") else args.rig
-    broker = RigBroker(rig_port, args.host, args.port, speed=args.speed)
+    broker = RigBroker(
+        rig_port,
+        args.host,
+        args.port,
+        speed=args.speed,
+        authenticate=authenticate,
+        limits=Limits(args.max_distance, args.max_duration, args.max_settle),
+        recordings=args.recordings,
+    )
     print(broker.address, flush=True)
     print(
         f"jerklab rig broker: {broker.rig!r} on {broker.address}; Ctrl-C to stop",

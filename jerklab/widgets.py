@@ -37,7 +37,6 @@ Design choices
 from __future__ import annotations
 
 import base64
-import datetime as _dt
 import hashlib
 import html
 import io
@@ -919,11 +918,11 @@ class PolePlacementPanel(_panel_base()):
         if self.student is None or sid is None:
             return False
         folder = (Path(self.recordings) if self.recordings is not None else recordings_dir()) / sid
-        stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-        base, k = folder / f"{stamp}_move", 1
+        from jerklab.broker import unique_run_name
+
+        base = folder / unique_run_name()  # two runs in one second never share a file
         while base.with_name(base.name + ".csv").exists():
-            k += 1
-            base = folder / f"{stamp}_move_{k}"
+            base = folder / unique_run_name()
         return base
 
     def _show_rig_status(self, text):
@@ -969,7 +968,10 @@ class PolePlacementPanel(_panel_base()):
             )
             saved = ""
             if getattr(rec, "csv_path", None) is not None:
-                saved = f"; saved as {html.escape(str(rec.csv_path))}"
+                # the student's folder and file, not the server's absolute path
+                shown = Path(rec.csv_path)
+                shown = f"{shown.parent.name}/{shown.name}" if self.student is not None else shown
+                saved = f"; saved as {html.escape(str(shown))}"
             self.rig_status.value = (
                 f"rig: max |ref. − encoder| = {format_angle(np.max(np.abs(err)))} over "
                 f"{t.size} samples (simulation: {format_angle(sim)}){saved}"

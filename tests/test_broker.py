@@ -136,7 +136,9 @@ def test_broker_refuses_unstable_gains_and_bad_requests(broker):
     rig = BrokerRig(broker.address)
     with pytest.raises(BrokerError, match=r"UnstableDesignError.*\|z\| = 1\.\d+"):
         rig.run_move(tuning.move_profile(), bad, path=False)
-    assert broker.order == ["kernel"] and broker.runs_done == 1  # refused before the rig
+    # refused before it queues: it never reached the rig
+    assert broker.order == [] and broker.runs_done == 0
+    assert [who for who, _ in broker.refused] == ["kernel"]
     s = socket.create_connection(parse_address(broker.address))
     s.sendall(b'{"op": "format c:"}\n')
     assert "op must be" in json.loads(s.makefile().readline())["error"]
@@ -169,7 +171,9 @@ def test_class_page_panel_runs_through_the_broker(broker, tmp_path, monkeypatch)
     assert broker.order == ["s123"]
     files = list((tmp_path / "s123").glob("*_move.csv"))
     assert len(files) == 1 and Recording.load(files[0]).metadata["broker"] == broker.address
-    assert "saved as" in p.rig_status.value and str(files[0]) in p.rig_status.value
+    # the student's folder and file name, never the server's absolute path
+    assert "saved as" in p.rig_status.value and f"s123/{files[0].name}" in p.rig_status.value
+    assert str(tmp_path) not in p.rig_status.value
     assert (
         abs(float(np.max(np.abs(err))) - float(np.max(np.abs(p.result.err_move_measured)))) < 0.05
     )

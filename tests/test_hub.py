@@ -1,30 +1,23 @@
-"""deploy/jupyterhub/jupyterhub_config.py: a hub with the dummy authenticator and the local
-process spawner; two students log in (API tokens), their servers start with the worksheets in
-their folder, and a lab cell runs in a kernel of each (jerklab with the virtual rig).
+"""deploy/jupyterhub/jupyterhub_config.py: a hub with a login per student and a Unix user per
+student (tests/_hub.py); two students start their servers (API tokens), which hold the
+worksheets in their own home, a lab cell runs in a kernel of each (jerklab with the virtual
+rig), and the class page is served. The attacks on the same hub: tests/security/test_hub.py.
 
-Needs jupyterhub (pip) and configurable-http-proxy (npm); skips without them (fails in CI).
+Needs root, jupyterhub, jupyterhub-firstuseauthenticator (pip) and configurable-http-proxy
+(npm); skips without them (fails in CI).
 """
 
 import json
-import os
 import pathlib
-import secrets
-import signal
-import socket
-import subprocess
-import sys
-import time
+import pwd
 import urllib.error
-import urllib.request
-import uuid
 
 import pytest
-from conftest import require_tool
+from _hub import api, run_cell, running_hub
 
 pytestmark = pytest.mark.slow
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
-CONFIG = ROOT / "deploy" / "jupyterhub" / "jupyterhub_config.py"
 LAB_CELL = """\
 import os, jerklab
 from jerklab.rig import connect
@@ -84,7 +77,11 @@ def test_z2jh_values_file():
     values = yaml.safe_load((ROOT / "deploy" / "z2jh" / "values.yaml").read_text())
     _check_keys(values, Z2JH_KEYS)
     cfg = values["hub"]["config"]
-    assert cfg["JupyterHub"]["authenticator_class"] == "dummy"
+    # a login per student, approved by the instructor; no shared class password
+    assert cfg["JupyterHub"]["authenticator_class"] == "nativeauthenticator.NativeAuthenticator"
+    assert "DummyAuthenticator" not in cfg and "dummy" not in json.dumps(cfg).lower()
+    assert cfg["NativeAuthenticator"]["open_signup"] is False
+    assert cfg["Authenticator"]["allow_all"] is False and cfg["Authenticator"]["allowed_users"]
     # the same culling intent as the one-server hub
     assert values["cull"]["enabled"] is True and values["cull"]["timeout"] > 0
     hook = " ".join(values["singleuser"]["lifecycleHooks"]["postStart"]["exec"]["command"])
@@ -95,155 +92,31 @@ def test_z2jh_values_file():
     assert lim.endswith("G") and float(lim[:-1]) >= 0.6
 
 
-def _free_port():
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _api(url, token, method="GET", body=None, timeout=30):
-    data = json.dumps(body).encode() if body is not None else (b"" if method == "POST" else None)
-    req = urllib.request.Request(
-        url,
-        data=data,
-        method=method,
-        headers={"Authorization": f"token {token}", "Content-Type": "application/json"},
-    )
-    with urllib.request.urlopen(req, timeout=timeout) as r:
-        txt = r.read().decode()
-        return r.status, (json.loads(txt) if txt.strip().startswith(("{", "[")) else txt)
-
-
 @pytest.fixture(scope="module")
-def hub(tmp_path_factory):
-    pytest.importorskip("jupyterhub")
-    require_tool("configurable-http-proxy")
-    state = tmp_path_factory.mktemp("hub")
-    port, api, proxy = _free_port(), _free_port(), _free_port()
-    token = secrets.token_hex(16)
-    env = dict(
-        os.environ,
-        JERKLAB_HUB_URL=f"http://127.0.0.1:{port}",
-        JERKLAB_HUB_API_URL=f"http://127.0.0.1:{api}",
-        JERKLAB_HUB_PROXY_API=f"http://127.0.0.1:{proxy}",
-        JERKLAB_HUB_STATE=str(state),
-        JERKLAB_HUB_ADMIN_TOKEN=token,
-        PATH=os.path.dirname(sys.executable) + os.pathsep + os.environ["PATH"],
-    )
-    log = open(state / "hub.log", "w")
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "jupyterhub", "-f", str(CONFIG)],
-        cwd=state,
-        env=env,
-        stdout=log,
-        stderr=subprocess.STDOUT,
-        start_new_session=True,
-    )
-    base = f"http://127.0.0.1:{port}"
-    try:
-        t0 = time.monotonic()
-        while True:
-            try:
-                _api(base + "/hub/api/", token)
-                break
-            except (OSError, urllib.error.URLError):
-                if proc.poll() is not None or time.monotonic() - t0 > 90:
-                    pytest.fail("hub did not start:\n" + (state / "hub.log").read_text()[-3000:])
-                time.sleep(0.5)
-        yield base, token, state
-    finally:
-        try:
-            os.killpg(proc.pid, signal.SIGTERM)
-            proc.wait(30)
-        except Exception:
-            os.killpg(proc.pid, signal.SIGKILL)
-        log.close()
-
-
-def _run_cell(base, user, token, code, timeout=90):
-    """Start a kernel on the user's server, execute ``code``, return its stdout."""
-    import websocket  # websocket-client
-
-    _, kernel = _api(f"{base}/user/{user}/api/kernels", token, "POST", {"name": "python3"})
-    try:
-        ws = websocket.create_connection(
-            f"{base.replace('http', 'ws')}/user/{user}/api/kernels/{kernel['id']}/channels",
-            header=[f"Authorization: token {token}"],
-            timeout=timeout,
-        )
-        msg_id = uuid.uuid4().hex
-        ws.send(
-            json.dumps(
-                {
-                    "header": {
-                        "msg_id": msg_id,
-                        "username": user,
-                        "session": uuid.uuid4().hex,
-                        "msg_type": "execute_request",
-                        "version": "5.3",
-                    },
-                    "parent_header": {},
-                    "metadata": {},
-                    "channel": "shell",
-                    "content": {
-                        "code": code,
-                        "silent": False,
-                        "store_history": False,
-                        "user_expressions": {},
-                        "allow_stdin": False,
-                    },
-                }
-            )
-        )
-        out, t0 = [], time.monotonic()
-        while time.monotonic() - t0 < timeout:
-            msg = json.loads(ws.recv())
-            if msg.get("parent_header", {}).get("msg_id") != msg_id:
-                continue
-            kind = msg["header"]["msg_type"]
-            if kind == "stream":
-                out.append(msg["content"]["text"])
-            elif kind == "error":
-                raise AssertionError("\n".join(msg["content"]["traceback"]))
-            elif kind == "status" and msg["content"]["execution_state"] == "idle":
-                return "".join(out)
-        raise AssertionError(f"no reply in {timeout} s")
-    finally:
-        _api(f"{base}/user/{user}/api/kernels/{kernel['id']}", token, "DELETE")
+def hub():
+    with running_hub(["jlt-ana", "jlt-ben"], admin="jlt-teacher") as h:
+        yield h
 
 
 def test_two_students_run_a_lab_cell(hub):
-    base, admin, state = hub
-    users = ["alice", "bob"]
-    tokens = {}
-    for u in users:
-        status, _ = _api(f"{base}/hub/api/users/{u}", admin, "POST")
-        assert status == 201
-        # the student's own token ("logging in" by API); the admin service may create it
-        _, tok = _api(f"{base}/hub/api/users/{u}/tokens", admin, "POST", {"note": "test"})
-        tokens[u] = tok["token"]
+    users = ["jlt-ana", "jlt-ben"]
+    tokens = {u: hub.user_token(u) for u in users}
     for u in users:  # each student starts their own server with their own token
-        status, _ = _api(f"{base}/hub/api/users/{u}/server", tokens[u], "POST")
-        assert status in (201, 202)
-    t0 = time.monotonic()
+        hub.start_server(u, tokens[u])
     for u in users:
-        while True:
-            _, info = _api(f"{base}/hub/api/users/{u}", admin)
-            if info["servers"].get("", {}).get("ready"):
-                break
-            assert time.monotonic() - t0 < 150, f"{u}'s server not ready: {info}"
-            time.sleep(1.0)
-    for u in users:
-        out = _run_cell(base, u, tokens[u], LAB_CELL)
+        out = run_cell(hub.base, u, tokens[u], LAB_CELL)
         assert out.startswith(f"LAB {u} "), out
         assert "01_" in out or ".ipynb" in out, out  # the worksheets were copied
-        assert (state / "home" / u / "tuning.ipynb").is_file()
+        home = pathlib.Path(pwd.getpwnam(u).pw_dir)
+        st = (home / "tuning.ipynb").stat()
+        assert st.st_uid == pwd.getpwnam(u).pw_uid  # theirs, to edit
+        assert home.stat().st_mode & 0o777 == 0o700
     # a student cannot reach another student's server
     with pytest.raises(urllib.error.HTTPError) as err:
-        _api(f"{base}/user/alice/api/kernels", tokens["bob"])
+        api(f"{hub.base}/user/jlt-ana/api/kernels", tokens["jlt-ben"])
     assert err.value.code in (403, 404)
-    # the class page is served to a student by Voilà (server extension)
-    status, page = _api(
-        f"{base}/user/alice/voila/render/tuning.ipynb", tokens["alice"], timeout=180
+    # the class page is served to a student by Voila (server extension)
+    status, page = api(
+        f"{hub.base}/user/jlt-ana/voila/render/tuning.ipynb", tokens["jlt-ana"], timeout=180
     )
     assert status == 200 and "kernelId" in page
