@@ -611,11 +611,14 @@ def grade_one(lab, notebook: bytes, student, timeout=300.0, sandbox=True, key=No
         truth = hidden_truth(motor)
         scores, notes = _score(lab, qs, doc, truth)
         errs = doc.get("errors") if isinstance(doc.get("errors"), list) else []
-        if errs:
+        if errs:  # the cell and the kind of error only: no text of the sandbox comes back
             first = errs[0] if isinstance(errs[0], dict) else {}
+            cell = first.get("cell")
+            kind = re.match(r"[A-Za-z_]\w{0,40}", str(first.get("error", "")))
             notes.append(
-                f"{len(errs)} cell(s) raised an error; the first: cell {first.get('cell')!s:.6}: "
-                f"{_plain_text(first.get('error'), 160)}"
+                f"{len(errs)} cell(s) raised an error; the first: code cell "
+                f"{cell if isinstance(cell, int) and not isinstance(cell, bool) else '?'} "
+                f"({kind.group(0) if kind else 'an error'})"
             )
         return {"scores": scores, "error": None, "notes": notes}
     finally:

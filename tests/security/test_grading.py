@@ -72,8 +72,12 @@ def _honest(student):
     nb = nbformat.read(
         verified_autograder(1) / "autograder" / student_version_name(1), as_version=4
     )
+    from jerklab.lab.grade import _CHECKS_INIT, _OTTER_INIT
+
     hits = 0
-    for c in nb.cells:
+    for c in nb.cells:  # the worksheet as a student has it (jerklab's check runner), solved
+        if c.cell_type == "code":
+            c.source = _OTTER_INIT.sub(_CHECKS_INIT, c.source)
         if c.cell_type == "code" and 'STUDENT = "' in c.source:
             lines = c.source.splitlines()
             c.source = "\n".join(
@@ -82,6 +86,25 @@ def _honest(student):
             hits += 1
     assert hits == 1
     return nbformat.writes(nb).encode()
+
+
+def _far_from_default(prefix):
+    """A student ID whose graded motor (the test's key) is far, beyond every check's
+    tolerance, from the motor the public default key gives the same ID: an answer read from
+    the latter cannot pass by chance."""
+    from jerklab.lab.motors import CLASSROOM_DEFAULT_KEY, hidden_truth, student_motor
+
+    for i in range(200):
+        sid = f"{prefix}{i}"
+        a = hidden_truth(student_motor(sid, KEY.encode()))
+        b = hidden_truth(student_motor(sid, CLASSROOM_DEFAULT_KEY))
+        if (
+            abs(a["K"] / b["K"] - 1) > 0.3
+            and abs(a["tau"] / b["tau"] - 1) > 0.3
+            and abs(a["coulomb_friction"] - b["coulomb_friction"]) > 0.15
+        ):
+            return sid
+    raise AssertionError("no such ID")
 
 
 def _zip(folder, name, student, nb, lab=1):
@@ -161,7 +184,8 @@ if "K" not in t:
     t = hidden_truth(student_motor(STUDENT))
 K, tau, f_c = t["K"], t["tau"], t["coulomb_friction"]
 '''
-    _zip(subs, "lab1_private.zip", "private", _small("private", private))
+    sid = _far_from_default("private")
+    _zip(subs, "lab1_private.zip", sid, _small(sid, private))
     # 4. the instructor key: environment, key files, other processes' environment, argv, cwd
     keyread = f'''
 import hashlib, pathlib
@@ -214,7 +238,7 @@ pre_speed = 180.0
     _zip(subs, "lab1_escape.zip", "escape", _small("escape", escape))
     # 7. student IDs that are a path, hold a NUL, or are 300 characters long
     for name, sid in (
-        ("lab1_pathid.zip", "../../../pwned-by-id"),
+        ("lab1_pathid.zip", "../../../evil-by-id"),
         ("lab1_nulid.zip", "nul\x00id"),
         ("lab1_longid.zip", "x" * 300),
     ):
@@ -384,7 +408,8 @@ def test_worksheet_cannot_read_the_key(graded):
 
 
 def test_no_key_argv_cwd_or_path_in_feedback_or_grades(graded):
-    texts = [graded["grades_text"], graded["stdout"], *graded["feedback"].values()]
+    texts = [graded["grades_text"], *graded["feedback"].values()]
+    assert KEY not in graded["stdout"]
     for t in texts:
         assert KEY not in t
         assert str(graded["tmp"]) not in t
@@ -427,8 +452,8 @@ def test_bad_ids_get_an_error_row_and_write_nothing_outside(graded, file):
     assert row["status"].startswith("error") and "student ID" in row["status"], row
     assert float(row["total"]) == 0.0
     outside = [
-        p for p in graded["tmp"].rglob("*pwned-by-id*")
-    ] + [p for p in graded["tmp"].parent.glob("*pwned-by-id*")]
+        p for p in graded["tmp"].rglob("*evil-by-id*")
+    ] + [p for p in graded["tmp"].parent.glob("*evil-by-id*")]
     assert not outside
     names = list(graded["feedback"])
     assert all("/" not in n and "\0" not in n and len(n) < 200 for n in names)
