@@ -30,7 +30,10 @@ def main(argv=None):
         "--timeout", type=float, default=300.0, help="seconds per submission (default 300)"
     )
     g.add_argument(
-        "--jobs", type=int, default=1, help="submissions graded at once, one sandbox each (default 1)"
+        "--jobs",
+        type=int,
+        default=1,
+        help="submissions graded at once, one sandbox each (default 1)",
     )
     g.add_argument(
         "--unsafe-no-sandbox",

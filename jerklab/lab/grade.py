@@ -60,7 +60,7 @@ from jerklab.lab.handin import MAX_ZIP_BYTES, HandinError, read_handin
 from jerklab.lab.motors import hidden_truth, normalize_student, student_device, student_motor
 from jerklab.lab.plain import Evidence
 from jerklab.lab.registry import FLEXIBLE_LABS, LABS, run_check
-from jerklab.lab.sandbox import Limits, SandboxUnavailable, bwrap_path, sandbox_command
+from jerklab.lab.sandbox import SandboxUnavailable, bwrap_path, sandbox_command
 from jerklab.rig.server import DeviceServer
 from jerklab.rig.virtual import VirtualDevice
 
@@ -204,8 +204,7 @@ def verified_autograder(lab: int) -> Path:
         return d / "dist"
     if d.exists():
         warnings.warn(
-            f"the cached autograder of lab {lab} ({d}) differs from its signed index: "
-            "made again",
+            f"the cached autograder of lab {lab} ({d}) differs from its signed index: made again",
             RuntimeWarning,
             stacklevel=2,
         )
@@ -367,7 +366,9 @@ def _read_submission(p: Path) -> dict:
             raise HandinError(f"{p.name}: no notebook in the hand-in")
         s2, _ = _notebook_info(nb, h["notebook_name"] or "")
         if s2 is not None and s2.strip().lower() != student:
-            notes.append("the notebook names another student than the manifest: graded as the manifest's")
+            notes.append(
+                "the notebook names another student than the manifest: graded as the manifest's"
+            )
             nb = _STUDENT_RE.sub(f'STUDENT = "{student}"', nb.decode("utf-8"), count=1).encode()
         notes.append(f"manifest verified ({len(h['files'])} files)")
     else:
@@ -637,7 +638,7 @@ def _grade_job(args):
     try:
         return grade_one(lab, nb, student, timeout, sandbox)
     except Exception as exc:  # the grader's own failure on this submission: its row says so
-        return {"scores": {}, "error": f"grading failed ({type(exc).__name__}: {_plain_text(exc, 200)})", "notes": []}
+        return {"scores": {}, "error": f"grading failed ({type(exc).__name__})", "notes": []}
 
 
 # ------------------------------------------------------------------ the CSV and feedback
@@ -663,9 +664,7 @@ def _write_feedback(feedback_dir: Path, name: str, text: str):
     outside the folder."""
     if "/" in name or "\0" in name or name in (".", "..") or len(name) > 200:
         raise ValueError("a feedback file name that is not a plain name")
-    fd = os.open(
-        feedback_dir / name, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW, 0o600
-    )
+    fd = os.open(feedback_dir / name, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW, 0o600)
     with os.fdopen(fd, "w", encoding="utf-8") as f:
         f.write(text)
 
@@ -732,7 +731,15 @@ def grade_folder(
     )
     rows, parsed = [], []
     for p in subs:  # every submission read before any runs
-        row = {"file": p.name, "student": "", "lab": "", "status": "", "flags": "", "total": 0.0, "max": 0.0}
+        row = {
+            "file": p.name,
+            "student": "",
+            "lab": "",
+            "status": "",
+            "flags": "",
+            "total": 0.0,
+            "max": 0.0,
+        }
         try:
             sub = _read_submission(p)
             row.update(student=sub["student"], lab=sub["lab"])
@@ -768,7 +775,9 @@ def grade_folder(
             row["total"] += sc
             row["max"] += mx
             verdict = "right" if sc >= mx else "not yet"
-            sub["notes"].append(f"{q}: {sc:g}/{mx:g} ({verdict})" + (f"\n    {msg}" if sc < mx else ""))
+            sub["notes"].append(
+                f"{q}: {sc:g}/{mx:g} ({verdict})" + (f"\n    {msg}" if sc < mx else "")
+            )
         row["status"] = "graded"
     for i, (row, sub) in enumerate(zip(rows, parsed)):
         notes = list(sub["notes"]) if sub else []
@@ -787,13 +796,17 @@ def grade_folder(
             _write_feedback(feedback_dir, _feedback_name(row, i + 1), text)
         except (OSError, ValueError) as exc:
             row["status"] += f" (feedback not written: {type(exc).__name__})"
-    qcols = [q for lab in sorted({r["lab"] for r in rows if r["lab"] in LABS}) for q in _qnames(lab)]
+    qcols = [
+        q for lab in sorted({r["lab"] for r in rows if r["lab"] in LABS}) for q in _qnames(lab)
+    ]
     extra = sorted({k for r in rows for k in r} - set(qcols) - set(_FIXED))
     out_csv.parent.mkdir(parents=True, exist_ok=True)
     tmp = out_csv.with_name(f".{out_csv.name}.{os.getpid()}.tmp")
     with tmp.open("w", newline="", encoding="utf-8") as f:
         w = csv.DictWriter(
-            f, ["student", "lab", "file", "status", "flags", *qcols, *extra, "total", "max"], restval=""
+            f,
+            ["student", "lab", "file", "status", "flags", *qcols, *extra, "total", "max"],
+            restval="",
         )
         w.writeheader()
         for r in rows:
@@ -820,8 +833,10 @@ def _flag(rows, parsed):
             continue
         by_id.setdefault((sub["student"], sub["lab"]), []).append(i)
         by_hash.setdefault(hashlib.sha256(sub["notebook"]).hexdigest(), []).append(i)
-    for group, what in ((by_id, "duplicate ID (same student and lab as {})"),
-                        (by_hash, "identical notebook to {}")):
+    for group, what in (
+        (by_id, "duplicate ID (same student and lab as {})"),
+        (by_hash, "identical notebook to {}"),
+    ):
         for idx in group.values():
             if len(idx) < 2:
                 continue
