@@ -25,6 +25,7 @@ from pathlib import Path
 
 import nbformat
 
+from benchmarks.bench_security import area
 from jerklab.lab.handin import pack
 
 KEY = "grading-security-test-key-7f3a"
@@ -489,3 +490,10 @@ JUDGES = [
         ),
     ),
 ]
+
+
+@area("grading")
+def run(tmp):
+    """The crafted class folder graded once (``--jobs 2``); one row per attack."""
+    res = grade_class(tmp, jobs=2)
+    return [(name, *judge(res)) for name, judge in JUDGES]
