@@ -153,10 +153,20 @@ def _cache_secret(root: Path) -> bytes:
     return key
 
 
-def _cache_dir(lab: int) -> Path:
-    import otter
+def _otter_version() -> str:
+    """otter-grader's version, without importing it (its import takes seconds)."""
+    from importlib.metadata import PackageNotFoundError, version
 
-    h = hashlib.sha256(master_path(lab).read_bytes() + otter.__version__.encode()).hexdigest()[:16]
+    try:
+        return version("otter-grader")
+    except PackageNotFoundError:
+        import otter  # a source checkout without metadata
+
+        return otter.__version__
+
+
+def _cache_dir(lab: int) -> Path:
+    h = hashlib.sha256(master_path(lab).read_bytes() + _otter_version().encode()).hexdigest()[:16]
     return _cache_root() / f"lab{lab}-{h}"
 
 
@@ -270,10 +280,15 @@ def assign(out_dir, labs=tuple(LABS)) -> list[Path]:
 _VERIFY = re.compile(r"""S\.verify\(\s*["']([A-Za-z_]\w*)["']\s*,\s*([A-Za-z_]\w*)\s*\)""")
 
 
+_QUESTIONS: dict = {}  # lab -> questions(lab), verified once per grading run
+
+
 def questions(lab: int) -> dict:
     """``{question: (points, variable)}`` of ``lab``, in the worksheet's order: read from the
     verified autograder's tests (otter's ``metadata.otter.tests`` of the student version), each
     test's ``S.verify("name", variable)`` naming the variable that holds the answer."""
+    if lab in _QUESTIONS:
+        return dict(_QUESTIONS[lab])
     nb = json.loads(
         (verified_autograder(lab) / "student" / student_version_name(lab)).read_text("utf-8")
     )
@@ -293,7 +308,8 @@ def questions(lab: int) -> dict:
         out[name] = (float(points if points is not None else 1.0), m.group(2))
     if not out:
         raise RuntimeError(f"lab {lab}: the autograder holds no tests")
-    return out
+    _QUESTIONS[lab] = out
+    return dict(out)
 
 
 def _master_points(lab: int) -> dict:
@@ -757,6 +773,7 @@ def grade_folder(
             row["status"] = "skipped (lab not asked for)"
             continue
         todo.append((i, (sub["lab"], sub["notebook"], sub["student"], timeout, sandbox)))
+    _QUESTIONS.clear()
     for lab in sorted({a[0] for _, a in todo}):
         questions(lab)  # the autograder made and verified once, before the workers start
     if jobs > 1 and len(todo) > 1:
