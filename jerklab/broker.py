@@ -516,11 +516,17 @@ def main(argv=None):
     ap.add_argument(
         "--speed", type=float, default=1.0, help="virtual rig only: times real time (default 1.0)"
     )
+    ap.add_argument(
+        "--profile",
+        default=os.environ.get("JERKLAB_RIG_PROFILE") or None,
+        help="the rig's motor profile: a name or a profile file (default $JERKLAB_RIG_PROFILE)",
+    )
     args = ap.parse_args(argv)
     if args.speed <= 0:
         ap.error(f"--speed must be > 0, got {args.speed}")
     rig_port = None if args.rig in ("", "virtual") else args.rig
-    broker = RigBroker(rig_port, args.host, args.port, speed=args.speed)
+    extra = {"profile": args.profile} if args.profile else None
+    broker = RigBroker(rig_port, args.host, args.port, speed=args.speed, connect_kwargs=extra)
     print(broker.address, flush=True)
     print(
         f"jerklab rig broker: {broker.rig!r} on {broker.address}; Ctrl-C to stop",
