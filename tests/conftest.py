@@ -80,6 +80,7 @@ FILE_MARKS = {
     "test_firmware.py": ("firmware", "simavr"),
     "test_firmware_fixed.py": ("firmware", "simavr"),
     "test_firmware_telemetry.py": ("firmware", "simavr"),
+    "test_firmware_law.py": ("firmware", "simavr"),
     "test_rig_sequence_shaper.py": ("firmware",),
     "faults/test_safety.py": ("firmware",),
     "test_fpga.py": ("verilog",),
