@@ -669,10 +669,18 @@ def csv_cell(value):
     return value
 
 
-def _feedback_name(row, index) -> str:
-    stem = re.sub(r"[^A-Za-z0-9._@+-]", "_", row["file"])[:60].lstrip(".") or "submission"
+def _feedback_name(row, taken) -> str:
+    """``<ID>_lab<N>_<file stem>.txt`` of plain characters (``_2``, ``_3``... when taken)."""
+    stem = Path(row["file"]).stem
+    stem = re.sub(r"[^A-Za-z0-9._@+-]", "_", stem)[:60].lstrip(".") or "submission"
     who = row["student"] or "unknown"
-    return f"{index:03d}_{who}_lab{row['lab'] or 'X'}_{stem}.txt"
+    base = f"{who}_lab{row['lab'] or 'X'}_{stem}"
+    name, n = f"{base}.txt", 1
+    while name in taken:
+        n += 1
+        name = f"{base}_{n}.txt"
+    taken.add(name)
+    return name
 
 
 def _write_feedback(feedback_dir: Path, name: str, text: str):
@@ -796,7 +804,8 @@ def grade_folder(
                 f"{q}: {sc:g}/{mx:g} ({verdict})" + (f"\n    {msg}" if sc < mx else "")
             )
         row["status"] = "graded"
-    for i, (row, sub) in enumerate(zip(rows, parsed)):
+    taken = set()
+    for row, sub in zip(rows, parsed):
         notes = list(sub["notes"]) if sub else []
         if row["status"].startswith("error"):
             notes.append(f"not graded: {row['status'][7:]}")
@@ -810,7 +819,7 @@ def grade_folder(
             + "\n"
         )
         try:
-            _write_feedback(feedback_dir, _feedback_name(row, i + 1), text)
+            _write_feedback(feedback_dir, _feedback_name(row, taken), text)
         except (OSError, ValueError) as exc:
             row["status"] += f" (feedback not written: {type(exc).__name__})"
     qcols = [

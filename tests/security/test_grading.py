@@ -49,7 +49,7 @@ def graded(tmp_path_factory):
 
 
 def _fb(graded, file):
-    hits = [t for n, t in graded["feedback"].items() if n.endswith(f"_{file}.txt")]
+    hits = [t for n, t in graded["feedback"].items() if n.endswith(f"_{Path(file).stem}.txt")]
     assert len(hits) == 1, (file, sorted(graded["feedback"]))
     return hits[0]
 
