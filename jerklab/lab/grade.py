@@ -401,7 +401,8 @@ def _read_submission(p: Path) -> dict:
 # ------------------------------------------------------------------ decoding and scoring
 def decode_answer(x, depth=0):
     """An exported answer (JSON data) as the checks take it: numbers, strings, booleans, None
-    and lists as they are, ``{"__jerklab__": "DiscreteGains", ...}`` as a validated
+    and lists as they are, ``{"__jerklab__": "complex", "re", "im"}`` as a complex,
+    ``{"__jerklab__": "DiscreteGains", ...}`` as a validated
     :class:`jerklab.controller.DiscreteGains`; ``"nan"``/``"inf"`` as floats. Raises
     ValueError for anything else (the question then scores 0: "could not read your answer")."""
     if depth > 8:
@@ -422,6 +423,11 @@ def decode_answer(x, depth=0):
         return [decode_answer(v, depth + 1) for v in x]
     if isinstance(x, dict):
         kind = x.get("__jerklab__")
+        if kind == "complex":
+            re_, im = x.get("re"), x.get("im")
+            if any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in (re_, im)):
+                raise ValueError("answer: a complex number's parts are not numbers")
+            return complex(re_, im)
         if kind == "DiscreteGains":
             fields = {}
             for k in ("kpd", "kid", "kdd", "Ts", "gamma"):
