@@ -337,3 +337,29 @@ def test_read_handin_refuses_declared_size_and_bad_ids(tmp_path, monkeypatch):
         ]
         == "bob"
     )
+
+
+@pytest.mark.parametrize("lab", [2, 3, 4])
+def test_honest_worksheets_of_labs_2_to_4_score_full_marks(lab, tmp_path, monkeypatch):
+    """Solved worksheets in the sandbox: every answer type (the gains, their design's complex
+    z-poles, tuples, strings) crosses the export and scores against the served motor."""
+    import re
+
+    import nbformat
+
+    from jerklab.lab import grade
+
+    require_tool("bwrap", "prlimit")
+    monkeypatch.setenv("JERKLAB_INSTRUCTOR_KEY", KEY)
+    nb = nbformat.read(
+        grade.verified_autograder(lab) / "autograder" / grade.student_version_name(lab),
+        as_version=4,
+    )
+    for c in nb.cells:
+        if c.cell_type == "code":
+            c.source = grade._OTTER_INIT.sub(grade._CHECKS_INIT, c.source)
+            c.source = re.sub(r'^STUDENT = "[^"]*"', f'STUDENT = "full{lab}"', c.source, flags=re.M)
+    res = grade.grade_one(lab, nbformat.writes(nb).encode(), f"full{lab}", timeout=600)
+    assert res["error"] is None, res
+    missed = {q: m for q, (s, mx, m) in res["scores"].items() if s < mx}
+    assert not missed and len(res["scores"]) >= 6, missed
