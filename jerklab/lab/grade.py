@@ -60,7 +60,7 @@ from jerklab.lab.handin import MAX_ZIP_BYTES, HandinError, read_handin
 from jerklab.lab.motors import hidden_truth, normalize_student, student_device, student_motor
 from jerklab.lab.plain import Evidence
 from jerklab.lab.registry import FLEXIBLE_LABS, LABS, run_check
-from jerklab.lab.sandbox import SandboxUnavailable, bwrap_path, sandbox_command
+from jerklab.lab.sandbox import SAFE_ENV, SandboxUnavailable, bwrap_path, sandbox_command
 from jerklab.rig.server import DeviceServer
 from jerklab.rig.virtual import VirtualDevice
 
@@ -600,8 +600,6 @@ def grade_one(lab, notebook: bytes, student, timeout=300.0, sandbox=True, key=No
             cmd = sandbox_command(argv, work, env=env, devices=[(server.port, _RIG_IN_SANDBOX)])
         else:
             cmd = argv
-            from jerklab.lab.sandbox import SAFE_ENV
-
             env = {**SAFE_ENV, "HOME": str(work), "MPLCONFIGDIR": str(work / ".mpl"), **env}
         try:
             proc = subprocess.Popen(

@@ -26,6 +26,8 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+import jerklab
+
 __all__ = ["Limits", "SAFE_ENV", "SandboxUnavailable", "bwrap_path", "sandbox_command"]
 
 #: The environment of a sandboxed worksheet (besides what the grader sets for the run).
@@ -105,8 +107,6 @@ def _python_paths() -> list[str]:
     """The read-only folders the worksheet's Python needs: the interpreter's prefix, the
     environment's and every existing ``sys.path`` folder (site-packages, an editable clone's
     ``jerklab`` package only)."""
-    import jerklab
-
     pkg = Path(jerklab.__file__).resolve().parent
     paths = {str(Path(sys.base_prefix).resolve()), str(Path(sys.prefix).resolve()), str(pkg)}
     for p in sys.path:
@@ -164,8 +164,6 @@ def sandbox_command(
             "(Debian/Ubuntu: apt-get install bubblewrap util-linux)"
         )
     workdir = str(Path(workdir).resolve())
-    import jerklab
-
     masters = Path(jerklab.__file__).resolve().parent / "lab" / "masters"
     nproc = _processes_of_this_user() + int(limits.processes)
     cmd = [

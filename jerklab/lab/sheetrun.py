@@ -24,6 +24,11 @@ import math
 import os
 import sys
 
+import numpy as np
+
+from jerklab.controller import DiscreteGains
+from jerklab.lab.session import LabSession
+
 __all__ = ["export", "main"]
 
 _MAX_DEPTH = 8
@@ -36,10 +41,6 @@ def export(x, depth=0):
     "DiscreteGains", ...}``. Anything else becomes
     ``{"__jerklab__": "unsupported", "type": its type name}`` (the grader then says it cannot
     read the answer). ``...`` becomes None (no answer)."""
-    import numpy as np
-
-    from jerklab.controller import DiscreteGains
-
     if depth > _MAX_DEPTH:
         return {"__jerklab__": "unsupported", "type": "nested too deep"}
     if x is None or x is Ellipsis:
@@ -76,8 +77,6 @@ def export(x, depth=0):
 
 
 def _evidence(ns):
-    from jerklab.lab.session import LabSession
-
     sessions = [v for v in ns.values() if isinstance(v, LabSession)]
     if not sessions:
         return {}
