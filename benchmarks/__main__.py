@@ -2,9 +2,9 @@
 
 ``python -m benchmarks [NAME ...]``
     Run every ``benchmarks/bench_*.py`` (or those named; ``faults``, the fault probe,
-    ``class``, the class load test, and ``security``, the attacks of issue 32, only when
-    named; ``--opt=value`` after a name goes to that benchmark: ``class --minutes=0.5
-    --n=1,10``), print their tables and write the
+    ``class``, the class load test, ``grading``, the grading rate, and ``security``, every
+    attack and its outcome, only when named; ``--opt=value`` after a name goes to that
+    benchmark: ``class --minutes=0.5 --n=1,10``), print their tables and write the
     run as JSON to ``benchmarks/results/<UTC date>_<host>_<commit>.json``: the machine,
     Python and package versions, the date, the git commit of the jerklab that was
     imported, and every table (modules that print by hand are kept as text).
@@ -31,7 +31,7 @@ import sys
 from benchmarks import _record
 
 HERE = pathlib.Path(__file__).parent
-#: benchmarks run only when named (``python -m benchmarks faults``: the fault probe takes minutes)
+#: benchmarks run only when named (``python -m benchmarks faults``: each takes minutes)
 ON_REQUEST = {"bench_faults", "bench_class", "bench_grading", "bench_security"}
 RESULTS = HERE / "results"
 

@@ -299,8 +299,12 @@ def _plant_poisoned_autograder(tmpdir: Path, cache: Path):
                 z.writestr(n, d)
 
 
-def grade_class(tmp, jobs=2, poison=True) -> dict:
-    """Build the class folder in ``tmp`` and grade it once with the real command."""
+def grade_class(tmp, jobs=2, poison=True, only=None, check=True) -> dict:
+    """Build the class folder in ``tmp`` and grade it once with the real command.
+
+    ``jobs`` None leaves ``--jobs`` out (a grader without it); ``only`` keeps just the named
+    submission files; ``check`` False returns a failed run (no ``grades.csv``) instead of
+    raising."""
     tmp = Path(tmp)
     subs, home, tmpdir = tmp / "subs", tmp / "home", tmp / "tmpdir"
     for d in (subs, home / ".config" / "jerklab", tmpdir):
@@ -323,6 +327,10 @@ def grade_class(tmp, jobs=2, poison=True) -> dict:
     os.environ["JERKLAB_CACHE"] = str(cache)  # the builders below use the same cache
     try:
         made = _attacks(tmp, subs, keyfile, home, grades)
+        if only is not None:
+            for p in subs.iterdir():
+                if p.name not in only:
+                    p.unlink()
         if poison:
             _plant_poisoned_autograder(tmpdir, cache)
     finally:
@@ -341,8 +349,7 @@ def grade_class(tmp, jobs=2, poison=True) -> dict:
             str(subs),
             "--out",
             str(grades),
-            "--jobs",
-            str(jobs),
+            *(["--jobs", str(jobs)] if jobs else []),
             "--timeout",
             "240",
         ],
@@ -352,10 +359,14 @@ def grade_class(tmp, jobs=2, poison=True) -> dict:
         timeout=1800,
     )
     seconds = time.monotonic() - t0
-    if r.returncode != 0:
+    if r.returncode != 0 and check:
         raise RuntimeError(f"the grade command failed ({r.returncode}):\n{r.stderr[-3000:]}")
-    grades_text = grades.read_text()
-    rows = {row["file"].lstrip("'"): row for row in csv.DictReader(grades.open())}
+    grades_text = grades.read_text() if grades.is_file() else ""
+    rows = (
+        {row["file"].lstrip("'"): row for row in csv.DictReader(grades.open())}
+        if grades.is_file()
+        else {}
+    )
     time.sleep(8)  # the detached child would have written by now
     return {
         "tmp": tmp,
@@ -363,7 +374,13 @@ def grade_class(tmp, jobs=2, poison=True) -> dict:
         "rows": rows,
         "grades": grades,
         "grades_text": grades_text,
-        "feedback": {p.name: p.read_text() for p in (grades.parent / "feedback").iterdir()},
+        "feedback": {
+            p.name: p.read_text(errors="replace")
+            for p in (grades.parent / "feedback").glob("*")
+            if p.is_file()
+        },
+        "returncode": r.returncode,
+        "stderr": r.stderr[-2000:],
         "before": before,
         "stdout": r.stdout,
         "seconds": seconds,

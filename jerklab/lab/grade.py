@@ -401,7 +401,8 @@ def _read_submission(p: Path) -> dict:
 # ------------------------------------------------------------------ decoding and scoring
 def decode_answer(x, depth=0):
     """An exported answer (JSON data) as the checks take it: numbers, strings, booleans, None
-    and lists as they are, ``{"__jerklab__": "DiscreteGains", ...}`` as a validated
+    and lists as they are, ``{"__jerklab__": "complex", "re", "im"}`` as a complex,
+    ``{"__jerklab__": "DiscreteGains", ...}`` as a validated
     :class:`jerklab.controller.DiscreteGains`; ``"nan"``/``"inf"`` as floats. Raises
     ValueError for anything else (the question then scores 0: "could not read your answer")."""
     if depth > 8:
@@ -422,6 +423,11 @@ def decode_answer(x, depth=0):
         return [decode_answer(v, depth + 1) for v in x]
     if isinstance(x, dict):
         kind = x.get("__jerklab__")
+        if kind == "complex":
+            re_, im = x.get("re"), x.get("im")
+            if any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in (re_, im)):
+                raise ValueError("answer: a complex number's parts are not numbers")
+            return complex(re_, im)
         if kind == "DiscreteGains":
             fields = {}
             for k in ("kpd", "kid", "kdd", "Ts", "gamma"):
@@ -667,10 +673,18 @@ def csv_cell(value):
     return value
 
 
-def _feedback_name(row, index) -> str:
-    stem = re.sub(r"[^A-Za-z0-9._@+-]", "_", row["file"])[:60].lstrip(".") or "submission"
+def _feedback_name(row, taken) -> str:
+    """``<ID>_lab<N>_<file stem>.txt`` of plain characters (``_2``, ``_3``... when taken)."""
+    stem = Path(row["file"]).stem
+    stem = re.sub(r"[^A-Za-z0-9._@+-]", "_", stem)[:60].lstrip(".") or "submission"
     who = row["student"] or "unknown"
-    return f"{index:03d}_{who}_lab{row['lab'] or 'X'}_{stem}.txt"
+    base = f"{who}_lab{row['lab'] or 'X'}_{stem}"
+    name, n = f"{base}.txt", 1
+    while name in taken:
+        n += 1
+        name = f"{base}_{n}.txt"
+    taken.add(name)
+    return name
 
 
 def _write_feedback(feedback_dir: Path, name: str, text: str):
@@ -794,7 +808,8 @@ def grade_folder(
                 f"{q}: {sc:g}/{mx:g} ({verdict})" + (f"\n    {msg}" if sc < mx else "")
             )
         row["status"] = "graded"
-    for i, (row, sub) in enumerate(zip(rows, parsed)):
+    taken = set()
+    for row, sub in zip(rows, parsed):
         notes = list(sub["notes"]) if sub else []
         if row["status"].startswith("error"):
             notes.append(f"not graded: {row['status'][7:]}")
@@ -808,7 +823,7 @@ def grade_folder(
             + "\n"
         )
         try:
-            _write_feedback(feedback_dir, _feedback_name(row, i + 1), text)
+            _write_feedback(feedback_dir, _feedback_name(row, taken), text)
         except (OSError, ValueError) as exc:
             row["status"] += f" (feedback not written: {type(exc).__name__})"
     qcols = [

@@ -36,8 +36,9 @@ _MAX_DEPTH = 8
 
 def export(x, depth=0):
     """``x`` as JSON data: numbers, strings, booleans, None, lists (from lists, tuples and numpy
-    arrays), dicts with string keys, and :class:`jerklab.controller.DiscreteGains` as
-    ``{"__jerklab__": "DiscreteGains", ...}``. Anything else becomes
+    arrays), dicts with string keys, complex numbers as ``{"__jerklab__": "complex", "re",
+    "im"}`` and :class:`jerklab.controller.DiscreteGains` as ``{"__jerklab__":
+    "DiscreteGains", ...}``. Anything else becomes
     ``{"__jerklab__": "unsupported", "type": its type name}`` (the grader then says it cannot
     read the answer). ``...`` becomes None (no answer)."""
     if depth > _MAX_DEPTH:
@@ -51,6 +52,8 @@ def export(x, depth=0):
     if isinstance(x, (float, np.floating)):
         v = float(x)
         return v if math.isfinite(v) else repr(v)
+    if isinstance(x, (complex, np.complexfloating)):
+        return {"__jerklab__": "complex", "re": export(x.real), "im": export(x.imag)}
     if isinstance(x, str):
         return str.__str__(x)
     if isinstance(x, np.ndarray):

@@ -49,7 +49,7 @@ def graded(tmp_path_factory):
 
 
 def _fb(graded, file):
-    hits = [t for n, t in graded["feedback"].items() if n.endswith(f"_{file}.txt")]
+    hits = [t for n, t in graded["feedback"].items() if n.endswith(f"_{Path(file).stem}.txt")]
     assert len(hits) == 1, (file, sorted(graded["feedback"]))
     return hits[0]
 
@@ -242,3 +242,124 @@ def test_refuses_without_bubblewrap_and_says_why(tmp_path):
     assert "bubblewrap" in r.stderr and "--unsafe-no-sandbox" in r.stderr
     assert "instructor key" in r.stderr
     assert not (tmp_path / "g.csv").exists()
+
+
+def test_unsafe_no_sandbox_grades_and_warns(tmp_path):
+    """The escape hatch for a machine without bubblewrap: the same answers-out path, with a
+    warning that says what is lost."""
+    subs = tmp_path / "subs"
+    subs.mkdir()
+    (subs / "lab1_a.ipynb").write_bytes(_small("unsafe", "pre_speed = 180.0\ntrust = 'pem'"))
+    env = dict(os.environ, JERKLAB_INSTRUCTOR_KEY=KEY, JERKLAB_CACHE=str(tmp_path / "cache"))
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "jerklab.lab",
+            "grade",
+            str(subs),
+            "--out",
+            str(tmp_path / "g.csv"),
+            "--unsafe-no-sandbox",
+        ],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "no isolation" in r.stderr
+    (row,) = list(csv.DictReader((tmp_path / "g.csv").open()))
+    assert row["status"] == "graded" and float(row["total"]) == 2.0, row
+
+
+def test_decode_answer_takes_plain_data_only():
+    from jerklab.controller import DiscreteGains
+    from jerklab.lab.grade import decode_answer
+
+    assert decode_answer([1.5, "pem", True, None]) == [1.5, "pem", True, None]
+    assert decode_answer("nan") != decode_answer("nan")  # a float NaN: the check says not finite
+    g = decode_answer(
+        {
+            "__jerklab__": "DiscreteGains",
+            "kpd": 1.0,
+            "kid": 0.1,
+            "kdd": 2.0,
+            "Ts": 0.005,
+            "gamma": 0.0,
+            "loop": "position",
+            "design": {"sigma": 3.0},
+        }
+    )
+    assert isinstance(g, DiscreteGains) and g.design == {"sigma": 3.0}
+    for bad in (
+        {"__jerklab__": "unsupported", "type": "Liar"},
+        {"__jerklab__": "DiscreteGains", "kpd": "1", "kid": 0, "kdd": 0, "Ts": 0.005, "gamma": 0},
+        {"__jerklab__": "DiscreteGains", "kpd": 1, "kid": 0, "kdd": 0, "Ts": -1, "gamma": 0},
+        "x" * 20_000,
+        2**80,
+    ):
+        with pytest.raises(ValueError):
+            decode_answer(bad)
+    deep = []
+    for _ in range(20):
+        deep = [deep]
+    with pytest.raises(ValueError, match="nested"):
+        decode_answer(deep)
+
+
+def test_csv_cell_quotes_formulas_only():
+    from jerklab.lab.grade import csv_cell
+
+    for s in ("=1+2*3", "+1-2", "-3", "@sum(A1)", "\t=x"):
+        assert csv_cell(s) == "'" + s
+    assert csv_cell("alice") == "alice" and csv_cell(-3.0) == -3.0 and csv_cell(2) == 2
+
+
+def test_read_handin_refuses_declared_size_and_bad_ids(tmp_path, monkeypatch):
+    from jerklab.lab import handin
+    from jerklab.lab.handin import pack
+
+    p = pack(
+        {"notebook/x.ipynb": b"{}", "recordings/a.csv": bytes(5000)}, "ok", 1, tmp_path / "a.zip"
+    )
+    monkeypatch.setattr(handin, "MAX_UNCOMPRESSED_BYTES", 4000)
+    with pytest.raises(handin.HandinError, match="uncompressed"):
+        handin.read_handin(p)
+    monkeypatch.undo()
+    for sid in ("../x", "a/b", "nul\0", "x" * 65, "", 42):
+        q = pack({"notebook/x.ipynb": b"{}"}, sid, 1, tmp_path / "b.zip")
+        with pytest.raises(handin.HandinError, match="student ID"):
+            handin.read_handin(q)
+    assert (
+        handin.read_handin(pack({"notebook/x.ipynb": b"{}"}, " Bob ", 1, tmp_path / "c.zip"))[
+            "student"
+        ]
+        == "bob"
+    )
+
+
+@pytest.mark.parametrize("lab", [2, 3, 4])
+def test_honest_worksheets_of_labs_2_to_4_score_full_marks(lab, tmp_path, monkeypatch):
+    """Solved worksheets in the sandbox: every answer type (the gains, their design's complex
+    z-poles, tuples, strings) crosses the export and scores against the served motor."""
+    import re
+
+    import nbformat
+
+    from jerklab.lab import grade
+
+    require_tool("bwrap", "prlimit")
+    monkeypatch.setenv("JERKLAB_INSTRUCTOR_KEY", KEY)
+    nb = nbformat.read(
+        grade.verified_autograder(lab) / "autograder" / grade.student_version_name(lab),
+        as_version=4,
+    )
+    for c in nb.cells:
+        if c.cell_type == "code":
+            c.source = grade._OTTER_INIT.sub(grade._CHECKS_INIT, c.source)
+            c.source = re.sub(r'^STUDENT = "[^"]*"', f'STUDENT = "full{lab}"', c.source, flags=re.M)
+    res = grade.grade_one(lab, nbformat.writes(nb).encode(), f"full{lab}", timeout=600)
+    assert res["error"] is None, res
+    missed = {q: m for q, (s, mx, m) in res["scores"].items() if s < mx}
+    assert not missed and len(res["scores"]) >= 6, missed
