@@ -23,17 +23,45 @@ from hypothesis import HealthCheck, settings  # noqa: E402
 
 # "dev" keeps a local run quick and draws new cases every run; "ci" (set by .ci/run) runs the full
 # case counts, derandomized so that a CI verdict is reproducible (a failure found by "dev" is kept
-# as an @example in the test).
-settings.register_profile("dev", max_examples=300, deadline=None)
-settings.register_profile(
-    "ci",
-    max_examples=2000,
-    deadline=None,
-    derandomize=True,
-    database=None,
-    suppress_health_check=[HealthCheck.too_slow],
-)
+# as an @example in the test). Case counts come from these profiles only, no test sets
+# ``max_examples`` (tests/test_suite_layout.py): a test whose one case costs more than about a
+# tenth of a second in CI (a fit, a firmware run, a dense integration) takes the profile's
+# "costly" share, a test whose case is itself a batch of 4000 moves the "batch" share (``cases``
+# below). The ci counts (700, 70, 28) give 30842 cases in all where the tests' own counts gave
+# 28650 (tests/test_suite_layout.py keeps the sum), in about the same time: a case costs 25-110 ms
+# in most tests.
+PROFILES = {
+    "dev": dict(max_examples=100, deadline=None),
+    "ci": dict(
+        max_examples=700,
+        deadline=None,
+        derandomize=True,
+        database=None,
+        suppress_health_check=[HealthCheck.too_slow],
+    ),
+}
+#: a cost class -> the divisor of the profile's ``max_examples`` it runs
+COST_SHARE = {"cheap": 1, "costly": 10, "batch": 25}
+for _name, _kw in PROFILES.items():
+    settings.register_profile(_name, **_kw)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "dev"))
+
+
+def cases(cost: str, **kwargs) -> settings:
+    """Hypothesis settings of the cost class ``cost``: its share (``COST_SHARE``) of the loaded
+    profile's ``max_examples``.
+
+    ``@cases("costly")`` on a test whose case takes a tenth of a second or more; other settings
+    (``deadline``, ``suppress_health_check``) may be given as keywords, case counts may not.
+    """
+    if cost not in COST_SHARE:
+        raise ValueError(f"cost must be one of {sorted(COST_SHARE)}, not {cost!r}")
+    if "max_examples" in kwargs:
+        raise TypeError("max_examples comes from the hypothesis profile (tests/conftest.py)")
+    return settings(
+        max_examples=max(1, settings.default.max_examples // COST_SHARE[cost]), **kwargs
+    )
+
 
 REQUIRE_TOOLS = os.environ.get("JERKLAB_REQUIRE_TOOLS", "") not in ("", "0")
 
@@ -54,6 +82,51 @@ def require_tool(*names: str) -> None:
         if REQUIRE_TOOLS:
             pytest.fail(msg)
         pytest.skip(msg)
+
+
+#: what ``connect("simavr")`` builds and runs: the sketch (avr-g++ and binutils on the Arduino
+#: core) and the simulator harness (cc on simavr's headers)
+SIMAVR_TOOLS = (
+    "make",
+    "cc",
+    "avr-g++",
+    "avr-size",
+    "avr-nm",
+    "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
+    "/usr/include/simavr/sim_avr.h",
+)
+
+
+def require_simavr() -> None:
+    """``require_tool`` of everything a test on the simulated Uno needs (``SIMAVR_TOOLS``)."""
+    require_tool(*SIMAVR_TOOLS)
+
+
+@pytest.fixture(scope="session")
+def host_driver():
+    """The firmware core built for the host (``make -C firmware host``): the driver's path.
+
+    Built once per test process; the build is serialised by a file lock, so parallel workers
+    share firmware/build."""
+    require_tool("g++", "make")
+    from jerklab.rig.simavr import build_firmware
+
+    return build_firmware("host")["host"]
+
+
+@pytest.fixture(scope="module")
+def forget_simavr_module():
+    """Leave ``jerklab.rig.simavr`` un-imported after the module, as other modules' tests expect
+    (tests/test_rig.py checks ``connect("simavr")`` with the module absent); a module that
+    imports it uses this fixture (``pytestmark = pytest.mark.usefixtures(...)``)."""
+    import sys
+
+    yield
+    sys.modules.pop("jerklab.rig.simavr", None)
+    import jerklab.rig
+
+    if hasattr(jerklab.rig, "simavr"):
+        delattr(jerklab.rig, "simavr")
 
 
 @pytest.fixture

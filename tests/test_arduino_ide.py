@@ -83,7 +83,7 @@ def test_ide_build_makes_a_hex_that_fits(built):
     )
     assert m, out
     used, maximum = int(m.group(1)), int(m.group(3))
-    # the flash budget of tests/test_firmware.py (issue 21: every planner and re-targeting on board;
+    # the flash budget of tests/test_firmware.py (every planner and re-targeting on board;
     # protocol 3's SEQUENCE and SET_SHAPER: 99 %)
     assert maximum == 32256 and used <= 0.99 * maximum
     # every core source was compiled with the sketch

@@ -1,4 +1,4 @@
-"""End-to-end: the tuning panel in a real headless browser (issue 9).
+"""End-to-end: the tuning panel in a real headless browser.
 
 Servers are started on free localhost ports: the class page with the documented command
 (``python -m jerklab.app``, Voilà, virtual rig behind it), JupyterLab on a notebook that ends

@@ -7,7 +7,7 @@ import types
 from pathlib import Path
 
 import pytest
-from conftest import require_tool
+from conftest import require_simavr
 
 from jerklab import cli
 from jerklab.plant import DCMotor
@@ -191,14 +191,7 @@ def test_check_validates_its_arguments():
 
 @pytest.mark.simavr
 def test_check_on_the_firmware_on_simavr():
-    require_tool(
-        "make",
-        "cc",
-        "avr-g++",
-        "avr-size",
-        "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
-        "/usr/include/simavr/sim_avr.h",
-    )
+    require_simavr()
     rig = connect(
         "simavr",
         progress=False,

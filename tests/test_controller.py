@@ -5,7 +5,7 @@ from __future__ import annotations
 import control as ct
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from jerklab.controller import (
@@ -44,7 +44,6 @@ def _z_pid_tf(d):
     return ct.tf(num, den, d.Ts)
 
 
-@settings(max_examples=60)
 @given(
     st.floats(0.5, 200),
     st.floats(0.3, 2.0),

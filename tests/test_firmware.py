@@ -1,4 +1,4 @@
-"""Firmware (issue 5): the Uno sketch builds and fits; its portable C++ core, compiled on the
+"""Firmware: the Uno sketch builds and fits; its portable C++ core, compiled on the
 host, agrees with jerklab on golden vectors (planner, controller, frames); the device state
 machine speaks jerklab.protocol (replies, parameter checks with NACK codes, runs, the host
 watchdog)."""
@@ -33,24 +33,8 @@ def build_firmware(*targets):
     return build(*targets)
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _forget_simavr_module():
-    """Leave ``jerklab.rig.simavr`` un-imported afterwards, as other modules' tests expect
-    (tests/test_rig.py checks connect("simavr") with the module absent)."""
-    import sys
-
-    yield
-    sys.modules.pop("jerklab.rig.simavr", None)
-    import jerklab.rig
-
-    if hasattr(jerklab.rig, "simavr"):
-        delattr(jerklab.rig, "simavr")
-
-
-@pytest.fixture(scope="module")
-def host_driver():
-    require_tool("g++", "make")
-    return build_firmware("host")["host"]
+# (host_driver: tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("forget_simavr_module")
 
 
 def test_sketch_builds_and_fits_the_uno_budget():
@@ -66,8 +50,8 @@ def test_sketch_builds_and_fits_the_uno_budget():
     assert m, out["output"]
     flash, flash_total, ram, ram_total = (int(m.group(i)) for i in (1, 2, 4, 5))
     assert flash_total == 32256 and ram_total == 2048
-    # Issue 21 put all four planners, the moving start and re-targeting on the board (~13 KB of
-    # soft-float code) and keeps two plans' segments and three segments' sampling coefficients
+    # All four planners, the moving start and re-targeting are on the board (~13 KB of
+    # soft-float code), which keeps two plans' segments and three segments' sampling coefficients
     # in RAM: the budget is 92 % of the flash (~2.5 KB of headroom) and 75 % of the RAM (>= 500
     # bytes stay for the stack, whose deepest path -- a command handler sending a reply -- needs
     # about 250).
@@ -307,7 +291,7 @@ def test_host_core_agrees_with_jerklab_on_golden_vectors(host_driver, tmp_path):
     quantisation bound (docs/THEORY.md "The fixed-point PID")."""
     vec = tmp_path / "golden.txt"
     clamp = _write_vectors(vec, np.random.default_rng(20151))
-    # issue 19: the controller vectors saturate in both directions, and on each side of the clamp
+    # the controller vectors saturate in both directions, and on each side of the clamp
     # the integrator is seen both frozen (anti-windup) and integrating (error pulling back)
     both = [st for st in clamp if st["pos"] and st["neg"]]
     assert len(both) >= 3, clamp
@@ -449,7 +433,7 @@ def test_device_hello_and_parameter_checks(host_driver):
     assert hello.protocol_version == pr.PROTOCOL_VERSION and hello.name == "jerklab-uno"
     assert hello.tick_us == 1000 and hello.pwm_max == 1023
     caps = pr.Capability(hello.capabilities)
-    # issue 21: every planner is on the board
+    # every planner is on the board
     for c in (
         pr.Capability.PLANNER_SINE_JERK,
         pr.Capability.PLANNER_SINE_JERK_OPTIMAL,
@@ -542,7 +526,7 @@ def test_device_run_matches_jerklab_plan_and_reaches_target(host_driver):
 
 @pytest.mark.parametrize("planner,Ts", [(1, 0.001), (2, 0.005), (2, 0.001), (3, 0.001), (0, 0.001)])
 def test_device_runs_every_planner(host_driver, planner, Ts):
-    """Issue 21: PLAN's planner byte picks any of the four planners on the board, at Ts = 1 ms
+    """PLAN's planner byte picks any of the four planners on the board, at Ts = 1 ms
     as at 5 ms; the reference in the telemetry is jerklab's profile to float32 precision."""
     distance = f32(-3 * math.pi)
     J, E, W = 1e4, 300.0, 60.0

@@ -12,11 +12,8 @@ import struct
 import subprocess
 
 import numpy as np
-import pytest
 from _avr import run_on_atmega328p
 from conftest import require_tool
-
-from jerklab.rig.simavr import build_firmware
 
 I32_MIN, I32_MAX = -(2**31), 2**31 - 1
 EDGES = [
@@ -38,12 +35,6 @@ EDGES = [
     I32_MAX - 1,
     I32_MAX,
 ]
-
-
-@pytest.fixture(scope="module")
-def host_driver():
-    require_tool("g++", "make")
-    return build_firmware("host")["host"]
 
 
 def _run(host, lines):

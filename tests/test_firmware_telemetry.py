@@ -1,4 +1,4 @@
-"""The TELEMETRY / serial side of the 1 ms control step on the simulated Uno (issue 21).
+"""The TELEMETRY / serial side of the 1 ms control step on the simulated Uno.
 
 The frame is encoded straight into the UART transmit ring (``Hal::write_frame``,
 ``jl::encode_frame_ring``, an assembly copy-and-CRC loop on the AVR), and in the 1 Mbaud build the
@@ -19,21 +19,13 @@ import math
 
 import numpy as np
 import pytest
-from conftest import require_tool
+from conftest import require_simavr
 
 from jerklab.controller import discrete_pole_placement_pid
 from jerklab.planner import plan_sine_jerk
 from jerklab.rig import Device, Link, connect
 
 MOTOR = dict(K=27.5, tau=0.034)
-TOOLS = (
-    "make",
-    "cc",
-    "avr-g++",
-    "avr-size",
-    "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
-    "/usr/include/simavr/sim_avr.h",
-)
 
 
 def _fast_move():
@@ -82,7 +74,7 @@ def test_telemetry_frame_cost_and_every_frame_at_1khz_1mbaud(tmp_path):
     1 Mbaud, telemetry at every sample, the motor at ~250 rad/s: every frame arrives, no count
     lost, INT0 served within 120 cycles, and the frame costs <= 1000 cycles on average, 1500 at
     most (interrupts included; before the ring encoder: mean 2140, max 2311)."""
-    require_tool(*TOOLS)
+    require_simavr()
     from jerklab.rig import simavr
 
     paths = simavr.build_firmware(
@@ -108,7 +100,7 @@ def test_default_build_carries_a_decimated_1khz_run(tmp_path):
     """The 115200-baud default build (transmit interrupt not held: the line needs every byte
     time) at Ts = 1 ms with a TELEMETRY every 3rd sample (22 bytes per 3 ms of ~35 byte times):
     every frame arrives, no overrun, no count lost."""
-    require_tool(*TOOLS)
+    require_simavr()
     from jerklab.rig import simavr
 
     paths = simavr.build_firmware("avr", "simavr")
@@ -123,7 +115,7 @@ def test_back_pressure_loses_no_byte(tmp_path):
     """A TELEMETRY at every 1 ms sample over 115200 baud needs ~1.9 ms of line per frame: the
     ring fills and the frame write waits for room, sending by polling. The run overruns (the
     device counts it) but every frame still arrives intact and in order."""
-    require_tool(*TOOLS)
+    require_simavr()
     from jerklab.rig import simavr
 
     paths = simavr.build_firmware("avr", "simavr")
@@ -139,7 +131,7 @@ def test_encoder_isrs_count_like_a_perfect_decoder(tmp_path, counts_per_rev, dis
     backward: the firmware's count equals the harness's perfect decoder after the run. 250 rad at
     x4 is ~71 000 counts (a carry or borrow into the count's third byte; 0 -> -1 borrows through
     all four), with an edge every ~220 cycles."""
-    require_tool(*TOOLS)
+    require_simavr()
     from jerklab.rig import simavr
 
     paths = simavr.build_firmware("avr", "simavr")
@@ -226,7 +218,7 @@ def test_receive_flood_during_a_1khz_run_loses_no_byte():
     ISR's ~52 from the interrupt to reti, and the instruction it waits for), so a step of T0 cycles
     without traffic takes T <= (T0 + 60) / (1 - 60 / 160) with it (T0: the same run without host
     traffic: ~3450 cycles, bound ~5620)."""
-    require_tool(*TOOLS)
+    require_simavr()
     from jerklab.rig import simavr
 
     paths = simavr.build_firmware(

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from jerklab.fpga import (
@@ -52,7 +52,6 @@ def test_general_integer_form_is_bit_identical_to_eq7_eq8():
     assert np.all(Y.speed(np.arange(300)) == 0)  # below PWM_INITAL_COUNT
 
 
-@settings(max_examples=200)
 @given(V=st.integers(1000, 25000), half=st.integers(20, 400), tc_us=st.sampled_from([50, 100, 200]))
 def test_integer_speed_within_one_of_exact_scurve(V, half, tc_us):
     """floor-divided eqs. 5, 6 stay within 1 µm/s of v = J t^2/2, v = V - J (T-t)^2/2."""
@@ -130,7 +129,6 @@ stimulus = st.lists(
 )
 
 
-@settings(max_examples=300)
 @given(stimulus)
 def test_divider_model_matches_clock_by_clock_semantics(stim):
     starts = np.cumsum([1] + [d for d, _ in stim[1:]])
@@ -166,7 +164,6 @@ def brute_published(starts, values, p_end, bits):
     return np.array(rise), np.array(fall)
 
 
-@settings(max_examples=300)
 @given(stimulus)
 def test_published_divider_model_matches_clock_by_clock_semantics(stim):
     """Including the lock-up and the wrap-around of the counter (6 bits here, so it shows)."""

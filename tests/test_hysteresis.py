@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 from scipy.integrate import dblquad
 
@@ -167,7 +167,6 @@ def test_fig2_inverse_linearizes_within_eps():
 history = st.lists(st.floats(-20.0, 120.0, allow_nan=False), min_size=0, max_size=12)
 
 
-@settings(max_examples=400)
 @given(history, st.floats(-30.0, 130.0, allow_nan=False), st.sampled_from([None, 0.01, 1.0]))
 def test_cnia_stays_on_branch_and_in_bounds(hist, f_d, eps):
     P = piezo()
@@ -196,7 +195,6 @@ def test_cnia_stays_on_branch_and_in_bounds(hist, f_d, eps):
     assert P.state == Q.state
 
 
-@settings(max_examples=100)
 @given(st.lists(st.floats(0.0, 100.0, allow_nan=False), min_size=1, max_size=40))
 def test_cnia_sequence_tracks_any_reachable_target(targets):
     P = piezo()

@@ -32,7 +32,7 @@ def test_arx_exact_on_noise_free_data(kind):
     assert f.fit_percent > 100 - 1e-6
 
 
-@settings(max_examples=60, deadline=None)
+@settings(deadline=None)
 @given(K=st.floats(0.5, 200.0), tau=st.floats(0.004, 0.5), seed=st.integers(0, 10_000))
 def test_arx_exact_property(K, tau, seed):
     u = ident.prbs(60 * TS, TS, 1.0, offset=0.5, clock_period=2 * TS, seed=seed)

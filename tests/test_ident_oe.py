@@ -13,7 +13,8 @@ import control as ct
 import numpy as np
 import pytest
 from _ident import K0, TAU0, TS, closed_loop, fit_quiet, levels, plant_record, record, rel
-from hypothesis import example, given, settings
+from conftest import cases
+from hypothesis import example, given
 from hypothesis import strategies as st
 from scipy import signal
 
@@ -37,7 +38,7 @@ def test_pem_within_one_percent_on_quantized_noisy_plant(kind, seed):
     np.testing.assert_allclose(np.ravel(f.model.den[0][0]), [f.tau, 1.0, 0.0])
 
 
-@settings(max_examples=80, deadline=None)
+@cases("costly", deadline=None)
 @given(
     K=st.floats(-200, 200).filter(lambda k: abs(k) > 0.1),
     tau=st.floats(0.0005, 2.0),

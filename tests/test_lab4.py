@@ -1,4 +1,4 @@
-"""Lab 4, "Stop the ringing" (issue 16, in the format of issue 13's labs): the worksheet headless
+"""Lab 4, "Stop the ringing" (in the format of labs 1-3): the worksheet headless
 with its solutions (every check passes, in under 2 minutes, no true value in the output) and with
 wrong answers (each check fails with its hint); the student version is generated and current;
 the flexible students' hidden modes; the helper that estimates the load's motion."""
@@ -204,15 +204,9 @@ class _NoSettle:
 def test_lab4_session_on_simavr_finds_the_students_mode(tmp_path):
     """The worksheet's calls on the firmware in a simulated Uno driving the student's two-mass
     load: the PRBS finds the hidden mode, the check says right, a ZV-shaped move completes."""
-    from conftest import require_tool
+    from conftest import require_simavr
 
-    require_tool(
-        "make",
-        "cc",
-        "avr-g++",
-        "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
-        "/usr/include/simavr/sim_avr.h",
-    )
+    require_simavr()
     from jerklab import shaping
     from jerklab.planner import plan_sine_jerk
 

@@ -502,23 +502,16 @@ def test_grade_command_on_three_submissions(tmp_path):
 
 def test_session_on_simavr_uses_the_students_motor(tmp_path, capsys):
     """The same session code on the firmware in a simulated Uno: the hidden motor's τ is found by
-    PEM and passes the check; since issue 21 the firmware runs lab 3's S-curve too."""
+    PEM and passes the check; the firmware runs lab 3's S-curve too."""
     import sys
 
     sys.path.insert(0, str(Path(__file__).parent))
-    from conftest import require_tool
+    from conftest import require_simavr
 
     from jerklab import ident
     from jerklab.planner import plan_scurve
 
-    require_tool(
-        "make",
-        "cc",
-        "avr-g++",
-        "avr-size",
-        "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
-        "/usr/include/simavr/sim_avr.h",
-    )
+    require_simavr()
     S = lab.start(3, student="simavr-student", port="simavr", folder=tmp_path)
     try:
         assert S.simulated and S.rig.name != "jerklab-virtual"  # the firmware answers

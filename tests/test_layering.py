@@ -1,4 +1,4 @@
-"""The modules below the face do not import matplotlib when they are imported (issue 19).
+"""The modules below the face do not import matplotlib when they are imported.
 
 Drawing lives in ``jerklab.plots`` and is imported when a figure is asked for, so a script,
 a benchmark or the rig's command line that never draws does not pay for matplotlib (nor pick

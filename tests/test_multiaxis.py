@@ -1,4 +1,4 @@
-"""Several axes (issue 21): time and phase synchronization, and Yang's x–y stand in Verilog.
+"""Several axes (jerklab.multiaxis): time and phase synchronization, and Yang's x–y stand in Verilog.
 
 Checks against something independent of ``jerklab.multiaxis``'s algebra:
 
@@ -19,6 +19,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import cases
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
@@ -290,7 +291,7 @@ def build(axes):
     return d, lims
 
 
-@settings(max_examples=150, deadline=None)
+@cases("costly", deadline=None)
 @given(axes=st.lists(AXIS, min_size=1, max_size=5), planner=st.sampled_from(PLANNERS))
 @example(
     axes=[(0.0, 1.0, 0.0, 0.0, 0.0, False), (-4.0, -1.0, 5.0, 4.0, 3.0, False)], planner="scurve"
@@ -318,7 +319,7 @@ def test_time_sync_property(axes, planner):
             )
 
 
-@settings(max_examples=150, deadline=None)
+@settings(deadline=None)
 @given(axes=st.lists(AXIS, min_size=1, max_size=5), planner=st.sampled_from(PLANNERS))
 @example(
     axes=[(0.0, 1.0, 0.0, 0.0, 0.0, False), (-4.0, -1.0, 5.0, 4.0, 3.0, False)], planner="trapezoid"
@@ -346,7 +347,7 @@ def test_phase_sync_property(axes, planner):
     assert np.abs(off).max() <= RTOL * np.linalg.norm(dd)
 
 
-@settings(max_examples=60, deadline=None)
+@cases("costly", deadline=None)
 @given(
     axes=st.lists(AXIS, min_size=2, max_size=3),
     planner=st.sampled_from(PLANNERS),
@@ -497,7 +498,7 @@ def test_yang_axes_refuses_what_the_generator_cannot_run():
         simulate_verilog_xy(yang_axes(plan_multi_axis([1e4, 0.0], [YANG_LIMITS] * 2)))
 
 
-@settings(max_examples=100, deadline=None)
+@settings(deadline=None)
 @given(
     dx=st.floats(500.0, 80000.0),
     dy=st.floats(500.0, 80000.0),
@@ -530,7 +531,7 @@ def test_yang_axes_property(dx, dy, sx, sy, sync, vy):
         assert len({(g.half_counts, g.cruise_counts) for g in axes.generators}) == 1
 
 
-@settings(max_examples=300, deadline=None)
+@settings(deadline=None)
 @given(
     ed=st.floats(-6, 6),
     ej=st.floats(-3, 6),
@@ -624,7 +625,7 @@ def test_phase_sync_against_ruckig():
     assert on_line > 100 and off_line > 10  # both cases are exercised
 
 
-@settings(max_examples=200, deadline=None)
+@settings(deadline=None)
 @given(V=st.integers(1, 40000), N=st.integers(1, 3000), s=st.integers(0, 40000))
 def test_min_start_count_is_the_first_count_reaching_the_speed(V, N, s):
     """Against a brute force over every count of the integer speed (Yang eq. 5, Yang eq. 6),
@@ -667,7 +668,7 @@ def test_yang_axes_slow_axis(dy):
     assert silent_from - longest <= int(trains[1].fall[-1]) <= silent_from + longest
 
 
-@settings(max_examples=120, deadline=None)
+@settings(deadline=None)
 @given(
     axes=st.lists(AXIS, min_size=1, max_size=4),
     planner=st.sampled_from(PLANNERS),

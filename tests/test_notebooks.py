@@ -5,6 +5,7 @@ Each must run top to bottom without error in under a minute, with the virtual ri
 
 from __future__ import annotations
 
+import os
 import pathlib
 import time
 
@@ -64,6 +65,9 @@ def test_notebook_runs(path, tmp_path, monkeypatch):
     elapsed = time.perf_counter() - t0
     # keep the executed copy: the book (tools/build_book.py, tests/test_book.py) shows it without
     # executing the notebook a second time
+    # (written whole, then renamed: under xdist the book may read the folder meanwhile)
     EXECUTED.mkdir(parents=True, exist_ok=True)
-    nbformat.write(nb, EXECUTED / path.name)
+    part = EXECUTED / f".{path.name}.{os.getpid()}.part"
+    nbformat.write(nb, part)
+    os.replace(part, EXECUTED / path.name)
     assert elapsed < TIME_LIMIT_S, f"{path.name} took {elapsed:.1f} s (limit {TIME_LIMIT_S} s)"

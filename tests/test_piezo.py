@@ -11,7 +11,7 @@ import time
 import control
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from jerklab import piezo as pz
@@ -81,7 +81,6 @@ def test_own_simulation_matches_python_control():
 
 
 # ---------------------------------------------------------------------------- z-transform rows
-@settings(max_examples=60)
 @given(
     N=st.integers(1, 12),
     j=st.integers(0, 2),
@@ -115,7 +114,6 @@ def test_rampup_rows_equal_direct_series(N, j, r, ang, a, seed):
     assert abs(got - direct) <= 1e-8 * max(1.0, abs(direct))
 
 
-@settings(max_examples=40)
 @given(
     Nr=st.integers(1, 10),
     j=st.integers(0, 2),

@@ -1,11 +1,11 @@
 """Planners: invariants, the paper's equations, and independent checks (scipy, Ruckig).
 
-Case counts in CI (fixed with ``max_examples``, independent of the hypothesis profile):
-per-move property tests 3200 (invariants) + 1200 (synchronized) + 2000 (Ruckig) + 400
-(quadrature) + 300 hypothesis examples, each one move checked on ~100 closed-form samples; the
-seeded batch tests check 4 kinds x 25 hypothesis seeds x 4000 moves = 4e5 more random moves with
-the same invariants, through ``plan_batch`` and ``BatchPlan.sample``.  Hypothesis by itself costs
-1-3 ms per example here, so 1e5 single-move examples would not fit the minute this file may use.
+Case counts come from the hypothesis profile (tests/conftest.py); in CI (the ``ci`` profile: 700
+cases, ``cases("costly")`` 70, ``cases("batch")`` 28): per-move property tests 2800 (invariants) +
+2800 (synchronized) + 1400 (Ruckig) + 700 hypothesis examples, each one move checked on ~100
+closed-form samples, and 280 of the quadrature check; the seeded batch tests check 4 kinds x 28
+hypothesis seeds x 4000 moves = 4.5e5 more random moves with the same invariants, through
+``plan_batch`` and ``BatchPlan.sample``.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import cases
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from scipy.integrate import fixed_quad
@@ -170,14 +171,8 @@ def check_profile(p, J, A, V):
 # ------------------------------------------------------------------------------------------------
 # per-move property tests (hypothesis shrinks a failure to a small case)
 # ------------------------------------------------------------------------------------------------
-N_INVARIANT = 800  # x 4 planners
-N_SYNC = 300  # x 4 planners
-N_RUCKIG = 1000  # x 2 planners
-N_INTEGRATE = 100  # x 4 planners (scipy quadrature)
-
-
 @pytest.mark.parametrize("kind", KINDS)
-@settings(max_examples=N_INVARIANT, deadline=None, suppress_health_check=list(HealthCheck))
+@settings(deadline=None, suppress_health_check=list(HealthCheck))
 @given(sign=SIGN, ed=EXP_D, ej=EXP_J, ea=EXP_A, ev=EXP_V)
 def test_invariants(kind, sign, ed, ej, ea, ev):
     distance, J, A, V = move(sign, ed, ej, ea, ev)
@@ -192,7 +187,7 @@ def test_invariants(kind, sign, ed, ej, ea, ev):
 
 
 @pytest.mark.parametrize("kind", ["sine_jerk", "sine_jerk_optimal", "scurve", "trapezoid"])
-@settings(max_examples=N_SYNC, deadline=None, suppress_health_check=list(HealthCheck))
+@settings(deadline=None, suppress_health_check=list(HealthCheck))
 @given(sign=SIGN, ed=EXP_D, ej=EXP_J, ea=EXP_A, ev=EXP_V, ts_exp=st.floats(-5, 0))
 # a cruise of 6e13 s: the sum of the phase times rounds by more than Ts (found by CI)
 @example(sign=False, ed=5.5625, ej=2.0, ea=-3.21875, ev=0.0, ts_exp=-4.0)
@@ -240,7 +235,7 @@ def _ruckig_duration(distance, J, A, V):
 R_D, R_J, R_A, R_V = st.floats(-5, 5), st.floats(-3, 5), st.floats(-3, 4), st.floats(-3, 4)
 
 
-@settings(max_examples=N_RUCKIG, deadline=None, suppress_health_check=list(HealthCheck))
+@settings(deadline=None, suppress_health_check=list(HealthCheck))
 @given(sign=SIGN, ed=R_D, ej=R_J, ea=R_A, ev=R_V)
 def test_scurve_equals_ruckig(sign, ed, ej, ea, ev):
     distance, J, A, V = move(sign, ed, ej, ea, ev)
@@ -259,7 +254,7 @@ def test_scurve_equals_ruckig(sign, ed, ej, ea, ev):
         assert abs(float(s.accel) - a) <= 1e-7 * p.peak_accel + J * dt
 
 
-@settings(max_examples=N_RUCKIG, deadline=None, suppress_health_check=list(HealthCheck))
+@settings(deadline=None, suppress_health_check=list(HealthCheck))
 @given(sign=SIGN, ed=R_D, ej=R_J, ea=R_A, ev=R_V)
 def test_sine_optimal_equals_ruckig_at_2J_over_pi(sign, ed, ej, ea, ev):
     distance, J, A, V = move(sign, ed, ej, ea, ev)
@@ -314,7 +309,7 @@ def integrate_jerk(p, n_nodes=64):
 
 
 @pytest.mark.parametrize("kind", KINDS)
-@settings(max_examples=N_INTEGRATE, deadline=None, suppress_health_check=list(HealthCheck))
+@cases("costly", deadline=None, suppress_health_check=list(HealthCheck))
 @given(sign=SIGN, ed=R_D, ej=R_J, ea=R_A, ev=R_V)
 def test_closed_form_matches_integrated_jerk(kind, sign, ed, ej, ea, ev):
     distance, J, A, V = move(sign, ed, ej, ea, ev)
@@ -344,9 +339,8 @@ def test_closed_form_matches_integrated_jerk(kind, sign, ed, ej, ea, ev):
 
 
 # ------------------------------------------------------------------------------------------------
-# seeded batch tests: 1.2e6 moves through plan_batch and BatchPlan.sample
+# seeded batch tests: 4.5e5 moves through plan_batch and BatchPlan.sample (in CI)
 # ------------------------------------------------------------------------------------------------
-N_BATCH_SEEDS = 25
 BATCH = 4000
 
 
@@ -365,7 +359,7 @@ def random_moves(rng, n):
 
 
 @pytest.mark.parametrize("kind", KINDS)
-@settings(max_examples=N_BATCH_SEEDS, deadline=None, suppress_health_check=list(HealthCheck))
+@cases("batch", deadline=None, suppress_health_check=list(HealthCheck))
 @given(seed=st.integers(0, 2**63 - 1))
 def test_batch_invariants(kind, seed):
     rng = np.random.default_rng(seed)
@@ -502,7 +496,7 @@ def test_fig2_accel_then_velocity_binds():
     assert p.accel_time == pytest.approx(T_W, rel=1e-14)
 
 
-@settings(max_examples=300, deadline=None)
+@settings(deadline=None)
 @given(ed=st.floats(-6, 6), ej=EXP_J, ea=EXP_A, ev=EXP_V)
 def test_sine_jerk_is_min_of_three_times(ed, ej, ea, ev):
     theta, J, E, W = move(False, ed, ej, ea, ev)

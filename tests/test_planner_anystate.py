@@ -1,5 +1,5 @@
 """Planners from any start state: plan_scurve / plan_sine_jerk_optimal with initial_velocity,
-initial_accel and final_velocity (issue 21).
+initial_accel and final_velocity.
 
 Independent checks: Ruckig's time-optimal duration (same inputs: current_velocity,
 current_acceleration, target_velocity), numerical quadrature of the sampled jerk, and a brute-force
@@ -17,7 +17,8 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, example, given, settings
+from conftest import cases
+from hypothesis import HealthCheck, example, given
 from hypothesis import strategies as st
 from scipy.integrate import cumulative_trapezoid, fixed_quad
 
@@ -294,7 +295,7 @@ EXP = st.floats(-1.0, 1.0)
 UNIT = st.floats(-1.6, 1.6)
 
 
-@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@cases("costly", deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     kind=st.sampled_from(sorted(KINDS)),
     ed=st.floats(-5.0, 5.0),

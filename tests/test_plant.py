@@ -7,7 +7,7 @@ import math
 import control as ct
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from jerklab.plant import (
@@ -102,7 +102,6 @@ def test_friction_sticks_and_steady_speed():
     assert x[1] == 0.0 and x[0] > 0.0
 
 
-@settings(max_examples=300)
 @given(st.floats(-50, 50), st.floats(-8, 8), st.floats(0, 3), st.floats(1e-4, 0.2))
 def test_vectorized_advance_equals_scalar(omega, v, fc, dt):
     for om in (omega, 0.0):

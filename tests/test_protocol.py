@@ -293,7 +293,7 @@ from hypothesis import strategies as st  # noqa: E402
 _f32s = st.floats(width=32, allow_nan=False)
 
 
-@settings(max_examples=300, deadline=None)
+@settings(deadline=None)
 @given(
     amp=_f32s,
     off=_f32s,
@@ -315,7 +315,7 @@ def test_sequence_encoding_property(amp, off, ts, n, seed, order, hold, seq):
     assert (f.type, f.seq) == (0x0A, seq) and P.parse(f) == m
 
 
-@settings(max_examples=300, deadline=None)
+@settings(deadline=None)
 @given(
     taps=st.lists(st.tuples(_f32s, st.integers(0, 255)), max_size=10),
     n=st.integers(0, 255),

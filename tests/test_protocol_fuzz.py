@@ -98,7 +98,7 @@ def _check(stream: bytes, intact, decoder: P.Decoder, frames) -> int:
     return len(spurious)
 
 
-@settings(max_examples=2000, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     seed=st.integers(0, 2**32 - 1),
     p_corrupt=st.sampled_from([0.0, 0.1, 0.35, 0.7, 1.0]),
@@ -112,7 +112,7 @@ def test_fuzz_streams(seed, p_corrupt, p_garbage, max_chunk):
     _check(stream, intact, decoder, frames)
 
 
-@settings(max_examples=300, deadline=None)
+@settings(deadline=None)
 @given(
     st.lists(
         st.one_of(
@@ -151,7 +151,7 @@ def test_fuzz_structured(items, chunk):
     _check(stream, intact, d, frames)
 
 
-@settings(max_examples=500, deadline=None)
+@settings(deadline=None)
 @given(st.binary(max_size=2000))
 def test_pure_noise_never_crashes(data):
     d = P.Decoder()

@@ -1,4 +1,4 @@
-"""Issue 21, re-targeting: the moving-start planner of jerklab.rig.retarget (the firmware's
+"""Re-targeting: the moving-start planner of jerklab.rig.retarget (the firmware's
 rule in float64) and RETARGET on the virtual rig. The firmware on simavr is checked against the
 virtual rig in tests/test_rig_simavr.py."""
 
@@ -76,7 +76,7 @@ def _check_plan(p, J, A, V, v0):
     assert abs(x_i - p.target) <= 1e-5 * (abs(p.distance) + 1.0)
 
 
-@settings(max_examples=80, deadline=None, derandomize=True)
+@settings(deadline=None, derandomize=True)
 @given(
     kind=st.integers(0, 3),
     d=st.floats(1e-3, 1e3),

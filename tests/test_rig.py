@@ -87,7 +87,7 @@ def _spec_run(profile, kpd, kid, kdd, Ts, n, vmax=12.0):
     """PROTOCOL.md "Device state machine", RUN, written out independently of the rig code:
     float32 parameters from the wire, exact ZOH plant, floor encoder, lround PWM; the PWM of
     sample k is written ``delay`` after the encoder was read (the board's computation delay,
-    modelled by the virtual rig since issue 21), the previous one driving the motor until then."""
+    modelled by the virtual rig), the previous one driving the motor until then."""
     from jerklab.rig.virtual import VirtualDevice
 
     delay = VirtualDevice.COMPUTE_DELAY

@@ -24,16 +24,6 @@ from jerklab.rig.virtual import VirtualDevice, VirtualSerial
 f32 = lambda x: float(np.float32(x))  # noqa: E731
 
 
-@pytest.fixture(scope="module")
-def host_driver():
-    from conftest import require_tool
-
-    require_tool("g++", "make")
-    from jerklab.rig.simavr import build_firmware
-
-    return build_firmware("host")["host"]
-
-
 def _host(driver):
     from test_firmware import HostDevice
 

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import require_tool
+from conftest import require_simavr
 
 from jerklab import protocol as P
 from jerklab.controller import discrete_pole_placement_pid
@@ -26,21 +26,10 @@ FLEX = dict(load_ratio=0.2, mode_frequency=2 * math.pi * 14.0, mode_damping=0.02
 TS = 0.005
 
 
-def _require():
-    require_tool(
-        "make",
-        "cc",
-        "avr-g++",
-        "avr-size",
-        "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
-        "/usr/include/simavr/sim_avr.h",
-    )
-
-
 @pytest.fixture(scope="module")
 def flex_uno(tmp_path_factory):
     """The firmware on a simulated Uno with the flexible load, tracing the load's angle."""
-    _require()
+    require_simavr()
     from jerklab.rig import simavr
 
     uno = simavr.launch(K=K, tau=TAU, trace=True, **FLEX)

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import require_tool
+from conftest import require_simavr
 
 from jerklab import protocol as P
 from jerklab.controller import pole_placement_pid
@@ -20,14 +20,7 @@ MOTOR = dict(K=27.5, tau=0.034)
 
 @pytest.fixture(scope="module")
 def uno(tmp_path_factory):
-    require_tool(
-        "make",
-        "cc",
-        "avr-g++",
-        "avr-size",
-        "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
-        "/usr/include/simavr/sim_avr.h",
-    )
+    require_simavr()
     rec_dir = tmp_path_factory.mktemp("simavr-recordings")
     rig = connect(
         "simavr",
@@ -42,7 +35,7 @@ def uno(tmp_path_factory):
 
 def test_hello_from_the_firmware(uno):
     assert uno.name == "jerklab-uno" and uno.info.protocol_version == P.PROTOCOL_VERSION
-    # issue 12: the first HELLO right after launch is answered (it used to be lost and only the
+    # the first HELLO right after launch is answered (it used to be lost and only the
     # retry 250 ms later got through); a retry may still be sent if the host is slow
     assert uno.hello_answered == 1
     assert uno.capabilities & P.Capability.PLANNER_SINE_JERK
@@ -100,7 +93,7 @@ def test_firmware_and_virtual_rig_agree(uno, tmp_path):
     )
     # How many samples may differ: a count differs where an edge falls between the instant the
     # firmware reads the encoder (a few µs after the tick) and the model's t = k Ts, and where the
-    # PWM the board writes at the end of its control step (modelled since issue 21:
+    # PWM the board writes at the end of its control step (modelled:
     # VirtualDevice.COMPUTE_DELAY, ~0.07 ms with the fixed-point PID)
     # differs in effect from the model's by the step's jitter; the sub-count angle the motor
     # starts at moves the count by a few samples. The differing fraction is about lag * (counts
@@ -137,14 +130,7 @@ def run_1khz(tmp_path_factory):
     """A 4 pi rad sine-jerk move at Ts = 1 ms on the simulated Uno (telemetry at every sample, so
     the sketch is built for 1 Mbaud) and on the virtual rig, and the harness's statistics (the
     default build's D13 probe spans the whole control step)."""
-    require_tool(
-        "make",
-        "cc",
-        "avr-g++",
-        "avr-size",
-        "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
-        "/usr/include/simavr/sim_avr.h",
-    )
+    require_simavr()
     from jerklab.controller import discrete_pole_placement_pid
     from jerklab.rig import simavr
 
@@ -176,11 +162,11 @@ def run_1khz(tmp_path_factory):
 
 
 def test_1khz_loop_on_the_simulated_uno_matches_the_virtual_rig(run_1khz):
-    """Issue 21: a move at Ts = 1 ms on the simulated Uno matches the virtual rig within one count
+    """A move at Ts = 1 ms on the simulated Uno matches the virtual rig within one count
     at every sample, with no encoder count lost and no overrun (the idle-time preparation keeps
     up: a chunk computed inside a sample counts as an overrun). The whole control step (encoder
     read to PWM write, the next reference, TELEMETRY) leaves at least half of the period for the
-    idle-time work; the issue's 4000 cycles are the next test."""
+    idle-time work; the 4000-cycle ceiling is the next test."""
     prof, fw, py, st, cpr = run_1khz
     assert (
         fw.metadata["status"] == "complete"
@@ -197,7 +183,7 @@ def test_1khz_loop_on_the_simulated_uno_matches_the_virtual_rig(run_1khz):
 
 
 def test_1khz_whole_control_step_within_a_quarter_of_the_period(run_1khz):
-    """Issue 21's ceiling: the whole control step (planner sample, feedforward, PID, TELEMETRY;
+    """The ceiling of the whole control step (planner sample, feedforward, PID, TELEMETRY;
     interrupts included) <= 4000 cycles, 25 % of 1 ms, at its maximum over the move. Measured
     ~3530 without host bytes in the worst step; a HEARTBEAT's 7 receive interrupts (~52 cycles
     each, the assembly USART_RX ISR) landing there add at most ~370 (the host sends one every
@@ -208,7 +194,7 @@ def test_1khz_whole_control_step_within_a_quarter_of_the_period(run_1khz):
 
 @pytest.mark.parametrize("kind,at,new", [(1, 10, 25.0), (2, 15, -3.0)])
 def test_retarget_on_the_firmware_matches_the_virtual_rig(uno, tmp_path, kind, at, new):
-    """Issue 21: RETARGET on the firmware (simavr) during the acceleration phase: the reference
+    """RETARGET on the firmware (simavr) during the acceleration phase: the reference
     follows the virtual rig's (the same rule in float64) to float32 precision, stays
     jerk-continuous (no jump in its third differences) and the run ends on the new target."""
     from jerklab.planner import plan_sine_jerk_optimal
@@ -257,15 +243,7 @@ def test_the_deepest_stack_stays_above_the_variables(tmp_path):
     from jerklab.rig import simavr
     from jerklab.shaping import input_shaper
 
-    require_tool(
-        "make",
-        "cc",
-        "avr-g++",
-        "avr-size",
-        "avr-nm",
-        "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
-        "/usr/include/simavr/sim_avr.h",
-    )
+    require_simavr()
     paths = simavr.build_firmware("avr")
     simavr.build_firmware("simavr")
     nm = subprocess.run(

@@ -341,7 +341,7 @@ freqs = st.floats(0.5, 40.0)
 sample_times = st.floats(1e-4, 0.02)
 
 
-@settings(max_examples=150, deadline=None)
+@settings(deadline=None)
 @given(
     kind=kinds,
     f=freqs,
@@ -366,7 +366,7 @@ def test_apply_properties(kind, f, zeta, Ts, ref):
     assert s.apply(r, Ts, extend=False).size == r.size
 
 
-@settings(max_examples=150, deadline=None)
+@settings(deadline=None)
 @given(kind=kinds, f=freqs, zeta=dampings, ratio=st.floats(0.1, 4.0), zp=dampings)
 def test_residual_properties(kind, f, zeta, ratio, zp):
     s = input_shaper(kind, f, zeta)
@@ -613,7 +613,7 @@ def test_kind_aliases():
         profile_residual_vibration("trapezoid", 8.0)
 
 
-@settings(max_examples=200, deadline=None)
+@settings(deadline=None)
 @given(
     kind=st.sampled_from(["trapezoid", "scurve", "sine_jerk", "sine_jerk_optimal"]),
     distance=st.floats(1e-3, 1e3),
@@ -660,7 +660,7 @@ def test_residual_amplitude_from_a_record():
         residual_amplitude(np.zeros(10), 0.01, 8)
 
 
-@settings(max_examples=150, deadline=None)
+@settings(deadline=None)
 @given(
     kind=kinds,
     f=freqs,

@@ -1,4 +1,4 @@
-"""Issue 6: the real firmware ELF on a simulated ATmega328P (simavr) driven through jerklab.rig.
+"""The real firmware ELF on a simulated ATmega328P (simavr) driven through jerklab.rig.
 
 The harness (firmware/simavr/jl_simavr.c) runs the ELF cycle-accurately, bridges UART0 to a
 pty, reads OCR1A and the L298 direction pins, integrates the DC motor and feeds quadrature
@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import require_tool
+from conftest import require_simavr, require_tool
 
 import jerklab.rig as rig_mod
 from jerklab import protocol as pr
@@ -41,26 +41,12 @@ class _Lazy:
 simavr = _Lazy()
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _forget_simavr_module():
-    import sys
-
-    yield
-    sys.modules.pop("jerklab.rig.simavr", None)
-    if hasattr(rig_mod, "simavr"):
-        delattr(rig_mod, "simavr")
+pytestmark = pytest.mark.usefixtures("forget_simavr_module")
 
 
 @pytest.fixture
 def tools():
-    require_tool(
-        "make",
-        "cc",
-        "avr-g++",
-        "avr-nm",
-        "/usr/share/arduino/hardware/arduino/avr/cores/arduino",
-        "/usr/include/simavr/sim_avr.h",
-    )
+    require_simavr()
 
 
 @pytest.fixture
@@ -271,7 +257,7 @@ def _replies(ser, dec, n, timeout):
 
 
 def test_bytes_written_right_after_launch_are_not_lost(tools):
-    """Issue 12: bytes written in the first milliseconds after the pty appears (before the
+    """Bytes written in the first milliseconds after the pty appears (before the
     firmware's setup() switches its UART receiver on) used to be discarded by the simulated
     UART; 17 of 20 such bursts got no reply. The harness now holds them, as the Uno's
     USB-serial chip does: every command of every burst is answered, and the UART received

@@ -15,6 +15,8 @@ import pathlib
 import re
 
 import conftest
+import pytest
+from hypothesis import settings
 
 TESTS = pathlib.Path(__file__).resolve().parent
 
@@ -31,6 +33,9 @@ TOOL_MARKS = {
     "/usr/bin/chromium": "browser",
     "iverilog": "verilog",
 }
+
+#: conftest's fixtures that need a tool -> the marker of a test that takes them
+FIXTURE_MARKS = {"host_driver": "firmware"}
 
 #: calls that execute a notebook in a kernel
 NOTEBOOK_CALLS = {"NotebookClient", "_execute"}
@@ -91,7 +96,7 @@ def _constants(tree) -> dict[str, list[str]]:
 
 def _needs(func, consts) -> set[str]:
     """The markers the body of ``func`` asks for."""
-    need = set()
+    need = {FIXTURE_MARKS[a.arg] for a in func.args.args if a.arg in FIXTURE_MARKS}
     for node in ast.walk(func):
         if not isinstance(node, ast.Call):
             continue
@@ -105,6 +110,8 @@ def _needs(func, consts) -> set[str]:
                 elif isinstance(a, ast.Name):
                     tools += consts.get(a.id, [])
             need |= {TOOL_MARKS[t] for t in tools if t in TOOL_MARKS}
+        elif name == "require_simavr":
+            need.add("simavr")
         elif name in NOTEBOOK_CALLS:
             need.add("notebook")
     return need
@@ -148,8 +155,9 @@ def test_every_test_that_needs_a_tool_or_a_kernel_carries_its_marker(pytestconfi
 
 
 def test_the_marker_check_finds_a_missing_marker(tmp_path, monkeypatch):
-    """A test asking for simavr without its marker, a fixture asking for g++ in an unmarked file
-    and an unmarked notebook run are found; the marked ones are not."""
+    """A test asking for simavr without its marker, a fixture asking for g++ in an unmarked file,
+    a test taking the host driver and an unmarked notebook run are found; the marked ones are
+    not."""
     monkeypatch.setattr("test_suite_layout.TESTS", tmp_path)
     f = tmp_path / "test_x.py"
     f.write_text(
@@ -160,13 +168,17 @@ def test_the_marker_check_finds_a_missing_marker(tmp_path, monkeypatch):
         "@pytest.fixture\ndef host():\n    require_tool('g++', 'make')\n"
         "def test_c():\n    NotebookClient(nb).execute()\n"
         "@pytest.mark.notebook\ndef test_d():\n    NotebookClient(nb).execute()\n"
-        "def test_e():\n    require_tool('make')\n",
+        "def test_e():\n    require_tool('make')\n"
+        "def test_f(host_driver):\n    pass\n"
+        "def test_g():\n    require_simavr()\n",
         encoding="utf-8",
     )
     assert unmarked_needs(f) == [
         "test_x.py::test_a needs simavr",
         "test_x.py::host needs firmware",
         "test_x.py::test_c needs notebook",
+        "test_x.py::test_f needs firmware",
+        "test_x.py::test_g needs simavr",
     ]
 
 
@@ -177,3 +189,103 @@ def test_file_marks_name_existing_files_and_registered_markers(pytestconfig):
         assert set(marks) <= registered, (rel, marks)
     for rel in conftest.ONE_WORKER:
         assert (TESTS / rel).is_file(), rel
+
+
+def test_case_counts_come_from_the_profiles_only(pytestconfig):
+    """No test sets ``max_examples``: tests/conftest.py's profiles (and their cost classes,
+    ``cases``) decide every hypothesis case count."""
+    bad = []
+    for f in collected_files(pytestconfig.getini("python_files")):
+        for node in ast.walk(ast.parse(f.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.keyword) and node.arg == "max_examples":
+                bad.append(f"{f.relative_to(TESTS)}:{node.value.lineno}")
+    assert bad == []
+
+
+#: the hypothesis cases of the whole suite under the ci profile when each test set its own count
+#: (56 tests, per-test max_examples from 25 to 2000); the profiles must give at least as many
+CI_CASES_BEFORE = 28650
+
+_COUNT_PLUGIN = """
+import json, os
+def pytest_collection_finish(session):
+    rows = []
+    for it in session.items:
+        f = getattr(it, "obj", None)
+        if getattr(f, "hypothesis", None) is not None:
+            rows.append([it.nodeid, f._hypothesis_internal_use_settings.max_examples])
+    with open(os.environ["CASES_OUT"], "w") as fh:
+        json.dump(rows, fh)
+"""
+
+
+def _ci_cases(items) -> dict[str, int]:
+    """nodeid -> the test's case count under the ci profile, from the count under the loaded one
+    (``cases`` divides both profiles' counts by the same share)."""
+    now = settings.default.max_examples
+    ci = settings.get_profile("ci").max_examples
+    out = {}
+    for nodeid, n in items:
+        share = now // n
+        assert max(1, now // share) == n, (nodeid, n)  # a share of the profile, nothing else
+        out[nodeid] = max(1, ci // share)
+    return out
+
+
+def test_the_ci_profile_keeps_the_total_case_count(request, tmp_path, pytestconfig):
+    files = [
+        f
+        for f in collected_files(pytestconfig.getini("python_files"))
+        if "@given(" in f.read_text(encoding="utf-8")
+    ]
+    got = {str(getattr(it, "path", "")) for it in request.session.items}
+    if all(str(f) in got for f in files):  # the whole suite is in this session
+        items = [
+            (it.nodeid, it.obj._hypothesis_internal_use_settings.max_examples)
+            for it in request.session.items
+            if getattr(getattr(it, "obj", None), "hypothesis", None) is not None
+        ]
+    else:  # collect the files with property tests in a subprocess
+        import json
+        import os
+        import subprocess
+        import sys
+
+        (tmp_path / "count_cases.py").write_text(_COUNT_PLUGIN, encoding="utf-8")
+        env = {**os.environ, "CASES_OUT": str(tmp_path / "cases.json")}
+        env["PYTHONPATH"] = os.pathsep.join([str(tmp_path), env.get("PYTHONPATH", "")])
+        r = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "pytest",
+                "--co",
+                "-q",
+                "-p",
+                "count_cases",
+                "-p",
+                "no:cacheprovider",
+            ]
+            + [str(f) for f in files],
+            cwd=TESTS.parent,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=900,
+        )
+        assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+        items = json.loads((tmp_path / "cases.json").read_text())
+    ci = _ci_cases(items)
+    assert len(ci) >= 56
+    assert sum(ci.values()) >= CI_CASES_BEFORE, sum(ci.values())
+
+
+def test_cases_takes_the_share_of_the_loaded_profile():
+    n = settings.default.max_examples
+    assert conftest.cases("cheap").max_examples == n
+    assert conftest.cases("costly", deadline=None).max_examples == max(1, n // 10)
+    assert conftest.cases("batch").max_examples == max(1, n // 25)
+    with pytest.raises(ValueError, match="cost"):
+        conftest.cases("expensive")
+    with pytest.raises(TypeError, match="max_examples"):
+        conftest.cases("costly", **{"max_examples": 5})  # (a keyword the check above finds)

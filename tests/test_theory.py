@@ -129,7 +129,7 @@ def test_the_ascii_spelling_and_no_outside_pointer():
 
 def test_the_repository_points_inside_itself():
     """No file of the repository sends a reader to the developers' folder beside it or to their
-    reading notes (issue 19)."""
+    reading notes."""
     here = Path(__file__).resolve()
     roots = [
         ROOT / d

@@ -39,10 +39,10 @@ def first_unstable_wn(design, Ts):
 
 
 def test_z_domain_design_leaves_the_unit_circle_inside_the_slider_range():
-    """The z-domain design's fourth pole leaves the unit circle (issue 12's numbers, ±1 rad/s)."""
-    for Ts, wn_issue in ((0.005, 52), (0.011, 30), (0.020, 21)):
+    """The z-domain design's fourth pole leaves the unit circle (ωn 35, Ts 11 ms, ±1 rad/s)."""
+    for Ts, wn_reported in ((0.005, 52), (0.011, 30), (0.020, 21)):
         wn = first_unstable_wn("z-domain", Ts)
-        assert wn is not None and abs(wn - wn_issue) <= 1, (Ts, wn)
+        assert wn is not None and abs(wn - wn_reported) <= 1, (Ts, wn)
         d, _ = tuning.design_gains(K, TAU, 1.0, float(wn), 7.0, Ts, "z-domain")
         assert tuning.closed_loop_max_radius(K, TAU, d) == pytest.approx(loop_radius(d), rel=1e-7)
     # the four-pole design (derivative filter) never does, over the whole slider range
@@ -77,7 +77,7 @@ def test_advice_is_checked_for_the_selected_design(design, wn, Ts):
 
 
 def test_z_domain_selected_and_unstable_is_not_told_to_use_z_domain():
-    """Issue 12: ωn 35, Ts 11 ms, z-domain design selected."""
+    """ωn 35, Ts 11 ms, z-domain design selected."""
     res = tuning.compute_pole_placement(wn=35.0, Ts=0.011, design="z-domain")
     assert res.level == "unstable" and res.max_radius > 1.0
     assert "direct z-domain design" not in res.advice_text

@@ -1,4 +1,4 @@
-"""Fault injection for the control law, the controller and the simulation (issue 12, item 8).
+"""Fault injection for the control law, the controller and the simulation .
 
 * a non-finite measurement is held by DigitalController, counted and reported, never fed to
   the law (before: one NaN poisoned it forever while it reported saturated=False);

@@ -1,5 +1,5 @@
 """Faults around the tuning panel and the class page: unstable designs, bad student IDs,
-a rig or broker that is not there (issue 12 items 3-5, issue 14's page part)."""
+a rig or broker that is not there."""
 
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ class RecordingRig:
 
 
 def test_panel_refuses_an_unstable_design_and_says_why():
-    """Issue 12: ωn 35, Ts 11 ms, z-domain design: 'max |error| = 142199.34 mrad' without a word."""
+    """ωn 35, Ts 11 ms, z-domain design: 'max |error| = 142199.34 mrad' without a word."""
     rig = RecordingRig()
     p = W.pole_placement_panel(rig=rig, design="z-domain", wn=35.0, Ts=0.011)
     assert p.result.level == "unstable"
@@ -70,7 +70,7 @@ def test_unstable_banner_never_recommends_the_selected_design():
 
 
 def test_panel_designs_for_a_given_motor_and_exposes_gains():
-    """Issue 13: pole_placement_panel(K=..., tau=...) and panel.gains for the rig cell."""
+    """pole_placement_panel(K=..., tau=...) and panel.gains for the rig cell."""
     from jerklab.controller import DiscreteGains
     from jerklab.plant import DCMotor
     from jerklab.rig import connect

@@ -1,5 +1,5 @@
 """Fault injection: recordings on every exit path (disk full, I/O error, Ctrl-C, a killed client,
-torn and blank rows, bad metadata) and bad numbers across the public API (issue 12).
+torn and blank rows, bad metadata) and bad numbers across the public API.
 
 Each test here failed before its fix. The disk-full tests run the real write path: the file
 object the recording writes to raises ``OSError(ENOSPC)`` (``benchmarks.bench_faults.FailingFile``,

@@ -1,5 +1,5 @@
-"""Fault injection for the safety stops and the virtual device's firmware-like behaviour
-(issue 12): a reversed or disconnected encoder and a tracking-error limit stop the motor in
+"""Fault injection for the safety stops and the virtual device's firmware-like behaviour:
+a reversed or disconnected encoder and a tracking-error limit stop the motor in
 the firmware core (host build) and in the virtual device alike; unstable designs are refused;
 partial frames expire while idle; plans are streamed and bounded; a host that does not read
 loses whole telemetry frames, counted; a second TCP client is told the rig is busy; a client
@@ -16,8 +16,8 @@ import tracemalloc
 
 import numpy as np
 import pytest
-from conftest import require_tool
-from hypothesis import given, settings
+from conftest import cases
+from hypothesis import given
 from hypothesis import strategies as st
 
 from jerklab import protocol as P
@@ -36,23 +36,8 @@ CPR = 448 / (2 * math.pi)
 f32 = lambda x: float(np.float32(x))  # noqa: E731
 
 
-@pytest.fixture(scope="module")
-def host_driver():
-    require_tool("g++", "make")
-    from jerklab.rig.simavr import build_firmware
-
-    return build_firmware("host")["host"]
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _forget_simavr_module():
-    """Leave ``jerklab.rig.simavr`` un-imported afterwards (tests/test_rig.py expects it)."""
-    yield
-    sys.modules.pop("jerklab.rig.simavr", None)
-    import jerklab.rig
-
-    if hasattr(jerklab.rig, "simavr"):
-        delattr(jerklab.rig, "simavr")
+# (host_driver: tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("forget_simavr_module")
 
 
 # ----------------------------------------------------------------------------- two devices, one script
@@ -289,7 +274,7 @@ def test_client_names_the_tracking_error(tmp_path):
 
 
 def test_unstable_design_is_refused_and_forced_runs_end_in_a_fault(tmp_path):
-    """Issue 12: the eq.-13 gains at wn 60 (|z| = 1.33 at Ts 5 ms) returned "complete" after
+    """The eq.-13 gains at wn 60 (|z| = 1.33 at Ts 5 ms) returned "complete" after
     driving +-12 V. Now run_move refuses them; forced, the run ends in a fault."""
     g = pole_placement_pid(K, TAU, 60.0)
     r = max_pole_radius(K, TAU, g, Ts=0.005)
@@ -308,7 +293,7 @@ def test_unstable_design_is_refused_and_forced_runs_end_in_a_fault(tmp_path):
         and rec.pwm[-1] == 0
         and len(rec) < 0.5 * rec.metadata["plan"]["n_samples"]
     )
-    # the z-domain design beyond its range (issue 12: wn >= 30 at Ts 11 ms) is refused as well
+    # the z-domain design beyond its range (wn >= 30 at Ts 11 ms) is refused as well
     dz = discrete_pole_placement_pid(K, TAU, 35.0, Ts=0.011)
     with pytest.raises(UnstableDesignError, match="z-domain design, wn = 35"):
         rig.run_move(prof, dz, Ts=0.011)
@@ -338,7 +323,7 @@ def test_closed_loop_poles_against_python_control():
 
 
 def test_virtual_device_expires_a_partial_frame_while_idle():
-    """Issue 12: the virtual device only dropped a partial frame when the next byte came; the
+    """The virtual device only dropped a partial frame when the next byte came; the
     firmware drops it after 20 ms of silence and finds a frame inside it (test_firmware)."""
     link = VirtualSerial(VirtualDevice(), timeout=0.5)
     cut = P.encode(P.SetGains(1.0, 0.0, 0.0, 5000), 200)[:6]  # its length holds back...
@@ -394,7 +379,7 @@ def test_plan_longer_than_the_limit_is_refused_by_both(host_driver):
 
 
 def test_virtual_device_memory_does_not_grow_with_the_plan():
-    """Issue 12: the reference was sampled for the whole plan at RUN (3e7 samples took 6 GB).
+    """The reference was sampled for the whole plan at RUN (3e7 samples took 6 GB).
     A plan of 4e6 samples now runs in a bounded amount of memory."""
     dev = VirtualDevice(clock=_Clock())
     for i, m in enumerate(
@@ -494,7 +479,7 @@ def test_a_client_that_disconnects_stops_its_run():
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="pseudo-terminals: Linux")
 def test_a_host_that_stalls_loses_whole_frames_counted(tmp_path, monkeypatch):
-    """Issue 12: a host that stalled lost telemetry silently (bytes cut from the front of the
+    """A host that stalled lost telemetry silently (bytes cut from the front of the
     buffer). Now whole TELEMETRY frames are dropped, counted by the server, seen by the client
     as a gap, written to the recording and warned about; END_OF_RUN still arrives."""
     from jerklab.rig import connect
@@ -619,7 +604,7 @@ def _expected_stop(tel, limits, Ts_us=5000, max_voltage=VS):
     return None, None
 
 
-@settings(max_examples=40, deadline=None)
+@cases("costly", deadline=None)
 @given(
     distance=st.floats(0.2, 12.0),
     sign=st.sampled_from([1.0, -1.0]),

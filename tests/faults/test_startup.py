@@ -1,4 +1,4 @@
-"""Issue 12, first contact and ports: malformed targets, a port held by someone else, a board
+"""First contact and ports: malformed targets, a port held by someone else, a board
 that does not answer HELLO at once (bootloader) or at all, and the port listing.
 
 Fault-injection tests (gathered in ``tests/faults/``): each names the fault it injects and
