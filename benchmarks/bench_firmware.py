@@ -286,9 +286,9 @@ def _cycles(fw, name, defines, parts):
         ]:
             mean, mx = groups[(Ts_us, g)]
             print(
-                f"control step at Ts={Ts_us // 1000} ms{head}: max {mx} cycles (mean {mean:.0f}; worst tick "
-                f"over {what}; {mx / (16 * Ts_us):.3f} of the period, {mx / 4000:.2f} x the "
-                "4000-cycle ceiling)"
+                f"control step at Ts={Ts_us // 1000} ms{head}: max {mx} cycles (mean {mean:.0f}; "
+                f"worst tick over {what}; {mx / (16 * Ts_us):.3f} of the period, "
+                f"{mx / 4000:.2f} x the 4000-cycle ceiling)"
             )
     quarter = 16e6 / (4 * 448 * K * VS / (2 * math.pi))
     print(f"INT0 latency budget at top speed (quarter encoder period): {quarter:.0f} cycles")
