@@ -86,11 +86,13 @@ def test_step_identifies_the_hidden_motor(tmp_path):
 def _spec_run(profile, kpd, kid, kdd, Ts, n, vmax=12.0):
     """PROTOCOL.md "Device state machine", RUN, written out independently of the rig code:
     float32 parameters from the wire, exact ZOH plant, floor encoder, lround PWM; the PWM of
-    sample k is written ``delay`` after the encoder was read (the board's computation delay,
-    modelled by the virtual rig), the previous one driving the motor until then."""
+    sample k is in effect ``delay`` after the encoder was read (the board's computation delay,
+    modelled by the virtual rig, plus the mean wait for Timer1's TOP where the
+    double-buffered OCR1A takes the new duty), the previous one driving the
+    motor until then."""
     from jerklab.rig.virtual import VirtualDevice
 
-    delay = VirtualDevice.COMPUTE_DELAY
+    delay = VirtualDevice.DUTY_DELAY
     kpd, kid, kdd = f32(kpd), f32(kid), f32(kdd)
     Kf, tf = f32(K), f32(TAU)
 

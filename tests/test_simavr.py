@@ -165,6 +165,28 @@ def test_no_encoder_count_lost_at_top_speed(uno):
     assert s1["edge_queue_overflow"] == 0
 
 
+def test_new_duty_takes_effect_at_timer1_top(uno, tmp_path):
+    """Phase-correct PWM double-buffers OCR1A: the compare unit takes a new duty at TOP, once a
+    PWM period (2 TOP cycles = 127.875 us at 10 bits, 16 MHz, prescaler 1: the datasheet's
+    period). The harness times Timer1's TOPs and latches OCR1A there: over a move, TOPs come once
+    a period and a new duty is in effect 0 to one period after it was written (the write seen at
+    the harness's next motor step, up to 20 us late), half a period on average."""
+    period = 2 * 1023 / 16e6
+    with _rig(uno.port, tmp_path) as rig:
+        s0 = uno.stats()  # (the firmware has answered HELLO: its setup() started Timer1)
+        rec = rig.run_move(
+            plan_sine_jerk(4 * math.pi, 2e4, 300.0, 100.0), pole_placement_pid(K, TAU, 20)
+        )
+    s1 = uno.stats()
+    assert rec.metadata["status"] == "complete"
+    tops = s1["pwm_tops"] - s0["pwm_tops"]
+    assert abs(tops - (s1["sim_seconds"] - s0["sim_seconds"]) / period) <= 2
+    d = s1["pwm_delay_us"]
+    assert d["n"] >= 0.8 * np.count_nonzero(np.diff(rec.pwm))
+    assert 0.0 < d["max"] <= 1e6 * period + 0.5
+    assert 0.3 * 1e6 * period < d["mean"] < 0.7 * 1e6 * period
+
+
 def test_firmware_stops_the_motor_when_the_host_falls_silent(uno):
     """Host watchdog on the real firmware: a run with host_timeout 100 ms and no heartbeat ends
     with END_OF_RUN(HOST_TIMEOUT) and the bridge switched off."""

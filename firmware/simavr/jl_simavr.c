@@ -12,7 +12,8 @@
  *
  * Pins (docs/INTERFACES.md): OC1A (D9) duty = OCR1A / TOP read from the data space
  * (0x88..0x89; simavr does not drive OC1A in the phase-correct modes, the register is
- * exact), direction from PORTD7 (IN1) and PORTB0 (IN2) like an L298 (IN1 = IN2: brake,
+ * exact), in the phase-correct modes the value latched at Timer1's TOP (double-buffered, as
+ * on the chip: timer1_top_cb), direction from PORTD7 (IN1) and PORTB0 (IN2) like an L298 (IN1 = IN2: brake,
  * volts 0); encoder A on PD2 (INT0), B on PD3 (INT1), driven as external inputs
  * (AVR_IOCTL_IOPORT_SET_EXTERNAL, so firmware writes to PORTD cannot create spurious edges);
  * D12 (PB4) held low tells the firmware its plant is simulated; D13 (PB5) is the firmware's
@@ -288,12 +289,75 @@ static uint16_t timer1_top(void) {
     }
 }
 
+/* Phase-correct PWM (WGM 1-3, 10, 11): OCR1A is double-buffered and the compare unit takes a
+ * new value at TOP (ATmega328P datasheet, "Phase Correct PWM Mode"), so a duty written at a tick
+ * is in effect up to one PWM period later (2 TOP prescale cycles: 128 us at 10 bits, prescaler 1).
+ * simavr 1.6 does not run Timer1 in these modes: the harness counts Timer1 itself from the moment
+ * its clock is seen switched on (TCCR1B's CS bits, at a motor step: the phase to within
+ * --step-us) and latches OCR1A at every TOP (a cycle timer); in the other modes OCR1A is used as
+ * it is written. */
+static int t1_running;                  /* Timer1's clock is on: its TOPs are being timed */
+static uint16_t ocr1a_latched;          /* the compare value in effect (phase-correct modes) */
+static uint64_t ocr1a_tops, ocr1a_changes;
+static avr_cycle_count_t ocr1a_write_cycle; /* when the firmware last wrote a new OCR1A value */
+static uint16_t ocr1a_seen;
+static double pwm_delay_sum, pwm_delay_max; /* written value -> in effect, seconds */
+static uint64_t pwm_delay_n;
+
+static int timer1_phase_correct(void) {
+    int wgm = (avr->data[TCCR1A] & 3) | (((avr->data[TCCR1B] >> 3) & 3) << 2);
+    return wgm == 1 || wgm == 2 || wgm == 3 || wgm == 10 || wgm == 11;
+}
+
+static unsigned timer1_prescale(void) {
+    static const unsigned pre[8] = {0, 1, 8, 64, 256, 1024, 0, 0};
+    return pre[avr->data[TCCR1B] & 7];
+}
+
+static uint16_t ocr1a_register(void) { return avr->data[OCR1AL] | (avr->data[OCR1AH] << 8); }
+
+static uint16_t timer1_top(void);
+
+/* At each TOP: the buffered OCR1A becomes the compare value; the next TOP one period later. */
+static avr_cycle_count_t timer1_top_cb(avr_t *a, avr_cycle_count_t when, void *param) {
+    (void)param;
+    unsigned pre = timer1_prescale();
+    if (!pre) { t1_running = 0; return 0; }
+    uint16_t v = ocr1a_register();
+    ocr1a_tops++;
+    /* a write since the last motor step: seen here first (its delay counts as 0) */
+    if (v != ocr1a_seen) { ocr1a_seen = v; ocr1a_write_cycle = when; }
+    if (v != ocr1a_latched) {
+        ocr1a_changes++;
+        ocr1a_latched = v;
+        if (ocr1a_write_cycle) {
+            double d = (double)(when - ocr1a_write_cycle) / a->frequency;
+            pwm_delay_sum += d;
+            if (d > pwm_delay_max) pwm_delay_max = d;
+            pwm_delay_n++;
+        }
+    }
+    return when + 2 * (avr_cycle_count_t)timer1_top() * pre;
+}
+
+/* Called at every motor step: notices Timer1 starting and when OCR1A changes (for the stats). */
+static void timer1_watch(void) {
+    uint16_t v = ocr1a_register();
+    if (v != ocr1a_seen) { ocr1a_seen = v; ocr1a_write_cycle = avr->cycle; }
+    if (!t1_running && timer1_prescale()) {
+        t1_running = 1;
+        ocr1a_latched = v;
+        avr_cycle_timer_register(avr, (avr_cycle_count_t)timer1_top() * timer1_prescale(),
+                                 timer1_top_cb, NULL);
+    }
+}
+
 /* The L298 bridge: enable = OC1A (PWM duty) or PB1 as a plain output, IN1/IN2 direction. */
 static double bridge_volts(void) {
     double duty;
     if (avr->data[TCCR1A] & 0x80) {                                  /* COM1A1: OC1A is PWM */
         uint16_t top = timer1_top();
-        uint16_t ocr = avr->data[OCR1AL] | (avr->data[OCR1AH] << 8);
+        uint16_t ocr = (t1_running && timer1_phase_correct()) ? ocr1a_latched : ocr1a_register();
         duty = top ? (double)(ocr > top ? top : ocr) / top : 0.0;
     } else {
         duty = (avr->data[PORTB] >> 1) & 1;
@@ -462,6 +526,7 @@ static void after_reset(void) {
         avr_cycle_timer_register_usec(avr, 50, uart_cb, NULL);
         avr_cycle_timer_register(avr, step_cycles, motor_cb, NULL);
         edge_timer_on = 0;
+        t1_running = 0;                           /* Timer1 stopped by the reset */
         q_head = q_tail;                          /* edges already on the pins stay there */
         uart_ready_cycle = 0;                     /* the receiver is off again until enabled */
         if (getenv("JL_TRACE_COUNTS")) fprintf(stderr, "board reset at cycle %llu\n", (unsigned long long)avr->cycle);
@@ -497,6 +562,7 @@ static int load_bootloader(const char *path) {
 
 static avr_cycle_count_t motor_cb(avr_t *a, avr_cycle_count_t when, void *param) {
     (void)param;
+    timer1_watch();
     volts = bridge_volts();
     double th0 = theta;
     advance(volts + opt.load, (double)step_cycles / a->frequency);
@@ -598,7 +664,8 @@ static void write_stats(void) {
                "\"ideal_counts_x1\": %lld, \"ideal_counts_x4\": %lld, \"edges\": %llu, "
                "\"edge_queue_overflow\": %llu, \"pty\": \"%s\", \"uart_tx_bytes\": %llu, "
                "\"uart_rx_bytes\": %llu, \"uart_tx_dropped\": %llu, \"uart_ready_seconds\": %.6f, "
-               "\"uart_rx_pending\": %llu, ",
+               "\"uart_rx_pending\": %llu, \"pwm_tops\": %llu, \"pwm_changes\": %llu, "
+               "\"pwm_delay_us\": {\"n\": %llu, \"mean\": %.3f, \"max\": %.3f}, ",
             ++stats_seq, sim, wall, wall > 0 ? sim / wall : 0.0, wall_offset,
             (unsigned long long)missed_interrupts, (unsigned long long)resets,
             (unsigned long long)board_resets, (unsigned long long)avr->cycle,
@@ -607,7 +674,9 @@ static void write_stats(void) {
             (unsigned long long)uart_tx_bytes, (unsigned long long)uart_rx_bytes,
             (unsigned long long)uart_tx_dropped,
             uart_ready_cycle ? (double)uart_ready_cycle / avr->frequency : -1.0,
-            (unsigned long long)(rxq_tail - rxq_head));
+            (unsigned long long)(rxq_tail - rxq_head), (unsigned long long)ocr1a_tops,
+            (unsigned long long)ocr1a_changes, (unsigned long long)pwm_delay_n,
+            pwm_delay_n ? 1e6 * pwm_delay_sum / pwm_delay_n : 0.0, 1e6 * pwm_delay_max);
     if (opt.counts_addr >= 0 && opt.counts_addr + 3 <= (long)avr->ramend) {
         const uint8_t *c = avr->data + opt.counts_addr;
         int32_t v = (int32_t)((uint32_t)c[0] | ((uint32_t)c[1] << 8) | ((uint32_t)c[2] << 16) | ((uint32_t)c[3] << 24));

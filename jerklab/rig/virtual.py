@@ -25,9 +25,10 @@ firmware's order of operations, velocity and acceleration by backward difference
 may be a ``jerklab.plant.FlexibleDCMotor`` (state ``[θ_m, ω_m, θ_l, ω_l]``, the encoder on the
 motor; ``connect(device=FlexibleDCMotor())``).
 
-The board's computation delay is modelled: in a run, the PWM of sample k takes effect
-:attr:`VirtualDevice.compute_delay` after the encoder was read at t = k Ts (the firmware's
-control step, encoder read to PWM write; the reference of the sample is computed one tick
+The board's delay from the tick to the new duty is modelled: in a run, the PWM of sample k
+takes effect :attr:`VirtualDevice.compute_delay` after the encoder was read at t = k Ts (the
+firmware's control step, encoder read to PWM write, plus the mean wait for Timer1's TOP, where
+the double-buffered OCR1A takes the new duty; the reference of the sample is computed one tick
 ahead, after the previous step), the previous sample's PWM driving the motor until then.
 
 Differences from the real board, on purpose: the motor coasts to rest
@@ -88,6 +89,10 @@ class VirtualDevice:
         Reported in HELLO_REPLY.
     tick_us : int
         Timer tick; Ts must be a multiple of it (1000 µs, as on the Uno).
+    compute_delay : float, optional
+        In a run, from the encoder read at t = k Ts to sample k's duty in effect (s):
+        default :attr:`DUTY_DELAY`, the control step's :attr:`COMPUTE_DELAY` plus the PWM's
+        :attr:`PWM_BUFFER_DELAY`; 0 holds each PWM over its whole sample.
     count_noise : float
         Standard deviation (counts) of a noise added to the encoder reading before it is
         floored to a count (0: the exact counter).
@@ -102,6 +107,13 @@ class VirtualDevice:
     #: ~1030, max ~1080 cycles at 16 MHz while moving with the fixed-point PID; 1080 cycles are
     #: 67.5 µs), plus the wake-up from the 1 ms tick.
     COMPUTE_DELAY = 70e-6
+    #: The PWM's own delay (s): Timer1's phase-correct PWM takes a newly written duty at its next
+    #: TOP (OCR1A is double-buffered), which comes 0 to 127.9 µs later (one PWM period, 2·1023
+    #: cycles at 16 MHz) with no fixed phase to the 1 ms tick: 63.9 µs on average, modelled here
+    #: by that mean (the simavr harness latches OCR1A at each TOP, as the chip does).
+    PWM_BUFFER_DELAY = 1023 / 16e6
+    #: The default ``compute_delay``: from the encoder read at t = k Ts to the new duty in effect.
+    DUTY_DELAY = COMPUTE_DELAY + PWM_BUFFER_DELAY
 
     def __init__(
         self,
@@ -120,7 +132,7 @@ class VirtualDevice:
             )
         self.clock = clock
         if compute_delay is None:
-            compute_delay = self.COMPUTE_DELAY
+            compute_delay = self.DUTY_DELAY
         if (
             isinstance(compute_delay, bool)
             or not isinstance(compute_delay, (int, float))

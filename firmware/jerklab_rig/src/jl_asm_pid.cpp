@@ -29,8 +29,8 @@
 //   }
 //
 // A law changed in jl_law.h is not this one: build without JL_ASM (the default) to run it.
-// tests/test_firmware_fixed.py runs both builds of the law on the simulated ATmega328P against
-// the integer law in Python.
+// tests/test_firmware_fixed.py runs every build of the law (default, JL_ASM=1, JL_PURE_C=1) on
+// the simulated ATmega328P against the integer law in Python.
 #include "jl_control.h"
 
 #if JL_AVR_ASM

@@ -15,7 +15,9 @@
 // u is returned in Q16.16 PWM ticks (the device rounds it to the PWM register, q16_to_pwm).
 // The gains kpd_, kid_, kdd_, gamma_ are in PWM ticks per count (per count and sample for the
 // velocity loop, Stojčić §4B), set by PidQ::set from SET_GAINS (jl_control.cpp). The helpers:
-//   mac_g(acc, x, g)  acc + x g, the product floored, both steps saturated at +-2^31
+//   mac_g(acc, x, g)  acc + x g, the product floored, both steps saturated at +-2^31 (jl_fixed.h;
+//                     on the AVR an assembly primitive, jl_asm_mac.cpp, unless the firmware is
+//                     built with EXTRA_DEFS=-DJL_PURE_C=1)
 //   add_sat(a, b)     a + b saturated at +-2^31
 // State that survives from sample to sample lives in PidQ (jl_control.h): i_, e_prev_, d_, all
 // zero at RUN (PidQ::reset). *saturated tells the device this sample hit the clamp (TELEMETRY
