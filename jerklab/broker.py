@@ -58,6 +58,7 @@ from pathlib import Path
 
 from jerklab import planner, tuning
 from jerklab.controller import DiscreteGains, Feedforward
+from jerklab.hubauth import HubIdentity, token_from_env
 from jerklab.rig import Device, connect
 from jerklab.rig.recording import Recording, recordings_dir
 
@@ -556,8 +557,6 @@ class BrokerRig:
     queues_runs = True
 
     def __init__(self, address, timeout=10.0, client="kernel", token=None):
-        from jerklab.hubauth import token_from_env
-
         self.address = address
         self.host, self.port = parse_address(address)
         self.timeout = float(timeout)
@@ -743,8 +742,6 @@ def main(argv=None):
             ap.error(f"--{name.replace('_', '-')} must be > 0, got {getattr(args, name)}")
     authenticate = None
     if args.hub_auth:
-        from jerklab.hubauth import HubIdentity
-
         authenticate = HubIdentity()
     rig_port = None if args.rig in ("", "virtual") else args.rig
     broker = RigBroker(

@@ -51,6 +51,7 @@ import numpy as np
 
 from jerklab import paper, tuning
 from jerklab._validate import as_positive
+from jerklab.broker import unique_run_name
 from jerklab.controller import Feedforward
 from jerklab.rig.recording import recordings_dir
 from jerklab.tuning import (
@@ -918,8 +919,6 @@ class PolePlacementPanel(_panel_base()):
         if self.student is None or sid is None:
             return False
         folder = (Path(self.recordings) if self.recordings is not None else recordings_dir()) / sid
-        from jerklab.broker import unique_run_name
-
         base = folder / unique_run_name()  # two runs in one second never share a file
         while base.with_name(base.name + ".csv").exists():
             base = folder / unique_run_name()
