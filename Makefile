@@ -1,7 +1,11 @@
 # jerklab: the developer route (students: pip install "jerklab[lab]" and `jerklab lab`, see README).
 # The targets call the `jerklab` command that `pip install -e .` puts in .venv/bin.
 #   make lab    set up .venv and open JupyterLab on the repository's notebooks/ (virtual rig by default)
-#   make test   set up .venv and run every test (unit, property, notebooks, firmware, browser)
+#   make test   set up .venv and run every test (unit, property, notebooks, firmware, browser) in
+#               parallel (pytest-xdist, JOBS workers); what .ci/run calls
+#   make check  the fast tier: the tests that need no notebook kernel, browser, hub, simavr, firmware
+#               build, Arduino IDE or package build (markers: tests/conftest.py FILE_MARKS)
+#   make lint   ruff check and ruff format --check on the whole tree (.ci/run runs it first)
 #   make app    the standalone tuning page for a class (Voila, virtual rig) on http://127.0.0.1:8866/
 #   make bench  print the benchmark tables and record them as JSON in benchmarks/results/
 #   make book   static HTML of the executed notebooks and the API reference built from the docstrings
@@ -12,8 +16,12 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.jerklab-installed
 PYTEST_ARGS ?=
+JOBS   ?= auto
+# the groups of tests/conftest.py ONE_WORKER stay on one worker (--dist loadgroup)
+XDIST  := -n $(JOBS) --dist loadgroup
+CHECK_MARKS := not (notebook or book or browser or hub or simavr or firmware or arduino or packaging or slow)
 
-.PHONY: setup lab test app bench book firmware clean
+.PHONY: setup lab test check lint app bench book firmware clean
 
 $(STAMP): environment.txt pyproject.toml setup.py
 	@$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 10), "jerklab needs Python 3.10 or newer, this is " + sys.version' 
@@ -30,7 +38,14 @@ lab: setup
 	$(BIN)/jerklab lab --no-copy notebooks/ $(LAB_ARGS)
 
 test: setup
-	$(BIN)/python -m pytest $(PYTEST_ARGS)
+	$(BIN)/python -m pytest $(XDIST) $(PYTEST_ARGS)
+
+check: setup
+	$(BIN)/python -m pytest $(XDIST) -m "$(CHECK_MARKS)" $(PYTEST_ARGS)
+
+lint: setup
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
 
 app: setup
 	$(BIN)/jerklab app $(APP_ARGS)

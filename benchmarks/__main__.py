@@ -32,7 +32,7 @@ from benchmarks import _record
 
 HERE = pathlib.Path(__file__).parent
 #: benchmarks run only when named (``python -m benchmarks faults``: the fault probe takes minutes)
-ON_REQUEST = {"bench_faults", "bench_class", "bench_security"}
+ON_REQUEST = {"bench_faults", "bench_class", "bench_grading", "bench_security"}
 RESULTS = HERE / "results"
 
 

@@ -396,9 +396,11 @@ def table(rows):
         ok5 = sum(1 for t in r["panel"] if t <= 5.0)
         per = (r["rss_peak"] - r["rss_idle"]) / max(1, r["n"]) / 1e9
         lines.append(
-            f"{r['n']:>3} {r['pool']:>4} | {_pct(r['panel'], 50):>8.1f}s {max(r['panel'] or [float('nan')]):>8.1f}s "
+            f"{r['n']:>3} {r['pool']:>4} | {_pct(r['panel'], 50):>8.1f}s "
+            f"{max(r['panel'] or [float('nan')]):>8.1f}s "
             f"{ok5:>3}/{r['n']:<2} | {_pct(r['slider'], 50):>9.2f}s {_pct(r['slider'], 90):>5.2f}s "
-            f"{max(r['slider'] or [float('nan')]):>5.2f}s {len(r['slider']):>6} {r['timeouts'] + len(r['failed']):>5} | "
+            f"{max(r['slider'] or [float('nan')]):>5.2f}s {len(r['slider']):>6} "
+            f"{r['timeouts'] + len(r['failed']):>5} | "
             f"{r['rss_idle'] / 1e9:>6.2f}GB {r['rss_peak'] / 1e9:>6.2f}GB {per:>7.2f} | "
             f"{r['alive_close']:>7} {r['alive_after']:>3}@{r['after']:>3.0f}s | {r['load1']:>5.1f}"
         )

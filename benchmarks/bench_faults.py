@@ -276,7 +276,8 @@ def _nonfinite(obj, depth=0, seen=None):
 
 # ----------------------------------------------------------------------------- the targets
 
-P, R, N, I1, I0, A, S, O = "P", "R", "N", "I1", "I0", "A", "S", "O"
+# the kinds of VALUES as names (O: any object, the key VALUES and OBJ use)
+P, R, N, I1, I0, A, S, O = "P", "R", "N", "I1", "I0", "A", "S", "O"  # noqa: E741
 
 
 def _targets() -> list[Target]:

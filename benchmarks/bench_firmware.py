@@ -16,6 +16,12 @@ each (``-DJL_PROBE_PART=n``), and flash/RAM against the Uno's.
 
     python -m benchmarks firmware
 
+It does so for each build of the control law (``BUILDS``: the default, the C++ law of
+firmware/jerklab_rig/src/jl_law.h; ``JL_ASM=1``, its assembly twin), each with its flash, RAM
+and stack margin (the lowest stack pointer the harness saw, interrupts included, above the end
+of .bss, over PLAN of every planner, RUN with a RETARGET and a HEARTBEAT flood, SET_SHAPER,
+SEQUENCE and STEP); the parts table for the default build only.
+
 The runs use the sketch built for 115200 baud at 5 ms and for 1 Mbaud (``JL_BAUD``) at 1 ms, so
 a TELEMETRY goes out at every sample (115200 baud carries ~11.8 bytes/ms, a 22-byte frame every
 3rd sample at 1 ms).
@@ -124,8 +130,63 @@ def _run(elf, Ts_us, cmds, baud, run=True):
     return s, end, wall
 
 
-def main():
+# The builds of the control law compared (firmware/README.md "Change the control law"): the
+# default (the C++ law, its multiply-accumulate the assembly primitive) and JL_ASM=1 (the law's
+# hand-written assembly twin)
+BUILDS = [("default", ()), ("JL_ASM=1", ("-DJL_ASM=1",))]
+
+
+def _stack_margin(elf, tmp):
+    """Bytes between the lowest stack pointer the harness saw (interrupts included) and the end
+    of .bss, over PLAN of every planner, RUN with a RETARGET, SET_SHAPER, SEQUENCE, STEP and a
+    HEARTBEAT flood during a run."""
+    import subprocess
+
     from jerklab import protocol as pr
+    from jerklab.controller import discrete_pole_placement_pid
+    from jerklab.planner import plan_scurve, plan_sine_jerk, plan_sine_jerk_optimal, plan_trapezoid
+    from jerklab.rig import Link, connect, simavr
+    from jerklab.shaping import input_shaper
+
+    nm = subprocess.run(["avr-nm", str(elf)], capture_output=True, text=True, check=True).stdout
+    bss_end = (
+        next(int(ln.split()[0], 16) for ln in nm.splitlines() if ln.endswith(" __bss_end"))
+        - 0x800000
+    )
+    g = discrete_pole_placement_pid(K, TAU, 20.0, Ts=0.005, extra_pole=0.5)
+    d, J, E, W = 4 * math.pi, 2000.0, 300.0, 60.0
+    profiles = [
+        plan_sine_jerk(d, J, E, W),
+        plan_sine_jerk_optimal(d, J, E, W),
+        plan_scurve(d, J, E, W),
+        plan_trapezoid(d, E, W),
+    ]
+    with simavr.launch(elf, K=K, tau=TAU, build=False) as sim:
+        with connect(sim.port, recordings=tmp, progress=False, link=Link(timeout=10.0)) as rig:
+            rig.set_model(K, TAU)
+            for prof in profiles:
+                rig.run_move(prof, g, Ts=0.005, settle=0.05)
+
+            def cb(k, r, y):
+                if k == 10:
+                    rig.retarget(25.0)
+                if k % 3 == 0:  # a HEARTBEAT flood on top of the client's own
+                    for _ in range(4):
+                        rig._write(pr.Heartbeat())
+
+            rig.run_move(profiles[1], g, Ts=0.005, settle=0.05, on_telemetry=cb)
+            rig.set_shaper(input_shaper("zv", 8.0, 0.05), Ts=0.005)
+            rig.run_move(profiles[0], g, Ts=0.005, settle=0.05)
+            rig.set_shaper(None, Ts=0.005)
+            rig.record_prbs(2.0, 0.2, Ts=0.005)
+            rig.step(3.0, 0.1)
+        st = sim.stats()
+    return st["stack_min_sp"] + 1 - bss_end
+
+
+def main():
+    import tempfile
+
     from jerklab.rig import simavr
 
     missing = simavr.tools_missing()
@@ -133,12 +194,30 @@ def main():
         print(f"skipped: needs {', '.join(missing)}")
         return
     fw = simavr.firmware_dir()
-    out = simavr.build_firmware("avr", "size", "simavr")
-    m = re.search(r"flash (\d+) / (\d+) bytes .*RAM (\d+) / (\d+) bytes", out["output"])
+    simavr.build_firmware("simavr")
+    for i, (name, defines) in enumerate(BUILDS):
+        print(f"\n=== build: {name} ===")
+        bdir = fw / "build" / f"bench-{name.replace('=', '')}"
+        out = simavr.build_firmware("avr", "size", build_dir=bdir, defines=defines)
+        m = re.search(r"flash (\d+) / (\d+) bytes .*RAM (\d+) / (\d+) bytes", out["output"])
+        f, ft, r_, rt = (int(x) for x in m.groups())
+        print(f"flash {f} B ({f / ft:.1%} of {ft}), RAM {r_} B ({r_ / rt:.1%} of {rt})")
+        with tempfile.TemporaryDirectory() as tmp:
+            print(f"stack margin {_stack_margin(out['elf'], tmp)} B (lowest SP above .bss's end)")
+        _cycles(fw, name, defines, parts=i == 0)
+
+
+def _cycles(fw, name, defines, parts):
+    from jerklab import protocol as pr
+    from jerklab.rig import simavr
+
     # the control step: the default build's probe (encoder read -> PWM write, next reference,
     # TELEMETRY)
+    tag = name.replace("=", "")
     whole = {
-        baud: simavr.build_firmware("avr", build_dir=fw / "build" / f"step{baud}", baud=baud)["elf"]
+        baud: simavr.build_firmware(
+            "avr", build_dir=fw / "build" / f"step{baud}-{tag}", baud=baud, defines=defines
+        )["elf"]
         for baud in (115200, 1000000)
     }
     rows, groups = [], {}
@@ -207,11 +286,14 @@ def main():
         ]:
             mean, mx = groups[(Ts_us, g)]
             print(
-                f"control step at Ts={Ts_us // 1000} ms{head}: max {mx} cycles (mean {mean:.0f}; worst tick "
-                f"over {what}; {mx / (16 * Ts_us):.3f} of the period, {mx / 4000:.2f} x the 4000-cycle ceiling)"
+                f"control step at Ts={Ts_us // 1000} ms{head}: max {mx} cycles (mean {mean:.0f}; "
+                f"worst tick over {what}; {mx / (16 * Ts_us):.3f} of the period, "
+                f"{mx / 4000:.2f} x the 4000-cycle ceiling)"
             )
     quarter = 16e6 / (4 * 448 * K * VS / (2 * math.pi))
     print(f"INT0 latency budget at top speed (quarter encoder period): {quarter:.0f} cycles")
+    if not parts:
+        return
 
     # where a 1 ms tick's cycles go: one probe build per part (0 = the default build's probe)
     parts = [
@@ -230,8 +312,10 @@ def main():
         print(f"{'part':66s} {'n':>6s} {'mean':>7s} {'max':>6s} {'max/4000':>8s}")
         means = {}
         for n, label in parts:
-            b_dir = fw / "build" / (f"probe{n}" if n else "step1000000")
-            simavr.build_firmware("avr", build_dir=b_dir, baud=1000000, probe_part=n or None)
+            b_dir = fw / "build" / (f"probe{n}-{tag}" if n else f"step1000000-{tag}")
+            simavr.build_firmware(
+                "avr", build_dir=b_dir, baud=1000000, probe_part=n or None, defines=defines
+            )
             s, end, wall = _run(b_dir / "jerklab_rig.elf", 1000, _cases(1000)[ci][1], 1000000)
             b = s["control_step_cycles_all"]
             means[n] = (b["mean"], b["max"])
@@ -240,12 +324,6 @@ def main():
             f"CPU load per 1 ms period (step + idle-time work, means): "
             f"{(means[0][0] + means[7][0]) / 16000:.3f}; worst single period <= "
             f"{(means[0][1] + means[7][1]) / 16000:.3f}"
-        )
-    if m:
-        f, ft, r_, rt = (int(x) for x in m.groups())
-        print(
-            f"flash {f} / {ft} B = {f / ft:.3f} of the Uno, RAM {r_} / {rt} B = {r_ / rt:.3f} "
-            f"(budget 0.99 / 0.87)"
         )
 
 

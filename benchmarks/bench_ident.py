@@ -139,7 +139,8 @@ def _table_real():
         "estimation and the validation record"
     )
     print(
-        f"{'estimated on':>12} {'model':>26} | {'est. fit %':>10} {'val. fit %':>10} {'val. 10-step %':>14} | parameters"
+        f"{'estimated on':>12} {'model':>26} | {'est. fit %':>10} {'val. fit %':>10} "
+        f"{'val. 10-step %':>14} | parameters"
     )
     for est, val in (("encoders1", "encoders3"), ("encoders3", "encoders1")):
         for name, kw in (

@@ -4,7 +4,8 @@
    vs the paper's literal eq. 6, a bound-constrained least-squares problem at fixed y(T)
    (scipy.optimize.lsq_linear, BVLS), for the same horizon.
 2. The minimum horizon by bisection with each of them (and whether they agree).
-3. Simulation of a cycle command: pz.simulate (lfilter on the ZOH pulse transfer function) vs python-control's forced_response.
+3. Simulation of a cycle command: pz.simulate (lfilter on the ZOH pulse transfer function) vs
+   python-control's forced_response.
 4. The whole Table II (four cycles shaped and evaluated), with either solver.
 """
 

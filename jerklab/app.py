@@ -31,7 +31,7 @@ import sys
 from jerklab._validate import as_int
 from jerklab.broker import BrokerRig
 from jerklab.resources import share_path
-from jerklab.rig import connect
+from jerklab.rig import connect, load_profile
 from jerklab.widgets import pole_placement_panel
 
 __all__ = [
@@ -54,6 +54,8 @@ GUARD = "jerklab._voila_guard.GuardedKernelConnection"
 
 #: Environment variable carrying ``--rig`` to the page's kernels ("" or unset: virtual rig).
 RIG_ENV = "JERKLAB_RIG_PORT"
+#: the rig's motor profile (a name or a profile file, jerklab.rig.profiles) for the page's rig
+PROFILE_ENV = "JERKLAB_RIG_PROFILE"
 
 #: Default seconds of inactivity after which a page's kernel is shut down, and how often
 #: Voilà looks (``MappingKernelManager.cull_idle_timeout`` / ``cull_interval``). A kernel
@@ -92,7 +94,7 @@ def panel_for_page(rig_port=None, recordings=None):
         if isinstance(rig_port, str) and rig_port.startswith("broker://"):
             rig = BrokerRig(rig_port)
         else:
-            rig = connect(rig_port, progress=False)
+            rig = connect(rig_port, progress=False, profile=os.environ.get(PROFILE_ENV) or None)
     except Exception as exc:  # the page must still serve the tuning without a rig
         # the kind of failure and the rig the page was given, not the message (it may hold
         # the server's paths)
@@ -243,8 +245,20 @@ def main(argv=None):
         action="store_true",
         help="also cull idle kernels whose page is still open",
     )
+    ap.add_argument(
+        "--profile",
+        default=None,
+        help="the rig's motor: a built-in profile name (jerklab.rig.profiles) or the profile file "
+        "written by `jerklab rig check PORT --save FILE` (default: the paper's motor)",
+    )
     ap.add_argument("--browser", action="store_true", help="open a web browser")
     args, extra = ap.parse_known_args(argv)
+    if args.profile is not None:
+        try:
+            load_profile(args.profile)
+        except (ValueError, TypeError) as exc:
+            ap.error(f"--profile: {exc}")
+        os.environ[PROFILE_ENV] = str(args.profile)
     ip = "0.0.0.0" if args.public else args.ip
     vargs = voila_argv(
         args.port,

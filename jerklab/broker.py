@@ -734,6 +734,11 @@ def main(argv=None):
     ap.add_argument("--max-distance", type=float, default=d.max_distance, help="rad per move")
     ap.add_argument("--max-duration", type=float, default=d.max_duration, help="s per move")
     ap.add_argument("--max-settle", type=float, default=d.max_settle, help="s of settle")
+    ap.add_argument(
+        "--profile",
+        default=os.environ.get("JERKLAB_RIG_PROFILE") or None,
+        help="the rig's motor profile: a name or a profile file (default $JERKLAB_RIG_PROFILE)",
+    )
     args = ap.parse_args(argv)
     if args.speed <= 0:
         ap.error(f"--speed must be > 0, got {args.speed}")
@@ -744,6 +749,7 @@ def main(argv=None):
     if args.hub_auth:
         authenticate = HubIdentity()
     rig_port = None if args.rig in ("", "virtual") else args.rig
+    extra = {"profile": args.profile} if args.profile else None
     broker = RigBroker(
         rig_port,
         args.host,
@@ -752,6 +758,7 @@ def main(argv=None):
         authenticate=authenticate,
         limits=Limits(args.max_distance, args.max_duration, args.max_settle),
         recordings=args.recordings,
+        connect_kwargs=extra,
     )
     print(broker.address, flush=True)
     print(

@@ -1,7 +1,7 @@
 """Block diagrams and the planner flowchart of the three papers, drawn by code (schemdraw).
 
-The figures of Stojčić (Stojcic), Xu & Meckl and Yang that are drawings, not data, are redrawn here so that a notebook or the book
-shows them next to the code they describe:
+The figures of Stojčić (Stojcic), Xu & Meckl and Yang that are drawings, not data, are redrawn
+here so that a notebook or the book shows them next to the code they describe:
 
 * :func:`stojcic_fig2` — the planner's flowchart (Stojčić Fig. 2). Its boxes and branches come
   from :data:`PLANNER_FLOWCHART`, an *executable* description of the published algorithm
@@ -328,7 +328,8 @@ def stojcic_fig5():
     """Stojčić Fig. 5: feedforward realisation, the Stojčić eq. 15 recursion and u_F(k) (Stojčić eq. 16)."""
     _, dsp, _ = _schemdraw()
     d = _new(
-        "Stojčić Fig. 5 — feedforward: accumulators of Stojčić eq. 15, u_F(k) = (τ/K)ε(k) + (1/K)ω(k) (Stojčić eq. 16)"
+        "Stojčić Fig. 5 — feedforward: accumulators of Stojčić eq. 15, "
+        "u_F(k) = (τ/K)ε(k) + (1/K)ω(k) (Stojčić eq. 16)"
     )
     d.add(dsp.Arrow().right(1.2).label("j(k)", "left"))
     d.add(a1 := dsp.Box(w=2.2, h=1.2).anchor("W").label(r"$T_s/(1-z^{-1})$"))

@@ -184,7 +184,8 @@ def stretch_to_duration(profile: Profile, duration) -> Profile:
     Returns
     -------
     Profile
-        Of the same kind, distance and limits, with ``duration`` equal to the requested one.  A zero-distance profile becomes a standstill of that duration.
+        Of the same kind, distance and limits, with ``duration`` equal to the requested one.
+        A zero-distance profile becomes a standstill of that duration.
     """
     if not isinstance(profile, Profile) or profile.kind not in _CLASS:
         raise ValueError(f"profile must be a Profile of kind {PLANNERS}, got {profile!r}")

@@ -469,11 +469,11 @@ class ScanSpec:
 def _ramp_constants(model: PZTModel, spec: ScanSpec):
     """Return (w, G1, beta): input slope per sample and y(T) = G1·a + beta (steady ramp)."""
     A, B, C, _ = _discrete(model, spec.Ts)
-    I = np.eye(A.shape[0])
-    G1 = float(C @ np.linalg.solve(I - A, B))
+    eye = np.eye(A.shape[0])
+    G1 = float(C @ np.linalg.solve(eye - A, B))
     w = spec.scan_velocity * spec.Ts / G1
-    Q = np.linalg.solve(I - A, B * w)
-    beta = float(-C @ np.linalg.solve(I - A, Q))
+    Q = np.linalg.solve(eye - A, B * w)
+    beta = float(-C @ np.linalg.solve(eye - A, Q))
     return w, G1, beta
 
 
@@ -711,7 +711,8 @@ def shape_rampup(
     poles = model.mode_poles(spec.Ts)
     w, G1, beta = _ramp_constants(model, spec)
     if scan_start is not None:
-        # y(T) = G1 a + beta with the ramp level a within -F_max … F_max - (S-1) w (Xu & Meckl eq. 5 on the scan)
+        # y(T) = G1 a + beta with the ramp level a within -F_max … F_max - (S-1) w
+        # (Xu & Meckl eq. 5 on the scan)
         ends = sorted(
             (G1 * -spec.F_max + beta, G1 * (spec.F_max - (spec.scan_samples - 1) * w) + beta)
         )

@@ -272,8 +272,11 @@ def _ei_design(m: int, zeta: float, V: float):
         for r in zr:
             c = np.exp(2 * math.pi * r * (z + 1j * wd) * (tt - tt[-1])) @ A
             out += [c.real, c.imag]
+
+        def vv(rr):
+            return abs(np.exp(2 * math.pi * rr * (z + 1j * wd) * (tt - tt[-1])) @ A)
+
         for r in hr:
-            vv = lambda rr: abs(np.exp(2 * math.pi * rr * (z + 1j * wd) * (tt - tt[-1])) @ A)
             out += [vv(r) - V, (vv(r + h) - vv(r - h)) / (2 * h)]
         mid = hr[(m - 1) // 2] if m % 2 == 1 else zr[m // 2]
         out.append(mid - 1.0)
@@ -1158,14 +1161,15 @@ def tradeoff(
     """Compute the trade-off figure and table for the flexible motor's mode.
 
     The mode is the coupled pole pair of ``model`` (default ``FlexibleDCMotor()``: 8.1 Hz,
-    ζ = 0.033). The default move (1 rad under Stojčić's limits) accelerates in 58 ms, under half
-    the mode period, so the plain trapezoid rings; a move whose acceleration time exceeds the
-    period is already a good filter on its own (try ``distance=2 * math.pi``). Curves: the time-optimal trapezoid and the S-curve and sine-jerk profiles tuned
-    to the mode (:func:`tuned_profile`) over ``distance`` under ``max_accel``/``max_velocity``
-    (default Stojčić's limits, ``jerklab.paper``); the shapers designed for the mode; the robust
-    time-optimal voltage commands (:func:`robust_move`) of each order. Every curve uses the same
-    measure (module docstring): the residual with the mode at ``ratio ×`` its nominal frequency,
-    damping held, as a percentage of what a step of the same size leaves.
+    ζ = 0.033). The default move (1 rad under Stojčić's limits) accelerates in 58 ms, under half the
+    mode period, so the plain trapezoid rings; a move whose acceleration time exceeds the period
+    is already a good filter on its own (try ``distance=2 * math.pi``). Curves: the time-optimal
+    trapezoid and the S-curve and sine-jerk profiles tuned to the mode (:func:`tuned_profile`)
+    over ``distance`` under ``max_accel``/``max_velocity`` (default Stojčić's limits,
+    ``jerklab.paper``); the shapers designed for the mode; the robust time-optimal voltage
+    commands (:func:`robust_move`) of each order. Every curve uses the same measure (module
+    docstring): the residual with the mode at ``ratio ×`` its nominal frequency, damping held,
+    as a percentage of what a step of the same size leaves.
     """
     model = _flex_model(model)
     A = paper.MAX_ACCEL if max_accel is None else as_positive("max_accel", max_accel)

@@ -1153,7 +1153,8 @@ def pd_rest_band(
 
     At rest the derivative and the feedforward are zero, so the motor sees ``u = k_pd e_m`` (PWM
     rounded) plus the load ``w`` (input referred, W = P as in Stojčić eq. 9) and sticks while
-    ``|u + w| <= f_c``. Without friction and quantization this is the rest error of Stojčić eq. 9, ``e = -w / k_pd``.
+    ``|u + w| <= f_c``. Without friction and quantization this is the rest error of
+    Stojčić eq. 9, ``e = -w / k_pd``.
     The controller sees the *measured* error ``e_m = r - floor(θ c)/c`` (encoder count ``c`` per
     rad), which exceeds the true error ``e = r - θ`` by less than one count ``q = 1/c``; the PWM
     rounds ``u`` to half a duty step ``Δ/2``. The true error at rest therefore lies in

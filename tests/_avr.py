@@ -7,7 +7,9 @@ import re
 import subprocess
 
 
-def run_on_atmega328p(tmp_path, source, core=("jl_fixed.cpp", "jl_control.cpp"), flags=()):
+def run_on_atmega328p(
+    tmp_path, source, core=("jl_fixed.cpp", "jl_control.cpp", "jl_asm_mac.cpp", "jl_asm_pid.cpp"), flags=()
+):
     """Compile ``source`` (C++ text) with the core files ``core`` of firmware/jerklab_rig/src,
     run it in simavr and return its UART output as one string (simavr's colour codes and line
     breaks removed)."""

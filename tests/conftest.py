@@ -1,4 +1,12 @@
-"""Shared test set-up: headless plotting, hypothesis profiles, system-tool checks."""
+"""Shared test set-up: headless plotting, hypothesis profiles, system-tool checks, and the tiers.
+
+The tiers: every test file's markers are in ``FILE_MARKS`` below (pyproject registers them,
+``--strict-markers`` refuses any other). ``make check`` deselects all of them but ``verilog`` (the
+fast tier, ``CHECK_MARKS`` in the Makefile); ``make test`` runs everything in parallel
+(pytest-xdist, ``--dist loadgroup``): the files in ``ONE_WORKER`` keep their tests on one worker,
+because their module-scoped fixtures start something costly or write to one fixed folder (a
+simulated Uno, a hub, a browser, the book).
+"""
 
 from __future__ import annotations
 
@@ -40,7 +48,8 @@ def require_tool(*names: str) -> None:
     if missing:
         msg = (
             f"needs {', '.join(missing)} (Debian packages; `.ci/run` installs them: "
-            f"sudo apt-get install make g++ gcc-avr avr-libc arduino-core-avr simavr libsimavr-dev iverilog chromium)"
+            "sudo apt-get install make g++ gcc-avr avr-libc arduino-core-avr simavr "
+            "libsimavr-dev iverilog chromium)"
         )
         if REQUIRE_TOOLS:
             pytest.fail(msg)
@@ -55,10 +64,57 @@ def artifacts_dir(tmp_path_factory):
     return root
 
 
+#: markers of whole test files (path under tests/): what a file needs beyond Python
+FILE_MARKS = {
+    "test_notebooks.py": ("notebook",),
+    "test_book.py": ("notebook", "book"),
+    "test_labs.py": ("notebook", "simavr"),
+    "test_lab4.py": ("notebook", "simavr"),
+    "test_browser.py": ("browser",),
+    "test_hub.py": ("hub",),
+    "test_packaging.py": ("packaging",),
+    "test_arduino_ide.py": ("arduino",),
+    "test_simavr.py": ("simavr",),
+    "test_rig_simavr.py": ("simavr",),
+    "test_rig_sequence_shaper_simavr.py": ("simavr",),
+    "test_firmware.py": ("firmware", "simavr"),
+    "test_firmware_fixed.py": ("firmware", "simavr"),
+    "test_firmware_telemetry.py": ("firmware", "simavr"),
+    "test_firmware_law.py": ("firmware", "simavr"),
+    "test_rig_sequence_shaper.py": ("firmware",),
+    "faults/test_safety.py": ("firmware",),
+    "test_fpga.py": ("verilog",),
+    "test_fpga_signals.py": ("verilog",),
+    "test_figures_yang.py": ("verilog",),
+}
+
+#: files whose tests stay on one xdist worker (module-scoped servers, simulators or build folders)
+ONE_WORKER = {
+    "test_book.py",
+    "test_browser.py",
+    "test_hub.py",
+    "test_packaging.py",
+    "test_arduino_ide.py",
+    "test_simavr.py",
+    "test_rig_simavr.py",
+    "test_rig_sequence_shaper_simavr.py",
+    "test_firmware_telemetry.py",
+}
+
+_TESTS = os.path.dirname(os.path.abspath(__file__))
+
+
+def _rel(item) -> str:
+    return os.path.relpath(str(item.path), _TESTS).replace(os.sep, "/")
+
+
 def pytest_collection_modifyitems(session, config, items):
-    """Run tests/test_book.py last: it builds the book from the notebooks test_notebooks.py executed."""
-    items.sort(
-        key=lambda it: (
-            it.nodeid.startswith("tests/test_book.py") or it.nodeid.startswith("test_book.py")
-        )
-    )
+    """Mark every test by its file (``FILE_MARKS``, ``ONE_WORKER``), and run tests/test_book.py last:
+    it builds the book from the notebooks test_notebooks.py executed."""
+    for item in items:
+        rel = _rel(item)
+        for name in FILE_MARKS.get(rel, ()):
+            item.add_marker(getattr(pytest.mark, name))
+        if rel in ONE_WORKER:
+            item.add_marker(pytest.mark.xdist_group(rel))
+    items.sort(key=lambda it: _rel(it) == "test_book.py")

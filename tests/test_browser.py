@@ -310,7 +310,10 @@ def check_live_panel(w: Watched, slider="ωn [rad/s]", presses=3, timeout_ms=30_
     figure on screen.
     """
     page = w.page
-    errors_sel = ".jupyter-widgets-error-widget, .jerklab-error, .jp-RenderedText[data-mime-type='application/vnd.jupyter.stderr']"
+    errors_sel = (
+        ".jupyter-widgets-error-widget, .jerklab-error, "
+        ".jp-RenderedText[data-mime-type='application/vnd.jupyter.stderr']"
+    )
 
     def no_widget_error(when):
         shown = page.locator(errors_sel)

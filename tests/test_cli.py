@@ -136,19 +136,17 @@ def _check(rig, **kw):
 def test_check_passes_a_healthy_virtual_rig_with_friction(capsys):
     found, report = _check(_virtual(DCMotor(coulomb_friction=0.4)))
     assert all(f.ok for f in found.values()), report
-    assert set(found) == {"firmware", "encoder", "direction", "cpr", "supply"}
-    assert "dead band" in found["supply"].message  # the friction, seen and not held against K
+    assert set(found) == {"firmware", "encoder", "direction", "cpr", "supply", "friction"}
+    assert "dead band" in found["friction"].message  # the friction, seen and not held against K
     assert cli.main(["rig", "check", "virtual"]) == 0
     assert "all checks passed" in capsys.readouterr().out
 
 
 def test_check_finds_a_reversed_encoder():
     found, report = _check(_virtual(encoder_sign=-1))
-    assert not found["direction"].ok
-    assert (
-        "swap the encoder's A and B" in found["direction"].fix
-        and "motor leads" in found["direction"].fix
-    )
+    assert not found["direction"].ok  # the virtual rig's hand turn tells the encoder from the leads
+    assert "A/B swapped" in found["direction"].message
+    assert "swap the encoder's A and B" in found["direction"].fix
     assert found["cpr"].ok and found["supply"].ok, report  # the rest is measured all the same
 
 
@@ -173,7 +171,7 @@ def test_check_finds_a_wrong_counts_per_revolution(configured, actual):
     found, _ = _check(rig)
     assert not found["cpr"].ok
     assert (
-        f"about {actual} counts/rev" in found["cpr"].message
+        f"gave {actual} counts" in found["cpr"].message
         and f"counts_per_rev={actual}" in found["cpr"].fix
     )
 
@@ -191,6 +189,7 @@ def test_check_validates_its_arguments():
         rig.close()
 
 
+@pytest.mark.simavr
 def test_check_on_the_firmware_on_simavr():
     require_tool(
         "make",
@@ -208,13 +207,13 @@ def test_check_on_the_firmware_on_simavr():
         link=Link(timeout=10.0),
     )
     try:
-        found = {f.name: f for f in check_rig(rig)}
+        found = {f.name: f for f in check_rig(rig, turn_counts=448)}  # a hand turn's count
         assert all(f.ok for f in found.values()), format_report(found.values())
         assert rig.firmware_version in found["firmware"].message
         # the user states 112 counts/rev for the 448-pulse encoder: the firmware decodes X1 (112 is
         # neither 2 nor 4 x 448), the encoder still gives 448 a turn
         rig.counts_per_rev = 112
-        found = {f.name: f for f in check_rig(rig)}
+        found = {f.name: f for f in check_rig(rig, turn_counts=448)}
         assert not found["cpr"].ok and "counts_per_rev=448" in found["cpr"].fix
     finally:
         rig.close()

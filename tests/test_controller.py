@@ -89,7 +89,8 @@ def test_eq13_coefficients():
 
 @pytest.mark.parametrize("wn, radius", [(10, 0.952), (30, 0.876), (40, 0.992), (50, 1.16)])
 def test_reading_numbers_discretized_continuous_design(wn, radius):
-    """docs/THEORY.md (Stojčić eq. 13): largest |z| of the eq.-13 design on the ZOH plant, via python-control."""
+    """docs/THEORY.md (Stojčić eq. 13): largest |z| of the eq.-13 design on the ZOH plant, via
+    python-control."""
     d = pole_placement_pid(K, TAU, wn).discretize(TS)
     Pz = ct.c2d(ct.tf([K], [TAU, 1, 0]), TS, "zoh")
     cl = ct.feedback(Pz * _z_pid_tf(d), 1)

@@ -141,7 +141,8 @@ def _write_vectors(path, rng):
             s = p.sample(t)
             for k in range(len(t)):
                 lines.append(
-                    f"S {hdr} {float(t[k])!r} {float(s.jerk[k])!r} {float(s.accel[k])!r} {float(s.velocity[k])!r} {float(s.position[k])!r}"
+                    f"S {hdr} {float(t[k])!r} {float(s.jerk[k])!r} {float(s.accel[k])!r} "
+                    f"{float(s.velocity[k])!r} {float(s.position[k])!r}"
                 )
             # the control loop's stepper at t = k Ts (capped for very long moves), at Ts = 5 ms and
             # at 1 ms (the 1 kHz loop)
@@ -150,7 +151,8 @@ def _write_vectors(path, rng):
             s = p.sample(np.arange(n) * Ts)
             lines.append(f"K {hdr} {float(Ts)!r} {n}")
             lines += [
-                f"s {float(s.jerk[k])!r} {float(s.accel[k])!r} {float(s.velocity[k])!r} {float(s.position[k])!r}"
+                f"s {float(s.jerk[k])!r} {float(s.accel[k])!r} "
+                f"{float(s.velocity[k])!r} {float(s.position[k])!r}"
                 for k in range(n)
             ]
     # controllers: Stojčić eq. 13 gains and z-domain gains (with a derivative filter), position
@@ -181,7 +183,8 @@ def _write_vectors(path, rng):
         ff = Feedforward(K, tau) if ff_on else None
         c = DigitalController(g, feedforward=ff, output_limit=limit)
         lines.append(
-            f"C {float(g.kpd)!r} {float(g.kid)!r} {float(g.kdd)!r} {float(g.gamma)!r} {float(limit)!r} {float(K)!r} {float(tau)!r} "
+            f"C {float(g.kpd)!r} {float(g.kid)!r} {float(g.kdd)!r} {float(g.gamma)!r} "
+            f"{float(limit)!r} {float(K)!r} {float(tau)!r} "
             f"{int(ff_on)} {int(loop == 'velocity')} {float(Ts)!r}"
         )
         prof = plan_sine_jerk(f32(15.0), 2e4, 3000.0, 100.0)  # 88 rad/s, 1060 rad/s^2: u_F 3.5 V
@@ -217,7 +220,8 @@ def _write_vectors(path, rng):
                 st[("frozen_" if pt["i"] == i_prev else "integrating_") + side] += 1
             i_prev = pt["i"]
             lines.append(
-                f"c {float(r)!r} {float(v)!r} {float(acc)!r} {float(y)!r} {float(u)!r} {float(pt['p'])!r} {float(pt['i'])!r} {float(pt['d'])!r} "
+                f"c {float(r)!r} {float(v)!r} {float(acc)!r} {float(y)!r} {float(u)!r} "
+                f"{float(pt['p'])!r} {float(pt['i'])!r} {float(pt['d'])!r} "
                 f"{float(pt['ff'])!r} {int(pt['saturated'])}"
             )
             u_m = obey * u + 0.3 * math.sin(0.05 * k)  # a plant that does not quite obey
@@ -630,8 +634,9 @@ def test_device_stop_and_open_loop_step(host_driver):
 @pytest.mark.parametrize("loop", ["position", "velocity"])
 def test_device_closed_loop_matches_jerklab_controller(host_driver, loop):
     """The whole device loop (planner stepper, encoder scaling, feedforward, PID eq. 16-18 in
-    fixed point (Q16.16 error and states, 24-bit gain mantissas), PWM rounding and clamp) against jerklab.controller.DigitalController +
-    jerklab.planner on the same exact ZOH motor, sample by sample."""
+    fixed point (Q16.16 error and states, 24-bit gain mantissas), PWM rounding and clamp) against
+    jerklab.controller.DigitalController + jerklab.planner on the same exact ZOH motor, sample by
+    sample."""
     from jerklab.controller import velocity_pole_placement_pid
 
     Ts, vs = 0.005, 12.0
@@ -755,8 +760,13 @@ int main() {
         if (u64(a) != want) ++bad;
         // the forward differences' step
         jl::Q32 d[4], w[4];
-        for (uint8_t i = 0; i < 4; ++i) { d[i].lo = v[6 + 2 * i]; d[i].hi = (int32_t)v[7 + 2 * i]; w[i] = d[i]; }
-        for (uint8_t i = 0; i < n; ++i) { const uint64_t t = u64(w[i]) + u64(w[i + 1]); w[i].lo = (uint32_t)t; w[i].hi = (int32_t)(t >> 32); }
+        for (uint8_t i = 0; i < 4; ++i) {
+            d[i].lo = v[6 + 2 * i]; d[i].hi = (int32_t)v[7 + 2 * i]; w[i] = d[i];
+        }
+        for (uint8_t i = 0; i < n; ++i) {
+            const uint64_t t = u64(w[i]) + u64(w[i + 1]);
+            w[i].lo = (uint32_t)t; w[i].hi = (int32_t)(t >> 32);
+        }
         jl::q32_diffs(d, n);
         for (uint8_t i = 0; i < 4; ++i) if (d[i].lo != w[i].lo || d[i].hi != w[i].hi) ++bad;
         sum += (uint32_t)m ^ a.lo ^ (uint32_t)a.hi;

@@ -248,7 +248,8 @@ int main() {
         if (v > INT32_MAX) v = INT32_MAX;
         if (v < INT32_MIN) v = INT32_MIN;
         int64_t t = (int64_t)a + (((int64_t)b * (int64_t)m) >> (8 * s) > INT32_MAX ? INT32_MAX :
-                     (((int64_t)b * (int64_t)m) >> (8 * s) < INT32_MIN ? INT32_MIN : ((int64_t)b * (int64_t)m) >> (8 * s)));
+                     (((int64_t)b * (int64_t)m) >> (8 * s) < INT32_MIN ? INT32_MIN :
+                      ((int64_t)b * (int64_t)m) >> (8 * s)));
         if (t > INT32_MAX) t = INT32_MAX;
         if (t < INT32_MIN) t = INT32_MIN;
         if (lo != (uint32_t)p || hi != (int32_t)(p >> 32) || q != (int32_t)w) ++bad;
@@ -263,7 +264,16 @@ int main() {
 """
 
 
-def test_avr_assembly_multiply_on_the_simulated_atmega328p(tmp_path):
+# The firmware's builds of the control law on the AVR (firmware/jerklab_rig/src/jl_port.h): the
+# default (the C++ law of jl_law.h, its multiply-accumulate the assembly primitive jl_mac),
+# JL_ASM=1 (the law's assembly twin jl_pidq_step) and JL_PURE_C=1 (no assembly in the law's path)
+AVR_BUILDS = pytest.mark.parametrize(
+    "avr_flags", [(), ("-DJL_ASM=1",), ("-DJL_PURE_C=1",)], ids=["default", "asm", "pure-c"]
+)
+
+
+@AVR_BUILDS
+def test_avr_assembly_multiply_on_the_simulated_atmega328p(tmp_path, avr_flags):
     """The inline-assembly product (sixteen MULs, the signed correction) and mul_q's window and
     saturation, and the control step's narrow multiply-accumulate (jl_mac: twelve MULs, the
     24-bit mantissa's signed correction, the window, both saturations) as compiled for the
@@ -289,7 +299,7 @@ def test_avr_assembly_multiply_on_the_simulated_atmega328p(tmp_path):
     )
     import re
 
-    text = run_on_atmega328p(tmp_path, _AVR_MAIN.replace("VECTORS", body))
+    text = run_on_atmega328p(tmp_path, _AVR_MAIN.replace("VECTORS", body), flags=avr_flags)
     got = re.findall(r"<([0-9a-f]{8}) ([0-9a-f]{8})>", text)
     assert len(got) == 1, text[-500:]
     bad, checksum = int(got[0][0], 16), int(got[0][1], 16)
@@ -342,7 +352,7 @@ def _qgain_model(g):
 
 
 class _PidQModel:
-    """jl::PidQ's integer law (jl_control.h) on Python integers: products floored and saturated,
+    """jl::PidQ's integer law (jl_law.h) on Python integers: products floored and saturated,
     sums saturated, conditional integration, the clamp."""
 
     def __init__(self, kpd, kid, kdd, gamma, limit):
@@ -399,7 +409,8 @@ int main() {
         uint32_t sum = 0, nsat = 0;
         for (uint16_t k = 0; k < sizeof(kV) / sizeof(kV[0]); ++k) {
             bool sat;
-            const int32_t u = pid.step((int32_t)pgm_read_dword(&kV[k][0]), (int32_t)pgm_read_dword(&kV[k][1]), &sat);
+            const int32_t u = pid.step((int32_t)pgm_read_dword(&kV[k][0]),
+                                       (int32_t)pgm_read_dword(&kV[k][1]), &sat);
             sum = (sum * 31u) ^ (uint32_t)u;
             nsat += sat;
         }
@@ -416,9 +427,11 @@ def _c_i32(v):
     return "(-2147483647L-1)" if v == I32_MIN else f"{v}L"
 
 
-def test_assembly_pid_matches_the_integer_law_on_the_simulated_atmega328p(tmp_path):
-    """PidQ::step as the Uno runs it (jl_pidq_step, hand-written assembly) against the integer
-    law in Python, sample by sample (a running checksum of u and the count of saturated
+@AVR_BUILDS
+def test_avr_pid_matches_the_integer_law_on_the_simulated_atmega328p(tmp_path, avr_flags):
+    """PidQ::step as the Uno runs it, in each build (the C++ law of jl_law.h; with JL_ASM=1 its
+    assembly twin jl_pidq_step; with JL_PURE_C=1 without the assembly multiply) against the
+    integer law in Python, sample by sample (a running checksum of u and the count of saturated
     samples): with and without the derivative filter, negative gains, errors beyond 2^30 (the
     clamp), the output clamp with and without the integrator frozen, e = 0."""
     require_tool("avr-g++", "simavr")
@@ -450,7 +463,9 @@ def test_assembly_pid_matches_the_integer_law_on_the_simulated_atmega328p(tmp_pa
     body_g = ",".join("{" + ",".join(f"{float(np.float32(x))!r}f" for x in g) + "}" for g in gains)
     body_v = ",".join(f"{{{_c_i32(e)},{_c_i32(f)}}}" for e, f in vecs)
     text = run_on_atmega328p(
-        tmp_path, _AVR_PID_MAIN.replace("GAINS", body_g).replace("VECTORS", body_v)
+        tmp_path,
+        _AVR_PID_MAIN.replace("GAINS", body_g).replace("VECTORS", body_v),
+        flags=avr_flags,
     )
     got = re.findall(r"<([0-9a-f]{8}) ([0-9a-f]{8}) ([0-9a-f]{8})>", text)
     assert len(got) == len(gains), text[-500:]

@@ -9,8 +9,8 @@ encoder is counted without a loss, that the frame's cycle cost stays bounded (cy
 simulator, independent of the host's load), and that the 115200-baud default build (transmit not
 held) still carries a decimated 1 ms run and survives back-pressure without losing a byte. The
 encoder ISRs (assembly, byte-wise carry) count like a perfect decoder in x1 and x4, both ways,
-across the count's byte boundaries. The host driver checks ``encode_frame_ring`` against jerklab's frames at wrapping heads
-(tests/test_firmware.py, golden vectors).
+across the count's byte boundaries. The host driver checks ``encode_frame_ring`` against
+jerklab's frames at wrapping heads (tests/test_firmware.py, golden vectors).
 """
 
 from __future__ import annotations

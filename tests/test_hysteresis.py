@@ -251,3 +251,15 @@ def test_fit_on_coarser_grid_predicts_unseen_input():
 def test_bad_input_raises_naming_parameter(call, name):
     with pytest.raises(ValueError, match=name):
         call()
+
+
+# ------------------------------------------------------------------------------ Preisach image (notebook 08)
+def test_masked_density():
+    P = Preisach.piezo_like(0.0, 100.0, n=12)
+    m = P.masked_density()
+    i, j = np.indices(m.shape)
+    assert np.array_equal(m[i >= j], P.density[i >= j]) and np.all(np.isnan(m[i < j]))
+    # the weight over the half plane (diagonal cells are half squares) is the output span
+    area = np.where(i == j, 0.5, 1.0) * P.h**2
+    assert np.nansum(m * area) == pytest.approx(P.everett(100.0, 0.0))
+    assert np.nansum(m * area) == pytest.approx(P.output_range[1] - P.output_range[0])

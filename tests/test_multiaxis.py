@@ -22,6 +22,14 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
+from jerklab.fpga import (
+    PAPER,
+    YANG_TICK_SEARCH,
+    HardwareLimitError,
+    YangSCurve,
+    simulate_verilog_xy,
+    yang_axes,
+)
 from jerklab.multiaxis import PLANNERS, plan_multi_axis, stretch_to_duration
 from jerklab.planner import plan_scurve, plan_sine_jerk_optimal, plan_trapezoid
 
@@ -373,14 +381,6 @@ def test_seeded_batch_time_and_phase():
 
 
 # --------------------------------------------------------------------------- Yang's x–y stand
-from jerklab.fpga import (
-    PAPER,
-    YANG_TICK_SEARCH,
-    HardwareLimitError,
-    YangSCurve,  # noqa: E402
-    simulate_verilog_xy,
-    yang_axes,
-)
 
 #: the paper's axis limits: V = 20 mm/s, T = 1 s -> A = 2V/T, J = 4V/T^2 (µm, s)
 YANG_LIMITS = (4 * 20000.0, 2 * 20000.0, 20000.0)
@@ -457,6 +457,7 @@ def test_xy_path_phase_sync_is_straight_time_sync_is_not():
 
 
 @pytest.mark.parametrize("sync", ["phase", "time"])
+@pytest.mark.verilog
 def test_xy_stand_verilog_matches_model_on_both_axes(sync, tmp_path):
     """Two scurve_gen + pulse_divider pairs in one Icarus run (firmware/fpga/tb_xy.v), driven by
     the parameters of one synchronized plan: every tick and every edge of both axes equal the

@@ -230,8 +230,9 @@ def test_student_path_in_a_fresh_environment(dists):
         "import sys, nbformat; from nbclient import NotebookClient\n"
         "for p in sys.argv[1:]:\n"
         "    nb = nbformat.read(p, as_version=4)\n"
+        "    here = str(__import__('pathlib').Path(p).parent)\n"
         "    NotebookClient(nb, timeout=120, kernel_name='python3',\n"
-        "                   resources={'metadata': {'path': str(__import__('pathlib').Path(p).parent)}}).execute()\n"
+        "                   resources={'metadata': {'path': here}}).execute()\n"
         "    print('ran', p)\n"
     )
     nbs = [str(work / "notebooks" / n) for n in ("02_identification.ipynb", "04_simulation.ipynb")]

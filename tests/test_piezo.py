@@ -331,7 +331,10 @@ def test_increment_objective_is_smoother_than_time_optimal():
     y0 = evaluate_cycle(c).y_nominal[c.N + c.S :]
     c2 = with_return(c, smooth)
     y1 = evaluate_cycle(c2).y_nominal[c2.N + c2.S :]
-    osc = lambda y: np.clip(np.diff(y), 0, None).sum()  # upward motion during the return
+
+    def osc(y):  # upward motion during the return
+        return np.clip(np.diff(y), 0, None).sum()
+
     assert osc(y1) < 0.5 * osc(y0)
     assert y1.min() > -0.05
 

@@ -470,7 +470,8 @@ def test_fig2_distance_binds():
 
 
 def test_fig2_accel_binds():
-    # docs/THEORY.md (Stojčić eq. 4): Theta = 10 pi, J = 2e4, E = 300, Omega = 100 -> T = 47 ms, cruise 7.07, 4.49 s
+    # docs/THEORY.md (Stojčić eq. 4): Theta = 10 pi, J = 2e4, E = 300, Omega = 100
+    # -> T = 47 ms, cruise 7.07, 4.49 s
     p = plan_sine_jerk(10 * math.pi, 2e4, 300.0, 100.0)
     assert p.accel_time == pytest.approx(300.0 * math.pi / 2e4, rel=1e-14)
     assert p.peak_accel == pytest.approx(300.0, rel=1e-14)

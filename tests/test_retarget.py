@@ -38,22 +38,21 @@ def _check_plan(p, J, A, V, v0):
         tb = seg[0]
         left = p.state(np.nextafter(tb, -np.inf) if tb > t0 else tb)
         right = p.state(tb)
-        for i, (l, r) in enumerate(zip(left[1:], right[1:])):  # a, v, x
+        for i, (lv, rv) in enumerate(zip(left[1:], right[1:])):  # a, v, x
             if i == 0 and p.shape == 2:
                 continue
             # (plus the rounding of the time tb itself times the derivative)
             deriv = (J, A, V + v0)[i]
-            assert abs(l - r) <= 1e-9 * scale[2 - i] + 8 * deriv * np.spacing(tb) + 1e-12, (
+            assert abs(lv - rv) <= 1e-9 * scale[2 - i] + 8 * deriv * np.spacing(tb) + 1e-12, (
                 i,
                 tb,
-                l,
-                r,
+                lv,
+                rv,
             )
         if p.shape == 0:
             assert abs(left[0] - right[0]) <= 1e-6 * J  # half-sine pulses: jerk continuous
     bounds = [seg[0] for seg in p.segments]
     a_i, v_i, x_i = 0.0, p.sign * v0, p.x_start  # state integrated from the start
-    T = t1 - t0
     for ta_, tb_ in zip(bounds[:-1], bounds[1:]):
         t = np.linspace(ta_, tb_, 401)
         t[-1] = np.nextafter(tb_, -np.inf)  # the segment's own end value

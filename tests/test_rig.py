@@ -105,7 +105,7 @@ def _spec_run(profile, kpd, kid, kdd, Ts, n, vmax=12.0):
     p_prev = 0
     s = profile.sample(np.arange(n) * Ts)
     x = np.zeros(2)
-    i_acc = e_prev = d_prev = 0.0
+    i_acc = e_prev = 0.0
     counts, pwms = [], []
     for k in range(n):
         c = math.floor(x[0] * CPR + 1e-9)
@@ -120,7 +120,7 @@ def _spec_run(profile, kpd, kid, kdd, Ts, n, vmax=12.0):
                 u -= i_new - i_acc
                 i_new = i_acc
             u = max(-vmax, min(vmax, u))
-        i_acc, e_prev, d_prev = i_new, e, d
+        i_acc, e_prev = i_new, e
         p = min(int(math.floor(abs(u) * 1023 / 12.0 + 0.5)), 1023)
         p = p if u >= 0 else -p
         counts.append(c)

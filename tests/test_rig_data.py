@@ -142,6 +142,7 @@ def test_simavr_recording_agrees_with_the_virtual_one(recs):
     _agree(recs["simavr_sine_jerk_move"], recs["virtual_sine_jerk_move"])
 
 
+@pytest.mark.simavr
 def test_simavr_move_remade_agrees_with_the_virtual_file(recs, script):
     require_tool(
         "make",

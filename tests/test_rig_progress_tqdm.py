@@ -182,6 +182,7 @@ def test_drop_in_for_the_rig_client(tmp_path, monkeypatch):
     ) and last.rstrip().endswith("complete")
 
 
+@pytest.mark.notebook
 def test_widget_bar_in_a_headless_kernel():
     """A real kernel (nbclient): detected, the tqdm widget is shown, no text bar, execution completes."""
     import nbformat
@@ -228,6 +229,7 @@ def test_rig_client_uses_these_bars(tmp_path, monkeypatch):
     assert len(shown) == 1
 
 
+@pytest.mark.notebook
 def test_rig_client_in_a_headless_kernel(tmp_path):
     """The rig client in a real kernel (nbclient, as tests/test_notebooks.py): the kernel is
     detected, one widget is shown (no text bar) and the run completes."""

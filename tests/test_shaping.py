@@ -683,7 +683,6 @@ def test_fixed_point_fir(kind, f, zeta, Ts, bits, ref):
     assert np.all(err <= 0.5 + q.size * np.abs(r).max() / (1 << bits) + 1e-9)
     # integer arithmetic written out for one sample, as the firmware would
     k = min(len(ref) - 1, 3)
-    n = q.size - 1
     hist = [r[max(k - j, 0)] for j in range(q.size)]
     assert (
         y[k] == (sum(int(q[j]) * int(hist[j]) for j in range(q.size)) + (1 << (bits - 1))) >> bits

@@ -143,14 +143,50 @@ def test_drawn_power_and_ground_nets(drawn):
     assert any(p.startswith("Uno.GND") for p in gnd)
     # encoder on the Uno's 5 V (the Uno's input pull-ups are to 5 V), never on 12 V
     assert net_of("Encoder.VCC") == {"Uno.5V", "Encoder.VCC"}
-    assert net_of("Supply.+12V") == {"Supply.+12V", "L298N.+12V"}
+    # the 12 V through the fuse, then the switch, to the bridge
+    assert net_of("Supply.+12V") == {"Supply.+12V", "Fuse.in"}
+    assert net_of("Fuse.out") == {"Fuse.out", "Switch.in"}
+    assert net_of("Switch.out") == {"Switch.out", "L298N.+12V"}
     # the motor only on the bridge outputs
     assert net_of("Motor.M+") == {"L298N.OUT1", "Motor.M+"}
     assert net_of("Motor.M-") == {"L298N.OUT2", "Motor.M-"}
     # nothing else: every drawn pin is in a net, the L298N 5V terminal is not drawn as used
     drawn_pins = set().union(*ns)
     assert not any(p == "L298N.5V" for p in drawn_pins)
-    assert len(ns) == 5 + 5  # five signal nets, ground, 5 V, 12 V, M+, M-
+    assert len(ns) == 5 + 7  # five signal nets, ground, 5 V, 12 V in three runs, M+, M-
+
+
+def test_the_l298n_header_is_drawn_in_its_physical_order():
+    # the module's header reads ENA IN1 IN2 IN3 IN4 ENB along its edge
+    order = ["ENA", "IN1", "IN2", "IN3", "IN4", "ENB"]
+    ys = [wiring.PINS[f"L298N.{p}"][1] for p in order]
+    xs = {wiring.PINS[f"L298N.{p}"][0] for p in order}
+    assert len(xs) == 1 and ys == sorted(ys, reverse=True)
+    assert set(wiring.UNUSED) == {"L298N.IN3", "L298N.IN4", "L298N.ENB"}
+
+
+def test_the_lead_colours_come_from_the_profiles():
+    from jerklab.rig import load_profile
+
+    colours = wiring.lead_colours()
+    assert colours["Motor.M+"][0] == load_profile("pololu-37d-30").wires["motor +"]
+    assert colours["Motor.M-"][-1] == load_profile("jgb37-520-30").wires["motor -"]
+    assert set(colours) == {
+        "Motor.M+",
+        "Motor.M-",
+        "Encoder.A",
+        "Encoder.B",
+        "Encoder.VCC",
+        "Encoder.GND",
+    }
+
+
+def test_the_mechanics_drawing_is_made(tmp_path):
+    out, mech = tmp_path / "w.png", tmp_path / "m.png"
+    assert wiring.main([str(out), str(mech)]) == 0
+    assert mech.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with pytest.raises(TypeError, match="load"):
+        wiring.mechanics_drawing(load=0.2)
 
 
 def test_drawing_matches_its_table(drawn):

@@ -3,7 +3,8 @@
 Run from the repository root:
 
     .venv/bin/python data/ident/make_dataset.py            # (re)write data/ident/*.csv + *.json
-    .venv/bin/python data/ident/make_dataset.py --check    # regenerate in memory, compare, exit 1 if different
+    .venv/bin/python data/ident/make_dataset.py --check    # regenerate in memory, compare,
+                                                           # exit 1 if different
     .venv/bin/python data/ident/make_dataset.py --only rig # just the virtual-rig record
 
 Every number that defines a record is in ``RUNS`` and ``PLANT`` below and is copied into the

@@ -5,8 +5,9 @@ Run from the repository root:
     .venv/bin/python data/rig/make_recordings.py                  # (re)write all three recordings
     .venv/bin/python data/rig/make_recordings.py --only virtual   # the two virtual-rig recordings
     .venv/bin/python data/rig/make_recordings.py --only simavr    # the firmware-on-simavr move
-    .venv/bin/python data/rig/make_recordings.py --check          # re-make the virtual ones in memory,
-                                                                  # compare with the files (exit 1 if not equal)
+    .venv/bin/python data/rig/make_recordings.py --check          # re-make the virtual ones in
+                                                                  # memory, compare with the files
+                                                                  # (exit 1 if not equal)
 
 The simavr recording needs the Debian packages gcc-avr avr-libc arduino-core-avr simavr
 libsimavr-dev and the firmware build (``make -C firmware``; ``connect("simavr")`` runs it

@@ -1,4 +1,9 @@
-"""``python -m jerklab.lab grade SUBMISSIONS_DIR --out grades.csv`` and ``... assign``."""
+"""``python -m jerklab.lab grade SUBMISSIONS_DIR --out grades.csv [--jobs N]`` and ``... assign``.
+
+``grade`` runs every worksheet in a bubblewrap sandbox and scores its exported answers
+outside it (:mod:`jerklab.lab.grade`); without bubblewrap it refuses, unless
+``--unsafe-no-sandbox`` is given for trusted submissions.
+"""
 
 from __future__ import annotations
 
@@ -7,6 +12,7 @@ import sys
 
 from jerklab.lab.grade import assign, grade_folder
 from jerklab.lab.motors import instructor_key
+from jerklab.lab.sandbox import SandboxUnavailable
 
 
 def main(argv=None):
@@ -23,6 +29,17 @@ def main(argv=None):
     g.add_argument(
         "--timeout", type=float, default=300.0, help="seconds per submission (default 300)"
     )
+    g.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        help="submissions graded at once, one sandbox each (default 1)",
+    )
+    g.add_argument(
+        "--unsafe-no-sandbox",
+        action="store_true",
+        help="grade without bubblewrap: the worksheets run as you (trusted submissions only)",
+    )
     a = sub.add_parser(
         "assign", help="write the student worksheets (solutions stripped) from the masters"
     )
@@ -30,7 +47,26 @@ def main(argv=None):
     args = ap.parse_args(argv)
     if args.cmd == "grade":
         _, source = instructor_key(warn=True)
-        rows = grade_folder(args.submissions, args.out, args.feedback, args.timeout)
+        if args.jobs < 1:
+            ap.error(f"--jobs must be at least 1, got {args.jobs}")
+        if args.unsafe_no_sandbox:
+            print(
+                "WARNING: --unsafe-no-sandbox: every worksheet runs as you, with no isolation "
+                "(it can read your files and key and change other submissions)",
+                file=sys.stderr,
+            )
+        try:
+            rows = grade_folder(
+                args.submissions,
+                args.out,
+                args.feedback,
+                args.timeout,
+                jobs=args.jobs,
+                unsafe_no_sandbox=args.unsafe_no_sandbox,
+            )
+        except SandboxUnavailable as exc:
+            print(f"grade: refused: {exc}", file=sys.stderr)
+            return 2
         for r in rows:
             print(
                 f"{r['student'] or '?':>16}  lab {r['lab'] or '?'}  {r['total']:5.1f} / "

@@ -629,7 +629,9 @@ def check_measured(answer, evidence, truth):
             hint = {
                 "max_error": "the largest |reference − position| while the move lasts (t ≤ duration)",
                 "overshoot_pct": "max(position − distance) after the move, in % of the distance, 0 if none",
-                "settling_time": f"the last time |e| leaves ±{SPEC['settle_band']} rad, minus the move's duration",
+                "settling_time": (
+                    f"the last time |e| leaves ±{SPEC['settle_band']} rad, minus the move's duration"
+                ),
                 "peak_voltage": "max |rec.voltage| (the PWM-quantized voltage applied)",
             }[k]
             return CheckResult("measured", False, f"{k} disagrees with the recording: {hint}.")
@@ -672,7 +674,8 @@ def check_gap(answer, evidence, truth):
         return CheckResult(
             "gap",
             False,
-            "the two are swapped: the first is the continuous design (Stojčić eq. 11, discretized by Stojčić eq. 13).",
+            "the two are swapped: the first is the continuous design "
+            "(Stojčić eq. 11, discretized by Stojčić eq. 13).",
         )
     which = "the continuous design's" if abs(rc - ref_c) > 0.01 else "the z-domain design's"
     return CheckResult(

@@ -1,41 +1,88 @@
-"""Autograding with otter-grader: student versions, autograder zips, and grading a folder.
+"""Grading that student code cannot touch: answers out of a sandbox, scores in the grader.
 
 ``otter assign`` turns each master notebook (``jerklab/lab/masters/``, solutions and tests
 marked in otter's format) into the student worksheet (solutions stripped) and an autograder
-zip. ``otter run`` executes a submission and runs the tests locally (no Docker), in a
-subprocess with a timeout. The tests call the same checks as the worksheet's cells, so each
-submission is scored against its own student's hidden motor: the grader sets
-``JERKLAB_LAB_GRADING=1``, which makes every worksheet run on the virtual rig of the
-student ID it names, seeded with the instructor key of the grading environment.
+(:func:`assign`, :func:`autograder_zip`), cached in an instructor-only folder (0700, owned by
+the grading user, never under the shared temporary folder) and verified by hash before every
+use (:func:`verified_autograder`): a file changed or planted there is found and the folder is
+made again.
+
+:func:`grade_folder` grades a folder of hand-ins:
+
+1. it reads every submission first (a later one cannot be changed by an earlier one), refuses
+   zips over the limits of :mod:`jerklab.lab.handin` and validates every student ID before
+   any use;
+2. each worksheet runs in its own bubblewrap sandbox (:mod:`jerklab.lab.sandbox`: no network,
+   a read-only system, no instructor key, no view of the other submissions, ``grades.csv``,
+   ``feedback/`` or the autograder; CPU, memory and process limits; every process ends with
+   it). Its rig is the student's hidden motor, simulated *by the grader* and served to the
+   sandbox on a pseudo-terminal, so the worksheet measures the motor but cannot read it;
+3. the worksheet exports plain answers (JSON numbers, strings, lists) and its recordings
+   (:mod:`jerklab.lab.sheetrun`); the grader decodes them (:func:`decode_answer`) and scores
+   each question with the same check functions as the worksheet
+   (:func:`jerklab.lab.registry.run_check`) against the truth it holds. A replaced
+   ``S.verify``, a lying ``__float__`` or ``__eq__`` or an answer read from a private attribute
+   gains nothing: the checks run outside, on JSON data;
+4. one bad submission gives an error row and never stops the run; ``grades.csv`` quotes cells
+   that start with ``= + - @`` and flags duplicate IDs and byte-identical notebooks; feedback
+   files land in ``feedback/`` only and hold the checks' messages (no key, argv, cwd or path).
+
+``jobs`` sandboxes run in parallel. Without bubblewrap, grading refuses unless
+``unsafe_no_sandbox=True`` (the same answers-out path, but the worksheet then runs as the
+grading user, with no isolation).
 """
 
 from __future__ import annotations
 
+import concurrent.futures as _futures
 import csv
 import hashlib
+import hmac
 import json
+import math
 import os
 import re
+import secrets
+import select
 import shutil
+import signal
+import stat
 import subprocess
 import sys
 import tempfile
+import time
+import warnings
 from pathlib import Path
 
-from jerklab.lab.handin import HandinError, read_handin
-from jerklab.lab.motors import normalize_student
-from jerklab.lab.registry import LABS
+from jerklab.controller import DiscreteGains
+from jerklab.lab.checkbase import Missing
+from jerklab.lab.handin import MAX_ZIP_BYTES, HandinError, read_handin
+from jerklab.lab.motors import hidden_truth, normalize_student, student_device, student_motor
+from jerklab.lab.plain import Evidence
+from jerklab.lab.registry import FLEXIBLE_LABS, LABS, run_check
+from jerklab.lab.sandbox import SAFE_ENV, SandboxUnavailable, bwrap_path, sandbox_command
+from jerklab.rig.server import DeviceServer
+from jerklab.rig.virtual import VirtualDevice
 
 __all__ = [
     "MASTERS",
+    "MAX_EXPORT_BYTES",
     "master_path",
     "assign",
     "autograder_zip",
+    "verified_autograder",
+    "questions",
+    "decode_answer",
     "grade_folder",
+    "grade_one",
     "student_version_name",
+    "csv_cell",
 ]
 
 MASTERS = Path(__file__).parent / "masters"
+#: The largest JSON export a sandboxed worksheet may write (answers and recordings).
+MAX_EXPORT_BYTES = 64 * 2**20
+_RIG_IN_SANDBOX = "/dev/ttyJERKLAB0"
 
 
 def student_version_name(lab: int) -> str:
@@ -65,35 +112,133 @@ def _assign_into(lab: int, dest: Path) -> Path:
     return out
 
 
+# ------------------------------------------------------------------ the instructor-only cache
+def _cache_root() -> Path:
+    """``$JERKLAB_CACHE``, else ``$XDG_CACHE_HOME/jerklab/autograder``, else
+    ``~/.cache/jerklab/autograder``: created 0700; refused unless the grading user owns it and
+    nobody else may enter it."""
+    env = os.environ.get("JERKLAB_CACHE")
+    if env:
+        root = Path(env)
+    else:
+        xdg = os.environ.get("XDG_CACHE_HOME")
+        root = (Path(xdg) if xdg else Path.home() / ".cache") / "jerklab" / "autograder"
+    root.mkdir(parents=True, exist_ok=True, mode=0o700)
+    st = os.lstat(root)
+    if stat.S_ISLNK(st.st_mode) or not stat.S_ISDIR(st.st_mode):
+        raise RuntimeError(f"the autograder cache {root} is not a folder (a link?)")
+    if st.st_uid != os.getuid():
+        raise RuntimeError(
+            f"the autograder cache {root} belongs to another user (uid {st.st_uid}): "
+            "set JERKLAB_CACHE to a folder of your own"
+        )
+    if st.st_mode & 0o077:
+        os.chmod(root, 0o700)
+    return root
+
+
+def _cache_secret(root: Path) -> bytes:
+    """The cache's own random key (``.index-key``, 0600): it signs each folder's index."""
+    p = root / ".index-key"
+    try:
+        fd = os.open(p, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
+    except FileExistsError:
+        st = os.lstat(p)
+        if not stat.S_ISREG(st.st_mode) or st.st_uid != os.getuid() or st.st_mode & 0o077:
+            raise RuntimeError(f"{p} is not a private file of the grading user") from None
+        return p.read_bytes()
+    with os.fdopen(fd, "wb") as f:
+        key = secrets.token_bytes(32)
+        f.write(key)
+    return key
+
+
+def _otter_version() -> str:
+    """otter-grader's version, without importing it (its import takes seconds)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("otter-grader")
+    except PackageNotFoundError:
+        import otter  # a source checkout without metadata
+
+        return otter.__version__
+
+
 def _cache_dir(lab: int) -> Path:
-    import otter
-
-    h = hashlib.sha256(master_path(lab).read_bytes() + otter.__version__.encode()).hexdigest()[:16]
-    base = Path(os.environ.get("JERKLAB_CACHE", Path(tempfile.gettempdir()) / "jerklab-autograder"))
-    return base / f"lab{lab}-{h}"
+    h = hashlib.sha256(master_path(lab).read_bytes() + _otter_version().encode()).hexdigest()[:16]
+    return _cache_root() / f"lab{lab}-{h}"
 
 
-def _assigned(lab: int) -> Path:
-    d = _cache_dir(lab)
-    out = d / "dist"
-    if not (out / "student" / student_version_name(lab)).is_file():
-        d.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix="assign-", dir=d))
-        try:
-            _assign_into(lab, tmp)
-            try:  # atomic: a complete folder appears or, if another process won, stays theirs
-                os.rename(tmp / "dist", out)
-            except OSError:
-                if not (out / "student" / student_version_name(lab)).is_file():
-                    raise
-        finally:
-            shutil.rmtree(tmp, ignore_errors=True)
+def _tree_index(dist: Path) -> dict:
+    """``{relative path: sha256}`` of every file under ``dist``; RuntimeError for a link, a
+    file of another user or one others may write."""
+    out = {}
+    for dirpath, dirnames, filenames in os.walk(dist, followlinks=False):
+        for name in sorted(dirnames + filenames):
+            p = Path(dirpath) / name
+            st = os.lstat(p)
+            if stat.S_ISLNK(st.st_mode):
+                raise RuntimeError(f"a link in the autograder: {p.relative_to(dist)}")
+            if st.st_uid != os.getuid() or st.st_mode & 0o022:
+                raise RuntimeError(f"not the grading user's own file: {p.relative_to(dist)}")
+            if stat.S_ISREG(st.st_mode):
+                out[str(p.relative_to(dist))] = hashlib.sha256(p.read_bytes()).hexdigest()
     return out
 
 
+def _index_mac(secret: bytes, index: dict) -> str:
+    return hmac.new(secret, json.dumps(index, sort_keys=True).encode(), "sha256").hexdigest()
+
+
+def _verify(d: Path) -> bool:
+    """True if ``d/dist`` is exactly what this cache made (every file's hash as its signed
+    index holds)."""
+    dist, idx = d / "dist", d / "index.json"
+    if not dist.is_dir() or not idx.is_file():
+        return False
+    try:
+        stored = json.loads(idx.read_text())
+        index = _tree_index(dist)
+    except (ValueError, OSError, RuntimeError):
+        return False
+    mac = _index_mac(_cache_secret(_cache_root()), index)
+    return stored.get("files") == index and hmac.compare_digest(str(stored.get("mac", "")), mac)
+
+
+def verified_autograder(lab: int) -> Path:
+    """The ``dist/`` folder of ``otter assign`` for ``lab`` in the instructor-only cache,
+    verified by hash; made (again) when it is missing or differs from its signed index."""
+    d = _cache_dir(lab)
+    if _verify(d):
+        return d / "dist"
+    if d.exists():
+        warnings.warn(
+            f"the cached autograder of lab {lab} ({d}) differs from its signed index: made again",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+        shutil.rmtree(d, ignore_errors=True)
+    d.mkdir(mode=0o700)
+    tmp = Path(tempfile.mkdtemp(prefix="assign-", dir=d))
+    try:
+        _assign_into(lab, tmp)
+        os.rename(tmp / "dist", d / "dist")
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    index = _tree_index(d / "dist")
+    doc = {"files": index, "mac": _index_mac(_cache_secret(_cache_root()), index)}
+    (d / "index.json").write_text(json.dumps(doc, indent=1, sort_keys=True))
+    return d / "dist"
+
+
+_assigned = verified_autograder  # the name the tests of the student versions use
+
+
 def autograder_zip(lab: int) -> Path:
-    """The autograder zip of ``lab`` (made by ``otter assign`` from the master, cached by its hash)."""
-    zips = sorted((_assigned(lab) / "autograder").glob("*.zip"))
+    """The autograder zip of ``lab`` (made by ``otter assign`` from the master, cached by its
+    hash in the instructor-only cache, verified before use)."""
+    zips = sorted((verified_autograder(lab) / "autograder").glob("*.zip"))
     if not zips:
         raise RuntimeError(f"otter assign made no autograder zip for lab {lab}")
     return zips[-1]
@@ -116,7 +261,7 @@ def assign(out_dir, labs=tuple(LABS)) -> list[Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
     for lab in labs:
-        src = _assigned(lab) / "student" / student_version_name(lab)
+        src = verified_autograder(lab) / "student" / student_version_name(lab)
         nb = nbformat.read(src, as_version=4)
         for c in nb.cells:  # otter stamps ids; keep the committed files stable
             c.pop("id", None)
@@ -131,12 +276,61 @@ def assign(out_dir, labs=tuple(LABS)) -> list[Path]:
     return written
 
 
-# ------------------------------------------------------------------ grading a folder
-_STUDENT_RE = re.compile(r"""^\s*STUDENT\s*=\s*["']([^"']+)["']""", re.M)
+# ------------------------------------------------------------------ the questions
+_VERIFY = re.compile(r"""S\.verify\(\s*["']([A-Za-z_]\w*)["']\s*,\s*([A-Za-z_]\w*)\s*\)""")
+
+
+_QUESTIONS: dict = {}  # lab -> questions(lab), verified once per grading run
+
+
+def questions(lab: int) -> dict:
+    """``{question: (points, variable)}`` of ``lab``, in the worksheet's order: read from the
+    verified autograder's tests (otter's ``metadata.otter.tests`` of the student version), each
+    test's ``S.verify("name", variable)`` naming the variable that holds the answer."""
+    if lab in _QUESTIONS:
+        return dict(_QUESTIONS[lab])
+    nb = json.loads(
+        (verified_autograder(lab) / "student" / student_version_name(lab)).read_text("utf-8")
+    )
+    tests = nb.get("metadata", {}).get("otter", {}).get("tests", {})
+    master = _master_points(lab)
+    out = {}
+    order = [n for n in master if n in tests] + sorted(set(tests) - set(master))
+    for name in order:
+        test = tests[name]
+        code = "\n".join(
+            case.get("code", "") for suite in test.get("suites", []) for case in suite["cases"]
+        )
+        m = _VERIFY.search(code)
+        if m is None or m.group(1) != name:
+            raise RuntimeError(f"lab {lab}: the test of {name!r} has no S.verify({name!r}, ...)")
+        points = test.get("points", master.get(name))
+        out[name] = (float(points if points is not None else 1.0), m.group(2))
+    if not out:
+        raise RuntimeError(f"lab {lab}: the autograder holds no tests")
+    _QUESTIONS[lab] = out
+    return dict(out)
+
+
+def _master_points(lab: int) -> dict:
+    nb = json.loads(master_path(lab).read_text("utf-8"))
+    out = {}
+    for c in nb["cells"]:
+        src = "".join(c["source"]) if isinstance(c["source"], list) else c["source"]
+        if c["cell_type"] == "raw" and src.startswith("# BEGIN QUESTION"):
+            name = re.search(r"^name:\s*(\S+)", src, re.M)
+            pts = re.search(r"^points:\s*([0-9.]+)", src, re.M)
+            if name:
+                out[name.group(1)] = float(pts.group(1)) if pts else 1.0
+    return out
+
+
+# ------------------------------------------------------------------ reading submissions
+_STUDENT_RE = re.compile(r"""^\s*STUDENT\s*=\s*["']([^"'\n]*)["']""", re.M)
 
 
 def _notebook_info(data: bytes, name: str):
-    """(student, lab) named in a notebook's source; ValueError if unreadable."""
+    """(student as written or None, lab) of a notebook; ValueError if unreadable."""
     import nbformat
 
     if not data.strip():
@@ -144,9 +338,7 @@ def _notebook_info(data: bytes, name: str):
     try:
         nb = nbformat.reads(data.decode("utf-8"), as_version=4)
     except Exception as exc:  # nbformat raises several kinds on junk
-        raise ValueError(
-            f"not a readable notebook ({type(exc).__name__}: {str(exc)[:120]})"
-        ) from None
+        raise ValueError(f"not a readable notebook ({type(exc).__name__})") from None
     lab = nb.metadata.get("jerklab", {}).get("lab")
     if lab is None:
         m = re.search(r"lab(\d)", name)
@@ -161,164 +353,509 @@ def _notebook_info(data: bytes, name: str):
     return student, lab
 
 
-def _run_otter(lab, nb_bytes, student, timeout):
-    student = normalize_student(student)
-    with tempfile.TemporaryDirectory(prefix="jerklab-grade-") as tmp:
-        tmp = Path(tmp)
-        nb = tmp / student_version_name(lab)
-        nb.write_bytes(nb_bytes)
-        out = tmp / "out"
-        out.mkdir()
-        env = dict(
-            os.environ,
-            JERKLAB_LAB_GRADING="1",
-            JERKLAB_LAB_WORK=str(tmp / "work"),
-            JERKLAB_RECORDINGS=str(tmp / "rec"),
-            MPLBACKEND="Agg",
-        )
-        cmd = [
-            sys.executable,
-            "-m",
-            "otter",
-            "run",
-            "-a",
-            str(autograder_zip(lab)),
-            "-o",
-            str(out),
-            str(nb),
-        ]
-        # a session of its own, so that a timeout ends otter *and* the kernel it started
-        proc = subprocess.Popen(
-            cmd,
-            cwd=tmp,
-            env=env,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-            start_new_session=True,
-        )
-        try:
-            stdout, stderr = proc.communicate(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            _kill_group(proc)
-            return None, f"timed out after {timeout:g} s (an endless loop or a very slow cell?)"
-        res = out / "results.json"
-        if not res.is_file():
-            return None, f"the autograder did not finish: {(stderr or stdout)[-400:].strip()}"
-        return json.loads(res.read_text()), None
-
-
-def _kill_group(proc):
-    import signal
-
+def _valid_id(student, where) -> str:
     try:
-        if hasattr(os, "killpg"):
-            os.killpg(proc.pid, signal.SIGKILL)
-        else:  # Windows: the process only
-            proc.kill()
+        return normalize_student(student)
+    except (TypeError, ValueError):
+        shown = repr(student)
+        shown = shown if len(shown) <= 40 else shown[:37] + "..."
+        raise ValueError(
+            f"{where} student ID {shown} is not 1-64 letters, digits and ._@+- "
+            "(refused before any use)"
+        ) from None
+
+
+def _read_submission(p: Path) -> dict:
+    """One submission, read and validated: ``{"student", "lab", "notebook", "notes"}``."""
+    st = os.lstat(p)
+    if not stat.S_ISREG(st.st_mode):
+        raise ValueError("not a regular file (a link?)")
+    if st.st_size > MAX_ZIP_BYTES:
+        raise ValueError(f"larger than {MAX_ZIP_BYTES // 2**20} MiB")
+    with open(p, "rb", opener=lambda f, fl: os.open(f, fl | os.O_NOFOLLOW)) as f:
+        data = f.read(MAX_ZIP_BYTES + 1)
+    notes = []
+    if p.suffix.lower() == ".zip":
+        h = read_handin(p, data=data)
+        student, lab, nb = h["student"], h["lab"], h["notebook"]
+        if nb is None:
+            raise HandinError(f"{p.name}: no notebook in the hand-in")
+        s2, _ = _notebook_info(nb, h["notebook_name"] or "")
+        if s2 is not None and s2.strip().lower() != student:
+            notes.append(
+                "the notebook names another student than the manifest: graded as the manifest's"
+            )
+            nb = _STUDENT_RE.sub(f'STUDENT = "{student}"', nb.decode("utf-8"), count=1).encode()
+        notes.append(f"manifest verified ({len(h['files'])} files)")
+    else:
+        nb = data
+        student, lab = _notebook_info(nb, p.name)
+        if student is None:
+            raise ValueError('no `STUDENT = "..."` line in the notebook')
+        student = _valid_id(student, "the notebook's")
+    if lab not in LABS:
+        raise ValueError(f"cannot tell which lab this is (lab = {str(lab)[:20]!r})")
+    return {"student": student, "lab": int(lab), "notebook": nb, "notes": notes}
+
+
+# ------------------------------------------------------------------ decoding and scoring
+def decode_answer(x, depth=0):
+    """An exported answer (JSON data) as the checks take it: numbers, strings, booleans, None
+    and lists as they are, ``{"__jerklab__": "DiscreteGains", ...}`` as a validated
+    :class:`jerklab.controller.DiscreteGains`; ``"nan"``/``"inf"`` as floats. Raises
+    ValueError for anything else (the question then scores 0: "could not read your answer")."""
+    if depth > 8:
+        raise ValueError("answer: nested too deep")
+    if x is None or isinstance(x, (bool, int, str)):
+        if isinstance(x, int) and not isinstance(x, bool) and abs(x) > 2**63:
+            raise ValueError("answer: an integer out of range")
+        if isinstance(x, str) and len(x) > 10_000:
+            raise ValueError("answer: a text longer than 10000 characters")
+        if x in ("nan", "inf", "-inf"):
+            return float(x)
+        return x
+    if isinstance(x, float):
+        return x
+    if isinstance(x, list):
+        if len(x) > 100_000:
+            raise ValueError("answer: a list longer than 100000")
+        return [decode_answer(v, depth + 1) for v in x]
+    if isinstance(x, dict):
+        kind = x.get("__jerklab__")
+        if kind == "DiscreteGains":
+            fields = {}
+            for k in ("kpd", "kid", "kdd", "Ts", "gamma"):
+                v = x.get(k)
+                if isinstance(v, bool) or not isinstance(v, (int, float)):
+                    raise ValueError(f"answer: gains field {k} is not a number")
+                fields[k] = float(v)
+            loop = x.get("loop", "position")
+            design = decode_answer(x.get("design") or {}, depth + 1)
+            if not isinstance(design, dict):
+                raise ValueError("answer: gains design is not a mapping")
+            return DiscreteGains(loop=str(loop), design=design, **fields)
+        if kind is not None:
+            raise ValueError(f"answer: a {str(x.get('type', kind))[:40]} cannot be graded")
+        return {str(k): decode_answer(v, depth + 1) for k, v in x.items()}
+    raise ValueError(f"answer: unexpected {type(x).__name__}")
+
+
+def _evidence_of(doc, answers) -> tuple[Evidence, list]:
+    notes = []
+    ev = doc.get("evidence") or {}
+    runs = ev.get("runs") if isinstance(ev, dict) else None
+    good = {}
+    if isinstance(runs, dict):
+        for name, run in list(runs.items())[:200]:
+            try:
+                good[str(name)[:80]] = Evidence.from_dict({"runs": {name: run}}).runs[name]
+            except Exception:  # a malformed recording: left out, the check says it is missing
+                notes.append(f"recording {str(name)[:40]!r} unreadable: left out")
+    cpr = ev.get("counts_per_rev") if isinstance(ev, dict) else None
+    if isinstance(cpr, bool) or not isinstance(cpr, int) or not 1 <= cpr <= 10**7:
+        cpr = None
+    plain = {k: v for k, v in answers.items() if not isinstance(v, DiscreteGains)}
+    return Evidence(runs=good, answers=plain, counts_per_rev=cpr), notes
+
+
+def _score(lab, qs, doc, truth) -> tuple[dict, list]:
+    """``{question: (score, max, message)}`` of an export ``doc`` against ``truth``."""
+    raw = doc.get("answers") if isinstance(doc.get("answers"), dict) else {}
+    answers, unread = {}, {}
+    for name in qs:
+        try:
+            answers[name] = decode_answer(raw.get(name))
+        except ValueError as exc:
+            unread[name] = str(exc)
+    evidence, notes = _evidence_of(doc, answers)
+    out = {}
+    for name, (points, _) in qs.items():
+        if name in unread:
+            out[name] = (0.0, points, f"could not read your answer ({unread[name]})")
+            continue
+        try:
+            res = run_check(lab, name, answers[name], evidence, truth)
+            ok, msg = bool(res.ok), str(res.message)
+        except Missing as exc:
+            ok, msg = False, str(exc)
+        except Exception as exc:  # a check on junk data: that question only
+            ok, msg = (
+                False,
+                f"could not read your answer ({type(exc).__name__}). Give a value of the type "
+                "the task asks for.",
+            )
+        out[name] = (points if ok else 0.0, points, msg)
+    return out, notes
+
+
+# ------------------------------------------------------------------ one submission
+def _served_rig(student, lab, key):
+    """The hidden motor of ``student`` for ``lab``, simulated here and served on a pty."""
+    motor = student_motor(student, key, plant="flexible" if lab in FLEXIBLE_LABS else "rigid")
+    dev = student_device(motor)
+    server = DeviceServer(
+        VirtualDevice(motor, count_noise=dev.count_noise, noise_seed=dev.noise_seed), speed=None
+    )
+    server.start_pty()
+    return server, motor
+
+
+def _end(proc, deadline) -> bool:
+    """Wait until ``proc`` exits or ``deadline``, then kill its whole process group (the
+    sandbox; without one, what the worksheet started in its session) and reap it. The pid is
+    reaped only after the group is killed, so it cannot have been reused. True if it ended by
+    itself."""
+    ended = False
+    while True:
+        try:
+            info = os.waitid(os.P_PID, proc.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT)
+        except ChildProcessError:
+            info, ended = None, True
+            break
+        if info is not None:
+            ended = True
+            break
+        if time.monotonic() >= deadline:
+            break
+        time.sleep(0.02)
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
     except (ProcessLookupError, PermissionError):
         pass
-    proc.communicate()
+    proc.wait()
+    return ended
 
 
-def _hint(output: str) -> str:
-    """The check's own message out of otter's doctest report (the AssertionError), else its tail."""
-    found = re.findall(r"AssertionError: (.+)", output or "")
-    if found:
-        return found[-1].strip()
-    errs = re.findall(r"^\s*(\w+Error: .+)$", output or "", re.M)
-    return errs[-1].strip() if errs else (output or "").strip()[-300:]
+def _read_export(proc, fd, timeout) -> tuple[bytes | None, str | None]:
+    """Read the export from ``fd`` until the sandbox ends; (data, error)."""
+    deadline = time.monotonic() + timeout
+    late = f"timed out after {timeout:g} s (an endless loop or a very slow cell?)"
+    chunks, size = [], 0
+    try:
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                _end(proc, 0)
+                return None, late
+            ready, _, _ = select.select([fd], [], [], min(left, 1.0))
+            if not ready:
+                continue
+            block = os.read(fd, 1 << 20)
+            if not block:
+                break
+            size += len(block)
+            if size > MAX_EXPORT_BYTES:
+                _end(proc, 0)
+                return None, f"the worksheet exported more than {MAX_EXPORT_BYTES // 2**20} MiB"
+            chunks.append(block)
+    finally:
+        os.close(fd)
+    if not _end(proc, deadline):
+        return None, late
+    return b"".join(chunks), None
 
 
-def _scores(results):
-    qs = {}
-    for t in results.get("tests", []):
-        if t.get("name") == "Public Tests" or "score" not in t:
-            continue
-        qs[t["name"]] = (
-            float(t.get("score") or 0.0),
-            float(t.get("max_score") or 0.0),
-            t.get("output", ""),
-        )
-    return qs
+def grade_one(lab, notebook: bytes, student, timeout=300.0, sandbox=True, key=None) -> dict:
+    """Run one worksheet (its bytes) in a sandbox on the student's served hidden motor, decode
+    its export and score it.
+
+    Returns
+    -------
+    dict
+        ``{"scores": {question: (score, max, message)}, "error": str or None,
+        "notes": [str]}``; ``error`` says why nothing was scored (a time-out, no export).
+    """
+    qs = questions(lab)
+    student = normalize_student(student)
+    server, motor = _served_rig(student, lab, key)
+    work = Path(tempfile.mkdtemp(prefix="jerklab-grade-"))
+    try:
+        sheet = work / student_version_name(lab)
+        sheet.write_bytes(notebook)
+        (work / "work").mkdir()
+        r, w = os.pipe()
+        argv = [
+            sys.executable,
+            "-I",
+            "-m",
+            "jerklab.lab.sheetrun",
+            str(sheet),
+            str(w),
+            *(f"{q}={var}" for q, (_, var) in qs.items()),
+        ]
+        env = {
+            "JERKLAB_LAB_RIG": _RIG_IN_SANDBOX if sandbox else server.port,
+            "JERKLAB_LAB_RIG_CPR": str(motor.encoder_ppr * motor.decoding),
+            "JERKLAB_LAB_WORK": str(work / "work"),
+            "JERKLAB_RECORDINGS": str(work / "rec"),
+            "JERKLAB_LOCK_DIR": str(work / "locks"),
+        }
+        if sandbox:
+            cmd = sandbox_command(argv, work, env=env, devices=[(server.port, _RIG_IN_SANDBOX)])
+        else:
+            cmd = argv
+            env = {**SAFE_ENV, "HOME": str(work), "MPLCONFIGDIR": str(work / ".mpl"), **env}
+        try:
+            proc = subprocess.Popen(
+                cmd,
+                cwd=work,
+                env={"PATH": "/usr/bin:/bin", "LANG": "C.UTF-8"} if sandbox else env,
+                stdin=subprocess.DEVNULL,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+                pass_fds=(w,),
+                start_new_session=True,
+            )
+        finally:
+            os.close(w)
+        data, err = _read_export(proc, r, timeout)
+        if err:
+            return {"scores": {}, "error": err, "notes": []}
+        if not data:
+            return {
+                "scores": {},
+                "error": f"the worksheet ended without exporting its answers (exit code {proc.returncode})",
+                "notes": [],
+            }
+        try:
+            doc = json.loads(data)
+            if not isinstance(doc, dict):
+                raise ValueError("not an object")
+        except (ValueError, RecursionError):
+            return {"scores": {}, "error": "the worksheet's export is not readable", "notes": []}
+        truth = hidden_truth(motor)
+        scores, notes = _score(lab, qs, doc, truth)
+        errs = doc.get("errors") if isinstance(doc.get("errors"), list) else []
+        if errs:  # the cell and the kind of error only: no text of the sandbox comes back
+            first = errs[0] if isinstance(errs[0], dict) else {}
+            cell = first.get("cell")
+            kind = re.match(r"[A-Za-z_]\w{0,40}", str(first.get("error", "")))
+            notes.append(
+                f"{len(errs)} cell(s) raised an error; the first: code cell "
+                f"{cell if isinstance(cell, int) and not isinstance(cell, bool) else '?'} "
+                f"({kind.group(0) if kind else 'an error'})"
+            )
+        return {"scores": scores, "error": None, "notes": notes}
+    finally:
+        server.close()
+        shutil.rmtree(work, ignore_errors=True)
 
 
-def grade_folder(folder, out_csv, feedback_dir=None, timeout=300.0, labs=None) -> list[dict]:
+def _plain_text(x, n) -> str:
+    """A student-given text for feedback: printable, one line, at most ``n`` characters."""
+    s = "".join(ch if ch.isprintable() else " " for ch in str(x))
+    return s if len(s) <= n else s[: n - 3] + "..."
+
+
+def _grade_job(args):
+    lab, nb, student, timeout, sandbox = args
+    try:
+        return grade_one(lab, nb, student, timeout, sandbox)
+    except Exception as exc:  # the grader's own failure on this submission: its row says so
+        return {"scores": {}, "error": f"grading failed ({type(exc).__name__})", "notes": []}
+
+
+# ------------------------------------------------------------------ the CSV and feedback
+_FORMULA = ("=", "+", "-", "@", "\t", "\r")
+
+
+def csv_cell(value):
+    """A CSV cell a spreadsheet shows as text: a string starting with ``= + - @`` (or a tab,
+    a carriage return) gets a leading ``'``; numbers stay numbers."""
+    if isinstance(value, str) and value.startswith(_FORMULA):
+        return "'" + value
+    return value
+
+
+def _feedback_name(row, index) -> str:
+    stem = re.sub(r"[^A-Za-z0-9._@+-]", "_", row["file"])[:60].lstrip(".") or "submission"
+    who = row["student"] or "unknown"
+    return f"{index:03d}_{who}_lab{row['lab'] or 'X'}_{stem}.txt"
+
+
+def _write_feedback(feedback_dir: Path, name: str, text: str):
+    """Write ``text`` as ``feedback_dir/name``: a plain name, no link followed, nothing
+    outside the folder."""
+    if "/" in name or "\0" in name or name in (".", "..") or len(name) > 200:
+        raise ValueError("a feedback file name that is not a plain name")
+    fd = os.open(feedback_dir / name, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW, 0o600)
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.write(text)
+
+
+def grade_folder(
+    folder,
+    out_csv,
+    feedback_dir=None,
+    timeout=300.0,
+    labs=None,
+    jobs=1,
+    unsafe_no_sandbox=False,
+) -> list[dict]:
     """Grade every ``*.zip`` hand-in and bare ``*.ipynb`` in ``folder``.
 
-    Writes ``out_csv`` (one row per submission: student, lab, file, status, one column per
-    question, total, max) and a feedback text file per submission into ``feedback_dir``
-    (default: ``feedback/`` beside the CSV). A corrupt, empty or unverifiable submission gets
-    a row with its status and zero points; it never stops the run.
+    Writes ``out_csv`` (one row per submission: student, lab, file, status, flags, one column
+    per question, total, max) and a feedback text file per submission into ``feedback_dir``
+    (default: ``feedback/`` beside the CSV). A corrupt, empty, oversized or unverifiable
+    submission, a bad student ID, a time-out or a worksheet that exports nothing gets a row
+    with its status and zero points; it never stops the run.
+
+    Parameters
+    ----------
+    timeout : float
+        Seconds per submission (wall clock).
+    labs : iterable of int, optional
+        Grade only these labs (others get a row "skipped").
+    jobs : int
+        Submissions graded at once (one sandbox each).
+    unsafe_no_sandbox : bool
+        Run worksheets without bubblewrap (no isolation): only when bwrap is missing and the
+        submissions are trusted.
+
+    Raises
+    ------
+    SandboxUnavailable
+        bubblewrap is missing and ``unsafe_no_sandbox`` is False.
     """
     folder, out_csv = Path(folder), Path(out_csv)
     if not folder.is_dir():
         raise ValueError(f"SUBMISSIONS_DIR {str(folder)!r} is not a folder")
+    jobs = int(jobs)
+    if jobs < 1:
+        raise ValueError(f"jobs must be at least 1, got {jobs}")
+    timeout = float(timeout)
+    if not (math.isfinite(timeout) and timeout > 0):
+        raise ValueError(f"timeout must be a positive number of seconds, got {timeout!r}")
+    sandbox = not unsafe_no_sandbox
+    if sandbox and (bwrap_path() is None or shutil.which("prlimit") is None):
+        raise SandboxUnavailable(
+            "grading runs every worksheet in a bubblewrap sandbox, and bwrap (or prlimit) is "
+            "not installed: without it a submission runs as you, can read your instructor key "
+            "and change other submissions, grades.csv and the autograder. Install it (Debian/"
+            "Ubuntu: apt-get install bubblewrap), or pass --unsafe-no-sandbox for trusted "
+            "submissions only."
+        )
     feedback_dir = Path(feedback_dir) if feedback_dir else out_csv.parent / "feedback"
     feedback_dir.mkdir(parents=True, exist_ok=True)
-    rows = []
+    wanted = set(LABS) if labs is None else {int(n) for n in labs}
     subs = sorted(
-        p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in (".zip", ".ipynb")
+        p
+        for p in folder.iterdir()
+        if p.suffix.lower() in (".zip", ".ipynb") and (p.is_file() or p.is_symlink())
     )
-    for p in subs:
-        row = {"file": p.name, "student": "", "lab": "", "status": "", "total": 0.0, "max": 0.0}
-        notes = []
+    rows, parsed = [], []
+    for p in subs:  # every submission read before any runs
+        row = {
+            "file": p.name,
+            "student": "",
+            "lab": "",
+            "status": "",
+            "flags": "",
+            "total": 0.0,
+            "max": 0.0,
+        }
         try:
-            if p.suffix.lower() == ".zip":
-                h = read_handin(p)
-                student, lab, nb = h["student"], h["lab"], h["notebook"]
-                if nb is None:
-                    raise HandinError(f"{p.name}: no notebook in the hand-in")
-                s2, _ = _notebook_info(nb, h["notebook_name"] or "")
-                if s2 is not None and s2.strip().lower() != student:
-                    notes.append(
-                        f"the notebook names student {s2!r}, the manifest {student!r}: graded as {student!r}"
-                    )
-                    nb = _STUDENT_RE.sub(
-                        f'STUDENT = "{student}"', nb.decode("utf-8"), count=1
-                    ).encode()
-                notes.append(f"manifest verified ({len(h['files'])} files)")
-            else:
-                nb = p.read_bytes()
-                student, lab = _notebook_info(nb, p.name)
-                if student is None:
-                    raise ValueError("no `STUDENT = \"...\"` line in the notebook")
-            if lab not in LABS:
-                raise ValueError(f"cannot tell which lab this is (lab = {lab!r})")
-            row.update(student=student, lab=lab)
-            results, err = _run_otter(lab, nb, student, timeout)
-            if err:
-                raise RuntimeError(err)
-            for q, (sc, mx, out) in _scores(results).items():
-                row[q] = sc
-                row["total"] += sc
-                row["max"] += mx
-                verdict = "right" if sc >= mx else "not yet"
-                notes.append(
-                    f"{q}: {sc:g}/{mx:g} ({verdict})" + (f"\n    {_hint(out)}" if sc < mx else "")
-                )
-            row["status"] = "graded"
-        except (HandinError, ValueError, RuntimeError, OSError, UnicodeDecodeError) as exc:
-            row["status"] = f"error: {exc}"
-            notes.append(f"not graded: {exc}")
+            sub = _read_submission(p)
+            row.update(student=sub["student"], lab=sub["lab"])
+        except (HandinError, ValueError, OSError, UnicodeDecodeError) as exc:
+            sub = None
+            row["status"] = f"error: {_plain_text(exc, 300)}"
         rows.append(row)
-        who = row["student"] or p.stem
-        fb = feedback_dir / f"{who}_lab{row['lab'] or 'X'}_{p.stem}.txt"
-        fb.write_text(
-            f"Feedback for {who}, lab {row['lab']}, file {p.name}\n"
-            f"Score: {row['total']:g} / {row['max']:g}  ({row['status']})\n\n"
+        parsed.append(sub)
+    _flag(rows, parsed)
+    todo = []
+    for i, (row, sub) in enumerate(zip(rows, parsed)):
+        if sub is None:
+            continue
+        if sub["lab"] not in wanted:
+            row["status"] = "skipped (lab not asked for)"
+            continue
+        todo.append((i, (sub["lab"], sub["notebook"], sub["student"], timeout, sandbox)))
+    _QUESTIONS.clear()
+    for lab in sorted({a[0] for _, a in todo}):
+        questions(lab)  # the autograder made and verified once, before the workers start
+    if jobs > 1 and len(todo) > 1:
+        with _futures.ProcessPoolExecutor(max_workers=jobs) as pool:
+            results = list(pool.map(_grade_job, [a for _, a in todo]))
+    else:
+        results = [_grade_job(a) for _, a in todo]
+    for (i, _), res in zip(todo, results):
+        row, sub = rows[i], parsed[i]
+        sub["notes"].extend(res["notes"])
+        if res["error"]:
+            row["status"] = f"error: {res['error']}"
+            continue
+        for q, (sc, mx, msg) in res["scores"].items():
+            row[q] = sc
+            row["total"] += sc
+            row["max"] += mx
+            verdict = "right" if sc >= mx else "not yet"
+            sub["notes"].append(
+                f"{q}: {sc:g}/{mx:g} ({verdict})" + (f"\n    {msg}" if sc < mx else "")
+            )
+        row["status"] = "graded"
+    for i, (row, sub) in enumerate(zip(rows, parsed)):
+        notes = list(sub["notes"]) if sub else []
+        if row["status"].startswith("error"):
+            notes.append(f"not graded: {row['status'][7:]}")
+        if row["flags"]:
+            notes.append(f"flagged: {row['flags']}")
+        who = row["student"] or "?"
+        text = (
+            f"Feedback for {who}, lab {row['lab'] or '?'}, file {_plain_text(row['file'], 80)}\n"
+            f"Score: {row['total']:g} / {row['max']:g}  ({row['status'][:300]})\n\n"
             + "\n".join(notes)
             + "\n"
         )
-    qcols = sorted(
-        {k for r in rows for k in r} - {"file", "student", "lab", "status", "total", "max"}
-    )
+        try:
+            _write_feedback(feedback_dir, _feedback_name(row, i + 1), text)
+        except (OSError, ValueError) as exc:
+            row["status"] += f" (feedback not written: {type(exc).__name__})"
+    qcols = [
+        q for lab in sorted({r["lab"] for r in rows if r["lab"] in LABS}) for q in _qnames(lab)
+    ]
+    extra = sorted({k for r in rows for k in r} - set(qcols) - set(_FIXED))
     out_csv.parent.mkdir(parents=True, exist_ok=True)
-    with out_csv.open("w", newline="") as f:
+    tmp = out_csv.with_name(f".{out_csv.name}.{os.getpid()}.tmp")
+    with tmp.open("w", newline="", encoding="utf-8") as f:
         w = csv.DictWriter(
-            f, ["student", "lab", "file", "status", *qcols, "total", "max"], restval=""
+            f,
+            ["student", "lab", "file", "status", "flags", *qcols, *extra, "total", "max"],
+            restval="",
         )
         w.writeheader()
         for r in rows:
-            w.writerow(r)
+            w.writerow({k: csv_cell(v) for k, v in r.items()})
+    os.replace(tmp, out_csv)
     return rows
+
+
+_FIXED = ("student", "lab", "file", "status", "flags", "total", "max")
+
+
+def _qnames(lab):
+    try:
+        return list(questions(lab))
+    except Exception:
+        return []
+
+
+def _flag(rows, parsed):
+    """Flag duplicate (student, lab) pairs and byte-identical notebooks in the rows."""
+    by_id, by_hash = {}, {}
+    for i, sub in enumerate(parsed):
+        if sub is None:
+            continue
+        by_id.setdefault((sub["student"], sub["lab"]), []).append(i)
+        by_hash.setdefault(hashlib.sha256(sub["notebook"]).hexdigest(), []).append(i)
+    for group, what in (
+        (by_id, "duplicate ID (same student and lab as {})"),
+        (by_hash, "identical notebook to {}"),
+    ):
+        for idx in group.values():
+            if len(idx) < 2:
+                continue
+            for i in idx:
+                others = ", ".join(rows[j]["file"] for j in idx if j != i)
+                flag = what.format(_plain_text(others, 200))
+                rows[i]["flags"] = f"{rows[i]['flags']}; {flag}" if rows[i]["flags"] else flag

@@ -10,6 +10,11 @@ Layout of ``lab<N>_<student>.zip``::
     recordings/...       every recording of the lab (CSV + JSON sidecar)
 
 No file holds a true motor parameter (the answers are the student's own estimates).
+
+:func:`read_handin` trusts nothing in a zip: it refuses one larger than
+:data:`MAX_ZIP_BYTES`, one whose members declare more than :data:`MAX_UNCOMPRESSED_BYTES`
+uncompressed (a zip bomb) or more than :data:`MAX_MEMBERS` members, and a student ID that
+:func:`jerklab.lab.motors.normalize_student` refuses (a path, a NUL, more than 64 characters).
 """
 
 from __future__ import annotations
@@ -22,12 +27,27 @@ import zipfile
 from pathlib import Path
 
 from jerklab import __version__
-from jerklab.lab.motors import instructor_key
+from jerklab.lab.motors import instructor_key, normalize_student
 from jerklab.lab.plain import jsonable
 
-__all__ = ["write_handin", "read_handin", "pack", "HandinError", "MANIFEST"]
+__all__ = [
+    "write_handin",
+    "read_handin",
+    "pack",
+    "HandinError",
+    "MANIFEST",
+    "MAX_ZIP_BYTES",
+    "MAX_UNCOMPRESSED_BYTES",
+    "MAX_MEMBERS",
+]
 
 MANIFEST = "manifest.json"
+#: The largest hand-in zip read (bytes on disk).
+MAX_ZIP_BYTES = 32 * 2**20
+#: The largest total uncompressed size the members of a hand-in may declare (bytes).
+MAX_UNCOMPRESSED_BYTES = 64 * 2**20
+#: The most members a hand-in may hold.
+MAX_MEMBERS = 2000
 
 
 class HandinError(ValueError):
@@ -103,26 +123,59 @@ def pack(files: dict, student: str, lab: int, path) -> Path:
     return path
 
 
-def read_handin(path) -> dict:
+def read_handin(path, data: bytes | None = None) -> dict:
     """Open a hand-in zip and verify it; return ``{"student", "lab", "notebook" (bytes or None),
-    "notebook_name", "files"}``. Raises :class:`HandinError` naming what is wrong."""
+    "notebook_name", "files"}``. Raises :class:`HandinError` naming what is wrong.
+
+    Parameters
+    ----------
+    path : path
+        The zip (its name is used in messages; its bytes are read unless ``data`` is given).
+    data : bytes, optional
+        The zip's bytes, already read (the grader reads every submission before grading any).
+    """
     path = Path(path)
-    data = path.read_bytes()
+    if data is None:
+        if path.stat().st_size > MAX_ZIP_BYTES:
+            raise HandinError(f"{path.name}: larger than {MAX_ZIP_BYTES // 2**20} MiB")
+        data = path.read_bytes()
     if not data:
         raise HandinError(f"{path.name}: empty file")
+    if len(data) > MAX_ZIP_BYTES:
+        raise HandinError(f"{path.name}: larger than {MAX_ZIP_BYTES // 2**20} MiB")
     try:
         z = zipfile.ZipFile(io.BytesIO(data))
-        names = set(z.namelist())
-    except zipfile.BadZipFile as exc:
+        infos = z.infolist()
+        names = {i.filename for i in infos}
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, ValueError, OSError) as exc:
         raise HandinError(f"{path.name}: not a zip file ({exc})") from None
+    if len(infos) > MAX_MEMBERS:
+        raise HandinError(f"{path.name}: {len(infos)} members, more than {MAX_MEMBERS}")
+    declared = sum(max(i.file_size, 0) for i in infos)
+    if declared > MAX_UNCOMPRESSED_BYTES:
+        raise HandinError(
+            f"{path.name}: its members declare {declared / 2**20:.0f} MiB uncompressed, more "
+            f"than the limit of {MAX_UNCOMPRESSED_BYTES // 2**20} MiB (refused unread)"
+        )
     if MANIFEST not in names:
         raise HandinError(f"{path.name}: no {MANIFEST} in the zip")
     try:
         manifest = json.loads(z.read(MANIFEST))
         listed = manifest["files"]
-        student, lab = str(manifest["student"]), int(manifest["lab"])
-    except (ValueError, KeyError, TypeError) as exc:
-        raise HandinError(f"{path.name}: unreadable manifest ({exc})") from None
+        if not isinstance(listed, dict):
+            raise TypeError("files is not a mapping")
+        student, lab = manifest["student"], int(manifest["lab"])
+    except (ValueError, KeyError, TypeError, zipfile.BadZipFile, OSError) as exc:
+        raise HandinError(f"{path.name}: unreadable manifest ({type(exc).__name__})") from None
+    try:
+        student = normalize_student(student)
+    except (TypeError, ValueError):
+        shown = repr(student)
+        shown = shown if len(shown) <= 40 else shown[:37] + "..."
+        raise HandinError(
+            f"{path.name}: the manifest's student ID {shown} is not 1-64 letters, digits "
+            "and ._@+- (refused before any use)"
+        ) from None
     extra = names - set(listed) - {MANIFEST}
     if extra:
         raise HandinError(f"{path.name}: files not in the manifest: {sorted(extra)}")
@@ -132,7 +185,7 @@ def read_handin(path) -> dict:
             raise HandinError(f"{path.name}: {name} is listed in the manifest but missing")
         try:
             blob = z.read(name)
-        except (zipfile.BadZipFile, OSError, ValueError) as exc:  # CRC error, truncated member
+        except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:  # CRC, truncated
             raise HandinError(f"{path.name}: {name} cannot be read ({exc})") from None
         if _sha(blob) != digest:
             raise HandinError(

@@ -26,7 +26,7 @@ from jerklab.lab.motors import (
 )
 from jerklab.lab.plain import Evidence, Run, jsonable
 from jerklab.lab.registry import FLEXIBLE_LABS, LABS, check_function
-from jerklab.rig import RigError, connect
+from jerklab.rig import Device, RigError, connect
 
 __all__ = ["LabSession", "start", "panel_gains", "CheckResult", "LABS", "SPEC", "MOVE"]
 
@@ -41,10 +41,22 @@ def panel_gains(panel):
 
 
 def _port_from_env(port):
-    """While grading, every notebook runs on the virtual rig of its student."""
+    """While graded, every worksheet runs on the rig the grader serves (``$JERKLAB_LAB_RIG``, a
+    pseudo-terminal in the sandbox: the hidden motor stays in the grader's process); with
+    ``JERKLAB_LAB_GRADING`` alone, on the virtual rig of its student."""
+    served = os.environ.get("JERKLAB_LAB_RIG")
+    if served:
+        return served
     if os.environ.get("JERKLAB_LAB_GRADING"):
         return None
     return port
+
+
+def _served_device():
+    """The encoder of the rig the grader serves (``$JERKLAB_LAB_RIG_CPR`` counts per revolution),
+    or None: a real board's defaults."""
+    cpr = os.environ.get("JERKLAB_LAB_RIG_CPR")
+    return Device(counts_per_rev=int(cpr)) if cpr else None
 
 
 class LabSession:
@@ -79,7 +91,7 @@ class LabSession:
             raise ValueError("speed applies to the virtual rig only (port=None)")
         self.rig = connect(
             port,
-            device=None if self._motor is None else student_device(self._motor, speed),
+            device=_served_device() if self._motor is None else student_device(self._motor, speed),
             progress=progress,
             recordings=self.folder,
             metadata={"student": self.student, "lab": lab},

@@ -46,6 +46,7 @@ from jerklab.rig.client import (
 from jerklab.rig.options import BAUDRATE, MIN_TIMEOUT, Device, Link, RunSpec
 from jerklab.rig.ports import PortLock, port_holders
 from jerklab.rig.ports import list_ports as _list_ports
+from jerklab.rig.profiles import MotorProfile, load_profile, profile_names
 from jerklab.rig.recording import Recording, compare, plot_comparison, recordings_dir
 from jerklab.rig.virtual import VirtualDevice, VirtualSerial
 
@@ -71,6 +72,9 @@ __all__ = [
     "RigBusyError",
     "UnstableDesignError",
     "list_ports",
+    "MotorProfile",
+    "load_profile",
+    "profile_names",
     "BAUDRATE",
     "MIN_TIMEOUT",
 ]
@@ -102,7 +106,8 @@ def connect(
     *,
     device=None,
     link=None,
-    model=(paper.MOTOR_K, paper.MOTOR_TAU),
+    model=None,
+    profile=None,
     progress=True,
     recordings=None,
     metadata=None,
@@ -126,8 +131,16 @@ def connect(
         motor's, else 12 V and 448). A bare motor is short for ``Device(motor)``.
     link : Link, optional
         Timeouts, baud rate and pyserial options (:class:`jerklab.rig.Link`).
-    model : (K, tau)
-        Motor model for the feedforward until you call ``rig.set_model`` (paper's values).
+    model : (K, tau), optional
+        Motor model for the feedforward until you call ``rig.set_model`` (default the
+        profile's K and τ, else the paper's values).
+    profile : str, path or MotorProfile, optional
+        The rig's motor (:mod:`jerklab.rig.profiles`): a built-in name (``"pololu-37d-30"``),
+        a profile file written by ``jerklab rig check --save``, or a profile. It gives the
+        supply, the counts per revolution and the model where ``device`` and ``model`` do not,
+        and the virtual rig's motor (the profile's nominal motor) when ``device`` has none (a
+        simulated motor given in ``device`` keeps its own encoder and supply).
+        The rig keeps it as ``rig.profile`` (None when not given).
     progress : bool
         Progress bar during runs: an ipywidgets bar inside a Jupyter kernel, text in a terminal,
         nothing when False.
@@ -169,6 +182,25 @@ def connect(
         raise TypeError(_regrouped_message(regrouped))
     link = _as_link(link)
     device = _as_device(device)
+    prof = None if profile is None else load_profile(profile)
+    if model is None:
+        model = (paper.MOTOR_K, paper.MOTOR_TAU) if prof is None else (prof.K, prof.tau)
+    if prof is not None and device.motor is None:
+        # a simulated rig runs the profile's nominal motor (its encoder and supply with it); a
+        # real board takes the profile's supply and counts; a given motor keeps its own
+        if port in _VIRTUAL_NAMES or port == "simavr":
+            device = device.replace(motor=prof.motor())
+        else:
+            device = device.replace(
+                supply_voltage=_or(device.supply_voltage, prof.supply_voltage),
+                counts_per_rev=_or(device.counts_per_rev, prof.counts_per_rev),
+            )
+    rig = _connect(port, device, link, model, progress, recordings, metadata)
+    rig.profile = prof
+    return rig
+
+
+def _connect(port, device, link, model, progress, recordings, metadata) -> Rig:
     if port in _VIRTUAL_NAMES:
         motor = DCMotor() if device.motor is None else device.motor
         dev = VirtualDevice(motor, count_noise=device.count_noise, noise_seed=device.noise_seed)

@@ -1298,7 +1298,8 @@ def _fault_status(end, meta) -> str:
         sw = limits.get("saturation_time")
         sw = f"{sw:g} s" if isinstance(sw, (int, float)) else "the saturation window"
         return (
-            f"fault: output saturated — unstable loop? (the output sat at the ±{limits.get('max_voltage', '?')} V "
+            "fault: output saturated — unstable loop? (the output sat at the "
+            f"±{limits.get('max_voltage', '?')} V "
             f"clamp in most samples for {sw}) at t={t:.3f} s"
         )
     return f"fault: device fault at t={t:.3f} s"

@@ -169,6 +169,11 @@ class VirtualDevice:
         # fault injection (tests of `jerklab rig check`; the encoder's is encoder_sign):
         # supply_fraction < 1 = a weak supply giving only that share of its volts
         self.supply_fraction = 1.0
+        # lead_sign = -1: the motor leads reversed at the H-bridge (the motor sees -u);
+        # hand = revolutions a hand turns the output shaft during a 0 V STEP (spread evenly
+        # over its samples): the rig check's hand turn on the virtual rig
+        self.lead_sign = 1
+        self.hand = None
         self.motor.step_state(self.x, 0.0, 1e-3)  # warm up (a compiled kernel) before the first run
         # python-control (imported on first use since the layering change) is loaded now, at
         # power-on: importing it in the middle of a run stalls the served device for ~1 s,
@@ -748,8 +753,24 @@ class VirtualDevice:
             self._end(fault, detail)
             return
         volts = (
-            self.pwm / self.pwm_max * self.motor.supply_voltage * self.supply_fraction
+            self.lead_sign
+            * self.pwm
+            / self.pwm_max
+            * self.motor.supply_voltage
+            * self.supply_fraction
         )  # H-bridge
+        if (
+            self.hand
+            and self.state == self.STATE_STEPPING
+            and self.pwm == 0
+            and k < self._n_total - 1
+        ):
+            # between the first and the last sample's reading (a hair more than the turn: a count
+            # is floored, and the sum of the steps may round down)
+            turn = 2.0 * math.pi * float(self.hand) / max(1, self._n_total - 1) * (1.0 + 1e-9)
+            self.x[0] += turn  # the motor's angle (and a flexible load's, turned with it)
+            if self.motor.n_states == 4:
+                self.x[2] += turn
         d = self.compute_delay if self.state == self.STATE_RUNNING else 0.0
         if d > 0.0:
             # the previous sample's PWM until the board has written the new one

@@ -462,7 +462,7 @@ def test_batch_profile_index_is_checked():
             b.profile(bad)
 
 
-# ---------------------------------------------------------------------------- numbers: fpga, plant, piezo, hysteresis
+# ------------------------------------------------------------ numbers: fpga, plant, piezo, hysteresis
 
 
 def test_fpga_divider_refuses_instead_of_hanging():

@@ -184,8 +184,8 @@ def test_safety_stops_agree_between_firmware_core_and_virtual_device(
     py, dev = run_virtual(cmds, 4.0, encoder=encoder)
     fw_tel, fw_end = _split([m for _, _, m in fw])
     py_tel, py_end = _split([m for _, m in py])
-    last_fw = _check_stop(fw_tel, fw_end, reason)
-    last_py = _check_stop(py_tel, py_end, reason)
+    _check_stop(fw_tel, fw_end, reason)
+    _check_stop(py_tel, py_end, reason)
     # the same sample, the same counts (float32 core vs float64 model: at most one sample apart)
     assert abs(fw_end[0].samples - py_end[0].samples) <= 1, (fw_end, py_end)
     n = min(len(fw_tel), len(py_tel)) - 1

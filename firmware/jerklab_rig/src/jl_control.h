@@ -48,11 +48,12 @@ private:
 };
 
 class PidQ;
-#if defined(__AVR__)
+#if JL_AVR_ASM
 extern "C" int32_t jl_pidq_step(PidQ* self, int32_t e, int32_t ff, bool* saturated);
 #endif
 
-/// The same law in fixed point: the control loop's PID (docs/THEORY.md "The fixed-point PID").
+/// The same law in fixed point: the control loop's PID (docs/THEORY.md "The fixed-point PID"),
+/// its step() in jl_law.h (the one place to change the law the rig runs).
 /// The error e and the feedforward in Q16.16 (encoder counts and PWM ticks x 2^16), u in Q16.16
 /// of the feedforward's unit; the gains quantised by to_qgain (24-bit mantissas). p = kpd e,
 /// i' = i + kid e, d = kdd (e - e(k-1)) [+ gamma d(k-1)], u = ff + p + d + i': three products a
@@ -60,20 +61,22 @@ extern "C" int32_t jl_pidq_step(PidQ* self, int32_t e, int32_t ff, bool* saturat
 /// (product floored, saturated, then added saturated at +-2^31 / 2^16). |u| > limit: saturated,
 /// and when e has the sign of u, u = ff + p + d + i and i' = i (conditional integration), then
 /// u clamped to +-limit. e is clamped to [-2^30, 2^30 - 1] (e - e(k-1) cannot overflow). Zero
-/// initial state. (Not step_fast's p + d = (kpd + kdd) e + w form: its two terms are each
-/// about kdd e, which leave the Q16.16 range long before their difference does.)
+/// initial state. (p and d are two products, not one product of (kpd + kdd) e plus a remainder:
+/// that form's two terms are each about kdd e, which leave the Q16.16 range long before their
+/// difference does.)
 class PidQ {
 public:
     /// Returns false unless all gains are finite with |g| < 2^23, |gamma| < 1 and
     /// 0 < limit < 2^15 (the limit in the output's unit).
     bool set(float kpd, float kid, float kdd, float gamma, float limit);
     void reset() { i_ = 0; e_prev_ = 0; d_ = 0; }
-    /// One sample: e and ff in Q16.16; returns u in Q16.16 and the saturation flag. (On the AVR
-    /// the assembly routine jl_pidq_step, jl_control.cpp.)
-#if defined(__AVR__)
+    /// One sample: e and ff in Q16.16; returns u in Q16.16 and the saturation flag. The C++
+    /// law of jl_law.h; built with JL_ASM=1 on the AVR, the assembly routine jl_pidq_step
+    /// (jl_asm_pid.cpp).
+#if JL_AVR_ASM
     int32_t step(int32_t e, int32_t ff, bool* saturated) { return jl_pidq_step(this, e, ff, saturated); }
 #else
-    int32_t step(int32_t e, int32_t ff, bool* saturated);
+    inline int32_t step(int32_t e, int32_t ff, bool* saturated);
 #endif
     int32_t limit() const { return limit_; }
 
@@ -88,4 +91,5 @@ private:
 int16_t q16_to_pwm(int32_t u, int16_t top);
 
 }  // namespace jl
+#include "jl_law.h"
 #endif

@@ -4,6 +4,7 @@
 #ifndef JL_EXCITE_H
 #define JL_EXCITE_H
 #include <stdint.h>
+#include "jl_fixed.h"   // (JL_ZERO)
 
 namespace jl {
 
@@ -76,13 +77,14 @@ public:
     void prepare();
 
 private:
-    uint8_t n_ = 0, max_delay_ = 0, pos_ = 0;
+    // (JL_ZERO: 0 initially, jl_fixed.h; the shaper is a member of the sketch's static Device)
+    uint8_t n_ JL_ZERO, max_delay_ JL_ZERO, pos_ JL_ZERO;
     float a_[kShaperMaxTaps];
     uint8_t d_[kShaperMaxTaps];
-    float a0_ = 0.0f;                  // the sum of the delay-0 taps
-    float partial_ = 0.0f;             // sum over the delayed taps of a_i r(k - d_i)
+    float a0_ JL_ZERO;                 // the sum of the delay-0 taps
+    float partial_ JL_ZERO;            // sum over the delayed taps of a_i r(k - d_i)
     float ring_[kShaperRing];
-    float inv_ts_ = 0.0f, prev_pos_ = 0.0f, prev_vel_ = 0.0f;
+    float inv_ts_ JL_ZERO, prev_pos_ JL_ZERO, prev_vel_ JL_ZERO;
 };
 #else
 /// Built without the shaper (JL_WITH_SHAPER 0): never on, no RAM, calls compile to nothing.

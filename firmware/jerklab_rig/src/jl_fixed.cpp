@@ -89,11 +89,24 @@ int32_t mul_q_(int32_t a, int32_t mant, uint8_t shift) {
 }
 
 int32_t mul_g_(int32_t a, int32_t mant, uint8_t shift) {
-#if defined(__AVR__)
+#if JL_AVR_MAC
     const QGain g = {mant, shift};
     return jl_mac(0, a, &g);
 #else
-    return mul_q_(a, mant, shift);
+    // The exact product (|p| < 2^54; avr-gcc: its widening 32 x 32 -> 64-bit library multiply),
+    // then floor(p / 2^(8 shift)) as the 4 bytes from byte `shift` of p (little-endian, as on
+    // the AVR and the hosts: byte moves, where avr-gcc -Os makes a 64-bit shift a library
+    // call), saturated unless every byte above them is their sign extension.
+    const int64_t p = static_cast<int64_t>(a) * static_cast<int64_t>(mant);
+    uint8_t b[8];
+    memcpy(b, &p, 8);
+    int32_t w;
+    memcpy(&w, b + shift, 4);
+    const uint8_t sign = (b[7] & 0x80) ? 0xFF : 0x00;
+    bool fits = (w < 0) == (sign != 0);
+    for (uint8_t k = static_cast<uint8_t>(shift + 4); k < 8; ++k) fits = fits && b[k] == sign;
+    if (!fits) return sign ? INT32_MIN : INT32_MAX;
+    return w;
 #endif
 }
 

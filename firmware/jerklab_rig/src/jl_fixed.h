@@ -5,6 +5,7 @@
 #ifndef JL_FIXED_H
 #define JL_FIXED_H
 #include <stdint.h>
+#include "jl_port.h"
 
 // A member whose initial value is 0: `int32_t x JL_ZERO;`. On the AVR the objects holding such
 // members are static (the sketch's Device and its parts: zero-initialised storage before any
@@ -45,11 +46,11 @@ static inline int32_t mul_q(int32_t a, const QGain& g) { return mul_q_(a, g.mant
 int32_t mul_g_(int32_t a, int32_t mant, uint8_t shift);
 static inline int32_t mul_g(int32_t a, const QGain& g) { return mul_g_(a, g.mant, g.shift); }
 
-/// add_sat(acc, mul_g(a, g)): the multiply-accumulate of the control step. On the AVR the
-/// assembly routine of PidQ::step (jl_control.cpp: the 24-bit mantissa times the 32-bit operand
-/// as twelve 8 x 8 MULs into 7 bytes, the signed correction, the window by `shift` byte moves,
-/// its saturation, then the saturating add), through a C-callable entry for the tests.
-#if defined(__AVR__)
+/// add_sat(acc, mul_g(a, g)): the multiply-accumulate of the control law (jl_law.h). On the AVR
+/// the assembly primitive of jl_asm_mac.cpp (twelve 8 x 8 MULs into 7 bytes, the window by
+/// `shift` byte moves, its saturation, the saturating add) through its C-callable entry jl_mac;
+/// on the host, and on the AVR built with JL_PURE_C=1, this C++.
+#if JL_AVR_MAC
 extern "C" int32_t jl_mac(int32_t acc, int32_t a, const QGain* g);
 static inline int32_t mac_g(int32_t acc, int32_t a, const QGain& g) { return jl_mac(acc, a, &g); }
 #else

@@ -10,6 +10,7 @@
 #ifndef JL_PLANNER_H
 #define JL_PLANNER_H
 #include <stdint.h>
+#include "jl_fixed.h"   // (JL_ZERO)
 
 namespace jl {
 
@@ -245,14 +246,16 @@ private:
     bool prepare_stage();
     /// The next chunk is to be prepared afresh (from seg_ on).
     void reset_next() { buf_[ci_ ^ 1].seg = 0xFF; prep_seg_ = seg_; prep_stage_ = 0; }
-    const Plan* p_ = nullptr;
-    float Ts_ = 0.005f, alpha_ = 0.0f, beta_ = 0.0f, sx_ = 1.0f, sv_ = 1.0f;
-    uint32_t k_ = 0, n_ = 0;
-    uint16_t misses_ = 0;
-    uint8_t seg_ = 0, prep_seg_ = 0, prep_stage_ = 0, pend_stage_ = 0;
-    uint8_t ci_ = 0;           // buf_[ci_]: the current chunk, buf_[ci_ ^ 1]: the next one
+    // (JL_ZERO: members whose initial value is 0, see jl_fixed.h; the stepper is a member of
+    // the sketch's static Device)
+    const Plan* p_ JL_ZERO;
+    float Ts_ = 0.005f, alpha_ JL_ZERO, beta_ JL_ZERO, sx_ = 1.0f, sv_ = 1.0f;
+    uint32_t k_ JL_ZERO, n_ JL_ZERO;
+    uint16_t misses_ JL_ZERO;
+    uint8_t seg_ JL_ZERO, prep_seg_ JL_ZERO, prep_stage_ JL_ZERO, pend_stage_ JL_ZERO;
+    uint8_t ci_ JL_ZERO;       // buf_[ci_]: the current chunk, buf_[ci_ ^ 1]: the next one
     Coef buf_[2], pend_;
-    const Plan* pend_p_ = nullptr;
+    const Plan* pend_p_ JL_ZERO;
 };
 
 }  // namespace jl

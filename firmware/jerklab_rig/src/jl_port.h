@@ -27,6 +27,30 @@
 #define jl_lroundf(x) lroundf(x)
 #endif
 
+// Assembly on the AVR (the host build is C++ throughout):
+// - the control law (jl_law.h) is C++ in the default build; make -C firmware
+//   EXTRA_DEFS=-DJL_ASM=1 swaps in its hand-written assembly twin (jl_asm_pid.cpp, JL_AVR_ASM);
+// - the law's multiply-accumulate mac_g (jl_fixed.h) is, on the AVR, the assembly primitive of
+//   jl_asm_mac.cpp (JL_AVR_MAC: twelve MULs, ~100 cycles; like avr-gcc's own 64-bit multiply,
+//   a library routine in assembly), unless EXTRA_DEFS=-DJL_PURE_C=1 selects its C++ form
+//   (avr-gcc's 64-bit library multiply: ~300 cycles more a product, ~850 a control step).
+#ifndef JL_ASM
+#define JL_ASM 0
+#endif
+#ifndef JL_PURE_C
+#define JL_PURE_C 0
+#endif
+#if defined(__AVR__) && JL_ASM
+#define JL_AVR_ASM 1
+#else
+#define JL_AVR_ASM 0
+#endif
+#if defined(__AVR__) && (JL_ASM || !JL_PURE_C)
+#define JL_AVR_MAC 1
+#else
+#define JL_AVR_MAC 0
+#endif
+
 // Cycle profiling (measurement builds only, make EXTRA_DEFS=-DJL_PROBE_PART=n): the probe pin
 // D13 (PB5) is high during part n of the control step instead of the whole step, so the simavr
 // harness's control_step_cycles report that part (firmware/README.md "Cycle budget").

@@ -17,7 +17,7 @@ try:  # POSIX; on Windows the build lock falls back to msvcrt
 except ImportError:  # pragma: no cover - Windows
     fcntl = None
 
-__all__ = ["firmware_dir", "build_firmware", "FirmwareBuildError"]
+__all__ = ["firmware_dir", "default_build_dir", "build_firmware", "FirmwareBuildError"]
 
 
 class FirmwareBuildError(RuntimeError):
@@ -34,6 +34,41 @@ def firmware_dir() -> Path:
             "of a jerklab checkout)"
         )
     return path
+
+
+def _is_define(d: str) -> bool:
+    return (
+        d.startswith("-D")
+        and d[2:3].isalpha()
+        and d[2:].replace("_", "").replace("=", "").isalnum()
+    )
+
+
+def _env_defs() -> list[str]:
+    """``JERKLAB_FIRMWARE_DEFS``: extra ``-D`` options for every firmware build (e.g.
+    ``-DJL_ASM=1``, to run the simavr tests on the assembly build of the control law)."""
+    defs = os.environ.get("JERKLAB_FIRMWARE_DEFS", "").split()
+    for d in defs:
+        if not _is_define(d):
+            raise ValueError(
+                f"JERKLAB_FIRMWARE_DEFS must hold -DNAME or -DNAME=VALUE options, got {d!r}"
+            )
+    return defs
+
+
+def _defs_folder(build: Path) -> Path:
+    """``build``, or its subfolder for the options of ``JERKLAB_FIRMWARE_DEFS`` (a build folder
+    per set of options: builds with other options do not overwrite each other's)."""
+    defs = _env_defs()
+    if not defs:
+        return build
+    return build / ("defs-" + "-".join(d[2:].replace("=", "") for d in defs))
+
+
+def default_build_dir() -> Path:
+    """The folder ``build_firmware()`` builds in by default: ``firmware/build`` (its subfolder
+    for the options of ``JERKLAB_FIRMWARE_DEFS`` when that is set)."""
+    return _defs_folder(firmware_dir() / "build")
 
 
 @contextmanager
@@ -59,7 +94,7 @@ def _build_lock(build: Path):
                 msvcrt.locking(fh.fileno(), msvcrt.LK_UNLCK, 1)
 
 
-def build_firmware(*targets: str, build_dir=None, baud=None, probe_part=None) -> dict:
+def build_firmware(*targets: str, build_dir=None, baud=None, probe_part=None, defines=()) -> dict:
     """Run ``make -C firmware <targets>`` (serialised by a file lock) and return the paths.
 
     Parameters
@@ -68,13 +103,18 @@ def build_firmware(*targets: str, build_dir=None, baud=None, probe_part=None) ->
         Make targets (``"avr"``, ``"size"``, ``"host"``, ``"simavr"``, ``"optiboot"``); none =
         the default (everything the installed tools allow).
     build_dir : path-like, optional
-        Output folder (default ``firmware/build``).
+        Output folder (default ``firmware/build``). With ``JERKLAB_FIRMWARE_DEFS`` set (extra
+        ``-D`` options for every build, e.g. ``-DJL_ASM=1``), a subfolder of it named after
+        those options.
     baud : int, optional
         UART speed of the sketch (``-DJL_BAUD``): 115200 (default), 500000 or 1000000 (both
         exact on a 16 MHz Uno with U2X). Use a separate ``build_dir`` for another speed.
     probe_part : int, optional
         A cycle-profiling build (``-DJL_PROBE_PART``): the PB5 probe is high around that part of
         a tick instead of the whole control step (firmware/README.md "Cycle budget").
+    defines : sequence of str
+        More ``-DNAME`` or ``-DNAME=VALUE`` options (e.g. ``("-DJL_ASM=1",)``, the assembly
+        build of the control law). Use a separate ``build_dir`` for each set of options.
 
     Returns
     -------
@@ -85,11 +125,15 @@ def build_firmware(*targets: str, build_dir=None, baud=None, probe_part=None) ->
     if shutil.which("make") is None:
         raise FirmwareBuildError("make is not installed")
     fw = firmware_dir()
-    build = Path(build_dir) if build_dir is not None else fw / "build"
+    build = _defs_folder(Path(build_dir) if build_dir is not None else fw / "build")
     for t in targets:
         if not isinstance(t, str) or not t.replace("_", "").isalnum():
             raise ValueError(f"targets must be make target names, got {t!r}")
-    defs = []
+    defs = _env_defs()
+    for d in defines:
+        if not isinstance(d, str) or not _is_define(d):
+            raise ValueError(f"defines must be -DNAME or -DNAME=VALUE options, got {d!r}")
+        defs.append(d)
     if baud is not None:
         if baud not in (115200, 500000, 1000000):
             raise ValueError(f"baud must be 115200, 500000 or 1000000, got {baud!r}")

@@ -25,7 +25,7 @@ from pathlib import Path
 
 from jerklab import paper
 from jerklab._validate import as_int, as_nonnegative, as_positive, as_real
-from jerklab.rig.simavr.build import build_firmware, firmware_dir
+from jerklab.rig.simavr.build import build_firmware, default_build_dir
 
 __all__ = ["launch", "SimulatedUno", "HarnessError", "tools_missing"]
 
@@ -296,7 +296,7 @@ def launch(
     if build:
         paths = build_firmware("avr", "simavr", *(("optiboot",) if bootloader is True else ()))
     else:
-        build_dir = firmware_dir() / "build"
+        build_dir = default_build_dir()
         paths = {
             "harness": build_dir / "jl_simavr",
             "elf": build_dir / "jerklab_rig.elf",

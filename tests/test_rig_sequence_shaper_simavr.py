@@ -1,6 +1,6 @@
-"""Protocol version 3 on the simulated Uno (the firmware ELF on simavr): the PRBS of SEQUENCE
-bit for bit, the shaped reference of SET_SHAPER sample by sample, and the residual vibration of
-the flexible load under each input shaper, against the virtual rig (issues 13 and 16).
+"""SEQUENCE and SET_SHAPER on the simulated Uno (the firmware ELF on simavr): the PRBS of
+SEQUENCE bit for bit, the shaped reference of SET_SHAPER sample by sample, and the residual
+vibration of the flexible load under each input shaper, against the virtual rig.
 
 Heavy (a simulated Uno in real time): run alone."""
 
@@ -87,10 +87,10 @@ def _taps(kind, f, z, Ts=TS):
 
 def _move(gains="soft"):
     """The move of these tests and its gains. ``"soft"``: the feedforward with a weak P term
-    (0.5 V/rad: one encoder count is 7 mV, below one PWM tick of 11.7 mV), so the loop barely acts on the load's
-    mode and the move rings at the open-loop coupled mode the shapers are tuned to; a stiff PID
-    hunts by a count around the target at rest (encoder quantization), and each hunt kicks
-    the load, a limit cycle that would drown the small residual of a good shaper. (The rig's
+    (0.5 V/rad: one encoder count is 7 mV, below one PWM tick of 11.7 mV), so the loop barely
+    acts on the load's mode and the move rings at the open-loop coupled mode the shapers are
+    tuned to; a stiff PID hunts by a count around the target at rest (encoder quantization), and
+    each hunt kicks the load, a limit cycle that would drown the small residual of a good shaper. (The rig's
     stability check counts the unused integrator's pole at z = 1, so the soft gains need
     ``force=True``; the safety stops still watch the move.)"""
     from jerklab.controller import DiscreteGains

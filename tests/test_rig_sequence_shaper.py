@@ -1,9 +1,10 @@
-"""Protocol version 3 on the rig (issues 13 and 16): SEQUENCE (an on-board PRBS) and SET_SHAPER
+"""SEQUENCE (an on-board PRBS) and SET_SHAPER of the serial protocol on the rig
 (an input shaper as a FIR on the run reference) — the firmware core on the host (g++), the
 virtual rig that mirrors it, the client (``Rig.record_prbs``, ``Rig.set_shaper``), and the
 flexible load (``connect(device=FlexibleDCMotor())``, per-student hidden modes).
 
-The simulated-Uno side (the firmware ELF on simavr) is in tests/test_rig_v3_simavr.py."""
+The simulated-Uno side (the firmware ELF on simavr) is in
+tests/test_rig_sequence_shaper_simavr.py."""
 
 from __future__ import annotations
 
@@ -480,7 +481,7 @@ def test_connect_takes_the_flexible_load_as_a_device():
         connect(device="flexible")
 
 
-def test_random_v3_commands_get_the_same_reply_from_firmware_and_virtual(host_driver):
+def test_random_sequence_and_shaper_commands_reply_alike_on_firmware_and_virtual(host_driver):
     """400 random SEQUENCE and SET_SHAPER commands, most near a limit (amplitude + |offset| at the
     voltage clamp, taps summing to 1 ± the tolerance, delays at the ring's end, seeds with zero
     low bits, NaN and inf): the firmware core and the virtual rig answer each the same way

@@ -1,5 +1,5 @@
-"""Helpers moved out of the notebooks (issue 19): VCD clock conversion and pulse-train speed
-(notebook 06, jerklab.fpga), the Preisach density image (notebook 08, jerklab.hysteresis)."""
+"""jerklab.fpga's signal helpers that notebook 06 draws with: the speed of a pulse train and the
+conversion of an Icarus VCD dump to clock edges (against the divider model's edges)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,6 @@ import pytest
 from conftest import require_tool
 
 from jerklab import fpga
-from jerklab.hysteresis import Preisach
 
 
 # ------------------------------------------------------------------------------ pulse speed
@@ -84,15 +83,3 @@ def test_vcd_edges_equal_the_model(tmp_path):
     assert np.all(
         fpga.vcd_to_posedge(tc[vc == 1], 20e-9, scale) == np.arange(1, (vc == 1).sum() + 1)
     )
-
-
-# ------------------------------------------------------------------------------ Preisach image
-def test_masked_density():
-    P = Preisach.piezo_like(0.0, 100.0, n=12)
-    m = P.masked_density()
-    i, j = np.indices(m.shape)
-    assert np.array_equal(m[i >= j], P.density[i >= j]) and np.all(np.isnan(m[i < j]))
-    # the weight over the half plane (diagonal cells are half squares) is the output span
-    area = np.where(i == j, 0.5, 1.0) * P.h**2
-    assert np.nansum(m * area) == pytest.approx(P.everett(100.0, 0.0))
-    assert np.nansum(m * area) == pytest.approx(P.output_range[1] - P.output_range[0])

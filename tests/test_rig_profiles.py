@@ -1,0 +1,129 @@
+"""Motor profiles (jerklab.rig.profiles): their numbers against the vendors' stated counts, the
+measured micromouse records, and a simulated run at full supply; connect(profile=)."""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+
+from jerklab import ident
+from jerklab.rig import connect, load_profile, profile_names
+from jerklab.rig.profiles import MotorProfile, builtin_profiles
+
+#: counts per output revolution as the vendors state them (X4: both edges of both channels)
+VENDOR_X4 = {
+    "pololu-37d-30": 1920.0,  # 64 CPR x 30
+    "pololu-25d-47-hp": 2248.86,  # Pololu item 4845's page
+    "jgb37-520-30": 1320.0,  # 11 PPR x 4 x 30
+    "pololu-micro-30-hpcb": 12 * 29.861,
+}
+
+
+def test_there_are_at_least_three_buyable_motors_and_the_paper():
+    names = profile_names()
+    assert names[0] == "paper"
+    buyable = [n for n in names if builtin_profiles()[n].part.get("url") or n.startswith("jgb")]
+    assert len(buyable) >= 3 and len(names) >= 4
+
+
+@pytest.mark.parametrize("name", sorted(VENDOR_X4))
+def test_counts_per_revolution_agree_with_the_vendor(name):
+    p = load_profile(name)
+    x4 = p.counts_per_motor_rev * p.gear_ratio
+    assert x4 == pytest.approx(VENDOR_X4[name], rel=1e-4)
+    decoding = p.counts_per_rev / (x4 / 4)  # 1 (X1) or 4 (X4), to the count
+    assert min(abs(decoding - 1), abs(decoding - 4)) * x4 / 4 < 1.0
+
+
+@pytest.mark.parametrize("name", profile_names())
+def test_the_virtual_rig_of_a_profile_runs_at_the_datasheet_no_load_speed(name):
+    p = load_profile(name)
+    rig = connect(profile=name, progress=False)
+    try:
+        rec = rig.step(p.supply_voltage, 1.5, rest=0.0, path=False, progress=False)
+    finally:
+        rig.close()
+    t, y = np.asarray(rec.time), np.asarray(rec.position)
+    sel = t > t[-1] - 0.2
+    w = np.polyfit(t[sel], y[sel], 1)[0]
+    rpm = p.datasheet["no_load_rpm"]
+    assert w * 60 / (2 * math.pi) == pytest.approx(rpm, rel=0.02)
+
+
+def test_the_micromouse_profile_holds_the_measured_fit():
+    p = load_profile("pololu-micro-30-hpcb")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = ident.load_micromouse(p.measured["record"]).fit("pem", friction=True, delay=True)
+    assert p.measured["K_nominal_volts"] == pytest.approx(fit.K, rel=0.01)
+    assert p.tau == pytest.approx(fit.tau, rel=0.01)
+    assert p.coulomb_friction == pytest.approx(fit.friction, rel=0.01)
+    assert p.tau_range[0] <= fit.tau <= p.tau_range[1]
+
+
+@pytest.mark.parametrize("name", profile_names())
+def test_every_profile_is_consistent(name):
+    p = load_profile(name)
+    assert p.K_range[0] <= p.K <= p.K_range[1]
+    assert p.friction_range[0] <= p.coulomb_friction + 1e-12 or name == "paper"
+    assert p.counts_per_rev in p.counts_options
+    assert p.datasheet["source"]
+    if p.wires:
+        assert set(p.wires) == {
+            "motor +",
+            "motor -",
+            "encoder GND",
+            "encoder VCC",
+            "encoder A",
+            "encoder B",
+        }
+        assert len(set(p.wires.values())) == 6  # six colours on the 6-wire lead
+
+
+def test_connect_takes_the_profile():
+    rig = connect(profile="pololu-37d-30", progress=False)
+    try:
+        p = rig.profile
+        assert rig.counts_per_rev == 480 and rig.supply_voltage == 12.0
+        assert rig.model == pytest.approx((p.K, p.tau))
+        assert rig.link.device.motor.K == pytest.approx(p.K)
+    finally:
+        rig.close()
+    rig = connect(progress=False)
+    try:
+        assert rig.profile is None and rig.counts_per_rev == 448
+    finally:
+        rig.close()
+
+
+def test_load_profile_names_the_parameter():
+    with pytest.raises(ValueError, match="pololu-37d-30"):
+        load_profile("no-such-motor")
+    with pytest.raises(TypeError, match="profile"):
+        load_profile(3)
+    with pytest.raises(ValueError, match="K_range"):
+        MotorProfile(
+            "x",
+            "x",
+            12.0,
+            None,
+            None,
+            100,
+            (100,),
+            50.0,
+            (1.0, 2.0),
+            0.02,
+            (0.01, 0.03),
+            0.0,
+            (0.0, 0.1),
+        )
+
+
+def test_a_file_that_is_not_a_profile_is_refused(tmp_path):
+    f = tmp_path / "x.json"
+    f.write_text('{"format": "something else"}')
+    with pytest.raises(ValueError, match="not a jerklab motor profile"):
+        load_profile(f)

@@ -1,0 +1,179 @@
+"""The test suite itself: files named by what they test, and markers that say what a test needs.
+
+``make check`` (the fast tier) deselects the markers of tests/conftest.py's ``FILE_MARKS``; a test
+that needs simavr, a firmware build, a browser, a hub, the Arduino IDE or a notebook kernel must
+carry its marker, or the fast tier would start it. The markers are read from the test's own
+decorators and from ``FILE_MARKS``; what a test needs is read from its source (the tools it asks
+``require_tool`` for, a notebook it executes).
+"""
+
+from __future__ import annotations
+
+import ast
+import fnmatch
+import pathlib
+import re
+
+import conftest
+
+TESTS = pathlib.Path(__file__).resolve().parent
+
+#: a name that tells history, not the module tested: an issue number or a version
+HISTORY = re.compile(r"issue|(^|_)v\d+($|_)|version\d", re.IGNORECASE)
+
+#: a tool asked for by require_tool -> the marker a test that asks for it carries
+TOOL_MARKS = {
+    "simavr": "simavr",
+    "/usr/include/simavr/sim_avr.h": "simavr",
+    "g++": "firmware",
+    "arduino-builder": "arduino",
+    "configurable-http-proxy": "hub",
+    "/usr/bin/chromium": "browser",
+    "iverilog": "verilog",
+}
+
+#: calls that execute a notebook in a kernel
+NOTEBOOK_CALLS = {"NotebookClient", "_execute"}
+
+
+def collected_files(config_files=None):
+    """Every file pytest collects under tests/ (the python_files patterns of pyproject)."""
+    patterns = config_files or ["test_*.py"]
+    return sorted(
+        p for p in TESTS.rglob("*.py") if any(fnmatch.fnmatch(p.name, pat) for pat in patterns)
+    )
+
+
+def test_no_test_file_or_test_is_named_after_history(pytestconfig):
+    files = collected_files(pytestconfig.getini("python_files"))
+    assert len(files) > 50
+    bad = [str(f.relative_to(TESTS)) for f in files if HISTORY.search(f.stem)]
+    for f in files:
+        for node in ast.walk(ast.parse(f.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.FunctionDef) and node.name.startswith("test"):
+                if HISTORY.search(node.name):
+                    bad.append(f"{f.relative_to(TESTS)}::{node.name}")
+    assert bad == []
+
+
+def test_the_history_check_sees_history():
+    """The pattern above against names that tell history and names that do not."""
+    for name in ("test_rig_v3", "test_issue21", "test_v2_frames", "test_moves_issue_7"):
+        assert HISTORY.search(name), name
+    for name in ("test_ident_p2", "test_rig_sequence_shaper", "test_vcd_timescale", "test_lab4"):
+        assert not HISTORY.search(name), name
+
+
+def _marks(decorators) -> set[str]:
+    out = set()
+    for d in decorators:
+        d = d.func if isinstance(d, ast.Call) else d
+        if isinstance(d, ast.Attribute) and ast.unparse(d).startswith("pytest.mark."):
+            out.add(d.attr)
+    return out
+
+
+def _constants(tree) -> dict[str, list[str]]:
+    """Module-level NAME = "..." and NAME = ("...", ...) assignments (the tools' names)."""
+    out = {}
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and len(node.targets) == 1:
+            t = node.targets[0]
+            if isinstance(t, ast.Name):
+                vals = [
+                    n.value
+                    for n in ast.walk(node.value)
+                    if isinstance(n, ast.Constant) and isinstance(n.value, str)
+                ]
+                out[t.id] = vals
+    return out
+
+
+def _needs(func, consts) -> set[str]:
+    """The markers the body of ``func`` asks for."""
+    need = set()
+    for node in ast.walk(func):
+        if not isinstance(node, ast.Call):
+            continue
+        name = ast.unparse(node.func).rsplit(".", 1)[-1]
+        if name == "require_tool":
+            tools = []
+            for a in node.args:
+                a = a.value if isinstance(a, ast.Starred) else a
+                if isinstance(a, ast.Constant):
+                    tools.append(a.value)
+                elif isinstance(a, ast.Name):
+                    tools += consts.get(a.id, [])
+            need |= {TOOL_MARKS[t] for t in tools if t in TOOL_MARKS}
+        elif name in NOTEBOOK_CALLS:
+            need.add("notebook")
+    return need
+
+
+def unmarked_needs(path: pathlib.Path) -> list[str]:
+    """``file::function needs marker`` for every test or fixture without the marker it needs
+    (a fixture's needs must be marked on the whole file, in ``FILE_MARKS``)."""
+    rel = path.relative_to(TESTS).as_posix()
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    consts = _constants(tree)
+    file_marks = set(conftest.FILE_MARKS.get(rel, ()))
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and any(
+            isinstance(t, ast.Name) and t.id == "pytestmark" for t in node.targets
+        ):
+            vals = (
+                node.value.elts if isinstance(node.value, (ast.List, ast.Tuple)) else [node.value]
+            )
+            file_marks |= _marks(vals)
+    out = []
+    for node in tree.body:
+        if isinstance(node, ast.ClassDef):
+            funcs = [n for n in node.body if isinstance(n, ast.FunctionDef)]
+            cls_marks = _marks(node.decorator_list)
+        else:
+            funcs, cls_marks = [node], set()
+        for f in funcs:
+            if not isinstance(f, ast.FunctionDef):
+                continue
+            missing = _needs(f, consts) - file_marks - cls_marks - _marks(f.decorator_list)
+            out += [f"{rel}::{f.name} needs {m}" for m in sorted(missing)]
+    return out
+
+
+def test_every_test_that_needs_a_tool_or_a_kernel_carries_its_marker(pytestconfig):
+    bad = [
+        m for f in collected_files(pytestconfig.getini("python_files")) for m in unmarked_needs(f)
+    ]
+    assert bad == []
+
+
+def test_the_marker_check_finds_a_missing_marker(tmp_path, monkeypatch):
+    """A test asking for simavr without its marker, a fixture asking for g++ in an unmarked file
+    and an unmarked notebook run are found; the marked ones are not."""
+    monkeypatch.setattr("test_suite_layout.TESTS", tmp_path)
+    f = tmp_path / "test_x.py"
+    f.write_text(
+        "import pytest\n"
+        "TOOLS = ('make', 'simavr')\n"
+        "def test_a():\n    require_tool(*TOOLS)\n"
+        "@pytest.mark.simavr\ndef test_b():\n    require_tool('simavr')\n"
+        "@pytest.fixture\ndef host():\n    require_tool('g++', 'make')\n"
+        "def test_c():\n    NotebookClient(nb).execute()\n"
+        "@pytest.mark.notebook\ndef test_d():\n    NotebookClient(nb).execute()\n"
+        "def test_e():\n    require_tool('make')\n",
+        encoding="utf-8",
+    )
+    assert unmarked_needs(f) == [
+        "test_x.py::test_a needs simavr",
+        "test_x.py::host needs firmware",
+        "test_x.py::test_c needs notebook",
+    ]
+
+
+def test_file_marks_name_existing_files_and_registered_markers(pytestconfig):
+    registered = {m.split(":")[0].strip() for m in pytestconfig.getini("markers")}
+    for rel, marks in conftest.FILE_MARKS.items():
+        assert (TESTS / rel).is_file(), rel
+        assert set(marks) <= registered, (rel, marks)
+    for rel in conftest.ONE_WORKER:
+        assert (TESTS / rel).is_file(), rel
