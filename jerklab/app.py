@@ -96,10 +96,12 @@ def panel_for_page(rig_port=None, recordings=None):
         else:
             rig = connect(rig_port, progress=False, profile=os.environ.get(PROFILE_ENV) or None)
     except Exception as exc:  # the page must still serve the tuning without a rig
-        # the kind of failure only: the message may hold the server's paths
+        # the kind of failure and the rig the page was given, not the message (it may hold
+        # the server's paths)
+        where = f" at {rig_port}" if rig_port else ""
         notice = widgets.HTML(
             '<div class="jerklab-rig-missing" style="color:#b71c1c;font-weight:bold">'
-            f"No rig behind this page ({html.escape(type(exc).__name__)}); "
+            f"No rig behind this page ({html.escape(type(exc).__name__ + where)}); "
             "tuning and simulation only.</div>"
         )
         return widgets.VBox([notice, pole_placement_panel(**page)])

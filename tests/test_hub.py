@@ -120,3 +120,31 @@ def test_two_students_run_a_lab_cell(hub):
         f"{hub.base}/user/jlt-ana/voila/render/tuning.ipynb", tokens["jlt-ana"], timeout=180
     )
     assert status == 200 and "kernelId" in page
+
+
+def test_roster_names_are_plain_unix_user_names(tmp_path):
+    """deploy/jupyterhub/roster.py takes one plain user name a line; anything else is refused
+    naming the line (a name like ``../x`` or ``root:0`` never reaches useradd)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "jerklab_roster", ROOT / "deploy" / "jupyterhub" / "roster.py"
+    )
+    roster = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(roster)
+    good = tmp_path / "good.txt"
+    good.write_text("# class A\ns1234\n\nana-b  # a comment\nx_9\n")
+    assert roster.read_roster(good) == ["s1234", "ana-b", "x_9"]
+    for text, why in [
+        ("s1\n../etc\n", "line 2"),
+        ("Root\n", "line 1"),
+        ("a b\n", "line 1"),
+        ("-rf\n", "line 1"),
+        ("s1\ns1\n", "listed twice"),
+        ("x" * 33 + "\n", "line 1"),
+        ("# nobody\n", "lists no user"),
+    ]:
+        bad = tmp_path / "bad.txt"
+        bad.write_text(text)
+        with pytest.raises(ValueError, match=why):
+            roster.read_roster(bad)
