@@ -50,8 +50,9 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from jerklab._validate import as_finite_array, as_nonnegative, as_positive
+from jerklab._validate import as_finite_array, as_nonnegative, as_positive, at_least
 from jerklab.planner import (
+    MIN_SYNC_TS,
     Profile,
     ProfileSample,
     SCurveProfile,
@@ -410,9 +411,9 @@ class MultiAxisPlan:
         Parameters
         ----------
         Ts : float
-            Sample time (s), > 0.
+            Sample time (s), at least ``planner.MIN_SYNC_TS`` = 1 ns.
         """
-        Ts = as_positive("Ts", Ts)
+        Ts = at_least("Ts", as_positive("Ts", Ts), MIN_SYNC_TS, "planner.MIN_SYNC_TS, 1 ns")
         if self.duration == 0.0:
             return self
         kind = self.planner
