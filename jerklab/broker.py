@@ -41,6 +41,7 @@ import time
 from pathlib import Path
 
 from jerklab import planner, tuning
+from jerklab._validate import as_positive
 from jerklab.controller import DiscreteGains, Feedforward
 from jerklab.rig import Device, connect
 from jerklab.rig.recording import Recording, recordings_dir
@@ -55,6 +56,7 @@ SCHEME = "broker://"
 HEARTBEAT = 1.0
 
 _MAX_REQUEST = 1 << 16  # bytes of one request line
+_MAX_TIMEOUT = 86400.0  # s: socket timeouts beyond a day overflow the platform's time_t
 
 
 class BrokerError(RuntimeError):
@@ -362,7 +364,9 @@ class BrokerRig:
     def __init__(self, address, timeout=10.0, client="kernel"):
         self.address = address
         self.host, self.port = parse_address(address)
-        self.timeout = float(timeout)
+        self.timeout = as_positive("timeout", timeout)
+        if self.timeout > _MAX_TIMEOUT:
+            raise ValueError(f"timeout must be <= {_MAX_TIMEOUT:g} s (a day), got {timeout!r}")
         self.client = str(client)
         self.info = self._request({"op": "info"})
         self.port_name = address

@@ -189,7 +189,14 @@ def stretch_to_duration(profile: Profile, duration) -> Profile:
     """
     if not isinstance(profile, Profile) or profile.kind not in _CLASS:
         raise ValueError(f"profile must be a Profile of kind {PLANNERS}, got {profile!r}")
-    return _stretch(profile, as_nonnegative("duration", duration))
+    T = as_nonnegative("duration", duration)
+    try:
+        return _stretch(profile, T)
+    except (ZeroDivisionError, OverflowError):
+        raise ValueError(
+            f"duration = {T!r} s: no finite profile of distance {profile.distance!r} lasts that "
+            f"long (a phase time underflows): scale the units"
+        ) from None
 
 
 def _stretch(profile, T):

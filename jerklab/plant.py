@@ -695,7 +695,9 @@ class FlexibleDCMotor(_MotorBase):
             E = scipy.linalg.expm(M)
             if not np.all(np.isfinite(E)):
                 raise ValueError(
-                    f"Ts = {Ts!r} s is too long for this model: the matrix exponential overflows"
+                    f"Ts = {Ts!r} s is too long for this model (tau = {self.tau!r} s, "
+                    f"load_ratio = {self.load_ratio!r}, mode_frequency = "
+                    f"{self.mode_frequency!r} rad/s): the matrix exponential overflows"
                 )
             self._zoh_cache[Ts] = (E[:4, :4], E[:4, 4:])
         return self._zoh_cache[Ts]

@@ -22,6 +22,7 @@ import zipfile
 from pathlib import Path
 
 from jerklab import __version__
+from jerklab._validate import as_path
 from jerklab.lab.motors import instructor_key
 from jerklab.lab.plain import jsonable
 
@@ -106,8 +107,13 @@ def pack(files: dict, student: str, lab: int, path) -> Path:
 def read_handin(path) -> dict:
     """Open a hand-in zip and verify it; return ``{"student", "lab", "notebook" (bytes or None),
     "notebook_name", "files"}``. Raises :class:`HandinError` naming what is wrong."""
-    path = Path(path)
-    data = path.read_bytes()
+    path = as_path("path", path)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise FileNotFoundError(f"path: no hand-in at {path}") from None
+    except IsADirectoryError:
+        raise HandinError(f"path: {path} is a folder, not a hand-in zip") from None
     if not data:
         raise HandinError(f"{path.name}: empty file")
     try:

@@ -85,6 +85,7 @@ _IO_HINTS = {
     _errno.ENOSPC: "The disk is full: free some space or record to another disk",
     _errno.ENOENT: "A folder of the path does not exist and could not be made",
     _errno.ENOTDIR: "A part of the path is a file, not a folder",
+    _errno.EEXIST: "A folder of the path is a file, not a folder",
 }
 
 
@@ -538,12 +539,23 @@ def compare(rec: Recording, sim) -> dict:
 
     ``sim`` is a :class:`jerklab.sim.SimResult` sampled at the same ``Ts`` from t = 0.
     Returns the number of common samples, the largest and RMS difference of the measured
-    angles, the largest tracking error of each, and the largest control difference.
+    angles, the largest tracking error of each, and the largest control difference (NaN
+    when there is no sample in common).
     """
     rec = as_instance("rec", rec, Recording, "a jerklab.rig.Recording")
     as_having("sim", sim, ("time", "measured", "reference", "voltage"), "a jerklab.sim.SimResult")
     n = min(len(rec), len(sim.time))
     idx = rec.index[rec.index < len(sim.time)][:n]
+    if len(idx) == 0:  # no sample in common: every difference is undefined
+        nan = float("nan")
+        return {
+            "samples": 0,
+            "max_abs_position_diff": nan,
+            "rms_position_diff": nan,
+            "max_abs_error_measured": nan,
+            "max_abs_error_simulated": nan,
+            "max_abs_control_diff": nan,
+        }
     meas = rec.position[: len(idx)]
     sim_meas = np.asarray(sim.measured)[idx]
     d = meas - sim_meas

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import time
 import warnings
 
@@ -23,8 +24,8 @@ from jerklab._validate import (
     as_index,
     as_instance,
     as_path,
-    at_least,
     as_seed,
+    at_least,
     at_most,
 )
 from jerklab.ident import IdentData, fit_dc_motor, simulate_dc_motor
@@ -355,3 +356,106 @@ def test_rig_helpers_name_their_parameters(tmp_path):
             rig.run_move(prof, g, 0.005, path=False, feedforward="x")
     finally:
         rig.close()
+
+
+def test_a_write_error_says_what_to_do(tmp_path, monkeypatch):
+    import builtins
+    import errno
+
+    from jerklab.rig.recording import RecordingIOError
+
+    meta = {"Ts": 0.005, "counts_per_rad": 71.3, "volts_per_pwm": 12 / 1023}
+    (tmp_path / "afile").write_text("")
+    with pytest.raises(RecordingIOError, match="is a file, not a folder") as e:
+        Recording(meta, tmp_path / "afile" / "run")
+    assert e.value.errno in (errno.ENOTDIR, errno.EEXIST)
+    real_open = builtins.open
+
+    def refused(file, mode="r", *a, **k):
+        if str(file).endswith("run.csv") and "w" in mode:
+            raise PermissionError(errno.EACCES, "Permission denied", str(file))
+        return real_open(file, mode, *a, **k)
+
+    monkeypatch.setattr(builtins, "open", refused)
+    with pytest.raises(RecordingIOError, match=r"connect\(recordings=\.\.\.\)") as e:
+        Recording(meta, tmp_path / "run")
+    assert e.value.errno == errno.EACCES and "run.csv" in str(e.value)
+
+
+# ------------------------------------------------------------------------ the APIs probed since round 2
+def test_retarget_helpers_name_their_parameters():
+    from jerklab.rig import retarget as RT
+
+    for bad in (4, -1, 2.5, "2", None, True):
+        with pytest.raises(ValueError, match="kind must be PLAN's planner byte 0..3"):
+            RT.rest_plan(bad, 1.0, 2000.0, 300.0, 100.0)
+    with pytest.raises(ValueError, match="max_jerk"):
+        RT.stop_plan(2, 1.0, 0.0, 300.0)
+    with pytest.raises(ValueError, match="v0 must be >= 0"):
+        RT.moving_plan(2, 1.0, -1.0, 2000.0, 300.0, 100.0)
+    with pytest.raises(ValueError, match="max_velocity"):
+        RT.moving_plan(2, 1.0, 1.0, 2000.0, 300.0, float("nan"))
+    with pytest.raises(ValueError, match="braking distance overflows"):
+        RT.stop_plan(2, 1e300, 2000.0, 300.0)
+    with pytest.raises(ValueError, match="Ts_us"):
+        RT.lead_samples(0)
+    # a trapezoid takes no jerk; the plans agree with the planner's phase times
+    p = RT.rest_plan(3, 1.0, None, 300.0, 100.0)
+    q = planner.plan_trapezoid(1.0, 300.0, 100.0)
+    assert p.v_peak == pytest.approx(q.peak_velocity) and p.duration == pytest.approx(q.duration)
+    assert RT.lead_samples(5000) == 4 and RT.lead_samples(1000) == 14
+
+
+def test_shaping_names_frequency_and_work_limits():
+    from jerklab import shaping as SH
+
+    with pytest.raises(ValueError, match="frequency_hz must be numeric"):
+        SH.residual_vibration_of([0.5, 0.5], [0.0, 0.0625], "8")
+    with pytest.raises(ValueError, match="MAX_CHIRP_SAMPLES"):
+        _within(2, lambda: SH.chirp_input(1e9, 0.005, 3.0, 1.0, 20.0))
+    with pytest.raises(ValueError, match=r"0\.5 / Ts .*Ts = 1e\+09 s"):
+        SH.chirp_input(1.0, 1e9, 3.0, 1.0, 20.0)
+    for f in (1e-300, 1e300):
+        with pytest.raises(ValueError, match=re.escape(f"frequency_hz = {f!r} Hz")):
+            SH.tuned_profile("scurve", 1.0, f, 300.0, 100.0)
+    with pytest.raises(ValueError, match="kind must be"):
+        SH.tuned_profile("box", 1.0, 8.0, 300.0, 100.0)
+    from jerklab.multiaxis import stretch_to_duration
+
+    with pytest.raises(ValueError, match=r"duration = 1e\+300 s"):
+        stretch_to_duration(planner.plan_scurve(1.0, 2000.0, 300.0, 100.0), 1e300)
+
+
+def test_lab_sweep_fit_and_handin_name_their_input(tmp_path):
+    from jerklab.lab import checks as LC
+    from jerklab.lab.handin import HandinError, read_handin
+
+    # a sweep of the motor w = K (V + off - f_c sign V): the fit gives K, f_c, off back
+    K, fc, off = 30.0, 0.4, 0.1
+    sweep = {
+        v: K * (v + off - fc * math.copysign(1.0, v)) for v in (-3.0, -2.0, -1.0, 1.0, 2.0, 3.0)
+    }
+    (K_, fc_, off_), _ = LC.sweep_fit(sweep)
+    assert (K_, fc_, off_) == pytest.approx((K, fc, off), rel=1e-9)
+    with pytest.raises(ValueError, match="both sides of 0"):
+        LC.sweep_fit({1.0: 20.0, 2.0: 52.0, 3.0: 84.0, 4.0: 116.0})
+    with pytest.raises(ValueError, match=r"speeds\[1\.0\]"):
+        LC.sweep_fit({-2.0: -52.0, -1.0: -20.0, 1.0: float("nan"), 2.0: 52.0})
+    with pytest.raises(BadInput, match="speeds must be a dict"):
+        LC.sweep_fit("x")
+    with pytest.raises(FileNotFoundError, match="path: no hand-in at"):
+        read_handin(tmp_path / "none.zip")
+    with pytest.raises(HandinError, match="is a folder"):
+        read_handin(tmp_path)
+    with pytest.raises(BadInput, match="path must be a path"):
+        read_handin(3)
+
+
+def test_broker_client_names_its_timeout():
+    from jerklab.broker import BrokerRig
+
+    for bad in (float("nan"), 0.0, -1.0, "x", None):
+        with pytest.raises(ValueError, match="timeout"):
+            BrokerRig("broker://127.0.0.1:1", timeout=bad)
+    with pytest.raises(ValueError, match="timeout must be <= 86400"):
+        BrokerRig("broker://127.0.0.1:1", timeout=1e300)
