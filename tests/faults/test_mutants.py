@@ -216,3 +216,64 @@ def test_the_run_gain_bound_holds_for_negative_gains(name):
             rig.configure(ok, RunSpec(Ts=0.005))  # the device takes it (ACK)
     finally:
         rig.close()
+
+
+# ------------------------------------------------------------------ lab: the friction check
+def test_the_friction_check_tolerance_is_pinned():
+    """Mutant killed: a wider (or narrower) ``tol`` in lab.checks.check_f_c. No test gave a
+    wrong friction answer: an answer 0.06 V off passes, 0.061 V off fails, on either side, for
+    the truth of a simulated plant (f_c = 0.3 V, offset 0.02 V)."""
+    from jerklab.lab.checks import check_f_c
+
+    truth = {"K": 30.0, "tau": 0.03, "coulomb_friction": 0.3, "offset": 0.02}
+    for v, ok in [
+        (0.3, True),
+        (0.359, True),
+        (0.241, True),
+        (0.361, False),
+        (0.239, False),
+        (0.5, False),
+        (0.0, False),
+    ]:
+        r = check_f_c(v, None, truth)
+        assert r.ok is ok, (v, r)
+
+
+# ------------------------------------------------------------------ lab: the hidden motor
+def test_the_hidden_motor_derivation_is_pinned():
+    """Mutants killed: any change to how a student's hidden motor is derived from the key and
+    the ID (the HMAC message, the digest bytes and their order, the draws and their order),
+    which before was pinned only through per-student outcomes.
+
+    Reference: the derivation written out here from its description -- seed = the first 16
+    bytes, little endian, of HMAC-SHA256(key, "jerklab:motor-v1:" + ID); then, from
+    numpy's default_rng(seed), K and tau log-uniform, f_c, offset and the count noise uniform,
+    the encoder 448 or 896 counts per revolution (lab.motors.RANGES)."""
+    import hashlib
+    import hmac
+
+    from jerklab.lab.motors import RANGES, hidden_truth, student_motor
+
+    key = b"a key for the test"
+    for sid in ("alice", "s1234567", "j.doe@uni.edu"):
+        m = hidden_truth(student_motor(f"  {sid.upper()} ", key))
+        canon = sid.lower()
+        digest = hmac.new(key, f"jerklab:motor-v1:{canon}".encode(), hashlib.sha256).digest()
+        seed = int.from_bytes(digest[:16], "little")
+        rng = np.random.default_rng(seed)
+        K = math.exp(rng.uniform(math.log(RANGES["K"][0]), math.log(RANGES["K"][1])))
+        tau = math.exp(rng.uniform(math.log(RANGES["tau"][0]), math.log(RANGES["tau"][1])))
+        fc = rng.uniform(*RANGES["coulomb_friction"])
+        off = rng.uniform(*RANGES["offset"])
+        noise = rng.uniform(*RANGES["noise_counts"])
+        ppr = int(rng.choice(RANGES["encoder_ppr"]))
+        assert (m["K"], m["tau"], m["coulomb_friction"], m["offset"], m["noise_counts"]) == (
+            K,
+            tau,
+            fc,
+            off,
+            noise,
+        )
+        assert m["counts_per_rev"] == ppr and m["seed"] == seed % 2**32
+        # another key, another motor
+        assert hidden_truth(student_motor(sid, b"another key"))["K"] != K
