@@ -277,3 +277,37 @@ def test_the_hidden_motor_derivation_is_pinned():
         assert m["counts_per_rev"] == ppr and m["seed"] == seed % 2**32
         # another key, another motor
         assert hidden_truth(student_motor(sid, b"another key"))["K"] != K
+
+
+# ------------------------------------------------------------------ planner fast path
+def test_the_written_out_phase_times_are_the_reference_ones():
+    """plan_scurve and plan_sine_jerk_optimal write the phase times of planner._scurve_times
+    out on their hot path (issue 31, speed): over the four regimes of the S-curve and its
+    boundaries they give exactly the reference function's times."""
+    from jerklab.planner import _TWO_OVER_PI, _scurve_times
+
+    rng = np.random.default_rng(7)
+    cases = [
+        (
+            10 ** rng.uniform(-3, 3),
+            10 ** rng.uniform(1, 5),
+            10 ** rng.uniform(0, 3),
+            10 ** rng.uniform(-1, 2),
+        )
+        for _ in range(3000)
+    ]
+    J, A, V = 2000.0, 300.0, 100.0
+    for d in (
+        A**3 / J**2 * 2,
+        V * (2 * A / J + V / A - A / J),
+        2 * V * math.sqrt(V / J),
+        1e-300,
+        1e300,
+    ):
+        cases.append((d, J, A, V))
+    for d, J, A, V in cases:
+        for sign in (1.0, -1.0):
+            p = plan_scurve(sign * d, J, A, V)
+            assert (p._tj, p._ta, p._tv) == _scurve_times(d, J, A, V)
+            q = plan_sine_jerk_optimal(sign * d, J, A, V)
+            assert (q._tj, q._ta, q._tv) == _scurve_times(d, _TWO_OVER_PI * J, A, V)
