@@ -311,3 +311,52 @@ def test_the_written_out_phase_times_are_the_reference_ones():
             assert (p._tj, p._ta, p._tv) == _scurve_times(d, J, A, V)
             q = plan_sine_jerk_optimal(sign * d, J, A, V)
             assert (q._tj, q._ta, q._tv) == _scurve_times(d, _TWO_OVER_PI * J, A, V)
+
+
+# ------------------------------------------------------------------ virtual rig: runaway edge
+@pytest.mark.parametrize("pwm, stops", [(100, False), (101, True)])
+def test_the_no_motion_threshold_at_an_odd_pwm_top(pwm, stops):
+    """Mutant killed: ``P = (pwm_top + 1) div 2`` -> ``pwm_top div 2`` (VirtualDevice, PROTOCOL.md
+    "Safety stops" 2), seen only at an odd ``pwm_top``.
+
+    A stalled motor (Coulomb friction far above the drive: the encoder never counts) and a
+    proportional loop without feedforward: after the move the drive is ``kpd d``, a PWM held
+    constant for the whole settle time. With ``max_voltage`` giving ``pwm_top = 201``,
+    ``P = 101``: a held PWM of 100 is not a large drive and the run completes; 101 is, and the
+    run ends NO_MOTION after ``runaway_time``."""
+    from jerklab.controller import DiscreteGains
+    from jerklab.planner import plan_trapezoid
+    from jerklab.plant import DCMotor
+    from jerklab.rig import RigRunError, connect
+
+    supply, pwm_max, top = 12.0, 1023, 201
+    max_voltage = top * supply / pwm_max
+    assert math.floor(max_voltage * pwm_max / supply + 0.5) == top and top % 2 == 1
+    d, Ts = 1.0, 0.005
+    kpd = (pwm + 0.2) * supply / pwm_max / d  # lround(kpd d pwm_max / supply) == pwm
+    motor = DCMotor(coulomb_friction=50.0)
+    with connect(None, device=motor, progress=False) as rig:
+        assert rig.info.pwm_max == pwm_max and rig.supply_voltage == supply
+        run = dict(
+            feedforward=False,
+            max_voltage=max_voltage,
+            max_error=0.0,
+            runaway_time=0.2,
+            saturation_time=0.0,
+            settle=0.5,
+            force=True,
+            path=False,
+        )
+        prof = plan_trapezoid(d, 300.0, 100.0)
+        gains = DiscreteGains(kpd, 0.0, 0.0, Ts)
+        if stops:
+            with pytest.raises(RigRunError) as e:
+                rig.run_move(prof, gains, Ts, **run)
+            rec = e.value.recording
+            assert "no motion" in e.value.status or "no_motion" in e.value.status.lower()
+        else:
+            rec = rig.run_move(prof, gains, Ts, **run)
+            assert rec.metadata["status"] == "complete"
+        assert np.all(rec.counts == 0)  # stalled throughout
+        held = rec.pwm[-int(0.2 / Ts) :] if not stops else rec.pwm[-5:-1]  # the stop sample: 0
+        assert np.all(held == pwm)
