@@ -6,7 +6,8 @@ valid set of arguments in which one parameter at a time is replaced by a bad val
 non-finite array, an out-of-range integer, an unknown name) and classifies the outcome:
 
 ``clear``
-    ``ValueError`` / ``TypeError`` (or a subclass) whose message names the parameter.
+    ``ValueError`` / ``TypeError`` (or a subclass) whose message names the parameter; for a
+    file that is not there, a ``FileNotFoundError`` naming the parameter.
 ``obscure``
     any other exception (``AttributeError``, ``KeyError``, ``ZeroDivisionError``, a numba
     ``TypingError``, a raw ``MemoryError``, ``LinAlgError``, ``OverflowError``...), or a
@@ -1334,8 +1335,8 @@ def _targets() -> list[Target]:
             "ident",
             "IdentData",
             ID.IdentData,
-            dict(u=u_id, y=th_id, Ts=0.005),
-            [Param("u", A), Param("y", A), Param("Ts", P)],
+            dict(voltage=u_id, position=th_id, Ts=0.005),
+            [Param("voltage", A), Param("position", A), Param("Ts", P)],
         )
     )
     T.append(
@@ -1533,7 +1534,7 @@ def _targets() -> list[Target]:
             [
                 Param("profile", O, values=OBJ[1:]),
                 Param("gains", O, values=OBJ[1:]),
-                Param("Ts", P),
+                Param("Ts", P, ok=("None",)),  # None: the gains' own period, else 5 ms
                 Param("settle", N),
                 Param("decimation", I1),
                 Param("host_timeout", N),
@@ -1574,7 +1575,565 @@ def _targets() -> list[Target]:
             [Param("K", P), Param("tau", P)],
         )
     )
+    T += _targets_issue31()
     return T
+
+
+def _targets_issue31() -> list[Target]:
+    """Issue 31: wrong types and files at the public boundary, unbounded requests, and the APIs
+    that landed since round 2 (shaping, multiaxis, rig/retarget, the lab's checks and hand-in,
+    the broker)."""
+    from jerklab import fpga as FP
+    from jerklab import multiaxis as MA
+    from jerklab import piezo as PZ
+    from jerklab import rig as RG
+    from jerklab import shaping as SH
+    from jerklab.controller import pole_placement_pid
+    from jerklab.ident import IdentData
+    from jerklab.lab import checks as LC
+    from jerklab.lab import handin as LH
+    from jerklab.plant import DCMotor, FlexibleDCMotor
+    from jerklab.rig import retarget as RT
+    from jerklab.rig.recording import compare
+
+    T: list[Target] = []
+    wrong_obj = [("str", "x"), ("int", 3), ("float", 1.5), ("dict", {}), ("list", [1.0])]
+    # -- a wrong type reaches deep code (round 3: AttributeError)
+    cycle = []
+
+    def _cycle():
+        if not cycle:
+            cycle.append(PZ.shape_cycle())
+        return cycle[0]
+
+    T.append(
+        Target(
+            "piezo",
+            "evaluate_cycle",
+            lambda cycle, perturbed: PZ.evaluate_cycle(
+                _cycle() if cycle is _BASE else cycle, perturbed
+            ),
+            dict(cycle=_BASE, perturbed=None),
+            [
+                Param("cycle", O, values=wrong_obj + [("None", None)]),
+                Param("perturbed", O, ok=("None",), values=wrong_obj),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "piezo",
+            "closed_loop(hysteresis)",
+            lambda hysteresis, actuator: PZ.closed_loop(
+                _cycle(), hysteresis=hysteresis, actuator=actuator, extra_time=0.0
+            ),
+            dict(hysteresis=None, actuator=None),
+            [
+                Param("hysteresis", O, ok=("None",), values=wrong_obj),
+                Param("actuator", O, ok=("None",), values=wrong_obj),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "piezo",
+            "shape_rampup(orders)",
+            lambda orders: PZ.shape_rampup(orders=orders),
+            dict(orders=1),
+            [
+                Param(
+                    "orders",
+                    O,
+                    values=[
+                        ("str", "x"),
+                        ("float", 1.5),
+                        ("50", 50),
+                        ("-1", -1),
+                        ("{1: 50}", {1: 50}),
+                        ("{3: 1}", {3: 1}),
+                        ("{1: 'a'}", {1: "a"}),
+                        ("list", [1]),
+                    ],
+                )
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "fpga",
+            "published_divider_lockup",
+            FP.published_divider_lockup,
+            dict(model=FP.YangSCurve(clock_hz=500_000)),
+            [Param("model", O, values=wrong_obj + [("None", None)])],
+        )
+    )
+    T.append(
+        Target(
+            "fpga",
+            "simulate_verilog(model)",
+            FP.simulate_verilog,
+            dict(model=FP.YangSCurve(clock_hz=500_000)),
+            [Param("model", O, values=wrong_obj + [("None", None)])],
+        )
+    )
+    T.append(
+        Target(
+            "fpga",
+            "YangSCurve(work)",
+            FP.YangSCurve,
+            dict(accel_time=1.0, bits=32, clock_hz=50_000_000),
+            [
+                Param("accel_time", P, values=[("1e6", 1e6), ("1e4", 1e4)]),
+                Param("bits", I1, values=[("64", 64), ("63", 63), ("4", 4)]),
+                Param("clock_hz", I1, values=[("1e15 float", 1e15), ("2**70", 2**70)]),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "fpga",
+            "read_vcd",
+            lambda path, signals: FP.read_vcd(_files()["vcd"] if path is _BASE else path, signals),
+            dict(path=_BASE, signals=["clk"]),
+            [
+                Param(
+                    "path",
+                    O,
+                    values=[
+                        ("missing file", "/nonexistent/x.vcd"),
+                        ("int", 3),
+                        ("None", None),
+                        ("a folder", "/"),
+                        ("empty", ""),
+                    ],
+                ),
+                Param("signals", O, values=[("str", "clk"), ("int", 3), ("None", None)]),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "recording",
+            "compare",
+            lambda rec, sim: compare(
+                RG.Recording({"Ts": 0.005, "counts_per_rad": 71.3, "volts_per_pwm": 0.0117})
+                if rec is _BASE
+                else rec,
+                _small_sim() if sim is _BASE else sim,
+            ),
+            dict(rec=_BASE, sim=_BASE),
+            [
+                Param("rec", O, values=wrong_obj + [("None", None)]),
+                Param("sim", O, values=wrong_obj + [("None", None)]),
+            ],
+            allow_nonfinite=True,  # an empty recording: no samples in common, NaN differences
+        )
+    )
+    T.append(
+        Target(
+            "recording",
+            "Recording.load(path)",
+            lambda path: RG.Recording.load(_files()["recording"] if path is _BASE else path),
+            dict(path=_BASE),
+            [
+                Param(
+                    "path",
+                    O,
+                    values=[
+                        ("int", 3),
+                        ("float", 1.5),
+                        ("empty", ""),
+                        ("list", ["a"]),
+                        ("bytes", b"x"),
+                    ],
+                )
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "ident",
+            "IdentData.load(path)",
+            lambda path: IdentData.load(_files()["ident"] if path is _BASE else path),
+            dict(path=_BASE),
+            [Param("path", O, values=[("int", 3), ("float", 1.5), ("empty", ""), ("list", ["a"])])],
+        )
+    )
+    T.append(
+        Target(
+            "rig",
+            "Rig.wait_still",
+            lambda window, tolerance, timeout: _with_rig("wait_still")(
+                window=window, tolerance=tolerance, timeout=timeout
+            ),
+            dict(window=10, tolerance=0, timeout=0.5),
+            [
+                Param("window", I1, values=INT + [("1", 1), ("70000", 70000)]),
+                Param("tolerance", I0),
+                Param("timeout", P),
+            ],
+        )
+    )
+    # -- numbers
+    T.append(
+        Target(
+            "controller",
+            "pole_placement_pid(sigma)",
+            lambda sigma: pole_placement_pid(32.4, 0.025, 20.0, sigma=sigma),
+            dict(sigma=140.0),
+            [Param("sigma", P, ok=("None",), values=REAL + [("1e-300 (slow pole)", 1e-300)])],
+        )
+    )
+    T.append(
+        Target(
+            "plant",
+            "DCMotor(seed)",
+            DCMotor,
+            dict(seed=None),
+            [Param("seed", I0, ok=("None", "0"), values=INT)],
+        )
+    )
+    T.append(
+        Target(
+            "plant",
+            "FlexibleDCMotor(load_ratio).zoh",
+            lambda load_ratio: FlexibleDCMotor(load_ratio=load_ratio).zoh(0.005),
+            dict(load_ratio=0.05),
+            [Param("load_ratio", P)],
+        )
+    )
+    # -- shaping
+    T.append(
+        Target(
+            "shaping",
+            "input_shaper",
+            SH.input_shaper,
+            dict(kind="zvd", frequency_hz=8.0, damping=0.02),
+            [
+                Param("kind", S),
+                Param("frequency_hz", P),
+                Param("damping", N, values=REAL + [("1", 1.0), ("2", 2.0)]),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "shaping",
+            "residual_vibration_of",
+            SH.residual_vibration_of,
+            dict(amplitudes=[0.5, 0.5], times=[0.0, 0.0625], frequency_hz=8.0, damping=0.0),
+            [
+                Param("amplitudes", A, values=ARRAY + [("length 3", lambda: [0.2, 0.3, 0.5])]),
+                Param("times", A),
+                Param("frequency_hz", P, ok=("list",)),  # an array of frequencies is legal
+                Param("damping", N),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "shaping",
+            "chirp_input",
+            SH.chirp_input,
+            dict(duration=1.0, Ts=0.005, amplitude=3.0, f0=1.0, f1=20.0, offset=0.0),
+            [
+                Param("duration", P),
+                Param("Ts", P),
+                Param("amplitude", P),
+                Param("f0", P),
+                Param("f1", P, values=REAL + [("above Nyquist", 150.0)]),
+                Param("offset", R),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "shaping",
+            "profile_residual_vibration",
+            lambda profile, frequency_hz, damping: SH.profile_residual_vibration(
+                _prof("sine_jerk_optimal") if profile is _BASE else profile, frequency_hz, damping
+            ),
+            dict(profile=_BASE, frequency_hz=8.0, damping=0.0),
+            [
+                Param("profile", O, values=wrong_obj + [("None", None)]),
+                Param("frequency_hz", P, ok=("list",)),
+                Param("damping", N),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "shaping",
+            "tuned_profile",
+            SH.tuned_profile,
+            dict(
+                kind="sine_jerk_optimal",
+                distance=1.0,
+                frequency_hz=8.0,
+                max_accel=300.0,
+                max_velocity=100.0,
+                max_jerk=None,
+                damping=0.0,
+            ),
+            [
+                Param("kind", S),
+                Param("distance", R),
+                Param("frequency_hz", P),
+                Param("max_accel", P),
+                Param("max_velocity", P),
+                Param("max_jerk", P, ok=("None",)),
+                Param("damping", N),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "shaping",
+            "residual_amplitude",
+            SH.residual_amplitude,
+            dict(
+                y=np.sin(np.arange(200) * 0.3) * np.exp(-np.arange(200) * 0.01), Ts=0.005, start=50
+            ),
+            [
+                Param("y", A),
+                Param("Ts", P),
+                Param("start", I0, values=INT + [("past the end", 500)]),
+            ],
+        )
+    )
+    # -- multiaxis
+    lim = [(2000.0, 300.0, 100.0), (2000.0, 300.0, 100.0)]
+    T.append(
+        Target(
+            "multiaxis",
+            "plan_multi_axis",
+            MA.plan_multi_axis,
+            dict(distances=[1.0, 0.5], limits_per_axis=lim, sync="time", planner="scurve"),
+            [
+                Param("distances", A, values=ARRAY + [("3 for 2 axes", lambda: [1.0, 2.0, 3.0])]),
+                Param(
+                    "limits_per_axis",
+                    O,
+                    values=[
+                        ("str", "x"),
+                        ("None", None),
+                        ("one axis", [(2000.0, 300.0, 100.0)]),
+                        ("nan limit", [(2000.0, NAN, 100.0)] * 2),
+                        ("negative limit", [(2000.0, -300.0, 100.0)] * 2),
+                        ("2-tuple", [(2000.0, 300.0)] * 2),
+                        ("dict without key", [{"max_jerk": 1.0}] * 2),
+                    ],
+                ),
+                Param("sync", S),
+                Param("planner", S),
+            ],
+        )
+    )
+    base_axis = []
+
+    def _axis():
+        if not base_axis:
+            from jerklab.planner import plan_scurve
+
+            base_axis.append(plan_scurve(1.0, 2000.0, 300.0, 100.0))
+        return base_axis[0]
+
+    T.append(
+        Target(
+            "multiaxis",
+            "stretch_to_duration",
+            lambda profile, duration: MA.stretch_to_duration(
+                _axis() if profile is _BASE else profile, duration
+            ),
+            dict(profile=_BASE, duration=1.0),
+            [
+                Param("profile", O, values=wrong_obj + [("None", None)]),
+                Param("duration", P, values=REAL + [("shorter than optimal", 0.01)]),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "multiaxis",
+            "MultiAxisPlan.synchronized",
+            lambda Ts: MA.plan_multi_axis([1.0, 0.5], lim).synchronized(Ts),
+            dict(Ts=0.005),
+            [Param("Ts", P, values=REAL + [("1e-300 (below MIN_SYNC_TS)", 1e-300)])],
+        )
+    )
+    # -- rig/retarget (mirrors of the firmware's re-planning)
+    T.append(
+        Target(
+            "retarget",
+            "rest_plan",
+            RT.rest_plan,
+            dict(kind=2, distance=1.0, max_jerk=2000.0, max_accel=300.0, max_velocity=100.0),
+            [
+                Param("kind", I0, values=INT + [("4", 4)]),
+                Param("distance", R),
+                Param("max_jerk", P),
+                Param("max_accel", P),
+                Param("max_velocity", P),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "retarget",
+            "moving_plan",
+            RT.moving_plan,
+            dict(
+                kind=2, distance=1.0, v0=1.0, max_jerk=2000.0, max_accel=300.0, max_velocity=100.0
+            ),
+            [
+                Param("kind", I0, values=INT + [("4", 4)]),
+                Param("distance", R),
+                Param("v0", N),
+                Param("max_jerk", P),
+                Param("max_accel", P),
+                Param("max_velocity", P),
+            ],
+            allow_nonfinite=False,
+        )
+    )
+    T.append(
+        Target(
+            "retarget",
+            "stop_plan",
+            RT.stop_plan,
+            dict(kind=2, v=1.0, max_jerk=2000.0, max_accel=300.0),
+            [
+                Param("kind", I0, values=INT + [("4", 4)]),
+                Param("v", R),
+                Param("max_jerk", P),
+                Param("max_accel", P),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "retarget",
+            "lead_samples",
+            RT.lead_samples,
+            dict(Ts_us=5000),
+            [Param("Ts_us", I1)],
+        )
+    )
+    # -- the lab: checks and the hand-in
+    T.append(
+        Target(
+            "lab",
+            "sweep_fit",
+            LC.sweep_fit,
+            dict(speeds={-3.0: -84.5, -2.0: -52.2, -1.0: -20.1, 1.0: 20.0, 2.0: 52.0, 3.0: 84.0}),
+            [
+                Param(
+                    "speeds",
+                    O,
+                    values=[
+                        ("str", "x"),
+                        ("None", None),
+                        ("empty", {}),
+                        ("one level", {1.0: 20.0}),
+                        ("one side", {1.0: 20.0, 2.0: 52.0, 3.0: 84.0, 4.0: 116.0}),
+                        ("nan speed", {-2.0: -52.0, -1.0: -20.0, 1.0: NAN, 2.0: 52.0}),
+                        ("text voltage", {"a": 1.0, "b": 2.0}),
+                        ("text speed", {-2.0: "x", -1.0: -20.0, 1.0: 20.0, 2.0: 52.0}),
+                    ],
+                )
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "lab",
+            "read_handin",
+            lambda path: LH.read_handin(_files()["handin"] if path is _BASE else path),
+            dict(path=_BASE),
+            [
+                Param(
+                    "path",
+                    O,
+                    values=[
+                        ("int", 3),
+                        ("None", None),
+                        ("empty", ""),
+                        ("missing file", "/nonexistent/handin.zip"),
+                    ],
+                )
+            ],
+        )
+    )
+    # -- the broker
+    from jerklab.broker import BrokerRig
+
+    T.append(
+        Target(
+            "broker",
+            "BrokerRig",
+            lambda address, timeout: BrokerRig(
+                _broker().address if address is _BASE else address, timeout=timeout
+            ),
+            dict(address=_BASE, timeout=1.0),
+            [
+                Param(
+                    "address",
+                    O,
+                    values=[
+                        ("int", 3),
+                        ("None", None),
+                        ("no scheme", "127.0.0.1:1"),
+                        ("bad port", "broker://127.0.0.1:notaport"),
+                        ("port 0", "broker://127.0.0.1:0"),
+                        ("port 70000", "broker://127.0.0.1:70000"),
+                    ],
+                ),
+                Param("timeout", P),
+            ],
+        )
+    )
+    return T
+
+
+_FILES: dict = {}
+
+
+def _files() -> dict:
+    """Valid files for the loaders' base cases (written once per worker, in a temporary folder)."""
+    if not _FILES:
+        from jerklab.lab.handin import pack
+
+        tmp = Path(tempfile.mkdtemp(prefix="jerklab-faults-files-"))
+        vcd = tmp / "a.vcd"
+        vcd.write_text(
+            "$timescale 1ns $end\n$var wire 1 ! clk $end\n$enddefinitions $end\n#0\n0!\n#10\n1!\n"
+        )
+        root = Path(__file__).resolve().parents[1] / "data"
+        _FILES.update(
+            vcd=vcd,
+            recording=root / "rig" / "virtual_step_6V",
+            ident=root / "ident" / "step_6V",
+            handin=pack({"answers.json": b"{}"}, "s1", 1, tmp / "handin.zip"),
+        )
+    return _FILES
+
+
+_BROKER: list = []
+
+
+def _broker():
+    """One broker on 127.0.0.1 (a virtual rig) for the worker's broker cases."""
+    if not _BROKER:
+        from jerklab.broker import RigBroker
+
+        _BROKER.append(RigBroker(None, speed=1.0))
+    return _BROKER[0]
+
+
+def _small_sim():
+    from jerklab.sim import simulate
+
+    return simulate(_prof(), _motor(), _gains(0.005), t_end=0.05)
 
 
 # ----------------------------------------------------------------------------- the cases
@@ -1618,7 +2177,7 @@ def classify(t: Target, pname, label, value) -> tuple[str, str]:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 res = t.call(**kw)
-    except (ValueError, TypeError) as exc:
+    except (ValueError, TypeError, FileNotFoundError) as exc:  # a missing file: its own class
         if param is None:
             return "base-failed", f"{type(exc).__name__}: {exc}"
         shown = param.shown or pname
@@ -2042,6 +2601,87 @@ def fault_garbage_decoder(tmp):
     return "silent", "frame after garbage lost"
 
 
+def fault_garbage_cell(tmp):
+    """Issue 31: one garbage cell mid-file loaded the other rows without a word."""
+    from jerklab.rig import Recording
+
+    p = _small_recording(tmp, "cell")
+    lines = p.read_text().split("\n")
+    cells = lines[10].split(",")
+    cells[2] = "0.0x5"  # the reference of sample 9
+    lines[10] = ",".join(cells)
+    p.write_text("\n".join(lines))
+    try:
+        rec = Recording.load(p)
+    except ValueError as exc:
+        msg = str(exc)
+        if "line 11" in msg and "'reference'" in msg:
+            return "clear", msg[-80:]
+        return "obscure", f"ValueError not naming line and column: {msg[:80]}"
+    except Exception as exc:  # noqa: BLE001
+        return "obscure", f"{type(exc).__name__}: {str(exc)[:80]}"
+    return "silent", f"{len(rec)} rows loaded"
+
+
+def fault_handin_changed(tmp):
+    """A hand-in whose notebook was changed after it was packed."""
+    import zipfile
+
+    from jerklab.lab.handin import HandinError, pack, read_handin
+
+    p = pack({"lab1.ipynb": b"{}"}, "s1", 1, tmp / "h.zip")
+    with zipfile.ZipFile(p) as z:
+        members = {n: z.read(n) for n in z.namelist()}
+    members["lab1.ipynb"] = b'{"cells": []}'
+    with zipfile.ZipFile(p, "w") as z:
+        for n, data in members.items():
+            z.writestr(n, data)
+    try:
+        read_handin(p)
+    except HandinError as exc:
+        if "lab1.ipynb" in str(exc) and "checksum" in str(exc):
+            return "clear", str(exc)[:80]
+        return "obscure", str(exc)[:80]
+    except Exception as exc:  # noqa: BLE001
+        return "obscure", f"{type(exc).__name__}: {str(exc)[:80]}"
+    return "silent", "a changed hand-in was accepted"
+
+
+def fault_broker_gone(tmp):
+    """The class page's broker stops while a kernel still holds its address."""
+    from jerklab.broker import BrokerError, BrokerRig, RigBroker
+
+    b = RigBroker(None, speed=1.0)
+    client = BrokerRig(b.address, timeout=2.0)
+    b.close()
+    try:
+        client.run_move(_prof(), _gains(0.005), 0.005, path=False)
+    except BrokerError as exc:
+        if b.address in str(exc):
+            return "clear", str(exc)[:80]
+        return "obscure", str(exc)[:80]
+    except Exception as exc:  # noqa: BLE001
+        return "obscure", f"{type(exc).__name__}: {str(exc)[:80]}"
+    return "silent", "a run on a stopped broker returned"
+
+
+def fault_synchronized_move(tmp):
+    """Issue 31: run_move of a synchronized() profile reached the device and came back with the
+    device's re-plan message; it must be refused before anything is sent, naming the profile."""
+    rig = _fault_rig()
+    try:
+        rig.run_move(_prof().synchronized(0.005), _gains(), 0.005, path=False)
+    except ValueError as exc:
+        if "synchronized" in str(exc) and str(exc).startswith("profile"):
+            return "clear", str(exc)[:80]
+        return "obscure", str(exc)[:80]
+    except Exception as exc:  # noqa: BLE001
+        return "obscure", f"{type(exc).__name__}: {str(exc)[:80]}"
+    finally:
+        rig.close()
+    return "silent", "a synchronized profile ran"
+
+
 FAULTS = [
     ("corrupt frames (1 byte in 97 flipped)", fault_corrupt_frames),
     ("pulled cable mid-run", fault_pulled_cable),
@@ -2058,6 +2698,10 @@ FAULTS = [
     ("sidecar Ts = 'nan'", fault_sidecar_ts_nan),
     ("sidecar counts_per_rad = 0", fault_sidecar_cpr0),
     ("sidecar without volts_per_pwm", fault_sidecar_missing_key),
+    ("one garbage cell mid-file", fault_garbage_cell),
+    ("hand-in changed after packing", fault_handin_changed),
+    ("broker stopped under a client", fault_broker_gone),
+    ("run_move of a synchronized profile", fault_synchronized_move),
 ]
 
 

@@ -57,6 +57,7 @@ import uuid
 from pathlib import Path
 
 from jerklab import planner, tuning
+from jerklab._validate import as_positive
 from jerklab.controller import DiscreteGains, Feedforward
 from jerklab.hubauth import HubIdentity, token_from_env
 from jerklab.rig import Device, connect
@@ -82,6 +83,7 @@ SCHEME = "broker://"
 HEARTBEAT = 1.0
 
 _MAX_REQUEST = 1 << 16  # bytes of one request line
+_MAX_TIMEOUT = 86400.0  # s: socket timeouts beyond a day overflow the platform's time_t
 
 #: Runs one identity may have queued or running at once.
 MAX_RUNS_PER_STUDENT = 1
@@ -559,7 +561,9 @@ class BrokerRig:
     def __init__(self, address, timeout=10.0, client="kernel", token=None):
         self.address = address
         self.host, self.port = parse_address(address)
-        self.timeout = float(timeout)
+        self.timeout = as_positive("timeout", timeout)
+        if self.timeout > _MAX_TIMEOUT:
+            raise ValueError(f"timeout must be <= {_MAX_TIMEOUT:g} s (a day), got {timeout!r}")
         self.client = str(client)
         self._token = token if token is not None else token_from_env()
         self.info = self._request({"op": "info"})

@@ -180,6 +180,25 @@ def desired_poles(wn, zeta=1.0, sigma=None):
     return np.r_[-as_positive("sigma", sigma) + 0j, pair]
 
 
+#: smallest real pole sigma / wn a design takes: a slower pole would leave the integral action
+#: idle for 1/sigma seconds (1e-300 rad/s: forever) and its sampled pole e^(-sigma Ts) rounds to 1
+SIGMA_MIN_RATIO = 1e-6
+
+
+def _check_sigma(sigma, wn) -> float:
+    """``sigma`` (default ``paper.SIGMA_RATIO wn``) checked against ``SIGMA_MIN_RATIO wn``."""
+    if sigma is None:
+        return paper.SIGMA_RATIO * wn
+    sigma = as_positive("sigma", sigma)
+    if sigma < SIGMA_MIN_RATIO * wn:
+        raise ValueError(
+            f"sigma must be >= controller.SIGMA_MIN_RATIO * wn = {SIGMA_MIN_RATIO * wn:g} rad/s, "
+            f"got {sigma!r}: a real pole that slow leaves the integral action idle (the paper "
+            f"asks sigma >= 7 wn)"
+        )
+    return sigma
+
+
 def pole_placement_pid(K, tau, wn, zeta=1.0, sigma=None) -> Gains:
     """PID gains for the position loop P(s) = K/(s(τs+1)), Stojčić eq. 11.
 
@@ -195,10 +214,11 @@ def pole_placement_pid(K, tau, wn, zeta=1.0, sigma=None) -> Gains:
     zeta : float
         Damping of the pair (the paper uses 1).
     sigma : float, optional
-        Real pole (rad/s), default ``7 wn`` (the paper asks σ ≥ 7ωn).
+        Real pole (rad/s), default ``7 wn`` (the paper asks σ ≥ 7ωn); at least
+        ``SIGMA_MIN_RATIO wn`` (1e-6 ωn), a slower pole raises ValueError.
     """
     K, tau, wn, zeta = _check_design(K, tau, wn, zeta)
-    sigma = paper.SIGMA_RATIO * wn if sigma is None else as_positive("sigma", sigma)
+    sigma = _check_sigma(sigma, wn)
     kp = wn * tau * (2.0 * zeta * sigma + wn) / K
     ki = tau * sigma * wn * wn / K
     kd = (tau * (2.0 * zeta * wn + sigma) - 1.0) / K
@@ -282,7 +302,7 @@ def discrete_pole_placement_pid(
     (see :func:`_plant_polys`); σ then sets the third pole.
     """
     K, tau, wn, zeta = _check_design(K, tau, wn, zeta)
-    sigma = paper.SIGMA_RATIO * wn if sigma is None else as_positive("sigma", sigma)
+    sigma = _check_sigma(sigma, wn)
     Ts = as_positive("Ts", Ts)
     if loop not in ("position", "velocity"):
         raise ValueError(f"loop must be 'position' or 'velocity', got {loop!r}")
@@ -584,6 +604,7 @@ class DigitalController:
         if not math.isfinite(y):
             return self._hold(y)
         g = self.gains
+        saved = (self._first, self._y_prev, self._e, self._i)
         if self.loop == "position":
             e = self.error_scale * (r - y)
         else:
@@ -602,6 +623,13 @@ class DigitalController:
         u, p, i_new, d, sat = _pid_step(
             e, self._e, self._i, self._d, ff, g.kpd, g.kid, g.kdd, g.gamma, lim, self.anti_windup
         )
+        if not (u - u == 0.0 and i_new - i_new == 0.0 and d - d == 0.0):  # NaN or inf
+            self._first, self._y_prev, self._e, self._i = saved
+            raise ValueError(
+                f"ref_position={r!r}, ref_velocity={v!r}, ref_accel={a!r}, "
+                f"measured_position={y!r}: the law overflows (error {e!r}, output {u!r}); "
+                f"the controller's state is unchanged: scale the units"
+            )
         self._i = i_new
         self._e = e
         self._d = d

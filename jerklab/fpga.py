@@ -47,7 +47,15 @@ from fractions import Fraction
 import numpy as np
 
 from jerklab import paper as _paper
-from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive
+from jerklab._validate import (
+    as_finite_array,
+    as_instance,
+    as_int,
+    as_nonnegative,
+    as_path,
+    as_positive,
+    at_most,
+)
 from jerklab.multiaxis import MultiAxisPlan
 from jerklab.planner import plan_scurve
 
@@ -212,6 +220,12 @@ def vcd_to_posedge(times, clock_period, timescale=1e-12):
 MAX_EDGES = 1_000_000
 #: widest register modelled (bits)
 MAX_BITS = 64
+#: widest register :class:`YangSCurve` models: its tables are numpy int64, so every product
+#: and count must stay below 2**62 (the bound :func:`divider_edges` takes its inputs with)
+MODEL_BITS = 62
+#: most refresh ticks (``4 N + C``) one :class:`YangSCurve` move may have: its speed table holds
+#: one row per tick (the paper's move has 15 000; 10**7 is 80 MB per column)
+MAX_TICKS = 10_000_000
 
 
 def _int_array(name, value):
@@ -328,13 +342,17 @@ class YangSCurve:
     start_count : int
         ``PWM_INITAL_COUNT``: below this count the speed is 0 (paper: 300).
     bits : int
-        Width of the hardware registers and multipliers (32).
+        Width of the hardware registers and multipliers (32); at most ``MODEL_BITS`` = 62 (the
+        model computes in int64).
 
     Raises
     ------
     HardwareLimitError
         If a product or count exceeds ``bits``, if the start speed gives 0 Hz
         (below the minimum frequency ``k`` µm/s -> 1 Hz), or if a cycle would be < 2.
+    ValueError
+        A bad argument, or a move of more than ``MAX_TICKS`` = 10**7 refresh ticks
+        ``(2 T + cruise_time) / tc`` (the paper's has 15 000), refused before any table is built.
     """
 
     def __init__(
@@ -355,10 +373,20 @@ class YangSCurve:
         self.clock_hz = as_int("clock_hz", clock_hz, minimum=2)
         self.step_um = as_int("step_um", step_um, minimum=1)
         self.start_count = as_int("start_count", start_count, minimum=0)
-        self.bits = as_int("bits", bits, minimum=8)
-        if self.bits > MAX_BITS:
-            raise ValueError(f"bits must be <= {MAX_BITS}, got {self.bits}")
+        self.bits = at_most(
+            "bits",
+            as_int("bits", bits, minimum=8),
+            MODEL_BITS,
+            "fpga.MODEL_BITS: the model computes in int64",
+        )
         top = 2**self.bits
+        # the tick count before any table is built: accel_time = 1e6 s would be 1e10 ticks
+        at_most(
+            "accel_time, cruise_time: ticks (2 accel_time + cruise_time) / refresh_period",
+            (2.0 * self.accel_time + self.cruise_time) / self.refresh_period,
+            MAX_TICKS,
+            "fpga.MAX_TICKS refresh ticks per move",
+        )
 
         def whole(name, x):
             r = round(x)
@@ -403,7 +431,7 @@ class YangSCurve:
                 f"{self.max_velocity} µm/s: the top speed is below 1 pulse/s"
             )
         if v0 // self.step_um == 0:
-            nmin = next(n for n in range(1, 2 * N + 1) if self.speed(n) >= self.step_um)
+            nmin = min_start_count(self.max_velocity, N, self.step_um)
             raise HardwareLimitError(
                 f"start_count = {self.start_count} gives {v0} µm/s, below the minimum frequency "
                 f"(1 Hz = {self.step_um} µm/s): use start_count >= {nmin}"
@@ -577,6 +605,7 @@ def published_divider_lockup(model: YangSCurve):
     the new ``compare_reg`` below it, and ``lockup_s`` = ``2**bits / f_clk``, the time
     the counter needs to wrap round to the compare value again.
     """
+    model = as_instance("model", model, YangSCurve, "a jerklab.fpga.YangSCurve")
     starts, values = model.cycle_input()
     p_end = int(starts[-1] + 2 * int(values.max()) + 2)
     _, _, hit = published_divider(starts, values, p_end, bits=model.bits)
@@ -656,6 +685,7 @@ def simulate_verilog(
     """
     import tempfile
 
+    model = as_instance("model", model, YangSCurve, "a jerklab.fpga.YangSCurve")
     _need_iverilog()
     starts, values = model.cycle_input()
     if p_end is None:
@@ -733,9 +763,21 @@ def read_vcd(path, signals):
     The first declaration of each name is used; values are ints (``x``/``z`` -> -1);
     times are in the file's timescale units.
     """
+    path = as_path("path", path)
+    if isinstance(signals, str) or not (
+        hasattr(signals, "__iter__") and all(isinstance(n, str) for n in signals)
+    ):
+        raise ValueError(f"signals must be a list of signal names (str), got {signals!r}")
     ids = {}
-    with open(path) as fh:
-        text = fh.read()
+    try:
+        with open(path) as fh:
+            text = fh.read()
+    except FileNotFoundError:
+        raise FileNotFoundError(f"path: no VCD file at {path}") from None
+    except (UnicodeDecodeError, IsADirectoryError) as exc:
+        raise ValueError(f"path: {path} is not a VCD text file ({exc})") from None
+    if "$enddefinitions" not in text:
+        raise ValueError(f"path: {path} is not a VCD file (no $enddefinitions)")
     head, _, body = text.partition("$enddefinitions")
     for line in head.split("$end"):
         p = line.split()

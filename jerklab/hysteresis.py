@@ -69,6 +69,21 @@ def _check_grid(name, n):
     return n
 
 
+def _span(u_min, u_max) -> float:
+    """``u_max - u_min``, a finite number > 0 (``ValueError`` naming both otherwise).
+
+    Legal extremes: any finite pair whose difference is finite, e.g. ``(-1e307, 1e307)``.
+    """
+    span = u_max - u_min
+    if not span > 0:
+        raise ValueError(f"u_max must be > u_min, got u_min={u_min!r}, u_max={u_max!r}")
+    if span == math.inf:
+        raise ValueError(
+            f"u_max - u_min overflows (u_min={u_min!r}, u_max={u_max!r}): scale the units"
+        )
+    return span
+
+
 class Preisach:
     """Discretized classical Preisach operator with memory (Xu & Meckl, Fig. 1 ``H``).
 
@@ -76,7 +91,9 @@ class Preisach:
     ----------
     u_min, u_max : float
         Input range.  Inputs outside it saturate (are clipped): every relay has
-        switched already.
+        switched already.  Any finite range is legal as long as the output swing
+        (density times the cell area ``((u_max - u_min) / n)^2``) stays finite; a range of
+        1e300 raises ``ValueError`` naming ``u_max - u_min``.
     density : array_like, shape (n, n)
         Preisach weight ``mu`` on the grid cells, ``density[i, j]`` for the cell with
         ``alpha`` in cell ``i`` and ``beta`` in cell ``j``; only the lower triangle
@@ -97,10 +114,7 @@ class Preisach:
     def __init__(self, u_min, u_max, density, offset=0.0, initial="negative"):
         self.u_min = as_real("u_min", u_min)
         self.u_max = as_real("u_max", u_max)
-        if not self.u_max > self.u_min:
-            raise ValueError(
-                f"u_max must be > u_min, got u_min={self.u_min!r}, u_max={self.u_max!r}"
-            )
+        _span(self.u_min, self.u_max)
         shape = np.shape(density) if isinstance(density, np.ndarray) else None
         if shape is not None and len(shape) == 2:
             _check_grid("density size", max(shape))
@@ -123,6 +137,12 @@ class Preisach:
         S = np.zeros((self.n + 1, self.n + 1))
         S[1:, 1:] = np.cumsum(np.cumsum(M, axis=0), axis=1)
         self._S = S  # 2-D prefix sums of M
+        swing = self.h * self.h * S[-1, -1]  # twice the output swing of the major loop
+        if not (self.h * self.h < math.inf and swing < math.inf):
+            raise ValueError(
+                f"u_max - u_min = {self.u_max - self.u_min!r} with this density gives an output "
+                f"swing that overflows (cell area h^2 = {self.h * self.h!r}): scale the units"
+            )
         R = np.zeros((self.n, self.n + 1))
         R[:, 1:] = np.cumsum(M, axis=1)
         self._R = R  # row prefix sums of M
@@ -143,10 +163,14 @@ class Preisach:
         u_max = as_real("u_max", u_max)
         n = _check_grid("n", as_int("n", n, minimum=1))
         gain = as_positive("gain", gain)
-        span = u_max - u_min
-        if span <= 0:
-            raise ValueError(f"u_max must be > u_min, got u_min={u_min!r}, u_max={u_max!r}")
-        mu = np.full((n, n), 2.0 * gain / span)
+        span = _span(u_min, u_max)
+        weight = 2.0 * gain / span
+        if not (0.0 < weight < math.inf and gain * span < math.inf):
+            raise ValueError(
+                f"gain: the output span gain * (u_max - u_min) = {gain!r} * {span!r} is not a "
+                f"finite number > 0 with a finite density 2 gain / span; scale the units"
+            )
+        mu = np.full((n, n), weight)
         return cls(u_min, u_max, mu, offset=u_min if offset is None else offset, initial=initial)
 
     @classmethod
@@ -166,9 +190,7 @@ class Preisach:
             raise ValueError(f"quad must be <= 64, got {quad}")
         if not callable(density):
             raise ValueError("density must be a callable mu(alpha, beta)")
-        h = (u_max - u_min) / n
-        if h <= 0:
-            raise ValueError(f"u_max must be > u_min, got u_min={u_min!r}, u_max={u_max!r}")
+        h = _span(u_min, u_max) / n
         q = (np.arange(quad) + 0.5) / quad
         lo = u_min + h * np.arange(n)
         A = lo[:, None] + h * q[None, :]  # alpha samples per cell row

@@ -50,8 +50,9 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from jerklab._validate import as_finite_array, as_nonnegative, as_positive
+from jerklab._validate import as_finite_array, as_nonnegative, as_positive, at_least
 from jerklab.planner import (
+    MIN_SYNC_TS,
     Profile,
     ProfileSample,
     SCurveProfile,
@@ -189,7 +190,14 @@ def stretch_to_duration(profile: Profile, duration) -> Profile:
     """
     if not isinstance(profile, Profile) or profile.kind not in _CLASS:
         raise ValueError(f"profile must be a Profile of kind {PLANNERS}, got {profile!r}")
-    return _stretch(profile, as_nonnegative("duration", duration))
+    T = as_nonnegative("duration", duration)
+    try:
+        return _stretch(profile, T)
+    except (ZeroDivisionError, OverflowError):
+        raise ValueError(
+            f"duration = {T!r} s: no finite profile of distance {profile.distance!r} lasts that "
+            f"long (a phase time underflows): scale the units"
+        ) from None
 
 
 def _stretch(profile, T):
@@ -411,9 +419,9 @@ class MultiAxisPlan:
         Parameters
         ----------
         Ts : float
-            Sample time (s), > 0.
+            Sample time (s), at least ``planner.MIN_SYNC_TS`` = 1 ns.
         """
-        Ts = as_positive("Ts", Ts)
+        Ts = at_least("Ts", as_positive("Ts", Ts), MIN_SYNC_TS, "planner.MIN_SYNC_TS, 1 ns")
         if self.duration == 0.0:
             return self
         kind = self.planner

@@ -37,7 +37,17 @@ from scipy.signal import lfilter
 
 from jerklab import paper as _paper
 from jerklab._lazy import lazy_module
-from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
+from jerklab._validate import (
+    BadInput,
+    as_finite_array,
+    as_having,
+    as_instance,
+    as_int,
+    as_nonnegative,
+    as_positive,
+    as_real,
+    at_most,
+)
 
 control = lazy_module("control")  # python-control imports matplotlib: import it on first use
 
@@ -270,14 +280,29 @@ def _dz_ramp_tail(M: int, z: complex, j: int) -> complex:
     return tot
 
 
-def _normalize_orders(orders) -> dict:
-    if isinstance(orders, int):
+#: the highest robustness order per mode: each order adds a row per mode to every LP and raises
+#: the horizon; the paper uses 0-2, order 50 ran for seconds before this limit
+MAX_ROBUST_ORDER = 8
+
+
+def _normalize_orders(orders, name="orders") -> dict:
+    """``{1: m1, 2: m2}`` from an int (mode 1) or a dict; ``ValueError`` naming ``name``."""
+    if isinstance(orders, (int, np.integer)) and not isinstance(orders, bool):
         orders = {1: orders, 2: 0}
+    elif not isinstance(orders, dict):
+        raise BadInput(
+            f"{name} must be an int or a dict {{mode: order}} (modes 1 and 2), got {orders!r}"
+        )
     out = {1: 0, 2: 0}
-    for mode, m in dict(orders).items():
-        if mode not in (1, 2):
-            raise ValueError(f"orders: modes are 1 and 2, got {mode!r}")
-        out[mode] = as_int(f"orders[{mode}]", m, minimum=0)
+    for mode, m in orders.items():
+        if mode not in (1, 2) or isinstance(mode, bool):
+            raise ValueError(f"{name}: modes are 1 and 2, got {mode!r}")
+        out[mode] = at_most(
+            f"{name}[{mode}]",
+            as_int(f"{name}[{mode}]", m, minimum=0),
+            MAX_ROBUST_ORDER,
+            "robustness order per mode, piezo.MAX_ROBUST_ORDER",
+        )
     return out
 
 
@@ -900,8 +925,12 @@ def shape_cycle(
     t0 = time.perf_counter()
     model = model or PZTModel()
     spec = spec or ScanSpec()
-    t_orders = _normalize_orders(tracking_orders)
-    r_orders = _normalize_orders(tracking_orders if return_orders is None else return_orders)
+    t_orders = _normalize_orders(tracking_orders, "tracking_orders")
+    r_orders = (
+        dict(t_orders)
+        if return_orders is None
+        else _normalize_orders(return_orders, "return_orders")
+    )
     joint_extra = as_int("joint_extra", joint_extra, minimum=0)
     _check_solver(solver)
     up = shape_rampup(model, spec, t_orders, max_samples=max_samples, solver=solver)
@@ -1025,9 +1054,12 @@ def evaluate_cycle(
     DC gain held). Simulation of the ZOH models from rest, the command padded with zeros for the
     residual window.
     """
+    cycle = as_instance("cycle", cycle, ScanCycle, "a jerklab.piezo.ScanCycle")
     spec = cycle.spec
     if perturbed is None:
         perturbed = cycle.model.perturbed(freq_scale, modes)
+    else:
+        as_instance("perturbed", perturbed, PZTModel, "a jerklab.piezo.PZTModel or None")
     u = cycle.command()
     y = simulate(cycle.model, u, spec.Ts)
     yp = simulate(perturbed, u, spec.Ts)
@@ -1350,6 +1382,15 @@ def closed_loop(
     feedback : bool
         ``False`` runs the same chain open loop.
     """
+    cycle = as_instance("cycle", cycle, ScanCycle, "a jerklab.piezo.ScanCycle")
+    if perturbed is not None:
+        as_instance("perturbed", perturbed, PZTModel, "a jerklab.piezo.PZTModel or None")
+    for name, op, needs in (
+        ("hysteresis", hysteresis, ("invert", "apply", "copy", "input")),
+        ("actuator", actuator, ("apply", "copy")),
+    ):
+        if op is not None:
+            as_having(name, op, needs, "a jerklab.hysteresis.Preisach (or one like it) or None")
     cancellation_error = as_nonnegative("cancellation_error", cancellation_error)
     if cancellation_model not in ("branch", "constant"):
         raise ValueError(

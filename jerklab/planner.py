@@ -53,7 +53,14 @@ from typing import NamedTuple
 import numpy as np
 
 from jerklab import _onedof
-from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
+from jerklab._validate import (
+    as_finite_array,
+    as_index,
+    as_nonnegative,
+    as_positive,
+    as_real,
+    at_least,
+)
 
 __all__ = [
     "Profile",
@@ -346,9 +353,11 @@ class Profile:
         Parameters
         ----------
         Ts : float
-            Sample time (s), > 0.
+            Sample time (s), at least ``MIN_SYNC_TS`` = 1 ns (faster than any controller and
+            than the FPGA's 50 MHz clock; a smaller ``Ts`` raises ValueError naming the limit).
+            Any number of samples per move is legal (2e17 and more).
         """
-        Ts = as_positive("Ts", Ts)
+        Ts = at_least("Ts", as_positive("Ts", Ts), MIN_SYNC_TS, "planner.MIN_SYNC_TS, 1 ns")
         d = abs(self.distance)
         kind = self.kind
         if d == 0.0:
@@ -519,6 +528,10 @@ class TrapezoidProfile(Profile):
 # ---------------------------------------------------------------------------------------------
 #: most samples :meth:`Profile.discretize` produces (5 arrays of 8-byte floats: 400 MB)
 MAX_SAMPLES = 10_000_000
+#: shortest sample period :meth:`Profile.synchronized` takes (s): 1 ns, faster than any controller
+#: and than the FPGA's 50 MHz clock; at 1e-300 s the rounding would do nothing while the result
+#: claimed to be synchronized
+MIN_SYNC_TS = 1e-9
 #: most moves :func:`plan_batch` plans in one call (about 80 bytes a move: 1.6 GB)
 MAX_BATCH_MOVES = 20_000_000
 
@@ -556,6 +569,8 @@ def _check_limits(distance, max_jerk, max_accel, max_velocity):
 
 
 _new = object.__new__
+#: the default of the any-state keywords: the rest-to-rest fast path tests it by identity
+_ZERO = 0.0
 _sqrt = math.sqrt
 _THIRD = 1.0 / 3.0
 _TWO_PI = 2.0 * math.pi
@@ -618,9 +633,13 @@ def plan_sine_jerk(distance, max_jerk, max_accel, max_velocity) -> "SineJerkProf
     if not wmax > 0.0:  # 1e-300 limits: T^2 underflows
         raise _no_plan("plan_sine_jerk", distance, J, E, W)
     tv = (theta - wmax * T) / wmax
+    if not tv > 0.0:
+        tv = 0.0  # round-off only (T <= T_Theta)
+    if not ((T + tv) * 0.0 == 0.0 and T + tv > 0.0):  # as _check_plan, written out
+        raise _no_plan("plan_sine_jerk", distance, J, E, W)
     p._tj = 0.5 * T
-    p._tv = tv if tv > 0.0 else 0.0  # round-off only (T <= T_Theta)
-    return _check_plan(p, "plan_sine_jerk")
+    p._tv = tv
+    return p
 
 
 def _scurve_times(d, J, A, V):
@@ -655,9 +674,9 @@ def plan_sine_jerk_optimal(
     max_accel,
     max_velocity,
     *,
-    initial_velocity=0.0,
-    initial_accel=0.0,
-    final_velocity=0.0,
+    initial_velocity=_ZERO,
+    initial_accel=_ZERO,
+    final_velocity=_ZERO,
 ) -> "SineJerkOptimalProfile":
     """Time-optimal rest-to-rest profile made of half-sine jerk pulses of peak <= ``max_jerk``.
 
@@ -687,13 +706,19 @@ def plan_sine_jerk_optimal(
         A start above a limit brakes back inside it first; ``|final_velocity| > max_velocity``
         raises ValueError.
     """
-    floats = (
-        initial_velocity.__class__ is initial_accel.__class__ is final_velocity.__class__ is float
-    )
-    if not floats or initial_velocity or initial_accel or final_velocity:
+    if not (initial_velocity is _ZERO is initial_accel is final_velocity) and (
+        initial_velocity.__class__ is not float
+        or initial_accel.__class__ is not float
+        or final_velocity.__class__ is not float
+        or initial_velocity
+        or initial_accel
+        or final_velocity
+    ):
         # from a moving start; Python floats straight to the compiled solver (as _plan_any_state).
         # Written out in both planners on purpose: a shared helper adds a Python call to each plan.
-        if floats and (
+        if (
+            initial_velocity.__class__ is initial_accel.__class__ is final_velocity.__class__ is float
+        ) and (
             distance.__class__
             is max_jerk.__class__
             is max_accel.__class__
@@ -741,26 +766,55 @@ def plan_sine_jerk_optimal(
             initial_accel,
             final_velocity,
         )
-    J, E, W = max_jerk, max_accel, max_velocity
+    J, A, V = max_jerk, max_accel, max_velocity
     if not (
-        type(distance) is float is type(J) is type(E) is type(W)
+        type(distance) is float is type(J) is type(A) is type(V)
         and J > 0.0
-        and E > 0.0
-        and W > 0.0
-        and (distance + J + E + W) * 0.0 == 0.0
+        and A > 0.0
+        and V > 0.0
+        and (distance + J + A + V) * 0.0 == 0.0
     ):
-        distance, J, E, W = _check_limits(distance, J, E, W)
+        distance, J, A, V = _check_limits(distance, J, A, V)
     p = _new(SineJerkOptimalProfile)
     p.distance = distance
     p._jpar = J
-    p._limits = (J, E, W)
+    p._limits = (J, A, V)
+    # the phase times of _scurve_times written out (one call less per plan: the hot path)
+    d = distance if distance >= 0.0 else -distance
+    if d == 0.0:
+        p._tj = p._ta = p._tv = 0.0
+        return p
+    Jl = _TWO_OVER_PI * J
     try:
-        p._tj, p._ta, p._tv = _scurve_times(
-            distance if distance >= 0.0 else -distance, _TWO_OVER_PI * J, E, W
-        )
+        tj = A / Jl
+        if V * Jl >= A * A:  # V reachable with a plateau at A
+            ta = V / A - tj
+            dv = V * (tj + tj + ta)
+        else:  # V reached before A
+            tj = _sqrt(V / Jl)
+            ta = 0.0
+            dv = 2.0 * V * tj
+        if d >= dv:
+            tv = (d - dv) / V
+        else:
+            tv = 0.0
+            tj = A / Jl  # V not reached
+            tj2 = tj * tj
+            if d >= 2.0 * A * tj2:  # A still reached: d = A (tj + ta)(2 tj + ta)
+                q = d / A
+                ta = 2.0 * (q - 2.0 * tj2) / (3.0 * tj + _sqrt(tj2 + 4.0 * q))
+            else:  # d = 2 J tj^3
+                tj = d**_THIRD * (0.5 / Jl) ** _THIRD
+                ta = 0.0
     except ZeroDivisionError:
-        raise _no_plan("plan_sine_jerk_optimal", distance, J, E, W) from None
-    return _check_plan(p, "plan_sine_jerk_optimal")
+        raise _no_plan("plan_sine_jerk_optimal", distance, J, A, V) from None
+    total = tj + ta + tv
+    if not (total * 0.0 == 0.0 and total > 0.0):  # NaN, inf or underflow to 0 (as _check_plan)
+        raise _no_plan("plan_sine_jerk_optimal", distance, J, A, V)
+    p._tj = tj
+    p._ta = ta
+    p._tv = tv
+    return p
 
 
 def plan_scurve(
@@ -769,9 +823,9 @@ def plan_scurve(
     max_accel,
     max_velocity,
     *,
-    initial_velocity=0.0,
-    initial_accel=0.0,
-    final_velocity=0.0,
+    initial_velocity=_ZERO,
+    initial_accel=_ZERO,
+    final_velocity=_ZERO,
 ) -> "SCurveProfile":
     """Time-optimal linear-jerk 7-segment S-curve, rest to rest.
 
@@ -796,13 +850,19 @@ def plan_scurve(
         A start above a limit brakes back inside it first; ``|final_velocity| > max_velocity``
         raises ValueError.
     """
-    floats = (
-        initial_velocity.__class__ is initial_accel.__class__ is final_velocity.__class__ is float
-    )
-    if not floats or initial_velocity or initial_accel or final_velocity:
+    if not (initial_velocity is _ZERO is initial_accel is final_velocity) and (
+        initial_velocity.__class__ is not float
+        or initial_accel.__class__ is not float
+        or final_velocity.__class__ is not float
+        or initial_velocity
+        or initial_accel
+        or final_velocity
+    ):
         # from a moving start; Python floats straight to the compiled solver (as _plan_any_state).
         # Written out in both planners on purpose: a shared helper adds a Python call to each plan.
-        if floats and (
+        if (
+            initial_velocity.__class__ is initial_accel.__class__ is final_velocity.__class__ is float
+        ) and (
             distance.__class__
             is max_jerk.__class__
             is max_accel.__class__
@@ -863,11 +923,42 @@ def plan_scurve(
     p.distance = distance
     p._jpar = J
     p._limits = (J, A, V)
+    # the phase times of _scurve_times written out (one call less per plan: the hot path)
+    d = distance if distance >= 0.0 else -distance
+    if d == 0.0:
+        p._tj = p._ta = p._tv = 0.0
+        return p
+    Jl = J
     try:
-        p._tj, p._ta, p._tv = _scurve_times(distance if distance >= 0.0 else -distance, J, A, V)
+        tj = A / Jl
+        if V * Jl >= A * A:  # V reachable with a plateau at A
+            ta = V / A - tj
+            dv = V * (tj + tj + ta)
+        else:  # V reached before A
+            tj = _sqrt(V / Jl)
+            ta = 0.0
+            dv = 2.0 * V * tj
+        if d >= dv:
+            tv = (d - dv) / V
+        else:
+            tv = 0.0
+            tj = A / Jl  # V not reached
+            tj2 = tj * tj
+            if d >= 2.0 * A * tj2:  # A still reached: d = A (tj + ta)(2 tj + ta)
+                q = d / A
+                ta = 2.0 * (q - 2.0 * tj2) / (3.0 * tj + _sqrt(tj2 + 4.0 * q))
+            else:  # d = 2 J tj^3
+                tj = d**_THIRD * (0.5 / Jl) ** _THIRD
+                ta = 0.0
     except ZeroDivisionError:
         raise _no_plan("plan_scurve", distance, J, A, V) from None
-    return _check_plan(p, "plan_scurve")
+    total = tj + ta + tv
+    if not (total * 0.0 == 0.0 and total > 0.0):  # NaN, inf or underflow to 0 (as _check_plan)
+        raise _no_plan("plan_scurve", distance, J, A, V)
+    p._tj = tj
+    p._ta = ta
+    p._tv = tv
+    return p
 
 
 def plan_trapezoid(distance, max_accel, max_velocity) -> "TrapezoidProfile":
@@ -1408,11 +1499,9 @@ class BatchPlan:
         return np.where(self.distance != 0.0, self.jpar, 0.0)
 
     def profile(self, i: int) -> Profile:
-        """The ``i``-th move as a :class:`Profile` (``-len(self) <= i < len(self)``)."""
-        n = len(self)
-        i = as_int("i", i)
-        if not -n <= i < n:
-            raise ValueError(f"i must be in [{-n}, {n}) for a batch of {n} moves, got {i}")
+        """The ``i``-th move as a :class:`Profile` (``0 <= i < len(self)``; a negative ``i``
+        raises ``ValueError``, as an index past the end does)."""
+        i = as_index("i", i, len(self))
         cls = _CLASSES[self.kind]
         mj = None if self.max_jerk is None else float(self.max_jerk[i])
         return cls(
@@ -1806,11 +1895,9 @@ class AnyStateBatch:
         return np.where(mask, self.phase_times, 0.0).sum(axis=1)
 
     def profile(self, i: int) -> AnyStateProfile:
-        """The ``i``-th move as an :class:`AnyStateProfile` (``-len(self) <= i < len(self)``)."""
-        n = len(self)
-        i = as_int("i", i)
-        if not -n <= i < n:
-            raise ValueError(f"i must be in [{-n}, {n}) for a batch of {n} moves, got {i}")
+        """The ``i``-th move as an :class:`AnyStateProfile` (``0 <= i < len(self)``; a negative
+        ``i`` raises ``ValueError``, as an index past the end does)."""
+        i = as_index("i", i, len(self))
         lim = (float(self.max_jerk[i]), float(self.max_accel[i]), float(self.max_velocity[i]))
         return AnyStateProfile(
             self.kind,

@@ -41,7 +41,14 @@ import scipy.linalg
 
 from jerklab import paper
 from jerklab._lazy import lazy_module
-from jerklab._validate import as_finite_array, as_int, as_nonnegative, as_positive, as_real
+from jerklab._validate import (
+    as_finite_array,
+    as_int,
+    as_nonnegative,
+    as_positive,
+    as_real,
+    as_seed,
+)
 from jerklab.law import encoder_vec, voltage_vec, zoh_coefficients
 
 ct = lazy_module("control")  # python-control imports matplotlib: import it on first use
@@ -293,7 +300,7 @@ class _MotorBase:
             raise ValueError(f"decoding must be 1, 2 or 4, got {self.decoding}")
         self.load_disturbance = _as_disturbance(load_disturbance)
         self.noise_std = as_nonnegative("noise_std", noise_std)
-        self.seed = seed
+        self.seed = as_seed("seed", seed)
         self.rng = np.random.default_rng(seed)
 
     @property
@@ -565,7 +572,9 @@ class FlexibleDCMotor(_MotorBase):
     K, tau : float
         Rigid-body gain and time constant (Stojčić eq. 1).
     load_ratio : float
-        Load to motor inertia ratio J_l/J_m (> 0).
+        Load to motor inertia ratio J_l/J_m (> 0). Extremes stay legal: 1e-300 is a load of
+        no inertia (a decoupled mode), 1e300 a locked motor; a ratio whose inertia underflows
+        to 0 raises ``ValueError`` naming ``load_ratio``.
     mode_frequency : float
         Resonance of the load on the shaft with the motor held still, rad/s.
     mode_damping : float
@@ -630,8 +639,14 @@ class FlexibleDCMotor(_MotorBase):
         )
 
     def _matrices(self):
-        Jm = self.tau / (1.0 + self.load_ratio)
-        Jl = self.tau - Jm
+        r = self.load_ratio
+        Jm = self.tau / (1.0 + r)
+        Jl = self.tau * r / (1.0 + r) if r < 1.0 else self.tau / (1.0 + 1.0 / r)  # no cancellation
+        if not (Jm > 0.0 and Jl > 0.0):
+            raise ValueError(
+                f"load_ratio = {r!r}: an inertia underflows to 0 (J_m = {Jm!r}, J_l = {Jl!r}); "
+                f"use a ratio between 1e-300 and 1e300"
+            )
         k = self.mode_frequency**2 * Jl
         c = 2.0 * self.mode_damping * self.mode_frequency * Jl
         A = np.array(
@@ -680,7 +695,9 @@ class FlexibleDCMotor(_MotorBase):
             E = scipy.linalg.expm(M)
             if not np.all(np.isfinite(E)):
                 raise ValueError(
-                    f"Ts = {Ts!r} s is too long for this model: the matrix exponential overflows"
+                    f"Ts = {Ts!r} s is too long for this model (tau = {self.tau!r} s, "
+                    f"load_ratio = {self.load_ratio!r}, mode_frequency = "
+                    f"{self.mode_frequency!r} rad/s): the matrix exponential overflows"
                 )
             self._zoh_cache[Ts] = (E[:4, :4], E[:4, 4:])
         return self._zoh_cache[Ts]

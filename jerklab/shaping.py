@@ -178,8 +178,8 @@ def residual_vibration_of(amplitudes, times, frequency_hz, damping=0.0):
     s = A.sum()
     if s == 0:
         raise ValueError("amplitudes must not sum to 0 (the command would move nothing)")
-    f = np.asarray(frequency_hz, dtype=float)
-    if not np.all(np.isfinite(f)) or np.any(f <= 0):
+    f = as_finite_array("frequency_hz", frequency_hz)
+    if np.any(f <= 0):
         raise ValueError(f"frequency_hz must be positive and finite, got {frequency_hz!r}")
     zeta = _damping("damping", damping)
     order = np.argsort(t, kind="stable")
@@ -573,6 +573,10 @@ def insensitivity_table(tolerances=(5.0, 10.0), damping=0.0, kinds=KINDS):
 # ----------------------------------------------------------------------------------------------
 # finding the mode from the encoder alone
 # ----------------------------------------------------------------------------------------------
+#: most samples :func:`chirp_input` makes (80 MB of float64)
+MAX_CHIRP_SAMPLES = 10_000_000
+
+
 def chirp_input(duration, Ts, amplitude, f0, f1, offset=0.0):
     """Linear chirp ``offset + amplitude sin(2π (f0 t + (f1 − f0) t²/(2 duration)))`` (V per sample).
 
@@ -587,7 +591,13 @@ def chirp_input(duration, Ts, amplitude, f0, f1, offset=0.0):
     offset = as_real("offset", offset)
     if max(f0, f1) >= 0.5 / Ts:
         raise ValueError(
-            f"f1 and f0 must lie below the Nyquist frequency {0.5 / Ts:g} Hz, got {f0:g}, {f1:g}"
+            f"f1 and f0 must lie below the Nyquist frequency 0.5 / Ts = {0.5 / Ts:g} Hz "
+            f"(Ts = {Ts:g} s), got {f0:g}, {f1:g}"
+        )
+    if not duration / Ts <= MAX_CHIRP_SAMPLES:
+        raise ValueError(
+            f"duration / Ts = {duration:g} / {Ts:g} is more than shaping.MAX_CHIRP_SAMPLES = "
+            f"{MAX_CHIRP_SAMPLES} samples: shorten duration or raise Ts"
         )
     n = int(round(duration / Ts))
     if n < 2:
@@ -749,8 +759,8 @@ def profile_residual_vibration(profile, frequency_hz, damping=0.0):
         Damping ratio of the mode.
     """
     factors = _profile_factors(profile)
-    f = np.asarray(frequency_hz, dtype=float)
-    if not np.all(np.isfinite(f)) or np.any(f <= 0):
+    f = as_finite_array("frequency_hz", frequency_hz)
+    if np.any(f <= 0):
         raise ValueError(f"frequency_hz must be positive and finite, got {frequency_hz!r}")
     sig = _sigma(f, _damping("damping", damping))
     F = np.ones_like(sig)
@@ -784,7 +794,10 @@ def tuned_profile(
     -------
     jerklab.planner.Profile
     """
-    kind = str(kind)
+    if kind not in ("trapezoid", "scurve", "sine_jerk", "sine_jerk_optimal"):
+        raise ValueError(
+            f"kind must be 'trapezoid', 'scurve', 'sine_jerk' or 'sine_jerk_optimal', got {kind!r}"
+        )
     d = as_real("distance", distance)
     f = as_positive("frequency_hz", frequency_hz)
     A = as_positive("max_accel", max_accel)
@@ -796,6 +809,17 @@ def tuned_profile(
     ad = abs(d)
     if ad == 0.0:
         raise ValueError("distance must not be 0")
+    try:
+        return _tuned(kind, d, ad, Td, A, V)
+    except (ValueError, ZeroDivisionError, OverflowError) as exc:
+        raise ValueError(
+            f"frequency_hz = {f!r} Hz (T_d = {Td!r} s) gives no finite {kind} plan of "
+            f"distance {d!r} within max_accel = {A!r}, max_velocity = {V!r} ({exc}); scale the units"
+        ) from None
+
+
+def _tuned(kind, d, ad, Td, A, V):
+    """:func:`tuned_profile` after its checks."""
     if kind == "trapezoid":
         # two boxes, box(t_a) and box(t_a + t_v): round the cheaper one up to whole periods
         base = planner.plan_trapezoid(ad, A, V)
@@ -814,13 +838,9 @@ def tuned_profile(
         tj = 1.5 * Td
         A2 = min(A, ad / (2 * tj * tj), V / tj)
         return planner.plan_sine_jerk_optimal(d, math.pi * A2 / (2 * tj), A2, V)
-    if kind == "sine_jerk":
-        T = 2 * Td
-        J = min(A * math.pi / T, 2 * math.pi * ad / T**3, 2 * math.pi * V / T**2)
-        return planner.plan_sine_jerk(d, J, A, V)
-    raise ValueError(
-        f"kind must be 'trapezoid', 'scurve', 'sine_jerk' or 'sine_jerk_optimal', got {kind!r}"
-    )
+    T = 2 * Td  # "sine_jerk"
+    J = min(A * math.pi / T, 2 * math.pi * ad / T**3, 2 * math.pi * V / T**2)
+    return planner.plan_sine_jerk(d, J, A, V)
 
 
 def move_time_comparison(

@@ -949,6 +949,16 @@ def perturbed_plants(
     )
 
 
+def _plant_values(name, value) -> np.ndarray:
+    """One parameter of :func:`simulate_batch`'s plants: a number or a 1-D array, as 1-D."""
+    a = as_finite_array(name, value)
+    if a.ndim > 1:
+        raise ValueError(
+            f"{name} must be a number or a 1-D array (one value per plant), got shape {a.shape}"
+        )
+    return np.atleast_1d(a)
+
+
 def simulate_batch(
     profile,
     motor,
@@ -966,7 +976,7 @@ def simulate_batch(
 ):
     """The closed loop of :func:`simulate` over many rigid plants at once.
 
-    ``K``, ``tau``, ``coulomb_friction`` are arrays (or scalars, broadcast) overriding
+    ``K``, ``tau``, ``coulomb_friction`` are 1-D arrays (or scalars, broadcast) overriding
     the template ``motor``'s values; every other imperfection (saturation, PWM,
     encoder, disturbance, noise level) comes from ``motor``. The controller (gains and
     feedforward) is the same for all plants — the robustness question.
@@ -995,12 +1005,12 @@ def simulate_batch(
     if engine not in ("auto", "numpy", "compiled"):
         raise ValueError(f"engine must be 'auto', 'numpy' or 'compiled', got {engine!r}")
     ctl, cloop, Ts = _law_for(controller, motor, loop, Ts)
-    Kv = np.atleast_1d(as_finite_array("K", motor.K if K is None else K))
-    tv = np.atleast_1d(as_finite_array("tau", motor.tau if tau is None else tau))
-    fv = np.atleast_1d(
-        as_finite_array(
-            "coulomb_friction",
-            motor.coulomb_friction if coulomb_friction is None else coulomb_friction,
+    Kv, tv, fv = (
+        _plant_values(name, default if value is None else value)
+        for name, value, default in (
+            ("K", K, motor.K),
+            ("tau", tau, motor.tau),
+            ("coulomb_friction", coulomb_friction, motor.coulomb_friction),
         )
     )
     try:
@@ -1014,8 +1024,15 @@ def simulate_batch(
         ) from None
     if Kv.size == 0:
         raise ValueError("K, tau and coulomb_friction give no plant (empty arrays)")
-    if np.any(Kv <= 0) or np.any(tv <= 0) or np.any(fv < 0):
-        raise ValueError("K and tau must be > 0 and coulomb_friction >= 0 for every plant")
+    for name, v, bad in (
+        ("K", Kv, Kv <= 0),
+        ("tau", tv, tv <= 0),
+        ("coulomb_friction", fv, fv < 0),
+    ):
+        if np.any(bad):
+            i = int(np.argmax(bad))
+            rule = ">= 0" if name == "coulomb_friction" else "> 0"
+            raise ValueError(f"{name} must be {rule} for every plant, got {float(v[i])!r} at plant {i}")
     m = len(Kv)
     duration = _duration(profile)
     n = _n_samples(duration, Ts, t_end)

@@ -134,6 +134,11 @@ def design_gains(K, tau, zeta, wn, sigma_ratio, Ts, design="continuous"):
     """
     _check_design_key(design)
     sigma = sigma_ratio * wn
+    if as_positive("sigma_ratio", sigma_ratio) < ctl.SIGMA_MIN_RATIO:  # named here, not as sigma
+        raise ValueError(
+            f"sigma_ratio must be >= controller.SIGMA_MIN_RATIO = {ctl.SIGMA_MIN_RATIO:g}, "
+            f"got {sigma_ratio!r}"
+        )
     if design == "continuous":
         g = ctl.pole_placement_pid(K, tau, wn, zeta=zeta, sigma=sigma)
         return g.discretize(Ts), g

@@ -13,8 +13,20 @@ from jerklab._validate import as_finite_array
 MIN_SAMPLES = 10
 
 
+#: largest |sample| an identification takes: the fits sum squares of the samples over up to
+#: 10**7 of them, which must stay finite (1e300 data gave an infinite noise estimate)
+MAX_SIGNAL = 1e150
+
+
 def _signal(name: str, value, min_len: int = MIN_SAMPLES) -> np.ndarray:
+    """``value`` as a 1-D float array of at least ``min_len`` finite samples, each of magnitude
+    at most ``MAX_SIGNAL`` (``ValueError`` naming ``name`` otherwise)."""
     a = as_finite_array(name, value)
+    if a.size and not float(np.max(np.abs(a))) <= MAX_SIGNAL:
+        raise ValueError(
+            f"{name} reaches |{name}| = {float(np.max(np.abs(a))):.3g}, above "
+            f"ident MAX_SIGNAL = {MAX_SIGNAL:g} (its squares would overflow): scale the units"
+        )
     if a.ndim != 1:
         a = np.squeeze(a)
         if a.ndim != 1:

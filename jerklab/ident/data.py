@@ -7,11 +7,10 @@ Stojcic).
 from __future__ import annotations
 
 import json
-import pathlib
 
 import numpy as np
 
-from jerklab._validate import as_positive
+from jerklab._validate import as_path, as_positive
 from jerklab._vocab import aliases
 from jerklab.ident._common import _pair, _signal
 from jerklab.ident.fit import fit_dc_motor
@@ -172,7 +171,7 @@ class IdentData:
     # -- files ---------------------------------------------------------------------------------
     @staticmethod
     def _paths(path):
-        p = pathlib.Path(path)
+        p = as_path("path", path)
         if p.suffix in (".csv", ".json"):
             p = p.with_suffix("")
         return p.with_name(p.name + ".csv"), p.with_name(p.name + ".json")
@@ -223,6 +222,11 @@ class IdentData:
             side = json.loads(json_path.read_text())
         except json.JSONDecodeError as exc:
             raise ValueError(f"path: corrupt JSON sidecar {json_path}: {exc}") from None
+        if not isinstance(side, dict):
+            raise ValueError(
+                f"path: {json_path} is not an IdentData sidecar (a JSON {type(side).__name__}, "
+                f"not an object)"
+            )
         if side.get("format") != cls.FORMAT:
             raise ValueError(
                 f"path: {json_path} is not an IdentData sidecar (format {side.get('format')!r})"
@@ -236,7 +240,9 @@ class IdentData:
         n = side.get("n_samples")
         if n is not None and n != table.shape[0]:
             raise ValueError(f"path: {csv_path} has {table.shape[0]} rows, sidecar says {n}")
-        Ts = as_positive("Ts", side["Ts"])
+        if "Ts" not in side:
+            raise ValueError(f"path: {json_path} has no field 'Ts' (the sample time, s)")
+        Ts = as_positive(f"path: {json_path} field 'Ts'", side["Ts"])
         t = table[:, 0]
         if t.size > 1 and np.max(np.abs(np.diff(t) - Ts)) > 0.01 * Ts:
             raise ValueError(f"path: time column of {csv_path} is not sampled at Ts = {Ts:g} s")

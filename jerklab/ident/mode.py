@@ -17,6 +17,7 @@ from scipy.optimize import least_squares
 from scipy.signal import csd, lfilter, welch
 
 from jerklab._validate import as_finite_array, as_positive
+from jerklab.ident._common import _signal
 from jerklab.ident.data import IdentData
 from jerklab.plant import FlexibleDCMotor
 
@@ -148,8 +149,8 @@ def identify_mode(u, y=None, Ts=None, f_range=None, max_nfev=400) -> ModeEstimat
         u, y, Ts = u.voltage, u.position, u.Ts
     if y is None or Ts is None:
         raise TypeError("y and Ts are required (or pass an IdentData record as u)")
-    u = as_finite_array("u", u, ndim=1)
-    y = as_finite_array("y", y, ndim=1)
+    u = _signal("u", as_finite_array("u", u, ndim=1), min_len=1)
+    y = _signal("y", as_finite_array("y", y, ndim=1), min_len=1)
     Ts = as_positive("Ts", Ts)
     if y.size == u.size:
         u = u[:-1]

@@ -61,6 +61,9 @@ class MotorFit:
         The estimated parameters, in the order of ``covariance``.
     warnings : list of str
         The diagnostics the fit raised (also issued as :class:`IdentificationWarning`).
+    reversed : bool
+        ``K < 0`` (a reversed encoder or motor leads): the sign flag a script can test
+        instead of reading the warnings.
 
     The full model (:func:`simulate_motor`) is
     ``tau omega' = K (dz(u(t - delay Ts) + offset) - friction sign(omega)) - omega``, sticking at
@@ -120,6 +123,17 @@ class MotorFit:
                 self.tau_coast or None,
             )
         return simulate_dc_motor(self.K, self.tau, self.Ts, u, theta0, omega0)
+
+    @property
+    def reversed(self) -> bool:
+        """True when the fitted gain is negative: the angle falls when the voltage rises.
+
+        The sign flag of a reversed encoder (channels A/B swapped), reversed motor leads or a
+        voltage logged with the wrong sign. ``K`` stays the estimate as fitted (negative, not
+        flipped); the fit also issues an :class:`IdentificationWarning` saying so. Flip the
+        sign of theta (or of u) and fit again for the motor's K.
+        """
+        return bool(self.K < 0.0)
 
     @property
     def is_linear(self) -> bool:

@@ -19,6 +19,7 @@ import math
 import numpy as np
 
 from jerklab import ident
+from jerklab._validate import BadInput, as_finite_array, as_real
 from jerklab.controller import (
     DiscreteGains,
     PositionLoop,
@@ -80,8 +81,17 @@ def steady_speed(rec, window=0.1):
 def sweep_fit(speeds):
     """Least squares ω = K·V + K·offset − K·f_c·sign(V) over a sweep {V: ω}; returns
     (K, f_c, offset) and their standard errors."""
-    V = np.array(sorted(speeds), dtype=float)
-    w = np.array([speeds[v] for v in sorted(speeds)])
+    if not isinstance(speeds, dict):
+        raise BadInput(f"speeds must be a dict {{voltage: speed}}, got {speeds!r:.60}")
+    V = as_finite_array("speeds (voltages)", [as_real("speeds voltage", v) for v in speeds])
+    w = as_finite_array("speeds (speeds)", [as_real(f"speeds[{v!r}]", speeds[v]) for v in speeds])
+    order = np.argsort(V)
+    V, w = V[order], w[order]
+    if len(V) < 4 or not (np.any(V > 0) and np.any(V < 0)):
+        raise ValueError(
+            f"speeds must hold at least 4 voltages on both sides of 0 (K, f_c and the offset "
+            f"are separable only then), got {sorted(V.tolist())}"
+        )
     A = np.column_stack([V, np.ones_like(V), -np.sign(V)])
     coef, res, *_ = np.linalg.lstsq(A, w, rcond=None)
     dof = max(1, len(V) - 3)

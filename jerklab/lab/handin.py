@@ -27,6 +27,7 @@ import zipfile
 from pathlib import Path
 
 from jerklab import __version__
+from jerklab._validate import as_path
 from jerklab.lab.motors import instructor_key, normalize_student
 from jerklab.lab.plain import jsonable
 
@@ -134,11 +135,16 @@ def read_handin(path, data: bytes | None = None) -> dict:
     data : bytes, optional
         The zip's bytes, already read (the grader reads every submission before grading any).
     """
-    path = Path(path)
+    path = as_path("path", path)
     if data is None:
-        if path.stat().st_size > MAX_ZIP_BYTES:
-            raise HandinError(f"{path.name}: larger than {MAX_ZIP_BYTES // 2**20} MiB")
-        data = path.read_bytes()
+        try:
+            if path.stat().st_size > MAX_ZIP_BYTES:
+                raise HandinError(f"{path.name}: larger than {MAX_ZIP_BYTES // 2**20} MiB")
+            data = path.read_bytes()
+        except FileNotFoundError:
+            raise FileNotFoundError(f"path: no hand-in at {path}") from None
+        except IsADirectoryError:
+            raise HandinError(f"path: {path} is a folder, not a hand-in zip") from None
     if not data:
         raise HandinError(f"{path.name}: empty file")
     if len(data) > MAX_ZIP_BYTES:

@@ -20,8 +20,9 @@ import warnings
 from pathlib import Path
 
 from jerklab import paper
+from jerklab import planner as _planner
 from jerklab import protocol as P
-from jerklab._validate import as_nonnegative, as_positive, as_real
+from jerklab._validate import as_int, as_nonnegative, as_positive, as_real
 from jerklab.controller import DiscreteGains, Gains, max_pole_radius
 from jerklab.rig.options import F32_MAX as _F32_MAX
 from jerklab.rig.options import RunSpec
@@ -648,6 +649,7 @@ class Rig:
                 f"profile must be a jerklab.planner Profile, got {type(profile).__name__}"
             )
         planner = _KIND_TO_PLANNER[kind]
+        _check_replannable(profile)
         spec = _run_spec(spec, Ts, spec_fields)
         if not self.capabilities & (1 << planner):
             raise RigError(
@@ -1046,8 +1048,14 @@ class Rig:
 
         Measured, not guessed: a simulated Uno may run slower than the wall clock, a real
         motor may coast longer than its time constant says. Returns True once still.
+        ``window`` is 2 to 65535 samples (one sample cannot show motion), ``tolerance`` an
+        integer >= 0 (counts).
         """
         timeout = as_positive("timeout", timeout)
+        window = as_int("window", window, minimum=2)
+        if window > 0xFFFF:
+            raise ValueError(f"window must be <= 65535 samples (one STEP), got {window}")
+        tolerance = as_int("tolerance", tolerance, minimum=0)
         us = self._ts_us(Ts)
         deadline = time.monotonic() + timeout
         while True:
@@ -1320,6 +1328,38 @@ def _jsonable(d):
     if isinstance(d, (str, int, float, bool)) or d is None:
         return d
     return repr(d)
+
+
+def _check_replannable(profile) -> None:
+    """Refuse, before anything is sent, a profile the device's own re-plan (``PLAN``) cannot
+    reproduce: one from a moving start, or one changed after planning (``.synchronized()``,
+    edited phase times). The device plans rest-to-rest from the distance and the limits."""
+    if any(
+        getattr(profile, name, 0.0)
+        for name in ("initial_velocity", "initial_accel", "final_velocity")
+    ):
+        raise ValueError(
+            f"profile starts or ends moving (initial_velocity={profile.initial_velocity!r}, "
+            f"initial_accel={profile.initial_accel!r}, final_velocity={profile.final_velocity!r}); "
+            f"the rig runs rest-to-rest moves only (use Rig.retarget for a move in motion)"
+        )
+    kind = profile.kind
+    distance = as_real("profile.distance", profile.distance)
+    jerk, accel, velocity = profile.max_jerk, profile.max_accel, profile.max_velocity
+    try:
+        if kind == "trapezoid":
+            fresh = _planner.plan_trapezoid(distance, accel, velocity)
+        else:
+            fresh = getattr(_planner, "plan_" + kind)(distance, jerk, accel, velocity)
+    except ValueError as exc:
+        raise ValueError(f"profile: its limits do not plan again ({exc})") from None
+    if abs(fresh.duration - profile.duration) > 1e-9 * max(fresh.duration, 1e-9):
+        raise ValueError(
+            f"profile lasts {profile.duration:.6f} s but its distance and limits plan a "
+            f"{fresh.duration:.6f} s move: it was changed after planning (.synchronized(Ts) or "
+            f"edited). The device re-plans every move from the distance and the limits at its own "
+            f"period, so run the planner's result itself (plan_{kind}(...)), unmodified"
+        )
 
 
 def _run_spec(spec, Ts=None, fields=None) -> RunSpec:

@@ -24,7 +24,15 @@ from pathlib import Path
 
 import numpy as np
 
-from jerklab._validate import as_int, as_positive, as_real
+from jerklab._validate import (
+    BadInput,
+    as_having,
+    as_instance,
+    as_int,
+    as_path,
+    as_positive,
+    as_real,
+)
 from jerklab._vocab import aliases
 
 __all__ = ["Recording", "RecordingIOError", "recordings_dir", "compare", "plot_comparison"]
@@ -56,13 +64,29 @@ class RecordingIOError(OSError):
 def _io_error(exc: OSError, path, saved: int, doing: str) -> RecordingIOError:
     code = exc.errno if exc.errno is not None else _errno.EIO
     reason = exc.strerror or os.strerror(code)
+    hint = _IO_HINTS.get(code, "")
     return RecordingIOError(
         code,
         f"{path}: {reason} [errno {code}, {_errno.errorcode.get(code, '?')}] while "
-        f"{doing}; {saved} samples saved in the file",
+        f"{doing}; {saved} samples saved in the file" + (f". {hint}" if hint else ""),
         path,
         saved,
     )
+
+
+#: what to do about the common write errors (appended to :class:`RecordingIOError`'s message)
+_IO_HINTS = {
+    _errno.EACCES: "Choose a folder you may write to: connect(recordings=...), the path= of "
+    "the run, or $JERKLAB_RECORDINGS",
+    _errno.EPERM: "Choose a folder you may write to: connect(recordings=...), the path= of "
+    "the run, or $JERKLAB_RECORDINGS",
+    _errno.EROFS: "The file system is read-only: choose another folder with "
+    "connect(recordings=...), the path= of the run, or $JERKLAB_RECORDINGS",
+    _errno.ENOSPC: "The disk is full: free some space or record to another disk",
+    _errno.ENOENT: "A folder of the path does not exist and could not be made",
+    _errno.ENOTDIR: "A part of the path is a file, not a folder",
+    _errno.EEXIST: "A folder of the path is a file, not a folder",
+}
 
 
 def _check_metadata(meta, where: str) -> tuple[float, float, float]:
@@ -109,10 +133,54 @@ def _clean(o):
 
 
 def _paths(path) -> tuple[Path, Path]:
-    p = Path(path)
+    p = as_path("path", path)
     if p.suffix.lower() in (".csv", ".json"):
         p = p.with_suffix("")
     return p.with_name(p.name + ".csv"), p.with_name(p.name + ".json")
+
+
+_INT_COLUMNS = frozenset(("index", "counts", "pwm", "flags"))
+
+
+def _parse_row(cells, csv_path, ln, scale) -> tuple:
+    """One CSV row as ``(index, reference, counts, pwm, flags)``; every cell must be a number of
+    its column's kind and the derived columns (time, position, control) must agree with the
+    raw ones, else ``ValueError`` naming the file, the line and the column."""
+    vals = []
+    for col, cell in zip(COLUMNS, cells):
+        try:
+            if col in _INT_COLUMNS:
+                v = int(cell)
+                if v < 0 and col in ("index", "flags"):
+                    raise ValueError("negative")
+            else:
+                v = float(cell)
+                if not math.isfinite(v):
+                    raise ValueError("not finite")
+        except ValueError:
+            kind = (
+                "an integer >= 0"
+                if col in ("index", "flags")
+                else ("an integer" if col in _INT_COLUMNS else "a finite number")
+            )
+            raise ValueError(
+                f"{csv_path}: line {ln}, column {col!r}: {cell!r} is not {kind}; the file is "
+                f"corrupt (fix or delete that line to load the rest)"
+            ) from None
+        vals.append(v)
+    index, time, reference, position, counts, control, pwm, flags = vals
+    Ts, cpr, vpp = scale
+    for col, got, want in (
+        ("time", time, index * Ts),
+        ("position", position, counts / cpr),
+        ("control", control, pwm * vpp),
+    ):
+        if abs(got - want) > 1e-9 * max(1.0, abs(want)):
+            raise ValueError(
+                f"{csv_path}: line {ln}, column {col!r}: {got!r} disagrees with the raw columns "
+                f"(expected {want!r} from the sidecar's scale); the file is corrupt"
+            )
+    return (index, reference, counts, pwm, flags)
 
 
 @aliases(control="voltage")
@@ -351,8 +419,12 @@ class Recording:
         The sidecar's ``Ts``, ``counts_per_rad`` and ``volts_per_pwm`` must be finite numbers
         > 0 (ValueError naming the field and the file). A sidecar still at ``"recording"``
         (its writer was killed) loads with status ``"incomplete"`` and a warning; a torn last
-        row (a crash mid-write) is dropped with a warning; a blank or unreadable row inside
-        the file is skipped with a warning naming its line, so no data after it is lost.
+        row (a crash mid-write) is dropped with a warning; a blank row or one with the wrong
+        number of fields inside the file is skipped with a warning naming its line, so no data
+        after it is lost. A row with the right fields but a cell that is not a number of its
+        column's kind, or a derived column (time, position, control) that disagrees with the
+        raw ones, raises ``ValueError`` naming the file, the line and the column: the file
+        was changed after it was written, and which of its samples are right is not known.
         """
         csv_path, json_path = _paths(path)
         if not csv_path.exists():
@@ -372,7 +444,8 @@ class Recording:
             ) from None
         if not isinstance(meta, dict):
             raise ValueError(f"{json_path} is not a jerklab sidecar (a JSON {type(meta).__name__})")
-        _check_metadata(meta, str(json_path))
+        Ts, cpr, vpp = _check_metadata(meta, str(json_path))
+        meta_scale = (Ts, cpr, vpp)
         with open(csv_path, "rb") as f:
             data = f.read()
         try:
@@ -403,16 +476,15 @@ class Recording:
                 warnings.warn(f"{csv_path}: line {ln} is blank (skipped)", stacklevel=2)
                 continue
             cells = line.split(",")
-            try:
-                if len(cells) != len(COLUMNS):
-                    raise ValueError(f"{len(cells)} fields instead of {len(COLUMNS)}")
-                row = (int(cells[0]), float(cells[2]), int(cells[4]), int(cells[6]), int(cells[7]))
-            except ValueError as exc:
+            if len(cells) != len(COLUMNS):
                 warnings.warn(
-                    f"{csv_path}: line {ln} is not a whole row ({exc}): skipped", stacklevel=2
+                    f"{csv_path}: line {ln} is not a whole row ({len(cells)} fields instead of "
+                    f"{len(COLUMNS)}): skipped",
+                    stacklevel=2,
                 )
                 continue
-            rows.append(row)
+            rows.append(_parse_row(cells, csv_path, ln, meta_scale))
+            # the derived columns must agree with the raw ones (a garbage cell is named)
         status = meta.get("status")
         if status == RECORDING:
             meta["status"] = INCOMPLETE
@@ -438,6 +510,8 @@ class Recording:
         """Reference and measured position (rad) and voltage (V): :func:`jerklab.plots.plot_recording`."""
         from jerklab.plots import plot_recording
 
+        if ax is not None:
+            as_having("ax", ax, ("figure", "plot"), "a matplotlib Axes or None")
         return plot_recording(self, ax)
 
     def plot_comparison(self, sim, title="Measured vs simulated sine-jerk move"):
@@ -445,6 +519,11 @@ class Recording:
         :func:`jerklab.plots.plot_comparison`."""
         from jerklab.plots import plot_comparison
 
+        as_having(
+            "sim", sim, ("time", "measured", "reference", "voltage"), "a jerklab.sim.SimResult"
+        )
+        if not isinstance(title, str):
+            raise BadInput(f"title must be a str, got {title!r}")
         return plot_comparison(self, sim, title)
 
     def __repr__(self):
@@ -460,10 +539,23 @@ def compare(rec: Recording, sim) -> dict:
 
     ``sim`` is a :class:`jerklab.sim.SimResult` sampled at the same ``Ts`` from t = 0.
     Returns the number of common samples, the largest and RMS difference of the measured
-    angles, the largest tracking error of each, and the largest control difference.
+    angles, the largest tracking error of each, and the largest control difference (NaN
+    when there is no sample in common).
     """
+    rec = as_instance("rec", rec, Recording, "a jerklab.rig.Recording")
+    as_having("sim", sim, ("time", "measured", "reference", "voltage"), "a jerklab.sim.SimResult")
     n = min(len(rec), len(sim.time))
     idx = rec.index[rec.index < len(sim.time)][:n]
+    if len(idx) == 0:  # no sample in common: every difference is undefined
+        nan = float("nan")
+        return {
+            "samples": 0,
+            "max_abs_position_diff": nan,
+            "rms_position_diff": nan,
+            "max_abs_error_measured": nan,
+            "max_abs_error_simulated": nan,
+            "max_abs_control_diff": nan,
+        }
     meas = rec.position[: len(idx)]
     sim_meas = np.asarray(sim.measured)[idx]
     d = meas - sim_meas

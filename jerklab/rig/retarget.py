@@ -28,6 +28,7 @@ import math
 import numpy as np
 
 from jerklab import planner
+from jerklab._validate import as_int, as_nonnegative, as_positive, as_real
 
 __all__ = [
     "SegmentPlan",
@@ -46,10 +47,28 @@ _SINE, _LINEAR, _STEP = 0, 1, 2
 _SHAPES = {0: _SINE, 1: _SINE, 2: _LINEAR, 3: _STEP}
 
 
+def _checked(kind, max_jerk, max_accel):
+    """PLAN's planner byte ``kind`` (0..3) and the limits, checked (``ValueError`` naming them);
+    the trapezoid (3) takes ``max_jerk=None``."""
+    if (
+        isinstance(kind, bool)
+        or not isinstance(kind, (int, np.integer))
+        or int(kind) not in _SHAPES
+    ):
+        raise ValueError(
+            f"kind must be PLAN's planner byte 0..3 (sine_jerk, sine_jerk_optimal, scurve, "
+            f"trapezoid), got {kind!r}"
+        )
+    kind = int(kind)
+    if not (kind == 3 and max_jerk is None):
+        max_jerk = as_positive("max_jerk", max_jerk)
+    return kind, max_jerk, as_positive("max_accel", max_accel)
+
+
 def lead_samples(Ts_us: int) -> int:
     """Samples between a RETARGET and the earliest switch (the board plans meanwhile, a few
     bisection steps per tick): ``2 + ceil(24 / max(2, Ts_us // 400))`` -- 14 at 1 ms, 4 at 5 ms."""
-    per_tick = max(2, int(Ts_us) // 400)
+    per_tick = max(2, as_int("Ts_us", Ts_us, minimum=1) // 400)
     return 2 + -(-BISECTION_STEPS // per_tick)
 
 
@@ -228,6 +247,7 @@ class SegmentPlan:
 def rest_plan(kind, distance, max_jerk, max_accel, max_velocity, t_start=0.0, x_start=0.0):
     """The rest-to-rest plan of PLAN's ``kind`` (0..3) as a :class:`SegmentPlan` (jerklab's
     phase times, the same closed form)."""
+    kind, max_jerk, max_accel = _checked(kind, max_jerk, max_accel)
     if kind == 3:
         prof = planner.plan_trapezoid(distance, max_accel, max_velocity)
     else:
@@ -254,6 +274,10 @@ def moving_plan(
 ):
     """Moving start ``v0 >= 0`` along ``distance`` (a0 = 0), rest at the end; ``None`` when
     the move cannot stop within ``distance`` (mirrors the firmware's ``plan_moving``)."""
+    kind, max_jerk, max_accel = _checked(kind, max_jerk, max_accel)
+    distance = as_real("distance", distance)
+    v0 = as_nonnegative("v0", v0)
+    max_velocity = as_positive("max_velocity", max_velocity)
     shape = _SHAPES[kind]
     J, A, V = max_jerk, max_accel, max(max_velocity, v0)
     Je = _TWO_OVER_PI * J if shape == _SINE else J
@@ -283,11 +307,15 @@ def moving_plan(
 
 def stop_plan(kind, v, max_jerk, max_accel, t_start=0.0, x_start=0.0):
     """Brake from the velocity ``v`` (signed, a0 = 0) to rest: the deceleration half only."""
+    kind, max_jerk, max_accel = _checked(kind, max_jerk, max_accel)
+    v = as_real("v", v)
     shape = _SHAPES[kind]
     Je = _TWO_OVER_PI * max_jerk if shape == _SINE else max_jerk
     v0 = abs(v)
     tj, ta = _pair_times(shape, v0, Je, max_accel)
     d = 0.5 * v0 * (2.0 * tj + ta)
+    if not math.isfinite(d):
+        raise ValueError(f"v = {v!r}: the braking distance overflows; scale the units")
     jpar = max_accel if shape == _STEP else max_jerk
     return SegmentPlan(
         shape, jpar, math.copysign(d, v), v0, 0.0, 0.0, 0.0, tj, ta, v0, t_start, x_start

@@ -456,8 +456,8 @@ def test_discretize_refuses_huge_sample_counts():
 
 def test_batch_profile_index_is_checked():
     b = plan_batch("scurve", [1.0, 2.0], 2000.0, 300.0, 100.0)
-    assert b.profile(-1).distance == 2.0
-    for bad in (2, -3, 1.5, "0", None):
+    assert b.profile(1).distance == 2.0
+    for bad in (2, -1, -3, 1.5, "0", None):  # issue 31: no negative index from the end
         with pytest.raises(ValueError, match=r"\bi\b"):
             b.profile(bad)
 
