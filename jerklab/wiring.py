@@ -17,6 +17,7 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 
+from jerklab.rig.flexload import DESIGN_RANGE, RulerLoad, predict
 from jerklab.rig.profiles import builtin_profiles
 
 __all__ = [
@@ -313,8 +314,6 @@ def mechanics_drawing(load=None):
     """
     import matplotlib.pyplot as plt
     from matplotlib.patches import Circle, Rectangle
-
-    from jerklab.rig.flexload import DESIGN_RANGE, RulerLoad, predict
 
     load = RulerLoad() if load is None else load
     if not isinstance(load, RulerLoad):
