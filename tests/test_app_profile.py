@@ -14,7 +14,7 @@ def test_the_page_connects_with_the_profile(monkeypatch, tmp_path):
     monkeypatch.setenv(app.PROFILE_ENV, "jgb37-520-30")
     p = app.panel_for_page(rig_port="virtual")
     try:
-        assert p.rig.profile.name == "jgb37-520-30" and p.rig.counts_per_rev == 330
+        assert p.rig.profile.name == "jgb37-520-30" and p.rig.counts_per_rev == 1320
         assert p.rig.model[0] == pytest.approx(p.rig.profile.K)
     finally:
         p.rig.close()

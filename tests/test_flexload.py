@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 import scipy.linalg
 
+from jerklab import shaping
 from jerklab.lab.motors import coupled_mode
 from jerklab.plant import FlexibleDCMotor
-from jerklab.rig import load_profile
+from jerklab.rig import Device, connect, load_profile
 from jerklab.rig.flexload import (
     DESIGN_RANGE,
     RulerLoad,
@@ -134,3 +135,30 @@ def test_bad_dimensions_name_the_parameter():
     with pytest.raises(TypeError, match="load"):
         predict({"length": 0.2})
     assert DESIGN_RANGE["length"][0] < DESIGN_RANGE["length"][1]
+
+
+@pytest.mark.parametrize("length, tip_mass", [(0.17, 0.03), (0.22, 0.05)])
+def test_the_mode_identified_from_the_encoder_is_the_predicted_one(length, tip_mass):
+    """The rule's two-mass model on the Pololu 37D's virtual rig: a PRBS through it, the mode
+    fitted from the motor's encoder alone (jerklab.shaping.identify_mode, lab 4's method), and
+    the prediction from the dimensions agree."""
+    p = load_profile("pololu-37d-30")
+    r = predict(RulerLoad(length=length, tip_mass=tip_mass, damping=0.02), p)
+    motor = FlexibleDCMotor(
+        K=p.K,
+        tau=r["tau"],
+        load_ratio=r["load_ratio"],
+        mode_frequency=r["mode_frequency"],
+        mode_damping=r["damping"],
+        encoder_ppr=p.counts_per_rev,
+        decoding=1,
+    )
+    rig = connect(device=Device(motor), progress=False)
+    try:
+        rp = rig.record_prbs(3.0, offset=6.0, order=9, hold=1, path=False, progress=False)
+    finally:
+        rig.close()
+    fit = shaping.identify_mode(rp.voltage, rp.position, rp.metadata["Ts"])
+    assert fit.frequency_hz == pytest.approx(r["coupled_hz"], rel=0.02)
+    # the encoder sees the coupled mode, above the rule's own (hub held still)
+    assert fit.frequency_hz > r["mode_hz"]

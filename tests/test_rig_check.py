@@ -51,7 +51,7 @@ def test_a_healthy_rig_of_every_profile_passes(name):
 def test_330_counts_against_448_is_a_counts_per_revolution_mistake():
     # the JGB37-520's encoder (330 counts a turn) on a rig configured for the paper's 448
     jgb = load_profile("jgb37-520-30")
-    by, report, _ = _check(_rig("paper", motor=jgb.motor(K=30.0), cpr=448))
+    by, report, _ = _check(_rig("paper", motor=jgb.motor(K=30.0, encoder_ppr=330), cpr=448))
     assert _failed(by) == ["cpr"], report
     msg = by["cpr"][0].message + by["cpr"][0].fix
     assert "330 counts" in msg and "448" in msg and "counts_per_rev=330" in msg
@@ -61,27 +61,30 @@ def test_330_counts_against_448_is_a_counts_per_revolution_mistake():
 def test_330_against_448_on_the_batch_count_alone():
     # a real board's case: the count of a turn made by hand given as the batch argument
     jgb = load_profile("jgb37-520-30")
-    by, report, _ = _check(_rig("paper", motor=jgb.motor(K=30.0), cpr=448), turn_counts=331)
+    by, report, _ = _check(
+        _rig("paper", motor=jgb.motor(K=30.0, encoder_ppr=330), cpr=448), turn_counts=331
+    )
     assert _failed(by) == ["cpr"], report
 
 
 def test_a_count_per_motor_revolution_is_a_gear_ratio_mistake():
-    # counts_per_rev given as the encoder's 11 pulses per motor revolution, the x30 forgotten
-    by, report, _ = _check(_rig("jgb37-520-30", cpr=11))
+    # counts_per_rev given as the encoder's 44 counts (x4) per motor revolution, the x30 forgotten
+    by, report, _ = _check(_rig("jgb37-520-30", cpr=44))
     assert "gear" in _failed(by), report
     f = by["gear"][0]
     assert (
-        "motor* revolution" in f.message and "30:1" in f.message and "counts_per_rev=330" in f.fix
+        "motor* revolution" in f.message and "30:1" in f.message and "counts_per_rev=1320" in f.fix
     )
 
 
 def test_another_gearbox_is_named_with_its_ratio():
-    # a 50:1 JGB37 bought for the 30:1 of the profile: 550 counts a turn, a third slower
+    # a 50:1 JGB37 bought for the 30:1 of the profile: 2200 counts (x4) a turn, a third slower
     jgb = load_profile("jgb37-520-30")
-    motor = jgb.motor(encoder_ppr=550, K=jgb.K * 30 / 50)
-    by, report, _ = _check(_rig("jgb37-520-30", motor=motor, cpr=330))
+    motor = jgb.motor(encoder_ppr=2200, K=jgb.K * 30 / 50)
+    by, report, _ = _check(_rig("jgb37-520-30", motor=motor, cpr=1320))
     assert "gear" in _failed(by), report
     assert "50:1 gearbox, not 30:1" in by["gear"][0].message
+    assert _failed(by) == ["gear"], report  # the K of a 50:1 gearbox is expected then
 
 
 def test_swapped_a_and_b_is_named():
@@ -148,7 +151,7 @@ def test_the_interactive_turn_asks_and_counts(monkeypatch):
         n = hand_turn(rig, seconds=2.0, ask=ask, say=said.append)
     finally:
         rig.close()
-    assert asked and "one revolution" in said[0] and n == 330
+    assert asked and "one revolution" in said[0] and n == 1320
 
 
 def test_the_report_becomes_the_rigs_profile_file(tmp_path, capsys):
@@ -162,18 +165,18 @@ def test_the_report_becomes_the_rigs_profile_file(tmp_path, capsys):
     assert data["format"] == "jerklab-motor-profile"
     prof = load_profile(out)
     base = load_profile("jgb37-520-30")
-    assert prof.name == "jgb37-520-30-checked" and prof.counts_per_rev == 330
-    assert prof.K == pytest.approx(base.K, rel=0.05) and prof.measured["turn_counts"] == 330
+    assert prof.name == "jgb37-520-30-checked" and prof.counts_per_rev == 1320
+    assert prof.K == pytest.approx(base.K, rel=0.05) and prof.measured["turn_counts"] == 1320
     # the labs and the class page read it: connect with the file
     rig = connect(profile=out, progress=False)
     try:
-        assert rig.counts_per_rev == 330 and rig.profile.name == "jgb37-520-30-checked"
+        assert rig.counts_per_rev == 1320 and rig.profile.name == "jgb37-520-30-checked"
     finally:
         rig.close()
 
 
 def test_the_cli_reports_a_mistake_by_name(capsys):
-    assert cli.main(["rig", "check", "virtual", "--profile", "jgb37-520-30", "--cpr", "11"]) == 1
+    assert cli.main(["rig", "check", "virtual", "--profile", "jgb37-520-30", "--cpr", "44"]) == 1
     out = capsys.readouterr().out
     assert "FAIL gear" in out
 

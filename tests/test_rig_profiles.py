@@ -34,8 +34,10 @@ def test_counts_per_revolution_agree_with_the_vendor(name):
     p = load_profile(name)
     x4 = p.counts_per_motor_rev * p.gear_ratio
     assert x4 == pytest.approx(VENDOR_X4[name], rel=1e-4)
-    decoding = p.counts_per_rev / (x4 / 4)  # 1 (X1) or 4 (X4), to the count
-    assert min(abs(decoding - 1), abs(decoding - 4)) * x4 / 4 < 1.0
+    # the firmware holds JL_ENCODER_PPR, an integer count of one channel a turn, and decodes X4
+    # when counts_per_rev is exactly four times it
+    ppr = round(x4 / 4)
+    assert p.counts_per_rev == 4 * ppr and p.counts_per_rev == pytest.approx(x4, rel=0.005)
 
 
 @pytest.mark.parametrize("name", profile_names())
@@ -87,7 +89,7 @@ def test_connect_takes_the_profile():
     rig = connect(profile="pololu-37d-30", progress=False)
     try:
         p = rig.profile
-        assert rig.counts_per_rev == 480 and rig.supply_voltage == 12.0
+        assert rig.counts_per_rev == 1920 and rig.supply_voltage == 12.0
         assert rig.model == pytest.approx((p.K, p.tau))
         assert rig.link.device.motor.K == pytest.approx(p.K)
     finally:

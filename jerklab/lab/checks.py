@@ -28,6 +28,7 @@ from jerklab.controller import (
 )
 from jerklab.lab.checkbase import CheckResult, Missing, number, pct, rel, run_of, step_name
 from jerklab.lab.motors import motor_from_truth, student_device
+from jerklab.lab.specs import lab_spec
 from jerklab.metrics import move_metrics
 from jerklab.planner import plan_scurve, plan_sine_jerk, plan_sine_jerk_optimal, plan_trapezoid
 from jerklab.plant import DCMotor
@@ -47,27 +48,27 @@ __all__ = [
     "spec_failures",
 ]
 
+#: The labs' numbers on the paper's class motors (K 15-45 rad/(V s), tau 10-60 ms, 12 V); another
+#: rig's: jerklab.lab.specs.lab_spec(lab, profile), the one place they are made.
+_LAB1, _LAB2 = lab_spec(1), lab_spec(2)
 #: The move of labs 2 and 3 (rad, rad/s^3, rad/s^2, rad/s): three revolutions and a bit.
-MOVE = {"distance": 20.0, "max_jerk": 2.0e4, "max_accel": 600.0, "max_velocity": 80.0}
+MOVE = _LAB2["move"]
 
-#: The spec of lab 2, feasible for every motor of jerklab.lab.motors.RANGES (tests/test_labs.py).
-SPEC = {
-    "max_error": 0.40,  # rad, |r - y| during the move
-    "overshoot_pct": 1.0,  # % of the distance, after the move
-    "settle_band": 0.05,  # rad
-    "settling_time": 0.25,  # s after the end of the move, into the band for good
-    "max_voltage": 12.0,
-}  # V, and no saturated sample
+#: The spec of lab 2, feasible for every motor of jerklab.lab.motors.RANGES (tests/test_labs.py;
+#: on every profile: tests/test_lab_profiles.py): max |r - y| during the move (rad), overshoot
+#: after it (% of the distance), the settle band (rad) and the time to stay in it after the move
+#: (s), the supply (V) with no saturated sample.
+SPEC = _LAB2["spec"]
 
 #: Voltages of lab 1's sweep of steps (each from rest) and their length (s).
-SWEEP_VOLTS = (-9.0, -6.0, -3.0, 3.0, 6.0, 9.0)
-STEP_SECONDS = 0.4
+SWEEP_VOLTS = _LAB1["sweep_volts"]
+STEP_SECONDS = _LAB1["step_seconds"]
 #: Lab 1's PRBS record (``rig.record_prbs(**PRBS)``): 6 ± 2 V, so the motor never stops or turns
 #: back (friction then acts as a constant input bias, which PEM's offset absorbs), a maximal-length
 #: sequence of order 7 with each bit held 2 samples: 254 samples, 1.27 s at Ts = 5 ms.
-PRBS = {"amplitude": 2.0, "offset": 6.0, "order": 7, "hold": 2}
+PRBS = _LAB1["prbs"]
 #: Control period of labs 2-3 (s)
-DESIGN_TS = 0.005
+DESIGN_TS = _LAB2["design_Ts"]
 
 
 # ------------------------------------------------------------------ analysis helpers (the checker's own)
@@ -532,10 +533,16 @@ def _gains_of(answer):
     return answer
 
 
-def _spec_move_on(truth, gains, model):
+def _lab2(evidence):
+    """Lab 2's move and spec on the evidence's motor profile (``lab_spec``; paper: MOVE, SPEC)."""
+    name = getattr(evidence, "profile", None)
+    return _LAB2 if name is None else lab_spec(2, name)
+
+
+def _spec_move_on(truth, gains, model, move=None):
     """The spec move on the student's hidden motor rebuilt from ``truth`` (the same motor and
     encoder noise as their virtual rig), the feedforward from their ``model``, in memory."""
-    prof = plan_sine_jerk(**MOVE)
+    prof = plan_sine_jerk(**(MOVE if move is None else move))
     rig = connect(device=student_device(motor_from_truth(truth)), progress=False)
     try:
         rig.set_model(*model)
@@ -545,8 +552,10 @@ def _spec_move_on(truth, gains, model):
     return spec_metrics(rec, prof)
 
 
-def spec_failures(m):
-    """What a move's :func:`spec_metrics` miss of :data:`SPEC`, each with its hint (empty: met)."""
+def spec_failures(m, spec=None):
+    """What a move's :func:`spec_metrics` miss of ``spec`` (default :data:`SPEC`; another rig's:
+    ``jerklab.lab.specs.lab_spec(2, profile)["spec"]``), each with its hint (empty: met)."""
+    SPEC = _LAB2["spec"] if spec is None else spec
     out = []
     if m["saturated"] or m["peak_voltage"] > SPEC["max_voltage"] + 1e-9:
         out.append(
@@ -605,8 +614,9 @@ def check_design(answer, evidence, truth):
             f"stable on your model (largest |z| = {r:.3f}) with integral "
             "action; the rig run below tells whether it meets the spec.",
         )
-    m = _spec_move_on(truth, g, model)
-    fails = spec_failures(m)
+    lab2 = _lab2(evidence)
+    m = _spec_move_on(truth, g, model, lab2["move"])
+    fails = spec_failures(m, lab2["spec"])
     if fails:
         return CheckResult("design", False, "on your motor " + "; ".join(fails) + ".")
     return CheckResult(
@@ -621,7 +631,9 @@ def check_design(answer, evidence, truth):
 
 def check_measured(answer, evidence, truth):
     rec = run_of(evidence, "move_sine_jerk")
-    prof = plan_sine_jerk(**MOVE)
+    lab2 = _lab2(evidence)
+    SPEC = lab2["spec"]
+    prof = plan_sine_jerk(**lab2["move"])
     m = spec_metrics(rec, prof)
     keys = ("max_error", "overshoot_pct", "settling_time", "peak_voltage")
     if not isinstance(answer, dict) or set(keys) - set(answer):
@@ -645,7 +657,7 @@ def check_measured(answer, evidence, truth):
                 "peak_voltage": "max |rec.voltage| (the PWM-quantized voltage applied)",
             }[k]
             return CheckResult("measured", False, f"{k} disagrees with the recording: {hint}.")
-    fails = spec_failures(m)
+    fails = spec_failures(m, SPEC)
     if fails:
         return CheckResult(
             "measured",
@@ -700,12 +712,16 @@ def check_gap(answer, evidence, truth):
 KINDS = ("trapezoid", "scurve", "sine_jerk")
 
 
-def _plans():
+def _plans(evidence=None):
+    """Lab 3's three moves (and the optimal sine-jerk) with the lab's limits on the evidence's
+    motor profile (:func:`_lab2`; paper: :data:`MOVE`)."""
+    name = getattr(evidence, "profile", None)
+    M = MOVE if name is None else lab_spec(3, name)["move"]
     return {
-        "trapezoid": plan_trapezoid(MOVE["distance"], MOVE["max_accel"], MOVE["max_velocity"]),
-        "scurve": plan_scurve(**MOVE),
-        "sine_jerk": plan_sine_jerk(**MOVE),
-        "sine_jerk_optimal": plan_sine_jerk_optimal(**MOVE),
+        "trapezoid": plan_trapezoid(M["distance"], M["max_accel"], M["max_velocity"]),
+        "scurve": plan_scurve(**M),
+        "sine_jerk": plan_sine_jerk(**M),
+        "sine_jerk_optimal": plan_sine_jerk_optimal(**M),
     }
 
 
@@ -726,7 +742,7 @@ def check_pre_shortest(answer, evidence, truth):
 
 
 def check_durations(answer, evidence, truth):
-    p = _plans()
+    p = _plans(evidence)
     if not isinstance(answer, dict):
         raise Missing(f"durations: a dict {{kind: seconds}} for {KINDS}.")
     for k in KINDS:
@@ -750,7 +766,7 @@ def check_durations(answer, evidence, truth):
 
 def check_lost_time(answer, evidence, truth):
     v = number("lost_time", answer)
-    p = _plans()
+    p = _plans(evidence)
     ref = p["sine_jerk"].duration - p["sine_jerk_optimal"].duration
     if abs(v - ref) <= 1e-4 + 1e-3 * abs(ref):
         return CheckResult(
@@ -774,7 +790,7 @@ def _prediction(evidence, model):
     g = discrete_pole_placement_pid(K, tau, 30.0, 1.0, Ts=DESIGN_TS)
     motor = DCMotor(K=K, tau=tau, coulomb_friction=fc, encoder_ppr=evidence.counts_per_rev)
     out = {}
-    for k, p in _plans().items():
+    for k, p in _plans(evidence).items():
         if k in KINDS:
             met = simulate(p, motor, g).metrics
             out[k] = {
@@ -827,7 +843,7 @@ def check_measured3(answer, evidence, truth):
         rec = evidence.runs.get(f"move_{k}")
         if rec is None:
             continue
-        p = _plans()[k]
+        p = _plans(evidence)[k]
         m = spec_metrics(rec, p)
         ref[k] = {"max_error": m["max_error"], "peak_voltage": m["peak_voltage"]}
     if "sine_jerk" not in ref:
@@ -852,7 +868,7 @@ def check_rig_vs_sim(answer, evidence, truth):
     if model is None:
         raise Missing("rig_vs_sim: check your model first.")
     rec = run_of(evidence, "move_sine_jerk")
-    p = _plans()["sine_jerk"]
+    p = _plans(evidence)["sine_jerk"]
     meas = spec_metrics(rec, p)["max_error"]
     pred = _prediction(evidence, model)["sine_jerk"]["max_error"]
     ref = meas / pred

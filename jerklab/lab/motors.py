@@ -33,13 +33,16 @@ from pathlib import Path
 import numpy as np
 
 from jerklab import paper
+from jerklab.lab.specs import hidden_ranges
 from jerklab.plant import DCMotor, FlexibleDCMotor
-from jerklab.rig import Device, connect
+from jerklab.rig import Device, connect, load_profile
+from jerklab.rig.flexload import DESIGN_RANGE, RulerLoad, predict
 
 __all__ = [
     "CLASSROOM_DEFAULT_KEY",
     "RANGES",
     "MODE_RANGES",
+    "ranges",
     "StudentMotor",
     "StudentFlexibleMotor",
     "student_motor",
@@ -56,16 +59,20 @@ __all__ = [
 #: Used when no instructor key is set. Public (it is in the source): fine for practice, not for marks.
 CLASSROOM_DEFAULT_KEY = b"jerklab-classroom-default-key (not secret)"
 
-#: The distribution every hidden motor is drawn from (uniform in log for K and tau).
-RANGES = {
-    "K": (15.0, 45.0),  # rad/(V s)
-    "tau": (0.010, 0.060),  # s
-    "coulomb_friction": (0.10, 0.60),  # V, input referred
-    "offset": (-0.08, 0.08),  # V, input referred; |offset| < min friction: no creep at 0 V
-    "noise_counts": (0.0, 0.5),  # standard deviation of the encoder count noise
-    "encoder_ppr": (448, 896),  # counts per output revolution (x1 decoding)
-}
+#: The distribution every hidden motor of the paper's class is drawn from (uniform in log for K
+#: and tau): K 15-45 rad/(V s), tau 10-60 ms, Coulomb friction 0.1-0.6 V and an input offset
+#: within +-0.08 V (below the smallest friction: no creep at 0 V), input referred, encoder count
+#: noise 0-0.5 counts (standard deviation), 448 or 896 counts per output revolution (x1). Another
+#: rig's motors: :func:`ranges` of its profile (jerklab.lab.specs.hidden_ranges).
+RANGES = hidden_ranges("paper")
 SUPPLY_VOLTAGE = paper.SUPPLY_VOLTAGE
+
+
+def ranges(profile=None) -> dict:
+    """The distribution of the hidden motors on a rig with ``profile``'s motor (None: the
+    paper's class, :data:`RANGES`): :func:`jerklab.lab.specs.hidden_ranges`."""
+    return RANGES if profile is None else hidden_ranges(profile)
+
 
 #: The hidden load mode of a flexible student motor (``student_motor(..., plant="flexible")``): the
 #: shaft's own mode (motor held still) uniform in log frequency, its damping uniform, drawn
@@ -140,16 +147,17 @@ class _Parameters:
         return "_Parameters(hidden)"
 
 
-def _draw(seed: int) -> _Parameters:
+def _draw(seed: int, ranges_=None) -> _Parameters:
+    R = RANGES if ranges_ is None else ranges_
     rng = np.random.default_rng(seed)
-    lo, hi = RANGES["K"]
+    lo, hi = R["K"]
     K = float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
-    lo, hi = RANGES["tau"]
+    lo, hi = R["tau"]
     tau = float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
-    fc = float(rng.uniform(*RANGES["coulomb_friction"]))
-    off = float(rng.uniform(*RANGES["offset"]))
-    noise = float(rng.uniform(*RANGES["noise_counts"]))
-    ppr = int(rng.choice(RANGES["encoder_ppr"]))
+    fc = float(rng.uniform(*R["coulomb_friction"]))
+    off = float(rng.uniform(*R["offset"]))
+    noise = float(rng.uniform(*R["noise_counts"]))
+    ppr = int(rng.choice(R["encoder_ppr"]))
     return _Parameters(K, tau, fc, off, noise, ppr)
 
 
@@ -163,11 +171,11 @@ class StudentMotor(DCMotor):
     Make one with :func:`student_motor`.
     """
 
-    def __init__(self, student, params: _Parameters, seed: int):
+    def __init__(self, student, params: _Parameters, seed: int, supply_voltage=SUPPLY_VOLTAGE):
         super().__init__(
             K=params.K,
             tau=params.tau,
-            supply_voltage=SUPPLY_VOLTAGE,
+            supply_voltage=supply_voltage,
             pwm_bits=10,
             encoder_ppr=params.encoder_ppr,
             decoding=1,
@@ -185,7 +193,9 @@ class StudentMotor(DCMotor):
     __str__ = __repr__
 
 
-def student_motor(student, key: bytes | None = None, plant: str = "rigid") -> StudentMotor:
+def student_motor(
+    student, key: bytes | None = None, plant: str = "rigid", profile=None
+) -> StudentMotor:
     """The hidden motor of ``student`` (same ID and key -> same motor).
 
     Parameters
@@ -197,6 +207,9 @@ def student_motor(student, key: bytes | None = None, plant: str = "rigid") -> St
     plant : "rigid" or "flexible"
         ``"flexible"``: the same K, τ and encoder driving a load with a hidden mode
         (:class:`StudentFlexibleMotor`, seeded by the same key and ID).
+    profile : str, path or jerklab.rig.MotorProfile, optional
+        The rig's motor (:mod:`jerklab.rig.profiles`): the hidden motor is drawn from
+        :func:`ranges` of it, on its supply (None: the paper's class, :data:`RANGES`).
     """
     sid = normalize_student(student)
     if plant not in ("rigid", "flexible", None):
@@ -204,11 +217,18 @@ def student_motor(student, key: bytes | None = None, plant: str = "rigid") -> St
     if key is None:
         key, _ = instructor_key()
     seed = _seed(sid, bytes(key))
+    prof = None if profile is None else load_profile(profile)
+    params = _draw(seed, ranges(prof))
     if plant == "flexible":
-        return StudentFlexibleMotor(
-            sid, _draw(seed), seed, _draw_mode(_seed(sid, bytes(key), "mode-v1"))
-        )
-    return StudentMotor(sid, _draw(seed), seed)
+        mode_seed = _seed(sid, bytes(key), "mode-v1")
+        if prof is not None and (prof.datasheet or {}).get("stall_current"):
+            params, mode = _draw_load(mode_seed, prof, params)
+        else:
+            mode = _draw_mode(mode_seed)
+        return StudentFlexibleMotor(sid, params, seed, mode)
+    if prof is None:
+        return StudentMotor(sid, params, seed)
+    return StudentMotor(sid, params, seed, supply_voltage=prof.supply_voltage)
 
 
 def hidden_truth(motor) -> dict:
@@ -266,6 +286,29 @@ def _draw_mode(seed: int) -> tuple[float, float, float]:
     z = float(rng.uniform(*MODE_RANGES["mode_damping"]))
     lr = float(rng.uniform(*MODE_RANGES["load_ratio"]))
     return f, z, lr
+
+
+def _draw_load(seed: int, prof, params: _Parameters):
+    """A hidden load of the flexible-load design (:mod:`jerklab.rig.flexload`: a steel rule with
+    a tip mass) on ``prof``'s motor: free length and tip mass uniform in log over
+    ``DESIGN_RANGE``, the damping uniform over ``MODE_RANGES``; the two-mass model predicted
+    from them, the loaded τ in the parameters. Returns (parameters, (f Hz, ζ, J_l/J_m))."""
+    rng = np.random.default_rng(seed)
+    L = float(math.exp(rng.uniform(*np.log(DESIGN_RANGE["length"]))))
+    M = float(math.exp(rng.uniform(*np.log(DESIGN_RANGE["tip_mass"]))))
+    z = float(rng.uniform(*MODE_RANGES["mode_damping"]))
+    r = predict(
+        RulerLoad(length=L, tip_mass=M, damping=z), prof.replace(K=params.K, tau=params.tau)
+    )
+    loaded = _Parameters(
+        params.K,
+        r["tau"],
+        params.coulomb_friction,
+        params.offset,
+        params.noise_counts,
+        params.encoder_ppr,
+    )
+    return loaded, (r["mode_hz"], z, r["load_ratio"])
 
 
 class StudentFlexibleMotor(FlexibleDCMotor):

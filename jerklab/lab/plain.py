@@ -113,17 +113,23 @@ class Evidence:
         that build on an earlier one (lab 2's ``design`` on ``model``).
     counts_per_rev : int or None
         The rig's encoder counts per revolution.
+    profile : str or None
+        The rig's motor profile (a built-in name or a profile file, ``jerklab.rig.profiles``)
+        the lab's moves and specs are made for (``jerklab.lab.specs.lab_spec``); None: the
+        paper's class motors.
     """
 
     runs: dict = field(default_factory=dict)
     answers: dict = field(default_factory=dict)
     counts_per_rev: int | None = None
+    profile: str | None = None
 
     def to_dict(self) -> dict:
         return {
             "runs": {k: r.to_dict() for k, r in self.runs.items()},
             "answers": jsonable(self.answers),
             "counts_per_rev": self.counts_per_rev,
+            "profile": self.profile,
         }
 
     @classmethod
@@ -132,4 +138,5 @@ class Evidence:
             runs={k: Run.from_dict(r) for k, r in d.get("runs", {}).items()},
             answers=dict(d.get("answers", {})),
             counts_per_rev=d.get("counts_per_rev"),
+            profile=d.get("profile"),
         )

@@ -26,7 +26,8 @@ from jerklab.lab.motors import (
 )
 from jerklab.lab.plain import Evidence, Run, jsonable
 from jerklab.lab.registry import FLEXIBLE_LABS, LABS, check_function
-from jerklab.rig import Device, RigError, connect
+from jerklab.lab.specs import lab_spec
+from jerklab.rig import Device, MotorProfile, RigError, connect, load_profile
 
 __all__ = ["LabSession", "start", "panel_gains", "CheckResult", "LABS", "SPEC", "MOVE"]
 
@@ -60,13 +61,25 @@ def _served_device():
 
 
 class LabSession:
-    """What a worksheet works with: ``rig``, ``student``, ``folder``, ``recordings``, ``answers``.
+    """What a worksheet works with: ``rig``, ``student``, ``folder``, ``recordings``, ``answers``,
+    and the lab's numbers on the rig's motor profile (``profile``; ``spec``:
+    :func:`jerklab.lab.specs.lab_spec`, e.g. ``S.spec["move"]``).
 
     Make one with :func:`start`. Runs go through :meth:`step` and :meth:`run_move` so that
     every recording lands in the lab's folder (handed in by :meth:`submit`).
     """
 
-    def __init__(self, lab, student, port=None, folder=None, speed=None, key=None, progress=False):
+    def __init__(
+        self,
+        lab,
+        student,
+        port=None,
+        folder=None,
+        speed=None,
+        key=None,
+        progress=False,
+        profile=None,
+    ):
         if lab not in LABS:
             raise ValueError(f"lab must be one of {sorted(LABS)}, got {lab!r}")
         self.lab = lab
@@ -85,8 +98,21 @@ class LabSession:
                 f"⚠ lab {lab} needs the flexible load: on a real Uno, mount the load on its shaft coupling"
             )
         port = None if self.port == "" else self.port
+        # the rig's motor profile: the hidden motors' ranges, the moves and specs (lab_spec)
+        self.profile = None if profile is None else load_profile(profile)
+        # what the checks are told (a name, or a profile file's path)
+        self.profile_name = (
+            None
+            if profile is None
+            else self.profile.name
+            if isinstance(profile, MotorProfile)
+            else os.fspath(profile)
+        )
+        self.spec = lab_spec(lab, self.profile or "paper")
         # the hidden motor as this port simulates it; None on a real board (its motor is real)
-        self._motor = simulated_motor(student_motor(self.student, key, plant=self.plant), port)
+        self._motor = simulated_motor(
+            student_motor(self.student, key, plant=self.plant, profile=self.profile), port
+        )
         if self._motor is None and speed is not None:
             raise ValueError("speed applies to the virtual rig only (port=None)")
         self.rig = connect(
@@ -95,6 +121,7 @@ class LabSession:
             progress=progress,
             recordings=self.folder,
             metadata={"student": self.student, "lab": lab},
+            profile=self.profile,
         )
         self.recordings = {}
         self.answers = {}
@@ -169,6 +196,7 @@ class LabSession:
             runs={k: Run.from_recording(r) for k, r in self.recordings.items()},
             answers=dict(self.answers),
             counts_per_rev=self.rig.counts_per_rev,
+            profile=self.profile_name,
         )
 
     def verify(self, name, answer):
@@ -229,7 +257,9 @@ class LabSession:
 def start(lab, student, port=None, **options):
     """Start lab ``lab`` (1 to 4; lab 4's rig has the flexible load) for ``student`` on
     ``port`` (None: the virtual rig with the student's hidden motor; ``"simavr"``; a serial port
-    of a real Uno)."""
+    of a real Uno). ``profile=`` names the rig's motor (``jerklab.rig.profiles``: a built-in name
+    or the profile file of ``jerklab rig check --save``): the hidden motors, the moves and the
+    specs follow it (``S.spec``)."""
     s = LabSession(lab, student, port, **options)
     if s.port in (None, "virtual", ""):
         where = "virtual rig (your hidden motor)"
@@ -239,7 +269,9 @@ def start(lab, student, port=None, **options):
         where = f"rig at {s.rig.port}"
     print(
         f"Lab {lab} ({LABS[lab]}) for student {s.student} on the {where}; "
-        f"encoder {s.rig.counts_per_rev} counts/rev, supply {s.rig.supply_voltage:g} V; "
+        f"encoder {s.rig.counts_per_rev} counts/rev, supply {s.rig.supply_voltage:g} V"
+        + (f", motor profile {s.profile.name}" if s.profile is not None else "")
+        + "; "
         f"recordings in {s.folder}"
     )
     return s

@@ -125,9 +125,25 @@ def _ratio_near(r, target, tol):
 
 
 def _profiles_with(counts):
-    return [
-        p.name for p in builtin_profiles().values() if abs(p.counts_per_rev / counts - 1) < 0.02
-    ]
+    """Built-in profiles whose encoder gives ``counts`` a turn, at their decoding or at X1/X2/X4."""
+    out = []
+    for p in builtin_profiles().values():
+        options = {p.counts_per_rev: ""}
+        if p.counts_per_motor_rev and p.gear_ratio:
+            for d, label in ((1, "x1"), (2, "x2"), (4, "x4")):
+                options.setdefault(
+                    round(p.counts_per_motor_rev / 4 * p.gear_ratio * d), f" at {label}"
+                )
+        out += [f"{p.name!r}{lab}" for c, lab in options.items() if abs(c / counts - 1) < 0.02]
+    return out
+
+
+class _GearFinding(Finding):
+    """A gear-ratio finding that knows the gearbox measured (for the K expected after it)."""
+
+    def __init__(self, gear_ratio, *args):
+        super().__init__(*args)
+        self.gear_ratio = gear_ratio
 
 
 def _counts_finding(n, configured, prof):
@@ -169,7 +185,8 @@ def _counts_finding(n, configured, prof):
         per_motor_x1 = prof.counts_per_motor_rev / 4.0
         dec = prof.counts_per_rev / (per_motor_x1 * G)
         G_meas = n / (per_motor_x1 * dec)
-        return Finding(
+        return _GearFinding(
+            G_meas,
             "gear",
             False,
             f"one output revolution gave {n} counts, the profile {prof.name!r} expects "
@@ -184,7 +201,7 @@ def _counts_finding(n, configured, prof):
         False,
         f"one turn by hand gave {n} counts, the configured encoder {configured} counts/rev",
         f"use counts_per_rev={n} (--cpr {n})"
-        + (f": the count of the profile {', '.join(map(repr, names))}" if names else "")
+        + (f": the count of the profile {', '.join(names)}" if names else "")
         + "; in the firmware JL_ENCODER_PPR (pulses of channel A per output revolution)",
     )
 
@@ -320,7 +337,12 @@ def check_rig(
     )
 
     # 3./4. one revolution by hand: the counts per output revolution, and the encoder's sign
-    if turn_counts is None and turn is None and getattr(rig.link, "device", None) is not None:
+    if (
+        turn_counts is None
+        and turn is None
+        and rig.is_virtual
+        and getattr(rig.link, "device", None) is not None
+    ):
         turn = hand_turn  # the in-process virtual rig: its simulated hand
     if turn_counts is None and turn is not None:
         turn_counts = int(turn(rig))
@@ -351,7 +373,12 @@ def check_rig(
         enc_sign = 1 if turn_counts > 0 else -1
         found.measured.update(turn_counts=turn_counts, counts_per_rev=n)
         counts_per_rad = n / (2.0 * math.pi)
-        found.append(_counts_finding(n, rig.counts_per_rev, prof))
+        finding = _counts_finding(n, rig.counts_per_rev, prof)
+        found.append(finding)
+        if isinstance(finding, _GearFinding):  # another gearbox: K scales with 1/ratio
+            found.measured["gear_ratio"] = finding.gear_ratio
+            scale = prof.gear_ratio / finding.gear_ratio
+            K_nom, K_lo, K_hi = K_nom * scale, K_lo * scale, K_hi * scale
 
     # 5. direction: the encoder's sign from the hand turn, the leads' from the drive
     drive = 1 if up > 0 else -1

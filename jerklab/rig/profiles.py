@@ -6,18 +6,23 @@ first-order model's K and τ (Stojčić eq. 1, ASCII Stojcic eq. 1: τ θ'' + θ
 ranges a bought unit falls in, the Coulomb friction (as input volts) and where every number
 comes from. The built-in profiles live in ``jerklab/rig/profiles.json``:
 
-======================== ========================================================= ======
-name                     motor                                                     counts
-======================== ========================================================= ======
-``paper``                the paper's motor (K = 32.4 rad/(V s), τ = 25 ms)           448
-``pololu-37d-30``        Pololu 37D 30:1 12 V, 64 CPR encoder (item 4752)            480
-``pololu-25d-47-hp``     Pololu 25D 47:1 HP 12 V, 48 CPR encoder (item 4845)         562
-``jgb37-520-30``         JGB37-520 12 V 1:30, 11-PPR Hall encoder                    330
-``pololu-micro-30-hpcb`` Pololu micro metal 30:1 HPCB 12 V, 12 CPR magnetic encoder  358
-======================== ========================================================= ======
+======================== ========================================================== ======
+name                     motor                                                      counts
+======================== ========================================================== ======
+``paper``                the paper's motor (K = 32.4 rad/(V s), τ = 25 ms)          448
+``pololu-37d-30``        Pololu 37D 30:1 12 V, 64 CPR encoder (item 4752)           1920
+``pololu-25d-47-hp``     Pololu 25D 47:1 HP 12 V, 48 CPR encoder (item 4845)        2248
+``jgb37-520-30``         JGB37-520 12 V 1:30, 11-PPR Hall encoder                   1320
+``pololu-micro-30-hpcb`` Pololu micro metal 30:1 HPCB 12 V, 12 CPR magnetic encoder 360
+======================== ========================================================== ======
 
-(counts: per output revolution as the firmware counts them, one edge of channel A — x1 —
-except the micro gearmotor's 12 CPR encoder, counted x4.)
+(counts: per output revolution as the firmware counts them: the paper's x1 (one edge of
+channel A), the geared motors' x4 (both edges of both channels; ``counts_per_rev`` = 4 ×
+``JL_ENCODER_PPR``, the integer pulses of one channel per output revolution: within 0.04 % and
+0.5 % of the 25D's 2248.86 and the micro gearmotor's 358.3). At x1 one count of a
+3 rad/(V s) motor is too coarse for its loop: through the derivative gain a count kicks the
+voltage by volts. Their edge rates at top speed, 1.2–11 kHz, are far below the encoder
+interrupt's limit.)
 
 From a datasheet's no-load speed ω₀ (rad/s at the rated voltage V), no-load current I₀ and
 stall current I_s (Stojčić eq. 1 at rest of the transient, ω = K (u − f_c)):
@@ -36,7 +41,7 @@ file: :func:`load_profile` reads a built-in name, such a file, or a profile.
 >>> from jerklab.rig.profiles import load_profile
 >>> p = load_profile("pololu-37d-30")
 >>> p.counts_per_rev, round(p.K, 2), round(p.top_speed(), 1)
-(480, 2.99, 34.6)
+(1920, 2.99, 34.6)
 """
 
 from __future__ import annotations

@@ -1,0 +1,180 @@
+"""The labs' numbers as functions of the rig's motor profile: moves, specs, records, tolerances.
+
+Every lab runs on the motors a class has (:mod:`jerklab.rig.profiles`): a move is a stated
+fraction of the top speed and acceleration of the *weakest* motor of the profile's ranges
+(smallest K, largest τ and friction; Stojčić eq. 1, ASCII Stojcic eq. 1: top speed
+K (V − f_c), acceleration from rest K (V − f_c) / τ), so that every hidden motor can follow it
+without saturating; the records (lab 1's sweep and steps, the PRBS) are fractions of the
+supply and multiples of the slowest τ. For the ``paper`` profile (the class motors of K 15–45
+rad/(V s), τ 10–60 ms, 12 V) the numbers are the ones the labs have always had
+(``jerklab.lab.MOVE``, ``SPEC``, ``SWEEP_VOLTS``, ``STEP_SECONDS``, ``PRBS``, ``MOVE4``).
+
+>>> from jerklab.lab.specs import lab_spec
+>>> lab_spec(2)["move"]
+{'distance': 20.0, 'max_jerk': 20000.0, 'max_accel': 600.0, 'max_velocity': 80.0}
+>>> lab_spec(2, "pololu-37d-30")["move"]["max_velocity"]
+13.0
+
+:func:`lab_spec` is the one place these numbers are made; :func:`hidden_ranges` the
+distribution of the hidden motors on a profile.
+"""
+
+from __future__ import annotations
+
+import math
+
+from jerklab.rig.profiles import load_profile
+
+__all__ = [
+    "lab_spec",
+    "hidden_ranges",
+    "move_limits",
+    "VELOCITY_FRACTION",
+    "ACCEL_FRACTION",
+    "JERK_TIME",
+    "SWEEP_FRACTIONS",
+]
+
+#: labs 2-3: the move's top speed and acceleration as fractions of the weakest motor's
+VELOCITY_FRACTION = 0.47
+ACCEL_FRACTION = 0.21
+#: the time the jerk takes to build the acceleration (s): max_jerk = max_accel / JERK_TIME
+JERK_TIME = 0.03
+#: lab 4 (the flexible load, no friction in its model): its own fractions and jerk time
+VELOCITY_FRACTION_4 = 0.56
+ACCEL_FRACTION_4 = 0.10
+JERK_TIME_4 = 0.015
+#: lab 2's design: ωn (rad/s) at most, ωn τ_max, and the settling time allowed times ωn
+DESIGN_WN, DESIGN_WN_TAU, SETTLE_WN = 30.0, 1.8, 7.5
+#: lab 2's control period (s) and the largest voltage kick of one count through the derivative (V)
+DESIGN_TS, KICK_VOLTS = 0.005, 1.0
+#: lab 2's tracking-error limit at the paper's move speed (rad, rad/s)
+MAX_ERROR, PAPER_VELOCITY, MIN_ERROR_SHARE = 0.40, 80.0, 0.3
+#: lab 1's sweep: fractions of the supply, each way
+SWEEP_FRACTIONS = (0.25, 0.5, 0.75)
+#: lab 1's steps last this many of the slowest τ (rounded up to 0.1 s)
+STEP_TAUS = 6.6
+
+
+def _round2(x: float) -> float:
+    """``x`` to two significant digits (the numbers a worksheet prints)."""
+    if x <= 0 or not math.isfinite(x):
+        raise ValueError(f"a move limit must be a positive number, got {x!r}")
+    return float(f"{x:.2g}")
+
+
+def _ceil01(x: float) -> float:
+    return math.ceil(round(x * 10.0, 9)) / 10.0
+
+
+def move_limits(profile="paper", lab=2) -> dict:
+    """The move of labs 2-3 (``lab`` 2 or 3) or of lab 4 on ``profile``: distance (rad), the
+    jerk, acceleration and speed limits (rad/s³, rad/s², rad/s)."""
+    p = load_profile(profile)
+    w = p.weakest()
+    if lab == 4:  # the two-mass model has no friction
+        top = w["K"] * p.supply_voltage
+        v = _round2(VELOCITY_FRACTION_4 * top)
+        a = _round2(ACCEL_FRACTION_4 * top / w["tau"])
+        return {
+            "distance": 4 * math.pi,
+            "max_jerk": _round2(a / JERK_TIME_4),
+            "max_accel": a,
+            "max_velocity": v,
+        }
+    top = p.top_speed(w["K"], w["coulomb_friction"])
+    v = _round2(VELOCITY_FRACTION * top)
+    a = _round2(ACCEL_FRACTION * top / w["tau"])
+    return {"distance": 20.0, "max_jerk": _round2(a / JERK_TIME), "max_accel": a, "max_velocity": v}
+
+
+def hidden_ranges(profile="paper") -> dict:
+    """The distribution the hidden motors of ``profile`` are drawn from (uniform in log for K
+    and τ): its K, τ and friction ranges, an input offset below the smallest friction (no creep
+    at 0 V), encoder count noise and the encoders a class may have."""
+    p = load_profile(profile)
+    off = round(min(0.08, 0.8 * p.friction_range[0]), 6)
+    return {
+        "K": tuple(p.K_range),
+        "tau": tuple(p.tau_range),
+        "coulomb_friction": tuple(p.friction_range),
+        "offset": (-off, off),
+        "noise_counts": (0.0, 0.5),
+        "encoder_ppr": tuple(p.counts_options),
+    }
+
+
+def lab_spec(lab, profile="paper") -> dict:
+    """The numbers of lab ``lab`` (1-4) on a rig with ``profile``'s motors.
+
+    Returns
+    -------
+    dict
+        lab 1: ``sweep_volts``, ``step_seconds``, ``prbs`` (``rig.record_prbs`` keywords) and
+        ``expected`` (``counts_per_rev`` options, the steady ``speeds`` range at each sweep
+        voltage, the ``tau`` range); labs 2-3: ``move`` and ``spec`` (the tolerances of the
+        move: max tracking error, overshoot, settle band and time, max voltage), ``design_Ts``;
+        lab 4: ``move``.
+    """
+    p = load_profile(profile)
+    if lab not in (1, 2, 3, 4):
+        raise ValueError(f"lab must be 1, 2, 3 or 4, got {lab!r}")
+    V = p.supply_voltage
+    if lab == 1:
+        volts = tuple(
+            [-round(f * V, 6) for f in reversed(SWEEP_FRACTIONS)]
+            + [round(f * V, 6) for f in SWEEP_FRACTIONS]
+        )
+        lo_K, hi_K = p.K_range
+        lo_f, hi_f = p.friction_range
+        off = hidden_ranges(p)["offset"][1]
+        speeds = {
+            v: (lo_K * max(abs(v) - hi_f - off, 0.0), hi_K * (abs(v) - lo_f + off)) for v in volts
+        }
+        hold = max(2, int(round(2 * p.tau_range[1] / 0.06)))
+        return {
+            "sweep_volts": volts,
+            "step_seconds": _ceil01(STEP_TAUS * p.tau_range[1] - 1e-9),
+            "prbs": {
+                "amplitude": round(V / 6, 6),
+                "offset": round(V / 2, 6),
+                "order": 7,
+                "hold": hold,
+            },
+            "expected": {
+                "counts_per_rev": tuple(p.counts_options),
+                "speeds": speeds,
+                "tau": tuple(p.tau_range),
+            },
+        }
+    if lab == 4:
+        return {"move": move_limits(p, 4)}
+    move = move_limits(p, lab)
+    # the worksheet's design: three poles at ωn (Stojčić eq. 11), ωn τ_max = 1.8 as on the paper's
+    # class (30 rad/s, 60 ms), no faster than 30 rad/s at Ts = 5 ms; the settling allowed after the
+    # move, 7.5 / ωn (0.25 s at 30 rad/s)
+    # — and no faster than a derivative kick of KICK_VOLTS for one count in one sample on the
+    # weakest motor: kd = (3 ωn τ − 1)/K (three poles at ωn), kd (2π/cpr)/Ts <= KICK_VOLTS
+    cpr = min(p.counts_options)
+    kick = (1.0 + p.K_range[0] * KICK_VOLTS * DESIGN_TS * cpr / (2.0 * math.pi)) / (
+        3.0 * p.tau_range[1]
+    )
+    wn = min(DESIGN_WN, _round2(DESIGN_WN_TAU / p.tau_range[1]), _round2(kick))
+    return {
+        "move": move,
+        "design_wn": wn,
+        "spec": {
+            # rad, |r - y| during the move: 2 % of the distance at the paper's 80 rad/s, in
+            # proportion to a slower move's speed (a model error's share of the voltage makes an
+            # error in proportion to the speed), down to 0.3 of it (0.12 rad)
+            "max_error": _round2(
+                MAX_ERROR * min(1.0, max(MIN_ERROR_SHARE, move["max_velocity"] / PAPER_VELOCITY))
+            ),
+            "overshoot_pct": 1.0,  # % of the distance, after the move
+            "settle_band": 0.05,  # rad
+            # s after the end of the move, into the band for good
+            "settling_time": _round2(SETTLE_WN / wn),
+            "max_voltage": V,  # V, and no saturated sample
+        },
+        "design_Ts": DESIGN_TS,
+    }

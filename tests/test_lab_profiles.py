@@ -1,0 +1,152 @@
+"""The labs on every motor profile (jerklab.lab.specs): at the corners of each profile's hidden
+motor distribution the worksheets' methods meet every spec item, and each item can be missed."""
+
+from __future__ import annotations
+
+import itertools
+
+import pytest
+
+from jerklab import ident, lab
+from jerklab.controller import discrete_pole_placement_pid
+from jerklab.lab import checks
+from jerklab.lab.motors import (
+    StudentMotor,
+    _Parameters,
+    hidden_truth,
+    ranges,
+    student_device,
+    student_motor,
+)
+from jerklab.lab.specs import hidden_ranges, lab_spec
+from jerklab.planner import plan_sine_jerk
+from jerklab.rig import connect, load_profile, profile_names
+
+PROFILES = profile_names()
+
+
+def _corners(profile):
+    R = hidden_ranges(profile)
+    out = []
+    for K, tau, fc in itertools.product(R["K"], R["tau"], R["coulomb_friction"]):
+        off = R["offset"][1] if fc > sum(R["coulomb_friction"]) / 2 else R["offset"][0]
+        out.append(_Parameters(K, tau, fc, off, R["noise_counts"][1], R["encoder_ppr"][0]))
+    return out
+
+
+def _rig(motor):
+    return connect(device=student_device(motor), progress=False)
+
+
+def _spec_run(rig, K, tau, spec, wn=None, zeta=1.0, **stops):
+    wn = spec["design_wn"] if wn is None else wn
+    move = plan_sine_jerk(**spec["move"])
+    rig.set_model(K, tau)
+    g = discrete_pole_placement_pid(K, tau, wn, zeta, Ts=spec["design_Ts"])
+    rec = rig.run_move(move, g, spec["design_Ts"], settle=0.4, path=False, **stops)
+    return checks.spec_metrics(rec, move)
+
+
+def test_the_paper_profile_keeps_the_labs_numbers():
+    assert lab_spec(2)["move"] == lab.MOVE and lab_spec(2)["spec"] == lab.SPEC
+    assert (
+        lab_spec(1)["sweep_volts"] == lab.SWEEP_VOLTS
+        and lab_spec(1)["step_seconds"] == lab.STEP_SECONDS
+    )
+    assert lab_spec(1)["prbs"] == lab.PRBS and lab_spec(4)["move"] == lab.MOVE4
+    assert hidden_ranges("paper") == lab.RANGES == ranges(None)
+
+
+@pytest.mark.parametrize("name", PROFILES)
+def test_moves_are_a_stated_fraction_of_the_weakest_motor(name):
+    p = load_profile(name)
+    w = p.weakest()
+    top = p.top_speed(w["K"], w["coulomb_friction"])
+    m = lab_spec(2, name)["move"]
+    assert 0.40 * top <= m["max_velocity"] <= 0.55 * top
+    assert 0.18 * top / w["tau"] <= m["max_accel"] <= 0.24 * top / w["tau"]
+    assert lab_spec(1, name)["step_seconds"] >= 6 * p.tau_range[1]
+    # the PRBS never stops the motor: its low level is above the largest friction
+    prbs = lab_spec(1, name)["prbs"]
+    assert prbs["offset"] - prbs["amplitude"] > p.friction_range[1]
+    # the sweep's lowest step turns every motor
+    assert min(v for v in lab_spec(1, name)["sweep_volts"] if v > 0) > p.friction_range[1]
+
+
+@pytest.mark.parametrize("name", PROFILES)
+def test_hidden_motors_are_drawn_around_the_profile(name):
+    R = hidden_ranges(name)
+    p = load_profile(name)
+    for i in range(12):
+        t = hidden_truth(student_motor(f"prof-{i}", key=b"k", profile=name))
+        assert R["K"][0] <= t["K"] <= R["K"][1] and R["tau"][0] <= t["tau"] <= R["tau"][1]
+        assert R["coulomb_friction"][0] <= t["coulomb_friction"] <= R["coulomb_friction"][1]
+        assert (
+            abs(t["offset"]) < R["coulomb_friction"][0] and t["counts_per_rev"] in p.counts_options
+        )
+
+
+#: profiles whose corners do not meet lab 2's spec yet, and why (strict: a pass must remove it)
+NOT_YET = {
+    "pololu-micro-30-hpcb": "its 360 counts a turn, friction up to 2.3 V and tau up to 0.25 s: the "
+    "slow loop (wn 4.7 rad/s) sticks outside the 0.05 rad band and the tracking error exceeds "
+    "0.2 rad at the corners; lab 1 works on it",
+}
+
+
+def _corner_cases():
+    for n in PROFILES:
+        for i in range(8):
+            marks = [pytest.mark.xfail(strict=True, reason=NOT_YET[n])] if n in NOT_YET else []
+            yield pytest.param(n, i, marks=marks, id=f"{n}-{i}")
+
+
+@pytest.mark.parametrize("name, corner", list(_corner_cases()))
+def test_every_spec_item_can_be_met_at_every_corner(name, corner):
+    """Lab 1's sweep (K within 4 %, f_c within 0.06 V), PEM's τ (8 %), and lab 2's design
+    (z-domain, the lab's ωn — 30 rad/s on the paper's class —, ζ = 1, Ts = 5 ms) on a model
+    5 % / 8 % off meeting the spec."""
+    p = load_profile(name)
+    params = _corners(name)[corner]
+    m = StudentMotor("corner", params, 7, supply_voltage=p.supply_voltage)
+    t = hidden_truth(m)
+    s1, s2 = lab_spec(1, name), lab_spec(2, name)
+    rig = _rig(m)
+    try:
+        recs = {V: rig.step(V, s1["step_seconds"], path=False) for V in s1["sweep_volts"]}
+        (K, fc, off), _ = lab.sweep_fit({V: lab.steady_speed(r) for V, r in recs.items()})
+        assert abs(K / t["K"] - 1) <= 0.04 and abs(fc - t["coulomb_friction"]) <= 0.06
+        lo, hi = s1["expected"]["speeds"][s1["sweep_volts"][-1]]
+        assert lo <= lab.steady_speed(recs[s1["sweep_volts"][-1]]) <= hi
+        r = recs[s1["sweep_volts"][4]]
+        tau = ident.fit_dc_motor(r.voltage, r.position, 0.005).tau
+        assert abs(tau / t["tau"] - 1) <= 0.08
+        for eK, et in ((1.05, 0.92), (0.95, 1.08)):
+            met = _spec_run(rig, t["K"] * eK, t["tau"] * et, s2)
+            assert checks.spec_failures(met, s2["spec"]) == [], met
+    finally:
+        rig.close()
+
+
+@pytest.mark.parametrize("name", PROFILES)
+def test_every_spec_item_can_be_missed(name):
+    """A slow design without the feedforward misses the tracking error, the overshoot (its
+    integrator winds up) and the settling; an unstable one run anyway (force) the voltage: on
+    the profile's middle motor."""
+    p = load_profile(name)
+    R = hidden_ranges(name)
+    mid = _Parameters(p.K, p.tau, sum(R["coulomb_friction"]) / 2, 0.0, 0.2, p.counts_per_rev)
+    m = StudentMotor("mid", mid, 3, supply_voltage=p.supply_voltage)
+    s2 = lab_spec(2, name)
+    rig = _rig(m)
+    missed = set()
+    try:
+        for wn, ff, force in ((3.0, False, False), (2.0, False, False), (200.0, True, True)):
+            # the device's own stops off, so that the run shows how far it misses
+            stops = dict(max_error=1e4, saturation_time=0.0, runaway_time=0.0)
+            met = _spec_run(rig, p.K, p.tau, s2, wn, 1.0, feedforward=ff, force=force, **stops)
+            fails = checks.spec_failures(met, s2["spec"])
+            missed |= {f.split(" ")[1] for f in fails}
+    finally:
+        rig.close()
+    assert {"tracking", "overshoots", "settles", "voltage"} <= missed, missed
