@@ -230,6 +230,21 @@ def _hint(output: str) -> str:
     return errs[-1].strip() if errs else (output or "").strip()[-300:]
 
 
+_FILE_ID = re.compile(r"^(?:lab(\d)_(.+)|(.+?)_lab(\d))$")
+
+
+def _id_from_file_name(stem: str):
+    """(student, lab) in a hand-in's file name (``lab1_alice``, ``bob_lab1``), else (None, None)."""
+    m = _FILE_ID.match(stem)
+    if not m:
+        return None, None
+    lab, student = (m.group(1), m.group(2)) if m.group(1) else (m.group(4), m.group(3))
+    try:
+        return normalize_student(student), int(lab)
+    except (TypeError, ValueError):
+        return None, None
+
+
 def _scores(results):
     qs = {}
     for t in results.get("tests", []):
@@ -301,6 +316,10 @@ def grade_folder(folder, out_csv, feedback_dir=None, timeout=300.0, labs=None) -
         except (HandinError, ValueError, RuntimeError, OSError, UnicodeDecodeError) as exc:
             row["status"] = f"error: {exc}"
             notes.append(f"not graded: {exc}")
+            if not row["student"]:
+                sid, lab_n = _id_from_file_name(p.stem)
+                if sid is not None:
+                    row.update(student=sid, lab=lab_n if lab_n in LABS else "")
         rows.append(row)
         who = row["student"] or p.stem
         fb = feedback_dir / f"{who}_lab{row['lab'] or 'X'}_{p.stem}.txt"

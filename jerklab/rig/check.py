@@ -105,10 +105,15 @@ def check_rig(rig, *, K=None, tolerance=1.5, voltage=None, seconds=0.6, min_coun
     if not proto_ok:
         fix = (
             f"the firmware speaks protocol {rig.info.protocol_version}, jerklab {__version__} speaks "
-            f"{P.PROTOCOL_VERSION}: flash this jerklab's firmware (make -C firmware upload PORT=...)"
+            f"{P.PROTOCOL_VERSION}: flash this jerklab's firmware "
+            "(Arduino IDE: open firmware/jerklab_rig/jerklab_rig.ino, Upload; or make -C firmware "
+            "upload PORT=...)"
         )
     elif not has_step:
-        fix = "this firmware has no open-loop STEP: flash the rig's firmware (make -C firmware upload PORT=...)"
+        fix = (
+            "this firmware has no open-loop STEP: flash the rig's firmware (Arduino IDE: open "
+            "firmware/jerklab_rig/jerklab_rig.ino, Upload; or make -C firmware upload PORT=...)"
+        )
     found.append(
         Finding(
             "firmware",
