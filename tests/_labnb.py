@@ -55,3 +55,51 @@ def set_student(nb, sid):
             c.source = re.sub(r'STUDENT = "[^"]*"', f'STUDENT = "{sid}"', c.source)
             return
     raise AssertionError("no STUDENT cell")
+
+
+def answered(n):
+    """The committed student version of lab ``n`` with every answer cell typed in: each
+    ``...`` cell replaced by the master's solution for it (otter's autograder copy), so that it
+    runs as a student who got everything right would run it."""
+    from pathlib import Path
+
+    import nbformat
+
+    from jerklab.lab.grade import _assigned, student_version_name
+
+    name = student_version_name(n)
+    root = Path(__file__).parent.parent
+    nb = nbformat.read(root / "notebooks" / "labs" / name, as_version=4)
+    auto = nbformat.read(_assigned(n) / "autograder" / name, as_version=4)
+
+    def tagged(book, tag):
+        return [
+            c for c in book.cells if c.cell_type == "code" and tag in c.metadata.get("tags", [])
+        ]
+
+    answers, solutions = tagged(nb, "otter_answer_cell"), tagged(auto, "otter_assign_solution_cell")
+    assert len(answers) == len(solutions) > 0, (len(answers), len(solutions))
+    for a, s in zip(answers, solutions):
+        a.source = s.source
+    return nb
+
+
+def verdicts(nb):
+    """``(check name, passed, text)`` of every ``grader.check("...")`` cell's shown outcome (in
+    order), or of its error."""
+    out = []
+    for c in nb.cells:
+        m = (
+            re.fullmatch(r'\s*grader\.check\("(\w+)"\)\s*', c.source)
+            if c.cell_type == "code"
+            else None
+        )
+        if not m:
+            continue
+        texts = [o.get("data", {}).get("text/plain", "") for o in c.get("outputs", [])]
+        errors = [
+            f"ERROR {o.ename}: {o.evalue}" for o in c.get("outputs", []) if o.output_type == "error"
+        ]
+        text = "\n".join(t for t in texts if t) or "\n".join(errors)
+        out.append((m.group(1), text.startswith("✔"), text))
+    return out

@@ -13,21 +13,18 @@ import nbformat
 import numpy as np
 import pytest
 from _labnb import KEY, lab_env  # noqa: F401  (lab_env: autouse fixture)
+from _labnb import answered as _answered
 from _labnb import execute as _execute
 from _labnb import outputs as _outputs
 from _labnb import set_student as _set_student
+from _labnb import verdicts as _verdicts
 
 from jerklab import lab
 from jerklab.lab.motors import coupled_mode, student_motor
 from jerklab.lab.motors import hidden_truth as _truth
+from jerklab.lab.ringing import MISTAKES4
 
 ROOT = Path(__file__).parent.parent
-
-
-def _master():
-    from jerklab.lab.grade import master_path
-
-    return nbformat.read(master_path(4), as_version=4)
 
 
 def _leaks(motor):
@@ -49,7 +46,8 @@ def _leaks(motor):
 
 
 def test_lab4_with_solutions_passes_every_check_quickly(tmp_path):
-    nb = _master()
+    """The student version with every answer typed in: one check cell per question, all ✔."""
+    nb = _answered(4)
     _set_student(nb, "sol4")
     t0 = time.monotonic()
     _execute(nb, tmp_path)
@@ -57,39 +55,39 @@ def test_lab4_with_solutions_passes_every_check_quickly(tmp_path):
     outs = _outputs(nb)
     errors = [o for o in outs if o.startswith("ERROR")]
     assert not errors, errors
-    verdicts = [o for o in outs if "right —" in o or "not yet —" in o]
-    n_checks = sum(1 for c in nb.cells if c.cell_type == "code" and c.source.startswith("S.check("))
-    assert len(verdicts) == n_checks == 7
-    assert all("✔ right" in v for v in verdicts), [v for v in verdicts if "✔" not in v]
+    shown = _verdicts(nb)
+    names = [v[0] for v in shown]
+    assert len(names) == len(set(names)) and sorted(names) == sorted(lab.registry.checks_of(4))
+    assert all(ok for _, ok, _ in shown), [v for v in shown if not v[1]]
     blob = "\n".join(outs)
     for pat in _leaks(student_motor("sol4", plant="flexible")):
         assert pat not in blob, f"true value {pat} in the notebook's output"
     assert elapsed < 120, f"lab 4 took {elapsed:.0f} s headless (limit 2 min)"
 
 
-#: (a line of the solution cell, the wrong answer appended after it, the check, its hint)
+#: (a line of the typed answer, the wrong answer a student computes instead, the check, its hint)
 WRONG4 = [
     (
         "mode = (fit.frequency_hz, fit.damping)",
         "_wrong_mode = (2 * np.pi * fit.frequency_hz, fit.damping)",
         "mode",
-        "2π too large",
+        MISTAKES4["mode_rad"].hint,
     ),
     (
         "zv_delay = float(zv.times[-1])",
         "_wrong_zv_delay = float(zvd.times[-1])",
         "zv_delay",
-        "whole period",
+        MISTAKES4["zv_period"].hint,
     ),
     (
         'residual_pct = {k: 100 * amp[k] / amp["none"] for k in ("zv", "zvd", "ei")}',
         '_wrong_residual_pct = {k: amp[k] / amp["none"] for k in ("zv", "zvd", "ei")}',
         "residual_pct",
-        "fractions",
+        MISTAKES4["residual_fraction"].hint,
     ),
     (
         "float(sh.residual_vibration((1 - lab.MODE_DRIFT) * f, z))",
-        '_wrong_robust = {k: float(sh.residual_vibration(f, z)) '
+        "_wrong_robust = {k: float(sh.residual_vibration(f, z)) "
         'for k, sh in (("zv", zv), ("zvd", zvd), ("ei", ei))}',
         "robust",
         "at the design frequency",
@@ -99,32 +97,56 @@ WRONG4 = [
 
 
 def test_lab4_wrong_answers_get_their_hints(tmp_path):
-    """Each wrong answer in turn, in one execution: the wrong answer goes into its own variable
-    and is the one checked; the right one stays for the cells after it."""
-    nb = _master()
+    """Each wrong answer in turn, in one execution: just before its check cell the answer is
+    swapped for the wrong one, and swapped back after it for the cells that follow."""
+    nb = _answered(4)
     _set_student(nb, "wrong4")
     for old, wrong, name, hint in WRONG4:
         hits = [c for c in nb.cells if c.cell_type == "code" and old in c.source]
         assert len(hits) == 1, old
-        check = next(
-            c
-            for c in nb.cells
-            if c.cell_type == "code" and c.source.startswith(f'S.check("{name}"')
-        )
         hits[0].source = hits[0].source + "\n" + wrong
-        check.source = f'S.check("{name}", _wrong_{name})'
+        i = next(
+            i
+            for i, c in enumerate(nb.cells)
+            if c.cell_type == "code" and c.source.strip() == f'grader.check("{name}")'
+        )
+        nb.cells[i + 1 : i + 1] = [nbformat.v4.new_code_cell(f"{name} = _right_{name}")]
+        nb.cells[i:i] = [
+            nbformat.v4.new_code_cell(f"_right_{name}, {name} = {name}, _wrong_{name}")
+        ]
     cut = max(
         i
         for i, c in enumerate(nb.cells)
-        if c.cell_type == "code" and c.source.startswith("S.check(")
+        if c.cell_type == "code" and c.source.startswith("grader.check(")
     )
-    nb.cells = nb.cells[: cut + 1]
+    nb.cells = nb.cells[: cut + 2]
     _execute(nb, tmp_path)
     outs = _outputs(nb)
     assert not [o for o in outs if o.startswith("ERROR")]
+    shown = {k: (ok, text) for k, ok, text in _verdicts(nb)}
     for _, _, name, hint in WRONG4:
-        verdict = next(o for o in outs if f"— {name}**" in o)
-        assert "✘ not yet" in verdict and hint in verdict, (name, verdict)
+        ok, text = shown[name]
+        assert not ok and hint in text, (name, text)
+
+
+def test_lab4_mistakes_without_runs_get_their_hints():
+    """The mistakes of lab 4 that need no recording, given to the checks with the truth."""
+    from jerklab.lab.plain import Evidence
+    from jerklab.lab.registry import run_check
+
+    m = student_motor("hints4", plant="flexible")
+    f, z = coupled_mode(m)
+    t = _truth(m)
+    cases = {
+        "pre_zv_period": ("pre_zv_delay", 0.1),
+        "mode_rad": ("mode", (2 * math.pi * f, z)),
+        "mode_zeta_percent": ("mode", (f, 100 * z)),
+        "zv_period": ("zv_delay", 1.0 / (f * math.sqrt(1 - z * z))),
+    }
+    for key, (name, answer) in cases.items():
+        assert MISTAKES4[key].check == name
+        res = run_check(4, name, answer, Evidence(), t)
+        assert not res.ok and MISTAKES4[key].hint in res.message, (key, res)
 
 
 def test_lab4_student_version_is_generated_and_current(tmp_path):

@@ -28,7 +28,7 @@ from jerklab.lab.plain import Evidence, Run
 def test_the_table_lists_exactly_what_each_worksheet_checks(n):
     nb = nbformat.read(master_path(n), as_version=4)
     code = "\n".join(c.source for c in nb.cells if c.cell_type == "code")
-    asked = list(dict.fromkeys(re.findall(r'S\.check\("([A-Za-z_0-9]+)"', code)))
+    asked = list(dict.fromkeys(re.findall(r'S\.verify\("([A-Za-z_0-9]+)"', code)))
     assert asked and sorted(asked) == sorted(registry.checks_of(n))
 
 
@@ -63,7 +63,7 @@ def test_a_check_gives_the_same_verdict_on_evidence_that_crossed_json(tmp_path):
             assert direct.ok == crossed.ok == session.ok
             assert direct.message == crossed.message == session.message
         fit = registry.run_check(1, "fit_valid", 80.0, back, None)  # a real rig: no truth
-        assert not fit.ok and "the checker finds" in fit.message
+        assert not fit.ok and "beyond the tolerance (1.5 points)" in fit.message
     finally:
         S.close()
 
@@ -72,7 +72,7 @@ def test_a_missing_recording_is_named():
     truth = {"K": 30.0, "tau": 0.03, "coulomb_friction": 0.3, "offset": 0.0}
     with pytest.raises(Missing, match="'step_p6V' is missing"):
         registry.run_check(1, "fit_valid", 90.0, Evidence(), truth)
-    with pytest.raises(Missing, match="check your model"):
+    with pytest.raises(Missing, match="gap needs your model.*check `model` first"):
         registry.run_check(2, "gap", (0.9, 0.5), Evidence(), truth)
 
 

@@ -5,7 +5,7 @@ checks that answer at once, a hand-in zip and autograding (otter-grader).
 >>> S = lab.start(1, student="s1234567")          # doctest: +SKIP  (virtual rig, your hidden motor)
 >>> rec = S.step(6.0, 0.4)                          # doctest: +SKIP
 >>> S.check("tau", 0.031)                           # doctest: +SKIP
-✘ tau: τ is +12 % off: ...
+✘ tau: τ is too high beyond the tolerance (8 %): ...
 
 The worksheets are ``notebooks/labs/lab1_identify.ipynb``, ``lab2_poles.ipynb``,
 ``lab3_move.ipynb`` and ``lab4_ringing.ipynb`` (the flexible load) (generated from
@@ -24,6 +24,7 @@ from jerklab.lab.checkbase import CheckResult
 from jerklab.lab.checks import (
     DESIGN_TS,
     MOVE,
+    PANEL_START,
     PRBS,
     SPEC,
     STEP_SECONDS,
@@ -68,6 +69,7 @@ __all__ = [
     "LABS",
     "MOVE",
     "SPEC",
+    "PANEL_START",
     "SWEEP_VOLTS",
     "STEP_SECONDS",
     "DESIGN_TS",

@@ -11,8 +11,20 @@ recordings itself. A check never reads a session, a rig or a file.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
-__all__ = ["CheckResult", "Missing", "number", "rel", "pct", "run_of", "step_name"]
+__all__ = [
+    "CheckResult",
+    "Missing",
+    "Mistake",
+    "number",
+    "rel",
+    "pct",
+    "side",
+    "beyond",
+    "run_of",
+    "step_name",
+]
 
 
 class CheckResult:
@@ -38,6 +50,30 @@ class Missing(Exception):
     which); the session shows it as a failed check."""
 
 
+class Mistake(NamedTuple):
+    """A mistake a check recognises and names: the rows of docs/INSTRUCTOR.md's table.
+
+    Attributes
+    ----------
+    lab : int
+        The lab whose check names it.
+    check : str
+        The check's name (:data:`jerklab.lab.registry.CHECKS`).
+    mistake : str
+        What the student did.
+    data : str
+        What it looks like in the answer or the data.
+    hint : str
+        The words of the check's message that name it (the message contains them verbatim).
+    """
+
+    lab: int
+    check: str
+    mistake: str
+    data: str
+    hint: str
+
+
 def number(name, x) -> float:
     """``x`` as a finite float; :class:`Missing` for ``...``/None or a non-finite number."""
     if x is Ellipsis or x is None:
@@ -54,8 +90,20 @@ def rel(a, b) -> float:
 
 
 def pct(a, b) -> float:
-    """Signed difference in percent of ``|b|``."""
+    """Signed difference in percent of ``|b|`` (for the checker's own use: a message never
+    shows it, since with the answer it gives the true value back)."""
     return 100.0 * (a - b) / abs(b)
+
+
+def side(a, b, high="too high", low="too low") -> str:
+    """``high`` when ``a > b``, else ``low``: the only direction a failing message gives."""
+    return high if a > b else low
+
+
+def beyond(name, a, b, tolerance, high="too high", low="too low") -> str:
+    """``"<name> is too high beyond the tolerance (<tolerance>)"`` (or too low): what a check
+    says of a wrong number without anything that inverts to the true value."""
+    return f"{name} is {side(a, b, high, low)} beyond the tolerance ({tolerance})"
 
 
 def step_name(volts) -> str:

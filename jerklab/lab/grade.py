@@ -647,6 +647,22 @@ def grade_one(lab, notebook: bytes, student, timeout=300.0, sandbox=True, key=No
         shutil.rmtree(work, ignore_errors=True)
 
 
+_FILE_ID = re.compile(r"^(?:lab(\d)_(.+)|(.+?)_lab(\d))$")
+
+
+def _id_from_file_name(stem: str):
+    """(student, lab) in a hand-in's file name (``lab1_alice``, ``bob_lab1``), else (None, None)."""
+    m = _FILE_ID.match(stem)
+    if not m:
+        return None, None
+    lab, student = (m.group(1), m.group(2)) if m.group(1) else (m.group(4), m.group(3))
+    try:
+        return normalize_student(student), int(lab)
+    except (TypeError, ValueError):
+        return None, None
+
+
+
 def _plain_text(x, n) -> str:
     """A student-given text for feedback: printable, one line, at most ``n`` characters."""
     s = "".join(ch if ch.isprintable() else " " for ch in str(x))
@@ -774,6 +790,9 @@ def grade_folder(
         except (HandinError, ValueError, OSError, UnicodeDecodeError) as exc:
             sub = None
             row["status"] = f"error: {_plain_text(exc, 300)}"
+            sid, lab_n = _id_from_file_name(p.stem)
+            if sid is not None:
+                row.update(student=sid, lab=lab_n if lab_n in LABS else "")
         rows.append(row)
         parsed.append(sub)
     _flag(rows, parsed)

@@ -10,7 +10,7 @@ it pulls in (nbconvert's PDF export and with it the Playwright package); the ins
 
 >>> grader = Notebook("lab1_identify.ipynb")    # doctest: +SKIP
 >>> grader.check("K")                            # doctest: +SKIP
-✘ K: K is 12 % off: did you fit the angle or the differenced angle?
+✘ K: K is too high beyond the tolerance (4 %): did you take the slope of steady speed ...
 """
 
 from __future__ import annotations

@@ -12,7 +12,16 @@ from jerklab.lab import checks as c
 from jerklab.lab import ringing as r
 from jerklab.lab.checkbase import CheckResult
 
-__all__ = ["LABS", "FLEXIBLE_LABS", "CHECKS", "checks_of", "check_function", "run_check"]
+__all__ = [
+    "LABS",
+    "FLEXIBLE_LABS",
+    "CHECKS",
+    "MISTAKES",
+    "checks_of",
+    "check_function",
+    "run_check",
+    "mistakes_table",
+]
 
 #: lab number -> short name (also the worksheet file stem: notebooks/labs/labN_<name>.ipynb)
 LABS = {1: "identify", 2: "poles", 3: "move", 4: "ringing"}
@@ -53,6 +62,26 @@ CHECKS = {
     (4, "robust"): r.check_robust,
     (4, "choice"): r.check_choice,
 }
+
+
+#: Every mistake a check names, by key (:class:`jerklab.lab.checkbase.Mistake`): labs 1-3's
+#: :data:`jerklab.lab.checks.MISTAKES` and lab 4's :data:`jerklab.lab.ringing.MISTAKES4`
+MISTAKES = {**c.MISTAKES, **r.MISTAKES4}
+
+
+def mistakes_table() -> str:
+    """docs/INSTRUCTOR.md's table of common mistakes, as Markdown: one row per
+    :data:`MISTAKES` entry (lab, check, the mistake, what it looks like, the words the check
+    says). tests/test_lab_hints.py checks that the document holds exactly this table and
+    that each check says its words when given its mistake."""
+    rows = [
+        "| lab | check | mistake | in the answer or the data | the check says |",
+        "|---|---|---|---|---|",
+    ]
+    for m in MISTAKES.values():
+        cells = (str(m.lab), f"`{m.check}`", m.mistake, m.data, f"\"{m.hint} …\"")
+        rows.append("| " + " | ".join(x.replace("|", "\\|") for x in cells) + " |")
+    return "\n".join(rows) + "\n"
 
 
 def checks_of(lab) -> list[str]:

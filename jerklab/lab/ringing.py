@@ -23,7 +23,16 @@ import numpy as np
 
 from jerklab import shaping
 from jerklab.controller import DiscreteGains
-from jerklab.lab.checkbase import CheckResult, Missing, number, pct, rel, run_of
+from jerklab.lab.checkbase import (
+    CheckResult,
+    Missing,
+    Mistake,
+    beyond,
+    number,
+    rel,
+    run_of,
+    side,
+)
 from jerklab.lab.motors import coupled_mode, motor_from_truth
 
 __all__ = [
@@ -35,6 +44,7 @@ __all__ = [
     "load_deflection",
     "residual_amplitude",
     "KINDS4",
+    "MISTAKES4",
 ]
 
 #: Lab 4's PRBS (``S.record_prbs(**PRBS_MODE)``): 6 ± 3 V, order 9, one sample per bit —
@@ -49,6 +59,30 @@ SOFT_KPD = 0.5
 MODE_DRIFT = 0.15
 #: The shapers of the lab.
 KINDS4 = ("zv", "zvd", "ei")
+
+#: The mistakes lab 4's checks recognise, with the words of their hint (as
+#: :data:`jerklab.lab.checks.MISTAKES`; docs/INSTRUCTOR.md's table is generated from both).
+MISTAKES4 = {
+    "pre_zv_period": Mistake(
+        4, "pre_zv_delay", "a whole period for ZV's delay", "2× too long", "that is a full period"
+    ),
+    "mode_rad": Mistake(
+        4, "mode", "the mode in rad/s", "f 2π× too large", "f is 2π too large: that is ω in rad/s"
+    ),
+    "mode_zeta_percent": Mistake(
+        4, "mode", "ζ in percent", "ζ 100× too large", "ζ is a ratio (0.05), not a percent (5)"
+    ),
+    "zv_period": Mistake(
+        4,
+        "zv_delay",
+        "a whole period for ZV's second impulse",
+        "2× too long",
+        "that is a whole period",
+    ),
+    "residual_fraction": Mistake(
+        4, "residual_pct", "fractions for percentages", "100× too small", "those are fractions"
+    ),
+}
 
 
 def soft_gains(Ts=0.005):
@@ -129,7 +163,7 @@ def check_pre_zv_delay(answer, evidence, truth):
         return CheckResult(
             "pre_zv_delay",
             False,
-            "that is a full period: an impulse one period later rings "
+            f"{MISTAKES4['pre_zv_period'].hint}: an impulse one period later rings "
             "in phase with the first and doubles the vibration. Half a period cancels it.",
         )
     if rel(v, 1 / (2 * 2 * math.pi * 10)) < 0.02 or rel(v, 1 / (2 * math.pi * 10)) < 0.02:
@@ -143,7 +177,7 @@ def check_pre_zv_delay(answer, evidence, truth):
     return CheckResult(
         "pre_zv_delay",
         False,
-        f"{pct(v, ref):+.0f} % off: when does an impulse ring in antiphase with one at t = 0?",
+        f"{side(v, ref)}: when does an impulse ring in antiphase with one at t = 0?",
     )
 
 
@@ -168,9 +202,7 @@ def check_pre_zvd_length(answer, evidence, truth):
             False,
             "three impulses half a period apart span two half periods, not three.",
         )
-    return CheckResult(
-        "pre_zvd_length", False, f"{pct(v, 0.1):+.0f} % off: ZVD = ZV convolved with ZV."
-    )
+    return CheckResult("pre_zvd_length", False, f"{side(v, 0.1)}: ZVD = ZV convolved with ZV.")
 
 
 # ------------------------------------------------------------------ on the rig
@@ -182,28 +214,25 @@ def check_mode(answer, evidence, truth):
         return CheckResult(
             "mode",
             True,
-            f"f within {100 * rel(f_a, f):.1f} % and ζ within "
-            f"{abs(z_a - z):.3f} of {src}. The PRBS puts power at every frequency up to "
-            "1/(2Ts); the two-mass model's output-error fit reads the mode from the tiny "
-            "wiggle it leaves in the motor's angle.",
+            f"f and ζ within the tolerances (3 %, and 30 % or 0.01) of {src}. The PRBS puts "
+            "power at every frequency up to 1/(2Ts); the two-mass model's output-error fit "
+            "reads the mode from the tiny wiggle it leaves in the motor's angle.",
         )
     if rel(f_a, 2 * math.pi * f) < 0.04:
-        return CheckResult(
-            "mode", False, "f is 2π too large: that is ω in rad/s; the shapers take hertz."
-        )
+        return CheckResult("mode", False, f"{MISTAKES4['mode_rad'].hint}; the shapers take hertz.")
     if ok_f and rel(z_a, 100 * z) < 0.3:
-        return CheckResult("mode", False, "ζ is a ratio (0.05), not a percent (5).")
+        return CheckResult("mode", False, f"{MISTAKES4['mode_zeta_percent'].hint}.")
     if ok_f:
         return CheckResult(
             "mode",
             False,
-            f"f is right, ζ is {z_a - z:+.3f} off: take `fit.damping`, the "
+            f"f is right, {beyond('ζ', z_a, z, '30 % or 0.01')}: take `fit.damping`, the "
             "damping ratio of the fitted pole pair.",
         )
     return CheckResult(
         "mode",
         False,
-        f"f is {pct(f_a, f):+.0f} % off: fit the PRBS record with "
+        f"{beyond('f', f_a, f, '3 %')}: fit the PRBS record with "
         "shaping.identify_mode(rp.voltage, rp.position, Ts) — the applied volts and the "
         "encoder angle of the same record.",
     )
@@ -217,14 +246,14 @@ def check_zv_delay(answer, evidence, truth):
         return CheckResult(
             "zv_delay",
             True,
-            f"within {100 * rel(v, ref):.1f} % of half the damped period "
+            f"within the tolerance (4 %) of half the damped period "
             f"of {src}: ZV's second impulse, which every shaped move waits for.",
         )
     if rel(v, 2 * ref) <= 0.05:
         return CheckResult(
             "zv_delay",
             False,
-            "that is a whole period (ZVD's length, or your own 1/f): ZV's "
+            f"{MISTAKES4['zv_period'].hint} (ZVD's length, or your own 1/f): ZV's "
             "second impulse comes half a period after the first.",
         )
     if rel(v, ref / math.pi) <= 0.05:
@@ -236,7 +265,7 @@ def check_zv_delay(answer, evidence, truth):
     return CheckResult(
         "zv_delay",
         False,
-        f"{pct(v, ref):+.0f} % off: build the ZV shaper from *your* mode "
+        f"{side(v, ref)} beyond the tolerance (4 %): build the ZV shaper from *your* mode "
         "(shaping.input_shaper('zv', f, ζ)) and read its last impulse time, zv.times[-1].",
     )
 
@@ -264,8 +293,8 @@ def check_residual_pct(answer, evidence, truth):
         return CheckResult(
             "residual_pct",
             True,
-            f"each within {max(abs(got[k] - ref[k]) for k in KINDS4):.1f} "
-            f"percentage points of the load of {src}, driven by the voltages your runs applied. "
+            "each within the tolerance (3 percentage points, or a quarter of the value) of "
+            f"the load of {src}, driven by the voltages your runs applied. "
             "Tuned to the mode, every shaper removes most of the ringing; what is left "
             "comes from the mode estimate and the sampled (5 ms) reference.",
         )
@@ -275,7 +304,7 @@ def check_residual_pct(answer, evidence, truth):
         return CheckResult(
             "residual_pct",
             False,
-            "those are fractions: answer percentages of the unshaped "
+            f"{MISTAKES4['residual_fraction'].hint}: answer percentages of the unshaped "
             "move's residual (100 × shaped / unshaped).",
         )
     if all(got[k] > 100 for k in bad):
@@ -288,10 +317,10 @@ def check_residual_pct(answer, evidence, truth):
     return CheckResult(
         "residual_pct",
         False,
-        f"{', '.join(bad)} off by more than {max(tol[k] for k in bad):.0f} "
-        "percentage points: simulate your identified model (fit.model()) with each run's "
-        "applied voltage (lab.load_deflection) and compare residual_amplitude with the "
-        "unshaped run's.",
+        f"{', '.join(f'{k} {side(got[k], ref[k])}' for k in bad)} beyond the tolerance (3 "
+        "percentage points, or a quarter of the value): simulate your identified model "
+        "(fit.model()) with each run's applied voltage (lab.load_deflection) and compare "
+        "residual_amplitude with the unshaped run's.",
     )
 
 
@@ -313,7 +342,7 @@ def check_robust(answer, evidence, truth):
         return CheckResult(
             "robust",
             True,
-            f"within {max(abs(got[k] - ref[k]) for k in KINDS4):.1f} points of "
+            "within the tolerance (1.5 points, or 15 % of the value) of "
             f"the shapers designed for {src}, on a mode {100 * MODE_DRIFT:.0f} % lower. ZV "
             "leaves a large part of the vibration; ZVD and EI, whose curves are flat around "
             "the design frequency, keep it small.",

@@ -11,13 +11,16 @@ from __future__ import annotations
 
 import os
 import re
+import time
+import warnings
 from pathlib import Path
 
 from jerklab import paper
 from jerklab.lab.checkbase import CheckResult, Missing
 from jerklab.lab.checks import MOVE, SPEC
-from jerklab.lab.handin import write_handin
+from jerklab.lab.handin import PLACEHOLDER_STUDENT, HandinRefused, write_handin
 from jerklab.lab.motors import (
+    DefaultKeyWarning,
     hidden_truth,
     normalize_student,
     simulated_motor,
@@ -109,10 +112,18 @@ class LabSession:
             else os.fspath(profile)
         )
         self.spec = lab_spec(lab, self.profile or "paper")
-        # the hidden motor as this port simulates it; None on a real board (its motor is real)
-        self._motor = simulated_motor(
-            student_motor(self.student, key, plant=self.plant, profile=self.profile), port
-        )
+        # the hidden motor as this port simulates it; None on a real board (its motor is real);
+        # without an instructor key it is a practice motor, said in one line by start()
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", DefaultKeyWarning)
+            drawn = student_motor(
+                self.student, key, plant=self.plant, profile=self.profile
+            )
+        self.practice = any(issubclass(w.category, DefaultKeyWarning) for w in caught)
+        for w in caught:
+            if not issubclass(w.category, DefaultKeyWarning):
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        self._motor = simulated_motor(drawn, port)
         if self._motor is None and speed is not None:
             raise ValueError("speed applies to the virtual rig only (port=None)")
         self.rig = connect(
@@ -127,6 +138,22 @@ class LabSession:
         self.answers = {}
         self.results = {}
         self.gains = None
+        #: when the student last did something (a cell ran, a recording, a check): the saved
+        #: notebook must be newer for :meth:`submit`
+        self.last_activity = time.time()
+        self._ipython = None
+        try:
+            from IPython import get_ipython
+
+            ip = get_ipython()
+            if ip is not None:
+                ip.events.register("post_run_cell", self._cell_ran)
+                self._ipython = ip
+        except ImportError:
+            pass
+
+    def _cell_ran(self, result=None):
+        self.last_activity = time.time()
 
     # ---------------------------------------------------------------- the rig
     @property
@@ -148,12 +175,14 @@ class LabSession:
         name = name or f"step_{voltage:+g}V".replace("+", "p").replace("-", "m").replace(".", "_")
         rec = self.rig.step(voltage, seconds, Ts=Ts, path=self._path(name), **kwargs)
         self.recordings[name] = rec
+        self.last_activity = time.time()
         return rec
 
     def record_prbs(self, amplitude, name="prbs", Ts=paper.TS, **kwargs):
         """``rig.record_prbs(amplitude, Ts=Ts, **kwargs)`` (the on-board PRBS) saved as ``name``."""
         rec = self.rig.record_prbs(amplitude, Ts=Ts, path=self._path(name), **kwargs)
         self.recordings[name] = rec
+        self.last_activity = time.time()
         return rec
 
     def set_shaper(self, shaper, Ts=paper.TS):
@@ -182,6 +211,7 @@ class LabSession:
             return None
         self.recordings[name] = rec
         self.gains = gains
+        self.last_activity = time.time()
         return rec
 
     def set_model(self, K, tau):
@@ -190,11 +220,13 @@ class LabSession:
 
     # ---------------------------------------------------------------- checks
     def evidence(self) -> Evidence:
-        """The plain data the checks see: every recording's arrays, the answers so far, the
-        rig's counts per revolution."""
+        """The plain data the checks see: every recording's arrays, the answers whose check
+        passed (a later check that builds on a failed one says it needs it), the rig's counts
+        per revolution."""
+        passed = {k: v for k, v in self.answers.items() if k in self.results and self.results[k].ok}
         return Evidence(
             runs={k: Run.from_recording(r) for k, r in self.recordings.items()},
-            answers=dict(self.answers),
+            answers=passed,
             counts_per_rev=self.rig.counts_per_rev,
             profile=self.profile_name,
         )
@@ -202,7 +234,9 @@ class LabSession:
     def verify(self, name, answer):
         """Run check ``name`` of this lab on ``answer`` silently; return a :class:`CheckResult`.
 
-        Raises KeyError for a name the lab has no check for."""
+        Every answer is kept for the hand-in (``answers``), but a later check sees it only
+        once its own check passed (:meth:`evidence`). Raises KeyError for a name the lab has
+        no check for."""
         check = check_function(self.lab, name)
         self.answers[name] = jsonable(answer)
         try:
@@ -213,10 +247,11 @@ class LabSession:
             res = CheckResult(
                 name,
                 False,
-                f"could not read your answer ({type(exc).__name__}: {exc}). "
-                "Replace the `...` with a value of the type the task asks for.",
+                f"could not use your answer ({type(exc).__name__}: {exc}): give a value of "
+                "the type and in the units the task asks for.",
             )
         self.results[name] = res
+        self.last_activity = time.time()
         return res
 
     def check(self, name, answer):
@@ -240,11 +275,26 @@ class LabSession:
             print(repr(r))
 
     # ---------------------------------------------------------------- hand-in
-    def submit(self, notebook=None, out=None):
-        """Write the hand-in zip (notebook, recordings, gains, answers, student ID, manifest)."""
-        return write_handin(self, notebook=notebook, out=out)
+    def submit(self, notebook=None, out=None, include=()):
+        """Write the hand-in zip (the saved notebook, this session's recordings and those named
+        in ``include``, gains, answers, student ID, manifest); return its path.
+
+        When it would be empty or not the student's (:func:`jerklab.lab.handin.write_handin`:
+        the placeholder ID, a notebook not saved since the last cell ran, no answers) nothing
+        is written: one line says why and what to do, and None is returned."""
+        try:
+            return write_handin(self, notebook=notebook, out=out, include=include)
+        except HandinRefused as exc:
+            print(f"✘ not handed in: {exc}")
+            return None
 
     def close(self):
+        if self._ipython is not None:
+            try:
+                self._ipython.events.unregister("post_run_cell", self._cell_ran)
+            except ValueError:
+                pass
+            self._ipython = None
         self.rig.close()
 
     def __repr__(self):
@@ -274,4 +324,14 @@ def start(lab, student, port=None, **options):
         + "; "
         f"recordings in {s.folder}"
     )
+    if s.student == PLACEHOLDER_STUDENT:
+        print(
+            f"Put your student ID in STUDENT (it is still {PLACEHOLDER_STUDENT!r}) and run this "
+            "cell again: your motor is drawn from it, and a hand-in needs it."
+        )
+    if s.practice and s.simulated:
+        print(
+            "Practice motor: no instructor key on this machine, so your motor comes from the "
+            "public class default — fine for practice; graded work is run with the class key."
+        )
     return s

@@ -119,8 +119,8 @@ def _ports(include_all=False) -> int:
             f"{r['description']}" + (f" [{extra}]" if extra else "")
         )
     print(
-        "* likely an Arduino. Connect with jerklab.rig.connect(PORT); flash with "
-        "make -C firmware upload PORT=PORT"
+        "* likely an Arduino. Connect with jerklab.rig.connect(PORT); flash with the Arduino "
+        "IDE (firmware/jerklab_rig/jerklab_rig.ino, docs/RIG.md) or make -C firmware upload PORT=PORT"
     )
     return 0
 

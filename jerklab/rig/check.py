@@ -283,12 +283,14 @@ def check_rig(
     if not proto_ok:
         fix = (
             f"the firmware speaks protocol {rig.info.protocol_version}, jerklab {__version__} speaks "
-            f"{P.PROTOCOL_VERSION}: flash this jerklab's firmware (make -C firmware upload PORT=...)"
+            f"{P.PROTOCOL_VERSION}: flash this jerklab's firmware "
+            "(Arduino IDE: open firmware/jerklab_rig/jerklab_rig.ino, Upload; or make -C firmware "
+            "upload PORT=...)"
         )
     elif not has_step:
         fix = (
-            "this firmware has no open-loop STEP: flash the rig's firmware "
-            "(make -C firmware upload PORT=...)"
+            "this firmware has no open-loop STEP: flash the rig's firmware (Arduino IDE: open "
+            "firmware/jerklab_rig/jerklab_rig.ino, Upload; or make -C firmware upload PORT=...)"
         )
     found.append(
         Finding(

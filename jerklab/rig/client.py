@@ -409,7 +409,9 @@ class Rig:
         )
         checks = [
             "the port is the rig's (list candidates: python -m jerklab.rig ports)",
-            "the jerklab firmware is flashed (make -C firmware upload PORT=...)",
+            "the jerklab firmware is flashed (with the Arduino IDE: open "
+            "firmware/jerklab_rig/jerklab_rig.ino and press Upload, docs/RIG.md; from a clone: "
+            "make -C firmware upload PORT=...)",
             "the baud rate (the jerklab firmware runs at 115200"
             + (f", this link at {baud})" if baud else ")"),
             f"the firmware speaks protocol version {P.PROTOCOL_VERSION} (a newer or older "
