@@ -1,4 +1,5 @@
-"""``python -m jerklab.lab grade SUBMISSIONS_DIR --out grades.csv`` and ``... assign``."""
+"""``python -m jerklab.lab grade SUBMISSIONS_DIR --out grades.csv``, ``... assign`` and
+``... service`` (the class rig service, :mod:`jerklab.lab.service`)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,11 @@ from jerklab.lab.motors import instructor_key
 
 
 def main(argv=None):
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["service"]:
+        from jerklab.lab.service import main as service_main
+
+        return service_main(argv[1:])
     ap = argparse.ArgumentParser(prog="python -m jerklab.lab", description=__doc__)
     sub = ap.add_subparsers(dest="cmd", required=True)
     g = sub.add_parser("grade", help="grade a folder of hand-in zips and notebooks")
@@ -27,6 +33,12 @@ def main(argv=None):
         "assign", help="write the student worksheets (solutions stripped) from the masters"
     )
     a.add_argument("--out", default="notebooks/labs", help="folder (default notebooks/labs)")
+    sub.add_parser(
+        "service",
+        help="run the class rig service (graded hidden motors; "
+        "python -m jerklab.lab service --help)",
+        add_help=False,
+    )
     args = ap.parse_args(argv)
     if args.cmd == "grade":
         _, source = instructor_key(warn=True)

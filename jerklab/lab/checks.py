@@ -507,7 +507,7 @@ def check_model(answer, evidence, truth):
         "model",
         False,
         f"K is {100 * eK:.0f} % and τ {100 * et:.0f} % away from your "
-        "motor: use the values you identified in lab 1 on this rig (a neighbour's motor differs).",
+        "motor: use the values you identified in lab 1 on this rig.",
     )
 
 
