@@ -294,7 +294,7 @@ def test_check_messages(tmp_path):
     assert not r.ok and "milliseconds" in r.message
     r = S.verify("pre_speed", ...)
     assert not r.ok and "replace the `...`" in r.message
-    t = S._truth()
+    t = _truth(student_motor("msg"))
     assert S.verify("K", t["K"] * 1.01).ok
     r = S.verify("K", -t["K"])
     assert not r.ok and "negative" in r.message
@@ -525,7 +525,8 @@ def test_session_on_simavr_uses_the_students_motor(tmp_path, capsys):
         r6 = S.step(6.0, lab.STEP_SECONDS)
         fit = ident.fit_dc_motor(r6.voltage, r6.position, r6.metadata["Ts"])
         # lab 1's tau check, called as a grader would: the session's plain evidence and truth
-        ev, truth = S.evidence(), S._truth()
+        ev = S.evidence()
+        truth = _truth(motors.simulated_motor(student_motor("simavr-student"), "simavr"))
         assert lab.run_check(1, "tau", fit.tau, ev, truth).ok
         assert lab.run_check(1, "tau", fit.tau * 1000, ev, truth).ok is False
         g = discrete_pole_placement_pid(fit.K, fit.tau, 30.0, Ts=0.005)

@@ -57,8 +57,8 @@ from jerklab.lab.motors import (
     student_device,
     student_motor,
 )
-from jerklab.lab.plain import Evidence, Run
-from jerklab.lab.registry import FLEXIBLE_LABS, LABS, check_function
+from jerklab.lab.plain import Evidence, Run, jsonable
+from jerklab.lab.registry import CHECKS, FLEXIBLE_LABS, LABS, check_function
 from jerklab.rig import RigError, connect
 
 __all__ = [
@@ -97,7 +97,8 @@ class AuthError(Exception):
 class TokenFile:
     """Tokens of a class without a hub (and of the tests): a JSON file ``{token: user}``.
 
-    The file is read at every look-up, so the instructor can add a student while the service
+    The file is read at start (before the service drops to its own user) and again at every
+    look-up while it stays readable, so the instructor can add a student while the service
     runs. Tokens are compared in constant time.
     """
 
@@ -105,22 +106,30 @@ class TokenFile:
         self.path = Path(path)
         if not self.path.is_file():
             raise ValueError(f"tokens: {str(self.path)!r} is not a file")
+        self._table = self._read()
+
+    def _read(self) -> dict:
+        try:
+            table = json.loads(self.path.read_text(encoding="utf-8"))
+        except ValueError:
+            raise ValueError(f"tokens: {str(self.path)!r} is not JSON {{token: user}}") from None
+        if not isinstance(table, dict):
+            raise ValueError(f"tokens: {str(self.path)!r} is not a JSON object {{token: user}}")
+        return {str(k): str(v) for k, v in table.items()}
 
     def __call__(self, token: str) -> str:
         try:
-            table = json.loads(self.path.read_text(encoding="utf-8"))
-        except (OSError, ValueError) as exc:
-            raise AuthError(f"the token file cannot be read ({type(exc).__name__})") from None
-        if not isinstance(table, dict):
-            raise AuthError("the token file is not a JSON object {token: user}")
+            self._table = self._read()
+        except (OSError, ValueError):
+            pass  # keep the table read last (the file may be the instructor's only)
         found = None
         given = token.encode()
-        for known, user in table.items():
-            if hmac.compare_digest(str(known).encode(), given):
+        for known, user in self._table.items():
+            if hmac.compare_digest(known.encode(), given):
                 found = user
         if found is None:
             raise AuthError("unknown token")
-        return str(found)
+        return found
 
 
 class HubAuth:
@@ -700,6 +709,37 @@ class ClassRigService:
 
 
 # ------------------------------------------------------------------ command line
+def _warm_up(svc):
+    """Run every kind of request once on a throwaway student of each lab, so that everything the
+    service imports lazily is loaded while it can still read it (before it drops to its user,
+    who may not read the interpreter's files), and a broken install shows at start."""
+    from jerklab.controller import discrete_pole_placement_pid
+    from jerklab.planner import plan_sine_jerk
+
+    for lab in sorted(LABS):
+        st = _Student(svc, "warm-up.self-test", lab)
+        try:
+            for v in (6.0, 3.0):
+                st.handle({"op": "step", "name": f"step_p{v:g}V", "voltage": v, "seconds": 0.2})
+            st.handle({"op": "record_prbs", "name": "prbs", "amplitude": 2.0, "offset": 6.0})
+            p = plan_sine_jerk(1.0, 2.0e4, 600.0, 80.0)
+            g = jsonable(discrete_pole_placement_pid(30.0, 0.03, 30.0, 1.0, Ts=0.005))
+            prof = {"kind": p.kind, "distance": 1.0, "max_jerk": 2.0e4, "max_accel": 600.0}
+            prof["max_velocity"] = 80.0
+            st.handle({"op": "set_shaper", "taps": [0.5, 0.5]})
+            st.handle({"op": "set_shaper", "taps": None})
+            move = {"op": "run_move", "name": "m", "profile": prof, "gains": g}
+            try:
+                st.handle({**move, "run": {"settle": 0.05, "force": True}})
+            except RigError:
+                pass  # a safety stop: the code ran
+            for n, name in CHECKS:
+                if n == lab:
+                    st.score(name, 1.0)
+        finally:
+            st.close()
+
+
 def _drop_to(user):
     import grp
     import pwd
@@ -743,11 +783,13 @@ def main(argv=None):
     auth = HubAuth(args.hub_api) if args.hub_api else TokenFile(args.tokens)
     listen = f"unix:{args.unix}" if args.unix else args.listen
     svc = ClassRigService(auth, args.log, key=key, listen=listen, recordings=args.recordings)
+    _warm_up(svc)
     if args.user:
         if args.recordings:
             import pwd
 
             pw = pwd.getpwnam(args.user)
+            Path(args.recordings).mkdir(parents=True, exist_ok=True)
             os.chown(args.recordings, pw.pw_uid, pw.pw_gid)
         _drop_to(args.user)
     print(f"class rig service at {svc.url} (log {args.log})", flush=True)
