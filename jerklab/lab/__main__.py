@@ -8,13 +8,12 @@ import sys
 
 from jerklab.lab.grade import assign, grade_folder
 from jerklab.lab.motors import instructor_key
+from jerklab.lab.service import main as service_main
 
 
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv[:1] == ["service"]:
-        from jerklab.lab.service import main as service_main
-
         return service_main(argv[1:])
     ap = argparse.ArgumentParser(prog="python -m jerklab.lab", description=__doc__)
     sub = ap.add_subparsers(dest="cmd", required=True)

@@ -46,8 +46,8 @@ import urllib.parse
 import urllib.request
 from pathlib import Path
 
-from jerklab import paper
-from jerklab.controller import DiscreteGains
+from jerklab import paper, planner
+from jerklab.controller import DiscreteGains, discrete_pole_placement_pid
 from jerklab.lab.checkbase import CheckResult, Missing
 from jerklab.lab.motors import (
     CLASSROOM_DEFAULT_KEY,
@@ -338,8 +338,6 @@ def _number(name, x, lo=None, hi=None):
 
 
 def _profile(p):
-    from jerklab import planner
-
     if not isinstance(p, dict):
         raise ValueError("profile must be a dict with kind, distance and the limits")
     kind = p.get("kind")
@@ -713,16 +711,13 @@ def _warm_up(svc):
     """Run every kind of request once on a throwaway student of each lab, so that everything the
     service imports lazily is loaded while it can still read it (before it drops to its user,
     who may not read the interpreter's files), and a broken install shows at start."""
-    from jerklab.controller import discrete_pole_placement_pid
-    from jerklab.planner import plan_sine_jerk
-
     for lab in sorted(LABS):
         st = _Student(svc, "warm-up.self-test", lab)
         try:
             for v in (6.0, 3.0):
                 st.handle({"op": "step", "name": f"step_p{v:g}V", "voltage": v, "seconds": 0.2})
             st.handle({"op": "record_prbs", "name": "prbs", "amplitude": 2.0, "offset": 6.0})
-            p = plan_sine_jerk(1.0, 2.0e4, 600.0, 80.0)
+            p = planner.plan_sine_jerk(1.0, 2.0e4, 600.0, 80.0)
             g = jsonable(discrete_pole_placement_pid(30.0, 0.03, 30.0, 1.0, Ts=0.005))
             prof = {"kind": p.kind, "distance": 1.0, "max_jerk": 2.0e4, "max_accel": 600.0}
             prof["max_velocity"] = 80.0

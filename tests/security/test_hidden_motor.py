@@ -422,3 +422,62 @@ def test_graded_answers_can_be_scored_by_the_trusted_grader_only_with_the_key(tm
     practice = score_answers(1, "dana", {"K": K}, ev, practice=True)
     assert practice["K"].ok and "your recordings" in practice["K"].message
     gc.collect()
+
+
+# ------------------------------------------------------------------ an honest worksheet, graded
+@pytest.mark.parametrize("n", [1, 2, 3, 4])
+def test_an_honest_worksheet_scores_full_marks_through_the_service(
+    n, service, tmp_path, monkeypatch
+):
+    """The master worksheet (solutions in) in a Jupyter kernel that has no key, on the class rig
+    of the login "bob": every check passes, scored by the service, and no output shows a true
+    value; the hand-in says "graded"."""
+    import nbformat
+    from nbclient import NotebookClient
+
+    from jerklab.lab.grade import master_path
+
+    url, log, _ = service
+    for k in [k for k in os.environ if k.startswith("JERKLAB_")] + ["JUPYTERHUB_API_TOKEN"]:
+        monkeypatch.delenv(k, raising=False)
+    monkeypatch.setenv("JERKLAB_CLASS_RIG", url)
+    monkeypatch.setenv("JERKLAB_CLASS_TOKEN", "tok-bob-2d8e4f6a0c")
+    monkeypatch.setenv("JERKLAB_LAB_WORK", str(tmp_path / "work"))
+    monkeypatch.setenv("JERKLAB_RECORDINGS", str(tmp_path / "rec"))
+    monkeypatch.setenv("HOME", str(tmp_path))
+    nb = nbformat.read(master_path(n), as_version=4)
+    for c in nb.cells:
+        if c.cell_type == "code" and 'STUDENT = "' in c.source:
+            c.source = re.sub(r'STUDENT = "[^"]*"', 'STUDENT = "bob"', c.source)
+    NotebookClient(
+        nb,
+        timeout=240,
+        kernel_name="python3",
+        allow_errors=True,
+        resources={"metadata": {"path": str(tmp_path)}},
+    ).execute()
+    outs = []
+    for c in nb.cells:
+        for o in c.get("outputs", []) if c.cell_type == "code" else []:
+            if o.output_type == "error":
+                outs.append(f"ERROR {o.ename}: {o.evalue}")
+            outs.append(o.get("text", ""))
+            outs.extend(v for v in o.get("data", {}).values() if isinstance(v, str))
+    assert not [o for o in outs if o.startswith("ERROR")], [o for o in outs if "ERROR" in o]
+    verdicts = [o for o in outs if "right —" in o or "not yet —" in o]
+    n_checks = sum(1 for c in nb.cells if c.cell_type == "code" and c.source.startswith("S.check("))
+    assert len(verdicts) == n_checks > 3
+    assert all("✔ right" in v for v in verdicts), [v for v in verdicts if "✔" not in v]
+    assert any("class rig" in o for o in outs)
+    truth = _truth("bob", n)
+    blob = "\n".join(outs)
+    for k in ("K", "tau"):
+        for d in (5, 6, 7):
+            assert f"{truth[k]:.{d}g}" not in blob
+    from jerklab.lab.service import attempt_counts
+
+    assert sum(attempt_counts(log)[("bob", n)].values()) >= n_checks
+    zips = list(tmp_path.rglob(f"lab{n}_bob.zip"))
+    if zips:
+        with zipfile.ZipFile(zips[0]) as f:
+            assert json.loads(f.read("manifest.json"))["mode"] == "graded"
