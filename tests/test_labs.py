@@ -552,3 +552,33 @@ def test_grade_timeout_gets_a_row(tmp_path):
     rows = grade_folder(subs, tmp_path / "g.csv", timeout=5)
     assert rows[0]["student"] == "eve" and "timed out after 5 s" in rows[0]["status"]
     assert rows[0]["total"] == 0.0
+
+
+def test_grade_puts_the_class_rig_attempts_into_the_csv(tmp_path):
+    """``grade --check-log``: the attempts the class rig service logged, per check, in the row of
+    the student and lab they belong to (and in no other row)."""
+    from jerklab.lab.grade import autograder_zip, grade_folder
+
+    autograder_zip(1)
+    log = tmp_path / "checks.jsonl"
+    entries = [("eve", 1, "K"), ("eve", 1, "K"), ("eve", 1, "tau"), ("eve", 2, "model")]
+    entries += [("mallory", 1, "K")]
+    log.write_text(
+        "".join(
+            json.dumps({"student": s, "lab": n, "check": c, "answer": 1.0, "ok": False}) + "\n"
+            for s, n, c in entries
+        )
+        + "not json\n"
+    )
+    subs = tmp_path / "subs"
+    subs.mkdir()
+    nb = nbformat.v4.new_notebook()
+    nb.metadata["jerklab"] = {"lab": 1}
+    nb.cells = [nbformat.v4.new_code_cell('STUDENT = "eve"\nwhile True:\n    pass')]
+    nbformat.write(nb, subs / "eve.ipynb")
+    rows = grade_folder(subs, tmp_path / "g.csv", timeout=2, check_log=log)
+    assert rows[0]["attempts_K"] == 2 and rows[0]["attempts_tau"] == 1
+    assert "attempts_model" not in rows[0]
+    with open(tmp_path / "g.csv", newline="") as f:
+        (row,) = list(csv.DictReader(f))
+    assert row["attempts_K"] == "2" and row["attempts_tau"] == "1"

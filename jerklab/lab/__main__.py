@@ -28,6 +28,11 @@ def main(argv=None):
     g.add_argument(
         "--timeout", type=float, default=300.0, help="seconds per submission (default 300)"
     )
+    g.add_argument(
+        "--check-log",
+        default=None,
+        help="the class rig service's check log: attempts per check into the CSV",
+    )
     a = sub.add_parser(
         "assign", help="write the student worksheets (solutions stripped) from the masters"
     )
@@ -41,7 +46,9 @@ def main(argv=None):
     args = ap.parse_args(argv)
     if args.cmd == "grade":
         _, source = instructor_key(warn=True)
-        rows = grade_folder(args.submissions, args.out, args.feedback, args.timeout)
+        rows = grade_folder(
+            args.submissions, args.out, args.feedback, args.timeout, check_log=args.check_log
+        )
         for r in rows:
             print(
                 f"{r['student'] or '?':>16}  lab {r['lab'] or '?'}  {r['total']:5.1f} / "

@@ -25,6 +25,7 @@ from pathlib import Path
 from jerklab.lab.handin import HandinError, read_handin
 from jerklab.lab.motors import normalize_student
 from jerklab.lab.registry import LABS
+from jerklab.lab.service import attempt_counts
 
 __all__ = [
     "MASTERS",
@@ -243,13 +244,18 @@ def _scores(results):
     return qs
 
 
-def grade_folder(folder, out_csv, feedback_dir=None, timeout=300.0, labs=None) -> list[dict]:
+def grade_folder(
+    folder, out_csv, feedback_dir=None, timeout=300.0, labs=None, check_log=None
+) -> list[dict]:
     """Grade every ``*.zip`` hand-in and bare ``*.ipynb`` in ``folder``.
 
     Writes ``out_csv`` (one row per submission: student, lab, file, status, one column per
     question, total, max) and a feedback text file per submission into ``feedback_dir``
     (default: ``feedback/`` beside the CSV). A corrupt, empty or unverifiable submission gets
     a row with its status and zero points; it never stops the run.
+
+    With ``check_log`` (the class rig service's log, :func:`jerklab.lab.service.attempt_counts`)
+    each row also gets ``attempts_<check>``: how often the student tried each check.
     """
     folder, out_csv = Path(folder), Path(out_csv)
     if not folder.is_dir():
@@ -310,6 +316,11 @@ def grade_folder(folder, out_csv, feedback_dir=None, timeout=300.0, labs=None) -
             + "\n".join(notes)
             + "\n"
         )
+    if check_log is not None:  # the class rig service's log: attempts per check
+        counts = attempt_counts(check_log)
+        for r in rows:
+            for q, n in counts.get((r["student"], r["lab"]), {}).items():
+                r[f"attempts_{q}"] = n
     qcols = sorted(
         {k for r in rows for k in r} - {"file", "student", "lab", "status", "total", "max"}
     )

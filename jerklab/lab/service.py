@@ -84,6 +84,9 @@ LIMITS = {
     "move_distance": 100.0,  # rad
     "settle": 2.0,  # s after a move
     "runs_kept": 200,  # recordings kept per student and lab (the oldest go first)
+    "connections": 256,  # open at a time, in all
+    "connections_per_student": 4,  # open at a time by one student
+    "hello_seconds": 10.0,  # s a new connection has to say who it is
 }
 _NAME_RE = re.compile(r"^[A-Za-z0-9_.+-]{1,60}$")
 _IDLE_TIMEOUT = 3600.0  # s a connection may sit without a request
@@ -550,6 +553,8 @@ class ClassRigService:
         self._students = {}
         self._lock = threading.Lock()
         self.refused = 0
+        self._connections = 0
+        self._per_student = {}
         service = self
 
         class Handler(socketserver.StreamRequestHandler):
@@ -635,7 +640,44 @@ class ClassRigService:
         return self._student(user, lab)
 
     def _serve(self, conn, rfile, wfile):
-        conn.settimeout(_IDLE_TIMEOUT)
+        with self._lock:
+            full = self._connections >= LIMITS["connections"]
+            if not full:
+                self._connections += 1
+        try:
+            if full:
+                msg = f"connections: the service serves at most {LIMITS['connections']} at a time"
+                wfile.write((json.dumps({"error": msg, "type": "RigError"}) + "\n").encode())
+                wfile.flush()
+                return
+            user = []
+            try:
+                self._serve_link(conn, rfile, wfile, user)
+            finally:
+                if user:
+                    with self._lock:
+                        self._per_student[user[0]] -= 1
+        except OSError:
+            return  # the client went away
+        finally:
+            if not full:
+                with self._lock:
+                    self._connections -= 1
+
+    def _admit(self, st, user):
+        """Count the connection of ``st``'s student (PermissionError beyond the limit)."""
+        with self._lock:
+            n = self._per_student.get(st.student, 0)
+            if n >= LIMITS["connections_per_student"]:
+                raise PermissionError(
+                    f"connections: at most {LIMITS['connections_per_student']} at a time per "
+                    "student; close another session (S.close()) first"
+                )
+            self._per_student[st.student] = n + 1
+        user.append(st.student)
+
+    def _serve_link(self, conn, rfile, wfile, user):
+        conn.settimeout(LIMITS["hello_seconds"])
         st = None
 
         def send(obj):
@@ -669,6 +711,8 @@ class ClassRigService:
                     if req.get("op") != "hello":
                         raise AuthError("say hello with your token first")
                     st = self._hello(req)
+                    self._admit(st, user)
+                    conn.settimeout(_IDLE_TIMEOUT)
                     send(st.info())
                     continue
                 with st.lock:
