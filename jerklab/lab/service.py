@@ -69,6 +69,7 @@ __all__ = [
     "LIMITS",
     "attempt_counts",
     "check_log",
+    "last_verdicts",
     "score_answers",
     "decode_answer",
     "main",
@@ -299,6 +300,22 @@ def attempt_counts(log_path) -> dict:
     return counts
 
 
+def last_verdicts(log_path) -> dict:
+    """The service's verdict on each check: ``{(student, lab): {check: {"ok", "answer",
+    "attempts"}}}`` of the last attempt. For graded work this is the trustworthy score: the
+    service checked the answer on the recordings it made itself, against the truth."""
+    out: dict = {}
+    for e in check_log(log_path):
+        try:
+            k = (str(e["student"]), int(e["lab"]))
+        except (TypeError, ValueError):
+            continue
+        per = out.setdefault(k, {})
+        n = per.get(str(e["check"]), {}).get("attempts", 0) + 1
+        per[str(e["check"])] = {"ok": bool(e["ok"]), "answer": e.get("answer"), "attempts": n}
+    return out
+
+
 class _Log:
     def __init__(self, path):
         self.path = Path(path)
@@ -430,7 +447,8 @@ class _Student:
             isinstance(name, str) and _NAME_RE.match(name)
         ):
             raise ValueError(f"name must be 1-60 letters, digits or _.+-, got {name!r}")
-        Ts = _number("Ts", req.get("Ts", paper.TS), 1e-4, 0.1)
+        ts_given = req.get("Ts")
+        Ts = paper.TS if ts_given is None else _number("Ts", ts_given, 1e-4, 0.1)
         if op == "step":
             rec = self.rig.step(
                 _number("voltage", req.get("voltage")),
@@ -471,11 +489,10 @@ class _Student:
                 spec["settle"] = _number("settle", run["settle"], 0.0, LIMITS["settle"])
             if "feedforward" in run:
                 spec["feedforward"] = bool(run["feedforward"])
-            mts = req.get("Ts")
             rec = self.rig.run_move(
                 _profile(req.get("profile")),
                 g,
-                None if mts is None else Ts,
+                None if ts_given is None else Ts,
                 path=self._path(name),
                 progress=False,
                 **spec,

@@ -204,8 +204,10 @@ def test_a_graded_lab_leaves_no_truth_in_the_students_process(service, tmp_path)
     assert values.size > 10000  # the recordings' arrays were scanned
     assert _hits(values, _truth("alice")) == {}
     # every check is logged with its answer; the attempts are counted per student and lab
-    from jerklab.lab.service import attempt_counts, check_log
+    from jerklab.lab.service import attempt_counts, check_log, last_verdicts
 
+    last = last_verdicts(log)[("alice", 1)]
+    assert last["K"]["ok"] is False and last["K"]["attempts"] == 2 and last["f_c"]["ok"] is True
     counts = attempt_counts(log)[("alice", 1)]
     assert counts["K"] == 2 and counts["tau"] == 2 and counts["prbs_fit"] == 1
     entries = [e for e in check_log(log) if e["student"] == "alice" and e["check"] == "K"]
@@ -425,31 +427,19 @@ def test_graded_answers_can_be_scored_by_the_trusted_grader_only_with_the_key(tm
     gc.collect()
 
 
-# ------------------------------------------------------------------ an honest worksheet, graded
-@pytest.mark.parametrize("n", [1, 2, 3, 4])
-def test_an_honest_worksheet_scores_full_marks_through_the_service(
-    n, service, tmp_path, monkeypatch
-):
-    """The master worksheet (solutions in) in a Jupyter kernel that has no key, on the class rig
-    of the login "bob": every check passes, scored by the service, and no output shows a true
-    value; the hand-in says "graded"."""
+# ------------------------------------------------------------------ an honest worksheet
+def _run_master(n, student, tmp_path):
+    """Execute master worksheet ``n`` (solutions in) as ``student`` in a Jupyter kernel that
+    inherits this process's environment; its outputs, errors as ``ERROR name: value``."""
     import nbformat
     from nbclient import NotebookClient
 
     from jerklab.lab.grade import master_path
 
-    url, log, _ = service
-    for k in [k for k in os.environ if k.startswith("JERKLAB_")] + ["JUPYTERHUB_API_TOKEN"]:
-        monkeypatch.delenv(k, raising=False)
-    monkeypatch.setenv("JERKLAB_CLASS_RIG", url)
-    monkeypatch.setenv("JERKLAB_CLASS_TOKEN", "tok-bob-2d8e4f6a0c")
-    monkeypatch.setenv("JERKLAB_LAB_WORK", str(tmp_path / "work"))
-    monkeypatch.setenv("JERKLAB_RECORDINGS", str(tmp_path / "rec"))
-    monkeypatch.setenv("HOME", str(tmp_path))
     nb = nbformat.read(master_path(n), as_version=4)
     for c in nb.cells:
         if c.cell_type == "code" and 'STUDENT = "' in c.source:
-            c.source = re.sub(r'STUDENT = "[^"]*"', 'STUDENT = "bob"', c.source)
+            c.source = re.sub(r'STUDENT = "[^"]*"', f'STUDENT = "{student}"', c.source)
     NotebookClient(
         nb,
         timeout=240,
@@ -469,6 +459,31 @@ def test_an_honest_worksheet_scores_full_marks_through_the_service(
     n_checks = sum(1 for c in nb.cells if c.cell_type == "code" and c.source.startswith("S.check("))
     assert len(verdicts) == n_checks > 3
     assert all("✔ right" in v for v in verdicts), [v for v in verdicts if "✔" not in v]
+    return outs, n_checks
+
+
+def _student_env(monkeypatch, tmp_path, **env):
+    for k in [k for k in os.environ if k.startswith("JERKLAB_")] + ["JUPYTERHUB_API_TOKEN"]:
+        monkeypatch.delenv(k, raising=False)
+    monkeypatch.setenv("JERKLAB_LAB_WORK", str(tmp_path / "work"))
+    monkeypatch.setenv("JERKLAB_RECORDINGS", str(tmp_path / "rec"))
+    monkeypatch.setenv("HOME", str(tmp_path))
+    for k, v in env.items():
+        monkeypatch.setenv(k, v)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 4])
+def test_an_honest_worksheet_scores_full_marks_through_the_service(
+    n, service, tmp_path, monkeypatch
+):
+    """The master worksheet (solutions in) in a Jupyter kernel that has no key, on the class rig
+    of the login "bob": every check passes, scored by the service, and no output shows a true
+    value; the hand-in says "graded"."""
+    url, log, _ = service
+    _student_env(
+        monkeypatch, tmp_path, JERKLAB_CLASS_RIG=url, JERKLAB_CLASS_TOKEN="tok-bob-2d8e4f6a0c"
+    )
+    outs, n_checks = _run_master(n, "bob", tmp_path)
     assert any("class rig" in o for o in outs)
     truth = _truth("bob", n)
     blob = "\n".join(outs)
@@ -478,10 +493,22 @@ def test_an_honest_worksheet_scores_full_marks_through_the_service(
     from jerklab.lab.service import attempt_counts
 
     assert sum(attempt_counts(log)[("bob", n)].values()) >= n_checks
-    zips = list(tmp_path.rglob(f"lab{n}_bob.zip"))
-    if zips:
-        with zipfile.ZipFile(zips[0]) as f:
+    for z in tmp_path.rglob(f"lab{n}_bob.zip"):
+        with zipfile.ZipFile(z) as f:
             assert json.loads(f.read("manifest.json"))["mode"] == "graded"
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 4])
+def test_an_honest_worksheet_passes_in_practice(n, tmp_path, monkeypatch):
+    """Without a service and without a key: the practice motor, every check right against the
+    student's own recordings, "practice" in every recording."""
+    _student_env(monkeypatch, tmp_path, JERKLAB_CLASS_CODE="me301-test")
+    outs, _ = _run_master(n, "pia", tmp_path)
+    assert any("Practice:" in o for o in outs)
+    sidecars = list((tmp_path / "work").rglob("*.json"))
+    assert sidecars
+    for p in sidecars:
+        assert json.loads(p.read_text())["caller"]["mode"] == "practice"
 
 
 def test_the_service_bounds_connections_and_requests(tmp_path, monkeypatch):
