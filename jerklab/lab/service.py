@@ -38,6 +38,7 @@ import math
 import os
 import re
 import socketserver
+import stat
 import sys
 import threading
 import time
@@ -581,7 +582,9 @@ class ClassRigService:
         if listen.startswith("unix:"):
             path = listen[len("unix:") :]
             if os.path.exists(path):
-                os.unlink(path)
+                if not stat.S_ISSOCK(os.stat(path).st_mode):
+                    raise ValueError(f"listen: {path!r} exists and is not a socket")
+                os.unlink(path)  # a socket left by an earlier run
             self._server = socketserver.ThreadingUnixStreamServer(path, Handler)
             os.chmod(path, 0o666)  # anyone may connect: the token says who they are
             self.address = f"unix:{path}"
@@ -824,11 +827,14 @@ def main(argv=None):
     ap.add_argument("--recordings", help="keep a copy of every recording here")
     ap.add_argument("--user", help="when started as root: drop to this Unix user after start-up")
     args = ap.parse_args(argv)
-    if os.geteuid() == 0 and not args.user:
+    root = hasattr(os, "geteuid") and os.geteuid() == 0
+    if root and not args.user:
         ap.error(
             "--user: do not run the class rig service as root; give its own user "
             "(e.g. --user jerklab-rig), to which it drops after reading the key"
         )
+    if args.user and not root:
+        ap.error("--user: only a service started as root can switch to its own user")
     key, source = instructor_key(warn=False)
     if source == "default":
         ap.error(

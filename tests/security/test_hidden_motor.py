@@ -179,10 +179,18 @@ rp = S.record_prbs(**lab.PRBS)
 f = ident.fit_dc_motor(rp.voltage, rp.position, rp.Ts, "pem", offset=True)
 verdicts["prbs_fit"] = [S.verify("prbs_fit", (f.K, f.tau)).ok]
 mode = json.load(open(str(r6.json_path)))["caller"]["mode"]
+# the one-line attacks of issue 32: the session's truth, the rig's motor, regenerating the motor
+# (without the key this gives the public practice motor, not the graded one)
+import warnings
+from jerklab.lab.motors import hidden_truth, student_motor
+with warnings.catch_warnings():
+    warnings.simplefilter("ignore")
+    regenerated = hidden_truth(student_motor("alice"))["K"]
 S.close()
 del S, recs, r6, rp, f, K, tau, f_c, off
 n_motors = _scan("values.npy")
-print(json.dumps({"verdicts": verdicts, "motors": n_motors, "mode": mode}))
+out = {"verdicts": verdicts, "motors": n_motors, "mode": mode, "regenerated": regenerated}
+print(json.dumps(out))
 """
 
 
@@ -200,6 +208,7 @@ def test_a_graded_lab_leaves_no_truth_in_the_students_process(service, tmp_path)
         "prbs_fit": [True],
     }
     assert out["mode"] == "graded" and out["motors"] == 0
+    assert abs(out["regenerated"] / _truth("alice")["K"] - 1) > 1e-3
     values = np.load(tmp_path / "values.npy")
     assert values.size > 10000  # the recordings' arrays were scanned
     assert _hits(values, _truth("alice")) == {}
@@ -564,3 +573,30 @@ def test_the_service_bounds_connections_and_requests(tmp_path, monkeypatch):
         for s in links + [silent]:
             s.close()
     assert svc_mod.LIMITS["connections_per_student"] == 4
+
+
+def test_the_service_on_a_unix_socket(tmp_path):
+    """``--unix PATH``: the same service on a Unix socket (``classrig+unix://PATH``)."""
+    from jerklab.lab.classrig import ClassRig
+    from jerklab.lab.service import ClassRigService, TokenFile
+
+    tokens = tmp_path / "t.json"
+    tokens.write_text(json.dumps(TOKENS))
+    sock = tmp_path / "classrig.sock"
+    (tmp_path / "not-a-socket").write_text("keep me")
+    with pytest.raises(ValueError, match="not a socket"):
+        ClassRigService(
+            TokenFile(tokens), tmp_path / "l", KEY.encode(), f"unix:{tmp_path / 'not-a-socket'}"
+        )
+    assert (tmp_path / "not-a-socket").read_text() == "keep me"
+    with ClassRigService(TokenFile(tokens), tmp_path / "log", KEY.encode(), f"unix:{sock}") as svc:
+        assert svc.url == f"classrig+unix://{sock}"
+        rig = ClassRig(svc.url, 1, token="tok-bob-2d8e4f6a0c")
+        try:
+            assert rig.student == "bob"
+            rec = rig.step(6.0, 0.2, path=tmp_path / "step_p6V")
+            assert rec.csv_path.is_file() and len(rec) == 50
+            assert rig.check("pre_speed", 180.0)[0]
+        finally:
+            rig.close()
+    assert not sock.exists()
