@@ -38,7 +38,7 @@ def lab1():
     S = lab.start(1, student="hints1", folder=tmp)
     recs = {V: S.step(V, lab.STEP_SECONDS) for V in lab.SWEEP_VOLTS}
     rp = S.record_prbs(**lab.PRBS)
-    yield S, S._truth(), recs, rp
+    yield S, S._check_truth(), recs, rp
     S.close()
     mp.undo()
 
@@ -111,7 +111,7 @@ def test_single_step_gain_is_caught_on_a_low_friction_motor():
 
 def test_each_lab2_and_lab3_mistake_gets_its_own_hint(tmp_path):
     S = lab.start(2, student="hints2", folder=tmp_path)
-    t = S._truth()
+    t = S._check_truth()
     K, tau = t["K"], t["tau"]
     res = S.verify("model", (K, 1000 * tau))
     assert not res.ok and MISTAKES["model_ms"].hint in res.message
@@ -160,7 +160,7 @@ def test_every_mistake_is_made_by_a_test():
 
 def test_rig_vs_sim_inverted_gets_its_hint(tmp_path):
     S = lab.start(3, student="hints3b", folder=tmp_path)
-    t = S._truth()
+    t = S._check_truth()
     model3 = (t["K"], t["tau"], t["coulomb_friction"])
     assert S.verify("model3", model3).ok
     g = discrete_pole_placement_pid(t["K"], t["tau"], 30.0, 1.0, Ts=lab.DESIGN_TS)
@@ -226,7 +226,7 @@ def test_a_failed_answer_is_not_used_later(tmp_path):
     """τ in ms fails `model`; `design` then says it needs the model, and does not run on the
     wrong value (issue 33: it said "could not read your answer (UnstableDesignError ...)")."""
     S = lab.start(2, student="later", folder=tmp_path)
-    t = S._truth()
+    t = S._check_truth()
     assert not S.verify("model", (t["K"], 1000 * t["tau"])).ok
     g = discrete_pole_placement_pid(t["K"], t["tau"], 30.0, 1.0, Ts=0.005)
     res = S.verify("design", g)

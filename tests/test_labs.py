@@ -336,7 +336,7 @@ def test_check_messages(tmp_path):
     assert not r.ok and "milliseconds" in r.message
     r = S.verify("pre_speed", ...)
     assert not r.ok and "replace the `...`" in r.message
-    t = S._truth()
+    t = _truth(student_motor("msg"))
     assert S.verify("K", t["K"] * 1.01).ok
     r = S.verify("K", -t["K"])
     assert not r.ok and "negative" in r.message
@@ -568,7 +568,8 @@ def test_session_on_simavr_uses_the_students_motor(tmp_path, capsys):
         r6 = S.step(6.0, lab.STEP_SECONDS)
         fit = ident.fit_dc_motor(r6.voltage, r6.position, r6.metadata["Ts"])
         # lab 1's tau check, called as a grader would: the session's plain evidence and truth
-        ev, truth = S.evidence(), S._truth()
+        ev = S.evidence()
+        truth = _truth(motors.simulated_motor(student_motor("simavr-student"), "simavr"))
         assert lab.run_check(1, "tau", fit.tau, ev, truth).ok
         assert lab.run_check(1, "tau", fit.tau * 1000, ev, truth).ok is False
         g = discrete_pole_placement_pid(fit.K, fit.tau, 30.0, Ts=0.005)
@@ -594,3 +595,33 @@ def test_grade_timeout_gets_a_row(tmp_path):
     rows = grade_folder(subs, tmp_path / "g.csv", timeout=5)
     assert rows[0]["student"] == "eve" and "timed out after 5 s" in rows[0]["status"]
     assert rows[0]["total"] == 0.0
+
+
+def test_grade_puts_the_class_rig_attempts_into_the_csv(tmp_path):
+    """``grade --check-log``: the attempts the class rig service logged, per check, in the row of
+    the student and lab they belong to (and in no other row)."""
+    from jerklab.lab.grade import autograder_zip, grade_folder
+
+    autograder_zip(1)
+    log = tmp_path / "checks.jsonl"
+    entries = [("eve", 1, "K"), ("eve", 1, "K"), ("eve", 1, "tau"), ("eve", 2, "model")]
+    entries += [("mallory", 1, "K")]
+    log.write_text(
+        "".join(
+            json.dumps({"student": s, "lab": n, "check": c, "answer": 1.0, "ok": False}) + "\n"
+            for s, n, c in entries
+        )
+        + "not json\n"
+    )
+    subs = tmp_path / "subs"
+    subs.mkdir()
+    nb = nbformat.v4.new_notebook()
+    nb.metadata["jerklab"] = {"lab": 1}
+    nb.cells = [nbformat.v4.new_code_cell('STUDENT = "eve"\nwhile True:\n    pass')]
+    nbformat.write(nb, subs / "eve.ipynb")
+    rows = grade_folder(subs, tmp_path / "g.csv", timeout=2, check_log=log)
+    assert rows[0]["attempts_K"] == 2 and rows[0]["attempts_tau"] == 1
+    assert "attempts_model" not in rows[0]
+    with open(tmp_path / "g.csv", newline="") as f:
+        (row,) = list(csv.DictReader(f))
+    assert row["attempts_K"] == "2" and row["attempts_tau"] == "1"

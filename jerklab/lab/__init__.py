@@ -12,6 +12,12 @@ The worksheets are ``notebooks/labs/lab1_identify.ipynb``, ``lab2_poles.ipynb``,
 ``jerklab/lab/masters/`` by ``python -m jerklab.lab assign``);
 ``python -m jerklab.lab grade SUBMISSIONS_DIR --out grades.csv`` grades a class.
 
+A session is ``"graded"`` when it runs on the class rig service (``python -m jerklab.lab
+service``, :mod:`~jerklab.lab.service`; the kernel reaches it with :mod:`~jerklab.lab.classrig`,
+the motor and its truth stay in the service), ``"practice"`` without one (a practice motor from a
+public class code, checked against the student's own recordings), or ``"instructor"`` where the
+instructor key is in the process (trusted code only).
+
 The parts: :mod:`~jerklab.lab.motors` (hidden motors, the student's device and rig),
 :mod:`~jerklab.lab.session` (what a worksheet calls), the checks as pure functions
 (:mod:`~jerklab.lab.checks` for labs 1-3, :mod:`~jerklab.lab.ringing` for lab 4, on
@@ -44,6 +50,8 @@ from jerklab.lab.motors import (
     connect_student,
     coupled_mode,
     instructor_key,
+    practice_key,
+    practice_motor,
     student_device,
     student_motor,
 )
@@ -83,6 +91,8 @@ __all__ = [
     "Evidence",
     "Run",
     "student_motor",
+    "practice_motor",
+    "practice_key",
     "student_device",
     "StudentMotor",
     "connect_student",

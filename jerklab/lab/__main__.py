@@ -1,4 +1,5 @@
-"""``python -m jerklab.lab grade SUBMISSIONS_DIR --out grades.csv [--jobs N]`` and ``... assign``.
+"""``python -m jerklab.lab grade SUBMISSIONS_DIR --out grades.csv [--jobs N]``, ``... assign``
+and ``... service`` (the class rig service, :mod:`jerklab.lab.service`).
 
 ``grade`` runs every worksheet in a bubblewrap sandbox and scores its exported answers
 outside it (:mod:`jerklab.lab.grade`); without bubblewrap it refuses, unless
@@ -13,9 +14,13 @@ import sys
 from jerklab.lab.grade import assign, grade_folder
 from jerklab.lab.motors import instructor_key
 from jerklab.lab.sandbox import SandboxUnavailable
+from jerklab.lab.service import main as service_main
 
 
 def main(argv=None):
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["service"]:
+        return service_main(argv[1:])
     ap = argparse.ArgumentParser(prog="python -m jerklab.lab", description=__doc__)
     sub = ap.add_subparsers(dest="cmd", required=True)
     g = sub.add_parser("grade", help="grade a folder of hand-in zips and notebooks")
@@ -40,10 +45,21 @@ def main(argv=None):
         action="store_true",
         help="grade without bubblewrap: the worksheets run as you (trusted submissions only)",
     )
+    g.add_argument(
+        "--check-log",
+        default=None,
+        help="the class rig service's check log: attempts per check into the CSV",
+    )
     a = sub.add_parser(
         "assign", help="write the student worksheets (solutions stripped) from the masters"
     )
     a.add_argument("--out", default="notebooks/labs", help="folder (default notebooks/labs)")
+    sub.add_parser(
+        "service",
+        help="run the class rig service (graded hidden motors; "
+        "python -m jerklab.lab service --help)",
+        add_help=False,
+    )
     args = ap.parse_args(argv)
     if args.cmd == "grade":
         _, source = instructor_key(warn=True)
@@ -63,6 +79,7 @@ def main(argv=None):
                 args.timeout,
                 jobs=args.jobs,
                 unsafe_no_sandbox=args.unsafe_no_sandbox,
+                check_log=args.check_log,
             )
         except SandboxUnavailable as exc:
             print(f"grade: refused: {exc}", file=sys.stderr)

@@ -61,6 +61,7 @@ from jerklab.lab.motors import hidden_truth, normalize_student, student_device, 
 from jerklab.lab.plain import Evidence
 from jerklab.lab.registry import FLEXIBLE_LABS, LABS, run_check
 from jerklab.lab.sandbox import SAFE_ENV, SandboxUnavailable, bwrap_path, sandbox_command
+from jerklab.lab.service import attempt_counts
 from jerklab.rig.server import DeviceServer
 from jerklab.rig.virtual import VirtualDevice
 
@@ -662,7 +663,6 @@ def _id_from_file_name(stem: str):
         return None, None
 
 
-
 def _plain_text(x, n) -> str:
     """A student-given text for feedback: printable, one line, at most ``n`` characters."""
     s = "".join(ch if ch.isprintable() else " " for ch in str(x))
@@ -721,6 +721,7 @@ def grade_folder(
     labs=None,
     jobs=1,
     unsafe_no_sandbox=False,
+    check_log=None,
 ) -> list[dict]:
     """Grade every ``*.zip`` hand-in and bare ``*.ipynb`` in ``folder``.
 
@@ -741,6 +742,9 @@ def grade_folder(
     unsafe_no_sandbox : bool
         Run worksheets without bubblewrap (no isolation): only when bwrap is missing and the
         submissions are trusted.
+    check_log : path, optional
+        The class rig service's check log (:func:`jerklab.lab.service.attempt_counts`): each
+        row also gets ``attempts_<check>``, how often the student tried each check.
 
     Raises
     ------
@@ -841,6 +845,11 @@ def grade_folder(
             + "\n".join(notes)
             + "\n"
         )
+    if check_log is not None:  # the class rig service's log: attempts per check
+        counts = attempt_counts(check_log)
+        for r in rows:
+            for q, n in counts.get((r["student"], r["lab"]), {}).items():
+                r[f"attempts_{q}"] = n
         try:
             _write_feedback(feedback_dir, _feedback_name(row, taken), text)
         except (OSError, ValueError) as exc:

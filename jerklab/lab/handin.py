@@ -2,8 +2,9 @@
 
 Layout of ``lab<N>_<student>.zip``::
 
-    manifest.json        {"format": 1, "student", "lab", "files": {path: sha256}}
-    student.json         student ID, lab, time, jerklab version, rig port, key source
+    manifest.json        {"format": 1, "student", "lab", "mode", "files": {path: sha256}}
+    student.json         student ID, lab, mode ("graded", "practice", "instructor"), time,
+                         jerklab version, rig port
     answers.json         every answer checked in the worksheet, with the check's verdict
     gains.json           the gains of the last rig move (or null)
     notebook/<name>.ipynb  the worksheet as saved
@@ -34,7 +35,7 @@ from pathlib import Path
 
 from jerklab import __version__
 from jerklab._validate import as_path
-from jerklab.lab.motors import instructor_key, normalize_student
+from jerklab.lab.motors import normalize_student
 from jerklab.lab.plain import jsonable
 
 __all__ = [
@@ -202,14 +203,14 @@ def write_handin(session, notebook=None, out=None, include=()) -> Path:
     }
     files["answers.json"] = json.dumps(answers, indent=1).encode()
     files["gains.json"] = json.dumps(jsonable(session.gains), indent=1).encode()
-    _, source = instructor_key(warn=False)
+    mode = getattr(session, "mode", "practice")
     meta = {
         "student": session.student,
         "lab": session.lab,
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "jerklab_version": __version__,
         "rig": session.rig.port,
-        "key_source": source,
+        "mode": mode,
     }
     files["student.json"] = json.dumps(meta, indent=1).encode()
     folder = (
@@ -218,18 +219,24 @@ def write_handin(session, notebook=None, out=None, include=()) -> Path:
         else (Path(notebook).parent if notebook else Path(".")) / "handin"
     )
     path = pack(
-        files, session.student, session.lab, folder / f"lab{session.lab}_{session.student}.zip"
+        files,
+        session.student,
+        session.lab,
+        folder / f"lab{session.lab}_{session.student}.zip",
+        mode=mode,
     )
     print(f"hand-in written: {path} ({len(files)} files, manifest with SHA-256 checksums)")
     return path
 
 
-def pack(files: dict, student: str, lab: int, path) -> Path:
-    """Write ``files`` ({name in the zip: bytes}) and their manifest into the zip ``path``."""
+def pack(files: dict, student: str, lab: int, path, mode=None) -> Path:
+    """Write ``files`` ({name in the zip: bytes}) and their manifest into the zip ``path``
+    (``mode``: the session's, "practice" for work done without the class rig service)."""
     manifest = {
         "format": 1,
         "student": student,
         "lab": int(lab),
+        **({} if mode is None else {"mode": str(mode)}),
         "files": {name: _sha(data) for name, data in files.items()},
     }
     path = Path(path)
@@ -242,8 +249,8 @@ def pack(files: dict, student: str, lab: int, path) -> Path:
 
 
 def read_handin(path, data: bytes | None = None) -> dict:
-    """Open a hand-in zip and verify it; return ``{"student", "lab", "notebook" (bytes or None),
-    "notebook_name", "files"}``. Raises :class:`HandinError` naming what is wrong.
+    """Open a hand-in zip and verify it; return ``{"student", "lab", "mode", "notebook" (bytes
+    or None), "notebook_name", "files"}``. Raises :class:`HandinError` naming what is wrong.
 
     Parameters
     ----------
@@ -319,6 +326,7 @@ def read_handin(path, data: bytes | None = None) -> dict:
     return {
         "student": student,
         "lab": lab,
+        "mode": manifest.get("mode"),
         "notebook": contents[nbs[0]] if nbs else None,
         "notebook_name": nbs[0].split("/", 1)[1] if nbs else None,
         "files": contents,

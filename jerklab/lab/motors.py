@@ -10,9 +10,19 @@ The key comes from ``$JERKLAB_INSTRUCTOR_KEY``, else the file named by
 ``$JERKLAB_INSTRUCTOR_KEY_FILE``, else ``~/.config/jerklab/instructor.key``. Without any, the
 documented :data:`CLASSROOM_DEFAULT_KEY` is used with a warning: it is *not* secret.
 
+Two kinds of motor come from here:
+
+* a **graded** motor, seeded by the instructor's key: it lives only in a trusted process (the
+  class rig service, :mod:`jerklab.lab.service`, or the instructor's own grader), never in a
+  student's kernel;
+* a **practice** motor (:func:`practice_motor`), seeded by a public class code
+  (:func:`practice_key`): what a student gets without a class rig service. Anyone can
+  regenerate it, so practice work is checked against the student's own recordings, never
+  against its parameters.
+
 The true values never appear in a ``repr``, in rig metadata or in a recording; they are read
-only by the checks of :mod:`jerklab.lab` (as :func:`hidden_truth`, which the session fetches
-and hands to the checks).
+only by trusted code (:func:`hidden_truth`, which the service and the grader hand to the
+checks).
 
 The rig knows no student: the lab builds the student's device (:func:`student_device`: the
 hidden motor, its encoder count noise) and hands it to :func:`jerklab.rig.connect`, with the
@@ -54,6 +64,9 @@ __all__ = [
     "normalize_student",
     "connect_student",
     "DefaultKeyWarning",
+    "PRACTICE_CODE",
+    "practice_key",
+    "practice_motor",
 ]
 
 #: Used when no instructor key is set. Public (it is in the source): fine for practice, not for marks.
@@ -84,6 +97,9 @@ MODE_RANGES = {
     "mode_damping": (0.01, 0.04),  # damping ratio of the shaft
     "load_ratio": (0.3, 0.3),  # J_load / J_motor
 }
+
+#: The class code of practice motors when none is given (``$JERKLAB_CLASS_CODE`` sets another).
+PRACTICE_CODE = "practice"
 
 _ID_RE = re.compile(r"^[A-Za-z0-9._@+-]{1,64}$")
 
@@ -127,6 +143,32 @@ def instructor_key(warn: bool = True) -> tuple[bytes, str]:
             stacklevel=3,
         )
     return CLASSROOM_DEFAULT_KEY, "default"
+
+
+def practice_key(class_code: str | None = None) -> bytes:
+    """The public key of the practice motors of ``class_code`` (default ``$JERKLAB_CLASS_CODE``,
+    else :data:`PRACTICE_CODE`, whose key is :data:`CLASSROOM_DEFAULT_KEY`).
+
+    A class code is public (the instructor hands it out so that a class practises on the same
+    family of motors): the practice motors it seeds are not secret, and differ from the graded
+    motors, which the instructor's key seeds.
+    """
+    code = class_code if class_code is not None else os.environ.get("JERKLAB_CLASS_CODE")
+    code = PRACTICE_CODE if code is None else code
+    if not isinstance(code, str) or not re.fullmatch(r"[A-Za-z0-9._@+-]{1,64}", code.strip()):
+        raise ValueError(
+            f"class_code must be 1-64 characters of letters, digits and ._@+-, got {code!r}"
+        )
+    code = code.strip().lower()
+    if code == PRACTICE_CODE:
+        return CLASSROOM_DEFAULT_KEY
+    return f"jerklab-practice-class-code:{code}".encode()
+
+
+def practice_motor(student, class_code: str | None = None, plant: str = "rigid"):
+    """The practice motor of ``student`` for ``class_code`` (see :func:`practice_key`): public,
+    for working without a class rig service; never the student's graded motor."""
+    return student_motor(student, key=practice_key(class_code), plant=plant)
 
 
 def _seed(student: str, key: bytes, purpose: str = "motor-v1") -> int:

@@ -1,10 +1,25 @@
 """A lab session: the student's rig, the recordings of the lab, the answers and their checks.
 
-The session connects the student's device (:func:`jerklab.lab.motors.student_device`) to the
-rig, keeps what the student records and answers, and for each check gathers the plain
-evidence (:class:`jerklab.lab.plain.Evidence`), fetches the truth of the hidden motor (today
-from :mod:`jerklab.lab.motors`), calls the check through :mod:`jerklab.lab.registry` and stores
-the result.
+A session runs in one of three modes (``S.mode``, written into every recording and hand-in):
+
+``"graded"``
+    The class rig service (:mod:`jerklab.lab.service`) runs the student's hidden motor; the
+    session reaches it over a socket (``port="classrig://..."``, or ``$JERKLAB_CLASS_RIG``)
+    and the service scores the checks. The student is whoever the login's token names. The
+    student's process never holds the motor or its truth.
+``"practice"``
+    No service: the virtual rig (or simavr) runs a **practice** motor seeded by a public class
+    code (:func:`jerklab.lab.motors.practice_motor`), or the port is a real board. The checks
+    compare the answers with what the checker finds in the student's own recordings (as on a
+    real rig), never with a motor's parameters.
+``"instructor"``
+    The instructor key is in this process (``key=`` or the instructor's key file): the hidden
+    motor runs here and the checks see its truth. Only for the trusted grader and the
+    instructor's own runs; a student's process never has the key.
+
+The session keeps what the student records and answers and, for each check, gathers the plain
+evidence (:class:`jerklab.lab.plain.Evidence`) and calls the check through
+:mod:`jerklab.lab.registry` (or asks the service, which does the same with its own recordings).
 """
 
 from __future__ import annotations
@@ -12,17 +27,18 @@ from __future__ import annotations
 import os
 import re
 import time
-import warnings
 from pathlib import Path
 
 from jerklab import paper
 from jerklab.lab.checkbase import CheckResult, Missing
 from jerklab.lab.checks import MOVE, SPEC
+from jerklab.lab.classrig import SCHEMES, ClassRig, ClassRigError, service_address
 from jerklab.lab.handin import PLACEHOLDER_STUDENT, HandinRefused, write_handin
 from jerklab.lab.motors import (
-    DefaultKeyWarning,
     hidden_truth,
+    instructor_key,
     normalize_student,
+    practice_key,
     simulated_motor,
     student_device,
     student_motor,
@@ -32,7 +48,10 @@ from jerklab.lab.registry import FLEXIBLE_LABS, LABS, check_function
 from jerklab.lab.specs import lab_spec
 from jerklab.rig import Device, MotorProfile, RigError, connect, load_profile
 
-__all__ = ["LabSession", "start", "panel_gains", "CheckResult", "LABS", "SPEC", "MOVE"]
+__all__ = ["LabSession", "start", "panel_gains", "CheckResult", "LABS", "SPEC", "MOVE", "MODES"]
+
+#: The modes of a session (see the module's text).
+MODES = ("graded", "practice", "instructor")
 
 
 def panel_gains(panel):
@@ -63,44 +82,60 @@ def _served_device():
     return Device(counts_per_rev=int(cpr)) if cpr else None
 
 
+def _service_of(port, key):
+    """The class rig service's address for ``port``, or None for a local rig."""
+    if isinstance(port, str) and port.startswith(SCHEMES):
+        return port
+    if port in (None, "virtual", "") and key is None:
+        return service_address()
+    return None
+
+
 class LabSession:
-    """What a worksheet works with: ``rig``, ``student``, ``folder``, ``recordings``, ``answers``,
-    and the lab's numbers on the rig's motor profile (``profile``; ``spec``:
+    """What a worksheet works with: ``rig``, ``student``, ``mode``, ``folder``, ``recordings``,
+    ``answers``, and the lab's numbers on the rig's motor profile (``profile``; ``spec``:
     :func:`jerklab.lab.specs.lab_spec`, e.g. ``S.spec["move"]``).
 
     Make one with :func:`start`. Runs go through :meth:`step` and :meth:`run_move` so that
     every recording lands in the lab's folder (handed in by :meth:`submit`).
+
+    Parameters
+    ----------
+    lab : int
+        1 to 4.
+    student : str, optional
+        The student ID. With the class rig service the login's token names the student: leave
+        it out, or give the same ID (another one is refused).
+    port : None, str
+        None: the class rig service if ``$JERKLAB_CLASS_RIG`` names one, else the virtual rig;
+        ``"classrig://HOST:PORT"`` or ``"classrig+unix:///PATH"``: the service; ``"simavr"``; a
+        serial port of a real Uno.
+    key : bytes, optional
+        The instructor key (trusted processes only: mode ``"instructor"``).
+    class_code : str, optional
+        The public code of the practice motors (default ``$JERKLAB_CLASS_CODE``).
+    token : str, optional
+        The service's token (default ``$JUPYTERHUB_API_TOKEN``, else ``$JERKLAB_CLASS_TOKEN``).
     """
 
     def __init__(
         self,
         lab,
-        student,
+        student=None,
         port=None,
         folder=None,
         speed=None,
         key=None,
         progress=False,
         profile=None,
+        class_code=None,
+        token=None,
     ):
         if lab not in LABS:
             raise ValueError(f"lab must be one of {sorted(LABS)}, got {lab!r}")
         self.lab = lab
-        self.student = normalize_student(student)
         self.port = _port_from_env(port)
-        base = (
-            Path(folder)
-            if folder is not None
-            else Path(os.environ.get("JERKLAB_LAB_WORK", "lab-work"))
-        )
-        self.folder = base / self.student / f"lab{lab}"
-        self.folder.mkdir(parents=True, exist_ok=True)
         self.plant = "flexible" if lab in FLEXIBLE_LABS else "rigid"
-        if self.plant == "flexible" and self.port not in (None, "virtual", "", "simavr"):
-            print(
-                f"⚠ lab {lab} needs the flexible load: on a real Uno, mount the load on its shaft coupling"
-            )
-        port = None if self.port == "" else self.port
         # the rig's motor profile: the hidden motors' ranges, the moves and specs (lab_spec)
         self.profile = None if profile is None else load_profile(profile)
         # what the checks are told (a name, or a profile file's path)
@@ -112,28 +147,63 @@ class LabSession:
             else os.fspath(profile)
         )
         self.spec = lab_spec(lab, self.profile or "paper")
-        # the hidden motor as this port simulates it; None on a real board (its motor is real);
-        # without an instructor key it is a practice motor, said in one line by start()
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", DefaultKeyWarning)
-            drawn = student_motor(
-                self.student, key, plant=self.plant, profile=self.profile
+        service = _service_of(self.port, key)
+        trusted = None
+        if service is not None:
+            if speed is not None:
+                raise ValueError("speed applies to a local virtual rig only, not the class rig")
+            self.rig = ClassRig(service, lab, token=token, student=student)
+            self.student = normalize_student(self.rig.student)
+            self.mode = "graded"
+            self._simulated = True
+        else:
+            if student is None:
+                raise ValueError("student: give your student ID (no class rig service is set)")
+            self.student = normalize_student(student)
+            if key is None:
+                found, source = instructor_key(warn=False)
+                key = found if source != "default" else None
+            self.mode = "practice" if key is None else "instructor"
+            seed_key = practice_key(class_code) if key is None else bytes(key)
+            if self.plant == "flexible" and self.port not in (None, "virtual", "", "simavr"):
+                print(
+                    f"⚠ lab {lab} needs the flexible load: on a real Uno, mount the load on its "
+                    "shaft coupling"
+                )
+            local = None if self.port == "" else self.port
+            # the motor as this port simulates it; None on a real board, or the rig the grader
+            # serves into its sandbox (the motor is behind the port)
+            motor = simulated_motor(
+                student_motor(self.student, seed_key, plant=self.plant, profile=self.profile),
+                local,
             )
-        self.practice = any(issubclass(w.category, DefaultKeyWarning) for w in caught)
-        for w in caught:
-            if not issubclass(w.category, DefaultKeyWarning):
-                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-        self._motor = simulated_motor(drawn, port)
-        if self._motor is None and speed is not None:
-            raise ValueError("speed applies to the virtual rig only (port=None)")
-        self.rig = connect(
-            port,
-            device=_served_device() if self._motor is None else student_device(self._motor, speed),
-            progress=progress,
-            recordings=self.folder,
-            metadata={"student": self.student, "lab": lab},
-            profile=self.profile,
+            if motor is None and speed is not None:
+                raise ValueError("speed applies to the virtual rig only (port=None)")
+            self._simulated = motor is not None
+            if motor is not None and self.mode == "instructor":
+                trusted = hidden_truth(motor)
+            device = _served_device() if motor is None else student_device(motor, speed)
+            del motor
+        #: True for practice work (no class rig service, no instructor key)
+        self.practice = self.mode == "practice"
+        base = (
+            Path(folder)
+            if folder is not None
+            else Path(os.environ.get("JERKLAB_LAB_WORK", "lab-work"))
         )
+        self.folder = base / self.student / f"lab{lab}"
+        self.folder.mkdir(parents=True, exist_ok=True)
+        if service is None:
+            self.rig = connect(
+                local,
+                device=device,
+                progress=progress,
+                recordings=self.folder,
+                metadata={"student": self.student, "lab": lab, "mode": self.mode},
+                profile=self.profile,
+            )
+        # the checks' truth: only in a trusted process (mode "instructor"), never returned
+        self._check_truth = (lambda: trusted) if trusted is not None else (lambda: None)
         self.recordings = {}
         self.answers = {}
         self.results = {}
@@ -158,12 +228,13 @@ class LabSession:
     # ---------------------------------------------------------------- the rig
     @property
     def simulated(self) -> bool:
-        """True when the plant is the student's hidden motor (virtual rig or simavr)."""
-        return self._motor is not None
+        """True when the plant is a simulated motor (the class rig, virtual rig or simavr)."""
+        return self._simulated
 
-    def _truth(self):
-        """The hidden motor's parameters for the checks (None on a real rig)."""
-        return None if self._motor is None else hidden_truth(self._motor)
+    @property
+    def graded(self) -> bool:
+        """True when the class rig service runs the motor and scores the checks."""
+        return self.mode == "graded"
 
     def _path(self, name):
         if not re.match(r"^[A-Za-z0-9_.+-]{1,60}$", name):
@@ -235,12 +306,22 @@ class LabSession:
         """Run check ``name`` of this lab on ``answer`` silently; return a :class:`CheckResult`.
 
         Every answer is kept for the hand-in (``answers``), but a later check sees it only
-        once its own check passed (:meth:`evidence`). Raises KeyError for a name the lab has
-        no check for."""
+        once its own check passed (:meth:`evidence`). In mode ``"graded"`` the class rig service
+        scores it (and logs the attempt); in mode ``"practice"`` the check compares with the
+        checker's analysis of your recordings. Raises KeyError for a name the lab has no check
+        for."""
         check = check_function(self.lab, name)
         self.answers[name] = jsonable(answer)
+        if self.mode == "graded":
+            try:
+                passed, message = self.rig.check(name, answer)
+                res = CheckResult(name, passed, message)
+            except ClassRigError as exc:
+                res = CheckResult(name, False, f"not checked: {exc}")
+            self.results[name] = res
+            return res
         try:
-            res = check(answer, self.evidence(), self._truth())
+            res = check(answer, self.evidence(), self._check_truth())
         except Missing as exc:
             res = CheckResult(name, False, str(exc))
         except (TypeError, ValueError, KeyError, AttributeError, IndexError) as exc:
@@ -304,14 +385,17 @@ class LabSession:
         )
 
 
-def start(lab, student, port=None, **options):
+def start(lab, student=None, port=None, **options):
     """Start lab ``lab`` (1 to 4; lab 4's rig has the flexible load) for ``student`` on
-    ``port`` (None: the virtual rig with the student's hidden motor; ``"simavr"``; a serial port
-    of a real Uno). ``profile=`` names the rig's motor (``jerklab.rig.profiles``: a built-in name
-    or the profile file of ``jerklab rig check --save``): the hidden motors, the moves and the
-    specs follow it (``S.spec``)."""
+    ``port`` (None: the class rig service when ``$JERKLAB_CLASS_RIG`` names one, else the
+    virtual rig with a practice motor; ``"simavr"``; a serial port of a real Uno). ``profile=``
+    names the rig's motor (``jerklab.rig.profiles``: a built-in name or the profile file of
+    ``jerklab rig check --save``): the hidden motors, the moves and the specs follow it
+    (``S.spec``)."""
     s = LabSession(lab, student, port, **options)
-    if s.port in (None, "virtual", ""):
+    if s.mode == "graded":
+        where = f"class rig ({s.rig.port}; your graded motor, checked by the service)"
+    elif s.port in (None, "virtual", ""):
         where = "virtual rig (your hidden motor)"
     elif s.port == "simavr":
         where = f"firmware on a simulated Uno (your hidden motor; {s.rig.port})"
@@ -329,9 +413,10 @@ def start(lab, student, port=None, **options):
             f"Put your student ID in STUDENT (it is still {PLACEHOLDER_STUDENT!r}) and run this "
             "cell again: your motor is drawn from it, and a hand-in needs it."
         )
-    if s.practice and s.simulated:
+    if s.mode == "practice":
         print(
-            "Practice motor: no instructor key on this machine, so your motor comes from the "
-            "public class default — fine for practice; graded work is run with the class key."
+            "Practice motor: no class rig service here, so your motor comes from the public "
+            "class code and the checks compare your answers with your own recordings; graded "
+            "work runs on the class rig."
         )
     return s
