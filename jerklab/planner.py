@@ -717,7 +717,10 @@ def plan_sine_jerk_optimal(
         # from a moving start; Python floats straight to the compiled solver (as _plan_any_state).
         # Written out in both planners on purpose: a shared helper adds a Python call to each plan.
         if (
-            initial_velocity.__class__ is initial_accel.__class__ is final_velocity.__class__ is float
+            initial_velocity.__class__
+            is initial_accel.__class__
+            is final_velocity.__class__
+            is float
         ) and (
             distance.__class__
             is max_jerk.__class__
@@ -861,7 +864,10 @@ def plan_scurve(
         # from a moving start; Python floats straight to the compiled solver (as _plan_any_state).
         # Written out in both planners on purpose: a shared helper adds a Python call to each plan.
         if (
-            initial_velocity.__class__ is initial_accel.__class__ is final_velocity.__class__ is float
+            initial_velocity.__class__
+            is initial_accel.__class__
+            is final_velocity.__class__
+            is float
         ) and (
             distance.__class__
             is max_jerk.__class__

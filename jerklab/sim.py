@@ -1032,7 +1032,9 @@ def simulate_batch(
         if np.any(bad):
             i = int(np.argmax(bad))
             rule = ">= 0" if name == "coulomb_friction" else "> 0"
-            raise ValueError(f"{name} must be {rule} for every plant, got {float(v[i])!r} at plant {i}")
+            raise ValueError(
+                f"{name} must be {rule} for every plant, got {float(v[i])!r} at plant {i}"
+            )
     m = len(Kv)
     duration = _duration(profile)
     n = _n_samples(duration, Ts, t_end)

@@ -12,6 +12,7 @@ import struct
 import subprocess
 
 import numpy as np
+import pytest
 from _avr import run_on_atmega328p
 from conftest import require_tool
 
