@@ -57,7 +57,13 @@ from pathlib import Path
 from jerklab.controller import DiscreteGains
 from jerklab.lab.checkbase import Missing
 from jerklab.lab.handin import MAX_ZIP_BYTES, HandinError, read_handin
-from jerklab.lab.motors import hidden_truth, normalize_student, student_device, student_motor
+from jerklab.lab.motors import (
+    hidden_truth,
+    normalize_student,
+    practice_key,
+    student_device,
+    student_motor,
+)
 from jerklab.lab.plain import Evidence
 from jerklab.lab.registry import FLEXIBLE_LABS, LABS, run_check
 from jerklab.lab.sandbox import SAFE_ENV, SandboxUnavailable, bwrap_path, sandbox_command
@@ -367,7 +373,8 @@ def _valid_id(student, where) -> str:
 
 
 def _read_submission(p: Path) -> dict:
-    """One submission, read and validated: ``{"student", "lab", "notebook", "notes"}``."""
+    """One submission, read and validated: ``{"student", "lab", "notebook", "notes", "mode"}``
+    (``mode``: "practice" when the hand-in's manifest says so, else "graded")."""
     st = os.lstat(p)
     if not stat.S_ISREG(st.st_mode):
         raise ValueError("not a regular file (a link?)")
@@ -376,9 +383,11 @@ def _read_submission(p: Path) -> dict:
     with open(p, "rb", opener=lambda f, fl: os.open(f, fl | os.O_NOFOLLOW)) as f:
         data = f.read(MAX_ZIP_BYTES + 1)
     notes = []
+    mode = "graded"
     if p.suffix.lower() == ".zip":
         h = read_handin(p, data=data)
         student, lab, nb = h["student"], h["lab"], h["notebook"]
+        mode = "practice" if h.get("mode") == "practice" else "graded"
         if nb is None:
             raise HandinError(f"{p.name}: no notebook in the hand-in")
         s2, _ = _notebook_info(nb, h["notebook_name"] or "")
@@ -396,7 +405,7 @@ def _read_submission(p: Path) -> dict:
         student = _valid_id(student, "the notebook's")
     if lab not in LABS:
         raise ValueError(f"cannot tell which lab this is (lab = {str(lab)[:20]!r})")
-    return {"student": student, "lab": int(lab), "notebook": nb, "notes": notes}
+    return {"student": student, "lab": int(lab), "notebook": nb, "notes": notes, "mode": mode}
 
 
 # ------------------------------------------------------------------ decoding and scoring
@@ -670,9 +679,9 @@ def _plain_text(x, n) -> str:
 
 
 def _grade_job(args):
-    lab, nb, student, timeout, sandbox = args
+    lab, nb, student, timeout, sandbox, key = args
     try:
-        return grade_one(lab, nb, student, timeout, sandbox)
+        return grade_one(lab, nb, student, timeout, sandbox, key=key)
     except Exception as exc:  # the grader's own failure on this submission: its row says so
         return {"scores": {}, "error": f"grading failed ({type(exc).__name__})", "notes": []}
 
@@ -807,7 +816,15 @@ def grade_folder(
         if sub["lab"] not in wanted:
             row["status"] = "skipped (lab not asked for)"
             continue
-        todo.append((i, (sub["lab"], sub["notebook"], sub["student"], timeout, sandbox)))
+        # practice work is re-run on the practice motor the student had (public: the row is
+        # flagged, it is not graded work); everything else on the student's graded motor
+        key = practice_key() if sub["mode"] == "practice" else None
+        if sub["mode"] == "practice":
+            row["mode"] = "practice"
+            row["flags"] = "; ".join(
+                f for f in (row["flags"], "practice: a public motor, not graded work") if f
+            )
+        todo.append((i, (sub["lab"], sub["notebook"], sub["student"], timeout, sandbox, key)))
     _QUESTIONS.clear()
     for lab in sorted({a[0] for _, a in todo}):
         questions(lab)  # the autograder made and verified once, before the workers start
