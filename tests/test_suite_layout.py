@@ -232,6 +232,7 @@ def _ci_cases(items) -> dict[str, int]:
     return out
 
 
+@pytest.mark.slow  # (collects every property test file when the session has not)
 def test_the_ci_profile_keeps_the_total_case_count(request, tmp_path, pytestconfig):
     files = [
         f
