@@ -99,7 +99,7 @@ def _refusal(session, nb: Path | None):
         )
     last = getattr(session, "last_activity", None)
     saved = nb.stat().st_mtime
-    if last is not None and saved + 0.5 < last:
+    if last is not None and saved + 0.01 < last:
         return (
             f"{nb.name} on disk was saved at {_clock(saved)}, before the cells you ran last "
             f"({_clock(last)}): the zip would hold the older file. Save the notebook "

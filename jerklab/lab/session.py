@@ -217,13 +217,19 @@ class LabSession:
 
             ip = get_ipython()
             if ip is not None:
+                ip.events.register("pre_run_cell", self._cell_starts)
                 ip.events.register("post_run_cell", self._cell_ran)
                 self._ipython = ip
         except ImportError:
             pass
 
+    def _cell_starts(self, info=None):
+        self._cell_start = time.time()
+
     def _cell_ran(self, result=None):
-        self.last_activity = time.time()
+        # a cell counts from when it started: a save during or after it is newer
+        start = getattr(self, "_cell_start", None) or time.time()
+        self.last_activity = max(self.last_activity, start)
 
     # ---------------------------------------------------------------- the rig
     @property
@@ -372,6 +378,7 @@ class LabSession:
     def close(self):
         if self._ipython is not None:
             try:
+                self._ipython.events.unregister("pre_run_cell", self._cell_starts)
                 self._ipython.events.unregister("post_run_cell", self._cell_ran)
             except ValueError:
                 pass
