@@ -288,7 +288,8 @@ def test_spec_binds_the_panels_start(request):
 
 
 def test_spec_can_be_missed():
-    """The spec is not trivial: a slow design (ωn = 8 rad/s) misses it on a typical motor."""
+    """The spec is not trivial: a slow design (ωn = 7 rad/s) misses it on a typical motor (its
+    tracking error ~0.49 rad against the spec's 0.40; ωn = 8 sat within a count of the limit)."""
     m = StudentMotor("slow", _Parameters(30.0, 0.03, 0.4, 0.0, 0.2, 448), 3)
     rig = _rig_for(m)
     try:
@@ -296,7 +297,7 @@ def test_spec_can_be_missed():
         prof = plan_sine_jerk(**lab.MOVE)
         rec = rig.run_move(
             prof,
-            discrete_pole_placement_pid(30.0, 0.03, 8.0, 1.0, Ts=0.005),
+            discrete_pole_placement_pid(30.0, 0.03, 7.0, 1.0, Ts=0.005),
             0.005,
             settle=0.4,
             path=False,
