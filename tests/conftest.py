@@ -159,6 +159,10 @@ FILE_MARKS = {
     "test_fpga.py": ("verilog",),
     "test_fpga_signals.py": ("verilog",),
     "test_figures_yang.py": ("verilog",),
+    "security/test_hub.py": ("hub",),
+    "security/test_grading.py": ("notebook", "slow"),
+    "security/test_hidden_motor.py": ("notebook", "slow"),
+    "security/test_queue.py": ("browser",),
 }
 
 #: files whose tests stay on one xdist worker (module-scoped servers, simulators or build folders)
@@ -172,7 +176,10 @@ ONE_WORKER = {
     "test_rig_simavr.py",
     "test_rig_sequence_shaper_simavr.py",
     "test_firmware_telemetry.py",
+    "security/test_hub.py",
 }
+#: files of ONE_WORKER that share one worker with another (two hubs must not start at once)
+SHARED_WORKER = {"security/test_hub.py": "test_hub.py"}
 
 _TESTS = os.path.dirname(os.path.abspath(__file__))
 
@@ -189,5 +196,5 @@ def pytest_collection_modifyitems(session, config, items):
         for name in FILE_MARKS.get(rel, ()):
             item.add_marker(getattr(pytest.mark, name))
         if rel in ONE_WORKER:
-            item.add_marker(pytest.mark.xdist_group(rel))
+            item.add_marker(pytest.mark.xdist_group(SHARED_WORKER.get(rel, rel)))
     items.sort(key=lambda it: _rel(it) == "test_book.py")

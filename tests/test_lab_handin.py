@@ -110,6 +110,7 @@ def test_only_this_sessions_recordings_or_those_named(tmp_path):
     S.close()
 
 
+@pytest.mark.notebook
 def test_in_a_kernel_a_cell_run_after_saving_is_noticed(tmp_path):
     """In Jupyter every finished cell counts: saving, then running one more cell, then
     submitting is refused; saving last is handed in."""
