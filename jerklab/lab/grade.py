@@ -54,6 +54,11 @@ import time
 import warnings
 from pathlib import Path
 
+try:  # the cache's lock (grading runs on Linux; elsewhere one grader at a time)
+    import fcntl
+except ImportError:  # pragma: no cover - Windows
+    fcntl = None
+
 from jerklab.controller import DiscreteGains
 from jerklab.lab.checkbase import Missing
 from jerklab.lab.handin import MAX_ZIP_BYTES, HandinError, read_handin
@@ -215,8 +220,22 @@ def _verify(d: Path) -> bool:
 
 def verified_autograder(lab: int) -> Path:
     """The ``dist/`` folder of ``otter assign`` for ``lab`` in the instructor-only cache,
-    verified by hash; made (again) when it is missing or differs from its signed index."""
+    verified by hash; made (again) when it is missing or differs from its signed index.
+
+    One grader at a time checks or makes a lab's folder (an exclusive lock on
+    ``.lab<N>.lock`` in the cache): two graders started together, or the parallel test
+    workers, never remove the folder the other is making."""
     d = _cache_dir(lab)
+    fd = os.open(d.parent / f".lab{lab}.lock", os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o600)
+    try:
+        if fcntl is not None:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        return _verified_or_made(lab, d)
+    finally:
+        os.close(fd)
+
+
+def _verified_or_made(lab: int, d: Path) -> Path:
     if _verify(d):
         return d / "dist"
     if d.exists():
