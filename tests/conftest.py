@@ -156,6 +156,7 @@ FILE_MARKS = {
     "test_firmware_law.py": ("firmware", "simavr"),
     "test_rig_sequence_shaper.py": ("firmware",),
     "faults/test_safety.py": ("firmware",),
+    "faults/test_firmware_mutants.py": ("firmware",),
     "test_fpga.py": ("verilog",),
     "test_fpga_signals.py": ("verilog",),
     "test_figures_yang.py": ("verilog",),

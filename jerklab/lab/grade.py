@@ -881,15 +881,15 @@ def grade_folder(
             + "\n".join(notes)
             + "\n"
         )
+        try:
+            _write_feedback(feedback_dir, _feedback_name(row, taken), text)
+        except (OSError, ValueError) as exc:
+            row["status"] += f" (feedback not written: {type(exc).__name__})"
     if check_log is not None:  # the class rig service's log: attempts per check
         counts = attempt_counts(check_log)
         for r in rows:
             for q, n in counts.get((r["student"], r["lab"]), {}).items():
                 r[f"attempts_{q}"] = n
-        try:
-            _write_feedback(feedback_dir, _feedback_name(row, taken), text)
-        except (OSError, ValueError) as exc:
-            row["status"] += f" (feedback not written: {type(exc).__name__})"
     qcols = [
         q for lab in sorted({r["lab"] for r in rows if r["lab"] in LABS}) for q in _qnames(lab)
     ]
