@@ -62,12 +62,16 @@ def test_p_law_reaches_the_target_within_two_counts(rig):
 
 def test_realtime_iterator_same_as_callable(rig):
     prof = _profile()
-    loop = rig.realtime(Ts=0.01, duration=prof.duration + 0.5, reference=prof)
+    loop = rig.realtime(Ts=0.01, duration=prof.duration + 0.5, reference=prof, max_misses=255)
+    seen = []
     for step in loop:
-        assert step.t == pytest.approx(step.index * 0.01)
-        assert step.reference == pytest.approx(prof.sample(step.t).position, abs=1e-9)
+        seen.append((step.index, step.t, step.reference))
         step.apply(KP * (step.reference - step.position))
     rec = loop.recording
+    ks, ts, refs = zip(*seen)
+    assert list(ks) == list(range(len(rec) - 1))  # every tick but the last is answered
+    assert ts == pytest.approx([k * 0.01 for k in ks])
+    assert refs == pytest.approx(prof.sample(list(ts)).position, abs=1e-9)
     assert rec.metadata["status"] == "complete"
     assert abs(rec.counts[-1] - prof.sample(prof.duration).position * CPR) <= 2
 
@@ -84,15 +88,13 @@ def test_sleeping_law_misses_hold_and_stop(rig):
     rec = rig.host_loop(law, Ts=0.01, duration=2.0, max_misses=4)
     status = rec.metadata["status"]
     assert status.startswith("fault: host missed 4 deadlines in a row"), status
-    assert rec.metadata["misses"] == 4
-    # the voltage was held at the last timely answer (3 V) during the misses, then 0
-    missed = [
-        i for i, f in enumerate(rec.flags) if f & P.HOST_SAMPLE_MISSED and not f & P.TELEMETRY_FAULT
-    ]
-    assert missed == [5, 6, 7]  # the 4th miss in a row (tick 8) stops the motor (FAULT, pwm 0)
-    assert all(abs(rec.voltage[i] - 3.0) <= 12.0 / 1023 for i in missed)
+    assert rec.metadata["misses"] >= 4  # (a loaded machine may add an earlier, lone miss)
+    # the last four ticks missed; the 4th in a row stops the motor (FAULT, pwm 0)
+    assert all(f & P.HOST_SAMPLE_MISSED for f in rec.flags[-4:])
     assert rec.pwm[-1] == 0 and rec.flags[-1] & P.TELEMETRY_FAULT
-    assert len(rec) < 50 and _device_idle(rig)
+    # the voltage was held at the last timely answer (3 V) during the misses
+    assert all(abs(v - 3.0) <= 12.0 / 1023 for v in rec.voltage[-4:-1])
+    assert len(rec) >= 9 and len(rec) < 60 and _device_idle(rig)
 
 
 def test_raising_law_stops_the_motor_and_names_the_tick(rig):
@@ -131,7 +133,8 @@ def test_non_finite_voltage_is_refused_and_stops(rig, bad):
 def test_large_voltage_is_clamped(rig):
     rec = rig.host_loop(lambda t, y, r: 1e6, Ts=0.01, duration=0.05, max_voltage=6.0)
     assert rec.metadata["status"] == "complete"
-    assert max(abs(rec.voltage)) <= 6.0 + 1e-9 and rec.voltage[-1] == pytest.approx(6.0, abs=0.02)
+    # the device's clamp: PWM top = lround(6 V * 1023 / 12 V) = 512 ticks (PROTOCOL.md)
+    assert list(rec.pwm) == [0] + [512] * (len(rec) - 1)
 
 
 @pytest.mark.parametrize("Ts", [0.004, 0.051, 0.0, -0.01, math.nan])

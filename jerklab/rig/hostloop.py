@@ -101,12 +101,11 @@ class HostStep:
             When ``voltage`` is not a finite number: the run stops (the motor is switched
             off) and the recording's status names the tick.
         """
-        if isinstance(voltage, bool) or not isinstance(voltage, numbers.Real):
-            try:
-                voltage = float(voltage)  # a numpy scalar, a 0-d array
-            except (TypeError, ValueError):
-                voltage = math.nan
-        v = float(voltage)
+        v = math.nan
+        if getattr(voltage, "shape", None) == () and hasattr(voltage, "item"):
+            voltage = voltage.item()  # a numpy scalar or 0-d array
+        if isinstance(voltage, numbers.Real) and not isinstance(voltage, bool):
+            v = float(voltage)
         if not math.isfinite(v):
             self._loop._refuse(self, f"the control law returned voltage = {voltage!r}")
         vmax = self._loop.max_voltage
@@ -310,7 +309,8 @@ class RealtimeLoop:
                     k = s.index
                     self.misses = s.misses
                     ref = self.reference_at(k)
-                    rec.append(k, ref, s.counts, s.pwm, s.flags)
+                    # the recording's reference is 0 without one (as for an open-loop step)
+                    rec.append(k, 0.0 if self._ref is None else ref, s.counts, s.pwm, s.flags)
                     if s.flags & P.TELEMETRY_FAULT or k >= self.n - 1:
                         continue  # END_OF_RUN follows: nothing to answer
                     step = HostStep(
