@@ -43,7 +43,9 @@ def _reference_table(reference, n, Ts):
     if hasattr(reference, "sample"):
         import numpy as np
 
-        pos = np.broadcast_to(np.asarray(reference.sample(np.asarray(times)).position, float), n + 1)
+        pos = np.broadcast_to(
+            np.asarray(reference.sample(np.asarray(times)).position, float), n + 1
+        )
         table = [float(x) for x in pos]
     elif callable(reference):
         table = [float(reference(t)) for t in times]
@@ -186,8 +188,7 @@ class RealtimeLoop:
 
     def _refuse(self, step, what):
         status = (
-            f"error: {what} at tick {step.index} (t={step.t:.3f} s); refused, the motor is "
-            "stopped"
+            f"error: {what} at tick {step.index} (t={step.t:.3f} s); refused, the motor is stopped"
         )
         self._error = (status, step.index)
         self.abort(status)
