@@ -24,6 +24,7 @@ from jerklab import planner as _planner
 from jerklab import protocol as P
 from jerklab._validate import as_int, as_nonnegative, as_positive, as_real
 from jerklab.controller import DiscreteGains, Gains, max_pole_radius
+from jerklab.rig.hostloop import ControlLawError, RealtimeLoop
 from jerklab.rig.options import F32_MAX as _F32_MAX
 from jerklab.rig.options import RunSpec
 from jerklab.rig.progress import NoProgress as _NoProgress
@@ -1293,9 +1294,19 @@ class Rig:
             every exit path (the end, ``break``, an exception, Ctrl-C: the motor stops), its
             ``misses`` and the deadline slack per tick (``metadata["hostloop"]``).
         """
-        from jerklab.rig.hostloop import RealtimeLoop
-
-        return RealtimeLoop(self, Ts, duration, reference, **options)
+        if not self.capabilities & P.Capability.HOST_LOOP:
+            raise RigError(
+                f"{self.port}: firmware {self.firmware_version} has no host-in-the-loop mode"
+            )
+        return RealtimeLoop(
+            self,
+            Ts,
+            duration,
+            reference,
+            _describe_fault=_fault_status,
+            _timeout_error=RigTimeoutError,
+            **options,
+        )
 
     def host_loop(self, control, Ts, duration, reference=None, **options) -> Recording:
         """Host-in-the-loop with a callable law ``control(t, position, reference) -> volts``.
@@ -1308,8 +1319,6 @@ class Rig:
             When the law raises or returns a non-finite voltage: the motor is stopped, the
             message and the recording's status name the tick.
         """
-        from jerklab.rig.hostloop import ControlLawError
-
         if not callable(control):
             raise TypeError(f"control must be callable, got {type(control).__name__}")
         loop = self.realtime(Ts, duration, reference, **options)

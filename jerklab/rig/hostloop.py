@@ -138,6 +138,8 @@ class RealtimeLoop:
         host_timeout=1.0,
         path=None,
         kind="hostloop",
+        _describe_fault=None,
+        _timeout_error=TimeoutError,
     ):
         Ts = as_positive("Ts", Ts)
         if not MIN_TS - 1e-12 <= Ts <= MAX_TS + 1e-12:
@@ -167,12 +169,8 @@ class RealtimeLoop:
             max_error = P.DEFAULT_MAX_ERROR if self._ref is not None else 0.0
         self.max_error = as_nonnegative("max_error", max_error)
         self.host_timeout = as_nonnegative("host_timeout", host_timeout)
-        if not rig.capabilities & P.Capability.HOST_LOOP:
-            from jerklab.rig.client import RigError
-
-            raise RigError(
-                f"{rig.port}: firmware {rig.firmware_version} has no host-in-the-loop mode"
-            )
+        self._describe_fault = _describe_fault  # the client's readable safety-stop status
+        self._timeout_error = _timeout_error
         self._path = path
         self._kind = kind
         self._used = False
@@ -261,8 +259,6 @@ class RealtimeLoop:
         return self._run()
 
     def _run(self):
-        from jerklab.rig.client import RigTimeoutError, _fault_status
-
         rig = self.rig
         self._start()
         rec = self.recording
@@ -278,7 +274,7 @@ class RealtimeLoop:
                 if not frames:
                     if now - last > rig.timeout:
                         status = "timeout"
-                        raise RigTimeoutError(
+                        raise self._timeout_error(
                             f"{rig.port}: no sample from the device for {rig.timeout:g} s "
                             "in the host-in-the-loop run"
                         )
@@ -300,8 +296,10 @@ class RealtimeLoop:
                             status = "fault: host timeout"
                         elif end.reason == P.EndReason.STOPPED:
                             status = "stopped"
+                        elif self._describe_fault is not None:
+                            status = self._describe_fault(end, rec.metadata)
                         else:
-                            status = _fault_status(end, rec.metadata)
+                            status = f"fault: {P.EndReason(end.reason).name.lower()}"
                         break
                     if f.type != P.MsgType.HOST_SAMPLE:
                         rig.ignored_frames += 1
