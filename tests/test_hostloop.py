@@ -261,7 +261,7 @@ def test_host_frames_round_trip(msg, seq, junk):
 
 @settings(max_examples=200, deadline=None)
 @given(msg=_msgs, flips=st.lists(st.tuples(_u(2, 40), _u(1, 255)), min_size=1, max_size=3))
-def test_host_frames_corrupted_never_parse_as_another(msg, flips):
+def test_host_frames_corrupted_parse_or_raise_protocol_error(msg, flips):
     frame = bytearray(P.encode(msg, 9))
     for pos, x in flips:
         frame[pos % len(frame)] ^= x
