@@ -93,6 +93,13 @@ __all__ = [
     "Telemetry",
     "EndOfRun",
     "DeviceError",
+    "HostLoop",
+    "HostVoltage",
+    "HostSample",
+    "HOST_LOOP_MIN_TS_US",
+    "HOST_LOOP_MAX_TS_US",
+    "HOST_VOLTAGE_REFERENCE",
+    "HOST_SAMPLE_MISSED",
 ]
 
 PROTOCOL_VERSION = 3
@@ -165,6 +172,8 @@ class MsgType(enum.IntEnum):
     SEQUENCE = 0x0A
     SET_SHAPER = 0x0B
     RETARGET = 0x0C
+    HOST_LOOP = 0x0D
+    HOST_VOLTAGE = 0x0E
     ACK = 0x80
     NACK = 0x81
     HELLO_REPLY = 0x82
@@ -172,6 +181,7 @@ class MsgType(enum.IntEnum):
     TELEMETRY = 0x90
     END_OF_RUN = 0x91
     ERROR = 0x92
+    HOST_SAMPLE = 0x93
 
 
 class ErrorCode(enum.IntEnum):
@@ -199,6 +209,7 @@ class EndReason(enum.IntEnum):
     RUNAWAY = 5  #: large drive, encoder moved against it (reversed?); detail = counts moved
     NO_MOTION = 6  #: large drive, encoder did not move (disconnected? stalled?); detail = 0
     SATURATION = 7  #: output at the clamp in most samples for saturation_ms (unstable loop?)
+    HOST_MISSES = 8  #: HOST_LOOP: ``max_misses`` ticks in a row without a timely HOST_VOLTAGE
 
 
 class Planner(enum.IntEnum):
@@ -232,6 +243,7 @@ class Capability(enum.IntFlag):
     SEQUENCE = 1 << 12  #: open-loop PRBS excitation (SEQUENCE, version 3)
     SHAPER = 1 << 13  #: FIR input shaper on the run reference (SET_SHAPER, version 3)
     RETARGET = 1 << 9  #: RETARGET during a run (protocol version 3)
+    HOST_LOOP = 1 << 14  #: host-in-the-loop mode (HOST_LOOP, HOST_VOLTAGE, HOST_SAMPLE)
 
 
 #: ``SetGains.flags`` bit: add the feedforward u_F = (tau*accel + vel)/K (Stojčić eqs. 8, 16)
@@ -242,6 +254,14 @@ TELEMETRY_SATURATED = 0x01
 TELEMETRY_SETTLING = 0x02
 #: ``Telemetry.flags`` bit: a safety stop tripped at this sample (PWM 0; END_OF_RUN follows)
 TELEMETRY_FAULT = 0x04
+#: HOST_LOOP: the shortest and longest Ts (µs) the mode accepts
+HOST_LOOP_MIN_TS_US = 5000
+HOST_LOOP_MAX_TS_US = 50000
+#: ``HostVoltage.flags`` bit: the ``reference`` field is the position reference (rad) at the
+#: tick the voltage is for, checked by the tracking-error stop (else that stop is off)
+HOST_VOLTAGE_REFERENCE = 0x01
+#: ``HostSample.flags`` bit: no timely HOST_VOLTAGE for this tick; the last voltage was held
+HOST_SAMPLE_MISSED = 0x01
 
 
 # --------------------------------------------------------------------------- messages
@@ -662,6 +682,43 @@ class Retarget(_Message):
     distance: float
 
 
+@dataclass(frozen=True)
+class HostLoop(_Message):
+    """Start the host-in-the-loop mode: ``n_samples`` ticks of ``Ts_us`` µs (5000..50000).
+
+    At each tick k the device samples the encoder and sends HOST_SAMPLE k (the voltage it
+    applies during tick k, PWM 0 at k = 0); the host answers HOST_VOLTAGE k with the voltage
+    for tick k + 1. A reply that has not arrived by tick k + 1 is a *miss*: the last voltage is
+    held and counted; ``max_misses`` misses in a row (1..255) stop the motor with END_OF_RUN
+    HOST_MISSES. The safety stops stay active (PROTOCOL.md "Host-in-the-loop").
+    """
+
+    TYPE: ClassVar[MsgType] = MsgType.HOST_LOOP
+    FORMAT: ClassVar[str] = "<HHB"
+    Ts_us: int
+    n_samples: int
+    max_misses: int = 3
+
+
+@dataclass(frozen=True)
+class HostVoltage(_Message):
+    """The host's reply to HOST_SAMPLE ``index``: ``voltage`` (V) for tick ``index + 1``.
+
+    Not acknowledged (a reply per tick would double the link's load); refused with NACK
+    BAD_VALUE (param 1) when not finite, and then counted as a miss. The device clamps it to
+    ``SetLimits.max_voltage``. With ``flags`` bit 0 (:data:`HOST_VOLTAGE_REFERENCE`),
+    ``reference`` is the position reference (rad) at tick ``index + 1`` for the tracking-error
+    stop.
+    """
+
+    TYPE: ClassVar[MsgType] = MsgType.HOST_VOLTAGE
+    FORMAT: ClassVar[str] = "<IffB"
+    index: int
+    voltage: float
+    reference: float = 0.0
+    flags: int = 0
+
+
 # device -> host -------------------------------------------------------------
 
 
@@ -759,6 +816,23 @@ class DeviceError(_Message):
     detail: int = 0
 
 
+@dataclass(frozen=True)
+class HostSample(_Message):
+    """HOST_LOOP tick ``index``: the encoder ``counts`` sampled at t = index Ts (zeroed at
+    tick 0), the ``pwm`` applied during this tick, the misses so far (``misses``, saturating
+    u16) and in a row (``miss_run``), ``flags`` (:data:`HOST_SAMPLE_MISSED`,
+    :data:`TELEMETRY_FAULT`)."""
+
+    TYPE: ClassVar[MsgType] = MsgType.HOST_SAMPLE
+    FORMAT: ClassVar[str] = "<IihHBB"
+    index: int
+    counts: int
+    pwm: int
+    misses: int = 0
+    miss_run: int = 0
+    flags: int = 0
+
+
 MESSAGES: dict[int, type] = {
     cls.TYPE: cls
     for cls in (
@@ -774,6 +848,8 @@ MESSAGES: dict[int, type] = {
         Sequence,
         SetShaper,
         Retarget,
+        HostLoop,
+        HostVoltage,
         Ack,
         Nack,
         HelloReply,
@@ -781,6 +857,7 @@ MESSAGES: dict[int, type] = {
         Telemetry,
         EndOfRun,
         DeviceError,
+        HostSample,
     )
 }
 

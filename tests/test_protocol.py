@@ -76,6 +76,9 @@ EXAMPLES = [
     P.EndOfRun(reason=P.EndReason.HOST_TIMEOUT, samples=81, rx_errors=3, overruns=1),
     P.EndOfRun(reason=P.EndReason.RUNAWAY, samples=12, rx_errors=0, overruns=0, detail=-35.0),
     P.DeviceError(code=3, detail=65535),
+    P.HostLoop(Ts_us=10000, n_samples=201, max_misses=3),
+    P.HostVoltage(index=2**32 - 1, voltage=-11.5, reference=3.25, flags=1),
+    P.HostSample(index=7, counts=-(2**31), pwm=-1023, misses=65535, miss_run=255, flags=5),
 ]
 
 

@@ -24,6 +24,7 @@ from jerklab import planner as _planner
 from jerklab import protocol as P
 from jerklab._validate import as_int, as_nonnegative, as_positive, as_real
 from jerklab.controller import DiscreteGains, Gains, max_pole_radius
+from jerklab.rig.hostloop import ControlLawError, RealtimeLoop
 from jerklab.rig.options import F32_MAX as _F32_MAX
 from jerklab.rig.options import RunSpec
 from jerklab.rig.progress import NoProgress as _NoProgress
@@ -1256,6 +1257,94 @@ class Rig:
             )
         return rec
 
+    def realtime(self, Ts, duration, reference=None, **options):
+        """Host-in-the-loop: iterate the ticks of a run whose law a student writes in Python.
+
+        ::
+
+            loop = board.realtime(Ts=0.01, duration=2.0, reference=profile)
+            for step in loop:
+                step.apply(my_law(step.reference - step.position))
+            rec = loop.recording
+
+        Each ``step`` (:class:`jerklab.rig.hostloop.HostStep`) carries ``t``, ``position``,
+        ``reference`` and the previous ``voltage``; ``step.apply(v)`` sends the voltage for the
+        next tick (clamped to ``max_voltage``; a non-finite one stops the run with an error
+        naming the tick). A step not answered within Ts is a *miss*: the device holds the last
+        voltage; ``max_misses`` in a row stop the motor (firmware/PROTOCOL.md
+        "Host-in-the-loop").
+
+        Parameters
+        ----------
+        Ts : float
+            Sampling period (s), 5 to 50 ms, a multiple of the device tick.
+        duration : float
+            Length of the run (s); ``ceil(duration / Ts) + 1`` ticks.
+        reference : None, float, callable or profile, optional
+            The position reference r(t) (rad) reported in each step and checked by the
+            tracking-error stop (``max_error``, default 0.5 rad with a reference).
+        **options
+            ``max_misses`` (3), ``max_voltage`` (the supply), ``max_error``,
+            ``host_timeout`` (1 s), ``path`` (as for :meth:`step`).
+
+        Returns
+        -------
+        jerklab.rig.hostloop.RealtimeLoop
+            Iterable once; its ``recording`` (a :class:`Recording`) has its final status on
+            every exit path (the end, ``break``, an exception, Ctrl-C: the motor stops), its
+            ``misses`` and the deadline slack per tick (``metadata["hostloop"]``).
+        """
+        if not self.capabilities & P.Capability.HOST_LOOP:
+            raise RigError(
+                f"{self.port}: firmware {self.firmware_version} has no host-in-the-loop mode"
+            )
+        return RealtimeLoop(
+            self,
+            Ts,
+            duration,
+            reference,
+            _describe_fault=_fault_status,
+            _timeout_error=RigTimeoutError,
+            **options,
+        )
+
+    def host_loop(self, control, Ts, duration, reference=None, **options) -> Recording:
+        """Host-in-the-loop with a callable law ``control(t, position, reference) -> volts``.
+
+        As :meth:`realtime` (same parameters and options); returns the :class:`Recording`.
+
+        Raises
+        ------
+        jerklab.rig.hostloop.ControlLawError
+            When the law raises or returns a non-finite voltage: the motor is stopped, the
+            message and the recording's status name the tick.
+        """
+        if not callable(control):
+            raise TypeError(f"control must be callable, got {type(control).__name__}")
+        loop = self.realtime(Ts, duration, reference, **options)
+        steps = iter(loop)
+        try:
+            for step in steps:
+                try:
+                    v = control(step.t, step.position, step.reference)
+                except Exception as exc:
+                    status = (
+                        f"error: the control law raised {type(exc).__name__}: {exc} at tick "
+                        f"{step.index} (t={step.t:.3f} s); the motor is stopped"
+                    )
+                    loop._error = (status, step.index)
+                    loop.abort(status)
+                    raise ControlLawError(
+                        status[len("error: ") :], tick=step.index, recording=loop.recording
+                    ) from exc
+                step.apply(v)
+        except KeyboardInterrupt:
+            loop.abort("interrupted")
+            raise
+        finally:
+            steps.close()
+        return loop.recording
+
     def _stop_after_error(self, interrupted: bool):
         """Send STOP after a run was abandoned on the host (write error, Ctrl-C, a bug), so that
         the device does not stay BUSY; True if the device acknowledged it."""
@@ -1312,6 +1401,8 @@ def _fault_status(end, meta) -> str:
             f"±{limits.get('max_voltage', '?')} V "
             f"clamp in most samples for {sw}) at t={t:.3f} s"
         )
+    if end.reason == P.EndReason.HOST_MISSES:
+        return f"fault: host missed {end.detail:.0f} deadlines in a row at t={t:.3f} s"
     return f"fault: device fault at t={t:.3f} s"
 
 

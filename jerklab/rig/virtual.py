@@ -100,7 +100,7 @@ class VirtualDevice:
         Seed of that noise (``numpy.random.default_rng``).
     """
 
-    STATE_IDLE, STATE_RUNNING, STATE_STEPPING = 0, 1, 2
+    STATE_IDLE, STATE_RUNNING, STATE_STEPPING, STATE_HOSTLOOP = 0, 1, 2, 3
 
     #: Encoder read to PWM write in a closed-loop run on the Uno firmware (s): ``Device::control()``
     #: measured on the simulated ATmega328P (``python -m benchmarks firmware``, parts table: mean
@@ -168,6 +168,7 @@ class VirtualDevice:
             | P.Capability.SIMULATED_PLANT
             | P.Capability.SEQUENCE
             | P.Capability.SHAPER
+            | P.Capability.HOST_LOOP
         )
         self._decoder = P.Decoder()
         self._last_byte = self.clock()
@@ -227,7 +228,7 @@ class VirtualDevice:
     @property
     def period(self) -> float:
         """Length of the next tick (s): the running Ts, or the configured one."""
-        if self.state == self.STATE_STEPPING:
+        if self.state in (self.STATE_STEPPING, self.STATE_HOSTLOOP):
             return self._step_Ts
         if self.gains is not None:
             return self.gains.Ts_us * 1e-6
@@ -338,6 +339,8 @@ class VirtualDevice:
             return None
         if isinstance(msg, P.Retarget):
             return self._retarget(frame, msg)
+        if isinstance(msg, P.HostVoltage):
+            return self._host_voltage(frame, msg)
         if self.active:
             return self._nack(frame, P.ErrorCode.BUSY)
         handler = getattr(self, "_cmd_" + type(msg).__name__)
@@ -579,6 +582,92 @@ class VirtualDevice:
         self.state = self.STATE_STEPPING
         return P.ErrorCode.OK, 0xFF
 
+    def _cmd_HostLoop(self, m):
+        """HOST_LOOP (PROTOCOL.md "Host-in-the-loop"): the host closes the loop every tick."""
+        checks = [
+            P.HOST_LOOP_MIN_TS_US <= m.Ts_us <= P.HOST_LOOP_MAX_TS_US and self._ts_ok(m.Ts_us),
+            m.n_samples >= 1,
+            m.max_misses >= 1,
+        ]
+        bad = _first_false(checks)
+        if bad is not None:
+            return P.ErrorCode.BAD_VALUE, bad
+        self._step_Ts = m.Ts_us * 1e-6
+        self._n_total = m.n_samples
+        self._decimation = 1
+        self._seq_volts = None
+        self._hl_max_misses = m.max_misses
+        self._hl_volts = 0.0  # the voltage in effect (V), held on a miss
+        self._hl_next = None  # (volts, reference or None) for the next tick, if in time
+        self._hl_ref = None
+        self._hl_sent_at = None
+        self._hl_misses = self._hl_run = 0
+        L = self.limits
+        self._max_error = float(L.max_error)
+        self._runaway_pwm = (self._pwm_top() + 1) // 2
+        self._runaway_n = (int(L.runaway_ms) * 1000 + m.Ts_us - 1) // m.Ts_us
+        self._run_sign = self._run_len = self._moved = 0
+        self._sat_n = (int(L.saturation_ms) * 1000 + m.Ts_us - 1) // m.Ts_us
+        self._sat_level = 0
+        self._last_pwm = 0
+        self._prev_counts = 0
+        self._start(self._step_Ts)
+        self.state = self.STATE_HOSTLOOP
+        return P.ErrorCode.OK, 0xFF
+
+    def _host_voltage(self, frame, m):
+        """HOST_VOLTAGE: kept for the next tick if it answers the last HOST_SAMPLE within Ts;
+        a late or stale one is dropped (that tick is a miss), a non-finite one refused."""
+        if self.state != self.STATE_HOSTLOOP:
+            return self._nack(frame, P.ErrorCode.NOT_READY)
+        if not _finite(m.voltage):
+            return self._nack(frame, P.ErrorCode.BAD_VALUE, 1)
+        if m.flags & P.HOST_VOLTAGE_REFERENCE and not _finite(m.reference):
+            return self._nack(frame, P.ErrorCode.BAD_VALUE, 2)
+        if m.index != self._k - 1 or self._hl_sent_at is None:
+            return None  # not the answer to the last sample: too late
+        if self.clock() - self._hl_sent_at > self._step_Ts:
+            return None  # after the next tick's deadline
+        ref = float(m.reference) if m.flags & P.HOST_VOLTAGE_REFERENCE else None
+        self._hl_next = (float(m.voltage), ref)
+        return None
+
+    def _host_tick(self, k, counts):
+        """One HOST_LOOP tick: the host's voltage (or the held one), the safety stops, the
+        sample out. Returns ``(fault, detail)``."""
+        flags = 0
+        fault, detail = None, 0.0
+        if k > 0:
+            if self._hl_next is not None:
+                self._hl_volts, self._hl_ref = self._hl_next
+                self._hl_run = 0
+            else:
+                self._hl_misses = min(self._hl_misses + 1, 0xFFFF)
+                self._hl_run = min(self._hl_run + 1, 0xFF)
+                flags |= P.HOST_SAMPLE_MISSED
+        self._hl_next = None
+        cpr = self.plant.counts_per_rev / (2.0 * math.pi)
+        err = 0.0 if self._hl_ref is None else self._hl_ref - counts / cpr
+        fault, detail = self._check_safety(counts, err)
+        if fault is None and self._hl_run >= self._hl_max_misses:
+            fault, detail = P.EndReason.HOST_MISSES, float(self._hl_run)
+        if fault is None:
+            self.pwm = self._to_pwm(self._hl_volts)
+            if abs(self.pwm) >= self._pwm_top() and self._hl_volts != 0.0:
+                self._sat_level += 1
+            elif self._sat_level:
+                self._sat_level -= 1
+            if self._sat_n and self._sat_level >= self._sat_n:
+                fault, detail = P.EndReason.SATURATION, 0.0
+        if fault is not None:
+            self.pwm = 0
+            flags |= P.TELEMETRY_FAULT
+        self._last_pwm = self.pwm
+        self._prev_counts = counts
+        self._send(P.HostSample(k, counts, self.pwm, self._hl_misses, self._hl_run, flags))
+        self._hl_sent_at = self.clock()
+        return fault, detail
+
     def _start(self, Ts):
         self._Ts = Ts
         self._applied_volts = 0.0  # PWM 0 until the first sample's is written
@@ -752,13 +841,16 @@ class VirtualDevice:
             self._last_pwm = self.pwm
             self._prev_counts = counts
             ref = float(rp)
+        elif self.state == self.STATE_HOSTLOOP:
+            fault, detail = self._host_tick(k, counts)
+            ref = None
         elif self._seq_volts is not None:
             ref = self._seq_volts[k]  # SEQUENCE: the commanded volts as the reference
             self.pwm = self._seq_pwm[ref]
         else:
             self.pwm = self._step_pwm
             ref = 0.0
-        if k % self._decimation == 0 or fault is not None:
+        if ref is not None and (k % self._decimation == 0 or fault is not None):
             self._send(P.Telemetry(k, ref, counts, self.pwm, flags))
         if fault is not None:
             self._k = k + 1

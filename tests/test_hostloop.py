@@ -1,0 +1,292 @@
+"""Host-in-the-loop mode (issue 30): HOST_LOOP / HOST_VOLTAGE / HOST_SAMPLE, the virtual
+device's deadline rule and the client's ``realtime`` / ``host_loop``."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from jerklab import protocol as P
+from jerklab.planner import plan_sine_jerk
+from jerklab.rig import connect
+from jerklab.rig.hostloop import ControlLawError
+from jerklab.rig.virtual import VirtualDevice
+
+CPR = 448 / (2 * math.pi)  # counts per rad of the default virtual rig
+KP = 1.5  # V/rad: a P law stable with the one-tick delay at Ts = 10 ms (K = 32.4, tau = 25 ms)
+
+
+@pytest.fixture
+def rig(tmp_path):
+    r = connect(recordings=tmp_path, progress=False)
+    yield r
+    r.close()
+
+
+def _profile():
+    return plan_sine_jerk(2 * math.pi, 500.0, 40.0, 10.0)  # one turn in 1.5 s
+
+
+def _device_idle(rig) -> bool:
+    return not rig.link.device.active
+
+
+def test_p_law_reaches_the_target_within_two_counts(rig):
+    prof = _profile()
+    target = prof.sample(prof.duration).position
+    # max_misses 255: a loaded test machine stalls a tick now and then (a held voltage)
+    rec = rig.host_loop(
+        lambda t, y, r: KP * (r - y),
+        Ts=0.01,
+        duration=prof.duration + 0.5,
+        reference=prof,
+        max_misses=255,
+    )
+    assert rec.metadata["status"] == "complete"
+    final_counts = rec.counts[-1]
+    assert abs(final_counts - target * CPR) <= 2
+    # the device applied the host's (clamped, quantized) voltage one tick later, where in time
+    e = rec.reference[:-1] - rec.position[:-1]
+    on_time = [k for k in range(1, len(rec)) if not rec.flags[k] & P.HOST_SAMPLE_MISSED]
+    assert len(on_time) >= len(rec) // 2
+    for k in on_time:
+        assert abs(rec.voltage[k] - min(max(KP * e[k - 1], -12.0), 12.0)) <= 12.0 / 1023
+    slack = rec.metadata["hostloop"]["slack"]
+    assert len(slack) == len(rec) - 1
+    assert rec.metadata["misses"] == sum(1 for f in rec.flags if f & P.HOST_SAMPLE_MISSED)
+
+
+def test_realtime_iterator_same_as_callable(rig):
+    prof = _profile()
+    loop = rig.realtime(Ts=0.01, duration=prof.duration + 0.5, reference=prof, max_misses=255)
+    seen = []
+    for step in loop:
+        seen.append((step.index, step.t, step.reference))
+        step.apply(KP * (step.reference - step.position))
+    rec = loop.recording
+    ks, ts, refs = zip(*seen)
+    assert list(ks) == list(range(len(rec) - 1))  # every tick but the last is answered
+    assert ts == pytest.approx([k * 0.01 for k in ks])
+    assert refs == pytest.approx(prof.sample(list(ts)).position, abs=1e-9)
+    assert rec.metadata["status"] == "complete"
+    assert abs(rec.counts[-1] - prof.sample(prof.duration).position * CPR) <= 2
+
+
+def test_sleeping_law_misses_hold_and_stop(rig):
+    calls = []
+
+    def law(t, y, r):
+        calls.append(t)
+        if len(calls) >= 5:
+            time.sleep(0.03)  # three times Ts: every answer from here on is late
+        return 3.0
+
+    rec = rig.host_loop(law, Ts=0.01, duration=2.0, max_misses=4)
+    status = rec.metadata["status"]
+    assert status.startswith("fault: host missed 4 deadlines in a row"), status
+    assert rec.metadata["misses"] >= 4  # (a loaded machine may add an earlier, lone miss)
+    # the last four ticks missed; the 4th in a row stops the motor (FAULT, pwm 0)
+    assert all(f & P.HOST_SAMPLE_MISSED for f in rec.flags[-4:])
+    assert rec.pwm[-1] == 0 and rec.flags[-1] & P.TELEMETRY_FAULT
+    # the voltage was held at the last timely answer (3 V) during the misses
+    assert all(abs(v - 3.0) <= 12.0 / 1023 for v in rec.voltage[-4:-1])
+    assert len(rec) >= 9 and len(rec) < 60 and _device_idle(rig)
+
+
+def test_raising_law_stops_the_motor_and_names_the_tick(rig):
+    def law(t, y, r):
+        if t >= 0.05 - 1e-9:
+            raise ZeroDivisionError("student bug")
+        return 2.0
+
+    with pytest.raises(ControlLawError, match=r"raised ZeroDivisionError: student bug at tick 5"):
+        rig.host_loop(law, Ts=0.01, duration=1.0)
+    assert _device_idle(rig)
+    rec = rig.host_loop(lambda t, y, r: 0.0, Ts=0.01, duration=0.05)  # the rig is usable again
+    assert rec.metadata["status"] == "complete"
+
+
+def test_raising_law_status_in_the_recording(rig):
+    with pytest.raises(ControlLawError) as info:
+        rig.host_loop(lambda t, y, r: 1 / 0 if t > 0.02 else 1.0, Ts=0.01, duration=1.0)
+    rec = info.value.recording
+    assert info.value.tick == 3
+    assert "ZeroDivisionError" in rec.metadata["status"] and "tick 3" in rec.metadata["status"]
+    assert len(rec) <= 6
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf, "1.0"])
+def test_non_finite_voltage_is_refused_and_stops(rig, bad):
+    def law(t, y, r):
+        return bad if t > 0.03 else 1.0
+
+    with pytest.raises(ControlLawError, match=r"returned voltage = .* at tick 4") as info:
+        rig.host_loop(law, Ts=0.01, duration=1.0)
+    assert "tick 4" in info.value.recording.metadata["status"]
+    assert _device_idle(rig)
+
+
+def test_large_voltage_is_clamped(rig):
+    rec = rig.host_loop(lambda t, y, r: 1e6, Ts=0.01, duration=0.05, max_voltage=6.0)
+    assert rec.metadata["status"] == "complete"
+    # the device's clamp: PWM top = lround(6 V * 1023 / 12 V) = 512 ticks (PROTOCOL.md)
+    assert list(rec.pwm) == [0] + [512] * (len(rec) - 1)
+
+
+@pytest.mark.parametrize("Ts", [0.004, 0.051, 0.0, -0.01, math.nan])
+def test_ts_outside_the_range_is_refused(rig, Ts):
+    with pytest.raises(ValueError, match="Ts"):
+        rig.realtime(Ts=Ts, duration=1.0)
+
+
+def test_break_out_of_the_loop_stops_the_motor(rig):
+    loop = rig.realtime(Ts=0.01, duration=2.0)
+    for step in loop:
+        step.apply(4.0)
+        if step.index == 10:
+            break
+    del step
+    assert loop.recording.metadata["status"].startswith("stopped")
+    assert _device_idle(rig)
+
+
+def test_keyboard_interrupt_stops_the_motor(rig):
+    def law(t, y, r):
+        if t > 0.05:
+            raise KeyboardInterrupt
+        return 4.0
+
+    loop_rec = []
+    orig = rig.realtime
+
+    def spy(*a, **k):
+        loop = orig(*a, **k)
+        loop_rec.append(loop)
+        return loop
+
+    rig.realtime = spy
+    with pytest.raises(KeyboardInterrupt):
+        rig.host_loop(law, Ts=0.01, duration=2.0)
+    assert loop_rec[0].recording.metadata["status"] == "interrupted"
+    assert _device_idle(rig)
+
+
+def test_tracking_error_stop_stays_active(rig):
+    # a law that pushes the wrong way: the device's tracking-error stop ends it
+    prof = _profile()
+    rec = rig.host_loop(
+        lambda t, y, r: -12.0, Ts=0.01, duration=prof.duration, reference=prof, max_error=0.5
+    )
+    assert rec.metadata["status"].startswith("fault: tracking error"), rec.metadata["status"]
+
+
+# ----------------------------------------------------------------------------- the device
+
+
+def test_device_refuses_bad_host_loop_parameters():
+    dev = VirtualDevice()
+    for msg, param in [
+        (P.HostLoop(4000, 10, 3), 0),
+        (P.HostLoop(51000, 10, 3), 0),
+        (P.HostLoop(10000, 0, 3), 1),
+        (P.HostLoop(10000, 10, 0), 2),
+    ]:
+        dev.receive(P.encode(msg, 1))
+        replies = [P.parse(f) for f in P.Decoder().feed(dev.read_output())]
+        assert replies == [P.Nack(P.MsgType.HOST_LOOP, P.ErrorCode.BAD_VALUE, param)]
+    dev.receive(P.encode(P.HostVoltage(0, 1.0), 2))  # not in the mode
+    replies = [P.parse(f) for f in P.Decoder().feed(dev.read_output())]
+    assert replies == [P.Nack(P.MsgType.HOST_VOLTAGE, P.ErrorCode.NOT_READY, 0xFF)]
+
+
+def test_device_refuses_a_nan_voltage_and_counts_a_miss():
+    dev = VirtualDevice()
+    dev.receive(P.encode(P.HostLoop(10000, 5, 3), 1))
+    dev.tick()
+    dec = P.Decoder()
+    out = [P.parse(f) for f in dec.feed(dev.read_output())]
+    assert isinstance(out[0], P.Ack) and out[1] == P.HostSample(0, 0, 0, 0, 0, 0)
+    dev.receive(P.encode(P.HostVoltage(0, math.nan), 2))
+    dev.tick()
+    out = [P.parse(f) for f in dec.feed(dev.read_output())]
+    assert out[0] == P.Nack(P.MsgType.HOST_VOLTAGE, P.ErrorCode.BAD_VALUE, 1)
+    assert out[1].misses == 1 and out[1].miss_run == 1 and out[1].flags & P.HOST_SAMPLE_MISSED
+
+
+def test_device_late_reply_by_its_clock_is_a_miss():
+    now = [0.0]
+    dev = VirtualDevice(clock=lambda: now[0])
+    dev.receive(P.encode(P.HostLoop(10000, 5, 3), 1))
+    dev.tick()  # sample 0 at clock 0
+    now[0] = 0.0101  # just after the deadline
+    dev.receive(P.encode(P.HostVoltage(0, 5.0), 2))
+    dev.tick()
+    now[0] = 0.0105
+    dev.receive(P.encode(P.HostVoltage(1, 5.0), 3))  # 0.4 ms after sample 1: in time
+    dev.tick()
+    out = [P.parse(f) for f in P.Decoder().feed(dev.read_output())][1:]
+    assert [(s.index, s.misses, s.pwm) for s in out] == [(0, 0, 0), (1, 1, 0), (2, 1, 426)]
+
+
+# ----------------------------------------------------------------------------- frames
+
+_u = st.integers
+_f = st.floats(width=32, allow_nan=False)
+_msgs = st.one_of(
+    st.builds(P.HostLoop, _u(0, 0xFFFF), _u(0, 0xFFFF), _u(0, 0xFF)),
+    st.builds(P.HostVoltage, _u(0, 0xFFFFFFFF), _f, _f, _u(0, 0xFF)),
+    st.builds(
+        P.HostSample,
+        _u(0, 0xFFFFFFFF),
+        _u(-(2**31), 2**31 - 1),
+        _u(-0x8000, 0x7FFF),
+        _u(0, 0xFFFF),
+        _u(0, 0xFF),
+        _u(0, 0xFF),
+    ),
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(msg=_msgs, seq=_u(0, 255), junk=st.binary(max_size=40))
+def test_host_frames_round_trip(msg, seq, junk):
+    frame = P.encode(msg, seq)
+    (f,) = P.Decoder().feed(junk.replace(P.SYNC, b"") + frame)
+    assert f.seq == seq and P.parse(f) == msg
+
+
+@settings(max_examples=200, deadline=None)
+@given(msg=_msgs, flips=st.lists(st.tuples(_u(2, 40), _u(1, 255)), min_size=1, max_size=3))
+def test_host_frames_corrupted_parse_or_raise_protocol_error(msg, flips):
+    frame = bytearray(P.encode(msg, 9))
+    for pos, x in flips:
+        frame[pos % len(frame)] ^= x
+    for f in P.Decoder().feed(bytes(frame)):
+        # a corrupted frame that still passes the CRC (1 in 65536) must at least be well formed
+        try:
+            P.parse(f)
+        except P.ProtocolError:
+            pass
+
+
+def test_device_answers_every_host_frame_fuzzed():
+    """Random HOST_VOLTAGE payloads (any bytes, NaN included) during the mode never crash the
+    device; every non-finite voltage is refused, and the run ends on its own."""
+    import random
+
+    rnd = random.Random(30)
+    dev = VirtualDevice()
+    dev.receive(P.encode(P.HostLoop(5000, 200, 255), 1))
+    for k in range(200):
+        dev.tick()
+        if not dev.active:
+            break
+        payload = bytes(rnd.randrange(256) for _ in range(13))
+        dev.receive(P.encode_frame(P.MsgType.HOST_VOLTAGE, k & 0xFF, payload))
+    frames = [P.parse(f) for f in P.Decoder().feed(dev.read_output())]
+    ends = [m for m in frames if isinstance(m, P.EndOfRun)]
+    assert len(ends) == 1
