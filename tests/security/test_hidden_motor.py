@@ -406,7 +406,10 @@ def test_practice_is_marked_and_checked_on_the_students_own_recordings(tmp_path,
     res = S.verify("K", K)
     assert res.ok and "your recordings" in res.message  # the checker's own fit, not a truth
     assert not S.verify("K", graded["K"]).ok  # a motor the student never had is not the reference
-    z = S.submit(out=tmp_path / "handin")
+    nb = tmp_path / "lab1_identify.ipynb"  # the saved worksheet (submit refuses without one)
+    nb.write_text(json.dumps({"cells": [], "metadata": {}, "nbformat": 4, "nbformat_minor": 4}))
+    z = S.submit(notebook=nb, out=tmp_path / "handin")
+    assert z is not None, "the hand-in was refused"
     with zipfile.ZipFile(z) as f:
         assert json.loads(f.read("student.json"))["mode"] == "practice"
         assert json.loads(f.read("manifest.json"))["mode"] == "practice"
