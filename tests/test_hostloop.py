@@ -251,7 +251,7 @@ _msgs = st.one_of(
 )
 
 
-@settings(max_examples=200, deadline=None)
+@settings(deadline=None)
 @given(msg=_msgs, seq=_u(0, 255), junk=st.binary(max_size=40))
 def test_host_frames_round_trip(msg, seq, junk):
     frame = P.encode(msg, seq)
@@ -259,7 +259,7 @@ def test_host_frames_round_trip(msg, seq, junk):
     assert f.seq == seq and P.parse(f) == msg
 
 
-@settings(max_examples=200, deadline=None)
+@settings(deadline=None)
 @given(msg=_msgs, flips=st.lists(st.tuples(_u(2, 40), _u(1, 255)), min_size=1, max_size=3))
 def test_host_frames_corrupted_parse_or_raise_protocol_error(msg, flips):
     frame = bytearray(P.encode(msg, 9))
