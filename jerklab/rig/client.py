@@ -1258,7 +1258,7 @@ class Rig:
         return rec
 
     def realtime(self, Ts, duration, reference=None, **options):
-        """Host-in-the-loop: iterate the ticks of a run whose law a student writes in Python.
+        """Host-in-the-loop: iterate the ticks of a run whose law the user writes in Python.
 
         ::
 

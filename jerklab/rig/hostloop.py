@@ -1,10 +1,10 @@
-"""Host-in-the-loop runs: a student's own Python law closes the loop through the rig.
+"""Host-in-the-loop runs: your own Python law closes the loop through the rig.
 
 The device samples the encoder on its own tick and sends HOST_SAMPLE; the host answers with
 the voltage for the next tick (HOST_VOLTAGE); firmware/PROTOCOL.md "Host-in-the-loop" gives the
 deadline rule (a late reply is a miss, the last voltage is held; ``max_misses`` in a row stop
 the motor). :meth:`jerklab.rig.Rig.realtime` and :meth:`jerklab.rig.Rig.host_loop` are the two
-forms a student uses; this module holds their machinery.
+forms a user writes; this module holds their machinery.
 """
 
 from __future__ import annotations
