@@ -178,9 +178,14 @@ ONE_WORKER = {
     "test_rig_sequence_shaper_simavr.py",
     "test_firmware_telemetry.py",
     "security/test_hub.py",
+    "test_notebooks.py",
 }
 #: files of ONE_WORKER that share one worker with another (two hubs must not start at once)
-SHARED_WORKER = {"security/test_hub.py": "test_hub.py"}
+SHARED_WORKER = {
+    "security/test_hub.py": "test_hub.py",
+    # the book is built from the notebooks test_notebooks.py executes: after them, on their worker
+    "test_book.py": "test_notebooks.py",
+}
 
 _TESTS = os.path.dirname(os.path.abspath(__file__))
 

@@ -118,7 +118,8 @@ def test_in_a_kernel_a_cell_run_after_saving_is_noticed(tmp_path):
         "import nbformat\n"
         "_nb = nbformat.v4.new_notebook()\n"
         "_nb.cells = [nbformat.v4.new_code_cell('STUDENT = \"s1\"')]\n"
-        "nbformat.write(_nb, 'lab1_identify.ipynb')  # what Ctrl-S does"
+        "nbformat.write(_nb, 'lab1_identify.ipynb')  # what Ctrl-S does\n"
+        "import time; time.sleep(0.1)  # a person's pause before the next cell (> the 10 ms slack)"
     )
     cells = [
         "from jerklab import lab\nS = lab.start(1, student='s1')\nS.verify('pre_speed', 180.0)",
