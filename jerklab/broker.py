@@ -96,7 +96,7 @@ class Limits:
     Parameters
     ----------
     max_distance : float
-        |distance| of a move (rad).
+        Largest absolute distance of a move (rad).
     max_duration : float
         Planned duration of a move (s), the settle not counted.
     max_settle : float

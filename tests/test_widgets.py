@@ -250,6 +250,8 @@ def test_rig_button_overlays_virtual_rig_run(tmp_path, monkeypatch):
     assert not p.rig_button.disabled
     png0 = p.image.value
     p.rig_button.click()
+    # a failed run leaves its reason in the status line (the button's handler logs the exception)
+    assert p._rig_error is not None, p.rig_status.value
     t, err = p._rig_error
     assert "max |ref. − encoder|" in p.rig_status.value
     assert p.image.value != png0
