@@ -204,3 +204,18 @@ def pytest_collection_modifyitems(session, config, items):
         if rel in ONE_WORKER:
             item.add_marker(pytest.mark.xdist_group(SHARED_WORKER.get(rel, rel)))
     items.sort(key=lambda it: _rel(it) == "test_book.py")
+
+
+@pytest.fixture(autouse=True)
+def _jerklab_environment_stays_put():
+    """Put every ``JERKLAB_*`` variable back after each test.
+
+    A command's ``main()`` run in-process sets them for its page or kernels (``jerklab app
+    --profile`` sets the profile), and one left behind changes what a later test on the same
+    worker connects to: a virtual rig with another motor, a Voilà page started with it.
+    """
+    before = {k: v for k, v in os.environ.items() if k.startswith("JERKLAB_")}
+    yield
+    for k in [k for k in os.environ if k.startswith("JERKLAB_") and k not in before]:
+        del os.environ[k]
+    os.environ.update(before)

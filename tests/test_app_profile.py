@@ -28,9 +28,12 @@ def test_the_option_is_checked_and_handed_to_the_kernels(monkeypatch):
     monkeypatch.setattr(
         voila_app, "main", lambda argv: seen.setdefault("env", app.os.environ[app.PROFILE_ENV])
     )
-    monkeypatch.delenv(app.PROFILE_ENV, raising=False)
+    # set, then removed, so that monkeypatch restores the variable's absence after app.main sets
+    # it (a delenv of an absent variable records nothing, and the profile leaked into the
+    # worker's later tests: their virtual rig ran the 37D motor)
+    monkeypatch.setenv(app.PROFILE_ENV, "")
+    monkeypatch.delenv(app.PROFILE_ENV)
     with pytest.raises(SystemExit):
         app.main(["--profile", "no-such-motor"])
     app.main(["--profile", "pololu-37d-30", "--pool", "0"])
     assert seen["env"] == "pololu-37d-30"
-    monkeypatch.delenv(app.PROFILE_ENV, raising=False)

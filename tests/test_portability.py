@@ -152,7 +152,9 @@ def test_shipped_files_have_windows_names():
 
 
 def test_recordings_default_to_the_working_folder(tmp_path, monkeypatch):
-    monkeypatch.delenv("JERKLAB_RECORDINGS", raising=False)
+    # set, then removed: monkeypatch then restores the variable after `jerklab app` sets it
+    monkeypatch.setenv("JERKLAB_RECORDINGS", "")
+    monkeypatch.delenv("JERKLAB_RECORDINGS")
     monkeypatch.chdir(tmp_path)
     with connect(progress=False) as rig:
         rec = rig.step(3.0, 0.05)
