@@ -301,11 +301,14 @@ def running_hub(students, admin="jlt-instructor", rig=False):
         shutil.rmtree(base_dir, ignore_errors=True)
 
 
-def run_cell(base, user, token, code, timeout=90):
+def run_cell(base, user, token, code, timeout=180):
     """Start a kernel on the user's server, execute ``code``, return its stdout.
 
     Speaks the kernel websocket's v1 protocol, as JupyterLab does (the hub's servers refuse
-    any other: jerklab._voila_guard).
+    any other: jerklab._voila_guard). The cell is sent once, after a ``kernel_info`` reply has
+    come back over the same websocket: a request sent while a new kernel (a new Unix user's,
+    cold caches, a loaded machine) is still starting can be lost, and a cell must never run
+    twice. ``timeout`` bounds the whole call, kernel start included.
     """
     import websocket  # websocket-client
     from jupyter_server.services.kernels.connection.base import (
@@ -313,45 +316,76 @@ def run_cell(base, user, token, code, timeout=90):
         serialize_msg_to_ws_v1,
     )
 
+    deadline = time.monotonic() + timeout
+    session = uuid.uuid4().hex
+
+    def send(ws, msg_type, content, channel="shell"):
+        msg_id = uuid.uuid4().hex
+        header = {
+            "msg_id": msg_id,
+            "username": user,
+            "session": session,
+            "msg_type": msg_type,
+            "version": "5.3",
+            "date": "",
+        }
+        parts = [json.dumps(x).encode() for x in (header, {}, {}, content)]
+        ws.send_binary(serialize_msg_to_ws_v1(parts, channel))
+        return msg_id
+
+    def replies(ws):
+        """(msg_type, parent msg_id, content) of each message, until the deadline."""
+        while time.monotonic() < deadline:
+            ws.settimeout(max(0.1, min(5.0, deadline - time.monotonic())))
+            try:
+                raw = ws.recv()
+            except websocket.WebSocketTimeoutException:
+                yield None, None, None
+                continue
+            _channel, msg_list = deserialize_msg_from_ws_v1(raw)
+            head, parent, _meta, body = (json.loads(m) for m in msg_list[:4])
+            yield head["msg_type"], parent.get("msg_id"), body
+        raise AssertionError(f"{user}'s kernel: no reply in {timeout} s")
+
     _, kernel = api(f"{base}/user/{user}/api/kernels", token, "POST", {"name": "python3"})
     try:
         ws = websocket.create_connection(
             f"{base.replace('http', 'ws')}/user/{user}/api/kernels/{kernel['id']}/channels",
             header=[f"Authorization: token {token}"],
             subprotocols=["v1.kernel.websocket.jupyter.org"],
-            timeout=timeout,
+            timeout=min(60.0, timeout),
         )
-        msg_id = uuid.uuid4().hex
-        header = {
-            "msg_id": msg_id,
-            "username": user,
-            "session": uuid.uuid4().hex,
-            "msg_type": "execute_request",
-            "version": "5.3",
-            "date": "",
-        }
-        content = {
-            "code": code,
-            "silent": False,
-            "store_history": False,
-            "user_expressions": {},
-            "allow_stdin": False,
-        }
-        parts = [json.dumps(x).encode() for x in (header, {}, {}, content)]
-        ws.send_binary(serialize_msg_to_ws_v1(parts, "shell"))
-        out, t0 = [], time.monotonic()
-        while time.monotonic() - t0 < timeout:
-            _channel, msg_list = deserialize_msg_from_ws_v1(ws.recv())
-            head, parent, _meta, body = (json.loads(m) for m in msg_list[:4])
-            if parent.get("msg_id") != msg_id:
-                continue
-            kind = head["msg_type"]
-            if kind == "stream":
-                out.append(body["text"])
-            elif kind == "error":
-                raise AssertionError("\n".join(body["traceback"]))
-            elif kind == "status" and body["execution_state"] == "idle":
-                return "".join(out)
-        raise AssertionError(f"no reply in {timeout} s")
+        try:
+            # the channel is live once a kernel_info request of ours is answered (resent each
+            # 5 s of silence: kernel_info has no effect, so asking twice is harmless)
+            asked = {send(ws, "kernel_info_request", {})}
+            for kind, parent, _body in replies(ws):
+                if kind == "kernel_info_reply" and parent in asked:
+                    break
+                if kind is None:
+                    asked.add(send(ws, "kernel_info_request", {}))
+            content = {
+                "code": code,
+                "silent": False,
+                "store_history": False,
+                "user_expressions": {},
+                "allow_stdin": False,
+            }
+            msg_id = send(ws, "execute_request", content)
+            out = []
+            for kind, parent, body in replies(ws):
+                if kind is None or parent != msg_id:
+                    continue
+                if kind == "stream":
+                    out.append(body["text"])
+                elif kind == "error":
+                    raise AssertionError("\n".join(body["traceback"]))
+                elif kind == "status" and body["execution_state"] == "idle":
+                    return "".join(out)
+        finally:
+            ws.close()
     finally:
-        api(f"{base}/user/{user}/api/kernels/{kernel['id']}", token, "DELETE")
+        try:  # a failure to clean up must not hide the test's own error
+            api(f"{base}/user/{user}/api/kernels/{kernel['id']}", token, "DELETE")
+        except (urllib.error.URLError, OSError) as exc:
+            print(f"run_cell: could not delete {user}'s kernel: {exc}")
