@@ -1,6 +1,7 @@
 """Firmware laws the mutation audit of issue 31 found unpinned, on the firmware core's host build
 (firmware/host/jl_host.cpp, the same C++ as on the Uno): the PRBS of every order, the S-curve
-planner where its "A reached" threshold decides, the negative side of the tracking-error stop.
+planner where its "A reached" threshold decides, the negative side of the tracking-error stop,
+the no-motion threshold at an odd ``pwm_top``.
 Each is checked against jerklab (the same law in Python, itself checked against Ruckig and
 against a maximal-length period), and each fails with its firmware mutant applied (the
 firmware source is changed only to show that, and restored)."""
@@ -104,3 +105,76 @@ def test_the_board_stops_a_negative_move_whose_error_runs_away(host_driver):
     k = int(np.argmax(np.abs(r) > max_error))
     assert end[0].detail < -max_error
     assert end[0].detail == pytest.approx(r[k], rel=1e-3)
+
+
+class _DeadEncoderDevice(HostDevice):
+    """The host build with its encoder unplugged (``jl_host device K tau supply 0``): the count
+    stays 0 whatever the drive, as with a disconnected encoder or a stalled motor."""
+
+    def run(self):
+        import subprocess
+
+        proc = subprocess.run(
+            [str(self.driver), "device", "32.4", "0.025", "12", "0"],
+            input="\n".join(self.script) + "\nquit\n",
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert proc.returncode == 0, proc.stderr
+        dec = P.Decoder()
+        msgs = []
+        for line in proc.stdout.splitlines():
+            kind, ms, val = line.split()
+            if kind == "tx":
+                msgs.extend((int(ms), f.seq, P.parse(f)) for f in dec.feed(bytes.fromhex(val)))
+        assert dec.stats.dropped == 0
+        return msgs
+
+
+@pytest.mark.parametrize("held, stops", [(100, False), (101, True)])
+def test_the_board_no_motion_threshold_at_an_odd_pwm_top(host_driver, held, stops):
+    """Mutant killed: the board's "large drive" threshold ``P = (pwm_top + 1) / 2`` ->
+    ``pwm_top / 2`` (jl_device.cpp, PROTOCOL.md "Safety stops" 2), which differs only at an
+    odd ``pwm_top``; the virtual device's twin is pinned in test_mutants.py.
+
+    ``max_voltage`` = 201 · 12 V / 1023 makes ``pwm_top`` = 201, so ``P`` = 101. A P-only
+    position loop (no feedforward, no tracking-error stop) on a dead encoder holds, after the
+    move, the drive ``kpd · d``, chosen to round to ``held`` PWM ticks for the whole settle.
+    A held 100 is not a large drive: the run completes. A held 101 is, the count does not
+    move, and the run ends NO_MOTION one runaway window (200 ms = 40 samples) after the drive
+    first reaches 101, with 0 counts moved as its detail. The telemetry's own PWM column
+    shows what was held, so the threshold is read against the board's output, not assumed."""
+    supply, pwm_max, top = 12.0, 1023, 201
+    max_voltage = f32(top * supply / pwm_max)
+    d, Ts_us, settle = f32(1.0), 5000, 100
+    kpd = f32((held + 0.2) * supply / pwm_max / d)
+    J, A, V = 2e4, 300.0, 60.0
+    dev = _DeadEncoderDevice(host_driver)
+    dev.send(P.SetPlant(32.4, 0.025, supply, 448)).send(P.SetGains(kpd, 0.0, 0.0, Ts_us, 0, 0, 0.0))
+    dev.send(P.SetLimits(J, A, V, max_voltage, 200, 0.0, 200, 0)).send(P.Plan(d, 2))
+    dev.send(P.Run(settle, 1))
+    p = plan_scurve(float(d), J, A, V)
+    dev.wait(int(p.duration * 1000) + settle * 5 + 100, heartbeat_every=40)
+    msgs = dev.run()
+    tel = [m for _, _, m in msgs if isinstance(m, P.Telemetry)]
+    end = [m for _, _, m in msgs if isinstance(m, P.EndOfRun)]
+    assert len(end) == 1, end
+    assert all(t.counts == 0 for t in tel)
+    pwm = np.array([t.pwm for t in tel])
+    # the drive grows with the reference and is held at `held` after the move
+    assert pwm.max() == held, (pwm.max(), pwm[-20:])
+    if not stops:
+        assert pwm[-1] == held, pwm[-20:]
+        assert end[0].reason == P.EndReason.DONE, end
+        n = int(math.ceil(p.duration / (Ts_us * 1e-6))) + settle
+        assert abs(len(tel) - n) <= 2, (len(tel), n)
+    else:
+        assert end[0].reason == P.EndReason.NO_MOTION and end[0].detail == 0, end
+        first = int(np.argmax(pwm >= held))
+        # held from its first sample to the stop, which comes one runaway window later
+        last = (
+            first + int(np.argmax(pwm[first:] < held)) if (pwm[first:] < held).any() else len(pwm)
+        )
+        assert (pwm[first:last] == held).all()
+        assert 40 - 1 <= last - first <= 40 + 1, (first, last, len(tel), pwm[last - 2 :])
