@@ -1576,6 +1576,7 @@ def _targets() -> list[Target]:
         )
     )
     T += _targets_issue31()
+    T += _targets_hostloop_classrig()
     return T
 
 
@@ -2095,6 +2096,219 @@ def _targets_issue31() -> list[Target]:
     return T
 
 
+def _host_loop(control, **kw):
+    """One short host-in-the-loop run on the virtual rig; a law's refused voltage comes back
+    as the ValueError the probe counts (see :func:`_targets_hostloop_classrig`)."""
+    from jerklab.rig.hostloop import ControlLawError
+
+    rig = _rig()
+    try:
+        # a gentle P law (1 V/rad: no overshoot on the virtual motor) toward the reference, or
+        # toward 0 without one (r is nan then)
+        law = (lambda t, p, r: 1.0 * ((0.0 if r != r else r) - p)) if control is _BASE else control
+        try:
+            return rig.host_loop(law, **kw)
+        except ControlLawError as exc:
+            rec = exc.recording
+            status = "" if rec is None else str(rec.metadata.get("status", ""))
+            stopped = status.startswith("error") and "tick" in status
+            if stopped and exc.tick is not None and "voltage" in str(exc):
+                raise ValueError(f"voltage refused at tick {exc.tick}: {exc}") from None
+            raise
+    finally:
+        rig.close()
+
+
+def _run_completed(rec, kw):
+    """A run the law did not refuse must have completed (a fault ends it with its status)."""
+    status = str(rec.metadata.get("status"))
+    return None if status == "complete" else f"the run ended {status!r}"
+
+
+_SERVICE: dict = {}
+
+
+def _class_service():
+    """A class rig service on 127.0.0.1 with one token (started once per worker)."""
+    if "svc" not in _SERVICE:
+        from jerklab.lab.service import ClassRigService, TokenFile
+
+        tmp = Path(tempfile.mkdtemp(prefix="jerklab-faults-svc-"))
+        tokens = tmp / "tokens.json"
+        tokens.write_text(json.dumps({"tok-probe-5f1c2a9e": "probe"}))
+        svc = ClassRigService(
+            TokenFile(tokens), tmp / "checks.log", b"faults-probe-instructor-key", "127.0.0.1:0"
+        )
+        svc.start()
+        _SERVICE["svc"] = svc
+    return _SERVICE["svc"]
+
+
+def _class_rig(**kw):
+    from jerklab.lab.classrig import ClassRig
+
+    kw.setdefault("token", "tok-probe-5f1c2a9e")
+    return ClassRig(
+        _class_service().url if kw.get("address") is _BASE else kw.pop("address"),
+        **{k: v for k, v in kw.items() if k != "address"},
+    )
+
+
+def _with_class_rig(method):
+    def call(**kw):
+        rig = _class_rig(address=_BASE, lab=1)
+        try:
+            return getattr(rig, method)(**kw)
+        finally:
+            rig.close()
+
+    return call
+
+
+def _targets_hostloop_classrig() -> list[Target]:
+    """The host loop (``Rig.host_loop``, a law's voltage) and the class rig service's client.
+
+    A law that returns a bad voltage ends the run with
+    :class:`jerklab.rig.hostloop.ControlLawError`; :func:`_host_loop` counts that as a clear
+    refusal only when the recording's status says the motor was stopped and names the tick."""
+    T: list[Target] = []
+    not_callable = [("str", "x"), ("int", 3), ("None", None), ("dict", {})]
+    T.append(
+        Target(
+            "hostloop",
+            "host_loop",
+            lambda control, Ts, duration, reference, max_misses, max_voltage: _host_loop(
+                _BASE if control is _BASE else control,
+                Ts=Ts,
+                duration=duration,
+                reference=reference,
+                max_misses=max_misses,
+                max_voltage=max_voltage,
+                path=False,
+            ),
+            dict(
+                control=_BASE, Ts=0.01, duration=0.1, reference=0.5, max_misses=3, max_voltage=6.0
+            ),
+            [
+                Param("control", O, values=not_callable),
+                Param("Ts", P, values=REAL + [("1 ms", 0.001), ("1 s", 1.0)]),
+                Param("duration", P, values=[v for v in REAL if v[0] != "1e300"]),
+                Param(
+                    "reference",
+                    R,
+                    ok=("None", "list"),
+                    # a reference step past max_error (0.5 rad) is a tracking-error stop
+                    values=[v for v in REAL if v[0] not in ("1e300", "1e9", "negative")]
+                    + [("negative", -0.3), ("dict", {})],
+                ),
+                Param("max_misses", I1, values=[v for v in INT if v[0] not in ("1e9", "2**64")]),
+                Param("max_voltage", P, ok=("None",), values=REAL),  # None: the supply
+            ],
+            check=_run_completed,
+            allow_nonfinite=True,
+        )
+    )
+    law_values = [
+        ("nan", NAN),
+        ("+inf", INF),
+        ("-inf", -INF),
+        ("str", "1.0"),
+        ("None", None),
+        ("list", [1.0, 2.0]),
+        ("complex", 1j),
+        ("bool", True),
+    ]
+    T.append(
+        Target(
+            "hostloop",
+            "host_loop(law returns)",
+            lambda voltage: _host_loop(
+                lambda t, p, r: 1.0 if voltage is _BASE else voltage,
+                Ts=0.01,
+                duration=0.05,
+                reference=None,
+                path=False,
+            ),
+            dict(voltage=_BASE),
+            [Param("voltage", R, values=law_values)],
+            check=_run_completed,
+            allow_nonfinite=True,
+        )
+    )
+    # -- the class rig service's client (a running service on 127.0.0.1)
+    T.append(
+        Target(
+            "classrig",
+            "ClassRig",
+            lambda address, lab, token, timeout: _class_rig(
+                address=address, lab=lab, token=token, timeout=timeout
+            ).close(),
+            dict(address=_BASE, lab=1, token="tok-probe-5f1c2a9e", timeout=10.0),
+            [
+                Param(
+                    "address",
+                    O,
+                    values=[
+                        ("int", 3),
+                        ("None", None),
+                        ("no scheme", "127.0.0.1:1"),
+                        ("bad port", "classrig://127.0.0.1:notaport"),
+                        ("port 70000", "classrig://127.0.0.1:70000"),
+                    ],
+                ),
+                Param("lab", I1, values=INT + [("lab 9", 9)]),
+                Param(
+                    "token",
+                    O,
+                    values=[("wrong", "tok-nobody-00000000"), ("int", 3), ("empty", "")],
+                ),
+                Param("timeout", P),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "classrig",
+            "ClassRig.step",
+            lambda voltage, seconds, Ts: _with_class_rig("step")(
+                voltage=voltage, seconds=seconds, Ts=Ts, path=False
+            ),
+            dict(voltage=6.0, seconds=0.1, Ts=0.005),
+            [
+                Param(
+                    "voltage", R, ok=("0", "negative"), values=[v for v in REAL if v[0] != "1e9"]
+                ),
+                Param("seconds", P, values=[v for v in REAL if v[0] not in ("1e300", "1e9")]),
+                Param("Ts", P, values=[v for v in REAL if v[0] not in ("1e300", "1e9")]),
+            ],
+        )
+    )
+    T.append(
+        Target(
+            "classrig",
+            "ClassRig.check",
+            lambda name, answer: _with_class_rig("check")(name=name, answer=answer),
+            dict(name="pre_speed", answer=180.0),
+            [
+                Param("name", S, values=[("unknown", "no_such_check"), ("None", None), ("int", 3)]),
+                Param(
+                    "answer",
+                    O,
+                    ok=("int", "float", "0", "negative", "1e300"),
+                    values=[
+                        ("object", object()),
+                        ("nan", NAN),
+                        ("inf", INF),
+                        ("int", 3),
+                        ("float", 1.5),
+                    ],
+                ),
+            ],
+        )
+    )
+    return T
+
+
 _FILES: dict = {}
 
 
@@ -2177,7 +2391,8 @@ def classify(t: Target, pname, label, value) -> tuple[str, str]:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 res = t.call(**kw)
-    except (ValueError, TypeError, FileNotFoundError) as exc:  # a missing file: its own class
+    # a missing file and a refused login (the class rig service's token): their own classes
+    except (ValueError, TypeError, FileNotFoundError, PermissionError) as exc:
         if param is None:
             return "base-failed", f"{type(exc).__name__}: {exc}"
         shown = param.shown or pname

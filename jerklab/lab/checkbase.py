@@ -15,6 +15,7 @@ from typing import NamedTuple
 
 __all__ = [
     "CheckResult",
+    "UnknownCheckError",
     "Missing",
     "Mistake",
     "number",
@@ -43,6 +44,14 @@ class CheckResult:
         colour = "green" if self.ok else "#b00"
         mark = "✔ right" if self.ok else "✘ not yet"
         return f"<span style='color:{colour}'>**{mark} — {self.name}**</span>: {self.message}"
+
+
+class UnknownCheckError(KeyError, ValueError):
+    """A check name the lab does not have: a KeyError (a lookup by name, as before) and a
+    ValueError (a bad argument ``name``), so either ``except`` catches it."""
+
+    def __str__(self):
+        return str(self.args[0]) if self.args else ""
 
 
 class Missing(Exception):

@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from jerklab._validate import as_nonnegative, as_positive, as_real, at_most
+from jerklab.lab.checkbase import UnknownCheckError
 from jerklab.lab.plain import jsonable
 from jerklab.rig import RigError
 from jerklab.rig.recording import Recording
@@ -49,6 +51,12 @@ def service_address(address=None):
         raise ValueError(
             f"address must look like 'classrig://HOST:PORT' or 'classrig+unix:///PATH', got {a!r}"
         )
+    if a is not None and a.startswith("classrig://"):
+        host, _, port = a[len("classrig://") :].rpartition(":")
+        if not host or not port.isdigit() or not 0 < int(port) < 65536:
+            raise ValueError(
+                f"address must be 'classrig://HOST:PORT' with a port 1-65535, got {a!r}"
+            )
     return a
 
 
@@ -116,7 +124,7 @@ class ClassRig:
         self.port = service_address(address)
         if self.port is None:
             raise ValueError("address: no class rig service given (JERKLAB_CLASS_RIG)")
-        self.timeout = float(timeout)
+        self.timeout = at_most("timeout", as_positive("timeout", timeout), 3600.0, "s")
         self._sock = self._connect()
         self._buf = b""
         hello = {"op": "hello", "token": service_token(token), "lab": lab}
@@ -163,8 +171,8 @@ class ClassRig:
             kind = msg.get("type")
             if kind in ("ValueError", "TypeError"):
                 raise ValueError(msg["error"])
-            if kind == "KeyError":
-                raise KeyError(msg["error"])
+            if kind in ("KeyError", "UnknownCheckError"):
+                raise UnknownCheckError(msg["error"])
             if kind in ("AuthError", "PermissionError"):
                 raise PermissionError(msg["error"])
             raise ClassRigError(msg["error"])
@@ -186,10 +194,10 @@ class ClassRig:
         req = {
             "op": "step",
             "name": name or _name_of(path, "step"),
-            "voltage": float(voltage),
-            "seconds": float(seconds),
-            "Ts": float(Ts),
-            "rest": float(rest),
+            "voltage": _volts("voltage", voltage),
+            "seconds": as_positive("seconds", seconds),
+            "Ts": as_positive("Ts", Ts),
+            "rest": as_nonnegative("rest", rest),
         }
         return self._recording(self._ask(req), path)
 
@@ -274,6 +282,12 @@ class ClassRig:
 
     def __repr__(self):
         return f"ClassRig({self.port!r}, student={self.student!r}, lab={self.lab})"
+
+
+def _volts(name, value):
+    """A voltage for the service: a real number, one below float32's range sent as 0 V."""
+    v = as_real(name, value)
+    return 0.0 if abs(v) < float(np.finfo(np.float32).tiny) else v
 
 
 def _name_of(path, default):

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from jerklab.lab import checks as c
 from jerklab.lab import ringing as r
-from jerklab.lab.checkbase import CheckResult
+from jerklab.lab.checkbase import CheckResult, UnknownCheckError
 
 __all__ = [
     "LABS",
@@ -92,12 +92,13 @@ def checks_of(lab) -> list[str]:
 
 
 def check_function(lab, name):
-    """The function of check ``name`` of ``lab``; KeyError naming the lab's checks."""
+    """The function of check ``name`` of ``lab``; :class:`UnknownCheckError` (a KeyError)
+    naming the lab's checks."""
     try:
         return CHECKS[lab, name]
-    except KeyError:
-        raise KeyError(
-            f"lab {lab} has no check named {name!r} (its checks: {', '.join(checks_of(lab))})"
+    except (KeyError, TypeError):  # TypeError: an unhashable name
+        raise UnknownCheckError(
+            f"name: lab {lab} has no check named {name!r} (its checks: {', '.join(checks_of(lab))})"
         ) from None
 
 

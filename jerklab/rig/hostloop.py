@@ -24,6 +24,10 @@ MIN_TS = P.HOST_LOOP_MIN_TS_US * 1e-6
 MAX_TS = P.HOST_LOOP_MAX_TS_US * 1e-6
 
 
+#: the smallest normal float32: a voltage below it reaches the device as 0 V
+_FLOAT32_TINY = 1.1754943508222875e-38
+
+
 class ControlLawError(RuntimeError):
     """The control law raised or returned a non-finite voltage; ``tick`` names the tick."""
 
@@ -95,7 +99,8 @@ class HostStep:
         self._volts = None
 
     def apply(self, voltage):
-        """The voltage (V) for the next tick; clamped to ±max_voltage.
+        """The voltage (V) for the next tick; clamped to ±max_voltage (a magnitude below
+        float32's smallest normal number, 1.2e-38 V, is sent as 0 V).
 
         Raises
         ------
@@ -110,6 +115,8 @@ class HostStep:
             v = float(voltage)
         if not math.isfinite(v):
             self._loop._refuse(self, f"the control law returned voltage = {voltage!r}")
+        if abs(v) < _FLOAT32_TINY:
+            v = 0.0  # below what the link's float32 carries: 0 V, as the board would apply
         vmax = self._loop.max_voltage
         self._volts = min(max(v, -vmax), vmax)
 

@@ -459,3 +459,59 @@ def test_broker_client_names_its_timeout():
             BrokerRig("broker://127.0.0.1:1", timeout=bad)
     with pytest.raises(ValueError, match="timeout must be <= 86400"):
         BrokerRig("broker://127.0.0.1:1", timeout=1e300)
+
+
+# ------------------------------------------------------------------ the class rig service, the host loop
+def test_class_rig_client_names_its_bad_arguments(tmp_path):
+    """The class rig service's client (the probe of ``python -m benchmarks faults``, module
+    classrig): an address, a timeout, a step's numbers or a check's name that cannot be used is
+    a ValueError naming it, before anything reaches the service; a voltage below float32's
+    range is sent as 0 V (it would have been refused by the frame encoder)."""
+    from jerklab.lab.classrig import ClassRig
+    from jerklab.lab.service import ClassRigService, TokenFile
+
+    for address in ("classrig://127.0.0.1:notaport", "classrig://127.0.0.1:70000", "classrig://:5"):
+        with pytest.raises(ValueError, match="address must be 'classrig://HOST:PORT'"):
+            ClassRig(address, 1, token="t")
+    tokens = tmp_path / "tokens.json"
+    tokens.write_text(json.dumps({"tok-ana-3c9d1e7b": "ana"}))
+    with ClassRigService(TokenFile(tokens), tmp_path / "log", b"a-test-instructor-key") as svc:
+        for bad in (float("nan"), float("inf"), 0.0, -1.0, "x", None, 1e300):
+            with pytest.raises(ValueError, match="timeout"):
+                ClassRig(svc.url, 1, token="tok-ana-3c9d1e7b", timeout=bad)
+        with pytest.raises(PermissionError, match="token"):
+            ClassRig(svc.url, 1, token="tok-nobody-00000000")
+        rig = ClassRig(svc.url, 1, token="tok-ana-3c9d1e7b")
+        try:
+            for name, kw in (
+                ("voltage", dict(voltage="6")),
+                ("voltage", dict(voltage=None)),
+                ("voltage", dict(voltage=float("nan"))),
+                ("seconds", dict(seconds=[1.0])),
+                ("seconds", dict(seconds=0.0)),
+                ("Ts", dict(Ts=None)),
+                ("rest", dict(rest=-1.0)),
+            ):
+                args = dict(voltage=6.0, seconds=0.1, Ts=0.005) | kw
+                with pytest.raises(ValueError, match=name):
+                    rig.step(args.pop("voltage"), args.pop("seconds"), path=False, **args)
+            rec = rig.step(1e-300, 0.05, path=False)
+            # 0.05 s of step after the default 0.05 s of rest, at 5 ms
+            assert np.all(np.asarray(rec.voltage) == 0.0) and len(rec) == 20
+            for bad in ("no_such_check", None, 3):
+                with pytest.raises(ValueError, match="name: lab 1 has no check named") as e:
+                    rig.check(bad, 1.0)
+                assert isinstance(e.value, KeyError)  # as before: an unknown name is a lookup
+        finally:
+            rig.close()
+
+
+def test_a_host_loop_voltage_below_float32_is_0_volts():
+    """A law's voltage of 1e-300 V (a P law a hair from its target) is 0 V on the link, not a
+    frame-encoder error that ends the run; the recording says 0 V."""
+    from jerklab.rig import connect
+
+    with connect(None, progress=False) as rig:
+        rec = rig.host_loop(lambda t, p, r: 1e-300, Ts=0.01, duration=0.05, path=False)
+    assert rec.metadata["status"] == "complete", rec.metadata["status"]
+    assert np.all(np.asarray(rec.voltage) == 0.0)
