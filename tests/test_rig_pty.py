@@ -126,8 +126,10 @@ def test_cable_pulled_mid_run_keeps_the_data(tmp_path):
     assert len(files) == 1 and str(files[0]) in str(ei.value)
     rec = Recording.load(files[0])
     assert rec.metadata["status"] == "disconnected"
-    # every sample that arrived is on disk, in order, and is the start of the full run
-    assert 150 <= len(rec) < 950
+    # every sample that arrived is on disk, in order, and is the start of the full run; the
+    # cable went at ~200 frames sent (the puller polls every 2 ms), and what was still in the
+    # pty's buffer then is lost, as on a real pull (a loaded machine reads later: fewer arrive)
+    assert 0 < len(rec) < 950 and len(rec) <= srv.sent_bytes // 22
     assert np.array_equal(rec.index, np.arange(len(rec)))
     with connect(recordings=tmp_path / "ref", progress=False) as ref_rig:
         ref = ref_rig.run_move(_move(), _gains(), Ts=0.005)
