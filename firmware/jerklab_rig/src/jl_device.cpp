@@ -139,7 +139,7 @@ void __attribute__((noinline)) Device::plan_frame(const Frame& f) {
 }
 
 void Device::handle(const Frame& f) {
-    if (handle_v3(f)) return;
+    if (handle_v3(f) || handle_v4(f)) return;
     const uint8_t* p = f.payload;
     static const uint8_t kLen[10] = {0, kLenHello, kLenSetPlant, kLenSetGains, kLenSetLimits,
                                      kLenPlan, kLenRun, kLenStop, kLenStep, kLenHeartbeat};
@@ -159,6 +159,7 @@ void Device::handle(const Frame& f) {
                         kCapFeedforward;
         if (JL_WITH_SEQUENCE) caps |= kCapSequence;
         if (JL_WITH_SHAPER) caps |= kCapShaper;
+        if (JL_WITH_HOST_LOOP) caps |= kCapHostLoop;
         if (hal_.simulated_plant()) caps |= kCapSimulatedPlant;
         r[0] = kProtocolVersion;
         r[1] = cfg_.fw_major;
@@ -263,11 +264,6 @@ void Device::handle(const Frame& f) {
             const float cpr = 1.0f / rad_per_count_;
             stepper_.start(plan_, Ts_, use_ff_ ? ff_.alpha() * pwm_per_volt_ : 0.0f,
                            use_ff_ ? ff_.beta() * pwm_per_volt_ : 0.0f, cpr, cpr * Ts_);
-            // the tracking-error limit in counts, Q16.16 (0 = off; from 2^15 counts on never hit)
-            float emax_c;
-            memcpy(&emax_c, &max_error_bits_, 4);
-            emax_q_ = to_q16(emax_c * cpr);
-            if (emax_q_ == 0 && max_error_bits_ != 0) emax_q_ = 1;
             ufq_ = 0;
             ref_v_ = 0.0f;
             // SET_SHAPER: the FIR runs on the reference in counts, its differences per sample;
@@ -279,22 +275,11 @@ void Device::handle(const Frame& f) {
             rep_.ref = q32_counts_to_rad(refq_, rad_per_count_);   // (then in background())
             shaper_.prepare();                  // (then in background() after each step)
         }
-        k_ = 0;
         n_total_ = plan_samples_ + shaper_.max_delay() + settle;   // the shaper lengthens the move
         decimation_ = dec;
         dec_left_ = 0;
-        prev_counts_ = 0;
-        last_pwm_ = 0;
-        runaway_pwm_ = static_cast<int16_t>((pwm_top_ + 1) / 2);
-        runaway_n_ = window_samples(runaway_ms_, Ts_us_);
-        sat_n_ = window_samples(saturation_ms_, Ts_us_);
-        sat_level_ = 0;
-        run_sign_ = 0;
-        run_len_ = 0;
-        moved_ = 0;
-        have_sample_ = finished_ = false;
+        arm_safety(Ts_us_);
         state_ = kRunning;
-        hal_.set_period(static_cast<uint16_t>(Ts_us_ / cfg_.tick_us));
         return;
     }
     case kStop:
@@ -391,6 +376,114 @@ bool Device::handle_v3(const Frame& f) {
     return true;
 }
 
+// The start of a RUN or a HOST_LOOP at Ts = ts_us: sample 0 next, the safety stops' state
+// (PROTOCOL.md "Safety stops") reset, the tick period set.
+__attribute__((noinline)) void Device::arm_safety(uint16_t ts_us) {
+    // the tracking-error limit in counts, Q16.16 (0 = off; from 2^15 counts on never hit)
+    float emax_c;
+    memcpy(&emax_c, &max_error_bits_, 4);
+    emax_q_ = to_q16(emax_c * (1.0f / rad_per_count_));
+    if (emax_q_ == 0 && max_error_bits_ != 0) emax_q_ = 1;
+    k_ = 0;
+    prev_counts_ = 0;
+    last_pwm_ = 0;
+    runaway_pwm_ = static_cast<int16_t>((pwm_top_ + 1) / 2);
+    runaway_n_ = window_samples(runaway_ms_, ts_us);
+    sat_n_ = window_samples(saturation_ms_, ts_us);
+    sat_level_ = 0;
+    run_sign_ = 0;
+    run_len_ = 0;
+    moved_ = 0;
+    have_sample_ = finished_ = false;
+    hal_.set_period(static_cast<uint16_t>(ts_us / cfg_.tick_us));
+}
+
+// Version 4 commands (PROTOCOL.md "Host-in-the-loop"): HOST_LOOP starts the mode, HOST_VOLTAGE
+// answers its last HOST_SAMPLE (no reply unless refused).
+bool Device::handle_v4(const Frame& f) {
+    if (f.type != kHostLoop && f.type != kHostVoltage) return false;
+    const uint8_t* p = f.payload;
+    if (f.len != (f.type == kHostLoop ? kLenHostLoop : kLenHostVoltage)) { nack(f, kErrBadLength); return true; }
+    if (!JL_WITH_HOST_LOOP) { nack(f, kErrUnsupported); return true; }
+#if JL_WITH_HOST_LOOP
+    if (f.type == kHostVoltage) {
+        if (state_ != kHostLooping) { nack(f, kErrNotReady); return true; }
+        const float v = get_f32(p + 4), ref = get_f32(p + 8);
+        const uint8_t fl = p[12] & kHostVoltageReference;
+        if (!finite_f(v)) { nack(f, kErrBadValue, 1); return true; }
+        if (fl && !finite_f(ref)) { nack(f, kErrBadValue, 2); return true; }
+        // in time: it answers the last HOST_SAMPLE (k - 1) before tick k; else dropped
+        if (k_ == 0 || get_u32(p) != k_ - 1) return true;
+        const int16_t pwm = volts_to_pwm(v);
+        hl_next_pwm_ = pwm;
+        hl_next_ref_ = ref;
+        // at the clamp: a nonzero voltage whose PWM is at the top (the saturation stop's count)
+        const bool sat = v != 0.0f && (pwm >= pwm_top_ || pwm <= -pwm_top_);
+        hl_got_ = static_cast<uint8_t>(fl | 2u | (sat ? 4u : 0u));
+        return true;
+    }
+    if (state_ != kIdle) { nack(f, kErrBusy); return true; }
+    const uint16_t ts = get_u16(p), n = get_u16(p + 2);
+    const uint8_t max_misses = p[4];
+    if (ts < kHostLoopMinTsUs || ts > kHostLoopMaxTsUs || !valid_period(ts, cfg_.tick_us)) {
+        nack(f, kErrBadValue, 0);
+        return true;
+    }
+    if (n < 1) { nack(f, kErrBadValue, 1); return true; }
+    if (max_misses < 1) { nack(f, kErrBadValue, 2); return true; }
+    ack(f);
+    hal_.zero_counts();
+    step_pwm_ = 0;                      // PWM 0 until the first answer
+    hl_got_ = hl_cur_ = hl_run_ = 0;
+    hl_misses_ = 0;
+    hl_max_ = max_misses;
+    seq_on_ = false;
+    n_total_ = n;
+    decimation_ = 1;
+    dec_left_ = 0;
+    arm_safety(ts);
+    state_ = kHostLooping;
+#endif
+    return true;
+}
+
+// (noinline, noclone: `this` a pointer, its members reached by indexed loads and stores, half
+// the flash of the absolute ones in the inlined control step; the host loop's ticks are long)
+// The start of a HOST_LOOP tick k (PROTOCOL.md "Host-in-the-loop", step 2): the HOST_VOLTAGE
+// answering tick k - 1 in time becomes the voltage in effect, else the last one is held and the
+// miss counted (flag bit 0 in *flags). Returns e = reference - c_k in Q16.16 counts when the
+// answer in effect carried a reference, else 0 (the tracking-error stop off).
+int32_t Device::host_tick(int32_t c, uint8_t* flags) {
+    if (k_ != 0) {
+        if (hl_got_) {
+            step_pwm_ = hl_next_pwm_;
+            hl_ref_ = hl_next_ref_;
+            hl_cur_ = hl_got_;
+            hl_run_ = 0;
+        } else {
+            if (hl_misses_ != 0xFFFF) ++hl_misses_;
+            if (hl_run_ != 0xFF) ++hl_run_;
+            *flags = kHostSampleMissed;
+        }
+    }
+    hl_got_ = 0;
+    if (!(hl_cur_ & kHostVoltageReference)) return 0;
+    return to_q16(hl_ref_ / rad_per_count_ - static_cast<float>(c));
+}
+
+// HOST_SAMPLE (u32 index, i32 counts, i16 pwm, u16 misses, u8 miss_run, u8 flags) of the tick
+// control() left in rep_.
+void Device::send_host_sample() {
+    uint8_t b[kLenHostSample];
+    put_u32(b, rep_.index);
+    put_u32(b + 4, static_cast<uint32_t>(rep_.counts));
+    put_u16(b + 8, static_cast<uint16_t>(rep_.pwm));
+    put_u16(b + 10, hl_misses_);
+    b[12] = hl_run_;
+    b[13] = rep_.flags;
+    send(kHostSample, tx_seq_++, b, kLenHostSample);
+}
+
 bool Device::control() {
     if (state_ == kIdle) return false;
     if (k_ >= n_total_) {               // the tick after the last sample
@@ -404,42 +497,56 @@ bool Device::control() {
     const int32_t c = hal_.counts();
     int16_t pwm;
     uint8_t flags = 0;
-    if (state_ == kRunning) {
-        // ref, e in encoder counts (Q32.32, Q16.16); ref_v in counts per sample; uf in PWM
-        // ticks (Q16.16): integer arithmetic from the count to the PWM write
-        ahead_ = false;                 // (sampled by reference() after the previous step, or RUN)
-        const Q32 ref = refq_;
-        if (k_ >= plan_samples_ + shaper_.max_delay()) flags |= kTelemetrySettling;
-        // e = ref - c exactly (floored to 2^-16 count): the integer part's difference and the
-        // fraction's top 16 bits, saturated beyond +-2^15 counts
-        const int32_t pos_error = counts_q16(sub_sat(ref.hi, c), ref.lo);
+    const bool host = JL_WITH_HOST_LOOP && state_ == kHostLooping;
+    if (state_ == kRunning || host) {
+        // A run's sample or a HOST_LOOP tick (PROTOCOL.md "Host-in-the-loop", steps 2-4): the
+        // same safety stops, saturation count and PWM write
+        int32_t pos_error;
+        if (host) {
+            pos_error = host_tick(c, &flags);
+        } else {
+            // ref, e in encoder counts (Q32.32, Q16.16); ref_v in counts per sample; uf in PWM
+            // ticks (Q16.16): integer arithmetic from the count to the PWM write
+            ahead_ = false;             // (sampled by reference() after the previous step, or RUN)
+            const Q32 ref = refq_;
+            if (k_ >= plan_samples_ + shaper_.max_delay()) flags |= kTelemetrySettling;
+            // e = ref - c exactly (floored to 2^-16 count): the integer part's difference and the
+            // fraction's top 16 bits, saturated beyond +-2^15 counts
+            pos_error = counts_q16(sub_sat(ref.hi, c), ref.lo);
+        }
         float detail = 0.0f;
         JL_PART_BEGIN(2);
         uint8_t fault = check_safety(c, pos_error, &detail);
         JL_PART_END(2);
         pwm = 0;
+        if (fault == kEndDone && host && hl_run_ >= hl_max_) {
+            fault = kEndHostMisses;         // max_misses in a row
+            detail = static_cast<float>(hl_run_);
+        }
         if (fault == kEndDone) {
-            int32_t e;
-            if (loop_ == kLoopPosition) {
-                e = pos_error;
-            } else {
-                // Velocity loop (Stojčić §4B): counts over the last sample; y(-1) = y(0).
-                if (k_ == 0) prev_counts_ = c;
-                e = sub_sat(to_q16(ref_v_), counts_q16(c - prev_counts_, 0));
-            }
-            prev_counts_ = c;
             bool saturated;
-            JL_PART_BEGIN(4);
-            const int32_t u = pid_.step(e, ufq_, &saturated);
-            JL_PART_END(4);
-            if (saturated) {
-                flags |= kTelemetrySaturated;
-                ++sat_level_;
-            } else if (sat_level_) {
-                --sat_level_;
+            int32_t u = 0;
+            if (host) {
+                saturated = (hl_cur_ & 4u) != 0;   // a nonzero voltage at the clamp
+            } else {
+                int32_t e;
+                if (loop_ == kLoopPosition) {
+                    e = pos_error;
+                } else {
+                    // Velocity loop (Stojčić §4B): counts over the last sample; y(-1) = y(0).
+                    if (k_ == 0) prev_counts_ = c;
+                    e = sub_sat(to_q16(ref_v_), counts_q16(c - prev_counts_, 0));
+                }
+                JL_PART_BEGIN(4);
+                u = pid_.step(e, ufq_, &saturated);
+                JL_PART_END(4);
+                if (saturated) flags |= kTelemetrySaturated;
             }
+            if (saturated) ++sat_level_;
+            else if (sat_level_) --sat_level_;
             // Saturation stop (PROTOCOL.md): at the clamp in most samples for the window.
             if (sat_n_ && sat_level_ >= sat_n_) fault = kEndSaturation;
+            else if (host) pwm = step_pwm_;
             else {
                 JL_PART_BEGIN(5);
                 pwm = q16_to_pwm(u, pwm_top_);
@@ -454,6 +561,7 @@ bool Device::control() {
             end_detail_ = detail;
             flags |= kTelemetryFault;
         }
+        prev_counts_ = c;
         last_pwm_ = pwm;
     } else if (seq_on_) {
         const uint8_t b = prbs_.next();   // SEQUENCE: the PRBS level, its volts as the reference
@@ -642,7 +750,8 @@ void Device::background() {
 void Device::report() {
     if (have_sample_) {
         have_sample_ = false;
-        send(kTelemetry, tx_seq_++, reinterpret_cast<const uint8_t*>(&rep_), kLenTelemetry);
+        if (JL_WITH_HOST_LOOP && state_ == kHostLooping) send_host_sample();
+        else send(kTelemetry, tx_seq_++, reinterpret_cast<const uint8_t*>(&rep_), kLenTelemetry);
     }
     if (finished_) end_run(end_reason_, end_detail_);
 }

@@ -48,6 +48,7 @@ struct __attribute__((packed)) TelemetryPayload {
 };
 static_assert(sizeof(TelemetryPayload) == kLenTelemetry, "TELEMETRY's payload: 15 bytes");
 
+
 struct DeviceConfig {
     uint16_t tick_us;        // hardware tick (1000 on the Uno)
     uint16_t pwm_max;        // PWM full scale in ticks (1023 for Timer1 10-bit)
@@ -83,7 +84,7 @@ public:
     /// A tick started before the previous one was handled.
     void count_overrun() { if (overruns_ < 0xFFFF) ++overruns_; }
 
-    enum State : uint8_t { kIdle = 0, kRunning = 1, kStepping = 2 };
+    enum State : uint8_t { kIdle = 0, kRunning = 1, kStepping = 2, kHostLooping = 3 };
     State state() const { return state_; }
     uint16_t rx_errors() const { return parser_.dropped(); }
 
@@ -105,6 +106,12 @@ private:
     void update_pwm_top();
     // Version 3 (jl_excite): SEQUENCE and SET_SHAPER; false if the frame was not one of them.
     bool handle_v3(const Frame& f);
+    // Version 4: HOST_LOOP, HOST_VOLTAGE (false if the frame was neither); a tick of the mode
+    // is control()'s, as a run's sample, with host_tick() and send_host_sample(); arm_safety() starts the safety stops' state for a RUN or a HOST_LOOP of Ts_us.
+    bool handle_v4(const Frame& f);
+    int32_t host_tick(int32_t c, uint8_t* flags);
+    void send_host_sample();
+    void arm_safety(uint16_t ts_us);
 
     Hal& hal_;
     DeviceConfig cfg_;
@@ -141,8 +148,24 @@ private:
     Plan plan_b_;
     const Plan* cur_plan_ = &plan_;
     MovingSolver solver_;
-    float rt_target_ JL_ZERO, rt_ts_ JL_ZERO, rt_xs_ JL_ZERO, rt_vs_ JL_ZERO;
-    uint32_t rt_k_ JL_ZERO;
+    // The re-targeting's scratch (a RUN only) shares its bytes with the host-in-the-loop state
+    // (a HOST_LOOP only; the stack's margin above the variables has no room for more RAM): the
+    // timely HOST_VOLTAGE for the next tick (PWM, reference in rad, hl_got_ bits: 1 its
+    // reference is valid, 2 it arrived, 4 at the clamp), the reference in effect with its
+    // bits in hl_cur_, the misses (saturating) and the misses in a row with their limit. The
+    // voltage in effect, held on a miss, is step_pwm_ (as STEP's).
+    union {
+        struct {
+            float rt_target_, rt_ts_, rt_xs_, rt_vs_;
+            uint32_t rt_k_;
+        };
+        struct {
+            float hl_next_ref_, hl_ref_;
+            int16_t hl_next_pwm_;
+            uint16_t hl_misses_;
+            uint8_t hl_got_, hl_cur_, hl_run_, hl_max_;
+        };
+    };
     uint8_t rt_stage_ JL_ZERO, rt_mode_ JL_ZERO, run_kind_ JL_ZERO;   // mode: 0 rest to rest, 1 moving start, 2 stop
     bool rt_active_ JL_ZERO;               // a RETARGET arrived in this run
     uint16_t settle_ JL_ZERO;
@@ -193,6 +216,7 @@ private:
     bool finished_ JL_ZERO;
     // (the TELEMETRY payload itself: report() sends its bytes; ref: a run's reference in rad,
     // converted a period ahead by background(), by RUN for sample 0; SEQUENCE: V)
+    // (HOST_LOOP: the HOST_SAMPLE's fields, sent by send_host_sample())
     TelemetryPayload rep_ JL_ZERO;
     uint8_t end_reason_ = kEndDone;
     float end_detail_ JL_ZERO;
