@@ -1,5 +1,7 @@
 """Host-in-the-loop mode (issue 30): HOST_LOOP / HOST_VOLTAGE / HOST_SAMPLE, the virtual
-device's deadline rule and the client's ``realtime`` / ``host_loop``."""
+device's deadline rule and the client's ``realtime`` / ``host_loop``; the laws' tests also on the
+firmware on a simulated Uno (``any_rig``: "simavr", marker simavr), and the firmware core's
+state machine (host build) against the virtual device frame by frame (marker firmware)."""
 
 from __future__ import annotations
 
@@ -7,12 +9,13 @@ import math
 import time
 
 import pytest
+from conftest import require_simavr
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from jerklab import protocol as P
 from jerklab.planner import plan_sine_jerk
-from jerklab.rig import connect
+from jerklab.rig import Link, connect
 from jerklab.rig.hostloop import ControlLawError
 from jerklab.rig.virtual import VirtualDevice
 
@@ -20,8 +23,37 @@ CPR = 448 / (2 * math.pi)  # counts per rad of the default virtual rig
 KP = 1.5  # V/rad: a P law stable with the one-tick delay at Ts = 10 ms (K = 32.4, tau = 25 ms)
 
 
+# (connect("simavr") imports jerklab.rig.simavr: un-imported after the module)
+pytestmark = pytest.mark.usefixtures("forget_simavr_module")
+
+
 @pytest.fixture
 def rig(tmp_path):
+    r = connect(recordings=tmp_path, progress=False)
+    yield r
+    r.close()
+
+
+@pytest.fixture(scope="module")
+def uno(tmp_path_factory):
+    """The firmware on a simulated Uno (its default motor: the virtual rig's), one per module."""
+    require_simavr()
+    r = connect(
+        "simavr",
+        recordings=tmp_path_factory.mktemp("hostloop-simavr"),
+        progress=False,
+        link=Link(timeout=10.0),
+    )
+    yield r
+    r.close()
+
+
+@pytest.fixture(params=["virtual", pytest.param("simavr", marks=pytest.mark.simavr)])
+def any_rig(request, tmp_path):
+    """The same law's test on the virtual rig (in process) and on the firmware (simavr)."""
+    if request.param == "simavr":
+        yield request.getfixturevalue("uno")
+        return
     r = connect(recordings=tmp_path, progress=False)
     yield r
     r.close()
@@ -32,23 +64,38 @@ def _profile():
 
 
 def _device_idle(rig) -> bool:
-    return not rig.link.device.active
+    """The device ended the mode: the virtual one says so; the firmware runs a new HOST_LOOP
+    (a device still in the mode would NACK it BUSY)."""
+    device = getattr(rig.link, "device", None)
+    if device is not None:
+        return not device.active
+    rec = rig.host_loop(lambda t, y, r: 0.0, Ts=0.01, duration=0.03, max_misses=255)
+    return rec.metadata["status"] == "complete"
 
 
-def test_p_law_reaches_the_target_within_two_counts(rig):
+def test_p_law_reaches_the_target_within_two_counts(any_rig):
     prof = _profile()
     target = prof.sample(prof.duration).position
-    # max_misses 255: a loaded test machine stalls a tick now and then (a held voltage)
-    rec = rig.host_loop(
+    # max_misses 255: a loaded test machine stalls a tick now and then (a held voltage); the P
+    # law lags ~0.2 rad at the profile's 10 rad/s, and more over a stall (or the simulated Uno's
+    # catch-up after one): the tracking-error stop at 2 rad here (its own test below)
+    rec = any_rig.host_loop(
         lambda t, y, r: KP * (r - y),
         Ts=0.01,
         duration=prof.duration + 0.5,
         reference=prof,
         max_misses=255,
+        max_error=2.0,
     )
     assert rec.metadata["status"] == "complete"
-    final_counts = rec.counts[-1]
-    assert abs(final_counts - target * CPR) <= 2
+    # at rest on the target: the last tick after 6 timely ones in a row (60 ms, three time
+    # constants 1 / (K KP) of the loop: a stall just before the end, on a loaded machine or in
+    # the simulated Uno's catch-up after one, is recovered from), in the 0.5 s after the
+    # profile's end, is within 2 counts of it
+    timely = [not f & P.HOST_SAMPLE_MISSED for f in rec.flags]
+    ends = [j for j in range(len(rec) - 45, len(rec)) if all(timely[j - 5 : j + 1])]
+    assert ends, "no 6 timely ticks in a row after the profile's end"
+    assert abs(rec.counts[ends[-1]] - round(target * CPR)) <= 2
     # the device applied the host's (clamped, quantized) voltage one tick later, where in time
     e = rec.reference[:-1] - rec.position[:-1]
     on_time = [k for k in range(1, len(rec)) if not rec.flags[k] & P.HOST_SAMPLE_MISSED]
@@ -76,7 +123,7 @@ def test_realtime_iterator_same_as_callable(rig):
     assert abs(rec.counts[-1] - prof.sample(prof.duration).position * CPR) <= 2
 
 
-def test_sleeping_law_misses_hold_and_stop(rig):
+def test_sleeping_law_misses_hold_and_stop(any_rig):
     calls = []
 
     def law(t, y, r):
@@ -85,7 +132,7 @@ def test_sleeping_law_misses_hold_and_stop(rig):
             time.sleep(0.03)  # three times Ts: every answer from here on is late
         return 3.0
 
-    rec = rig.host_loop(law, Ts=0.01, duration=2.0, max_misses=4)
+    rec = any_rig.host_loop(law, Ts=0.01, duration=2.0, max_misses=4)
     status = rec.metadata["status"]
     assert status.startswith("fault: host missed 4 deadlines in a row"), status
     assert rec.metadata["misses"] >= 4  # (a loaded machine may add an earlier, lone miss)
@@ -94,19 +141,23 @@ def test_sleeping_law_misses_hold_and_stop(rig):
     assert rec.pwm[-1] == 0 and rec.flags[-1] & P.TELEMETRY_FAULT
     # the voltage was held at the last timely answer (3 V) during the misses
     assert all(abs(v - 3.0) <= 12.0 / 1023 for v in rec.voltage[-4:-1])
-    assert len(rec) >= 9 and len(rec) < 60 and _device_idle(rig)
+    # the stop 4 ticks after the first late answer (tick 5): at tick 8, or sooner when a lone
+    # miss of a loaded machine (or a simulator's catch-up) came just before; never before tick 4
+    assert 5 <= len(rec) <= 9 and _device_idle(any_rig)
 
 
-def test_raising_law_stops_the_motor_and_names_the_tick(rig):
+def test_raising_law_stops_the_motor_and_names_the_tick(any_rig):
     def law(t, y, r):
         if t >= 0.05 - 1e-9:
             raise ZeroDivisionError("student bug")
         return 2.0
 
+    # (max_misses 255 in these tests: a loaded machine's stalls must not end the run first)
     with pytest.raises(ControlLawError, match=r"raised ZeroDivisionError: student bug at tick 5"):
-        rig.host_loop(law, Ts=0.01, duration=1.0)
-    assert _device_idle(rig)
-    rec = rig.host_loop(lambda t, y, r: 0.0, Ts=0.01, duration=0.05)  # the rig is usable again
+        any_rig.host_loop(law, Ts=0.01, duration=1.0, max_misses=255)
+    assert _device_idle(any_rig)
+    # the rig is usable again
+    rec = any_rig.host_loop(lambda t, y, r: 0.0, Ts=0.01, duration=0.05, max_misses=255)
     assert rec.metadata["status"] == "complete"
 
 
@@ -120,14 +171,14 @@ def test_raising_law_status_in_the_recording(rig):
 
 
 @pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf, "1.0"])
-def test_non_finite_voltage_is_refused_and_stops(rig, bad):
+def test_non_finite_voltage_is_refused_and_stops(any_rig, bad):
     def law(t, y, r):
         return bad if t > 0.03 else 1.0
 
     with pytest.raises(ControlLawError, match=r"returned voltage = .* at tick 4") as info:
-        rig.host_loop(law, Ts=0.01, duration=1.0)
+        any_rig.host_loop(law, Ts=0.01, duration=1.0, max_misses=255)
     assert "tick 4" in info.value.recording.metadata["status"]
-    assert _device_idle(rig)
+    assert _device_idle(any_rig)
 
 
 def test_large_voltage_is_clamped(rig):
@@ -175,11 +226,16 @@ def test_keyboard_interrupt_stops_the_motor(rig):
     assert _device_idle(rig)
 
 
-def test_tracking_error_stop_stays_active(rig):
+def test_tracking_error_stop_stays_active(any_rig):
     # a law that pushes the wrong way: the device's tracking-error stop ends it
     prof = _profile()
-    rec = rig.host_loop(
-        lambda t, y, r: -12.0, Ts=0.01, duration=prof.duration, reference=prof, max_error=0.5
+    rec = any_rig.host_loop(
+        lambda t, y, r: -12.0,
+        Ts=0.01,
+        duration=prof.duration,
+        reference=prof,
+        max_error=0.5,
+        max_misses=255,
     )
     assert rec.metadata["status"].startswith("fault: tracking error"), rec.metadata["status"]
 
