@@ -5,6 +5,7 @@ state machine (host build) against the virtual device frame by frame (marker fir
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
@@ -346,3 +347,113 @@ def test_device_answers_every_host_frame_fuzzed():
     frames = [P.parse(f) for f in P.Decoder().feed(dev.read_output())]
     ends = [m for m in frames if isinstance(m, P.EndOfRun)]
     assert len(ends) == 1
+
+
+# ----------------------------------------------------------------------------- firmware core
+
+
+def _scripts():
+    """HOST_LOOP exchanges as (message to send, then ticks to run), each from rest on a fresh
+    device: refusals, timely answers, a miss, a stale answer, a NaN one, the HOST_MISSES stop;
+    then STOP; then DONE."""
+    bad = [P.HostLoop(4000, 10, 3), P.HostLoop(51000, 10, 3), P.HostLoop(10500, 10, 3)]
+    bad += [P.HostLoop(10000, 0, 3), P.HostLoop(10000, 10, 0), P.HostVoltage(0, 1.0)]
+    ref = P.HOST_VOLTAGE_REFERENCE
+    hello = [(P.Hello(P.PROTOCOL_VERSION), 0)]
+    return [
+        hello + [(m, 0) for m in bad],
+        hello
+        + [
+            (P.HostLoop(10000, 20, 3), 1),  # tick 0: PWM 0
+            (P.HostVoltage(0, 3.0), 1),  # tick 1: 3 V
+            (P.HostVoltage(1, 20.0), 1),  # tick 2: clamped to 12 V
+            (None, 1),  # tick 3: a miss, 12 V held
+            (P.HostVoltage(2, -3.0), 1),  # stale (tick 2's answer): dropped; tick 4 a miss
+            (P.HostVoltage(4, math.nan), 1),  # NACK BAD_VALUE 1; tick 5: the 3rd miss, stop
+        ],
+        hello
+        + [
+            (P.HostLoop(10000, 3, 2), 1),
+            (P.HostVoltage(0, -6.0, math.inf, ref), 1),  # NACK BAD_VALUE 2; tick 1 a miss
+            (P.Stop(), 0),  # ACK, END_OF_RUN STOPPED
+        ],
+        hello
+        + [
+            (P.HostLoop(20000, 3, 2), 1),
+            (P.HostVoltage(0, -6.0), 1),
+            (P.HostVoltage(1, 1.5), 2),  # tick 2, then END_OF_RUN DONE
+        ],
+        hello
+        + [
+            (P.HostLoop(10000, 5, 3), 1),
+            (P.HostVoltage(0, 1.0, 5.0, ref), 1),  # tick 1: e = 5 rad, TRACKING_ERROR
+        ],
+    ]
+
+
+def _virtual_replies(script):
+    dev = VirtualDevice(clock=lambda: 0.0, compute_delay=0.0)
+    for i, (msg, ticks) in enumerate(script):
+        if msg is not None:
+            dev.receive(P.encode(msg, i + 1))
+        for _ in range(ticks):
+            dev.tick()
+    return [P.parse(f) for f in P.Decoder().feed(dev.read_output())]
+
+
+@pytest.mark.firmware
+def test_firmware_core_and_virtual_device_agree_frame_by_frame(host_driver):
+    """The firmware's state machine (host build, its ticks by the driver's clock) and the virtual
+    device, the same frames in: the same replies, HOST_SAMPLEs (index, PWM, misses, flags) and
+    END_OF_RUNs; the counts of their two motor models within a count of each other."""
+    from test_firmware import HostDevice
+
+    fw_msgs, py_msgs = [], []
+    for script in _scripts():
+        fw = HostDevice(host_driver)
+        period = 0
+        for msg, ticks in script:
+            if msg is not None:
+                fw.send(msg)
+            if isinstance(msg, P.HostLoop):
+                period = msg.Ts_us // 1000
+            if ticks:
+                fw.wait(ticks * period)
+        fw_msgs += [m for _, _, m in fw.run()[0]]
+        py_msgs += _virtual_replies(script)
+    assert [type(m) for m in fw_msgs] == [type(m) for m in py_msgs]
+    assert isinstance(fw_msgs[0], P.HelloReply) and fw_msgs[0].protocol_version == 4
+    assert P.Capability.HOST_LOOP in P.Capability(fw_msgs[0].capabilities)
+    for a, b in zip(fw_msgs, py_msgs):
+        if isinstance(a, P.HelloReply):
+            continue
+        if isinstance(a, P.HostSample):
+            assert abs(a.counts - b.counts) <= 1, (a, b)
+            a = dataclasses.replace(a, counts=b.counts)
+        if isinstance(a, P.EndOfRun):  # (the firmware's error in Q16.16 counts)
+            assert a.detail == pytest.approx(b.detail, abs=1e-4), (a, b)
+            a = dataclasses.replace(a, detail=b.detail)
+        assert a == b
+    samples = [m for m in fw_msgs if isinstance(m, P.HostSample)]
+    ends = [m for m in fw_msgs if isinstance(m, P.EndOfRun)]
+    # independent of both: 3 V and 12 V (the clamp) in PWM ticks of 12 V / 1023, held on a miss
+    assert [(s.index, s.pwm, s.misses, s.miss_run, s.flags) for s in samples[:6]] == [
+        (0, 0, 0, 0, 0),
+        (1, 256, 0, 0, 0),
+        (2, 1023, 0, 0, 0),
+        (3, 1023, 1, 1, P.HOST_SAMPLE_MISSED),
+        (4, 1023, 2, 2, P.HOST_SAMPLE_MISSED),
+        (5, 0, 3, 3, P.HOST_SAMPLE_MISSED | P.TELEMETRY_FAULT),
+    ]
+    assert [(e.reason, e.samples, e.detail) for e in ends] == [
+        (P.EndReason.HOST_MISSES, 6, 3.0),
+        (P.EndReason.STOPPED, 2, 0.0),
+        (P.EndReason.DONE, 3, 0.0),
+        (P.EndReason.TRACKING_ERROR, 2, pytest.approx(5.0, abs=1e-4)),
+    ]
+    nacks = [(m.command, m.error, m.param) for m in fw_msgs if isinstance(m, P.Nack)]
+    assert nacks == [(P.MsgType.HOST_LOOP, P.ErrorCode.BAD_VALUE, i) for i in (0, 0, 0, 1, 2)] + [
+        (P.MsgType.HOST_VOLTAGE, P.ErrorCode.NOT_READY, 0xFF),
+        (P.MsgType.HOST_VOLTAGE, P.ErrorCode.BAD_VALUE, 1),
+        (P.MsgType.HOST_VOLTAGE, P.ErrorCode.BAD_VALUE, 2),
+    ]
