@@ -64,6 +64,10 @@ def _profile():
     return plan_sine_jerk(2 * math.pi, 500.0, 40.0, 10.0)  # one turn in 1.5 s
 
 
+def _is_virtual(rig) -> bool:
+    return getattr(rig.link, "device", None) is not None
+
+
 def _device_idle(rig) -> bool:
     """The device ended the mode: the virtual one says so; the firmware runs a new HOST_LOOP
     (a device still in the mode would NACK it BUSY)."""
@@ -77,24 +81,29 @@ def _device_idle(rig) -> bool:
 def test_p_law_reaches_the_target_within_two_counts(any_rig):
     prof = _profile()
     target = prof.sample(prof.duration).position
+    # Ts 10 ms in process; 20 ms on the simulated Uno, whose round trip (two frames at 115200
+    # baud, ~4 ms) and catch-up after a stall of a loaded machine need the margin; the gain
+    # scaled with Ts (K KP Ts ~ 0.49: the same discrete loop)
+    Ts = 0.01 if _is_virtual(any_rig) else 0.02
+    kp = KP * 0.01 / Ts
     # max_misses 255: a loaded test machine stalls a tick now and then (a held voltage); the P
-    # law lags ~0.2 rad at the profile's 10 rad/s, and more over a stall (or the simulated Uno's
-    # catch-up after one): the tracking-error stop at 2 rad here (its own test below)
+    # law lags ~0.2-0.4 rad at the profile's 10 rad/s, and much more over a long stall: the
+    # tracking-error stop off here (its own test below)
     rec = any_rig.host_loop(
-        lambda t, y, r: KP * (r - y),
-        Ts=0.01,
+        lambda t, y, r: kp * (r - y),
+        Ts=Ts,
         duration=prof.duration + 0.5,
         reference=prof,
         max_misses=255,
-        max_error=2.0,
+        max_error=0.0,
     )
     assert rec.metadata["status"] == "complete"
-    # at rest on the target: the last tick after 6 timely ones in a row (60 ms, three time
-    # constants 1 / (K KP) of the loop: a stall just before the end, on a loaded machine or in
-    # the simulated Uno's catch-up after one, is recovered from), in the 0.5 s after the
-    # profile's end, is within 2 counts of it
+    # at rest on the target: the last tick after 6 timely ones in a row (three time constants
+    # 1 / (K kp) of the loop: a stall just before the end is recovered from), in the 0.5 s after
+    # the profile's end, is within 2 counts of it
     timely = [not f & P.HOST_SAMPLE_MISSED for f in rec.flags]
-    ends = [j for j in range(len(rec) - 45, len(rec)) if all(timely[j - 5 : j + 1])]
+    settle = round(0.45 / Ts)
+    ends = [j for j in range(len(rec) - settle, len(rec)) if all(timely[j - 5 : j + 1])]
     assert ends, "no 6 timely ticks in a row after the profile's end"
     assert abs(rec.counts[ends[-1]] - round(target * CPR)) <= 2
     # the device applied the host's (clamped, quantized) voltage one tick later, where in time
@@ -102,7 +111,7 @@ def test_p_law_reaches_the_target_within_two_counts(any_rig):
     on_time = [k for k in range(1, len(rec)) if not rec.flags[k] & P.HOST_SAMPLE_MISSED]
     assert len(on_time) >= len(rec) // 2
     for k in on_time:
-        assert abs(rec.voltage[k] - min(max(KP * e[k - 1], -12.0), 12.0)) <= 12.0 / 1023
+        assert abs(rec.voltage[k] - min(max(kp * e[k - 1], -12.0), 12.0)) <= 12.0 / 1023
     slack = rec.metadata["hostloop"]["slack"]
     assert len(slack) == len(rec) - 1
     assert rec.metadata["misses"] == sum(1 for f in rec.flags if f & P.HOST_SAMPLE_MISSED)

@@ -523,9 +523,12 @@ bool Device::control() {
         }
         if (fault == kEndDone) {
             bool saturated;
-            int32_t u = 0;
+            int32_t u;
             if (host) {
+                // the voltage in effect as the PWM write's Q16.16 (exact: within the clamp), so
+                // that nothing after the PID depends on the mode
                 saturated = (hl_.cur & 4u) != 0;   // a nonzero voltage at the clamp
+                u = static_cast<int32_t>(hl_.pwm) * 65536L;
             } else {
                 int32_t e;
                 if (loop_ == kLoopPosition) {
@@ -544,7 +547,6 @@ bool Device::control() {
             else if (sat_level_) --sat_level_;
             // Saturation stop (PROTOCOL.md): at the clamp in most samples for the window.
             if (sat_n_ && sat_level_ >= sat_n_) fault = kEndSaturation;
-            else if (host) pwm = hl_.pwm;
             else {
                 JL_PART_BEGIN(5);
                 pwm = q16_to_pwm(u, pwm_top_);
