@@ -12,7 +12,9 @@ On the simulated Uno (``connect("simavr")``, the sketch built for the baud rate 
 paced to the wall clock) the device's clock is not the host's: the round trip is the host's
 turnaround (HOST_SAMPLE received to HOST_VOLTAGE written, from the recording's deadline slack:
 Ts - slack) plus the line time of the two frames at the baud rate (21 + 20 bytes of 10 bits),
-and the misses are the firmware's own count (HOST_SAMPLE flag bit 0). The grid is tried from
+and the misses are the firmware's own count (HOST_SAMPLE flag bit 0). That round trip is a
+lower bound: the pseudo-terminal's and the harness's latency, both ways, are not seen from the
+host (misses at a Ts above it are those). The grid is tried from
 5 ms up and stops at the first Ts with 1,000 ticks without a miss (the longer ones would take
 up to 50 s each). A loaded machine adds misses: the harness's forgiven lag (the simulation's
 clock falling behind the wall clock) is printed with each row.
@@ -169,7 +171,8 @@ def main(n_ticks=1000):
                 f"{b} baud {t * 1e3:g} ms" if t is not None else f"{b} baud none of 5-50 ms"
                 for b, t in small.items()
             )
-            + " (round trip = host turnaround + the two frames' line time)",
+            + " (round trip = host turnaround + the two frames' line time: a lower bound, the"
+            + " pty's and the harness's latency unseen)",
         )
 
 
