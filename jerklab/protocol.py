@@ -102,7 +102,7 @@ __all__ = [
     "HOST_SAMPLE_MISSED",
 ]
 
-PROTOCOL_VERSION = 3
+PROTOCOL_VERSION = 4
 #: the longest plan a device accepts (PLAN_INFO.n_samples); longer: NACK TOO_LONG
 MAX_PLAN_SAMPLES = 2_000_000_000
 #: boot defaults of the safety stops (SetLimits.max_error rad, .runaway_ms ms, .saturation_ms ms)

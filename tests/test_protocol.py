@@ -158,6 +158,10 @@ def test_golden_frames_match_protocol_md():
         P.EndOfRun(4, 169, 0, 0, 0.52),
         P.DeviceError(3, 1),
         P.Retarget(25.0),
+        P.HostLoop(10000, 200, 3),
+        P.HostVoltage(7, 2.5, 0.75, 1),
+        P.HostSample(8, -300, 512, 2, 1, 1),
+        P.EndOfRun(8, 9, 0, 0, 4.0),
     ]
     assert len(hexes) == len(expected)
     for h, m in zip(hexes, expected):

@@ -83,7 +83,7 @@ def test_sequence_and_shaper_checks_firmware_and_virtual_agree(host_driver):
     for r in (fw, py):
         caps = P.Capability(r[0].capabilities)
         assert P.Capability.SEQUENCE in caps and P.Capability.SHAPER in caps
-        assert r[0].protocol_version == 3
+        assert r[0].protocol_version == P.PROTOCOL_VERSION
         for (m, param), got in zip(BAD_SEQUENCES + BAD_SHAPERS, r[1:]):
             assert isinstance(got, P.Nack), (m, got)
             assert (got.command, got.error, got.param) == (

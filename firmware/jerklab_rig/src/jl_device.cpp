@@ -10,7 +10,22 @@ static const char kName[16] = {'j', 'e', 'r', 'k', 'l', 'a', 'b', '-', 'u', 'n',
 
 // (out of line, `this` a pointer: the members' initial values as indexed stores, about half
 // the flash of the absolute stores of a static object's inlined initialisation)
-__attribute__((noinline, noclone)) Device::Device(Hal& hal, const DeviceConfig& cfg) : hal_(hal), cfg_(cfg) {}
+// The settings' boot values (DeviceSettings, in its order).
+static const DeviceSettings kBootSettings JL_PROGMEM = {
+    32.4f, 0.025f, 12.0f,              // K, tau, supply
+    448,                               // counts_per_rev
+    1023,                              // pwm_top
+    2e4f, 300.0f, 100.0f, 12.0f,       // max_jerk, max_accel, max_velocity, max_voltage
+    1000,                              // host_timeout_ms
+    0x3F000000UL,                      // max_error 0.5 rad
+    200, 500,                          // runaway_ms, saturation_ms
+    5000, 0.005f,                      // Ts_us, Ts
+    kLoopPosition, true,               // loop, use_ff
+};
+
+__attribute__((noinline, noclone)) Device::Device(Hal& hal, const DeviceConfig& cfg) : hal_(hal), cfg_(cfg) {
+    jl_memcpy_P(static_cast<DeviceSettings*>(this), &kBootSettings, sizeof(DeviceSettings));
+}
 
 void Device::begin() {
     apply_plant();
@@ -139,7 +154,7 @@ void __attribute__((noinline)) Device::plan_frame(const Frame& f) {
 }
 
 void Device::handle(const Frame& f) {
-    if (handle_v3(f)) return;
+    if (handle_v3(f) || handle_v4(f)) return;
     const uint8_t* p = f.payload;
     static const uint8_t kLen[10] = {0, kLenHello, kLenSetPlant, kLenSetGains, kLenSetLimits,
                                      kLenPlan, kLenRun, kLenStop, kLenStep, kLenHeartbeat};
@@ -159,6 +174,7 @@ void Device::handle(const Frame& f) {
                         kCapFeedforward;
         if (JL_WITH_SEQUENCE) caps |= kCapSequence;
         if (JL_WITH_SHAPER) caps |= kCapShaper;
+        if (JL_WITH_HOST_LOOP) caps |= kCapHostLoop;
         if (hal_.simulated_plant()) caps |= kCapSimulatedPlant;
         r[0] = kProtocolVersion;
         r[1] = cfg_.fw_major;
@@ -178,7 +194,7 @@ void Device::handle(const Frame& f) {
         if (!in_range(tau, 0.0f, 10.0f)) { nack(f, kErrBadValue, 1); return; }
         if (!in_range(vs, 0.0f, 48.0f)) { nack(f, kErrBadValue, 2); return; }
         if (cpr < 1) { nack(f, kErrBadValue, 3); return; }
-        K_ = K; tau_ = tau; supply_ = vs; counts_per_rev_ = cpr;
+        memcpy(&K_, p, kLenSetPlant);    // K_, tau_, supply_, counts_per_rev_: the payload's layout
         apply_plant();
         ack(f);
         return;
@@ -207,21 +223,16 @@ void Device::handle(const Frame& f) {
     }
     case kSetLimits: {
         float J = get_f32(p), E = get_f32(p + 4), W = get_f32(p + 8), vmax = get_f32(p + 12);
-        uint16_t tmo = get_u16(p + 16);
         float emax = get_f32(p + 18);
-        uint16_t rms = get_u16(p + 22);
-        uint16_t sms = get_u16(p + 24);
         if (!in_range(J, 0.0f, kFloatMax)) { nack(f, kErrBadValue, 0); return; }
         if (!in_range(E, 0.0f, kFloatMax)) { nack(f, kErrBadValue, 1); return; }
         if (!in_range(W, 0.0f, kFloatMax)) { nack(f, kErrBadValue, 2); return; }
         if (!in_range(vmax, 0.0f, supply_)) { nack(f, kErrBadValue, 3); return; }
         if (emax != 0.0f && !in_range(emax, 0.0f, kFloatMax)) { nack(f, kErrBadValue, 5); return; }
-        max_jerk_ = J; max_accel_ = E; max_velocity_ = W; max_voltage_ = vmax;
-        host_timeout_ms_ = tmo;
-        memcpy(&max_error_bits_, &emax, 4);    // emax >= 0: 0 (off) or the positive pattern
+        // max_jerk_ .. saturation_ms_ (max_error_bits_: emax >= 0, 0 (off) or the positive
+        // pattern) in the payload's layout
+        memcpy(&max_jerk_, p, kLenSetLimits);
         if (emax == 0.0f) max_error_bits_ = 0;   // -0.0
-        runaway_ms_ = rms;
-        saturation_ms_ = sms;
         update_pwm_top();
         plan_ok_ = false;
         ack(f);
@@ -251,7 +262,6 @@ void Device::handle(const Frame& f) {
             return;
         }
         ack(f);
-        hal_.zero_counts();
         pid_.reset();
         cur_plan_ = &plan_;
         run_kind_ = plan_.kind;
@@ -263,11 +273,6 @@ void Device::handle(const Frame& f) {
             const float cpr = 1.0f / rad_per_count_;
             stepper_.start(plan_, Ts_, use_ff_ ? ff_.alpha() * pwm_per_volt_ : 0.0f,
                            use_ff_ ? ff_.beta() * pwm_per_volt_ : 0.0f, cpr, cpr * Ts_);
-            // the tracking-error limit in counts, Q16.16 (0 = off; from 2^15 counts on never hit)
-            float emax_c;
-            memcpy(&emax_c, &max_error_bits_, 4);
-            emax_q_ = to_q16(emax_c * cpr);
-            if (emax_q_ == 0 && max_error_bits_ != 0) emax_q_ = 1;
             ufq_ = 0;
             ref_v_ = 0.0f;
             // SET_SHAPER: the FIR runs on the reference in counts, its differences per sample;
@@ -279,22 +284,9 @@ void Device::handle(const Frame& f) {
             rep_.ref = q32_counts_to_rad(refq_, rad_per_count_);   // (then in background())
             shaper_.prepare();                  // (then in background() after each step)
         }
-        k_ = 0;
-        n_total_ = plan_samples_ + shaper_.max_delay() + settle;   // the shaper lengthens the move
-        decimation_ = dec;
-        dec_left_ = 0;
-        prev_counts_ = 0;
-        last_pwm_ = 0;
-        runaway_pwm_ = static_cast<int16_t>((pwm_top_ + 1) / 2);
-        runaway_n_ = window_samples(runaway_ms_, Ts_us_);
-        sat_n_ = window_samples(saturation_ms_, Ts_us_);
-        sat_level_ = 0;
-        run_sign_ = 0;
-        run_len_ = 0;
-        moved_ = 0;
-        have_sample_ = finished_ = false;
-        state_ = kRunning;
-        hal_.set_period(static_cast<uint16_t>(Ts_us_ / cfg_.tick_us));
+        arm_safety(Ts_us_);
+        // the shaper lengthens the move
+        start(Ts_us_, plan_samples_ + shaper_.max_delay() + settle, dec, kRunning);
         return;
     }
     case kStop:
@@ -309,16 +301,9 @@ void Device::handle(const Frame& f) {
         if (!valid_period(ts, cfg_.tick_us)) { nack(f, kErrBadValue, 1); return; }
         if (n < 1) { nack(f, kErrBadValue, 2); return; }
         ack(f);
-        hal_.zero_counts();
         step_pwm_ = ticks_to_pwm(v * pwm_per_volt_);
         seq_on_ = false;
-        k_ = 0;
-        n_total_ = n;
-        decimation_ = 1;
-        dec_left_ = 0;
-        have_sample_ = finished_ = false;
-        state_ = kStepping;
-        hal_.set_period(static_cast<uint16_t>(ts / cfg_.tick_us));
+        start(ts, n, 1, kStepping);
         return;
     }
     case kHeartbeat:
@@ -353,19 +338,13 @@ bool Device::handle_v3(const Frame& f) {
         if ((seed & ((1UL << order) - 1)) == 0) { nack(f, kErrBadValue, 4); return true; }
         if (hold < 1) { nack(f, kErrBadValue, 6); return true; }
         ack(f);
-        hal_.zero_counts();
         prbs_.start(seed, order, hold);
         seq_volts_[0] = off - amp;
         seq_volts_[1] = off + amp;
         seq_pwm_[0] = volts_to_pwm(seq_volts_[0]);
         seq_pwm_[1] = volts_to_pwm(seq_volts_[1]);
         seq_on_ = true;
-        k_ = 0;
-        n_total_ = n;
-        decimation_ = 1;
-        have_sample_ = finished_ = false;
-        state_ = kStepping;
-        hal_.set_period(static_cast<uint16_t>(ts / cfg_.tick_us));
+        start(ts, n, 1, kStepping);
         return true;
     }
 #endif
@@ -391,6 +370,118 @@ bool Device::handle_v3(const Frame& f) {
     return true;
 }
 
+// The start of a RUN, STEP, SEQUENCE or HOST_LOOP (the command checked and acknowledged): the
+// encoder zeroed, n_total samples of ts_us from sample 0, TELEMETRY at every dec-th, the tick
+// phase restarted (the last thing: sample 0 comes one period after the command's work).
+__attribute__((noinline)) void Device::start(uint16_t ts_us, uint32_t n_total, uint8_t dec, uint8_t state) {
+    hal_.zero_counts();
+    k_ = 0;
+    n_total_ = n_total;
+    decimation_ = dec;
+    dec_left_ = 0;
+    have_sample_ = finished_ = false;
+    state_ = static_cast<State>(state);
+    hal_.set_period(static_cast<uint16_t>(ts_us / cfg_.tick_us));
+}
+
+// The safety stops' state (PROTOCOL.md "Safety stops") for a RUN or a HOST_LOOP at Ts = ts_us.
+__attribute__((noinline)) void Device::arm_safety(uint16_t ts_us) {
+    // the tracking-error limit in counts, Q16.16 (0 = off; from 2^15 counts on never hit)
+    float emax_c;
+    memcpy(&emax_c, &max_error_bits_, 4);
+    emax_q_ = to_q16(emax_c * (1.0f / rad_per_count_));
+    if (emax_q_ == 0 && max_error_bits_ != 0) emax_q_ = 1;
+    memset(static_cast<void*>(static_cast<SafetyState*>(this)), 0, sizeof(SafetyState));
+    runaway_pwm_ = static_cast<int16_t>((pwm_top_ + 1) / 2);
+    runaway_n_ = window_samples(runaway_ms_, ts_us);
+    sat_n_ = window_samples(saturation_ms_, ts_us);
+}
+
+// Version 4 commands (PROTOCOL.md "Host-in-the-loop"): HOST_LOOP starts the mode, HOST_VOLTAGE
+// answers its last HOST_SAMPLE (no reply unless refused).
+bool Device::handle_v4(const Frame& f) {
+    if (f.type != kHostLoop && f.type != kHostVoltage) return false;
+    if (f.len != (f.type == kHostLoop ? kLenHostLoop : kLenHostVoltage)) { nack(f, kErrBadLength); return true; }
+    if (!JL_WITH_HOST_LOOP) { nack(f, kErrUnsupported); return true; }
+#if JL_WITH_HOST_LOOP
+    const uint8_t* p = f.payload;
+    if (f.type == kHostVoltage) {
+        if (state_ != kHostLooping) { nack(f, kErrNotReady); return true; }
+        const float v = get_f32(p + 4), ref = get_f32(p + 8);
+        const uint8_t fl = p[12] & kHostVoltageReference;
+        if (!finite_f(v)) { nack(f, kErrBadValue, 1); return true; }
+        if (fl && !finite_f(ref)) { nack(f, kErrBadValue, 2); return true; }
+        // in time: it answers the last HOST_SAMPLE (k - 1) before tick k; else dropped
+        if (k_ == 0 || get_u32(p) != k_ - 1) return true;
+        const int16_t pwm = volts_to_pwm(v);
+        // at the clamp: a nonzero voltage whose PWM is at the top (the saturation stop's count)
+        const bool sat = v != 0.0f && (pwm >= pwm_top_ || pwm <= -pwm_top_);
+        HostLoopState* h = &hl_;
+        JL_OPAQUE(h);
+        h->next_pwm = pwm;
+        h->next_ref = ref;
+        h->got = static_cast<uint8_t>(fl | 2u | (sat ? 4u : 0u));
+        return true;
+    }
+    if (state_ != kIdle) { nack(f, kErrBusy); return true; }
+    const uint16_t ts = get_u16(p), n = get_u16(p + 2);
+    const uint8_t max_misses = p[4];
+    if (ts < kHostLoopMinTsUs || ts > kHostLoopMaxTsUs || !valid_period(ts, cfg_.tick_us)) {
+        nack(f, kErrBadValue, 0);
+        return true;
+    }
+    if (n < 1) { nack(f, kErrBadValue, 1); return true; }
+    if (max_misses < 1) { nack(f, kErrBadValue, 2); return true; }
+    ack(f);
+    memset(&hl_, 0, sizeof(hl_));       // PWM 0 until the first answer
+    hl_.max = max_misses;
+    seq_on_ = false;
+    arm_safety(ts);
+    start(ts, n, 1, kHostLooping);
+#endif
+    return true;
+}
+
+// The start of a HOST_LOOP tick k (PROTOCOL.md "Host-in-the-loop", step 2): the HOST_VOLTAGE
+// answering tick k - 1 in time becomes the voltage in effect, else the last one is held and the
+// miss counted (flag bit 0 in *flags). Returns e = reference - c_k in Q16.16 counts when the
+// answer in effect carried a reference, else 0 (the tracking-error stop off).
+__attribute__((noinline)) int32_t Device::host_tick(int32_t c, uint8_t* flags) {
+    HostLoopState* h = &hl_;
+    JL_OPAQUE(h);
+    if (k_ != 0) {
+        if (h->got) {
+            h->pwm = h->next_pwm;
+            h->ref = h->next_ref;
+            h->cur = h->got;
+            h->run = 0;
+        } else {
+            // (neither saturates: misses <= n_samples - 1 < 2^16, and the mode stops when
+            // miss_run reaches max_misses <= 255)
+            ++h->misses;
+            ++h->run;
+            *flags = kHostSampleMissed;
+        }
+    }
+    h->got = 0;
+    if (!(h->cur & kHostVoltageReference)) return 0;
+    return to_q16(h->ref / rad_per_count_ - static_cast<float>(c));
+}
+
+// HOST_SAMPLE (u32 index, i32 counts, i16 pwm, u16 misses, u8 miss_run, u8 flags) of the tick
+// control() left in rep_, made in rep_'s bytes (the next tick writes all its fields again): the
+// count and the PWM moved up over `ref`, the misses and the flags after them.
+__attribute__((noinline)) void Device::send_host_sample() {
+    uint8_t* b = reinterpret_cast<uint8_t*>(&rep_);
+    JL_OPAQUE(b);
+    const uint8_t flags = b[14];
+    for (uint8_t i = 4; i < 10; ++i) b[i] = b[i + 4];
+    put_u16(b + 10, hl_.misses);
+    b[12] = hl_.run;
+    b[13] = flags;
+    send(kHostSample, tx_seq_++, b, kLenHostSample);
+}
+
 bool Device::control() {
     if (state_ == kIdle) return false;
     if (k_ >= n_total_) {               // the tick after the last sample
@@ -404,40 +495,56 @@ bool Device::control() {
     const int32_t c = hal_.counts();
     int16_t pwm;
     uint8_t flags = 0;
-    if (state_ == kRunning) {
-        // ref, e in encoder counts (Q32.32, Q16.16); ref_v in counts per sample; uf in PWM
-        // ticks (Q16.16): integer arithmetic from the count to the PWM write
-        ahead_ = false;                 // (sampled by reference() after the previous step, or RUN)
-        const Q32 ref = refq_;
-        if (k_ >= plan_samples_ + shaper_.max_delay()) flags |= kTelemetrySettling;
-        // e = ref - c exactly (floored to 2^-16 count): the integer part's difference and the
-        // fraction's top 16 bits, saturated beyond +-2^15 counts
-        const int32_t pos_error = counts_q16(sub_sat(ref.hi, c), ref.lo);
+    const bool host = JL_WITH_HOST_LOOP && state_ == kHostLooping;
+    if (state_ == kRunning || host) {
+        // A run's sample or a HOST_LOOP tick (PROTOCOL.md "Host-in-the-loop", steps 2-4): the
+        // same safety stops, saturation count and PWM write
+        int32_t pos_error;
+        if (host) {
+            pos_error = host_tick(c, &flags);
+        } else {
+            // ref, e in encoder counts (Q32.32, Q16.16); ref_v in counts per sample; uf in PWM
+            // ticks (Q16.16): integer arithmetic from the count to the PWM write
+            ahead_ = false;             // (sampled by reference() after the previous step, or RUN)
+            const Q32 ref = refq_;
+            if (k_ >= plan_samples_ + shaper_.max_delay()) flags |= kTelemetrySettling;
+            // e = ref - c exactly (floored to 2^-16 count): the integer part's difference and the
+            // fraction's top 16 bits, saturated beyond +-2^15 counts
+            pos_error = counts_q16(sub_sat(ref.hi, c), ref.lo);
+        }
         float detail = 0.0f;
         JL_PART_BEGIN(2);
         uint8_t fault = check_safety(c, pos_error, &detail);
         JL_PART_END(2);
         pwm = 0;
+        if (fault == kEndDone && host && hl_.run >= hl_.max) {
+            fault = kEndHostMisses;         // max_misses in a row
+            detail = static_cast<float>(hl_.run);
+        }
         if (fault == kEndDone) {
-            int32_t e;
-            if (loop_ == kLoopPosition) {
-                e = pos_error;
-            } else {
-                // Velocity loop (Stojčić §4B): counts over the last sample; y(-1) = y(0).
-                if (k_ == 0) prev_counts_ = c;
-                e = sub_sat(to_q16(ref_v_), counts_q16(c - prev_counts_, 0));
-            }
-            prev_counts_ = c;
             bool saturated;
-            JL_PART_BEGIN(4);
-            const int32_t u = pid_.step(e, ufq_, &saturated);
-            JL_PART_END(4);
-            if (saturated) {
-                flags |= kTelemetrySaturated;
-                ++sat_level_;
-            } else if (sat_level_) {
-                --sat_level_;
+            int32_t u;
+            if (host) {
+                // the voltage in effect as the PWM write's Q16.16 (exact: within the clamp), so
+                // that nothing after the PID depends on the mode
+                saturated = (hl_.cur & 4u) != 0;   // a nonzero voltage at the clamp
+                u = static_cast<int32_t>(hl_.pwm) * 65536L;
+            } else {
+                int32_t e;
+                if (loop_ == kLoopPosition) {
+                    e = pos_error;
+                } else {
+                    // Velocity loop (Stojčić §4B): counts over the last sample; y(-1) = y(0).
+                    if (k_ == 0) prev_counts_ = c;
+                    e = sub_sat(to_q16(ref_v_), counts_q16(c - prev_counts_, 0));
+                }
+                JL_PART_BEGIN(4);
+                u = pid_.step(e, ufq_, &saturated);
+                JL_PART_END(4);
+                if (saturated) flags |= kTelemetrySaturated;
             }
+            if (saturated) ++sat_level_;
+            else if (sat_level_) --sat_level_;
             // Saturation stop (PROTOCOL.md): at the clamp in most samples for the window.
             if (sat_n_ && sat_level_ >= sat_n_) fault = kEndSaturation;
             else {
@@ -454,6 +561,7 @@ bool Device::control() {
             end_detail_ = detail;
             flags |= kTelemetryFault;
         }
+        prev_counts_ = c;
         last_pwm_ = pwm;
     } else if (seq_on_) {
         const uint8_t b = prbs_.next();   // SEQUENCE: the PRBS level, its volts as the reference
@@ -642,7 +750,8 @@ void Device::background() {
 void Device::report() {
     if (have_sample_) {
         have_sample_ = false;
-        send(kTelemetry, tx_seq_++, reinterpret_cast<const uint8_t*>(&rep_), kLenTelemetry);
+        if (JL_WITH_HOST_LOOP && state_ == kHostLooping) send_host_sample();
+        else send(kTelemetry, tx_seq_++, reinterpret_cast<const uint8_t*>(&rep_), kLenTelemetry);
     }
     if (finished_) end_run(end_reason_, end_detail_);
 }

@@ -4,6 +4,7 @@
 // code runs on the Uno and in the host test driver.
 #ifndef JL_DEVICE_H
 #define JL_DEVICE_H
+#include <stddef.h>
 #include <stdint.h>
 #include "jl_control.h"
 #include "jl_excite.h"
@@ -48,6 +49,7 @@ struct __attribute__((packed)) TelemetryPayload {
 };
 static_assert(sizeof(TelemetryPayload) == kLenTelemetry, "TELEMETRY's payload: 15 bytes");
 
+
 struct DeviceConfig {
     uint16_t tick_us;        // hardware tick (1000 on the Uno)
     uint16_t pwm_max;        // PWM full scale in ticks (1023 for Timer1 10-bit)
@@ -55,7 +57,59 @@ struct DeviceConfig {
     uint8_t fw_major, fw_minor, fw_patch;
 };
 
-class Device {
+/// The device's settings (plant, limits, gains, safety stops) in one block: Device's
+/// constructor copies their boot values (PROTOCOL.md: the defaults at boot, no gains, no plan)
+/// from one image in flash, kBootSettings in jl_device.cpp (a fraction of the flash of a store
+/// per member). Device's members, as its private base. Packed, with the plant in SET_PLANT's
+/// layout and the limits in SET_LIMITS' (PROTOCOL.md; little-endian as the AVR and the hosts):
+/// those commands copy their checked payloads as they are.
+struct __attribute__((packed)) DeviceSettings {
+    float K_, tau_, supply_;           // 32.4 rad/(V s), 0.025 s, 12 V
+    uint16_t counts_per_rev_;          // 448
+    int16_t pwm_top_;   // lround(max_voltage * pwm_max / supply), at most pwm_max (1023)
+    float max_jerk_, max_accel_, max_velocity_, max_voltage_;   // 2e4, 300, 100, 12
+    uint16_t host_timeout_ms_;         // 1000
+    // Safety stops (PROTOCOL.md "Safety stops"): tracking-error limit (rad, 0 = off) and the
+    // runaway / no-motion window (ms, 0 = off).
+    uint32_t max_error_bits_;          // IEEE bits of max_error (0.5 rad at boot)
+    uint16_t runaway_ms_;              // 200
+    uint16_t saturation_ms_;           // saturation stop window (ms, 0 = off; 500)
+    uint16_t Ts_us_;                   // 5000
+    float Ts_;                         // 0.005
+    uint8_t loop_;                     // kLoopPosition
+    bool use_ff_;                      // true
+};
+static_assert(offsetof(DeviceSettings, counts_per_rev_) == kLenSetPlant - 2 &&
+                  offsetof(DeviceSettings, saturation_ms_) - offsetof(DeviceSettings, max_jerk_) ==
+                      kLenSetLimits - 2 &&
+                  offsetof(DeviceSettings, max_error_bits_) - offsetof(DeviceSettings, max_jerk_) == 18,
+              "DeviceSettings: SET_PLANT's and SET_LIMITS' payload layouts");
+
+/// The safety stops' state during a run (PROTOCOL.md "Safety stops"), zeroed at its start
+/// (Device::arm_safety, one memset): the count of the previous sample, the last PWM applied, the
+/// runaway window (drive sign, samples in it, counts moved along the drive) and the saturation
+/// level (counts up at a clamped sample, down at another). Device's members, as a private base.
+struct SafetyState {
+    int32_t prev_counts_ JL_ZERO;
+    int16_t last_pwm_ JL_ZERO;
+    int8_t run_sign_ JL_ZERO;
+    uint16_t run_len_ JL_ZERO;
+    int32_t moved_ JL_ZERO;
+    uint16_t sat_level_ JL_ZERO;
+};
+
+/// HOST_LOOP's state (PROTOCOL.md "Host-in-the-loop"): the timely HOST_VOLTAGE for the next tick
+/// (its reference in rad, its PWM, bits in `got`: 1 the reference is valid, 2 it arrived, 4 its
+/// nonzero voltage is at the clamp), the one in effect (`ref`, `pwm`: held on a miss, bits in
+/// `cur`), the misses so far and in a row (`run`) with their limit (`max`).
+struct HostLoopState {
+    float next_ref, ref;
+    int16_t next_pwm, pwm;
+    uint16_t misses;
+    uint8_t got, cur, run, max;
+};
+
+class Device : private DeviceSettings, private SafetyState {
 public:
     /// Stores the references only (safe for a global object built before main()).
     __attribute__((noinline, noclone)) Device(Hal& hal, const DeviceConfig& cfg);
@@ -83,7 +137,7 @@ public:
     /// A tick started before the previous one was handled.
     void count_overrun() { if (overruns_ < 0xFFFF) ++overruns_; }
 
-    enum State : uint8_t { kIdle = 0, kRunning = 1, kStepping = 2 };
+    enum State : uint8_t { kIdle = 0, kRunning = 1, kStepping = 2, kHostLooping = 3 };
     State state() const { return state_; }
     uint16_t rx_errors() const { return parser_.dropped(); }
 
@@ -105,32 +159,25 @@ private:
     void update_pwm_top();
     // Version 3 (jl_excite): SEQUENCE and SET_SHAPER; false if the frame was not one of them.
     bool handle_v3(const Frame& f);
+    // Version 4: HOST_LOOP, HOST_VOLTAGE (false if the frame was neither); a tick of the mode
+    // is control()'s, as a run's sample, with host_tick() and send_host_sample().
+    bool handle_v4(const Frame& f);
+    int32_t host_tick(int32_t c, uint8_t* flags);
+    void send_host_sample();
+    // The safety stops' state for a RUN or a HOST_LOOP; the start of any run (STEP, SEQUENCE too).
+    void arm_safety(uint16_t ts_us);
+    void start(uint16_t ts_us, uint32_t n_total, uint8_t dec, uint8_t state);
 
     Hal& hal_;
     DeviceConfig cfg_;
     FrameParser parser_;
     State state_ JL_ZERO;
     uint8_t tx_seq_ JL_ZERO;
-
-    // Plant, limits, gains (PROTOCOL.md defaults at boot: no gains, no plan).
-    float K_ = 32.4f, tau_ = 0.025f, supply_ = 12.0f;
-    uint16_t counts_per_rev_ = 448;
+    // (plant, limits, the period of the gains, safety stops: DeviceSettings)
     float rad_per_count_ JL_ZERO, pwm_per_volt_ JL_ZERO;
-    int16_t pwm_top_ = 1023;   // lround(max_voltage * pwm_max / supply), at most pwm_max
-    float max_jerk_ = 2e4f, max_accel_ = 300.0f, max_velocity_ = 100.0f, max_voltage_ = 12.0f;
-    uint16_t host_timeout_ms_ = 1000;
-    // Safety stops (PROTOCOL.md "Safety stops"): tracking-error limit (rad, 0 = off) and the
-    // runaway / no-motion window (ms, 0 = off).
-    uint32_t max_error_bits_ = 0x3F000000UL;   // IEEE bits of max_error (0.5 rad at boot)
-    int32_t emax_q_ JL_ZERO;                       // the same in encoder counts, Q16.16 (set at RUN)
-    uint16_t runaway_ms_ = 200;
-    uint16_t saturation_ms_ = 500;   // saturation stop window (ms, 0 = off)
+    int32_t emax_q_ JL_ZERO;           // max_error in encoder counts, Q16.16 (set at RUN, HOST_LOOP)
     bool gains_ok_ JL_ZERO;
     float kpd_ JL_ZERO, kid_ JL_ZERO, kdd_ JL_ZERO, gamma_ JL_ZERO;
-    uint16_t Ts_us_ = 5000;
-    float Ts_ = 0.005f;
-    uint8_t loop_ = kLoopPosition;
-    bool use_ff_ = true;
 
     bool plan_ok_ JL_ZERO;
     bool plan_pending_ JL_ZERO;   // a checked PLAN frame waits for plan_frame()
@@ -141,8 +188,15 @@ private:
     Plan plan_b_;
     const Plan* cur_plan_ = &plan_;
     MovingSolver solver_;
-    float rt_target_ JL_ZERO, rt_ts_ JL_ZERO, rt_xs_ JL_ZERO, rt_vs_ JL_ZERO;
-    uint32_t rt_k_ JL_ZERO;
+    // The re-targeting's scratch (a RUN only) shares its bytes with the host-in-the-loop state
+    // (a HOST_LOOP only; the stack's margin above the variables has no room for more RAM).
+    union {
+        struct {
+            float rt_target_, rt_ts_, rt_xs_, rt_vs_;
+            uint32_t rt_k_;
+        };
+        HostLoopState hl_;
+    };
     uint8_t rt_stage_ JL_ZERO, rt_mode_ JL_ZERO, run_kind_ JL_ZERO;   // mode: 0 rest to rest, 1 moving start, 2 stop
     bool rt_active_ JL_ZERO;               // a RETARGET arrived in this run
     uint16_t settle_ JL_ZERO;
@@ -164,20 +218,13 @@ private:
     uint8_t decimation_ = 1;
     uint8_t dec_left_ JL_ZERO;
     int16_t step_pwm_ JL_ZERO;
-    int32_t prev_counts_ JL_ZERO;
     uint32_t last_rx_ms_ JL_ZERO;
     uint16_t overruns_ JL_ZERO;
-    // Runaway detector state: the last PWM applied, the drive threshold, the window length in
-    // samples, and the current window (drive sign, samples in it, counts moved along the drive).
-    int16_t last_pwm_ JL_ZERO;
+    // Runaway detector: the drive threshold and the window length in samples (the window's
+    // state: SafetyState); the saturation stop's window.
     int16_t runaway_pwm_ = 512;
     uint16_t runaway_n_ JL_ZERO;
-    int8_t run_sign_ JL_ZERO;
-    uint16_t run_len_ JL_ZERO;
-    int32_t moved_ JL_ZERO;
-    // Saturation stop: a level that counts up at a clamped sample and down at another.
     uint16_t sat_n_ JL_ZERO;
-    uint16_t sat_level_ JL_ZERO;
 
     // Version 3: the PRBS of an active SEQUENCE (seq_on_; its two PWM levels and their
     // commanded volts) and the input shaper of the run reference.
@@ -193,6 +240,7 @@ private:
     bool finished_ JL_ZERO;
     // (the TELEMETRY payload itself: report() sends its bytes; ref: a run's reference in rad,
     // converted a period ahead by background(), by RUN for sample 0; SEQUENCE: V)
+    // (HOST_LOOP: the HOST_SAMPLE's fields, sent by send_host_sample())
     TelemetryPayload rep_ JL_ZERO;
     uint8_t end_reason_ = kEndDone;
     float end_detail_ JL_ZERO;

@@ -4,11 +4,13 @@
 #define JL_PORT_H
 #include <stdint.h>
 #include <math.h>
+#include <string.h>
 
 #if defined(__AVR__)
 #include <avr/pgmspace.h>
 #define JL_PROGMEM PROGMEM
 #define JL_READ_U16(p) pgm_read_word(p)
+#define jl_memcpy_P(d, s, n) memcpy_P(d, s, n)
 // avr-libc's float functions are the double ones (double is 32 bit on the AVR).
 #define jl_sinf(x) sin(x)
 #define jl_cosf(x) cos(x)
@@ -19,6 +21,7 @@
 #else
 #define JL_PROGMEM
 #define JL_READ_U16(p) (*(p))
+#define jl_memcpy_P(d, s, n) memcpy(d, s, n)
 #define jl_sinf(x) sinf(x)
 #define jl_cosf(x) cosf(x)
 #define jl_sqrtf(x) sqrtf(x)
@@ -62,6 +65,11 @@
 #define JL_PART_BEGIN(n) do { } while (0)
 #define JL_PART_END(n) do { } while (0)
 #endif
+
+// An optimisation barrier on a pointer: the compiler forgets that it is the constant address of
+// a member of the (global) device, so it reaches the fields through it with the short
+// displacement loads and stores rather than an absolute 4-byte access each (flash).
+#define JL_OPAQUE(p) __asm__("" : "+r"(p))
 
 namespace jl {
 /// True for a finite float (NaN - NaN and inf - inf are NaN; needs no -ffast-math).

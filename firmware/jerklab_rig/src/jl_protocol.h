@@ -1,4 +1,4 @@
-// Message types, codes and payload sizes of the jerklab rig protocol, version 3.
+// Message types, codes and payload sizes of the jerklab rig protocol, version 4.
 // Mirrors jerklab/protocol.py and firmware/PROTOCOL.md (the reference definitions).
 #ifndef JL_PROTOCOL_H
 #define JL_PROTOCOL_H
@@ -6,14 +6,15 @@
 
 namespace jl {
 
-static const uint8_t kProtocolVersion = 3;
+static const uint8_t kProtocolVersion = 4;
 
 enum MsgType : uint8_t {
     kHello = 0x01, kSetPlant = 0x02, kSetGains = 0x03, kSetLimits = 0x04, kPlan = 0x05,
     kRun = 0x06, kStop = 0x07, kStep = 0x08, kHeartbeat = 0x09, kRetarget = 0x0C,
     kSequence = 0x0A, kSetShaper = 0x0B,   // version 3 (input shaping, identification)
+    kHostLoop = 0x0D, kHostVoltage = 0x0E,  // version 4 (host-in-the-loop)
     kAck = 0x80, kNack = 0x81, kHelloReply = 0x82, kPlanInfo = 0x83,
-    kTelemetry = 0x90, kEndOfRun = 0x91, kError = 0x92,
+    kTelemetry = 0x90, kEndOfRun = 0x91, kError = 0x92, kHostSample = 0x93,
 };
 
 enum ErrorCode : uint8_t {
@@ -23,7 +24,7 @@ enum ErrorCode : uint8_t {
 
 enum EndReason : uint8_t { kEndDone = 0, kEndStopped = 1, kEndHostTimeout = 2, kEndFault = 3,
                            kEndTrackingError = 4, kEndRunaway = 5, kEndNoMotion = 6,
-                           kEndSaturation = 7 };
+                           kEndSaturation = 7, kEndHostMisses = 8 };
 
 // A plan longer than this many samples is refused with NACK TOO_LONG (PROTOCOL.md).
 static const uint32_t kMaxPlanSamples = 2000000000UL;
@@ -39,12 +40,18 @@ enum Capability : uint16_t {
     kCapOpenLoopStep = 1u << 6, kCapFeedforward = 1u << 7, kCapSimulatedPlant = 1u << 8,
     kCapRetarget = 1u << 9,
     kCapSequence = 1u << 12, kCapShaper = 1u << 13,   // version 3 (identification, input shaping)
+    kCapHostLoop = 1u << 14,                           // version 4 (host-in-the-loop)
 };
 
 static const uint8_t kGainsFeedforward = 0x01;
 static const uint8_t kTelemetrySaturated = 0x01;
 static const uint8_t kTelemetrySettling = 0x02;
 static const uint8_t kTelemetryFault = 0x04;
+// HOST_LOOP (version 4): the range of Ts, HOST_VOLTAGE's flag bit 0 (its reference is valid),
+// HOST_SAMPLE's flag bit 0 (no timely HOST_VOLTAGE: the last voltage held; bit 2 as TELEMETRY's)
+static const uint16_t kHostLoopMinTsUs = 5000, kHostLoopMaxTsUs = 50000;
+static const uint8_t kHostVoltageReference = 0x01;
+static const uint8_t kHostSampleMissed = 0x01;
 
 // Payload sizes (bytes).
 static const uint8_t kLenHello = 1, kLenSetPlant = 14, kLenSetGains = 20, kLenSetLimits = 26,
@@ -53,6 +60,12 @@ static const uint8_t kLenHello = 1, kLenSetPlant = 14, kLenSetGains = 20, kLenSe
     kLenError = 3;
 static const uint8_t kLenRetarget = 4;
 static const uint8_t kLenSequence = 16, kLenSetShaper = 51;   // version 3
+// Build option JL_WITH_HOST_LOOP (default 1; 0 leaves the mode out: HOST_LOOP and HOST_VOLTAGE
+// are then NACKed UNSUPPORTED and capability bit 14 is clear).
+#ifndef JL_WITH_HOST_LOOP
+#define JL_WITH_HOST_LOOP 1
+#endif
+static const uint8_t kLenHostLoop = 5, kLenHostVoltage = 13, kLenHostSample = 14;   // version 4
 
 }  // namespace jl
 #endif
