@@ -65,6 +65,24 @@ from jerklab import rig as _rig
 _board = _rig.connect(device=_rig.Device(speed=1.0), progress=False)
 _rec = _board.step(3.0, 2.0, path=False)
 print(f"recording: {len(_rec)} samples")"""
+# the same step started from a button on a Voila page (its output goes to an Output widget)
+LIVE_BUTTON_CELL = """\
+import ipywidgets as widgets
+from jerklab import rig as _rig
+
+_board = _rig.connect(device=_rig.Device(speed=1.0), progress=False)
+_out = widgets.Output()
+_button = widgets.Button(description="Run a step")
+
+
+def _go(_):
+    with _out:
+        rec = _board.step(3.0, 2.0, path=False)
+        print(f"recording: {len(rec)} samples")
+
+
+_button.on_click(_go)
+display(_button, _out)"""
 
 
 def notebook03_panel_cell():
@@ -545,7 +563,7 @@ def watch_live_plot(w: Watched, done, timeout_s=60.0):
                 const box = document.querySelector('.jerklab-liveplot');
                 const img = box && box.querySelector('img');
                 const label = box && box.querySelector('.jerklab-liveplot-count');
-                const outs = [...document.querySelectorAll('.jp-OutputArea-output, .output_area')]
+                const outs = [...document.querySelectorAll('.jp-OutputArea-output, .widget-output')]
                     .map(e => e.innerText).filter(t => new RegExp(done).test(t));
                 return [img ? img.src : null, label ? label.textContent : null,
                         outs.length ? outs[0] : null];
@@ -567,19 +585,45 @@ def test_jupyterlab_live_plot_of_a_rig_run(lab):
     lab.run_cell(2, wait=False)
     seen, out = watch_live_plot(lab.w, r"recording: \d+ samples")
     lab.w.shot("live_plot")
+    _check_live_run(lab.w, seen, out)
+
+
+def _check_live_run(w, seen, out):
+    """The figure changed at least twice during the run (three or more distinct states, the
+    sample counts growing) and ends with the recording's length as its count."""
     n = int(re.search(r"recording: (\d+) samples", out).group(1))
-    page = lab.w.page
-    page.wait_for_function(
+    w.page.wait_for_function(
         "() => /samples \\(/.test(document.querySelector('.jerklab-liveplot-count').textContent)",
         timeout=10_000,
     )
-    final = page.locator(".jerklab-liveplot-count").first.inner_text()
+    final = w.page.locator(".jerklab-liveplot-count").first.inner_text()
     assert final == f"{n} samples (complete)", (final, n)
-    during = [label for _, label in seen if label and "/" in label]
-    counts = [int(label.split("/")[0]) for label in during]
-    assert len(set(counts)) >= 3 and 0 < max(counts) < n, seen  # the figure changed twice +
+    counts = [int(label.split("/")[0]) for _, label in seen if label and "/" in label]
+    assert len(set(counts)) >= 3 and 0 < max(counts) < n, seen
     assert counts == sorted(counts), counts
-    assert not lab.w.kernel_errors and not lab.w.page_errors
+    assert not w.kernel_errors and not w.page_errors, (w.kernel_errors, w.page_errors)
+
+
+def test_voila_live_plot_of_a_rig_run(browser, tmp_path, artifacts_dir):
+    """The same step from a button on a page served by Voilà (as the class page is)."""
+    nb = _notebook(tmp_path / "live.ipynb", LIVE_BUTTON_CELL)
+    port = _free_port()
+    cmd = [sys.executable, "-m", "voila", str(nb), f"--port={port}", "--Voila.ip=127.0.0.1"]
+    cmd += ["--no-browser", "--theme=light"]
+    env = _jupyter_env(tmp_path)
+    server = Server(cmd, f"tcp://127.0.0.1:{port}", tmp_path / "voila.log", env=env)
+    with server:
+        w = Watched(browser, "voila_live_plot", artifacts_dir)
+        try:
+            w.page.goto(f"http://127.0.0.1:{port}/", timeout=PANEL_TIMEOUT_MS)
+            button = w.page.locator("button.widget-button", has_text="Run a step")
+            button.wait_for(timeout=PANEL_TIMEOUT_MS)
+            button.click()
+            seen, out = watch_live_plot(w, r"recording: \d+ samples")
+            w.shot("live_plot")
+            _check_live_run(w, seen, out)
+        finally:
+            w.close()
 
 
 def test_class_page_voila_with_rig(browser, class_page, artifacts_dir):
