@@ -62,7 +62,7 @@ panel.update = broken_update'''
 LIVE_CELL = """\
 from jerklab import rig as _rig
 
-_board = _rig.connect(device=_rig.Device(speed=1.0), progress=False)
+_board = _rig.connect(device=_rig.Device(speed=1.0), progress=False, live=True)
 _rec = _board.step(3.0, 2.0, path=False)
 print(f"recording: {len(_rec)} samples")"""
 # the same step started from a button on a Voila page (its output goes to an Output widget)
@@ -70,7 +70,7 @@ LIVE_BUTTON_CELL = """\
 import ipywidgets as widgets
 from jerklab import rig as _rig
 
-_board = _rig.connect(device=_rig.Device(speed=1.0), progress=False)
+_board = _rig.connect(device=_rig.Device(speed=1.0), progress=False, live=True)
 _out = widgets.Output()
 _button = widgets.Button(description="Run a step")
 

@@ -41,7 +41,7 @@ def plots(monkeypatch):
     (samples × Ts: a rig running in real time), without a widget, at a low resolution (quick)."""
     made = []
 
-    def factory(rec, total, label, **kw):
+    def factory(rec, total, label, enabled=None, **kw):
         kw.pop("display", None)
         p = L.LivePlot(
             rec,
@@ -223,7 +223,43 @@ def test_host_loop_plots_every_tick(plots):
 
 
 def test_outside_a_kernel_there_is_no_plot():
-    assert isinstance(L.live_plot(_recording(), 10, "script"), L.NoProgress)
+    assert isinstance(L.live_plot(_recording(), 10, "script", True), L.NoProgress)
+
+
+def test_the_environment_turns_the_default_off(monkeypatch):
+    monkeypatch.setattr(L, "in_jupyter_kernel", lambda: True)
+    for value in ("0", "off", "False", " no "):
+        monkeypatch.setenv(L.ENV, value)
+        assert not L.default_on()
+        assert isinstance(L.live_plot(_recording(), 10, "env"), L.NoProgress)
+    monkeypatch.setenv(L.ENV, "1")
+    assert L.default_on()
+
+
+@pytest.mark.notebook
+def test_headless_notebook_keeps_the_final_plot(tmp_path):
+    """A notebook executed headless (nbclient: a kernel, no widget front end): the live plot's
+    output ends as a bundle of the widget view and the final figure's PNG, which a viewer
+    without widgets shows; the kernel's own sample count is printed beside it."""
+    nbformat = pytest.importorskip("nbformat")
+    nbclient = pytest.importorskip("nbclient")
+    nb = nbformat.v4.new_notebook()
+    nb.cells = [
+        nbformat.v4.new_code_cell(
+            "from jerklab import rig\n"
+            "board = rig.connect(progress=False, live=True)\n"
+            "rec = board.step(3.0, 0.5, path=False)\n"
+            "print(len(rec))"
+        )
+    ]
+    nbclient.NotebookClient(nb, timeout=120, kernel_name="python3").execute()
+    outputs = nb.cells[0].outputs
+    (shown,) = [o for o in outputs if o.output_type == "display_data"]
+    assert "application/vnd.jupyter.widget-view+json" in shown.data
+    img = Image.open(io.BytesIO(base64.b64decode(shown.data["image/png"])))
+    assert img.format == "PNG" and img.size == (504, 302)
+    (printed,) = [o for o in outputs if o.output_type == "stream"]
+    assert int(printed.text) == 0.5 / TS + 10  # the step's samples and 0.05 s at rest
 
 
 def test_a_real_time_rig_run_feeds_the_thread(monkeypatch):
@@ -239,6 +275,7 @@ def test_a_real_time_rig_run_feeds_the_thread(monkeypatch):
 
     monkeypatch.setattr(L, "in_jupyter_kernel", lambda: True)
     monkeypatch.setattr(L, "LivePlot", plot)
+    monkeypatch.delenv(L.ENV, raising=False)  # the default: on
     board = R.connect(device=Device(speed=1.0), progress=False)
     rec = board.step(2.0, 0.6, path=False, rest=0.0)
     (p,) = made

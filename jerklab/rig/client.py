@@ -142,8 +142,9 @@ class Rig:
         Notebook, Voilà), a one-line text bar in a terminal; False shows nothing.
     live : bool or None
         Live plot of every run (:mod:`jerklab.rig.live`): None (default) or True draws one in
-        a Jupyter kernel as the samples arrive (nothing outside a kernel); False draws none.
-        Each run's ``live=`` overrides it.
+        a Jupyter kernel as the samples arrive (nothing outside a kernel); False draws none;
+        None follows ``$JERKLAB_LIVE_PLOT`` (``0`` turns it off). Each run's ``live=``
+        overrides it.
     recordings : path or None
         Directory for recordings (default ``$JERKLAB_RECORDINGS`` or ``./recordings``).
     metadata : mapping, optional
@@ -743,7 +744,7 @@ class Rig:
         live = self.live if live is None else _as_live("live", live)
         if live is False:
             return _NoProgress()
-        return _live_plot(rec, total, label, **plot)
+        return _live_plot(rec, total, label, live, **plot)
 
     def retarget(self, new_distance):
         """Change the target of the move that runs to ``new_distance`` rad from its start.

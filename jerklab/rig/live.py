@@ -6,7 +6,8 @@ Every run of the rig client (:meth:`~jerklab.rig.Rig.step`, :meth:`~jerklab.rig.
 Voilà), one figure under its progress bar: position (and the reference) in rad over time in
 s on top, voltage in V below (a PRBS's commanded voltage with it), with a label
 ``"<n>/<total> samples"`` that ends as ``"<n> samples (<status>)"``, ``n`` the length of the
-recording. Pass ``live=False`` to the run (or to :func:`jerklab.rig.connect`) for none.
+recording. Pass ``live=False`` to the run (or to :func:`jerklab.rig.connect`) for none;
+``$JERKLAB_LIVE_PLOT=0`` turns off the default (runs that pass ``live=True`` still plot).
 
 Design choices
 --------------
@@ -37,6 +38,7 @@ from __future__ import annotations
 import base64
 import io
 import math
+import os
 import threading
 import time
 
@@ -361,10 +363,21 @@ def _png(canvas) -> bytes:
     return buf.getvalue()
 
 
+#: environment variable that turns the default live plots off ("0", "off", "false", "no")
+ENV = "JERKLAB_LIVE_PLOT"
+
+
+def default_on() -> bool:
+    """Whether runs without ``live=`` get a live plot: yes, unless ``$JERKLAB_LIVE_PLOT`` says
+    ``0``/``off``/``false``/``no`` (e.g. a test suite that executes many notebooks headless)."""
+    return os.environ.get(ENV, "").strip().lower() not in ("0", "off", "false", "no")
+
+
 def live_plot(rec, total, label, enabled=None, *, reference="rad", display=None, **ranges):
     """The live plot of a run: a :class:`LivePlot` inside a Jupyter kernel that has
-    ipywidgets (``enabled`` None or True), else an object that draws nothing."""
-    if enabled is False or not in_jupyter_kernel():
+    ipywidgets (``enabled`` True, or None and :func:`default_on`), else an object that draws
+    nothing."""
+    if enabled is False or (enabled is None and not default_on()) or not in_jupyter_kernel():
         return NoProgress()
     try:
         import ipywidgets  # noqa: F401
