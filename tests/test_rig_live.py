@@ -5,6 +5,7 @@ the samples' own time, and in real time with the background thread), nothing los
 drawing holds every sample of the recording, the curves equal the recording's arrays), one
 drawing only when not live, the headless bundle (widget view and the final PNG), the ranges
 of the axes, and the rig client driving the plot in step, PRBS, move and host-loop runs.
+The tests that run seconds of telemetry are marked ``slow``, the headless notebook ``notebook``.
 """
 
 from __future__ import annotations
@@ -101,6 +102,7 @@ def test_axes_widen_and_never_narrow():
     assert p.full_draws == 2  # the empty figure, then once more as both axes widened
 
 
+@pytest.mark.slow  # seconds of runs, in real time or drawn 8 times a second
 def test_step_redraws_5_to_8_times_a_second_and_loses_nothing(plots):
     board = R.connect(progress=False)
     rec = board.step(3.0, 2.0, path=False)
@@ -113,6 +115,7 @@ def test_step_redraws_5_to_8_times_a_second_and_loses_nothing(plots):
     _check_complete(p, rec)
 
 
+@pytest.mark.slow  # seconds of runs, in real time or drawn 8 times a second
 def test_prbs_and_move_plots_hold_every_sample(plots):
     board = R.connect(progress=False)
     rec = board.record_prbs(2.0, seconds=0.6, path=False)
@@ -153,6 +156,7 @@ def test_not_live_draws_the_final_figure_once():
     _check_complete(p, rec)
 
 
+@pytest.mark.slow  # seconds of runs, in real time or drawn 8 times a second
 def test_background_thread_redraws_in_real_time_and_close_draws_all():
     """A producer appends 200 samples a second for 1 s (a rig in real time); the plot's thread
     redraws at 5 to 8 per second meanwhile, and close() draws all of them."""
@@ -262,6 +266,7 @@ def test_headless_notebook_keeps_the_final_plot(tmp_path):
     assert int(printed.text) == 0.5 / TS + 10  # the step's samples and 0.05 s at rest
 
 
+@pytest.mark.slow  # seconds of runs, in real time or drawn 8 times a second
 def test_a_real_time_rig_run_feeds_the_thread(monkeypatch):
     """The client's own factory (background thread) on a virtual rig in real time."""
     pytest.importorskip("ipywidgets")
