@@ -141,6 +141,10 @@ def test_live_false_draws_nothing_and_a_bad_value_is_named(plots):
         board.step(1.0, 0.2, path=False, live="yes")
     with pytest.raises(TypeError, match="live"):
         R.connect(progress=False, live=1)
+    quiet = R.connect(progress=False, live=False)
+    assert quiet.live is False
+    quiet.step(1.0, 0.2, path=False)  # the rig's setting, no run's live=
+    assert plots == []
 
 
 def test_not_live_draws_the_final_figure_once():
