@@ -307,7 +307,8 @@ class LivePlot:
     def _show(self, display):
         import ipywidgets as w
 
-        self.image = w.Image(format="png", layout=w.Layout(max_width="100%"))
+        width = f"{round(self.fig.get_figwidth() * self.fig.dpi)}px"  # its own pixels, not blown up
+        self.image = w.Image(format="png", layout=w.Layout(width=width, max_width="100%"))
         self.count = w.Label(self._count_text(0))
         self.count.add_class(COUNT_CLASS)
         self.widget = w.VBox([self.image, self.count])
