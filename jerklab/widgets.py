@@ -950,6 +950,8 @@ class PolePlacementPanel(_panel_base()):
                     self.rig.client = self.student_id  # names the run in the broker's queue
             if force and _accepts(self.rig.run_move, "force"):
                 kwargs["force"] = True
+            if _names(self.rig.run_move, "live"):
+                kwargs["live"] = False  # the panel overlays the run itself (jerklab.rig.live)
             rec = self.rig.run_move(tuning.move_profile(self.move), res.gains, **kwargs)
             self.last_recording = rec
             t = np.asarray(rec.time, dtype=float)
@@ -1010,6 +1012,16 @@ class PolePlacementPanel(_panel_base()):
         if self.result is not None:
             data["image/png"] = base64.b64encode(self.figure.png(title=True)).decode("ascii")
         return data
+
+
+def _names(func, name):
+    """Whether ``func`` has a parameter called ``name`` (not only through ``**kwargs``)."""
+    import inspect
+
+    try:
+        return name in inspect.signature(func).parameters
+    except (TypeError, ValueError):
+        return False
 
 
 def _accepts(func, name):

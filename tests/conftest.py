@@ -18,6 +18,10 @@ import pytest
 
 matplotlib.use("Agg")
 os.environ.setdefault("MPLBACKEND", "Agg")
+# the rig's live plots (jerklab.rig.live) are off by default in the kernels the suite starts:
+# the notebooks and worksheets run headless, where nobody watches them redraw, and each costs a
+# figure per run; tests/test_rig_live.py and test_browser.py's live-plot tests turn them on
+os.environ.setdefault("JERKLAB_LIVE_PLOT", "0")
 
 from hypothesis import HealthCheck, settings  # noqa: E402
 

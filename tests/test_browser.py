@@ -58,6 +58,31 @@ def broken_update():  # test only: the slider callback now raises
 
 
 panel.update = broken_update'''
+# a step on the virtual rig in real time (its live plot: jerklab.rig.live), then its length
+LIVE_CELL = """\
+from jerklab import rig as _rig
+
+_board = _rig.connect(device=_rig.Device(speed=1.0), progress=False, live=True)
+_rec = _board.step(3.0, 2.0, path=False)
+print(f"recording: {len(_rec)} samples")"""
+# the same step started from a button on a Voila page (its output goes to an Output widget)
+LIVE_BUTTON_CELL = """\
+import ipywidgets as widgets
+from jerklab import rig as _rig
+
+_board = _rig.connect(device=_rig.Device(speed=1.0), progress=False, live=True)
+_out = widgets.Output()
+_button = widgets.Button(description="Run a step")
+
+
+def _go(_):
+    with _out:
+        rec = _board.step(3.0, 2.0, path=False)
+        print(f"recording: {len(rec)} samples")
+
+
+_button.on_click(_go)
+display(_button, _out)"""
 
 
 def notebook03_panel_cell():
@@ -422,7 +447,7 @@ def lab(browser, tmp_path_factory):
     tmp = tmp_path_factory.mktemp("lab")
     nbdir = tmp / "notebooks"
     nbdir.mkdir()
-    _notebook(nbdir / "panel.ipynb", notebook03_panel_cell(), BREAK_CELL)
+    _notebook(nbdir / "panel.ipynb", notebook03_panel_cell(), BREAK_CELL, LIVE_CELL)
     server, url = jupyterlab(tmp, nbdir / "panel.ipynb")
     with server:
         artifacts = ROOT / "artifacts"  # as conftest's artifacts_dir (function scoped)
@@ -449,8 +474,9 @@ class Lab:
         page.wait_for_selector(".jp-Notebook .jp-CodeCell .cm-content", timeout=PANEL_TIMEOUT_MS)
         self.opened = True
 
-    def run_cell(self, index):
-        """Execute code cell ``index`` once the kernel is idle; wait for its new prompt number."""
+    def run_cell(self, index, wait=True):
+        """Execute code cell ``index`` once the kernel is idle; wait for its new prompt number
+        (``wait=False``: only until it runs, its prompt ``[*]``)."""
         if not self.opened:
             self.open()
         page = self.w.page
@@ -465,9 +491,10 @@ class Lab:
             )
             cell.locator(".cm-content").click()
             page.keyboard.press("Control+Enter")
+            done = "/\\[\\d+\\]/" if wait else "/\\[[*\\d]+\\]/"
             try:
                 page.wait_for_function(
-                    "([el, old]) => el.textContent !== old && /\\[\\d+\\]/.test(el.textContent)",
+                    "([el, old]) => el.textContent !== old && " + done + ".test(el.textContent)",
                     arg=[prompt.element_handle(), before],
                     timeout=PANEL_TIMEOUT_MS / 3,
                 )
@@ -521,6 +548,82 @@ def test_check_fails_without_widget_frontend(lab):
     lab.w.shot("no_widgets_rejected")
     with pytest.raises(AssertionError, match="no live panel"):
         check_live_panel(lab.w, "ωn [rad/s]", presses=1, timeout_ms=5_000)
+
+
+def watch_live_plot(w: Watched, done, timeout_s=60.0):
+    """Poll the page (every 50 ms) for the live plot of a run until an output matches the
+    regular expression ``done``: return the distinct figure sources seen, each with the count
+    label shown with it, in order, and the matching output's text."""
+    page = w.page
+    seen = []
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        src, label, out = page.evaluate(
+            """(done) => {
+                const box = document.querySelector('.jerklab-liveplot');
+                const img = box && box.querySelector('img');
+                const label = box && box.querySelector('.jerklab-liveplot-count');
+                const outs = [...document.querySelectorAll('.jp-OutputArea-output, .widget-output')]
+                    .map(e => e.innerText).filter(t => new RegExp(done).test(t));
+                return [img ? img.src : null, label ? label.textContent : null,
+                        outs.length ? outs[0] : null];
+            }""",
+            done,
+        )
+        if src and (not seen or seen[-1][0] != src):
+            seen.append((src, label))
+        if out is not None:
+            return seen, out
+        page.wait_for_timeout(50)
+    raise AssertionError(f"no output {done!r} within {timeout_s:g} s; seen {len(seen)} figures")
+
+
+def test_jupyterlab_live_plot_of_a_rig_run(lab):
+    """A virtual-rig step in real time from a JupyterLab cell: its figure changes at least
+    twice during the run, and the sample count it ends with is the recording's length."""
+    lab.open()  # a fresh page with the widget front end
+    lab.run_cell(2, wait=False)
+    seen, out = watch_live_plot(lab.w, r"recording: \d+ samples")
+    lab.w.shot("live_plot")
+    _check_live_run(lab.w, seen, out)
+
+
+def _check_live_run(w, seen, out):
+    """The figure changed at least twice during the run (three or more distinct states, the
+    sample counts growing) and ends with the recording's length as its count."""
+    n = int(re.search(r"recording: (\d+) samples", out).group(1))
+    w.page.wait_for_function(
+        "() => /samples \\(/.test(document.querySelector('.jerklab-liveplot-count').textContent)",
+        timeout=10_000,
+    )
+    final = w.page.locator(".jerklab-liveplot-count").first.inner_text()
+    assert final == f"{n} samples (complete)", (final, n)
+    counts = [int(label.split("/")[0]) for _, label in seen if label and "/" in label]
+    assert len(set(counts)) >= 3 and 0 < max(counts) < n, seen
+    assert counts == sorted(counts), counts
+    assert not w.kernel_errors and not w.page_errors, (w.kernel_errors, w.page_errors)
+
+
+def test_voila_live_plot_of_a_rig_run(browser, tmp_path, artifacts_dir):
+    """The same step from a button on a page served by Voilà (as the class page is)."""
+    nb = _notebook(tmp_path / "live.ipynb", LIVE_BUTTON_CELL)
+    port = _free_port()
+    cmd = [sys.executable, "-m", "voila", str(nb), f"--port={port}", "--Voila.ip=127.0.0.1"]
+    cmd += ["--no-browser", "--theme=light"]
+    env = _jupyter_env(tmp_path)
+    server = Server(cmd, f"tcp://127.0.0.1:{port}", tmp_path / "voila.log", env=env)
+    with server:
+        w = Watched(browser, "voila_live_plot", artifacts_dir)
+        try:
+            w.page.goto(f"http://127.0.0.1:{port}/", timeout=PANEL_TIMEOUT_MS)
+            button = w.page.locator("button.widget-button", has_text="Run a step")
+            button.wait_for(timeout=PANEL_TIMEOUT_MS)
+            button.click()
+            seen, out = watch_live_plot(w, r"recording: \d+ samples")
+            w.shot("live_plot")
+            _check_live_run(w, seen, out)
+        finally:
+            w.close()
 
 
 def test_class_page_voila_with_rig(browser, class_page, artifacts_dir):

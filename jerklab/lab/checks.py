@@ -809,7 +809,7 @@ def _spec_move_on(truth, gains, model, move=None):
     """The spec move on the student's hidden motor rebuilt from ``truth`` (the same motor and
     encoder noise as their virtual rig), the feedforward from their ``model``, in memory."""
     prof = plan_sine_jerk(**(MOVE if move is None else move))
-    rig = connect(device=student_device(motor_from_truth(truth)), progress=False)
+    rig = connect(device=student_device(motor_from_truth(truth)), progress=False, live=False)
     try:
         rig.set_model(*model)
         rec = rig.run_move(prof, gains, gains.Ts, settle=0.4, path=False)

@@ -111,6 +111,7 @@ def connect(
     progress=True,
     recordings=None,
     metadata=None,
+    live=None,
     **regrouped,
 ) -> Rig:
     """Connect to a rig and return a :class:`Rig`.
@@ -146,6 +147,9 @@ def connect(
         nothing when False.
     recordings : path
         Folder for recordings (default ``$JERKLAB_RECORDINGS`` or ``./recordings``).
+    live : bool or None
+        Live plot of the runs in a Jupyter kernel (:mod:`jerklab.rig.live`): None (default:
+        on unless ``$JERKLAB_LIVE_PLOT=0``), True or False; a run's ``live=`` overrides it.
     metadata : dict, optional
         The caller's fields, carried in every recording's metadata under ``"caller"``.
     motor : jerklab.plant motor, optional
@@ -195,8 +199,11 @@ def connect(
                 supply_voltage=_or(device.supply_voltage, prof.supply_voltage),
                 counts_per_rev=_or(device.counts_per_rev, prof.counts_per_rev),
             )
+    if live is not None and not isinstance(live, bool):
+        raise TypeError(f"live must be True, False or None, got {live!r}")
     rig = _connect(port, device, link, model, progress, recordings, metadata)
     rig.profile = prof
+    rig.live = live
     return rig
 
 

@@ -4,7 +4,7 @@ It speaks ``jerklab.protocol`` over anything with pyserial's ``read``/``write``
 (a ``serial.Serial``, a ``socket://`` URL, a pseudo-terminal, the in-process
 :class:`~jerklab.rig.virtual.VirtualSerial`), like TCLab's hardware/model swap. The control law
 it configures is Stojčić's (ASCII: Stojcic eqs. 16–18). Progress
-bars: :mod:`jerklab.rig.progress` (tqdm).
+bars: :mod:`jerklab.rig.progress` (tqdm); live plots of the runs: :mod:`jerklab.rig.live`.
 """
 
 from __future__ import annotations
@@ -25,6 +25,8 @@ from jerklab import protocol as P
 from jerklab._validate import as_int, as_nonnegative, as_positive, as_real
 from jerklab.controller import DiscreteGains, Gains, max_pole_radius
 from jerklab.rig.hostloop import ControlLawError, RealtimeLoop
+from jerklab.rig.live import Tee as _Tee
+from jerklab.rig.live import live_plot as _live_plot
 from jerklab.rig.options import F32_MAX as _F32_MAX
 from jerklab.rig.options import RunSpec
 from jerklab.rig.progress import NoProgress as _NoProgress
@@ -138,6 +140,11 @@ class Rig:
     progress : bool
         Show a progress bar during runs: an ipywidgets bar inside a Jupyter kernel (JupyterLab,
         Notebook, Voilà), a one-line text bar in a terminal; False shows nothing.
+    live : bool or None
+        Live plot of every run (:mod:`jerklab.rig.live`): None (default) or True draws one in
+        a Jupyter kernel as the samples arrive (nothing outside a kernel); False draws none;
+        None follows ``$JERKLAB_LIVE_PLOT`` (``0`` turns it off). Each run's ``live=``
+        overrides it.
     recordings : path or None
         Directory for recordings (default ``$JERKLAB_RECORDINGS`` or ``./recordings``).
     metadata : mapping, optional
@@ -159,6 +166,7 @@ class Rig:
         recordings=None,
         on_close=None,
         metadata=None,
+        live=None,
     ):
         self.link = link
         self.port = str(port)
@@ -170,6 +178,7 @@ class Rig:
         self._shaper = None  # SetShaper sent before each move (set_shaper)
         self.timeout = as_positive("timeout", timeout)
         self.progress = bool(progress)
+        self.live = _as_live("live", live)
         self.recordings = Path(recordings) if recordings is not None else None
         self.metadata = _caller_metadata(metadata)
         self._on_close = on_close
@@ -590,6 +599,7 @@ class Rig:
         spec=None,
         path=None,
         progress=None,
+        live=None,
         on_telemetry=None,
         **spec_fields,
     ) -> Recording:
@@ -629,6 +639,8 @@ class Rig:
         progress : bool
             Progress bar (default: the rig's setting): ipywidgets in a Jupyter kernel, text in a
             terminal, nothing if False.
+        live : bool, optional
+            Live plot of the run in a Jupyter kernel (default: the rig's ``live``); False: none.
         on_telemetry : callable, optional
             Called as ``on_telemetry(k, reference, position)`` (sample index, rad, rad) for each
             sample as it arrives, in the thread of this call; it may call :meth:`retarget`.
@@ -705,9 +717,9 @@ class Rig:
             }
         rec = self._new_recording("move", meta, path)
         total = info.n_samples + shaper_delay + settle_n
-        bar = _progress(total, f"{self.port} move", self.progress if progress is None else progress)
         if on_telemetry is not None and not callable(on_telemetry):
             raise TypeError(f"on_telemetry must be callable, got {on_telemetry!r}")
+        bar = self._bar(total, "move", progress, live, rec, position_range=distance)
         return self._stream(
             P.Run(settle_n, int(decimation)),
             rec,
@@ -716,6 +728,23 @@ class Rig:
             bar,
             on_telemetry=on_telemetry,
         )
+
+    def _bar(self, total, what, progress, live, rec, **plot):
+        """The progress bar of a run and, in a Jupyter kernel, its live plot, as one object
+        with ``update(n)`` and ``close(status)``."""
+        label = f"{self.port} {what}"
+        bar = _progress(total, label, self.progress if progress is None else progress)
+        if (self.live if live is None else _as_live("live", live)) is False:
+            return bar
+        return _Tee(bar, self._plot(rec, total, label, live, **plot))
+
+    def _plot(self, rec, total, label, live=None, **plot):
+        """The live plot of a run (:func:`jerklab.rig.live.live_plot`), or an object that
+        draws nothing when ``live`` (default the rig's) is False or outside a kernel."""
+        live = self.live if live is None else _as_live("live", live)
+        if live is False:
+            return _NoProgress()
+        return _live_plot(rec, total, label, live, **plot)
 
     def retarget(self, new_distance):
         """Change the target of the move that runs to ``new_distance`` rad from its start.
@@ -777,6 +806,7 @@ class Rig:
         host_timeout=1.0,
         path=None,
         progress=None,
+        live=None,
     ) -> Recording:
         """Open-loop step of ``voltage`` V for ``seconds`` (identification); returns the Recording.
 
@@ -788,7 +818,8 @@ class Rig:
         switched off and coasts; :meth:`wait_still` then checks (up to ``max(2 s, 4·coast)``,
         ``coast`` default 8·tau of the rig's model) that the encoder has stopped, so that the
         next run starts from rest (not needed with the in-process virtual rig, whose motor
-        stops at once between runs).
+        stops at once between runs). ``progress`` and ``live`` (the live plot) are as for
+        :meth:`run_move`.
         """
         voltage = as_real("voltage", voltage)
         seconds = as_positive("seconds", seconds)
@@ -820,8 +851,15 @@ class Rig:
             "plant": {"supply_voltage": self.supply_voltage, "counts_per_rev": self.counts_per_rev},
         }
         rec = self._new_recording("step", meta, path)
-        bar = _progress(
-            n_rest + n, f"{self.port} step", self.progress if progress is None else progress
+        bar = self._bar(
+            n_rest + n,
+            "step",
+            progress,
+            live,
+            rec,
+            reference=None,
+            position_range=self.model[0] * voltage * n * Ts,
+            voltage_range=voltage,
         )
         if n_rest:
             self._stream(P.Step(0.0, us, n_rest), rec, n_rest, host_timeout, bar, final=False)
@@ -848,6 +886,7 @@ class Rig:
         host_timeout=1.0,
         path=None,
         progress=None,
+        live=None,
     ) -> Recording:
         """Open-loop PRBS record for identification (SEQUENCE, protocol version 3); returns the
         :class:`Recording`, like :meth:`step`.
@@ -877,7 +916,7 @@ class Rig:
             Samples per bit, 1..255 (a longer bit puts more power at low frequencies).
         offset : float
             Voltage the PRBS swings around (V); ``|offset| + amplitude <= max_voltage``.
-        rest, coast, max_voltage, host_timeout, path, progress
+        rest, coast, max_voltage, host_timeout, path, progress, live
             As for :meth:`step`.
 
         Raises
@@ -953,8 +992,14 @@ class Rig:
             "plant": {"supply_voltage": self.supply_voltage, "counts_per_rev": self.counts_per_rev},
         }
         rec = self._new_recording("prbs", meta, path)
-        bar = _progress(
-            n_rest + n, f"{self.port} prbs", self.progress if progress is None else progress
+        bar = self._bar(
+            n_rest + n,
+            "prbs",
+            progress,
+            live,
+            rec,
+            reference="V",
+            voltage_range=abs(offset) + amplitude,
         )
         if n_rest:
             self._stream(P.Step(0.0, us, n_rest), rec, n_rest, host_timeout, bar, final=False)
@@ -1285,7 +1330,7 @@ class Rig:
             tracking-error stop (``max_error``, default 0.5 rad with a reference).
         **options
             ``max_misses`` (3), ``max_voltage`` (the supply), ``max_error``,
-            ``host_timeout`` (1 s), ``path`` (as for :meth:`step`).
+            ``host_timeout`` (1 s), ``path`` and ``live`` (the live plot; as for :meth:`step`).
 
         Returns
         -------
@@ -1356,6 +1401,13 @@ class Rig:
             return True
         except (RigError, OSError):
             return False
+
+
+def _as_live(name, value):
+    """``live=``: None (a live plot in a Jupyter kernel), True or False."""
+    if value is None or isinstance(value, bool):
+        return value
+    raise TypeError(f"{name} must be True, False or None, got {value!r}")
 
 
 def _describe_design(gains) -> str:

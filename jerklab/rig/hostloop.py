@@ -144,6 +144,7 @@ class RealtimeLoop:
         max_error=None,
         host_timeout=1.0,
         path=None,
+        live=None,
         kind="hostloop",
         _describe_fault=None,
         _timeout_error=TimeoutError,
@@ -179,6 +180,10 @@ class RealtimeLoop:
         self._describe_fault = _describe_fault  # the client's readable safety-stop status
         self._timeout_error = _timeout_error
         self._path = path
+        if live is not None and not isinstance(live, bool):
+            raise TypeError(f"live must be True, False or None, got {live!r}")
+        self._live = live
+        self._plot = None
         self._kind = kind
         self._used = False
         self._done = False
@@ -226,7 +231,21 @@ class RealtimeLoop:
             "plant": {"supply_voltage": rig.supply_voltage, "counts_per_rev": rig.counts_per_rev},
         }
         self.recording = rig._new_recording(self._kind, meta, self._path)
-        rig._request(P.HostLoop(self.Ts_us, self.n, self.max_misses))
+        if hasattr(rig, "_plot"):  # the live plot, made before the run: a tick has no time
+            self._plot = rig._plot(
+                self.recording,
+                self.n,
+                f"{rig.port} {self._kind}",
+                self._live,
+                reference=None if self._ref is None else "rad",
+                position_range=None if self._ref is None else max(self._ref, key=abs),
+            )
+        try:
+            rig._request(P.HostLoop(self.Ts_us, self.n, self.max_misses))
+        except BaseException:
+            if self._plot is not None:
+                self._plot.close("refused")
+            raise
 
     def abort(self, status="stopped"):
         """Stop the motor now and finish the recording with ``status`` (once; later calls
@@ -256,7 +275,11 @@ class RealtimeLoop:
             "max_misses": self.max_misses,
             "slack": [round(s, 6) for s in self.slack],
         }
-        rec.finish(status, misses=self.misses)
+        try:
+            rec.finish(status, misses=self.misses)
+        finally:
+            if self._plot is not None:
+                self._plot.close(status if not status.startswith("error") else "error")
 
     # ------------------------------------------------------------------ the loop
     def __iter__(self):
@@ -317,6 +340,8 @@ class RealtimeLoop:
                     ref = self.reference_at(k)
                     # the recording's reference is 0 without one (as for an open-loop step)
                     rec.append(k, 0.0 if self._ref is None else ref, s.counts, s.pwm, s.flags)
+                    if self._plot is not None:
+                        self._plot.update(len(rec))  # background drawing: no wait here
                     if s.flags & P.TELEMETRY_FAULT or k >= self.n - 1:
                         continue  # END_OF_RUN follows: nothing to answer
                     step = HostStep(
