@@ -59,6 +59,7 @@ try:  # the cache's lock (grading runs on Linux; elsewhere one grader at a time)
 except ImportError:  # pragma: no cover - Windows
     fcntl = None
 
+import jerklab
 from jerklab.controller import DiscreteGains
 from jerklab.lab.checkbase import Missing
 from jerklab.lab.handin import MAX_ZIP_BYTES, HandinError, read_handin
@@ -87,6 +88,9 @@ __all__ = [
     "decode_answer",
     "grade_folder",
     "grade_one",
+    "prepared_caches",
+    "compile_package",
+    "solved_master",
     "student_version_name",
     "csv_cell",
 ]
@@ -590,9 +594,16 @@ def _read_export(proc, fd, timeout) -> tuple[bytes | None, str | None]:
     return b"".join(chunks), None
 
 
-def grade_one(lab, notebook: bytes, student, timeout=300.0, sandbox=True, key=None) -> dict:
+def grade_one(
+    lab, notebook: bytes, student, timeout=300.0, sandbox=True, key=None, numba_cache=None
+) -> dict:
     """Run one worksheet (its bytes) in a sandbox on the student's served hidden motor, decode
     its export and score it.
+
+    ``numba_cache`` (a folder the grader made, :func:`prepared_caches`) is copied into the
+    submission's working copy as its numba cache (``NUMBA_CACHE_DIR``): the worksheet loads the
+    compiled kernels instead of compiling them, and what it compiles or changes stays in its
+    own copy.
 
     Returns
     -------
@@ -605,72 +616,230 @@ def grade_one(lab, notebook: bytes, student, timeout=300.0, sandbox=True, key=No
     server, motor = _served_rig(student, lab, key)
     work = Path(tempfile.mkdtemp(prefix="jerklab-grade-"))
     try:
-        sheet = work / student_version_name(lab)
-        sheet.write_bytes(notebook)
-        (work / "work").mkdir()
-        r, w = os.pipe()
-        argv = [
-            sys.executable,
-            "-I",
-            "-m",
-            "jerklab.lab.sheetrun",
-            str(sheet),
-            str(w),
-            *(f"{q}={var}" for q, (_, var) in qs.items()),
-        ]
-        env = {
-            "JERKLAB_LAB_RIG": _RIG_IN_SANDBOX if sandbox else server.port,
-            "JERKLAB_LAB_RIG_CPR": str(motor.encoder_ppr * motor.decoding),
-            "JERKLAB_LAB_WORK": str(work / "work"),
-            "JERKLAB_RECORDINGS": str(work / "rec"),
-            "JERKLAB_LOCK_DIR": str(work / "locks"),
+        res = _run_and_score(
+            lab, qs, notebook, student, timeout, sandbox, server, motor, work, numba_cache
+        )
+        return res
+    finally:
+        server.close()
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def _run_sheet(lab, qs, notebook, timeout, sandbox, server, motor, work, numba_cache=None):
+    """Run ``notebook`` in ``work`` (sandboxed unless ``sandbox`` is False) on ``server``'s rig;
+    (export bytes or None, error or None, exit code)."""
+    sheet = work / student_version_name(lab)
+    sheet.write_bytes(notebook)
+    (work / "work").mkdir()
+    nb_cache = work / ".numba"
+    if numba_cache is not None and Path(numba_cache).is_dir():
+        shutil.copytree(numba_cache, nb_cache, symlinks=False)
+    else:
+        nb_cache.mkdir()
+    r, w = os.pipe()
+    argv = [
+        sys.executable,
+        "-I",
+        "-m",
+        "jerklab.lab.sheetrun",
+        str(sheet),
+        str(w),
+        *(f"{q}={var}" for q, (_, var) in qs.items()),
+    ]
+    env = {
+        "JERKLAB_LAB_RIG": _RIG_IN_SANDBOX if sandbox else server.port,
+        "JERKLAB_LAB_RIG_CPR": str(motor.encoder_ppr * motor.decoding),
+        "JERKLAB_LAB_WORK": str(work / "work"),
+        "JERKLAB_RECORDINGS": str(work / "rec"),
+        "JERKLAB_LOCK_DIR": str(work / "locks"),
+        "NUMBA_CACHE_DIR": str(nb_cache),
+    }
+    if sandbox:
+        cmd = sandbox_command(argv, work, env=env, devices=[(server.port, _RIG_IN_SANDBOX)])
+    else:
+        cmd = argv
+        env = {**SAFE_ENV, "HOME": str(work), "MPLCONFIGDIR": str(work / ".mpl"), **env}
+    try:
+        proc = subprocess.Popen(
+            cmd,
+            cwd=work,
+            env={"PATH": "/usr/bin:/bin", "LANG": "C.UTF-8"} if sandbox else env,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            pass_fds=(w,),
+            start_new_session=True,
+        )
+    finally:
+        os.close(w)
+    data, err = _read_export(proc, r, timeout)
+    return data, err, proc.returncode
+
+
+def _run_and_score(lab, qs, notebook, student, timeout, sandbox, server, motor, work, numba_cache):
+    data, err, code = _run_sheet(
+        lab, qs, notebook, timeout, sandbox, server, motor, work, numba_cache
+    )
+    if err:
+        return {"scores": {}, "error": err, "notes": []}
+    if not data:
+        return {
+            "scores": {},
+            "error": f"the worksheet ended without exporting its answers (exit code {code})",
+            "notes": [],
         }
-        if sandbox:
-            cmd = sandbox_command(argv, work, env=env, devices=[(server.port, _RIG_IN_SANDBOX)])
-        else:
-            cmd = argv
-            env = {**SAFE_ENV, "HOME": str(work), "MPLCONFIGDIR": str(work / ".mpl"), **env}
+    try:
+        doc = json.loads(data)
+        if not isinstance(doc, dict):
+            raise ValueError("not an object")
+    except (ValueError, RecursionError):
+        return {"scores": {}, "error": "the worksheet's export is not readable", "notes": []}
+    truth = hidden_truth(motor)
+    scores, notes = _score(lab, qs, doc, truth)
+    errs = doc.get("errors") if isinstance(doc.get("errors"), list) else []
+    if errs:  # the cell and the kind of error only: no text of the sandbox comes back
+        first = errs[0] if isinstance(errs[0], dict) else {}
+        cell = first.get("cell")
+        kind = re.match(r"[A-Za-z_]\w{0,40}", str(first.get("error", "")))
+        notes.append(
+            f"{len(errs)} cell(s) raised an error; the first: code cell "
+            f"{cell if isinstance(cell, int) and not isinstance(cell, bool) else '?'} "
+            f"({kind.group(0) if kind else 'an error'})"
+        )
+    return {"scores": scores, "error": None, "notes": notes}
+
+
+# ------------------------------------------------------------------ compiled caches
+_WARM_STUDENT = "grader-warm-up"
+#: hand-ins of a lab from which grade_folder warms its compiled cache up (a warm-up runs the
+#: master once; each full hand-in then saves the compile time)
+_WARM_UP_FROM = 4
+
+
+def solved_master(lab: int, student: str) -> bytes:
+    """The worksheet of ``lab`` with the master's solutions (the verified autograder's copy,
+    with jerklab's check runner as a student's worksheet has it), for ``student``."""
+    import nbformat
+
+    nb = nbformat.read(
+        verified_autograder(lab) / "autograder" / student_version_name(lab), as_version=4
+    )
+    for c in nb.cells:
+        if c.cell_type == "code":
+            c.source = _OTTER_INIT.sub(_CHECKS_INIT, c.source)
+            c.source = re.sub(r'^STUDENT = "[^"]*"', f'STUDENT = "{student}"', c.source, flags=re.M)
+    return nbformat.writes(nb).encode()
+
+
+def compile_package() -> bool:
+    """Byte-compile the ``jerklab`` package into its own ``__pycache__`` folders (as ``pip
+    install`` does), so that each sandbox, where the package is read-only, loads the compiled
+    modules instead of compiling about 80 of them again. False when the package is not
+    writable by the grading user (then nothing is written)."""
+    import compileall
+
+    pkg = Path(jerklab.__file__).resolve().parent
+    if not os.access(pkg, os.W_OK):
+        return False
+    return bool(compileall.compile_dir(str(pkg), quiet=1, workers=1))
+
+
+def _sources_stamp() -> str:
+    """What compiled kernels depend on: jerklab's sources and the Python and numba versions."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    h = hashlib.sha256(sys.version.encode())
+    try:
+        h.update(version("numba").encode())
+    except PackageNotFoundError:
+        h.update(b"no numba")
+    pkg = Path(jerklab.__file__).resolve().parent
+    for p in sorted(pkg.rglob("*.py")):
+        h.update(str(p.relative_to(pkg)).encode() + b"\0" + p.read_bytes())
+    return h.hexdigest()
+
+
+def _copy_plain_tree(src: Path, dst: Path):
+    """Copy the folders and regular files under ``src`` to ``dst`` (links and anything else
+    left out)."""
+    dst.mkdir(mode=0o700)
+    for entry in os.scandir(src):
+        if entry.is_symlink():
+            continue
+        if entry.is_dir(follow_symlinks=False):
+            _copy_plain_tree(Path(entry.path), dst / entry.name)
+        elif entry.is_file(follow_symlinks=False):
+            shutil.copyfile(entry.path, dst / entry.name, follow_symlinks=False)
+
+
+def prepared_caches(labs, sandbox=True, timeout=600.0) -> Path | None:
+    """Make the compiled caches the sandboxes start from (those of ``labs`` that are not made
+    yet); return the numba cache folder (or None when there is none).
+
+    1. :func:`compile_package` (the ``.pyc`` files of jerklab, next to its sources);
+    2. the numba cache of each lab in the instructor-only cache (``numba-<hash>/cache``, the
+       hash of jerklab's sources and the Python and numba versions): made once by
+       running the lab's own master (:func:`solved_master`, the instructor's code, never a
+       student's) in a sandbox on a practice motor. Each submission gets its own copy
+       (:func:`grade_one`), so nothing a submission compiles or writes reaches another.
+
+    A warm-up that fails only costs time: the sandboxes then compile as before.
+    """
+    compile_package()
+    sources = _sources_stamp()
+    root = _cache_root() / f"numba-{sources[:16]}"
+    root.mkdir(mode=0o700, exist_ok=True)
+    cache, index = root / "cache", root / "labs.json"
+    fd = os.open(root / ".lock", os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o600)
+    try:
+        if fcntl is not None:
+            fcntl.flock(fd, fcntl.LOCK_EX)
         try:
-            proc = subprocess.Popen(
-                cmd,
-                cwd=work,
-                env={"PATH": "/usr/bin:/bin", "LANG": "C.UTF-8"} if sandbox else env,
-                stdin=subprocess.DEVNULL,
-                stdout=subprocess.DEVNULL,
-                stderr=subprocess.DEVNULL,
-                pass_fds=(w,),
-                start_new_session=True,
-            )
-        finally:
-            os.close(w)
-        data, err = _read_export(proc, r, timeout)
+            done = json.loads(index.read_text())
+        except (OSError, ValueError):
+            done = {}
+        if not isinstance(done, dict) or done.get("sources") != sources or not cache.is_dir():
+            shutil.rmtree(cache, ignore_errors=True)
+            done = {"sources": sources, "labs": []}
+        for lab in sorted(set(labs)):
+            if lab in done["labs"]:
+                continue
+            made = _warm_up(lab, cache if cache.is_dir() else None, root, sandbox, timeout)
+            if made is None:
+                continue
+            old = root / f".old-{os.getpid()}"
+            if cache.is_dir():
+                os.rename(cache, old)
+            os.rename(made, cache)
+            shutil.rmtree(old, ignore_errors=True)
+            done["labs"].append(lab)
+            index.write_text(json.dumps(done))
+        return cache if cache.is_dir() else None
+    finally:
+        os.close(fd)
+
+
+def _warm_up(lab, seed, root, sandbox, timeout) -> Path | None:
+    """Run lab ``lab``'s master in a sandbox from the numba cache ``seed``; the folder of its
+    numba cache afterwards (under ``root``), or None if the run failed."""
+    try:
+        nb = solved_master(lab, _WARM_STUDENT)
+        qs = questions(lab)
+    except Exception as exc:  # no autograder: nothing to warm up with
+        warnings.warn(f"no compiled cache for lab {lab}: {exc}", RuntimeWarning, stacklevel=3)
+        return None
+    server, motor = _served_rig(_WARM_STUDENT, lab, practice_key())
+    work = Path(tempfile.mkdtemp(prefix="jerklab-warm-"))
+    try:
+        _, err, _ = _run_sheet(lab, qs, nb, timeout, sandbox, server, motor, work, seed)
         if err:
-            return {"scores": {}, "error": err, "notes": []}
-        if not data:
-            return {
-                "scores": {},
-                "error": f"the worksheet ended without exporting its answers (exit code {proc.returncode})",
-                "notes": [],
-            }
-        try:
-            doc = json.loads(data)
-            if not isinstance(doc, dict):
-                raise ValueError("not an object")
-        except (ValueError, RecursionError):
-            return {"scores": {}, "error": "the worksheet's export is not readable", "notes": []}
-        truth = hidden_truth(motor)
-        scores, notes = _score(lab, qs, doc, truth)
-        errs = doc.get("errors") if isinstance(doc.get("errors"), list) else []
-        if errs:  # the cell and the kind of error only: no text of the sandbox comes back
-            first = errs[0] if isinstance(errs[0], dict) else {}
-            cell = first.get("cell")
-            kind = re.match(r"[A-Za-z_]\w{0,40}", str(first.get("error", "")))
-            notes.append(
-                f"{len(errs)} cell(s) raised an error; the first: code cell "
-                f"{cell if isinstance(cell, int) and not isinstance(cell, bool) else '?'} "
-                f"({kind.group(0) if kind else 'an error'})"
+            warnings.warn(
+                f"no compiled cache for lab {lab}: its master {err}", RuntimeWarning, stacklevel=3
             )
-        return {"scores": scores, "error": None, "notes": notes}
+            return None
+        out = Path(tempfile.mkdtemp(prefix=".new-", dir=root))
+        _copy_plain_tree(work / ".numba", out / "cache")
+        return out / "cache"
     finally:
         server.close()
         shutil.rmtree(work, ignore_errors=True)
@@ -698,9 +867,9 @@ def _plain_text(x, n) -> str:
 
 
 def _grade_job(args):
-    lab, nb, student, timeout, sandbox, key = args
+    lab, nb, student, timeout, sandbox, key, numba_cache = args
     try:
-        return grade_one(lab, nb, student, timeout, sandbox, key=key)
+        return grade_one(lab, nb, student, timeout, sandbox, key=key, numba_cache=numba_cache)
     except Exception as exc:  # the grader's own failure on this submission: its row says so
         return {"scores": {}, "error": f"grading failed ({type(exc).__name__})", "notes": []}
 
@@ -843,10 +1012,16 @@ def grade_folder(
             row["flags"] = "; ".join(
                 f for f in (row["flags"], "practice: a public motor, not graded work") if f
             )
-        todo.append((i, (sub["lab"], sub["notebook"], sub["student"], timeout, sandbox, key)))
+        todo.append((i, [sub["lab"], sub["notebook"], sub["student"], timeout, sandbox, key]))
     _QUESTIONS.clear()
-    for lab in sorted({a[0] for _, a in todo}):
+    labs_todo = sorted({a[0] for _, a in todo})
+    for lab in labs_todo:
         questions(lab)  # the autograder made and verified once, before the workers start
+    # a warm-up costs about one hand-in: worth it from a few hand-ins of a lab on
+    per_lab = {lab: sum(1 for _, a in todo if a[0] == lab) for lab in labs_todo}
+    warm = [lab for lab, n in per_lab.items() if n >= _WARM_UP_FROM]
+    numba_cache = prepared_caches(warm, sandbox, timeout) if todo else None
+    todo = [(i, (*a, numba_cache)) for i, a in todo]
     if jobs > 1 and len(todo) > 1:
         with _futures.ProcessPoolExecutor(max_workers=jobs) as pool:
             results = list(pool.map(_grade_job, [a for _, a in todo]))
