@@ -65,15 +65,18 @@ from jerklab.lab.checkbase import Missing
 from jerklab.lab.handin import MAX_ZIP_BYTES, HandinError, read_handin
 from jerklab.lab.motors import (
     hidden_truth,
+    instructor_key,
     normalize_student,
     practice_key,
     student_device,
     student_motor,
 )
-from jerklab.lab.plain import Evidence
+from jerklab.lab.plain import Evidence, Run
 from jerklab.lab.registry import FLEXIBLE_LABS, LABS, run_check
 from jerklab.lab.sandbox import SAFE_ENV, SandboxUnavailable, bwrap_path, sandbox_command
 from jerklab.lab.service import attempt_counts
+from jerklab.lab.signing import claims_graded, verify_run
+from jerklab.rig import Recording
 from jerklab.rig.server import DeviceServer
 from jerklab.rig.virtual import VirtualDevice
 
@@ -395,6 +398,44 @@ def _valid_id(student, where) -> str:
         ) from None
 
 
+def _handin_recordings(files: dict, key: bytes, student: str, lab: int) -> tuple[list, list]:
+    """(verified, rejected): the names of a hand-in's recordings (``recordings/<name>.csv`` +
+    ``.json``) that claim to come from the class rig service (:func:`jerklab.lab.signing.
+    claims_graded`) and whose signature verifies, or does not (or that cannot be read)."""
+    verified, rejected = [], []
+    names = sorted(
+        n[len("recordings/") : -len(".json")]
+        for n in files
+        if n.startswith("recordings/") and n.endswith(".json") and n.count("/") == 1
+    )
+    for name in names[:500]:
+        meta_bytes = files[f"recordings/{name}.json"]
+        try:
+            meta = json.loads(meta_bytes)
+        except ValueError:
+            continue  # not a sidecar: nothing claimed
+        if not claims_graded(meta):
+            continue
+        shown = _plain_text(name, 40)
+        csv_bytes = files.get(f"recordings/{name}.csv")
+        if csv_bytes is None:
+            rejected.append(shown)
+            continue
+        with tempfile.TemporaryDirectory(prefix="jerklab-grade-rec-") as tmp:
+            (Path(tmp) / "r.csv").write_bytes(csv_bytes)
+            (Path(tmp) / "r.json").write_bytes(meta_bytes)
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    run = Run.from_recording(Recording.load(Path(tmp) / "r.csv"))
+            except Exception:  # an edited file the loader refuses: not what was served
+                rejected.append(shown)
+                continue
+        why = verify_run(key, run, meta.get("signature"), student, lab)
+        (verified if why is None else rejected).append(shown)
+    return verified, rejected
+
+
 def _read_submission(p: Path) -> dict:
     """One submission, read and validated: ``{"student", "lab", "notebook", "notes", "mode"}``
     (``mode``: "practice" when the hand-in's manifest says so, else "graded")."""
@@ -407,6 +448,7 @@ def _read_submission(p: Path) -> dict:
         data = f.read(MAX_ZIP_BYTES + 1)
     notes = []
     mode = "graded"
+    signed = {"verified": [], "rejected": []}
     if p.suffix.lower() == ".zip":
         h = read_handin(p, data=data)
         student, lab, nb = h["student"], h["lab"], h["notebook"]
@@ -420,6 +462,17 @@ def _read_submission(p: Path) -> dict:
             )
             nb = _STUDENT_RE.sub(f'STUDENT = "{student}"', nb.decode("utf-8"), count=1).encode()
         notes.append(f"manifest verified ({len(h['files'])} files)")
+        if lab in LABS:
+            signer, _ = instructor_key(warn=False)
+            ok, bad = _handin_recordings(h["files"], signer, student, int(lab))
+            if ok:
+                notes.append(f"{len(ok)} recording(s) signed by the class rig, verified")
+            for name in bad:
+                notes.append(
+                    f"recording {name!r} claims the class rig, but its signature does not "
+                    "match (edited, or made elsewhere)"
+                )
+            signed = {"verified": ok, "rejected": bad}
     else:
         nb = data
         student, lab = _notebook_info(nb, p.name)
@@ -428,7 +481,14 @@ def _read_submission(p: Path) -> dict:
         student = _valid_id(student, "the notebook's")
     if lab not in LABS:
         raise ValueError(f"cannot tell which lab this is (lab = {str(lab)[:20]!r})")
-    return {"student": student, "lab": int(lab), "notebook": nb, "notes": notes, "mode": mode}
+    return {
+        "student": student,
+        "lab": int(lab),
+        "notebook": nb,
+        "notes": notes,
+        "mode": mode,
+        "recordings": signed,
+    }
 
 
 # ------------------------------------------------------------------ decoding and scoring
@@ -479,17 +539,37 @@ def decode_answer(x, depth=0):
     raise ValueError(f"answer: unexpected {type(x).__name__}")
 
 
-def _evidence_of(doc, answers) -> tuple[Evidence, list]:
+def _evidence_of(doc, answers, signed=None, rejected=None) -> tuple[Evidence, list]:
+    """The export's recordings as the checks' evidence. With ``signed = (key, student, lab)``
+    a recording that claims to come from the class rig service (a signature, or mode
+    "graded") is kept only if its signature verifies (:func:`jerklab.lab.signing.verify_run`);
+    the names of those left out are appended to ``rejected``."""
     notes = []
     ev = doc.get("evidence") or {}
     runs = ev.get("runs") if isinstance(ev, dict) else None
+    claims = ev.get("claims") if isinstance(ev, dict) else None
+    claims = claims if isinstance(claims, dict) else {}
+    sigs = ev.get("signatures") if isinstance(ev, dict) else None
+    sigs = sigs if isinstance(sigs, dict) else {}
     good = {}
     if isinstance(runs, dict):
         for name, run in list(runs.items())[:200]:
             try:
-                good[str(name)[:80]] = Evidence.from_dict({"runs": {name: run}}).runs[name]
+                r = Evidence.from_dict({"runs": {name: run}}).runs[name]
             except Exception:  # a malformed recording: left out, the check says it is missing
                 notes.append(f"recording {str(name)[:40]!r} unreadable: left out")
+                continue
+            if signed is not None and (claims.get(name) or sigs.get(name) is not None):
+                why = verify_run(signed[0], r, sigs.get(name), signed[1], signed[2])
+                if why is not None:
+                    notes.append(
+                        f"recording {_plain_text(name, 40)!r} claims the class rig but {why}: "
+                        "left out of the checks"
+                    )
+                    if rejected is not None:
+                        rejected.append(_plain_text(name, 40))
+                    continue
+            good[str(name)[:80]] = r
     cpr = ev.get("counts_per_rev") if isinstance(ev, dict) else None
     if isinstance(cpr, bool) or not isinstance(cpr, int) or not 1 <= cpr <= 10**7:
         cpr = None
@@ -497,8 +577,9 @@ def _evidence_of(doc, answers) -> tuple[Evidence, list]:
     return Evidence(runs=good, answers=plain, counts_per_rev=cpr), notes
 
 
-def _score(lab, qs, doc, truth) -> tuple[dict, list]:
-    """``{question: (score, max, message)}`` of an export ``doc`` against ``truth``."""
+def _score(lab, qs, doc, truth, signed=None, rejected=None) -> tuple[dict, list]:
+    """``{question: (score, max, message)}`` of an export ``doc`` against ``truth`` (``signed``,
+    ``rejected``: :func:`_evidence_of`)."""
     raw = doc.get("answers") if isinstance(doc.get("answers"), dict) else {}
     answers, unread = {}, {}
     for name in qs:
@@ -506,7 +587,7 @@ def _score(lab, qs, doc, truth) -> tuple[dict, list]:
             answers[name] = decode_answer(raw.get(name))
         except ValueError as exc:
             unread[name] = str(exc)
-    evidence, notes = _evidence_of(doc, answers)
+    evidence, notes = _evidence_of(doc, answers, signed, rejected)
     out = {}
     for name, (points, _) in qs.items():
         if name in unread:
@@ -695,7 +776,9 @@ def _run_and_score(lab, qs, notebook, student, timeout, sandbox, server, motor, 
     except (ValueError, RecursionError):
         return {"scores": {}, "error": "the worksheet's export is not readable", "notes": []}
     truth = hidden_truth(motor)
-    scores, notes = _score(lab, qs, doc, truth)
+    rejected = []
+    signer, _ = instructor_key(warn=False)
+    scores, notes = _score(lab, qs, doc, truth, (signer, student, lab), rejected)
     errs = doc.get("errors") if isinstance(doc.get("errors"), list) else []
     if errs:  # the cell and the kind of error only: no text of the sandbox comes back
         first = errs[0] if isinstance(errs[0], dict) else {}
@@ -706,7 +789,7 @@ def _run_and_score(lab, qs, notebook, student, timeout, sandbox, server, motor, 
             f"{cell if isinstance(cell, int) and not isinstance(cell, bool) else '?'} "
             f"({kind.group(0) if kind else 'an error'})"
         )
-    return {"scores": scores, "error": None, "notes": notes}
+    return {"scores": scores, "error": None, "notes": notes, "rejected": rejected}
 
 
 # ------------------------------------------------------------------ compiled caches
@@ -922,11 +1005,18 @@ def grade_folder(
 ) -> list[dict]:
     """Grade every ``*.zip`` hand-in and bare ``*.ipynb`` in ``folder``.
 
-    Writes ``out_csv`` (one row per submission: student, lab, file, status, flags, one column
-    per question, total, max) and a feedback text file per submission into ``feedback_dir``
-    (default: ``feedback/`` beside the CSV). A corrupt, empty, oversized or unverifiable
+    Writes ``out_csv`` (one row per submission: student, lab, file, status, flags,
+    recordings, one column per question, total, max) and a feedback text file per submission
+    into ``feedback_dir`` (default: ``feedback/`` beside the CSV). A corrupt, empty, oversized or unverifiable
     submission, a bad student ID, a time-out or a worksheet that exports nothing gets a row
     with its status and zero points; it never stops the run.
+
+    Every recording that claims to come from the class rig service, in the hand-in or in the
+    worksheet's export, must carry the service's signature (:mod:`jerklab.lab.signing`, the
+    instructor key): one that does not (edited, or made by the student) is named in the
+    ``recordings`` column (``rejected: <names>``) and in ``flags``, and an exported one is left
+    out of the checks. ``recordings`` says ``signed: N verified`` for a hand-in whose graded
+    recordings all verify.
 
     Parameters
     ----------
@@ -982,6 +1072,7 @@ def grade_folder(
             "lab": "",
             "status": "",
             "flags": "",
+            "recordings": "",
             "total": 0.0,
             "max": 0.0,
         }
@@ -1027,9 +1118,11 @@ def grade_folder(
             results = list(pool.map(_grade_job, [a for _, a in todo]))
     else:
         results = [_grade_job(a) for _, a in todo]
+    exported_rejected = {}
     for (i, _), res in zip(todo, results):
         row, sub = rows[i], parsed[i]
         sub["notes"].extend(res["notes"])
+        exported_rejected[i] = res.get("rejected", [])
         if res["error"]:
             row["status"] = f"error: {res['error']}"
             continue
@@ -1042,6 +1135,9 @@ def grade_folder(
                 f"{q}: {sc:g}/{mx:g} ({verdict})" + (f"\n    {msg}" if sc < mx else "")
             )
         row["status"] = "graded"
+    for i, (row, sub) in enumerate(zip(rows, parsed)):
+        if sub is not None:  # also for a row not graded: the hand-in's recordings are checked
+            _recordings_column(row, sub["recordings"], exported_rejected.get(i, []))
     taken = set()
     for row, sub in zip(rows, parsed):
         notes = list(sub["notes"]) if sub else []
@@ -1074,7 +1170,18 @@ def grade_folder(
     with tmp.open("w", newline="", encoding="utf-8") as f:
         w = csv.DictWriter(
             f,
-            ["student", "lab", "file", "status", "flags", *qcols, *extra, "total", "max"],
+            [
+                "student",
+                "lab",
+                "file",
+                "status",
+                "flags",
+                "recordings",
+                *qcols,
+                *extra,
+                "total",
+                "max",
+            ],
             restval="",
         )
         w.writeheader()
@@ -1084,7 +1191,23 @@ def grade_folder(
     return rows
 
 
-_FIXED = ("student", "lab", "file", "status", "flags", "total", "max")
+_FIXED = ("student", "lab", "file", "status", "flags", "recordings", "total", "max")
+
+#: ``grades.csv``'s ``recordings`` column when a recording that claims the class rig service
+#: fails its signature (and is left out of the checks): ``rejected: <names>``
+REJECTED = "rejected"
+
+
+def _recordings_column(row, handin, exported):
+    """Fill the ``recordings`` column (and a flag) from the hand-in's recordings
+    (``{"verified", "rejected"}``) and those the worksheet's export left out (``exported``)."""
+    bad = list(dict.fromkeys([*handin.get("rejected", []), *exported]))
+    if bad:
+        row["recordings"] = f"{REJECTED}: " + ", ".join(bad)
+        flag = "recordings that claim the class rig fail their signature: " + ", ".join(bad)
+        row["flags"] = f"{row['flags']}; {flag}" if row["flags"] else flag
+    elif handin.get("verified"):
+        row["recordings"] = f"signed: {len(handin['verified'])} verified"
 
 
 def _qnames(lab):

@@ -23,6 +23,11 @@ scores the answer with the check of :mod:`jerklab.lab.registry`, on the recordin
 for that student and the truth of the student's motor, and answers ``{"ok", "message"}``).
 Every answer is ``{"ok": true, ...}`` or ``{"error": "...", "type": "..."}``.
 
+Every recording served is signed (:mod:`jerklab.lab.signing`: HMAC-SHA256 with a key derived
+from the instructor key, over its samples, the student, the lab and the time; in its JSON
+sidecar under ``"signature"``), so that the grader can tell it from one a student made or
+edited.
+
 Every check is appended to the log (JSON lines: time, student, lab, check, answer, ok,
 attempt); :func:`attempt_counts` reads it for ``grades.csv``, :func:`check_log` returns its
 entries.
@@ -60,7 +65,8 @@ from jerklab.lab.motors import (
 )
 from jerklab.lab.plain import Evidence, Run, jsonable
 from jerklab.lab.registry import CHECKS, FLEXIBLE_LABS, LABS, check_function
-from jerklab.rig import RigError, connect
+from jerklab.lab.signing import sign_run
+from jerklab.rig import Recording, RigError, connect
 
 __all__ = [
     "ClassRigService",
@@ -384,6 +390,7 @@ class _Student:
 
     def __init__(self, service, student, lab):
         self.student, self.lab = student, lab
+        self._key = service.key  # signs the recordings served (jerklab.lab.signing)
         plant = "flexible" if lab in FLEXIBLE_LABS else "rigid"
         motor = student_motor(student, service.key, plant=plant)
         self.truth = hidden_truth(motor)
@@ -418,10 +425,15 @@ class _Student:
 
         with tempfile.TemporaryDirectory(prefix="jerklab-classrig-") as tmp:
             csv_path = Path(rec.save(Path(tmp) / "run"))
+            # signed as the student's kernel reads it back (the CSV's numbers), so that the
+            # grader finds the same bytes in the hand-in
+            served = Run.from_recording(Recording.load(csv_path))
+            meta = json.loads(csv_path.with_suffix(".json").read_text(encoding="utf-8"))
+            meta["signature"] = sign_run(self._key, served, self.student, self.lab)
             return {
                 "ok": True,
                 "csv": csv_path.read_text(encoding="ascii"),
-                "json": csv_path.with_suffix(".json").read_text(encoding="utf-8"),
+                "json": json.dumps(meta, indent=2) + "\n",
             }
 
     def info(self):
