@@ -66,7 +66,8 @@ from jerklab.lab.motors import (
 from jerklab.lab.plain import Evidence, Run, jsonable
 from jerklab.lab.registry import CHECKS, FLEXIBLE_LABS, LABS, check_function
 from jerklab.lab.signing import sign_run
-from jerklab.rig import Recording, RigError, connect
+from jerklab.lab.specs import lab_spec
+from jerklab.rig import Recording, RigError, connect, load_profile
 
 __all__ = [
     "ClassRigService",
@@ -391,8 +392,9 @@ class _Student:
     def __init__(self, service, student, lab):
         self.student, self.lab = student, lab
         self._key = service.key  # signs the recordings served (jerklab.lab.signing)
+        self.profile = service.profile
         plant = "flexible" if lab in FLEXIBLE_LABS else "rigid"
-        motor = student_motor(student, service.key, plant=plant)
+        motor = student_motor(student, service.key, plant=plant, profile=self.profile)
         self.truth = hidden_truth(motor)
         self.rig = connect(
             None,
@@ -400,6 +402,7 @@ class _Student:
             progress=False,
             recordings=service.recordings,
             metadata={"student": student, "lab": lab, "mode": "graded"},
+            profile=self.profile,
         )
         del motor
         self.runs = {}
@@ -447,6 +450,10 @@ class _Student:
             "supply_voltage": r.supply_voltage,
             "name": r.name,
             "firmware_version": r.firmware_version,
+            # the rig's motor profile (None: the paper's class motors) and the lab's numbers
+            # on it (jerklab.lab.specs.lab_spec), which the session adopts
+            "profile": None if self.profile is None else self.profile.to_dict(),
+            "spec": jsonable(lab_spec(self.lab, self.profile or "paper")),
         }
 
     def handle(self, req):
@@ -531,7 +538,10 @@ class _Student:
 
     def score(self, name, answer):
         ev = Evidence(
-            runs=dict(self.runs), answers=dict(self.answers), counts_per_rev=self.rig.counts_per_rev
+            runs=dict(self.runs),
+            answers=dict(self.answers),
+            counts_per_rev=self.rig.counts_per_rev,
+            profile=self.profile,
         )
         res = _run_check(self.lab, name, answer, ev, self.truth)
         self.answers[name] = answer
@@ -561,9 +571,23 @@ class ClassRigService:
         Folder where the service keeps its own copy of every recording (by student and lab).
     speed : float or None
         The virtual rigs' pace (None: as fast as possible).
+    profile : str, path or jerklab.rig.MotorProfile, optional
+        The class's rig motor (:mod:`jerklab.rig.profiles`, a built-in name or a profile file):
+        the hidden motors are drawn around its ranges (:func:`jerklab.lab.specs.hidden_ranges`)
+        and every session gets the lab's numbers on it (``S.spec``); None: the paper's class
+        motors.
     """
 
-    def __init__(self, auth, log, key=None, listen="127.0.0.1:0", recordings=None, speed=None):
+    def __init__(
+        self,
+        auth,
+        log,
+        key=None,
+        listen="127.0.0.1:0",
+        recordings=None,
+        speed=None,
+        profile=None,
+    ):
         if key is None:
             key, source = instructor_key(warn=False)
             if source == "default":
@@ -576,6 +600,7 @@ class ClassRigService:
         if not key or hmac.compare_digest(key, CLASSROOM_DEFAULT_KEY):
             raise ValueError("key: the public classroom default key cannot grade")
         self.key = key
+        self.profile = None if profile is None else load_profile(profile)
         self.auth = auth
         self.speed = speed
         self.recordings = None if recordings is None else Path(recordings)
@@ -838,7 +863,18 @@ def main(argv=None):
     ap.add_argument("--log", default="classrig-checks.jsonl", help="the check log (JSON lines)")
     ap.add_argument("--recordings", help="keep a copy of every recording here")
     ap.add_argument("--user", help="when started as root: drop to this Unix user after start-up")
+    ap.add_argument(
+        "--profile",
+        help="the rig's motor profile (a built-in name or a profile file, jerklab.rig.profiles): "
+        "hidden motors around its ranges, the labs' specs on it (default: the paper's motors)",
+    )
     args = ap.parse_args(argv)
+    profile = None
+    if args.profile is not None:
+        try:
+            profile = load_profile(args.profile)
+        except (ValueError, TypeError) as exc:
+            ap.error(f"--profile: {exc}")
     root = hasattr(os, "geteuid") and os.geteuid() == 0
     if root and not args.user:
         ap.error(
@@ -856,7 +892,9 @@ def main(argv=None):
     os.environ.pop("JERKLAB_INSTRUCTOR_KEY", None)
     auth = HubAuth(args.hub_api) if args.hub_api else TokenFile(args.tokens)
     listen = f"unix:{args.unix}" if args.unix else args.listen
-    svc = ClassRigService(auth, args.log, key=key, listen=listen, recordings=args.recordings)
+    svc = ClassRigService(
+        auth, args.log, key=key, listen=listen, recordings=args.recordings, profile=profile
+    )
     _warm_up(svc)
     if args.user:
         if args.recordings:
@@ -866,7 +904,8 @@ def main(argv=None):
             Path(args.recordings).mkdir(parents=True, exist_ok=True)
             os.chown(args.recordings, pw.pw_uid, pw.pw_gid)
         _drop_to(args.user)
-    print(f"class rig service at {svc.url} (log {args.log})", flush=True)
+    shown = "the paper's motors" if profile is None else f"motor profile {profile.name}"
+    print(f"class rig service at {svc.url} ({shown}; log {args.log})", flush=True)
     try:
         svc.serve_forever()
     except KeyboardInterrupt:

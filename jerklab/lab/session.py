@@ -163,6 +163,18 @@ class LabSession:
             self.student = normalize_student(self.rig.student)
             self.mode = "graded"
             self._simulated = True
+            # the service's motor profile decides the motors and the lab's numbers
+            served = self.rig.profile
+            if self.profile is not None and (served is None or served.name != self.profile.name):
+                self.rig.close()
+                raise ValueError(
+                    f"profile: the class rig service runs "
+                    f"{'the paper' if served is None else served.name!r}'s motors, not "
+                    f"{self.profile.name!r}; leave profile out on the class rig"
+                )
+            self.profile = served
+            self.profile_name = None if served is None else served.name
+            self.spec = lab_spec(lab, served or "paper")
         else:
             if student is None:
                 raise ValueError("student: give your student ID (no class rig service is set)")
