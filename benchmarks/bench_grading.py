@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import csv
 import os
-import re
 import subprocess
 import sys
 import tempfile
@@ -30,23 +29,9 @@ KEY = "benchmark-grading-key"
 
 def solved_worksheet(student: str) -> bytes:
     """Lab 1's worksheet as a student has it (jerklab's check runner), solved, for ``student``."""
-    import nbformat
+    from jerklab.lab.grade import solved_master
 
-    from jerklab.lab.grade import (
-        _CHECKS_INIT,
-        _OTTER_INIT,
-        student_version_name,
-        verified_autograder,
-    )
-
-    nb = nbformat.read(
-        verified_autograder(1) / "autograder" / student_version_name(1), as_version=4
-    )
-    for c in nb.cells:
-        if c.cell_type == "code":
-            c.source = _OTTER_INIT.sub(_CHECKS_INIT, c.source)
-            c.source = re.sub(r'^STUDENT = "[^"]*"', f'STUDENT = "{student}"', c.source, flags=re.M)
-    return nbformat.writes(nb).encode()
+    return solved_master(1, student)
 
 
 def _grade(subs: Path, jobs: int, env) -> tuple[float, list]:

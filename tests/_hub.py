@@ -38,6 +38,8 @@ CONFIG = pathlib.Path(
 )
 ROSTER_SCRIPT = ROOT / "deploy" / "jupyterhub" / "roster.py"
 MARK = "jerklab student"
+#: the class rig service's address the test hub hands its students' servers
+CLASS_RIG = "classrig://127.0.0.1:7341"
 
 
 def free_port():
@@ -252,6 +254,8 @@ def running_hub(students, admin="jlt-instructor", rig=False):
             JERKLAB_RIG_PORT="virtual" if rig else "",
             JERKLAB_HUB_BROKER_PORT=str(hub.broker_port),
             JERKLAB_HUB_BROKER_USER="jlt-rig",
+            # the class rig service's address, which every student's server gets
+            JERKLAB_HUB_CLASS_RIG=CLASS_RIG,
             # a secret in the hub's environment, which no student may read
             JERKLAB_TEST_HUB_SECRET="hub-secret-" + uuid.uuid4().hex,
             PATH=os.path.dirname(sys.executable) + os.pathsep + os.environ["PATH"],

@@ -167,6 +167,7 @@ FILE_MARKS = {
     "security/test_hub.py": ("hub",),
     "security/test_grading.py": ("notebook", "slow"),
     "security/test_hidden_motor.py": ("notebook", "slow"),
+    "security/test_signing.py": ("slow",),
     "security/test_queue.py": ("browser",),
 }
 

@@ -13,7 +13,7 @@ import pwd
 import urllib.error
 
 import pytest
-from _hub import api, run_cell, running_hub
+from _hub import CLASS_RIG, api, run_cell, running_hub
 
 pytestmark = pytest.mark.slow
 
@@ -23,7 +23,8 @@ import os, jerklab
 from jerklab.rig import connect
 rig = connect(None, progress=False)
 print("LAB", os.environ.get("JUPYTERHUB_USER"), type(rig).__name__,
-      sorted(f for f in os.listdir(".") if f.endswith(".ipynb"))[:3])
+      sorted(f for f in os.listdir(".") if f.endswith(".ipynb"))[:3],
+      "CLASS_RIG=" + os.environ.get("JERKLAB_CLASS_RIG", ""))
 """
 
 
@@ -106,6 +107,7 @@ def test_two_students_run_a_lab_cell(hub):
     for u in users:
         out = run_cell(hub.base, u, tokens[u], LAB_CELL)
         assert out.startswith(f"LAB {u} "), out
+        assert f"CLASS_RIG={CLASS_RIG}" in out, out  # the graded service, nothing typed
         assert "01_" in out or ".ipynb" in out, out  # the worksheets were copied
         home = pathlib.Path(pwd.getpwnam(u).pw_dir)
         st = (home / "tuning.ipynb").stat()
@@ -120,6 +122,48 @@ def test_two_students_run_a_lab_cell(hub):
         f"{hub.base}/user/jlt-ana/voila/render/tuning.ipynb", tokens["jlt-ana"], timeout=180
     )
     assert status == 200 and "kernelId" in page
+
+
+def _load_config(tmp_path, monkeypatch, **env):
+    """deploy/jupyterhub/jupyterhub_config.py read as the hub reads it (root; a roster of one
+    with its password made), without starting a hub; its traitlets config."""
+    import dbm
+    import os
+
+    from traitlets.config import Config
+
+    if os.geteuid() != 0:
+        pytest.skip("the hub's config runs as root only")
+    roster = tmp_path / "roster.txt"
+    roster.write_text("ann\n")
+    state = tmp_path / "state"
+    state.mkdir()
+    with dbm.open(str(state / "passwords.dbm"), "c") as db:
+        db[b"ann"] = db[b"instructor"] = b"x"
+    for k in ("JERKLAB_RIG_PORT", "JERKLAB_HUB_ADMIN_TOKEN", "JERKLAB_HUB_CLASS_RIG"):
+        monkeypatch.delenv(k, raising=False)
+    monkeypatch.setenv("JERKLAB_HUB_STATE", str(state))
+    monkeypatch.setenv("JERKLAB_HUB_ROSTER", str(roster))
+    for k, v in env.items():
+        monkeypatch.setenv(k, v)
+    c = Config()
+    path = ROOT / "deploy" / "jupyterhub" / "jupyterhub_config.py"
+    exec(
+        compile(path.read_text(), str(path), "exec"),
+        {"get_config": lambda: c, "__file__": str(path)},
+    )
+    return c
+
+
+def test_config_hands_every_server_the_class_rig(tmp_path, monkeypatch):
+    c = _load_config(tmp_path, monkeypatch, JERKLAB_HUB_CLASS_RIG="classrig://127.0.0.1:7341")
+    assert c.Spawner.environment["JERKLAB_CLASS_RIG"] == "classrig://127.0.0.1:7341"
+    (tmp_path / "b").mkdir()
+    c = _load_config(tmp_path / "b", monkeypatch)  # no service: practice motors
+    assert "JERKLAB_CLASS_RIG" not in c.Spawner.environment
+    (tmp_path / "c").mkdir()
+    with pytest.raises(SystemExit, match="JERKLAB_HUB_CLASS_RIG must be classrig://"):
+        _load_config(tmp_path / "c", monkeypatch, JERKLAB_HUB_CLASS_RIG="http://127.0.0.1:7341")
 
 
 def test_roster_names_are_plain_unix_user_names(tmp_path):

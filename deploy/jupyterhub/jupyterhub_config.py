@@ -35,6 +35,11 @@ Environment variables:
 ``JERKLAB_HUB_BROKER_PORT`` the broker's TCP port on 127.0.0.1 (default 8867)
 ``JERKLAB_HUB_BROKER_USER`` the broker's Unix user (default ``jerklab-rig``, made if missing,
                           home ``/var/lib/jerklab-rig`` holding its copy of every run)
+``JERKLAB_HUB_CLASS_RIG`` the class rig service's address (``python -m jerklab.lab service``,
+                          e.g. ``classrig://127.0.0.1:7341``): set as ``JERKLAB_CLASS_RIG`` in
+                          every student's server, so ``lab.start(N)`` runs on the graded
+                          motor with nothing typed (the service knows the student from the
+                          server's hub token); unset: practice motors
 """
 
 import os
@@ -198,6 +203,15 @@ c.Spawner.environment = {
     "JERKLAB_RIG_PORT": BROKER_ADDRESS,
     "MPLBACKEND": "Agg",
 }
+CLASS_RIG = os.environ.get("JERKLAB_HUB_CLASS_RIG", "").strip()
+if CLASS_RIG:
+    if not CLASS_RIG.startswith(("classrig://", "classrig+unix://")):
+        raise SystemExit(
+            f"jerklab hub: JERKLAB_HUB_CLASS_RIG must be classrig://HOST:PORT or "
+            f"classrig+unix:///PATH (python -m jerklab.lab service), got {CLASS_RIG!r}"
+        )
+    # the graded hidden motors: every student's kernel reaches the class rig service
+    c.Spawner.environment["JERKLAB_CLASS_RIG"] = CLASS_RIG
 c.Spawner.args = [
     # idle kernels are shut down after 15 min, an idle server after 1 h: 30 students' kernels
     # (~0.3 GB each) do not pile up after the lesson

@@ -26,6 +26,7 @@ from jerklab._validate import as_nonnegative, as_positive, as_real, at_most
 from jerklab.lab.checkbase import UnknownCheckError
 from jerklab.lab.plain import jsonable
 from jerklab.rig import RigError
+from jerklab.rig.profiles import profile_from_dict
 from jerklab.rig.recording import Recording
 
 __all__ = [
@@ -138,6 +139,11 @@ class ClassRig:
         self.name = str(info.get("name", "classrig"))
         self.firmware_version = str(info.get("firmware_version", ""))
         self.model = None
+        #: the service's motor profile (a jerklab.rig.MotorProfile, None: the paper's motors)
+        #: and the lab's numbers on it
+        prof = info.get("profile")
+        self.profile = None if prof is None else profile_from_dict(prof)
+        self.spec = info.get("spec")
 
     def _connect(self):
         try:

@@ -59,20 +59,24 @@ try:  # the cache's lock (grading runs on Linux; elsewhere one grader at a time)
 except ImportError:  # pragma: no cover - Windows
     fcntl = None
 
+import jerklab
 from jerklab.controller import DiscreteGains
 from jerklab.lab.checkbase import Missing
 from jerklab.lab.handin import MAX_ZIP_BYTES, HandinError, read_handin
 from jerklab.lab.motors import (
     hidden_truth,
+    instructor_key,
     normalize_student,
     practice_key,
     student_device,
     student_motor,
 )
-from jerklab.lab.plain import Evidence
+from jerklab.lab.plain import Evidence, Run
 from jerklab.lab.registry import FLEXIBLE_LABS, LABS, run_check
 from jerklab.lab.sandbox import SAFE_ENV, SandboxUnavailable, bwrap_path, sandbox_command
 from jerklab.lab.service import attempt_counts
+from jerklab.lab.signing import claims_graded, verify_run
+from jerklab.rig import Recording
 from jerklab.rig.server import DeviceServer
 from jerklab.rig.virtual import VirtualDevice
 
@@ -87,6 +91,9 @@ __all__ = [
     "decode_answer",
     "grade_folder",
     "grade_one",
+    "prepared_caches",
+    "compile_package",
+    "solved_master",
     "student_version_name",
     "csv_cell",
 ]
@@ -391,6 +398,44 @@ def _valid_id(student, where) -> str:
         ) from None
 
 
+def _handin_recordings(files: dict, key: bytes, student: str, lab: int) -> tuple[list, list]:
+    """(verified, rejected): the names of a hand-in's recordings (``recordings/<name>.csv`` +
+    ``.json``) that claim to come from the class rig service (:func:`jerklab.lab.signing.
+    claims_graded`) and whose signature verifies, or does not (or that cannot be read)."""
+    verified, rejected = [], []
+    names = sorted(
+        n[len("recordings/") : -len(".json")]
+        for n in files
+        if n.startswith("recordings/") and n.endswith(".json") and n.count("/") == 1
+    )
+    for name in names[:500]:
+        meta_bytes = files[f"recordings/{name}.json"]
+        try:
+            meta = json.loads(meta_bytes)
+        except ValueError:
+            continue  # not a sidecar: nothing claimed
+        if not claims_graded(meta):
+            continue
+        shown = _plain_text(name, 40)
+        csv_bytes = files.get(f"recordings/{name}.csv")
+        if csv_bytes is None:
+            rejected.append(shown)
+            continue
+        with tempfile.TemporaryDirectory(prefix="jerklab-grade-rec-") as tmp:
+            (Path(tmp) / "r.csv").write_bytes(csv_bytes)
+            (Path(tmp) / "r.json").write_bytes(meta_bytes)
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    run = Run.from_recording(Recording.load(Path(tmp) / "r.csv"))
+            except Exception:  # an edited file the loader refuses: not what was served
+                rejected.append(shown)
+                continue
+        why = verify_run(key, run, meta.get("signature"), student, lab)
+        (verified if why is None else rejected).append(shown)
+    return verified, rejected
+
+
 def _read_submission(p: Path) -> dict:
     """One submission, read and validated: ``{"student", "lab", "notebook", "notes", "mode"}``
     (``mode``: "practice" when the hand-in's manifest says so, else "graded")."""
@@ -403,6 +448,7 @@ def _read_submission(p: Path) -> dict:
         data = f.read(MAX_ZIP_BYTES + 1)
     notes = []
     mode = "graded"
+    signed = {"verified": [], "rejected": []}
     if p.suffix.lower() == ".zip":
         h = read_handin(p, data=data)
         student, lab, nb = h["student"], h["lab"], h["notebook"]
@@ -416,6 +462,17 @@ def _read_submission(p: Path) -> dict:
             )
             nb = _STUDENT_RE.sub(f'STUDENT = "{student}"', nb.decode("utf-8"), count=1).encode()
         notes.append(f"manifest verified ({len(h['files'])} files)")
+        if lab in LABS:
+            signer, _ = instructor_key(warn=False)
+            ok, bad = _handin_recordings(h["files"], signer, student, int(lab))
+            if ok:
+                notes.append(f"{len(ok)} recording(s) signed by the class rig, verified")
+            for name in bad:
+                notes.append(
+                    f"recording {name!r} claims the class rig, but its signature does not "
+                    "match (edited, or made elsewhere)"
+                )
+            signed = {"verified": ok, "rejected": bad}
     else:
         nb = data
         student, lab = _notebook_info(nb, p.name)
@@ -424,7 +481,14 @@ def _read_submission(p: Path) -> dict:
         student = _valid_id(student, "the notebook's")
     if lab not in LABS:
         raise ValueError(f"cannot tell which lab this is (lab = {str(lab)[:20]!r})")
-    return {"student": student, "lab": int(lab), "notebook": nb, "notes": notes, "mode": mode}
+    return {
+        "student": student,
+        "lab": int(lab),
+        "notebook": nb,
+        "notes": notes,
+        "mode": mode,
+        "recordings": signed,
+    }
 
 
 # ------------------------------------------------------------------ decoding and scoring
@@ -475,17 +539,37 @@ def decode_answer(x, depth=0):
     raise ValueError(f"answer: unexpected {type(x).__name__}")
 
 
-def _evidence_of(doc, answers) -> tuple[Evidence, list]:
+def _evidence_of(doc, answers, signed=None, rejected=None) -> tuple[Evidence, list]:
+    """The export's recordings as the checks' evidence. With ``signed = (key, student, lab)``
+    a recording that claims to come from the class rig service (a signature, or mode
+    "graded") is kept only if its signature verifies (:func:`jerklab.lab.signing.verify_run`);
+    the names of those left out are appended to ``rejected``."""
     notes = []
     ev = doc.get("evidence") or {}
     runs = ev.get("runs") if isinstance(ev, dict) else None
+    claims = ev.get("claims") if isinstance(ev, dict) else None
+    claims = claims if isinstance(claims, dict) else {}
+    sigs = ev.get("signatures") if isinstance(ev, dict) else None
+    sigs = sigs if isinstance(sigs, dict) else {}
     good = {}
     if isinstance(runs, dict):
         for name, run in list(runs.items())[:200]:
             try:
-                good[str(name)[:80]] = Evidence.from_dict({"runs": {name: run}}).runs[name]
+                r = Evidence.from_dict({"runs": {name: run}}).runs[name]
             except Exception:  # a malformed recording: left out, the check says it is missing
                 notes.append(f"recording {str(name)[:40]!r} unreadable: left out")
+                continue
+            if signed is not None and (claims.get(name) or sigs.get(name) is not None):
+                why = verify_run(signed[0], r, sigs.get(name), signed[1], signed[2])
+                if why is not None:
+                    notes.append(
+                        f"recording {_plain_text(name, 40)!r} claims the class rig but {why}: "
+                        "left out of the checks"
+                    )
+                    if rejected is not None:
+                        rejected.append(_plain_text(name, 40))
+                    continue
+            good[str(name)[:80]] = r
     cpr = ev.get("counts_per_rev") if isinstance(ev, dict) else None
     if isinstance(cpr, bool) or not isinstance(cpr, int) or not 1 <= cpr <= 10**7:
         cpr = None
@@ -493,8 +577,9 @@ def _evidence_of(doc, answers) -> tuple[Evidence, list]:
     return Evidence(runs=good, answers=plain, counts_per_rev=cpr), notes
 
 
-def _score(lab, qs, doc, truth) -> tuple[dict, list]:
-    """``{question: (score, max, message)}`` of an export ``doc`` against ``truth``."""
+def _score(lab, qs, doc, truth, signed=None, rejected=None) -> tuple[dict, list]:
+    """``{question: (score, max, message)}`` of an export ``doc`` against ``truth`` (``signed``,
+    ``rejected``: :func:`_evidence_of`)."""
     raw = doc.get("answers") if isinstance(doc.get("answers"), dict) else {}
     answers, unread = {}, {}
     for name in qs:
@@ -502,7 +587,7 @@ def _score(lab, qs, doc, truth) -> tuple[dict, list]:
             answers[name] = decode_answer(raw.get(name))
         except ValueError as exc:
             unread[name] = str(exc)
-    evidence, notes = _evidence_of(doc, answers)
+    evidence, notes = _evidence_of(doc, answers, signed, rejected)
     out = {}
     for name, (points, _) in qs.items():
         if name in unread:
@@ -590,9 +675,16 @@ def _read_export(proc, fd, timeout) -> tuple[bytes | None, str | None]:
     return b"".join(chunks), None
 
 
-def grade_one(lab, notebook: bytes, student, timeout=300.0, sandbox=True, key=None) -> dict:
+def grade_one(
+    lab, notebook: bytes, student, timeout=300.0, sandbox=True, key=None, numba_cache=None
+) -> dict:
     """Run one worksheet (its bytes) in a sandbox on the student's served hidden motor, decode
     its export and score it.
+
+    ``numba_cache`` (a folder the grader made, :func:`prepared_caches`) is copied into the
+    submission's working copy as its numba cache (``NUMBA_CACHE_DIR``): the worksheet loads the
+    compiled kernels instead of compiling them, and what it compiles or changes stays in its
+    own copy.
 
     Returns
     -------
@@ -605,72 +697,232 @@ def grade_one(lab, notebook: bytes, student, timeout=300.0, sandbox=True, key=No
     server, motor = _served_rig(student, lab, key)
     work = Path(tempfile.mkdtemp(prefix="jerklab-grade-"))
     try:
-        sheet = work / student_version_name(lab)
-        sheet.write_bytes(notebook)
-        (work / "work").mkdir()
-        r, w = os.pipe()
-        argv = [
-            sys.executable,
-            "-I",
-            "-m",
-            "jerklab.lab.sheetrun",
-            str(sheet),
-            str(w),
-            *(f"{q}={var}" for q, (_, var) in qs.items()),
-        ]
-        env = {
-            "JERKLAB_LAB_RIG": _RIG_IN_SANDBOX if sandbox else server.port,
-            "JERKLAB_LAB_RIG_CPR": str(motor.encoder_ppr * motor.decoding),
-            "JERKLAB_LAB_WORK": str(work / "work"),
-            "JERKLAB_RECORDINGS": str(work / "rec"),
-            "JERKLAB_LOCK_DIR": str(work / "locks"),
+        res = _run_and_score(
+            lab, qs, notebook, student, timeout, sandbox, server, motor, work, numba_cache
+        )
+        return res
+    finally:
+        server.close()
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def _run_sheet(lab, qs, notebook, timeout, sandbox, server, motor, work, numba_cache=None):
+    """Run ``notebook`` in ``work`` (sandboxed unless ``sandbox`` is False) on ``server``'s rig;
+    (export bytes or None, error or None, exit code)."""
+    sheet = work / student_version_name(lab)
+    sheet.write_bytes(notebook)
+    (work / "work").mkdir()
+    nb_cache = work / ".numba"
+    if numba_cache is not None and Path(numba_cache).is_dir():
+        shutil.copytree(numba_cache, nb_cache, symlinks=False)
+    else:
+        nb_cache.mkdir()
+    r, w = os.pipe()
+    argv = [
+        sys.executable,
+        "-I",
+        "-m",
+        "jerklab.lab.sheetrun",
+        str(sheet),
+        str(w),
+        *(f"{q}={var}" for q, (_, var) in qs.items()),
+    ]
+    env = {
+        "JERKLAB_LAB_RIG": _RIG_IN_SANDBOX if sandbox else server.port,
+        "JERKLAB_LAB_RIG_CPR": str(motor.encoder_ppr * motor.decoding),
+        "JERKLAB_LAB_WORK": str(work / "work"),
+        "JERKLAB_RECORDINGS": str(work / "rec"),
+        "JERKLAB_LOCK_DIR": str(work / "locks"),
+        "NUMBA_CACHE_DIR": str(nb_cache),
+    }
+    if sandbox:
+        cmd = sandbox_command(argv, work, env=env, devices=[(server.port, _RIG_IN_SANDBOX)])
+    else:
+        cmd = argv
+        env = {**SAFE_ENV, "HOME": str(work), "MPLCONFIGDIR": str(work / ".mpl"), **env}
+    try:
+        proc = subprocess.Popen(
+            cmd,
+            cwd=work,
+            env={"PATH": "/usr/bin:/bin", "LANG": "C.UTF-8"} if sandbox else env,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            pass_fds=(w,),
+            start_new_session=True,
+        )
+    finally:
+        os.close(w)
+    data, err = _read_export(proc, r, timeout)
+    return data, err, proc.returncode
+
+
+def _run_and_score(lab, qs, notebook, student, timeout, sandbox, server, motor, work, numba_cache):
+    data, err, code = _run_sheet(
+        lab, qs, notebook, timeout, sandbox, server, motor, work, numba_cache
+    )
+    if err:
+        return {"scores": {}, "error": err, "notes": []}
+    if not data:
+        return {
+            "scores": {},
+            "error": f"the worksheet ended without exporting its answers (exit code {code})",
+            "notes": [],
         }
-        if sandbox:
-            cmd = sandbox_command(argv, work, env=env, devices=[(server.port, _RIG_IN_SANDBOX)])
-        else:
-            cmd = argv
-            env = {**SAFE_ENV, "HOME": str(work), "MPLCONFIGDIR": str(work / ".mpl"), **env}
+    try:
+        doc = json.loads(data)
+        if not isinstance(doc, dict):
+            raise ValueError("not an object")
+    except (ValueError, RecursionError):
+        return {"scores": {}, "error": "the worksheet's export is not readable", "notes": []}
+    truth = hidden_truth(motor)
+    rejected = []
+    signer, _ = instructor_key(warn=False)
+    scores, notes = _score(lab, qs, doc, truth, (signer, student, lab), rejected)
+    errs = doc.get("errors") if isinstance(doc.get("errors"), list) else []
+    if errs:  # the cell and the kind of error only: no text of the sandbox comes back
+        first = errs[0] if isinstance(errs[0], dict) else {}
+        cell = first.get("cell")
+        kind = re.match(r"[A-Za-z_]\w{0,40}", str(first.get("error", "")))
+        notes.append(
+            f"{len(errs)} cell(s) raised an error; the first: code cell "
+            f"{cell if isinstance(cell, int) and not isinstance(cell, bool) else '?'} "
+            f"({kind.group(0) if kind else 'an error'})"
+        )
+    return {"scores": scores, "error": None, "notes": notes, "rejected": rejected}
+
+
+# ------------------------------------------------------------------ compiled caches
+_WARM_STUDENT = "grader-warm-up"
+#: hand-ins of a lab from which grade_folder warms its compiled cache up (a warm-up runs the
+#: master once; each full hand-in then saves the compile time)
+_WARM_UP_FROM = 4
+
+
+def solved_master(lab: int, student: str) -> bytes:
+    """The worksheet of ``lab`` with the master's solutions (the verified autograder's copy,
+    with jerklab's check runner as a student's worksheet has it), for ``student``."""
+    import nbformat
+
+    nb = nbformat.read(
+        verified_autograder(lab) / "autograder" / student_version_name(lab), as_version=4
+    )
+    for c in nb.cells:
+        if c.cell_type == "code":
+            c.source = _OTTER_INIT.sub(_CHECKS_INIT, c.source)
+            c.source = re.sub(r'^STUDENT = "[^"]*"', f'STUDENT = "{student}"', c.source, flags=re.M)
+    return nbformat.writes(nb).encode()
+
+
+def compile_package() -> bool:
+    """Byte-compile the ``jerklab`` package into its own ``__pycache__`` folders (as ``pip
+    install`` does), so that each sandbox, where the package is read-only, loads the compiled
+    modules instead of compiling about 80 of them again. False when the package is not
+    writable by the grading user (then nothing is written)."""
+    import compileall
+
+    pkg = Path(jerklab.__file__).resolve().parent
+    if not os.access(pkg, os.W_OK):
+        return False
+    return bool(compileall.compile_dir(str(pkg), quiet=1, workers=1))
+
+
+def _sources_stamp() -> str:
+    """What compiled kernels depend on: jerklab's sources and the Python and numba versions."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    h = hashlib.sha256(sys.version.encode())
+    try:
+        h.update(version("numba").encode())
+    except PackageNotFoundError:
+        h.update(b"no numba")
+    pkg = Path(jerklab.__file__).resolve().parent
+    for p in sorted(pkg.rglob("*.py")):
+        h.update(str(p.relative_to(pkg)).encode() + b"\0" + p.read_bytes())
+    return h.hexdigest()
+
+
+def _copy_plain_tree(src: Path, dst: Path):
+    """Copy the folders and regular files under ``src`` to ``dst`` (links and anything else
+    left out)."""
+    dst.mkdir(mode=0o700)
+    for entry in os.scandir(src):
+        if entry.is_symlink():
+            continue
+        if entry.is_dir(follow_symlinks=False):
+            _copy_plain_tree(Path(entry.path), dst / entry.name)
+        elif entry.is_file(follow_symlinks=False):
+            shutil.copyfile(entry.path, dst / entry.name, follow_symlinks=False)
+
+
+def prepared_caches(labs, sandbox=True, timeout=600.0) -> Path | None:
+    """Make the compiled caches the sandboxes start from (those of ``labs`` that are not made
+    yet); return the numba cache folder (or None when there is none).
+
+    1. :func:`compile_package` (the ``.pyc`` files of jerklab, next to its sources);
+    2. the numba cache of each lab in the instructor-only cache (``numba-<hash>/cache``, the
+       hash of jerklab's sources and the Python and numba versions): made once by
+       running the lab's own master (:func:`solved_master`, the instructor's code, never a
+       student's) in a sandbox on a practice motor. Each submission gets its own copy
+       (:func:`grade_one`), so nothing a submission compiles or writes reaches another.
+
+    A warm-up that fails only costs time: the sandboxes then compile as before.
+    """
+    compile_package()
+    sources = _sources_stamp()
+    root = _cache_root() / f"numba-{sources[:16]}"
+    root.mkdir(mode=0o700, exist_ok=True)
+    cache, index = root / "cache", root / "labs.json"
+    fd = os.open(root / ".lock", os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o600)
+    try:
+        if fcntl is not None:
+            fcntl.flock(fd, fcntl.LOCK_EX)
         try:
-            proc = subprocess.Popen(
-                cmd,
-                cwd=work,
-                env={"PATH": "/usr/bin:/bin", "LANG": "C.UTF-8"} if sandbox else env,
-                stdin=subprocess.DEVNULL,
-                stdout=subprocess.DEVNULL,
-                stderr=subprocess.DEVNULL,
-                pass_fds=(w,),
-                start_new_session=True,
-            )
-        finally:
-            os.close(w)
-        data, err = _read_export(proc, r, timeout)
+            done = json.loads(index.read_text())
+        except (OSError, ValueError):
+            done = {}
+        if not isinstance(done, dict) or done.get("sources") != sources or not cache.is_dir():
+            shutil.rmtree(cache, ignore_errors=True)
+            done = {"sources": sources, "labs": []}
+        for lab in sorted(set(labs)):
+            if lab in done["labs"]:
+                continue
+            made = _warm_up(lab, cache if cache.is_dir() else None, root, sandbox, timeout)
+            if made is None:
+                continue
+            old = root / f".old-{os.getpid()}"
+            if cache.is_dir():
+                os.rename(cache, old)
+            os.rename(made, cache)
+            shutil.rmtree(old, ignore_errors=True)
+            done["labs"].append(lab)
+            index.write_text(json.dumps(done))
+        return cache if cache.is_dir() else None
+    finally:
+        os.close(fd)
+
+
+def _warm_up(lab, seed, root, sandbox, timeout) -> Path | None:
+    """Run lab ``lab``'s master in a sandbox from the numba cache ``seed``; the folder of its
+    numba cache afterwards (under ``root``), or None if the run failed."""
+    try:
+        nb = solved_master(lab, _WARM_STUDENT)
+        qs = questions(lab)
+    except Exception as exc:  # no autograder: nothing to warm up with
+        warnings.warn(f"no compiled cache for lab {lab}: {exc}", RuntimeWarning, stacklevel=3)
+        return None
+    server, motor = _served_rig(_WARM_STUDENT, lab, practice_key())
+    work = Path(tempfile.mkdtemp(prefix="jerklab-warm-"))
+    try:
+        _, err, _ = _run_sheet(lab, qs, nb, timeout, sandbox, server, motor, work, seed)
         if err:
-            return {"scores": {}, "error": err, "notes": []}
-        if not data:
-            return {
-                "scores": {},
-                "error": f"the worksheet ended without exporting its answers (exit code {proc.returncode})",
-                "notes": [],
-            }
-        try:
-            doc = json.loads(data)
-            if not isinstance(doc, dict):
-                raise ValueError("not an object")
-        except (ValueError, RecursionError):
-            return {"scores": {}, "error": "the worksheet's export is not readable", "notes": []}
-        truth = hidden_truth(motor)
-        scores, notes = _score(lab, qs, doc, truth)
-        errs = doc.get("errors") if isinstance(doc.get("errors"), list) else []
-        if errs:  # the cell and the kind of error only: no text of the sandbox comes back
-            first = errs[0] if isinstance(errs[0], dict) else {}
-            cell = first.get("cell")
-            kind = re.match(r"[A-Za-z_]\w{0,40}", str(first.get("error", "")))
-            notes.append(
-                f"{len(errs)} cell(s) raised an error; the first: code cell "
-                f"{cell if isinstance(cell, int) and not isinstance(cell, bool) else '?'} "
-                f"({kind.group(0) if kind else 'an error'})"
+            warnings.warn(
+                f"no compiled cache for lab {lab}: its master {err}", RuntimeWarning, stacklevel=3
             )
-        return {"scores": scores, "error": None, "notes": notes}
+            return None
+        out = Path(tempfile.mkdtemp(prefix=".new-", dir=root))
+        _copy_plain_tree(work / ".numba", out / "cache")
+        return out / "cache"
     finally:
         server.close()
         shutil.rmtree(work, ignore_errors=True)
@@ -698,9 +950,9 @@ def _plain_text(x, n) -> str:
 
 
 def _grade_job(args):
-    lab, nb, student, timeout, sandbox, key = args
+    lab, nb, student, timeout, sandbox, key, numba_cache = args
     try:
-        return grade_one(lab, nb, student, timeout, sandbox, key=key)
+        return grade_one(lab, nb, student, timeout, sandbox, key=key, numba_cache=numba_cache)
     except Exception as exc:  # the grader's own failure on this submission: its row says so
         return {"scores": {}, "error": f"grading failed ({type(exc).__name__})", "notes": []}
 
@@ -753,11 +1005,18 @@ def grade_folder(
 ) -> list[dict]:
     """Grade every ``*.zip`` hand-in and bare ``*.ipynb`` in ``folder``.
 
-    Writes ``out_csv`` (one row per submission: student, lab, file, status, flags, one column
-    per question, total, max) and a feedback text file per submission into ``feedback_dir``
-    (default: ``feedback/`` beside the CSV). A corrupt, empty, oversized or unverifiable
+    Writes ``out_csv`` (one row per submission: student, lab, file, status, flags,
+    recordings, one column per question, total, max) and a feedback text file per submission
+    into ``feedback_dir`` (default: ``feedback/`` beside the CSV). A corrupt, empty, oversized or unverifiable
     submission, a bad student ID, a time-out or a worksheet that exports nothing gets a row
     with its status and zero points; it never stops the run.
+
+    Every recording that claims to come from the class rig service, in the hand-in or in the
+    worksheet's export, must carry the service's signature (:mod:`jerklab.lab.signing`, the
+    instructor key): one that does not (edited, or made by the student) is named in the
+    ``recordings`` column (``rejected: <names>``) and in ``flags``, and an exported one is left
+    out of the checks. ``recordings`` says ``signed: N verified`` for a hand-in whose graded
+    recordings all verify.
 
     Parameters
     ----------
@@ -813,6 +1072,7 @@ def grade_folder(
             "lab": "",
             "status": "",
             "flags": "",
+            "recordings": "",
             "total": 0.0,
             "max": 0.0,
         }
@@ -843,18 +1103,26 @@ def grade_folder(
             row["flags"] = "; ".join(
                 f for f in (row["flags"], "practice: a public motor, not graded work") if f
             )
-        todo.append((i, (sub["lab"], sub["notebook"], sub["student"], timeout, sandbox, key)))
+        todo.append((i, [sub["lab"], sub["notebook"], sub["student"], timeout, sandbox, key]))
     _QUESTIONS.clear()
-    for lab in sorted({a[0] for _, a in todo}):
+    labs_todo = sorted({a[0] for _, a in todo})
+    for lab in labs_todo:
         questions(lab)  # the autograder made and verified once, before the workers start
+    # a warm-up costs about one hand-in: worth it from a few hand-ins of a lab on
+    per_lab = {lab: sum(1 for _, a in todo if a[0] == lab) for lab in labs_todo}
+    warm = [lab for lab, n in per_lab.items() if n >= _WARM_UP_FROM]
+    numba_cache = prepared_caches(warm, sandbox, timeout) if todo else None
+    todo = [(i, (*a, numba_cache)) for i, a in todo]
     if jobs > 1 and len(todo) > 1:
         with _futures.ProcessPoolExecutor(max_workers=jobs) as pool:
             results = list(pool.map(_grade_job, [a for _, a in todo]))
     else:
         results = [_grade_job(a) for _, a in todo]
+    exported_rejected = {}
     for (i, _), res in zip(todo, results):
         row, sub = rows[i], parsed[i]
         sub["notes"].extend(res["notes"])
+        exported_rejected[i] = res.get("rejected", [])
         if res["error"]:
             row["status"] = f"error: {res['error']}"
             continue
@@ -867,6 +1135,9 @@ def grade_folder(
                 f"{q}: {sc:g}/{mx:g} ({verdict})" + (f"\n    {msg}" if sc < mx else "")
             )
         row["status"] = "graded"
+    for i, (row, sub) in enumerate(zip(rows, parsed)):
+        if sub is not None:  # also for a row not graded: the hand-in's recordings are checked
+            _recordings_column(row, sub["recordings"], exported_rejected.get(i, []))
     taken = set()
     for row, sub in zip(rows, parsed):
         notes = list(sub["notes"]) if sub else []
@@ -899,7 +1170,18 @@ def grade_folder(
     with tmp.open("w", newline="", encoding="utf-8") as f:
         w = csv.DictWriter(
             f,
-            ["student", "lab", "file", "status", "flags", *qcols, *extra, "total", "max"],
+            [
+                "student",
+                "lab",
+                "file",
+                "status",
+                "flags",
+                "recordings",
+                *qcols,
+                *extra,
+                "total",
+                "max",
+            ],
             restval="",
         )
         w.writeheader()
@@ -909,7 +1191,23 @@ def grade_folder(
     return rows
 
 
-_FIXED = ("student", "lab", "file", "status", "flags", "total", "max")
+_FIXED = ("student", "lab", "file", "status", "flags", "recordings", "total", "max")
+
+#: ``grades.csv``'s ``recordings`` column when a recording that claims the class rig service
+#: fails its signature (and is left out of the checks): ``rejected: <names>``
+REJECTED = "rejected"
+
+
+def _recordings_column(row, handin, exported):
+    """Fill the ``recordings`` column (and a flag) from the hand-in's recordings
+    (``{"verified", "rejected"}``) and those the worksheet's export left out (``exported``)."""
+    bad = list(dict.fromkeys([*handin.get("rejected", []), *exported]))
+    if bad:
+        row["recordings"] = f"{REJECTED}: " + ", ".join(bad)
+        flag = "recordings that claim the class rig fail their signature: " + ", ".join(bad)
+        row["flags"] = f"{row['flags']}; {flag}" if row["flags"] else flag
+    elif handin.get("verified"):
+        row["recordings"] = f"signed: {len(handin['verified'])} verified"
 
 
 def _qnames(lab):

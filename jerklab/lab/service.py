@@ -23,6 +23,11 @@ scores the answer with the check of :mod:`jerklab.lab.registry`, on the recordin
 for that student and the truth of the student's motor, and answers ``{"ok", "message"}``).
 Every answer is ``{"ok": true, ...}`` or ``{"error": "...", "type": "..."}``.
 
+Every recording served is signed (:mod:`jerklab.lab.signing`: HMAC-SHA256 with a key derived
+from the instructor key, over its samples, the student, the lab and the time; in its JSON
+sidecar under ``"signature"``), so that the grader can tell it from one a student made or
+edited.
+
 Every check is appended to the log (JSON lines: time, student, lab, check, answer, ok,
 attempt); :func:`attempt_counts` reads it for ``grades.csv``, :func:`check_log` returns its
 entries.
@@ -60,7 +65,9 @@ from jerklab.lab.motors import (
 )
 from jerklab.lab.plain import Evidence, Run, jsonable
 from jerklab.lab.registry import CHECKS, FLEXIBLE_LABS, LABS, check_function
-from jerklab.rig import RigError, connect
+from jerklab.lab.signing import sign_run
+from jerklab.lab.specs import lab_spec
+from jerklab.rig import Recording, RigError, connect, load_profile
 
 __all__ = [
     "ClassRigService",
@@ -384,8 +391,10 @@ class _Student:
 
     def __init__(self, service, student, lab):
         self.student, self.lab = student, lab
+        self._key = service.key  # signs the recordings served (jerklab.lab.signing)
+        self.profile = service.profile
         plant = "flexible" if lab in FLEXIBLE_LABS else "rigid"
-        motor = student_motor(student, service.key, plant=plant)
+        motor = student_motor(student, service.key, plant=plant, profile=self.profile)
         self.truth = hidden_truth(motor)
         self.rig = connect(
             None,
@@ -393,6 +402,7 @@ class _Student:
             progress=False,
             recordings=service.recordings,
             metadata={"student": student, "lab": lab, "mode": "graded"},
+            profile=self.profile,
         )
         del motor
         self.runs = {}
@@ -418,10 +428,15 @@ class _Student:
 
         with tempfile.TemporaryDirectory(prefix="jerklab-classrig-") as tmp:
             csv_path = Path(rec.save(Path(tmp) / "run"))
+            # signed as the student's kernel reads it back (the CSV's numbers), so that the
+            # grader finds the same bytes in the hand-in
+            served = Run.from_recording(Recording.load(csv_path))
+            meta = json.loads(csv_path.with_suffix(".json").read_text(encoding="utf-8"))
+            meta["signature"] = sign_run(self._key, served, self.student, self.lab)
             return {
                 "ok": True,
                 "csv": csv_path.read_text(encoding="ascii"),
-                "json": csv_path.with_suffix(".json").read_text(encoding="utf-8"),
+                "json": json.dumps(meta, indent=2) + "\n",
             }
 
     def info(self):
@@ -435,6 +450,10 @@ class _Student:
             "supply_voltage": r.supply_voltage,
             "name": r.name,
             "firmware_version": r.firmware_version,
+            # the rig's motor profile (None: the paper's class motors) and the lab's numbers
+            # on it (jerklab.lab.specs.lab_spec), which the session adopts
+            "profile": None if self.profile is None else self.profile.to_dict(),
+            "spec": jsonable(lab_spec(self.lab, self.profile or "paper")),
         }
 
     def handle(self, req):
@@ -519,7 +538,10 @@ class _Student:
 
     def score(self, name, answer):
         ev = Evidence(
-            runs=dict(self.runs), answers=dict(self.answers), counts_per_rev=self.rig.counts_per_rev
+            runs=dict(self.runs),
+            answers=dict(self.answers),
+            counts_per_rev=self.rig.counts_per_rev,
+            profile=self.profile,
         )
         res = _run_check(self.lab, name, answer, ev, self.truth)
         self.answers[name] = answer
@@ -549,9 +571,23 @@ class ClassRigService:
         Folder where the service keeps its own copy of every recording (by student and lab).
     speed : float or None
         The virtual rigs' pace (None: as fast as possible).
+    profile : str, path or jerklab.rig.MotorProfile, optional
+        The class's rig motor (:mod:`jerklab.rig.profiles`, a built-in name or a profile file):
+        the hidden motors are drawn around its ranges (:func:`jerklab.lab.specs.hidden_ranges`)
+        and every session gets the lab's numbers on it (``S.spec``); None: the paper's class
+        motors.
     """
 
-    def __init__(self, auth, log, key=None, listen="127.0.0.1:0", recordings=None, speed=None):
+    def __init__(
+        self,
+        auth,
+        log,
+        key=None,
+        listen="127.0.0.1:0",
+        recordings=None,
+        speed=None,
+        profile=None,
+    ):
         if key is None:
             key, source = instructor_key(warn=False)
             if source == "default":
@@ -564,6 +600,7 @@ class ClassRigService:
         if not key or hmac.compare_digest(key, CLASSROOM_DEFAULT_KEY):
             raise ValueError("key: the public classroom default key cannot grade")
         self.key = key
+        self.profile = None if profile is None else load_profile(profile)
         self.auth = auth
         self.speed = speed
         self.recordings = None if recordings is None else Path(recordings)
@@ -826,7 +863,18 @@ def main(argv=None):
     ap.add_argument("--log", default="classrig-checks.jsonl", help="the check log (JSON lines)")
     ap.add_argument("--recordings", help="keep a copy of every recording here")
     ap.add_argument("--user", help="when started as root: drop to this Unix user after start-up")
+    ap.add_argument(
+        "--profile",
+        help="the rig's motor profile (a built-in name or a profile file, jerklab.rig.profiles): "
+        "hidden motors around its ranges, the labs' specs on it (default: the paper's motors)",
+    )
     args = ap.parse_args(argv)
+    profile = None
+    if args.profile is not None:
+        try:
+            profile = load_profile(args.profile)
+        except (ValueError, TypeError) as exc:
+            ap.error(f"--profile: {exc}")
     root = hasattr(os, "geteuid") and os.geteuid() == 0
     if root and not args.user:
         ap.error(
@@ -844,7 +892,9 @@ def main(argv=None):
     os.environ.pop("JERKLAB_INSTRUCTOR_KEY", None)
     auth = HubAuth(args.hub_api) if args.hub_api else TokenFile(args.tokens)
     listen = f"unix:{args.unix}" if args.unix else args.listen
-    svc = ClassRigService(auth, args.log, key=key, listen=listen, recordings=args.recordings)
+    svc = ClassRigService(
+        auth, args.log, key=key, listen=listen, recordings=args.recordings, profile=profile
+    )
     _warm_up(svc)
     if args.user:
         if args.recordings:
@@ -854,7 +904,8 @@ def main(argv=None):
             Path(args.recordings).mkdir(parents=True, exist_ok=True)
             os.chown(args.recordings, pw.pw_uid, pw.pw_gid)
         _drop_to(args.user)
-    print(f"class rig service at {svc.url} (log {args.log})", flush=True)
+    shown = "the paper's motors" if profile is None else f"motor profile {profile.name}"
+    print(f"class rig service at {svc.url} ({shown}; log {args.log})", flush=True)
     try:
         svc.serve_forever()
     except KeyboardInterrupt:

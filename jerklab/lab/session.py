@@ -75,6 +75,13 @@ def _port_from_env(port):
     return port
 
 
+def _grader_served(port) -> bool:
+    """True when ``port`` is the rig the grader serves (``$JERKLAB_LAB_RIG``): its virtual
+    device, whose motor is at rest at once after every run."""
+    served = os.environ.get("JERKLAB_LAB_RIG")
+    return bool(served) and port == served
+
+
 def _served_device():
     """The encoder of the rig the grader serves (``$JERKLAB_LAB_RIG_CPR`` counts per revolution),
     or None: a real board's defaults."""
@@ -156,6 +163,18 @@ class LabSession:
             self.student = normalize_student(self.rig.student)
             self.mode = "graded"
             self._simulated = True
+            # the service's motor profile decides the motors and the lab's numbers
+            served = self.rig.profile
+            if self.profile is not None and (served is None or served.name != self.profile.name):
+                self.rig.close()
+                raise ValueError(
+                    f"profile: the class rig service runs "
+                    f"{'the paper' if served is None else served.name!r}'s motors, not "
+                    f"{self.profile.name!r}; leave profile out on the class rig"
+                )
+            self.profile = served
+            self.profile_name = None if served is None else served.name
+            self.spec = lab_spec(lab, served or "paper")
         else:
             if student is None:
                 raise ValueError("student: give your student ID (no class rig service is set)")
@@ -202,6 +221,10 @@ class LabSession:
                 metadata={"student": self.student, "lab": lab, "mode": self.mode},
                 profile=self.profile,
             )
+            if _grader_served(self.port):
+                # the grader's virtual device coasts to rest at the end of every run
+                # (jerklab.rig.virtual): no wait_still after each step over the pty
+                self.rig.instant_coast = True
         # the checks' truth: only in a trusted process (mode "instructor"), never returned
         self._check_truth = (lambda: trusted) if trusted is not None else (lambda: None)
         self.recordings = {}

@@ -10,7 +10,9 @@ descriptor ``FD``::
 ``answers`` holds the final value of each question's variable as :func:`export` gives it;
 ``evidence`` is the worksheet's :class:`~jerklab.lab.session.LabSession` evidence
 (:meth:`jerklab.lab.plain.Evidence.to_dict`: its recordings' arrays and counts per
-revolution).
+revolution), with ``claims`` and ``signatures``: the recordings that claim to come from the
+class rig service and their signatures (:mod:`jerklab.lab.signing`), which the grader
+verifies.
 
 Nothing here is trusted: the process runs the student's code, which may change any of it.
 The grader outside the sandbox (:mod:`jerklab.lab.grade`) reads only this JSON, decodes it
@@ -28,6 +30,7 @@ import numpy as np
 
 from jerklab.controller import DiscreteGains
 from jerklab.lab.session import LabSession
+from jerklab.lab.signing import claims_graded
 
 __all__ = ["export", "main"]
 
@@ -80,7 +83,18 @@ def _evidence(ns):
     sessions = [v for v in ns.values() if isinstance(v, LabSession)]
     if not sessions:
         return {}
-    return sessions[-1].evidence().to_dict()
+    s = sessions[-1]
+    doc = s.evidence().to_dict()
+    # what each recording says of where it comes from: the grader verifies every one that
+    # claims the class rig service (jerklab.lab.signing) and leaves out those that fail
+    claims, sigs = {}, {}
+    for name, rec in s.recordings.items():
+        meta = getattr(rec, "metadata", None)
+        if claims_graded(meta):
+            claims[str(name)] = True
+            sigs[str(name)] = export(meta.get("signature"))
+    doc["claims"], doc["signatures"] = claims, sigs
+    return doc
 
 
 def main(argv=None):

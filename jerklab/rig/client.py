@@ -169,6 +169,10 @@ class Rig:
         live=None,
     ):
         self.link = link
+        #: True when the device's motor is at rest at once after every run (the virtual rig:
+        #: :meth:`step` and :meth:`record_prbs` then skip :meth:`wait_still`); a served virtual
+        #: rig, whose link is a pty, says so through its owner (the grader's rig)
+        self.instant_coast = bool(getattr(link, "instant_coast", False))
         self.port = str(port)
         self.supply_voltage = as_positive("supply_voltage", supply_voltage)
         if int(counts_per_rev) != counts_per_rev or counts_per_rev < 1:
@@ -866,7 +870,7 @@ class Rig:
         offset = (len(rec) and int(rec.counts[-1]), n_rest)
         coast = 8.0 * self.model[1] if coast is None else as_nonnegative("coast", coast)
         rec = self._stream(P.Step(voltage, us, n), rec, n, host_timeout, bar, offset=offset)
-        if not getattr(self.link, "instant_coast", False):
+        if not self.instant_coast:
             self.wait_still(timeout=max(2.0, 4 * coast), Ts=Ts)
         return rec
 
@@ -1006,7 +1010,7 @@ class Rig:
         offset_ = (len(rec) and int(rec.counts[-1]), n_rest)
         coast = 8.0 * self.model[1] if coast is None else as_nonnegative("coast", coast)
         rec = self._stream(msg, rec, n, host_timeout, bar, offset=offset_)
-        if not getattr(self.link, "instant_coast", False):
+        if not self.instant_coast:
             self.wait_still(timeout=max(2.0, 4 * coast), Ts=Ts)
         return rec
 

@@ -62,6 +62,7 @@ from jerklab.plant import DCMotor
 __all__ = [
     "MotorProfile",
     "load_profile",
+    "profile_from_dict",
     "profile_names",
     "PROFILE_FILE_FORMAT",
     "builtin_profiles",
@@ -295,6 +296,20 @@ def _from_file(path: Path) -> MotorProfile:
         return MotorProfile(**d)
     except TypeError as exc:
         raise ValueError(f"profile file {str(path)!r}: {exc}") from exc
+
+
+def profile_from_dict(d) -> MotorProfile:
+    """The :class:`MotorProfile` of ``d`` (:meth:`MotorProfile.to_dict`, e.g. as the class rig
+    service sends it); ValueError if it is not one."""
+    if not isinstance(d, dict):
+        raise ValueError(f"a motor profile must be a dict, got {type(d).__name__}")
+    d = dict(d)
+    try:
+        for k in ("counts_options", "K_range", "tau_range", "friction_range"):
+            d[k] = tuple(d[k])
+        return MotorProfile(**d)
+    except (KeyError, TypeError) as exc:
+        raise ValueError(f"not a motor profile ({exc})") from None
 
 
 def load_profile(profile) -> MotorProfile:
