@@ -12,7 +12,18 @@ from __future__ import annotations
 import control as ct
 import numpy as np
 import pytest
-from _ident import K0, TAU0, TS, closed_loop, fit_quiet, levels, plant_record, record, rel
+from _ident import (
+    K0,
+    TAU0,
+    TS,
+    closed_loop,
+    fit_quiet,
+    lab_sweep,
+    levels,
+    plant_record,
+    record,
+    rel,
+)
 from conftest import cases
 from hypothesis import example, given
 from hypothesis import strategies as st
@@ -253,3 +264,47 @@ def test_record_starting_in_motion(start):
     x = np.asarray(ct.forced_response(sysd, T=np.arange(u.size) * TS, U=u).states)
     assert f.omega0 == pytest.approx(x[1, start], rel=0.02)
     assert f.theta0 == pytest.approx(x[0, start], abs=5e-3)
+
+
+def _sweep_fit(records):
+    u, theta = zip(*records)
+    return ident.fit_dc_motor(list(u), list(theta), TS, friction=True, offset=True)
+
+
+@pytest.mark.slow
+def test_pem_intervals_cover_the_class_motors_through_encoder_and_friction():
+    """Lab 1's six steps (fit_all: friction and offset fitted) on 120 motors of the class, each
+    read through its encoder (448 or 896 counts, count jitter 0-0.5, random shaft angle): the
+    95 % intervals of K, tau and f_c cover the truth 85-99 % of the time. The white-noise
+    covariance s^2 (J^T J)^-1 covered 70 % where the count jitter is small: the quantization
+    error beats slowly and is far from white."""
+    n, hit = 120, np.zeros(3)
+    for seed in range(n):
+        m, records = lab_sweep(seed)
+        f = _sweep_fit(records)
+        ci = f.confidence_interval(0.95)
+        hit += [
+            lo <= x <= hi
+            for (lo, hi), x in zip(
+                (ci["K"], ci["tau"], ci["friction"]), (m["K"], m["tau"], m["fc"])
+            )
+        ]
+    # binomial(120, 0.95): 0.85 .. 0.99 is 4.9 sigma below and 1.9 above the nominal rate
+    rate = hit / n
+    assert np.all((0.85 <= rate) & (rate <= 0.99)), dict(zip(("K", "tau", "f_c"), rate))
+
+
+@pytest.mark.slow
+def test_two_records_of_one_motor_agree_within_their_errors():
+    """Two sweeps of the same motor (another jitter and shaft angle) give K, tau and f_c that
+    differ by less than 3 combined standard errors, for at least 23 of 25 motors: each
+    record's error bars describe the other's estimate."""
+    pairs, agree = 25, np.zeros(3)
+    for seed in range(pairs):
+        m, first = lab_sweep(1000 + seed)
+        _, second = lab_sweep(5000 + seed, motor=m)
+        a, b = _sweep_fit(first), _sweep_fit(second)
+        for i, nm in enumerate(("K", "tau", "friction")):
+            z = abs(getattr(a, nm) - getattr(b, nm)) / np.hypot(a.std[nm], b.std[nm])
+            agree[i] += z < 3.0
+    assert np.all(agree >= 23), dict(zip(("K", "tau", "f_c"), agree))

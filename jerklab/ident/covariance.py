@@ -134,16 +134,18 @@ def newey_west(J, r, groups=None, lags=None):
     return 0.5 * (cov + cov.T), int(lags)
 
 
-#: relative tolerance of an angle sample on the encoder's grid (:func:`grid_step`)
+#: how far (in counts) an angle sample may lie off the encoder's grid (:func:`grid_step`), on top
+#: of the rounding of a float
 GRID_TOL = 1e-6
 
 
 def grid_step(theta, groups=None):
     """The encoder step q of an angle record that lies on a grid of whole counts, else None.
 
-    q is the smallest non-zero change between samples; the record is on the grid when every
-    sample, less the first of its record, is a whole multiple of q (within :data:`GRID_TOL`
-    of q). A record with noise added after the encoder (or a continuous sensor) is not.
+    q is the greatest common divisor of the changes between samples; the record is on the grid
+    when every sample, less the first of its record, is a whole multiple of q (within
+    :data:`GRID_TOL` counts and the rounding of a float). A record with noise added after the
+    encoder (or a continuous sensor) is not.
 
     Parameters
     ----------
@@ -164,13 +166,26 @@ def grid_step(theta, groups=None):
         sel = groups == g
         rel[sel] = theta[sel] - theta[sel][0]
     steps = np.abs(np.diff(theta))[groups[1:] == groups[:-1]]
-    scale = max(float(np.max(np.abs(rel))), 1.0)
-    steps = steps[steps > 1e-12 * scale]
+    scale = max(float(np.max(np.abs(rel))), 1e-300)
+    steps = np.unique(steps[steps > 1e-9 * scale])
     if steps.size == 0:
         return None
-    q = float(np.min(steps))
+    # the greatest common divisor of the steps (Euclid on floats): a fast motor moves many counts
+    # a sample and may never move by one
+    tol = 1e-9 * float(steps[-1])
+    q = float(steps[0])
+    for d in steps[1:]:
+        a, b = float(d), q
+        while b > tol:
+            a, b = b, math.fmod(a, b)
+            if b > a - tol:
+                b = 0.0
+        q = a
+        if q < 1e-6 * scale:
+            return None
     k = rel / q
-    if np.max(np.abs(k - np.round(k))) > GRID_TOL * max(1.0, float(np.max(np.abs(k)))):
+    kmax = float(np.max(np.abs(k)))
+    if np.max(np.abs(k - np.round(k))) > GRID_TOL + 64 * np.finfo(float).eps * kmax:
         return None
     return q
 
