@@ -22,12 +22,12 @@ MAX_LAG_FRACTION = 0.25
 
 
 def bartlett_lags(scores, groups) -> int:
-    """The Newey-West lag for ``scores`` by the AR(1) plug-in of Andrews (1991), eq. 6.4.
+    """The Newey-West lag for ``scores`` by the AR(1) plug-in of Andrews (1991), §6.
 
     Each column of the scores is fitted an AR(1) coefficient rho_a within each record (lags do not
     cross records); with sigma_a^2 the variance of its innovation, the Bartlett kernel's optimal
     lag is 1.1447 (alpha n)^(1/3), alpha = sum 4 rho^2 sigma^4 / ((1 - rho)^6 (1 + rho)^2) /
-    sum sigma^4 / (1 - rho)^4 (Andrews' eq. 6.4, unit weights). ``rho`` is held within
+    sum sigma^4 / (1 - rho)^4 (Andrews 1991, §6, unit weights). ``rho`` is held within
     [0, 0.97]. The lag is at most :data:`MAX_LAG_FRACTION` of the shortest record.
 
     Parameters
@@ -69,7 +69,7 @@ def newey_west(J, r, groups=None, lags=None):
     """Newey-West (HAC) covariance of the least-squares estimate with Jacobian ``J``, residuals ``r``.
 
     cov = n/(n - p) (J^T J)^-1 S (J^T J)^-1,  S = sum_{|l| <= L} (1 - |l|/(L + 1)) Gamma_l,
-    Gamma_l = sum_t g_t g_{t-l}^T,  g_t = J_t r_t  (Newey & West 1987, eq. 2),
+    Gamma_l = sum_t g_t g_{t-l}^T,  g_t = J_t r_t  (Newey & West 1987),
 
     the lag products taken only within a record. With L = 0 this is White's heteroskedasticity-
     consistent sandwich; with white residuals of one variance it tends to s^2 (J^T J)^-1.

@@ -355,7 +355,7 @@ class ShootingProblem:
 
     # -- the solution ------------------------------------------------------------------------
     def solve(self, x0, max_nfev=200) -> ShootingFit:
-        """Levenberg-Marquardt from x0; the covariance s^2 (J^T J)^-1 at the optimum."""
+        """Levenberg-Marquardt from x0; the covariance of :meth:`covariance` at the optimum."""
         sol = optimize.least_squares(
             self.residuals,
             x0,
