@@ -16,9 +16,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy import sparse
 
 #: the largest lag the plug-in may choose, as a fraction of the shortest record's length
 MAX_LAG_FRACTION = 0.25
+#: and in samples: each lag costs a pass over the record (the encoder's slow beats, which need
+#: more, are simulated instead: :func:`quantization_covariance`)
+MAX_LAGS = 50
 
 
 def bartlett_lags(scores, groups) -> int:
@@ -28,7 +32,8 @@ def bartlett_lags(scores, groups) -> int:
     cross records); with sigma_a^2 the variance of its innovation, the Bartlett kernel's optimal
     lag is 1.1447 (alpha n)^(1/3), alpha = sum 4 rho^2 sigma^4 / ((1 - rho)^6 (1 + rho)^2) /
     sum sigma^4 / (1 - rho)^4 (Andrews 1991, §6, unit weights). ``rho`` is held within
-    [0, 0.97]. The lag is at most :data:`MAX_LAG_FRACTION` of the shortest record.
+    [0, 0.97]. The lag is at most :data:`MAX_LAG_FRACTION` of the shortest record and at most
+    :data:`MAX_LAGS`.
 
     Parameters
     ----------
@@ -47,21 +52,22 @@ def bartlett_lags(scores, groups) -> int:
     D. W. K. Andrews, "Heteroskedasticity and autocorrelation consistent covariance matrix
     estimation", Econometrica 59(3), 817-858, 1991, §6.
     """
-    G = np.asarray(scores, dtype=float)
+    G = sparse.csr_matrix(scores)
     n = G.shape[0]
-    same = groups[1:] == groups[:-1]
-    num = np.sum(G[1:][same] * G[:-1][same], axis=0)
-    den = np.sum(G[:-1][same] ** 2, axis=0)
+    same = sparse.diags((groups[1:] == groups[:-1]).astype(float))
+    now, before = same @ G[1:], G[:-1]
+    num = np.ravel(now.multiply(before).sum(axis=0))
+    den = np.ravel((same @ before.multiply(before)).sum(axis=0))
     keep = den > 0.0
     if not np.any(keep):
         return 0
     rho = np.clip(num[keep] / den[keep], 0.0, 0.97)
-    s2 = np.sum(G[:, keep] ** 2, axis=0) / n * (1.0 - rho**2)
+    s2 = np.ravel(G.multiply(G).sum(axis=0))[keep] / n * (1.0 - rho**2)
     top = np.sum(4.0 * rho**2 * s2**2 / ((1.0 - rho) ** 6 * (1.0 + rho) ** 2))
     bottom = np.sum(s2**2 / (1.0 - rho) ** 4)
     alpha = top / bottom if bottom > 0.0 else 0.0
     _, sizes = np.unique(groups, return_counts=True)
-    cap = max(int(MAX_LAG_FRACTION * int(sizes.min())), 0)
+    cap = max(min(int(MAX_LAG_FRACTION * int(sizes.min())), MAX_LAGS), 0)
     return int(min(math.ceil(1.1447 * (alpha * n) ** (1.0 / 3.0)), cap))
 
 
@@ -119,17 +125,20 @@ def newey_west(J, r, groups=None, lags=None):
     groups = np.zeros(n, int) if groups is None else np.asarray(groups)
     if groups.shape != (n,):
         raise ValueError(f"groups must have one label per residual ({n}), got {groups.shape}")
-    G = J * r[:, None]
+    # the shooting fit's Jacobian is sparse (each segment's state touches its own samples only):
+    # every product below costs O(n (nonzeros per row)^2), not O(n p^2)
+    Js = sparse.csr_matrix(J)
+    G = sparse.diags(r) @ Js
     if lags is None:
         lags = bartlett_lags(G, groups)
     elif not (isinstance(lags, (int, np.integer)) and lags >= 0):
         raise ValueError(f"lags must be an integer >= 0, got {lags!r}")
-    S = G.T @ G
+    S = (G.T @ G).toarray()
     for lag in range(1, int(lags) + 1):
-        same = (groups[lag:] == groups[:-lag])[:, None]
-        Gl = (G[lag:] * same).T @ G[:-lag]
+        same = sparse.diags((groups[lag:] == groups[:-lag]).astype(float))
+        Gl = ((same @ G[lag:]).T @ G[:-lag]).toarray()
         S += (1.0 - lag / (lags + 1.0)) * (Gl + Gl.T)
-    bread = np.linalg.pinv(J.T @ J)
+    bread = np.linalg.pinv((Js.T @ Js).toarray())
     cov = bread @ S @ bread * (n / max(n - p, 1))
     return 0.5 * (cov + cov.T), int(lags)
 
@@ -238,5 +247,6 @@ def quantization_covariance(J, y_model, groups, step, noise_std=0.0, replicates=
     phase = rng.uniform(0.0, 1.0, (labels.size, replicates))[inverse]
     jitter = rng.normal(0.0, noise_std / step, (n, replicates)) if noise_std > 0 else 0.0
     E = step * np.floor(y[:, None] / step + phase + jitter) - y[:, None]
-    D = np.linalg.pinv(J.T @ J) @ (J.T @ E)
+    Js = sparse.csr_matrix(J)
+    D = np.linalg.pinv((Js.T @ Js).toarray()) @ (Js.T @ E)
     return np.cov(D)

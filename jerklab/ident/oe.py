@@ -395,9 +395,11 @@ class ShootingProblem:
         """Covariance of the free parameters at the optimum (Jacobian ``J``, residuals ``r``,
         residual variance ``s2``): honest for coloured residuals.
 
-        Two estimates, and for each parameter the larger standard error (with the correlations
-        of the estimate that gives it):
+        Each parameter's standard error is the largest of three estimates; the correlations are
+        those of the least-squares problem itself, (J^T J)^-1 (so the diagnostics of an
+        ill-conditioned fit see its shape, not the noise of a sandwich):
 
+        * the textbook s2 (J^T J)^-1, right for white residuals;
         * the Newey-West (HAC) sandwich of :func:`jerklab.ident.covariance.newey_west` (Newey &
           West 1987), lags within each experiment, for residuals of short memory of any origin;
         * when the angle lies on an encoder's grid (:func:`~jerklab.ident.covariance.grid_step`),
@@ -410,22 +412,20 @@ class ShootingProblem:
         quantization, where the shaft stood). Not a bias of a model that misses part of the
         plant (friction or a delay not fitted, a flexible load): no covariance covers that.
         """
-        cov, self.lags = newey_west(J, r, self.exp_of, self.hac_lags)
+        white = s2 * np.linalg.pinv(J.T @ J)
+        hac, self.lags = newey_west(J, r, self.exp_of, self.hac_lags)
+        sd = [np.diag(white), np.diag(hac)]
         self.encoder_step = grid_step(self.theta, self.exp_of)
-        if self.encoder_step is None:
-            return cov
-        q = self.encoder_step
-        jitter = math.sqrt(max(s2 - q * q / 12.0, 0.0))
-        cov_q = quantization_covariance(J, self.theta + r, self.exp_of, q, jitter)
-        sd, sd_q = (
-            np.sqrt(np.clip(np.diag(cov), 0, None)),
-            np.sqrt(np.clip(np.diag(cov_q), 0, None)),
-        )
+        if self.encoder_step is not None:
+            q = self.encoder_step
+            jitter = math.sqrt(max(s2 - q * q / 12.0, 0.0))
+            sd.append(np.diag(quantization_covariance(J, self.theta + r, self.exp_of, q, jitter)))
+        sd_white = np.sqrt(np.clip(sd[0], 0.0, None))
+        sd_max = np.sqrt(np.clip(np.max(sd, axis=0), 0.0, None))
+        # scale the textbook covariance, parameter by parameter, up to the largest error
         with np.errstate(invalid="ignore", divide="ignore"):
-            corr = np.nan_to_num(cov_q / np.outer(sd_q, sd_q))
-        np.fill_diagonal(corr, 1.0)
-        sd_max = np.maximum(sd, sd_q)
-        return corr * np.outer(sd_max, sd_max)
+            scale = np.where(sd_white > 0, sd_max / sd_white, 1.0)
+        return white * np.outer(scale, scale)
 
     def _physical_covariance(self, g, cov_x):
         """(K, ln tau, ..., rate) -> (K, tau, ..., tau_coast) by the delta method."""
