@@ -83,12 +83,13 @@ def rel(a, b):
     return abs(a / b - 1.0)
 
 
-def lab_sweep(seed, motor=None):
+def lab_sweep(seed, motor=None, jitter=None):
     """Lab 1's six steps from rest (``lab_spec(1)``: +-3, +-6, +-9 V, 0.05 s rest, then the step)
     on a motor drawn from the class's hidden ranges (``hidden_ranges("paper")``; or ``motor``, a
     dict of K, tau, fc, offset, noise_counts, ppr), read as the virtual rig reads it: 12 V supply,
     10-bit PWM, the encoder's floor of the count with a Gaussian count jitter before it, the
-    shaft at a random angle to the code wheel at the start. Returns (motor, [(u, theta), ...])."""
+    shaft at a random angle to the code wheel at the start; ``jitter`` (lo, hi) replaces the
+    class's range of the count jitter. Returns (motor, [(u, theta), ...])."""
     from jerklab.lab.specs import hidden_ranges, lab_spec
 
     rng = np.random.default_rng(seed)
@@ -99,7 +100,7 @@ def lab_sweep(seed, motor=None):
             tau=float(np.exp(rng.uniform(*np.log(R["tau"])))),
             fc=float(rng.uniform(*R["coulomb_friction"])),
             offset=float(rng.uniform(*R["offset"])),
-            noise_counts=float(rng.uniform(*R["noise_counts"])),
+            noise_counts=float(rng.uniform(*(jitter or R["noise_counts"]))),
             ppr=int(rng.choice(R["encoder_ppr"])),
         )
     spec = lab_spec(1)
