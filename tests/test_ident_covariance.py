@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy import signal
 
+from jerklab.ident import covariance
 from jerklab.ident.covariance import (
     bartlett_lags,
     grid_step,
@@ -16,13 +18,10 @@ from jerklab.ident.covariance import (
 
 
 def ar1(n, rho, seed):
-    rng = np.random.default_rng(seed)
-    e = rng.standard_normal(n)
-    x = np.empty(n)
-    x[0] = e[0] / np.sqrt(1 - rho**2)
-    for t in range(1, n):
-        x[t] = rho * x[t - 1] + e[t]
-    return x
+    """x_t = rho x_{t-1} + e_t, unit innovations, started from its stationary distribution."""
+    e = np.random.default_rng(seed).standard_normal(n)
+    x0 = e[0] / np.sqrt(1 - rho**2)
+    return np.r_[x0, signal.lfilter([1.0], [1.0, -rho], e[1:], zi=[rho * x0])[0]]
 
 
 def test_newey_west_of_an_ar1_mean_matches_its_long_run_variance():
@@ -60,6 +59,19 @@ def test_lags_stay_within_each_record():
     assert cov[0, 0] == pytest.approx(one[0, 0], rel=0.3)
     assert abs(cov[0, 1]) < 1e-12
     assert bartlett_lags(J * r[:, None], groups) <= 100  # a quarter of the shorter record
+
+
+def test_sparse_and_dense_products_agree(monkeypatch):
+    rng = np.random.default_rng(0)
+    J, r, groups = rng.normal(size=(3000, 5)), rng.normal(size=3000), np.repeat([0, 1, 2], 1000)
+    dense, lags = newey_west(J, r, groups)
+    qd = quantization_covariance(J, J[:, 0], groups, 0.5, 0.1, replicates=50)
+    monkeypatch.setattr(covariance, "SPARSE_ABOVE", 0)
+    sparse_, lags_s = newey_west(J, r, groups)
+    qs = quantization_covariance(J, J[:, 0], groups, 0.5, 0.1, replicates=50)
+    assert lags == lags_s
+    np.testing.assert_allclose(sparse_, dense, rtol=1e-10, atol=1e-14)
+    np.testing.assert_allclose(qs, qd, rtol=1e-10, atol=1e-14)
 
 
 def test_newey_west_names_bad_input():

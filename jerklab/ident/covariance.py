@@ -20,9 +20,35 @@ from scipy import sparse
 
 #: the largest lag the plug-in may choose, as a fraction of the shortest record's length
 MAX_LAG_FRACTION = 0.25
+#: Jacobians with more entries than this are handled as sparse matrices (the shooting fit's
+#: segment states each touch their own samples only); smaller ones are faster dense
+SPARSE_ABOVE = 200_000
+
 #: and in samples: each lag costs a pass over the record (the encoder's slow beats, which need
 #: more, are simulated instead: :func:`quantization_covariance`)
 MAX_LAGS = 50
+
+
+def _matrix(J):
+    """``J`` as a sparse (CSR) matrix when it is large, else as a dense array."""
+    if sparse.issparse(J):
+        return J.tocsr()
+    J = np.asarray(J, dtype=float)
+    return sparse.csr_matrix(J) if J.size > SPARSE_ABOVE else J
+
+
+def _dense(M) -> np.ndarray:
+    return M.toarray() if sparse.issparse(M) else np.asarray(M)
+
+
+def _rows(v, M):
+    """Each row of M times the entry of v."""
+    return sparse.diags(v) @ M if sparse.issparse(M) else v[:, None] * M
+
+
+def _colsum_of_product(A, B) -> np.ndarray:
+    """sum_t A_t B_t for each column (A and B of one kind, dense or sparse)."""
+    return np.ravel(A.multiply(B).sum(axis=0)) if sparse.issparse(A) else np.sum(A * B, axis=0)
 
 
 def bartlett_lags(scores, groups) -> int:
@@ -52,17 +78,17 @@ def bartlett_lags(scores, groups) -> int:
     D. W. K. Andrews, "Heteroskedasticity and autocorrelation consistent covariance matrix
     estimation", Econometrica 59(3), 817-858, 1991, §6.
     """
-    G = sparse.csr_matrix(scores)
+    G = _matrix(scores)
     n = G.shape[0]
-    same = sparse.diags((groups[1:] == groups[:-1]).astype(float))
-    now, before = same @ G[1:], G[:-1]
-    num = np.ravel(now.multiply(before).sum(axis=0))
-    den = np.ravel((same @ before.multiply(before)).sum(axis=0))
+    same = (groups[1:] == groups[:-1]).astype(float)
+    now, before = _rows(same, G[1:]), _rows(same, G[:-1])
+    num = _colsum_of_product(now, before)
+    den = _colsum_of_product(before, before)
     keep = den > 0.0
     if not np.any(keep):
         return 0
     rho = np.clip(num[keep] / den[keep], 0.0, 0.97)
-    s2 = np.ravel(G.multiply(G).sum(axis=0))[keep] / n * (1.0 - rho**2)
+    s2 = _colsum_of_product(G, G)[keep] / n * (1.0 - rho**2)
     top = np.sum(4.0 * rho**2 * s2**2 / ((1.0 - rho) ** 6 * (1.0 + rho) ** 2))
     bottom = np.sum(s2**2 / (1.0 - rho) ** 4)
     alpha = top / bottom if bottom > 0.0 else 0.0
@@ -127,18 +153,18 @@ def newey_west(J, r, groups=None, lags=None):
         raise ValueError(f"groups must have one label per residual ({n}), got {groups.shape}")
     # the shooting fit's Jacobian is sparse (each segment's state touches its own samples only):
     # every product below costs O(n (nonzeros per row)^2), not O(n p^2)
-    Js = sparse.csr_matrix(J)
-    G = sparse.diags(r) @ Js
+    Js = _matrix(J)
+    G = _rows(r, Js)
     if lags is None:
         lags = bartlett_lags(G, groups)
     elif not (isinstance(lags, (int, np.integer)) and lags >= 0):
         raise ValueError(f"lags must be an integer >= 0, got {lags!r}")
-    S = (G.T @ G).toarray()
+    S = _dense(G.T @ G)
     for lag in range(1, int(lags) + 1):
-        same = sparse.diags((groups[lag:] == groups[:-lag]).astype(float))
-        Gl = ((same @ G[lag:]).T @ G[:-lag]).toarray()
+        same = (groups[lag:] == groups[:-lag]).astype(float)
+        Gl = _dense(_rows(same, G[lag:]).T @ G[:-lag])
         S += (1.0 - lag / (lags + 1.0)) * (Gl + Gl.T)
-    bread = np.linalg.pinv((Js.T @ Js).toarray())
+    bread = np.linalg.pinv(_dense(Js.T @ Js))
     cov = bread @ S @ bread * (n / max(n - p, 1))
     return 0.5 * (cov + cov.T), int(lags)
 
@@ -247,6 +273,6 @@ def quantization_covariance(J, y_model, groups, step, noise_std=0.0, replicates=
     phase = rng.uniform(0.0, 1.0, (labels.size, replicates))[inverse]
     jitter = rng.normal(0.0, noise_std / step, (n, replicates)) if noise_std > 0 else 0.0
     E = step * np.floor(y[:, None] / step + phase + jitter) - y[:, None]
-    Js = sparse.csr_matrix(J)
-    D = np.linalg.pinv((Js.T @ Js).toarray()) @ (Js.T @ E)
+    Js = _matrix(J)
+    D = np.linalg.pinv(_dense(Js.T @ Js)) @ _dense(Js.T @ E)
     return np.cov(D)
