@@ -100,7 +100,7 @@ def bartlett_lags(scores, groups) -> int:
 def newey_west(J, r, groups=None, lags=None):
     """Newey-West (HAC) covariance of the least-squares estimate with Jacobian ``J``, residuals ``r``.
 
-    cov = n/(n - p) (J^T J)^-1 S (J^T J)^-1,  S = sum_{|l| <= L} (1 - |l|/(L + 1)) Gamma_l,
+    cov = n/(n - p) (J^T J)^-1 S (J^T J)^-1,  S = sum_{-L <= l <= L} (1 - abs(l)/(L + 1)) Gamma_l,
     Gamma_l = sum_t g_t g_{t-l}^T,  g_t = J_t r_t  (Newey & West 1987),
 
     the lag products taken only within a record. With L = 0 this is White's heteroskedasticity-

@@ -165,9 +165,10 @@ def fit_dc_motor(
         (and, for Stojčić eq. 1 alone, from a grid over tau: whichever starts lower). The
         standard errors hold for coloured residuals: a Newey-West sandwich (Newey & West 1987),
         and, when the angle is in whole encoder counts, the encoder's quantization simulated
-        about the fitted angle, the larger of the two (:meth:`ShootingProblem.covariance
-        <jerklab.ident.oe.ShootingProblem.covariance>`). They cover noise and quantization, not
-        a part of the plant the model leaves out (friction not fitted biases K by about f_c/|u|).
+        about the fitted angle; each standard error is the largest of these and s^2 (J^T J)^-1
+        (:meth:`ShootingProblem.covariance <jerklab.ident.oe.ShootingProblem.covariance>`).
+        They cover noise and quantization, not a part of the plant the model leaves out
+        (friction not fitted biases K by about f_c over the input voltage).
         "arx": least squares on the differenced angle v(k) = a v(k-1) + b1 u(k-1) + b2 u(k-2)
         (exact for the ZOH model), K = (b1 + b2)/(1 - a), tau = -Ts/ln a; biased (tau short)
         under noise (:func:`arx_asymptotic_bias`). No options.
