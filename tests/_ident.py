@@ -81,3 +81,46 @@ def fit_quiet(*args, **kw):
 
 def rel(a, b):
     return abs(a / b - 1.0)
+
+
+def lab_sweep(seed, motor=None, jitter=None):
+    """Lab 1's six steps from rest (``lab_spec(1)``: +-3, +-6, +-9 V, 0.05 s rest, then the step)
+    on a motor drawn from the class's hidden ranges (``hidden_ranges("paper")``; or ``motor``, a
+    dict of K, tau, fc, offset, noise_counts, ppr), read as the virtual rig reads it: 12 V supply,
+    10-bit PWM, the encoder's floor of the count with a Gaussian count jitter before it, the
+    shaft at a random angle to the code wheel at the start; ``jitter`` (lo, hi) replaces the
+    class's range of the count jitter. Returns (motor, [(u, theta), ...])."""
+    from jerklab.lab.specs import hidden_ranges, lab_spec
+
+    rng = np.random.default_rng(seed)
+    if motor is None:
+        R = hidden_ranges("paper")
+        motor = dict(
+            K=float(np.exp(rng.uniform(*np.log(R["K"])))),
+            tau=float(np.exp(rng.uniform(*np.log(R["tau"])))),
+            fc=float(rng.uniform(*R["coulomb_friction"])),
+            offset=float(rng.uniform(*R["offset"])),
+            noise_counts=float(rng.uniform(*(jitter or R["noise_counts"]))),
+            ppr=int(rng.choice(R["encoder_ppr"])),
+        )
+    spec = lab_spec(1)
+    m = DCMotor(
+        K=motor["K"],
+        tau=motor["tau"],
+        supply_voltage=12.0,
+        pwm_bits=10,
+        encoder_ppr=motor["ppr"],
+        decoding=1,
+        coulomb_friction=motor["fc"],
+        offset=motor["offset"],
+    )
+    cpr = m.counts_per_rad
+    n_rest, n_step = int(round(0.05 / TS)), int(round(spec["step_seconds"] / TS))
+    records = []
+    for V in spec["sweep_volts"]:
+        u = m.quantize_voltage(np.r_[np.zeros(n_rest), np.full(n_step, V)])
+        theta, _ = m.open_loop(u, TS, x0=[rng.uniform() / cpr, 0.0])
+        jitter = rng.normal(0.0, motor["noise_counts"], theta.size)
+        counts = np.floor(theta * cpr + 1e-9 + jitter)[:-1]
+        records.append((u, (counts - counts[0]) / cpr))
+    return motor, records

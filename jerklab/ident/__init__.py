@@ -22,7 +22,8 @@ module fits; :func:`fit_p2` reproduces the paper's literal call to show where it
   velocity) minimise sum (theta_measured - theta_simulated)^2, where theta_simulated is the exact
   ZOH simulation of Stojčić eq. 1.
   With white measurement noise this is the maximum-likelihood estimate and is unbiased; its
-  covariance comes from the Jacobian at the optimum.
+  covariance is a sandwich about the Jacobian at the optimum that holds for coloured residuals
+  (Newey-West, and the encoder's quantization simulated: :mod:`jerklab.ident.covariance`).
 
 Real records (measured, closed loop, several experiments) need more than Stojčić eq. 1: ``fit_dc_motor``
 also estimates Coulomb friction against the velocity (with sticking), an input offset, a dead zone
@@ -42,9 +43,10 @@ Everything is SI: volts in, radians out, seconds.
 
 The modules, each one concept: ``data`` (IdentData, MergedData), ``model`` (the simulations),
 ``arx``, ``fit`` (fit_dc_motor, FitOptions) with ``motorfit`` (its result), ``oe`` (multiple
-shooting), ``idim`` (inverse dynamics) and ``diagnostics``, ``p2``, ``validate``, ``datasets``,
-``design``, ``mode``. Results draw themselves (``.plot()``) with ``jerklab.plots``, imported only
-then; this package imports neither ``jerklab.plots`` nor matplotlib, and python-control lazily.
+shooting) with ``covariance`` (its standard errors for coloured residuals), ``idim`` (inverse
+dynamics) and ``diagnostics``, ``p2``, ``validate``, ``datasets``, ``design``, ``mode``. Results
+draw themselves (``.plot()``) with ``jerklab.plots``, imported only then; this package imports
+neither ``jerklab.plots`` nor matplotlib, and python-control lazily.
 """
 
 from jerklab.ident._common import MIN_SAMPLES

@@ -163,7 +163,12 @@ def fit_dc_motor(
         output error). A record of at most 1000 samples is one segment: the plain output-error
         fit from an estimated initial state. Started from the inverse-dynamics estimate below
         (and, for Stojčić eq. 1 alone, from a grid over tau: whichever starts lower). The
-        standard errors come from s^2 (J^T J)^-1 at the optimum.
+        standard errors hold for coloured residuals: a Newey-West sandwich (Newey & West 1987),
+        and, when the angle is in whole encoder counts, the encoder's quantization simulated
+        about the fitted angle; each standard error is the largest of these and s^2 (J^T J)^-1
+        (:meth:`ShootingProblem.covariance <jerklab.ident.oe.ShootingProblem.covariance>`).
+        They cover noise and quantization, not a part of the plant the model leaves out
+        (friction not fitted biases K by about f_c over the input voltage).
         "arx": least squares on the differenced angle v(k) = a v(k-1) + b1 u(k-1) + b2 u(k-2)
         (exact for the ZOH model), K = (b1 + b2)/(1 - a), tau = -Ts/ln a; biased (tau short)
         under noise (:func:`arx_asymptotic_bias`). No options.

@@ -28,7 +28,10 @@ class MotorFit:
     K, tau : float
         Gain rad/(V s) and time constant s.
     K_std, tau_std : float
-        One-sigma standard errors (from the Jacobian for PEM, from the ARX covariance for ARX).
+        One-sigma standard errors. PEM: the sandwich of :meth:`jerklab.ident.oe.ShootingProblem.covariance`
+        (Newey-West for coloured residuals, the encoder's quantization simulated), the spread
+        over records of the same motor; not a bias of a model that leaves part of the plant
+        out. ARX: the textbook covariance of its least squares (white equation error).
     fit_percent : float
         Simulation fit (NRMSE %, as MATLAB ``compare``) of the angle on the estimation data.
     model : control.TransferFunction

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import optimize
 
+from jerklab.ident.covariance import grid_step, newey_west, quantization_covariance
 from jerklab.ident.idim import _filtered_states
 from jerklab.ident.model import _shift, _simulate_segments, _unit_response
 
@@ -167,6 +168,8 @@ class ShootingProblem:
         Hold the first angle of each experiment at its first sample instead of estimating it.
     """
 
+    hac_lags = None
+
     def __init__(
         self,
         exps,
@@ -190,6 +193,8 @@ class ShootingProblem:
             starts_all.append(_segment_starts(u.size, segment_n) + pos)
             pos += u.size
         self.starts = np.concatenate(starts_all)
+        #: the experiment of each sample: the covariance's lags stay within one
+        self.exp_of = np.repeat(np.arange(len(exps)), [u.size for u, _ in exps])
         self.ucat = np.concatenate([_shift(u, delay) for u, _ in exps])
         self.theta = np.concatenate([th for _, th in exps])
         self.cmask = self.ucat == 0.0 if coast else None
@@ -350,7 +355,7 @@ class ShootingProblem:
 
     # -- the solution ------------------------------------------------------------------------
     def solve(self, x0, max_nfev=200) -> ShootingFit:
-        """Levenberg-Marquardt from x0; the covariance s^2 (J^T J)^-1 at the optimum."""
+        """Levenberg-Marquardt from x0; the covariance of :meth:`covariance` at the optimum."""
         sol = optimize.least_squares(
             self.residuals,
             x0,
@@ -367,7 +372,7 @@ class ShootingProblem:
         r = self.residuals(x)
         dof = max(self.theta.size - x.size, 1)
         s2 = float(r @ r) / dof
-        cov_x = s2 * np.linalg.pinv(J.T @ J)
+        cov_x = self.covariance(J, r, s2)
         g, t0, w0 = self.unpack(x)
         cov, rate_sd = self._physical_covariance(g, cov_x)
         if self.coast:
@@ -385,6 +390,42 @@ class ShootingProblem:
             at_bound=self._at_bound(g, cov, rate_sd, self._full(x)[1]),
             cost=float(r @ r),
         )
+
+    def covariance(self, J, r, s2) -> np.ndarray:
+        """Covariance of the free parameters at the optimum (Jacobian ``J``, residuals ``r``,
+        residual variance ``s2``): honest for coloured residuals.
+
+        Each parameter's standard error is the largest of three estimates; the correlations are
+        those of the least-squares problem itself, (J^T J)^-1 (so the diagnostics of an
+        ill-conditioned fit see its shape, not the noise of a sandwich):
+
+        * the textbook s2 (J^T J)^-1, right for white residuals;
+        * the Newey-West (HAC) sandwich of :func:`jerklab.ident.covariance.newey_west` (Newey &
+          West 1987), lags within each experiment, for residuals of short memory of any origin;
+        * when the angle lies on an encoder's grid (:func:`~jerklab.ident.covariance.grid_step`),
+          the encoder's own quantization error simulated about the fitted angle, a random phase
+          per experiment and a jitter of the variance that s2 leaves above step^2/12
+          (:func:`~jerklab.ident.covariance.quantization_covariance`): its slow beats outlast any
+          short lag window.
+
+        They cover the spread of the estimate over records of the same motor (noise,
+        quantization, where the shaft stood). Not a bias of a model that misses part of the
+        plant (friction or a delay not fitted, a flexible load): no covariance covers that.
+        """
+        white = s2 * np.linalg.pinv(J.T @ J)
+        hac, self.lags = newey_west(J, r, self.exp_of, self.hac_lags)
+        sd = [np.diag(white), np.diag(hac)]
+        self.encoder_step = grid_step(self.theta, self.exp_of)
+        if self.encoder_step is not None:
+            q = self.encoder_step
+            jitter = math.sqrt(max(s2 - q * q / 12.0, 0.0))
+            sd.append(np.diag(quantization_covariance(J, self.theta + r, self.exp_of, q, jitter)))
+        sd_white = np.sqrt(np.clip(sd[0], 0.0, None))
+        sd_max = np.sqrt(np.clip(np.max(sd, axis=0), 0.0, None))
+        # scale the textbook covariance, parameter by parameter, up to the largest error
+        with np.errstate(invalid="ignore", divide="ignore"):
+            scale = np.where(sd_white > 0, sd_max / sd_white, 1.0)
+        return white * np.outer(scale, scale)
 
     def _physical_covariance(self, g, cov_x):
         """(K, ln tau, ..., rate) -> (K, tau, ..., tau_coast) by the delta method."""

@@ -567,8 +567,10 @@ def check_uncertainty(answer, evidence, truth):
     return CheckResult(
         "uncertainty",
         True,
-        "positive and small against the values: one standard error from "
-        "the covariance of each least-squares fit (s²(AᵀA)⁻¹ or the Jacobian for PEM).",
+        "positive and small against the values: one standard error from the covariance of "
+        "each fit (s²(AᵀA)⁻¹ for the sweep; for PEM a sandwich that allows for the encoder's "
+        "slowly changing error). They say how far a new record of the same motor would move "
+        "the estimate, not how wrong a model is: the +6 V step's K is off by friction, not noise.",
     )
 
 
