@@ -129,14 +129,42 @@ def test_sim_and_rig_defaults():
     assert dev.plant.counts_per_rev == paper.ENCODER_PPR and dev.pwm_max == paper.PWM_MAX
 
 
+def _firmware_boot_settings():
+    """The firmware's boot settings by member name: DeviceSettings' members (jl_device.h, in
+    order) paired with kBootSettings' initialiser (jl_device.cpp, the one image in flash)."""
+    src = ROOT / "firmware" / "jerklab_rig" / "src"
+    header = (src / "jl_device.h").read_text()
+    body = re.search(
+        r"struct __attribute__\(\(packed\)\) DeviceSettings \{(.*?)\n\};", header, re.S
+    )
+    assert body, "DeviceSettings not found in jl_device.h"
+    names = []
+    for line in body.group(1).splitlines():
+        decl = line.split("//")[0].strip()
+        m = re.match(r"(?:unsigned\s+)?[A-Za-z_][A-Za-z0-9_]*\s+([A-Za-z_][A-Za-z0-9_, ]*);$", decl)
+        if m:
+            names += [n.strip() for n in m.group(1).split(",")]
+    cpp = (src / "jl_device.cpp").read_text()
+    init = re.search(r"kBootSettings JL_PROGMEM = \{(.*?)\n\};", cpp, re.S)
+    assert init, "kBootSettings not found in jl_device.cpp"
+    values = [
+        v.strip()
+        for line in init.group(1).splitlines()
+        for v in line.split("//")[0].split(",")
+        if v.strip()
+    ]
+    assert len(values) == len(names), (names, values)
+    return dict(zip(names, values))
+
+
 def test_firmware_header_defaults():
-    """The firmware's defaults (parsed from jl_device.h) are the paper's numbers."""
-    text = (ROOT / "firmware" / "jerklab_rig" / "src" / "jl_device.h").read_text()
+    """The firmware's boot settings (parsed from jl_device.h and jl_device.cpp) are the
+    paper's numbers."""
+    boot = _firmware_boot_settings()
 
     def num(name):
-        m = re.search(rf"\b{name}\s*=\s*([0-9.eE+-]+)f?\b", text)
-        assert m, name
-        return float(m.group(1))
+        v = boot[name].rstrip("fFuUlL") if not boot[name].startswith("0x") else boot[name]
+        return float(int(v.rstrip("UL"), 16)) if v.startswith("0x") else float(v)
 
     assert (num("K_"), num("tau_"), num("supply_")) == pytest.approx(
         (paper.MOTOR_K, paper.MOTOR_TAU, paper.SUPPLY_VOLTAGE), rel=1e-7
@@ -144,6 +172,11 @@ def test_firmware_header_defaults():
     assert num("counts_per_rev_") == paper.ENCODER_PPR
     assert num("pwm_top_") == paper.PWM_MAX
     assert (num("max_jerk_"), num("max_accel_"), num("max_velocity_")) == paper.LIMITS
+    # 0.5 rad as IEEE bits, the tracking-error limit at boot (PROTOCOL.md "Safety stops")
+    import struct
+
+    bits = int(boot["max_error_bits_"].rstrip("UL"), 16)
+    assert struct.unpack("<f", struct.pack("<I", bits))[0] == 0.5
     ino = (ROOT / "firmware" / "jerklab_rig" / "jerklab_rig.ino").read_text()
     assert re.search(rf"#define JL_ENCODER_PPR {paper.ENCODER_PPR}\b", ino)
 

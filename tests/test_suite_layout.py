@@ -117,6 +117,50 @@ def _needs(func, consts) -> set[str]:
     return need
 
 
+def _reached_through_marked_params(tree) -> dict[str, set[str]]:
+    """Fixtures that the tests reach only through a parametrized fixture's marked param:
+    ``{name: marks}`` for each fixture ``name`` that no test or fixture takes as an argument
+    and that is fetched (``request.getfixturevalue("name")``) only inside fixtures whose
+    ``params`` mark *every* param that is not the plain one, e.g. ``params=["virtual",
+    pytest.param("simavr", marks=pytest.mark.simavr)]``: its needs are then the marked
+    params' marks (the unmarked path never fetches it; the test only checks that it is
+    fetched in such fixtures, the fetch's own branch is for the reader)."""
+    funcs = [n for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)]
+    as_arg = {a.arg for f in funcs for a in f.args.args}
+    fetched: dict[str, list[set[str]]] = {}
+    for f in funcs:
+        param_marks = set()
+        for d in f.decorator_list:
+            if not (isinstance(d, ast.Call) and ast.unparse(d.func) == "pytest.fixture"):
+                continue
+            for kw in d.keywords:
+                if kw.arg != "params" or not isinstance(kw.value, (ast.List, ast.Tuple)):
+                    continue
+                for p in kw.value.elts:
+                    if isinstance(p, ast.Call) and ast.unparse(p.func) == "pytest.param":
+                        for k in p.keywords:
+                            if k.arg == "marks":
+                                vals = (
+                                    k.value.elts
+                                    if isinstance(k.value, (ast.List, ast.Tuple))
+                                    else [k.value]
+                                )
+                                param_marks |= {ast.unparse(v).rsplit(".", 1)[-1] for v in vals}
+        for node in ast.walk(f):
+            if (
+                isinstance(node, ast.Call)
+                and ast.unparse(node.func).endswith("getfixturevalue")
+                and node.args
+                and isinstance(node.args[0], ast.Constant)
+            ):
+                fetched.setdefault(node.args[0].value, []).append(param_marks)
+    return {
+        name: set.intersection(*marks)
+        for name, marks in fetched.items()
+        if name not in as_arg and all(marks)
+    }
+
+
 def unmarked_needs(path: pathlib.Path) -> list[str]:
     """``file::function needs marker`` for every test or fixture without the marker it needs
     (a fixture's needs must be marked on the whole file, in ``FILE_MARKS``)."""
@@ -132,6 +176,7 @@ def unmarked_needs(path: pathlib.Path) -> list[str]:
                 node.value.elts if isinstance(node.value, (ast.List, ast.Tuple)) else [node.value]
             )
             file_marks |= _marks(vals)
+    reached = _reached_through_marked_params(tree)
     out = []
     for node in tree.body:
         if isinstance(node, ast.ClassDef):
@@ -143,6 +188,7 @@ def unmarked_needs(path: pathlib.Path) -> list[str]:
             if not isinstance(f, ast.FunctionDef):
                 continue
             missing = _needs(f, consts) - file_marks - cls_marks - _marks(f.decorator_list)
+            missing -= reached.get(f.name, set())
             out += [f"{rel}::{f.name} needs {m}" for m in sorted(missing)]
     return out
 
@@ -290,3 +336,24 @@ def test_cases_takes_the_share_of_the_loaded_profile():
         conftest.cases("expensive")
     with pytest.raises(TypeError, match="max_examples"):
         conftest.cases("costly", **{"max_examples": 5})  # (a keyword the check above finds)
+
+
+def test_a_fixture_reached_only_through_a_marked_param_needs_no_file_mark(tmp_path, monkeypatch):
+    """``uno`` needs simavr and is fetched only in the simavr param of ``any_rig`` (marked):
+    it passes; ``bare`` is fetched by an unmarked param and ``taken`` is a test's argument:
+    both are found."""
+    monkeypatch.setattr("test_suite_layout.TESTS", tmp_path)
+    f = tmp_path / "test_y.py"
+    f.write_text(
+        "import pytest\n"
+        "@pytest.fixture\ndef uno():\n    require_simavr()\n"
+        "@pytest.fixture\ndef bare():\n    require_simavr()\n"
+        "@pytest.fixture\ndef taken():\n    require_simavr()\n"
+        "@pytest.fixture(params=['virtual', pytest.param('simavr', marks=pytest.mark.simavr)])\n"
+        "def any_rig(request):\n    return request.getfixturevalue('uno')\n"
+        "@pytest.fixture(params=['virtual', 'simavr'])\n"
+        "def loose(request):\n    return request.getfixturevalue('bare')\n"
+        "def test_h(any_rig, loose, taken):\n    pass\n",
+        encoding="utf-8",
+    )
+    assert unmarked_needs(f) == ["test_y.py::bare needs simavr", "test_y.py::taken needs simavr"]
