@@ -105,24 +105,38 @@ def verdicts(nb):
     return out
 
 
+#: how long run_master's virtual rigs wait for data (s; the rig's default is 2 s)
+LINK_TIMEOUT = 30.0
+
+
 def run_master(n, motor, profile=None, student="corner"):
     """Run the master of lab ``n`` (solutions in) in this process, in a plain namespace, as a
     student who got everything right: its code cells in order with ``PROFILE`` set to
     ``profile`` and the session's hidden motor replaced by ``motor`` (the instructor key is in
-    the environment: the checks see its truth); the hand-in cell is left out. Returns
-    ``(session, failures)``: the :class:`jerklab.lab.LabSession` and ``(cell, message)`` of
-    every check cell whose assert failed (any other error propagates)."""
+    the environment: the checks see its truth); the hand-in cell is left out. The virtual
+    rigs wait up to ``LINK_TIMEOUT`` for the device (a loaded test machine is slower than a
+    student's). Returns ``(session, failures)``: the :class:`jerklab.lab.LabSession` and
+    ``(cell, message)`` of every check cell whose assert failed (any other error propagates)."""
     from unittest import mock
 
     import matplotlib.pyplot as plt
     import nbformat
 
     from jerklab.lab.grade import master_path
+    from jerklab.rig import Link, connect
+
+    def patient(*args, **kwargs):
+        kwargs.setdefault("link", Link(timeout=LINK_TIMEOUT))
+        return connect(*args, **kwargs)
 
     nb = nbformat.read(master_path(n), as_version=4)
     ns = {"__name__": f"lab{n}_master"}
     failures = []
-    with mock.patch("jerklab.lab.session.student_motor", lambda *a, **k: motor):
+    with (
+        mock.patch("jerklab.lab.session.student_motor", lambda *a, **k: motor),
+        mock.patch("jerklab.lab.session.connect", patient),
+        mock.patch("jerklab.lab.checks.connect", patient),
+    ):
         for i, c in enumerate(nb.cells):
             if c.cell_type != "code" or "S.submit(" in c.source:
                 continue
