@@ -103,3 +103,54 @@ def verdicts(nb):
         text = "\n".join(t for t in texts if t) or "\n".join(errors)
         out.append((m.group(1), text.startswith("✔"), text))
     return out
+
+
+#: how long run_master's virtual rigs wait for data (s; the rig's default is 2 s)
+LINK_TIMEOUT = 30.0
+
+
+def run_master(n, motor, profile=None, student="corner"):
+    """Run the master of lab ``n`` (solutions in) in this process, in a plain namespace, as a
+    student who got everything right: its code cells in order with ``PROFILE`` set to
+    ``profile`` and the session's hidden motor replaced by ``motor`` (the instructor key is in
+    the environment: the checks see its truth); the hand-in cell is left out. The virtual
+    rigs wait up to ``LINK_TIMEOUT`` for the device (a loaded test machine is slower than a
+    student's). Returns ``(session, failures)``: the :class:`jerklab.lab.LabSession` and
+    ``(cell, message)`` of every check cell whose assert failed (any other error propagates)."""
+    from unittest import mock
+
+    import matplotlib.pyplot as plt
+    import nbformat
+
+    from jerklab.lab.grade import master_path
+    from jerklab.rig import Link, connect
+
+    def patient(*args, **kwargs):
+        kwargs.setdefault("link", Link(timeout=LINK_TIMEOUT))
+        return connect(*args, **kwargs)
+
+    nb = nbformat.read(master_path(n), as_version=4)
+    ns = {"__name__": f"lab{n}_master"}
+    failures = []
+    with (
+        mock.patch("jerklab.lab.session.student_motor", lambda *a, **k: motor),
+        mock.patch("jerklab.lab.session.connect", patient),
+        mock.patch("jerklab.lab.checks.connect", patient),
+    ):
+        for i, c in enumerate(nb.cells):
+            if c.cell_type != "code" or "S.submit(" in c.source:
+                continue
+            src = c.source
+            if 'STUDENT = "' in src:
+                src = re.sub(r'STUDENT = "[^"]*"', f'STUDENT = "{student}"', src)
+                src, k = re.subn(r"PROFILE = None", f"PROFILE = {profile!r}", src)
+                assert k == 1, "no PROFILE line in the set-up cell"
+            try:
+                exec(compile(src, f"lab{n} master cell {i}", "exec"), ns)
+            except AssertionError as exc:
+                if "S.verify(" not in src:
+                    raise
+                failures.append((i, str(exc)))
+            finally:
+                plt.close("all")
+    return ns["S"], failures

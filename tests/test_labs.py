@@ -453,7 +453,7 @@ def test_worksheet_with_solutions_passes_every_check(n, tmp_path):
 WRONG = {
     1: ("K = coef[0]", "K = coef[0] * 180 / np.pi", "K", "factor 57.3"),
     2: (
-        'panel.controls["wn"].value = 30.0',
+        'panel.controls["wn"].value = S.spec["design_wn"]',
         'panel.controls["design"].value = "continuous"; panel.controls["wn"].value = 80.0',
         "design",
         "your sampled loop has |z| = ",

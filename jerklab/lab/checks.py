@@ -378,11 +378,17 @@ def check_pre_tau63(answer, evidence, truth):
     return CheckResult("pre_tau63", False, f"{side(v, 0.040)}: solve 1 − e^(−t/τ) = 0.63 for t.")
 
 
+def _sweep_volts(evidence):
+    """Lab 1's sweep on the evidence's motor profile (``lab_spec``; paper: :data:`SWEEP_VOLTS`)."""
+    name = getattr(evidence, "profile", None)
+    return SWEEP_VOLTS if name is None else lab_spec(1, name)["sweep_volts"]
+
+
 def _lab1_reference(evidence, truth):
     """(K, tau, f_c, offset) of the motor: the truth on a simulated plant, else the checker's fit."""
     if truth is not None:
         return truth["K"], truth["tau"], truth["coulomb_friction"], truth["offset"], "your motor"
-    speeds = {v: steady_speed(run_of(evidence, step_name(v))) for v in SWEEP_VOLTS}
+    speeds = {v: steady_speed(run_of(evidence, step_name(v))) for v in _sweep_volts(evidence)}
     (K, fc, off), _ = sweep_fit(speeds)
     r = run_of(evidence, step_name(6.0))
     tau = ident.fit_dc_motor(r.voltage, r.position, r.Ts, "pem").tau
@@ -442,7 +448,7 @@ def _single_step_gains(evidence):
     except ValueError:
         pass
     try:
-        speeds = {v: steady_speed(run_of(evidence, step_name(v))) for v in SWEEP_VOLTS}
+        speeds = {v: steady_speed(run_of(evidence, step_name(v))) for v in _sweep_volts(evidence)}
         k_sweep = sweep_fit(speeds)[0][0]
     except Missing:
         k_sweep = None
@@ -1033,7 +1039,7 @@ def check_durations(answer, evidence, truth):
                 "durations",
                 False,
                 f"{k}: {side(v, p[k].duration, 'too long', 'too short')}: plan it with "
-                "the move's limits (lab.MOVE) and read profile.duration.",
+                "the move's limits (S.spec['move']) and read profile.duration.",
             )
     return CheckResult(
         "durations",
@@ -1065,8 +1071,13 @@ def check_lost_time(answer, evidence, truth):
 
 
 def _prediction(evidence, model):
+    """Lab 3's predicted max error and peak voltage of each move: the z-domain design at the
+    lab's ωn (``design_wn`` on the evidence's motor profile; 30 rad/s on the paper's class),
+    ζ = 1, on the student's model."""
     K, tau, fc = model
-    g = discrete_pole_placement_pid(K, tau, 30.0, 1.0, Ts=DESIGN_TS)
+    name = getattr(evidence, "profile", None)
+    s3 = _LAB2 if name is None else lab_spec(3, name)
+    g = discrete_pole_placement_pid(K, tau, s3["design_wn"], 1.0, Ts=s3["design_Ts"])
     motor = DCMotor(K=K, tau=tau, coulomb_friction=fc, encoder_ppr=evidence.counts_per_rev)
     out = {}
     for k, p in _plans(evidence).items():

@@ -54,6 +54,10 @@ MAX_ERROR, PAPER_VELOCITY, MIN_ERROR_SHARE = 0.40, 80.0, 0.3
 SWEEP_FRACTIONS = (0.25, 0.5, 0.75)
 #: lab 1's steps last this many of the slowest τ (rounded up to 0.1 s)
 STEP_TAUS = 6.6
+#: lab 1's expected steady speeds: the model's range widened by this fraction each way
+SPEED_MARGIN = 0.02
+#: lab 1's PRBS holds each bit at least one sample per this many volts of the largest friction
+PRBS_HOLD_FRICTION = 0.35
 
 
 def _round2(x: float) -> float:
@@ -112,9 +116,12 @@ def lab_spec(lab, profile="paper") -> dict:
     dict
         lab 1: ``sweep_volts``, ``step_seconds``, ``prbs`` (``rig.record_prbs`` keywords) and
         ``expected`` (``counts_per_rev`` options, the steady ``speeds`` range at each sweep
-        voltage, the ``tau`` range); labs 2-3: ``move`` and ``spec`` (the tolerances of the
-        move: max tracking error, overshoot, settle band and time, max voltage), ``design_Ts``;
-        lab 4: ``move``.
+        voltage, as magnitudes in rad/s, the ``tau`` range in s); labs 2-3: ``move`` and
+        ``spec`` (the tolerances of the move: max tracking error, overshoot, settle band and
+        time, max voltage), the design's ``design_wn`` (rad/s) and ``design_Ts`` (s), and lab
+        1's ``sweep_volts`` and ``step_seconds`` (to identify the motor again); lab 4:
+        ``move`` and ``prbs`` (the mode's PRBS: a quarter of the supply about its half, order
+        9, one sample a bit; 6 ± 3 V on 12 V, ``jerklab.lab.PRBS_MODE``).
     """
     p = load_profile(profile)
     if lab not in (1, 2, 3, 4):
@@ -128,10 +135,24 @@ def lab_spec(lab, profile="paper") -> dict:
         lo_K, hi_K = p.K_range
         lo_f, hi_f = p.friction_range
         off = hidden_ranges(p)["offset"][1]
+        # Stojčić eq. 1's steady speed K (|V| ∓ offset − f_c) at the distribution's ends, widened
+        # by SPEED_MARGIN for what a recording adds (PWM steps, count noise, the last 0.1 s fit)
         speeds = {
-            v: (lo_K * max(abs(v) - hi_f - off, 0.0), hi_K * (abs(v) - lo_f + off)) for v in volts
+            v: (
+                (1 - SPEED_MARGIN) * lo_K * max(abs(v) - hi_f - off, 0.0),
+                (1 + SPEED_MARGIN) * hi_K * (abs(v) - lo_f + off),
+            )
+            for v in volts
         }
-        hold = max(2, int(round(2 * p.tau_range[1] / 0.06)))
+        # each PRBS bit lasts about a sixth of the slowest τ; and the record starts from rest
+        # (0.05 s at 0 V), where friction is not the constant offset PEM fits: a sample more per
+        # PRBS_HOLD_FRICTION volts of the largest friction keeps that start's share small
+        # (tests/test_lab_profiles.py runs lab 1 at the corners: PEM's K within 4 %)
+        hold = max(
+            2,
+            int(round(2 * p.tau_range[1] / 0.06)),
+            int(round(p.friction_range[1] / PRBS_HOLD_FRICTION)),
+        )
         return {
             "sweep_volts": volts,
             "step_seconds": _ceil01(STEP_TAUS * p.tau_range[1] - 1e-9),
@@ -148,7 +169,15 @@ def lab_spec(lab, profile="paper") -> dict:
             },
         }
     if lab == 4:
-        return {"move": move_limits(p, 4)}
+        return {
+            "move": move_limits(p, 4),
+            "prbs": {
+                "amplitude": round(V / 4, 6),
+                "offset": round(V / 2, 6),
+                "order": 9,
+                "hold": 1,
+            },
+        }
     move = move_limits(p, lab)
     # the worksheet's design: three poles at ωn (Stojčić eq. 11), ωn τ_max = 1.8 as on the paper's
     # class (30 rad/s, 60 ms), no faster than 30 rad/s at Ts = 5 ms; the settling allowed after the
@@ -160,6 +189,7 @@ def lab_spec(lab, profile="paper") -> dict:
         3.0 * p.tau_range[1]
     )
     wn = min(DESIGN_WN, _round2(DESIGN_WN_TAU / p.tau_range[1]), _round2(kick))
+    ident = lab_spec(1, p)
     return {
         "move": move,
         "design_wn": wn,
@@ -177,4 +207,6 @@ def lab_spec(lab, profile="paper") -> dict:
             "max_voltage": V,  # V, and no saturated sample
         },
         "design_Ts": DESIGN_TS,
+        "sweep_volts": ident["sweep_volts"],
+        "step_seconds": ident["step_seconds"],
     }
