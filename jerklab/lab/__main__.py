@@ -15,6 +15,7 @@ from jerklab.lab.grade import assign, grade_folder
 from jerklab.lab.motors import instructor_key
 from jerklab.lab.sandbox import SandboxUnavailable
 from jerklab.lab.service import main as service_main
+from jerklab.rig import load_profile
 
 
 def main(argv=None):
@@ -50,6 +51,12 @@ def main(argv=None):
         default=None,
         help="the class rig service's check log: attempts per check into the CSV",
     )
+    g.add_argument(
+        "--profile",
+        default=None,
+        help="the class's motor profile, as given to the service's --profile (a built-in name "
+        "or a profile file): the hidden motors and the lab's numbers are scored on it",
+    )
     a = sub.add_parser(
         "assign", help="write the student worksheets (solutions stripped) from the masters"
     )
@@ -71,6 +78,11 @@ def main(argv=None):
                 "(it can read your files and key and change other submissions)",
                 file=sys.stderr,
             )
+        if args.profile is not None:
+            try:
+                load_profile(args.profile)
+            except (ValueError, TypeError, OSError) as exc:
+                ap.error(f"--profile: {exc}")
         try:
             rows = grade_folder(
                 args.submissions,
@@ -80,6 +92,7 @@ def main(argv=None):
                 jobs=args.jobs,
                 unsafe_no_sandbox=args.unsafe_no_sandbox,
                 check_log=args.check_log,
+                profile=args.profile,
             )
         except SandboxUnavailable as exc:
             print(f"grade: refused: {exc}", file=sys.stderr)

@@ -76,7 +76,7 @@ from jerklab.lab.registry import FLEXIBLE_LABS, LABS, run_check
 from jerklab.lab.sandbox import SAFE_ENV, SandboxUnavailable, bwrap_path, sandbox_command
 from jerklab.lab.service import attempt_counts
 from jerklab.lab.signing import claims_graded, verify_run
-from jerklab.rig import Recording
+from jerklab.rig import Recording, load_profile
 from jerklab.rig.server import DeviceServer
 from jerklab.rig.virtual import VirtualDevice
 
@@ -539,7 +539,7 @@ def decode_answer(x, depth=0):
     raise ValueError(f"answer: unexpected {type(x).__name__}")
 
 
-def _evidence_of(doc, answers, signed=None, rejected=None) -> tuple[Evidence, list]:
+def _evidence_of(doc, answers, signed=None, rejected=None, profile=None) -> tuple[Evidence, list]:
     """The export's recordings as the checks' evidence. With ``signed = (key, student, lab)``
     a recording that claims to come from the class rig service (a signature, or mode
     "graded") is kept only if its signature verifies (:func:`jerklab.lab.signing.verify_run`);
@@ -574,12 +574,14 @@ def _evidence_of(doc, answers, signed=None, rejected=None) -> tuple[Evidence, li
     if isinstance(cpr, bool) or not isinstance(cpr, int) or not 1 <= cpr <= 10**7:
         cpr = None
     plain = {k: v for k, v in answers.items() if not isinstance(v, DiscreteGains)}
-    return Evidence(runs=good, answers=plain, counts_per_rev=cpr), notes
+    # the profile is the grader's (--profile), never what the export says
+    return Evidence(runs=good, answers=plain, counts_per_rev=cpr, profile=profile), notes
 
 
-def _score(lab, qs, doc, truth, signed=None, rejected=None) -> tuple[dict, list]:
+def _score(lab, qs, doc, truth, signed=None, rejected=None, profile=None) -> tuple[dict, list]:
     """``{question: (score, max, message)}`` of an export ``doc`` against ``truth`` (``signed``,
-    ``rejected``: :func:`_evidence_of`)."""
+    ``rejected``: :func:`_evidence_of`; ``profile``: the class's motor profile, a name or a
+    file, None for the paper's class motors)."""
     raw = doc.get("answers") if isinstance(doc.get("answers"), dict) else {}
     answers, unread = {}, {}
     for name in qs:
@@ -587,7 +589,7 @@ def _score(lab, qs, doc, truth, signed=None, rejected=None) -> tuple[dict, list]
             answers[name] = decode_answer(raw.get(name))
         except ValueError as exc:
             unread[name] = str(exc)
-    evidence, notes = _evidence_of(doc, answers, signed, rejected)
+    evidence, notes = _evidence_of(doc, answers, signed, rejected, profile)
     out = {}
     for name, (points, _) in qs.items():
         if name in unread:
@@ -609,9 +611,15 @@ def _score(lab, qs, doc, truth, signed=None, rejected=None) -> tuple[dict, list]
 
 
 # ------------------------------------------------------------------ one submission
-def _served_rig(student, lab, key):
-    """The hidden motor of ``student`` for ``lab``, simulated here and served on a pty."""
-    motor = student_motor(student, key, plant="flexible" if lab in FLEXIBLE_LABS else "rigid")
+def _served_rig(student, lab, key, profile=None):
+    """The hidden motor of ``student`` for ``lab`` (drawn around ``profile``'s ranges, the
+    paper's class motors without one), simulated here and served on a pty."""
+    motor = student_motor(
+        student,
+        key,
+        plant="flexible" if lab in FLEXIBLE_LABS else "rigid",
+        profile=None if profile is None else load_profile(profile),
+    )
     dev = student_device(motor)
     server = DeviceServer(
         VirtualDevice(motor, count_noise=dev.count_noise, noise_seed=dev.noise_seed), speed=None
@@ -676,7 +684,14 @@ def _read_export(proc, fd, timeout) -> tuple[bytes | None, str | None]:
 
 
 def grade_one(
-    lab, notebook: bytes, student, timeout=300.0, sandbox=True, key=None, numba_cache=None
+    lab,
+    notebook: bytes,
+    student,
+    timeout=300.0,
+    sandbox=True,
+    key=None,
+    numba_cache=None,
+    profile=None,
 ) -> dict:
     """Run one worksheet (its bytes) in a sandbox on the student's served hidden motor, decode
     its export and score it.
@@ -686,6 +701,11 @@ def grade_one(
     compiled kernels instead of compiling them, and what it compiles or changes stays in its
     own copy.
 
+    ``profile`` (a built-in name or a profile file, as given to the class rig service's
+    ``--profile``): the hidden motor is drawn around its ranges, the worksheet runs with it
+    (``$JERKLAB_LAB_PROFILE_JSON``: the session adopts it, whatever its ``PROFILE`` line says)
+    and the checks score on its numbers.
+
     Returns
     -------
     dict
@@ -694,11 +714,11 @@ def grade_one(
     """
     qs = questions(lab)
     student = normalize_student(student)
-    server, motor = _served_rig(student, lab, key)
+    server, motor = _served_rig(student, lab, key, profile)
     work = Path(tempfile.mkdtemp(prefix="jerklab-grade-"))
     try:
         res = _run_and_score(
-            lab, qs, notebook, student, timeout, sandbox, server, motor, work, numba_cache
+            lab, qs, notebook, student, timeout, sandbox, server, motor, work, numba_cache, profile
         )
         return res
     finally:
@@ -706,7 +726,9 @@ def grade_one(
         shutil.rmtree(work, ignore_errors=True)
 
 
-def _run_sheet(lab, qs, notebook, timeout, sandbox, server, motor, work, numba_cache=None):
+def _run_sheet(
+    lab, qs, notebook, timeout, sandbox, server, motor, work, numba_cache=None, profile=None
+):
     """Run ``notebook`` in ``work`` (sandboxed unless ``sandbox`` is False) on ``server``'s rig;
     (export bytes or None, error or None, exit code)."""
     sheet = work / student_version_name(lab)
@@ -735,6 +757,8 @@ def _run_sheet(lab, qs, notebook, timeout, sandbox, server, motor, work, numba_c
         "JERKLAB_LOCK_DIR": str(work / "locks"),
         "NUMBA_CACHE_DIR": str(nb_cache),
     }
+    if profile is not None:  # the profile itself: a file of the instructor's is not in the sandbox
+        env["JERKLAB_LAB_PROFILE_JSON"] = json.dumps(load_profile(profile).to_dict())
     if sandbox:
         cmd = sandbox_command(argv, work, env=env, devices=[(server.port, _RIG_IN_SANDBOX)])
     else:
@@ -757,9 +781,11 @@ def _run_sheet(lab, qs, notebook, timeout, sandbox, server, motor, work, numba_c
     return data, err, proc.returncode
 
 
-def _run_and_score(lab, qs, notebook, student, timeout, sandbox, server, motor, work, numba_cache):
+def _run_and_score(
+    lab, qs, notebook, student, timeout, sandbox, server, motor, work, numba_cache, profile=None
+):
     data, err, code = _run_sheet(
-        lab, qs, notebook, timeout, sandbox, server, motor, work, numba_cache
+        lab, qs, notebook, timeout, sandbox, server, motor, work, numba_cache, profile
     )
     if err:
         return {"scores": {}, "error": err, "notes": []}
@@ -778,7 +804,7 @@ def _run_and_score(lab, qs, notebook, student, timeout, sandbox, server, motor, 
     truth = hidden_truth(motor)
     rejected = []
     signer, _ = instructor_key(warn=False)
-    scores, notes = _score(lab, qs, doc, truth, (signer, student, lab), rejected)
+    scores, notes = _score(lab, qs, doc, truth, (signer, student, lab), rejected, profile)
     errs = doc.get("errors") if isinstance(doc.get("errors"), list) else []
     if errs:  # the cell and the kind of error only: no text of the sandbox comes back
         first = errs[0] if isinstance(errs[0], dict) else {}
@@ -950,9 +976,11 @@ def _plain_text(x, n) -> str:
 
 
 def _grade_job(args):
-    lab, nb, student, timeout, sandbox, key, numba_cache = args
+    lab, nb, student, timeout, sandbox, key, profile, numba_cache = args
     try:
-        return grade_one(lab, nb, student, timeout, sandbox, key=key, numba_cache=numba_cache)
+        return grade_one(
+            lab, nb, student, timeout, sandbox, key=key, numba_cache=numba_cache, profile=profile
+        )
     except Exception as exc:  # the grader's own failure on this submission: its row says so
         return {"scores": {}, "error": f"grading failed ({type(exc).__name__})", "notes": []}
 
@@ -1002,6 +1030,7 @@ def grade_folder(
     jobs=1,
     unsafe_no_sandbox=False,
     check_log=None,
+    profile=None,
 ) -> list[dict]:
     """Grade every ``*.zip`` hand-in and bare ``*.ipynb`` in ``folder``.
 
@@ -1032,6 +1061,10 @@ def grade_folder(
     check_log : path, optional
         The class rig service's check log (:func:`jerklab.lab.service.attempt_counts`): each
         row also gets ``attempts_<check>``, how often the student tried each check.
+    profile : str or MotorProfile, optional
+        The class's motor profile, as given to the class rig service's ``--profile``: every
+        hidden motor is drawn around its ranges and every check scores on its numbers
+        (default: the paper's class motors).
 
     Raises
     ------
@@ -1048,6 +1081,11 @@ def grade_folder(
     if not (math.isfinite(timeout) and timeout > 0):
         raise ValueError(f"timeout must be a positive number of seconds, got {timeout!r}")
     sandbox = not unsafe_no_sandbox
+    if profile is not None:
+        try:
+            load_profile(profile)
+        except (TypeError, OSError) as exc:
+            raise ValueError(f"profile: {exc}") from None
     if sandbox and (bwrap_path() is None or shutil.which("prlimit") is None):
         raise SandboxUnavailable(
             "grading runs every worksheet in a bubblewrap sandbox, and bwrap (or prlimit) is "
@@ -1103,7 +1141,9 @@ def grade_folder(
             row["flags"] = "; ".join(
                 f for f in (row["flags"], "practice: a public motor, not graded work") if f
             )
-        todo.append((i, [sub["lab"], sub["notebook"], sub["student"], timeout, sandbox, key]))
+        todo.append(
+            (i, [sub["lab"], sub["notebook"], sub["student"], timeout, sandbox, key, profile])
+        )
     _QUESTIONS.clear()
     labs_todo = sorted({a[0] for _, a in todo})
     for lab in labs_todo:

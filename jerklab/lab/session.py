@@ -47,6 +47,7 @@ from jerklab.lab.plain import Evidence, Run, jsonable
 from jerklab.lab.registry import FLEXIBLE_LABS, LABS, check_function
 from jerklab.lab.specs import lab_spec
 from jerklab.rig import Device, MotorProfile, RigError, connect, load_profile
+from jerklab.rig.profiles import builtin_profiles, profile_from_dict
 
 __all__ = ["LabSession", "start", "panel_gains", "CheckResult", "LABS", "SPEC", "MOVE", "MODES"]
 
@@ -80,6 +81,23 @@ def _grader_served(port) -> bool:
     device, whose motor is at rest at once after every run."""
     served = os.environ.get("JERKLAB_LAB_RIG")
     return bool(served) and port == served
+
+
+def _graders_profile(port):
+    """The class's motor profile the grader serves its rig with (``$JERKLAB_LAB_PROFILE_JSON``,
+    set by ``grade --profile``; a built-in profile by its name, another written to a file in
+    the working folder), or None."""
+    text = os.environ.get("JERKLAB_LAB_PROFILE_JSON")
+    if not text or not _grader_served(port):
+        return None
+    import json
+
+    prof = profile_from_dict(json.loads(text))
+    if builtin_profiles().get(prof.name) == prof:
+        return prof.name
+    path = Path(os.environ.get("JERKLAB_LAB_WORK", ".")) / "class-profile.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return str(prof.save(path))
 
 
 def _served_device():
@@ -143,6 +161,11 @@ class LabSession:
         self.lab = lab
         self.port = _port_from_env(port)
         self.plant = "flexible" if lab in FLEXIBLE_LABS else "rigid"
+        graders = _graders_profile(self.port)
+        if graders is not None:
+            # graded by `python -m jerklab.lab grade --profile`: the class's profile decides
+            # the motor and the numbers, whatever the worksheet's PROFILE line says
+            profile = graders
         # the rig's motor profile: the hidden motors' ranges, the moves and specs (lab_spec)
         self.profile = None if profile is None else load_profile(profile)
         # what the checks are told (a name, or a profile file's path)

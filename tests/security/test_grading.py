@@ -363,3 +363,28 @@ def test_honest_worksheets_of_labs_2_to_4_score_full_marks(lab, tmp_path, monkey
     assert res["error"] is None, res
     missed = {q: m for q, (s, mx, m) in res["scores"].items() if s < mx}
     assert not missed and len(res["scores"]) >= 6, missed
+
+
+def test_a_class_on_a_profile_is_graded_on_it(tmp_path, monkeypatch):
+    """``grade --profile``: the served hidden motor is drawn around the profile's ranges (the
+    37D gearmotor: K 2-3.5 rad/(V s), far below the paper's class, 15-45), the worksheet (its
+    PROFILE line left at None) adopts the grader's profile, and the solved lab 1 scores full
+    marks on it; a profile the grader does not know is refused naming the option."""
+    from jerklab.lab import grade
+    from jerklab.lab.__main__ import main as lab_main
+    from jerklab.lab.motors import hidden_truth, student_motor
+    from jerklab.rig import load_profile
+
+    require_tool("bwrap", "prlimit")
+    monkeypatch.setenv("JERKLAB_INSTRUCTOR_KEY", KEY)
+    prof = load_profile("pololu-37d-30")
+    truth = hidden_truth(student_motor("prof1", KEY.encode(), profile=prof))
+    assert prof.K_range[0] <= truth["K"] <= prof.K_range[1] and truth["K"] < 15.0
+    res = grade.grade_one(
+        1, grade.solved_master(1, "prof1"), "prof1", timeout=600, profile=prof.name
+    )
+    assert res["error"] is None, res
+    missed = {q: m for q, (s, mx, m) in res["scores"].items() if s < mx}
+    assert not missed and len(res["scores"]) >= 6, missed
+    with pytest.raises(SystemExit):
+        lab_main(["grade", str(tmp_path), "--profile", "no-such-motor"])
