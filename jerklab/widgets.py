@@ -803,8 +803,13 @@ class PolePlacementPanel(_panel_base()):
             row = widgets.Box(items)
             row.add_class("jerklab-rig-row")
             rows.append(row)
+            # a run on a rig of this kernel draws live here (jerklab.rig.live) while the
+            # telemetry arrives; the panel's figure then overlays the run
+            self.live_box = widgets.VBox([])
+            self.live_box.add_class("jerklab-rig-live")
         images = [self.image] + ([self.image_narrow] if self.image_narrow is not None else [])
-        super().__init__(rows + [self.status] + images)
+        live = [self.live_box] if rig is not None else []
+        super().__init__(rows + [self.status] + live + images)
         self.add_class("jerklab-panel")
         if self.image_narrow is not None:
             self.add_class("jerklab-has-narrow")
@@ -849,6 +854,9 @@ class PolePlacementPanel(_panel_base()):
 
     def _on_change(self, change):
         self._rig_error = None
+        live = getattr(self, "live_box", None)
+        if live is not None:
+            live.children = ()  # the last run's live plot is stale with the new design
         self.update()
 
     def update(self):
@@ -924,6 +932,11 @@ class PolePlacementPanel(_panel_base()):
             base = folder / unique_run_name()
         return base
 
+    def _show_live(self, widget):
+        """Put a run's live plot (:mod:`jerklab.rig.live`) in the panel's live box."""
+        self.live_box.children = (widget,)
+        return None  # no display handle: the plot updates its own widgets
+
     def _show_rig_status(self, text):
         self.rig_status.value = text
 
@@ -950,8 +963,14 @@ class PolePlacementPanel(_panel_base()):
                     self.rig.client = self.student_id  # names the run in the broker's queue
             if force and _accepts(self.rig.run_move, "force"):
                 kwargs["force"] = True
-            if _names(self.rig.run_move, "live"):
-                kwargs["live"] = False  # the panel overlays the run itself (jerklab.rig.live)
+            if _names(self.rig.run_move, "live") and hasattr(self.rig, "live_display"):
+                # a rig of this kernel: the run draws live in the panel's own box (a callback
+                # has no cell output), then the panel's figure overlays it
+                self.live_box.children = ()
+                self.rig.live_display = self._show_live
+                kwargs["live"] = True
+            elif _names(self.rig.run_move, "live"):
+                kwargs["live"] = False
             rec = self.rig.run_move(tuning.move_profile(self.move), res.gains, **kwargs)
             self.last_recording = rec
             t = np.asarray(rec.time, dtype=float)

@@ -291,3 +291,41 @@ def test_a_real_time_rig_run_feeds_the_thread(monkeypatch):
     assert p.draws >= 3 and not p._thread.is_alive()  # empty, during the run (>= 1), final
     assert p.count.value == f"{len(rec)} samples (complete)"
     _check_complete(p, rec)
+
+
+def test_the_tuning_panel_draws_its_rig_run_live_in_its_own_box(monkeypatch, tmp_path):
+    """The class page's panel on a rig of its kernel (``jerklab app`` without a shared rig): a
+    button callback has no cell output, so the run's live plot goes into the panel's own box
+    (``rig.live_display``), is redrawn during the run, ends with the recording's sample count,
+    and is dropped when a slider changes the design."""
+    from jerklab.app import panel_for_page
+
+    monkeypatch.setenv("JERKLAB_RECORDINGS", str(tmp_path))
+    made = []
+
+    def factory(rec, total, label, enabled=None, **kw):
+        p = L.LivePlot(
+            rec, total, label, background=False, clock=lambda: len(rec) * rec.Ts, dpi=36, **kw
+        )
+        made.append(p)
+        return p
+
+    import jerklab.rig.client as C
+
+    monkeypatch.setattr(C, "_live_plot", factory)
+    p = panel_for_page(rig_port="virtual")
+    try:
+        p.student.value = "s-live"
+        p.rig_button.click()
+        assert p._rig_error is not None, p.rig_status.value
+        (plot,) = made
+        (box,) = p.live_box.children
+        assert box is plot.widget and L.BOX_CLASS in box._dom_classes
+        n = len(p.last_recording)
+        assert plot.count.value == f"{n} samples (complete)"
+        assert _rate_during_run(plot, p.last_recording) >= 5.0
+        _check_complete(plot, p.last_recording)
+        p.controls["wn"].value = 25.0
+        assert p.live_box.children == ()
+    finally:
+        p.rig.close()

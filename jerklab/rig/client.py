@@ -183,6 +183,9 @@ class Rig:
         self.timeout = as_positive("timeout", timeout)
         self.progress = bool(progress)
         self.live = _as_live("live", live)
+        #: where a live plot goes: None (the cell's output), or ``display(widget)`` putting
+        #: the plot's widget in a page of one's own (the tuning panel's live box)
+        self.live_display = None
         self.recordings = Path(recordings) if recordings is not None else None
         self.metadata = _caller_metadata(metadata)
         self._on_close = on_close
@@ -748,7 +751,7 @@ class Rig:
         live = self.live if live is None else _as_live("live", live)
         if live is False:
             return _NoProgress()
-        return _live_plot(rec, total, label, live, **plot)
+        return _live_plot(rec, total, label, live, display=self.live_display, **plot)
 
     def retarget(self, new_distance):
         """Change the target of the move that runs to ``new_distance`` rad from its start.

@@ -33,7 +33,9 @@ Design choices
 * Outside a kernel (a script, a terminal) nothing is drawn: the text progress bar stays.
 * The class page's shared rig (:class:`jerklab.broker.BrokerRig`) sends a run's recording whole
   when the run is over, so its runs get no live plot; a rig connected in the page's kernel
-  (a :class:`~jerklab.rig.Rig`) does.
+  (a :class:`~jerklab.rig.Rig`: ``jerklab app`` without ``--rig``, one virtual rig per
+  student) does: the tuning panel's button puts it in the panel's own box
+  (``Rig.live_display``), since a widget callback has no cell output to draw into.
 
 Costs measured on the (loaded, 2-core) development machine, ``dpi=72``: a full draw of the
 figure 0.3-0.5 s, a blitted redraw with its PNG 20-90 ms.
