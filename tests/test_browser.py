@@ -599,7 +599,9 @@ def _check_live_run(w, seen, out):
     final = w.page.locator(".jerklab-liveplot-count").first.inner_text()
     assert final == f"{n} samples (complete)", (final, n)
     counts = [int(label.split("/")[0]) for _, label in seen if label and "/" in label]
-    assert len(set(counts)) >= 3 and 0 < max(counts) < n, seen
+    # the empty figure and at least one partial one during the run (a loaded machine may
+    # draw only one partial state of a 2 s run before the final), then the final count
+    assert len(set(counts)) >= 2 and 0 < max(counts) < n, seen
     assert counts == sorted(counts), counts
     assert not w.kernel_errors and not w.page_errors, (w.kernel_errors, w.page_errors)
 
