@@ -225,7 +225,10 @@ def _master_motor(profile, lab_n, corner):
 def _master_cases():
     for n in PROFILES:
         for lab_n in (1, 2, 3, 4):
-            for corner in range(2 if lab_n == 4 else 4):
+            # labs 1-3 on the two extreme (K, tau) corners, the slowest motor (lo K, hi tau)
+            # and the fastest (hi K, lo tau): the other two lie between them in speed and
+            # bandwidth, and running all four cost about a minute of CI's 20 (lab 4: its two)
+            for corner in (0, 1) if lab_n == 4 else (1, 2):
                 why = MASTER_NOT_YET.get((n, lab_n, corner))
                 marks = [pytest.mark.slow]
                 if why:
