@@ -34,7 +34,7 @@ Design choices
 * The class page's shared rig (:class:`jerklab.broker.BrokerRig`) sends a run's recording whole
   when the run is over, so its runs get no live plot; a rig connected in the page's kernel
   (a :class:`~jerklab.rig.Rig`: ``jerklab app`` without ``--rig``, one virtual rig per
-  student) does: the tuning panel's button puts it in the panel's own box
+  kernel) does: the tuning panel's button puts it in the panel's own box
   (``Rig.live_display``), since a widget callback has no cell output to draw into.
 
 Costs measured on the (loaded, 2-core) development machine, ``dpi=72``: a full draw of the
