@@ -171,7 +171,9 @@ FILE_MARKS = {
     "security/test_queue.py": ("browser",),
 }
 
-#: files whose tests stay on one xdist worker (module-scoped servers, simulators or build folders)
+#: files whose tests stay on one xdist worker (module-scoped servers, simulators or build folders);
+#: a file whose tests use a module-scoped fixture is kept together without being listed here
+#: (``_group``), or each worker would start that fixture's server or grade its class again
 ONE_WORKER = {
     "test_book.py",
     "test_browser.py",
@@ -183,14 +185,27 @@ ONE_WORKER = {
     "test_rig_sequence_shaper_simavr.py",
     "test_firmware_telemetry.py",
     "security/test_hub.py",
+    "security/test_grading.py",
+    "security/test_hidden_motor.py",
     "test_notebooks.py",
 }
-#: files of ONE_WORKER that share one worker with another (two hubs must not start at once)
+#: files of ONE_WORKER that share one worker with another (two hubs must not start at once: both
+#: make and remove the same Unix users, and removing one kills its processes)
 SHARED_WORKER = {
     "security/test_hub.py": "test_hub.py",
     # the book is built from the notebooks test_notebooks.py executes: after them, on their worker
     "test_book.py": "test_notebooks.py",
 }
+#: the longest groups (minutes of one worker each) are handed out first, so that no worker starts
+#: one of them near the end of the run while the other waits idle
+LONG_GROUPS = (
+    "test_notebooks.py",
+    "test_browser.py",
+    "security/test_grading.py",
+    "test_hub.py",
+    "test_packaging.py",
+    "security/test_hidden_motor.py",
+)
 
 _TESTS = os.path.dirname(os.path.abspath(__file__))
 
@@ -199,16 +214,41 @@ def _rel(item) -> str:
     return os.path.relpath(str(item.path), _TESTS).replace(os.sep, "/")
 
 
+def _group(item) -> str | None:
+    """The xdist group of ``item``: its file's (ONE_WORKER, SHARED_WORKER), or its file when one
+    of its fixtures is module-scoped; None: the test may run on any worker."""
+    rel = _rel(item)
+    if rel in ONE_WORKER:
+        return SHARED_WORKER.get(rel, rel)
+    info = getattr(item, "_fixtureinfo", None)
+    defs = info.name2fixturedefs.values() if info is not None else ()
+    if any(d.scope == "module" for ds in defs for d in ds):
+        return rel
+    return None
+
+
+@pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(session, config, items):
-    """Mark every test by its file (``FILE_MARKS``, ``ONE_WORKER``), and run tests/test_book.py last:
-    it builds the book from the notebooks test_notebooks.py executed."""
+    """Mark every test by its file (``FILE_MARKS``) and its group (``_group``); hand out the long
+    groups first (``LONG_GROUPS``), tests/test_book.py after the notebooks it builds from.
+
+    ``tryfirst``: pytest-xdist reads the ``xdist_group`` markers in its own hook of this name
+    (it appends ``@group`` to each test id); after it, a marker added here has no effect and
+    every test of a group may land on either worker.
+    """
     for item in items:
-        rel = _rel(item)
-        for name in FILE_MARKS.get(rel, ()):
+        for name in FILE_MARKS.get(_rel(item), ()):
             item.add_marker(getattr(pytest.mark, name))
-        if rel in ONE_WORKER:
-            item.add_marker(pytest.mark.xdist_group(SHARED_WORKER.get(rel, rel)))
-    items.sort(key=lambda it: _rel(it) == "test_book.py")
+        group = _group(item)
+        if group is not None:
+            item.add_marker(pytest.mark.xdist_group(group))
+
+    def order(item):
+        group = _group(item)
+        first = LONG_GROUPS.index(group) if group in LONG_GROUPS else len(LONG_GROUPS)
+        return first, _rel(item) == "test_book.py"
+
+    items.sort(key=order)  # stable: the collection order within each key
 
 
 @pytest.fixture(autouse=True)
@@ -224,3 +264,32 @@ def _jerklab_environment_stays_put():
     for k in [k for k in os.environ if k.startswith("JERKLAB_") and k not in before]:
         del os.environ[k]
     os.environ.update(before)
+
+
+#: ``JERKLAB_TEST_TIMELINE=FILE``: every worker appends one line per test phase to FILE (worker,
+#: start and duration in seconds, phase, test id), to see how the workers share a run's time
+_TIMELINE = os.environ.get("JERKLAB_TEST_TIMELINE")
+
+
+if _TIMELINE:
+
+    @pytest.hookimpl(hookwrapper=True)
+    def pytest_runtest_setup(item):
+        yield from _timed(item, "setup")
+
+    @pytest.hookimpl(hookwrapper=True)
+    def pytest_runtest_call(item):
+        yield from _timed(item, "call")
+
+    @pytest.hookimpl(hookwrapper=True)
+    def pytest_runtest_teardown(item):
+        yield from _timed(item, "teardown")
+
+    def _timed(item, phase):
+        import time
+
+        t0 = time.time()
+        yield
+        with open(_TIMELINE, "a") as f:
+            worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+            f.write(f"{worker}\t{t0:.2f}\t{time.time() - t0:.2f}\t{phase}\t{item.nodeid}\n")

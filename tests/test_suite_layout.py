@@ -357,3 +357,20 @@ def test_a_fixture_reached_only_through_a_marked_param_needs_no_file_mark(tmp_pa
         encoding="utf-8",
     )
     assert unmarked_needs(f) == ["test_y.py::bare needs simavr", "test_y.py::taken needs simavr"]
+
+
+def test_the_groups_reach_xdist(request):
+    """Under ``make test`` (``--dist loadgroup``) every test of a grouped file carries its group in
+    its id, which is what pytest-xdist schedules by: a group marker added after xdist read them
+    (tests/conftest.py's hook without ``tryfirst``) left every id bare, and each worker started
+    its own hub with the same Unix users, graded the class folder again, ran its own browser."""
+    if not request.config.getvalue("loadgroup"):
+        pytest.skip("not run by pytest-xdist with --dist loadgroup (make test)")
+    bare = [
+        it.nodeid
+        for it in request.session.items
+        if conftest._group(it) is not None and not it.nodeid.endswith(f"@{conftest._group(it)}")
+    ]
+    assert bare == [], bare[:5]
+    hubs = {conftest._group(it) for it in request.session.items if "test_hub.py" in it.nodeid}
+    assert hubs <= {"test_hub.py"}, hubs  # both hub files: one worker, one hub at a time

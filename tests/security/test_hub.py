@@ -133,16 +133,12 @@ print("RES" + json.dumps(out))
 
 
 def test_the_rig_names_a_run_by_the_hub_login_not_a_typed_id(hub):
-    import websocket
-
     hub.start_server(ALICE, hub.tokens[ALICE])
     try:
         out = run_cell(hub.base, ALICE, hub.tokens[ALICE], f"BOB = {BOB!r}\n" + RIG_ATTACK)
-    except websocket.WebSocketConnectionClosedException:
-        # her server went away mid-cell once in a full CI run (not seen alone): start it
-        # again and run the same attack once more; every assertion below still holds
-        hub.start_server(ALICE, hub.tokens[ALICE])
-        out = run_cell(hub.base, ALICE, hub.tokens[ALICE], f"BOB = {BOB!r}\n" + RIG_ATTACK)
+    except Exception:
+        print("".join(hub.log_path.read_text(errors="replace").splitlines(True)[-150:]))
+        raise
     res = json.loads(out.split("RES", 1)[1])
     assert res["identity"] == ALICE and res["verified"] is True, res
     assert res["student"] == ALICE and res["kind"] == "hub", res
