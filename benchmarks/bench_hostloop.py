@@ -1,5 +1,5 @@
-"""Host-in-the-loop latency on the virtual rig in process and on the firmware on a simulated Uno
-at 115200 baud and at 1 Mbaud (issue 30, part 3; the TCP port is not measured yet).
+"""Host-in-the-loop latency on the virtual rig in process and on a TCP port, and on the firmware on
+a simulated Uno at 115200 baud and at 1 Mbaud (issue 30, part 3).
 
 Round trip per tick = HOST_SAMPLE sent by the device to the matching HOST_VOLTAGE received by
 it, on the device's clock (``time.monotonic``, shared in process): the host's decoding, its
@@ -7,6 +7,11 @@ Python P law and its encoding. The device's deadline is Ts after the sample
 (firmware/PROTOCOL.md "Host-in-the-loop"), so the run is not paced: the virtual device ticks as
 soon as the host reads, and a miss means a round trip longer than Ts. The smallest Ts of the
 mode's grid (5, 10, 20, 50 ms) at which 1,000 ticks pass without a miss is printed with them.
+
+On the TCP port the same device is served by ``DeviceServer.start_tcp`` on 127.0.0.1 (what
+``python -m jerklab.rig serve --tcp`` runs, unpaced) and the host connects to its
+``socket://`` URL: the round trip adds both ways through the loopback socket and the serving
+thread, still on the device's clock.
 
 On the simulated Uno (``connect("simavr")``, the sketch built for the baud rate with ``JL_BAUD``,
 paced to the wall clock) the device's clock is not the host's: the round trip is the host's
@@ -46,9 +51,17 @@ class _TimedDevice(VirtualDevice):
         return super()._host_voltage(frame, m)
 
 
-def _run(Ts, n_ticks, folder):
+def _run(Ts, n_ticks, folder, tcp=False):
     dev = _TimedDevice()
-    rig = Rig(VirtualSerial(dev), port="virtual", recordings=folder, progress=False)
+    server = None
+    if tcp:
+        from jerklab.rig import connect
+        from jerklab.rig.server import DeviceServer
+
+        server = DeviceServer(dev, speed=1.0)
+        rig = connect(server.start_tcp("127.0.0.1", 0), recordings=folder, progress=False)
+    else:
+        rig = Rig(VirtualSerial(dev), port="virtual", recordings=folder, progress=False)
     try:
         rec = rig.host_loop(
             lambda t, y, r: 0.3 * (r - y),  # V/rad: stable with the one-tick delay up to 50 ms
@@ -60,6 +73,8 @@ def _run(Ts, n_ticks, folder):
         )
     finally:
         rig.close()
+        if server is not None:
+            server.close()
     return np.asarray(dev.round_trips), int(rec.metadata["misses"]), rec.metadata["status"]
 
 
@@ -131,24 +146,26 @@ def uno_rows(n_ticks=1000):
 
 
 def main(n_ticks=1000):
-    rows = []
-    smallest = None
-    with tempfile.TemporaryDirectory() as folder:
-        for Ts in (0.005, 0.010, 0.020, 0.050):
-            rt, misses, status = _run(Ts, n_ticks, folder)
-            p50, p99, mx = (1e3 * float(x) for x in np.percentile(rt, [50, 99, 100]))
-            rows.append((f"{Ts * 1e3:g} ms", len(rt), p50, p99, mx, misses, status))
-            if misses == 0 and status == "complete" and smallest is None:
-                smallest = Ts
-    record_table(
-        f"Host-in-the-loop round trip per tick, virtual rig in process ({n_ticks} ticks, P law)",
-        ["Ts", "answers", "p50 ms", "p99 ms", "max ms", "misses", "status"],
-        rows,
-        note=(
-            f"smallest Ts without a miss in {n_ticks} ticks: "
-            + (f"{smallest * 1e3:g} ms" if smallest is not None else "none of 5-50 ms")
-        ),
-    )
+    for tcp in (False, True):
+        rows = []
+        smallest = None
+        with tempfile.TemporaryDirectory() as folder:
+            for Ts in (0.005, 0.010, 0.020, 0.050):
+                rt, misses, status = _run(Ts, n_ticks, folder, tcp=tcp)
+                p50, p99, mx = (1e3 * float(x) for x in np.percentile(rt, [50, 99, 100]))
+                rows.append((f"{Ts * 1e3:g} ms", len(rt), p50, p99, mx, misses, status))
+                if misses == 0 and status == "complete" and smallest is None:
+                    smallest = Ts
+        where = "on a TCP port (127.0.0.1)" if tcp else "in process"
+        record_table(
+            f"Host-in-the-loop round trip per tick, virtual rig {where} ({n_ticks} ticks, P law)",
+            ["Ts", "answers", "p50 ms", "p99 ms", "max ms", "misses", "status"],
+            rows,
+            note=(
+                f"smallest Ts without a miss in {n_ticks} ticks: "
+                + (f"{smallest * 1e3:g} ms" if smallest is not None else "none of 5-50 ms")
+            ),
+        )
     rows, small = uno_rows(n_ticks)
     if rows:
         record_table(

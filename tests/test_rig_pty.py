@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import os
+import socket
 import subprocess
 import sys
 import threading
@@ -99,6 +100,10 @@ def test_tcp_socket_url(tmp_path):
         # the server accepts the next client after the first hung up
         with connect(url, recordings=tmp_path, progress=False) as rig:
             assert len(rig.step(3.0, 0.05)) == 20
+            # each frame leaves at once (pyserial's socket keeps Nagle's algorithm on): a host
+            # loop's answer must not wait for the board's delayed ACK
+            sock = rig.link._socket
+            assert sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY) != 0
 
 
 def _pull_when(srv, n_bytes, done):

@@ -27,6 +27,7 @@ import getpass
 import importlib
 import os
 import re
+import socket
 import sys
 
 from jerklab import paper
@@ -406,11 +407,28 @@ def _open_serial(port, link: Link):
             )
             raise PortBusyError(f"port {port!r} is in use by {who}: {exc}", port=port) from exc
         raise UnknownPortError(f"cannot open rig port {port!r}: {exc}") from exc
+    _no_delay(link)
     try:
         link.reset_input_buffer()
     except Exception:
         pass
     return link
+
+
+def _no_delay(link):
+    """Send each frame at once on a ``socket://`` link (``TCP_NODELAY``).
+
+    pyserial's socket handler leaves Nagle's algorithm on: a frame written while the previous
+    one is unacknowledged waits for the peer's delayed ACK (40 ms on Linux), which made the host
+    loop's round trip on a TCP port 37 ms at the median (``python -m benchmarks hostloop``) and
+    missed every deadline below 50 ms.
+    """
+    sock = getattr(link, "_socket", None)
+    if isinstance(sock, socket.socket) and sock.family in (socket.AF_INET, socket.AF_INET6):
+        try:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        except OSError:
+            pass
 
 
 def _permission_message(port, exc):
