@@ -225,7 +225,8 @@ def test_student_path_in_a_fresh_environment(dists):
         "the rig recorded into the working folder"
     )
 
-    # two notebooks, run where the student opens them (02 reads ../data/ident relative to itself)
+    # a notebook run where the student opens it (02 reads ../data/ident relative to itself; the
+    # suite runs every notebook from the clone, tests/test_notebooks.py)
     run_nb = (
         "import sys, nbformat; from nbclient import NotebookClient\n"
         "for p in sys.argv[1:]:\n"
@@ -235,9 +236,9 @@ def test_student_path_in_a_fresh_environment(dists):
         "                   resources={'metadata': {'path': here}}).execute()\n"
         "    print('ran', p)\n"
     )
-    nbs = [str(work / "notebooks" / n) for n in ("02_identification.ipynb", "04_simulation.ipynb")]
+    nbs = [str(work / "notebooks" / "02_identification.ipynb")]
     r = _run([str(py), "-c", run_nb, *nbs], cwd=home, env=env, timeout=400)
-    assert r.stdout.count("ran ") == 2
+    assert r.stdout.count("ran ") == 1
     # the notebooks ran on the installed package: no file of the clone was written
     assert not any((ROOT / "notebooks").glob("recordings"))
     assert json.loads((work / "notebooks" / "02_identification.ipynb").read_text())["cells"]
