@@ -200,6 +200,7 @@ def _watched_run(address, name, move, events):
     return rec
 
 
+@pytest.mark.slow  # seconds of runs in real time
 def test_a_run_streams_its_samples_to_its_own_client_only(broker):
     """A 2 s move through the broker: its client hears batches during the run (>= 3, spread
     over the run, each a prefix of the final recording); the final recording is the one of
@@ -246,6 +247,7 @@ def test_a_run_streams_its_samples_to_its_own_client_only(broker):
     assert time.monotonic() - t0 < 15
 
 
+@pytest.mark.slow  # seconds of runs in real time
 def test_a_client_that_does_not_read_its_stream_does_not_hold_up_the_rig(broker):
     """A client asks for the stream of a 2 s run with a tiny receive buffer and reads nothing
     until the run is over: the rig finishes in the run's own time, and the client then reads

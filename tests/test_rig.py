@@ -517,6 +517,7 @@ def test_load_names_a_corrupt_sidecar(tmp_path):
         Recording.load(tmp_path / "bad.csv")
 
 
+@pytest.mark.slow  # seconds of runs in real time
 def test_a_paced_virtual_rig_runs_in_real_time_after_a_pause():
     """At ``speed`` a run lasts its model time over the speed even when the rig idled before
     it (the idle time is no credit to run through as fast as the host reads)."""

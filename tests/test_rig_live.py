@@ -331,6 +331,7 @@ def test_the_tuning_panel_draws_its_rig_run_live_in_its_own_box(monkeypatch, tmp
         p.rig.close()
 
 
+@pytest.mark.slow  # seconds of runs in real time
 def test_the_tuning_panel_draws_a_shared_rig_run_live_in_its_own_box(monkeypatch, tmp_path):
     """The class page's panel on the shared rig (``jerklab app --rig``: a broker): the samples
     the broker streams during the run feed the same live plot, in the panel's own box, redrawn
@@ -352,6 +353,7 @@ def test_the_tuning_panel_draws_a_shared_rig_run_live_in_its_own_box(monkeypatch
     with RigBroker(None, speed=1.0) as broker:
         p = panel_for_page(rig_port=broker.address)
         p.student.value = "s-shared"
+        p.move = dict(p.move, distance=50.0)  # a 2 s move: seconds of redraws on a loaded machine
         p.rig_button.click()
         assert p._rig_error is not None, p.rig_status.value
     (live,) = made
