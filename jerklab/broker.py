@@ -16,10 +16,23 @@ object per line (localhost only by default):
 * client -> broker: ``{"op": "run_move", "profile": {"kind", "distance", "max_jerk",
   "max_accel", "max_velocity"}, "gains": {"kpd", "kid", "kdd", "Ts", "gamma", "loop"},
   "Ts": s, "feedforward": {"K", "tau"} | true | false, "settle": s, "force": false,
-  "client": "label", "token": "..."}``, or ``{"op": "info"}``;
+  "client": "label", "token": "...", "stream": false}``, or ``{"op": "info"}``;
 * broker -> client: ``{"queued": n_ahead}`` (on arrival, when the queue moves and every
   ``HEARTBEAT`` s), ``{"running": true}``, then ``{"done": true, "csv": ..., "json": ...}``
-  (the :class:`jerklab.rig.Recording` files) or ``{"error": "...", "type": "..."}``.
+  (the :class:`jerklab.rig.Recording` files) or ``{"error": "...", "type": "..."}``;
+* with ``"stream": true``, between ``running`` and ``done``: ``{"samples": {"start": i,
+  "rows": [[index, reference, counts, pwm, flags], ...], "meta": {...}}}``, the recording's
+  rows ``i, i+1, ...`` (:meth:`jerklab.rig.Recording.rows`) as the rig records them, at most
+  every :data:`STREAM_INTERVAL` s; each batch starts where the one before ended, and the
+  first carries ``"meta"`` (``Ts``, ``counts_per_rad``, ``volts_per_pwm`` of the recording,
+  ``total`` samples expected).
+
+The stream goes only to the connection that sent the run, and it never holds up the rig: the
+run's thread only records, and the connection's own thread sends the new rows without
+blocking. A client that reads slowly gets fewer, larger batches (rows not yet sent go into
+the next one, at most :data:`STREAM_MAX_ROWS` a batch); one that does not read at all holds
+at most one unsent batch in the broker. ``done`` is sent whole in any case, after the batch
+in flight, and holds every sample.
 
 A client that disconnects while queued leaves the queue. A run whose client went away
 still finishes on the rig (a move cannot be abandoned half-way), and its result is dropped.
@@ -61,6 +74,7 @@ from jerklab._validate import as_positive
 from jerklab.controller import DiscreteGains, Feedforward
 from jerklab.hubauth import HubIdentity, token_from_env
 from jerklab.rig import Device, connect
+from jerklab.rig import live as _live
 from jerklab.rig.recording import Recording, recordings_dir
 
 __all__ = [
@@ -71,6 +85,8 @@ __all__ = [
     "SCHEME",
     "HEARTBEAT",
     "MAX_RUNS_PER_STUDENT",
+    "STREAM_INTERVAL",
+    "STREAM_MAX_ROWS",
     "unique_run_name",
     "main",
 ]
@@ -87,6 +103,13 @@ _MAX_TIMEOUT = 86400.0  # s: socket timeouts beyond a day overflow the platform'
 
 #: Runs one identity may have queued or running at once.
 MAX_RUNS_PER_STUDENT = 1
+
+#: Seconds between two batches of a streamed run (at most 10 a second).
+STREAM_INTERVAL = 0.1
+
+#: Samples in one batch of a streamed run at most (a client that fell behind catches up in
+#: several batches).
+STREAM_MAX_ROWS = 2000
 
 
 @dataclasses.dataclass(frozen=True)
@@ -180,6 +203,8 @@ class _Ticket:
         self.done = threading.Event()
         self.gone = False  # the client disconnected
         self.reply = None
+        self.stream = bool(request.get("stream", False)) if isinstance(request, dict) else False
+        self.rec = None  # the Recording of this run, once its first sample is in (streaming)
 
     def tell(self, obj):
         if self.gone:
@@ -188,6 +213,75 @@ class _Ticket:
             _send(self.conn, self.lock, obj)
         except OSError:
             self.gone = True
+
+
+class _Stream:
+    """The rows of a running run on their way to its client, sent without ever blocking.
+
+    :meth:`tick` (called by the connection's thread, never the rig's) puts the rows recorded
+    since the last batch into one message, at most every ``interval`` s and at most
+    ``max_rows`` rows, and writes what the socket takes at once (``send`` on a non-blocking
+    socket). While a message is not written out, no new one is made: the rows wait in the
+    recording and go into the next batch, so at most one message is held per client.
+    :meth:`drain` writes the rest of that message (blocking) before the final reply, so the
+    lines stay whole.
+    """
+
+    def __init__(self, conn, lock, interval=None, max_rows=None, clock=time.monotonic):
+        self.conn = conn
+        self.lock = lock
+        self.interval = STREAM_INTERVAL if interval is None else float(interval)
+        self.max_rows = STREAM_MAX_ROWS if max_rows is None else int(max_rows)
+        self.clock = clock
+        self.pending = b""  # the part of the last message the socket has not taken yet
+        self.rows_sent = 0  # rows put into messages
+        self.batches = 0  # messages made
+        self.held = 0  # ticks at which the socket was full (the rows waited)
+        self._next = -math.inf
+
+    def tick(self, rec):
+        """Send what the socket takes; OSError (not BlockingIOError) when the client is gone."""
+        if self.pending:
+            self._push()
+            if self.pending:
+                self.held += 1
+                return
+        now = self.clock()
+        n = len(rec)
+        if now < self._next or n <= self.rows_sent:
+            return
+        rows = rec.rows(self.rows_sent, min(n, self.rows_sent + self.max_rows))
+        batch = {"start": self.rows_sent, "rows": [list(r) for r in rows]}
+        if self.batches == 0:
+            m = rec.metadata
+            plan = m.get("plan") or {}
+            batch["meta"] = {
+                "kind": m.get("kind"),
+                "Ts": m["Ts"],
+                "counts_per_rad": m["counts_per_rad"],
+                "volts_per_pwm": m["volts_per_pwm"],
+                "total": int(plan.get("n_samples", 0)) + int(m.get("settle_samples", 0)),
+            }
+        self.pending = (json.dumps({"samples": batch}) + "\n").encode("utf-8")
+        self.rows_sent += len(rows)
+        self.batches += 1
+        self._next = now + self.interval
+        self._push()
+
+    def _push(self):
+        with self.lock:
+            try:
+                sent = self.conn.send(self.pending)
+            except (BlockingIOError, InterruptedError):
+                return
+        self.pending = self.pending[sent:]
+
+    def drain(self):
+        """Write the rest of the message in flight (blocking: the run is over)."""
+        if self.pending:
+            with self.lock:
+                self.conn.sendall(self.pending)
+            self.pending = b""
 
 
 def _refusal(exc):
@@ -255,6 +349,8 @@ class RigBroker:
         self.order = []  # identities in the order their runs started
         self.refused = []  # (identity or None, reason) of every refused run
         self.saved = []  # CSV paths of the broker's own copies
+        #: one dict per streamed run: identity, batches, rows sent, ticks the client held up
+        self.streams = []
         self._threads = [
             threading.Thread(target=self._accept_loop, daemon=True, name="jerklab-broker-accept"),
             threading.Thread(target=self._worker, daemon=True, name="jerklab-broker-worker"),
@@ -396,7 +492,13 @@ class RigBroker:
         ticket.tell({"queued": ahead})
         conn.setblocking(False)
         last = time.monotonic()
-        while not ticket.done.wait(0.1):
+        stream = _Stream(conn, ticket.lock) if ticket.stream else None
+        while not ticket.done.wait(0.1 if ticket.rec is None else STREAM_INTERVAL / 2):
+            if stream is not None and ticket.rec is not None and not ticket.gone:
+                try:
+                    stream.tick(ticket.rec)
+                except OSError:
+                    ticket.gone = True
             # a client that hangs up while waiting leaves the queue
             try:
                 r, _, _ = select.select([conn], [], [], 0)
@@ -420,6 +522,19 @@ class RigBroker:
                 if ahead is not None:
                     ticket.tell({"queued": ahead})
         conn.setblocking(True)
+        if stream is not None and stream.batches:
+            self.streams.append(
+                {
+                    "identity": ticket.identity,
+                    "batches": stream.batches,
+                    "rows": stream.rows_sent,
+                    "held": stream.held,
+                }
+            )
+            try:
+                stream.drain()
+            except OSError:
+                ticket.gone = True
         ticket.tell(ticket.reply)
 
     def _tell_positions(self):
@@ -446,7 +561,7 @@ class RigBroker:
             ticket.tell({"running": True})
             self.order.append(ticket.identity)
             try:
-                ticket.reply = self._finish(ticket, ticket.job())
+                ticket.reply = self._finish(ticket, ticket.job(self._watcher(ticket)))
             except Exception as exc:  # every failure goes back to its client
                 ticket.reply = _refusal(exc)
             finally:
@@ -455,6 +570,19 @@ class RigBroker:
                     self._running = None
                 ticket.done.set()
                 self._tell_positions()
+
+    def _watcher(self, ticket):
+        """The run's ``on_telemetry`` when its client asked for the stream, else None: at the
+        first sample it hands this run's recording (``rig.recording``, set when the run made
+        it) to the connection's thread, which sends the rows; the rig's thread does no more."""
+        if not ticket.stream:
+            return None
+
+        def on_telemetry(k, reference, position):
+            if ticket.rec is None:
+                ticket.rec = self.rig.recording
+
+        return on_telemetry
 
     def _prepare(self, req):
         """Check a run request (kind, gains, stability, :class:`Limits`) and return its job."""
@@ -501,9 +629,16 @@ class RigBroker:
         tuning.check_runnable(K, tau, gains, force=bool(req.get("force", False)))
         Ts = req.get("Ts", gains.Ts)
 
-        def job():
+        def job(on_telemetry=None):
             return self.rig.run_move(
-                profile, gains, Ts=Ts, feedforward=ff, settle=settle, path=False, progress=False
+                profile,
+                gains,
+                Ts=Ts,
+                feedforward=ff,
+                settle=settle,
+                path=False,
+                progress=False,
+                on_telemetry=on_telemetry,
             )
 
         return job
@@ -541,6 +676,11 @@ class BrokerRig:
     broker's queue; ``on_status`` hears ``"queued: 2 ahead of you"`` and then ``"running on
     the rig"``. ``queues_runs`` is True so the tuning panel shows those messages.
 
+    While the run is on the rig the broker streams its samples back (the ``samples``
+    messages of :class:`RigBroker`), and they draw the same live plot as a kernel's own rig
+    (:mod:`jerklab.rig.live`: in a Jupyter kernel, into ``live_display`` if set, else the
+    cell's output); ``on_batch`` hears each batch too.
+
     Parameters
     ----------
     address : str
@@ -573,6 +713,12 @@ class BrokerRig:
         self.port_name = address
         self.supply_voltage = self.info["supply_voltage"]
         self.counts_per_rev = self.info["counts_per_rev"]
+        #: live plot of every run: None (in a Jupyter kernel unless ``$JERKLAB_LIVE_PLOT=0``),
+        #: True or False, as :class:`jerklab.rig.Rig`'s ``live``; a run's ``live=`` overrides it
+        self.live = None
+        #: where a live plot goes: None (the cell's output), or ``display(widget)`` putting
+        #: the plot's widget in a page of one's own (the tuning panel's live box)
+        self.live_display = None
         self.closed = False
 
     def __repr__(self):
@@ -628,11 +774,22 @@ class BrokerRig:
         progress=None,
         on_status=None,
         force=False,
+        live=None,
+        on_batch=None,
     ):
         """Queue the move on the shared rig, wait for its turn, return the Recording.
 
         ``path``: None writes to the recordings folder, False keeps it in memory, else that
         path (``.csv`` + ``.json``). ``progress`` is accepted for compatibility (ignored).
+
+        ``live``: a live plot of the run (None: the rig's :attr:`live`; True/None draw one in
+        a Jupyter kernel only, False none), drawn from the samples the broker streams while
+        the run is on the rig and finished with every sample of the returned recording.
+        ``on_batch``: called as ``on_batch(rec)`` in this thread after each streamed batch,
+        ``rec`` a :class:`jerklab.rig.Recording` (in memory) holding the samples so far, the
+        first ``len(rec)`` of the final recording. The run asks for the stream only when one
+        of them wants it; a callback or plot that is slow makes the broker send fewer, larger
+        batches, and never slows the rig.
         """
         if not isinstance(gains, DiscreteGains):
             raise TypeError(f"gains must be DiscreteGains, got {type(gains).__name__}")
@@ -671,21 +828,49 @@ class BrokerRig:
         }
         if self._token:
             req["token"] = self._token
+        if on_batch is not None and not callable(on_batch):
+            raise TypeError(f"on_batch must be callable, got {on_batch!r}")
+        enabled = self.live if live is None else live
+        if enabled not in (None, True, False):
+            raise ValueError(f"live must be None, True or False, got {live!r}")
+        plotting = enabled is not False and _live.in_jupyter_kernel()
+        if on_batch is not None or plotting:
+            req["stream"] = True
         say = on_status or (lambda msg: None)
-        with self._connect() as s:
-            s.sendall((json.dumps(req) + "\n").encode("utf-8"))
-            s.settimeout(max(self.timeout, 4 * HEARTBEAT))
-            for msg in self._lines(s):
-                if "queued" in msg:
-                    n = int(msg["queued"])
-                    say(f"queued: {n} ahead of you" if n else "queued: next")
-                elif msg.get("running"):
-                    s.settimeout(None if self.timeout is None else max(self.timeout, 60.0))
-                    say("running on the rig…")
-                elif "error" in msg:
-                    raise BrokerError(f"rig broker: {msg['error']}")
-                elif msg.get("done"):
-                    break
+        view = _LiveView(
+            enabled if plotting else False,
+            on_batch,
+            f"{self.port_name} move",
+            self.live_display,
+            profile.distance,
+        )
+        status = "error"
+        try:
+            with self._connect() as s:
+                s.sendall((json.dumps(req) + "\n").encode("utf-8"))
+                s.settimeout(max(self.timeout, 4 * HEARTBEAT))
+                for msg in self._lines(s):
+                    if "samples" in msg:
+                        view.batch(msg["samples"])
+                    elif "queued" in msg:
+                        n = int(msg["queued"])
+                        say(f"queued: {n} ahead of you" if n else "queued: next")
+                    elif msg.get("running"):
+                        s.settimeout(None if self.timeout is None else max(self.timeout, 60.0))
+                        say("running on the rig…")
+                    elif "error" in msg:
+                        raise BrokerError(f"rig broker: {msg['error']}")
+                    elif msg.get("done"):
+                        break
+            rec = self._save(msg, path)
+            status = rec.metadata.get("status", "done")
+            view.finish(rec)
+        finally:
+            view.close(status)
+        return rec
+
+    def _save(self, msg, path):
+        """The Recording of a ``done`` reply, written to ``path`` (see :meth:`run_move`)."""
         keep = path is not False
         if path is None:
             path = recordings_dir() / unique_run_name()
@@ -706,6 +891,64 @@ class BrokerRig:
             if not keep:
                 rec.csv_path = rec.json_path = None
         return rec
+
+
+class _LiveView:
+    """The client's end of a streamed run: the batches go into an in-memory Recording that
+    feeds the run's live plot (made at the first batch, which carries the recording's
+    ``meta``) and ``on_batch``; :meth:`finish` completes it from the final recording."""
+
+    def __init__(self, enabled, on_batch, label, display, distance):
+        self.enabled = enabled
+        self.on_batch = on_batch
+        self.label = label
+        self.display = display
+        self.distance = distance
+        self.rec = None
+        self.plot = None
+        self.batches = 0
+
+    def batch(self, samples):
+        """One ``samples`` message; a batch that does not continue the rows is ignored."""
+        if self.rec is None:
+            meta = samples.get("meta")
+            if not isinstance(meta, dict):
+                return
+            self.rec = Recording(
+                {k: meta[k] for k in ("Ts", "counts_per_rad", "volts_per_pwm")}
+                | {"kind": meta.get("kind") or "move"}
+            )
+            if self.enabled is not False:
+                self.plot = _live.live_plot(
+                    self.rec,
+                    meta.get("total") or 1,
+                    self.label,
+                    self.enabled,
+                    display=self.display,
+                    position_range=self.distance,
+                )
+        if samples.get("start") != len(self.rec):
+            return
+        for row in samples.get("rows", ()):
+            self.rec.append(*row)
+        self.batches += 1
+        if self.plot is not None:
+            self.plot.update(len(self.rec))
+        if self.on_batch is not None:
+            self.on_batch(self.rec)
+
+    def finish(self, final):
+        """Add the samples of the final recording that no batch brought."""
+        if self.rec is not None:
+            for row in final.rows(len(self.rec)):
+                self.rec.append(*row)
+            if self.plot is not None:
+                self.plot.update(len(self.rec))
+
+    def close(self, status):
+        if self.plot is not None:
+            self.plot.close(status)
+            self.plot = None
 
 
 def main(argv=None):

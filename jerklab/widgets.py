@@ -964,8 +964,9 @@ class PolePlacementPanel(_panel_base()):
             if force and _accepts(self.rig.run_move, "force"):
                 kwargs["force"] = True
             if _names(self.rig.run_move, "live") and hasattr(self.rig, "live_display"):
-                # a rig of this kernel: the run draws live in the panel's own box (a callback
-                # has no cell output), then the panel's figure overlays it
+                # a rig of this kernel, or the shared rig streaming through its broker: the
+                # run draws live in the panel's own box (a callback has no cell output), then
+                # the panel's figure overlays it
                 self.live_box.children = ()
                 self.rig.live_display = self._show_live
                 kwargs["live"] = True

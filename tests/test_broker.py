@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import json
 import socket
+import tempfile
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -28,8 +30,11 @@ def broker():
         b.close()
 
 
-#: a move of about 2 s, so that a second client surely arrives while it runs
+#: a move of about 4 s, so that a second client surely arrives while it runs
 LONG_MOVE = dict(tuning.DEFAULT_MOVE, distance=100.0)
+
+#: a move of about 2 s (1.96 s planned, and the settle), whose samples the broker streams
+STREAM_MOVE = dict(tuning.DEFAULT_MOVE, distance=50.0)
 
 
 def _client(address, name, delay, out, path=False, running=None, move=None):
@@ -177,3 +182,178 @@ def test_class_page_panel_runs_through_the_broker(broker, tmp_path, monkeypatch)
     assert (
         abs(float(np.max(np.abs(err))) - float(np.max(np.abs(p.result.err_move_measured)))) < 0.05
     )
+
+
+# ---------------------------------------------------------------------- the run's live stream
+def _watched_run(address, name, move, events):
+    """A BrokerRig run whose statuses and streamed batches land in ``events`` as
+    ``(clock, "status" | "batch" | "done", what)``; a batch keeps a copy of its rows so far."""
+    rig = BrokerRig(address, client=name)
+    rec = rig.run_move(
+        tuning.move_profile(move),
+        tuning.compute_pole_placement().gains,
+        path=False,
+        on_status=lambda m: events.append((time.monotonic(), "status", m)),
+        on_batch=lambda r: events.append((time.monotonic(), "batch", r.rows())),
+    )
+    events.append((time.monotonic(), "done", rec))
+    return rec
+
+
+@pytest.mark.slow  # seconds of runs in real time
+def test_a_run_streams_its_samples_to_its_own_client_only(broker):
+    """A 2 s move through the broker: its client hears batches during the run (>= 3, spread
+    over the run, each a prefix of the final recording); the final recording is the one of
+    the same run made directly on a fresh virtual rig; a second client, queued meanwhile,
+    hears none of them."""
+    t0 = time.monotonic()
+    first, second = [], []
+    t = threading.Thread(target=_watched_run, args=(broker.address, "first", STREAM_MOVE, first))
+    t.start()
+    while not any(k == "batch" for _, k, _ in first) and time.monotonic() - t0 < 10:
+        time.sleep(0.02)
+    # the second client queues while the first one's run streams
+    t2 = threading.Thread(target=_watched_run, args=(broker.address, "second", None, second))
+    t2.start()
+    t.join(30)
+    t2.join(30)
+    end, kind, rec = first[-1]
+    assert kind == "done", first
+    final = rec.rows()
+    batches = [(when, rows) for when, k, rows in first if k == "batch"]
+    during = [(when, rows) for when, rows in batches if len(rows) < len(final)]
+    assert len(during) >= 3, ([len(r) for _, r in batches], broker.streams, first[:3])
+    assert during[-1][0] - during[0][0] >= 1.0  # they arrive as the 2 s run goes, not at once
+    sizes = [len(rows) for _, rows in batches]
+    assert sizes == sorted(sizes) and len(set(sizes)) == len(sizes)
+    for _, rows in batches:
+        assert rows == final[: len(rows)]
+    # streaming does not change the recording: the same run on a fresh virtual rig
+    direct = connect(progress=False).run_move(
+        tuning.move_profile(STREAM_MOVE), tuning.compute_pole_placement().gains, path=False
+    )
+    assert rec.metadata["status"] == "complete" and direct.rows() == final
+    # the second client: queued behind the first, no batch before its own run started
+    kinds = [(k, m if k == "status" else None) for _, k, m in second]
+    start2 = kinds.index(("status", "running on the rig…"))
+    assert kinds[0] == ("status", "queued: 1 ahead of you"), kinds
+    assert all(k == "status" for k, _ in kinds[:start2]), kinds
+    final2 = second[-1][2].rows()
+    assert final2 != final[: len(final2)]
+    for _, k, rows in second:
+        if k == "batch":
+            assert rows == final2[: len(rows)]
+    assert [s["identity"] for s in broker.streams] == ["first", "second"]
+    assert time.monotonic() - t0 < 15
+
+
+@pytest.mark.slow  # seconds of runs in real time
+def test_a_client_that_does_not_read_its_stream_does_not_hold_up_the_rig(broker):
+    """A client asks for the stream of a 2 s run with a tiny receive buffer and reads nothing
+    until the run is over: the rig finishes in the run's own time, and the client then reads
+    contiguous batches and the whole final recording."""
+    gains = tuning.compute_pole_placement().gains
+    profile = tuning.move_profile(STREAM_MOVE)
+    s = socket.socket()
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 2048)
+    s.connect(parse_address(broker.address))
+    g = {k: getattr(gains, k) for k in ("kpd", "kid", "kdd", "Ts", "gamma", "loop")}
+    req = {
+        "op": "run_move",
+        "client": "sleeper",
+        "profile": dict(kind="sine_jerk", **STREAM_MOVE),
+        "gains": g,
+        "stream": True,
+    }
+    t0 = time.monotonic()
+    s.sendall((json.dumps(req) + "\n").encode())
+    while broker.runs_done < 1 and time.monotonic() - t0 < 15:
+        time.sleep(0.02)
+    took = time.monotonic() - t0
+    planned = profile.duration + 0.25  # the move and the default settle
+    assert broker.runs_done == 1 and took < planned + 1.5, (took, planned)
+    s.settimeout(10)
+    msgs = [json.loads(line) for line in s.makefile("rb")]
+    s.close()
+    assert [m for m in msgs if "queued" in m or "running" in m][-1] == {"running": True}
+    rows = []
+    for m in msgs:
+        if "samples" in m:
+            assert m["samples"]["start"] == len(rows)
+            rows += [tuple(r) for r in m["samples"]["rows"]]
+    done = msgs[-1]
+    assert done.get("done") is True, done.keys()
+    with tempfile.TemporaryDirectory() as tmp:
+        (Path(tmp) / "run.csv").write_text(done["csv"], encoding="ascii")
+        (Path(tmp) / "run.json").write_text(done["json"], encoding="utf-8")
+        rec = Recording.load(Path(tmp) / "run.csv")
+    direct = connect(progress=False).run_move(profile, gains, path=False)
+    assert rec.metadata["status"] == "complete" and rec.rows() == direct.rows()
+    assert 0 < len(rows) <= len(rec) and rec.rows()[: len(rows)] == rows
+
+
+class _FullSocket:
+    """A non-blocking socket stand-in that takes at most ``room`` bytes until ``read``."""
+
+    def __init__(self, room):
+        self.room = room
+        self.out = b""
+
+    def send(self, data):
+        if self.room <= 0:
+            raise BlockingIOError
+        n = min(self.room, len(data))
+        self.out += data[:n]
+        self.room -= n
+        return n
+
+    def sendall(self, data):
+        self.out += data
+
+    def read(self, room):
+        self.room = room
+
+
+def test_the_stream_holds_one_batch_at_most_and_loses_no_row():
+    """broker._Stream against a socket that fills up: while a batch is not written out no
+    new one is made (the rows wait in the recording), the next batch takes them all, and
+    what reaches the socket parses into the recording's rows, contiguous, in whole lines."""
+    from jerklab.broker import _Stream
+
+    rec = Recording({"kind": "move", "Ts": 0.005, "counts_per_rad": 71.3, "volts_per_pwm": 0.01})
+    now = [0.0]
+    sock = _FullSocket(room=150)
+    st = _Stream(sock, threading.Lock(), interval=0.1, max_rows=50, clock=lambda: now[0])
+    k = 0
+    pending_sizes = []
+    for tick in range(40):
+        for _ in range(20):  # 20 samples every 0.1 s: 200 a second
+            rec.append(k, 0.001 * k, 3 * k, (-1) ** k * k, k % 2)
+            k += 1
+        now[0] = 0.1 * tick
+        st.tick(rec)
+        pending_sizes.append(len(st.pending))
+        if tick == 20:
+            sock.read(10**6)  # the client reads again
+    assert st.held >= 15  # ticks 1..19 found the socket full
+    assert st.batches < 40 and st.rows_sent <= len(rec)
+    one_batch = 50 * 60 + 300  # 50 rows of at most ~60 bytes and the envelope
+    assert max(pending_sizes) <= one_batch
+    st.drain()
+    lines = sock.out.decode().split("\n")
+    assert lines[-1] == ""  # whole lines only
+    rows = []
+    for i, line in enumerate(lines[:-1]):
+        batch = json.loads(line)["samples"]
+        assert batch["start"] == len(rows) and len(batch["rows"]) <= 50
+        assert ("meta" in batch) == (i == 0)
+        rows += [tuple(r) for r in batch["rows"]]
+    assert rows == rec.rows(0, len(rows)) and len(rows) == st.rows_sent
+    first = json.loads(lines[0])["samples"]["meta"]
+    assert first == {
+        "kind": "move",
+        "Ts": 0.005,
+        "counts_per_rad": 71.3,
+        "volts_per_pwm": 0.01,
+        "total": 0,
+    }

@@ -515,3 +515,27 @@ def test_load_names_a_corrupt_sidecar(tmp_path):
     rec.json_path.write_bytes(b"\xa5Z\x11" + rec.json_path.read_bytes())
     with pytest.raises(ValueError, match=r"bad\.json is not a valid JSON sidecar.*bad\.csv"):
         Recording.load(tmp_path / "bad.csv")
+
+
+@pytest.mark.slow  # seconds of runs in real time
+def test_a_paced_virtual_rig_runs_in_real_time_after_a_pause():
+    """At ``speed`` a run lasts its model time over the speed even when the rig idled before
+    it (the idle time is no credit to run through as fast as the host reads)."""
+    import time
+
+    from jerklab.rig.options import Device
+
+    speed = 2.0
+    r = connect(device=Device(speed=speed), progress=False)
+    try:
+        profile = plan_sine_jerk(10.0, 5000.0, 300.0, 60.0)  # 0.54 s
+        gains = pole_placement_pid(K, TAU, wn=20.0).discretize(0.005)
+        time.sleep(1.0)  # idle: 2 s of model time at this speed
+        t0 = time.monotonic()
+        rec = r.run_move(profile, gains, path=False, settle=0.25)
+        took = time.monotonic() - t0
+    finally:
+        r.close()
+    model = len(rec) * rec.Ts
+    assert rec.metadata["status"] == "complete" and model > 0.7
+    assert took >= 0.9 * model / speed, (took, model)

@@ -329,3 +329,39 @@ def test_the_tuning_panel_draws_its_rig_run_live_in_its_own_box(monkeypatch, tmp
         assert p.live_box.children == ()
     finally:
         p.rig.close()
+
+
+@pytest.mark.slow  # seconds of runs in real time
+def test_the_tuning_panel_draws_a_shared_rig_run_live_in_its_own_box(monkeypatch, tmp_path):
+    """The class page's panel on the shared rig (``jerklab app --rig``: a broker): the samples
+    the broker streams during the run feed the same live plot, in the panel's own box, redrawn
+    during the run, finished with every sample of the returned recording."""
+    from jerklab.app import panel_for_page
+    from jerklab.broker import RigBroker
+
+    monkeypatch.setenv("JERKLAB_RECORDINGS", str(tmp_path))
+    monkeypatch.setattr(L, "in_jupyter_kernel", lambda: True)
+    made = []
+    real = L.LivePlot
+
+    def plot(rec, total, label, **kw):
+        # in step with the batches (no thread), at a low resolution
+        made.append(real(rec, total, label, background=False, clock=time.monotonic, dpi=36, **kw))
+        return made[-1]
+
+    monkeypatch.setattr(L, "LivePlot", plot)
+    with RigBroker(None, speed=1.0) as broker:
+        p = panel_for_page(rig_port=broker.address)
+        p.student.value = "s-shared"
+        p.move = dict(p.move, distance=50.0)  # a 2 s move: seconds of redraws on a loaded machine
+        p.rig_button.click()
+        assert p._rig_error is not None, p.rig_status.value
+    (live,) = made
+    (box,) = p.live_box.children
+    assert box is live.widget and L.BOX_CLASS in box._dom_classes
+    rec = p.last_recording
+    assert live.count.value == f"{len(rec)} samples (complete)"
+    during = [n for n in live.drawn_samples[1:-1] if 0 < n < len(rec)]
+    assert len(during) >= 3, live.drawn_samples
+    _check_complete(live, rec)
+    assert broker.streams and broker.streams[0]["identity"] == "s-shared"

@@ -187,6 +187,10 @@ class Rig:
         #: the plot's widget in a page of one's own (the tuning panel's live box)
         self.live_display = None
         self.recordings = Path(recordings) if recordings is not None else None
+        #: the :class:`Recording` of the run in progress (else of the last run, or None): a
+        #: callback of the run (``on_telemetry``) or another thread may read its rows as they
+        #: arrive (:meth:`Recording.rows`), e.g. to forward them to the run's owner
+        self.recording = None
         self.metadata = _caller_metadata(metadata)
         self._on_close = on_close
         self._decoder = P.Decoder()
@@ -594,7 +598,8 @@ class Rig:
             path = base
         elif path is False:
             path = None
-        return Recording(meta, path)
+        self.recording = Recording(meta, path)
+        return self.recording
 
     # ---------------------------------------------------------------- runs
     def run_move(

@@ -31,11 +31,13 @@ Design choices
   the display is updated with a bundle holding both the widget view and an ``image/png`` of
   the final figure, so a saved notebook keeps the final plot where no widget renders.
 * Outside a kernel (a script, a terminal) nothing is drawn: the text progress bar stays.
-* The class page's shared rig (:class:`jerklab.broker.BrokerRig`) sends a run's recording whole
-  when the run is over, so its runs get no live plot; a rig connected in the page's kernel
-  (a :class:`~jerklab.rig.Rig`: ``jerklab app`` without ``--rig``, one virtual rig per
-  kernel) does: the tuning panel's button puts it in the panel's own box
-  (``Rig.live_display``), since a widget callback has no cell output to draw into.
+* The tuning panel's button puts a run's plot in the panel's own box (``live_display`` of its
+  rig), since a widget callback has no cell output to draw into: a rig connected in the page's
+  kernel (a :class:`~jerklab.rig.Rig`: ``jerklab app`` without ``--rig``) fills the plot's
+  recording as the telemetry arrives; the class page's shared rig
+  (:class:`jerklab.broker.BrokerRig`, ``jerklab app --rig``) fills an in-memory recording with
+  the batches of samples its broker streams during the run (at most 10 a second), then with
+  the rest of the final recording, so the plot is the same.
 
 Costs measured on the (loaded, 2-core) development machine, ``dpi=72``: a full draw of the
 figure 0.3-0.5 s, a blitted redraw with its PNG 20-90 ms.

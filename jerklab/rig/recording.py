@@ -352,6 +352,23 @@ class Recording:
     def __len__(self) -> int:
         return len(self._rows)
 
+    def rows(self, start: int = 0, stop: int | None = None) -> list[tuple]:
+        """The raw samples ``start:stop`` as ``(index, reference, counts, pwm, flags)`` tuples,
+        the arguments of :meth:`append` (a copy: another thread may read them while the run
+        appends, e.g. to forward them as they arrive).
+
+        Examples
+        --------
+        >>> rec = Recording({"Ts": 0.005, "counts_per_rad": 71.3, "volts_per_pwm": 0.0117})
+        >>> rec.append(0, 0.0, 0, 0); rec.append(1, 0.01, 1, 1023)
+        >>> rec.rows(1)
+        [(1, 0.01, 1, 1023, 0)]
+        """
+        start = as_int("start", start, minimum=0)
+        if stop is not None:
+            stop = as_int("stop", stop, minimum=0)
+        return self._rows[start:stop]
+
     def _col(self, j, dtype=float):
         if not self._rows:
             return np.zeros(0, dtype=dtype)

@@ -955,6 +955,7 @@ class VirtualSerial:
         self._freeze_after = freeze_after
         self._t0_wall = time.monotonic()
         self._t0_model = self.device.t
+        self._paced = False  # the anchor above belongs to the run going on
 
     # pyserial API -------------------------------------------------------------
     def _check(self):
@@ -986,8 +987,17 @@ class VirtualSerial:
         return n
 
     def _produce(self, deadline):
-        """Run ticks until the device has output or the deadline passes."""
+        """Run ticks until the device has output or the deadline passes.
+
+        At ``speed``, each run is paced from its own start: the model's clock stands still
+        while the device is idle, so an anchor kept from before would let a run after a
+        pause go as fast as the host reads until it caught up with the pause (as
+        :class:`jerklab.rig.server.DeviceServer` does, a run starts in real time).
+        """
         dev = self.device
+        if self.speed is not None and dev.active and not self._paced:
+            self._t0_wall, self._t0_model = time.monotonic(), dev.t
+        self._paced = dev.active
         while dev.output_pending == 0 and dev.active:
             if self.speed is not None:
                 due = self._t0_wall + (dev.t - self._t0_model) / self.speed
@@ -1000,6 +1010,7 @@ class VirtualSerial:
             else:
                 self._t0_wall, self._t0_model = time.monotonic(), dev.t
             dev.tick()
+        self._paced = dev.active
 
     def read(self, size: int = 1) -> bytes:
         self._check()
