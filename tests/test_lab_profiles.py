@@ -306,6 +306,19 @@ def test_masters_pass_every_check_at_the_corners(name, lab_n, corner):
             assert f"σ = {G['sigma']:g} rad/s, Ts = {1e3 * G['Ts']:g} ms" in out.getvalue()
             assert (ns["g_c"].Ts, ns["g_z"].Ts) == (G["Ts"], G["Ts"])
             assert ns["gap"][0] > 1.0 > ns["gap"][1]
+        if lab_n == 4:  # the mode predicted from the load's design, printed beside the fit's
+            from jerklab.rig.flexload import RulerLoad, predict
+
+            if S.spec["load"] is None:
+                assert "no predicted mode" in out.getvalue()
+            else:
+                f = predict(RulerLoad(**S.spec["load"]), load_profile(name))["coupled_hz"]
+                assert f"predicted from the build: {f:.2f} Hz" in out.getvalue()
+                assert f"identified: {ns['fit'].frequency_hz:.2f}" in out.getvalue()
+                # the hidden build lies anywhere in DESIGN_RANGE on a motor anywhere in the
+                # profile's K and tau ranges: predict gives 0.54-1.65 times the design's mode at
+                # those corners (37D, 25D, micro), docs/INSTRUCTOR.md's key
+                assert 0.5 <= ns["fit"].frequency_hz / f <= 1.75
         assert failures == [], failures
         assert sorted(S.results) == sorted(checks_of(lab_n))
         assert all(r.ok for r in S.results.values()), [r for r in S.results.values() if not r.ok]

@@ -130,8 +130,10 @@ def lab_spec(lab, profile="paper") -> dict:
         1's ``sweep_volts`` and ``step_seconds`` (to identify the motor again); lab 2 also
         ``panel_start`` (the tuning panel's first design, ``pole_placement_panel`` keywords) and
         ``gap`` (question C1's ``wn``, ``zeta``, ``sigma`` in rad/s and ``Ts`` in s); lab 4:
-        ``move`` and ``prbs`` (the mode's PRBS: a quarter of the supply about its half, order
-        9, one sample a bit; 6 ± 3 V on 12 V, ``jerklab.lab.PRBS_MODE``).
+        ``load`` (the flexible load's design, ``RulerLoad`` keywords, to predict the mode from;
+        None on a profile without a stall current), ``move`` and ``prbs`` (the mode's PRBS: a
+        quarter of the supply about its half, order 9, one sample a bit; 6 ± 3 V on 12 V,
+        ``jerklab.lab.PRBS_MODE``).
     """
     p = load_profile(profile)
     if lab not in (1, 2, 3, 4):
@@ -179,7 +181,11 @@ def lab_spec(lab, profile="paper") -> dict:
             },
         }
     if lab == 4:
+        # the load as designed (jerklab.rig.flexload.RulerLoad's defaults: 180 mm, 40 g), to
+        # predict its mode from: only on a profile whose stall current gives the motor's inertia
+        stall = (p.datasheet or {}).get("stall_current")
         return {
+            "load": {"length": 0.18, "tip_mass": 0.040} if stall else None,
             "move": move_limits(p, 4),
             "prbs": {
                 "amplitude": round(V / 4, 6),
