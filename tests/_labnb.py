@@ -109,14 +109,15 @@ def verdicts(nb):
 LINK_TIMEOUT = 30.0
 
 
-def run_master(n, motor, profile=None, student="corner"):
+def run_master(n, motor, profile=None, student="corner", ns=None):
     """Run the master of lab ``n`` (solutions in) in this process, in a plain namespace, as a
     student who got everything right: its code cells in order with ``PROFILE`` set to
     ``profile`` and the session's hidden motor replaced by ``motor`` (the instructor key is in
     the environment: the checks see its truth); the hand-in cell is left out. The virtual
     rigs wait up to ``LINK_TIMEOUT`` for the device (a loaded test machine is slower than a
     student's). Returns ``(session, failures)``: the :class:`jerklab.lab.LabSession` and
-    ``(cell, message)`` of every check cell whose assert failed (any other error propagates)."""
+    ``(cell, message)`` of every check cell whose assert failed (any other error propagates).
+    ``ns``: the dict the cells run in (the caller then reads the worksheet's names)."""
     from unittest import mock
 
     import matplotlib.pyplot as plt
@@ -130,7 +131,8 @@ def run_master(n, motor, profile=None, student="corner"):
         return connect(*args, **kwargs)
 
     nb = nbformat.read(master_path(n), as_version=4)
-    ns = {"__name__": f"lab{n}_master"}
+    ns = {} if ns is None else ns
+    ns["__name__"] = f"lab{n}_master"
     failures = []
     with (
         mock.patch("jerklab.lab.session.student_motor", lambda *a, **k: motor),

@@ -67,6 +67,10 @@ def test_the_paper_profile_keeps_the_labs_numbers():
         "step_seconds": lab.STEP_SECONDS,
     }
     assert hidden_ranges("paper") == lab.RANGES == ranges(None)
+    # lab 2's panel start and question C1 as the worksheet has always stated them
+    assert lab_spec(2)["panel_start"] == {"design": "z-domain", "wn": 20.0, "zeta": 1.0, "Ts": 0.01}
+    assert lab_spec(2)["panel_start"] == lab.PANEL_START
+    assert lab_spec(2)["gap"] == {"wn": 30.0, "zeta": 1.0, "sigma": 210.0, "Ts": 0.02}
 
 
 @pytest.mark.parametrize("name", PROFILES)
@@ -83,6 +87,42 @@ def test_moves_are_a_stated_fraction_of_the_weakest_motor(name):
     assert prbs["offset"] - prbs["amplitude"] > p.friction_range[1]
     # the sweep's lowest step turns every motor
     assert min(v for v in lab_spec(1, name)["sweep_volts"] if v > 0) > p.friction_range[1]
+
+
+@pytest.mark.parametrize("name", PROFILES)
+def test_lab2_panel_start_and_question_c1_follow_the_profile(name):
+    """Lab 2's panel starts a slider away from the lab's design (a slower ωn, a longer Ts, inside
+    the panel's slider ranges), and C1's numbers (``gap``) make Stojčić eq. 11 discretized by
+    Stojčić eq. 13 leave the unit circle on every (K, τ) corner of the profile while the
+    z-domain design stays inside (python's own eigenvalues of the sampled loop); the check
+    ``gap`` takes the profile's numbers, not the paper's."""
+    from jerklab.controller import PositionLoop, pole_placement_pid
+    from jerklab.lab.plain import Evidence
+    from jerklab.lab.registry import run_check
+    from jerklab.tuning import SLIDER_RANGES
+
+    s2 = lab_spec(2, name)
+    P0, G = s2["panel_start"], s2["gap"]
+    assert P0["design"] == "z-domain" and P0["zeta"] == 1.0
+    assert SLIDER_RANGES["wn"][0] <= P0["wn"] < s2["design_wn"]
+    assert s2["design_Ts"] < P0["Ts"] <= SLIDER_RANGES["Ts_ms"][1] / 1e3
+    assert G["wn"] == s2["design_wn"] and G["sigma"] == pytest.approx(7 * G["wn"])
+    assert abs(G["sigma"] * G["Ts"] - 4.2) <= G["sigma"] * 0.0005  # Ts to the millisecond
+    for K, tau in _kt_corners(name):
+        g_c = pole_placement_pid(K, tau, G["wn"], 1.0, sigma=G["sigma"]).discretize(G["Ts"])
+        g_z = discrete_pole_placement_pid(
+            K, tau, G["wn"], 1.0, sigma=G["sigma"], Ts=G["Ts"], extra_pole=0.0
+        )
+        rc, rz = (PositionLoop(K, tau, g).max_pole_radius() for g in (g_c, g_z))
+        assert rc > 1.05 and rz < 0.95, (K, tau, rc, rz)
+        ev = Evidence(answers={"model": (K, tau)}, profile=None if name == "paper" else name)
+        assert run_check(2, "gap", (rc, rz), ev, None).ok
+        if name != "paper":  # the paper's numbers (30 rad/s, 20 ms) are not this profile's answer
+            p_c = pole_placement_pid(K, tau, 30.0, 1.0).discretize(0.02)
+            p_z = discrete_pole_placement_pid(K, tau, 30.0, 1.0, Ts=0.02, extra_pole=0.0)
+            paper = tuple(PositionLoop(K, tau, g).max_pole_radius() for g in (p_c, p_z))
+            r = run_check(2, "gap", paper, ev, None)
+            assert not r.ok, (paper, (rc, rz))
 
 
 @pytest.mark.parametrize("name", PROFILES)
@@ -242,11 +282,43 @@ def test_masters_pass_every_check_at_the_corners(name, lab_n, corner):
     on a hidden motor at a corner of the profile's distribution (the instructor key in the
     environment: the checks judge against that motor's truth): every check of the lab ran and
     passed, and the session's numbers are the profile's."""
+    from unittest import mock
+
+    import jerklab.widgets
+
     motor = _master_motor(name, lab_n, corner)
-    with contextlib.redirect_stdout(io.StringIO()):
-        S, failures = run_master(lab_n, motor, None if name == "paper" else name)
+    ns, out = {}, io.StringIO()
+    panel = mock.patch(
+        "jerklab.widgets.pole_placement_panel", wraps=jerklab.widgets.pole_placement_panel
+    )
+    with contextlib.redirect_stdout(out), panel as made:
+        S, failures = run_master(lab_n, motor, None if name == "paper" else name, ns=ns)
     try:
         assert S.spec == lab_spec(lab_n, name)
+        if lab_n == 2:  # the panel started on the profile's values, C1 used the profile's numbers
+            P0, G = S.spec["panel_start"], S.spec["gap"]
+            assert made.call_count == 1 and made.call_args.kwargs == {
+                "K": ns["K_hat"],
+                "tau": ns["tau_hat"],
+                **P0,
+            }
+            assert f"C1: ωn = {G['wn']:g} rad/s" in out.getvalue()
+            assert f"σ = {G['sigma']:g} rad/s, Ts = {1e3 * G['Ts']:g} ms" in out.getvalue()
+            assert (ns["g_c"].Ts, ns["g_z"].Ts) == (G["Ts"], G["Ts"])
+            assert ns["gap"][0] > 1.0 > ns["gap"][1]
+        if lab_n == 4:  # the mode predicted from the load's design, printed beside the fit's
+            from jerklab.rig.flexload import RulerLoad, predict
+
+            if S.spec["load"] is None:
+                assert "no predicted mode" in out.getvalue()
+            else:
+                f = predict(RulerLoad(**S.spec["load"]), load_profile(name))["coupled_hz"]
+                assert f"predicted from the build: {f:.2f} Hz" in out.getvalue()
+                assert f"identified: {ns['fit'].frequency_hz:.2f}" in out.getvalue()
+                # the hidden build lies anywhere in DESIGN_RANGE on a motor anywhere in the
+                # profile's K and tau ranges: predict gives 0.54-1.65 times the design's mode at
+                # those corners (37D, 25D, micro), docs/INSTRUCTOR.md's key
+                assert 0.5 <= ns["fit"].frequency_hz / f <= 1.75
         assert failures == [], failures
         assert sorted(S.results) == sorted(checks_of(lab_n))
         assert all(r.ok for r in S.results.values()), [r for r in S.results.values() if not r.ok]

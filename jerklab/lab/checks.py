@@ -79,9 +79,9 @@ TOL = {"K": 0.04, "tau": 0.08, "f_c": 0.06}
 #: Lab 2's tuning panel starts here (``pole_placement_panel(K, tau, **PANEL_START)``): a first
 #: guess that misses SPEC on at least 80 % of the class's motors (its 10 ms period lets friction
 #: hold the motor outside the settling band), a slider away (Ts 5 ms, ωn 30 rad/s) from a design
-#: that meets it on every motor (tests/test_labs.py). SPEC and PANEL_START are the numbers a
-#: motor profile would change together.
-PANEL_START = {"design": "z-domain", "wn": 20.0, "zeta": 1.0, "Ts": 0.010}
+#: that meets it on every motor (tests/test_labs.py). Another profile's: ``lab_spec(2,
+#: profile)["panel_start"]``, made with its SPEC.
+PANEL_START = _LAB2["panel_start"]
 
 #: Voltages of lab 1's sweep of steps (each from rest) and their length (s).
 SWEEP_VOLTS = _LAB1["sweep_volts"]
@@ -960,19 +960,23 @@ def check_gap(answer, evidence, truth):
         raise Missing(_needs("gap", "model", "your model (K, τ), task 1"))
     K, tau = model
     rc, rz = (number(f"gap[{i}]", a) for i, a in enumerate(answer))
-    Ts, wn = 0.020, 30.0
+    # the question's numbers on the evidence's profile (paper: ωn 30 rad/s, σ 210 rad/s, 20 ms)
+    G = _lab2(evidence)["gap"]
+    Ts, wn, zeta, sigma = G["Ts"], G["wn"], G["zeta"], G["sigma"]
     ref_c = PositionLoop(
-        K, tau, pole_placement_pid(K, tau, wn, 1.0).discretize(Ts)
+        K, tau, pole_placement_pid(K, tau, wn, zeta, sigma=sigma).discretize(Ts)
     ).max_pole_radius()
     ref_z = PositionLoop(
-        K, tau, discrete_pole_placement_pid(K, tau, wn, 1.0, Ts=Ts, extra_pole=0.0)
+        K,
+        tau,
+        discrete_pole_placement_pid(K, tau, wn, zeta, sigma=sigma, Ts=Ts, extra_pole=0.0),
     ).max_pole_radius()
     if abs(rc - ref_c) <= 0.01 and abs(rz - ref_z) <= 0.01:
         return CheckResult(
             "gap",
             True,
             f"|z| = {ref_c:.2f} for Stojčić eq. 11 discretized by Stojčić eq. 13 against "
-            f"{ref_z:.2f} for the z-domain design: at σ·Ts = {7 * wn * Ts:.1f} the "
+            f"{ref_z:.2f} for the z-domain design: at σ·Ts = {sigma * Ts:.1f} the "
             "approximation behind Stojčić eq. 13 breaks down and the loop leaves the unit circle, while the "
             "z-domain design solves for the poles on the exact ZOH plant: they sit at e^(sTs) "
             "(the dominant pair at e^(−ζωnTs)) and the fourth at z = 0.",
@@ -989,7 +993,8 @@ def check_gap(answer, evidence, truth):
         "gap",
         False,
         f"{which} radius is off: use PositionLoop(K, τ, gains).max_pole_radius() "
-        "with YOUR K and τ, ωn = 30 rad/s, ζ = 1, σ = 7ωn, Ts = 20 ms, extra_pole=0.0 for the z design.",
+        f"with YOUR K and τ, ωn = {wn:g} rad/s, ζ = {zeta:g}, σ = {sigma:g} rad/s, "
+        f"Ts = {1e3 * Ts:g} ms (S.spec['gap']), extra_pole=0.0 for the z design.",
     )
 
 

@@ -43,6 +43,7 @@ __all__ = [
     "soft_gains",
     "load_deflection",
     "residual_amplitude",
+    "predicted_mode",
     "KINDS4",
     "MISTAKES4",
 ]
@@ -405,3 +406,69 @@ def check_choice(answer, evidence, truth):
         f"{a.upper()} is good, but another shaper of about the same length "
         "leaves less on the lower mode: compare your `robust` numbers.",
     )
+
+
+def predicted_mode(load, profile, fit, ax=None):
+    """Lab 4 B1b: the mode :func:`jerklab.rig.flexload.predict` gives for the load's build next
+    to the one identified from the encoder, printed and drawn (like notebook 09, section 8).
+
+    Parameters
+    ----------
+    load : dict or None
+        ``RulerLoad`` keywords (``S.spec["load"]``); None on a profile without a stall current:
+        then nothing is predicted and None is returned.
+    profile : jerklab.rig.profiles.MotorProfile
+        The rig's motor (``S.profile``).
+    fit : jerklab.shaping.ModeFit
+        The identified mode (``shaping.identify_mode``).
+    ax : matplotlib Axes, optional
+        Where to draw the two models' speed responses |ω/u|; a new figure by default.
+
+    Returns
+    -------
+    dict or None
+        :func:`jerklab.rig.flexload.predict`'s result, and ``ratio`` (identified / predicted
+        coupled mode).
+    """
+    from jerklab.plant import FlexibleDCMotor
+    from jerklab.rig.flexload import RulerLoad, predict
+
+    if load is None:
+        print(
+            "no predicted mode: this profile states no stall current (the motor's inertia is unknown)"
+        )
+        return None
+    pred = predict(RulerLoad(**load), profile)
+    built = FlexibleDCMotor(
+        K=pred["K"],
+        tau=pred["tau"],
+        load_ratio=pred["load_ratio"],
+        mode_frequency=pred["mode_frequency"],
+        mode_damping=pred["damping"],
+        supply_voltage=profile.supply_voltage,
+    )
+    f_p, f_i = pred["coupled_hz"], float(fit.frequency_hz)
+    pred["ratio"] = f_i / f_p
+    print(
+        f"predicted from the build: {f_p:.2f} Hz at the encoder ({pred['mode_hz']:.2f} Hz with "
+        f"the hub held, J_l/J_m = {pred['load_ratio']:.2f}); identified: {f_i:.2f} ± "
+        f"{fit.frequency_se:.2f} Hz (identified / predicted = {pred['ratio']:.2f})"
+    )
+    import matplotlib.pyplot as plt
+
+    if ax is None:
+        _, ax = plt.subplots(figsize=(7, 3.5))
+    fr = np.linspace(1.0, 40.0, 400)
+    for label, m, style in (
+        ("predicted model (flexload.predict)", built, "-"),
+        ("identified model (encoder, identify_mode)", fit.model(), "--"),
+    ):
+        ax.semilogy(fr, np.abs(m.velocity_tf()(2j * np.pi * fr)), style, label=label)
+    ax.axvline(f_p, color="C0", lw=0.8, ls=":")
+    ax.axvline(f_i, color="C1", lw=0.8, ls="-.")
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel("|ω / u| (rad/(V s))")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend()
+    ax.set_title(f"Predicted mode {f_p:.1f} Hz vs identified from the encoder {f_i:.1f} Hz")
+    return pred

@@ -48,6 +48,14 @@ JERK_TIME_4 = 0.015
 DESIGN_WN, DESIGN_WN_TAU, SETTLE_WN = 30.0, 1.8, 7.5
 #: lab 2's control period (s) and the largest voltage kick of one count through the derivative (V)
 DESIGN_TS, KICK_VOLTS = 0.005, 1.0
+#: lab 2's tuning panel starts at this share of the design's ωn (rounded to the slider's 1 rad/s)
+#: and this many times its control period: a first guess a slider away from the design (paper:
+#: 20 rad/s at 10 ms against 30 rad/s at 5 ms)
+PANEL_WN_SHARE, PANEL_TS_TIMES = 2.0 / 3.0, 2
+#: lab 2's question C1: the design's ωn, σ = GAP_SIGMA_RATIO ωn, and the period that makes
+#: σ Ts = GAP_SIGMA_TS (the paper's class: σ = 210 rad/s at Ts = 20 ms), where Stojčić eq. 13's
+#: discretization leaves the unit circle on every motor of every profile
+GAP_SIGMA_RATIO, GAP_SIGMA_TS = 7.0, 4.2
 #: lab 2's tracking-error limit at the paper's move speed (rad, rad/s)
 MAX_ERROR, PAPER_VELOCITY, MIN_ERROR_SHARE = 0.40, 80.0, 0.3
 #: lab 1's sweep: fractions of the supply, each way
@@ -119,9 +127,13 @@ def lab_spec(lab, profile="paper") -> dict:
         voltage, as magnitudes in rad/s, the ``tau`` range in s); labs 2-3: ``move`` and
         ``spec`` (the tolerances of the move: max tracking error, overshoot, settle band and
         time, max voltage), the design's ``design_wn`` (rad/s) and ``design_Ts`` (s), and lab
-        1's ``sweep_volts`` and ``step_seconds`` (to identify the motor again); lab 4:
-        ``move`` and ``prbs`` (the mode's PRBS: a quarter of the supply about its half, order
-        9, one sample a bit; 6 ± 3 V on 12 V, ``jerklab.lab.PRBS_MODE``).
+        1's ``sweep_volts`` and ``step_seconds`` (to identify the motor again); lab 2 also
+        ``panel_start`` (the tuning panel's first design, ``pole_placement_panel`` keywords) and
+        ``gap`` (question C1's ``wn``, ``zeta``, ``sigma`` in rad/s and ``Ts`` in s); lab 4:
+        ``load`` (the flexible load's design, ``RulerLoad`` keywords, to predict the mode from;
+        None on a profile without a stall current), ``move`` and ``prbs`` (the mode's PRBS: a
+        quarter of the supply about its half, order 9, one sample a bit; 6 ± 3 V on 12 V,
+        ``jerklab.lab.PRBS_MODE``).
     """
     p = load_profile(profile)
     if lab not in (1, 2, 3, 4):
@@ -169,7 +181,11 @@ def lab_spec(lab, profile="paper") -> dict:
             },
         }
     if lab == 4:
+        # the load as designed (jerklab.rig.flexload.RulerLoad's defaults: 180 mm, 40 g), to
+        # predict its mode from: only on a profile whose stall current gives the motor's inertia
+        stall = (p.datasheet or {}).get("stall_current")
         return {
+            "load": {"length": 0.18, "tip_mass": 0.040} if stall else None,
             "move": move_limits(p, 4),
             "prbs": {
                 "amplitude": round(V / 4, 6),
@@ -190,7 +206,7 @@ def lab_spec(lab, profile="paper") -> dict:
     )
     wn = min(DESIGN_WN, _round2(DESIGN_WN_TAU / p.tau_range[1]), _round2(kick))
     ident = lab_spec(1, p)
-    return {
+    out = {
         "move": move,
         "design_wn": wn,
         "spec": {
@@ -210,3 +226,21 @@ def lab_spec(lab, profile="paper") -> dict:
         "sweep_volts": ident["sweep_volts"],
         "step_seconds": ident["step_seconds"],
     }
+    if lab == 2:
+        # the panel's first guess: a slower loop sampled more slowly than the design
+        out["panel_start"] = {
+            "design": "z-domain",
+            "wn": float(max(2, round(PANEL_WN_SHARE * wn))),
+            "zeta": 1.0,
+            "Ts": PANEL_TS_TIMES * DESIGN_TS,
+        }
+        # C1: Stojčić eq. 11 discretized by Stojčić eq. 13 at σ Ts = GAP_SIGMA_TS (the period
+        # rounded to a millisecond) against the z-domain design on the same period
+        sigma = GAP_SIGMA_RATIO * wn
+        out["gap"] = {
+            "wn": wn,
+            "zeta": 1.0,
+            "sigma": round(sigma, 6),
+            "Ts": round(GAP_SIGMA_TS / sigma, 3),
+        }
+    return out
