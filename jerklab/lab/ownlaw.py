@@ -1,7 +1,7 @@
 """Lab 5, "Your own law": the student writes Stojčić eqs. 16–18 in Python and closes the loop.
 
 The student's law (feedforward of Stojčić eq. 16, the discrete PID of Stojčić eqs. 17, 18, the
-output clamp and conditional-integration anti-windup; ASCII: Stojcic eqs. 16-18) runs through the
+output clamp and conditional-integration anti-windup; ASCII: Stojcic eqs. 16–18) runs through the
 rig's host-in-the-loop mode (``board.host_loop``) at Ts = 10 ms; the firmware runs its own law on
 the same move (``board.run_move``). In the host loop the voltage the law computes from the sample
 at t = k Ts is applied at tick k + 1 (a whole Ts later); the board's own law applies it about
@@ -23,6 +23,7 @@ import math
 
 import numpy as np
 
+from jerklab.controller import DiscreteGains
 from jerklab.lab.checkbase import CheckResult, Missing, Mistake, number, rel, run_of, side
 
 __all__ = [
@@ -83,7 +84,7 @@ def feedforward_table(profile, n, Ts, K, tau):
 def replay(law, position, reference, ff, gains, limit):
     """The voltages (V) candidate ``law`` (one of :data:`LAWS5`) computes from the recorded
     ``position`` and ``reference`` (rad) at each tick, with feedforward ``ff`` (V) and the
-    discrete ``gains`` (``kpd``, ``kid``, ``kdd``; ``Ts``): Stojčić eqs. 16-18, clamped to
+    discrete ``gains`` (``kpd``, ``kid``, ``kdd``; ``Ts``): Stojčić eqs. 16–18, clamped to
     ``±limit``, varied as the name says."""
     kpd, kid, kdd = gains.kpd, gains.kid, gains.kdd
     if law == "continuous":  # ki = kid/Ts, kd = kdd·Ts used as the discrete gains
@@ -190,8 +191,6 @@ def check_pre_delay(answer, evidence, truth):
 def _setup(evidence, answer_name="law"):
     """(gains, ff, limit) the runs used, from the earlier answer ``law`` (a dict of ``kpd``,
     ``kid``, ``kdd``, ``Ts``, ``K``, ``tau``, ``limit``), ff on the ``board`` run's ticks."""
-    from jerklab.controller import DiscreteGains
-
     law = evidence.answers.get(answer_name)
     if not isinstance(law, dict):
         raise Missing("law: record the law's parameters first (S.verify('law', ...)).")
