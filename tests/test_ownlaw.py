@@ -1,0 +1,114 @@
+"""Lab 5's checks (jerklab.lab.ownlaw): the replay of candidate laws names the law a host-loop run
+applied (virtual rig, device clock frozen); the pre-lab checks and their mistakes."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from jerklab.controller import pole_placement_pid
+from jerklab.lab import ownlaw as o
+from jerklab.lab.plain import Evidence, Run
+from jerklab.planner import plan_sine_jerk
+from jerklab.rig import connect
+
+
+class _StudentLaw:
+    """Stojcic eqs. 16-18 written out (not jerklab.law), with a mistake on demand."""
+
+    def __init__(self, g, ff, limit, mistake=None):
+        self.g, self.ff, self.limit, self.mistake = g, ff, limit, mistake
+        self.i = self.e = 0.0
+
+    def __call__(self, t, y, r):
+        g, m = self.g, self.mistake
+        kid, kdd = (g.kid / g.Ts, g.kdd * g.Ts) if m == "continuous" else (g.kid, g.kdd)
+        e = (y - r) if m == "sign" else (r - y)
+        i = self.i + kid * e
+        u = self.ff[round(t / g.Ts)] + g.kpd * e + i + kdd * (e - self.e)
+        push = (u > self.limit and e < 0) if m == "aw_reversed" else (u > self.limit and e > 0)
+        if push or (u < -self.limit and e < 0):
+            u, i = u - kid * e, self.i
+        self.i, self.e = i, e
+        return min(max(u, -self.limit), self.limit)
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    rig = connect(recordings=tmp_path_factory.mktemp("ownlaw"), progress=False)
+    rig.link.device.clock = lambda: 0.0  # no late answer from a loaded machine
+    K, tau = rig.model
+    prof = plan_sine_jerk(2 * math.pi, 500.0, 40.0, 10.0)
+    g = pole_placement_pid(K, tau, 10.0).discretize(o.TS5)
+    board = rig.run_move(prof, g, Ts=o.TS5, settle=0.5, path=False, live=False)
+    n = len(board)
+    ff = o.feedforward_table(prof, n, o.TS5, K, tau)
+    out = {"board": board}
+    for m in (None, "sign", "continuous"):
+        out[m or "pid"] = rig.host_loop(
+            _StudentLaw(g, ff, 12.0, m),
+            Ts=o.TS5,
+            duration=(n - 1) * o.TS5,
+            reference=prof,
+            max_misses=255,
+            max_error=0.0,
+            live=False,
+        )
+    rig.close()
+    law = dict(kpd=g.kpd, kid=g.kid, kdd=g.kdd, Ts=g.Ts, K=K, tau=tau, limit=12.0)
+    return {k: Run.from_recording(r) for k, r in out.items()}, law, g, ff
+
+
+@pytest.mark.parametrize("mistake", ["pid", "sign", "continuous"])
+def test_diagnose_names_the_law_the_run_applied(runs, mistake):
+    r, law, g, ff = runs
+    name, rms = o.diagnose(r[mistake], o._ff_of(r[mistake], law["K"], law["tau"]), g, 12.0)
+    assert name == mistake, (name, rms)
+    # the exact feedforward replays the right law to within the PWM's rounding (12 V / 1023)
+    exact, rms = o.diagnose(r[mistake], ff, g, 12.0, (mistake,))
+    assert rms <= 12.0 / 1023
+
+
+def test_match_passes_the_same_law_and_explains_a_wrong_sign(runs):
+    r, law, _, _ = runs
+    cpr = 448
+    for mine, ok, words in [
+        ("pid", True, "within"),
+        ("sign", False, o.MISTAKES5["match_sign"].hint),
+        ("continuous", False, o.MISTAKES5["match_continuous"].hint),
+    ]:
+        ev = Evidence(
+            runs={"board": r["board"], "mine": r[mine]}, answers={"law": law}, counts_per_rev=cpr
+        )
+        apart = o._counts_apart(r[mine], r["board"], cpr)
+        res = o.check_match(apart, ev, None)
+        assert res.ok is ok and words in res.message, (mine, apart, res)
+    # a measured distance that is not the recordings' own fails
+    ev = Evidence(
+        runs={"board": r["board"], "mine": r["pid"]}, answers={"law": law}, counts_per_rev=cpr
+    )
+    assert not o.check_match(40.0, ev, None)
+
+
+def test_variant_pd_is_read_from_its_run(runs):
+    r, law, g, ff = runs
+    # (the P-only replay of the full-PID run is not the PID: the check says so)
+    ev = Evidence(runs={"variant": r["pid"]}, answers={"law": law}, counts_per_rev=448)
+    err = float(np.max(np.abs(r["pid"].reference - r["pid"].position)))
+    assert o.check_variant({"law": "pd", "max_error": err}, ev, None).ok is False
+
+
+@pytest.mark.parametrize(
+    ("name", "answer", "ok", "words"),
+    [
+        ("pre_ff", (0.025 * 200 + 10) / 32.4, True, "u_F"),
+        ("pre_ff", 10 / 32.4, False, o.MISTAKES5["pre_ff_no_accel"].hint),
+        ("pre_delay", 10.0, True, "one whole tick"),
+        ("pre_delay", 0.0, False, o.MISTAKES5["pre_delay_board"].hint),
+    ],
+)
+def test_pre_lab(name, answer, ok, words):
+    res = getattr(o, f"check_{name}")(answer, Evidence(), None)
+    assert res.ok is ok and words in res.message
