@@ -34,6 +34,8 @@ from jerklab.lab.checkbase import (
     side,
 )
 from jerklab.lab.motors import coupled_mode, motor_from_truth
+from jerklab.plant import FlexibleDCMotor
+from jerklab.rig.flexload import RulerLoad, predict
 
 __all__ = [
     "PRBS_MODE",
@@ -430,9 +432,6 @@ def predicted_mode(load, profile, fit, ax=None):
         :func:`jerklab.rig.flexload.predict`'s result, and ``ratio`` (identified / predicted
         coupled mode).
     """
-    from jerklab.plant import FlexibleDCMotor
-    from jerklab.rig.flexload import RulerLoad, predict
-
     if load is None:
         print(
             "no predicted mode: this profile states no stall current (the motor's inertia is unknown)"
