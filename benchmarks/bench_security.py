@@ -17,8 +17,14 @@ in tests/security/ are the same attacks with assertions; this table is the count
 before and after a fix.
 
     python -m benchmarks security
-    python -m benchmarks security grading
-    python -m benchmarks security --only hub
+    python -m benchmarks security --only=grading --only=hub
+    python -m benchmarks.bench_security grading hub
+
+Against an older checkout (the "before" count), from a folder holding only ``benchmarks/``,
+so that the checkout's jerklab is the one imported, in process and by every command the
+attacks start::
+
+    PYTHONPATH=/path/to/old/checkout python -m benchmarks security
 """
 
 from __future__ import annotations

@@ -607,3 +607,24 @@ def test_the_service_on_a_unix_socket(tmp_path):
         finally:
             rig.close()
     assert not sock.exists()
+
+
+def test_the_benchmarks_attacks_hold_against_the_service_and_not_without_it(tmp_path):
+    """``python -m benchmarks security``'s hidden-motor area, one student process each: against
+    the class rig service every attack (the session's truth, the motor object, a percent in the
+    feedback, a classmate's session and regenerated motor, the scan) comes back without the
+    truth; with the key in the student's environment, as before the service, the scan finds
+    alice's K and bob's motor regenerates from his ID (today's session has no ``_truth`` and
+    no motor attribute either way: the key is what gives the truth away)."""
+    from benchmarks.attacks_hidden_motor import attack_class
+
+    (tmp_path / "with").mkdir()
+    (tmp_path / "without").mkdir()
+    held = attack_class(tmp_path / "with")
+    assert len(held) == 6 and all(ok for _, ok, _ in held), held
+    control = attack_class(tmp_path / "without", service=False)
+    broken = {name for name, ok, _ in control if not ok}
+    assert {
+        "every number in the student's process scanned for K",
+        "a classmate's motor regenerated from their ID",
+    } <= broken, control
