@@ -4,6 +4,7 @@ python-control's ZOH response as the independent reference."""
 
 from __future__ import annotations
 
+import functools
 import warnings
 
 import control as ct
@@ -124,3 +125,25 @@ def lab_sweep(seed, motor=None, jitter=None):
         counts = np.floor(theta * cpr + 1e-9 + jitter)[:-1]
         records.append((u, (counts - counts[0]) / cpr))
     return motor, records
+
+
+@functools.lru_cache(maxsize=1)
+def dc_generator_fits():
+    """The measured DC motor / generator record (decimated 2, 10 000 samples) split in halves
+    and the four prediction-error fits on the first half that the identification notebook
+    quotes: ``(estimation half, validation half, {"linear", "viscous", "both", "coulomb"})``.
+
+    Computed once per worker: tests/test_ident_generator.py and tests/test_figures_ident.py
+    share it (one xdist group, ``SHARED_WORKER`` in conftest)."""
+    data = ident.load_dc_generator(decimate=2)
+    n = data.n // 2
+    est, val = data[:n], data[n:]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ident.IdentificationWarning)
+        fits = {
+            "linear": est.fit("pem", delay=True),
+            "viscous": est.fit("pem", coast=True, delay=True),
+            "both": est.fit("pem", coast=True, friction=True, delay=True),
+            "coulomb": est.fit("pem", coast="coulomb", friction=True, delay=True),
+        }
+    return est, val, fits

@@ -195,6 +195,8 @@ SHARED_WORKER = {
     "security/test_hub.py": "test_hub.py",
     # the book is built from the notebooks test_notebooks.py executes: after them, on their worker
     "test_book.py": "test_notebooks.py",
+    # the measured DC generator's four PEM fits (tests/_ident.py, cached per worker) once
+    "test_figures_ident.py": "test_ident_generator.py",
 }
 #: the longest groups (minutes of one worker each) are handed out first, so that no worker starts
 #: one of them near the end of the run while the other waits idle
@@ -223,7 +225,7 @@ def _group(item) -> str | None:
     info = getattr(item, "_fixtureinfo", None)
     defs = info.name2fixturedefs.values() if info is not None else ()
     if any(d.scope == "module" for ds in defs for d in ds):
-        return rel
+        return SHARED_WORKER.get(rel, rel)
     return None
 
 

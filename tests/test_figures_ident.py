@@ -12,6 +12,7 @@ import warnings
 
 import numpy as np
 import pytest
+from _ident import dc_generator_fits
 
 from jerklab import ident
 from jerklab.controller import DigitalController, discrete_pole_placement_pid
@@ -128,18 +129,14 @@ def test_micromouse_numbers_the_notebook_quotes(micromouse):
 # ------------------------------------------------------------------ section 8b: the DC generator
 @pytest.fixture(scope="module")
 def generator():
-    gen = ident.load_dc_generator(decimate=2)
-    half = gen.n // 2
-    est, val = gen[:half], gen[half:]
-    fits = {
-        "eq. 1 + delay": quiet(est.fit, "pem", delay=True),
-        "open drive, viscous": quiet(est.fit, "pem", delay=True, coast=True),
-        "open drive, viscous + Coulomb": quiet(
-            est.fit, "pem", delay=True, coast=True, friction=True
-        ),
-        "open drive, Coulomb": quiet(est.fit, "pem", delay=True, coast="coulomb", friction=True),
+    _, val, f = dc_generator_fits()
+    names = {
+        "eq. 1 + delay": "linear",
+        "open drive, viscous": "viscous",
+        "open drive, viscous + Coulomb": "both",
+        "open drive, Coulomb": "coulomb",
     }
-    return val, fits
+    return val, {label: f[key] for label, key in names.items()}
 
 
 def test_dc_generator_numbers_the_notebook_quotes(generator):
