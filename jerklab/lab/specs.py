@@ -249,9 +249,7 @@ def lab_spec(lab, profile="paper") -> dict:
     # lag with lab 1's model error (FRICTION_LAG_MARGIN), where the friction is a large share
     # of the voltage the loop's proportional gain makes (the micro gearmotor: 1.1 rad)
     max_error = max(
-        _round2(
-            MAX_ERROR * min(1.0, max(MIN_ERROR_SHARE, move["max_velocity"] / PAPER_VELOCITY))
-        ),
+        _round2(MAX_ERROR * min(1.0, max(MIN_ERROR_SHARE, move["max_velocity"] / PAPER_VELOCITY))),
         _round2(FRICTION_LAG_MARGIN * friction_lag(p, wn)),
     )
     out = {
