@@ -166,6 +166,31 @@ def test_the_tracking_limit_covers_the_friction_lag(name):
         assert 0.75 * lag <= met["max_error"] <= lag, (met["max_error"], lag)
 
 
+def test_docs_rig_lists_each_profiles_lab2_spec():
+    """docs/RIG.md's table of lab 2's design and spec holds ``lab_spec(2, name)``'s numbers."""
+    from pathlib import Path
+
+    text = (Path(__file__).parent.parent / "docs" / "RIG.md").read_text(encoding="utf-8")
+    rows = {}
+    for line in text.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) == 8 and cells[0].strip("`") in PROFILES:
+            rows[cells[0].strip("`")] = [float(c) for c in cells[1:]]
+    assert sorted(rows) == sorted(PROFILES)
+    for name, (wn, emax, lag, band, ts, stop, dur) in rows.items():
+        s2 = lab_spec(2, name)
+        spec = s2["spec"]
+        assert (wn, emax, band, ts, stop) == (
+            s2["design_wn"],
+            spec["max_error"],
+            spec["settle_band"],
+            spec["settling_time"],
+            s2["stop_error"],
+        ), name
+        assert lag == round(friction_lag(name), 2), name
+        assert dur == round(plan_sine_jerk(**s2["move"]).duration, 1), name
+
+
 #: (profile, corner)s that do not meet lab 2's spec yet, and why (strict: a pass must remove it)
 NOT_YET = {
     ("pololu-micro-30-hpcb", c): "the slowest micro gearmotors (K 8.9 rad/(V s), tau 0.25 s): the "
