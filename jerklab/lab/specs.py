@@ -69,6 +69,9 @@ STOP_ERROR_TIMES = 1.25
 #: lab 2's settle band (rad) and its share of the tracking-error limit, whichever is larger
 #: (the paper's 0.05 rad is an eighth of its 0.4 rad)
 SETTLE_BAND, BAND_SHARE = 0.05, 0.125
+#: the hidden encoders' count noise (counts, standard deviation) at most, where a profile's
+#: measured records do not bound it (``measured["count_noise"]``)
+NOISE_COUNTS = 0.5
 #: lab 1's sweep: fractions of the supply, each way
 SWEEP_FRACTIONS = (0.25, 0.5, 0.75)
 #: lab 1's steps last this many of the slowest τ (rounded up to 0.1 s)
@@ -138,15 +141,18 @@ def friction_lag(profile="paper", wn=None) -> float:
 def hidden_ranges(profile="paper") -> dict:
     """The distribution the hidden motors of ``profile`` are drawn from (uniform in log for K
     and τ): its K, τ and friction ranges, an input offset below the smallest friction (no creep
-    at 0 V), encoder count noise and the encoders a class may have."""
+    at 0 V), encoder count noise (standard deviation in counts, up to :data:`NOISE_COUNTS`, or
+    up to the profile's measured ``count_noise`` where its records bound it) and the encoders a
+    class may have."""
     p = load_profile(profile)
     off = round(min(0.08, 0.8 * p.friction_range[0]), 6)
+    noise = float((p.measured or {}).get("count_noise", NOISE_COUNTS))
     return {
         "K": tuple(p.K_range),
         "tau": tuple(p.tau_range),
         "coulomb_friction": tuple(p.friction_range),
         "offset": (-off, off),
-        "noise_counts": (0.0, 0.5),
+        "noise_counts": (0.0, noise),
         "encoder_ppr": tuple(p.counts_options),
     }
 
