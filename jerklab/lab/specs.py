@@ -123,8 +123,9 @@ def friction_lag(profile="paper", wn=None) -> float:
 
     A motor at rest sticks until the loop's voltage exceeds its Coulomb friction, and the
     feedforward (Stojčić eq. 8) has no friction term: the reference runs ahead by about this
-    much before the motor starts (the tests measure 0.90 rad against 0.94 on the micro
-    gearmotor's corners, and it is below the speed rule's limit on every other profile).
+    much before the motor starts (on the micro gearmotor's quickest, strongest, stickiest
+    motor the spec move lags 0.80 rad with the exact model and 0.90 with lab 1's model error,
+    against 0.94; on every other profile it is below the speed rule's limit).
 
     >>> round(friction_lag("paper"), 3)
     0.2
