@@ -62,3 +62,39 @@ def test_cli_refuses_an_unknown_profile_naming_the_option(tmp_path, capsys):
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert "--profile" in err and "pololu-37d-30" in err
+
+
+@pytest.mark.parametrize("lab, profile", [(2, "pololu-micro-30-hpcb"), (3, PROFILE), (1, PROFILE)])
+def test_a_move_stops_where_the_lab_on_the_profile_says(tmp_path, lab, profile):
+    """The service runs each move with the tracking-error stop of the lab on its profile
+    (``lab_spec(lab, profile)["stop_error"]``: 1.375 rad on the micro gearmotor, the device's
+    0.5 rad elsewhere; none where the lab has no spec move), and a student cannot choose it."""
+    from jerklab.controller import discrete_pole_placement_pid
+    from jerklab.lab.classrig import encode_answer
+
+    tokens = tmp_path / "tokens.json"
+    tokens.write_text("{}")
+    svc = ClassRigService(TokenFile(tokens), tmp_path / "log.jsonl", key=KEY, profile=profile)
+    st = _Student(svc, "s000", lab)
+    seen = []
+    real = st.rig.run_move
+
+    def run_move(*args, **kw):
+        seen.append(kw)
+        return real(*args, **kw)
+
+    st.rig.run_move = run_move
+    g = discrete_pole_placement_pid(st.truth["K"], st.truth["tau"], 4.0, 1.0, Ts=0.005)
+    move = {"kind": "sine_jerk", "distance": 0.5, "max_jerk": 500.0}
+    move |= {"max_accel": 20.0, "max_velocity": 3.0}
+    req = {"op": "run_move", "name": "m", "profile": move, "gains": encode_answer(g)}
+    try:
+        assert st.handle(req | {"run": {"settle": 0.1}})["ok"]
+        stop = lab_spec(lab, profile).get("stop_error")
+        assert seen[-1].get("max_error") == stop and (stop is None) == (lab == 1)
+        if lab == 2:
+            assert stop == 1.375
+        with pytest.raises(ValueError, match="run may hold only"):
+            st.handle(req | {"run": {"max_error": 100.0}})
+    finally:
+        st.close()

@@ -328,11 +328,14 @@ def sweep_fit(speeds):
     return (float(K), float(b / K), float(a / K)), tuple(float(s) for s in std)
 
 
-def spec_metrics(run, profile):
+def spec_metrics(run, profile, settle_band=None):
     """:func:`jerklab.metrics.move_metrics` of a move recording with the spec's settle band
-    (``SPEC["settle_band"]``): max |e| during the move, overshoot (% of the distance) after it,
-    settling time after the end, peak |u|, saturated samples."""
-    return move_metrics(run, profile.duration, profile.distance, settle_band=SPEC["settle_band"])
+    (``settle_band`` in rad, default ``SPEC["settle_band"]``; another rig's:
+    ``jerklab.lab.specs.lab_spec(2, profile)["spec"]["settle_band"]``): max |e| during the move,
+    overshoot (% of the distance) after it, settling time after the end, peak |u|, saturated
+    samples."""
+    band = SPEC["settle_band"] if settle_band is None else settle_band
+    return move_metrics(run, profile.duration, profile.distance, settle_band=band)
 
 
 # ------------------------------------------------------------------ lab 1: identify your motor
@@ -813,17 +816,20 @@ def _lab2(evidence):
     return _LAB2 if name is None else lab_spec(2, name)
 
 
-def _spec_move_on(truth, gains, model, move=None):
+def _spec_move_on(truth, gains, model, move=None, settle_band=None, stop_error=None):
     """The spec move on the student's hidden motor rebuilt from ``truth`` (the same motor and
-    encoder noise as their virtual rig), the feedforward from their ``model``, in memory."""
+    encoder noise as their virtual rig), the feedforward from their ``model``, in memory, the
+    rig's tracking-error stop at ``stop_error`` (rad; None: the device's default); its
+    :func:`spec_metrics` with ``settle_band``."""
+    stops = {} if stop_error is None else {"max_error": stop_error}
     prof = plan_sine_jerk(**(MOVE if move is None else move))
     rig = connect(device=student_device(motor_from_truth(truth)), progress=False, live=False)
     try:
         rig.set_model(*model)
-        rec = rig.run_move(prof, gains, gains.Ts, settle=0.4, path=False)
+        rec = rig.run_move(prof, gains, gains.Ts, settle=0.4, path=False, **stops)
     finally:
         rig.close()
-    return spec_metrics(rec, prof)
+    return spec_metrics(rec, prof, settle_band)
 
 
 def spec_failures(m, spec=None):
@@ -890,7 +896,9 @@ def check_design(answer, evidence, truth):
         )
     lab2 = _lab2(evidence)
     try:
-        m = _spec_move_on(truth, g, model, lab2["move"])
+        m = _spec_move_on(
+            truth, g, model, lab2["move"], lab2["spec"]["settle_band"], lab2.get("stop_error")
+        )
     except RigError as exc:  # the rig's safety stops ended the spec move
         why = str(exc).split("(", 1)[-1].split(")", 1)[0] if "(" in str(exc) else str(exc)
         hint = (
@@ -919,7 +927,7 @@ def check_measured(answer, evidence, truth):
     lab2 = _lab2(evidence)
     SPEC = lab2["spec"]
     prof = plan_sine_jerk(**lab2["move"])
-    m = spec_metrics(rec, prof)
+    m = spec_metrics(rec, prof, SPEC["settle_band"])
     keys = ("max_error", "overshoot_pct", "settling_time", "peak_voltage")
     if not isinstance(answer, dict) or set(keys) - set(answer):
         raise Missing(f"measured: a dict with keys {keys}.")

@@ -509,6 +509,11 @@ class _Student:
                 spec["settle"] = _number("settle", run["settle"], 0.0, LIMITS["settle"])
             if "feedforward" in run:
                 spec["feedforward"] = bool(run["feedforward"])
+            # the tracking-error stop of the lab on the class's profile (labs 2-3), not the
+            # student's to choose
+            stop = lab_spec(self.lab, self.profile or "paper").get("stop_error")
+            if stop is not None:
+                spec["max_error"] = stop
             rec = self.rig.run_move(
                 _profile(req.get("profile")),
                 g,

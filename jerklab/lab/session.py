@@ -318,9 +318,14 @@ class LabSession:
         ``force=True``, ...).
 
         A planner the device does not have (the firmware runs only the published sine-jerk)
-        returns None with a message instead of stopping the worksheet.
+        returns None with a message instead of stopping the worksheet. The tracking-error stop
+        (``max_error``) defaults to the lab's ``spec["stop_error"]`` where the lab has one
+        (labs 2-3: the device's 0.5 rad, or 1.25 times a larger spec limit); on the class rig
+        service the service sets it.
         """
         name = name or f"move_{profile.kind}"
+        if "stop_error" in (self.spec or {}) and not isinstance(self.rig, ClassRig):
+            run.setdefault("max_error", self.spec["stop_error"])
         try:
             rec = self.rig.run_move(profile, gains, Ts, path=self._path(name), **run)
         except RigError as exc:
