@@ -133,6 +133,10 @@ class Server:
         self.proc = None
 
     def __enter__(self):
+        return self.start().wait_ready()
+
+    def start(self):
+        """Start the process (not waiting for it to answer: :meth:`wait_ready`)."""
         self._log = open(self.log_path, "w")
         self.proc = subprocess.Popen(
             self.cmd,
@@ -142,6 +146,10 @@ class Server:
             cwd=self.cwd,
             start_new_session=True,
         )
+        return self
+
+    def wait_ready(self):
+        """Wait until the server answers its URL (the process is stopped if it never does)."""
         deadline = time.monotonic() + SERVER_TIMEOUT
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
@@ -827,3 +835,149 @@ def test_abandoned_class_page_kernel_is_culled(browser, tmp_path, artifacts_dir)
                 gone.page.close()
             except Exception:
                 pass
+
+
+# every image the class page's live box (the panel's ``.jerklab-rig-live``) loads, with the
+# time, a checksum of its pixels (drawn into a canvas), and the count label and rig status
+# shown when it loaded; the status's changes too (its last one is the run's done state)
+_WATCH_LIVE_BOX = """() => {
+  window.__live = [];
+  const box = document.querySelector('.jerklab-rig-live');
+  const status = document.querySelector('.jerklab-rig-status');
+  const t0 = performance.now();
+  const text = (sel) => { const e = box.querySelector(sel); return e ? e.textContent : null; };
+  const pixels = (img) => {
+    const c = document.createElement('canvas');
+    c.width = img.naturalWidth; c.height = img.naturalHeight;
+    const g = c.getContext('2d');
+    g.drawImage(img, 0, 0);
+    const d = g.getImageData(0, 0, c.width, c.height).data;
+    let h = 0;
+    for (let i = 0; i < d.length; i += 4) h = (h * 31 + d[i] + 7 * d[i + 1] + 13 * d[i + 2]) >>> 0;
+    return h;
+  };
+  box.addEventListener('load', (e) => {
+    if (e.target.tagName !== 'IMG' || !e.target.closest('.jerklab-liveplot')) return;
+    window.__live.push({t: performance.now() - t0, kind: 'image', src: e.target.src,
+                        pixels: pixels(e.target), label: text('.jerklab-liveplot-count'),
+                        status: status.textContent});
+  }, true);
+  new MutationObserver(() => window.__live.push({t: performance.now() - t0, kind: 'status',
+                                                 status: status.textContent}))
+    .observe(status, {childList: true, subtree: true, characterData: true});
+}"""
+
+LIVE_BOX_BUDGET_S = 40.0
+
+
+def test_class_page_live_box_streams_a_shared_rig_run(browser, tmp_path, artifacts_dir):
+    """The class page on a broker's shared rig (``jerklab app --rig broker://...``): the run
+    started by the panel's button redraws the panel's live box several times while it is on
+    the rig (images with new pixels and a growing ``n/total`` count, all before the run's
+    done status), and the box ends with the whole run: ``N samples (complete)``, ``N`` the
+    recording's length the status reports, in an image drawn after the last partial one.
+    Only the samples the broker streams can draw it during the run (without ``"stream"`` the
+    box stays empty until the run is over)."""
+    t_start = time.monotonic()
+    phases = {}
+
+    def left_ms():
+        return max(1_000.0, 1e3 * (LIVE_BOX_BUDGET_S - (time.monotonic() - t_start)))
+
+    bport = _free_port()
+    env = _jupyter_env(tmp_path)
+    # the shared virtual rig at half real time: the panel's move (160 samples) lasts ~1.6 s
+    broker = Server(
+        [sys.executable, "-m", "jerklab.broker", "--rig=virtual", "--speed=0.5", f"--port={bport}"],
+        f"tcp://127.0.0.1:{bport}",
+        tmp_path / "broker.log",
+        env=env,
+    )
+    # no pool: the page's one kernel starts on the visit (a pool would pre-execute another)
+    server, url = voila_page(tmp_path, f"--rig=broker://127.0.0.1:{bport}", "--pool=0")
+    with contextlib.ExitStack() as stack:
+        # both start at once (the page reaches the broker only from its kernel, on the visit)
+        for s in (broker, server):
+            stack.push(s.__exit__)
+            s.start()
+        for s in (broker, server):
+            s.wait_ready()
+        phases["servers_s"] = time.monotonic() - t_start
+        w = Watched(browser, "live_box", artifacts_dir)
+        try:
+            page = w.page
+            page.goto(url, wait_until="commit", timeout=left_ms())
+            page.wait_for_selector(".jerklab-rig-live", state="attached", timeout=left_ms())
+            phases["page_s"] = time.monotonic() - t_start
+            assert not page.locator(".jerklab-rig-missing").count(), server.log_tail()
+            page.locator(".jerklab-student-id input").fill("live-box")
+            page.wait_for_function(
+                "() => !document.querySelector('.jerklab-rig-button').disabled",
+                timeout=left_ms(),
+            )
+            page.evaluate(_WATCH_LIVE_BOX)
+            page.locator(".jerklab-rig-button").click()
+            page.wait_for_function(
+                "() => document.querySelector('.jerklab-rig-status').textContent"
+                ".includes('max |ref. − encoder|')",
+                timeout=left_ms(),
+            )
+            phases["run_s"] = time.monotonic() - t_start
+            # the final figure on screen: the label says complete and the image shown is
+            # the last one loaded (its load event, with its pixels, is recorded)
+            with contextlib.suppress(Exception):  # no plot at all: the asserts say so
+                page.wait_for_function(
+                    """() => { const box = document.querySelector('.jerklab-rig-live');
+                      const img = box.querySelector('.jerklab-liveplot img');
+                      const label = box.querySelector('.jerklab-liveplot-count');
+                      const ev = window.__live.filter(e => e.kind === 'image');
+                      return !!(img && label && /complete/.test(label.textContent)
+                        && ev.length && img.complete && ev[ev.length - 1].src === img.src);
+                    }""",
+                    timeout=5_000,
+                )
+            w.shot("live_box")
+            status = page.locator(".jerklab-rig-status").inner_text()
+            final = page.evaluate(
+                "() => { const e = document.querySelector("
+                "'.jerklab-rig-live .jerklab-liveplot-count'); return e && e.textContent; }"
+            )
+            events = page.evaluate("window.__live")
+            assert not w.kernel_errors and not w.page_errors, (w.kernel_errors, w.page_errors)
+        finally:
+            w.close()
+    elapsed = time.monotonic() - t_start
+    phases["total_s"] = elapsed
+    (pathlib.Path(artifacts_dir) / "browser_live_box.json").write_text(
+        json.dumps(
+            {
+                "seconds_since_start": phases,
+                "events": [{k: v for k, v in e.items() if k != "src"} for e in events],
+            },
+            indent=1,
+        )
+    )
+    n = int(re.search(r"over (\d+) samples", status).group(1))
+    assert final == f"{n} samples (complete)", (final, status)
+    done_at = min(e["t"] for e in events if "max |ref. − encoder|" in e["status"])
+    images = [e for e in events if e["kind"] == "image"]
+    # the redraws while the run was on the rig: before the done status, a partial count
+    during = [
+        e
+        for e in images
+        if e["t"] < done_at
+        and "max |ref." not in e["status"]
+        and re.fullmatch(r"\d+/\d+ samples", e["label"] or "")
+    ]
+    counts = [int(e["label"].split("/")[0]) for e in during]
+    assert len(during) >= 3, (len(images), [(e["t"], e["label"]) for e in images])
+    assert len({e["pixels"] for e in during}) >= 3, [(e["label"], e["pixels"]) for e in during]
+    assert counts == sorted(counts) and 0 < max(counts) < n, (counts, n)
+    assert len(set(counts)) >= 3, counts
+    # the box ends with the whole run: an image loaded after the last partial one, new pixels
+    last = images[-1]
+    assert last is not during[-1] and last["pixels"] not in {e["pixels"] for e in during}, (
+        last,
+        during[-1],
+    )
+    assert elapsed <= LIVE_BOX_BUDGET_S, phases
