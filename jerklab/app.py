@@ -6,6 +6,7 @@ Start it from the repository root with::
     .venv/bin/python -m jerklab.app --public        # listen on every interface (a classroom)
     .venv/bin/python -m jerklab.app --rig simavr    # the firmware on a simulated Uno behind it
     .venv/bin/python -m jerklab.app --rig /dev/ttyACM0   # a real board
+    .venv/bin/python -m jerklab.app --rig broker://127.0.0.1:PORT   # a broker already running
     .venv/bin/python -m jerklab.app --pool 4        # keep 4 kernels ready for a class
 
 Voilà runs ``app/tuning.ipynb`` in a fresh kernel for every visitor and shows only its
@@ -17,7 +18,9 @@ Without ``--rig`` every kernel has its own virtual rig. With ``--rig`` (one devi
 whole class), the app starts a :class:`jerklab.broker.RigBroker` that alone opens the rig
 and runs the students' moves one at a time, first come first served; the kernels reach it
 through ``JERKLAB_RIG_PORT=broker://127.0.0.1:PORT`` and their panels say "queued: 2 ahead
-of you" while they wait. Kernels of pages left idle are shut down (culled) after
+of you" while they wait. ``--rig broker://host:port`` hands the kernels a broker that is
+already running (``python -m jerklab.broker``, e.g. one rig shared by two pages) and starts
+none. Kernels of pages left idle are shut down (culled) after
 ``--cull-idle`` seconds.
 """
 
@@ -29,7 +32,7 @@ import pathlib
 import sys
 
 from jerklab._validate import as_int
-from jerklab.broker import BrokerRig
+from jerklab.broker import SCHEME, BrokerRig, parse_address
 from jerklab.resources import share_path
 from jerklab.rig import connect, load_profile
 from jerklab.widgets import pole_placement_panel
@@ -206,8 +209,8 @@ def main(argv=None):
     ap.add_argument(
         "--rig",
         default=None,
-        help="rig behind the page: omit for the virtual rig, 'simavr', or a serial "
-        "device / pyserial URL",
+        help="rig behind the page: omit for the virtual rig, 'simavr', a serial "
+        "device / pyserial URL, or broker://host:port (a running python -m jerklab.broker)",
     )
     ap.add_argument(
         "--pool",
@@ -271,7 +274,14 @@ def main(argv=None):
         cull_connected=args.cull_connected,
     )
     broker = None
-    if args.rig is not None and not args.no_queue:
+    if args.rig is not None and args.rig.startswith(SCHEME):
+        # a broker already running owns the rig: the kernels queue there, none is started
+        try:
+            parse_address(args.rig)
+        except ValueError as exc:
+            ap.error(f"--rig: {exc}")
+        os.environ[RIG_ENV] = args.rig
+    elif args.rig is not None and not args.no_queue:
         broker, address = start_broker(args.rig, speed=args.rig_speed)
         os.environ[RIG_ENV] = address
     elif args.rig is not None:

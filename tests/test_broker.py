@@ -184,6 +184,35 @@ def test_class_page_panel_runs_through_the_broker(broker, tmp_path, monkeypatch)
     )
 
 
+def test_the_class_page_on_a_running_broker(broker, monkeypatch):
+    """``jerklab app --rig broker://host:port`` hands the page's kernels that broker and
+    starts none (a second broker would open the rig a second time); a bad address is refused
+    naming ``--rig``."""
+    voila_app = pytest.importorskip("voila.app")
+    from jerklab import app
+
+    seen = {}
+    monkeypatch.setattr(
+        voila_app, "main", lambda argv: seen.setdefault("env", app.os.environ[app.RIG_ENV])
+    )
+
+    def no_second_broker(*args, **kwargs):
+        raise AssertionError(f"a broker was started for {args}")
+
+    monkeypatch.setattr(app, "start_broker", no_second_broker)
+    # set, then removed: monkeypatch restores the variable's absence after app.main sets it
+    monkeypatch.setenv(app.RIG_ENV, "")
+    monkeypatch.delenv(app.RIG_ENV)
+    app.main(["--rig", broker.address, "--pool", "0"])
+    assert seen["env"] == broker.address
+    p = app.panel_for_page(rig_port=seen["env"])
+    assert isinstance(p.rig, BrokerRig) and (p.rig.host, p.rig.port) == parse_address(
+        broker.address
+    )
+    with pytest.raises(SystemExit):
+        app.main(["--rig", "broker://127.0.0.1", "--pool", "0"])
+
+
 # ---------------------------------------------------------------------- the run's live stream
 def _watched_run(address, name, move, events):
     """A BrokerRig run whose statuses and streamed batches land in ``events`` as

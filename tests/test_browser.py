@@ -10,6 +10,10 @@ ipywidgets front end. Debian's Chromium is driven by Playwright's Python API (ne
 The check (:func:`check_live_panel`): the widget views are there (sliders and the figure),
 no widget error is shown, moving a slider redraws the figure (its pixels change), and no
 kernel ``error`` message crossed the websocket while the page was used.
+
+The class page on a broker started beside it (``jerklab app --rig broker://...``) draws its
+run live: the panel's live box shows new pixels several times while the run is on the shared
+rig, from the samples the broker streams, and ends with the whole run.
 """
 
 from __future__ import annotations
@@ -438,6 +442,30 @@ def class_page(tmp_path_factory):
         yield page
 
 
+@pytest.fixture(scope="module", autouse=True)
+def broker_page(tmp_path_factory):
+    """A rig broker of its own (``python -m jerklab.broker``, a virtual rig at half real time)
+    and the class page on it (``--rig broker://127.0.0.1:PORT``, as a second page of a class
+    shares one rig), started with the module: its one kernel pre-executes the page (Voilà
+    preheat, which reaches the broker) while the other tests run."""
+    require_tool(CHROMIUM)
+    tmp = tmp_path_factory.mktemp("broker_page")
+    bport = _free_port()
+    # the panel's move (160 samples at 5 ms) then lasts ~1.6 s on the rig
+    broker = Server(
+        [sys.executable, "-m", "jerklab.broker", "--rig=virtual", "--speed=0.5", f"--port={bport}"],
+        f"tcp://127.0.0.1:{bport}",
+        tmp / "broker.log",
+        env=_jupyter_env(tmp),
+    )
+    with broker:
+        server, url = voila_page(tmp, f"--rig=broker://127.0.0.1:{bport}", "--pool=1")
+        with server:
+            page = ClassPage(url)
+            page.tmp, page.server = pathlib.Path(tmp), server
+            yield page
+
+
 @pytest.fixture(scope="module")
 def lab(browser, tmp_path_factory):
     """JupyterLab on a notebook [notebook 03's panel cell, break cell], one page, one kernel.
@@ -827,3 +855,136 @@ def test_abandoned_class_page_kernel_is_culled(browser, tmp_path, artifacts_dir)
                 gone.page.close()
             except Exception:
                 pass
+
+
+# every image the class page's live box (the panel's ``.jerklab-rig-live``) loads, with the
+# time, a checksum of its pixels (drawn into a canvas), and the count label and rig status
+# shown when it loaded; the status's changes too (its last one is the run's done state)
+_WATCH_LIVE_BOX = """() => {
+  window.__live = [];
+  const box = document.querySelector('.jerklab-rig-live');
+  const status = document.querySelector('.jerklab-rig-status');
+  const t0 = performance.now();
+  const text = (sel) => { const e = box.querySelector(sel); return e ? e.textContent : null; };
+  const pixels = (img) => {
+    const c = document.createElement('canvas');
+    c.width = img.naturalWidth; c.height = img.naturalHeight;
+    const g = c.getContext('2d');
+    g.drawImage(img, 0, 0);
+    const d = g.getImageData(0, 0, c.width, c.height).data;
+    let h = 0;
+    for (let i = 0; i < d.length; i += 4) h = (h * 31 + d[i] + 7 * d[i + 1] + 13 * d[i + 2]) >>> 0;
+    return h;
+  };
+  box.addEventListener('load', (e) => {
+    if (e.target.tagName !== 'IMG' || !e.target.closest('.jerklab-liveplot')) return;
+    window.__live.push({t: performance.now() - t0, kind: 'image', src: e.target.src,
+                        pixels: pixels(e.target), label: text('.jerklab-liveplot-count'),
+                        status: status.textContent});
+  }, true);
+  new MutationObserver(() => window.__live.push({t: performance.now() - t0, kind: 'status',
+                                                 status: status.textContent}))
+    .observe(status, {childList: true, subtree: true, characterData: true});
+}"""
+
+LIVE_BOX_BUDGET_S = 40.0
+
+
+def test_class_page_live_box_streams_a_shared_rig_run(browser, broker_page, artifacts_dir):
+    """The class page on a broker's shared rig (``jerklab app --rig broker://...``): the run
+    started by the panel's button redraws the panel's live box several times while it is on
+    the rig (images with new pixels and a growing ``n/total`` count, all before the run's
+    done status), and the box ends with the whole run: ``N samples (complete)``, ``N`` the
+    recording's length the status reports, in an image drawn after the last partial one.
+    Only the samples the broker streams can draw it during the run (without ``"stream"`` the
+    box stays empty)."""
+    t_start = time.monotonic()
+    phases = {}
+
+    def left_ms():
+        return max(1_000.0, 1e3 * (LIVE_BOX_BUDGET_S - (time.monotonic() - t_start)))
+
+    url, server = broker_page, broker_page.server
+    w = Watched(browser, "live_box", artifacts_dir)
+    try:
+        page = w.page
+        page.goto(url, wait_until="commit", timeout=left_ms())
+        page.wait_for_selector(".jerklab-rig-live", state="attached", timeout=left_ms())
+        phases["page_s"] = time.monotonic() - t_start
+        assert not page.locator(".jerklab-rig-missing").count(), server.log_tail()
+        page.locator(".jerklab-student-id input").fill("live-box")
+        page.wait_for_function(
+            "() => !document.querySelector('.jerklab-rig-button').disabled",
+            timeout=left_ms(),
+        )
+        page.evaluate(_WATCH_LIVE_BOX)
+        page.locator(".jerklab-rig-button").click()
+        page.wait_for_function(
+            "() => document.querySelector('.jerklab-rig-status').textContent"
+            ".includes('max |ref. − encoder|')",
+            timeout=left_ms(),
+        )
+        phases["run_s"] = time.monotonic() - t_start
+        # the final figure on screen: the label says complete and the image shown is
+        # the last one loaded (its load event, with its pixels, is recorded)
+        with contextlib.suppress(Exception):  # no plot at all: the asserts say so
+            page.wait_for_function(
+                """() => { const box = document.querySelector('.jerklab-rig-live');
+                  const img = box.querySelector('.jerklab-liveplot img');
+                  const label = box.querySelector('.jerklab-liveplot-count');
+                  const ev = window.__live.filter(e => e.kind === 'image');
+                  return !!(img && label && /complete/.test(label.textContent)
+                    && ev.length && img.complete && ev[ev.length - 1].src === img.src);
+                }""",
+                timeout=5_000,
+            )
+        w.shot("live_box")
+        status = page.locator(".jerklab-rig-status").inner_text()
+        final = page.evaluate(
+            "() => { const e = document.querySelector("
+            "'.jerklab-rig-live .jerklab-liveplot-count'); return e && e.textContent; }"
+        )
+        shown = page.evaluate(
+            "() => { const i = document.querySelector('.jerklab-rig-live .jerklab-liveplot img');"
+            " return i && i.src; }"
+        )
+        events = page.evaluate("window.__live")
+        assert not w.kernel_errors and not w.page_errors, (w.kernel_errors, w.page_errors)
+    finally:
+        w.close()
+    elapsed = time.monotonic() - t_start
+    phases["total_s"] = elapsed
+    (pathlib.Path(artifacts_dir) / "browser_live_box.json").write_text(
+        json.dumps(
+            {
+                "seconds_since_start": phases,
+                "events": [{k: v for k, v in e.items() if k != "src"} for e in events],
+            },
+            indent=1,
+        )
+    )
+    n = int(re.search(r"over (\d+) samples", status).group(1))
+    assert final == f"{n} samples (complete)", (final, status)
+    done_at = min(e["t"] for e in events if "max |ref. − encoder|" in e["status"])
+    images = [e for e in events if e["kind"] == "image"]
+    # the box ends with the whole run: the image it shows at the end (the last one loaded)
+    assert images and images[-1]["src"] == shown, (len(images), shown)
+    last = images[-1]
+    # the redraws while the run was on the rig: before the done status and the final image,
+    # a partial count (the label shown as the image loaded: the final image can load before
+    # its label reads "complete")
+    during = [
+        e
+        for e in images[:-1]
+        if e["t"] < done_at
+        and "max |ref." not in e["status"]
+        and re.fullmatch(r"\d+/\d+ samples", e["label"] or "")
+    ]
+    counts = [int(e["label"].split("/")[0]) for e in during]
+    assert len(during) >= 3, (len(images), [(e["t"], e["label"]) for e in images])
+    assert len({e["pixels"] for e in during}) >= 3, [(e["label"], e["pixels"]) for e in during]
+    assert counts == sorted(counts) and 0 < max(counts) < n, (counts, n)
+    assert len(set(counts)) >= 3, counts
+    # the final image is new pixels: none of the partial ones
+    assert last["pixels"] not in {e["pixels"] for e in during}, (last, during[-1])
+    assert elapsed <= LIVE_BOX_BUDGET_S, phases

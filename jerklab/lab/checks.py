@@ -79,8 +79,9 @@ TOL = {"K": 0.04, "tau": 0.08, "f_c": 0.06}
 #: Lab 2's tuning panel starts here (``pole_placement_panel(K, tau, **PANEL_START)``): a first
 #: guess that misses SPEC on at least 80 % of the class's motors (its 10 ms period lets friction
 #: hold the motor outside the settling band), a slider away (Ts 5 ms, ωn 30 rad/s) from a design
-#: that meets it on every motor (tests/test_labs.py). Another profile's: ``lab_spec(2,
-#: profile)["panel_start"]``, made with its SPEC.
+#: that meets it on every motor. Another profile's: ``lab_spec(2, profile)["panel_start"]``, made
+#: with its SPEC, misses it on at least 80 % of that profile's motors too
+#: (tests/test_lab_profiles.py checks every profile).
 PANEL_START = _LAB2["panel_start"]
 
 #: Voltages of lab 1's sweep of steps (each from rest) and their length (s).
