@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 
+from jerklab import paper
 from jerklab.protocol import DEFAULT_MAX_ERROR
 from jerklab.rig.profiles import load_profile
 
@@ -149,8 +150,6 @@ def friction_lag(profile="paper", wn=None) -> float:
     >>> round(friction_lag("paper"), 3)
     0.2
     """
-    from jerklab import paper
-
     p = load_profile(profile)
     wn = lab_spec(2, p)["design_wn"] if wn is None else float(wn)
     sigma = paper.SIGMA_RATIO * wn
