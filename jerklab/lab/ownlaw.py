@@ -10,8 +10,8 @@ at t = k Ts is applied at tick k + 1 (a whole Ts later); the board's own law app
 bound's source in :data:`jerklab.lab.specs.MATCH_COUNTS_5`; on the gentler move of
 tests/test_hostloop.py the two stay within 4 counts).
 
-The lab's clamp is set low on purpose (f_c + 0.8 · max|u_F|, ``lab_spec(5)["limit_share"]``):
-the output saturates while the move is at its fastest, so that the anti-windup acts and a law
+The lab's clamp is set low on purpose (f_c + max|u_F|, ``lab_spec(5)["limit_share"]``, no
+headroom for the PID's corrections): the output saturates while the move is at its fastest, so that the anti-windup acts and a law
 whose anti-windup is reversed or missing winds its integrator up and overshoots.
 
 The checks (``check_<name>(answer, evidence, truth)``, pure functions like those of
