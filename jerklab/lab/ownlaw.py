@@ -11,8 +11,9 @@ bound's source in :data:`jerklab.lab.specs.MATCH_COUNTS_5`; on the gentler move 
 tests/test_hostloop.py the two stay within 4 counts).
 
 The lab's clamp is set low on purpose (f_c + max|u_F|, ``lab_spec(5)["limit_share"]``, no
-headroom for the PID's corrections): the output saturates while the move is at its fastest, so that the anti-windup acts and a law
-whose anti-windup is reversed or missing winds its integrator up and overshoots.
+headroom for the PID's corrections): the output saturates while the move is at its fastest, so
+that the anti-windup acts and a law whose anti-windup is reversed or missing winds its
+integrator up and overshoots.
 
 The checks (``check_<name>(answer, evidence, truth)``, pure functions like those of
 :mod:`jerklab.lab.ringing`) explain a mismatch from the recordings themselves: the checker replays
