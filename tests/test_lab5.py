@@ -11,9 +11,9 @@ from pathlib import Path
 
 import nbformat
 import pytest
+from _labnb import KEY, lab_env  # noqa: F401  (lab_env: autouse fixture)
 from _labnb import answered as _answered
 from _labnb import execute as _execute
-from _labnb import lab_env  # noqa: F401  (lab_env: autouse fixture)
 from _labnb import outputs as _outputs
 from _labnb import set_student as _set_student
 from _labnb import verdicts as _verdicts
@@ -196,3 +196,27 @@ def test_lab5_move_needs_less_than_the_supply_on_every_corner(profile):
             peak = np.max(np.abs(tau * np.asarray(s.accel) + np.asarray(s.velocity))) / K
             assert R["coulomb_friction"][1] + spec["limit_share"] * peak < V / 2, (K, tau)
     assert math.isclose(move.sample(move.duration).position, 2 * math.pi, rel_tol=1e-9)
+
+
+@pytest.mark.parametrize("lab_n", [5, 3])
+def test_the_graders_rig_paces_a_host_loop_in_real_time(lab_n):
+    """The rig ``grade`` serves a worksheet (a pty): for lab 5, whose law answers each tick from
+    the worksheet's kernel, it runs in real time, so a law that answers at once is (nearly)
+    never late; for lab 3 (the board's own law only) unpaced, where the same law is late at
+    most ticks."""
+    from jerklab.lab.grade import _served_rig
+    from jerklab.rig import connect
+
+    server, _ = _served_rig("pace5", lab_n, KEY.encode())
+    try:
+        rig = connect(server.port, progress=False)
+        try:
+            rec = rig.host_loop(lambda t, y, r: 0.0, Ts=0.01, duration=0.3, max_misses=255)
+        finally:
+            rig.close()
+    finally:
+        server.close()
+    assert rec.metadata["status"] == "complete"
+    # 31 ticks: in real time a loaded machine may be late once or twice; unpaced, most are late
+    misses = rec.metadata["misses"]
+    assert misses <= 3 if lab_n == 5 else misses >= 15, misses

@@ -17,6 +17,7 @@ from jerklab.lab.checkbase import CheckResult, UnknownCheckError
 __all__ = [
     "LABS",
     "FLEXIBLE_LABS",
+    "HOST_LOOP_LABS",
     "CHECKS",
     "MISTAKES",
     "checks_of",
@@ -29,6 +30,8 @@ __all__ = [
 LABS = {1: "identify", 2: "poles", 3: "move", 4: "ringing", 5: "ownlaw"}
 #: labs whose rig carries the flexible load: the student's motor with a hidden load mode
 FLEXIBLE_LABS = (4,)
+#: labs whose law runs in the student's kernel (host-in-the-loop): their rig runs in real time
+HOST_LOOP_LABS = (5,)
 
 #: (lab, check name) -> check function, in the order the worksheets ask
 CHECKS = {
