@@ -63,7 +63,7 @@ MAX_ERROR_5 = 3.0
 #: same move. Measured (2026-12, the worksheet's own cells, its identified model): 3-16 counts over
 #: 30 hidden motors of the paper's class on the virtual rig, 7 and 15 on two of them on the
 #: simulated Uno (7 and 33 of its 172 answers late); the bound is the largest plus 4. The same
-#: law with its anti-windup reversed was more than 20 counts off on 8 of 24 of those motors, and
+#: law with its anti-windup reversed was more than 20 counts off on 7 of 24 of those motors, and
 #: the replay of the check named it on all 24.
 MATCH_COUNTS_5 = 20
 #: lab 2's design: ωn (rad/s) at most, ωn τ_max, and the settling time allowed times ωn
