@@ -147,6 +147,7 @@ FILE_MARKS = {
     "test_book.py": ("notebook", "book"),
     "test_labs.py": ("notebook", "simavr"),
     "test_lab4.py": ("notebook", "simavr"),
+    "test_lab5.py": ("notebook",),
     "test_browser.py": ("browser",),
     "test_hub.py": ("hub",),
     "test_packaging.py": ("packaging",),

@@ -142,7 +142,8 @@ def test_each_lab2_and_lab3_mistake_gets_its_own_hint(tmp_path):
 
 
 def test_every_mistake_is_made_by_a_test():
-    """Each row of the table is exercised above (labs 1-3) or in tests/test_lab4.py (lab 4)."""
+    """Each row of the table is exercised above (labs 1-3), in tests/test_lab4.py (lab 4) or in
+    tests/test_lab5.py and tests/test_ownlaw.py (lab 5)."""
     made = set(LAB1) | {
         "model_ms",
         "design_unstable",
@@ -155,7 +156,10 @@ def test_every_mistake_is_made_by_a_test():
     lab4 = {k for k, m in MISTAKES.items() if m.lab == 4}
     text4 = (ROOT / "tests" / "test_lab4.py").read_text()
     assert {k for k in lab4 if f'"{k}"' not in text4} == set()
-    assert set(MISTAKES) - made - lab4 == set()
+    lab5 = {k for k, m in MISTAKES.items() if m.lab == 5}
+    text5 = "\n".join((ROOT / "tests" / f).read_text() for f in ("test_lab5.py", "test_ownlaw.py"))
+    assert {k for k in lab5 if f'"{k}"' not in text5} == set()
+    assert set(MISTAKES) - made - lab4 - lab5 == set()
 
 
 def test_rig_vs_sim_inverted_gets_its_hint(tmp_path):

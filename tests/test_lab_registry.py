@@ -35,7 +35,8 @@ def test_the_table_lists_exactly_what_each_worksheet_checks(n):
 def test_every_check_is_a_function_of_answer_evidence_and_truth():
     for (n, name), fn in registry.CHECKS.items():
         assert list(inspect.signature(fn).parameters) == ["answer", "evidence", "truth"], name
-        assert fn.__module__ == ("jerklab.lab.ringing" if n == 4 else "jerklab.lab.checks")
+        home = {4: "jerklab.lab.ringing", 5: "jerklab.lab.ownlaw"}.get(n, "jerklab.lab.checks")
+        assert fn.__module__ == home, name
     assert not hasattr(checks, "CHECKS") and not hasattr(ringing, "_check")
     with pytest.raises(KeyError, match="lab 3 has no check named 'tau'.*lost_time"):
         registry.check_function(3, "tau")

@@ -112,3 +112,36 @@ def test_variant_pd_is_read_from_its_run(runs):
 def test_pre_lab(name, answer, ok, words):
     res = getattr(o, f"check_{name}")(answer, Evidence(), None)
     assert res.ok is ok and words in res.message
+
+
+def test_check_law_takes_the_labs_design_and_names_the_continuous_gains():
+    """check_law against pole_placement_pid's own discretization (Stojčić eqs. 11, 13) at the
+    lab's ωn: the discrete gains pass, the continuous ones get their hint, Ts in ms is named."""
+    from jerklab.lab.specs import lab_spec
+
+    spec = lab_spec(5)
+    K, tau = 30.0, 0.03
+    g = pole_placement_pid(K, tau, spec["design_wn"], spec["zeta"])
+    d = g.discretize(spec["Ts"])
+    law = dict(kpd=d.kpd, kid=d.kid, kdd=d.kdd, Ts=spec["Ts"], K=K, tau=tau, limit=1.0)
+    assert o.check_law(law, Evidence(), None).ok
+    res = o.check_law({**law, "kid": g.ki, "kdd": g.kd}, Evidence(), None)
+    assert not res.ok and o.MISTAKES5["law_continuous"].hint in res.message
+    assert "not milliseconds" in o.check_law({**law, "Ts": 10.0}, Evidence(), None).message
+    assert not o.check_law({**law, "kpd": 2 * d.kpd}, Evidence(), None).ok
+    assert not o.check_law({**law, "limit": 13.0}, Evidence(), None).ok
+    with pytest.raises(o.Missing, match="no 'limit'"):
+        o.check_law({k: v for k, v in law.items() if k != "limit"}, Evidence(), None)
+
+
+def test_the_class_rig_client_refuses_the_host_loop():
+    """The class rig service runs no host loop: its client says so instead of running a law."""
+    from jerklab.lab.classrig import ClassRig, ClassRigError
+
+    rig = object.__new__(ClassRig)  # no service needed: the refusal comes before any request
+    for call in (
+        lambda: rig.host_loop(lambda t, y, r: 0.0, 0.01, 1.0),
+        lambda: rig.realtime(0.01, 1.0),
+    ):
+        with pytest.raises(ClassRigError, match="no host-in-the-loop mode.*simavr"):
+            call()

@@ -1,4 +1,4 @@
-"""Labs a student does: four two-hour worksheets on the rig, a hidden motor per student,
+"""Labs a student does: five two-hour worksheets on the rig, a hidden motor per student,
 checks that answer at once, a hand-in zip and autograding (otter-grader).
 
 >>> from jerklab import lab
@@ -8,7 +8,8 @@ checks that answer at once, a hand-in zip and autograding (otter-grader).
 ✘ tau: τ is too high beyond the tolerance (8 %): ...
 
 The worksheets are ``notebooks/labs/lab1_identify.ipynb``, ``lab2_poles.ipynb``,
-``lab3_move.ipynb`` and ``lab4_ringing.ipynb`` (the flexible load) (generated from
+``lab3_move.ipynb``, ``lab4_ringing.ipynb`` (the flexible load) and ``lab5_ownlaw.ipynb``
+(your own law through the host loop) (generated from
 ``jerklab/lab/masters/`` by ``python -m jerklab.lab assign``);
 ``python -m jerklab.lab grade SUBMISSIONS_DIR --out grades.csv`` grades a class.
 
@@ -20,7 +21,8 @@ instructor key is in the process (trusted code only).
 
 The parts: :mod:`~jerklab.lab.motors` (hidden motors, the student's device and rig),
 :mod:`~jerklab.lab.session` (what a worksheet calls), the checks as pure functions
-(:mod:`~jerklab.lab.checks` for labs 1-3, :mod:`~jerklab.lab.ringing` for lab 4, on
+(:mod:`~jerklab.lab.checks` for labs 1-3, :mod:`~jerklab.lab.ringing` for lab 4,
+:mod:`~jerklab.lab.ownlaw` for lab 5, on
 :mod:`~jerklab.lab.checkbase`), their table (:mod:`~jerklab.lab.registry`), the plain data they
 see (:mod:`~jerklab.lab.plain`), the hand-in (:mod:`~jerklab.lab.handin`) and the grader
 (:mod:`~jerklab.lab.grade`).

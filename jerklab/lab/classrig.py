@@ -100,6 +100,13 @@ def encode_answer(x):
     return jsonable(x)
 
 
+#: why :meth:`ClassRig.host_loop` refuses
+_NO_HOST_LOOP = (
+    "the class rig service has no host-in-the-loop mode: run lab 5's own law on the virtual rig "
+    "(RIG = None with no JERKLAB_CLASS_RIG set), on \"simavr\" or on your own board's serial port"
+)
+
+
 class ClassRig:
     """A connection to the class rig service for one lab (see the module's text).
 
@@ -274,6 +281,16 @@ class ClassRig:
             if not all(math.isfinite(t) for t in taps):
                 raise ValueError("shaper: its taps must be finite numbers")
         self._ask({"op": "set_shaper", "taps": taps, "Ts": float(Ts)})
+
+    def host_loop(self, control, Ts, duration, reference=None, **options):
+        """Not on the class rig: the service runs the moves on its side and has no
+        host-in-the-loop mode (your law would have to answer every tick over the class's
+        network). Raises :class:`ClassRigError` saying where lab 5's own law runs."""
+        raise ClassRigError(_NO_HOST_LOOP)
+
+    def realtime(self, Ts, duration, reference=None, **options):
+        """Not on the class rig (see :meth:`host_loop`): raises :class:`ClassRigError`."""
+        raise ClassRigError(_NO_HOST_LOOP)
 
     def check(self, name, answer):
         """``(passed, message)`` of check ``name`` on ``answer``, scored by the service."""

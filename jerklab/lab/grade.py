@@ -72,7 +72,7 @@ from jerklab.lab.motors import (
     student_motor,
 )
 from jerklab.lab.plain import Evidence, Run
-from jerklab.lab.registry import FLEXIBLE_LABS, LABS, run_check
+from jerklab.lab.registry import FLEXIBLE_LABS, HOST_LOOP_LABS, LABS, run_check
 from jerklab.lab.sandbox import SAFE_ENV, SandboxUnavailable, bwrap_path, sandbox_command
 from jerklab.lab.service import attempt_counts
 from jerklab.lab.signing import claims_graded, verify_run
@@ -613,7 +613,8 @@ def _score(lab, qs, doc, truth, signed=None, rejected=None, profile=None) -> tup
 # ------------------------------------------------------------------ one submission
 def _served_rig(student, lab, key, profile=None):
     """The hidden motor of ``student`` for ``lab`` (drawn around ``profile``'s ranges, the
-    paper's class motors without one), simulated here and served on a pty."""
+    paper's class motors without one), simulated here and served on a pty (in real time for a
+    host-in-the-loop lab, :data:`jerklab.lab.registry.HOST_LOOP_LABS`)."""
     motor = student_motor(
         student,
         key,
@@ -621,8 +622,11 @@ def _served_rig(student, lab, key, profile=None):
         profile=None if profile is None else load_profile(profile),
     )
     dev = student_device(motor)
+    # unpaced, except where the worksheet's own law answers each tick (host-in-the-loop): an
+    # unpaced device would find every answer late
     server = DeviceServer(
-        VirtualDevice(motor, count_noise=dev.count_noise, noise_seed=dev.noise_seed), speed=None
+        VirtualDevice(motor, count_noise=dev.count_noise, noise_seed=dev.noise_seed),
+        speed=1.0 if lab in HOST_LOOP_LABS else None,
     )
     server.start_pty()
     return server, motor

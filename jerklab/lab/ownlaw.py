@@ -6,8 +6,14 @@ rig's host-in-the-loop mode (``board.host_loop``) at Ts = 10 ms; the firmware ru
 the same move (``board.run_move``). In the host loop the voltage the law computes from the sample
 at t = k Ts is applied at tick k + 1 (a whole Ts later); the board's own law applies it about
 0.13 ms after the sample. So the two recordings are not equal, only close: within
-:data:`MATCH_COUNTS` encoder counts (measured in tests/test_hostloop.py, the bound's source in
-its docstring).
+:data:`MATCH_COUNTS` encoder counts on the lab's move (``lab_spec(5)["match_counts"]``, the
+bound's source in :data:`jerklab.lab.specs.MATCH_COUNTS_5`; on the gentler move of
+tests/test_hostloop.py the two stay within 4 counts).
+
+The lab's clamp is set low on purpose (f_c + max|u_F|, ``lab_spec(5)["limit_share"]``, no
+headroom for the PID's corrections): the output saturates while the move is at its fastest, so
+that the anti-windup acts and a law whose anti-windup is reversed or missing winds its
+integrator up and overshoots.
 
 The checks (``check_<name>(answer, evidence, truth)``, pure functions like those of
 :mod:`jerklab.lab.ringing`) explain a mismatch from the recordings themselves: the checker replays
@@ -23,8 +29,10 @@ import math
 
 import numpy as np
 
-from jerklab.controller import DiscreteGains
+from jerklab.controller import DiscreteGains, pole_placement_pid
 from jerklab.lab.checkbase import CheckResult, Missing, Mistake, number, rel, run_of, side
+from jerklab.lab.specs import MATCH_COUNTS_5, lab_spec
+from jerklab.rig.profiles import load_profile
 
 __all__ = [
     "TS5",
@@ -38,9 +46,9 @@ __all__ = [
 
 #: Lab 5's control period (s)
 TS5 = 0.01
-#: |host-closed − firmware-closed| (counts) at every sample of the same move when the laws match:
-#: measured 1-4 counts (virtual rig and simulated Uno, tests/test_hostloop.py) plus 2
-MATCH_COUNTS = 6
+#: |host-closed − firmware-closed| (counts) at every sample of the lab's move when the laws match
+#: (:data:`jerklab.lab.specs.MATCH_COUNTS_5`, where it was measured)
+MATCH_COUNTS = MATCH_COUNTS_5
 #: the candidate laws :func:`diagnose` tells apart
 LAWS5 = ("pid", "sign", "aw_reversed", "no_aw", "continuous", "p", "pd")
 
@@ -64,6 +72,13 @@ MISTAKES5 = {
         "anti-windup in the wrong direction",
         "the integrator frozen when the error pulls out of the clamp",
         "your anti-windup freezes the integrator in the wrong direction",
+    ),
+    "law_continuous": Mistake(
+        5,
+        "law",
+        "the continuous gains in the law's parameters",
+        "kid = ki, kdd = kd",
+        "these are the continuous gains",
     ),
     "match_continuous": Mistake(
         5,
@@ -212,13 +227,75 @@ def _ff_of(run, K, tau):
     return (tau * a + v) / K
 
 
+def _spec(evidence):
+    return lab_spec(5, evidence.profile or "paper")
+
+
+def check_law(answer, evidence, truth):
+    """``answer``: the law's parameters, ``{"kpd", "kid", "kdd", "Ts", "K", "tau", "limit"}``:
+    right when ``Ts`` is the lab's, the gains are the lab's design (Stojčić eq. 11 at
+    ``design_wn``, discretized by Stojčić eq. 13) for the ``K`` and ``τ`` given, and the clamp is a
+    positive voltage within the supply. (The model itself is not judged here: both runs use the
+    same one.)"""
+    if not isinstance(answer, dict):
+        raise Missing('law: answer a dict {"kpd", "kid", "kdd", "Ts", "K", "tau", "limit"}.')
+    try:
+        x = {k: float(answer[k]) for k in ("kpd", "kid", "kdd", "Ts", "K", "tau", "limit")}
+    except KeyError as exc:
+        raise Missing(f"law: the parameters have no {exc.args[0]!r}.") from None
+    spec = _spec(evidence)
+    Ts = spec["Ts"]
+    if abs(x["Ts"] - Ts) > 1e-9:
+        if abs(x["Ts"] - 1e3 * Ts) < 1e-6:
+            return CheckResult("law", False, "Ts in seconds, not milliseconds.")
+        return CheckResult("law", False, f"Ts is {x['Ts']!r} s: lab 5 runs at {Ts:g} s.")
+    if not (x["K"] > 0 and x["tau"] > 0):
+        return CheckResult("law", False, "K and τ are positive: your identified model.")
+    g = pole_placement_pid(x["K"], x["tau"], spec["design_wn"], spec["zeta"])
+    d = g.discretize(Ts)
+
+    def near(a, b):
+        return abs(a - b) <= 1e-3 * max(abs(b), 1e-3)
+
+    if near(x["kpd"], d.kpd) and near(x["kid"], g.ki) and near(x["kdd"], g.kd):
+        return CheckResult(
+            "law",
+            False,
+            f"{MISTAKES5['law_continuous'].hint} ki, kd: the discrete law takes kid = ki·Ts and "
+            "kdd = kd/Ts (Stojčić eq. 13), the gains' .discretize(Ts).",
+        )
+    if not (near(x["kpd"], d.kpd) and near(x["kid"], d.kid) and near(x["kdd"], d.kdd)):
+        return CheckResult(
+            "law",
+            False,
+            f"the gains are not the lab's design for your K and τ: "
+            f"pole_placement_pid(K, tau, {spec['design_wn']:g}).discretize({Ts:g}) "
+            "(Stojčić eqs. 11, 13).",
+        )
+    supply = load_profile(evidence.profile or "paper").supply_voltage
+    if not 0 < x["limit"] <= supply:
+        return CheckResult(
+            "law", False, f"the clamp is a voltage between 0 and the supply ({supply:g} V)."
+        )
+    return CheckResult(
+        "law",
+        True,
+        "the lab's gains for your model and a clamp: give the board the same K and τ "
+        "(S.set_model) and the same clamp (max_voltage).",
+    )
+
+
 def check_match(answer, evidence, truth):
     """``answer``: the largest distance (counts) between the ``mine`` (host loop, the
-    student's law) and ``board`` (run_move) recordings; right when it is the recordings' own
-    and within :data:`MATCH_COUNTS`; otherwise the mismatch is named from the ``mine`` run."""
+    student's law) and ``board`` (run_move) recordings; right when it is the recordings' own,
+    within the bound (``lab_spec(5)["match_counts"]``) and the voltages the host run applied are
+    those of Stojčić eqs. 16–18 with the anti-windup (:func:`diagnose`); otherwise the mismatch
+    is named from the ``mine`` run: the error's sign, the anti-windup reversed or missing, the
+    continuous gains."""
     x = number("match", answer)
     board, mine = run_of(evidence, "board"), run_of(evidence, "mine")
     cpr = evidence.counts_per_rev or 448
+    bound = _spec(evidence)["match_counts"]
     apart = _counts_apart(mine, board, cpr)
     if abs(x - apart) > 1.0 + 0.05 * apart:
         return CheckResult(
@@ -227,29 +304,35 @@ def check_match(answer, evidence, truth):
             f"{side(x, apart)} for your recordings: the largest |mine.position − "
             "board.position| over the run, in counts (× counts per rev / 2π).",
         )
-    if apart <= MATCH_COUNTS:
-        return CheckResult(
-            "match",
-            True,
-            f"within {MATCH_COUNTS} counts of the board's own law: the same law. What is left "
-            "is the host loop's extra tick of delay (your voltage applies at k + 1).",
-        )
     g, K, tau, limit = _setup(evidence)
     law, _ = diagnose(
         mine, _ff_of(mine, K, tau), g, limit, ("pid", "sign", "aw_reversed", "continuous", "no_aw")
     )
+    if apart <= bound and law == "pid":
+        return CheckResult(
+            "match",
+            True,
+            f"within {bound} counts of the board's own law: the same law. What is left "
+            "is the host loop's extra tick of delay (your voltage applies at k + 1).",
+        )
+    aw = (
+        f"{MISTAKES5['match_aw_reversed'].hint} (or not at all): keep i(k−1) only while the "
+        "error pushes further into the clamp (u > limit and e > 0, or u < −limit and e < 0); "
+        "otherwise the integrator winds up while the output is clamped."
+    )
     why = {
         "sign": f"{MISTAKES5['match_sign'].hint}: e = r − y (reference minus position).",
-        "aw_reversed": f"{MISTAKES5['match_aw_reversed'].hint}: keep i(k−1) only while the "
-        "error pushes further into the clamp (u > limit and e > 0, or u < −limit and e < 0).",
-        "no_aw": "your integrator keeps growing while the output is clamped: add the "
-        "anti-windup (keep i(k−1) while the error pushes into the clamp).",
+        "aw_reversed": aw,
+        "no_aw": aw,
         "continuous": f"{MISTAKES5['match_continuous'].hint}: the discrete law takes "
         "kid = ki·Ts and kdd = kd/Ts (Stojčić eq. 13).",
         "pid": "your voltages are those of Stojčić eqs. 16–18 tick by tick, yet the runs "
-        "differ: run both on the same move, gains and feedforward model.",
+        "differ: run both on the same move, gains, clamp and feedforward model.",
     }[law]
-    return CheckResult("match", False, f"more than {MATCH_COUNTS} counts apart. {why}")
+    if law == "pid":
+        return CheckResult("match", False, f"more than {bound} counts apart. {why}")
+    where = f"more than {bound} counts apart" if apart > bound else f"{apart:.0f} counts apart"
+    return CheckResult("match", False, f"{where}, and not the same law. {why}")
 
 
 def check_variant(answer, evidence, truth):

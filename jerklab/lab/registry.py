@@ -2,19 +2,22 @@
 
 :data:`CHECKS` maps ``(lab, check name)`` to its function ``check(answer, evidence, truth) ->
 CheckResult`` (:mod:`jerklab.lab.checkbase`): labs 1-3 in :mod:`jerklab.lab.checks`, lab 4 in
-:mod:`jerklab.lab.ringing`. :func:`run_check` is the one way in — the session calls it in the
-student's kernel today; a grader can call it with the same plain data and the truth it holds.
+:mod:`jerklab.lab.ringing`, lab 5 in :mod:`jerklab.lab.ownlaw`. :func:`run_check` is the one way
+in — the session calls it in the student's kernel today; a grader can call it with the same
+plain data and the truth it holds.
 """
 
 from __future__ import annotations
 
 from jerklab.lab import checks as c
+from jerklab.lab import ownlaw as o
 from jerklab.lab import ringing as r
 from jerklab.lab.checkbase import CheckResult, UnknownCheckError
 
 __all__ = [
     "LABS",
     "FLEXIBLE_LABS",
+    "HOST_LOOP_LABS",
     "CHECKS",
     "MISTAKES",
     "checks_of",
@@ -24,9 +27,11 @@ __all__ = [
 ]
 
 #: lab number -> short name (also the worksheet file stem: notebooks/labs/labN_<name>.ipynb)
-LABS = {1: "identify", 2: "poles", 3: "move", 4: "ringing"}
+LABS = {1: "identify", 2: "poles", 3: "move", 4: "ringing", 5: "ownlaw"}
 #: labs whose rig carries the flexible load: the student's motor with a hidden load mode
 FLEXIBLE_LABS = (4,)
+#: labs whose law runs in the student's kernel (host-in-the-loop): their rig runs in real time
+HOST_LOOP_LABS = (5,)
 
 #: (lab, check name) -> check function, in the order the worksheets ask
 CHECKS = {
@@ -61,12 +66,18 @@ CHECKS = {
     (4, "residual_pct"): r.check_residual_pct,
     (4, "robust"): r.check_robust,
     (4, "choice"): r.check_choice,
+    (5, "pre_ff"): o.check_pre_ff,
+    (5, "pre_delay"): o.check_pre_delay,
+    (5, "law"): o.check_law,
+    (5, "match"): o.check_match,
+    (5, "variant"): o.check_variant,
 }
 
 
 #: Every mistake a check names, by key (:class:`jerklab.lab.checkbase.Mistake`): labs 1-3's
-#: :data:`jerklab.lab.checks.MISTAKES` and lab 4's :data:`jerklab.lab.ringing.MISTAKES4`
-MISTAKES = {**c.MISTAKES, **r.MISTAKES4}
+#: :data:`jerklab.lab.checks.MISTAKES`, lab 4's :data:`jerklab.lab.ringing.MISTAKES4` and lab 5's
+#: :data:`jerklab.lab.ownlaw.MISTAKES5`
+MISTAKES = {**c.MISTAKES, **r.MISTAKES4, **o.MISTAKES5}
 
 
 def mistakes_table() -> str:

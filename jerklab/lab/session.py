@@ -127,7 +127,7 @@ class LabSession:
     Parameters
     ----------
     lab : int
-        1 to 4.
+        1 to 5.
     student : str, optional
         The student ID. With the class rig service the login's token names the student: leave
         it out, or give the same ID (another one is refused).
@@ -342,6 +342,23 @@ class LabSession:
         self.last_activity = time.time()
         return rec
 
+    def host_loop(self, control, Ts, duration, reference=None, name="host", **options):
+        """``rig.host_loop(control, Ts, duration, reference, **options)`` saved as ``name``: your
+        own law ``control(t, position, reference) -> volts`` closes the loop through the rig
+        (host-in-the-loop, :meth:`jerklab.rig.Rig.host_loop`; lab 5). The voltage your law
+        returns for the sample at tick k applies at tick k + 1."""
+        rec = self.rig.host_loop(control, Ts, duration, reference, path=self._path(name), **options)
+        self.recordings[name] = rec
+        self.last_activity = time.time()
+        return rec
+
+    def realtime(self, Ts, duration, reference=None, name="host", **options):
+        """``rig.realtime(Ts, duration, reference, **options)`` (iterate the ticks, ``step.apply(v)``
+        each) whose recording is saved as ``name`` once the loop ends (the loop's ``recording``,
+        :meth:`jerklab.rig.Rig.realtime`)."""
+        loop = self.rig.realtime(Ts, duration, reference, path=self._path(name), **options)
+        return _KeptLoop(self, name, loop)
+
     def set_model(self, K, tau):
         """The feedforward model of the rig (your identified K and τ)."""
         self.rig.set_model(K, tau)
@@ -443,8 +460,29 @@ class LabSession:
         )
 
 
+class _KeptLoop:
+    """A :class:`jerklab.rig.hostloop.RealtimeLoop` whose recording the session keeps when the
+    iteration ends (its end, ``break``, an error)."""
+
+    def __init__(self, session, name, loop):
+        self._session, self._name, self._loop = session, name, loop
+
+    def __iter__(self):
+        try:
+            yield from self._loop
+        finally:
+            rec = self._loop.recording
+            if rec is not None:
+                self._session.recordings[self._name] = rec
+                self._session.last_activity = time.time()
+
+    def __getattr__(self, name):
+        return getattr(self._loop, name)
+
+
 def start(lab, student=None, port=None, **options):
-    """Start lab ``lab`` (1 to 4; lab 4's rig has the flexible load) for ``student`` on
+    """Start lab ``lab`` (1 to 5; lab 4's rig has the flexible load, lab 5 closes the loop
+    through the rig with your own law: ``S.host_loop``) for ``student`` on
     ``port`` (None: the class rig service when ``$JERKLAB_CLASS_RIG`` names one, else the
     virtual rig with a practice motor; ``"simavr"``; a serial port of a real Uno). ``profile=``
     names the rig's motor (``jerklab.rig.profiles``: a built-in name or the profile file of

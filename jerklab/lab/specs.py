@@ -7,7 +7,8 @@ K (V − f_c), acceleration from rest K (V − f_c) / τ), so that every hidden 
 without saturating; the records (lab 1's sweep and steps, the PRBS) are fractions of the
 supply and multiples of the slowest τ. For the ``paper`` profile (the class motors of K 15–45
 rad/(V s), τ 10–60 ms, 12 V) the numbers are the ones the labs have always had
-(``jerklab.lab.MOVE``, ``SPEC``, ``SWEEP_VOLTS``, ``STEP_SECONDS``, ``PRBS``, ``MOVE4``).
+(``jerklab.lab.MOVE``, ``SPEC``, ``SWEEP_VOLTS``, ``STEP_SECONDS``, ``PRBS``, ``MOVE4``); lab 5's
+move is 2π rad at 20 rad/s on them.
 
 >>> from jerklab.lab.specs import lab_spec
 >>> lab_spec(2)["move"]
@@ -36,6 +37,7 @@ __all__ = [
     "ACCEL_FRACTION",
     "JERK_TIME",
     "SWEEP_FRACTIONS",
+    "MATCH_COUNTS_5",
 ]
 
 #: labs 2-3: the move's top speed and acceleration as fractions of the weakest motor's
@@ -47,6 +49,26 @@ JERK_TIME = 0.03
 VELOCITY_FRACTION_4 = 0.56
 ACCEL_FRACTION_4 = 0.10
 JERK_TIME_4 = 0.015
+#: lab 5 (your own law against the firmware's): its fractions and jerk time (paper: 20 rad/s,
+#: 100 rad/s², 1000 rad/s³), the control period (s), the design's ωn (rad/s) at most and ωn τ_max
+VELOCITY_FRACTION_5 = 0.117
+ACCEL_FRACTION_5 = 0.0351
+JERK_TIME_5 = 0.1
+TS_5, DESIGN_WN_5 = 0.01, 10.0
+#: lab 5's clamp: f_c + LIMIT_SHARE_5 · max|u_F| (V): what the model says the move needs at its
+#: fastest and no headroom for the PID's corrections, so that the clamp and the anti-windup act on
+#: every motor (Stojčić eqs. 16–18)
+LIMIT_SHARE_5 = 1.0
+#: lab 5's tracking-error stop (rad) of both runs: a wound-up integrator overshoots by about a
+#: radian on this move, and the run must record it rather than stop
+MAX_ERROR_5 = 3.0
+#: lab 5's bound (counts): the largest |host-loop − firmware| distance of the same law on the
+#: same move. Measured (2026-12, the worksheet's own cells, its identified model): 3-16 counts over
+#: 30 hidden motors of the paper's class on the virtual rig, 7 and 15 on two of them on the
+#: simulated Uno (7 and 33 of its 172 answers late); the bound is the largest plus 4. The same
+#: law with its anti-windup reversed was more than 20 counts off on 7 of 24 of those motors, and
+#: the replay of the check named it on all 24.
+MATCH_COUNTS_5 = 20
 #: lab 2's design: ωn (rad/s) at most, ωn τ_max, and the settling time allowed times ωn
 DESIGN_WN, DESIGN_WN_TAU, SETTLE_WN = 30.0, 1.8, 7.5
 #: lab 2's control period (s) and the largest voltage kick of one count through the derivative (V)
@@ -114,10 +136,19 @@ def _ceil01(x: float) -> float:
 
 
 def move_limits(profile="paper", lab=2) -> dict:
-    """The move of labs 2-3 (``lab`` 2 or 3) or of lab 4 on ``profile``: distance (rad), the
-    jerk, acceleration and speed limits (rad/s³, rad/s², rad/s)."""
+    """The move of labs 2-3 (``lab`` 2 or 3), of lab 4 or of lab 5 on ``profile``: distance
+    (rad), the jerk, acceleration and speed limits (rad/s³, rad/s², rad/s)."""
     p = load_profile(profile)
     w = p.weakest()
+    if lab == 5:
+        top = p.top_speed(w["K"], w["coulomb_friction"])
+        a = _round2(ACCEL_FRACTION_5 * top / w["tau"])
+        return {
+            "distance": 2 * math.pi,
+            "max_jerk": _round2(a / JERK_TIME_5),
+            "max_accel": a,
+            "max_velocity": _round2(VELOCITY_FRACTION_5 * top),
+        }
     if lab == 4:  # the two-mass model has no friction
         top = w["K"] * p.supply_voltage
         v = _round2(VELOCITY_FRACTION_4 * top)
@@ -177,7 +208,7 @@ def hidden_ranges(profile="paper") -> dict:
 
 
 def lab_spec(lab, profile="paper") -> dict:
-    """The numbers of lab ``lab`` (1-4) on a rig with ``profile``'s motors.
+    """The numbers of lab ``lab`` (1-5) on a rig with ``profile``'s motors.
 
     Returns
     -------
@@ -195,11 +226,17 @@ def lab_spec(lab, profile="paper") -> dict:
         ``load`` (the flexible load's design, ``RulerLoad`` keywords, to predict the mode from;
         None on a profile without a stall current), ``move`` and ``prbs`` (the mode's PRBS: a
         quarter of the supply about its half, order 9, one sample a bit; 6 ± 3 V on 12 V,
-        ``jerklab.lab.PRBS_MODE``).
+        ``jerklab.lab.PRBS_MODE``); lab 5: ``move``, ``Ts`` (s), the design of the board's law
+        and yours (``design_wn`` in rad/s and ``zeta``: the pair at ωn, the real pole at 7 ωn,
+        ``jerklab.controller.pole_placement_pid``, Stojčić eq. 11, discretized by Stojčić
+        eq. 13), ``limit_share`` (the clamp is f_c + limit_share ·
+        max|u_F|, V), ``max_error`` (rad, both runs' tracking-error stop), ``match_counts``
+        (the bound: the same law through the host loop and on the board stays within it) and
+        lab 1's ``sweep_volts`` and ``step_seconds``.
     """
     p = load_profile(profile)
-    if lab not in (1, 2, 3, 4):
-        raise ValueError(f"lab must be 1, 2, 3 or 4, got {lab!r}")
+    if lab not in (1, 2, 3, 4, 5):
+        raise ValueError(f"lab must be 1, 2, 3, 4 or 5, got {lab!r}")
     V = p.supply_voltage
     if lab == 1:
         volts = tuple(
@@ -255,6 +292,19 @@ def lab_spec(lab, profile="paper") -> dict:
                 "order": 9,
                 "hold": 1,
             },
+        }
+    if lab == 5:
+        ident = lab_spec(1, p)
+        return {
+            "move": move_limits(p, 5),
+            "Ts": TS_5,
+            "design_wn": min(DESIGN_WN_5, _round2(DESIGN_WN_TAU / p.tau_range[1])),
+            "zeta": 1.0,
+            "limit_share": LIMIT_SHARE_5,
+            "max_error": MAX_ERROR_5,
+            "match_counts": MATCH_COUNTS_5,
+            "sweep_volts": ident["sweep_volts"],
+            "step_seconds": ident["step_seconds"],
         }
     move = move_limits(p, lab)
     # the worksheet's design: three poles at ωn (Stojčić eq. 11), ωn τ_max = 1.8 as on the paper's
