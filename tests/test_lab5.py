@@ -6,6 +6,7 @@ unanswered (it runs, no check passes), and the committed student version is the 
 from __future__ import annotations
 
 import math
+import re
 import time
 from pathlib import Path
 
@@ -67,6 +68,37 @@ def test_lab5_with_solutions_passes_every_check(tmp_path):
     for pat in _leaks(student_motor("sol5")):
         assert pat not in blob, f"true value {pat} in the notebook's output"
     assert elapsed < 60, f"lab 5 took {elapsed:.0f} s headless (limit 1 min)"
+
+
+@pytest.mark.simavr
+def test_lab5_runs_unchanged_on_the_simulated_uno(tmp_path):
+    """The same answered worksheet with ``RIG = "simavr"``: the firmware on a simulated Uno closes
+    the loop through the host (HOST_LOOP) and runs the board's own law. Every cell runs and the
+    checks whose answers do not depend on the host's timing pass (pre-lab, the law's gains, the
+    variant); the host loop's runs are complete. ``match`` is reported, not asserted here: its
+    distance grows with the answers that come late on a loaded machine (7 and 15 counts against
+    the bound of 20 on two motors, 7 and 33 of 172 answers late, on the suite's shared cores)."""
+    from conftest import require_simavr
+
+    require_simavr()
+    nb = _answered(5)
+    _set_student(nb, "sim5")
+    hits = 0
+    for c in nb.cells:
+        if c.cell_type == "code" and c.source.startswith("RIG = None"):
+            c.source = c.source.replace("RIG = None", 'RIG = "simavr"', 1)
+            hits += 1
+    assert hits == 1
+    _execute(nb, tmp_path)
+    outs = _outputs(nb)
+    assert not [o for o in outs if o.startswith("ERROR")], [o for o in outs if "ERROR" in o][:3]
+    blob = "\n".join(outs)
+    assert "firmware on a simulated Uno" in blob
+    shown = {name: (ok, text) for name, ok, text in _verdicts(nb)}
+    assert sorted(shown) == sorted(lab.registry.checks_of(5))
+    for name in ("pre_ff", "pre_delay", "law", "variant"):
+        assert shown[name][0], (name, shown[name][1], shown["match"])
+    assert re.search(r"largest distance \d+ counts \(bound \d+\)", blob), shown["match"]
 
 
 #: (a line of the typed answer, the wrong answer computed instead, the check, its hint)
@@ -201,22 +233,24 @@ def test_lab5_move_needs_less_than_the_supply_on_every_corner(profile):
 @pytest.mark.parametrize("lab_n", [5, 3])
 def test_the_graders_rig_paces_a_host_loop_in_real_time(lab_n):
     """The rig ``grade`` serves a worksheet (a pty): for lab 5, whose law answers each tick from
-    the worksheet's kernel, it runs in real time, so a law that answers at once is (nearly)
-    never late; for lab 3 (the board's own law only) unpaced, where the same law is late at
-    most ticks."""
+    the worksheet's kernel, it runs in real time (speed 1), so a 0.3 s host loop takes its 0.3 s
+    and a law that answers at once is (nearly) never late; for lab 3 (the board's own law
+    only) it is unpaced (speed None), and the same loop runs as fast as the device computes."""
     from jerklab.lab.grade import _served_rig
     from jerklab.rig import connect
 
     server, _ = _served_rig("pace5", lab_n, KEY.encode())
     try:
+        assert server.speed == (1.0 if lab_n == 5 else None)
         rig = connect(server.port, progress=False)
         try:
+            t0 = time.monotonic()
             rec = rig.host_loop(lambda t, y, r: 0.0, Ts=0.01, duration=0.3, max_misses=255)
+            wall = time.monotonic() - t0
         finally:
             rig.close()
     finally:
         server.close()
     assert rec.metadata["status"] == "complete"
-    # 31 ticks: in real time a loaded machine may be late once or twice; unpaced, most are late
-    misses = rec.metadata["misses"]
-    assert misses <= 3 if lab_n == 5 else misses >= 15, misses
+    if lab_n == 5:  # 31 ticks in real time: a loaded machine may be late once or twice
+        assert wall >= 0.28 and rec.metadata["misses"] <= 3, (wall, rec.metadata["misses"])
