@@ -134,14 +134,67 @@ def test_check_law_takes_the_labs_design_and_names_the_continuous_gains():
         o.check_law({k: v for k, v in law.items() if k != "limit"}, Evidence(), None)
 
 
-def test_the_class_rig_client_refuses_the_host_loop():
-    """The class rig service runs no host loop: its client says so instead of running a law."""
-    from jerklab.lab.classrig import ClassRig, ClassRigError
+def test_the_class_rig_service_closes_a_students_law_through_the_hidden_motor(tmp_path):
+    """Lab 5 on the hub: the class rig service runs the hidden motor in real time and sends each
+    tick; the student's kernel (a :class:`ClassRig`) answers with its law's voltage. A P law
+    on a 2 rad reference gets there (short by at most the friction over its gain); the recording is the service's, signed, with its misses,
+    and kept by the service as the run the checks read; a law that raises stops the motor with
+    its tick named; a ``realtime`` loop left early ends "stopped"; the lab's tracking stop
+    cannot be raised; a lab without a host loop refuses the op."""
+    import json
 
-    rig = object.__new__(ClassRig)  # no service needed: the refusal comes before any request
-    for call in (
-        lambda: rig.host_loop(lambda t, y, r: 0.0, 0.01, 1.0),
-        lambda: rig.realtime(0.01, 1.0),
-    ):
-        with pytest.raises(ClassRigError, match="no host-in-the-loop mode.*simavr"):
-            call()
+    from jerklab.lab.classrig import ClassRig
+    from jerklab.lab.plain import Run
+    from jerklab.lab.service import ClassRigService, TokenFile
+    from jerklab.lab.signing import verify_run
+    from jerklab.rig.hostloop import ControlLawError
+
+    key = b"host-loop-service-test-key"
+    tokens = tmp_path / "tokens.json"
+    tokens.write_text(json.dumps({"tok-ann-0123456789": "ann"}))
+    with ClassRigService(TokenFile(tokens), tmp_path / "log.jsonl", key=key) as svc:
+        rig = ClassRig(svc.url, 5, token="tok-ann-0123456789")
+        try:
+            rec = rig.host_loop(
+                lambda t, y, r: 1.0 * (r - y), Ts=0.01, duration=1.5, reference=2.0, name="p"
+            )
+            md = rec.metadata
+            assert md["status"] == "complete", md["status"]
+            # a P law stops short by at most the friction (<= 0.6 V) over its gain
+            assert len(rec) == 151 and abs(rec.position[-1] - 2.0) < 0.6
+            assert md["caller"]["mode"] == "graded" and md["hostloop"]["misses"] <= 5
+            st = svc._students[("ann", 5)]
+            assert verify_run(key, Run.from_recording(rec), md["signature"], "ann", 5) is None
+            assert "p" in st.runs and np.array_equal(st.runs["p"].position, rec.position)
+
+            def bad(t, y, r):
+                if t > 0.2:
+                    raise ZeroDivisionError("oops")
+                return 1.0
+
+            with pytest.raises(
+                ControlLawError, match=r"ZeroDivisionError: oops at tick 2[01]"
+            ) as e:
+                rig.host_loop(bad, Ts=0.01, duration=1.0, name="bad")
+            assert "ZeroDivisionError" in e.value.recording.metadata["status"]
+            loop = rig.realtime(0.01, 1.0, name="early")
+            for step in loop:
+                step.apply(0.5)
+                if step.index == 10:
+                    break
+            del step
+            import gc
+
+            gc.collect()  # the generator closed: the service stops the run
+            assert loop.recording is not None
+            assert loop.recording.metadata["status"].startswith("stopped"), loop.recording.metadata
+            with pytest.raises(ValueError, match="max_error"):
+                rig.host_loop(lambda t, y, r: 0.0, 0.01, 0.5, reference=1.0, max_error=100.0)
+        finally:
+            rig.close()
+        lab3 = ClassRig(svc.url, 3, token="tok-ann-0123456789")
+        try:
+            with pytest.raises(ValueError, match="host-in-the-loop labs"):
+                lab3.host_loop(lambda t, y, r: 0.0, 0.01, 0.5)
+        finally:
+            lab3.close()

@@ -26,6 +26,7 @@ from jerklab._validate import as_nonnegative, as_positive, as_real, at_most
 from jerklab.lab.checkbase import UnknownCheckError
 from jerklab.lab.plain import jsonable
 from jerklab.rig import RigError
+from jerklab.rig.hostloop import MAX_TS, MIN_TS, ControlLawError, HostStep, _reference_table
 from jerklab.rig.profiles import profile_from_dict
 from jerklab.rig.recording import Recording
 
@@ -101,12 +102,6 @@ def encode_answer(x):
 
 
 #: why :meth:`ClassRig.host_loop` refuses
-_NO_HOST_LOOP = (
-    "the class rig service has no host-in-the-loop mode: run lab 5's own law on the virtual rig "
-    "(RIG = None with no JERKLAB_CLASS_RIG set), on \"simavr\" or on your own board's serial port"
-)
-
-
 class ClassRig:
     """A connection to the class rig service for one lab (see the module's text).
 
@@ -169,8 +164,17 @@ class ClassRig:
         return s
 
     def _ask(self, req):
+        self._send(req)
+        return self._read()
+
+    def _send(self, req):
         try:
             self._sock.sendall((json.dumps(req) + "\n").encode("utf-8"))
+        except OSError as exc:
+            raise ClassRigError(f"the class rig service at {self.port}: {exc}") from None
+
+    def _read(self):
+        try:
             while b"\n" not in self._buf:
                 data = self._sock.recv(1 << 16)
                 if not data:
@@ -246,7 +250,8 @@ class ClassRig:
 
     def run_move(self, profile, gains, Ts=None, *, path=None, progress=None, name=None, **run):
         """A planned move on your motor (see :meth:`jerklab.rig.Rig.run_move`; ``run`` may
-        hold ``settle``, ``force`` and ``feedforward``)."""
+        hold ``settle``, ``force`` and ``feedforward``; in lab 5 also ``max_voltage``, ``max_error``
+        (at most the lab's), ``runaway_time`` and ``saturation_time``)."""
         if not hasattr(gains, "kdd"):
             raise ValueError("gains must be DiscreteGains (discretize continuous gains first)")
         prof = {
@@ -282,15 +287,48 @@ class ClassRig:
                 raise ValueError("shaper: its taps must be finite numbers")
         self._ask({"op": "set_shaper", "taps": taps, "Ts": float(Ts)})
 
-    def host_loop(self, control, Ts, duration, reference=None, **options):
-        """Not on the class rig: the service runs the moves on its side and has no
-        host-in-the-loop mode (your law would have to answer every tick over the class's
-        network). Raises :class:`ClassRigError` saying where lab 5's own law runs."""
-        raise ClassRigError(_NO_HOST_LOOP)
+    def realtime(self, Ts, duration, reference=None, *, path=None, name=None, **options):
+        """Host-in-the-loop on your motor (lab 5): iterate the ticks, ``step.apply(v)`` each;
+        as :meth:`jerklab.rig.Rig.realtime`. The service runs the motor and sends each
+        tick's sample; your kernel answers with the voltage for the next tick. ``options``:
+        ``max_misses``, ``max_voltage`` and ``max_error`` (at most the lab's); the loop's
+        ``recording`` is the service's signed one, its status final on every exit path."""
+        return _ClassRealtime(self, Ts, duration, reference, path, name, options)
 
-    def realtime(self, Ts, duration, reference=None, **options):
-        """Not on the class rig (see :meth:`host_loop`): raises :class:`ClassRigError`."""
-        raise ClassRigError(_NO_HOST_LOOP)
+    def host_loop(self, control, Ts, duration, reference=None, **options):
+        """Host-in-the-loop with a callable law ``control(t, position, reference) -> volts``
+        (as :meth:`jerklab.rig.Rig.host_loop`); returns the :class:`Recording`.
+
+        Raises
+        ------
+        jerklab.rig.hostloop.ControlLawError
+            When the law raises or returns a non-finite voltage: the motor is stopped, the
+            message and the recording's status name the tick.
+        """
+        if not callable(control):
+            raise TypeError(f"control must be callable, got {type(control).__name__}")
+        loop = self.realtime(Ts, duration, reference, **options)
+        steps = iter(loop)
+        try:
+            for step in steps:
+                try:
+                    v = control(step.t, step.position, step.reference)
+                except Exception as exc:
+                    status = (
+                        f"error: the control law raised {type(exc).__name__}: {exc} at tick "
+                        f"{step.index} (t={step.t:.3f} s); the motor is stopped"
+                    )
+                    loop.abort(status)
+                    raise ControlLawError(
+                        status[len("error: ") :], tick=step.index, recording=loop.recording
+                    ) from exc
+                step.apply(v)
+        except KeyboardInterrupt:
+            loop.abort("interrupted")
+            raise
+        finally:
+            steps.close()
+        return loop.recording
 
     def check(self, name, answer):
         """``(passed, message)`` of check ``name`` on ``answer``, scored by the service."""
@@ -317,3 +355,108 @@ def _name_of(path, default):
     if path is None or path is False:
         return default
     return Path(path).name.removesuffix(".csv").removesuffix(".json")
+
+
+class _ClassRealtime:
+    """The iterable of :meth:`ClassRig.realtime`: the service's ticks as
+    :class:`jerklab.rig.hostloop.HostStep` objects; :attr:`recording` once it has ended."""
+
+    def __init__(self, rig, Ts, duration, reference, path, name, options):
+        Ts = as_positive("Ts", Ts)
+        if not MIN_TS - 1e-12 <= Ts <= MAX_TS + 1e-12:
+            raise ValueError(
+                f"Ts must be between {MIN_TS * 1e3:g} ms and {MAX_TS * 1e3:g} ms in the "
+                f"host-in-the-loop mode, got {Ts!r} s"
+            )
+        duration = as_positive("duration", duration)
+        unknown = set(options) - {"max_misses", "max_voltage", "max_error", "live", "progress"}
+        if unknown:
+            raise ValueError(
+                f"options: {sorted(unknown)} not known on the class rig "
+                "(max_misses, max_voltage, max_error)"
+            )
+        mv = options.get("max_voltage")
+        self.max_voltage = rig.supply_voltage if mv is None else as_positive("max_voltage", mv)
+        if self.max_voltage > rig.supply_voltage:
+            raise ValueError(f"max_voltage must be <= the supply {rig.supply_voltage} V, got {mv}")
+        n = int(math.ceil(duration / Ts - 1e-9)) + 1
+        table = _reference_table(reference, n, Ts)
+        opts = {k: options.get(k) for k in ("max_misses", "max_voltage", "max_error")}
+        self._req = {
+            "op": "host_loop",
+            "name": name or _name_of(path, "host"),
+            "Ts": float(Ts),
+            "duration": float(duration),
+            "reference": table,
+            "options": {k: float(v) for k, v in opts.items() if v is not None},
+        }
+        self._rig, self._path = rig, path
+        self._used = False
+        self._aborted = None
+        self.recording = None
+        self.misses = 0
+
+    def _refuse(self, step, what):
+        """A non-finite voltage (:meth:`HostStep.apply`): stop the run, raise naming the tick."""
+        status = (
+            f"error: {what} at tick {step.index} (t={step.t:.3f} s); refused, the motor is stopped"
+        )
+        self.abort(status)
+        raise ControlLawError(status[len("error: ") :], tick=step.index, recording=self.recording)
+
+    def abort(self, status="stopped"):
+        """Stop the run now with ``status``; the service's final recording follows."""
+        if self.recording is not None or self._aborted is not None or not self._used:
+            return
+        self._aborted = status
+        self._rig._send({"abort": status})
+        self._final(self._rig._read())
+
+    def _final(self, msg):
+        self.recording = self._rig._recording(msg, self._path)
+        self.misses = int(self.recording.metadata.get("hostloop", {}).get("misses", 0))
+
+    def __iter__(self):
+        if self._used:
+            raise RuntimeError("a realtime loop runs once: call board.realtime(...) again")
+        self._used = True
+        return self._run()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is KeyboardInterrupt:
+            self.abort("interrupted")
+        elif exc_type is not None:
+            self.abort(f"error: {exc_type.__name__}: {exc}")
+        else:
+            self.abort("stopped: the loop ended before the run")
+        return False
+
+    def _run(self):
+        rig = self._rig
+        rig._send(self._req)
+        while True:
+            msg = rig._read()
+            if "tick" not in msg:
+                self._final(msg)
+                return
+            ref = msg.get("reference")
+            step = HostStep(
+                self,
+                int(msg["tick"]),
+                float(msg["t"]),
+                float(msg["position"]),
+                math.nan if ref is None else float(ref),
+                float(msg["voltage"]),
+                bool(msg.get("missed")),
+            )
+            try:
+                yield step
+            except GeneratorExit:
+                self.abort("stopped: the loop ended before the run")
+                raise
+            if self._aborted is not None:
+                return
+            rig._send({"voltage": step._volts})

@@ -23,6 +23,14 @@ scores the answer with the check of :mod:`jerklab.lab.registry`, on the recordin
 for that student and the truth of the student's motor, and answers ``{"ok", "message"}``).
 Every answer is ``{"ok": true, ...}`` or ``{"error": "...", "type": "..."}``.
 
+``host_loop`` (lab 5, the host-in-the-loop labs of the registry) is a conversation: the
+request ``{"name", "Ts", "duration", "reference": [r_0, ...] or null, "options"}`` starts the
+run on the hidden motor in real time; for every tick the service sends ``{"tick", "t",
+"position", "reference", "voltage", "missed"}`` and the student's kernel answers ``{"voltage":
+v}`` (null: hold, a miss) or ``{"abort": "why"}``; the signed recording ends it. An answer that
+does not come within ``LIMITS["host_answer_seconds"]`` stops the motor; the device's own misses,
+tracking stop (the lab's, never raised) and watchdog stay on.
+
 Every recording served is signed (:mod:`jerklab.lab.signing`: HMAC-SHA256 with a key derived
 from the instructor key, over its samples, the student, the lab and the time; in its JSON
 sidecar under ``"signature"``), so that the grader can tell it from one a student made or
@@ -64,10 +72,13 @@ from jerklab.lab.motors import (
     student_motor,
 )
 from jerklab.lab.plain import Evidence, Run, jsonable
-from jerklab.lab.registry import CHECKS, FLEXIBLE_LABS, LABS, check_function
+from jerklab.lab.registry import CHECKS, FLEXIBLE_LABS, HOST_LOOP_LABS, LABS, check_function
 from jerklab.lab.signing import sign_run
 from jerklab.lab.specs import lab_spec
 from jerklab.rig import Recording, RigError, connect, load_profile
+from jerklab.rig.hostloop import MAX_TS as HOST_MAX_TS
+from jerklab.rig.hostloop import MIN_TS as HOST_MIN_TS
+from jerklab.rig.hostloop import ControlLawError
 
 __all__ = [
     "ClassRigService",
@@ -96,6 +107,8 @@ LIMITS = {
     "connections": 256,  # open at a time, in all
     "connections_per_student": 4,  # open at a time by one student
     "hello_seconds": 10.0,  # s a new connection has to say who it is
+    "host_loop_seconds": 30.0,  # s, one host-in-the-loop run (lab 5)
+    "host_answer_seconds": 2.0,  # s the service waits for one tick's answer before it stops
 }
 _NAME_RE = re.compile(r"^[A-Za-z0-9_.+-]{1,60}$")
 _IDLE_TIMEOUT = 3600.0  # s a connection may sit without a request
@@ -194,11 +207,16 @@ class HubAuth:
 
 
 # ------------------------------------------------------------------ answers as plain data
+_GAINS_KEYS = {"kpd", "kid", "kdd", "Ts", "gamma", "loop", "design"}
+
+
 def decode_answer(data):
     """An answer as the checks take it from its JSON form (:func:`jerklab.lab.plain.jsonable`,
     or :func:`jerklab.lab.classrig.encode_answer`): gains (a dict with ``kpd``, ``kid``,
-    ``kdd``, ``Ts``) become :class:`jerklab.controller.DiscreteGains`; anything else stays."""
-    if isinstance(data, dict) and {"kpd", "kid", "kdd", "Ts"} <= set(data):
+    ``kdd``, ``Ts`` and at most ``gamma``, ``loop``, ``design``) become
+    :class:`jerklab.controller.DiscreteGains`; anything else stays (a dict with more keys,
+    such as lab 5's law with its gains, model and clamp, is a dict)."""
+    if isinstance(data, dict) and {"kpd", "kid", "kdd", "Ts"} <= set(data) <= _GAINS_KEYS:
         design = data.get("design") if isinstance(data.get("design"), dict) else {}
         return DiscreteGains(
             data["kpd"],
@@ -396,9 +414,12 @@ class _Student:
         plant = "flexible" if lab in FLEXIBLE_LABS else "rigid"
         motor = student_motor(student, service.key, plant=plant, profile=self.profile)
         self.truth = hidden_truth(motor)
+        # a lab whose law runs in the student's kernel (host-in-the-loop) runs in real time:
+        # the law answers each tick over the link, as it would a real board's
+        speed = 1.0 if lab in HOST_LOOP_LABS and service.speed is None else service.speed
         self.rig = connect(
             None,
-            device=student_device(motor, service.speed),
+            device=student_device(motor, speed),
             progress=False,
             recordings=service.recordings,
             metadata={"student": student, "lab": lab, "mode": "graded"},
@@ -502,18 +523,33 @@ class _Student:
             if not isinstance(g, DiscreteGains):
                 raise ValueError("gains must be a dict with kpd, kid, kdd and Ts")
             run = req.get("run") or {}
-            if not isinstance(run, dict) or set(run) - {"settle", "force", "feedforward"}:
-                raise ValueError("run may hold only settle, force and feedforward")
+            allowed = {"settle", "force", "feedforward"}
+            if self.lab in HOST_LOOP_LABS:
+                # lab 5 runs the board's law with the student's clamp (a saturating law is
+                # the point), its safety stops for saturation and runaway off
+                allowed |= {"max_voltage", "max_error", "runaway_time", "saturation_time"}
+            if not isinstance(run, dict) or set(run) - allowed:
+                raise ValueError(f"run may hold only {', '.join(sorted(allowed))}")
             spec = {"force": bool(run.get("force", False))}
             if "settle" in run:
                 spec["settle"] = _number("settle", run["settle"], 0.0, LIMITS["settle"])
             if "feedforward" in run:
                 spec["feedforward"] = bool(run["feedforward"])
-            # the tracking-error stop of the lab on the class's profile (labs 2-3), not the
-            # student's to choose
-            stop = lab_spec(self.lab, self.profile or "paper").get("stop_error")
+            if "max_voltage" in run:
+                spec["max_voltage"] = _number(
+                    "max_voltage", run["max_voltage"], 1e-6, self.rig.supply_voltage
+                )
+            for k in ("runaway_time", "saturation_time"):
+                if k in run:
+                    spec[k] = _number(k, run[k], 0.0, 10.0)
+            # the tracking-error stop of the lab on the class's profile (labs 2-3; lab 5's
+            # spec["max_error"]), not the student's to raise
+            sp = lab_spec(self.lab, self.profile or "paper")
+            stop = sp.get("stop_error", sp.get("max_error") if self.lab in HOST_LOOP_LABS else None)
             if stop is not None:
                 spec["max_error"] = stop
+                if run.get("max_error") is not None:
+                    spec["max_error"] = _number("max_error", run["max_error"], 0.0, stop)
             rec = self.rig.run_move(
                 _profile(req.get("profile")),
                 g,
@@ -537,9 +573,97 @@ class _Student:
             self.rig.set_shaper(taps, Ts)
             return {"ok": True}
         raise ValueError(
-            f"op must be one of info, step, record_prbs, run_move, set_model, "
+            f"op must be one of info, step, record_prbs, run_move, host_loop, set_model, "
             f"set_shaper, check; got {op!r}"
         )
+
+    def host_loop(self, req, send, readline):
+        """A host-in-the-loop run whose law runs in the student's kernel (lab 5): for every
+        tick the service sends ``{"tick", "t", "position", "reference", "voltage", "missed"}``
+        and reads back ``{"voltage": v}`` (null: hold, a miss) or ``{"abort": why}``; the run's
+        signed recording is the final answer, as for a move. The tracking-error stop is the
+        lab's (``spec["max_error"]``), never above it; an answer that does not come within
+        ``LIMITS["host_answer_seconds"]`` stops the motor."""
+        if self.lab not in HOST_LOOP_LABS:
+            raise ValueError(
+                f"op host_loop is for the host-in-the-loop labs {list(HOST_LOOP_LABS)}, "
+                f"not lab {self.lab}"
+            )
+        name = req.get("name")
+        if not (isinstance(name, str) and _NAME_RE.match(name)):
+            raise ValueError(f"name must be 1-60 letters, digits or _.+-, got {name!r}")
+        Ts = _number("Ts", req.get("Ts"), HOST_MIN_TS - 1e-12, HOST_MAX_TS + 1e-12)
+        duration = _number("duration", req.get("duration"), 0.0, LIMITS["host_loop_seconds"])
+        opts = req.get("options") or {}
+        if not isinstance(opts, dict) or set(opts) - {"max_misses", "max_voltage", "max_error"}:
+            raise ValueError("options may hold only max_misses, max_voltage and max_error")
+        kw = {}
+        if opts.get("max_misses") is not None:
+            kw["max_misses"] = int(_number("max_misses", opts["max_misses"], 1, 255))
+        if opts.get("max_voltage") is not None:
+            kw["max_voltage"] = _number(
+                "max_voltage", opts["max_voltage"], 1e-6, self.rig.supply_voltage
+            )
+        table = req.get("reference")
+        stop = lab_spec(self.lab, self.profile or "paper").get("max_error")
+        if table is not None:
+            n = int(math.ceil(duration / Ts - 1e-9)) + 1
+            if not isinstance(table, list) or not 0 < len(table) <= n + 2:
+                raise ValueError(f"reference must be a list of at most {n + 2} numbers or null")
+            table = [
+                _number("reference[k]", x, -LIMITS["move_distance"], LIMITS["move_distance"])
+                for x in table
+            ]
+            last = len(table) - 1
+            kw["reference"] = lambda t: table[min(int(round(t / Ts)), last)]
+            if stop is not None:  # the lab's stop; a student may ask for a tighter one
+                kw["max_error"] = stop
+                if opts.get("max_error") is not None:
+                    kw["max_error"] = _number("max_error", opts["max_error"], 0.0, stop)
+        loop = self.rig.realtime(Ts, duration, path=self._path(name), **kw)
+        steps = iter(loop)
+        try:
+            for step in steps:
+                ref = step.reference
+                send(
+                    {
+                        "tick": step.index,
+                        "t": step.t,
+                        "position": step.position,
+                        "reference": None if not math.isfinite(ref) else ref,
+                        "voltage": step.voltage,
+                        "missed": step.missed,
+                    }
+                )
+                try:
+                    line = readline()
+                except OSError:
+                    line = b""
+                if not line:
+                    loop.abort(
+                        f"fault: no answer from the student's kernel within "
+                        f"{LIMITS['host_answer_seconds']:g} s at tick {step.index}"
+                    )
+                    break
+                msg = json.loads(line.decode("utf-8"))
+                if not isinstance(msg, dict):
+                    raise ValueError("an answer is a JSON object")
+                if "abort" in msg:
+                    loop.abort(str(msg["abort"])[:300])
+                    break
+                v = msg.get("voltage")
+                if v is None:
+                    continue  # not applied: the device holds the last voltage (a miss)
+                if isinstance(v, bool) or not isinstance(v, (int, float)):
+                    loop.abort(f"error: the voltage at tick {step.index} is not a number")
+                    break
+                try:
+                    step.apply(float(v))
+                except ControlLawError:
+                    break  # refused (non-finite): the motor is stopped, the status says why
+        finally:
+            steps.close()
+        return self._keep(name, loop.recording)
 
     def score(self, name, answer):
         ev = Evidence(
@@ -793,6 +917,16 @@ class ClassRigService:
                                 "attempt": n,
                             }
                         )
+                    elif req.get("op") == "host_loop":
+
+                        def answer_line():
+                            conn.settimeout(LIMITS["host_answer_seconds"])
+                            try:
+                                return rfile.readline(LIMITS["request_bytes"] + 1)
+                            finally:
+                                conn.settimeout(_IDLE_TIMEOUT)
+
+                        send(st.host_loop(req, send, answer_line))
                     else:
                         send(st.handle(req))
             except AuthError as exc:

@@ -488,7 +488,7 @@ def _student_env(monkeypatch, tmp_path, **env):
         monkeypatch.setenv(k, v)
 
 
-@pytest.mark.parametrize("n", [1, 2, 3, 4])
+@pytest.mark.parametrize("n", [1, 2, 3, 4, 5])
 def test_an_honest_worksheet_scores_full_marks_through_the_service(
     n, service, tmp_path, monkeypatch
 ):
@@ -514,7 +514,7 @@ def test_an_honest_worksheet_scores_full_marks_through_the_service(
             assert json.loads(f.read("manifest.json"))["mode"] == "graded"
 
 
-@pytest.mark.parametrize("n", [1, 2, 3, 4])
+@pytest.mark.parametrize("n", [1, 2, 3, 4, 5])
 def test_an_honest_worksheet_passes_in_practice(n, tmp_path, monkeypatch):
     """Without a service and without a key: the practice motor, every check right against the
     student's own recordings, "practice" in every recording."""
