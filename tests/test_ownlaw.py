@@ -137,8 +137,9 @@ def test_check_law_takes_the_labs_design_and_names_the_continuous_gains():
 def test_the_class_rig_service_closes_a_students_law_through_the_hidden_motor(tmp_path):
     """Lab 5 on the hub: the class rig service runs the hidden motor in real time and sends each
     tick; the student's kernel (a :class:`ClassRig`) answers with its law's voltage. A P law
-    on a 2 rad reference gets there (short by at most the friction over its gain); the recording is the service's, signed, with its misses,
-    and kept by the service as the run the checks read; a law that raises stops the motor with
+    on a 2 rad reference gets there (short by at most the friction over its gain); the
+    recording is the service's, signed, with its misses, and kept by the service as the run the
+    checks read; a law that raises stops the motor with
     its tick named; a ``realtime`` loop left early ends "stopped"; the lab's tracking stop
     cannot be raised; a lab without a host loop refuses the op."""
     import json
