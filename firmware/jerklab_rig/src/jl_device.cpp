@@ -256,10 +256,22 @@ void Device::handle(const Frame& f) {
         if (!gains_ok_ || !plan_ok_) { nack(f, kErrNotReady); return; }
         // The loop runs in encoder counts and PWM ticks (saves two float multiplies a sample):
         // the gains take rad per count (and 1/Ts in the velocity loop) and PWM ticks per volt.
-        const float g = (loop_ == kLoopVelocity ? rad_per_count_ / Ts_ : rad_per_count_) * pwm_per_volt_;
+        const float g_pos = rad_per_count_ * pwm_per_volt_;
+        const float g = loop_ == kLoopVelocity ? g_pos / Ts_ : g_pos;
         if (!pid_.set(kpd_ * g, kid_ * g, kdd_ * g, gamma_, max_voltage_ * pwm_per_volt_)) {
             nack(f, kErrBadValue);
             return;
+        }
+        if (shaper_.on()) {
+            // SET_SHAPER's fixed-point FIR (jl_excite.h): the reference moves at most
+            // max_velocity Ts counts a sample, within the ring's Q16.16 windows; the
+            // feedforward of its differences as gains of PWM ticks per count / sample (^2)
+            const float h = g_pos / Ts_;
+            if (!shaper_.fits(max_velocity_ * Ts_ / rad_per_count_) ||
+                (use_ff_ && (!to_qgain(ff_.beta() * h, &shp_kv_) || !to_qgain(ff_.alpha() * h / Ts_, &shp_ka_)))) {
+                nack(f, kErrBadValue);
+                return;
+            }
         }
         ack(f);
         pid_.reset();
@@ -275,11 +287,10 @@ void Device::handle(const Frame& f) {
                            use_ff_ ? ff_.beta() * pwm_per_volt_ : 0.0f, cpr, cpr * Ts_);
             ufq_ = 0;
             ref_v_ = 0.0f;
+            ref_vq_ = 0;
             // SET_SHAPER: the FIR runs on the reference in counts, its differences per sample;
             // the feedforward in PWM ticks from them: uf = ka (v_k - v_{k-1}) + kv v_k
-            shaper_.reset(1.0f);
-            shp_kv_ = use_ff_ ? ff_.beta() * pwm_per_volt_ / (cpr * Ts_) : 0.0f;
-            shp_ka_ = use_ff_ ? ff_.alpha() * pwm_per_volt_ / (cpr * Ts_ * Ts_) : 0.0f;
+            shaper_.reset();
             sample_ahead();                     // the reference of sample 0
             rep_.ref = q32_counts_to_rad(refq_, rad_per_count_);   // (then in background())
             shaper_.prepare();                  // (then in background() after each step)
@@ -356,7 +367,10 @@ bool Device::handle_v3(const Frame& f) {
     float sum = 0.0f;
     for (uint8_t i = 0; i < kShaperMaxTaps; ++i) {
         a[i] = get_f32(p + 1 + 4 * i);
-        if (!finite_f(a[i]) || (i >= n && a[i] != 0.0f)) { nack(f, kErrBadValue, 1); return true; }
+        if (!finite_f(a[i]) || !(jl_fabsf(a[i]) <= kShaperMaxAmplitude) || (i >= n && a[i] != 0.0f)) {
+            nack(f, kErrBadValue, 1);
+            return true;
+        }
         sum += a[i];
     }
     if (n && !(jl_fabsf(sum - 1.0f) <= 1e-3f)) { nack(f, kErrBadValue, 1); return true; }
@@ -536,7 +550,7 @@ bool Device::control() {
                 } else {
                     // Velocity loop (Stojčić §4B): counts over the last sample; y(-1) = y(0).
                     if (k_ == 0) prev_counts_ = c;
-                    e = sub_sat(to_q16(ref_v_), counts_q16(c - prev_counts_, 0));
+                    e = sub_sat(ref_vq_, counts_q16(c - prev_counts_, 0));
                 }
                 JL_PART_BEGIN(4);
                 u = pid_.step(e, ufq_, &saturated);
@@ -593,16 +607,19 @@ static uint32_t samples_of(float t, float Ts) {
 }
 
 void Device::sample_ahead() {
-    stepper_.next_q(&refq_, use_ff_ ? &ufq_ : nullptr, loop_ == kLoopVelocity ? &ref_v_ : nullptr);
-    if (shaper_.on()) {
-        // SET_SHAPER (PROTOCOL.md): the reference's FIR (the delay-0 taps; the delayed taps'
-        // sum for the next sample in background()) and its backward differences, in float,
-        // converted back to the control step's fixed point once
-        float ref = q32_to_float(refq_), v, a;
-        shaper_.apply(&ref, &v, &a);
-        ref_v_ = v;
-        refq_ = to_q32(ref);
-        ufq_ = to_q16(shp_ka_ * a + shp_kv_ * v);
+    const bool shaped = shaper_.on();
+    // (shaped: the feedforward and velocity come from the shaped reference, not the stepper's)
+    stepper_.next_q(&refq_, use_ff_ && !shaped ? &ufq_ : nullptr,
+                    loop_ == kLoopVelocity && !shaped ? &ref_v_ : nullptr);
+    if (shaped) {
+        // SET_SHAPER (PROTOCOL.md): the reference's FIR in fixed point (jl_excite.h: one product
+        // here; the delayed taps' part for the next sample in background()) and its backward
+        // differences in Q16.16 counts per sample (^2); the feedforward from them
+        int32_t a;
+        shaper_.apply(&refq_, &ref_vq_, &a);
+        if (use_ff_) ufq_ = mac_g(mac_g(0, ref_vq_, shp_kv_), a, shp_ka_);
+    } else if (loop_ == kLoopVelocity) {
+        ref_vq_ = to_q16(ref_v_);
     }
     ahead_ = true;
     if (stepper_.plan() != cur_plan_) {
