@@ -81,8 +81,9 @@ static const float kShaperSpan = 16384.0f;
 /// PWM is out (untimed), and apply() in the control step does one product whatever the number of
 /// taps. Velocity v(k) and acceleration a(k) (counts per sample, per sample^2) are Q16.16
 /// differences of r_s's windows. Error against the FIR with the float32 taps on the same r:
-/// |a_i - a_q,i| <= 2^-25 per tap (so <= n 2^-25 max|r|) plus < (n + 4) 2^-16 counts of rounding
-/// (jerklab.rig.virtual.FixedShaper is the bit-exact twin; tests/test_rig_sequence_shaper.py).
+/// |a_i - a_q,i| <= 2^-25 per tap (so <= n 2^-25 max|r|) plus (2 sum|a_i| + n + 4) 2^-16 counts
+/// of rounding (jerklab.rig.virtual.FixedShaper is the bit-exact twin, checked by test_firmware's
+/// golden vectors; the bound by tests/test_rig_sequence_shaper.py).
 class Shaper {
 public:
     /// Quantise the taps of a checked SET_SHAPER payload (n = 0: off) once.
