@@ -592,7 +592,11 @@ class VirtualDevice:
             if not shp.fits(float(f32(f32(f32(self.limits.max_velocity) * ts) / rpc))):
                 return P.ErrorCode.BAD_VALUE, 0xFF
             if g.flags & P.GAINS_FEEDFORWARD:
-                h = float(f32(self.pwm_max) / f32(self.plant.supply_voltage)) * float(rpc) / float(ts)
+                h = (
+                    float(f32(self.pwm_max) / f32(self.plant.supply_voltage))
+                    * float(rpc)
+                    / float(ts)
+                )
                 kv = h / self.plant.K
                 ka = h * self.plant.tau / self.plant.K / float(ts)
                 if not (abs(kv) < P.RUN_GAIN_LIMIT and abs(ka) < P.RUN_GAIN_LIMIT):
