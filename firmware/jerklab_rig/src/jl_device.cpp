@@ -6,7 +6,8 @@ namespace jl {
 
 static float q32_counts_to_rad(const Q32& x, float rad_per_count);
 
-static const char kName[16] = {'j', 'e', 'r', 'k', 'l', 'a', 'b', '-', 'u', 'n', 'o', 0, 0, 0, 0, 0};
+// (constant tables in flash: RAM is the Uno's scarcest resource)
+static const char kName[16] JL_PROGMEM = {'j', 'e', 'r', 'k', 'l', 'a', 'b', '-', 'u', 'n', 'o', 0, 0, 0, 0, 0};
 
 // (out of line, `this` a pointer: the members' initial values as indexed stores, about half
 // the flash of the absolute stores of a static object's inlined initialisation)
@@ -156,11 +157,11 @@ void __attribute__((noinline)) Device::plan_frame(const Frame& f) {
 void Device::handle(const Frame& f) {
     if (handle_v3(f) || handle_v4(f)) return;
     const uint8_t* p = f.payload;
-    static const uint8_t kLen[10] = {0, kLenHello, kLenSetPlant, kLenSetGains, kLenSetLimits,
+    static const uint8_t kLen[10] JL_PROGMEM = {0, kLenHello, kLenSetPlant, kLenSetGains, kLenSetLimits,
                                      kLenPlan, kLenRun, kLenStop, kLenStep, kLenHeartbeat};
     if (f.type == kRetarget) { handle_retarget(f); return; }
     if (f.type == 0 || f.type > kHeartbeat) { nack(f, kErrUnknownType); return; }
-    if (f.len != kLen[f.type]) { nack(f, kErrBadLength); return; }
+    if (f.len != JL_READ_U8(&kLen[f.type])) { nack(f, kErrBadLength); return; }
     const bool active = state_ != kIdle;
     if (active && f.type != kHello && f.type != kStop && f.type != kHeartbeat) {
         nack(f, kErrBusy);
@@ -183,7 +184,7 @@ void Device::handle(const Frame& f) {
         put_u16(r + 4, caps);
         put_u16(r + 6, cfg_.tick_us);
         put_u16(r + 8, cfg_.pwm_max);
-        memcpy(r + 10, kName, 16);
+        jl_memcpy_P(r + 10, kName, 16);
         send(kHelloReply, f.seq, r, kLenHelloReply);
         return;
     }
@@ -286,7 +287,6 @@ void Device::handle(const Frame& f) {
             stepper_.start(plan_, Ts_, use_ff_ ? ff_.alpha() * pwm_per_volt_ : 0.0f,
                            use_ff_ ? ff_.beta() * pwm_per_volt_ : 0.0f, cpr, cpr * Ts_);
             ufq_ = 0;
-            ref_v_ = 0.0f;
             ref_vq_ = 0;
             // SET_SHAPER: the FIR runs on the reference in counts, its differences per sample;
             // the feedforward in PWM ticks from them: uf = ka (v_k - v_{k-1}) + kv v_k

@@ -208,8 +208,10 @@ private:
     // previous step.
     Q32 refq_ JL_ZERO;
     int32_t ufq_ JL_ZERO;
-    float ref_v_ JL_ZERO;
-    int32_t ref_vq_ JL_ZERO;
+    union {
+        float ref_v_;       // (the stepper's, then converted in place: ref_vq_)
+        int32_t ref_vq_;
+    };
     bool ahead_ JL_ZERO;
 
     // Active run / step.

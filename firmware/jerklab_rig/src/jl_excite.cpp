@@ -61,7 +61,10 @@ void Shaper::set(uint8_t n, const float* a, const uint8_t* d) {
         s += m;
         abs_sum += jl_fabsf(a[i]);
     }
-    a0m1_ = a0;
+    const int32_t t = a0 + 0x800000L;      // a0 - 1 = k + b 2^-24 (tap_mac())
+    a0k_ = static_cast<int8_t>(t >> 24);
+    a0b_.mant = static_cast<int32_t>(t & 0xFFFFFFL) - 0x800000L;
+    a0b_.shift = 3;
     sm1_ = s;
     span_ = abs_sum * static_cast<float>(max_delay_) + 1.0f;
 }
@@ -76,14 +79,21 @@ void Shaper::reset() {
     pos_ = 0;
 }
 
-void Shaper::apply(Q32* position, int32_t* velocity, int32_t* accel) {
+// (out of line: sample_ahead()'s frame, on every run's stack, stays as without the shaper)
+void __attribute__((noinline)) Shaper::apply(Q32* position, int32_t* velocity, int32_t* accel) {
     const int32_t w = window16(*position);
     const int32_t dk = wrap_sub(w, ring_[(pos_ - 1) & kRingMask]);
     ring_[pos_] = w;
     pos_ = (pos_ + 1) & kRingMask;
-    prev_r_ = *position;
+    // the Q24.8 window of r(k) (bytes 3..6 of the Q32.32), saturated from |r| >= 2^23 counts
+    memcpy(&prev_x_, reinterpret_cast<const uint8_t*>(position) + 3, 4);
+    if (static_cast<uint32_t>(position->hi + 0x800000L) >= 0x1000000UL) prev_x_ = position->hi < 0 ? INT32_MIN : INT32_MAX;
     // r_s = r + (a0 - 1) D + Q, the correction in Q16.16 added to the Q32.32
-    const int32_t c = tap_mac(q_, dk, a0m1_);
+    // (a0 - 1) D as tap_mac() does it, the split of a0 - 1 made by set(): no call deeper here
+    int32_t c = q_;
+    const int32_t step = a0k_ < 0 ? -dk : dk;
+    for (uint8_t k = a0k_ < 0 ? -a0k_ : a0k_; k; --k) c = add_sat(c, step);
+    c = mac_g(c, dk, a0b_);
     Q32 cq;
     cq.lo = static_cast<uint32_t>(c) << 16;
     cq.hi = c >> 16;   // (arithmetic shift: the sign extension)
@@ -104,15 +114,11 @@ void Shaper::prepare() {
         if (d > 1) p = tap_mac(p, wrap_sub(ring_[(pos_ - d) & kRingMask], w1), a_[i]);
     }
     // (S - 1) r(k - 1), |S - 1| < 2^-9 (|S - 1| 2^24 < 2^15, a 24-bit mantissa), on the Q24.8
-    // window x of r(k - 1) (bytes 3..6 of the Q32.32, saturated from |r| >= 2^23 counts):
-    // floor(x (S - 1) 2^24 / 2^16), Q16.16
+    // window x of r(k - 1) (apply()): floor(x (S - 1) 2^24 / 2^16), Q16.16
     QGain g;
     g.mant = sm1_;
     g.shift = 2;
-    int32_t x;
-    memcpy(&x, reinterpret_cast<const uint8_t*>(&prev_r_) + 3, 4);
-    if (static_cast<uint32_t>(prev_r_.hi + 0x800000L) >= 0x1000000UL) x = prev_r_.hi < 0 ? INT32_MIN : INT32_MAX;
-    const int32_t e = mac_g(0, x, g);
+    const int32_t e = mac_g(0, prev_x_, g);
     q_ = add_sat(e, p);
 }
 #endif

@@ -105,13 +105,14 @@ private:
     uint8_t n_ JL_ZERO, max_delay_ JL_ZERO, pos_ JL_ZERO;
     int32_t a_[kShaperMaxTaps];        // Q8.24
     uint8_t d_[kShaperMaxTaps];
-    int32_t a0m1_ JL_ZERO;             // a0 - 1, Q8.24
+    int8_t a0k_ JL_ZERO;               // a0 - 1 = a0k_ + a0b_ (tap_mac()'s split, Q8.24)
+    QGain a0b_ JL_ZERO;
     int32_t sm1_ JL_ZERO;              // S - 1, Q8.24
     float span_ JL_ZERO;               // sum |a_i| D + 1 (RUN's range check)
     // a run's state (reset() zeroes it all, from q_ to the end)
     int32_t q_ JL_ZERO;                // Q(k), Q16.16
     int32_t ring_[kShaperRing];        // w(j), Q16.16 modulo 2^32
-    Q32 prev_r_ JL_ZERO;               // r(k - 1)
+    int32_t prev_x_ JL_ZERO;           // r(k - 1)'s Q24.8 window (saturated)
     int32_t prev_s_ JL_ZERO, prev_v_ JL_ZERO;   // r_s(k - 1)'s window, v(k - 1)
 };
 #else
