@@ -17,11 +17,6 @@ uint16_t prbs_mask(uint8_t order) {
 static const uint8_t kRingMask = kShaperRing - 1;
 static const int32_t kOneQ24 = 16777216L;   // 1.0 in Q8.24
 
-// bits 16..47 of a Q32.32: its Q16.16 window modulo 2^32
-static inline int32_t window16(const Q32& x) {
-    return static_cast<int32_t>((x.lo >> 16) | (static_cast<uint32_t>(x.hi) << 16));
-}
-
 // a - b modulo 2^32 (the exact difference of two windows while it is below 2^31 in magnitude)
 static inline int32_t wrap_sub(int32_t a, int32_t b) {
     return static_cast<int32_t>(static_cast<uint32_t>(a) - static_cast<uint32_t>(b));
@@ -61,11 +56,9 @@ void Shaper::set(uint8_t n, const float* a, const uint8_t* d) {
         s += m;
         abs_sum += jl_fabsf(a[i]);
     }
-    const int32_t t = a0 + 0x800000L;      // a0 - 1 = k + b 2^-24 (tap_mac())
-    a0k_ = static_cast<int8_t>(t >> 24);
-    a0b_.mant = static_cast<int32_t>(t & 0xFFFFFFL) - 0x800000L;
-    a0b_.shift = 3;
-    sm1_ = s;
+    a0m1_ = a0;
+    sm1_.mant = s;
+    sm1_.shift = 2;
     span_ = abs_sum * static_cast<float>(max_delay_) + 1.0f;
 }
 
@@ -81,24 +74,23 @@ void Shaper::reset() {
 
 // (out of line: sample_ahead()'s frame, on every run's stack, stays as without the shaper)
 void __attribute__((noinline)) Shaper::apply(Q32* position, int32_t* velocity, int32_t* accel) {
-    const int32_t w = window16(*position);
-    const int32_t dk = wrap_sub(w, ring_[(pos_ - 1) & kRingMask]);
-    ring_[pos_] = w;
-    pos_ = (pos_ + 1) & kRingMask;
+    const uint8_t* bytes = reinterpret_cast<const uint8_t*>(position);
+    int32_t w;
+    memcpy(&w, bytes + 2, 4);   // r(k)'s Q16.16 window (bytes 2..5 of the Q32.32, little-endian)
+    const uint8_t pos = pos_;
+    const int32_t dk = wrap_sub(w, ring_[(pos - 1) & kRingMask]);
+    ring_[pos] = w;
+    pos_ = (pos + 1) & kRingMask;
     // the Q24.8 window of r(k) (bytes 3..6 of the Q32.32), saturated from |r| >= 2^23 counts
-    memcpy(&prev_x_, reinterpret_cast<const uint8_t*>(position) + 3, 4);
-    if (static_cast<uint32_t>(position->hi + 0x800000L) >= 0x1000000UL) prev_x_ = position->hi < 0 ? INT32_MIN : INT32_MAX;
-    // r_s = r + (a0 - 1) D + Q, the correction in Q16.16 added to the Q32.32
-    // (a0 - 1) D as tap_mac() does it, the split of a0 - 1 made by set(): no call deeper here
-    int32_t c = q_;
-    const int32_t step = a0k_ < 0 ? -dk : dk;
-    for (uint8_t k = a0k_ < 0 ? -a0k_ : a0k_; k; --k) c = add_sat(c, step);
-    c = mac_g(c, dk, a0b_);
-    Q32 cq;
-    cq.lo = static_cast<uint32_t>(c) << 16;
-    cq.hi = c >> 16;   // (arithmetic shift: the sign extension)
-    q32_add(position, cq);
-    const int32_t s = window16(*position);
+    const int32_t hi = position->hi;
+    int32_t x;
+    memcpy(&x, bytes + 3, 4);
+    if (static_cast<uint32_t>(hi + 0x800000L) >= 0x1000000UL) x = hi < 0 ? INT32_MIN : INT32_MAX;
+    prev_x_ = x;
+    // r_s = r + (a0 - 1) D + Q, the correction in Q16.16 added to the Q32.32 (units 2^-16)
+    q32_add_units(position, tap_mac(q_, dk, a0m1_), 16);
+    int32_t s;
+    memcpy(&s, bytes + 2, 4);   // r_s(k)'s window
     const int32_t v = wrap_sub(s, prev_s_);
     *accel = wrap_sub(v, prev_v_);
     *velocity = v;
@@ -115,11 +107,7 @@ void Shaper::prepare() {
     }
     // (S - 1) r(k - 1), |S - 1| < 2^-9 (|S - 1| 2^24 < 2^15, a 24-bit mantissa), on the Q24.8
     // window x of r(k - 1) (apply()): floor(x (S - 1) 2^24 / 2^16), Q16.16
-    QGain g;
-    g.mant = sm1_;
-    g.shift = 2;
-    const int32_t e = mac_g(0, prev_x_, g);
-    q_ = add_sat(e, p);
+    q_ = add_sat(mac_g(0, prev_x_, sm1_), p);
 }
 #endif
 

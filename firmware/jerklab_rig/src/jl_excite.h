@@ -105,9 +105,8 @@ private:
     uint8_t n_ JL_ZERO, max_delay_ JL_ZERO, pos_ JL_ZERO;
     int32_t a_[kShaperMaxTaps];        // Q8.24
     uint8_t d_[kShaperMaxTaps];
-    int8_t a0k_ JL_ZERO;               // a0 - 1 = a0k_ + a0b_ (tap_mac()'s split, Q8.24)
-    QGain a0b_ JL_ZERO;
-    int32_t sm1_ JL_ZERO;              // S - 1, Q8.24
+    int32_t a0m1_ JL_ZERO;             // a0 - 1, Q8.24
+    QGain sm1_ JL_ZERO;                // S - 1, Q8.24 as a QGain of shift 2 (Q24.8 x -> Q16.16)
     float span_ JL_ZERO;               // sum |a_i| D + 1 (RUN's range check)
     // a run's state (reset() zeroes it all, from q_ to the end)
     int32_t q_ JL_ZERO;                // Q(k), Q16.16

@@ -425,7 +425,7 @@ static void __attribute__((noinline)) q32_diffs(Q32* a, uint8_t n) {
 // a += y 2^s (s = 0..31): the sinusoid in units 2^(s - 32) into a Q32.32. On the AVR y 2^(s & 7)
 // by four MULs (40 bits, the top one MULSU), added at byte s >> 3 with the carry and the sign
 // through the top.
-static void __attribute__((noinline)) q32_add_units(Q32* a, int32_t y, uint8_t s) {
+void __attribute__((noinline)) q32_add_units(Q32* a, int32_t y, uint8_t s) {
 #if defined(__AVR__)
     // m = 2^(s & 7) by three conditional shifts (the last a nibble swap), the byte s >> 3 added
     // to the pointer, cnt = 3 - (s >> 3) bytes above the five of y 2^(s & 7). Fixed registers,

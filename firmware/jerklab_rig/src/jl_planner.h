@@ -132,6 +132,8 @@ struct Q32 {
 };
 /// a += b (two 32-bit adds and the carry).
 void q32_add(Q32* a, const Q32& b);
+/// a += y 2^s (s = 0..31; y in units 2^(s - 32) of the Q32.32), sign-extended through the top.
+void q32_add_units(Q32* a, int32_t y, uint8_t s);
 /// x * 2^32 (exact from 2^-8 up, truncated toward 0 to 2^-32 below), |x| < 2^31 (saturated beyond).
 Q32 to_q32(float x);
 /// A Q32.32 as a float: its widest 32-bit window (Q16.16 below 2^15, else Q24.8, saturated at 2^23),
