@@ -410,7 +410,8 @@ int run_vectors(const char* path) {
             }
             ss >> N;
             jl::Shaper sh;
-            sh.set(static_cast<uint8_t>(n), a, d);
+            // (the payload's little-endian float32s: the host's own layout)
+            sh.set(static_cast<uint8_t>(n), reinterpret_cast<const uint8_t*>(a), d);
             sh.reset();
             for (unsigned k = 0; k < N; ++k) {
                 std::getline(in, line);

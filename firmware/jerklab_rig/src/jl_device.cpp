@@ -363,22 +363,22 @@ bool Device::handle_v3(const Frame& f) {
     // SET_SHAPER: u8 n_taps, f32 amplitudes[10], u8 delays[10]; taps past n_taps are 0.
     const uint8_t n = p[0];
     if (n > kShaperMaxTaps) { nack(f, kErrBadValue, 0); return true; }
-    float a[kShaperMaxTaps];
+    // (the amplitudes read from the payload here and by set(): no float array on the stack)
     float sum = 0.0f;
     for (uint8_t i = 0; i < kShaperMaxTaps; ++i) {
-        a[i] = get_f32(p + 1 + 4 * i);
-        if (!finite_f(a[i]) || !(jl_fabsf(a[i]) <= kShaperMaxAmplitude) || (i >= n && a[i] != 0.0f)) {
+        const float a = get_f32(p + 1 + 4 * i);
+        if (!finite_f(a) || !(jl_fabsf(a) <= kShaperMaxAmplitude) || (i >= n && a != 0.0f)) {
             nack(f, kErrBadValue, 1);
             return true;
         }
-        sum += a[i];
+        sum += a;
     }
     if (n && !(jl_fabsf(sum - 1.0f) <= 1e-3f)) { nack(f, kErrBadValue, 1); return true; }
     const uint8_t* d = p + 1 + 4 * kShaperMaxTaps;
     for (uint8_t i = 0; i < kShaperMaxTaps; ++i) {
         if (i < n ? d[i] >= kShaperRing : d[i] != 0) { nack(f, kErrBadValue, 2); return true; }
     }
-    shaper_.set(n, a, d);
+    shaper_.set(n, p + 1, d);
     ack(f);
 #endif
     return true;

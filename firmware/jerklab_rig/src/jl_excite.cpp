@@ -41,20 +41,22 @@ static int32_t __attribute__((noinline)) tap_mac(int32_t acc, int32_t x, int32_t
     return mac_g(acc, x, g);
 }
 
-void Shaper::set(uint8_t n, const float* a, const uint8_t* d) {
+void Shaper::set(uint8_t n, const uint8_t* amps, const uint8_t* d) {
     n_ = n;
     max_delay_ = 0;
     int32_t a0 = -kOneQ24, s = -kOneQ24;
     float abs_sum = 0.0f;
     for (uint8_t i = 0; i < n; ++i) {
+        float a;
+        memcpy(&a, amps + 4 * i, 4);
         // round(a 2^24) (halves away from 0): a * 256 is exact, |a| <= 2 (the caller's check)
-        const int32_t m = to_q16(a[i] * 256.0f);
+        const int32_t m = to_q16(a * 256.0f);
         a_[i] = m;
         d_[i] = d[i];
         if (d[i] > max_delay_) max_delay_ = d[i];
         if (d[i] == 0) a0 += m;
         s += m;
-        abs_sum += jl_fabsf(a[i]);
+        abs_sum += jl_fabsf(a);
     }
     a0m1_ = a0;
     sm1_.mant = s;

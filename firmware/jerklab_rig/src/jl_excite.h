@@ -86,8 +86,9 @@ static const float kShaperSpan = 16384.0f;
 /// golden vectors; the bound by tests/test_rig_sequence_shaper.py).
 class Shaper {
 public:
-    /// Quantise the taps of a checked SET_SHAPER payload (n = 0: off) once.
-    void set(uint8_t n, const float* a, const uint8_t* d);
+    /// Quantise the taps of a checked SET_SHAPER payload (n = 0: off) once: `amps` its n
+    /// amplitudes (float32, little-endian as in the frame), `d` their delays.
+    void set(uint8_t n, const uint8_t* amps, const uint8_t* d);
     bool on() const { return n_ != 0; }
     uint8_t max_delay() const { return max_delay_; }
     /// Whether a run whose reference moves at most `v` counts per sample fits the ring's Q16.16
@@ -118,7 +119,7 @@ private:
 /// Built without the shaper (JL_WITH_SHAPER 0): never on, no RAM, calls compile to nothing.
 class Shaper {
 public:
-    void set(uint8_t, const float*, const uint8_t*) {}
+    void set(uint8_t, const uint8_t*, const uint8_t*) {}
     bool on() const { return false; }
     uint8_t max_delay() const { return 0; }
     bool fits(float) const { return true; }
