@@ -56,7 +56,7 @@ void Device::update_pwm_top() {
 // lround(u) clamped to +-pwm_top (jl_fixed's byte-level rounding, no soft float)
 int16_t Device::ticks_to_pwm(float u) const { return round_clamp(u, pwm_top_); }
 
-int16_t Device::volts_to_pwm(float u) const { return ticks_to_pwm(u * pwm_per_volt_); }
+int16_t __attribute__((noinline)) Device::volts_to_pwm(float u) const { return ticks_to_pwm(u * pwm_per_volt_); }
 
 void Device::send(uint8_t type, uint8_t seq, const uint8_t* payload, uint8_t n) {
     hal_.write_frame(type, seq, payload, n);

@@ -69,13 +69,13 @@ bool Shaper::fits(float v) const {
 }
 
 void Shaper::reset() {
-    // the run's state, from q_ on (jl_excite.h): 0
-    memset(&q_, 0, sizeof(*this) - (reinterpret_cast<uint8_t*>(&q_) - reinterpret_cast<uint8_t*>(this)));
+    // the run's state, from q_ to the end of ring_ (jl_excite.h): 0
+    memset(&q_, 0, reinterpret_cast<uint8_t*>(ring_ + kShaperRing) - reinterpret_cast<uint8_t*>(&q_));
     pos_ = 0;
 }
 
 // (out of line: sample_ahead()'s frame, on every run's stack, stays as without the shaper)
-void __attribute__((noinline)) Shaper::apply(Q32* position, int32_t* velocity, int32_t* accel) {
+void Shaper::apply(Q32* position, int32_t* velocity, int32_t* accel) {
     const uint8_t* bytes = reinterpret_cast<const uint8_t*>(position);
     int32_t w;
     memcpy(&w, bytes + 2, 4);   // r(k)'s Q16.16 window (bytes 2..5 of the Q32.32, little-endian)

@@ -97,23 +97,28 @@ public:
     /// Start of a run: the history is the rest position 0.
     void reset();
     /// Shape one sample in place: r(k) -> r_s(k); its velocity and acceleration in Q16.16.
-    void apply(Q32* position, int32_t* velocity, int32_t* accel);
+    /// (noclone: `this` stays a pointer, not the static Device's constant address, so that
+    /// the members are 2-byte displacement loads and stores, not 4-byte absolute ones)
+    __attribute__((noinline, noclone)) void apply(Q32* position, int32_t* velocity, int32_t* accel);
     /// After apply(): Q(k + 1), the delayed taps' part of the next sample.
-    void prepare();
+    __attribute__((noinline, noclone)) void prepare();
 
 private:
     // (JL_ZERO: 0 initially, jl_fixed.h; the shaper is a member of the sketch's static Device)
+    // The scalars first: apply() and prepare() reach them at a displacement below 64 from
+    // `this` (2-byte loads and stores on the AVR), the arrays after them.
     uint8_t n_ JL_ZERO, max_delay_ JL_ZERO, pos_ JL_ZERO;
-    int32_t a_[kShaperMaxTaps];        // Q8.24
-    uint8_t d_[kShaperMaxTaps];
     int32_t a0m1_ JL_ZERO;             // a0 - 1, Q8.24
     QGain sm1_ JL_ZERO;                // S - 1, Q8.24 as a QGain of shift 2 (Q24.8 x -> Q16.16)
     float span_ JL_ZERO;               // sum |a_i| D + 1 (RUN's range check)
-    // a run's state (reset() zeroes it all, from q_ to the end)
+    // a run's state (reset() zeroes it all, from q_ to the end of ring_)
     int32_t q_ JL_ZERO;                // Q(k), Q16.16
-    int32_t ring_[kShaperRing];        // w(j), Q16.16 modulo 2^32
     int32_t prev_x_ JL_ZERO;           // r(k - 1)'s Q24.8 window (saturated)
     int32_t prev_s_ JL_ZERO, prev_v_ JL_ZERO;   // r_s(k - 1)'s window, v(k - 1)
+    int32_t ring_[kShaperRing];        // w(j), Q16.16 modulo 2^32
+    // the taps
+    int32_t a_[kShaperMaxTaps];        // Q8.24
+    uint8_t d_[kShaperMaxTaps];
 };
 #else
 /// Built without the shaper (JL_WITH_SHAPER 0): never on, no RAM, calls compile to nothing.
