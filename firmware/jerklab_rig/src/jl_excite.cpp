@@ -41,22 +41,50 @@ static int32_t __attribute__((noinline)) tap_mac(int32_t acc, int32_t x, int32_t
     return mac_g(acc, x, g);
 }
 
+uint8_t Shaper::load(const uint8_t* p) {
+    const uint8_t n = p[0];
+    if (n > kShaperMaxTaps) return 0;
+    float sum = 0.0f;
+    for (uint8_t i = 0; i < kShaperMaxTaps; ++i) {
+        uint32_t b;
+        memcpy(&b, p + 1 + 4 * i, 4);
+        // |a| <= 2 on the IEEE bits (an integer compare; false for an infinity and a NaN, the
+        // finiteness check), and past n_taps only +-0 (a == 0.0f)
+        if ((b & 0x7FFFFFFFUL) > 0x40000000UL || (i >= n && (b << 1) != 0)) return 1;
+        float a;
+        memcpy(&a, &b, 4);
+        sum += a;
+    }
+    if (n && !(jl_fabsf(sum - 1.0f) <= 1e-3f)) return 1;
+    const uint8_t* d = p + 1 + 4 * kShaperMaxTaps;
+    for (uint8_t i = 0; i < kShaperMaxTaps; ++i) {
+        if (i < n ? d[i] >= kShaperRing : d[i] != 0) return 2;
+    }
+    set(n, p + 1, d);
+    return kShaperOk;
+}
+
 void Shaper::set(uint8_t n, const uint8_t* amps, const uint8_t* d) {
     n_ = n;
     max_delay_ = 0;
     int32_t a0 = -kOneQ24, s = -kOneQ24;
     float abs_sum = 0.0f;
     for (uint8_t i = 0; i < n; ++i) {
+        uint32_t b;
+        memcpy(&b, amps + 4 * i, 4);
         float a;
-        memcpy(&a, amps + 4 * i, 4);
-        // round(a 2^24) (halves away from 0): a * 256 is exact, |a| <= 2 (the caller's check)
-        const int32_t m = to_q16(a * 256.0f);
+        memcpy(&a, &b, 4);
+        abs_sum += jl_fabsf(a);
+        // round(a 2^24) (halves away from 0) as to_q16(a 2^8), |a| <= 2 (the caller's check):
+        // a 2^8 by the exponent (exact); a subnormal or 0 left as it is (to_q16 makes both 0)
+        if (b & 0x7F800000UL) b += 8UL << 23;
+        memcpy(&a, &b, 4);
+        const int32_t m = to_q16(a);
         a_[i] = m;
         d_[i] = d[i];
         if (d[i] > max_delay_) max_delay_ = d[i];
         if (d[i] == 0) a0 += m;
         s += m;
-        abs_sum += jl_fabsf(a);
     }
     a0m1_ = a0;
     sm1_.mant = s;

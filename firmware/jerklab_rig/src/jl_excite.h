@@ -58,6 +58,9 @@ static const uint8_t kShaperRing = JL_SHAPER_RING;   // a power of two; delays u
 static_assert((JL_SHAPER_RING & (JL_SHAPER_RING - 1)) == 0 && JL_SHAPER_RING >= 2 && JL_SHAPER_RING <= 128,
               "JL_SHAPER_RING must be a power of two in 2..128");
 
+/// Shaper::load's answer for a valid payload (else the NACK's parameter index).
+static const uint8_t kShaperOk = 0xFF;
+
 #if JL_WITH_SHAPER
 /// Largest |amplitude| SET_SHAPER takes (a tap's product is round(a) <= 2 saturating adds and one
 /// multiply-accumulate; the delay-0 taps' sum a0 - 1 <= 21 adds).
@@ -86,6 +89,10 @@ static const float kShaperSpan = 16384.0f;
 /// golden vectors; the bound by tests/test_rig_sequence_shaper.py).
 class Shaper {
 public:
+    /// Check a SET_SHAPER payload (u8 n_taps, f32 amplitudes[10], u8 delays[10], taps past
+    /// n_taps 0; PROTOCOL.md) and set() it: kShaperOk, else the NACK's parameter index (0 n_taps,
+    /// 1 an amplitude or their sum, 2 a delay) and the shaper unchanged.
+    uint8_t load(const uint8_t* payload);
     /// Quantise the taps of a checked SET_SHAPER payload (n = 0: off) once: `amps` its n
     /// amplitudes (float32, little-endian as in the frame), `d` their delays.
     void set(uint8_t n, const uint8_t* amps, const uint8_t* d);
@@ -124,6 +131,7 @@ private:
 /// Built without the shaper (JL_WITH_SHAPER 0): never on, no RAM, calls compile to nothing.
 class Shaper {
 public:
+    uint8_t load(const uint8_t*) { return kShaperOk; }
     void set(uint8_t, const uint8_t*, const uint8_t*) {}
     bool on() const { return false; }
     uint8_t max_delay() const { return 0; }
