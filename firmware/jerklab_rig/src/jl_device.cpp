@@ -714,15 +714,14 @@ static float __attribute__((noinline)) q32_counts_to_rad(const Q32& x, float rad
     const int32_t hi = x.hi;
     uint32_t s;
     memcpy(&s, &rad_per_count, 4);
-    uint8_t off = 2;                                            // Q16.16
-    s -= 16UL << 23;
-    if (static_cast<uint32_t>(hi + 32768L) >= 65536UL) {        // Q24.8
-        off = 3;
-        s += 8UL << 23;
-    }
     int32_t w;
-    memcpy(&w, b + off, 4);
-    if (static_cast<uint32_t>(hi + 8388608L) >= 16777216UL) w = hi < 0 ? INT32_MIN : INT32_MAX;
+    s -= 16UL << 23;
+    if (static_cast<uint32_t>(hi + 32768L) >= 65536UL) {        // Q24.8 (saturated)
+        s += 8UL << 23;
+        w = q32_window24(x);
+    } else {                                                    // Q16.16
+        memcpy(&w, b + 2, 4);
+    }
     float scale;
     memcpy(&scale, &s, 4);
     return static_cast<float>(w) * scale;

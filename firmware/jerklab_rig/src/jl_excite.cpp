@@ -34,7 +34,7 @@ static int32_t __attribute__((noinline)) tap_mac(int32_t acc, int32_t x, int32_t
         k = static_cast<int8_t>(-k);
         step = -x;
     }
-    for (; k; --k) acc = add_sat(acc, step);
+    for (; k; --k) acc = add_sat_i(acc, step);
     QGain g;
     g.mant = static_cast<int32_t>(t & 0xFFFFFFL) - 0x800000L;
     g.shift = 3;
@@ -112,11 +112,7 @@ void Shaper::apply(Q32* position, int32_t* velocity, int32_t* accel) {
     ring_[pos] = w;
     pos_ = (pos + 1) & kRingMask;
     // the Q24.8 window of r(k) (bytes 3..6 of the Q32.32), saturated from |r| >= 2^23 counts
-    const int32_t hi = position->hi;
-    int32_t x;
-    memcpy(&x, bytes + 3, 4);
-    if (static_cast<uint32_t>(hi + 0x800000L) >= 0x1000000UL) x = hi < 0 ? INT32_MIN : INT32_MAX;
-    prev_x_ = x;
+    prev_x_ = q32_window24(*position);
     // r_s = r + (a0 - 1) D + Q, the correction in Q16.16 added to the Q32.32 (units 2^-16)
     q32_add_units(position, tap_mac(q_, dk, a0m1_), 16);
     int32_t s;

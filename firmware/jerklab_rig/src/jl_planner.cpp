@@ -397,6 +397,14 @@ void q32_add(Q32* a, const Q32& b) {
 #endif
 }
 
+int32_t __attribute__((noinline)) q32_window24(const Q32& x) {
+    const int32_t hi = x.hi;
+    if (static_cast<uint32_t>(hi + 8388608L) >= 16777216UL) return hi < 0 ? INT32_MIN : INT32_MAX;
+    int32_t w;
+    memcpy(&w, reinterpret_cast<const uint8_t*>(&x) + 3, 4);
+    return w;
+}
+
 // a[i] += a[i + 1] for i = 0 .. n - 1 (n >= 1), in this order (each with the next one's old
 // value): a chunk's forward differences advanced by one sample in one call. On the AVR each
 // add is eight add-with-carry steps in place (Z post-incremented, the addend at Z + 8).
