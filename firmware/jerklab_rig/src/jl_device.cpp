@@ -120,9 +120,15 @@ static uint16_t __attribute__((noinline)) window_samples(uint16_t ms, uint16_t t
     return static_cast<uint16_t>((static_cast<uint32_t>(ms) * 1000u + ts_us - 1u) / ts_us);
 }
 
-// lo < x <= hi for a finite x (one out-of-line copy of the soft-float checks saves flash).
+// lo < x <= hi for a finite x, 0 <= lo <= hi finite (every caller's lo is 0): on the IEEE bits,
+// as non-negative floats order as their bits (a negative x and -0 have the top bit set, a NaN and
+// +inf are above hi's bits), no soft-float compare; one out-of-line copy.
 static bool __attribute__((noinline)) in_range(float x, float lo, float hi) {
-    return finite_f(x) && x > lo && x <= hi;
+    uint32_t b, l, h;
+    memcpy(&b, &x, 4);
+    memcpy(&l, &lo, 4);
+    memcpy(&h, &hi, 4);
+    return b > l && b <= h;
 }
 
 static const float kFloatMax = 3.40282347e38f;
@@ -211,7 +217,7 @@ void Device::handle(const Frame& f) {
         if (!valid_period(ts, cfg_.tick_us)) { nack(f, kErrBadValue, 3); return; }
         if (loop > kLoopVelocity) { nack(f, kErrBadValue, 4); return; }
         if (flags & ~kGainsFeedforward) { nack(f, kErrBadValue, 5); return; }
-        if (!finite_f(gamma) || !(jl_fabsf(gamma) < 1.0f)) { nack(f, kErrBadValue, 6); return; }
+        if (!abs_lt(gamma, 1.0f)) { nack(f, kErrBadValue, 6); return; }
         gamma_ = gamma;
         kpd_ = kpd; kid_ = kid; kdd_ = kdd; Ts_us_ = ts;
         Ts_ = static_cast<float>(ts) * 1e-6f;
@@ -308,7 +314,7 @@ void Device::handle(const Frame& f) {
     case kStep: {
         float v = get_f32(p);
         uint16_t ts = get_u16(p + 4), n = get_u16(p + 6);
-        if (!finite_f(v) || jl_fabsf(v) > max_voltage_) { nack(f, kErrBadValue, 0); return; }
+        if (!abs_le(v, max_voltage_)) { nack(f, kErrBadValue, 0); return; }
         if (!valid_period(ts, cfg_.tick_us)) { nack(f, kErrBadValue, 1); return; }
         if (n < 1) { nack(f, kErrBadValue, 2); return; }
         ack(f);
@@ -622,7 +628,7 @@ void Device::handle_retarget(const Frame& f) {
     if (f.len != kLenRetarget) { nack(f, kErrBadLength); return; }
     if (state_ != kRunning) { nack(f, kErrNotReady); return; }
     const float d = get_f32(f.payload);
-    if (!finite_f(d) || !(jl_fabsf(d) <= 1e6f)) { nack(f, kErrBadValue, 0); return; }
+    if (!abs_le(d, 1e6f)) { nack(f, kErrBadValue, 0); return; }
     ack(f);
     rt_target_ = d;
     rt_active_ = true;

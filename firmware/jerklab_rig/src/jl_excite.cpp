@@ -46,13 +46,10 @@ uint8_t Shaper::load(const uint8_t* p) {
     if (n > kShaperMaxTaps) return 0;
     float sum = 0.0f;
     for (uint8_t i = 0; i < kShaperMaxTaps; ++i) {
-        uint32_t b;
-        memcpy(&b, p + 1 + 4 * i, 4);
-        // |a| <= 2 on the IEEE bits (an integer compare; false for an infinity and a NaN, the
-        // finiteness check), and past n_taps only +-0 (a == 0.0f)
-        if ((b & 0x7FFFFFFFUL) > 0x40000000UL || (i >= n && (b << 1) != 0)) return 1;
         float a;
-        memcpy(&a, &b, 4);
+        memcpy(&a, p + 1 + 4 * i, 4);
+        // |a| <= 2 (finite; jl_fixed.h), and past n_taps only +-0 (|a| <= 0 on the bits)
+        if (!abs_le(a, i < n ? kShaperMaxAmplitude : 0.0f)) return 1;
         sum += a;
     }
     if (n && !(jl_fabsf(sum - 1.0f) <= 1e-3f)) return 1;

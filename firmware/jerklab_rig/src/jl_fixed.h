@@ -5,6 +5,7 @@
 #ifndef JL_FIXED_H
 #define JL_FIXED_H
 #include <stdint.h>
+#include <string.h>
 #include "jl_port.h"
 
 // A member whose initial value is 0: `int32_t x JL_ZERO;`. On the AVR the objects holding such
@@ -28,6 +29,22 @@ struct QGain {
     int32_t mant;
     uint8_t shift;
 };
+
+/// |x| <= m (abs_le) or |x| < m (abs_lt) for a finite m >= 0, false for a NaN or an infinite x
+/// (a finiteness check as well): on the IEEE bits, as non-negative floats order as their bits
+/// (an integer compare, no soft-float call).
+static inline bool abs_le(float x, float m) {
+    uint32_t b, c;
+    memcpy(&b, &x, 4);
+    memcpy(&c, &m, 4);
+    return (b & 0x7FFFFFFFUL) <= c;
+}
+static inline bool abs_lt(float x, float m) {
+    uint32_t b, c;
+    memcpy(&b, &x, 4);
+    memcpy(&c, &m, 4);
+    return (b & 0x7FFFFFFFUL) < c;
+}
 
 /// a + b saturated to [INT32_MIN, INT32_MAX] (overflow: the sum's sign differs from both's).
 int32_t add_sat(int32_t a, int32_t b);
