@@ -65,6 +65,11 @@ BAD_SHAPERS = [
     (P.SetShaper(2, (2.5, -1.5), (0, 3)), 1),  # |a| > SHAPER_MAX_AMPLITUDE (the Q8.24 FIR)
     (P.SetShaper(2, (0.5, 0.5), (0, P.SHAPER_MAX_DELAY + 1)), 2),  # beyond the ring buffer
     (P.SetShaper(1, (1.0,), (0, 4)), 2),  # a delay past n_taps
+    # the firmware checks |a| <= 2 and the zero taps on the IEEE bits: infinities, a tiny tap
+    # past n_taps
+    (P.SetShaper(2, (float("inf"), -1.0), (0, 3)), 1),
+    (P.SetShaper(1, (1.0, float("-inf")), (0, 0)), 1),
+    (P.SetShaper(1, (1.0, 1e-38), (0, 0)), 1),
 ]
 
 
@@ -72,7 +77,12 @@ def test_sequence_and_shaper_checks_firmware_and_virtual_agree(host_driver):
     """Each bad SEQUENCE / SET_SHAPER gets NACK BAD_VALUE naming the same field on the firmware
     core and on the virtual rig; good ones get ACK; HELLO announces capability bits 12, 13."""
     bad = [m for m, _ in BAD_SEQUENCES + BAD_SHAPERS]
-    good = [P.SetShaper(3, (0.25, 0.5, 0.25), (0, 9, 18)), P.SetShaper(0)]
+    good = [
+        P.SetShaper(2, (2.0, -1.0), (0, 3)),  # |a| = 2 exactly
+        P.SetShaper(1, (1.0, -0.0), (0, 0)),  # -0 past n_taps is a zero tap
+        P.SetShaper(3, (0.25, 0.5, 0.25), (0, 9, 18)),
+        P.SetShaper(0),
+    ]
     dev = _host(host_driver)
     dev.send(P.Hello(3))
     for m in bad + good:
@@ -92,7 +102,7 @@ def test_sequence_and_shaper_checks_firmware_and_virtual_agree(host_driver):
                 P.ErrorCode.BAD_VALUE,
                 param,
             ), (m, got)
-        assert r[-2:] == [P.Ack(P.MsgType.SET_SHAPER)] * 2
+        assert r[-len(good) :] == [P.Ack(P.MsgType.SET_SHAPER)] * len(good)
 
 
 @pytest.mark.parametrize("loop", [0, 1])
