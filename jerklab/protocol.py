@@ -81,6 +81,8 @@ __all__ = [
     "SHAPER_MAX_TAPS",
     "SHAPER_MAX_DELAY",
     "SHAPER_SUM_TOL",
+    "SHAPER_MAX_AMPLITUDE",
+    "SHAPER_SPAN_COUNTS",
     "RUN_GAIN_LIMIT",
     "max_run_gain",
     "prbs_bits",
@@ -611,6 +613,13 @@ def max_run_gain(counts_per_rev, pwm_max, supply_voltage, Ts=None):
 SHAPER_MAX_TAPS = 10
 SHAPER_MAX_DELAY = 31
 SHAPER_SUM_TOL = 1e-3
+#: SET_SHAPER: the largest |amplitude| the device takes (its FIR holds a tap in Q8.24 fixed point
+#: as round(a) saturating adds and a 24-bit mantissa; firmware/PROTOCOL.md)
+SHAPER_MAX_AMPLITUDE = 2.0
+#: RUN with a shaper: ``(sum |a_i| * D + 1) * max_velocity * Ts * counts_per_rad`` (D the largest
+#: delay) must be below this many counts, so that the device's ring of Q16.16 reference windows
+#: spans the move exactly (NACK BAD_VALUE, ``param`` 0xFF, otherwise)
+SHAPER_SPAN_COUNTS = 16384.0
 
 
 @dataclass(frozen=True)
@@ -621,8 +630,9 @@ class SetShaper(_Message):
     (``r`` the planned position, ``r(j < 0) = 0``: the start), its velocity and acceleration
     references the backward differences of that shaped position; ``n_taps = 0`` switches the
     shaper off. Up to :data:`SHAPER_MAX_TAPS` taps, delays (samples) up to
-    :data:`SHAPER_MAX_DELAY`; the amplitudes must sum to 1 (within :data:`SHAPER_SUM_TOL`), so
-    the move still ends at its distance. The payload is fixed, 51 bytes:
+    :data:`SHAPER_MAX_DELAY`; the amplitudes, each at most :data:`SHAPER_MAX_AMPLITUDE` in
+    magnitude, must sum to 1 (within :data:`SHAPER_SUM_TOL`), so the move still ends at its
+    distance. The payload is fixed, 51 bytes:
     ``u8 n_taps, f32 amplitudes[10], u8 delays[10]``; the taps past ``n_taps`` are 0.
     ``amplitudes`` and ``delays`` may be given shorter (padded with zeros).
     """

@@ -270,8 +270,44 @@ def _write_vectors(path, rng):
             f"D {bytes(stream).hex() or '-'} {len(frames)} {dec.stats.bad_crc + dec.stats.bad_length}"
         )
         lines += [f"f {f.type} {f.seq} {f.payload.hex() or '-'}" for f in frames]
+    lines += _shaper_vectors(rng)
     path.write_text("\n".join(lines) + "\n")
     return clamp_stats
+
+
+def _shaper_vectors(rng):
+    """SET_SHAPER's fixed-point FIR: random shapers (1-10 taps, delays 0..31 with repeats,
+    amplitudes up to the +-2 limit, some negative) on Q32.32 references in counts (planned moves,
+    random walks, far from 0 where the (S - 1) r term's window saturates), each sample's output
+    as jerklab.rig.virtual.FixedShaper computes it; the C++ must match bit for bit."""
+    from jerklab.rig.virtual import FixedShaper
+
+    lines = []
+    for case in range(24):
+        n = int(rng.integers(1, pr.SHAPER_MAX_TAPS + 1))
+        d = rng.integers(0, pr.SHAPER_MAX_DELAY + 1, n)
+        if case % 4 == 0:
+            d[0] = 0
+        a = np.full(n, 9.0)
+        while np.abs(a).max() > pr.SHAPER_MAX_AMPLITUDE:  # (taps SET_SHAPER takes, summing to 1)
+            a = rng.uniform(-1.0, 1.0, n) * (2.0 if case % 3 == 0 else 0.6)
+            a[0] += 1.0 - a.sum()
+        a = a.astype(np.float32)
+        msg = pr.SetShaper(n, tuple(float(x) for x in a), tuple(int(x) for x in d))
+        N = 150
+        if case % 3 == 0:
+            prof = plan_sine_jerk(float(rng.uniform(0.5, 30.0)), 2e4, 300.0, 100.0)
+            r = prof.sample(np.arange(N) * 0.005).position * 448 / (2 * math.pi)
+        else:
+            r = np.cumsum(rng.normal(0.0, rng.choice([0.01, 3.0, 80.0]), N))
+        if case % 8 == 7:
+            r = r + float(rng.choice([-1.0, 1.0])) * 2.0**23 * rng.uniform(0.5, 3.0)
+        R = [int(round(x * 2.0**32)) for x in r]
+        Rs, v, acc = FixedShaper(msg).run(R)
+        bits = " ".join(f"{int(np.float32(x).view(np.uint32)):08x}" for x in msg.amplitudes)
+        lines.append(f"H {n} {bits} {' '.join(str(x) for x in msg.delays)} {N}")
+        lines += [f"h {x} {y} {p} {q}" for x, y, p, q in zip(R, Rs, v, acc)]
+    return lines
 
 
 def test_host_core_agrees_with_jerklab_on_golden_vectors(host_driver, tmp_path):
@@ -288,7 +324,8 @@ def test_host_core_agrees_with_jerklab_on_golden_vectors(host_driver, tmp_path):
     after each sample, and each one counted as a miss when it never runs; the PID to 2e-5 of the
     output limit (plus float32 time rounding and either side's value at a jump); the fixed-point
     PID (jl_fixed / PidQ, e in counts and u in PWM ticks, Q16.16) to the same plus its
-    quantisation bound (docs/THEORY.md "The fixed-point PID")."""
+    quantisation bound (docs/THEORY.md "The fixed-point PID"); SET_SHAPER's fixed-point FIR
+    (jl::Shaper) bit for bit equal to its Python twin (jerklab.rig.virtual.FixedShaper)."""
     vec = tmp_path / "golden.txt"
     clamp = _write_vectors(vec, np.random.default_rng(20151))
     # the controller vectors saturate in both directions, and on each side of the clamp
@@ -316,6 +353,7 @@ def test_host_core_agrees_with_jerklab_on_golden_vectors(host_driver, tmp_path):
         ("controller_fixed", 400),
         ("encode", 56),
         ("decode", 400),
+        ("shaper", 3600),
     ]:
         records, failures, worst = summary[kind]
         assert records >= minimum and failures == 0 and worst <= 1.0, (kind, summary[kind])

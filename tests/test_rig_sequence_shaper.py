@@ -62,8 +62,14 @@ BAD_SHAPERS = [
     (P.SetShaper(2, (0.5, 0.4), (0, 3)), 1),  # sum 0.9
     (P.SetShaper(2, (0.5, float("nan")), (0, 3)), 1),
     (P.SetShaper(1, (1.0, 0.25), (0, 0)), 1),  # a tap past n_taps
+    (P.SetShaper(2, (2.5, -1.5), (0, 3)), 1),  # |a| > SHAPER_MAX_AMPLITUDE (the Q8.24 FIR)
     (P.SetShaper(2, (0.5, 0.5), (0, P.SHAPER_MAX_DELAY + 1)), 2),  # beyond the ring buffer
     (P.SetShaper(1, (1.0,), (0, 4)), 2),  # a delay past n_taps
+    # the firmware checks |a| <= 2 and the zero taps on the IEEE bits: infinities, a tiny tap
+    # past n_taps
+    (P.SetShaper(2, (float("inf"), -1.0), (0, 3)), 1),
+    (P.SetShaper(1, (1.0, float("-inf")), (0, 0)), 1),
+    (P.SetShaper(1, (1.0, 1e-38), (0, 0)), 1),
 ]
 
 
@@ -71,7 +77,12 @@ def test_sequence_and_shaper_checks_firmware_and_virtual_agree(host_driver):
     """Each bad SEQUENCE / SET_SHAPER gets NACK BAD_VALUE naming the same field on the firmware
     core and on the virtual rig; good ones get ACK; HELLO announces capability bits 12, 13."""
     bad = [m for m, _ in BAD_SEQUENCES + BAD_SHAPERS]
-    good = [P.SetShaper(3, (0.25, 0.5, 0.25), (0, 9, 18)), P.SetShaper(0)]
+    good = [
+        P.SetShaper(2, (2.0, -1.0), (0, 3)),  # |a| = 2 exactly
+        P.SetShaper(1, (1.0, -0.0), (0, 0)),  # -0 past n_taps is a zero tap
+        P.SetShaper(3, (0.25, 0.5, 0.25), (0, 9, 18)),
+        P.SetShaper(0),
+    ]
     dev = _host(host_driver)
     dev.send(P.Hello(3))
     for m in bad + good:
@@ -91,7 +102,7 @@ def test_sequence_and_shaper_checks_firmware_and_virtual_agree(host_driver):
                 P.ErrorCode.BAD_VALUE,
                 param,
             ), (m, got)
-        assert r[-2:] == [P.Ack(P.MsgType.SET_SHAPER)] * 2
+        assert r[-len(good) :] == [P.Ack(P.MsgType.SET_SHAPER)] * len(good)
 
 
 @pytest.mark.parametrize("loop", [0, 1])
@@ -130,6 +141,42 @@ def test_run_refuses_a_gain_the_fixed_point_pid_cannot_hold_firmware_and_virtual
             (P.Ack, None),
         ], runs
         assert runs[0].param == runs[1].param == 0xFF
+
+
+def test_run_refuses_a_shaper_span_the_fixed_point_fir_cannot_hold_firmware_and_virtual_agree(
+    host_driver,
+):
+    """RUN with a shaper: (sum |a| D + 1) max_velocity Ts (counts per rad) must stay below
+    SHAPER_SPAN_COUNTS (the ring's Q16.16 windows): with a fine encoder (2^15 counts a
+    revolution) a 10 m/s-class velocity limit over a 31-sample shaper at 20 ms is refused NACK
+    BAD_VALUE 0xFF on both; the same shaper with a limit below the span is accepted."""
+    Ts_us, cpr = 20000, 32768
+    shaper = P.SetShaper(2, (0.5, 0.5), (0, 31))
+    span = 1.0 * 31 + 1.0
+    w_max = P.SHAPER_SPAN_COUNTS / (span * Ts_us * 1e-6 * cpr / (2 * math.pi))  # rad/s
+    g = pole_placement_pid(32.4, 0.025, 20).discretize(Ts_us * 1e-6)
+    script = [P.SetPlant(32.4, 0.025, 12.0, cpr), shaper]
+    for w in (1.05 * w_max, 0.95 * w_max):
+        script += [
+            P.SetGains(f32(g.kpd), f32(g.kid), f32(g.kdd), Ts_us, 0, 1, 0.0),
+            P.SetLimits(2000.0, 300.0, f32(w), 12.0, 0),
+            P.Plan(f32(0.5), 1),
+            P.Run(0, 1),
+            P.Stop(),
+        ]
+    dev = _host(host_driver)
+    for m in script:
+        dev.send(m)
+    fw, _ = dev.run()
+    fw = [m for _, _, m in fw]
+    py = _virtual_talk(script)
+    R = int(P.MsgType.RUN)
+    for r in (fw, py):
+        runs = [m for m in r if getattr(m, "command", None) == R]
+        assert [(type(m), getattr(m, "param", None)) for m in runs] == [
+            (P.Nack, 0xFF),
+            (P.Ack, None),
+        ], runs
 
 
 def test_run_move_names_a_gain_the_device_cannot_hold(tmp_path):
@@ -288,10 +335,69 @@ def _zv_taps(f_hz, zeta, Ts):
     return h
 
 
+def _fixed_fir_bound(taps, r):
+    """The fixed-point FIR's bound (counts) against the exact FIR with the same float32 taps:
+    the Q8.24 taps' rounding n 2^-25 max|r| plus (2 sum|a| + n + 4) 2^-16 for the Q16.16
+    windows' truncation and each product's floor (jerklab.rig.virtual.FixedShaper)."""
+    a = np.abs(np.asarray(taps, float))
+    n = np.count_nonzero(a)
+    return n * 2.0**-25 * np.max(np.abs(r)) + (2 * a.sum() + n + 4) * 2.0**-16
+
+
+def test_fixed_point_fir_within_its_bound_of_the_exact_fir():
+    """The device's fixed-point FIR (FixedShaper, bit for bit the firmware's: test_firmware's
+    golden vectors) against numpy's convolution of the reference with the float32 taps, in
+    float64: over random shapers (up to 10 taps, delays to 31, amplitudes to +-2) on planned
+    moves and random walks within the RUN span check, the shaped position is within
+    n 2^-25 max|r| + (2 sum|a| + n + 4) 2^-16 counts of it, its Q16.16 velocity within twice that
+    plus 2^-16 of the exact backward difference and its acceleration within four times plus
+    2^-15; measured, the error is a fraction of the bound (printed)."""
+    from jerklab.rig.virtual import FixedShaper
+
+    rng = np.random.default_rng(7)
+    worst = 0.0
+    for case in range(30):
+        n = int(rng.integers(1, P.SHAPER_MAX_TAPS + 1))
+        d = rng.integers(0, P.SHAPER_MAX_DELAY + 1, n)
+        a = np.full(n, 9.0)
+        while np.abs(a).max() > P.SHAPER_MAX_AMPLITUDE:  # (taps SET_SHAPER takes, summing to 1)
+            a = rng.uniform(-1.0, 1.0, n) * (2.0 if case % 3 == 0 else 0.5)
+            a[0] += 1.0 - a.sum()
+        a = a.astype(np.float32)
+        msg = P.SetShaper(n, tuple(float(x) for x in a), tuple(int(x) for x in d))
+        shp = FixedShaper(msg)
+        vmax = 0.9 * P.SHAPER_SPAN_COUNTS / shp.span  # counts per sample: RUN's check passes
+        assert shp.fits(vmax)
+        N = 120
+        if case % 2:
+            dist = float(rng.uniform(0.2, 1.0)) * vmax * 60
+            prof = plan_sine_jerk(dist, 1e9, vmax**2 / dist * 8, vmax)  # (time unit: samples)
+            r = prof.sample(np.arange(N) - float(rng.integers(0, 20))).position
+        else:  # (drifting: far from 0 by the end)
+            r = np.cumsum(np.clip(rng.normal(vmax / 2, vmax / 3, N), -vmax, vmax))
+        R = np.array([int(round(x * 2.0**32)) for x in r], dtype=object)
+        Rs, v, acc = shp.run(R)
+        rin = np.array([float(x) for x in R]) / 2.0**32
+        taps = np.zeros(P.SHAPER_MAX_DELAY + 1)
+        np.add.at(taps, d, a.astype(float))
+        exact = np.convolve(taps, rin)[:N]
+        B = _fixed_fir_bound(a, rin)
+        err = np.abs(np.array([float(x) for x in Rs]) / 2.0**32 - exact)
+        assert err.max() <= B, (case, err.max(), B)
+        ev = np.diff(np.r_[0.0, exact])
+        assert np.max(np.abs(np.array(v) / 65536.0 - ev)) <= 2 * B + 2.0**-16, case
+        ea = np.diff(np.r_[0.0, ev])
+        assert np.max(np.abs(np.array(acc) / 65536.0 - ea)) <= 4 * B + 2.0**-15, case
+        worst = max(worst, err.max() / B)
+    print(f"fixed-point FIR: worst error {worst:.2f} of its bound")
+    assert worst > 0.01  # (the comparison sees the quantisation, it is not vacuous)
+
+
 def test_shaped_run_firmware_virtual_and_numpy_agree(host_driver):
     """A shaped closed-loop run: the firmware core's TELEMETRY reference, the virtual rig's and
-    the numpy convolution of the planned profile agree sample by sample (float32), the run
-    lasts the shaper's last delay longer, and both devices end at the distance."""
+    the numpy convolution of the planned profile agree sample by sample (within 2e-6 of the
+    distance: the fixed-point FIR on the float32 profile), the run lasts the shaper's last
+    delay longer, and both devices end at the distance."""
     Ts = 0.005
     taps = _zv_taps(7.0, 0.05, Ts)
     delays = np.flatnonzero(taps)

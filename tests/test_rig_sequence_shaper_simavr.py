@@ -155,7 +155,8 @@ def test_prbs_on_the_simulated_uno_bit_for_bit(flex_uno):
 
 def test_shaped_reference_on_the_simulated_uno(flex_uno):
     """SET_SHAPER on the ELF: its reference is the numpy FIR of the planned profile, sample by
-    sample (float32), and the move lasts the last delay longer."""
+    sample (the fixed-point FIR, within 2e-6 of the distance), and the move lasts the last
+    delay longer."""
     uno, rig = flex_uno
     taps = _taps("ZVD", 9.0, 0.05)
     rig.set_shaper(taps)

@@ -26,6 +26,11 @@
 //   F type seq PAYLOADHEX FRAMEHEX   encode check (PAYLOADHEX '-' = empty)
 //   D STREAMHEX nframes dropped      decode a byte stream; then nframes lines
 //                                    "f type seq PAYLOADHEX" with the frames expected in order
+//   H n A0..A9 d0..d9 N              SET_SHAPER's fixed-point FIR (jl::Shaper; A the float32
+//                                    amplitudes' bits in hex); then N lines "h R Rs v a": the
+//                                    Q32.32 reference in, the shaped one, its Q16.16 velocity
+//                                    and acceleration out (jerklab.rig.virtual.FixedShaper:
+//                                    bit for bit)
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -94,6 +99,7 @@ int run_vectors(const char* path) {
     if (!in) { std::fprintf(stderr, "cannot open %s\n", path); return 2; }
     Stat plan("plan"), smp("sample"), stp("stepper"), ctl("controller"), ctlq("controller_fixed"), enc("encode"), dec("decode");
     Stat pulse("pulse");         // the pulses' integer sinusoids (recurrence, eps, range)
+    Stat shp("shaper");          // the fixed-point FIR against its Python twin, exactly
     jl::Pid pid;
     jl::PidQ pidq;               // the fixed-point law, in "counts" and "ticks" (scales below)
     double q_se = 1.0, q_su = 1.0, q_kabs = 0.0, q_kid = 0.0, q_acc = 0.0, q_gamma = 0.0, q_emax = 0.0;
@@ -386,13 +392,53 @@ int run_vectors(const char* path) {
             dec.check(got != want, 0.5, where.str() + " frames differ (" + std::to_string(got.size()) + " decoded, " + std::to_string(want.size()) + " expected)");
             dec.check(std::fabs((double)parser.dropped() - (double)dropped), 0.5,
                       where.str() + " dropped " + std::to_string(parser.dropped()) + " != " + std::to_string(dropped));
+        } else if (kind == "H") {
+            unsigned n, N;
+            float a[jl::kShaperMaxTaps];
+            uint8_t d[jl::kShaperMaxTaps];
+            ss >> n;
+            for (unsigned i = 0; i < jl::kShaperMaxTaps; ++i) {
+                std::string h;
+                ss >> h;
+                const uint32_t bits = static_cast<uint32_t>(std::stoul(h, nullptr, 16));
+                std::memcpy(&a[i], &bits, 4);
+            }
+            for (unsigned i = 0; i < jl::kShaperMaxTaps; ++i) {
+                unsigned v;
+                ss >> v;
+                d[i] = static_cast<uint8_t>(v);
+            }
+            ss >> N;
+            jl::Shaper sh;
+            // (the payload's little-endian float32s: the host's own layout)
+            sh.set(static_cast<uint8_t>(n), reinterpret_cast<const uint8_t*>(a), d);
+            sh.reset();
+            for (unsigned k = 0; k < N; ++k) {
+                std::getline(in, line);
+                ++lineno;
+                std::istringstream ls(line);
+                std::string h;
+                long long R, Rs;
+                long v, acc;
+                ls >> h >> R >> Rs >> v >> acc;
+                jl::Q32 q;
+                q.lo = static_cast<uint32_t>(static_cast<unsigned long long>(R));
+                q.hi = static_cast<int32_t>(R >> 32);
+                int32_t gv, ga;
+                sh.apply(&q, &gv, &ga);
+                sh.prepare();
+                const long long got = static_cast<long long>((static_cast<unsigned long long>(static_cast<uint32_t>(q.hi)) << 32) | q.lo);
+                std::ostringstream w;
+                w << path << ":" << lineno << " k=" << k << " Rs " << got << " v " << gv << " a " << ga;
+                shp.check(got != Rs || gv != v || ga != acc, 0.5, w.str());
+            }
         } else {
             std::fprintf(stderr, "%s: unknown record %s\n", where.str().c_str(), kind.c_str());
             return 2;
         }
     }
     int fail = 0;
-    for (Stat* s : {&plan, &smp, &stp, &pulse, &ctl, &ctlq, &enc, &dec}) {
+    for (Stat* s : {&plan, &smp, &stp, &pulse, &ctl, &ctlq, &enc, &dec, &shp}) {
         std::printf("%s records=%ld failures=%ld worst_error_over_tol=%.3g at %s\n", s->name, s->records,
                     s->failures, s->worst, s->worst_what.empty() ? "-" : s->worst_what.c_str());
         if (s->failures) fail = 1;

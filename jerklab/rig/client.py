@@ -1074,6 +1074,11 @@ class Rig:
                     f"({P.SHAPER_MAX_DELAY * Ts:g} s): a longer Ts or a faster mode"
                 )
             amps = taps[delays]
+            if np.abs(amps).max(initial=0.0) > P.SHAPER_MAX_AMPLITUDE:
+                raise ValueError(
+                    f"shaper taps must be at most {P.SHAPER_MAX_AMPLITUDE:g} in magnitude (the "
+                    f"device's fixed-point FIR), got {np.abs(amps).max():.6g}"
+                )
             if not abs(amps.sum() - 1.0) <= P.SHAPER_SUM_TOL:
                 raise ValueError(
                     f"shaper taps must sum to 1 (the move must end at its distance), got "

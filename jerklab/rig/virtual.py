@@ -20,8 +20,8 @@ plan (a plan of more than ``protocol.MAX_PLAN_SAMPLES`` samples is refused with 
 TOO_LONG, as on the firmware).
 
 Protocol version 3: SEQUENCE (the PRBS of ``jerklab.protocol.prbs_bits``, the commanded volts in
-TELEMETRY's reference) and SET_SHAPER (the firmware's FIR on the run reference, in float32 in the
-firmware's order of operations, velocity and acceleration by backward differences). The motor
+TELEMETRY's reference) and SET_SHAPER (the firmware's fixed-point FIR on the run reference,
+bit for bit: :class:`FixedShaper`; velocity and acceleration by backward differences). The motor
 may be a ``jerklab.plant.FlexibleDCMotor`` (state ``[θ_m, ω_m, θ_l, ω_l]``, the encoder on the
 motor; ``connect(device=FlexibleDCMotor())``).
 
@@ -72,6 +72,141 @@ def _f32(x: float) -> float:
 
 def _finite(x) -> bool:
     return isinstance(x, float) and math.isfinite(x)
+
+
+_I32_MIN, _I32_MAX = -(1 << 31), (1 << 31) - 1
+
+
+def _sat32(x: int) -> int:
+    return _I32_MIN if x < _I32_MIN else (_I32_MAX if x > _I32_MAX else x)
+
+
+def _wrap32(x: int) -> int:
+    return ((x + (1 << 31)) & 0xFFFFFFFF) - (1 << 31)
+
+
+def _mac(acc: int, x: int, mant: int, shift: int) -> int:
+    """The firmware's ``mac_g``: acc + floor(x mant / 2^(8 shift)), each saturated to int32."""
+    return _sat32(acc + _sat32((x * mant) >> (8 * shift)))
+
+
+def _tap_mac(acc: int, x: int, m: int) -> int:
+    """acc + floor(a x) for the Q8.24 tap ``m`` as the firmware's ``tap_mac``: round(a) = k
+    saturating adds of x, then the 24-bit remainder ``m - k 2^24`` by :func:`_mac` at shift 3."""
+    t = m + (1 << 23)
+    k = t >> 24
+    step = x if k >= 0 else _wrap32(-x)
+    for _ in range(abs(k)):
+        acc = _sat32(acc + step)
+    return _mac(acc, x, (t & 0xFFFFFF) - (1 << 23), 3)
+
+
+def _q824(a: float) -> int:
+    """round(a 2^24), halves away from 0 (the firmware's ``to_q16(a * 256)``), for float32 a."""
+    x = abs(float(a)) * 16777216.0
+    return int(math.copysign(math.floor(x + 0.5), a)) if x >= 0.5 else 0
+
+
+class FixedShaper:
+    """Bit-exact twin of the firmware's fixed-point SET_SHAPER FIR (``jl::Shaper``, jl_excite.h).
+
+    The reference ``r`` in encoder counts as a Q32.32 integer (``R = r 2^32``), the taps in
+    Q8.24 (``round(a 2^24)``, converted once by :meth:`set`), the ring of the last 32 samples as
+    Q16.16 windows modulo 2^32. With ``a0`` the sum of the delay-0 taps and ``S`` of all taps
+    (exact integer sums of the quantised taps), the shaped reference is
+
+    ``r_s(k) = r(k) + (a0 - 1) D(k) + Q(k)``, ``D(k) = w(k) - w(k-1)``,
+    ``Q(k) = (S - 1) r(k-1) + sum_{d_i > 1} a_i (w(k - d_i) - w(k-1))``,
+
+    i.e. ``sum_i a_i r(k - d_i)`` with the quantised taps, each product floored to 2^-16 counts;
+    its velocity and acceleration are Q16.16 backward differences (counts per sample, per
+    sample^2). Against the FIR with the float32 taps the error is at most
+    ``n 2^-25 max|r| + (2 sum|a_i| + n + 4) 2^-16`` counts (``n`` taps) while RUN's span check
+    holds (:data:`jerklab.protocol.SHAPER_SPAN_COUNTS`: the reference then moves less than 2^14
+    counts within the largest delay).
+
+    Parameters
+    ----------
+    msg : jerklab.protocol.SetShaper, optional
+        The shaper's taps (:meth:`set`); none: no taps until :meth:`set`.
+    """
+
+    RING = P.SHAPER_MAX_DELAY + 1
+
+    def __init__(self, msg=None):
+        self.taps = []  # (Q8.24 amplitude, delay)
+        self.a0m1 = self.sm1 = 0
+        self.span = 1.0
+        if msg is not None:
+            self.set(msg)
+        self.reset()
+
+    def set(self, msg) -> None:
+        """Quantise the taps of a (checked) SET_SHAPER message, as the firmware's ``set``."""
+        f32 = np.float32
+        n = msg.n_taps
+        self.taps = [(_q824(f32(a)), int(d)) for a, d in zip(msg.amplitudes[:n], msg.delays[:n])]
+        self.a0m1 = sum(m for m, d in self.taps if d == 0) - (1 << 24)
+        self.sm1 = sum(m for m, _ in self.taps) - (1 << 24)
+        abs_sum = f32(0.0)
+        for a in msg.amplitudes[:n]:
+            abs_sum = f32(abs_sum + f32(abs(f32(a))))
+        D = max((d for _, d in self.taps), default=0)
+        self.span = float(f32(f32(abs_sum * f32(D)) + f32(1.0)))
+
+    def fits(self, counts_per_sample: float) -> bool:
+        """RUN's range check: the reference moves at most ``counts_per_sample`` a sample."""
+        return bool(np.float32(self.span) * np.float32(counts_per_sample) < P.SHAPER_SPAN_COUNTS)
+
+    def reset(self) -> None:
+        """Start of a run: the history is the rest position 0."""
+        self.ring = [0] * self.RING
+        self.pos = 0
+        self.q = 0
+        self.prev_r = 0
+        self.prev_s = 0
+        self.prev_v = 0
+
+    def apply(self, R: int):
+        """Shape the Q32.32 reference ``R`` of the next sample; return ``(R_s, v, a)`` (Q32.32
+        counts, Q16.16 counts per sample and per sample^2). Call :meth:`prepare` after it."""
+        N = self.RING
+        w = _wrap32(R >> 16)
+        dk = _wrap32(w - self.ring[(self.pos - 1) % N])
+        self.ring[self.pos] = w
+        self.pos = (self.pos + 1) % N
+        self.prev_r = R
+        c = _tap_mac(self.q, dk, self.a0m1)
+        Rs = R + (c << 16)
+        s = _wrap32(Rs >> 16)
+        v = _wrap32(s - self.prev_s)
+        a = _wrap32(v - self.prev_v)
+        self.prev_s, self.prev_v = s, v
+        return Rs, v, a
+
+    def prepare(self) -> None:
+        """Q(k + 1), the delayed taps' part of the next sample (the firmware's idle time)."""
+        N = self.RING
+        w1 = self.ring[(self.pos - 1) % N]
+        p = 0
+        for m, d in self.taps:
+            if d > 1:
+                p = _tap_mac(p, _wrap32(self.ring[(self.pos - d) % N] - w1), m)
+        hi = self.prev_r >> 32
+        x = _wrap32(self.prev_r >> 24)  # the Q24.8 window, saturated from |r| >= 2^23 counts
+        if not -(1 << 23) <= hi < (1 << 23):
+            x = _I32_MIN if hi < 0 else _I32_MAX
+        e = _mac(0, x, self.sm1, 2)
+        self.q = _sat32(e + p)
+
+    def run(self, R):
+        """Shape a whole sequence of Q32.32 references from rest: ``(R_s, v, a)`` lists."""
+        self.reset()
+        out = []
+        for r in R:
+            out.append(self.apply(int(r)))
+            self.prepare()
+        return [list(x) for x in zip(*out)] if out else [[], [], []]
 
 
 class VirtualDevice:
@@ -446,6 +581,26 @@ class VirtualDevice:
         )
         if any(abs(k) >= limit for k in (g.kpd, g.kid, g.kdd)):
             return P.ErrorCode.BAD_VALUE, 0xFF
+        if self.shaper.n_taps:
+            # the firmware's fixed-point FIR (FixedShaper): the reference's span over the ring,
+            # and the feedforward of its differences as gains below 2^23 PWM ticks per count
+            # per sample (^2)
+            f32 = np.float32
+            ts = f32(f32(g.Ts_us) * f32(1e-6))
+            rpc = f32(f32(2.0 * math.pi) / f32(self.plant.counts_per_rev))
+            shp = FixedShaper(self.shaper)
+            if not shp.fits(float(f32(f32(f32(self.limits.max_velocity) * ts) / rpc))):
+                return P.ErrorCode.BAD_VALUE, 0xFF
+            if g.flags & P.GAINS_FEEDFORWARD:
+                h = (
+                    float(f32(self.pwm_max) / f32(self.plant.supply_voltage))
+                    * float(rpc)
+                    / float(ts)
+                )
+                kv = h / self.plant.K
+                ka = h * self.plant.tau / self.plant.K / float(ts)
+                if not (abs(kv) < P.RUN_GAIN_LIMIT and abs(ka) < P.RUN_GAIN_LIMIT):
+                    return P.ErrorCode.BAD_VALUE, 0xFF
         loop = "velocity" if g.loop == P.LoopType.VELOCITY else "position"
         dg = DiscreteGains(g.kpd, g.kid, g.kdd, Ts, gamma=g.gamma, loop=loop)
         ff = Feedforward(self.plant.K, self.plant.tau) if g.flags & P.GAINS_FEEDFORWARD else None
@@ -467,11 +622,8 @@ class VirtualDevice:
         self._shp_delay = delay  # SET_SHAPER: the move lasts the last delay longer
         self._n_profile = n + delay
         self._n_total = n + delay + m.settle_samples
-        self._ring = np.zeros(P.SHAPER_MAX_DELAY + 1, dtype=np.float32)
-        self._ring_pos = 0
-        self._shp_prev = (np.float32(0.0), np.float32(0.0))
-        ts_f32 = np.float32(np.float32(g.Ts_us) * np.float32(1e-6))  # the firmware's Ts_
-        self._inv_ts = np.float32(np.float32(1.0) / ts_f32)
+        self._fir = FixedShaper(self.shaper)  # (the history at rest: reset)
+        self._shp_Ts = g.Ts_us * 1e-6
         self._ref_k0 = 0
         self._ref = None  # block of samples from _ref_k0 (see _reference)
         self._decimation = m.decimation
@@ -525,7 +677,8 @@ class VirtualDevice:
             return P.ErrorCode.BAD_VALUE, 0
         total = np.float32(0.0)
         for i, a in enumerate(m.amplitudes):
-            if not (_finite(float(a))) or (i >= n and a != 0.0):
+            bad = not _finite(float(a)) or not abs(_f32(float(a))) <= P.SHAPER_MAX_AMPLITUDE
+            if bad or (i >= n and a != 0.0):
                 return P.ErrorCode.BAD_VALUE, 1
             total = np.float32(total + np.float32(a))
         if n and not abs(float(np.float32(total - np.float32(1.0)))) <= _f32(P.SHAPER_SUM_TOL):
@@ -542,27 +695,14 @@ class VirtualDevice:
         return max(m.delays[: m.n_taps], default=0)
 
     def _shape(self, position):
-        """The firmware's ``Shaper`` in float32: the FIR of the position reference (the delayed
-        taps summed in index order, then ``a0 * p + that``, a0 the delay-0 taps' sum), velocity
-        and acceleration as its backward differences (PROTOCOL.md SET_SHAPER)."""
-        f32 = np.float32
-        m = self.shaper
-        ring, pos = self._ring, self._ring_pos
-        partial = f32(0.0)
-        a0 = f32(0.0)
-        for a, d in zip(m.amplitudes[: m.n_taps], m.delays[: m.n_taps]):
-            if d:
-                partial = f32(partial + f32(f32(a) * ring[(pos - d) % len(ring)]))
-            else:
-                a0 = f32(a0 + f32(a))
-        p = f32(position)
-        ring[pos] = p
-        self._ring_pos = (pos + 1) % len(ring)
-        r = f32(f32(a0 * p) + partial)
-        v = f32(f32(r - self._shp_prev[0]) * self._inv_ts)
-        acc = f32(f32(v - self._shp_prev[1]) * self._inv_ts)
-        self._shp_prev = (r, v)
-        return float(r), float(v), float(acc)
+        """The firmware's ``Shaper`` (:class:`FixedShaper`, bit for bit on the Q32.32 reference in
+        counts): the shaped position (rad), its velocity (rad/s) and acceleration (rad/s^2)
+        from the Q16.16 backward differences (PROTOCOL.md SET_SHAPER)."""
+        cpr = self.plant.counts_per_rev / (2.0 * math.pi)
+        Rs, v, a = self._fir.apply(int(round(position * cpr * 4294967296.0)))
+        self._fir.prepare()
+        Ts = self._shp_Ts
+        return Rs / 4294967296.0 / cpr, v / 65536.0 / cpr / Ts, a / 65536.0 / cpr / (Ts * Ts)
 
     def _cmd_Step(self, m):
         checks = [

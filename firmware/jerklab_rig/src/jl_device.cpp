@@ -6,7 +6,8 @@ namespace jl {
 
 static float q32_counts_to_rad(const Q32& x, float rad_per_count);
 
-static const char kName[16] = {'j', 'e', 'r', 'k', 'l', 'a', 'b', '-', 'u', 'n', 'o', 0, 0, 0, 0, 0};
+// (constant tables in flash: RAM is the Uno's scarcest resource)
+static const char kName[16] JL_PROGMEM = {'j', 'e', 'r', 'k', 'l', 'a', 'b', '-', 'u', 'n', 'o', 0, 0, 0, 0, 0};
 
 // (out of line, `this` a pointer: the members' initial values as indexed stores, about half
 // the flash of the absolute stores of a static object's inlined initialisation)
@@ -55,7 +56,7 @@ void Device::update_pwm_top() {
 // lround(u) clamped to +-pwm_top (jl_fixed's byte-level rounding, no soft float)
 int16_t Device::ticks_to_pwm(float u) const { return round_clamp(u, pwm_top_); }
 
-int16_t Device::volts_to_pwm(float u) const { return ticks_to_pwm(u * pwm_per_volt_); }
+int16_t __attribute__((noinline)) Device::volts_to_pwm(float u) const { return ticks_to_pwm(u * pwm_per_volt_); }
 
 void Device::send(uint8_t type, uint8_t seq, const uint8_t* payload, uint8_t n) {
     hal_.write_frame(type, seq, payload, n);
@@ -119,9 +120,15 @@ static uint16_t __attribute__((noinline)) window_samples(uint16_t ms, uint16_t t
     return static_cast<uint16_t>((static_cast<uint32_t>(ms) * 1000u + ts_us - 1u) / ts_us);
 }
 
-// lo < x <= hi for a finite x (one out-of-line copy of the soft-float checks saves flash).
+// lo < x <= hi for a finite x, 0 <= lo <= hi finite (every caller's lo is 0): on the IEEE bits,
+// as non-negative floats order as their bits (a negative x and -0 have the top bit set, a NaN and
+// +inf are above hi's bits), no soft-float compare; one out-of-line copy.
 static bool __attribute__((noinline)) in_range(float x, float lo, float hi) {
-    return finite_f(x) && x > lo && x <= hi;
+    uint32_t b, l, h;
+    memcpy(&b, &x, 4);
+    memcpy(&l, &lo, 4);
+    memcpy(&h, &hi, 4);
+    return b > l && b <= h;
 }
 
 static const float kFloatMax = 3.40282347e38f;
@@ -156,11 +163,11 @@ void __attribute__((noinline)) Device::plan_frame(const Frame& f) {
 void Device::handle(const Frame& f) {
     if (handle_v3(f) || handle_v4(f)) return;
     const uint8_t* p = f.payload;
-    static const uint8_t kLen[10] = {0, kLenHello, kLenSetPlant, kLenSetGains, kLenSetLimits,
+    static const uint8_t kLen[10] JL_PROGMEM = {0, kLenHello, kLenSetPlant, kLenSetGains, kLenSetLimits,
                                      kLenPlan, kLenRun, kLenStop, kLenStep, kLenHeartbeat};
     if (f.type == kRetarget) { handle_retarget(f); return; }
     if (f.type == 0 || f.type > kHeartbeat) { nack(f, kErrUnknownType); return; }
-    if (f.len != kLen[f.type]) { nack(f, kErrBadLength); return; }
+    if (f.len != JL_READ_U8(&kLen[f.type])) { nack(f, kErrBadLength); return; }
     const bool active = state_ != kIdle;
     if (active && f.type != kHello && f.type != kStop && f.type != kHeartbeat) {
         nack(f, kErrBusy);
@@ -183,7 +190,7 @@ void Device::handle(const Frame& f) {
         put_u16(r + 4, caps);
         put_u16(r + 6, cfg_.tick_us);
         put_u16(r + 8, cfg_.pwm_max);
-        memcpy(r + 10, kName, 16);
+        jl_memcpy_P(r + 10, kName, 16);
         send(kHelloReply, f.seq, r, kLenHelloReply);
         return;
     }
@@ -210,7 +217,7 @@ void Device::handle(const Frame& f) {
         if (!valid_period(ts, cfg_.tick_us)) { nack(f, kErrBadValue, 3); return; }
         if (loop > kLoopVelocity) { nack(f, kErrBadValue, 4); return; }
         if (flags & ~kGainsFeedforward) { nack(f, kErrBadValue, 5); return; }
-        if (!finite_f(gamma) || !(jl_fabsf(gamma) < 1.0f)) { nack(f, kErrBadValue, 6); return; }
+        if (!abs_lt(gamma, 1.0f)) { nack(f, kErrBadValue, 6); return; }
         gamma_ = gamma;
         kpd_ = kpd; kid_ = kid; kdd_ = kdd; Ts_us_ = ts;
         Ts_ = static_cast<float>(ts) * 1e-6f;
@@ -256,10 +263,22 @@ void Device::handle(const Frame& f) {
         if (!gains_ok_ || !plan_ok_) { nack(f, kErrNotReady); return; }
         // The loop runs in encoder counts and PWM ticks (saves two float multiplies a sample):
         // the gains take rad per count (and 1/Ts in the velocity loop) and PWM ticks per volt.
-        const float g = (loop_ == kLoopVelocity ? rad_per_count_ / Ts_ : rad_per_count_) * pwm_per_volt_;
+        const float g_pos = rad_per_count_ * pwm_per_volt_;
+        const float g = loop_ == kLoopVelocity ? g_pos / Ts_ : g_pos;
         if (!pid_.set(kpd_ * g, kid_ * g, kdd_ * g, gamma_, max_voltage_ * pwm_per_volt_)) {
             nack(f, kErrBadValue);
             return;
+        }
+        if (shaper_.on()) {
+            // SET_SHAPER's fixed-point FIR (jl_excite.h): the reference moves at most
+            // max_velocity Ts counts a sample, within the ring's Q16.16 windows; the
+            // feedforward of its differences as gains of PWM ticks per count / sample (^2)
+            const float h = g_pos / Ts_;
+            if (!shaper_.fits(max_velocity_ * Ts_ / rad_per_count_) ||
+                (use_ff_ && (!to_qgain(ff_.beta() * h, &shp_kv_) || !to_qgain(ff_.alpha() * h / Ts_, &shp_ka_)))) {
+                nack(f, kErrBadValue);
+                return;
+            }
         }
         ack(f);
         pid_.reset();
@@ -274,12 +293,10 @@ void Device::handle(const Frame& f) {
             stepper_.start(plan_, Ts_, use_ff_ ? ff_.alpha() * pwm_per_volt_ : 0.0f,
                            use_ff_ ? ff_.beta() * pwm_per_volt_ : 0.0f, cpr, cpr * Ts_);
             ufq_ = 0;
-            ref_v_ = 0.0f;
+            ref_vq_ = 0;
             // SET_SHAPER: the FIR runs on the reference in counts, its differences per sample;
             // the feedforward in PWM ticks from them: uf = ka (v_k - v_{k-1}) + kv v_k
-            shaper_.reset(1.0f);
-            shp_kv_ = use_ff_ ? ff_.beta() * pwm_per_volt_ / (cpr * Ts_) : 0.0f;
-            shp_ka_ = use_ff_ ? ff_.alpha() * pwm_per_volt_ / (cpr * Ts_ * Ts_) : 0.0f;
+            shaper_.reset();
             sample_ahead();                     // the reference of sample 0
             rep_.ref = q32_counts_to_rad(refq_, rad_per_count_);   // (then in background())
             shaper_.prepare();                  // (then in background() after each step)
@@ -297,7 +314,7 @@ void Device::handle(const Frame& f) {
     case kStep: {
         float v = get_f32(p);
         uint16_t ts = get_u16(p + 4), n = get_u16(p + 6);
-        if (!finite_f(v) || jl_fabsf(v) > max_voltage_) { nack(f, kErrBadValue, 0); return; }
+        if (!abs_le(v, max_voltage_)) { nack(f, kErrBadValue, 0); return; }
         if (!valid_period(ts, cfg_.tick_us)) { nack(f, kErrBadValue, 1); return; }
         if (n < 1) { nack(f, kErrBadValue, 2); return; }
         ack(f);
@@ -350,21 +367,9 @@ bool Device::handle_v3(const Frame& f) {
 #endif
 #if JL_WITH_SHAPER
     // SET_SHAPER: u8 n_taps, f32 amplitudes[10], u8 delays[10]; taps past n_taps are 0.
-    const uint8_t n = p[0];
-    if (n > kShaperMaxTaps) { nack(f, kErrBadValue, 0); return true; }
-    float a[kShaperMaxTaps];
-    float sum = 0.0f;
-    for (uint8_t i = 0; i < kShaperMaxTaps; ++i) {
-        a[i] = get_f32(p + 1 + 4 * i);
-        if (!finite_f(a[i]) || (i >= n && a[i] != 0.0f)) { nack(f, kErrBadValue, 1); return true; }
-        sum += a[i];
-    }
-    if (n && !(jl_fabsf(sum - 1.0f) <= 1e-3f)) { nack(f, kErrBadValue, 1); return true; }
-    const uint8_t* d = p + 1 + 4 * kShaperMaxTaps;
-    for (uint8_t i = 0; i < kShaperMaxTaps; ++i) {
-        if (i < n ? d[i] >= kShaperRing : d[i] != 0) { nack(f, kErrBadValue, 2); return true; }
-    }
-    shaper_.set(n, a, d);
+    // Checked and quantised by Shaper::load (out of line: handle()'s frame stays small).
+    const uint8_t bad = shaper_.load(p);
+    if (bad != kShaperOk) { nack(f, kErrBadValue, bad); return true; }
     ack(f);
 #endif
     return true;
@@ -536,7 +541,7 @@ bool Device::control() {
                 } else {
                     // Velocity loop (Stojčić §4B): counts over the last sample; y(-1) = y(0).
                     if (k_ == 0) prev_counts_ = c;
-                    e = sub_sat(to_q16(ref_v_), counts_q16(c - prev_counts_, 0));
+                    e = sub_sat(ref_vq_, counts_q16(c - prev_counts_, 0));
                 }
                 JL_PART_BEGIN(4);
                 u = pid_.step(e, ufq_, &saturated);
@@ -593,16 +598,19 @@ static uint32_t samples_of(float t, float Ts) {
 }
 
 void Device::sample_ahead() {
-    stepper_.next_q(&refq_, use_ff_ ? &ufq_ : nullptr, loop_ == kLoopVelocity ? &ref_v_ : nullptr);
-    if (shaper_.on()) {
-        // SET_SHAPER (PROTOCOL.md): the reference's FIR (the delay-0 taps; the delayed taps'
-        // sum for the next sample in background()) and its backward differences, in float,
-        // converted back to the control step's fixed point once
-        float ref = q32_to_float(refq_), v, a;
-        shaper_.apply(&ref, &v, &a);
-        ref_v_ = v;
-        refq_ = to_q32(ref);
-        ufq_ = to_q16(shp_ka_ * a + shp_kv_ * v);
+    const bool shaped = shaper_.on();
+    // (shaped: the feedforward and velocity come from the shaped reference, not the stepper's)
+    stepper_.next_q(&refq_, use_ff_ && !shaped ? &ufq_ : nullptr,
+                    loop_ == kLoopVelocity && !shaped ? &ref_v_ : nullptr);
+    if (shaped) {
+        // SET_SHAPER (PROTOCOL.md): the reference's FIR in fixed point (jl_excite.h: one product
+        // here; the delayed taps' part for the next sample in background()) and its backward
+        // differences in Q16.16 counts per sample (^2); the feedforward from them
+        int32_t a;
+        shaper_.apply(&refq_, &ref_vq_, &a);
+        if (use_ff_) ufq_ = mac_g(mac_g(0, ref_vq_, shp_kv_), a, shp_ka_);
+    } else if (loop_ == kLoopVelocity) {
+        ref_vq_ = to_q16(ref_v_);
     }
     ahead_ = true;
     if (stepper_.plan() != cur_plan_) {
@@ -620,7 +628,7 @@ void Device::handle_retarget(const Frame& f) {
     if (f.len != kLenRetarget) { nack(f, kErrBadLength); return; }
     if (state_ != kRunning) { nack(f, kErrNotReady); return; }
     const float d = get_f32(f.payload);
-    if (!finite_f(d) || !(jl_fabsf(d) <= 1e6f)) { nack(f, kErrBadValue, 0); return; }
+    if (!abs_le(d, 1e6f)) { nack(f, kErrBadValue, 0); return; }
     ack(f);
     rt_target_ = d;
     rt_active_ = true;
@@ -712,15 +720,14 @@ static float __attribute__((noinline)) q32_counts_to_rad(const Q32& x, float rad
     const int32_t hi = x.hi;
     uint32_t s;
     memcpy(&s, &rad_per_count, 4);
-    uint8_t off = 2;                                            // Q16.16
-    s -= 16UL << 23;
-    if (static_cast<uint32_t>(hi + 32768L) >= 65536UL) {        // Q24.8
-        off = 3;
-        s += 8UL << 23;
-    }
     int32_t w;
-    memcpy(&w, b + off, 4);
-    if (static_cast<uint32_t>(hi + 8388608L) >= 16777216UL) w = hi < 0 ? INT32_MIN : INT32_MAX;
+    s -= 16UL << 23;
+    if (static_cast<uint32_t>(hi + 32768L) >= 65536UL) {        // Q24.8 (saturated)
+        s += 8UL << 23;
+        w = q32_window24(x);
+    } else {                                                    // Q16.16
+        memcpy(&w, b + 2, 4);
+    }
     float scale;
     memcpy(&scale, &s, 4);
     return static_cast<float>(w) * scale;

@@ -203,11 +203,15 @@ private:
     uint32_t plan_samples_ JL_ZERO;
 
     // The reference of the next sample (counts, Q32.32 as the planner samples it), its velocity
-    // (counts per sample, float: the velocity loop only) and feedforward (PWM ticks, Q16.16),
-    // computed ahead by reference() after the previous step.
+    // (counts per sample, the velocity loop only: the stepper's float, ref_vq_ in Q16.16, or the
+    // shaper's) and feedforward (PWM ticks, Q16.16), computed ahead by reference() after the
+    // previous step.
     Q32 refq_ JL_ZERO;
     int32_t ufq_ JL_ZERO;
-    float ref_v_ JL_ZERO;
+    union {
+        float ref_v_;       // (the stepper's, then converted in place: ref_vq_)
+        int32_t ref_vq_;
+    };
     bool ahead_ JL_ZERO;
 
     // Active run / step.
@@ -233,7 +237,7 @@ private:
     int16_t seq_pwm_[2] JL_ZERO;
     float seq_volts_[2] JL_ZERO;
     Shaper shaper_;
-    float shp_kv_ JL_ZERO, shp_ka_ JL_ZERO;   // feedforward ticks per (count/sample), per (count/sample^2)
+    QGain shp_kv_ JL_ZERO, shp_ka_ JL_ZERO;   // feedforward ticks per (count/sample), per (count/sample^2)
 
     // Results of the last control() for report().
     bool have_sample_ JL_ZERO;

@@ -141,24 +141,8 @@ bool to_qgain(float g, QGain* out) {
     return true;
 }
 
-// (out of line: one copy; on the AVR four add-with-carry and a branch on the overflow flag)
-int32_t __attribute__((noinline)) add_sat(int32_t a, int32_t b) {
-#if defined(__AVR__)
-    asm("add %A[r], %A[b]\n\t" "adc %B[r], %B[b]\n\t" "adc %C[r], %C[b]\n\t" "adc %D[r], %D[b]\n\t"
-        "brvc 1f\n\t"
-        // overflow: the sum's sign bit is the opposite of the true sum's; 0x7FFFFFFF or 0x80000000
-        "mov %A[r], %D[r]\n\t" "lsl %A[r]\n\t" "sbc %A[r], %A[r]\n\t"
-        "mov %B[r], %A[r]\n\t" "mov %C[r], %A[r]\n\t" "mov %D[r], %A[r]\n\t" "subi %D[r], 0x80\n\t"
-        "1:\n\t"
-        : [r] "+d"(a)
-        : [b] "r"(b));
-    return a;
-#else
-    const int32_t r = static_cast<int32_t>(static_cast<uint32_t>(a) + static_cast<uint32_t>(b));
-    if (((a ^ r) & (b ^ r)) < 0) return a < 0 ? INT32_MIN : INT32_MAX;
-    return r;
-#endif
-}
+// (out of line: one copy of add_sat_i, jl_fixed.h)
+int32_t __attribute__((noinline)) add_sat(int32_t a, int32_t b) { return add_sat_i(a, b); }
 
 int32_t sub_sat(int32_t a, int32_t b) {
     const int32_t r = static_cast<int32_t>(static_cast<uint32_t>(a) - static_cast<uint32_t>(b));

@@ -5,6 +5,7 @@
 #ifndef JL_FIXED_H
 #define JL_FIXED_H
 #include <stdint.h>
+#include <string.h>
 #include "jl_port.h"
 
 // A member whose initial value is 0: `int32_t x JL_ZERO;`. On the AVR the objects holding such
@@ -29,8 +30,44 @@ struct QGain {
     uint8_t shift;
 };
 
+/// |x| <= m (abs_le) or |x| < m (abs_lt) for a finite m >= 0, false for a NaN or an infinite x
+/// (a finiteness check as well): on the IEEE bits, as non-negative floats order as their bits
+/// (an integer compare, no soft-float call).
+static inline bool abs_le(float x, float m) {
+    uint32_t b, c;
+    memcpy(&b, &x, 4);
+    memcpy(&c, &m, 4);
+    return (b & 0x7FFFFFFFUL) <= c;
+}
+static inline bool abs_lt(float x, float m) {
+    uint32_t b, c;
+    memcpy(&b, &x, 4);
+    memcpy(&c, &m, 4);
+    return (b & 0x7FFFFFFFUL) < c;
+}
+
 /// a + b saturated to [INT32_MIN, INT32_MAX] (overflow: the sum's sign differs from both's).
 int32_t add_sat(int32_t a, int32_t b);
+
+/// add_sat inline, for a loop of adds whose call would cost more registers than the add (on the
+/// AVR four add-with-carry and a branch on the overflow flag; add_sat is its one out-of-line copy).
+static inline int32_t add_sat_i(int32_t a, int32_t b) {
+#if defined(__AVR__)
+    asm("add %A[r], %A[b]\n\t" "adc %B[r], %B[b]\n\t" "adc %C[r], %C[b]\n\t" "adc %D[r], %D[b]\n\t"
+        "brvc 1f\n\t"
+        // overflow: the sum's sign bit is the opposite of the true sum's; 0x7FFFFFFF or 0x80000000
+        "mov %A[r], %D[r]\n\t" "lsl %A[r]\n\t" "sbc %A[r], %A[r]\n\t"
+        "mov %B[r], %A[r]\n\t" "mov %C[r], %A[r]\n\t" "mov %D[r], %A[r]\n\t" "subi %D[r], 0x80\n\t"
+        "1:\n\t"
+        : [r] "+d"(a)
+        : [b] "r"(b));
+    return a;
+#else
+    const int32_t r = static_cast<int32_t>(static_cast<uint32_t>(a) + static_cast<uint32_t>(b));
+    if (((a ^ r) & (b ^ r)) < 0) return a < 0 ? INT32_MIN : INT32_MAX;
+    return r;
+#endif
+}
 
 /// The QGain of g; false (gain unchanged) unless g is finite and |g| < 2^23.
 bool to_qgain(float g, QGain* out);

@@ -397,6 +397,14 @@ void q32_add(Q32* a, const Q32& b) {
 #endif
 }
 
+int32_t __attribute__((noinline)) q32_window24(const Q32& x) {
+    const int32_t hi = x.hi;
+    if (static_cast<uint32_t>(hi + 8388608L) >= 16777216UL) return hi < 0 ? INT32_MIN : INT32_MAX;
+    int32_t w;
+    memcpy(&w, reinterpret_cast<const uint8_t*>(&x) + 3, 4);
+    return w;
+}
+
 // a[i] += a[i + 1] for i = 0 .. n - 1 (n >= 1), in this order (each with the next one's old
 // value): a chunk's forward differences advanced by one sample in one call. On the AVR each
 // add is eight add-with-carry steps in place (Z post-incremented, the addend at Z + 8).
@@ -425,7 +433,7 @@ static void __attribute__((noinline)) q32_diffs(Q32* a, uint8_t n) {
 // a += y 2^s (s = 0..31): the sinusoid in units 2^(s - 32) into a Q32.32. On the AVR y 2^(s & 7)
 // by four MULs (40 bits, the top one MULSU), added at byte s >> 3 with the carry and the sign
 // through the top.
-static void __attribute__((noinline)) q32_add_units(Q32* a, int32_t y, uint8_t s) {
+void __attribute__((noinline)) q32_add_units(Q32* a, int32_t y, uint8_t s) {
 #if defined(__AVR__)
     // m = 2^(s & 7) by three conditional shifts (the last a nibble swap), the byte s >> 3 added
     // to the pointer, cnt = 3 - (s >> 3) bytes above the five of y 2^(s & 7). Fixed registers,

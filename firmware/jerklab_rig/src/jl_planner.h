@@ -132,6 +132,11 @@ struct Q32 {
 };
 /// a += b (two 32-bit adds and the carry).
 void q32_add(Q32* a, const Q32& b);
+/// a += y 2^s (s = 0..31; y in units 2^(s - 32) of the Q32.32), sign-extended through the top.
+void q32_add_units(Q32* a, int32_t y, uint8_t s);
+/// The Q24.8 window of x (its bytes 3..6, little-endian), saturated to INT32_MIN / INT32_MAX
+/// from |x| >= 2^23 on (one out-of-line copy: TELEMETRY's reference and the shaper).
+int32_t q32_window24(const Q32& x);
 /// x * 2^32 (exact from 2^-8 up, truncated toward 0 to 2^-32 below), |x| < 2^31 (saturated beyond).
 Q32 to_q32(float x);
 /// A Q32.32 as a float: its widest 32-bit window (Q16.16 below 2^15, else Q24.8, saturated at 2^23),

@@ -10,6 +10,7 @@
 #include <avr/pgmspace.h>
 #define JL_PROGMEM PROGMEM
 #define JL_READ_U16(p) pgm_read_word(p)
+#define JL_READ_U8(p) pgm_read_byte(p)
 #define jl_memcpy_P(d, s, n) memcpy_P(d, s, n)
 // avr-libc's float functions are the double ones (double is 32 bit on the AVR).
 #define jl_sinf(x) sin(x)
@@ -21,6 +22,7 @@
 #else
 #define JL_PROGMEM
 #define JL_READ_U16(p) (*(p))
+#define JL_READ_U8(p) (*(p))
 #define jl_memcpy_P(d, s, n) memcpy(d, s, n)
 #define jl_sinf(x) sinf(x)
 #define jl_cosf(x) cosf(x)
