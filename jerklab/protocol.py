@@ -613,10 +613,10 @@ def max_run_gain(counts_per_rev, pwm_max, supply_voltage, Ts=None):
 SHAPER_MAX_TAPS = 10
 SHAPER_MAX_DELAY = 31
 SHAPER_SUM_TOL = 1e-3
-#: SET_SHAPER: the largest |amplitude| the device takes (its FIR holds a tap in Q8.24 fixed point
+#: SET_SHAPER: the largest amplitude magnitude the device takes (its FIR holds a tap in Q8.24 fixed point
 #: as round(a) saturating adds and a 24-bit mantissa; firmware/PROTOCOL.md)
 SHAPER_MAX_AMPLITUDE = 2.0
-#: RUN with a shaper: ``(sum |a_i| * D + 1) * max_velocity * Ts * counts_per_rad`` (D the largest
+#: RUN with a shaper: ``(sum(abs(a_i)) * D + 1) * max_velocity * Ts * counts_per_rad`` (D the largest
 #: delay) must be below this many counts, so that the device's ring of Q16.16 reference windows
 #: spans the move exactly (NACK BAD_VALUE, ``param`` 0xFF, otherwise)
 SHAPER_SPAN_COUNTS = 16384.0

@@ -26,7 +26,15 @@ from jerklab._validate import as_nonnegative, as_positive, as_real, at_most
 from jerklab.lab.checkbase import UnknownCheckError
 from jerklab.lab.plain import jsonable
 from jerklab.rig import RigError
-from jerklab.rig.hostloop import MAX_TS, MIN_TS, ControlLawError, HostStep, _reference_table
+from jerklab.rig.hostloop import (
+    MAX_TS,
+    MIN_TS,
+    ControlLawError,
+    EndsOnExit,
+    HostStep,
+    _reference_table,
+    run_law,
+)
 from jerklab.rig.profiles import profile_from_dict
 from jerklab.rig.recording import Recording
 
@@ -307,28 +315,7 @@ class ClassRig:
         """
         if not callable(control):
             raise TypeError(f"control must be callable, got {type(control).__name__}")
-        loop = self.realtime(Ts, duration, reference, **options)
-        steps = iter(loop)
-        try:
-            for step in steps:
-                try:
-                    v = control(step.t, step.position, step.reference)
-                except Exception as exc:
-                    status = (
-                        f"error: the control law raised {type(exc).__name__}: {exc} at tick "
-                        f"{step.index} (t={step.t:.3f} s); the motor is stopped"
-                    )
-                    loop.abort(status)
-                    raise ControlLawError(
-                        status[len("error: ") :], tick=step.index, recording=loop.recording
-                    ) from exc
-                step.apply(v)
-        except KeyboardInterrupt:
-            loop.abort("interrupted")
-            raise
-        finally:
-            steps.close()
-        return loop.recording
+        return run_law(self.realtime(Ts, duration, reference, **options), control)
 
     def check(self, name, answer):
         """``(passed, message)`` of check ``name`` on ``answer``, scored by the service."""
@@ -357,7 +344,7 @@ def _name_of(path, default):
     return Path(path).name.removesuffix(".csv").removesuffix(".json")
 
 
-class _ClassRealtime:
+class _ClassRealtime(EndsOnExit):
     """The iterable of :meth:`ClassRig.realtime`: the service's ticks as
     :class:`jerklab.rig.hostloop.HostStep` objects; :attr:`recording` once it has ended."""
 
@@ -393,6 +380,7 @@ class _ClassRealtime:
         self._rig, self._path = rig, path
         self._used = False
         self._aborted = None
+        self._error = None  # (status, tick) of a law that raised (run_law)
         self.recording = None
         self.misses = 0
 
@@ -421,18 +409,6 @@ class _ClassRealtime:
             raise RuntimeError("a realtime loop runs once: call board.realtime(...) again")
         self._used = True
         return self._run()
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, exc_type, exc, tb):
-        if exc_type is KeyboardInterrupt:
-            self.abort("interrupted")
-        elif exc_type is not None:
-            self.abort(f"error: {exc_type.__name__}: {exc}")
-        else:
-            self.abort("stopped: the loop ended before the run")
-        return False
 
     def _run(self):
         rig = self._rig

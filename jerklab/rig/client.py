@@ -24,7 +24,7 @@ from jerklab import planner as _planner
 from jerklab import protocol as P
 from jerklab._validate import as_int, as_nonnegative, as_positive, as_real
 from jerklab.controller import DiscreteGains, Gains, max_pole_radius
-from jerklab.rig.hostloop import ControlLawError, RealtimeLoop
+from jerklab.rig.hostloop import RealtimeLoop, run_law
 from jerklab.rig.live import Tee as _Tee
 from jerklab.rig.live import live_plot as _live_plot
 from jerklab.rig.options import F32_MAX as _F32_MAX
@@ -1383,29 +1383,7 @@ class Rig:
         """
         if not callable(control):
             raise TypeError(f"control must be callable, got {type(control).__name__}")
-        loop = self.realtime(Ts, duration, reference, **options)
-        steps = iter(loop)
-        try:
-            for step in steps:
-                try:
-                    v = control(step.t, step.position, step.reference)
-                except Exception as exc:
-                    status = (
-                        f"error: the control law raised {type(exc).__name__}: {exc} at tick "
-                        f"{step.index} (t={step.t:.3f} s); the motor is stopped"
-                    )
-                    loop._error = (status, step.index)
-                    loop.abort(status)
-                    raise ControlLawError(
-                        status[len("error: ") :], tick=step.index, recording=loop.recording
-                    ) from exc
-                step.apply(v)
-        except KeyboardInterrupt:
-            loop.abort("interrupted")
-            raise
-        finally:
-            steps.close()
-        return loop.recording
+        return run_law(self.realtime(Ts, duration, reference, **options), control)
 
     def _stop_after_error(self, interrupted: bool):
         """Send STOP after a run was abandoned on the host (write error, Ctrl-C, a bug), so that

@@ -127,7 +127,55 @@ class HostStep:
         )
 
 
-class RealtimeLoop:
+def run_law(loop, control):
+    """Close ``loop`` (a :class:`RealtimeLoop`, or the class rig's) with the callable law
+    ``control(t, position, reference) -> volts``: each step's answer is ``step.apply(v)``; a law
+    that raises stops the motor, and :class:`ControlLawError` names the tick; Ctrl-C stops the
+    motor too. Returns the loop's recording."""
+    if not callable(control):
+        raise TypeError(f"control must be callable, got {type(control).__name__}")
+    steps = iter(loop)
+    try:
+        for step in steps:
+            try:
+                v = control(step.t, step.position, step.reference)
+            except Exception as exc:
+                status = (
+                    f"error: the control law raised {type(exc).__name__}: {exc} at tick "
+                    f"{step.index} (t={step.t:.3f} s); the motor is stopped"
+                )
+                loop._error = (status, step.index)
+                loop.abort(status)
+                raise ControlLawError(
+                    status[len("error: ") :], tick=step.index, recording=loop.recording
+                ) from exc
+            step.apply(v)
+    except KeyboardInterrupt:
+        loop.abort("interrupted")
+        raise
+    finally:
+        steps.close()
+    return loop.recording
+
+
+class EndsOnExit:
+    """``with loop:`` ends the run with a final status whatever ends the block: Ctrl-C
+    ("interrupted"), an exception (its name) or a block left before the run's end."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is KeyboardInterrupt:
+            self.abort("interrupted")
+        elif exc_type is not None:
+            self.abort(f"error: {exc_type.__name__}: {exc}")
+        else:
+            self.abort("stopped: the loop ended before the run")
+        return False
+
+
+class RealtimeLoop(EndsOnExit):
     """The iterable of :meth:`jerklab.rig.Rig.realtime`: iterate it once for its steps;
     :attr:`recording` holds the run (its status final once the loop has ended, whatever the
     way: the end of the run, ``break``, an exception, Ctrl-C)."""
@@ -254,18 +302,6 @@ class RealtimeLoop:
             return
         self.rig._stop_after_error(False)
         self._finish(status)
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, exc_type, exc, tb):
-        if exc_type is KeyboardInterrupt:
-            self.abort("interrupted")
-        elif exc_type is not None:
-            self.abort(f"error: {exc_type.__name__}: {exc}")
-        else:
-            self.abort("stopped: the loop ended before the run")
-        return False
 
     def _finish(self, status):
         self._done = True
