@@ -99,3 +99,25 @@ def test_identify_mode_from_encoder(load_ratio, excitation):
 def test_bad_input_names_the_parameter(call, name):
     with pytest.raises((ValueError, TypeError), match=name):
         call()
+
+
+@pytest.mark.parametrize("fit", [identify_mode, shaping.identify_mode])
+def test_an_overdamped_load_is_reported_not_returned_as_nan(fit):
+    """A shaft so damped (ζ 1.5, 3) that the two-mass model has no complex pole pair: the plant's
+    own eigenvalues are real, the fit's best model is overdamped too, and identify_mode says so
+    by name instead of returning f = ζ = NaN (which shaping's shaper design then refused with
+    "frequency_hz must be finite")."""
+    for zr, lr in ((1.5, 0.3), (3.0, 1.0)):
+        m = FlexibleDCMotor(
+            load_ratio=lr,
+            mode_frequency=2 * math.pi * 8.0,
+            mode_damping=zr,
+            noise_std=0.002,
+            seed=7,
+        )
+        A, _ = m._matrices()
+        assert np.all(np.abs(np.linalg.eigvals(A).imag) < 1e-9)  # no mode to find
+        u = prbs(4.0, 0.005, 3.0, clock_period=0.01)
+        _, y = m.open_loop(u, 0.005)
+        with pytest.raises(ValueError, match="overdamped"):
+            fit(u, y, 0.005)

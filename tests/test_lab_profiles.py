@@ -314,13 +314,7 @@ def test_every_spec_item_can_be_missed(name):
 
 # ------------------------------------------------------------------ the masters on the corners
 #: labs whose master does not pass on a profile yet, and why (strict: a pass must remove it)
-MASTER_NOT_YET = {
-    ("pololu-micro-30-hpcb", 4, 1): "the strongest motor with the shortest, lightest rule (the "
-    "highest mode, 42 Hz, 4.7 samples a period at 5 ms) on 360 counts a turn: the PRBS fit's "
-    "damping scatters with the count noise (0, 0.05, 0.1, 0.3, 0.5 counts: 0.062, 0.055, 0.042, "
-    "0.062, 0.096) about the true 0.067, and at this corner's 0.1 counts it is 38 % low (the "
-    "check allows 30 % or 0.01); the weakest motor's 18 Hz mode passes (0.088 against 0.082)",
-}
+MASTER_NOT_YET: dict = {}
 
 
 def _kt_corners(profile):

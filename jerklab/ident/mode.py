@@ -222,7 +222,7 @@ def identify_mode(u, y=None, Ts=None, f_range=None, max_nfev=400) -> ModeEstimat
         fr = fb[idip] if idip is not None and ratio[idip] < 0.9 else fc / math.sqrt(1.1)
         starts.append((fc, fr))
     starts += [(fc_, fc_ / math.sqrt(1.1)) for fc_ in np.geomspace(f_lo * 2, f_hi / 1.5, 5)]
-    best = None
+    fits = []
     for fc, fr in starts:
         lr = min(max((fc / fr) ** 2 - 1.0, 0.01), 3.0)
         for zr in (0.02, 0.1):
@@ -240,10 +240,11 @@ def identify_mode(u, y=None, Ts=None, f_range=None, max_nfev=400) -> ModeEstimat
                     r = least_squares(resid, q, method="trf", max_nfev=60, x_scale="jac")
             except (ValueError, np.linalg.LinAlgError, OverflowError):
                 continue
-            if np.all(np.isfinite(r.fun)) and (best is None or r.cost < best.cost):
-                best = r
-    if best is None:
+            if np.all(np.isfinite(r.fun)):
+                fits.append(r)
+    if not fits:
         raise RuntimeError("identify_mode: no start value gave a finite fit")
+    best = min(fits, key=lambda r: r.cost)
     with np.errstate(all="ignore"):
         r = least_squares(
             resid,
@@ -251,6 +252,15 @@ def identify_mode(u, y=None, Ts=None, f_range=None, max_nfev=400) -> ModeEstimat
             method="trf",
             max_nfev=int(as_positive("max_nfev", max_nfev)),
             x_scale="jac",
+        )
+    if not np.isfinite(coupled_mode(*np.exp(r.x[:5]))[0]):
+        # the best two-mass model has no lightly damped pole pair: no mode to report (the
+        # worse fits' modes are not the record's)
+        raise ValueError(
+            "identify_mode: the best fit of this record is overdamped (no lightly damped pole "
+            "pair, so no mode to report): is a flexible load mounted? Excite the mode (a PRBS "
+            "whose bits last less than a quarter of its period, or a chirp across it), record "
+            f"longer, or set f_range about the mode (searched: {f_lo:g} to {f_hi:g} Hz)"
         )
     q = r.x
     e = r.fun * scale
