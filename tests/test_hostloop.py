@@ -204,6 +204,19 @@ def test_ts_outside_the_range_is_refused(rig, Ts):
         rig.realtime(Ts=Ts, duration=1.0)
 
 
+def test_a_loop_runs_once_and_a_law_must_be_callable(rig):
+    """A realtime loop iterated a second time is refused (its run is over); ``host_loop`` with a
+    law that is not callable says so before any run starts."""
+    loop = rig.realtime(Ts=0.01, duration=0.05)
+    n = sum(1 for step in loop if step.apply(0.0) is None)
+    assert n >= 5 and loop.recording.metadata["status"] == "complete"
+    with pytest.raises(RuntimeError, match="runs once"):
+        iter(loop)
+    with pytest.raises(TypeError, match="control must be callable"):
+        rig.host_loop(3.0, 0.01, 0.05)
+    assert _device_idle(rig)
+
+
 def test_break_out_of_the_loop_stops_the_motor(rig):
     loop = rig.realtime(Ts=0.01, duration=2.0)
     for step in loop:

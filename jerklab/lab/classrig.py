@@ -313,8 +313,6 @@ class ClassRig:
             When the law raises or returns a non-finite voltage: the motor is stopped, the
             message and the recording's status name the tick.
         """
-        if not callable(control):
-            raise TypeError(f"control must be callable, got {type(control).__name__}")
         return run_law(self.realtime(Ts, duration, reference, **options), control)
 
     def check(self, name, answer):
@@ -403,12 +401,6 @@ class _ClassRealtime(EndsOnExit):
     def _final(self, msg):
         self.recording = self._rig._recording(msg, self._path)
         self.misses = int(self.recording.metadata.get("hostloop", {}).get("misses", 0))
-
-    def __iter__(self):
-        if self._used:
-            raise RuntimeError("a realtime loop runs once: call board.realtime(...) again")
-        self._used = True
-        return self._run()
 
     def _run(self):
         rig = self._rig

@@ -1381,8 +1381,6 @@ class Rig:
             When the law raises or returns a non-finite voltage: the motor is stopped, the
             message and the recording's status name the tick.
         """
-        if not callable(control):
-            raise TypeError(f"control must be callable, got {type(control).__name__}")
         return run_law(self.realtime(Ts, duration, reference, **options), control)
 
     def _stop_after_error(self, interrupted: bool):

@@ -159,8 +159,18 @@ def run_law(loop, control):
 
 
 class EndsOnExit:
-    """``with loop:`` ends the run with a final status whatever ends the block: Ctrl-C
-    ("interrupted"), an exception (its name) or a block left before the run's end."""
+    """A real-time loop that runs once (``iter`` a second time is refused) and, used as
+    ``with loop:``, ends the run with a final status whatever ends the block: Ctrl-C
+    ("interrupted"), an exception (its name) or a block left before the run's end. Subclasses
+    give ``_run()`` (the steps) and ``abort(status)``."""
+
+    _used = False
+
+    def __iter__(self):
+        if self._used:
+            raise RuntimeError("a realtime loop runs once: call board.realtime(...) again")
+        self._used = True
+        return self._run()
 
     def __enter__(self):
         return self
@@ -318,12 +328,6 @@ class RealtimeLoop(EndsOnExit):
                 self._plot.close(status if not status.startswith("error") else "error")
 
     # ------------------------------------------------------------------ the loop
-    def __iter__(self):
-        if self._used:
-            raise RuntimeError("a realtime loop runs once: call board.realtime(...) again")
-        self._used = True
-        return self._run()
-
     def _run(self):
         rig = self.rig
         self._start()
