@@ -304,15 +304,10 @@ class ClassRig:
         return _ClassRealtime(self, Ts, duration, reference, path, name, options)
 
     def host_loop(self, control, Ts, duration, reference=None, **options):
-        """Host-in-the-loop with a callable law ``control(t, position, reference) -> volts``
-        (as :meth:`jerklab.rig.Rig.host_loop`); returns the :class:`Recording`.
-
-        Raises
-        ------
-        jerklab.rig.hostloop.ControlLawError
-            When the law raises or returns a non-finite voltage: the motor is stopped, the
-            message and the recording's status name the tick.
-        """
+        """:meth:`jerklab.rig.Rig.host_loop` on your motor: the callable law
+        ``control(t, position, reference) -> volts`` over :meth:`realtime`; returns the
+        recording, and raises ``jerklab.rig.hostloop.ControlLawError`` (the motor stopped, the
+        tick named) when the law raises or returns a non-finite voltage."""
         return run_law(self.realtime(Ts, duration, reference, **options), control)
 
     def check(self, name, answer):
