@@ -23,6 +23,7 @@ import ast
 import importlib
 import importlib.util
 import inspect
+import os
 import pathlib
 import pkgutil
 import re
@@ -268,7 +269,11 @@ def build(out: pathlib.Path, executed: pathlib.Path) -> float:
         str(src),
         str(out / "html"),
     ]
-    subprocess.run(cmd, check=True, cwd=ROOT / "notebooks")
+    # the kernels MyST-NB starts draw inline: a non-interactive MPLBACKEND (Agg, as a test
+    # run or a headless shell sets it) would make plt.show() draw nothing and leave the pages
+    # without their figures
+    env = {k: v for k, v in os.environ.items() if k != "MPLBACKEND"}
+    subprocess.run(cmd, check=True, cwd=ROOT / "notebooks", env=env)
     dt = time.perf_counter() - t0
     print(f"book: built {out / 'html' / 'index.html'} in {dt:.1f} s")
     return dt
