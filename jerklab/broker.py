@@ -840,7 +840,7 @@ class BrokerRig:
         view = _LiveView(
             enabled if plotting else False,
             on_batch,
-            f"{self.port_name} move",
+            "shared rig: move",  # (the page shows no server address)
             self.live_display,
             profile.distance,
         )

@@ -386,3 +386,27 @@ def test_the_stream_holds_one_batch_at_most_and_loses_no_row():
         "volts_per_pwm": 0.01,
         "total": 0,
     }
+
+
+def test_the_live_box_names_no_server_address(broker, monkeypatch):
+    """The live plot of a shared-rig run is titled for the student ("shared rig: move"), not
+    with the broker's host and port (the class page shows no server detail)."""
+    import jerklab.broker as B
+
+    labels = []
+    real = B._LiveView
+
+    def spy(enabled, on_batch, label, *rest):
+        labels.append(label)
+        return real(enabled, on_batch, label, *rest)
+
+    monkeypatch.setattr(B, "_LiveView", spy)
+    rig = BrokerRig(broker.address, client="alice")
+    rig.run_move(
+        tuning.move_profile(dict(tuning.DEFAULT_MOVE, distance=2.0)),
+        tuning.compute_pole_placement().gains,
+        path=False,
+    )
+    host, port = parse_address(broker.address)
+    assert labels == ["shared rig: move"]
+    assert str(port) not in labels[0] and host not in labels[0]
