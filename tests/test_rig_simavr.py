@@ -13,7 +13,7 @@ from jerklab import protocol as P
 from jerklab.controller import pole_placement_pid
 from jerklab.planner import plan_scurve, plan_sine_jerk
 from jerklab.plant import DCMotor
-from jerklab.rig import Link, RigCommandError, RigError, connect
+from jerklab.rig import Link, RigCommandError, connect
 
 MOTOR = dict(K=27.5, tau=0.034)
 
@@ -118,11 +118,15 @@ def test_firmware_refuses_bad_parameters(uno):
         uno._request(P.SetGains(1.0, 0.0, 0.0, 1500))
     with pytest.raises(RigCommandError, match="'max_voltage'"):
         uno._request(P.SetLimits(1e4, 100.0, 50.0, 30.0, 1000))
-    if not uno.capabilities & P.Capability.PLANNER_SCURVE:
-        with pytest.raises(RigError, match="no 'scurve' planner"):
-            uno.run_move(
-                plan_scurve(1.0, 1e3, 100.0, 10.0), pole_placement_pid(27.5, 0.034, wn=20.0)
-            )
+    # the default build has no S-curve planner: the host sends the segments (protocol 5)
+    assert not uno.capabilities & P.Capability.PLANNER_SCURVE
+    assert uno.capabilities & P.Capability.HOST_SEGMENTS
+    with pytest.raises(RigCommandError, match="'x0'"):
+        uno._request(P.PlanSegment(0, 0, 0.1, float("nan"), 0.0, 0.0, 0.0))
+    rec = uno.run_move(
+        plan_scurve(1.0, 1e3, 100.0, 10.0), pole_placement_pid(27.5, 0.034, wn=20.0), settle=0.1
+    )
+    assert rec.metadata["status"] == "complete" and rec.metadata["plan"]["planned_by"] == "host"
 
 
 @pytest.fixture(scope="module")

@@ -7,6 +7,8 @@ namespace jl {
 
 static const float kTwoOverPi = 0.636619772367581f;
 
+static uint8_t shape_of(uint8_t kind);
+
 // Peak acceleration, velocity and position at the end of the rising pulse of an acceleration
 // phase from rest with pulse time tj (jerklab.planner._evaluate: apk, v1, x1).
 static void pulse_ends(uint8_t shape, float jpar, float tj, float* apk, float* v1, float* x1) {
@@ -203,12 +205,18 @@ PlanStatus plan_trapezoid(float distance, float A, float V, Plan* p) {
 }
 
 PlanStatus plan_kind(uint8_t kind, float d, float J, float A, float V, Plan* p) {
+#if JL_WITH_BOARD_PLANNERS
     switch (kind) {
     case kPlannerSineJerk: return plan_sine_jerk(d, J, A, V, p);
     case kPlannerSineJerkOptimal: return plan_sine_jerk_optimal(d, J, A, V, p);
     case kPlannerScurve: return plan_scurve(d, J, A, V, p);
     default: return plan_trapezoid(d, A, V, p);
     }
+#else
+    // (the planners 1-3 are the host's: only Stojcic eq. 4's is built)
+    if (kind != kPlannerSineJerk) return kPlanBadTime;
+    return plan_sine_jerk(d, J, A, V, p);
+#endif
 }
 
 // Pulse pair changing the velocity by dv >= 0 with the pulse jerk Je (2J/pi for the sine
@@ -310,6 +318,98 @@ PlanStatus plan_stop(uint8_t kind, float v0, float sign, float J, float A, float
     p->ta = ta;
     build(p);
     return kPlanOk;
+}
+
+// ------------------------------------------------------------------ host-planned plans
+
+// The end of segment g after u: position, velocity, and the sizes of their terms sx = |x0| +
+// u (|v0| + u (|a0|/2 + u |j|/6)), sv = |v0| + u (|a0| + u |j|/2), which bound them for both
+// kinds (jerklab.protocol.segment_end). A half-sine pulse j sin(pi r / u) ends with
+// v = v0 + a0 u + j u^2 / pi, x = x0 + v0 u + a0 u^2/2 + j u^3 (1/(2 pi) - 2/pi^3).
+static void __attribute__((noinline)) segment_end(const Segment& g, float u, float* x, float* v,
+                                                  float* sx, float* sv) {
+    const float j = g.jp, aj = jl_fabsf(j), uu = u * u;
+    const float cv = g.sine ? 0.318309886f : 0.5f;                  // 1/pi, 1/2
+    const float cx = g.sine ? 0.0946518742f : (1.0f / 6.0f);        // 1/(2 pi) - 2/pi^3, 1/6
+    *v = g.v0 + u * g.a0 + cv * j * uu;
+    *x = g.x0 + u * (g.v0 + 0.5f * g.a0 * u) + cx * j * uu * u;
+    *sv = jl_fabsf(g.v0) + u * (jl_fabsf(g.a0) + 0.5f * aj * u);
+    *sx = jl_fabsf(g.x0) + u * (jl_fabsf(g.v0) + u * (0.5f * jl_fabsf(g.a0) + u * aj * (1.0f / 6.0f)));
+}
+
+static const float kSegmentRtol = 1e-4f;   // jerklab.protocol.SEGMENT_RTOL
+
+// |a - b| <= kSegmentRtol (scale + |b|) (false for a NaN)
+static bool __attribute__((noinline)) near_f(float a, float b, float scale) {
+    return jl_fabsf(a - b) <= kSegmentRtol * (scale + jl_fabsf(b));
+}
+
+uint8_t HostPlanner::add(Plan* p, const HostSegment& s) {
+    const uint8_t i = s.index;
+    if (!(i == 0 || i == count) || i >= kMaxHostSegments) return 0;
+    if (s.kind > 1) return 1;
+    if (!finite_f(s.duration) || !(s.duration > 0.0f) || !(s.duration <= 1e7f)) return 2;
+    if (!finite_f(s.x0) || !(jl_fabsf(s.x0) <= 1e6f)) return 3;
+    if (!finite_f(s.v0)) return 4;
+    if (!finite_f(s.a0)) return 5;
+    if (!finite_f(s.jerk)) return 6;
+    float t0 = 0.0f;
+    if (i > 0) {
+        float x, v, sx, sv;
+        segment_end(p->seg[i - 1], last_duration, &x, &v, &sx, &sv);
+        if (!near_f(x, s.x0, sx)) return 3;
+        if (!near_f(v, s.v0, sv)) return 4;
+        t0 = p->duration;                   // the previous segment's end
+    } else {
+        p->x_start = s.x0;
+        p->t_start = 0.0f;
+        p->kind = kPlannerHost;
+        p->shape = kShapeLinear;
+        p->v_start = p->v_peak = p->cruise_velocity = 0.0f;
+    }
+    Segment& g = p->seg[i];
+    g.t0 = t0;
+    g.x0 = s.x0;
+    g.v0 = s.v0;
+    g.a0 = s.a0;
+    g.jp = s.jerk;
+    g.sine = s.kind;
+    g.w = s.kind ? kPi / s.duration : 0.0f;
+    p->duration = t0 + s.duration;
+    p->nseg = static_cast<uint8_t>(i + 1);
+    count = static_cast<uint8_t>(i + 1);
+    last_duration = s.duration;
+    return 0xFF;
+}
+
+uint8_t HostPlanner::check(const Plan& p, const HostCommit& c) const {
+    if (c.n_segments == 0 || c.n_segments != count) return 0;
+    if (!finite_f(c.target) || !(jl_fabsf(c.target) <= 1e6f)) return 1;
+    float x, v, sx, sv;
+    segment_end(p.seg[count - 1], last_duration, &x, &v, &sx, &sv);
+    if (!near_f(x, c.target, sx) || !near_f(v, 0.0f, sv)) return 1;
+    if (!finite_f(c.accel_time) || c.accel_time < 0.0f) return 2;
+    if (!finite_f(c.cruise_time) || c.cruise_time < 0.0f) return 3;
+    if (!finite_f(c.cruise_velocity) || c.cruise_velocity < 0.0f) return 4;
+    if (c.planner > kPlannerTrapezoid && c.planner != kPlannerHost) return 5;
+    return 0xFF;
+}
+
+void HostPlanner::commit(Plan* p, const HostCommit& c) {
+    Segment& r = p->seg[count];            // the rest at the target
+    r.t0 = p->duration;
+    r.x0 = c.target;
+    r.v0 = r.a0 = r.jp = r.w = 0.0f;
+    r.sine = 0;
+    p->nseg = static_cast<uint8_t>(count + 1);
+    p->distance = c.target - p->x_start;
+    p->sign = p->distance < 0.0f ? -1.0f : 1.0f;
+    p->accel_time = c.accel_time;
+    p->cruise_time = p->tv = c.cruise_time;
+    p->v_peak = p->cruise_velocity = c.cruise_velocity;
+    p->kind = c.planner;
+    p->shape = shape_of(c.planner);
+    count = 0;
 }
 
 void place(Plan* p, float t_start, float x_start) {
