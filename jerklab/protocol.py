@@ -112,14 +112,16 @@ __all__ = [
     "segment_end",
     "check_plan_segment",
     "check_plan_commit",
+    "check_plan_continuity",
     "profile_segments",
 ]
 
 PROTOCOL_VERSION = 5
 #: host-planned plans: at most this many PLAN_SEGMENTs (the board adds the rest at the target)
 MAX_PLAN_SEGMENTS = 7
-#: continuity of host-planned segments: each one starts within this fraction of the previous
-#: segment's terms (``|x0| + u |v0| + ...``) of where that one ends (PROTOCOL.md "Version 5")
+#: continuity of host-planned segments (the host's check, check_plan_continuity): each one
+#: starts within this fraction of the previous segment's terms (``|x0| + u |v0| + ...``) of
+#: where that one ends
 SEGMENT_RTOL = 1e-4
 #: the longest plan a device accepts (PLAN_INFO.n_samples); longer: NACK TOO_LONG
 MAX_PLAN_SAMPLES = 2_000_000_000
@@ -1121,6 +1123,11 @@ _PI = math.pi
 _MAX_POSITION = 1e6
 #: the longest PLAN_SEGMENT (s)
 _MAX_SEGMENT_TIME = 1e7
+#: segments shorter than this (s; jerklab.planner.MIN_SYNC_TS, below any sample time) are left
+#: out of a host-planned plan (the solver's round-off pieces: the state moves by ~a 1e-9 s)
+_MIN_SEGMENT_TIME = 1e-9
+#: the smallest normal float32
+_F32_TINY = 1.1754943508222875e-38
 
 
 def segment_end(kind, duration, x0, v0, a0, jerk):
@@ -1165,7 +1172,7 @@ def _finite(x) -> bool:
     return isinstance(x, numbers.Real) and math.isfinite(x)
 
 
-def check_plan_segment(seg: "PlanSegment", count: int, prev: "PlanSegment | None" = None):
+def check_plan_segment(seg: "PlanSegment", count: int):
     """The field of a PLAN_SEGMENT the device refuses (NACK BAD_VALUE), or ``None``.
 
     Parameters
@@ -1174,17 +1181,14 @@ def check_plan_segment(seg: "PlanSegment", count: int, prev: "PlanSegment | None
         The segment received.
     count : int
         Segments of the plan accepted so far (index 0 starts afresh whatever the count).
-    prev : PlanSegment, optional
-        The last accepted segment (for ``seg.index >= 1``).
 
     Returns
     -------
     int or None
         0 ``index`` (not 0 and not ``count``, or ``>= MAX_PLAN_SEGMENTS``), 1 ``kind``,
-        2 ``duration`` (not finite, ``<= 0`` or above 1e7 s), 3 ``x0`` (not finite,
-        ``|x0| > 1e6``, or not within :data:`SEGMENT_RTOL` of the previous segment's end), 4
-        ``v0`` (not finite or not continuous), 5 ``a0``, 6 ``jerk`` (not finite). The
-        acceleration may step between segments (a trapezoid's).
+        2 ``duration`` (not finite, ``<= 0`` or above 1e7 s), 3 ``x0`` (not finite or
+        ``|x0| > 1e6``), 4 ``v0``, 5 ``a0``, 6 ``jerk`` (not finite). That the segments join is
+        the host's check (:func:`check_plan_continuity`).
     """
     if not (seg.index == 0 or seg.index == count) or seg.index >= MAX_PLAN_SEGMENTS:
         return 0
@@ -1197,42 +1201,70 @@ def check_plan_segment(seg: "PlanSegment", count: int, prev: "PlanSegment | None
     for i, v in ((4, seg.v0), (5, seg.a0), (6, seg.jerk)):
         if not _finite(v):
             return i
-    if seg.index > 0 and prev is not None:
-        x, v, _, sx, sv = segment_end(
-            prev.kind, prev.duration, prev.x0, prev.v0, prev.a0, prev.jerk
-        )
-        if not abs(x - seg.x0) <= SEGMENT_RTOL * (sx + abs(seg.x0)):
-            return 3
-        if not abs(v - seg.v0) <= SEGMENT_RTOL * (sv + abs(seg.v0)):
-            return 4
     return None
 
 
-def check_plan_commit(commit: "PlanCommit", segments):
+def check_plan_commit(commit: "PlanCommit", count: int):
     """The field of a PLAN_COMMIT the device refuses (NACK BAD_VALUE), or ``None``.
 
-    ``segments`` are the PLAN_SEGMENTs accepted since the last index 0: 0 ``n_segments``
-    (0, or not their number), 1 ``target`` (not finite, ``|target| > 1e6``, or the last
-    segment does not end at rest there: position within :data:`SEGMENT_RTOL` of its terms,
-    velocity likewise), 2 ``accel_time``, 3 ``cruise_time``, 4 ``cruise_velocity`` (not finite
-    or negative), 5 ``planner`` (not a :class:`Planner` nor :data:`PLANNER_NONE`).
+    ``count`` is the number of PLAN_SEGMENTs accepted since the last index 0: 0 ``n_segments``
+    (0, or not ``count``), 1 ``target`` (not finite or ``|target| > 1e6``), 2 ``accel_time``,
+    3 ``cruise_time``, 4 ``cruise_velocity`` (not finite or negative), 5 ``planner`` (not a
+    :class:`Planner` nor :data:`PLANNER_NONE`).
     """
-    if commit.n_segments == 0 or commit.n_segments != len(segments):
+    if commit.n_segments == 0 or commit.n_segments != count:
         return 0
     if not (_finite(commit.target) and abs(commit.target) <= _MAX_POSITION):
-        return 1
-    last = segments[-1]
-    x, v, _, sx, sv = segment_end(last.kind, last.duration, last.x0, last.v0, last.a0, last.jerk)
-    if not (
-        abs(x - commit.target) <= SEGMENT_RTOL * (sx + abs(commit.target))
-        and abs(v) <= SEGMENT_RTOL * sv
-    ):
         return 1
     for i, t in ((2, commit.accel_time), (3, commit.cruise_time), (4, commit.cruise_velocity)):
         if not (_finite(t) and t >= 0.0):
             return i
     if commit.planner not in (*Planner, PLANNER_NONE):
         return 5
+    return None
+
+
+def check_plan_continuity(segments, commit):
+    """Where host-planned segments do not join, or ``None`` (the host's check before sending).
+
+    Each segment must start where the previous one ends, within :data:`SEGMENT_RTOL` of the
+    sizes of that one's terms (:func:`segment_end`): ``|x_end - x0| <= SEGMENT_RTOL (sx +
+    |x0|)``, ``|v_end - v0| <= SEGMENT_RTOL (sv + |v0|)`` (the acceleration may step: a
+    trapezoid's), and the last one end at rest at ``commit.target`` (``|x_end - target| <=
+    SEGMENT_RTOL (sx + |target|)``, ``|v_end| <= SEGMENT_RTOL sv``), each plus 1e-12 of the
+    plan's largest ``|x0|``, ``|target|`` (``|v0|``). The device checks only
+    each field's range (:func:`check_plan_segment`): the soft-float arithmetic of these checks
+    would not fit the Uno's flash.
+
+    Returns
+    -------
+    tuple or None
+        ``(i, field)``: segment ``i`` and its field (``"x0"``, ``"v0"``), or ``(n, "target")``
+        for the end.
+    """
+    # (plus 1e-12 of the plan's largest position and velocity: a floor where every term is 0)
+    fx = 1e-12 * max([abs(commit.target)] + [abs(s.x0) for s in segments])
+    fv = 1e-12 * max([0.0] + [abs(s.v0) for s in segments])
+    prev = None
+    for i, seg in enumerate(segments):
+        if prev is not None:
+            x, v, _, sx, sv = segment_end(
+                prev.kind, prev.duration, prev.x0, prev.v0, prev.a0, prev.jerk
+            )
+            if not abs(x - seg.x0) <= SEGMENT_RTOL * (sx + abs(seg.x0)) + fx:
+                return i, "x0"
+            if not abs(v - seg.v0) <= SEGMENT_RTOL * (sv + abs(seg.v0)) + fv:
+                return i, "v0"
+        prev = seg
+    if prev is not None:
+        x, v, _, sx, sv = segment_end(
+            prev.kind, prev.duration, prev.x0, prev.v0, prev.a0, prev.jerk
+        )
+        if not (
+            abs(x - commit.target) <= SEGMENT_RTOL * (sx + abs(commit.target)) + fx
+            and abs(v) <= SEGMENT_RTOL * sv + fv
+        ):
+            return len(segments), "target"
     return None
 
 
@@ -1317,8 +1349,11 @@ def profile_segments(profile):
     Any profile of the four planners (Stojčić eq. 4's published sine-jerk, the optimal sine
     jerk, the S-curve, the trapezoid; rest to rest, :meth:`~jerklab.planner.Profile.synchronized`
     or not) and any :class:`~jerklab.planner.AnyStateProfile` that ends at rest: one segment per
-    phase of nonzero length, its start state integrated in closed form (float64) from the
-    profile's own start.
+    phase of 1 ns or more (shorter ones, the solver's round-off, are left out), its start state
+    integrated in closed form (float64) from the profile's own start (a value below float32's
+    normal range travels as 0). ``planner`` is the profile's :class:`Planner` for a rest-to-rest
+    profile (its ``accel_time`` the float32 sum of the acceleration phase's durations, as the
+    device sums them), :data:`PLANNER_NONE` for a moving start.
 
     Parameters
     ----------
@@ -1356,7 +1391,7 @@ def profile_segments(profile):
         jerk, times, _, P, V, A = profile._segments()
         half = profile.kind == "sine_jerk_optimal"
         for i, tau in enumerate(times.tolist()):
-            if tau > 0.0:
+            if tau >= _MIN_SEGMENT_TIME:
                 jk = float(jerk[i])
                 kind = sine if half and jk != 0.0 else poly
                 rows.append((kind, tau, float(P[i]), float(V[i]), float(A[i]), jk))
@@ -1383,7 +1418,7 @@ def profile_segments(profile):
         for i, ((tau, a_step), kind, jk) in enumerate(zip(phases, kinds, jerks)):
             if a_step is not None:
                 a = a_step
-            if tau > 0.0:
+            if tau >= _MIN_SEGMENT_TIME:
                 rows.append((kind, tau, sg * x, sg * v, sg * a, sg * jk))
                 n_accel += i < len(phases) // 2
             x, v, a, _, _ = segment_end(kind, tau, x, v, a, jk)
@@ -1410,7 +1445,9 @@ def profile_segments(profile):
         for name, value in zip(names[1:], row[1:]):
             if not math.isfinite(value):
                 raise ValueError(f"segment {i}: {name} = {value!r} is not finite")
-        segs.append(PlanSegment(i, int(row[0]), *row[1:]))
+        # a state below float32's normal range (the solver's round-off about 0) travels as 0
+        values = [0.0 if abs(v) < _F32_TINY else v for v in row[2:]]
+        segs.append(PlanSegment(i, int(row[0]), row[1], *values))
     commit = PlanCommit(
         len(segs), distance, float(accel_time), float(cruise_time), cruise_velocity, planner
     )

@@ -307,7 +307,7 @@ def _host_segment_vectors(rng):
             initial_velocity=float(rng.uniform(-60, 60)),
             initial_accel=float(rng.uniform(-300, 300)),
         )
-        if sum(1 for t in p.phase_times if t > 0.0) <= pr.MAX_PLAN_SEGMENTS:
+        if sum(1 for t in p.phase_times if t >= 1e-9) <= pr.MAX_PLAN_SEGMENTS:
             profiles.append((p, 0.001))
     for p, Ts in profiles:
         segs, commit = pr.profile_segments(p)

@@ -1,6 +1,7 @@
 """Host-planned plans (protocol version 5): every jerklab.planner profile as PLAN_SEGMENTs and a
-PLAN_COMMIT, their closed form equal to the profile's, the frames' round trip, and the device
-checks (jerklab.protocol.check_plan_segment / check_plan_commit) naming the field at fault."""
+PLAN_COMMIT, their closed form equal to the profile's, the frames' round trip, the device's
+checks (jerklab.protocol.check_plan_segment / check_plan_commit) naming the field at fault and
+the host's (check_plan_continuity), and Rig.run_move choosing PLAN or the segments."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from hypothesis import strategies as st
 
 from jerklab import protocol as P
 from jerklab.planner import (
+    AnyStateProfile,
     plan_scurve,
     plan_sine_jerk,
     plan_sine_jerk_optimal,
@@ -45,6 +47,8 @@ def _assert_reproduces(p, segs, commit, Ts):
     sp = P.SegmentProfile(segs, commit.target)
     assert math.isclose(sp.duration, p.duration, rel_tol=1e-12, abs_tol=1e-15)
     t = _times(p, Ts)
+    if isinstance(p, AnyStateProfile):
+        t = t[t >= 0.0]  # (before 0 it holds its start state, a run is at rest there)
     a, b = p.sample(t), sp.sample(t)
     scale_x = abs(p.distance) + 1e-300
     scale_v = p.peak_velocity + 1e-300
@@ -65,11 +69,10 @@ def _wire(m):
 
 
 def _device_accepts(segs, commit):
-    prev = None
     for i, s in enumerate(segs):
-        assert P.check_plan_segment(s, i, prev) is None, (i, s)
-        prev = s
-    assert P.check_plan_commit(commit, segs) is None, commit
+        assert P.check_plan_segment(s, i) is None, (i, s)
+    assert P.check_plan_commit(commit, len(segs)) is None, commit
+    assert P.check_plan_continuity(segs, commit) is None
 
 
 @cases("cheap")
@@ -93,7 +96,7 @@ def test_rest_to_rest_segments_reproduce_the_profile_and_round_trip(
     assert 1 <= len(segs) <= P.MAX_PLAN_SEGMENTS
     assert [s.index for s in segs] == list(range(len(segs)))
     assert commit.n_segments == len(segs) and commit.target == p.distance
-    assert all(s.duration > 0.0 for s in segs)
+    assert all(s.duration >= 1e-9 for s in segs)
     half = kind.startswith("sine")
     assert all((s.kind == P.SegmentKind.HALF_SINE) == (half and s.jerk != 0.0) for s in segs)
     _assert_reproduces(p, segs, commit, sync or 0.005)
@@ -124,14 +127,17 @@ def test_any_state_segments_reproduce_the_profile(kind, ed, neg, uv0, ua0):
     d = (-1.0 if neg else 1.0) * 10.0**ed
     fn = plan_scurve if kind == "scurve" else plan_sine_jerk_optimal
     p = fn(d, J, A, V, initial_velocity=uv0 * V, initial_accel=ua0 * A)
-    n_nonzero = sum(1 for t in p.phase_times if t > 0.0)
+    n_nonzero = sum(1 for t in p.phase_times if t >= 1e-9)
     if n_nonzero > P.MAX_PLAN_SEGMENTS:
         with pytest.raises(ValueError, match="MAX_PLAN_SEGMENTS"):
             P.profile_segments(p)
         return
     segs, commit = P.profile_segments(p)
     assert len(segs) == n_nonzero
-    assert segs[0].v0 == p.initial_velocity and segs[0].a0 == p.initial_accel
+    v0, a0 = getattr(p, "initial_velocity", 0.0), getattr(p, "initial_accel", 0.0)
+    tiny = 1.2e-38  # (below float32: sent as 0)
+    assert segs[0].v0 == (v0 if abs(v0) >= tiny else 0.0)
+    assert segs[0].a0 == (a0 if abs(a0) >= tiny else 0.0)
     _assert_reproduces(p, segs, commit, 0.001)
     _device_accepts([_wire(s) for s in segs], _wire(commit))
 
@@ -145,33 +151,46 @@ def test_any_state_that_ends_moving_or_not_a_profile_is_refused():
 
 
 def test_device_checks_name_the_field():
-    """NaN, a segment out of order, too many segments, a wrong kind, a jump in position or
-    velocity, a commit that does not end at rest at its target: the field index of the NACK."""
+    """NaN, a segment out of order, too many segments, a wrong kind, a value out of range: the
+    field index of the device's NACK; a jump in position or velocity, or a plan that does not
+    end at rest at its target: the host's check names the segment and the field."""
     segs, commit = P.profile_segments(plan_scurve(2.0, 2e4, 300.0, 30.0))
     s0, s1 = segs[0], segs[1]
     nan = float("nan")
     rep = dataclasses.replace
-    assert P.check_plan_segment(rep(s1, index=2), 1, s0) == 0  # out of order
-    assert P.check_plan_segment(rep(s0, index=P.MAX_PLAN_SEGMENTS), 7, segs[-1]) == 0
+    assert P.check_plan_segment(rep(s1, index=2), 1) == 0  # out of order
+    assert P.check_plan_segment(s1, 0) == 0  # (none yet)
+    assert P.check_plan_segment(rep(s0, index=P.MAX_PLAN_SEGMENTS), 7) == 0  # too many
     assert P.check_plan_segment(rep(s0, kind=2), 0) == 1
     assert P.check_plan_segment(rep(s0, duration=0.0), 0) == 2
     assert P.check_plan_segment(rep(s0, duration=nan), 0) == 2
+    assert P.check_plan_segment(rep(s0, duration=2e7), 0) == 2
     assert P.check_plan_segment(rep(s0, x0=nan), 0) == 3
     assert P.check_plan_segment(rep(s0, x0=2e6), 0) == 3
     assert P.check_plan_segment(rep(s0, v0=float("inf")), 0) == 4
     assert P.check_plan_segment(rep(s0, a0=nan), 0) == 5
     assert P.check_plan_segment(rep(s0, jerk=nan), 0) == 6
-    assert P.check_plan_segment(rep(s1, x0=s1.x0 + 1e-3), 1, s0) == 3  # a jump
-    assert P.check_plan_segment(rep(s1, v0=s1.v0 * 1.01), 1, s0) == 4
-    assert P.check_plan_segment(rep(s1, a0=0.0), 1, s0) is None  # (a trapezoid's steps)
-    assert P.check_plan_segment(rep(s0), 5, segs[4]) is None  # index 0 starts afresh
-    assert P.check_plan_commit(rep(commit, n_segments=0), segs) == 0
-    assert P.check_plan_commit(rep(commit, n_segments=len(segs) - 1), segs) == 0
-    assert P.check_plan_commit(rep(commit, target=nan), segs) == 1
-    assert P.check_plan_commit(rep(commit, target=2.1), segs) == 1
-    assert P.check_plan_commit(commit, segs[:-1] + [rep(segs[-1], v0=1.0)]) == 1
-    assert P.check_plan_commit(rep(commit, accel_time=-1.0), segs) == 2
-    assert P.check_plan_commit(rep(commit, cruise_time=nan), segs) == 3
+    assert P.check_plan_segment(s0, 5) is None  # index 0 starts afresh
+    assert P.check_plan_commit(rep(commit, n_segments=0), len(segs)) == 0
+    assert P.check_plan_commit(commit, len(segs) - 1) == 0
+    assert P.check_plan_commit(rep(commit, target=nan), len(segs)) == 1
+    assert P.check_plan_commit(rep(commit, target=-2e6), len(segs)) == 1
+    assert P.check_plan_commit(rep(commit, accel_time=-1.0), len(segs)) == 2
+    assert P.check_plan_commit(rep(commit, cruise_time=nan), len(segs)) == 3
+    assert P.check_plan_commit(rep(commit, cruise_velocity=-1.0), len(segs)) == 4
+    assert P.check_plan_commit(rep(commit, planner=7), len(segs)) == 5
+    # the host's check that the segments join (a jump in position or velocity, a wrong end)
+    assert P.check_plan_continuity(segs, commit) is None
+    jump = segs[:1] + [rep(s1, x0=s1.x0 + 1e-3)] + segs[2:]
+    assert P.check_plan_continuity(jump, commit) == (1, "x0")
+    kink = segs[:1] + [rep(s1, v0=s1.v0 * 1.01)] + segs[2:]
+    assert P.check_plan_continuity(kink, commit) == (1, "v0")
+    tsegs, tcommit = P.profile_segments(plan_trapezoid(2.0, 300.0, 30.0))
+    assert tsegs[0].a0 != tsegs[1].a0  # a trapezoid's acceleration steps: still joined
+    assert P.check_plan_continuity(tsegs, tcommit) is None
+    assert P.check_plan_continuity(segs, rep(commit, target=2.1)) == (len(segs), "target")
+    moving = segs[:-1] + [rep(segs[-1], v0=1.0)]
+    assert P.check_plan_continuity(moving, commit)[1] in ("v0", "target")
     with pytest.raises(P.ProtocolError, match="duration"):
         rep(s0, duration="1").pack()
     with pytest.raises(P.ProtocolError, match="index"):

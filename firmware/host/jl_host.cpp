@@ -135,7 +135,7 @@ int run_vectors(const char* path) {
                 int shape, nseg;
                 double target;
                 ss >> shape >> nseg >> target >> sj >> sa >> sv >> sx >> w;
-                jl::HostPlanner hp = {0, 0.0f};
+                jl::HostPlanner hp = {0};
                 bool ok = true;
                 for (int i = 0; i < nseg; ++i) {
                     if (!std::getline(in, line)) { plan.check(1, 0, "truncated segment block"); ok = false; break; }
@@ -151,7 +151,7 @@ int run_vectors(const char* path) {
                     if (bad != 0xFF) ok = false;
                 }
                 const jl::HostCommit hc = {(uint8_t)nseg, (float)target, 0.0f, 0.0f, 0.0f, jl::kPlannerHost};
-                const uint8_t bad = ok ? hp.check(p, hc) : 0;
+                const uint8_t bad = ok ? hp.check(hc) : 0;
                 if (ok) plan.check(bad != 0xFF, 0.5, where.str() + " commit refused, field " + std::to_string(bad));
                 if (bad != 0xFF) {
                     // (refused: skip the block's samples)

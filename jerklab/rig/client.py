@@ -700,6 +700,9 @@ class Rig:
                     f"(capabilities: {self.device_info()['capabilities']})"
                 )
             segs, commit = P.profile_segments(profile)
+            gap = P.check_plan_continuity(segs, commit)
+            if gap is not None:  # (the device checks each field, the host that they join)
+                raise ValueError(f"profile: segment {gap[0]}'s {gap[1]} does not join the previous")
             if not replannable:  # (not the planner's own result: the device cannot re-target)
                 commit = dataclasses.replace(commit, planner=P.PLANNER_NONE)
             host_plan = (segs, commit)

@@ -575,19 +575,18 @@ class VirtualDevice:
     def _cmd_PlanSegment(self, m):
         """PLAN_SEGMENT (version 5): one segment of a host-planned plan, ACK or NACK BAD_VALUE
         naming the field (jerklab.protocol.check_plan_segment)."""
-        prev = self._hsegs[-1] if self._hsegs else None
-        bad = P.check_plan_segment(m, len(self._hsegs), prev)
+        bad = P.check_plan_segment(m, len(self._hsegs))
         if bad is not None:
             return P.ErrorCode.BAD_VALUE, bad
         if m.index == 0:
             self._hsegs = []
-            self.plan = None  # the plan is rebuilt in place, as on the board
+        self.plan = None  # the plan is rebuilt in place, as on the board
         self._hsegs.append(m)
         return P.ErrorCode.OK, 0xFF
 
     def _cmd_PlanCommit(self, m):
         """PLAN_COMMIT (version 5): the host's segments become the plan; PLAN_INFO as PLAN's."""
-        bad = P.check_plan_commit(m, self._hsegs)
+        bad = P.check_plan_commit(m, len(self._hsegs))
         if bad is not None:
             return P.ErrorCode.BAD_VALUE, bad
         # the segments' start times as the board sums them (float32)
@@ -596,9 +595,11 @@ class VirtualDevice:
             dur = np.float32(dur + np.float32(s.duration))
         x = float(dur) / self.period - 1e-4
         if not math.isfinite(x) or x >= P.MAX_PLAN_SAMPLES:
+            self._hsegs = []  # (the plan dropped, as on the board)
             return P.ErrorCode.TOO_LONG, 0
         n = math.ceil(x) + 1
         self.plan = (P.SegmentProfile(self._hsegs, m.target), n, m)
+        self._hsegs = []  # (the next plan starts at index 0, as on the board)
         self._send(P.PlanInfo(m.accel_time, m.cruise_time, float(dur), n), self._current_seq)
         return None, None
 

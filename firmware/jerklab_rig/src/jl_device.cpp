@@ -154,7 +154,7 @@ void __attribute__((noinline)) Device::plan_frame(const Frame& f) {
     if (f.type == kPlanCommit) {
         HostCommit c;
         memcpy(&c, p, sizeof(c));
-        const uint8_t bad = host_plan_.check(plan_, c);
+        const uint8_t bad = host_plan_.check(c);
         if (bad != 0xFF) { nack(f, kErrBadValue, bad); return; }
         host_plan_.commit(&plan_, c);
         plan_info(f);
@@ -710,11 +710,15 @@ bool Device::retarget_work() {
             rt_vs_ = 0.0f;
         }
         const float d = rt_target_ - rt_xs_;
-        if (rt_vs_ == 0.0f) {
+        // (built without the board planners 1-3: their rest-to-rest move is the moving start
+        // from v = 0, the same profile; jerklab.rig.retarget.moving_plan)
+        const bool rest = rt_vs_ == 0.0f;
+        if (rest && (JL_WITH_BOARD_PLANNERS || run_kind_ == kPlannerSineJerk)) {
             rt_mode_ = 0;
             rt_stage_ = 3;
-        } else if ((d > 0.0f) == (rt_vs_ > 0.0f) && d != 0.0f &&
-                   solver_.begin(cp.kind, d, jl_fabsf(rt_vs_), max_jerk_, max_accel_, max_velocity_) == kPlanOk) {
+        } else if ((rest || ((d > 0.0f) == (rt_vs_ > 0.0f) && d != 0.0f)) &&
+                   solver_.begin(rest ? run_kind_ : cp.kind, d, jl_fabsf(rt_vs_), max_jerk_, max_accel_,
+                                 max_velocity_) == kPlanOk) {
             rt_mode_ = 1;
             rt_stage_ = 2;
         } else {
@@ -733,13 +737,9 @@ bool Device::retarget_work() {
             solver_.finish(d, rt_ts_, rt_xs_, np);
         } else if (rt_mode_ == 2) {
             plan_stop(cp.kind, jl_fabsf(rt_vs_), rt_vs_, max_jerk_, max_accel_, rt_ts_, rt_xs_, np);
-        } else if (JL_WITH_BOARD_PLANNERS || run_kind_ == kPlannerSineJerk) {
+        } else {
             plan_kind(run_kind_, d, max_jerk_, max_accel_, max_velocity_, np);
             place(np, rt_ts_, rt_xs_);
-        } else {
-            // (the planners 1-3 are the host's: their rest-to-rest move is the moving start
-            // from v = 0, the same profile; jerklab.rig.retarget.moving_plan)
-            plan_moving(run_kind_, d, 0.0f, max_jerk_, max_accel_, max_velocity_, rt_ts_, rt_xs_, np);
         }
         rt_stage_ = 4;
         return true;

@@ -1,6 +1,7 @@
 #include "jl_planner.h"
 #include "jl_port.h"
 #include "jl_protocol.h"
+#include <stddef.h>
 #include <string.h>
 
 namespace jl {
@@ -322,85 +323,59 @@ PlanStatus plan_stop(uint8_t kind, float v0, float sign, float J, float A, float
 
 // ------------------------------------------------------------------ host-planned plans
 
-// The end of segment g after u: position, velocity, and the sizes of their terms sx = |x0| +
-// u (|v0| + u (|a0|/2 + u |j|/6)), sv = |v0| + u (|a0| + u |j|/2), which bound them for both
-// kinds (jerklab.protocol.segment_end). A half-sine pulse j sin(pi r / u) ends with
-// v = v0 + a0 u + j u^2 / pi, x = x0 + v0 u + a0 u^2/2 + j u^3 (1/(2 pi) - 2/pi^3).
-static void __attribute__((noinline)) segment_end(const Segment& g, float u, float* x, float* v,
-                                                  float* sx, float* sv) {
-    const float j = g.jp, aj = jl_fabsf(j), uu = u * u;
-    const float cv = g.sine ? 0.318309886f : 0.5f;                  // 1/pi, 1/2
-    const float cx = g.sine ? 0.0946518742f : (1.0f / 6.0f);        // 1/(2 pi) - 2/pi^3, 1/6
-    *v = g.v0 + u * g.a0 + cv * j * uu;
-    *x = g.x0 + u * (g.v0 + 0.5f * g.a0 * u) + cx * j * uu * u;
-    *sv = jl_fabsf(g.v0) + u * (jl_fabsf(g.a0) + 0.5f * aj * u);
-    *sx = jl_fabsf(g.x0) + u * (jl_fabsf(g.v0) + u * (0.5f * jl_fabsf(g.a0) + u * aj * (1.0f / 6.0f)));
+// The range checks on the IEEE bits (integer compares, no soft-float call; jl_fixed's abs_le):
+// 0 < x <= hi for a finite hi > 0 (a negative x, -0, a NaN and +inf are out), and x >= 0 finite.
+static bool __attribute__((noinline)) pos_le(float x, float hi) {
+    uint32_t b, h;
+    memcpy(&b, &x, 4);
+    memcpy(&h, &hi, 4);
+    return b - 1u < h;
 }
-
-static const float kSegmentRtol = 1e-4f;   // jerklab.protocol.SEGMENT_RTOL
-
-// |a - b| <= kSegmentRtol (scale + |b|) (false for a NaN)
-static bool __attribute__((noinline)) near_f(float a, float b, float scale) {
-    return jl_fabsf(a - b) <= kSegmentRtol * (scale + jl_fabsf(b));
-}
+static bool nonneg(float x) { return abs_le(x, 3.40282347e38f) && !(x < 0.0f); }
 
 uint8_t HostPlanner::add(Plan* p, const HostSegment& s) {
     const uint8_t i = s.index;
     if (!(i == 0 || i == count) || i >= kMaxHostSegments) return 0;
     if (s.kind > 1) return 1;
-    if (!finite_f(s.duration) || !(s.duration > 0.0f) || !(s.duration <= 1e7f)) return 2;
-    if (!finite_f(s.x0) || !(jl_fabsf(s.x0) <= 1e6f)) return 3;
-    if (!finite_f(s.v0)) return 4;
-    if (!finite_f(s.a0)) return 5;
-    if (!finite_f(s.jerk)) return 6;
-    float t0 = 0.0f;
-    if (i > 0) {
-        float x, v, sx, sv;
-        segment_end(p->seg[i - 1], last_duration, &x, &v, &sx, &sv);
-        if (!near_f(x, s.x0, sx)) return 3;
-        if (!near_f(v, s.v0, sv)) return 4;
-        t0 = p->duration;                   // the previous segment's end
-    } else {
+    if (!pos_le(s.duration, 1e7f)) return 2;
+    if (!abs_le(s.x0, 1e6f)) return 3;
+    float f[3];                             // v0, a0, jerk: fields 4, 5, 6
+    memcpy(f, reinterpret_cast<const uint8_t*>(&s) + offsetof(HostSegment, v0), sizeof(f));
+    for (uint8_t k = 0; k < 3; ++k)
+        if (!abs_le(f[k], 3.40282347e38f)) return static_cast<uint8_t>(4 + k);
+    if (i == 0) {
         p->x_start = s.x0;
         p->t_start = 0.0f;
-        p->kind = kPlannerHost;
-        p->shape = kShapeLinear;
-        p->v_start = p->v_peak = p->cruise_velocity = 0.0f;
     }
+    const float t0 = i == 0 ? 0.0f : p->duration;   // the previous segment's end
     Segment& g = p->seg[i];
     g.t0 = t0;
-    g.x0 = s.x0;
-    g.v0 = s.v0;
-    g.a0 = s.a0;
+    memcpy(&g.x0, &s.x0, 3 * sizeof(float));   // x0, v0, a0 (the same order)
     g.jp = s.jerk;
     g.sine = s.kind;
     g.w = s.kind ? kPi / s.duration : 0.0f;
     p->duration = t0 + s.duration;
     p->nseg = static_cast<uint8_t>(i + 1);
     count = static_cast<uint8_t>(i + 1);
-    last_duration = s.duration;
     return 0xFF;
 }
 
-uint8_t HostPlanner::check(const Plan& p, const HostCommit& c) const {
+uint8_t HostPlanner::check(const HostCommit& c) const {
     if (c.n_segments == 0 || c.n_segments != count) return 0;
-    if (!finite_f(c.target) || !(jl_fabsf(c.target) <= 1e6f)) return 1;
-    float x, v, sx, sv;
-    segment_end(p.seg[count - 1], last_duration, &x, &v, &sx, &sv);
-    if (!near_f(x, c.target, sx) || !near_f(v, 0.0f, sv)) return 1;
-    if (!finite_f(c.accel_time) || c.accel_time < 0.0f) return 2;
-    if (!finite_f(c.cruise_time) || c.cruise_time < 0.0f) return 3;
-    if (!finite_f(c.cruise_velocity) || c.cruise_velocity < 0.0f) return 4;
+    if (!abs_le(c.target, 1e6f)) return 1;
+    float f[3];                             // accel_time, cruise_time, cruise_velocity: 2, 3, 4
+    memcpy(f, reinterpret_cast<const uint8_t*>(&c) + offsetof(HostCommit, accel_time), sizeof(f));
+    for (uint8_t k = 0; k < 3; ++k)
+        if (!nonneg(f[k])) return static_cast<uint8_t>(2 + k);
     if (c.planner > kPlannerTrapezoid && c.planner != kPlannerHost) return 5;
     return 0xFF;
 }
 
 void HostPlanner::commit(Plan* p, const HostCommit& c) {
     Segment& r = p->seg[count];            // the rest at the target
+    memset(&r, 0, sizeof(r));
     r.t0 = p->duration;
     r.x0 = c.target;
-    r.v0 = r.a0 = r.jp = r.w = 0.0f;
-    r.sine = 0;
     p->nseg = static_cast<uint8_t>(count + 1);
     p->distance = c.target - p->x_start;
     p->sign = p->distance < 0.0f ? -1.0f : 1.0f;

@@ -116,22 +116,21 @@ struct __attribute__((packed)) HostCommit {
     uint8_t planner;
 };
 
-/// A host-planned plan being received into a Plan: the segments accepted so far and the
-/// duration of the last one (the continuity checks integrate it to its end).
+/// A host-planned plan being received into a Plan: the segments accepted so far. The device
+/// checks each field's range (jerklab.protocol.check_plan_segment, check_plan_commit); that the
+/// segments join (position and velocity continuous, at rest at the target) is the host's check
+/// (jerklab.protocol.check_plan_continuity: the soft-float arithmetic would cost ~1.3 kB of flash).
 struct HostPlanner {
     uint8_t count;
-    float last_duration;
-    /// PLAN_SEGMENT s into p (jerklab.protocol.check_plan_segment): 0xFF accepted (index 0
-    /// starts a new plan in p), else the payload field at fault, p unchanged: 0 index (not 0
-    /// nor `count`, or >= kMaxHostSegments), 1 kind, 2 duration (not in (0, 1e7] s), 3 x0 (not
-    /// finite, |x0| > 1e6, or more than 1e-4 of the previous segment's terms from its end), 4 v0
-    /// (likewise), 5 a0, 6 jerk (not finite). The acceleration may step (a trapezoid's).
+    /// PLAN_SEGMENT s into p: 0xFF accepted (index 0 starts a new plan in p), else the payload
+    /// field at fault, p unchanged: 0 index (not 0 nor `count`, or >= kMaxHostSegments), 1 kind,
+    /// 2 duration (not in (0, 1e7] s), 3 x0 (not finite or |x0| > 1e6), 4 v0, 5 a0, 6 jerk (not
+    /// finite).
     uint8_t add(Plan* p, const HostSegment& s);
-    /// PLAN_COMMIT c (jerklab.protocol.check_plan_commit): 0xFF when p may be committed, else
-    /// the field at fault: 0 n_segments (0 or not `count`), 1 target (not finite, |target| >
-    /// 1e6, or the last segment does not end at rest there), 2 accel_time, 3 cruise_time,
-    /// 4 cruise_velocity (not finite or < 0), 5 planner (not 0..3 nor 0xFF).
-    uint8_t check(const Plan& p, const HostCommit& c) const;
+    /// PLAN_COMMIT c: 0xFF when the plan may be committed, else the field at fault: 0
+    /// n_segments (0 or not `count`), 1 target (not finite or |target| > 1e6), 2 accel_time,
+    /// 3 cruise_time, 4 cruise_velocity (not finite or < 0), 5 planner (not 0..3 nor 0xFF).
+    uint8_t check(const HostCommit& c) const;
     /// Ends p with the rest at the target (after check()); the next plan starts at index 0.
     void commit(Plan* p, const HostCommit& c);
 };
