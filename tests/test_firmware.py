@@ -315,11 +315,17 @@ def _host_segment_vectors(rng):
         n = min(int(math.ceil(p.duration / Ts)) + 3, 4000)
         s = p.sample(np.arange(n) * Ts)
         shape = {"scurve": 1, "trapezoid": 2}.get(p.kind, 0)
-        sj = 0.0 if shape == 2 else float(np.max(np.abs(s.jerk)))
+        # scales: the segments' peaks (a pulse shorter than Ts has no sample of its own)
+        sj = 0.0 if shape == 2 else max(abs(g.jerk) for g in wire)
         w = max(
             [math.pi / g.duration for g in wire if g.kind == pr.SegmentKind.HALF_SINE], default=0.0
         )
-        scales = [float(np.max(np.abs(q))) for q in (s.accel, s.velocity, s.position)]
+        scales = [
+            max(float(np.max(np.abs(q))), *(abs(getattr(g, f)) for g in wire))
+            for q, f in ((s.accel, "a0"), (s.velocity, "v0"), (s.position, "x0"))
+        ]
+        scales[0] = max(scales[0], float(p.peak_accel))
+        scales[1] = max(scales[1], float(p.peak_velocity))
         lines.append(
             f"G {shape} {len(wire)} {float(np.float32(commit.target))!r} {sj!r} "
             + " ".join(repr(x) for x in scales)
@@ -431,10 +437,32 @@ def test_host_driver_detects_a_wrong_vector(host_driver, tmp_path):
         f"{float(s.velocity)} {float(s.position) * 1.001}\n"
         f"F {int(pr.MsgType.STOP)} 1 - {frame.hex()}\n"
     )
+    # host-planned segments: a position off, and a segment the board refuses (duration 0)
+    q = plan_scurve(2.0, 2e4, 300.0, 30.0)
+    segs, commit = pr.profile_segments(q)
+    hdr = f"G 1 {len(segs)} 2.0 2e4 300.0 30.0 2.0 0.0 0.001 1"
+    rows = [f"g {g.kind} {g.duration!r} {g.x0!r} {g.v0!r} {g.a0!r} {g.jerk!r}" for g in segs]
+    t = q.sample(0.0)
+    ok = f"s {float(t.jerk)} {float(t.accel)} {float(t.velocity)} {float(t.position)}"
+    wrong = hdr.replace(" 0.001 1", " 0.001 2")
+    s1 = q.sample(0.001)
+    off = (
+        f"s {float(s1.jerk)} {float(s1.accel)} {float(s1.velocity)} "
+        f"{float(s1.position) * 1.001 + 1e-3}"
+    )
+    nan_row = rows[1].split()
+    nan_row[2] = "0.0"  # duration 0
+    bad.write_text(
+        bad.read_text()
+        + "\n".join([wrong, *rows, ok, off, hdr, rows[0], " ".join(nan_row), *rows[2:], ok])
+        + "\n"
+    )
     proc = subprocess.run([str(host_driver), "vectors", str(bad)], capture_output=True, text=True)
     assert proc.returncode == 1
     assert "sample records=4 failures=1" in proc.stdout
     assert "encode records=1 failures=1" in proc.stdout
+    assert re.search(r"host_segments records=\d+ failures=[12] ", proc.stdout), proc.stdout
+    assert re.search(r"plan records=\d+ failures=1 ", proc.stdout), proc.stdout
 
 
 # ----------------------------------------------------------------------------- device state machine

@@ -145,6 +145,7 @@ int run_vectors(const char* path) {
                     int sk;
                     double du, x0, v0, a0, jk;
                     ls >> tag >> sk >> du >> x0 >> v0 >> a0 >> jk;
+                    if (!ok) continue;    // (after a refused segment: the block's lines only)
                     const jl::HostSegment hs = {(uint8_t)i, (uint8_t)sk, (float)du, (float)x0, (float)v0, (float)a0, (float)jk};
                     const uint8_t bad = hp.add(&p, hs);
                     plan.check(bad != 0xFF, 0.5, where.str() + " segment " + std::to_string(i) + " refused, field " + std::to_string(bad));

@@ -120,6 +120,9 @@ struct __attribute__((packed)) HostCommit {
 /// checks each field's range (jerklab.protocol.check_plan_segment, check_plan_commit); that the
 /// segments join (position and velocity continuous, at rest at the target) is the host's check
 /// (jerklab.protocol.check_plan_continuity: the soft-float arithmetic would cost ~1.3 kB of flash).
+static_assert(sizeof(HostSegment) == 22 && sizeof(HostCommit) == 18,
+              "HostSegment, HostCommit: PLAN_SEGMENT's and PLAN_COMMIT's payloads");
+
 struct HostPlanner {
     uint8_t count;
     /// PLAN_SEGMENT s into p: 0xFF accepted (index 0 starts a new plan in p), else the payload

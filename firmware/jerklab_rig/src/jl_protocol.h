@@ -77,7 +77,7 @@ static const uint8_t kLenSequence = 16, kLenSetShaper = 51;   // version 3
 #define JL_WITH_HOST_LOOP 1
 #endif
 static const uint8_t kLenHostLoop = 5, kLenHostVoltage = 13, kLenHostSample = 14;   // version 4
-static const uint8_t kLenPlanSegment = 22, kLenPlanCommit = 13;                     // version 5
+static const uint8_t kLenPlanSegment = 22, kLenPlanCommit = 18;                     // version 5
 // A host-planned plan holds at most this many PLAN_SEGMENTs (Plan::seg: and the rest at the target).
 static const uint8_t kMaxHostSegments = 7;
 
