@@ -245,3 +245,39 @@ def test_run_move_sends_segments_when_the_board_lacks_the_planner():
         k = np.asarray(rec.index)
         ref = prof.sample(k * Ts).position
         assert np.max(np.abs(np.asarray(rec.reference) - ref)) <= 1e-5 * abs(prof.distance)
+
+
+def test_retarget_of_a_host_plan_of_no_planner_is_refused_by_name():
+    """A host-planned move that is no planner's rest-to-rest result (here synchronized) cannot be
+    re-targeted: Rig.retarget says why; one of a planner's own profile can (PLAN_COMMIT carries
+    its planner, and the device re-targets it by its rule)."""
+    from jerklab.controller import pole_placement_pid
+    from jerklab.rig import RigError
+
+    g = pole_placement_pid(32.4, 0.025, 20.0)
+    Ts = 0.005
+    for prof, without, refused in [
+        (plan_scurve(2.0, 2e4, 300.0, 30.0).synchronized(Ts), 0, True),
+        (plan_scurve(2.0, 2e4, 300.0, 30.0), P.Capability.PLANNER_SCURVE, False),
+    ]:
+        rig = _virtual_rig(without)
+        errors = []
+
+        def cb(k, r, y, rig=rig, errors=errors):
+            if k == 5:
+                try:
+                    rig.retarget(3.0)
+                except RigError as exc:
+                    errors.append(str(exc))
+
+        try:
+            rec = rig.run_move(prof, g, Ts, path=False, settle=0.1, on_telemetry=cb)
+        finally:
+            rig.close()
+        assert rec.metadata["plan"]["planned_by"] == "host"
+        if refused:
+            assert len(errors) == 1 and "re-targets only a planner's rest-to-rest" in errors[0]
+            assert rec.reference[-1] == pytest.approx(2.0, abs=1e-6)
+        else:
+            assert not errors and rec.metadata["retargets"][0][1] == 3.0
+            assert rec.reference[-1] == pytest.approx(3.0, abs=1e-5)
