@@ -102,9 +102,27 @@ __all__ = [
     "HOST_LOOP_MAX_TS_US",
     "HOST_VOLTAGE_REFERENCE",
     "HOST_SAMPLE_MISSED",
+    "PlanSegment",
+    "PlanCommit",
+    "SegmentKind",
+    "MAX_PLAN_SEGMENTS",
+    "PLANNER_NONE",
+    "SEGMENT_RTOL",
+    "SegmentProfile",
+    "segment_end",
+    "check_plan_segment",
+    "check_plan_commit",
+    "check_plan_continuity",
+    "profile_segments",
 ]
 
-PROTOCOL_VERSION = 4
+PROTOCOL_VERSION = 5
+#: host-planned plans: at most this many PLAN_SEGMENTs (the board adds the rest at the target)
+MAX_PLAN_SEGMENTS = 7
+#: continuity of host-planned segments (the host's check, check_plan_continuity): each one
+#: starts within this fraction of the previous segment's terms (``|x0| + u |v0| + ...``) of
+#: where that one ends
+SEGMENT_RTOL = 1e-4
 #: the longest plan a device accepts (PLAN_INFO.n_samples); longer: NACK TOO_LONG
 MAX_PLAN_SAMPLES = 2_000_000_000
 #: boot defaults of the safety stops (SetLimits.max_error rad, .runaway_ms ms, .saturation_ms ms)
@@ -176,6 +194,8 @@ class MsgType(enum.IntEnum):
     RETARGET = 0x0C
     HOST_LOOP = 0x0D
     HOST_VOLTAGE = 0x0E
+    PLAN_SEGMENT = 0x0F
+    PLAN_COMMIT = 0x10
     ACK = 0x80
     NACK = 0x81
     HELLO_REPLY = 0x82
@@ -246,6 +266,14 @@ class Capability(enum.IntFlag):
     SHAPER = 1 << 13  #: FIR input shaper on the run reference (SET_SHAPER, version 3)
     RETARGET = 1 << 9  #: RETARGET during a run (protocol version 3)
     HOST_LOOP = 1 << 14  #: host-in-the-loop mode (HOST_LOOP, HOST_VOLTAGE, HOST_SAMPLE)
+    HOST_SEGMENTS = 1 << 10  #: host-planned plans (PLAN_SEGMENT, PLAN_COMMIT, version 5)
+
+
+class SegmentKind(enum.IntEnum):
+    """``PlanSegment.kind``: the jerk on a host-planned segment (protocol version 5)."""
+
+    POLYNOMIAL = 0  #: constant jerk (0 on a plateau, a cruise or a trapezoid's step)
+    HALF_SINE = 1  #: ``jerk * sin(pi u / duration)``, u the time into the segment
 
 
 #: ``SetGains.flags`` bit: add the feedforward u_F = (tau*accel + vel)/K (Stojčić eqs. 8, 16)
@@ -729,6 +757,53 @@ class HostVoltage(_Message):
     flags: int = 0
 
 
+@dataclass(frozen=True)
+class PlanSegment(_Message):
+    """One segment of a host-planned plan (version 5; PROTOCOL.md "Host-planned segments").
+
+    Segment ``index`` (0 starts a new plan, then 1, 2, ... in order, at most
+    :data:`MAX_PLAN_SEGMENTS`) lasts ``duration`` s from the end of the previous one and starts in
+    the state ``x0`` rad, ``v0`` rad/s, ``a0`` rad/s²; ``kind`` (:class:`SegmentKind`) says how
+    ``jerk`` (rad/s³) acts on it: constant, or the peak of a half-sine pulse
+    ``jerk sin(pi u / duration)``. The device answers ACK, or NACK BAD_VALUE naming the field.
+    """
+
+    TYPE: ClassVar[MsgType] = MsgType.PLAN_SEGMENT
+    FORMAT: ClassVar[str] = "<BBfffff"
+    index: int
+    kind: int
+    duration: float
+    x0: float
+    v0: float
+    a0: float
+    jerk: float
+
+
+#: ``PlanCommit.planner`` of a plan that is no planner's rest-to-rest profile (a moving start,
+#: a synchronized or edited profile): the device cannot re-target it
+PLANNER_NONE = 0xFF
+
+
+@dataclass(frozen=True)
+class PlanCommit(_Message):
+    """The end of a host-planned plan (version 5): ``n_segments`` PLAN_SEGMENTs sent, the move
+    ends at rest at ``target`` rad; ``accel_time`` and ``cruise_time`` (s, >= 0) are echoed in
+    PLAN_INFO. ``planner`` (:class:`Planner`) says whose rest-to-rest profile the segments are,
+    with ``cruise_velocity`` (rad/s, >= 0) its cruise speed: the device re-targets such a move
+    by the rule of PROTOCOL.md "Re-targeting" (``accel_time`` must then be where its cruise
+    starts); :data:`PLANNER_NONE` for any other plan. The device answers PLAN_INFO as for PLAN,
+    or NACK (BAD_VALUE naming the field, TOO_LONG)."""
+
+    TYPE: ClassVar[MsgType] = MsgType.PLAN_COMMIT
+    FORMAT: ClassVar[str] = "<BffffB"
+    n_segments: int
+    target: float
+    accel_time: float = 0.0
+    cruise_time: float = 0.0
+    cruise_velocity: float = 0.0
+    planner: int = PLANNER_NONE
+
+
 # device -> host -------------------------------------------------------------
 
 
@@ -860,6 +935,8 @@ MESSAGES: dict[int, type] = {
         Retarget,
         HostLoop,
         HostVoltage,
+        PlanSegment,
+        PlanCommit,
         Ack,
         Nack,
         HelloReply,
@@ -1037,3 +1114,341 @@ class Decoder:
             self._base += 1  # rest[0] is the next stream byte
             out += self.feed(rest)
         return out
+
+
+# --------------------------------------------------------------------------- host-planned plans
+
+_PI = math.pi
+#: the largest |x0| of a PLAN_SEGMENT and |target| of a PLAN_COMMIT (as PLAN's distance)
+_MAX_POSITION = 1e6
+#: the longest PLAN_SEGMENT (s)
+_MAX_SEGMENT_TIME = 1e7
+#: segments shorter than this (s; jerklab.planner.MIN_SYNC_TS, below any sample time) are left
+#: out of a host-planned plan (the solver's round-off pieces: the state moves by ~a 1e-9 s)
+_MIN_SEGMENT_TIME = 1e-9
+#: the smallest normal float32
+_F32_TINY = 1.1754943508222875e-38
+
+
+def segment_end(kind, duration, x0, v0, a0, jerk):
+    """The state at the end of a segment and the sizes of its terms.
+
+    Parameters
+    ----------
+    kind : SegmentKind
+        Constant jerk, or a half-sine pulse of peak ``jerk`` over ``duration``.
+    duration, x0, v0, a0, jerk : float
+        As :class:`PlanSegment`.
+
+    Returns
+    -------
+    tuple of float
+        ``(x, v, a, sx, sv)``: the end state, and ``sx = |x0| + u (|v0| + u (|a0|/2 +
+        u |jerk|/6))``, ``sv = |v0| + u (|a0| + u |jerk|/2)`` (``u = duration``), the scales of
+        the continuity checks (they bound each term of the end state for both kinds).
+
+    Notes
+    -----
+    A half-sine pulse ``j sin(pi r / u)`` (Stojčić eq. 2's pulse, integrated three times) ends
+    with ``a = a0 + 2 j u / pi``, ``v = v0 + a0 u + j u^2 / pi`` and
+    ``x = x0 + v0 u + a0 u^2 / 2 + j u^3 (1 / (2 pi) - 2 / pi^3)``.
+    """
+    u = duration
+    if kind == SegmentKind.HALF_SINE:
+        a = a0 + 2.0 * jerk * u / _PI
+        v = v0 + a0 * u + jerk * u * u / _PI
+        x = x0 + u * (v0 + 0.5 * a0 * u) + jerk * u**3 * (0.5 / _PI - 2.0 / _PI**3)
+    else:
+        a = a0 + jerk * u
+        v = v0 + u * (a0 + 0.5 * jerk * u)
+        x = x0 + u * (v0 + u * (0.5 * a0 + u * jerk / 6.0))
+    aj = abs(jerk)
+    sx = abs(x0) + u * (abs(v0) + u * (0.5 * abs(a0) + u * aj / 6.0))
+    sv = abs(v0) + u * (abs(a0) + 0.5 * aj * u)
+    return x, v, a, sx, sv
+
+
+def _finite(x) -> bool:
+    return isinstance(x, numbers.Real) and math.isfinite(x)
+
+
+def check_plan_segment(seg: "PlanSegment", count: int):
+    """The field of a PLAN_SEGMENT the device refuses (NACK BAD_VALUE), or ``None``.
+
+    Parameters
+    ----------
+    seg : PlanSegment
+        The segment received.
+    count : int
+        Segments of the plan accepted so far (index 0 starts afresh whatever the count).
+
+    Returns
+    -------
+    int or None
+        0 ``index`` (not 0 and not ``count``, or ``>= MAX_PLAN_SEGMENTS``), 1 ``kind``,
+        2 ``duration`` (not finite, ``<= 0`` or above 1e7 s), 3 ``x0`` (not finite or
+        ``|x0| > 1e6``), 4 ``v0``, 5 ``a0``, 6 ``jerk`` (not finite). That the segments join is
+        the host's check (:func:`check_plan_continuity`).
+    """
+    if not (seg.index == 0 or seg.index == count) or seg.index >= MAX_PLAN_SEGMENTS:
+        return 0
+    if seg.kind not in (SegmentKind.POLYNOMIAL, SegmentKind.HALF_SINE):
+        return 1
+    if not (_finite(seg.duration) and 0.0 < seg.duration <= _MAX_SEGMENT_TIME):
+        return 2
+    if not (_finite(seg.x0) and abs(seg.x0) <= _MAX_POSITION):
+        return 3
+    for i, v in ((4, seg.v0), (5, seg.a0), (6, seg.jerk)):
+        if not _finite(v):
+            return i
+    return None
+
+
+def check_plan_commit(commit: "PlanCommit", count: int):
+    """The field of a PLAN_COMMIT the device refuses (NACK BAD_VALUE), or ``None``.
+
+    ``count`` is the number of PLAN_SEGMENTs accepted since the last index 0: 0 ``n_segments``
+    (0, or not ``count``), 1 ``target`` (not finite or ``|target| > 1e6``), 2 ``accel_time``,
+    3 ``cruise_time``, 4 ``cruise_velocity`` (not finite or negative), 5 ``planner`` (not a
+    :class:`Planner` nor :data:`PLANNER_NONE`).
+    """
+    if commit.n_segments == 0 or commit.n_segments != count:
+        return 0
+    if not (_finite(commit.target) and abs(commit.target) <= _MAX_POSITION):
+        return 1
+    for i, t in ((2, commit.accel_time), (3, commit.cruise_time), (4, commit.cruise_velocity)):
+        if not (_finite(t) and t >= 0.0):
+            return i
+    if commit.planner not in (*Planner, PLANNER_NONE):
+        return 5
+    return None
+
+
+def check_plan_continuity(segments, commit):
+    """Where host-planned segments do not join, or ``None`` (the host's check before sending).
+
+    Each segment must start where the previous one ends, within :data:`SEGMENT_RTOL` of the
+    sizes of that one's terms (:func:`segment_end`): ``|x_end - x0| <= SEGMENT_RTOL (sx +
+    |x0|)``, ``|v_end - v0| <= SEGMENT_RTOL (sv + |v0|)`` (the acceleration may step: a
+    trapezoid's), and the last one end at rest at ``commit.target`` (``|x_end - target| <=
+    SEGMENT_RTOL (sx + |target|)``, ``|v_end| <= SEGMENT_RTOL sv``), each plus 1e-12 of the
+    plan's largest ``|x0|``, ``|target|`` (``|v0|``). The device checks only
+    each field's range (:func:`check_plan_segment`): the soft-float arithmetic of these checks
+    would not fit the Uno's flash.
+
+    Returns
+    -------
+    tuple or None
+        ``(i, field)``: segment ``i`` and its field (``"x0"``, ``"v0"``), or ``(n, "target")``
+        for the end.
+    """
+    # (plus 1e-12 of the plan's largest position and velocity: a floor where every term is 0)
+    fx = 1e-12 * max([abs(commit.target)] + [abs(s.x0) for s in segments])
+    fv = 1e-12 * max([0.0] + [abs(s.v0) for s in segments])
+    prev = None
+    for i, seg in enumerate(segments):
+        if prev is not None:
+            x, v, _, sx, sv = segment_end(
+                prev.kind, prev.duration, prev.x0, prev.v0, prev.a0, prev.jerk
+            )
+            if not abs(x - seg.x0) <= SEGMENT_RTOL * (sx + abs(seg.x0)) + fx:
+                return i, "x0"
+            if not abs(v - seg.v0) <= SEGMENT_RTOL * (sv + abs(seg.v0)) + fv:
+                return i, "v0"
+        prev = seg
+    if prev is not None:
+        x, v, _, sx, sv = segment_end(
+            prev.kind, prev.duration, prev.x0, prev.v0, prev.a0, prev.jerk
+        )
+        if not (
+            abs(x - commit.target) <= SEGMENT_RTOL * (sx + abs(commit.target)) + fx
+            and abs(v) <= SEGMENT_RTOL * sv + fv
+        ):
+            return len(segments), "target"
+    return None
+
+
+class SegmentProfile:
+    """A host-planned plan (PLAN_SEGMENTs and their PLAN_COMMIT) sampled in closed form.
+
+    Each segment starts at the sum of the durations before it (float64); the move is at rest
+    at the first segment's ``x0`` before 0 and at ``target`` from the end on, as on the device
+    (``jl::sample``).
+
+    Parameters
+    ----------
+    segments : sequence of PlanSegment
+        In index order.
+    target : float
+        Where the move rests at the end (PlanCommit.target).
+    """
+
+    def __init__(self, segments, target):
+        self.segments = tuple(segments)
+        if not self.segments:
+            raise ValueError("segments must hold at least one PlanSegment")
+        self.target = float(target)
+        starts = [0.0]
+        for s in self.segments:
+            starts.append(starts[-1] + float(s.duration))
+        self.starts = tuple(starts)
+
+    @property
+    def duration(self) -> float:
+        """The end of the last segment (s)."""
+        return self.starts[-1]
+
+    def sample(self, t):
+        """Jerk, acceleration, velocity and position at the times ``t``.
+
+        Returns
+        -------
+        jerklab.planner.ProfileSample
+            Arrays of the shape of ``t``.
+        """
+        import numpy as np
+
+        from jerklab.planner import ProfileSample
+
+        t_in = np.asarray(t, dtype=float)
+        t = t_in.reshape(-1)
+        j = np.zeros(t.shape)
+        a = np.zeros(t.shape)
+        v = np.zeros(t.shape)
+        x = np.full(t.shape, float(self.segments[0].x0))
+        for i, s in enumerate(self.segments):
+            sel = (t >= self.starts[i]) & (t < self.starts[i + 1])
+            if not sel.any():
+                continue
+            u = t[sel] - self.starts[i]
+            if s.kind == SegmentKind.HALF_SINE:
+                w = _PI / s.duration
+                wu = w * u
+                sn = np.sin(wu)
+                omc = 2.0 * np.sin(0.5 * wu) ** 2
+                c = s.jerk / w
+                j[sel] = s.jerk * sn
+                a[sel] = s.a0 + c * omc
+                v[sel] = s.v0 + s.a0 * u + c * (u - sn / w)
+                x[sel] = s.x0 + u * (s.v0 + 0.5 * s.a0 * u) + c * (0.5 * u * u - omc / (w * w))
+            else:
+                j[sel] = s.jerk
+                a[sel] = s.a0 + s.jerk * u
+                v[sel] = s.v0 + u * (s.a0 + 0.5 * s.jerk * u)
+                x[sel] = s.x0 + u * (s.v0 + u * (0.5 * s.a0 + u * s.jerk / 6.0))
+        x[t >= self.duration] = self.target
+        shape = t_in.shape
+        return ProfileSample(
+            t_in.copy(), j.reshape(shape), a.reshape(shape), v.reshape(shape), x.reshape(shape)
+        )
+
+
+def profile_segments(profile):
+    """The PLAN_SEGMENTs and the PLAN_COMMIT of a :mod:`jerklab.planner` profile.
+
+    Any profile of the four planners (Stojčić eq. 4's published sine-jerk, the optimal sine
+    jerk, the S-curve, the trapezoid; rest to rest, :meth:`~jerklab.planner.Profile.synchronized`
+    or not) and any :class:`~jerklab.planner.AnyStateProfile` that ends at rest: one segment per
+    phase of 1 ns or more (shorter ones, the solver's round-off, are left out), its start state
+    integrated in closed form (float64) from the profile's own start (a value below float32's
+    normal range travels as 0). ``planner`` is the profile's :class:`Planner` for a rest-to-rest
+    profile (its ``accel_time`` the float32 sum of the acceleration phase's durations, as the
+    device sums them), :data:`PLANNER_NONE` for a moving start.
+
+    Parameters
+    ----------
+    profile : jerklab.planner.Profile
+
+    Returns
+    -------
+    tuple
+        ``(segments, commit)``: a list of :class:`PlanSegment` (index 0, 1, ...) and the
+        :class:`PlanCommit` ending them, at rest at ``profile.distance``.
+
+    Raises
+    ------
+    TypeError
+        ``profile`` is not a jerklab.planner Profile.
+    ValueError
+        The profile ends moving (``final_velocity``), has more than
+        :data:`MAX_PLAN_SEGMENTS` segments, or a value that is not finite (each named).
+    """
+    from jerklab import planner as pl
+
+    if not isinstance(profile, pl.Profile):
+        raise TypeError(f"profile must be a jerklab.planner Profile, got {type(profile).__name__}")
+    poly, sine = SegmentKind.POLYNOMIAL, SegmentKind.HALF_SINE
+    distance = float(profile.distance)
+    if not math.isfinite(distance):
+        raise ValueError(f"profile.distance must be finite, got {distance!r}")
+    rows = []  # (kind, duration, x0, v0, a0, jerk)
+    if isinstance(profile, pl.AnyStateProfile):
+        if profile.final_velocity != 0.0:
+            raise ValueError(
+                f"profile.final_velocity = {profile.final_velocity!r}: a host-planned plan "
+                f"ends at rest (final_velocity 0)"
+            )
+        jerk, times, _, P, V, A = profile._segments()
+        half = profile.kind == "sine_jerk_optimal"
+        for i, tau in enumerate(times.tolist()):
+            if tau >= _MIN_SEGMENT_TIME:
+                jk = float(jerk[i])
+                kind = sine if half and jk != 0.0 else poly
+                rows.append((kind, tau, float(P[i]), float(V[i]), float(A[i]), jk))
+        accel_time = cruise_time = cruise_velocity = 0.0
+        planner = PLANNER_NONE
+        n_accel = 0
+    else:
+        tj, ta, tv, jp = (float(x) for x in (profile._tj, profile._ta, profile._tv, profile._jpar))
+        shape = pl._SHAPE[profile.kind]
+        sg = -1.0 if distance < 0.0 else 1.0
+        if shape == pl._STEP:
+            # acceleration steps: (duration, a0) with jerk 0
+            phases = [(ta, jp), (tv, 0.0), (ta, -jp)]
+            kinds = (poly,) * 3
+            jerks = (0.0,) * 3
+        else:
+            phases = [(tj, 0.0), (ta, None), (tj, None), (tv, None), (tj, None), (ta, None)]
+            phases.append((tj, None))
+            jerks = (jp, 0.0, -jp, 0.0, -jp, 0.0, jp)
+            k = sine if shape == pl._SINE else poly
+            kinds = (k, poly, k, poly, k, poly, k)
+        x = v = a = 0.0
+        n_accel = 0  # the segments of the acceleration phase
+        for i, ((tau, a_step), kind, jk) in enumerate(zip(phases, kinds, jerks)):
+            if a_step is not None:
+                a = a_step
+            if tau >= _MIN_SEGMENT_TIME:
+                rows.append((kind, tau, sg * x, sg * v, sg * a, sg * jk))
+                n_accel += i < len(phases) // 2
+            x, v, a, _, _ = segment_end(kind, tau, x, v, a, jk)
+        cruise_time = tv
+        cruise_velocity = float(profile.peak_velocity)
+        planner = int(Planner[profile.kind.upper()])
+    if rows and planner != PLANNER_NONE:
+        # where the cruise starts as the device sums the segments' durations (float32, in
+        # order): the re-targeting rule switches there
+        acc = struct.unpack("<f", struct.pack("<f", 0.0))[0]
+        for row in rows[:n_accel]:
+            acc = _f32(acc + _f32(row[1]))
+        accel_time = acc
+    if not rows:
+        raise ValueError("profile has no segment of nonzero length (distance 0?)")
+    if len(rows) > MAX_PLAN_SEGMENTS:
+        raise ValueError(
+            f"profile has {len(rows)} segments of nonzero length; a host-planned plan holds at "
+            f"most MAX_PLAN_SEGMENTS = {MAX_PLAN_SEGMENTS}"
+        )
+    names = ("kind", "duration", "x0", "v0", "a0", "jerk")
+    segs = []
+    for i, row in enumerate(rows):
+        for name, value in zip(names[1:], row[1:]):
+            if not math.isfinite(value):
+                raise ValueError(f"segment {i}: {name} = {value!r} is not finite")
+        # a state below float32's normal range (the solver's round-off about 0) travels as 0
+        values = [0.0 if abs(v) < _F32_TINY else v for v in row[2:]]
+        segs.append(PlanSegment(i, int(row[0]), row[1], *values))
+    commit = PlanCommit(
+        len(segs), distance, float(accel_time), float(cruise_time), cruise_velocity, planner
+    )
+    return segs, commit

@@ -5,6 +5,7 @@ watchdog)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 import subprocess
@@ -236,6 +237,8 @@ def _write_vectors(path, rng):
         pr.EndOfRun(0, 81, 0, 0, 0.0),
         pr.EndOfRun(4, 169, 2, 1, -0.52),
         pr.DeviceError(3, 1),
+        pr.PlanSegment(2, 1, 0.0125, 1.5, -3.25, 120.0, -2e4),
+        pr.PlanCommit(7, -31.4159, 0.1, 0.2),
     ]
     for i, m in enumerate(msgs):
         seq = (i * 37) % 256
@@ -271,8 +274,70 @@ def _write_vectors(path, rng):
         )
         lines += [f"f {f.type} {f.seq} {f.payload.hex() or '-'}" for f in frames]
     lines += _shaper_vectors(rng)
+    lines += _host_segment_vectors(np.random.default_rng(28))
     path.write_text("\n".join(lines) + "\n")
     return clamp_stats
+
+
+def _host_segment_vectors(rng):
+    """Host-planned segments (protocol version 5): every planner's profile on limit cases (and
+    synchronized at Ts), and moves from a moving start of both any-state families, as the
+    PLAN_SEGMENTs jerklab.protocol.profile_segments sends (float32 on the wire), against
+    jerklab's closed form of the profile at t = k Ts (G records, firmware/host/jl_host.cpp)."""
+    lines = []
+    profiles = []
+    for i, (d, J, E, W) in enumerate(_limit_cases(rng, 24)):
+        Ts = (0.005, 0.001)[i % 2]
+        profiles += [
+            (plan_sine_jerk(d, J, E, W), Ts),
+            (plan_sine_jerk_optimal(d, J, E, W), Ts),
+            (plan_scurve(d, J, E, W), Ts),
+            (plan_trapezoid(d, E, W), Ts),
+        ]
+        if i % 4 == 0:
+            profiles.append((plan_scurve(d, J, E, W).synchronized(Ts), Ts))
+    for i in range(16):
+        fn = (plan_scurve, plan_sine_jerk_optimal)[i % 2]
+        d = float(rng.choice([-1, 1]) * 10 ** rng.uniform(-1, 1.5))
+        p = fn(
+            d,
+            2e4,
+            300.0,
+            60.0,
+            initial_velocity=float(rng.uniform(-60, 60)),
+            initial_accel=float(rng.uniform(-300, 300)),
+        )
+        if sum(1 for t in p.phase_times if t >= 1e-9) <= pr.MAX_PLAN_SEGMENTS:
+            profiles.append((p, 0.001))
+    for p, Ts in profiles:
+        segs, commit = pr.profile_segments(p)
+        wire = [pr.parse(pr.Decoder().feed(pr.encode(g))[0]) for g in segs]
+        n = min(int(math.ceil(p.duration / Ts)) + 3, 4000)
+        s = p.sample(np.arange(n) * Ts)
+        shape = {"scurve": 1, "trapezoid": 2}.get(p.kind, 0)
+        # scales: the segments' peaks (a pulse shorter than Ts has no sample of its own)
+        sj = 0.0 if shape == 2 else max(abs(g.jerk) for g in wire)
+        w = max(
+            [math.pi / g.duration for g in wire if g.kind == pr.SegmentKind.HALF_SINE], default=0.0
+        )
+        scales = [
+            max(float(np.max(np.abs(q))), *(abs(getattr(g, f)) for g in wire))
+            for q, f in ((s.accel, "a0"), (s.velocity, "v0"), (s.position, "x0"))
+        ]
+        scales[0] = max(scales[0], float(p.peak_accel))
+        scales[1] = max(scales[1], float(p.peak_velocity))
+        lines.append(
+            f"G {shape} {len(wire)} {float(np.float32(commit.target))!r} {sj!r} "
+            + " ".join(repr(x) for x in scales)
+            + f" {w!r} {float(Ts)!r} {n}"
+        )
+        lines += [f"g {g.kind} {g.duration!r} {g.x0!r} {g.v0!r} {g.a0!r} {g.jerk!r}" for g in wire]
+        lines += [
+            f"s {float(s.jerk[k])!r} {float(s.accel[k])!r} "
+            f"{float(s.velocity[k])!r} {float(s.position[k])!r}"
+            for k in range(n)
+        ]
+    return lines
 
 
 def _shaper_vectors(rng):
@@ -354,6 +419,7 @@ def test_host_core_agrees_with_jerklab_on_golden_vectors(host_driver, tmp_path):
         ("encode", 56),
         ("decode", 400),
         ("shaper", 3600),
+        ("host_segments", 40000),
     ]:
         records, failures, worst = summary[kind]
         assert records >= minimum and failures == 0 and worst <= 1.0, (kind, summary[kind])
@@ -371,10 +437,32 @@ def test_host_driver_detects_a_wrong_vector(host_driver, tmp_path):
         f"{float(s.velocity)} {float(s.position) * 1.001}\n"
         f"F {int(pr.MsgType.STOP)} 1 - {frame.hex()}\n"
     )
+    # host-planned segments: a position off, and a segment the board refuses (duration 0)
+    q = plan_scurve(2.0, 2e4, 300.0, 30.0)
+    segs, commit = pr.profile_segments(q)
+    hdr = f"G 1 {len(segs)} 2.0 2e4 300.0 30.0 2.0 0.0 0.001 1"
+    rows = [f"g {g.kind} {g.duration!r} {g.x0!r} {g.v0!r} {g.a0!r} {g.jerk!r}" for g in segs]
+    t = q.sample(0.0)
+    ok = f"s {float(t.jerk)} {float(t.accel)} {float(t.velocity)} {float(t.position)}"
+    wrong = hdr.replace(" 0.001 1", " 0.001 2")
+    s1 = q.sample(0.001)
+    off = (
+        f"s {float(s1.jerk)} {float(s1.accel)} {float(s1.velocity)} "
+        f"{float(s1.position) * 1.001 + 1e-3}"
+    )
+    nan_row = rows[1].split()
+    nan_row[2] = "0.0"  # duration 0
+    bad.write_text(
+        bad.read_text()
+        + "\n".join([wrong, *rows, ok, off, hdr, rows[0], " ".join(nan_row), *rows[2:], ok])
+        + "\n"
+    )
     proc = subprocess.run([str(host_driver), "vectors", str(bad)], capture_output=True, text=True)
     assert proc.returncode == 1
     assert "sample records=4 failures=1" in proc.stdout
     assert "encode records=1 failures=1" in proc.stdout
+    assert re.search(r"host_segments records=\d+ failures=[12] ", proc.stdout), proc.stdout
+    assert re.search(r"plan records=\d+ failures=1 ", proc.stdout), proc.stdout
 
 
 # ----------------------------------------------------------------------------- device state machine
@@ -457,6 +545,16 @@ def test_device_hello_and_parameter_checks(host_driver):
         pr.Step(20.0, 5000, 10),
         pr.Step(1.0, 0, 10),
         pr.Step(1.0, 5000, 0),
+        pr.Plan(1.0, 2),  # the S-curve is the host's (JL_WITH_BOARD_PLANNERS=0)
+        pr.PlanSegment(1, 0, 0.1, 0.0, 0.0, 0.0, 0.0),  # out of order (none yet)
+        pr.PlanSegment(0, 2, 0.1, 0.0, 0.0, 0.0, 0.0),
+        pr.PlanSegment(0, 0, 0.0, 0.0, 0.0, 0.0, 0.0),
+        pr.PlanSegment(0, 0, 0.1, nan, 0.0, 0.0, 0.0),
+        pr.PlanSegment(0, 0, 0.1, 0.0, inf, 0.0, 0.0),
+        pr.PlanSegment(0, 0, 0.1, 0.0, 0.0, nan, 0.0),
+        pr.PlanSegment(0, 0, 0.1, 0.0, 0.0, 0.0, nan),
+        pr.PlanSegment(pr.MAX_PLAN_SEGMENTS, 0, 0.1, 0.0, 0.0, 0.0, 0.0),
+        pr.PlanCommit(0, 1.0),
     ]
     for m in bad:
         dev.send(m)
@@ -471,12 +569,16 @@ def test_device_hello_and_parameter_checks(host_driver):
     assert hello.protocol_version == pr.PROTOCOL_VERSION and hello.name == "jerklab-uno"
     assert hello.tick_us == 1000 and hello.pwm_max == 1023
     caps = pr.Capability(hello.capabilities)
-    # every planner is on the board
+    # the published planner (Stojčić eq. 4) is on the board, the others are the host's
     for c in (
-        pr.Capability.PLANNER_SINE_JERK,
         pr.Capability.PLANNER_SINE_JERK_OPTIMAL,
         pr.Capability.PLANNER_SCURVE,
         pr.Capability.PLANNER_TRAPEZOID,
+    ):
+        assert c not in caps
+    for c in (
+        pr.Capability.PLANNER_SINE_JERK,
+        pr.Capability.HOST_SEGMENTS,
         pr.Capability.LOOP_POSITION,
         pr.Capability.LOOP_VELOCITY,
         pr.Capability.OPEN_LOOP_STEP,
@@ -502,6 +604,16 @@ def test_device_hello_and_parameter_checks(host_driver):
         (0, 3),
         (1, 3),
         (2, 3),
+        (1, 6),
+        (0, 3),
+        (1, 3),
+        (2, 3),
+        (3, 3),
+        (4, 3),
+        (5, 3),
+        (6, 3),
+        (0, 3),
+        (0, 3),
     ]
     nacks = replies[2 : 2 + len(bad)]
     for m, got, (param, err) in zip(bad, nacks, want):
@@ -562,10 +674,22 @@ def test_device_run_matches_jerklab_plan_and_reaches_target(host_driver):
     assert max(abs(t.pwm) for t in tel) <= 1023 and pwm[-1][1] == 0  # stopped at the end
 
 
-@pytest.mark.parametrize("planner,Ts", [(1, 0.001), (2, 0.005), (2, 0.001), (3, 0.001), (0, 0.001)])
+def _plan_messages(p, planner):
+    """PLAN for the board's own planner (0, Stojčić eq. 4), else the host's PLAN_SEGMENTs and
+    PLAN_COMMIT (protocol version 5)."""
+    if planner == 0:
+        return [pr.Plan(f32(p.distance), 0)]
+    segs, commit = pr.profile_segments(p)
+    return [*segs, commit]
+
+
+@pytest.mark.parametrize(
+    "planner,Ts", [(1, 0.001), (2, 0.005), (2, 0.001), (3, 0.001), (0, 0.001), (4, 0.001)]
+)
 def test_device_runs_every_planner(host_driver, planner, Ts):
-    """PLAN's planner byte picks any of the four planners on the board, at Ts = 1 ms
-    as at 5 ms; the reference in the telemetry is jerklab's profile to float32 precision."""
+    """Every planner runs on the board at Ts = 1 ms as at 5 ms: the published one (0) by PLAN,
+    the others (1-3, and 4: an S-curve from a moving start) as host-planned segments; the
+    reference in the telemetry is jerklab's profile to float32 precision."""
     distance = f32(-3 * math.pi)
     J, E, W = 1e4, 300.0, 60.0
     fn = [
@@ -573,18 +697,24 @@ def test_device_runs_every_planner(host_driver, planner, Ts):
         plan_sine_jerk_optimal,
         plan_scurve,
         lambda d, J, E, W: plan_trapezoid(d, E, W),
+        lambda d, J, E, W: plan_scurve(d, J, E, W, initial_velocity=-5.0, initial_accel=-50.0),
     ][planner]
     p = fn(distance, J, E, W)
     dev = HostDevice(host_driver)
     dev.send(pr.SetPlant(32.4, 0.025, 12.0, 448)).send(_gains(Ts))
-    dev.send(pr.SetLimits(J, E, W, 12.0, 200)).send(pr.Plan(distance, planner))
+    dev.send(pr.SetLimits(J, E, W, 12.0, 200))
+    for m in _plan_messages(p, planner):
+        dev.send(m)
     dev.send(pr.Run(100, 1))
     dev.wait(int((p.duration + 0.1 + 100 * Ts) * 1000) + 50, heartbeat_every=40)
     msgs, _ = dev.run()
     replies = [m for _, _, m in msgs]
+    assert not [m for m in replies if isinstance(m, pr.Nack)]
     info = next(m for m in replies if isinstance(m, pr.PlanInfo))
     pt = p.phase_times
     accel_time, cruise = (pt[0], pt[1]) if len(pt) == 3 else (sum(pt[:3]), pt[3])
+    if planner == 4:
+        accel_time = cruise = 0.0  # (a moving start: no such phases)
     assert info.accel_time == pytest.approx(accel_time, rel=1e-5)
     assert info.cruise_time == pytest.approx(cruise, rel=1e-5, abs=1e-6)
     assert info.duration == pytest.approx(p.duration, rel=1e-5)
@@ -708,13 +838,21 @@ def test_device_closed_loop_matches_jerklab_controller(host_driver, loop):
 
 def test_device_retarget_checks_and_ends_on_the_new_target(host_driver):
     """RETARGET (protocol version 3) on the board's state machine: refused when no move runs, on a
-    wrong length or a bad value; during a run the reference ends on the new target, at rest."""
+    wrong length or a bad value; during a run the reference ends on the new target, at rest. The
+    move is the optimal sine-jerk profile planned by the host (PLAN_COMMIT planner 1): the board
+    re-targets it by its own rule; a host plan of no planner (0xFF) is not re-targeted."""
     nan = float("nan")
     dev = HostDevice(host_driver)
     dev.send(pr.Retarget(1.0))  # idle: NOT_READY
     dev.send(pr.encode_frame(int(pr.MsgType.RETARGET), 9, b"\x00\x00"))  # BAD_LENGTH
     dev.send(pr.SetPlant(32.4, 0.025, 12.0, 448)).send(_gains(0.005))
-    dev.send(pr.SetLimits(2000.0, 300.0, 60.0, 12.0, 200)).send(pr.Plan(f32(4 * math.pi), 1))
+    dev.send(pr.SetLimits(2000.0, 300.0, 60.0, 12.0, 200))
+    segs, commit = pr.profile_segments(
+        plan_sine_jerk_optimal(f32(4 * math.pi), 2000.0, 300.0, 60.0)
+    )
+    assert commit.planner == 1
+    for m in (*segs, commit):
+        dev.send(m)
     dev.send(pr.Run(60, 1))
     dev.wait(60, heartbeat_every=20)
     dev.send(pr.Retarget(nan))  # BAD_VALUE
@@ -722,6 +860,10 @@ def test_device_retarget_checks_and_ends_on_the_new_target(host_driver):
     dev.send(pr.Retarget(20.0))  # accepted
     dev.wait(2400, heartbeat_every=40)
     dev.send(pr.Run(0, 1))  # plan consumed
+    for m in (*segs, dataclasses.replace(commit, planner=pr.PLANNER_NONE)):
+        dev.send(m)
+    dev.send(pr.Run(0, 1)).wait(20).send(pr.Retarget(5.0))  # UNSUPPORTED
+    dev.wait(1500, heartbeat_every=40)
     msgs, _ = dev.run()
     replies = [m for _, _, m in msgs]
     nacks = [(m.command, m.error, m.param) for m in replies if isinstance(m, pr.Nack)]
@@ -732,8 +874,12 @@ def test_device_retarget_checks_and_ends_on_the_new_target(host_driver):
         (R, int(pr.ErrorCode.BAD_VALUE), 0),
         (R, int(pr.ErrorCode.BAD_VALUE), 0),
         (int(pr.MsgType.RUN), int(pr.ErrorCode.NOT_READY), 0xFF),
+        (R, int(pr.ErrorCode.UNSUPPORTED), 0xFF),
     ]
     assert sum(isinstance(m, pr.Ack) and m.command == R for m in replies) == 1
+    ends = [i for i, m in enumerate(replies) if isinstance(m, pr.EndOfRun)]
+    assert len(ends) == 2 and replies[ends[1]].reason == pr.EndReason.DONE  # (not re-targeted)
+    replies = replies[: ends[0] + 1]  # the re-targeted run
     end = [m for m in replies if isinstance(m, pr.EndOfRun)]
     assert len(end) == 1 and end[0].reason == pr.EndReason.DONE and end[0].overruns == 0
     tel = [m for m in replies if isinstance(m, pr.Telemetry)]

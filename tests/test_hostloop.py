@@ -533,7 +533,9 @@ def test_firmware_core_and_virtual_device_agree_frame_by_frame(host_driver):
         fw_msgs += [m for _, _, m in fw.run()[0]]
         py_msgs += _virtual_replies(script)
     assert [type(m) for m in fw_msgs] == [type(m) for m in py_msgs]
-    assert isinstance(fw_msgs[0], P.HelloReply) and fw_msgs[0].protocol_version == 4
+    assert (
+        isinstance(fw_msgs[0], P.HelloReply) and fw_msgs[0].protocol_version == P.PROTOCOL_VERSION
+    )
     assert P.Capability.HOST_LOOP in P.Capability(fw_msgs[0].capabilities)
     for a, b in zip(fw_msgs, py_msgs):
         if isinstance(a, P.HelloReply):

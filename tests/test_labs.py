@@ -318,12 +318,17 @@ def test_unsupported_planner_is_reported_not_raised(tmp_path, capsys):
         P.Capability.PLANNER_SCURVE
         | P.Capability.PLANNER_TRAPEZOID
         | P.Capability.PLANNER_SINE_JERK_OPTIMAL
+        | P.Capability.HOST_SEGMENTS  # (a device of protocol version 5 runs the host's plan)
     )
     S.rig.hello()
     g = discrete_pole_placement_pid(30.0, 0.02, 30.0, Ts=0.005)
     assert S.run_move(plan_scurve(**lab.MOVE), g) is None
     assert "no 'scurve' planner" in capsys.readouterr().out
     assert S.run_move(plan_sine_jerk(**lab.MOVE), g) is not None
+    dev.capabilities |= P.Capability.HOST_SEGMENTS
+    S.rig.hello()
+    rec = S.run_move(plan_scurve(**lab.MOVE), g, name="move_scurve_host")
+    assert rec is not None and rec.metadata["plan"]["planned_by"] == "host"
     S.close()
 
 

@@ -79,6 +79,23 @@ EXAMPLES = [
     P.HostLoop(Ts_us=10000, n_samples=201, max_misses=3),
     P.HostVoltage(index=2**32 - 1, voltage=-11.5, reference=3.25, flags=1),
     P.HostSample(index=7, counts=-(2**31), pwm=-1023, misses=65535, miss_run=255, flags=5),
+    P.PlanSegment(
+        index=3,
+        kind=P.SegmentKind.HALF_SINE,
+        duration=0.0125,
+        x0=1.5,
+        v0=-3.25,
+        a0=120.0,
+        jerk=-2e4,
+    ),
+    P.PlanCommit(
+        n_segments=7,
+        target=-31.4159,
+        accel_time=0.1,
+        cruise_time=0.2,
+        cruise_velocity=60.0,
+        planner=P.PLANNER_NONE,
+    ),
 ]
 
 
@@ -162,6 +179,8 @@ def test_golden_frames_match_protocol_md():
         P.HostVoltage(7, 2.5, 0.75, 1),
         P.HostSample(8, -300, 512, 2, 1, 1),
         P.EndOfRun(8, 9, 0, 0, 4.0),
+        P.PlanSegment(2, 1, 0.0125, 1.5, -3.25, 120.0, -2e4),
+        P.PlanCommit(5, 3.0, 0.1, 0.2, 25.0, 2),
     ]
     assert len(hexes) == len(expected)
     for h, m in zip(hexes, expected):

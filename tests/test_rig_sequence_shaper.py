@@ -122,7 +122,7 @@ def test_run_refuses_a_gain_the_fixed_point_pid_cannot_hold_firmware_and_virtual
         kk[which] = f32(k)
         script += [
             P.SetGains(kk[0], kk[1], kk[2], int(Ts * 1e6), loop, 0, 0.0),
-            P.Plan(f32(4 * math.pi), 1),
+            P.Plan(f32(4 * math.pi), 0),  # (the board's own planner, Stojčić eq. 4)
             P.Run(0, 1),
         ]
     dev = _host(host_driver)
@@ -160,7 +160,7 @@ def test_run_refuses_a_shaper_span_the_fixed_point_fir_cannot_hold_firmware_and_
         script += [
             P.SetGains(f32(g.kpd), f32(g.kid), f32(g.kdd), Ts_us, 0, 1, 0.0),
             P.SetLimits(2000.0, 300.0, f32(w), 12.0, 0),
-            P.Plan(f32(0.5), 1),
+            P.Plan(f32(0.5), 0),  # (the board's own planner, Stojčić eq. 4)
             P.Run(0, 1),
             P.Stop(),
         ]

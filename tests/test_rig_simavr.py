@@ -13,7 +13,7 @@ from jerklab import protocol as P
 from jerklab.controller import pole_placement_pid
 from jerklab.planner import plan_scurve, plan_sine_jerk
 from jerklab.plant import DCMotor
-from jerklab.rig import Link, RigCommandError, RigError, connect
+from jerklab.rig import Link, RigCommandError, connect
 
 MOTOR = dict(K=27.5, tau=0.034)
 
@@ -118,11 +118,15 @@ def test_firmware_refuses_bad_parameters(uno):
         uno._request(P.SetGains(1.0, 0.0, 0.0, 1500))
     with pytest.raises(RigCommandError, match="'max_voltage'"):
         uno._request(P.SetLimits(1e4, 100.0, 50.0, 30.0, 1000))
-    if not uno.capabilities & P.Capability.PLANNER_SCURVE:
-        with pytest.raises(RigError, match="no 'scurve' planner"):
-            uno.run_move(
-                plan_scurve(1.0, 1e3, 100.0, 10.0), pole_placement_pid(27.5, 0.034, wn=20.0)
-            )
+    # the default build has no S-curve planner: the host sends the segments (protocol 5)
+    assert not uno.capabilities & P.Capability.PLANNER_SCURVE
+    assert uno.capabilities & P.Capability.HOST_SEGMENTS
+    with pytest.raises(RigCommandError, match="'x0'"):
+        uno._request(P.PlanSegment(0, 0, 0.1, float("nan"), 0.0, 0.0, 0.0))
+    rec = uno.run_move(
+        plan_scurve(1.0, 1e3, 100.0, 10.0), pole_placement_pid(27.5, 0.034, wn=20.0), settle=0.1
+    )
+    assert rec.metadata["status"] == "complete" and rec.metadata["plan"]["planned_by"] == "host"
 
 
 @pytest.fixture(scope="module")
@@ -285,3 +289,40 @@ def test_the_deepest_stack_stays_above_the_variables(tmp_path):
         f"the stack came within {gap} bytes of .bss (lowest SP {st['stack_min_sp']:#x} at "
         f"pc {st['stack_min_pc']:#x}, .bss ends at {bss_end:#x})"
     )
+
+
+def test_board_planners_build_option_plans_on_the_board_and_agrees_with_the_host(tmp_path):
+    """JL_WITH_BOARD_PLANNERS=1 (with JL_WITH_SHAPER=0, to fit) builds the planners 1-3 into the
+    board again: the S-curve is then planned by PLAN on the board, and its run's reference is
+    the host-planned run's of the default build (both jerklab's profile to float32 precision)."""
+    require_simavr()
+    from jerklab.controller import discrete_pole_placement_pid
+    from jerklab.rig import simavr
+
+    build = simavr.firmware_dir() / "build" / "boardplanners"
+    paths = simavr.build_firmware(
+        "avr",
+        "size",
+        build_dir=build,
+        defines=("-DJL_WITH_BOARD_PLANNERS=1", "-DJL_WITH_SHAPER=0"),
+    )
+    assert "firmware size:" in paths["output"] and "over the" not in paths["output"]
+    default = simavr.build_firmware("avr")
+    simavr.build_firmware("simavr")
+    Ts = 0.005
+    prof = plan_scurve(3.0, 2000.0, 300.0, 60.0)
+    g = discrete_pole_placement_pid(MOTOR["K"], MOTOR["tau"], 20.0, Ts=Ts, extra_pole=0.5)
+    recs = {}
+    for name, elf in (("board", paths["elf"]), ("host", default["elf"])):
+        with simavr.launch(elf, K=MOTOR["K"], tau=MOTOR["tau"], build=False) as sim:
+            with connect(sim.port, recordings=tmp_path, progress=False) as rig:
+                has = bool(rig.capabilities & P.Capability.PLANNER_SCURVE)
+                assert has == (name == "board")
+                rig.set_model(**MOTOR)
+                recs[name] = rig.run_move(prof, g, Ts=Ts, settle=0.1, path=False)
+    for name, rec in recs.items():
+        assert rec.metadata["status"] == "complete"
+        assert rec.metadata["plan"]["planned_by"] == name
+        ref = prof.sample(np.asarray(rec.index) * Ts).position
+        assert np.max(np.abs(np.asarray(rec.reference) - ref)) <= 2e-5 * 3.0
+    assert len(recs["board"]) == len(recs["host"])

@@ -19,6 +19,11 @@
 //   P d J E W  T tv tu               published plan: phase times
 //   S d J E W t  j a v x             closed-form sample at t
 //   K d J E W Ts n                   control-loop stepper; n lines "s j a v x" for k = 0..n-1
+//   G shape nseg target sj sa sv sx w Ts n
+//                                    host-planned segments (PLAN_SEGMENT, version 5): nseg
+//                                    lines "g kind duration x0 v0 a0 jerk", then the stepper
+//                                    as K (n lines "s j a v x"); sj..sx the scales, w the
+//                                    largest pulse frequency
 //   C kpd kid kdd gamma limit K tau ff loop Ts
 //                                    controller reset; ff = 1 adds the feedforward,
 //                                    loop 0 position / 1 velocity
@@ -100,6 +105,7 @@ int run_vectors(const char* path) {
     Stat plan("plan"), smp("sample"), stp("stepper"), ctl("controller"), ctlq("controller_fixed"), enc("encode"), dec("decode");
     Stat pulse("pulse");         // the pulses' integer sinusoids (recurrence, eps, range)
     Stat shp("shaper");          // the fixed-point FIR against its Python twin, exactly
+    Stat hstp("host_segments");  // the stepper on host-planned segments (G records)
     jl::Pid pid;
     jl::PidQ pidq;               // the fixed-point law, in "counts" and "ticks" (scales below)
     double q_se = 1.0, q_su = 1.0, q_kabs = 0.0, q_kid = 0.0, q_acc = 0.0, q_gamma = 0.0, q_emax = 0.0;
@@ -117,21 +123,71 @@ int run_vectors(const char* path) {
         ss >> kind;
         std::ostringstream where;
         where << path << ":" << lineno;
-        if (kind == "P" || kind == "S" || kind == "K") {
-            int pk;
-            double d, J, E, W;
-            ss >> pk >> d >> J >> E >> W;
+        if (kind == "P" || kind == "S" || kind == "K" || kind == "G") {
             jl::Plan p;
-            int st = jl::plan_kind((uint8_t)pk, (float)d, (float)J, (float)E, (float)W, &p);
-            if (st != jl::kPlanOk) { plan.check(1, 0, where.str() + " plan refused"); continue; }
-            // scales: jerk parameter, peak acceleration, peak velocity, distance
-            double apk = p.shape == jl::kShapeSine ? 2.0 / M_PI * p.jerk * p.tj
-                         : (p.shape == jl::kShapeLinear ? p.jerk * p.tj : p.jerk);
-            const double sj = p.shape == jl::kShapeStep ? 0.0 : J, sa = apk, sv = p.v_peak, sx = std::fabs(d);
+            double sj, sa, sv, sx, w;
+            const bool host_seg = kind == "G";
+            if (host_seg) {
+                // host-planned segments (protocol version 5): the plan as PLAN_SEGMENTs and
+                // PLAN_COMMIT build it (jl::HostPlanner, every one accepted), then the stepper
+                // as for K; the scales (jerk, accel, velocity, distance) and the largest pulse
+                // frequency come from jerklab, the pulse shape for the jump allowances
+                int shape, nseg;
+                double target;
+                ss >> shape >> nseg >> target >> sj >> sa >> sv >> sx >> w;
+                jl::HostPlanner hp = {0};
+                bool ok = true;
+                for (int i = 0; i < nseg; ++i) {
+                    if (!std::getline(in, line)) { plan.check(1, 0, "truncated segment block"); ok = false; break; }
+                    ++lineno;
+                    std::istringstream ls(line);
+                    std::string tag;
+                    int sk;
+                    double du, x0, v0, a0, jk;
+                    ls >> tag >> sk >> du >> x0 >> v0 >> a0 >> jk;
+                    if (!ok) continue;    // (after a refused segment: the block's lines only)
+                    const jl::HostSegment hs = {(uint8_t)i, (uint8_t)sk, (float)du, (float)x0, (float)v0, (float)a0, (float)jk};
+                    const uint8_t bad = hp.add(&p, hs);
+                    plan.check(bad != 0xFF, 0.5, where.str() + " segment " + std::to_string(i) + " refused, field " + std::to_string(bad));
+                    if (bad != 0xFF) ok = false;
+                }
+                const jl::HostCommit hc = {(uint8_t)nseg, (float)target, 0.0f, 0.0f, 0.0f, jl::kPlannerHost};
+                const uint8_t bad = ok ? hp.check(hc) : 0;
+                if (ok) plan.check(bad != 0xFF, 0.5, where.str() + " commit refused, field " + std::to_string(bad));
+                if (bad != 0xFF) {
+                    // (refused: skip the block's samples)
+                    double Ts;
+                    long n;
+                    ss >> Ts >> n;
+                    for (long k = 0; k < n && std::getline(in, line); ++k) ++lineno;
+                    continue;
+                }
+                hp.commit(&p, hc);
+                p.shape = (uint8_t)shape;
+                kind = "K";
+            } else {
+                int pk;
+                double d, J, E, W;
+                ss >> pk >> d >> J >> E >> W;
+                // (every planner of the source, whether the board build has it or not:
+                // JL_WITH_BOARD_PLANNERS)
+                int st = pk == 0 ? jl::plan_sine_jerk((float)d, (float)J, (float)E, (float)W, &p)
+                         : pk == 1 ? jl::plan_sine_jerk_optimal((float)d, (float)J, (float)E, (float)W, &p)
+                         : pk == 2 ? jl::plan_scurve((float)d, (float)J, (float)E, (float)W, &p)
+                                   : jl::plan_trapezoid((float)d, (float)E, (float)W, &p);
+                if (st != jl::kPlanOk) { plan.check(1, 0, where.str() + " plan refused"); continue; }
+                // scales: jerk parameter, peak acceleration, peak velocity, distance
+                double apk = p.shape == jl::kShapeSine ? 2.0 / M_PI * p.jerk * p.tj
+                             : (p.shape == jl::kShapeLinear ? p.jerk * p.tj : p.jerk);
+                sj = p.shape == jl::kShapeStep ? 0.0 : J;
+                sa = apk;
+                sv = p.v_peak;
+                sx = std::fabs(d);
+                w = p.tj > 0 ? M_PI / p.tj : 0.0;
+            }
             // float32 time: t (and the phase boundaries) carry ~eps * t of rounding, which shifts
             // a short jerk pulse late in a long move; the tolerance allows for that shift
             // (derivative of each quantity times the time error) on top of the relative one.
-            const double w = p.tj > 0 ? M_PI / p.tj : 0.0;
             auto tol = [&](double rtol, double scale, double deriv, double t, double teps) {
                 return rtol * scale + deriv * teps * 6e-8 * std::max(std::fabs(t), (double)p.duration);
             };
@@ -163,6 +219,7 @@ int run_vectors(const char* path) {
                 long n;
                 ss >> Ts >> n;
                 jl::PlanStepper stepper, fstep;
+                Stat& stq = host_seg ? hstp : stp;   // (G: counted apart)
                 // positions in counts as on the device (448 per rev x1): the fixed point's
                 // absolute bound 2^-32 (n + n^2 + n^3) < 6.2e-5 counts (n < 64) is in counts
                 const double cpr = 448.0 / (2.0 * M_PI);
@@ -207,7 +264,7 @@ int run_vectors(const char* path) {
                 double ryd = 0.0, rDd = 0.0, reps = 0.0;
                 long rj = 0;
                 for (long k = 0; k < n; ++k) {
-                    if (!std::getline(in, line)) { stp.check(1, 0, "truncated stepper block"); break; }
+                    if (!std::getline(in, line)) { stq.check(1, 0, "truncated stepper block"); break; }
                     ++lineno;
                     std::istringstream ls(line);
                     std::string tag;
@@ -250,19 +307,19 @@ int run_vectors(const char* path) {
                     std::ostringstream wh;
                     wh << path << ":" << lineno << " k=" << k;
                     const double t = k * Ts;
-                    stp.check(std::fabs(s.jerk - j), near_jump(t) ? 2.000001 * sj : tol(kRtolStepper, sj, sj * w, t, 16), wh.str() + " jerk");
-                    stp.check(std::fabs(s.accel - a), near_jump(t) && p.shape == jl::kShapeStep ? 2.000001 * sa : tol(kRtolStepper, sa, sj, t, 16), wh.str() + " accel");
-                    stp.check(std::fabs(s.velocity / cpr - v), tol(kRtolStepper, sv, sa, t, 16) + sv_bound, wh.str() + " velocity");
-                    stp.check(std::fabs(s.position / cpr - x), tol(kRtolStepper, sx, sv, t, 16) + fx_bound + sx_bound, wh.str() + " position");
-                    stp.check(std::fabs(lx / cpr - x), tol(kRtolStepper, sx, sv, t, 16) + fx_bound + sx_bound, wh.str() + " position (unprepared)");
+                    stq.check(std::fabs(s.jerk - j), near_jump(t) ? 2.000001 * sj : tol(kRtolStepper, sj, sj * w, t, 16), wh.str() + " jerk");
+                    stq.check(std::fabs(s.accel - a), near_jump(t) && p.shape == jl::kShapeStep ? 2.000001 * sa : tol(kRtolStepper, sa, sj, t, 16), wh.str() + " accel");
+                    stq.check(std::fabs(s.velocity / cpr - v), tol(kRtolStepper, sv, sa, t, 16) + sv_bound, wh.str() + " velocity");
+                    stq.check(std::fabs(s.position / cpr - x), tol(kRtolStepper, sx, sv, t, 16) + fx_bound + sx_bound, wh.str() + " position");
+                    stq.check(std::fabs(lx / cpr - x), tol(kRtolStepper, sx, sv, t, 16) + fx_bound + sx_bound, wh.str() + " position (unprepared)");
                     // fixed-point feedforward: the stepper's bound plus the Q16.16 rounding
-                    stp.check(std::fabs(fa - a), (near_jump(t) && p.shape == jl::kShapeStep ? 2.000001 * sa : tol(kRtolStepper, sa, sj, t, 16)) + 2.0 / 65536.0 / alpha + sf_bound,
+                    stq.check(std::fabs(fa - a), (near_jump(t) && p.shape == jl::kShapeStep ? 2.000001 * sa : tol(kRtolStepper, sa, sj, t, 16)) + 2.0 / 65536.0 / alpha + sf_bound,
                               wh.str() + " feedforward (accel)");
                 }
                 // the idle-time preparation kept up: no chunk computed inside a sample
-                stp.check(stepper.misses() + fstep.misses(), 0.5, where.str() + " chunk changes unprepared");
+                stq.check(stepper.misses() + fstep.misses(), 0.5, where.str() + " chunk changes unprepared");
                 // the lazy stepper changed chunk through misses only (start() prepares one ahead)
-                stp.check(lazy_changes > 1 + (long)lazy.misses(), 0.5, where.str() + " misses not counted");
+                stq.check(lazy_changes > 1 + (long)lazy.misses(), 0.5, where.str() + " misses not counted");
             }
         } else if (kind == "C") {
             double kpd, kid, kdd, gamma, limit, K, tau, Ts;
@@ -438,7 +495,7 @@ int run_vectors(const char* path) {
         }
     }
     int fail = 0;
-    for (Stat* s : {&plan, &smp, &stp, &pulse, &ctl, &ctlq, &enc, &dec, &shp}) {
+    for (Stat* s : {&plan, &smp, &stp, &pulse, &ctl, &ctlq, &enc, &dec, &shp, &hstp}) {
         std::printf("%s records=%ld failures=%ld worst_error_over_tol=%.3g at %s\n", s->name, s->records,
                     s->failures, s->worst, s->worst_what.empty() ? "-" : s->worst_what.c_str());
         if (s->failures) fail = 1;

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import collections
 import copy
+import dataclasses
 import datetime as _dt
 import json
 import math
@@ -200,6 +201,7 @@ class Rig:
         self.ignored_frames = 0
         self._retargets = collections.deque()  # RETARGETs waiting for the run loop to send
         self._streaming = False
+        self._host_planned = False  # the last move's PLAN_SEGMENTs: the board cannot re-target
         self.closed = False
         try:
             self.info = self._hello(as_positive("hello_timeout", hello_timeout))
@@ -617,9 +619,15 @@ class Rig:
     ) -> Recording:
         """Run a planned move on the rig; return the :class:`Recording` (saved as it arrives).
 
-        The device re-plans the move from ``profile``'s distance and limits with the same
-        planner (``PLAN``) and checks that the duration agrees; it then runs the
-        feedforward + discrete PID of Stojčić eqs. 16–18 at ``Ts`` on encoder counts.
+        When the device has the profile's planner (its capability bit) and the profile is that
+        planner's unmodified result, the device re-plans the move from ``profile``'s distance
+        and limits (``PLAN``); otherwise, on a device of protocol version 5 with capability
+        :attr:`~jerklab.protocol.Capability.HOST_SEGMENTS`, the host sends the profile's
+        segments (``PLAN_SEGMENT`` ..., ``PLAN_COMMIT``: any planner, synchronized or from a
+        moving start, see :func:`jerklab.protocol.profile_segments`). Either way the host
+        checks that PLAN_INFO's duration agrees; the device then runs the feedforward +
+        discrete PID of Stojčić eqs. 16–18 at ``Ts`` on encoder counts. A host-planned move
+        cannot be re-targeted (:meth:`retarget`).
 
         Before anything is sent, the design is checked on the rig's model (:meth:`set_model`):
         a sampled closed loop (ZOH plant and discrete PID,
@@ -676,13 +684,29 @@ class Rig:
                 f"profile must be a jerklab.planner Profile, got {type(profile).__name__}"
             )
         planner = _KIND_TO_PLANNER[kind]
-        _check_replannable(profile)
+        host_plan = None  # (PLAN_SEGMENTs, PLAN_COMMIT): the host plans the move
+        segments_ok = bool(self.capabilities & P.Capability.HOST_SEGMENTS)
+        try:
+            _check_replannable(profile)
+            replannable = True
+        except ValueError:
+            if not segments_ok:
+                raise
+            replannable = False
+        if not (replannable and self.capabilities & (1 << planner)):
+            if not segments_ok:
+                raise RigError(
+                    f"{self.port}: firmware {self.firmware_version} has no {kind!r} planner "
+                    f"(capabilities: {self.device_info()['capabilities']})"
+                )
+            segs, commit = P.profile_segments(profile)
+            gap = P.check_plan_continuity(segs, commit)
+            if gap is not None:  # (the device checks each field, the host that they join)
+                raise ValueError(f"profile: segment {gap[0]}'s {gap[1]} does not join the previous")
+            if not replannable:  # (not the planner's own result: the device cannot re-target)
+                commit = dataclasses.replace(commit, planner=P.PLANNER_NONE)
+            host_plan = (segs, commit)
         spec = _run_spec(spec, Ts, spec_fields)
-        if not self.capabilities & (1 << planner):
-            raise RigError(
-                f"{self.port}: firmware {self.firmware_version} has no {kind!r} planner "
-                f"(capabilities: {self.device_info()['capabilities']})"
-            )
         distance = as_real("profile.distance", profile.distance)
         if distance == 0.0:
             raise ValueError("profile.distance must be nonzero for a rig move")
@@ -696,7 +720,13 @@ class Rig:
             self._check_stable(gains, spec.period(gains))
         cfg = self.configure(gains, spec, limits)
         Ts = cfg["Ts"]
-        info = self._request(P.Plan(distance, int(planner)), replies=(P.MsgType.PLAN_INFO,))
+        if host_plan is None:
+            info = self._request(P.Plan(distance, int(planner)), replies=(P.MsgType.PLAN_INFO,))
+        else:
+            for seg in host_plan[0]:
+                self._request(seg)
+            info = self._request(host_plan[1], replies=(P.MsgType.PLAN_INFO,))
+        self._host_planned = host_plan is not None and host_plan[1].planner == P.PLANNER_NONE
         if abs(info.duration - profile.duration) > 1e-4 * profile.duration + 2e-5:
             raise RigError(
                 f"{self.port}: the device planned a {info.duration:.6f} s move but the profile lasts "
@@ -715,6 +745,7 @@ class Rig:
                 "cruise_time": info.cruise_time,
                 "duration": info.duration,
                 "n_samples": info.n_samples,
+                "planned_by": "board" if host_plan is None else "host",
             },
             settle_samples=settle_n,
             decimation=int(decimation),
@@ -786,6 +817,12 @@ class Rig:
             raise RigError(
                 "retarget() changes a running move: call it during run_move(), from its "
                 "on_telemetry callback or another thread"
+            )
+        if self._host_planned:
+            raise RigError(
+                f"{self.port}: this move was planned by the host (PLAN_SEGMENT) and is no "
+                f"planner's own rest-to-rest result (a moving start, .synchronized() or edited): "
+                f"the board re-targets only a planner's rest-to-rest moves"
             )
         self._retargets.append(float(d))
 

@@ -25,6 +25,11 @@ bit for bit: :class:`FixedShaper`; velocity and acceleration by backward differe
 may be a ``jerklab.plant.FlexibleDCMotor`` (state ``[θ_m, ω_m, θ_l, ω_l]``, the encoder on the
 motor; ``connect(device=FlexibleDCMotor())``).
 
+Protocol version 5: PLAN_SEGMENT and PLAN_COMMIT (a host-planned plan, checked as the firmware
+checks it: ``jerklab.protocol.check_plan_segment`` and ``check_plan_commit``, sampled by
+``jerklab.protocol.SegmentProfile``). The virtual rig keeps every planner of PLAN (capability bits
+0–3), where the Uno's default build has only the published one (Stojčić eq. 4).
+
 The board's delay from the tick to the new duty is modelled: in a run, the PWM of sample k
 takes effect :attr:`VirtualDevice.compute_delay` after the encoder was read at t = k Ts (the
 firmware's control step, encoder read to PWM write, plus the mean wait for Timer1's TOP, where
@@ -304,6 +309,7 @@ class VirtualDevice:
             | P.Capability.SEQUENCE
             | P.Capability.SHAPER
             | P.Capability.HOST_LOOP
+            | P.Capability.HOST_SEGMENTS
         )
         self._decoder = P.Decoder()
         self._last_byte = self.clock()
@@ -351,6 +357,7 @@ class VirtualDevice:
         )
         self.gains = None
         self.plan = None
+        self._hsegs = []  # version 5: the PLAN_SEGMENTs accepted since the last index 0
         self.shaper = P.SetShaper(0)  # version 3: no input shaper at boot
         self.state = self.STATE_IDLE
         self.pwm = 0
@@ -545,6 +552,7 @@ class VirtualDevice:
         if not self.capabilities & (1 << m.planner):
             return P.ErrorCode.UNSUPPORTED, 1
         L = self.limits
+        self._hsegs = []  # (the board plans into the buffer of the host's segments)
         fn = getattr(planner, _PLANNERS[m.planner])
         if m.planner == P.Planner.TRAPEZOID:
             prof = fn(m.distance, L.max_accel, L.max_velocity)
@@ -562,6 +570,37 @@ class VirtualDevice:
             accel_time, cruise = sum(pt[:3]), pt[3]
         self.plan = (prof, n, m)
         self._send(P.PlanInfo(accel_time, cruise, prof.duration, n), self._current_seq)
+        return None, None
+
+    def _cmd_PlanSegment(self, m):
+        """PLAN_SEGMENT (version 5): one segment of a host-planned plan, ACK or NACK BAD_VALUE
+        naming the field (jerklab.protocol.check_plan_segment)."""
+        bad = P.check_plan_segment(m, len(self._hsegs))
+        if bad is not None:
+            return P.ErrorCode.BAD_VALUE, bad
+        if m.index == 0:
+            self._hsegs = []
+        self.plan = None  # the plan is rebuilt in place, as on the board
+        self._hsegs.append(m)
+        return P.ErrorCode.OK, 0xFF
+
+    def _cmd_PlanCommit(self, m):
+        """PLAN_COMMIT (version 5): the host's segments become the plan; PLAN_INFO as PLAN's."""
+        bad = P.check_plan_commit(m, len(self._hsegs))
+        if bad is not None:
+            return P.ErrorCode.BAD_VALUE, bad
+        # the segments' start times as the board sums them (float32)
+        dur = np.float32(0.0)
+        for s in self._hsegs:
+            dur = np.float32(dur + np.float32(s.duration))
+        x = float(dur) / self.period - 1e-4
+        if not math.isfinite(x) or x >= P.MAX_PLAN_SAMPLES:
+            self._hsegs = []  # (the plan dropped, as on the board)
+            return P.ErrorCode.TOO_LONG, 0
+        n = math.ceil(x) + 1
+        self.plan = (P.SegmentProfile(self._hsegs, m.target), n, m)
+        self._hsegs = []  # (the next plan starts at index 0, as on the board)
+        self._send(P.PlanInfo(m.accel_time, m.cruise_time, float(dur), n), self._current_seq)
         return None, None
 
     def _cmd_Run(self, m):
@@ -847,6 +886,9 @@ class VirtualDevice:
             return self._nack(frame, P.ErrorCode.NOT_READY)
         if not (_finite(m.distance) and abs(m.distance) <= 1e6):
             return self._nack(frame, P.ErrorCode.BAD_VALUE, 0)
+        if isinstance(self._plan_msg, P.PlanCommit) and self._plan_msg.planner == P.PLANNER_NONE:
+            # a host-planned run that is no planner's rest-to-rest profile
+            return self._nack(frame, P.ErrorCode.UNSUPPORTED, 0xFF)
         self._send(P.Ack(frame.type), frame.seq)
         self._rt_target = float(m.distance)
         self._retargeted = True
@@ -856,9 +898,8 @@ class VirtualDevice:
     def _current_plan(self):
         if self._splan is None:
             L, pm = self.limits, self._plan_msg
-            self._splan = R.rest_plan(
-                pm.planner, pm.distance, L.max_jerk, L.max_accel, L.max_velocity
-            )
+            d = pm.target if isinstance(pm, P.PlanCommit) else pm.distance
+            self._splan = R.rest_plan(pm.planner, d, L.max_jerk, L.max_accel, L.max_velocity)
         return self._splan
 
     def _retarget_from(self, k_now):

@@ -7,6 +7,7 @@ names the parameter (and the limit, the file or the field), through ``jerklab._v
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import re
@@ -17,6 +18,7 @@ import numpy as np
 import pytest
 
 from jerklab import controller, fpga, hysteresis, piezo, planner, plant, sim
+from jerklab import protocol as P
 from jerklab._validate import (
     BadIndex,
     BadInput,
@@ -345,6 +347,12 @@ def test_rig_helpers_name_their_parameters(tmp_path):
             rig.wait_still(window=70000)
         with pytest.raises(ValueError, match="tolerance"):
             rig.wait_still(tolerance=-1)
+        # a device without host-planned segments (protocol version 5, capability bit 10)
+        # re-plans every move itself: it refuses an edited profile and a moving start by name
+        info = rig.info
+        rig.info = dataclasses.replace(
+            info, capabilities=info.capabilities & ~P.Capability.HOST_SEGMENTS
+        )
         with pytest.raises(
             ValueError, match=r"profile lasts .* changed after planning \(\.synchronized"
         ):
@@ -352,6 +360,11 @@ def test_rig_helpers_name_their_parameters(tmp_path):
         moving = planner.plan_scurve(1.0, 2000.0, 300.0, 100.0, initial_velocity=1.0)
         with pytest.raises(ValueError, match="rest-to-rest"):
             rig.run_move(moving, g, 0.005, path=False)
+        rig.info = info
+        # one that has them refuses a profile that ends moving, naming final_velocity
+        ends_moving = planner.plan_scurve(1.0, 2000.0, 300.0, 100.0, final_velocity=1.0)
+        with pytest.raises(ValueError, match="final_velocity"):
+            rig.run_move(ends_moving, g, 0.005, path=False)
         with pytest.raises(ValueError, match="feedforward"):
             rig.run_move(prof, g, 0.005, path=False, feedforward="x")
     finally:

@@ -137,14 +137,39 @@ static bool valid_period(uint16_t ts_us, uint16_t tick_us) {
     return ts_us != 0 && ts_us <= 65000u && ts_us % tick_us == 0;
 }
 
-// The rest of PLAN (the frame handle() checked): plan, then PLAN_INFO or the NACK.
+// The rest of PLAN, PLAN_SEGMENT and PLAN_COMMIT (the frame handle() checked): plan (or store
+// the host's segment), then PLAN_INFO (ACK) or the NACK.
 void __attribute__((noinline)) Device::plan_frame(const Frame& f) {
     plan_pending_ = false;
     const uint8_t* p = f.payload;
+    if (f.type == kPlanSegment) {
+        HostSegment s;
+        memcpy(&s, p, sizeof(s));
+        const uint8_t bad = host_plan_.add(&plan_, s);
+        if (bad != 0xFF) { nack(f, kErrBadValue, bad); return; }
+        plan_ok_ = false;                 // (the plan is rebuilt in place)
+        ack(f);
+        return;
+    }
+    if (f.type == kPlanCommit) {
+        HostCommit c;
+        memcpy(&c, p, sizeof(c));
+        const uint8_t bad = host_plan_.check(c);
+        if (bad != 0xFF) { nack(f, kErrBadValue, bad); return; }
+        host_plan_.commit(&plan_, c);
+        plan_info(f);
+        return;
+    }
+    host_plan_.count = 0;                 // (planned into the buffer of the host's segments)
     if (plan_kind(p[4], get_f32(p), max_jerk_, max_accel_, max_velocity_, &plan_) != kPlanOk) {
         nack(f, kErrBadValue, 0);
         return;
     }
+    plan_info(f);
+}
+
+// PLAN_INFO of the plan in plan_ (PLAN, PLAN_COMMIT), or NACK TOO_LONG (the plan dropped).
+void __attribute__((noinline)) Device::plan_info(const Frame& f) {
     float x = plan_.duration / Ts_ - 1e-4f;
     // n = ceil(x) + 1 must stay <= kMaxPlanSamples (float32 holds 2e9 - 1 as 2e9).
     if (!finite_f(x) || x >= static_cast<float>(kMaxPlanSamples)) { nack(f, kErrTooLong, 0); return; }
@@ -161,7 +186,7 @@ void __attribute__((noinline)) Device::plan_frame(const Frame& f) {
 }
 
 void Device::handle(const Frame& f) {
-    if (handle_v3(f) || handle_v4(f)) return;
+    if (handle_v3(f) || handle_v4(f) || handle_v5(f)) return;
     const uint8_t* p = f.payload;
     static const uint8_t kLen[10] JL_PROGMEM = {0, kLenHello, kLenSetPlant, kLenSetGains, kLenSetLimits,
                                      kLenPlan, kLenRun, kLenStop, kLenStep, kLenHeartbeat};
@@ -176,9 +201,9 @@ void Device::handle(const Frame& f) {
     switch (f.type) {
     case kHello: {
         uint8_t r[kLenHelloReply];
-        uint16_t caps = kCapSineJerk | kCapSineJerkOptimal | kCapScurve | kCapTrapezoid |
-                        kCapRetarget | kCapLoopPosition | kCapLoopVelocity | kCapOpenLoopStep |
-                        kCapFeedforward;
+        uint16_t caps = kCapSineJerk | kCapRetarget | kCapLoopPosition | kCapLoopVelocity |
+                        kCapOpenLoopStep | kCapFeedforward | kCapHostSegments;
+        if (JL_WITH_BOARD_PLANNERS) caps |= kCapSineJerkOptimal | kCapScurve | kCapTrapezoid;
         if (JL_WITH_SEQUENCE) caps |= kCapSequence;
         if (JL_WITH_SHAPER) caps |= kCapShaper;
         if (JL_WITH_HOST_LOOP) caps |= kCapHostLoop;
@@ -250,6 +275,8 @@ void Device::handle(const Frame& f) {
         uint8_t kind = p[4];
         if (!in_range(jl_fabsf(d), 0.0f, 1e6f)) { nack(f, kErrBadValue, 0); return; }
         if (kind > kPlannerTrapezoid) { nack(f, kErrBadValue, 1); return; }
+        // (built without the board planners 1-3: the host sends their segments)
+        if (!JL_WITH_BOARD_PLANNERS && kind != kPlannerSineJerk) { nack(f, kErrUnsupported, 1); return; }
         plan_ok_ = false;            // planned in place (a Plan is ~260 bytes of RAM)
         // planned by plan_frame() once handle() has returned: the planners' deep float calls
         // then do not stack on handle()'s frame (PLAN is the deepest stack of the firmware)
@@ -330,6 +357,16 @@ void Device::handle(const Frame& f) {
         nack(f, kErrUnknownType);
         return;
     }
+}
+
+// Version 5 commands (PROTOCOL.md "Host-planned segments"): PLAN_SEGMENT and PLAN_COMMIT,
+// checked (length, idle) here and handled by plan_frame() once handle() has returned.
+bool Device::handle_v5(const Frame& f) {
+    if (f.type != kPlanSegment && f.type != kPlanCommit) return false;
+    if (f.len != (f.type == kPlanSegment ? kLenPlanSegment : kLenPlanCommit)) { nack(f, kErrBadLength); return true; }
+    if (state_ != kIdle) { nack(f, kErrBusy); return true; }
+    plan_pending_ = true;
+    return true;
 }
 
 // Version 3 commands (PROTOCOL.md "Version 3"): SEQUENCE (open-loop PRBS) and SET_SHAPER.
@@ -629,6 +666,8 @@ void Device::handle_retarget(const Frame& f) {
     if (state_ != kRunning) { nack(f, kErrNotReady); return; }
     const float d = get_f32(f.payload);
     if (!abs_le(d, 1e6f)) { nack(f, kErrBadValue, 0); return; }
+    // a host-planned run that is no planner's rest-to-rest profile (PLAN_COMMIT planner 0xFF)
+    if (run_kind_ == kPlannerHost) { nack(f, kErrUnsupported); return; }
     ack(f);
     rt_target_ = d;
     rt_active_ = true;
@@ -671,11 +710,15 @@ bool Device::retarget_work() {
             rt_vs_ = 0.0f;
         }
         const float d = rt_target_ - rt_xs_;
-        if (rt_vs_ == 0.0f) {
+        // (built without the board planners 1-3: their rest-to-rest move is the moving start
+        // from v = 0, the same profile; jerklab.rig.retarget.moving_plan)
+        const bool rest = rt_vs_ == 0.0f;
+        if (rest && (JL_WITH_BOARD_PLANNERS || run_kind_ == kPlannerSineJerk)) {
             rt_mode_ = 0;
             rt_stage_ = 3;
-        } else if ((d > 0.0f) == (rt_vs_ > 0.0f) && d != 0.0f &&
-                   solver_.begin(cp.kind, d, jl_fabsf(rt_vs_), max_jerk_, max_accel_, max_velocity_) == kPlanOk) {
+        } else if ((rest || ((d > 0.0f) == (rt_vs_ > 0.0f) && d != 0.0f)) &&
+                   solver_.begin(rest ? run_kind_ : cp.kind, d, jl_fabsf(rt_vs_), max_jerk_, max_accel_,
+                                 max_velocity_) == kPlanOk) {
             rt_mode_ = 1;
             rt_stage_ = 2;
         } else {

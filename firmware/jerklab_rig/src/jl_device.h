@@ -162,6 +162,10 @@ private:
     // Version 4: HOST_LOOP, HOST_VOLTAGE (false if the frame was neither); a tick of the mode
     // is control()'s, as a run's sample, with host_tick() and send_host_sample().
     bool handle_v4(const Frame& f);
+    // Version 5: PLAN_SEGMENT, PLAN_COMMIT (false if the frame was neither); the segments are
+    // checked and stored by plan_frame(), as PLAN is planned there.
+    bool handle_v5(const Frame& f);
+    void plan_info(const Frame& f);
     int32_t host_tick(int32_t c, uint8_t* flags);
     void send_host_sample();
     // The safety stops' state for a RUN or a HOST_LOOP; the start of any run (STEP, SEQUENCE too).
@@ -180,8 +184,9 @@ private:
     float kpd_ JL_ZERO, kid_ JL_ZERO, kdd_ JL_ZERO, gamma_ JL_ZERO;
 
     bool plan_ok_ JL_ZERO;
-    bool plan_pending_ JL_ZERO;   // a checked PLAN frame waits for plan_frame()
+    bool plan_pending_ JL_ZERO;   // a checked PLAN (PLAN_SEGMENT, PLAN_COMMIT) waits for plan_frame()
     Plan plan_;
+    HostPlanner host_plan_ JL_ZERO;   // version 5: the host's segments received into plan_
     // Re-targeting (PROTOCOL.md "Re-targeting"): the plan that takes over is built in the buffer
     // the stepper does not use, in stages run by background(); rt_stage_ 0 idle, 1 find the
     // switch point, 2 bisection, 3 build, 4 prepare its first segment, 5 scheduled.

@@ -1,11 +1,14 @@
 #include "jl_planner.h"
 #include "jl_port.h"
 #include "jl_protocol.h"
+#include <stddef.h>
 #include <string.h>
 
 namespace jl {
 
 static const float kTwoOverPi = 0.636619772367581f;
+
+static uint8_t shape_of(uint8_t kind);
 
 // Peak acceleration, velocity and position at the end of the rising pulse of an acceleration
 // phase from rest with pulse time tj (jerklab.planner._evaluate: apk, v1, x1).
@@ -203,12 +206,18 @@ PlanStatus plan_trapezoid(float distance, float A, float V, Plan* p) {
 }
 
 PlanStatus plan_kind(uint8_t kind, float d, float J, float A, float V, Plan* p) {
+#if JL_WITH_BOARD_PLANNERS
     switch (kind) {
     case kPlannerSineJerk: return plan_sine_jerk(d, J, A, V, p);
     case kPlannerSineJerkOptimal: return plan_sine_jerk_optimal(d, J, A, V, p);
     case kPlannerScurve: return plan_scurve(d, J, A, V, p);
     default: return plan_trapezoid(d, A, V, p);
     }
+#else
+    // (the planners 1-3 are the host's: only Stojcic eq. 4's is built)
+    if (kind != kPlannerSineJerk) return kPlanBadTime;
+    return plan_sine_jerk(d, J, A, V, p);
+#endif
 }
 
 // Pulse pair changing the velocity by dv >= 0 with the pulse jerk Je (2J/pi for the sine
@@ -310,6 +319,72 @@ PlanStatus plan_stop(uint8_t kind, float v0, float sign, float J, float A, float
     p->ta = ta;
     build(p);
     return kPlanOk;
+}
+
+// ------------------------------------------------------------------ host-planned plans
+
+// The range checks on the IEEE bits (integer compares, no soft-float call; jl_fixed's abs_le):
+// 0 < x <= hi for a finite hi > 0 (a negative x, -0, a NaN and +inf are out), and x >= 0 finite.
+static bool __attribute__((noinline)) pos_le(float x, float hi) {
+    uint32_t b, h;
+    memcpy(&b, &x, 4);
+    memcpy(&h, &hi, 4);
+    return b - 1u < h;
+}
+static bool nonneg(float x) { return abs_le(x, 3.40282347e38f) && !(x < 0.0f); }
+
+uint8_t HostPlanner::add(Plan* p, const HostSegment& s) {
+    const uint8_t i = s.index;
+    if (!(i == 0 || i == count) || i >= kMaxHostSegments) return 0;
+    if (s.kind > 1) return 1;
+    if (!pos_le(s.duration, 1e7f)) return 2;
+    if (!abs_le(s.x0, 1e6f)) return 3;
+    float f[3];                             // v0, a0, jerk: fields 4, 5, 6
+    memcpy(f, reinterpret_cast<const uint8_t*>(&s) + offsetof(HostSegment, v0), sizeof(f));
+    for (uint8_t k = 0; k < 3; ++k)
+        if (!abs_le(f[k], 3.40282347e38f)) return static_cast<uint8_t>(4 + k);
+    if (i == 0) {
+        p->x_start = s.x0;
+        p->t_start = 0.0f;
+    }
+    const float t0 = i == 0 ? 0.0f : p->duration;   // the previous segment's end
+    Segment& g = p->seg[i];
+    g.t0 = t0;
+    memcpy(&g.x0, &s.x0, 3 * sizeof(float));   // x0, v0, a0 (the same order)
+    g.jp = s.jerk;
+    g.sine = s.kind;
+    g.w = s.kind ? kPi / s.duration : 0.0f;
+    p->duration = t0 + s.duration;
+    p->nseg = static_cast<uint8_t>(i + 1);
+    count = static_cast<uint8_t>(i + 1);
+    return 0xFF;
+}
+
+uint8_t HostPlanner::check(const HostCommit& c) const {
+    if (c.n_segments == 0 || c.n_segments != count) return 0;
+    if (!abs_le(c.target, 1e6f)) return 1;
+    float f[3];                             // accel_time, cruise_time, cruise_velocity: 2, 3, 4
+    memcpy(f, reinterpret_cast<const uint8_t*>(&c) + offsetof(HostCommit, accel_time), sizeof(f));
+    for (uint8_t k = 0; k < 3; ++k)
+        if (!nonneg(f[k])) return static_cast<uint8_t>(2 + k);
+    if (c.planner > kPlannerTrapezoid && c.planner != kPlannerHost) return 5;
+    return 0xFF;
+}
+
+void HostPlanner::commit(Plan* p, const HostCommit& c) {
+    Segment& r = p->seg[count];            // the rest at the target
+    memset(&r, 0, sizeof(r));
+    r.t0 = p->duration;
+    r.x0 = c.target;
+    p->nseg = static_cast<uint8_t>(count + 1);
+    p->distance = c.target - p->x_start;
+    p->sign = p->distance < 0.0f ? -1.0f : 1.0f;
+    p->accel_time = c.accel_time;
+    p->cruise_time = p->tv = c.cruise_time;
+    p->v_peak = p->cruise_velocity = c.cruise_velocity;
+    p->kind = c.planner;
+    p->shape = shape_of(c.planner);
+    count = 0;
 }
 
 void place(Plan* p, float t_start, float x_start) {

@@ -99,6 +99,45 @@ PlanStatus plan_moving(uint8_t kind, float distance, float v0, float max_jerk, f
 PlanStatus plan_stop(uint8_t kind, float v0, float sign, float max_jerk, float max_accel,
                      float t_start, float x_start, Plan* out);
 
+/// PLAN_SEGMENT's payload (protocol version 5) as it goes on the wire: segment `index` of a
+/// host-planned plan, `kind` 0 constant jerk / 1 half-sine pulse jerk sin(pi u / duration), its
+/// duration (s) and start state (little-endian, no padding, as the AVR and the hosts store them).
+struct __attribute__((packed)) HostSegment {
+    uint8_t index, kind;
+    float duration, x0, v0, a0, jerk;
+};
+/// PLAN_COMMIT's payload: the number of segments, the rest position at the end, the
+/// acceleration and cruise times PLAN_INFO echoes, the cruise velocity and the planner whose
+/// rest-to-rest profile the segments are (0..3: RETARGET re-plans it by the board's rule;
+/// kPlannerHost 0xFF: none, not re-targetable).
+struct __attribute__((packed)) HostCommit {
+    uint8_t n_segments;
+    float target, accel_time, cruise_time, cruise_velocity;
+    uint8_t planner;
+};
+
+/// A host-planned plan being received into a Plan: the segments accepted so far. The device
+/// checks each field's range (jerklab.protocol.check_plan_segment, check_plan_commit); that the
+/// segments join (position and velocity continuous, at rest at the target) is the host's check
+/// (jerklab.protocol.check_plan_continuity: the soft-float arithmetic would cost ~1.3 kB of flash).
+static_assert(sizeof(HostSegment) == 22 && sizeof(HostCommit) == 18,
+              "HostSegment, HostCommit: PLAN_SEGMENT's and PLAN_COMMIT's payloads");
+
+struct HostPlanner {
+    uint8_t count;
+    /// PLAN_SEGMENT s into p: 0xFF accepted (index 0 starts a new plan in p), else the payload
+    /// field at fault, p unchanged: 0 index (not 0 nor `count`, or >= kMaxHostSegments), 1 kind,
+    /// 2 duration (not in (0, 1e7] s), 3 x0 (not finite or |x0| > 1e6), 4 v0, 5 a0, 6 jerk (not
+    /// finite).
+    uint8_t add(Plan* p, const HostSegment& s);
+    /// PLAN_COMMIT c: 0xFF when the plan may be committed, else the field at fault: 0
+    /// n_segments (0 or not `count`), 1 target (not finite or |target| > 1e6), 2 accel_time,
+    /// 3 cruise_time, 4 cruise_velocity (not finite or < 0), 5 planner (not 0..3 nor 0xFF).
+    uint8_t check(const HostCommit& c) const;
+    /// Ends p with the rest at the target (after check()); the next plan starts at index 0.
+    void commit(Plan* p, const HostCommit& c);
+};
+
 /// Move a plan made at (t = 0, x = 0) to start at (t_start, x_start).
 void place(Plan* p, float t_start, float x_start);
 

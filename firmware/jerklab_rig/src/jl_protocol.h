@@ -1,4 +1,4 @@
-// Message types, codes and payload sizes of the jerklab rig protocol, version 4.
+// Message types, codes and payload sizes of the jerklab rig protocol, version 5.
 // Mirrors jerklab/protocol.py and firmware/PROTOCOL.md (the reference definitions).
 #ifndef JL_PROTOCOL_H
 #define JL_PROTOCOL_H
@@ -6,13 +6,14 @@
 
 namespace jl {
 
-static const uint8_t kProtocolVersion = 4;
+static const uint8_t kProtocolVersion = 5;
 
 enum MsgType : uint8_t {
     kHello = 0x01, kSetPlant = 0x02, kSetGains = 0x03, kSetLimits = 0x04, kPlan = 0x05,
     kRun = 0x06, kStop = 0x07, kStep = 0x08, kHeartbeat = 0x09, kRetarget = 0x0C,
     kSequence = 0x0A, kSetShaper = 0x0B,   // version 3 (input shaping, identification)
     kHostLoop = 0x0D, kHostVoltage = 0x0E,  // version 4 (host-in-the-loop)
+    kPlanSegment = 0x0F, kPlanCommit = 0x10,  // version 5 (host-planned segments)
     kAck = 0x80, kNack = 0x81, kHelloReply = 0x82, kPlanInfo = 0x83,
     kTelemetry = 0x90, kEndOfRun = 0x91, kError = 0x92, kHostSample = 0x93,
 };
@@ -30,7 +31,16 @@ enum EndReason : uint8_t { kEndDone = 0, kEndStopped = 1, kEndHostTimeout = 2, k
 static const uint32_t kMaxPlanSamples = 2000000000UL;
 
 enum PlannerKind : uint8_t { kPlannerSineJerk = 0, kPlannerSineJerkOptimal = 1,
-                             kPlannerScurve = 2, kPlannerTrapezoid = 3 };
+                             kPlannerScurve = 2, kPlannerTrapezoid = 3,
+                             kPlannerHost = 0xFF };   // (Plan::kind of a host-planned plan)
+
+// Build option JL_WITH_BOARD_PLANNERS (default 0): 1 builds the planners 1-3 (optimal sine
+// jerk, S-curve, trapezoid) into the board; 0 leaves them to the host, which sends their
+// segments (PLAN_SEGMENT, PLAN_COMMIT): PLAN with planner 1-3 is then NACKed UNSUPPORTED and
+// capability bits 1-3 are clear. The published sine-jerk planner (Stojcic eq. 4) is always built.
+#ifndef JL_WITH_BOARD_PLANNERS
+#define JL_WITH_BOARD_PLANNERS 0
+#endif
 
 enum LoopType : uint8_t { kLoopPosition = 0, kLoopVelocity = 1 };
 
@@ -41,6 +51,7 @@ enum Capability : uint16_t {
     kCapRetarget = 1u << 9,
     kCapSequence = 1u << 12, kCapShaper = 1u << 13,   // version 3 (identification, input shaping)
     kCapHostLoop = 1u << 14,                           // version 4 (host-in-the-loop)
+    kCapHostSegments = 1u << 10,                       // version 5 (PLAN_SEGMENT, PLAN_COMMIT)
 };
 
 static const uint8_t kGainsFeedforward = 0x01;
@@ -66,6 +77,9 @@ static const uint8_t kLenSequence = 16, kLenSetShaper = 51;   // version 3
 #define JL_WITH_HOST_LOOP 1
 #endif
 static const uint8_t kLenHostLoop = 5, kLenHostVoltage = 13, kLenHostSample = 14;   // version 4
+static const uint8_t kLenPlanSegment = 22, kLenPlanCommit = 18;                     // version 5
+// A host-planned plan holds at most this many PLAN_SEGMENTs (Plan::seg: and the rest at the target).
+static const uint8_t kMaxHostSegments = 7;
 
 }  // namespace jl
 #endif
