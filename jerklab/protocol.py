@@ -36,6 +36,11 @@ import struct
 from dataclasses import dataclass
 from typing import ClassVar
 
+import numpy as np
+
+from jerklab import planner as pl
+from jerklab.planner import ProfileSample
+
 __all__ = [
     "PROTOCOL_VERSION",
     "SYNC",
@@ -1306,10 +1311,6 @@ class SegmentProfile:
         jerklab.planner.ProfileSample
             Arrays of the shape of ``t``.
         """
-        import numpy as np
-
-        from jerklab.planner import ProfileSample
-
         t_in = np.asarray(t, dtype=float)
         t = t_in.reshape(-1)
         j = np.zeros(t.shape)
@@ -1373,8 +1374,6 @@ def profile_segments(profile):
         The profile ends moving (``final_velocity``), has more than
         :data:`MAX_PLAN_SEGMENTS` segments, or a value that is not finite (each named).
     """
-    from jerklab import planner as pl
-
     if not isinstance(profile, pl.Profile):
         raise TypeError(f"profile must be a jerklab.planner Profile, got {type(profile).__name__}")
     poly, sine = SegmentKind.POLYNOMIAL, SegmentKind.HALF_SINE
