@@ -332,3 +332,52 @@ def test_late_retarget_is_refused_and_retried_then_given_up(monkeypatch):
     assert len(rec.metadata["retargets_late"]) == R.RETARGET_TRIES
     assert rec.metadata["retargets_refused"][-1][0] == "LATE"
     assert rec.reference[-1] == pytest.approx(float(np.float32(prof.distance)), abs=1e-6)
+
+
+def test_virtual_device_checks_a_retarget_as_the_firmware_does():
+    """The virtual rig's RETARGET: the same NACKs, field by field, as the firmware's (see
+    tests/test_firmware.py), and the accepted switch at the sample it names."""
+    from jerklab.controller import DiscreteGains
+    from jerklab.rig.virtual import VirtualDevice
+
+    t = [0.0]
+    dev = VirtualDevice(DCMotor(**MOTOR, supply_voltage=12.0, encoder_ppr=448), clock=lambda: t[0])
+
+    def send(*msgs):
+        for m in msgs:
+            dev.receive(P.encode(m, 1))
+        return [P.parse(f) for f in P.Decoder().feed(dev.read_output())]
+
+    nan = float("nan")
+    assert send(P.Retarget(20, 0.1, 0, 1, 1.0)) == [P.Nack(P.MsgType.RETARGET, 5, 0xFF)]
+    g = DiscreteGains(0.5, 0.01, 1.0, 0.005)
+    send(P.SetGains(g.kpd, g.kid, g.kdd, 5000, 0, 1, 0.0))
+    send(P.SetLimits(2000.0, 300.0, 60.0, 12.0, 0))
+    segs, commit = P.profile_segments(plan_sine_jerk_optimal(4 * math.pi, 2000.0, 300.0, 60.0))
+    (info,) = send(*segs, commit)[-1:]
+    send(P.Run(20, 1))
+    for _ in range(10):
+        dev.tick()
+        t[0] += 0.005
+    dev.read_output()
+    first = R.rest_plan(1, float(np.float32(4 * math.pi)), 2000.0, 300.0, 60.0)
+    run = R.RunningPlan(first, 0.0, info.accel_time, info.cruise_time, info.duration, 1)
+    sw = R.plan_switch(run, 40, 20.0, 0.005, 2000.0, 300.0, 60.0)
+    m = sw.message
+    assert all(isinstance(r, P.Ack) for r in send(*sw.segments))
+    rep = dataclasses.replace
+    bad = [
+        (rep(m, n_segments=m.n_segments + 1), P.ErrorCode.BAD_VALUE, 3),
+        (rep(m, target=nan), P.ErrorCode.BAD_VALUE, 4),
+        (rep(m, accel_time=-1.0), P.ErrorCode.BAD_VALUE, 5),
+        (rep(m, cruise_time=nan), P.ErrorCode.BAD_VALUE, 6),
+        (rep(m, flags=2), P.ErrorCode.BAD_VALUE, 7),
+        (rep(m, t_switch=nan), P.ErrorCode.BAD_VALUE, 1),
+        (rep(m, base=1), P.ErrorCode.LATE, 2),
+        (rep(m, t_switch=0.1, switch_index=20), P.ErrorCode.BAD_VALUE, 1),
+        (rep(m, switch_index=m.switch_index + 1), P.ErrorCode.BAD_VALUE, 0),
+    ]
+    for msg, err, param in bad:
+        assert send(msg) == [P.Nack(P.MsgType.RETARGET, int(err), param)], msg
+    assert send(m) == [P.Ack(P.MsgType.RETARGET)]
+    assert dev._piece_k[-1] == m.switch_index

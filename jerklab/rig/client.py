@@ -138,6 +138,7 @@ class _Retargeter:
         self.target = None  # the newest target
         self.todo = []  # targets to send
         self.late = []  # the switch samples the device refused as late (then retried)
+        self.switches = []  # [k_earliest, target, k_switch] of each switch the device took
         seg = len(P.encode(P.PlanSegment(0, 0, 1.0, 0.0, 0.0, 0.0, 0.0)))
         self.n_bytes = P.MAX_PLAN_SEGMENTS * seg + len(P.encode(P.Retarget(0, 0.0, 0, 1, 0.0)))
 
@@ -177,6 +178,7 @@ class _Retargeter:
                 return
             if isinstance(r, P.Ack):
                 self.pending, self.maybe = sw, None
+                self.switches.append([k, float(target), sw.k_switch])
                 return
             if r.error == P.ErrorCode.LATE:
                 self.late.append(sw.k_switch)
@@ -1374,6 +1376,8 @@ class Rig:
                     rt.send(d, lambda: next_index, reply_to, refused)
                     if rt.late:
                         rec.metadata["retargets_late"] = list(rt.late)
+                    if rt.switches:
+                        rec.metadata["retarget_switches"] = [list(x) for x in rt.switches]
                 now = time.monotonic()
                 if now - last_hb >= hb_every:
                     self._write(P.Heartbeat())
