@@ -267,7 +267,7 @@ class Capability(enum.IntFlag):
     SIMULATED_PLANT = 1 << 8  #: the motor is a model (virtual rig, simavr harness)
     SEQUENCE = 1 << 12  #: open-loop PRBS excitation (SEQUENCE, version 3)
     SHAPER = 1 << 13  #: FIR input shaper on the run reference (SET_SHAPER, version 3)
-    RETARGET = 1 << 9  #: RETARGET during a run (protocol version 3)
+    RETARGET = 1 << 9  #: RETARGET during a run (protocol version 3; host-planned from 5)
     HOST_LOOP = 1 << 14  #: host-in-the-loop mode (HOST_LOOP, HOST_VOLTAGE, HOST_SAMPLE)
     HOST_SEGMENTS = 1 << 10  #: host-planned plans (PLAN_SEGMENT, PLAN_COMMIT, version 5)
 

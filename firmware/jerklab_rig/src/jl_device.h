@@ -194,7 +194,7 @@ private:
     // (the run holds at its end), rt_hold_run_: the running one does.
     Plan plan_b_;
     const Plan* cur_plan_ = &plan_;
-    HostLoopState hl_;
+    HostLoopState hl_;                     // HOST_LOOP's state (a HOST_LOOP only)
     uint8_t rt_stage_ JL_ZERO, rt_gen_ JL_ZERO;
     bool rt_hold_ JL_ZERO, rt_hold_run_ JL_ZERO;
     bool rt_active_ JL_ZERO;               // the run's plan buffers were written (PLAN again after it)

@@ -92,8 +92,8 @@ struct __attribute__((packed)) HostSegment {
 };
 /// PLAN_COMMIT's payload: the number of segments, the rest position at the end, the
 /// acceleration and cruise times PLAN_INFO echoes, the cruise velocity and the planner whose
-/// rest-to-rest profile the segments are (0..3: RETARGET re-plans it by the board's rule;
-/// kPlannerHost 0xFF: none, not re-targetable).
+/// rest-to-rest profile the segments are (0..3: the host re-targets it by the rule of
+/// PROTOCOL.md "Re-targeting"; kPlannerHost 0xFF: none, the host does not re-target it).
 struct __attribute__((packed)) HostCommit {
     uint8_t n_segments;
     float target, accel_time, cruise_time, cruise_velocity;
