@@ -904,10 +904,16 @@ class Rig:
         """Change the target of the move that runs to ``new_distance`` rad from its start.
 
         Usable during :meth:`run_move` -- from its ``on_telemetry`` callback or from another
-        thread: the RETARGET is queued and sent by the run loop (so frames never interleave).
-        The device switches where the reference has jerk and acceleration 0 and plans from its
-        state there (firmware/PROTOCOL.md "Re-targeting", docs/THEORY.md); the run then ends
-        on the new target (the recording's metadata lists the requests under ``retargets``).
+        thread: the request is queued and handled by the run loop (so frames never interleave).
+        The host plans the new move (:func:`jerklab.rig.retarget.plan_switch`): the switch
+        where the reference has jerk and acceleration 0, far enough ahead for its frames to
+        arrive, the plan from the state there; it sends it as PLAN_SEGMENTs and a RETARGET
+        naming the switch sample, and plans again later when the device finds it late (at
+        most :data:`jerklab.rig.retarget.RETARGET_TRIES` times; firmware/PROTOCOL.md
+        "Re-targeting", docs/THEORY.md). The run then ends on the new target; the recording's
+        metadata lists the requests under ``retargets``, the switches taken under
+        ``retarget_switches``, late ones under ``retargets_late`` and refusals under
+        ``retargets_refused``.
 
         Raises
         ------

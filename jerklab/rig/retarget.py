@@ -1,6 +1,8 @@
-"""Re-targeting a running move: the rule the firmware and the virtual rig share.
+"""Re-targeting a running move: the host plans it, the firmware and the virtual rig check it.
 
-A RETARGET (``firmware/PROTOCOL.md`` "Re-targeting") changes the target of the move that runs.
+A re-targeting (``firmware/PROTOCOL.md`` "Re-targeting") changes the target of the move that
+runs: the host plans the switch and the new plan (:func:`plan_switch`) and sends them as
+PLAN_SEGMENTs and a RETARGET naming the switch sample.
 The reference must stay jerk-continuous, so the new plan starts where the running one has
 jerk 0 *and* acceleration 0 (see ``docs/THEORY.md`` "Re-targeting"):
 
