@@ -109,6 +109,8 @@ __all__ = [
     "HOST_SAMPLE_MISSED",
     "PlanSegment",
     "PlanCommit",
+    "RETARGET_HOLD",
+    "check_retarget",
     "SegmentKind",
     "MAX_PLAN_SEGMENTS",
     "PLANNER_NONE",
@@ -223,6 +225,7 @@ class ErrorCode(enum.IntEnum):
     UNSUPPORTED = 6  #: planner / loop type / feature not built into this firmware
     BAD_VERSION = 7  #: protocol version not supported
     TOO_LONG = 8  #: the plan needs more than MAX_PLAN_SAMPLES samples
+    LATE = 9  #: RETARGET: its switch sample has passed, or another plan took over meanwhile
 
 
 class EndReason(enum.IntEnum):
@@ -269,7 +272,7 @@ class Capability(enum.IntFlag):
     SIMULATED_PLANT = 1 << 8  #: the motor is a model (virtual rig, simavr harness)
     SEQUENCE = 1 << 12  #: open-loop PRBS excitation (SEQUENCE, version 3)
     SHAPER = 1 << 13  #: FIR input shaper on the run reference (SET_SHAPER, version 3)
-    RETARGET = 1 << 9  #: RETARGET during a run (protocol version 3)
+    RETARGET = 1 << 9  #: RETARGET during a run (protocol version 3; host-planned from 5)
     HOST_LOOP = 1 << 14  #: host-in-the-loop mode (HOST_LOOP, HOST_VOLTAGE, HOST_SAMPLE)
     HOST_SEGMENTS = 1 << 10  #: host-planned plans (PLAN_SEGMENT, PLAN_COMMIT, version 5)
 
@@ -709,20 +712,37 @@ class SetShaper(_Message):
         return cls(v[0], tuple(v[1:11]), tuple(v[11:21]))
 
 
+#: ``Retarget.flags`` bit 0: a braking plan; the run holds at its end for the RETARGET that
+#: follows (the move to the target)
+RETARGET_HOLD = 0x01
+
+
 @dataclass(frozen=True)
 class Retarget(_Message):
-    """Change the target of the running move to ``distance`` rad from the run's start point.
+    """Switch the running move to the host-planned plan sent before it (version 5).
 
-    Accepted only while a move runs (else NACK NOT_READY). The device switches at the next
-    instant where the reference's jerk and acceleration are both zero (the end of the
-    acceleration phase; in the cruise at once; else at rest at the old target) and plans from
-    the reference's state there (position, velocity, acceleration 0) to rest at the new
-    target; see firmware/PROTOCOL.md "Re-targeting".
+    During a run the host sends the new plan's PLAN_SEGMENTs (into the device's second
+    buffer), then this frame: the new plan takes over at sample ``switch_index``, the first
+    sample at or after ``t_switch`` s, an instant where the running plan's jerk and
+    acceleration are 0 (``jerklab.rig.retarget.plan_switch``). ``base`` is the number of
+    re-targeted plans that took over in this run (mod 256): the plan the host planned from.
+    ``n_segments``, ``target``, ``accel_time`` and ``cruise_time`` end the new plan as
+    PLAN_COMMIT does; ``flags`` bit 0 (:data:`RETARGET_HOLD`): a braking plan, the run holds
+    at its end for the next RETARGET. The device answers ACK, NACK BAD_VALUE naming the
+    field, NACK LATE (``param`` 0: the switch is too close or past, 2: another plan took over)
+    or NOT_READY outside a run; see firmware/PROTOCOL.md "Re-targeting".
     """
 
     TYPE: ClassVar[MsgType] = MsgType.RETARGET
-    FORMAT: ClassVar[str] = "<f"
-    distance: float
+    FORMAT: ClassVar[str] = "<IfBBfffB"
+    switch_index: int
+    t_switch: float
+    base: int
+    n_segments: int
+    target: float
+    accel_time: float = 0.0
+    cruise_time: float = 0.0
+    flags: int = 0
 
 
 @dataclass(frozen=True)
@@ -1226,6 +1246,32 @@ def check_plan_commit(commit: "PlanCommit", count: int):
             return i
     if commit.planner not in (*Planner, PLANNER_NONE):
         return 5
+    return None
+
+
+def check_retarget(msg: "Retarget", count: int):
+    """The field of a RETARGET the device refuses as BAD_VALUE on its own, or ``None``.
+
+    ``count`` is the number of PLAN_SEGMENTs accepted in this run since the last index 0.
+    In this order: 3 ``n_segments`` (0, or not ``count``), 4 ``target`` (not finite or
+    ``|target| > 1e6``), 5 ``accel_time``, 6 ``cruise_time`` (not finite or negative),
+    7 ``flags`` (a bit other than :data:`RETARGET_HOLD`), 1 ``t_switch`` (not finite or
+    negative). The checks against the running plan follow on the device (PROTOCOL.md
+    "Parameter checks"): ``base`` (NACK LATE 2), ``t_switch`` where that plan allows a switch
+    (BAD_VALUE 1), ``switch_index`` its first sample (BAD_VALUE 0) and far enough ahead
+    (NACK LATE 0).
+    """
+    if msg.n_segments == 0 or msg.n_segments != count:
+        return 3
+    if not (_finite(msg.target) and abs(msg.target) <= _MAX_POSITION):
+        return 4
+    for i, t in ((5, msg.accel_time), (6, msg.cruise_time)):
+        if not (_finite(t) and t >= 0.0):
+            return i
+    if msg.flags & ~RETARGET_HOLD:
+        return 7
+    if not (_finite(msg.t_switch) and msg.t_switch >= 0.0):
+        return 1
     return None
 
 

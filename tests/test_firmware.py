@@ -23,6 +23,7 @@ from jerklab.controller import (
     pole_placement_pid,
 )
 from jerklab.planner import plan_scurve, plan_sine_jerk, plan_sine_jerk_optimal, plan_trapezoid
+from jerklab.rig import retarget as rt
 
 K_M, TAU_M = 32.4, 0.025
 f32 = lambda x: float(np.float32(x))  # noqa: E731  (inputs both sides see identically)
@@ -836,15 +837,28 @@ def test_device_closed_loop_matches_jerklab_controller(host_driver, loop):
     assert np.mean(dp == 0) > 0.95  # fixed point vs float64: rare 1-tick ties
 
 
+def _running(commit, segs, distance):
+    """The host's RunningPlan of a PLAN_COMMIT of the optimal sine-jerk profile (the device's
+    float32 times)."""
+    dur = np.float32(0.0)
+    for m in segs:
+        dur = np.float32(dur + np.float32(m.duration))
+    first = rt.rest_plan(1, f32(distance), 2000.0, 300.0, 60.0)
+    return rt.RunningPlan(first, 0.0, commit.accel_time, commit.cruise_time, float(dur), 1)
+
+
 def test_device_retarget_checks_and_ends_on_the_new_target(host_driver):
-    """RETARGET (protocol version 3) on the board's state machine: refused when no move runs, on a
-    wrong length or a bad value; during a run the reference ends on the new target, at rest. The
-    move is the optimal sine-jerk profile planned by the host (PLAN_COMMIT planner 1): the board
-    re-targets it by its own rule; a host plan of no planner (0xFF) is not re-targeted."""
+    """RETARGET (protocol version 5, host-planned) on the board's state machine: refused when no
+    move runs or on a wrong length; during a run the host's segments go into the second buffer
+    and each bad field of the commit gets NACK BAD_VALUE naming it (LATE for another base);
+    the accepted switch at the end of the acceleration ends the run on the new target, at rest,
+    the reference within 1e-5 rad of jerklab's float64 re-targeted plan. A second run re-targets
+    in its cruise: a switch too close is refused LATE, a later one taken."""
     nan = float("nan")
+    R = int(pr.MsgType.RETARGET)
     dev = HostDevice(host_driver)
-    dev.send(pr.Retarget(1.0))  # idle: NOT_READY
-    dev.send(pr.encode_frame(int(pr.MsgType.RETARGET), 9, b"\x00\x00"))  # BAD_LENGTH
+    dev.send(pr.Retarget(20, 0.1, 0, 1, 1.0))  # idle: NOT_READY
+    dev.send(pr.encode_frame(R, 9, b"\x00\x00"))  # BAD_LENGTH
     dev.send(pr.SetPlant(32.4, 0.025, 12.0, 448)).send(_gains(0.005))
     dev.send(pr.SetLimits(2000.0, 300.0, 60.0, 12.0, 200))
     segs, commit = pr.profile_segments(
@@ -855,43 +869,83 @@ def test_device_retarget_checks_and_ends_on_the_new_target(host_driver):
         dev.send(m)
     dev.send(pr.Run(60, 1))
     dev.wait(60, heartbeat_every=20)
-    dev.send(pr.Retarget(nan))  # BAD_VALUE
-    dev.send(pr.Retarget(2e6))  # BAD_VALUE
-    dev.send(pr.Retarget(20.0))  # accepted
+    Ts = 0.005
+    sw = rt.plan_switch(_running(commit, segs, 4 * math.pi), 40, 20.0, Ts, 2000.0, 300.0, 60.0)
+    m = sw.message
+    assert m.t_switch == pytest.approx(commit.accel_time) and not m.flags  # the end of the accel
+    for seg in sw.segments:
+        dev.send(seg)
+    bad = [
+        (dataclasses.replace(m, n_segments=m.n_segments + 1), pr.ErrorCode.BAD_VALUE, 3),
+        (dataclasses.replace(m, target=nan), pr.ErrorCode.BAD_VALUE, 4),
+        (dataclasses.replace(m, accel_time=-1.0), pr.ErrorCode.BAD_VALUE, 5),
+        (dataclasses.replace(m, cruise_time=nan), pr.ErrorCode.BAD_VALUE, 6),
+        (dataclasses.replace(m, flags=2), pr.ErrorCode.BAD_VALUE, 7),
+        (dataclasses.replace(m, t_switch=nan), pr.ErrorCode.BAD_VALUE, 1),
+        (dataclasses.replace(m, base=1), pr.ErrorCode.LATE, 2),
+        # in the acceleration (jerk and acceleration not 0 there)
+        (dataclasses.replace(m, t_switch=0.1, switch_index=20), pr.ErrorCode.BAD_VALUE, 1),
+        (dataclasses.replace(m, switch_index=m.switch_index + 1), pr.ErrorCode.BAD_VALUE, 0),
+    ]
+    for msg, _, _ in bad:
+        dev.send(msg)
+    dev.send(m)  # accepted
     dev.wait(2400, heartbeat_every=40)
     dev.send(pr.Run(0, 1))  # plan consumed
-    for m in (*segs, dataclasses.replace(commit, planner=pr.PLANNER_NONE)):
-        dev.send(m)
-    dev.send(pr.Run(0, 1)).wait(20).send(pr.Retarget(5.0))  # UNSUPPORTED
-    dev.wait(1500, heartbeat_every=40)
+    # a second run, re-targeted in its cruise
+    segs2, commit2 = pr.profile_segments(plan_sine_jerk_optimal(f32(40.0), 2000.0, 300.0, 60.0))
+    for msg in (*segs2, commit2):
+        dev.send(msg)
+    dev.send(pr.Run(0, 1))
+    dev.wait(450, heartbeat_every=50)  # sample ~90, in the cruise (from ~86 to ~134)
+    run2 = _running(commit2, segs2, 40.0)
+    late = rt.plan_switch(run2, 92, 45.0, Ts, 2000.0, 300.0, 60.0)
+    on_time = rt.plan_switch(run2, 125, 45.0, Ts, 2000.0, 300.0, 60.0)
+    assert late.k_switch == 92 and on_time.k_switch == 125
+    for sw2 in (late, on_time):
+        for seg in sw2.segments:
+            dev.send(seg)
+        dev.send(sw2.message)
+    dev.wait(2500, heartbeat_every=50)
     msgs, _ = dev.run()
-    replies = [m for _, _, m in msgs]
-    nacks = [(m.command, m.error, m.param) for m in replies if isinstance(m, pr.Nack)]
-    R = int(pr.MsgType.RETARGET)
+    replies = [x for _, _, x in msgs]
+    nacks = [(x.command, x.error, x.param) for x in replies if isinstance(x, pr.Nack)]
     assert nacks == [
         (R, int(pr.ErrorCode.NOT_READY), 0xFF),
         (R, int(pr.ErrorCode.BAD_LENGTH), 0xFF),
-        (R, int(pr.ErrorCode.BAD_VALUE), 0),
-        (R, int(pr.ErrorCode.BAD_VALUE), 0),
+        *[(R, int(e), p) for _, e, p in bad],
         (int(pr.MsgType.RUN), int(pr.ErrorCode.NOT_READY), 0xFF),
-        (R, int(pr.ErrorCode.UNSUPPORTED), 0xFF),
+        (R, int(pr.ErrorCode.LATE), 0),
     ]
-    assert sum(isinstance(m, pr.Ack) and m.command == R for m in replies) == 1
-    ends = [i for i, m in enumerate(replies) if isinstance(m, pr.EndOfRun)]
-    assert len(ends) == 2 and replies[ends[1]].reason == pr.EndReason.DONE  # (not re-targeted)
-    replies = replies[: ends[0] + 1]  # the re-targeted run
-    end = [m for m in replies if isinstance(m, pr.EndOfRun)]
-    assert len(end) == 1 and end[0].reason == pr.EndReason.DONE and end[0].overruns == 0
-    tel = [m for m in replies if isinstance(m, pr.Telemetry)]
-    assert [t.index for t in tel] == list(range(end[0].samples))
-    ref = np.array([t.reference for t in tel])
-    assert ref[-1] == pytest.approx(20.0, abs=1e-5) and np.all(np.abs(ref[-60:] - 20.0) <= 1e-5)
-    assert abs(tel[-1].counts - 20.0 * 448 / (2 * math.pi)) <= 2
-    # the reference is smooth through the change: no jump in its third differences (jerk)
-    # (a step of the peak jerk J would move this 3-sample average by >= J/2 between samples; the
-    # smooth half-sine pulses of this move by ~J w Ts = 0.07 J)
-    j = np.diff(ref.astype(float), 3) / 0.005**3
-    assert np.max(np.abs(np.diff(j))) <= 0.3 * 2000.0
+    assert sum(isinstance(x, pr.Ack) and x.command == R for x in replies) == 2
+    ends = [i for i, x in enumerate(replies) if isinstance(x, pr.EndOfRun)]
+    assert len(ends) == 2
+    for (lo, hi), target, sw_ in (
+        ((0, ends[0]), 20.0, sw),
+        ((ends[0] + 1, ends[1]), 45.0, on_time),
+    ):
+        part = replies[lo : hi + 1]
+        end = part[-1]
+        assert end.reason == pr.EndReason.DONE and end.overruns == 0
+        tel = [x for x in part if isinstance(x, pr.Telemetry)]
+        assert [t.index for t in tel] == list(range(end.samples))
+        ref = np.array([t.reference for t in tel], dtype=float)
+        assert ref[-1] == pytest.approx(target, abs=1e-5)
+        # the board's reference is jerklab's: the running plan before the switch, the host's
+        # float64 re-targeted plan from it
+        k = np.arange(len(ref))
+        want = np.where(
+            k < sw_.k_switch,
+            (run2 if target == 45.0 else _running(commit, segs, 4 * math.pi)).plan.sample(k * Ts)[
+                0
+            ],
+            sw_.running.plan.sample(k * Ts)[0],
+        )
+        assert np.max(np.abs(ref - want)) <= 1e-5 * (1 + target)
+        assert abs(tel[-1].counts - target * 448 / (2 * math.pi)) <= 2
+        # the reference is smooth through the change: no jump in its third differences (jerk)
+        j = np.diff(ref, 3) / Ts**3
+        assert np.max(np.abs(np.diff(j))) <= 0.3 * 2000.0
 
 
 _AVR_STEPPER_MAIN = r"""

@@ -67,7 +67,7 @@ EXAMPLES = [
         amplitude=2.5, offset=-0.5, Ts_us=2000, n_samples=1023, seed=0x1234, order=10, hold=3
     ),
     P.SetShaper(n_taps=4, amplitudes=(0.125, 0.375, 0.375, 0.125), delays=(0, 7, 14, 21)),
-    P.Retarget(25.0),
+    P.Retarget(43, 0.2125, 1, 5, 25.0, 0.1, 0.05, 1),
     P.Ack(command=P.MsgType.SET_GAINS),
     P.Nack(command=P.MsgType.SET_LIMITS, error=P.ErrorCode.BAD_VALUE, param=3),
     P.HelloReply(1, 0, 1, 2, 0x1F1, 1000, 1023, "jerklab-uno"),
@@ -174,7 +174,7 @@ def test_golden_frames_match_protocol_md():
         P.EndOfRun(0, 81, 0, 0, 0.0),
         P.EndOfRun(4, 169, 0, 0, 0.52),
         P.DeviceError(3, 1),
-        P.Retarget(25.0),
+        P.Retarget(43, 0.2125, 1, 5, 25.0, 0.1, 0.05, 1),
         P.HostLoop(10000, 200, 3),
         P.HostVoltage(7, 2.5, 0.75, 1),
         P.HostSample(8, -300, 512, 2, 1, 1),

@@ -4,6 +4,7 @@ virtual rig in tests/test_rig_simavr.py."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -160,10 +161,16 @@ def test_virtual_rig_retarget_is_jerk_continuous_and_ends_on_target(kind, at, ne
     for t_s, plan in pieces[1:]:
         jl, al, vl, xl = prev.state(np.nextafter(t_s, -np.inf))
         jr, ar, vr, xr = plan.state(t_s)
-        # (the first plan here from the float64 distance, the device's from the float32 one of PLAN)
-        assert xr == pytest.approx(xl, abs=1e-6) and vr == pytest.approx(vl, abs=1e-6)
+        # (the first plan here from the float64 distance, the device's from the float32 one of
+        # PLAN; the re-targeted plans are float32 PLAN_SEGMENTs, as the device steps them:
+        # within a few float32 steps of the position and of the velocity's scale 60 rad/s)
+        assert xr == pytest.approx(xl, abs=1e-6 + 4e-7 * abs(xl))
+        assert vr == pytest.approx(vl, abs=1e-6 + 4e-7 * 60.0)
+        # (the switch time is the device's float32 one, the plan before it float64: within a
+        # few float32 steps of the time, where the jerk is at most J)
+        dt = 4.0 * float(np.spacing(np.float32(t_s)))
         if kind != 3:  # a trapezoid's acceleration steps there
-            assert abs(al) <= 1e-9 * 300.0 and abs(ar) <= 1e-9 * 300.0
+            assert abs(al) <= 1e-9 * 300.0 + 2000.0 * dt and abs(ar) <= 1e-9 * 300.0
         if kind in (0, 1):
             assert abs(jl) <= 1e-6 * 2000.0 and abs(jr) <= 1e-6 * 2000.0
         prev = plan
@@ -190,7 +197,187 @@ def test_retarget_outside_a_run_and_bad_values_are_refused():
         # on the wire: NOT_READY when no move runs
         nack = None
         try:
-            rig._request(P.Retarget(1.0))
+            rig._request(P.Retarget(20, 0.1, 0, 1, 1.0))
         except Exception as exc:  # RigCommandError
             nack = exc
         assert nack is not None and "NOT_READY" in str(nack).upper().replace(" ", "_")
+
+
+# ------------------------------------------------------------------ host-planned (version 5)
+_F = st.floats(-1e6, 1e6, allow_nan=False, width=32)
+
+
+@given(
+    k=st.integers(0, 2**32 - 1),
+    t=st.floats(0.0, 1e7, width=32),
+    base=st.integers(0, 255),
+    n=st.integers(0, 255),
+    target=_F,
+    acc=st.floats(0.0, 1e3, width=32),
+    cruise=st.floats(0.0, 1e3, width=32),
+    flags=st.integers(0, 255),
+)
+def test_retarget_frame_round_trips_and_its_checks_name_the_field(
+    k, t, base, n, target, acc, cruise, flags
+):
+    m = P.Retarget(k, t, base, n, target, acc, cruise, flags)
+    assert len(m.pack()) == 23
+    (f,) = P.Decoder().feed(P.encode(m, 7))
+    assert P.parse(f) == m and f.seq == 7
+    bad = P.check_retarget(m, n)
+    assert bad == (7 if n and flags & ~P.RETARGET_HOLD else (3 if not n else None))
+    assert P.check_retarget(m, n + 1) == 3
+    nan = float("nan")
+    if n:
+        assert P.check_retarget(dataclasses.replace(m, target=nan), n) == 4
+        assert P.check_retarget(dataclasses.replace(m, accel_time=-1.0), n) == 5
+        assert P.check_retarget(dataclasses.replace(m, cruise_time=nan), n) == 6
+        assert P.check_retarget(dataclasses.replace(m, flags=1, t_switch=-1.0), n) == 1
+
+
+@settings(deadline=None, derandomize=True)
+@given(
+    kind=st.integers(0, 3),
+    d=st.floats(0.05, 200.0),
+    k_frac=st.floats(0.0, 1.3),
+    new=st.floats(-300.0, 300.0),
+    Ts_ms=st.sampled_from([1, 2, 5, 10]),
+)
+def test_host_switch_is_where_jerk_and_accel_are_zero_and_the_device_accepts_it(
+    kind, d, k_frac, new, Ts_ms
+):
+    """plan_switch: the switch sample is at or after the earliest one asked for, at an instant
+    the device's check allows (the running plan's cruise, its ends included, or rest) where the
+    plan's jerk and acceleration are 0; the new plan starts from its state there, its segments
+    join and end at rest at the target (or, braking, at rest with `hold`)."""
+    J, A, V = 2000.0, 300.0, 60.0
+    Ts = Ts_ms * 1e-3
+    jk = None if kind == 3 else J
+    first = R.rest_plan(kind, float(np.float32(d)), jk, A, V)
+    f32 = np.float32
+    run = R.RunningPlan(first, 0.0, first.accel_time, first.cruise_time, first.duration, kind)
+    k_e = int(k_frac * first.duration / Ts)
+    if abs(new - first.target) < 1e-3:
+        new += 1.0
+    sw = R.plan_switch(run, k_e, new, Ts, J, A, V)
+    m = sw.message
+    assert sw.k_switch == m.switch_index >= k_e
+    assert m.switch_index == R.first_sample(m.t_switch, Ts)
+    tc0, tc1, t_end = run.switch_times()
+    assert tc0 <= m.t_switch <= tc1 or m.t_switch >= t_end
+    assert P.check_retarget(m, len(sw.segments)) is None
+    assert float(f32(f32(m.switch_index) * f32(Ts))) >= m.t_switch
+    j, a, v, x = first.state(min(m.t_switch, first.end))
+    if kind != 3:
+        assert abs(a) <= 1e-6 * A + 4 * J * float(np.spacing(f32(m.t_switch)))
+    if kind in (0, 1):
+        assert abs(j) <= 1e-3 * J
+    s0 = sw.segments[0]
+    assert s0.x0 == pytest.approx(x, abs=1e-9 * (1 + abs(x)))
+    assert s0.v0 == pytest.approx(v, abs=1e-6 * V)
+    end = P.PlanCommit(len(sw.segments), m.target)
+    assert P.check_plan_continuity(sw.segments, end) is None
+    if m.flags & P.RETARGET_HOLD:
+        # braking: the move to the target follows from its end, from rest
+        assert s0.v0 != 0.0 and (new - x) * s0.v0 < 0 or abs(new - x) < abs(m.target - x)
+        k2 = sw.k_switch + 1
+        nxt = R.plan_switch(sw.running, k2, new, Ts, J, A, V, base=1)
+        assert nxt.message.base == 1 and not nxt.message.flags
+        assert nxt.message.t_switch >= sw.running.switch_times()[2]
+        assert nxt.message.target == pytest.approx(new, abs=1e-9)
+    else:
+        assert m.target == pytest.approx(new, abs=1e-9)
+
+
+def test_plan_switch_refuses_bad_parameters_by_name():
+    first = R.rest_plan(1, 5.0, 2000.0, 300.0, 60.0)
+    run = R.RunningPlan(first, 0.0, first.accel_time, first.cruise_time, first.duration, 1)
+    with pytest.raises(TypeError, match="running"):
+        R.plan_switch(first, 0, 1.0, 0.005, 2000.0, 300.0, 60.0)
+    for kw, name in (
+        (dict(k_earliest=-1), "k_earliest"),
+        (dict(target=float("nan")), "target"),
+        (dict(target=2e6), "target"),
+        (dict(Ts=0.0), "Ts"),
+        (dict(max_accel=-1.0), "max_accel"),
+    ):
+        args = dict(k_earliest=0, target=1.0, Ts=0.005, max_jerk=2000.0, max_accel=300.0)
+        args.update(kw)
+        with pytest.raises(ValueError, match=name):
+            R.plan_switch(run, max_velocity=60.0, **args)
+    with pytest.raises(ValueError, match="n_bytes"):
+        R.margin_samples(-1, 0.005)
+    assert R.margin_samples(233, 0.005) == R.RETARGET_LEAD + 15 + 1  # 20 ms line + 50 ms
+
+
+def test_late_retarget_is_refused_and_retried_then_given_up(monkeypatch):
+    """A switch the device gets too late is refused (NACK LATE) and planned again later by the
+    host: the run still ends on the new target. When every try is late, the host gives up with
+    a warning and the reason in the recording; the move ends on its old target."""
+    real = R.margin_samples
+    calls = []
+
+    def first_late(n_bytes, Ts, baudrate=115200, attempt=0, decimation=1):
+        calls.append(attempt)
+        return 2 if attempt == 0 else real(n_bytes, Ts, baudrate, attempt, decimation)
+
+    monkeypatch.setattr(R, "margin_samples", first_late)
+    rec, pieces, prof = _run(1, 200, 2.0, settle=0.5)  # in the settling: at once
+    assert calls == [0, 1]
+    assert rec.metadata["status"] == "complete" and len(rec.metadata["retargets_late"]) == 1
+    assert rec.reference[-1] == pytest.approx(2.0, abs=1e-6)
+    monkeypatch.setattr(R, "margin_samples", lambda *a, **k: 2)
+    with pytest.warns(RuntimeWarning, match="refused as late"):
+        rec, pieces, prof = _run(1, 200, 2.0, settle=0.5)  # in the settling: at once
+    assert len(rec.metadata["retargets_late"]) == R.RETARGET_TRIES
+    assert rec.metadata["retargets_refused"][-1][0] == "LATE"
+    assert rec.reference[-1] == pytest.approx(float(np.float32(prof.distance)), abs=1e-6)
+
+
+def test_virtual_device_checks_a_retarget_as_the_firmware_does():
+    """The virtual rig's RETARGET: the same NACKs, field by field, as the firmware's (see
+    tests/test_firmware.py), and the accepted switch at the sample it names."""
+    from jerklab.controller import DiscreteGains
+    from jerklab.rig.virtual import VirtualDevice
+
+    t = [0.0]
+    dev = VirtualDevice(DCMotor(**MOTOR, supply_voltage=12.0, encoder_ppr=448), clock=lambda: t[0])
+
+    def send(*msgs):
+        for m in msgs:
+            dev.receive(P.encode(m, 1))
+        return [P.parse(f) for f in P.Decoder().feed(dev.read_output())]
+
+    nan = float("nan")
+    assert send(P.Retarget(20, 0.1, 0, 1, 1.0)) == [P.Nack(P.MsgType.RETARGET, 5, 0xFF)]
+    g = DiscreteGains(0.5, 0.01, 1.0, 0.005)
+    send(P.SetGains(g.kpd, g.kid, g.kdd, 5000, 0, 1, 0.0))
+    send(P.SetLimits(2000.0, 300.0, 60.0, 12.0, 0))
+    segs, commit = P.profile_segments(plan_sine_jerk_optimal(4 * math.pi, 2000.0, 300.0, 60.0))
+    (info,) = send(*segs, commit)[-1:]
+    send(P.Run(20, 1))
+    for _ in range(10):
+        dev.tick()
+        t[0] += 0.005
+    dev.read_output()
+    first = R.rest_plan(1, float(np.float32(4 * math.pi)), 2000.0, 300.0, 60.0)
+    run = R.RunningPlan(first, 0.0, info.accel_time, info.cruise_time, info.duration, 1)
+    sw = R.plan_switch(run, 40, 20.0, 0.005, 2000.0, 300.0, 60.0)
+    m = sw.message
+    assert all(isinstance(r, P.Ack) for r in send(*sw.segments))
+    rep = dataclasses.replace
+    bad = [
+        (rep(m, n_segments=m.n_segments + 1), P.ErrorCode.BAD_VALUE, 3),
+        (rep(m, target=nan), P.ErrorCode.BAD_VALUE, 4),
+        (rep(m, accel_time=-1.0), P.ErrorCode.BAD_VALUE, 5),
+        (rep(m, cruise_time=nan), P.ErrorCode.BAD_VALUE, 6),
+        (rep(m, flags=2), P.ErrorCode.BAD_VALUE, 7),
+        (rep(m, t_switch=nan), P.ErrorCode.BAD_VALUE, 1),
+        (rep(m, base=1), P.ErrorCode.LATE, 2),
+        (rep(m, t_switch=0.1, switch_index=20), P.ErrorCode.BAD_VALUE, 1),
+        (rep(m, switch_index=m.switch_index + 1), P.ErrorCode.BAD_VALUE, 0),
+    ]
+    for msg, err, param in bad:
+        assert send(msg) == [P.Nack(P.MsgType.RETARGET, int(err), param)], msg
+    assert send(m) == [P.Ack(P.MsgType.RETARGET)]
+    assert dev._piece_k[-1] == m.switch_index

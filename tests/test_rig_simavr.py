@@ -232,6 +232,56 @@ def test_retarget_on_the_firmware_matches_the_virtual_rig(uno, tmp_path, kind, a
     if kind == 1:
         j = np.diff(fw.reference.astype(float), 3) / 0.005**3
         assert np.max(np.abs(np.diff(j))) <= 0.4 * 2000.0
+    # and jerklab's float64 reference of the host-planned switches (the ones the board took,
+    # replayed: the earliest sample the host asked for, the target)
+    assert fw.metadata["retarget_switches"] == py.metadata["retarget_switches"]
+    _assert_follows_the_host_plan(fw, prof, kind)
+
+
+def _assert_follows_the_host_plan(rec, prof, kind, Ts=0.005):
+    from jerklab.rig import retarget as RT
+
+    f32 = np.float32
+    first = RT.rest_plan(kind, float(f32(prof.distance)), 2000.0, 300.0, 60.0)
+    info = rec.metadata["plan"]
+    run = RT.RunningPlan(
+        first, 0.0, info["accel_time"], info["cruise_time"], info["duration"], kind
+    )
+    k = np.arange(len(rec.reference))
+    want = first.sample(k * Ts)[0]
+    for n, (k_e, target, k_s) in enumerate(rec.metadata["retarget_switches"]):
+        sw = RT.plan_switch(run, k_e, target, Ts, 2000.0, 300.0, 60.0, base=n)
+        assert sw.k_switch == k_s
+        want = np.where(k >= k_s, sw.running.plan.sample(k * Ts)[0], want)
+        run = sw.running
+    assert np.max(np.abs(rec.reference - want)) < 1e-5 * 30.0
+
+
+def test_late_retarget_on_the_firmware_is_refused_and_retried(uno, monkeypatch):
+    """A switch the firmware gets too late (a margin of 2 samples) is refused NACK LATE and
+    the host plans it again later: the run ends on the new target, on jerklab's reference."""
+    from jerklab.planner import plan_sine_jerk_optimal
+    from jerklab.rig import retarget as RT
+
+    real = RT.margin_samples
+
+    def first_late(n_bytes, Ts, baudrate=115200, attempt=0, decimation=1):
+        return 2 if attempt == 0 else real(n_bytes, Ts, baudrate, attempt, decimation)
+
+    monkeypatch.setattr(RT, "margin_samples", first_late)
+    prof = plan_sine_jerk_optimal(4 * math.pi, 2000.0, 300.0, 60.0)
+    g = pole_placement_pid(MOTOR["K"], MOTOR["tau"], wn=20.0).discretize(0.005)
+    uno.set_model(**MOTOR)
+
+    def cb(k, r, y):
+        if k == 200:  # in the settling: at once
+            uno.retarget(2.0)
+
+    rec = uno.run_move(prof, g, Ts=0.005, settle=0.5, path=False, on_telemetry=cb)
+    assert rec.metadata["status"] == "complete"
+    assert len(rec.metadata["retargets_late"]) == 1
+    assert rec.reference[-1] == pytest.approx(2.0, abs=1e-5)
+    _assert_follows_the_host_plan(rec, prof, 1)
 
 
 def test_the_deepest_stack_stays_above_the_variables(tmp_path):

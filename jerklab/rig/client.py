@@ -25,6 +25,7 @@ from jerklab import planner as _planner
 from jerklab import protocol as P
 from jerklab._validate import as_int, as_nonnegative, as_positive, as_real
 from jerklab.controller import DiscreteGains, Gains, max_pole_radius
+from jerklab.rig import retarget as _R
 from jerklab.rig.hostloop import RealtimeLoop, run_law
 from jerklab.rig.live import Tee as _Tee
 from jerklab.rig.live import live_plot as _live_plot
@@ -118,6 +119,95 @@ _FAULTS = (
 )
 
 
+class _Retargeter:
+    """The host side of re-targeting one run (firmware/PROTOCOL.md "Re-targeting"): the plan
+    the device steps, the switch sent and not yet taken over, and the retries of a late one.
+
+    The margin between the host's latest sample and the switch it names is
+    :func:`jerklab.rig.retarget.margin_samples`: the device's lead, the line time of the
+    largest set of frames (:data:`jerklab.protocol.MAX_PLAN_SEGMENTS` PLAN_SEGMENTs and the
+    RETARGET) at the link's baud rate, and an allowance of 50 ms doubled at each retry.
+    """
+
+    def __init__(self, running, limits, Ts, decimation, baudrate):
+        self.running, self.limits, self.Ts = running, limits, float(Ts)
+        self.decimation, self.baudrate = int(decimation), float(baudrate)
+        self.gen = 0  # re-targeted plans that took over (the device's count, mod 256)
+        self.pending = None  # the SwitchPlan sent, not yet taken over
+        self.maybe = None  # a pending one whose buffer a new plan rewrote (taken over first?)
+        self.target = None  # the newest target
+        self.todo = []  # targets to send
+        self.late = []  # the switch samples the device refused as late (then retried)
+        self.switches = []  # [k_earliest, target, k_switch] of each switch the device took
+        seg = len(P.encode(P.PlanSegment(0, 0, 1.0, 0.0, 0.0, 0.0, 0.0)))
+        self.n_bytes = P.MAX_PLAN_SEGMENTS * seg + len(P.encode(P.Retarget(0, 0.0, 0, 1, 0.0)))
+
+    def on_index(self, index):
+        """A TELEMETRY of sample ``index``: True when a braking plan just took over."""
+        if self.pending is not None and index >= self.pending.k_switch:
+            self.running, self.pending = self.pending.running, None
+            self.gen = (self.gen + 1) & 0xFF
+            return self.running.hold
+        return False
+
+    def send(self, target, index, reply_to, refused):
+        """Plan the switch to ``target`` (``index()``: the next sample the host expects) and
+        send it; retried later on NACK LATE (at most
+        :data:`jerklab.rig.retarget.RETARGET_TRIES` times), refusals recorded by ``refused``."""
+        self.target = target
+        for attempt in range(_R.RETARGET_TRIES):
+            k = index() + _R.margin_samples(
+                self.n_bytes, self.Ts, self.baudrate, attempt, self.decimation
+            )
+            try:
+                sw = _R.plan_switch(self.running, k, target, self.Ts, *self.limits, base=self.gen)
+            except ValueError as exc:
+                refused("NOT_PLANNED", str(exc))
+                return
+            for seg in sw.segments:
+                if seg.index == 0 and self.pending is not None:
+                    self.maybe, self.pending = self.pending, None  # rewritten unless taken over
+                r = reply_to(seg)
+                if r is None:
+                    return  # the run ended
+                if isinstance(r, P.Nack):
+                    refused(_error_name(r.error), P.payload_field_name(seg.TYPE, r.param))
+                    return
+            r = reply_to(sw.message)
+            if r is None:
+                return
+            if isinstance(r, P.Ack):
+                self.pending, self.maybe = sw, None
+                self.switches.append([k, float(target), sw.k_switch])
+                return
+            if r.error == P.ErrorCode.LATE:
+                self.late.append(sw.k_switch)
+            if r.error == P.ErrorCode.LATE and r.param == 2 and self.maybe is not None:
+                # the plan sent before had taken over: plan from it
+                self.running, self.maybe = self.maybe.running, None
+                self.gen = (self.gen + 1) & 0xFF
+            elif r.error == P.ErrorCode.LATE:
+                self.maybe = None  # (the device's plan is the host's: it was rewritten)
+            else:
+                refused(_error_name(r.error), P.payload_field_name(sw.message.TYPE, r.param))
+                return
+        refused(
+            "LATE",
+            f"the device refused the switch as late {_R.RETARGET_TRIES} times (the last at "
+            f"sample {sw.k_switch}): the move goes on to its previous target",
+        )
+        warnings.warn(
+            f"retarget({target!r}) was refused as late {_R.RETARGET_TRIES} times: the link or "
+            f"the host is too slow for the margin; the move goes on to its previous target",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+
+
+def _error_name(code):
+    return P.ErrorCode(code).name if code in iter(P.ErrorCode) else int(code)
+
+
 class Rig:
     """A connected rig (use :func:`jerklab.rig.connect` to make one).
 
@@ -202,6 +292,7 @@ class Rig:
         self._retargets = collections.deque()  # RETARGETs waiting for the run loop to send
         self._streaming = False
         self._host_planned = False  # the last move's PLAN_SEGMENTs: the board cannot re-target
+        self._rt = None  # the running move's re-targeting state (_Retargeter)
         self.closed = False
         try:
             self.info = self._hello(as_positive("hello_timeout", hello_timeout))
@@ -763,14 +854,34 @@ class Rig:
         if on_telemetry is not None and not callable(on_telemetry):
             raise TypeError(f"on_telemetry must be callable, got {on_telemetry!r}")
         bar = self._bar(total, "move", progress, live, rec, position_range=distance)
-        return self._stream(
-            P.Run(settle_n, int(decimation)),
-            rec,
-            total,
-            host_timeout,
-            bar,
-            on_telemetry=on_telemetry,
-        )
+        rt = None
+        if not self._host_planned:
+            # the host re-plans re-targetings of this move (PROTOCOL.md "Re-targeting") from
+            # the plan the device steps: this planner's rest-to-rest profile, PLAN_INFO's times
+            J = None if planner == P.Planner.TRAPEZOID else _R._f32(limits[0])
+            lim = (J, _R._f32(limits[1]), _R._f32(limits[2]))
+            first = _R.rest_plan(int(planner), _R._f32(distance), *lim)
+            rt = _Retargeter(
+                _R.RunningPlan(
+                    first, 0.0, info.accel_time, info.cruise_time, info.duration, int(planner)
+                ),
+                lim,
+                Ts,
+                int(decimation),
+                getattr(self.link, "baudrate", None) or 115200,
+            )
+        self._rt = rt
+        try:
+            return self._stream(
+                P.Run(settle_n, int(decimation)),
+                rec,
+                total,
+                host_timeout,
+                bar,
+                on_telemetry=on_telemetry,
+            )
+        finally:
+            self._rt = None
 
     def _bar(self, total, what, progress, live, rec, **plot):
         """The progress bar of a run and, in a Jupyter kernel, its live plot, as one object
@@ -793,10 +904,16 @@ class Rig:
         """Change the target of the move that runs to ``new_distance`` rad from its start.
 
         Usable during :meth:`run_move` -- from its ``on_telemetry`` callback or from another
-        thread: the RETARGET is queued and sent by the run loop (so frames never interleave).
-        The device switches where the reference has jerk and acceleration 0 and plans from its
-        state there (firmware/PROTOCOL.md "Re-targeting", docs/THEORY.md); the run then ends
-        on the new target (the recording's metadata lists the requests under ``retargets``).
+        thread: the request is queued and handled by the run loop (so frames never interleave).
+        The host plans the new move (:func:`jerklab.rig.retarget.plan_switch`): the switch
+        where the reference has jerk and acceleration 0, far enough ahead for its frames to
+        arrive, the plan from the state there; it sends it as PLAN_SEGMENTs and a RETARGET
+        naming the switch sample, and plans again later when the device finds it late (at
+        most :data:`jerklab.rig.retarget.RETARGET_TRIES` times; firmware/PROTOCOL.md
+        "Re-targeting", docs/THEORY.md). The run then ends on the new target; the recording's
+        metadata lists the requests under ``retargets``, the switches taken under
+        ``retarget_switches``, late ones under ``retargets_late`` and refusals under
+        ``retargets_refused``.
 
         Raises
         ------
@@ -822,7 +939,7 @@ class Rig:
             raise RigError(
                 f"{self.port}: this move was planned by the host (PLAN_SEGMENT) and is no "
                 f"planner's own rest-to-rest result (a moving start, .synchronized() or edited): "
-                f"the board re-targets only a planner's rest-to-rest moves"
+                f"the host re-targets only a planner's rest-to-rest moves"
             )
         self._retargets.append(float(d))
 
@@ -1197,12 +1314,76 @@ class Rig:
             self._request(command)
             self._streaming = isinstance(command, P.Run)
             last_rx = last_hb = time.monotonic()
+            rt = self._rt if self._streaming else None
+
+            def on_frame(f):
+                nonlocal end, lost, next_index, received
+                if f.type == P.MsgType.TELEMETRY:
+                    try:
+                        t = P.Telemetry.unpack(f.payload)
+                    except P.ProtocolError:
+                        self.ignored_frames += 1
+                        return
+                    if t.index > next_index:
+                        lost += (t.index - next_index) // max(1, getattr(command, "decimation", 1))
+                    next_index = t.index + getattr(command, "decimation", 1)
+                    received += 1
+                    rec.append(
+                        t.index + index_off, t.reference, t.counts + count_off, t.pwm, t.flags
+                    )
+                    if rt is not None and rt.on_index(t.index):
+                        rt.todo.append(rt.target)  # braked: now the move to the target
+                    if on_telemetry is not None:
+                        on_telemetry(t.index, t.reference, t.counts / self.counts_per_rad)
+                elif f.type == P.MsgType.END_OF_RUN:
+                    end = P.EndOfRun.unpack(f.payload)
+                elif f.type == P.MsgType.ERROR:
+                    self._check_busy(f)
+                    e = P.DeviceError.unpack(f.payload)
+                    rec.metadata.setdefault("device_errors", []).append([e.code, e.detail])
+                else:
+                    self.ignored_frames += 1  # ACKs of heartbeats, stray replies
+
+            def refused(what, detail):
+                rec.metadata.setdefault("retargets_refused", []).append([what, detail])
+
+            def reply_to(msg):
+                """Send msg, handle the frames until its ACK/NACK (None: the run ended)."""
+                seq = self._write(msg)
+                deadline = time.monotonic() + self.timeout
+                while end is None:
+                    if time.monotonic() > deadline:
+                        raise RigTimeoutError(
+                            f"{self.port}: no reply to {type(msg).__name__} within "
+                            f"{self.timeout:g} s during the run"
+                        )
+                    frames = self._read_frames(0.05)
+                    for i, f in enumerate(frames):
+                        if (
+                            f.seq == seq
+                            and f.type in (P.MsgType.ACK, P.MsgType.NACK)
+                            and f.payload[:1] == bytes([msg.TYPE])
+                        ):
+                            self._frames = frames[i + 1 :] + self._frames
+                            return P.parse(f)
+                        on_frame(f)
+                return None
+
             while end is None:
                 while self._retargets:
                     d = self._retargets.popleft()
-                    self._write(P.Retarget(d))
                     retargets.append([next_index, d])
                     rec.metadata["retargets"] = retargets
+                    if rt is not None:
+                        rt.todo.append(d)
+                if rt is not None and rt.todo:
+                    d = rt.todo[-1]  # the newest target replaces the others
+                    rt.todo.clear()
+                    rt.send(d, lambda: next_index, reply_to, refused)
+                    if rt.late:
+                        rec.metadata["retargets_late"] = list(rt.late)
+                    if rt.switches:
+                        rec.metadata["retarget_switches"] = [list(x) for x in rt.switches]
                 now = time.monotonic()
                 if now - last_hb >= hb_every:
                     self._write(P.Heartbeat())
@@ -1217,41 +1398,7 @@ class Rig:
                         f"samples of {total}"
                     )
                 for f in frames:
-                    if f.type == P.MsgType.TELEMETRY:
-                        try:
-                            t = P.Telemetry.unpack(f.payload)
-                        except P.ProtocolError:
-                            self.ignored_frames += 1
-                            continue
-                        if t.index > next_index:
-                            lost += (t.index - next_index) // max(
-                                1, getattr(command, "decimation", 1)
-                            )
-                        next_index = t.index + getattr(command, "decimation", 1)
-                        received += 1
-                        rec.append(
-                            t.index + index_off, t.reference, t.counts + count_off, t.pwm, t.flags
-                        )
-                        if on_telemetry is not None:
-                            on_telemetry(t.index, t.reference, t.counts / self.counts_per_rad)
-                    elif f.type == P.MsgType.END_OF_RUN:
-                        end = P.EndOfRun.unpack(f.payload)
-                    elif f.type == P.MsgType.NACK and f.payload[:1] == bytes([P.MsgType.RETARGET]):
-                        n = P.Nack.unpack(f.payload)
-                        rec.metadata.setdefault("retargets_refused", []).append(
-                            [
-                                P.ErrorCode(n.error).name
-                                if n.error in iter(P.ErrorCode)
-                                else n.error,
-                                n.param,
-                            ]
-                        )
-                    elif f.type == P.MsgType.ERROR:
-                        self._check_busy(f)
-                        e = P.DeviceError.unpack(f.payload)
-                        rec.metadata.setdefault("device_errors", []).append([e.code, e.detail])
-                    else:
-                        self.ignored_frames += 1  # ACKs of heartbeats, stray replies
+                    on_frame(f)
                 rec.flush()
                 bar.update(len(rec))
             if final is False and end.reason == P.EndReason.DONE:

@@ -1,12 +1,14 @@
-"""Re-targeting a running move: the rule the firmware and the virtual rig share.
+"""Re-targeting a running move: the host plans it, the firmware and the virtual rig check it.
 
-A RETARGET (``firmware/PROTOCOL.md`` "Re-targeting") changes the target of the move that runs.
+A re-targeting (``firmware/PROTOCOL.md`` "Re-targeting") changes the target of the move that
+runs: the host plans the switch and the new plan (:func:`plan_switch`) and sends them as
+PLAN_SEGMENTs and a RETARGET naming the switch sample.
 The reference must stay jerk-continuous, so the new plan starts where the running one has
 jerk 0 *and* acceleration 0 (see ``docs/THEORY.md`` "Re-targeting"):
 
 * during the acceleration phase: at its end (the half-sine pulses end there, j = a = 0);
-* during the cruise: at once, i.e. at the first sample at least :func:`lead_samples` after the
-  command (the time the board needs to plan);
+* during the cruise: at once, i.e. at the first sample the host's frames reach the board in
+  time for (:func:`margin_samples`);
 * during the deceleration or after the end: at rest at the old target.
 
 From there (position ``x_s``, velocity ``v_s`` along the move, acceleration 0) the new plan is
@@ -38,10 +40,18 @@ __all__ = [
     "switch_point",
     "lead_samples",
     "BISECTION_STEPS",
+    "RETARGET_LEAD",
+    "RETARGET_TRIES",
+    "RunningPlan",
+    "SwitchPlan",
+    "first_sample",
+    "margin_samples",
+    "plan_segments",
+    "plan_switch",
 ]
 
 _TWO_OVER_PI = 2.0 / math.pi
-#: bisection halvings of the peak velocity (the firmware's plan_moving default)
+#: bisection halvings of the peak velocity
 BISECTION_STEPS = 24
 _SINE, _LINEAR, _STEP = 0, 1, 2
 _SHAPES = {0: _SINE, 1: _SINE, 2: _LINEAR, 3: _STEP}
@@ -66,8 +76,10 @@ def _checked(kind, max_jerk, max_accel):
 
 
 def lead_samples(Ts_us: int) -> int:
-    """Samples between a RETARGET and the earliest switch (the board plans meanwhile, a few
-    bisection steps per tick): ``2 + ceil(24 / max(2, Ts_us // 400))`` -- 14 at 1 ms, 4 at 5 ms."""
+    """Samples between a RETARGET and the earliest switch when the board planned it itself
+    (protocol versions 3 and 4, a few bisection steps per tick): ``2 + ceil(24 / max(2, Ts_us
+    // 400))`` -- 14 at 1 ms, 4 at 5 ms. Version 5 plans on the host: :func:`plan_switch`,
+    :data:`RETARGET_LEAD`."""
     per_tick = max(2, as_int("Ts_us", Ts_us, minimum=1) // 400)
     return 2 + -(-BISECTION_STEPS // per_tick)
 
@@ -273,7 +285,7 @@ def moving_plan(
     iterations=BISECTION_STEPS,
 ):
     """Moving start ``v0 >= 0`` along ``distance`` (a0 = 0), rest at the end; ``None`` when
-    the move cannot stop within ``distance`` (mirrors the firmware's ``plan_moving``)."""
+    the move cannot stop within ``distance`` (what the host sends for a re-targeting in motion)."""
     kind, max_jerk, max_accel = _checked(kind, max_jerk, max_accel)
     distance = as_real("distance", distance)
     v0 = as_nonnegative("v0", v0)
@@ -335,3 +347,244 @@ def switch_point(plan, t_earliest, Ts):
         return max(plan.end, t_earliest), plan.target, 0.0
     x = plan.state(t_s)[3]
     return t_s, x, plan.sign * plan.v_peak
+
+
+# ---------------------------------------------------------------------------- host-planned
+#: samples the device needs between the RETARGET frame and the switch it names (the stepper
+#: prepares the new plan's first chunk in its idle time, one stage a tick: PROTOCOL.md
+#: "Re-targeting")
+RETARGET_LEAD = 16
+#: retries of a RETARGET the device refused as late (NACK LATE), each with twice the allowance
+RETARGET_TRIES = 4
+#: the margin's fixed allowance (s) on top of the frames' line time: the host's own latency
+#: and the device's reply time (doubled at each retry)
+RETARGET_ALLOWANCE = 0.05
+_MIN_SEGMENT = 1e-9
+
+
+def _f32(x) -> float:
+    return float(np.float32(x))
+
+
+def _f32_sum(a, b) -> float:
+    return float(np.float32(np.float32(a) + np.float32(b)))
+
+
+def first_sample(t, Ts) -> int:
+    """The smallest ``k`` with ``float32(k) * float32(Ts) >= float32(t)`` (float32 arithmetic,
+    as the device's stepper finds a plan's first sample)."""
+    t32, ts32 = np.float32(t), np.float32(Ts)
+    if not t32 > 0:
+        return 0
+    k = int(np.float32(t32 / ts32)) + 2
+    while k > 0 and np.float32(np.float32(k - 1) * ts32) >= t32:
+        k -= 1
+    return k
+
+
+class RunningPlan:
+    """The plan the device steps, as the host knows it.
+
+    Parameters
+    ----------
+    plan : SegmentPlan
+        Its float64 reference (its state at the switch is the new plan's start).
+    t_start, accel_time, cruise_time, duration : float
+        Its start, acceleration phase, cruise and length as the device holds them (float32:
+        PLAN_INFO's fields, or the RETARGET that made it): the switch rule uses these.
+    kind : int
+        The run's planner (PLAN's byte 0..3): the shape of the plans that follow.
+    hold : bool
+        A braking plan: the move to the target follows from its end.
+    """
+
+    def __init__(self, plan, t_start, accel_time, cruise_time, duration, kind, hold=False):
+        self.plan = plan
+        self.t_start = _f32(t_start)
+        self.accel_time = _f32(accel_time)
+        self.cruise_time = _f32(cruise_time)
+        self.duration = _f32(duration)
+        self.kind, _, _ = _checked(kind, 1.0, 1.0)
+        self.hold = bool(hold)
+
+    def switch_times(self):
+        """``(tc0, tc1, t_end)`` in the device's float32 sums: the cruise's start and end and
+        the plan's end."""
+        tc0 = _f32_sum(self.t_start, self.accel_time)
+        return tc0, _f32_sum(tc0, self.cruise_time), _f32_sum(self.t_start, self.duration)
+
+
+def plan_segments(plan):
+    """The PLAN_SEGMENTs of a :class:`SegmentPlan` (absolute start states, float64 values;
+    segments shorter than 1 ns left out) and their float32 total duration as the device sums
+    them."""
+    from jerklab import protocol as P
+
+    segs, acc = [], np.float32(0.0)
+    rows = plan.segments
+    for (t0, x0, v0, a0, jp, sine, _), nxt in zip(rows[:-1], rows[1:]):
+        u = nxt[0] - t0
+        if u < _MIN_SEGMENT:
+            continue
+        kind = P.SegmentKind.HALF_SINE if sine else P.SegmentKind.POLYNOMIAL
+        segs.append(P.PlanSegment(len(segs), int(kind), u, x0, v0, a0, jp))
+        acc = np.float32(acc + np.float32(u))
+    return segs, float(acc)
+
+
+class SwitchPlan:
+    """A host-planned re-targeting: the frames to send and the plan that then runs.
+
+    Attributes
+    ----------
+    segments : list of PlanSegment
+        The new plan, into the device's second buffer.
+    message : Retarget
+        The commit that names the switch sample.
+    running : RunningPlan
+        The plan that runs from the switch on (what the next re-targeting starts from).
+    k_switch : int
+        The sample where it takes over.
+    """
+
+    def __init__(self, segments, message, running, k_switch):
+        self.segments, self.message = segments, message
+        self.running, self.k_switch = running, int(k_switch)
+
+    def n_bytes(self) -> int:
+        """Bytes on the wire of all the frames (7 of framing each)."""
+        from jerklab import protocol as P
+
+        return sum(len(P.encode(m)) for m in [*self.segments, self.message])
+
+
+def plan_switch(
+    running, k_earliest, target, Ts, max_jerk, max_accel, max_velocity, base=0
+) -> SwitchPlan:
+    """Plan the re-targeting of ``running`` to ``target`` on the host.
+
+    The switch is at an instant where the running plan's jerk and acceleration are 0 (the
+    rule of :func:`switch_point`, in the device's float32 times): the end of the acceleration
+    when ``k_earliest`` comes before it, else at sample ``k_earliest`` in the cruise, else at
+    rest at the old target. From the state there the new plan is :func:`rest_plan`,
+    :func:`moving_plan` or, when the target lies behind the stopping distance,
+    :func:`stop_plan` (``hold``: the move to the target follows from its end).
+
+    Parameters
+    ----------
+    running : RunningPlan
+        The plan the device steps.
+    k_earliest : int
+        The earliest sample the switch may be at (the host's margin included).
+    target : float
+        The new target (rad from the run's start).
+    Ts : float
+        The sample period (s).
+    max_jerk, max_accel, max_velocity : float
+        The run's limits (the trapezoid takes any ``max_jerk``).
+    base : int
+        The number of re-targeted plans that took over in this run so far (mod 256).
+
+    Returns
+    -------
+    SwitchPlan
+
+    Raises
+    ------
+    ValueError
+        A parameter out of range, named.
+    """
+    from jerklab import protocol as P
+
+    if not isinstance(running, RunningPlan):
+        raise TypeError(f"running must be a RunningPlan, got {type(running).__name__}")
+    k_earliest = as_int("k_earliest", k_earliest, minimum=0)
+    target = as_real("target", target)
+    if not abs(target) <= 1e6:
+        raise ValueError(f"target must be within +-1e6 rad, got {target!r}")
+    Ts = as_positive("Ts", Ts)
+    base = as_int("base", base, minimum=0) & 0xFF
+    kind = running.kind
+    J, A = _checked(kind, None if kind == 3 else max_jerk, max_accel)[1:]
+    V = as_positive("max_velocity", max_velocity)
+    tc0, tc1, t_end = running.switch_times()
+    t_e = _f32(np.float32(k_earliest) * np.float32(Ts))
+    p = running.plan
+    if running.hold or not (t_e <= tc0 or t_e < tc1):
+        t_s = max(t_end, t_e)
+        x_s, v_s = p.target, 0.0
+    else:
+        t_s = tc0 if t_e <= tc0 else t_e
+        x_s, v_s = float(p.state(t_s)[3]), p.sign * p.v_peak
+    d = target - x_s
+    new, hold = None, False
+    if d == 0.0 and v_s == 0.0:
+        raise ValueError(f"target {target!r} is where the move rests: nothing to re-target")
+    if v_s == 0.0:
+        new = rest_plan(kind, d, J, A, V, t_s, x_s)
+    elif d != 0.0 and (d > 0) == (v_s > 0):
+        new = moving_plan(kind, d, abs(v_s), J, A, V, t_s, x_s)
+    if new is None:
+        new, hold = stop_plan(kind, v_s, J, A, t_s, x_s), True
+    segs, duration = plan_segments(new)
+    end = P.PlanCommit(len(segs), new.target)
+    gap = P.check_plan_continuity(segs, end)
+    if gap is not None:  # pragma: no cover - the planners' segments join
+        raise ValueError(f"re-targeted plan: segment {gap[0]}'s {gap[1]} does not join")
+    k_s = first_sample(t_s, Ts)
+    msg = P.Retarget(
+        k_s,
+        t_s,
+        base,
+        len(segs),
+        new.target,
+        _f32(new.accel_time),
+        _f32(new.cruise_time),
+        P.RETARGET_HOLD if hold else 0,
+    )
+    nxt = RunningPlan(new, t_s, new.accel_time, new.cruise_time, duration, kind, hold)
+    return SwitchPlan(segs, msg, nxt, k_s)
+
+
+def margin_samples(n_bytes, Ts, baudrate=115200, attempt=0, decimation=1) -> int:
+    """Samples between the host's latest known sample and the switch it asks for: the
+    device's :data:`RETARGET_LEAD`, the frames' line time (``n_bytes`` at ``baudrate``, 10
+    bits a byte), :data:`RETARGET_ALLOWANCE` s doubled at each retry ``attempt`` and the
+    telemetry's ``decimation``."""
+    n_bytes = as_int("n_bytes", n_bytes, minimum=0)
+    Ts = as_positive("Ts", Ts)
+    baudrate = as_positive("baudrate", baudrate)
+    attempt = as_int("attempt", attempt, minimum=0)
+    decimation = as_int("decimation", decimation, minimum=1)
+    wait = n_bytes * 10.0 / baudrate + RETARGET_ALLOWANCE * 2.0**attempt
+    return RETARGET_LEAD + int(math.ceil(wait / Ts)) + decimation
+
+
+def placed_segments(segments, target, t_start) -> SegmentPlan:
+    """The plan of host-planned ``segments`` (PLAN_SEGMENTs) at rest at ``target``, starting at
+    ``t_start`` s, with the device's float32 segment start times (``t_start`` plus the float32
+    sum of the durations before): what a device steps after a RETARGET."""
+    from jerklab import protocol as P
+
+    segments = list(segments)
+    if not segments:
+        raise ValueError("segments must hold at least one PlanSegment")
+    t0 = np.float32(t_start)
+    acc = np.float32(0.0)
+    rows = []
+    for s in segments:
+        sine = s.kind == P.SegmentKind.HALF_SINE
+        w = math.pi / s.duration if sine else 0.0
+        rows.append((float(np.float32(acc + t0)), s.x0, s.v0, s.a0, s.jerk, sine, w))
+        acc = np.float32(acc + np.float32(s.duration))
+    rows.append((float(np.float32(acc + t0)), float(target), 0.0, 0.0, 0.0, False, 0.0))
+    plan = object.__new__(SegmentPlan)
+    plan.segments = rows
+    plan.t_start, plan.x_start = float(t0), float(segments[0].x0)
+    plan.distance = float(target) - plan.x_start
+    plan.sign = -1.0 if plan.distance < 0 else 1.0
+    plan.duration = float(acc)
+    plan.shape, plan.jerk = None, 0.0
+    plan.v_start = plan.v_peak = 0.0
+    plan.accel_time = plan.cruise_time = 0.0
+    return plan

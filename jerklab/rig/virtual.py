@@ -481,6 +481,8 @@ class VirtualDevice:
             return None
         if isinstance(msg, P.Retarget):
             return self._retarget(frame, msg)
+        if isinstance(msg, P.PlanSegment) and self.state == self.STATE_RUNNING:
+            return self._retarget_segment(frame, msg)
         if isinstance(msg, P.HostVoltage):
             return self._host_voltage(frame, msg)
         if self.active:
@@ -569,6 +571,7 @@ class VirtualDevice:
         else:
             accel_time, cruise = sum(pt[:3]), pt[3]
         self.plan = (prof, n, m)
+        self._plan_times = tuple(_f32(x) for x in (accel_time, cruise, prof.duration))
         self._send(P.PlanInfo(accel_time, cruise, prof.duration, n), self._current_seq)
         return None, None
 
@@ -599,6 +602,7 @@ class VirtualDevice:
             return P.ErrorCode.TOO_LONG, 0
         n = math.ceil(x) + 1
         self.plan = (P.SegmentProfile(self._hsegs, m.target), n, m)
+        self._plan_times = (_f32(m.accel_time), _f32(m.cruise_time), float(dur))
         self._hsegs = []  # (the next plan starts at index 0, as on the board)
         self._send(P.PlanInfo(m.accel_time, m.cruise_time, float(dur), n), self._current_seq)
         return None, None
@@ -650,13 +654,14 @@ class VirtualDevice:
         self._profile = prof
         # re-targeting (jerklab.rig.retarget): the pieces of the reference, from their start time
         self._pieces = [(-math.inf, prof)]
-        L = self.limits
-        self._splan = None  # the running plan as segments, made on first use
-        self._active_plan = None
+        self._piece_k = [0]  # the sample each piece takes over at
+        self._run_times = (0.0, *self._plan_times)  # t_start, accel, cruise, duration (float32)
+        self._rt_segs = []  # PLAN_SEGMENTs received in this run (the second buffer)
+        self._rt_gen = 0  # re-targeted plans that took over in this run (mod 256)
         self._plan_msg = plan_msg
         self._settle = m.settle_samples
-        self._followup_k = None  # a braking plan ends: the move to the target follows
-        self._switch = None  # (k, n_profile) when a new plan takes over
+        self._switch = None  # (k, n_profile, hold, times) when a new plan takes over
+        self._hold = False  # a braking plan runs: the run holds at its end
         delay = self._shaper_delay if self.shaper.n_taps else 0
         self._shp_delay = delay  # SET_SHAPER: the move lasts the last delay longer
         self._n_profile = n + delay
@@ -870,8 +875,9 @@ class VirtualDevice:
                 np.atleast_1d(np.asarray(v, float)).copy()
                 for v in (s.position, s.velocity, s.accel)
             ]
-            for t0, piece in self._pieces[1:]:  # re-targeted plans, from their start
-                sel = t >= t0
+            kk = k + np.arange(n)
+            for (t0, piece), k0 in zip(self._pieces[1:], self._piece_k[1:]):
+                sel = kk >= k0  # re-targeted plans, from their first sample
                 if sel.any():
                     x, v, a, _ = piece.sample(t[sel])
                     ref[0][sel], ref[1][sel], ref[2][sel] = x, v, a
@@ -880,62 +886,60 @@ class VirtualDevice:
         return self._ref[0][i], self._ref[1][i], self._ref[2][i]
 
     # ------------------------------------------------------------------ re-targeting
+    def _retarget_segment(self, frame, m):
+        """PLAN_SEGMENT during a run (PROTOCOL.md "Re-targeting"): into the second buffer;
+        index 0 cancels a switch not yet taken over."""
+        bad = P.check_plan_segment(m, len(self._rt_segs))
+        if bad is not None:
+            return self._nack(frame, P.ErrorCode.BAD_VALUE, bad)
+        if m.index == 0:
+            self._rt_segs = []
+            self._retargeted = True  # (the plan's buffer is written: consumed at the end)
+            if self._switch is not None:  # the pending plan's buffer is rewritten
+                self._pieces.pop()
+                self._piece_k.pop()
+                self._switch = None
+                self._ref = None
+                # the run ends with the running plan again
+                self._n_total = 2**62 if self._hold else self._n_profile + self._settle
+        self._rt_segs.append(m)
+        return self._send(P.Ack(frame.type), frame.seq)
+
     def _retarget(self, frame, m):
-        """RETARGET (PROTOCOL.md "Re-targeting"), the firmware's rule in float64."""
+        """RETARGET (PROTOCOL.md "Re-targeting"): the host's plan takes over at the sample it
+        names, checked in the firmware's order."""
         if self.state != self.STATE_RUNNING:
             return self._nack(frame, P.ErrorCode.NOT_READY)
-        if not (_finite(m.distance) and abs(m.distance) <= 1e6):
-            return self._nack(frame, P.ErrorCode.BAD_VALUE, 0)
-        if isinstance(self._plan_msg, P.PlanCommit) and self._plan_msg.planner == P.PLANNER_NONE:
-            # a host-planned run that is no planner's rest-to-rest profile
-            return self._nack(frame, P.ErrorCode.UNSUPPORTED, 0xFF)
-        self._send(P.Ack(frame.type), frame.seq)
-        self._rt_target = float(m.distance)
-        self._retargeted = True
-        self._retarget_from(self._k)
-        return None
-
-    def _current_plan(self):
-        if self._splan is None:
-            L, pm = self.limits, self._plan_msg
-            d = pm.target if isinstance(pm, P.PlanCommit) else pm.distance
-            self._splan = R.rest_plan(pm.planner, d, L.max_jerk, L.max_accel, L.max_velocity)
-        return self._splan
-
-    def _retarget_from(self, k_now):
-        L = self.limits
+        bad = P.check_retarget(m, len(self._rt_segs))
+        if bad is not None:
+            return self._nack(frame, P.ErrorCode.BAD_VALUE, bad)
+        if m.base != self._rt_gen:
+            return self._nack(frame, P.ErrorCode.LATE, 2)
+        t0, acc, cruise, dur = self._run_times
+        tc0 = _f32(np.float32(t0) + np.float32(acc))
+        tc1 = _f32(np.float32(tc0) + np.float32(cruise))
+        t_end = _f32(np.float32(t0) + np.float32(dur))
+        ts = _f32(m.t_switch)
+        if not (tc0 <= ts <= tc1 or ts >= t_end):
+            return self._nack(frame, P.ErrorCode.BAD_VALUE, 1)
         Ts_us = self.gains.Ts_us
-        Ts = Ts_us * 1e-6
-        if self._switch is not None:  # a newer target replaces one not yet switched to
-            self._pieces.pop()
-            self._switch = self._followup_k = None
-            self._splan = self._active_plan
-        cur = self._current_plan()
-        self._active_plan = cur
-        kind = self._plan_msg.planner
-        t_e = (k_now + R.lead_samples(Ts_us)) * Ts
-        t_s, x_s, v_s = R.switch_point(cur, t_e, Ts)
-        d = self._rt_target - x_s
-        new = None
-        if v_s == 0.0:
-            new = R.rest_plan(kind, d, L.max_jerk, L.max_accel, L.max_velocity, t_s, x_s)
-        elif d != 0.0 and (d > 0) == (v_s > 0):
-            new = R.moving_plan(
-                kind, d, abs(v_s), L.max_jerk, L.max_accel, L.max_velocity, t_s, x_s
-            )
-        braking = new is None
-        if braking:
-            new = R.stop_plan(kind, v_s, L.max_jerk, L.max_accel, t_s, x_s)
-        self._pieces = [p for p in self._pieces if p[0] < t_s] + [(t_s, new)]
-        self._splan = new
+        Ts = _f32(np.float32(Ts_us) * np.float32(1e-6))
+        if m.switch_index != R.first_sample(ts, Ts):
+            return self._nack(frame, P.ErrorCode.BAD_VALUE, 0)
+        if m.switch_index < self._k + R.RETARGET_LEAD:
+            return self._nack(frame, P.ErrorCode.LATE, 0)
+        self._send(P.Ack(frame.type), frame.seq)
+        new = R.placed_segments(self._rt_segs, m.target, ts)
+        self._rt_segs = []  # (the next plan starts at index 0)
+        self._retargeted = True
+        self._pieces.append((ts, new))
+        self._piece_k.append(m.switch_index)
         self._ref = None  # re-sample from the current sample on
-        k_sw = int(math.ceil(t_s / Ts - 1e-9))
-        while k_sw * Ts < t_s:
-            k_sw += 1
-        n_profile = int(math.ceil(new.end / Ts - 1e-4)) + 1
-        self._switch = (k_sw, n_profile + self._shp_delay)
-        self._n_total = n_profile + self._shp_delay + self._settle
-        self._followup_k = k_sw if braking else None
+        n_profile = int(math.ceil((ts + new.duration) / (Ts_us * 1e-6) - 1e-4)) + 1
+        times = (ts, _f32(m.accel_time), _f32(m.cruise_time), new.duration)
+        self._switch = (m.switch_index, n_profile + self._shp_delay, bool(m.flags & 1), times)
+        self._n_total = 2**62  # the run lasts until the new plan's end
+        return None
 
     def _pwm_top(self) -> int:
         """lround(max_voltage * pwm_max / supply), at most pwm_max (PROTOCOL.md step 4)."""
@@ -985,12 +989,13 @@ class VirtualDevice:
             return
         k = self._k
         if self.state == self.STATE_RUNNING and self._switch is not None and k >= self._switch[0]:
-            self._n_profile = self._switch[1]  # the re-targeted plan took over
+            _, n_profile, hold, self._run_times = self._switch  # the re-targeted plan took over
             self._switch = None
-            self._active_plan = self._splan
-            if self._followup_k is not None:
-                self._followup_k = None
-                self._retarget_from(k)  # braked: now the move to the target
+            self._rt_gen = (self._rt_gen + 1) & 0xFF
+            self._n_profile = n_profile
+            # a braking plan holds the run at its end for the RETARGET that follows
+            self._n_total = 2**62 if hold else n_profile + self._settle
+            self._hold = hold
         counts = self._counts() - self._count0
         flags = 0
         fault = None

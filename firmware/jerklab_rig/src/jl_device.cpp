@@ -145,9 +145,22 @@ void __attribute__((noinline)) Device::plan_frame(const Frame& f) {
     if (f.type == kPlanSegment) {
         HostSegment s;
         memcpy(&s, p, sizeof(s));
-        const uint8_t bad = host_plan_.add(&plan_, s);
+        // idle: the plan is rebuilt in place; in a run (re-targeting): into the buffer the
+        // stepper does not use, a pending switch to it cancelled by index 0
+        const bool run = state_ == kRunning;
+        const uint8_t bad = host_plan_.add(run ? free_plan() : &plan_, s);
         if (bad != 0xFF) { nack(f, kErrBadValue, bad); return; }
-        plan_ok_ = false;                 // (the plan is rebuilt in place)
+        if (run) {
+            if (s.index == 0 && rt_stage_ != 0) {
+                // the pending switch is cancelled: the run ends with its plan again
+                stepper_.cancel_switch();
+                rt_stage_ = 0;
+                n_total_ = rt_hold_run_ ? 0xFFFFFFFFUL : plan_samples_ + shaper_.max_delay() + settle_;
+            }
+            rt_active_ = true;
+        } else {
+            plan_ok_ = false;
+        }
         ack(f);
         return;
     }
@@ -310,9 +323,11 @@ void Device::handle(const Frame& f) {
         ack(f);
         pid_.reset();
         cur_plan_ = &plan_;
-        run_kind_ = plan_.kind;
         rt_stage_ = 0;
+        rt_gen_ = 0;
+        rt_hold_ = rt_hold_run_ = false;
         rt_active_ = false;
+        host_plan_.count = 0;
         settle_ = settle;
         seq_on_ = false;
         {
@@ -364,7 +379,8 @@ void Device::handle(const Frame& f) {
 bool Device::handle_v5(const Frame& f) {
     if (f.type != kPlanSegment && f.type != kPlanCommit) return false;
     if (f.len != (f.type == kPlanSegment ? kLenPlanSegment : kLenPlanCommit)) { nack(f, kErrBadLength); return true; }
-    if (state_ != kIdle) { nack(f, kErrBusy); return true; }
+    // (PLAN_SEGMENT also during a run: the plan of a RETARGET)
+    if (state_ != kIdle && !(state_ == kRunning && f.type == kPlanSegment)) { nack(f, kErrBusy); return true; }
     plan_pending_ = true;
     return true;
 }
@@ -654,98 +670,54 @@ void Device::sample_ahead() {
         // a re-targeted plan took over at this sample (k_): the run now ends with it
         cur_plan_ = stepper_.plan();
         plan_samples_ = samples_of(cur_plan_->t_start + cur_plan_->duration, Ts_);
-        n_total_ = plan_samples_ + shaper_.max_delay() + settle_;
+        // a braking plan (RETARGET flags bit 0) holds the run for the RETARGET that follows
+        n_total_ = rt_hold_ ? 0xFFFFFFFFUL : plan_samples_ + shaper_.max_delay() + settle_;
+        rt_hold_run_ = rt_hold_;
         rt_stage_ = 0;
-        // braked to rest first (the target was behind): the move to the target follows
-        if (rt_mode_ == 2) retarget_begin(k_);
+        ++rt_gen_;
     }
 }
 
+// RETARGET (PROTOCOL.md "Re-targeting"): the host's plan, sent as PLAN_SEGMENTs during the
+// run into the buffer the stepper does not use, takes over at the sample the frame names.
 void Device::handle_retarget(const Frame& f) {
     if (f.len != kLenRetarget) { nack(f, kErrBadLength); return; }
     if (state_ != kRunning) { nack(f, kErrNotReady); return; }
-    const float d = get_f32(f.payload);
-    if (!abs_le(d, 1e6f)) { nack(f, kErrBadValue, 0); return; }
-    // a host-planned run that is no planner's rest-to-rest profile (PLAN_COMMIT planner 0xFF)
-    if (run_kind_ == kPlannerHost) { nack(f, kErrUnsupported); return; }
-    ack(f);
-    rt_target_ = d;
-    rt_active_ = true;
-    retarget_begin(k_);
-}
-
-// Samples from a RETARGET to the earliest switch: the stages below run one per tick, the
-// bisection max(2, Ts_us / 400) halvings at a time (jerklab.rig.retarget.lead_samples).
-static uint8_t halvings_per_tick(uint16_t ts_us) {
-    const uint16_t n = ts_us / 400u;
-    return n < 2 ? 2 : (n > 24 ? 24 : static_cast<uint8_t>(n));
-}
-
-void Device::retarget_begin(uint32_t k_now) {
-    const uint8_t per = halvings_per_tick(Ts_us_);
-    rt_k_ = k_now + 2u + (24u + per - 1u) / per;
-    rt_stage_ = 1;
-    rt_mode_ = 0;
-    stepper_.cancel_switch();              // a newer target replaces one not yet switched to
-    n_total_ = 0xFFFFFFFFUL;               // the run lasts until the new plan's end
-}
-
-// One stage of the re-targeting work; true when it did something.
-bool Device::retarget_work() {
-    if (rt_stage_ == 0 || rt_stage_ == 5) return false;
+    RetargetCommit r;
+    memcpy(&r, f.payload, sizeof(r));
+    // the end of the plan's fields as PLAN_COMMIT's (3 n_segments .. 6 cruise_time)
+    const HostCommit c = {r.n_segments, r.target, r.accel_time, r.cruise_time, 0.0f, kPlannerHost};
+    const uint8_t bad = host_plan_.check(c);
+    if (bad != 0xFF) { nack(f, kErrBadValue, static_cast<uint8_t>(bad + 3)); return; }
+    if (r.flags & ~kRetargetHold) { nack(f, kErrBadValue, 7); return; }
+    if (!abs_le(r.t_switch, kFloatMax) || r.t_switch < 0.0f) { nack(f, kErrBadValue, 1); return; }
+    if (r.base != rt_gen_) { nack(f, kErrLate, 2); return; }    // another plan took over meanwhile
+    // where the running plan allows a switch: jerk and acceleration 0, in the cruise (its ends
+    // included) or at rest after its end (jerklab.rig.retarget.plan_switch)
     const Plan& cp = *cur_plan_;
-    Plan* np = cur_plan_ == &plan_ ? &plan_b_ : &plan_;
-    if (rt_stage_ == 1) {
-        // the switch point: jerk and acceleration 0 (jerklab.rig.retarget.switch_point)
-        const float te = static_cast<float>(rt_k_) * Ts_;
-        const float tc0 = cp.t_start + cp.accel_time, tc1 = tc0 + cp.tv;
-        if (te < tc1 || te <= tc0) {
-            rt_ts_ = te <= tc0 ? tc0 : te;
-            rt_xs_ = position_at_switch(cp, rt_ts_);
-            rt_vs_ = cp.sign * cp.v_peak;
-        } else {
-            const float tend = cp.t_start + cp.duration;
-            rt_ts_ = tend > te ? tend : te;
-            rt_xs_ = cp.x_start + cp.distance;
-            rt_vs_ = 0.0f;
-        }
-        const float d = rt_target_ - rt_xs_;
-        // (built without the board planners 1-3: their rest-to-rest move is the moving start
-        // from v = 0, the same profile; jerklab.rig.retarget.moving_plan)
-        const bool rest = rt_vs_ == 0.0f;
-        if (rest && (JL_WITH_BOARD_PLANNERS || run_kind_ == kPlannerSineJerk)) {
-            rt_mode_ = 0;
-            rt_stage_ = 3;
-        } else if ((rest || ((d > 0.0f) == (rt_vs_ > 0.0f) && d != 0.0f)) &&
-                   solver_.begin(rest ? run_kind_ : cp.kind, d, jl_fabsf(rt_vs_), max_jerk_, max_accel_,
-                                 max_velocity_) == kPlanOk) {
-            rt_mode_ = 1;
-            rt_stage_ = 2;
-        } else {
-            rt_mode_ = 2;                  // brake to rest first
-            rt_stage_ = 3;
-        }
-        return true;
-    }
-    if (rt_stage_ == 2) {
-        if (solver_.step(halvings_per_tick(Ts_us_))) rt_stage_ = 3;
-        return true;
-    }
-    if (rt_stage_ == 3) {
-        const float d = rt_target_ - rt_xs_;
-        if (rt_mode_ == 1) {
-            solver_.finish(d, rt_ts_, rt_xs_, np);
-        } else if (rt_mode_ == 2) {
-            plan_stop(cp.kind, jl_fabsf(rt_vs_), rt_vs_, max_jerk_, max_accel_, rt_ts_, rt_xs_, np);
-        } else {
-            plan_kind(run_kind_, d, max_jerk_, max_accel_, max_velocity_, np);
-            place(np, rt_ts_, rt_xs_);
-        }
-        rt_stage_ = 4;
-        return true;
-    }
-    // stage 4: the new plan's first segment, then scheduled (the stepper switches)
-    if (stepper_.prepare_switch(*np)) rt_stage_ = 5;
+    const float tc0 = cp.t_start + cp.accel_time, tc1 = tc0 + cp.tv;
+    const float ts = r.t_switch;
+    if (!((ts >= tc0 && ts <= tc1) || ts >= cp.t_start + cp.duration)) { nack(f, kErrBadValue, 1); return; }
+    if (r.switch_index != first_sample_at(ts, Ts_)) { nack(f, kErrBadValue, 0); return; }
+    if (r.switch_index < k_ + kRetargetLead) { nack(f, kErrLate, 0); return; }
+    Plan* np = free_plan();
+    host_plan_.commit(np, c);
+    place(np, ts, 0.0f);                   // (the segments' start states are absolute)
+    np->x_start = np->seg[0].x0;
+    np->distance = r.target - np->x_start;
+    np->sign = np->distance < 0.0f ? -1.0f : 1.0f;
+    rt_hold_ = (r.flags & kRetargetHold) != 0;
+    rt_active_ = true;
+    rt_stage_ = 4;
+    n_total_ = 0xFFFFFFFFUL;               // the run lasts until the new plan's end
+    ack(f);
+}
+
+// The re-targeting's work in the idle time: the new plan's first chunk, a stage a tick, then
+// scheduled (the stepper switches at its first sample); true when it did something.
+bool Device::retarget_work() {
+    if (rt_stage_ != 4) return false;
+    if (stepper_.prepare_switch(*free_plan())) rt_stage_ = 5;
     return true;
 }
 

@@ -155,7 +155,7 @@ private:
     void sample_ahead();
     void handle_retarget(const Frame& f);
     bool retarget_work();
-    void retarget_begin(uint32_t k_now);
+    Plan* free_plan() { return cur_plan_ == &plan_ ? &plan_b_ : &plan_; }
     void update_pwm_top();
     // Version 3 (jl_excite): SEQUENCE and SET_SHAPER; false if the frame was not one of them.
     bool handle_v3(const Frame& f);
@@ -187,23 +187,17 @@ private:
     bool plan_pending_ JL_ZERO;   // a checked PLAN (PLAN_SEGMENT, PLAN_COMMIT) waits for plan_frame()
     Plan plan_;
     HostPlanner host_plan_ JL_ZERO;   // version 5: the host's segments received into plan_
-    // Re-targeting (PROTOCOL.md "Re-targeting"): the plan that takes over is built in the buffer
-    // the stepper does not use, in stages run by background(); rt_stage_ 0 idle, 1 find the
-    // switch point, 2 bisection, 3 build, 4 prepare its first segment, 5 scheduled.
+    // Re-targeting (PROTOCOL.md "Re-targeting"): the host's new plan arrives during the run
+    // (PLAN_SEGMENT, RETARGET) in the buffer the stepper does not use; rt_stage_ 0 none, 4 the
+    // stepper prepares its first chunk (background()), 5 scheduled. rt_gen_: re-targeted plans
+    // that took over in this run (mod 256, RETARGET's base); rt_hold_: the pending plan brakes
+    // (the run holds at its end), rt_hold_run_: the running one does.
     Plan plan_b_;
     const Plan* cur_plan_ = &plan_;
-    MovingSolver solver_;
-    // The re-targeting's scratch (a RUN only) shares its bytes with the host-in-the-loop state
-    // (a HOST_LOOP only; the stack's margin above the variables has no room for more RAM).
-    union {
-        struct {
-            float rt_target_, rt_ts_, rt_xs_, rt_vs_;
-            uint32_t rt_k_;
-        };
-        HostLoopState hl_;
-    };
-    uint8_t rt_stage_ JL_ZERO, rt_mode_ JL_ZERO, run_kind_ JL_ZERO;   // mode: 0 rest to rest, 1 moving start, 2 stop
-    bool rt_active_ JL_ZERO;               // a RETARGET arrived in this run
+    HostLoopState hl_;                     // HOST_LOOP's state (a HOST_LOOP only)
+    uint8_t rt_stage_ JL_ZERO, rt_gen_ JL_ZERO;
+    bool rt_hold_ JL_ZERO, rt_hold_run_ JL_ZERO;
+    bool rt_active_ JL_ZERO;               // the run's plan buffers were written (PLAN again after it)
     uint16_t settle_ JL_ZERO;
     uint32_t plan_samples_ JL_ZERO;
 

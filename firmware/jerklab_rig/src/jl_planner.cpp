@@ -222,103 +222,8 @@ PlanStatus plan_kind(uint8_t kind, float d, float J, float A, float V, Plan* p) 
 
 // Pulse pair changing the velocity by dv >= 0 with the pulse jerk Je (2J/pi for the sine
 // family) and acceleration limit A: pulse time tj and plateau ta (the S-curve rule).
-static void pair_times(uint8_t shape, float dv, float Je, float A, float* tj, float* ta) {
-    if (!(dv > 0.0f)) { *tj = *ta = 0.0f; return; }
-    if (shape == kShapeStep) { *tj = 0.0f; *ta = dv / A; return; }
-    if (dv * Je >= A * A) { *tj = A / Je; *ta = dv / A - *tj; }
-    else { *tj = jl_sqrtf(dv / Je); *ta = 0.0f; }
-}
-
-// Distance of the moving-start profile without cruise at peak velocity vp.
-static float moving_dist(uint8_t shape, float v0, float vp, float Je, float A) {
-    float tj1, ta1, tj2, ta2;
-    pair_times(shape, vp - v0, Je, A, &tj1, &ta1);
-    pair_times(shape, vp, Je, A, &tj2, &ta2);
-    return 0.5f * (v0 + vp) * (2.0f * tj1 + ta1) + 0.5f * vp * (2.0f * tj2 + ta2);
-}
-
 static uint8_t shape_of(uint8_t kind) {
     return kind == kPlannerTrapezoid ? kShapeStep : (kind == kPlannerScurve ? kShapeLinear : kShapeSine);
-}
-
-PlanStatus MovingSolver::begin(uint8_t k, float distance, float v, float j, float a, float vmax,
-                               uint8_t iterations) {
-    PlanStatus st = check(distance, j, a, vmax);
-    if (st != kPlanOk) return st;
-    if (!finite_f(v) || v < 0.0f) return kPlanBadVelocity;
-    kind = k;
-    shape = shape_of(k);
-    d = jl_fabsf(distance);
-    v0 = v;
-    J = j;
-    A = a;
-    V = vmax < v ? v : vmax;               // never asked to exceed the cruise it is in
-    Je = shape == kShapeSine ? kTwoOverPi * J : J;
-    const float dmax = moving_dist(shape, v0, V, Je, A);
-    lo = hi = V;
-    dlo = dmax;
-    left = 0;
-    if (dmax <= d) return kPlanOk;
-    lo = v0;
-    dlo = moving_dist(shape, v0, v0, Je, A);
-    if (dlo > d * (1.0f + 1e-6f) + 1e-30f) return kPlanOvershoot;
-    left = iterations;
-    return kPlanOk;
-}
-
-bool MovingSolver::step(uint8_t n) {
-    for (; n > 0 && left > 0; --n, --left) {
-        const float mid = 0.5f * (lo + hi);
-        const float dm = moving_dist(shape, v0, mid, Je, A);
-        if (dm <= d) { lo = mid; dlo = dm; } else hi = mid;
-    }
-    return left == 0;
-}
-
-void MovingSolver::finish(float distance, float t_start, float x_start, Plan* p) {
-    init(p, static_cast<uint8_t>(kind == kPlannerSineJerk ? kPlannerSineJerkOptimal : kind), shape,
-         distance, shape == kShapeStep ? A : J);
-    p->x_start = x_start;
-    p->t_start = t_start;
-    p->v_start = v0;
-    const float vp = lo;
-    p->v_peak = vp;
-    p->tv = vp > 0.0f && d > dlo ? (d - dlo) / vp : 0.0f;
-    pair_times(shape, vp - v0, Je, A, &p->tj1, &p->ta1);
-    pair_times(shape, vp, Je, A, &p->tj, &p->ta);
-    build(p);
-}
-
-PlanStatus plan_moving(uint8_t kind, float distance, float v0, float J, float A, float V,
-                       float t_start, float x_start, Plan* p, uint8_t iterations) {
-    MovingSolver s;
-    PlanStatus st = s.begin(kind, distance, v0, J, A, V, iterations);
-    if (st != kPlanOk) return st;
-    s.step(iterations);
-    s.finish(distance, t_start, x_start, p);
-    return kPlanOk;
-}
-
-PlanStatus plan_stop(uint8_t kind, float v0, float sign, float J, float A, float t_start,
-                     float x_start, Plan* p) {
-    PlanStatus st = check(sign, J, A, 1.0f);
-    if (st != kPlanOk) return st;
-    const uint8_t shape = shape_of(kind);
-    const float Je = shape == kShapeSine ? kTwoOverPi * J : J;
-    float tj, ta;
-    pair_times(shape, v0, Je, A, &tj, &ta);
-    const float d = 0.5f * v0 * (2.0f * tj + ta);
-    init(p, static_cast<uint8_t>(kind == kPlannerSineJerk ? kPlannerSineJerkOptimal : kind), shape,
-         sign < 0.0f ? -d : d, shape == kShapeStep ? A : J);
-    p->sign = sign < 0.0f ? -1.0f : 1.0f;
-    p->x_start = x_start;
-    p->t_start = t_start;
-    p->v_start = v0;
-    p->v_peak = v0;
-    p->tj = tj;
-    p->ta = ta;
-    build(p);
-    return kPlanOk;
 }
 
 // ------------------------------------------------------------------ host-planned plans
@@ -403,14 +308,6 @@ static void eval_poly(const Segment& s, float u, Sample* o) {
     o->accel = s.a0 + ju;
     o->velocity = s.v0 + u * (s.a0 + 0.5f * ju);
     o->position = s.x0 + u * (s.v0 + u * (0.5f * s.a0 + ju * (1.0f / 6.0f)));
-}
-
-float position_at_switch(const Plan& p, float t) {
-    uint8_t i = p.nseg - 1;
-    while (i > 0 && t < p.seg[i].t0) --i;
-    const Segment& s = p.seg[i];
-    if (i == p.nseg - 1) return s.x0;
-    return s.x0 + (t - s.t0) * s.v0;      // a cruise (a = j = 0) or the start of a segment
 }
 
 // The closed form on segment s at local time u >= 0.
@@ -740,6 +637,8 @@ static uint32_t first_k(float t0, float Ts) {
 }
 
 uint32_t PlanStepper::first_sample(uint8_t i) const { return first_k(p_->seg[i].t0, Ts_); }
+
+uint32_t first_sample_at(float t, float Ts) { return first_k(t, Ts); }
 
 // The first sample after the chunk of segment i that starts at k0 (none after the rest at the
 // target).

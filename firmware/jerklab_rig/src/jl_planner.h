@@ -1,6 +1,6 @@
 // The rig's planners in float32: Stojčić's published sine-jerk (eqs. 2-4, Fig. 2), the
-// time-optimal half-sine-jerk profile, the linear-jerk S-curve and the trapezoid, rest to rest,
-// plus the moving start (v0 >= 0, a0 = 0, rest at the end) that re-targeting needs. They mirror
+// time-optimal half-sine-jerk profile, the linear-jerk S-curve and the trapezoid, rest to rest
+// (re-targeting's moving start is planned on the host: jerklab.rig.retarget.plan_switch). They mirror
 // jerklab.planner (plan_sine_jerk, plan_sine_jerk_optimal, plan_scurve, plan_trapezoid) and the
 // closed form of its Profile (docs/THEORY.md; Stojčić eq. 15 is the recursion they replace).
 //
@@ -21,7 +21,7 @@ enum PlanStatus : uint8_t {
     kPlanBadAccel = 3,
     kPlanBadVelocity = 4,
     kPlanBadTime = 5,       // phase time not finite, T <= 0 or t_v < 0
-    kPlanOvershoot = 6,     // moving start: cannot stop within the distance (see plan_moving)
+    kPlanOvershoot = 6,     // (protocol version 4: the moving start could not stop in time)
 };
 
 struct Sample {
@@ -83,22 +83,6 @@ PlanStatus plan_trapezoid(float distance, float max_accel, float max_velocity, P
 PlanStatus plan_kind(uint8_t kind, float distance, float max_jerk, float max_accel,
                      float max_velocity, Plan* out);
 
-/// Moving start, rest at the end: from velocity v0 along the move (a0 = 0) over `distance`
-/// (same sign as the velocity, or v0 = 0): a pulse pair from v0 to v_peak in [v0, max_velocity]
-/// (no plateau when short), a cruise, and the rest-to-rest deceleration from v_peak; v_peak is
-/// the largest whose distance fits (bisection, `iterations` halvings). kPlanOvershoot when even
-/// v_peak = v0 needs more than `distance` to stop. kind picks the pulse shape: the sine family
-/// (published and optimal) uses half-sine pulses of peak max_jerk (the optimal profile's
-/// pulses), the S-curve linear jerk, the trapezoid steps. The plan starts at (t_start, x_start).
-PlanStatus plan_moving(uint8_t kind, float distance, float v0, float max_jerk, float max_accel,
-                       float max_velocity, float t_start, float x_start, Plan* out,
-                       uint8_t iterations = 24);
-
-/// Brake from |v0| (a0 = 0) to rest in the direction `sign` (+-1): the deceleration half of
-/// kind's shape alone (re-targeting behind the stopping distance).
-PlanStatus plan_stop(uint8_t kind, float v0, float sign, float max_jerk, float max_accel,
-                     float t_start, float x_start, Plan* out);
-
 /// PLAN_SEGMENT's payload (protocol version 5) as it goes on the wire: segment `index` of a
 /// host-planned plan, `kind` 0 constant jerk / 1 half-sine pulse jerk sin(pi u / duration), its
 /// duration (s) and start state (little-endian, no padding, as the AVR and the hosts store them).
@@ -108,8 +92,8 @@ struct __attribute__((packed)) HostSegment {
 };
 /// PLAN_COMMIT's payload: the number of segments, the rest position at the end, the
 /// acceleration and cruise times PLAN_INFO echoes, the cruise velocity and the planner whose
-/// rest-to-rest profile the segments are (0..3: RETARGET re-plans it by the board's rule;
-/// kPlannerHost 0xFF: none, not re-targetable).
+/// rest-to-rest profile the segments are (0..3: the host re-targets it by the rule of
+/// PROTOCOL.md "Re-targeting"; kPlannerHost 0xFF: none, the host does not re-target it).
 struct __attribute__((packed)) HostCommit {
     uint8_t n_segments;
     float target, accel_time, cruise_time, cruise_velocity;
@@ -141,20 +125,20 @@ struct HostPlanner {
 /// Move a plan made at (t = 0, x = 0) to start at (t_start, x_start).
 void place(Plan* p, float t_start, float x_start);
 
-/// Bisection state of plan_moving, run a few steps at a time (re-targeting in a 1 ms loop).
-struct MovingSolver {
-    uint8_t kind, shape, left;
-    float d, v0, J, A, V, Je, lo, hi, dlo;
-    /// kPlanOk: ready for finish() (maybe after step()s); kPlanOvershoot; or a bad limit.
-    PlanStatus begin(uint8_t kind, float distance, float v0, float J, float A, float V,
-                     uint8_t iterations = 24);
-    /// Up to n halvings; true when done.
-    bool step(uint8_t n);
-    void finish(float distance, float t_start, float x_start, Plan* out);
+/// RETARGET's payload (protocol version 5) as it goes on the wire: the host-planned plan sent
+/// as PLAN_SEGMENTs during the run takes over at sample switch_index, the first at or after
+/// t_switch; base: the re-targeted plans that took over in the run so far (mod 256).
+struct __attribute__((packed)) RetargetCommit {
+    uint32_t switch_index;
+    float t_switch;
+    uint8_t base, n_segments;
+    float target, accel_time, cruise_time;
+    uint8_t flags;
 };
+static_assert(sizeof(RetargetCommit) == 23, "RetargetCommit: RETARGET's payload");
 
-/// Position at a re-targeting switch time t: in a cruise (a = j = 0) or at a segment's start.
-float position_at_switch(const Plan& p, float t);
+/// The smallest k with (float)k * Ts >= t (the stepper's first sample of a plan starting at t).
+uint32_t first_sample_at(float t, float Ts);
 
 /// Closed-form sample at absolute time t (rest at x_start before t_start, at the target after
 /// the end).

@@ -20,7 +20,7 @@ enum MsgType : uint8_t {
 
 enum ErrorCode : uint8_t {
     kErrOk = 0, kErrUnknownType = 1, kErrBadLength = 2, kErrBadValue = 3, kErrBusy = 4,
-    kErrNotReady = 5, kErrUnsupported = 6, kErrBadVersion = 7, kErrTooLong = 8,
+    kErrNotReady = 5, kErrUnsupported = 6, kErrBadVersion = 7, kErrTooLong = 8, kErrLate = 9,
 };
 
 enum EndReason : uint8_t { kEndDone = 0, kEndStopped = 1, kEndHostTimeout = 2, kEndFault = 3,
@@ -69,7 +69,12 @@ static const uint8_t kLenHello = 1, kLenSetPlant = 14, kLenSetGains = 20, kLenSe
     kLenPlan = 5, kLenRun = 3, kLenStop = 0, kLenStep = 8, kLenHeartbeat = 0, kLenAck = 1,
     kLenNack = 3, kLenHelloReply = 26, kLenPlanInfo = 16, kLenTelemetry = 15, kLenEndOfRun = 13,
     kLenError = 3;
-static const uint8_t kLenRetarget = 4;
+// RETARGET (version 5): u32 switch_index, f32 t_switch, u8 base, u8 n_segments, f32 target,
+// f32 accel_time, f32 cruise_time, u8 flags (bit 0 kRetargetHold); the new plan's segments come
+// before it as PLAN_SEGMENTs during the run. kRetargetLead: the samples the stepper needs from
+// the frame to the switch (it prepares the new plan's first chunk, one stage a tick).
+static const uint8_t kLenRetarget = 23;
+static const uint8_t kRetargetHold = 1, kRetargetLead = 16;
 static const uint8_t kLenSequence = 16, kLenSetShaper = 51;   // version 3
 // Build option JL_WITH_HOST_LOOP (default 1; 0 leaves the mode out: HOST_LOOP and HOST_VOLTAGE
 // are then NACKed UNSUPPORTED and capability bit 14 is clear).
