@@ -30,6 +30,7 @@ import math
 import numpy as np
 
 from jerklab import planner
+from jerklab import protocol as P
 from jerklab._validate import as_int, as_nonnegative, as_positive, as_real
 
 __all__ = [
@@ -418,7 +419,6 @@ def plan_segments(plan):
     """The PLAN_SEGMENTs of a :class:`SegmentPlan` (absolute start states, float64 values;
     segments shorter than 1 ns left out) and their float32 total duration as the device sums
     them."""
-    from jerklab import protocol as P
 
     segs, acc = [], np.float32(0.0)
     rows = plan.segments
@@ -453,7 +453,6 @@ class SwitchPlan:
 
     def n_bytes(self) -> int:
         """Bytes on the wire of all the frames (7 of framing each)."""
-        from jerklab import protocol as P
 
         return sum(len(P.encode(m)) for m in [*self.segments, self.message])
 
@@ -494,7 +493,6 @@ def plan_switch(
     ValueError
         A parameter out of range, named.
     """
-    from jerklab import protocol as P
 
     if not isinstance(running, RunningPlan):
         raise TypeError(f"running must be a RunningPlan, got {type(running).__name__}")
@@ -564,7 +562,6 @@ def placed_segments(segments, target, t_start) -> SegmentPlan:
     """The plan of host-planned ``segments`` (PLAN_SEGMENTs) at rest at ``target``, starting at
     ``t_start`` s, with the device's float32 segment start times (``t_start`` plus the float32
     sum of the durations before): what a device steps after a RETARGET."""
-    from jerklab import protocol as P
 
     segments = list(segments)
     if not segments:
