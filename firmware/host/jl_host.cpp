@@ -181,7 +181,7 @@ int run_vectors(const char* path) {
                              : (p.shape == jl::kShapeLinear ? p.jerk * p.tj : p.jerk);
                 sj = p.shape == jl::kShapeStep ? 0.0 : J;
                 sa = apk;
-                sv = p.v_peak;
+                sv = p.cruise_velocity;
                 sx = std::fabs(d);
                 w = p.tj > 0 ? M_PI / p.tj : 0.0;
             }

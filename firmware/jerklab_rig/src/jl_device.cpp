@@ -695,7 +695,7 @@ void Device::handle_retarget(const Frame& f) {
     // where the running plan allows a switch: jerk and acceleration 0, in the cruise (its ends
     // included) or at rest after its end (jerklab.rig.retarget.plan_switch)
     const Plan& cp = *cur_plan_;
-    const float tc0 = cp.t_start + cp.accel_time, tc1 = tc0 + cp.tv;
+    const float tc0 = cp.t_start + cp.accel_time, tc1 = tc0 + cp.cruise_time;
     const float ts = r.t_switch;
     if (!((ts >= tc0 && ts <= tc1) || ts >= cp.t_start + cp.duration)) { nack(f, kErrBadValue, 1); return; }
     if (r.switch_index != first_sample_at(ts, Ts_)) { nack(f, kErrBadValue, 0); return; }

@@ -39,45 +39,40 @@ static void add_seg(Plan* p, float t, float x, float v, float a, float jp, bool 
     s.sine = sine ? 1 : 0;
 }
 
-// Lay out the segments of p from its times (tj1, ta1, tv, tj, ta), v_start and shape; positions
-// of the first half are integrated forward from (0, v0, 0), those of the deceleration backward
-// from the target (the mirror of an acceleration from rest), so the end is exactly the target.
+// Lay out the segments of p, rest to rest, from its times (tj, ta, cruise_time) and shape;
+// positions of the acceleration half are integrated forward from rest, those of the
+// deceleration backward from the target (the mirror of an acceleration from rest), so the end
+// is exactly the target.
 static void build(Plan* p) {
     const uint8_t sh = p->shape;
     const bool sine = sh == kShapeSine;
-    const float J = p->jerk, v0 = p->v_start, D = jl_fabsf(p->distance);
+    const float J = p->jerk, D = jl_fabsf(p->distance), tv = p->cruise_time;
     p->nseg = 0;
-    float apk1, v11, x11;
-    pulse_ends(sh, J, p->tj1, &apk1, &v11, &x11);
-    const float tacc1 = 2.0f * p->tj1 + p->ta1;
-    const float w1 = p->tj1 > 0.0f ? kPi / p->tj1 : 0.0f;
-    const float jl1 = sh == kShapeStep ? 0.0f : J;
-    float t = 0.0f;
-    if (tacc1 > 0.0f) {
-        if (p->tj1 > 0.0f) add_seg(p, 0.0f, 0.0f, v0, 0.0f, jl1, sine, w1);
-        float x = v0 * p->tj1 + x11, v = v0 + v11;
-        t = p->tj1;
-        if (p->ta1 > 0.0f) {
-            add_seg(p, t, x, v, apk1, 0.0f, false, 0.0f);
-            x += p->ta1 * (v + 0.5f * apk1 * p->ta1);
-            v += apk1 * p->ta1;
-            t += p->ta1;
-        }
-        if (p->tj1 > 0.0f) add_seg(p, t, x, v, apk1, -jl1, sine, w1);
-        t = tacc1;
-    }
-    const float vp = p->v_peak;
-    const float xc = 0.5f * (v0 + vp) * tacc1;         // symmetric pulse pair: mean velocity
     float apk, v1, x1;
     pulse_ends(sh, J, p->tj, &apk, &v1, &x1);
     const float tacc = 2.0f * p->tj + p->ta;
-    const float xacc = 0.5f * vp * tacc;
-    if (p->tv > 0.0f) add_seg(p, t, xc, vp, 0.0f, 0.0f, false, 0.0f);
-    t += p->tv;
+    const float w = p->tj > 0.0f ? kPi / p->tj : 0.0f;
+    const float jl = sh == kShapeStep ? 0.0f : J;
+    const float vp = p->cruise_velocity;
+    float t = 0.0f;
     if (tacc > 0.0f) {
-        const float w = p->tj > 0.0f ? kPi / p->tj : 0.0f;
-        const float jl = sh == kShapeStep ? 0.0f : J;
-        if (p->tj > 0.0f) add_seg(p, t, D - xacc, vp, 0.0f, -jl, sine, w);
+        if (p->tj > 0.0f) add_seg(p, 0.0f, 0.0f, 0.0f, 0.0f, jl, sine, w);
+        float x = x1, v = v1;
+        t = p->tj;
+        if (p->ta > 0.0f) {
+            add_seg(p, t, x, v, apk, 0.0f, false, 0.0f);
+            x += p->ta * (v + 0.5f * apk * p->ta);
+            v += apk * p->ta;
+            t += p->ta;
+        }
+        if (p->tj > 0.0f) add_seg(p, t, x, v, apk, -jl, sine, w);
+        t = tacc;
+    }
+    const float xc = 0.5f * vp * tacc;             // symmetric pulse pair: mean velocity
+    if (tv > 0.0f) add_seg(p, t, xc, vp, 0.0f, 0.0f, false, 0.0f);
+    t += tv;
+    if (tacc > 0.0f) {
+        if (p->tj > 0.0f) add_seg(p, t, D - xc, vp, 0.0f, -jl, sine, w);
         if (p->ta > 0.0f) {
             // mirror of the rising pulse's end plus the plateau: tau = tj + ta
             const float xa = x1 + p->ta * (v1 + 0.5f * apk * p->ta);
@@ -89,9 +84,7 @@ static void build(Plan* p) {
     p->duration = t;
     add_seg(p, t, D, 0.0f, 0.0f, 0.0f, false, 0.0f);
     p->seg[p->nseg - 1].x0 = p->x_start + p->distance;   // exactly the target
-    p->accel_time = tacc1;
-    p->cruise_time = p->tv;
-    p->cruise_velocity = vp;
+    p->accel_time = tacc;
 }
 
 static void init(Plan* p, uint8_t kind, uint8_t shape, float distance, float jpar) {
@@ -102,18 +95,17 @@ static void init(Plan* p, uint8_t kind, uint8_t shape, float distance, float jpa
     p->kind = kind;
     p->shape = shape;
     p->jerk = jpar;
-    p->v_start = 0.0f;
-    p->tj1 = p->ta1 = p->tj = p->ta = p->tv = 0.0f;
-    p->v_peak = 0.0f;
+    p->tj = p->ta = p->cruise_time = 0.0f;
+    p->cruise_velocity = 0.0f;
 }
 
 static void rest_to_rest(Plan* p, float tj, float ta, float tv) {
-    p->tj1 = p->tj = tj;
-    p->ta1 = p->ta = ta;
-    p->tv = tv;
+    p->tj = tj;
+    p->ta = ta;
+    p->cruise_time = tv;
     float apk, v1, x1;
     pulse_ends(p->shape, p->jerk, tj, &apk, &v1, &x1);
-    p->v_peak = apk * (tj + ta);
+    p->cruise_velocity = apk * (tj + ta);
     build(p);
 }
 
@@ -285,8 +277,8 @@ void HostPlanner::commit(Plan* p, const HostCommit& c) {
     p->distance = c.target - p->x_start;
     p->sign = p->distance < 0.0f ? -1.0f : 1.0f;
     p->accel_time = c.accel_time;
-    p->cruise_time = p->tv = c.cruise_time;
-    p->v_peak = p->cruise_velocity = c.cruise_velocity;
+    p->cruise_time = c.cruise_time;
+    p->cruise_velocity = c.cruise_velocity;
     p->kind = c.planner;
     p->shape = shape_of(c.planner);
     count = 0;

@@ -38,8 +38,8 @@ struct Segment {
     uint8_t sine;
 };
 
-/// A planned move. Rest-to-rest plans have v0 = 0 and equal halves (tj, ta); the moving start
-/// has its own acceleration half (tj1, ta1, towards v_peak from v0, possibly tj1 = ta1 = 0).
+/// A planned move: its segments and what PLAN_INFO and RETARGET read. The board plans rest to
+/// rest (equal halves tj, ta; a moving start, re-targeting, is planned on the host).
 struct Plan {
     float distance;       // signed, relative to the start point x_start
     float x_start;        // absolute start position (0 for PLAN; the switch point for RETARGET)
@@ -48,14 +48,11 @@ struct Plan {
     uint8_t kind;         // PlannerKind of jl_protocol.h
     uint8_t shape;        // PulseShape
     float jerk;           // jpar: peak jerk (sine), jerk (linear), acceleration (trapezoid)
-    float v_start;        // |v0| along the move (0 rest to rest)
-    float tj1, ta1;       // acceleration half: pulse and plateau times (towards v_peak)
-    float tj, ta, tv;     // deceleration half (= acceleration half rest to rest) and cruise
-    float v_peak;         // cruise velocity (>= 0, along the move)
+    float tj, ta;         // pulse and plateau times of each half (the board's planners)
     float duration;       // from t_start to rest at the target
-    // PLAN_INFO fields: acceleration phase 2 tj1 + ta1 (the published planner: T) and t_v.
+    // PLAN_INFO fields: acceleration phase 2 tj + ta (the published planner: T) and t_v.
     float accel_time, cruise_time;
-    float cruise_velocity;  // = v_peak (the published planner's omega_bar)
+    float cruise_velocity;  // cruise velocity (>= 0, along the move; the published omega_bar)
     uint8_t nseg;
     Segment seg[8];       // the last one is the rest at the target
 };
