@@ -704,8 +704,6 @@ void Device::handle_retarget(const Frame& f) {
     host_plan_.commit(np, c);
     place(np, ts, 0.0f);                   // (the segments' start states are absolute)
     np->x_start = np->seg[0].x0;
-    np->distance = r.target - np->x_start;
-    np->sign = np->distance < 0.0f ? -1.0f : 1.0f;
     rt_hold_ = (r.flags & kRetargetHold) != 0;
     rt_active_ = true;
     rt_stage_ = 4;
