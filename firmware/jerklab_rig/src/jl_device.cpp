@@ -290,7 +290,7 @@ void Device::handle(const Frame& f) {
         if (kind > kPlannerTrapezoid) { nack(f, kErrBadValue, 1); return; }
         // (built without the board planners 1-3: the host sends their segments)
         if (!JL_WITH_BOARD_PLANNERS && kind != kPlannerSineJerk) { nack(f, kErrUnsupported, 1); return; }
-        plan_ok_ = false;            // planned in place (a Plan is ~260 bytes of RAM)
+        plan_ok_ = false;            // planned in place (a Plan is ~220 bytes of RAM)
         // planned by plan_frame() once handle() has returned: the planners' deep float calls
         // then do not stack on handle()'s frame (PLAN is the deepest stack of the firmware)
         plan_pending_ = true;
