@@ -136,11 +136,6 @@ def test_ide_warns_of_low_memory_exactly_above_75_percent(built):
     assert ("Low memory available" in out) == (used > 0.75 * 2048), out[-1500:]
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="issue 28 (not done yet): RAM is 83 % of the Uno, the IDE warns above 75 %; the "
-    "on-board planners must leave the board first (host-planned segments)",
-)
 def test_ide_build_has_no_low_memory_warning(built):
     _, out = built
     assert "Low memory available" not in out

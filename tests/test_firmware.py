@@ -61,8 +61,10 @@ def test_sketch_builds_and_fits_the_uno_budget():
     # ~200 B of RAM on top: the budget is now 99 % of the flash and 87 % of the RAM, which leaves
     # ~290 B for the stack against the ~250 B its deepest path needs. The Uno is full: a further
     # feature must take something out (build options JL_WITH_SHAPER, JL_WITH_SEQUENCE).
+    # Protocol 5 plans on the host and keeps only what runs in a Plan: RAM is back at <= 75 %,
+    # below the Arduino IDE's low-memory warning (tests/test_arduino_ide.py).
     assert 4000 < flash <= 0.99 * flash_total
-    assert 100 < ram <= 0.87 * ram_total
+    assert 100 < ram <= 0.75 * ram_total
     # The hex holds the same bytes as the ELF's flash image (record checksums verified).
     data = 0
     for line in out["hex"].read_text().split():

@@ -286,10 +286,11 @@ def test_late_retarget_on_the_firmware_is_refused_and_retried(uno, monkeypatch):
 
 def test_the_deepest_stack_stays_above_the_variables(tmp_path):
     """The firmware's deepest stack, as the harness measures it (the lowest stack pointer of the
-    session, interrupts included), stays at least 32 bytes above the end of .bss over PLAN with
-    every planner, RUN with a RETARGET, SET_SHAPER, SEQUENCE and STEP. Below that the stack would
-    overwrite variables: PLAN's planning (the float planners' calls under the frame handler) once
-    reached 55 bytes into .bss, harmless or not only by the link order of the variables."""
+    session, interrupts included), stays at least 128 bytes above the end of .bss (issue 28) over
+    PLAN with every planner, RUN with a RETARGET, SET_SHAPER, SEQUENCE and STEP. Below that the
+    stack would overwrite variables: PLAN's planning (the float planners' calls under the frame
+    handler) once reached 55 bytes into .bss, harmless or not only by the link order of the
+    variables."""
     import subprocess
 
     from jerklab.controller import discrete_pole_placement_pid
@@ -335,7 +336,7 @@ def test_the_deepest_stack_stays_above_the_variables(tmp_path):
             rig.step(3.0, 0.1)
         st = sim.stats()
     gap = st["stack_min_sp"] + 1 - bss_end
-    assert gap >= 32, (
+    assert gap >= 128, (
         f"the stack came within {gap} bytes of .bss (lowest SP {st['stack_min_sp']:#x} at "
         f"pc {st['stack_min_pc']:#x}, .bss ends at {bss_end:#x})"
     )

@@ -126,13 +126,14 @@ int run_vectors(const char* path) {
         if (kind == "P" || kind == "S" || kind == "K" || kind == "G") {
             jl::Plan p;
             double sj, sa, sv, sx, w;
+            int shape;                   // PulseShape (the jump allowances)
             const bool host_seg = kind == "G";
             if (host_seg) {
                 // host-planned segments (protocol version 5): the plan as PLAN_SEGMENTs and
                 // PLAN_COMMIT build it (jl::HostPlanner, every one accepted), then the stepper
                 // as for K; the scales (jerk, accel, velocity, distance) and the largest pulse
                 // frequency come from jerklab, the pulse shape for the jump allowances
-                int shape, nseg;
+                int nseg;
                 double target;
                 ss >> shape >> nseg >> target >> sj >> sa >> sv >> sx >> w;
                 jl::HostPlanner hp = {0};
@@ -163,7 +164,6 @@ int run_vectors(const char* path) {
                     continue;
                 }
                 hp.commit(&p, hc);
-                p.shape = (uint8_t)shape;
                 kind = "K";
             } else {
                 int pk;
@@ -177,13 +177,18 @@ int run_vectors(const char* path) {
                                    : jl::plan_trapezoid((float)d, (float)E, (float)W, &p);
                 if (st != jl::kPlanOk) { plan.check(1, 0, where.str() + " plan refused"); continue; }
                 // scales: jerk parameter, peak acceleration, peak velocity, distance
-                double apk = p.shape == jl::kShapeSine ? 2.0 / M_PI * p.jerk * p.tj
-                             : (p.shape == jl::kShapeLinear ? p.jerk * p.tj : p.jerk);
-                sj = p.shape == jl::kShapeStep ? 0.0 : J;
+                // (the planner's jpar and pulse time tj: the rising pulse's end, the second
+                // segment's start)
+                shape = pk <= 1 ? jl::kShapeSine : (pk == 2 ? jl::kShapeLinear : jl::kShapeStep);
+                const double jpar = pk == 3 ? (float)E : (float)J;
+                const double tj = shape != jl::kShapeStep && p.nseg > 1 ? p.seg[1].t0 : 0.0;
+                double apk = shape == jl::kShapeSine ? 2.0 / M_PI * jpar * tj
+                             : (shape == jl::kShapeLinear ? jpar * tj : jpar);
+                sj = shape == jl::kShapeStep ? 0.0 : J;
                 sa = apk;
-                sv = p.v_peak;
+                sv = p.cruise_velocity;
                 sx = std::fabs(d);
-                w = p.tj > 0 ? M_PI / p.tj : 0.0;
+                w = tj > 0 ? M_PI / tj : 0.0;
             }
             // float32 time: t (and the phase boundaries) carry ~eps * t of rounding, which shifts
             // a short jerk pulse late in a long move; the tolerance allows for that shift
@@ -194,7 +199,7 @@ int run_vectors(const char* path) {
             // a trapezoid's acceleration and an S-curve's jerk jump at the phase boundaries
             // (and at the start and the end): there either side's value is right
             auto near_jump = [&](double t) {
-                if (p.shape == jl::kShapeSine) return false;
+                if (shape == jl::kShapeSine) return false;
                 for (int i = 0; i < p.nseg; ++i)
                     if (std::fabs(t - p.seg[i].t0) <= 1e-6 * std::max(1.0, (double)p.duration)) return true;
                 return false;
@@ -211,7 +216,7 @@ int run_vectors(const char* path) {
                 jl::Sample s;
                 jl::sample(p, (float)t, &s);
                 smp.check(std::fabs(s.jerk - j), near_jump(t) ? 2.000001 * sj : tol(kRtolSample, sj, sj * w, t, 4), where.str() + " jerk");
-                smp.check(std::fabs(s.accel - a), near_jump(t) && p.shape == jl::kShapeStep ? 2.000001 * sa : tol(kRtolSample, sa, sj, t, 4), where.str() + " accel");
+                smp.check(std::fabs(s.accel - a), near_jump(t) && shape == jl::kShapeStep ? 2.000001 * sa : tol(kRtolSample, sa, sj, t, 4), where.str() + " accel");
                 smp.check(std::fabs(s.velocity - v), tol(kRtolSample, sv, sa, t, 4), where.str() + " velocity");
                 smp.check(std::fabs(s.position - x), tol(kRtolSample, sx, sv, t, 4), where.str() + " position");
             } else {
@@ -237,7 +242,7 @@ int run_vectors(const char* path) {
                 const double kSinUnits = 1.0 + 63.0 * 3.0 + 63.0 * 64.0 / 2.0;
                 double bmax = 0.0, wbmax = 0.0, w2bmax = 0.0;
                 for (int i = 0; i < p.nseg; ++i)
-                    if (p.seg[i].sine) {
+                    if (jl::is_pulse(p.seg[i])) {
                         const double wi = p.seg[i].w, bi = std::fabs((double)p.seg[i].jp) / (wi * wi * wi);
                         bmax = std::max(bmax, bi);
                         wbmax = std::max(wbmax, wi * bi);
@@ -308,12 +313,12 @@ int run_vectors(const char* path) {
                     wh << path << ":" << lineno << " k=" << k;
                     const double t = k * Ts;
                     stq.check(std::fabs(s.jerk - j), near_jump(t) ? 2.000001 * sj : tol(kRtolStepper, sj, sj * w, t, 16), wh.str() + " jerk");
-                    stq.check(std::fabs(s.accel - a), near_jump(t) && p.shape == jl::kShapeStep ? 2.000001 * sa : tol(kRtolStepper, sa, sj, t, 16), wh.str() + " accel");
+                    stq.check(std::fabs(s.accel - a), near_jump(t) && shape == jl::kShapeStep ? 2.000001 * sa : tol(kRtolStepper, sa, sj, t, 16), wh.str() + " accel");
                     stq.check(std::fabs(s.velocity / cpr - v), tol(kRtolStepper, sv, sa, t, 16) + sv_bound, wh.str() + " velocity");
                     stq.check(std::fabs(s.position / cpr - x), tol(kRtolStepper, sx, sv, t, 16) + fx_bound + sx_bound, wh.str() + " position");
                     stq.check(std::fabs(lx / cpr - x), tol(kRtolStepper, sx, sv, t, 16) + fx_bound + sx_bound, wh.str() + " position (unprepared)");
                     // fixed-point feedforward: the stepper's bound plus the Q16.16 rounding
-                    stq.check(std::fabs(fa - a), (near_jump(t) && p.shape == jl::kShapeStep ? 2.000001 * sa : tol(kRtolStepper, sa, sj, t, 16)) + 2.0 / 65536.0 / alpha + sf_bound,
+                    stq.check(std::fabs(fa - a), (near_jump(t) && shape == jl::kShapeStep ? 2.000001 * sa : tol(kRtolStepper, sa, sj, t, 16)) + 2.0 / 65536.0 / alpha + sf_bound,
                               wh.str() + " feedforward (accel)");
                 }
                 // the idle-time preparation kept up: no chunk computed inside a sample

@@ -290,7 +290,7 @@ void Device::handle(const Frame& f) {
         if (kind > kPlannerTrapezoid) { nack(f, kErrBadValue, 1); return; }
         // (built without the board planners 1-3: the host sends their segments)
         if (!JL_WITH_BOARD_PLANNERS && kind != kPlannerSineJerk) { nack(f, kErrUnsupported, 1); return; }
-        plan_ok_ = false;            // planned in place (a Plan is ~260 bytes of RAM)
+        plan_ok_ = false;            // planned in place (a Plan is ~220 bytes of RAM)
         // planned by plan_frame() once handle() has returned: the planners' deep float calls
         // then do not stack on handle()'s frame (PLAN is the deepest stack of the firmware)
         plan_pending_ = true;
@@ -695,7 +695,7 @@ void Device::handle_retarget(const Frame& f) {
     // where the running plan allows a switch: jerk and acceleration 0, in the cruise (its ends
     // included) or at rest after its end (jerklab.rig.retarget.plan_switch)
     const Plan& cp = *cur_plan_;
-    const float tc0 = cp.t_start + cp.accel_time, tc1 = tc0 + cp.tv;
+    const float tc0 = cp.t_start + cp.accel_time, tc1 = tc0 + cp.cruise_time;
     const float ts = r.t_switch;
     if (!((ts >= tc0 && ts <= tc1) || ts >= cp.t_start + cp.duration)) { nack(f, kErrBadValue, 1); return; }
     if (r.switch_index != first_sample_at(ts, Ts_)) { nack(f, kErrBadValue, 0); return; }
@@ -704,8 +704,6 @@ void Device::handle_retarget(const Frame& f) {
     host_plan_.commit(np, c);
     place(np, ts, 0.0f);                   // (the segments' start states are absolute)
     np->x_start = np->seg[0].x0;
-    np->distance = r.target - np->x_start;
-    np->sign = np->distance < 0.0f ? -1.0f : 1.0f;
     rt_hold_ = (r.flags & kRetargetHold) != 0;
     rt_active_ = true;
     rt_stage_ = 4;

@@ -192,9 +192,12 @@ private:
     // stepper prepares its first chunk (background()), 5 scheduled. rt_gen_: re-targeted plans
     // that took over in this run (mod 256, RETARGET's base); rt_hold_: the pending plan brakes
     // (the run holds at its end), rt_hold_run_: the running one does.
-    Plan plan_b_;
+    // (plan_b_ is written and read in a RUN only, hl_ in a HOST_LOOP only: they share bytes)
+    union {
+        Plan plan_b_;
+        HostLoopState hl_;                 // HOST_LOOP's state (a HOST_LOOP only)
+    };
     const Plan* cur_plan_ = &plan_;
-    HostLoopState hl_;                     // HOST_LOOP's state (a HOST_LOOP only)
     uint8_t rt_stage_ JL_ZERO, rt_gen_ JL_ZERO;
     bool rt_hold_ JL_ZERO, rt_hold_run_ JL_ZERO;
     bool rt_active_ JL_ZERO;               // the run's plan buffers were written (PLAN again after it)

@@ -8,8 +8,6 @@ namespace jl {
 
 static const float kTwoOverPi = 0.636619772367581f;
 
-static uint8_t shape_of(uint8_t kind);
-
 // Peak acceleration, velocity and position at the end of the rising pulse of an acceleration
 // phase from rest with pulse time tj (jerklab.planner._evaluate: apk, v1, x1).
 static void pulse_ends(uint8_t shape, float jpar, float tj, float* apk, float* v1, float* x1) {
@@ -27,94 +25,86 @@ static void pulse_ends(uint8_t shape, float jpar, float tj, float* apk, float* v
     }
 }
 
-static void add_seg(Plan* p, float t, float x, float v, float a, float jp, bool sine, float w) {
+// A rest-to-rest move while the board's planners lay out its segments (not kept in the Plan).
+struct Layout {
+    float distance;       // signed, relative to the start point
+    float sign;           // +1 or -1: direction of the move
+    float jerk;           // jpar: peak jerk (sine), jerk (linear), acceleration (trapezoid)
+    float tj, ta;         // pulse and plateau times of each half
+    uint8_t shape;        // PulseShape
+};
+
+static void add_seg(Plan* p, const Layout& L, float t, float x, float v, float a, float jp,
+                    bool sine, float w) {
     Segment& s = p->seg[p->nseg++];
-    const float sg = p->sign;
+    const float sg = L.sign;
     s.t0 = p->t_start + t;
     s.x0 = p->x_start + sg * x;
     s.v0 = sg * v;
     s.a0 = sg * a;
     s.jp = sg * jp;
     s.w = sine ? w : 0.0f;
-    s.sine = sine ? 1 : 0;
 }
 
-// Lay out the segments of p from its times (tj1, ta1, tv, tj, ta), v_start and shape; positions
-// of the first half are integrated forward from (0, v0, 0), those of the deceleration backward
-// from the target (the mirror of an acceleration from rest), so the end is exactly the target.
-static void build(Plan* p) {
-    const uint8_t sh = p->shape;
+// Lay out the segments of p, rest to rest, from the times (tj, ta, cruise_time) and shape;
+// positions of the acceleration half are integrated forward from rest, those of the
+// deceleration backward from the target (the mirror of an acceleration from rest), so the end
+// is exactly the target.
+static void build(Plan* p, const Layout& L) {
+    const uint8_t sh = L.shape;
     const bool sine = sh == kShapeSine;
-    const float J = p->jerk, v0 = p->v_start, D = jl_fabsf(p->distance);
+    const float J = L.jerk, D = jl_fabsf(L.distance), tv = p->cruise_time, tj = L.tj, ta = L.ta;
     p->nseg = 0;
-    float apk1, v11, x11;
-    pulse_ends(sh, J, p->tj1, &apk1, &v11, &x11);
-    const float tacc1 = 2.0f * p->tj1 + p->ta1;
-    const float w1 = p->tj1 > 0.0f ? kPi / p->tj1 : 0.0f;
-    const float jl1 = sh == kShapeStep ? 0.0f : J;
-    float t = 0.0f;
-    if (tacc1 > 0.0f) {
-        if (p->tj1 > 0.0f) add_seg(p, 0.0f, 0.0f, v0, 0.0f, jl1, sine, w1);
-        float x = v0 * p->tj1 + x11, v = v0 + v11;
-        t = p->tj1;
-        if (p->ta1 > 0.0f) {
-            add_seg(p, t, x, v, apk1, 0.0f, false, 0.0f);
-            x += p->ta1 * (v + 0.5f * apk1 * p->ta1);
-            v += apk1 * p->ta1;
-            t += p->ta1;
-        }
-        if (p->tj1 > 0.0f) add_seg(p, t, x, v, apk1, -jl1, sine, w1);
-        t = tacc1;
-    }
-    const float vp = p->v_peak;
-    const float xc = 0.5f * (v0 + vp) * tacc1;         // symmetric pulse pair: mean velocity
     float apk, v1, x1;
-    pulse_ends(sh, J, p->tj, &apk, &v1, &x1);
-    const float tacc = 2.0f * p->tj + p->ta;
-    const float xacc = 0.5f * vp * tacc;
-    if (p->tv > 0.0f) add_seg(p, t, xc, vp, 0.0f, 0.0f, false, 0.0f);
-    t += p->tv;
+    pulse_ends(sh, J, tj, &apk, &v1, &x1);
+    const float tacc = 2.0f * tj + ta;
+    const float w = tj > 0.0f ? kPi / tj : 0.0f;
+    const float jl = sh == kShapeStep ? 0.0f : J;
+    const float vp = p->cruise_velocity;
+    float t = 0.0f;
     if (tacc > 0.0f) {
-        const float w = p->tj > 0.0f ? kPi / p->tj : 0.0f;
-        const float jl = sh == kShapeStep ? 0.0f : J;
-        if (p->tj > 0.0f) add_seg(p, t, D - xacc, vp, 0.0f, -jl, sine, w);
-        if (p->ta > 0.0f) {
-            // mirror of the rising pulse's end plus the plateau: tau = tj + ta
-            const float xa = x1 + p->ta * (v1 + 0.5f * apk * p->ta);
-            add_seg(p, t + p->tj, D - xa, vp - v1, -apk, 0.0f, false, 0.0f);
+        if (tj > 0.0f) add_seg(p, L, 0.0f, 0.0f, 0.0f, 0.0f, jl, sine, w);
+        float x = x1, v = v1;
+        t = tj;
+        if (ta > 0.0f) {
+            add_seg(p, L, t, x, v, apk, 0.0f, false, 0.0f);
+            x += ta * (v + 0.5f * apk * ta);
+            v += apk * ta;
+            t += ta;
         }
-        if (p->tj > 0.0f) add_seg(p, t + p->tj + p->ta, D - x1, v1, -apk, jl, sine, w);
+        if (tj > 0.0f) add_seg(p, L, t, x, v, apk, -jl, sine, w);
+        t = tacc;
+    }
+    const float xc = 0.5f * vp * tacc;             // symmetric pulse pair: mean velocity
+    if (tv > 0.0f) add_seg(p, L, t, xc, vp, 0.0f, 0.0f, false, 0.0f);
+    t += tv;
+    if (tacc > 0.0f) {
+        if (tj > 0.0f) add_seg(p, L, t, D - xc, vp, 0.0f, -jl, sine, w);
+        if (ta > 0.0f) {
+            // mirror of the rising pulse's end plus the plateau: tau = tj + ta
+            const float xa = x1 + ta * (v1 + 0.5f * apk * ta);
+            add_seg(p, L, t + tj, D - xa, vp - v1, -apk, 0.0f, false, 0.0f);
+        }
+        if (tj > 0.0f) add_seg(p, L, t + tj + ta, D - x1, v1, -apk, jl, sine, w);
         t += tacc;
     }
     p->duration = t;
-    add_seg(p, t, D, 0.0f, 0.0f, 0.0f, false, 0.0f);
-    p->seg[p->nseg - 1].x0 = p->x_start + p->distance;   // exactly the target
-    p->accel_time = tacc1;
-    p->cruise_time = p->tv;
-    p->cruise_velocity = vp;
+    add_seg(p, L, t, D, 0.0f, 0.0f, 0.0f, false, 0.0f);
+    p->seg[p->nseg - 1].x0 = p->x_start + L.distance;   // exactly the target
+    p->accel_time = tacc;
 }
 
-static void init(Plan* p, uint8_t kind, uint8_t shape, float distance, float jpar) {
-    p->distance = distance;
+// The plan of a rest-to-rest move from (0, 0): its segments from the phase times.
+static void rest_to_rest(Plan* p, uint8_t shape, float distance, float jpar, float tj, float ta,
+                         float tv) {
+    const Layout L = {distance, distance < 0.0f ? -1.0f : 1.0f, jpar, tj, ta, shape};
     p->x_start = 0.0f;
     p->t_start = 0.0f;
-    p->sign = distance < 0.0f ? -1.0f : 1.0f;
-    p->kind = kind;
-    p->shape = shape;
-    p->jerk = jpar;
-    p->v_start = 0.0f;
-    p->tj1 = p->ta1 = p->tj = p->ta = p->tv = 0.0f;
-    p->v_peak = 0.0f;
-}
-
-static void rest_to_rest(Plan* p, float tj, float ta, float tv) {
-    p->tj1 = p->tj = tj;
-    p->ta1 = p->ta = ta;
-    p->tv = tv;
+    p->cruise_time = tv;
     float apk, v1, x1;
-    pulse_ends(p->shape, p->jerk, tj, &apk, &v1, &x1);
-    p->v_peak = apk * (tj + ta);
-    build(p);
+    pulse_ends(shape, jpar, tj, &apk, &v1, &x1);
+    p->cruise_velocity = apk * (tj + ta);
+    build(p, L);
 }
 
 static PlanStatus check(float d, float J, float E, float W) {
@@ -128,9 +118,8 @@ static PlanStatus check(float d, float J, float E, float W) {
 PlanStatus plan_sine_jerk(float distance, float J, float E, float W, Plan* p) {
     PlanStatus st = check(distance, J, E, W);
     if (st != kPlanOk) return st;
-    init(p, kPlannerSineJerk, kShapeSine, distance, J);
     const float theta = jl_fabsf(distance);
-    if (theta == 0.0f) { rest_to_rest(p, 0.0f, 0.0f, 0.0f); return kPlanOk; }
+    if (theta == 0.0f) { rest_to_rest(p, kShapeSine, distance, J, 0.0f, 0.0f, 0.0f); return kPlanOk; }
     float T = jl_cbrtf(kTwoPi * theta / J);                   // x(T) = J T^3/(4 pi) = theta/2
     if (J * T / kPi > E) T = E * kPi / J;                       // eps_max = J T / pi
     if (J * T * T / kTwoPi > W) T = jl_sqrtf(kTwoPi * W / J);   // omega_max = J T^2/(2 pi)
@@ -139,7 +128,7 @@ PlanStatus plan_sine_jerk(float distance, float J, float E, float W, Plan* p) {
     if (!(wbar > 0.0f)) return kPlanBadTime;
     float tv = (theta - wbar * T) / wbar;
     if (tv < 0.0f) tv = 0.0f;                                   // rounding leaves ~ -1e-7
-    rest_to_rest(p, 0.5f * T, 0.0f, tv);
+    rest_to_rest(p, kShapeSine, distance, J, 0.5f * T, 0.0f, tv);
     p->accel_time = T;
     return kPlanOk;
 }
@@ -171,27 +160,24 @@ static void scurve_times(float d, float J, float A, float V, float* tj, float* t
 PlanStatus plan_sine_jerk_optimal(float distance, float J, float E, float W, Plan* p) {
     PlanStatus st = check(distance, J, E, W);
     if (st != kPlanOk) return st;
-    init(p, kPlannerSineJerkOptimal, kShapeSine, distance, J);
     float tj, ta, tv;
     scurve_times(jl_fabsf(distance), kTwoOverPi * J, E, W, &tj, &ta, &tv);
-    rest_to_rest(p, tj, ta, tv);
+    rest_to_rest(p, kShapeSine, distance, J, tj, ta, tv);
     return kPlanOk;
 }
 
 PlanStatus plan_scurve(float distance, float J, float A, float V, Plan* p) {
     PlanStatus st = check(distance, J, A, V);
     if (st != kPlanOk) return st;
-    init(p, kPlannerScurve, kShapeLinear, distance, J);
     float tj, ta, tv;
     scurve_times(jl_fabsf(distance), J, A, V, &tj, &ta, &tv);
-    rest_to_rest(p, tj, ta, tv);
+    rest_to_rest(p, kShapeLinear, distance, J, tj, ta, tv);
     return kPlanOk;
 }
 
 PlanStatus plan_trapezoid(float distance, float A, float V, Plan* p) {
     PlanStatus st = check(distance, 1.0f, A, V);
     if (st != kPlanOk) return st;
-    init(p, kPlannerTrapezoid, kShapeStep, distance, A);
     const float d = jl_fabsf(distance);
     float ta = 0.0f, tv = 0.0f;
     if (d == 0.0f) {
@@ -201,7 +187,7 @@ PlanStatus plan_trapezoid(float distance, float A, float V, Plan* p) {
     } else {
         ta = jl_sqrtf(d / A);
     }
-    rest_to_rest(p, 0.0f, ta, tv);
+    rest_to_rest(p, kShapeStep, distance, A, 0.0f, ta, tv);
     return kPlanOk;
 }
 
@@ -218,12 +204,6 @@ PlanStatus plan_kind(uint8_t kind, float d, float J, float A, float V, Plan* p) 
     if (kind != kPlannerSineJerk) return kPlanBadTime;
     return plan_sine_jerk(d, J, A, V, p);
 #endif
-}
-
-// Pulse pair changing the velocity by dv >= 0 with the pulse jerk Je (2J/pi for the sine
-// family) and acceleration limit A: pulse time tj and plateau ta (the S-curve rule).
-static uint8_t shape_of(uint8_t kind) {
-    return kind == kPlannerTrapezoid ? kShapeStep : (kind == kPlannerScurve ? kShapeLinear : kShapeSine);
 }
 
 // ------------------------------------------------------------------ host-planned plans
@@ -257,7 +237,6 @@ uint8_t HostPlanner::add(Plan* p, const HostSegment& s) {
     g.t0 = t0;
     memcpy(&g.x0, &s.x0, 3 * sizeof(float));   // x0, v0, a0 (the same order)
     g.jp = s.jerk;
-    g.sine = s.kind;
     g.w = s.kind ? kPi / s.duration : 0.0f;
     p->duration = t0 + s.duration;
     p->nseg = static_cast<uint8_t>(i + 1);
@@ -282,13 +261,9 @@ void HostPlanner::commit(Plan* p, const HostCommit& c) {
     r.t0 = p->duration;
     r.x0 = c.target;
     p->nseg = static_cast<uint8_t>(count + 1);
-    p->distance = c.target - p->x_start;
-    p->sign = p->distance < 0.0f ? -1.0f : 1.0f;
     p->accel_time = c.accel_time;
-    p->cruise_time = p->tv = c.cruise_time;
-    p->v_peak = p->cruise_velocity = c.cruise_velocity;
-    p->kind = c.planner;
-    p->shape = shape_of(c.planner);
+    p->cruise_time = c.cruise_time;
+    p->cruise_velocity = c.cruise_velocity;
     count = 0;
 }
 
@@ -312,7 +287,7 @@ static void eval_poly(const Segment& s, float u, Sample* o) {
 
 // The closed form on segment s at local time u >= 0.
 static void eval_seg(const Segment& s, float u, Sample* o) {
-    if (s.sine) {
+    if (is_pulse(s)) {
         const float w = s.w, wu = w * u;
         const float sn = jl_sinf(wu), omc = 1.0f - jl_cosf(wu);
         const float c = s.jp / w;
@@ -660,7 +635,7 @@ void PlanStepper::begin_coef(uint8_t i, Coef* c, uint32_t k0, uint32_t k_end) co
     c->seg = 0xFE;                              // in preparation
     c->k0 = k0;
     c->k_end = k_end;
-    c->sine = g.sine;
+    c->sine = is_pulse(g) ? 1 : 0;
     c->s_delta = static_cast<float>(k0) * Ts_ - g.t0;   // delta = k0 Ts - t0 (>= 0 but on the slow path)
 }
 
@@ -689,7 +664,7 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
         c->seg = i;
         return true;
     }
-    const bool sine = g.sine != 0;
+    const bool sine = is_pulse(g);
     const float w = g.w, j = sine ? 0.0f : g.jp;
     uint8_t st = stage;
     if (sine) {
@@ -871,7 +846,7 @@ bool PlanStepper::prepare_stage() {
 void PlanStepper::prepare() {
     if (prepare_stage()) return;
     // stages to go (over-estimated before stage 1: prep_stage_ is 0 until then)
-    const uint8_t left = static_cast<uint8_t>((p_->seg[prep_seg_].sine ? 12 : 8) - prep_stage_);
+    const uint8_t left = static_cast<uint8_t>((is_pulse(p_->seg[prep_seg_]) ? 12 : 8) - prep_stage_);
     const uint32_t ticks = buf_[ci_].k_end - k_;    // calls before the change
     if (ticks > left) return;
     const uint8_t t = static_cast<uint8_t>(ticks);

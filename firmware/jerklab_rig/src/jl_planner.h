@@ -33,29 +33,22 @@ enum PulseShape : uint8_t { kShapeSine = 0, kShapeLinear = 1, kShapeStep = 2 };
 
 /// One piece of a plan: from time t0 the state (x0, v0, a0) evolves under the jerk jp
 /// (kShapeLinear: constant jp; kShapeSine: jp sin(w (t - t0)); plateaus and cruise: jp = 0).
+/// A half-sine pulse has w = pi / its duration > 0, every other segment w = 0 (is_pulse()).
 struct Segment {
     float t0, x0, v0, a0, jp, w;
-    uint8_t sine;
 };
+/// The segment is a half-sine pulse (w != 0).
+inline bool is_pulse(const Segment& s) { return s.w != 0.0f; }
 
-/// A planned move. Rest-to-rest plans have v0 = 0 and equal halves (tj, ta); the moving start
-/// has its own acceleration half (tj1, ta1, towards v_peak from v0, possibly tj1 = ta1 = 0).
+/// A planned move: its segments and what PLAN_INFO and RETARGET read (the board plans rest to
+/// rest; a moving start, re-targeting, is planned on the host).
 struct Plan {
-    float distance;       // signed, relative to the start point x_start
     float x_start;        // absolute start position (0 for PLAN; the switch point for RETARGET)
     float t_start;        // absolute start time (0 for PLAN)
-    float sign;           // +1 or -1: direction of the move
-    uint8_t kind;         // PlannerKind of jl_protocol.h
-    uint8_t shape;        // PulseShape
-    float jerk;           // jpar: peak jerk (sine), jerk (linear), acceleration (trapezoid)
-    float v_start;        // |v0| along the move (0 rest to rest)
-    float tj1, ta1;       // acceleration half: pulse and plateau times (towards v_peak)
-    float tj, ta, tv;     // deceleration half (= acceleration half rest to rest) and cruise
-    float v_peak;         // cruise velocity (>= 0, along the move)
     float duration;       // from t_start to rest at the target
-    // PLAN_INFO fields: acceleration phase 2 tj1 + ta1 (the published planner: T) and t_v.
+    // PLAN_INFO fields: acceleration phase 2 tj + ta (the published planner: T) and t_v.
     float accel_time, cruise_time;
-    float cruise_velocity;  // = v_peak (the published planner's omega_bar)
+    float cruise_velocity;  // cruise velocity (>= 0, along the move; the published omega_bar)
     uint8_t nseg;
     Segment seg[8];       // the last one is the rest at the target
 };
