@@ -56,10 +56,12 @@ def _session(port, commands, timeout=60.0, baud=115200):
             ser.write(pr.encode(m, i + 1))
             if isinstance(m, (pr.Run, pr.Step, pr.Sequence)):
                 break
-            t0 = time.monotonic()
+            t0, seen = time.monotonic(), len(msgs)
+            # this command's own reply: one that arrives after it was sent (a PLAN_SEGMENT's
+            # ACK carries the same command byte as the previous segment's)
             while not any(
                 getattr(x, "command", None) == int(m.TYPE) or isinstance(x, pr.PlanInfo)
-                for x in msgs[-1:]
+                for x in msgs[seen:]
             ):
                 if time.monotonic() - t0 > 10.0:
                     raise RuntimeError(
@@ -79,8 +81,21 @@ def _session(port, commands, timeout=60.0, baud=115200):
 K, TAU, VS = 32.4, 0.025, 12.0
 
 
+#: the moves of every planner: distance (rad) and the limits SetLimits sends (J, E, W)
+MOVE = (4 * math.pi, 2e4, 300.0, 100.0)
+
+
+def _segments(profile):
+    """The PLAN_SEGMENTs and PLAN_COMMIT of ``profile`` (the host's plan, as Rig.run_move sends)."""
+    from jerklab import protocol as pr
+
+    segs, commit = pr.profile_segments(profile)
+    return [*segs, commit]
+
+
 def _cases(Ts_us):
     from jerklab import protocol as pr
+    from jerklab.planner import plan_scurve, plan_sine_jerk_optimal, plan_trapezoid
 
     top = 600.0 if Ts_us == 5000 else 150.0
     return [
@@ -89,9 +104,10 @@ def _cases(Ts_us):
             f"sine-jerk {top:g} rad near top speed (J 380, W 370)",
             [pr.SetLimits(380.0, 300.0, 370.0, VS, 0), pr.Plan(top, 0)],
         ),
-        ("optimal sine 4*pi rad", [pr.Plan(4 * math.pi, 1)]),
-        ("S-curve 4*pi rad", [pr.Plan(4 * math.pi, 2)]),
-        ("trapezoid 4*pi rad", [pr.Plan(4 * math.pi, 3)]),
+        # planners 1-3 are the host's (protocol 5): their segments, PLAN_SEGMENT and PLAN_COMMIT
+        ("optimal sine 4*pi rad (host-planned)", _segments(plan_sine_jerk_optimal(*MOVE))),
+        ("S-curve 4*pi rad (host-planned)", _segments(plan_scurve(*MOVE))),
+        ("trapezoid 4*pi rad (host-planned)", _segments(plan_trapezoid(MOVE[0], *MOVE[2:]))),
         # protocol 3's input shaper (SET_SHAPER): a ZV shaper split on the grid (3 taps) and the
         # longest the default firmware takes (10 taps over its 31-sample history); the FIR runs
         # with the reference one tick ahead, after the PWM write
