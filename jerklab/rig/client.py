@@ -718,7 +718,7 @@ class Rig:
         moving start, see :func:`jerklab.protocol.profile_segments`). Either way the host
         checks that PLAN_INFO's duration agrees; the device then runs the feedforward +
         discrete PID of Stojčić eqs. 16–18 at ``Ts`` on encoder counts. A host-planned move
-        cannot be re-targeted (:meth:`retarget`).
+        that is no planner's own rest-to-rest result cannot be re-targeted (:meth:`retarget`).
 
         Before anything is sent, the design is checked on the rig's model (:meth:`set_model`):
         a sampled closed loop (ZOH plant and discrete PID,
