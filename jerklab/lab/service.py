@@ -103,6 +103,7 @@ LIMITS = {
     "prbs_hold": 16,  # samples per bit
     "move_distance": 100.0,  # rad
     "settle": 2.0,  # s after a move
+    "move_seconds": 30.0,  # s, one move's planned duration (the labs' longest: 16 s)
     "runs_kept": 200,  # recordings kept per student and lab (the oldest go first)
     "connections": 256,  # open at a time, in all
     "connections_per_student": 4,  # open at a time by one student
@@ -393,7 +394,7 @@ def _profile(p):
     a = _number("profile.max_accel", p.get("max_accel"), 0.0)
     v = _number("profile.max_velocity", p.get("max_velocity"), 0.0)
     if kind == "trapezoid":
-        return planner.plan_trapezoid(d, a, v)
+        return _bounded(planner.plan_trapezoid(d, a, v))
     plan = {
         "sine_jerk": planner.plan_sine_jerk,
         "sine_jerk_optimal": planner.plan_sine_jerk_optimal,
@@ -401,7 +402,18 @@ def _profile(p):
     }.get(kind)
     if plan is None:
         raise ValueError(f"profile.kind must be a jerklab planner kind, got {kind!r}")
-    return plan(d, _number("profile.max_jerk", p.get("max_jerk"), 0.0), a, v)
+    return _bounded(plan(d, _number("profile.max_jerk", p.get("max_jerk"), 0.0), a, v))
+
+
+def _bounded(profile):
+    """``profile`` if its move lasts at most LIMITS["move_seconds"] (a slow move's samples would
+    hold the service's CPU and memory for minutes)."""
+    if not profile.duration <= LIMITS["move_seconds"]:
+        raise ValueError(
+            f"profile.duration must be <= {LIMITS['move_seconds']:g} s (the service's limit), "
+            f"got {profile.duration:.6g} s: raise max_velocity or max_accel, or move less"
+        )
+    return profile
 
 
 class _Student:

@@ -628,3 +628,43 @@ def test_the_benchmarks_attacks_hold_against_the_service_and_not_without_it(tmp_
         "every number in the student's process scanned for K",
         "a classmate's motor regenerated from their ID",
     } <= broken, control
+
+
+def test_the_service_refuses_a_move_too_slow_to_end(tmp_path):
+    """A student's 100 rad move at 0.5 rad/s would last 200 s: the service simulates every sample
+    of it (40,000 in 6.6 s of its CPU, the recording sent back whole; at 0.01 rad/s two million)
+    while classmates wait for the same cores. It is refused naming the limit, before it runs;
+    the labs' own moves (16 s at the longest, lab 4 on a geared motor) stay under it."""
+    from jerklab.lab.service import LIMITS, ClassRigService, TokenFile
+    from jerklab.lab.specs import lab_spec
+    from jerklab.planner import plan_sine_jerk
+    from jerklab.rig import profile_names
+
+    tokens = tmp_path / "t.json"
+    tokens.write_text(json.dumps(TOKENS))
+    with ClassRigService(TokenFile(tokens), tmp_path / "log", key=KEY.encode()) as svc:
+        t0 = time.monotonic()
+        _, move = _ask(
+            svc.url,
+            {"op": "hello", "token": "tok-alice-7f3a9c1e5b", "lab": 2},
+            {
+                "op": "run_move",
+                "name": "slow",
+                "profile": {
+                    "kind": "sine_jerk",
+                    "distance": 100.0,
+                    "max_jerk": 2e4,
+                    "max_accel": 600.0,
+                    "max_velocity": 0.5,
+                },
+                "gains": {"kpd": 4.522, "kid": 0.216, "kdd": 21.6, "Ts": 0.005},
+            },
+        )
+        assert "profile.duration must be <= 30 s" in move["error"]
+        assert time.monotonic() - t0 < 5
+    longest = max(
+        plan_sine_jerk(**lab_spec(n, p)["move"]).duration
+        for p in profile_names()
+        for n in (2, 3, 4, 5)
+    )
+    assert longest < LIMITS["move_seconds"]
