@@ -25,86 +25,77 @@ static void pulse_ends(uint8_t shape, float jpar, float tj, float* apk, float* v
     }
 }
 
-// A rest-to-rest move while the board's planners lay out its segments (not kept in the Plan).
-struct Layout {
-    float distance;       // signed, relative to the start point
-    float sign;           // +1 or -1: direction of the move
-    float jerk;           // jpar: peak jerk (sine), jerk (linear), acceleration (trapezoid)
-    float tj, ta;         // pulse and plateau times of each half
-    uint8_t shape;        // PulseShape
-};
-
-static void add_seg(Plan* p, const Layout& L, float t, float x, float v, float a, float jp,
-                    bool sine, float w) {
-    Segment& s = p->seg[p->nseg++];
-    const float sg = L.sign;
-    s.t0 = p->t_start + t;
-    s.x0 = p->x_start + sg * x;
-    s.v0 = sg * v;
-    s.a0 = sg * a;
-    s.jp = sg * jp;
-    s.w = sine ? w : 0.0f;
+// The next segment of a rest-to-rest layout along the move (+x): from time t the state (x, v, a)
+// under the jerk 0 (a pulse: pulse() then sets its jerk and frequency).
+static Segment* __attribute__((noinline)) put(Plan* p, float t, float x, float v, float a) {
+    Segment* s = &p->seg[p->nseg++];
+    s->t0 = t;
+    s->x0 = x;
+    s->v0 = v;
+    s->a0 = a;
+    s->jp = 0.0f;
+    s->w = 0.0f;
+    return s;
+}
+static void __attribute__((noinline)) pulse(Segment* s, float jp, float w) {
+    s->jp = jp;
+    s->w = w;
 }
 
-// Lay out the segments of p, rest to rest, from the times (tj, ta, cruise_time) and shape;
-// positions of the acceleration half are integrated forward from rest, those of the
-// deceleration backward from the target (the mirror of an acceleration from rest), so the end
-// is exactly the target.
-static void build(Plan* p, const Layout& L) {
-    const uint8_t sh = L.shape;
-    const bool sine = sh == kShapeSine;
-    const float J = L.jerk, D = jl_fabsf(L.distance), tv = p->cruise_time, tj = L.tj, ta = L.ta;
-    p->nseg = 0;
+// The plan of a rest-to-rest move from (0, 0): its segments from the phase times (tj, ta, tv)
+// and shape. Each segment is laid out along the move: positions of the acceleration half
+// integrated forward from rest, those of the deceleration backward from the target (the mirror
+// of an acceleration from rest), so the end is exactly the target. A move in -x then has x0, v0,
+// a0 and jp negated (exactly -1 times them) and place() adds the start (0, 0), which makes a -0
+// position +0.
+static void rest_to_rest(Plan* p, uint8_t shape, float distance, float jpar, float tj, float ta,
+                         float tv) {
+    const bool sine = shape == kShapeSine;
+    const float D = jl_fabsf(distance);
+    p->cruise_time = tv;
     float apk, v1, x1;
-    pulse_ends(sh, J, tj, &apk, &v1, &x1);
+    pulse_ends(shape, jpar, tj, &apk, &v1, &x1);
+    const float vp = apk * (tj + ta);               // the cruise velocity
+    p->cruise_velocity = vp;
     const float tacc = 2.0f * tj + ta;
-    const float w = tj > 0.0f ? kPi / tj : 0.0f;
-    const float jl = sh == kShapeStep ? 0.0f : J;
-    const float vp = p->cruise_velocity;
+    const float w = sine && tj > 0.0f ? kPi / tj : 0.0f;   // the pulses' (0: linear jerk)
+    const float jl = shape == kShapeStep ? 0.0f : jpar;
+    p->nseg = 0;
     float t = 0.0f;
     if (tacc > 0.0f) {
-        if (tj > 0.0f) add_seg(p, L, 0.0f, 0.0f, 0.0f, 0.0f, jl, sine, w);
+        if (tj > 0.0f) pulse(put(p, 0.0f, 0.0f, 0.0f, 0.0f), jl, w);
         float x = x1, v = v1;
         t = tj;
         if (ta > 0.0f) {
-            add_seg(p, L, t, x, v, apk, 0.0f, false, 0.0f);
+            put(p, t, x, v, apk);
             x += ta * (v + 0.5f * apk * ta);
             v += apk * ta;
             t += ta;
         }
-        if (tj > 0.0f) add_seg(p, L, t, x, v, apk, -jl, sine, w);
+        if (tj > 0.0f) pulse(put(p, t, x, v, apk), -jl, w);
         t = tacc;
     }
     const float xc = 0.5f * vp * tacc;             // symmetric pulse pair: mean velocity
-    if (tv > 0.0f) add_seg(p, L, t, xc, vp, 0.0f, 0.0f, false, 0.0f);
+    if (tv > 0.0f) put(p, t, xc, vp, 0.0f);
     t += tv;
     if (tacc > 0.0f) {
-        if (tj > 0.0f) add_seg(p, L, t, D - xc, vp, 0.0f, -jl, sine, w);
+        if (tj > 0.0f) pulse(put(p, t, D - xc, vp, 0.0f), -jl, w);
         if (ta > 0.0f) {
             // mirror of the rising pulse's end plus the plateau: tau = tj + ta
             const float xa = x1 + ta * (v1 + 0.5f * apk * ta);
-            add_seg(p, L, t + tj, D - xa, vp - v1, -apk, 0.0f, false, 0.0f);
+            put(p, t + tj, D - xa, vp - v1, -apk);
         }
-        if (tj > 0.0f) add_seg(p, L, t + tj + ta, D - x1, v1, -apk, jl, sine, w);
+        if (tj > 0.0f) pulse(put(p, t + tj + ta, D - x1, v1, -apk), jl, w);
         t += tacc;
     }
     p->duration = t;
-    add_seg(p, L, t, D, 0.0f, 0.0f, 0.0f, false, 0.0f);
-    p->seg[p->nseg - 1].x0 = p->x_start + L.distance;   // exactly the target
+    put(p, t, D, 0.0f, 0.0f);                      // the rest at the target
+    if (distance < 0.0f) {
+        for (uint8_t i = 0; i < p->nseg; ++i)
+            for (float* f = &p->seg[i].x0; f <= &p->seg[i].jp; ++f) *f = -*f;   // x0, v0, a0, jp
+    }
+    place(p, 0.0f, 0.0f);
     p->accel_time = tacc;
-}
-
-// The plan of a rest-to-rest move from (0, 0): its segments from the phase times.
-static void rest_to_rest(Plan* p, uint8_t shape, float distance, float jpar, float tj, float ta,
-                         float tv) {
-    const Layout L = {distance, distance < 0.0f ? -1.0f : 1.0f, jpar, tj, ta, shape};
-    p->x_start = 0.0f;
-    p->t_start = 0.0f;
-    p->cruise_time = tv;
-    float apk, v1, x1;
-    pulse_ends(shape, jpar, tj, &apk, &v1, &x1);
-    p->cruise_velocity = apk * (tj + ta);
-    build(p, L);
 }
 
 static PlanStatus check(float d, float J, float E, float W) {
@@ -267,7 +258,7 @@ void HostPlanner::commit(Plan* p, const HostCommit& c) {
     count = 0;
 }
 
-void place(Plan* p, float t_start, float x_start) {
+void __attribute__((noinline)) place(Plan* p, float t_start, float x_start) {
     p->t_start = t_start;
     p->x_start = x_start;
     for (uint8_t i = 0; i < p->nseg; ++i) {
