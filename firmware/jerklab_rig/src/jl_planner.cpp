@@ -246,7 +246,7 @@ uint8_t HostPlanner::check(const HostCommit& c) const {
     return 0xFF;
 }
 
-void HostPlanner::commit(Plan* p, const HostCommit& c) {
+void __attribute__((noinline)) HostPlanner::commit(Plan* p, const HostCommit& c) {
     Segment& r = p->seg[count];            // the rest at the target
     memset(&r, 0, sizeof(r));
     r.t0 = p->duration;
@@ -593,7 +593,7 @@ static void __attribute__((noinline)) sin_out(Q32* out, int32_t* yD, uint8_t s,
 }
 
 // The smallest k with (float)k * Ts >= t0 (in the float arithmetic of the stepper).
-static uint32_t first_k(float t0, float Ts) {
+static uint32_t __attribute__((noinline)) first_k(float t0, float Ts) {
     if (!(t0 > 0.0f)) return 0;
     // from above: t0 / Ts's truncation + 2 is past the answer (float k Ts is monotonic in k and
     // within a relative 2^-24 of k Ts, for t0 / Ts < 2^23), then down to it
