@@ -648,7 +648,7 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
     const Segment& g = p_->seg[i];
     const float Ts = Ts_, sx = sx_, sv = sv_;
     if (i == p_->nseg - 1) {                        // the rest at the target
-        memset(&c->yv, 0, sizeof(float) * 9);     // the float part
+        memset(&c->yv, 0, sizeof(float) * 6);     // yv .. v2
         memset(&c->X, 0, sizeof(Q32) * 7);       // X..F2
         q32_set(&c->X, sx * g.x0);
         c->sine = 0;
@@ -707,12 +707,12 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
                 const float eps = 4.0f * s2 * s2;
                 uint8_t eb = static_cast<uint8_t>((157 - exponent_of(eps)) >> 3);
                 if (eb > 7) eb = 7;
-                c->E = static_cast<int32_t>(eps * scale_of(static_cast<int8_t>(32 - 8 * eb)));   // (over s_delta, read in stage 3 last)
+                c->E = static_cast<int32_t>(eps * scale_of(static_cast<int8_t>(32 - 8 * eb)));
                 c->eb = eb;
             } else if (stage == 5) {
                 c->fs = u; c->yf = y; c->Df = D;
             } else {
-                c->vs = u; c->yv = y; c->Dv = D;      // (over s_cw, s_sw: read for the last time)
+                c->vs = u; c->yv = y; c->Dv = D;
             }
             return false;
         }
@@ -784,13 +784,11 @@ void PlanStepper::start(const Plan& p, float Ts, float alpha, float beta, float 
     sx_ = sx;
     sv_ = sv;
     k_ = 0;
-    n_ = 0;
     misses_ = 0;
     seg_ = 0;
     while (seg_ + 1 < p.nseg && first_sample(seg_ + 1) <= 0) ++seg_;
     ci_ = 0;
     compute(seg_, &buf_[0], first_sample(seg_));
-    n_ = k_ - buf_[0].k0;
     reset_next();
     prepare();
 }
@@ -800,7 +798,6 @@ void PlanStepper::switch_plan(const Plan& p) {
     seg_ = 0;
     while (seg_ + 1 < p.nseg && first_sample(seg_ + 1) <= k_) ++seg_;
     compute(seg_, &buf_[ci_], k_);
-    n_ = 0;
     reset_next();
 }
 
@@ -882,7 +879,6 @@ void PlanStepper::advance_segment() {
         compute(seg_, &buf_[ci_], k_);
     }
     reset_next();
-    n_ = k_ - buf_[ci_].k0;
 }
 
 // The Q16.16 window of a Q32.32 (|value| < 2^15, saturated to +-(2^31 - 1)).
@@ -900,7 +896,6 @@ bool PlanStepper::next_q(Q32* position, int32_t* ff, float* velocity) {
         pend_p_ = nullptr;
         buf_[ci_] = pend_;
         seg_ = pend_.seg;
-        n_ = k_ - pend_.k0;
         reset_next();
     }
     if (k_ >= buf_[ci_].k_end) advance_segment();
@@ -926,13 +921,12 @@ bool PlanStepper::next_q(Q32* position, int32_t* ff, float* velocity) {
         }
     }
     if (velocity) {                               // (the velocity loop only)
-        const float n = static_cast<float>(n_);
+        const float n = static_cast<float>(k_ - c->k0);   // the chunk's sample n
         *velocity = c->v0 + n * (c->v1 + n * c->v2) + vs;
     }
     // the forward differences (a pulse's X3, F2 bytes hold its sinusoids: not added)
     if (ff) q32_diffs(&c->F, sine ? 1 : 2);
     q32_diffs(&c->X, sine ? 2 : 3);
-    ++n_;
     ++k_;
     return seg_ + 1 < p_->nseg;
 }

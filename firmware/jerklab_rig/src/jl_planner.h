@@ -226,34 +226,33 @@ public:
         uint8_t eb;       // sine: eps = E 2^(-8 eb)
         uint8_t xs, fs;   // sine: the sinusoids' units 2^(xs - 32) counts, 2^(fs - 32) ticks
         uint8_t vs;       // sine: the velocity's sinusoid in units 2^(vs - 32) (x sv)
-        // The float part; during the preparation the same bytes hold the scratch values
-        // (stages write each output only after its scratch was read, see compute_stage).
-        union {
-            struct {
-                int32_t yv, Dv;        // sine: the velocity's sinusoid and its difference
-                float pad_;            // (s_B while preparing)
-                int32_t E;             // sine: eps's mantissa (exactly the float eps)
-                float pad2_, pad3_;    // (s_s2, s_c2 while preparing)
-                float v0, v1, v2;      // v = v0 + n (v1 + n v2) [+ the sinusoid]
-            };
-            struct {
-                float s_cw, s_sw, s_B;        // sine: cos, sin of w delta; B = jp / w^3
-                float s_delta, s_s2, s_c2;    // k0 Ts - t0; sin, cos of w Ts / 2
-                float s_x, s_v, s_a;          // polynomial: the state at the chunk's first sample
-                                              // (sine: s_x = 2 q2, the polynomial part's accel)
-            };
-        };
+        int32_t yv, Dv;   // sine: the velocity's sinusoid and its difference
+        int32_t E;        // sine: eps's mantissa (exactly the float eps)
+        float v0, v1, v2; // v = v0 + n (v1 + n v2) [+ the sinusoid]
         uint32_t k0;      // first sample of the chunk
         uint32_t k_end;   // first sample after the chunk (0xFFFFFFFF: none)
-        Q32 X, X1, X2;             // position x sx and its forward differences
+        // The fixed-point part; during the preparation X, X1, X2 and F, F1 hold the scratch
+        // values (stages write each output only after its scratch was read, see compute_stage).
         union {
-            Q32 X3;                // polynomial: the third difference
-            struct { int32_t yx, Dx; };   // sine: the position's sinusoid and its difference
-        };
-        Q32 F, F1;                 // feedforward and its forward differences
-        union {
-            Q32 F2;                // polynomial
-            struct { int32_t yf, Df; };   // sine: the feedforward's sinusoid and its difference
+            struct {
+                Q32 X, X1, X2;             // position x sx and its forward differences
+                union {
+                    Q32 X3;                // polynomial: the third difference
+                    struct { int32_t yx, Dx; };   // sine: the position's sinusoid and its difference
+                };
+                Q32 F, F1;                 // feedforward and its forward differences
+                union {
+                    Q32 F2;                // polynomial
+                    struct { int32_t yf, Df; };   // sine: the feedforward's sinusoid and its difference
+                };
+            };
+            struct {
+                float s_cw, s_sw, s_B;        // (X, X1) sine: cos, sin of w delta; B = jp / w^3
+                float s_delta, s_s2, s_c2;    // (X1, X2) k0 Ts - t0; sin, cos of w Ts / 2
+                int32_t s_x3_[2];             // (X3: not scratch, a pulse's yx, Dx written meanwhile)
+                float s_x, s_v, s_a;          // (F, F1) the state at the chunk's first sample
+                                              // (sine: of the polynomial part, s_a = 2 q2)
+            };
         };
     };
     /// The current chunk's coefficients (the golden vectors check the sinusoids' bound on them).
@@ -271,7 +270,7 @@ private:
     // the sketch's static Device)
     const Plan* p_ JL_ZERO;
     float Ts_ = 0.005f, alpha_ JL_ZERO, beta_ JL_ZERO, sx_ = 1.0f, sv_ = 1.0f;
-    uint32_t k_ JL_ZERO, n_ JL_ZERO;
+    uint32_t k_ JL_ZERO;
     uint16_t misses_ JL_ZERO;
     uint8_t seg_ JL_ZERO, prep_seg_ JL_ZERO, prep_stage_ JL_ZERO, pend_stage_ JL_ZERO;
     uint8_t ci_ JL_ZERO;       // buf_[ci_]: the current chunk, buf_[ci_ ^ 1]: the next one
