@@ -28,7 +28,7 @@ static void pulse_ends(uint8_t shape, float jpar, float tj, float* apk, float* v
 // The next segment of a rest-to-rest layout along the move (+x): from time t the state (x, v, a)
 // under the jerk 0 (a pulse: pulse() then sets its jerk and frequency).
 static Segment* __attribute__((noinline)) put(Plan* p, float t, float x, float v, float a) {
-    Segment* s = &p->seg[p->nseg++];
+    Segment* s = &p->seg.at[p->nseg++];
     s->t0 = t;
     s->x0 = x;
     s->v0 = v;
@@ -88,12 +88,13 @@ static void rest_to_rest(Plan* p, uint8_t shape, float distance, float jpar, flo
         if (tj > 0.0f) pulse(put(p, t + tj + ta, D - x1, v1, -apk), jl, w);
         t += tacc;
     }
-    p->duration = t;
-    put(p, t, D, 0.0f, 0.0f);                      // the rest at the target
     if (distance < 0.0f) {
         for (uint8_t i = 0; i < p->nseg; ++i)
-            for (float* f = &p->seg[i].x0; f <= &p->seg[i].jp; ++f) *f = -*f;   // x0, v0, a0, jp
+            for (float* f = &p->seg.at[i].x0; f <= &p->seg.at[i].jp; ++f) *f = -*f;   // x0, v0, a0, jp
     }
+    p->duration = t;
+    p->target = distance;                          // the rest at the target (exactly)
+    ++p->nseg;
     place(p, 0.0f, 0.0f);
     p->accel_time = tacc;
 }
@@ -224,7 +225,7 @@ uint8_t HostPlanner::add(Plan* p, const HostSegment& s) {
         p->t_start = 0.0f;
     }
     const float t0 = i == 0 ? 0.0f : p->duration;   // the previous segment's end
-    Segment& g = p->seg[i];
+    Segment& g = p->seg.at[i];
     g.t0 = t0;
     memcpy(&g.x0, &s.x0, 3 * sizeof(float));   // x0, v0, a0 (the same order)
     g.jp = s.jerk;
@@ -247,10 +248,7 @@ uint8_t HostPlanner::check(const HostCommit& c) const {
 }
 
 void __attribute__((noinline)) HostPlanner::commit(Plan* p, const HostCommit& c) {
-    Segment& r = p->seg[count];            // the rest at the target
-    memset(&r, 0, sizeof(r));
-    r.t0 = p->duration;
-    r.x0 = c.target;
+    p->target = c.target;                  // the rest at the target, from t_start + duration
     p->nseg = static_cast<uint8_t>(count + 1);
     p->accel_time = c.accel_time;
     p->cruise_time = c.cruise_time;
@@ -261,10 +259,12 @@ void __attribute__((noinline)) HostPlanner::commit(Plan* p, const HostCommit& c)
 void __attribute__((noinline)) place(Plan* p, float t_start, float x_start) {
     p->t_start = t_start;
     p->x_start = x_start;
-    for (uint8_t i = 0; i < p->nseg; ++i) {
-        p->seg[i].t0 += t_start;
-        p->seg[i].x0 += x_start;
+    Segment* g = p->seg.at;
+    for (uint8_t n = static_cast<uint8_t>(p->nseg - 1); n > 0; --n, ++g) {   // (not the rest)
+        g->t0 += t_start;
+        g->x0 += x_start;
     }
+    p->target += x_start;                   // (the rest's t0 is t_start + duration)
 }
 
 // The closed form on a segment of constant jerk at local time u >= 0.
@@ -294,16 +294,33 @@ static void eval_seg(const Segment& s, float u, Sample* o) {
     }
 }
 
+// Segment i of p is the rest at the target (the last one, not stored: see Plan).
+static bool is_rest(const Plan& p, uint8_t i) { return i + 1 >= p.nseg; }
+
+// The start time of segment i of p.
+static float __attribute__((noinline)) t0_of(const Plan& p, uint8_t i) {
+    return is_rest(p, i) ? p.t_start + p.duration : p.seg.at[i].t0;
+}
+
+// Segment i of p is a half-sine pulse.
+static bool pulse_at(const Plan& p, uint8_t i) { return !is_rest(p, i) && is_pulse(p.seg.at[i]); }
+
 void sample(const Plan& p, float t, Sample* s) {
-    if (t < p.seg[0].t0) {
+    if (t < t0_of(p, 0)) {
         s->jerk = s->accel = s->velocity = 0.0f;
         s->position = p.x_start;
         return;
     }
-    uint8_t i = p.nseg - 1;
-    while (i > 0 && t < p.seg[i].t0) --i;
-    eval_seg(p.seg[i], t - p.seg[i].t0, s);
-    if (i == p.nseg - 1) s->jerk = s->accel = s->velocity = 0.0f;
+    uint8_t i = static_cast<uint8_t>(p.nseg - 1);
+    const float tr = t0_of(p, i);
+    if (!(t < tr)) {
+        // the rest: the closed form with v0 = a0 = jp = 0 is x0 + u 0 (-0 made +0)
+        s->jerk = s->accel = s->velocity = 0.0f;
+        s->position = p.target + (t - tr) * 0.0f;
+        return;
+    }
+    do --i; while (i > 0 && t < p.seg.at[i].t0);
+    eval_seg(p.seg.at[i], t - p.seg.at[i].t0, s);
 }
 
 // ------------------------------------------------------------------------------- stepper
@@ -602,7 +619,7 @@ static uint32_t __attribute__((noinline)) first_k(float t0, float Ts) {
     return k;
 }
 
-uint32_t PlanStepper::first_sample(uint8_t i) const { return first_k(p_->seg[i].t0, Ts_); }
+uint32_t PlanStepper::first_sample(uint8_t i) const { return first_k(t0_of(*p_, i), Ts_); }
 
 uint32_t first_sample_at(float t, float Ts) { return first_k(t, Ts); }
 
@@ -622,12 +639,11 @@ uint32_t PlanStepper::chunk_end(uint8_t i, uint32_t k0) const {
 
 // Stage 0 of a chunk's coefficients: its first sample k0 and the next chunk's known.
 void PlanStepper::begin_coef(uint8_t i, Coef* c, uint32_t k0, uint32_t k_end) const {
-    const Segment& g = p_->seg[i];
     c->seg = 0xFE;                              // in preparation
     c->k0 = k0;
     c->k_end = k_end;
-    c->sine = is_pulse(g) ? 1 : 0;
-    c->s_delta = static_cast<float>(k0) * Ts_ - g.t0;   // delta = k0 Ts - t0 (>= 0 but on the slow path)
+    c->sine = pulse_at(*p_, i) ? 1 : 0;
+    c->s_delta = static_cast<float>(k0) * Ts_ - t0_of(*p_, i);   // delta = k0 Ts - t0 (>= 0 but on the slow path)
 }
 
 // *r = to_q32(a b) (one call site per product: smaller code on the AVR).
@@ -645,16 +661,16 @@ static void __attribute__((noinline)) q32_of(Q32* r, float a, float b) { q32_set
 // the differences and the velocity. Each stage reads its
 // scratch (Coef's union) before it writes an output that shares its bytes.
 bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
-    const Segment& g = p_->seg[i];
     const float Ts = Ts_, sx = sx_, sv = sv_;
-    if (i == p_->nseg - 1) {                        // the rest at the target
+    if (is_rest(*p_, i)) {                          // the rest at the target
         memset(&c->yv, 0, sizeof(float) * 6);     // yv .. v2
         memset(&c->X, 0, sizeof(Q32) * 7);       // X..F2
-        q32_set(&c->X, sx * g.x0);
+        q32_set(&c->X, sx * p_->target);
         c->sine = 0;
         c->seg = i;
         return true;
     }
+    const Segment& g = p_->seg.at[i];
     const bool sine = is_pulse(g);
     const float w = g.w, j = sine ? 0.0f : g.jp;
     uint8_t st = stage;
@@ -834,7 +850,7 @@ bool PlanStepper::prepare_stage() {
 void PlanStepper::prepare() {
     if (prepare_stage()) return;
     // stages to go (over-estimated before stage 1: prep_stage_ is 0 until then)
-    const uint8_t left = static_cast<uint8_t>((is_pulse(p_->seg[prep_seg_]) ? 12 : 8) - prep_stage_);
+    const uint8_t left = static_cast<uint8_t>((pulse_at(*p_, prep_seg_) ? 12 : 8) - prep_stage_);
     const uint32_t ticks = buf_[ci_].k_end - k_;    // calls before the change
     if (ticks > left) return;
     const uint8_t t = static_cast<uint8_t>(ticks);

@@ -5,10 +5,12 @@
 // closed form of its Profile (docs/THEORY.md; Stojčić eq. 15 is the recursion they replace).
 //
 // Every plan is a list of at most 7 segments on which the jerk is a constant (linear-jerk,
-// plateau, cruise) or a half-sine pulse J sin(w u), w = pi / tj; each segment stores its start
-// time and start state, so a sample needs no search through the past (see Plan).
+// plateau, cruise) or a half-sine pulse J sin(w u), w = pi / tj, then the rest at the target;
+// each segment stores its start time and start state, so a sample needs no search through the
+// past (see Plan).
 #ifndef JL_PLANNER_H
 #define JL_PLANNER_H
+#include <stddef.h>
 #include <stdint.h>
 #include "jl_fixed.h"   // (JL_ZERO)
 
@@ -49,9 +51,23 @@ struct Plan {
     // PLAN_INFO fields: acceleration phase 2 tj + ta (the published planner: T) and t_v.
     float accel_time, cruise_time;
     float cruise_velocity;  // cruise velocity (>= 0, along the move; the published omega_bar)
-    uint8_t nseg;
-    Segment seg[8];       // the last one is the rest at the target
+    float target;         // absolute rest position at the end
+    uint8_t nseg;         // segments, the rest at the target (the last) included
+    /// seg[i], i < nseg: segment i (a copy). The last one, the rest at the target, is not stored
+    /// (t0 = t_start + duration, x0 = target, v0 = a0 = jp = w = 0): at[] holds the others.
+    struct Segments {
+        Segment at[7];
+        Segment operator[](uint8_t i) const;
+    } seg;
 };
+
+inline Segment Plan::Segments::operator[](uint8_t i) const {
+    // (the Plan whose member this is: the rest is made from its fields)
+    const Plan& p = *reinterpret_cast<const Plan*>(reinterpret_cast<const char*>(this) - offsetof(Plan, seg));
+    if (i + 1 < p.nseg) return at[i];
+    const Segment rest = {p.t_start + p.duration, p.target, 0.0f, 0.0f, 0.0f, 0.0f};
+    return rest;
+}
 
 /// Stojčić eq. 4 / Fig. 2 exactly as published: T = cbrt(2 pi |d| / J), shortened to
 /// E pi / J if J T / pi > E, then to sqrt(2 pi Omega / J) if J T^2 / (2 pi) > Omega;
