@@ -99,11 +99,27 @@ static void rest_to_rest(Plan* p, uint8_t shape, float distance, float jpar, flo
     p->accel_time = tacc;
 }
 
+// The range checks on the IEEE bits (integer compares, no soft-float call; jl_fixed's abs_le):
+// 0 < x <= hi for a finite hi > 0 (a negative x, -0, a NaN and +inf are out), and x >= 0 finite
+// (+0, -0 and the positive finite floats).
+static bool __attribute__((noinline)) pos_le(float x, float hi) {
+    uint32_t b, h;
+    memcpy(&b, &x, 4);
+    memcpy(&h, &hi, 4);
+    return b - 1u < h;
+}
+static bool nonneg(float x) {
+    uint32_t b;
+    memcpy(&b, &x, 4);
+    return b <= 0x7F7FFFFFUL || b == 0x80000000UL;
+}
+
 static PlanStatus check(float d, float J, float E, float W) {
     if (!finite_f(d)) return kPlanBadDistance;
-    if (!finite_f(J) || !(J > 0.0f)) return kPlanBadJerk;
-    if (!finite_f(E) || !(E > 0.0f)) return kPlanBadAccel;
-    if (!finite_f(W) || !(W > 0.0f)) return kPlanBadVelocity;
+    // (finite and > 0: 0 < x <= the largest float)
+    if (!pos_le(J, 3.40282347e38f)) return kPlanBadJerk;
+    if (!pos_le(E, 3.40282347e38f)) return kPlanBadAccel;
+    if (!pos_le(W, 3.40282347e38f)) return kPlanBadVelocity;
     return kPlanOk;
 }
 
@@ -200,15 +216,6 @@ PlanStatus plan_kind(uint8_t kind, float d, float J, float A, float V, Plan* p) 
 
 // ------------------------------------------------------------------ host-planned plans
 
-// The range checks on the IEEE bits (integer compares, no soft-float call; jl_fixed's abs_le):
-// 0 < x <= hi for a finite hi > 0 (a negative x, -0, a NaN and +inf are out), and x >= 0 finite.
-static bool __attribute__((noinline)) pos_le(float x, float hi) {
-    uint32_t b, h;
-    memcpy(&b, &x, 4);
-    memcpy(&h, &hi, 4);
-    return b - 1u < h;
-}
-static bool nonneg(float x) { return abs_le(x, 3.40282347e38f) && !(x < 0.0f); }
 
 uint8_t HostPlanner::add(Plan* p, const HostSegment& s) {
     const uint8_t i = s.index;
