@@ -926,9 +926,9 @@ bool PlanStepper::next_q(Q32* position, int32_t* ff, float* velocity) {
     *position = c->X;
     float vs = 0.0f;
     const bool sine = c->sine != 0;
-    if (!sine) {
-        if (ff) *ff = q16_window(c->F);
-    } else {
+    const Q32* fq = &c->F;                         // the feedforward (a pulse's: in f)
+    Q32 f;
+    if (sine) {
         // a half-sine pulse: the polynomial part (X3 = F2 = 0) plus the sinusoids, each
         // advanced by D -= eps y; y += D (one MUL product)
         if (velocity) {
@@ -938,11 +938,12 @@ bool PlanStepper::next_q(Q32* position, int32_t* ff, float* velocity) {
         }
         sin_out(position, &c->yx, c->xs, *c);
         if (ff) {
-            Q32 f = c->F;
+            f = c->F;
             sin_out(&f, &c->yf, c->fs, *c);
-            *ff = q16_window(f);
+            fq = &f;
         }
     }
+    if (ff) *ff = q16_window(*fq);
     if (velocity) {                               // (the velocity loop only)
         const float n = static_cast<float>(k_ - c->k0);   // the chunk's sample n
         *velocity = c->v0 + n * (c->v1 + n * c->v2) + vs;
