@@ -792,6 +792,11 @@ bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
     return true;
 }
 
+uint8_t __attribute__((noinline)) PlanStepper::segment_at(uint8_t j, uint32_t k) const {
+    while (j + 1 < p_->nseg && first_sample(static_cast<uint8_t>(j + 1)) <= k) ++j;
+    return j;
+}
+
 // All the stages of segment i's chunk from sample k0 at once (start, switch_plan, slow path).
 void PlanStepper::compute(uint8_t i, Coef* c, uint32_t k0) const {
     begin_coef(i, c, k0, chunk_end(i, k0));
@@ -808,8 +813,7 @@ void PlanStepper::start(const Plan& p, float Ts, float alpha, float beta, float 
     sv_ = sv;
     k_ = 0;
     misses_ = 0;
-    seg_ = 0;
-    while (seg_ + 1 < p.nseg && first_sample(seg_ + 1) <= 0) ++seg_;
+    seg_ = segment_at(0, 0);
     ci_ = 0;
     compute(seg_, &buf_[0], first_sample(seg_));
     reset_next();
@@ -818,8 +822,7 @@ void PlanStepper::start(const Plan& p, float Ts, float alpha, float beta, float 
 
 void PlanStepper::switch_plan(const Plan& p) {
     p_ = &p;
-    seg_ = 0;
-    while (seg_ + 1 < p.nseg && first_sample(seg_ + 1) <= k_) ++seg_;
+    seg_ = segment_at(0, k_);
     compute(seg_, &buf_[ci_], k_);
     reset_next();
 }
@@ -875,8 +878,7 @@ bool PlanStepper::prepare_switch(const Plan& p) {
     // the first segment of p (its first sample at or after p.t_start); p_ swapped for the call
     const Plan* keep = p_;
     p_ = &p;
-    uint8_t j = 0;
-    while (j + 1 < p.nseg && first_sample(j + 1) <= first_sample(0)) ++j;
+    const uint8_t j = segment_at(0, first_sample(0));
     bool done = false;
     if (pend_stage_ == 0) {
         const uint32_t k0 = first_sample(j);
@@ -898,7 +900,7 @@ void PlanStepper::advance_segment() {
         seg_ = nx->seg;
     } else {
         if (misses_ < 0xFFFF) ++misses_;
-        while (seg_ + 1 < p_->nseg && first_sample(seg_ + 1) <= k_) ++seg_;
+        seg_ = segment_at(seg_, k_);
         compute(seg_, &buf_[ci_], k_);
     }
     reset_next();

@@ -279,6 +279,8 @@ private:
     bool compute_stage(uint8_t i, Coef* c, uint8_t stage) const;
     uint32_t __attribute__((noinline)) chunk_end(uint8_t i, uint32_t k0) const;
     void advance_segment();
+    /// From segment j on, the last one of the plan whose first sample is at or before k.
+    uint8_t segment_at(uint8_t j, uint32_t k) const;
     bool prepare_stage();
     /// The next chunk is to be prepared afresh (from seg_ on).
     void reset_next() { buf_[ci_ ^ 1].seg = 0xFF; prep_seg_ = seg_; prep_stage_ = 0; }
