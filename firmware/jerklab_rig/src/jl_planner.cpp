@@ -216,7 +216,6 @@ PlanStatus plan_kind(uint8_t kind, float d, float J, float A, float V, Plan* p) 
 
 // ------------------------------------------------------------------ host-planned plans
 
-
 uint8_t HostPlanner::add(Plan* p, const HostSegment& s) {
     const uint8_t i = s.index;
     if (!(i == 0 || i == count) || i >= kMaxHostSegments) return 0;

@@ -6,8 +6,8 @@
 //
 // Every plan is a list of at most 7 segments on which the jerk is a constant (linear-jerk,
 // plateau, cruise) or a half-sine pulse J sin(w u), w = pi / tj, then the rest at the target;
-// each segment stores its start time and start state, so a sample needs no search through the
-// past (see Plan).
+// each segment stores its start time and start state (the rest: the plan's end and target), so
+// a sample needs no search through the past (see Plan).
 #ifndef JL_PLANNER_H
 #define JL_PLANNER_H
 #include <stddef.h>
