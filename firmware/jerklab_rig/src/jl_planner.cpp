@@ -665,7 +665,7 @@ static void __attribute__((noinline)) q32_of(Q32* r, float a, float b) { q32_set
 // their bytes hold the sinusoids): 1 cos, sin(w delta), 2 sin, cos(theta/2) (theta = w Ts), 3 B
 // and the state, 4 to 6 the position's, the feedforward's and the velocity's sinusoids, 7 and 8
 // the differences and the velocity. Each stage reads its
-// scratch (Coef's union) before it writes an output that shares its bytes.
+// scratch (Coef's unions) before it writes an output that shares its bytes.
 bool PlanStepper::compute_stage(uint8_t i, Coef* c, uint8_t stage) const {
     const float Ts = Ts_, sx = sx_, sv = sv_;
     if (is_rest(*p_, i)) {                          // the rest at the target

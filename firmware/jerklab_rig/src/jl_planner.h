@@ -244,31 +244,30 @@ public:
         uint8_t vs;       // sine: the velocity's sinusoid in units 2^(vs - 32) (x sv)
         int32_t yv, Dv;   // sine: the velocity's sinusoid and its difference
         int32_t E;        // sine: eps's mantissa (exactly the float eps)
-        float v0, v1, v2; // v = v0 + n (v1 + n v2) [+ the sinusoid]
+        // During the preparation some outputs' bytes hold the scratch values (stages write each
+        // output only after its scratch was read, see compute_stage).
+        union {
+            struct { float v0, v1, v2; };   // v = v0 + n (v1 + n v2) [+ the sinusoid]
+            struct { float s_x, s_v, s_a; };   // (scratch) the state at the chunk's first sample
+                                                // (sine: of the polynomial part, s_a = 2 q2)
+        };
         uint32_t k0;      // first sample of the chunk
         uint32_t k_end;   // first sample after the chunk (0xFFFFFFFF: none)
-        // The fixed-point part; during the preparation X, X1, X2 and F, F1 hold the scratch
-        // values (stages write each output only after its scratch was read, see compute_stage).
         union {
-            struct {
-                Q32 X, X1, X2;             // position x sx and its forward differences
-                union {
-                    Q32 X3;                // polynomial: the third difference
-                    struct { int32_t yx, Dx; };   // sine: the position's sinusoid and its difference
-                };
-                Q32 F, F1;                 // feedforward and its forward differences
-                union {
-                    Q32 F2;                // polynomial
-                    struct { int32_t yf, Df; };   // sine: the feedforward's sinusoid and its difference
-                };
+            struct { Q32 X, X1, X2; };     // position x sx and its forward differences
+            struct {                       // (scratch)
+                float s_cw, s_sw, s_B;     // sine: cos, sin of w delta; B = jp / w^3
+                float s_delta, s_s2, s_c2; // k0 Ts - t0; sine: sin, cos of w Ts / 2
             };
-            struct {
-                float s_cw, s_sw, s_B;        // (X, X1) sine: cos, sin of w delta; B = jp / w^3
-                float s_delta, s_s2, s_c2;    // (X1, X2) k0 Ts - t0; sin, cos of w Ts / 2
-                int32_t s_x3_[2];             // (X3: not scratch, a pulse's yx, Dx written meanwhile)
-                float s_x, s_v, s_a;          // (F, F1) the state at the chunk's first sample
-                                              // (sine: of the polynomial part, s_a = 2 q2)
-            };
+        };
+        union {
+            Q32 X3;                        // polynomial: the third difference
+            struct { int32_t yx, Dx; };    // sine: the position's sinusoid and its difference
+        };
+        Q32 F, F1;                         // feedforward and its forward differences
+        union {
+            Q32 F2;                        // polynomial
+            struct { int32_t yf, Df; };    // sine: the feedforward's sinusoid and its difference
         };
     };
     /// The current chunk's coefficients (the golden vectors check the sinusoids' bound on them).
