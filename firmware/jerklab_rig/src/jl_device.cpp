@@ -329,7 +329,6 @@ void Device::handle(const Frame& f) {
         rt_active_ = false;
         host_plan_.count = 0;
         settle_ = settle;
-        seq_on_ = false;
         {
             const float cpr = 1.0f / rad_per_count_;
             stepper_.start(plan_, Ts_, use_ff_ ? ff_.alpha() * pwm_per_volt_ : 0.0f,
@@ -493,7 +492,6 @@ bool Device::handle_v4(const Frame& f) {
     ack(f);
     memset(&hl_, 0, sizeof(hl_));       // PWM 0 until the first answer
     hl_.max = max_misses;
-    seq_on_ = false;
     arm_safety(ts);
     start(ts, n, 1, kHostLooping);
 #endif

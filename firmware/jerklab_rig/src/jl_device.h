@@ -192,10 +192,21 @@ private:
     // stepper prepares its first chunk (background()), 5 scheduled. rt_gen_: re-targeted plans
     // that took over in this run (mod 256, RETARGET's base); rt_hold_: the pending plan brakes
     // (the run holds at its end), rt_hold_run_: the running one does.
-    // (plan_b_ is written and read in a RUN only, hl_ in a HOST_LOOP only: they share bytes)
+    // (plan_b_ is written and read in a RUN only, hl_ in a HOST_LOOP only, the open-loop state
+    // in a STEP or SEQUENCE only: they share bytes; each mode sets its own at its start)
     union {
         Plan plan_b_;
         HostLoopState hl_;                 // HOST_LOOP's state (a HOST_LOOP only)
+        // STEP and SEQUENCE (state kStepping; both set all of it at their start): seq_on_ a
+        // SEQUENCE, then the PRBS, its two PWM levels and their commanded volts; else a STEP's
+        // PWM (step_pwm_). (No initialisers: members of a union.)
+        struct {
+            bool seq_on_;
+            Prbs prbs_;
+            int16_t seq_pwm_[2];
+            float seq_volts_[2];
+            int16_t step_pwm_;
+        };
     };
     const Plan* cur_plan_ = &plan_;
     uint8_t rt_stage_ JL_ZERO, rt_gen_ JL_ZERO;
@@ -223,7 +234,6 @@ private:
     uint32_t k_ JL_ZERO, n_total_ JL_ZERO;
     uint8_t decimation_ = 1;
     uint8_t dec_left_ JL_ZERO;
-    int16_t step_pwm_ JL_ZERO;
     uint32_t last_rx_ms_ JL_ZERO;
     uint16_t overruns_ JL_ZERO;
     // Runaway detector: the drive threshold and the window length in samples (the window's
@@ -232,12 +242,7 @@ private:
     uint16_t runaway_n_ JL_ZERO;
     uint16_t sat_n_ JL_ZERO;
 
-    // Version 3: the PRBS of an active SEQUENCE (seq_on_; its two PWM levels and their
-    // commanded volts) and the input shaper of the run reference.
-    bool seq_on_ JL_ZERO;
-    Prbs prbs_;
-    int16_t seq_pwm_[2] JL_ZERO;
-    float seq_volts_[2] JL_ZERO;
+    // Version 3: the input shaper of the run reference (SEQUENCE's state: the union above).
     Shaper shaper_;
     QGain shp_kv_ JL_ZERO, shp_ka_ JL_ZERO;   // feedforward ticks per (count/sample), per (count/sample^2)
 
