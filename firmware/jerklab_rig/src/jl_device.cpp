@@ -24,7 +24,8 @@ static const DeviceSettings kBootSettings JL_PROGMEM = {
     kLoopPosition, true,               // loop, use_ff
 };
 
-__attribute__((noinline, noclone)) Device::Device(Hal& hal, const DeviceConfig& cfg) : hal_(hal), cfg_(cfg) {
+__attribute__((noinline, noclone)) Device::Device(Hal& hal, const DeviceConfig& cfg) : hal_(hal) {
+    jl_memcpy_P(&cfg_, &cfg, sizeof(cfg_));     // (in flash on the AVR)
     jl_memcpy_P(static_cast<DeviceSettings*>(this), &kBootSettings, sizeof(DeviceSettings));
 }
 

@@ -14,28 +14,37 @@
 
 namespace jl {
 
-/// What the state machine needs from the board.
+/// What the state machine needs from the board. On the AVR the functions of the one board the
+/// firmware runs on, static and bound at link time (jerklab_rig.ino defines them: direct calls,
+/// no vtable in the Uno's RAM); elsewhere an interface the host test driver implements
+/// (firmware/host/jl_host.cpp).
+#if defined(__AVR__)
+#define JL_HAL_FN(decl) static decl
+#else
+#define JL_HAL_FN(decl) virtual decl = 0
+#endif
 class Hal {
 public:
     /// Send one frame to the host (PROTOCOL.md framing: sync, len, type, seq, payload, CRC),
     /// payload_len <= kMaxPayload; may block until the transmit buffer has room. One call per
     /// frame: the Uno encodes it straight into its UART ring (encode_frame_ring), the host
     /// driver with encode_frame.
-    virtual void write_frame(uint8_t type, uint8_t seq, const uint8_t* payload, uint8_t payload_len) = 0;
+    JL_HAL_FN(void write_frame(uint8_t type, uint8_t seq, const uint8_t* payload, uint8_t payload_len));
     /// Encoder count (atomic read).
-    virtual int32_t counts() = 0;
-    virtual void zero_counts() = 0;
+    JL_HAL_FN(int32_t counts());
+    JL_HAL_FN(void zero_counts());
     /// Quadrature decoding: 1 (A rising), 2 (A both edges) or 4 (A and B both edges).
-    virtual void set_decoding(uint8_t decoding) = 0;
+    JL_HAL_FN(void set_decoding(uint8_t decoding));
     /// Signed PWM output in ticks (-pwm_max..pwm_max); 0 stops the motor.
-    virtual void set_pwm(int16_t pwm) = 0;
+    JL_HAL_FN(void set_pwm(int16_t pwm));
     /// Control period in timer ticks; restarts the tick phase so sample 0 comes one period later.
-    virtual void set_period(uint16_t ticks) = 0;
+    JL_HAL_FN(void set_period(uint16_t ticks));
     /// Milliseconds since boot (wraps).
-    virtual uint32_t millis() = 0;
+    JL_HAL_FN(uint32_t millis());
     /// True when the motor is a model (simavr harness, host test driver).
-    virtual bool simulated_plant() = 0;
+    JL_HAL_FN(bool simulated_plant());
 };
+#undef JL_HAL_FN
 
 /// A TELEMETRY payload as it goes on the wire (PROTOCOL.md: u32 index, f32 reference, i32 counts,
 /// i16 pwm, u8 flags; little-endian, no padding, as the AVR and the hosts store them): the control
@@ -111,7 +120,8 @@ struct HostLoopState {
 
 class Device : private DeviceSettings, private SafetyState {
 public:
-    /// Stores the references only (safe for a global object built before main()).
+    /// Stores the Hal's reference and a copy of cfg only (safe for a global object built before
+    /// main()). cfg is read with jl_memcpy_P: on the AVR it is in flash (JL_PROGMEM, no RAM).
     __attribute__((noinline, noclone)) Device(Hal& hal, const DeviceConfig& cfg);
     /// Boot state (PROTOCOL.md): PWM 0, default plant, period Ts = 5 ms. Call from setup().
     void begin();
