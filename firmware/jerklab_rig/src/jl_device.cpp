@@ -70,23 +70,22 @@ void Device::nack(const Frame& f, uint8_t err, uint8_t param) {
     send(kNack, f.seq, p, 3);
 }
 
+// The frame the parser holds (on_byte, on_rx_idle: one out-of-line copy).
+void __attribute__((noinline)) Device::dispatch() {
+    last_rx_ms_ = hal_.millis();
+    handle(parser_.frame());
+    if (plan_pending_) plan_frame(parser_.frame());
+}
+
 void Device::on_byte(uint8_t b) {
     if (!parser_.feed(b)) return;
-    do {
-        last_rx_ms_ = hal_.millis();
-        handle(parser_.frame());
-        if (plan_pending_) plan_frame(parser_.frame());
-    } while (parser_.process());
+    do dispatch(); while (parser_.process());
 }
 
 void Device::on_rx_idle() {
     while (parser_.pending()) {
         parser_.abandon();
-        while (parser_.process()) {
-            last_rx_ms_ = hal_.millis();
-            handle(parser_.frame());
-            if (plan_pending_) plan_frame(parser_.frame());
-        }
+        while (parser_.process()) dispatch();
     }
 }
 
@@ -182,24 +181,36 @@ void __attribute__((noinline)) Device::plan_frame(const Frame& f) {
     plan_info(f);
 }
 
-// PLAN_INFO of the plan in plan_ (PLAN, PLAN_COMMIT), or NACK TOO_LONG (the plan dropped).
-void __attribute__((noinline)) Device::plan_info(const Frame& f) {
-    float x = plan_.duration / Ts_ - 1e-4f;
-    // n = ceil(x) + 1 must stay <= kMaxPlanSamples (float32 holds 2e9 - 1 as 2e9).
-    if (!finite_f(x) || x >= static_cast<float>(kMaxPlanSamples)) { nack(f, kErrTooLong, 0); return; }
+// A plan of duration t lasts ceil(x) + 1 samples, x = t / Ts - 1e-4 (PROTOCOL.md: PLAN's
+// n_samples): samples_x(t, Ts) is x, samples_of(x) the count for a finite x below 2^32
+// (PLAN_INFO's, and a re-targeted plan's when it takes over). Out of line: one copy each.
+static float __attribute__((noinline)) samples_x(float t, float Ts) { return t / Ts - 1e-4f; }
+
+static uint32_t __attribute__((noinline)) samples_of(float x) {
     uint32_t n = static_cast<uint32_t>(x < 0.0f ? 0.0f : x);
     if (static_cast<float>(n) < x) ++n;           // ceil
-    plan_samples_ = n + 1;
+    return n + 1;
+}
+
+// PLAN_INFO of the plan in plan_ (PLAN, PLAN_COMMIT), or NACK TOO_LONG (the plan dropped).
+void __attribute__((noinline)) Device::plan_info(const Frame& f) {
+    const float x = samples_x(plan_.duration, Ts_);
+    // n = ceil(x) + 1 must stay <= kMaxPlanSamples (float32 holds 2e9 - 1 as 2e9).
+    if (!finite_f(x) || x >= static_cast<float>(kMaxPlanSamples)) { nack(f, kErrTooLong, 0); return; }
+    plan_samples_ = samples_of(x);
     plan_ok_ = true;
     uint8_t r[kLenPlanInfo];
-    put_f32(r, plan_.accel_time);
-    put_f32(r + 4, plan_.cruise_time);
+    static_assert(offsetof(Plan, cruise_time) == offsetof(Plan, accel_time) + 4,
+                  "Plan: accel_time, cruise_time adjacent, as in PLAN_INFO");
+    memcpy(r, &plan_.accel_time, 8);              // accel_time, cruise_time
     put_f32(r + 8, plan_.duration);
     put_u32(r + 12, plan_samples_);
     send(kPlanInfo, f.seq, r, kLenPlanInfo);
 }
 
-void Device::handle(const Frame& f) {
+// (noinline, noclone: `this` stays a pointer, not the static Device's constant address, so that
+// the settings' members are 2-byte displacement loads and stores, not 4-byte absolute ones)
+void __attribute__((noinline, noclone)) Device::handle(const Frame& f) {
     if (handle_v3(f) || handle_v4(f) || handle_v5(f)) return;
     const uint8_t* p = f.payload;
     static const uint8_t kLen[10] JL_PROGMEM = {0, kLenHello, kLenSetPlant, kLenSetGains, kLenSetLimits,
@@ -641,13 +652,6 @@ bool Device::control() {
     return true;
 }
 
-// ceil(t / Ts - 1e-4) + 1 samples (PROTOCOL.md: PLAN's n_samples), t >= 0
-static uint32_t samples_of(float t, float Ts) {
-    const float x = t / Ts - 1e-4f;
-    uint32_t n = static_cast<uint32_t>(x < 0.0f ? 0.0f : x);
-    if (static_cast<float>(n) < x) ++n;
-    return n + 1;
-}
 
 void Device::sample_ahead() {
     const bool shaped = shaper_.on();
@@ -668,7 +672,7 @@ void Device::sample_ahead() {
     if (stepper_.plan() != cur_plan_) {
         // a re-targeted plan took over at this sample (k_): the run now ends with it
         cur_plan_ = stepper_.plan();
-        plan_samples_ = samples_of(cur_plan_->t_start + cur_plan_->duration, Ts_);
+        plan_samples_ = samples_of(samples_x(cur_plan_->t_start + cur_plan_->duration, Ts_));
         // a braking plan (RETARGET flags bit 0) holds the run for the RETARGET that follows
         n_total_ = rt_hold_ ? 0xFFFFFFFFUL : plan_samples_ + shaper_.max_delay() + settle_;
         rt_hold_run_ = rt_hold_;

@@ -152,6 +152,7 @@ public:
     uint16_t rx_errors() const { return parser_.dropped(); }
 
 private:
+    void dispatch();
     void handle(const Frame& f);
     void plan_frame(const Frame& f);
     void send(uint8_t type, uint8_t seq, const uint8_t* payload, uint8_t n);
