@@ -48,10 +48,10 @@ void Device::apply_plant() {
     hal_.set_decoding(dec);
 }
 
-void Device::update_pwm_top() {
+void __attribute__((noinline)) Device::update_pwm_top() {
     // lround(max_voltage * pwm_max / supply), at most pwm_max (the rounding of ticks_to_pwm)
     pwm_top_ = static_cast<int16_t>(cfg_.pwm_max);
-    pwm_top_ = ticks_to_pwm(max_voltage_ * pwm_per_volt_);
+    pwm_top_ = volts_to_pwm(max_voltage_);
 }
 
 // lround(u) clamped to +-pwm_top (jl_fixed's byte-level rounding, no soft float)
@@ -118,17 +118,6 @@ static inline int32_t counts_q16(int32_t d, uint32_t frac) {
 // ceil(ms * 1000 / Ts_us): a safety window in samples (0 = off); at most 65535 as Ts >= 1 ms.
 static uint16_t __attribute__((noinline)) window_samples(uint16_t ms, uint16_t ts_us) {
     return static_cast<uint16_t>((static_cast<uint32_t>(ms) * 1000u + ts_us - 1u) / ts_us);
-}
-
-// lo < x <= hi for a finite x, 0 <= lo <= hi finite (every caller's lo is 0): on the IEEE bits,
-// as non-negative floats order as their bits (a negative x and -0 have the top bit set, a NaN and
-// +inf are above hi's bits), no soft-float compare; one out-of-line copy.
-static bool __attribute__((noinline)) in_range(float x, float lo, float hi) {
-    uint32_t b, l, h;
-    memcpy(&b, &x, 4);
-    memcpy(&l, &lo, 4);
-    memcpy(&h, &hi, 4);
-    return b > l && b <= h;
 }
 
 static const float kFloatMax = 3.40282347e38f;
@@ -247,9 +236,9 @@ void __attribute__((noinline, noclone)) Device::handle(const Frame& f) {
     case kSetPlant: {
         float K = get_f32(p), tau = get_f32(p + 4), vs = get_f32(p + 8);
         uint16_t cpr = get_u16(p + 12);
-        if (!in_range(K, 0.0f, 1e4f)) { nack(f, kErrBadValue, 0); return; }
-        if (!in_range(tau, 0.0f, 10.0f)) { nack(f, kErrBadValue, 1); return; }
-        if (!in_range(vs, 0.0f, 48.0f)) { nack(f, kErrBadValue, 2); return; }
+        if (!positive_le(K, 1e4f)) { nack(f, kErrBadValue, 0); return; }
+        if (!positive_le(tau, 10.0f)) { nack(f, kErrBadValue, 1); return; }
+        if (!positive_le(vs, 48.0f)) { nack(f, kErrBadValue, 2); return; }
         if (cpr < 1) { nack(f, kErrBadValue, 3); return; }
         memcpy(&K_, p, kLenSetPlant);    // K_, tau_, supply_, counts_per_rev_: the payload's layout
         apply_plant();
@@ -281,15 +270,15 @@ void __attribute__((noinline, noclone)) Device::handle(const Frame& f) {
     case kSetLimits: {
         float J = get_f32(p), E = get_f32(p + 4), W = get_f32(p + 8), vmax = get_f32(p + 12);
         float emax = get_f32(p + 18);
-        if (!in_range(J, 0.0f, kFloatMax)) { nack(f, kErrBadValue, 0); return; }
-        if (!in_range(E, 0.0f, kFloatMax)) { nack(f, kErrBadValue, 1); return; }
-        if (!in_range(W, 0.0f, kFloatMax)) { nack(f, kErrBadValue, 2); return; }
-        if (!in_range(vmax, 0.0f, supply_)) { nack(f, kErrBadValue, 3); return; }
-        if (emax != 0.0f && !in_range(emax, 0.0f, kFloatMax)) { nack(f, kErrBadValue, 5); return; }
+        if (!positive_le(J, kFloatMax)) { nack(f, kErrBadValue, 0); return; }
+        if (!positive_le(E, kFloatMax)) { nack(f, kErrBadValue, 1); return; }
+        if (!positive_le(W, kFloatMax)) { nack(f, kErrBadValue, 2); return; }
+        if (!positive_le(vmax, supply_)) { nack(f, kErrBadValue, 3); return; }
+        if (!nonneg_f(emax)) { nack(f, kErrBadValue, 5); return; }   // (0: the stop off)
         // max_jerk_ .. saturation_ms_ (max_error_bits_: emax >= 0, 0 (off) or the positive
         // pattern) in the payload's layout
         memcpy(&max_jerk_, p, kLenSetLimits);
-        if (emax == 0.0f) max_error_bits_ = 0;   // -0.0
+        if (max_error_bits_ == 0x80000000UL) max_error_bits_ = 0;   // -0.0
         update_pwm_top();
         plan_ok_ = false;
         ack(f);
@@ -298,7 +287,7 @@ void __attribute__((noinline, noclone)) Device::handle(const Frame& f) {
     case kPlan: {
         float d = get_f32(p);
         uint8_t kind = p[4];
-        if (!in_range(jl_fabsf(d), 0.0f, 1e6f)) { nack(f, kErrBadValue, 0); return; }
+        if (!positive_le(jl_fabsf(d), 1e6f)) { nack(f, kErrBadValue, 0); return; }
         if (kind > kPlannerTrapezoid) { nack(f, kErrBadValue, 1); return; }
         // (built without the board planners 1-3: the host sends their segments)
         if (!JL_WITH_BOARD_PLANNERS && kind != kPlannerSineJerk) { nack(f, kErrUnsupported, 1); return; }
@@ -371,7 +360,7 @@ void __attribute__((noinline, noclone)) Device::handle(const Frame& f) {
         if (!valid_period(ts, cfg_.tick_us)) { nack(f, kErrBadValue, 1); return; }
         if (n < 1) { nack(f, kErrBadValue, 2); return; }
         ack(f);
-        step_pwm_ = ticks_to_pwm(v * pwm_per_volt_);
+        step_pwm_ = volts_to_pwm(v);
         seq_on_ = false;
         start(ts, n, 1, kStepping);
         return;
@@ -411,7 +400,7 @@ bool Device::handle_v3(const Frame& f) {
         float amp = get_f32(p), off = get_f32(p + 4);
         uint16_t ts = get_u16(p + 8), n = get_u16(p + 10), seed = get_u16(p + 12);
         uint8_t order = p[14], hold = p[15];
-        if (!finite_f(amp) || !(amp >= 0.0f)) { nack(f, kErrBadValue, 0); return true; }
+        if (!nonneg_f(amp)) { nack(f, kErrBadValue, 0); return true; }
         if (!finite_f(off) || !(jl_fabsf(off) + amp <= max_voltage_)) { nack(f, kErrBadValue, 1); return true; }
         if (!valid_period(ts, cfg_.tick_us)) { nack(f, kErrBadValue, 2); return true; }
         if (n < 1) { nack(f, kErrBadValue, 3); return true; }
@@ -693,7 +682,7 @@ void Device::handle_retarget(const Frame& f) {
     const uint8_t bad = host_plan_.check(c);
     if (bad != 0xFF) { nack(f, kErrBadValue, static_cast<uint8_t>(bad + 3)); return; }
     if (r.flags & ~kRetargetHold) { nack(f, kErrBadValue, 7); return; }
-    if (!abs_le(r.t_switch, kFloatMax) || r.t_switch < 0.0f) { nack(f, kErrBadValue, 1); return; }
+    if (!nonneg_f(r.t_switch)) { nack(f, kErrBadValue, 1); return; }
     if (r.base != rt_gen_) { nack(f, kErrLate, 2); return; }    // another plan took over meanwhile
     // where the running plan allows a switch: jerk and acceleration 0, in the cruise (its ends
     // included) or at rest after its end (jerklab.rig.retarget.plan_switch)

@@ -264,7 +264,7 @@ private:
     // converted a period ahead by background(), by RUN for sample 0; SEQUENCE: V)
     // (HOST_LOOP: the HOST_SAMPLE's fields, sent by send_host_sample())
     TelemetryPayload rep_ JL_ZERO;
-    uint8_t end_reason_ = kEndDone;
+    uint8_t end_reason_ JL_ZERO;          // (kEndDone)
     float end_detail_ JL_ZERO;
 };
 
