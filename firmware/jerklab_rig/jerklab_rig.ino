@@ -11,7 +11,7 @@
 // Arduino HardwareSerial, whose ~110-cycle transmit ISR could hold off the encoder interrupt
 // past a quarter encoder period at top speed (channel B then read after it changed, a count
 // in the wrong direction). Every ISR here is short, so INT0 is served within ~70 cycles. A frame
-// is encoded straight into the transmit ring (UnoHal::write_frame); in the 1 Mbaud build the
+// is encoded straight into the transmit ring (jl::Hal::write_frame); in the 1 Mbaud build the
 // transmit interrupt is held while the control step runs and the bytes leave after it (JL_TX_HOLD).
 //
 // Timing: Timer2 CTC gives an exact 1 ms tick (16 MHz / 64 / 250); every Ts/1 ms ticks it
@@ -44,7 +44,9 @@ static const uint8_t kPwm = _BV(PB1);    // D9 / OC1A
 static const uint8_t kProbe = _BV(PB5);  // D13
 static const uint8_t kSimPin = _BV(PB4); // D12
 
-static volatile int32_t g_counts = 0;
+// (not static: the simavr harness reads the count by its symbol, g_counts, which an LTO
+// partition would rename)
+volatile int32_t g_counts = 0;
 static volatile uint32_t g_ms = 0;
 static volatile uint8_t g_tick_div = 5;
 static volatile uint8_t g_tick_n = 0;
@@ -54,7 +56,7 @@ static volatile uint8_t g_overrun = 0;
 // ---------------------------------------------------------------- UART0
 static const uint8_t kRxSize = 64, kTxSize = 64;   // powers of two
 static volatile uint8_t rx_buf[kRxSize];
-// The transmit ring: a frame is encoded straight into it (UnoHal::write_frame), then published by
+// The transmit ring: a frame is encoded straight into it (jl::Hal::write_frame), then published by
 // moving tx_head; the UDRE interrupt sends bytes tail..head. It holds the largest frame the device
 // sends (HELLO_REPLY, 33 bytes) with room to spare.
 static uint8_t tx_buf[kTxSize];
@@ -206,7 +208,7 @@ static uint8_t uart_read() {
 // step. PIND is read by the second instruction (B must be sampled within a quarter encoder period
 // of the A edge); (pd >> 1) moves B (bit 3) onto A's bit 2, so bit 2 of pd ^ (pd >> 1) is A != B.
 // The 32-bit count is stepped byte by byte and stops at the first byte that does not carry
-// (borrow): the main code reads it with interrupts off (UnoHal::counts), so it never sees a
+// (borrow): the main code reads it with interrupts off (jl::Hal::counts), so it never sees a
 // partial update, and the ISRs cannot interrupt each other. Only r24, r25 and SREG are used.
 // INT1 inverts the direction bit and shares INT0's count code (jl_encoder_step).
 #define JL_ENCODER_ISR_ENTRY                                                                   \
@@ -285,67 +287,76 @@ ISR(TIMER2_COMPA_vect, ISR_NOBLOCK) {
     }
 }
 
-class UnoHal : public jl::Hal {
-public:
-    void write_frame(uint8_t type, uint8_t seq, const uint8_t* payload, uint8_t n) override {
-        uart_write_frame(type, seq, payload, n);
-    }
-    int32_t counts() override {
-        int32_t c;
-        ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { c = g_counts; }
-        return c;
-    }
-    void zero_counts() override {
-        ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { g_counts = 0; }
-    }
-    void set_decoding(uint8_t decoding) override {
-        ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
-            EIMSK &= ~(_BV(INT0) | _BV(INT1));
-            if (decoding == 1) {
-                EICRA = _BV(ISC01) | _BV(ISC00);            // INT0 rising
-            } else {
-                EICRA = _BV(ISC00) | _BV(ISC10);            // INT0, INT1 any change
-            }
-            EIFR = _BV(INTF0) | _BV(INTF1);
-            EIMSK |= (decoding == 4) ? (_BV(INT0) | _BV(INT1)) : _BV(INT0);
-        }
-    }
-    void set_pwm(int16_t pwm) override {
-        if (pwm > 0) {
-            PORTB &= ~kIn2;
-            PORTD |= kIn1;
-            OCR1A = static_cast<uint16_t>(pwm);
-        } else if (pwm < 0) {
-            PORTD &= ~kIn1;
-            PORTB |= kIn2;
-            OCR1A = static_cast<uint16_t>(-pwm);
+// The board's functions for the state machine (jl::Hal: static on the AVR, direct calls).
+void jl::Hal::write_frame(uint8_t type, uint8_t seq, const uint8_t* payload, uint8_t n) {
+    uart_write_frame(type, seq, payload, n);
+}
+int32_t jl::Hal::counts() {
+    int32_t c;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { c = g_counts; }
+    return c;
+}
+void jl::Hal::zero_counts() {
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { g_counts = 0; }
+}
+void jl::Hal::set_decoding(uint8_t decoding) {
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+        EIMSK &= ~(_BV(INT0) | _BV(INT1));
+        if (decoding == 1) {
+            EICRA = _BV(ISC01) | _BV(ISC00);            // INT0 rising
         } else {
-            OCR1A = 0;
-            PORTD &= ~kIn1;
-            PORTB &= ~kIn2;
+            EICRA = _BV(ISC00) | _BV(ISC10);            // INT0, INT1 any change
         }
+        EIFR = _BV(INTF0) | _BV(INTF1);
+        EIMSK |= (decoding == 4) ? (_BV(INT0) | _BV(INT1)) : _BV(INT0);
     }
-    void set_period(uint16_t ticks) override {
-        ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
-            g_tick_div = static_cast<uint8_t>(ticks);
-            g_tick_n = 0;
-            g_tick_flag = 0;
-            g_overrun = 0;
-        }
+}
+void jl::Hal::set_pwm(int16_t pwm) {
+    if (pwm > 0) {
+        PORTB &= ~kIn2;
+        PORTD |= kIn1;
+        OCR1A = static_cast<uint16_t>(pwm);
+    } else if (pwm < 0) {
+        PORTD &= ~kIn1;
+        PORTB |= kIn2;
+        OCR1A = static_cast<uint16_t>(-pwm);
+    } else {
+        OCR1A = 0;
+        PORTD &= ~kIn1;
+        PORTB &= ~kIn2;
     }
-    uint32_t millis() override {
-        uint32_t m;
-        ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { m = g_ms; }
-        return m;
+}
+void jl::Hal::set_period(uint16_t ticks) {
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+        g_tick_div = static_cast<uint8_t>(ticks);
+        g_tick_n = 0;
+        g_tick_flag = 0;
+        g_overrun = 0;
     }
-    bool simulated_plant() override { return (PINB & kSimPin) == 0; }
-};
+}
+uint32_t jl::Hal::millis() {
+    uint32_t m;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { m = g_ms; }
+    return m;
+}
+bool jl::Hal::simulated_plant() { return (PINB & kSimPin) == 0; }
 
-static UnoHal hal;
-static const jl::DeviceConfig kConfig = {1000, 1023, JL_ENCODER_PPR, JL_FW_MAJOR, JL_FW_MINOR,
+static jl::Hal hal;
+static const jl::DeviceConfig JL_PROGMEM kConfig = {1000, 1023, JL_ENCODER_PPR, JL_FW_MAJOR, JL_FW_MINOR,
                                          JL_FW_PATCH};
 static jl::Device device(hal, kConfig);
 static uint32_t last_rx_ms = 0;
+
+// The sketch's own main(), in place of the Arduino core's (a sketch may define it; the core's is
+// then not linked): the core's init() starts Timer0 for millis() and delay(), which this firmware
+// does not use (Timer2 keeps the time, setup() programs every peripheral it uses), and brings in
+// Timer0's overflow interrupt and counters (~250 bytes of flash, 9 of RAM). Interrupts on first,
+// as init() does, then setup() and loop() as in any sketch.
+int main() {
+    sei();
+    setup();
+    for (;;) loop();
+}
 
 void setup() {
     // Outputs low first: the motor must not move while the timers are set up.

@@ -6,7 +6,7 @@
 namespace jl {
 
 bool Feedforward::set(float K, float tau) {
-    if (!finite_f(K) || !(K > 0.0f) || !finite_f(tau) || tau < 0.0f) return false;
+    if (!positive_le(K, 3.40282347e38f) || !nonneg_f(tau)) return false;   // K > 0, tau >= 0, finite
     inv_k_ = 1.0f / K;
     tau_over_k_ = tau / K;
     return true;
@@ -67,8 +67,8 @@ bool PidQ::set(float kpd, float kid, float kdd, float gamma, float limit) {
                   offsetof(PidQ, e_prev_) == 29 && offsetof(PidQ, d_) == 33 && sizeof(QGain) == 5,
                   "jl_pidq_step's offsets");
 #endif
-    if (!finite_f(limit) || !(limit > 0.0f) || !(limit < 32768.0f)) return false;
-    if (!finite_f(gamma) || !(jl_fabsf(gamma) < 1.0f)) return false;
+    // 0 < limit < 2^15 (32767.998046875: the largest float below 2^15), |gamma| < 1, finite
+    if (!positive_le(limit, 32767.998046875f) || !abs_lt(gamma, 1.0f)) return false;
     QGain p, i, d, g;
     if (!to_qgain(kpd, &p) || !to_qgain(kid, &i) || !to_qgain(kdd, &d) || !to_qgain(gamma, &g))
         return false;

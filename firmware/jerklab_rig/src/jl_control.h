@@ -21,7 +21,6 @@ public:
     float operator()(float velocity, float accel) const { return tau_over_k_ * accel + inv_k_ * velocity; }
     float alpha() const { return tau_over_k_; }   // u_F = alpha a + beta v
     float beta() const { return inv_k_; }
-    bool enabled = true;
 
 private:
     float inv_k_ JL_ZERO, tau_over_k_ JL_ZERO;

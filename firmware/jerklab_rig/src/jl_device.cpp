@@ -24,7 +24,8 @@ static const DeviceSettings kBootSettings JL_PROGMEM = {
     kLoopPosition, true,               // loop, use_ff
 };
 
-__attribute__((noinline, noclone)) Device::Device(Hal& hal, const DeviceConfig& cfg) : hal_(hal), cfg_(cfg) {
+__attribute__((noinline, noclone)) Device::Device(Hal& hal, const DeviceConfig& cfg) : hal_(hal) {
+    jl_memcpy_P(&cfg_, &cfg, sizeof(cfg_));     // (in flash on the AVR)
     jl_memcpy_P(static_cast<DeviceSettings*>(this), &kBootSettings, sizeof(DeviceSettings));
 }
 
@@ -47,10 +48,10 @@ void Device::apply_plant() {
     hal_.set_decoding(dec);
 }
 
-void Device::update_pwm_top() {
+void __attribute__((noinline)) Device::update_pwm_top() {
     // lround(max_voltage * pwm_max / supply), at most pwm_max (the rounding of ticks_to_pwm)
     pwm_top_ = static_cast<int16_t>(cfg_.pwm_max);
-    pwm_top_ = ticks_to_pwm(max_voltage_ * pwm_per_volt_);
+    pwm_top_ = volts_to_pwm(max_voltage_);
 }
 
 // lround(u) clamped to +-pwm_top (jl_fixed's byte-level rounding, no soft float)
@@ -69,23 +70,22 @@ void Device::nack(const Frame& f, uint8_t err, uint8_t param) {
     send(kNack, f.seq, p, 3);
 }
 
+// The frame the parser holds (on_byte, on_rx_idle: one out-of-line copy).
+void __attribute__((noinline)) Device::dispatch() {
+    last_rx_ms_ = hal_.millis();
+    handle(parser_.frame());
+    if (plan_pending_) plan_frame(parser_.frame());
+}
+
 void Device::on_byte(uint8_t b) {
     if (!parser_.feed(b)) return;
-    do {
-        last_rx_ms_ = hal_.millis();
-        handle(parser_.frame());
-        if (plan_pending_) plan_frame(parser_.frame());
-    } while (parser_.process());
+    do dispatch(); while (parser_.process());
 }
 
 void Device::on_rx_idle() {
     while (parser_.pending()) {
         parser_.abandon();
-        while (parser_.process()) {
-            last_rx_ms_ = hal_.millis();
-            handle(parser_.frame());
-            if (plan_pending_) plan_frame(parser_.frame());
-        }
+        while (parser_.process()) dispatch();
     }
 }
 
@@ -118,17 +118,6 @@ static inline int32_t counts_q16(int32_t d, uint32_t frac) {
 // ceil(ms * 1000 / Ts_us): a safety window in samples (0 = off); at most 65535 as Ts >= 1 ms.
 static uint16_t __attribute__((noinline)) window_samples(uint16_t ms, uint16_t ts_us) {
     return static_cast<uint16_t>((static_cast<uint32_t>(ms) * 1000u + ts_us - 1u) / ts_us);
-}
-
-// lo < x <= hi for a finite x, 0 <= lo <= hi finite (every caller's lo is 0): on the IEEE bits,
-// as non-negative floats order as their bits (a negative x and -0 have the top bit set, a NaN and
-// +inf are above hi's bits), no soft-float compare; one out-of-line copy.
-static bool __attribute__((noinline)) in_range(float x, float lo, float hi) {
-    uint32_t b, l, h;
-    memcpy(&b, &x, 4);
-    memcpy(&l, &lo, 4);
-    memcpy(&h, &hi, 4);
-    return b > l && b <= h;
 }
 
 static const float kFloatMax = 3.40282347e38f;
@@ -181,24 +170,36 @@ void __attribute__((noinline)) Device::plan_frame(const Frame& f) {
     plan_info(f);
 }
 
-// PLAN_INFO of the plan in plan_ (PLAN, PLAN_COMMIT), or NACK TOO_LONG (the plan dropped).
-void __attribute__((noinline)) Device::plan_info(const Frame& f) {
-    float x = plan_.duration / Ts_ - 1e-4f;
-    // n = ceil(x) + 1 must stay <= kMaxPlanSamples (float32 holds 2e9 - 1 as 2e9).
-    if (!finite_f(x) || x >= static_cast<float>(kMaxPlanSamples)) { nack(f, kErrTooLong, 0); return; }
+// A plan of duration t lasts ceil(x) + 1 samples, x = t / Ts - 1e-4 (PROTOCOL.md: PLAN's
+// n_samples): samples_x(t, Ts) is x, samples_of(x) the count for a finite x below 2^32
+// (PLAN_INFO's, and a re-targeted plan's when it takes over). Out of line: one copy each.
+static float __attribute__((noinline)) samples_x(float t, float Ts) { return t / Ts - 1e-4f; }
+
+static uint32_t __attribute__((noinline)) samples_of(float x) {
     uint32_t n = static_cast<uint32_t>(x < 0.0f ? 0.0f : x);
     if (static_cast<float>(n) < x) ++n;           // ceil
-    plan_samples_ = n + 1;
+    return n + 1;
+}
+
+// PLAN_INFO of the plan in plan_ (PLAN, PLAN_COMMIT), or NACK TOO_LONG (the plan dropped).
+void __attribute__((noinline)) Device::plan_info(const Frame& f) {
+    const float x = samples_x(plan_.duration, Ts_);
+    // n = ceil(x) + 1 must stay <= kMaxPlanSamples (float32 holds 2e9 - 1 as 2e9).
+    if (!finite_f(x) || x >= static_cast<float>(kMaxPlanSamples)) { nack(f, kErrTooLong, 0); return; }
+    plan_samples_ = samples_of(x);
     plan_ok_ = true;
     uint8_t r[kLenPlanInfo];
-    put_f32(r, plan_.accel_time);
-    put_f32(r + 4, plan_.cruise_time);
+    static_assert(offsetof(Plan, cruise_time) == offsetof(Plan, accel_time) + 4,
+                  "Plan: accel_time, cruise_time adjacent, as in PLAN_INFO");
+    memcpy(r, &plan_.accel_time, 8);              // accel_time, cruise_time
     put_f32(r + 8, plan_.duration);
     put_u32(r + 12, plan_samples_);
     send(kPlanInfo, f.seq, r, kLenPlanInfo);
 }
 
-void Device::handle(const Frame& f) {
+// (noinline, noclone: `this` stays a pointer, not the static Device's constant address, so that
+// the settings' members are 2-byte displacement loads and stores, not 4-byte absolute ones)
+void __attribute__((noinline, noclone)) Device::handle(const Frame& f) {
     if (handle_v3(f) || handle_v4(f) || handle_v5(f)) return;
     const uint8_t* p = f.payload;
     static const uint8_t kLen[10] JL_PROGMEM = {0, kLenHello, kLenSetPlant, kLenSetGains, kLenSetLimits,
@@ -235,9 +236,9 @@ void Device::handle(const Frame& f) {
     case kSetPlant: {
         float K = get_f32(p), tau = get_f32(p + 4), vs = get_f32(p + 8);
         uint16_t cpr = get_u16(p + 12);
-        if (!in_range(K, 0.0f, 1e4f)) { nack(f, kErrBadValue, 0); return; }
-        if (!in_range(tau, 0.0f, 10.0f)) { nack(f, kErrBadValue, 1); return; }
-        if (!in_range(vs, 0.0f, 48.0f)) { nack(f, kErrBadValue, 2); return; }
+        if (!positive_le(K, 1e4f)) { nack(f, kErrBadValue, 0); return; }
+        if (!positive_le(tau, 10.0f)) { nack(f, kErrBadValue, 1); return; }
+        if (!positive_le(vs, 48.0f)) { nack(f, kErrBadValue, 2); return; }
         if (cpr < 1) { nack(f, kErrBadValue, 3); return; }
         memcpy(&K_, p, kLenSetPlant);    // K_, tau_, supply_, counts_per_rev_: the payload's layout
         apply_plant();
@@ -269,15 +270,15 @@ void Device::handle(const Frame& f) {
     case kSetLimits: {
         float J = get_f32(p), E = get_f32(p + 4), W = get_f32(p + 8), vmax = get_f32(p + 12);
         float emax = get_f32(p + 18);
-        if (!in_range(J, 0.0f, kFloatMax)) { nack(f, kErrBadValue, 0); return; }
-        if (!in_range(E, 0.0f, kFloatMax)) { nack(f, kErrBadValue, 1); return; }
-        if (!in_range(W, 0.0f, kFloatMax)) { nack(f, kErrBadValue, 2); return; }
-        if (!in_range(vmax, 0.0f, supply_)) { nack(f, kErrBadValue, 3); return; }
-        if (emax != 0.0f && !in_range(emax, 0.0f, kFloatMax)) { nack(f, kErrBadValue, 5); return; }
+        if (!positive_le(J, kFloatMax)) { nack(f, kErrBadValue, 0); return; }
+        if (!positive_le(E, kFloatMax)) { nack(f, kErrBadValue, 1); return; }
+        if (!positive_le(W, kFloatMax)) { nack(f, kErrBadValue, 2); return; }
+        if (!positive_le(vmax, supply_)) { nack(f, kErrBadValue, 3); return; }
+        if (!nonneg_f(emax)) { nack(f, kErrBadValue, 5); return; }   // (0: the stop off)
         // max_jerk_ .. saturation_ms_ (max_error_bits_: emax >= 0, 0 (off) or the positive
         // pattern) in the payload's layout
         memcpy(&max_jerk_, p, kLenSetLimits);
-        if (emax == 0.0f) max_error_bits_ = 0;   // -0.0
+        if (max_error_bits_ == 0x80000000UL) max_error_bits_ = 0;   // -0.0
         update_pwm_top();
         plan_ok_ = false;
         ack(f);
@@ -286,7 +287,7 @@ void Device::handle(const Frame& f) {
     case kPlan: {
         float d = get_f32(p);
         uint8_t kind = p[4];
-        if (!in_range(jl_fabsf(d), 0.0f, 1e6f)) { nack(f, kErrBadValue, 0); return; }
+        if (!positive_le(jl_fabsf(d), 1e6f)) { nack(f, kErrBadValue, 0); return; }
         if (kind > kPlannerTrapezoid) { nack(f, kErrBadValue, 1); return; }
         // (built without the board planners 1-3: the host sends their segments)
         if (!JL_WITH_BOARD_PLANNERS && kind != kPlannerSineJerk) { nack(f, kErrUnsupported, 1); return; }
@@ -329,7 +330,6 @@ void Device::handle(const Frame& f) {
         rt_active_ = false;
         host_plan_.count = 0;
         settle_ = settle;
-        seq_on_ = false;
         {
             const float cpr = 1.0f / rad_per_count_;
             stepper_.start(plan_, Ts_, use_ff_ ? ff_.alpha() * pwm_per_volt_ : 0.0f,
@@ -360,7 +360,7 @@ void Device::handle(const Frame& f) {
         if (!valid_period(ts, cfg_.tick_us)) { nack(f, kErrBadValue, 1); return; }
         if (n < 1) { nack(f, kErrBadValue, 2); return; }
         ack(f);
-        step_pwm_ = ticks_to_pwm(v * pwm_per_volt_);
+        step_pwm_ = volts_to_pwm(v);
         seq_on_ = false;
         start(ts, n, 1, kStepping);
         return;
@@ -400,7 +400,7 @@ bool Device::handle_v3(const Frame& f) {
         float amp = get_f32(p), off = get_f32(p + 4);
         uint16_t ts = get_u16(p + 8), n = get_u16(p + 10), seed = get_u16(p + 12);
         uint8_t order = p[14], hold = p[15];
-        if (!finite_f(amp) || !(amp >= 0.0f)) { nack(f, kErrBadValue, 0); return true; }
+        if (!nonneg_f(amp)) { nack(f, kErrBadValue, 0); return true; }
         if (!finite_f(off) || !(jl_fabsf(off) + amp <= max_voltage_)) { nack(f, kErrBadValue, 1); return true; }
         if (!valid_period(ts, cfg_.tick_us)) { nack(f, kErrBadValue, 2); return true; }
         if (n < 1) { nack(f, kErrBadValue, 3); return true; }
@@ -493,7 +493,6 @@ bool Device::handle_v4(const Frame& f) {
     ack(f);
     memset(&hl_, 0, sizeof(hl_));       // PWM 0 until the first answer
     hl_.max = max_misses;
-    seq_on_ = false;
     arm_safety(ts);
     start(ts, n, 1, kHostLooping);
 #endif
@@ -642,13 +641,6 @@ bool Device::control() {
     return true;
 }
 
-// ceil(t / Ts - 1e-4) + 1 samples (PROTOCOL.md: PLAN's n_samples), t >= 0
-static uint32_t samples_of(float t, float Ts) {
-    const float x = t / Ts - 1e-4f;
-    uint32_t n = static_cast<uint32_t>(x < 0.0f ? 0.0f : x);
-    if (static_cast<float>(n) < x) ++n;
-    return n + 1;
-}
 
 void Device::sample_ahead() {
     const bool shaped = shaper_.on();
@@ -669,7 +661,7 @@ void Device::sample_ahead() {
     if (stepper_.plan() != cur_plan_) {
         // a re-targeted plan took over at this sample (k_): the run now ends with it
         cur_plan_ = stepper_.plan();
-        plan_samples_ = samples_of(cur_plan_->t_start + cur_plan_->duration, Ts_);
+        plan_samples_ = samples_of(samples_x(cur_plan_->t_start + cur_plan_->duration, Ts_));
         // a braking plan (RETARGET flags bit 0) holds the run for the RETARGET that follows
         n_total_ = rt_hold_ ? 0xFFFFFFFFUL : plan_samples_ + shaper_.max_delay() + settle_;
         rt_hold_run_ = rt_hold_;
@@ -690,7 +682,7 @@ void Device::handle_retarget(const Frame& f) {
     const uint8_t bad = host_plan_.check(c);
     if (bad != 0xFF) { nack(f, kErrBadValue, static_cast<uint8_t>(bad + 3)); return; }
     if (r.flags & ~kRetargetHold) { nack(f, kErrBadValue, 7); return; }
-    if (!abs_le(r.t_switch, kFloatMax) || r.t_switch < 0.0f) { nack(f, kErrBadValue, 1); return; }
+    if (!nonneg_f(r.t_switch)) { nack(f, kErrBadValue, 1); return; }
     if (r.base != rt_gen_) { nack(f, kErrLate, 2); return; }    // another plan took over meanwhile
     // where the running plan allows a switch: jerk and acceleration 0, in the cruise (its ends
     // included) or at rest after its end (jerklab.rig.retarget.plan_switch)

@@ -14,28 +14,37 @@
 
 namespace jl {
 
-/// What the state machine needs from the board.
+/// What the state machine needs from the board. On the AVR the functions of the one board the
+/// firmware runs on, static and bound at link time (jerklab_rig.ino defines them: direct calls,
+/// no vtable in the Uno's RAM); elsewhere an interface the host test driver implements
+/// (firmware/host/jl_host.cpp).
+#if defined(__AVR__)
+#define JL_HAL_FN(decl) static decl
+#else
+#define JL_HAL_FN(decl) virtual decl = 0
+#endif
 class Hal {
 public:
     /// Send one frame to the host (PROTOCOL.md framing: sync, len, type, seq, payload, CRC),
     /// payload_len <= kMaxPayload; may block until the transmit buffer has room. One call per
     /// frame: the Uno encodes it straight into its UART ring (encode_frame_ring), the host
     /// driver with encode_frame.
-    virtual void write_frame(uint8_t type, uint8_t seq, const uint8_t* payload, uint8_t payload_len) = 0;
+    JL_HAL_FN(void write_frame(uint8_t type, uint8_t seq, const uint8_t* payload, uint8_t payload_len));
     /// Encoder count (atomic read).
-    virtual int32_t counts() = 0;
-    virtual void zero_counts() = 0;
+    JL_HAL_FN(int32_t counts());
+    JL_HAL_FN(void zero_counts());
     /// Quadrature decoding: 1 (A rising), 2 (A both edges) or 4 (A and B both edges).
-    virtual void set_decoding(uint8_t decoding) = 0;
+    JL_HAL_FN(void set_decoding(uint8_t decoding));
     /// Signed PWM output in ticks (-pwm_max..pwm_max); 0 stops the motor.
-    virtual void set_pwm(int16_t pwm) = 0;
+    JL_HAL_FN(void set_pwm(int16_t pwm));
     /// Control period in timer ticks; restarts the tick phase so sample 0 comes one period later.
-    virtual void set_period(uint16_t ticks) = 0;
+    JL_HAL_FN(void set_period(uint16_t ticks));
     /// Milliseconds since boot (wraps).
-    virtual uint32_t millis() = 0;
+    JL_HAL_FN(uint32_t millis());
     /// True when the motor is a model (simavr harness, host test driver).
-    virtual bool simulated_plant() = 0;
+    JL_HAL_FN(bool simulated_plant());
 };
+#undef JL_HAL_FN
 
 /// A TELEMETRY payload as it goes on the wire (PROTOCOL.md: u32 index, f32 reference, i32 counts,
 /// i16 pwm, u8 flags; little-endian, no padding, as the AVR and the hosts store them): the control
@@ -111,7 +120,8 @@ struct HostLoopState {
 
 class Device : private DeviceSettings, private SafetyState {
 public:
-    /// Stores the references only (safe for a global object built before main()).
+    /// Stores the Hal's reference and a copy of cfg only (safe for a global object built before
+    /// main()). cfg is read with jl_memcpy_P: on the AVR it is in flash (JL_PROGMEM, no RAM).
     __attribute__((noinline, noclone)) Device(Hal& hal, const DeviceConfig& cfg);
     /// Boot state (PROTOCOL.md): PWM 0, default plant, period Ts = 5 ms. Call from setup().
     void begin();
@@ -142,6 +152,7 @@ public:
     uint16_t rx_errors() const { return parser_.dropped(); }
 
 private:
+    void dispatch();
     void handle(const Frame& f);
     void plan_frame(const Frame& f);
     void send(uint8_t type, uint8_t seq, const uint8_t* payload, uint8_t n);
@@ -192,10 +203,21 @@ private:
     // stepper prepares its first chunk (background()), 5 scheduled. rt_gen_: re-targeted plans
     // that took over in this run (mod 256, RETARGET's base); rt_hold_: the pending plan brakes
     // (the run holds at its end), rt_hold_run_: the running one does.
-    // (plan_b_ is written and read in a RUN only, hl_ in a HOST_LOOP only: they share bytes)
+    // (plan_b_ is written and read in a RUN only, hl_ in a HOST_LOOP only, the open-loop state
+    // in a STEP or SEQUENCE only: they share bytes; each mode sets its own at its start)
     union {
         Plan plan_b_;
         HostLoopState hl_;                 // HOST_LOOP's state (a HOST_LOOP only)
+        // STEP and SEQUENCE (state kStepping; both set all of it at their start): seq_on_ a
+        // SEQUENCE, then the PRBS, its two PWM levels and their commanded volts; else a STEP's
+        // PWM (step_pwm_). (No initialisers: members of a union.)
+        struct {
+            bool seq_on_;
+            Prbs prbs_;
+            int16_t seq_pwm_[2];
+            float seq_volts_[2];
+            int16_t step_pwm_;
+        };
     };
     const Plan* cur_plan_ = &plan_;
     uint8_t rt_stage_ JL_ZERO, rt_gen_ JL_ZERO;
@@ -223,7 +245,6 @@ private:
     uint32_t k_ JL_ZERO, n_total_ JL_ZERO;
     uint8_t decimation_ = 1;
     uint8_t dec_left_ JL_ZERO;
-    int16_t step_pwm_ JL_ZERO;
     uint32_t last_rx_ms_ JL_ZERO;
     uint16_t overruns_ JL_ZERO;
     // Runaway detector: the drive threshold and the window length in samples (the window's
@@ -232,12 +253,7 @@ private:
     uint16_t runaway_n_ JL_ZERO;
     uint16_t sat_n_ JL_ZERO;
 
-    // Version 3: the PRBS of an active SEQUENCE (seq_on_; its two PWM levels and their
-    // commanded volts) and the input shaper of the run reference.
-    bool seq_on_ JL_ZERO;
-    Prbs prbs_;
-    int16_t seq_pwm_[2] JL_ZERO;
-    float seq_volts_[2] JL_ZERO;
+    // Version 3: the input shaper of the run reference (SEQUENCE's state: the union above).
     Shaper shaper_;
     QGain shp_kv_ JL_ZERO, shp_ka_ JL_ZERO;   // feedforward ticks per (count/sample), per (count/sample^2)
 
@@ -248,7 +264,7 @@ private:
     // converted a period ahead by background(), by RUN for sample 0; SEQUENCE: V)
     // (HOST_LOOP: the HOST_SAMPLE's fields, sent by send_host_sample())
     TelemetryPayload rep_ JL_ZERO;
-    uint8_t end_reason_ = kEndDone;
+    uint8_t end_reason_ JL_ZERO;          // (kEndDone)
     float end_detail_ JL_ZERO;
 };
 

@@ -13,6 +13,7 @@ namespace jl {
 uint16_t prbs_mask(uint8_t order);
 
 /// The PRBS of SEQUENCE: b = s & 1; s >>= 1; if (b) s ^= mask -- one bit per `hold` samples.
+/// (No member initialisers: start() sets every member; a Prbs lives in a union of Device.)
 class Prbs {
 public:
     void start(uint16_t seed, uint8_t order, uint8_t hold) {
@@ -35,8 +36,8 @@ public:
     }
 
 private:
-    uint16_t mask_ = 0, state_ = 1;
-    uint8_t hold_ = 1, left_ = 0, bit_ = 0;
+    uint16_t mask_, state_;
+    uint8_t hold_, left_, bit_;
 };
 
 // Build options (firmware/README.md): JL_WITH_SEQUENCE, JL_WITH_SHAPER (default 1; 0 leaves the

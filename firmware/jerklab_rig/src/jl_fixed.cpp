@@ -10,6 +10,19 @@ bool __attribute__((noinline)) finite_f(float x) {
     return d == 0.0f;
 }
 
+bool __attribute__((noinline)) positive_le(float x, float m) {
+    uint32_t b, c;
+    memcpy(&b, &x, 4);
+    memcpy(&c, &m, 4);
+    return b - 1u < c;             // 1 <= b <= c (b = 0, +0, wraps to the largest)
+}
+
+bool __attribute__((noinline)) nonneg_f(float x) {
+    uint32_t b;
+    memcpy(&b, &x, 4);
+    return b <= 0x7F7FFFFFUL || b == 0x80000000UL;   // +0 .. the largest float, or -0
+}
+
 // The signed product of a and b in the 8 bytes l (bytes 0..3) and h (4..7), AVR assembly.
 // Column by column (byte i of a times byte j of b lands at byte i + j): each 16-bit partial
 // product is added at k = i + j with the carry into k + 2 only, which cannot carry further (the

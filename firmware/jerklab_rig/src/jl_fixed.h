@@ -46,6 +46,13 @@ static inline bool abs_lt(float x, float m) {
     return (b & 0x7FFFFFFFUL) < c;
 }
 
+/// 0 < x <= m (positive_le) for a finite m > 0, and x >= 0 finite, -0 included (nonneg_f): on
+/// the IEEE bits as abs_le (a negative x and -0 have the top bit set, a NaN and +inf lie above
+/// m's bits, +0 and a subnormal x order as their values). Out of line (jl_fixed.cpp): one copy
+/// for the parameter checks.
+bool positive_le(float x, float m);
+bool nonneg_f(float x);
+
 /// a + b saturated to [INT32_MIN, INT32_MAX] (overflow: the sum's sign differs from both's).
 int32_t add_sat(int32_t a, int32_t b);
 

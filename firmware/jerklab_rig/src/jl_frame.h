@@ -6,6 +6,7 @@
 #include <stdint.h>
 #include <stddef.h>
 #include <string.h>
+#include "jl_fixed.h"   // (JL_ZERO)
 
 namespace jl {
 
@@ -41,7 +42,7 @@ uint8_t encode_frame_ring(uint8_t* ring, uint8_t mask, uint8_t head, uint8_t typ
 /// frame that follows garbage (or starts inside a truncated one) is still found.
 class FrameParser {
 public:
-    FrameParser() { reset(); }
+    // (empty at construction: JL_ZERO members)
     void reset() { n_ = 0; used_ = 0; }
     /// Feed one byte; returns true when `frame()` holds a new good frame. After a true,
     /// call `process()` until it returns false: resynchronisation after a corrupt frame can
@@ -63,9 +64,9 @@ private:
     /// Drop the frame last emitted (its bytes stayed in buf_ for frame().payload).
     void release() { if (used_) { shift(used_); used_ = 0; } }
     uint8_t buf_[kMaxFrame];
-    uint8_t n_;
-    uint8_t used_;               // bytes at the front of buf_ of the frame last emitted
-    uint16_t dropped_ = 0;
+    uint8_t n_ JL_ZERO;
+    uint8_t used_ JL_ZERO;       // bytes at the front of buf_ of the frame last emitted
+    uint16_t dropped_ JL_ZERO;
     Frame frame_;
 };
 
