@@ -64,7 +64,9 @@ def test_sketch_builds_and_fits_the_uno_budget():
     # Protocol 5 plans on the host and keeps only what runs in a Plan: RAM is back at <= 75 %,
     # below the Arduino IDE's low-memory warning (tests/test_arduino_ide.py).
     assert 4000 < flash <= 0.99 * flash_total
-    assert 100 < ram <= 0.75 * ram_total
+    # This round's cuts (host-planned segments, the plan's rest not stored, state shared by the
+    # modes): RAM under the 70 % that leaves room for the stack and interrupts.
+    assert 100 < ram <= 0.70 * ram_total
     # The hex holds the same bytes as the ELF's flash image (record checksums verified).
     data = 0
     for line in out["hex"].read_text().split():
