@@ -99,27 +99,13 @@ static void rest_to_rest(Plan* p, uint8_t shape, float distance, float jpar, flo
     p->accel_time = tacc;
 }
 
-// The range checks on the IEEE bits (integer compares, no soft-float call; jl_fixed's abs_le):
-// 0 < x <= hi for a finite hi > 0 (a negative x, -0, a NaN and +inf are out), and x >= 0 finite
-// (+0, -0 and the positive finite floats).
-static bool __attribute__((noinline)) pos_le(float x, float hi) {
-    uint32_t b, h;
-    memcpy(&b, &x, 4);
-    memcpy(&h, &hi, 4);
-    return b - 1u < h;
-}
-static bool nonneg(float x) {
-    uint32_t b;
-    memcpy(&b, &x, 4);
-    return b <= 0x7F7FFFFFUL || b == 0x80000000UL;
-}
-
+// (the range checks on the IEEE bits: jl_fixed's positive_le and nonneg_f)
 static PlanStatus check(float d, float J, float E, float W) {
     if (!finite_f(d)) return kPlanBadDistance;
     // (finite and > 0: 0 < x <= the largest float)
-    if (!pos_le(J, 3.40282347e38f)) return kPlanBadJerk;
-    if (!pos_le(E, 3.40282347e38f)) return kPlanBadAccel;
-    if (!pos_le(W, 3.40282347e38f)) return kPlanBadVelocity;
+    if (!positive_le(J, 3.40282347e38f)) return kPlanBadJerk;
+    if (!positive_le(E, 3.40282347e38f)) return kPlanBadAccel;
+    if (!positive_le(W, 3.40282347e38f)) return kPlanBadVelocity;
     return kPlanOk;
 }
 
@@ -220,7 +206,7 @@ uint8_t HostPlanner::add(Plan* p, const HostSegment& s) {
     const uint8_t i = s.index;
     if (!(i == 0 || i == count) || i >= kMaxHostSegments) return 0;
     if (s.kind > 1) return 1;
-    if (!pos_le(s.duration, 1e7f)) return 2;
+    if (!positive_le(s.duration, 1e7f)) return 2;
     if (!abs_le(s.x0, 1e6f)) return 3;
     float f[3];                             // v0, a0, jerk: fields 4, 5, 6
     memcpy(f, reinterpret_cast<const uint8_t*>(&s) + offsetof(HostSegment, v0), sizeof(f));
@@ -248,7 +234,7 @@ uint8_t HostPlanner::check(const HostCommit& c) const {
     float f[3];                             // accel_time, cruise_time, cruise_velocity: 2, 3, 4
     memcpy(f, reinterpret_cast<const uint8_t*>(&c) + offsetof(HostCommit, accel_time), sizeof(f));
     for (uint8_t k = 0; k < 3; ++k)
-        if (!nonneg(f[k])) return static_cast<uint8_t>(2 + k);
+        if (!nonneg_f(f[k])) return static_cast<uint8_t>(2 + k);
     if (c.planner > kPlannerTrapezoid && c.planner != kPlannerHost) return 5;
     return 0xFF;
 }
