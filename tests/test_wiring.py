@@ -34,8 +34,9 @@ def firmware_pins():
     src = SKETCH.read_text(encoding="utf-8")
     consts = dict(re.findall(r"static const uint8_t (k\w+) = _BV\((P[BD]\d)\);", src))
     # IN1 is driven high for positive PWM, IN2 for negative (set_pwm)
-    body = src[src.index("void set_pwm") :]
-    body = body[: body.index("void set_period")]
+    # (the Hal's function, jl::Hal::set_pwm on the AVR)
+    body = src[re.search(r"void (?:\w+::)*set_pwm\(", src).start() :]
+    body = body[: re.search(r"void (?:\w+::)*set_period\(", body).start()]
     pos = body[body.index("if (pwm > 0)") : body.index("else if (pwm < 0)")]
     high_pos = re.search(r"PORT[BD] \|= (k\w+);", pos).group(1)
     assert "OCR1A" in pos and "COM1A1" in src, "PWM must be Timer1's OC1A"
