@@ -55,9 +55,11 @@ def _names(text):
 
 def _found(name, src):
     """Whether the firmware source has ``name``: a class's member function (or constructor), a
-    type of namespace jl, or a jl_ function, assembly routine or source file."""
+    type or (written ``jl::name``) a function declared in namespace jl, or a jl_ function,
+    assembly routine or source file."""
     text = "\n".join(src.values())
-    if name.startswith("jl::"):
+    qualified = name.startswith("jl::")
+    if qualified:
         name = name[4:]
     if "::" in name:
         *scope, member = name.split("::")
@@ -65,8 +67,10 @@ def _found(name, src):
         if not re.search(rf"\b(?:class|struct)\s+{cls}\b", text):
             return False
         return member == cls or bool(re.search(rf"\b{member}\s*\(", text))
-    if not name.startswith("jl_"):  # a type
-        return bool(re.search(rf"\b(?:class|struct)\s+{name}\b", text))
+    if not name.startswith("jl_"):  # a type (or, written jl::name, a function of namespace jl)
+        if re.search(rf"\b(?:class|struct)\s+{name}\b", text):
+            return True
+        return qualified and bool(re.search(rf"^\w[\w\s\*&:]*\b{name}\s*\(", text, re.M))
     stems = {f.rsplit(".", 1)[0] for f in src}
     return name in stems or bool(re.search(rf"\b{name}\s*[:(]", text))
 

@@ -106,6 +106,7 @@ int run_vectors(const char* path) {
     Stat pulse("pulse");         // the pulses' integer sinusoids (recurrence, eps, range)
     Stat shp("shaper");          // the fixed-point FIR against its Python twin, exactly
     Stat hstp("host_segments");  // the stepper on host-planned segments (G records)
+    Stat root("cube_root");      // the planners' cube root against the true one, in ulp (R records)
     jl::Pid pid;
     jl::PidQ pidq;               // the fixed-point law, in "counts" and "ticks" (scales below)
     double q_se = 1.0, q_su = 1.0, q_kabs = 0.0, q_kid = 0.0, q_acc = 0.0, q_gamma = 0.0, q_emax = 0.0;
@@ -494,13 +495,34 @@ int run_vectors(const char* path) {
                 w << path << ":" << lineno << " k=" << k << " Rs " << got << " v " << gv << " a " << ga;
                 shp.check(got != Rs || gv != v || ga != acc, 0.5, w.str());
             }
+        } else if (kind == "R") {
+            // R <x as float32 bits, hex> <the true cube root of that float, float64>: within
+            // 2 ulp of the float32 nearest the root (0 and inf exactly)
+            std::string h, ws;
+            ss >> h >> ws;
+            const double want = std::strtod(ws.c_str(), nullptr);   // (">>" reads no "inf")
+            const uint32_t bits = static_cast<uint32_t>(std::stoul(h, nullptr, 16));
+            float x;
+            std::memcpy(&x, &bits, 4);
+            const double got = jl::cube_root(x);
+            const float wf = static_cast<float>(want);
+            double err;
+            if (std::isinf(want) || want == 0.0) {
+                err = got == want ? 0.0 : 1e300;
+            } else {
+                const double ulp = std::nextafter(wf, INFINITY) - wf;
+                err = std::fabs(got - want) / ulp;
+            }
+            std::ostringstream w;
+            w << where.str() << " x " << x << " got " << got << " want " << want;
+            root.check(err, 2.0, w.str());
         } else {
             std::fprintf(stderr, "%s: unknown record %s\n", where.str().c_str(), kind.c_str());
             return 2;
         }
     }
     int fail = 0;
-    for (Stat* s : {&plan, &smp, &stp, &pulse, &ctl, &ctlq, &enc, &dec, &shp, &hstp}) {
+    for (Stat* s : {&plan, &smp, &stp, &pulse, &ctl, &ctlq, &enc, &dec, &shp, &hstp, &root}) {
         std::printf("%s records=%ld failures=%ld worst_error_over_tol=%.3g at %s\n", s->name, s->records,
                     s->failures, s->worst, s->worst_what.empty() ? "-" : s->worst_what.c_str());
         if (s->failures) fail = 1;

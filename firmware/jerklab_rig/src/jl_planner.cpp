@@ -99,6 +99,19 @@ static void rest_to_rest(Plan* p, uint8_t shape, float distance, float jpar, flo
     p->accel_time = tacc;
 }
 
+// The cube root of x >= 0 (jl_planner.h).
+float __attribute__((noinline)) cube_root(float x) {
+    uint32_t i;
+    memcpy(&i, &x, 4);
+    if (i - 1u >= 0x7F7FFFFFu) return x;   // (on the bits) +0, inf, NaN and x < 0 as they are
+    if (i < 0x00800000u) return cube_root(x * 16777216.0f) * (1.0f / 256.0f);  // subnormal
+    i = i / 3u + 709921077u;
+    float y;
+    memcpy(&y, &i, 4);
+    for (uint8_t k = 0; k < 4; ++k) y -= (y - x / (y * y)) * (1.0f / 3.0f);
+    return y;
+}
+
 // (the range checks on the IEEE bits: jl_fixed's positive_le and nonneg_f)
 static PlanStatus check(float d, float J, float E, float W) {
     if (!finite_f(d)) return kPlanBadDistance;
@@ -114,7 +127,7 @@ PlanStatus plan_sine_jerk(float distance, float J, float E, float W, Plan* p) {
     if (st != kPlanOk) return st;
     const float theta = jl_fabsf(distance);
     if (theta == 0.0f) { rest_to_rest(p, kShapeSine, distance, J, 0.0f, 0.0f, 0.0f); return kPlanOk; }
-    float T = jl_cbrtf(kTwoPi * theta / J);                   // x(T) = J T^3/(4 pi) = theta/2
+    float T = cube_root(kTwoPi * theta / J);                   // x(T) = J T^3/(4 pi) = theta/2
     if (J * T / kPi > E) T = E * kPi / J;                       // eps_max = J T / pi
     if (J * T * T / kTwoPi > W) T = jl_sqrtf(kTwoPi * W / J);   // omega_max = J T^2/(2 pi)
     float wmax = J * T * T / kTwoPi;
@@ -148,7 +161,7 @@ static void scurve_times(float d, float J, float A, float V, float* tj, float* t
         *ta = 2.0f * (q - 2.0f * t2) / (3.0f * t + jl_sqrtf(t2 + 4.0f * q));
         return;
     }
-    *tj = jl_cbrtf(d * (0.5f / J));
+    *tj = cube_root(d * (0.5f / J));
 }
 
 PlanStatus plan_sine_jerk_optimal(float distance, float J, float E, float W, Plan* p) {

@@ -16,7 +16,6 @@
 #define jl_sinf(x) sin(x)
 #define jl_cosf(x) cos(x)
 #define jl_sqrtf(x) sqrt(x)
-#define jl_cbrtf(x) cbrt(x)
 #define jl_fabsf(x) fabs(x)
 #define jl_lroundf(x) lround(x)
 #else
@@ -27,7 +26,6 @@
 #define jl_sinf(x) sinf(x)
 #define jl_cosf(x) cosf(x)
 #define jl_sqrtf(x) sqrtf(x)
-#define jl_cbrtf(x) cbrtf(x)
 #define jl_fabsf(x) fabsf(x)
 #define jl_lroundf(x) lroundf(x)
 #endif
