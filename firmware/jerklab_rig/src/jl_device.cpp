@@ -699,14 +699,20 @@ void Device::handle_retarget(const Frame& f) {
     rt_hold_ = (r.flags & kRetargetHold) != 0;
     rt_active_ = true;
     rt_stage_ = 4;
+    rt_switch_ = r.switch_index;
     n_total_ = 0xFFFFFFFFUL;               // the run lasts until the new plan's end
     ack(f);
 }
 
 // The re-targeting's work in the idle time: the new plan's first chunk, a stage a tick, then
-// scheduled (the stepper switches at its first sample); true when it did something.
+// scheduled (the stepper switches at its first sample); true when it did something. It yields
+// the tick to the running plan's next chunk when that one is pressed (stepper_.pressed()) and
+// the switch is more than kRetargetLead samples ahead: from kRetargetLead on (RETARGET's
+// least lead, >= the 13 stages of a first chunk) it has every tick, so it is always ready in
+// time, and a short segment's chunk change during it is not computed in the tick (an overrun).
 bool Device::retarget_work() {
     if (rt_stage_ != 4) return false;
+    if (stepper_.pressed() && rt_switch_ > stepper_.index() + kRetargetLead) return false;
     if (stepper_.prepare_switch(*free_plan())) rt_stage_ = 5;
     return true;
 }

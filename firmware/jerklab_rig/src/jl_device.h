@@ -220,6 +220,7 @@ private:
         };
     };
     const Plan* cur_plan_ = &plan_;
+    uint32_t rt_switch_ JL_ZERO;           // the sample the pending plan takes over at
     uint8_t rt_stage_ JL_ZERO, rt_gen_ JL_ZERO;
     bool rt_hold_ JL_ZERO, rt_hold_run_ JL_ZERO;
     bool rt_active_ JL_ZERO;               // the run's plan buffers were written (PLAN again after it)

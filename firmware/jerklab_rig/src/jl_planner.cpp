@@ -866,6 +866,12 @@ void PlanStepper::prepare() {
         if (prepare_stage()) return;
 }
 
+bool PlanStepper::pressed() const {
+    // (the rest at the target, k_end 0xFFFFFFFF, is never pressed: nothing follows it; a next
+    // chunk already prepared makes prepare() return at once)
+    return buf_[ci_].k_end - k_ <= 14u;
+}
+
 bool PlanStepper::prepare_switch(const Plan& p) {
     if (pend_p_ != &p) {
         pend_p_ = &p;
