@@ -805,7 +805,8 @@ class PlanSegment(_Message):
 
 
 #: ``PlanCommit.planner`` of a plan that is no planner's rest-to-rest profile (a moving start,
-#: a synchronized or edited profile): the device cannot re-target it
+#: a synchronized or edited profile): the host re-targets it from its own segments, in the
+#: window its commit names (:func:`jerklab.rig.retarget.host_running_plan`)
 PLANNER_NONE = 0xFF
 
 
@@ -813,11 +814,12 @@ PLANNER_NONE = 0xFF
 class PlanCommit(_Message):
     """The end of a host-planned plan (version 5): ``n_segments`` PLAN_SEGMENTs sent, the move
     ends at rest at ``target`` rad; ``accel_time`` and ``cruise_time`` (s, >= 0) are echoed in
-    PLAN_INFO. ``planner`` (:class:`Planner`) says whose rest-to-rest profile the segments are,
-    with ``cruise_velocity`` (rad/s, >= 0) its cruise speed: the device re-targets such a move
-    by the rule of PROTOCOL.md "Re-targeting" (``accel_time`` must then be where its cruise
-    starts); :data:`PLANNER_NONE` for any other plan. The device answers PLAN_INFO as for PLAN,
-    or NACK (BAD_VALUE naming the field, TOO_LONG)."""
+    PLAN_INFO and name the window where a re-targeting may take over (PROTOCOL.md
+    "Re-targeting": from ``accel_time`` to ``accel_time + cruise_time`` the move has jerk and
+    acceleration 0, at the speed ``cruise_velocity``, rad/s >= 0). ``planner``
+    (:class:`Planner`) says whose rest-to-rest profile the segments are; :data:`PLANNER_NONE`
+    for any other plan (a synchronized or moving start, re-targeted by the host all the same).
+    The device answers PLAN_INFO as for PLAN, or NACK (BAD_VALUE naming the field, TOO_LONG)."""
 
     TYPE: ClassVar[MsgType] = MsgType.PLAN_COMMIT
     FORMAT: ClassVar[str] = "<BffffB"
@@ -1400,7 +1402,12 @@ def profile_segments(profile):
     integrated in closed form (float64) from the profile's own start (a value below float32's
     normal range travels as 0). ``planner`` is the profile's :class:`Planner` for a rest-to-rest
     profile (its ``accel_time`` the float32 sum of the acceleration phase's durations, as the
-    device sums them), :data:`PLANNER_NONE` for a moving start.
+    device sums them), :data:`PLANNER_NONE` for a moving start. A moving start's
+    ``accel_time``, ``cruise_time`` and ``cruise_velocity`` name its re-targeting window
+    (PROTOCOL.md "Re-targeting") as a planner's do: the cruise (a segment of jerk and
+    acceleration 0 before the final deceleration), or, with no cruise, the instant of
+    acceleration 0 where the final deceleration starts; none (all 0) when the move is never
+    at acceleration 0 in motion.
 
     Parameters
     ----------
@@ -1440,9 +1447,24 @@ def profile_segments(profile):
                 jk = float(jerk[i])
                 kind = sine if half and jk != 0.0 else poly
                 rows.append((kind, tau, float(P[i]), float(V[i]), float(A[i]), jk))
-        accel_time = cruise_time = cruise_velocity = 0.0
-        planner = PLANNER_NONE
+        # the re-targeting's window (PROTOCOL.md "Re-targeting"): the final deceleration starts
+        # at the last boundary where the move has acceleration 0 and is moving; a segment of
+        # jerk and acceleration 0 just before it is the cruise. Where none is moving, the window
+        # is empty (accel_time = cruise_time = 0: a re-targeting takes over at rest at the end).
+        a_tol = 1e-9 * max((abs(r[4]) for r in rows), default=0.0)
+        v_tol = 1e-9 * max((abs(r[3]) for r in rows), default=0.0)
+        dec = [i for i, r in enumerate(rows) if abs(r[4]) <= a_tol and abs(r[3]) > v_tol]
+        cruise_time = cruise_velocity = 0.0
         n_accel = 0
+        if dec:
+            d = dec[-1]
+            cruise_velocity = abs(rows[d][3])
+            c = rows[d - 1] if d > 0 else None
+            if c is not None and c[5] == 0.0 and abs(c[4]) <= a_tol:
+                d -= 1  # (a cruise)
+                cruise_time = c[1]
+            n_accel = d
+        planner = PLANNER_NONE
     else:
         tj, ta, tv, jp = (float(x) for x in (profile._tj, profile._ta, profile._tv, profile._jpar))
         shape = pl._SHAPE[profile.kind]
@@ -1470,13 +1492,11 @@ def profile_segments(profile):
         cruise_time = tv
         cruise_velocity = float(profile.peak_velocity)
         planner = int(Planner[profile.kind.upper()])
-    if rows and planner != PLANNER_NONE:
-        # where the cruise starts as the device sums the segments' durations (float32, in
-        # order): the re-targeting rule switches there
-        acc = struct.unpack("<f", struct.pack("<f", 0.0))[0]
-        for row in rows[:n_accel]:
-            acc = _f32(acc + _f32(row[1]))
-        accel_time = acc
+    # where the cruise starts as the device sums the segments' durations (float32, in order):
+    # the re-targeting rule switches there
+    accel_time = 0.0
+    for row in rows[:n_accel]:
+        accel_time = _f32(accel_time + _f32(row[1]))
     if not rows:
         raise ValueError("profile has no segment of nonzero length (distance 0?)")
     if len(rows) > MAX_PLAN_SEGMENTS:

@@ -736,7 +736,12 @@ def test_device_runs_every_planner(host_driver, planner, Ts):
     pt = p.phase_times
     accel_time, cruise = (pt[0], pt[1]) if len(pt) == 3 else (sum(pt[:3]), pt[3])
     if planner == 4:
-        accel_time = cruise = 0.0  # (a moving start: no such phases)
+        # a moving start: PLAN_COMMIT's re-targeting window, where the move has acceleration 0
+        # in motion (PROTOCOL.md "Re-targeting")
+        _, commit = pr.profile_segments(p)
+        accel_time, cruise = commit.accel_time, commit.cruise_time
+        st = p.sample(accel_time)
+        assert abs(float(st.accel)) <= 1e-3 * E and abs(float(st.velocity)) > 1.0
     assert info.accel_time == pytest.approx(accel_time, rel=1e-5)
     assert info.cruise_time == pytest.approx(cruise, rel=1e-5, abs=1e-6)
     assert info.duration == pytest.approx(p.duration, rel=1e-5)

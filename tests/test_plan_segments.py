@@ -147,6 +147,58 @@ def test_any_state_segments_reproduce_the_profile(kind, ed, neg, uv0, ua0):
     _device_accepts([_wire(s) for s in segs], _wire(commit))
 
 
+@cases("costly")
+@given(
+    kind=st.sampled_from(["scurve", "sine_jerk_optimal"]),
+    ed=st.floats(-1.0, 2.0),
+    neg=st.booleans(),
+    uv0=st.floats(-1.5, 1.5),
+    ua0=st.floats(-0.9, 0.9),
+    frac=st.floats(0.0, 1.0),
+    new=st.floats(-20.0, 20.0),
+)
+def test_any_state_commit_names_a_window_of_zero_acceleration(kind, ed, neg, uv0, ua0, frac, new):
+    """A moving start's PLAN_COMMIT names its re-targeting window: on the profile itself
+    (jerklab.planner's closed form, not the segments) the move has acceleration 0 there (and,
+    with half-sine pulses, jerk 0) at the speed cruise_velocity, and from its end on it only
+    slows down to rest; the host's switch planned anywhere (jerklab.rig.retarget.plan_switch
+    from host_running_plan) starts the new plan from the profile's state."""
+    from jerklab.rig import retarget as R
+
+    J, A, V = 2e4, 300.0, 30.0
+    d = (-1.0 if neg else 1.0) * 10.0**ed
+    fn = plan_scurve if kind == "scurve" else plan_sine_jerk_optimal
+    p = fn(d, J, A, V, initial_velocity=uv0 * V, initial_accel=ua0 * A)
+    if sum(1 for t in p.phase_times if t >= 1e-9) > P.MAX_PLAN_SEGMENTS:
+        return
+    segs, commit = P.profile_segments(p)
+    t0, tv = commit.accel_time, commit.cruise_time
+    if commit.cruise_velocity == 0.0:  # no window: never at acceleration 0 in motion
+        assert t0 == tv == 0.0
+    else:
+        t = t0 + tv * np.linspace(0.0, 1.0, 9)
+        s_ = p.sample(t)
+        assert np.all(np.abs(np.asarray(s_.accel)) <= 1e-6 * A + J * 2e-7), s_.accel
+        if kind == "sine_jerk_optimal":
+            assert abs(float(np.asarray(s_.jerk)[0])) <= 1e-4 * J
+        assert np.allclose(np.abs(s_.velocity), commit.cruise_velocity, rtol=1e-6, atol=1e-6)
+        after = np.abs(p.sample(np.linspace(t0 + tv, p.duration, 200)).velocity)
+        assert np.all(np.diff(after) <= 1e-6 * V)
+    run = R.host_running_plan(segs, commit, int(P.Planner[kind.upper()]))
+    Ts = 0.001
+    k_e = int(frac * p.duration / Ts) + 1
+    target = new if abs(new - d) > 1e-3 else new + 1.0
+    sw = R.plan_switch(run, k_e, target, Ts, J, A, V)
+    t_s = sw.message.t_switch
+    x, v = p.sample(t_s).position, p.sample(t_s).velocity
+    g = sw.segments[0]
+    assert g.x0 == pytest.approx(float(x), abs=2e-6 * max(1.0, abs(d)))
+    assert g.v0 == pytest.approx(float(v), abs=2e-5 * V)
+    assert g.a0 == pytest.approx(0.0, abs=1e-6 * A + J * 2e-7)
+    if not sw.running.hold:  # (a braking plan ends where it stops; the move to target follows)
+        assert sw.message.target == pytest.approx(target)
+
+
 def test_any_state_that_ends_moving_or_not_a_profile_is_refused():
     p = plan_scurve(1.0, 2e4, 300.0, 30.0, final_velocity=5.0)
     with pytest.raises(ValueError, match="final_velocity"):
@@ -252,37 +304,62 @@ def test_run_move_sends_segments_when_the_board_lacks_the_planner():
         assert np.max(np.abs(np.asarray(rec.reference) - ref)) <= 1e-5 * abs(prof.distance)
 
 
-def test_retarget_of_a_host_plan_of_no_planner_is_refused_by_name():
-    """A host-planned move that is no planner's rest-to-rest result (here synchronized) cannot be
-    re-targeted: Rig.retarget says why; one of a planner's own profile can (PLAN_COMMIT carries
-    its planner, and the device re-targets it by its rule)."""
+def test_host_plans_of_no_planner_are_re_targeted_too():
+    """A host-planned move that is no planner's rest-to-rest result -- synchronized, or from a
+    moving start (overshooting and coming back, too) -- is re-targeted by the same rule as a
+    planner's own: PLAN_COMMIT's window (accel_time, cruise_time) says where the move has jerk
+    and acceleration 0, the host plans from its segments there
+    (jerklab.rig.retarget.host_running_plan), the virtual device checks and takes the switch,
+    the reference stays continuous across it and ends on the new target."""
     from jerklab.controller import pole_placement_pid
-    from jerklab.rig import RigError
+    from jerklab.planner import AnyStateProfile
+    from jerklab.rig import retarget as R
 
     g = pole_placement_pid(32.4, 0.025, 20.0)
     Ts = 0.005
-    for prof, without, refused in [
-        (plan_scurve(2.0, 2e4, 300.0, 30.0).synchronized(Ts), 0, True),
-        (plan_scurve(2.0, 2e4, 300.0, 30.0), P.Capability.PLANNER_SCURVE, False),
-    ]:
-        rig = _virtual_rig(without)
-        errors = []
+    cases = [
+        # (profile, the sample of the request, the new target)
+        (plan_scurve(2.0, 2e4, 300.0, 30.0).synchronized(Ts), 5, 3.0),  # before the cruise
+        (plan_scurve(2.0, 2e4, 300.0, 30.0).synchronized(Ts), 30, 1.5),  # in it, shorter
+        (plan_scurve(8.0, 2e4, 300.0, 30.0, initial_velocity=10.0), 3, 12.0),  # cruise
+        (plan_scurve(5.0, 2e4, 300.0, 60.0, initial_velocity=20.0), 2, 7.0),  # no cruise
+        (plan_sine_jerk_optimal(5.0, 2e4, 300.0, 60.0, initial_velocity=-20.0), 2, 6.0),
+        (plan_scurve(0.5, 2e4, 300.0, 60.0, initial_velocity=40.0), 3, -1.0),  # back, further
+    ]
+    for prof, at, new in cases:
+        segs, commit = P.profile_segments(prof)
+        if isinstance(prof, AnyStateProfile):
+            assert commit.accel_time > 0  # (a moving start has its window)
+        rig = _virtual_rig()
+        dev = rig.link.device
 
-        def cb(k, r, y, rig=rig, errors=errors):
-            if k == 5:
-                try:
-                    rig.retarget(3.0)
-                except RigError as exc:
-                    errors.append(str(exc))
+        def cb(k, r, y, rig=rig, at=at, new=new):
+            if k == at:
+                rig.retarget(new)
 
         try:
-            rec = rig.run_move(prof, g, Ts, path=False, settle=0.1, on_telemetry=cb)
+            rec = rig.run_move(prof, g, Ts, path=False, settle=0.2, on_telemetry=cb)
+            pieces = list(dev._pieces)
         finally:
             rig.close()
-        assert rec.metadata["plan"]["planned_by"] == "host"
-        if refused:
-            assert len(errors) == 1 and "re-targets only a planner's rest-to-rest" in errors[0]
-            assert rec.reference[-1] == pytest.approx(2.0, abs=1e-6)
-        else:
-            assert not errors and rec.metadata["retargets"][0][1] == 3.0
-            assert rec.reference[-1] == pytest.approx(3.0, abs=1e-5)
+        what = (prof.kind, getattr(prof, "initial_velocity", 0.0), at, new)
+        assert rec.metadata["plan"]["planned_by"] == "host", what
+        assert rec.metadata["status"] == "complete", (what, rec.metadata["status"])
+        assert rec.metadata["retargets"][0][1] == new, what
+        assert not rec.metadata.get("retargets_refused"), (what, rec.metadata["retargets_refused"])
+        assert len(rec.metadata["retarget_switches"]) >= 1, what
+        # the switch is where the running plan has acceleration 0 (and, for the half-sine
+        # pulses, jerk 0), the new plan starts from its state there
+        assert len(pieces) >= 2, what
+        prev = R.placed_segments(segs, commit.target, 0.0)
+        for t_s, plan in pieces[1:]:
+            jl, al, vl, xl = prev.state(np.nextafter(t_s, -np.inf))
+            jr, ar, vr, xr = plan.state(t_s)
+            dt = 4.0 * float(np.spacing(np.float32(t_s)))
+            assert xr == pytest.approx(xl, abs=2e-6 + 4e-7 * abs(xl)), what
+            assert vr == pytest.approx(vl, abs=2e-6 + 4e-7 * 60.0), what
+            assert abs(al) <= 1e-6 * 300.0 + 2e4 * dt and abs(ar) <= 1e-6 * 300.0, what
+            if prof.kind == "sine_jerk_optimal":
+                assert abs(jl) <= 1e-6 * 2e4 and abs(jr) <= 1e-6 * 2e4, what
+            prev = plan
+        assert rec.reference[-1] == pytest.approx(new, abs=1e-5), what

@@ -257,6 +257,79 @@ def _assert_follows_the_host_plan(rec, prof, kind, Ts=0.005):
     assert np.max(np.abs(rec.reference - want)) < 1e-5 * 30.0
 
 
+@pytest.mark.parametrize(
+    "which,at,new",
+    [
+        ("moving start", 3, 12.0),
+        ("overshoot", 3, -1.0),
+        ("synchronized", 5, 3.0),
+        # a planner's own plan: asked during the move, the switch at rest after its end (its
+        # 3-sample segments' chunk changes come while the board prepares the switch: they had
+        # found their chunks unprepared, an overrun each), and asked at rest
+        ("own", 5, 3.0),
+        ("own", 40, 3.0),
+    ],
+)
+def test_retarget_of_a_host_plan_on_the_firmware_matches_the_virtual_rig(
+    uno, tmp_path, which, at, new
+):
+    """RETARGET of a move the host planned itself (no planner's rest-to-rest result: a moving
+    start, one that overshoots and comes back, a synchronized profile) on the firmware
+    (simavr): the board takes the switch inside PLAN_COMMIT's window, its reference follows
+    the virtual rig's and the host's float64 plan of the switch to float32 precision and the
+    run ends on the new target, with no overrun."""
+    from jerklab import protocol as P
+    from jerklab.rig import retarget as RT
+
+    Ts = 0.005
+    prof = {
+        "moving start": lambda: plan_scurve(8.0, 2e4, 300.0, 30.0, initial_velocity=10.0),
+        "overshoot": lambda: plan_scurve(0.5, 2e4, 300.0, 60.0, initial_velocity=40.0),
+        "synchronized": lambda: plan_scurve(2.0, 2e4, 300.0, 30.0).synchronized(Ts),
+        "own": lambda: plan_scurve(2.0, 2e4, 300.0, 30.0),
+    }[which]()
+    g = pole_placement_pid(MOTOR["K"], MOTOR["tau"], wn=20.0).discretize(Ts)
+    recs = []
+    uno.set_model(**MOTOR)
+    with connect(
+        model=(MOTOR["K"], MOTOR["tau"]),
+        recordings=tmp_path,
+        progress=False,
+        device=DCMotor(**MOTOR),
+    ) as virt:
+        for rig in (uno, virt):
+
+            def cb(k, r, y, rig=rig):
+                if k == at:
+                    rig.retarget(new)
+
+            recs.append(rig.run_move(prof, g, Ts=Ts, settle=0.3, on_telemetry=cb))
+    fw, py = recs
+    assert fw.metadata["plan"]["planned_by"] == "host"
+    assert fw.metadata["status"] == "complete" and fw.metadata["retargets"][0][1] == new
+    assert not fw.metadata.get("retargets_refused"), fw.metadata["retargets_refused"]
+    assert fw.metadata["device_overruns"] == 0 and fw.metadata["lost_samples"] == 0
+    assert fw.metadata["retarget_switches"] == py.metadata["retarget_switches"]
+    assert len(fw) == len(py)
+    scale = max(abs(new), 8.0)
+    assert np.max(np.abs(fw.reference - py.reference)) < 1e-5 * scale
+    assert fw.reference[-1] == pytest.approx(new, abs=1e-5)
+    assert abs(fw.position[-1] - new) < 2 / uno.counts_per_rad
+    # the host's float64 plan of the switches the board took
+    segs, commit = P.profile_segments(prof)
+    kind = int(P.Planner[prof.kind.upper()])
+    run = RT.host_running_plan(segs, commit, kind)
+    k = np.arange(len(fw.reference))
+    want = run.plan.sample(k * Ts)[0]
+    lim = (2e4, 300.0, prof.max_velocity)
+    for n, (k_e, target, k_s) in enumerate(fw.metadata["retarget_switches"]):
+        sw = RT.plan_switch(run, k_e, target, Ts, *lim, base=n)
+        assert sw.k_switch == k_s
+        want = np.where(k >= k_s, sw.running.plan.sample(k * Ts)[0], want)
+        run = sw.running
+    assert np.max(np.abs(fw.reference - want)) < 1e-5 * scale
+
+
 def test_late_retarget_on_the_firmware_is_refused_and_retried(uno, monkeypatch):
     """A switch the firmware gets too late (a margin of 2 samples) is refused NACK LATE and
     the host plans it again later: the run ends on the new target, on jerklab's reference."""

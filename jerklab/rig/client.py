@@ -291,7 +291,7 @@ class Rig:
         self.ignored_frames = 0
         self._retargets = collections.deque()  # RETARGETs waiting for the run loop to send
         self._streaming = False
-        self._host_planned = False  # the last move's PLAN_SEGMENTs: the board cannot re-target
+        self._host_planned = False  # the last move: PLAN_SEGMENTs of no planner's rest-to-rest result
         self._rt = None  # the running move's re-targeting state (_Retargeter)
         self.closed = False
         try:
@@ -717,8 +717,8 @@ class Rig:
         segments (``PLAN_SEGMENT`` ..., ``PLAN_COMMIT``: any planner, synchronized or from a
         moving start, see :func:`jerklab.protocol.profile_segments`). Either way the host
         checks that PLAN_INFO's duration agrees; the device then runs the feedforward +
-        discrete PID of Stojčić eqs. 16–18 at ``Ts`` on encoder counts. A host-planned move
-        that is no planner's own rest-to-rest result cannot be re-targeted (:meth:`retarget`).
+        discrete PID of Stojčić eqs. 16–18 at ``Ts`` on encoder counts. Any of these moves can
+        be re-targeted while it runs (:meth:`retarget`).
 
         Before anything is sent, the design is checked on the rig's model (:meth:`set_model`):
         a sampled closed loop (ZOH plant and discrete PID,
@@ -794,7 +794,7 @@ class Rig:
             gap = P.check_plan_continuity(segs, commit)
             if gap is not None:  # (the device checks each field, the host that they join)
                 raise ValueError(f"profile: segment {gap[0]}'s {gap[1]} does not join the previous")
-            if not replannable:  # (not the planner's own result: the device cannot re-target)
+            if not replannable:  # (not the planner's own result: re-targeted from its segments)
                 commit = dataclasses.replace(commit, planner=P.PLANNER_NONE)
             host_plan = (segs, commit)
         spec = _run_spec(spec, Ts, spec_fields)
@@ -854,22 +854,21 @@ class Rig:
         if on_telemetry is not None and not callable(on_telemetry):
             raise TypeError(f"on_telemetry must be callable, got {on_telemetry!r}")
         bar = self._bar(total, "move", progress, live, rec, position_range=distance)
-        rt = None
-        if not self._host_planned:
-            # the host re-plans re-targetings of this move (PROTOCOL.md "Re-targeting") from
-            # the plan the device steps: this planner's rest-to-rest profile, PLAN_INFO's times
-            J = None if planner == P.Planner.TRAPEZOID else _R._f32(limits[0])
-            lim = (J, _R._f32(limits[1]), _R._f32(limits[2]))
+        # the host re-plans re-targetings of this move (PROTOCOL.md "Re-targeting") from the
+        # plan the device steps: this planner's rest-to-rest profile with PLAN_INFO's times, or
+        # the host's own segments (a synchronized profile, a moving start) with their window
+        J = None if planner == P.Planner.TRAPEZOID else _R._f32(limits[0])
+        lim = (J, _R._f32(limits[1]), _R._f32(limits[2]))
+        if self._host_planned:
+            running = _R.host_running_plan(*host_plan, int(planner))
+        else:
             first = _R.rest_plan(int(planner), _R._f32(distance), *lim)
-            rt = _Retargeter(
-                _R.RunningPlan(
-                    first, 0.0, info.accel_time, info.cruise_time, info.duration, int(planner)
-                ),
-                lim,
-                Ts,
-                int(decimation),
-                getattr(self.link, "baudrate", None) or 115200,
+            running = _R.RunningPlan(
+                first, 0.0, info.accel_time, info.cruise_time, info.duration, int(planner)
             )
+        rt = _Retargeter(
+            running, lim, Ts, int(decimation), getattr(self.link, "baudrate", None) or 115200
+        )
         self._rt = rt
         try:
             return self._stream(
@@ -907,7 +906,9 @@ class Rig:
         thread: the request is queued and handled by the run loop (so frames never interleave).
         The host plans the new move (:func:`jerklab.rig.retarget.plan_switch`): the switch
         where the reference has jerk and acceleration 0, far enough ahead for its frames to
-        arrive, the plan from the state there; it sends it as PLAN_SEGMENTs and a RETARGET
+        arrive, the plan from the state there (a move the host planned itself -- synchronized,
+        from a moving start -- likewise, from its segments' window:
+        :func:`jerklab.rig.retarget.host_running_plan`); it sends it as PLAN_SEGMENTs and a RETARGET
         naming the switch sample, and plans again later when the device finds it late (at
         most :data:`jerklab.rig.retarget.RETARGET_TRIES` times; firmware/PROTOCOL.md
         "Re-targeting", docs/THEORY.md). The run then ends on the new target; the recording's
@@ -934,12 +935,6 @@ class Rig:
             raise RigError(
                 "retarget() changes a running move: call it during run_move(), from its "
                 "on_telemetry callback or another thread"
-            )
-        if self._host_planned:
-            raise RigError(
-                f"{self.port}: this move was planned by the host (PLAN_SEGMENT) and is no "
-                f"planner's own rest-to-rest result (a moving start, .synchronized() or edited): "
-                f"the host re-targets only a planner's rest-to-rest moves"
             )
         self._retargets.append(float(d))
 

@@ -49,6 +49,8 @@ __all__ = [
     "margin_samples",
     "plan_segments",
     "plan_switch",
+    "placed_segments",
+    "host_running_plan",
 ]
 
 _TWO_OVER_PI = 2.0 / math.pi
@@ -585,3 +587,42 @@ def placed_segments(segments, target, t_start) -> SegmentPlan:
     plan.v_start = plan.v_peak = 0.0
     plan.accel_time = plan.cruise_time = 0.0
     return plan
+
+
+def host_running_plan(segments, commit, kind) -> RunningPlan:
+    """The :class:`RunningPlan` of a host-planned move (PLAN_SEGMENTs and their PLAN_COMMIT,
+    :func:`jerklab.protocol.profile_segments`) that is no planner's own rest-to-rest result --
+    a synchronized profile, a moving start --, so that the host re-targets it by the same rule.
+
+    The switch window is the commit's (``accel_time``, ``cruise_time``: where the move has jerk
+    and acceleration 0), the velocity there the plan's own at the window's start (its sign the
+    direction the move then runs), and the plans that follow have the shape of ``kind``.
+
+    Parameters
+    ----------
+    segments : sequence of PlanSegment
+        The plan as sent (its first segment starts at the run's t = 0).
+    commit : PlanCommit
+        Its end: the target, the window and the sum of the durations.
+    kind : int
+        The planner (PLAN's byte 0..3) whose pulses the re-targeted plans take: the profile's
+        own kind (the moving starts of ``jerklab.planner`` are the S-curve's and the optimal
+        sine jerk's).
+
+    Returns
+    -------
+    RunningPlan
+    """
+    if not isinstance(commit, P.PlanCommit):
+        raise TypeError(f"commit must be a PlanCommit, got {type(commit).__name__}")
+    plan = placed_segments(segments, commit.target, 0.0)
+    tc0 = _f32(commit.accel_time)
+    v = float(plan.state(tc0)[2]) if commit.accel_time or commit.cruise_time else 0.0
+    if v != 0.0:
+        plan.sign = math.copysign(1.0, v)
+    plan.v_peak = abs(v)
+    plan.accel_time, plan.cruise_time = float(commit.accel_time), float(commit.cruise_time)
+    acc = np.float32(0.0)
+    for g in segments:
+        acc = np.float32(acc + np.float32(g.duration))
+    return RunningPlan(plan, 0.0, commit.accel_time, commit.cruise_time, float(acc), kind)

@@ -108,9 +108,10 @@ struct __attribute__((packed)) HostSegment {
     float duration, x0, v0, a0, jerk;
 };
 /// PLAN_COMMIT's payload: the number of segments, the rest position at the end, the
-/// acceleration and cruise times PLAN_INFO echoes, the cruise velocity and the planner whose
-/// rest-to-rest profile the segments are (0..3: the host re-targets it by the rule of
-/// PROTOCOL.md "Re-targeting"; kPlannerHost 0xFF: none, the host does not re-target it).
+/// acceleration and cruise times PLAN_INFO echoes (the window where a re-targeting may take
+/// over: PROTOCOL.md "Re-targeting"), the cruise velocity and the planner whose rest-to-rest
+/// profile the segments are (0..3; kPlannerHost 0xFF: none, a synchronized or moving start,
+/// which the host re-targets from its own segments).
 struct __attribute__((packed)) HostCommit {
     uint8_t n_segments;
     float target, accel_time, cruise_time, cruise_velocity;
@@ -233,6 +234,10 @@ public:
     /// next chunk, if not ready yet, or more when the current chunk ends before the rest
     /// would be done (call after each step, in the idle time; nothing to do most of the time).
     void prepare();
+    /// The chunk changes within 14 samples (the stages a chunk can take, 12 for a pulse, and
+    /// the two steps before them): the idle time's work should go to prepare() (the device's
+    /// re-targeting yields to it while its switch can wait).
+    bool pressed() const;
     uint32_t index() const { return k_; }
     bool done() const { return seg_ + 1 >= p_->nseg; }
     /// Index of the current segment in the plan.
