@@ -291,7 +291,7 @@ class Rig:
         self.ignored_frames = 0
         self._retargets = collections.deque()  # RETARGETs waiting for the run loop to send
         self._streaming = False
-        self._host_planned = False  # the last move: PLAN_SEGMENTs of no planner's rest-to-rest result
+        self._host_planned = False  # the last move: segments of no planner's own result
         self._rt = None  # the running move's re-targeting state (_Retargeter)
         self.closed = False
         try:
