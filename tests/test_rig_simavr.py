@@ -233,9 +233,16 @@ def test_retarget_on_the_firmware_matches_the_virtual_rig(uno, tmp_path, kind, a
         j = np.diff(fw.reference.astype(float), 3) / 0.005**3
         assert np.max(np.abs(np.diff(j))) <= 0.4 * 2000.0
     # and jerklab's float64 reference of the host-planned switches (the ones the board took,
-    # replayed: the earliest sample the host asked for, the target)
-    assert fw.metadata["retarget_switches"] == py.metadata["retarget_switches"]
+    # replayed: the earliest sample the host asked for, the target); the switch itself is the
+    # virtual rig's (the end of the acceleration), the earliest sample asked for need not be
+    # (how far the host's telemetry had got when it sent the frames: the machine's load)
+    assert _switches(fw) == _switches(py)
     _assert_follows_the_host_plan(fw, prof, kind)
+
+
+def _switches(rec):
+    """The (target, switch sample) of each switch a run took."""
+    return [(target, k_s) for _, target, k_s in rec.metadata["retarget_switches"]]
 
 
 def _assert_follows_the_host_plan(rec, prof, kind, Ts=0.005):
@@ -309,10 +316,15 @@ def test_retarget_of_a_host_plan_on_the_firmware_matches_the_virtual_rig(
     assert fw.metadata["status"] == "complete" and fw.metadata["retargets"][0][1] == new
     assert not fw.metadata.get("retargets_refused"), fw.metadata["retargets_refused"]
     assert fw.metadata["device_overruns"] == 0 and fw.metadata["lost_samples"] == 0
-    assert fw.metadata["retarget_switches"] == py.metadata["retarget_switches"]
-    assert len(fw) == len(py)
     scale = max(abs(new), 8.0)
-    assert np.max(np.abs(fw.reference - py.reference)) < 1e-5 * scale
+    # a switch the plan fixes (the end of an acceleration, the end of the move) is the virtual
+    # rig's too; one at the earliest sample the host could make (in a cruise, at rest) depends
+    # on how far the host's telemetry has got (the machine's load): the float64 replay below
+    # checks it either way
+    if all(k_s > k_e for k_e, _, k_s in fw.metadata["retarget_switches"]):
+        assert _switches(fw) == _switches(py)
+        assert len(fw) == len(py)
+        assert np.max(np.abs(fw.reference - py.reference)) < 1e-5 * scale
     assert fw.reference[-1] == pytest.approx(new, abs=1e-5)
     assert abs(fw.position[-1] - new) < 2 / uno.counts_per_rad
     # the host's float64 plan of the switches the board took
@@ -347,10 +359,12 @@ def test_late_retarget_on_the_firmware_is_refused_and_retried(uno, monkeypatch):
     uno.set_model(**MOTOR)
 
     def cb(k, r, y):
-        if k == 200:  # in the settling: at once
+        if k == 200:  # in the settling (the move ends at sample 137): at once
             uno.retarget(2.0)
 
-    rec = uno.run_move(prof, g, Ts=0.005, settle=0.5, path=False, on_telemetry=cb)
+    # (a settling of 1 s leaves the retry 0.65 s of run after the request, however far the
+    # host's telemetry lags on a loaded machine)
+    rec = uno.run_move(prof, g, Ts=0.005, settle=1.0, path=False, on_telemetry=cb)
     assert rec.metadata["status"] == "complete"
     assert len(rec.metadata["retargets_late"]) == 1
     assert rec.reference[-1] == pytest.approx(2.0, abs=1e-5)
