@@ -196,17 +196,9 @@ def test_1khz_whole_control_step_within_a_quarter_of_the_period(run_1khz):
     assert st["control_step_cycles_moving"]["max"] <= 4000, st["control_step_cycles_moving"]
 
 
-@pytest.mark.parametrize("kind,at,new", [(1, 10, 25.0), (2, 15, -3.0)])
-def test_retarget_on_the_firmware_matches_the_virtual_rig(uno, tmp_path, kind, at, new):
-    """RETARGET on the firmware (simavr) during the acceleration phase: the reference
-    follows the virtual rig's (the same rule in float64) to float32 precision, stays
-    jerk-continuous (no jump in its third differences) and the run ends on the new target."""
-    from jerklab.planner import plan_sine_jerk_optimal
-
-    prof = [plan_sine_jerk, plan_sine_jerk_optimal, plan_scurve][kind](
-        4 * math.pi, 2000.0, 300.0, 60.0
-    )
-    g = pole_placement_pid(MOTOR["K"], MOTOR["tau"], wn=20.0).discretize(0.005)
+def _retarget_on_both(uno, tmp_path, prof, g, Ts, at, new, settle):
+    """The move on the simulated Uno, then on the virtual rig, each re-targeted to ``new`` at
+    telemetry sample ``at``: the two recordings (firmware, virtual)."""
     recs = []
     uno.set_model(**MOTOR)
     with connect(
@@ -221,8 +213,22 @@ def test_retarget_on_the_firmware_matches_the_virtual_rig(uno, tmp_path, kind, a
                 if k == at:
                     rig.retarget(new)
 
-            recs.append(rig.run_move(prof, g, Ts=0.005, settle=0.3, on_telemetry=cb))
-    fw, py = recs
+            recs.append(rig.run_move(prof, g, Ts=Ts, settle=settle, on_telemetry=cb))
+    return recs
+
+
+@pytest.mark.parametrize("kind,at,new", [(1, 10, 25.0), (2, 15, -3.0)])
+def test_retarget_on_the_firmware_matches_the_virtual_rig(uno, tmp_path, kind, at, new):
+    """RETARGET on the firmware (simavr) during the acceleration phase: the reference
+    follows the virtual rig's (the same rule in float64) to float32 precision, stays
+    jerk-continuous (no jump in its third differences) and the run ends on the new target."""
+    from jerklab.planner import plan_sine_jerk_optimal
+
+    prof = [plan_sine_jerk, plan_sine_jerk_optimal, plan_scurve][kind](
+        4 * math.pi, 2000.0, 300.0, 60.0
+    )
+    g = pole_placement_pid(MOTOR["K"], MOTOR["tau"], wn=20.0).discretize(0.005)
+    fw, py = _retarget_on_both(uno, tmp_path, prof, g, 0.005, at, new, settle=0.3)
     assert fw.metadata["status"] == "complete" and fw.metadata["retargets"][0][1] == new
     assert fw.metadata["device_overruns"] == 0 and fw.metadata["lost_samples"] == 0
     assert len(fw) == len(py)
@@ -296,24 +302,9 @@ def test_retarget_of_a_host_plan_on_the_firmware_matches_the_virtual_rig(
         "own": lambda: plan_scurve(2.0, 2e4, 300.0, 30.0),
     }[which]()
     g = pole_placement_pid(MOTOR["K"], MOTOR["tau"], wn=20.0).discretize(Ts)
-    recs = []
-    uno.set_model(**MOTOR)
-    with connect(
-        model=(MOTOR["K"], MOTOR["tau"]),
-        recordings=tmp_path,
-        progress=False,
-        device=DCMotor(**MOTOR),
-    ) as virt:
-        for rig in (uno, virt):
-
-            def cb(k, r, y, rig=rig):
-                if k == at:
-                    rig.retarget(new)
-
-            # (a settling of 1 s: the request is taken however far a loaded machine's host
-            # lags behind the board's telemetry)
-            recs.append(rig.run_move(prof, g, Ts=Ts, settle=1.0, on_telemetry=cb))
-    fw, py = recs
+    # (a settling of 1 s: the request is taken however far a loaded machine's host lags
+    # behind the board's telemetry)
+    fw, py = _retarget_on_both(uno, tmp_path, prof, g, Ts, at, new, settle=1.0)
     assert fw.metadata["plan"]["planned_by"] == "host"
     assert fw.metadata["status"] == "complete" and fw.metadata["retargets"][0][1] == new
     assert not fw.metadata.get("retargets_refused"), fw.metadata["retargets_refused"]
